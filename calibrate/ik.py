@@ -1,0 +1,242 @@
+"""Frame-wise inverse kinematics: the coordinates z_f that best fit each frame's markers
+for fixed geometric parameters p.
+
+Each frame is a small least-squares problem  min_z Σ_k |h_k(z, p) − r_k|²  over the
+markers seen in that frame, solved by Levenberg–Marquardt on the exact CasADi
+Jacobian; the root rotation is updated on SO(3) (see calibrate.kinematics).  Frames
+are solved in order, each warm-started from the previous one.  The first frame (and any
+frame whose fit jumps) gets a global start: the root from its markers (Kabsch), then
+joint by joint down the tree, each joint's angles from a small grid of starts, so a
+limb far from the neutral pose is not caught in a mirror-image minimum.
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .kinematics import Kinematics, retract_root
+from .model import Model, Parameters
+from .motion import Motion
+from .trial import Trial
+
+LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
+REINIT_RMS = 0.02  # m: a frame fitting worse than this (and 5x the running median) is restarted
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """Per-frame coordinates and fit."""
+
+    motion: Motion
+    marker_rms: np.ndarray  # (n_frames,) RMS 3-D marker error per frame (m); NaN if too few markers
+    residuals: np.ndarray  # (n_frames, n_markers, 3) model minus trial (m); NaN where not seen
+    iterations: np.ndarray  # (n_frames,) LM iterations used
+
+    @property
+    def rms(self) -> float:
+        """RMS 3-D marker error over every observed marker in every frame (m)."""
+        return float(np.sqrt(np.nanmean(np.sum(self.residuals**2, axis=2))))
+
+    @property
+    def max_error(self) -> float:
+        """Largest 3-D marker error over the trial (m)."""
+        return float(np.nanmax(np.linalg.norm(self.residuals, axis=2)))
+
+
+def marker_columns(model: Model, trial: Trial) -> np.ndarray:
+    """Trial markers in the model's marker order, (n_frames, n_model_markers, 3); NaN where absent."""
+    out = np.full((trial.n_frames, len(model.markers), 3), np.nan)
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    for k, name in enumerate(model.marker_names):
+        if name in index:
+            out[:, k] = trial.markers[:, index[name]]
+    return out
+
+
+def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R, t minimising Σ |R a_i + t − b_i|² (rows are points)."""
+    ca_, cb = a.mean(0), b.mean(0)
+    H = (a - ca_).T @ (b - cb)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, cb - R @ ca_
+
+
+class _FrameSolver:
+    """Levenberg–Marquardt on a subset of one frame's coordinates and markers."""
+
+    def __init__(self, kin: Kinematics, p: np.ndarray):
+        self.kin, self.p = kin, p
+        model = kin.model
+        self.nz = model.nz
+        seg_joint = {j.child: j for j in model.joints}
+        children: dict[str, list[str]] = {s.name: [] for s in model.segments}
+        for j in model.joints:
+            children[j.parent].append(j.child)
+        # For each joint: its own DoF columns, the subtree's DoF columns and marker indices.
+        self.plan = []
+        for j in model.joints:
+            own = [6 + model.dof_index(d) for d in j.dofs]
+            stack, sub_dofs, sub_mk = [j.child], [], []
+            while stack:
+                s = stack.pop()
+                sub_dofs += [6 + model.dof_index(d) for d in seg_joint[s].dofs]
+                sub_mk += [model.marker_index(m) for m in model.segments[model.segment_index(s)].markers]
+                stack += children[s]
+            child_mk = [model.marker_index(m) for m in model.segments[model.segment_index(j.child)].markers]
+            lims = [(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in (model.dofs[c - 6] for c in own)]
+            self.plan.append((own, sorted(sub_dofs), sub_mk, child_mk, lims))
+        self.root_markers = [model.marker_index(m) for m in model.segments[0].markers]
+        self.lower = np.array([d.lower for d in model.dofs])
+        self.upper = np.array([d.upper for d in model.dofs])
+
+    def solve(self, z, q, obs, seen_mk, free, budget, tol=1e-8):
+        """LM over coordinates `free` fitting markers `seen_mk`; returns (z, q, cost, iterations).
+
+        Joint limits enter as soft residuals LIMIT_WEIGHT * (theta - clip(theta, lower, upper)):
+        zero inside the range of motion, so they never bias a pose that respects it, but
+        they keep a poorly fitting model out of mirror-image branches.
+        """
+        rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
+        target = obs[seen_mk].ravel()
+        free = np.asarray(free)
+        rot = bool(np.isin([3, 4, 5], free).any())
+        dof_cols = free[free >= 6]
+        lo, hi = self.lower[dof_cols - 6], self.upper[dof_cols - 6]
+        col_of = np.searchsorted(free, dof_cols) if np.all(np.diff(free) > 0) else \
+            np.array([int(np.flatnonzero(free == c)[0]) for c in dof_cols], dtype=int)
+
+        def evaluate(zz, qq):
+            m, J = self.kin.h_jz(zz, qq, self.p)
+            th = zz[dof_cols]
+            r = np.concatenate([np.asarray(m).ravel()[rows] - target, LIMIT_WEIGHT * (th - np.clip(th, lo, hi))])
+            return r, J, (th < lo) | (th > hi)
+
+        z = z.copy()
+        r, J, out = evaluate(z, q)
+        cost, lam, used = r @ r, 1e-3, 0
+        n_mk = rows.size
+        for it in range(1, budget + 1):
+            used = it
+            Jf = np.zeros((n_mk + dof_cols.size, free.size))
+            Jf[:n_mk] = np.asarray(J)[np.ix_(rows, free)]
+            Jf[n_mk + np.arange(dof_cols.size), col_of] = LIMIT_WEIGHT * out
+            g = Jf.T @ r
+            A = Jf.T @ Jf
+            D = np.maximum(np.diag(A), 1e-9)
+            while True:
+                step = -np.linalg.solve(A + lam * np.diag(D), g)
+                zn = z.copy()
+                zn[free] += step
+                qn = q
+                if rot:
+                    qn = retract_root(q, zn[3:6])
+                    zn[3:6] = 0.0
+                rn, Jn, outn = evaluate(zn, qn)
+                cn = rn @ rn
+                if cn < cost or lam > 1e10:
+                    break
+                lam *= 4.0
+            if cn >= cost:
+                break
+            lam = max(lam / 3.0, 1e-9)
+            rel = (cost - cn) / max(cost, 1e-300)
+            z, q, r, J, out, cost = zn, qn, rn, Jn, outn, cn
+            if rel < tol or np.linalg.norm(step) < 1e-8:
+                break
+        return z, q, cost, used
+
+    def global_start(self, obs, seen):
+        """A pose for one frame from scratch: root by Kabsch, then joint by joint with multi-starts."""
+        nz = self.nz
+        z = np.zeros(nz)
+        q = np.array([0.0, 0.0, 0.0, 1.0])
+        root_seen = [k for k in self.root_markers if seen[k]]
+        if len(root_seen) >= 3:
+            a = self.kin.markers(z, q, self.p)[root_seen]
+            R0, t0 = kabsch(a, obs[root_seen])
+            q = Rotation.from_matrix(R0).as_quat()
+            z[:3] = t0
+            z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(6), 50)
+        else:
+            z[:3] = np.nanmean(obs[seen], axis=0)
+        for own, sub_dofs, sub_mk, child_mk, lims in self.plan:
+            fit_mk = [k for k in child_mk if seen[k]]
+            free = own
+            if 3 * len(fit_mk) < len(own) + 3:  # too few on the child itself: use the whole subtree
+                fit_mk, free = [k for k in sub_mk if seen[k]], sub_dofs
+            if not fit_mk:
+                continue
+            n_grid = {1: 7, 2: 5}.get(len(own), 3)
+            best = None
+            for start in itertools.product(*[np.linspace(lo, hi, n_grid) for lo, hi in lims]):
+                zz = z.copy()
+                zz[sub_dofs] = 0.0
+                zz[own] = start
+                zz, qq, c, _ = self.solve(zz, q, obs, fit_mk, free, 12)
+                score = c
+                if best is None or score < best[2]:
+                    best = (zz, qq, score)
+            z = best[0]
+        return z, q
+
+
+def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
+                       tolerance: float = 1e-8) -> IKResult:
+    """Solve every frame of `trial` for the model of `kin` with geometry `params`.
+
+    Markers are matched by label; model markers absent from the trial are ignored.
+    """
+    model = kin.model
+    obs = marker_columns(model, trial)
+    nf = obs.shape[0]
+    p = params.vector()
+    solver = _FrameSolver(kin, p)
+    all_free = np.arange(model.nz)
+    Z = np.zeros((nf, model.nz))
+    Q = np.tile([0.0, 0.0, 0.0, 1.0], (nf, 1))
+    iters = np.zeros(nf, dtype=int)
+    frame_rms: list[float] = []
+    z, q = None, None
+    z_prev = None
+    for f in range(nf):
+        seen = ~np.isnan(obs[f, :, 0])
+        seen_idx = np.flatnonzero(seen)
+        if seen.sum() < 3:  # nothing to fit: carry the previous pose
+            if z is not None:
+                Z[f], Q[f] = z, q
+            continue
+        if z is None:
+            z, q = solver.global_start(obs[f], seen)
+            budget = 200
+        else:
+            budget = max_iterations
+            if z_prev is not None:  # constant-velocity prediction of the joint angles and position
+                z_guess = 2 * z - z_prev
+                z_prev = z
+                z = z_guess
+            else:
+                z_prev = z
+        z, q, cost, it = solver.solve(z, q, obs[f], seen_idx, all_free, budget, tolerance)
+        rms = np.sqrt(cost / seen.sum())
+        if frame_rms and rms > REINIT_RMS and rms > 5 * np.median(frame_rms[-50:]):
+            z2, q2 = solver.global_start(obs[f], seen)
+            z2, q2, cost2, it2 = solver.solve(z2, q2, obs[f], seen_idx, all_free, 200, tolerance)
+            if cost2 < cost:
+                z, q, cost, it = z2, q2, cost2, it + it2
+                rms = np.sqrt(cost / seen.sum())
+        frame_rms.append(rms)
+        Z[f], Q[f], iters[f] = z, q, it
+    M, _ = kin.batch(Z, Q, p)
+    res = M - obs
+    with warnings.catch_warnings():  # frames with no marker give NaN, on purpose
+        warnings.simplefilter("ignore", RuntimeWarning)
+        rms_f = np.sqrt(np.nanmean(np.sum(res**2, axis=2), axis=1))
+    motion = Motion(trial.times.copy(), Z[:, :3].copy(), Q, Z[:, 6:].copy(), model.dof_names)
+    return IKResult(motion, rms_f, res, iters)

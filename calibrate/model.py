@@ -1,0 +1,575 @@
+"""The human model: a URDF read into segments, markers, joints, degrees of freedom and
+the geometric parameters that calibration may change.
+
+Conventions (docs/model-format.md):
+
+* a **segment** is the root link or any link with positive mass;
+* a **marker** is a leaf link, without mass, attached to its parent link by a ``fixed``
+  joint; its name is the marker label and its position the joint's origin xyz;
+* a **connector** is any other (massless) link: it chains the revolute joints of a
+  multi-DoF joint (a ball joint is three revolute joints with coincident origins);
+* an **anatomical joint** is the chain of URDF joints from a segment to a child segment;
+  its **centre** is the origin of the chain's first URDF joint, in the parent segment
+  frame; its degrees of freedom are the chain's revolute/continuous joints;
+* the root segment floats: a free-flyer is added at load time.
+
+A :class:`Model` is immutable.  Geometry that calibration may change lives in a
+:class:`Parameters` object (scale factors, joint centres, axes, marker offsets);
+:func:`write_model` writes a URDF with new parameters, editing only those numbers
+(and the inertials/visuals they scale) in the original XML.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import ModelError
+
+MOVING = ("revolute", "continuous")
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A rigid body segment (a link with mass, or the root)."""
+
+    name: str
+    parent_joint: str | None  # anatomical joint into this segment; None for the root
+    mass: float  # kg
+    markers: tuple[str, ...]  # labels of the markers on this segment
+
+
+@dataclass(frozen=True)
+class Marker:
+    """A skin marker rigidly attached to a segment."""
+
+    name: str  # label, as in the trial
+    segment: str
+    offset: np.ndarray  # (3,) position in the segment frame, metres (base model)
+
+
+@dataclass(frozen=True)
+class Dof:
+    """One rotational degree of freedom: a revolute or continuous URDF joint."""
+
+    name: str  # URDF joint name (a column of the motion CSV)
+    joint: str  # anatomical joint it belongs to
+    axis: np.ndarray  # (3,) unit axis in the URDF joint frame (base model)
+    lower: float  # rad; -inf for continuous joints
+    upper: float  # rad; +inf for continuous joints
+    continuous: bool
+
+
+@dataclass(frozen=True)
+class Joint:
+    """An anatomical joint: the chain of URDF joints from one segment to the next."""
+
+    name: str
+    parent: str  # parent segment
+    child: str  # child segment
+    urdf_joints: tuple[str, ...]  # chain, proximal first
+    dofs: tuple[str, ...]  # moving URDF joints of the chain
+    centre: np.ndarray  # (3,) origin of the first URDF joint in the parent segment frame (m)
+
+    @property
+    def kind(self) -> str:
+        """'fixed', 'hinge' (1 DoF), 'universal' (2 DoF) or 'ball' (3 DoF)."""
+        return {0: "fixed", 1: "hinge", 2: "universal", 3: "ball"}.get(len(self.dofs), f"{len(self.dofs)}-dof")
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """One URDF joint as the kinematics use it (walked from Pinocchio's frame tree)."""
+
+    name: str
+    type: str  # 'revolute', 'continuous' or 'fixed'
+    parent_link: str
+    child_link: str
+    xyz: np.ndarray  # origin translation in the parent link frame (base model)
+    rotation: np.ndarray  # (3, 3) origin rotation (from rpy); never calibrated
+    owner: str  # segment whose scale factor multiplies `xyz`
+    role: str  # 'centre' (first of an anatomical joint), 'chain' (later in one), 'marker'
+    index: int  # index into Parameters.centre / .marker for those roles, else -1
+    dof: int  # index into the DoF vector for moving joints, else -1
+
+
+@dataclass(frozen=True)
+class Parameters:
+    """The geometric parameters p shared by all frames of a trial.
+
+    Positions are *unscaled*: the kinematics place a joint centre at
+    ``scale[parent segment] * centre`` and a marker at ``scale[segment] * marker``.
+    A model read from a URDF has scale 1 and the URDF's numbers.
+    """
+
+    scale: np.ndarray  # (n_segments,) isotropic scale factor per segment
+    centre: np.ndarray  # (n_joints, 3) joint centres, parent segment frame (m)
+    axis: np.ndarray  # (n_dofs, 3) revolute axes in the URDF joint frame (unit)
+    marker: np.ndarray  # (n_markers, 3) marker offsets, segment frame (m)
+
+    BLOCKS = ("scale", "centre", "axis", "marker")
+
+    def vector(self) -> np.ndarray:
+        """Flat p = [scale, centre.ravel(), axis.ravel(), marker.ravel()]."""
+        return np.concatenate([np.ravel(getattr(self, b)) for b in self.BLOCKS])
+
+    def copy(self) -> Parameters:
+        return Parameters(*(np.array(getattr(self, b), dtype=float) for b in self.BLOCKS))
+
+
+class Model:
+    """A calibrate model loaded from a URDF file.
+
+    Attributes (read-only by convention):
+      path, name, pin (pinocchio.Model with the free-flyer root), segments, markers,
+      joints, dofs (in Pinocchio's configuration order), urdf_joints (tree order),
+      root (root segment name).
+    """
+
+    def __init__(self, path: str | os.PathLike[str]):
+        self.path = Path(path)
+        text = _read_text(self.path)
+        try:
+            root_el = ET.fromstring(text)
+        except ET.ParseError as e:
+            raise ModelError(f"{self.path}: not valid XML ({e}); fix the file or regenerate it") from None
+        if root_el.tag != "robot":
+            raise ModelError(f"{self.path}: top element is <{root_el.tag}>, expected <robot>; is this a URDF?")
+        self._text = text
+        self.name = root_el.get("name", self.path.stem)
+        try:
+            self.pin = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+        except Exception as e:  # pinocchio raises plain RuntimeError/ValueError
+            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ModelError(f"{self.path}: Pinocchio cannot load this URDF ({msg})") from None
+        self._build(root_el)
+
+    # ------------------------------------------------------------------ structure
+    def _build(self, robot: ET.Element) -> None:
+        where = str(self.path)
+        links: dict[str, ET.Element] = {}
+        for el in robot.findall("link"):
+            links[el.get("name", "")] = el
+        joints_el = {el.get("name", ""): el for el in robot.findall("joint")}
+        children: dict[str, list[str]] = {n: [] for n in links}
+        parent_of: dict[str, str] = {}
+        for jn, el in joints_el.items():
+            jtype = el.get("type", "")
+            if jtype not in (*MOVING, "fixed"):
+                hint = " (the free-flyer is added at load time; remove it)" if jtype == "floating" else ""
+                raise ModelError(
+                    f"{where}: joint '{jn}' is of type '{jtype}'; calibrate models use revolute, "
+                    f"continuous and fixed joints only{hint}"
+                )
+            p = el.find("parent").get("link")  # type: ignore[union-attr]
+            c = el.find("child").get("link")  # type: ignore[union-attr]
+            children[p].append(jn)
+            parent_of[c] = jn
+
+        def mass(link: str) -> float:
+            m = links[link].find("inertial/mass")
+            return float(m.get("value", "0")) if m is not None else 0.0
+
+        def jtype(jn: str) -> str:
+            return joints_el[jn].get("type", "")
+
+        def child(jn: str) -> str:
+            return joints_el[jn].find("child").get("link")  # type: ignore[union-attr]
+
+        roots = [n for n in links if n not in parent_of]
+        if len(roots) != 1:
+            raise ModelError(f"{where}: expected one root link, found {len(roots)} ({', '.join(roots[:5])})")
+        self.root = roots[0]
+
+        def is_marker(link: str) -> bool:
+            return (
+                link != self.root and not children[link] and jtype(parent_of[link]) == "fixed" and mass(link) <= 0.0
+            )
+
+        def is_segment(link: str) -> bool:
+            return link == self.root or mass(link) > 0.0
+
+        for ln in links:
+            if not is_segment(ln) and not is_marker(ln):
+                kids = children[ln]
+                if len(kids) != 1 or jtype(kids[0]) not in MOVING:
+                    raise ModelError(
+                        f"{where}: link '{ln}' has no mass and is neither a marker (massless leaf on a fixed "
+                        f"joint) nor a connector (exactly one revolute child joint); give it a mass or "
+                        f"restructure the chain"
+                    )
+
+        # Walk Pinocchio's frame tree: links are BODY frames, URDF joints JOINT/FIXED_JOINT frames.
+        pm = self.pin
+        frames = list(pm.frames)
+        body_id = {f.name: i for i, f in enumerate(frames) if f.type == pin.FrameType.BODY}
+        urdf_joints: list[UrdfJoint] = []
+        seg_order: list[str] = [self.root]
+        joint_chain: dict[str, list[str]] = {}  # child segment -> URDF joints from parent segment
+        owner: dict[str, str] = {self.root: self.root}  # link -> segment that owns its frame contents
+        marker_list: list[Marker] = []
+        dof_index: dict[str, int] = {}
+        for i in range(2, pm.njoints):  # 0 universe, 1 root free-flyer
+            dof_index[pm.names[i]] = len(dof_index)
+        for fid, f in enumerate(frames):
+            if f.type not in (pin.FrameType.JOINT, pin.FrameType.FIXED_JOINT) or f.name in ("universe", "root_joint"):
+                continue
+            jn = f.name
+            parent_fid = f.parentFrame
+            parent_link = frames[parent_fid].name
+            child_link = child(jn)
+            if f.type == pin.FrameType.JOINT:
+                placement = frames[parent_fid].placement.inverse() * pm.jointPlacements[f.parentJoint]
+            else:
+                placement = frames[parent_fid].placement.inverse() * f.placement
+            t = jtype(jn)
+            own = owner[parent_link]
+            if is_marker(child_link):
+                role, index = "marker", len(marker_list)
+                marker_list.append(Marker(child_link, own, np.array(placement.translation)))
+                if parent_link != own:
+                    raise ModelError(f"{where}: marker '{child_link}' hangs on connector '{parent_link}'; "
+                                     f"attach it to a segment")
+            elif is_segment(parent_link):
+                role, index = "centre", -1  # index set below once the joints are numbered
+                joint_chain[child_link] = [jn]
+            else:
+                role, index = "chain", -1
+                joint_chain[child_link] = joint_chain.pop(parent_link) + [jn]
+            if not is_marker(child_link):
+                if is_segment(child_link):
+                    owner[child_link] = child_link
+                    seg_order.append(child_link)
+                else:
+                    owner[child_link] = own
+            urdf_joints.append(UrdfJoint(
+                name=jn, type=t, parent_link=parent_link, child_link=child_link,
+                xyz=np.array(placement.translation), rotation=np.array(placement.rotation),
+                owner=own, role=role, index=index, dof=dof_index.get(jn, -1) if t in MOVING else -1,
+            ))
+            assert body_id[child_link] > fid
+
+        # Anatomical joints, in segment order.
+        joints: list[Joint] = []
+        seg_parent_joint: dict[str, str | None] = {self.root: None}
+        first_index: dict[str, int] = {}
+        for seg in seg_order[1:]:
+            chain = joint_chain[seg]
+            name = _joint_name(chain)
+            first = next(u for u in urdf_joints if u.name == chain[0])
+            dofs = tuple(jn for jn in chain if jtype(jn) in MOVING)
+            joints.append(Joint(name, owner[first.parent_link], seg, tuple(chain), dofs, first.xyz.copy()))
+            seg_parent_joint[seg] = name
+            first_index[chain[0]] = len(joints) - 1
+        names = [j.name for j in joints]
+        if len(set(names)) != len(names):
+            dup = sorted({n for n in names if names.count(n) > 1})
+            raise ModelError(f"{where}: two anatomical joints are both named '{dup[0]}'; rename the URDF joints")
+        self.urdf_joints = tuple(
+            UrdfJoint(**{**u.__dict__, "index": first_index[u.name]}) if u.role == "centre" else u
+            for u in urdf_joints
+        )
+
+        # DoFs in Pinocchio's configuration order.
+        dofs: list[Dof] = []
+        chain_of = {jn: j.name for j in joints for jn in j.urdf_joints}
+        for i in range(2, pm.njoints):
+            jm = pm.joints[i]
+            jn = pm.names[i]
+            el = joints_el[jn]
+            axis = _pin_axis(jm, where, jn)
+            cont = jtype(jn) == "continuous"
+            lim = el.find("limit")
+            lo = -np.inf if cont or lim is None else float(lim.get("lower", "-inf"))
+            hi = np.inf if cont or lim is None else float(lim.get("upper", "inf"))
+            dofs.append(Dof(jn, chain_of[jn], axis, lo, hi, cont))
+
+        self.markers = tuple(marker_list)
+        mk_by_seg: dict[str, list[str]] = {s: [] for s in seg_order}
+        for mk in marker_list:
+            mk_by_seg[mk.segment].append(mk.name)
+        self.segments = tuple(
+            Segment(s, seg_parent_joint[s], mass(s), tuple(mk_by_seg[s])) for s in seg_order
+        )
+        self.joints = tuple(joints)
+        self.dofs = tuple(dofs)
+        self._segment_index = {s.name: i for i, s in enumerate(self.segments)}
+        self._marker_index = {m.name: i for i, m in enumerate(self.markers)}
+        self._joint_index = {j.name: i for i, j in enumerate(self.joints)}
+        self._dof_index = {d.name: i for i, d in enumerate(self.dofs)}
+        if not self.markers:
+            raise ModelError(f"{where}: the model has no markers (massless leaf links on fixed joints)")
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def n_dofs(self) -> int:
+        """Joint angles (excluding the 6 of the floating root)."""
+        return len(self.dofs)
+
+    @property
+    def nz(self) -> int:
+        """Coordinates per frame: root translation (3) + root rotation (3) + joint angles."""
+        return 6 + len(self.dofs)
+
+    @property
+    def marker_names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.markers)
+
+    @property
+    def dof_names(self) -> tuple[str, ...]:
+        return tuple(d.name for d in self.dofs)
+
+    def segment_index(self, name: str) -> int:
+        return self._lookup(self._segment_index, name, "segment")
+
+    def marker_index(self, name: str) -> int:
+        return self._lookup(self._marker_index, name, "marker")
+
+    def joint_index(self, name: str) -> int:
+        return self._lookup(self._joint_index, name, "joint")
+
+    def dof_index(self, name: str) -> int:
+        return self._lookup(self._dof_index, name, "degree of freedom")
+
+    def _lookup(self, table: dict[str, int], name: str, what: str) -> int:
+        try:
+            return table[name]
+        except KeyError:
+            known = ", ".join(list(table)[:8])
+            raise ModelError(f"{self.path}: no {what} named '{name}' (known: {known}, ...)") from None
+
+    def parameters(self) -> Parameters:
+        """The base model's geometric parameters (all scales 1)."""
+        return Parameters(
+            scale=np.ones(len(self.segments)),
+            centre=np.array([j.centre for j in self.joints]).reshape(-1, 3),
+            axis=np.array([d.axis for d in self.dofs]).reshape(-1, 3),
+            marker=np.array([m.offset for m in self.markers]).reshape(-1, 3),
+        )
+
+    def parameter_names(self) -> list[str]:
+        """One name per entry of Parameters.vector(), e.g. 'centre[knee_r].y'."""
+        out = [f"scale[{s.name}]" for s in self.segments]
+        out += [f"centre[{j.name}].{c}" for j in self.joints for c in "xyz"]
+        out += [f"axis[{d.name}].{c}" for d in self.dofs for c in "xyz"]
+        out += [f"marker[{m.name}].{c}" for m in self.markers for c in "xyz"]
+        return out
+
+    def unpack(self, p: np.ndarray) -> Parameters:
+        """Inverse of Parameters.vector() for this model's sizes."""
+        p = np.asarray(p, dtype=float).ravel()
+        ns, nj, nd, nm = len(self.segments), len(self.joints), len(self.dofs), len(self.markers)
+        n = ns + 3 * (nj + nd + nm)
+        if p.size != n:
+            raise ValueError(f"parameter vector: expected {n} entries, got {p.size}")
+        a = np.cumsum([0, ns, 3 * nj, 3 * nd, 3 * nm])
+        return Parameters(
+            p[a[0]:a[1]].copy(), p[a[1]:a[2]].reshape(nj, 3).copy(),
+            p[a[2]:a[3]].reshape(nd, 3).copy(), p[a[3]:a[4]].reshape(nm, 3).copy(),
+        )
+
+    def pin_configuration(self, root_translation, root_quaternion, angles) -> np.ndarray:
+        """Pinocchio q from root translation (3), unit quaternion (x, y, z, w) and joint angles."""
+        angles = np.asarray(angles, dtype=float).ravel()
+        if angles.size != self.n_dofs:
+            raise ValueError(f"joint angles: expected {self.n_dofs}, got {angles.size}")
+        q = [np.asarray(root_translation, float).ravel(), np.asarray(root_quaternion, float).ravel()]
+        for d, a in zip(self.dofs, angles, strict=True):
+            q.append(np.array([np.cos(a), np.sin(a)]) if d.continuous else np.array([a]))
+        return np.concatenate(q)
+
+    def summary(self) -> str:
+        """A short human-readable description (segments, joints, DoF, markers)."""
+        kinds: dict[str, int] = {}
+        for j in self.joints:
+            kinds[j.kind] = kinds.get(j.kind, 0) + 1
+        kind_txt = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
+        return (
+            f"{self.name}: {len(self.segments)} segments, {len(self.joints)} joints ({kind_txt}), "
+            f"{6 + self.n_dofs} DoF (6 root + {self.n_dofs}), {len(self.markers)} markers"
+        )
+
+    def __repr__(self) -> str:
+        return f"Model({str(self.path)!r}: {self.summary()})"
+
+
+def load_model(path: str | os.PathLike[str]) -> Model:
+    """Load a calibrate model (URDF); raises ModelError with one line on bad input."""
+    return Model(path)
+
+
+# ---------------------------------------------------------------------- writing
+def write_model(model: Model, path: str | os.PathLike[str], params: Parameters | None = None,
+                overwrite: bool = True) -> Path:
+    """Write `model` with geometric parameters `params` as a URDF at `path`.
+
+    Changes, per segment with scale s: origins of joints in its frame (s * centre, and
+    s * xyz for the later joints of a chain), marker origins (s * offset), revolute axes,
+    inertial origin (s *) and inertia tensor (s**2 *, mass kept), visual/collision
+    origins, mesh scales and primitive sizes (s *).  Everything else in the file is kept.
+    Written to a temporary file and renamed, so a failure leaves nothing half-written.
+    """
+    path = Path(path)
+    if not overwrite and path.exists():
+        raise ModelError(f"{path}: exists; choose another output name or allow overwriting")
+    if path.resolve() == model.path.resolve() and params is not None:
+        raise ModelError(f"{path}: refusing to overwrite the base model; choose another output name")
+    if not path.parent.is_dir():
+        raise ModelError(f"{path}: directory '{path.parent}' does not exist; create it first")
+    p = model.parameters() if params is None else params
+    _check_sizes(model, p)
+    tree = ET.ElementTree(ET.fromstring(model._text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
+    robot = tree.getroot()
+    seg_scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
+    joint_el = {el.get("name"): el for el in robot.findall("joint")}
+    for u in model.urdf_joints:
+        el = joint_el[u.name]
+        s = seg_scale[u.owner]
+        if u.role == "centre":
+            xyz = s * p.centre[u.index]
+        elif u.role == "marker":
+            xyz = s * p.marker[u.index]
+        else:
+            xyz = s * u.xyz
+        _set_origin_xyz(el, xyz)
+        if u.dof >= 0:
+            ax = el.find("axis")
+            if ax is None:
+                ax = ET.SubElement(el, "axis")
+            a = p.axis[u.dof]
+            ax.set("xyz", _vec(a / np.linalg.norm(a)))
+    for link in robot.findall("link"):
+        s = seg_scale.get(link.get("name", ""))
+        if s is None or s == 1.0:
+            continue
+        _scale_link(link, s)
+    data = ET.tostring(robot, encoding="unicode")
+    start = model._text.find("<robot")
+    head = model._text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
+    _atomic_write(path, head + data + "\n")
+    return path
+
+
+def _check_sizes(model: Model, p: Parameters) -> None:
+    want = {"scale": (len(model.segments),), "centre": (len(model.joints), 3),
+            "axis": (model.n_dofs, 3), "marker": (len(model.markers), 3)}
+    for b, shape in want.items():
+        got = np.shape(getattr(p, b))
+        if got != shape:
+            raise ValueError(f"Parameters.{b}: expected shape {shape}, got {got}")
+    if np.any(~np.isfinite(p.vector())):
+        raise ValueError("Parameters: non-finite entries")
+    if np.any(p.scale <= 0):
+        raise ValueError("Parameters.scale: scale factors must be positive")
+    if np.any(np.linalg.norm(p.axis, axis=1) < 1e-12):
+        raise ValueError("Parameters.axis: zero-length axis")
+
+
+def _scale_link(link: ET.Element, s: float) -> None:
+    inertial = link.find("inertial")
+    if inertial is not None:
+        o = inertial.find("origin")
+        if o is not None:
+            _scale_attr(o, "xyz", s)
+        i = inertial.find("inertia")
+        if i is not None:
+            for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+                if k in i.attrib:
+                    i.set(k, _fmt(float(i.get(k, "0")) * s * s))
+    for tag in ("visual", "collision"):
+        for v in link.findall(tag):
+            o = v.find("origin")
+            if o is not None:
+                _scale_attr(o, "xyz", s)
+            g = v.find("geometry")
+            if g is None:
+                continue
+            for shape, attrs in (("box", ("size",)), ("cylinder", ("radius", "length")),
+                                 ("sphere", ("radius",)), ("capsule", ("radius", "length"))):
+                e = g.find(shape)
+                if e is not None:
+                    for a in attrs:
+                        _scale_attr(e, a, s)
+            mesh = g.find("mesh")
+            if mesh is not None:
+                old = np.array([float(x) for x in mesh.get("scale", "1 1 1").split()])
+                mesh.set("scale", _vec(np.broadcast_to(old, (3,)) * s))
+
+
+def _scale_attr(el: ET.Element, attr: str, s: float) -> None:
+    if attr in el.attrib:
+        el.set(attr, _vec(np.array([float(x) for x in el.get(attr, "").split()]) * s))
+
+
+def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
+    o = joint.find("origin")
+    if o is None:
+        o = ET.Element("origin")
+        joint.insert(0, o)
+    o.set("xyz", _vec(xyz))
+
+
+def _fmt(x: float) -> str:
+    r = repr(float(x))
+    return "0" if r in ("0.0", "-0.0") else r
+
+
+def _vec(v) -> str:
+    return " ".join(_fmt(x) for x in np.ravel(v))
+
+
+def _joint_name(chain: list[str]) -> str:
+    """Anatomical joint name: the URDF joint's name, or the chain's common prefix ('hip_r')."""
+    if len(chain) == 1:
+        return chain[0]
+    prefix = os.path.commonprefix(chain).rstrip("_")
+    return prefix if prefix else chain[0]
+
+
+def _pin_axis(jm, where: str, jn: str) -> np.ndarray:
+    short = jm.shortname()
+    for tag, ax in (("RX", (1.0, 0, 0)), ("RY", (0, 1.0, 0)), ("RZ", (0, 0, 1.0))):
+        if short.endswith(tag) or short.endswith(tag.replace("R", "RUB")):
+            return np.array(ax, dtype=float)
+    inner = jm.extract()
+    if hasattr(inner, "axis"):
+        return np.array(inner.axis, dtype=float)
+    raise ModelError(f"{where}: joint '{jn}' became a Pinocchio {short}, which calibrate does not handle")
+
+
+def _read_text(path: Path) -> str:
+    if not path.exists():
+        raise ModelError(f"{path}: no such file; check the path to the model URDF")
+    if path.is_dir():
+        raise ModelError(f"{path}: is a directory; give the model's .urdf file")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ModelError(f"{path}: cannot read ({e}); is it a text URDF file?") from None
+    if not text.strip():
+        raise ModelError(f"{path}: empty file; give a URDF model")
+    return text
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+__all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "load_model", "write_model"]
+

@@ -1,0 +1,143 @@
+"""Symbolic kinematics h(z, p) against Pinocchio and finite differences; frame-wise IK."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from calibrate.ik import inverse_kinematics
+from calibrate.kinematics import build_kinematics, cayley_np, retract_root
+from calibrate.model import load_model, write_model
+from calibrate.simulate import perturb_parameters, simulate_squats
+
+
+def _pin_points(model, q):
+    d = model.pin.createData()
+    pin.forwardKinematics(model.pin, d, q)
+    pin.updateFramePlacements(model.pin, d)
+    mk = np.array([d.oMf[model.pin.getFrameId(m.name, pin.FrameType.BODY)].translation for m in model.markers])
+    jc = np.array([d.oMf[model.pin.getFrameId(j.urdf_joints[0])].translation for j in model.joints])
+    return mk, jc
+
+
+def _random_configs(model, rng, n):
+    for _ in range(n):
+        quat = rng.normal(size=4)
+        quat /= np.linalg.norm(quat)
+        t = rng.normal(size=3)
+        th = rng.uniform(-np.pi, np.pi, model.n_dofs)
+        yield t, quat, th
+
+
+def _max_fk_error(model, kin, params, pin_model_of, rng, n=100):
+    err = 0.0
+    for t, quat, th in _random_configs(model, rng, n):
+        z = np.concatenate([t, np.zeros(3), th])
+        mk, jc = _pin_points(pin_model_of, pin_model_of.pin_configuration(t, quat, th))
+        err = max(err, np.abs(kin.markers(z, quat, params) - mk).max(), np.abs(kin.centres(z, quat, params) - jc).max())
+    return err
+
+
+def test_fk_equals_pinocchio_on_human(human, human_kin):
+    err = _max_fk_error(human, human_kin, human.parameters(), human, np.random.default_rng(0))
+    assert err < 1e-10, err
+
+
+def test_fk_equals_pinocchio_on_perturbed_copy(human, human_kin, tmp_path):
+    rng = np.random.default_rng(7)
+    truth = perturb_parameters(human, rng)
+    path = write_model(human, tmp_path / "perturbed.urdf", truth)
+    other = load_model(path)
+    # (a) the base model's h with the perturbed p reproduces Pinocchio on the written URDF
+    err_a = _max_fk_error(human, human_kin, truth, other, rng)
+    # (b) the perturbed copy's own symbolic kinematics agree with Pinocchio too
+    err_b = _max_fk_error(other, build_kinematics(other), other.parameters(), other, rng)
+    assert err_a < 1e-10 and err_b < 1e-10, (err_a, err_b)
+    assert np.abs(truth.scale - 1).max() > 0.02  # the copy really differs
+
+
+def test_jacobians_match_central_differences(human, human_kin):
+    rng = np.random.default_rng(3)
+    p = perturb_parameters(human, rng).vector()
+    for t, quat, th in _random_configs(human, rng, 3):
+        z = np.concatenate([t, 0.1 * rng.normal(size=3), th])
+        Jz, Jp = (np.asarray(x) for x in human_kin.jac(z, quat, p))
+
+        def f(zz, pp, quat=quat):
+            return np.asarray(human_kin.h(zz, quat, pp)[0]).ravel(order="F")
+
+        h = 1e-6
+        Fz = np.column_stack([(f(z + h * e, p) - f(z - h * e, p)) / (2 * h) for e in np.eye(z.size)])
+        Fp = np.column_stack([(f(z, p + h * e) - f(z, p - h * e)) / (2 * h) for e in np.eye(p.size)])
+        assert np.abs(Jz - Fz).max() < 1e-7, np.abs(Jz - Fz).max()
+        assert np.abs(Jp - Fp).max() < 1e-7, np.abs(Jp - Fp).max()
+    # the p-Jacobian is sparse: a marker depends only on its chain's parameters
+    assert human_kin.jac.sparsity_out(1).nnz() < 0.15 * Jp.size
+
+
+def test_joint_jacobian_equals_pinocchio(human, human_kin):
+    rng = np.random.default_rng(5)
+    t, quat, th = next(_random_configs(human, rng, 1))
+    q = human.pin_configuration(t, quat, th)
+    d = human.pin.createData()
+    pin.computeJointJacobians(human.pin, d, q)
+    pin.updateFramePlacements(human.pin, d)
+    Jz = np.asarray(human_kin.jac(np.concatenate([t, np.zeros(3), th]), quat, human.parameters().vector())[0])
+    for k, m in enumerate(human.markers):
+        fid = human.pin.getFrameId(m.name, pin.FrameType.BODY)
+        Jpin = pin.getFrameJacobian(human.pin, d, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:3]
+        np.testing.assert_allclose(Jz[3 * k:3 * k + 3, 6:], Jpin[:, 6:], atol=1e-12)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("angle_deg", [90.0, -90.0, 180.0])
+def test_root_rotation_has_no_gimbal_lock(human, human_kin, axis, angle_deg):
+    """At ±90° (and 180°) about each axis the rotation increment keeps full rank and the
+    retraction q_ref ⊗ Cay(delta) reproduces Pinocchio at the rotated pose."""
+    half = np.radians(angle_deg) / 2
+    quat = np.zeros(4)
+    quat[axis], quat[3] = np.sin(half), np.cos(half)
+    rng = np.random.default_rng(axis)
+    th = rng.uniform(-1, 1, human.n_dofs)
+    p = human.parameters()
+    z = np.concatenate([[0.1, 0.2, 0.9], np.zeros(3), th])
+    Jz = np.asarray(human_kin.jac(z, quat, p.vector())[0])
+    s = np.linalg.svd(Jz[:, 3:6], compute_uv=False)
+    s0 = np.linalg.svd(np.asarray(human_kin.jac(z, [0, 0, 0, 1.0], p.vector())[0])[:, 3:6], compute_uv=False)
+    np.testing.assert_allclose(s, s0, rtol=1e-9)  # conditioning independent of the orientation
+    assert s.min() > 0.1
+    delta = np.array([0.3, -0.2, 0.25])
+    z2 = z.copy()
+    z2[3:6] = delta
+    q_new = retract_root(quat, delta)
+    mk, _ = _pin_points(human, human.pin_configuration(z[:3], q_new, th))
+    np.testing.assert_allclose(human_kin.markers(z2, quat, p), mk, atol=1e-12)
+    R = pin.Quaternion(quat[3], *quat[:3]).toRotationMatrix() @ cayley_np(delta)
+    np.testing.assert_allclose(pin.Quaternion(q_new[3], *q_new[:3]).toRotationMatrix(), R, atol=1e-12)
+
+
+def test_batch_equals_single_frames(human, human_kin):
+    sim = simulate_squats(human, frames=20, noise_mm=0.0, seed=2)
+    M, C = human_kin.batch(sim.motion.z(), sim.motion.root_quaternion, sim.truth)
+    for f in (0, 7, 19):
+        z, q = sim.motion.z()[f], sim.motion.root_quaternion[f]
+        np.testing.assert_allclose(M[f], human_kin.markers(z, q, sim.truth), atol=1e-14)
+        np.testing.assert_allclose(C[f], human_kin.centres(z, q, sim.truth), atol=1e-14)
+
+
+def test_ik_recovers_true_motion_noise_free(human, human_kin):
+    sim = simulate_squats(human, frames=60, noise_mm=0.0, seed=11)
+    res = inverse_kinematics(human_kin, sim.trial, sim.truth)
+    assert res.rms < 1e-9
+    err = np.angle(np.exp(1j * (res.motion.angles - sim.motion.angles)))
+    assert np.abs(err).max() < 1e-6
+    np.testing.assert_allclose(res.motion.root_translation, sim.motion.root_translation, atol=1e-8)
+
+
+def test_ik_with_gaps_and_noise_reaches_the_noise_floor(human, human_kin):
+    sim = simulate_squats(human, frames=60, noise_mm=1.0, gaps=True, seed=12)
+    res = inverse_kinematics(human_kin, sim.trial, sim.truth)
+    # 3-D RMS of pure noise is sqrt(3) mm; a fit absorbs part of it (38 DoF of 117 coordinates)
+    assert 1.0e-3 < res.rms < np.sqrt(3) * 1e-3
+    assert np.isnan(res.residuals).any()  # gaps stay gaps

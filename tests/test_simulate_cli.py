@@ -1,0 +1,121 @@
+"""Synthetic squats (files, truth, noise, gaps, ranges of motion) and the command line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from calibrate.cli import main
+from calibrate.model import load_model
+from calibrate.motion import read_motion_csv
+from calibrate.simulate import simulate_squats
+from calibrate.trial import read_c3d
+
+
+def test_simulate_writes_consistent_files(tmp_path, human):
+    assert main(["simulate", "--out", str(tmp_path / "sim"), "--frames", "40", "--noise-mm", "0", "--seed", "4"]) == 0
+    trial = read_c3d(tmp_path / "sim" / "trial.c3d")
+    truth = load_model(tmp_path / "sim" / "truth.urdf")
+    motion = read_motion_csv(tmp_path / "sim" / "truth_motion.csv")
+    assert trial.n_frames == motion.n_frames == 40 and trial.rate == 100.0
+    assert motion.dof_names == truth.dof_names == human.dof_names
+    np.testing.assert_allclose(motion.times, np.arange(40) / 100.0)
+    # Independent check: Pinocchio on truth.urdf, driven by the motion CSV, gives the C3D's markers.
+    d = truth.pin.createData()
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    worst = 0.0
+    for f in range(0, 40, 3):
+        q = truth.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
+        pin.forwardKinematics(truth.pin, d, q)
+        pin.updateFramePlacements(truth.pin, d)
+        for m in truth.markers:
+            x = d.oMf[truth.pin.getFrameId(m.name, pin.FrameType.BODY)].translation
+            worst = max(worst, np.abs(x - trial.markers[f, index[m.name]]).max())
+    assert worst < 1e-4  # C3D stores mm as float32: ~1e-4 mm quantisation at 2 m, far below this
+
+
+def test_subject_changes_are_within_documented_ranges(human):
+    sim = simulate_squats(human, frames=10, seed=9)
+    p0, p1 = human.parameters(), sim.truth
+    assert np.all(np.abs(p1.scale - 1) <= 0.10) and np.abs(p1.scale - 1).max() > 0.05
+    assert np.abs(p1.centre - p0.centre).max() <= 0.015
+    assert np.abs(p1.marker - p0.marker).max() <= 0.010
+    cosines = np.sum(p1.axis * p0.axis, axis=1)
+    tilt = np.degrees(np.arccos(np.clip(cosines, -1, 1)))
+    hinges = [human.dof_index(j.dofs[0]) for j in human.joints if j.kind == "hinge"]
+    assert tilt[hinges].max() <= 5.0 + 1e-9 and tilt[hinges].min() > 1.0
+    others = np.setdiff1d(np.arange(human.n_dofs), hinges)
+    assert tilt[others].max() < 1e-6
+
+
+def test_noise_and_gaps(human):
+    sim = simulate_squats(human, frames=400, noise_mm=2.0, gaps=True, seed=1)
+    noise = (sim.trial.markers - sim.clean_markers)
+    sd = np.nanstd(noise)
+    assert sd == pytest.approx(0.002, rel=0.05)
+    gap = np.isnan(sim.trial.markers[..., 0])
+    assert 0 < gap.mean() and gap.mean(axis=0).max() <= 0.2 + 1e-9
+    clean = simulate_squats(human, frames=50, seed=1)
+    assert not np.isnan(clean.trial.markers).any()
+
+
+def test_every_joint_moves_through_a_useful_range(human):
+    sim = simulate_squats(human, frames=1000, seed=0)
+    rom = np.degrees(np.ptp(sim.motion.angles, axis=0))
+    need = {"hip_r_flexion": 80, "knee_r": 90, "ankle_r": 20, "hip_r_adduction": 20, "hip_r_rotation": 30,
+            "shoulder_l_flexion": 90, "shoulder_l_adduction": 45, "elbow_l": 80, "radioulnar_r": 60,
+            "lumbar_flexion": 20, "neck_rotation": 40}
+    for name, deg in need.items():
+        assert rom[human.dof_index(name)] >= deg, (name, rom[human.dof_index(name)])
+    assert rom.min() > 10  # every DoF moves
+    # squats: the pelvis drops by more than 30 cm while the ankles stay put (up to 1 cm sway)
+    z = sim.motion.root_translation[:, 2]
+    assert z.max() - z.min() > 0.3
+    ankles = sim.clean_centres[:, [human.joint_index("ankle_r"), human.joint_index("ankle_l")]].mean(axis=1)
+    assert np.ptp(ankles[:, :2], axis=0).max() < 0.021 and np.ptp(ankles[:, 2]) < 1e-12
+
+
+def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo", "--frames", "60"]) == 0
+    out = capsys.readouterr().out
+    assert "39 markers" in out and "38 DoF" in out and "base (uncalibrated)" in out
+    assert (tmp_path / "calibrate-demo" / "trial.c3d").exists()
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["simulate", "--out", "x", "--frames", "abc"], "whole number"),
+    (["simulate", "--out", "x", "--rate", "-5"], "positive"),
+    (["simulate", "--out", "x", "--model", "missing.urdf"], "missing.urdf"),
+    (["inspect", "nope.c3d"], "nope.c3d"),
+])
+def test_cli_bad_input_one_line_nonzero(tmp_path, monkeypatch, argv, needle):
+    monkeypatch.chdir(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "calibrate.cli", *argv], capture_output=True, text=True)
+    assert r.returncode == 2
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("calibrate")]
+    assert needle in r.stderr and "Traceback" not in r.stderr and len(lines) == 1, r.stderr
+    assert not (tmp_path / "x").exists()  # nothing written
+
+
+def test_simulate_refuses_a_file_as_output_dir(tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("keep")
+    r = subprocess.run([sys.executable, "-m", "calibrate.cli", "simulate", "--out", str(f), "--frames", "5"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "not a directory" in r.stderr and f.read_text() == "keep"
+
+
+def test_inspect_model_and_trial(tmp_path, capsys):
+    from conftest import HUMAN
+
+    assert main(["inspect", str(HUMAN)]) == 0
+    assert "knee_r" in capsys.readouterr().out
+    assert main(["simulate", "--out", str(tmp_path), "--frames", "5"]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(tmp_path / "trial.c3d")]) == 0
+    assert "5 frames at 100 Hz" in capsys.readouterr().out
