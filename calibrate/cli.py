@@ -49,14 +49,36 @@ def _nonneg_float(text: str) -> float:
 
 
 def _default_model() -> Path:
-    if not DEFAULT_MODEL.exists():
-        raise CalibrateError(f"{DEFAULT_MODEL}: the bundled model is missing; pass --model BASE.urdf "
-                             f"(make one with scripts/make_human_model.py)")
-    return DEFAULT_MODEL
+    """models/human.urdf of the source tree; in an installed package (no source tree) the same
+    model is generated from calibrate.human into the temporary directory."""
+    if DEFAULT_MODEL.exists():
+        return DEFAULT_MODEL
+    import tempfile
+
+    from .human import build_human_urdf
+
+    path = Path(tempfile.gettempdir()) / "calibrate-human.urdf"
+    text = build_human_urdf()
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+    return path
 
 
 def _progress(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
+
+
+class _FrameProgress:
+    """Prints 'label: done/total frames' to stderr at most once a second, after the first second."""
+
+    def __init__(self, label: str):
+        self.label, self.t0, self.last = label, time.perf_counter(), 0.0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.perf_counter() - self.t0
+        if now > 1.0 and now - self.last >= 1.0:
+            self.last = now
+            _progress(f"  {self.label}: {done}/{total} frames ({now:.0f} s)")
 
 
 def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
@@ -143,10 +165,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     kin = build_kinematics(model)
     t0 = time.perf_counter()
     _progress("fitting the base model (inverse kinematics, frame by frame)...")
-    base = inverse_kinematics(kin, trial, model.parameters())
+    base = inverse_kinematics(kin, trial, model.parameters(), progress=_FrameProgress("base model"))
     t_base = time.perf_counter() - t0
     _progress("fitting the true subject model (the noise floor)...")
-    true = inverse_kinematics(kin, trial, sim.truth)
+    true = inverse_kinematics(kin, trial, sim.truth, progress=_FrameProgress("true model"))
     gaps = float(np.isnan(trial.markers[..., 0]).mean())
     ang = np.degrees(np.angle(np.exp(1j * (base.motion.angles - sim.motion.angles))))
     rms_ang = np.sqrt(np.mean(ang**2, axis=0))

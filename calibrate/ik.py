@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,6 +74,7 @@ class _FrameSolver:
 
     def __init__(self, kin: Kinematics, p: np.ndarray):
         self.kin, self.p = kin, p
+        self.evaluate = kin.frame_evaluator(p)
         model = kin.model
         self.nz = model.nz
         seg_joint = {j.child: j for j in model.joints}
@@ -113,10 +115,10 @@ class _FrameSolver:
             np.array([int(np.flatnonzero(free == c)[0]) for c in dof_cols], dtype=int)
 
         def evaluate(zz, qq):
-            m, J = self.kin.h_jz(zz, qq, self.p)
+            m, J = self.evaluate(zz, qq)
             th = zz[dof_cols]
-            r = np.concatenate([np.asarray(m).ravel()[rows] - target, LIMIT_WEIGHT * (th - np.clip(th, lo, hi))])
-            return r, J, (th < lo) | (th > hi)
+            r = np.concatenate([m[rows] - target, LIMIT_WEIGHT * (th - np.clip(th, lo, hi))])
+            return r, J[np.ix_(rows, free)], (th < lo) | (th > hi)
 
         z = z.copy()
         r, J, out = evaluate(z, q)
@@ -125,7 +127,7 @@ class _FrameSolver:
         for it in range(1, budget + 1):
             used = it
             Jf = np.zeros((n_mk + dof_cols.size, free.size))
-            Jf[:n_mk] = np.asarray(J)[np.ix_(rows, free)]
+            Jf[:n_mk] = J
             Jf[n_mk + np.arange(dof_cols.size), col_of] = LIMIT_WEIGHT * out
             g = Jf.T @ r
             A = Jf.T @ Jf
@@ -188,10 +190,13 @@ class _FrameSolver:
 
 
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
-                       tolerance: float = 1e-8) -> IKResult:
+                       tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None) -> IKResult:
     """Solve every frame of `trial` for the model of `kin` with geometry `params`.
 
     Markers are matched by label; model markers absent from the trial are ignored.
+    Each frame stops when the relative cost decrease falls below `tolerance` or the step
+    below 1e-8 (m, rad), after at most `max_iterations` (200 for a frame started from scratch).
+    `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
     obs = marker_columns(model, trial)
@@ -233,6 +238,8 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
                 rms = np.sqrt(cost / seen.sum())
         frame_rms.append(rms)
         Z[f], Q[f], iters[f] = z, q, it
+        if progress is not None and (f + 1) % 100 == 0:
+            progress(f + 1, nf)
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
     with warnings.catch_warnings():  # frames with no marker give NaN, on purpose

@@ -127,6 +127,10 @@ class Kinematics:
         """Joint-centre positions (n_joints, 3) for one frame."""
         return np.asarray(self.h(z, q_ref, _pvec(p))[1]).T
 
+    def frame_evaluator(self, p) -> FrameEvaluator:
+        """A fast evaluator of (vec(markers), d vec(markers)/dz) for one frame at fixed `p`."""
+        return FrameEvaluator(self.h_jz, _pvec(p))
+
     def batch(self, Z: np.ndarray, Q_ref: np.ndarray, p) -> tuple[np.ndarray, np.ndarray]:
         """Markers (n_frames, n_markers, 3) and centres (n_frames, n_joints, 3) for many frames.
 
@@ -144,6 +148,34 @@ class Kinematics:
         M = np.asarray(M).reshape(3, nf, nm).transpose(1, 2, 0)
         C = np.asarray(C).reshape(3, nf, nj).transpose(1, 2, 0)
         return M, C
+
+
+class FrameEvaluator:
+    """Evaluates h_jz into preallocated numpy memory (CasADi's Function.buffer), skipping the
+    DM-to-numpy conversion that otherwise costs more than the evaluation itself.
+
+    ``ev(z, q_ref)`` returns (markers (3 n_markers,), dm_dz (3 n_markers, nz)); both are
+    reused buffers, overwritten by the next call: copy what you keep.
+    """
+
+    def __init__(self, h_jz: ca.Function, p: np.ndarray):
+        self._f = h_jz  # keep the Function alive while its buffer is used
+        self._buf, self._eval = h_jz.buffer()
+        self._z = np.zeros(h_jz.nnz_in(0))
+        self._q = np.zeros(4)
+        self._p = np.array(p, dtype=float)
+        self.markers = np.zeros(h_jz.nnz_out(0))
+        self.jacobian = np.zeros(h_jz.size_out(1), order="F")
+        for i, a in enumerate((self._z, self._q, self._p)):
+            self._buf.set_arg(i, memoryview(a))
+        self._buf.set_res(0, memoryview(self.markers))
+        self._buf.set_res(1, memoryview(self.jacobian.reshape(-1, order="F")))
+
+    def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._z[:] = z
+        self._q[:] = q_ref
+        self._eval()
+        return self.markers, self.jacobian
 
 
 def _pvec(p) -> np.ndarray:

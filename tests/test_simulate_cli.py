@@ -102,6 +102,17 @@ def test_cli_bad_input_one_line_nonzero(tmp_path, monkeypatch, argv, needle):
     assert not (tmp_path / "x").exists()  # nothing written
 
 
+def test_cli_truncated_c3d_one_line(tmp_path):
+    assert main(["simulate", "--out", str(tmp_path), "--frames", "30"]) == 0
+    data = (tmp_path / "trial.c3d").read_bytes()
+    for cut in (len(data) // 2, 700, 100):
+        bad = tmp_path / f"cut{cut}.c3d"
+        bad.write_bytes(data[:cut])
+        r = subprocess.run([sys.executable, "-m", "calibrate.cli", "inspect", str(bad)], capture_output=True, text=True)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and f"cut{cut}.c3d" in r.stderr
+
+
 def test_simulate_refuses_a_file_as_output_dir(tmp_path):
     f = tmp_path / "afile"
     f.write_text("keep")

@@ -1,0 +1,788 @@
+"""Motion-capture trials: labelled marker trajectories read from and written to C3D and TRC.
+
+Inside the program a trial holds marker positions in metres in the lab frame,
+one row per frame, with NaN wherever a marker is not seen (a gap).  Units are
+converted at the file edges: C3D ``POINT:UNITS`` and the TRC ``Units`` header
+may be ``mm``, ``cm`` or ``m``.
+
+Frame numbering: :attr:`Trial.first_frame` is 0-based.  A C3D header stores the
+first frame 1-based; ezc3d reports (and accepts) it 0-based, so the value from
+``c3d["header"]["points"]["first_frame"]`` is used as is.  TRC frame numbers
+(the ``Frame#`` column) are 1-based, as OpenSim writes them.
+
+ezc3d also maps a header value of 0 (a writer that forgot the 1-base) to 0.
+
+Gaps in C3D: on reading, a point is a gap when its residual is negative, when all
+three coordinates are exactly zero, or when a coordinate is not finite.  ezc3d
+itself already turns points with a negative residual into NaN coordinates.  Given
+NaN coordinates, ezc3d would write the NaN floats as they are with residual 0,
+which other software reads as a valid point; so gaps are written the standard way
+instead (coordinates 0, residual -1), which ezc3d reads back as NaN.
+
+Before ezc3d opens a C3D file its header and parameter section are checked here:
+ezc3d crashes the interpreter on some damaged files (a record that overruns its
+neighbours, analog channels without ANALOG:SCALE/OFFSET) and silently drops the
+missing frames of a truncated file.
+"""
+
+from __future__ import annotations
+
+import operator
+import os
+import struct
+import uuid
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+
+from calibrate.errors import TrialError
+
+__all__ = [
+    "Trial",
+    "read_c3d",
+    "read_trc",
+    "read_trial",
+    "write_c3d",
+    "write_trc",
+]
+
+#: Length units accepted in trial files, with their size in metres.
+UNITS_TO_METRES: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+
+_TRC_KEYS = (
+    "DataRate",
+    "CameraRate",
+    "NumFrames",
+    "NumMarkers",
+    "Units",
+    "OrigDataRate",
+    "OrigDataStartFrame",
+    "OrigNumFrames",
+)
+
+_C3D_MAX_HEADER_FRAME = 65535  # the C3D header stores frame numbers as 16-bit words
+
+
+def _one_line(text: object) -> str:
+    """Collapse any message to a single line."""
+    return " ".join(str(text).split())
+
+
+def _where(source: str | os.PathLike[str] | None) -> str:
+    """Prefix for messages about a trial: its file, or 'trial' when it has none."""
+    return str(source) if source is not None else "trial"
+
+
+def _fail(path: str | os.PathLike[str] | None, what: str, todo: str) -> TrialError:
+    """Build a one-line TrialError: where, what is wrong, what to do."""
+    return TrialError(_one_line(f"{_where(path)}: {what}; {todo}"))
+
+
+def _parse_units(units: object, path: str | os.PathLike[str] | None, todo: str) -> float:
+    """Metres per file unit for a units string such as ' MM '."""
+    key = str(units).strip().lower()
+    if key not in UNITS_TO_METRES:
+        raise _fail(path, f"unknown length units {str(units).strip()!r} (expected mm, cm or m)", todo)
+    return UNITS_TO_METRES[key]
+
+
+def _unique_labels(raw: Iterable[str]) -> tuple[str, ...]:
+    """Strip labels, name empty ones ``unlabelled_<n>`` (1-based), suffix duplicates ``_2``, ``_3``..."""
+    stripped = [str(label).strip() for label in raw]
+    taken = {label for label in stripped if label}
+    out: list[str] = []
+    used: set[str] = set()
+    for number, label in enumerate(stripped, start=1):
+        if not label:
+            label = f"unlabelled_{number}"
+        if label in used:
+            base, k = label, 2
+            while f"{base}_{k}" in used or f"{base}_{k}" in taken:
+                k += 1
+            label = f"{base}_{k}"
+        used.add(label)
+        out.append(label)
+    return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class Trial:
+    """One motion-capture trial: labelled marker trajectories in metres.
+
+    ``markers`` is copied to a read-only float64 array of shape
+    (n_frames, n_markers, 3); a marker with any non-finite coordinate in a frame
+    is a gap in that frame and all three of its coordinates become NaN.
+    Trials compare by identity (arrays have no single truth value).
+    """
+
+    labels: tuple[str, ...]
+    markers: np.ndarray
+    rate: float
+    first_frame: int = 0
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        where = _where(self.source)
+        labels = self.labels
+        if isinstance(labels, str) or not isinstance(labels, Iterable):
+            raise TrialError(f"{where}: marker labels must be a sequence of strings, got {type(labels).__name__}")
+        labels = tuple(labels)
+        for label in labels:
+            if not isinstance(label, str) or not label.strip():
+                raise TrialError(f"{where}: every marker needs a non-empty text label, got {label!r}")
+            if label != label.strip():
+                raise TrialError(f"{where}: marker label {label!r} has surrounding whitespace; strip it")
+        seen: set[str] = set()
+        dupes: set[str] = set()
+        for label in labels:
+            (dupes if label in seen else seen).add(label)
+        if dupes:
+            raise TrialError(f"{where}: marker labels must be unique; repeated: {', '.join(sorted(dupes)[:5])}")
+
+        try:
+            markers = np.array(self.markers, dtype=np.float64, copy=True)
+        except (TypeError, ValueError) as exc:
+            raise TrialError(f"{where}: marker positions are not numbers ({_one_line(exc)})") from None
+        if markers.ndim != 3 or markers.shape[2] != 3 or markers.shape[1] != len(labels):
+            raise TrialError(
+                f"{where}: marker array has shape {markers.shape}, expected (n_frames, {len(labels)}, 3) "
+                f"for {len(labels)} labels"
+            )
+        markers[~np.isfinite(markers).all(axis=2)] = np.nan
+        markers.flags.writeable = False
+
+        try:
+            rate = float(self.rate)
+        except (TypeError, ValueError):
+            raise TrialError(f"{where}: frame rate {self.rate!r} is not a number") from None
+        if not np.isfinite(rate) or rate <= 0:
+            raise TrialError(f"{where}: frame rate must be a positive number of frames per second, got {rate}")
+
+        if isinstance(self.first_frame, bool) or not isinstance(self.first_frame, (int, np.integer)):
+            raise TrialError(f"{where}: first frame must be a whole number, got {self.first_frame!r}")
+        first_frame = int(self.first_frame)
+        if first_frame < 0:
+            raise TrialError(f"{where}: first frame must be 0 or more (0-based), got {first_frame}")
+
+        source = None if self.source is None else str(self.source)
+        object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "markers", markers)
+        object.__setattr__(self, "rate", rate)
+        object.__setattr__(self, "first_frame", first_frame)
+        object.__setattr__(self, "source", source)
+
+    def __repr__(self) -> str:
+        return (
+            f"Trial({self.n_frames} frames x {self.n_markers} markers at {self.rate:g} Hz, "
+            f"first_frame={self.first_frame}, source={self.source!r})"
+        )
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames."""
+        return int(self.markers.shape[0])
+
+    @property
+    def n_markers(self) -> int:
+        """Number of markers."""
+        return int(self.markers.shape[1])
+
+    @property
+    def times(self) -> np.ndarray:
+        """Time of each frame in seconds, counted from the first frame of the original recording."""
+        return (self.first_frame + np.arange(self.n_frames)) / self.rate
+
+    def _index(self, label: str) -> int:
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            known = ", ".join(self.labels[:8])
+            more = f" and {self.n_markers - 8} more" if self.n_markers > 8 else ""
+            raise TrialError(
+                f"{_where(self.source)}: no marker labelled {label!r} in this trial "
+                f"(markers: {known or 'none'}{more}); check the marker names"
+            ) from None
+
+    def marker(self, label: str) -> np.ndarray:
+        """Trajectory of one marker, (n_frames, 3) in metres, NaN in gaps."""
+        return self.markers[:, self._index(label), :]
+
+    def gap_fraction(self) -> np.ndarray:
+        """Fraction of frames in which each marker is missing, (n_markers,); 1.0 for a trial with no frames."""
+        if self.n_frames == 0:
+            return np.ones(self.n_markers)
+        return np.isnan(self.markers).any(axis=2).mean(axis=0)
+
+    def select(self, labels: Iterable[str]) -> Trial:
+        """Trial with only the given markers, in the given order."""
+        wanted = (labels,) if isinstance(labels, str) else tuple(labels)
+        idx = [self._index(label) for label in wanted]
+        return Trial(
+            labels=wanted,
+            markers=self.markers[:, idx, :],
+            rate=self.rate,
+            first_frame=self.first_frame,
+            source=self.source,
+        )
+
+    def frames(self, start: int, stop: int) -> Trial:
+        """Frames ``start`` to ``stop - 1`` of this trial (0-based, relative to this trial's first frame)."""
+        try:
+            start, stop = operator.index(start), operator.index(stop)
+        except TypeError:
+            raise TrialError(
+                f"{_where(self.source)}: frame numbers must be whole numbers, got {start!r}:{stop!r}"
+            ) from None
+        if not (0 <= start <= stop <= self.n_frames):
+            raise TrialError(
+                f"{_where(self.source)}: frames {start}:{stop} are outside this trial's 0:{self.n_frames}; "
+                "choose start and stop with 0 <= start <= stop <= number of frames"
+            )
+        return Trial(
+            labels=self.labels,
+            markers=self.markers[start:stop],
+            rate=self.rate,
+            first_frame=self.first_frame + start,
+            source=self.source,
+        )
+
+
+# ---------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------
+
+
+def _check_input_file(path: Path) -> int:
+    """Fail unless ``path`` is an existing, non-empty regular file; return its size in bytes."""
+    if not path.exists():
+        raise _fail(path, "no such file", "check the path and file name")
+    if path.is_dir():
+        raise _fail(path, "is a directory, not a trial file", "give the path of a .c3d or .trc file")
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise _fail(path, f"cannot be read ({_one_line(exc.strerror or exc)})", "check the file permissions") from None
+    if size == 0:
+        raise _fail(path, "file is empty", "export the trial again from your capture software")
+    return size
+
+
+def read_trial(path: str | os.PathLike[str]) -> Trial:
+    """Read a trial from a .c3d or .trc file, chosen by the file suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".c3d":
+        return read_c3d(path)
+    if suffix == ".trc":
+        return read_trc(path)
+    raise _fail(
+        path,
+        f"unknown trial file type {Path(path).suffix or '(no suffix)'!r}",
+        "give a .c3d or .trc file",
+    )
+
+
+class _BadC3D(ValueError):
+    """Internal: a structural problem found in a C3D file before ezc3d reads it."""
+
+
+def _c3d_float(raw: bytes, processor: int) -> float:
+    """One 4-byte float in the file's processor format (84 Intel, 85 DEC, 86 MIPS)."""
+    if processor == 86:
+        return struct.unpack(">f", raw)[0]
+    if processor == 85:  # DEC F-float: swap the 16-bit words, read as IEEE, divide by 4
+        return struct.unpack("<f", raw[2:4] + raw[0:2])[0] / 4.0
+    return struct.unpack("<f", raw)[0]
+
+
+def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
+    """Walk the records of a C3D parameter section; map (GROUP, NAME) to (type, dimensions, raw data).
+
+    Raises _BadC3D when a record does not fit the section, names an unknown type, or
+    belongs to no group: ezc3d can crash the interpreter on such files.
+    """
+    endian = ">" if processor == 86 else "<"
+    end = len(section)
+    pos = 4
+    groups: dict[int, str] = {}
+    records: list[tuple[int, str, int, tuple[int, ...], bytes]] = []
+    while pos + 2 <= end:
+        n_chars = struct.unpack("b", section[pos : pos + 1])[0]
+        if n_chars == 0:
+            break
+        group_id = struct.unpack("b", section[pos + 1 : pos + 2])[0]
+        name_end = pos + 2 + abs(n_chars)
+        if group_id == 0 or name_end + 2 > end:
+            raise _BadC3D("a parameter record is broken")
+        name = section[pos + 2 : name_end].decode("latin-1")
+        if not name.isprintable() or not name.strip():
+            raise _BadC3D("a parameter name is not text")
+        link = struct.unpack(endian + "h", section[name_end : name_end + 2])[0]
+        body = name_end + 2
+        if group_id < 0:
+            data_end = body
+            groups[-group_id] = name.strip().upper()
+        else:
+            if body + 2 > end:
+                raise _BadC3D(f"parameter {name} is cut short")
+            kind = struct.unpack("b", section[body : body + 1])[0]
+            n_dims = section[body + 1]
+            if kind not in (-1, 1, 2, 4) or n_dims > 7:
+                raise _BadC3D(f"parameter {name} has an unknown type or shape")
+            dims = tuple(section[body + 2 : body + 2 + n_dims])
+            data_start = body + 2 + n_dims
+            data_end = data_start + int(np.prod(dims, dtype=np.int64)) * abs(kind)
+            records.append((group_id, name.strip().upper(), kind, dims, section[data_start:data_end]))
+        if data_end + 1 > end:
+            raise _BadC3D(f"parameter {name} runs past the parameter section")
+        record_end = data_end + 1 + section[data_end]  # after the description
+        if record_end > end:
+            raise _BadC3D(f"the description of {name} runs past the parameter section")
+        if link == 0:
+            break
+        following = name_end + link
+        if link < 0 or following < record_end or following > end:
+            raise _BadC3D(f"the link after {name} does not lead to the next parameter")
+        pos = following
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]] = {}
+    for group_id, name, kind, dims, raw in records:
+        if group_id not in groups:
+            raise _BadC3D(f"parameter {name} belongs to no group")
+        table[(groups[group_id], name)] = (kind, dims, raw)
+    return table
+
+
+def _c3d_integer(
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
+) -> int | None:
+    """First value of an integer or float parameter read as a whole number, or None."""
+    if key not in table:
+        return None
+    kind, _, raw = table[key]
+    if kind == 2 and len(raw) >= 2:
+        return struct.unpack((">" if processor == 86 else "<") + "H", raw[:2])[0]
+    if kind == 1 and raw:
+        return raw[0]
+    if kind == 4 and len(raw) >= 4:
+        value = _c3d_float(raw[:4], processor)
+        return int(value) if np.isfinite(value) else None
+    return None
+
+
+def _check_c3d_layout(path: Path, size: int) -> None:
+    """Check a C3D file's header and parameter section against its size before ezc3d reads it.
+
+    ezc3d can crash the interpreter on a file cut or damaged inside its parameter
+    section, and silently drops frames from a file cut inside its data; both are caught here.
+    """
+    redo = "export it again from your capture software"
+
+    def bad(reason: str) -> TrialError:
+        return _fail(path, f"not a readable C3D file ({reason})", redo)
+
+    if size < 512:
+        raise bad(f"only {size} bytes, shorter than a C3D header")
+    with open(path, "rb") as fh:
+        header = fh.read(512)
+        if header[0] == 0:  # some writers pad the start with zeros; ezc3d skips them
+            return
+        if header[1] != 0x50 or header[0] < 2:
+            raise bad("no C3D signature in its header")
+        param_start = (header[0] - 1) * 512
+        fh.seek(param_start)
+        head = fh.read(4)
+        if len(head) < 4:
+            raise bad("truncated: its parameter section is missing")
+        n_blocks, processor = head[2], head[3]
+        if processor not in (84, 85, 86):
+            raise bad(f"unknown processor type {processor} in its parameter section")
+        if n_blocks == 0 or param_start + 512 * n_blocks > size:
+            raise bad("truncated inside its parameter section")
+        fh.seek(param_start)
+        section = fh.read(512 * n_blocks)
+    try:
+        table = _c3d_parameter_section(section, processor)
+    except _BadC3D as exc:
+        raise bad(f"damaged parameter section: {exc}") from None
+
+    endian = ">" if processor == 86 else "<"
+    n_points, n_analog, first, last = struct.unpack(endian + "4H", header[2:10])
+    data_block = struct.unpack(endian + "H", header[16:18])[0]
+    is_float = _c3d_float(header[12:16], processor) < 0
+    used = _c3d_integer(table, ("POINT", "USED"), processor)
+    if used is not None and used != n_points:
+        raise bad(f"its header lists {n_points} points but POINT:USED says {used}")
+    analog_per_frame = struct.unpack(endian + "H", header[18:20])[0]
+    n_channels = max(
+        n_analog // analog_per_frame if analog_per_frame else 0,
+        _c3d_integer(table, ("ANALOG", "USED"), processor) or 0,
+    )
+    for name in ("SCALE", "OFFSET"):  # ezc3d crashes when these are shorter than the channel list
+        _, dims, _ = table.get(("ANALOG", name), (0, (0,), b""))
+        if n_channels and int(np.prod(dims, dtype=np.int64)) < n_channels:
+            raise bad(f"ANALOG:{name} does not cover its {n_channels} analog channels")
+    if data_block == 0 or (data_block - 1) * 512 > size:
+        raise bad("truncated before its data section")
+    n_frames = _c3d_integer(table, ("POINT", "FRAMES"), processor)
+    if n_frames is None or n_frames == 0xFFFF:  # no count, or a long trial counted elsewhere
+        n_frames = last - first + 1 if first >= 1 and last >= first else 0
+    frame_bytes = (4 * n_points + n_analog) * (4 if is_float else 2)
+    data_start = (data_block - 1) * 512
+    if frame_bytes and data_start + n_frames * frame_bytes > size:
+        held = max(size - data_start, 0) // frame_bytes
+        raise _fail(
+            path,
+            f"C3D file is truncated: it should hold {n_frames} frames but holds only {held}",
+            redo,
+        )
+
+
+def _c3d_param(params: object, group: str, name: str) -> list | np.ndarray | None:
+    """Value of parameter GROUP:NAME, or None when it is absent."""
+    try:
+        return params[group][name]["value"]  # type: ignore[index]
+    except (KeyError, TypeError):
+        return None
+
+
+def _first_number(value: list | np.ndarray | None) -> float | None:
+    """First element of a numeric parameter value, or None."""
+    if value is None:
+        return None
+    flat = np.asarray(value).ravel()
+    if flat.size == 0:
+        return None
+    try:
+        return float(flat[0])
+    except (TypeError, ValueError):
+        return None
+
+
+def read_c3d(path: str | os.PathLike[str]) -> Trial:
+    """Read the marker trajectories of a C3D file (via ezc3d) into a trial in metres.
+
+    Labels come from POINT:LABELS, LABELS2, ... for the first POINT:USED points;
+    an empty label becomes ``unlabelled_<n>`` (n the 1-based point number) and a
+    repeated label gets a suffix (``RASI_2``).  POINT:UNITS may be mm, cm or m
+    (mm when absent).  Points with a negative residual, all three coordinates
+    exactly zero, or a non-finite coordinate are gaps (NaN).
+    """
+    path = Path(path)
+    size = _check_input_file(path)
+    _check_c3d_layout(path, size)
+    redo = "export it again from your capture software"
+    try:
+        c3d = ezc3d.c3d(str(path))
+        params = c3d["parameters"]
+        points = np.asarray(c3d["data"]["points"], dtype=np.float64)
+        residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)
+        header_first = int(c3d["header"]["points"]["first_frame"])
+        header_rate = float(c3d["header"]["points"]["frame_rate"])
+    except Exception as exc:  # noqa: BLE001 - ezc3d raises OSError, RuntimeError, ValueError, ... on bad files
+        raise _fail(path, f"not a readable C3D file (ezc3d: {_one_line(exc) or type(exc).__name__})", redo) from None
+
+    if "POINT" not in params:
+        raise _fail(path, "C3D file has no POINT group, so no marker trajectories", redo)
+    used = _first_number(_c3d_param(params, "POINT", "USED"))
+    n_points = points.shape[1] if points.ndim == 3 else 0
+    if used is not None:
+        n_points = min(n_points, max(int(used), 0))
+    n_frames = points.shape[2] if points.ndim == 3 else 0
+    if n_points == 0:
+        raise _fail(
+            path, "C3D file contains no marker trajectories (POINT:USED is 0)", "export the trial with its markers"
+        )
+    if n_frames == 0:
+        raise _fail(path, "C3D file contains no frames", "export the trial again with its frames")
+
+    raw_labels: list[str] = []
+    k = 1
+    while True:
+        name = "LABELS" if k == 1 else f"LABELS{k}"
+        value = _c3d_param(params, "POINT", name)
+        if value is None:
+            break
+        raw_labels.extend(str(v) for v in value)
+        k += 1
+    raw_labels = (raw_labels + [""] * n_points)[:n_points]
+    labels = _unique_labels(raw_labels)
+
+    units_value = _c3d_param(params, "POINT", "UNITS")
+    units = str(units_value[0]).strip() if units_value is not None and len(units_value) else ""
+    scale = _parse_units(units, path, "set POINT:UNITS to mm, cm or m") if units else UNITS_TO_METRES["mm"]
+
+    rate = _first_number(_c3d_param(params, "POINT", "RATE"))
+    if rate is None or not np.isfinite(rate) or rate <= 0:
+        rate = header_rate
+    if not np.isfinite(rate) or rate <= 0:
+        raise _fail(path, "C3D file gives no valid frame rate (POINT:RATE)", redo)
+
+    xyz = points[:3, :n_points, :].transpose(2, 1, 0) * scale  # (frames, markers, 3)
+    gap = ~np.isfinite(xyz).all(axis=2) | (xyz == 0.0).all(axis=2)
+    if residuals.ndim == 3 and residuals.shape[1] >= n_points and residuals.shape[2] == n_frames:
+        gap |= (residuals[0, :n_points, :] < 0).T
+    xyz[gap] = np.nan
+    return Trial(labels=labels, markers=xyz, rate=rate, first_frame=max(header_first, 0), source=str(path))
+
+
+def read_trc(path: str | os.PathLike[str]) -> Trial:
+    """Read an OpenSim-style TRC marker file into a trial in metres; blank cells are gaps."""
+    path = Path(path)
+    _check_input_file(path)
+    redo = "export the TRC file again"
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise _fail(path, f"cannot be read ({_one_line(exc.strerror or exc)})", "check the file permissions") from None
+    if b"\x00" in data:
+        raise _fail(path, "not a TRC text file (it contains binary data)", redo)
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if len(lines) < 5:
+        raise _fail(path, f"not a TRC file (only {len(lines)} lines, a TRC header needs 5)", redo)
+    if not lines[0].lstrip().startswith("PathFileType"):
+        raise _fail(path, "not a TRC file (line 1 should start with PathFileType)", redo)
+
+    keys = [cell.strip() for cell in lines[1].split("\t") if cell.strip()]
+    values = [cell.strip() for cell in lines[2].split("\t")]
+    values = values[: len(keys)] + [""] * (len(keys) - len(values))
+    meta = dict(zip(keys, values, strict=True))
+    for key in ("DataRate", "Units"):
+        if not meta.get(key):
+            raise _fail(path, f"TRC header has no {key} value (lines 2-3)", redo)
+    try:
+        rate = float(meta["DataRate"])
+    except ValueError:
+        raise _fail(path, f"TRC DataRate {meta['DataRate']!r} is not a number", redo) from None
+    if not np.isfinite(rate) or rate <= 0:
+        raise _fail(path, f"TRC DataRate must be a positive number of frames per second, got {meta['DataRate']}", redo)
+    scale = _parse_units(meta["Units"], path, "set Units in the TRC header to mm, cm or m")
+
+    def header_int(key: str) -> int | None:
+        if not meta.get(key):
+            return None
+        try:
+            return int(float(meta[key]))
+        except (ValueError, OverflowError):
+            raise _fail(path, f"TRC {key} {meta[key]!r} is not a number", redo) from None
+
+    num_markers = header_int("NumMarkers")
+    num_frames = header_int("NumFrames")
+
+    label_cells = lines[3].split("\t")
+    if len(label_cells) < 2 or label_cells[0].strip() != "Frame#" or label_cells[1].strip() != "Time":
+        raise _fail(path, "TRC line 4 should start with Frame# and Time", redo)
+    marker_cells = label_cells[2:]
+    misplaced = [cell.strip() for i, cell in enumerate(marker_cells) if i % 3 and cell.strip()]
+    if misplaced:
+        raise _fail(
+            path,
+            f"TRC line 4 has marker labels out of step with the X/Y/Z columns (near {misplaced[0]!r})",
+            redo,
+        )
+    raw_labels = marker_cells[0::3]
+    while raw_labels and not raw_labels[-1].strip():
+        raw_labels.pop()
+    n_markers = len(raw_labels)
+    if num_markers is not None and num_markers != n_markers:
+        raise _fail(path, f"TRC header says NumMarkers {num_markers} but line 4 names {n_markers} markers", redo)
+    if n_markers == 0:
+        raise _fail(path, "TRC file names no markers", "export the trial with its markers")
+    labels = _unique_labels(raw_labels)
+
+    width = 2 + 3 * n_markers
+    rows: list[list[str]] = []
+    line_numbers: list[int] = []
+    for number, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        cells = [cell.strip() for cell in line.split("\t")]
+        if len(cells) > width:
+            extra = [cell for cell in cells[width:] if cell]
+            if extra:
+                raise _fail(
+                    path,
+                    f"line {number} has more values than the {n_markers} markers named in the header",
+                    redo,
+                )
+            cells = cells[:width]
+        cells += [""] * (width - len(cells))
+        rows.append(cells)
+        line_numbers.append(number)
+    if not rows:
+        raise _fail(path, "TRC file contains no frames", "export the trial again with its frames")
+    if num_frames is not None and num_frames != len(rows):
+        raise _fail(
+            path,
+            f"TRC header says NumFrames {num_frames} but the file has {len(rows)} data rows (truncated?)",
+            redo,
+        )
+
+    values_array = np.empty((len(rows), width), dtype=np.float64)
+    for r, cells in enumerate(rows):
+        try:
+            values_array[r] = [float(cell) if cell else np.nan for cell in cells]
+        except ValueError:
+            column = next(i for i, cell in enumerate(cells) if cell and not _is_number(cell))
+            raise _fail(
+                path,
+                f"line {line_numbers[r]}, column {column + 1}: {cells[column]!r} is not a number",
+                "fix that cell or export the file again",
+            ) from None
+
+    first_number = values_array[0, 0]
+    if not np.isfinite(first_number) or first_number != int(first_number):
+        raise _fail(path, f"line {line_numbers[0]}: Frame# should be a whole number, got {rows[0][0]!r}", redo)
+    markers = values_array[:, 2:].reshape(len(rows), n_markers, 3) * scale
+    return Trial(
+        labels=labels,
+        markers=markers,
+        rate=rate,
+        first_frame=max(int(first_number) - 1, 0),
+        source=str(path),
+    )
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+# ---------------------------------------------------------------------------
+# Writing
+# ---------------------------------------------------------------------------
+
+
+def _target(path: str | os.PathLike[str], trial: Trial, units: str) -> tuple[Path, str, float]:
+    """Check the output path, trial and units; return the path, normalised units and metres per unit."""
+    path = Path(path)
+    todo = "use mm, cm or m"
+    key = str(units).strip().lower()
+    scale = _parse_units(units, path, todo)
+    parent = path.parent
+    if not parent.is_dir():
+        raise _fail(path, f"output directory {str(parent)!r} does not exist", "create it first or choose another path")
+    if path.is_dir():
+        raise _fail(path, "is a directory", "give a file name to write the trial to")
+    if not isinstance(trial, Trial):
+        raise TypeError(f"expected a Trial, got {type(trial).__name__}")
+    if trial.n_markers == 0 or trial.n_frames == 0:
+        raise _fail(
+            path,
+            f"cannot write a trial with {trial.n_frames} frames and {trial.n_markers} markers",
+            "write a trial with at least one frame and one marker",
+        )
+    return path, key, scale
+
+
+def _temporary_sibling(path: Path, suffix: str) -> Path:
+    """A fresh hidden name in the same directory, for writing before replacing."""
+    return path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{suffix}")
+
+
+def _discard(tmp: Path) -> None:
+    try:
+        tmp.unlink()
+    except OSError:
+        pass
+
+
+def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> None:
+    """Write a trial's marker trajectories to a C3D file (float data, POINT:UNITS ``units``).
+
+    Gaps are written as coordinates 0 with residual -1 (the C3D "invalid point").
+    The file is written next to its target and then moved into place.
+    """
+    path, key, scale = _target(path, trial, units)
+    if trial.first_frame + 1 > _C3D_MAX_HEADER_FRAME:
+        raise _fail(
+            path,
+            f"first frame {trial.first_frame} is past the last frame number a C3D header can hold "
+            f"({_C3D_MAX_HEADER_FRAME})",
+            "write a TRC file instead or start the trial at an earlier frame",
+        )
+    xyz = trial.markers / scale  # (frames, markers, 3) in file units
+    gap = np.isnan(xyz).any(axis=2)  # (frames, markers)
+    points = np.zeros((4, trial.n_markers, trial.n_frames))
+    points[:3] = np.where(gap[:, :, None], 0.0, xyz).transpose(2, 1, 0)
+    points[3] = 1.0
+    residuals = np.where(gap.T, -1.0, 0.0)[None, :, :]
+
+    tmp = _temporary_sibling(path, ".c3d")  # ezc3d appends .c3d to names without it
+    try:
+        c3d = ezc3d.c3d()
+        c3d["parameters"]["POINT"]["RATE"]["value"] = [trial.rate]
+        c3d["parameters"]["POINT"]["LABELS"]["value"] = list(trial.labels)
+        c3d["parameters"]["POINT"]["UNITS"]["value"] = [key]
+        c3d["header"]["points"]["first_frame"] = trial.first_frame  # 0-based; stored 1-based in the file
+        c3d["data"]["points"] = points
+        c3d["data"]["meta_points"] = {"residuals": residuals}
+        c3d.write(str(tmp))
+        os.replace(tmp, path)
+    except Exception as exc:  # noqa: BLE001 - any ezc3d or OS failure becomes one TrialError line
+        _discard(tmp)
+        raise _fail(
+            path,
+            f"could not write the C3D file ({_one_line(exc) or type(exc).__name__})",
+            "check the directory is writable and has free space",
+        ) from None
+    except BaseException:
+        _discard(tmp)
+        raise
+
+
+def write_trc(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> None:
+    """Write a trial to an OpenSim-style TRC file in ``units``; gaps are empty cells.
+
+    Frame numbers are 1-based (``first_frame + 1`` onwards), times in seconds.
+    The file is written next to its target and then moved into place.
+    """
+    path, key, scale = _target(path, trial, units)
+    bad = [label for label in trial.labels if any(ch in label for ch in "\t\r\n")]
+    if bad:
+        raise _fail(path, f"marker label {bad[0]!r} contains a tab or line break", "rename the marker")
+    decimals = {"mm": 6, "cm": 7, "m": 9}[key]  # nanometre resolution in every unit
+    rate = f"{trial.rate:.12g}"
+    n = trial.n_markers
+    head = [
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        "\t".join(_TRC_KEYS),
+        "\t".join(
+            [rate, rate, str(trial.n_frames), str(n), key, rate, str(trial.first_frame + 1), str(trial.n_frames)]
+        ),
+        "Frame#\tTime\t" + "".join(f"{label}\t\t\t" for label in trial.labels),
+        "\t\t" + "".join(f"X{i}\tY{i}\tZ{i}\t" for i in range(1, n + 1)),
+        "",
+    ]
+    rows = (trial.markers / scale).reshape(trial.n_frames, 3 * n).tolist()
+    times = trial.times.tolist()
+    spec = f".{decimals}f"
+
+    tmp = _temporary_sibling(path, ".trc")
+    try:
+        with open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+            fh.write("\n".join(head) + "\n")
+            for i, row in enumerate(rows):
+                cells = "\t".join("" if v != v else format(v, spec) for v in row)  # v != v: NaN, a gap
+                fh.write(f"{trial.first_frame + i + 1}\t{times[i]:.9g}\t{cells}\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        _discard(tmp)
+        raise _fail(
+            path,
+            f"could not write the TRC file ({_one_line(exc)})",
+            "check the directory is writable and has free space",
+        ) from None
+    except BaseException:
+        _discard(tmp)
+        raise

@@ -1,0 +1,577 @@
+"""Tests for calibrate.trial: reading and writing C3D/TRC trials, gaps, units, bad files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+import pytest
+
+from calibrate.errors import CalibrateError, TrialError
+from calibrate.trial import (
+    Trial,
+    read_c3d,
+    read_trc,
+    read_trial,
+    write_c3d,
+    write_trc,
+)
+
+ATOL = 1e-6  # metres: float32 C3D storage in mm or m is good to well below a micrometre
+
+
+def make_trial(n_frames: int = 40, n_markers: int = 5, *, first_frame: int = 12, rate: float = 200.0) -> Trial:
+    """A trial with known positions (metres, a few metres from the origin) and some gaps."""
+    rng = np.random.default_rng(7)
+    markers = rng.uniform(-2.5, 2.5, size=(n_frames, n_markers, 3))
+    if n_frames > 20 and n_markers > 2:
+        markers[3, 1] = np.nan  # a one-frame gap
+        markers[10:20, 2] = np.nan  # a longer gap
+    markers[0, 0] = np.nan  # gap on the first frame
+    markers[-1, -1] = np.nan  # gap on the last frame
+    labels = tuple(f"M{i}" for i in range(n_markers - 1)) + ("R.ASIS",)
+    return Trial(labels=labels, markers=markers, rate=rate, first_frame=first_frame)
+
+
+def assert_same_trial(got: Trial, want: Trial) -> None:
+    assert got.labels == want.labels
+    assert got.rate == pytest.approx(want.rate)
+    assert got.first_frame == want.first_frame
+    assert got.markers.shape == want.markers.shape
+    np.testing.assert_array_equal(np.isnan(got.markers), np.isnan(want.markers))
+    np.testing.assert_allclose(got.markers, want.markers, rtol=0, atol=ATOL, equal_nan=True)
+
+
+def assert_one_line_error(excinfo: pytest.ExceptionInfo[TrialError], path: Path) -> None:
+    message = str(excinfo.value)
+    assert path.name in message
+    assert "\n" not in message and "\r" not in message
+    assert isinstance(excinfo.value, CalibrateError)
+
+
+# ---------------------------------------------------------------------------
+# Trial
+# ---------------------------------------------------------------------------
+
+
+def test_trial_properties_and_accessors() -> None:
+    trial = make_trial(n_frames=40, first_frame=12, rate=200.0)
+    assert trial.n_frames == 40
+    assert trial.n_markers == 5
+    assert trial.markers.dtype == np.float64
+    np.testing.assert_allclose(trial.times, (12 + np.arange(40)) / 200.0)
+    np.testing.assert_array_equal(trial.marker("M2"), trial.markers[:, 2, :])
+    gaps = trial.gap_fraction()
+    np.testing.assert_allclose(gaps, [1 / 40, 1 / 40, 10 / 40, 0.0, 1 / 40])
+
+
+def test_trial_markers_are_a_read_only_copy() -> None:
+    markers = np.zeros((2, 1, 3))
+    markers[0, 0] = [0.1, 0.2, 0.3]
+    trial = Trial(("A",), markers, 100.0)
+    markers[0, 0, 0] = 9.0
+    assert trial.markers[0, 0, 0] == 0.1
+    with pytest.raises(ValueError):
+        trial.markers[0, 0, 0] = 1.0
+
+
+def test_partial_or_infinite_coordinates_make_a_whole_gap() -> None:
+    markers = np.ones((3, 2, 3))
+    markers[0, 0, 1] = np.nan
+    markers[2, 1, 2] = np.inf
+    trial = Trial(("A", "B"), markers, 100.0)
+    assert np.isnan(trial.markers[0, 0]).all()
+    assert np.isnan(trial.markers[2, 1]).all()
+    assert np.isfinite(trial.markers[1]).all()
+
+
+def test_unknown_marker_names_the_label_and_some_known_ones() -> None:
+    trial = make_trial()
+    with pytest.raises(TrialError) as excinfo:
+        trial.marker("LHEE")
+    message = str(excinfo.value)
+    assert "LHEE" in message and "M0" in message and "\n" not in message
+
+
+def test_select_reorders_and_subsets() -> None:
+    trial = make_trial()
+    sub = trial.select(["R.ASIS", "M0"])
+    assert sub.labels == ("R.ASIS", "M0")
+    np.testing.assert_array_equal(sub.markers[:, 0], trial.marker("R.ASIS"))
+    np.testing.assert_array_equal(sub.markers[:, 1], trial.marker("M0"))
+    assert sub.rate == trial.rate and sub.first_frame == trial.first_frame
+    assert trial.select("M1").labels == ("M1",)
+    with pytest.raises(TrialError, match="nope"):
+        trial.select(["M0", "nope"])
+
+
+def test_frames_slices_and_adjusts_first_frame() -> None:
+    trial = make_trial(first_frame=12)
+    part = trial.frames(5, 15)
+    assert part.n_frames == 10
+    assert part.first_frame == 17
+    np.testing.assert_array_equal(part.markers, trial.markers[5:15])
+    np.testing.assert_allclose(part.times, trial.times[5:15])
+    assert trial.frames(3, 3).n_frames == 0
+    for start, stop in [(-1, 4), (5, 4), (0, 41)]:
+        with pytest.raises(TrialError):
+            trial.frames(start, stop)
+
+
+@pytest.mark.parametrize(
+    ("labels", "markers", "rate", "first_frame", "match"),
+    [
+        (("A", "B"), np.zeros((4, 3, 3)), 100.0, 0, "shape"),
+        (("A",), np.zeros((4, 1, 2)), 100.0, 0, "shape"),
+        (("A",), np.zeros((4, 3)), 100.0, 0, "shape"),
+        (("A", "A"), np.zeros((4, 2, 3)), 100.0, 0, "unique"),
+        (("A", ""), np.zeros((4, 2, 3)), 100.0, 0, "non-empty"),
+        (("A", "  "), np.zeros((4, 2, 3)), 100.0, 0, "non-empty"),
+        (("A", " B"), np.zeros((4, 2, 3)), 100.0, 0, "whitespace"),
+        (("A", 7), np.zeros((4, 2, 3)), 100.0, 0, "label"),
+        ("AB", np.zeros((4, 2, 3)), 100.0, 0, "sequence"),
+        (("A",), np.zeros((4, 1, 3)), 0.0, 0, "rate"),
+        (("A",), np.zeros((4, 1, 3)), -50.0, 0, "rate"),
+        (("A",), np.zeros((4, 1, 3)), float("nan"), 0, "rate"),
+        (("A",), np.zeros((4, 1, 3)), float("inf"), 0, "rate"),
+        (("A",), np.zeros((4, 1, 3)), 100.0, -1, "first frame"),
+        (("A",), np.zeros((4, 1, 3)), 100.0, 1.5, "first frame"),
+    ],
+)
+def test_trial_validation(labels, markers, rate, first_frame, match) -> None:  # noqa: ANN001
+    with pytest.raises(TrialError, match=match) as excinfo:
+        Trial(labels, markers, rate, first_frame=first_frame, source="walk01.c3d")
+    assert "\n" not in str(excinfo.value)
+    assert "walk01.c3d" in str(excinfo.value)
+
+
+# ---------------------------------------------------------------------------
+# Round trips
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("units", ["mm", "m", "cm"])
+def test_c3d_round_trip(tmp_path: Path, units: str) -> None:
+    trial = make_trial()
+    path = tmp_path / f"walk_{units}.c3d"
+    write_c3d(path, trial, units=units)
+    back = read_c3d(path)
+    assert_same_trial(back, trial)
+    assert back.source == str(path)
+    assert ezc3d.c3d(str(path))["parameters"]["POINT"]["UNITS"]["value"] == [units]
+
+
+@pytest.mark.parametrize("units", ["mm", "m", "cm"])
+def test_trc_round_trip(tmp_path: Path, units: str) -> None:
+    trial = make_trial()
+    path = tmp_path / f"walk_{units}.trc"
+    write_trc(path, trial, units=units)
+    back = read_trc(path)
+    assert_same_trial(back, trial)
+    np.testing.assert_allclose(back.markers, trial.markers, rtol=0, atol=1e-9, equal_nan=True)
+
+
+def test_c3d_round_trip_with_more_than_255_markers(tmp_path: Path) -> None:
+    trial = make_trial(n_frames=4, n_markers=300)
+    path = tmp_path / "many.c3d"
+    write_c3d(path, trial, units="m")
+    assert_same_trial(read_c3d(path), trial)
+
+
+def test_c3d_gaps_are_stored_as_invalid_points(tmp_path: Path) -> None:
+    """Gaps go into the file as the standard invalid point: residual -1 (ezc3d reads them as NaN)."""
+    trial = make_trial()
+    path = tmp_path / "gaps.c3d"
+    write_c3d(path, trial)
+    raw = ezc3d.c3d(str(path))
+    residuals = raw["data"]["meta_points"]["residuals"][0]  # (markers, frames)
+    gap = np.isnan(trial.markers).any(axis=2).T
+    assert (residuals[gap] < 0).all()
+    assert (residuals[~gap] >= 0).all()
+
+
+def test_c3d_first_frame_is_stored_one_based_in_the_header(tmp_path: Path) -> None:
+    trial = make_trial(first_frame=12)
+    path = tmp_path / "ff.c3d"
+    write_c3d(path, trial)
+    header = path.read_bytes()[:512]
+    assert int.from_bytes(header[6:8], "little") == 13  # C3D header word 4: first frame, 1-based
+    assert ezc3d.c3d(str(path))["header"]["points"]["first_frame"] == 12  # ezc3d: 0-based
+
+
+def test_trc_written_in_opensim_layout(tmp_path: Path) -> None:
+    trial = make_trial(n_frames=3, n_markers=2, first_frame=4, rate=100.0)
+    path = tmp_path / "layout.trc"
+    write_trc(path, trial, units="mm")
+    lines = path.read_text().splitlines()
+    assert lines[0] == "PathFileType\t4\t(X/Y/Z)\tlayout.trc"
+    assert lines[1].split("\t") == [
+        "DataRate",
+        "CameraRate",
+        "NumFrames",
+        "NumMarkers",
+        "Units",
+        "OrigDataRate",
+        "OrigDataStartFrame",
+        "OrigNumFrames",
+    ]
+    assert lines[2].split("\t") == ["100", "100", "3", "2", "mm", "100", "5", "3"]
+    assert lines[3] == "Frame#\tTime\tM0\t\t\tR.ASIS\t\t\t"
+    assert lines[4] == "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\t"
+    first_row = lines[6].split("\t")
+    assert first_row[:2] == ["5", "0.04"]
+    assert first_row[2:5] == ["", "", ""]  # M0 is a gap on the first frame
+    assert float(first_row[5]) == pytest.approx(trial.markers[0, 1, 0] * 1000, abs=1e-6)
+
+
+def test_writers_replace_existing_files_and_leave_no_temporaries(tmp_path: Path) -> None:
+    trial = make_trial()
+    for name, write, read in [("t.c3d", write_c3d, read_c3d), ("t.trc", write_trc, read_trc)]:
+        path = tmp_path / name
+        path.write_text("old contents")
+        write(path, trial)
+        assert_same_trial(read(path), trial)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.c3d", "t.trc"]
+
+
+def test_writer_missing_directory_is_named(tmp_path: Path) -> None:
+    trial = make_trial()
+    missing = tmp_path / "no_such_dir"
+    for name, write in [("t.c3d", write_c3d), ("t.trc", write_trc)]:
+        with pytest.raises(TrialError) as excinfo:
+            write(missing / name, trial)
+        assert "no_such_dir" in str(excinfo.value)
+        assert "\n" not in str(excinfo.value)
+    assert not missing.exists()
+
+
+def test_writer_rejects_unknown_units(tmp_path: Path) -> None:
+    trial = make_trial()
+    for name, write in [("t.c3d", write_c3d), ("t.trc", write_trc)]:
+        with pytest.raises(TrialError, match="inch"):
+            write(tmp_path / name, trial, units="inch")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writers_reject_empty_trial(tmp_path: Path) -> None:
+    empty = make_trial().frames(0, 0)
+    for name, write in [("t.c3d", write_c3d), ("t.trc", write_trc)]:
+        with pytest.raises(TrialError):
+            write(tmp_path / name, empty)
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------
+# C3D written directly with ezc3d
+# ---------------------------------------------------------------------------
+
+
+def test_read_c3d_from_ezc3d_with_invalid_points_cm_and_many_labels(tmp_path: Path) -> None:
+    n_points, n_frames = 300, 6
+    rng = np.random.default_rng(3)
+    positions_cm = rng.uniform(-150.0, 150.0, size=(n_frames, n_points, 3))
+    labels = [f"P{i:03d}" for i in range(n_points)]
+    labels[7] = ""  # an unlabelled point
+    labels[9] = "P008"  # a duplicate label
+    labels[260] = "  Spaced  "  # surrounding whitespace
+
+    points = np.ones((4, n_points, n_frames))
+    points[:3] = positions_cm.transpose(2, 1, 0)
+    residuals = np.zeros((1, n_points, n_frames))
+    residuals[0, 5, 2] = -1.0  # invalid point by residual
+    points[:3, 6, 4] = 0.0  # exactly-zero point, residual 0
+    points[:3, 270, 1] = 0.0  # exactly-zero point past the first 255
+
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [250.0]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = labels[:255]
+    c3d.add_parameter("POINT", "LABELS2", labels[255:])
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["cm"]
+    c3d["header"]["points"]["first_frame"] = 99
+    c3d["data"]["points"] = points
+    c3d["data"]["meta_points"] = {"residuals": residuals}
+    path = tmp_path / "direct.c3d"
+    c3d.write(str(path))
+    params = ezc3d.c3d(str(path))["parameters"]["POINT"]
+    assert len(params["LABELS"]["value"]) == 255 and len(params["LABELS2"]["value"]) == 45
+
+    trial = read_c3d(path)
+    assert trial.n_markers == n_points and trial.n_frames == n_frames
+    assert trial.rate == 250.0
+    assert trial.first_frame == 99
+    assert trial.labels[7] == "unlabelled_8"
+    assert trial.labels[8] == "P008" and trial.labels[9] == "P008_2"
+    assert trial.labels[260] == "Spaced"
+    assert trial.labels[299] == "P299"
+    assert len(set(trial.labels)) == n_points
+
+    want = positions_cm / 100.0
+    want[2, 5] = np.nan
+    want[4, 6] = np.nan
+    want[1, 270] = np.nan
+    np.testing.assert_array_equal(np.isnan(trial.markers), np.isnan(want))
+    np.testing.assert_allclose(trial.markers, want, rtol=0, atol=ATOL, equal_nan=True)
+
+
+def _ezc3d_file(path: Path, *, units: list[str] | None, n_points: int = 2, n_frames: int = 3) -> Path:
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = [f"M{i}" for i in range(n_points)]
+    if units is not None:
+        c3d["parameters"]["POINT"]["UNITS"]["value"] = units
+    c3d["data"]["points"] = np.full((4, n_points, n_frames), 10.0)
+    if n_frames == 0:
+        del c3d["data"]["rotations"]  # ezc3d's writer divides by the frame count when rotations are present
+    c3d.write(str(path))
+    return path
+
+
+def test_read_c3d_units(tmp_path: Path) -> None:
+    assert read_c3d(_ezc3d_file(tmp_path / "a.c3d", units=[" MM "])).markers[0, 0, 0] == pytest.approx(0.01)
+    assert read_c3d(_ezc3d_file(tmp_path / "b.c3d", units=["M"])).markers[0, 0, 0] == pytest.approx(10.0)
+    assert read_c3d(_ezc3d_file(tmp_path / "c.c3d", units=None)).markers[0, 0, 0] == pytest.approx(0.01)
+    bad = _ezc3d_file(tmp_path / "inches.c3d", units=["in"])
+    with pytest.raises(TrialError, match="units") as excinfo:
+        read_c3d(bad)
+    assert_one_line_error(excinfo, bad)
+
+
+def test_read_c3d_without_points_or_frames(tmp_path: Path) -> None:
+    no_points = _ezc3d_file(tmp_path / "nopoints.c3d", units=["mm"], n_points=0)
+    with pytest.raises(TrialError, match="no marker") as excinfo:
+        read_c3d(no_points)
+    assert_one_line_error(excinfo, no_points)
+    no_frames = _ezc3d_file(tmp_path / "noframes.c3d", units=["mm"], n_frames=0)
+    with pytest.raises(TrialError, match="no frames") as excinfo:
+        read_c3d(no_frames)
+    assert_one_line_error(excinfo, no_frames)
+
+
+# ---------------------------------------------------------------------------
+# TRC reading tolerance
+# ---------------------------------------------------------------------------
+
+TRC_HEADER = (
+    "PathFileType\t4\t(X/Y/Z)\thand.trc\n"
+    "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
+    "{rate}\t{rate}\t{frames}\t2\t{units}\t{rate}\t1\t{frames}\n"
+    "Frame#\tTime\tA\t\t\tB\n"
+    "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\n"
+)
+
+
+def test_read_trc_hand_written_with_gaps_and_ragged_rows(tmp_path: Path) -> None:
+    path = tmp_path / "hand.trc"
+    path.write_text(
+        TRC_HEADER.format(rate=60, frames=4, units="m")
+        + "1\t0\t1\t2\t3\t4\t5\t6\t\t\n"  # trailing tabs
+        + "2\t0.0167\t1.5\t2.5\t3.5\n"  # missing trailing cells: B is a gap
+        + "3\t0.0333\t\t\t\t4\t5\t6\n"  # blank cells: A is a gap
+        + "4\t0.05\t1\t\t3\t4\t5\t6\n"  # one blank coordinate: A is a gap
+        + "\n\n"  # blank lines at the end
+    )
+    trial = read_trc(path)
+    assert trial.labels == ("A", "B")
+    assert trial.rate == 60.0 and trial.first_frame == 0
+    want = np.array(
+        [
+            [[1, 2, 3], [4, 5, 6]],
+            [[1.5, 2.5, 3.5], [np.nan] * 3],
+            [[np.nan] * 3, [4, 5, 6]],
+            [[np.nan] * 3, [4, 5, 6]],
+        ]
+    )
+    np.testing.assert_allclose(trial.markers, want, equal_nan=True)
+
+
+def test_read_trc_units_and_crlf(tmp_path: Path) -> None:
+    path = tmp_path / "crlf.trc"
+    text = TRC_HEADER.format(rate=100, frames=1, units="cm") + "11\t0.1\t1\t2\t3\t4\t5\t6\n"
+    path.write_bytes(text.replace("\n", "\r\n").encode())
+    trial = read_trc(path)
+    np.testing.assert_allclose(trial.markers[0], [[0.01, 0.02, 0.03], [0.04, 0.05, 0.06]])
+    assert trial.first_frame == 10
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (TRC_HEADER.format(rate=100, frames=1, units="mm") + "1\t0\t1\t2\tabc\t4\t5\t6\n", "abc"),
+        (TRC_HEADER.format(rate=100, frames=1, units="furlong") + "1\t0\t1\t2\t3\t4\t5\t6\n", "furlong"),
+        (TRC_HEADER.format(rate="fast", frames=1, units="mm") + "1\t0\t1\t2\t3\t4\t5\t6\n", "DataRate"),
+        (TRC_HEADER.format(rate=100, frames=5, units="mm") + "1\t0\t1\t2\t3\t4\t5\t6\n", "NumFrames"),
+        (TRC_HEADER.format(rate=100, frames=1, units="mm") + "1\t0\t1\t2\t3\t4\t5\t6\t7\n", "more values"),
+        (TRC_HEADER.format(rate=100, frames=0, units="mm"), "no frames"),
+        ("Frame#\tTime\tA\n1\t0\t1\t2\t3\n", "TRC"),
+        (TRC_HEADER.replace("PathFileType", "Hello").format(rate=100, frames=0, units="mm") + "1\t0\n", "PathFileType"),
+    ],
+)
+def test_read_trc_malformed(tmp_path: Path, text: str, match: str) -> None:
+    path = tmp_path / "bad.trc"
+    path.write_text(text)
+    with pytest.raises(TrialError, match=match) as excinfo:
+        read_trc(path)
+    assert_one_line_error(excinfo, path)
+
+
+# ---------------------------------------------------------------------------
+# Bad files and dispatch
+# ---------------------------------------------------------------------------
+
+
+def _valid_c3d_bytes(tmp_path: Path) -> bytes:
+    path = tmp_path / "valid.c3d"
+    write_c3d(path, make_trial(n_frames=60, n_markers=8))
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize("suffix", [".c3d", ".trc"])
+def test_missing_file(tmp_path: Path, suffix: str) -> None:
+    path = tmp_path / f"missing{suffix}"
+    with pytest.raises(TrialError, match="no such file") as excinfo:
+        read_trial(path)
+    assert_one_line_error(excinfo, path)
+
+
+@pytest.mark.parametrize("suffix", [".c3d", ".trc"])
+def test_empty_file(tmp_path: Path, suffix: str) -> None:
+    path = tmp_path / f"empty{suffix}"
+    path.write_bytes(b"")
+    with pytest.raises(TrialError, match="empty") as excinfo:
+        read_trial(path)
+    assert_one_line_error(excinfo, path)
+
+
+def test_directory(tmp_path: Path) -> None:
+    path = tmp_path / "folder.c3d"
+    path.mkdir()
+    for reader in (read_c3d, read_trc, read_trial):
+        with pytest.raises(TrialError, match="directory") as excinfo:
+            reader(path)
+        assert_one_line_error(excinfo, path)
+
+
+def test_truncated_c3d(tmp_path: Path) -> None:
+    data = _valid_c3d_bytes(tmp_path)
+    for cut in (len(data) // 2, 1024, 600, 300):
+        path = tmp_path / f"cut_{cut}.c3d"
+        path.write_bytes(data[:cut])
+        with pytest.raises(TrialError, match="C3D") as excinfo:
+            read_c3d(path)
+        assert_one_line_error(excinfo, path)
+
+
+def test_c3d_missing_last_frame_bytes(tmp_path: Path) -> None:
+    data = _valid_c3d_bytes(tmp_path)
+    path = tmp_path / "short.c3d"
+    path.write_bytes(data[: len(data) - 8 * 16 - 512])  # lose the padding block and most of the last frame
+    with pytest.raises(TrialError, match="truncated") as excinfo:
+        read_c3d(path)
+    assert_one_line_error(excinfo, path)
+
+
+def test_garbage_c3d(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    for name, data in [
+        ("noise.c3d", rng.integers(0, 256, 4096, dtype=np.uint8).tobytes()),
+        ("text.c3d", b"this is not a c3d file\n" * 50),
+        ("sig.c3d", bytes([2, 0x50]) + rng.integers(0, 256, 2046, dtype=np.uint8).tobytes()),
+    ]:
+        path = tmp_path / name
+        path.write_bytes(data)
+        with pytest.raises(TrialError, match="C3D") as excinfo:
+            read_trial(path)
+        assert_one_line_error(excinfo, path)
+
+
+def test_binary_trc(tmp_path: Path) -> None:
+    path = tmp_path / "binary.trc"
+    path.write_bytes(_valid_c3d_bytes(tmp_path))
+    with pytest.raises(TrialError) as excinfo:
+        read_trc(path)
+    assert_one_line_error(excinfo, path)
+
+
+def test_read_trial_dispatch(tmp_path: Path) -> None:
+    trial = make_trial()
+    upper_c3d = tmp_path / "WALK.C3D"
+    write_c3d(upper_c3d, trial)
+    mixed_trc = tmp_path / "walk.Trc"
+    write_trc(mixed_trc, trial)
+    assert_same_trial(read_trial(upper_c3d), trial)
+    assert_same_trial(read_trial(mixed_trc), trial)
+    assert read_trial(str(upper_c3d)).source == str(upper_c3d)
+    for name in ("walk.csv", "walk"):
+        path = tmp_path / name
+        path.write_text("x")
+        with pytest.raises(TrialError, match=r"\.c3d or \.trc") as excinfo:
+            read_trial(path)
+        assert_one_line_error(excinfo, path)
+
+
+def _c3d_with_analogs(path: Path) -> bytes:
+    """A C3D with 2 markers and 2 analog channels at 10 samples per frame, written by ezc3d."""
+    n_frames = 8
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = ["LHEE", "RHEE"]
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c3d["parameters"]["ANALOG"]["RATE"]["value"] = [1000.0]
+    c3d["parameters"]["ANALOG"]["LABELS"]["value"] = ["Fz1", "Fz2"]
+    c3d["data"]["points"] = np.full((4, 2, n_frames), 250.0)
+    c3d["data"]["analogs"] = np.ones((1, 2, 10 * n_frames))
+    c3d.write(str(path))
+    return path.read_bytes()
+
+
+def _record(data: bytes, group_id: int, name: bytes) -> int:
+    """Offset of the parameter record GROUP_ID:NAME in a C3D file (unlocked or locked)."""
+    for n_chars in (len(name), 256 - len(name)):
+        at = data.find(bytes([n_chars, group_id]) + name, 512)
+        if at >= 0:
+            return at
+    raise AssertionError(f"no parameter {name!r} in group {group_id}")
+
+
+def test_read_c3d_with_analog_channels(tmp_path: Path) -> None:
+    path = tmp_path / "analogs.c3d"
+    _c3d_with_analogs(path)
+    trial = read_c3d(path)
+    assert trial.labels == ("LHEE", "RHEE")
+    np.testing.assert_allclose(trial.markers, 0.25)
+
+
+def test_c3d_with_incomplete_analog_parameters(tmp_path: Path) -> None:
+    """ezc3d crashes the interpreter when ANALOG:SCALE is missing; the reader must refuse first."""
+    data = bytearray(_c3d_with_analogs(tmp_path / "analogs.c3d"))
+    at = _record(bytes(data), 2, b"SCALE")  # ezc3d writes POINT as group 1, ANALOG as group 2
+    data[at + 2 : at + 7] = b"SCALX"
+    path = tmp_path / "noscale.c3d"
+    path.write_bytes(bytes(data))
+    with pytest.raises(TrialError, match="ANALOG:SCALE") as excinfo:
+        read_c3d(path)
+    assert_one_line_error(excinfo, path)
+
+
+def test_c3d_with_damaged_parameter_record(tmp_path: Path) -> None:
+    data = bytearray(_valid_c3d_bytes(tmp_path))
+    at = _record(bytes(data), 1, b"LABELS")
+    data[at + 2 + 6 + 2 + 1] = 200  # number of dimensions of POINT:LABELS
+    path = tmp_path / "damaged.c3d"
+    path.write_bytes(bytes(data))
+    with pytest.raises(TrialError, match="parameter section") as excinfo:
+        read_c3d(path)
+    assert_one_line_error(excinfo, path)
+
+
+def test_failed_write_leaves_the_old_file_alone(tmp_path: Path) -> None:
+    tabbed = Trial(("A\tB",), np.ones((2, 1, 3)), 100.0)
+    path = tmp_path / "keep.trc"
+    path.write_text("old contents")
+    with pytest.raises(TrialError, match="tab"):
+        write_trc(path, tabbed)
+    with pytest.raises(TrialError, match="units"):
+        write_trc(path, make_trial(), units="feet")
+    assert path.read_text() == "old contents"
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.trc"]
