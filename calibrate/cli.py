@@ -90,12 +90,19 @@ def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
     p.add_argument("--model", type=Path, default=None, help="base model URDF (default: models/human.urdf)")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: 'calibrate simulate: error: ...; see --help', exit 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = _Parser(
         prog="calibrate",
         description="Subject-specific human models from motion-capture trials.",
     )
-    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sim = sub.add_parser("simulate", help="write a synthetic squat trial with its truth",
                          description="Simulate squats of a random synthetic subject derived from a base model; "
                                      "writes OUT/trial.c3d, OUT/truth.urdf and OUT/truth_motion.csv.")

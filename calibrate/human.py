@@ -25,6 +25,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from ._text import fmt_float, fmt_vec
+
 REFERENCE_HEIGHT = 1.75  # m; the landmark table below is for this stature
 
 
@@ -153,16 +155,6 @@ class _Joint:
     dofs: list[tuple[str, tuple[float, float, float], float, float]]  # (suffix, axis, lo, hi)
 
 
-def _fmt(x: float) -> str:
-    """Shortest text that reads back to the same float (round-trip exact)."""
-    r = repr(float(x))
-    return "0" if r in ("0.0", "-0.0") else r
-
-
-def _vec(v) -> str:
-    return " ".join(_fmt(x) for x in v)
-
-
 def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name: str = "human") -> str:
     """Return the URDF text of a full-body model for a subject of `height` (m) and `mass` (kg).
 
@@ -195,9 +187,9 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
         if lon_axis == 0:  # foot: longitudinal axis is x
             radii = [d.r_lon, d.r_tra, d.r_sag]
         inertia = m * (np.asarray(radii) * length) ** 2
-        vis = f'<cylinder radius="{_fmt(radius * k)}" length="{_fmt(length)}"/>'
+        vis = f'<cylinder radius="{fmt_float(radius * k)}" length="{fmt_float(length)}"/>'
         if lon_axis == 0:
-            vis = f'<box size="{_vec((length, 0.09 * k, 0.05 * k))}"/>'
+            vis = f'<box size="{fmt_vec((length, 0.09 * k, 0.05 * k))}"/>'
         segs.append(_Seg(seg, origin, m, prox + d.com * (dist - prox), inertia, vis, 0.5 * (prox + dist)))
 
     # Pelvis (de Leva lower trunk, measured from OMPH downwards to MIDH).
@@ -207,7 +199,7 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
     segs.append(_Seg("pelvis", pts["pelvis"], mass * pel.mass,
                      omph + pel.com * (pts["pelvis"] - omph),
                      mass * pel.mass * (np.array([pel.r_sag, pel.r_tra, pel.r_lon]) * pel_len) ** 2,
-                     f'<box size="{_vec(k * np.array([0.16, 0.26, 0.12]))}"/>',
+                     f'<box size="{fmt_vec(k * np.array([0.16, 0.26, 0.12]))}"/>',
                      pts["pelvis"] + k * np.array([-0.03, 0.0, 0.05])))
 
     # Torso = de Leva upper + middle trunk combined (parallel-axis theorem), CERV at the neck joint.
@@ -226,10 +218,10 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
         dz = float(c_i[2] - c_t[2])
         inertia_t += own + m_i * np.array([dz * dz, dz * dz, 0.0])
     segs.append(_Seg("torso", pts["lumbar"], m_t, c_t, inertia_t,
-                     f'<box size="{_vec(k * np.array([0.20, 0.32, 0.45]))}"/>',
-                     0.5 * (pts["lumbar"] + pts["neck"]) + k * np.array([0.0, 0.0, 0.0])))
+                     f'<box size="{fmt_vec(k * np.array([0.20, 0.32, 0.45]))}"/>',
+                     0.5 * (pts["lumbar"] + pts["neck"])))
     long_segment("head", "head", pts["vertex"], pts["neck"], pts["neck"], radius=0.0)
-    segs[-1].visual = f'<sphere radius="{_fmt(0.10 * k)}"/>'
+    segs[-1].visual = f'<sphere radius="{fmt_float(0.10 * k)}"/>'
     segs[-1].visual_at = pts["neck"] + k * np.array([0.03, 0.0, 0.13])
 
     for s in ("r", "l"):
@@ -244,7 +236,7 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
         m_talus = 0.1 * mass * foot.mass
         segs.append(_Seg(f"talus_{s}", g["ankle"], m_talus, g["ankle"].copy(),
                          np.full(3, 0.4 * m_talus * (0.02 * k) ** 2),
-                         f'<sphere radius="{_fmt(0.02 * k)}"/>', g["ankle"].copy()))
+                         f'<sphere radius="{fmt_float(0.02 * k)}"/>', g["ankle"].copy()))
         long_segment(f"calcn_{s}", "foot", g["heel"], g["toe_tip"], g["subtalar"], frac=0.9, lon_axis=0)
 
     origin = {sg.name: sg.origin for sg in segs}
@@ -313,13 +305,13 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
         out += [
             f'  <link name="{sg.name}">',
             "    <inertial>",
-            f'      <origin xyz="{_vec(com)}" rpy="0 0 0"/>',
-            f'      <mass value="{_fmt(sg.mass)}"/>',
-            f'      <inertia ixx="{_fmt(sg.inertia[0])}" ixy="0" ixz="0" iyy="{_fmt(sg.inertia[1])}" '
-            f'iyz="0" izz="{_fmt(sg.inertia[2])}"/>',
+            f'      <origin xyz="{fmt_vec(com)}" rpy="0 0 0"/>',
+            f'      <mass value="{fmt_float(sg.mass)}"/>',
+            f'      <inertia ixx="{fmt_float(sg.inertia[0])}" ixy="0" ixz="0" iyy="{fmt_float(sg.inertia[1])}" '
+            f'iyz="0" izz="{fmt_float(sg.inertia[2])}"/>',
             "    </inertial>",
             "    <visual>",
-            f'      <origin xyz="{_vec(vis)}" rpy="0 0 0"/>',
+            f'      <origin xyz="{fmt_vec(vis)}" rpy="0 0 0"/>',
             f"      <geometry>{sg.visual}</geometry>",
             '      <material name="segment"/>',
             "    </visual>",
@@ -338,22 +330,22 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
                 f'  <joint name="{jname}" type="revolute">',
                 f'    <parent link="{parent}"/>',
                 f'    <child link="{child}"/>',
-                f'    <origin xyz="{_vec(xyz)}" rpy="0 0 0"/>',
-                f'    <axis xyz="{_vec(axis)}"/>',
-                f'    <limit lower="{_fmt(lo)}" upper="{_fmt(hi)}" effort="1000" velocity="20"/>',
+                f'    <origin xyz="{fmt_vec(xyz)}" rpy="0 0 0"/>',
+                f'    <axis xyz="{fmt_vec(axis)}"/>',
+                f'    <limit lower="{fmt_float(lo)}" upper="{fmt_float(hi)}" effort="1000" velocity="20"/>',
                 "  </joint>",
             ]
             parent = child
     for label, seg, p in markers:
         out += [
             f'  <link name="{label}">',
-            f'    <visual><geometry><sphere radius="{_fmt(0.007)}"/></geometry>'
+            f'    <visual><geometry><sphere radius="{fmt_float(0.007)}"/></geometry>'
             '<material name="marker"/></visual>',
             "  </link>",
             f'  <joint name="{label}_marker" type="fixed">',
             f'    <parent link="{seg}"/>',
             f'    <child link="{label}"/>',
-            f'    <origin xyz="{_vec(p - origin[seg])}" rpy="0 0 0"/>',
+            f'    <origin xyz="{fmt_vec(p - origin[seg])}" rpy="0 0 0"/>',
             "  </joint>",
         ]
     out.append("</robot>")

@@ -111,8 +111,8 @@ class _FrameSolver:
         rot = bool(np.isin([3, 4, 5], free).any())
         dof_cols = free[free >= 6]
         lo, hi = self.lower[dof_cols - 6], self.upper[dof_cols - 6]
-        col_of = np.searchsorted(free, dof_cols) if np.all(np.diff(free) > 0) else \
-            np.array([int(np.flatnonzero(free == c)[0]) for c in dof_cols], dtype=int)
+        position = {int(c): i for i, c in enumerate(free)}
+        col_of = np.array([position[int(c)] for c in dof_cols], dtype=int)  # limit rows -> columns of Jf
 
         def evaluate(zz, qq):
             m, J = self.evaluate(zz, qq)

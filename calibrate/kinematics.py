@@ -215,7 +215,7 @@ def build_kinematics(model: Model) -> Kinematics:
             continue
         if u.role == "centre":
             jc_pos[u.index] = t_o
-        R_o = R_p @ ca.DM(u.rotation) if not np.allclose(u.rotation, np.eye(3), atol=0, rtol=0) else R_p
+        R_o = R_p if np.array_equal(u.rotation, np.eye(3)) else R_p @ ca.DM(u.rotation)
         if u.dof >= 0:
             R_o = R_o @ axis_angle(axis[:, u.dof], theta[u.dof])
         pose[u.child_link] = (R_o, t_o)

@@ -22,7 +22,6 @@ A :class:`Model` is immutable.  Geometry that calibration may change lives in a
 from __future__ import annotations
 
 import os
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from ._text import atomic_write_text, fmt_float, fmt_vec
 from .errors import ModelError
 
 MOVING = ("revolute", "continuous")
@@ -208,7 +208,6 @@ class Model:
         # Walk Pinocchio's frame tree: links are BODY frames, URDF joints JOINT/FIXED_JOINT frames.
         pm = self.pin
         frames = list(pm.frames)
-        body_id = {f.name: i for i, f in enumerate(frames) if f.type == pin.FrameType.BODY}
         urdf_joints: list[UrdfJoint] = []
         seg_order: list[str] = [self.root]
         joint_chain: dict[str, list[str]] = {}  # child segment -> URDF joints from parent segment
@@ -217,7 +216,7 @@ class Model:
         dof_index: dict[str, int] = {}
         for i in range(2, pm.njoints):  # 0 universe, 1 root free-flyer
             dof_index[pm.names[i]] = len(dof_index)
-        for fid, f in enumerate(frames):
+        for f in frames:
             if f.type not in (pin.FrameType.JOINT, pin.FrameType.FIXED_JOINT) or f.name in ("universe", "root_joint"):
                 continue
             jn = f.name
@@ -253,7 +252,6 @@ class Model:
                 xyz=np.array(placement.translation), rotation=np.array(placement.rotation),
                 owner=own, role=role, index=index, dof=dof_index.get(jn, -1) if t in MOVING else -1,
             ))
-            assert body_id[child_link] > fid
 
         # Anatomical joints, in segment order.
         joints: list[Joint] = []
@@ -443,7 +441,7 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
             if ax is None:
                 ax = ET.SubElement(el, "axis")
             a = p.axis[u.dof]
-            ax.set("xyz", _vec(a / np.linalg.norm(a)))
+            ax.set("xyz", fmt_vec(a / np.linalg.norm(a)))
     for link in robot.findall("link"):
         s = seg_scale.get(link.get("name", ""))
         if s is None or s == 1.0:
@@ -452,7 +450,7 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
     data = ET.tostring(robot, encoding="unicode")
     start = model._text.find("<robot")
     head = model._text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
-    _atomic_write(path, head + data + "\n")
+    atomic_write_text(path, head + data + "\n")
     return path
 
 
@@ -481,7 +479,7 @@ def _scale_link(link: ET.Element, s: float) -> None:
         if i is not None:
             for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
                 if k in i.attrib:
-                    i.set(k, _fmt(float(i.get(k, "0")) * s * s))
+                    i.set(k, fmt_float(float(i.get(k, "0")) * s * s))
     for tag in ("visual", "collision"):
         for v in link.findall(tag):
             o = v.find("origin")
@@ -499,12 +497,12 @@ def _scale_link(link: ET.Element, s: float) -> None:
             mesh = g.find("mesh")
             if mesh is not None:
                 old = np.array([float(x) for x in mesh.get("scale", "1 1 1").split()])
-                mesh.set("scale", _vec(np.broadcast_to(old, (3,)) * s))
+                mesh.set("scale", fmt_vec(np.broadcast_to(old, (3,)) * s))
 
 
 def _scale_attr(el: ET.Element, attr: str, s: float) -> None:
     if attr in el.attrib:
-        el.set(attr, _vec(np.array([float(x) for x in el.get(attr, "").split()]) * s))
+        el.set(attr, fmt_vec(np.array([float(x) for x in el.get(attr, "").split()]) * s))
 
 
 def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
@@ -512,16 +510,7 @@ def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
     if o is None:
         o = ET.Element("origin")
         joint.insert(0, o)
-    o.set("xyz", _vec(xyz))
-
-
-def _fmt(x: float) -> str:
-    r = repr(float(x))
-    return "0" if r in ("0.0", "-0.0") else r
-
-
-def _vec(v) -> str:
-    return " ".join(_fmt(x) for x in np.ravel(v))
+    o.set("xyz", fmt_vec(xyz))
 
 
 def _joint_name(chain: list[str]) -> str:
@@ -555,20 +544,6 @@ def _read_text(path: Path) -> str:
     if not text.strip():
         raise ModelError(f"{path}: empty file; give a URDF model")
     return text
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 __all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "load_model", "write_model"]

@@ -10,13 +10,14 @@ named by the joint, in radians.
 from __future__ import annotations
 
 import csv
+import io
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ._text import atomic_write_text
 from .errors import CalibrateError
 
 ROOT_COLUMNS = ("root_x", "root_y", "root_z", "root_qx", "root_qy", "root_qz", "root_qw")
@@ -59,16 +60,11 @@ def write_motion_csv(path: str | os.PathLike[str], motion: Motion) -> Path:
     if not path.parent.is_dir():
         raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
     data = np.hstack([motion.times[:, None], motion.root_translation, motion.root_quaternion, motion.angles])
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(("time", *ROOT_COLUMNS, *motion.dof_names))
-            w.writerows([[repr(float(x)) for x in row] for row in data])
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(("time", *ROOT_COLUMNS, *motion.dof_names))
+    w.writerows([[repr(float(x)) for x in row] for row in data])
+    atomic_write_text(path, buf.getvalue())
     return path
 
 

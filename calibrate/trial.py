@@ -546,7 +546,7 @@ def read_trc(path: str | os.PathLike[str]) -> Trial:
     while lines and not lines[-1].strip():
         lines.pop()
     if len(lines) < 5:
-        raise _fail(path, f"not a TRC file (only {len(lines)} lines, a TRC header needs 5)", redo)
+        raise _fail(path, f"not a TRC file ({len(lines)} line(s), a TRC header needs 5)", redo)
     if not lines[0].lstrip().startswith("PathFileType"):
         raise _fail(path, "not a TRC file (line 1 should start with PathFileType)", redo)
 

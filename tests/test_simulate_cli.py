@@ -121,6 +121,32 @@ def test_simulate_refuses_a_file_as_output_dir(tmp_path):
     assert r.returncode == 2 and "not a directory" in r.stderr and f.read_text() == "keep"
 
 
+def test_default_model_without_source_tree(tmp_path, monkeypatch):
+    """An installed package has no models/ folder: the same model is generated instead."""
+    from conftest import HUMAN
+
+    import calibrate.cli as cli
+
+    monkeypatch.setattr(cli, "DEFAULT_MODEL", tmp_path / "absent" / "human.urdf")
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    path = cli._default_model()
+    assert path.parent == tmp_path and path.read_text() == HUMAN.read_text()
+
+
+def test_motion_csv_errors(tmp_path):
+    from calibrate.errors import CalibrateError
+
+    bad = tmp_path / "m.csv"
+    bad.write_text("t,x\n0,1\n")
+    with pytest.raises(CalibrateError, match="header must start with time"):
+        read_motion_csv(bad)
+    with pytest.raises(CalibrateError, match="cannot read"):
+        read_motion_csv(tmp_path / "missing.csv")
+
+
 def test_inspect_model_and_trial(tmp_path, capsys):
     from conftest import HUMAN
 
