@@ -277,11 +277,9 @@ class Model:
         # DoFs in Pinocchio's configuration order.
         dofs: list[Dof] = []
         chain_of = {jn: j.name for j in joints for jn in j.urdf_joints}
-        for i in range(2, pm.njoints):
-            jm = pm.joints[i]
+        for i, axis in zip(range(2, pm.njoints), _pin_axes(pm, where), strict=True):
             jn = pm.names[i]
             el = joints_el[jn]
-            axis = _pin_axis(jm, where, jn)
             cont = jtype(jn) == "continuous"
             lim = el.find("limit")
             lo = -np.inf if cont or lim is None else float(lim.get("lower", "-inf"))
@@ -521,15 +519,22 @@ def _joint_name(chain: list[str]) -> str:
     return prefix if prefix else chain[0]
 
 
-def _pin_axis(jm, where: str, jn: str) -> np.ndarray:
-    short = jm.shortname()
-    for tag, ax in (("RX", (1.0, 0, 0)), ("RY", (0, 1.0, 0)), ("RZ", (0, 0, 1.0))):
-        if short.endswith(tag) or short.endswith(tag.replace("R", "RUB")):
-            return np.array(ax, dtype=float)
-    inner = jm.extract()
-    if hasattr(inner, "axis"):
-        return np.array(inner.axis, dtype=float)
-    raise ModelError(f"{where}: joint '{jn}' became a Pinocchio {short}, which calibrate does not handle")
+def _pin_axes(pm: pin.Model, where: str) -> list[np.ndarray]:
+    """Rotation axis of every joint after the free-flyer, from its motion subspace S (angular part).
+
+    Works for every revolute flavour Pinocchio builds from a URDF (RX/RY/RZ, unaligned,
+    unbounded) without depending on which attributes each Python binding exposes.
+    """
+    data = pm.createData()
+    pin.forwardKinematics(pm, data, pin.neutral(pm))
+    axes = []
+    for i in range(2, pm.njoints):
+        S = np.asarray(data.joints[i].S).reshape(6, -1)
+        if S.shape[1] != 1 or np.abs(S[:3, 0]).max() > 1e-12:
+            raise ModelError(f"{where}: joint '{pm.names[i]}' became a Pinocchio {pm.joints[i].shortname()}, "
+                             f"not a single rotation; use revolute or continuous joints")
+        axes.append(S[3:, 0].copy())
+    return axes
 
 
 def _read_text(path: Path) -> str:

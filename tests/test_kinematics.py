@@ -141,3 +141,57 @@ def test_ik_with_gaps_and_noise_reaches_the_noise_floor(human, human_kin):
     # 3-D RMS of pure noise is sqrt(3) mm; a fit absorbs part of it (38 DoF of 117 coordinates)
     assert 1.0e-3 < res.rms < np.sqrt(3) * 1e-3
     assert np.isnan(res.residuals).any()  # gaps stay gaps
+
+
+GENERIC_URDF = """<robot name="generic">
+  <link name="base"><inertial><mass value="2"/>UNIT_INERTIA</inertial></link>
+  <link name="arm"><inertial><mass value="1"/>UNIT_INERTIA</inertial></link>
+  <link name="plate"><inertial><mass value="0.3"/>UNIT_INERTIA</inertial>
+  </link>
+  <link name="wheel"><inertial><mass value="0.5"/>UNIT_INERTIA</inertial>
+  </link>
+  <link name="hand_a"/>
+  <link name="hand"><inertial><mass value="0.4"/>UNIT_INERTIA</inertial>
+  </link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="arm"/>
+    <origin xyz="0.1 -0.2 0.3" rpy="0.3 -0.5 1.1"/><axis xyz="0.2 0.9 -0.3"/>
+    <limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="weld" type="fixed"><parent link="arm"/><child link="plate"/>
+    <origin xyz="0.05 0.02 -0.3" rpy="0.7 0 -0.4"/>
+  </joint>
+  <joint name="spin" type="continuous"><parent link="plate"/><child link="wheel"/><origin xyz="0 0.1 0" rpy="0 1.2 0"/>
+    <axis xyz="1 0 0"/></joint>
+  <joint name="wrist_a" type="revolute"><parent link="arm"/><child link="hand_a"/><origin xyz="0 0 -0.4" rpy="0 0 0.2"/>
+    <axis xyz="1 0 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="wrist_b" type="revolute"><parent link="hand_a"/><child link="hand"/><origin xyz="0 0 0" rpy="0.1 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <link name="M1"/><joint name="M1_j" type="fixed"><parent link="base"/><child link="M1"/>
+    <origin xyz="0.1 0 0"/></joint>
+  <link name="M2"/><joint name="M2_j" type="fixed"><parent link="plate"/><child link="M2"/>
+    <origin xyz="0.02 0.03 0.04" rpy="0.5 0.5 0.5"/></joint>
+  <link name="M3"/><joint name="M3_j" type="fixed"><parent link="wheel"/><child link="M3"/>
+    <origin xyz="0 0.07 0.01"/></joint>
+  <link name="M4"/><joint name="M4_j" type="fixed"><parent link="hand"/><child link="M4"/>
+    <origin xyz="0.01 0 -0.08"/></joint>
+</robot>
+""".replace("UNIT_INERTIA", '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/>')
+
+
+def test_generic_tree_rpy_continuous_and_welded_segments(tmp_path):
+    """Origins with rpy, a continuous joint, a welded (fixed) segment and a connector chain."""
+    src = tmp_path / "generic.urdf"
+    src.write_text(GENERIC_URDF)
+    model = load_model(src)
+    kinds = {j.name: j.kind for j in model.joints}
+    assert kinds == {"shoulder": "hinge", "weld": "fixed", "spin": "hinge", "wrist": "universal"}
+    assert model.dofs[model.dof_index("spin")].continuous
+    kin = build_kinematics(model)
+    rng = np.random.default_rng(21)
+    assert _max_fk_error(model, kin, model.parameters(), model, rng, n=30) < 1e-12
+    p = model.parameters()
+    p.scale[:] = rng.uniform(0.8, 1.2, p.scale.size)
+    p.centre[:] += rng.normal(0, 0.02, p.centre.shape)
+    p.marker[:] += rng.normal(0, 0.02, p.marker.shape)
+    p.axis[:] += rng.normal(0, 0.1, p.axis.shape)
+    other = load_model(write_model(model, tmp_path / "perturbed.urdf", p))
+    assert _max_fk_error(model, kin, p, other, rng, n=30) < 1e-12
