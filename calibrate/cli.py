@@ -107,10 +107,11 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Simulate squats of a random synthetic subject derived from a base model; "
                                      "writes OUT/trial.c3d, OUT/truth.urdf and OUT/truth_motion.csv.")
     sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
+    sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
     _add_sim_args(sim, 1000)
     demo = sub.add_parser("demo", help="simulate a squat trial into ./calibrate-demo and summarise it",
-                          description="Simulate a squat trial into ./calibrate-demo/ and report how well the "
-                                      "base model's kinematics reproduce it.")
+                          description="Simulate a squat trial into ./calibrate-demo/ (its files are replaced on "
+                                      "every run) and report how well the base model's kinematics reproduce it.")
     demo.add_argument("--out", type=Path, default=Path("calibrate-demo"), help="output directory")
     _add_sim_args(demo, 1000)
     ins = sub.add_parser("inspect", help="describe a model (.urdf) or a trial (.c3d/.trc)")
@@ -141,6 +142,12 @@ def _simulate(args: argparse.Namespace):
     model = load_model(args.model or _default_model())
     if args.out.exists() and not args.out.is_dir():
         raise CalibrateError(f"{args.out}: exists and is not a directory; choose another --out")
+    if not getattr(args, "overwrite", True):
+        for name in ("trial.c3d", "truth.urdf", "truth_motion.csv"):
+            if (args.out / name).exists():
+                raise CalibrateError(
+                    f"{args.out / name}: exists; pass --overwrite to replace it or choose another --out"
+                )
     t0 = time.perf_counter()
     sim = simulate_squats(model, frames=args.frames, rate=args.rate, noise_mm=args.noise_mm,
                           gaps=args.gaps, seed=args.seed)

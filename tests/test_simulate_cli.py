@@ -113,6 +113,18 @@ def test_cli_truncated_c3d_one_line(tmp_path):
         assert len(r.stderr.strip().splitlines()) == 1 and f"cut{cut}.c3d" in r.stderr
 
 
+def test_simulate_does_not_overwrite_unless_asked(tmp_path):
+    out = tmp_path / "sim"
+    assert main(["simulate", "--out", str(out), "--frames", "5", "--seed", "1"]) == 0
+    before = (out / "trial.c3d").read_bytes()
+    r = subprocess.run([sys.executable, "-m", "calibrate.cli", "simulate", "--out", str(out), "--frames", "5",
+                        "--seed", "2"], capture_output=True, text=True)
+    assert r.returncode == 2 and "--overwrite" in r.stderr
+    assert (out / "trial.c3d").read_bytes() == before
+    assert main(["simulate", "--out", str(out), "--frames", "5", "--seed", "2", "--overwrite"]) == 0
+    assert (out / "trial.c3d").read_bytes() != before
+
+
 def test_simulate_refuses_a_file_as_output_dir(tmp_path):
     f = tmp_path / "afile"
     f.write_text("keep")
