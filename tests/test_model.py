@@ -158,3 +158,22 @@ def test_bad_model_files_give_one_line(tmp_path, text, needle):
 def test_missing_model_file(tmp_path):
     with pytest.raises(ModelError, match="no such file"):
         load_model(tmp_path / "missing.urdf")
+
+
+def test_parameter_vector_names_and_unpack(human):
+    p = human.parameters()
+    v = p.vector()
+    names = human.parameter_names()
+    assert len(names) == v.size == len(human.segments) + 3 * (len(human.joints) + human.n_dofs + len(human.markers))
+    knee = human.joints[human.joint_index("knee_r")]
+    assert v[names.index("centre[knee_r].z")] == knee.centre[2]
+    assert v[names.index("marker[RKNE].y")] == human.markers[human.marker_index("RKNE")].offset[1]
+    assert v[names.index("axis[knee_r].y")] == human.dofs[human.dof_index("knee_r")].axis[1]
+    back = human.unpack(v)
+    for b in p.BLOCKS:
+        np.testing.assert_array_equal(getattr(back, b), getattr(p, b))
+    q = p.copy()
+    q.scale[0] = 2.0
+    assert p.scale[0] == 1.0  # copies do not share memory
+    with pytest.raises(ValueError, match="expected"):
+        human.unpack(v[:-1])
