@@ -1,4 +1,4 @@
-"""Command line: ``calibrate simulate``, ``calibrate demo``, ``calibrate inspect``.
+"""Command line: ``calibrate simulate``, ``calibrate demo``, ``calibrate inspect``, ``calibrate joints``.
 
 A thin layer over the Python API.  Bad input gives one line on stderr
 (``calibrate: error: ...``) and exit status 2; nothing half-written.
@@ -116,6 +116,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_sim_args(demo, 1000)
     ins = sub.add_parser("inspect", help="describe a model (.urdf) or a trial (.c3d/.trc)")
     ins.add_argument("file", type=Path, help="a .urdf, .c3d or .trc file")
+    jo = sub.add_parser("joints", help="joint-centre trajectories of a trial (MTB framework)",
+                        description="Estimate every joint centre of MODEL's topology, frame by frame, from TRIAL's "
+                                    "markers alone (marker-trajectory bases, solvability propagation, JMV fallback; "
+                                    "hinge axes by closed-form fit).  Prints a table per joint; --out writes the "
+                                    "trajectories as CSV (m).")
+    jo.add_argument("trial", type=Path, help="trial (.c3d or .trc)")
+    jo.add_argument("model", type=Path, help="base model (.urdf): marker groups, joint tree, hinge priors")
+    jo.add_argument("--out", type=Path, default=None, help="write the centre trajectories to this CSV")
+    jo.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    jo.add_argument("--cutoff-hz", type=_positive_float, default=6.0,
+                    help="low-pass the markers at this frequency first (default 6 Hz)")
+    jo.add_argument("--no-filter", action="store_true", help="use the raw markers (no low-pass)")
+    jo.add_argument("--mode", choices=("framework", "jmv"), default="framework",
+                    help="'framework' (default) or 'jmv': every joint by per-frame JMV only (slow baseline)")
     return ap
 
 
@@ -126,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.print_help()
         return 2
     try:
-        return {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect}[args.command](args)
+        commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints}
+        return commands[args.command](args)
     except CalibrateError as e:
         print(f"calibrate: error: {e}", file=sys.stderr)
         return 2
@@ -228,6 +243,64 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     for lab, g in zip(t.labels, gaps, strict=True):
         print(f"  {lab:16s} gaps {100 * g:5.1f} %")
     return 0
+
+
+def cmd_joints(args: argparse.Namespace) -> int:
+    from .joints import estimate_model_joints, write_centres_csv
+    from .model import load_model
+    from .trial import read_trial
+
+    out: Path | None = args.out
+    if out is not None:
+        if out.exists() and not args.overwrite:
+            raise CalibrateError(f"{out}: already exists; pass --overwrite to replace it or choose another --out")
+        if out.suffix.lower() in (".urdf", ".c3d", ".trc"):
+            raise CalibrateError(f"{out}: --out is a CSV of joint centres; give it a .csv name")
+        if not out.parent.exists() and str(out.parent) not in ("", "."):
+            raise CalibrateError(f"{out}: directory {out.parent} does not exist; create it first")
+    t0 = time.perf_counter()
+    model = load_model(args.model)
+    if not model.markers:
+        raise CalibrateError(f"{args.model}: the model has no markers, so no segment can be followed; "
+                             "add marker links (see docs/model-format.md)")
+    trial = read_trial(args.trial)
+    known = set(model.marker_names)
+    used = [lab for lab in trial.labels if lab in known]
+    unknown = [lab for lab in trial.labels if lab not in known]
+    if not used:
+        raise CalibrateError(f"{args.trial}: none of its {trial.n_markers} labels is a marker of {args.model} "
+                             f"(e.g. '{trial.labels[0] if trial.labels else ''}'); rename the markers to the model's")
+    load_s = time.perf_counter() - t0
+    print(f"trial  {args.trial}: {trial.n_frames} frames at {trial.rate:g} Hz, {trial.n_markers} markers "
+          f"({len(used)} in the model)")
+    print(f"model  {args.model}: {len(model.segments)} segments, {len(model.joints)} joints, "
+          f"{len(model.markers)} markers")
+    if unknown:
+        print(f"warning: {len(unknown)} trial markers are not in the model and are ignored: {', '.join(unknown)}",
+              file=sys.stderr)
+    missing = [m for m in model.marker_names if m not in set(trial.labels)]
+    if missing:
+        print(f"warning: {len(missing)} model markers are not in the trial: {', '.join(missing)}", file=sys.stderr)
+    cutoff = None if args.no_filter else args.cutoff_hz
+    if cutoff is not None and cutoff >= trial.rate / 2:
+        print(f"warning: --cutoff-hz {cutoff:g} is not below half the frame rate ({trial.rate / 2:g} Hz); "
+              "markers are not filtered", file=sys.stderr)
+        cutoff = None
+    est = estimate_model_joints(model, trial, mode=args.mode, cutoff_hz=cutoff)
+    print("")
+    print(est.table())
+    print("")
+    n_ok = sum(j.ok for j in est)
+    methods = {m: sum(j.method == m for j in est) for m in ("MTB", "MTB (propagated)", "JMV")}
+    filt = f"low-passed at {cutoff:g} Hz" if cutoff else "unfiltered"
+    print(f"{n_ok}/{len(est)} joints estimated (" + ", ".join(f"{v} {k}" for k, v in methods.items() if v)
+          + f") in {est.seconds:.2f} s; markers {filt}; load {load_s:.2f} s")
+    print("resid mm: RMS change of the joint-to-marker distances over the trial (0 for a perfect rigid joint; "
+          "about the marker noise for a good estimate).")
+    if out is not None:
+        write_centres_csv(out, est, overwrite=True)
+        print(f"wrote {out}")
+    return 0 if n_ok == len(est) else 1
 
 
 if __name__ == "__main__":  # pragma: no cover
