@@ -275,9 +275,19 @@ def cmd_joints(args: argparse.Namespace) -> int:
           f"({len(used)} in the model)")
     print(f"model  {args.model}: {len(model.segments)} segments, {len(model.joints)} joints, "
           f"{len(model.markers)} markers")
+    from .association import associate_to_model
+
+    assoc = associate_to_model(model, trial)
+    extra = {m.label: m.segment for m in assoc.markers if m.status == "assigned" and m.segment}
     if unknown:
-        print(f"warning: {len(unknown)} trial markers are not in the model and are ignored: {', '.join(unknown)}",
-              file=sys.stderr)
+        print(f"{len(unknown)} trial markers are not in the model; placed by rigidity with the segments' markers:")
+        for lab in unknown:
+            m = assoc[lab]
+            where = f"-> {m.segment} (distance std {1000 * m.spread:.1f} mm)" if m.segment else f"left out: {m.reason}"
+            print(f"  {lab:12s} {where}")
+    for lab in assoc.suspects:
+        print(f"warning: {lab} does not move rigidly with the other markers of {assoc[lab].segment} "
+              f"({assoc[lab].reason}); is it mislabelled?", file=sys.stderr)
     missing = [m for m in model.marker_names if m not in set(trial.labels)]
     if missing:
         print(f"warning: {len(missing)} model markers are not in the trial: {', '.join(missing)}", file=sys.stderr)
@@ -286,7 +296,7 @@ def cmd_joints(args: argparse.Namespace) -> int:
         print(f"warning: --cutoff-hz {cutoff:g} is not below half the frame rate ({trial.rate / 2:g} Hz); "
               "markers are not filtered", file=sys.stderr)
         cutoff = None
-    est = estimate_model_joints(model, trial, mode=args.mode, cutoff_hz=cutoff)
+    est = estimate_model_joints(model, trial, mode=args.mode, cutoff_hz=cutoff, extra_markers=extra)
     print("")
     print(est.table())
     print("")

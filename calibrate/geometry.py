@@ -39,12 +39,12 @@ class RigidFrames:
         """World trajectories (F, ..., 3) in the segment frame (NaN where the pose or point is missing)."""
         shape = world.shape
         w = world.reshape(shape[0], -1, 3) - self.t[:, None, :]
-        return np.einsum("fji,fkj->fki", self.R, w).reshape(shape)
+        return np.matmul(w, self.R).reshape(shape)
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
         """A fixed local point (3,) or points (P, 3) as world trajectories (F, 3) or (F, P, 3)."""
         loc = np.atleast_2d(local)
-        out = np.einsum("fij,pj->fpi", self.R, loc) + self.t[:, None, :]
+        out = np.matmul(loc, np.swapaxes(self.R, 1, 2)) + self.t[:, None, :]
         return out[:, 0] if np.ndim(local) == 1 else out
 
 
@@ -68,10 +68,10 @@ def kabsch_batch(local: np.ndarray, world: np.ndarray, w: np.ndarray) -> tuple[n
     wsum = w.sum(1)
     safe = np.where(wsum > 0, wsum, 1.0)
     lc = (w @ local) / safe[:, None]  # (F, 3) weighted local centroid
-    wc = np.einsum("fp,fpi->fi", w, world) / safe[:, None]
+    wc = np.matmul(w[:, None, :], world)[:, 0] / safe[:, None]
     a = local[None, :, :] - lc[:, None, :]
     b = world - wc[:, None, :]
-    H = np.einsum("fp,fpi,fpj->fij", w, a, b)
+    H = np.matmul(np.swapaxes(a * w[..., None], 1, 2), b)
     U, S, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("fji,fkj->fik", Vt, U)))
     D = np.ones((len(w), 3))
@@ -109,7 +109,7 @@ def rigid_fit(world: np.ndarray, iterations: int = 2) -> RigidFrames:
     R, t = kabsch_batch(local, filled, w_ref)
     size = max(float(np.sqrt(np.mean(np.sum(local**2, axis=1)))), 1e-300)
     for _ in range(iterations):
-        loc = np.einsum("fji,fpj->fpi", R, filled - t[:, None, :])  # R^T (x - t)
+        loc = np.matmul(filled - t[:, None, :], R)  # R^T (x - t)
         ok = seen & np.isfinite(t[:, :1])
         n = ok.sum(0)
         if np.any(n == 0):
@@ -120,11 +120,40 @@ def rigid_fit(world: np.ndarray, iterations: int = 2) -> RigidFrames:
             break  # the shape no longer changes (noise-free data): the poses stand
         local = new
         R, t = kabsch_batch(local, filled, w)
-    fit = np.einsum("fij,pj->fpi", R, local) + t[:, None, :]
+    fit = np.matmul(local, np.swapaxes(R, 1, 2)) + t[:, None, :]
     err = np.where(seen, np.sum((fit - filled) ** 2, axis=2), 0.0)
     rms = np.sqrt(err.sum(1) / np.maximum(seen.sum(1), 1))
     rms[~np.isfinite(t[:, 0])] = np.nan
     return RigidFrames(R, t, local, rms)
+
+
+def triad_frames(world: np.ndarray, triangle: tuple[int, int, int] = (0, 1, 2)) -> RigidFrames:
+    """A segment frame from three of its points by Gram–Schmidt: origin at the first, x towards the
+    second, the third in the xy-plane.  Exact for rigid noise-free points and needs no per-frame
+    decomposition (the seed 000 setting); frames missing one of the three points are NaN."""
+    world = np.asarray(world, dtype=float)
+    i, j, k = triangle
+    o = world[:, i]
+    e1 = world[:, j] - o
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    v = world[:, k] - o
+    e2 = v - np.sum(v * e1, axis=1, keepdims=True) * e1
+    n2 = np.linalg.norm(e2, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e2 = np.where(n2 > MIN_SPREAD * np.linalg.norm(v, axis=1, keepdims=True), e2 / n2, np.nan)
+    e3 = np.stack([e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1], e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
+                   e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]], axis=1)
+    R = np.stack([e1, e2, e3], axis=2)
+    frames = RigidFrames(R, o, np.zeros((world.shape[1], 3)), np.zeros(len(world)))
+    loc = frames.to_local(world)
+    seen = np.all(np.isfinite(loc), axis=2)
+    n = np.maximum(seen.sum(0), 1)
+    local = np.where(seen[..., None], loc, 0.0).sum(0) / n[:, None]
+    fit = frames.to_world(local)
+    err = np.where(seen, np.sum((fit - np.where(seen[..., None], world, 0.0)) ** 2, axis=2), 0.0)
+    rms = np.sqrt(err.sum(1) / np.maximum(seen.sum(1), 1))
+    rms[~np.isfinite(o[:, 0] + R[:, 0, 0])] = np.nan
+    return RigidFrames(R, o, local, rms)
 
 
 @dataclass(frozen=True)
@@ -159,17 +188,18 @@ def sphere_fit(points: np.ndarray, hinge: bool = False, near: np.ndarray | None 
     if not np.any(use):
         raise ValueError("sphere_fit: no point seen in 3 or more frames")
     pts, seen, n = pts[:, use], seen[:, use], n[use]
-    origin = np.nanmean(pts.reshape(-1, 3), axis=0)  # shift for conditioning
+    flat = pts.reshape(-1, 3)
+    origin = flat[np.all(np.isfinite(flat), axis=1)].mean(0)  # shift for conditioning
     v = np.where(seen[..., None], pts - origin, 0.0)
     mean = v.sum(0) / n[:, None]
     vt = np.where(seen[..., None], v - mean, 0.0)
     sq = np.sum(v**2, axis=2)
     st = np.where(seen, sq - sq.sum(0) / n, 0.0)
-    A = np.einsum("fpi,fpj->ij", vt, vt)
-    b = np.einsum("fpi,fp->i", vt, st)
+    A = vt.reshape(-1, 3).T @ vt.reshape(-1, 3)
+    b = vt.reshape(-1, 3).T @ st.reshape(-1)
     evals, evecs = np.linalg.eigh(A)
     axis = evecs[:, 0]
-    ref = (np.nanmean(pts.reshape(-1, 3), axis=0) if near is None else np.asarray(near, float)) - origin
+    ref = (origin if near is None else np.asarray(near, float)) - origin
     if hinge:
         E = evecs[:, 1:]
         c = 0.5 * E @ ((E.T @ b) / evals[1:])

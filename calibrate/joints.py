@@ -29,6 +29,7 @@ Entry points: :func:`estimate_joints` (trajectories + groups + topology) and
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -40,7 +41,7 @@ import pinocchio as pin
 from scipy.signal import butter, filtfilt
 
 from ._text import atomic_write_text
-from .geometry import MIN_SPREAD, RigidFrames, rigid_fit, similarity_fit, sphere_fit, spread
+from .geometry import MIN_SPREAD, RigidFrames, rigid_fit, similarity_fit, sphere_fit, spread, triad_frames
 from .model import Model
 from .trial import Trial
 
@@ -145,7 +146,7 @@ class Basis:
 
 def auxiliary_point(r1: np.ndarray, r2: np.ndarray, r3: np.ndarray) -> np.ndarray:
     """Seed 000 Eq. 9: r3 + (r1 − r3) × (r2 − r3), a virtual fourth point rigid with three others."""
-    return r3 + np.cross(r1 - r3, r2 - r3)
+    return r3 + _cross(r1 - r3, r2 - r3)
 
 
 def affine_basis(points: np.ndarray, names: Sequence[str] | None = None) -> Basis:
@@ -166,6 +167,11 @@ def affine_basis(points: np.ndarray, names: Sequence[str] | None = None) -> Basi
     return Basis(r4, B, "affine")
 
 
+def _affine_triangle(points: np.ndarray) -> tuple[int, int, int]:
+    """The three points the closed forms use when the MTB basis is affine: the largest triangle."""
+    return _best_triangle(_reference_shape(points)) if points.shape[1] > 3 else (0, 1, 2)
+
+
 def rigid_basis(frames: RigidFrames) -> Basis:
     """A basis from a least-squares rigid frame (used for segments with more than four points)."""
     return Basis(frames.t, frames.R, "rigid")
@@ -180,15 +186,17 @@ def _reference_shape(points: np.ndarray) -> np.ndarray:
 
 def _best_triangle(ref: np.ndarray) -> tuple[int, int, int]:
     """The three points spanning the largest triangle."""
-    best, arg = -1.0, (0, 1, 2)
-    P = len(ref)
-    for i in range(P):
-        for j in range(i + 1, P):
-            for k in range(j + 1, P):
-                a = np.linalg.norm(np.cross(ref[j] - ref[i], ref[k] - ref[i]))
-                if np.isfinite(a) and a > best:
-                    best, arg = a, (i, j, k)
-    return arg
+    combos = np.array(list(itertools.combinations(range(len(ref)), 3)))
+    a, b, c = ref[combos[:, 0]], ref[combos[:, 1]], ref[combos[:, 2]]
+    area = np.linalg.norm(_cross(b - a, c - a), axis=1)
+    area = np.where(np.isfinite(area), area, -1.0)
+    return tuple(int(i) for i in combos[int(np.argmax(area))])  # type: ignore[return-value]
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross product along the last axis (np.cross without its per-call overhead)."""
+    return np.stack([u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1], u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+                     u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]], axis=-1)
 
 
 # --------------------------------------------------------------------------- costs
@@ -249,19 +257,19 @@ def mtb_refine(basis: Basis, points: np.ndarray, lam0: np.ndarray, alpha: float 
         if not hessian:
             return cost, None, None
         u = diff / d[..., None]
-        g = np.einsum("fji,fpj->fpi", B, u)  # ∂d/∂λ = Bᵀ u   (F, P, 3)
+        g = np.matmul(u, B)  # ∂d/∂λ = Bᵀ u   (F, P, 3)
         gw = w[..., None] * g
         gbar = gw.sum(0) / n[:, None]  # (P, 3)
-        grad = (2 * np.einsum("fp,fpi->pi", dev, g) / n[:, None] + alpha * gbar)
+        grad = 2 * (dev[..., None] * g).sum(0) / n[:, None] + alpha * gbar
         grad = grad[use].sum(0) / P_used
         gc = w[..., None] * (g - gbar[None])
-        H = 2 * np.einsum("fpi,fpj->pij", gc, g) / n[:, None, None]
+        H = 2 * np.matmul(gc.transpose(1, 2, 0), g.transpose(1, 0, 2)) / n[:, None, None]
         # second-order term: Σ (2 (d − d̄) + α) ∂²d / n, with ∂²d = Bᵀ (I − u uᵀ) B / d
         coef = (2 * dev + alpha * w) / d / n[None, :]
         coef[:, ~use] = 0.0
-        BtB = np.einsum("fki,fkj->fij", B, B)
+        BtB = np.matmul(np.swapaxes(B, 1, 2), B)
         Bu = g  # Bᵀu
-        H2 = np.einsum("fp,fij->ij", coef, BtB) - np.einsum("fp,fpi,fpj->ij", coef, Bu, Bu)
+        H2 = np.tensordot(coef.sum(1), BtB, 1) - (coef[..., None] * Bu).reshape(-1, 3).T @ Bu.reshape(-1, 3)
         H = H[use].sum(0) / P_used + H2 / P_used
         return cost, grad, H
 
@@ -301,6 +309,17 @@ def mtb_refine(basis: Basis, points: np.ndarray, lam0: np.ndarray, alpha: float 
     return lam, cost, it
 
 
+def _inv_sym3(A: np.ndarray) -> np.ndarray:
+    """Inverses of symmetric 3x3 matrices (F, 3, 3) by cofactors (vectorised; no per-matrix LAPACK call)."""
+    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
+    d, e, f = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    det = a * c00 + b * c01 + c * c02
+    inv = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], axis=1).reshape(-1, 3, 3)
+    return inv / det[:, None, None]
+
+
 def jmv_frames(points: np.ndarray, start: np.ndarray, iterations: int = 100) -> tuple[np.ndarray, np.ndarray, float]:
     """Condition-free JMV optimisation: a joint position in every frame (Kirk et al. 2005).
 
@@ -329,25 +348,25 @@ def jmv_frames(points: np.ndarray, start: np.ndarray, iterations: int = 100) -> 
     mu = 1e-3
     for _ in range(iterations):
         u = diff / d[..., None]
-        A = np.einsum("fp,fpi,fpj->fij", w, u, u)
-        gc = np.einsum("fp,fpi->fi", e, u)
+        A = np.matmul(np.swapaxes(u * w[..., None], 1, 2), u)
+        gc = (e[..., None] * u).sum(1)
         grho = -e.sum(0)
         Dd = w.sum(0)
         accepted = False
         for _ in range(20):
-            Ad = A + mu * (np.einsum("fii->fi", A)[..., None] * np.eye(3) + 1e-12 * np.eye(3))
-            Ainv = np.linalg.inv(Ad)
+            Ad = A + mu * (np.diagonal(A, axis1=1, axis2=2)[..., None] * np.eye(3) + 1e-12 * np.eye(3))
+            Ainv = _inv_sym3(Ad)
             C = -(w[..., None] * u)  # (F, P, 3): column p of C_f is C[f, p]
-            AiC = np.einsum("fij,fpj->fpi", Ainv, C)
-            S = np.diag(Dd * (1 + mu) + 1e-12) - np.einsum("fpi,fqi->pq", C, AiC)
-            Aig = np.einsum("fij,fj->fi", Ainv, gc)
-            rhs = -grho + np.einsum("fpi,fi->p", C, Aig)
+            AiC = np.matmul(C, Ainv)  # Ainv is symmetric
+            S = np.diag(Dd * (1 + mu) + 1e-12) - np.tensordot(C, AiC, axes=([0, 2], [0, 2]))
+            Aig = np.matmul(Ainv, gc[..., None])[..., 0]
+            rhs = -grho + np.tensordot(C, Aig, axes=([0, 2], [0, 1]))
             try:
                 drho = np.linalg.solve(S, rhs)
             except np.linalg.LinAlgError:
                 mu *= 10
                 continue
-            dc = -Aig - np.einsum("fpi,p->fi", AiC, drho)
+            dc = -Aig - np.tensordot(AiC, drho, axes=([1], [0]))
             c_new, rho_new = c + dc, rho + drho
             diff_n, d_n = dist(c_new)
             e_n = w * (d_n - rho_new)
@@ -358,7 +377,7 @@ def jmv_frames(points: np.ndarray, start: np.ndarray, iterations: int = 100) -> 
             mu *= 10
         if not accepted:
             break
-        done = cost - new <= 1e-14 * cost or new < 1e-28
+        done = cost - new <= 1e-10 * cost or new < 1e-28
         c, rho, diff, d, e, cost = c_new, rho_new, diff_n, d_n, e_n, new
         mu = max(mu / 10, 1e-12)
         if done:
@@ -462,7 +481,8 @@ class _Framework:
             return None
         A = np.stack([p.traj for p in apts], axis=1)
         O = np.stack([p.traj for p in opts], axis=1)
-        frames = rigid_fit(A)
+        paper = self.basis == "affine" and len(apts) <= 4
+        frames = triad_frames(A, _affine_triangle(A)) if paper else rigid_fit(A)
         Q = frames.to_local(O)
         Q[~frames.valid] = np.nan
         usable = frames.valid & np.any(np.all(np.isfinite(O), axis=2), axis=1)
@@ -488,7 +508,7 @@ class _Framework:
         if hinge:
             fit = sphere_fit(Q, hinge=True, near=near)
         # MTB refinement (Eq. 8) in the paper's basis of at most four points, else the rigid frame
-        basis = affine_basis(A) if self.basis == "affine" and len(apts) <= 4 else rigid_basis(frames)
+        basis = affine_basis(A) if paper else rigid_basis(frames)
         c_world = frames.to_world(fit.centre)
         lam0 = _solve_lambda(basis, c_world)
         allpts = np.concatenate([A, O], axis=1)
@@ -500,7 +520,7 @@ class _Framework:
         centre[~usable] = np.nan
         axis_world = None
         if hinge:
-            axis_world = np.einsum("fij,j->fi", frames.R, fit.axis)
+            axis_world = frames.R @ fit.axis
             axis_world[~usable] = np.nan
         propagated = any(p.is_joint for p in apts)
 
@@ -616,14 +636,16 @@ def _jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F
             p, q = g
             starts += [p + 1.5 * (q - p), q + 1.5 * (p - q)]
     best, best_rms = None, math.inf
-    for start in starts:
+    for start in starts:  # a few iterations from every start, then the most promising is finished
         if not np.any(np.isfinite(start)):
             continue
-        centre, _, rms = jmv_frames(X, np.where(np.isfinite(start), start, np.nanmean(X, axis=1)))
+        centre, _, rms = jmv_frames(X, np.where(np.isfinite(start), start, np.nanmean(X, axis=1)), iterations=8)
         if rms < best_rms:
             best, best_rms = centre, rms
         if best_rms < 1e-12:
             break
+    if best is not None and best_rms >= 1e-12:
+        best, _, _ = jmv_frames(X, best)
     return best if best is not None else np.full((F, 3), np.nan)
 
 
@@ -652,15 +674,15 @@ def _solve_lambda(basis: Basis, c: np.ndarray) -> np.ndarray:
     """λ with o + B λ closest to the trajectory c (F, 3) over the frames where all are defined."""
     ok = np.isfinite(c[:, 0]) & np.all(np.isfinite(basis.B.reshape(len(c), -1)), axis=1)
     B, r = basis.B[ok], (c - basis.o)[ok]
-    return np.linalg.solve(np.einsum("fki,fkj->ij", B, B), np.einsum("fki,fk->i", B, r))
+    return np.linalg.solve(np.matmul(np.swapaxes(B, 1, 2), B).sum(0), np.matmul(r[:, None, :], B).sum((0, 1)))
 
 
 def _solve_direction(basis: Basis, frames: RigidFrames, axis_local: np.ndarray) -> np.ndarray:
     """A direction fixed in the rigid frame, expressed in λ-space of the basis."""
     ok = frames.valid & np.all(np.isfinite(basis.B.reshape(len(basis.B), -1)), axis=1)
-    v = np.einsum("fij,j->fi", frames.R[ok], axis_local)
+    v = frames.R[ok] @ axis_local
     B = basis.B[ok]
-    return np.linalg.solve(np.einsum("fki,fkj->ij", B, B), np.einsum("fki,fk->i", B, v))
+    return np.linalg.solve(np.matmul(np.swapaxes(B, 1, 2), B).sum(0), np.matmul(v[:, None, :], B).sum((0, 1)))
 
 
 def _n_frames(points: Mapping[str, np.ndarray]) -> int:
@@ -773,16 +795,27 @@ def model_geometry(model: Model) -> dict[str, dict[str, np.ndarray]]:
 
 
 def estimate_model_joints(model: Model, trial: Trial, *, mode: str = "framework", alpha: float = 0.0,
-                          basis: str = "rigid", cutoff_hz: float | None = 6.0) -> JointEstimates:
+                          basis: str = "rigid", cutoff_hz: float | None = 6.0,
+                          extra_markers: Mapping[str, str] | None = None) -> JointEstimates:
     """Every joint of `model` from a trial: groups are the model's markers per segment (those the
     trial has), the topology is the model's joint tree, hinges come from the model, and the base
     model's centres choose the point on each hinge axis.  Markers are low-passed at `cutoff_hz`
-    (None: raw) unless the trial's rate is too low for it."""
+    (None: raw) unless the trial's rate is too low for it.  `extra_markers` (trial label ->
+    segment, e.g. from calibrate.association.associate_to_model) adds markers the model does not
+    know to the segments they ride on."""
     if cutoff_hz is not None and not cutoff_hz < trial.rate / 2:
         cutoff_hz = None
     labels = set(trial.labels)
-    points = {lab: trial.marker(lab) for lab in trial.labels if lab in {m.name for m in model.markers}}
+    known = {m.name for m in model.markers}
+    points = {lab: trial.marker(lab) for lab in trial.labels if lab in known}
     groups = {s.name: [m for m in s.markers if m in labels] for s in model.segments}
+    for lab, seg in (extra_markers or {}).items():
+        if lab in known or lab not in labels:
+            continue
+        if seg not in groups:
+            raise ValueError(f"extra_markers['{lab}']: '{seg}' is not a segment of {model.path}")
+        points[lab] = trial.marker(lab)
+        groups[seg].append(lab)
     kinds = {"hinge": "hinge", "ball": "ball", "universal": "universal"}
     specs = [JointSpec(j.name, j.parent, j.child, kinds.get(j.kind)) for j in model.joints if j.kind != "fixed"]
     est = estimate_joints(points, groups, specs, mode=mode, alpha=alpha, basis=basis,

@@ -165,6 +165,31 @@ def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise
     return Simulation(model, truth, motion, trial, markers, centres)
 
 
+def joint_axes_world(model: Model, params: Parameters, motion: Motion) -> dict[str, np.ndarray]:
+    """World direction (n_frames, 3) of every hinge joint's axis over a motion, for the model with
+    parameters `params` (e.g. a simulation's truth): the reference for axis estimates."""
+    import tempfile
+
+    import pinocchio as pin
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "subject.urdf"
+        write_model(model, path, params)
+        subject = Model(path)
+    pm = subject.pin
+    data = pm.createData()
+    hinges = [j for j in subject.joints if j.kind == "hinge"]
+    dofs = [subject.dofs[subject.dof_index(j.dofs[0])] for j in hinges]
+    fids = [pm.getFrameId(d.name) for d in dofs]
+    out = {j.name: np.zeros((len(motion.times), 3)) for j in hinges}
+    for f in range(len(motion.times)):
+        q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
+        pin.framesForwardKinematics(pm, data, q)
+        for j, d, fid in zip(hinges, dofs, fids, strict=True):
+            out[j.name][f] = data.oMf[fid].rotation @ d.axis
+    return out
+
+
 def write_simulation(sim: Simulation, out_dir: str | os.PathLike[str]) -> dict[str, Path]:
     """Write trial.c3d, truth.urdf and truth_motion.csv into `out_dir` (created if missing)."""
     out = Path(out_dir)

@@ -1,8 +1,11 @@
 """Reproduce the simulations of Hang, Lasenby & Li (MTB joint estimation), Section IV.
 
 Synthetic chains (calibrate.chains.simulate_chain) of rigid segments 1 apart, solved by
-calibrate.joints.estimate_joints in two modes: the framework (MTB + solvability propagation
-+ hybrid JMV) and the JMV-only baseline (per-frame joint-marker-variance optimisation).
+calibrate.joints.estimate_joints three ways: the framework (MTB + solvability propagation
++ hybrid JMV) with the paper's affine basis (four markers, or three plus Eq. 9's auxiliary
+point) -- the method of the paper; the same framework with calibrate's default basis (the
+least-squares rigid frame of all of a segment's points); and the JMV-only baseline
+(per-frame joint-marker-variance optimisation).
 
 - accuracy (paper Tables I, III, IV): chains #1 <4-3-3>, #2 <4-3-3-4-3>, #3 <4-3-3-4-3-3-3-3>,
   #4 <3-2-2-2-2>, #5 <3-1-2-2-2-2>; F = 100; mean over runs of the RSE of Eq. 10,
@@ -37,7 +40,10 @@ CHAINS: dict[str, tuple[int, ...]] = {
     "4": (3, 2, 2, 2, 2),
     "5": (3, 1, 2, 2, 2, 2),
 }
-MODES = ("framework", "jmv")
+MODES = ("framework", "rigid", "jmv")
+SUFFIX = {"framework": "", "rigid": "_rigid", "jmv": "_jmv"}
+OPTIONS = {"framework": {"mode": "framework", "basis": "affine"}, "rigid": {"mode": "framework", "basis": "rigid"},
+           "jmv": {"mode": "jmv"}}
 TIMING_FRAMES = (100, 150, 200, 250, 300)
 NOISE = 0.001  # 0.1 % of the joint spacing
 # the paper's figures (Tables I-IV; Intel i7-2620M, MATLAB); time per joint in ms
@@ -67,7 +73,7 @@ def solve(chain: Chain, mode: str) -> tuple[float, float, list[str], list[str]]:
     specs = [JointSpec(name, parent, child) for name, parent, child in chain.joints]
     points = chain.points()
     t0 = time.perf_counter()
-    est = estimate_joints(points, chain.groups, specs, mode=mode)
+    est = estimate_joints(points, chain.groups, specs, **OPTIONS[mode])
     seconds = time.perf_counter() - t0
     got = [est[name] for name, _, _ in chain.joints]
     centres = np.stack([np.asarray(j.centre, dtype=float) for j in got], axis=1)
@@ -98,7 +104,7 @@ def run_chains(counts: tuple[int, ...], frames: int, noise: float, runs: int, se
     out = {}
     for m in MODES:
         a = acc[m]
-        suffix = "" if m == "framework" else "_jmv"
+        suffix = SUFFIX[m]
         out["rse" + suffix] = mean(a["rse"])
         finite = np.isfinite(a["rse"])
         out["rse_median" + suffix] = float(np.median(np.asarray(a["rse"])[finite])) if finite.any() else math.nan
@@ -107,6 +113,48 @@ def run_chains(counts: tuple[int, ...], frames: int, noise: float, runs: int, se
         out["failed_runs" + suffix] = int(sum(bool(f) for f in a["failed"]))
         out["failures" + suffix] = [f"run {r}: " + "; ".join(f) for r, f in enumerate(a["failed"]) if f][:5]
         out["methods" + suffix] = a["methods"][0]
+    return out
+
+
+def human(seeds: list[int], frames: int = 1000, noise_mm: float = 1.0) -> dict:
+    """Issue 3 item 9 on models/human.urdf: simulated squats, estimate_model_joints, errors against truth."""
+    from pathlib import Path
+
+    from calibrate.joints import estimate_model_joints
+    from calibrate.model import load_model
+    from calibrate.simulate import joint_axes_world, simulate_squats
+
+    model = load_model(Path(__file__).resolve().parent.parent / "models" / "human.urdf")
+    rows = []
+    for seed in seeds:
+        sim = simulate_squats(model, frames=frames, noise_mm=noise_mm, seed=seed)
+        est = estimate_model_joints(model, sim.trial)
+        axes = joint_axes_world(model, sim.truth, sim.motion)
+        row = {"seed": seed, "seconds": est.seconds, "ok": sum(j.ok for j in est), "joints": len(est),
+               "methods": {j.name: j.method for j in est}}
+        for j in est:
+            k = model.joint_index(j.name)
+            err = np.linalg.norm(j.centre - sim.clean_centres[:, k], axis=1)
+            row[f"{j.name}_centre_mm"] = 1e3 * float(np.nanmedian(err))
+            if j.name in axes and j.axis is not None:
+                ax = axes[j.name]
+                v = j.centre - sim.clean_centres[:, k]
+                off = np.linalg.norm(v - np.sum(v * ax, axis=1)[:, None] * ax, axis=1)
+                ang = np.degrees(np.arccos(np.clip(np.abs(np.sum(j.axis * ax, axis=1)), 0, 1)))
+                row[f"{j.name}_off_axis_mm"] = 1e3 * float(np.nanmedian(off))
+                row[f"{j.name}_axis_deg"] = float(np.nanmedian(ang))
+        rows.append(row)
+
+    def worst(key: str) -> float:
+        return max(r[key] for r in rows if key in r)
+
+    out = {"frames": frames, "noise_mm": noise_mm, "seeds": seeds, "runs": rows,
+           "seconds_mean": mean([r["seconds"] for r in rows])}
+    for side in "lr":
+        out[f"hip_{side}_mm_worst"] = worst(f"hip_{side}_centre_mm")
+        for j in ("knee", "elbow"):
+            out[f"{j}_{side}_off_axis_mm_worst"] = worst(f"{j}_{side}_off_axis_mm")
+            out[f"{j}_{side}_axis_deg_worst"] = worst(f"{j}_{side}_axis_deg")
     return out
 
 
@@ -159,13 +207,14 @@ def main() -> None:
     for F in TIMING_FRAMES:
         seeds = [[a.seed, 1, F, r] for r in range(runs)]
         t = run_chains(CHAINS["1"], F, 0.0, runs, seeds)
-        res["timing"][str(F)] = {"ms_per_joint": t["ms_per_joint"], "ms_per_joint_jmv": t["ms_per_joint_jmv"],
-                                 "rse": t["rse"], "rse_jmv": t["rse_jmv"], "failed_runs": t["failed_runs"],
-                                 "failed_runs_jmv": t["failed_runs_jmv"]}
+        res["timing"][str(F)] = {k + s: t[k + s] for k in ("ms_per_joint", "rse", "failed_runs")
+                                 for s in SUFFIX.values()}
     for cid, counts in CHAINS.items():  # the same chains as the accuracy table, with noise
         seeds = [[a.seed, 0, int(cid), r] for r in range(runs)]
         n = run_chains(counts, 100, NOISE, runs, seeds)
         res["noise"][cid] = {k: v for k, v in n.items() if not k.startswith("methods")}
+
+    res["human"] = human(list(range(a.seed, a.seed + (2 if a.quick else 5))))
 
     ch, tm = res["chains"], res["timing"]
     checks = []
@@ -179,6 +228,13 @@ def main() -> None:
                    worst <= MS_PER_JOINT))
     ratio = tm["300"]["ms_per_joint"] / tm["100"]["ms_per_joint"]
     checks.append((f"chain #1: framework t(F=300)/t(F=100) = {ratio:.2f} < {FLATNESS}", ratio < FLATNESS))
+    hu = res["human"]
+    hip = max(hu["hip_l_mm_worst"], hu["hip_r_mm_worst"])
+    checks.append((f"human squats: hip centres {hip:.2f} mm (worst median over runs) <= 5 mm", hip <= 5.0))
+    off = max(hu[f"{j}_{s}_off_axis_mm_worst"] for j in ("knee", "elbow") for s in "lr")
+    checks.append((f"human squats: knee/elbow centres {off:.2f} mm from the true axis <= 5 mm", off <= 5.0))
+    ang = max(hu[f"{j}_{s}_axis_deg_worst"] for j in ("knee", "elbow") for s in "lr")
+    checks.append((f"human squats: knee/elbow axes {ang:.2f} deg <= 3 deg", ang <= 3.0))
     failed = sum(ch[c]["failed_runs"] for c in CHAINS)
     checks.append((f"framework: runs with a joint not ok or NaN (noise-free chains) = {failed}", failed == 0))
     res["checks"] = [{"target": t, "pass": bool(p)} for t, p in checks]
@@ -192,42 +248,46 @@ def main() -> None:
     say()
     say(f"Accuracy, F = 100, no noise (paper Tables I, III, IV): RSE per joint per frame (Eq. 10), mean "
         f"[median, worst] over {runs} runs; failed = runs with a joint not ok or NaN")
-    say(f"{'chain':26s} {'framework':>28s} {'paper':>8s} {'JMV':>28s} {'paper':>8s} {'seq.paper':>9s} "
-        f"{'failed fw/JMV':>13s}")
+    say(f"{'chain':26s} {'framework (affine)':>28s} {'paper':>8s} {'JMV':>28s} {'paper':>8s} {'seq.paper':>9s} "
+        f"{'rigid basis':>10s} {'failed fw/rigid/JMV':>19s}")
     for cid, counts in CHAINS.items():
         c = ch[cid]
         name = f"#{cid} <{'-'.join(map(str, counts))}>"
         say(f"{name:26s} {spread3(c, ''):>28s} {fmt(PAPER_RSE.get(cid)):>8s} "
             f"{spread3(c, '_jmv'):>28s} {fmt(PAPER_RSE_JMV.get(cid)):>8s} "
-            f"{fmt(PAPER_RSE_SEQ.get(cid)):>9s} {c['failed_runs']:>6d}/{c['failed_runs_jmv']:<6d}")
+            f"{fmt(PAPER_RSE_SEQ.get(cid)):>9s} {fmt(c['rse_rigid']):>10s} "
+            f"{c['failed_runs']:>6d}/{c['failed_runs_rigid']}/{c['failed_runs_jmv']:<6d}")
     say()
     say("Time per joint, F = 100 (ms; paper: Tables II, III, IV)")
-    say(f"{'chain':26s} {'framework':>10s} {'paper':>8s} {'JMV':>10s} {'paper':>8s}  methods (framework, first run)")
+    say(f"{'chain':26s} {'framework':>10s} {'paper':>8s} {'JMV':>10s} {'paper':>8s} {'rigid':>7s}  "
+        "methods (framework, first run)")
     for cid, counts in CHAINS.items():
         c = ch[cid]
         name = f"#{cid} <{'-'.join(map(str, counts))}>"
         say(f"{name:26s} {fmt(c['ms_per_joint'], '.2f'):>10s} {fmt(PAPER_MS.get(cid), '.1f'):>8s} "
-            f"{fmt(c['ms_per_joint_jmv'], '.2f'):>10s} {fmt(PAPER_MS_JMV.get(cid), '.0f'):>8s}  "
-            + ", ".join(c["methods"]))
+            f"{fmt(c['ms_per_joint_jmv'], '.2f'):>10s} {fmt(PAPER_MS_JMV.get(cid), '.0f'):>8s} "
+            f"{fmt(c['ms_per_joint_rigid'], '.2f'):>7s}  " + ", ".join(c["methods"]))
     say()
     say("Speed, chain #1 <4-3-3> (paper Table II): time per joint (ms)")
     say(f"{'F':>5s} {'framework':>10s} {'paper':>8s} {'JMV':>10s} {'paper':>8s} {'seq.paper':>9s} "
-        f"{'RSE fw':>9s} {'RSE JMV':>9s} {'failed fw/JMV':>13s}")
+        f"{'RSE fw':>9s} {'RSE JMV':>9s} {'rigid':>7s} {'failed fw/JMV':>13s}")
     for F in TIMING_FRAMES:
         t = tm[str(F)]
         fw_p, jmv_p = PAPER_TIMING[F]
         say(f"{F:5d} {fmt(t['ms_per_joint'], '.2f'):>10s} {fw_p:8.1f} {fmt(t['ms_per_joint_jmv'], '.2f'):>10s} "
             f"{jmv_p:8.0f} {PAPER_SEQ_MS[F]:9.0f} {fmt(t['rse']):>9s} {fmt(t['rse_jmv']):>9s} "
+            f"{fmt(t['ms_per_joint_rigid'], '.2f'):>7s} "
             f"{t['failed_runs']:>6d}/{t['failed_runs_jmv']:<6d}")
     say()
     say(f"Accuracy with marker noise {NOISE} (0.1 % of the joint spacing), F = 100: RSE mean "
         "[median, worst] (no paper figures)")
-    say(f"{'chain':26s} {'framework':>28s} {'JMV':>28s} {'failed fw/JMV':>13s}")
+    say(f"{'chain':26s} {'framework (affine)':>28s} {'framework (rigid basis)':>28s} {'JMV':>28s} "
+        f"{'failed fw/rigid/JMV':>19s}")
     for cid, counts in CHAINS.items():
         c = res["noise"][cid]
         name = f"#{cid} <{'-'.join(map(str, counts))}>"
-        say(f"{name:26s} {spread3(c, ''):>28s} {spread3(c, '_jmv'):>28s} "
-            f"{c['failed_runs']:>6d}/{c['failed_runs_jmv']:<6d}")
+        say(f"{name:26s} {spread3(c, ''):>28s} {spread3(c, '_rigid'):>28s} {spread3(c, '_jmv'):>28s} "
+            f"{c['failed_runs']:>6d}/{c['failed_runs_rigid']}/{c['failed_runs_jmv']:<6d}")
     shown = [(f"#{cid} {m}", f) for cid in CHAINS for m, key in (("framework", "failures"), ("JMV", "failures_jmv"))
              for f in ch[cid][key][:2]]
     if shown:
@@ -235,6 +295,15 @@ def main() -> None:
         say("Failed runs, noise-free (first 2 per chain and mode)")
         for where, f in shown:
             say(f"  {where:14s} {f}")
+    say()
+    say(f"Human squats (models/human.urdf, {hu['frames']} frames, {hu['noise_mm']} mm noise, seeds {hu['seeds']}): "
+        "median over frames, per run")
+    say(f"{'seed':>4s} {'time s':>7s} {'hip_l':>6s} {'hip_r':>6s}  {'knee_l':>13s} {'knee_r':>13s} "
+        f"{'elbow_l':>13s} {'elbow_r':>13s}   (hip: centre error mm; hinges: mm off the true axis / axis deg)")
+    for r in hu["runs"]:
+        hinge = "  ".join(f"{r[f'{j}_off_axis_mm']:5.2f} / {r[f'{j}_axis_deg']:4.2f}"
+                          for j in ("knee_l", "knee_r", "elbow_l", "elbow_r"))
+        say(f"{r['seed']:4d} {r['seconds']:7.2f} {r['hip_l_centre_mm']:6.2f} {r['hip_r_centre_mm']:6.2f}  {hinge}")
     say()
     say("Targets")
     for t, p in checks:

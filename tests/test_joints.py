@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 
 import numpy as np
-import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
@@ -25,8 +24,7 @@ from calibrate.joints import (
     mtb_refine,
     rigid_basis,
 )
-from calibrate.model import Model, write_model
-from calibrate.simulate import simulate_squats, write_simulation
+from calibrate.simulate import joint_axes_world, simulate_squats, write_simulation
 from calibrate.trial import Trial
 
 CHAINS = {1: (4, 3, 3), 2: (4, 3, 3, 4, 3), 3: (4, 3, 3, 4, 3, 3, 3, 3), 4: (3, 2, 2, 2, 2), 5: (3, 1, 2, 2, 2, 2)}
@@ -271,28 +269,11 @@ def test_bad_arguments_get_precise_errors():
 
 # ------------------------------------------------------------------ the human model
 @pytest.fixture(scope="module")
-def squats(human, tmp_path_factory):
+def squats(human):
     """A 500-frame squat trial at 1 mm noise, its estimate and the true hinge axes per frame."""
     sim = simulate_squats(human, frames=500, noise_mm=1.0, seed=1)
     est = estimate_model_joints(human, sim.trial)
-    path = tmp_path_factory.mktemp("truth") / "truth.urdf"
-    write_model(human, path, sim.truth)
-    truth = Model(path)
-    data = truth.pin.createData()
-    axes = {}
-    for j in human.joints:
-        if j.kind != "hinge":
-            continue
-        dof = truth.dofs[truth.dof_index(j.dofs[0])]
-        fid = truth.pin.getFrameId(dof.name)
-        out = np.zeros((sim.trial.n_frames, 3))
-        m = sim.motion
-        for f in range(len(out)):
-            q = truth.pin_configuration(m.root_translation[f], m.root_quaternion[f], m.angles[f])
-            pin.framesForwardKinematics(truth.pin, data, q)
-            out[f] = data.oMf[fid].rotation @ dof.axis
-        axes[j.name] = out
-    return sim, est, axes
+    return sim, est, joint_axes_world(human, sim.truth, sim.motion)
 
 
 def test_every_human_joint_gets_a_trajectory(human, squats):
@@ -380,3 +361,25 @@ def test_cli_joints_bad_input(human, tmp_path, capsys):
     assert code == 2 and "none of its 39 labels" in err
     code = main(["joints", str(paths["trial"]), str(tmp_path / "missing.urdf")])
     assert code == 2 and "missing.urdf" in capsys.readouterr().err
+
+
+def test_cli_joints_places_markers_the_model_does_not_know(human, tmp_path, capsys):
+    """An extra marker rigid with the right shank is placed on tibia_r by rigidity and used."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=6)
+    i, k = human.marker_index("RTIB"), human.marker_index("RANK")
+    shin = sim.clean_markers[:, i] + 0.4 * (sim.clean_markers[:, k] - sim.clean_markers[:, i])
+    shin = shin + np.random.default_rng(0).normal(0, 1e-3, shin.shape)
+    markers = np.concatenate([sim.trial.markers, shin[:, None, :]], axis=1)
+    trial = Trial((*sim.trial.labels, "RSHIN"), markers, sim.trial.rate, 0, None)
+    from calibrate.trial import write_c3d
+
+    write_c3d(tmp_path / "extra.c3d", trial)
+    code = main(["joints", str(tmp_path / "extra.c3d"), str(human.path)])
+    out = capsys.readouterr().out
+    assert code == 0
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith("RSHIN"))
+    assert "-> tibia_r" in line
+    with_extra = estimate_model_joints(human, trial, extra_markers={"RSHIN": "tibia_r"})
+    assert with_extra["ankle_r"].ok
+    with pytest.raises(ValueError, match="not a segment"):
+        estimate_model_joints(human, trial, extra_markers={"RSHIN": "shin"})

@@ -1,0 +1,728 @@
+"""Which marker is on which segment, from the marker trajectories alone (Ringer & Lasenby, Section 3).
+
+Two stages, as in the paper:
+
+1. **Markers to groups.**  Markers on one segment keep constant distances to each other.
+   :func:`distance_variance` builds D (variance over frames of every inter-marker distance);
+   :func:`group_markers` grows groups greedily from the smallest D entry, only over pairs
+   that are rigid within the noise (:func:`rigid_threshold`) and with *complete linkage*:
+   a marker joins a group only if it is rigid with every member.  Pairs the greedy could
+   not honour are *inconsistencies*; forcing each one onto a segment gives alternative
+   groupings, which :func:`marker_hypotheses` ranks by the reconstruction error of a
+   rigid body per group (the paper's Eq. 5).
+2. **Groups to a tree.**  :func:`group_adjacency` joins groups into a spanning tree,
+   Kruskal-style: the paper's order (mean centroid distance D′) is kept for reference; the
+   tree itself takes first the pairs that pass a joint-model test (sphere fit of one group
+   in the other's frame), then the rest by how far apart their markers get.
+
+:func:`associate` runs both stages on unlabelled trajectories; :func:`associate_to_model`
+places the markers of a trial on the segments of a model (unknown labels by rigidity
+with a segment's known markers; known labels checked, never moved).
+
+Everything works on all frames at once; gaps are NaN and left out frame by frame.
+Units: metres (variances in m²).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import rigid_fit, sphere_fit
+from .model import Model
+from .trial import Trial
+
+MIN_FRAMES = 10  # pairs seen together in fewer frames get D = +inf (no evidence of rigidity)
+RIGID_FLOOR = (0.1e-3) ** 2  # m²: smallest rigidity threshold (0.1 mm std), so noise-free data works
+Z_RIGID = 5.0  # standard errors of a sample variance allowed above the noise level
+LOOSE_FACTOR = 9.0  # threshold / noise level when the frame count is unknown (3x in standard deviation)
+Z_ADMISSIBLE = 5.0  # standard errors of a group's residual allowed above the noise
+SIGMA_SLACK = 0.05  # relative uncertainty allowed for the estimated noise variance
+JOINT_FACTOR = 4.0  # a joint's sphere-fit RMS must be below JOINT_FACTOR x noise sigma
+SPREAD_SD = 2.0  # spread = mean + SPREAD_SD x std of the distance between the markers of two groups
+Z_TIE = 3.0  # standard errors within which two hypotheses' errors count as equal
+
+
+# ---------------------------------------------------------------------------- distances
+def distance_variance(markers: np.ndarray, min_frames: int = MIN_FRAMES) -> np.ndarray:
+    """D (N, N): variance over frames of the distance |y_i − y_j| between markers (m²).
+
+    markers (F, N, 3), NaN in gaps.  Each pair uses only the frames in which both markers
+    are seen (sample variance, ddof=1).  The diagonal is 0.  A pair seen together in fewer
+    than `min_frames` frames gets +inf: there is no evidence that it is rigid.
+    """
+    _, d_sq, n = _distance_moments(markers)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        D = d_sq / (n - 1)
+    D[n < max(min_frames, 2)] = np.inf
+    np.fill_diagonal(D, 0.0)
+    return D
+
+
+def pair_counts(markers: np.ndarray) -> np.ndarray:
+    """(N, N) number of frames in which both markers of a pair are seen."""
+    seen = np.all(np.isfinite(np.asarray(markers, dtype=float)), axis=2).astype(float)
+    return (seen.T @ seen).astype(int)
+
+
+def _distance_moments(markers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair: mean distance, sum of squared deviations from it, frame count (two passes, chunked)."""
+    X = np.asarray(markers, dtype=float)
+    if X.ndim != 3 or X.shape[2] != 3:
+        raise ValueError(f"markers: expected shape (frames, markers, 3), got {X.shape}")
+    F, N, _ = X.shape
+    seen = np.all(np.isfinite(X), axis=2)
+    X = np.where(seen[..., None], X, 0.0)
+    n = seen.T.astype(float) @ seen.astype(float)
+    step = max(1, int(2_000_000 // max(N * N, 1)))
+
+    def chunks():
+        for a in range(0, F, step):
+            x, s = X[a:a + step], seen[a:a + step]
+            both = s[:, :, None] & s[:, None, :]
+            d = np.linalg.norm(x[:, :, None, :] - x[:, None, :, :], axis=3)
+            yield d, both
+
+    total = np.zeros((N, N))
+    for d, both in chunks():
+        total += np.where(both, d, 0.0).sum(0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(n > 0, total / np.maximum(n, 1), np.nan)
+    sq = np.zeros((N, N))
+    for d, both in chunks():
+        sq += np.where(both, (d - np.nan_to_num(mean)) ** 2, 0.0).sum(0)
+    return mean, sq, n
+
+
+def pair_distance_level(D: np.ndarray) -> float:
+    """The variance D of a rigid pair in this data (m²), i.e. 2σ² for marker noise σ per coordinate.
+
+    First guess: the median over markers of each marker's smallest off-diagonal D entry
+    (most markers share a segment with at least one other).  That minimum is biased low,
+    so the estimate is refined as the median of all pairs with D below three times the
+    first guess (mostly same-segment pairs).
+    """
+    D = np.asarray(D, dtype=float)
+    off = D + np.diag(np.full(len(D), np.inf))
+    smallest = off.min(1)
+    smallest = smallest[np.isfinite(smallest)]
+    if smallest.size == 0:
+        return 0.0
+    guess = float(np.median(smallest))
+    iu = np.triu_indices(len(D), 1)
+    close = D[iu][D[iu] <= 3.0 * guess]
+    return float(np.median(close)) if close.size else guess
+
+
+def rigid_threshold(D: np.ndarray, n_frames: float | None = None, *, z: float = Z_RIGID,
+                    factor: float | None = None, floor: float = RIGID_FLOOR) -> float:
+    """Largest D (m²) for which a pair of markers counts as rigid (on one segment).
+
+    A rigid pair's distance varies only by the marker noise: D ≈ 2σ² (σ per coordinate),
+    estimated by :func:`pair_distance_level`.  The threshold is that level times
+
+    * `factor`, if given (e.g. 9 = 3x in standard deviation, for skin markers with
+      soft-tissue artefact, which is not white noise);
+    * otherwise, with `n_frames` (frames per pair; :func:`associate` passes the median
+      pair count) the sampling spread of a sample variance: 1 + z·sqrt(2 / (n − 1)), about
+      1.41 at 300 frames (1.19x in standard deviation).  Tight on purpose: across the
+      radioulnar joint the forearm marker FRM keeps its distances to WRA/WRB within
+      1-3.5 mm std during ±50° of pronation, and near a hinge axis KNE, ELB and ANK keep
+      theirs to the next segment within a few mm; with 9x (3x in std) FRM joins the radius
+      or the hand in every one of simulated subjects 0-3 at 1 mm noise;
+    * otherwise 9.
+
+    The result is at least `floor`, (0.1 mm)² by default: well above round-off, and small
+    enough for noise-free data (with (0.5 mm)² FRM joins the radius in some noise-free
+    subjects, whose FRM-WRA/WRB distances vary by only 0.2-0.6 mm std).
+    """
+    level = pair_distance_level(D)
+    if factor is None:
+        factor = LOOSE_FACTOR if n_frames is None else _sampling_factor(n_frames, z)
+    return max(float(floor), level * float(factor))
+
+
+def _sampling_factor(n: float, z: float) -> float:
+    return 1.0 + z * np.sqrt(2.0 / max(float(n) - 1.0, 1.0))
+
+
+def noise_sigma(D: np.ndarray, n_frames: float | None = None, *, floor: float = RIGID_FLOOR) -> float:
+    """Marker noise σ per coordinate (m): sqrt(level / 2) with the level of
+    :func:`pair_distance_level`, but not below what the threshold floor implies (so that
+    noise-free data gets a small positive σ rather than round-off)."""
+    factor = LOOSE_FACTOR if n_frames is None else _sampling_factor(n_frames, Z_RIGID)
+    return float(np.sqrt(max(pair_distance_level(D), floor / factor) / 2.0))
+
+
+# ---------------------------------------------------------------------------- stage 1: groups
+@dataclass(frozen=True)
+class Grouping:
+    """Markers grouped by the greedy of Ringer & Lasenby (one group per presumed segment)."""
+
+    groups: tuple[tuple[int, ...], ...]  # marker indices; each sorted, groups ordered by first index
+    inconsistencies: tuple[tuple[int, int, float], ...]  # (i, j, D_ij) pairs the greedy could not honour
+    threshold: float  # rigidity threshold used (m²)
+
+    def label(self, n_markers: int) -> np.ndarray:
+        """(n_markers,) group index of every marker."""
+        return _labels(self.groups, n_markers)
+
+
+def _labels(groups, n: int) -> np.ndarray:
+    out = np.full(n, -1)
+    for g, members in enumerate(groups):
+        out[list(members)] = g
+    return out
+
+
+def _canonical(groups) -> tuple[tuple[int, ...], ...]:
+    return tuple(sorted(tuple(sorted(g)) for g in groups if len(g)))
+
+
+def _greedy(D: np.ndarray, threshold: float, forced: tuple[tuple[int, int], ...] = ()) -> Grouping:
+    """The greedy grouping with complete linkage; `forced` pairs start as groups of their own."""
+    N = len(D)
+    label = np.full(N, -1)
+    groups: list[list[int]] = []
+    inconsistent: list[tuple[int, int, float]] = []
+
+    def add(i: int, j: int) -> None:
+        gi, gj = label[i], label[j]
+        if gi < 0 and gj < 0:
+            label[[i, j]] = len(groups)
+            groups.append([i, j])
+        elif gi >= 0 and gj >= 0:
+            if gi != gj:
+                inconsistent.append((i, j, float(D[i, j])))
+        else:
+            g, new = (gi, j) if gi >= 0 else (gj, i)
+            if np.all(D[new, groups[g]] <= threshold):  # complete linkage: rigid with every member
+                label[new] = g
+                groups[g].append(new)
+            else:
+                inconsistent.append((i, j, float(D[i, j])))
+
+    for i, j in forced:
+        add(int(i), int(j))
+    iu, ju = np.triu_indices(N, 1)
+    vals = D[iu, ju]
+    ok = np.flatnonzero(vals <= threshold)
+    for k in ok[np.argsort(vals[ok], kind="stable")]:
+        add(int(iu[k]), int(ju[k]))
+    groups += [[i] for i in np.flatnonzero(label < 0)]
+    return Grouping(_canonical(groups), tuple(inconsistent), float(threshold))
+
+
+def group_markers(markers_or_D: np.ndarray, threshold: float | None = None) -> Grouping:
+    """Group markers that move rigidly together: the greedy of Ringer & Lasenby, Section 3.
+
+    Input: trajectories (F, N, 3) or a distance-variance matrix D (N, N); without a
+    threshold, :func:`rigid_threshold` gives one (from D alone the frame count is unknown,
+    so the loose 9x factor is used).  Repeatedly take
+    the smallest remaining D entry (i, j) with D_ij ≤ threshold: neither marker grouped →
+    new group; one grouped → the other joins, but only if it is rigid (D ≤ threshold)
+    with *every* member (complete linkage), else the pair is an inconsistency; both
+    grouped in different groups → inconsistency.  Markers with no rigid partner become
+    singleton groups (e.g. FRM, the only marker on the ulna).
+
+    Complete linkage matters near hinges: the lateral knee marker (KNE, femur) lies almost
+    on the knee axis, so its distances to the tibia markers hardly vary either; it can
+    only join a group whose every member it is rigid with.
+    """
+    A = np.asarray(markers_or_D, dtype=float)
+    if A.ndim == 3:
+        D = distance_variance(A)
+        if threshold is None:
+            threshold = rigid_threshold(D, _typical_count(pair_counts(A)))
+    elif A.ndim == 2 and A.shape[0] == A.shape[1]:
+        D = A
+        if threshold is None:
+            threshold = rigid_threshold(D)
+    else:
+        raise ValueError(f"group_markers: expected trajectories (F, N, 3) or D (N, N), got shape {A.shape}")
+    return _greedy(D, float(threshold))
+
+
+def _typical_count(n: np.ndarray) -> float:
+    iu = np.triu_indices(len(n), 1)
+    counts = n[iu][n[iu] > 0]
+    return float(np.median(counts)) if counts.size else 0.0
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One candidate marker-to-segment grouping with its rigid-body reconstruction error."""
+
+    groups: tuple[tuple[int, ...], ...]
+    error: float  # E of Eq. 5: sum over frames, groups and markers of squared residuals (m²)
+    rms_per_group: tuple[float, ...]  # RMS residual per marker sample in each group (m); 0 for singletons
+    dof_per_group: tuple[float, ...]  # residual degrees of freedom per group (pure noise: E_g ≈ dof σ²)
+    admissible: bool  # every group's residual is consistent with the marker noise
+    origin: str = "greedy"  # how it was made, e.g. "move RKNE to RTHI's group"
+
+    @property
+    def n_groups(self) -> int:
+        return len(self.groups)
+
+    def label(self, n_markers: int) -> np.ndarray:
+        """(n_markers,) group index of every marker."""
+        return _labels(self.groups, n_markers)
+
+
+@dataclass(frozen=True)
+class _Residual:
+    error: float  # sum of squared residuals (m²)
+    samples: int  # marker samples that entered the fit
+    dof: float  # residual degrees of freedom (noise only: error ≈ dof σ²)
+
+
+class _Scorer:
+    """Rigid-body residual of groups (cached), and admissibility against the noise."""
+
+    def __init__(self, X: np.ndarray, D: np.ndarray, sigma: float):
+        self.X, self.D, self.sigma = X, D, sigma
+        self.seen = np.all(np.isfinite(X), axis=2)
+        self.cache: dict[tuple[int, ...], _Residual] = {}
+
+    def residual(self, g: tuple[int, ...]) -> _Residual:
+        if g not in self.cache:
+            self.cache[g] = self._residual(g)
+        return self.cache[g]
+
+    def _residual(self, g: tuple[int, ...]) -> _Residual:
+        if len(g) == 1:
+            return _Residual(0.0, 0, 0.0)
+        if len(g) == 2:  # best rigid fit of two points: each moves half the distance error along their line
+            i, j = g
+            n = int(np.sum(self.seen[:, i] & self.seen[:, j]))
+            if n < 2 or not np.isfinite(self.D[i, j]):
+                return _Residual(0.0, 0, 0.0)
+            return _Residual(0.5 * (n - 1) * float(self.D[i, j]), 2 * n, float(n - 1))
+        fit = rigid_fit(self.X[:, list(g)])
+        count = self.seen[:, list(g)].sum(1)
+        ok = fit.valid & (count >= 3)
+        err = float(np.sum(fit.rms[ok] ** 2 * count[ok]))
+        return _Residual(err, int(count[ok].sum()), float(np.sum(3 * count[ok] - 6)))
+
+    def admissible(self, g: tuple[int, ...]) -> bool:
+        """E_g / dof ≤ σ² (1 + SIGMA_SLACK + Z_ADMISSIBLE·sqrt(2 / dof)): a chi-square test of the
+        group's rigid-body residual against the noise, not a fixed multiple of σ."""
+        r = self.residual(g)
+        if r.dof <= 0:
+            return True
+        limit = self.sigma**2 * (1.0 + SIGMA_SLACK + Z_ADMISSIBLE * np.sqrt(2.0 / r.dof))
+        return r.error / r.dof <= limit
+
+    def hypothesis(self, groups, origin: str) -> Hypothesis:
+        res = [self.residual(g) for g in groups]
+        rms = tuple(float(np.sqrt(r.error / r.samples)) if r.samples else 0.0 for r in res)
+        return Hypothesis(groups, float(sum(r.error for r in res)), rms, tuple(r.dof for r in res),
+                          all(self.admissible(g) for g in groups), origin)
+
+
+def _alternatives(groups, D: np.ndarray, threshold: float, names) -> dict:
+    """Groupings that force each rigid pair split across two groups (an inconsistency) onto one segment."""
+    label = _labels(groups, len(D))
+    iu, ju = np.triu_indices(len(D), 1)
+    cross = (D[iu, ju] <= threshold) & (label[iu] != label[ju])
+    out: dict[tuple[tuple[int, ...], ...], str] = {}
+    for i, j in zip(iu[cross], ju[cross], strict=True):
+        gi, gj = set(groups[label[i]]), set(groups[label[j]])
+        rest = [g for k, g in enumerate(groups) if k not in (label[i], label[j])]
+        ni, nj = names[i], names[j]
+        cands = {
+            f"move {ni} to {nj}'s group": rest + [gi - {i}, gj | {i}],
+            f"move {nj} to {ni}'s group": rest + [gj - {j}, gi | {j}],
+            f"merge the groups of {ni} and {nj}": rest + [gi | gj],
+            f"greedy with {ni}-{nj} first": list(_greedy(D, threshold, ((int(i), int(j)),)).groups),
+        }
+        for origin, cand in cands.items():
+            out.setdefault(_canonical(cand), origin)
+    return out
+
+
+def marker_hypotheses(markers: np.ndarray, threshold: float | None = None, labels=None,
+                      rounds: int = 4) -> tuple[Grouping, list[Hypothesis], float]:
+    """The greedy grouping, its alternatives ranked best first, and the noise σ (m) used.
+
+    Alternatives: for every pair (i, j) that is rigid (D ≤ threshold) but split across two
+    groups — the greedy's inconsistencies — move i to j's group, move j to i's group,
+    merge the two groups, and rerun the greedy with (i, j) as its first pair (this reaches
+    groupings that need two changes, e.g. KNE taken first with ANK).  The alternatives of
+    the best hypothesis are added again, for up to `rounds` rounds.
+
+    Each hypothesis is scored by the reconstruction error E (Eq. 5) of a rigid body per
+    group: per-frame rigid fit for groups of ≥ 3 markers, the distance variance for pairs
+    (E = (n − 1) D / 2, the residual of the best rigid fit of two points), 0 for singletons.
+    Splitting always lowers E, so the ranking is: admissible first (every group's residual
+    per degree of freedom within σ² (1 + 0.05 + 5 sqrt(2 / dof)), a chi-square test), then
+    fewer groups, then lower E.
+
+    Limits, both physical rather than numerical: no prior breaks near-ties — a marker on a
+    hinge axis (ELB on the elbow axis) keeps constant distances to both segments and its
+    two placements differ in E by noise only (:func:`ambiguous_markers` reports such
+    markers); and two segments whose relative motion moves their markers by less than the
+    noise (FRM on the ulna against WRA/WRB on the radius, for some subjects) come out as
+    one group, since fewer groups win among admissible hypotheses.
+    """
+    X = np.asarray(markers, dtype=float)
+    D = distance_variance(X)
+    n = _typical_count(pair_counts(X))
+    if threshold is None:
+        threshold = rigid_threshold(D, n)
+    sigma = noise_sigma(D, n)
+    names = list(labels) if labels is not None else [f"m{i}" for i in range(len(D))]
+    base = _greedy(D, threshold)
+    scorer = _Scorer(X, D, sigma)
+    pool: dict[tuple[tuple[int, ...], ...], str] = {base.groups: "greedy"}
+    expanded: set[tuple[tuple[int, ...], ...]] = set()
+    ranked: list[Hypothesis] = []
+    for _ in range(max(rounds, 1)):
+        ranked = sorted((scorer.hypothesis(g, o) for g, o in pool.items()),
+                        key=lambda h: (not h.admissible, h.n_groups, h.error))
+        best = ranked[0].groups
+        if best in expanded:
+            break
+        expanded.add(best)
+        for g, origin in _alternatives(best, D, threshold, names).items():
+            pool.setdefault(g, origin)
+    return base, ranked, sigma
+
+
+def tied_hypotheses(hypotheses: list[Hypothesis], sigma: float, z: float = Z_TIE) -> list[Hypothesis]:
+    """The hypotheses the data cannot tell from the best (which is included, first).
+
+    Same admissibility and number of groups as the best, and an error E above the best's by
+    at most z standard errors of the difference: σ² sqrt(2 Σ dof) over the groups in which
+    the two differ (E/σ² of a pure-noise group is chi-square with dof degrees of freedom).
+    """
+    if not hypotheses:
+        return []
+    best = hypotheses[0]
+    dof_of = dict(zip(best.groups, best.dof_per_group, strict=True))
+    out = [best]
+    for h in hypotheses[1:]:
+        if h.admissible != best.admissible or h.n_groups != best.n_groups:
+            continue
+        mine = dict(zip(h.groups, h.dof_per_group, strict=True))
+        dof = sum(d for g, d in dof_of.items() if g not in mine) + sum(d for g, d in mine.items() if g not in dof_of)
+        if h.error - best.error <= z * sigma**2 * np.sqrt(2.0 * max(dof, 1.0)):
+            out.append(h)
+    return out
+
+
+def ambiguous_markers(hypotheses: list[Hypothesis], sigma: float, z: float = Z_TIE) -> tuple[int, ...]:
+    """Markers whose group (its set of members) differs between the best hypothesis and one the
+    data cannot tell from it (:func:`tied_hypotheses`)."""
+    tied = tied_hypotheses(hypotheses, sigma, z)
+    if len(tied) < 2:
+        return ()
+    n = 1 + max(i for g in tied[0].groups for i in g)
+
+    def member_sets(h: Hypothesis) -> list[frozenset[int]]:
+        out: list[frozenset[int]] = [frozenset()] * n
+        for g in h.groups:
+            for i in g:
+                out[i] = frozenset(g)
+        return out
+
+    ref = member_sets(tied[0])
+    moved: set[int] = set()
+    for h in tied[1:]:
+        moved |= {i for i, s in enumerate(member_sets(h)) if s != ref[i]}
+    return tuple(sorted(moved))
+
+
+# ---------------------------------------------------------------------------- stage 2: tree
+@dataclass(frozen=True)
+class Edge:
+    """A presumed joint between two groups (indices into the groups, a < b)."""
+
+    a: int
+    b: int
+    mean_distance: float  # D′: mean distance between the group centroids (m)
+    joint_rms: float  # sphere-fit RMS of one group's markers in the other's frame (m); NaN if untestable
+    spread: float  # mean over marker pairs of (mean + SPREAD_SD std) of their distance (m)
+
+    def joint(self, sigma: float) -> str:
+        """'consistent', 'untestable' or 'rejected' as a joint, for marker noise σ (m)."""
+        if not np.isfinite(self.joint_rms):
+            return "untestable"
+        return "consistent" if self.joint_rms <= JOINT_FACTOR * sigma else "rejected"
+
+
+@dataclass(frozen=True)
+class Adjacency:
+    """Groups joined into a tree of presumed joints."""
+
+    tree: tuple[Edge, ...]  # L − 1 edges (fewer if some groups are never seen together)
+    alternatives: tuple[Edge, ...]  # every other pair (the greedy's inconsistencies), in the order tried
+    greedy_tree: tuple[Edge, ...]  # the paper's tree: greedy on D′ alone
+    mean_distance: np.ndarray  # D′ (L, L), m
+    sigma: float  # marker noise σ used for the joint test (m)
+
+
+def group_centroids(markers: np.ndarray, groups) -> np.ndarray:
+    """(F, L, 3) centroid of each group per frame.
+
+    Groups of ≥ 3 markers: the origin of their rigid fit (the centroid of the fitted shape,
+    defined even when some markers are hidden).  Smaller groups: the mean of their markers,
+    NaN when any is hidden (a partial mean would jump).
+    """
+    X = np.asarray(markers, dtype=float)
+    out = np.full((X.shape[0], len(groups), 3), np.nan)
+    for k, g in enumerate(groups):
+        out[:, k] = rigid_fit(X[:, list(g)]).t if len(g) >= 3 else X[:, list(g)].mean(1)
+    return out
+
+
+def group_adjacency(markers: np.ndarray, groups, sigma: float | None = None) -> Adjacency:
+    """Which groups share a joint (paper Section 3, second stage), as a spanning tree.
+
+    The paper: D′[l1, l2] is the mean over frames of the distance between the centroids of
+    groups l1 and l2; pairs are taken greedily from the smallest D′, and a pair whose groups
+    are already connected is an inconsistency, so the result is a spanning tree (Kruskal).
+    That tree is returned as `greedy_tree`.  On a squat trial it is often wrong: the two
+    feet or shanks can be closer to each other than the shank centroid is to the thigh's.
+
+    The returned `tree` is Kruskal's on a joint-aware order:
+
+    1. pairs that pass a joint-model test, by increasing residual.  The markers of one group
+       (≥ 2 of them) are expressed in the rigid frame of the other (≥ 3 markers; the larger
+       group is the reference) and fitted by a sphere (Gamage & Lasenby); the RMS of the fit
+       is near the noise for two groups that share a ball or hinge joint, and the pair passes
+       when it is ≤ JOINT_FACTOR σ.  In Plug-in Gait only the pelvis, thorax and head have
+       3 markers, so this settles the hips, lumbar, neck and shoulders;
+    2. every other pair by `spread`: the mean over marker pairs of (mean + 2 std) of their
+       distance over frames — how far apart the two segments' markers get.  Heuristic: a
+       shared joint bounds that distance, while left and right feet swing apart.  Two groups
+       joined through a segment without markers (tibia and calcaneus through the talus) are
+       judged on the same footing and come out adjacent.
+
+    A single marker in a frame always fits some sphere over a limited range of motion, so
+    single-marker groups are never tested (their joint_rms is NaN).
+    """
+    X = np.asarray(markers, dtype=float)
+    groups = [tuple(int(i) for i in g) for g in groups]
+    L = len(groups)
+    if sigma is None:
+        sigma = noise_sigma(distance_variance(X), _typical_count(pair_counts(X)))
+    C = group_centroids(X, groups)
+    dist = np.linalg.norm(C[:, :, None, :] - C[:, None, :, :], axis=3)
+    ok = np.isfinite(dist)
+    cnt = ok.sum(0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        Dp = np.where(cnt >= MIN_FRAMES, np.where(ok, dist, 0.0).sum(0) / np.maximum(cnt, 1), np.inf)
+    np.fill_diagonal(Dp, 0.0)
+    mean, sq, n_pair = _distance_moments(X)
+    far = mean + SPREAD_SD * np.sqrt(sq / np.maximum(n_pair - 1, 1))
+    far[n_pair < MIN_FRAMES] = np.inf
+
+    frames = {k: rigid_fit(X[:, list(g)]) for k, g in enumerate(groups) if len(g) >= 3}
+    edges: list[Edge] = []
+    for a in range(L):
+        for b in range(a + 1, L):
+            ref, other = (a, b) if len(groups[a]) >= len(groups[b]) else (b, a)
+            rms = np.nan
+            if ref in frames and len(groups[other]) >= 2 and np.isfinite(Dp[a, b]):
+                local = frames[ref].to_local(X[:, list(groups[other])])
+                if np.sum(np.all(np.isfinite(local), axis=2)) >= 3 * len(groups[other]) + 3:
+                    try:
+                        rms = sphere_fit(local).rms
+                    except (ValueError, np.linalg.LinAlgError):
+                        rms = np.nan
+            spread = float(np.mean(far[np.ix_(groups[a], groups[b])]))
+            edges.append(Edge(a, b, float(Dp[a, b]), float(rms), spread))
+
+    greedy_tree, _ = _kruskal(L, sorted(edges, key=lambda e: e.mean_distance))
+    joints = sorted((e for e in edges if e.joint(sigma) == "consistent"), key=lambda e: e.joint_rms)
+    others = sorted((e for e in edges if e.joint(sigma) != "consistent"), key=lambda e: e.spread)
+    tree, rest = _kruskal(L, joints + others)
+    return Adjacency(tuple(tree), tuple(rest), tuple(greedy_tree), Dp, float(sigma))
+
+
+def _kruskal(n: int, edges: list[Edge]) -> tuple[list[Edge], list[Edge]]:
+    """Edges taken in the given order unless they close a cycle (those are the inconsistencies)."""
+    parent = list(range(n))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    tree, rest = [], []
+    for e in edges:
+        ra, rb = find(e.a), find(e.b)
+        if ra == rb or not (np.isfinite(e.mean_distance) and np.isfinite(e.spread)):
+            rest.append(e)
+        else:
+            parent[ra] = rb
+            tree.append(e)
+    return tree, rest
+
+
+# ---------------------------------------------------------------------------- both stages
+@dataclass(frozen=True)
+class Association:
+    """Unlabelled markers grouped into segments and the groups joined into a tree."""
+
+    best: Hypothesis
+    hypotheses: list[Hypothesis]  # best first (best is hypotheses[0])
+    greedy: Grouping  # the paper's single greedy grouping
+    adjacency: Adjacency  # tree of the best hypothesis's groups
+    sigma: float  # marker noise σ per coordinate implied by the rigidity threshold (m)
+    ambiguous: tuple[int, ...]  # markers placed differently by a hypothesis the data cannot tell from the best
+    labels: tuple[str, ...] | None
+
+    @property
+    def groups(self) -> tuple[tuple[int, ...], ...]:
+        return self.best.groups
+
+    def named_groups(self) -> list[list[str]]:
+        """The best groups as marker labels (or 'm<index>' without labels)."""
+        n = sum(len(g) for g in self.best.groups)
+        names = self.labels or tuple(f"m{i}" for i in range(n))
+        return [[names[i] for i in g] for g in self.best.groups]
+
+
+def associate(markers: np.ndarray, labels=None, threshold: float | None = None) -> Association:
+    """Group unlabelled marker trajectories (F, N, 3) into segments and join the groups into a tree."""
+    X = np.asarray(markers, dtype=float)
+    greedy, hyps, sigma = marker_hypotheses(X, threshold, labels)
+    adj = group_adjacency(X, hyps[0].groups, sigma=sigma)
+    return Association(hyps[0], hyps, greedy, adj, sigma, ambiguous_markers(hyps, sigma),
+                       tuple(labels) if labels is not None else None)
+
+
+# ---------------------------------------------------------------------------- against a model
+@dataclass(frozen=True)
+class MarkerAssignment:
+    """Where one trial marker goes on the model, and why."""
+
+    label: str
+    segment: str | None
+    status: str  # 'known' (model label), 'suspect' (model label, not rigid with its segment),
+    #              'assigned' (unknown label placed by rigidity), 'unassigned'
+    spread: float  # std (m) of its distance to the segment's markers: the worst pair (NaN if none)
+    reason: str
+
+
+@dataclass(frozen=True)
+class ModelAssociation:
+    """Every trial marker placed on a model segment, or left off with a reason."""
+
+    markers: tuple[MarkerAssignment, ...]  # in trial label order
+    threshold: float  # rigidity threshold (m²)
+
+    def segment_of(self, label: str) -> str | None:
+        return self[label].segment
+
+    def __getitem__(self, label: str) -> MarkerAssignment:
+        for m in self.markers:
+            if m.label == label:
+                return m
+        raise KeyError(label)
+
+    @property
+    def suspects(self) -> list[str]:
+        return [m.label for m in self.markers if m.status == "suspect"]
+
+    @property
+    def unassigned(self) -> list[str]:
+        return [m.label for m in self.markers if m.segment is None]
+
+
+def associate_to_model(model: Model, trial: Trial, threshold: float | None = None) -> ModelAssociation:
+    """Place each trial marker on a segment of `model`.
+
+    Labels the model knows go on their model segment.  A known marker whose distance to
+    at least half of its segment's other known markers varies beyond the threshold is
+    reported as 'suspect' (mislabelled, or loose) but not moved; suspects are not used to
+    place unknown markers.  Every other label goes to the segment whose known markers it
+    is rigid with — all of them (complete linkage on D) and, for segments with ≥ 3 known
+    markers, the rigid fit of the segment plus the marker must stay within the noise —
+    the segment with the smallest worst-pair variance winning.  Otherwise the marker is
+    left unassigned with the figure that ruled it out.  Segments without markers (the
+    talus) cannot receive markers: nothing on them can be tested.
+    """
+    X = np.asarray(trial.markers, dtype=float)
+    labels = list(trial.labels)
+    N = len(labels)
+    D = distance_variance(X)
+    n_typ = _typical_count(pair_counts(X))
+    if threshold is None:
+        threshold = rigid_threshold(D, n_typ)
+    sigma = noise_sigma(D, n_typ)
+    scorer = _Scorer(X, D, sigma)
+    known = {m.name: m.segment for m in model.markers}
+    seg_members: dict[str, list[int]] = {}
+    for k, lab in enumerate(labels):
+        if lab in known:
+            seg_members.setdefault(known[lab], []).append(k)
+
+    out: dict[int, MarkerAssignment] = {}
+    reference: dict[str, list[int]] = {}
+    for seg, members in seg_members.items():
+        good = []
+        for k in members:
+            others = [m for m in members if m != k]
+            if not others:
+                out[k] = MarkerAssignment(labels[k], seg, "known", np.nan,
+                                          f"model marker on {seg} (no other marker of {seg} in the trial to check)")
+                good.append(k)
+                continue
+            bad = [m for m in others if not D[k, m] <= threshold]
+            worst = float(np.sqrt(np.max(D[k, others])))
+            if bad and 2 * len(bad) >= len(others):
+                figure = float(np.sqrt(np.median(D[k, others])))
+                out[k] = MarkerAssignment(
+                    labels[k], seg, "suspect", worst,
+                    f"model marker on {seg}, but its distance to {', '.join(labels[m] for m in bad)} varies "
+                    f"by {_mm(figure)} std (rigid: ≤ {_mm(np.sqrt(threshold))}); mislabelled or loose?")
+            else:
+                out[k] = MarkerAssignment(labels[k], seg, "known", worst, f"model marker on {seg}")
+                good.append(k)
+        reference[seg] = good
+
+    empty = [s.name for s in model.segments if not s.markers]
+    for k in range(N):
+        if k in out:
+            continue
+        cands = []
+        closest = (np.inf, "")
+        for seg, ref in reference.items():
+            if not ref:
+                continue
+            worst = float(np.max(D[k, ref]))
+            if worst < closest[0]:
+                closest = (worst, seg)
+            if worst > threshold:
+                continue
+            if len(ref) >= 3 and not scorer.admissible(tuple(sorted(ref + [k]))):
+                continue
+            cands.append((worst, seg))
+        if cands:
+            cands.sort()
+            worst, seg = cands[0]
+            also = f"; also rigid with {', '.join(s for _, s in cands[1:])}" if len(cands) > 1 else ""
+            out[k] = MarkerAssignment(labels[k], seg, "assigned", float(np.sqrt(worst)),
+                                      f"rigid with every marker of {seg} (worst {_mm(np.sqrt(worst))} std){also}")
+            continue
+        if np.isfinite(closest[0]):
+            why = (f"varies by {_mm(np.sqrt(closest[0]))} std or more against every segment "
+                   f"(closest: {closest[1]}; rigid: ≤ {_mm(np.sqrt(threshold))})")
+            if closest[0] <= threshold:
+                why = f"distances to {closest[1]} are steady but its rigid fit with them is not"
+        else:
+            why = "never seen long enough together with any model marker"
+        if empty:
+            why += f"; segments without markers ({', '.join(empty)}) cannot receive markers"
+        out[k] = MarkerAssignment(labels[k], None, "unassigned",
+                                  float(np.sqrt(closest[0])) if np.isfinite(closest[0]) else np.nan, why)
+    return ModelAssociation(tuple(out[k] for k in range(N)), float(threshold))
+
+
+def _mm(x: float) -> str:
+    return f"{1000.0 * x:.1f} mm"
