@@ -8,13 +8,27 @@ The public API (see README.md):
     inverse_kinematics, IKResult                    -- calibrate.ik
     Motion, read_motion_csv, write_motion_csv       -- calibrate.motion
     simulate_squats, write_simulation, Simulation   -- calibrate.simulate
+    simulate_chain, Chain                           -- calibrate.chains (seed 000's synthetic chains)
+    estimate_joints, estimate_model_joints, JointSpec, JointEstimate, JointEstimates,
+    write_centres_csv                               -- calibrate.joints (MTB joint centres)
+    associate, associate_to_model                   -- calibrate.association (markers -> segments)
     CalibrateError, ModelError, TrialError          -- calibrate.errors
 """
 
 from __future__ import annotations
 
+from .association import Association, ModelAssociation, associate, associate_to_model
+from .chains import Chain, simulate_chain
 from .errors import CalibrateError, ModelError, TrialError
 from .ik import IKResult, inverse_kinematics
+from .joints import (
+    JointEstimate,
+    JointEstimates,
+    JointSpec,
+    estimate_joints,
+    estimate_model_joints,
+    write_centres_csv,
+)
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters, load_model, write_model
 from .motion import Motion, read_motion_csv, write_motion_csv
@@ -24,8 +38,10 @@ from .trial import Trial, read_c3d, read_trc, read_trial, write_c3d, write_trc
 __version__ = "0.1.0"
 
 __all__ = [
-    "CalibrateError", "IKResult", "Kinematics", "Model", "ModelError", "Motion", "Parameters", "Simulation",
-    "Trial", "TrialError", "build_kinematics", "inverse_kinematics", "load_model", "read_c3d",
-    "read_motion_csv", "read_trc", "read_trial", "simulate_squats", "write_c3d", "write_model",
+    "Association", "CalibrateError", "Chain", "IKResult", "JointEstimate", "JointEstimates", "JointSpec",
+    "Kinematics", "Model", "ModelAssociation", "ModelError", "Motion", "Parameters", "Simulation", "Trial",
+    "TrialError", "associate", "associate_to_model", "build_kinematics", "estimate_joints",
+    "estimate_model_joints", "inverse_kinematics", "load_model", "read_c3d", "read_motion_csv", "read_trc",
+    "read_trial", "simulate_chain", "simulate_squats", "write_c3d", "write_centres_csv", "write_model",
     "write_motion_csv", "write_simulation", "write_trc",
 ]

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from scipy.optimize import least_squares
 from scipy.signal import butter, filtfilt
 
 from ._text import atomic_write_text
@@ -562,7 +563,8 @@ class _Framework:
         X = np.stack([p.traj for p in pts], axis=1)
         ga = [p.traj for p in self.seg[a] if p.name != spec.name]
         gb = [p.traj for p in self.seg[b] if p.name != spec.name]
-        centre = _jmv_multistart(X, ga, gb, self.F)
+        # a hinge's JMV optimum is a whole line, so the global search for the one true point is skipped
+        centre = _jmv_multistart(X, ga, gb, self.F, search=spec.kind != "hinge")
         n = int(np.isfinite(centre[:, 0]).sum())
         if n < MIN_FRAMES:
             return self._fail(spec, f"only {n} frames see 3 or more points around the joint; need {MIN_FRAMES}")
@@ -623,14 +625,17 @@ class _Framework:
                     break
 
 
-def _jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F: int) -> np.ndarray:
-    """Per-frame JMV from several starts (the cost has mirror-image minima); the lowest residual wins.
+def _jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F: int,
+                    search: bool = True) -> np.ndarray:
+    """Per-frame JMV from several starts (the cost has mirror-image and local minima); the lowest
+    residual wins.
 
-    Starts: the midpoint of the two segments' centroids, each centroid, and, for a segment with
-    two points p, q, the points beyond either end of pq (a joint often continues a limb's line).
+    Starts: the best few of a grid search over the joint's distances to three of the points
+    (trilateration, see _trilateration_starts), the midpoint of the two segments' centroids, each
+    centroid, and, for a segment with two points p, q, the points beyond either end of pq.
     """
     ca, cb = _centroid(ga, F), _centroid(gb, F)
-    starts = [0.5 * (ca + cb), ca, cb]
+    starts = (_trilateration_starts(X) if search else []) + [0.5 * (ca + cb), ca, cb]
     for g in (ga, gb):
         if len(g) == 2:
             p, q = g
@@ -647,6 +652,91 @@ def _jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F
     if best is not None and best_rms >= 1e-12:
         best, _, _ = jmv_frames(X, best)
     return best if best is not None else np.full((F, 3), np.nan)
+
+
+def _trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_frames: int = 100) -> list[np.ndarray]:
+    """Global starts for per-frame JMV: a joint keeps fixed distances (ρa, ρb, ρc) to three of the points
+    around it, so on a grid of those three distances every frame's joint follows by trilateration (two
+    mirror solutions; one side is kept for the whole trial).  Each grid point is scored by how much the
+    joint's distances to the other points vary; the `keep` best become starts (trajectories (F, 3)).
+    The search runs on at most `max_frames` evenly spaced frames; trilateration then fills all frames."""
+    F, P, _ = X.shape
+    if P < 4:
+        return []
+    seen = np.all(np.isfinite(X), axis=2)
+    full = np.flatnonzero(seen.all(1))
+    if len(full) < MIN_FRAMES:
+        return []
+    # the three points spanning the largest triangle on average, the rest score
+    ref = X[full[len(full) // 2]]
+    a, b, c = _best_triangle(ref)
+    rest = [k for k in range(P) if k not in (a, b, c)]
+    sub = full[np.linspace(0, len(full) - 1, min(max_frames, len(full))).astype(int)]
+    span = np.nanmax(np.linalg.norm(X[sub][:, :, None] - X[sub][:, None, :], axis=3))
+    grid = np.linspace(span / steps, span, steps)
+    ra, rb, rc = (g.ravel() for g in np.meshgrid(grid, grid, grid, indexing="ij"))
+    Xs, Xr = X[sub], X[sub][:, rest]
+
+    def candidates(r: np.ndarray, Xa, Xb, Xc, Xrest) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per frame, the trilaterated joint on the side of the plane that fits the other points
+        (the joint may cross the plane of the three during the trial): (G, f, 3), distances, misses."""
+        both = [_trilaterate(Xa, Xb, Xc, r[0], r[1], r[2], sign) for sign in (1.0, -1.0)]
+        d = [np.linalg.norm(cen[:, :, None, :] - Xrest[None], axis=3) for cen, _ in both]  # (G, f, R)
+        med = [np.median(x, axis=1, keepdims=True) for x in d]
+        one_side = [np.sum(np.var(x, axis=1), axis=1) for x in d]
+        ref = np.where((one_side[0] <= one_side[1])[:, None, None], med[0], med[1])
+        pick = np.sum((d[0] - ref) ** 2, axis=2) <= np.sum((d[1] - ref) ** 2, axis=2)  # (G, f)
+        cen = np.where(pick[..., None], both[0][0], both[1][0])
+        return cen, np.where(pick[..., None], d[0], d[1]), np.where(pick, both[0][1], both[1][1])
+
+    def score(r: np.ndarray) -> np.ndarray:
+        _, d, bad = candidates(r, Xs[:, a], Xs[:, b], Xs[:, c], Xr)
+        beyond = np.sum(np.maximum(np.abs(r - 0.5 * span) - 0.5 * span, 0.0) ** 2, axis=0)  # keep 0 < ρ < span
+        return d.var(axis=1).sum(1) + bad.mean(1) + beyond
+
+    def residuals(r: np.ndarray) -> np.ndarray:
+        _, d, bad = candidates(r[:, None], Xs[:, a], Xs[:, b], Xs[:, c], Xr)
+        beyond = np.maximum(np.abs(r - 0.5 * span) - 0.5 * span, 0.0)
+        return np.concatenate([(d[0] - d[0].mean(0)).ravel() / math.sqrt(len(sub)), np.sqrt(bad[0] / len(sub)),
+                               beyond])
+
+    sc = score(np.stack([ra, rb, rc]))
+    best: list[tuple[float, np.ndarray]] = []
+    picked: list[np.ndarray] = []
+    for g in np.argsort(sc):  # the best distinct grid points, each polished by least squares in (ρa, ρb, ρc)
+        r0 = np.array([ra[g], rb[g], rc[g]])
+        if any(np.max(np.abs(r0 - q)) <= 1.5 * span / steps for q in picked):
+            continue
+        picked.append(r0)
+        res = least_squares(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+        best.append((float(2 * res.cost), res.x))
+        if len(picked) == keep or res.cost < 1e-24:
+            break
+    best.sort(key=lambda item: item[0])
+    rest_all = X[:, rest]
+    return [candidates(r[:, None], X[:, a], X[:, b], X[:, c], rest_all)[0][0] for _, r in best]
+
+
+def _trilaterate(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, r1: np.ndarray, r2: np.ndarray,
+                 r3: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points at distances r1, r2, r3 (G,) from p1, p2, p3 (f, 3) on the `sign` side of their plane:
+    (G, f, 3), and how far (m²) the spheres miss each other where they do not meet (0 where they do)."""
+    ex = p2 - p1
+    dd = np.linalg.norm(ex, axis=1)
+    ex = ex / dd[:, None]
+    v = p3 - p1
+    i = np.sum(ex * v, axis=1)
+    ey = v - i[:, None] * ex
+    j = np.linalg.norm(ey, axis=1)
+    ey = ey / j[:, None]
+    ez = _cross(ex, ey)
+    r1, r2, r3 = r1[:, None], r2[:, None], r3[:, None]
+    x = (r1**2 - r2**2 + dd**2) / (2 * dd)
+    y = (r1**2 - r3**2 + i**2 + j**2) / (2 * j) - (i / j) * x
+    z2 = r1**2 - x**2 - y**2
+    z = sign * np.sqrt(np.maximum(z2, 0.0))
+    pts = p1 + x[..., None] * ex + y[..., None] * ey + z[..., None] * ez
+    return pts, np.maximum(-z2, 0.0)
 
 
 def _frame_width(ref: np.ndarray) -> float:

@@ -120,6 +120,7 @@ def human(seeds: list[int], frames: int = 1000, noise_mm: float = 1.0) -> dict:
     """Issue 3 item 9 on models/human.urdf: simulated squats, estimate_model_joints, errors against truth."""
     from pathlib import Path
 
+    from calibrate.association import associate
     from calibrate.joints import estimate_model_joints
     from calibrate.model import load_model
     from calibrate.simulate import joint_axes_world, simulate_squats
@@ -143,13 +144,26 @@ def human(seeds: list[int], frames: int = 1000, noise_mm: float = 1.0) -> dict:
                 ang = np.degrees(np.arccos(np.clip(np.abs(np.sum(j.axis * ax, axis=1)), 0, 1)))
                 row[f"{j.name}_off_axis_mm"] = 1e3 * float(np.nanmedian(off))
                 row[f"{j.name}_axis_deg"] = float(np.nanmedian(ang))
+        # marker-to-segment association on the unlabelled trajectories (seed 002 Section 3)
+        t0 = time.perf_counter()
+        assoc = associate(sim.trial.markers)
+        row["association_s"] = time.perf_counter() - t0
+        truth_sets = {frozenset(i for i, m in enumerate(model.markers) if m.segment == s.name)
+                      for s in model.segments if s.markers}
+        right = [i for g in assoc.groups if frozenset(g) in truth_sets for i in g]
+        row["association_right"] = len(right)
+        row["association_markers"] = len(model.markers)
+        row["association_wrong"] = [model.markers[i].name for i in range(len(model.markers)) if i not in set(right)]
+        row["association_ambiguous"] = [model.markers[i].name for i in assoc.ambiguous]
         rows.append(row)
 
     def worst(key: str) -> float:
         return max(r[key] for r in rows if key in r)
 
     out = {"frames": frames, "noise_mm": noise_mm, "seeds": seeds, "runs": rows,
-           "seconds_mean": mean([r["seconds"] for r in rows])}
+           "seconds_mean": mean([r["seconds"] for r in rows]),
+           "association_right_fraction": sum(r["association_right"] for r in rows)
+           / sum(r["association_markers"] for r in rows)}
     for side in "lr":
         out[f"hip_{side}_mm_worst"] = worst(f"hip_{side}_centre_mm")
         for j in ("knee", "elbow"):
@@ -235,6 +249,9 @@ def main() -> None:
     checks.append((f"human squats: knee/elbow centres {off:.2f} mm from the true axis <= 5 mm", off <= 5.0))
     ang = max(hu[f"{j}_{s}_axis_deg_worst"] for j in ("knee", "elbow") for s in "lr")
     checks.append((f"human squats: knee/elbow axes {ang:.2f} deg <= 3 deg", ang <= 3.0))
+    frac = hu["association_right_fraction"]
+    checks.append((f"human squats: markers on the right segment (unlabelled association) {100 * frac:.1f} % "
+                   "= 100 %", frac == 1.0))
     failed = sum(ch[c]["failed_runs"] for c in CHAINS)
     checks.append((f"framework: runs with a joint not ok or NaN (noise-free chains) = {failed}", failed == 0))
     res["checks"] = [{"target": t, "pass": bool(p)} for t, p in checks]
@@ -303,7 +320,11 @@ def main() -> None:
     for r in hu["runs"]:
         hinge = "  ".join(f"{r[f'{j}_off_axis_mm']:5.2f} / {r[f'{j}_axis_deg']:4.2f}"
                           for j in ("knee_l", "knee_r", "elbow_l", "elbow_r"))
-        say(f"{r['seed']:4d} {r['seconds']:7.2f} {r['hip_l_centre_mm']:6.2f} {r['hip_r_centre_mm']:6.2f}  {hinge}")
+        wrong = ", ".join(r["association_wrong"]) or "-"
+        amb = ", ".join(r["association_ambiguous"]) or "-"
+        say(f"{r['seed']:4d} {r['seconds']:7.2f} {r['hip_l_centre_mm']:6.2f} {r['hip_r_centre_mm']:6.2f}  {hinge}"
+            f"   association {r['association_right']}/{r['association_markers']} right "
+            f"({r['association_s']:.2f} s; wrong: {wrong}; flagged ambiguous: {amb})")
     say()
     say("Targets")
     for t, p in checks:
