@@ -51,7 +51,6 @@ MIN_MOTION = 0.005  # m: RMS relative motion below this means the joint did not 
 MIN_FRAMES = 10  # fewer usable frames than this: no estimate
 MIN_WIDTH = 0.005  # m: a segment's points must lie this far (RMS) from their best-fit line to give it a frame
 KINDS = ("ball", "hinge", "universal")
-METHODS = ("MTB", "MTB (propagated)", "JMV", "failed")
 
 
 @dataclass(frozen=True)
@@ -426,9 +425,6 @@ class _Framework:
     def other(self, spec: JointSpec, s: str) -> str:
         return spec.child if s == spec.parent else spec.parent
 
-    def frame_points(self, s: str) -> list[_Point]:
-        return self.seg[s]
-
     def has_frame(self, s: str, without: str = "") -> bool:
         """Whether the segment's points (less `without`) span a frame: 3 or more, not (nearly) collinear."""
         pts = [p for p in self.seg[s] if p.name != without]
@@ -595,13 +591,7 @@ class _Framework:
                 return len(self.seg[spec.parent]) + len(self.seg[spec.child])
 
             spec = max(pending, key=n_points)
-            self.add_solution(self.solve_jmv(spec), spec)
-            if not self.solved[spec.name].ok:  # nothing more can be learnt for the rest
-                for other in pending:
-                    if other.name not in self.solved:
-                        self.propagate()
-                        if other.name not in self.solved:
-                            self.add_solution(self.solve_jmv(other), other)
+            self.add_solution(self.solve_jmv(spec), spec)  # solved or failed with a reason: one fewer pending
 
     def propagate(self) -> None:
         """Joint solvability and its propagation, until the system state stops changing."""
