@@ -12,14 +12,23 @@ The public API (see README.md):
     estimate_joints, estimate_model_joints, JointSpec, JointEstimate, JointEstimates,
     write_centres_csv                               -- calibrate.joints (MTB joint centres)
     associate, associate_to_model                   -- calibrate.association (markers -> segments)
+    calibrate, Calibration, ParameterChange, seed_parameters   -- calibrate.calibration (the global solve)
+    Settings, Priors, Problem, load_settings        -- calibrate.problem, calibrate.config
+    levenberg_marquardt, SolverSummary              -- calibrate.solver
+    compare_to_truth, TruthComparison               -- calibrate.evaluate (against a simulation's truth)
     CalibrateError, ModelError, TrialError          -- calibrate.errors
 """
 
 from __future__ import annotations
 
+__version__ = "0.1.0"
+
 from .association import Association, ModelAssociation, associate, associate_to_model
+from .calibration import Calibration, ParameterChange, calibrate, seed_parameters
 from .chains import Chain, simulate_chain
+from .config import load_settings
 from .errors import CalibrateError, ModelError, TrialError
+from .evaluate import TruthComparison, compare_to_truth
 from .ik import IKResult, inverse_kinematics
 from .joints import (
     JointEstimate,
@@ -32,12 +41,14 @@ from .joints import (
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters, load_model, write_model
 from .motion import Motion, read_motion_csv, write_motion_csv
+from .problem import Priors, Problem, Settings
 from .simulate import Simulation, simulate_squats, write_simulation
+from .solver import SolverSummary, levenberg_marquardt
 from .trial import Trial, read_c3d, read_trc, read_trial, write_c3d, write_trc
 
-__version__ = "0.1.0"
-
 __all__ = [
+    "Calibration", "ParameterChange", "Priors", "Problem", "Settings", "SolverSummary", "TruthComparison",
+    "calibrate", "compare_to_truth", "levenberg_marquardt", "load_settings", "seed_parameters",
     "Association", "CalibrateError", "Chain", "IKResult", "JointEstimate", "JointEstimates", "JointSpec",
     "Kinematics", "Model", "ModelAssociation", "ModelError", "Motion", "Parameters", "Simulation", "Trial",
     "TrialError", "associate", "associate_to_model", "build_kinematics", "estimate_joints",

@@ -1,4 +1,5 @@
-"""Command line: ``calibrate simulate``, ``calibrate demo``, ``calibrate inspect``, ``calibrate joints``.
+"""Command line: ``calibrate TRIAL MODEL`` (calibrate a subject), ``calibrate simulate``,
+``calibrate demo``, ``calibrate inspect``, ``calibrate joints``.
 
 A thin layer over the Python API.  Bad input gives one line on stderr
 (``calibrate: error: ...``) and exit status 2; nothing half-written.
@@ -68,19 +69,6 @@ def _progress(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-class _FrameProgress:
-    """Prints 'label: done/total frames' to stderr at most once a second, after the first second."""
-
-    def __init__(self, label: str):
-        self.label, self.t0, self.last = label, time.perf_counter(), 0.0
-
-    def __call__(self, done: int, total: int) -> None:
-        now = time.perf_counter() - self.t0
-        if now > 1.0 and now - self.last >= 1.0:
-            self.last = now
-            _progress(f"  {self.label}: {done}/{total} frames ({now:.0f} s)")
-
-
 def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
     p.add_argument("--frames", type=_positive_int, default=frames, help=f"number of frames (default {frames})")
     p.add_argument("--rate", type=_positive_float, default=100.0, help="frame rate in Hz (default 100)")
@@ -100,7 +88,10 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(
         prog="calibrate",
-        description="Subject-specific human models from motion-capture trials.",
+        usage="calibrate TRIAL MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
+              "       calibrate COMMAND ...",
+        description="Subject-specific human models from motion-capture trials.  'calibrate TRIAL MODEL' "
+                    "calibrates MODEL to the subject of TRIAL; the commands below help around it.",
     )
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sim = sub.add_parser("simulate", help="write a synthetic squat trial with its truth",
@@ -109,9 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
     sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
     _add_sim_args(sim, 1000)
-    demo = sub.add_parser("demo", help="simulate a squat trial into ./calibrate-demo and summarise it",
-                          description="Simulate a squat trial into ./calibrate-demo/ (its files are replaced on "
-                                      "every run) and report how well the base model's kinematics reproduce it.")
+    demo = sub.add_parser("demo", help="simulate squats, calibrate the base model to them, compare with the truth",
+                          description="Simulate a squat trial of a synthetic subject into ./calibrate-demo/ (its "
+                                      "files are replaced on every run), calibrate the base model to it, and print "
+                                      "truth vs estimate: joint-centre and axis errors, marker RMS, time.")
     demo.add_argument("--out", type=Path, default=Path("calibrate-demo"), help="output directory")
     _add_sim_args(demo, 1000)
     ins = sub.add_parser("inspect", help="describe a model (.urdf) or a trial (.c3d/.trc)")
@@ -133,15 +125,70 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+COMMANDS = ("simulate", "demo", "inspect", "joints")
+
+
+def _frames_arg(text: str) -> slice:
+    """'A:B' (0-based, B excluded, either side optional) -> slice."""
+    parts = text.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        a = int(parts[0]) if parts[0].strip() else None
+        b = int(parts[1]) if parts[1].strip() else None
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected A:B (0-based frame indices, B excluded), got '{text}'") from None
+    if (a is not None and a < 0) or (b is not None and b < 0):
+        raise argparse.ArgumentTypeError(f"frame indices must be 0 or more, got '{text}'")
+    return slice(a, b)
+
+
+def build_calibrate_parser() -> argparse.ArgumentParser:
+    ap = _Parser(
+        prog="calibrate",
+        usage="calibrate TRIAL MODEL [-o URDF] [--motion CSV] [--report JSON] [--frames A:B] [--config TOML] ...\n"
+              "       calibrate {simulate,demo,inspect,joints} ...",
+        description="Calibrate MODEL (a URDF) to the subject of TRIAL (.c3d or .trc): segment scales, joint "
+                    "centres, hinge axes and marker positions, with every frame's pose, in one least-squares "
+                    "problem.  Writes the subject URDF, a motion CSV and a report JSON next to the trial.  Other "
+                    "commands: simulate, demo, inspect, joints (see 'calibrate COMMAND --help').")
+    ap.add_argument("trial", type=Path, help="the trial (.c3d or .trc)")
+    ap.add_argument("model", type=Path, help="the base model (.urdf) to calibrate; never modified")
+    ap.add_argument("-o", "--output", type=Path, default=None, help="subject URDF (default: TRIAL's name + .urdf)")
+    ap.add_argument("--motion", type=Path, default=None, help="motion CSV (default: TRIAL's name + _motion.csv)")
+    ap.add_argument("--report", type=Path, default=None, help="report JSON (default: TRIAL's name + _report.json)")
+    ap.add_argument("--frames", type=_frames_arg, default=None, help="use frames A:B only (0-based, B excluded)")
+    ap.add_argument("--config", type=Path, default=None, help="settings file (TOML; see docs/calibration.md)")
+    ap.add_argument("--free", default=None,
+                    help="comma-separated parameter groups to calibrate: scale,centre,axis,marker (default all)")
+    ap.add_argument("--loss", choices=("linear", "huber", "cauchy"), default=None,
+                    help="robust loss against marker outliers (default linear)")
+    ap.add_argument("--noise-mm", type=_positive_float, default=None, help="marker noise SD in mm (default 1)")
+    ap.add_argument("--no-seed", action="store_true", help="start from the base model, not from MTB joint centres")
+    ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    return ap
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    first = next((a for a in argv if not a.startswith("-")), None)
+    if first is not None and first not in COMMANDS and not any(a in ("-h", "--help") for a in argv[:1]):
+        args = build_calibrate_parser().parse_args(argv)
+        return _guard(cmd_calibrate, args)
     ap = build_parser()
     args = ap.parse_args(argv)
     if args.command is None:
         ap.print_help()
         return 2
+    commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints}
+    return _guard(commands[args.command], args)
+
+
+def _guard(command, args: argparse.Namespace) -> int:
+    """Run a command; one-line errors (exit 2) for bad input."""
     try:
-        commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints}
-        return commands[args.command](args)
+        return command(args)
     except CalibrateError as e:
         print(f"calibrate: error: {e}", file=sys.stderr)
         return 2
@@ -183,39 +230,121 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibration import calibrate
+    from .config import load_settings, settings_from_dict
+    from .model import load_model
+    from .problem import Settings
+    from .trial import Trial, read_trial
+
+    trial_path: Path = args.trial
+    stem = trial_path.with_suffix("")
+    out_urdf = args.output or stem.with_name(stem.name + ".urdf")
+    out_motion = args.motion or stem.with_name(stem.name + "_motion.csv")
+    out_report = args.report or stem.with_name(stem.name + "_report.json")
+    settings = load_settings(args.config) if args.config else Settings()
+    flags: dict = {}
+    if args.free is not None:
+        flags["free"] = [g.strip() for g in args.free.split(",") if g.strip()]
+    if args.loss is not None:
+        flags["loss"] = args.loss
+    if args.noise_mm is not None:
+        flags["noise_mm"] = args.noise_mm
+    if args.no_seed:
+        flags["seed"] = False
+    if flags:
+        settings = settings_from_dict(flags, "command line", settings)
+    # Check the destinations before any work, so a long run never ends in a refusal.
+    for p in (out_urdf, out_motion, out_report):
+        if p.resolve() == args.model.resolve():
+            raise CalibrateError(f"{p}: that is the base model; refusing to overwrite it (choose another -o)")
+    for p in (out_urdf, out_motion, out_report):
+        if p.exists() and not args.overwrite:
+            raise CalibrateError(f"{p}: exists; pass --overwrite to replace it or choose another name")
+        if not p.parent.is_dir():
+            raise CalibrateError(f"{p}: directory '{p.parent}' does not exist; create it first")
+    say = (lambda msg: None) if args.quiet else _Timed()
+    t0 = time.perf_counter()
+    model = load_model(args.model)
+    trial = read_trial(trial_path)
+    if args.frames is not None:
+        idx = range(trial.n_frames)[args.frames]
+        if len(idx) == 0 or idx.step != 1:
+            raise CalibrateError(f"--frames {args.frames.start}:{args.frames.stop}: selects no frames of "
+                                 f"{trial_path} ({trial.n_frames} frames, 0-based)")
+        trial = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
+                      trial.first_frame + idx.start, trial.source)
+    load_s = time.perf_counter() - t0
+    ignored = [lab for lab in trial.labels if lab not in set(model.marker_names)]
+    if ignored:
+        print(f"warning: {len(ignored)} trial labels are not markers of {model.path.name} and are ignored: "
+              f"{', '.join(ignored)}", file=sys.stderr)
+    cal = calibrate(model, trial, settings, progress=say)
+    cal.times = {"load": load_s, **cal.times}
+    cal.write(urdf=out_urdf, motion=out_motion, report=out_report, overwrite=args.overwrite)
+    print(cal.text())
+    print("")
+    print(f"wrote {out_urdf}\n      {out_motion}\n      {out_report}")
+    if not cal.converged:
+        print(f"warning: the solver did not converge ({cal.summary.termination}); the best result so far was "
+              "written and is flagged in the report", file=sys.stderr)
+        return 1
+    return 0
+
+
+class _Timed:
+    """Progress on stderr with the elapsed time, shown once the run has taken a second."""
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.pending: list[str] = []
+
+    def __call__(self, msg: str) -> None:
+        now = time.perf_counter() - self.t0
+        if now >= 1.0 and (not msg.startswith("solve: iteration") or now - getattr(self, "last", 0.0) >= 0.5):
+            self.last = now
+            _progress(f"  [{now:6.2f} s] {msg}")
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .ik import inverse_kinematics
-    from .kinematics import build_kinematics
+    from .calibration import calibrate
+    from .evaluate import compare_to_truth
     from .trial import read_trial
 
     model, sim, paths, dt = _simulate(args)
     trial = read_trial(paths["trial"])  # what a user would have: the C3D file
-    _progress(f"simulated a squat trial in {dt:.2f} s -> {args.out}/")
-    kin = build_kinematics(model)
+    _progress(f"simulated a squat trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
     t0 = time.perf_counter()
-    _progress("fitting the base model (inverse kinematics, frame by frame)...")
-    base = inverse_kinematics(kin, trial, model.parameters(), progress=_FrameProgress("base model"))
-    t_base = time.perf_counter() - t0
-    _progress("fitting the true subject model (the noise floor)...")
-    true = inverse_kinematics(kin, trial, sim.truth, progress=_FrameProgress("true model"))
+    cal = calibrate(model, trial, progress=_Timed())
+    t_cal = time.perf_counter() - t0
+    cal.write(urdf=args.out / "subject.urdf", motion=args.out / "subject_motion.csv",
+              report=args.out / "subject_report.json", overwrite=True)
+    cmp = compare_to_truth(cal, sim)
     gaps = float(np.isnan(trial.markers[..., 0]).mean())
-    ang = np.degrees(np.angle(np.exp(1j * (base.motion.angles - sim.motion.angles))))
-    rms_ang = np.sqrt(np.mean(ang**2, axis=0))
-    worst = np.argsort(rms_ang)[::-1][:3]
+    print(cal.text())
+    print("")
     print(f"calibrate demo: {model.summary()}")
-    print(f"trial   {paths['trial']}: {trial.n_frames} frames at {trial.rate:g} Hz, {trial.n_markers} markers, "
-          f"noise {args.noise_mm:g} mm, gaps {100 * gaps:.1f} %")
-    print(f"truth   {paths['truth']}, {paths['motion']}")
+    print(f"trial   {paths['trial']}: {trial.n_frames} frames at {trial.rate:g} Hz, noise {args.noise_mm:g} mm, "
+          f"gaps {100 * gaps:.1f} %; truth in {paths['truth']}")
+    print(f"result  {args.out / 'subject.urdf'}, subject_motion.csv, subject_report.json")
     print("")
-    print("how well each model's kinematics reproduce the trial (frame-wise inverse kinematics):")
-    print(f"  {'model':28s} {'marker RMS':>11s} {'max':>9s} {'time':>8s}")
-    print(f"  {'base (uncalibrated)':28s} {1e3 * base.rms:8.2f} mm {1e3 * base.max_error:6.1f} mm {t_base:6.2f} s")
-    print(f"  {'true subject (noise floor)':28s} {1e3 * true.rms:8.2f} mm {1e3 * true.max_error:6.1f} mm")
-    print(f"  joint angles of the base model vs truth: RMS over DoFs {np.sqrt(np.mean(rms_ang**2)):.1f} deg; "
-          f"worst " + ", ".join(f"{model.dof_names[i]} {rms_ang[i]:.1f} deg" for i in worst))
-    print("")
-    print("The gap between the two rows is what calibrating the model to this subject removes.")
+    print("truth vs estimate")
+    print(f"  {'joint':14s} {'kind':9s} {'centre err (mm)':>16s} {'axis err (deg)':>15s}")
+    for name, err in cmp.centre_error.items():
+        ax = f"{cmp.axis_error_deg[name]:15.2f}" if name in cmp.axis_error_deg else f"{'':15s}"
+        print(f"  {name:14s} {cmp.kinds[name]:9s} {1000 * err:16.2f} {ax}")
+    print("  (hinge centre error: distance from the true axis line; medians over frames)")
+    print(f"  marker RMS   base model (start) {1000 * _rms(cal.initial_residuals):.2f} mm -> calibrated "
+          f"{1000 * cmp.marker_rms:.3f} mm; true model refitted (noise floor) {1000 * cmp.floor_rms:.3f} mm")
+    print(f"  joint angles RMS vs truth {cmp.angle_rms_deg:.2f} deg ({cmp.angle_rms_offset_free_deg:.2f} deg "
+          f"without each DoF's constant offset)")
+    print(f"  time         calibration {t_cal:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
+          + ")")
     return 0
+
+
+def _rms(res: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2))))
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:

@@ -83,8 +83,10 @@ def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["demo", "--frames", "60"]) == 0
     out = capsys.readouterr().out
-    assert "39 markers" in out and "38 DoF" in out and "base (uncalibrated)" in out
-    assert (tmp_path / "calibrate-demo" / "trial.c3d").exists()
+    assert "39 markers" in out and "38 DoF" in out and "truth vs estimate" in out
+    assert "hip_r" in out and "noise floor" in out and "CONVERGED" in out
+    for name in ("trial.c3d", "subject.urdf", "subject_motion.csv", "subject_report.json"):
+        assert (tmp_path / "calibrate-demo" / name).exists()
 
 
 @pytest.mark.parametrize("argv, needle", [

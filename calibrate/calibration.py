@@ -1,0 +1,515 @@
+"""Subject calibration from one trial: seed, start, global solve, result (seed 003).
+
+    calibrate(model, trial, settings)  ->  Calibration
+      1. seed    MTB joint centres (calibrate.joints) -> segment scale factors, joint centres
+                 and hinge axes in segment frames; the base model where the seed fails.
+      2. start   frame-wise inverse kinematics with the seeded geometry on key frames (every
+                 `stride`-th, warm-started key frame to key frame), interpolated between
+                 them, then refined for all frames at once with the geometry held.
+      3. solve   one Levenberg–Marquardt over every frame's coordinates and the free
+                 parameters (calibrate.problem, calibrate.solver).
+      4. result  parameters, motion, marker errors, posterior standard deviations and the
+                 parameters the trial could not identify (held by their priors).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+from threadpoolctl import threadpool_limits
+
+from .errors import CalibrateError
+from .geometry import kabsch_batch
+from .ik import _FrameSolver, marker_columns
+from .joints import JointEstimates, estimate_model_joints, model_geometry
+from .kinematics import Kinematics, build_kinematics
+from .model import Model, Parameters
+from .motion import Motion
+from .problem import Problem, Settings, State, perpendicular_basis
+from .solver import SolverSummary, covariance, levenberg_marquardt
+from .trial import Trial
+
+MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
+SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
+SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
+IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
+STRIDE = 10  # key-frame spacing of the start
+
+
+@dataclass(frozen=True)
+class Seed:
+    """Starting geometry from the MTB joint centres, and what was not seeded (and why)."""
+
+    params: Parameters
+    notes: tuple[str, ...]
+    joints: JointEstimates | None
+    seconds: float
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """One calibrated quantity against the base model, with its posterior uncertainty."""
+
+    name: str  # e.g. 'centre[knee_r]', 'axis[knee_r]', 'marker[RKNE]', 'scale[femur_r]'
+    base: np.ndarray  # base model value (m for positions at base scale, unit vector, scale factor)
+    value: np.ndarray  # calibrated value (positions at the subject's scale)
+    change: float  # |value − base|: mm for positions, degrees for axes, fraction for scales
+    std: np.ndarray  # posterior std per coordinate (mm / deg / fraction); NaN when not free
+    identified: bool  # False: the trial could not pin it and its prior holds it
+    note: str = ""
+    prior_ratio: float = float("nan")  # worst-direction posterior std / prior-only std (0: data alone, 1: prior alone)
+
+
+@dataclass
+class Calibration:
+    """Everything `calibrate` found.  Units: metres, radians, seconds."""
+
+    model: Model
+    trial: Trial
+    settings: Settings
+    params: Parameters  # the subject's geometric parameters
+    motion: Motion  # coordinates of every frame
+    residuals: np.ndarray  # (F, n_model_markers, 3) model − trial markers (m); NaN where not seen
+    initial_residuals: np.ndarray  # the same with the base model (frame-wise IK on the key frames' start)
+    summary: SolverSummary
+    seed: Seed
+    changes: list[ParameterChange]
+    times: dict[str, float] = field(default_factory=dict)  # stage -> seconds
+    ignored_labels: tuple[str, ...] = ()  # trial labels the model does not know
+    unused_markers: tuple[str, ...] = ()  # model markers the trial never shows
+    compiled: bool = False
+
+    @property
+    def marker_rms(self) -> float:
+        """RMS 3-D marker error over every observed marker in every frame (m)."""
+        return _rms(self.residuals)
+
+    @property
+    def marker_max(self) -> float:
+        """Largest 3-D marker error (m)."""
+        return float(np.nanmax(np.linalg.norm(self.residuals, axis=2)))
+
+    @property
+    def converged(self) -> bool:
+        return self.summary.converged
+
+    @property
+    def unidentified(self) -> list[ParameterChange]:
+        return [c for c in self.changes if not c.identified]
+
+    def per_marker(self) -> dict[str, tuple[float, float, int]]:
+        """Marker name -> (RMS m, max m, frames seen)."""
+        out = {}
+        err = np.linalg.norm(self.residuals, axis=2)
+        for k, name in enumerate(self.model.marker_names):
+            e = err[:, k]
+            seen = np.isfinite(e)
+            if seen.any():
+                out[name] = (float(np.sqrt(np.mean(e[seen] ** 2))), float(e[seen].max()), int(seen.sum()))
+        return out
+
+    def report(self) -> dict:
+        """The report as plain JSON-ready data (mm, degrees, seconds at the edges)."""
+        from .report import calibration_report
+
+        return calibration_report(self)
+
+    def text(self) -> str:
+        """A human-readable summary (what the CLI prints)."""
+        from .report import summary_text
+
+        return summary_text(self)
+
+    def write(self, urdf=None, motion=None, report=None, overwrite: bool = False) -> dict:
+        """Write the subject URDF, motion CSV and report JSON (those given); see report.write_outputs."""
+        from .report import write_outputs
+
+        return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite)
+
+
+def _rms(res: np.ndarray) -> float:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2))))
+
+
+# ---------------------------------------------------------------------- seed
+def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None) -> Seed:
+    """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
+
+    * scale of a segment: the median over frames of the distances between its estimated joint
+      centres, over the base model's distances (the subject's median scale where a segment
+      has fewer than two estimated centres);
+    * each segment's pose per frame: least-squares fit of its base-model markers and joint
+      centres (scaled) to the observed markers and estimated centres;
+    * a joint centre: its trajectory carried into the parent segment's frame and averaged;
+      a hinge axis likewise.  A joint whose estimate failed, or lands further than
+      SEED_MAX_SHIFT from the scaled base model, keeps the base model's (and the note says so).
+    """
+    t0 = time.perf_counter()
+    notes: list[str] = []
+    if joints is None:
+        try:
+            joints = estimate_model_joints(model, trial)
+        except (ValueError, CalibrateError) as e:
+            notes.append(f"joint-centre seed unavailable ({e}); starting from the base model")
+            return Seed(model.parameters(), tuple(notes), None, time.perf_counter() - t0)
+    base = model.parameters()
+    geo = model_geometry(model)
+    # Only direct MTB solutions seed the geometry: JMV fallbacks and joints seen through a
+    # markerless segment are flagged by the joint-centre stage as 10-60 mm uncertain.
+    ok = {j.name: j for j in joints if j.ok and j.method.startswith("MTB") and not j.note}
+    for j in joints:
+        if not j.ok:
+            notes.append(f"{j.name}: no joint-centre seed ({j.reason}); base model used")
+        elif j.name not in ok:
+            notes.append(f"{j.name}: joint-centre seed too uncertain ({j.note or j.method}); base model used")
+    # Scale factors from distances between estimated centres within each segment.
+    ratios: dict[str, list[float]] = {s.name: [] for s in model.segments}
+    for s in model.segments:
+        names = [n for n in geo[s.name] if n in ok]
+        for a in range(len(names)):
+            for b in range(a + 1, len(names)):
+                d0 = np.linalg.norm(geo[s.name][names[a]] - geo[s.name][names[b]])
+                if d0 < 0.05:
+                    continue
+                d = np.linalg.norm(ok[names[a]].centre - ok[names[b]].centre, axis=1)
+                if np.isfinite(d).sum() >= 3:
+                    ratios[s.name].append(float(np.nanmedian(d)) / d0)
+    known = [np.median(r) for r in ratios.values() if r]
+    overall = float(np.median(known)) if known else 1.0
+    scale = np.array([float(np.median(ratios[s.name])) if ratios[s.name] else overall for s in model.segments])
+    scale = np.clip(scale, 0.7, 1.4)
+    centre = base.centre.copy()
+    axis = base.axis.copy()
+    obs = marker_columns(model, trial)
+    F = obs.shape[0]
+    for si, s in enumerate(model.segments):
+        pts_local, pts_world = [], []
+        for mk in s.markers:
+            k = model.marker_index(mk)
+            pts_local.append(scale[si] * base.marker[k])
+            pts_world.append(obs[:, k])
+        for n, pos in geo[s.name].items():
+            if n in ok:
+                pts_local.append(scale[si] * pos)
+                pts_world.append(ok[n].centre)
+        if len(pts_local) < 3:
+            continue
+        local = np.array(pts_local)
+        world = np.stack(pts_world, axis=1)
+        w = np.all(np.isfinite(world), axis=2).astype(float)
+        R, t = kabsch_batch(local, np.where(w[..., None] > 0, world, 0.0), w)
+        valid = np.isfinite(t[:, 0])
+        if valid.sum() < 3:
+            continue
+        for ji, j in enumerate(model.joints):
+            if j.parent != s.name or j.name not in ok:
+                continue
+            est = ok[j.name]
+            use = valid & np.isfinite(est.centre[:, 0])
+            if use.sum() < 3:
+                continue
+            c_loc = np.einsum("fji,fj->fi", R[use], est.centre[use] - t[use]).mean(0)
+            c = c_loc / scale[si]
+            shift = float(np.linalg.norm(scale[si] * (c - base.centre[ji])))
+            if shift > SEED_MAX_SHIFT:
+                notes.append(f"{j.name}: seeded centre {1000 * shift:.0f} mm from the scaled base model; "
+                             "base model used")
+                continue
+            centre[ji] = c
+            if j.kind == "hinge" and est.axis is not None:
+                a_loc = np.einsum("fji,fj->fi", R[use], est.axis[use])
+                d = model.dof_index(j.dofs[0])
+                u = next(u for u in model.urdf_joints if u.name == j.dofs[0])
+                a0 = base.axis[d] / np.linalg.norm(base.axis[d])
+                a_loc = a_loc * np.sign(a_loc @ (u.rotation @ a0))[:, None]
+                a = u.rotation.T @ np.nanmean(a_loc, axis=0)
+                a /= np.linalg.norm(a)
+                if math.acos(min(1.0, abs(float(a @ a0)))) <= SEED_MAX_TILT:
+                    axis[d] = a
+                else:
+                    notes.append(f"{j.name}: seeded axis more than {math.degrees(SEED_MAX_TILT):.0f} deg from the "
+                                 f"base model's; base model axis used")
+    del F
+    params = Parameters(scale, centre, axis, base.marker.copy())
+    return Seed(params, tuple(notes), joints, time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------- start
+def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, stride: int = STRIDE) -> State:
+    """Per-frame coordinates for fixed geometry: frame-wise IK on every `stride`-th frame (warm-started
+    key frame to key frame, the first from a global search), interpolated in between (slerp for
+    the root rotation).  Frames with fewer than 3 markers take the nearest key frame's pose."""
+    model = kin.model
+    F = observed.shape[0]
+    p = params.vector()
+    solver = _FrameSolver(kin, p)
+    seen = np.all(np.isfinite(observed), axis=2)
+    usable = np.flatnonzero(seen.sum(1) >= 3)
+    keys = usable[::stride]
+    if keys.size and keys[-1] != usable[-1]:
+        keys = np.append(keys, usable[-1])
+    Zk = np.zeros((keys.size, model.nz))
+    Qk = np.zeros((keys.size, 4))
+    z = q = None
+    fits: list[float] = []
+    for i, f in enumerate(keys):
+        idx = np.flatnonzero(seen[f])
+        if z is None:
+            z, q = solver.global_start(observed[f], seen[f])
+            budget = 200
+        else:
+            budget = 30
+        z, q, cost, _ = solver.solve(z, q, observed[f], idx, np.arange(model.nz), budget, 1e-8)
+        fits.append(math.sqrt(cost / idx.size))
+        Zk[i], Qk[i] = z, q
+    frames = np.arange(F)
+    Z = np.zeros((F, model.nz))
+    if keys.size == 1:
+        Z[:] = Zk[0]
+        Q = np.tile(Qk[0], (F, 1))
+    else:
+        for c in range(model.nz):
+            Z[:, c] = np.interp(frames, keys, Zk[:, c])
+        slerp = Slerp(keys, Rotation.from_quat(Qk))
+        Q = slerp(np.clip(frames, keys[0], keys[-1])).as_quat()
+    Q = np.where(Q[:, 3:4] < 0, -Q, Q)
+    Z[:, 3:6] = 0.0
+    return State(Z, Q, p.copy())
+
+
+# ---------------------------------------------------------------------- calibrate
+def calibrate(model: Model, trial: Trial, settings: Settings | None = None, *,
+              kinematics: Kinematics | None = None,
+              progress: Callable[[str], None] | None = None) -> Calibration:
+    """Calibrate `model` to `trial`: the subject's scales, joint centres, hinge axes and marker
+    positions, and every frame's coordinates, in one least-squares problem (module docstring).
+
+    Trial labels the model does not know are ignored (listed in ``ignored_labels``).  Raises
+    CalibrateError with one line if the trial and model share too few markers or frames.
+    """
+    # The linear algebra here is many small blocks plus one Schur complement: one BLAS thread is
+    # faster than several (which also fight CasADi's two evaluation threads for the cores).
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _calibrate(model, trial, settings or Settings(), kinematics, progress)
+
+
+def _calibrate(model: Model, trial: Trial, settings: Settings, kinematics: Kinematics | None,
+               progress: Callable[[str], None] | None) -> Calibration:
+    say = progress or (lambda msg: None)
+    times: dict[str, float] = {}
+    where = trial.source or "trial"
+    known = set(model.marker_names)
+    ignored = tuple(lab for lab in trial.labels if lab not in known)
+    shared = [lab for lab in model.marker_names if lab in set(trial.labels)]
+    if len(model.markers) == 0:
+        raise CalibrateError(f"{model.path}: the model has no markers; add marker links (see docs/model-format.md)")
+    if len(shared) < 3:
+        raise CalibrateError(f"{where}: only {len(shared)} of its labels match markers of {model.path.name} "
+                             f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
+                             f"or use a model with this marker set")
+    obs = marker_columns(model, trial)
+    seen = np.all(np.isfinite(obs), axis=2)
+    unused = tuple(n for k, n in enumerate(model.marker_names) if not seen[:, k].any())
+    n_good = int(np.sum(seen.sum(1) >= 3))
+    if n_good < MIN_FRAMES:
+        raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
+                             f"need at least {MIN_FRAMES} (check the labels and gaps)")
+    t0 = time.perf_counter()
+    kin = kinematics or build_kinematics(model)
+    if settings.seed:
+        say("seed: joint centres (MTB)")
+        seed = seed_parameters(model, trial)
+    else:
+        seed = Seed(model.parameters(), ("seed switched off; starting from the base model",), None, 0.0)
+    if "scale" not in settings.free:
+        seed = Seed(Parameters(np.ones_like(seed.params.scale), *(getattr(seed.params, b) for b in ("centre", "axis",
+                                                                                                     "marker"))),
+                    seed.notes, seed.joints, seed.seconds)
+    params0 = _fixed_groups(model.parameters(), seed.params, settings.free)
+    times["seed"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    say("start: frame-wise inverse kinematics")
+    state = start_poses(kin, obs, params0)
+    times["start"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    say("build: residuals and Jacobian (CasADi)")
+    problem = Problem(model, obs, settings, kin)
+    times["build"] = time.perf_counter() - t0
+    initial = problem.marker_residuals(state)
+    t0 = time.perf_counter()
+    say("solve: refine poses")
+    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
+    if settings.loss != "linear":
+        # A robust loss is not convex: reach its basin with plain least squares first.
+        say("solve: least squares before the robust loss")
+        problem.loss = "linear"
+        state, _ = levenberg_marquardt(problem, state, max_iterations=30)
+        problem.loss = settings.loss
+    say("solve: global Levenberg-Marquardt")
+    state, summary = levenberg_marquardt(
+        problem, state,
+        progress=lambda it, c, lam: say(f"solve: iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+    say("solve: align segment frames with the base model (gauge)")
+    state = align_gauge(problem, state)
+    state, polish = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+    summary = _merge(summary, polish)
+    times["solve"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    lin = problem.linearize(state)
+    cov = covariance(problem, state, lin)
+    params = model.unpack(state.p)
+    changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
+    times["covariance"] = time.perf_counter() - t0
+    residuals = problem.marker_residuals(state)
+    motion = Motion(trial.times.copy(), state.Z[:, :3].copy(), state.Q.copy(), state.Z[:, 6:].copy(),
+                    model.dof_names)
+    return Calibration(model, trial, settings, params, motion, residuals, initial, summary, seed, changes,
+                       times, ignored, unused, problem.compiled)
+
+
+def align_gauge(problem: Problem, state: State) -> State:
+    """Turn every free segment frame to the orientation the priors prefer (Problem.align_frames)
+    and re-solve the frame coordinates for it (the data fit is unchanged by construction)."""
+    model = problem.model
+    p, moves = problem.align_frames(state.p)
+    Z, Q = state.Z.copy(), state.Q.copy()
+    for si, kind, G, t in moves:
+        if kind == "rigid":
+            R = Rotation.from_quat(Q).as_matrix()
+            Z[:, :3] += np.einsum("fij,j->fi", R, t)
+            Q = Rotation.from_matrix(R @ G).as_quat()
+        elif kind == "axis":
+            j = next(j for j in model.joints if j.child == model.segments[si].name)
+            d = model.dof_index(j.dofs[-1])
+            a = problem._axis(state.p, d)
+            Z[:, 6 + d] += float(Rotation.from_matrix(G).as_rotvec() @ a)  # G turns about the hinge axis
+    Q = np.where(Q[:, 3:4] < 0, -Q, Q)
+    aligned = State(Z, Q, p)
+    aligned, _ = levenberg_marquardt(problem, aligned, pose_only=True, max_iterations=20)
+    return aligned
+
+
+def _merge(a: SolverSummary, b: SolverSummary) -> SolverSummary:
+    """One summary for two consecutive solver runs."""
+    return SolverSummary(
+        iterations=a.iterations + b.iterations, accepted=a.accepted + b.accepted, initial_cost=a.initial_cost,
+        final_cost=b.final_cost, cost_history=a.cost_history + b.cost_history[1:], termination=b.termination,
+        converged=b.converged, seconds=a.seconds + b.seconds,
+        linearize_seconds=a.linearize_seconds + b.linearize_seconds,
+        linear_solver_seconds=a.linear_solver_seconds + b.linear_solver_seconds,
+        evaluate_seconds=a.evaluate_seconds + b.evaluate_seconds)
+
+
+def _fixed_groups(base: Parameters, seeded: Parameters, free) -> Parameters:
+    """Seeded values for the free groups; base values for the groups that are held."""
+    parts = {}
+    for b in Parameters.BLOCKS:
+        parts[b] = np.array(getattr(seeded if b in free else base, b), dtype=float)
+    return Parameters(**parts)
+
+
+def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> list[ParameterChange]:
+    """Per joint centre, hinge axis, marker and scale: change from the base model, posterior std,
+    and whether the trial identified it: in its worst direction, the posterior std must be below
+    IDENTIFIED times the std the priors alone would leave (else the prior holds it)."""
+    model = problem.model
+    P = model.unpack(p)
+    B = model.parameters()
+    col = {n: k for k, n in enumerate(problem.free_names)}
+    names = model.parameter_names()
+    o = problem.offsets
+    out: list[ParameterChange] = []
+    seg_scale = P.scale
+
+    def block_cov(idx: list[str], seg: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Posterior and prior-only covariance of the scaled position s * x (what the data see)."""
+        if not all(n in col for n in idx):
+            return None
+        c = [col[n] for n in idx]
+        J = seg_scale[seg] * np.eye(3)
+        if names[seg] in col:
+            c = c + [col[names[seg]]]
+            J = np.column_stack([J, x])
+        return J @ cov[np.ix_(c, c)] @ J.T, J @ prior_cov[np.ix_(c, c)] @ J.T
+
+    def worst(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
+        """Largest posterior/prior-only std ratio over directions, and that direction."""
+        L = np.linalg.cholesky(C0 + 1e-18 * np.eye(len(C0)))
+        Li = np.linalg.inv(L)
+        ev, V = np.linalg.eigh(Li @ C @ Li.T)
+        v = L @ V[:, -1]
+        return math.sqrt(max(float(ev[-1]), 0.0)), v / np.linalg.norm(v)
+
+    for ji, j in enumerate(model.joints):
+        s = seg_scale[problem.centre_segment[ji]]
+        sl = o["centre"] + 3 * ji
+        CC = block_cov(names[sl:sl + 3], problem.centre_segment[ji], P.centre[ji])
+        value, base = s * P.centre[ji], B.centre[ji]
+        if CC is None:
+            std, ident, note = np.full(3, np.nan), True, "held (not free)"
+        else:
+            std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
+            if j.kind == "hinge":
+                # Along its axis a hinge centre is a gauge: no motion moves the markers when it
+                # slides there (the child's contents slide back), so the prior alone holds it.
+                d = model.dof_index(j.dofs[0])
+                u = next(u for u in model.urdf_joints if u.name == j.urdf_joints[0])
+                a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
+                Qp = perpendicular_basis(a)
+                ratio, _ = worst(Qp.T @ CC[0] @ Qp, Qp.T @ CC[1] @ Qp)
+                ident = False
+                axis_txt = ", ".join(f"{x:+.2f}" for x in a)
+                note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
+                        f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
+                                                             " either: held by the prior"))
+            else:
+                ratio, v = worst(*CC)
+                ident = ratio < IDENTIFIED
+                note = "" if ident else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
+                                         f"in the {j.parent} frame: held by the prior")
+        out.append(ParameterChange(f"centre[{j.name}]", base, value, 1000 * float(np.linalg.norm(value - base)),
+                                   std, ident, note, ratio if CC is not None else float("nan")))
+    for d in problem.axis_dofs:
+        a = P.axis[d] / np.linalg.norm(P.axis[d])
+        a0 = B.axis[d] / np.linalg.norm(B.axis[d])
+        cols = [k for k, dd in problem._tangent if dd == d]
+        C = cov[np.ix_(cols, cols)]
+        std = np.degrees(np.sqrt(np.clip(np.diag(C), 0, None)))
+        ratio = worst(C, prior_cov[np.ix_(cols, cols)])[0]
+        ident = ratio < IDENTIFIED
+        ang = math.degrees(math.acos(min(1.0, abs(float(a @ a0)))))
+        out.append(ParameterChange(f"axis[{model.dofs[d].name}]", a0, a, ang, std, ident,
+                                   "" if ident else "the joint did not turn enough about it: held by the prior",
+                                   ratio))
+    for k, mk in enumerate(model.markers):
+        s = seg_scale[problem.marker_segment[k]]
+        sl = o["marker"] + 3 * k
+        CC = block_cov(names[sl:sl + 3], problem.marker_segment[k], P.marker[k])
+        value, base = s * P.marker[k], B.marker[k]
+        seen = bool(problem.seen[:, k].any())
+        if CC is None:
+            std, ident, note = np.full(3, np.nan), True, "held (not free)"
+        else:
+            std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
+            ratio = worst(*CC)[0]
+            ident = seen and ratio < IDENTIFIED
+            note = "" if ident else ("never seen in the trial: base model kept" if not seen
+                                     else "poorly seen: held by the prior")
+        out.append(ParameterChange(f"marker[{mk.name}]", base, value, 1000 * float(np.linalg.norm(value - base)),
+                                   std, ident, note, ratio if CC is not None else float("nan")))
+    for si, sg in enumerate(model.segments):
+        name = names[si]
+        free = name in col
+        std = np.array([math.sqrt(max(cov[col[name], col[name]], 0.0))]) if free else np.array([np.nan])
+        out.append(ParameterChange(f"scale[{sg.name}]", np.array([1.0]), np.array([seg_scale[si]]),
+                                   float(seg_scale[si] - 1.0), std, True,
+                                   "" if free else "held (not free)"))
+    return out

@@ -1,0 +1,94 @@
+"""Calibration settings from a TOML file (``calibrate ... --config calib.toml``).
+
+Every key is optional; units are in the key names (mm, deg).  Example, with the defaults::
+
+    free = ["scale", "centre", "axis", "marker"]   # parameter groups to calibrate
+    noise_mm = 1.0          # marker noise SD: weights the marker residuals
+    loss = "linear"         # or "huber", "cauchy" (robust against marker outliers)
+    loss_scale = 3.0        # robust-loss scale, in units of noise_mm
+    max_iterations = 100
+    seed = true             # start from MTB joint centres (false: from the base model)
+    compile = true          # compile the per-frame function with the C compiler if present
+
+    [priors]                # SDs of the pull towards the base model
+    marker_mm = 20.0
+    centre_mm = 20.0
+    axis_deg = 10.0
+    scale = 0.25
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from .errors import CalibrateError
+from .problem import Priors, Settings
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+_TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "xtol", "gtol", "seed", "compile", "priors"}
+_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
+
+
+def settings_from_dict(data: dict, where: str = "settings", base: Settings | None = None) -> Settings:
+    """Settings from a dict in the TOML layout (mm, deg); one-line CalibrateError on a bad key or value."""
+    s = base or Settings()
+    unknown = sorted(set(data) - _TOP)
+    if unknown:
+        raise CalibrateError(f"{where}: unknown setting '{unknown[0]}'; known: {', '.join(sorted(_TOP))}")
+    pri = data.get("priors", {})
+    if not isinstance(pri, dict):
+        raise CalibrateError(f"{where}: 'priors' must be a table ([priors])")
+    unknown = sorted(set(pri) - _PRIORS)
+    if unknown:
+        raise CalibrateError(f"{where}: unknown prior '{unknown[0]}'; known: {', '.join(sorted(_PRIORS))}")
+
+    def num(d: dict, key: str, default: float) -> float:
+        v = d.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise CalibrateError(f"{where}: '{key}' must be a number, got {v!r}")
+        return float(v)
+
+    priors = Priors(
+        marker=num(pri, "marker_mm", 1000 * s.priors.marker) / 1000,
+        centre=num(pri, "centre_mm", 1000 * s.priors.centre) / 1000,
+        axis=math.radians(num(pri, "axis_deg", math.degrees(s.priors.axis))),
+        scale=num(pri, "scale", s.priors.scale),
+    )
+    free = data.get("free", list(s.free))
+    if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):
+        raise CalibrateError(f"{where}: 'free' must be a list of group names, e.g. [\"centre\", \"marker\"]")
+    for key in ("seed", "compile"):
+        if key in data and not isinstance(data[key], bool):
+            raise CalibrateError(f"{where}: '{key}' must be true or false, got {data[key]!r}")
+    it = data.get("max_iterations", s.max_iterations)
+    if isinstance(it, bool) or not isinstance(it, int):
+        raise CalibrateError(f"{where}: 'max_iterations' must be a whole number, got {it!r}")
+    loss = data.get("loss", s.loss)
+    try:
+        return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
+                       loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
+                       max_iterations=it, ftol=num(data, "ftol", s.ftol), xtol=num(data, "xtol", s.xtol),
+                       gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
+                       compile=data.get("compile", s.compile))
+    except ValueError as e:
+        raise CalibrateError(f"{where}: {e}") from None
+
+
+def load_settings(path: str | os.PathLike[str], base: Settings | None = None) -> Settings:
+    """Settings from a TOML file (see the module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CalibrateError(f"{path}: no such config file; give a .toml file (see docs/calibration.md)")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise CalibrateError(f"{path}: not valid TOML ({e})") from None
+    return settings_from_dict(data, str(path), base)

@@ -1,0 +1,202 @@
+"""What a calibration tells its user: the report JSON, the stdout summary, and the output files.
+
+Units at this edge: millimetres for positions and errors, degrees for axes, seconds for
+time (the JSON says so in its key names).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from ._text import atomic_write_text
+from .errors import CalibrateError
+from .model import write_model
+from .motion import write_motion_csv
+
+
+def _mm(x: float) -> float:
+    return round(1000.0 * float(x), 6)
+
+
+def _list(a) -> list:
+    return [None if not math.isfinite(float(v)) else round(float(v), 9) for v in np.ravel(a)]
+
+
+def calibration_report(cal) -> dict:
+    """Plain, JSON-ready description of a Calibration."""
+    model, trial, st, s = cal.model, cal.trial, cal.settings, cal.summary
+    per = cal.per_marker()
+    kinds = {j.name: j.kind for j in model.joints}
+    params = []
+    for c in cal.changes:
+        group = c.name.split("[")[0]
+        unit = {"centre": "mm", "marker": "mm", "axis": "deg", "scale": "fraction"}[group]
+        if group in ("centre", "marker"):
+            base, value = [_mm(v) for v in c.base], [_mm(v) for v in c.value]
+        else:
+            base, value = _list(c.base), _list(c.value)
+        entry = {"name": c.name, "group": group, "unit": unit, "base": base, "value": value,
+                 "change": round(c.change, 6), "std": _list(c.std), "identified": c.identified}
+        if group == "centre":
+            entry["kind"] = kinds[c.name[7:-1]]
+        if c.note:
+            entry["note"] = c.note
+        params.append(entry)
+    return {
+        "calibrate_version": __version__,
+        "trial": {"source": trial.source, "frames": trial.n_frames, "rate_hz": trial.rate,
+                  "first_frame": trial.first_frame,
+                  "markers_used": [n for n in model.marker_names if n not in cal.unused_markers],
+                  "ignored_labels": list(cal.ignored_labels), "unused_model_markers": list(cal.unused_markers)},
+        "model": {"source": str(model.path), "segments": len(model.segments), "joints": len(model.joints),
+                  "dof": model.nz, "markers": len(model.markers)},
+        "settings": {"free": list(st.free), "noise_mm": 1000 * st.noise, "loss": st.loss,
+                     "loss_scale": st.loss_scale,
+                     "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
+                                "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale},
+                     "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
+                     "seed": st.seed, "compiled": cal.compiled},
+        "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
+                    "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
+                    "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
+                                   for n, (r, m, f) in per.items()}},
+        "solver": {"iterations": s.iterations, "accepted_steps": s.accepted, "initial_cost": s.initial_cost,
+                   "final_cost": s.final_cost, "cost_history": list(s.cost_history),
+                   "termination": s.termination, "converged": s.converged,
+                   "linearize_s": s.linearize_seconds, "linear_solver_s": s.linear_solver_seconds},
+        "seed": {"notes": list(cal.seed.notes),
+                 "joints": {j.name: {"method": j.method, "ok": j.ok} for j in cal.seed.joints}
+                 if cal.seed.joints is not None else {}},
+        "parameters": params,
+        "unidentified": [c.name for c in cal.changes if not c.identified],
+        "times_s": {k: round(v, 6) for k, v in cal.times.items()},
+    }
+
+
+def _rms_of(res: np.ndarray) -> float:
+    d = np.sum(res**2, axis=2)
+    return float(np.sqrt(np.nanmean(d))) if np.isfinite(d).any() else float("nan")
+
+
+def summary_text(cal) -> str:
+    """Human-readable summary in the spirit of Ceres' Solver::Summary::FullReport()."""
+    model, trial, s = cal.model, cal.trial, cal.summary
+    F = trial.n_frames
+    used = len(model.markers) - len(cal.unused_markers)
+    n_free = len([c for c in cal.changes])  # count of reported quantities
+    lines = [
+        "calibrate: subject calibration",
+        f"  trial        {trial.source or '(in memory)'}: {F} frames at {trial.rate:g} Hz, "
+        f"{used}/{len(model.markers)} model markers seen, {len(cal.ignored_labels)} trial labels ignored",
+        f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
+        f"{model.nz} coordinates per frame",
+        f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
+        f"({', '.join(cal.settings.free)}); {n_free} quantities reported",
+        "",
+        f"  {'':22s}{'start':>12s}{'final':>12s}",
+        f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
+        f"  {'cost':22s}{s.initial_cost:12.4e}{s.final_cost:12.4e}",
+        "",
+        f"  iterations   {s.iterations} ({s.accepted} accepted)",
+        f"  termination  {'CONVERGED' if s.converged else 'NOT CONVERGED'}: {s.termination}",
+        "  time (s)     " + "  ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
+        + f"  total {sum(cal.times.values()):.2f}",
+        "",
+        "  joint centres: change from base model (mm) +- posterior std (mm, worst axis)",
+    ]
+    for c in cal.changes:
+        if c.name.startswith("centre["):
+            std = np.nanmax(c.std) if np.isfinite(c.std).any() else float("nan")
+            flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else "  (held by prior)")
+            lines.append(f"    {c.name[7:-1]:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
+    axes = [c for c in cal.changes if c.name.startswith("axis[")]
+    if axes:
+        lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg)")
+        for c in axes:
+            std = np.nanmax(c.std)
+            flag = "" if c.identified else "  (held by prior)"
+            lines.append(f"    {c.name[5:-1]:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
+    un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
+    if any(_slide_only(c) for c in cal.changes):
+        lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")
+    if un:
+        lines.append(f"  not identified by this trial (held by their priors): {len(un)}")
+        for c in un[:12]:
+            lines.append(f"    {c.name}: {c.note}")
+        if len(un) > 12:
+            lines.append(f"    ... and {len(un) - 12} more (see the report)")
+    for note in cal.seed.notes:
+        lines.append(f"  seed: {note}")
+    if cal.ignored_labels:
+        lines.append(f"  ignored trial labels (not in the model): {', '.join(cal.ignored_labels)}")
+    if cal.unused_markers:
+        lines.append(f"  model markers never seen: {', '.join(cal.unused_markers)} (base positions kept)")
+    return "\n".join(lines)
+
+
+def _slide_only(c) -> bool:
+    """A hinge centre identified across its axis (only its slide along the axis is prior-held)."""
+    return c.name.startswith("centre[") and "across the axis identified" in c.note
+
+
+def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = False,
+                  extra_times: dict[str, float] | None = None) -> dict[str, Path]:
+    """Write the subject URDF, the motion CSV and the report JSON (whichever are given).
+
+    Every destination is checked first (its folder exists; it is not the base model; it does
+    not exist unless `overwrite`), then each file goes to a temporary name beside its
+    destination and all are renamed at the end: a failure leaves no output half-written.
+    """
+    targets = {k: Path(v) for k, v in (("urdf", urdf), ("motion", motion), ("report", report)) if v is not None}
+    for path in targets.values():
+        if path.resolve() == cal.model.path.resolve():
+            raise CalibrateError(f"{path}: that is the base model; refusing to overwrite it (choose another -o)")
+        if not path.parent.is_dir():
+            raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
+        if path.exists() and not overwrite:
+            raise CalibrateError(f"{path}: exists; pass --overwrite (overwrite=True) or choose another name")
+        if not os.access(path.parent, os.W_OK):
+            raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
+    if len({p.resolve() for p in targets.values()}) < len(targets):
+        raise CalibrateError("the URDF, motion and report outputs must be different files")
+    t0 = time.perf_counter()
+    staged: dict[str, Path] = {}
+    try:
+        for kind, path in targets.items():
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+            os.close(fd)
+            staged[kind] = Path(tmp)
+        if "urdf" in staged:
+            write_model(cal.model, staged["urdf"], cal.params, overwrite=True)
+        if "motion" in staged:
+            write_motion_csv(staged["motion"], cal.motion)
+        if "report" in staged:
+            cal.times["write"] = time.perf_counter() - t0
+            for k, v in (extra_times or {}).items():
+                cal.times[k] = v
+            rep = calibration_report(cal)
+            rep["outputs"] = {k: str(v) for k, v in targets.items()}
+            text = json.dumps(rep, indent=1, allow_nan=False, default=_json_default)
+            atomic_write_text(staged["report"], text + "\n")
+        for kind, tmp in staged.items():
+            os.replace(tmp, targets[kind])
+    except BaseException:
+        for tmp in staged.values():
+            Path(tmp).unlink(missing_ok=True)
+        raise
+    cal.times["write"] = time.perf_counter() - t0
+    return targets
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -1,0 +1,330 @@
+"""Global calibration (seed 003): problem derivatives, solver, accuracy against the simulator's
+truth, outputs read back by Pinocchio / yourdfpy / the CSV reader, and the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yourdfpy
+
+from calibrate.calibration import calibrate
+from calibrate.config import load_settings, settings_from_dict
+from calibrate.errors import CalibrateError
+from calibrate.evaluate import compare_to_truth
+from calibrate.ik import marker_columns
+from calibrate.model import Parameters, load_model, write_model
+from calibrate.motion import read_motion_csv
+from calibrate.problem import Problem, Settings, State
+from calibrate.simulate import simulate_squats
+from calibrate.solver import levenberg_marquardt
+from calibrate.trial import Trial, write_c3d
+
+SOLID_BALLS = ("hip_l", "hip_r", "lumbar", "neck", "shoulder_l", "shoulder_r")
+SOLID_HINGES = ("knee_l", "knee_r", "elbow_l", "elbow_r")
+
+
+@pytest.fixture(scope="module")
+def noise_free(human):
+    sim = simulate_squats(human, frames=300, noise_mm=0.0, seed=0)
+    return sim, calibrate(human, sim.trial)
+
+
+@pytest.fixture(scope="module")
+def noisy(human):
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
+    cal = calibrate(human, sim.trial)
+    return sim, cal, compare_to_truth(cal, sim)
+
+
+# ---------------------------------------------------------------------- problem
+def test_normal_equations_match_sparse_jacobian_and_finite_differences(human, human_kin):
+    """Block-arrow normal equations vs the full sparse Jacobian; that Jacobian vs central differences."""
+    sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=3)
+    obs = marker_columns(human, sim.trial)
+    obs[1, 5] = np.nan  # a gap: its rows must be absent
+    problem = Problem(human, obs, Settings(loss="huber"), human_kin)
+    rng = np.random.default_rng(0)
+    m = sim.motion
+    Z = np.column_stack([m.root_translation, np.zeros((4, 3)), m.angles]) + 0.01
+    Z[2, 6] = 4.0  # beyond a joint limit: the limit residual is active
+    state = State(Z, m.root_quaternion.copy(), problem.retract_parameters(sim.truth.vector(),
+                                                                           0.01 * rng.normal(size=problem.n_free)))
+    lin = problem.linearize(state)
+    e, J = problem.full_jacobian(state)
+    nz = human.nz
+    # Huber weights make the linearisation an IRLS one: compare with the weighted vector.
+    assert problem.cost(state) == pytest.approx(lin.cost, rel=1e-12)
+    g = J.T @ e
+    assert np.allclose(g[:4 * nz], lin.gz.ravel(), rtol=1e-9, atol=1e-6 * np.abs(g).max())
+    assert np.allclose(g[4 * nz:], lin.gp, rtol=1e-9, atol=1e-6 * np.abs(g).max())
+    H = (J.T @ J).toarray()
+    for f in range(4):
+        assert np.allclose(H[f * nz:(f + 1) * nz, f * nz:(f + 1) * nz], lin.A[f], atol=1e-7 * np.abs(H).max())
+        assert np.allclose(H[f * nz:(f + 1) * nz, 4 * nz:], lin.B[f], atol=1e-7 * np.abs(H).max())
+    assert np.allclose(H[4 * nz:, 4 * nz:], lin.C, atol=1e-7 * np.abs(H).max())
+    # The gap leaves 3 rows of zeros (no residual, no derivative) rather than a zero-filled target.
+    rows = 1 * obs.shape[1] * 3 + 15 + np.arange(3)
+    assert np.all(e[rows] == 0) and not J[rows].toarray().any()
+    # Exact Jacobian vs central differences, along a random direction, with the linear loss.
+    lin_problem = Problem(human, obs, Settings(), human_kin)
+    T = lin_problem.tangent_map(state.p)
+    e, J = lin_problem.full_jacobian(state, T)
+    x = rng.normal(size=J.shape[1])
+    h = 1e-7
+
+    def at(t):
+        return lin_problem.residual_vector(State(state.Z + t * x[:4 * nz].reshape(4, nz), state.Q,
+                                                 state.p + T @ (t * x[4 * nz:])))
+
+    fd = (at(h) - at(-h)) / (2 * h)
+    assert np.abs(fd - J @ x).max() < 1e-6 * np.abs(J @ x).max()
+
+
+def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_kin):
+    """Frame coordinates 0.02 off and the base model's geometry: LM reaches the data to the micrometre."""
+    sim = simulate_squats(human, frames=60, noise_mm=0.0, seed=2)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    rng = np.random.default_rng(0)
+    Z = np.column_stack([m.root_translation, np.zeros((60, 3)), m.angles]) + 0.02 * rng.normal(size=(60, human.nz))
+    state, summary = levenberg_marquardt(problem, State(Z, m.root_quaternion.copy(), human.parameters().vector()))
+    assert summary.converged, summary.termination
+    assert summary.cost_history == sorted(summary.cost_history, reverse=True)
+    res = problem.marker_residuals(state)
+    # 60 frames only: the priors' pull (a MAP estimate) leaves a few hundredths of a millimetre.
+    assert np.sqrt(np.nanmean(np.sum(res**2, axis=2))) < 5e-5
+    P = human.unpack(state.p)
+    assert np.allclose(np.linalg.norm(P.axis, axis=1), 1.0, atol=1e-12)
+    assert np.allclose(np.linalg.norm(state.Q, axis=1), 1.0, atol=1e-12)
+
+
+# ---------------------------------------------------------------------- accuracy
+def test_noise_free_recovers_the_subject(noise_free):
+    sim, cal = noise_free
+    cmp = compare_to_truth(cal, sim, floor=0.0)
+    assert cal.converged, cal.summary.termination
+    assert cal.marker_rms < 1e-5  # 1000 frames: see docs/benchmarks.md
+    for j in SOLID_BALLS:
+        assert cmp.centre_error[j] < 1e-4, j
+    for j in SOLID_HINGES:
+        assert cmp.centre_error[j] < 1e-4, j  # from the true axis line
+        assert cmp.axis_error_deg[j] < 0.05, j
+
+
+def test_one_mm_noise_accuracy(noisy):
+    sim, cal, cmp = noisy
+    assert cal.converged, cal.summary.termination
+    assert cmp.marker_rms <= 1.05 * cmp.floor_rms
+    balls = [cmp.centre_error[j] for j in SOLID_BALLS]
+    assert np.median(balls) < 0.002 and max(balls) < 0.005
+    for j in SOLID_HINGES:
+        assert cmp.axis_error_deg[j] < 1.0, j
+        assert cmp.centre_error[j] < 0.002, j
+    # A segment frame's turn is held by the priors; without that constant offset the angles follow.
+    assert cmp.angle_rms_offset_free_deg < 2.0
+
+
+def test_basin_base_model_15_percent_too_small(human, tmp_path):
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=4)
+    b = human.parameters()
+    write_model(human, tmp_path / "small.urdf", Parameters(0.85 * b.scale, b.centre, b.axis, b.marker))
+    small = load_model(tmp_path / "small.urdf")
+    cal = calibrate(small, sim.trial)
+    cmp = compare_to_truth(cal, sim)
+    assert cal.converged, cal.summary.termination
+    assert cmp.marker_rms <= 1.05 * cmp.floor_rms
+    balls = [cmp.centre_error[j] for j in SOLID_BALLS]
+    assert np.median(balls) < 0.002 and max(balls) < 0.005
+    for j in SOLID_HINGES:
+        assert cmp.axis_error_deg[j] < 1.0, j
+
+
+def test_identifiability_flags(noisy):
+    """Hinge centres along their axes and the foot's and wrist's weakly moved axes are flagged;
+    hips and knee/elbow axes are not."""
+    _, cal, cmp = noisy
+    by = {c.name: c for c in cal.changes}
+    for j in SOLID_HINGES:
+        c = by[f"centre[{j}]"]
+        assert not c.identified and "across the axis identified" in c.note
+        assert by[f"axis[{j}]"].identified
+    for j in ("hip_l", "hip_r", "shoulder_l", "neck"):
+        assert by[f"centre[{j}]"].identified, j
+    for d in ("wrist_l_flexion", "wrist_r_deviation"):
+        assert not by[f"axis[{d}]"].identified, d
+    # Every flagged quantity stayed near the base model: the prior held it (no drift into nonsense).
+    for c in cal.changes:
+        if c.name.startswith("centre[") and not c.identified:
+            assert c.change < 100.0, c.name  # mm
+
+
+def test_gaps_rows_left_out(human):
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, gaps=True, seed=5)
+    obs = marker_columns(human, sim.trial)
+    assert np.isnan(obs).any()
+    cal = calibrate(human, sim.trial)
+    assert cal.converged
+    # Residuals exist exactly where the trial saw the marker.
+    assert np.array_equal(np.isfinite(cal.residuals[..., 0]), np.isfinite(obs[..., 0]))
+    assert cal.marker_rms < 0.0025
+
+
+def test_missing_marker_everywhere_keeps_base_position(human):
+    sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=6)
+    keep = [lab for lab in sim.trial.labels if lab != "RFIN"]
+    cal = calibrate(human, sim.trial.select(keep))
+    assert cal.unused_markers == ("RFIN",)
+    by = {c.name: c for c in cal.changes}
+    assert not by["marker[RFIN]"].identified
+    k = human.marker_index("RFIN")
+    s = cal.params.scale[human.segment_index("hand_r")]
+    assert np.linalg.norm(s * cal.params.marker[k] - human.markers[k].offset) < 0.03
+
+
+def test_robust_loss_resists_marker_spikes(human):
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=7)
+    rng = np.random.default_rng(0)
+    mk = np.array(sim.trial.markers)
+    spikes = rng.random(mk.shape[:2]) < 0.01
+    mk[spikes] += rng.normal(0, 0.02, (int(spikes.sum()), 3))
+    spiky = Trial(sim.trial.labels, mk, sim.trial.rate)
+    errs = {}
+    for loss in ("linear", "cauchy"):
+        cal = calibrate(human, spiky, Settings(loss=loss))
+        cmp = compare_to_truth(cal, sim, floor=0.0)
+        errs[loss] = max(cmp.centre_error[j] for j in SOLID_BALLS)
+    assert errs["cauchy"] < 0.005
+    assert errs["cauchy"] < errs["linear"]
+
+
+# ---------------------------------------------------------------------- outputs
+def test_outputs_read_back(noisy, tmp_path):
+    """The URDF loads in Pinocchio and yourdfpy and, driven by the motion CSV, puts the markers
+    where the report says (Pinocchio's forward kinematics, independent of ours)."""
+    sim, cal, _ = noisy
+    paths = cal.write(urdf=tmp_path / "s.urdf", motion=tmp_path / "s.csv", report=tmp_path / "s.json")
+    assert set(paths) == {"urdf", "motion", "report"}
+    yourdfpy.URDF.load(str(tmp_path / "s.urdf"))
+    subject = load_model(tmp_path / "s.urdf")
+    motion = read_motion_csv(tmp_path / "s.csv")
+    assert np.allclose(motion.angles, cal.motion.angles, atol=0, rtol=0)
+    pm = subject.pin
+    data = pm.createData()
+    fids = [pm.getFrameId(n) for n in subject.marker_names]
+    obs = marker_columns(subject, sim.trial)
+    err = []
+    for f in range(0, len(motion.times), 10):
+        q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
+        pin.framesForwardKinematics(pm, data, q)
+        pos = np.array([data.oMf[i].translation for i in fids])
+        err.append(np.linalg.norm(pos - obs[f], axis=1))
+    rms = float(np.sqrt(np.nanmean(np.array(err) ** 2)))
+    rep = json.loads((tmp_path / "s.json").read_text())
+    assert rms == pytest.approx(rep["markers"]["rms_mm"] / 1000, rel=0.05)
+    assert rep["solver"]["converged"] is True
+    assert rep["solver"]["cost_history"][0] == pytest.approx(cal.summary.initial_cost)
+    assert set(rep["times_s"]) >= {"seed", "start", "build", "solve", "write"}
+    by = {p["name"]: p for p in rep["parameters"]}
+    assert by["centre[knee_r]"]["identified"] is False and by["centre[hip_r]"]["identified"] is True
+    assert len(by["centre[hip_r]"]["std"]) == 3
+    # Mass is kept, inertia scales with s^2 (write_model's contract), so the inertials changed.
+    assert subject.pin.inertias[1].mass == pytest.approx(sim.model.pin.inertias[1].mass)
+
+
+def test_write_refuses_without_overwrite_and_leaves_nothing(noisy, tmp_path):
+    _, cal, _ = noisy
+    (tmp_path / "s.csv").write_text("keep")
+    with pytest.raises(CalibrateError, match="exists"):
+        cal.write(urdf=tmp_path / "s.urdf", motion=tmp_path / "s.csv", report=tmp_path / "s.json")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.csv"]
+    assert (tmp_path / "s.csv").read_text() == "keep"
+    with pytest.raises(CalibrateError, match="base model"):
+        cal.write(urdf=cal.model.path)
+    with pytest.raises(CalibrateError, match="does not exist"):
+        cal.write(urdf=tmp_path / "nowhere" / "s.urdf")
+
+
+# ---------------------------------------------------------------------- settings
+def test_config_file(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('free = ["centre", "marker"]\nloss = "huber"\nnoise_mm = 2\n'
+                   '[priors]\ncentre_mm = 10\naxis_deg = 5\n')
+    s = load_settings(cfg)
+    assert s.free == ("centre", "marker") and s.loss == "huber" and s.noise == pytest.approx(0.002)
+    assert s.priors.centre == pytest.approx(0.01) and s.priors.axis == pytest.approx(math.radians(5))
+    for text, msg in (("fre = []", "unknown setting 'fre'"), ('free = ["size"]', "unknown parameter group"),
+                      ("[priors]\nmarker = 1", "unknown prior 'marker'"), ("noise_mm = -1", "noise"),
+                      ("loss = 'l1'", "loss"), ("x = ", "not valid TOML")):
+        cfg.write_text(text)
+        with pytest.raises(CalibrateError, match=msg):
+            load_settings(cfg)
+
+
+def test_only_markers_free_holds_the_rest(human):
+    sim = simulate_squats(human, frames=80, noise_mm=1.0, seed=8)
+    cal = calibrate(human, sim.trial, settings_from_dict({"free": ["marker"]}))
+    base = human.parameters()
+    assert np.array_equal(cal.params.centre, base.centre)
+    assert np.array_equal(cal.params.axis, base.axis)
+    assert np.array_equal(cal.params.scale, base.scale)
+    assert not np.allclose(cal.params.marker, base.marker)
+
+
+def test_too_few_markers_or_frames(human):
+    sim = simulate_squats(human, frames=50, noise_mm=1.0, seed=9)
+    with pytest.raises(CalibrateError, match="only 2 of its labels"):
+        calibrate(human, sim.trial.select(["LASI", "RASI"]))
+    mk = np.array(sim.trial.markers)
+    mk[2:] = np.nan
+    with pytest.raises(CalibrateError, match="frames show 3 or more"):
+        calibrate(human, Trial(sim.trial.labels, mk, 100.0))
+
+
+# ---------------------------------------------------------------------- CLI
+def _cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "calibrate.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=600)
+
+
+def test_cli_calibrate_defaults_and_errors(human, tmp_path):
+    sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=10)
+    # An extra label the model does not know: warned about and ignored.
+    mk = np.concatenate([np.array(sim.trial.markers), np.array(sim.trial.markers)[:, :1] + 0.1], axis=1)
+    trial = Trial(sim.trial.labels + ("EXTRA",), mk, 100.0)
+    write_c3d(tmp_path / "s01.c3d", trial)
+    r = _cli(tmp_path / "s01.c3d", human.path, "--frames", "10:110", "-q")
+    assert r.returncode == 0, r.stderr
+    assert "EXTRA" in r.stderr and "ignored" in r.stderr
+    for name in ("s01.urdf", "s01_motion.csv", "s01_report.json"):
+        assert (tmp_path / name).is_file()
+    rep = json.loads((tmp_path / "s01_report.json").read_text())
+    assert rep["trial"]["frames"] == 100 and rep["trial"]["first_frame"] == 10
+    assert rep["trial"]["ignored_labels"] == ["EXTRA"]
+    assert "CONVERGED" in r.stdout and "marker RMS" in r.stdout
+    before = (tmp_path / "s01.urdf").read_text()
+    # Existing outputs: refused before any work, one line, nothing changed.
+    r = _cli(tmp_path / "s01.c3d", human.path, "-q")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--overwrite" in r.stderr
+    assert (tmp_path / "s01.urdf").read_text() == before
+    # Bad input: one line each, non-zero exit.
+    (tmp_path / "notes.urdf").write_text("hello")
+    cases = [
+        ([tmp_path / "s01.c3d", tmp_path / "notes.urdf", "-o", tmp_path / "x.urdf"], "not valid XML"),
+        ([tmp_path / "s01.c3d", human.path, "-o", human.path], "base model"),
+        ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "no" / "x.urdf"], "does not exist"),
+        ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "y.urdf", "--frames", "500:600"], "selects no frames"),
+        ([tmp_path / "missing.c3d", human.path, "-o", tmp_path / "z.urdf"], "missing.c3d"),
+        ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "w.urdf", "--config", tmp_path / "none.toml"],
+         "no such config file"),
+    ]
+    for args, msg in cases:
+        r = _cli(*args, "--motion", tmp_path / "m.csv", "--report", tmp_path / "r.json", "-q")
+        assert r.returncode != 0 and msg in r.stderr, (args, r.stderr)
+        assert r.stderr.strip().count("\n") == 0, r.stderr
+    assert not (tmp_path / "x.urdf").exists() and not (tmp_path / "y.urdf").exists()
