@@ -7,6 +7,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     loss = "linear"         # or "huber", "cauchy" (robust against marker outliers)
     loss_scale = 3.0        # robust-loss scale, in units of noise_mm
     max_iterations = 100
+    ftol = 1e-6             # stop: relative cost decrease of a step below this
+    atol = 0.5              # ... or absolute decrease below this (chi-square change of 1)
     seed = true             # start from MTB joint centres (false: from the base model)
     compile = true          # compile the per-frame function with the C compiler if present
 
@@ -33,7 +35,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-_TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "xtol", "gtol", "seed", "compile", "priors"}
+_TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
+        "priors"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
 
 
@@ -75,7 +78,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     try:
         return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
                        loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
-                       max_iterations=it, ftol=num(data, "ftol", s.ftol), xtol=num(data, "xtol", s.xtol),
+                       max_iterations=it, ftol=num(data, "ftol", s.ftol), atol=num(data, "atol", s.atol),
+                       xtol=num(data, "xtol", s.xtol),
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
                        compile=data.get("compile", s.compile))
     except ValueError as e:

@@ -72,7 +72,8 @@ class Settings:
     loss_scale: float = 3.0  # in units of `noise`: residuals beyond it count less (robust losses)
     priors: Priors = field(default_factory=Priors)
     max_iterations: int = 100
-    ftol: float = 1e-8  # stop when the relative cost decrease of a step falls below this
+    ftol: float = 1e-6  # stop when the relative cost decrease of a step falls below this (as Ceres)
+    atol: float = 0.5  # ... or a step lowers the cost by less than this: χ² by less than 1, its one-sigma level
     xtol: float = 1e-8  # ... or the step is smaller than xtol * (|x| + xtol)
     gtol: float = 1e-10  # ... or the largest gradient entry is below this
     seed: bool = True  # start from MTB joint centres (else from the base model)
@@ -84,7 +85,7 @@ class Settings:
             raise ValueError(f"free: unknown parameter group(s) {', '.join(bad)}; choose from {', '.join(GROUPS)}")
         if self.loss not in LOSSES:
             raise ValueError(f"loss: '{self.loss}' is not one of {', '.join(LOSSES)}")
-        for name in ("noise", "loss_scale", "ftol", "xtol", "gtol"):
+        for name in ("noise", "loss_scale", "ftol", "atol", "xtol", "gtol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"{name}: must be a positive number, got {v!r}")

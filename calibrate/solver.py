@@ -15,7 +15,9 @@ and the hinge axes are updated on their manifolds (see Problem.retract_parameter
 kinematics.retract_root).
 
 Termination (first met wins, reported in words):
-  relative cost decrease of an accepted step < ftol;  |step| < xtol (|x| + xtol);
+  relative cost decrease of an accepted step < ftol;  its absolute decrease < atol (the cost is
+  χ²/2 in units of the marker noise, so atol = 0.5 is a χ² change of 1, its one-sigma level);
+  |step| < xtol (|x| + xtol);
   largest gradient entry < gtol;  max_iterations reached (not converged);
   no step lowers the cost any more (λ too large: converged to the precision available).
 """
@@ -202,6 +204,10 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
                 progress(summary.iterations, cost, lam)
             if rel < st.ftol:
                 termination, converged = f"relative cost decrease {rel:.2e} below ftol {st.ftol:.0e}", True
+                break
+            if summary.accepted > 1 and (summary.cost_history[-2] - cost) < st.atol:
+                termination = f"cost decrease {summary.cost_history[-2] - cost:.2e} below atol {st.atol:g}"
+                converged = True
                 break
             if step_norm < st.xtol * (x_norm(state) + st.xtol):
                 termination, converged = f"step {step_norm:.2e} below xtol {st.xtol:.0e}", True
