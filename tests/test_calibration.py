@@ -117,8 +117,9 @@ def test_noise_free_recovers_the_subject(noise_free):
         assert cmp.axis_error_deg[j] < 0.05, j
 
 
-def test_one_mm_noise_accuracy(noisy):
-    sim, cal, cmp = noisy
+def _assert_one_mm_targets(cal, cmp) -> None:
+    """Issue 4's 1 mm-noise figures for the joints the markers identify (the foot's hinges and the
+    wrists are flagged as not identified and measured by the benchmark)."""
     assert cal.converged, cal.summary.termination
     assert cmp.marker_rms <= 1.05 * cmp.floor_rms
     balls = [cmp.centre_error[j] for j in SOLID_BALLS]
@@ -126,6 +127,11 @@ def test_one_mm_noise_accuracy(noisy):
     for j in SOLID_HINGES:
         assert cmp.axis_error_deg[j] < 1.0, j
         assert cmp.centre_error[j] < 0.002, j
+
+
+def test_one_mm_noise_accuracy(noisy):
+    sim, cal, cmp = noisy
+    _assert_one_mm_targets(cal, cmp)
     # A segment frame's turn is held by the priors; without that constant offset the angles follow.
     assert cmp.angle_rms_offset_free_deg < 2.0
 
@@ -136,13 +142,7 @@ def test_basin_base_model_15_percent_too_small(human, tmp_path):
     write_model(human, tmp_path / "small.urdf", Parameters(0.85 * b.scale, b.centre, b.axis, b.marker))
     small = load_model(tmp_path / "small.urdf")
     cal = calibrate(small, sim.trial)
-    cmp = compare_to_truth(cal, sim)
-    assert cal.converged, cal.summary.termination
-    assert cmp.marker_rms <= 1.05 * cmp.floor_rms
-    balls = [cmp.centre_error[j] for j in SOLID_BALLS]
-    assert np.median(balls) < 0.002 and max(balls) < 0.005
-    for j in SOLID_HINGES:
-        assert cmp.axis_error_deg[j] < 1.0, j
+    _assert_one_mm_targets(cal, compare_to_truth(cal, sim))
 
 
 def test_identifiability_flags(noisy):
