@@ -416,6 +416,18 @@ def _fixed_groups(base: Parameters, seeded: Parameters, free) -> Parameters:
     return Parameters(**parts)
 
 
+def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
+    """Largest posterior/prior-only std ratio over directions, and that direction."""
+    ev0, U = np.linalg.eigh(0.5 * (C0 + C0.T))
+    keep = ev0 > 1e-12 * max(float(ev0.max(initial=0.0)), 1e-300)  # directions the priors alone leave open
+    if not keep.any():
+        return 0.0, U[:, -1]
+    Wh = U[:, keep] / np.sqrt(ev0[keep])  # whitening by the prior-only covariance on its range
+    ev, V = np.linalg.eigh(Wh.T @ C @ Wh)
+    v = U[:, keep] @ (np.sqrt(ev0[keep]) * V[:, -1])
+    return math.sqrt(max(float(ev[-1]), 0.0)), v / np.linalg.norm(v)
+
+
 def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> list[ParameterChange]:
     """Per joint centre, hinge axis, marker and scale: change from the base model, posterior std,
     and whether the trial identified it: in its worst direction, the posterior std must be below
@@ -440,13 +452,6 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             J = np.column_stack([J, x])
         return J @ cov[np.ix_(c, c)] @ J.T, J @ prior_cov[np.ix_(c, c)] @ J.T
 
-    def worst(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
-        """Largest posterior/prior-only std ratio over directions, and that direction."""
-        L = np.linalg.cholesky(C0 + 1e-18 * np.eye(len(C0)))
-        Li = np.linalg.inv(L)
-        ev, V = np.linalg.eigh(Li @ C @ Li.T)
-        v = L @ V[:, -1]
-        return math.sqrt(max(float(ev[-1]), 0.0)), v / np.linalg.norm(v)
 
     for ji, j in enumerate(model.joints):
         s = seg_scale[problem.centre_segment[ji]]
@@ -464,14 +469,14 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
                 u = next(u for u in model.urdf_joints if u.name == j.urdf_joints[0])
                 a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
                 Qp = perpendicular_basis(a)
-                ratio, _ = worst(Qp.T @ CC[0] @ Qp, Qp.T @ CC[1] @ Qp)
+                ratio, _ = worst_ratio(Qp.T @ CC[0] @ Qp, Qp.T @ CC[1] @ Qp)
                 ident = False
                 axis_txt = ", ".join(f"{x:+.2f}" for x in a)
                 note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
                         f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
                                                              " either: held by the prior"))
             else:
-                ratio, v = worst(*CC)
+                ratio, v = worst_ratio(*CC)
                 ident = ratio < IDENTIFIED
                 note = "" if ident else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
                                          f"in the {j.parent} frame: held by the prior")
@@ -483,7 +488,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         cols = [k for k, dd in problem._tangent if dd == d]
         C = cov[np.ix_(cols, cols)]
         std = np.degrees(np.sqrt(np.clip(np.diag(C), 0, None)))
-        ratio = worst(C, prior_cov[np.ix_(cols, cols)])[0]
+        ratio = worst_ratio(C, prior_cov[np.ix_(cols, cols)])[0]
         ident = ratio < IDENTIFIED
         ang = math.degrees(math.acos(min(1.0, abs(float(a @ a0)))))
         out.append(ParameterChange(f"axis[{model.dofs[d].name}]", a0, a, ang, std, ident,
@@ -499,7 +504,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             std, ident, note = np.full(3, np.nan), True, "held (not free)"
         else:
             std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
-            ratio = worst(*CC)[0]
+            ratio = worst_ratio(*CC)[0]
             ident = seen and ratio < IDENTIFIED
             note = "" if ident else ("never seen in the trial: base model kept" if not seen
                                      else "poorly seen: held by the prior")

@@ -328,3 +328,16 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
         assert r.returncode != 0 and msg in r.stderr, (args, r.stderr)
         assert r.stderr.strip().count("\n") == 0, r.stderr
     assert not (tmp_path / "x.urdf").exists() and not (tmp_path / "y.urdf").exists()
+
+
+def test_worst_ratio_singular_prior_block():
+    """A prior-only covariance block that is singular (a direction the gauge constraints fix) must
+    not break the identifiability test; the ratio is found on the directions it leaves open."""
+    from calibrate.calibration import worst_ratio
+
+    U = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
+    C0 = U @ np.diag([0.0, 0.04, 0.047]) @ U.T
+    C = U @ np.diag([0.0, 0.01 * 0.04, 0.36 * 0.047]) @ U.T
+    ratio, v = worst_ratio(C, C0)
+    assert ratio == pytest.approx(0.6)
+    assert abs(v @ U[:, 2]) == pytest.approx(1.0)
