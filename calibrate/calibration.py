@@ -189,7 +189,6 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     centre = base.centre.copy()
     axis = base.axis.copy()
     obs = marker_columns(model, trial)
-    F = obs.shape[0]
     for si, s in enumerate(model.segments):
         pts_local, pts_world = [], []
         for mk in s.markers:
@@ -237,7 +236,6 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
                 else:
                     notes.append(f"{j.name}: seeded axis more than {math.degrees(SEED_MAX_TILT):.0f} deg from the "
                                  f"base model's; base model axis used")
-    del F
     params = Parameters(scale, centre, axis, base.marker.copy())
     return Seed(params, tuple(notes), joints, time.perf_counter() - t0)
 

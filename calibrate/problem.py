@@ -37,7 +37,7 @@ import os
 import shutil
 import subprocess
 import tempfile
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import casadi as ca
@@ -104,9 +104,6 @@ class State:
     Z: np.ndarray  # (F, nz): root translation, root rotation increment (0 between steps), angles
     Q: np.ndarray  # (F, 4) root reference quaternions (x, y, z, w)
     p: np.ndarray  # full parameter vector (Parameters.vector() layout)
-
-    def copy(self) -> State:
-        return State(self.Z.copy(), self.Q.copy(), self.p.copy())
 
 
 @dataclass(frozen=True)
@@ -639,11 +636,6 @@ class Problem:
         J = sparse.csr_matrix((np.concatenate(blocks_v), (np.concatenate(blocks_r), np.concatenate(blocks_c))),
                               shape=(e.size, F * nz + self.n_free))
         return e, J
-
-    def with_settings(self, **changes) -> Problem:
-        """The same trial and model with other settings (rebuilds the functions)."""
-        return Problem(self.model, np.where(self.seen[..., None], self.target.reshape(self.F, -1, 3), np.nan),
-                       replace(self.settings, **changes), self.kin, self.base)
 
 
 def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:

@@ -34,7 +34,6 @@ from .kinematics import retract_root
 from .problem import Linearization, Problem, State
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
-REDUCED_SCALING = True
 
 
 @dataclass
@@ -75,7 +74,7 @@ def _solve_lower(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.matmul(np.linalg.inv(L), b)
 
 
-def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, Dp: np.ndarray,
+def solve_step(lin: Linearization, lam: float, Dz: np.ndarray,
                pose_only: bool = False, N: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """The LM step (dz (F, nz), dp (n,)) for damping `lam`, with dp restricted to the columns of
     `N` (gauge constraints) if given; None if a block is not positive definite."""
@@ -94,11 +93,8 @@ def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, Dp: np.ndarray,
     S = lin.C - Yf.T @ Yf
     # Marquardt scaling on the reduced system: damp each parameter by its own curvature once the
     # frames are eliminated (diag S), not by diag C, which counts curvature the poses explain away.
-    if REDUCED_SCALING:
-        dS = np.diag(S)
-        S = S + np.diag(lam * np.maximum(dS, DIAG_FLOOR * max(1.0, float(dS.max(initial=0.0)))))
-    else:
-        S = S + np.diag(lam * Dp)
+    dS = np.diag(S)
+    S = S + np.diag(lam * np.maximum(dS, DIAG_FLOOR * max(1.0, float(dS.max(initial=0.0)))))
     rhs = -lin.gp + Yf.T @ yz.reshape(-1)
     if N is not None:
         S, rhs = N.T @ S @ N, N.T @ rhs
@@ -174,10 +170,8 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
             break
         summary.iterations += 1
         Dz = np.maximum(np.diagonal(lin.A, axis1=1, axis2=2), DIAG_FLOOR * max(1.0, float(lin.A.max(initial=0.0))))
-        Dp = np.maximum(np.diag(lin.C), DIAG_FLOOR * max(1.0, float(np.diag(lin.C).max(initial=0.0)))) \
-            if lin.C.size else np.zeros(0)
         t0 = time.perf_counter()
-        step = solve_step(lin, lam, Dz, Dp, pose_only, N)
+        step = solve_step(lin, lam, Dz, pose_only, N)
         summary.linear_solver_seconds += time.perf_counter() - t0
         if step is None:
             lam, nu = lam * nu, nu * 2
