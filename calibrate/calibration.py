@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from .errors import CalibrateError
 from .geometry import kabsch_batch
 from .ik import _FrameSolver, marker_columns
-from .joints import JointEstimates, estimate_model_joints, model_geometry
+from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters
 from .motion import Motion
@@ -37,9 +37,13 @@ from .trial import Trial
 
 MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
 SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
+SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated centre may scale it
 SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
-STRIDE = 10  # key-frame spacing of the start
+STRIDE = 10  # key-frame spacing of the start (frames of the trial)
+COARSE_FRAMES = 200  # the geometry's basin is found on about this many evenly spaced frames first
+SEED_FRAMES = 400  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
+SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
 
 
 @dataclass(frozen=True)
@@ -155,8 +159,11 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     t0 = time.perf_counter()
     notes: list[str] = []
     if joints is None:
+        thinned = _seed_trial(trial, SEED_FRAMES)
+        cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
+        trial = thinned
         try:
-            joints = estimate_model_joints(model, trial)
+            joints = estimate_model_joints(model, trial, cutoff_hz=cutoff)
         except (ValueError, CalibrateError) as e:
             notes.append(f"joint-centre seed unavailable ({e}); starting from the base model")
             return Seed(model.parameters(), tuple(notes), None, time.perf_counter() - t0)
@@ -170,6 +177,7 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
             notes.append(f"{j.name}: no joint-centre seed ({j.reason}); base model used")
         elif j.name not in ok:
             notes.append(f"{j.name}: joint-centre seed too uncertain ({j.note or j.method}); base model used")
+    obs = marker_columns(model, trial)
     # Scale factors from distances between estimated centres within each segment.
     ratios: dict[str, list[float]] = {s.name: [] for s in model.segments}
     for s in model.segments:
@@ -182,13 +190,22 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
                 d = np.linalg.norm(ok[names[a]].centre - ok[names[b]].centre, axis=1)
                 if np.isfinite(d).sum() >= 3:
                     ratios[s.name].append(float(np.nanmedian(d)) / d0)
+        if not ratios[s.name]:
+            # One estimated centre only (e.g. a shank whose ankle is seen through the markerless
+            # talus): its distances to the segment's far markers, each known to about a centimetre.
+            for n in names:
+                for mk in s.markers:
+                    d0 = np.linalg.norm(geo[s.name][mk] - geo[s.name][n])
+                    d = np.linalg.norm(obs[:, model.marker_index(mk)] - ok[n].centre, axis=1)
+                    if d0 >= SEED_MARKER_LEVER and np.isfinite(d).sum() >= 3:
+                        ratios[s.name].append(float(np.nanmedian(d)) / d0)
     known = [np.median(r) for r in ratios.values() if r]
     overall = float(np.median(known)) if known else 1.0
     scale = np.array([float(np.median(ratios[s.name])) if ratios[s.name] else overall for s in model.segments])
     scale = np.clip(scale, 0.7, 1.4)
     centre = base.centre.copy()
     axis = base.axis.copy()
-    obs = marker_columns(model, trial)
+    marker = base.marker.copy()
     for si, s in enumerate(model.segments):
         pts_local, pts_world = [], []
         for mk in s.markers:
@@ -208,6 +225,15 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
         valid = np.isfinite(t[:, 0])
         if valid.sum() < 3:
             continue
+        # Each marker where the trial shows it in this frame (seed 002's closed form): the global
+        # solve then starts near the data instead of at the base model's ~1 cm guesses.
+        for mk in s.markers:
+            k = model.marker_index(mk)
+            use = valid & np.all(np.isfinite(obs[:, k]), axis=1)
+            if use.sum() >= 3:
+                m_loc = np.einsum("fji,fj->fi", R[use], obs[use, k] - t[use]).mean(0) / scale[si]
+                if scale[si] * np.linalg.norm(m_loc - base.marker[k]) <= SEED_MAX_SHIFT:
+                    marker[k] = m_loc
         for ji, j in enumerate(model.joints):
             if j.parent != s.name or j.name not in ok:
                 continue
@@ -236,19 +262,31 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
                 else:
                     notes.append(f"{j.name}: seeded axis more than {math.degrees(SEED_MAX_TILT):.0f} deg from the "
                                  f"base model's; base model axis used")
-    params = Parameters(scale, centre, axis, base.marker.copy())
+    params = Parameters(scale, centre, axis, marker)
     return Seed(params, tuple(notes), joints, time.perf_counter() - t0)
 
 
+def _seed_trial(trial: Trial, max_frames: int) -> Trial:
+    """The trial low-passed at SEED_CUTOFF_HZ and thinned to about `max_frames` evenly spaced
+    frames: the MTB seed's cost grows with the frames and it needs only a few hundred."""
+    k = trial.n_frames // max_frames
+    if k < 2 or not SEED_CUTOFF_HZ < trial.rate / 2:
+        return trial
+    markers = lowpass(trial.markers, trial.rate, SEED_CUTOFF_HZ)[::k]
+    return Trial(trial.labels, markers, trial.rate / k, trial.first_frame, trial.source)
+
+
 # ---------------------------------------------------------------------- start
-def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, stride: int = STRIDE) -> State:
+def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, stride: int = STRIDE,
+                evaluator: Callable | None = None) -> State:
     """Per-frame coordinates for fixed geometry: frame-wise IK on every `stride`-th frame (warm-started
     key frame to key frame, the first from a global search), interpolated in between (slerp for
-    the root rotation).  Frames with fewer than 3 markers take the nearest key frame's pose."""
+    the root rotation).  Frames with fewer than 3 markers take the nearest key frame's pose.
+    `evaluator`: a faster per-frame (markers, d markers/dz) at `params` (Problem.frame_evaluator)."""
     model = kin.model
     F = observed.shape[0]
     p = params.vector()
-    solver = _FrameSolver(kin, p)
+    solver = _FrameSolver(kin, p, evaluator)
     seen = np.all(np.isfinite(observed), axis=2)
     usable = np.flatnonzero(seen.sum(1) >= 3)
     keys = usable[::stride]
@@ -334,31 +372,32 @@ def _calibrate(model: Model, trial: Trial, settings: Settings, kinematics: Kinem
     params0 = _fixed_groups(model.parameters(), seed.params, settings.free)
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    say("start: frame-wise inverse kinematics")
-    state = start_poses(kin, obs, params0)
-    times["start"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
     say("build: residuals and Jacobian (CasADi)")
     problem = Problem(model, obs, settings, kin)
     times["build"] = time.perf_counter() - t0
-    initial = problem.marker_residuals(state)
+    coarse = coarse_frames(seen, COARSE_FRAMES)
     t0 = time.perf_counter()
-    say("solve: refine poses")
-    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
-    if settings.loss != "linear":
-        # A robust loss is not convex: reach its basin with plain least squares first.
-        say("solve: least squares before the robust loss")
-        problem.loss = "linear"
-        state, _ = levenberg_marquardt(problem, state, max_iterations=30)
-        problem.loss = settings.loss
-    say("solve: global Levenberg-Marquardt")
-    state, summary = levenberg_marquardt(
-        problem, state,
-        progress=lambda it, c, lam: say(f"solve: iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
-    say("solve: align segment frames with the base model (gauge)")
-    state = align_gauge(problem, state)
-    state, polish = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
-    summary = _merge(summary, polish)
+    say("start: frame-wise inverse kinematics")
+    start = start_poses(kin, obs[coarse], params0, stride=max(1, round(STRIDE * coarse.size / problem.F)),
+                        evaluator=problem.frame_evaluator(params0.vector()))
+    times["start"] = time.perf_counter() - t0
+    initial = np.full(obs.shape, np.nan)
+    sub = problem if coarse.size == problem.F else problem.subset(coarse)
+    initial[coarse] = sub.marker_residuals(start)
+    t0 = time.perf_counter()
+    state, coarse_summary = _solve_geometry(sub, start, settings, say)
+    if sub is not problem:
+        # The geometry's basin is found on the subsample; every frame then joins for the last steps.
+        say(f"solve: all {problem.F} frames")
+        state = spread_poses(state, coarse, problem.F)
+        state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
+        state, summary = levenberg_marquardt(
+            problem, state,
+            progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+        summary.coarse = coarse_summary
+        summary.coarse_frames = int(coarse.size)
+    else:
+        summary = coarse_summary
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     lin = problem.linearize(state)
@@ -371,6 +410,55 @@ def _calibrate(model: Model, trial: Trial, settings: Settings, kinematics: Kinem
                     model.dof_names)
     return Calibration(model, trial, settings, params, motion, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled)
+
+
+def coarse_frames(seen: np.ndarray, target: int = COARSE_FRAMES) -> np.ndarray:
+    """Evenly spaced frames (about `target`, always the first and last usable ones) on which the
+    geometry is solved before every frame joins; every frame when the trial is not much longer."""
+    usable = np.flatnonzero(seen.sum(1) >= 3)
+    k = usable.size // target
+    if k < 2:
+        return np.arange(seen.shape[0])
+    idx = usable[::k]
+    return idx if idx[-1] == usable[-1] else np.append(idx, usable[-1])
+
+
+def spread_poses(state: State, frames: np.ndarray, F: int) -> State:
+    """Poses solved on `frames` carried to all F frames: angles and root position interpolated,
+    root rotation slerped (held constant beyond the ends)."""
+    if frames.size == F:
+        return state
+    every = np.arange(F)
+    Z = np.column_stack([np.interp(every, frames, state.Z[:, c]) for c in range(state.Z.shape[1])])
+    if frames.size == 1:
+        Q = np.tile(state.Q[0], (F, 1))
+    else:
+        Q = Slerp(frames, Rotation.from_quat(state.Q))(np.clip(every, frames[0], frames[-1])).as_quat()
+    Q = np.where(Q[:, 3:4] < 0, -Q, Q)
+    Z[:, 3:6] = 0.0
+    return State(Z, Q, state.p.copy())
+
+
+def _solve_geometry(problem: Problem, state: State, settings: Settings,
+                    say: Callable[[str], None]) -> tuple[State, SolverSummary]:
+    """Poses, then poses and geometry together, then the segment frames turned to where the
+    priors want them and a polish: the whole solve on the frames of `problem`."""
+    say(f"solve: refine poses ({problem.F} frames)")
+    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
+    if settings.loss != "linear":
+        # A robust loss is not convex: reach its basin with plain least squares first.
+        say("solve: least squares before the robust loss")
+        problem.loss = "linear"
+        state, _ = levenberg_marquardt(problem, state, max_iterations=30)
+        problem.loss = settings.loss
+    say(f"solve: global Levenberg-Marquardt ({problem.F} frames)")
+    state, summary = levenberg_marquardt(
+        problem, state,
+        progress=lambda it, c, lam: say(f"solve: iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+    say("solve: align segment frames with the base model (gauge)")
+    state = align_gauge(problem, state)
+    state, polish = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+    return state, _merge(summary, polish)
 
 
 def align_gauge(problem: Problem, state: State) -> State:
@@ -439,22 +527,19 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     out: list[ParameterChange] = []
     seg_scale = P.scale
 
-    def block_cov(idx: list[str], seg: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Posterior and prior-only covariance of the scaled position s * x (what the data see)."""
+    def block_cov(idx: list[str]) -> tuple[np.ndarray, np.ndarray] | None:
+        """Posterior and prior-only covariance of a position at the subject's scale (its free
+        coordinates, see Problem.tangent_map: what the data see)."""
         if not all(n in col for n in idx):
             return None
         c = [col[n] for n in idx]
-        J = seg_scale[seg] * np.eye(3)
-        if names[seg] in col:
-            c = c + [col[names[seg]]]
-            J = np.column_stack([J, x])
-        return J @ cov[np.ix_(c, c)] @ J.T, J @ prior_cov[np.ix_(c, c)] @ J.T
+        return cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
 
 
     for ji, j in enumerate(model.joints):
         s = seg_scale[problem.centre_segment[ji]]
         sl = o["centre"] + 3 * ji
-        CC = block_cov(names[sl:sl + 3], problem.centre_segment[ji], P.centre[ji])
+        CC = block_cov(names[sl:sl + 3])
         value, base = s * P.centre[ji], B.centre[ji]
         if CC is None:
             std, ident, note = np.full(3, np.nan), True, "held (not free)"
@@ -495,7 +580,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     for k, mk in enumerate(model.markers):
         s = seg_scale[problem.marker_segment[k]]
         sl = o["marker"] + 3 * k
-        CC = block_cov(names[sl:sl + 3], problem.marker_segment[k], P.marker[k])
+        CC = block_cov(names[sl:sl + 3])
         value, base = s * P.marker[k], B.marker[k]
         seen = bool(problem.seen[:, k].any())
         if CC is None:

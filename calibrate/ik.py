@@ -72,9 +72,9 @@ def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class _FrameSolver:
     """Levenberg–Marquardt on a subset of one frame's coordinates and markers."""
 
-    def __init__(self, kin: Kinematics, p: np.ndarray):
+    def __init__(self, kin: Kinematics, p: np.ndarray, evaluator=None):
         self.kin, self.p = kin, p
-        self.evaluate = kin.frame_evaluator(p)
+        self.evaluate = evaluator or kin.frame_evaluator(p)
         model = kin.model
         self.nz = model.nz
         seg_joint = {j.child: j for j in model.joints}

@@ -31,12 +31,14 @@ are built without ever forming the full matrix.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import os
 import shutil
 import subprocess
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +52,9 @@ GROUPS = ("scale", "centre", "axis", "marker")
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.ik)
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 LOSSES = ("linear", "huber", "cauchy")
+WORKERS = max(1, min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
+CHUNK = 64  # frames assembled at a time in Problem.linearize (keeps the scattered writes in cache)
 
 
 @dataclass(frozen=True)
@@ -129,6 +134,8 @@ class Linearization:
     C: np.ndarray  # (n, n)       Σ_f J_p' J_p + prior
     gz: np.ndarray  # (F, nz)
     gp: np.ndarray  # (n,)
+    a_pattern: np.ndarray | None = None  # (nz, nz) bool: which A_f entries can be nonzero (None: any)
+    b_pattern: np.ndarray | None = None  # (nz, n) bool: which B_f entries can be nonzero (None: any)
 
 
 def _robust(s: np.ndarray, loss: str, c2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -156,10 +163,7 @@ class Problem:
         nm = len(model.markers)
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
             raise ValueError(f"observed: expected (frames, {nm}, 3), got {obs.shape}")
-        self.F = obs.shape[0]
-        self.seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
-        self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, 3 * nm)
-        self.n_obs = int(self.seen.sum())
+        self._set_observed(obs)
         self.base = base or model.parameters()
         self.loss = self.settings.loss  # the loss in use (calibrate starts robust fits with 'linear')
         # Joint limits, widened by LIMIT_MARGIN: a segment frame's zero may settle a little away
@@ -168,6 +172,21 @@ class Problem:
         self.upper = np.array([d.upper for d in model.dofs]) + LIMIT_MARGIN
         self._layout()
         self._build_functions()
+
+    def _set_observed(self, obs: np.ndarray) -> None:
+        self.observed = obs
+        self.F = obs.shape[0]
+        self.seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
+        self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
+        self.n_obs = int(self.seen.sum())
+        self._mapped: dict[tuple[str, int], tuple] = {}
+
+    def subset(self, frames: np.ndarray) -> Problem:
+        """The same problem on some of its frames (e.g. an evenly spaced subsample that finds
+        the geometry's basin cheaply), sharing the compiled functions."""
+        new = copy.copy(self)
+        new._set_observed(self.observed[np.asarray(frames)])
+        return new
 
     # ------------------------------------------------------------------ layout
     def _layout(self) -> None:
@@ -198,7 +217,22 @@ class Problem:
         self.n_free = len(cols)
         self._direct = np.array([(k, c[1]) for k, c in enumerate(cols) if c[1] >= 0], dtype=int).reshape(-1, 2)
         self._tangent = [(k, c[2]) for k, c in enumerate(cols) if c[1] < 0]
+        # Free joint centres and markers: full index, free column, owning segment (whose scale
+        # multiplies them), and that segment's free scale column (-1 if the scale is held).
+        owner_of = {}
+        for ji in range(nj):
+            for c in range(3):
+                owner_of[self.offsets["centre"] + 3 * ji + c] = int(self.centre_segment[ji])
+        for k in range(nm):
+            for c in range(3):
+                owner_of[self.offsets["marker"] + 3 * k + c] = int(self.marker_segment[k])
+        scale_col = {i: k for k, i in self._direct if i < ns}
+        pos = [(i, k, owner_of[i], scale_col.get(owner_of[i], -1)) for k, i in self._direct if i in owner_of]
+        self._positions = tuple(np.array([x[c] for x in pos], dtype=int) for c in range(4))
         self._gauges = self._find_gauges()
+        self._urdf = {u.name: u for u in m.urdf_joints}
+        # A frame's turn is carried into the segments below only if all they hold is free.
+        self._carries = {"centre", "axis", "marker"} <= free
         self._slides = [ji for ji, j in enumerate(m.joints) if j.kind == "hinge" and "centre" in free
                         and ("marker" in free or not np.any(self.marker_segment == m.segment_index(j.child)))]
 
@@ -226,38 +260,42 @@ class Problem:
     def align_frames(self, p: np.ndarray) -> tuple[np.ndarray, list[tuple[int, str, np.ndarray, np.ndarray]]]:
         """Turn each free segment frame (see gauge_constraints) to where the priors want it.
 
-        Per segment, the rotation G (root: and shift t) that best carries the base model's
-        markers, joint centres and child hinge axes onto the current ones (weighted by the
-        prior SDs; about the hinge axis only for a hinge's child) is taken out of the contents:
-        x ← Gᵀ(x − t).  The data are unchanged once each frame's coordinates turn by G (the
-        caller re-solves them).  Returns the new p and (segment, kind, G, t) per segment."""
+        Per segment (parents first), the rotation G (root: and shift t) that best carries the
+        base model's markers, joint centres and child hinge axes onto the current ones (weighted
+        by the prior SDs; about the hinge axis only for a hinge's child) is taken out of the
+        contents: x ← Gᵀ(x − t), and carried through hinge and universal joints into the
+        segments below (see _turn), so that the data are unchanged once each turned frame's
+        coordinates follow (root pose, a hinge's angle; ball angles are re-solved by the caller).
+        Returns the new p and (segment, kind, G, t) per segment."""
         m, o, pr = self.model, self.offsets, self.settings.priors
         base = self.base.vector()
         out = p.copy()
         moves = []
         for si, kind in self._gauges:
-            s = p[si]
+            s = out[si]
             pts, pts0, wts = [], [], []
             for k in np.flatnonzero(self.marker_segment == si):
                 if not self.seen[:, k].any():
                     continue
                 sl = o["marker"] + 3 * k
-                pts.append(s * p[sl:sl + 3])
+                pts.append(s * out[sl:sl + 3])
                 pts0.append(s * base[sl:sl + 3])
                 wts.append(1 / pr.marker**2)
             for ji in np.flatnonzero(self.centre_segment == si):
                 sl = o["centre"] + 3 * ji
-                pts.append(s * p[sl:sl + 3])
+                pts.append(s * out[sl:sl + 3])
                 pts0.append(s * base[sl:sl + 3])
                 wts.append(1 / pr.centre**2)
             dirs, dirs0, dw = [], [], []
             for ji in np.flatnonzero(self.centre_segment == si):
-                for dname in m.joints[ji].dofs:
-                    d = m.dof_index(dname)
+                j = m.joints[ji]
+                if j.kind in ("hinge", "universal"):  # the first axis, in this segment's frame
+                    d = m.dof_index(j.dofs[0])
                     if d in self.axis_dofs:
+                        u = self._urdf[j.urdf_joints[0]]
                         sl = o["axis"] + 3 * d
-                        dirs.append(self._axis(p, d))
-                        dirs0.append(base[sl:sl + 3] / np.linalg.norm(base[sl:sl + 3]))
+                        dirs.append(u.rotation @ self._axis(out, d))
+                        dirs0.append(u.rotation @ (base[sl:sl + 3] / np.linalg.norm(base[sl:sl + 3])))
                         dw.append(1 / pr.axis**2)
             X = np.array(pts + dirs).reshape(-1, 3)
             X0 = np.array(pts0 + dirs0).reshape(-1, 3)
@@ -273,7 +311,7 @@ class Problem:
                 Xc = X
             if kind == "axis":
                 j = next(j for j in m.joints if j.child == m.segments[si].name)
-                a = self._axis(p, m.dof_index(j.dofs[-1]))
+                a = self._axis(out, m.dof_index(j.dofs[-1]))
                 u0 = X0 - np.outer(X0 @ a, a)
                 u1 = Xc - np.outer(Xc @ a, a)
                 phi = math.atan2(float(np.sum(w * (np.cross(u0, u1) @ a))), float(np.sum(w * np.sum(u0 * u1, axis=1))))
@@ -286,19 +324,38 @@ class Problem:
                 U, _, Vt = np.linalg.svd(H)
                 D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
                 G = Vt.T @ D @ U.T  # G @ x0 ≈ x
-            for k in np.flatnonzero(self.marker_segment == si):
-                sl = o["marker"] + 3 * k
-                out[sl:sl + 3] = G.T @ (p[sl:sl + 3] - t / s)
-            for ji in np.flatnonzero(self.centre_segment == si):
-                sl = o["centre"] + 3 * ji
-                out[sl:sl + 3] = G.T @ (p[sl:sl + 3] - t / s)
-                for dname in m.joints[ji].dofs:
-                    d = m.dof_index(dname)
-                    if d in self.axis_dofs:
-                        sl = o["axis"] + 3 * d
-                        out[sl:sl + 3] = G.T @ p[sl:sl + 3]
+            self._turn(out, si, G, t)
             moves.append((si, kind, G, t))
         return out, moves
+
+    def _turn(self, out: np.ndarray, si: int, G: np.ndarray, t: np.ndarray | None = None) -> None:
+        """Express segment si's contents in its frame turned by G (and shifted by t): in place.
+
+        Below a hinge or universal joint the child's frame then turns too, by Oᵀ G O for the
+        joint's fixed origin rotation O, with the joint's axes turned back in their own frames
+        (R(Kᵀa, θ) = Kᵀ R(a, θ) K), so its angles are unchanged: the turn is carried down the
+        tree until a ball joint, whose angles absorb it."""
+        m, o = self.model, self.offsets
+        shift = np.zeros(3) if t is None else t / out[si]
+        for k in np.flatnonzero(self.marker_segment == si):
+            sl = slice(o["marker"] + 3 * k, o["marker"] + 3 * k + 3)
+            out[sl] = G.T @ (out[sl] - shift)
+        for ji in np.flatnonzero(self.centre_segment == si):
+            sl = slice(o["centre"] + 3 * ji, o["centre"] + 3 * ji + 3)
+            out[sl] = G.T @ (out[sl] - shift)
+            j = m.joints[ji]
+            if j.kind not in ("hinge", "universal") or not self._carries:
+                continue
+            K = G
+            chain = [self._urdf[n] for n in j.urdf_joints]
+            if any(np.any(u.xyz != 0) for u in chain[1:]):
+                continue  # an offset inside the joint's chain would not turn with it
+            for u in chain:
+                K = u.rotation.T @ K @ u.rotation
+                if u.dof >= 0:
+                    sl = slice(o["axis"] + 3 * u.dof, o["axis"] + 3 * u.dof + 3)
+                    out[sl] = K.T @ out[sl]
+            self._turn(out, m.segment_index(j.child), K)
 
     def gauge_constraints(self, p: np.ndarray, slides: bool = True) -> np.ndarray:
         """K (n_gauge, n_free): steps with K dp = 0 do not turn (or, for the root, shift) a
@@ -314,12 +371,13 @@ class Problem:
         rows: list[np.ndarray] = []
         for si, kind in self._gauges:
             items: list[tuple[np.ndarray, list[int], float, np.ndarray | None]] = []  # x, cols, weight, basis
+            s = p[si]  # free positions are at the subject's scale (see tangent_map)
             for k in np.flatnonzero(self.marker_segment == si):
                 sl = o["marker"] + 3 * k
-                items.append((p[sl:sl + 3], [col[names[sl + c]] for c in range(3)], 1 / pr.marker**2, None))
+                items.append((s * p[sl:sl + 3], [col[names[sl + c]] for c in range(3)], 1 / pr.marker**2, None))
             for ji in np.flatnonzero(self.centre_segment == si):
                 sl = o["centre"] + 3 * ji
-                items.append((p[sl:sl + 3], [col[names[sl + c]] for c in range(3)], 1 / pr.centre**2, None))
+                items.append((s * p[sl:sl + 3], [col[names[sl + c]] for c in range(3)], 1 / pr.centre**2, None))
                 for dname in m.joints[ji].dofs:
                     d = m.dof_index(dname)
                     if d in self.axis_dofs:
@@ -334,7 +392,7 @@ class Problem:
             for w in omegas:
                 r = np.zeros(self.n_free)
                 for x, cols, wt, B in items:
-                    v = wt * np.cross(w, x)
+                    v = wt * _cross(w, x)
                     r[cols] += v if B is None else v @ B
                 rows.append(r)
             if kind == "rigid":
@@ -358,15 +416,27 @@ class Problem:
         return np.array(rows).reshape(-1, self.n_free)
 
     def tangent_map(self, p: np.ndarray) -> np.ndarray:
-        """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`."""
+        """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`.
+
+        The free coordinates of joint centres and markers are positions at the subject's scale
+        (q = s x, metres), and a scale step keeps them fixed (x ← (s x + dq)/(s + ds)): the data
+        see only s x, so a segment's size then trades against its offsets along a straight line
+        (the priors, linear in (s, q), settle it in one step) instead of the hyperbola s x = const
+        that Gauss-Newton would only crawl along."""
         T = np.zeros((self.np_full, self.n_free))
         if self._direct.size:
             T[self._direct[:, 1], self._direct[:, 0]] = 1.0
+        rows, cols, owner, scol = self._positions
+        if rows.size:
+            s = p[owner]
+            T[rows, cols] = 1.0 / s
+            with_scale = scol >= 0
+            T[rows[with_scale], scol[with_scale]] = -p[rows[with_scale]] / s[with_scale]
         for d in self.axis_dofs:
             B = perpendicular_basis(self._axis(p, d))
-            cols = [k for k, dd in self._tangent if dd == d]
-            rows = self.offsets["axis"] + 3 * d + np.arange(3)
-            T[np.ix_(rows, cols)] = B
+            cols_d = [k for k, dd in self._tangent if dd == d]
+            rows_d = self.offsets["axis"] + 3 * d + np.arange(3)
+            T[np.ix_(rows_d, cols_d)] = B
         return T
 
     def _axis(self, p: np.ndarray, d: int) -> np.ndarray:
@@ -374,10 +444,14 @@ class Problem:
         return a / np.linalg.norm(a)
 
     def retract_parameters(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """p moved by the free-parameter step dp; axes stay unit (normalise(a + B u))."""
+        """p moved by the free-parameter step dp: scales by ds, free positions to (s x + dq)/(s + ds)
+        (see tangent_map), axes kept unit (normalise(a + B u))."""
         out = p.copy()
         if self._direct.size:
             out[self._direct[:, 1]] += dp[self._direct[:, 0]]
+        rows, cols, owner, _ = self._positions
+        if rows.size:
+            out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
         for d in self.axis_dofs:
             cols = [k for k, dd in self._tangent if dd == d]
             a = self._axis(p, d)
@@ -409,10 +483,10 @@ class Problem:
                 full, pose, resid = comp
                 self.compiled = True
         self._funcs = {"full": full, "pose": pose, "resid": resid}
-        self._mapped: dict[tuple[str, int], tuple] = {}
         # Per-segment groups from the sparsity patterns.
         zr, zc = _pattern(Jz.sparsity())
         pr, pc = _pattern(Jp.sparsity())
+        self._jz_pattern = (zr, zc, Jz.size1(), Jz.size2())
         self.groups: list[_Group] = []
         for s in range(len(m.segments)):
             mk = np.flatnonzero(self.marker_segment == s)
@@ -432,28 +506,34 @@ class Problem:
             p_dst = np.array([row_pos[int(pr[i])] * pcols.size + ppos[int(pc[i])] for i in p_src], dtype=int)
             self.groups.append(_Group(rows, zcols, pcols, z_src, z_dst, p_src, p_dst))
 
-    def _run(self, kind: str, state: State, frames: np.ndarray | None = None) -> list[np.ndarray]:
-        """Evaluate the mapped function `kind` over all frames (or `frames`), into numpy memory."""
-        Z, Q, target = state.Z, state.Q, self.target
-        if frames is not None:
-            Z, Q, target = Z[frames], Q[frames], target[frames]
-        n = Z.shape[0]
-        key = (kind, n)
-        if key not in self._mapped:
-            f = self._funcs[kind].map(n, "thread", 2)
-            buf, ev = f.buffer()
-            outs = [np.zeros((n, self._funcs[kind].nnz_out(i))) for i in range(f.n_out())]
-            self._mapped[key] = (f, buf, ev, outs)
-        f, buf, ev, outs = self._mapped[key]
-        ins = [np.ascontiguousarray(Z, dtype=float), np.ascontiguousarray(Q, dtype=float),
-               np.tile(np.asarray(state.p, dtype=float), n), np.ascontiguousarray(target)]
-        for i, a in enumerate(ins):
-            buf.set_arg(i, memoryview(a))
-        for i, o in enumerate(outs):
-            buf.set_res(i, memoryview(o))
-        ev()
-        del ins
-        return [o.copy() for o in outs]
+    def frame_evaluator(self, p: np.ndarray) -> _FrameEvaluator:
+        """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
+        parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
+        return _FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
+
+    def _run(self, kind: str, state: State) -> list[np.ndarray]:
+        """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
+        call (a map's construction grows with its size), into fresh numpy arrays (F, nnz_out)."""
+        F = state.Z.shape[0]
+        f0 = self._funcs[kind]
+        outs = [np.empty((F, f0.nnz_out(i))) for i in range(f0.n_out())]
+        Z = np.ascontiguousarray(state.Z, dtype=float)
+        Q = np.ascontiguousarray(state.Q, dtype=float)
+        P = np.tile(np.asarray(state.p, dtype=float), min(F, EVAL_BLOCK))
+        for s in range(0, F, EVAL_BLOCK):
+            e = min(F, s + EVAL_BLOCK)
+            key = (kind, e - s)
+            if key not in self._mapped:
+                fm = f0.map(e - s, "thread", 2)
+                self._mapped[key] = (fm, *fm.buffer())
+            _, buf, ev = self._mapped[key]
+            ins = [Z[s:e], Q[s:e], P[:(e - s) * self.np_full], self.target[s:e]]
+            for i, a in enumerate(ins):
+                buf.set_arg(i, memoryview(a))
+            for i, o in enumerate(outs):
+                buf.set_res(i, memoryview(o[s:e]))
+            ev()
+        return outs
 
     # ------------------------------------------------------------------ residuals
     def marker_residuals(self, state: State) -> np.ndarray:
@@ -470,9 +550,10 @@ class Problem:
         w = np.where(self.seen, np.sqrt(drho) / st.noise, 0.0)
         return cost, w
 
-    def prior(self, p: np.ndarray, T: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def prior(self, p: np.ndarray, T: np.ndarray | None = None,
+              jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Prior residuals and their Jacobian (n_prior, n_free) at full parameters `p`, through the
-        free-parameter map `T` (default: tangent_map(p))."""
+        free-parameter map `T` (default: tangent_map(p)); no Jacobian (None) if not `jacobian`."""
         st, m, o = self.settings, self.model, self.offsets
         free = set(st.free)
         base = self.base.vector()
@@ -481,15 +562,15 @@ class Problem:
         jac: list[np.ndarray] = []  # d residual / d p_full
 
         def block(group: str, count: int, seg_of: np.ndarray, sigma: float) -> None:
-            for i in range(count):
-                sl = slice(o[group] + 3 * i, o[group] + 3 * i + 3)
-                s = scale[seg_of[i]]
-                diff = p[sl] - base[sl]
-                res.append(s * diff / sigma)
-                J = np.zeros((3, self.np_full))
-                J[:, sl] = np.eye(3) * s / sigma
-                J[:, seg_of[i]] = diff / sigma
-                jac.append(J)
+            idx = o[group] + 3 * np.arange(count)[:, None] + np.arange(3)  # (count, 3) full indices
+            s = scale[seg_of][:, None]
+            diff = p[idx] - base[idx]
+            res.append((s * diff / sigma).ravel())
+            J = np.zeros((3 * count, self.np_full))
+            rows = np.arange(3 * count)
+            J[rows, idx.ravel()] = np.repeat(scale[seg_of], 3) / sigma
+            J[rows, np.repeat(seg_of, 3)] = diff.ravel() / sigma
+            jac.append(J)
 
         if "marker" in free:
             block("marker", len(m.markers), self.marker_segment, st.priors.marker)
@@ -509,6 +590,8 @@ class Problem:
             jac.append(J)
         if not res:
             return np.zeros(0), np.zeros((0, self.n_free))
+        if not jacobian:
+            return np.concatenate(res), None
         T = self.tangent_map(p) if T is None else T
         return np.concatenate(res), np.vstack(jac) @ T
 
@@ -523,51 +606,87 @@ class Problem:
         """Total cost (markers + joint limits + priors) at `state`."""
         d = self._run("resid", state)[0]
         c, _ = self._weights(d)
-        r, _ = self.prior(state.p)
+        r, _ = self.prior(state.p, jacobian=False)
         lim = self.limits(state.Z)
         return c + 0.5 * float(r @ r) + 0.5 * float(np.sum(lim**2))
 
     # ------------------------------------------------------------------ normal equations
-    def linearize(self, state: State, with_parameters: bool = True) -> Linearization:
-        """Cost and block-arrow normal equations at `state` (weights from the robust loss)."""
+    def linearize(self, state: State, with_parameters: bool = True,
+                  reuse: Linearization | None = None) -> Linearization:
+        """Cost and block-arrow normal equations at `state` (weights from the robust loss).
+        `reuse`: a Linearization no longer needed, whose arrays are overwritten (saves allocating
+        the large B afresh at every iteration).
+
+        The per-segment Jacobian blocks are gathered and multiplied CHUNK frames at a time, so
+        the scattered writes into A_f and B_f stay in cache: the time is linear in the frames."""
         F, nz = self.F, self.model.nz
         if with_parameters:
             d, jz, jp = self._run("full", state)
         else:
-            d, jz = self._run("pose", state)
+            (d, jz), jp = self._run("pose", state), None
         cost, w = self._weights(d)
         wrow = np.repeat(w, 3, axis=1)  # (F, 3 nm)
         e = d * wrow
         n = self.n_free if with_parameters else 0
-        A = np.zeros((F, nz, nz))
-        B = np.zeros((F, nz, n))
+        if reuse is not None and reuse.A.shape == (F, nz, nz) and reuse.B.shape == (F, nz, n):
+            A, B = reuse.A, reuse.B
+            A.fill(0.0)
+            B.fill(0.0)
+        else:
+            A, B = np.zeros((F, nz, nz)), np.zeros((F, nz, n))
         C = np.zeros((n, n))
         gz = np.zeros((F, nz))
         gp = np.zeros(n)
+        plan = []  # per group: (group, A places, B places, T on its free columns, those columns)
         T = self.tangent_map(state.p) if with_parameters else None
-        A2, B2 = A.reshape(F, -1), B.reshape(F, -1)
+        frame = np.arange(CHUNK)[:, None]
+        a_pat = np.eye(nz, dtype=bool)
+        b_pat = np.zeros((nz, n), dtype=bool)
         for g in self.groups:
-            wg = wrow[:, g.rows][:, :, None]
-            eg = e[:, g.rows]
-            Jz = np.zeros((F, g.rows.size * g.zcols.size))
-            Jz[:, g.z_dst] = jz[:, g.z_src]
-            Jz = Jz.reshape(F, g.rows.size, g.zcols.size) * wg
-            JzT = Jz.transpose(0, 2, 1)
-            A2[:, (g.zcols[:, None] * nz + g.zcols[None, :]).ravel()] += np.matmul(JzT, Jz).reshape(F, -1)
-            gz[:, g.zcols] += np.einsum("frc,fr->fc", Jz, eg)
-            if not with_parameters:
-                continue
-            Tg = T[g.pcols]
-            fcols = np.flatnonzero(np.any(Tg != 0, axis=0))
-            if fcols.size == 0:
-                continue
-            Jp = np.zeros((F, g.rows.size * g.pcols.size))
-            Jp[:, g.p_dst] = jp[:, g.p_src]
-            Jp = (Jp.reshape(F * g.rows.size, g.pcols.size) @ Tg[:, fcols]).reshape(F, g.rows.size, -1) * wg
-            B2[:, (g.zcols[:, None] * n + fcols[None, :]).ravel()] += np.matmul(JzT, Jp).reshape(F, -1)
-            flat = Jp.reshape(-1, fcols.size)
-            C[np.ix_(fcols, fcols)] += flat.T @ flat
-            gp[fcols] += flat.T @ eg.reshape(-1)
+            a_pos = (frame * nz * nz + (g.zcols[:, None] * nz + g.zcols[None, :]).ravel()).ravel()
+            a_pat[np.ix_(g.zcols, g.zcols)] = True
+            if with_parameters:
+                Tg = T[g.pcols]
+                fcols = np.flatnonzero(np.any(Tg != 0, axis=0))
+                b_pos = (frame * nz * n + (g.zcols[:, None] * n + fcols[None, :]).ravel()).ravel()
+                b_pat[np.ix_(g.zcols, fcols)] = True
+                plan.append((g, a_pos, b_pos, Tg[:, fcols], fcols))
+            else:
+                plan.append((g, a_pos, None, None, None))
+
+        def part(frames: slice) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
+            """A, B, g_z of these frames; their share of C and g_p per group."""
+            Cs = [None if fc is None else np.zeros((fc.size, fc.size)) for *_, fc in plan]
+            gs = [None if fc is None else np.zeros(fc.size) for *_, fc in plan]
+            for s in range(frames.start, frames.stop, CHUNK):
+                fr = slice(s, min(frames.stop, s + CHUNK))
+                m = fr.stop - fr.start
+                A1, B1 = A[fr].reshape(-1), B[fr].reshape(-1)  # views: the chunk is contiguous
+                for k, (g, a_pos, b_pos, Tg, fcols) in enumerate(plan):
+                    wg = wrow[fr, g.rows][:, :, None]
+                    eg = e[fr, g.rows]
+                    Jz = np.zeros((m, g.rows.size * g.zcols.size))
+                    Jz[:, g.z_dst] = jz[fr, g.z_src]
+                    Jz = Jz.reshape(m, g.rows.size, g.zcols.size) * wg
+                    JzT = Jz.transpose(0, 2, 1)
+                    np.add.at(A1, a_pos[:m * g.zcols.size**2], np.matmul(JzT, Jz).reshape(-1))
+                    gz[fr, g.zcols] += np.matmul(JzT, eg[:, :, None])[:, :, 0]
+                    if fcols is None or fcols.size == 0:
+                        continue
+                    Jp = np.zeros((m, g.rows.size * g.pcols.size))
+                    Jp[:, g.p_dst] = jp[fr, g.p_src]
+                    Jp = (Jp.reshape(m * g.rows.size, g.pcols.size) @ Tg).reshape(m, g.rows.size, -1) * wg
+                    np.add.at(B1, b_pos[:m * g.zcols.size * fcols.size], np.matmul(JzT, Jp).reshape(-1))
+                    flat = Jp.reshape(-1, fcols.size)
+                    Cs[k] += flat.T @ flat
+                    gs[k] += flat.T @ eg.reshape(-1)
+            return Cs, gs
+
+        for Cs, gs in [part(slice(0, F))]:  # (threads gain nothing here: many small, GIL-bound steps)
+            for (*_, fcols), Cg, gpg in zip(plan, Cs, gs, strict=True):
+                if fcols is not None and fcols.size:
+                    C[np.ix_(fcols, fcols)] += Cg
+                    gp[fcols] += gpg
         lim = self.limits(state.Z)
         out = lim != 0
         if out.any():
@@ -581,14 +700,14 @@ class Problem:
         if with_parameters:
             C += Jr.T @ Jr
             gp += Jr.T @ r
-        return Linearization(cost, A, B, C, gz, gp)
+        return Linearization(cost, A, B, C, gz, gp, a_pat, b_pat)
 
     def residual_vector(self, state: State) -> np.ndarray:
         """Every residual (weighted markers frame by frame, joint limits, priors) as one vector
         whose squared norm is twice the cost (linear loss)."""
         d = self._run("resid", state)[0]
         _, w = self._weights(d)
-        r, _ = self.prior(state.p, np.zeros((self.np_full, self.n_free)))
+        r, _ = self.prior(state.p, jacobian=False)
         return np.concatenate([(d * np.repeat(w, 3, axis=1)).ravel(), self.limits(state.Z).ravel(), r])
 
     def full_jacobian(self, state: State, T: np.ndarray | None = None):
@@ -638,6 +757,48 @@ class Problem:
         return e, J
 
 
+def split_frames(F: int, min_frames: int = 64) -> list[slice]:
+    """Frames 0..F-1 in one contiguous part per worker thread (a single part for few frames)."""
+    k = max(1, min(WORKERS, F // min_frames))
+    edges = np.linspace(0, F, k + 1).astype(int)
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
+def in_parallel(work, parts: list) -> list:
+    """work(part) for every part, on WORKER threads (numpy's batched kernels release the GIL)."""
+    if len(parts) == 1:
+        return [work(parts[0])]
+    with ThreadPoolExecutor(len(parts)) as pool:
+        return list(pool.map(work, parts))
+
+
+class _FrameEvaluator:
+    """Evaluates the per-frame 'pose' function (observed markers set to zero, so its residual is
+    the model markers) into preallocated memory; the Jacobian nonzeros are spread into a dense,
+    reused (3 n_markers, nz) array.  Outputs are overwritten by the next call."""
+
+    def __init__(self, f: ca.Function, p: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, int, int]):
+        rows, cols, n_rows, nz = pattern
+        self._f = f  # keep the Function alive while its buffer is used
+        self._buf, self._eval = f.buffer()
+        self._z, self._q, self._p, self._r = np.zeros(nz), np.zeros(4), p.copy(), np.zeros(n_rows)
+        self.markers = np.zeros(n_rows)
+        self._jnz = np.zeros(rows.size)
+        self.jacobian = np.zeros((n_rows, nz))
+        self._flat = rows * nz + cols
+        for i, a in enumerate((self._z, self._q, self._p, self._r)):
+            self._buf.set_arg(i, memoryview(a))
+        self._buf.set_res(0, memoryview(self.markers))
+        self._buf.set_res(1, memoryview(self._jnz))
+
+    def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._z[:] = z
+        self._q[:] = q_ref
+        self._eval()
+        self.jacobian.reshape(-1)[self._flat] = self._jnz
+        return self.markers, self.jacobian
+
+
 def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
     """(row, column) of every nonzero of a CasADi sparsity, in nonzero order (column-major)."""
     colind = np.asarray(sp.colind())
@@ -646,14 +807,19 @@ def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
     return row, col
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for 3-vectors (np.cross costs tens of microseconds per call in its axis handling)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def perpendicular_basis(a: np.ndarray) -> np.ndarray:
     """(3, 2) orthonormal columns perpendicular to unit `a` (a fixed, smooth-enough choice)."""
     k = int(np.argmin(np.abs(a)))
     e = np.zeros(3)
     e[k] = 1.0
-    u = np.cross(a, e)
-    u /= np.linalg.norm(u)
-    return np.column_stack([u, np.cross(a, u)])
+    u = _cross(a, e)
+    u /= math.sqrt(float(u @ u))
+    return np.column_stack([u, _cross(a, u)])
 
 
 def cache_dir() -> Path:
@@ -663,7 +829,8 @@ def cache_dir() -> Path:
 
 
 def _compile(funcs: list[ca.Function]) -> list[ca.Function] | None:
-    """Generate C for `funcs`, compile it once (cached by the code's hash), load it.
+    """Generate C for `funcs`, compile it once (cached under a hash of the functions' serialised
+    expression graphs, so a cached model skips code generation), load it.
 
     Returns None (the caller then keeps CasADi's virtual machine) when there is no C
     compiler or the compile fails: compiling is an optimisation, never a requirement.
@@ -671,22 +838,24 @@ def _compile(funcs: list[ca.Function]) -> list[ca.Function] | None:
     cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
     if cc is None:
         return None
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = ca.CodeGenerator("calibrate_gen.c", {"with_header": False})
-        for f in funcs:
-            cg.add(f)
-        cg.generate(tmp + os.sep)
-        code = (Path(tmp) / "calibrate_gen.c").read_bytes()
-        digest = hashlib.sha256(code + ca.__version__.encode()).hexdigest()[:20]
-        try:
-            cache = cache_dir()
-            cache.mkdir(parents=True, exist_ok=True)
-            so = cache / f"frame_{digest}.so"
-            if not so.exists():
+    h = hashlib.sha256(f"{ca.__version__} -O1 {[f.name() for f in funcs]}".encode())
+    for f in funcs:
+        h.update(f.serialize().encode())
+    digest = h.hexdigest()[:20]
+    try:
+        cache = cache_dir()
+        cache.mkdir(parents=True, exist_ok=True)
+        so = cache / f"frame_{digest}.so"
+        if not so.exists():
+            with tempfile.TemporaryDirectory() as tmp:
+                cg = ca.CodeGenerator("calibrate_gen.c", {"with_header": False})
+                for f in funcs:
+                    cg.add(f)
+                cg.generate(tmp + os.sep)
                 part = cache / f".frame_{digest}.{os.getpid()}.so"
                 subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp) / "calibrate_gen.c"), "-o", str(part)],
                                check=True, capture_output=True, timeout=600)
                 os.replace(part, so)
-            return [ca.external(f.name(), str(so)) for f in funcs]
-        except (OSError, subprocess.SubprocessError, RuntimeError):
-            return None
+        return [ca.external(f.name(), str(so)) for f in funcs]
+    except (OSError, subprocess.SubprocessError, RuntimeError):
+        return None

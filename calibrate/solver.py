@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .kinematics import retract_root
-from .problem import Linearization, Problem, State
+from .problem import Linearization, Problem, State, in_parallel, split_frames
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
 
@@ -51,6 +51,8 @@ class SolverSummary:
     linearize_seconds: float = 0.0
     linear_solver_seconds: float = 0.0
     evaluate_seconds: float = 0.0
+    coarse: SolverSummary | None = None  # the solve on a subsample of frames that preceded this one
+    coarse_frames: int = 0  # frames of that subsample
 
 
 @dataclass
@@ -62,40 +64,113 @@ class Covariance:
     prior_only: np.ndarray  # (n_free, n_free): the same with no marker data
 
 
-def _cholesky_batch(H: np.ndarray) -> np.ndarray | None:
-    try:
-        return np.linalg.cholesky(H)
-    except np.linalg.LinAlgError:
+@dataclass
+class _Elimination:
+    """The frame blocks eliminated, each in reverse coordinate order (leaves of the kinematic
+    tree first, the root last), the order in which a Cholesky factor of A_f has no fill-in
+    and Y_f = L_f⁻¹ B_f keeps the sparsity of B_f: a coordinate's row couples only with the
+    parameters of the segments below it."""
+
+    Linv: np.ndarray  # (F, nz, nz) inverse Cholesky factor of the reversed (damped) A_f
+    Y: np.ndarray  # (F, nz, n)  L⁻¹ B_f (rows reversed)
+    yz: np.ndarray  # (F, nz)    L⁻¹ g_z (rows reversed)
+    S: np.ndarray  # (n, n)      Σ_f Y_f' Y_f
+
+
+def _row_classes(lin: Linearization, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Rows of Y (reversed order) grouped by their nonzero columns: (rows, columns) per class.
+    The pattern is propagated symbolically through the factorisation, so it is exact whatever
+    the coordinate order."""
+    nz = lin.A.shape[1]
+    if lin.a_pattern is None or lin.b_pattern is None:
+        return [(np.arange(nz), np.arange(n))]
+    P = lin.a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
+    for k in range(nz):  # symbolic Cholesky: eliminating k joins its later neighbours
+        nb = k + 1 + np.flatnonzero(P[k + 1:, k])
+        P[np.ix_(nb, nb)] = True
+    Yp = lin.b_pattern[::-1].copy()
+    for i in range(nz):
+        for j in np.flatnonzero(P[i, :i]):
+            Yp[i] |= Yp[j]
+    classes: dict[bytes, list[int]] = {}
+    for i in range(nz):
+        classes.setdefault(Yp[i].tobytes(), []).append(i)
+    return [(np.array(rows), np.flatnonzero(Yp[rows[0]])) for rows in classes.values()]
+
+
+def _buffer(work: dict | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """An uninitialised array, kept in `work` and reused by later calls (large temporaries
+    allocated afresh on every step cost page faults and allocator churn)."""
+    if work is None:
+        return np.empty(shape)
+    a = work.get(name)
+    if a is None or a.shape != shape:
+        a = work[name] = np.empty(shape)
+    return a
+
+
+def _eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = True,
+               work: dict | None = None) -> _Elimination | None:
+    """Cholesky of every A_f + diag(damping_f) and the frames' share of the Schur complement;
+    None if a block is not positive definite.  The frames are split between the cores (numpy
+    releases the GIL in these batched kernels).  `work`: buffers to reuse between calls."""
+    F, nz, n = lin.B.shape
+    n = n if with_parameters else 0
+    Linv = _buffer(work, "Linv", (F, nz, nz))
+    yz = _buffer(work, "yz", (F, nz))
+    Y = _buffer(work, "Y", (F, nz, n))
+    classes = _row_classes(lin, n) if n else []
+    eye = np.eye(nz)[None]
+
+    def part(fr: slice) -> np.ndarray | None:
+        Hz = lin.A[fr, ::-1, ::-1] + damping[fr, ::-1, None] * eye
+        try:
+            L = np.linalg.cholesky(Hz)
+        except np.linalg.LinAlgError:
+            return None
+        Linv[fr] = np.linalg.inv(L)
+        yz[fr] = np.matmul(Linv[fr], lin.gz[fr, ::-1, None])[:, :, 0]  # L⁻¹ J g_z
+        S = np.zeros((n, n))
+        if n == 0:
+            return S
+        np.matmul(np.ascontiguousarray(Linv[fr, :, ::-1]), lin.B[fr], out=Y[fr])  # L⁻¹ J B, B not copied
+        for rows, cols in classes:
+            if cols.size == 0:
+                continue
+            if rows[-1] - rows[0] + 1 == rows.size:  # consecutive rows (a joint's coordinates): a view
+                M = np.take(Y[fr, rows[0]:rows[-1] + 1], cols, axis=2)
+            else:
+                M = np.take(Y[fr][:, rows], cols, axis=2)
+            M = M.reshape(-1, cols.size)
+            S[np.ix_(cols, cols)] += M.T @ M
+        return S
+
+    results = in_parallel(part, split_frames(F))
+    if any(r is None for r in results):
         return None
+    return _Elimination(Linv, Y, yz, sum(results[1:], results[0]))
 
 
-def _solve_lower(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Batched L⁻¹ b via the inverse of L (small blocks; numpy has no batched triangular solve)."""
-    return np.matmul(np.linalg.inv(L), b)
-
-
-def solve_step(lin: Linearization, lam: float, Dz: np.ndarray,
-               pose_only: bool = False, N: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool = False,
+               N: np.ndarray | None = None, work: dict | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """The LM step (dz (F, nz), dp (n,)) for damping `lam`, with dp restricted to the columns of
-    `N` (gauge constraints) if given; None if a block is not positive definite."""
-    Hz = lin.A + lam * Dz[:, :, None] * np.eye(Dz.shape[1])[None]
-    L = _cholesky_batch(Hz)
-    if L is None:
+    `N` (gauge constraints) if given; None if a block is not positive definite.  `work`: buffers
+    reused from step to step."""
+    el = _eliminate(lin, lam * Dz, with_parameters=not pose_only, work=work)
+    if el is None:
         return None
-    Linv = np.linalg.inv(L)
-    yz = np.matmul(Linv, lin.gz[:, :, None])[:, :, 0]  # L⁻¹ g_z
+    LinvT = np.swapaxes(el.Linv, 1, 2)
     if pose_only or lin.C.size == 0:
-        dz = -np.matmul(np.swapaxes(Linv, 1, 2), yz[:, :, None])[:, :, 0]
-        return dz, np.zeros(0)
-    Y = np.matmul(Linv, lin.B)  # (F, nz, n)
-    F, nz, n = Y.shape
-    Yf = Y.reshape(F * nz, n)
-    S = lin.C - Yf.T @ Yf
+        dz = -np.matmul(LinvT, el.yz[:, :, None])[:, :, 0]
+        return dz[:, ::-1], np.zeros(0)
+    F, nz, n = el.Y.shape
+    Yf = el.Y.reshape(F * nz, n)
+    S = lin.C - el.S
     # Marquardt scaling on the reduced system: damp each parameter by its own curvature once the
     # frames are eliminated (diag S), not by diag C, which counts curvature the poses explain away.
     dS = np.diag(S)
     S = S + np.diag(lam * np.maximum(dS, DIAG_FLOOR * max(1.0, float(dS.max(initial=0.0)))))
-    rhs = -lin.gp + Yf.T @ yz.reshape(-1)
+    rhs = -lin.gp + Yf.T @ el.yz.reshape(-1)
     if N is not None:
         S, rhs = N.T @ S @ N, N.T @ rhs
     try:
@@ -105,9 +180,9 @@ def solve_step(lin: Linearization, lam: float, Dz: np.ndarray,
     dp = np.linalg.solve(Ls.T, np.linalg.solve(Ls, rhs))
     if N is not None:
         dp = N @ dp
-    t = yz + np.matmul(Y, dp)  # L⁻¹ (g_z + B dp)
-    dz = -np.matmul(np.swapaxes(Linv, 1, 2), t[:, :, None])[:, :, 0]
-    return dz, dp
+    t = el.yz + np.matmul(el.Y, dp)  # L⁻¹ (g_z + B dp), reversed rows
+    dz = -np.matmul(LinvT, t[:, :, None])[:, :, 0]
+    return dz[:, ::-1], dp
 
 
 def retract(problem: Problem, state: State, dz: np.ndarray, dp: np.ndarray) -> State:
@@ -157,6 +232,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
     summary.initial_cost = cost
     summary.cost_history.append(cost)
     lam, nu = 1e-4, 2.0
+    work: dict = {}  # buffers shared by every step of this run
     N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
     x_norm = lambda s: float(np.sqrt(np.sum(s.Z**2) + np.sum(s.p**2)))  # noqa: E731
     termination, converged = "", False
@@ -171,7 +247,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
         summary.iterations += 1
         Dz = np.maximum(np.diagonal(lin.A, axis1=1, axis2=2), DIAG_FLOOR * max(1.0, float(lin.A.max(initial=0.0))))
         t0 = time.perf_counter()
-        step = solve_step(lin, lam, Dz, pose_only, N)
+        step = solve_step(lin, lam, Dz, pose_only, N, work)
         summary.linear_solver_seconds += time.perf_counter() - t0
         if step is None:
             lam, nu = lam * nu, nu * 2
@@ -207,7 +283,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
                 termination, converged = f"step {step_norm:.2e} below xtol {st.xtol:.0e}", True
                 break
             t0 = time.perf_counter()
-            lin = problem.linearize(state, with_parameters=not pose_only)
+            lin = problem.linearize(state, with_parameters=not pose_only, reuse=lin)
             summary.linearize_seconds += time.perf_counter() - t0
             N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
         else:
@@ -235,11 +311,10 @@ def covariance(problem: Problem, state: State, lin: Linearization | None = None)
     lin = lin or problem.linearize(state)
     Dz = np.diagonal(lin.A, axis1=1, axis2=2)
     eps = 1e-12 * max(1.0, float(Dz.max(initial=0.0)))
-    Hz = lin.A + eps * np.eye(lin.A.shape[1])[None]
-    Linv = np.linalg.inv(np.linalg.cholesky(Hz))
-    Y = np.matmul(Linv, lin.B)
-    Yf = Y.reshape(-1, Y.shape[2])
-    S = lin.C - Yf.T @ Yf
+    el = _eliminate(lin, np.full(Dz.shape, eps))
+    if el is None:
+        raise np.linalg.LinAlgError("covariance: a frame's normal matrix is not positive definite")
+    S = lin.C - el.S
     S = 0.5 * (S + S.T)
     _, Jr = problem.prior(state.p)
     P = Jr.T @ Jr
