@@ -80,7 +80,7 @@ class Calibration:
     params: Parameters  # the subject's geometric parameters
     motion: Motion  # coordinates of every frame
     residuals: np.ndarray  # (F, n_model_markers, 3) model − trial markers (m); NaN where not seen
-    initial_residuals: np.ndarray  # the same with the base model (frame-wise IK on the key frames' start)
+    initial_residuals: np.ndarray  # the same at the start: seeded geometry, key-frame inverse kinematics
     summary: SolverSummary
     seed: Seed
     changes: list[ParameterChange]
@@ -378,18 +378,16 @@ def _calibrate(model: Model, trial: Trial, settings: Settings, kinematics: Kinem
     coarse = coarse_frames(seen, COARSE_FRAMES)
     t0 = time.perf_counter()
     say("start: frame-wise inverse kinematics")
-    start = start_poses(kin, obs[coarse], params0, stride=max(1, round(STRIDE * coarse.size / problem.F)),
-                        evaluator=problem.frame_evaluator(params0.vector()))
+    start = start_poses(kin, obs, params0, evaluator=problem.frame_evaluator(params0.vector()))
     times["start"] = time.perf_counter() - t0
-    initial = np.full(obs.shape, np.nan)
+    initial = problem.marker_residuals(start)
     sub = problem if coarse.size == problem.F else problem.subset(coarse)
-    initial[coarse] = sub.marker_residuals(start)
     t0 = time.perf_counter()
-    state, coarse_summary = _solve_geometry(sub, start, settings, say)
+    state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings, say)
     if sub is not problem:
         # The geometry's basin is found on the subsample; every frame then joins for the last steps.
         say(f"solve: all {problem.F} frames")
-        state = spread_poses(state, coarse, problem.F)
+        state = spread_poses(state, coarse, start)
         state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
         state, summary = levenberg_marquardt(
             problem, state,
@@ -423,20 +421,26 @@ def coarse_frames(seen: np.ndarray, target: int = COARSE_FRAMES) -> np.ndarray:
     return idx if idx[-1] == usable[-1] else np.append(idx, usable[-1])
 
 
-def spread_poses(state: State, frames: np.ndarray, F: int) -> State:
-    """Poses solved on `frames` carried to all F frames: angles and root position interpolated,
-    root rotation slerped (held constant beyond the ends)."""
+def spread_poses(solved: State, frames: np.ndarray, start: State) -> State:
+    """Poses solved on `frames` carried to every frame of `start` (the key-frame start): what the
+    solve changed (angles and root position added, root rotation composed) is interpolated
+    between the solved frames (slerp for the rotation, held beyond the ends) and applied to the
+    start, whose key frames follow the motion closely even where the solved frames are far apart."""
+    F = start.Z.shape[0]
     if frames.size == F:
-        return state
+        return solved
     every = np.arange(F)
-    Z = np.column_stack([np.interp(every, frames, state.Z[:, c]) for c in range(state.Z.shape[1])])
+    change = solved.Z - start.Z[frames]
+    Z = start.Z + np.column_stack([np.interp(every, frames, change[:, c]) for c in range(change.shape[1])])
+    turn = Rotation.from_quat(solved.Q) * Rotation.from_quat(start.Q[frames]).inv()
     if frames.size == 1:
-        Q = np.tile(state.Q[0], (F, 1))
+        turns = Rotation.from_quat(np.tile(turn.as_quat()[0], (F, 1)))
     else:
-        Q = Slerp(frames, Rotation.from_quat(state.Q))(np.clip(every, frames[0], frames[-1])).as_quat()
+        turns = Slerp(frames, turn)(np.clip(every, frames[0], frames[-1]))
+    Q = (turns * Rotation.from_quat(start.Q)).as_quat()
     Q = np.where(Q[:, 3:4] < 0, -Q, Q)
     Z[:, 3:6] = 0.0
-    return State(Z, Q, state.p.copy())
+    return State(Z, Q, solved.p.copy())
 
 
 def _solve_geometry(problem: Problem, state: State, settings: Settings,

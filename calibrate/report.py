@@ -71,7 +71,11 @@ def calibration_report(cal) -> dict:
         "solver": {"iterations": s.iterations, "accepted_steps": s.accepted, "initial_cost": s.initial_cost,
                    "final_cost": s.final_cost, "cost_history": list(s.cost_history),
                    "termination": s.termination, "converged": s.converged,
-                   "linearize_s": s.linearize_seconds, "linear_solver_s": s.linear_solver_seconds},
+                   "linearize_s": s.linearize_seconds, "linear_solver_s": s.linear_solver_seconds,
+                   "coarse": None if s.coarse is None else {
+                       "frames": s.coarse_frames, "iterations": s.coarse.iterations,
+                       "initial_cost": s.coarse.initial_cost, "final_cost": s.coarse.final_cost,
+                       "cost_history": list(s.coarse.cost_history), "termination": s.coarse.termination}},
         "seed": {"notes": list(cal.seed.notes),
                  "joints": {j.name: {"method": j.method, "ok": j.ok} for j in cal.seed.joints}
                  if cal.seed.joints is not None else {}},
@@ -105,7 +109,10 @@ def summary_text(cal) -> str:
         f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
         f"  {'cost':22s}{s.initial_cost:12.4e}{s.final_cost:12.4e}",
         "",
-        f"  iterations   {s.iterations} ({s.accepted} accepted)",
+        *([f"  coarse solve {s.coarse_frames} evenly spaced frames: {s.coarse.iterations} iterations, cost "
+            f"{s.coarse.initial_cost:.4e} -> {s.coarse.final_cost:.4e} ({s.coarse.termination})"]
+          if s.coarse is not None else []),
+        f"  iterations   {s.iterations} ({s.accepted} accepted){' on all frames' if s.coarse is not None else ''}",
         f"  termination  {'CONVERGED' if s.converged else 'NOT CONVERGED'}: {s.termination}",
         "  time (s)     " + "  ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
         + f"  total {sum(cal.times.values()):.2f}",

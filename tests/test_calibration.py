@@ -109,7 +109,9 @@ def test_noise_free_recovers_the_subject(noise_free):
     sim, cal = noise_free
     cmp = compare_to_truth(cal, sim, floor=0.0)
     assert cal.converged, cal.summary.termination
-    assert cal.marker_rms < 1e-5  # 1000 frames: see docs/benchmarks.md
+    # 300 frames: the solve stops (χ² change < 1) while still creeping along the feet's unidentified
+    # hinge axes, a few hundredths of a millimetre from an exact fit; 1000 frames: docs/benchmarks.md.
+    assert cal.marker_rms < 2e-5
     for j in SOLID_BALLS:
         assert cmp.centre_error[j] < 1e-4, j
     for j in SOLID_HINGES:
