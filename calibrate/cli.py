@@ -334,7 +334,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ax = f"{cmp.axis_error_deg[name]:15.2f}" if name in cmp.axis_error_deg else f"{'':15s}"
         print(f"  {name:14s} {cmp.kinds[name]:9s} {1000 * err:16.2f} {ax}")
     print("  (hinge centre error: distance from the true axis line; medians over frames)")
-    print(f"  marker RMS   base model (start) {1000 * _rms(cal.initial_residuals):.2f} mm -> calibrated "
+    print(f"  marker RMS   start (seeded geometry) {1000 * _rms(cal.initial_residuals):.2f} mm -> calibrated "
           f"{1000 * cmp.marker_rms:.3f} mm; true model refitted (noise floor) {1000 * cmp.floor_rms:.3f} mm")
     print(f"  joint angles RMS vs truth {cmp.angle_rms_deg:.2f} deg ({cmp.angle_rms_offset_free_deg:.2f} deg "
           f"without each DoF's constant offset)")
