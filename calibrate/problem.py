@@ -654,39 +654,35 @@ class Problem:
             else:
                 plan.append((g, a_pos, None, None, None))
 
-        def part(frames: slice) -> tuple[list[np.ndarray | None], list[np.ndarray | None]]:
-            """A, B, g_z of these frames; their share of C and g_p per group."""
-            Cs = [None if fc is None else np.zeros((fc.size, fc.size)) for *_, fc in plan]
-            gs = [None if fc is None else np.zeros(fc.size) for *_, fc in plan]
-            for s in range(frames.start, frames.stop, CHUNK):
-                fr = slice(s, min(frames.stop, s + CHUNK))
-                m = fr.stop - fr.start
-                A1, B1 = A[fr].reshape(-1), B[fr].reshape(-1)  # views: the chunk is contiguous
-                for k, (g, a_pos, b_pos, Tg, fcols) in enumerate(plan):
-                    wg = wrow[fr, g.rows][:, :, None]
-                    eg = e[fr, g.rows]
-                    Jz = np.zeros((m, g.rows.size * g.zcols.size))
-                    Jz[:, g.z_dst] = jz[fr, g.z_src]
-                    Jz = Jz.reshape(m, g.rows.size, g.zcols.size) * wg
-                    JzT = Jz.transpose(0, 2, 1)
-                    np.add.at(A1, a_pos[:m * g.zcols.size**2], np.matmul(JzT, Jz).reshape(-1))
-                    gz[fr, g.zcols] += np.matmul(JzT, eg[:, :, None])[:, :, 0]
-                    if fcols is None or fcols.size == 0:
-                        continue
-                    Jp = np.zeros((m, g.rows.size * g.pcols.size))
-                    Jp[:, g.p_dst] = jp[fr, g.p_src]
-                    Jp = (Jp.reshape(m * g.rows.size, g.pcols.size) @ Tg).reshape(m, g.rows.size, -1) * wg
-                    np.add.at(B1, b_pos[:m * g.zcols.size * fcols.size], np.matmul(JzT, Jp).reshape(-1))
-                    flat = Jp.reshape(-1, fcols.size)
-                    Cs[k] += flat.T @ flat
-                    gs[k] += flat.T @ eg.reshape(-1)
-            return Cs, gs
-
-        for Cs, gs in [part(slice(0, F))]:  # (threads gain nothing here: many small, GIL-bound steps)
-            for (*_, fcols), Cg, gpg in zip(plan, Cs, gs, strict=True):
-                if fcols is not None and fcols.size:
-                    C[np.ix_(fcols, fcols)] += Cg
-                    gp[fcols] += gpg
+        # (Threads gain nothing here: many small, GIL-bound numpy calls.)
+        Cs = [None if fc is None else np.zeros((fc.size, fc.size)) for *_, fc in plan]
+        gs = [None if fc is None else np.zeros(fc.size) for *_, fc in plan]
+        for s in range(0, F, CHUNK):
+            fr = slice(s, min(F, s + CHUNK))
+            m = fr.stop - fr.start
+            A1, B1 = A[fr].reshape(-1), B[fr].reshape(-1)  # views: the chunk is contiguous
+            for k, (g, a_pos, b_pos, Tg, fcols) in enumerate(plan):
+                wg = wrow[fr, g.rows][:, :, None]
+                eg = e[fr, g.rows]
+                Jz = np.zeros((m, g.rows.size * g.zcols.size))
+                Jz[:, g.z_dst] = jz[fr, g.z_src]
+                Jz = Jz.reshape(m, g.rows.size, g.zcols.size) * wg
+                JzT = Jz.transpose(0, 2, 1)
+                np.add.at(A1, a_pos[:m * g.zcols.size**2], np.matmul(JzT, Jz).reshape(-1))
+                gz[fr, g.zcols] += np.matmul(JzT, eg[:, :, None])[:, :, 0]
+                if fcols is None or fcols.size == 0:
+                    continue
+                Jp = np.zeros((m, g.rows.size * g.pcols.size))
+                Jp[:, g.p_dst] = jp[fr, g.p_src]
+                Jp = (Jp.reshape(m * g.rows.size, g.pcols.size) @ Tg).reshape(m, g.rows.size, -1) * wg
+                np.add.at(B1, b_pos[:m * g.zcols.size * fcols.size], np.matmul(JzT, Jp).reshape(-1))
+                flat = Jp.reshape(-1, fcols.size)
+                Cs[k] += flat.T @ flat
+                gs[k] += flat.T @ eg.reshape(-1)
+        for (*_, fcols), Cg, gpg in zip(plan, Cs, gs, strict=True):
+            if fcols is not None and fcols.size:
+                C[np.ix_(fcols, fcols)] += Cg
+                gp[fcols] += gpg
         lim = self.limits(state.Z)
         out = lim != 0
         if out.any():
