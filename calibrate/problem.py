@@ -407,7 +407,7 @@ class Problem:
         for ji in self._slides if slides else []:
             j = m.joints[ji]
             d = m.dof_index(j.dofs[0])
-            u = next(u for u in m.urdf_joints if u.name == j.urdf_joints[0])
+            u = self._urdf[j.urdf_joints[0]]
             a = u.rotation @ self._axis(p, d)
             sl = o["centre"] + 3 * ji
             r = np.zeros(self.n_free)
