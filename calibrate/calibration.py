@@ -17,19 +17,20 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 from threadpoolctl import threadpool_limits
 
+from .association import associate_to_model, distance_variance
 from .errors import CalibrateError
 from .geometry import kabsch_batch
 from .ik import _FrameSolver, marker_columns
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 from .kinematics import Kinematics, build_kinematics
-from .model import Model, Parameters
+from .model import Model, Parameters, add_markers
 from .motion import Motion
 from .problem import Problem, Settings, State, perpendicular_basis
 from .solver import SolverSummary, covariance, levenberg_marquardt
@@ -43,6 +44,7 @@ IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction):
 STRIDE = 10  # key-frame spacing of the start (frames of the trial)
 COARSE_FRAMES = 200  # the geometry's basin is found on about this many evenly spaced frames first
 SEED_FRAMES = 400  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
+OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
 SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
 
 
@@ -70,24 +72,66 @@ class ParameterChange:
     prior_ratio: float = float("nan")  # worst-direction posterior std / prior-only std (0: data alone, 1: prior alone)
 
 
+@dataclass(frozen=True)
+class NewMarker:
+    """A trial marker the base model does not know, and where calibration put it."""
+
+    label: str
+    segment: str | None  # None: it rides on no segment (left out)
+    position: np.ndarray | None  # (3,) m in the segment frame at the start (subject scale); None if left out
+    reason: str  # why this segment (or why none)
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """One marker position left out of the fit: too far from where the fitted model puts it."""
+
+    trial: int  # index into Calibration.trials
+    frame: int  # frame of that trial (0-based)
+    marker: str
+    error: float  # m, when it was rejected
+
+
 @dataclass
 class Calibration:
-    """Everything `calibrate` found.  Units: metres, radians, seconds."""
+    """Everything `calibrate` found.  Units: metres, radians, seconds.
 
-    model: Model
-    trial: Trial
+    Several trials share `params`; each has its own motion (`motions`, in trial order), and
+    `residuals` stacks their frames in that order (`trial_frames(i)` is trial i's slice).
+    """
+
+    model: Model  # the subject model's structure: the base model plus any new markers
+    trials: tuple[Trial, ...]
     settings: Settings
     params: Parameters  # the subject's geometric parameters
-    motion: Motion  # coordinates of every frame
+    motions: tuple[Motion, ...]  # coordinates of every frame, per trial
     residuals: np.ndarray  # (F, n_model_markers, 3) model − trial markers (m); NaN where not seen
     initial_residuals: np.ndarray  # the same at the start: seeded geometry, key-frame inverse kinematics
     summary: SolverSummary
     seed: Seed
     changes: list[ParameterChange]
     times: dict[str, float] = field(default_factory=dict)  # stage -> seconds
-    ignored_labels: tuple[str, ...] = ()  # trial labels the model does not know
-    unused_markers: tuple[str, ...] = ()  # model markers the trial never shows
+    ignored_labels: tuple[str, ...] = ()  # trial labels left out (unknown to the model and on no segment)
+    unused_markers: tuple[str, ...] = ()  # model markers the trials never show
     compiled: bool = False
+    base_model: Model | None = None  # the model calibrated (without the new markers)
+    new_markers: tuple[NewMarker, ...] = ()  # trial markers the base model did not know
+    outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
+    label_maps: tuple = ()  # per trial: calibrate.labels.LabelMapping (trial label -> model label), if mapped
+
+    @property
+    def trial(self) -> Trial:
+        """The first (or only) trial."""
+        return self.trials[0]
+
+    @property
+    def motion(self) -> Motion:
+        """The first (or only) trial's motion; see `motions` for several trials."""
+        return self.motions[0]
+
+    def trial_frames(self, i: int) -> slice:
+        """Rows of `residuals` that belong to trial i."""
+        return _spans(self.trials)[i]
 
     @property
     def marker_rms(self) -> float:
@@ -144,7 +188,8 @@ def _rms(res: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------- seed
-def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None) -> Seed:
+def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None,
+                    extra_markers: Mapping[str, str] | None = None) -> Seed:
     """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
 
     * scale of a segment: the median over frames of the distances between its estimated joint
@@ -155,6 +200,9 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     * a joint centre: its trajectory carried into the parent segment's frame and averaged;
       a hinge axis likewise.  A joint whose estimate failed, or lands further than
       SEED_MAX_SHIFT from the scaled base model, keeps the base model's (and the note says so).
+
+    `extra_markers` (trial label -> segment) adds markers the model does not know to the MTB
+    estimate of the joint centres (they are placed on their segments later, in `calibrate`).
     """
     t0 = time.perf_counter()
     notes: list[str] = []
@@ -163,7 +211,7 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
         cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
         trial = thinned
         try:
-            joints = estimate_model_joints(model, trial, cutoff_hz=cutoff)
+            joints = estimate_model_joints(model, trial, cutoff_hz=cutoff, extra_markers=extra_markers)
         except (ValueError, CalibrateError) as e:
             notes.append(f"joint-centre seed unavailable ({e}); starting from the base model")
             return Seed(model.parameters(), tuple(notes), None, time.perf_counter() - t0)
@@ -322,92 +370,284 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
 
 
 # ---------------------------------------------------------------------- calibrate
-def calibrate(model: Model, trial: Trial, settings: Settings | None = None, *,
+def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings | None = None, *,
+              marker_map: Mapping[str, Sequence[str]] | None = None, aliases: bool = True,
               kinematics: Kinematics | None = None,
               progress: Callable[[str], None] | None = None) -> Calibration:
-    """Calibrate `model` to `trial`: the subject's scales, joint centres, hinge axes and marker
-    positions, and every frame's coordinates, in one least-squares problem (module docstring).
+    """Calibrate `model` to one trial or several trials of one subject: the subject's scales, joint
+    centres, hinge axes and marker positions (shared by every trial), and every frame's
+    coordinates, in one least-squares problem (module docstring).
 
-    Trial labels the model does not know are ignored (listed in ``ignored_labels``).  Raises
-    CalibrateError with one line if the trial and model share too few markers or frames.
+    Trial labels are first renamed to the model's: by `marker_map` (model label -> trial labels,
+    calibrate.labels.load_marker_map) and, with `aliases`, the common spellings of the same
+    landmarks (R.ASIS, RASIS -> RASI; calibrate.labels).  Labels the model still does not know are
+    placed on segments by rigidity and fitted like the model's markers (``Settings.new_markers``);
+    those that fit no segment are left out and listed.
+    Raises CalibrateError with one line if the trials and model share too few markers or frames.
     """
+    trials = (trials,) if isinstance(trials, Trial) else tuple(trials)
+    if not trials:
+        raise CalibrateError("no trial given; pass at least one Trial")
+    for t in trials:
+        if not isinstance(t, Trial):
+            raise CalibrateError(f"expected Trial objects (calibrate.read_trial), got {type(t).__name__}")
     # The linear algebra here is many small blocks plus one Schur complement: one BLAS thread is
     # faster than several (which also fight CasADi's two evaluation threads for the cores).
+    label_maps: tuple = ()
+    if marker_map or aliases:
+        from .labels import map_labels
+
+        mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
+        trials = tuple(t for t, _ in mapped)
+        label_maps = tuple(m for _, m in mapped)
     with threadpool_limits(limits=1, user_api="blas"):
-        return _calibrate(model, trial, settings or Settings(), kinematics, progress)
+        cal = _calibrate(model, trials, settings or Settings(), kinematics, progress)
+    cal.label_maps = label_maps
+    return cal
 
 
-def _calibrate(model: Model, trial: Trial, settings: Settings, kinematics: Kinematics | None,
+def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,
                progress: Callable[[str], None] | None) -> Calibration:
     say = progress or (lambda msg: None)
     times: dict[str, float] = {}
-    where = trial.source or "trial"
-    known = set(model.marker_names)
-    ignored = tuple(lab for lab in trial.labels if lab not in known)
-    shared = [lab for lab in model.marker_names if lab in set(trial.labels)]
+    where = ", ".join(t.source or "trial" for t in trials)
     if len(model.markers) == 0:
         raise CalibrateError(f"{model.path}: the model has no markers; add marker links (see docs/model-format.md)")
+    known = set(model.marker_names)
+    labels = list(dict.fromkeys(lab for t in trials for lab in t.labels))  # first trial's order first
+    shared = [lab for lab in model.marker_names if lab in set(labels)]
     if len(shared) < 3:
         raise CalibrateError(f"{where}: only {len(shared)} of its labels match markers of {model.path.name} "
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
-                             f"or use a model with this marker set")
-    obs = marker_columns(model, trial)
+                             f"(--markers map.toml) or use a model with this marker set")
+    t0 = time.perf_counter()
+    unknown = [lab for lab in labels if lab not in known]
+    placed: list[NewMarker] = []
+    if unknown and settings.new_markers:
+        say(f"markers: placing {len(unknown)} trial markers the model does not know")
+        placed = _assign_new_markers(model, trials, unknown)
+    new = {m.label: m.segment for m in placed if m.segment is not None}
+    ignored = tuple(lab for lab in unknown if lab not in new)
+    subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
+    obs = np.concatenate([marker_columns(subject, t) for t in trials])
+    spans = _spans(trials)
     seen = np.all(np.isfinite(obs), axis=2)
-    unused = tuple(n for k, n in enumerate(model.marker_names) if not seen[:, k].any())
+    unused = tuple(n for k, n in enumerate(subject.marker_names) if not seen[:, k].any() and n in known)
     n_good = int(np.sum(seen.sum(1) >= 3))
     if n_good < MIN_FRAMES:
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
-    t0 = time.perf_counter()
-    kin = kinematics or build_kinematics(model)
     if settings.seed:
         say("seed: joint centres (MTB)")
-        seed = seed_parameters(model, trial)
+        pick = _most_motion(model, trials)
+        seed = seed_parameters(model, trials[pick], extra_markers=new)
+        if len(trials) > 1:
+            seed = Seed(seed.params, (f"seeded from {trials[pick].source or f'trial {pick + 1}'} (the trial with "
+                                      f"the most joint motion)", *seed.notes), seed.joints, seed.seconds)
     else:
         seed = Seed(model.parameters(), ("seed switched off; starting from the base model",), None, 0.0)
     if "scale" not in settings.free:
         seed = Seed(Parameters(np.ones_like(seed.params.scale), *(getattr(seed.params, b) for b in ("centre", "axis",
                                                                                                      "marker"))),
                     seed.notes, seed.joints, seed.seconds)
-    params0 = _fixed_groups(model.parameters(), seed.params, settings.free)
+    params0 = _on_model(subject, model, _fixed_groups(model.parameters(), seed.params, settings.free))
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say("build: residuals and Jacobian (CasADi)")
-    problem = Problem(model, obs, settings, kin)
+    kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
+    problem = Problem(subject, obs, settings, kin)
     times["build"] = time.perf_counter() - t0
-    coarse = coarse_frames(seen, COARSE_FRAMES)
     t0 = time.perf_counter()
     say("start: frame-wise inverse kinematics")
-    start = start_poses(kin, obs, params0, evaluator=problem.frame_evaluator(params0.vector()))
+    is_new = np.array([n in new for n in subject.marker_names])
+    known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
+    evaluator = problem.frame_evaluator(params0.vector())
+    start = _stack_states([start_poses(kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
+    if new:
+        params0, base, placed = _place_new_markers(subject, kin, start, obs, params0, placed)
+        problem.base = base
+        start = State(start.Z, start.Q, params0.vector())
     times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
-    sub = problem if coarse.size == problem.F else problem.subset(coarse)
     t0 = time.perf_counter()
-    state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings, say)
-    if sub is not problem:
-        # The geometry's basin is found on the subsample; every frame then joins for the last steps.
-        say(f"solve: all {problem.F} frames")
-        state = spread_poses(state, coarse, start)
-        state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
-        state, summary = levenberg_marquardt(
-            problem, state,
-            progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
-        summary.coarse = coarse_summary
-        summary.coarse_frames = int(coarse.size)
-    else:
-        summary = coarse_summary
+    state, summary = _solve(problem, start, spans, settings, say)
+    rejected: list[Outlier] = []
+    if settings.outliers > 0:
+        # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
+        # worst marker of each frame, re-solve those poses, and look again.
+        for _ in range(OUTLIER_ROUNDS):
+            bad, err = _outliers(problem, state, settings)
+            if not bad.any():
+                break
+            worst = np.where(bad, err, -1.0).argmax(axis=1)
+            frames = np.flatnonzero(bad.any(axis=1))
+            bad = np.zeros_like(bad)
+            bad[frames, worst[frames]] = True
+            for f, k in zip(frames, worst[frames], strict=True):
+                i = next(i for i, sl in enumerate(spans) if sl.start <= f < sl.stop)
+                rejected.append(Outlier(i, int(f - spans[i].start), subject.marker_names[k], float(err[f, k])))
+            say(f"solve: {frames.size} marker positions rejected as outliers")
+            problem.drop(bad)
+            state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
+        if rejected:
+            say("solve: again without the outliers")
+            state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+            summary = _merge(summary, again)
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     lin = problem.linearize(state)
     cov = covariance(problem, state, lin)
-    params = model.unpack(state.p)
+    params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     times["covariance"] = time.perf_counter() - t0
     residuals = problem.marker_residuals(state)
-    motion = Motion(trial.times.copy(), state.Z[:, :3].copy(), state.Q.copy(), state.Z[:, 6:].copy(),
-                    model.dof_names)
-    return Calibration(model, trial, settings, params, motion, residuals, initial, summary, seed, changes,
-                       times, ignored, unused, problem.compiled)
+    motions = tuple(Motion(t.times.copy(), state.Z[sl, :3].copy(), state.Q[sl].copy(), state.Z[sl, 6:].copy(),
+                           subject.dof_names) for t, sl in zip(trials, spans, strict=True))
+    return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
+                       times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
+                       outliers=tuple(rejected))
+
+
+def _spans(trials: Sequence[Trial]) -> list[slice]:
+    """Each trial's frames in the stacked problem."""
+    out, at = [], 0
+    for t in trials:
+        out.append(slice(at, at + t.n_frames))
+        at += t.n_frames
+    return out
+
+
+def _stack_states(states: Sequence[State]) -> State:
+    return State(np.concatenate([s.Z for s in states]), np.concatenate([s.Q for s in states]), states[0].p.copy())
+
+
+def _solve(problem: Problem, start: State, spans: list[slice], settings: Settings,
+           say: Callable[[str], None]) -> tuple[State, SolverSummary]:
+    """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
+    the trials by their length), then every frame."""
+    seen = problem.seen
+    coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
+                                                                           / problem.F))) for sl in spans])
+    sub = problem if coarse.size == problem.F else problem.subset(coarse)
+    state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings, say)
+    if sub is problem:
+        return state, coarse_summary
+    # The geometry's basin is found on the subsample; every frame then joins for the last steps.
+    say(f"solve: all {problem.F} frames")
+    parts = []
+    for sl in spans:
+        mine = np.flatnonzero((coarse >= sl.start) & (coarse < sl.stop))
+        solved = State(state.Z[mine], state.Q[mine], state.p)
+        here = State(start.Z[sl], start.Q[sl], start.p)
+        parts.append(spread_poses(solved, coarse[mine] - sl.start, here))
+    state = State(np.concatenate([s.Z for s in parts]), np.concatenate([s.Q for s in parts]), state.p.copy())
+    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
+    state, summary = levenberg_marquardt(
+        problem, state,
+        progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+    summary.coarse = coarse_summary
+    summary.coarse_frames = int(coarse.size)
+    return state, summary
+
+
+def _outliers(problem: Problem, state: State, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs, the noise SD
+    being the larger of the set one and the one the fit shows (median error / 1.538, a 3-D Gaussian's)."""
+    err = np.linalg.norm(problem.marker_residuals(state), axis=2)
+    ok = np.isfinite(err)
+    if not ok.any():
+        return np.zeros_like(ok), err
+    sigma = max(settings.noise, float(np.median(err[ok])) / 1.538)
+    return ok & (err > settings.outliers * sigma), err
+
+
+def _most_motion(model: Model, trials: Sequence[Trial]) -> int:
+    """The trial whose markers on different segments move most relative to each other (a static
+    trial's barely do): the one the joint-centre seed can use."""
+    if len(trials) == 1:
+        return 0
+    seg = {m.name: m.segment for m in model.markers}
+    best, pick = -1.0, 0
+    for i, t in enumerate(trials):
+        labs = [lab for lab in t.labels if lab in seg]
+        X = t.select(labs).markers[:: max(1, t.n_frames // 200)]
+        D = distance_variance(X, min_frames=3)
+        other = np.array([[seg[a] != seg[b] for b in labs] for a in labs])
+        vals = np.sqrt(D[other & np.isfinite(D)])
+        amount = float(np.median(vals)) if vals.size else 0.0
+        if amount > best:
+            best, pick = amount, i
+    return pick
+
+
+def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str]) -> list[NewMarker]:
+    """Segments for the trial markers the model does not know (seed 002's rigidity, against the
+    model's known markers: calibrate.association.associate_to_model over all trials' frames)."""
+    labels = [m for m in model.marker_names] + unknown
+    parts = []
+    for t in trials:
+        cols = np.full((t.n_frames, len(labels), 3), np.nan)
+        index = {lab: i for i, lab in enumerate(t.labels)}
+        for k, lab in enumerate(labels):
+            if lab in index:
+                cols[:, k] = t.markers[:, index[lab]]
+        parts.append(cols)
+    stacked = Trial(tuple(labels), np.concatenate(parts), trials[0].rate)
+    assoc = associate_to_model(model, stacked)
+    out = []
+    for lab in unknown:
+        a = assoc[lab]
+        out.append(NewMarker(lab, a.segment, None, a.reason))
+    return out
+
+
+def _on_model(subject: Model, model: Model, params: Parameters) -> Parameters:
+    """`params` of `model` on `subject` (the model with new markers, zero offsets for those)."""
+    if subject is model:
+        return params
+    marker = np.zeros((len(subject.markers), 3))
+    for k, name in enumerate(subject.marker_names):
+        if name in model.marker_names:
+            marker[k] = params.marker[model.marker_index(name)]
+    return Parameters(params.scale.copy(), params.centre.copy(), params.axis.copy(), marker)
+
+
+def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
+                       placed: list[NewMarker]) -> tuple[Parameters, Parameters, list[NewMarker]]:
+    """Each new marker's position on its segment from the start poses (seed 002's closed form: the
+    median over frames of the marker in the segment's frame); these positions are also the centre
+    of its prior.  Returns the start parameters, the prior's base parameters and the placements."""
+    new = [k for k, n in enumerate(subject.marker_names) if n in {m.label for m in placed if m.segment}]
+    seen = np.all(np.isfinite(obs[:, new]), axis=2)
+    frames = np.flatnonzero(seen.any(1))
+    frames = frames[:: max(1, frames.size // 300)]
+    Z, Q = start.Z[frames], start.Q[frames]
+    p = params.copy()
+    s = np.array([p.scale[subject.segment_index(subject.markers[k].segment)] for k in new])
+    p.marker[new] = 0.0
+    origin, _ = kin.batch(Z, Q, p)
+    axes = []
+    for c in range(3):
+        p.marker[new] = 0.0
+        p.marker[new, c] = 1.0 / s
+        M, _ = kin.batch(Z, Q, p)
+        axes.append(M[:, new] - origin[:, new])  # (frames, new, 3): the segment's axis c in the lab
+    R = np.stack(axes, axis=3)  # (frames, new, 3 lab, 3 segment)
+    local = np.einsum("fnij,fni->fnj", R, obs[frames][:, new] - origin[:, new])
+    out = params.copy()
+    base = subject.parameters()
+    result = []
+    by_label = {m.label: m for m in placed}
+    for i, k in enumerate(new):
+        use = np.isfinite(local[:, i, 0])
+        name = subject.marker_names[k]
+        offset = np.median(local[use, i], axis=0) / s[i]
+        out.marker[k] = offset
+        base.marker[k] = offset
+        m = by_label[name]
+        by_label[name] = NewMarker(name, m.segment, s[i] * offset, m.reason)
+    result = [by_label[m.label] for m in placed]
+    return out, base, result
 
 
 def coarse_frames(seen: np.ndarray, target: int = COARSE_FRAMES) -> np.ndarray:
@@ -495,7 +735,7 @@ def _merge(a: SolverSummary, b: SolverSummary) -> SolverSummary:
         converged=b.converged, seconds=a.seconds + b.seconds,
         linearize_seconds=a.linearize_seconds + b.linearize_seconds,
         linear_solver_seconds=a.linear_solver_seconds + b.linear_solver_seconds,
-        evaluate_seconds=a.evaluate_seconds + b.evaluate_seconds)
+        evaluate_seconds=a.evaluate_seconds + b.evaluate_seconds, coarse=a.coarse, coarse_frames=a.coarse_frames)
 
 
 def _fixed_groups(base: Parameters, seeded: Parameters, free) -> Parameters:
@@ -524,7 +764,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     IDENTIFIED times the std the priors alone would leave (else the prior holds it)."""
     model = problem.model
     P = model.unpack(p)
-    B = model.parameters()
+    B = problem.base
     col = {n: k for k, n in enumerate(problem.free_names)}
     names = model.parameter_names()
     o = problem.offsets
@@ -601,7 +841,10 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         name = names[si]
         free = name in col
         std = np.array([math.sqrt(max(cov[col[name], col[name]], 0.0))]) if free else np.array([np.nan])
+        ratio = float(std[0] / math.sqrt(prior_cov[col[name], col[name]])) if free else float("nan")
+        ident = not free or ratio < IDENTIFIED
+        note = ("held (not free)" if not free else "" if ident
+                else "the trial barely sizes this segment: held by the prior")
         out.append(ParameterChange(f"scale[{sg.name}]", np.array([1.0]), np.array([seg_scale[si]]),
-                                   float(seg_scale[si] - 1.0), std, True,
-                                   "" if free else "held (not free)"))
+                                   float(seg_scale[si] - 1.0), std, ident, note, ratio))
     return out

@@ -146,18 +146,31 @@ def _frames_arg(text: str) -> slice:
 def build_calibrate_parser() -> argparse.ArgumentParser:
     ap = _Parser(
         prog="calibrate",
-        usage="calibrate TRIAL MODEL [-o URDF] [--motion CSV] [--report JSON] [--frames A:B] [--config TOML] ...\n"
-              "       calibrate {simulate,demo,inspect,joints} ...",
-        description="Calibrate MODEL (a URDF) to the subject of TRIAL (.c3d or .trc): segment scales, joint "
-                    "centres, hinge axes and marker positions, with every frame's pose, in one least-squares "
-                    "problem.  Writes the subject URDF, a motion CSV and a report JSON next to the trial.  Other "
-                    "commands: simulate, demo, inspect, joints (see 'calibrate COMMAND --help').")
-    ap.add_argument("trial", type=Path, help="the trial (.c3d or .trc)")
-    ap.add_argument("model", type=Path, help="the base model (.urdf) to calibrate; never modified")
-    ap.add_argument("-o", "--output", type=Path, default=None, help="subject URDF (default: TRIAL's name + .urdf)")
-    ap.add_argument("--motion", type=Path, default=None, help="motion CSV (default: TRIAL's name + _motion.csv)")
-    ap.add_argument("--report", type=Path, default=None, help="report JSON (default: TRIAL's name + _report.json)")
-    ap.add_argument("--frames", type=_frames_arg, default=None, help="use frames A:B only (0-based, B excluded)")
+        usage="calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
+              "       calibrate {simulate,demo,inspect,joints,export-osim} ...",
+        description="Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
+                    "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
+                    "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
+                    "subject URDF, a motion CSV per trial and a report JSON next to the first trial.  Other "
+                    "commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
+    ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
+                    help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
+    ap.add_argument("-o", "--output", type=Path, default=None,
+                    help="subject URDF (default: the first TRIAL's name + .urdf)")
+    ap.add_argument("--motion", type=Path, default=None,
+                    help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial)")
+    ap.add_argument("--report", type=Path, default=None,
+                    help="report JSON (default: the first TRIAL's name + _report.json)")
+    ap.add_argument("--frames", type=_frames_arg, default=None,
+                    help="use frames A:B only (0-based, B excluded; a single trial only)")
+    ap.add_argument("--markers", type=Path, default=None,
+                    help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss")
+    ap.add_argument("--no-aliases", action="store_true",
+                    help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
+    ap.add_argument("--no-new-markers", action="store_true",
+                    help="ignore trial markers the model does not know (default: place them on segments and fit)")
+    ap.add_argument("--outlier-sigmas", type=_nonneg_float, default=None,
+                    help="reject marker positions further than this many noise SDs from the fit (default 6; 0: off)")
     ap.add_argument("--config", type=Path, default=None, help="settings file (TOML; see docs/calibration.md)")
     ap.add_argument("--free", default=None,
                     help="comma-separated parameter groups to calibrate: scale,centre,axis,marker (default all)")
@@ -233,14 +246,24 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibration import calibrate
     from .config import load_settings, settings_from_dict
+    from .labels import load_marker_map
     from .model import load_model
     from .problem import Settings
     from .trial import Trial, read_trial
 
-    trial_path: Path = args.trial
-    stem = trial_path.with_suffix("")
+    if len(args.inputs) < 2:
+        raise CalibrateError("give one or more trials and then the base model: calibrate TRIAL [TRIAL ...] MODEL")
+    *trial_paths, model_path = args.inputs
+    if model_path.suffix.lower() in (".c3d", ".trc"):
+        raise CalibrateError(f"{model_path}: the last argument must be the base model (.urdf), after the trials")
+    if args.frames is not None and len(trial_paths) > 1:
+        raise CalibrateError("--frames applies to a single trial; cut the trials first or give one trial")
+    if args.motion is not None and len(trial_paths) > 1:
+        raise CalibrateError("--motion names one file; with several trials each gets TRIAL_motion.csv beside it")
+    stem = trial_paths[0].with_suffix("")
     out_urdf = args.output or stem.with_name(stem.name + ".urdf")
-    out_motion = args.motion or stem.with_name(stem.name + "_motion.csv")
+    out_motions = [args.motion] if args.motion else [t.with_suffix("").with_name(t.stem + "_motion.csv")
+                                                      for t in trial_paths]
     out_report = args.report or stem.with_name(stem.name + "_report.json")
     settings = load_settings(args.config) if args.config else Settings()
     flags: dict = {}
@@ -252,39 +275,49 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["noise_mm"] = args.noise_mm
     if args.no_seed:
         flags["seed"] = False
+    if args.no_new_markers:
+        flags["new_markers"] = False
+    if args.outlier_sigmas is not None:
+        flags["outlier_sigmas"] = args.outlier_sigmas
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
+    outputs = [out_urdf, *out_motions, out_report]
     # Check the destinations before any work, so a long run never ends in a refusal.
-    for p in (out_urdf, out_motion, out_report):
-        if p.resolve() == args.model.resolve():
+    if len({p.resolve() for p in outputs}) < len(outputs):
+        raise CalibrateError("two outputs would be the same file (two trials with the same name?); use -o/--report "
+                             "or rename the trials")
+    for p in outputs:
+        if p.resolve() == model_path.resolve():
             raise CalibrateError(f"{p}: that is the base model; refusing to overwrite it (choose another -o)")
-    for p in (out_urdf, out_motion, out_report):
+    for p in outputs:
         if p.exists() and not args.overwrite:
             raise CalibrateError(f"{p}: exists; pass --overwrite to replace it or choose another name")
         if not p.parent.is_dir():
             raise CalibrateError(f"{p}: directory '{p.parent}' does not exist; create it first")
     say = (lambda msg: None) if args.quiet else _Timed()
     t0 = time.perf_counter()
-    model = load_model(args.model)
-    trial = read_trial(trial_path)
+    model = load_model(model_path)
+    marker_map = load_marker_map(args.markers) if args.markers else None
+    trials = [read_trial(t) for t in trial_paths]
     if args.frames is not None:
+        trial = trials[0]
         idx = range(trial.n_frames)[args.frames]
         if len(idx) == 0 or idx.step != 1:
             raise CalibrateError(f"--frames {args.frames.start}:{args.frames.stop}: selects no frames of "
-                                 f"{trial_path} ({trial.n_frames} frames, 0-based)")
-        trial = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
-                      trial.first_frame + idx.start, trial.source)
+                                 f"{trial_paths[0]} ({trial.n_frames} frames, 0-based)")
+        trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
+                          trial.first_frame + idx.start, trial.source)
     load_s = time.perf_counter() - t0
-    ignored = [lab for lab in trial.labels if lab not in set(model.marker_names)]
-    if ignored:
-        print(f"warning: {len(ignored)} trial labels are not markers of {model.path.name} and are ignored: "
-              f"{', '.join(ignored)}", file=sys.stderr)
-    cal = calibrate(model, trial, settings, progress=say)
+    cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, progress=say)
+    if cal.ignored_labels:
+        why = "are not markers of" if not settings.new_markers else "ride on no segment of"
+        print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
+              f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
     cal.times = {"load": load_s, **cal.times}
-    cal.write(urdf=out_urdf, motion=out_motion, report=out_report, overwrite=args.overwrite)
+    cal.write(urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
     print(cal.text())
     print("")
-    print(f"wrote {out_urdf}\n      {out_motion}\n      {out_report}")
+    print("wrote " + "\n      ".join(str(p) for p in outputs))
     if not cal.converged:
         print(f"warning: the solver did not converge ({cal.summary.termination}); the best result so far was "
               "written and is flagged in the report", file=sys.stderr)

@@ -11,6 +11,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     atol = 0.5              # ... or absolute decrease below this (chi-square change of 1)
     seed = true             # start from MTB joint centres (false: from the base model)
     compile = true          # compile the per-frame function with the C compiler if present
+    new_markers = true      # place trial markers the model does not know on segments and fit them
+    outlier_sigmas = 6.0    # reject a marker in a frame whose error exceeds this many noise SDs (0: off)
 
     [priors]                # SDs of the pull towards the base model
     marker_mm = 20.0
@@ -36,7 +38,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "priors"}
+        "new_markers", "outlier_sigmas", "priors"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
 
 
@@ -68,7 +70,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     free = data.get("free", list(s.free))
     if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):
         raise CalibrateError(f"{where}: 'free' must be a list of group names, e.g. [\"centre\", \"marker\"]")
-    for key in ("seed", "compile"):
+    for key in ("seed", "compile", "new_markers"):
         if key in data and not isinstance(data[key], bool):
             raise CalibrateError(f"{where}: '{key}' must be true or false, got {data[key]!r}")
     it = data.get("max_iterations", s.max_iterations)
@@ -81,7 +83,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        max_iterations=it, ftol=num(data, "ftol", s.ftol), atol=num(data, "atol", s.atol),
                        xtol=num(data, "xtol", s.xtol),
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
-                       compile=data.get("compile", s.compile))
+                       compile=data.get("compile", s.compile), new_markers=data.get("new_markers", s.new_markers),
+                       outliers=num(data, "outlier_sigmas", s.outliers))
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -634,7 +635,10 @@ def _jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F
     for start in starts:  # a few iterations from every start, then the most promising is finished
         if not np.any(np.isfinite(start)):
             continue
-        centre, _, rms = jmv_frames(X, np.where(np.isfinite(start), start, np.nanmean(X, axis=1)), iterations=8)
+        with warnings.catch_warnings():  # a frame with no marker at all has no mean: it stays NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            fill = np.nanmean(X, axis=1)
+        centre, _, rms = jmv_frames(X, np.where(np.isfinite(start), start, fill), iterations=8)
         if rms < best_rms:
             best, best_rms = centre, rms
         if best_rms < 1e-12:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -132,9 +133,12 @@ class Model:
       root (root segment name).
     """
 
-    def __init__(self, path: str | os.PathLike[str]):
+    def __init__(self, path: str | os.PathLike[str], text: str | None = None):
+        """Load the URDF at `path`; with `text`, build from that URDF text instead (and `path` is only
+        where it came from, e.g. the base model a model with added markers was made from)."""
         self.path = Path(path)
-        text = _read_text(self.path)
+        if text is None:
+            text = _read_text(self.path)
         try:
             root_el = ET.fromstring(text)
         except ET.ParseError as e:
@@ -452,6 +456,42 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
     return path
 
 
+def add_markers(model: Model, markers: Mapping[str, tuple[str, np.ndarray]]) -> Model:
+    """A copy of `model` with new markers: label -> (segment, position in the segment frame, m).
+
+    Each becomes a massless link on a fixed joint ``<label>_marker``, as in docs/model-format.md, so
+    a model written from the result carries them.  Labels clashing with a link or joint name of the
+    model raise ModelError."""
+    if not markers:
+        return model
+    tree = ET.ElementTree(ET.fromstring(model._text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
+    robot = tree.getroot()
+    names = {el.get("name") for el in robot.findall("link")} | {el.get("name") for el in robot.findall("joint")}
+    segments = {s.name for s in model.segments}
+    if len(robot):
+        robot[-1].tail = "\n  "
+    for label, (segment, xyz) in markers.items():
+        if segment not in segments:
+            raise ModelError(f"{model.path}: cannot add marker '{label}' to '{segment}', which is not a segment")
+        if label in names or f"{label}_marker" in names:
+            raise ModelError(f"{model.path}: a new marker is labelled '{label}', which the model already uses as a "
+                             f"link or joint name; rename the trial label")
+        link = ET.SubElement(robot, "link", name=label)
+        visual = ET.SubElement(ET.SubElement(link, "visual"), "geometry")
+        ET.SubElement(visual, "sphere", radius="0.007")
+        joint = ET.SubElement(robot, "joint", name=f"{label}_marker", type="fixed")
+        ET.SubElement(joint, "parent", link=segment)
+        ET.SubElement(joint, "child", link=label)
+        ET.SubElement(joint, "origin", xyz=fmt_vec(np.asarray(xyz, dtype=float)), rpy="0 0 0")
+        for el in (link, joint):  # indent the new elements only: the rest of the file is kept as it was
+            ET.indent(el, space="  ", level=1)
+            el.tail = "\n  "
+    robot[-1].tail = "\n"
+    start = model._text.find("<robot")
+    head = model._text[:start] if start > 0 else '<?xml version="1.0"?>\n'
+    return Model(model.path, text=head + ET.tostring(robot, encoding="unicode") + "\n")
+
+
 def _check_sizes(model: Model, p: Parameters) -> None:
     want = {"scale": (len(model.segments),), "centre": (len(model.joints), 3),
             "axis": (model.n_dofs, 3), "marker": (len(model.markers), 3)}
@@ -551,5 +591,6 @@ def _read_text(path: Path) -> str:
     return text
 
 
-__all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "load_model", "write_model"]
+__all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "add_markers", "load_model",
+           "write_model"]
 

@@ -83,6 +83,8 @@ class Settings:
     gtol: float = 1e-10  # ... or the largest gradient entry is below this
     seed: bool = True  # start from MTB joint centres (else from the base model)
     compile: bool = True  # compile the per-frame function with the C compiler, if there is one
+    new_markers: bool = True  # place trial markers the model does not know on segments (by rigidity) and fit them
+    outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
 
     def __post_init__(self) -> None:
         bad = [g for g in self.free if g not in GROUPS]
@@ -98,6 +100,8 @@ class Settings:
             v = getattr(self.priors, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")
+        if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):
+            raise ValueError(f"outliers: must be 0 (off) or a positive number of noise SDs, got {self.outliers!r}")
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
             raise ValueError(f"max_iterations: must be a whole number >= 1, got {self.max_iterations!r}")
 
@@ -180,6 +184,13 @@ class Problem:
         self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
         self.n_obs = int(self.seen.sum())
         self._mapped: dict[tuple[str, int], tuple] = {}
+
+    def drop(self, mask: np.ndarray) -> None:
+        """Leave out the observations where `mask` (F, n_markers) is true (rejected outliers): they
+        lose their rows, as gaps do."""
+        obs = self.observed.copy()
+        obs[np.asarray(mask, dtype=bool)] = np.nan
+        self._set_observed(obs)
 
     def subset(self, frames: np.ndarray) -> Problem:
         """The same problem on some of its frames (e.g. an evenly spaced subsample that finds

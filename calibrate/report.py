@@ -32,7 +32,7 @@ def _list(a) -> list:
 
 def calibration_report(cal) -> dict:
     """Plain, JSON-ready description of a Calibration."""
-    model, trial, st, s = cal.model, cal.trial, cal.settings, cal.summary
+    model, st, s = cal.model, cal.settings, cal.summary
     per = cal.per_marker()
     kinds = {j.name: j.kind for j in model.joints}
     params = []
@@ -50,20 +50,42 @@ def calibration_report(cal) -> dict:
         if c.note:
             entry["note"] = c.note
         params.append(entry)
+    trials = []
+    for i, t in enumerate(cal.trials):
+        res = cal.residuals[cal.trial_frames(i)]
+        err = np.linalg.norm(res, axis=2)
+        entry = {"source": t.source, "frames": t.n_frames, "rate_hz": t.rate, "first_frame": t.first_frame,
+                 "rms_mm": _mm(_rms_of(res)), "max_mm": _mm(np.nanmax(err)) if np.isfinite(err).any() else None,
+                 "outliers": sum(1 for o in cal.outliers if o.trial == i)}
+        if i < len(cal.label_maps) and cal.label_maps[i] is not None:
+            entry["labels"] = cal.label_maps[i].to_json()
+        trials.append(entry)
+    per_outlier: dict[str, int] = {}
+    for o in cal.outliers:
+        per_outlier[o.marker] = per_outlier.get(o.marker, 0) + 1
     return {
         "calibrate_version": __version__,
-        "trial": {"source": trial.source, "frames": trial.n_frames, "rate_hz": trial.rate,
-                  "first_frame": trial.first_frame,
-                  "markers_used": [n for n in model.marker_names if n not in cal.unused_markers],
-                  "ignored_labels": list(cal.ignored_labels), "unused_model_markers": list(cal.unused_markers)},
+        "trials": trials,
+        "marker_set": {
+            "used": [n for n in model.marker_names if n not in cal.unused_markers],
+            "new": [{"label": m.label, "segment": m.segment, "position_mm": [_mm(v) for v in m.position],
+                     "reason": m.reason} for m in cal.new_markers if m.segment is not None],
+            "left_out": [{"label": m.label, "reason": m.reason} for m in cal.new_markers if m.segment is None],
+            "ignored_labels": list(cal.ignored_labels), "unused_model_markers": list(cal.unused_markers)},
+        "outliers": {"count": len(cal.outliers), "per_marker": per_outlier,
+                     "threshold_noise_sd": st.outliers,
+                     "rejected": [{"trial": o.trial, "frame": o.frame, "marker": o.marker, "error_mm": _mm(o.error)}
+                                  for o in cal.outliers[:200]]},
         "model": {"source": str(model.path), "segments": len(model.segments), "joints": len(model.joints),
-                  "dof": model.nz, "markers": len(model.markers)},
+                  "dof": model.nz, "markers": len(model.markers),
+                  "new_markers": sum(1 for m in cal.new_markers if m.segment is not None)},
         "settings": {"free": list(st.free), "noise_mm": 1000 * st.noise, "loss": st.loss,
                      "loss_scale": st.loss_scale,
                      "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
                                 "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale},
                      "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
-                     "seed": st.seed, "compiled": cal.compiled},
+                     "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
+                     "compiled": cal.compiled},
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
@@ -92,14 +114,19 @@ def _rms_of(res: np.ndarray) -> float:
 
 def summary_text(cal) -> str:
     """Human-readable summary in the spirit of Ceres' Solver::Summary::FullReport()."""
-    model, trial, s = cal.model, cal.trial, cal.summary
-    F = trial.n_frames
+    model, s = cal.model, cal.summary
+    F = sum(t.n_frames for t in cal.trials)
     used = len(model.markers) - len(cal.unused_markers)
+    n_new = sum(1 for m in cal.new_markers if m.segment is not None)
     n_free = len([c for c in cal.changes])  # count of reported quantities
-    lines = [
-        "calibrate: subject calibration",
-        f"  trial        {trial.source or '(in memory)'}: {F} frames at {trial.rate:g} Hz, "
-        f"{used}/{len(model.markers)} model markers seen, {len(cal.ignored_labels)} trial labels ignored",
+    lines = ["calibrate: subject calibration"]
+    for i, trial in enumerate(cal.trials):
+        res = cal.residuals[cal.trial_frames(i)]
+        lines.append(f"  {'trial' if i == 0 else '':13s}{trial.source or '(in memory)'}: {trial.n_frames} frames at "
+                     f"{trial.rate:g} Hz, marker RMS {1000 * _rms_of(res):.2f} mm")
+    lines += [
+        f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
+        f"rigidity), {len(cal.ignored_labels)} trial labels left out, {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
@@ -142,8 +169,19 @@ def summary_text(cal) -> str:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
     for note in cal.seed.notes:
         lines.append(f"  seed: {note}")
-    if cal.ignored_labels:
+    for m in cal.new_markers:
+        if m.segment is not None:
+            lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
+        else:
+            lines.append(f"  left out {m.label}: {m.reason}")
+    if cal.ignored_labels and not any(m.segment is None for m in cal.new_markers):
         lines.append(f"  ignored trial labels (not in the model): {', '.join(cal.ignored_labels)}")
+    if cal.outliers:
+        per: dict[str, int] = {}
+        for o in cal.outliers:
+            per[o.marker] = per.get(o.marker, 0) + 1
+        lines.append(f"  outliers rejected ({cal.settings.outliers:g} noise SDs): "
+                     + ", ".join(f"{k} x{v}" for k, v in sorted(per.items(), key=lambda kv: -kv[1])[:10]))
     if cal.unused_markers:
         lines.append(f"  model markers never seen: {', '.join(cal.unused_markers)} (base positions kept)")
     return "\n".join(lines)
@@ -156,15 +194,21 @@ def _slide_only(c) -> bool:
 
 def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None) -> dict[str, Path]:
-    """Write the subject URDF, the motion CSV and the report JSON (whichever are given).
+    """Write the subject URDF, the motion CSV(s) and the report JSON (whichever are given).
 
-    Every destination is checked first (its folder exists; it is not the base model; it does
+    `motion`: one path per trial (a single path for a single trial).  Every destination is checked
+    first (its folder exists; it is not the base model; it does
     not exist unless `overwrite`), then each file goes to a temporary name beside its
     destination and all are renamed at the end: a failure leaves no output half-written.
     """
-    targets = {k: Path(v) for k, v in (("urdf", urdf), ("motion", motion), ("report", report)) if v is not None}
+    motions = [] if motion is None else [motion] if isinstance(motion, (str, os.PathLike)) else list(motion)
+    if motions and len(motions) != len(cal.trials):
+        raise CalibrateError(f"{len(motions)} motion outputs for {len(cal.trials)} trials; give one per trial")
+    targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report)) if v is not None}
+    keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
+    targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
     for path in targets.values():
-        if path.resolve() == cal.model.path.resolve():
+        if path.resolve() == (cal.base_model or cal.model).path.resolve():
             raise CalibrateError(f"{path}: that is the base model; refusing to overwrite it (choose another -o)")
         if not path.parent.is_dir():
             raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
@@ -173,7 +217,7 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
         if not os.access(path.parent, os.W_OK):
             raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
     if len({p.resolve() for p in targets.values()}) < len(targets):
-        raise CalibrateError("the URDF, motion and report outputs must be different files")
+        raise CalibrateError("the URDF, motion and report outputs must all be different files")
     t0 = time.perf_counter()
     staged: dict[str, Path] = {}
     try:
@@ -183,14 +227,15 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
             staged[kind] = Path(tmp)
         if "urdf" in staged:
             write_model(cal.model, staged["urdf"], cal.params, overwrite=True)
-        if "motion" in staged:
-            write_motion_csv(staged["motion"], cal.motion)
+        for k, m in zip(keys if motions else [], cal.motions, strict=False):
+            write_motion_csv(staged[k], m)
         if "report" in staged:
             cal.times["write"] = time.perf_counter() - t0
             for k, v in (extra_times or {}).items():
                 cal.times[k] = v
             rep = calibration_report(cal)
-            rep["outputs"] = {k: str(v) for k, v in targets.items()}
+            rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
+            rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
             text = json.dumps(rep, indent=1, allow_nan=False, default=_json_default)
             atomic_write_text(staged["report"], text + "\n")
         for kind, tmp in staged.items():

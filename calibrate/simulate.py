@@ -165,6 +165,34 @@ def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise
     return Simulation(model, truth, motion, trial, markers, centres)
 
 
+def simulate_static(model: Model, truth: Parameters, frames: int = 200, rate: float = 100.0, noise_mm: float = 1.0,
+                    seed: int = 0) -> Simulation:
+    """A static trial of the subject `truth` (e.g. ``simulate_squats(...).truth``): standing in the
+    neutral pose, as a lab records before the movement trials, with a few millimetres of sway and a
+    degree or so of postural drift in every joint (no joint moves enough to be located)."""
+    if frames < 2:
+        raise ValueError(f"frames: need at least 2, got {frames}")
+    rng = np.random.default_rng(seed)
+    times = np.arange(frames) / rate
+    drift = np.radians(0.5) * np.sin(2 * np.pi * 0.1 * times[:, None] + rng.uniform(0, 2 * np.pi, model.n_dofs))
+    lo = np.array([d.lower for d in model.dofs])
+    hi = np.array([d.upper for d in model.dofs])
+    angles = np.clip(drift, lo, hi)
+    yaw = rng.uniform(-np.pi, np.pi)
+    quat = Rotation.from_euler("ZYX", np.column_stack([np.full(frames, yaw), np.radians(1) * np.sin(times),
+                                                       np.zeros(frames)])).as_quat()
+    kin = build_kinematics(model)
+    markers, centres = kin.batch(np.hstack([np.zeros((frames, 6)), angles]), quat, truth)
+    root = np.array([0.0, 0.0, 0.95]) * float(np.mean(truth.scale)) + 0.003 * np.column_stack(
+        [np.sin(2 * np.pi * 0.2 * times), np.cos(2 * np.pi * 0.15 * times), np.zeros(frames)])
+    markers = markers + root[:, None, :]
+    centres = centres + root[:, None, :]
+    motion = Motion(times, root, quat, angles, model.dof_names)
+    observed = markers + rng.normal(0.0, noise_mm / 1000.0, markers.shape)
+    trial = Trial(labels=model.marker_names, markers=observed, rate=float(rate), first_frame=0, source=None)
+    return Simulation(model, truth, motion, trial, markers, centres)
+
+
 def joint_axes_world(model: Model, params: Parameters, motion: Motion) -> dict[str, np.ndarray]:
     """World direction (n_frames, 3) of every hinge joint's axis over a motion, for the model with
     parameters `params` (e.g. a simulation's truth): the reference for axis estimates."""

@@ -23,6 +23,37 @@ Before ezc3d opens a C3D file its header and parameter section are checked here:
 ezc3d crashes the interpreter on some damaged files (a record that overruns its
 neighbours, analog channels without ANALOG:SCALE/OFFSET) and silently drops the
 missing frames of a truncated file.
+
+What the C3D reader accepts, as the capture programs write it (every case has a test
+in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte):
+
+- storage: float (POINT:SCALE < 0; its size only scales residuals, e.g. Vicon -0.01,
+  Qualisys -0.076) or integer (POINT:SCALE > 0 multiplies every coordinate, e.g. 0.1 mm,
+  as older Motion Analysis files); Intel or DEC processor formats.  Big-endian MIPS
+  (SGI) files are refused with a clear message: ezc3d cannot read their data.  The
+  header and POINT:SCALE must agree on float or integer storage, and POINT:SCALE must
+  not be 0 (either would silently give wrong positions).
+- POINT:UNITS ``mm``, ``cm``, ``m`` (any case; also spelt out, ``millimeters``, ``metres``...),
+  mm when absent or blank; only the first entry counts when there is one per point.
+- gaps: a negative residual word (the C3D "invalid point", -1 as Vicon, Qualisys,
+  Motion Analysis and OptiTrack write it), all three coordinates exactly 0, or a
+  non-finite coordinate.  A residual of 0 is a valid point (interpolated or filtered).
+- labels from POINT:LABELS, LABELS2, LABELS3, ... (255 per parameter, so any number of
+  points); labels of any length.
+- subject prefixes: when every label with a ``:`` has the same prefix (Vicon Nexus
+  ``Sub01:RASI``, OptiTrack Motive ``Skeleton:RASI``), the prefix is removed (``RASI``),
+  unless that would make two labels the same.  With several prefixes (two subjects, a
+  skeleton and rigid bodies) the labels are kept whole: :func:`calibrate.labels.map_labels`
+  matches their names after the prefix.  ``strip_prefix=False`` keeps every label whole.
+- points that are not positions are dropped: the labels Vicon lists in POINT:ANGLES,
+  FORCES, MOMENTS, POWERS, SCALARS and REACTIONS (modelled joint angles, forces...).
+- long trials: when the header's frame numbers stop at 65535 (its last frame or POINT:FRAMES
+  is 65535), the count comes from POINT:LONG_FRAMES, else TRIAL:ACTUAL_START_FIELD /
+  ACTUAL_END_FIELD, else the length of the data section less its zero padding (which ezc3d
+  would read as extra frames); the first frame from TRIAL:ACTUAL_START_FIELD when the
+  header's is 65535.  ezc3d reads only 65535 frames of some long files (those with a
+  ROTATION group, as ezc3d itself writes them): these are refused rather than returned cut
+  short, and :func:`write_c3d` writes at most 65535 frames.
 """
 
 from __future__ import annotations
@@ -45,12 +76,32 @@ __all__ = [
     "read_c3d",
     "read_trc",
     "read_trial",
+    "strip_subject_prefix",
     "write_c3d",
     "write_trc",
 ]
 
 #: Length units accepted in trial files, with their size in metres.
 UNITS_TO_METRES: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+
+#: Spelt-out units some programs write, accepted when reading.
+_UNIT_NAMES: dict[str, str] = {
+    "millimeter": "mm",
+    "millimeters": "mm",
+    "millimetre": "mm",
+    "millimetres": "mm",
+    "centimeter": "cm",
+    "centimeters": "cm",
+    "centimetre": "cm",
+    "centimetres": "cm",
+    "meter": "m",
+    "meters": "m",
+    "metre": "m",
+    "metres": "m",
+}
+
+#: POINT parameters in which Vicon lists the points that are not positions.
+_C3D_NON_POSITION = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
 
 _TRC_KEYS = (
     "DataRate",
@@ -81,21 +132,51 @@ def _fail(path: str | os.PathLike[str] | None, what: str, todo: str) -> TrialErr
     return TrialError(_one_line(f"{_where(path)}: {what}; {todo}"))
 
 
-def _parse_units(units: object, path: str | os.PathLike[str] | None, todo: str) -> float:
-    """Metres per file unit for a units string such as ' MM '."""
-    key = str(units).strip().lower()
+def _parse_units(units: object, path: str | os.PathLike[str] | None, todo: str, *, reading: bool = False) -> float:
+    """Metres per file unit for a units string such as ' MM '; when reading also 'millimeters' and the like."""
+    key = str(units).strip().strip("\x00").strip().lower()
+    if reading:
+        key = _UNIT_NAMES.get(key, key)
     if key not in UNITS_TO_METRES:
         raise _fail(path, f"unknown length units {str(units).strip()!r} (expected mm, cm or m)", todo)
     return UNITS_TO_METRES[key]
 
 
-def _unique_labels(raw: Iterable[str]) -> tuple[str, ...]:
-    """Strip labels, name empty ones ``unlabelled_<n>`` (1-based), suffix duplicates ``_2``, ``_3``..."""
+def strip_subject_prefix(labels: Iterable[str]) -> tuple[list[str], str | None]:
+    """Labels without their subject prefix, and the prefix (None when nothing was removed).
+
+    A prefix is the text before the first ``:`` (``Sub01:RASI``, ``Skeleton:RASI``).  It is
+    removed only when every label that has one has the same one, the prefix is not blank,
+    and removing it leaves no label empty and makes no two labels equal that were not equal
+    before; otherwise the labels come back as they were.
+    """
+    labels = [str(label).strip() for label in labels]
+    prefixes = {label.split(":", 1)[0] for label in labels if ":" in label}
+    if len(prefixes) != 1:
+        return labels, None
+    prefix = prefixes.pop().strip()
+    if not prefix:
+        return labels, None
+    stripped = [label.split(":", 1)[1].strip() if ":" in label else label for label in labels]
+    if any(":" in label and not new for label, new in zip(labels, stripped, strict=True)):
+        return labels, None
+    if len({label for label in stripped if label}) != len({label for label in labels if label}):
+        return labels, None
+    return stripped, prefix
+
+
+def _unique_labels(raw: Iterable[str], numbers: Iterable[int] | None = None) -> tuple[str, ...]:
+    """Strip labels, name empty ones ``unlabelled_<n>``, suffix duplicates ``_2``, ``_3``...
+
+    ``n`` is the label's entry in ``numbers`` (its 1-based point number in the file), or its
+    1-based position when ``numbers`` is not given.
+    """
     stripped = [str(label).strip() for label in raw]
+    numbers = list(numbers) if numbers is not None else list(range(1, len(stripped) + 1))
     taken = {label for label in stripped if label}
     out: list[str] = []
     used: set[str] = set()
-    for number, label in enumerate(stripped, start=1):
+    for number, label in zip(numbers, stripped, strict=True):
         if not label:
             label = f"unlabelled_{number}"
         if label in used:
@@ -270,13 +351,17 @@ def _check_input_file(path: Path) -> int:
     return size
 
 
-def read_trial(path: str | os.PathLike[str]) -> Trial:
-    """Read a trial from a .c3d or .trc file, chosen by the file suffix."""
+def read_trial(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
+    """Read a trial from a .c3d or .trc file, chosen by the file suffix.
+
+    ``strip_prefix``: remove a subject prefix shared by the labels (``Sub01:RASI`` -> ``RASI``),
+    see :func:`strip_subject_prefix`.
+    """
     suffix = Path(path).suffix.lower()
     if suffix == ".c3d":
-        return read_c3d(path)
+        return read_c3d(path, strip_prefix=strip_prefix)
     if suffix == ".trc":
-        return read_trc(path)
+        return read_trc(path, strip_prefix=strip_prefix)
     raise _fail(
         path,
         f"unknown trial file type {Path(path).suffix or '(no suffix)'!r}",
@@ -371,11 +456,54 @@ def _c3d_integer(
     return None
 
 
-def _check_c3d_layout(path: Path, size: int) -> None:
+def _c3d_number(
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
+) -> float | None:
+    """First value of a float or integer parameter (integers signed, as C3D stores them), or None."""
+    if key not in table:
+        return None
+    kind, _, raw = table[key]
+    if kind == 4 and len(raw) >= 4:
+        value = _c3d_float(raw[:4], processor)
+        return float(value) if np.isfinite(value) else None
+    if kind == 2 and len(raw) >= 2:
+        return float(struct.unpack((">" if processor == 86 else "<") + "h", raw[:2])[0])
+    if kind == 1 and raw:
+        return float(raw[0])
+    return None
+
+
+def _c3d_long_field(
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
+) -> int | None:
+    """A TRIAL:ACTUAL_*_FIELD frame number: two unsigned 16-bit words, low word first; None when absent."""
+    if key not in table:
+        return None
+    kind, _, raw = table[key]
+    if kind == 2 and len(raw) >= 4:
+        low, high = struct.unpack((">" if processor == 86 else "<") + "2H", raw[:4])
+        return low + (high << 16)
+    if kind == 4 and len(raw) >= 8:  # some writers store the two words as floats
+        low, high = _c3d_float(raw[:4], processor), _c3d_float(raw[4:8], processor)
+        if np.isfinite(low) and np.isfinite(high) and low >= 0 and high >= 0:
+            return int(low) + (int(high) << 16)
+    return None
+
+
+@dataclass(frozen=True)
+class _C3DLayout:
+    """What the reader needs from a C3D file's header and parameters besides what ezc3d gives."""
+
+    frames: int | None  # frames of a trial too long for the header; None: ezc3d's count is used as is
+    first_frame: int | None  # 0-based first frame from TRIAL:ACTUAL_START_FIELD past the header's 65535, else None
+
+
+def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
     """Check a C3D file's header and parameter section against its size before ezc3d reads it.
 
     ezc3d can crash the interpreter on a file cut or damaged inside its parameter
     section, and silently drops frames from a file cut inside its data; both are caught here.
+    Returns the frame count and first frame the file gives for trials too long for the header.
     """
     redo = "export it again from your capture software"
 
@@ -387,7 +515,7 @@ def _check_c3d_layout(path: Path, size: int) -> None:
     with open(path, "rb") as fh:
         header = fh.read(512)
         if header[0] == 0:  # some writers pad the start with zeros; ezc3d skips them
-            return
+            return _C3DLayout(frames=None, first_frame=None)
         if header[1] != 0x50 or header[0] < 2:
             raise bad("no C3D signature in its header")
         param_start = (header[0] - 1) * 512
@@ -398,22 +526,39 @@ def _check_c3d_layout(path: Path, size: int) -> None:
         n_blocks, processor = head[2], head[3]
         if processor not in (84, 85, 86):
             raise bad(f"unknown processor type {processor} in its parameter section")
+        if processor == 86:
+            raise _fail(
+                path,
+                "C3D file is in the big-endian MIPS (SGI) format, whose data ezc3d cannot read",
+                "convert it to an Intel (PC) C3D file, e.g. by opening and saving it in Mokka, or export it as TRC",
+            )
         if n_blocks == 0 or param_start + 512 * n_blocks > size:
             raise bad("truncated inside its parameter section")
         fh.seek(param_start)
         section = fh.read(512 * n_blocks)
+        fh.seek(max(size - 512, 0))
+        tail = fh.read(512)
     try:
         table = _c3d_parameter_section(section, processor)
     except _BadC3D as exc:
         raise bad(f"damaged parameter section: {exc}") from None
 
-    endian = ">" if processor == 86 else "<"
+    endian = "<"  # Intel and DEC store integers little-endian
     n_points, n_analog, first, last = struct.unpack(endian + "4H", header[2:10])
     data_block = struct.unpack(endian + "H", header[16:18])[0]
     is_float = _c3d_float(header[12:16], processor) < 0
     used = _c3d_integer(table, ("POINT", "USED"), processor)
     if used is not None and used != n_points:
         raise bad(f"its header lists {n_points} points but POINT:USED says {used}")
+    point_scale = _c3d_number(table, ("POINT", "SCALE"), processor)
+    if n_points and point_scale is not None:  # ezc3d reads the points by POINT:SCALE, the size check by the header
+        if point_scale == 0:
+            raise bad("POINT:SCALE is 0, which would make every coordinate 0")
+        if (point_scale < 0) != is_float:
+            raise bad(
+                f"its header says {'float' if is_float else 'integer'} storage but POINT:SCALE "
+                f"({point_scale:g}) says {'float' if point_scale < 0 else 'integer'}"
+            )
     analog_per_frame = struct.unpack(endian + "H", header[18:20])[0]
     n_channels = max(
         n_analog // analog_per_frame if analog_per_frame else 0,
@@ -425,11 +570,29 @@ def _check_c3d_layout(path: Path, size: int) -> None:
             raise bad(f"ANALOG:{name} does not cover its {n_channels} analog channels")
     if data_block == 0 or (data_block - 1) * 512 > size:
         raise bad("truncated before its data section")
-    n_frames = _c3d_integer(table, ("POINT", "FRAMES"), processor)
-    if n_frames is None or n_frames == 0xFFFF:  # no count, or a long trial counted elsewhere
-        n_frames = last - first + 1 if first >= 1 and last >= first else 0
+
     frame_bytes = (4 * n_points + n_analog) * (4 if is_float else 2)
     data_start = (data_block - 1) * 512
+    start_field = _c3d_long_field(table, ("TRIAL", "ACTUAL_START_FIELD"), processor)
+    end_field = _c3d_long_field(table, ("TRIAL", "ACTUAL_END_FIELD"), processor)
+    long_frames = _c3d_number(table, ("POINT", "LONG_FRAMES"), processor)
+    n_frames: int | None = _c3d_integer(table, ("POINT", "FRAMES"), processor)
+    long_count: int | None = None  # the count of a trial that may be longer than the header can say
+    if (last == 0xFFFF or n_frames == 0xFFFF) and frame_bytes:
+        if long_frames is not None and long_frames >= 1:
+            long_count = int(long_frames)
+        elif start_field and end_field and end_field >= start_field:
+            long_count = end_field - start_field + 1
+    if long_count is None and (n_frames is None or n_frames == 0xFFFF) and last == 0xFFFF and frame_bytes:
+        # The header is capped at 65535 and nothing else gives the count: as many frames as
+        # the data section holds, less the zero bytes that pad its last 512-byte block.
+        held = max(size - data_start, 0)
+        zeros = min(len(tail) - len(tail.rstrip(b"\x00")), 511, held)
+        long_count = min(-(-(held - zeros) // frame_bytes), held // frame_bytes)
+    if long_count is not None:
+        n_frames = long_count
+    elif n_frames is None or n_frames == 0xFFFF:  # no count, or a long trial counted elsewhere
+        n_frames = last - first + 1 if first >= 1 and last >= first else 0
     if frame_bytes and data_start + n_frames * frame_bytes > size:
         held = max(size - data_start, 0) // frame_bytes
         raise _fail(
@@ -437,6 +600,8 @@ def _check_c3d_layout(path: Path, size: int) -> None:
             f"C3D file is truncated: it should hold {n_frames} frames but holds only {held}",
             redo,
         )
+    first_frame = start_field - 1 if start_field and first == 0xFFFF else None  # past what the header holds
+    return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame)
 
 
 def _c3d_param(params: object, group: str, name: str) -> list | np.ndarray | None:
@@ -460,18 +625,28 @@ def _first_number(value: list | np.ndarray | None) -> float | None:
         return None
 
 
-def read_c3d(path: str | os.PathLike[str]) -> Trial:
+def _c3d_strings(value: list | np.ndarray | None) -> list[str]:
+    """A character parameter's entries as stripped strings (NUL padding removed)."""
+    if value is None:
+        return []
+    return [str(v).replace("\x00", " ").strip() for v in np.asarray(value, dtype=object).ravel()]
+
+
+def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
     """Read the marker trajectories of a C3D file (via ezc3d) into a trial in metres.
 
     Labels come from POINT:LABELS, LABELS2, ... for the first POINT:USED points;
     an empty label becomes ``unlabelled_<n>`` (n the 1-based point number) and a
-    repeated label gets a suffix (``RASI_2``).  POINT:UNITS may be mm, cm or m
-    (mm when absent).  Points with a negative residual, all three coordinates
-    exactly zero, or a non-finite coordinate are gaps (NaN).
+    repeated label gets a suffix (``RASI_2``).  A subject prefix shared by the labels
+    is removed unless ``strip_prefix`` is False (:func:`strip_subject_prefix`).  Points
+    Vicon lists as angles, forces, moments, powers, scalars or reactions are left out.
+    POINT:UNITS may be mm, cm or m (mm when absent).  Points with a negative residual,
+    all three coordinates exactly zero, or a non-finite coordinate are gaps (NaN).
+    The module docstring lists the vendor conventions this covers.
     """
     path = Path(path)
     size = _check_input_file(path)
-    _check_c3d_layout(path, size)
+    layout = _check_c3d_layout(path, size)
     redo = "export it again from your capture software"
     try:
         c3d = ezc3d.c3d(str(path))
@@ -490,6 +665,14 @@ def read_c3d(path: str | os.PathLike[str]) -> Trial:
     if used is not None:
         n_points = min(n_points, max(int(used), 0))
     n_frames = points.shape[2] if points.ndim == 3 else 0
+    if layout.frames is not None and n_frames != layout.frames:
+        if n_frames < layout.frames:
+            raise _fail(
+                path,
+                f"C3D file holds {layout.frames} frames but ezc3d reads only {n_frames} of them",
+                "export the trial in parts of at most 65535 frames, or as a TRC file",
+            )
+        n_frames = layout.frames  # ezc3d read the zero padding after the last frame as frames
     if n_points == 0:
         raise _fail(
             path, "C3D file contains no marker trajectories (POINT:USED is 0)", "export the trial with its markers"
@@ -504,14 +687,28 @@ def read_c3d(path: str | os.PathLike[str]) -> Trial:
         value = _c3d_param(params, "POINT", name)
         if value is None:
             break
-        raw_labels.extend(str(v) for v in value)
+        raw_labels.extend(_c3d_strings(value))
         k += 1
     raw_labels = (raw_labels + [""] * n_points)[:n_points]
-    labels = _unique_labels(raw_labels)
 
-    units_value = _c3d_param(params, "POINT", "UNITS")
-    units = str(units_value[0]).strip() if units_value is not None and len(units_value) else ""
-    scale = _parse_units(units, path, "set POINT:UNITS to mm, cm or m") if units else UNITS_TO_METRES["mm"]
+    not_positions = {label for group in _C3D_NON_POSITION for label in _c3d_strings(_c3d_param(params, "POINT", group))}
+    keep = [i for i, label in enumerate(raw_labels) if not (label and label in not_positions)]
+    if not keep:
+        raise _fail(
+            path,
+            "C3D file contains no marker trajectories, only modelled outputs (POINT:ANGLES, FORCES, ...)",
+            "export the trial with its markers",
+        )
+    kept_labels = [raw_labels[i] for i in keep]
+    if strip_prefix:
+        kept_labels, _ = strip_subject_prefix(kept_labels)
+    labels = _unique_labels(kept_labels, numbers=[i + 1 for i in keep])
+
+    units_value = _c3d_strings(_c3d_param(params, "POINT", "UNITS"))
+    units = units_value[0] if units_value else ""
+    scale = (
+        _parse_units(units, path, "set POINT:UNITS to mm, cm or m", reading=True) if units else UNITS_TO_METRES["mm"]
+    )
 
     rate = _first_number(_c3d_param(params, "POINT", "RATE"))
     if rate is None or not np.isfinite(rate) or rate <= 0:
@@ -519,16 +716,24 @@ def read_c3d(path: str | os.PathLike[str]) -> Trial:
     if not np.isfinite(rate) or rate <= 0:
         raise _fail(path, "C3D file gives no valid frame rate (POINT:RATE)", redo)
 
-    xyz = points[:3, :n_points, :].transpose(2, 1, 0) * scale  # (frames, markers, 3)
+    xyz = points[:3, keep, :n_frames].transpose(2, 1, 0) * scale  # (frames, markers, 3)
     gap = ~np.isfinite(xyz).all(axis=2) | (xyz == 0.0).all(axis=2)
-    if residuals.ndim == 3 and residuals.shape[1] >= n_points and residuals.shape[2] == n_frames:
-        gap |= (residuals[0, :n_points, :] < 0).T
+    if residuals.ndim == 3 and residuals.shape[1] >= n_points and residuals.shape[2] >= n_frames:
+        gap |= (residuals[0, keep, :n_frames] < 0).T
     xyz[gap] = np.nan
-    return Trial(labels=labels, markers=xyz, rate=rate, first_frame=max(header_first, 0), source=str(path))
+    first_frame = layout.first_frame if layout.first_frame is not None else max(header_first, 0)
+    return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path))
 
 
-def read_trc(path: str | os.PathLike[str]) -> Trial:
-    """Read an OpenSim-style TRC marker file into a trial in metres; blank cells are gaps."""
+def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
+    """Read an OpenSim-style TRC marker file into a trial in metres; blank (or NaN) cells are gaps.
+
+    Tab-separated, as OpenSim reads and writes it: line 2 the header keys, line 3 their values
+    (``DataRate`` and ``Units`` required; ``Units`` mm, cm or m, also spelt out), line 4
+    ``Frame#``, ``Time`` and one label every three columns (labels may contain spaces and
+    dots), line 5 the X/Y/Z names, data from line 6 on (blank lines skipped).  A subject
+    prefix shared by the labels is removed unless ``strip_prefix`` is False.
+    """
     path = Path(path)
     _check_input_file(path)
     redo = "export the TRC file again"
@@ -563,7 +768,7 @@ def read_trc(path: str | os.PathLike[str]) -> Trial:
         raise _fail(path, f"TRC DataRate {meta['DataRate']!r} is not a number", redo) from None
     if not np.isfinite(rate) or rate <= 0:
         raise _fail(path, f"TRC DataRate must be a positive number of frames per second, got {meta['DataRate']}", redo)
-    scale = _parse_units(meta["Units"], path, "set Units in the TRC header to mm, cm or m")
+    scale = _parse_units(meta["Units"], path, "set Units in the TRC header to mm, cm or m", reading=True)
 
     def header_int(key: str) -> int | None:
         if not meta.get(key):
@@ -595,6 +800,8 @@ def read_trc(path: str | os.PathLike[str]) -> Trial:
         raise _fail(path, f"TRC header says NumMarkers {num_markers} but line 4 names {n_markers} markers", redo)
     if n_markers == 0:
         raise _fail(path, "TRC file names no markers", "export the trial with its markers")
+    if strip_prefix:
+        raw_labels, _ = strip_subject_prefix(raw_labels)
     labels = _unique_labels(raw_labels)
 
     width = 2 + 3 * n_markers
@@ -701,9 +908,17 @@ def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
     """Write a trial's marker trajectories to a C3D file (float data, POINT:UNITS ``units``).
 
     Gaps are written as coordinates 0 with residual -1 (the C3D "invalid point").
+    At most 65535 frames: ezc3d does not read longer files back whole.
     The file is written next to its target and then moved into place.
     """
     path, key, scale = _target(path, trial, units)
+    if trial.n_frames > _C3D_MAX_HEADER_FRAME:
+        raise _fail(
+            path,
+            f"{trial.n_frames} frames are more than a C3D file written here can hold ({_C3D_MAX_HEADER_FRAME}; "
+            "ezc3d reads back only that many)",
+            "write a TRC file instead or split the trial with Trial.frames",
+        )
     if trial.first_frame + 1 > _C3D_MAX_HEADER_FRAME:
         raise _fail(
             path,

@@ -14,6 +14,7 @@ from calibrate.trial import (
     read_c3d,
     read_trc,
     read_trial,
+    strip_subject_prefix,
     write_c3d,
     write_trc,
 )
@@ -392,6 +393,83 @@ def test_read_trc_units_and_crlf(tmp_path: Path) -> None:
     trial = read_trc(path)
     np.testing.assert_allclose(trial.markers[0], [[0.01, 0.02, 0.03], [0.04, 0.05, 0.06]])
     assert trial.first_frame == 10
+
+
+def _opensim_trc(name: str, labels: list[str], rows: list[list[str]], units: str, blank_line: bool) -> str:
+    """A TRC file laid out as OpenSim's example files are (tabs, a blank 6th line in gait2392's subject01)."""
+    n = len(labels)
+    lines = [
+        f"PathFileType\t4\t(X/Y/Z)\t{name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+        f"60.00\t60.00\t{len(rows)}\t{n}\t{units}\t60.00\t1\t{len(rows)}",
+        "Frame#\tTime\t" + "\t\t\t".join(labels),
+        "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, n + 1)),
+    ]
+    if blank_line:
+        lines.append("")
+    lines += ["\t".join(row) for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(("units", "blank_line"), [("mm", True), ("m", False), ("Millimeters", True)])
+def test_read_trc_opensim_example_layout(tmp_path: Path, units: str, blank_line: bool) -> None:
+    """Dots and spaces in names, empty and NaN cells, Units mm or m, with or without the blank 6th line."""
+    labels = ["R.ASIS", "L.ASIS", "V.Sacral", "R Knee Lat", "R.Toe.Tip"]
+    first = np.array([[120.5, 980.25, -40], [118, 975.5, 210.75], [-60, 1005, 85.5], [140, 500, -90], [300, 40, -80]])
+    values = first + np.array([0.0, 1.0, 2.0])[:, None, None] * [1.0, 1.0, -1.0]  # (3 frames, 5 markers, 3) mm
+    if units == "m":
+        values = values / 1000.0
+    cells = [[f"{v:.6f}" for v in frame.ravel()] for frame in values]
+    cells[0][3:6] = ["", "", ""]  # L.ASIS missing: empty cells
+    cells[1][9:12] = ["NaN", "NaN", "NaN"]  # R Knee Lat missing: NaN
+    cells[2] = cells[2][:12]  # R.Toe.Tip missing: the row ends early
+    rows = [[str(i + 1), f"{i / 60:.5f}", *c] for i, c in enumerate(cells)]
+    path = tmp_path / "subject01_walk1.trc"
+    path.write_text(_opensim_trc(path.name, labels, rows, units, blank_line))
+
+    trial = read_trc(path)
+    assert trial.labels == tuple(labels)
+    assert trial.rate == 60.0 and trial.first_frame == 0 and trial.n_frames == 3
+    want = values * (1.0 if units == "m" else 1e-3)
+    want[0, 1] = want[1, 3] = want[2, 4] = np.nan
+    np.testing.assert_allclose(trial.markers, want, rtol=0, atol=1e-9, equal_nan=True)
+
+
+def test_read_trc_subject_prefix(tmp_path: Path) -> None:
+    labels = ["Sub01:RASI", "Sub01:LASI", "C7"]
+    rows = [["1", "0", *["1"] * 9]]
+    path = tmp_path / "prefixed.trc"
+    path.write_text(_opensim_trc(path.name, labels, rows, "mm", blank_line=False))
+    assert read_trc(path).labels == ("RASI", "LASI", "C7")
+    assert read_trial(path, strip_prefix=False).labels == tuple(labels)
+
+
+@pytest.mark.parametrize(
+    ("labels", "want", "prefix"),
+    [
+        (["Sub01:RASI", "Sub01:LASI", "*12", ""], ["RASI", "LASI", "*12", ""], "Sub01"),
+        (["Sub 01 : RASI", " Sub 01 :LASI"], ["RASI", "LASI"], "Sub 01"),
+        (["Sub01:RASI", "Sub02:RASI"], ["Sub01:RASI", "Sub02:RASI"], None),  # two subjects
+        (["Sub01:RASI", "RASI"], ["Sub01:RASI", "RASI"], None),  # would repeat RASI
+        (["Sub01:RASI", "Sub01:"], ["Sub01:RASI", "Sub01:"], None),  # would leave a label empty
+        ([":RASI", ":LASI"], [":RASI", ":LASI"], None),  # blank prefix
+        (["RASI", "LASI"], ["RASI", "LASI"], None),
+        (["A:B:C", "A:D"], ["B:C", "D"], "A"),  # the prefix ends at the first colon
+    ],
+)
+def test_strip_subject_prefix(labels: list[str], want: list[str], prefix: str | None) -> None:
+    assert strip_subject_prefix(labels) == (want, prefix)
+
+
+def test_write_c3d_refuses_more_frames_than_ezc3d_reads_back(tmp_path: Path) -> None:
+    trial = Trial(("A",), np.ones((65_536, 1, 3)), 100.0)
+    path = tmp_path / "long.c3d"
+    with pytest.raises(TrialError, match="65536 frames") as excinfo:
+        write_c3d(path, trial)
+    assert_one_line_error(excinfo, path)
+    assert list(tmp_path.iterdir()) == []
+    write_c3d(path, trial.frames(0, 65_535))
+    assert read_c3d(path).n_frames == 65_535
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,465 @@
+"""Trial marker labels to model marker labels: a marker map file and built-in aliases.
+
+:func:`map_labels` renames a trial's markers to the model's labels and reports, for every
+trial label, what it became and how:
+
+- ``exact``: the trial label is a model label;
+- ``map``: the marker map (``--markers map.toml``, :func:`load_marker_map`) lists it under a model label;
+- ``alias``: a common spelling of a model label (the table below);
+- ``unknown``: none of these; the label is kept as it is, so that a later stage (placing
+  unknown markers on segments by rigidity) can still use the marker.
+
+Each trial label gets its best match in that order.  When several trial labels would take the
+same model label (``R.Knee`` and ``R.Knee.Lat`` both present) one is kept, by rank: exact,
+then map, then alias; within the map, the order of the entry's list; within the aliases, the
+order of the alias table; at a tie, the first in the trial, with a :class:`LabelConflictWarning`.
+The others keep their own labels (``unknown``) and the mapping says which label was kept.
+
+Subject prefixes: the trial readers remove a prefix shared by all labels (``Sub01:RASI``).  A
+label that still has one (several subjects, or a skeleton and rigid bodies in one OptiTrack
+file) is matched by its whole text first, then by its name after the prefix; a match after the
+prefix ranks below every match of a whole label.
+
+Aliases.  Labels are compared after normalisation: lower case, the separators ``.``, ``_``,
+``-`` and spaces removed, camel case split (``RightKnee`` = ``Right Knee``).  A side is read from
+a first or last word ``R``/``L``/``Right``/``Left`` (``R.Knee``, ``knee_r``, ``RightKnee``), or from
+the first letter (``RKNEE``); OpenSim's midline prefix ``V.`` (``V.Sacral``) is dropped.  The rest
+is looked up below (most specific first).  An alias only maps to a label the model has: our
+Plug-in Gait model has no ``SACR``, so ``V.Sacral`` stays unknown there.
+
+============  =====================================================================================
+model label   alias names, after the side (R or L) and normalisation
+============  =====================================================================================
+xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine
+xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine
+xTHI          thi, thigh, thighwand
+xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee, latepicondyle, lateralepicondyle
+xTIB          tib, tibia, shank, tibwand, shankwand
+xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
+              malleoluslat, ankle
+xHEE          hee, heel, calc, calcaneus
+xTOE          toe, mt2, mth2, metatarsal2, toetip
+xSHO          sho, shoulder, acromion, acromium, acr
+xUPA          upa, upperarm, arm, humerus, bicep, biceps
+xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow
+xFRM          frm, forearm
+xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius
+xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna
+xFIN          fin, finger, mcp2, mc2, hand
+xFHD          fhd, fronthead, headfront, forehead, temple
+xBHD          bhd, backhead, headback, rearhead, headrear
+xBAK          bak, back, scapula
+C7            c7, vertebrac7
+T10           t10, th10, vertebrat10
+CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch
+STRN          strn, sternum, xiphoid, xiphoidprocess
+SACR          sacr, sacrum, sacral
+============  =====================================================================================
+
+So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
+``RASI``; ``R.Knee.Lat`` and ``R.Knee`` become ``RKNE`` (``R.Knee.Lat`` kept when both are there);
+``R.Knee.Med``, ``R.Ankle.Med`` and the thigh/shank cluster markers of OpenSim's gait2392 set
+(``R.Thigh.Upper``...) have no Plug-in Gait counterpart and stay unknown.
+
+The marker map file is TOML, one line per model label, its trial labels in order of preference::
+
+    RASI = ["R.ASIS", "RASIS"]
+    RKNE = ["R.Knee.Lat", "R.Knee"]
+    C7 = "Neck"                 # a single label may be given as a string
+
+Map entries match trial labels exactly (case and separators count).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+import warnings
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import CalibrateError
+from .trial import Trial
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = [
+    "HOWS",
+    "LabelConflictWarning",
+    "LabelMapping",
+    "LabelMatch",
+    "MarkerMap",
+    "alias_for",
+    "load_marker_map",
+    "map_labels",
+]
+
+#: How a trial label was matched, best first.
+HOWS = ("exact", "map", "alias", "unknown")
+
+#: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
+#: names after the side and normalisation, most specific first.
+SIDE_ALIASES: dict[str, tuple[str, ...]] = {
+    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine"),
+    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine"),
+    "THI": ("thi", "thigh", "thighwand"),
+    "KNE": ("kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee", "latepicondyle", "lateralepicondyle"),
+    "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand"),
+    "ANK": (
+        "ank", "anklelat", "anklelateral", "latankle", "lateralankle", "latmalleolus", "lateralmalleolus",
+        "malleoluslat", "ankle",
+    ),
+    "HEE": ("hee", "heel", "calc", "calcaneus"),
+    "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip"),
+    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr"),
+    "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
+    "ELB": ("elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow"),
+    "FRM": ("frm", "forearm"),
+    "WRA": ("wra", "wrista", "wristlat", "wristlateral", "wristradial", "radialwrist", "radialstyloid", "radius"),
+    "WRB": ("wrb", "wristb", "wristmed", "wristmedial", "wristulnar", "ulnarwrist", "ulnarstyloid", "ulna"),
+    "FIN": ("fin", "finger", "mcp2", "mc2", "hand"),
+    "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple"),
+    "BHD": ("bhd", "backhead", "headback", "rearhead", "headrear"),
+    "BAK": ("bak", "back", "scapula"),
+}
+
+#: Midline Plug-in Gait markers, with alias names after normalisation, most specific first.
+MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
+    "C7": ("c7", "vertebrac7"),
+    "T10": ("t10", "th10", "vertebrat10"),
+    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch"),
+    "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess"),
+    "SACR": ("sacr", "sacrum", "sacral"),
+}
+
+_SIDE_WORDS = {"r": "R", "right": "R", "l": "L", "left": "L"}
+_SIDE_LOOKUP = {name: (code, rank) for code, names in SIDE_ALIASES.items() for rank, name in enumerate(names)}
+_MIDLINE_LOOKUP = {name: (label, rank) for label, names in MIDLINE_ALIASES.items() for rank, name in enumerate(names)}
+_SEPARATORS = re.compile(r"[\s._\-]+")
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
+_RANK = {"exact": 0, "map": 1, "alias": 2}
+
+
+class LabelConflictWarning(UserWarning):
+    """Several trial labels matched one model label equally well; the first in the trial was kept."""
+
+
+class MarkerMap(dict[str, list[str]]):
+    """A marker map: model label -> trial labels in order of preference; ``source`` names its file."""
+
+    source: str | None = None
+
+
+def _words(label: str) -> list[str]:
+    """Lower-case words of a label: split at separators and camel-case boundaries."""
+    return [word.lower() for part in _SEPARATORS.split(label) for word in _CAMEL.split(part) if word]
+
+
+def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None:
+    """The model label a trial label is a common spelling of, and its rank in the alias table (0 best).
+
+    None when the label is no known spelling of any of ``model_labels``.
+    """
+    model = set(model_labels)
+    words = _words(label)
+    if not words:
+        return None
+    joined = "".join(words)
+    readings: list[tuple[str | None, str]] = []  # (side, name) in order of trust
+    if len(words) > 1 and words[0] in _SIDE_WORDS:
+        readings.append((_SIDE_WORDS[words[0]], "".join(words[1:])))
+    if len(words) > 1 and words[-1] in _SIDE_WORDS:
+        readings.append((_SIDE_WORDS[words[-1]], "".join(words[:-1])))
+    for word in ("right", "left"):
+        if joined.startswith(word) and len(joined) > len(word):
+            readings.append((_SIDE_WORDS[word], joined[len(word) :]))
+    if joined[0] in "rl" and len(joined) > 1:
+        readings.append((joined[0].upper(), joined[1:]))
+    if len(words) > 1 and words[0] == "v":  # OpenSim's midline prefix: V.Sacral
+        readings.append((None, "".join(words[1:])))
+    readings.append((None, joined))
+    for side, name in readings:
+        if side is not None and name in _SIDE_LOOKUP:
+            code, rank = _SIDE_LOOKUP[name]
+            if side + code in model:
+                return side + code, rank
+        if side is None and name in _MIDLINE_LOOKUP:
+            target, rank = _MIDLINE_LOOKUP[name]
+            if target in model:
+                return target, rank
+    return None
+
+
+# ---------------------------------------------------------------------------
+# The marker map file
+# ---------------------------------------------------------------------------
+
+
+def _map_error(source: str | None, what: str, todo: str) -> CalibrateError:
+    return CalibrateError(" ".join(f"{source or 'marker map'}: {what}; {todo}".split()))
+
+
+def load_marker_map(path: str | os.PathLike[str]) -> MarkerMap:
+    """Read a marker map TOML file: ``MODEL_LABEL = ["trial label", ...]`` (a single string also works).
+
+    Raises CalibrateError (one line naming the file, the key and what to do) when the file is
+    missing or not TOML, an entry is not a list of non-empty labels, or one trial label is listed
+    under two model labels.  Model labels are checked against the model by :func:`map_labels`.
+    """
+    path = Path(path)
+    where = str(path)
+    if not path.exists():
+        raise _map_error(where, "no such file", "check the path of the marker map")
+    if path.is_dir():
+        raise _map_error(where, "is a directory, not a marker map", "give the path of a .toml file")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise _map_error(where, "is not UTF-8 text", "save the marker map as UTF-8 TOML") from None
+    except OSError as exc:
+        raise _map_error(where, f"cannot be read ({exc.strerror or exc})", "check the file permissions") from None
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise _map_error(
+            where, f"not valid TOML ({exc})", 'write one line per model label, e.g. RASI = ["R.ASIS", "RASIS"]'
+        ) from None
+
+    marker_map = MarkerMap()
+    marker_map.source = where
+    owner: dict[str, str] = {}
+    for key, value in table.items():
+        example = f'write it as {key} = ["R.ASIS", "RASIS"] (model label = list of trial labels)'
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            shown = "a table" if isinstance(value, dict) else repr(value)
+            raise _map_error(where, f"{key} = {shown} is not a list of trial labels", example)
+        labels = [v.strip() for v in value]
+        if not labels:
+            raise _map_error(where, f"{key} lists no trial labels", "add its trial labels or remove the line")
+        if not all(labels):
+            raise _map_error(where, f"{key} lists an empty trial label", "remove the empty string")
+        if not key.strip() or key != key.strip():
+            raise _map_error(where, f"model label {key!r} is blank or has surrounding spaces", "fix the name")
+        unique: list[str] = []
+        for label in labels:
+            if label in owner and owner[label] != key:
+                raise _map_error(
+                    where,
+                    f"trial label {label!r} is listed under both {owner[label]} and {key}",
+                    "list it under one model label only",
+                )
+            if label not in unique:
+                unique.append(label)
+            owner[label] = key
+        marker_map[key] = unique
+    return marker_map
+
+
+def _check_marker_map(marker_map: Mapping[str, Sequence[str]], model: Sequence[str]) -> dict[str, tuple[str, int]]:
+    """Trial label -> (model label, position in its list), after checking the map against the model."""
+    source = getattr(marker_map, "source", None)
+    model_set = set(model)
+    lookup: dict[str, tuple[str, int]] = {}
+    for key, labels in marker_map.items():
+        if key not in model_set:
+            shown = ", ".join(model[:12]) + (f" and {len(model) - 12} more" if len(model) > 12 else "")
+            raise _map_error(
+                source,
+                f"model label {key!r} is not in the model (its markers: {shown or 'none'})",
+                "correct the name or remove the line",
+            )
+        if isinstance(labels, str):
+            labels = [labels]
+        for position, label in enumerate(labels):
+            if not isinstance(label, str) or not label.strip():
+                raise _map_error(source, f"{key} lists {label!r}, not a trial label", "give labels as text")
+            label = label.strip()
+            if label in model_set and label != key:
+                raise _map_error(
+                    source,
+                    f"{key} lists {label!r}, which is a model label itself (a trial label that is a model "
+                    "label always keeps it)",
+                    f"remove {label!r} from {key} or rename that marker in the trial",
+                )
+            if label in lookup and lookup[label][0] != key:
+                raise _map_error(
+                    source,
+                    f"trial label {label!r} is listed under both {lookup[label][0]} and {key}",
+                    "list it under one model label only",
+                )
+            lookup.setdefault(label, (key, position))
+    return lookup
+
+
+# ---------------------------------------------------------------------------
+# Mapping
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LabelMatch:
+    """What one trial label became: ``label`` (the label in the relabelled trial), ``how`` (one of
+    :data:`HOWS`) and a ``note`` (a conflict, a prefix that was passed over) or ''."""
+
+    trial_label: str
+    label: str
+    how: str
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class LabelMapping:
+    """Every trial label and what it became, in trial order; model labels no trial label gave; warnings."""
+
+    matches: tuple[LabelMatch, ...]
+    missing: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+    def __iter__(self) -> Iterator[LabelMatch]:
+        return iter(self.matches)
+
+    def __len__(self) -> int:
+        return len(self.matches)
+
+    @property
+    def renamed(self) -> dict[str, str]:
+        """Trial label -> label in the relabelled trial, for every trial label."""
+        return {m.trial_label: m.label for m in self.matches}
+
+    @property
+    def unknown(self) -> tuple[str, ...]:
+        """Trial labels that did not become a model label."""
+        return tuple(m.trial_label for m in self.matches if m.how == "unknown")
+
+    def to_json(self) -> list[dict[str, str]]:
+        """One dict per trial label: ``trial_label``, ``label``, ``how``, ``note``."""
+        return [{"trial_label": m.trial_label, "label": m.label, "how": m.how, "note": m.note} for m in self.matches]
+
+    def text(self) -> str:
+        """A short table: trial label, what it became (``=`` unchanged), how, note; counts; model labels not found."""
+        rows = [("trial label", "label", "how", "note")]
+        rows += [(m.trial_label, m.label if m.label != m.trial_label else "=", m.how, m.note) for m in self.matches]
+        widths = [max(len(row[i]) for row in rows) for i in range(3)]
+        lines = [
+            "  ".join(cell.ljust(width) for cell, width in zip(row[:3], widths, strict=True)) + "  " + row[3]
+            for row in rows
+        ]
+        lines = [line.rstrip() for line in lines]
+        counts = {how: sum(m.how == how for m in self.matches) for how in HOWS}
+        lines.append(", ".join(f"{counts[how]} {how}" for how in HOWS))
+        if self.missing:
+            lines.append(f"model labels not in the trial ({len(self.missing)}): {', '.join(self.missing)}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.text()
+
+
+def _split_prefix(label: str) -> tuple[str, str] | None:
+    """(prefix, name) of a label ``prefix:name``, or None."""
+    if ":" not in label:
+        return None
+    prefix, name = label.split(":", 1)
+    prefix, name = prefix.strip(), name.strip()
+    return (prefix, name) if prefix and name else None
+
+
+def map_labels(
+    trial: Trial,
+    model_labels: Sequence[str],
+    marker_map: Mapping[str, Sequence[str]] | None = None,
+    aliases: bool = True,
+) -> tuple[Trial, LabelMapping]:
+    """Rename a trial's markers to model labels; return the relabelled trial and what each label became.
+
+    ``marker_map``: model label -> trial labels (as :func:`load_marker_map` reads it); it takes
+    precedence over the built-in aliases (``aliases=False`` turns those off).  Labels that match
+    nothing are kept as they are.  Marker data, rate, first frame and source are unchanged.
+    Raises CalibrateError when the map names a model label the model does not have.
+    """
+    if not isinstance(trial, Trial):
+        raise TypeError(f"expected a Trial, got {type(trial).__name__}")
+    if isinstance(model_labels, str):
+        raise TypeError("model_labels must be a sequence of labels, not one string")
+    model = [str(label) for label in model_labels]
+    model_set = set(model)
+    lookup = _check_marker_map(marker_map, model) if marker_map else {}
+
+    def best(label: str) -> tuple[str, str, int] | None:
+        """(model label, how, priority) of a whole label."""
+        if label in model_set:
+            return label, "exact", 0
+        if label in lookup:
+            return lookup[label][0], "map", lookup[label][1]
+        if aliases:
+            found = alias_for(label, model_set)
+            if found is not None:
+                return found[0], "alias", found[1]
+        return None
+
+    # Each trial label's best candidate: (model label, how, rank key, note)
+    candidates: dict[int, tuple[str, str, tuple[int, int, int], str]] = {}
+    for index, label in enumerate(trial.labels):
+        found = best(label)
+        prefixed = 0
+        note = ""
+        if found is None and (split := _split_prefix(label)) is not None:
+            found = best(split[1])
+            prefixed, note = 1, f"matched after the prefix {split[0]}:"
+        if found is not None:
+            target, how, priority = found
+            candidates[index] = (target, how, (prefixed, _RANK[how], priority), note)
+
+    by_target: dict[str, list[int]] = {}
+    for index, (target, *_rest) in candidates.items():
+        by_target.setdefault(target, []).append(index)
+
+    labels = list(trial.labels)
+    hows = ["unknown"] * len(labels)
+    notes = [""] * len(labels)
+    messages: list[str] = []
+    for target, indices in by_target.items():
+        indices.sort(key=lambda i: (candidates[i][2], i))
+        winner, losers = indices[0], indices[1:]
+        labels[winner] = target
+        hows[winner] = candidates[winner][1]
+        notes[winner] = candidates[winner][3]
+        if not losers:
+            continue
+        loser_names = ", ".join(trial.labels[i] for i in losers)
+        notes[winner] = "; ".join(filter(None, [notes[winner], f"conflict: kept over {loser_names}"]))
+        for i in losers:
+            notes[i] = f"conflict: {target} kept {trial.labels[winner]}"
+        tied = [i for i in losers if candidates[i][2] == candidates[winner][2]]
+        if tied:
+            names = ", ".join(trial.labels[i] for i in [winner, *tied])
+            message = (
+                f"trial labels {names} all match {target} equally well; kept {trial.labels[winner]}, "
+                "the first in the trial (a marker map can choose)"
+            )
+            messages.append(message)
+            warnings.warn(message, LabelConflictWarning, stacklevel=2)
+
+    if len(set(labels)) != len(labels):  # cannot happen: unknown labels are never model labels
+        raise CalibrateError(f"{trial.source or 'trial'}: relabelling made two markers the same; check the marker map")
+    relabelled = Trial(
+        labels=tuple(labels),
+        markers=trial.markers,
+        rate=trial.rate,
+        first_frame=trial.first_frame,
+        source=trial.source,
+    )
+    matches = tuple(
+        LabelMatch(trial_label=old, label=new, how=how, note=note)
+        for old, new, how, note in zip(trial.labels, labels, hows, notes, strict=True)
+    )
+    found_targets = set(by_target)
+    missing = tuple(label for label in model if label not in found_targets)
+    return relabelled, LabelMapping(matches=matches, missing=missing, warnings=tuple(messages))

@@ -1,0 +1,295 @@
+"""Tests for calibrate.labels: marker map files, built-in aliases, conflicts, the mapping report."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.errors import CalibrateError
+from calibrate.labels import LabelConflictWarning, alias_for, load_marker_map, map_labels
+from calibrate.trial import Trial, read_trial, write_c3d
+
+# Hand-written from the Plug-in Gait marker set of models/human.urdf (checked against the model below).
+PIG = (
+    "LASI", "LPSI", "RASI", "RPSI", "LKNE", "LTHI", "LANK", "LTIB", "LHEE", "LTOE", "RKNE", "RTHI", "RANK", "RTIB",
+    "RHEE", "RTOE", "C7", "CLAV", "LSHO", "RBAK", "RSHO", "STRN", "T10", "LBHD", "LFHD", "RBHD", "RFHD", "LELB",
+    "LUPA", "LFRM", "LWRA", "LWRB", "LFIN", "RELB", "RUPA", "RFRM", "RWRA", "RWRB", "RFIN",
+)
+
+
+def make_trial(labels: list[str] | tuple[str, ...], *, seed: int = 0, source: str | None = "walk.c3d") -> Trial:
+    rng = np.random.default_rng(seed)
+    markers = rng.uniform(-1.0, 1.0, size=(7, len(labels), 3))
+    markers[2, 0] = np.nan
+    return Trial(labels=tuple(labels), markers=markers, rate=150.0, first_frame=4, source=source)
+
+
+def by_trial_label(mapping) -> dict[str, tuple[str, str, str]]:  # noqa: ANN001
+    return {m.trial_label: (m.label, m.how, m.note) for m in mapping}
+
+
+def test_model_has_the_plug_in_gait_labels(human) -> None:  # noqa: ANN001
+    assert set(human.marker_names) == set(PIG)
+
+
+# ---------------------------------------------------------------------------
+# Aliases
+# ---------------------------------------------------------------------------
+
+OPENSIM = {  # gait2392 / subject01-style labels -> Plug-in Gait, or None where there is no counterpart
+    "R.ASIS": "RASI",
+    "L.ASIS": "LASI",
+    "V.Sacral": None,  # SACR: not in our model
+    "R.Thigh": "RTHI",
+    "R.Thigh.Upper": None,
+    "R.Knee.Lat": "RKNE",
+    "R.Knee.Med": None,
+    "L.Shank": "LTIB",
+    "R.Ankle.Lat": "RANK",
+    "R.Ankle.Med": None,
+    "R.Heel": "RHEE",
+    "R.Toe.Tip": "RTOE",
+    "Top.Head": None,
+    "Sternum": "STRN",
+    "R.Acromium": "RSHO",
+    "L.Shoulder": "LSHO",
+    "R.Elbow.Lat": "RELB",
+    "L.Elbow.Med": None,
+    "R.Forearm": "RFRM",
+    "R.Wrist.Lat": "RWRA",
+    "R.Wrist.Med": "RWRB",
+}
+
+
+def test_opensim_example_labels(human) -> None:  # noqa: ANN001
+    trial = make_trial(list(OPENSIM))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        relabelled, mapping = map_labels(trial, human.marker_names)
+    got = by_trial_label(mapping)
+    for label, want in OPENSIM.items():
+        if want is None:
+            assert got[label] == (label, "unknown", ""), label
+        else:
+            assert got[label][:2] == (want, "alias"), label
+    for label, want in OPENSIM.items():
+        np.testing.assert_array_equal(relabelled.marker(want or label), trial.marker(label))
+    assert relabelled.rate == 150.0 and relabelled.first_frame == 4 and relabelled.source == "walk.c3d"
+    assert "LKNE" in mapping.missing and "RASI" not in mapping.missing
+    assert len(mapping.missing) == len(PIG) - sum(v is not None for v in OPENSIM.values())
+
+
+@pytest.mark.parametrize(
+    ("spelling", "want"),
+    [
+        ("R.ASIS", "RASI"), ("RASIS", "RASI"), ("R_ASIS", "RASI"), ("r_asis", "RASI"), ("RightASIS", "RASI"),
+        ("R.ASI", "RASI"), ("ASIS_R", "RASI"), ("r-asis", "RASI"), ("R ASIS", "RASI"), ("rasi", "RASI"),
+        ("L.PSIS", "LPSI"), ("LPSIS", "LPSI"), ("R.Knee", "RKNE"), ("RKNEE", "RKNE"), ("knee_l", "LKNE"),
+        ("LeftKneeLateral", "LKNE"), ("L.Ankle", "LANK"), ("LHEEL", "LHEE"), ("R.MT2", "RTOE"), ("RToe", "RTOE"),
+        ("Clavicle", "CLAV"), ("c7", "C7"), ("Th10", "T10"), ("R.Scapula", "RBAK"), ("L.Head.Front", "LFHD"),
+        ("R_Back_Head", "RBHD"), ("L.Finger", "LFIN"), ("R.UpperArm", "RUPA"), ("Elbow_L", "LELB"),
+    ],
+)
+def test_common_spellings(human, spelling: str, want: str) -> None:  # noqa: ANN001
+    _, mapping = map_labels(make_trial([spelling]), human.marker_names)
+    assert by_trial_label(mapping)[spelling][:2] == (want, "alias")
+
+
+@pytest.mark.parametrize("label", ["LatKnee", "Lateral", "Radius", "Back", "*12", "RHJC", "Unlabeled 1001", "R"])
+def test_no_false_aliases(human, label: str) -> None:  # noqa: ANN001
+    assert alias_for(label, human.marker_names) is None
+
+
+def test_aliases_only_map_to_labels_the_model_has() -> None:
+    assert alias_for("V.Sacral", PIG) is None
+    assert alias_for("V.Sacral", [*PIG, "SACR"]) == ("SACR", 2)
+    assert alias_for("R.ASIS", ["LASI"]) is None
+
+
+def test_exact_labels_and_unknown_labels(human) -> None:  # noqa: ANN001
+    trial = make_trial(["RASI", "LASI", "Wand1", "R.Knee.Med"])
+    relabelled, mapping = map_labels(trial, human.marker_names)
+    assert relabelled.labels == ("RASI", "LASI", "Wand1", "R.Knee.Med")
+    assert [m.how for m in mapping] == ["exact", "exact", "unknown", "unknown"]
+    assert mapping.unknown == ("Wand1", "R.Knee.Med")
+    np.testing.assert_array_equal(relabelled.markers, trial.markers)
+
+
+def test_aliases_off(human) -> None:  # noqa: ANN001
+    _, mapping = map_labels(make_trial(["R.ASIS", "LASI"]), human.marker_names, aliases=False)
+    assert [(m.label, m.how) for m in mapping] == [("R.ASIS", "unknown"), ("LASI", "exact")]
+
+
+# ---------------------------------------------------------------------------
+# Conflicts
+# ---------------------------------------------------------------------------
+
+
+def test_conflict_between_aliases_goes_by_the_alias_table(human) -> None:  # noqa: ANN001
+    trial = make_trial(["R.Knee", "R.Knee.Lat"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # decided by rank: no warning
+        relabelled, mapping = map_labels(trial, human.marker_names)
+    assert relabelled.labels == ("R.Knee", "RKNE")
+    got = by_trial_label(mapping)
+    assert got["R.Knee"] == ("R.Knee", "unknown", "conflict: RKNE kept R.Knee.Lat")
+    assert got["R.Knee.Lat"] == ("RKNE", "alias", "conflict: kept over R.Knee")
+    np.testing.assert_array_equal(relabelled.marker("RKNE"), trial.marker("R.Knee.Lat"))
+    assert mapping.warnings == ()
+
+
+def test_exact_beats_map_beats_alias(tmp_path: Path, human) -> None:  # noqa: ANN001
+    path = tmp_path / "map.toml"
+    path.write_text('RASI = ["Pelvis1"]\nRTOE = ["R.Toe.Tip"]\n')
+    marker_map = load_marker_map(path)
+    trial = make_trial(["R.ASIS", "Pelvis1", "RASI", "R.Toe", "R.Toe.Tip"])
+    relabelled, mapping = map_labels(trial, human.marker_names, marker_map)
+    got = by_trial_label(mapping)
+    assert got["RASI"][:2] == ("RASI", "exact")
+    assert got["Pelvis1"][:2] == ("Pelvis1", "unknown") and got["R.ASIS"][:2] == ("R.ASIS", "unknown")
+    assert got["R.ASIS"][2] == got["Pelvis1"][2] == "conflict: RASI kept RASI"
+    assert got["R.Toe.Tip"] == ("RTOE", "map", "conflict: kept over R.Toe")  # the map wins over an alias
+    assert got["R.Toe"] == ("R.Toe", "unknown", "conflict: RTOE kept R.Toe.Tip")
+    assert relabelled.labels == ("R.ASIS", "Pelvis1", "RASI", "R.Toe", "RTOE")
+
+
+def test_conflict_within_the_map_goes_by_its_order(tmp_path: Path, human) -> None:  # noqa: ANN001
+    path = tmp_path / "map.toml"
+    path.write_text('RKNE = ["KneeB", "KneeA"]\n')
+    _, mapping = map_labels(make_trial(["KneeA", "KneeB"]), human.marker_names, load_marker_map(path))
+    assert by_trial_label(mapping) == {
+        "KneeA": ("KneeA", "unknown", "conflict: RKNE kept KneeB"),
+        "KneeB": ("RKNE", "map", "conflict: kept over KneeA"),
+    }
+
+
+def test_tie_keeps_the_first_and_warns(human) -> None:  # noqa: ANN001
+    trial = make_trial(["R_ASIS", "R.ASIS"])
+    with pytest.warns(LabelConflictWarning, match="R_ASIS, R.ASIS .*RASI"):
+        relabelled, mapping = map_labels(trial, human.marker_names)
+    assert relabelled.labels == ("RASI", "R.ASIS")
+    assert len(mapping.warnings) == 1 and "kept R_ASIS" in mapping.warnings[0]
+    np.testing.assert_array_equal(relabelled.marker("RASI"), trial.marker("R_ASIS"))
+
+
+def test_prefixed_labels_match_after_the_prefix(human) -> None:  # noqa: ANN001
+    trial = make_trial(["Skeleton:RASI", "Skeleton:R.Knee.Lat", "Wand:Marker1", "Other:RASI", "LASI"])
+    with pytest.warns(LabelConflictWarning, match="Skeleton:RASI, Other:RASI"):
+        relabelled, mapping = map_labels(trial, human.marker_names)
+    assert relabelled.labels == ("RASI", "RKNE", "Wand:Marker1", "Other:RASI", "LASI")
+    got = by_trial_label(mapping)
+    assert got["Skeleton:RASI"][:2] == ("RASI", "exact") and "prefix Skeleton:" in got["Skeleton:RASI"][2]
+    assert got["Skeleton:R.Knee.Lat"][:2] == ("RKNE", "alias")
+    assert got["Other:RASI"] == ("Other:RASI", "unknown", "conflict: RASI kept Skeleton:RASI")
+
+
+def test_a_whole_label_beats_a_prefixed_one(human) -> None:  # noqa: ANN001
+    _, mapping = map_labels(make_trial(["Sub02:RASI", "R.ASIS"]), human.marker_names)
+    assert by_trial_label(mapping)["R.ASIS"][:2] == ("RASI", "alias")
+
+
+# ---------------------------------------------------------------------------
+# Marker map files
+# ---------------------------------------------------------------------------
+
+
+def test_load_marker_map(tmp_path: Path) -> None:
+    path = tmp_path / "markers.toml"
+    path.write_text('# lab A\nRASI = ["R.ASIS", "RASIS", "R.ASIS"]\nC7 = "Neck"\n"RKNE" = [" R Knee "]\n')
+    marker_map = load_marker_map(path)
+    assert marker_map == {"RASI": ["R.ASIS", "RASIS"], "C7": ["Neck"], "RKNE": ["R Knee"]}
+    assert isinstance(marker_map, dict) and marker_map.source == str(path)
+    assert list(marker_map) == ["RASI", "C7", "RKNE"]
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("RASI = [R.ASIS]\n", "not valid TOML"),
+        ("RASI = 3\n", "RASI = 3 is not a list of trial labels"),
+        ("[RASI]\nx = 1\n", "RASI = a table is not a list"),
+        ("RASI = [1, 2]\n", "RASI = \\[1, 2\\] is not a list"),
+        ("RASI = []\n", "RASI lists no trial labels"),
+        ('RASI = ["R.ASIS", " "]\n', "RASI lists an empty trial label"),
+        ('RASI = ["Knee"]\nRKNE = ["Knee"]\n', "'Knee' is listed under both RASI and RKNE"),
+        ('"RASI " = ["R.ASIS"]\n', "surrounding spaces"),
+    ],
+)
+def test_bad_marker_map_files(tmp_path: Path, text: str, match: str) -> None:
+    path = tmp_path / "bad_map.toml"
+    path.write_text(text)
+    with pytest.raises(CalibrateError, match=match) as excinfo:
+        load_marker_map(path)
+    message = str(excinfo.value)
+    assert message.startswith(f"{path}: ") and "; " in message and "\n" not in message
+
+
+def test_missing_and_directory_marker_maps(tmp_path: Path) -> None:
+    for path, match in [(tmp_path / "nope.toml", "no such file"), (tmp_path, "directory")]:
+        with pytest.raises(CalibrateError, match=match) as excinfo:
+            load_marker_map(path)
+        assert str(excinfo.value).startswith(f"{path}: ")
+
+
+def test_map_entry_for_a_label_the_model_lacks(tmp_path: Path, human) -> None:  # noqa: ANN001
+    path = tmp_path / "map.toml"
+    path.write_text('RASI = ["R.ASIS"]\nSACR = ["V.Sacral"]\n')
+    with pytest.raises(CalibrateError, match="model label 'SACR' is not in the model") as excinfo:
+        map_labels(make_trial(["R.ASIS"]), human.marker_names, load_marker_map(path))
+    message = str(excinfo.value)
+    assert message.startswith(f"{path}: ") and "LASI" in message and "\n" not in message
+
+
+def test_map_entry_listing_another_model_label(tmp_path: Path, human) -> None:  # noqa: ANN001
+    path = tmp_path / "swap.toml"
+    path.write_text('RKNE = ["LKNE"]\n')
+    with pytest.raises(CalibrateError, match="'LKNE', which is a model label") as excinfo:
+        map_labels(make_trial(["LKNE"]), human.marker_names, load_marker_map(path))
+    assert str(excinfo.value).startswith(f"{path}: ")
+
+
+def test_plain_dict_map(human) -> None:  # noqa: ANN001
+    relabelled, mapping = map_labels(make_trial(["hip_r", "x"]), human.marker_names, {"RASI": ["hip_r"]})
+    assert relabelled.labels == ("RASI", "x")
+    with pytest.raises(CalibrateError, match="^marker map: model label 'HIP'"):
+        map_labels(make_trial(["hip_r"]), human.marker_names, {"HIP": ["hip_r"]})
+
+
+# ---------------------------------------------------------------------------
+# Report and round trip
+# ---------------------------------------------------------------------------
+
+
+def test_to_json_and_text(human) -> None:  # noqa: ANN001
+    _, mapping = map_labels(make_trial(["R.ASIS", "LASI", "R.Knee", "R.Knee.Lat", "Wand1"]), human.marker_names)
+    rows = mapping.to_json()
+    assert rows[0] == {"trial_label": "R.ASIS", "label": "RASI", "how": "alias", "note": ""}
+    assert [row["how"] for row in rows] == ["alias", "exact", "unknown", "alias", "unknown"]
+    assert json.loads(json.dumps(rows)) == rows
+    text = mapping.text()
+    lines = text.splitlines()
+    assert lines[0].split() == ["trial", "label", "label", "how", "note"]
+    assert lines[1].split() == ["R.ASIS", "RASI", "alias"]
+    assert lines[3].split()[:3] == ["R.Knee", "=", "unknown"] and "conflict: RKNE kept R.Knee.Lat" in lines[3]
+    assert lines[6] == "1 exact, 0 map, 2 alias, 2 unknown"
+    assert lines[7].startswith(f"model labels not in the trial ({len(PIG) - 3}): LPSI, RPSI, LKNE")
+
+
+def test_round_trip_through_c3d(tmp_path: Path, human) -> None:  # noqa: ANN001
+    """Vicon-style prefixed OpenSim labels written with write_c3d, read back (prefix removed) and mapped."""
+    labels = ["Sub01:R.ASIS", "Sub01:L.ASIS", "Sub01:R.Knee.Lat", "Sub01:R.Toe.Tip", "Sub01:V.Sacral", "Sub01:RKNE2"]
+    trial = make_trial(labels, source=None)
+    path = tmp_path / "sub01.c3d"
+    write_c3d(path, trial, units="mm")
+    read = read_trial(path)
+    assert read.labels == ("R.ASIS", "L.ASIS", "R.Knee.Lat", "R.Toe.Tip", "V.Sacral", "RKNE2")
+    relabelled, mapping = map_labels(read, human.marker_names)
+    assert relabelled.labels == ("RASI", "LASI", "RKNE", "RTOE", "V.Sacral", "RKNE2")
+    assert [m.how for m in mapping] == ["alias"] * 4 + ["unknown"] * 2
+    for old, new in zip(labels, relabelled.labels, strict=True):
+        np.testing.assert_allclose(relabelled.marker(new), trial.marker(old), rtol=0, atol=1e-6, equal_nan=True)
+    assert relabelled.source == str(path)

@@ -1,0 +1,226 @@
+"""Real-trial situations (issue: real trials): markers the model does not know, several trials
+of one subject (a static trial among them), gaps, bad frames and spikes.  Every trial is made by
+the simulator; truths are the simulator's."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from calibrate.calibration import calibrate
+from calibrate.evaluate import compare_to_truth
+from calibrate.kinematics import build_kinematics
+from calibrate.model import add_markers, load_model
+from calibrate.motion import read_motion_csv
+from calibrate.problem import Settings
+from calibrate.simulate import simulate_squats, simulate_static
+from calibrate.trial import Trial, write_c3d
+
+# A thigh plate (three markers), a shank pair and a hand marker, in segment frames (m): markers a
+# lab adds to the model's set.
+CLUSTER = {"RTH1": ("femur_r", (0.06, -0.09, -0.18)), "RTH2": ("femur_r", (0.07, -0.06, -0.24)),
+           "RTH3": ("femur_r", (0.05, -0.10, -0.28)), "LSH1": ("tibia_l", (0.05, 0.08, -0.15)),
+           "LSH2": ("tibia_l", (0.06, 0.06, -0.22)), "RHND": ("hand_r", (0.0, -0.03, -0.06))}
+BALL_MEDIAN_MM = 2.0
+
+
+@pytest.fixture(scope="module")
+def subject(human):
+    """The human model with the cluster markers: what the simulated subject wears."""
+    return add_markers(human, {k: (seg, np.array(xyz)) for k, (seg, xyz) in CLUSTER.items()})
+
+
+def _world(model, params, motion) -> np.ndarray:
+    """Marker positions (frames, markers, 3) of `model` with `params` through `motion`."""
+    kin = build_kinematics(model)
+    Z = np.column_stack([motion.root_translation, np.zeros((motion.n_frames, 3)), motion.angles])
+    return kin.batch(Z, motion.root_quaternion, params)[0]
+
+
+def _ball_median_mm(cmp) -> float:
+    return 1000 * float(np.median(list(cmp.ball().values())))
+
+
+def _with_loose_marker(sim, rng) -> Trial:
+    """The trial plus 'LOOSE', halfway between the two knees: it rides on no segment."""
+    i, j = sim.trial.labels.index("RKNE"), sim.trial.labels.index("LKNE")
+    loose = 0.5 * (sim.clean_markers[:, i] + sim.clean_markers[:, j]) + rng.normal(0, 1e-3, (sim.trial.n_frames, 3))
+    return Trial(sim.trial.labels + ("LOOSE",), np.concatenate([sim.trial.markers, loose[:, None]], axis=1),
+                 sim.trial.rate)
+
+
+# ---------------------------------------------------------------------- unknown markers
+def test_unknown_markers_are_placed_fitted_and_written(human, subject, tmp_path):
+    sim = simulate_squats(subject, frames=300, noise_mm=1.0, seed=4)
+    trial = _with_loose_marker(sim, np.random.default_rng(0))
+    cal = calibrate(human, trial)
+    placed = {m.label: m for m in cal.new_markers}
+    for label, (segment, _) in CLUSTER.items():
+        assert placed[label].segment == segment, placed[label]
+    assert placed["LOOSE"].segment is None and "LOOSE" in cal.ignored_labels
+    assert "varies" in placed["LOOSE"].reason
+    # Each new marker is fitted: where the calibrated model puts it, frame by frame, against the
+    # noise-free truth (segment frames are a gauge, so positions are compared in the lab).
+    est = _world(cal.model, cal.params, cal.motion)
+    for label in CLUSTER:
+        err = np.linalg.norm(est[:, cal.model.marker_index(label)] - sim.clean_markers[:, subject.marker_index(label)],
+                             axis=1)
+        assert 1000 * np.median(err) < 1.5, label
+    assert _ball_median_mm(compare_to_truth(cal, _known_only(sim, human))) < BALL_MEDIAN_MM
+    # The written subject model carries them: Pinocchio puts them where the calibration did.
+    out = tmp_path / "s.urdf"
+    cal.write(urdf=out)
+    written = load_model(out)
+    assert set(CLUSTER) <= set(written.marker_names) and "LOOSE" not in written.marker_names
+    pm = written.pin
+    data = pm.createData()
+    f = 150
+    mo = cal.motion
+    pin.framesForwardKinematics(pm, data, written.pin_configuration(mo.root_translation[f], mo.root_quaternion[f],
+                                                                     mo.angles[f]))
+    for label, (segment, _) in CLUSTER.items():
+        assert written.markers[written.marker_index(label)].segment == segment
+        np.testing.assert_allclose(data.oMf[pm.getFrameId(label)].translation, est[f, cal.model.marker_index(label)],
+                                   atol=1e-9)
+    # Switched off: the same labels are ignored, and the model keeps its own markers only.
+    off = calibrate(human, trial.frames(0, 120), Settings(new_markers=False))
+    assert off.new_markers == () and set(CLUSTER) | {"LOOSE"} <= set(off.ignored_labels)
+    assert off.model.marker_names == human.marker_names
+
+
+def _known_only(sim, human):
+    """`sim` as seen by the base model's joints (the cluster adds markers, not joints)."""
+    from dataclasses import replace
+
+    keep = [sim.model.marker_index(n) for n in human.marker_names]
+    truth = replace(sim.truth, marker=sim.truth.marker[keep])
+    return replace(sim, model=human, truth=truth, clean_markers=sim.clean_markers[:, keep],
+                   trial=sim.trial.select(human.marker_names))
+
+
+# ---------------------------------------------------------------------- several trials
+def test_static_and_movement_trials_share_the_subject(human):
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=6)
+    static = simulate_static(human, sim.truth, frames=120, seed=7)
+    both = calibrate(human, [static.trial, sim.trial])
+    assert [m.n_frames for m in both.motions] == [120, 300]
+    assert "seeded from trial 2" in both.seed.notes[0]
+    np.testing.assert_allclose(both.motions[0].times, static.trial.times)
+    # Each trial's own residuals, and both fitted to the noise.
+    for i, t in enumerate(both.trials):
+        res = both.residuals[both.trial_frames(i)]
+        assert res.shape[0] == t.n_frames
+        assert 1000 * np.sqrt(np.nanmean(np.sum(res**2, axis=2))) < 1.9
+    assert both.converged
+    # The movement trial's motion and geometry, judged against the truth.
+    movement = type(both)(**{**both.__dict__, "trials": (sim.trial,), "motions": (both.motions[1],),
+                             "residuals": both.residuals[both.trial_frames(1)]})
+    assert _ball_median_mm(compare_to_truth(movement, sim)) < BALL_MEDIAN_MM
+    # The static pose, through the shared geometry: every marker where the truth puts it.
+    est = _world(human, both.params, both.motions[0])
+    assert 1000 * np.median(np.linalg.norm(est - static.clean_markers, axis=2)) < 1.5
+
+
+def test_static_trial_alone_scales_and_flags_what_it_cannot_identify(human):
+    sim = simulate_squats(human, frames=10, noise_mm=1.0, seed=8)  # only for a subject's truth
+    static = simulate_static(human, sim.truth, frames=150, seed=9)
+    cal = calibrate(human, static.trial)
+    assert cal.converged
+    flagged = {c.name for c in cal.changes if not c.identified}
+    for joint in ("hip_l", "hip_r", "knee_l", "knee_r", "shoulder_l", "elbow_r"):
+        assert f"centre[{joint}]" in flagged
+    for dof in ("knee_l", "elbow_r"):
+        assert f"axis[{dof}]" in flagged
+    # It sizes the subject as far as a static pose can: every scale the report calls identified is
+    # within three of its posterior SDs of the truth (marker offsets and scales trade off without motion).
+    scales = [c for c in cal.changes if c.name.startswith("scale[")]
+    identified = [c for c in scales if c.identified]
+    assert len(identified) >= 8
+    for c in identified:
+        i = human.segment_index(c.name[6:-1])
+        assert abs(cal.params.scale[i] - sim.truth.scale[i]) <= 3 * c.std[0], c.name
+    assert any(not c.identified for c in scales)  # e.g. the markerless tali
+    # ... and places its markers: the model fits the static pose to the noise.
+    assert 1000 * cal.marker_rms < 1.9
+
+
+# ---------------------------------------------------------------------- gaps, bad frames, spikes
+def test_spikes_are_rejected_and_reported(human):
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=11)
+    rng = np.random.default_rng(1)
+    mk = np.array(sim.trial.markers)
+    F, N = mk.shape[:2]
+    hits = {(int(f), int(k)) for f, k in zip(rng.integers(0, F, 60), rng.integers(0, N, 60), strict=True)}
+    for f, k in hits:
+        d = rng.normal(size=3)
+        mk[f, k] += rng.uniform(0.03, 0.15) * d / np.linalg.norm(d)
+    cal = calibrate(human, Trial(sim.trial.labels, mk, sim.trial.rate))
+    found = {(o.frame, human.marker_names.index(o.marker)) for o in cal.outliers}
+    assert len(hits & found) >= 0.95 * len(hits)
+    assert len(found - hits) <= 0.001 * F * N
+    cmp = compare_to_truth(cal, sim)
+    assert _ball_median_mm(cmp) < BALL_MEDIAN_MM
+    assert cal.marker_rms < 1.05 * cmp.floor_rms
+    rep = cal.report()
+    assert rep["outliers"]["count"] == len(cal.outliers) and rep["trials"][0]["outliers"] == len(cal.outliers)
+
+
+def test_gaps_late_markers_and_empty_frames(human):
+    sim = simulate_squats(human, frames=400, noise_mm=1.0, gaps=True, seed=12)
+    mk = np.array(sim.trial.markers)
+    col = {n: i for i, n in enumerate(sim.trial.labels)}
+    mk[:10] = np.nan  # the recording starts before the markers are tracked
+    mk[50:250, col["RKNE"]] = np.nan  # a two-second gap
+    mk[:200, col["LFIN"]] = np.nan  # a marker that appears mid-trial
+    mk[300:330, col["RKNE"]] = np.nan  # no marker at all on the right thigh for 0.3 s
+    mk[300:330, col["RTHI"]] = np.nan
+    mk[340:345, [col["LELB"], col["LUPA"]]] = np.nan
+    cal = calibrate(human, Trial(sim.trial.labels, mk, sim.trial.rate))
+    assert cal.converged
+    assert np.all(np.isfinite(cal.motion.angles)) and np.all(np.isfinite(cal.motion.root_translation))
+    cmp = compare_to_truth(cal, sim)
+    assert _ball_median_mm(cmp) < BALL_MEDIAN_MM
+    assert max(cmp.axis_error_deg[j] for j in ("knee_l", "knee_r", "elbow_l", "elbow_r")) < 1.0
+    assert np.isnan(cal.residuals[:10]).all()  # no data, no residual
+
+
+# ---------------------------------------------------------------------- command line
+def test_cli_several_trials_with_a_marker_map(human, subject, tmp_path):
+    sim = simulate_squats(subject, frames=200, noise_mm=1.0, seed=13)
+    static = simulate_static(subject, sim.truth, frames=80, seed=14)
+    rename = {"RASI": "R.ASIS", "LASI": "L.ASIS", "RTH1": "R_thigh_plate_1"}
+    for name, sm in (("static", static), ("squat", sim)):
+        labels = tuple(rename.get(n, n) for n in sm.trial.labels)
+        write_c3d(tmp_path / f"{name}.c3d", Trial(labels, sm.trial.markers, sm.trial.rate))
+    (tmp_path / "map.toml").write_text('RASI = ["R.ASIS"]\n')
+    r = subprocess.run([sys.executable, "-m", "calibrate.cli", tmp_path / "static.c3d", tmp_path / "squat.c3d",
+                        human.path, "--markers", tmp_path / "map.toml", "-q"], capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    for name in ("static.urdf", "static_report.json", "static_motion.csv", "squat_motion.csv"):
+        assert (tmp_path / name).is_file(), name
+    assert read_motion_csv(tmp_path / "static_motion.csv").n_frames == 80
+    assert read_motion_csv(tmp_path / "squat_motion.csv").n_frames == 200
+    rep = json.loads((tmp_path / "static_report.json").read_text())
+    assert [t["frames"] for t in rep["trials"]] == [80, 200]
+    became = {e["trial_label"]: e for e in rep["trials"][1]["labels"]}
+    assert became["R.ASIS"]["label"] == "RASI" and became["R.ASIS"]["how"] == "map"
+    assert became["L.ASIS"]["label"] == "LASI" and became["L.ASIS"]["how"] == "alias"
+    assert became["R_thigh_plate_1"]["how"] == "unknown" and became["RKNE"]["how"] == "exact"
+    new = {m["label"]: m["segment"] for m in rep["marker_set"]["new"]}
+    assert new["R_thigh_plate_1"] == "femur_r" and new["LSH1"] == "tibia_l"
+    written = load_model(tmp_path / "static.urdf")
+    assert "R_thigh_plate_1" in written.marker_names and "RASI" in written.marker_names
+    # Bad input: one line, exit 2, nothing written or replaced.
+    (tmp_path / "bad.toml").write_text('NOPE = ["X"]\n')
+    before = (tmp_path / "squat_motion.csv").read_text()
+    r = subprocess.run([sys.executable, "-m", "calibrate.cli", tmp_path / "squat.c3d", human.path, "--markers",
+                        tmp_path / "bad.toml", "-o", tmp_path / "x.urdf", "--overwrite", "-q"], capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "NOPE" in r.stderr
+    assert not (tmp_path / "x.urdf").exists() and (tmp_path / "squat_motion.csv").read_text() == before
