@@ -120,6 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
     jo.add_argument("--cutoff-hz", type=_positive_float, default=6.0,
                     help="low-pass the markers at this frequency first (default 6 Hz)")
     jo.add_argument("--no-filter", action="store_true", help="use the raw markers (no low-pass)")
+    jo.add_argument("--markers", type=Path, default=None,
+                    help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss")
+    jo.add_argument("--no-aliases", action="store_true",
+                    help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
     jo.add_argument("--mode", choices=("framework", "jmv"), default="framework",
                     help="'framework' (default) or 'jmv': every joint by per-frame JMV only (slow baseline)")
     return ap
@@ -409,6 +413,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def cmd_joints(args: argparse.Namespace) -> int:
     from .joints import estimate_model_joints, write_centres_csv
+    from .labels import load_marker_map, map_labels
     from .model import load_model
     from .trial import read_trial
 
@@ -426,6 +431,12 @@ def cmd_joints(args: argparse.Namespace) -> int:
         raise CalibrateError(f"{args.model}: the model has no markers, so no segment can be followed; "
                              "add marker links (see docs/model-format.md)")
     trial = read_trial(args.trial)
+    marker_map = load_marker_map(args.markers) if args.markers else None
+    trial, mapping = map_labels(trial, model.marker_names, marker_map, aliases=not args.no_aliases)
+    renamed = [m for m in mapping if m.how in ("map", "alias")]
+    if renamed:
+        print(f"labels {len(renamed)} renamed to the model's: "
+              + ", ".join(f"{m.trial_label} -> {m.label}" for m in renamed[:8]) + (" ..." if len(renamed) > 8 else ""))
     known = set(model.marker_names)
     used = [lab for lab in trial.labels if lab in known]
     unknown = [lab for lab in trial.labels if lab not in known]

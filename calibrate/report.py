@@ -169,6 +169,13 @@ def summary_text(cal) -> str:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
     for note in cal.seed.notes:
         lines.append(f"  seed: {note}")
+    for i, mapping in enumerate(cal.label_maps):
+        renamed = [m for m in mapping if m.how in ("map", "alias")]
+        if renamed:
+            where = f" in {cal.trials[i].source}" if len(cal.trials) > 1 else ""
+            lines.append(f"  labels{where}: {len(renamed)} renamed to the model's ("
+                         + ", ".join(f"{m.trial_label} -> {m.label} ({m.how})" for m in renamed[:6])
+                         + (", ..." if len(renamed) > 6 else "") + ")")
     for m in cal.new_markers:
         if m.segment is not None:
             lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")

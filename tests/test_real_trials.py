@@ -87,6 +87,9 @@ def test_unknown_markers_are_placed_fitted_and_written(human, subject, tmp_path)
         assert written.markers[written.marker_index(label)].segment == segment
         np.testing.assert_allclose(data.oMf[pm.getFrameId(label)].translation, est[f, cal.model.marker_index(label)],
                                    atol=1e-9)
+    # The subject's next trial runs with them as model markers.
+    again = calibrate(written, trial.frames(0, 120))
+    assert {m.label for m in again.new_markers} == {"LOOSE"} and set(CLUSTER) <= set(again.model.marker_names)
     # Switched off: the same labels are ignored, and the model keeps its own markers only.
     off = calibrate(human, trial.frames(0, 120), Settings(new_markers=False))
     assert off.new_markers == () and set(CLUSTER) | {"LOOSE"} <= set(off.ignored_labels)
