@@ -1,5 +1,5 @@
-"""Command line: ``calibrate TRIAL MODEL`` (calibrate a subject), ``calibrate simulate``,
-``calibrate demo``, ``calibrate inspect``, ``calibrate joints``.
+"""Command line: ``calibrate TRIAL [TRIAL ...] MODEL`` (calibrate a subject), ``calibrate simulate``,
+``calibrate demo``, ``calibrate inspect``, ``calibrate joints``, ``calibrate export-osim``.
 
 A thin layer over the Python API.  Bad input gives one line on stderr
 (``calibrate: error: ...``) and exit status 2; nothing half-written.
@@ -126,10 +126,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
     jo.add_argument("--mode", choices=("framework", "jmv"), default="framework",
                     help="'framework' (default) or 'jmv': every joint by per-frame JMV only (slow baseline)")
+    from .opensim_export import add_export_osim_parser
+
+    add_export_osim_parser(sub)
     return ap
 
 
-COMMANDS = ("simulate", "demo", "inspect", "joints")
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim")
 
 
 def _frames_arg(text: str) -> slice:
@@ -198,7 +201,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         ap.print_help()
         return 2
-    commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints}
+    from .opensim_export import cmd_export_osim
+
+    commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
+                "export-osim": cmd_export_osim}
     return _guard(commands[args.command], args)
 
 

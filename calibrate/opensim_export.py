@@ -1,0 +1,517 @@
+"""OpenSim export: a calibrate model as an OpenSim model (``.osim``), a motion as an OpenSim
+motion (``.mot``), a trial as ``.trc`` — ``calibrate export-osim``.
+
+Pure Python (xml.etree): writing needs no ``opensim`` package; loading the files in OpenSim
+is what the tests check (``pip install calibrate[opensim]``).
+
+How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
+
+* **bodies** — one ``Body`` per segment, named after its link, its frame the URDF link frame;
+  mass, centre of mass (the URDF ``<inertial><origin xyz>`` × segment scale) and inertia
+  about the centre of mass in the body frame (R I Rᵀ with R from the inertial origin's
+  ``rpy``, × scale²).  Connectors and markers are not bodies (but see the chain case below).
+* **root** — ``CustomJoint`` ``ground_<root>`` from ground: three rotations about the body-fixed
+  z, y', x'' axes (coordinates ``root_rz``, ``root_ry``, ``root_rx``: R = Rz Ry Rx, as
+  ``scipy`` ``as_euler("ZYX")``) then three translations along the ground axes (``root_x``,
+  ``root_y``, ``root_z``: the root origin in the lab, as in the motion CSV).  The Euler angles
+  are singular only at ``root_ry`` = ±90° (the root's x axis vertical: a pelvis lying on its
+  back or front).
+* **anatomical joints** — one ``CustomJoint`` per joint, named like calibrate's joint (``hip_r``,
+  ``knee_r``), one coordinate per moving URDF joint, named after it (the motion CSV's columns),
+  range = the URDF limits (clamped; continuous joints unbounded, unclamped).  A URDF chain is
+  ``O0 · Rot(a1, q1) · O1 · Rot(a2, q2) · O2 ...`` (O = origin xyz/rpy; the rotations about
+  the unit axes in the joint frames).  When the origins between rotations have no translation
+  (ball and universal joints; any rpy allowed) this equals
+  ``O0 · Rot(b1, q1) Rot(b2, q2) Rot(b3, q3) · O_end`` with b1 = a1, b2 = R(O1) a2,
+  b3 = R(O1) R(O2) a3 and O_end the product of the rotations O1 O2 ... with the last origin:
+  O0 is the joint's parent ``PhysicalOffsetFrame`` (on the parent body), the b's the
+  ``SpatialTransform``'s rotation axes (successive, body-fixed), O_end⁻¹ the child offset frame.
+  A chain whose later origins do translate cannot be one ``SpatialTransform`` and is exported
+  as one single-rotation ``CustomJoint`` per URDF joint (named after it) through massless
+  bodies named after the connector links; so is a chain whose axes are linearly dependent.
+  A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
+* **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
+* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); visuals are not exported.
+
+With ``params`` (a calibrated or perturbed :class:`calibrate.model.Parameters`) positions are
+placed exactly as calibrate.kinematics and :func:`calibrate.model.write_model` place them
+(scale × centre, scale × marker, scale × later chain origins, axis/|axis|, inertia × scale²).
+
+Motion (``.mot``, OpenSim Storage, ``inDegrees=yes``): ``time``, the root's Euler angles
+(degrees) and translation (m), every joint angle (degrees), one row per frame.
+
+Do not ``import opensim`` in a process that uses calibrate: the opensim 4.6 wheel bundles a
+libcasadi with the same soname as (but another ABI than) the casadi wheel calibrate needs, and
+whichever is imported second fails to load.  Run OpenSim in its own process on the written files
+(as tests/test_opensim_export.py and scripts/bench_peers.py do).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ._text import atomic_write_text, fmt_float, fmt_vec
+from .errors import CalibrateError, ModelError
+from .model import Model, Parameters, UrdfJoint
+from .motion import Motion
+
+ROOT_ROTATIONS = ("root_rz", "root_ry", "root_rx")  # body-fixed z, y', x'' (scipy "ZYX")
+ROOT_TRANSLATIONS = ("root_x", "root_y", "root_z")  # ground axes, as the motion CSV's columns
+GRAVITY = (0.0, 0.0, -9.80665)
+OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
+UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the root's angles (unclamped)
+UNBOUNDED_TRANSLATION = 100.0  # m, range written for the root's translations (unclamped)
+_ZERO_OFFSET = 1e-12  # m: a chain origin translating less than this counts as none
+
+Transform = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)): x -> R x + t
+
+
+# ---------------------------------------------------------------------- geometry
+def _compose(a: Transform, b: Transform) -> Transform:
+    return a[0] @ b[0], a[0] @ b[1] + a[1]
+
+
+def _inverse(a: Transform) -> Transform:
+    return a[0].T, -a[0].T @ a[1]
+
+
+def _identity() -> Transform:
+    return np.eye(3), np.zeros(3)
+
+
+def _euler_xyz(R: np.ndarray) -> np.ndarray:
+    """OpenSim frame orientation: body-fixed x-y-z angles (R = Rx Ry Rz); exactly 0 for R = I."""
+    if np.array_equal(R, np.eye(3)):
+        return np.zeros(3)
+    return Rotation.from_matrix(R).as_euler("XYZ")
+
+
+def _completion(axes: list[np.ndarray]) -> list[np.ndarray]:
+    """Unit vectors that, appended to `axes` (1 to 3 independent unit vectors), give 3 independent axes."""
+    out = list(axes)
+    for e in np.eye(3):
+        if len(out) == 3:
+            break
+        M = np.array(out + [e])
+        if np.linalg.matrix_rank(M, tol=1e-6) == len(M):
+            out.append(e)
+    return out[len(axes):]
+
+
+def _independent(axes: list[np.ndarray]) -> bool:
+    return np.linalg.svd(np.array(axes), compute_uv=False).min() > 1e-6
+
+
+def _inertia_vec6(I: np.ndarray) -> np.ndarray:
+    """OpenSim's [Ixx Iyy Izz Ixy Ixz Iyz]."""
+    return np.array([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
+
+
+def _urdf_inertials(model: Model) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
+    """link -> (mass, centre of mass (3,), inertia about it in the link frame (3, 3)), base model."""
+    robot = ET.fromstring(model._text)
+    out = {}
+    for link in robot.findall("link"):
+        el = link.find("inertial")
+        if el is None:
+            continue
+        m = el.find("mass")
+        mass = float(m.get("value", "0")) if m is not None else 0.0
+        o = el.find("origin")
+        xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
+        rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
+        att = el.find("inertia")
+        v = {k: float(att.get(k, "0")) if att is not None else 0.0 for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+        inertia = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
+                            [v["ixz"], v["iyz"], v["izz"]]])
+        R = Rotation.from_euler("xyz", rpy).as_matrix() if np.any(rpy) else np.eye(3)  # URDF: R = Rz Ry Rx
+        out[link.get("name", "")] = (mass, xyz, R @ inertia @ R.T)
+    return out
+
+
+# ---------------------------------------------------------------------- the model
+class _Builder:
+    """Collects the bodies, joints and markers of the .osim document."""
+
+    def __init__(self, model: Model, p: Parameters):
+        self.model = model
+        self.p = p
+        self.bodies: list[ET.Element] = []
+        self.joints: list[ET.Element] = []
+        self.scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
+        self.urdf = {u.name: u for u in model.urdf_joints}
+        self.limits = {d.name: (d.lower, d.upper, d.continuous) for d in model.dofs}
+
+    def origin(self, u: UrdfJoint) -> Transform:
+        """A URDF joint's origin with the parameters applied (as calibrate.kinematics does)."""
+        s = self.scale[u.owner]
+        if u.role == "centre":
+            xyz = s * self.p.centre[u.index]
+        elif u.role == "marker":
+            xyz = s * self.p.marker[u.index]
+        else:
+            xyz = s * u.xyz
+        return np.array(u.rotation, dtype=float), np.asarray(xyz, dtype=float)
+
+    def axis(self, u: UrdfJoint) -> np.ndarray:
+        a = np.asarray(self.p.axis[u.dof], dtype=float)
+        return a / np.linalg.norm(a)
+
+    # -------------------------------------------------------------- elements
+    def body(self, name: str, mass: float, com: np.ndarray, inertia: np.ndarray) -> None:
+        b = ET.Element("Body", name=name)
+        _text(b, "mass", fmt_float(mass))
+        _text(b, "mass_center", fmt_vec(com))
+        _text(b, "inertia", fmt_vec(_inertia_vec6(inertia)))
+        self.bodies.append(b)
+
+    def joint(self, kind: str, name: str, parent: str, parent_offset: Transform, child: str,
+              child_offset: Transform, coords: Sequence[tuple[str, np.ndarray, str]] = ()) -> None:
+        """A joint between two bodies ('ground' or a body name) through two offset frames.
+
+        coords: (coordinate name, unit axis, 'rotation' | 'translation'), rotations first.
+        """
+        j = ET.Element(kind, name=name)
+        pf, cf = f"{parent}_offset_{name}", f"{child}_offset_{name}"
+        _text(j, "socket_parent_frame", pf)
+        _text(j, "socket_child_frame", cf)
+        if coords:
+            cs = ET.SubElement(j, "coordinates")
+            for cname, _, motion in coords:
+                cs.append(self.coordinate(cname, motion))
+        frames = ET.SubElement(j, "frames")
+        for fname, owner, (R, t) in ((pf, parent, parent_offset), (cf, child, child_offset)):
+            f = ET.SubElement(frames, "PhysicalOffsetFrame", name=fname)
+            _text(f, "socket_parent", "/ground" if owner == "ground" else f"/bodyset/{owner}")
+            _text(f, "translation", fmt_vec(t))
+            _text(f, "orientation", fmt_vec(_euler_xyz(R)))
+        if kind == "CustomJoint":
+            j.append(_spatial_transform(coords))
+        self.joints.append(j)
+
+    def coordinate(self, name: str, motion: str) -> ET.Element:
+        c = ET.Element("Coordinate", name=name)
+        _text(c, "default_value", "0")
+        if name in self.limits:
+            lo, hi, cont = self.limits[name]
+            clamped = not cont and np.isfinite(lo) and np.isfinite(hi)
+            if not clamped:
+                lo, hi = -UNBOUNDED_ROTATION, UNBOUNDED_ROTATION
+        else:  # the root
+            big = UNBOUNDED_ROTATION if motion == "rotation" else UNBOUNDED_TRANSLATION
+            lo, hi, clamped = -big, big, False
+        _text(c, "range", f"{fmt_float(lo)} {fmt_float(hi)}")
+        _text(c, "clamped", "true" if clamped else "false")
+        _text(c, "locked", "false")
+        return c
+
+    # -------------------------------------------------------------- structure
+    def build(self) -> None:
+        model = self.model
+        inertials = _urdf_inertials(model)
+        for seg in model.segments:
+            s = self.scale[seg.name]
+            mass, com, inertia = inertials.get(seg.name, (0.0, np.zeros(3), np.zeros((3, 3))))
+            self.body(seg.name, mass, s * com, s * s * inertia)
+        ez = np.eye(3)
+        root_coords = [(n, ez[k], "rotation") for n, k in zip(ROOT_ROTATIONS, (2, 1, 0), strict=True)]
+        root_coords += [(n, ez[k], "translation") for k, n in enumerate(ROOT_TRANSLATIONS)]
+        self.joint("CustomJoint", f"ground_{model.root}", "ground", _identity(), model.root, _identity(),
+                   root_coords)
+        for j in model.joints:
+            self.anatomical_joint(j.name, j.parent, j.child, [self.urdf[n] for n in j.urdf_joints])
+
+    def anatomical_joint(self, name: str, parent: str, child: str, chain: list[UrdfJoint]) -> None:
+        # Split the chain into O0 · Rot(a1) · O1 · Rot(a2) · ... · On.
+        offsets: list[Transform] = [_identity()]
+        rotations: list[tuple[UrdfJoint, np.ndarray]] = []
+        for u in chain:
+            offsets[-1] = _compose(offsets[-1], self.origin(u))
+            if u.dof >= 0:
+                rotations.append((u, self.axis(u)))
+                offsets.append(_identity())
+        if not rotations:
+            self.joint("WeldJoint", name, parent, offsets[0], child, _identity())
+            return
+        inner = offsets[1:-1]
+        if len(rotations) <= 3 and all(np.linalg.norm(t) < _ZERO_OFFSET for _, t in inner):
+            # One CustomJoint: Rot(a1) O1 Rot(a2) O2 Rot(a3) O3 = Rot(b1) Rot(b2) Rot(b3) · (R1 R2 R3, t3).
+            R_acc = np.eye(3)
+            axes = []
+            for k, (_, a) in enumerate(rotations):
+                if k > 0:
+                    R_acc = R_acc @ inner[k - 1][0]
+                axes.append(R_acc @ a)
+            if _independent(axes):
+                end = (R_acc @ offsets[-1][0], R_acc @ offsets[-1][1])
+                coords = [(u.name, b, "rotation") for (u, _), b in zip(rotations, axes, strict=True)]
+                self.joint("CustomJoint", name, parent, offsets[0], child, _inverse(end), coords)
+                return
+        # General chain: one single-rotation joint per URDF joint, through massless connector bodies.
+        prev = parent
+        for k, (u, a) in enumerate(rotations):
+            last = k == len(rotations) - 1
+            body = child if last else u.child_link
+            if not last:
+                self.body(body, 0.0, np.zeros(3), np.zeros((3, 3)))
+            child_offset = _inverse(offsets[-1]) if last else _identity()
+            self.joint("CustomJoint", u.name, prev, offsets[k], body, child_offset, [(u.name, a, "rotation")])
+            prev = body
+
+    def document(self) -> str:
+        model = self.model
+        doc = ET.Element("OpenSimDocument", Version="40000")
+        m = ET.SubElement(doc, "Model", name=model.name)
+        _text(m, "credits", f"exported by calibrate from {model.path.name}")
+        _text(m, "length_units", "meters")
+        _text(m, "force_units", "N")
+        _text(m, "gravity", fmt_vec(GRAVITY))
+        ET.SubElement(m, "Ground", name="ground")
+        for set_name, tag, items in (("bodyset", "BodySet", self.bodies), ("jointset", "JointSet", self.joints)):
+            objs = ET.SubElement(ET.SubElement(m, tag, name=set_name), "objects")
+            objs.extend(items)
+        objs = ET.SubElement(ET.SubElement(m, "MarkerSet", name="markerset"), "objects")
+        for i, mk in enumerate(model.markers):
+            el = ET.SubElement(objs, "Marker", name=mk.name)
+            _text(el, "socket_parent_frame", f"/bodyset/{mk.segment}")
+            _text(el, "location", fmt_vec(self.scale[mk.segment] * np.asarray(self.p.marker[i], dtype=float)))
+            _text(el, "fixed", "false")
+        ET.indent(doc, space="\t")
+        return '<?xml version="1.0" encoding="UTF-8" ?>\n' + ET.tostring(doc, encoding="unicode") + "\n"
+
+
+def _text(parent: ET.Element, tag: str, text: str) -> ET.Element:
+    el = ET.SubElement(parent, tag)
+    el.text = text
+    return el
+
+
+def _spatial_transform(coords: Sequence[tuple[str, np.ndarray, str]]) -> ET.Element:
+    """The six TransformAxis of a CustomJoint: the coordinates' (identity functions), the rest constant 0."""
+    st = ET.Element("SpatialTransform")
+    for motion in ("rotation", "translation"):
+        used = [(n, a) for n, a, m in coords if m == motion]
+        spare = _completion([a for _, a in used]) if used else list(np.eye(3))
+        for k, (cname, a) in enumerate(used + [(None, e) for e in spare]):
+            ta = ET.SubElement(st, "TransformAxis", name=f"{motion}{k + 1}")
+            _text(ta, "coordinates", cname or "")
+            _text(ta, "axis", fmt_vec(a))
+            if cname:
+                f = ET.SubElement(ta, "LinearFunction", name="function")
+                _text(f, "coefficients", "1 0")
+            else:
+                f = ET.SubElement(ta, "Constant", name="function")
+                _text(f, "value", "0")
+    return st
+
+
+def _check_params(model: Model, p: Parameters) -> None:
+    want = {"scale": (len(model.segments),), "centre": (len(model.joints), 3), "axis": (model.n_dofs, 3),
+            "marker": (len(model.markers), 3)}
+    for block, shape in want.items():
+        got = np.shape(getattr(p, block))
+        if got != shape:
+            raise CalibrateError(f"{model.path}: Parameters.{block} has shape {got}, the model needs {shape}; "
+                                 f"give parameters of this model")
+    v = p.vector()
+    if not np.all(np.isfinite(v)) or np.any(np.asarray(p.scale) <= 0) \
+            or np.any(np.linalg.norm(p.axis, axis=1) < 1e-12):
+        raise CalibrateError(f"{model.path}: parameters with non-finite values, scales <= 0 or zero axes; "
+                             f"give a valid calibration's parameters")
+
+
+def _check_names(model: Model) -> None:
+    names = [("segment", s.name) for s in model.segments] + [("joint", j.name) for j in model.joints]
+    names += [("URDF joint", d.name) for d in model.dofs] + [("marker", m.name) for m in model.markers]
+    for what, n in names:
+        bad = [c for c in n if c in OSIM_INVALID_CHARS]
+        if bad:
+            raise ModelError(f"{model.path}: {what} name {n!r} contains {bad[0]!r}, which OpenSim does not allow "
+                             f"in names; rename it in the URDF")
+    coords = set(ROOT_ROTATIONS + ROOT_TRANSLATIONS)
+    clash = [d.name for d in model.dofs if d.name in coords]
+    if clash:
+        raise ModelError(f"{model.path}: URDF joint '{clash[0]}' has the name of an exported root coordinate; "
+                         f"rename it in the URDF")
+
+
+def osim_text(model: Model, params: Parameters | None = None) -> str:
+    """The .osim document (text) of `model` with geometric parameters `params` (default: the model's)."""
+    p = model.parameters() if params is None else params
+    _check_params(model, p)
+    _check_names(model)
+    b = _Builder(model, p)
+    b.build()
+    return b.document()
+
+
+def _check_target(path: Path, overwrite: bool = True) -> None:
+    if path.is_dir():
+        raise CalibrateError(f"{path}: is a directory; give a file name")
+    if not path.parent.is_dir():
+        raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
+    if not os.access(path.parent, os.W_OK):
+        raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
+    if path.exists() and not overwrite:
+        raise CalibrateError(f"{path}: exists; pass --overwrite (overwrite=True) or choose another name")
+
+
+def _write(path: Path, text: str) -> None:
+    try:
+        atomic_write_text(path, text)
+    except OSError as e:
+        raise CalibrateError(f"{path}: cannot write ({e.strerror}); choose a writable place") from None
+
+
+def export_osim(model: Model, path: str | os.PathLike[str], params: Parameters | None = None,
+                overwrite: bool = True) -> Path:
+    """Write `model` (with `params`, default the model's own) as an OpenSim model at `path` (atomically)."""
+    path = Path(path)
+    if path.suffix.lower() == ".urdf" or path.resolve() == model.path.resolve():
+        raise CalibrateError(f"{path}: the OpenSim model would replace a URDF; give an .osim name")
+    _check_target(path, overwrite)
+    _write(path, osim_text(model, params))
+    return path
+
+
+# ---------------------------------------------------------------------- motion
+def mot_columns(model: Model, motion: Motion) -> tuple[list[str], np.ndarray]:
+    """Column names and values (n_frames, 1 + 6 + n_dofs) of the .mot: time, root angles (rad),
+    root translation (m), joint angles (rad), for the model exported by :func:`export_osim`."""
+    missing = [d for d in model.dof_names if d not in motion.dof_names]
+    extra = [d for d in motion.dof_names if d not in model.dof_names]
+    if missing or extra:
+        what = f"has no column for joint '{missing[0]}'" if missing else f"has a column '{extra[0]}' the model lacks"
+        raise CalibrateError(f"motion: {what}; give a motion of {model.path.name} (e.g. its calibration's "
+                             f"_motion.csv)")
+    data = [motion.times[:, None], motion.root_translation, motion.root_quaternion, motion.angles]
+    if not all(np.all(np.isfinite(x)) for x in data):
+        raise CalibrateError("motion: has non-finite values (NaN or inf); fill or drop those frames first")
+    norms = np.linalg.norm(motion.root_quaternion, axis=1)
+    if np.any(norms < 1e-9):
+        raise CalibrateError("motion: has a zero root quaternion; give unit quaternions (x, y, z, w)")
+    euler = Rotation.from_quat(motion.root_quaternion / norms[:, None]).as_euler("ZYX")
+    euler = np.unwrap(euler, axis=0)  # continuous angles; the same rotations
+    order = [motion.dof_names.index(d) for d in model.dof_names]
+    values = np.hstack([motion.times[:, None], euler, motion.root_translation, motion.angles[:, order]])
+    return ["time", *ROOT_ROTATIONS, *ROOT_TRANSLATIONS, *model.dof_names], values
+
+
+def mot_text(model: Model, motion: Motion, name: str = "motion") -> str:
+    """The .mot document (OpenSim Storage, angles in degrees) of `motion`."""
+    names, values = mot_columns(model, motion)
+    rotational = np.array([n in ROOT_ROTATIONS or n in model.dof_names for n in names])
+    values = np.where(rotational, np.degrees(values), values)
+    head = [name, "version=1", f"nRows={values.shape[0]}", f"nColumns={values.shape[1]}", "inDegrees=yes",
+            "endheader", "\t".join(names)]
+    rows = ["\t".join(repr(float(x)) for x in row) for row in values]
+    return "\n".join(head + rows) + "\n"
+
+
+def write_mot(path: str | os.PathLike[str], model: Model, motion: Motion, overwrite: bool = True) -> Path:
+    """Write `motion` (of `model`) as an OpenSim .mot at `path` (atomically)."""
+    path = Path(path)
+    _check_target(path, overwrite)
+    _write(path, mot_text(model, motion, path.stem))
+    return path
+
+
+# ---------------------------------------------------------------------- command line
+def add_export_osim_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``export-osim`` to the CLI's subparsers."""
+    p = subparsers.add_parser(
+        "export-osim", prog="calibrate export-osim",
+        help="write a model as an OpenSim model (.osim), a motion as .mot, a trial as .trc",
+        description="Write MODEL (a calibrate URDF) as an OpenSim model: one body per segment (mass, centre of "
+                    "mass, inertia), one joint per anatomical joint with the URDF's centres, axes and limits, "
+                    "the markers.  Optionally also a motion CSV of the model as an OpenSim .mot (degrees) and a "
+                    "trial as a .trc (mm).  Existing files are kept unless --overwrite.")
+    p.add_argument("model", type=Path, metavar="MODEL", help="the model (.urdf), e.g. a calibrated subject.urdf")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="OSIM",
+                   help="the OpenSim model to write (default: MODEL's name + .osim)")
+    p.add_argument("--motion", type=Path, default=None, metavar="CSV", help="a motion CSV of MODEL to write as .mot")
+    p.add_argument("--mot", type=Path, default=None, metavar="MOT",
+                   help="the .mot to write (default: CSV's name + .mot)")
+    p.add_argument("--trial", type=Path, default=None, metavar="TRIAL", help="a trial (.c3d/.trc) to write as .trc")
+    p.add_argument("--trc", type=Path, default=None, metavar="TRC",
+                   help="the .trc to write (default: TRIAL's name + .trc)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    return p
+
+
+def cmd_export_osim(args: argparse.Namespace) -> int:
+    """``calibrate export-osim``: check every destination, build every file, then write them all."""
+    from .model import load_model
+    from .motion import read_motion_csv
+    from .trial import read_trial, write_trc
+
+    model_path: Path = args.model
+    if args.mot is not None and args.motion is None:
+        raise CalibrateError(f"{args.mot}: --mot needs --motion (the motion CSV to convert)")
+    if args.trc is not None and args.trial is None:
+        raise CalibrateError(f"{args.trc}: --trc needs --trial (the trial to convert)")
+    out = args.output or model_path.with_suffix(".osim")
+    targets: dict[str, Path] = {"osim": out}
+    if args.motion is not None:
+        targets["mot"] = args.mot or args.motion.with_suffix(".mot")
+    if args.trial is not None:
+        targets["trc"] = args.trc or args.trial.with_suffix(".trc")
+    sources = [model_path] + [s for s in (args.motion, args.trial) if s is not None]
+    for kind, path in targets.items():
+        if path.suffix.lower() != f".{kind}":
+            raise CalibrateError(f"{path}: the {kind} output should end in .{kind}; rename it")
+        if any(path.resolve() == s.resolve() for s in sources):
+            raise CalibrateError(f"{path}: that is an input file; refusing to overwrite it (choose another name)")
+        _check_target(path, args.overwrite)
+    if len({p.resolve() for p in targets.values()}) < len(targets):
+        raise CalibrateError("the .osim, .mot and .trc outputs must be different files")
+    model = load_model(model_path)
+    texts = {"osim": osim_text(model)}
+    if args.motion is not None:
+        texts["mot"] = mot_text(model, read_motion_csv(args.motion), targets["mot"].stem)
+    trial = read_trial(args.trial) if args.trial is not None else None
+    if trial is not None:
+        unknown = [lab for lab in trial.labels if lab not in set(model.marker_names)]
+        if len(unknown) == trial.n_markers:
+            raise CalibrateError(f"{args.trial}: none of its labels is a marker of {model_path} (e.g. "
+                                 f"'{unknown[0]}'); is it a trial of this model?")
+    staged: dict[str, Path] = {}
+    dirs: list[Path] = []
+    try:
+        for kind, path in targets.items():  # each file under its own name in a fresh folder beside it
+            dirs.append(Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent)))
+            staged[kind] = dirs[-1] / path.name
+            if kind == "trc":
+                write_trc(staged[kind], trial)  # type: ignore[arg-type]
+            else:
+                _write(staged[kind], texts[kind])
+        for kind, tmp in staged.items():
+            os.replace(tmp, targets[kind])
+    except OSError as e:
+        raise CalibrateError(f"{targets['osim'].parent}: cannot write ({e.strerror}); choose a writable place") \
+            from None
+    finally:
+        for tmp in staged.values():
+            tmp.unlink(missing_ok=True)
+        for d in dirs:
+            d.rmdir()
+    print(f"{model.summary()}")
+    print(f"wrote {targets['osim']}  ({len(model.segments)} bodies, {len(model.joints) + 1} joints, "
+          f"{len(model.markers)} markers)")
+    if "mot" in targets:
+        print(f"      {targets['mot']}  (OpenSim motion, angles in degrees)")
+    if "trc" in targets:
+        print(f"      {targets['trc']}  ({trial.n_frames} frames, mm)")  # type: ignore[union-attr]
+    return 0
+
+
+__all__ = ["ROOT_ROTATIONS", "ROOT_TRANSLATIONS", "add_export_osim_parser", "cmd_export_osim", "export_osim",
+           "mot_columns", "mot_text", "osim_text", "write_mot"]
