@@ -79,7 +79,8 @@ for _s, _S in (("r", "R"), ("l", "L")):
         f"hand_{_s}": ([f"hand_{_s}"], [(f"{_S}WRA", f"{_S}FIN"), (f"{_S}WRB", f"{_S}FIN")]),
     })
 
-ROWS = (("calibrate", "calibrate"), ("opensim", "OpenSim Scale+IK"), ("nimble", "nimblephysics"))
+ROWS = (("calibrate", "calibrate (squat)"), ("calibrate_static", "calibrate (static + squat)"),
+        ("opensim", "OpenSim Scale+IK"), ("nimble", "nimblephysics"))
 
 
 # ====================================================================== OpenSim child process
@@ -331,7 +332,9 @@ def score(truth: dict, centres: dict, axes: dict, angles: dict, rms: float | Non
 
 
 # ====================================================================== the methods
-def run_calibrate(model, sim, truth: dict, log) -> dict:
+def run_calibrate(model, sim, truth: dict, log, static=None) -> dict:
+    """calibrate on the squat trial (or, with `static`, on the static and the squat trial together, as
+    OpenSim gets them); the figures are of the squat trial's frames."""
     from calibrate import calibrate, compare_to_truth
     from calibrate.kinematics import build_kinematics
     from calibrate.simulate import joint_axes_world
@@ -340,10 +343,14 @@ def run_calibrate(model, sim, truth: dict, log) -> dict:
     warm = Trial(sim.trial.labels, sim.trial.markers[: min(60, sim.trial.n_frames)], sim.trial.rate, 0, None)
     log("calibrate: warm-up (compiled-code cache)...")
     calibrate(model, warm)
-    log("calibrate: calibrating...")
+    log("calibrate: calibrating" + (" (static + squat)..." if static is not None else "..."))
     t0 = time.perf_counter()
-    cal = calibrate(model, sim.trial)
+    cal = calibrate(model, sim.trial if static is None else [static, sim.trial])
     wall = time.perf_counter() - t0
+    if static is not None:  # judge the squat trial's frames, as for the others
+        squat = cal.trial_frames(1)
+        cal = type(cal)(**{**cal.__dict__, "trials": (sim.trial,), "motions": (cal.motions[1],),
+                           "residuals": cal.residuals[squat]})
     cmp = compare_to_truth(cal, sim)
     mo = cal.motion
     Z = np.column_stack([mo.root_translation, np.zeros((mo.n_frames, 3)), mo.angles])
@@ -483,7 +490,8 @@ def collect(a: argparse.Namespace, log) -> dict:
         export_osim(model, files["osim"])
         write_trc(files["static"], static)
         write_trc(files["squat"], sim.trial)
-        rows = {"calibrate": run_calibrate(model, sim, truth, log)}
+        rows = {"calibrate": run_calibrate(model, sim, truth, log),
+                "calibrate_static": run_calibrate(model, sim, truth, log, static=static)}
         rows["opensim"] = ({"status": "not run: --no-opensim"} if a.no_opensim
                            else run_opensim(model, sim, truth, work, files, log, a.static_weight))
         rows["nimble"] = ({"status": "not run: --no-nimble"} if a.no_nimble
