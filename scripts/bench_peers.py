@@ -430,7 +430,7 @@ def _opensim_child(spec_path: str, out_path: str) -> int:
 #     "angles": {dof: (n_frames,)}           joint angles (rad), coordinates named as in the .osim
 #     "error": str | None                    why it did not run (then the rest may be missing)
 # Optional: "markers_world": (n_frames, n_markers, 3) in the order of `markers` (marker RMS computed here).
-def run_nimble_peer(model, sim, truth: dict, work: Path, files: dict[str, Path], log) -> dict:
+def run_nimble_peer(model, sim, truth: dict, work: Path, files: dict[str, Path], log, symmetric: bool = False) -> dict:
     if not NIMBLE.exists():
         return {"status": f"not run: {NIMBLE.relative_to(ROOT)} is not there"}
     try:
@@ -444,7 +444,8 @@ def run_nimble_peer(model, sim, truth: dict, work: Path, files: dict[str, Path],
                "mass_kg": float(sum(s.mass for s in model.segments)),
                "height_m": 1.75 * float(np.mean(sim.truth.scale)), "work_dir": str(work / "nimble"),
                "markers": list(model.marker_names), "joints": [j.name for j in model.joints],
-               "hinges": [j.name for j in model.joints if j.kind == "hinge"], "dofs": list(model.dof_names)}
+               "hinges": [j.name for j in model.joints if j.kind == "hinge"], "dofs": list(model.dof_names),
+               "settings": {"symmetric": bool(symmetric)}}
     params = inspect.signature(fn).parameters
     kwargs = {k: v for k, v in offered.items() if k in params}
     (work / "nimble").mkdir(exist_ok=True)
@@ -495,7 +496,7 @@ def collect(a: argparse.Namespace, log) -> dict:
         rows["opensim"] = ({"status": "not run: --no-opensim"} if a.no_opensim
                            else run_opensim(model, sim, truth, work, files, log, a.static_weight))
         rows["nimble"] = ({"status": "not run: --no-nimble"} if a.no_nimble
-                          else run_nimble_peer(model, sim, truth, work, files, log))
+                          else run_nimble_peer(model, sim, truth, work, files, log, a.nimble_symmetric))
     finally:
         if not a.keep:
             shutil.rmtree(work, ignore_errors=True)
@@ -507,7 +508,7 @@ def collect(a: argparse.Namespace, log) -> dict:
             f"{os.cpu_count()} cores", "python": platform.python_version(), "frames": a.frames,
             "static_frames": static.n_frames, "rate_hz": sim.trial.rate, "noise_mm": a.noise_mm, "seed": a.seed,
             "floor_rms_mm": rows["calibrate"]["floor_rms_mm"], "scale_pairs": SCALE_PAIRS,
-            "static_coordinate_weight": a.static_weight, "rows": rows,
+            "static_coordinate_weight": a.static_weight, "nimble_symmetric": a.nimble_symmetric, "rows": rows,
             "kinds": truth["kinds"]}
 
 
@@ -578,6 +579,9 @@ def main() -> int:
                          "neutral pose); 0 = markers only (default 1)")
     ap.add_argument("--no-opensim", action="store_true", help="skip the OpenSim row")
     ap.add_argument("--no-nimble", action="store_true", help="skip the nimblephysics row (minutes per run)")
+    ap.add_argument("--nimble-symmetric", action="store_true",
+                    help="nimble with AddBiomechanics' default of shared left/right scales (the simulated subject is "
+                         "asymmetric, so by default each side is scaled on its own)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the .osim/.trc/setup/IK files in this directory")
     ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
     ap.add_argument("--_opensim", nargs=2, help=argparse.SUPPRESS)
