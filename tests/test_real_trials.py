@@ -19,7 +19,7 @@ from calibrate.model import add_markers, load_model
 from calibrate.motion import read_motion_csv
 from calibrate.problem import Settings
 from calibrate.simulate import simulate_squats, simulate_static
-from calibrate.trial import Trial, write_c3d
+from calibrate.trial import Trial, read_trial, write_c3d
 
 # A thigh plate (three markers), a shank pair and a hand marker, in segment frames (m): markers a
 # lab adds to the model's set.
@@ -153,7 +153,13 @@ def test_static_trial_alone_scales_and_flags_what_it_cannot_identify(human):
 
 
 # ---------------------------------------------------------------------- gaps, bad frames, spikes
-def test_spikes_are_rejected_and_reported(human):
+def _through_c3d(trial: Trial, path) -> Trial:
+    """`trial` written as a C3D file and read back, as a lab's file reaches calibrate."""
+    write_c3d(path, trial)
+    return read_trial(path)
+
+
+def test_spikes_are_rejected_and_reported(human, tmp_path):
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=11)
     rng = np.random.default_rng(1)
     mk = np.array(sim.trial.markers)
@@ -162,7 +168,7 @@ def test_spikes_are_rejected_and_reported(human):
     for f, k in hits:
         d = rng.normal(size=3)
         mk[f, k] += rng.uniform(0.03, 0.15) * d / np.linalg.norm(d)
-    cal = calibrate(human, Trial(sim.trial.labels, mk, sim.trial.rate))
+    cal = calibrate(human, _through_c3d(Trial(sim.trial.labels, mk, sim.trial.rate), tmp_path / "spikes.c3d"))
     found = {(o.frame, human.marker_names.index(o.marker)) for o in cal.outliers}
     assert len(hits & found) >= 0.95 * len(hits)
     assert len(found - hits) <= 0.001 * F * N
@@ -173,7 +179,7 @@ def test_spikes_are_rejected_and_reported(human):
     assert rep["outliers"]["count"] == len(cal.outliers) and rep["trials"][0]["outliers"] == len(cal.outliers)
 
 
-def test_gaps_late_markers_and_empty_frames(human):
+def test_gaps_late_markers_and_empty_frames(human, tmp_path):
     sim = simulate_squats(human, frames=400, noise_mm=1.0, gaps=True, seed=12)
     mk = np.array(sim.trial.markers)
     col = {n: i for i, n in enumerate(sim.trial.labels)}
@@ -183,7 +189,7 @@ def test_gaps_late_markers_and_empty_frames(human):
     mk[300:330, col["RKNE"]] = np.nan  # no marker at all on the right thigh for 0.3 s
     mk[300:330, col["RTHI"]] = np.nan
     mk[340:345, [col["LELB"], col["LUPA"]]] = np.nan
-    cal = calibrate(human, Trial(sim.trial.labels, mk, sim.trial.rate))
+    cal = calibrate(human, _through_c3d(Trial(sim.trial.labels, mk, sim.trial.rate), tmp_path / "gaps.c3d"))
     assert cal.converged
     assert np.all(np.isfinite(cal.motion.angles)) and np.all(np.isfinite(cal.motion.root_translation))
     cmp = compare_to_truth(cal, sim)
