@@ -619,8 +619,9 @@ def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.nd
     of its prior.  Returns the start parameters, the prior's base parameters and the placements."""
     new = [k for k, n in enumerate(subject.marker_names) if n in {m.label for m in placed if m.segment}]
     seen = np.all(np.isfinite(obs[:, new]), axis=2)
-    frames = np.flatnonzero(seen.any(1))
-    frames = frames[:: max(1, frames.size // 300)]
+    # Up to about 100 frames per marker, wherever in the trials it is seen (some are seen briefly).
+    frames = np.unique(np.concatenate([np.flatnonzero(seen[:, i])[:: max(1, int(seen[:, i].sum()) // 100)]
+                                       for i in range(len(new))]))
     Z, Q = start.Z[frames], start.Q[frames]
     p = params.copy()
     s = np.array([p.scale[subject.segment_index(subject.markers[k].segment)] for k in new])
@@ -636,7 +637,6 @@ def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.nd
     local = np.einsum("fnij,fni->fnj", R, obs[frames][:, new] - origin[:, new])
     out = params.copy()
     base = subject.parameters()
-    result = []
     by_label = {m.label: m for m in placed}
     for i, k in enumerate(new):
         use = np.isfinite(local[:, i, 0])

@@ -88,10 +88,10 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(
         prog="calibrate",
-        usage="calibrate TRIAL MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
+        usage="calibrate TRIAL [TRIAL ...] MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
               "       calibrate COMMAND ...",
-        description="Subject-specific human models from motion-capture trials.  'calibrate TRIAL MODEL' "
-                    "calibrates MODEL to the subject of TRIAL; the commands below help around it.",
+        description="Subject-specific human models from motion-capture trials.  'calibrate TRIAL [TRIAL ...] "
+                    "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.",
     )
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sim = sub.add_parser("simulate", help="write a synthetic squat trial with its truth",
