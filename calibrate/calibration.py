@@ -583,22 +583,15 @@ def _most_motion(model: Model, trials: Sequence[Trial]) -> int:
 def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str]) -> list[NewMarker]:
     """Segments for the trial markers the model does not know (seed 002's rigidity, against the
     model's known markers: calibrate.association.associate_to_model over all trials' frames)."""
-    labels = [m for m in model.marker_names] + unknown
+    labels = (*model.marker_names, *unknown)
     parts = []
     for t in trials:
         cols = np.full((t.n_frames, len(labels), 3), np.nan)
-        index = {lab: i for i, lab in enumerate(t.labels)}
-        for k, lab in enumerate(labels):
-            if lab in index:
-                cols[:, k] = t.markers[:, index[lab]]
+        have = [k for k, lab in enumerate(labels) if lab in t.labels]
+        cols[:, have] = t.select([labels[k] for k in have]).markers
         parts.append(cols)
-    stacked = Trial(tuple(labels), np.concatenate(parts), trials[0].rate)
-    assoc = associate_to_model(model, stacked)
-    out = []
-    for lab in unknown:
-        a = assoc[lab]
-        out.append(NewMarker(lab, a.segment, None, a.reason))
-    return out
+    assoc = associate_to_model(model, Trial(labels, np.concatenate(parts), trials[0].rate))
+    return [NewMarker(lab, assoc[lab].segment, None, assoc[lab].reason) for lab in unknown]
 
 
 def _on_model(subject: Model, model: Model, params: Parameters) -> Parameters:

@@ -234,7 +234,7 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
             staged[kind] = Path(tmp)
         if "urdf" in staged:
             write_model(cal.model, staged["urdf"], cal.params, overwrite=True)
-        for k, m in zip(keys if motions else [], cal.motions, strict=False):
+        for k, m in zip(keys, cal.motions, strict=False):  # keys is empty without motion outputs
             write_motion_csv(staged[k], m)
         if "report" in staged:
             cal.times["write"] = time.perf_counter() - t0
