@@ -27,6 +27,7 @@ from .trial import Trial
 
 LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
 REINIT_RMS = 0.02  # m: a frame fitting worse than this (and 5x the running median) is restarted
+GLOBAL_KEEP = 4  # grid starts per joint that the global start solves (the best-fitting as they stand)
 
 
 @dataclass(frozen=True)
@@ -176,15 +177,21 @@ class _FrameSolver:
             if not fit_mk:
                 continue
             n_grid = {1: 7, 2: 5}.get(len(own), 3)
-            best = None
+            rows = (3 * np.asarray(fit_mk)[:, None] + np.arange(3)).ravel()
+            target = obs[fit_mk].ravel()
+            starts = []  # every grid point scored as it stands; the most promising few are solved
             for start in itertools.product(*[np.linspace(lo, hi, n_grid) for lo, hi in lims]):
                 zz = z.copy()
                 zz[sub_dofs] = 0.0
                 zz[own] = start
+                m, _ = self.evaluate(zz, q)
+                starts.append((float(np.sum((m[rows] - target) ** 2)), zz))
+            starts.sort(key=lambda s: s[0])
+            best = None
+            for _, zz in starts[:GLOBAL_KEEP]:
                 zz, qq, c, _ = self.solve(zz, q, obs, fit_mk, free, 12)
-                score = c
-                if best is None or score < best[2]:
-                    best = (zz, qq, score)
+                if best is None or c < best[2]:
+                    best = (zz, qq, c)
             z = best[0]
         return z, q
 

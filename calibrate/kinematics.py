@@ -28,6 +28,7 @@ Outputs: ``markers`` (3 × n_markers) and ``centres`` (3 × n_joints), lab frame
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -112,8 +113,16 @@ class Kinematics:
 
     model: Model
     h: ca.Function
-    jac: ca.Function
     h_jz: ca.Function
+
+    @cached_property
+    def jac(self) -> ca.Function:
+        """(z, q_ref, p) -> (d vec(markers)/dz, d vec(markers)/dp), built on first use (the
+        calibration builds its own per-frame Jacobians, in Problem)."""
+        z, q, p = (ca.SX.sym(n, self.h.size1_in(i)) for i, n in enumerate(("z", "q_ref", "p")))
+        m_vec = ca.vec(self.h(z, q, p)[0])
+        return ca.Function("h_jac", [z, q, p], [ca.jacobian(m_vec, z), ca.jacobian(m_vec, p)],
+                           ["z", "q_ref", "p"], ["dm_dz", "dm_dp"])
 
     @property
     def n_params(self) -> int:
@@ -224,8 +233,6 @@ def build_kinematics(model: Model) -> Kinematics:
     C = ca.horzcat(*jc_pos) if jc_pos else ca.SX(3, 0)
     h = ca.Function("h", [z, q_ref, p], [M, C], ["z", "q_ref", "p"], ["markers", "centres"])
     m_vec = ca.vec(M)
-    jac = ca.Function("h_jac", [z, q_ref, p], [ca.jacobian(m_vec, z), ca.jacobian(m_vec, p)],
-                      ["z", "q_ref", "p"], ["dm_dz", "dm_dp"])
     h_jz = ca.Function("h_jz", [z, q_ref, p], [m_vec, ca.densify(ca.jacobian(m_vec, z))],
                        ["z", "q_ref", "p"], ["markers", "dm_dz"])
-    return Kinematics(model, h, jac, h_jz)
+    return Kinematics(model, h, h_jz)

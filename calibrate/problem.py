@@ -38,13 +38,13 @@ import os
 import shutil
 import subprocess
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
+from .assembly import assemble, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters
 
@@ -52,9 +52,7 @@ GROUPS = ("scale", "centre", "axis", "marker")
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.ik)
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 LOSSES = ("linear", "huber", "cauchy")
-WORKERS = max(1, min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
-CHUNK = 64  # frames assembled at a time in Problem.linearize (keeps the scattered writes in cache)
 
 
 @dataclass(frozen=True)
@@ -85,6 +83,7 @@ class Settings:
     compile: bool = True  # compile the per-frame function with the C compiler, if there is one
     new_markers: bool = True  # place trial markers the model does not know on segments (by rigidity) and fit them
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
+    geodesic: bool = True  # geodesic acceleration of the LM steps (follows curved valleys; calibrate.solver)
 
     def __post_init__(self) -> None:
         bad = [g for g in self.free if g not in GROUPS]
@@ -140,6 +139,7 @@ class Linearization:
     gp: np.ndarray  # (n,)
     a_pattern: np.ndarray | None = None  # (nz, nz) bool: which A_f entries can be nonzero (None: any)
     b_pattern: np.ndarray | None = None  # (nz, n) bool: which B_f entries can be nonzero (None: any)
+    jacobian: tuple | None = None  # for Problem.gradient: (d, jz, jp, row weights, layout, prior J, limits on)
 
 
 def _robust(s: np.ndarray, loss: str, c2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -475,29 +475,35 @@ class Problem:
     def _build_functions(self) -> None:
         m, kin = self.model, self.kin
         nz, nm = m.nz, len(m.markers)
-        z = ca.SX.sym("z", nz)
-        q = ca.SX.sym("q_ref", 4)
-        p = ca.SX.sym("p", self.np_full)
-        r = ca.SX.sym("r", 3 * nm)
-        M, _ = kin.h(z, q, p)
-        d = ca.vec(M) - r
-        Jz = ca.jacobian(d, z)
-        Jp = ca.jacobian(d, p)
-        nzs = lambda J: ca.vertcat(*[J.nz[i] for i in range(J.nnz())])  # noqa: E731
-        full = ca.Function("calibrate_frame", [z, q, p, r], [d, nzs(Jz), nzs(Jp)])
-        pose = ca.Function("calibrate_pose", [z, q, p, r], [d, nzs(Jz)])
-        resid = ca.Function("calibrate_resid", [z, q, p, r], [d])
-        self.compiled = False
-        if self.settings.compile:
-            comp = _compile([full, pose, resid])
-            if comp is not None:
-                full, pose, resid = comp
-                self.compiled = True
+        key = _structure_key(m) if self.settings.compile else None
+        cached = _load_compiled(key) if key else None
+        self.compiled = cached is not None
+        if cached is not None:  # a model of this structure was compiled before: no symbolic work
+            (full, pose, resid), (zr, zc, pr, pc, shape) = cached
+        else:
+            z = ca.SX.sym("z", nz)
+            q = ca.SX.sym("q_ref", 4)
+            p = ca.SX.sym("p", self.np_full)
+            r = ca.SX.sym("r", 3 * nm)
+            M, _ = kin.h(z, q, p)
+            d = ca.vec(M) - r
+            Jz = ca.jacobian(d, z)
+            Jp = ca.jacobian(d, p)
+            nzs = lambda J: ca.vertcat(*[J.nz[i] for i in range(J.nnz())])  # noqa: E731
+            full = ca.Function("calibrate_frame", [z, q, p, r], [d, nzs(Jz), nzs(Jp)])
+            pose = ca.Function("calibrate_pose", [z, q, p, r], [d, nzs(Jz)])
+            resid = ca.Function("calibrate_resid", [z, q, p, r], [d])
+            zr, zc = _pattern(Jz.sparsity())
+            pr, pc = _pattern(Jp.sparsity())
+            shape = np.array([Jz.size1(), Jz.size2()])
+            if key:
+                comp = _compile([full, pose, resid], key, {"zr": zr, "zc": zc, "pr": pr, "pc": pc, "shape": shape})
+                if comp is not None:
+                    full, pose, resid = comp
+                    self.compiled = True
         self._funcs = {"full": full, "pose": pose, "resid": resid}
         # Per-segment groups from the sparsity patterns.
-        zr, zc = _pattern(Jz.sparsity())
-        pr, pc = _pattern(Jp.sparsity())
-        self._jz_pattern = (zr, zc, Jz.size1(), Jz.size2())
+        self._jz_pattern = (zr, zc, int(shape[0]), int(shape[1]))
         self.groups: list[_Group] = []
         for s in range(len(m.segments)):
             mk = np.flatnonzero(self.marker_segment == s)
@@ -516,18 +522,23 @@ class Problem:
             z_dst = np.array([row_pos[int(zr[i])] * zcols.size + zpos[int(zc[i])] for i in z_src], dtype=int)
             p_dst = np.array([row_pos[int(pr[i])] * pcols.size + ppos[int(pc[i])] for i in p_src], dtype=int)
             self.groups.append(_Group(rows, zcols, pcols, z_src, z_dst, p_src, p_dst))
+        self._layout_z = group_layout(self.groups)
 
     def frame_evaluator(self, p: np.ndarray) -> _FrameEvaluator:
         """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
         parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
         return _FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
 
-    def _run(self, kind: str, state: State) -> list[np.ndarray]:
+    def _run(self, kind: str, state: State, out: tuple | None = None) -> list[np.ndarray]:
         """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
-        call (a map's construction grows with its size), into fresh numpy arrays (F, nnz_out)."""
+        call (a map's construction grows with its size), into numpy arrays (F, nnz_out): those of
+        `out` where their shapes fit (buffers no longer needed), else fresh ones."""
         F = state.Z.shape[0]
         f0 = self._funcs[kind]
         outs = [np.empty((F, f0.nnz_out(i))) for i in range(f0.n_out())]
+        for i, o in enumerate(out or ()):
+            if i < len(outs) and isinstance(o, np.ndarray) and o.shape == outs[i].shape:
+                outs[i] = o
         Z = np.ascontiguousarray(state.Z, dtype=float)
         Q = np.ascontiguousarray(state.Q, dtype=float)
         P = np.tile(np.asarray(state.p, dtype=float), min(F, EVAL_BLOCK))
@@ -628,72 +639,30 @@ class Problem:
         `reuse`: a Linearization no longer needed, whose arrays are overwritten (saves allocating
         the large B afresh at every iteration).
 
-        The per-segment Jacobian blocks are gathered and multiplied CHUNK frames at a time, so
-        the scattered writes into A_f and B_f stay in cache: the time is linear in the frames."""
+        The per-segment Jacobian blocks are gathered and multiplied frame by frame in compiled
+        loops (calibrate.assembly): the time is linear in the frames."""
         F, nz = self.F, self.model.nz
+        old = reuse.jacobian[:3] if reuse is not None and reuse.jacobian is not None else None  # (d, jz, jp)
         if with_parameters:
-            d, jz, jp = self._run("full", state)
+            d, jz, jp = self._run("full", state, old)
         else:
-            (d, jz), jp = self._run("pose", state), None
+            (d, jz), jp = self._run("pose", state, old), None
         cost, w = self._weights(d)
         wrow = np.repeat(w, 3, axis=1)  # (F, 3 nm)
-        e = d * wrow
         n = self.n_free if with_parameters else 0
         if reuse is not None and reuse.A.shape == (F, nz, nz) and reuse.B.shape == (F, nz, n):
-            A, B = reuse.A, reuse.B
-            A.fill(0.0)
-            B.fill(0.0)
+            A, B = reuse.A, reuse.B  # overwritten frame by frame
         else:
-            A, B = np.zeros((F, nz, nz)), np.zeros((F, nz, n))
-        C = np.zeros((n, n))
-        gz = np.zeros((F, nz))
-        gp = np.zeros(n)
-        plan = []  # per group: (group, A places, B places, T on its free columns, those columns)
-        T = self.tangent_map(state.p) if with_parameters else None
-        frame = np.arange(CHUNK)[:, None]
+            A, B = np.empty((F, nz, nz)), np.empty((F, nz, n))
+        gz = np.empty((F, nz))
+        pl = parameter_layout(self.groups, self.tangent_map(state.p)) if with_parameters else None
+        C, gp = assemble(d, wrow, jz, jp, self._layout_z, pl, A, B, gz, n)
         a_pat = np.eye(nz, dtype=bool)
         b_pat = np.zeros((nz, n), dtype=bool)
-        for g in self.groups:
-            a_pos = (frame * nz * nz + (g.zcols[:, None] * nz + g.zcols[None, :]).ravel()).ravel()
+        for k, g in enumerate(self.groups):
             a_pat[np.ix_(g.zcols, g.zcols)] = True
-            if with_parameters:
-                Tg = T[g.pcols]
-                fcols = np.flatnonzero(np.any(Tg != 0, axis=0))
-                b_pos = (frame * nz * n + (g.zcols[:, None] * n + fcols[None, :]).ravel()).ravel()
-                b_pat[np.ix_(g.zcols, fcols)] = True
-                plan.append((g, a_pos, b_pos, Tg[:, fcols], fcols))
-            else:
-                plan.append((g, a_pos, None, None, None))
-
-        # (Threads gain nothing here: many small, GIL-bound numpy calls.)
-        Cs = [None if fc is None else np.zeros((fc.size, fc.size)) for *_, fc in plan]
-        gs = [None if fc is None else np.zeros(fc.size) for *_, fc in plan]
-        for s in range(0, F, CHUNK):
-            fr = slice(s, min(F, s + CHUNK))
-            m = fr.stop - fr.start
-            A1, B1 = A[fr].reshape(-1), B[fr].reshape(-1)  # views: the chunk is contiguous
-            for k, (g, a_pos, b_pos, Tg, fcols) in enumerate(plan):
-                wg = wrow[fr, g.rows][:, :, None]
-                eg = e[fr, g.rows]
-                Jz = np.zeros((m, g.rows.size * g.zcols.size))
-                Jz[:, g.z_dst] = jz[fr, g.z_src]
-                Jz = Jz.reshape(m, g.rows.size, g.zcols.size) * wg
-                JzT = Jz.transpose(0, 2, 1)
-                np.add.at(A1, a_pos[:m * g.zcols.size**2], np.matmul(JzT, Jz).reshape(-1))
-                gz[fr, g.zcols] += np.matmul(JzT, eg[:, :, None])[:, :, 0]
-                if fcols is None or fcols.size == 0:
-                    continue
-                Jp = np.zeros((m, g.rows.size * g.pcols.size))
-                Jp[:, g.p_dst] = jp[fr, g.p_src]
-                Jp = (Jp.reshape(m * g.rows.size, g.pcols.size) @ Tg).reshape(m, g.rows.size, -1) * wg
-                np.add.at(B1, b_pos[:m * g.zcols.size * fcols.size], np.matmul(JzT, Jp).reshape(-1))
-                flat = Jp.reshape(-1, fcols.size)
-                Cs[k] += flat.T @ flat
-                gs[k] += flat.T @ eg.reshape(-1)
-        for (*_, fcols), Cg, gpg in zip(plan, Cs, gs, strict=True):
-            if fcols is not None and fcols.size:
-                C[np.ix_(fcols, fcols)] += Cg
-                gp[fcols] += gpg
+            if pl is not None:
+                b_pat[np.ix_(g.zcols, pl.fcols[pl.fc_off[k]:pl.fc_off[k + 1]])] = True
         lim = self.limits(state.Z)
         out = lim != 0
         if out.any():
@@ -707,7 +676,31 @@ class Problem:
         if with_parameters:
             C += Jr.T @ Jr
             gp += Jr.T @ r
-        return Linearization(cost, A, B, C, gz, gp, a_pat, b_pat)
+        return Linearization(cost, A, B, C, gz, gp, a_pat, b_pat, (d, jz, jp, wrow, pl, Jr, out))
+
+    def residual_parts(self, state: State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The residuals at `state`, unweighted markers (F, 3 n_markers; 0 where not seen), joint
+        limits (F, n_dofs) and priors: what the geodesic acceleration differentiates twice."""
+        d = self._run("resid", state)[0]
+        r, _ = self.prior(state.p, jacobian=False)
+        return np.where(np.repeat(self.seen, 3, axis=1), d, 0.0), self.limits(state.Z), r
+
+    def gradient(self, lin: Linearization, d: np.ndarray, lim: np.ndarray,
+                 r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """J'ρ for residuals ρ = (markers d (F, 3 n_markers) unweighted, limits lim, priors r), with
+        the Jacobian J and weights of `lin`: (g_z (F, nz), g_p (n,))."""
+        _, jz, jp, wrow, pl, Jr, on = lin.jacobian
+        F, nz = lin.gz.shape
+        n = lin.gp.size
+        gz = np.empty((F, nz))
+        _, gp = assemble(np.ascontiguousarray(d), wrow, jz, jp, self._layout_z, pl, lin.A, lin.B, gz, n,
+                         gradient_only=True)
+        if on.any():
+            f, k = np.nonzero(on)
+            gz[f, 6 + k] += (LIMIT_WEIGHT / self.settings.noise) * lim[f, k]
+        if n:
+            gp = gp + Jr.T @ r
+        return gz, gp
 
     def residual_vector(self, state: State) -> np.ndarray:
         """Every residual (weighted markers frame by frame, joint limits, priors) as one vector
@@ -762,21 +755,6 @@ class Problem:
         J = sparse.csr_matrix((np.concatenate(blocks_v), (np.concatenate(blocks_r), np.concatenate(blocks_c))),
                               shape=(e.size, F * nz + self.n_free))
         return e, J
-
-
-def split_frames(F: int, min_frames: int = 64) -> list[slice]:
-    """Frames 0..F-1 in one contiguous part per worker thread (a single part for few frames)."""
-    k = max(1, min(WORKERS, F // min_frames))
-    edges = np.linspace(0, F, k + 1).astype(int)
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-
-
-def in_parallel(work, parts: list) -> list:
-    """work(part) for every part, on WORKER threads (numpy's batched kernels release the GIL)."""
-    if len(parts) == 1:
-        return [work(parts[0])]
-    with ThreadPoolExecutor(len(parts)) as pool:
-        return list(pool.map(work, parts))
 
 
 class _FrameEvaluator:
@@ -835,34 +813,70 @@ def cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "calibrate"
 
 
-def _compile(funcs: list[ca.Function]) -> list[ca.Function] | None:
-    """Generate C for `funcs`, compile it once (cached under a hash of the functions' serialised
-    expression graphs, so a cached model skips code generation), load it.
+def _structure_key(model: Model) -> str | None:
+    """A digest of everything the per-frame functions are built from: the model's kinematic
+    structure (tree, fixed rotations and offsets, which parameter each origin reads) and the code
+    that builds them, so that a cached build is reused exactly when it would come out the same.
+    None without a C compiler (nothing to cache)."""
+    if _compiler() is None:
+        return None
+    h = hashlib.sha256(f"{ca.__version__} -O1 {model.root} {model.nz} {len(model.markers)}".encode())
+    for src in (Path(__file__), Path(__file__).with_name("kinematics.py")):
+        h.update(src.read_bytes())
+    h.update(repr([s.name for s in model.segments]).encode())
+    for u in model.urdf_joints:
+        fixed_xyz = u.role not in ("centre", "marker")
+        h.update(repr((u.parent_link, u.child_link, u.owner, u.role, u.index, u.dof)).encode())
+        h.update(np.asarray(u.rotation, dtype=float).tobytes())
+        if fixed_xyz:
+            h.update(np.asarray(u.xyz, dtype=float).tobytes())
+    return h.hexdigest()[:20]
+
+
+def _compiler() -> str | None:
+    return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+
+
+def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
+    """The compiled per-frame functions and their Jacobian patterns cached under `key`, or None."""
+    so, npz = cache_dir() / f"frame_{key}.so", cache_dir() / f"frame_{key}.npz"
+    if not (so.exists() and npz.exists()):
+        return None
+    try:
+        with np.load(npz) as z:
+            patterns = (z["zr"], z["zc"], z["pr"], z["pc"], z["shape"])
+        return [ca.external(n, str(so)) for n in ("calibrate_frame", "calibrate_pose", "calibrate_resid")], patterns
+    except (OSError, RuntimeError, KeyError, ValueError):
+        return None
+
+
+def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]) -> list[ca.Function] | None:
+    """Generate C for `funcs`, compile it, keep it (with the Jacobian `patterns` beside it) in the
+    cache under `key`, and load it.
 
     Returns None (the caller then keeps CasADi's virtual machine) when there is no C
     compiler or the compile fails: compiling is an optimisation, never a requirement.
     """
-    cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+    cc = _compiler()
     if cc is None:
         return None
-    h = hashlib.sha256(f"{ca.__version__} -O1 {[f.name() for f in funcs]}".encode())
-    for f in funcs:
-        h.update(f.serialize().encode())
-    digest = h.hexdigest()[:20]
     try:
         cache = cache_dir()
         cache.mkdir(parents=True, exist_ok=True)
-        so = cache / f"frame_{digest}.so"
-        if not so.exists():
-            with tempfile.TemporaryDirectory() as tmp:
-                cg = ca.CodeGenerator("calibrate_gen.c", {"with_header": False})
-                for f in funcs:
-                    cg.add(f)
-                cg.generate(tmp + os.sep)
-                part = cache / f".frame_{digest}.{os.getpid()}.so"
-                subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp) / "calibrate_gen.c"), "-o", str(part)],
-                               check=True, capture_output=True, timeout=600)
-                os.replace(part, so)
+        so = cache / f"frame_{key}.so"
+        with tempfile.TemporaryDirectory() as tmp:
+            cg = ca.CodeGenerator("calibrate_gen.c", {"with_header": False})
+            for f in funcs:
+                cg.add(f)
+            cg.generate(tmp + os.sep)
+            part = cache / f".frame_{key}.{os.getpid()}.so"
+            subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp) / "calibrate_gen.c"), "-o", str(part)],
+                           check=True, capture_output=True, timeout=600)
+            side = cache / f".frame_{key}.{os.getpid()}.npz"
+            with open(side, "wb") as fh:
+                np.savez(fh, **patterns)
+            os.replace(part, so)
+            os.replace(side, cache / f"frame_{key}.npz")
         return [ca.external(f.name(), str(so)) for f in funcs]
     except (OSError, subprocess.SubprocessError, RuntimeError):
         return None

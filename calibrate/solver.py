@@ -30,10 +30,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .assembly import back_substitute, factor_frames, forward_substitute
 from .kinematics import retract_root
 from .problem import Linearization, Problem, State, in_parallel, split_frames
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
+GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
+GEODESIC_RATIO = 0.75  # the acceleration is used while 2|a| <= this times |v| (Transtrum & Sethna's alpha)
 
 
 @dataclass
@@ -71,7 +74,7 @@ class _Elimination:
     and Y_f = L_f⁻¹ B_f keeps the sparsity of B_f: a coordinate's row couples only with the
     parameters of the segments below it."""
 
-    Linv: np.ndarray  # (F, nz, nz) inverse Cholesky factor of the reversed (damped) A_f
+    L: np.ndarray  # (F, nz, nz) Cholesky factor of the reversed (damped) A_f
     Y: np.ndarray  # (F, nz, n)  L⁻¹ B_f (rows reversed)
     yz: np.ndarray  # (F, nz)    L⁻¹ g_z (rows reversed)
     S: np.ndarray  # (n, n)      Σ_f Y_f' Y_f
@@ -112,28 +115,23 @@ def _buffer(work: dict | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
 def _eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = True,
                work: dict | None = None) -> _Elimination | None:
     """Cholesky of every A_f + diag(damping_f) and the frames' share of the Schur complement;
-    None if a block is not positive definite.  The frames are split between the cores (numpy
-    releases the GIL in these batched kernels).  `work`: buffers to reuse between calls."""
+    None if a block is not positive definite.  The factorisation runs in compiled loops
+    (calibrate.assembly.factor_frames); the Schur complement is accumulated by BLAS, class by
+    class of Y's rows, with the frames split between the cores.  `work`: buffers to reuse."""
     F, nz, n = lin.B.shape
     n = n if with_parameters else 0
-    Linv = _buffer(work, "Linv", (F, nz, nz))
+    L = _buffer(work, "L", (F, nz, nz))
     yz = _buffer(work, "yz", (F, nz))
     Y = _buffer(work, "Y", (F, nz, n))
-    classes = _row_classes(lin, n) if n else []
-    eye = np.eye(nz)[None]
+    B = lin.B if n else np.empty((F, nz, 0))
+    if not factor_frames(lin.A, np.ascontiguousarray(damping, dtype=float), B, lin.gz, L, Y, yz):
+        return None
+    if n == 0:
+        return _Elimination(L, Y, yz, np.zeros((0, 0)))
+    classes = _row_classes(lin, n)
 
-    def part(fr: slice) -> np.ndarray | None:
-        Hz = lin.A[fr, ::-1, ::-1] + damping[fr, ::-1, None] * eye
-        try:
-            L = np.linalg.cholesky(Hz)
-        except np.linalg.LinAlgError:
-            return None
-        Linv[fr] = np.linalg.inv(L)
-        yz[fr] = np.matmul(Linv[fr], lin.gz[fr, ::-1, None])[:, :, 0]  # L⁻¹ J g_z
+    def part(fr: slice) -> np.ndarray:
         S = np.zeros((n, n))
-        if n == 0:
-            return S
-        np.matmul(np.ascontiguousarray(Linv[fr, :, ::-1]), lin.B[fr], out=Y[fr])  # L⁻¹ J B, B not copied
         for rows, cols in classes:
             if cols.size == 0:
                 continue
@@ -146,43 +144,63 @@ def _eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = 
         return S
 
     results = in_parallel(part, split_frames(F))
-    if any(r is None for r in results):
-        return None
-    return _Elimination(Linv, Y, yz, sum(results[1:], results[0]))
+    return _Elimination(L, Y, yz, sum(results[1:], results[0]))
 
 
-def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool = False,
-               N: np.ndarray | None = None, work: dict | None = None) -> tuple[np.ndarray, np.ndarray] | None:
-    """The LM step (dz (F, nz), dp (n,)) for damping `lam`, with dp restricted to the columns of
-    `N` (gauge constraints) if given; None if a block is not positive definite.  `work`: buffers
-    reused from step to step."""
+class _Factored:
+    """The damped normal equations of one LM iteration, factored: solve(g_z, g_p) gives the step
+    for any right-hand side (the LM step, then the geodesic acceleration) at the cost of a few
+    substitutions."""
+
+    def __init__(self, el: _Elimination, Ls: np.ndarray | None, N: np.ndarray | None):
+        self.el, self.Ls, self.N = el, Ls, N
+
+    def solve(self, gz: np.ndarray, gp: np.ndarray, yz: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(dz, dp) minimising the damped Gauss–Newton model with gradient (g_z, g_p)."""
+        el = self.el
+        yz = forward_substitute(el.L, gz) if yz is None else yz  # L⁻¹ g_z, reversed rows
+        if self.Ls is None:
+            return -back_substitute(el.L, yz)[:, ::-1], np.zeros(0)
+        F, nz, n = el.Y.shape
+        rhs = -gp + el.Y.reshape(F * nz, n).T @ yz.reshape(-1)
+        if self.N is not None:
+            rhs = self.N.T @ rhs
+        dp = np.linalg.solve(self.Ls.T, np.linalg.solve(self.Ls, rhs))
+        if self.N is not None:
+            dp = self.N @ dp
+        t = yz + np.matmul(el.Y, dp)  # L⁻¹ (g_z + B dp), reversed rows
+        return -back_substitute(el.L, t)[:, ::-1], dp
+
+
+def factor_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool = False,
+                N: np.ndarray | None = None, work: dict | None = None) -> _Factored | None:
+    """The damped normal equations for damping `lam` factored (frames eliminated, the Schur
+    complement on p Cholesky-factored, restricted to the columns of `N` (gauge constraints) if
+    given); None if a block is not positive definite.  `work`: buffers reused between steps."""
     el = _eliminate(lin, lam * Dz, with_parameters=not pose_only, work=work)
     if el is None:
         return None
-    LinvT = np.swapaxes(el.Linv, 1, 2)
     if pose_only or lin.C.size == 0:
-        dz = -np.matmul(LinvT, el.yz[:, :, None])[:, :, 0]
-        return dz[:, ::-1], np.zeros(0)
-    F, nz, n = el.Y.shape
-    Yf = el.Y.reshape(F * nz, n)
+        return _Factored(el, None, None)
     S = lin.C - el.S
     # Marquardt scaling on the reduced system: damp each parameter by its own curvature once the
     # frames are eliminated (diag S), not by diag C, which counts curvature the poses explain away.
     dS = np.diag(S)
     S = S + np.diag(lam * np.maximum(dS, DIAG_FLOOR * max(1.0, float(dS.max(initial=0.0)))))
-    rhs = -lin.gp + Yf.T @ el.yz.reshape(-1)
     if N is not None:
-        S, rhs = N.T @ S @ N, N.T @ rhs
+        S = N.T @ S @ N
     try:
-        Ls = np.linalg.cholesky(S)
+        return _Factored(el, np.linalg.cholesky(S), N)
     except np.linalg.LinAlgError:
         return None
-    dp = np.linalg.solve(Ls.T, np.linalg.solve(Ls, rhs))
-    if N is not None:
-        dp = N @ dp
-    t = el.yz + np.matmul(el.Y, dp)  # L⁻¹ (g_z + B dp), reversed rows
-    dz = -np.matmul(LinvT, t[:, :, None])[:, :, 0]
-    return dz[:, ::-1], dp
+
+
+def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool = False,
+               N: np.ndarray | None = None, work: dict | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The LM step (dz (F, nz), dp (n,)) for damping `lam` (see factor_step); None if a block is
+    not positive definite."""
+    fac = factor_step(lin, lam, Dz, pose_only, N, work)
+    return None if fac is None else fac.solve(lin.gz, lin.gp, fac.el.yz)
 
 
 def retract(problem: Problem, state: State, dz: np.ndarray, dp: np.ndarray) -> State:
@@ -202,6 +220,27 @@ def null_space(K: np.ndarray, n: int) -> np.ndarray | None:
     d = np.abs(np.diag(R))
     rank = int(np.sum(d > 1e-10 * max(1e-300, d.max(initial=0.0))))
     return Qm[:, rank:]
+
+
+def _accelerate(problem: Problem, state: State, lin: Linearization, fac: _Factored, dz: np.ndarray,
+                dp: np.ndarray, here: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """The LM step v = (dz, dp) with geodesic acceleration (Transtrum & Sethna 2012): the residuals'
+    second derivative along v, r_vv ≈ (r(x + hv) − 2 r(x) + r(x − hv)) / h², gives the correction
+    a = −(J'J + λD)⁻¹ J' r_vv, and the step becomes v + a/2: it bends with a curved valley (such as
+    two hinges in series across a segment with no markers) instead of leaving it.  Kept only while
+    small, 2|a| ≤ GEODESIC_RATIO |v|; otherwise v alone."""
+    h = GEODESIC_H
+    plus = problem.residual_parts(retract(problem, state, h * dz, h * dp))
+    minus = problem.residual_parts(retract(problem, state, -h * dz, -h * dp))
+    second = [(p - 2.0 * x + m) / h**2 for p, x, m in zip(plus, here, minus, strict=True)]
+    if not all(np.all(np.isfinite(s)) for s in second):
+        return dz, dp
+    az, ap = fac.solve(*problem.gradient(lin, *second))
+    v2 = float(np.sum(dz**2) + np.sum(dp**2))
+    a2 = float(np.sum(az**2) + np.sum(ap**2))
+    if 4.0 * a2 > GEODESIC_RATIO**2 * v2:
+        return dz, dp
+    return dz + 0.5 * az, dp + 0.5 * ap
 
 
 def _model_decrease(lin: Linearization, dz: np.ndarray, dp: np.ndarray) -> float:
@@ -233,6 +272,10 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
     summary.cost_history.append(cost)
     lam, nu = 1e-4, 2.0
     work: dict = {}  # buffers shared by every step of this run
+    # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
+    # weights would blur: plain least squares only.
+    accelerate = st.geodesic and problem.loss == "linear"
+    here = problem.residual_parts(state) if accelerate else None
     N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
     x_norm = lambda s: float(np.sqrt(np.sum(s.Z**2) + np.sum(s.p**2)))  # noqa: E731
     termination, converged = "", False
@@ -247,17 +290,22 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
         summary.iterations += 1
         Dz = np.maximum(np.diagonal(lin.A, axis1=1, axis2=2), DIAG_FLOOR * max(1.0, float(lin.A.max(initial=0.0))))
         t0 = time.perf_counter()
-        step = solve_step(lin, lam, Dz, pose_only, N, work)
-        summary.linear_solver_seconds += time.perf_counter() - t0
-        if step is None:
+        fac = factor_step(lin, lam, Dz, pose_only, N, work)
+        if fac is None:
+            summary.linear_solver_seconds += time.perf_counter() - t0
             lam, nu = lam * nu, nu * 2
             if lam > 1e16:
                 termination, converged = "normal equations not positive definite at any damping", False
                 break
             continue
-        dz, dp = step
-        step_norm = float(np.sqrt(np.sum(dz**2) + np.sum(dp**2)))
+        dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
+        summary.linear_solver_seconds += time.perf_counter() - t0
         predicted = _model_decrease(lin, dz, dp)
+        if accelerate:
+            t0 = time.perf_counter()
+            dz, dp = _accelerate(problem, state, lin, fac, dz, dp, here)
+            summary.evaluate_seconds += time.perf_counter() - t0
+        step_norm = float(np.sqrt(np.sum(dz**2) + np.sum(dp**2)))
         trial = retract(problem, state, dz, dp)
         t0 = time.perf_counter()
         new_cost = problem.cost(trial)
@@ -284,6 +332,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
                 break
             t0 = time.perf_counter()
             lin = problem.linearize(state, with_parameters=not pose_only, reuse=lin)
+            here = problem.residual_parts(state) if accelerate else None
             summary.linearize_seconds += time.perf_counter() - t0
             N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
         else:

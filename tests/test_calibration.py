@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 
@@ -18,11 +19,11 @@ from calibrate.config import load_settings, settings_from_dict
 from calibrate.errors import CalibrateError
 from calibrate.evaluate import compare_to_truth
 from calibrate.ik import marker_columns
-from calibrate.model import Parameters, load_model, write_model
+from calibrate.model import Parameters, add_markers, load_model, write_model
 from calibrate.motion import read_motion_csv
 from calibrate.problem import Problem, Settings, State
 from calibrate.simulate import simulate_squats
-from calibrate.solver import levenberg_marquardt
+from calibrate.solver import factor_step, levenberg_marquardt, solve_step
 from calibrate.trial import Trial, write_c3d
 
 SOLID_BALLS = ("hip_l", "hip_r", "lumbar", "neck", "shoulder_l", "shoulder_r")
@@ -86,6 +87,67 @@ def test_normal_equations_match_sparse_jacobian_and_finite_differences(human, hu
 
     fd = (at(h) - at(-h)) / (2 * h)
     assert np.abs(fd - J @ x).max() < 1e-6 * np.abs(J @ x).max()
+
+
+def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin):
+    """What the geodesic acceleration uses: J'ρ for any residual-shaped ρ (Problem.gradient) and the
+    factored normal equations solved for any right-hand side, against the full sparse Jacobian."""
+    sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=3)
+    obs = marker_columns(human, sim.trial)
+    obs[1, 5] = np.nan
+    problem = Problem(human, obs, Settings(), human_kin)
+    rng = np.random.default_rng(1)
+    m = sim.motion
+    Z = np.column_stack([m.root_translation, np.zeros((4, 3)), m.angles]) + 0.01
+    Z[2, 6] = 4.0  # an active joint limit
+    state = State(Z, m.root_quaternion.copy(), sim.truth.vector())
+    lin = problem.linearize(state)
+    _, J = problem.full_jacobian(state)
+    seen3 = np.repeat(problem.seen, 3, axis=1)
+    d = np.where(seen3, rng.normal(size=seen3.shape), 0.0)
+    lim = rng.normal(size=(4, human.n_dofs))
+    r = rng.normal(size=problem.prior(state.p, jacobian=False)[0].size)
+    rho = np.concatenate([(d * seen3 / problem.settings.noise).ravel(), lim.ravel(), r])
+    gz, gp = problem.gradient(lin, d, lim, r)
+    g = J.T @ rho
+    nz = human.nz
+    assert np.allclose(gz.ravel(), g[:4 * nz], rtol=1e-9, atol=1e-9 * np.abs(g).max())
+    assert np.allclose(gp, g[4 * nz:], rtol=1e-9, atol=1e-9 * np.abs(g).max())
+    # Undamped (lambda ~ 0), no gauge constraints: the factored solve is the Gauss-Newton step of
+    # the full normal equations (the priors make them positive definite).
+    Dz = np.diagonal(lin.A, axis1=1, axis2=2).copy()
+    fac = factor_step(lin, 1e-14, Dz)
+    dz, dp = fac.solve(gz, gp)
+    H = (J.T @ J).toarray()
+    ref = np.linalg.solve(H, -g)
+    assert np.allclose(np.concatenate([dz.ravel(), dp]), ref, rtol=1e-6, atol=1e-8 * np.abs(ref).max())
+    # The step for the linearisation's own gradient is solve_step's.
+    step = solve_step(lin, 1e-3, Dz)
+    again = factor_step(lin, 1e-3, Dz).solve(lin.gz, lin.gp)
+    assert np.allclose(step[0], again[0]) and np.allclose(step[1], again[1])
+
+
+def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):
+    """A second Problem of the same model loads the compiled functions (no symbolic build) and
+    evaluates exactly what CasADi's virtual machine does; another structure gets its own build."""
+    if shutil.which("gcc") is None and shutil.which("cc") is None:
+        pytest.skip("no C compiler: the per-frame functions run in CasADi's virtual machine")
+    monkeypatch.setenv("CALIBRATE_CACHE", str(tmp_path))
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=4)
+    obs = marker_columns(human, sim.trial)
+    m = sim.motion
+    state = State(np.column_stack([m.root_translation, np.zeros((3, 3)), m.angles]), m.root_quaternion.copy(),
+                  sim.truth.vector())
+    first = Problem(human, obs, Settings())
+    assert first.compiled and len(list(tmp_path.glob("frame_*.so"))) == 1
+    second = Problem(human, obs, Settings())
+    assert second.compiled and len(list(tmp_path.glob("frame_*.so"))) == 1
+    vm = Problem(human, obs, Settings(compile=False))
+    for a, b in zip(second._run("full", state), vm._run("full", state), strict=True):
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-14)
+    moved = add_markers(human, {"EXTRA": ("femur_r", np.array([0.0, 0.05, -0.2]))})
+    Problem(moved, np.concatenate([obs, np.full((3, 1, 3), np.nan)], axis=1), Settings())
+    assert len(list(tmp_path.glob("frame_*.so"))) == 2
 
 
 def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_kin):
