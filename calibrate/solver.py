@@ -256,10 +256,11 @@ def _model_decrease(lin: Linearization, dz: np.ndarray, dp: np.ndarray) -> float
 
 
 def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = False,
-                        max_iterations: int | None = None,
+                        max_iterations: int | None = None, geodesic: bool | None = None,
                         progress: Callable[[int, float, float], None] | None = None) -> tuple[State, SolverSummary]:
     """Minimise the problem's cost from `state`.  `pose_only` keeps p fixed (frame-wise inverse
-    kinematics of all frames at once).  `progress(iteration, cost, lam)` after each step."""
+    kinematics of all frames at once).  `geodesic`: geodesic acceleration on or off (default:
+    Settings.geodesic).  `progress(iteration, cost, lam)` after each step."""
     st = problem.settings
     max_it = max_iterations or st.max_iterations
     summary = SolverSummary()
@@ -274,7 +275,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
     work: dict = {}  # buffers shared by every step of this run
     # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
     # weights would blur: plain least squares only.
-    accelerate = st.geodesic and problem.loss == "linear"
+    accelerate = (st.geodesic if geodesic is None else geodesic) and problem.loss == "linear"
     here = problem.residual_parts(state) if accelerate else None
     N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
     x_norm = lambda s: float(np.sqrt(np.sum(s.Z**2) + np.sum(s.p**2)))  # noqa: E731
