@@ -43,7 +43,7 @@ SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
 STRIDE = 10  # key-frame spacing of the start (frames of the trial)
 COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly spaced frames first
-SEED_FRAMES = 200  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
+SEED_FRAMES = 150  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
 SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
 
@@ -495,7 +495,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             summary = _merge(summary, again)
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    lin = problem.linearize(state)
+    lin = problem.linearize(state, reuse=problem.scratch.pop(("lin", False), None))
     cov = covariance(problem, state, lin)
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
@@ -541,7 +541,6 @@ def _solve(problem: Problem, start: State, spans: list[slice], settings: Setting
         here = State(start.Z[sl], start.Q[sl], start.p)
         parts.append(spread_poses(solved, coarse[mine] - sl.start, here))
     state = State(np.concatenate([s.Z for s in parts]), np.concatenate([s.Q for s in parts]), state.p.copy())
-    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=1)
     state, summary = levenberg_marquardt(
         problem, state,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))

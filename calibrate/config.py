@@ -13,6 +13,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     compile = true          # compile the per-frame function with the C compiler if present
     new_markers = true      # place trial markers the model does not know on segments and fit them
     outlier_sigmas = 6.0    # reject a marker in a frame whose error exceeds this many noise SDs (0: off)
+    geodesic = true         # geodesic acceleration of the solver's steps (follows curved valleys)
 
     [priors]                # SDs of the pull towards the base model
     marker_mm = 20.0
@@ -38,7 +39,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "new_markers", "outlier_sigmas", "priors"}
+        "new_markers", "outlier_sigmas", "geodesic", "priors"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
 
 
@@ -70,7 +71,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     free = data.get("free", list(s.free))
     if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):
         raise CalibrateError(f"{where}: 'free' must be a list of group names, e.g. [\"centre\", \"marker\"]")
-    for key in ("seed", "compile", "new_markers"):
+    for key in ("seed", "compile", "new_markers", "geodesic"):
         if key in data and not isinstance(data[key], bool):
             raise CalibrateError(f"{where}: '{key}' must be true or false, got {data[key]!r}")
     it = data.get("max_iterations", s.max_iterations)
@@ -84,7 +85,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        xtol=num(data, "xtol", s.xtol),
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
                        compile=data.get("compile", s.compile), new_markers=data.get("new_markers", s.new_markers),
-                       outliers=num(data, "outlier_sigmas", s.outliers))
+                       outliers=num(data, "outlier_sigmas", s.outliers),
+                       geodesic=data.get("geodesic", s.geodesic))
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

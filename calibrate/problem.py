@@ -176,6 +176,9 @@ class Problem:
         self.upper = np.array([d.upper for d in model.dofs]) + LIMIT_MARGIN
         self._layout()
         self._build_functions()
+        # Scratch memory of the solver (large per-frame arrays kept between its runs; see
+        # solver.levenberg_marquardt): like Pinocchio's Data, owned here, never read as a result.
+        self.scratch: dict = {}
 
     def _set_observed(self, obs: np.ndarray) -> None:
         self.observed = obs
@@ -196,6 +199,7 @@ class Problem:
         """The same problem on some of its frames (e.g. an evenly spaced subsample that finds
         the geometry's basin cheaply), sharing the compiled functions."""
         new = copy.copy(self)
+        new.scratch = {}
         new._set_observed(self.observed[np.asarray(frames)])
         return new
 
@@ -650,10 +654,8 @@ class Problem:
         cost, w = self._weights(d)
         wrow = np.repeat(w, 3, axis=1)  # (F, 3 nm)
         n = self.n_free if with_parameters else 0
-        if reuse is not None and reuse.A.shape == (F, nz, nz) and reuse.B.shape == (F, nz, n):
-            A, B = reuse.A, reuse.B  # overwritten frame by frame
-        else:
-            A, B = np.empty((F, nz, nz)), np.empty((F, nz, n))
+        A = reuse.A if reuse is not None and reuse.A.shape == (F, nz, nz) else np.empty((F, nz, nz))
+        B = reuse.B if reuse is not None and reuse.B.shape == (F, nz, n) else np.empty((F, nz, n))
         gz = np.empty((F, nz))
         pl = parameter_layout(self.groups, self.tangent_map(state.p)) if with_parameters else None
         C, gp = assemble(d, wrow, jz, jp, self._layout_z, pl, A, B, gz, n)

@@ -106,9 +106,9 @@ def _buffer(work: dict | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
     allocated afresh on every step cost page faults and allocator churn)."""
     if work is None:
         return np.empty(shape)
-    a = work.get(name)
-    if a is None or a.shape != shape:
-        a = work[name] = np.empty(shape)
+    a = work.get((name, shape))
+    if a is None:
+        a = work[(name, shape)] = np.empty(shape)
     return a
 
 
@@ -265,14 +265,16 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
     max_it = max_iterations or st.max_iterations
     summary = SolverSummary()
     t_start = time.perf_counter()
+    # Buffers shared by every step, and by later runs on this problem (first touches of the large
+    # per-step arrays, in page faults, cost as much as a step of a short run).
+    work = problem.scratch
     t0 = time.perf_counter()
-    lin = problem.linearize(state, with_parameters=not pose_only)
+    lin = problem.linearize(state, with_parameters=not pose_only, reuse=work.pop(("lin", pose_only), None))
     summary.linearize_seconds += time.perf_counter() - t0
     cost = lin.cost
     summary.initial_cost = cost
     summary.cost_history.append(cost)
     lam, nu = 1e-4, 2.0
-    work: dict = {}  # buffers shared by every step of this run
     # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
     # weights would blur: plain least squares only.
     accelerate = (st.geodesic if geodesic is None else geodesic) and problem.loss == "linear"
@@ -345,6 +347,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
                 termination = "no step lowers the cost (damping exhausted): converged to the available precision"
                 converged = True
                 break
+    work[("lin", pose_only)] = lin  # its arrays are the next run's buffers
     summary.final_cost = cost
     summary.termination = termination
     summary.converged = converged

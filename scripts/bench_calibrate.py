@@ -103,6 +103,7 @@ def parse_progress(text: str) -> dict:
     """Stage start times and solver iterations from a worker's progress log ('seconds<TAB>message')."""
     stages: dict[str, float] = {}
     its: list[tuple[float, int]] = []
+    full_its: list[tuple[float, int]] = []
     last = 0.0
     for line in text.splitlines():
         t, _, msg = line.partition("\t")
@@ -111,6 +112,9 @@ def parse_progress(text: str) -> dict:
         stages.setdefault(stage, last)
         if msg.startswith("solve: iteration"):
             its.append((last, int(msg.split()[2])))
+        elif msg.startswith("solve: all frames, iteration"):  # the solve on every frame (after the coarse one)
+            full_its.append((last, int(msg.split()[4])))
+    its = full_its or its  # per-iteration time of the solve on every frame, where there is one
     per_it = math.nan
     if len(its) >= 2 and its[-1][1] > its[0][1]:
         per_it = (its[-1][0] - its[0][0]) / (its[-1][1] - its[0][1])

@@ -150,10 +150,12 @@ def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch
     assert len(list(tmp_path.glob("frame_*.so"))) == 2
 
 
-def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_kin):
-    """Frame coordinates 0.02 off and the base model's geometry: LM reaches the data to the micrometre."""
+@pytest.mark.parametrize("geodesic", [True, False])
+def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_kin, geodesic):
+    """Frame coordinates 0.02 off and the base model's geometry: LM reaches the data to the micrometre,
+    with and without geodesic acceleration."""
     sim = simulate_squats(human, frames=60, noise_mm=0.0, seed=2)
-    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(geodesic=geodesic), human_kin)
     m = sim.motion
     rng = np.random.default_rng(0)
     Z = np.column_stack([m.root_translation, np.zeros((60, 3)), m.angles]) + 0.02 * rng.normal(size=(60, human.nz))
@@ -317,14 +319,16 @@ def test_write_refuses_without_overwrite_and_leaves_nothing(noisy, tmp_path):
 # ---------------------------------------------------------------------- settings
 def test_config_file(tmp_path):
     cfg = tmp_path / "c.toml"
-    cfg.write_text('free = ["centre", "marker"]\nloss = "huber"\nnoise_mm = 2\n'
+    cfg.write_text('free = ["centre", "marker"]\nloss = "huber"\nnoise_mm = 2\ngeodesic = false\n'
                    '[priors]\ncentre_mm = 10\naxis_deg = 5\n')
     s = load_settings(cfg)
     assert s.free == ("centre", "marker") and s.loss == "huber" and s.noise == pytest.approx(0.002)
+    assert s.geodesic is False and Settings().geodesic is True
     assert s.priors.centre == pytest.approx(0.01) and s.priors.axis == pytest.approx(math.radians(5))
     for text, msg in (("fre = []", "unknown setting 'fre'"), ('free = ["size"]', "unknown parameter group"),
                       ("[priors]\nmarker = 1", "unknown prior 'marker'"), ("noise_mm = -1", "noise"),
-                      ("loss = 'l1'", "loss"), ("x = ", "not valid TOML")):
+                      ("loss = 'l1'", "loss"), ("x = ", "not valid TOML"),
+                      ("geodesic = 1", "'geodesic' must be true or false")):
         cfg.write_text(text)
         with pytest.raises(CalibrateError, match=msg):
             load_settings(cfg)
