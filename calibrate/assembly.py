@@ -17,12 +17,18 @@ columns its row of T reaches (one or two), so ∂r/∂p_free is never formed den
 
 from __future__ import annotations
 
+import ctypes
+import functools
+import hashlib
 import os
+import shutil
+import subprocess
+import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 WORKERS = max(1, min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
@@ -135,7 +141,7 @@ def assemble(d: np.ndarray, w: np.ndarray, jz: np.ndarray, jp: np.ndarray | None
 
     def part(fr: slice) -> tuple[np.ndarray, np.ndarray]:
         Ct, gt = np.zeros((n, n)), np.zeros(n)
-        _assemble(d, w, jz, jp, fr.start, fr.stop, with_p, gradient_only,
+        kernels().assemble(d, w, jz, jp, fr.start, fr.stop, with_p, gradient_only,
                   gl.rows, gl.row_off, gl.zcols, gl.zc_off, gl.z_src, gl.z_r, gl.z_c, gl.z_off,
                   pl.fcols, pl.fc_off, pl.p_src, pl.p_r, pl.p_c, pl.p_val, pl.p_off, A, B, gz, Ct, gt)
         return Ct, gt
@@ -149,106 +155,12 @@ def assemble(d: np.ndarray, w: np.ndarray, jz: np.ndarray, jp: np.ndarray | None
     return C, gp
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_off, z_src, z_r, z_c, z_off,
-              fcols, fc_off, p_src, p_r, p_c, p_val, p_off, A, B, gz, Ct, gt):  # pragma: no cover (compiled)
-    # The blocks are kept transposed (column by row) so that every inner product runs over
-    # contiguous memory and vectorises.
-    n_groups = row_off.size - 1
-    max_r = 1
-    max_zc = 1
-    max_fc = 1
-    for g in range(n_groups):
-        max_r = max(max_r, row_off[g + 1] - row_off[g])
-        max_zc = max(max_zc, zc_off[g + 1] - zc_off[g])
-        if with_p:
-            max_fc = max(max_fc, fc_off[g + 1] - fc_off[g])
-    Jz = np.zeros((max_zc, max_r))
-    Jp = np.zeros((max_fc, max_r))
-    e = np.zeros(max_r)
-    wr = np.zeros(max_r)
-    for f in range(f0, f1):
-        gz[f] = 0.0
-        if not grad_only:
-            A[f] = 0.0
-            if with_p:
-                B[f] = 0.0
-        for g in range(n_groups):
-            r0 = row_off[g]
-            nr = row_off[g + 1] - r0
-            seen = False
-            for a in range(nr):
-                wr[a] = w[f, rows[r0 + a]]
-                e[a] = d[f, rows[r0 + a]] * wr[a]
-                if wr[a] != 0.0:
-                    seen = True
-            if not seen:
-                continue
-            c0 = zc_off[g]
-            nc = zc_off[g + 1] - c0
-            Jz[:nc, :nr] = 0.0
-            for k in range(z_off[g], z_off[g + 1]):
-                Jz[z_c[k], z_r[k]] = jz[f, z_src[k]] * wr[z_r[k]]
-            for a in range(nc):
-                ia = zcols[c0 + a]
-                za = Jz[a]
-                s = 0.0
-                for r in range(nr):
-                    s += za[r] * e[r]
-                gz[f, ia] += s
-                if grad_only:
-                    continue
-                for b in range(nc):
-                    zb = Jz[b]
-                    s = 0.0
-                    for r in range(nr):
-                        s += za[r] * zb[r]
-                    A[f, ia, zcols[c0 + b]] += s
-            if not with_p:
-                continue
-            q0 = fc_off[g]
-            nq = fc_off[g + 1] - q0
-            if nq == 0:
-                continue
-            Jp[:nq, :nr] = 0.0
-            for k in range(p_off[g], p_off[g + 1]):
-                Jp[p_c[k], p_r[k]] += jp[f, p_src[k]] * p_val[k] * wr[p_r[k]]
-            for a in range(nc if not grad_only else 0):
-                ia = zcols[c0 + a]
-                za = Jz[a]
-                for b in range(nq):
-                    pb = Jp[b]
-                    s = 0.0
-                    for r in range(nr):
-                        s += za[r] * pb[r]
-                    B[f, ia, fcols[q0 + b]] += s
-            for a in range(nq):
-                ka = fcols[q0 + a]
-                pa = Jp[a]
-                s = 0.0
-                for r in range(nr):
-                    s += pa[r] * e[r]
-                gt[ka] += s
-                if grad_only:
-                    continue
-                for b in range(a + 1):
-                    kb = fcols[q0 + b]
-                    pb = Jp[b]
-                    s = 0.0
-                    for r in range(nr):
-                        s += pa[r] * pb[r]
-                    if ka >= kb:
-                        Ct[ka, kb] += s
-                    else:
-                        Ct[kb, ka] += s
-
-
 def factor_frames(A: np.ndarray, damping: np.ndarray, B: np.ndarray, gz: np.ndarray, L: np.ndarray,
                   Y: np.ndarray, yz: np.ndarray) -> bool:
     """Cholesky of every frame block A_f + diag(damping_f), in reverse coordinate order (leaves of the
     kinematic tree first: no fill-in), into L (F, nz, nz); Y = L⁻¹ B_f and yz = L⁻¹ g_z (rows
     reversed), in place.  False if a block is not positive definite."""
-    return all(in_parallel(lambda fr: _factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop),
+    return all(in_parallel(lambda fr: kernels().factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop),
                            split_frames(A.shape[0])))
 
 
@@ -256,7 +168,7 @@ def back_substitute(L: np.ndarray, t: np.ndarray) -> np.ndarray:
     """x with L_fᵀ x_f = t_f for every frame (rows reversed, as factor_frames leaves them)."""
     x = np.empty_like(t)
     t = np.ascontiguousarray(t)
-    in_parallel(lambda fr: _back(L, t, x, fr.start, fr.stop), split_frames(L.shape[0]))
+    in_parallel(lambda fr: kernels().back(L, t, x, fr.start, fr.stop), split_frames(L.shape[0]))
     return x
 
 
@@ -264,72 +176,267 @@ def forward_substitute(L: np.ndarray, g: np.ndarray) -> np.ndarray:
     """y with L_f y_f = g_f (rows of g reversed, as factor_frames takes them) for every frame."""
     y = np.empty_like(g)
     g = np.ascontiguousarray(g)
-    in_parallel(lambda fr: _forward(L, g, y, fr.start, fr.stop), split_frames(L.shape[0]))
+    in_parallel(lambda fr: kernels().forward(L, g, y, fr.start, fr.stop), split_frames(L.shape[0]))
     return y
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _factor(A, damping, B, gz, L, Y, yz, f0, f1):  # pragma: no cover (compiled)
-    nz = A.shape[1]
-    n = B.shape[2]
-    ok = True
-    for f in range(f0, f1):
-        Lf = L[f]
-        for i in range(nz):
-            for j in range(nz):
-                Lf[i, j] = A[f, nz - 1 - i, nz - 1 - j] if j <= i else 0.0
-            Lf[i, i] += damping[f, nz - 1 - i]
-        for j in range(nz):
-            s = Lf[j, j]
-            for k in range(j):
-                if Lf[j, k] != 0.0:
-                    s -= Lf[j, k] * Lf[j, k]
-            if not s > 0.0:
-                ok = False
-                s = 1.0
-            piv = np.sqrt(s)
-            Lf[j, j] = piv
-            for i in range(j + 1, nz):
-                s = Lf[i, j]
-                for k in range(j):
-                    if Lf[j, k] != 0.0:
-                        s -= Lf[i, k] * Lf[j, k]
-                Lf[i, j] = s / piv
-        for i in range(nz):
-            yi = Y[f, i]
-            yi[:] = B[f, nz - 1 - i]
-            s = gz[f, nz - 1 - i]
-            for k in range(i):
-                lik = Lf[i, k]
-                if lik != 0.0:
-                    s -= lik * yz[f, k]
-                    yk = Y[f, k]
-                    for c in range(n):
-                        yi[c] -= lik * yk[c]
-            inv = 1.0 / Lf[i, i]
-            yz[f, i] = s * inv
-            for c in range(n):
-                yi[c] *= inv
-    return ok
+# ---------------------------------------------------------------------- kernels
+_C_SOURCE = r"""
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+typedef int64_t I;
+
+/* Normal equations of frames f0..f1-1 (see calibrate.assembly.assemble).  Blocks are kept
+   transposed (column by row) so that every inner product runs over contiguous memory. */
+int cal_assemble(const double *d, const double *w, const double *jz, const double *jp,
+                 I nrow, I njz, I njp, I nz, I n, I f0, I f1, I with_p, I grad_only, I n_groups,
+                 const I *rows, const I *row_off, const I *zcols, const I *zc_off,
+                 const I *z_src, const I *z_r, const I *z_c, const I *z_off,
+                 const I *fcols, const I *fc_off, const I *p_src, const I *p_r, const I *p_c,
+                 const double *p_val, const I *p_off,
+                 double *A, double *B, double *gz, double *Ct, double *gt)
+{
+    I max_r = 1, max_zc = 1, max_fc = 1;
+    for (I g = 0; g < n_groups; ++g) {
+        if (row_off[g + 1] - row_off[g] > max_r) max_r = row_off[g + 1] - row_off[g];
+        if (zc_off[g + 1] - zc_off[g] > max_zc) max_zc = zc_off[g + 1] - zc_off[g];
+        if (with_p && fc_off[g + 1] - fc_off[g] > max_fc) max_fc = fc_off[g + 1] - fc_off[g];
+    }
+    double *Jz = calloc((size_t)(max_zc * max_r), sizeof(double));
+    double *Jp = calloc((size_t)(max_fc * max_r), sizeof(double));
+    double *e = calloc((size_t)max_r, sizeof(double));
+    double *wr = calloc((size_t)max_r, sizeof(double));
+    if (!Jz || !Jp || !e || !wr) { free(Jz); free(Jp); free(e); free(wr); return 0; }
+    for (I f = f0; f < f1; ++f) {
+        const double *df = d + f * nrow, *wf = w + f * nrow, *jzf = jz + f * njz, *jpf = jp + f * njp;
+        double *Af = A + f * nz * nz, *Bf = B + f * nz * n, *gzf = gz + f * nz;
+        memset(gzf, 0, (size_t)nz * sizeof(double));
+        if (!grad_only) {
+            memset(Af, 0, (size_t)(nz * nz) * sizeof(double));
+            if (with_p) memset(Bf, 0, (size_t)(nz * n) * sizeof(double));
+        }
+        for (I g = 0; g < n_groups; ++g) {
+            I r0 = row_off[g], nr = row_off[g + 1] - r0, seen = 0;
+            for (I a = 0; a < nr; ++a) {
+                wr[a] = wf[rows[r0 + a]];
+                e[a] = df[rows[r0 + a]] * wr[a];
+                if (wr[a] != 0.0) seen = 1;
+            }
+            if (!seen) continue;
+            I c0 = zc_off[g], nc = zc_off[g + 1] - c0;
+            memset(Jz, 0, (size_t)(nc * max_r) * sizeof(double));
+            for (I k = z_off[g]; k < z_off[g + 1]; ++k) Jz[z_c[k] * max_r + z_r[k]] = jzf[z_src[k]] * wr[z_r[k]];
+            for (I a = 0; a < nc; ++a) {
+                const double *za = Jz + a * max_r;
+                I ia = zcols[c0 + a];
+                double s = 0.0;
+                for (I r = 0; r < nr; ++r) s += za[r] * e[r];
+                gzf[ia] += s;
+                if (grad_only) continue;
+                for (I b = 0; b < nc; ++b) {
+                    const double *zb = Jz + b * max_r;
+                    s = 0.0;
+                    for (I r = 0; r < nr; ++r) s += za[r] * zb[r];
+                    Af[ia * nz + zcols[c0 + b]] += s;
+                }
+            }
+            if (!with_p) continue;
+            I q0 = fc_off[g], nq = fc_off[g + 1] - q0;
+            if (nq == 0) continue;
+            memset(Jp, 0, (size_t)(nq * max_r) * sizeof(double));
+            for (I k = p_off[g]; k < p_off[g + 1]; ++k)
+                Jp[p_c[k] * max_r + p_r[k]] += jpf[p_src[k]] * p_val[k] * wr[p_r[k]];
+            if (!grad_only) {
+                for (I a = 0; a < nc; ++a) {
+                    const double *za = Jz + a * max_r;
+                    double *Brow = Bf + zcols[c0 + a] * n;
+                    for (I b = 0; b < nq; ++b) {
+                        const double *pb = Jp + b * max_r;
+                        double s = 0.0;
+                        for (I r = 0; r < nr; ++r) s += za[r] * pb[r];
+                        Brow[fcols[q0 + b]] += s;
+                    }
+                }
+            }
+            for (I a = 0; a < nq; ++a) {
+                const double *pa = Jp + a * max_r;
+                I ka = fcols[q0 + a];
+                double s = 0.0;
+                for (I r = 0; r < nr; ++r) s += pa[r] * e[r];
+                gt[ka] += s;
+                if (grad_only) continue;
+                for (I b = 0; b <= a; ++b) {
+                    const double *pb = Jp + b * max_r;
+                    I kb = fcols[q0 + b];
+                    s = 0.0;
+                    for (I r = 0; r < nr; ++r) s += pa[r] * pb[r];
+                    if (ka >= kb) Ct[ka * n + kb] += s; else Ct[kb * n + ka] += s;
+                }
+            }
+        }
+    }
+    free(Jz); free(Jp); free(e); free(wr);
+    return 1;
+}
+
+/* Cholesky of A_f + diag(damping_f) in reverse coordinate order, Y = L^-1 B_f, yz = L^-1 g_z
+   (rows reversed); 0 if a block is not positive definite. */
+int cal_factor(const double *A, const double *damping, const double *B, const double *gz,
+               double *L, double *Y, double *yz, I nz, I n, I f0, I f1)
+{
+    int ok = 1;
+    for (I f = f0; f < f1; ++f) {
+        const double *Af = A + f * nz * nz;
+        double *Lf = L + f * nz * nz;
+        for (I i = 0; i < nz; ++i) {
+            for (I j = 0; j < nz; ++j) Lf[i * nz + j] = j <= i ? Af[(nz - 1 - i) * nz + (nz - 1 - j)] : 0.0;
+            Lf[i * nz + i] += damping[f * nz + nz - 1 - i];
+        }
+        for (I j = 0; j < nz; ++j) {
+            double s = Lf[j * nz + j];
+            for (I k = 0; k < j; ++k) if (Lf[j * nz + k] != 0.0) s -= Lf[j * nz + k] * Lf[j * nz + k];
+            if (!(s > 0.0)) { ok = 0; s = 1.0; }
+            double piv = sqrt(s);
+            Lf[j * nz + j] = piv;
+            for (I i = j + 1; i < nz; ++i) {
+                s = Lf[i * nz + j];
+                for (I k = 0; k < j; ++k) if (Lf[j * nz + k] != 0.0) s -= Lf[i * nz + k] * Lf[j * nz + k];
+                Lf[i * nz + j] = s / piv;
+            }
+        }
+        for (I i = 0; i < nz; ++i) {
+            double *yi = Y + (f * nz + i) * n;
+            memcpy(yi, B + (f * nz + nz - 1 - i) * n, (size_t)n * sizeof(double));
+            double s = gz[f * nz + nz - 1 - i];
+            for (I k = 0; k < i; ++k) {
+                double lik = Lf[i * nz + k];
+                if (lik == 0.0) continue;
+                s -= lik * yz[f * nz + k];
+                const double *yk = Y + (f * nz + k) * n;
+                for (I c = 0; c < n; ++c) yi[c] -= lik * yk[c];
+            }
+            double inv = 1.0 / Lf[i * nz + i];
+            yz[f * nz + i] = s * inv;
+            for (I c = 0; c < n; ++c) yi[c] *= inv;
+        }
+    }
+    return ok;
+}
+
+/* x with L_f' x_f = t_f. */
+int cal_back(const double *L, const double *t, double *x, I nz, I f0, I f1)
+{
+    for (I f = f0; f < f1; ++f)
+        for (I i = nz - 1; i >= 0; --i) {
+            double s = t[f * nz + i];
+            for (I k = i + 1; k < nz; ++k) s -= L[(f * nz + k) * nz + i] * x[f * nz + k];
+            x[f * nz + i] = s / L[(f * nz + i) * nz + i];
+        }
+    return 1;
+}
+
+/* y with L_f y_f = g_f reversed. */
+int cal_forward(const double *L, const double *g, double *y, I nz, I f0, I f1)
+{
+    for (I f = f0; f < f1; ++f)
+        for (I i = 0; i < nz; ++i) {
+            double s = g[f * nz + nz - 1 - i];
+            for (I k = 0; k < i; ++k) s -= L[(f * nz + i) * nz + k] * y[f * nz + k];
+            y[f * nz + i] = s / L[(f * nz + i) * nz + i];
+        }
+    return 1;
+}
+"""
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _back(L, t, x, f0, f1):  # pragma: no cover (compiled)
-    nz = L.shape[1]
-    for f in range(f0, f1):
-        for i in range(nz - 1, -1, -1):
-            s = t[f, i]
-            for k in range(i + 1, nz):
-                s -= L[f, k, i] * x[f, k]
-            x[f, i] = s / L[f, i, i]
+# Reassociation lets the compiler vectorise the inner products; NaN and infinity keep their meaning
+# (no -ffast-math: the Cholesky's "not positive definite" test must see a NaN pivot).
+_C_FLAGS = ("-O3", "-fassociative-math", "-fno-signed-zeros", "-fno-trapping-math", "-ffp-contract=fast")
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _forward(L, g, y, f0, f1):  # pragma: no cover (compiled)
-    nz = L.shape[1]
-    for f in range(f0, f1):
-        for i in range(nz):
-            s = g[f, nz - 1 - i]
-            for k in range(i):
-                s -= L[f, i, k] * y[f, k]
-            y[f, i] = s / L[f, i, i]
+def _ptr(a: np.ndarray, dtype=np.float64) -> int:
+    """Address of `a`'s data, which must already be C-contiguous of `dtype` (no silent copies:
+    the kernels write into their outputs in place)."""
+    if a.dtype != dtype or not a.flags.c_contiguous:
+        raise TypeError(f"kernel argument must be C-contiguous {np.dtype(dtype).name}, got {a.dtype}")
+    return a.ctypes.data
+
+
+class _CKernels:
+    """The kernels compiled from _C_SOURCE with the system's C compiler (ctypes releases the GIL
+    during each call, so the frame parts run on both cores)."""
+
+    def __init__(self, path: Path):
+        lib = ctypes.CDLL(str(path))
+        I, P = ctypes.c_int64, ctypes.c_void_p
+        self._assemble = lib.cal_assemble
+        self._assemble.argtypes = [P] * 4 + [I] * 10 + [P] * 20
+        self._factor = lib.cal_factor
+        self._factor.argtypes = [P] * 7 + [I] * 4
+        self._back, self._forward = lib.cal_back, lib.cal_forward
+        for f in (self._back, self._forward):
+            f.argtypes = [P] * 3 + [I] * 3
+        for f in (self._assemble, self._factor, self._back, self._forward):
+            f.restype = ctypes.c_int
+
+    def assemble(self, d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_off, z_src, z_r, z_c,
+                 z_off, fcols, fc_off, p_src, p_r, p_c, p_val, p_off, A, B, gz, Ct, gt) -> None:
+        ints = [_ptr(x, np.int64) for x in (rows, row_off, zcols, zc_off, z_src, z_r, z_c, z_off,
+                                            fcols, fc_off, p_src, p_r, p_c)]
+        ok = self._assemble(_ptr(d), _ptr(w), _ptr(jz), _ptr(jp), d.shape[1], jz.shape[1], jp.shape[1], A.shape[1],
+                            B.shape[2], f0, f1, int(with_p), int(grad_only), row_off.size - 1, *ints, _ptr(p_val),
+                            _ptr(p_off, np.int64), _ptr(A), _ptr(B), _ptr(gz), _ptr(Ct), _ptr(gt))
+        if not ok:
+            raise MemoryError("calibrate kernels: out of memory assembling the normal equations")
+
+    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1) -> bool:
+        return bool(self._factor(_ptr(A), _ptr(damping), _ptr(B), _ptr(gz), _ptr(L), _ptr(Y), _ptr(yz),
+                                 A.shape[1], B.shape[2], f0, f1))
+
+    def back(self, L, t, x, f0, f1) -> None:
+        self._back(_ptr(L), _ptr(t), _ptr(x), L.shape[1], f0, f1)
+
+    def forward(self, L, g, y, f0, f1) -> None:
+        self._forward(_ptr(L), _ptr(g), _ptr(y), L.shape[1], f0, f1)
+
+
+def cache_dir() -> Path:
+    """Where compiled code is kept: $CALIBRATE_CACHE, else ~/.cache/calibrate."""
+    env = os.environ.get("CALIBRATE_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "calibrate"
+
+
+@functools.cache
+def kernels():
+    """The per-frame kernels: compiled from _C_SOURCE with the system's C compiler (once per machine,
+    kept in the cache directory of calibrate.problem), else numba's versions of the same loops."""
+    path = _compile_kernels()
+    if path is not None:
+        return _CKernels(path)
+    from . import _numba_kernels
+
+    return _numba_kernels
+
+
+def _compile_kernels() -> Path | None:
+    cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+    if cc is None:
+        return None
+    cache = cache_dir()
+    digest = hashlib.sha256(f"{cc} {' '.join(_C_FLAGS)} {_C_SOURCE}".encode()).hexdigest()[:20]
+    so = cache / f"kernels_{digest}.so"
+    try:
+        if not so.exists():
+            cache.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory() as tmp:
+                c = Path(tmp) / "kernels.c"
+                c.write_text(_C_SOURCE)
+                part = cache / f".kernels_{digest}.{os.getpid()}.so"
+                subprocess.run([cc, *_C_FLAGS, "-fPIC", "-shared", str(c), "-o", str(part), "-lm"], check=True,
+                               capture_output=True, timeout=300)
+                os.replace(part, so)
+        return so
+    except (OSError, subprocess.SubprocessError):
+        return None

@@ -44,7 +44,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .assembly import assemble, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from .assembly import assemble, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters
 
@@ -807,12 +807,6 @@ def perpendicular_basis(a: np.ndarray) -> np.ndarray:
     u = _cross(a, e)
     u /= math.sqrt(float(u @ u))
     return np.column_stack([u, _cross(a, u)])
-
-
-def cache_dir() -> Path:
-    """Where compiled per-frame functions are kept: $CALIBRATE_CACHE, else ~/.cache/calibrate."""
-    env = os.environ.get("CALIBRATE_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "calibrate"
 
 
 def _structure_key(model: Model) -> str | None:

@@ -127,6 +127,29 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin)
     assert np.allclose(step[0], again[0]) and np.allclose(step[1], again[1])
 
 
+def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
+    """The normal equations and the LM step from the C kernels (compiled with the system's compiler)
+    and from numba's versions of the same loops (the fallback without a compiler) agree."""
+    from calibrate import _numba_kernels, assembly
+
+    if not isinstance(assembly.kernels(), assembly._CKernels):
+        pytest.skip("no C compiler: only the numba kernels exist here")
+    sim = simulate_squats(human, frames=70, noise_mm=1.0, seed=5)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    state = State(np.column_stack([m.root_translation, np.zeros((70, 3)), m.angles]) + 0.01,
+                  m.root_quaternion.copy(), sim.truth.vector())
+    runs = []
+    for backend in (assembly.kernels(), _numba_kernels):
+        monkeypatch.setattr(assembly, "kernels", lambda b=backend: b)
+        lin = problem.linearize(state)
+        Dz = np.diagonal(lin.A, axis1=1, axis2=2).copy()
+        dz, dp = solve_step(lin, 1e-3, Dz)
+        runs.append([lin.A.copy(), lin.B.copy(), lin.C.copy(), lin.gz.copy(), lin.gp.copy(), dz, dp])
+    for a, b in zip(*runs, strict=True):
+        assert np.allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(a).max())
+
+
 def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):
     """A second Problem of the same model loads the compiled functions (no symbolic build) and
     evaluates exactly what CasADi's virtual machine does; another structure gets its own build."""

@@ -1,0 +1,168 @@
+"""The per-frame kernels of calibrate.assembly compiled by numba: the fallback where no C compiler
+is found (calibrate.assembly compiles its C versions of the same loops with the system's
+compiler, which loads in a millisecond where numba's first call in a process costs 0.2-0.4 s).
+Arguments and results as the C functions in calibrate.assembly._C_SOURCE."""
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_off, z_src, z_r, z_c, z_off,
+              fcols, fc_off, p_src, p_r, p_c, p_val, p_off, A, B, gz, Ct, gt):  # pragma: no cover (compiled)
+    # The blocks are kept transposed (column by row) so that every inner product runs over
+    # contiguous memory and vectorises.
+    n_groups = row_off.size - 1
+    max_r = 1
+    max_zc = 1
+    max_fc = 1
+    for g in range(n_groups):
+        max_r = max(max_r, row_off[g + 1] - row_off[g])
+        max_zc = max(max_zc, zc_off[g + 1] - zc_off[g])
+        if with_p:
+            max_fc = max(max_fc, fc_off[g + 1] - fc_off[g])
+    Jz = np.zeros((max_zc, max_r))
+    Jp = np.zeros((max_fc, max_r))
+    e = np.zeros(max_r)
+    wr = np.zeros(max_r)
+    for f in range(f0, f1):
+        gz[f] = 0.0
+        if not grad_only:
+            A[f] = 0.0
+            if with_p:
+                B[f] = 0.0
+        for g in range(n_groups):
+            r0 = row_off[g]
+            nr = row_off[g + 1] - r0
+            seen = False
+            for a in range(nr):
+                wr[a] = w[f, rows[r0 + a]]
+                e[a] = d[f, rows[r0 + a]] * wr[a]
+                if wr[a] != 0.0:
+                    seen = True
+            if not seen:
+                continue
+            c0 = zc_off[g]
+            nc = zc_off[g + 1] - c0
+            Jz[:nc, :nr] = 0.0
+            for k in range(z_off[g], z_off[g + 1]):
+                Jz[z_c[k], z_r[k]] = jz[f, z_src[k]] * wr[z_r[k]]
+            for a in range(nc):
+                ia = zcols[c0 + a]
+                za = Jz[a]
+                s = 0.0
+                for r in range(nr):
+                    s += za[r] * e[r]
+                gz[f, ia] += s
+                if grad_only:
+                    continue
+                for b in range(nc):
+                    zb = Jz[b]
+                    s = 0.0
+                    for r in range(nr):
+                        s += za[r] * zb[r]
+                    A[f, ia, zcols[c0 + b]] += s
+            if not with_p:
+                continue
+            q0 = fc_off[g]
+            nq = fc_off[g + 1] - q0
+            if nq == 0:
+                continue
+            Jp[:nq, :nr] = 0.0
+            for k in range(p_off[g], p_off[g + 1]):
+                Jp[p_c[k], p_r[k]] += jp[f, p_src[k]] * p_val[k] * wr[p_r[k]]
+            for a in range(nc if not grad_only else 0):
+                ia = zcols[c0 + a]
+                za = Jz[a]
+                for b in range(nq):
+                    pb = Jp[b]
+                    s = 0.0
+                    for r in range(nr):
+                        s += za[r] * pb[r]
+                    B[f, ia, fcols[q0 + b]] += s
+            for a in range(nq):
+                ka = fcols[q0 + a]
+                pa = Jp[a]
+                s = 0.0
+                for r in range(nr):
+                    s += pa[r] * e[r]
+                gt[ka] += s
+                if grad_only:
+                    continue
+                for b in range(a + 1):
+                    kb = fcols[q0 + b]
+                    pb = Jp[b]
+                    s = 0.0
+                    for r in range(nr):
+                        s += pa[r] * pb[r]
+                    if ka >= kb:
+                        Ct[ka, kb] += s
+                    else:
+                        Ct[kb, ka] += s
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def factor(A, damping, B, gz, L, Y, yz, f0, f1):  # pragma: no cover (compiled)
+    nz = A.shape[1]
+    n = B.shape[2]
+    ok = True
+    for f in range(f0, f1):
+        Lf = L[f]
+        for i in range(nz):
+            for j in range(nz):
+                Lf[i, j] = A[f, nz - 1 - i, nz - 1 - j] if j <= i else 0.0
+            Lf[i, i] += damping[f, nz - 1 - i]
+        for j in range(nz):
+            s = Lf[j, j]
+            for k in range(j):
+                if Lf[j, k] != 0.0:
+                    s -= Lf[j, k] * Lf[j, k]
+            if not s > 0.0:
+                ok = False
+                s = 1.0
+            piv = np.sqrt(s)
+            Lf[j, j] = piv
+            for i in range(j + 1, nz):
+                s = Lf[i, j]
+                for k in range(j):
+                    if Lf[j, k] != 0.0:
+                        s -= Lf[i, k] * Lf[j, k]
+                Lf[i, j] = s / piv
+        for i in range(nz):
+            yi = Y[f, i]
+            yi[:] = B[f, nz - 1 - i]
+            s = gz[f, nz - 1 - i]
+            for k in range(i):
+                lik = Lf[i, k]
+                if lik != 0.0:
+                    s -= lik * yz[f, k]
+                    yk = Y[f, k]
+                    for c in range(n):
+                        yi[c] -= lik * yk[c]
+            inv = 1.0 / Lf[i, i]
+            yz[f, i] = s * inv
+            for c in range(n):
+                yi[c] *= inv
+    return ok
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def back(L, t, x, f0, f1):  # pragma: no cover (compiled)
+    nz = L.shape[1]
+    for f in range(f0, f1):
+        for i in range(nz - 1, -1, -1):
+            s = t[f, i]
+            for k in range(i + 1, nz):
+                s -= L[f, k, i] * x[f, k]
+            x[f, i] = s / L[f, i, i]
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def forward(L, g, y, f0, f1):  # pragma: no cover (compiled)
+    nz = L.shape[1]
+    for f in range(f0, f1):
+        for i in range(nz):
+            s = g[f, nz - 1 - i]
+            for k in range(i):
+                s -= L[f, i, k] * y[f, k]
+            y[f, i] = s / L[f, i, i]
