@@ -6,13 +6,15 @@ Frames are coupled only through the parameters p, so the damped normal equations
     [            ...            ... ] [ ...]  = −[...]
     [ B_1'  ...        C + λD_p     ] [ dp ]     [g_p]
 
-are solved by eliminating every frame block (a batched Cholesky of the small A_f):
+are solved by eliminating every frame block (a Cholesky of each small A_f, in compiled loops:
+calibrate.assembly):
 S = C + λD_p − Σ_f B_f' (A_f + λD_f)⁻¹ B_f is only n_free × n_free, then each dz_f is
 back-substituted.  Time and memory grow linearly with the number of frames; the full
 (nz·F + n)² matrix is never formed.  D is Marquardt's diagonal scaling (diag of the
 normal matrix, floored), λ follows Nielsen's update on the gain ratio.  The root rotation
 and the hinge axes are updated on their manifolds (see Problem.retract_parameters and
-kinematics.retract_root).
+kinematics.retract_root).  Each step carries a geodesic acceleration (Transtrum & Sethna 2012),
+which lets it bend along curved valleys of the cost (see _accelerate).
 
 Termination (first met wins, reported in words):
   relative cost decrease of an accepted step < ftol;  its absolute decrease < atol (the cost is
