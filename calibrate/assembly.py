@@ -420,8 +420,13 @@ def kernels():
     return _numba_kernels
 
 
+def c_compiler() -> str | None:
+    """The system's C compiler ($CC, else gcc, else cc), or None."""
+    return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+
+
 def _compile_kernels() -> Path | None:
-    cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+    cc = c_compiler()
     if cc is None:
         return None
     cache = cache_dir()

@@ -35,7 +35,6 @@ import copy
 import hashlib
 import math
 import os
-import shutil
 import subprocess
 import tempfile
 from dataclasses import dataclass, field
@@ -44,7 +43,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .assembly import assemble, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from .assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters
 
@@ -814,7 +813,7 @@ def _structure_key(model: Model) -> str | None:
     structure (tree, fixed rotations and offsets, which parameter each origin reads) and the code
     that builds them, so that a cached build is reused exactly when it would come out the same.
     None without a C compiler (nothing to cache)."""
-    if _compiler() is None:
+    if c_compiler() is None:
         return None
     h = hashlib.sha256(f"{ca.__version__} -O1 {model.root} {model.nz} {len(model.markers)}".encode())
     for src in (Path(__file__), Path(__file__).with_name("kinematics.py")):
@@ -827,10 +826,6 @@ def _structure_key(model: Model) -> str | None:
         if fixed_xyz:
             h.update(np.asarray(u.xyz, dtype=float).tobytes())
     return h.hexdigest()[:20]
-
-
-def _compiler() -> str | None:
-    return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
 
 
 def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
@@ -853,7 +848,7 @@ def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]
     Returns None (the caller then keeps CasADi's virtual machine) when there is no C
     compiler or the compile fails: compiling is an optimisation, never a requirement.
     """
-    cc = _compiler()
+    cc = c_compiler()
     if cc is None:
         return None
     try:
