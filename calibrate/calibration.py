@@ -30,7 +30,7 @@ from .geometry import kabsch_batch
 from .ik import _FrameSolver, marker_columns
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 from .kinematics import Kinematics, build_kinematics
-from .model import Model, Parameters, add_markers
+from .model import Model, Parameters, add_markers, mass_factor
 from .motion import Motion
 from .problem import Problem, Settings, State, perpendicular_basis
 from .solver import SolverSummary, covariance, levenberg_marquardt
@@ -118,6 +118,7 @@ class Calibration:
     new_markers: tuple[NewMarker, ...] = ()  # trial markers the base model did not know
     outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
     label_maps: tuple = ()  # per trial: calibrate.labels.LabelMapping (trial label -> model label), if mapped
+    mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
 
     @property
     def trial(self) -> Trial:
@@ -372,7 +373,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
 # ---------------------------------------------------------------------- calibrate
 def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings | None = None, *,
               marker_map: Mapping[str, Sequence[str]] | None = None, aliases: bool = True,
-              kinematics: Kinematics | None = None,
+              kinematics: Kinematics | None = None, mass: float | None = None,
               progress: Callable[[str], None] | None = None) -> Calibration:
     """Calibrate `model` to one trial or several trials of one subject: the subject's scales, joint
     centres, hinge axes and marker positions (shared by every trial), and every frame's
@@ -383,9 +384,12 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     landmarks (R.ASIS, RASIS -> RASI; calibrate.labels).  Labels the model still does not know are
     placed on segments by rigidity and fitted like the model's markers (``Settings.new_markers``);
     those that fit no segment are left out and listed.
+    `mass`: the subject's body mass (kg); the written model's segment masses (and inertias) are
+    the base model's scaled to it, as OpenSim's Scale tool does (None: the base model's kept).
     Raises CalibrateError with one line if the trials and model share too few markers or frames.
     """
     trials = (trials,) if isinstance(trials, Trial) else tuple(trials)
+    mass_factor(model, mass)  # a bad mass fails now, not after the solve
     if not trials:
         raise CalibrateError("no trial given; pass at least one Trial")
     for t in trials:
@@ -403,6 +407,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     with threadpool_limits(limits=1, user_api="blas"):
         cal = _calibrate(model, trials, settings or Settings(), kinematics, progress)
     cal.label_maps = label_maps
+    cal.mass = None if mass is None else float(mass)
     return cal
 
 

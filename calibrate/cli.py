@@ -185,6 +185,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="robust loss against marker outliers (default linear)")
     ap.add_argument("--noise-mm", type=_positive_float, default=None, help="marker noise SD in mm (default 1)")
     ap.add_argument("--no-seed", action="store_true", help="start from the base model, not from MTB joint centres")
+    ap.add_argument("--mass", type=_positive_float, default=None,
+                    help="subject's body mass in kg: segment masses and inertias are the base model's scaled to "
+                         "it (default: the base model's masses kept)")
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     return ap
@@ -318,7 +321,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
                           trial.first_frame + idx.start, trial.source)
     load_s = time.perf_counter() - t0
-    cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, progress=say)
+    cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
+                    progress=say)
     if cal.ignored_labels:
         why = "are not markers of" if not settings.new_markers else "ride on no segment of"
         print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "

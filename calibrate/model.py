@@ -21,6 +21,7 @@ A :class:`Model` is immutable.  Geometry that calibration may change lives in a
 
 from __future__ import annotations
 
+import math
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
@@ -318,6 +319,11 @@ class Model:
         return 6 + len(self.dofs)
 
     @property
+    def total_mass(self) -> float:
+        """Sum of the segment masses (kg)."""
+        return float(sum(sg.mass for sg in self.segments))
+
+    @property
     def marker_names(self) -> tuple[str, ...]:
         return tuple(m.name for m in self.markers)
 
@@ -406,14 +412,17 @@ def load_model(path: str | os.PathLike[str]) -> Model:
 
 # ---------------------------------------------------------------------- writing
 def write_model(model: Model, path: str | os.PathLike[str], params: Parameters | None = None,
-                overwrite: bool = True) -> Path:
+                overwrite: bool = True, mass: float | None = None) -> Path:
     """Write `model` with geometric parameters `params` as a URDF at `path`.
 
     Changes, per segment with scale s: origins of joints in its frame (s * centre, and
     s * xyz for the later joints of a chain), marker origins (s * offset), revolute axes,
-    inertial origin (s *) and inertia tensor (s**2 *, mass kept), visual/collision
-    origins, mesh scales and primitive sizes (s *).  Everything else in the file is kept.
-    Written to a temporary file and renamed, so a failure leaves nothing half-written.
+    inertial origin (s *) and inertia tensor (s**2 *), visual/collision origins, mesh scales
+    and primitive sizes (s *).  Segment masses are kept, or, given the subject's body `mass`
+    (kg), all multiplied by mass / the model's total mass (the base model's mass distribution,
+    as OpenSim's Scale tool keeps it), the inertia tensors with them.  Everything else in the
+    file is kept.  Written to a temporary file and renamed, so a failure leaves nothing
+    half-written.
     """
     path = Path(path)
     if not overwrite and path.exists():
@@ -424,6 +433,7 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
         raise ModelError(f"{path}: directory '{path.parent}' does not exist; create it first")
     p = model.parameters() if params is None else params
     _check_sizes(model, p)
+    k_mass = mass_factor(model, mass)
     tree = ET.ElementTree(ET.fromstring(model._text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
     robot = tree.getroot()
     seg_scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
@@ -446,9 +456,9 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
             ax.set("xyz", fmt_vec(a / np.linalg.norm(a)))
     for link in robot.findall("link"):
         s = seg_scale.get(link.get("name", ""))
-        if s is None or s == 1.0:
+        if s is None or (s == 1.0 and k_mass == 1.0):
             continue
-        _scale_link(link, s)
+        _scale_link(link, s, k_mass)
     data = ET.tostring(robot, encoding="unicode")
     start = model._text.find("<robot")
     head = model._text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
@@ -507,17 +517,33 @@ def _check_sizes(model: Model, p: Parameters) -> None:
         raise ValueError("Parameters.axis: zero-length axis")
 
 
-def _scale_link(link: ET.Element, s: float) -> None:
+def mass_factor(model: Model, mass: float | None) -> float:
+    """The factor on every segment mass that makes the model weigh `mass` kg (1 if None)."""
+    if mass is None:
+        return 1.0
+    if isinstance(mass, bool) or not isinstance(mass, (int, float)) or not (math.isfinite(mass) and mass > 0):
+        raise ModelError(f"mass: must be the subject's body mass in kg (a positive number), got {mass!r}")
+    total = model.total_mass
+    if total <= 0:
+        raise ModelError(f"{model.path}: the model's segments have no mass, so none can be scaled to {mass:g} kg")
+    return float(mass) / total
+
+
+def _scale_link(link: ET.Element, s: float, k_mass: float = 1.0) -> None:
+    """Scale one segment's inertial (origin s*, mass k_mass*, inertia k_mass*s**2*) and visuals (s*)."""
     inertial = link.find("inertial")
     if inertial is not None:
         o = inertial.find("origin")
         if o is not None:
             _scale_attr(o, "xyz", s)
+        m = inertial.find("mass")
+        if m is not None and k_mass != 1.0:
+            m.set("value", fmt_float(float(m.get("value", "0")) * k_mass))
         i = inertial.find("inertia")
         if i is not None:
             for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
                 if k in i.attrib:
-                    i.set(k, fmt_float(float(i.get(k, "0")) * s * s))
+                    i.set(k, fmt_float(float(i.get(k, "0")) * k_mass * s * s))
     for tag in ("visual", "collision"):
         for v in link.findall(tag):
             o = v.find("origin")

@@ -18,7 +18,7 @@ import numpy as np
 from . import __version__
 from ._text import atomic_write_text
 from .errors import CalibrateError
-from .model import write_model
+from .model import mass_factor, write_model
 from .motion import write_motion_csv
 
 
@@ -79,6 +79,7 @@ def calibration_report(cal) -> dict:
         "model": {"source": str(model.path), "segments": len(model.segments), "joints": len(model.joints),
                   "dof": model.nz, "markers": len(model.markers),
                   "new_markers": sum(1 for m in cal.new_markers if m.segment is not None)},
+        "mass": _mass(cal),
         "settings": {"free": list(st.free), "noise_mm": 1000 * st.noise, "loss": st.loss,
                      "loss_scale": st.loss_scale,
                      "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
@@ -107,6 +108,13 @@ def calibration_report(cal) -> dict:
     }
 
 
+def _mass(cal) -> dict:
+    """Segment masses written to the subject URDF: the base model's, scaled to the subject's mass if given."""
+    k = mass_factor(cal.model, cal.mass)
+    return {"subject_kg": cal.mass, "base_kg": cal.model.total_mass, "factor": k,
+            "segments_kg": {sg.name: round(k * sg.mass, 6) for sg in cal.model.segments if sg.mass > 0}}
+
+
 def _rms_of(res: np.ndarray) -> float:
     d = np.sum(res**2, axis=2)
     return float(np.sqrt(np.nanmean(d))) if np.isfinite(d).any() else float("nan")
@@ -131,6 +139,9 @@ def summary_text(cal) -> str:
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
         f"({', '.join(cal.settings.free)}); {n_free} quantities reported",
+        "  mass         " + (f"{cal.mass:g} kg: the base model's segment masses x{mass_factor(model, cal.mass):.3f}"
+                              if cal.mass is not None else
+                              f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
         f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
@@ -233,7 +244,7 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
             os.close(fd)
             staged[kind] = Path(tmp)
         if "urdf" in staged:
-            write_model(cal.model, staged["urdf"], cal.params, overwrite=True)
+            write_model(cal.model, staged["urdf"], cal.params, overwrite=True, mass=cal.mass)
         for k, m in zip(keys, cal.motions, strict=False):  # keys is empty without motion outputs
             write_motion_csv(staged[k], m)
         if "report" in staged:

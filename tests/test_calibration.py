@@ -392,7 +392,7 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
                         axis=1)
     trial = Trial(sim.trial.labels + ("EXTRA",), mk, 100.0)
     write_c3d(tmp_path / "s01.c3d", trial)
-    r = _cli(tmp_path / "s01.c3d", human.path, "--frames", "10:110", "-q")
+    r = _cli(tmp_path / "s01.c3d", human.path, "--frames", "10:110", "--mass", "62.5", "-q")
     assert r.returncode == 0, r.stderr
     assert "EXTRA" in r.stderr and "ignored" in r.stderr
     for name in ("s01.urdf", "s01_motion.csv", "s01_report.json"):
@@ -402,6 +402,13 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
     assert rep["marker_set"]["ignored_labels"] == ["EXTRA"]
     assert rep["marker_set"]["left_out"][0]["label"] == "EXTRA"
     assert "CONVERGED" in r.stdout and "marker RMS" in r.stdout
+    # --mass: the subject URDF weighs the subject's mass (Pinocchio), the report says so.
+    import pinocchio as pin
+    pm = pin.buildModelFromUrdf(str(tmp_path / "s01.urdf"), pin.JointModelFreeFlyer())
+    assert pin.computeTotalMass(pm) == pytest.approx(62.5, rel=1e-9)
+    assert rep["mass"]["subject_kg"] == 62.5 and rep["mass"]["factor"] == pytest.approx(62.5 / human.total_mass)
+    assert sum(rep["mass"]["segments_kg"].values()) == pytest.approx(62.5, rel=1e-5)
+    assert "62.5 kg" in r.stdout
     before = (tmp_path / "s01.urdf").read_text()
     # Existing outputs: refused before any work, one line, nothing changed.
     r = _cli(tmp_path / "s01.c3d", human.path, "-q")
@@ -415,6 +422,7 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "no" / "x.urdf"], "does not exist"),
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "y.urdf", "--frames", "500:600"], "selects no frames"),
         ([tmp_path / "missing.c3d", human.path, "-o", tmp_path / "z.urdf"], "missing.c3d"),
+        ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "v.urdf", "--mass", "-70"], "--mass"),
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "w.urdf", "--config", tmp_path / "none.toml"],
          "no such config file"),
     ]

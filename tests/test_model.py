@@ -111,6 +111,28 @@ def test_write_with_parameters_scales_inertials_and_visuals(human, tmp_path):
     np.testing.assert_array_equal(u1.link_map["tibia_r"].inertial.inertia, u0.link_map["tibia_r"].inertial.inertia)
 
 
+def test_write_with_subject_mass_keeps_the_mass_distribution(human, tmp_path):
+    """--mass: every segment mass times mass/base total (OpenSim Scale's 'preserve mass distribution'),
+    inertias with it (and with s**2); checked in Pinocchio's total mass and yourdfpy's numbers."""
+    p = human.parameters()
+    i = human.segment_index("tibia_l")
+    p.scale[i] = 0.95
+    out = write_model(human, tmp_path / "m60.urdf", p, mass=60.0)
+    pm = pin.buildModelFromUrdf(str(out), pin.JointModelFreeFlyer())
+    assert pin.computeTotalMass(pm) == pytest.approx(60.0, rel=1e-9)
+    k = 60.0 / pin.computeTotalMass(pin.buildModelFromUrdf(str(HUMAN), pin.JointModelFreeFlyer()))
+    u0 = yourdfpy.URDF.load(str(HUMAN), build_scene_graph=False, load_meshes=False)
+    u1 = yourdfpy.URDF.load(str(out), build_scene_graph=False, load_meshes=False)
+    for name, s in (("tibia_l", 0.95), ("pelvis", 1.0), ("hand_r", 1.0)):
+        l0, l1 = u0.link_map[name], u1.link_map[name]
+        assert l1.inertial.mass == pytest.approx(k * l0.inertial.mass, rel=1e-9)
+        np.testing.assert_allclose(l1.inertial.inertia, k * s * s * l0.inertial.inertia, rtol=1e-9)
+    for bad in (0.0, -70.0, float("nan")):
+        with pytest.raises(ModelError, match="body mass"):
+            write_model(human, tmp_path / "bad.urdf", p, mass=bad)
+    assert not (tmp_path / "bad.urdf").exists()
+
+
 def test_write_keeps_elements_it_does_not_know(tmp_path):
     text = HUMAN.read_text().replace("</robot>", '<gazebo reference="pelvis"><mu1>0.5</mu1></gazebo>\n</robot>')
     src = tmp_path / "with_gazebo.urdf"
