@@ -404,8 +404,14 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
+    settings = settings or Settings()
+    known = set(model.marker_names).union(*(t.labels for t in trials))
+    unknown = [label for label, _ in settings.marker_noise if label not in known]
+    if unknown:
+        raise CalibrateError(f"marker_noise: '{unknown[0]}' is neither a marker of {model.path.name} nor a trial "
+                             f"label; use one of their labels ({', '.join(model.marker_names[:6])}, ...)")
     with threadpool_limits(limits=1, user_api="blas"):
-        cal = _calibrate(model, trials, settings or Settings(), kinematics, progress)
+        cal = _calibrate(model, trials, settings, kinematics, progress)
     cal.label_maps = label_maps
     cal.mass = None if mass is None else float(mass)
     return cal
@@ -555,14 +561,15 @@ def _solve(problem: Problem, start: State, spans: list[slice], settings: Setting
 
 
 def _outliers(problem: Problem, state: State, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs, the noise SD
-    being the larger of the set one and the one the fit shows (median error / 1.538, a 3-D Gaussian's)."""
+    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs, each marker's
+    set noise SD scaled up if the fit shows more noise than set (median error / 1.538, a 3-D Gaussian's)."""
     err = np.linalg.norm(problem.marker_residuals(state), axis=2)
     ok = np.isfinite(err)
     if not ok.any():
         return np.zeros_like(ok), err
-    sigma = max(settings.noise, float(np.median(err[ok])) / 1.538)
-    return ok & (err > settings.outliers * sigma), err
+    sigma = problem.sigma
+    scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)
+    return ok & (err > settings.outliers * scale * sigma), err
 
 
 def _most_motion(model: Model, trials: Sequence[Trial]) -> int:

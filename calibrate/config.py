@@ -20,6 +20,9 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     centre_mm = 20.0
     axis_deg = 10.0
     scale = 0.25
+
+    [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
+    # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "new_markers", "outlier_sigmas", "geodesic", "priors"}
+        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
 
 
@@ -78,6 +81,13 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     if isinstance(it, bool) or not isinstance(it, int):
         raise CalibrateError(f"{where}: 'max_iterations' must be a whole number, got {it!r}")
     loss = data.get("loss", s.loss)
+    per = data.get("marker_noise_mm", None)
+    if per is None:
+        marker_noise = s.marker_noise
+    else:
+        if not isinstance(per, dict):
+            raise CalibrateError(f"{where}: 'marker_noise_mm' must be a table ([marker_noise_mm], label = SD in mm)")
+        marker_noise = tuple(sorted((str(k), num(per, k, 0.0) / 1000) for k in per))
     try:
         return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
                        loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
@@ -86,7 +96,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
                        compile=data.get("compile", s.compile), new_markers=data.get("new_markers", s.new_markers),
                        outliers=num(data, "outlier_sigmas", s.outliers),
-                       geodesic=data.get("geodesic", s.geodesic))
+                       geodesic=data.get("geodesic", s.geodesic), marker_noise=marker_noise)
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

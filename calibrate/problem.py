@@ -5,9 +5,9 @@ Cost (dimensionless):
 
     ½ Σ_f Σ_k∈seen(f) ρ(|h_k(z_f, p) − r_fk|² / σ²)   +   ½ |prior(p)|²
 
-* σ is the marker noise (``Settings.noise``); ρ is the identity, Huber or Cauchy
-  (``Settings.loss``, scale ``loss_scale`` σ).  Markers not seen in a frame (gaps) have no
-  row at all in that frame.
+* σ is the marker noise (``Settings.noise``, or per marker ``Settings.marker_noise``);
+  ρ is the identity, Huber or Cauchy (``Settings.loss``, scale ``loss_scale`` σ).  Markers
+  not seen in a frame (gaps) have no row at all in that frame.
 * prior(p) pulls the parameters towards the base model, each group with its own standard
   deviation (``Priors``): a marker offset by  s_seg (m − m₀)/σ_marker, a joint centre by
   s_parent (c − c₀)/σ_centre (both in metres *at the current scale*), a hinge axis by
@@ -37,6 +37,7 @@ import math
 import os
 import subprocess
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,8 +84,16 @@ class Settings:
     new_markers: bool = True  # place trial markers the model does not know on segments (by rigidity) and fit them
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
     geodesic: bool = True  # geodesic acceleration of the LM steps (follows curved valleys; calibrate.solver)
+    # Per-marker noise SD (m) where a marker is noisier or steadier than `noise`, e.g. wand markers
+    # on soft tissue: ((label, SD), ...) or a dict.  An OpenSim marker weight w is the SD noise/sqrt(w).
+    marker_noise: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
+        if isinstance(self.marker_noise, Mapping):
+            object.__setattr__(self, "marker_noise", tuple(sorted(self.marker_noise.items())))
+        for label, v in self.marker_noise:
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"marker_noise: {label}: must be a positive noise SD in metres, got {v!r}")
         bad = [g for g in self.free if g not in GROUPS]
         if bad:
             raise ValueError(f"free: unknown parameter group(s) {', '.join(bad)}; choose from {', '.join(GROUPS)}")
@@ -167,6 +176,7 @@ class Problem:
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
             raise ValueError(f"observed: expected (frames, {nm}, 3), got {obs.shape}")
         self._set_observed(obs)
+        self._sigma = self.sigma
         self.base = base or model.parameters()
         self.loss = self.settings.loss  # the loss in use (calibrate starts robust fits with 'linear')
         # Joint limits, widened by LIMIT_MARGIN: a segment frame's zero may settle a little away
@@ -186,6 +196,16 @@ class Problem:
         self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
         self.n_obs = int(self.seen.sum())
         self._mapped: dict[tuple[str, int], tuple] = {}
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """Noise SD of each model marker (m): ``Settings.noise`` unless ``Settings.marker_noise`` names it."""
+        st = self.settings
+        out = np.full(len(self.model.markers), st.noise)
+        for label, v in st.marker_noise:
+            if label in self.model.marker_names:
+                out[self.model.marker_index(label)] = v
+        return out
 
     def drop(self, mask: np.ndarray) -> None:
         """Leave out the observations where `mask` (F, n_markers) is true (rejected outliers): they
@@ -569,10 +589,11 @@ class Problem:
     def _weights(self, d: np.ndarray) -> tuple[float, np.ndarray]:
         """Data cost and per-(frame, marker) row weights sqrt(ρ')/σ (0 where not seen)."""
         st = self.settings
-        s = np.where(self.seen, np.sum(d.reshape(self.F, -1, 3) ** 2, axis=2), 0.0) / st.noise**2
+        sigma = self._sigma
+        s = np.where(self.seen, np.sum(d.reshape(self.F, -1, 3) ** 2, axis=2), 0.0) / sigma**2
         rho, drho = _robust(s, self.loss, st.loss_scale**2)
         cost = 0.5 * float(np.sum(rho[self.seen]))
-        w = np.where(self.seen, np.sqrt(drho) / st.noise, 0.0)
+        w = np.where(self.seen, np.sqrt(drho) / sigma, 0.0)
         return cost, w
 
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,

@@ -86,7 +86,7 @@ def calibration_report(cal) -> dict:
                                 "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale},
                      "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
-                     "compiled": cal.compiled},
+                     "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise}, "compiled": cal.compiled},
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}

@@ -89,13 +89,15 @@ def test_normal_equations_match_sparse_jacobian_and_finite_differences(human, hu
     assert np.abs(fd - J @ x).max() < 1e-6 * np.abs(J @ x).max()
 
 
-def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin):
+@pytest.mark.parametrize("marker_noise", [{}, {"RTHI": 0.004, "LHEE": 0.0005}])
+def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin, marker_noise):
     """What the geodesic acceleration uses: J'ρ for any residual-shaped ρ (Problem.gradient) and the
-    factored normal equations solved for any right-hand side, against the full sparse Jacobian."""
+    factored normal equations solved for any right-hand side, against the full sparse Jacobian;
+    with one noise SD for all markers and with per-marker SDs."""
     sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=3)
     obs = marker_columns(human, sim.trial)
     obs[1, 5] = np.nan
-    problem = Problem(human, obs, Settings(), human_kin)
+    problem = Problem(human, obs, Settings(marker_noise=marker_noise), human_kin)
     rng = np.random.default_rng(1)
     m = sim.motion
     Z = np.column_stack([m.root_translation, np.zeros((4, 3)), m.angles]) + 0.01
@@ -107,7 +109,14 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin)
     d = np.where(seen3, rng.normal(size=seen3.shape), 0.0)
     lim = rng.normal(size=(4, human.n_dofs))
     r = rng.normal(size=problem.prior(state.p, jacobian=False)[0].size)
-    rho = np.concatenate([(d * seen3 / problem.settings.noise).ravel(), lim.ravel(), r])
+    sigma3 = np.repeat([marker_noise.get(n, 0.001) for n in human.marker_names], 3)
+    rho = np.concatenate([(d * seen3 / sigma3).ravel(), lim.ravel(), r])
+    # The cost is the per-marker-weighted sum of squares of the residuals, checked by hand.
+    res = problem.marker_residuals(state)
+    by_hand = 0.5 * np.nansum(np.sum(res**2, axis=2) / (sigma3[::3] ** 2))
+    prior_r, _ = problem.prior(state.p, jacobian=False)
+    by_hand += 0.5 * prior_r @ prior_r + 0.5 * np.sum(problem.limits(state.Z) ** 2)
+    assert problem.cost(state) == pytest.approx(by_hand, rel=1e-12)
     gz, gp = problem.gradient(lin, d, lim, r)
     g = J.T @ rho
     nz = human.nz
@@ -343,18 +352,28 @@ def test_write_refuses_without_overwrite_and_leaves_nothing(noisy, tmp_path):
 def test_config_file(tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text('free = ["centre", "marker"]\nloss = "huber"\nnoise_mm = 2\ngeodesic = false\n'
-                   '[priors]\ncentre_mm = 10\naxis_deg = 5\n')
+                   '[priors]\ncentre_mm = 10\naxis_deg = 5\n[marker_noise_mm]\nRTHI = 3\nLTHI = 3.5\n')
     s = load_settings(cfg)
+    assert s.marker_noise == (("LTHI", pytest.approx(0.0035)), ("RTHI", pytest.approx(0.003)))
     assert s.free == ("centre", "marker") and s.loss == "huber" and s.noise == pytest.approx(0.002)
     assert s.geodesic is False and Settings().geodesic is True
     assert s.priors.centre == pytest.approx(0.01) and s.priors.axis == pytest.approx(math.radians(5))
     for text, msg in (("fre = []", "unknown setting 'fre'"), ('free = ["size"]', "unknown parameter group"),
                       ("[priors]\nmarker = 1", "unknown prior 'marker'"), ("noise_mm = -1", "noise"),
                       ("loss = 'l1'", "loss"), ("x = ", "not valid TOML"),
-                      ("geodesic = 1", "'geodesic' must be true or false")):
+                      ("geodesic = 1", "'geodesic' must be true or false"),
+                      ("[marker_noise_mm]\nRTHI = -3", "marker_noise: RTHI"),
+                      ("marker_noise_mm = 3", "must be a table")):
         cfg.write_text(text)
         with pytest.raises(CalibrateError, match=msg):
             load_settings(cfg)
+
+
+def test_marker_noise_names_a_marker(human):
+    """A per-marker noise SD for a label neither the model nor the trial has: one line, before any work."""
+    sim = simulate_squats(human, frames=10, noise_mm=1.0, seed=2)
+    with pytest.raises(CalibrateError, match="'RTHX' is neither a marker"):
+        calibrate(human, sim.trial, Settings(marker_noise={"RTHX": 0.003}))
 
 
 def test_only_markers_free_holds_the_rest(human):
