@@ -384,7 +384,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"  marker RMS   start (seeded geometry) {1000 * _rms(cal.initial_residuals):.2f} mm -> calibrated "
           f"{1000 * cmp.marker_rms:.3f} mm; true model refitted (noise floor) {1000 * cmp.floor_rms:.3f} mm")
     print(f"  joint angles RMS vs truth {cmp.angle_rms_deg:.2f} deg ({cmp.angle_rms_offset_free_deg:.2f} deg "
-          f"without each DoF's constant offset)")
+          f"without each DoF's constant offset); true model refitted {cmp.floor_angle_rms_deg:.2f} deg")
     print(f"  time         calibration {t_cal:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
           + ")")
     return 0

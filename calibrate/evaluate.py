@@ -10,11 +10,14 @@ come from any base model (e.g. one scaled 15 % too small).
   to the same noisy markers (the noise floor);
 * joint angles: RMS difference from the true angles, over frames and DoFs, both as is and
   with each DoF's constant offset removed (a segment frame's turn that no marker data can
-  fix is held by the priors, and shows as such an offset).
+  fix is held by the priors, and shows as such an offset); and the same for the true subject
+  model refitted frame by frame (the joint-angle noise floor: what the marker noise alone
+  costs the angles of a frame-by-frame fit, whatever the model).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +39,7 @@ class TruthComparison:
     kinds: dict[str, str]
     marker_rms: float  # m, calibrated model
     floor_rms: float  # m, true model refitted per frame (what the noise alone gives)
+    floor_angle_rms_deg: float  # the same fit's joint angles against the truth (nan if not computed)
     angle_rms_deg: float  # over frames and DoFs
     angle_rms_offset_free_deg: float
     angle_rms_per_dof_deg: dict[str, float]
@@ -47,8 +51,9 @@ class TruthComparison:
         return {k: v for k, v in self.centre_error.items() if self.kinds[k] == "hinge"}
 
 
-def true_marker_floor(sim: Simulation) -> float:
-    """RMS marker error of the true subject model refitted frame by frame to the noisy trial (m)."""
+def true_model_floor(sim: Simulation) -> tuple[float, float]:
+    """The true subject model refitted frame by frame to the noisy trial: its RMS marker error (m)
+    and the RMS of its joint angles against the true ones (deg): the floors the noise sets."""
     model = sim.model
     obs = marker_columns(model, sim.trial)
     problem = Problem(model, obs, Settings(free=()), build_kinematics(model), base=sim.truth)
@@ -57,7 +62,13 @@ def true_marker_floor(sim: Simulation) -> float:
     state = State(Z, m.root_quaternion.copy(), sim.truth.vector())
     state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=20)
     res = problem.marker_residuals(state)
-    return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2))))
+    dang = np.degrees(np.angle(np.exp(1j * (state.Z[:, 6:] - m.angles))))
+    return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2)))), float(np.sqrt(np.mean(dang**2)))
+
+
+def true_marker_floor(sim: Simulation) -> float:
+    """RMS marker error of the true subject model refitted frame by frame to the noisy trial (m)."""
+    return true_model_floor(sim)[0]
 
 
 def compare_to_truth(cal: Calibration, sim: Simulation, floor: float | None = None) -> TruthComparison:
@@ -85,6 +96,6 @@ def compare_to_truth(cal: Calibration, sim: Simulation, floor: float | None = No
     per = np.sqrt(np.mean(dang**2, axis=0))
     centred = dang - dang.mean(axis=0)
     return TruthComparison(
-        centre, axis, kinds, cal.marker_rms, true_marker_floor(sim) if floor is None else floor,
+        centre, axis, kinds, cal.marker_rms, *(true_model_floor(sim) if floor is None else (floor, math.nan)),
         float(np.sqrt(np.mean(dang**2))), float(np.sqrt(np.mean(centred**2))),
         dict(zip(model.dof_names, per.tolist(), strict=True)))
