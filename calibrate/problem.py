@@ -877,13 +877,23 @@ def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]
         cache.mkdir(parents=True, exist_ok=True)
         so = cache / f"frame_{key}.so"
         with tempfile.TemporaryDirectory() as tmp:
-            cg = ca.CodeGenerator("calibrate_gen.c", {"with_header": False})
+            # One translation unit per function, compiled side by side (the per-frame function with
+            # its Jacobians takes most of the time), then linked into one library.  -Og: on this
+            # straight-line code it compiles in 60 % of -O1's time and runs within ~5 % of it.
+            objs, jobs = [], []
             for f in funcs:
+                cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
                 cg.add(f)
-            cg.generate(tmp + os.sep)
+                cg.generate(tmp + os.sep)
+                src, obj = Path(tmp) / f"{f.name()}.c", Path(tmp) / f"{f.name()}.o"
+                objs.append(str(obj))
+                jobs.append(subprocess.Popen([cc, "-Og", "-fPIC", "-c", str(src), "-o", str(obj)],
+                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            failed = [j.wait(timeout=600) for j in jobs]
+            if any(failed):
+                raise RuntimeError("C compile failed")
             part = cache / f".frame_{key}.{os.getpid()}.so"
-            subprocess.run([cc, "-O1", "-fPIC", "-shared", str(Path(tmp) / "calibrate_gen.c"), "-o", str(part)],
-                           check=True, capture_output=True, timeout=600)
+            subprocess.run([cc, "-shared", *objs, "-o", str(part)], check=True, capture_output=True, timeout=600)
             side = cache / f".frame_{key}.{os.getpid()}.npz"
             with open(side, "wb") as fh:
                 np.savez(fh, **patterns)
