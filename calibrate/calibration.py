@@ -410,6 +410,10 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if unknown:
         raise CalibrateError(f"marker_noise: '{unknown[0]}' is neither a marker of {model.path.name} nor a trial "
                              f"label; use one of their labels ({', '.join(model.marker_names[:6])}, ...)")
+    bad = [name for name, _ in settings.lock if name not in model.dof_names]
+    if bad:
+        raise CalibrateError(f"lock: '{bad[0]}' is not a coordinate of {model.path.name}; use one of its DoF names "
+                             f"({', '.join(model.dof_names[:6])}, ...; see calibrate inspect)")
     with threadpool_limits(limits=1, user_api="blas"):
         cal = _calibrate(model, trials, settings, kinematics, progress)
     cal.label_maps = label_maps

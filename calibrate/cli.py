@@ -29,6 +29,20 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _lock_arg(text: str) -> dict[str, float]:
+    """'subtalar_r,ankle_l=10' -> {'subtalar_r': 0.0, 'ankle_l': 10.0} (degrees)."""
+    out: dict[str, float] = {}
+    for item in (x.strip() for x in text.split(",")):
+        if not item:
+            continue
+        name, _, deg = item.partition("=")
+        try:
+            out[name.strip()] = float(deg) if deg.strip() else 0.0
+        except ValueError:
+            raise CalibrateError(f"--lock {text}: '{deg}' is not an angle in degrees (use DOF or DOF=DEG)") from None
+    return out
+
+
 def _positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -185,6 +199,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="robust loss against marker outliers (default linear)")
     ap.add_argument("--noise-mm", type=_positive_float, default=None, help="marker noise SD in mm (default 1)")
     ap.add_argument("--no-seed", action="store_true", help="start from the base model, not from MTB joint centres")
+    ap.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
+                    help="hold coordinates at a value (default 0 deg) in every frame, e.g. "
+                         "subtalar_r,subtalar_l: what the marker set cannot resolve (as OpenSim's locked coordinates)")
     ap.add_argument("--mass", type=_positive_float, default=None,
                     help="subject's body mass in kg: segment masses and inertias are the base model's scaled to "
                          "it (default: the base model's masses kept)")
@@ -292,6 +309,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["new_markers"] = False
     if args.outlier_sigmas is not None:
         flags["outlier_sigmas"] = args.outlier_sigmas
+    if args.lock is not None:
+        flags["lock_deg"] = _lock_arg(args.lock)
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
     outputs = [out_urdf, *out_motions, out_report]

@@ -23,6 +23,9 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
+
+    [lock_deg]              # coordinates held at a value in every frame (none by default)
+    # subtalar_r = 0.0      # e.g. what a two-marker foot cannot resolve
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm"}
+        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm", "lock_deg"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
 
 
@@ -88,6 +91,13 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         if not isinstance(per, dict):
             raise CalibrateError(f"{where}: 'marker_noise_mm' must be a table ([marker_noise_mm], label = SD in mm)")
         marker_noise = tuple(sorted((str(k), num(per, k, 0.0) / 1000) for k in per))
+    locks = data.get("lock_deg", None)
+    if locks is None:
+        lock = s.lock
+    else:
+        if not isinstance(locks, dict):
+            raise CalibrateError(f"{where}: 'lock_deg' must be a table ([lock_deg], DoF = angle in degrees)")
+        lock = tuple(sorted((str(k), math.radians(num(locks, k, 0.0))) for k in locks))
     try:
         return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
                        loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
@@ -96,7 +106,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
                        compile=data.get("compile", s.compile), new_markers=data.get("new_markers", s.new_markers),
                        outliers=num(data, "outlier_sigmas", s.outliers),
-                       geodesic=data.get("geodesic", s.geodesic), marker_noise=marker_noise)
+                       geodesic=data.get("geodesic", s.geodesic), marker_noise=marker_noise, lock=lock)
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

@@ -50,6 +50,7 @@ from .model import Model, Parameters
 
 GROUPS = ("scale", "centre", "axis", "marker")
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.ik)
+LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's value (Settings.lock)
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 LOSSES = ("linear", "huber", "cauchy")
 EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
@@ -87,10 +88,28 @@ class Settings:
     # Per-marker noise SD (m) where a marker is noisier or steadier than `noise`, e.g. wand markers
     # on soft tissue: ((label, SD), ...) or a dict.  An OpenSim marker weight w is the SD noise/sqrt(w).
     marker_noise: tuple[tuple[str, float], ...] = ()
+    # Coordinates held at a value (rad) in every frame, as OpenSim's locked coordinates: DoFs the
+    # marker set cannot resolve (e.g. the subtalar joint under a two-marker foot).  ((DoF, angle), ...),
+    # a dict, or DoF names (held at 0).  A locked hinge's axis is not calibrated.
+    lock: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         if isinstance(self.marker_noise, Mapping):
             object.__setattr__(self, "marker_noise", tuple(sorted(self.marker_noise.items())))
+        lock = self.lock
+        if isinstance(lock, Mapping):
+            lock = tuple(sorted(lock.items()))
+        elif isinstance(lock, str):
+            lock = ((lock, 0.0),)
+        else:
+            lock = tuple((x, 0.0) if isinstance(x, str) else tuple(x) for x in lock)
+        object.__setattr__(self, "lock", lock)
+        for item in self.lock:
+            if len(item) != 2 or not isinstance(item[0], str):
+                raise ValueError(f"lock: expected DoF names or (DoF, angle) pairs, got {item!r}")
+            v = item[1]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"lock: {item[0]}: the angle must be a number in radians, got {v!r}")
         for label, v in self.marker_noise:
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"marker_noise: {label}: must be a positive noise SD in metres, got {v!r}")
@@ -183,6 +202,14 @@ class Problem:
         # from the base model's, and the limits must not fight the data over it.
         self.lower = np.array([d.lower for d in model.dofs]) - LIMIT_MARGIN
         self.upper = np.array([d.upper for d in model.dofs]) + LIMIT_MARGIN
+        # Locked coordinates: the same residual with both bounds at the value, always active.
+        self.locked = np.zeros(model.n_dofs, dtype=bool)
+        self._limit_w = np.full(model.n_dofs, LIMIT_WEIGHT / self.settings.noise)
+        for name, value in self.settings.lock:
+            k = model.dof_index(name)
+            self.locked[k] = True
+            self.lower[k] = self.upper[k] = value
+            self._limit_w[k] = LOCK_WEIGHT / self.settings.noise
         self._layout()
         self._build_functions()
         # Scratch memory of the solver (large per-frame arrays kept between its runs; see
@@ -230,8 +257,9 @@ class Problem:
         self.np_full = ns + 3 * (nj + nd + nm)
         free = set(self.settings.free)
         # Axes that are calibrated: those of hinge and universal joints (never a ball's).
-        self.axis_dofs = [m.dof_index(d) for j in m.joints if j.kind in ("hinge", "universal") for d in j.dofs] \
-            if "axis" in free else []
+        locked = {name for name, _ in self.settings.lock}
+        self.axis_dofs = [m.dof_index(d) for j in m.joints if j.kind in ("hinge", "universal") for d in j.dofs
+                          if d not in locked] if "axis" in free else []
         seg_of = {s.name: i for i, s in enumerate(m.segments)}
         self.marker_segment = np.array([seg_of[mk.segment] for mk in m.markers])
         self.centre_segment = np.array([seg_of[j.parent] for j in m.joints])
@@ -274,6 +302,7 @@ class Problem:
         """Segments whose frame can turn (root: also shift) with no effect on the data, because
         everything expressed in it is free: (segment index, 'rigid' | 'rotation' | 'axis')."""
         m, free = self.model, set(self.settings.free)
+        locked = {name for name, _ in self.settings.lock}
         out = []
         into = {j.child: j for j in m.joints}
         for si, seg in enumerate(m.segments):
@@ -282,6 +311,11 @@ class Problem:
             if (has_mk and "marker" not in free) or (kids and "centre" not in free):
                 continue
             if any(j.kind in ("hinge", "universal") and "axis" not in free for j in kids):
+                continue
+            # A locked coordinate cannot absorb a turn of the frame below it, nor turn with a kid's axis.
+            if seg.name in into and any(d in locked for d in into[seg.name].dofs):
+                continue
+            if any(d in locked for j in kids if j.kind in ("hinge", "universal") for d in j.dofs):
                 continue
             if si == 0:
                 out.append((si, "rigid"))
@@ -646,7 +680,11 @@ class Problem:
         range (zero inside it).  They never bias a pose within the range of motion; they keep a
         frame from sliding into a mirror-image branch or a full turn while the geometry is poor."""
         th = Z[:, 6:]
-        return (LIMIT_WEIGHT / self.settings.noise) * (th - np.clip(th, self.lower, self.upper))
+        return self._limit_w * (th - np.clip(th, self.lower, self.upper))
+
+    def _limit_active(self, lim: np.ndarray) -> np.ndarray:
+        """(F, n_dofs) where a limit residual has a Jacobian row: outside a limit, or locked."""
+        return (lim != 0) | self.locked
 
     def cost(self, state: State) -> float:
         """Total cost (markers + joint limits + priors) at `state`."""
@@ -686,11 +724,11 @@ class Problem:
             if pl is not None:
                 b_pat[np.ix_(g.zcols, pl.fcols[pl.fc_off[k]:pl.fc_off[k + 1]])] = True
         lim = self.limits(state.Z)
-        out = lim != 0
+        out = self._limit_active(lim)
         if out.any():
-            k = LIMIT_WEIGHT / self.settings.noise
             cost += 0.5 * float(np.sum(lim**2))
             f, d_ = np.nonzero(out)
+            k = self._limit_w[d_]
             A[f, 6 + d_, 6 + d_] += k * k
             gz[f, 6 + d_] += k * lim[f, d_]
         r, Jr = self.prior(state.p)
@@ -719,7 +757,7 @@ class Problem:
                          gradient_only=True)
         if on.any():
             f, k = np.nonzero(on)
-            gz[f, 6 + k] += (LIMIT_WEIGHT / self.settings.noise) * lim[f, k]
+            gz[f, 6 + k] += self._limit_w[k] * lim[f, k]
         if n:
             gp = gp + Jr.T @ r
         return gz, gp
@@ -764,10 +802,10 @@ class Problem:
             blocks_v.append(Jp.ravel())
         lim = self.limits(state.Z)
         nd = lim.shape[1]
-        lf, ld = np.nonzero(lim)
+        lf, ld = np.nonzero(self._limit_active(lim))
         blocks_r.append(F * rows3 + lf * nd + ld)
         blocks_c.append(lf * nz + 6 + ld)
-        blocks_v.append(np.full(lf.size, LIMIT_WEIGHT / self.settings.noise))
+        blocks_v.append(self._limit_w[ld])
         r, Jr = self.prior(state.p, T)
         pr, pc = np.nonzero(Jr)
         blocks_r.append(F * rows3 + F * nd + pr)

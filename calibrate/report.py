@@ -86,7 +86,8 @@ def calibration_report(cal) -> dict:
                                 "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale},
                      "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
-                     "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise}, "compiled": cal.compiled},
+                     "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise},
+                     "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "compiled": cal.compiled},
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
@@ -142,6 +143,8 @@ def summary_text(cal) -> str:
         "  mass         " + (f"{cal.mass:g} kg: the base model's segment masses x{mass_factor(model, cal.mass):.3f}"
                               if cal.mass is not None else
                               f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
+        *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
+          if cal.settings.lock else []),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
         f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
