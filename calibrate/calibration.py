@@ -40,6 +40,8 @@ MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
 SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
 SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated centre may scale it
 SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
+LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
+LIMIT_NOTE_FRACTION = 0.05  # ... in more than this fraction of the frames is noted (limit_notes)
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
 STRIDE = 10  # key-frame spacing of the start (frames of the trial)
 COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly spaced frames first
@@ -119,6 +121,7 @@ class Calibration:
     outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
     label_maps: tuple = ()  # per trial: calibrate.labels.LabelMapping (trial label -> model label), if mapped
     mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
+    notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
 
     @property
     def trial(self) -> Trial:
@@ -520,7 +523,28 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected))
+                       outliers=tuple(rejected), notes=limit_notes(subject, state.Z[:, 6:], settings))
+
+
+def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """A note per coordinate that the fit drove beyond the base model's joint limits (by more than
+    LIMIT_NOTE_DEG) in more than LIMIT_NOTE_FRACTION of the frames.  A coordinate the markers cannot
+    resolve (a joint that did not move, under a segment with too few markers) drifts like this, and
+    the geometry around it with it; one the subject really moved past the model's range does too."""
+    locked = {n for n, _ in settings.lock}
+    tol = math.radians(LIMIT_NOTE_DEG)
+    out = []
+    for k, d in enumerate(model.dofs):
+        if d.name in locked or not (np.isfinite(d.lower) and np.isfinite(d.upper)):
+            continue
+        th = angles[:, k]
+        beyond = (th < d.lower - tol) | (th > d.upper + tol)
+        if beyond.mean() > LIMIT_NOTE_FRACTION:
+            worst = float(np.max(np.maximum(d.lower - th, th - d.upper)))
+            out.append(f"{d.name}: beyond the base model's joint limits in {100 * beyond.mean():.0f} % of frames "
+                       f"(by up to {math.degrees(worst):.0f} deg): the markers may not resolve this coordinate; if "
+                       f"the joint hardly moved, hold it (--lock {d.name}, or [lock_deg] in the config)")
+    return tuple(out)
 
 
 def _spans(trials: Sequence[Trial]) -> list[slice]:

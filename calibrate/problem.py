@@ -102,7 +102,7 @@ class Settings:
         elif isinstance(lock, str):
             lock = ((lock, 0.0),)
         else:
-            lock = tuple((x, 0.0) if isinstance(x, str) else tuple(x) for x in lock)
+            lock = tuple(sorted((x, 0.0) if isinstance(x, str) else tuple(x) for x in lock))
         object.__setattr__(self, "lock", lock)
         for item in self.lock:
             if len(item) != 2 or not isinstance(item[0], str):

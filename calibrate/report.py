@@ -105,6 +105,7 @@ def calibration_report(cal) -> dict:
                  if cal.seed.joints is not None else {}},
         "parameters": params,
         "unidentified": [c.name for c in cal.changes if not c.identified],
+        "notes": list(cal.notes),
         "times_s": {k: round(v, 6) for k, v in cal.times.items()},
     }
 
@@ -183,6 +184,8 @@ def summary_text(cal) -> str:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
     for note in cal.seed.notes:
         lines.append(f"  seed: {note}")
+    for note in cal.notes:
+        lines.append(f"  note: {note}")
     for i, mapping in enumerate(cal.label_maps):
         renamed = [m for m in mapping if m.how in ("map", "alias")]
         if renamed:

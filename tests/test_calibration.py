@@ -89,15 +89,18 @@ def test_normal_equations_match_sparse_jacobian_and_finite_differences(human, hu
     assert np.abs(fd - J @ x).max() < 1e-6 * np.abs(J @ x).max()
 
 
-@pytest.mark.parametrize("marker_noise", [{}, {"RTHI": 0.004, "LHEE": 0.0005}])
-def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin, marker_noise):
+@pytest.mark.parametrize("marker_noise, lock", [({}, {}),
+                                                ({"RTHI": 0.004, "LHEE": 0.0005}, {"subtalar_r": 0.1, "knee_l": 0.5})])
+def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin, marker_noise, lock):
     """What the geodesic acceleration uses: J'ρ for any residual-shaped ρ (Problem.gradient) and the
     factored normal equations solved for any right-hand side, against the full sparse Jacobian;
-    with one noise SD for all markers and with per-marker SDs."""
+    with one noise SD for all markers, and with per-marker SDs and locked coordinates."""
+    from calibrate.problem import LIMIT_MARGIN, LOCK_WEIGHT
+
     sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=3)
     obs = marker_columns(human, sim.trial)
     obs[1, 5] = np.nan
-    problem = Problem(human, obs, Settings(marker_noise=marker_noise), human_kin)
+    problem = Problem(human, obs, Settings(marker_noise=marker_noise, lock=lock), human_kin)
     rng = np.random.default_rng(1)
     m = sim.motion
     Z = np.column_stack([m.root_translation, np.zeros((4, 3)), m.angles]) + 0.01
@@ -115,7 +118,11 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin,
     res = problem.marker_residuals(state)
     by_hand = 0.5 * np.nansum(np.sum(res**2, axis=2) / (sigma3[::3] ** 2))
     prior_r, _ = problem.prior(state.p, jacobian=False)
-    by_hand += 0.5 * prior_r @ prior_r + 0.5 * np.sum(problem.limits(state.Z) ** 2)
+    lo = np.array([lock.get(d.name, d.lower - LIMIT_MARGIN) for d in human.dofs])
+    hi = np.array([lock.get(d.name, d.upper + LIMIT_MARGIN) for d in human.dofs])
+    w = np.array([(LOCK_WEIGHT if d.name in lock else 1.0) / 0.001 for d in human.dofs])
+    th = state.Z[:, 6:]
+    by_hand += 0.5 * prior_r @ prior_r + 0.5 * np.sum((w * (th - np.clip(th, lo, hi))) ** 2)
     assert problem.cost(state) == pytest.approx(by_hand, rel=1e-12)
     gz, gp = problem.gradient(lin, d, lim, r)
     g = J.T @ rho
@@ -355,6 +362,8 @@ def test_config_file(tmp_path):
                    '[priors]\ncentre_mm = 10\naxis_deg = 5\n[marker_noise_mm]\nRTHI = 3\nLTHI = 3.5\n')
     s = load_settings(cfg)
     assert s.marker_noise == (("LTHI", pytest.approx(0.0035)), ("RTHI", pytest.approx(0.003)))
+    cfg.write_text('[lock_deg]\nsubtalar_r = 0\nankle_l = 10\n')
+    assert load_settings(cfg).lock == (("ankle_l", pytest.approx(math.radians(10))), ("subtalar_r", 0.0))
     assert s.free == ("centre", "marker") and s.loss == "huber" and s.noise == pytest.approx(0.002)
     assert s.geodesic is False and Settings().geodesic is True
     assert s.priors.centre == pytest.approx(0.01) and s.priors.axis == pytest.approx(math.radians(5))
@@ -363,10 +372,60 @@ def test_config_file(tmp_path):
                       ("loss = 'l1'", "loss"), ("x = ", "not valid TOML"),
                       ("geodesic = 1", "'geodesic' must be true or false"),
                       ("[marker_noise_mm]\nRTHI = -3", "marker_noise: RTHI"),
-                      ("marker_noise_mm = 3", "must be a table")):
+                      ("marker_noise_mm = 3", "must be a table"),
+                      ("lock_deg = ['subtalar_r']", "'lock_deg' must be a table"),
+                      ("[lock_deg]\nsubtalar_r = 'zero'", "'subtalar_r' must be a number")):
         cfg.write_text(text)
         with pytest.raises(CalibrateError, match=msg):
             load_settings(cfg)
+
+
+def _held_still(human, human_kin, sim, dofs, seed):
+    """`sim`'s subject moving as in `sim` except `dofs`, held at 0: (noisy trial, the matching Simulation)."""
+    from dataclasses import replace
+
+    m = sim.motion
+    ang = m.angles.copy()
+    ang[:, [human.dof_index(d) for d in dofs]] = 0.0
+    F = ang.shape[0]
+    M, C = human_kin.batch(np.column_stack([m.root_translation, np.zeros((F, 3)), ang]), m.root_quaternion, sim.truth)
+    noisy = M + np.random.default_rng(seed).normal(scale=0.001, size=M.shape)
+    trial = Trial(human.marker_names, noisy, sim.trial.rate)
+    return trial, replace(sim, trial=trial, motion=replace(m, angles=ang), clean_markers=M, clean_centres=C)
+
+
+def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_path):
+    """A subject whose subtalar joints do not move, under Plug-in Gait's two-marker feet: with them
+    locked (as OpenSim users lock them) every frame keeps them at the value, and the ankle axes come
+    out within 1 deg of the truth; the report and summary say what was locked."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
+    trial, still = _held_still(human, human_kin, sim, ("subtalar_r", "subtalar_l"), seed=8)
+    cal = calibrate(human, trial, Settings(lock=("subtalar_r", "subtalar_l")), kinematics=human_kin)
+    assert cal.converged
+    sub = [human.dof_index(d) for d in ("subtalar_r", "subtalar_l")]
+    assert np.abs(cal.motion.angles[:, sub]).max() < 1e-5
+    cmp = compare_to_truth(cal, still, floor=0.0)
+    assert cmp.axis_error_deg["ankle_r"] <= 1.0 and cmp.axis_error_deg["ankle_l"] <= 1.0, cmp.axis_error_deg
+    assert "axis[subtalar_r]" not in {c.name for c in cal.changes}  # a locked hinge's axis is not calibrated
+    rep = cal.report()
+    assert rep["settings"]["lock_deg"] == {"subtalar_l": 0.0, "subtalar_r": 0.0}
+    assert "locked       subtalar_l at 0 deg, subtalar_r at 0 deg" in cal.text()
+    with pytest.raises(CalibrateError, match="'subtalar' is not a coordinate"):
+        calibrate(human, trial, Settings(lock=("subtalar",)))
+
+
+def test_limit_notes_name_coordinates_driven_past_their_limits(human):
+    from calibrate.calibration import limit_notes
+
+    F = 100
+    angles = np.zeros((F, human.n_dofs))
+    k = human.dof_index("subtalar_r")
+    angles[:10, k] = human.dofs[k].upper + math.radians(12)  # 10 % of frames, 12 deg past the limit
+    angles[:3, human.dof_index("knee_l")] = -1.0  # 3 %: below the threshold
+    notes = limit_notes(human, angles, Settings())
+    assert len(notes) == 1 and notes[0].startswith("subtalar_r: beyond") and "10 %" in notes[0]
+    assert "by up to 12 deg" in notes[0] and "--lock subtalar_r" in notes[0]
+    assert limit_notes(human, angles, Settings(lock={"subtalar_r": 0.2})) == ()
 
 
 def test_marker_noise_names_a_marker(human):
@@ -442,6 +501,8 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "y.urdf", "--frames", "500:600"], "selects no frames"),
         ([tmp_path / "missing.c3d", human.path, "-o", tmp_path / "z.urdf"], "missing.c3d"),
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "v.urdf", "--mass", "-70"], "--mass"),
+        ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "u.urdf", "--lock", "subtalar"], "not a coordinate"),
+        ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "t.urdf", "--lock", "knee_r=bent"], "not an angle"),
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "w.urdf", "--config", tmp_path / "none.toml"],
          "no such config file"),
     ]
