@@ -40,6 +40,7 @@ MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
 SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
 SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated centre may scale it
 SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
+STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
 LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
 LIMIT_NOTE_FRACTION = 0.05  # ... in more than this fraction of the frames is noted (limit_notes)
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
@@ -523,7 +524,40 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=limit_notes(subject, state.Z[:, 6:], settings))
+                       outliers=tuple(rejected),
+                       notes=coordinate_notes(subject, state.Z[:, 6:], lin.A, settings))
+
+
+def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """still_notes, then limit_notes for the coordinates not already named."""
+    still = still_notes(model, angles, A, settings)
+    named = {n.split(":")[0] for n in still}
+    return still + tuple(n for n in limit_notes(model, angles, settings) if n.split(":")[0] not in named)
+
+
+def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """A note per coordinate whose estimated motion is no larger than the noise: its spread over
+    the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix it (the
+    median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block at the solution).
+    Such a joint did not move as far as the trial shows, so nothing pins its axis or its angle's
+    zero, and the fit can trade them for noise (a still subtalar joint under a two-marker foot
+    ends at its widened limit with its axis turned tens of degrees); locking it is the remedy."""
+    locked = {n for n, _ in settings.lock}
+    nz = A.shape[1]
+    ridge = 1e-12 * np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), axis=1)
+    cov = np.linalg.inv(A + ridge[:, None, None] * np.eye(nz))
+    sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2)[:, 6:], 0.0))
+    out = []
+    for k, d in enumerate(model.dofs):
+        if d.name in locked:
+            continue
+        spread, per_frame = float(np.std(angles[:, k])), float(np.median(sd[:, k]))
+        if spread < STILL_RATIO * per_frame:
+            out.append(f"{d.name}: moved no more than the markers fix it in a frame (SD over frames "
+                       f"{math.degrees(spread):.1f} deg, one frame's {math.degrees(per_frame):.1f} deg): the trial "
+                       f"does not show this joint moving, so its axis and zero are not found; if it hardly moved, "
+                       f"hold it (--lock {d.name}, or [lock_deg] in the config)")
+    return tuple(out)
 
 
 def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[str, ...]:

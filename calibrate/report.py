@@ -184,8 +184,11 @@ def summary_text(cal) -> str:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
     for note in cal.seed.notes:
         lines.append(f"  seed: {note}")
-    for note in cal.notes:
+    for note in cal.notes[:4]:
         lines.append(f"  note: {note}")
+    if len(cal.notes) > 4:
+        lines.append(f"  ... and {len(cal.notes) - 4} more notes ({', '.join(n.split(':')[0] for n in cal.notes[4:])}; "
+                     "see the report)")
     for i, mapping in enumerate(cal.label_maps):
         renamed = [m for m in mapping if m.how in ("map", "alias")]
         if renamed:

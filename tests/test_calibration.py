@@ -267,6 +267,8 @@ def test_identifiability_flags(noisy):
     for c in cal.changes:
         if c.name.startswith("centre[") and not c.identified:
             assert c.change < 100.0, c.name  # mm
+    # Every joint moves in these squats: no coordinate is noted as still or driven past its limits.
+    assert cal.notes == ()
 
 
 def test_gaps_rows_left_out(human):
@@ -400,7 +402,13 @@ def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_p
     out within 1 deg of the truth; the report and summary say what was locked."""
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
     trial, still = _held_still(human, human_kin, sim, ("subtalar_r", "subtalar_l"), seed=8)
+    # Left free, the fit says that these two did not move and what to do.
+    free = calibrate(human, trial, Settings(), kinematics=human_kin)
+    named = {n.split(":")[0] for n in free.notes if "moved no more than the markers fix it" in n}
+    assert named == {"subtalar_r", "subtalar_l"}, free.notes
+    assert all("--lock subtalar_" in n for n in free.notes)
     cal = calibrate(human, trial, Settings(lock=("subtalar_r", "subtalar_l")), kinematics=human_kin)
+    assert cal.notes == ()
     assert cal.converged
     sub = [human.dof_index(d) for d in ("subtalar_r", "subtalar_l")]
     assert np.abs(cal.motion.angles[:, sub]).max() < 1e-5
