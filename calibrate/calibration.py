@@ -518,14 +518,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     cov = covariance(problem, state, lin)
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
+    notes = coordinate_notes(subject, state.Z[:, 6:], lin.A, settings)
     times["covariance"] = time.perf_counter() - t0
     residuals = problem.marker_residuals(state)
     motions = tuple(Motion(t.times.copy(), state.Z[sl, :3].copy(), state.Q[sl].copy(), state.Z[sl, 6:].copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected),
-                       notes=coordinate_notes(subject, state.Z[:, 6:], lin.A, settings))
+                       outliers=tuple(rejected), notes=notes)
 
 
 def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
@@ -544,6 +544,7 @@ def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Setti
     ends at its widened limit with its axis turned tens of degrees); locking it is the remedy."""
     locked = {n for n, _ in settings.lock}
     nz = A.shape[1]
+    A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), 500)).astype(int))]  # a median needs no more
     ridge = 1e-12 * np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), axis=1)
     cov = np.linalg.inv(A + ridge[:, None, None] * np.eye(nz))
     sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2)[:, 6:], 0.0))
