@@ -545,8 +545,9 @@ def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Setti
     locked = {n for n, _ in settings.lock}
     nz = A.shape[1]
     A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), 500)).astype(int))]  # a median needs no more
-    ridge = 1e-12 * np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), axis=1)
-    cov = np.linalg.inv(A + ridge[:, None, None] * np.eye(nz))
+    # A ridge at one global scale: a frame (or direction) with no data gets a huge SD, not a failure.
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    cov = np.linalg.inv(A + ridge * np.eye(nz))
     sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2)[:, 6:], 0.0))
     out = []
     for k, d in enumerate(model.dofs):
