@@ -474,7 +474,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     t0 = time.perf_counter()
     say("build: residuals and Jacobian (CasADi)")
     kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
-    problem = Problem(subject, obs, settings, kin)
+    problem = Problem(subject, obs, settings, kin, progress=progress)
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say("start: frame-wise inverse kinematics")

@@ -367,7 +367,9 @@ class _Timed:
 
     def __call__(self, msg: str) -> None:
         now = time.perf_counter() - self.t0
-        if now >= 1.0 and (not msg.startswith("solve: iteration") or now - getattr(self, "last", 0.0) >= 0.5):
+        long_step = msg.startswith("build: compiling")  # announced before it starts, however early
+        if (now >= 1.0 or long_step) and (not msg.startswith("solve: iteration")
+                                           or now - getattr(self, "last", 0.0) >= 0.5):
             self.last = now
             _progress(f"  [{now:6.2f} s] {msg}")
 

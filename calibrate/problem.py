@@ -37,7 +37,7 @@ import math
 import os
 import subprocess
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -185,8 +185,11 @@ class Problem:
     """Residuals, cost and block-arrow normal equations of one trial and one model."""
 
     def __init__(self, model: Model, observed: np.ndarray, settings: Settings | None = None,
-                 kinematics: Kinematics | None = None, base: Parameters | None = None):
-        """`observed` (F, n_model_markers, 3) in metres, NaN where a marker is not seen."""
+                 kinematics: Kinematics | None = None, base: Parameters | None = None,
+                 progress: Callable[[str], None] | None = None):
+        """`observed` (F, n_model_markers, 3) in metres, NaN where a marker is not seen; `progress`
+        hears of the one slow step of building (compiling a model structure never seen before)."""
+        self._progress = progress
         self.model = model
         self.settings = settings or Settings()
         self.kin = kinematics or build_kinematics(model)
@@ -554,6 +557,8 @@ class Problem:
             pr, pc = _pattern(Jp.sparsity())
             shape = np.array([Jz.size1(), Jz.size2()])
             if key:
+                if self._progress is not None and c_compiler() is not None:
+                    self._progress("build: compiling the model's C code (once per model structure; cached)")
                 comp = _compile([full, pose, resid], key, {"zr": zr, "zc": zc, "pr": pr, "pc": pc, "shape": shape})
                 if comp is not None:
                     full, pose, resid = comp

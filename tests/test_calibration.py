@@ -177,10 +177,12 @@ def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch
     m = sim.motion
     state = State(np.column_stack([m.root_translation, np.zeros((3, 3)), m.angles]), m.root_quaternion.copy(),
                   sim.truth.vector())
-    first = Problem(human, obs, Settings())
+    heard: list[str] = []
+    first = Problem(human, obs, Settings(), progress=heard.append)
     assert first.compiled and len(list(tmp_path.glob("frame_*.so"))) == 1
-    second = Problem(human, obs, Settings())
-    assert second.compiled and len(list(tmp_path.glob("frame_*.so"))) == 1
+    assert len(heard) == 1 and heard[0].startswith("build: compiling")  # the slow step is announced
+    second = Problem(human, obs, Settings(), progress=heard.append)
+    assert second.compiled and len(list(tmp_path.glob("frame_*.so"))) == 1 and len(heard) == 1
     vm = Problem(human, obs, Settings(compile=False))
     for a, b in zip(second._run("full", state), vm._run("full", state), strict=True):
         assert np.allclose(a, b, rtol=1e-12, atol=1e-14)
