@@ -84,20 +84,17 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     if isinstance(it, bool) or not isinstance(it, int):
         raise CalibrateError(f"{where}: 'max_iterations' must be a whole number, got {it!r}")
     loss = data.get("loss", s.loss)
-    per = data.get("marker_noise_mm", None)
-    if per is None:
-        marker_noise = s.marker_noise
-    else:
-        if not isinstance(per, dict):
-            raise CalibrateError(f"{where}: 'marker_noise_mm' must be a table ([marker_noise_mm], label = SD in mm)")
-        marker_noise = tuple(sorted((str(k), num(per, k, 0.0) / 1000) for k in per))
-    locks = data.get("lock_deg", None)
-    if locks is None:
-        lock = s.lock
-    else:
-        if not isinstance(locks, dict):
-            raise CalibrateError(f"{where}: 'lock_deg' must be a table ([lock_deg], DoF = angle in degrees)")
-        lock = tuple(sorted((str(k), math.radians(num(locks, k, 0.0))) for k in locks))
+    def table(key: str, what: str, to_si, default: tuple) -> tuple:
+        """A [key] table of name = number, in SI units, sorted by name; `default` if absent."""
+        t = data.get(key, None)
+        if t is None:
+            return default
+        if not isinstance(t, dict):
+            raise CalibrateError(f"{where}: '{key}' must be a table ([{key}], {what})")
+        return tuple(sorted((str(k), to_si(num(t, k, 0.0))) for k in t))
+
+    marker_noise = table("marker_noise_mm", "label = SD in mm", lambda v: v / 1000, s.marker_noise)
+    lock = table("lock_deg", "DoF = angle in degrees", math.radians, s.lock)
     try:
         return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
                        loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
