@@ -198,7 +198,11 @@ class Problem:
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
             raise ValueError(f"observed: expected (frames, {nm}, 3), got {obs.shape}")
         self._set_observed(obs)
-        self._sigma = self.sigma
+        # Noise SD of each model marker (m): Settings.noise unless Settings.marker_noise names it.
+        self.sigma = np.full(nm, self.settings.noise)
+        for label, v in self.settings.marker_noise:
+            if label in model.marker_names:
+                self.sigma[model.marker_index(label)] = v
         self.base = base or model.parameters()
         self.loss = self.settings.loss  # the loss in use (calibrate starts robust fits with 'linear')
         # Joint limits, widened by LIMIT_MARGIN: a segment frame's zero may settle a little away
@@ -226,16 +230,6 @@ class Problem:
         self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
         self.n_obs = int(self.seen.sum())
         self._mapped: dict[tuple[str, int], tuple] = {}
-
-    @property
-    def sigma(self) -> np.ndarray:
-        """Noise SD of each model marker (m): ``Settings.noise`` unless ``Settings.marker_noise`` names it."""
-        st = self.settings
-        out = np.full(len(self.model.markers), st.noise)
-        for label, v in st.marker_noise:
-            if label in self.model.marker_names:
-                out[self.model.marker_index(label)] = v
-        return out
 
     def drop(self, mask: np.ndarray) -> None:
         """Leave out the observations where `mask` (F, n_markers) is true (rejected outliers): they
@@ -628,7 +622,7 @@ class Problem:
     def _weights(self, d: np.ndarray) -> tuple[float, np.ndarray]:
         """Data cost and per-(frame, marker) row weights sqrt(ρ')/σ (0 where not seen)."""
         st = self.settings
-        sigma = self._sigma
+        sigma = self.sigma
         s = np.where(self.seen, np.sum(d.reshape(self.F, -1, 3) ** 2, axis=2), 0.0) / sigma**2
         rho, drho = _robust(s, self.loss, st.loss_scale**2)
         cost = 0.5 * float(np.sum(rho[self.seen]))
