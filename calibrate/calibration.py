@@ -604,7 +604,9 @@ def _solve(problem: Problem, start: State, spans: list[slice], settings: Setting
     coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
                                                                            / problem.F))) for sl in spans])
     sub = problem if coarse.size == problem.F else problem.subset(coarse)
-    state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings, say)
+    # On a subsample the polish after the gauge alignment is left to the run on every frame.
+    state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings, say,
+                                            polish=sub is problem)
     if sub is problem:
         return state, coarse_summary
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.
@@ -752,9 +754,9 @@ def spread_poses(solved: State, frames: np.ndarray, start: State) -> State:
 
 
 def _solve_geometry(problem: Problem, state: State, settings: Settings,
-                    say: Callable[[str], None]) -> tuple[State, SolverSummary]:
+                    say: Callable[[str], None], polish: bool = True) -> tuple[State, SolverSummary]:
     """Poses, then poses and geometry together, then the segment frames turned to where the
-    priors want them and a polish: the whole solve on the frames of `problem`."""
+    priors want them and (`polish`) a last run from there: the whole solve on the frames of `problem`."""
     say(f"solve: refine poses ({problem.F} frames)")
     state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=2)
     if settings.loss != "linear":
@@ -769,8 +771,10 @@ def _solve_geometry(problem: Problem, state: State, settings: Settings,
         progress=lambda it, c, lam: say(f"solve: iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
     say("solve: align segment frames with the base model (gauge)")
     state = align_gauge(problem, state)
-    state, polish = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
-    return state, _merge(summary, polish)
+    if not polish:
+        return state, summary
+    state, polished = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+    return state, _merge(summary, polished)
 
 
 def align_gauge(problem: Problem, state: State) -> State:

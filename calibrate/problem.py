@@ -54,6 +54,7 @@ LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 LOSSES = ("linear", "huber", "cauchy")
 EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
+EVAL_PAD = 32  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
 
 
 @dataclass(frozen=True)
@@ -197,6 +198,8 @@ class Problem:
         nm = len(model.markers)
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
             raise ValueError(f"observed: expected (frames, {nm}, 3), got {obs.shape}")
+        # Mapped per-frame functions by (kind, frames), shared with subsets (they depend on no data).
+        self._mapped: dict[tuple[str, int], tuple] = {}
         self._set_observed(obs)
         # Noise SD of each model marker (m): Settings.noise unless Settings.marker_noise names it.
         self.sigma = np.full(nm, self.settings.noise)
@@ -229,7 +232,6 @@ class Problem:
         self.seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
         self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
         self.n_obs = int(self.seen.sum())
-        self._mapped: dict[tuple[str, int], tuple] = {}
 
     def drop(self, mask: np.ndarray) -> None:
         """Leave out the observations where `mask` (F, n_markers) is true (rejected outliers): they
@@ -587,8 +589,10 @@ class Problem:
 
     def _run(self, kind: str, state: State, out: tuple | None = None) -> list[np.ndarray]:
         """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
-        call (a map's construction grows with its size), into numpy arrays (F, nnz_out): those of
-        `out` where their shapes fit (buffers no longer needed), else fresh ones."""
+        call (a map's construction grows with its size, and costs ~15 ms: a short last block is
+        padded with copies of its last frame so that one map size serves every problem), into
+        numpy arrays (F, nnz_out): those of `out` where their shapes fit (buffers no longer
+        needed), else fresh ones."""
         F = state.Z.shape[0]
         f0 = self._funcs[kind]
         outs = [np.empty((F, f0.nnz_out(i))) for i in range(f0.n_out())]
@@ -597,20 +601,29 @@ class Problem:
                 outs[i] = o
         Z = np.ascontiguousarray(state.Z, dtype=float)
         Q = np.ascontiguousarray(state.Q, dtype=float)
-        P = np.tile(np.asarray(state.p, dtype=float), min(F, EVAL_BLOCK))
+        P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
         for s in range(0, F, EVAL_BLOCK):
             e = min(F, s + EVAL_BLOCK)
-            key = (kind, e - s)
+            n = e - s
+            size = EVAL_BLOCK if n > EVAL_PAD else n
+            key = (kind, size)
             if key not in self._mapped:
-                fm = f0.map(e - s, "thread", 2)
+                fm = f0.map(size, "thread", 2)
                 self._mapped[key] = (fm, *fm.buffer())
             _, buf, ev = self._mapped[key]
-            ins = [Z[s:e], Q[s:e], P[:(e - s) * self.np_full], self.target[s:e]]
-            for i, a in enumerate(ins):
+            ins = [Z[s:e], Q[s:e], self.target[s:e]]
+            res = [o[s:e] for o in outs]
+            if size > n:
+                ins = [np.concatenate([a, np.repeat(a[-1:], size - n, axis=0)]) for a in ins]
+                res = [np.empty((size, o.shape[1])) for o in outs]
+            for i, a in enumerate((ins[0], ins[1], P[:size * self.np_full], ins[2])):
                 buf.set_arg(i, memoryview(a))
-            for i, o in enumerate(outs):
-                buf.set_res(i, memoryview(o[s:e]))
+            for i, o in enumerate(res):
+                buf.set_res(i, memoryview(o))
             ev()
+            if size > n:
+                for o, r in zip(outs, res, strict=True):
+                    o[s:e] = r[:n]
         return outs
 
     # ------------------------------------------------------------------ residuals
