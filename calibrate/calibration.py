@@ -18,7 +18,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -41,6 +41,7 @@ SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (sc
 SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated centre may scale it
 SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
 STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
+HOLD_ROUNDS = 2  # rounds of holding the axes of still coordinates (Settings.auto_hold), each a new subsample solve
 LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
 LIMIT_NOTE_FRACTION = 0.05  # ... in more than this fraction of the frames is noted (limit_notes)
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
@@ -123,6 +124,7 @@ class Calibration:
     label_maps: tuple = ()  # per trial: calibrate.labels.LabelMapping (trial label -> model label), if mapped
     mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
     notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
+    held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
 
     @property
     def trial(self) -> Trial:
@@ -418,6 +420,11 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if bad:
         raise CalibrateError(f"lock: '{bad[0]}' is not a coordinate of {model.path.name}; use one of its DoF names "
                              f"({', '.join(model.dof_names[:6])}, ...; see calibrate inspect)")
+    axis_dofs = [d for j in model.joints if j.kind in ("hinge", "universal") for d in j.dofs]
+    bad = [name for name in settings.hold_axes if name not in axis_dofs]
+    if bad:
+        raise CalibrateError(f"hold_axes: '{bad[0]}' is not a hinge or universal-joint coordinate of "
+                             f"{model.path.name}; use one of {', '.join(axis_dofs[:6])}, ... (see calibrate inspect)")
     with threadpool_limits(limits=1, user_api="blas"):
         cal = _calibrate(model, trials, settings, kinematics, progress)
     cal.label_maps = label_maps
@@ -489,7 +496,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
     t0 = time.perf_counter()
-    state, summary = _solve(problem, start, spans, settings, say)
+    problem, state, summary = _solve(problem, start, spans, say)
+    held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
+    settings = problem.settings
     rejected: list[Outlier] = []
     if settings.outliers > 0:
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
@@ -525,7 +534,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=notes)
+                       outliers=tuple(rejected), notes=notes, held_axes=held)
 
 
 def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
@@ -535,13 +544,14 @@ def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: 
     return still + tuple(n for n in limit_notes(model, angles, settings) if n.split(":")[0] not in named)
 
 
-def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
-    """A note per coordinate whose estimated motion is no larger than the noise: its spread over
-    the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix it (the
-    median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block at the solution).
-    Such a joint did not move as far as the trial shows, so nothing pins its axis or its angle's
-    zero, and the fit can trade them for noise (a still subtalar joint under a two-marker foot
-    ends at its widened limit with its axis turned tens of degrees); locking it is the remedy."""
+def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
+                      settings: Settings) -> list[tuple[str, float, float]]:
+    """The coordinates (not locked) whose estimated motion is no larger than the noise: their spread
+    over the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix them (the
+    median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block).  Such a joint
+    did not move as far as the trial shows, so nothing pins its axis or its angle's zero, and the
+    fit can trade them for noise (a still subtalar joint under a two-marker foot ends at its
+    widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad."""
     locked = {n for n, _ in settings.lock}
     nz = A.shape[1]
     A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), 500)).astype(int))]  # a median needs no more
@@ -555,10 +565,23 @@ def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Setti
             continue
         spread, per_frame = float(np.std(angles[:, k])), float(np.median(sd[:, k]))
         if spread < STILL_RATIO * per_frame:
-            out.append(f"{d.name}: moved no more than the markers fix it in a frame (SD over frames "
-                       f"{math.degrees(spread):.1f} deg, one frame's {math.degrees(per_frame):.1f} deg): the trial "
-                       f"does not show this joint moving, so its axis and zero are not found; if it hardly moved, "
-                       f"hold it (--lock {d.name}, or [lock_deg] in the config)")
+            out.append((d.name, spread, per_frame))
+    return out
+
+
+def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """A note per coordinate that still_coordinates names, with what was done and what to do."""
+    out = []
+    for name, spread, per_frame in still_coordinates(model, angles, A, settings):
+        seen = (f"{name}: moved no more than the markers fix it in a frame (SD over frames "
+                f"{math.degrees(spread):.1f} deg, one frame's {math.degrees(per_frame):.1f} deg): the trial does not "
+                f"show this joint moving, so ")
+        if name in settings.hold_axes:
+            out.append(seen + f"its axis was held at the base model's and its angle's zero is not found; if it "
+                              f"did not move at all, hold the angle too (--lock {name}, or [lock_deg] in the config)")
+        else:
+            out.append(seen + f"its axis and zero are not found; if it hardly moved, hold it (--lock {name}, or "
+                              f"[lock_deg] in the config)")
     return tuple(out)
 
 
@@ -596,19 +619,40 @@ def _stack_states(states: Sequence[State]) -> State:
     return State(np.concatenate([s.Z for s in states]), np.concatenate([s.Q for s in states]), states[0].p.copy())
 
 
-def _solve(problem: Problem, start: State, spans: list[slice], settings: Settings,
-           say: Callable[[str], None]) -> tuple[State, SolverSummary]:
+def _solve(problem: Problem, start: State, spans: list[slice],
+           say: Callable[[str], None]) -> tuple[Problem, State, SolverSummary]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
-    the trials by their length), then every frame."""
+    the trials by their length), then every frame.  With Settings.auto_hold, the axes of the
+    coordinates that the subsample's solution shows still are held at the base model's and the
+    subsample solved again (returns the problem with those settings)."""
+    settings = problem.settings
     seen = problem.seen
     coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
                                                                            / problem.F))) for sl in spans])
-    sub = problem if coarse.size == problem.F else problem.subset(coarse)
-    # On a subsample the polish after the gauge alignment is left to the run on every frame.
-    state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings, say,
-                                            polish=sub is problem)
+    for round_ in range(HOLD_ROUNDS + 1):
+        sub = problem if coarse.size == problem.F else problem.subset(coarse)
+        # On a subsample the polish after the gauge alignment is left to the run on every frame.
+        state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings,
+                                                say, polish=sub is problem)
+        if not settings.auto_hold or round_ == HOLD_ROUNDS:
+            break
+        axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
+        lin = sub.linearize(state, with_parameters=False)
+        still = [name for name, _, _ in still_coordinates(sub.model, state.Z[:, 6:], lin.A, settings) if name in axes]
+        if not still:
+            break
+        say(f"solve: the trial does not show {', '.join(still)} moving: holding "
+            f"{'its axis' if len(still) == 1 else 'their axes'} at the base model's, solving again")
+        settings = replace(settings, hold_axes=settings.hold_axes + tuple(still))
+        problem = problem.with_settings(settings)
+        # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
+        p, base, at = start.p.copy(), problem.base.vector(), problem.offsets["axis"]
+        for name in still:
+            sl = slice(at + 3 * problem.model.dof_index(name), at + 3 * problem.model.dof_index(name) + 3)
+            p[sl] = base[sl]
+        start = State(start.Z, start.Q, p)
     if sub is problem:
-        return state, coarse_summary
+        return problem, state, coarse_summary
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.
     say(f"solve: all {problem.F} frames")
     parts = []
@@ -623,7 +667,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], settings: Setting
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
-    return state, summary
+    return problem, state, summary
 
 
 def _outliers(problem: Problem, state: State, settings: Settings) -> tuple[np.ndarray, np.ndarray]:

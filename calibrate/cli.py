@@ -202,6 +202,11 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                     help="hold coordinates at a value (default 0 deg) in every frame, e.g. "
                          "subtalar_r,subtalar_l: what the marker set cannot resolve (as OpenSim's locked coordinates)")
+    ap.add_argument("--hold-axes", default=None, metavar="DOF,...",
+                    help="keep these hinge/universal axes at the base model's (their angles stay free)")
+    ap.add_argument("--no-auto-hold", action="store_true",
+                    help="calibrate the axes of coordinates the trial does not show moving too (by default they "
+                         "are held at the base model's, and the summary says which)")
     ap.add_argument("--mass", type=_positive_float, default=None,
                     help="subject's body mass in kg: segment masses and inertias are the base model's scaled to "
                          "it (default: the base model's masses kept)")
@@ -311,6 +316,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["outlier_sigmas"] = args.outlier_sigmas
     if args.lock is not None:
         flags["lock_deg"] = _lock_arg(args.lock)
+    if args.hold_axes is not None:
+        flags["hold_axes"] = [d.strip() for d in args.hold_axes.split(",") if d.strip()]
+    if args.no_auto_hold:
+        flags["auto_hold"] = False
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
     outputs = [out_urdf, *out_motions, out_report]

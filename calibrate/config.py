@@ -24,6 +24,9 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
 
+    hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
+    auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
+
     [lock_deg]              # coordinates held at a value in every frame (none by default)
     # subtalar_r = 0.0      # e.g. what a two-marker foot cannot resolve
 """
@@ -45,7 +48,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm", "lock_deg"}
+        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm", "lock_deg", "hold_axes", "auto_hold"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
 
 
@@ -95,6 +98,12 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
 
     marker_noise = table("marker_noise_mm", "label = SD in mm", lambda v: v / 1000, s.marker_noise)
     lock = table("lock_deg", "DoF = angle in degrees", math.radians, s.lock)
+    hold = data.get("hold_axes", s.hold_axes)
+    if not (isinstance(hold, (list, tuple)) and all(isinstance(x, str) for x in hold)):
+        raise CalibrateError(f"{where}: 'hold_axes' must be a list of DoF names, e.g. [\"subtalar_r\"]")
+    auto_hold = data.get("auto_hold", s.auto_hold)
+    if not isinstance(auto_hold, bool):
+        raise CalibrateError(f"{where}: 'auto_hold' must be true or false, got {auto_hold!r}")
     try:
         return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
                        loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
@@ -103,7 +112,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
                        compile=data.get("compile", s.compile), new_markers=data.get("new_markers", s.new_markers),
                        outliers=num(data, "outlier_sigmas", s.outliers),
-                       geodesic=data.get("geodesic", s.geodesic), marker_noise=marker_noise, lock=lock)
+                       geodesic=data.get("geodesic", s.geodesic), marker_noise=marker_noise, lock=lock,
+                       hold_axes=tuple(hold), auto_hold=auto_hold)
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

@@ -93,8 +93,19 @@ class Settings:
     # marker set cannot resolve (e.g. the subtalar joint under a two-marker foot).  ((DoF, angle), ...),
     # a dict, or DoF names (held at 0).  A locked hinge's axis is not calibrated.
     lock: tuple[tuple[str, float], ...] = ()
+    # Hinge and universal DoFs whose axis keeps the base model's direction (their angles stay free).
+    hold_axes: tuple[str, ...] = ()
+    # Hold, as above, the axis of every coordinate the trial does not show moving (calibrate decides
+    # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
+    # axis, and left free the axis drifts far from the base model's by fitting noise.
+    auto_hold: bool = True
 
     def __post_init__(self) -> None:
+        hold = (self.hold_axes,) if isinstance(self.hold_axes, str) else self.hold_axes
+        object.__setattr__(self, "hold_axes", tuple(sorted(set(hold))))
+        for name in self.hold_axes:
+            if not isinstance(name, str):
+                raise ValueError(f"hold_axes: expected DoF names, got {name!r}")
         if isinstance(self.marker_noise, Mapping):
             object.__setattr__(self, "marker_noise", tuple(sorted(self.marker_noise.items())))
         lock = self.lock
@@ -233,6 +244,13 @@ class Problem:
         self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
         self.n_obs = int(self.seen.sum())
 
+    def with_settings(self, settings: Settings) -> Problem:
+        """The same trial, model and prior centres under other settings (e.g. more axes held),
+        sharing the kinematics and the compiled functions' cache."""
+        new = Problem(self.model, self.observed, settings, self.kin, self.base, self._progress)
+        new.loss = self.loss
+        return new
+
     def drop(self, mask: np.ndarray) -> None:
         """Leave out the observations where `mask` (F, n_markers) is true (rejected outliers): they
         lose their rows, as gaps do."""
@@ -256,9 +274,9 @@ class Problem:
         self.np_full = ns + 3 * (nj + nd + nm)
         free = set(self.settings.free)
         # Axes that are calibrated: those of hinge and universal joints (never a ball's).
-        locked = {name for name, _ in self.settings.lock}
+        held = {name for name, _ in self.settings.lock} | set(self.settings.hold_axes)
         self.axis_dofs = [m.dof_index(d) for j in m.joints if j.kind in ("hinge", "universal") for d in j.dofs
-                          if d not in locked] if "axis" in free else []
+                          if d not in held] if "axis" in free else []
         seg_of = {s.name: i for i, s in enumerate(m.segments)}
         self.marker_segment = np.array([seg_of[mk.segment] for mk in m.markers])
         self.centre_segment = np.array([seg_of[j.parent] for j in m.joints])
@@ -301,9 +319,16 @@ class Problem:
         """Segments whose frame can turn (root: also shift) with no effect on the data, because
         everything expressed in it is free: (segment index, 'rigid' | 'rotation' | 'axis')."""
         m, free = self.model, set(self.settings.free)
-        locked = {name for name, _ in self.settings.lock}
+        # A held axis is fixed in its parent's frame (and its child's), as a locked coordinate's is.
+        locked = {name for name, _ in self.settings.lock} | set(self.settings.hold_axes)
         out = []
         into = {j.child: j for j in m.joints}
+
+        def held_below(name: str) -> bool:
+            """A held or locked DoF down the hinge and universal chains below segment `name`."""
+            return any(any(d in locked for d in j.dofs) or held_below(j.child)
+                       for j in m.joints if j.parent == name and j.kind in ("hinge", "universal"))
+
         for si, seg in enumerate(m.segments):
             has_mk = bool(np.any(self.marker_segment == si))
             kids = [j for j in m.joints if j.parent == seg.name]
@@ -315,6 +340,8 @@ class Problem:
             if seg.name in into and any(d in locked for d in into[seg.name].dofs):
                 continue
             if any(d in locked for j in kids if j.kind in ("hinge", "universal") for d in j.dofs):
+                continue
+            if held_below(seg.name):  # the turn would be carried down (_turn) into a held axis
                 continue
             if si == 0:
                 out.append((si, "rigid"))

@@ -87,7 +87,9 @@ def calibration_report(cal) -> dict:
                      "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
                      "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise},
-                     "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "compiled": cal.compiled},
+                     "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
+                     "auto_hold": st.auto_hold, "compiled": cal.compiled},
+        "held_axes": list(cal.held_axes),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
@@ -146,6 +148,9 @@ def summary_text(cal) -> str:
                               f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
+        *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
+           + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]
+          if cal.settings.hold_axes else []),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
         f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
