@@ -89,6 +89,9 @@ def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
     p.add_argument("--noise-mm", type=_nonneg_float, default=1.0, help="marker noise SD in mm (default 1)")
     p.add_argument("--gaps", action="store_true", help="add realistic occlusion gaps")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--motion", choices=("squats", "gait"), default="squats",
+                   help="squats (every joint through a wide arc) or treadmill gait (normal walking ranges: "
+                        "forearms, wrists, neck and subtalar joints hardly move); default squats")
     p.add_argument("--model", type=Path, default=None, help="base model URDF (default: models/human.urdf)")
 
 
@@ -108,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.",
     )
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sim = sub.add_parser("simulate", help="write a synthetic squat trial with its truth",
-                         description="Simulate squats of a random synthetic subject derived from a base model; "
+    sim = sub.add_parser("simulate", help="write a synthetic squat or gait trial with its truth",
+                         description="Simulate squats (or treadmill gait, --motion gait) of a random synthetic "
+                                     "subject derived from a base model; "
                                      "writes OUT/trial.c3d, OUT/truth.urdf and OUT/truth_motion.csv.")
     sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
     sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
@@ -247,7 +251,7 @@ def _guard(command, args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace):
     from .model import load_model
-    from .simulate import simulate_squats, write_simulation
+    from .simulate import simulate_gait, simulate_squats, write_simulation
 
     model = load_model(args.model or _default_model())
     if args.out.exists() and not args.out.is_dir():
@@ -259,8 +263,8 @@ def _simulate(args: argparse.Namespace):
                     f"{args.out / name}: exists; pass --overwrite to replace it or choose another --out"
                 )
     t0 = time.perf_counter()
-    sim = simulate_squats(model, frames=args.frames, rate=args.rate, noise_mm=args.noise_mm,
-                          gaps=args.gaps, seed=args.seed)
+    simulate = simulate_gait if args.motion == "gait" else simulate_squats
+    sim = simulate(model, frames=args.frames, rate=args.rate, noise_mm=args.noise_mm, gaps=args.gaps, seed=args.seed)
     try:
         paths = write_simulation(sim, args.out)
     except OSError as e:
@@ -390,7 +394,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     model, sim, paths, dt = _simulate(args)
     trial = read_trial(paths["trial"])  # what a user would have: the C3D file
-    _progress(f"simulated a squat trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
+    kind = "gait" if args.motion == "gait" else "squat"
+    _progress(f"simulated a {kind} trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
     t0 = time.perf_counter()
     cal = calibrate(model, trial, progress=_Timed())
     t_cal = time.perf_counter() - t0

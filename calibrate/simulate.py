@@ -1,4 +1,4 @@
-"""Synthetic squat trials of a synthetic subject, with known truth.
+"""Synthetic squat and gait trials of a synthetic subject, with known truth.
 
 The subject is the base model with random but plausible changes (segment scales
 ±10 %, joint centres ±15 mm per coordinate, hinge axes tilted by up to 5°, markers
@@ -7,6 +7,11 @@ together, pelvis dropping so the feet stay on the floor) with trunk, neck and ar
 movement: every degree of freedom also follows its own slow sinusoid, so hips move in
 abduction and rotation, shoulders and elbows through large arcs, and no two joints
 move in lock-step.  Markers get Gaussian noise and, optionally, occlusion gaps.
+
+`simulate_gait` is treadmill walking instead: the ranges of a normal gait cycle (hips, knees and
+ankles through their usual arcs, arms swinging from the shoulders, elbows bending a little) and
+nearly still forearms, wrists, neck and subtalar joints (a few degrees), as in a lab's walking
+trial, where many joints hardly move.
 """
 
 from __future__ import annotations
@@ -29,6 +34,18 @@ CENTRE_RANGE = 0.015  # ± m per coordinate
 AXIS_TILT_DEG = 5.0  # max tilt of hinge axes
 MARKER_RANGE = 0.010  # ± m per coordinate
 SQUAT_PERIOD = 2.5  # s
+GAIT_CYCLE = (1.0, 1.2)  # s: stride time, drawn per subject
+# DoF-name suffix -> (offset, amplitude at the stride frequency, at twice it, own slow sinusoid), degrees:
+# a normal gait cycle's ranges (Winter's); the last column keeps nearly still joints from being exactly still.
+GAIT_TABLE = {
+    "hip_flexion": (10, 22, 3, 1), "hip_adduction": (0, 5, 2, 1), "hip_rotation": (0, 5, 1, 1),
+    "knee": (30, 25, 12, 1), "ankle": (0, 12, 5, 1), "subtalar": (0, 3, 1, 0.5),
+    "lumbar_flexion": (3, 2, 1, 0.5), "lumbar_bending": (0, 3, 0, 0.5), "lumbar_rotation": (0, 5, 0, 0.5),
+    "neck_flexion": (0, 1, 0, 1), "neck_bending": (0, 1, 0, 0.5), "neck_rotation": (0, 2, 0, 1),
+    "shoulder_flexion": (5, 15, 0, 1), "shoulder_adduction": (-10, 3, 0, 0.5), "shoulder_rotation": (0, 3, 0, 0.5),
+    "elbow": (30, 10, 0, 1), "radioulnar": (0, 2, 0, 0.5), "wrist_flexion": (0, 3, 0, 0.5),
+    "wrist_deviation": (0, 2, 0, 0.5),
+}
 
 
 @dataclass(frozen=True)
@@ -99,6 +116,34 @@ def _generic_dof_name(name: str) -> str:
     return "_".join(parts)
 
 
+def gait_angles(model: Model, times: np.ndarray, cycle: float, rng: np.random.Generator) -> np.ndarray:
+    """Joint angles (n_frames, n_dofs) of treadmill walking with stride time `cycle` (s): GAIT_TABLE's
+    ranges, the left side half a cycle after the right, within limits."""
+    deg = math.radians
+    phase = 2 * np.pi * times / cycle
+    out = np.zeros((times.size, model.n_dofs))
+    for i, d in enumerate(model.dofs):
+        off, a1, a2, own = GAIT_TABLE.get(_generic_dof_name(d.name), (0, 2, 0, 0.5))
+        ph = phase + (np.pi if "_l_" in f"_{d.name}_" else 0.0)  # the left side half a stride later
+        th = (deg(off) + deg(a1) * np.sin(ph) + deg(a2) * np.sin(2 * ph + 0.5)
+              + deg(own) * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * times + rng.uniform(0, 2 * np.pi)))
+        lo, hi = d.lower, d.upper
+        if np.isfinite(lo) and np.isfinite(hi):
+            th = np.clip(th, lo + 0.02 * (hi - lo), hi - 0.02 * (hi - lo))
+        out[:, i] = th
+    return out
+
+
+def gait_root_orientation(times: np.ndarray, cycle: float, rng: np.random.Generator) -> np.ndarray:
+    """Pelvis orientation (n_frames, 4 quaternion x, y, z, w) in walking: a random heading, with
+    the pelvis's rotation, tilt and obliquity over the stride."""
+    phase = 2 * np.pi * times / cycle
+    yaw = rng.uniform(-np.pi, np.pi) + np.radians(5) * np.sin(phase)
+    pitch = np.radians(3) * np.sin(2 * phase)
+    roll = np.radians(4) * np.sin(phase + 1.0)
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()
+
+
 def root_orientation(times: np.ndarray, squat: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Pelvis orientation (n_frames, 4 quaternion x, y, z, w): slow turning, tilt with the squat, sway."""
     yaw = rng.uniform(-np.pi, np.pi) + np.radians(40) * np.sin(2 * np.pi * 0.07 * times)
@@ -124,40 +169,71 @@ def occlusions(n_frames: int, n_markers: int, rate: float, rng: np.random.Genera
     return mask
 
 
-def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
-                    gaps: bool = False, seed: int = 0) -> Simulation:
-    """Simulate a squat trial of a random subject derived from `model` (see module docstring)."""
+def _check_args(frames: int, rate: float, noise_mm: float) -> None:
     if frames < 2:
         raise ValueError(f"frames: need at least 2, got {frames}")
     if not (rate > 0 and math.isfinite(rate)):
         raise ValueError(f"rate: must be a positive number of Hz, got {rate}")
     if not (noise_mm >= 0 and math.isfinite(noise_mm)):
         raise ValueError(f"noise_mm: must be >= 0, got {noise_mm}")
+
+
+def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
+                    gaps: bool = False, seed: int = 0) -> Simulation:
+    """Simulate a squat trial of a random subject derived from `model` (see module docstring)."""
+    _check_args(frames, rate, noise_mm)
     rng = np.random.default_rng(seed)
     truth = perturb_parameters(model, rng)
     times = np.arange(frames) / rate
     angles = squat_angles(model, times, rng)
     squat = 0.5 * (1.0 - np.cos(2 * np.pi * times / SQUAT_PERIOD))
     quat = root_orientation(times, squat, rng)
+    sway = 0.01 * np.column_stack([np.sin(2 * np.pi * 0.2 * times), np.sin(2 * np.pi * 0.17 * times + 2),
+                                   np.zeros(frames)])
+    # The pelvis drops and moves back as the subject squats: the ankles stay put (feet planted).
+    return _observe(model, truth, times, angles, quat, sway, True, rate, noise_mm, gaps, rng)
+
+
+def simulate_gait(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
+                  gaps: bool = False, seed: int = 0) -> Simulation:
+    """Simulate treadmill walking of a random subject derived from `model` (see module docstring):
+    the subject as simulate_squats draws it for the same seed, the motion of gait_angles."""
+    _check_args(frames, rate, noise_mm)
+    rng = np.random.default_rng(seed)
+    truth = perturb_parameters(model, rng)
+    times = np.arange(frames) / rate
+    cycle = float(rng.uniform(*GAIT_CYCLE))
+    angles = gait_angles(model, times, cycle, rng)
+    quat = gait_root_orientation(times, cycle, rng)
+    phase = 2 * np.pi * times / cycle
+    # The pelvis rises twice a stride and sways from side to side; the treadmill keeps it in place.
+    bounce = np.column_stack([np.zeros(frames), 0.02 * np.sin(phase), 0.02 * np.cos(2 * phase)])
+    return _observe(model, truth, times, angles, quat, bounce, False, rate, noise_mm, gaps, rng)
+
+
+def _observe(model: Model, truth: Parameters, times: np.ndarray, angles: np.ndarray, quat: np.ndarray,
+             offset: np.ndarray, planted: bool, rate: float, noise_mm: float, gaps: bool,
+             rng: np.random.Generator) -> Simulation:
+    """Markers and centres of `truth` moving with `angles` and root orientation `quat`, the root
+    placed so that the ankles' mid-point sits 7 cm (scaled) above the origin — in every frame
+    (`planted`, feet on the floor) or on average — plus `offset` (F, 3); then noise and gaps."""
+    frames = times.size
     kin = build_kinematics(model)
     Z = np.hstack([np.zeros((frames, 6)), angles])
     markers, centres = kin.batch(Z, quat, truth)
-    # Root translation: keep the mid-point of the ankle centres fixed above the origin (feet planted),
-    # with a little sway; the pelvis then drops and moves back as the subject squats.
     ankles = [model.joint_index(j.name) for j in model.joints if j.name.startswith("ankle")]
     if ankles:
         anchor = centres[:, ankles, :].mean(axis=1)
+        if not planted:
+            anchor = np.broadcast_to(anchor.mean(axis=0), anchor.shape)
         target = np.array([0.0, 0.0, 0.07]) * float(np.mean(truth.scale))
     else:  # a model without ankles: keep its root near 1 m
         anchor = np.zeros((frames, 3))
         target = np.array([0.0, 0.0, 1.0])
-    sway = 0.01 * np.column_stack([np.sin(2 * np.pi * 0.2 * times), np.sin(2 * np.pi * 0.17 * times + 2),
-                                   np.zeros(frames)])
-    root = target - anchor + sway
+    root = target - anchor + offset
     markers = markers + root[:, None, :]
     centres = centres + root[:, None, :]
     motion = Motion(times, root, quat, angles, model.dof_names)
-
     observed = markers + rng.normal(0.0, noise_mm / 1000.0, markers.shape)
     if gaps:
         observed[occlusions(frames, len(model.markers), rate, rng)] = np.nan

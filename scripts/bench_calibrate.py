@@ -2,7 +2,9 @@
 
 1. accuracy: `calibrate` on `simulate_squats` trials of models/human.urdf (default 1000 frames),
    noise-free, with 1 mm marker noise, and with 1 mm noise from a base model scaled 0.85 and
-   1.15 (basin of convergence); errors from `calibrate.evaluate.compare_to_truth`;
+   1.15 (basin of convergence); errors from `calibrate.evaluate.compare_to_truth`; then a treadmill
+   gait trial (`simulate_gait`, same frames, 1 mm noise; no targets), with the axes of still
+   coordinates held (the default) and left free (auto_hold=False);
 2. speed: time per stage and peak memory of each calibration (every timed run in a fresh
    subprocess of this script, after one untimed warm-up that compiles the model's C code),
    the whole command line (`python -m calibrate.cli TRIAL MODEL ...`) on 1000 frames, and a
@@ -167,17 +169,19 @@ def work_calibrate(spec: dict) -> dict:
     from calibrate.evaluate import compare_to_truth
     from calibrate.model import load_model
     from calibrate.problem import Settings
-    from calibrate.simulate import simulate_squats
+    from calibrate.simulate import simulate_gait, simulate_squats
 
     with tempfile.TemporaryDirectory() as tmp:
         model = base_model(spec["scale"], tmp)
-        sim = simulate_squats(load_model(MODEL), spec["frames"], noise_mm=spec["noise_mm"], seed=spec["seed"])
+        simulate = simulate_gait if spec.get("motion") == "gait" else simulate_squats
+        sim = simulate(load_model(MODEL), spec["frames"], noise_mm=spec["noise_mm"], seed=spec["seed"])
         before = _peak_mb()
         say = _logger(spec["progress"])
         t0 = time.perf_counter()
         # The solver is told the data's noise, as a user does with --noise-mm: noise-free data are
         # weighted as 1 um noise (at the default 1 mm the chi-square stopping rule stops at ~10 um).
-        settings = Settings(noise=max(spec["noise_mm"], NOISE_FREE_STATED_MM) / 1000)
+        settings = Settings(noise=max(spec["noise_mm"], NOISE_FREE_STATED_MM) / 1000,
+                            auto_hold=spec.get("auto_hold", True))
         cal = calibrate(model, sim.trial, settings, progress=say)
         wall = time.perf_counter() - t0
         peak = _peak_mb()
@@ -186,7 +190,7 @@ def work_calibrate(spec: dict) -> dict:
                "calibrate_s": wall, "times": dict(cal.times), "peak_mb": peak, "peak_mb_before": before,
                "iterations": s.iterations, "accepted": s.accepted, "converged": bool(s.converged),
                "termination": s.termination, "initial_cost": s.initial_cost, "final_cost": s.final_cost,
-               "compiled": bool(cal.compiled), "marker_rms_m": cal.marker_rms,
+               "compiled": bool(cal.compiled), "marker_rms_m": cal.marker_rms, "held_axes": list(cal.held_axes),
                "unidentified": [c.name for c in cal.unidentified],
                "axis_std_deg": {c.name[5:-1]: float(np.nanmax(c.std)) for c in cal.changes
                                 if c.name.startswith("axis[")}}
@@ -571,6 +575,15 @@ def collect(a: argparse.Namespace, log) -> dict:
         res["scenarios"][name] = r
         checks += accuracy_checks(name, r["metrics"])
 
+    # 1b. treadmill gait: no targets; the held axes against leaving them free
+    res["gait"] = {}
+    for label, auto in (("axes of still joints held", True), ("all axes free", False)):
+        log(f"accuracy: gait, {label}, {frames} frames")
+        r = worker("calibrate", {"frames": frames, "noise_mm": 1.0, "scale": 1.0, "seed": a.seed, "motion": "gait",
+                                 "auto_hold": auto}, 3600)
+        r["metrics"] = scenario_metrics(r)
+        res["gait"][label] = r
+
     # 2. speed: the 1 mm-noise accuracy run is the timed run at `frames`
     main_run = res["scenarios"][MAIN]
     mm = main_run["metrics"]
@@ -692,6 +705,26 @@ def report(res: dict) -> None:
             say(f"  {n}: ERROR {stopped(sc[n])}")
         elif not sc[n].get("converged"):
             say(f"  {n}: not converged: {sc[n].get('termination')}")
+    gait = res.get("gait", {})
+    if gait:
+        say()
+        say(f"1b. Treadmill gait (simulate_gait), {frames} frames, 1 mm noise (no targets: forearms, wrists, neck "
+            "and subtalar joints move a few degrees)")
+        gn = list(gait)
+        say(f"{'':30s}" + "".join(f"{n:>28s}" for n in gn))
+        for label, key, spec in (("marker RMS / floor", "rms_over_floor", ".4f"),
+                                 ("ball centres median (mm)", "ball_centre_mm_median", ".2f"),
+                                 ("ball centres max (mm)", "ball_centre_mm_max", ".2f"),
+                                 ("angles offset-free (deg)", "angle_rms_offset_free_deg", ".2f"),
+                                 ("seed..solve (s)", "fit_s", ".2f")):
+            say(f"{label:30s}" + "".join(f"{fmt(gait[n]['metrics'].get(key), spec):>28s}" for n in gn))
+        axes = sorted({k for n in gn for k in gait[n].get("axis_err_deg", {})})
+        for k in axes:
+            say(f"{'axis ' + k + ' (deg)':30s}" + "".join(f"{fmt(gait[n].get('axis_err_deg', {}).get(k)):>28s}"
+                                                           for n in gn))
+        for n in gn:
+            say(f"  {n}: held {', '.join(gait[n].get('held_axes', [])) or 'none'}"
+                + (f"; ERROR {stopped(gait[n])}" if "error" in gait[n] else ""))
     say("Largest joint-angle errors (RMS over frames, deg, raw):")
     for n in names:
         per = sc[n].get("angle_rms_per_dof_deg")

@@ -22,7 +22,7 @@ from calibrate.ik import marker_columns
 from calibrate.model import Parameters, add_markers, load_model, write_model
 from calibrate.motion import read_motion_csv
 from calibrate.problem import Problem, Settings, State
-from calibrate.simulate import simulate_squats
+from calibrate.simulate import simulate_gait, simulate_squats
 from calibrate.solver import factor_step, levenberg_marquardt, solve_step
 from calibrate.trial import Trial, write_c3d
 
@@ -461,6 +461,20 @@ def test_axes_of_still_coordinates_are_held_at_the_base_models(human, human_kin)
     assert rep["held_axes"] == list(dofs) and rep["settings"]["hold_axes"] == list(cal.settings.hold_axes)
     with pytest.raises(CalibrateError, match="'shoulder_r_flexion' is not a hinge or universal-joint coordinate"):
         calibrate(human, trial, Settings(hold_axes=("shoulder_r_flexion",)))
+
+
+def test_treadmill_gait(human, human_kin):
+    """A walking trial, where forearms, wrists and subtalar joints hardly move: the fit reaches the
+    noise floor, finds hips and knees, and holds the forearm and wrist axes (they move 2-3 deg)."""
+    sim = simulate_gait(human, frames=300, noise_mm=1.0, seed=1)
+    cal = calibrate(human, sim.trial, Settings(), kinematics=human_kin)
+    assert cal.converged
+    cmp = compare_to_truth(cal, sim)
+    assert cmp.marker_rms <= 1.05 * cmp.floor_rms
+    assert max(cmp.centre_error["hip_l"], cmp.centre_error["hip_r"]) <= 0.003, cmp.centre_error
+    assert max(cmp.axis_error_deg["knee_l"], cmp.axis_error_deg["knee_r"]) <= 1.0, cmp.axis_error_deg
+    assert {"radioulnar_l", "radioulnar_r", "wrist_l_flexion", "wrist_r_flexion"} <= set(cal.held_axes)
+    assert not {"knee_l", "knee_r", "elbow_l", "elbow_r"} & set(cal.held_axes)
 
 
 def test_limit_notes_name_coordinates_driven_past_their_limits(human):

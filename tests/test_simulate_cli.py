@@ -1,4 +1,4 @@
-"""Synthetic squats (files, truth, noise, gaps, ranges of motion) and the command line."""
+"""Synthetic squats and gait (files, truth, noise, gaps, ranges of motion) and the command line."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from calibrate.cli import main
 from calibrate.model import load_model
 from calibrate.motion import read_motion_csv
-from calibrate.simulate import simulate_squats
+from calibrate.simulate import simulate_gait, simulate_squats
 from calibrate.trial import read_c3d
 
 
@@ -77,6 +77,28 @@ def test_every_joint_moves_through_a_useful_range(human):
     assert z.max() - z.min() > 0.3
     ankles = sim.clean_centres[:, [human.joint_index("ankle_r"), human.joint_index("ankle_l")]].mean(axis=1)
     assert np.ptp(ankles[:, :2], axis=0).max() < 0.021 and np.ptp(ankles[:, 2]) < 1e-12
+
+
+def test_gait_walks_with_normal_ranges_and_nearly_still_joints(human, tmp_path):
+    """Treadmill gait: the subject simulate_squats draws for the seed; hips, knees and ankles through
+    a normal gait cycle's arcs, the two sides half a stride apart; forearms, wrists and subtalar
+    joints within a few degrees; the pelvis in place on the treadmill."""
+    sim = simulate_gait(human, frames=600, seed=3)
+    squats = simulate_squats(human, frames=10, seed=3)
+    np.testing.assert_array_equal(sim.truth.vector(), squats.truth.vector())
+    rom = np.degrees(np.ptp(sim.motion.angles, axis=0))
+    for name, (lo, hi) in {"hip_r_flexion": (40, 55), "knee_r": (45, 80), "ankle_r": (20, 40),
+                           "shoulder_l_flexion": (25, 40), "elbow_l": (15, 30)}.items():
+        assert lo <= rom[human.dof_index(name)] <= hi, (name, rom[human.dof_index(name)])
+    for name in ("radioulnar_r", "wrist_l_flexion", "wrist_r_deviation", "subtalar_l", "neck_bending"):
+        assert rom[human.dof_index(name)] <= 10, (name, rom[human.dof_index(name)])
+    a = sim.motion.angles
+    r, left = a[:, human.dof_index("hip_r_flexion")], a[:, human.dof_index("hip_l_flexion")]
+    assert np.corrcoef(r, left)[0, 1] < -0.8  # half a stride apart
+    assert np.ptp(sim.motion.root_translation, axis=0).max() < 0.1  # a treadmill: the pelvis stays within 10 cm
+    assert main(["simulate", "--out", str(tmp_path / "g"), "--frames", "30", "--motion", "gait", "--seed", "3"]) == 0
+    motion = read_motion_csv(tmp_path / "g" / "truth_motion.csv")
+    np.testing.assert_allclose(motion.angles, simulate_gait(human, frames=30, seed=3).motion.angles, atol=1e-9)
 
 
 def test_demo_runs_and_reports(tmp_path, monkeypatch, capsys):
