@@ -130,7 +130,13 @@ def _eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = 
         return None
     if n == 0:
         return _Elimination(L, Y, yz, np.zeros((0, 0)))
-    classes = _row_classes(lin, n)
+    key = None if lin.a_pattern is None or lin.b_pattern is None else \
+        ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
+    classes = None if work is None or key is None else work.get(key)
+    if classes is None:
+        classes = _row_classes(lin, n)
+        if work is not None and key is not None:
+            work[key] = classes  # the patterns change only with the free set: one per problem
 
     def part(fr: slice) -> np.ndarray:
         S = np.zeros((n, n))
