@@ -646,11 +646,12 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         settings = replace(settings, hold_axes=settings.hold_axes + tuple(still))
         problem = problem.with_settings(settings)
         # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
-        p, base, at = start.p.copy(), problem.base.vector(), problem.offsets["axis"]
+        p, base = start.p.copy(), problem.base.vector()
         for name in still:
-            sl = slice(at + 3 * problem.model.dof_index(name), at + 3 * problem.model.dof_index(name) + 3)
-            p[sl] = base[sl]
+            k = problem.offsets["axis"] + 3 * problem.model.dof_index(name)
+            p[k:k + 3] = base[k:k + 3]
         start = State(start.Z, start.Q, p)
+    coarse_summary.rounds = round_ + 1
     if sub is problem:
         return problem, state, coarse_summary
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.

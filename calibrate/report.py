@@ -98,6 +98,7 @@ def calibration_report(cal) -> dict:
                    "final_cost": s.final_cost, "cost_history": list(s.cost_history),
                    "termination": s.termination, "converged": s.converged,
                    "linearize_s": s.linearize_seconds, "linear_solver_s": s.linear_solver_seconds,
+                   "rounds": (s.coarse or s).rounds,
                    "coarse": None if s.coarse is None else {
                        "frames": s.coarse_frames, "iterations": s.coarse.iterations,
                        "initial_cost": s.coarse.initial_cost, "final_cost": s.coarse.final_cost,
@@ -159,6 +160,9 @@ def summary_text(cal) -> str:
         *([f"  coarse solve {s.coarse_frames} evenly spaced frames: {s.coarse.iterations} iterations, cost "
             f"{s.coarse.initial_cost:.4e} -> {s.coarse.final_cost:.4e} ({s.coarse.termination})"]
           if s.coarse is not None else []),
+        *([f"  rounds       {(s.coarse or s).rounds} solves of the {'subsample' if s.coarse else 'trial'}: solved "
+           f"again after holding the axes of joints it does not show moving (the figures above: the last)"]
+          if (s.coarse or s).rounds > 1 else []),
         f"  iterations   {s.iterations} ({s.accepted} accepted){' on all frames' if s.coarse is not None else ''}",
         f"  termination  {'CONVERGED' if s.converged else 'NOT CONVERGED'}: {s.termination}",
         "  time (s)     " + "  ".join(f"{k} {v:.2f}" for k, v in cal.times.items())

@@ -58,6 +58,7 @@ class SolverSummary:
     evaluate_seconds: float = 0.0
     coarse: SolverSummary | None = None  # the solve on a subsample of frames that preceded this one
     coarse_frames: int = 0  # frames of that subsample
+    rounds: int = 1  # solves of the subsample (or short trial): more when axes were held and it was solved again
 
 
 @dataclass

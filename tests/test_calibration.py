@@ -336,7 +336,7 @@ def test_outputs_read_back(noisy, tmp_path):
     rms = float(np.sqrt(np.nanmean(np.array(err) ** 2)))
     rep = json.loads((tmp_path / "s.json").read_text())
     assert rms == pytest.approx(rep["markers"]["rms_mm"] / 1000, rel=0.05)
-    assert rep["solver"]["converged"] is True
+    assert rep["solver"]["converged"] is True and rep["solver"]["rounds"] == 1 and rep["held_axes"] == []
     assert rep["solver"]["cost_history"][0] == pytest.approx(cal.summary.initial_cost)
     assert set(rep["times_s"]) >= {"seed", "start", "build", "solve", "write"}
     by = {p["name"]: p for p in rep["parameters"]}
@@ -459,6 +459,7 @@ def test_axes_of_still_coordinates_are_held_at_the_base_models(human, human_kin)
     assert f"axes held    {', '.join(cal.settings.hold_axes)}" in cal.text()
     rep = cal.report()
     assert rep["held_axes"] == list(dofs) and rep["settings"]["hold_axes"] == list(cal.settings.hold_axes)
+    assert rep["solver"]["rounds"] == 2 and "rounds       2 solves of the subsample" in cal.text()
     with pytest.raises(CalibrateError, match="'shoulder_r_flexion' is not a hinge or universal-joint coordinate"):
         calibrate(human, trial, Settings(hold_axes=("shoulder_r_flexion",)))
 
