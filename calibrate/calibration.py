@@ -125,6 +125,7 @@ class Calibration:
     mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
     notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
+    neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
 
     @property
     def trial(self) -> Trial:
@@ -379,7 +380,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
 # ---------------------------------------------------------------------- calibrate
 def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings | None = None, *,
               marker_map: Mapping[str, Sequence[str]] | None = None, aliases: bool = True,
-              kinematics: Kinematics | None = None, mass: float | None = None,
+              kinematics: Kinematics | None = None, mass: float | None = None, neutral: int | None = None,
               progress: Callable[[str], None] | None = None) -> Calibration:
     """Calibrate `model` to one trial or several trials of one subject: the subject's scales, joint
     centres, hinge axes and marker positions (shared by every trial), and every frame's
@@ -392,6 +393,10 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     those that fit no segment are left out and listed.
     `mass`: the subject's body mass (kg); the written model's segment masses (and inertias) are
     the base model's scaled to it, as OpenSim's Scale tool does (None: the base model's kept).
+    `neutral`: index of the trial in which the subject stands in the model's neutral pose (a static
+    trial): every segment frame that markers do not fix (see docs/calibration.md, gauges) is turned
+    so that the joint angles of that trial are zero on average, as a lab's static calibration
+    defines them (None: the frames sit where the priors put them).
     Raises CalibrateError with one line if the trials and model share too few markers or frames.
     """
     trials = (trials,) if isinstance(trials, Trial) else tuple(trials)
@@ -425,15 +430,19 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if bad:
         raise CalibrateError(f"hold_axes: '{bad[0]}' is not a hinge or universal-joint coordinate of "
                              f"{model.path.name}; use one of {', '.join(axis_dofs[:6])}, ... (see calibrate inspect)")
+    if neutral is not None and not (isinstance(neutral, int) and 0 <= neutral < len(trials)):
+        raise CalibrateError(f"neutral: {neutral!r} is not the index of one of the {len(trials)} trials "
+                             f"(0 for the first)")
     with threadpool_limits(limits=1, user_api="blas"):
-        cal = _calibrate(model, trials, settings, kinematics, progress)
+        cal = _calibrate(model, trials, settings, kinematics, progress, neutral)
     cal.label_maps = label_maps
     cal.mass = None if mass is None else float(mass)
+    cal.neutral = neutral
     return cal
 
 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,
-               progress: Callable[[str], None] | None) -> Calibration:
+               progress: Callable[[str], None] | None, neutral: int | None = None) -> Calibration:
     say = progress or (lambda msg: None)
     times: dict[str, float] = {}
     where = ", ".join(t.source or "trial" for t in trials)
@@ -496,6 +505,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
     t0 = time.perf_counter()
+    in_neutral = None
+    if neutral is not None:
+        in_neutral = np.zeros(problem.F, dtype=bool)
+        in_neutral[spans[neutral]] = True
     problem, state, summary = _solve(problem, start, spans, say)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = problem.settings
@@ -521,6 +534,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             say("solve: again without the outliers")
             state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
             summary = _merge(summary, again)
+    if in_neutral is not None:
+        # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
+        say(f"solve: segment frames turned to zero joint angles in {trials[neutral].source or 'the neutral trial'}")
+        state = align_neutral(problem, state, in_neutral)
+        summary.final_cost = problem.cost(state)
+        summary.termination += "; then the segment frames turned to the neutral trial (the priors' cost changes)"
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     lin = problem.linearize(state, reuse=problem.scratch.pop(("lin", False), None))
@@ -842,6 +861,28 @@ def align_gauge(problem: Problem, state: State) -> State:
     aligned = State(Z, Q, p)
     aligned, _ = levenberg_marquardt(problem, aligned, pose_only=True, max_iterations=20)
     return aligned
+
+
+def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
+    """Turn every free segment frame but the root's (Problem.neutral_frames) so that the frames
+    marked `neutral` have zero joint angles on average, a tree level at a time (a turn changes the
+    ball angles below it, which are re-solved before the next level); the data fit is unchanged."""
+    model = problem.model
+    depth = {model.segments[0].name: 0}
+    for j in model.joints:  # parents come first
+        depth[j.child] = depth[j.parent] + 1
+    segs = [(si, kind) for si, kind in problem._gauges if kind != "rigid"]
+    into = {j.child: j for j in model.joints}
+    for level in sorted({depth[model.segments[si].name] for si, _ in segs}):
+        here = [(si, kind) for si, kind in segs if depth[model.segments[si].name] == level]
+        p, moves = problem.neutral_frames(state.p, state.Z[neutral], here)
+        Z = state.Z.copy()
+        for si, kind, G, _ in moves:
+            if kind == "axis":  # G turns about the hinge's (last) axis: its angle follows
+                d = model.dof_index(into[model.segments[si].name].dofs[-1])
+                Z[:, 6 + d] += float(Rotation.from_matrix(G).as_rotvec() @ problem._axis(state.p, d))
+        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p), pose_only=True, max_iterations=20)
+    return state
 
 
 def _merge(a: SolverSummary, b: SolverSummary) -> SolverSummary:

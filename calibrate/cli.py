@@ -211,6 +211,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")
+    ap.add_argument("--neutral", type=_positive_int, default=None, metavar="K",
+                    help="trial K (1 = the first) shows the subject standing in the model's neutral pose (a static "
+                         "trial): segment frames are turned so that its joint angles are zero")
     ap.add_argument("--mass", type=_positive_float, default=None,
                     help="subject's body mass in kg: segment masses and inertias are the base model's scaled to "
                          "it (default: the base model's masses kept)")
@@ -353,8 +356,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
                           trial.first_frame + idx.start, trial.source)
     load_s = time.perf_counter() - t0
+    if args.neutral is not None and args.neutral > len(trials):
+        raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of the "
+                             f"static trial (1 = the first)")
     cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
-                    progress=say)
+                    neutral=None if args.neutral is None else args.neutral - 1, progress=say)
     if cal.ignored_labels:
         why = "are not markers of" if not settings.new_markers else "ride on no segment of"
         print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "

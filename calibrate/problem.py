@@ -54,6 +54,7 @@ LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 LOSSES = ("linear", "huber", "cauchy")
 EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
+FrameTurn = tuple[int, str, np.ndarray, np.ndarray]  # (segment, gauge kind, rotation G, shift t) of a frame turn
 EVAL_PAD = 32  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
 
 
@@ -351,7 +352,7 @@ class Problem:
                 out.append((si, "axis"))
         return out
 
-    def align_frames(self, p: np.ndarray) -> tuple[np.ndarray, list[tuple[int, str, np.ndarray, np.ndarray]]]:
+    def align_frames(self, p: np.ndarray) -> tuple[np.ndarray, list[FrameTurn]]:
         """Turn each free segment frame (see gauge_constraints) to where the priors want it.
 
         Per segment (parents first), the rotation G (root: and shift t) that best carries the
@@ -420,6 +421,41 @@ class Problem:
                 G = Vt.T @ D @ U.T  # G @ x0 ≈ x
             self._turn(out, si, G, t)
             moves.append((si, kind, G, t))
+        return out, moves
+
+    def neutral_frames(self, p: np.ndarray, Z: np.ndarray,
+                       segments: list[tuple[int, str]]) -> tuple[np.ndarray, list[FrameTurn]]:
+        """Turn the frames of `segments` (free ones, from self._gauges; not the root) so that the
+        coordinates of the frames Z (F, nz) — a trial in the model's neutral pose — are zero on average:
+        below a ball joint, by the mean (chordal) rotation of the joint in those frames; below a
+        hinge or universal joint, about its last axis by the mean angle.  The contents are turned
+        as in align_frames; returns the new p and (segment, kind, G, 0) per segment."""
+        from scipy.spatial.transform import Rotation
+
+        m = self.model
+        out = p.copy()
+        moves = []
+        into = {j.child: j for j in m.joints}
+        for si, kind in segments:
+            j = into[m.segments[si].name]
+            if kind == "rotation":
+                R = np.broadcast_to(np.eye(3), (Z.shape[0], 3, 3))
+                R0 = np.eye(3)
+                for u in (self._urdf[n] for n in j.urdf_joints):
+                    turn = np.eye(3) if u.dof < 0 else \
+                        Rotation.from_rotvec(np.outer(Z[:, 6 + u.dof], self._axis(out, u.dof))).as_matrix()
+                    R = R @ u.rotation @ turn
+                    R0 = R0 @ u.rotation
+                U, _, Vt = np.linalg.svd(R.sum(axis=0))
+                mean = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+                G = mean.T @ R0
+            elif kind == "axis":
+                d = m.dof_index(j.dofs[-1])
+                G = Rotation.from_rotvec(-float(np.mean(Z[:, 6 + d])) * self._axis(out, d)).as_matrix()
+            else:
+                continue
+            self._turn(out, si, G)
+            moves.append((si, kind, G, np.zeros(3)))
         return out, moves
 
     def _turn(self, out: np.ndarray, si: int, G: np.ndarray, t: np.ndarray | None = None) -> None:

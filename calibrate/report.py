@@ -90,6 +90,7 @@ def calibration_report(cal) -> dict:
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
+        "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
@@ -149,6 +150,9 @@ def summary_text(cal) -> str:
                               f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
+        *([f"  neutral      segment frames turned so that the joint angles of "
+           f"{cal.trials[cal.neutral].source or f'trial {cal.neutral + 1}'} are zero on average"]
+          if cal.neutral is not None else []),
         *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
            + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]
           if cal.settings.hold_axes else []),

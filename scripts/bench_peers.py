@@ -1,8 +1,9 @@
-"""Benchmark calibrate against its peers on one synthetic squat trial whose truth is known.
+"""Benchmark calibrate against its peers on one synthetic squat (or gait) trial whose truth is known.
 
 1. A squat trial of a random subject (`calibrate.simulate.simulate_squats`, 1 mm noise) and a
    1 s static trial of the same subject standing in the neutral pose
-   (`calibrate.simulate.simulate_static`, same noise); the base model (models/human.urdf)
+   (`calibrate.simulate.simulate_static`, same noise); `--motion gait`: a treadmill walking trial
+   (`calibrate.simulate.simulate_gait`) in place of the squats; the base model (models/human.urdf)
    exported to .osim (`calibrate.opensim_export`), both trials to .trc.
 2. calibrate: `calibrate.calibrate(base model, squat trial)` (after one untimed warm-up that fills
    the compiled-code cache), scored by `calibrate.evaluate.compare_to_truth`.
@@ -34,7 +35,8 @@ OpenSim runs in a child process of this script (``--_opensim``) that never impor
 the opensim 4.6 wheel bundles a libcasadi with the same soname as, but another ABI than, the
 casadi wheel calibrate needs, so the two cannot live in one process.
 
-    python scripts/bench_peers.py [--frames 1000] [--seed 0] [--noise-mm 1] [--quick] [--json] [--keep DIR]
+    python scripts/bench_peers.py [--frames 1000] [--seed 0] [--noise-mm 1] [--motion squats|gait] [--quick] [--json]
+                                  [--keep DIR]
                                   [--static-weight 1] [--no-opensim] [--no-nimble] [--from-json FILE]
 """
 
@@ -264,12 +266,13 @@ def _read_scale_factors(path: Path) -> dict[str, float]:
 
 
 # ====================================================================== data
-def make_trials(model, frames: int, noise_mm: float, seed: int):
-    """The squat simulation and a static trial of the same subject (calibrate.simulate.simulate_static:
+def make_trials(model, frames: int, noise_mm: float, seed: int, motion: str = "squats"):
+    """The squat (or gait) simulation and a static trial of the same subject (calibrate.simulate.simulate_static:
     standing in the neutral pose, a few mm of sway, about 0.5 deg of drift per joint)."""
-    from calibrate.simulate import simulate_squats, simulate_static
+    from calibrate.simulate import simulate_gait, simulate_squats, simulate_static
 
-    sim = simulate_squats(model, frames=frames, noise_mm=noise_mm, seed=seed)
+    simulate = simulate_gait if motion == "gait" else simulate_squats
+    sim = simulate(model, frames=frames, noise_mm=noise_mm, seed=seed)
     n = max(2, int(round(STATIC_SECONDS * sim.trial.rate)))
     static = simulate_static(model, sim.truth, frames=n, rate=sim.trial.rate, noise_mm=noise_mm, seed=seed + 1)
     return sim, static.trial
@@ -481,8 +484,8 @@ def collect(a: argparse.Namespace, log) -> dict:
     from calibrate.opensim_export import export_osim
 
     model = load_model(MODEL)
-    log(f"simulating {a.frames} squat frames and a {STATIC_SECONDS:g} s static trial (seed {a.seed})...")
-    sim, static = make_trials(model, a.frames, a.noise_mm, a.seed)
+    log(f"simulating {a.frames} {a.motion} frames and a {STATIC_SECONDS:g} s static trial (seed {a.seed})...")
+    sim, static = make_trials(model, a.frames, a.noise_mm, a.seed, a.motion)
     truth = truth_of(sim)
     work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="bench_peers_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -506,7 +509,8 @@ def collect(a: argparse.Namespace, log) -> dict:
             r["time_ratio"] = r["time_s"] / base
     return {"date": datetime.date.today().isoformat(), "machine": f"{platform.processor() or platform.machine()}, "
             f"{os.cpu_count()} cores", "python": platform.python_version(), "frames": a.frames,
-            "static_frames": static.n_frames, "rate_hz": sim.trial.rate, "noise_mm": a.noise_mm, "seed": a.seed,
+            "motion": a.motion, "static_frames": static.n_frames, "rate_hz": sim.trial.rate, "noise_mm": a.noise_mm,
+            "seed": a.seed,
             "floor_rms_mm": rows["calibrate"]["floor_rms_mm"], "scale_pairs": SCALE_PAIRS,
             "static_coordinate_weight": a.static_weight, "nimble_symmetric": a.nimble_symmetric, "rows": rows,
             "kinds": truth["kinds"]}
@@ -517,7 +521,8 @@ def _f(x, spec: str) -> str:
 
 
 def report(res: dict) -> None:
-    print(f"Peers on one synthetic squat trial: {res['frames']} frames at {res['rate_hz']:g} Hz, "
+    kind = "gait" if res.get("motion") == "gait" else "squat"
+    print(f"Peers on one synthetic {kind} trial: {res['frames']} frames at {res['rate_hz']:g} Hz, "
           f"{res['noise_mm']:g} mm noise, seed {res['seed']} (+ a {res['static_frames']}-frame static trial for "
           f"OpenSim's ScaleTool); noise floor (true model refitted) {res['floor_rms_mm']:.3f} mm")
     head = ("method", "ball ctr med mm", "ball ctr max mm", "hinge ctr max mm", "hinge axis max deg",
@@ -572,6 +577,8 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=None, help="squat trial frames (default 1000; quick 300)")
     ap.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     ap.add_argument("--noise-mm", type=float, default=1.0, help="marker noise SD in mm (default 1)")
+    ap.add_argument("--motion", choices=("squats", "gait"), default="squats",
+                    help="the movement trial: squats (default) or treadmill gait (calibrate.simulate.simulate_gait)")
     ap.add_argument("--quick", action="store_true", help="a short run (300 frames)")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     ap.add_argument("--static-weight", type=float, default=1.0,

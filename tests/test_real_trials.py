@@ -13,6 +13,7 @@ import pinocchio as pin
 import pytest
 
 from calibrate.calibration import calibrate
+from calibrate.errors import CalibrateError
 from calibrate.evaluate import compare_to_truth
 from calibrate.kinematics import build_kinematics
 from calibrate.model import add_markers, load_model
@@ -127,6 +128,29 @@ def test_static_and_movement_trials_share_the_subject(human):
     # The static pose, through the shared geometry: every marker where the truth puts it.
     est = _world(human, both.params, both.motions[0])
     assert 1000 * np.median(np.linalg.norm(est - static.clean_markers, axis=2)) < 1.5
+
+
+def test_neutral_static_trial_sets_the_zero_of_the_joint_angles(human):
+    """With the static trial named neutral, the segment frames are turned so that its joint angles
+    are zero on average (as the simulator's truth has them), without changing the fit: every hinge
+    angle of the movement trial then carries no constant offset against the truth."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=3)
+    static = simulate_static(human, sim.truth, frames=100, seed=4)
+    free = calibrate(human, [static.trial, sim.trial])
+    cal = calibrate(human, [static.trial, sim.trial], neutral=0)
+    assert cal.neutral == 0 and free.neutral is None
+    assert cal.marker_rms == pytest.approx(free.marker_rms, rel=1e-6)  # a change of gauge: the fit stays
+    hinges = [human.dof_index(j.dofs[0]) for j in human.joints if j.kind == "hinge"]
+    mean_static = np.degrees(cal.motions[0].angles.mean(axis=0))
+    assert np.abs(mean_static[hinges]).max() < 0.05, mean_static[hinges]
+    err = np.degrees(cal.motions[1].angles - sim.motion.angles)[:, hinges]
+    raw, offset_free = np.sqrt((err**2).mean(0)), err.std(0)
+    assert np.all(raw <= offset_free + 0.6), (raw, offset_free)  # the truth's static angles drift by 0.5 deg
+    err0 = np.degrees(free.motions[1].angles - sim.motion.angles)[:, hinges]
+    assert np.sqrt((err0**2).mean()) > 2 * np.sqrt((err**2).mean())  # the priors' frames: offsets of degrees
+    assert "neutral      segment frames turned" in cal.text() and cal.report()["neutral_trial"] == 0
+    with pytest.raises(CalibrateError, match="neutral: 2 is not the index"):
+        calibrate(human, [static.trial, sim.trial], neutral=2)
 
 
 def test_static_trial_alone_scales_and_flags_what_it_cannot_identify(human):
