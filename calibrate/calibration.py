@@ -871,7 +871,7 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
     depth = {model.segments[0].name: 0}
     for j in model.joints:  # parents come first
         depth[j.child] = depth[j.parent] + 1
-    segs = [(si, kind) for si, kind in problem._gauges if kind != "rigid"]
+    segs = [(si, kind) for si, kind in problem.neutral_gauges() if kind != "rigid"]
     into = {j.child: j for j in model.joints}
     for level in sorted({depth[model.segments[si].name] for si, _ in segs}):
         here = [(si, kind) for si, kind in segs if depth[model.segments[si].name] == level]

@@ -316,12 +316,14 @@ class Problem:
         self._slides = [ji for ji, j in enumerate(m.joints) if j.kind == "hinge" and "centre" in free
                         and ("marker" in free or not np.any(self.marker_segment == m.segment_index(j.child)))]
 
-    def _find_gauges(self) -> list[tuple[int, str]]:
+    def _find_gauges(self, through_held: bool = False) -> list[tuple[int, str]]:
         """Segments whose frame can turn (root: also shift) with no effect on the data, because
-        everything expressed in it is free: (segment index, 'rigid' | 'rotation' | 'axis')."""
+        everything expressed in it is free: (segment index, 'rigid' | 'rotation' | 'axis').
+        `through_held`: a held axis may be re-expressed in a turned frame (its direction against
+        the markers kept; Problem.neutral_gauges), else it blocks the turn as a locked DoF does."""
         m, free = self.model, set(self.settings.free)
         # A held axis is fixed in its parent's frame (and its child's), as a locked coordinate's is.
-        locked = {name for name, _ in self.settings.lock} | set(self.settings.hold_axes)
+        locked = {name for name, _ in self.settings.lock} | (set() if through_held else set(self.settings.hold_axes))
         out = []
         into = {j.child: j for j in m.joints}
 
@@ -422,6 +424,11 @@ class Problem:
             self._turn(out, si, G, t)
             moves.append((si, kind, G, t))
         return out, moves
+
+    def neutral_gauges(self) -> list[tuple[int, str]]:
+        """The segment frames that a neutral trial may turn (neutral_frames): the gauges, held axes
+        not blocking (a held axis keeps its direction against the markers, re-expressed)."""
+        return self._find_gauges(through_held=True)
 
     def neutral_frames(self, p: np.ndarray, Z: np.ndarray,
                        segments: list[tuple[int, str]]) -> tuple[np.ndarray, list[FrameTurn]]:
