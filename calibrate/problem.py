@@ -342,9 +342,7 @@ class Problem:
             # A locked coordinate cannot absorb a turn of the frame below it, nor turn with a kid's axis.
             if seg.name in into and any(d in locked for d in into[seg.name].dofs):
                 continue
-            if any(d in locked for j in kids if j.kind in ("hinge", "universal") for d in j.dofs):
-                continue
-            if held_below(seg.name):  # the turn would be carried down (_turn) into a held axis
+            if held_below(seg.name):  # a kid's axis, or the turn carried down (_turn) into a held axis
                 continue
             if si == 0:
                 out.append((si, "rigid"))
@@ -432,7 +430,7 @@ class Problem:
 
     def neutral_frames(self, p: np.ndarray, Z: np.ndarray,
                        segments: list[tuple[int, str]]) -> tuple[np.ndarray, list[FrameTurn]]:
-        """Turn the frames of `segments` (free ones, from self._gauges; not the root) so that the
+        """Turn the frames of `segments` (from neutral_gauges; not the root) so that the
         coordinates of the frames Z (F, nz) — a trial in the model's neutral pose — are zero on average:
         below a ball joint, by the mean (chordal) rotation of the joint in those frames; below a
         hinge or universal joint, about its last axis by the mean angle.  The contents are turned
