@@ -108,8 +108,9 @@ def main() -> None:
     for seed in range(a.seeds):
         rows.append(one_seed(model, a.frames, seed))
         print(f"bench_limits: seed {seed} done", file=sys.stderr, flush=True)
+    m = machine()
     out = {"frames": a.frames, "seeds": a.seeds, "date": datetime.date.today().isoformat(),
-           "machine": f"{machine()['cpu']}, {machine()['cores']} cores",
+           "machine": f"{m['cpu']}, {m['cores']} cores",
            "rows": rows, "summary": summarise(rows)}
     if a.json:
         print(json.dumps(out, default=lambda v: None if isinstance(v, float) and math.isnan(v) else v))
