@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .kinematics import IDENTITY, Kinematics
+from .kinematics import IDENTITY, Kinematics, retract_root
 from .model import Model, Parameters
 from .motion import Motion
 from .trial import Trial
@@ -115,7 +115,8 @@ class _FrameSolver:
         rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
         target = obs[seen_mk].ravel()
         free = np.asarray(free)
-        rot = bool(np.isin(np.concatenate([[3, 4, 5], self.ball_cols]), free).any())
+        rot = bool(np.isin([3, 4, 5], free).any())
+        balls = bool(np.isin(self.ball_cols, free).any())
         dof_cols = np.setdiff1d(free[free >= 6], self.ball_cols)  # no limits on SO(3) increments
         lo, hi = self.lower[dof_cols - 6], self.upper[dof_cols - 6]
         position = {int(c): i for i, c in enumerate(free)}
@@ -145,8 +146,9 @@ class _FrameSolver:
                 zn[free] += step
                 qn = q
                 if rot:
-                    zr, qr = self.kin.retract_refs(zn, q)
-                    zn, qn = zr[0], qr[0]
+                    qn = q.copy()
+                    qn[:4] = retract_root(q[:4], zn[3:6])
+                    zn[3:6] = 0.0
                 rn, Jn, outn = evaluate(zn, qn)
                 cn = rn @ rn
                 if cn < cost or lam > 1e10:
@@ -159,6 +161,9 @@ class _FrameSolver:
             z, q, r, J, out, cost = zn, qn, rn, Jn, outn, cn
             if rel < tol or np.linalg.norm(step) < 1e-8:
                 break
+        if balls:  # the balls' increments folded once per solve: the next starts at full rank
+            zr, qr = self.kin.retract_refs(z, q)
+            z, q = zr[0], qr[0]
         return z, q, cost, used
 
     def global_start(self, obs, seen):
