@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ._text import atomic_write_text
 from .errors import ModelError
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters, write_model
@@ -77,7 +78,7 @@ OVERHEAD_ARC = (1.6, 2.4)  # s: one serve or throw arc of an arm
 OVERHEAD_PEAK = (155.0, 172.0)  # deg: shoulder flexion (serve) or abduction (throw) at the top of an arc
 # DoF-name suffix -> fraction of its swept interval below the standing angle (0) in simulate_overhead's
 # whole-body arcs (default 0.5: centred); the squat-coupled ones deepen with the squat.
-REACH_START = {"hip_flexion": 0.15, "knee": 0.03, "ankle": 0.5, "lumbar_flexion": 0.25, "elbow": 0.05}
+REACH_START = {"hip_flexion": 0.15, "knee": 0.03, "ankle": 0.4, "lumbar_flexion": 0.25, "elbow": 0.05}
 SQUAT_COUPLED = ("hip_flexion", "knee", "ankle", "lumbar_flexion")
 _STREAMS = {"size": 1, "sta": 2, "gaps": 3, "corrupt": 4, "realistic": 5}
 
@@ -328,17 +329,18 @@ MOTIONS = {"squats": simulate_squats, "gait": simulate_gait, "overhead": simulat
 def simulate_realistic(model: Model, seed: int = 0, frames: int = 1000, rate: float = 100.0,
                        noise_mm: float = 1.0, *, motion: str = "overhead", reach: float = 0.7, sta_mm: float = 3.0,
                        height: float | None = None, gap_fraction: float = 0.05, swaps: int = 3,
-                       spikes: int = 5) -> Simulation:
+                       spikes: int = 5, gaps: bool = False) -> Simulation:
     """A trial as a lab records it, for benchmarks: overhead arm arcs with every other joint sweeping
     70 % of its range in squat-like arcs (`motion`, `reach`), 3 mm soft-tissue artefact, a random
     stature in 1.5-2.0 m (unless `height`), 5 % of marker samples in gaps, 3 swapped-label episodes,
-    5 spikes and 1 mm noise.  Every figure can be overridden."""
+    5 spikes and 1 mm noise.  Every figure can be overridden (`gaps=True` with `gap_fraction=0`: the
+    occlusions of `occlusions` instead)."""
     if motion not in MOTIONS:
         raise ValueError(f"motion: one of {', '.join(MOTIONS)}, got '{motion}'")
     if height is None:
         height = float(_stream(seed, "realistic").uniform(*REALISTIC_HEIGHTS))
     extra = {"reach": reach} if motion == "overhead" else {}
-    return MOTIONS[motion](model, frames, rate, noise_mm, False, seed, sta_mm=sta_mm, height=height,
+    return MOTIONS[motion](model, frames, rate, noise_mm, gaps, seed, sta_mm=sta_mm, height=height,
                            gap_fraction=gap_fraction, swaps=swaps, spikes=spikes, **extra)
 
 
@@ -421,15 +423,15 @@ def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, r
             elif key == "shoulder_adduction":  # negative = abduction
                 th = (deg(-15) + deg(8) * own) * rest + serve * deg(-10) - throw * np.radians(peak)
             else:  # the humerus turns out and in about its long axis during each arc
-                th = (deg(15) * own * rest + deg(45) * np.sin(2 * np.pi * u_s) * np.sin(np.pi * u_s)
-                      - deg(60) * np.sin(2 * np.pi * u_t) * np.sin(np.pi * u_t))
+                th = (deg(15) * own * rest + deg(60) * np.sin(2 * np.pi * u_s) * np.sin(np.pi * u_s)
+                      - deg(80) * np.sin(2 * np.pi * u_t) * np.sin(np.pi * u_t))
             out[:, i] = np.clip(th, lo, hi)
             continue
         span = reach * (hi - lo)
         below = REACH_START.get(key, 0.5)
         start = min(max(-below * span, lo), hi - span)  # the swept interval [start, start + span]
         o = 0.5 + 0.5 * own
-        w = below + (1.0 - below) * (0.75 * squat + 0.25 * o) if key in SQUAT_COUPLED else o
+        w = 0.75 * squat + 0.25 * o if key in SQUAT_COUPLED else o
         out[:, i] = start + span * w
     return out
 
@@ -691,11 +693,36 @@ def joint_axes_world(model: Model, params: Parameters, motion: Motion) -> dict[s
 
 
 def write_simulation(sim: Simulation, out_dir: str | os.PathLike[str]) -> dict[str, Path]:
-    """Write trial.c3d, truth.urdf and truth_motion.csv into `out_dir` (created if missing)."""
+    """Write trial.c3d, truth.urdf and truth_motion.csv into `out_dir` (created if missing), and
+    truth_corruptions.csv when the trial has swapped or spiked samples (see `write_corruptions`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"trial": out / "trial.c3d", "truth": out / "truth.urdf", "motion": out / "truth_motion.csv"}
     write_c3d(paths["trial"], sim.trial)
     write_model(sim.model, paths["truth"], sim.truth)
     write_motion_csv(paths["motion"], sim.motion)
+    if sim.corruptions:
+        paths["corruptions"] = out / "truth_corruptions.csv"
+        write_corruptions(paths["corruptions"], sim.corruptions)
     return paths
+
+
+CORRUPTION_COLUMNS = ("kind", "frame", "marker", "partner", "error_mm")
+
+
+def write_corruptions(path: str | os.PathLike[str], corruptions: tuple[Corruption, ...]) -> None:
+    """CSV of the corrupted marker samples: kind (swap/spike), frame (0-based row of the trial),
+    marker (the label whose position is wrong), partner (a swap's other label), error_mm."""
+    lines = [",".join(CORRUPTION_COLUMNS)]
+    lines += [f"{c.kind},{c.frame},{c.marker},{c.partner},{1000 * c.error:.3f}" for c in corruptions]
+    atomic_write_text(Path(path), "\n".join(lines) + "\n")
+
+
+def read_corruptions(path: str | os.PathLike[str]) -> tuple[Corruption, ...]:
+    """Read a truth_corruptions.csv written by `write_corruptions` (errors back in metres)."""
+    import csv
+
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return tuple(Corruption(r["kind"], int(r["frame"]), r["marker"], r["partner"], float(r["error_mm"]) / 1000)
+                 for r in rows)
