@@ -136,6 +136,8 @@ class BallJoint:
     name: str
     dofs: tuple[int, int, int]  # indices into the DoF vector, proximal first
     axes: np.ndarray  # (3, 3): row k = the k-th revolute's unit axis (never calibrated)
+    lower: np.ndarray  # (3,) the base model's joint limits (rad; -inf if none)
+    upper: np.ndarray  # (3,)
 
     def quaternion(self, angles: np.ndarray) -> np.ndarray:
         """Unit quaternions (F, 4) of E(theta) = R(a1, t1) R(a2, t2) R(a3, t3), angles (F, 3)."""
@@ -147,41 +149,80 @@ class BallJoint:
         return q
 
     def angles(self, R: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
-        """The three angles (F, 3) with E(angles) = R (F, 3, 3), continuous from frame to frame:
-        of the two solutions (t1, t2, t3) and (t1 + π, π − t2, t3 + π) (and their 2π turns) the
-        one nearest the previous frame's is kept (the first frame: nearest `previous`, default
-        zero); in gimbal lock (t2 = ±90°, where only t1 ± t3 is defined) t1 keeps its previous value."""
+        """The three angles (F, 3) with E(angles) = R (F, 3, 3) for a trial's frames, continuous
+        over time on one branch.  Each rotation has two solutions, (t1, t2, t3) and (t1 + π,
+        π − t2, t3 + π), plus 2π turns of each angle.  The branch of every frame is chosen by
+        dynamic programming over the trial (Viterbi, two states): each frame costs how far its
+        angles lie outside the joint's limits, each step between frames the squared change of
+        the angles (mod 2π); so the path is the smooth one that stays in the range of motion, and
+        near the gimbal lock (t2 → ±90°, where the two solutions meet and t1, t3 are individually
+        ill-conditioned) it does not wander onto the other branch.  The angles are then unwrapped
+        (no 2π jumps) and each is turned by whole turns so that its median lies nearest the middle
+        of its limits (or, given `previous` (3,), its first frame nearest that).  In exact gimbal
+        lock, where only t1 ± t3 is defined, t1 keeps the previous frame's value."""
         B = self.axes.T.copy()  # columns a1, a2, a3
-        flip = np.linalg.det(B) < 0
-        if flip:  # a left-handed axis order: R(-a3, -t3) = R(a3, t3)
-            B[:, 2] = -B[:, 2]
+        sign = np.array([1.0, 1.0, -1.0 if np.linalg.det(B) < 0 else 1.0])
+        B[:, 2] *= sign[2]  # a left-handed axis order: R(-a3, -t3) = R(a3, t3)
+        lower, upper = self.lower * sign, self.upper * sign
+        lower[2], upper[2] = min(lower[2], upper[2]), max(lower[2], upper[2])
         M = np.einsum("ji,fjk,kl->fil", B, R, B)  # intrinsic x-y-z rotations in the axes' basis
         t2 = np.arctan2(M[:, 0, 2], np.hypot(M[:, 0, 0], M[:, 0, 1]))
         t1 = np.arctan2(-M[:, 1, 2], M[:, 2, 2])
         t3 = np.arctan2(-M[:, 0, 1], M[:, 0, 0])
         plus = np.arctan2(M[:, 1, 0], M[:, 1, 1])  # t1 + t3 where t2 = +90°, t3 - t1 where t2 = -90°
-        c2 = np.cos(t2)
-        out = np.empty((R.shape[0], 3))
-        prev = np.zeros(3) if previous is None else np.array(previous, dtype=float)
-        if flip:
-            prev[2] = -prev[2]
-        for f in range(R.shape[0]):
-            if abs(c2[f]) < SINGULAR_COS:
-                # only t1 + t3 (t2 = +90°) or t3 - t1 (t2 = -90°) is fixed: keep t1, the rest in t3
-                a = prev[0]
-                cands = [(a, t2[f], plus[f] - a if t2[f] > 0 else plus[f] + a)]
-            else:
-                cands = [(t1[f], t2[f], t3[f]), (t1[f] + math.pi, math.pi - t2[f], t3[f] + math.pi)]
-            best, dist = None, math.inf
-            for cand in cands:
-                v = np.array(cand) + 2 * math.pi * np.round((prev - np.array(cand)) / (2 * math.pi))
-                d = float(np.sum((v - prev) ** 2))
-                if d < dist:
-                    best, dist = v, d
-            out[f] = prev = best
-        if flip:
-            out[:, 2] = -out[:, 2]
-        return out
+        singular = np.abs(np.cos(t2)) < SINGULAR_COS
+        F = R.shape[0]
+        cand = np.stack([np.column_stack([t1, t2, t3]), np.column_stack([t1 + math.pi, math.pi - t2, t3 + math.pi])])
+        cand = _wrap(cand)
+        node = np.sum(_outside(cand, lower, upper) ** 2, axis=2)  # (2, F)
+        prev = None if previous is None else _wrap(np.asarray(previous, dtype=float) * sign)
+        # Viterbi over the non-singular frames (2 states: the branch).
+        cost = node[:, 0].copy() if prev is None else node[:, 0] + np.sum(_wrap(cand[:, 0] - prev) ** 2, axis=1)
+        back = np.zeros((F, 2), dtype=int)
+        last = 0
+        for f in range(1, F):
+            if singular[f]:
+                back[f] = (0, 1)
+                continue
+            step = np.sum(_wrap(cand[:, f][:, None] - cand[:, last][None, :]) ** 2, axis=2)  # (now, before)
+            total = cost[None, :] + step
+            back[f] = np.argmin(total, axis=1)
+            cost = node[:, f] + total[np.arange(2), back[f]]
+            last = f
+        branch = np.zeros(F, dtype=int)
+        b = int(np.argmin(cost))
+        for f in range(F - 1, -1, -1):
+            branch[f] = b
+            if not singular[f]:
+                b = back[f, b]
+        out = cand[branch, np.arange(F)]
+        for f in np.flatnonzero(singular):  # only t1 + t3 or t3 - t1 is defined: keep t1
+            a = out[f - 1, 0] if f else (0.0 if prev is None else prev[0])
+            out[f, 0] = a
+            out[f, 2] = plus[f] - a if t2[f] > 0 else plus[f] + a
+        out = np.unwrap(out, axis=0)
+        if prev is not None:
+            target, at = prev, out[0]
+        else:
+            mid = np.where(np.isfinite(lower) & np.isfinite(upper), 0.5 * (lower + upper), 0.0)
+            target, at = mid, np.median(out, axis=0)
+        out += 2 * math.pi * np.round((target - at) / (2 * math.pi))
+        return out * sign
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles wrapped into (-π, π]."""
+    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+
+
+def _outside(a: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """How far angles a (wrapped) lie outside [lower, upper], on the circle (0 inside; infinite
+    limits: 0)."""
+    finite = np.isfinite(lower) & np.isfinite(upper)
+    lo, hi = np.where(finite, lower, -np.pi), np.where(finite, upper, np.pi)
+    mid = 0.5 * (lo + hi)
+    d = np.abs(_wrap(a - mid))  # distance from the middle of the range, along the shorter way
+    return np.where(finite, np.maximum(d - 0.5 * (hi - lo), 0.0), 0.0)
 
 
 def so3_balls(model: Model, euler: tuple[str, ...] = ()) -> tuple[BallJoint, ...]:
@@ -202,7 +243,9 @@ def so3_balls(model: Model, euler: tuple[str, ...] = ()) -> tuple[BallJoint, ...
         axes /= np.linalg.norm(axes, axis=1, keepdims=True)
         if not np.allclose(axes @ axes.T, np.eye(3), atol=1e-9):
             continue
-        out.append(BallJoint(j.name, tuple(u.dof for u in chain), axes))
+        lim = [model.dofs[u.dof] for u in chain]
+        out.append(BallJoint(j.name, tuple(u.dof for u in chain), axes,
+                             np.array([d.lower for d in lim]), np.array([d.upper for d in lim])))
     return tuple(out)
 
 
