@@ -455,6 +455,9 @@ def map_labels(
         rate=trial.rate,
         first_frame=trial.first_frame,
         source=trial.source,
+        model_outputs=trial.model_outputs,
+        output_kinds=trial.output_kinds,
+        output_units=trial.output_units,
     )
     matches = tuple(
         LabelMatch(trial_label=old, label=new, how=how, note=note)
