@@ -255,12 +255,13 @@ def plugin_gait_centres(trial: Trial) -> dict[str, np.ndarray]:
     - knee: the femur origin ``LFEO``/``RFEO`` (Plug-in Gait's knee joint centre, KJC);
     - ankle: the tibia origin ``LTIO``/``RTIO`` (its ankle joint centre, AJC);
     - hip: the femur proximal point ``LFEP``/``RFEP`` (its hip joint centre, HJC, from the Davis
-      regression); the pelvis bone origin ``PELO`` is the midpoint of the two.
+      regression; Plug-in Gait writes no hip-centre point of its own); the pelvis bone origin
+      ``PELO`` is the midpoint of the two.
 
     Checked on the pyCGM sample subject (docs/calibration.md, "Vicon model outputs"): ``LFEO``
     is KneeWidth/2 + marker radius from ``LKNE`` in every frame, ``LTIO`` AnkleWidth/2 + marker
-    radius from ``LANK`` (Plug-in Gait's chord function), and ``LFEP``, ``RFEP`` lie on the pelvis
-    bone's lateral axis at the mean Davis offset of the two legs from ``PELO``.
+    radius from ``LANK`` (Plug-in Gait's chord function), and ``LFEP``, ``RFEP`` sit where the
+    Davis regression with the file's own subject measurements puts the hip centres in the pelvis.
     """
     found: dict[str, np.ndarray] = {}
     for joint, names in _PIG_CENTRE_LABELS.items():
