@@ -126,6 +126,7 @@ class Calibration:
     notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
+    unresolved: tuple = ()  # calibrate.resolve.UnresolvedSegment per segment the markers cannot place (locked)
 
     @property
     def trial(self) -> Trial:
@@ -467,6 +468,21 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in unknown if lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
+    # Segments the markers cannot place (calibrate.resolve): refuse without a root pose, else lock
+    # the coordinates the markers do not see (their segments ride on their parents).
+    from .resolve import resolve
+
+    res = resolve(subject, [*shared, *new], locked=[d for d, _ in settings.lock])
+    if not res.root_resolved:
+        raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
+                             f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
+                             f"(--markers map.toml) or use a model with this marker set")
+    if res.lock:
+        say(f"markers: {len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
+            f"{', '.join(res.lock)}")
+        settings = replace(settings, lock=settings.lock + tuple(
+            (d, float(np.clip(0.0, subject.dofs[subject.dof_index(d)].lower, subject.dofs[subject.dof_index(d)].upper)))
+            for d in res.lock))
     obs = np.concatenate([marker_columns(subject, t) for t in trials])
     spans = _spans(trials)
     seen = np.all(np.isfinite(obs), axis=2)
@@ -557,7 +573,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=notes, held_axes=held)
+                       outliers=tuple(rejected), notes=notes, held_axes=held, unresolved=res.segments)
 
 
 def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:

@@ -90,6 +90,8 @@ def calibration_report(cal) -> dict:
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
+        "unresolved": [u.to_json() for u in getattr(cal, "unresolved", ())],
+        "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
@@ -214,6 +216,17 @@ def summary_text(cal) -> str:
             lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
         else:
             lines.append(f"  left out {m.label}: {m.reason}")
+    unresolved = getattr(cal, "unresolved", ())
+    if unresolved:
+        lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "
+                     f"locked): {', '.join(u.segment for u in unresolved)}")
+        for u in unresolved[:8]:
+            lines.append(f"    {u.segment}: {', '.join(u.coordinates) or '-'}: {u.reason}")
+        if len(unresolved) > 8:
+            lines.append(f"    ... and {len(unresolved) - 8} more (see the report)")
+    outputs = set().union(*(t.model_outputs for t in cal.trials))
+    if outputs:
+        lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
     if cal.ignored_labels and not any(m.segment is None for m in cal.new_markers):
         lines.append(f"  ignored trial labels (not in the model): {', '.join(cal.ignored_labels)}")
     if cal.outliers:
