@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -19,14 +20,20 @@ from .errors import CalibrateError
 DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if v < 2:
-        raise argparse.ArgumentTypeError(f"need at least 2, got {v}")
-    return v
+def _int_at_least(least: int) -> Callable[[str], int]:
+    """An argparse type: a whole number >= `least`."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+        if v < least:
+            raise argparse.ArgumentTypeError(f"need at least {least}, got {v}")
+        return v
+    return parse
+
+
+_positive_int = _int_at_least(2)  # frame counts and the like
 
 
 def _lock_arg(text: str) -> dict[str, float]:
@@ -261,7 +268,7 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")
-    ap.add_argument("--neutral", type=_positive_int, default=None, metavar="K",
+    ap.add_argument("--neutral", type=_int_at_least(1), default=None, metavar="K",
                     help="trial K (1 = the first) shows the subject standing in the model's neutral pose (a static "
                          "trial): segment frames are turned so that its joint angles are zero")
     ap.add_argument("--mass", type=_positive_float, default=None,

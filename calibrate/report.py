@@ -291,14 +291,40 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
             rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
             text = json.dumps(rep, indent=1, allow_nan=False, default=_json_default)
             atomic_write_text(staged["report"], text + "\n")
-        for kind, tmp in staged.items():
-            os.replace(tmp, targets[kind])
+        _place_all(staged, targets)
     except BaseException:
         for tmp in staged.values():
             Path(tmp).unlink(missing_ok=True)
         raise
     cal.times["write"] = time.perf_counter() - t0
     return targets
+
+
+def _place_all(staged: dict[str, Path], targets: dict[str, Path]) -> None:
+    """Rename every staged file onto its target, all or none: a file a target replaces is first
+    moved aside, and if any rename fails, the targets already placed are undone (removed, or
+    their old file moved back) before the error goes on."""
+    placed: list[tuple[Path, Path | None]] = []  # (target, where its previous file waits)
+    try:
+        for kind, tmp in staged.items():
+            target, aside = targets[kind], None
+            if target.exists():
+                fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent)
+                os.close(fd)
+                aside = Path(name)
+                os.replace(target, aside)
+            placed.append((target, aside))
+            os.replace(tmp, target)
+    except BaseException:
+        for target, aside in reversed(placed):
+            if aside is not None:
+                os.replace(aside, target)
+            else:
+                target.unlink(missing_ok=True)
+        raise
+    for _, aside in placed:
+        if aside is not None:
+            aside.unlink(missing_ok=True)
 
 
 def _json_default(o):
