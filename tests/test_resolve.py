@@ -14,6 +14,7 @@ from conftest import HUMAN, ROOT
 from calibrate.calibration import calibrate
 from calibrate.errors import CalibrateError
 from calibrate.problem import Settings
+from calibrate.report import calibration_report, summary_text
 from calibrate.resolve import resolve, unresolved
 from calibrate.simulate import simulate_squats
 from calibrate.trial import write_c3d
@@ -69,6 +70,11 @@ def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
         k = human.dof_index(dof)
         assert np.abs(cal.motion.angles[:, k] - value).max() < 1e-3, dof
     assert np.isfinite(cal.marker_rms)
+    report = calibration_report(cal)
+    assert [u["segment"] for u in report["unresolved"]] == names
+    assert "hip_l_rotation" in report["unresolved"][0]["coordinates"]
+    text = summary_text(cal)
+    assert "18 segments the markers cannot place" in text and "femur_l: " in text
 
 
 def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):
