@@ -70,6 +70,12 @@ def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
         k = human.dof_index(dof)
         assert np.abs(cal.motion.angles[:, k] - value).max() < 1e-3, dof
     assert np.isfinite(cal.marker_rms)
+    # No marker on or below a segment: the joint centres it carries and its scale stay the base model's.
+    base, below = human.parameters(), {"LKNE": "femur_l"}
+    for k, j in enumerate(human.joints):
+        if j.parent in names and j.parent not in below.values():
+            assert np.allclose(cal.params.centre[k], base.centre[k], atol=1e-9), j.name
+            assert cal.params.scale[human.segment_index(j.parent)] == pytest.approx(1.0, abs=1e-9), j.parent
     report = calibration_report(cal)
     assert [u["segment"] for u in report["unresolved"]] == names
     assert "hip_l_rotation" in report["unresolved"][0]["coordinates"]
