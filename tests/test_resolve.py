@@ -14,6 +14,7 @@ from conftest import HUMAN, ROOT
 from calibrate.calibration import calibrate
 from calibrate.errors import CalibrateError
 from calibrate.problem import Settings
+from calibrate.report import calibration_report, summary_text
 from calibrate.resolve import resolve, unresolved
 from calibrate.simulate import simulate_squats
 from calibrate.trial import write_c3d
@@ -69,6 +70,17 @@ def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
         k = human.dof_index(dof)
         assert np.abs(cal.motion.angles[:, k] - value).max() < 1e-3, dof
     assert np.isfinite(cal.marker_rms)
+    # No marker on or below a segment: the joint centres it carries and its scale stay the base model's.
+    base, below = human.parameters(), {"LKNE": "femur_l"}
+    for k, j in enumerate(human.joints):
+        if j.parent in names and j.parent not in below.values():
+            assert np.allclose(cal.params.centre[k], base.centre[k], atol=1e-9), j.name
+            assert cal.params.scale[human.segment_index(j.parent)] == pytest.approx(1.0, abs=1e-9), j.parent
+    report = calibration_report(cal)
+    assert [u["segment"] for u in report["unresolved"]] == names
+    assert "hip_l_rotation" in report["unresolved"][0]["coordinates"]
+    text = summary_text(cal)
+    assert "18 segments the markers cannot place" in text and "femur_l: " in text
 
 
 def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):
