@@ -30,6 +30,7 @@ from .geometry import kabsch_batch
 from .ik import _FrameSolver, marker_columns
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 from .kinematics import IDENTITY, Kinematics, build_kinematics
+from .labels import UNLABELLED
 from .model import Model, Parameters, add_markers, mass_factor
 from .motion import Motion
 from .problem import Problem, Settings, State, perpendicular_basis
@@ -460,13 +461,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
                              f"(--markers map.toml) or use a model with this marker set")
     t0 = time.perf_counter()
-    unknown = [lab for lab in labels if lab not in known]
+    # Unlabelled trajectories (Vicon's '*115'): ghosts, reflections or markers the operator left
+    # unnamed; nothing says which landmark they are, so they are never placed as new markers.
+    unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
     if unknown and settings.new_markers:
         say(f"markers: placing {len(unknown)} trial markers the model does not know")
         placed = _assign_new_markers(model, trials, unknown)
     new = {m.label: m.segment for m in placed if m.segment is not None}
-    ignored = tuple(lab for lab in unknown if lab not in new)
+    ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).

@@ -97,6 +97,8 @@ from pathlib import Path
 from .errors import CalibrateError
 from .trial import Trial
 
+UNLABELLED = re.compile(r"\*\d+")  # an unlabelled trajectory's label (Vicon Nexus: '*115')
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover

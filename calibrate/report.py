@@ -18,6 +18,7 @@ import numpy as np
 from . import __version__
 from ._text import atomic_write_text
 from .errors import CalibrateError
+from .labels import UNLABELLED
 from .model import mass_factor, write_model
 from .motion import write_motion_csv
 
@@ -227,8 +228,13 @@ def summary_text(cal) -> str:
     outputs = set().union(*(t.model_outputs for t in cal.trials))
     if outputs:
         lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
-    if cal.ignored_labels and not any(m.segment is None for m in cal.new_markers):
-        lines.append(f"  ignored trial labels (not in the model): {', '.join(cal.ignored_labels)}")
+    unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
+    if unlabelled:
+        lines.append(f"  {len(unlabelled)} unlabelled trajectories ignored ({', '.join(unlabelled[:4])}"
+                     f"{', ...' if len(unlabelled) > 4 else ''}): label them to use them")
+    named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
+    if named and not any(m.segment is None for m in cal.new_markers):
+        lines.append(f"  ignored trial labels (not in the model): {', '.join(named)}")
     if cal.outliers:
         per: dict[str, int] = {}
         for o in cal.outliers:

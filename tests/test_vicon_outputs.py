@@ -143,3 +143,22 @@ def test_real_plug_in_gait_files(name: str) -> None:
     # Hip centres: symmetric about PELO, the pelvis bone's origin.
     mid = (centres["hip_l"] + centres["hip_r"]) / 2
     assert np.nanmax(np.linalg.norm(mid - trial.model_outputs["PELO"], axis=1)) < 1e-4
+
+
+def test_unlabelled_trajectories_are_never_placed(human, tmp_path):
+    """Vicon's unlabelled trajectories ('*115') are left out, never placed on a segment as new
+    markers even when they ride rigidly on one (here: the midpoint of the femur's LKNE and LTHI),
+    and the summary says so in one line; a named unknown marker at the same place is placed."""
+    from calibrate import calibrate
+    from calibrate.simulate import simulate_squats
+    from calibrate.trial import Trial
+
+    sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=4)
+    k, j = sim.trial.labels.index("LKNE"), sim.trial.labels.index("LTHI")
+    extra = 0.5 * (sim.trial.markers[:, k] + sim.trial.markers[:, j])
+    trial = Trial(sim.trial.labels + ("*115", "LKNE2"), np.concatenate([sim.trial.markers, extra[:, None],
+                                                                         extra[:, None]], axis=1), sim.trial.rate)
+    cal = calibrate(human, trial)
+    assert "*115" in cal.ignored_labels and "*115" not in cal.model.marker_names
+    assert [(m.label, m.segment) for m in cal.new_markers] == [("LKNE2", "femur_l")]
+    assert "1 unlabelled trajectories ignored (*115)" in cal.text()
