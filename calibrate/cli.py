@@ -141,8 +141,8 @@ def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
     p.add_argument("--swaps", type=_count, default=None, metavar="N",
                    help="N episodes of 3-10 frames with two neighbouring markers' labels exchanged")
     p.add_argument("--spikes", type=_count, default=None, metavar="N",
-                   help="N single-frame gross errors of 30-100 mm on random markers (with --swaps: listed in "
-                        "OUT/truth_corruptions.csv)")
+                   help="N single-frame gross errors of 30-100 mm on random markers (swapped and spiked samples "
+                        "are listed in OUT/truth_corruptions.csv)")
     p.add_argument("--realistic", action="store_true",
                    help="as a lab records it: overhead arm arcs with every joint through ~70 %% of its range, "
                         "--sta-mm 3, a random stature of 1.5-2.0 m, --gap-fraction 0.05, --swaps 3, --spikes 5, "
