@@ -78,6 +78,7 @@ EXACT_BALL_MM = 0.1
 EXACT_AXIS_DEG = 0.01
 RMS_AGREE_MM = 1e-5  # recomputed vs the report's marker RMS on the clean trials (the report rounds to 1e-6 mm)
 NOISE_FREE_STATED_MM = 0.001  # noise SD the solver is told for noise-free data (as bench_calibrate.py)
+QUICK_ITERATIONS = 15  # --quick: the solver's iteration cap (settings file), so a CI smoke run stays short
 FOOT = ("ankle", "subtalar")  # hinge axes the realistic target leaves out
 # Plug-in Gait's joint centres in its output points (Vicon's segment outputs: O origin, P proximal)
 PIG_CENTRES = {"hip": "FEP", "knee": "FEO", "ankle": "TIO"}
@@ -428,7 +429,7 @@ def pig_distances(kin: UrdfKinematics, motion: Path, trial: Path) -> dict:
     return out
 
 
-def held_out(static: Path, walk: Path, tmp: Path, cap: float, log) -> dict:
+def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) -> dict:
     """Calibrate on static + the walk's first half, then fit the second half frame by frame with the
     subject URDF fixed: marker RMS of each (recomputed with Pinocchio from the files)."""
     from calibrate.ik import inverse_kinematics
@@ -444,7 +445,7 @@ def held_out(static: Path, walk: Path, tmp: Path, cap: float, log) -> dict:
     first, second = slice_c3d(walk, d / "walk_first.c3d", 0, half), slice_c3d(walk, d / "walk_second.c3d", half, n)
     st = shutil.copy(static, d / "static.c3d")
     log(f"held-out: calibrating on static + walk frames 0:{half}")
-    run = calibrate_cli([Path(st), first], d, cap)
+    run = calibrate_cli([Path(st), first], d, cap, extra)
     if "error" in run:
         return {"error": run["error"]}
     rep = run["report"]
@@ -502,7 +503,7 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     else:
         st, wk = Path(shutil.copy(static, d / "static.c3d")), Path(shutil.copy(walk, d / "walk.c3d"))
     log("pig_walk: calibrate static.c3d walk.c3d")
-    run = calibrate_cli([st, wk], d, cap)
+    run = calibrate_cli([st, wk], d, cap, a.extra)
     if "error" in run:
         return {"error": run["error"], "command": run["command"]}
     out = run_figures(run)
@@ -511,7 +512,7 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     big = {j: v for j, v in out["shift_mm"].items() if v > SHIFT_MM}
     out["shifts_over_target"] = {j: {"shift_mm": v, "pig_mm": out["pig_centres"].get(j, {}).get("median_mm")}
                                  for j, v in sorted(big.items(), key=lambda kv: -kv[1])}
-    out["held_out"] = held_out(st, wk, d, cap, log)
+    out["held_out"] = held_out(st, wk, d, cap, log, a.extra)
     return out
 
 
@@ -541,7 +542,7 @@ def section_realistic(a, tmp: Path, cap: float, log) -> dict:
     if err:
         return {**err, "realistic": realistic}
     log("realistic: calibrate trial.c3d")
-    run = calibrate_cli([d / "trial.c3d"], d, cap)
+    run = calibrate_cli([d / "trial.c3d"], d, cap, a.extra)
     if "error" in run:
         return {"error": run["error"], "command": run["command"], "realistic": realistic}
     out = truth_section(d, run)
@@ -561,7 +562,7 @@ def section_clean(a, tmp: Path, cap: float, log) -> dict:
         if err:
             out[name] = err
             continue
-        run = calibrate_cli([d / "trial.c3d"], d, cap, [] if stated is None else ["--noise-mm", stated])
+        run = calibrate_cli([d / "trial.c3d"], d, cap, a.extra + ([] if stated is None else ["--noise-mm", stated]))
         if "error" in run:
             out[name] = {"error": run["error"], "command": run["command"]}
             continue
@@ -653,7 +654,7 @@ def _main_table(say, cols: list) -> None:
     head = f"{'':38s}" + "".join(f"{'pig_walk' if k == 'pig' else 'realistic':>18s}" for k, _ in cols)
     say(head + f"   {'target':s}")
     rows = [("converged", lambda r: str(r["converged"]), "yes"),
-            ("iterations on all frames (coarse)", lambda r: f"{r['iterations']} ({r['coarse_iterations']})",
+            ("iterations on all frames (coarse)", lambda r: f"{r['iterations']} ({fmt(r['coarse_iterations'], 'd')})",
              f"<= {ITERATIONS}"),
             ("% positions rejected", lambda r: f"{r['rejected_pct']:.2f} ({r['outliers']})",
              f"< {PIG_REJECTED_PCT:g} % (pig_walk)"),
@@ -683,8 +684,9 @@ def _main_table(say, cols: list) -> None:
 def report(res: dict) -> None:
     say = print
     m = res["machine"]
-    say(f"Real-data benchmark (issue 16): models/human.urdf via the command line{'; --quick' if res['quick'] else ''}; "
-        f"seed {res['seed']}")
+    quick = (f"; --quick (short trials, at most {res.get('quick_max_iterations')} solver iterations: a smoke run, "
+             "not the benchmark's figures)") if res["quick"] else ""
+    say(f"Real-data benchmark (issue 16): models/human.urdf via the command line; seed {res['seed']}{quick}")
     w = res.get("warmup", {})
     say(f"Warm-up (untimed): {fmt(w.get('seconds'))} s" + (f"; ERROR {w['error']}" if "error" in w else ""))
     cols = [(k, res[k]) for k in ("pig", "realistic") if k in res]
@@ -769,6 +771,12 @@ def collect(a: argparse.Namespace, log) -> dict:
     tmp_ctx = tempfile.TemporaryDirectory(prefix="bench_real_") if a.keep is None else None
     tmp = Path(tmp_ctx.name) if tmp_ctx else a.keep
     tmp.mkdir(parents=True, exist_ok=True)
+    a.extra = []
+    if a.quick:  # a smoke run: a few iterations are enough to exercise every step
+        cfg = tmp / "quick.toml"
+        cfg.write_text(f"max_iterations = {QUICK_ITERATIONS}\n")
+        a.extra = ["--config", cfg]
+        res["quick_max_iterations"] = QUICK_ITERATIONS
     try:
         res["warmup"] = warm_up(tmp, cap, log)
         if "pig" in only:
