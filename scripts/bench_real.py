@@ -588,6 +588,8 @@ def checks(res: dict) -> list[tuple[str, bool]]:
     p = res.get("pig", {})
     if "converged" in p:
         out += [(f"pig_walk: converged ({p['termination']})", p["converged"]),
+                (f"pig_walk: {p['iterations']} iterations on all frames <= {ITERATIONS}",
+                 p["iterations"] <= ITERATIONS),
                 (f"pig_walk: {p['rejected_pct']:.2f} % of positions rejected < {PIG_REJECTED_PCT:g} %",
                  p["rejected_pct"] < PIG_REJECTED_PCT),
                 (f"pig_walk: L/R asymmetry {p['asymmetry_pct']:.1f} % ({p['worst']}) <= {ASYMMETRY_PCT:g} %",
@@ -612,6 +614,7 @@ def checks(res: dict) -> list[tuple[str, bool]]:
         t = r["truth"]
         tag = "realistic" if r["realistic"] else "realistic (plain simulator standing in)"
         out += [(f"{tag}: converged ({r['termination']})", r["converged"]),
+                (f"{tag}: {r['iterations']} iterations on all frames <= {ITERATIONS}", r["iterations"] <= ITERATIONS),
                 (f"{tag}: ball centres median {t['ball_median_mm']:.2f} mm <= {REAL_BALL_MEDIAN_MM:g} mm",
                  t["ball_median_mm"] <= REAL_BALL_MEDIAN_MM),
                 (f"{tag}: ball centres worst {t['ball_max_mm']:.2f} mm ({t['worst_ball']}) <= {REAL_BALL_MAX_MM:g} mm",
