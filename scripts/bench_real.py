@@ -512,7 +512,7 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     big = {j: v for j, v in out["shift_mm"].items() if v > SHIFT_MM}
     out["shifts_over_target"] = {j: {"shift_mm": v, "pig_mm": out["pig_centres"].get(j, {}).get("median_mm")}
                                  for j, v in sorted(big.items(), key=lambda kv: -kv[1])}
-    out["held_out"] = held_out(st, wk, d, cap, log, a.extra)
+    out["held_out"] = guarded(held_out, st, wk, d, cap, log, a.extra)
     return out
 
 
@@ -536,9 +536,10 @@ def section_realistic(a, tmp: Path, cap: float, log) -> dict:
     help_text = cli_help("simulate")
     realistic = "--realistic" in help_text
     note = None if realistic else ("`calibrate simulate --realistic` is not there yet: the plain simulator "
-                                   "(squats, 1 mm white noise) stands in, so these are not the realistic figures")
+                                   "(squats, 1 mm white noise, --gaps) stands in, so these are not the realistic "
+                                   "figures")
     log(f"realistic: calibrate simulate {'--realistic ' if realistic else ''}--frames {frames} --seed {a.seed}")
-    d, err = simulate(tmp, "realistic", frames, a.seed, ["--realistic"] if realistic else [], cap)
+    d, err = simulate(tmp, "realistic", frames, a.seed, ["--realistic"] if realistic else ["--gaps"], cap)
     if err:
         return {**err, "realistic": realistic}
     log("realistic: calibrate trial.c3d")
@@ -628,6 +629,9 @@ def checks(res: dict) -> list[tuple[str, bool]]:
     elif "error" in r:
         out.append((f"realistic: calibration ran ({r['error']})", False))
     for name, c in res.get("clean", {}).items():
+        if not isinstance(c, dict):  # the whole section failed
+            out.append((f"clean: the section ran ({c})", False))
+            continue
         if "truth" not in c:
             out.append((f"clean {name}: calibration ran ({c.get('error')})", False))
             continue
@@ -735,7 +739,7 @@ def report(res: dict) -> None:
                                          f"{c['caught']}/{c['corruptions']} caught ({c['caught_pct']:.1f} %), "
                                          + ", ".join(f"{k} {v['caught']}/{v['n']}" for k, v in c["per_kind"].items())
                                          + (f"; {c['note']}" if "note" in c else "")))
-    cl = res.get("clean", {})
+    cl = {k: v for k, v in res.get("clean", {}).items() if isinstance(v, dict)}
     if cl:
         say()
         say(f"3. Clean simulated squats (the earlier issue's figures), {res['clean_frames']} frames")
@@ -765,6 +769,14 @@ def report(res: dict) -> None:
         f"{res['date']}; benchmark wall time {res['wall_s']:.0f} s")
 
 
+def guarded(section, *args) -> dict:
+    """A section's result, or what went wrong in it (so one failing section leaves the others' figures)."""
+    try:
+        return section(*args)
+    except Exception as e:  # noqa: BLE001 - reported in the table and the JSON
+        return {"error": f"{type(e).__name__}: {e}"}
+
+
 def collect(a: argparse.Namespace, log) -> dict:
     t0 = time.perf_counter()
     only = set(a.only.split(",")) if a.only else set(SECTIONS)
@@ -781,20 +793,20 @@ def collect(a: argparse.Namespace, log) -> dict:
         a.extra = ["--config", cfg]
         res["quick_max_iterations"] = QUICK_ITERATIONS
     try:
-        res["warmup"] = warm_up(tmp, cap, log)
+        res["warmup"] = guarded(warm_up, tmp, cap, log)
         if "pig" in only:
-            res["pig"] = section_pig(a, tmp, cap, log)
+            res["pig"] = guarded(section_pig, a, tmp, cap, log)
             if "skipped" in res["pig"]:
                 res["skipped"].append(f"pig_walk: {res['pig']['skipped']}")
         if "realistic" in only:
-            res["realistic"] = section_realistic(a, tmp, cap, log)
+            res["realistic"] = guarded(section_realistic, a, tmp, cap, log)
             r = res["realistic"]
             if r.get("note"):
                 res["skipped"].append(f"realistic: {r['note']}")
             if "skipped" in r.get("corruptions", {}):
                 res["skipped"].append(f"realistic: corruptions caught: {r['corruptions']['skipped']}")
         if "clean" in only:
-            res["clean"] = section_clean(a, tmp, cap, log)
+            res["clean"] = guarded(section_clean, a, tmp, cap, log)
     finally:
         if tmp_ctx:
             tmp_ctx.cleanup()
