@@ -70,3 +70,15 @@ def test_sliced_c3d_keeps_the_frames(written, tmp_path):
     a, b = read_trial(d / "trial.c3d"), read_trial(cut)
     assert b.n_frames == 25 and b.labels == a.labels and b.first_frame == a.first_frame + 10
     np.testing.assert_array_equal(b.markers, a.markers[10:35])
+
+
+def test_corruptions_caught_matches_frame_and_marker(tmp_path):
+    (tmp_path / "truth_corruptions.csv").write_text("kind,frame,marker\nspike,3,LKNE\nswap,7,LASI\nswap,7,RASI\n")
+    report = {"outliers": {"count": 3, "rejected": [{"trial": 0, "frame": 3, "marker": "LKNE"},
+                                                     {"trial": 0, "frame": 7, "marker": "LASI"},
+                                                     {"trial": 0, "frame": 8, "marker": "RASI"}]}}
+    c = bench_real.corruptions_caught(tmp_path, report)
+    assert (c["corruptions"], c["caught"]) == (3, 2) and c["per_kind"]["swap"] == {"n": 2, "caught": 1}
+    assert "note" not in c  # every rejected position is listed
+    report["outliers"]["count"] = 500
+    assert "lower bound" in bench_real.corruptions_caught(tmp_path, report)["note"]
