@@ -288,6 +288,10 @@ def joint_shifts(subject: UrdfKinematics, subject_path: Path, report: dict) -> d
     s_root, b_root = ET.parse(subject_path).getroot(), ET.parse(MODEL).getroot()
     links_s = {ln.get("name"): ln for ln in s_root.findall("link")}
     links_b = {ln.get("name"): ln for ln in b_root.findall("link")}
+    def visual_scale(seg: str) -> float | None:
+        a, b = _visual_size(links_s.get(seg)), _visual_size(links_b.get(seg))
+        return a / b if a and b else None
+
     out, uniform, how = {}, {}, "report scale"
     s_all = float(np.median(list(scales.values()))) if scales else 1.0
     for name, jt in subject.joints.items():
@@ -295,12 +299,14 @@ def joint_shifts(subject: UrdfKinematics, subject_path: Path, report: dict) -> d
             continue
         s = scales.get(jt.parent)
         if s is None:
-            a, b = _visual_size(links_s.get(jt.parent)), _visual_size(links_b.get(jt.parent))
-            s, how = (a / b if a and b else 1.0), "visual size ratio"
+            s, how = visual_scale(jt.parent) or 1.0, "visual size ratio"
         cs, cb = subject.origin[subject.centre_joint[name]], base.origin[base.centre_joint[name]]
         out[name] = 1e3 * float(np.linalg.norm(cs - s * cb))
         uniform[name] = 1e3 * float(np.linalg.norm(cs - s_all * cb))
-    return {"shift_mm": out, "scale_from": how, "uniform_scale": s_all, "shift_uniform_mm": uniform}
+    # the report's scales against the URDF's own (its visuals are scaled with the segment, docs/model-format.md)
+    diffs = [abs(v - visual_scale(k)) for k, v in scales.items() if visual_scale(k) is not None]
+    return {"shift_mm": out, "scale_from": how, "uniform_scale": s_all, "shift_uniform_mm": uniform,
+            "scale_vs_urdf_max_diff": max(diffs) if diffs else math.nan}
 
 
 def segment_lengths(kin: UrdfKinematics) -> dict:
@@ -405,7 +411,7 @@ def run_figures(run: dict) -> dict:
     out.update({"shift_mm": sh["shift_mm"], "shift_scale_from": sh["scale_from"], "max_shift_mm": sh["shift_mm"][worst],
                 "max_shift_joint": worst, "uniform_scale": sh["uniform_scale"],
                 "shift_uniform_mm": sh["shift_uniform_mm"], "max_shift_uniform_mm": sh["shift_uniform_mm"][wu],
-                "max_shift_uniform_joint": wu})
+                "max_shift_uniform_joint": wu, "scale_vs_urdf_max_diff": sh["scale_vs_urdf_max_diff"]})
     out.update(segment_lengths(kin))
     out["kin"] = kin  # dropped before JSON
     return out
@@ -719,7 +725,8 @@ def report(res: dict) -> None:
             "median over the walk's frames (mm)")
         say("  " + "  ".join(f"{j} {fmt(v['median_mm'], '.1f')}" for j, v in p["pig_centres"].items()))
         say(f"pig_walk: joint centres shifted more than {SHIFT_MM:g} mm from the size-scaled base "
-            f"(scale: {p['shift_scale_from']}): "
+            f"(scale: {p['shift_scale_from']}, equal to the URDF visuals' to "
+            f"{fmt(p.get('scale_vs_urdf_max_diff'), '.1e')}): "
             + (", ".join(f"{j} {v['shift_mm']:.0f}" + (f" (PiG {v['pig_mm']:.0f})" if v["pig_mm"] is not None else "")
                          for j, v in p["shifts_over_target"].items()) or "none"))
         say("pig_walk: segment lengths L/R (mm): " + ", ".join(
