@@ -592,11 +592,15 @@ class Problem:
         return a / np.linalg.norm(a)
 
     def retract_parameters(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """p moved by the free-parameter step dp: scales by ds, free positions to (s x + dq)/(s + ds)
+        """p moved by the free-parameter step dp: scales to s exp(ds / s) (s + ds to first order, and
+        never zero or negative: a segment with no marker of its own, whose scale only the priors
+        hold, must not shrink through zero into a mirror image), free positions to (s x + dq)/s'
         (see tangent_map), axes kept unit (normalise(a + B u))."""
         out = p.copy()
         if self._direct.size:
             out[self._direct[:, 1]] += dp[self._direct[:, 0]]
+            sc = self._direct[self._direct[:, 1] < len(self.model.segments)]
+            out[sc[:, 1]] = p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]])
         rows, cols, owner, _ = self._positions
         if rows.size:
             out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]

@@ -593,3 +593,18 @@ def test_worst_ratio_singular_prior_block():
     ratio, v = worst_ratio(C, C0)
     assert ratio == pytest.approx(0.6)
     assert abs(v @ U[:, 2]) == pytest.approx(1.0)
+
+
+def test_scale_retraction_stays_positive(human, human_kin):
+    """A scale factor moves on R+: s exp(ds / s), which is s + ds to first order (checked at
+    ds = 1e-6: difference 5e-13, the second-order term ds²/2s) and stays positive for a step larger
+    than the scale itself (ds = -2 s), which s + ds would have turned into a mirror image."""
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=0)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    p = human.parameters().vector()
+    col = next(k for k, i in problem._direct if i == human.segment_index("talus_l"))
+    for ds, check in ((1e-6, lambda s: abs(s - (1 + 1e-6)) < 1e-12), (-2.0, lambda s: abs(s - np.exp(-2.0)) < 1e-15)):
+        dp = np.zeros(problem.n_free)
+        dp[col] = ds
+        s = problem.retract_parameters(p, dp)[human.segment_index("talus_l")]
+        assert s > 0 and check(s)
