@@ -556,7 +556,8 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
     r = _cli(tmp_path / "s01.c3d", human.path, "-q")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--overwrite" in r.stderr
     assert (tmp_path / "s01.urdf").read_text() == before
-    # Bad input: one line each, non-zero exit.
+    # Bad input: one line each ('calibrate: error: ...'), exit status 2 (the README's promise; 1 means
+    # 'did not converge').
     (tmp_path / "notes.urdf").write_text("hello")
     cases = [
         ([tmp_path / "s01.c3d", tmp_path / "notes.urdf", "-o", tmp_path / "x.urdf"], "not valid XML"),
@@ -574,7 +575,8 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
     ]
     for args, msg in cases:
         r = _cli(*args, "--motion", tmp_path / "m.csv", "--report", tmp_path / "r.json", "-q")
-        assert r.returncode != 0 and msg in r.stderr, (args, r.stderr)
+        assert r.returncode == 2 and msg in r.stderr, (args, r.returncode, r.stderr)
+        assert r.stderr.startswith("calibrate: error: "), r.stderr
         assert r.stderr.strip().count("\n") == 0, r.stderr
     assert not (tmp_path / "x.urdf").exists() and not (tmp_path / "y.urdf").exists()
 
