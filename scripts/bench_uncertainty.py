@@ -105,29 +105,42 @@ def one_subject(model, frames: int, seed: int) -> list[dict]:
         seg_of[f"centre[{j.name}]"] = si
     # Gauges (Problem.gauge_constraints): a segment frame may turn against its contents (the root's
     # also shift) with no effect on the data.  The SDs are those of the contents with that turn
-    # held (their prior-weighted net rotation about the origin, and for the root their mean shift,
-    # fixed), so the errors are taken alike: per gauge segment, less the rigid motion (turn about
-    # its origin; the root: and shift; a hinge's child: turn about the hinge axis) that best
-    # explains its contents' errors (equal weights: markers and centres have equal prior SDs).
+    # held (the prior-weighted net rotation of its markers, joint centres and child hinge axes about
+    # the origin, and for the root their mean shift, fixed), so the errors are taken alike: per gauge
+    # segment, less the rigid motion (turn about its origin; the root: and shift; a hinge's child:
+    # turn about the hinge axis) that best explains its contents' errors, in the same weights.
+    pr = cal.settings.priors
     for si, kind in _gauges(cal, sim.trial):
         keys = [k for k, s_ in seg_of.items() if s_ == si]
         if not keys:
             continue
-        x = np.array([_offset(cal, k) for k in keys])  # m, estimated segment frame
-        e = np.array([errors[k] for k in keys])
+        x = [_offset(cal, k) for k in keys]  # m, estimated segment frame
+        e = [errors[k] / 1000 for k in keys]
+        w = [1 / (pr.marker if k.startswith("marker[") else pr.centre) for k in keys]
+        shifts = [True] * len(keys)
+        for j in m.joints:  # child hinge axes: unit vectors, turned but not shifted
+            if j.parent == m.segments[si].name and j.kind == "hinge":
+                ji = m.joint_index(j.name)
+                a_est, a_true = est["axes"][:, ji], true["axes"][:, ji]
+                a_true = a_true * np.sign(np.sum(a_est * a_true, axis=1))[:, None]
+                x.append(np.einsum("fji,fj->i", est["R"][:, si], a_est) / len(a_est))
+                e.append(np.einsum("fji,fj->i", est["R"][:, si], a_est - a_true) / len(a_est))
+                w.append(1 / pr.axis)
+                shifts.append(False)
+        x, e, w = np.array(x), np.array(e), np.repeat(w, 3)
         cols = []  # d e_i / d (rotation ω, shift t): e_i ≈ ω × x_i + t
         if kind == "axis":
             j = next(j for j in m.joints if j.child == m.segments[si].name)
             a = cal.params.axis[m.dof_index(j.dofs[-1])]
             cols.append(np.cross(a / np.linalg.norm(a), x))
         else:
-            cols += [np.cross(w, x) for w in np.eye(3)]
+            cols += [np.cross(u, x) for u in np.eye(3)]
         if kind == "rigid":
-            cols += [np.tile(w, (len(keys), 1)) for w in np.eye(3)]
+            cols += [np.outer(shifts, u) for u in np.eye(3)]
         A = np.stack([c.ravel() for c in cols], axis=1)
-        coef, *_ = np.linalg.lstsq(A, e.ravel(), rcond=None)
-        for k, r in zip(keys, (e.ravel() - A @ coef).reshape(-1, 3), strict=True):
-            errors[k] = r
+        coef, *_ = np.linalg.lstsq(w[:, None] * A, w * e.ravel(), rcond=None)
+        for k, r in zip(keys, (e.ravel() - A @ coef).reshape(-1, 3), strict=False):
+            errors[k] = 1000 * r
     rows = []
 
     def add(group: str, name: str, err: float, sd: float, unit: str) -> None:
