@@ -561,7 +561,7 @@ class Problem:
             r = np.zeros(self.n_free)
             r[[col[names[sl + c]] for c in range(3)]] = a
             rows.append(r)
-        return np.array(rows).reshape(-1, self.n_free)
+        return np.array(rows, dtype=float).reshape(len(rows), self.n_free)
 
     def tangent_map(self, p: np.ndarray) -> np.ndarray:
         """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`.
