@@ -253,8 +253,6 @@ def test_neutral_static_trial(human, squat, tmp_path, capsys):
     assert code == 2 and "--neutral 2: there are only 1 trials" in err
 
 
-@pytest.mark.xfail(strict=True, reason="cli.py parses --neutral with _positive_int, which wants 2 or more: "
-                                       "'--neutral 1' (the first trial, as the help says) is refused (issue 18)")
 def test_neutral_first_trial_is_accepted(human, tmp_path, capsys):
     """--neutral 1 names the first trial (the help: '1 = the first'); here the only one."""
     from calibrate.cli import build_calibrate_parser
@@ -416,8 +414,6 @@ def test_failure_while_staging_leaves_nothing(small_cal, tmp_path, monkeypatch):
     assert (tmp_path / "s.csv").read_text() == "old motion"
 
 
-@pytest.mark.xfail(strict=True, reason="report.write_outputs renames the staged files one by one: when the "
-                                       "second rename fails the first output is already in place (issue 18)")
 def test_failure_between_renames_leaves_nothing_half_renamed(small_cal, tmp_path, monkeypatch):
     """The rename of the second output fails: the staged files are removed, and either every output
     is in place or none (here none: the URDF must not be left renamed while the report is missing)."""

@@ -41,7 +41,9 @@ def test_human_loads_unchanged_in_pinocchio_and_yourdfpy():
 
 
 def test_committed_model_is_the_generators_output():
-    assert HUMAN.read_text() == build_human_urdf()
+    from conftest import assert_same_text_and_numbers
+
+    assert_same_text_and_numbers(build_human_urdf(), HUMAN.read_text())
 
 
 def test_model_structure(human):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import subprocess
 import sys
 
@@ -160,7 +159,7 @@ def test_simulate_refuses_a_file_as_output_dir(tmp_path):
 
 def test_default_model_without_source_tree(tmp_path, monkeypatch):
     """An installed package has no models/ folder: the same model is generated instead."""
-    from conftest import HUMAN
+    from conftest import HUMAN, assert_same_text_and_numbers
 
     import calibrate.cli as cli
 
@@ -171,13 +170,7 @@ def test_default_model_without_source_tree(tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "tempdir", None)
     path = cli._default_model()
     assert path.parent == tmp_path
-    # The same text, numbers equal to 1e-12 relative: the last digit of a float printed from a
-    # product of floats may differ between numpy builds (it did: ...83599994 vs ...83600014).
-    number = r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?"
-    got, want = path.read_text(), HUMAN.read_text()
-    assert re.split(number, got) == re.split(number, want)
-    assert np.allclose([float(x) for x in re.findall(number, got)], [float(x) for x in re.findall(number, want)],
-                       rtol=1e-12, atol=1e-15)
+    assert_same_text_and_numbers(path.read_text(), HUMAN.read_text())
 
 
 def test_motion_csv_errors(tmp_path):
