@@ -50,6 +50,13 @@ COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly s
 SEED_FRAMES = 150  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
 SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
+NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
+NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it)
+NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or all markers') median learnt SD
+NOISE_ROUNDS = 3  # learn-and-solve rounds on the subsample (then once more on every frame)
+NOISE_CHANGE = 0.1  # stop re-learning when no marker's SD changes by more than this fraction
+MAD_SD = 1.4826  # SD of a Gaussian per unit median absolute deviation
+NOISE_CLIP = 4.0  # a residual counts in the learnt SD up to this many robust SDs per coordinate (spikes: no more)
 
 
 @dataclass(frozen=True)
@@ -126,6 +133,8 @@ class Calibration:
     notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
+    noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
+    noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
 
     @property
     def trial(self) -> Trial:
@@ -553,7 +562,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=notes, held_axes=held)
+                       outliers=tuple(rejected), notes=notes, held_axes=held,
+                       noise={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
+                       noise_learnt=settings.learns_noise)
 
 
 def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
@@ -648,11 +659,21 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     seen = problem.seen
     coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
                                                                            / problem.F))) for sl in spans])
+    fixed = _fixed_noise(problem.model, settings)
     for round_ in range(HOLD_ROUNDS + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
         state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings,
                                                 say, polish=sub is problem)
+        for _ in range(NOISE_ROUNDS if fixed is not None else 0):
+            # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
+            sigma = _relearn(sub, state, fixed, say)
+            if sigma is None:
+                break
+            problem = problem.with_noise(sigma)
+            sub = problem if coarse.size == problem.F else problem.subset(coarse)
+            state, again = _solve_geometry(sub, state, settings, say, polish=sub is problem)
+            coarse_summary = _merge(coarse_summary, again)
         if not settings.auto_hold or round_ == HOLD_ROUNDS:
             break
         axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
@@ -663,7 +684,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         say(f"solve: the trial does not show {', '.join(still)} moving: holding "
             f"{'its axis' if len(still) == 1 else 'their axes'} at the base model's, solving again")
         settings = replace(settings, hold_axes=settings.hold_axes + tuple(still))
-        problem = problem.with_settings(settings)
+        problem = problem.with_settings(settings, sigma=problem.sigma)
         # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
         p, base = start.p.copy(), problem.base.vector()
         for name in still:
@@ -685,9 +706,90 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     state, summary = levenberg_marquardt(
         problem, state,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+    sigma = _relearn(problem, state, fixed, say) if fixed is not None else None
+    if sigma is not None:  # every frame shows a different scatter than the subsample did: once more
+        problem = problem.with_noise(sigma)
+        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     return problem, state, summary
+
+
+def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
+    """Markers whose noise SD is the user's (Settings.marker_noise), or None when nothing is learnt."""
+    if not settings.learns_noise:
+        return None
+    named = {label for label, _ in settings.marker_noise}
+    return np.array([n in named for n in model.marker_names])
+
+
+def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str], None]) -> np.ndarray | None:
+    """learned_noise at `state`, or None if no marker's SD changed by more than NOISE_CHANGE."""
+    sigma = learned_noise(problem, state, fixed)
+    change = float(np.max(np.abs(sigma / problem.sigma - 1.0)))
+    say(f"noise: learnt marker SDs {1000 * np.median(sigma):.2f} mm median ({1000 * sigma.min():.2f}-"
+        f"{1000 * sigma.max():.2f}), largest change {100 * change:.0f} %")
+    return sigma if change > NOISE_CHANGE else None
+
+
+def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None) -> np.ndarray:
+    """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
+    residuals over the frames, each winsorised at NOISE_CLIP robust SDs per coordinate (MAD_SD times
+    the median absolute deviation of its components), so that skin-motion scatter counts and spikes
+    count no more than a few SDs.  A residual is smaller than the noise by the
+    part of it the fit absorbs, so each is first divided by sqrt(1 − h): h its frame's leverage
+    (the trace of the weighted hat matrix J_z A_f⁻¹ J_zᵀ W over the marker's three rows, / 3:
+    one frame's 38 coordinates absorb about a third of 39 markers' 117 coordinates) plus 1/n for
+    the marker's own offset, fitted over its n frames.  Markers seen in fewer than NOISE_MIN_FRAMES
+    frames or almost wholly absorbed (h > 0.8) take the median of their segment's (else of all
+    markers'); `fixed` markers (the user's marker_noise) keep problem.sigma.  Clipped to
+    [NOISE_FLOOR, NOISE_CAP]."""
+    model = problem.model
+    nm = len(model.markers)
+    lin = problem.linearize(state, with_parameters=False)
+    d, jz, _, wrow = lin.jacobian[:4]
+    zr, zc, nrows, nz = problem._jz_pattern
+    F = problem.F
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(lin.A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    h = np.zeros((F, nm))
+    for s in range(0, F, 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
+        e = min(F, s + 128)
+        J = np.zeros((e - s, nrows, nz))
+        J[:, zr, zc] = jz[s:e]
+        J *= wrow[s:e, :, None]
+        Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
+        h[s:e] = np.einsum("frz,fzy,fry->fr", J, Ainv, J).reshape(e - s, nm, 3).sum(axis=2) / 3
+    res = d.reshape(F, nm, 3)
+    seen = problem.seen
+    n = seen.sum(axis=0)
+    sigma = problem.sigma.copy()
+    learnt = np.full(nm, np.nan)
+    for k in range(nm):
+        use = seen[:, k]
+        if n[k] < NOISE_MIN_FRAMES:
+            continue
+        lev = h[use, k] + 1.0 / n[k]
+        if np.median(lev) > 0.8:
+            continue
+        r = res[use, k]
+        keep = np.clip(1.0 - lev, 0.2, 1.0)
+        u = r / np.sqrt(keep)[:, None]
+        s0 = MAD_SD * float(np.median(np.abs(u - np.median(u, axis=0))))
+        # The mean square, winsorised at NOISE_CLIP robust SDs: a marker whose residual the fit confines
+        # to fewer than 3 directions (a single hand marker: 1) has no Gaussian components for the MAD,
+        # but E|r|^2 = 3 sigma^2 (1 - h) whatever the rank.
+        sq = np.minimum(np.sum(r**2, axis=1), 3 * (NOISE_CLIP * s0) ** 2 * keep)
+        learnt[k] = math.sqrt(float(np.sum(sq)) / float(np.sum(3 * keep)))
+    seg = problem.marker_segment
+    overall = float(np.nanmedian(learnt)) if np.isfinite(learnt).any() else float(np.median(sigma))
+    for k in np.flatnonzero(~np.isfinite(learnt)):
+        mine = learnt[(seg == seg[k]) & np.isfinite(learnt)]
+        learnt[k] = float(np.median(mine)) if mine.size else overall
+    learnt = np.clip(learnt, NOISE_FLOOR, NOISE_CAP)
+    if fixed is not None:
+        learnt = np.where(fixed, sigma, learnt)
+    return learnt
 
 
 def _outliers(problem: Problem, state: State, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
