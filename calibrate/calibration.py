@@ -206,7 +206,7 @@ def _rms(res: np.ndarray) -> float:
 
 # ---------------------------------------------------------------------- seed
 def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None,
-                    extra_markers: Mapping[str, str] | None = None) -> Seed:
+                    extra_markers: Mapping[str, str] | None = None, size: Size | None = None) -> Seed:
     """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
 
     * scale of a segment: the median over frames of the distances between its estimated joint
@@ -220,6 +220,9 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
 
     `extra_markers` (trial label -> segment) adds markers the model does not know to the MTB
     estimate of the joint centres (they are placed on their segments later, in `calibrate`).
+    `size` (size_from_markers): the subject's limb sizes from marker distances; a segment without
+    estimated centres takes its limb's factor, and so does one whose centres give a factor further
+    than SIZE_TOLERANCE from it (an MTB centre off by a few centimetres on a short segment).
     """
     t0 = time.perf_counter()
     notes: list[str] = []
@@ -230,8 +233,12 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
         try:
             joints = estimate_model_joints(model, trial, cutoff_hz=cutoff, extra_markers=extra_markers)
         except (ValueError, CalibrateError) as e:
-            notes.append(f"joint-centre seed unavailable ({e}); starting from the base model")
-            return Seed(model.parameters(), tuple(notes), None, time.perf_counter() - t0)
+            notes.append(f"joint-centre seed unavailable ({e}); starting from the base model"
+                         + (" scaled to the markers" if size is not None else ""))
+            p0 = model.parameters()
+            if size is not None:
+                p0.scale[:] = size.scale
+            return Seed(p0, tuple(notes), None, time.perf_counter() - t0)
     base = model.parameters()
     geo = model_geometry(model)
     # Only direct MTB solutions seed the geometry: JMV fallbacks and joints seen through a
@@ -267,6 +274,15 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     known = [np.median(r) for r in ratios.values() if r]
     overall = float(np.median(known)) if known else 1.0
     scale = np.array([float(np.median(ratios[s.name])) if ratios[s.name] else overall for s in model.segments])
+    if size is not None:
+        for si, sg in enumerate(model.segments):
+            if not ratios[sg.name]:
+                scale[si] = size.scale[si]
+            elif abs(scale[si] / size.scale[si] - 1.0) > SIZE_TOLERANCE:
+                notes.append(f"{sg.name}: scale {scale[si]:.2f} from its joint centres is more than "
+                             f"{100 * SIZE_TOLERANCE:.0f} % from its limb's {size.scale[si]:.2f} (marker distances); "
+                             f"the limb's used")
+                scale[si] = size.scale[si]
     scale = np.clip(scale, 0.7, 1.4)
     centre = base.centre.copy()
     axis = base.axis.copy()
@@ -329,6 +345,116 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
                                  f"base model's; base model axis used")
     params = Parameters(scale, centre, axis, marker)
     return Seed(params, tuple(notes), joints, time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class Size:
+    """The subject's size from the markers alone (size_from_markers): per segment, limb and overall."""
+
+    scale: np.ndarray  # (n_segments,) factor of each segment: its limb's
+    limbs: dict[str, float]  # limb (named by its first segment) -> factor (median of its pairs' ratios)
+    overall: float  # median ratio over every pair
+    pairs: int  # marker pairs used
+
+
+SIZE_POSES = 60  # random poses (joint angles anywhere in their ranges) of the base model that test whether a marker pair's distance is pose-independent
+SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this fraction over those poses ...
+SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
+SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
+SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
+
+
+def limb_groups(model: Model) -> dict[str, list[int]]:
+    """Segments grouped into limbs: each trunk segment alone (the root and every segment with two or
+    more child joints: pelvis, torso) and each chain hanging from them (a leg, an arm, the head), named
+    by its first segment."""
+    kids: dict[str, list[str]] = {s.name: [] for s in model.segments}
+    for j in model.joints:
+        kids[j.parent].append(j.child)
+    trunk = {model.segments[0].name} | {n for n, k in kids.items() if len(k) >= 2}
+    out: dict[str, list[int]] = {n: [model.segment_index(n)] for n in sorted(trunk, key=model.segment_index)}
+
+    def walk(name: str, into: list[int]) -> None:
+        into.append(model.segment_index(name))
+        for k in kids[name]:
+            if k not in trunk:
+                walk(k, into)
+
+    for t in trunk:
+        for k in kids[t]:
+            if k not in trunk:
+                out[k] = []
+                walk(k, out[k])
+    return out
+
+
+def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> Size | None:
+    """The subject's size against the base model, from marker distances only (before any joint
+    centre is known): every pair of model markers whose distance is the same in any pose of the base
+    model (the same segment, or across a joint near its axis: knee to ankle markers) and steady over
+    the trials' frames, compared with the base model's (median over frames / neutral pose); a limb's
+    factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
+    overall factor the median of all.  None if no pair qualifies."""
+    import pinocchio as pin
+
+    names = [m.name for m in model.markers]
+    seg = np.array([model.segment_index(m.segment) for m in model.markers])
+    pm = model.pin
+    data = pm.createData()
+    fid = [pm.getFrameId(n) for n in names]
+    rng = np.random.default_rng(seed)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
+    poses = []
+    for i in range(SIZE_POSES + 1):
+        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
+        poses.append(np.array([data.oMf[f].translation for f in fid]))
+    P = np.array(poses)  # (poses, markers, 3)
+    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
+    d0 = D[0]
+    model_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
+    # The trials' distances, on at most ~300 frames of each.
+    parts = []
+    for t in trials:
+        X = np.full((t.n_frames, len(names), 3), np.nan)
+        have = [k for k, n in enumerate(names) if n in t.labels]
+        X[:, have] = t.select([names[k] for k in have]).markers
+        parts.append(X[:: max(1, t.n_frames // 300)])
+    X = np.concatenate(parts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        Dt = np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3)
+        med = np.nanmedian(Dt, axis=0)
+        mad = MAD_SD * np.nanmedian(np.abs(Dt - med), axis=0)
+        n = np.sum(np.isfinite(Dt), axis=0)
+    ok = ((model_cv < SIZE_MODEL_CV) & (n >= 3) & (mad < SIZE_TRIAL_CV * med) & (d0 >= SIZE_MIN_DISTANCE)
+          & np.triu(np.ones_like(d0, dtype=bool), 1))
+    a, b = np.nonzero(ok)
+    if a.size == 0:
+        return None
+    ratio = med[a, b] / d0[a, b]
+    # A marker sits a few centimetres from where the base model puts it (wands above all: Plug-in
+    # Gait's TIB marker is 10 cm lower than ours), which changes a pair's ratio by about that over its
+    # length: the weighted median, weight d0², trusts the long pairs (knee to ankle) most.
+    wt = d0[a, b] ** 2
+    overall = _weighted_median(ratio, wt)
+    limbs = limb_groups(model)
+    scale = np.full(len(model.segments), overall)
+    factors: dict[str, float] = {}
+    for name, segs in limbs.items():
+        inside = np.isin(seg[a], segs) & np.isin(seg[b], segs)
+        if inside.sum() >= 1:
+            factors[name] = _weighted_median(ratio[inside], wt[inside])
+            scale[segs] = factors[name]
+    return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
+
+
+def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The value below and above which lie at most half the total weight."""
+    order = np.argsort(x)
+    c = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
 
 
 def _seed_trial(trial: Trial, max_frames: int) -> Trial:
@@ -482,9 +608,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     if settings.seed:
-        say("seed: joint centres (MTB)")
+        say("seed: the subject's size from marker distances, then joint centres (MTB)")
+        size = size_from_markers(model, trials)
         pick = _most_motion(model, trials)
-        seed = seed_parameters(model, trials[pick], extra_markers=new)
+        seed = seed_parameters(model, trials[pick], extra_markers=new, size=size)
         if len(trials) > 1:
             seed = Seed(seed.params, (f"seeded from {trials[pick].source or f'trial {pick + 1}'} (the trial with "
                                       f"the most joint motion)", *seed.notes), seed.joints, seed.seconds)
