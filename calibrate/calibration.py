@@ -56,6 +56,7 @@ NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or a
 NOISE_ROUNDS = 3  # learn-and-solve rounds on the subsample (then once more on every frame)
 NOISE_CHANGE = 0.1  # stop re-learning when no marker's SD changes by more than this fraction
 MAD_SD = 1.4826  # SD of a Gaussian per unit median absolute deviation
+NOISE_TAU_MAX = 16.0  # frames: a marker's residual correlation time counts up to this (its weight SD: 4 x its SD)
 NOISE_CLIP = 4.0  # a residual counts in the learnt SD up to this many robust SDs per coordinate (spikes: no more)
 
 
@@ -135,6 +136,8 @@ class Calibration:
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
+    noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
+    # (m): the noise SD times the square root of its residuals' correlation time in frames (learnt noise only)
 
     @property
     def trial(self) -> Trial:
@@ -357,7 +360,7 @@ class Size:
     pairs: int  # marker pairs used
 
 
-SIZE_POSES = 60  # random poses (joint angles anywhere in their ranges) of the base model that test whether a marker pair's distance is pose-independent
+SIZE_POSES = 60  # random poses (angles anywhere in their ranges): is a marker pair's distance pose-independent?
 SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this fraction over those poses ...
 SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
 SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
@@ -645,7 +648,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
-    problem, state, summary = _solve(problem, start, spans, say)
+    problem, state, summary, scatter = _solve(problem, start, spans, say)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = problem.settings
     rejected: list[Outlier] = []
@@ -653,7 +656,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
         # worst marker of each frame, re-solve those poses, and look again.
         for _ in range(OUTLIER_ROUNDS):
-            bad, err = _outliers(problem, state, settings)
+            bad, err = _outliers(problem, state, settings, scatter)
             if not bad.any():
                 break
             worst = np.where(bad, err, -1.0).argmax(axis=1)
@@ -690,7 +693,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), notes=notes, held_axes=held,
-                       noise={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
+                       noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
+                       noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=settings.learns_noise)
 
 
@@ -787,6 +791,8 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
                                                                            / problem.F))) for sl in spans])
     fixed = _fixed_noise(problem.model, settings)
+    scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
+    trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     for round_ in range(HOLD_ROUNDS + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
@@ -794,7 +800,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
                                                 say, polish=sub is problem)
         for _ in range(NOISE_ROUNDS if fixed is not None else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
-            sigma = _relearn(sub, state, fixed, say)
+            sigma, scatter = _relearn(sub, state, fixed, say, trial_of[coarse] if sub is not problem else trial_of)
             if sigma is None:
                 break
             problem = problem.with_noise(sigma)
@@ -820,7 +826,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         start = State(start.Z, start.Q, p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary
+        return problem, state, coarse_summary, scatter
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.
     say(f"solve: all {problem.F} frames")
     parts = []
@@ -833,14 +839,15 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     state, summary = levenberg_marquardt(
         problem, state,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
-    sigma = _relearn(problem, state, fixed, say) if fixed is not None else None
-    if sigma is not None:  # every frame shows a different scatter than the subsample did: once more
+    if fixed is not None:
+        sigma, scatter = _relearn(problem, state, fixed, say, trial_of)
+    if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
         problem = problem.with_noise(sigma)
         state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
         summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
-    return problem, state, summary
+    return problem, state, summary, scatter
 
 
 def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
@@ -851,27 +858,39 @@ def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
     return np.array([n in named for n in model.marker_names])
 
 
-def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str], None]) -> np.ndarray | None:
-    """learned_noise at `state`, or None if no marker's SD changed by more than NOISE_CHANGE."""
-    sigma = learned_noise(problem, state, fixed)
-    change = float(np.max(np.abs(sigma / problem.sigma - 1.0)))
-    say(f"noise: learnt marker SDs {1000 * np.median(sigma):.2f} mm median ({1000 * sigma.min():.2f}-"
-        f"{1000 * sigma.max():.2f}), largest change {100 * change:.0f} %")
-    return sigma if change > NOISE_CHANGE else None
+def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str], None],
+             trial_of: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """learned_noise at `state`: the weights' SDs sigma sqrt(τ) (a marker whose residuals are correlated
+    over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
+    None if nine markers in ten changed their weights' SD by no more than NOISE_CHANGE (a few poorly
+    seen markers may go on wavering without moving the geometry)."""
+    scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True)
+    sigma = scatter * np.sqrt(tau)
+    change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
+    say(f"noise: learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
+        f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to {tau.max():.1f}); "
+        f"9 in 10 weights changed by <= {100 * change:.0f} %")
+    return (sigma if change > NOISE_CHANGE else None), scatter
 
 
-def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None) -> np.ndarray:
+def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
+                  trial_of: np.ndarray | None = None, correlation: bool = False):
     """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
     residuals over the frames, each winsorised at NOISE_CLIP robust SDs per coordinate (MAD_SD times
-    the median absolute deviation of its components), so that skin-motion scatter counts and spikes
-    count no more than a few SDs.  A residual is smaller than the noise by the
+    the median absolute deviation of its components in the same trial: `trial_of` (F,) gives each
+    frame's trial; a static trial's scatter is smaller than a walk's), so that skin-motion scatter
+    counts and spikes count no more than a few SDs.  A residual is smaller than the noise by the
     part of it the fit absorbs, so each is first divided by sqrt(1 − h): h its frame's leverage
     (the trace of the weighted hat matrix J_z A_f⁻¹ J_zᵀ W over the marker's three rows, / 3:
     one frame's 38 coordinates absorb about a third of 39 markers' 117 coordinates) plus 1/n for
     the marker's own offset, fitted over its n frames.  Markers seen in fewer than NOISE_MIN_FRAMES
     frames or almost wholly absorbed (h > 0.8) take the median of their segment's (else of all
     markers'); `fixed` markers (the user's marker_noise) keep problem.sigma.  Clipped to
-    [NOISE_FLOOR, NOISE_CAP]."""
+    [NOISE_FLOOR, NOISE_CAP].
+
+    `correlation`: also return each marker's correlation time τ (frames of `problem`; 1 for white
+    noise): (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation of its standardised residuals within each
+    trial, in [1, NOISE_TAU_MAX] (a fixed marker: 1)."""
     model = problem.model
     nm = len(model.markers)
     lin = problem.linearize(state, with_parameters=False)
@@ -892,6 +911,7 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     n = seen.sum(axis=0)
     sigma = problem.sigma.copy()
     learnt = np.full(nm, np.nan)
+    trial_of = np.zeros(F, dtype=int) if trial_of is None else np.asarray(trial_of)
     for k in range(nm):
         use = seen[:, k]
         if n[k] < NOISE_MIN_FRAMES:
@@ -902,11 +922,15 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
         r = res[use, k]
         keep = np.clip(1.0 - lev, 0.2, 1.0)
         u = r / np.sqrt(keep)[:, None]
-        s0 = MAD_SD * float(np.median(np.abs(u - np.median(u, axis=0))))
+        cap = np.empty(use.sum())
+        for t in np.unique(trial_of[use]):
+            mine = trial_of[use] == t
+            s0 = MAD_SD * float(np.median(np.abs(u[mine] - np.median(u[mine], axis=0))))
+            cap[mine] = 3 * (NOISE_CLIP * s0) ** 2 * keep[mine]
         # The mean square, winsorised at NOISE_CLIP robust SDs: a marker whose residual the fit confines
         # to fewer than 3 directions (a single hand marker: 1) has no Gaussian components for the MAD,
         # but E|r|^2 = 3 sigma^2 (1 - h) whatever the rank.
-        sq = np.minimum(np.sum(r**2, axis=1), 3 * (NOISE_CLIP * s0) ** 2 * keep)
+        sq = np.minimum(np.sum(r**2, axis=1), cap)
         learnt[k] = math.sqrt(float(np.sum(sq)) / float(np.sum(3 * keep)))
     seg = problem.marker_segment
     overall = float(np.nanmedian(learnt)) if np.isfinite(learnt).any() else float(np.median(sigma))
@@ -916,17 +940,34 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     learnt = np.clip(learnt, NOISE_FLOOR, NOISE_CAP)
     if fixed is not None:
         learnt = np.where(fixed, sigma, learnt)
-    return learnt
+    if not correlation:
+        return learnt
+    tau = np.ones(nm)
+    lag = seen[1:] & seen[:-1] & (trial_of[1:] == trial_of[:-1])[:, None]  # (F-1, nm): consecutive pairs
+    for k in range(nm):
+        if lag[:, k].sum() < NOISE_MIN_FRAMES or (fixed is not None and fixed[k]):
+            continue
+        u = np.where(seen[:, k, None], res[:, k], 0.0)
+        for t in np.unique(trial_of):
+            mine = (trial_of == t) & seen[:, k]
+            if mine.any():
+                u[mine] -= u[mine].mean(axis=0)
+        a, b = u[:-1][lag[:, k]], u[1:][lag[:, k]]
+        rho = float(np.sum(a * b)) / max(math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b))), 1e-300)
+        tau[k] = float(np.clip((1 + rho) / max(1 - rho, 1e-9), 1.0, NOISE_TAU_MAX))
+    return learnt, tau
 
 
-def _outliers(problem: Problem, state: State, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs, each marker's
-    set noise SD scaled up if the fit shows more noise than set (median error / 1.538, a 3-D Gaussian's)."""
+def _outliers(problem: Problem, state: State, settings: Settings,
+              sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs (`sigma`, default
+    problem.sigma), each marker's noise SD scaled up if the fit shows more noise than that (median error
+    / 1.538, a 3-D Gaussian's)."""
     err = np.linalg.norm(problem.marker_residuals(state), axis=2)
     ok = np.isfinite(err)
     if not ok.any():
         return np.zeros_like(ok), err
-    sigma = problem.sigma
+    sigma = problem.sigma if sigma is None else sigma
     scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)
     return ok & (err > settings.outliers * scale * sigma), err
 

@@ -959,7 +959,8 @@ class Problem:
         return e, J
 
 
-def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]], np.ndarray]:
+def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]],
+                                                               np.ndarray]:
     """Left/right partners by name (``X_l`` / ``X_r``): (segment index pairs, joint index pairs, mirror),
     the mirror a diagonal (3,) of ±1 that reflects a position through the sagittal plane: the lateral
     axis is the one along which the base model's paired joint centres `centres` (n_joints, 3) differ most
