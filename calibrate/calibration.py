@@ -49,6 +49,7 @@ STRIDE = 10  # key-frame spacing of the start (frames of the trial)
 COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly spaced frames first
 SEED_FRAMES = 150  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
+OUTLIER_PASSES = 2  # rejection rounds, solve, noise learnt again: at most this many times
 SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
 NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
 NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it)
@@ -652,9 +653,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = problem.settings
     rejected: list[Outlier] = []
-    if settings.outliers > 0:
+    hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
+    fixed = _fixed_noise(subject, settings)
+    trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
+    for _ in range(OUTLIER_PASSES if settings.outliers > 0 else 0):
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
         # worst marker of each frame, re-solve those poses, and look again.
+        found = 0
         for _ in range(OUTLIER_ROUNDS):
             bad, err = _outliers(problem, state, settings, scatter)
             if not bad.any():
@@ -666,13 +671,31 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             for f, k in zip(frames, worst[frames], strict=True):
                 i = next(i for i, sl in enumerate(spans) if sl.start <= f < sl.stop)
                 rejected.append(Outlier(i, int(f - spans[i].start), subject.marker_names[k], float(err[f, k])))
+            found += frames.size
             say(f"solve: {frames.size} marker positions rejected as outliers")
             problem.drop(bad)
+            # A spike or a swapped label drags its frame's pose (a leg folded to reach a swapped ankle
+            # marker) further than a few steps undo: such frames restart from their unaffected neighbours'.
+            new_hit = np.zeros_like(hit)
+            new_hit[frames[~hit[frames]]] = True
+            hit |= new_hit
+            state = _bridge(state, new_hit, hit, spans)
             state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
-        if rejected:
-            say("solve: again without the outliers")
-            state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
-            summary = _merge(summary, again)
+        if not found:
+            break
+        say("solve: again without the outliers")
+        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        summary = _merge(summary, again)
+        if fixed is None:
+            break
+        # The scatter measured before, at a fit dragged by what is now left out, was too large: measure
+        # it again and, if it changed, solve again and look for outliers against it.
+        sigma, scatter = _relearn(problem, state, fixed, say, trial_of)
+        if sigma is None:
+            break
+        problem = problem.with_noise(sigma)
+        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
         say(f"solve: segment frames turned to zero joint angles in {trials[neutral].source or 'the neutral trial'}")
@@ -850,6 +873,25 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     return problem, state, summary, scatter
 
 
+def _bridge(state: State, redo: np.ndarray, hit: np.ndarray, spans: list[slice]) -> State:
+    """The poses of the frames marked `redo` (F,) interpolated, within each trial, from the nearest
+    frames not marked `hit` (slerp for the root rotation; held beyond the ends)."""
+    Z, Q = state.Z.copy(), state.Q.copy()
+    for sl in spans:
+        good = np.flatnonzero(~hit[sl])
+        bad = np.flatnonzero(redo[sl])
+        if bad.size == 0 or good.size == 0:
+            continue
+        for c in range(Z.shape[1]):
+            Z[sl.start + bad, c] = np.interp(bad, good, Z[sl.start + good, c])
+        if good.size == 1:
+            Q[sl.start + bad] = Q[sl.start + good[0]]
+        else:
+            rot = Slerp(good, Rotation.from_quat(Q[sl.start + good]))(np.clip(bad, good[0], good[-1])).as_quat()
+            Q[sl.start + bad] = np.where(rot[:, 3:4] < 0, -rot, rot)
+    return State(Z, Q, state.p)
+
+
 def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
     """Markers whose noise SD is the user's (Settings.marker_noise), or None when nothing is learnt."""
     if not settings.learns_noise:
@@ -873,6 +915,27 @@ def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[s
     return (sigma if change > NOISE_CHANGE else None), scatter
 
 
+def leverage(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
+    """(F, n_markers) leverage of each observed marker in its frame — the trace of the weighted hat
+    matrix J_z A_f⁻¹ J_zᵀ W over its three rows, / 3: the fraction of its error the frame's pose
+    absorbs — and the raw residuals (F, 3 n_markers) at `state`."""
+    nm = len(problem.model.markers)
+    lin = problem.linearize(state, with_parameters=False)
+    d, jz, _, wrow = lin.jacobian[:4]
+    zr, zc, nrows, nz = problem._jz_pattern
+    F = problem.F
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(lin.A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    h = np.zeros((F, nm))
+    for s in range(0, F, 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
+        e = min(F, s + 128)
+        J = np.zeros((e - s, nrows, nz))
+        J[:, zr, zc] = jz[s:e]
+        J *= wrow[s:e, :, None]
+        Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
+        h[s:e] = np.einsum("frz,fzy,fry->fr", J, Ainv, J).reshape(e - s, nm, 3).sum(axis=2) / 3
+    return np.where(problem.seen, h, 0.0), d
+
+
 def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
                   trial_of: np.ndarray | None = None, correlation: bool = False):
     """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
@@ -893,19 +956,8 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     trial, in [1, NOISE_TAU_MAX] (a fixed marker: 1)."""
     model = problem.model
     nm = len(model.markers)
-    lin = problem.linearize(state, with_parameters=False)
-    d, jz, _, wrow = lin.jacobian[:4]
-    zr, zc, nrows, nz = problem._jz_pattern
     F = problem.F
-    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(lin.A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
-    h = np.zeros((F, nm))
-    for s in range(0, F, 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
-        e = min(F, s + 128)
-        J = np.zeros((e - s, nrows, nz))
-        J[:, zr, zc] = jz[s:e]
-        J *= wrow[s:e, :, None]
-        Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
-        h[s:e] = np.einsum("frz,fzy,fry->fr", J, Ainv, J).reshape(e - s, nm, 3).sum(axis=2) / 3
+    h, d = leverage(problem, state)
     res = d.reshape(F, nm, 3)
     seen = problem.seen
     n = seen.sum(axis=0)
@@ -960,13 +1012,17 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
 
 def _outliers(problem: Problem, state: State, settings: Settings,
               sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs (`sigma`, default
-    problem.sigma), each marker's noise SD scaled up if the fit shows more noise than that (median error
-    / 1.538, a 3-D Gaussian's)."""
+    """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
+    `settings.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
+    that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
+    absorbs most of it (one of a foot's two markers) keeps its small residual but not its studentised
+    one.  Returns the mask and the studentised errors times σ (m: comparable across markers)."""
     err = np.linalg.norm(problem.marker_residuals(state), axis=2)
     ok = np.isfinite(err)
     if not ok.any():
         return np.zeros_like(ok), err
+    h, _ = leverage(problem, state)
+    err = err / np.sqrt(np.clip(1.0 - h, 0.05, 1.0))
     sigma = problem.sigma if sigma is None else sigma
     scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)
     return ok & (err > settings.outliers * scale * sigma), err
