@@ -221,15 +221,24 @@ def test_spikes_and_swaps_rejected_skin_motion_kept(human):
 def test_start_fits_the_subjects_size(human, human_kin, k):
     sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=2)
     t = sim.truth
-    truth = Parameters(np.full_like(t.scale, k), t.centre, t.axis, t.marker)
     Z, Q = _truth_state(sim)
-    Z[:, :3] *= k
-    M, _ = human_kin.batch(Z, Q, truth)
-    trial = Trial(human.marker_names, M + np.random.default_rng(0).normal(0, 0.001, M.shape), 100.0, 0, None)
+
+    def subject(f: float) -> tuple[Parameters, Trial]:
+        truth = Parameters(np.full_like(t.scale, f), t.centre, t.axis, t.marker)
+        Zf = Z.copy()
+        Zf[:, :3] *= f
+        M, _ = human_kin.batch(Zf, Q, truth)
+        M = M + np.random.default_rng(0).normal(0, 0.001, M.shape)
+        return truth, Trial(human.marker_names, M, 100.0, 0, None)
+
+    _, same = subject(1.0)
+    ref = size_from_markers(human, [same])  # the subject's own proportions (markers and centres moved)
+    truth, trial = subject(k)
     size = size_from_markers(human, [trial])
     assert size is not None and size.pairs >= 20
     for limb, f in size.limbs.items():
-        assert abs(f / k - 1) < 0.04, (limb, f)
+        assert abs(ref.limbs[limb] - 1) < 0.07, (limb, ref.limbs[limb])  # markers +-10 mm, centres +-15 mm
+        assert abs(f / ref.limbs[limb] / k - 1) < 0.01, (limb, f)  # the same subject k times as large
     seed = seed_parameters(human, trial, size=size)
     carried = [i for i, s in enumerate(human.segments) if s.markers]
     err = seed.params.scale[carried] / k - 1
