@@ -656,6 +656,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
     fixed = _fixed_noise(subject, settings)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
+    reweighed = False  # the noise was learnt again and nothing solved since
     for _ in range(OUTLIER_PASSES if settings.outliers > 0 else 0):
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
         # worst marker of each frame, re-solve those poses, and look again.
@@ -681,19 +682,22 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             hit |= new_hit
             state = _bridge(state, new_hit, hit, spans)
             state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
-        if not found:
+        if not found and not reweighed:
             break
-        say("solve: again without the outliers")
+        say("solve: again without the outliers" if found else "solve: again with the noise learnt again")
         state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
         summary = _merge(summary, again)
-        if fixed is None:
+        reweighed = False
+        if fixed is None or not found:
             break
         # The scatter measured before, at a fit dragged by what is now left out, was too large: measure
-        # it again and, if it changed, solve again and look for outliers against it.
+        # it again and, if it changed, look for outliers against it and solve again.
         sigma, scatter = _relearn(problem, state, fixed, say, trial_of)
         if sigma is None:
             break
         problem = problem.with_noise(sigma)
+        reweighed = True
+    if reweighed:
         state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
         summary = _merge(summary, again)
     if in_neutral is not None:
