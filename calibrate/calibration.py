@@ -50,7 +50,16 @@ STRIDE = 10  # key-frame spacing of the start (frames of the trial)
 COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly spaced frames first
 SEED_FRAMES = 150  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
+OUTLIER_PASSES = 2  # rejection rounds, solve, noise learnt again: at most this many times
 SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
+NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
+NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it)
+NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or all markers') median learnt SD
+NOISE_ROUNDS = 3  # learn-and-solve rounds on the subsample (then once more on every frame)
+NOISE_CHANGE = 0.1  # stop re-learning when no marker's SD changes by more than this fraction
+MAD_SD = 1.4826  # SD of a Gaussian per unit median absolute deviation
+NOISE_TAU_MAX = 16.0  # frames: a marker's residual correlation time counts up to this (its weight SD: 4 x its SD)
+NOISE_CLIP = 4.0  # a residual counts in the learnt SD up to this many robust SDs per coordinate (spikes: no more)
 
 
 @dataclass(frozen=True)
@@ -128,6 +137,10 @@ class Calibration:
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     unresolved: tuple = ()  # calibrate.resolve.UnresolvedSegment per segment the markers cannot place (locked)
+    noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
+    noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
+    noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
+    # (m): the noise SD times the square root of its residuals' correlation time in frames (learnt noise only)
 
     @property
     def trial(self) -> Trial:
@@ -199,7 +212,7 @@ def _rms(res: np.ndarray) -> float:
 
 # ---------------------------------------------------------------------- seed
 def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None,
-                    extra_markers: Mapping[str, str] | None = None) -> Seed:
+                    extra_markers: Mapping[str, str] | None = None, size: Size | None = None) -> Seed:
     """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
 
     * scale of a segment: the median over frames of the distances between its estimated joint
@@ -213,6 +226,9 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
 
     `extra_markers` (trial label -> segment) adds markers the model does not know to the MTB
     estimate of the joint centres (they are placed on their segments later, in `calibrate`).
+    `size` (size_from_markers): the subject's limb sizes from marker distances; a segment without
+    estimated centres takes its limb's factor, and so does one whose centres give a factor further
+    than SIZE_TOLERANCE from it (an MTB centre off by a few centimetres on a short segment).
     """
     t0 = time.perf_counter()
     notes: list[str] = []
@@ -223,8 +239,12 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
         try:
             joints = estimate_model_joints(model, trial, cutoff_hz=cutoff, extra_markers=extra_markers)
         except (ValueError, CalibrateError) as e:
-            notes.append(f"joint-centre seed unavailable ({e}); starting from the base model")
-            return Seed(model.parameters(), tuple(notes), None, time.perf_counter() - t0)
+            notes.append(f"joint-centre seed unavailable ({e}); starting from the base model"
+                         + (" scaled to the markers" if size is not None else ""))
+            p0 = model.parameters()
+            if size is not None:
+                p0.scale[:] = size.scale
+            return Seed(p0, tuple(notes), None, time.perf_counter() - t0)
     base = model.parameters()
     geo = model_geometry(model)
     # Only direct MTB solutions seed the geometry: JMV fallbacks and joints seen through a
@@ -260,6 +280,15 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     known = [np.median(r) for r in ratios.values() if r]
     overall = float(np.median(known)) if known else 1.0
     scale = np.array([float(np.median(ratios[s.name])) if ratios[s.name] else overall for s in model.segments])
+    if size is not None:
+        for si, sg in enumerate(model.segments):
+            if not ratios[sg.name]:
+                scale[si] = size.scale[si]
+            elif abs(scale[si] / size.scale[si] - 1.0) > SIZE_TOLERANCE:
+                notes.append(f"{sg.name}: scale {scale[si]:.2f} from its joint centres is more than "
+                             f"{100 * SIZE_TOLERANCE:.0f} % from its limb's {size.scale[si]:.2f} (marker distances); "
+                             f"the limb's used")
+                scale[si] = size.scale[si]
     scale = np.clip(scale, 0.7, 1.4)
     centre = base.centre.copy()
     axis = base.axis.copy()
@@ -322,6 +351,116 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
                                  f"base model's; base model axis used")
     params = Parameters(scale, centre, axis, marker)
     return Seed(params, tuple(notes), joints, time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class Size:
+    """The subject's size from the markers alone (size_from_markers): per segment, limb and overall."""
+
+    scale: np.ndarray  # (n_segments,) factor of each segment: its limb's
+    limbs: dict[str, float]  # limb (named by its first segment) -> factor (median of its pairs' ratios)
+    overall: float  # median ratio over every pair
+    pairs: int  # marker pairs used
+
+
+SIZE_POSES = 60  # random poses (angles anywhere in their ranges): is a marker pair's distance pose-independent?
+SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this fraction over those poses ...
+SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
+SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
+SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
+
+
+def limb_groups(model: Model) -> dict[str, list[int]]:
+    """Segments grouped into limbs: each trunk segment alone (the root and every segment with two or
+    more child joints: pelvis, torso) and each chain hanging from them (a leg, an arm, the head), named
+    by its first segment."""
+    kids: dict[str, list[str]] = {s.name: [] for s in model.segments}
+    for j in model.joints:
+        kids[j.parent].append(j.child)
+    trunk = {model.segments[0].name} | {n for n, k in kids.items() if len(k) >= 2}
+    out: dict[str, list[int]] = {n: [model.segment_index(n)] for n in sorted(trunk, key=model.segment_index)}
+
+    def walk(name: str, into: list[int]) -> None:
+        into.append(model.segment_index(name))
+        for k in kids[name]:
+            if k not in trunk:
+                walk(k, into)
+
+    for t in trunk:
+        for k in kids[t]:
+            if k not in trunk:
+                out[k] = []
+                walk(k, out[k])
+    return out
+
+
+def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> Size | None:
+    """The subject's size against the base model, from marker distances only (before any joint
+    centre is known): every pair of model markers whose distance is the same in any pose of the base
+    model (the same segment, or across a joint near its axis: knee to ankle markers) and steady over
+    the trials' frames, compared with the base model's (median over frames / neutral pose); a limb's
+    factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
+    overall factor the median of all.  None if no pair qualifies."""
+    import pinocchio as pin
+
+    names = [m.name for m in model.markers]
+    seg = np.array([model.segment_index(m.segment) for m in model.markers])
+    pm = model.pin
+    data = pm.createData()
+    fid = [pm.getFrameId(n) for n in names]
+    rng = np.random.default_rng(seed)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
+    poses = []
+    for i in range(SIZE_POSES + 1):
+        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
+        poses.append(np.array([data.oMf[f].translation for f in fid]))
+    P = np.array(poses)  # (poses, markers, 3)
+    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
+    d0 = D[0]
+    model_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
+    # The trials' distances, on at most ~300 frames of each.
+    parts = []
+    for t in trials:
+        X = np.full((t.n_frames, len(names), 3), np.nan)
+        have = [k for k, n in enumerate(names) if n in t.labels]
+        X[:, have] = t.select([names[k] for k in have]).markers
+        parts.append(X[:: max(1, t.n_frames // 300)])
+    X = np.concatenate(parts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        Dt = np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3)
+        med = np.nanmedian(Dt, axis=0)
+        mad = MAD_SD * np.nanmedian(np.abs(Dt - med), axis=0)
+        n = np.sum(np.isfinite(Dt), axis=0)
+    ok = ((model_cv < SIZE_MODEL_CV) & (n >= 3) & (mad < SIZE_TRIAL_CV * med) & (d0 >= SIZE_MIN_DISTANCE)
+          & np.triu(np.ones_like(d0, dtype=bool), 1))
+    a, b = np.nonzero(ok)
+    if a.size == 0:
+        return None
+    ratio = med[a, b] / d0[a, b]
+    # A marker sits a few centimetres from where the base model puts it (wands above all: Plug-in
+    # Gait's TIB marker is 10 cm lower than ours), which changes a pair's ratio by about that over its
+    # length: the weighted median, weight d0², trusts the long pairs (knee to ankle) most.
+    wt = d0[a, b] ** 2
+    overall = _weighted_median(ratio, wt)
+    limbs = limb_groups(model)
+    scale = np.full(len(model.segments), overall)
+    factors: dict[str, float] = {}
+    for name, segs in limbs.items():
+        inside = np.isin(seg[a], segs) & np.isin(seg[b], segs)
+        if inside.sum() >= 1:
+            factors[name] = _weighted_median(ratio[inside], wt[inside])
+            scale[segs] = factors[name]
+    return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
+
+
+def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The value below and above which lie at most half the total weight."""
+    order = np.argsort(x)
+    c = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
 
 
 def _seed_trial(trial: Trial, max_frames: int) -> Trial:
@@ -495,9 +634,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     if settings.seed:
-        say("seed: joint centres (MTB)")
+        say("seed: the subject's size from marker distances, then joint centres (MTB)")
+        size = size_from_markers(model, trials)
         pick = _most_motion(model, trials)
-        seed = seed_parameters(model, trials[pick], extra_markers=new)
+        seed = seed_parameters(model, trials[pick], extra_markers=new, size=size)
         if len(trials) > 1:
             seed = Seed(seed.params, (f"seeded from {trials[pick].source or f'trial {pick + 1}'} (the trial with "
                                       f"the most joint motion)", *seed.notes), seed.joints, seed.seconds)
@@ -531,15 +671,20 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
-    problem, state, summary = _solve(problem, start, spans, say)
+    problem, state, summary, scatter = _solve(problem, start, spans, say)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = problem.settings
     rejected: list[Outlier] = []
-    if settings.outliers > 0:
+    hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
+    fixed = _fixed_noise(subject, settings)
+    trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
+    reweighed = False  # the noise was learnt again and nothing solved since
+    for _ in range(OUTLIER_PASSES if settings.outliers > 0 else 0):
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
         # worst marker of each frame, re-solve those poses, and look again.
+        found = 0
         for _ in range(OUTLIER_ROUNDS):
-            bad, err = _outliers(problem, state, settings)
+            bad, err = _outliers(problem, state, settings, scatter)
             if not bad.any():
                 break
             worst = np.where(bad, err, -1.0).argmax(axis=1)
@@ -549,13 +694,34 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             for f, k in zip(frames, worst[frames], strict=True):
                 i = next(i for i, sl in enumerate(spans) if sl.start <= f < sl.stop)
                 rejected.append(Outlier(i, int(f - spans[i].start), subject.marker_names[k], float(err[f, k])))
+            found += frames.size
             say(f"solve: {frames.size} marker positions rejected as outliers")
             problem.drop(bad)
+            # A spike or a swapped label drags its frame's pose (a leg folded to reach a swapped ankle
+            # marker) further than a few steps undo: such frames restart from their unaffected neighbours'.
+            new_hit = np.zeros_like(hit)
+            new_hit[frames[~hit[frames]]] = True
+            hit |= new_hit
+            state = _bridge(state, new_hit, hit, spans)
             state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
-        if rejected:
-            say("solve: again without the outliers")
-            state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
-            summary = _merge(summary, again)
+        if not found and not reweighed:
+            break
+        say("solve: again without the outliers" if found else "solve: again with the noise learnt again")
+        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        summary = _merge(summary, again)
+        reweighed = False
+        if fixed is None or not found:
+            break
+        # The scatter measured before, at a fit dragged by what is now left out, was too large: measure
+        # it again and, if it changed, look for outliers against it and solve again.
+        sigma, scatter = _relearn(problem, state, fixed, say, trial_of)
+        if sigma is None:
+            break
+        problem = problem.with_noise(sigma)
+        reweighed = True
+    if reweighed:
+        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
         say(f"solve: segment frames turned to zero joint angles in {trials[neutral].source or 'the neutral trial'}")
@@ -576,7 +742,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=notes, held_axes=held, unresolved=res.segments)
+                       outliers=tuple(rejected), notes=notes, held_axes=held, unresolved=res.segments,
+                       noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
+                       noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
+                       noise_learnt=settings.learns_noise)
 
 
 def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
@@ -687,11 +856,23 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     seen = problem.seen
     coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
                                                                            / problem.F))) for sl in spans])
+    fixed = _fixed_noise(problem.model, settings)
+    scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
+    trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     for round_ in range(HOLD_ROUNDS + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
         state, coarse_summary = _solve_geometry(sub, _frames(start, coarse), settings,
                                                 say, polish=sub is problem)
+        for _ in range(NOISE_ROUNDS if fixed is not None else 0):
+            # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
+            sigma, scatter = _relearn(sub, state, fixed, say, trial_of[coarse] if sub is not problem else trial_of)
+            if sigma is None:
+                break
+            problem = problem.with_noise(sigma)
+            sub = problem if coarse.size == problem.F else problem.subset(coarse)
+            state, again = _solve_geometry(sub, state, settings, say, polish=sub is problem)
+            coarse_summary = _merge(coarse_summary, again)
         if not settings.auto_hold or round_ == HOLD_ROUNDS:
             break
         axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
@@ -703,7 +884,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         say(f"solve: the trial does not show {', '.join(still)} moving: holding "
             f"{'its axis' if len(still) == 1 else 'their axes'} at the base model's, solving again")
         settings = replace(settings, hold_axes=settings.hold_axes + tuple(still))
-        problem = problem.with_settings(settings)
+        problem = problem.with_settings(settings, sigma=problem.sigma)
         # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
         p, base = start.p.copy(), problem.base.vector()
         for name in still:
@@ -712,7 +893,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         start = replace(start, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary
+        return problem, state, coarse_summary, scatter
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.
     say(f"solve: all {problem.F} frames")
     parts = []
@@ -723,19 +904,172 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     state, summary = levenberg_marquardt(
         problem, state,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+    if fixed is not None:
+        sigma, scatter = _relearn(problem, state, fixed, say, trial_of)
+    if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
+        problem = problem.with_noise(sigma)
+        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
-    return problem, state, summary
+    return problem, state, summary, scatter
 
 
-def _outliers(problem: Problem, state: State, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (F, n_markers) whose 3-D error exceeds `settings.outliers` noise SDs, each marker's
-    set noise SD scaled up if the fit shows more noise than set (median error / 1.538, a 3-D Gaussian's)."""
+def _bridge(state: State, redo: np.ndarray, hit: np.ndarray, spans: list[slice]) -> State:
+    """The poses of the frames marked `redo` (F,) interpolated, within each trial, from the nearest
+    frames not marked `hit` (slerp for the root's and the balls' reference rotations; held beyond
+    the ends)."""
+    Z = state.Z.copy()
+    rots = [state.Q.copy()] + ([] if state.B is None else [state.B[:, i].copy() for i in range(state.B.shape[1])])
+    for sl in spans:
+        good = np.flatnonzero(~hit[sl])
+        bad = np.flatnonzero(redo[sl])
+        if bad.size == 0 or good.size == 0:
+            continue
+        for c in range(Z.shape[1]):
+            Z[sl.start + bad, c] = np.interp(bad, good, Z[sl.start + good, c])
+        for Q in rots:
+            if good.size == 1:
+                Q[sl.start + bad] = Q[sl.start + good[0]]
+            else:
+                rot = Slerp(good, Rotation.from_quat(Q[sl.start + good]))(np.clip(bad, good[0], good[-1])).as_quat()
+                Q[sl.start + bad] = np.where(rot[:, 3:4] < 0, -rot, rot)
+    B = None if state.B is None else np.stack(rots[1:], axis=1) if rots[1:] else state.B.copy()
+    return State(Z, rots[0], state.p, B)
+
+
+def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
+    """Markers whose noise SD is the user's (Settings.marker_noise), or None when nothing is learnt."""
+    if not settings.learns_noise:
+        return None
+    named = {label for label, _ in settings.marker_noise}
+    return np.array([n in named for n in model.marker_names])
+
+
+def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str], None],
+             trial_of: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """learned_noise at `state`: the weights' SDs sigma sqrt(τ) (a marker whose residuals are correlated
+    over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
+    None if nine markers in ten changed their weights' SD by no more than NOISE_CHANGE (a few poorly
+    seen markers may go on wavering without moving the geometry)."""
+    scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True)
+    sigma = scatter * np.sqrt(tau)
+    change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
+    say(f"noise: learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
+        f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to {tau.max():.1f}); "
+        f"9 in 10 weights changed by <= {100 * change:.0f} %")
+    return (sigma if change > NOISE_CHANGE else None), scatter
+
+
+def leverage(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
+    """(F, n_markers) leverage of each observed marker in its frame — the trace of the weighted hat
+    matrix J_z A_f⁻¹ J_zᵀ W over its three rows, / 3: the fraction of its error the frame's pose
+    absorbs — and the raw residuals (F, 3 n_markers) at `state`."""
+    nm = len(problem.model.markers)
+    lin = problem.linearize(state, with_parameters=False)
+    d, jz, _, wrow = lin.jacobian[:4]
+    zr, zc, nrows, nz = problem._jz_pattern
+    F = problem.F
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(lin.A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    h = np.zeros((F, nm))
+    for s in range(0, F, 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
+        e = min(F, s + 128)
+        J = np.zeros((e - s, nrows, nz))
+        J[:, zr, zc] = jz[s:e]
+        J *= wrow[s:e, :, None]
+        Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
+        h[s:e] = np.einsum("frz,fzy,fry->fr", J, Ainv, J).reshape(e - s, nm, 3).sum(axis=2) / 3
+    return np.where(problem.seen, h, 0.0), d
+
+
+def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
+                  trial_of: np.ndarray | None = None, correlation: bool = False):
+    """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
+    residuals over the frames, each winsorised at NOISE_CLIP robust SDs per coordinate (MAD_SD times
+    the median absolute deviation of its components in the same trial: `trial_of` (F,) gives each
+    frame's trial; a static trial's scatter is smaller than a walk's), so that skin-motion scatter
+    counts and spikes count no more than a few SDs.  A residual is smaller than the noise by the
+    part of it the fit absorbs, so each is first divided by sqrt(1 − h): h its frame's leverage
+    (the trace of the weighted hat matrix J_z A_f⁻¹ J_zᵀ W over the marker's three rows, / 3:
+    one frame's 38 coordinates absorb about a third of 39 markers' 117 coordinates) plus 1/n for
+    the marker's own offset, fitted over its n frames.  Markers seen in fewer than NOISE_MIN_FRAMES
+    frames or almost wholly absorbed (h > 0.8) take the median of their segment's (else of all
+    markers'); `fixed` markers (the user's marker_noise) keep problem.sigma.  Clipped to
+    [NOISE_FLOOR, NOISE_CAP].
+
+    `correlation`: also return each marker's correlation time τ (frames of `problem`; 1 for white
+    noise): (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation of its standardised residuals within each
+    trial, in [1, NOISE_TAU_MAX] (a fixed marker: 1)."""
+    model = problem.model
+    nm = len(model.markers)
+    F = problem.F
+    h, d = leverage(problem, state)
+    res = d.reshape(F, nm, 3)
+    seen = problem.seen
+    n = seen.sum(axis=0)
+    sigma = problem.sigma.copy()
+    learnt = np.full(nm, np.nan)
+    trial_of = np.zeros(F, dtype=int) if trial_of is None else np.asarray(trial_of)
+    for k in range(nm):
+        use = seen[:, k]
+        if n[k] < NOISE_MIN_FRAMES:
+            continue
+        lev = h[use, k] + 1.0 / n[k]
+        if np.median(lev) > 0.8:
+            continue
+        r = res[use, k]
+        keep = np.clip(1.0 - lev, 0.2, 1.0)
+        u = r / np.sqrt(keep)[:, None]
+        cap = np.empty(use.sum())
+        for t in np.unique(trial_of[use]):
+            mine = trial_of[use] == t
+            s0 = MAD_SD * float(np.median(np.abs(u[mine] - np.median(u[mine], axis=0))))
+            cap[mine] = 3 * (NOISE_CLIP * s0) ** 2 * keep[mine]
+        # The mean square, winsorised at NOISE_CLIP robust SDs: a marker whose residual the fit confines
+        # to fewer than 3 directions (a single hand marker: 1) has no Gaussian components for the MAD,
+        # but E|r|^2 = 3 sigma^2 (1 - h) whatever the rank.
+        sq = np.minimum(np.sum(r**2, axis=1), cap)
+        learnt[k] = math.sqrt(float(np.sum(sq)) / float(np.sum(3 * keep)))
+    seg = problem.marker_segment
+    overall = float(np.nanmedian(learnt)) if np.isfinite(learnt).any() else float(np.median(sigma))
+    for k in np.flatnonzero(~np.isfinite(learnt)):
+        mine = learnt[(seg == seg[k]) & np.isfinite(learnt)]
+        learnt[k] = float(np.median(mine)) if mine.size else overall
+    learnt = np.clip(learnt, NOISE_FLOOR, NOISE_CAP)
+    if fixed is not None:
+        learnt = np.where(fixed, sigma, learnt)
+    if not correlation:
+        return learnt
+    tau = np.ones(nm)
+    lag = seen[1:] & seen[:-1] & (trial_of[1:] == trial_of[:-1])[:, None]  # (F-1, nm): consecutive pairs
+    for k in range(nm):
+        if lag[:, k].sum() < NOISE_MIN_FRAMES or (fixed is not None and fixed[k]):
+            continue
+        u = np.where(seen[:, k, None], res[:, k], 0.0)
+        for t in np.unique(trial_of):
+            mine = (trial_of == t) & seen[:, k]
+            if mine.any():
+                u[mine] -= u[mine].mean(axis=0)
+        a, b = u[:-1][lag[:, k]], u[1:][lag[:, k]]
+        rho = float(np.sum(a * b)) / max(math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b))), 1e-300)
+        tau[k] = float(np.clip((1 + rho) / max(1 - rho, 1e-9), 1.0, NOISE_TAU_MAX))
+    return learnt, tau
+
+
+def _outliers(problem: Problem, state: State, settings: Settings,
+              sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
+    `settings.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
+    that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
+    absorbs most of it (one of a foot's two markers) keeps its small residual but not its studentised
+    one.  Returns the mask and the studentised errors times σ (m: comparable across markers)."""
     err = np.linalg.norm(problem.marker_residuals(state), axis=2)
     ok = np.isfinite(err)
     if not ok.any():
         return np.zeros_like(ok), err
-    sigma = problem.sigma
+    h, _ = leverage(problem, state)
+    err = err / np.sqrt(np.clip(1.0 - h, 0.05, 1.0))
+    sigma = problem.sigma if sigma is None else sigma
     scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)
     return ok & (err > settings.outliers * scale * sigma), err
 

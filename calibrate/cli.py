@@ -258,7 +258,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="comma-separated parameter groups to calibrate: scale,centre,axis,marker (default all)")
     ap.add_argument("--loss", choices=("linear", "huber", "cauchy"), default=None,
                     help="robust loss against marker outliers (default linear)")
-    ap.add_argument("--noise-mm", type=_positive_float, default=None, help="marker noise SD in mm (default 1)")
+    ap.add_argument("--noise-mm", type=_positive_float, default=None,
+                    help="marker noise SD in mm, kept as given (default: learnt per marker from the residuals)")
+    ap.add_argument("--no-learn-noise", action="store_true",
+                    help="do not learn the markers' noise SDs from the residuals; use --noise-mm (default 1) for all")
     ap.add_argument("--no-seed", action="store_true", help="start from the base model, not from MTB joint centres")
     ap.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                     help="hold coordinates at a value (default 0 deg) in every frame, e.g. "
@@ -398,6 +401,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["loss"] = args.loss
     if args.noise_mm is not None:
         flags["noise_mm"] = args.noise_mm
+    if args.no_learn_noise:
+        flags["learn_noise"] = False
     if args.no_seed:
         flags["seed"] = False
     if args.no_new_markers:

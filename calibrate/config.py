@@ -3,7 +3,8 @@
 Every key is optional; units are in the key names (mm, deg).  Example, with the defaults::
 
     free = ["scale", "centre", "axis", "marker"]   # parameter groups to calibrate
-    noise_mm = 1.0          # marker noise SD: weights the marker residuals
+    noise_mm = 1.0          # marker noise SD: weights the marker residuals (given: kept, not learnt)
+    learn_noise = true      # learn each marker's noise SD from the residuals (default unless noise_mm is given)
     loss = "linear"         # or "huber", "cauchy" (robust against marker outliers)
     loss_scale = 3.0        # robust-loss scale, in units of noise_mm
     max_iterations = 100
@@ -20,6 +21,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     centre_mm = 20.0
     axis_deg = 10.0
     scale = 0.25
+    symmetry_scale = 0.02   # SD of a left/right difference of segment scales (0: off)
+    symmetry_centre_mm = 10.0  # SD of a left/right difference of mirrored joint centres (0: off)
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
@@ -48,8 +51,9 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm", "lock_deg", "hold_axes", "auto_hold"}
-_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale"}
+        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm", "lock_deg", "hold_axes", "auto_hold",
+        "learn_noise"}
+_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm"}
 
 
 def settings_from_dict(data: dict, where: str = "settings", base: Settings | None = None) -> Settings:
@@ -76,11 +80,13 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         centre=num(pri, "centre_mm", 1000 * s.priors.centre) / 1000,
         axis=math.radians(num(pri, "axis_deg", math.degrees(s.priors.axis))),
         scale=num(pri, "scale", s.priors.scale),
+        symmetry_scale=num(pri, "symmetry_scale", s.priors.symmetry_scale),
+        symmetry_centre=num(pri, "symmetry_centre_mm", 1000 * s.priors.symmetry_centre) / 1000,
     )
     free = data.get("free", list(s.free))
     if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):
         raise CalibrateError(f"{where}: 'free' must be a list of group names, e.g. [\"centre\", \"marker\"]")
-    for key in ("seed", "compile", "new_markers", "geodesic"):
+    for key in ("seed", "compile", "new_markers", "geodesic", "learn_noise"):
         if key in data and not isinstance(data[key], bool):
             raise CalibrateError(f"{where}: '{key}' must be true or false, got {data[key]!r}")
     it = data.get("max_iterations", s.max_iterations)
@@ -104,8 +110,10 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     auto_hold = data.get("auto_hold", s.auto_hold)
     if not isinstance(auto_hold, bool):
         raise CalibrateError(f"{where}: 'auto_hold' must be true or false, got {auto_hold!r}")
+    # A noise stated by the user is kept (not learnt from the data) unless learn_noise says otherwise.
+    learn = data.get("learn_noise", False if "noise_mm" in data else s.learn_noise)
     try:
-        return replace(s, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
+        return replace(s, learn_noise=learn, free=tuple(free), noise=num(data, "noise_mm", 1000 * s.noise) / 1000,
                        loss=str(loss), loss_scale=num(data, "loss_scale", s.loss_scale), priors=priors,
                        max_iterations=it, ftol=num(data, "ftol", s.ftol), atol=num(data, "atol", s.atol),
                        xtol=num(data, "xtol", s.xtol),

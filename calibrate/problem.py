@@ -55,6 +55,7 @@ LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this m
 LOSSES = ("linear", "huber", "cauchy")
 EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
 FrameTurn = tuple[int, str, np.ndarray, np.ndarray]  # (segment, gauge kind, rotation G, shift t) of a frame turn
+NOISE_DEFAULT = 0.001  # m: Settings.noise unless given (then learnt from the data: Settings.learn_noise)
 EVAL_PAD = 32  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
 
 
@@ -66,6 +67,13 @@ class Priors:
     centre: float = 0.02  # m: same for a joint centre
     axis: float = math.radians(10.0)  # rad: tilt of a hinge axis
     scale: float = 0.25  # fraction: segment scale factor about 1
+    # Left/right symmetry (segments and joints named *_l / *_r; 0: off): SD of the difference between
+    # a left segment's scale factor and its right partner's (fraction), and between a left joint centre
+    # and its right partner's mirrored through the sagittal plane (m, at the subject's scale), each
+    # counted relative to the base model's own asymmetry.  Soft-tissue artefact pulls the two sides
+    # apart by different amounts; a subject's bones are symmetric to a few per cent.
+    symmetry_scale: float = 0.02
+    symmetry_centre: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -73,7 +81,7 @@ class Settings:
     """What is calibrated and how.  Units: metres, radians."""
 
     free: tuple[str, ...] = GROUPS  # parameter groups the solve may change
-    noise: float = 0.001  # m: marker noise standard deviation (weights the marker residuals)
+    noise: float = NOISE_DEFAULT  # m: marker noise SD (weights the marker residuals; the start when learnt)
     loss: str = "linear"  # 'linear', 'huber' or 'cauchy'
     loss_scale: float = 3.0  # in units of `noise`: residuals beyond it count less (robust losses)
     priors: Priors = field(default_factory=Priors)
@@ -100,6 +108,15 @@ class Settings:
     # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
     # axis, and left free the axis drifts far from the base model's by fitting noise.
     auto_hold: bool = True
+    # Learn each marker's noise SD from the trial's residuals (a robust scale, iterated with the solve;
+    # calibrate.calibration.learned_noise) instead of taking `noise` for all.  None (default): learn
+    # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
+    learn_noise: bool | None = None
+
+    @property
+    def learns_noise(self) -> bool:
+        """Whether calibrate learns the markers' noise SDs from the data (see `learn_noise`)."""
+        return self.noise == NOISE_DEFAULT if self.learn_noise is None else bool(self.learn_noise)
 
     def __post_init__(self) -> None:
         hold = (self.hold_axes,) if isinstance(self.hold_axes, str) else self.hold_axes
@@ -139,6 +156,12 @@ class Settings:
             v = getattr(self.priors, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")
+        for name in ("symmetry_scale", "symmetry_centre"):
+            v = getattr(self.priors, name)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
+                raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")
+        if self.learn_noise is not None and not isinstance(self.learn_noise, bool):
+            raise ValueError(f"learn_noise: must be true, false or None (auto), got {self.learn_noise!r}")
         if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):
             raise ValueError(f"outliers: must be 0 (off) or a positive number of noise SDs, got {self.outliers!r}")
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
@@ -258,11 +281,25 @@ class Problem:
         self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
         self.n_obs = int(self.seen.sum())
 
-    def with_settings(self, settings: Settings) -> Problem:
+    def with_settings(self, settings: Settings, sigma: np.ndarray | None = None) -> Problem:
         """The same trial, model and prior centres under other settings (e.g. more axes held),
-        sharing the kinematics and the compiled functions' cache."""
+        sharing the kinematics and the compiled functions' cache; `sigma`: the markers' noise SDs
+        (m, e.g. learnt from the residuals) instead of the settings'."""
         new = Problem(self.model, self.observed, settings, self.kin, self.base, self._progress)
         new.loss = self.loss
+        if sigma is not None:
+            new.sigma = np.array(sigma, dtype=float)
+        return new
+
+    def with_noise(self, sigma: np.ndarray) -> Problem:
+        """The same problem with other per-marker noise SDs (m; e.g. learnt from the residuals),
+        sharing everything else (the observations, compiled functions, prior centres)."""
+        sigma = np.asarray(sigma, dtype=float)
+        if sigma.shape != self.sigma.shape or not np.all(np.isfinite(sigma) & (sigma > 0)):
+            raise ValueError(f"sigma: expected {self.sigma.size} positive noise SDs, got {sigma!r}")
+        new = copy.copy(self)
+        new.scratch = {}
+        new.sigma = sigma.copy()
         return new
 
     def drop(self, mask: np.ndarray) -> None:
@@ -765,6 +802,31 @@ class Problem:
             J = np.zeros((ns, self.np_full))
             J[np.arange(ns), np.arange(ns)] = 1.0 / st.priors.scale
             jac.append(J)
+        # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
+        # its right partner's, a left joint centre (at its parent's scale) against its right partner's
+        # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
+        seg_pairs, joint_pairs, mirror = symmetry_pairs(m, base[o["centre"]:o["axis"]].reshape(-1, 3))
+        sd = st.priors.symmetry_scale
+        if "scale" in free and sd > 0 and seg_pairs:
+            a, b = np.array(seg_pairs).T
+            res.append(((scale[a] - scale[b]) - (base[a] - base[b])) / sd)
+            J = np.zeros((a.size, self.np_full))
+            J[np.arange(a.size), a] = 1.0 / sd
+            J[np.arange(a.size), b] = -1.0 / sd
+            jac.append(J)
+        sd = st.priors.symmetry_centre
+        if "centre" in free and sd > 0 and joint_pairs:
+            for jl, jr in joint_pairs:
+                sa, sb = int(self.centre_segment[jl]), int(self.centre_segment[jr])
+                il = o["centre"] + 3 * jl + np.arange(3)
+                ir = o["centre"] + 3 * jr + np.arange(3)
+                res.append((scale[sa] * p[il] - mirror * (scale[sb] * p[ir]) - (base[il] - mirror * base[ir])) / sd)
+                J = np.zeros((3, self.np_full))
+                J[np.arange(3), il] = scale[sa] / sd
+                J[np.arange(3), ir] = -mirror * scale[sb] / sd
+                J[:, sa] += p[il] / sd
+                J[:, sb] -= mirror * p[ir] / sd
+                jac.append(J)
         if not res:
             return np.zeros(0), np.zeros((0, self.n_free))
         if not jacobian:
@@ -912,6 +974,27 @@ class Problem:
         J = sparse.csr_matrix((np.concatenate(blocks_v), (np.concatenate(blocks_r), np.concatenate(blocks_c))),
                               shape=(e.size, F * nz + self.n_free))
         return e, J
+
+
+def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]],
+                                                               np.ndarray]:
+    """Left/right partners by name (``X_l`` / ``X_r``): (segment index pairs, joint index pairs, mirror),
+    the mirror a diagonal (3,) of ±1 that reflects a position through the sagittal plane: the lateral
+    axis is the one along which the base model's paired joint centres `centres` (n_joints, 3) differ most
+    (y in models/human.urdf, whose segment frames are all parallel in the neutral pose)."""
+    def pairs(names: list[str]) -> list[tuple[int, int]]:
+        at = {n: i for i, n in enumerate(names)}
+        return [(i, at[n[:-2] + "_r"]) for i, n in enumerate(names) if n.endswith("_l") and n[:-2] + "_r" in at]
+
+    seg = pairs([s.name for s in model.segments])
+    jnt = pairs([j.name for j in model.joints])
+    mirror = np.ones(3)
+    if jnt:
+        spread = np.sum([np.abs(centres[a] - centres[b]) for a, b in jnt], axis=0)
+        mirror[int(np.argmax(spread))] = -1.0
+    else:
+        mirror[1] = -1.0
+    return seg, jnt, mirror
 
 
 class _FrameEvaluator:

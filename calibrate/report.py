@@ -84,7 +84,10 @@ def calibration_report(cal) -> dict:
         "settings": {"free": list(st.free), "noise_mm": 1000 * st.noise, "loss": st.loss,
                      "loss_scale": st.loss_scale,
                      "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
-                                "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale},
+                                "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale,
+                                "symmetry_scale": st.priors.symmetry_scale,
+                                "symmetry_centre_mm": 1000 * st.priors.symmetry_centre},
+                     "learn_noise": st.learns_noise,
                      "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
                      "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise},
@@ -93,6 +96,9 @@ def calibration_report(cal) -> dict:
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in getattr(cal, "unresolved", ())],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
+        "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
+                  "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
+        "symmetry": symmetry_table(cal),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
@@ -129,6 +135,64 @@ def _rms_of(res: np.ndarray) -> float:
     return float(np.sqrt(np.nanmean(d))) if np.isfinite(d).any() else float("nan")
 
 
+def symmetry_table(cal) -> dict:
+    """Left/right differences of the result: per segment pair the scale difference (fraction of their
+    mean) and the length difference of the segments that carry a joint centre below them (mm, %), per
+    joint pair the distance between the left centre and the mirrored right one (mm, at the subject's
+    scale); the largest of each, and the symmetry prior's SDs."""
+    from .problem import symmetry_pairs
+
+    model, p = cal.model, cal.params
+    segs, joints, mirror = symmetry_pairs(model, model.parameters().centre)
+    scale = {}
+    for a, b in segs:
+        sa, sb = float(p.scale[a]), float(p.scale[b])
+        scale[f"{model.segments[a].name[:-2]}"] = round(abs(sa - sb) / (0.5 * (sa + sb)), 6)
+    length = {}
+    for a, b in segs:
+        la = [float(np.linalg.norm(p.scale[a] * p.centre[j])) for j, jt in enumerate(model.joints)
+              if jt.parent == model.segments[a].name]
+        lb = [float(np.linalg.norm(p.scale[b] * p.centre[j])) for j, jt in enumerate(model.joints)
+              if jt.parent == model.segments[b].name]
+        if la and lb and la[0] > 0.05:
+            length[model.segments[a].name[:-2]] = {"left_mm": _mm(la[0]), "right_mm": _mm(lb[0]),
+                                                   "difference": round(abs(la[0] - lb[0]) / (0.5 * (la[0] + lb[0])), 6)}
+    centre = {}
+    for a, b in joints:
+        sa = p.scale[model.segment_index(model.joints[a].parent)]
+        sb = p.scale[model.segment_index(model.joints[b].parent)]
+        centre[model.joints[a].name[:-2]] = _mm(float(np.linalg.norm(sa * p.centre[a] - mirror * sb * p.centre[b])))
+    st = cal.settings.priors
+    return {"prior": {"scale": st.symmetry_scale, "centre_mm": 1000 * st.symmetry_centre},
+            "scale_difference": scale, "segment_length": length, "centre_mirror_mm": centre,
+            "largest_scale_difference": max(scale.values(), default=None),
+            "largest_length_difference": max((v["difference"] for v in length.values()), default=None),
+            "largest_centre_mirror_mm": max(centre.values(), default=None)}
+
+
+def _noise_lines(cal) -> list[str]:
+    """The noise line (learnt or given: median and range) and the left/right symmetry line."""
+    out = []
+    if cal.noise:
+        v = 1000 * np.array(list(cal.noise.values()))
+        lo, hi = int(v.argmin()), int(v.argmax())
+        names = list(cal.noise)
+        how = "learnt" if cal.noise_learnt else "given"
+        out.append(f"  {'noise SD (mm)':22s}{how:>12s}  median {np.median(v):.2f}, "
+                   f"{v.min():.2f} ({names[lo]}) to {v.max():.2f} ({names[hi]})")
+    sym = symmetry_table(cal)
+    if sym["scale_difference"]:
+        worst_len = max(sym["segment_length"].items(), key=lambda kv: kv[1]["difference"], default=None)
+        worst_c = max(sym["centre_mirror_mm"].items(), key=lambda kv: kv[1], default=None)
+        st = cal.settings.priors
+        out.append(f"  {'left/right':22s}{'':12s}  segment lengths differ by up to "
+                   + (f"{100 * worst_len[1]['difference']:.1f} % ({worst_len[0]})" if worst_len else "-")
+                   + (f", mirrored centres by up to {worst_c[1]:.1f} mm ({worst_c[0]})" if worst_c else "")
+                   + (f" (symmetry prior SD {100 * st.symmetry_scale:g} %, {1000 * st.symmetry_centre:g} mm)"
+                      if st.symmetry_scale or st.symmetry_centre else " (no symmetry prior)"))
+    return out
+
+
 def summary_text(cal) -> str:
     """Human-readable summary in the spirit of Ceres' Solver::Summary::FullReport()."""
     model, s = cal.model, cal.summary
@@ -163,6 +227,7 @@ def summary_text(cal) -> str:
         f"  {'':22s}{'start':>12s}{'final':>12s}",
         f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
         f"  {'cost':22s}{s.initial_cost:12.4e}{s.final_cost:12.4e}",
+        *_noise_lines(cal),
         "",
         *([f"  coarse solve {s.coarse_frames} evenly spaced frames: {s.coarse.iterations} iterations, cost "
             f"{s.coarse.initial_cost:.4e} -> {s.coarse.final_cost:.4e} ({s.coarse.termination})"]

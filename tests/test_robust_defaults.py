@@ -1,0 +1,249 @@
+"""Robust defaults on real-looking data: the noise learnt from the residuals, spikes and label swaps
+rejected, the left/right symmetry prior, and a start that fits the subject's size."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from calibrate.calibration import (
+    _rms,
+    calibrate,
+    learned_noise,
+    seed_parameters,
+    size_from_markers,
+    start_poses,
+)
+from calibrate.config import settings_from_dict
+from calibrate.errors import CalibrateError
+from calibrate.ik import marker_columns
+from calibrate.model import Parameters
+from calibrate.problem import Priors, Problem, Settings, State, symmetry_pairs
+from calibrate.simulate import simulate_squats
+from calibrate.solver import covariance, levenberg_marquardt
+from calibrate.trial import Trial
+
+
+def _with_markers(sim, markers: np.ndarray) -> Trial:
+    return Trial(sim.trial.labels, markers, sim.trial.rate, 0, None)
+
+
+def _truth_state(sim) -> tuple[np.ndarray, np.ndarray]:
+    m = sim.motion
+    return np.column_stack([m.root_translation, np.zeros((m.times.size, 3)), m.angles]), m.root_quaternion.copy()
+
+
+# ---------------------------------------------------------------------- settings
+def test_noise_is_learnt_unless_given():
+    assert Settings().learns_noise
+    assert not Settings(noise=0.003).learns_noise  # a noise stated in Python is the user's
+    assert Settings(noise=0.003, learn_noise=True).learns_noise
+    assert not Settings(learn_noise=False).learns_noise
+    assert not settings_from_dict({"noise_mm": 1.0}).learns_noise  # stated in a config / --noise-mm: kept
+    assert settings_from_dict({"noise_mm": 2.0, "learn_noise": True}).learns_noise
+    s = settings_from_dict({"priors": {"symmetry_scale": 0.05, "symmetry_centre_mm": 4.0}})
+    assert s.priors.symmetry_scale == 0.05 and math.isclose(s.priors.symmetry_centre, 0.004)
+    with pytest.raises(CalibrateError, match="symmetry_centre"):
+        settings_from_dict({"priors": {"symmetry_centre_mm": -1.0}})
+    with pytest.raises(CalibrateError, match="learn_noise"):
+        settings_from_dict({"learn_noise": "yes"})
+
+
+# ---------------------------------------------------------------------- symmetry prior
+def test_symmetry_pairs_mirror_the_sagittal_plane(human):
+    segs, joints, mirror = symmetry_pairs(human, human.parameters().centre)
+    names = {(human.joints[a].name, human.joints[b].name) for a, b in joints}
+    assert ("hip_l", "hip_r") in names and ("shoulder_l", "shoulder_r") in names and len(joints) == 8
+    assert len(segs) == 8
+    np.testing.assert_array_equal(mirror, [1.0, -1.0, 1.0])  # y is left in models/human.urdf
+    c = human.parameters().centre
+    for a, b in joints:  # the base model is symmetric: each left centre is its right partner mirrored
+        np.testing.assert_allclose(c[a], mirror * c[b], atol=1e-12)
+
+
+def test_symmetry_prior_jacobian_matches_finite_differences(human, human_kin):
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
+    obs = marker_columns(human, sim.trial)
+    pri = Priors(symmetry_scale=0.02, symmetry_centre=0.01)
+    problem = Problem(human, obs, Settings(priors=pri), human_kin)
+    off = Problem(human, obs, Settings(priors=Priors(symmetry_scale=0.0, symmetry_centre=0.0)), human_kin)
+    rng = np.random.default_rng(1)
+    p = problem.retract_parameters(sim.truth.vector(), 0.02 * rng.normal(size=problem.n_free))
+    r, J = problem.prior(p)
+    n_sym = r.size - off.prior(p)[0].size
+    assert n_sym == 8 + 3 * 8  # 8 segment pairs, 8 joint pairs
+    rows = slice(r.size - n_sym, r.size)
+    # the rows before the symmetry block are the old priors, unchanged
+    np.testing.assert_array_equal(r[: r.size - n_sym], off.prior(p)[0])
+    h = 1e-6
+    fd = np.zeros((n_sym, problem.n_free))
+    for k in range(problem.n_free):
+        e = np.zeros(problem.n_free)
+        e[k] = h
+        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0][rows]
+                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0][rows]) / (2 * h)
+    np.testing.assert_allclose(J[rows], fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
+    # symmetric geometry costs nothing: the base model itself
+    assert np.allclose(problem.prior(human.parameters().vector(), jacobian=False)[0][rows], 0.0)
+
+
+def test_symmetry_prior_pulls_as_a_gaussian_observation_predicts(human, human_kin):
+    """Scales of an asymmetric subject (left leg 6 % longer than the right), every other parameter
+    known: the symmetry prior moves the left/right differences by what conditioning the posterior
+    without it on 'difference = 0 +- SD' gives (exact for a linear problem)."""
+    sim0 = simulate_squats(human, frames=40, noise_mm=0.0, seed=4)
+    t = sim0.truth
+    scale = t.scale.copy()
+    for name, f in (("femur_l", 1.03), ("tibia_l", 1.03), ("femur_r", 0.97), ("tibia_r", 0.97)):
+        scale[human.segment_index(name)] *= f
+    truth = Parameters(scale, t.centre, t.axis, t.marker)
+    Z, Q = _truth_state(sim0)
+    M, _ = human_kin.batch(Z, Q, truth)
+    M = M + np.random.default_rng(2).normal(0.0, 0.001, M.shape)
+    base = Parameters(np.ones_like(scale), t.centre, t.axis, t.marker)  # only the scales are unknown
+
+    def solve(sd: float):
+        st = Settings(free=("scale",), learn_noise=False, priors=Priors(symmetry_scale=sd))
+        problem = Problem(human, M, st, human_kin, base=base)
+        state, summary = levenberg_marquardt(problem, State(Z.copy(), Q.copy(), base.vector()))
+        assert summary.converged
+        return problem, state
+
+    p0, s0 = solve(0.0)
+    C0 = covariance(p0, s0).matrix  # the free parameters are the segment scales, in order
+    segs, _, _ = symmetry_pairs(human, base.centre)
+    A = np.zeros((len(segs), C0.shape[0]))
+    for i, (a, b) in enumerate(segs):
+        A[i, a], A[i, b] = 1.0, -1.0
+    fl, fr = human.segment_index("femur_l"), human.segment_index("femur_r")
+    sd = 0.3 * math.sqrt(C0[fl, fl] + C0[fr, fr])  # stronger than the data alone on this pair
+    m0 = s0.p[: C0.shape[0]]
+    d = m0 - 1.0
+    pred = m0 - C0 @ A.T @ np.linalg.solve(A @ C0 @ A.T + sd**2 * np.eye(len(segs)), A @ d)
+    _, s1 = solve(sd)
+    diff0, diff1, want = m0[fl] - m0[fr], s1.p[fl] - s1.p[fr], pred[fl] - pred[fr]
+    assert diff0 > 0.04  # the data see the asymmetry
+    assert abs(diff1 - want) < 0.05 * diff0, (diff0, diff1, want)
+    assert 0.1 < diff1 / diff0 < 0.9, (diff0, diff1)  # pulled towards symmetry, not all the way
+
+
+# ---------------------------------------------------------------------- noise learnt
+def _sta(sim, names: tuple[str, ...], amp: float) -> np.ndarray:
+    """Skin-motion-like displacements (F, markers, 3): smooth functions of the hip and knee angles."""
+    out = np.zeros_like(sim.clean_markers)
+    ang = sim.motion.angles
+    dof = sim.model.dof_index
+    for name in names:
+        side = name[0].lower()
+        hip, knee = ang[:, dof(f"hip_{side}_flexion")], ang[:, dof(f"knee_{side}")]
+        d = amp * np.column_stack([np.sin(2 * knee), np.cos(1.5 * hip + knee), np.sin(hip - 2 * knee)])
+        out[:, sim.model.marker_index(name)] = d - d.mean(axis=0)
+    return out
+
+
+@pytest.fixture(scope="module")
+def sta_run(human):
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
+    thigh = ("LTHI", "RTHI", "LKNE", "RKNE")
+    trial = _with_markers(sim, sim.trial.markers + _sta(sim, thigh, 0.006))
+    return sim, thigh, calibrate(human, trial)
+
+
+def test_learnt_noise_is_the_white_noise_sd(human):
+    """1 mm white noise: each marker's learnt SD is 1 mm (the leverage correction matters: the raw
+    residual RMS per coordinate is ~0.8 mm, one frame's 38 coordinates absorbing a third of it)."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
+    cal = calibrate(human, sim.trial)
+    sd = 1000 * np.array(list(cal.noise.values()))
+    assert cal.noise_learnt
+    assert 0.95 < np.median(sd) < 1.05
+    assert sd.min() > 0.8 and sd.max() < 1.25
+    raw = 1000 * _rms(cal.residuals) / math.sqrt(3)
+    assert raw < 0.9  # what a learnt SD without the correction would have been
+    rep = json.loads(json.dumps(cal.report()))
+    assert rep["noise"]["learnt"] and set(rep["noise"]["per_marker_mm"]) == set(human.marker_names)
+    assert "noise SD (mm)" in cal.text() and "learnt" in cal.text()
+
+
+def test_learnt_noise_is_larger_for_skin_motion(sta_run):
+    sim, thigh, cal = sta_run
+    sd = {k: 1000 * v for k, v in cal.noise.items()}
+    rest = [v for k, v in sd.items() if k not in thigh]
+    assert 0.9 < np.median(rest) < 1.15
+    for name in thigh:  # white 1 mm: 0.9-1.1 mm, correlation time ~1 (test above); here 1.6-2.6 mm, 2-17 frames
+        assert sd[name] > 1.4, (name, sd[name])
+        assert 1000 * cal.noise_weight[name] > 1.3 * sd[name]  # smooth skin motion: correlated over frames
+    assert np.median([cal.noise_weight[k] / cal.noise[k] for k in cal.noise if k not in thigh]) < 1.1
+    assert len(cal.outliers) < 0.005 * cal.residuals.shape[0] * cal.residuals.shape[1]
+
+
+def test_learned_noise_keeps_fixed_markers(human, human_kin):
+    sim = simulate_squats(human, frames=60, noise_mm=1.0, seed=3)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(noise=0.004), human_kin)
+    Z, Q = _truth_state(sim)
+    state, _ = levenberg_marquardt(problem, State(Z, Q, sim.truth.vector()), pose_only=True, max_iterations=10)
+    fixed = np.zeros(len(human.markers), dtype=bool)
+    fixed[3] = True
+    sd = learned_noise(problem, state, fixed)
+    assert sd[3] == 0.004
+    assert 0.0009 < np.median(sd[~fixed]) < 0.0011 and np.all((sd[~fixed] > 0.0007) & (sd[~fixed] < 0.0013))
+
+
+def test_spikes_and_swaps_rejected_skin_motion_kept(human):
+    """50 mm spikes at single frames and two labels swapped for a few frames, on a trial with thigh
+    skin motion: at least 95 % of the corrupted positions rejected, under 0.5 % of the others."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=2)
+    X = sim.trial.markers + _sta(sim, ("LTHI", "RTHI"), 0.006)
+    rng = np.random.default_rng(7)
+    bad = set()
+    for _ in range(30):
+        f, k = int(rng.integers(300)), int(rng.integers(len(human.markers)))
+        v = rng.normal(size=3)
+        X[f, k] += 0.05 * v / np.linalg.norm(v)
+        bad.add((f, human.marker_names[k]))
+    a, b = human.marker_index("LKNE"), human.marker_index("LANK")
+    for f in range(100, 106):  # LKNE and LANK swapped for 6 frames
+        X[f, [a, b]] = X[f, [b, a]]
+        bad |= {(f, "LKNE"), (f, "LANK")}
+    cal = calibrate(human, _with_markers(sim, X))
+    got = {(o.frame, o.marker) for o in cal.outliers}
+    caught = len(bad & got) / len(bad)
+    false = len(got - bad) / (300 * len(human.markers))
+    assert caught >= 0.95, sorted(bad - got)
+    assert false < 0.005
+
+
+# ---------------------------------------------------------------------- size
+@pytest.mark.parametrize("k", [0.86, 1.14])  # a 1.5 m and a 2.0 m subject of a 1.75 m base model
+def test_start_fits_the_subjects_size(human, human_kin, k):
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=2)
+    t = sim.truth
+    Z, Q = _truth_state(sim)
+
+    def subject(f: float) -> tuple[Parameters, Trial]:
+        truth = Parameters(np.full_like(t.scale, f), t.centre, t.axis, t.marker)
+        Zf = Z.copy()
+        Zf[:, :3] *= f
+        M, _ = human_kin.batch(Zf, Q, truth)
+        M = M + np.random.default_rng(0).normal(0, 0.001, M.shape)
+        return truth, Trial(human.marker_names, M, 100.0, 0, None)
+
+    _, same = subject(1.0)
+    ref = size_from_markers(human, [same])  # the subject's own proportions (markers and centres moved)
+    truth, trial = subject(k)
+    size = size_from_markers(human, [trial])
+    assert size is not None and size.pairs >= 20
+    for limb, f in size.limbs.items():
+        assert abs(ref.limbs[limb] - 1) < 0.07, (limb, ref.limbs[limb])  # markers +-10 mm, centres +-15 mm
+        assert abs(f / ref.limbs[limb] / k - 1) < 0.01, (limb, f)  # the same subject k times as large
+    seed = seed_parameters(human, trial, size=size)
+    carried = [i for i, s in enumerate(human.segments) if s.markers]
+    err = seed.params.scale[carried] / k - 1
+    assert np.median(np.abs(err)) < 0.03 and np.abs(err).max() < 0.12
+    obs = marker_columns(human, trial)
+    st = start_poses(human_kin, obs, seed.params)
+    M0, _ = human_kin.batch(st.Z, st.Q, seed.params)
+    assert _rms(M0 - obs) < 0.015
