@@ -524,7 +524,8 @@ class _Importer:
         by_child: dict[str, _Joint] = {}
         for j in reader.joints:
             if j.child in by_child:
-                raise ModelError(f"{self.where}: body '{j.child}' is the child of two joints ('{by_child[j.child].name}',"
+                raise ModelError(f"{self.where}: body '{j.child}' is the child of two joints "
+                                 f"('{by_child[j.child].name}',"
                                  f" '{j.name}'); closed loops are not read; remove one joint")
             by_child[j.child] = j
         self.by_child = by_child
@@ -596,8 +597,8 @@ class _Importer:
             vals = ", ".join(f"{c.name} = {ref[c.name][0]:.4g}" for c in j.coords)
             return [_Op(fixed=(R[0], p[0]))], (kind, f"welded at {vals}")
         if len(free) == 1 and all(c.name in self.r.couplers or c is free[0] for c in j.coords):
-            return self._hinge_fit(j, free[0]), ("hinge fit", "; ".join(why) + f"; best fixed hinge over {free[0].name}'s "
-                                                 f"range")
+            detail = "; ".join(why) + f"; best fixed hinge over {free[0].name}'s range"
+            return self._hinge_fit(j, free[0]), ("hinge fit", detail)
         frozen = {c.name for c in j.coords if c.name in self.r.couplers or c.translational}
         return self._exact_ops(j, frozen, freeze_nonlinear=True), ("frozen", "; ".join(why) + "; those axes frozen at "
                                                                     "mid-range")
