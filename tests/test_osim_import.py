@@ -53,6 +53,8 @@ for job in json.load(open(sys.argv[1]))["jobs"]:
             names = c.getIndependentCoordinateNames()
             couplers.append((c.getDependentCoordinateName(), names.get(0), c.getFunction(),
                              osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
+    for i in range(cs.getSize()):  # a locked coordinate keeps its value in setValue
+        cs.get(i).setLocked(state, False)
     poses = []
     for pose in job["poses"]:
         for name, value in pose.items():
@@ -62,8 +64,13 @@ for job in json.load(open(sys.argv[1]))["jobs"]:
             cs.get(dep).setValue(state, s * f.calcValue(v), False)
         model.realizePosition(state)
         ms = model.getMarkerSet()
-        poses.append({ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
-                      for i in range(ms.getSize())})
+        res = {ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
+               for i in range(ms.getSize())}
+        for b in job["bodies"]:  # pose of a body in ground: R (row-major 9), p (3)
+            X = model.getBodySet().get(b).getTransformInGround(state)
+            R = X.R().asMat33()
+            res["body " + b] = [R.get(i, j) for i in range(3) for j in range(3)] + X.p().to_numpy().tolist()
+        poses.append(res)
     out.append(poses)
 json.dump(out, open(sys.argv[2], "w"))
 """
@@ -195,10 +202,15 @@ def hand_made_osim() -> str:
 
 # ---------------------------------------------------------------------- the references
 def _pin_markers(model, root_t, root_q, angles) -> dict[str, np.ndarray]:
+    """Markers in the lab by Pinocchio, and ('body S') every segment frame's pose (R row-major, p)."""
     pm = model.pin
     d = pm.createData()
     pin.framesForwardKinematics(pm, d, model.pin_configuration(root_t, root_q, angles))
-    return {m: d.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names}
+    out = {m: d.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names}
+    for s in model.segments:
+        X = d.oMf[pm.getFrameId(s.name, pin.FrameType.BODY)]
+        out["body " + s.name] = np.concatenate([X.rotation.ravel(), X.translation])
+    return out
 
 
 def _cases(model, n: int, seed: int, ranges: dict[str, tuple[float, float]]) -> tuple[list[dict], list[dict]]:
@@ -254,7 +266,8 @@ def equivalence(tmp_path_factory):
         coupled = {c for a in osim_info(model).approximations if a.kind == "welded (coupled)" for c in a.coordinates}
         poses, refs = _cases(model, N_POSES, seed + 1, {k: v for k, v in _ranges(path).items() if k not in coupled})
         out[name] = {"model": model, "refs": refs}
-        jobs.append({"osim": str(path), "marker_set": str(ms) if ms else None, "poses": poses})
+        children = sorted({model.joints[model.joint_index(a.joint)].child for a in osim_info(model).approximations})
+        jobs.append({"osim": str(path), "marker_set": str(ms) if ms else None, "poses": poses, "bodies": children})
     spec, result = tmp / "jobs.json", tmp / "result.json"
     spec.write_text(json.dumps({"jobs": jobs}))
     proc = subprocess.run([sys.executable, "-c", _WORKER, str(spec), str(result)], capture_output=True, text=True,
@@ -263,6 +276,20 @@ def equivalence(tmp_path_factory):
     for name, poses in zip(out, json.loads(result.read_text()), strict=True):
         out[name]["osim"] = poses
     return out
+
+
+def _kabsch_residual(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest distance left after the best rigid motion taking points a (n, 3) onto b."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return float(np.linalg.norm((a - ca) @ R.T + cb - b, axis=1).max())
+
+
+def _local(pose: list[float] | np.ndarray, x) -> np.ndarray:
+    R, p = np.asarray(pose[:9]).reshape(3, 3), np.asarray(pose[9:])
+    return R.T @ (np.asarray(x) - p)
 
 
 def _errors(case: dict) -> dict[str, np.ndarray]:
@@ -280,7 +307,7 @@ def test_markers_equal_opensim(equivalence, name):
     model = case["model"]
     info = osim_info(model)
     err = _errors(case)
-    assert set(case["osim"][0]) == set(model.marker_names)
+    assert {k for k in case["osim"][0] if not k.startswith("body ")} == set(model.marker_names)
     approximated = {m for a in info.approximations for m in a.markers}
     exact = [m for m in model.marker_names if m not in approximated]
     assert exact, "some markers are exact"
@@ -289,6 +316,17 @@ def test_markers_equal_opensim(equivalence, name):
     for m in approximated:  # within the sum of the bounds of the approximated joints above the marker
         bound = sum(a.bound_mm for a in info.approximations if m in a.markers) / 1000
         assert err[m].max() <= bound + TOL, f"{name}: {m} off by {err[m].max():.4g} m > bound {bound:.4g} m"
+    # Below an approximated joint the rest is exact: in its child body's frame (OpenSim) and child segment's
+    # frame (calibrate), the markers below differ by one rigid motion, the same in every pose.
+    for a in info.approximations:
+        deepest = [m for m in a.markers if min((len(b.markers), b.joint) for b in info.approximations
+                                               if m in b.markers) == (len(a.markers), a.joint)]
+        if not deepest:
+            continue
+        child = model.joints[model.joint_index(a.joint)].child
+        ours = np.array([_local(r["body " + child], r[m]) for r in case["refs"] for m in deepest])
+        theirs = np.array([_local(o["body " + child], o[m]) for o in case["osim"] for m in deepest])
+        assert _kabsch_residual(ours, theirs) < TOL, f"{name}: markers below {a.joint} are not exact relative to it"
     print(f"{name}: exact markers within {worst_exact:.2g} m; approximated: " + ", ".join(
         f"{a.joint} {1000 * max(err[m].max() for m in a.markers) if a.markers else 0:.2f} mm (bound {a.bound_mm:.2f})"
         for a in info.approximations))
@@ -403,3 +441,94 @@ def test_cli_import_osim_and_inspect(tmp_path, capsys):
     assert main(["inspect", str(osim)]) == 0
     text = capsys.readouterr().out
     assert "approximated" in text and "patfem: welded (coupled)" in text
+
+
+# ---------------------------------------------------------------------- back to OpenSim
+_EXPORT_WORKER = r"""
+import json, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+out = []
+for job in json.load(open(sys.argv[1]))["jobs"]:
+    model = osim.Model(job["osim"])
+    state = model.initSystem()
+    cs = model.getCoordinateSet()
+    storage = osim.Storage(job["mot"])
+    model.getSimbodyEngine().convertDegreesToRadians(storage)  # as OpenSim's tools read a .mot
+    cols = storage.getColumnLabels()
+    labels = [cols.get(i) for i in range(1, cols.getSize())]
+    for i in range(cs.getSize()):  # a locked coordinate keeps its value in setValue
+        cs.get(i).setLocked(state, False)
+    frames = []
+    for f in range(storage.getSize()):
+        row = storage.getStateVector(f).getData()
+        for k, name in enumerate(labels):
+            cs.get(name).setValue(state, row.get(k), False)
+        model.realizePosition(state)
+        ms = model.getMarkerSet()
+        frames.append({ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
+                       for i in range(ms.getSize())})
+    out.append({"frames": frames, "labels": labels,
+                "bodies": [model.getBodySet().get(i).getName() for i in range(model.getBodySet().getSize())],
+                "joints": [model.getJointSet().get(i).getName() for i in range(model.getJointSet().getSize())],
+                "coordinates": [cs.get(i).getName() for i in range(cs.getSize())],
+                "locked": [cs.get(i).getName() for i in range(cs.getSize()) if cs.get(i).getDefaultLocked()]})
+json.dump(out, open(sys.argv[2], "w"))
+"""
+
+
+@pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed")
+def test_export_keeps_names_and_kinematics(tmp_path):
+    """A calibrated-like subject of each imported model, exported as .osim with a .mot of random poses:
+    OpenSim puts every marker where Pinocchio puts it on the written subject URDF (1e-6 m), and the
+    bodies, joints and coordinates have the original model's names."""
+    from calibrate.model import Parameters, write_model
+    from calibrate.motion import Motion
+    from calibrate.opensim_export import export_osim, write_mot
+
+    hand = tmp_path / "handmade.osim"
+    hand.write_text(hand_made_osim())
+    sources = [(hand, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
+        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
+    jobs, refs, models = [], [], []
+    for k, (path, ms) in enumerate(sources):
+        model = load_model(path, ms)
+        rng = np.random.default_rng(10 + k)
+        p0 = model.parameters()
+        p = Parameters(1 + rng.uniform(-0.15, 0.15, p0.scale.shape), p0.centre + rng.uniform(-0.02, 0.02, p0.centre.shape),
+                       p0.axis + rng.uniform(-0.1, 0.1, p0.axis.shape), p0.marker + rng.uniform(-0.01, 0.01,
+                                                                                                   p0.marker.shape))
+        subject = load_model(write_model(model, tmp_path / f"s{k}.urdf", p))  # what `calibrate` writes
+        n = 20
+        angles = np.array([[rng.uniform(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in subject.dofs]
+                           for _ in range(n)])
+        motion = Motion(np.arange(n) / 100, rng.normal(0, 0.5, (n, 3)), Rotation.random(n, random_state=k).as_quat(),
+                        angles, subject.dof_names)
+        osim_path = export_osim(subject, tmp_path / f"s{k}.osim")
+        mot = write_mot(tmp_path / f"s{k}.mot", subject, motion)
+        jobs.append({"osim": str(osim_path), "mot": str(mot)})
+        refs.append([{m: x for m, x in _pin_markers(subject, motion.root_translation[f], motion.root_quaternion[f],
+                                                     angles[f]).items() if not m.startswith("body ")}
+                     for f in range(n)])
+        models.append((path, model))
+    spec, result = tmp_path / "jobs.json", tmp_path / "result.json"
+    spec.write_text(json.dumps({"jobs": jobs}))
+    proc = subprocess.run([sys.executable, "-c", _EXPORT_WORKER, str(spec), str(result)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
+    import xml.etree.ElementTree as ET
+
+    for (path, model), res, ref in zip(models, json.loads(result.read_text()), refs, strict=True):
+        worst = max(np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(res["frames"], ref, strict=True) for m in r)
+        bad = sorted({m for o, r in zip(res["frames"], ref, strict=True) for m in r
+                      if np.linalg.norm(np.array(o[m]) - r[m]) > TOL})
+        assert worst < TOL, f"{path.name}: exported markers off by {worst:.3g} m ({bad[:12]})"
+        doc = ET.parse(path).getroot()
+        bodies = {b.get("name") for b in doc.iter("Body")}
+        joints = {j.get("name") for j in doc.find("Model/JointSet/objects")}
+        coords = {c.get("name") for c in doc.iter("Coordinate")} - set(osim_info(model).dropped)
+        assert set(res["bodies"]) == bodies and set(res["joints"]) == joints and set(res["coordinates"]) == coords
+        assert set(res["labels"]) == coords  # the .mot's columns: OpenSim's coordinate names
+        assert set(res["locked"]) == {c.get("name") for c in doc.iter("Coordinate")
+                                      if c.findtext("locked", "").strip() == "true"}
