@@ -496,9 +496,10 @@ def test_export_keeps_names_and_kinematics(tmp_path):
         model = load_model(path, ms)
         rng = np.random.default_rng(10 + k)
         p0 = model.parameters()
-        p = Parameters(1 + rng.uniform(-0.15, 0.15, p0.scale.shape), p0.centre + rng.uniform(-0.02, 0.02, p0.centre.shape),
-                       p0.axis + rng.uniform(-0.1, 0.1, p0.axis.shape), p0.marker + rng.uniform(-0.01, 0.01,
-                                                                                                   p0.marker.shape))
+        p = Parameters(1 + rng.uniform(-0.15, 0.15, p0.scale.shape),
+                       p0.centre + rng.uniform(-0.02, 0.02, p0.centre.shape),
+                       p0.axis + rng.uniform(-0.1, 0.1, p0.axis.shape),
+                       p0.marker + rng.uniform(-0.01, 0.01, p0.marker.shape))
         subject = load_model(write_model(model, tmp_path / f"s{k}.urdf", p))  # what `calibrate` writes
         n = 20
         angles = np.array([[rng.uniform(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in subject.dofs]
