@@ -361,9 +361,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     model = load_model(model_path, args.marker_set)
     if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
-        from .osim import with_locked
+        from .osim import osim_info, with_locked
 
         settings = with_locked(model, settings)
+        approx = osim_info(model).approximations  # type: ignore[union-attr]
+        if approx and not args.quiet:
+            _progress(f"note: {model_path.name}: {len(approx)} joints approximated (" + ", ".join(
+                f"{a.joint} {a.max_marker_mm:.1f} mm" for a in approx) + f"); see 'calibrate inspect {model_path}'")
     marker_map = load_marker_map(args.markers) if args.markers else None
     trials = [read_trial(t) for t in trial_paths]
     if args.frames is not None:
