@@ -156,7 +156,7 @@ def read_mot(path: str) -> tuple[np.ndarray, list[str], np.ndarray]:
     """(times, columns, values in rad/m) of an OpenSim .mot (angles in degrees when inDegrees=yes)."""
     lines = Path(path).read_text().splitlines()
     end = next(i for i, ln in enumerate(lines) if ln.strip().lower() == "endheader")
-    degrees = any(ln.strip().lower() == "indegrees=yes" for ln in lines[:end])
+    degrees = not any(ln.strip().lower() == "indegrees=no" for ln in lines[:end])  # SIMM files: degrees
     cols = lines[end + 1].split()
     data = np.array([[float(v) for v in ln.split()] for ln in lines[end + 2:] if ln.strip()])
     vals = data[:, 1:]
@@ -164,6 +164,16 @@ def read_mot(path: str) -> tuple[np.ndarray, list[str], np.ndarray]:
         rot = np.array([not c.endswith(("_tx", "_ty", "_tz")) for c in cols[1:]])
         vals = np.where(rot, np.radians(vals), vals)
     return data[:, 0], cols[1:], vals
+
+
+def _plain_trc(path: str, spec_dir: str) -> Path:
+    """The TRC with its header's values one tab apart (Rajagopal's files pad them with empty fields,
+    which OpenSim skips), beside the pipeline's copy in the work directory."""
+    lines = Path(path).read_text().splitlines(keepends=True)
+    lines[2] = "\t".join(v.strip() for v in lines[2].split("\t") if v.strip()) + "\n"
+    out = Path(spec_dir) / ("plain_" + Path(path).name)
+    out.write_text("".join(lines))
+    return out
 
 
 def run_calibrate(spec: dict, frames: slice) -> dict:
@@ -178,7 +188,8 @@ def run_calibrate(spec: dict, frames: slice) -> dict:
 
     t0 = time.perf_counter()
     model = load_model(spec["osim"], spec["marker_set"])
-    static, walk = read_trial(spec["static"]), read_trial(spec["walk"])
+    static, walk = read_trial(_plain_trc(spec["static"], spec["dir"])), \
+        read_trial(_plain_trc(spec["walk"], spec["dir"]))
     walk = Trial(walk.labels, walk.markers[frames], walk.rate, walk.first_frame + frames.start, walk.source)
     cal = calibrate(model, [static, walk], with_locked(model, Settings()), mass=spec["mass"])
     wall = time.perf_counter() - t0
