@@ -251,8 +251,9 @@ def bench(case: str, work: Path, log, outliers: float) -> dict:
             if name not in cr["angles"] or name not in osr["coords"]:
                 continue
             ours = np.degrees(cr["angles"][name])
-            row = {"vs_opensim_ik_deg": float(np.sqrt(np.mean(
-                (ours - np.degrees(osr["q"][:, osr["coords"].index(name)])) ** 2)))}
+            d = ours - np.degrees(osr["q"][:, osr["coords"].index(name)])
+            row = {"vs_opensim_ik_deg": float(np.sqrt(np.mean(d**2))),
+                   "vs_opensim_ik_offset_free_deg": float(np.std(d)), "offset_deg": float(np.mean(d))}
             if ref is not None and name in ref[1]:
                 r = np.interp(osr["times"], ref[0], np.degrees(ref[2][:, ref[1].index(name)]))
                 row["vs_reference_ik_deg"] = float(np.sqrt(np.mean((ours - r) ** 2)))
@@ -274,7 +275,8 @@ def report(res: dict) -> None:
         print(f"  marker RMS ratio calibrate / OpenSim: {c['rms_mm'] / o['rms_mm']:.2f}")
         for name, d in r["coordinates"].items():
             extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
-            print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg{extra}")
+            print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
+                  f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
         for a in r["approximations"]:
             print(f"  approximated: {a}")
 

@@ -536,3 +536,34 @@ def test_export_keeps_names_and_kinematics(tmp_path):
         assert set(res["labels"]) == coords  # the .mot's columns: OpenSim's coordinate names
         assert set(res["locked"]) == {c.get("name") for c in doc.iter("Coordinate")
                                       if c.findtext("locked", "").strip() == "true"}
+
+
+@pytest.mark.skipif(not GAIT.exists(), reason="gait2392 is not in ../shared/data/real")
+def test_cli_calibrates_from_osim(tmp_path, capsys):
+    """`calibrate TRIAL MODEL.osim --marker-set XML` end to end on a trial made from the model's own markers
+    (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
+    columns are OpenSim's coordinate names, and it recovers the motion's marker positions."""
+    from calibrate.trial import Trial, write_trc
+
+    model = load_model(GAIT, GAIT_MARKERS)
+    n, rng = 40, np.random.default_rng(4)
+    t = np.arange(n) / 60
+    amp = np.radians(rng.uniform(5, 25, model.n_dofs))
+    mid = np.array([0.5 * (d.lower + d.upper) * 0.1 for d in model.dofs])
+    angles = mid + amp * np.sin(2 * np.pi * 1.0 * t[:, None] + rng.uniform(0, 6, model.n_dofs))
+    quat = Rotation.from_euler("y", 0.3 * np.sin(2 * np.pi * 0.5 * t)[:, None]).as_quat()
+    root = np.column_stack([1.2 * t, np.full(n, 0.95), 0.02 * np.sin(2 * np.pi * t)])
+    frames = [_pin_markers(model, root[f], quat[f], angles[f]) for f in range(n)]
+    markers = np.array([[frames[f][m] for m in model.marker_names] for f in range(n)])
+    trc = tmp_path / "walk.trc"
+    write_trc(trc, Trial(list(model.marker_names), markers, 60.0, 0, str(trc)))
+    out = tmp_path / "subject.urdf"
+    code = main([str(trc), str(GAIT), "--marker-set", str(GAIT_MARKERS), "-o", str(out), "--no-new-markers", "-q"])
+    assert code == 0, capsys.readouterr().err
+    subject = load_model(out)
+    info = osim_info(subject)
+    assert info is not None and info.root is not None and info.root.joint == "ground_pelvis"
+    head = (tmp_path / "walk_motion.csv").read_text().splitlines()[0].split(",")
+    assert set(model.dof_names) <= set(head)
+    report = json.loads((tmp_path / "walk_report.json").read_text())
+    assert report["trials"][0]["rms_mm"] < 1.0  # noise-free markers of the model itself
