@@ -177,7 +177,7 @@ def _plain_trc(path: str, spec_dir: str) -> Path:
     return out
 
 
-def run_calibrate(spec: dict, frames: slice, outliers: float) -> dict:
+def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False) -> dict:
     """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles."""
     import pinocchio as pin
 
@@ -192,7 +192,9 @@ def run_calibrate(spec: dict, frames: slice, outliers: float) -> dict:
     static, walk = read_trial(_plain_trc(spec["static"], spec["dir"])), \
         read_trial(_plain_trc(spec["walk"], spec["dir"]))
     walk = Trial(walk.labels, walk.markers[frames], walk.rate, walk.first_frame + frames.start, walk.source)
-    cal = calibrate(model, [static, walk], with_locked(model, Settings(outliers=outliers)), mass=spec["mass"])
+    free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
+    settings = with_locked(model, Settings(outliers=outliers, free=free))
+    cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
     wall = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         subject = load_model(write_model(cal.model, Path(tmp) / "subject.urdf", cal.params))
@@ -231,6 +233,8 @@ def bench(case: str, work: Path, log, outliers: float) -> dict:
         raise RuntimeError(f"{case}: the IK frames are not consecutive trial frames")
     log(f"{case}: calibrate on the static + walk trials ({len(osr['times'])} walk frames) ...")
     cr = run_calibrate(spec, frames, outliers)
+    log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
+    ch = run_calibrate(spec, frames, outliers, hold_axes=True)
     trial = cr["trial"]
     use = [m for m in osr["tracked"] if m in trial.labels and m in cr["marker_names"] and m in osr["marker_names"]]
     missing = [m for m in osr["tracked"] if m in trial.labels and m not in cr["marker_names"]]
@@ -240,25 +244,29 @@ def bench(case: str, work: Path, log, outliers: float) -> dict:
     out["opensim"] = marker_scores(osr["markers"], osr["marker_names"], trial, use)
     out["calibrate"] = marker_scores(cr["markers"], cr["marker_names"], trial, use)
     out["calibrate"]["markers_used"] = sum(m in trial.labels for m in cr["marker_names"])
+    out["calibrate_axes_held"] = marker_scores(ch["markers"], ch["marker_names"], trial, use)
+    out["calibrate_axes_held"].update(wall_s=ch["wall_s"], converged=ch["converged"])
     out["opensim"].update(scale_s=osr["scale_s"], ik_s=osr["ik_s"], total_s=osr["scale_s"] + osr["ik_s"])
     out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"])
     out["ratio_calibrate_to_opensim_ik"] = cr["wall_s"] / osr["ik_s"]
     diffs: dict[str, dict[str, float]] = {}
     ref = read_mot(spec["reference"]) if spec["reference"] else None
-    for side in ("r", "l"):
-        for c in COORDS:
-            name = f"{c}_{side}"
-            if name not in cr["angles"] or name not in osr["coords"]:
-                continue
-            ours = np.degrees(cr["angles"][name])
-            d = ours - np.degrees(osr["q"][:, osr["coords"].index(name)])
-            row = {"vs_opensim_ik_deg": float(np.sqrt(np.mean(d**2))),
-                   "vs_opensim_ik_offset_free_deg": float(np.std(d)), "offset_deg": float(np.mean(d))}
-            if ref is not None and name in ref[1]:
-                r = np.interp(osr["times"], ref[0], np.degrees(ref[2][:, ref[1].index(name)]))
-                row["vs_reference_ik_deg"] = float(np.sqrt(np.mean((ours - r) ** 2)))
-            diffs[name] = row
-    out["coordinates"] = diffs
+    for label, run in (("coordinates", cr), ("coordinates_axes_held", ch)):
+        diffs = {}
+        for side in ("r", "l"):
+            for c in COORDS:
+                name = f"{c}_{side}"
+                if name not in run["angles"] or name not in osr["coords"]:
+                    continue
+                ours = np.degrees(run["angles"][name])
+                d = ours - np.degrees(osr["q"][:, osr["coords"].index(name)])
+                row = {"vs_opensim_ik_deg": float(np.sqrt(np.mean(d**2))),
+                       "vs_opensim_ik_offset_free_deg": float(np.std(d)), "offset_deg": float(np.mean(d))}
+                if ref is not None and name in ref[1]:
+                    r = np.interp(osr["times"], ref[0], np.degrees(ref[2][:, ref[1].index(name)]))
+                    row["vs_reference_ik_deg"] = float(np.sqrt(np.mean((ours - r) ** 2)))
+                diffs[name] = row
+        out[label] = diffs
     return out
 
 
@@ -272,11 +280,16 @@ def report(res: dict) -> None:
               f"(scale {o['scale_s']:.2f}, IK {o['ik_s']:.2f})")
         print(f"  {'calibrate':22s} {c['rms_mm']:8.2f} {c['max_mm']:8.2f} {c['wall_s']:10.2f} "
               f"(/ OpenSim IK: {r['ratio_calibrate_to_opensim_ik']:.2f})")
-        print(f"  marker RMS ratio calibrate / OpenSim: {c['rms_mm'] / o['rms_mm']:.2f}")
-        for name, d in r["coordinates"].items():
-            extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
-            print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
-                  f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
+        h = r["calibrate_axes_held"]
+        print(f"  {'calibrate, axes held':22s} {h['rms_mm']:8.2f} {h['max_mm']:8.2f} {h['wall_s']:10.2f}")
+        print(f"  marker RMS ratio calibrate / OpenSim: {c['rms_mm'] / o['rms_mm']:.2f} (axes held "
+              f"{h['rms_mm'] / o['rms_mm']:.2f})")
+        for label in ("coordinates", "coordinates_axes_held"):
+            print(f"  joint angles, {'calibrate' if label == 'coordinates' else 'calibrate with axes held'}:")
+            for name, d in r[label].items():
+                extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
+                print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
+                      f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
         for a in r["approximations"]:
             print(f"  approximated: {a}")
 
