@@ -434,11 +434,11 @@ def test_cli_import_osim_and_inspect(tmp_path, capsys):
     assert a.dof_names == b.dof_names and a.marker_names == b.marker_names
     pose = (np.zeros(3), np.array([0, 0, 0, 1.0]), np.linspace(-0.3, 0.3, a.n_dofs))
     pa, pb = _pin_markers(a, *pose), _pin_markers(b, *pose)
-    assert max(np.linalg.norm(pa[k] - pb[k]) for k in pa) < 1e-7  # two imports agree to the hinge fit's precision
+    assert max(np.linalg.norm(pa[k] - pb[k]) for k in pa) < TOL  # two imports agree to the hinge fit's precision
     for x, y in zip(osim_info(b).approximations, osim_info(a).approximations, strict=True):
         assert (x.joint, x.kind, x.markers, x.marker) == (y.joint, y.kind, y.markers, y.marker)
-        assert (x.max_marker_mm, x.bound_mm) == (pytest.approx(y.max_marker_mm, abs=1e-4),
-                                                 pytest.approx(y.bound_mm, abs=1e-4))
+        assert (x.max_marker_mm, x.bound_mm) == (pytest.approx(y.max_marker_mm, abs=1e-3),
+                                                 pytest.approx(y.bound_mm, abs=1e-3))
     assert main(["import-osim", str(osim), "-o", str(out)]) == 2  # exists: kept unless --overwrite
     assert "--overwrite" in capsys.readouterr().err
     assert main(["inspect", str(osim)]) == 0
