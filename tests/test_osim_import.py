@@ -567,3 +567,14 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert set(model.dof_names) <= set(head)
     report = json.loads((tmp_path / "walk_report.json").read_text())
     assert report["trials"][0]["rms_mm"] < 1.0  # noise-free markers of the model itself
+
+
+def test_marker_set_needs_an_osim(tmp_path):
+    from conftest import HUMAN
+
+    ms = _bad(tmp_path, "<OpenSimDocument Version='40000'><MarkerSet><objects/></MarkerSet></OpenSimDocument>",
+              "ms.xml")
+    with pytest.raises(ModelError, match="goes with an OpenSim model"):
+        load_model(HUMAN, ms)
+    with pytest.raises(ModelError, match="no such file"):
+        load_model(tmp_path / "missing.osim")
