@@ -54,8 +54,8 @@ from .errors import ModelError
 
 Transform = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)): x -> R x + t
 JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint")
-FUNCTION_TYPES = ("Constant", "LinearFunction", "SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction",
-                  "MultiplierFunction")
+FUNCTION_TYPES = ("Constant", "LinearFunction", "PolynomialFunction", "SimmSpline", "NaturalCubicSpline",
+                  "PiecewiseLinearFunction", "MultiplierFunction")
 GRID = 401  # coordinate values over a range at which approximations are measured
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
 
@@ -220,6 +220,16 @@ def _function(el: ET.Element, where: str) -> _Function:
             raise ModelError(f"{where}: LinearFunction needs 2 coefficients, has {co.size}; fix the model")
         a, b = float(co[0]), float(co[1])
         return _Function(tag, lambda x: a * x + b, linear=(a, b), constant=b if a == 0 else None)
+    if tag == "PolynomialFunction":  # coefficients from the highest order to the lowest
+        co = _floats(el.findtext("coefficients", "0"))
+        if co.size == 0:
+            raise ModelError(f"{where}: PolynomialFunction without coefficients; fix the model")
+        nz = np.flatnonzero(co)
+        co = co[nz[0]:] if nz.size else np.zeros(1)
+        if co.size <= 2:  # constant or linear: exact
+            a, b = (0.0, float(co[0])) if co.size == 1 else (float(co[0]), float(co[1]))
+            return _Function(tag, lambda x: a * x + b, linear=(a, b), constant=b if a == 0 else None)
+        return _Function(tag, lambda x: np.polyval(co, x))
     if tag in ("SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction"):
         x, y = _floats(el.findtext("x")), _floats(el.findtext("y"))
         if x.size < 2 or x.size != y.size or np.any(np.diff(x) <= 0):

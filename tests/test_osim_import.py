@@ -76,9 +76,9 @@ json.dump(out, open(sys.argv[2], "w"))
 """
 
 # A hand-made model: a FreeJoint root, Ball, Gimbal, Pin, Universal, Weld and CustomJoints with every function
-# type read (Constant, LinearFunction with slope -1 and an intercept, SimmSpline, NaturalCubicSpline,
-# PiecewiseLinearFunction, MultiplierFunction), offset frames that turn and translate (child side too),
-# a coupled body and a coordinate-driven translation.
+# type read (Constant, LinearFunction with slope -1 and an intercept, PolynomialFunction (linear: exact; quadratic),
+# SimmSpline, NaturalCubicSpline, PiecewiseLinearFunction, MultiplierFunction), offset frames that turn and
+# translate (child side too), a coupled body and a coordinate-driven translation.
 _BODY = """<Body name="{name}"><mass>{mass}</mass><mass_center>0.01 -0.1 0.02</mass_center>
 <inertia>0.1 0.12 0.05 0.001 -0.002 0.003</inertia></Body>"""
 
@@ -130,7 +130,9 @@ def hand_made_osim() -> str:
         # the knee: rotation -q + 0.1 about a tilted axis, a constant rotation, spline translations (approximated)
         f"<CustomJoint name=\"knee\">{_frames('thigh', 'shank', '0 -0.4 0', '0 0 0.1')}{_coords(('knee_q', -2, 0.2))}"
         "<SpatialTransform>"
-        + _ta("rotation1", "0.1 0 1", "knee_q", _lin(-1, 0.1)) + _ta("rotation2", "0 1 0", "", _c(0.2))
+        + _ta("rotation1", "0.1 0 1", "knee_q", _lin(-1, 0.1))
+        + _ta("rotation2", "0 1 0", "knee_q", "<PolynomialFunction name=\"function\"><coefficients>0.03 -0.02 0.2"
+              "</coefficients></PolynomialFunction>")
         + _ta("rotation3", "1 0 0", "", _c())
         + _ta("translation1", "1 0 0", "knee_q",
               _xy("SimmSpline", "-2 -1.2 -0.5 0 0.2", "-0.003 0.002 0.004 -0.003 -0.005"))
@@ -149,7 +151,8 @@ def hand_made_osim() -> str:
         # an exact CustomJoint of two coordinates: slope -1 with an intercept, a Multiplier of a linear function
         f"<CustomJoint name=\"elbow\">{_frames('arm', 'hand', '0.01 -0.29 -0.01', '-0.02 0.23 0.005')}"
         f"{_coords(('el_flex', 0, 2.6), ('el_pro', -1, 1))}<SpatialTransform>"
-        + _ta("rotation1", "0 0 1", "el_flex", _lin(-1, 0.05)) + _ta("rotation2", "0 1 0", "", _c(0.1))
+        + _ta("rotation1", "0 0 1", "el_flex", "<PolynomialFunction name=\"function\"><coefficients>0 -1 0.05"
+              "</coefficients></PolynomialFunction>") + _ta("rotation2", "0 1 0", "", _c(0.1))
         + _ta("rotation3", "0.2 1 0", "el_pro",
               "<MultiplierFunction name=\"function\"><function>" + _lin(-1, 0).replace(' name="function"', "")
               + "</function><scale>1</scale></MultiplierFunction>")
