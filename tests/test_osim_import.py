@@ -570,6 +570,15 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert set(model.dof_names) <= set(head)
     report = json.loads((tmp_path / "walk_report.json").read_text())
     assert report["trials"][0]["rms_mm"] < 1.0  # noise-free markers of the model itself
+    # back to OpenSim: the subject and its motion in OpenSim's names
+    assert main(["export-osim", str(out), "--motion", str(tmp_path / "walk_motion.csv"), "-o",
+                 str(tmp_path / "subject.osim")]) == 0
+    mot = (tmp_path / "walk_motion.mot").read_text().splitlines()
+    cols = mot[mot.index("endheader") + 1].split("\t")
+    assert cols[:7] == ["time", "pelvis_tilt", "pelvis_list", "pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz"]
+    assert set(cols[7:]) == set(model.dof_names)
+    text = (tmp_path / "subject.osim").read_text()
+    assert '<CustomJoint name="ground_pelvis">' in text and '<CustomJoint name="knee_r">' in text
 
 
 def test_marker_set_needs_an_osim(tmp_path):
