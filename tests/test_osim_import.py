@@ -401,7 +401,10 @@ def test_bad_model_one_line_exit_2_nothing_written(tmp_path, capsys, mutate, nee
     assert main(["import-osim", str(bad), "-o", str(tmp_path / "out.urdf")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("calibrate: error: ") and err.count("\n") == 1
-    assert not (tmp_path / "out.urdf").exists()
+    for argv in (["inspect", str(bad)], [str(tmp_path / "walk.trc"), str(bad), "-q"]):  # the same one line
+        assert main(argv) == 2
+        assert capsys.readouterr().err == err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["handmade.osim"]  # nothing written
 
 
 def test_marker_set_unknown_body(tmp_path, capsys):
