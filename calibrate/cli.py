@@ -345,6 +345,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
     outputs = [out_urdf, *out_motions, out_report]
+    from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
+    out_osim = out_urdf.with_suffix(".osim")
+    out_mots = [m.with_suffix(".mot") for m in out_motions]
+    if from_osim:
+        outputs += [out_osim, *out_mots]
     # Check the destinations before any work, so a long run never ends in a refusal.
     if len({p.resolve() for p in outputs}) < len(outputs):
         raise CalibrateError("two outputs would be the same file (two trials with the same name?); use -o/--report "
@@ -390,6 +395,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
     cal.times = {"load": load_s, **cal.times}
     cal.write(urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
+    if from_osim:
+        from .opensim_export import export_osim, write_mot
+
+        subject = load_model(out_urdf)
+        export_osim(subject, out_osim)
+        for path, motion in zip(out_mots, cal.motions, strict=True):
+            write_mot(path, subject, motion)
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))

@@ -12,8 +12,8 @@ How the OpenSim model becomes a calibrate URDF:
   names), with coincident origins; constant rotations go into the origins' ``rpy``.  WeldJoint,
   PinJoint (about z), UniversalJoint (x then y'), BallJoint and GimbalJoint (x, y', z''), FreeJoint
   and CustomJoint are read; functions: Constant, LinearFunction, PolynomialFunction, SimmSpline,
-  NaturalCubicSpline, PiecewiseLinearFunction, MultiplierFunction.  The chain's first URDF joint carries ``anatomical="<OpenSim joint>"``, so
-  calibrate's joint is named as OpenSim's.
+  NaturalCubicSpline, PiecewiseLinearFunction, MultiplierFunction.  The chain's first URDF joint
+  carries ``anatomical="<OpenSim joint>"``, so calibrate's joint is named as OpenSim's.
 * **exact** where every rotation is a constant or ``±coordinate + constant`` and every translation is
   constant.  Otherwise the joint is **approximated**: a joint with one free coordinate (the knee of
   Gait2392 and Rajagopal: translations and small rotations that are splines of the knee angle) by the

@@ -573,9 +573,12 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert set(model.dof_names) <= set(head)
     report = json.loads((tmp_path / "walk_report.json").read_text())
     assert report["trials"][0]["rms_mm"] < 1.0  # noise-free markers of the model itself
-    # back to OpenSim: the subject and its motion in OpenSim's names
+    # back to OpenSim: the subject and its motion in OpenSim's names, written with them and by export-osim
+    assert (tmp_path / "subject.osim").is_file() and (tmp_path / "walk_motion.mot").is_file()
     assert main(["export-osim", str(out), "--motion", str(tmp_path / "walk_motion.csv"), "-o",
-                 str(tmp_path / "subject.osim")]) == 0
+                 str(tmp_path / "again.osim"), "--mot", str(tmp_path / "again.mot")]) == 0
+    assert (tmp_path / "again.mot").read_text().splitlines()[1:] == \
+        (tmp_path / "walk_motion.mot").read_text().splitlines()[1:]
     mot = (tmp_path / "walk_motion.mot").read_text().splitlines()
     cols = mot[mot.index("endheader") + 1].split("\t")
     assert cols[:7] == ["time", "pelvis_tilt", "pelvis_list", "pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz"]
