@@ -10,10 +10,11 @@ How the OpenSim model becomes a calibrate URDF:
 * **joints**: the parent ``PhysicalOffsetFrame`` and the ``SpatialTransform`` give one revolute URDF
   joint per rotational coordinate, named by the coordinate (so motion columns are OpenSim's coordinate
   names), with coincident origins; constant rotations go into the origins' ``rpy``.  WeldJoint,
-  PinJoint (about z), UniversalJoint (x then y'), BallJoint and GimbalJoint (x, y', z''), FreeJoint
-  and CustomJoint are read; functions: Constant, LinearFunction, PolynomialFunction, SimmSpline,
-  NaturalCubicSpline, PiecewiseLinearFunction, MultiplierFunction.  The chain's first URDF joint
-  carries ``anatomical="<OpenSim joint>"``, so calibrate's joint is named as OpenSim's.
+  PinJoint (about z), UniversalJoint (x then y'), BallJoint and GimbalJoint (x, y', z''),
+  FreeJoint, PlanarJoint, SliderJoint and CustomJoint are read; functions: Constant, LinearFunction,
+  PolynomialFunction, SimmSpline, NaturalCubicSpline, PiecewiseLinearFunction, MultiplierFunction.
+  The chain's first URDF joint carries ``anatomical="<OpenSim joint>"``, so calibrate's joint is named
+  as OpenSim's.
 * **exact** where every rotation is a constant or ``±coordinate + constant`` and every translation is
   constant.  Otherwise the joint is **approximated**: a joint with one free coordinate (the knee of
   Gait2392 and Rajagopal: translations and small rotations that are splines of the knee angle) by the
@@ -54,7 +55,8 @@ from ._text import fmt_float, fmt_vec
 from .errors import ModelError
 
 Transform = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)): x -> R x + t
-JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint")
+JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
+               "PlanarJoint", "SliderJoint")
 FUNCTION_TYPES = ("Constant", "LinearFunction", "PolynomialFunction", "SimmSpline", "NaturalCubicSpline",
                   "PiecewiseLinearFunction", "MultiplierFunction")
 GRID = 401  # coordinate values over a range at which approximations are measured
@@ -67,7 +69,8 @@ class Approximation:
     """One joint the model format cannot express exactly, and what the approximation costs.
 
     max_marker_mm: the largest displacement of a marker (on the child body or below) between OpenSim's
-    kinematics and the imported model's, over the coordinates' range, other coordinates at their defaults.
+    kinematics and the imported model's, over the joint's coordinates' ranges (jointly, on a grid, when the
+    joint has several), the other coordinates at their defaults.
     bound_mm: an upper bound on that displacement in any pose (|Δt| + |ΔR|·reach, the farthest a marker
     below the joint can be from it, over the range).  Both 0 when no marker rides below the joint.
     """
@@ -425,7 +428,8 @@ class _Reader:
         lin = _Function("LinearFunction", lambda x: x, linear=(1.0, 0.0))
         zero = _Function("Constant", lambda x: np.zeros(np.shape(x)), linear=(0.0, 0.0), constant=0.0)
         axes: list[_Axis] = []
-        want = {"WeldJoint": 0, "PinJoint": 1, "UniversalJoint": 2, "BallJoint": 3, "GimbalJoint": 3, "FreeJoint": 6}
+        want = {"WeldJoint": 0, "PinJoint": 1, "UniversalJoint": 2, "BallJoint": 3, "GimbalJoint": 3, "FreeJoint": 6,
+                "PlanarJoint": 3, "SliderJoint": 1}
         if jel.tag in want and len(cn) != want[jel.tag]:
             raise ModelError(f"{where}: a {jel.tag} needs {want[jel.tag]} coordinates, has {len(cn)}; fix the model")
         if jel.tag == "PinJoint":
@@ -434,6 +438,14 @@ class _Reader:
             axes = [_Axis("rotation", e[0], cn[0], lin), _Axis("rotation", e[1], cn[1], lin)]
         elif jel.tag in ("BallJoint", "GimbalJoint"):
             axes = [_Axis("rotation", e[k], cn[k], lin) for k in range(3)]
+        elif jel.tag == "PlanarJoint":  # rotation about z, translations along x and y of the parent frame
+            axes = [_Axis("rotation", e[2], cn[0], lin), _Axis("translation", e[0], cn[1], lin),
+                    _Axis("translation", e[1], cn[2], lin)]
+            for c in coords[1:]:
+                c.translational = True
+        elif jel.tag == "SliderJoint":  # translation along x
+            axes = [_Axis("translation", e[0], cn[0], lin)]
+            coords[0].translational = True
         elif jel.tag == "FreeJoint":
             axes = [_Axis("rotation", e[k], cn[k], lin) for k in range(3)]
             axes += [_Axis("translation", e[k], cn[3 + k], lin) for k in range(3)]
@@ -758,14 +770,27 @@ class _Importer:
             [self.r.coords[self.r.couplers[c.name][0]] for c in j.coords]
         worst, worst_marker, bound = 0.0, "", 0.0
         reach = self.reach(j.child, j.child_offset[1])
-        for c in drivers:
-            lo, hi = c.span()
-            q = np.linspace(lo, hi, GRID)
+        samples = []
+        if len(drivers) == 1:
+            c = drivers[0]
+            q = np.linspace(*c.span(), GRID)
             vals = self._joint_values(j, c.name, q)
             if c.name not in {x.name for x in j.coords}:  # a coupled joint: its coordinates follow c
                 vals = {x.name: self.r.couplers[x.name][2] * self.r.couplers[x.name][1](q) for x in j.coords}
-            R, p = j.transform(vals, q.size)
-            Ra, pa = _ops_transform(ops, vals, q.size)
+            samples.append((vals, q.size))
+        else:  # several coordinates: jointly, on a grid over their ranges (corners included)
+            k = max(3, int(round(4000 ** (1 / len(drivers)))))
+            grid = np.meshgrid(*[np.linspace(*c.span(), k) for c in drivers], indexing="ij")
+            vals = {c.name: g.ravel() for c, g in zip(drivers, grid, strict=True)}
+            n = grid[0].size
+            for x in j.coords:
+                if x.name in self.r.couplers:
+                    ind, f, s = self.r.couplers[x.name]
+                    vals[x.name] = s * f(vals[ind]) if ind in vals else np.full(n, self.ref_value(x.name))
+            samples.append((vals, n))
+        for vals, size in samples:
+            R, p = j.transform(vals, size)
+            Ra, pa = _ops_transform(ops, vals, size)
             if w.size:
                 err = np.linalg.norm(np.einsum("nij,kj->nki", R - Ra, w) + (p - pa)[:, None, :], axis=2)
                 k = np.unravel_index(np.argmax(err), err.shape)

@@ -118,7 +118,8 @@ def _xy(tag: str, x: str, y: str) -> str:
 def hand_made_osim() -> str:
     bodies = "".join(_BODY.format(name=n, mass=m) for n, m in
                      [("pelvis", 10), ("thigh", 7), ("shank", 3), ("foot", 1), ("toes", 0.3), ("arm", 2),
-                      ("hand", 0.5), ("cap", 0.1), ("patella", 0.05), ("slider", 0.2), ("wrist", 0.3)])
+                      ("hand", 0.5), ("cap", 0.1), ("patella", 0.05), ("slider", 0.2), ("wrist", 0.3),
+                      ("sled", 0.2), ("flap", 0.2)])
     joints = [
         f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0.1 0.2 0.3', '0.1 0 0.2')}"
         + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
@@ -174,6 +175,11 @@ def hand_made_osim() -> str:
         + _ta("rotation3", "1 0 0", "", _c())
         + _ta("translation1", "1 0 0", "slide_t", _lin()) + _ta("translation2", "0 1 0", "", _c())
         + _ta("translation3", "0 0 1", "", _c()) + "</SpatialTransform></CustomJoint>",
+        # a SliderJoint (frozen) and a PlanarJoint (its rotation exact, its translations frozen)
+        f"<SliderJoint name=\"sledj\">{_frames('pelvis', 'sled', '0.05 0 -0.1', '0.3 0.2 0.1')}"
+        f"{_coords(('sled_t', -0.03, 0.01))}</SliderJoint>",
+        f"<PlanarJoint name=\"flapj\">{_frames('pelvis', 'flap', '-0.1 0.1 0', '0 0.4 0')}"
+        f"{_coords(('flap_r', -1, 1), ('flap_x', -0.02, 0.02), ('flap_y', -0.01, 0.03))}</PlanarJoint>",
         # two coordinates, one through a piecewise-linear function (frozen), one exact
         f"<CustomJoint name=\"wristj\">{_frames('hand', 'wrist', '0 -0.08 0', '0 0 0')}"
         f"{_coords(('wr_a', -1, 1), ('wr_b', -0.3, 0.3))}<SpatialTransform>"
@@ -184,7 +190,7 @@ def hand_made_osim() -> str:
         + "</SpatialTransform></CustomJoint>",
     ]
     marker_bodies = ["pelvis", "pelvis", "pelvis", "thigh", "thigh", "shank", "shank", "foot", "foot", "toes", "arm",
-                     "hand", "hand", "cap", "slider", "wrist", "patella"]
+                     "hand", "hand", "cap", "slider", "wrist", "patella", "sled", "flap", "flap"]
     rng = np.random.default_rng(3)
     markers = "".join(
         f"<Marker name=\"M{k}_{b}\"><socket_parent_frame>/bodyset/{b}</socket_parent_frame>"
@@ -335,7 +341,8 @@ def test_markers_equal_opensim(equivalence, name):
         for a in info.approximations))
     if name == "handmade":
         kinds = {a.joint: a.kind for a in info.approximations}
-        assert kinds == {"knee": "hinge fit", "patfem": "welded (coupled)", "slide": "frozen", "wristj": "frozen"}
+        assert kinds == {"knee": "hinge fit", "patfem": "welded (coupled)", "slide": "frozen", "wristj": "frozen",
+                         "sledj": "frozen", "flapj": "frozen"}
         assert max(err[m].max() for m in approximated) > 1e-4  # the approximations do change markers
 
 
@@ -385,8 +392,8 @@ def _bad(tmp_path: Path, text: str, name: str = "bad.osim") -> Path:
     (lambda t: "hello, not xml", "not valid XML"),
     (lambda t: "<?xml version='1.0'?><robot name='x'/>", "not an OpenSimDocument"),
     (lambda t: t.replace('Version="40000"', 'Version="20302"'), "OpenSim 3.x"),
-    (lambda t: t.replace("<PinJoint name=\"ankle\">", "<SliderJoint name=\"ankle\">").replace(
-        "</PinJoint>", "</SliderJoint>"), "joint type SliderJoint is not read"),
+    (lambda t: t.replace("<PinJoint name=\"ankle\">", "<EllipsoidJoint name=\"ankle\">").replace(
+        "</PinJoint>", "</EllipsoidJoint>"), "joint type EllipsoidJoint is not read"),
     (lambda t: t.replace("PiecewiseLinearFunction", "StepFunction"), "function type StepFunction is not read"),
     (lambda t: t.replace("<socket_parent_frame>/bodyset/cap</socket_parent_frame>",
                          "<socket_parent_frame>/bodyset/nobody</socket_parent_frame>"), "which handmade.osim does not"),
