@@ -369,7 +369,12 @@ class _Reader:
                 raise ModelError(f"{where}: body '{name}' needs 3 mass_center and 6 inertia values; fix the model")
             inertia = np.array([[iv[0], iv[3], iv[4]], [iv[3], iv[1], iv[5]], [iv[4], iv[5], iv[2]]])
             self.bodies[name] = (mass, com, inertia)
-        # Offset frames anywhere in the model (joints' <frames>, bodies' <components>, the model's <components>).
+        # Offset frames anywhere in the model (joints' <frames>, bodies' <components>, the model's <components>),
+        # for sockets that name them by path; a name used twice is not resolved by name alone.
+        self.frames: dict[str, ET.Element | None] = {}
+        for f in m.iter("PhysicalOffsetFrame"):
+            name = f.get("name", "")
+            self.frames[name] = None if name in self.frames else f
         self.coords: dict[str, _Coord] = {}
         self.joints: list[_Joint] = []
         for jel in m.findall("JointSet/objects/*"):
@@ -395,9 +400,14 @@ class _Reader:
         """(body, pose of the frame in the body) of a socket path."""
         ref = ref.strip()
         name = _body_name(ref)
-        if name in local:
-            el = local[name]
-            body, X = self.frame(el.findtext("socket_parent", ""), {}, where)
+        el = local.get(name)
+        if el is None and name not in self.bodies and name != "ground":
+            el = self.frames.get(name)
+        if el is not None:
+            parent = el.findtext("socket_parent", "")
+            if _body_name(parent) == name:
+                raise ModelError(f"{where}: frame '{ref}' is its own parent; fix its socket_parent")
+            body, X = self.frame(parent, {}, where)
             return body, _compose(X, _frame_of(el, where))
         if name == "ground" or name in self.bodies:
             return name, _identity()
@@ -484,12 +494,13 @@ class _Reader:
         loc = _floats(mk.findtext("location", "0 0 0"))
         src = source or where
         body = _body_name(ref)
-        if body not in self.bodies and body != "ground":
-            raise ModelError(f"{src}: marker '{name}' is on body '{ref.strip()}', which {self.path.name} does not "
-                             f"have; attach it to one of its bodies ({', '.join(list(self.bodies)[:6])}, ...)")
         if loc.size != 3:
             raise ModelError(f"{src}: marker '{name}' needs 3 location values; fix the file")
-        self.markers[name] = (body, loc)
+        if body not in self.bodies and body != "ground" and self.frames.get(body) is None:
+            raise ModelError(f"{src}: marker '{name}' is on body '{ref.strip()}', which {self.path.name} does not "
+                             f"have; attach it to one of its bodies ({', '.join(list(self.bodies)[:6])}, ...)")
+        body, X = self.frame(ref, {}, src)  # a marker on an offset frame: its location in the body
+        self.markers[name] = (body, _apply(X, loc))
 
     def add_marker_set(self, path: Path) -> None:
         text = _read(path, "an OpenSim MarkerSet file (.xml)")

@@ -120,6 +120,10 @@ def hand_made_osim() -> str:
                      [("pelvis", 10), ("thigh", 7), ("shank", 3), ("foot", 1), ("toes", 0.3), ("arm", 2),
                       ("hand", 0.5), ("cap", 0.1), ("patella", 0.05), ("slider", 0.2), ("wrist", 0.3),
                       ("sled", 0.2), ("flap", 0.2)])
+    site = ("<components><PhysicalOffsetFrame name=\"cap_site\"><socket_parent>/bodyset/cap</socket_parent>"
+            "<translation>0.02 -0.03 0.04</translation><orientation>0.4 -0.2 0.9</orientation>"
+            "</PhysicalOffsetFrame></components></Body>")
+    bodies = bodies.replace("</Body>", site, 8).replace(site, "</Body>", 7)  # the 8th body, cap, has a frame
     joints = [
         f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0.1 0.2 0.3', '0.1 0 0.2')}"
         + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
@@ -196,6 +200,8 @@ def hand_made_osim() -> str:
         f"<Marker name=\"M{k}_{b}\"><socket_parent_frame>/bodyset/{b}</socket_parent_frame>"
         f"<location>{' '.join(f'{v:.4f}' for v in rng.uniform(-0.1, 0.1, 3))}</location><fixed>false</fixed></Marker>"
         for k, b in enumerate(marker_bodies))
+    markers += ("<Marker name=\"SITE\"><socket_parent_frame>/bodyset/cap/cap_site</socket_parent_frame>"
+                "<location>0.01 0.05 -0.02</location></Marker>")  # on an offset frame of a body
     coupler = ("<CoordinateCouplerConstraint name=\"pat_con\"><isEnforced>true</isEnforced>"
                "<coupled_coordinates_function>" + _lin(1, 0).replace(' name="function"', "")
                + "</coupled_coordinates_function><independent_coordinate_names>knee_q</independent_coordinate_names>"
