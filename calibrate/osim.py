@@ -4,8 +4,9 @@ with ``xml.etree`` into calibrate's model format (docs/model-format.md, docs/ope
 How the OpenSim model becomes a calibrate URDF:
 
 * **bodies** become segments of the same name (mass, centre of mass, inertia about it).  A segment's
-  frame is the joint's child frame after the last rotation (at the joint centre); for the usual
-  models (child offset frames without translation) it is the body's own frame.
+  frame is parallel to its body's, its origin at the joint centre (the child offset frame's origin): for
+  the usual models (child offset frames without translation) it is the body's own frame, so markers,
+  centres of mass and inertias keep OpenSim's numbers.
 * **the ground joint** (``ground_pelvis``) becomes calibrate's free root: its child is the root segment.
 * **joints**: the parent ``PhysicalOffsetFrame`` and the ``SpatialTransform`` give one revolute URDF
   joint per rotational coordinate, named by the coordinate (so motion columns are OpenSim's coordinate
@@ -551,6 +552,27 @@ def _ops_transform(ops: list[_Op], values: Mapping[str, np.ndarray], n: int) -> 
     return R, p
 
 
+def _body_aligned(ops: list[_Op], child_offset: Transform) -> tuple[list[_Op], Transform]:
+    """The same chain with the segment frame parallel to the child body: the rotation Q of what follows the
+    last revolute (with the child offset) moves in front of the first revolute, and everything between is
+    conjugated by it (Q⁻¹ Rot(a) Q = Rot(Qᵀ a)).  Returns the ops and the body's pose in the segment frame
+    (a translation only)."""
+    idx = [i for i, op in enumerate(ops) if op.coord is not None]
+    first, last = idx[0], idx[-1]
+    tail = _identity()
+    for op in ops[last + 1:]:
+        tail = _compose(tail, op.fixed)  # type: ignore[arg-type]
+    tail = _compose(tail, _inverse(child_offset))
+    R = tail[0]
+    out = ops[:first] + [_Op(fixed=(R, np.zeros(3)))]
+    for op in ops[first:last + 1]:
+        if op.fixed is not None:
+            out.append(_Op(fixed=(R.T @ op.fixed[0] @ R, R.T @ op.fixed[1])))
+        else:
+            out.append(_Op(coord=op.coord, axis=R.T @ op.axis))  # type: ignore[operator]
+    return out, (np.eye(3), R.T @ tail[1])
+
+
 class _Importer:
     def __init__(self, reader: _Reader):
         self.r = reader
@@ -842,6 +864,9 @@ class _Importer:
             if approx is not None:
                 approximations.append(self.measure(j, ops, *approx))
             revs = [op for op in ops if op.coord is not None]
+            tail = _identity()
+            if revs:
+                ops, tail = _body_aligned(ops, j.child_offset)
             for c in j.coords:
                 if c.name not in {op.coord for op in revs}:
                     dropped.append(c.name)
@@ -871,7 +896,7 @@ class _Importer:
                           anatomical=j.name)
                 seg_X[j.child] = _identity()
             else:
-                seg_X[j.child] = _compose(pending, _inverse(j.child_offset))
+                seg_X[j.child] = tail
         # segments
         for body, (mass, com, inertia) in r.bodies.items():
             X = seg_X[body]

@@ -380,6 +380,27 @@ def test_rajagopal_locked_and_coupled():
     assert {a.joint: a.kind for a in info.approximations} == {
         "walker_knee_r": "hinge fit", "walker_knee_l": "hinge fit", "patellofemoral_r": "welded (coupled)",
         "patellofemoral_l": "welded (coupled)"}
+    # segment frames are the bodies' frames where the child offset frame does not translate: the markers
+    # keep the .osim's numbers (the Rajagopal knee's child offset translates: the tibia's shift)
+    import xml.etree.ElementTree as ET
+
+    doc = ET.parse(RAJAGOPAL).getroot()
+    shifted = set()
+    for j in doc.find("Model/JointSet/objects"):
+        child = j.findtext("socket_child_frame")
+        for f in j.iter("PhysicalOffsetFrame"):
+            if f.get("name") == child and np.any(np.array(f.findtext("translation").split(), float) != 0):
+                shifted.add(f.findtext("socket_parent").split("/")[-1])
+    assert shifted == {"tibia_r", "tibia_l"}
+    same = 0
+    for mk in doc.iter("Marker"):
+        body = mk.findtext("socket_parent_frame").split("/")[-1]
+        seg = m.markers[m.marker_index(mk.get("name"))]
+        assert seg.segment == body
+        if body not in shifted:
+            np.testing.assert_allclose(seg.offset, np.array(mk.findtext("location").split(), float), atol=1e-12)
+            same += 1
+    assert same > 40
     from calibrate.osim import with_locked
     from calibrate.problem import Settings
 
