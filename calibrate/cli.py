@@ -181,8 +181,10 @@ def build_parser() -> argparse.ArgumentParser:
                                       "truth vs estimate: joint-centre and axis errors, marker RMS, time.")
     demo.add_argument("--out", type=Path, default=Path("calibrate-demo"), help="output directory")
     _add_sim_args(demo, 1000)
-    ins = sub.add_parser("inspect", help="describe a model (.urdf) or a trial (.c3d/.trc)")
-    ins.add_argument("file", type=Path, help="a .urdf, .c3d or .trc file")
+    ins = sub.add_parser("inspect", help="describe a model (.urdf, .osim) or a trial (.c3d/.trc)")
+    ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d or .trc file")
+    ins.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                     help="with a .osim: an OpenSim MarkerSet file whose markers are added (as the Scale tool does)")
     jo = sub.add_parser("joints", help="joint-centre trajectories of a trial (MTB framework)",
                         description="Estimate every joint centre of MODEL's topology, frame by frame, from TRIAL's "
                                     "markers alone (marker-trajectory bases, solvability propagation, JMV fallback; "
@@ -204,10 +206,20 @@ def build_parser() -> argparse.ArgumentParser:
     from .opensim_export import add_export_osim_parser
 
     add_export_osim_parser(sub)
+    io = sub.add_parser("import-osim", help="write an OpenSim model (.osim) as a calibrate model URDF",
+                        description="Read an OpenSim 4 model (and optionally a MarkerSet file) and write it in "
+                                    "calibrate's model format; lists what the format could only approximate "
+                                    "(docs/opensim.md).  Nothing is written on an error.")
+    io.add_argument("model", type=Path, metavar="MODEL.osim", help="the OpenSim model")
+    io.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                    help="an OpenSim MarkerSet file whose markers are added, replacing those of the same name")
+    io.add_argument("-o", "--output", type=Path, default=None, metavar="URDF",
+                    help="the URDF to write (default: MODEL's name + .urdf)")
+    io.add_argument("--overwrite", action="store_true", help="replace the output if it exists")
     return ap
 
 
-COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim")
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim")
 
 
 def _frames_arg(text: str) -> slice:
@@ -277,6 +289,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--mass", type=_positive_float, default=None,
                     help="subject's body mass in kg: segment masses and inertias are the base model's scaled to "
                          "it (default: the base model's masses kept)")
+    ap.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                    help="with an OpenSim MODEL.osim: an OpenSim MarkerSet file whose markers are added, replacing "
+                         "those of the same name (as OpenSim's Scale tool does)")
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     return ap
@@ -296,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     from .opensim_export import cmd_export_osim
 
     commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
-                "export-osim": cmd_export_osim}
+                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim}
     return _guard(commands[args.command], args)
 
 
@@ -418,6 +433,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
     outputs = [out_urdf, *out_motions, out_report]
+    from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
+    out_osim = out_urdf.with_suffix(".osim")
+    out_mots = [m.with_suffix(".mot") for m in out_motions]
+    if from_osim:
+        outputs += [out_osim, *out_mots]
     # Check the destinations before any work, so a long run never ends in a refusal.
     if len({p.resolve() for p in outputs}) < len(outputs):
         raise CalibrateError("two outputs would be the same file (two trials with the same name?); use -o/--report "
@@ -432,7 +452,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             raise CalibrateError(f"{p}: directory '{p.parent}' does not exist; create it first")
     say = (lambda msg: None) if args.quiet else _Timed()
     t0 = time.perf_counter()
-    model = load_model(model_path)
+    model = load_model(model_path, args.marker_set)
+    if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
+        from .osim import osim_info, with_locked
+
+        settings = with_locked(model, settings)
+        approx = osim_info(model).approximations  # type: ignore[union-attr]
+        if approx and not args.quiet:
+            _progress(f"note: {model_path.name}: {len(approx)} joints approximated (" + ", ".join(
+                f"{a.joint} {a.max_marker_mm:.1f} mm" for a in approx) + f"); see 'calibrate inspect {model_path}'")
     marker_map = load_marker_map(args.markers) if args.markers else None
     trials = [read_trial(t) for t in trial_paths]
     if args.frames is not None:
@@ -455,6 +483,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
     cal.times = {"load": load_s, **cal.times}
     cal.write(urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
+    if from_osim:
+        from .opensim_export import export_osim, write_mot
+
+        subject = load_model(out_urdf)
+        export_osim(subject, out_osim)
+        for path, motion in zip(out_mots, cal.motions, strict=True):
+            write_mot(path, subject, motion)
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))
@@ -526,10 +561,10 @@ def _rms(res: np.ndarray) -> float:
 
 def cmd_inspect(args: argparse.Namespace) -> int:
     path: Path = args.file
-    if path.suffix.lower() == ".urdf":
+    if path.suffix.lower() in (".urdf", ".osim"):
         from .model import load_model
 
-        m = load_model(path)
+        m = load_model(path, getattr(args, "marker_set", None))
         print(m.summary())
         print(f"  {'joint':16s} {'kind':9s} {'parent -> child':28s} centre (m, parent frame)")
         for j in m.joints:
@@ -539,6 +574,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         for s in m.segments:
             if s.markers:
                 print(f"    {s.name:12s} {' '.join(s.markers)}")
+        _print_osim(m)
         return 0
     from .trial import read_trial
 
@@ -548,6 +584,45 @@ def cmd_inspect(args: argparse.Namespace) -> int:
           f"first frame {t.first_frame}")
     for lab, g in zip(t.labels, gaps, strict=True):
         print(f"  {lab:16s} gaps {100 * g:5.1f} %")
+    return 0
+
+
+def _print_osim(model) -> None:
+    """What an OpenSim import approximated, locked and dropped (nothing for a model not from a .osim)."""
+    from .osim import approximation_table, osim_info
+
+    info = osim_info(model)
+    if info is None:
+        return
+    print(f"  imported from OpenSim model {info.source}; approximated joints:")
+    print(approximation_table(info))
+    if info.locked:
+        print(f"  locked coordinates (held in every frame): {', '.join(info.locked)}")
+    if info.dropped:
+        print(f"  coordinates that are not degrees of freedom here: {', '.join(info.dropped)}")
+
+
+def cmd_import_osim(args: argparse.Namespace) -> int:
+    """``calibrate import-osim MODEL.osim [--marker-set XML] [-o URDF]``."""
+    from ._text import atomic_write_text
+    from .model import load_model
+
+    src: Path = args.model
+    out: Path = args.output or src.with_suffix(".urdf")
+    if out.suffix.lower() != ".urdf":
+        raise CalibrateError(f"{out}: the output is a URDF; give it a .urdf name")
+    if out.exists() and not args.overwrite:
+        raise CalibrateError(f"{out}: exists; pass --overwrite to replace it or choose another -o")
+    if not out.parent.is_dir():
+        raise CalibrateError(f"{out}: directory '{out.parent}' does not exist; create it first")
+    model = load_model(src, args.marker_set)
+    try:
+        atomic_write_text(out, model._text)
+    except OSError as e:
+        raise CalibrateError(f"{out}: cannot write ({e.strerror}); choose a writable place") from None
+    print(model.summary())
+    _print_osim(model)
+    print(f"wrote {out}")
     return 0
 
 

@@ -264,7 +264,7 @@ class Model:
         first_index: dict[str, int] = {}
         for seg in seg_order[1:]:
             chain = joint_chain[seg]
-            name = _joint_name(chain)
+            name = joints_el[chain[0]].get("anatomical") or _joint_name(chain)  # named, as from a .osim
             first = next(u for u in urdf_joints if u.name == chain[0])
             dofs = tuple(jn for jn in chain if jtype(jn) in MOVING)
             joints.append(Joint(name, owner[first.parent_link], seg, tuple(chain), dofs, first.xyz.copy()))
@@ -405,8 +405,15 @@ class Model:
         return f"Model({str(self.path)!r}: {self.summary()})"
 
 
-def load_model(path: str | os.PathLike[str]) -> Model:
-    """Load a calibrate model (URDF); raises ModelError with one line on bad input."""
+def load_model(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None) -> Model:
+    """Load a calibrate model (URDF), or an OpenSim model (.osim, with an optional OpenSim MarkerSet
+    file, calibrate.osim); raises ModelError with one line on bad input."""
+    if Path(path).suffix.lower() == ".osim":
+        from .osim import load_osim
+
+        return load_osim(path, marker_set)
+    if marker_set is not None:
+        raise ModelError(f"{marker_set}: a marker-set file goes with an OpenSim model (.osim), not {path}")
     return Model(path)
 
 

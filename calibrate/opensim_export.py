@@ -32,6 +32,12 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
 * **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
 * gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); visuals are not exported.
+* **a model imported from an OpenSim model** (calibrate.osim; its URDF keeps an ``<opensim>`` element,
+  also after calibration) gets OpenSim's names back: the ground joint's name, frames and six
+  coordinates (e.g. ``ground_pelvis``: ``pelvis_tilt``, ``pelvis_list``, ``pelvis_rotation``,
+  ``pelvis_tx``...), the coordinates' default values and locked flags, and gravity along the
+  original's -y; bodies, joints and coordinates already carry the original names.  The .mot then has
+  those root columns (OpenSim's coordinate values of the root pose).
 
 With ``params`` (a calibrated or perturbed :class:`calibrate.model.Parameters`) positions are
 placed exactly as calibrate.kinematics and :func:`calibrate.model.write_model` place them
@@ -149,6 +155,9 @@ class _Builder:
         self.scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
         self.urdf = {u.name: u for u in model.urdf_joints}
         self.limits = {d.name: (d.lower, d.upper, d.continuous) for d in model.dofs}
+        from .osim import osim_info
+
+        self.info = osim_info(model)
 
     def origin(self, u: UrdfJoint) -> Transform:
         """A URDF joint's origin with the parameters applied (as calibrate.kinematics does)."""
@@ -199,7 +208,8 @@ class _Builder:
 
     def coordinate(self, name: str, motion: str) -> ET.Element:
         c = ET.Element("Coordinate", name=name)
-        _text(c, "default_value", "0")
+        info = self.info
+        _text(c, "default_value", fmt_float(info.defaults.get(name, 0.0)) if info is not None else "0")
         if name in self.limits:
             lo, hi, cont = self.limits[name]
             clamped = not cont and np.isfinite(lo) and np.isfinite(hi)
@@ -210,7 +220,7 @@ class _Builder:
             lo, hi, clamped = -big, big, False
         _text(c, "range", f"{fmt_float(lo)} {fmt_float(hi)}")
         _text(c, "clamped", "true" if clamped else "false")
-        _text(c, "locked", "false")
+        _text(c, "locked", "true" if self.info is not None and name in self.info.locked else "false")
         return c
 
     # -------------------------------------------------------------- structure
@@ -222,10 +232,17 @@ class _Builder:
             mass, com, inertia = inertials.get(seg.name, (0.0, np.zeros(3), np.zeros((3, 3))))
             self.body(seg.name, mass, s * com, s * s * inertia)
         ez = np.eye(3)
-        root_coords = [(n, ez[k], "rotation") for n, k in zip(ROOT_ROTATIONS, (2, 1, 0), strict=True)]
-        root_coords += [(n, ez[k], "translation") for k, n in enumerate(ROOT_TRANSLATIONS)]
-        self.joint("CustomJoint", f"ground_{model.root}", "ground", _identity(), model.root, _identity(),
-                   root_coords)
+        root = self.info.root if self.info is not None else None
+        if root is not None:  # the original ground joint: name, frames, coordinates
+            root_coords = [(n, a, "rotation") for n, a in root.rotations]
+            root_coords += [(n, a, "translation") for n, a in root.translations]
+            child = (root.child_offset[0], self.scale[model.root] * root.child_offset[1])
+            self.joint("CustomJoint", root.joint, "ground", root.parent_offset, model.root, child, root_coords)
+        else:
+            root_coords = [(n, ez[k], "rotation") for n, k in zip(ROOT_ROTATIONS, (2, 1, 0), strict=True)]
+            root_coords += [(n, ez[k], "translation") for k, n in enumerate(ROOT_TRANSLATIONS)]
+            self.joint("CustomJoint", f"ground_{model.root}", "ground", _identity(), model.root, _identity(),
+                       root_coords)
         for j in model.joints:
             self.anatomical_joint(j.name, j.parent, j.child, [self.urdf[n] for n in j.urdf_joints])
 
@@ -273,7 +290,7 @@ class _Builder:
         _text(m, "credits", f"exported by calibrate from {model.path.name}")
         _text(m, "length_units", "meters")
         _text(m, "force_units", "N")
-        _text(m, "gravity", fmt_vec(GRAVITY))
+        _text(m, "gravity", fmt_vec((0.0, -9.80665, 0.0) if self.info is not None else GRAVITY))
         ET.SubElement(m, "Ground", name="ground")
         for set_name, tag, items in (("bodyset", "BodySet", self.bodies), ("jointset", "JointSet", self.joints)):
             objs = ET.SubElement(ET.SubElement(m, tag, name=set_name), "objects")
@@ -336,7 +353,12 @@ def _check_names(model: Model) -> None:
         if bad:
             raise ModelError(f"{model.path}: {what} name {n!r} contains {bad[0]!r}, which OpenSim does not allow "
                              f"in names; rename it in the URDF")
-    coords = set(ROOT_ROTATIONS + ROOT_TRANSLATIONS)
+    from .osim import osim_info
+
+    info = osim_info(model)
+    root = info.root if info is not None else None
+    coords = set(ROOT_ROTATIONS + ROOT_TRANSLATIONS) if root is None else \
+        {n for n, _ in root.rotations + root.translations}
     clash = [d.name for d in model.dofs if d.name in coords]
     if clash:
         raise ModelError(f"{model.path}: URDF joint '{clash[0]}' has the name of an exported root coordinate; "
@@ -383,9 +405,10 @@ def export_osim(model: Model, path: str | os.PathLike[str], params: Parameters |
 
 
 # ---------------------------------------------------------------------- motion
-def mot_columns(model: Model, motion: Motion) -> tuple[list[str], np.ndarray]:
+def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) -> tuple[list[str], np.ndarray]:
     """Column names and values (n_frames, 1 + 6 + n_dofs) of the .mot: time, root angles (rad),
-    root translation (m), joint angles (rad), for the model exported by :func:`export_osim`."""
+    root translation (m), joint angles (rad), for the model exported by :func:`export_osim` (with
+    `params`; they matter only for an OpenSim ground joint whose child frame is offset in the root)."""
     missing = [d for d in model.dof_names if d not in motion.dof_names]
     extra = [d for d in motion.dof_names if d not in model.dof_names]
     if missing or extra:
@@ -398,17 +421,30 @@ def mot_columns(model: Model, motion: Motion) -> tuple[list[str], np.ndarray]:
     norms = np.linalg.norm(motion.root_quaternion, axis=1)
     if np.any(norms < 1e-9):
         raise CalibrateError("motion: has a zero root quaternion; give unit quaternions (x, y, z, w)")
+    order = [motion.dof_names.index(d) for d in model.dof_names]
+    from .osim import osim_info, root_coordinates
+
+    info = osim_info(model)
+    if info is not None and info.root is not None:  # OpenSim's own ground-joint coordinates
+        s = 1.0 if params is None else float(params.scale[0])
+        root = root_coordinates(info, motion.root_translation, motion.root_quaternion / norms[:, None], s)
+        names = [n for n, _ in info.root.rotations + info.root.translations]
+        values = np.hstack([motion.times[:, None], np.array([root[n] for n in names]).T, motion.angles[:, order]])
+        return ["time", *names, *model.dof_names], values
     euler = Rotation.from_quat(motion.root_quaternion / norms[:, None]).as_euler("ZYX")
     euler = np.unwrap(euler, axis=0)  # continuous angles; the same rotations
-    order = [motion.dof_names.index(d) for d in model.dof_names]
     values = np.hstack([motion.times[:, None], euler, motion.root_translation, motion.angles[:, order]])
     return ["time", *ROOT_ROTATIONS, *ROOT_TRANSLATIONS, *model.dof_names], values
 
 
-def mot_text(model: Model, motion: Motion, name: str = "motion") -> str:
+def mot_text(model: Model, motion: Motion, name: str = "motion", params: Parameters | None = None) -> str:
     """The .mot document (OpenSim Storage, angles in degrees) of `motion`."""
-    names, values = mot_columns(model, motion)
-    rotational = np.array([n in ROOT_ROTATIONS or n in model.dof_names for n in names])
+    from .osim import osim_info
+
+    names, values = mot_columns(model, motion, params)
+    info = osim_info(model)
+    root_rot = set(ROOT_ROTATIONS) if info is None or info.root is None else {n for n, _ in info.root.rotations}
+    rotational = np.array([n in root_rot or n in model.dof_names for n in names])
     values = np.where(rotational, np.degrees(values), values)
     head = [name, "version=1", f"nRows={values.shape[0]}", f"nColumns={values.shape[1]}", "inDegrees=yes",
             "endheader", "\t".join(names)]
@@ -416,11 +452,12 @@ def mot_text(model: Model, motion: Motion, name: str = "motion") -> str:
     return "\n".join(head + rows) + "\n"
 
 
-def write_mot(path: str | os.PathLike[str], model: Model, motion: Motion, overwrite: bool = True) -> Path:
+def write_mot(path: str | os.PathLike[str], model: Model, motion: Motion, overwrite: bool = True,
+              params: Parameters | None = None) -> Path:
     """Write `motion` (of `model`) as an OpenSim .mot at `path` (atomically)."""
     path = Path(path)
     _check_target(path, overwrite)
-    _write(path, mot_text(model, motion, path.stem))
+    _write(path, mot_text(model, motion, path.stem, params))
     return path
 
 

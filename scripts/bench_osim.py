@@ -1,0 +1,326 @@
+"""OpenSim's Scale + IK against calibrate, from the same generic OpenSim model and marker set, on the
+OpenSim example pipelines in ../shared/data/real (issue 17, item 5):
+
+* ``gait2392``: subject01_static.trc + subject01_walk1.trc, gait2392.osim with gait2392_Scale_MarkerSet.xml;
+  OpenSim runs the pipeline's own subject01_Setup_Scale.xml and subject01_Setup_IK.xml;
+* ``rajagopal``: static_walk_1.trc + motion_capture_walk.trc, Rajagopal2016.osim (its own markers);
+  OpenSim runs scale_setup_walk_scaleOnly.xml, scale_setup_walk.xml (its static trial, absent here,
+  replaced by static_walk_1.trc) and ik_setup_walk.xml.
+
+OpenSim runs in a child process of this script (``--_opensim``) that never imports calibrate (the
+opensim wheel's libcasadi clashes with casadi's).  Both are scored on the IK setup's frames and on
+the markers OpenSim's IK tracks (weight > 0) that the trial has: mean over frames of the per-frame
+marker RMS and of the per-frame largest marker error (mm); each hip, knee and ankle coordinate's RMS
+difference from OpenSim's IK (deg; gait2392 also from the repository's reference IK); wall times
+(calibrate: the whole run, load + scaling + marker placement + every frame's pose; OpenSim: Scale and
+IK separately) and their ratio.  calibrate runs with its default settings, the .osim's locked coordinates
+locked and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
+
+    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only gait2392|rajagopal]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+COORDS = ("hip_flexion", "hip_adduction", "hip_rotation", "knee_angle", "ankle_angle")
+
+
+# ---------------------------------------------------------------------- the OpenSim child
+def opensim_child(spec_path: str, out_path: str) -> int:
+    """Run the pipeline's Scale and IK setups in spec['dir']; evaluate the scaled model at the IK result."""
+    import os
+
+    import opensim as osim
+
+    osim.Logger.setLevelString("error")
+    osim.Logger.removeFileSink()
+    spec = json.loads(Path(spec_path).read_text())
+    root = Path(spec["dir"])
+    scale_s = 0.0
+    for step in spec["scale"]:  # [setup file, static trc to use instead of the setup's (or None)]
+        os.chdir(root / Path(step[0]).parent)
+        tool = osim.ScaleTool(Path(step[0]).name)
+        if step[1]:
+            tool.getMarkerPlacer().setStaticPoseFileName(step[1])
+            if tool.getModelScaler().getApply() and tool.getModelScaler().getMarkerFileName() not in ("", "Unassigned"):
+                tool.getModelScaler().setMarkerFileName(step[1])
+        t0 = time.perf_counter()
+        if not tool.run():
+            raise RuntimeError(f"{step[0]}: ScaleTool.run() failed")
+        scale_s += time.perf_counter() - t0
+    os.chdir(root / Path(spec["ik"]).parent)
+    ik = osim.InverseKinematicsTool(Path(spec["ik"]).name)
+    tracked = []
+    tasks = ik.getIKTaskSet()
+    for i in range(tasks.getSize()):
+        t = tasks.get(i)
+        if osim.IKMarkerTask.safeDownCast(t) is not None and t.getApply() and t.getWeight() > 0:
+            tracked.append(t.getName())
+    t0 = time.perf_counter()
+    if not ik.run():
+        raise RuntimeError("InverseKinematicsTool.run() failed")
+    ik_s = time.perf_counter() - t0
+    model_file = (root / Path(spec["ik"]).parent / ik.get_model_file()).resolve()
+    mot_file = (root / Path(spec["ik"]).parent / ik.getOutputMotionFileName()).resolve()
+    model = osim.Model(str(model_file))
+    state = model.initSystem()
+    cs = model.getCoordinateSet()
+    for i in range(cs.getSize()):
+        cs.get(i).setLocked(state, False)
+    mot = osim.TimeSeriesTable(str(mot_file))
+    cols = list(mot.getColumnLabels())
+    Q = mot.getMatrix().to_numpy().copy()
+    for k, name in enumerate(cols):
+        if cs.get(name).getMotionType() == osim.Coordinate.Rotational:
+            Q[:, k] = np.radians(Q[:, k])
+    ms = model.getMarkerSet()
+    names = [ms.get(i).getName() for i in range(ms.getSize())]
+    markers = np.zeros((Q.shape[0], len(names), 3))
+    for f in range(Q.shape[0]):
+        for k, name in enumerate(cols):
+            cs.get(name).setValue(state, float(Q[f, k]), False)
+        model.realizePosition(state)
+        for m in range(len(names)):
+            markers[f, m] = ms.get(m).getLocationInGround(state).to_numpy()
+    np.savez(out_path, times=np.array(list(mot.getIndependentColumn())), q=Q, coords=np.array(cols),
+             markers=markers, marker_names=np.array(names), tracked=np.array(tracked), scale_s=scale_s, ik_s=ik_s)
+    return 0
+
+
+# ---------------------------------------------------------------------- the two pipelines
+def prepare(case: str, work: Path) -> dict:
+    """Copy the pipeline's files under the names its setups expect; the spec for the child and calibrate."""
+    if case == "gait2392":
+        src = REAL / "gait2392"
+        d = work / "gait2392"
+        d.mkdir()
+        for f in ("gait2392_Scale_MarkerSet.xml", "subject01_static.trc", "subject01_walk1.trc",
+                  "subject01_Setup_Scale.xml", "subject01_Setup_IK.xml"):
+            shutil.copy(src / f, d / f)
+        shutil.copy(src / "gait2392.osim", d / "gait2392_simbody.osim")
+        return {"dir": str(work / "gait2392"), "scale": [["subject01_Setup_Scale.xml", None]],
+                "ik": "subject01_Setup_IK.xml", "osim": str(src / "gait2392.osim"),
+                "marker_set": str(src / "gait2392_Scale_MarkerSet.xml"), "static": str(src / "subject01_static.trc"),
+                "walk": str(src / "subject01_walk1.trc"), "mass": 72.6,
+                "reference": str(src / "subject01_walk1_ik_reference.mot")}
+    src = REAL / "rajagopal_walk"
+    d = work / "rajagopal"
+    for sub in ("Scale", "ExpData", "IK"):
+        (d / sub).mkdir(parents=True)
+    shutil.copy(src / "Rajagopal2016.osim", d / "generic_unscaled.osim")
+    for f in ("scale_setup_walk_scaleOnly.xml", "scale_setup_walk.xml", "markerset_walk_preScale.xml"):
+        shutil.copy(src / f, d / "Scale" / f)
+    for f in ("static_walk_1.trc", "motion_capture_walk.trc"):
+        shutil.copy(src / f, d / "ExpData" / f)
+    shutil.copy(src / "ik_setup_walk.xml", d / "IK" / "ik_setup_walk.xml")
+    (d / "IK" / "results_walk").mkdir()
+    return {"dir": str(d), "scale": [["Scale/scale_setup_walk_scaleOnly.xml", None],
+                                      ["Scale/scale_setup_walk.xml", "../ExpData/static_walk_1.trc"]],
+            "ik": "IK/ik_setup_walk.xml", "osim": str(src / "Rajagopal2016.osim"),
+            "marker_set": str(src / "markerset_walk_preScale.xml"), "static": str(src / "static_walk_1.trc"),
+            "walk": str(src / "motion_capture_walk.trc"), "mass": 85.0668, "reference": None}
+
+
+def run_opensim(spec: dict, work: Path) -> dict:
+    spec_path, out_path = work / f"{Path(spec['dir']).name}_spec.json", work / f"{Path(spec['dir']).name}_out.npz"
+    spec_path.write_text(json.dumps(spec))
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--_opensim", str(spec_path),
+                           str(out_path)], capture_output=True, text=True, timeout=1800)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"OpenSim child failed:\n{proc.stderr[-3000:]}")
+    z = np.load(out_path)
+    return {"times": z["times"], "q": z["q"], "coords": [str(c) for c in z["coords"]], "markers": z["markers"],
+            "marker_names": [str(c) for c in z["marker_names"]], "tracked": [str(c) for c in z["tracked"]],
+            "scale_s": float(z["scale_s"]), "ik_s": float(z["ik_s"]), "child_wall_s": wall}
+
+
+def trc_times(path: str) -> np.ndarray:
+    """The Time column of a TRC file (s)."""
+    rows = [ln.split("\t") for ln in Path(path).read_text().splitlines()[5:] if ln.strip()]
+    return np.array([float(r[1]) for r in rows])
+
+
+def read_mot(path: str) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """(times, columns, values in rad/m) of an OpenSim .mot (angles in degrees when inDegrees=yes)."""
+    lines = Path(path).read_text().splitlines()
+    end = next(i for i, ln in enumerate(lines) if ln.strip().lower() == "endheader")
+    degrees = not any(ln.strip().lower() == "indegrees=no" for ln in lines[:end])  # SIMM files: degrees
+    cols = lines[end + 1].split()
+    data = np.array([[float(v) for v in ln.split()] for ln in lines[end + 2:] if ln.strip()])
+    vals = data[:, 1:]
+    if degrees:
+        rot = np.array([not c.endswith(("_tx", "_ty", "_tz")) for c in cols[1:]])
+        vals = np.where(rot, np.radians(vals), vals)
+    return data[:, 0], cols[1:], vals
+
+
+def _plain_trc(path: str, spec_dir: str) -> Path:
+    """The TRC with its header's values one tab apart (Rajagopal's files pad them with empty fields,
+    which OpenSim skips), beside the pipeline's copy in the work directory."""
+    lines = Path(path).read_text().splitlines(keepends=True)
+    lines[2] = "\t".join(v.strip() for v in lines[2].split("\t") if v.strip()) + "\n"
+    out = Path(spec_dir) / ("plain_" + Path(path).name)
+    out.write_text("".join(lines))
+    return out
+
+
+def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False) -> dict:
+    """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles."""
+    import pinocchio as pin
+
+    from calibrate.calibration import calibrate
+    from calibrate.model import load_model, write_model
+    from calibrate.osim import with_locked
+    from calibrate.problem import Settings
+    from calibrate.trial import Trial, read_trial
+
+    t0 = time.perf_counter()
+    model = load_model(spec["osim"], spec["marker_set"])
+    static, walk = read_trial(_plain_trc(spec["static"], spec["dir"])), \
+        read_trial(_plain_trc(spec["walk"], spec["dir"]))
+    walk = Trial(walk.labels, walk.markers[frames], walk.rate, walk.first_frame + frames.start, walk.source)
+    free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
+    settings = with_locked(model, Settings(outliers=outliers, free=free))
+    cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
+    wall = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory() as tmp:
+        subject = load_model(write_model(cal.model, Path(tmp) / "subject.urdf", cal.params))
+    m = cal.motions[1]
+    data = subject.pin.createData()
+    mk = np.zeros((m.n_frames, len(subject.markers), 3))
+    for f in range(m.n_frames):
+        q = subject.pin_configuration(m.root_translation[f], m.root_quaternion[f], m.angles[f])
+        pin.framesForwardKinematics(subject.pin, data, q)
+        for k, name in enumerate(subject.marker_names):
+            mk[f, k] = data.oMf[subject.pin.getFrameId(name, pin.FrameType.BODY)].translation
+    trial = cal.trials[1]
+    return {"wall_s": wall, "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
+            "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
+            "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations]}
+
+
+def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> dict:
+    """Mean per-frame RMS and mean per-frame max error (mm) over markers `use` seen in the frame."""
+    idx_p = [names.index(u) for u in use]
+    idx_t = [trial.labels.index(u) for u in use]
+    err = np.linalg.norm(pred[:, idx_p] - trial.markers[:, idx_t], axis=2)
+    rms = np.sqrt(np.nanmean(err**2, axis=1))
+    return {"rms_mm": 1000 * float(np.nanmean(rms)), "max_mm": 1000 * float(np.nanmean(np.nanmax(err, axis=1))),
+            "markers": len(use)}
+
+
+def bench(case: str, work: Path, log, outliers: float) -> dict:
+    spec = prepare(case, work)
+    log(f"{case}: OpenSim Scale + IK (child process) ...")
+    osr = run_opensim(spec, work)
+    t_walk = trc_times(spec["walk"])
+    first = int(np.argmin(np.abs(t_walk - osr["times"][0])))
+    frames = slice(first, first + len(osr["times"]))
+    if not np.allclose(t_walk[frames], osr["times"], atol=1e-6):
+        raise RuntimeError(f"{case}: the IK frames are not consecutive trial frames")
+    log(f"{case}: calibrate on the static + walk trials ({len(osr['times'])} walk frames) ...")
+    cr = run_calibrate(spec, frames, outliers)
+    log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
+    ch = run_calibrate(spec, frames, outliers, hold_axes=True)
+    trial = cr["trial"]
+    use = [m for m in osr["tracked"] if m in trial.labels and m in cr["marker_names"] and m in osr["marker_names"]]
+    missing = [m for m in osr["tracked"] if m in trial.labels and m not in cr["marker_names"]]
+    out = {"case": case, "frames": len(osr["times"]), "markers_tracked_by_opensim": osr["tracked"],
+           "markers_scored": use, "opensim_tracked_markers_calibrate_lacks": missing,
+           "approximations": cr["approximations"], "calibrate_converged": cr["converged"]}
+    out["opensim"] = marker_scores(osr["markers"], osr["marker_names"], trial, use)
+    out["calibrate"] = marker_scores(cr["markers"], cr["marker_names"], trial, use)
+    out["calibrate"]["markers_used"] = sum(m in trial.labels for m in cr["marker_names"])
+    out["calibrate_axes_held"] = marker_scores(ch["markers"], ch["marker_names"], trial, use)
+    out["calibrate_axes_held"].update(wall_s=ch["wall_s"], converged=ch["converged"])
+    out["opensim"].update(scale_s=osr["scale_s"], ik_s=osr["ik_s"], total_s=osr["scale_s"] + osr["ik_s"])
+    out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"])
+    out["ratio_calibrate_to_opensim_ik"] = cr["wall_s"] / osr["ik_s"]
+    diffs: dict[str, dict[str, float]] = {}
+    ref = read_mot(spec["reference"]) if spec["reference"] else None
+    for label, run in (("coordinates", cr), ("coordinates_axes_held", ch)):
+        diffs = {}
+        for side in ("r", "l"):
+            for c in COORDS:
+                name = f"{c}_{side}"
+                if name not in run["angles"] or name not in osr["coords"]:
+                    continue
+                ours = np.degrees(run["angles"][name])
+                d = ours - np.degrees(osr["q"][:, osr["coords"].index(name)])
+                row = {"vs_opensim_ik_deg": float(np.sqrt(np.mean(d**2))),
+                       "vs_opensim_ik_offset_free_deg": float(np.std(d)), "offset_deg": float(np.mean(d))}
+                if ref is not None and name in ref[1]:
+                    r = np.interp(osr["times"], ref[0], np.degrees(ref[2][:, ref[1].index(name)]))
+                    row["vs_reference_ik_deg"] = float(np.sqrt(np.mean((ours - r) ** 2)))
+                diffs[name] = row
+        out[label] = diffs
+    return out
+
+
+def report(res: dict) -> None:
+    for r in res["results"]:
+        o, c = r["opensim"], r["calibrate"]
+        print(f"\n== {r['case']}: {r['frames']} walk frames, {len(r['markers_scored'])} markers scored "
+              f"(OpenSim's IK tracks {len(r['markers_tracked_by_opensim'])}; calibrate uses {c['markers_used']})")
+        print(f"  {'':22s} {'RMS mm':>8s} {'max mm':>8s} {'time s':>10s}")
+        print(f"  {'OpenSim Scale + IK':22s} {o['rms_mm']:8.2f} {o['max_mm']:8.2f} {o['total_s']:10.2f} "
+              f"(scale {o['scale_s']:.2f}, IK {o['ik_s']:.2f})")
+        print(f"  {'calibrate':22s} {c['rms_mm']:8.2f} {c['max_mm']:8.2f} {c['wall_s']:10.2f} "
+              f"(/ OpenSim IK: {r['ratio_calibrate_to_opensim_ik']:.2f})")
+        h = r["calibrate_axes_held"]
+        print(f"  {'calibrate, axes held':22s} {h['rms_mm']:8.2f} {h['max_mm']:8.2f} {h['wall_s']:10.2f}")
+        print(f"  marker RMS ratio calibrate / OpenSim: {c['rms_mm'] / o['rms_mm']:.2f} (axes held "
+              f"{h['rms_mm'] / o['rms_mm']:.2f})")
+        for label in ("coordinates", "coordinates_axes_held"):
+            print(f"  joint angles, {'calibrate' if label == 'coordinates' else 'calibrate with axes held'}:")
+            for name, d in r[label].items():
+                extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
+                print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
+                      f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
+        for a in r["approximations"]:
+            print(f"  approximated: {a}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    ap.add_argument("--only", choices=("gait2392", "rajagopal"), default=None)
+    ap.add_argument("--outlier-sigmas", type=float, default=0.0,
+                    help="calibrate's outlier rejection (noise SDs; default 0: off, as OpenSim's IK keeps every "
+                         "marker; calibrate's own default, 6, rejects gait2392's rigid-trunk markers in most frames)")
+    ap.add_argument("--_opensim", nargs=2, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a._opensim:
+        return opensim_child(*a._opensim)
+    if not REAL.exists():
+        print(f"bench_osim: {REAL} not found (the real trials)", file=sys.stderr)
+        return 2
+
+    def log(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    cases = [a.only] if a.only else ["gait2392", "rajagopal"]
+    with tempfile.TemporaryDirectory(prefix="bench_osim_") as tmp:
+        res = {"outlier_sigmas": a.outlier_sigmas,
+               "results": [bench(c, Path(tmp), log, a.outlier_sigmas) for c in cases]}
+    report(res)
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,632 @@
+"""OpenSim models as base models (calibrate.osim): marker positions of the imported model, by Pinocchio,
+equal OpenSim's own (the `opensim` package in a child process) to 1e-6 m where the import is exact, and
+stay within the reported bound where it approximates; Gait2392, Rajagopal 2016 and a hand-made model
+with every joint and function type; bad input; the CLI.
+
+OpenSim runs in a child process (see tests/test_opensim_export.py): one child for every model at once.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibrate.cli import main
+from calibrate.errors import ModelError
+from calibrate.model import load_model
+from calibrate.osim import osim_info, root_coordinates
+
+HAVE_OPENSIM = importlib.util.find_spec("opensim") is not None
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+GAIT = REAL / "gait2392" / "gait2392.osim"
+GAIT_MARKERS = REAL / "gait2392" / "gait2392_Scale_MarkerSet.xml"
+RAJAGOPAL = REAL / "rajagopal_walk" / "Rajagopal2016.osim"
+TOL = 1e-6  # m
+N_POSES = 100
+
+# {"jobs": [{"osim", "marker_set", "poses": [{coordinate: value}]}]} -> per job, per pose: marker -> xyz in ground.
+# Coupled (dependent) coordinates are set from their CoordinateCouplerConstraint's function.
+_WORKER = r"""
+import json, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+out = []
+for job in json.load(open(sys.argv[1]))["jobs"]:
+    model = osim.Model(job["osim"])
+    if job.get("marker_set"):
+        model.updateMarkerSet(osim.MarkerSet(job["marker_set"]))
+    state = model.initSystem()
+    cs = model.getCoordinateSet()
+    couplers = []
+    for i in range(model.getConstraintSet().getSize()):
+        c = osim.CoordinateCouplerConstraint.safeDownCast(model.getConstraintSet().get(i))
+        if c is not None:
+            names = c.getIndependentCoordinateNames()
+            couplers.append((c.getDependentCoordinateName(), names.get(0), c.getFunction(),
+                             osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
+    for i in range(cs.getSize()):  # a locked coordinate keeps its value in setValue
+        cs.get(i).setLocked(state, False)
+    poses = []
+    for pose in job["poses"]:
+        for name, value in pose.items():
+            cs.get(name).setValue(state, value, False)
+        for dep, ind, f, s in couplers:
+            v = osim.Vector(1, cs.get(ind).getValue(state))
+            cs.get(dep).setValue(state, s * f.calcValue(v), False)
+        model.realizePosition(state)
+        ms = model.getMarkerSet()
+        res = {ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
+               for i in range(ms.getSize())}
+        for b in job["bodies"]:  # pose of a body in ground: R (row-major 9), p (3)
+            X = model.getBodySet().get(b).getTransformInGround(state)
+            R = X.R().asMat33()
+            res["body " + b] = [R.get(i, j) for i in range(3) for j in range(3)] + X.p().to_numpy().tolist()
+        poses.append(res)
+    out.append(poses)
+json.dump(out, open(sys.argv[2], "w"))
+"""
+
+# A hand-made model: a FreeJoint root, Ball, Gimbal, Pin, Universal, Weld and CustomJoints with every function
+# type read (Constant, LinearFunction with slope -1 and an intercept, PolynomialFunction (linear: exact; quadratic),
+# SimmSpline, NaturalCubicSpline, PiecewiseLinearFunction, MultiplierFunction), offset frames that turn and
+# translate (child side too), a coupled body and a coordinate-driven translation.
+_BODY = """<Body name="{name}"><mass>{mass}</mass><mass_center>0.01 -0.1 0.02</mass_center>
+<inertia>0.1 0.12 0.05 0.001 -0.002 0.003</inertia></Body>"""
+
+
+def _frames(parent: str, child: str, pt: str, po: str, ct: str = "0 0 0", co: str = "0 0 0") -> str:
+    return (f"<frames><PhysicalOffsetFrame name=\"{parent}_off\"><socket_parent>/bodyset/{parent}</socket_parent>"
+            f"<translation>{pt}</translation><orientation>{po}</orientation></PhysicalOffsetFrame>"
+            f"<PhysicalOffsetFrame name=\"{child}_off\"><socket_parent>/bodyset/{child}</socket_parent>"
+            f"<translation>{ct}</translation><orientation>{co}</orientation></PhysicalOffsetFrame></frames>"
+            f"<socket_parent_frame>{parent}_off</socket_parent_frame><socket_child_frame>{child}_off"
+            f"</socket_child_frame>").replace("/bodyset/ground", "/ground")
+
+
+def _coords(*items: tuple[str, float, float]) -> str:
+    return "<coordinates>" + "".join(
+        f"<Coordinate name=\"{n}\"><default_value>0</default_value><range>{lo} {hi}</range><clamped>true</clamped>"
+        f"<locked>false</locked></Coordinate>" for n, lo, hi in items) + "</coordinates>"
+
+
+def _ta(name: str, axis: str, coord: str, func: str) -> str:
+    return (f"<TransformAxis name=\"{name}\"><coordinates>{coord}</coordinates><axis>{axis}</axis>{func}"
+            f"</TransformAxis>")
+
+
+def _c(v: float = 0) -> str:
+    return f"<Constant name=\"function\"><value>{v}</value></Constant>"
+
+
+def _lin(a: float = 1, b: float = 0) -> str:
+    return f"<LinearFunction name=\"function\"><coefficients>{a} {b}</coefficients></LinearFunction>"
+
+
+def _xy(tag: str, x: str, y: str) -> str:
+    return f"<{tag} name=\"function\"><x>{x}</x><y>{y}</y></{tag}>"
+
+
+def hand_made_osim() -> str:
+    bodies = "".join(_BODY.format(name=n, mass=m) for n, m in
+                     [("pelvis", 10), ("thigh", 7), ("shank", 3), ("foot", 1), ("toes", 0.3), ("arm", 2),
+                      ("hand", 0.5), ("cap", 0.1), ("patella", 0.05), ("slider", 0.2), ("wrist", 0.3),
+                      ("sled", 0.2), ("flap", 0.2)])
+    site = ("<components><PhysicalOffsetFrame name=\"cap_site\"><socket_parent>/bodyset/cap</socket_parent>"
+            "<translation>0.02 -0.03 0.04</translation><orientation>0.4 -0.2 0.9</orientation>"
+            "</PhysicalOffsetFrame></components></Body>")
+    bodies = bodies.replace("</Body>", site, 8).replace(site, "</Body>", 7)  # the 8th body, cap, has a frame
+    joints = [
+        f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0.1 0.2 0.3', '0.1 0 0.2')}"
+        + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
+                  ('p_tz', -2, 2)) +
+        "</FreeJoint>",
+        "<BallJoint name=\"hip\">"
+        + _frames('pelvis', 'thigh', '-0.05 -0.08 0.09', '0.2 -0.1 0.3', '0.01 0.02 -0.03', '0.1 0.2 0') +
+        f"{_coords(('hip_x', -1, 1), ('hip_y', -1, 1), ('hip_z', -1, 1))}</BallJoint>",
+        # the knee: rotation -q + 0.1 about a tilted axis, a constant rotation, spline translations (approximated)
+        f"<CustomJoint name=\"knee\">{_frames('thigh', 'shank', '0 -0.4 0', '0 0 0.1')}{_coords(('knee_q', -2, 0.2))}"
+        "<SpatialTransform>"
+        + _ta("rotation1", "0.1 0 1", "knee_q", _lin(-1, 0.1))
+        + _ta("rotation2", "0 1 0", "knee_q", "<PolynomialFunction name=\"function\"><coefficients>0.03 -0.02 0.2"
+              "</coefficients></PolynomialFunction>")
+        + _ta("rotation3", "1 0 0", "", _c())
+        + _ta("translation1", "1 0 0", "knee_q",
+              _xy("SimmSpline", "-2 -1.2 -0.5 0 0.2", "-0.003 0.002 0.004 -0.003 -0.005"))
+        + _ta("translation2", "0 1 0", "knee_q",
+              "<MultiplierFunction name=\"function\"><function>"
+              + _xy("NaturalCubicSpline", "-2 -1 0 0.2", "-0.42 -0.40 -0.396 -0.396")
+              + "</function><scale>1.1</scale></MultiplierFunction>")
+        + _ta("translation3", "0 0 1", "", _c(0.002)) + "</SpatialTransform></CustomJoint>",
+        "<PinJoint name=\"ankle\">"
+        + _frames('shank', 'foot', '-0.01 -0.4 0', '0.17 -0.1 0.02', '0 0.01 0', '0.17 -0.1 0.02') +
+        f"{_coords(('ankle_q', -0.7, 0.5))}</PinJoint>",
+        f"<UniversalJoint name=\"mtp\">{_frames('foot', 'toes', '0.18 -0.002 0.001', '-0.3 0.6 0')}"
+        f"{_coords(('mtp_x', -0.5, 0.5), ('mtp_y', -0.5, 0.5))}</UniversalJoint>",
+        f"<GimbalJoint name=\"shoulder\">{_frames('pelvis', 'arm', '0 0.4 0.17', '0 0 0.3')}"
+        f"{_coords(('sh_x', -1.5, 1.5), ('sh_y', -1.5, 1.5), ('sh_z', -1.5, 1.5))}</GimbalJoint>",
+        # an exact CustomJoint of two coordinates: slope -1 with an intercept, a Multiplier of a linear function
+        f"<CustomJoint name=\"elbow\">{_frames('arm', 'hand', '0.01 -0.29 -0.01', '-0.02 0.23 0.005')}"
+        f"{_coords(('el_flex', 0, 2.6), ('el_pro', -1, 1))}<SpatialTransform>"
+        + _ta("rotation1", "0 0 1", "el_flex", "<PolynomialFunction name=\"function\"><coefficients>0 -1 0.05"
+              "</coefficients></PolynomialFunction>") + _ta("rotation2", "0 1 0", "", _c(0.1))
+        + _ta("rotation3", "0.2 1 0", "el_pro",
+              "<MultiplierFunction name=\"function\"><function>" + _lin(-1, 0).replace(' name="function"', "")
+              + "</function><scale>1</scale></MultiplierFunction>")
+        + _ta("translation1", "1 0 0", "", _c(0.01)) + _ta("translation2", "0 1 0", "", _c())
+        + _ta("translation3", "0 0 1", "", _c()) + "</SpatialTransform></CustomJoint>",
+        f"<WeldJoint name=\"cap_weld\">{_frames('pelvis', 'cap', '0.1 0.1 0', '0.3 0.2 0.1')}</WeldJoint>",
+        # a body whose coordinate is coupled to the knee's (welded at mid-range)
+        f"<CustomJoint name=\"patfem\">{_frames('thigh', 'patella', '0.02 -0.38 0', '0 0 0')}"
+        f"{_coords(('knee_beta', -99999, 99999))}<SpatialTransform>"
+        + _ta("rotation1", "0 0 1", "knee_beta", _lin(0.5, 0)) + _ta("rotation2", "0 1 0", "", _c())
+        + _ta("rotation3", "1 0 0", "", _c())
+        + _ta("translation1", "1 0 0", "knee_beta", _xy("SimmSpline", "-2 -1 0 0.2", "0.05 0.04 0.03 0.03"))
+        + _ta("translation2", "0 1 0", "", _c()) + _ta("translation3", "0 0 1", "", _c())
+        + "</SpatialTransform></CustomJoint>",
+        # a coordinate that translates (frozen at mid-range)
+        f"<CustomJoint name=\"slide\">{_frames('pelvis', 'slider', '0 0 -0.1', '0 0 0')}"
+        f"{_coords(('slide_t', -0.02, 0.02))}<SpatialTransform>"
+        + _ta("rotation1", "0 0 1", "", _c()) + _ta("rotation2", "0 1 0", "", _c())
+        + _ta("rotation3", "1 0 0", "", _c())
+        + _ta("translation1", "1 0 0", "slide_t", _lin()) + _ta("translation2", "0 1 0", "", _c())
+        + _ta("translation3", "0 0 1", "", _c()) + "</SpatialTransform></CustomJoint>",
+        # a SliderJoint (frozen) and a PlanarJoint (its rotation exact, its translations frozen)
+        f"<SliderJoint name=\"sledj\">{_frames('pelvis', 'sled', '0.05 0 -0.1', '0.3 0.2 0.1')}"
+        f"{_coords(('sled_t', -0.03, 0.01))}</SliderJoint>",
+        f"<PlanarJoint name=\"flapj\">{_frames('pelvis', 'flap', '-0.1 0.1 0', '0 0.4 0')}"
+        f"{_coords(('flap_r', -1, 1), ('flap_x', -0.02, 0.02), ('flap_y', -0.01, 0.03))}</PlanarJoint>",
+        # two coordinates, one through a piecewise-linear function (frozen), one exact
+        f"<CustomJoint name=\"wristj\">{_frames('hand', 'wrist', '0 -0.08 0', '0 0 0')}"
+        f"{_coords(('wr_a', -1, 1), ('wr_b', -0.3, 0.3))}<SpatialTransform>"
+        + _ta("rotation1", "0 0 1", "wr_a", _lin()) + _ta("rotation2", "1 0 0", "wr_b",
+                                                          _xy("PiecewiseLinearFunction", "-0.3 0 0.3", "-0.1 0 0.2"))
+        + _ta("rotation3", "0 1 0", "", _c()) + _ta("translation1", "1 0 0", "", _c())
+        + _ta("translation2", "0 1 0", "", _c()) + _ta("translation3", "0 0 1", "", _c())
+        + "</SpatialTransform></CustomJoint>",
+    ]
+    marker_bodies = ["pelvis", "pelvis", "pelvis", "thigh", "thigh", "shank", "shank", "foot", "foot", "toes", "arm",
+                     "hand", "hand", "cap", "slider", "wrist", "patella", "sled", "flap", "flap"]
+    rng = np.random.default_rng(3)
+    markers = "".join(
+        f"<Marker name=\"M{k}_{b}\"><socket_parent_frame>/bodyset/{b}</socket_parent_frame>"
+        f"<location>{' '.join(f'{v:.4f}' for v in rng.uniform(-0.1, 0.1, 3))}</location><fixed>false</fixed></Marker>"
+        for k, b in enumerate(marker_bodies))
+    markers += ("<Marker name=\"SITE\"><socket_parent_frame>/bodyset/cap/cap_site</socket_parent_frame>"
+                "<location>0.01 0.05 -0.02</location></Marker>")  # on an offset frame of a body
+    coupler = ("<CoordinateCouplerConstraint name=\"pat_con\"><isEnforced>true</isEnforced>"
+               "<coupled_coordinates_function>" + _lin(1, 0).replace(' name="function"', "")
+               + "</coupled_coordinates_function><independent_coordinate_names>knee_q</independent_coordinate_names>"
+               "<dependent_coordinate_name>knee_beta</dependent_coordinate_name><scale_factor>1</scale_factor>"
+               "</CoordinateCouplerConstraint>")
+    return ("<?xml version=\"1.0\" encoding=\"UTF-8\" ?>\n<OpenSimDocument Version=\"40000\"><Model name=\"handmade\">"
+            "<Ground name=\"ground\"/><gravity>0 -9.80665 0</gravity>"
+            f"<BodySet name=\"bodyset\"><objects>{bodies}</objects></BodySet>"
+            f"<JointSet name=\"jointset\"><objects>{''.join(joints)}</objects></JointSet>"
+            f"<ConstraintSet name=\"constraintset\"><objects>{coupler}</objects></ConstraintSet>"
+            f"<MarkerSet name=\"markerset\"><objects>{markers}</objects></MarkerSet></Model></OpenSimDocument>\n")
+
+
+# ---------------------------------------------------------------------- the references
+def _pin_markers(model, root_t, root_q, angles) -> dict[str, np.ndarray]:
+    """Markers in the lab by Pinocchio, and ('body S') every segment frame's pose (R row-major, p)."""
+    pm = model.pin
+    d = pm.createData()
+    pin.framesForwardKinematics(pm, d, model.pin_configuration(root_t, root_q, angles))
+    out = {m: d.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names}
+    for s in model.segments:
+        X = d.oMf[pm.getFrameId(s.name, pin.FrameType.BODY)]
+        out["body " + s.name] = np.concatenate([X.rotation.ravel(), X.translation])
+    return out
+
+
+def _cases(model, n: int, seed: int, ranges: dict[str, tuple[float, float]]) -> tuple[list[dict], list[dict]]:
+    """n random poses: OpenSim coordinates (every coordinate, within its range) and Pinocchio's markers."""
+    rng = np.random.default_rng(seed)
+    info = osim_info(model)
+    jobs, refs = [], []
+    for k in range(n):
+        t = rng.normal(0, 0.5, 3)
+        quat = Rotation.random(random_state=seed * 1000 + k).as_quat()
+        coords = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in ranges.items()}
+        angles = np.array([coords[d] for d in model.dof_names])
+        root = root_coordinates(info, t[None], quat[None])
+        coords.update({name: float(v[0]) for name, v in root.items()})
+        jobs.append(coords)
+        refs.append(_pin_markers(model, t, quat, angles))
+    return jobs, refs
+
+
+def _ranges(path: Path) -> dict[str, tuple[float, float]]:
+    """Every non-root coordinate's range, from the .osim (independent of calibrate.osim), within one turn."""
+    import xml.etree.ElementTree as ET
+
+    out = {}
+    for j in ET.parse(path).getroot().iter():
+        if j.tag.endswith("Joint") and j.find("coordinates") is not None:
+            parent = j.findtext("socket_parent_frame", "")
+            frames = {f.get("name"): f.findtext("socket_parent", "") for f in j.iter("PhysicalOffsetFrame")}
+            if frames.get(parent, parent).strip().endswith("ground"):
+                continue
+            for c in j.iter("Coordinate"):
+                lo, hi = (float(v) for v in c.findtext("range").split())
+                out[c.get("name")] = (max(lo, -np.pi), min(hi, np.pi))
+    return out
+
+
+@pytest.fixture(scope="module")
+def equivalence(tmp_path_factory):
+    """One OpenSim child for the three models; per model: the Model, Pinocchio's markers, OpenSim's."""
+    if not HAVE_OPENSIM:
+        pytest.skip("opensim is not installed (pip install -e '.[opensim]'; .ci/run installs it)")
+    tmp = tmp_path_factory.mktemp("osim_import")
+    hand = tmp / "handmade.osim"
+    hand.write_text(hand_made_osim())
+    cases = {"handmade": (hand, None)}
+    if GAIT.exists():
+        cases["gait2392"] = (GAIT, GAIT_MARKERS)
+    if RAJAGOPAL.exists():
+        cases["rajagopal"] = (RAJAGOPAL, None)
+    out, jobs = {}, []
+    for seed, (name, (path, ms)) in enumerate(cases.items()):
+        model = load_model(path, ms)
+        coupled = {c for a in osim_info(model).approximations if a.kind == "welded (coupled)" for c in a.coordinates}
+        poses, refs = _cases(model, N_POSES, seed + 1, {k: v for k, v in _ranges(path).items() if k not in coupled})
+        out[name] = {"model": model, "refs": refs}
+        children = sorted({model.joints[model.joint_index(a.joint)].child for a in osim_info(model).approximations})
+        jobs.append({"osim": str(path), "marker_set": str(ms) if ms else None, "poses": poses, "bodies": children})
+    spec, result = tmp / "jobs.json", tmp / "result.json"
+    spec.write_text(json.dumps({"jobs": jobs}))
+    proc = subprocess.run([sys.executable, "-c", _WORKER, str(spec), str(result)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
+    for name, poses in zip(out, json.loads(result.read_text()), strict=True):
+        out[name]["osim"] = poses
+    return out
+
+
+def _kabsch_residual(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest distance left after the best rigid motion taking points a (n, 3) onto b."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return float(np.linalg.norm((a - ca) @ R.T + cb - b, axis=1).max())
+
+
+def _local(pose: list[float] | np.ndarray, x) -> np.ndarray:
+    R, p = np.asarray(pose[:9]).reshape(3, 3), np.asarray(pose[9:])
+    return R.T @ (np.asarray(x) - p)
+
+
+def _errors(case: dict) -> dict[str, np.ndarray]:
+    """marker -> |Pinocchio - OpenSim| (m) over the poses."""
+    names = case["model"].marker_names
+    return {m: np.array([np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(case["osim"], case["refs"],
+                                                                                  strict=True)]) for m in names}
+
+
+@pytest.mark.parametrize("name", ["handmade", "gait2392", "rajagopal"])
+def test_markers_equal_opensim(equivalence, name):
+    if name not in equivalence:
+        pytest.skip(f"{name}: the real model is not in ../shared/data/real")
+    case = equivalence[name]
+    model = case["model"]
+    info = osim_info(model)
+    err = _errors(case)
+    assert {k for k in case["osim"][0] if not k.startswith("body ")} == set(model.marker_names)
+    approximated = {m for a in info.approximations for m in a.markers}
+    exact = [m for m in model.marker_names if m not in approximated]
+    assert exact, "some markers are exact"
+    worst_exact = max(err[m].max() for m in exact)
+    assert worst_exact < TOL, f"{name}: exact markers off by {worst_exact:.3g} m"
+    for m in approximated:  # within the sum of the bounds of the approximated joints above the marker
+        bound = sum(a.bound_mm for a in info.approximations if m in a.markers) / 1000
+        assert err[m].max() <= bound + TOL, f"{name}: {m} off by {err[m].max():.4g} m > bound {bound:.4g} m"
+    # Below an approximated joint the rest is exact: in its child body's frame (OpenSim) and child segment's
+    # frame (calibrate), the markers below differ by one rigid motion, the same in every pose.
+    for a in info.approximations:
+        deepest = [m for m in a.markers if min((len(b.markers), b.joint) for b in info.approximations
+                                               if m in b.markers) == (len(a.markers), a.joint)]
+        if not deepest:
+            continue
+        child = model.joints[model.joint_index(a.joint)].child
+        ours = np.array([_local(r["body " + child], r[m]) for r in case["refs"] for m in deepest])
+        theirs = np.array([_local(o["body " + child], o[m]) for o in case["osim"] for m in deepest])
+        assert _kabsch_residual(ours, theirs) < TOL, f"{name}: markers below {a.joint} are not exact relative to it"
+    print(f"{name}: exact markers within {worst_exact:.2g} m; approximated: " + ", ".join(
+        f"{a.joint} {1000 * max(err[m].max() for m in a.markers) if a.markers else 0:.2f} mm (bound {a.bound_mm:.2f})"
+        for a in info.approximations))
+    if name == "handmade":
+        kinds = {a.joint: a.kind for a in info.approximations}
+        assert kinds == {"knee": "hinge fit", "patfem": "welded (coupled)", "slide": "frozen", "wristj": "frozen",
+                         "sledj": "frozen", "flapj": "frozen"}
+        assert max(err[m].max() for m in approximated) > 1e-4  # the approximations do change markers
+
+
+def test_structure_and_names():
+    if not GAIT.exists():
+        pytest.skip("gait2392 is not in ../shared/data/real")
+    m = load_model(GAIT, GAIT_MARKERS)
+    assert m.n_dofs == 17 and m.root == "pelvis" and len(m.markers) == 39
+    assert {j.name for j in m.joints} == {"hip_r", "knee_r", "ankle_r", "subtalar_r", "mtp_r", "hip_l", "knee_l",
+                                          "ankle_l", "subtalar_l", "mtp_l", "back"}
+    assert m.joints[m.joint_index("hip_r")].dofs == ("hip_flexion_r", "hip_adduction_r", "hip_rotation_r")
+    knee = m.dofs[m.dof_index("knee_angle_r")]
+    assert (knee.lower, knee.upper) == (pytest.approx(-2.0943951), pytest.approx(0.17453293))
+    info = osim_info(m)
+    assert [a.joint for a in info.approximations] == ["knee_l", "knee_r"] or \
+        sorted(a.joint for a in info.approximations) == ["knee_l", "knee_r"]
+    assert all(0.5 < a.max_marker_mm < 10 for a in info.approximations)
+    assert info.root is not None and [c for c, _ in info.root.rotations] == ["pelvis_tilt", "pelvis_list",
+                                                                            "pelvis_rotation"]
+
+
+@pytest.mark.skipif(not RAJAGOPAL.exists(), reason="Rajagopal2016 is not in ../shared/data/real")
+def test_rajagopal_locked_and_coupled():
+    m = load_model(RAJAGOPAL)
+    info = osim_info(m)
+    assert set(info.locked) == {"subtalar_angle_r", "subtalar_angle_l", "mtp_angle_r", "mtp_angle_l", "wrist_flex_r",
+                                "wrist_flex_l", "wrist_dev_r", "wrist_dev_l"}
+    assert set(info.dropped) == {"knee_angle_r_beta", "knee_angle_l_beta"}
+    assert {a.joint: a.kind for a in info.approximations} == {
+        "walker_knee_r": "hinge fit", "walker_knee_l": "hinge fit", "patellofemoral_r": "welded (coupled)",
+        "patellofemoral_l": "welded (coupled)"}
+    # segment frames are the bodies' frames where the child offset frame does not translate: the markers
+    # keep the .osim's numbers (the Rajagopal knee's child offset translates: the tibia's shift)
+    import xml.etree.ElementTree as ET
+
+    doc = ET.parse(RAJAGOPAL).getroot()
+    shifted = set()
+    for j in doc.find("Model/JointSet/objects"):
+        child = j.findtext("socket_child_frame")
+        for f in j.iter("PhysicalOffsetFrame"):
+            if f.get("name") == child and np.any(np.array(f.findtext("translation").split(), float) != 0):
+                shifted.add(f.findtext("socket_parent").split("/")[-1])
+    assert shifted == {"tibia_r", "tibia_l"}
+    same = 0
+    for mk in doc.iter("Marker"):
+        body = mk.findtext("socket_parent_frame").split("/")[-1]
+        seg = m.markers[m.marker_index(mk.get("name"))]
+        assert seg.segment == body
+        if body not in shifted:
+            np.testing.assert_allclose(seg.offset, np.array(mk.findtext("location").split(), float), atol=1e-12)
+            same += 1
+    assert same > 40
+    from calibrate.osim import with_locked
+    from calibrate.problem import Settings
+
+    s = with_locked(m, Settings(lock={"mtp_angle_r": 0.1}))
+    assert dict(s.lock)["mtp_angle_r"] == 0.1 and dict(s.lock)["subtalar_angle_l"] == 0.0
+
+
+# ---------------------------------------------------------------------- bad input and the CLI
+def _bad(tmp_path: Path, text: str, name: str = "bad.osim") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("mutate, needle", [
+    (lambda t: "hello, not xml", "not valid XML"),
+    (lambda t: "<?xml version='1.0'?><robot name='x'/>", "not an OpenSimDocument"),
+    (lambda t: t.replace('Version="40000"', 'Version="20302"'), "OpenSim 3.x"),
+    (lambda t: t.replace("<PinJoint name=\"ankle\">", "<EllipsoidJoint name=\"ankle\">").replace(
+        "</PinJoint>", "</EllipsoidJoint>"), "joint type EllipsoidJoint is not read"),
+    (lambda t: t.replace("PiecewiseLinearFunction", "StepFunction"), "function type StepFunction is not read"),
+    (lambda t: t.replace("<socket_parent_frame>/bodyset/cap</socket_parent_frame>",
+                         "<socket_parent_frame>/bodyset/nobody</socket_parent_frame>"), "which handmade.osim does not"),
+])
+def test_bad_model_one_line_exit_2_nothing_written(tmp_path, capsys, mutate, needle):
+    good = hand_made_osim()
+    bad = _bad(tmp_path, mutate(good), "handmade.osim")
+    with pytest.raises(ModelError) as e:
+        load_model(bad)
+    msg = str(e.value)
+    assert needle in msg and "\n" not in msg and ";" in msg and str(bad) in msg
+    assert main(["import-osim", str(bad), "-o", str(tmp_path / "out.urdf")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("calibrate: error: ") and err.count("\n") == 1
+    for argv in (["inspect", str(bad)], [str(tmp_path / "walk.trc"), str(bad), "-q"]):  # the same one line
+        assert main(argv) == 2
+        assert capsys.readouterr().err == err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["handmade.osim"]  # nothing written
+
+
+def test_marker_set_unknown_body(tmp_path, capsys):
+    osim = _bad(tmp_path, hand_made_osim(), "m.osim")
+    ms = _bad(tmp_path, "<?xml version='1.0'?><OpenSimDocument Version='20302'><MarkerSet><objects>"
+                        "<Marker name='X'><body> femur </body><location>0 0 0</location></Marker>"
+                        "</objects></MarkerSet></OpenSimDocument>", "ms.xml")
+    with pytest.raises(ModelError, match="ms.xml: marker 'X' is on body 'femur'"):
+        load_model(osim, ms)
+    assert main(["import-osim", str(osim), "--marker-set", str(ms), "-o", str(tmp_path / "o.urdf")]) == 2
+    assert "femur" in capsys.readouterr().err and not (tmp_path / "o.urdf").exists()
+
+
+def test_marker_set_replaces_and_adds(tmp_path):
+    osim = _bad(tmp_path, hand_made_osim(), "m.osim")
+    ms = _bad(tmp_path, "<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects>"
+                        "<Marker name='M0_pelvis'><socket_parent_frame>/bodyset/thigh</socket_parent_frame>"
+                        "<location>0.01 0.02 0.03</location></Marker>"
+                        "<Marker name='NEW'><body>toes</body><location>0.1 0 0</location></Marker>"
+                        "</objects></MarkerSet></OpenSimDocument>", "ms.xml")
+    base, m = load_model(osim), load_model(osim, ms)
+    assert set(m.marker_names) == set(base.marker_names) | {"NEW"}
+    assert m.markers[m.marker_index("M0_pelvis")].segment == "thigh"
+
+
+def test_cli_import_osim_and_inspect(tmp_path, capsys):
+    osim = _bad(tmp_path, hand_made_osim(), "h.osim")
+    out = tmp_path / "h.urdf"
+    assert main(["import-osim", str(osim), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "knee: hinge fit" in text and str(out) in text
+    a, b = load_model(osim), load_model(out)  # the written URDF is the same model
+    assert a.dof_names == b.dof_names and a.marker_names == b.marker_names
+    pose = (np.zeros(3), np.array([0, 0, 0, 1.0]), np.linspace(-0.3, 0.3, a.n_dofs))
+    pa, pb = _pin_markers(a, *pose), _pin_markers(b, *pose)
+    assert max(np.linalg.norm(pa[k] - pb[k]) for k in pa) < TOL  # two imports agree to the hinge fit's precision
+    for x, y in zip(osim_info(b).approximations, osim_info(a).approximations, strict=True):
+        assert (x.joint, x.kind, x.markers, x.marker) == (y.joint, y.kind, y.markers, y.marker)
+        assert (x.max_marker_mm, x.bound_mm) == (pytest.approx(y.max_marker_mm, abs=1e-3),
+                                                 pytest.approx(y.bound_mm, abs=1e-3))
+    assert main(["import-osim", str(osim), "-o", str(out)]) == 2  # exists: kept unless --overwrite
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["inspect", str(osim)]) == 0
+    text = capsys.readouterr().out
+    assert "approximated" in text and "patfem: welded (coupled)" in text
+
+
+# ---------------------------------------------------------------------- back to OpenSim
+_EXPORT_WORKER = r"""
+import json, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+out = []
+for job in json.load(open(sys.argv[1]))["jobs"]:
+    model = osim.Model(job["osim"])
+    state = model.initSystem()
+    cs = model.getCoordinateSet()
+    storage = osim.Storage(job["mot"])
+    model.getSimbodyEngine().convertDegreesToRadians(storage)  # as OpenSim's tools read a .mot
+    cols = storage.getColumnLabels()
+    labels = [cols.get(i) for i in range(1, cols.getSize())]
+    for i in range(cs.getSize()):  # a locked coordinate keeps its value in setValue
+        cs.get(i).setLocked(state, False)
+    frames = []
+    for f in range(storage.getSize()):
+        row = storage.getStateVector(f).getData()
+        for k, name in enumerate(labels):
+            cs.get(name).setValue(state, row.get(k), False)
+        model.realizePosition(state)
+        ms = model.getMarkerSet()
+        frames.append({ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
+                       for i in range(ms.getSize())})
+    out.append({"frames": frames, "labels": labels,
+                "bodies": [model.getBodySet().get(i).getName() for i in range(model.getBodySet().getSize())],
+                "joints": [model.getJointSet().get(i).getName() for i in range(model.getJointSet().getSize())],
+                "coordinates": [cs.get(i).getName() for i in range(cs.getSize())],
+                "locked": [cs.get(i).getName() for i in range(cs.getSize()) if cs.get(i).getDefaultLocked()]})
+json.dump(out, open(sys.argv[2], "w"))
+"""
+
+
+@pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed")
+def test_export_keeps_names_and_kinematics(tmp_path):
+    """A calibrated-like subject of each imported model, exported as .osim with a .mot of random poses:
+    OpenSim puts every marker where Pinocchio puts it on the written subject URDF (1e-6 m), and the
+    bodies, joints and coordinates have the original model's names."""
+    from calibrate.model import Parameters, write_model
+    from calibrate.motion import Motion
+    from calibrate.opensim_export import export_osim, write_mot
+
+    hand = tmp_path / "handmade.osim"
+    hand.write_text(hand_made_osim())
+    sources = [(hand, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
+        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
+    jobs, refs, models = [], [], []
+    for k, (path, ms) in enumerate(sources):
+        model = load_model(path, ms)
+        rng = np.random.default_rng(10 + k)
+        p0 = model.parameters()
+        p = Parameters(1 + rng.uniform(-0.15, 0.15, p0.scale.shape),
+                       p0.centre + rng.uniform(-0.02, 0.02, p0.centre.shape),
+                       p0.axis + rng.uniform(-0.1, 0.1, p0.axis.shape),
+                       p0.marker + rng.uniform(-0.01, 0.01, p0.marker.shape))
+        subject = load_model(write_model(model, tmp_path / f"s{k}.urdf", p))  # what `calibrate` writes
+        n = 20
+        angles = np.array([[rng.uniform(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in subject.dofs]
+                           for _ in range(n)])
+        motion = Motion(np.arange(n) / 100, rng.normal(0, 0.5, (n, 3)), Rotation.random(n, random_state=k).as_quat(),
+                        angles, subject.dof_names)
+        osim_path = export_osim(subject, tmp_path / f"s{k}.osim")
+        mot = write_mot(tmp_path / f"s{k}.mot", subject, motion)
+        jobs.append({"osim": str(osim_path), "mot": str(mot)})
+        refs.append([{m: x for m, x in _pin_markers(subject, motion.root_translation[f], motion.root_quaternion[f],
+                                                     angles[f]).items() if not m.startswith("body ")}
+                     for f in range(n)])
+        models.append((path, model))
+    spec, result = tmp_path / "jobs.json", tmp_path / "result.json"
+    spec.write_text(json.dumps({"jobs": jobs}))
+    proc = subprocess.run([sys.executable, "-c", _EXPORT_WORKER, str(spec), str(result)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
+    import xml.etree.ElementTree as ET
+
+    for (path, model), res, ref in zip(models, json.loads(result.read_text()), refs, strict=True):
+        worst = max(np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(res["frames"], ref, strict=True) for m in r)
+        bad = sorted({m for o, r in zip(res["frames"], ref, strict=True) for m in r
+                      if np.linalg.norm(np.array(o[m]) - r[m]) > TOL})
+        assert worst < TOL, f"{path.name}: exported markers off by {worst:.3g} m ({bad[:12]})"
+        doc = ET.parse(path).getroot()
+        bodies = {b.get("name") for b in doc.iter("Body")}
+        joints = {j.get("name") for j in doc.find("Model/JointSet/objects")}
+        coords = {c.get("name") for c in doc.iter("Coordinate")} - set(osim_info(model).dropped)
+        assert set(res["bodies"]) == bodies and set(res["joints"]) == joints and set(res["coordinates"]) == coords
+        assert set(res["labels"]) == coords  # the .mot's columns: OpenSim's coordinate names
+        assert set(res["locked"]) == {c.get("name") for c in doc.iter("Coordinate")
+                                      if c.findtext("locked", "").strip() == "true"}
+
+
+@pytest.mark.skipif(not GAIT.exists(), reason="gait2392 is not in ../shared/data/real")
+def test_cli_calibrates_from_osim(tmp_path, capsys):
+    """`calibrate TRIAL MODEL.osim --marker-set XML` end to end on a trial made from the model's own markers
+    (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
+    columns are OpenSim's coordinate names, and it recovers the motion's marker positions."""
+    from calibrate.trial import Trial, write_trc
+
+    model = load_model(GAIT, GAIT_MARKERS)
+    n, rng = 40, np.random.default_rng(4)
+    t = np.arange(n) / 60
+    amp = np.radians(rng.uniform(5, 25, model.n_dofs))
+    mid = np.array([0.5 * (d.lower + d.upper) * 0.1 for d in model.dofs])
+    angles = mid + amp * np.sin(2 * np.pi * 1.0 * t[:, None] + rng.uniform(0, 6, model.n_dofs))
+    quat = Rotation.from_euler("y", 0.3 * np.sin(2 * np.pi * 0.5 * t)[:, None]).as_quat()
+    root = np.column_stack([1.2 * t, np.full(n, 0.95), 0.02 * np.sin(2 * np.pi * t)])
+    frames = [_pin_markers(model, root[f], quat[f], angles[f]) for f in range(n)]
+    markers = np.array([[frames[f][m] for m in model.marker_names] for f in range(n)])
+    trc = tmp_path / "walk.trc"
+    write_trc(trc, Trial(list(model.marker_names), markers, 60.0, 0, str(trc)))
+    out = tmp_path / "subject.urdf"
+    code = main([str(trc), str(GAIT), "--marker-set", str(GAIT_MARKERS), "-o", str(out), "--no-new-markers", "-q"])
+    assert code == 0, capsys.readouterr().err
+    subject = load_model(out)
+    info = osim_info(subject)
+    assert info is not None and info.root is not None and info.root.joint == "ground_pelvis"
+    head = (tmp_path / "walk_motion.csv").read_text().splitlines()[0].split(",")
+    assert set(model.dof_names) <= set(head)
+    report = json.loads((tmp_path / "walk_report.json").read_text())
+    assert report["trials"][0]["rms_mm"] < 1.0  # noise-free markers of the model itself
+    # back to OpenSim: the subject and its motion in OpenSim's names, written with them and by export-osim
+    assert (tmp_path / "subject.osim").is_file() and (tmp_path / "walk_motion.mot").is_file()
+    assert main(["export-osim", str(out), "--motion", str(tmp_path / "walk_motion.csv"), "-o",
+                 str(tmp_path / "again.osim"), "--mot", str(tmp_path / "again.mot")]) == 0
+    assert (tmp_path / "again.mot").read_text().splitlines()[1:] == \
+        (tmp_path / "walk_motion.mot").read_text().splitlines()[1:]
+    mot = (tmp_path / "walk_motion.mot").read_text().splitlines()
+    cols = mot[mot.index("endheader") + 1].split("\t")
+    assert cols[:7] == ["time", "pelvis_tilt", "pelvis_list", "pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz"]
+    assert set(cols[7:]) == set(model.dof_names)
+    text = (tmp_path / "subject.osim").read_text()
+    assert '<CustomJoint name="ground_pelvis">' in text and '<CustomJoint name="knee_r">' in text
+
+
+def test_marker_set_needs_an_osim(tmp_path):
+    from conftest import HUMAN
+
+    ms = _bad(tmp_path, "<OpenSimDocument Version='40000'><MarkerSet><objects/></MarkerSet></OpenSimDocument>",
+              "ms.xml")
+    with pytest.raises(ModelError, match="goes with an OpenSim model"):
+        load_model(HUMAN, ms)
+    with pytest.raises(ModelError, match="no such file"):
+        load_model(tmp_path / "missing.osim")
