@@ -33,6 +33,7 @@ from .kinematics import IDENTITY, Kinematics, build_kinematics
 from .labels import UNLABELLED
 from .model import Model, Parameters, add_markers, mass_factor
 from .motion import Motion
+from .osim import with_locked
 from .problem import Problem, Settings, State, perpendicular_basis
 from .solver import SolverSummary, covariance, levenberg_marquardt
 from .trial import Trial
@@ -559,7 +560,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
-    settings = settings or Settings()
+    # A model imported from OpenSim locks its locked coordinates (calibrate.osim), unless settings lock them.
+    settings = with_locked(model, settings or Settings())
     known = set(model.marker_names).union(*(t.labels for t in trials))
     unknown = [label for label, _ in settings.marker_noise if label not in known]
     if unknown:

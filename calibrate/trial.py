@@ -958,6 +958,9 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
 
     keys = [cell.strip() for cell in lines[1].split("\t") if cell.strip()]
     values = [cell.strip() for cell in lines[2].split("\t")]
+    filled = [v for v in values if v]
+    if len(filled) == len(keys) and len(values) != len(keys):  # values padded with empty fields (some exporters)
+        values = filled
     values = values[: len(keys)] + [""] * (len(keys) - len(values))
     meta = dict(zip(keys, values, strict=True))
     for key in ("DataRate", "Units"):

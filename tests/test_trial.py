@@ -653,3 +653,19 @@ def test_failed_write_leaves_the_old_file_alone(tmp_path: Path) -> None:
         write_trc(path, make_trial(), units="feet")
     assert path.read_text() == "old contents"
     assert [p.name for p in tmp_path.iterdir()] == ["keep.trc"]
+
+
+def test_trc_header_values_padded_with_empty_fields(tmp_path):
+    """Some exporters pad line 3 (the header values) with empty tab fields between the values, as
+    Rajagopal's motion_capture_walk.trc does: the values are still matched to their keys."""
+    from calibrate.trial import Trial, read_trc, write_trc
+
+    rng = np.random.default_rng(0)
+    trial = Trial(("A", "B"), rng.normal(size=(4, 2, 3)), 100.0)
+    write_trc(tmp_path / "t.trc", trial)
+    lines = (tmp_path / "t.trc").read_text().split("\n")
+    lines[2] = "\t\t".join(lines[2].split("\t"))
+    (tmp_path / "p.trc").write_text("\n".join(lines))
+    back = read_trc(tmp_path / "p.trc")
+    assert back.rate == 100.0 and back.labels == ("A", "B")
+    assert np.allclose(back.markers, trial.markers, atol=1e-6)
