@@ -29,7 +29,8 @@ from .errors import CalibrateError
 from .geometry import kabsch_batch
 from .ik import _FrameSolver, marker_columns
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
-from .kinematics import Kinematics, build_kinematics
+from .kinematics import IDENTITY, Kinematics, build_kinematics
+from .labels import UNLABELLED
 from .model import Model, Parameters, add_markers, mass_factor
 from .motion import Motion
 from .problem import Problem, Settings, State, perpendicular_basis
@@ -135,6 +136,7 @@ class Calibration:
     notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
+    unresolved: tuple = ()  # calibrate.resolve.UnresolvedSegment per segment the markers cannot place (locked)
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
     noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
@@ -488,7 +490,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
     if keys.size and keys[-1] != usable[-1]:
         keys = np.append(keys, usable[-1])
     Zk = np.zeros((keys.size, model.nz))
-    Qk = np.zeros((keys.size, 4))
+    Qk = np.zeros((keys.size, kin.n_refs))  # refs: root, then every SO(3) ball (calibrate.kinematics)
     z = q = None
     fits: list[float] = []
     for i, f in enumerate(keys):
@@ -509,11 +511,14 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
     else:
         for c in range(model.nz):
             Z[:, c] = np.interp(frames, keys, Zk[:, c])
-        slerp = Slerp(keys, Rotation.from_quat(Qk))
-        Q = slerp(np.clip(frames, keys[0], keys[-1])).as_quat()
-    Q = np.where(Q[:, 3:4] < 0, -Q, Q)
+        Q = np.empty((F, Qk.shape[1]))
+        inside = np.clip(frames, keys[0], keys[-1])
+        for s in range(0, Qk.shape[1], 4):  # slerp each reference rotation
+            Q[:, s:s + 4] = Slerp(keys, Rotation.from_quat(Qk[:, s:s + 4]))(inside).as_quat()
+    Q = Q.reshape(F, -1, 4)
+    Q = np.where(Q[..., 3:4] < 0, -Q, Q)
     Z[:, 3:6] = 0.0
-    return State(Z, Q, p.copy())
+    return State(Z, Q[:, 0].copy(), p.copy(), Q[:, 1:].copy())
 
 
 # ---------------------------------------------------------------------- calibrate
@@ -595,14 +600,31 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
                              f"(--markers map.toml) or use a model with this marker set")
     t0 = time.perf_counter()
-    unknown = [lab for lab in labels if lab not in known]
+    # Unlabelled trajectories (Vicon's '*115'): ghosts, reflections or markers the operator left
+    # unnamed; nothing says which landmark they are, so they are never placed as new markers.
+    unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
     if unknown and settings.new_markers:
         say(f"markers: placing {len(unknown)} trial markers the model does not know")
         placed = _assign_new_markers(model, trials, unknown)
     new = {m.label: m.segment for m in placed if m.segment is not None}
-    ignored = tuple(lab for lab in unknown if lab not in new)
+    ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
+    # Segments the markers cannot place (calibrate.resolve): refuse without a root pose, else lock
+    # the coordinates the markers do not see (their segments ride on their parents).
+    from .resolve import resolve
+
+    res = resolve(subject, [*shared, *new], locked=[d for d, _ in settings.lock])
+    if not res.root_resolved:
+        raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
+                             f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
+                             f"(--markers map.toml) or use a model with this marker set")
+    if res.lock:
+        say(f"markers: {len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
+            f"{', '.join(res.lock)}")
+        settings = replace(settings, lock=settings.lock + tuple(
+            (d, float(np.clip(0.0, subject.dofs[subject.dof_index(d)].lower, subject.dofs[subject.dof_index(d)].upper)))
+            for d in res.lock))
     obs = np.concatenate([marker_columns(subject, t) for t in trials])
     spans = _spans(trials)
     seen = np.all(np.isfinite(obs), axis=2)
@@ -637,11 +659,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
     evaluator = problem.frame_evaluator(params0.vector())
-    start = _stack_states([start_poses(kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
+    start = _stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
     if new:
-        params0, base, placed = _place_new_markers(subject, kin, start, obs, params0, placed)
+        params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
         problem.base = base
-        start = State(start.Z, start.Q, params0.vector())
+        start = replace(start, p=params0.vector())
     times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
     t0 = time.perf_counter()
@@ -712,14 +734,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     cov = covariance(problem, state, lin)
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
-    notes = coordinate_notes(subject, state.Z[:, 6:], lin.A, settings)
+    Z, Q = absolute(problem.kin, state, spans)
+    notes = coordinate_notes(subject, Z[:, 6:], lin.A, settings)
     times["covariance"] = time.perf_counter() - t0
     residuals = problem.marker_residuals(state)
-    motions = tuple(Motion(t.times.copy(), state.Z[sl, :3].copy(), state.Q[sl].copy(), state.Z[sl, 6:].copy(),
+    motions = tuple(Motion(t.times.copy(), Z[sl, :3].copy(), Q[sl].copy(), Z[sl, 6:].copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=notes, held_axes=held,
+                       outliers=tuple(rejected), notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=settings.learns_noise)
@@ -804,7 +827,23 @@ def _spans(trials: Sequence[Trial]) -> list[slice]:
 
 
 def _stack_states(states: Sequence[State]) -> State:
-    return State(np.concatenate([s.Z for s in states]), np.concatenate([s.Q for s in states]), states[0].p.copy())
+    B = None if any(s.B is None for s in states) else np.concatenate([s.B for s in states])
+    return State(np.concatenate([s.Z for s in states]), np.concatenate([s.Q for s in states]), states[0].p.copy(), B)
+
+
+def _frames(state: State, idx) -> State:
+    """`state` on some of its frames (an index array or a slice)."""
+    return State(state.Z[idx], state.Q[idx], state.p, None if state.B is None else state.B[idx])
+
+
+def absolute(kin: Kinematics, state: State, spans: Sequence[slice] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Every frame's URDF coordinates (Z with absolute joint angles, root quaternions Q) of a solver
+    state of a problem with kinematics `kin`, the ball angles continuous within each trial of
+    `spans` (Kinematics.absolute)."""
+    spans = spans or [slice(0, state.Z.shape[0])]
+    parts = [kin.absolute(state.Z[sl], state.Q[sl], None if state.B is None else state.B[sl])
+             for sl in spans]
+    return np.concatenate([z for z, _ in parts]), np.concatenate([q for _, q in parts])
 
 
 def _solve(problem: Problem, start: State, spans: list[slice],
@@ -823,7 +862,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     for round_ in range(HOLD_ROUNDS + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
-        state, coarse_summary = _solve_geometry(sub, State(start.Z[coarse], start.Q[coarse], start.p), settings,
+        state, coarse_summary = _solve_geometry(sub, _frames(start, coarse), settings,
                                                 say, polish=sub is problem)
         for _ in range(NOISE_ROUNDS if fixed is not None else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
@@ -838,7 +877,8 @@ def _solve(problem: Problem, start: State, spans: list[slice],
             break
         axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
         lin = sub.linearize(state, with_parameters=False)
-        still = [name for name, _, _ in still_coordinates(sub.model, state.Z[:, 6:], lin.A, settings) if name in axes]
+        angles = absolute(sub.kin, state)[0][:, 6:]
+        still = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, settings) if name in axes]
         if not still:
             break
         say(f"solve: the trial does not show {', '.join(still)} moving: holding "
@@ -850,7 +890,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         for name in still:
             k = problem.offsets["axis"] + 3 * problem.model.dof_index(name)
             p[k:k + 3] = base[k:k + 3]
-        start = State(start.Z, start.Q, p)
+        start = replace(start, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
         return problem, state, coarse_summary, scatter
@@ -859,10 +899,8 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     parts = []
     for sl in spans:
         mine = np.flatnonzero((coarse >= sl.start) & (coarse < sl.stop))
-        solved = State(state.Z[mine], state.Q[mine], state.p)
-        here = State(start.Z[sl], start.Q[sl], start.p)
-        parts.append(spread_poses(solved, coarse[mine] - sl.start, here))
-    state = State(np.concatenate([s.Z for s in parts]), np.concatenate([s.Q for s in parts]), state.p.copy())
+        parts.append(spread_poses(_frames(state, mine), coarse[mine] - sl.start, _frames(start, sl)))
+    state = replace(_stack_states(parts), p=state.p.copy())
     state, summary = levenberg_marquardt(
         problem, state,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
@@ -879,8 +917,10 @@ def _solve(problem: Problem, start: State, spans: list[slice],
 
 def _bridge(state: State, redo: np.ndarray, hit: np.ndarray, spans: list[slice]) -> State:
     """The poses of the frames marked `redo` (F,) interpolated, within each trial, from the nearest
-    frames not marked `hit` (slerp for the root rotation; held beyond the ends)."""
-    Z, Q = state.Z.copy(), state.Q.copy()
+    frames not marked `hit` (slerp for the root's and the balls' reference rotations; held beyond
+    the ends)."""
+    Z = state.Z.copy()
+    rots = [state.Q.copy()] + ([] if state.B is None else [state.B[:, i].copy() for i in range(state.B.shape[1])])
     for sl in spans:
         good = np.flatnonzero(~hit[sl])
         bad = np.flatnonzero(redo[sl])
@@ -888,12 +928,14 @@ def _bridge(state: State, redo: np.ndarray, hit: np.ndarray, spans: list[slice])
             continue
         for c in range(Z.shape[1]):
             Z[sl.start + bad, c] = np.interp(bad, good, Z[sl.start + good, c])
-        if good.size == 1:
-            Q[sl.start + bad] = Q[sl.start + good[0]]
-        else:
-            rot = Slerp(good, Rotation.from_quat(Q[sl.start + good]))(np.clip(bad, good[0], good[-1])).as_quat()
-            Q[sl.start + bad] = np.where(rot[:, 3:4] < 0, -rot, rot)
-    return State(Z, Q, state.p)
+        for Q in rots:
+            if good.size == 1:
+                Q[sl.start + bad] = Q[sl.start + good[0]]
+            else:
+                rot = Slerp(good, Rotation.from_quat(Q[sl.start + good]))(np.clip(bad, good[0], good[-1])).as_quat()
+                Q[sl.start + bad] = np.where(rot[:, 3:4] < 0, -rot, rot)
+    B = None if state.B is None else np.stack(rots[1:], axis=1) if rots[1:] else state.B.copy()
+    return State(Z, rots[0], state.p, B)
 
 
 def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
@@ -1086,7 +1128,7 @@ def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.nd
     # Up to about 100 frames per marker, wherever in the trials it is seen (some are seen briefly).
     frames = np.unique(np.concatenate([np.flatnonzero(seen[:, i])[:: max(1, int(seen[:, i].sum()) // 100)]
                                        for i in range(len(new))]))
-    Z, Q = start.Z[frames], start.Q[frames]
+    Z, Q = absolute(kin, _frames(start, frames))
     p = params.copy()
     s = np.array([p.scale[subject.segment_index(subject.markers[k].segment)] for k in new])
     p.marker[new] = 0.0
@@ -1136,15 +1178,25 @@ def spread_poses(solved: State, frames: np.ndarray, start: State) -> State:
     every = np.arange(F)
     change = solved.Z - start.Z[frames]
     Z = start.Z + np.column_stack([np.interp(every, frames, change[:, c]) for c in range(change.shape[1])])
-    turn = Rotation.from_quat(solved.Q) * Rotation.from_quat(start.Q[frames]).inv()
-    if frames.size == 1:
-        turns = Rotation.from_quat(np.tile(turn.as_quat()[0], (F, 1)))
-    else:
-        turns = Slerp(frames, turn)(np.clip(every, frames[0], frames[-1]))
-    Q = (turns * Rotation.from_quat(start.Q)).as_quat()
-    Q = np.where(Q[:, 3:4] < 0, -Q, Q)
+
+    def carry(q_solved: np.ndarray, q_start: np.ndarray) -> np.ndarray:
+        """Rotations: the solve's change (a turn on the left) slerped between the solved frames."""
+        turn = Rotation.from_quat(q_solved) * Rotation.from_quat(q_start[frames]).inv()
+        if frames.size == 1:
+            turns = Rotation.from_quat(np.tile(turn.as_quat()[0], (F, 1)))
+        else:
+            turns = Slerp(frames, turn)(np.clip(every, frames[0], frames[-1]))
+        q = (turns * Rotation.from_quat(q_start)).as_quat()
+        return np.where(q[:, 3:4] < 0, -q, q)
+
+    Q = carry(solved.Q, start.Q)
+    B = None
+    if solved.B is not None:
+        nb = solved.B.shape[1]
+        sb = start.B if start.B is not None else np.broadcast_to(IDENTITY, (F, nb, 4))
+        B = np.zeros((F, 0, 4)) if nb == 0 else np.stack([carry(solved.B[:, i], sb[:, i]) for i in range(nb)], axis=1)
     Z[:, 3:6] = 0.0
-    return State(Z, Q, solved.p.copy())
+    return State(Z, Q, solved.p.copy(), B)
 
 
 def _solve_geometry(problem: Problem, state: State, settings: Settings,
@@ -1188,7 +1240,7 @@ def align_gauge(problem: Problem, state: State) -> State:
             a = problem._axis(state.p, d)
             Z[:, 6 + d] += float(Rotation.from_matrix(G).as_rotvec() @ a)  # G turns about the hinge axis
     Q = np.where(Q[:, 3:4] < 0, -Q, Q)
-    aligned = State(Z, Q, p)
+    aligned = State(Z, Q, p, state.B)
     aligned, _ = levenberg_marquardt(problem, aligned, pose_only=True, max_iterations=20)
     return aligned
 
@@ -1205,13 +1257,13 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
     into = {j.child: j for j in model.joints}
     for level in sorted({depth[model.segments[si].name] for si, _ in segs}):
         here = [(si, kind) for si, kind in segs if depth[model.segments[si].name] == level]
-        p, moves = problem.neutral_frames(state.p, state.Z[neutral], here)
+        p, moves = problem.neutral_frames(state.p, absolute(problem.kin, _frames(state, neutral))[0], here)
         Z = state.Z.copy()
         for si, kind, G, _ in moves:
             if kind == "axis":  # G turns about the hinge's (last) axis: its angle follows
                 d = model.dof_index(into[model.segments[si].name].dofs[-1])
                 Z[:, 6 + d] += float(Rotation.from_matrix(G).as_rotvec() @ problem._axis(state.p, d))
-        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p), pose_only=True, max_iterations=20)
+        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p, state.B), pose_only=True, max_iterations=20)
     return state
 
 

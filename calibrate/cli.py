@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -19,14 +20,20 @@ from .errors import CalibrateError
 DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if v < 2:
-        raise argparse.ArgumentTypeError(f"need at least 2, got {v}")
-    return v
+def _int_at_least(least: int) -> Callable[[str], int]:
+    """An argparse type: a whole number >= `least`."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+        if v < least:
+            raise argparse.ArgumentTypeError(f"need at least {least}, got {v}")
+        return v
+    return parse
+
+
+_positive_int = _int_at_least(2)  # frame counts and the like
 
 
 def _lock_arg(text: str) -> dict[str, float]:
@@ -63,6 +70,36 @@ def _nonneg_float(text: str) -> float:
     return v
 
 
+def _count(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be zero or positive, got {v}")
+    return v
+
+
+def _height_arg(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a stature in metres, got '{text}'") from None
+    if not (1.4 <= v <= 2.2):
+        raise argparse.ArgumentTypeError(f"must be a stature of 1.4-2.2 m, got {text}")
+    return v
+
+
+def _fraction_arg(text: str) -> float:
+    try:
+        v = float(text[:-1]) / 100 if text.endswith("%") else float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction such as 0.05 or 5%, got '{text}'") from None
+    if not (0 <= v <= 0.5):
+        raise argparse.ArgumentTypeError(f"must be a fraction of 0-0.5 (0-50 %), got {text}")
+    return v
+
+
 def _default_model() -> Path:
     """models/human.urdf of the source tree; in an installed package (no source tree) the same
     model is generated from calibrate.human into the temporary directory."""
@@ -88,10 +125,28 @@ def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
     p.add_argument("--rate", type=_positive_float, default=100.0, help="frame rate in Hz (default 100)")
     p.add_argument("--noise-mm", type=_nonneg_float, default=1.0, help="marker noise SD in mm (default 1)")
     p.add_argument("--gaps", action="store_true", help="add realistic occlusion gaps")
+    p.add_argument("--gap-fraction", type=_fraction_arg, default=None, metavar="F",
+                   help="occlusion gaps (0.05-0.6 s each) covering fraction F of the marker samples, e.g. 0.05")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--motion", choices=("squats", "gait"), default="squats",
-                   help="squats (every joint through a wide arc) or treadmill gait (normal walking ranges: "
-                        "forearms, wrists, neck and subtalar joints hardly move); default squats")
+    p.add_argument("--motion", choices=("squats", "gait", "overhead"), default=None,
+                   help="squats (every joint through a wide arc), treadmill gait (normal walking ranges: "
+                        "forearms, wrists, neck and subtalar joints hardly move) or overhead (serve- and "
+                        "throw-like arm arcs to 155-172 deg of shoulder abduction or flexion, the rest of the "
+                        "body in smaller squat-like arcs); default squats")
+    p.add_argument("--sta-mm", type=_nonneg_float, default=None, metavar="X",
+                   help="soft-tissue artefact: skin markers move relative to their bones with the joint angles, "
+                        "X mm at the shank, 2X at the thigh, by segment (docs/simulation.md); default 0")
+    p.add_argument("--height", type=_height_arg, default=None, metavar="M",
+                   help="the subject's stature in m (1.4-2.2), segment proportions varied by +-4 %%")
+    p.add_argument("--swaps", type=_count, default=None, metavar="N",
+                   help="N episodes of 3-10 frames with two neighbouring markers' labels exchanged")
+    p.add_argument("--spikes", type=_count, default=None, metavar="N",
+                   help="N single-frame gross errors of 30-100 mm on random markers (swapped and spiked samples "
+                        "are listed in OUT/truth_corruptions.csv)")
+    p.add_argument("--realistic", action="store_true",
+                   help="as a lab records it: overhead arm arcs with every joint through ~70 %% of its range, "
+                        "--sta-mm 3, a random stature of 1.5-2.0 m, --gap-fraction 0.05, --swaps 3, --spikes 5, "
+                        "1 mm noise; the flags above override")
     p.add_argument("--model", type=Path, default=None, help="base model URDF (default: models/human.urdf)")
 
 
@@ -110,11 +165,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Subject-specific human models from motion-capture trials.  'calibrate TRIAL [TRIAL ...] "
                     "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.",
     )
-    sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    sim = sub.add_parser("simulate", help="write a synthetic squat or gait trial with its truth",
-                         description="Simulate squats (or treadmill gait, --motion gait) of a random synthetic "
-                                     "subject derived from a base model; "
-                                     "writes OUT/trial.c3d, OUT/truth.urdf and OUT/truth_motion.csv.")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser, prog="calibrate")
+    sim = sub.add_parser("simulate", help="write a synthetic squat, gait or overhead trial with its truth",
+                         description="Simulate squats (or treadmill gait, --motion gait, or overhead arm arcs, "
+                                     "--motion overhead) of a random synthetic subject derived from a base model; "
+                                     "writes OUT/trial.c3d, OUT/truth.urdf and OUT/truth_motion.csv (and "
+                                     "OUT/truth_corruptions.csv with --swaps/--spikes).  What a lab adds: "
+                                     "--sta-mm, --height, --gap-fraction, --swaps, --spikes, or --realistic.")
     sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
     sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
     _add_sim_args(sim, 1000)
@@ -214,7 +271,7 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")
-    ap.add_argument("--neutral", type=_positive_int, default=None, metavar="K",
+    ap.add_argument("--neutral", type=_int_at_least(1), default=None, metavar="K",
                     help="trial K (1 = the first) shows the subject standing in the model's neutral pose (a static "
                          "trial): segment frames are turned so that its joint angles are zero")
     ap.add_argument("--mass", type=_positive_float, default=None,
@@ -257,20 +314,35 @@ def _guard(command, args: argparse.Namespace) -> int:
 
 def _simulate(args: argparse.Namespace):
     from .model import load_model
-    from .simulate import simulate_gait, simulate_squats, write_simulation
+    from .simulate import MOTIONS, simulate_realistic, write_simulation
 
     model = load_model(args.model or _default_model())
     if args.out.exists() and not args.out.is_dir():
         raise CalibrateError(f"{args.out}: exists and is not a directory; choose another --out")
     if not getattr(args, "overwrite", True):
-        for name in ("trial.c3d", "truth.urdf", "truth_motion.csv"):
+        for name in ("trial.c3d", "truth.urdf", "truth_motion.csv", "truth_corruptions.csv"):
             if (args.out / name).exists():
                 raise CalibrateError(
                     f"{args.out / name}: exists; pass --overwrite to replace it or choose another --out"
                 )
     t0 = time.perf_counter()
-    simulate = simulate_gait if args.motion == "gait" else simulate_squats
-    sim = simulate(model, frames=args.frames, rate=args.rate, noise_mm=args.noise_mm, gaps=args.gaps, seed=args.seed)
+    opts = {k: v for k, v in (("sta_mm", args.sta_mm), ("height", args.height), ("swaps", args.swaps),
+                              ("spikes", args.spikes), ("gap_fraction", args.gap_fraction)) if v is not None}
+    try:
+        if args.realistic:
+            if args.gaps:  # the occlusions of --gaps in place of the gap fraction
+                opts.setdefault("gap_fraction", 0.0)
+            sim = simulate_realistic(model, args.seed, args.frames, args.rate, args.noise_mm,
+                                     motion=args.motion or "overhead", gaps=args.gaps, **opts)
+        else:
+            simulate = MOTIONS[args.motion or "squats"]
+            sim = simulate(model, frames=args.frames, rate=args.rate, noise_mm=args.noise_mm, gaps=args.gaps,
+                           seed=args.seed, **opts)
+    except ValueError as e:
+        raise CalibrateError(f"simulate: {e}") from None
+    stale = args.out / "truth_corruptions.csv"
+    if not sim.corruptions and stale.exists():
+        stale.unlink()  # from an earlier run into this folder (overwriting was allowed above)
     try:
         paths = write_simulation(sim, args.out)
     except OSError as e:
@@ -283,8 +355,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     gaps = float(np.isnan(sim.trial.markers[..., 0]).mean())
     print(f"simulated {sim.trial.n_frames} frames at {sim.trial.rate:g} Hz of {len(model.markers)} markers "
           f"(noise {args.noise_mm:g} mm, gaps {100 * gaps:.1f} %) in {dt:.2f} s")
-    for key in ("trial", "truth", "motion"):
-        print(f"  {key:7s} {paths[key]}")
+    extras = []
+    if sim.stature is not None:
+        extras.append(f"stature {sim.stature:.3f} m")
+    if sim.sta_amplitude is not None:
+        extras.append(f"soft-tissue artefact up to {1000 * np.linalg.norm(sim.artefact, axis=2).max():.1f} mm")
+    if sim.corruptions:
+        kinds = [c.kind for c in sim.corruptions]
+        extras.append(f"{kinds.count('swap')} swapped and {kinds.count('spike')} spiked marker samples")
+    if extras:
+        print("  " + "; ".join(extras))
+    for key in ("trial", "truth", "motion", "corruptions"):
+        if key in paths:
+            print(f"  {key:11s} {paths[key]}")
     return 0
 
 
@@ -405,7 +488,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     model, sim, paths, dt = _simulate(args)
     trial = read_trial(paths["trial"])  # what a user would have: the C3D file
-    kind = "gait" if args.motion == "gait" else "squat"
+    kind = {"gait": "gait", "overhead": "overhead"}.get(args.motion or "", "squat")
+    kind = "realistic " + kind if args.realistic else kind
     _progress(f"simulated a {kind} trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
     t0 = time.perf_counter()
     cal = calibrate(model, trial, progress=_Timed())

@@ -62,7 +62,8 @@ def true_model_floor(sim: Simulation) -> tuple[float, float]:
     state = State(Z, m.root_quaternion.copy(), sim.truth.vector())
     state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=20)
     res = problem.marker_residuals(state)
-    dang = np.degrees(np.angle(np.exp(1j * (state.Z[:, 6:] - m.angles))))
+    Z, _ = problem.kin.absolute(state.Z, state.Q, state.B, previous=m.angles[0])
+    dang = np.degrees(np.angle(np.exp(1j * (Z[:, 6:] - m.angles))))
     return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2)))), float(np.sqrt(np.mean(dang**2)))
 
 

@@ -3,7 +3,8 @@ for fixed geometric parameters p.
 
 Each frame is a small least-squares problem  min_z Σ_k |h_k(z, p) − r_k|²  over the
 markers seen in that frame, solved by Levenberg–Marquardt on the exact CasADi
-Jacobian; the root rotation is updated on SO(3) (see calibrate.kinematics).  Frames
+Jacobian; the root rotation and every ball joint's are updated on SO(3) (the solver's form
+of calibrate.kinematics: a pose is z with the refs vector of reference rotations).  Frames
 are solved in order, each warm-started from the previous one.  The first frame (and any
 frame whose fit jumps) gets a global start: the root from its markers (Kabsch), then
 joint by joint down the tree, each joint's angles from a small grid of starts, so a
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .kinematics import Kinematics, retract_root
+from .kinematics import IDENTITY, Kinematics, retract_root
 from .model import Model, Parameters
 from .motion import Motion
 from .trial import Trial
@@ -75,8 +76,11 @@ class _FrameSolver:
 
     def __init__(self, kin: Kinematics, p: np.ndarray, evaluator=None):
         self.kin, self.p = kin, p
-        self.evaluate = evaluator or kin.frame_evaluator(p)
+        self.evaluate = evaluator or kin.frame_evaluator(p, reference=True)
         model = kin.model
+        self.identity = kin.refs(IDENTITY, None)[0]  # refs of the root and every ball unturned
+        ref_slot = {6 + b.dofs[0]: 4 + 4 * i for i, b in enumerate(kin.balls)}
+        self.ball_cols = np.array(sorted(6 + d for b in kin.balls for d in b.dofs), dtype=int)
         self.nz = model.nz
         seg_joint = {j.child: j for j in model.joints}
         children: dict[str, list[str]] = {s.name: [] for s in model.segments}
@@ -94,7 +98,9 @@ class _FrameSolver:
                 stack += children[s]
             child_mk = [model.marker_index(m) for m in model.segments[model.segment_index(j.child)].markers]
             lims = [(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in (model.dofs[c - 6] for c in own)]
-            self.plan.append((own, sorted(sub_dofs), sub_mk, child_mk, lims))
+            # reference slots of the balls in the subtree: reset with its angles before a grid search
+            slots = [ref_slot[c] for c in sub_dofs if c in ref_slot]
+            self.plan.append((own, sorted(sub_dofs), sub_mk, child_mk, lims, slots))
         self.root_markers = [model.marker_index(m) for m in model.segments[0].markers]
         self.lower = np.array([d.lower for d in model.dofs])
         self.upper = np.array([d.upper for d in model.dofs])
@@ -110,7 +116,8 @@ class _FrameSolver:
         target = obs[seen_mk].ravel()
         free = np.asarray(free)
         rot = bool(np.isin([3, 4, 5], free).any())
-        dof_cols = free[free >= 6]
+        balls = bool(np.isin(self.ball_cols, free).any())
+        dof_cols = np.setdiff1d(free[free >= 6], self.ball_cols)  # no limits on SO(3) increments
         lo, hi = self.lower[dof_cols - 6], self.upper[dof_cols - 6]
         position = {int(c): i for i, c in enumerate(free)}
         col_of = np.array([position[int(c)] for c in dof_cols], dtype=int)  # limit rows -> columns of Jf
@@ -139,7 +146,8 @@ class _FrameSolver:
                 zn[free] += step
                 qn = q
                 if rot:
-                    qn = retract_root(q, zn[3:6])
+                    qn = q.copy()
+                    qn[:4] = retract_root(q[:4], zn[3:6])
                     zn[3:6] = 0.0
                 rn, Jn, outn = evaluate(zn, qn)
                 cn = rn @ rn
@@ -153,23 +161,26 @@ class _FrameSolver:
             z, q, r, J, out, cost = zn, qn, rn, Jn, outn, cn
             if rel < tol or np.linalg.norm(step) < 1e-8:
                 break
+        if balls:  # the balls' increments folded once per solve: the next starts at full rank
+            zr, qr = self.kin.retract_refs(z, q)
+            z, q = zr[0], qr[0]
         return z, q, cost, used
 
     def global_start(self, obs, seen):
         """A pose for one frame from scratch: root by Kabsch, then joint by joint with multi-starts."""
         nz = self.nz
         z = np.zeros(nz)
-        q = np.array([0.0, 0.0, 0.0, 1.0])
+        q = self.identity.copy()
         root_seen = [k for k in self.root_markers if seen[k]]
         if len(root_seen) >= 3:
-            a = self.kin.markers(z, q, self.p)[root_seen]
+            a = self.evaluate(z, q)[0].reshape(-1, 3)[root_seen]
             R0, t0 = kabsch(a, obs[root_seen])
-            q = Rotation.from_matrix(R0).as_quat()
+            q[:4] = Rotation.from_matrix(R0).as_quat()
             z[:3] = t0
             z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(6), 50)
         else:
             z[:3] = np.nanmean(obs[seen], axis=0)
-        for own, sub_dofs, sub_mk, child_mk, lims in self.plan:
+        for own, sub_dofs, sub_mk, child_mk, lims, slots in self.plan:
             fit_mk = [k for k in child_mk if seen[k]]
             free = own
             if 3 * len(fit_mk) < len(own) + 3:  # too few on the child itself: use the whole subtree
@@ -179,20 +190,23 @@ class _FrameSolver:
             n_grid = {1: 7, 2: 5}.get(len(own), 3)
             rows = (3 * np.asarray(fit_mk)[:, None] + np.arange(3)).ravel()
             target = obs[fit_mk].ravel()
+            q0 = q.copy()  # the subtree's balls unturned: their grid angles are then absolute
+            for s in slots:
+                q0[s:s + 4] = IDENTITY
             starts = []  # every grid point scored as it stands; the most promising few are solved
             for start in itertools.product(*[np.linspace(lo, hi, n_grid) for lo, hi in lims]):
                 zz = z.copy()
                 zz[sub_dofs] = 0.0
                 zz[own] = start
-                m, _ = self.evaluate(zz, q)
+                m, _ = self.evaluate(zz, q0)
                 starts.append((float(np.sum((m[rows] - target) ** 2)), zz))
             starts.sort(key=lambda s: s[0])
             best = None
             for _, zz in starts[:GLOBAL_KEEP]:
-                zz, qq, c, _ = self.solve(zz, q, obs, fit_mk, free, 12)
+                zz, qq, c, _ = self.solve(zz, q0, obs, fit_mk, free, 12)
                 if best is None or c < best[2]:
                     best = (zz, qq, c)
-            z = best[0]
+            z, q = best[0], best[1]
         return z, q
 
 
@@ -212,7 +226,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     solver = _FrameSolver(kin, p)
     all_free = np.arange(model.nz)
     Z = np.zeros((nf, model.nz))
-    Q = np.tile([0.0, 0.0, 0.0, 1.0], (nf, 1))
+    Q = np.tile(solver.identity, (nf, 1))  # refs (root, balls) per frame
     iters = np.zeros(nf, dtype=int)
     frame_rms: list[float] = []
     z, q = None, None
@@ -247,6 +261,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         Z[f], Q[f], iters[f] = z, q, it
         if progress is not None and (f + 1) % 100 == 0:
             progress(f + 1, nf)
+    Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
     with warnings.catch_warnings():  # frames with no marker give NaN, on purpose

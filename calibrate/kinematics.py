@@ -18,6 +18,17 @@ Per-frame coordinates (the optimiser's unknowns for one frame)::
   the root rotation lives on SO(3) with no Euler-angle singularity;
 * ``theta`` — joint angles (rad), in the model's DoF order (Pinocchio's).
 
+The solver's form (``h_ref``): the rotation of every ball joint (three revolutes about
+orthonormal axes with coincident origins) is parametrised on SO(3) as the root's is, by a
+per-frame reference rotation B_j (unit quaternion) times the joint's three-angle rotation
+E(theta_j) = R(a1, theta1) R(a2, theta2) R(a3, theta3) taken as a small increment: after each
+step the increment is folded into B_j and reset to zero (:meth:`Kinematics.retract`), so the
+increment's Jacobian is always that at theta_j = 0 (columns a1, a2, a3: orthonormal) and a
+shoulder abducted through 90° meets no gimbal lock.  The URDF's three angles of each ball joint
+are recovered only for output (:meth:`Kinematics.absolute`: continuous over time, one branch).
+With every B_j the identity the two forms are the same function: ``h(z, q, p) ==
+h_ref(z, [q, I, ..., I], p)``.
+
 Geometric parameters ``p = Parameters.vector()`` = [scale, centre, axis, marker]:
 a joint centre sits at ``scale[parent segment] * centre`` in the parent segment frame,
 a marker at ``scale[segment] * marker``, a revolute joint turns about ``axis/|axis|``.
@@ -27,13 +38,17 @@ Outputs: ``markers`` (3 × n_markers) and ``centres`` (3 × n_joints), lab frame
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import casadi as ca
 import numpy as np
 
 from .model import Model, Parameters
+
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])  # unit quaternion (x, y, z, w) of no rotation
+SINGULAR_COS = 1e-9  # |cos(middle angle)| below which a ball joint's outer angles share one sum (gimbal lock)
 
 
 def skew(v):
@@ -101,6 +116,139 @@ def retract_root(q_ref: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return np.where(q[..., 3:4] < 0, -q, q)  # keep w >= 0 (same rotation)
 
 
+def quat_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (F, 3, 3) of quaternions (F, 4) (x, y, z, w), normalised inside."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+@dataclass(frozen=True)
+class BallJoint:
+    """A ball joint the solver keeps on SO(3): three revolutes about orthonormal axes with
+    coincident origins (calibrate.model: a ball joint), whose rotation is B · E(theta)."""
+
+    name: str
+    dofs: tuple[int, int, int]  # indices into the DoF vector, proximal first
+    axes: np.ndarray  # (3, 3): row k = the k-th revolute's unit axis (never calibrated)
+    lower: np.ndarray  # (3,) the base model's joint limits (rad; -inf if none)
+    upper: np.ndarray  # (3,)
+
+    def quaternion(self, angles: np.ndarray) -> np.ndarray:
+        """Unit quaternions (F, 4) of E(theta) = R(a1, t1) R(a2, t2) R(a3, t3), angles (F, 3)."""
+        h = 0.5 * np.asarray(angles, dtype=float)
+        q = None
+        for k in range(3):
+            qk = np.concatenate([np.sin(h[:, k:k + 1]) * self.axes[k], np.cos(h[:, k:k + 1])], axis=1)
+            q = qk if q is None else quat_multiply(q, qk)
+        return q
+
+    def angles(self, R: np.ndarray, previous: np.ndarray | None = None) -> np.ndarray:
+        """The three angles (F, 3) with E(angles) = R (F, 3, 3) for a trial's frames, continuous
+        over time on one branch.  Each rotation has two solutions, (t1, t2, t3) and (t1 + π,
+        π − t2, t3 + π), plus 2π turns of each angle.  The branch of every frame is chosen by
+        dynamic programming over the trial (Viterbi, two states): each frame costs how far its
+        angles lie outside the joint's limits, each step between frames the squared change of
+        the angles (mod 2π); so the path is the smooth one that stays in the range of motion, and
+        near the gimbal lock (t2 → ±90°, where the two solutions meet and t1, t3 are individually
+        ill-conditioned) it does not wander onto the other branch.  The angles are then unwrapped
+        (no 2π jumps) and each is turned by whole turns so that its median lies nearest the middle
+        of its limits (or, given `previous` (3,), its first frame nearest that).  In exact gimbal
+        lock, where only t1 ± t3 is defined, t1 keeps the previous frame's value."""
+        B = self.axes.T.copy()  # columns a1, a2, a3
+        sign = np.array([1.0, 1.0, -1.0 if np.linalg.det(B) < 0 else 1.0])
+        B[:, 2] *= sign[2]  # a left-handed axis order: R(-a3, -t3) = R(a3, t3)
+        lower, upper = self.lower * sign, self.upper * sign
+        lower[2], upper[2] = min(lower[2], upper[2]), max(lower[2], upper[2])
+        M = np.einsum("ji,fjk,kl->fil", B, R, B)  # intrinsic x-y-z rotations in the axes' basis
+        t2 = np.arctan2(M[:, 0, 2], np.hypot(M[:, 0, 0], M[:, 0, 1]))
+        t1 = np.arctan2(-M[:, 1, 2], M[:, 2, 2])
+        t3 = np.arctan2(-M[:, 0, 1], M[:, 0, 0])
+        plus = np.arctan2(M[:, 1, 0], M[:, 1, 1])  # t1 + t3 where t2 = +90°, t3 - t1 where t2 = -90°
+        singular = np.abs(np.cos(t2)) < SINGULAR_COS
+        F = R.shape[0]
+        cand = np.stack([np.column_stack([t1, t2, t3]), np.column_stack([t1 + math.pi, math.pi - t2, t3 + math.pi])])
+        cand = _wrap(cand)
+        node = np.sum(_outside(cand, lower, upper) ** 2, axis=2)  # (2, F)
+        prev = None if previous is None else _wrap(np.asarray(previous, dtype=float) * sign)
+        # Viterbi over the non-singular frames (2 states: the branch).
+        cost = node[:, 0].copy() if prev is None else node[:, 0] + np.sum(_wrap(cand[:, 0] - prev) ** 2, axis=1)
+        back = np.zeros((F, 2), dtype=int)
+        last = 0
+        for f in range(1, F):
+            if singular[f]:
+                back[f] = (0, 1)
+                continue
+            step = np.sum(_wrap(cand[:, f][:, None] - cand[:, last][None, :]) ** 2, axis=2)  # (now, before)
+            total = cost[None, :] + step
+            back[f] = np.argmin(total, axis=1)
+            cost = node[:, f] + total[np.arange(2), back[f]]
+            last = f
+        branch = np.zeros(F, dtype=int)
+        b = int(np.argmin(cost))
+        for f in range(F - 1, -1, -1):
+            branch[f] = b
+            if not singular[f]:
+                b = back[f, b]
+        out = cand[branch, np.arange(F)]
+        for f in np.flatnonzero(singular):  # only t1 + t3 or t3 - t1 is defined: keep t1
+            a = out[f - 1, 0] if f else (0.0 if prev is None else prev[0])
+            out[f, 0] = a
+            out[f, 2] = plus[f] - a if t2[f] > 0 else plus[f] + a
+        out = np.unwrap(out, axis=0)
+        if prev is not None:
+            target, at = prev, out[0]
+        else:
+            mid = np.where(np.isfinite(lower) & np.isfinite(upper), 0.5 * (lower + upper), 0.0)
+            target, at = mid, np.median(out, axis=0)
+        out += 2 * math.pi * np.round((target - at) / (2 * math.pi))
+        return out * sign
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles wrapped into (-π, π]."""
+    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+
+
+def _outside(a: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """How far angles a (wrapped) lie outside [lower, upper], on the circle (0 inside; infinite
+    limits: 0)."""
+    finite = np.isfinite(lower) & np.isfinite(upper)
+    lo, hi = np.where(finite, lower, -np.pi), np.where(finite, upper, np.pi)
+    mid = 0.5 * (lo + hi)
+    d = np.abs(_wrap(a - mid))  # distance from the middle of the range, along the shorter way
+    return np.where(finite, np.maximum(d - 0.5 * (hi - lo), 0.0), 0.0)
+
+
+def so3_balls(model: Model, euler: tuple[str, ...] = ()) -> tuple[BallJoint, ...]:
+    """The model's ball joints that the solver keeps on SO(3): three revolutes with coincident
+    origins, no fixed rotation between them, orthonormal axes; not those named in `euler`
+    (kept on their three angles, e.g. because a coordinate of theirs is locked)."""
+    urdf = {u.name: u for u in model.urdf_joints}
+    out = []
+    for j in model.joints:
+        if j.kind != "ball" or j.name in euler:
+            continue
+        chain = [urdf[n] for n in j.urdf_joints]
+        if len(chain) != 3 or any(u.dof < 0 for u in chain):
+            continue
+        if any(np.any(u.xyz != 0) or not np.allclose(u.rotation, np.eye(3)) for u in chain[1:]):
+            continue
+        axes = np.array([model.dofs[u.dof].axis for u in chain], dtype=float)
+        axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+        if not np.allclose(axes @ axes.T, np.eye(3), atol=1e-9):
+            continue
+        lim = [model.dofs[u.dof] for u in chain]
+        out.append(BallJoint(j.name, tuple(u.dof for u in chain), axes,
+                             np.array([d.lower for d in lim]), np.array([d.upper for d in lim])))
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class Kinematics:
     """CasADi functions of one model's forward kinematics.
@@ -109,11 +257,16 @@ class Kinematics:
     jac:      (z, q_ref, p) -> (d vec(markers)/dz, d vec(markers)/dp), sparse, exact;
               vec() stacks marker after marker: rows 3k..3k+2 are marker k's x, y, z.
     h_jz:     (z, q_ref, p) -> (vec(markers), d vec(markers)/dz): one call per IK iteration.
+    h_ref:    (z, refs, p) -> markers, centres: the solver's form (module docstring), refs =
+              [root q_ref (4), B of each ball in `balls` (4 each)]; h_ref_jz likewise.
     """
 
     model: Model
     h: ca.Function
     h_jz: ca.Function
+    h_ref: ca.Function
+    h_ref_jz: ca.Function
+    balls: tuple[BallJoint, ...] = field(default=())
 
     @cached_property
     def jac(self) -> ca.Function:
@@ -128,6 +281,11 @@ class Kinematics:
     def n_params(self) -> int:
         return int(self.h.size1_in(2))
 
+    @property
+    def n_refs(self) -> int:
+        """Length of the solver form's reference input: 4 (root) + 4 per SO(3) ball joint."""
+        return 4 * (1 + len(self.balls))
+
     def markers(self, z, q_ref, p) -> np.ndarray:
         """Marker positions (n_markers, 3) for one frame."""
         return np.asarray(self.h(z, q_ref, _pvec(p))[0]).T
@@ -136,9 +294,60 @@ class Kinematics:
         """Joint-centre positions (n_joints, 3) for one frame."""
         return np.asarray(self.h(z, q_ref, _pvec(p))[1]).T
 
-    def frame_evaluator(self, p) -> FrameEvaluator:
-        """A fast evaluator of (vec(markers), d vec(markers)/dz) for one frame at fixed `p`."""
-        return FrameEvaluator(self.h_jz, _pvec(p))
+    def frame_evaluator(self, p, reference: bool = False) -> FrameEvaluator:
+        """A fast evaluator of (vec(markers), d vec(markers)/dz) for one frame at fixed `p`
+        (`reference`: of the solver's form h_ref, called with the refs vector)."""
+        return FrameEvaluator(self.h_ref_jz if reference else self.h_jz, _pvec(p))
+
+    # -------------------------------------------------------------- the solver's form
+    def refs(self, Q: np.ndarray, B: np.ndarray | None) -> np.ndarray:
+        """The refs input (F, n_refs) from root quaternions Q (F, 4) and ball references B
+        (F, n_balls, 4) (None: every ball's the identity)."""
+        Q = np.atleast_2d(Q)
+        if B is None:
+            B = np.broadcast_to(IDENTITY, (Q.shape[0], len(self.balls), 4))
+        return np.concatenate([Q, np.reshape(B, (Q.shape[0], -1))], axis=1)
+
+    def retract(self, Z: np.ndarray, Q: np.ndarray,
+                B: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fold the root's rotation increments Z[:, 3:6] into Q and every SO(3) ball's increments
+        into B (B ← B · E(theta)), resetting them to zero: (Z, Q, B) of the same pose, new arrays."""
+        Z = np.array(Z, dtype=float)
+        Q = retract_root(Q, Z[:, 3:6])
+        Z[:, 3:6] = 0.0
+        F = Z.shape[0]
+        Bn = np.empty((F, len(self.balls), 4))
+        for i, b in enumerate(self.balls):
+            cols = 6 + np.array(b.dofs)
+            q = b.quaternion(Z[:, cols])
+            if B is not None:
+                q = quat_multiply(B[:, i], q)
+            q /= np.linalg.norm(q, axis=1, keepdims=True)
+            Bn[:, i] = np.where(q[:, 3:4] < 0, -q, q)
+            Z[:, cols] = 0.0
+        return Z, Q, Bn
+
+    def retract_refs(self, Z: np.ndarray, refs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """retract for poses in the refs form (F, n_refs) (per-frame solvers)."""
+        Z, Q, B = self.retract(np.atleast_2d(Z), np.atleast_2d(refs)[:, :4],
+                               np.atleast_2d(refs)[:, 4:].reshape(-1, len(self.balls), 4))
+        return Z, self.refs(Q, B)
+
+    def absolute(self, Z: np.ndarray, Q: np.ndarray, B: np.ndarray | None,
+                 previous: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The URDF's coordinates (Z with every joint angle absolute, root increment folded; Q)
+        of a solver-form pose, the ball angles continuous over the frames (BallJoint.angles;
+        `previous`: the angles (n_dofs,) the first frame continues from, default zero)."""
+        Z = np.array(Z, dtype=float)
+        Q = retract_root(Q, Z[:, 3:6])
+        Z[:, 3:6] = 0.0
+        if B is None:
+            return Z, Q
+        for i, b in enumerate(self.balls):
+            cols = 6 + np.array(b.dofs)
+            R = quat_matrices(quat_multiply(B[:, i], b.quaternion(Z[:, cols])))
+            Z[:, cols] = b.angles(R, None if previous is None else np.asarray(previous)[list(b.dofs)])
+        return Z, Q
 
     def batch(self, Z: np.ndarray, Q_ref: np.ndarray, p) -> tuple[np.ndarray, np.ndarray]:
         """Markers (n_frames, n_markers, 3) and centres (n_frames, n_joints, 3) for many frames.
@@ -171,7 +380,7 @@ class FrameEvaluator:
         self._f = h_jz  # keep the Function alive while its buffer is used
         self._buf, self._eval = h_jz.buffer()
         self._z = np.zeros(h_jz.nnz_in(0))
-        self._q = np.zeros(4)
+        self._q = np.zeros(h_jz.nnz_in(1))
         self._p = np.array(p, dtype=float)
         self.markers = np.zeros(h_jz.nnz_out(0))
         self.jacobian = np.zeros(h_jz.size_out(1), order="F")
@@ -191,12 +400,16 @@ def _pvec(p) -> np.ndarray:
     return p.vector() if isinstance(p, Parameters) else np.asarray(p, dtype=float).ravel()
 
 
-def build_kinematics(model: Model) -> Kinematics:
-    """Build h(z, q_ref, p) and its exact Jacobians for `model` (SX graph, one frame)."""
+def build_kinematics(model: Model, euler: tuple[str, ...] = ()) -> Kinematics:
+    """Build h(z, q_ref, p), the solver's form h_ref(z, refs, p) and their exact Jacobians for
+    `model` (SX graphs, one frame).  `euler`: ball joints the solver keeps on their three angles
+    (those with a locked coordinate; see so3_balls)."""
     nz = model.nz
     ns, nj, nd, nm = len(model.segments), len(model.joints), model.n_dofs, len(model.markers)
+    balls = so3_balls(model, tuple(euler))
     z = ca.SX.sym("z", nz)
     q_ref = ca.SX.sym("q_ref", 4)
+    refs = ca.SX.sym("refs", 4 * (1 + len(balls)))
     p = ca.SX.sym("p", ns + 3 * (nj + nd + nm))
     a = np.cumsum([0, ns, 3 * nj, 3 * nd, 3 * nm])
     scale = p[a[0]:a[1]]
@@ -204,35 +417,46 @@ def build_kinematics(model: Model) -> Kinematics:
     axis = ca.reshape(p[a[2]:a[3]], 3, nd)
     marker = ca.reshape(p[a[3]:a[4]], 3, nm)
     theta = z[6:]
-
     seg_idx = {s.name: i for i, s in enumerate(model.segments)}
-    pose: dict[str, tuple[ca.SX, ca.SX]] = {model.root: (quat_to_matrix(q_ref) @ cayley(z[3:6]), z[0:3])}
-    mk_pos: list[ca.SX] = [None] * nm  # type: ignore[list-item]
-    jc_pos: list[ca.SX] = [None] * nj  # type: ignore[list-item]
-    for u in model.urdf_joints:
-        R_p, t_p = pose[u.parent_link]
-        s = scale[seg_idx[u.owner]]
-        if u.role == "centre":
-            xyz = s * centre[:, u.index]
-        elif u.role == "marker":
-            xyz = s * marker[:, u.index]
-        else:
-            xyz = s * ca.DM(u.xyz)
-        t_o = t_p + R_p @ xyz
-        if u.role == "marker":
-            mk_pos[u.index] = t_o
-            continue
-        if u.role == "centre":
-            jc_pos[u.index] = t_o
-        R_o = R_p if np.array_equal(u.rotation, np.eye(3)) else R_p @ ca.DM(u.rotation)
-        if u.dof >= 0:
-            R_o = R_o @ axis_angle(axis[:, u.dof], theta[u.dof])
-        pose[u.child_link] = (R_o, t_o)
+    # First DoF of each SO(3) ball -> (reference slot, constant unit axes of its three DoFs).
+    first = {b.dofs[0]: i for i, b in enumerate(balls)}
+    ball_axis = {d: b.axes[k] for b in balls for k, d in enumerate(b.dofs)}
 
-    M = ca.horzcat(*mk_pos)
-    C = ca.horzcat(*jc_pos) if jc_pos else ca.SX(3, 0)
-    h = ca.Function("h", [z, q_ref, p], [M, C], ["z", "q_ref", "p"], ["markers", "centres"])
-    m_vec = ca.vec(M)
-    h_jz = ca.Function("h_jz", [z, q_ref, p], [m_vec, ca.densify(ca.jacobian(m_vec, z))],
-                       ["z", "q_ref", "p"], ["markers", "dm_dz"])
-    return Kinematics(model, h, h_jz)
+    def walk(R_root, so3: bool):
+        pose: dict[str, tuple[ca.SX, ca.SX]] = {model.root: (R_root, z[0:3])}
+        mk_pos: list[ca.SX] = [None] * nm  # type: ignore[list-item]
+        jc_pos: list[ca.SX] = [None] * nj  # type: ignore[list-item]
+        for u in model.urdf_joints:
+            R_p, t_p = pose[u.parent_link]
+            s = scale[seg_idx[u.owner]]
+            if u.role == "centre":
+                xyz = s * centre[:, u.index]
+            elif u.role == "marker":
+                xyz = s * marker[:, u.index]
+            else:
+                xyz = s * ca.DM(u.xyz)
+            t_o = t_p + R_p @ xyz
+            if u.role == "marker":
+                mk_pos[u.index] = t_o
+                continue
+            if u.role == "centre":
+                jc_pos[u.index] = t_o
+            R_o = R_p if np.array_equal(u.rotation, np.eye(3)) else R_p @ ca.DM(u.rotation)
+            if u.dof >= 0 and so3 and u.dof in ball_axis:
+                if u.dof in first:  # the ball's reference rotation, then its increment
+                    i = first[u.dof]
+                    R_o = R_o @ quat_to_matrix(refs[4 + 4 * i:8 + 4 * i])
+                R_o = R_o @ axis_angle(ca.DM(ball_axis[u.dof]), theta[u.dof])
+            elif u.dof >= 0:
+                R_o = R_o @ axis_angle(axis[:, u.dof], theta[u.dof])
+            pose[u.child_link] = (R_o, t_o)
+        return ca.horzcat(*mk_pos), (ca.horzcat(*jc_pos) if jc_pos else ca.SX(3, 0))
+
+    outs = []
+    for name, arg, q_in, so3 in (("h", "q_ref", q_ref, False), ("h_ref", "refs", refs, True)):
+        M, C = walk(quat_to_matrix(q_in[0:4]) @ cayley(z[3:6]), so3)
+        m_vec = ca.vec(M)
+        outs.append(ca.Function(name, [z, q_in, p], [M, C], ["z", arg, "p"], ["markers", "centres"]))
+        outs.append(ca.Function(f"{name}_jz", [z, q_in, p], [m_vec, ca.densify(ca.jacobian(m_vec, z))],
+                                ["z", arg, "p"], ["markers", "dm_dz"]))
+    return Kinematics(model, *outs, balls)

@@ -30,31 +30,45 @@ Plug-in Gait model has no ``SACR``, so ``V.Sacral`` stays unknown there.
 ============  =====================================================================================
 model label   alias names, after the side (R or L) and normalisation
 ============  =====================================================================================
-xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine
-xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine
+xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias
+xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips
 xTHI          thi, thigh, thighwand
-xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee, latepicondyle, lateralepicondyle
+xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee, latepicondyle, lateralepicondyle,
+              fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle
 xTIB          tib, tibia, shank, tibwand, shankwand
 xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
-              malleoluslat, ankle
-xHEE          hee, heel, calc, calcaneus
-xTOE          toe, mt2, mth2, metatarsal2, toetip
-xSHO          sho, shoulder, acromion, acromium, acr
+              malleoluslat, ankle, lm, fal, lmal, latmal
+xHEE          hee, heel, calc, calcaneus, ca, fcc, cal
+xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
+xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular
 xUPA          upa, upperarm, arm, humerus, bicep, biceps
-xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow
+xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hle, lhe,
+              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle
 xFRM          frm, forearm
-xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius
-xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna
-xFIN          fin, finger, mcp2, mc2, hand
+xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius,
+              rs, rsp, radialstyloidprocess
+xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna,
+              us, usp, ulnarstyloidprocess
+xFIN          fin, finger, mcp2, mc2, hand, hm2
 xFHD          fhd, fronthead, headfront, forehead, temple
 xBHD          bhd, backhead, headback, rearhead, headrear
 xBAK          bak, back, scapula
-C7            c7, vertebrac7
-T10           t10, th10, vertebrat10
-CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch
-STRN          strn, sternum, xiphoid, xiphoidprocess
+C7            c7, vertebrac7, cv7
+T10           t10, th10, vertebrat10, tv10
+CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn
+STRN          strn, sternum, xiphoid, xiphoidprocess, px, sxs
 SACR          sacr, sacrum, sacral
 ============  =====================================================================================
+
+Anatomical landmark names (ISB: Wu et al. 2002, 2005; CAST: Cappozzo et al. 1995; Van Sint
+Jan's landmark atlas as Dumas' models spell it: ``RFLE``, ``RFAL``...) map to a Plug-in Gait
+marker only where the landmark is the point the marker is put on (docs/calibration.md, labels):
+IAS/IPS the iliac spines; LE, FLE, LFE the lateral femoral epicondyle (KNE); LM, FAL the
+lateral malleolus (ANK); CA, FCC the calcaneus (HEE); FM2, SM the second metatarsal head (TOE);
+AC, CAJ the acromio-clavicular joint (SHO); EL, HLE, LHE the lateral humeral epicondyle (ELB);
+RS, RSP and US, USP the radial and ulnar styloid (WRA, WRB); HM2 the second metacarpal head
+(FIN); IJ, SJN the jugular notch (CLAV); PX, SXS the xiphoid (STRN); CV7, TV10 the spinous
+processes.  Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
 ``RASI``; ``R.Knee.Lat`` and ``R.Knee`` become ``RKNE`` (``R.Knee.Lat`` kept when both are there);
@@ -83,6 +97,8 @@ from pathlib import Path
 from .errors import CalibrateError
 from .trial import Trial
 
+UNLABELLED = re.compile(r"\*\d+")  # an unlabelled trajectory's label (Vicon Nexus: '*115')
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -105,24 +121,36 @@ HOWS = ("exact", "map", "alias", "unknown")
 #: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
 #: names after the side and normalisation, most specific first.
 SIDE_ALIASES: dict[str, tuple[str, ...]] = {
-    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine"),
-    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine"),
+    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias"),
+    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips"),
     "THI": ("thi", "thigh", "thighwand"),
-    "KNE": ("kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee", "latepicondyle", "lateralepicondyle"),
+    "KNE": (
+        "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee", "latepicondyle", "lateralepicondyle",
+        "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle", "femurlateralepicondyle",
+    ),
     "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand"),
     "ANK": (
         "ank", "anklelat", "anklelateral", "latankle", "lateralankle", "latmalleolus", "lateralmalleolus",
-        "malleoluslat", "ankle",
+        "malleoluslat", "ankle", "lm", "fal", "lmal", "latmal",
     ),
-    "HEE": ("hee", "heel", "calc", "calcaneus"),
-    "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip"),
-    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr"),
+    "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal"),
+    "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip", "fm2", "sm", "mh2"),
+    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr", "ac", "caj", "acromioclavicular"),
     "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
-    "ELB": ("elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow"),
+    "ELB": (
+        "elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow", "el", "hle", "lhe",
+        "lateralhumeralepicondyle", "humerallateralepicondyle", "humeruslateralepicondyle",
+    ),
     "FRM": ("frm", "forearm"),
-    "WRA": ("wra", "wrista", "wristlat", "wristlateral", "wristradial", "radialwrist", "radialstyloid", "radius"),
-    "WRB": ("wrb", "wristb", "wristmed", "wristmedial", "wristulnar", "ulnarwrist", "ulnarstyloid", "ulna"),
-    "FIN": ("fin", "finger", "mcp2", "mc2", "hand"),
+    "WRA": (
+        "wra", "wrista", "wristlat", "wristlateral", "wristradial", "radialwrist", "radialstyloid", "radius",
+        "rs", "rsp", "radialstyloidprocess",
+    ),
+    "WRB": (
+        "wrb", "wristb", "wristmed", "wristmedial", "wristulnar", "ulnarwrist", "ulnarstyloid", "ulna",
+        "us", "usp", "ulnarstyloidprocess",
+    ),
+    "FIN": ("fin", "finger", "mcp2", "mc2", "hand", "hm2"),
     "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple"),
     "BHD": ("bhd", "backhead", "headback", "rearhead", "headrear"),
     "BAK": ("bak", "back", "scapula"),
@@ -130,10 +158,10 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
 
 #: Midline Plug-in Gait markers, with alias names after normalisation, most specific first.
 MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
-    "C7": ("c7", "vertebrac7"),
-    "T10": ("t10", "th10", "vertebrat10"),
-    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch"),
-    "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess"),
+    "C7": ("c7", "vertebrac7", "cv7"),
+    "T10": ("t10", "th10", "vertebrat10", "tv10"),
+    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch", "ij", "sjn"),
+    "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess", "px", "sxs"),
     "SACR": ("sacr", "sacrum", "sacral"),
 }
 
@@ -455,6 +483,9 @@ def map_labels(
         rate=trial.rate,
         first_frame=trial.first_frame,
         source=trial.source,
+        model_outputs=trial.model_outputs,
+        output_kinds=trial.output_kinds,
+        output_units=trial.output_units,
     )
     matches = tuple(
         LabelMatch(trial_label=old, label=new, how=how, note=note)

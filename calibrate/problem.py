@@ -175,6 +175,10 @@ class State:
     Z: np.ndarray  # (F, nz): root translation, root rotation increment (0 between steps), angles
     Q: np.ndarray  # (F, 4) root reference quaternions (x, y, z, w)
     p: np.ndarray  # full parameter vector (Parameters.vector() layout)
+    # (F, n_balls, 4) reference quaternions of the ball joints kept on SO(3) (Kinematics.balls),
+    # whose angles in Z are then increments about them (0 between steps); None: every reference
+    # the identity, so that Z holds every joint's absolute angles (how a caller starts a state).
+    B: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -228,7 +232,12 @@ class Problem:
         self._progress = progress
         self.model = model
         self.settings = settings or Settings()
-        self.kin = kinematics or build_kinematics(model)
+        # Ball joints with a locked coordinate stay on their three angles (the lock holds an angle).
+        locked_balls = tuple(j.name for j in model.joints if j.kind == "ball"
+                             and any(d in dict(self.settings.lock) for d in j.dofs))
+        self.kin = kinematics or build_kinematics(model, euler=locked_balls)
+        if any(b.name in locked_balls for b in self.kin.balls):
+            self.kin = build_kinematics(model, euler=locked_balls)
         obs = np.asarray(observed, dtype=float)
         nm = len(model.markers)
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
@@ -255,6 +264,10 @@ class Problem:
             self.locked[k] = True
             self.lower[k] = self.upper[k] = value
             self._limit_w[k] = LOCK_WEIGHT / self.settings.noise
+        # The angles of a ball on SO(3) are increments during the solve: no limit applies to them
+        # (the rotation has no mirror branch to slide into; limit_notes still read the output angles).
+        for b in self.kin.balls:
+            self._limit_w[list(b.dofs)] = 0.0
         self._layout()
         self._build_functions()
         # Scratch memory of the solver (large per-frame arrays kept between its runs; see
@@ -585,7 +598,7 @@ class Problem:
             r = np.zeros(self.n_free)
             r[[col[names[sl + c]] for c in range(3)]] = a
             rows.append(r)
-        return np.array(rows).reshape(-1, self.n_free)
+        return np.array(rows, dtype=float).reshape(len(rows), self.n_free)
 
     def tangent_map(self, p: np.ndarray) -> np.ndarray:
         """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`.
@@ -616,11 +629,15 @@ class Problem:
         return a / np.linalg.norm(a)
 
     def retract_parameters(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """p moved by the free-parameter step dp: scales by ds, free positions to (s x + dq)/(s + ds)
+        """p moved by the free-parameter step dp: scales to s exp(ds / s) (s + ds to first order, and
+        never zero or negative: a segment with no marker of its own, whose scale only the priors
+        hold, must not shrink through zero into a mirror image), free positions to (s x + dq)/s'
         (see tangent_map), axes kept unit (normalise(a + B u))."""
         out = p.copy()
         if self._direct.size:
             out[self._direct[:, 1]] += dp[self._direct[:, 0]]
+            sc = self._direct[self._direct[:, 1] < len(self.model.segments)]
+            out[sc[:, 1]] = p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]])
         rows, cols, owner, _ = self._positions
         if rows.size:
             out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
@@ -636,17 +653,17 @@ class Problem:
     def _build_functions(self) -> None:
         m, kin = self.model, self.kin
         nz, nm = m.nz, len(m.markers)
-        key = _structure_key(m) if self.settings.compile else None
+        key = _structure_key(m, kin) if self.settings.compile else None
         cached = _load_compiled(key) if key else None
         self.compiled = cached is not None
         if cached is not None:  # a model of this structure was compiled before: no symbolic work
             (full, pose, resid), (zr, zc, pr, pc, shape) = cached
         else:
             z = ca.SX.sym("z", nz)
-            q = ca.SX.sym("q_ref", 4)
+            q = ca.SX.sym("refs", kin.n_refs)
             p = ca.SX.sym("p", self.np_full)
             r = ca.SX.sym("r", 3 * nm)
-            M, _ = kin.h(z, q, p)
+            M, _ = kin.h_ref(z, q, p)
             d = ca.vec(M) - r
             Jz = ca.jacobian(d, z)
             Jp = ca.jacobian(d, p)
@@ -690,7 +707,7 @@ class Problem:
     def frame_evaluator(self, p: np.ndarray) -> _FrameEvaluator:
         """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
         parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
-        return _FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
+        return _FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern, self.kin.n_refs)
 
     def _run(self, kind: str, state: State, out: tuple | None = None) -> list[np.ndarray]:
         """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
@@ -705,7 +722,7 @@ class Problem:
             if i < len(outs) and isinstance(o, np.ndarray) and o.shape == outs[i].shape:
                 outs[i] = o
         Z = np.ascontiguousarray(state.Z, dtype=float)
-        Q = np.ascontiguousarray(state.Q, dtype=float)
+        Q = np.ascontiguousarray(self.kin.refs(state.Q, state.B), dtype=float)
         P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
         for s in range(0, F, EVAL_BLOCK):
             e = min(F, s + EVAL_BLOCK)
@@ -985,11 +1002,12 @@ class _FrameEvaluator:
     the model markers) into preallocated memory; the Jacobian nonzeros are spread into a dense,
     reused (3 n_markers, nz) array.  Outputs are overwritten by the next call."""
 
-    def __init__(self, f: ca.Function, p: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, int, int]):
+    def __init__(self, f: ca.Function, p: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, int, int],
+                 n_refs: int = 4):
         rows, cols, n_rows, nz = pattern
         self._f = f  # keep the Function alive while its buffer is used
         self._buf, self._eval = f.buffer()
-        self._z, self._q, self._p, self._r = np.zeros(nz), np.zeros(4), p.copy(), np.zeros(n_rows)
+        self._z, self._q, self._p, self._r = np.zeros(nz), np.zeros(n_refs), p.copy(), np.zeros(n_rows)
         self.markers = np.zeros(n_rows)
         self._jnz = np.zeros(rows.size)
         self.jacobian = np.zeros((n_rows, nz))
@@ -1030,7 +1048,7 @@ def perpendicular_basis(a: np.ndarray) -> np.ndarray:
     return np.column_stack([u, _cross(a, u)])
 
 
-def _structure_key(model: Model) -> str | None:
+def _structure_key(model: Model, kin: Kinematics) -> str | None:
     """A digest of everything the per-frame functions are built from: the model's kinematic
     structure (tree, fixed rotations and offsets, which parameter each origin reads) and the code
     that builds them, so that a cached build is reused exactly when it would come out the same.
@@ -1041,6 +1059,7 @@ def _structure_key(model: Model) -> str | None:
     for src in (Path(__file__), Path(__file__).with_name("kinematics.py")):
         h.update(src.read_bytes())
     h.update(repr([s.name for s in model.segments]).encode())
+    h.update(repr([(b.name, b.axes.tolist()) for b in kin.balls]).encode())
     for u in model.urdf_joints:
         fixed_xyz = u.role not in ("centre", "marker")
         h.update(repr((u.parent_link, u.child_link, u.owner, u.role, u.index, u.dof)).encode())

@@ -18,6 +18,7 @@ import numpy as np
 from . import __version__
 from ._text import atomic_write_text
 from .errors import CalibrateError
+from .labels import UNLABELLED
 from .model import mass_factor, write_model
 from .motion import write_motion_csv
 
@@ -93,6 +94,8 @@ def calibration_report(cal) -> dict:
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
+        "unresolved": [u.to_json() for u in getattr(cal, "unresolved", ())],
+        "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
         "symmetry": symmetry_table(cal),
@@ -279,8 +282,24 @@ def summary_text(cal) -> str:
             lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
         else:
             lines.append(f"  left out {m.label}: {m.reason}")
-    if cal.ignored_labels and not any(m.segment is None for m in cal.new_markers):
-        lines.append(f"  ignored trial labels (not in the model): {', '.join(cal.ignored_labels)}")
+    unresolved = getattr(cal, "unresolved", ())
+    if unresolved:
+        lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "
+                     f"locked): {', '.join(u.segment for u in unresolved)}")
+        for u in unresolved[:8]:
+            lines.append(f"    {u.segment}: {', '.join(u.coordinates) or '-'}: {u.reason}")
+        if len(unresolved) > 8:
+            lines.append(f"    ... and {len(unresolved) - 8} more (see the report)")
+    outputs = set().union(*(t.model_outputs for t in cal.trials))
+    if outputs:
+        lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
+    unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
+    if unlabelled:
+        lines.append(f"  {len(unlabelled)} unlabelled trajectories ignored ({', '.join(unlabelled[:4])}"
+                     f"{', ...' if len(unlabelled) > 4 else ''}): label them to use them")
+    named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
+    if named and not any(m.segment is None for m in cal.new_markers):
+        lines.append(f"  ignored trial labels (not in the model): {', '.join(named)}")
     if cal.outliers:
         per: dict[str, int] = {}
         for o in cal.outliers:
@@ -343,14 +362,40 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
             rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
             text = json.dumps(rep, indent=1, allow_nan=False, default=_json_default)
             atomic_write_text(staged["report"], text + "\n")
-        for kind, tmp in staged.items():
-            os.replace(tmp, targets[kind])
+        _place_all(staged, targets)
     except BaseException:
         for tmp in staged.values():
             Path(tmp).unlink(missing_ok=True)
         raise
     cal.times["write"] = time.perf_counter() - t0
     return targets
+
+
+def _place_all(staged: dict[str, Path], targets: dict[str, Path]) -> None:
+    """Rename every staged file onto its target, all or none: a file a target replaces is first
+    moved aside, and if any rename fails, the targets already placed are undone (removed, or
+    their old file moved back) before the error goes on."""
+    placed: list[tuple[Path, Path | None]] = []  # (target, where its previous file waits)
+    try:
+        for kind, tmp in staged.items():
+            target, aside = targets[kind], None
+            if target.exists():
+                fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent)
+                os.close(fd)
+                aside = Path(name)
+                os.replace(target, aside)
+            placed.append((target, aside))
+            os.replace(tmp, target)
+    except BaseException:
+        for target, aside in reversed(placed):
+            if aside is not None:
+                os.replace(aside, target)
+            else:
+                target.unlink(missing_ok=True)
+        raise
+    for _, aside in placed:
+        if aside is not None:
+            aside.unlink(missing_ok=True)
 
 
 def _json_default(o):

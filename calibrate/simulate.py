@@ -12,6 +12,17 @@ move in lock-step.  Markers get Gaussian noise and, optionally, occlusion gaps.
 ankles through their usual arcs, arms swinging from the shoulders, elbows bending a little) and
 nearly still forearms, wrists, neck and subtalar joints (a few degrees), as in a lab's walking
 trial, where many joints hardly move.
+
+`simulate_overhead` is serve- and throw-like arm arcs far above the head (shoulder abduction or
+flexion to 155-172°, through the gimbal lock of the shoulder's flexion-adduction-rotation
+sequence at 90° abduction) while the rest of the body makes smaller squat-like arcs.
+
+What a lab adds (every option off by default, so that a seed's trial is unchanged): soft-tissue
+artefact (`sta_mm`: each skin marker moves relative to its bone as a smooth function of the angles
+of its segment's joints, by segment as published), a subject of a given stature (`height`),
+occlusion gaps as a fraction of the marker samples (`gap_fraction`), swapped labels (`swaps`) and
+single-frame spikes (`spikes`), with the corrupted samples listed in `Simulation.corruptions`.
+`simulate_realistic` combines them.  Figures and references: docs/simulation.md.
 """
 
 from __future__ import annotations
@@ -24,7 +35,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .kinematics import build_kinematics
+from ._text import atomic_write_text
+from .errors import ModelError
+from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters, write_model
 from .motion import Motion, write_motion_csv
 from .trial import Trial, write_c3d
@@ -48,6 +61,39 @@ GAIT_TABLE = {
 }
 
 
+# Soft-tissue artefact: amplitude of a segment's markers as a multiple of `sta_mm` (the shank's), each
+# marker drawn in STA_SPREAD times it.  Published figures behind them: docs/simulation.md.
+STA_FACTOR = {"femur": 2.0, "tibia": 1.0, "pelvis": 0.6, "torso": 0.6, "humerus": 1.5, "ulna": 0.8, "radius": 0.8,
+              "hand": 0.3, "head": 0.3, "talus": 0.3, "calcn": 0.3}
+STA_ACROMION = 2.5  # torso markers within 6 cm (scaled) of a shoulder centre ride on the scapula
+STA_SPREAD = (0.5, 1.5)
+SIZE_SPREAD = 0.04  # ± fraction: per-segment factors around the overall one when a stature is asked for
+HEIGHT_RANGE = (1.4, 2.2)  # m: statures the simulator accepts
+REALISTIC_HEIGHTS = (1.5, 2.0)  # m: simulate_realistic draws the stature from this range
+SWAP_FRAMES = (3, 10)  # frames of one swapped-label episode
+SWAP_DISTANCE = (0.05, 0.20)  # m: neutral-pose distance of the markers a swap may exchange
+SPIKE_SIZE = (0.030, 0.100)  # m: single-frame gross errors
+GAP_SECONDS = (0.05, 0.6)  # s: one occlusion, as `occlusions` draws them
+OVERHEAD_ARC = (1.6, 2.4)  # s: one serve or throw arc of an arm
+OVERHEAD_PEAK = (155.0, 172.0)  # deg: shoulder flexion (serve) or abduction (throw) at the top of an arc
+# DoF-name suffix -> fraction of its swept interval below the standing angle (0) in simulate_overhead's
+# whole-body arcs (default 0.5: centred); the squat-coupled ones deepen with the squat.
+REACH_START = {"hip_flexion": 0.15, "knee": 0.03, "ankle": 0.4, "lumbar_flexion": 0.25, "elbow": 0.05}
+SQUAT_COUPLED = ("hip_flexion", "knee", "ankle", "lumbar_flexion")
+_STREAMS = {"size": 1, "sta": 2, "gaps": 3, "corrupt": 4, "realistic": 5}
+
+
+@dataclass(frozen=True)
+class Corruption:
+    """One corrupted marker sample of a simulated trial: what outlier rejection should catch."""
+
+    kind: str  # 'swap' (two labels exchanged) or 'spike' (a single-frame gross error)
+    frame: int  # 0-based
+    marker: str  # the label whose position is wrong in this frame
+    partner: str  # the other label of a swap; '' for a spike
+    error: float  # m: distance of the observed position from where the skin marker was
+
+
 @dataclass(frozen=True)
 class Simulation:
     """A synthetic trial with its truth."""
@@ -56,8 +102,12 @@ class Simulation:
     truth: Parameters  # the subject's geometric parameters (relative to `model`)
     motion: Motion  # true coordinates
     trial: Trial  # noisy markers with gaps, as a C3D would hold them
-    clean_markers: np.ndarray  # (n_frames, n_markers, 3) noise- and gap-free markers
+    clean_markers: np.ndarray  # (n_frames, n_markers, 3) noise- and gap-free markers of the bone model (truth)
     clean_centres: np.ndarray  # (n_frames, n_joints, 3) true joint-centre trajectories
+    artefact: np.ndarray | None = None  # (n_frames, n_markers, 3) soft-tissue artefact (lab frame, m), if any
+    sta_amplitude: np.ndarray | None = None  # (n_markers,) m: each marker's artefact amplitude, if any
+    corruptions: tuple[Corruption, ...] = ()  # swapped and spiked samples, by frame
+    stature: float | None = None  # m: the subject's stature when one was asked for (see `stature`)
 
 
 def perturb_parameters(model: Model, rng: np.random.Generator) -> Parameters:
@@ -169,21 +219,58 @@ def occlusions(n_frames: int, n_markers: int, rate: float, rng: np.random.Genera
     return mask
 
 
-def _check_args(frames: int, rate: float, noise_mm: float) -> None:
+@dataclass(frozen=True)
+class Lab:
+    """What a lab adds to a simulated trial beyond white noise (all off by default)."""
+
+    sta_mm: float = 0.0  # soft-tissue artefact level: the shank markers' mean amplitude, mm
+    height: float | None = None  # m: the subject's stature (None: the base model's, as perturb_parameters draws it)
+    gap_fraction: float = 0.0  # fraction of marker samples in occlusion gaps (0: none beyond `gaps`)
+    swaps: int = 0  # episodes of two exchanged labels
+    spikes: int = 0  # single-frame gross errors
+
+
+def _check_args(frames: int, rate: float, noise_mm: float, lab: Lab | None = None, gaps: bool = False) -> None:
     if frames < 2:
         raise ValueError(f"frames: need at least 2, got {frames}")
     if not (rate > 0 and math.isfinite(rate)):
         raise ValueError(f"rate: must be a positive number of Hz, got {rate}")
     if not (noise_mm >= 0 and math.isfinite(noise_mm)):
         raise ValueError(f"noise_mm: must be >= 0, got {noise_mm}")
+    if lab is None:
+        return
+    if not (lab.sta_mm >= 0 and math.isfinite(lab.sta_mm)):
+        raise ValueError(f"sta_mm: must be >= 0 mm, got {lab.sta_mm}")
+    if lab.height is not None and not (HEIGHT_RANGE[0] <= lab.height <= HEIGHT_RANGE[1]):
+        raise ValueError(f"height: must be {HEIGHT_RANGE[0]:g}-{HEIGHT_RANGE[1]:g} m, got {lab.height}")
+    if not (0.0 <= lab.gap_fraction <= 0.5):
+        raise ValueError(f"gap_fraction: must be 0-0.5, got {lab.gap_fraction}")
+    if lab.gap_fraction > 0 and gaps:
+        raise ValueError("gaps and gap_fraction: ask for one kind of gaps, not both")
+    for name in ("swaps", "spikes"):
+        n = getattr(lab, name)
+        if int(n) != n or n < 0:
+            raise ValueError(f"{name}: must be a whole number >= 0, got {n}")
+
+
+def _stream(seed: int, name: str) -> np.random.Generator:
+    """An independent random stream per option, so that turning one on leaves the rest of the trial
+    (subject, motion, noise, the other options) exactly as it was for the seed."""
+    return np.random.default_rng([int(seed), _STREAMS[name]])
 
 
 def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
-                    gaps: bool = False, seed: int = 0) -> Simulation:
-    """Simulate a squat trial of a random subject derived from `model` (see module docstring)."""
-    _check_args(frames, rate, noise_mm)
+                    gaps: bool = False, seed: int = 0, *, sta_mm: float = 0.0, height: float | None = None,
+                    gap_fraction: float = 0.0, swaps: int = 0, spikes: int = 0) -> Simulation:
+    """Simulate a squat trial of a random subject derived from `model` (see module docstring).
+
+    Keywords (all off by default): `sta_mm` soft-tissue artefact level (mm), `height` the subject's
+    stature (m, 1.4-2.2), `gap_fraction` of marker samples in gaps, `swaps` swapped-label episodes,
+    `spikes` single-frame gross errors."""
+    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes)
+    _check_args(frames, rate, noise_mm, lab, gaps)
     rng = np.random.default_rng(seed)
-    truth = perturb_parameters(model, rng)
+    truth = _subject(model, rng, lab, seed)
     times = np.arange(frames) / rate
     angles = squat_angles(model, times, rng)
     squat = 0.5 * (1.0 - np.cos(2 * np.pi * times / SQUAT_PERIOD))
@@ -191,16 +278,19 @@ def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise
     sway = 0.01 * np.column_stack([np.sin(2 * np.pi * 0.2 * times), np.sin(2 * np.pi * 0.17 * times + 2),
                                    np.zeros(frames)])
     # The pelvis drops and moves back as the subject squats: the ankles stay put (feet planted).
-    return _observe(model, truth, times, angles, quat, sway, True, rate, noise_mm, gaps, rng)
+    return _observe(model, truth, times, angles, quat, sway, True, rate, noise_mm, gaps, rng, lab, seed)
 
 
 def simulate_gait(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
-                  gaps: bool = False, seed: int = 0) -> Simulation:
+                  gaps: bool = False, seed: int = 0, *, sta_mm: float = 0.0, height: float | None = None,
+                  gap_fraction: float = 0.0, swaps: int = 0, spikes: int = 0) -> Simulation:
     """Simulate treadmill walking of a random subject derived from `model` (see module docstring):
-    the subject as simulate_squats draws it for the same seed, the motion of gait_angles."""
-    _check_args(frames, rate, noise_mm)
+    the subject as simulate_squats draws it for the same seed, the motion of gait_angles.
+    Keywords as simulate_squats'."""
+    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes)
+    _check_args(frames, rate, noise_mm, lab, gaps)
     rng = np.random.default_rng(seed)
-    truth = perturb_parameters(model, rng)
+    truth = _subject(model, rng, lab, seed)
     times = np.arange(frames) / rate
     cycle = float(rng.uniform(*GAIT_CYCLE))
     angles = gait_angles(model, times, cycle, rng)
@@ -208,15 +298,308 @@ def simulate_gait(model: Model, frames: int = 1000, rate: float = 100.0, noise_m
     phase = 2 * np.pi * times / cycle
     # The pelvis rises twice a stride and sways from side to side; the treadmill keeps it in place.
     bounce = np.column_stack([np.zeros(frames), 0.02 * np.sin(phase), 0.02 * np.cos(2 * phase)])
-    return _observe(model, truth, times, angles, quat, bounce, False, rate, noise_mm, gaps, rng)
+    return _observe(model, truth, times, angles, quat, bounce, False, rate, noise_mm, gaps, rng, lab, seed)
+
+
+def simulate_overhead(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
+                      gaps: bool = False, seed: int = 0, *, reach: float = 0.35, sta_mm: float = 0.0,
+                      height: float | None = None, gap_fraction: float = 0.0, swaps: int = 0,
+                      spikes: int = 0) -> Simulation:
+    """Simulate serve- and throw-like arm arcs far overhead (overhead_angles) of the subject
+    simulate_squats draws for the seed, the other joints sweeping `reach` of their ranges in
+    squat-like arcs, the feet planted.  Keywords as simulate_squats'."""
+    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes)
+    _check_args(frames, rate, noise_mm, lab, gaps)
+    if not (0.0 < reach <= 0.95):
+        raise ValueError(f"reach: must be a fraction of each joint's range in (0, 0.95], got {reach}")
+    rng = np.random.default_rng(seed)
+    truth = _subject(model, rng, lab, seed)
+    times = np.arange(frames) / rate
+    angles = overhead_angles(model, times, rng, reach)
+    squat = 0.5 * (1.0 - np.cos(2 * np.pi * times / SQUAT_PERIOD))
+    quat = root_orientation(times, (reach / 0.7) * squat, rng)
+    sway = 0.01 * np.column_stack([np.sin(2 * np.pi * 0.2 * times), np.sin(2 * np.pi * 0.17 * times + 2),
+                                   np.zeros(frames)])
+    return _observe(model, truth, times, angles, quat, sway, True, rate, noise_mm, gaps, rng, lab, seed)
+
+
+MOTIONS = {"squats": simulate_squats, "gait": simulate_gait, "overhead": simulate_overhead}
+
+
+def simulate_realistic(model: Model, seed: int = 0, frames: int = 1000, rate: float = 100.0,
+                       noise_mm: float = 1.0, *, motion: str = "overhead", reach: float = 0.7, sta_mm: float = 3.0,
+                       height: float | None = None, gap_fraction: float = 0.05, swaps: int = 3,
+                       spikes: int = 5, gaps: bool = False) -> Simulation:
+    """A trial as a lab records it, for benchmarks: overhead arm arcs with every other joint sweeping
+    70 % of its range in squat-like arcs (`motion`, `reach`), 3 mm soft-tissue artefact, a random
+    stature in 1.5-2.0 m (unless `height`), 5 % of marker samples in gaps, 3 swapped-label episodes,
+    5 spikes and 1 mm noise.  Every figure can be overridden (`gaps=True` with `gap_fraction=0`: the
+    occlusions of `occlusions` instead)."""
+    if motion not in MOTIONS:
+        raise ValueError(f"motion: one of {', '.join(MOTIONS)}, got '{motion}'")
+    if height is None:
+        height = float(_stream(seed, "realistic").uniform(*REALISTIC_HEIGHTS))
+    extra = {"reach": reach} if motion == "overhead" else {}
+    return MOTIONS[motion](model, frames, rate, noise_mm, gaps, seed, sta_mm=sta_mm, height=height,
+                           gap_fraction=gap_fraction, swaps=swaps, spikes=spikes, **extra)
+
+
+def _subject(model: Model, rng: np.random.Generator, lab: Lab, seed: int) -> Parameters:
+    """perturb_parameters' subject; with `lab.height`, its segments rescaled to that stature."""
+    truth = perturb_parameters(model, rng)
+    if lab.height is None:
+        return truth
+    return sized_subject(model, truth, lab.height, _stream(seed, "size"))
+
+
+def sized_subject(model: Model, params: Parameters, height: float, rng: np.random.Generator,
+                  spread: float = SIZE_SPREAD) -> Parameters:
+    """`params` with every segment's scale replaced by c·(1 + u), u uniform in ±`spread` per segment
+    (the proportions vary) and c the one overall factor that makes the stature (see `stature`)
+    exactly `height` (m).  Joint centres, axes and marker offsets are kept (positions scale with c)."""
+    s = 1.0 + rng.uniform(-spread, spread, params.scale.shape)
+    p = Parameters(s, params.centre, params.axis, params.marker)
+    c = height / stature(model, p)  # the stature is linear in the scales (every length is)
+    return Parameters(c * s, params.centre, params.axis, params.marker)
+
+
+def _human_landmarks() -> tuple[float, float, float]:
+    """Neck, ankle and vertex heights of calibrate.human's reference subject (m)."""
+    from .human import _MID, _R
+
+    return _MID["neck"][2], _R["ankle"][2], _MID["vertex"][2]
+
+
+def stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> float:
+    """The stature (m) of a subject of a calibrate.human-style model: in the neutral pose, the
+    height of the neck joint centre above the mean of the ankle centres, plus the sole-to-ankle and
+    neck-to-vertex heights of calibrate.human's proportions (0.07 and 0.25 of the neck-to-ankle
+    1.43 of its 1.75 m reference) sized to the base model and multiplied by the scales of the feet
+    (calcn) and the head.  The base model itself: its generator's height (1.75 m for models/human.urdf)."""
+    names = [j.name for j in model.joints]
+    segs = [s.name for s in model.segments]
+    need_j, need_s = ("neck", "ankle_r", "ankle_l"), ("head", "calcn_r", "calcn_l")
+    if not all(n in names for n in need_j) or not all(n in segs for n in need_s):
+        raise ModelError(f"{model.path}: a stature needs joints {', '.join(need_j)} and segments "
+                         f"{', '.join(need_s)} (a calibrate.human model); leave the height out")
+    kin = kin or build_kinematics(model)
+
+    def neck_above_ankles(p: Parameters) -> float:
+        _, c = kin.batch(np.zeros((1, model.nz)), np.array([[0.0, 0.0, 0.0, 1.0]]), p)
+        z = c[0, :, 2]
+        return float(z[names.index("neck")] - 0.5 * (z[names.index("ankle_r")] + z[names.index("ankle_l")]))
+
+    neck, ankle, vertex = _human_landmarks()
+    k0 = neck_above_ankles(model.parameters()) / (neck - ankle)  # the base model's size vs the reference
+    foot = 0.5 * (params.scale[segs.index("calcn_r")] + params.scale[segs.index("calcn_l")])
+    head = params.scale[segs.index("head")]
+    return neck_above_ankles(params) + k0 * (ankle * foot + (vertex - neck) * head)
+
+
+def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, reach: float = 0.35) -> np.ndarray:
+    """Joint angles (n_frames, n_dofs): each arm alternates serve-like arcs (shoulder flexion to 155-172°)
+    and throw-like arcs (abduction to 155-172°, i.e. adduction through -90°, the gimbal lock of the
+    shoulder's flexion-adduction-rotation sequence, with the humerus turning about its long axis), the
+    left arm half an arc after the right; every other DoF sweeps `reach` of its range (between its limits)
+    in arcs coupled to squats (hips, knees, ankles, lumbar flexion) or its own slow sinusoid."""
+    deg = math.radians
+    squat = 0.5 * (1.0 - np.cos(2 * np.pi * times / SQUAT_PERIOD))
+    out = np.zeros((times.size, model.n_dofs))
+    arcs = {side: _arm_arcs(times, rng, delay) for side, delay in (("r", 0.0), ("l", 0.5 * OVERHEAD_ARC[0]))}
+    for i, d in enumerate(model.dofs):
+        key = _generic_dof_name(d.name)
+        own = np.sin(2 * np.pi * rng.uniform(0.13, 0.55) * times + rng.uniform(0, 2 * np.pi))
+        lo, hi = d.lower, d.upper
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            lo, hi = -np.pi, np.pi
+        margin = 0.02 * (hi - lo)
+        lo, hi = lo + margin, hi - margin
+        side = "l" if "_l_" in f"_{d.name}_" else "r"
+        if key in ("shoulder_flexion", "shoulder_adduction", "shoulder_rotation"):
+            serve, throw, u_s, u_t, peak = arcs[side]
+            rest = 1.0 - serve - throw
+            if key == "shoulder_flexion":  # serve: up in front; throw: arm in the frontal plane
+                th = (deg(15) + deg(10) * own) * rest + serve * np.radians(peak) + throw * deg(5)
+            elif key == "shoulder_adduction":  # negative = abduction
+                th = (deg(-15) + deg(8) * own) * rest + serve * deg(-10) - throw * np.radians(peak)
+            else:  # the humerus turns out and in about its long axis during each arc
+                th = (deg(15) * own * rest + deg(60) * np.sin(2 * np.pi * u_s) * np.sin(np.pi * u_s)
+                      - deg(80) * np.sin(2 * np.pi * u_t) * np.sin(np.pi * u_t))
+            out[:, i] = np.clip(th, lo, hi)
+            continue
+        span = reach * (hi - lo)
+        below = REACH_START.get(key, 0.5)
+        start = min(max(-below * span, lo), hi - span)  # the swept interval [start, start + span]
+        o = 0.5 + 0.5 * own
+        w = 0.75 * squat + 0.25 * o if key in SQUAT_COUPLED else o
+        out[:, i] = start + span * w
+    return out
+
+
+def _arm_arcs(times: np.ndarray, rng: np.random.Generator, delay: float):
+    """Serve and throw arcs of one arm: weights (F,) rising 0 -> 1 -> 0 as sin² over each arc
+    (alternating, never overlapping), each arc's phase u in [0, 1] (0 outside) and its peak angle
+    (deg, drawn in OVERHEAD_PEAK per arc; it changes only between arcs, where the weights are 0)."""
+    serve, throw = np.zeros(times.size), np.zeros(times.size)
+    u_s, u_t, peak = np.zeros(times.size), np.zeros(times.size), np.zeros(times.size)
+    t0, k = delay + rng.uniform(0.1, 0.4), int(rng.integers(2))
+    end = times[-1] if times.size else 0.0
+    while t0 < end:
+        dur = rng.uniform(*OVERHEAD_ARC)
+        inside = (times >= t0) & (times <= t0 + dur)
+        u = (times[inside] - t0) / dur
+        (serve if k % 2 == 0 else throw)[inside] = np.sin(np.pi * u) ** 2
+        (u_s if k % 2 == 0 else u_t)[inside] = u
+        peak[inside] = rng.uniform(*OVERHEAD_PEAK)
+        t0 += dur + rng.uniform(0.2, 0.6)
+        k += 1
+    return serve, throw, u_s, u_t, peak
+
+
+def soft_tissue_artefact(model: Model, angles: np.ndarray, sta_mm: float,
+                         rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Displacement (n_frames, n_markers, 3) of every skin marker from its bone, in its segment's frame
+    (m), and each marker's amplitude a (n_markers,) (m).
+
+    d(t) = a · Σ_k w_k e_k sin(π/2 · θ_k(t) / θ_lim,k) over the DoFs k of the joints into and out of the
+    marker's segment: θ_lim the DoF's larger limit, e_k a random direction around one per marker (the
+    artefact mostly moves a marker one way), w_k (Σ = 1) shared by joints in proportion to
+    1 / distance² from the marker (at least 5 cm) and equally by a joint's DoFs.  So |d| ≤ a, zero in
+    the neutral pose, a smooth function of the joint angles (no noise); a = `sta_mm` × STA_FACTOR of the
+    segment × a factor drawn in STA_SPREAD (torso markers by a shoulder: STA_ACROMION)."""
+    n_frames = angles.shape[0]
+    disp = np.zeros((n_frames, len(model.markers), 3))
+    amp = np.zeros(len(model.markers))
+    if sta_mm <= 0:
+        return disp, amp
+    lim = np.array([max(abs(d.lower), abs(d.upper)) if np.isfinite(d.lower) and np.isfinite(d.upper) else np.pi
+                    for d in model.dofs])
+    g = np.sin(0.5 * np.pi * np.clip(angles / lim, -1.0, 1.0))  # (F, n_dofs)
+    size = float(np.linalg.norm(model.joints[model.joint_index("neck")].centre)) if "neck" in [
+        j.name for j in model.joints] else 0.45  # torso length, for the acromion rule
+    for m, mk in enumerate(model.markers):
+        kind = "_".join(p for p in mk.segment.split("_") if p not in ("r", "l"))
+        # joints into (centre at the segment origin) and out of (centre in this frame) the segment
+        near = [(j, np.zeros(3)) for j in model.joints if j.child == mk.segment]
+        near += [(j, np.asarray(j.centre)) for j in model.joints if j.parent == mk.segment]
+        factor = STA_FACTOR.get(kind, 0.5)
+        if kind == "torso" and any(j.name.startswith("shoulder") and np.linalg.norm(mk.offset - c) < 0.06 / 0.45 * size
+                                   for j, c in near):
+            factor = STA_ACROMION
+        amp[m] = 1e-3 * sta_mm * factor * rng.uniform(*STA_SPREAD)
+        main = rng.normal(size=3)
+        main /= np.linalg.norm(main)
+        near = [(j, c) for j, c in near if j.dofs]
+        if not near:
+            continue
+        wj = np.array([1.0 / max(float(np.linalg.norm(mk.offset - c)), 0.05) ** 2 for _, c in near])
+        wj /= wj.sum()
+        for (j, _), w in zip(near, wj, strict=True):
+            for dof in j.dofs:
+                e = main + 0.5 * rng.normal(size=3)
+                e /= np.linalg.norm(e)
+                disp[:, m, :] += (amp[m] * w / len(j.dofs)) * g[:, model.dof_index(dof), None] * e
+    return disp, amp
+
+
+def occlusions_fraction(n_frames: int, n_markers: int, rate: float, fraction: float,
+                        rng: np.random.Generator) -> np.ndarray:
+    """Boolean (n_frames, n_markers) mask with `fraction` of the samples occluded (to within one gap), in
+    gaps of GAP_SECONDS on random markers, none losing more than max(20 %, 3 × fraction) of its frames."""
+    mask = np.zeros((n_frames, n_markers), dtype=bool)
+    target = int(round(fraction * n_frames * n_markers))
+    cap = max(0.2, 3.0 * fraction) * n_frames
+    tries = 0
+    while mask.sum() < target and tries < 100000:
+        tries += 1
+        k = int(rng.integers(n_markers))
+        length = min(n_frames, max(1, int(rng.uniform(*GAP_SECONDS) * rate)))
+        start = int(rng.integers(0, n_frames - length + 1))
+        new = mask[:, k].copy()
+        new[start:start + length] = True
+        if new.sum() <= cap:
+            mask[:, k] = new
+    return mask
+
+
+def _swap_pairs(model: Model, neutral: np.ndarray) -> list[tuple[int, int]]:
+    """Marker pairs a labeller may exchange: on the same or adjacent segments with neutral-pose distance
+    in SWAP_DISTANCE, or the left and right marker of one landmark on the pelvis, torso or head."""
+    seg = [mk.segment for mk in model.markers]
+    adjacent = {(j.parent, j.child) for j in model.joints} | {(j.child, j.parent) for j in model.joints}
+    names = model.marker_names
+    pairs = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            dist = float(np.linalg.norm(neutral[i] - neutral[j]))
+            near = (seg[i] == seg[j] or (seg[i], seg[j]) in adjacent) and SWAP_DISTANCE[0] <= dist <= SWAP_DISTANCE[1]
+            mirror = (seg[i] == seg[j] and seg[i] in ("pelvis", "torso", "head") and len(names[i]) > 1
+                      and {names[i][0], names[j][0]} == {"R", "L"} and names[i][1:] == names[j][1:])
+            if near or mirror:
+                pairs.append((i, j))
+    return pairs
+
+
+def _corrupt(model: Model, observed: np.ndarray, skin: np.ndarray, neutral: np.ndarray, swaps: int, spikes: int,
+             rng: np.random.Generator) -> tuple[Corruption, ...]:
+    """Exchange labels in `swaps` episodes of SWAP_FRAMES frames and add `spikes` single-frame errors of
+    SPIKE_SIZE to `observed` (in place), on visible samples, no sample twice; the corrupted samples."""
+    n_frames = observed.shape[0]
+    names = model.marker_names
+    used = np.isnan(observed[..., 0])  # gaps and corrupted samples are off limits
+    out: list[Corruption] = []
+    pairs = _swap_pairs(model, neutral) if swaps else []
+    if swaps and not pairs:
+        raise ValueError("swaps: the model has no marker pairs close enough to swap; ask for none")
+    for _ in range(int(swaps)):
+        for _attempt in range(1000):
+            i, j = pairs[int(rng.integers(len(pairs)))]
+            length = int(rng.integers(SWAP_FRAMES[0], SWAP_FRAMES[1] + 1))
+            if length > n_frames:
+                continue
+            f0 = int(rng.integers(0, n_frames - length + 1))
+            fr = slice(f0, f0 + length)
+            dist = np.linalg.norm(skin[fr, i] - skin[fr, j], axis=1)
+            if not used[fr, i].any() and not used[fr, j].any() and dist.min() >= SWAP_DISTANCE[0] * 0.6:
+                break
+        else:
+            raise ValueError(f"swaps: cannot place {swaps} swap episodes of {SWAP_FRAMES[0]}-{SWAP_FRAMES[1]} frames "
+                             f"on visible samples of a {n_frames}-frame trial; ask for fewer or a longer trial")
+        observed[fr, i], observed[fr, j] = observed[fr, j].copy(), observed[fr, i].copy()
+        used[fr, i] = used[fr, j] = True
+        for f, dd in zip(range(f0, f0 + length), dist, strict=True):
+            out += [Corruption("swap", f, names[i], names[j], float(dd)),
+                    Corruption("swap", f, names[j], names[i], float(dd))]
+    free = np.argwhere(~used)
+    if spikes > len(free):
+        raise ValueError(f"spikes: {spikes} asked for but only {len(free)} visible samples are left; ask for fewer")
+    picks = free[rng.choice(len(free), size=int(spikes), replace=False)] if spikes else np.zeros((0, 2), int)
+    for f, k in picks:
+        size = float(rng.uniform(*SPIKE_SIZE))
+        v = rng.normal(size=3)
+        observed[f, k] += size * v / np.linalg.norm(v)
+        out.append(Corruption("spike", int(f), names[k], "", size))
+    return tuple(sorted(out, key=lambda c: (c.frame, names.index(c.marker))))
+
+
+def _skin_markers(kin: Kinematics, Z: np.ndarray, quat: np.ndarray, truth: Parameters,
+                  offsets: np.ndarray) -> np.ndarray:
+    """Markers (F, M, 3) with per-frame marker offsets (F, M, 3; unscaled, segment frames)."""
+    nf, nm = offsets.shape[:2]
+    P = np.tile(truth.vector()[:, None], (1, nf))
+    P[P.shape[0] - 3 * nm:, :] = offsets.reshape(nf, 3 * nm).T  # the marker block is last
+    M, _ = kin.h.map(nf, "thread", 2)(Z.T, quat.T, P)
+    return np.asarray(M).reshape(3, nf, nm).transpose(1, 2, 0)
 
 
 def _observe(model: Model, truth: Parameters, times: np.ndarray, angles: np.ndarray, quat: np.ndarray,
              offset: np.ndarray, planted: bool, rate: float, noise_mm: float, gaps: bool,
-             rng: np.random.Generator) -> Simulation:
+             rng: np.random.Generator, lab: Lab | None = None, seed: int = 0) -> Simulation:
     """Markers and centres of `truth` moving with `angles` and root orientation `quat`, the root
     placed so that the ankles' mid-point sits 7 cm (scaled) above the origin — in every frame
-    (`planted`, feet on the floor) or on average — plus `offset` (F, 3); then noise and gaps."""
+    (`planted`, feet on the floor) or on average — plus `offset` (F, 3); then what `lab` asks for
+    (soft-tissue artefact before the noise; gaps; swaps and spikes on visible samples), noise and gaps."""
+    lab = lab or Lab()
     frames = times.size
     kin = build_kinematics(model)
     Z = np.hstack([np.zeros((frames, 6)), angles])
@@ -234,11 +617,26 @@ def _observe(model: Model, truth: Parameters, times: np.ndarray, angles: np.ndar
     markers = markers + root[:, None, :]
     centres = centres + root[:, None, :]
     motion = Motion(times, root, quat, angles, model.dof_names)
-    observed = markers + rng.normal(0.0, noise_mm / 1000.0, markers.shape)
+    skin, artefact, amp = markers, None, None
+    if lab.sta_mm > 0:
+        disp, amp = soft_tissue_artefact(model, angles, lab.sta_mm, _stream(seed, "sta"))
+        seg = np.array([model.segment_index(mk.segment) for mk in model.markers])
+        skin = _skin_markers(kin, Z, quat, truth, truth.marker[None] + disp / truth.scale[seg][None, :, None])
+        skin = skin + root[:, None, :]
+        artefact = skin - markers
+    observed = skin + rng.normal(0.0, noise_mm / 1000.0, markers.shape)
     if gaps:
         observed[occlusions(frames, len(model.markers), rate, rng)] = np.nan
+    if lab.gap_fraction > 0:
+        observed[occlusions_fraction(frames, len(model.markers), rate, lab.gap_fraction,
+                                     _stream(seed, "gaps"))] = np.nan
+    corruptions: tuple[Corruption, ...] = ()
+    if lab.swaps or lab.spikes:
+        neutral = kin.markers(np.zeros(model.nz), np.array([0.0, 0.0, 0.0, 1.0]), truth)
+        corruptions = _corrupt(model, observed, skin, neutral, lab.swaps, lab.spikes, _stream(seed, "corrupt"))
+    height = stature(model, truth, kin) if lab.height is not None else None
     trial = Trial(labels=model.marker_names, markers=observed, rate=float(rate), first_frame=0, source=None)
-    return Simulation(model, truth, motion, trial, markers, centres)
+    return Simulation(model, truth, motion, trial, markers, centres, artefact, amp, corruptions, height)
 
 
 def simulate_static(model: Model, truth: Parameters, frames: int = 200, rate: float = 100.0, noise_mm: float = 1.0,
@@ -295,11 +693,36 @@ def joint_axes_world(model: Model, params: Parameters, motion: Motion) -> dict[s
 
 
 def write_simulation(sim: Simulation, out_dir: str | os.PathLike[str]) -> dict[str, Path]:
-    """Write trial.c3d, truth.urdf and truth_motion.csv into `out_dir` (created if missing)."""
+    """Write trial.c3d, truth.urdf and truth_motion.csv into `out_dir` (created if missing), and
+    truth_corruptions.csv when the trial has swapped or spiked samples (see `write_corruptions`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"trial": out / "trial.c3d", "truth": out / "truth.urdf", "motion": out / "truth_motion.csv"}
     write_c3d(paths["trial"], sim.trial)
     write_model(sim.model, paths["truth"], sim.truth)
     write_motion_csv(paths["motion"], sim.motion)
+    if sim.corruptions:
+        paths["corruptions"] = out / "truth_corruptions.csv"
+        write_corruptions(paths["corruptions"], sim.corruptions)
     return paths
+
+
+CORRUPTION_COLUMNS = ("kind", "frame", "marker", "partner", "error_mm")
+
+
+def write_corruptions(path: str | os.PathLike[str], corruptions: tuple[Corruption, ...]) -> None:
+    """CSV of the corrupted marker samples: kind (swap/spike), frame (0-based row of the trial),
+    marker (the label whose position is wrong), partner (a swap's other label), error_mm."""
+    lines = [",".join(CORRUPTION_COLUMNS)]
+    lines += [f"{c.kind},{c.frame},{c.marker},{c.partner},{1000 * c.error:.3f}" for c in corruptions]
+    atomic_write_text(Path(path), "\n".join(lines) + "\n")
+
+
+def read_corruptions(path: str | os.PathLike[str]) -> tuple[Corruption, ...]:
+    """Read a truth_corruptions.csv written by `write_corruptions` (errors back in metres)."""
+    import csv
+
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return tuple(Corruption(r["kind"], int(r["frame"]), r["marker"], r["partner"], float(r["error_mm"]) / 1000)
+                 for r in rows)

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .assembly import back_substitute, factor_frames, forward_substitute
-from .kinematics import retract_root
 from .problem import Linearization, Problem, State, in_parallel, split_frames
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
@@ -213,12 +212,11 @@ def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool =
 
 
 def retract(problem: Problem, state: State, dz: np.ndarray, dp: np.ndarray) -> State:
-    """`state` moved by (dz, dp): root rotation folded into q_ref, axes kept unit."""
-    Z = state.Z + dz
-    Q = retract_root(state.Q, Z[:, 3:6])
-    Z[:, 3:6] = 0.0
+    """`state` moved by (dz, dp): root and ball-joint rotations folded into their references
+    (Kinematics.retract), axes kept unit."""
+    Z, Q, B = problem.kin.retract(state.Z + dz, state.Q, state.B)
     p = problem.retract_parameters(state.p, dp) if dp.size else state.p.copy()
-    return State(Z, Q, p)
+    return State(Z, Q, p, B)
 
 
 def null_space(K: np.ndarray, n: int) -> np.ndarray | None:

@@ -45,8 +45,15 @@ in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte
   unless that would make two labels the same.  With several prefixes (two subjects, a
   skeleton and rigid bodies) the labels are kept whole: :func:`calibrate.labels.map_labels`
   matches their names after the prefix.  ``strip_prefix=False`` keeps every label whole.
-- points that are not positions are dropped: the labels Vicon lists in POINT:ANGLES,
-  FORCES, MOMENTS, POWERS, SCALARS and REACTIONS (modelled joint angles, forces...).
+- model outputs are not markers: the points a modelling program (Vicon Plug-in Gait) wrote
+  into the file are kept apart in :attr:`Trial.model_outputs` (never among the markers).  They
+  are the labels listed in POINT:ANGLES, FORCES, MOMENTS, POWERS, SCALARS, REACTIONS and
+  MODELED_MARKERS and in any group POINT:TYPE_GROUPS names (Vicon Nexus writes these), and,
+  whatever the parameters say, the labels with a Plug-in Gait output name
+  (:func:`is_model_output`: the bones ``PELO``, ``LFEO``, ``RHNP``..., joint centres ``LHJC``...,
+  ``CentreOfMass``, ``LKneeAngles``, ``RHipMoment``...).  Their units are converted by their
+  group's ``*_UNITS`` parameter (angles to rad, moments to N m, positions to m); see
+  :func:`plugin_gait_centres` for Plug-in Gait's own hip, knee and ankle centres.
 - long trials: when the header's frame numbers stop at 65535 (its last frame or POINT:FRAMES
   is 65535), the count comes from POINT:LONG_FRAMES, else TRIAL:ACTUAL_START_FIELD /
   ACTUAL_END_FIELD, else the length of the data section less its zero padding (which ezc3d
@@ -60,10 +67,11 @@ from __future__ import annotations
 
 import operator
 import os
+import re
 import struct
 import uuid
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import ezc3d
@@ -72,7 +80,10 @@ import numpy as np
 from calibrate.errors import TrialError
 
 __all__ = [
+    "OUTPUT_SI_UNITS",
     "Trial",
+    "is_model_output",
+    "plugin_gait_centres",
     "read_c3d",
     "read_trc",
     "read_trial",
@@ -100,8 +111,47 @@ _UNIT_NAMES: dict[str, str] = {
     "metres": "m",
 }
 
-#: POINT parameters in which Vicon lists the points that are not positions.
-_C3D_NON_POSITION = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
+#: POINT parameters in which Vicon lists its model outputs, with the kind of quantity.
+_C3D_OUTPUT_GROUPS: dict[str, str] = {
+    "ANGLES": "angle",
+    "FORCES": "force",
+    "MOMENTS": "moment",
+    "POWERS": "power",
+    "SCALARS": "scalar",
+    "REACTIONS": "reaction",
+    "MODELED_MARKERS": "point",
+}
+
+#: SI unit of each kind of model output (what :attr:`Trial.model_outputs` holds when the file
+#: gives a unit it knows; see :attr:`Trial.output_units`).
+OUTPUT_SI_UNITS: dict[str, str] = {"point": "m", "angle": "rad", "force": "N", "moment": "N m", "power": "W"}
+
+#: Model-output units that are converted to SI on reading: unit (lower case, no spaces or dots) -> factor.
+_OUTPUT_UNIT_FACTORS: dict[str, dict[str, float]] = {
+    "angle": {"deg": np.pi / 180.0, "degree": np.pi / 180.0, "degrees": np.pi / 180.0, "rad": 1.0, "radians": 1.0},
+    "force": {"n": 1.0, "kn": 1e3},
+    "moment": {"nmm": 1e-3, "nm": 1.0, "knm": 1e3},
+    "power": {"w": 1.0, "kw": 1e3, "mw": 1e-3},
+    "point": {"mm": 1e-3, "cm": 1e-2, "m": 1.0},
+}
+
+#: Plug-in Gait "bones": segment codes whose origin (O), anterior (A), lateral (L) and proximal (P)
+#: points Plug-in Gait writes (Vicon Nexus help, "Plug-in Gait bones"); side-less codes first.
+PIG_BONES_MIDLINE = ("PEL", "HED", "TRX", "CSP", "SAC")
+PIG_BONES_SIDED = ("FE", "TI", "FO", "TO", "CL", "HU", "RA", "HN")
+_PIG_BONE = re.compile(
+    r"^(?:(?:" + "|".join(PIG_BONES_MIDLINE) + r")|[LR](?:" + "|".join(PIG_BONES_SIDED) + r"))[OALP]$"
+)
+#: Joint-centre and other point outputs of Plug-in Gait and its clones (pyCGM, pyCGM2, biomechZoo).
+_PIG_CENTRE = re.compile(
+    r"^(?:[LR](?:HJC|KJC|AJC|SJC|EJC|WJC|FJC|HipJC|KneeJC|AnkleJC|ShoulderJC|ElbowJC|WristJC)"
+    r"|CentreOfMass|CentreOfMassFloor|CenterOfMass|CenterOfMassFloor|COM|COMFloor)$"
+)
+#: Names of Plug-in Gait's angle, force, moment and power outputs: LKneeAngles, RHipMoment, LNormalisedGRF...
+_PIG_QUANTITY = re.compile(
+    r"^[LR]?[A-Za-z]+(?:Angles?|Force|GRF|Moment|Power)$"
+)
+_QUANTITY_KIND = (("Angle", "angle"), ("Force", "force"), ("GRF", "force"), ("Moment", "moment"), ("Power", "power"))
 
 _TRC_KEYS = (
     "DataRate",
@@ -165,6 +215,63 @@ def strip_subject_prefix(labels: Iterable[str]) -> tuple[list[str], str | None]:
     return stripped, prefix
 
 
+def is_model_output(label: str) -> str | None:
+    """The kind of model output a label names by Plug-in Gait's conventions, or None for a marker.
+
+    ``'point'`` for the Plug-in Gait bones (``<SEG>O/A/L/P``: ``PELO``, ``LFEO``, ``HEDA``, ``RHNP``...),
+    joint centres (``LHJC``, ``RKJC``, ``LKneeJC``...) and the centre of mass (``CentreOfMass``,
+    ``CentreOfMassFloor``); ``'angle'``, ``'force'``, ``'moment'`` or ``'power'`` for names such as
+    ``LKneeAngles``, ``RNormalisedGRF``, ``LHipMoment``, ``RAnklePower``.  A subject prefix
+    (``Sub01:LFEO``) is ignored.
+    """
+    name = str(label).strip().split(":")[-1].strip()
+    if _PIG_BONE.match(name) or _PIG_CENTRE.match(name):
+        return "point"
+    if _PIG_QUANTITY.match(name):
+        return next(kind for word, kind in _QUANTITY_KIND if word in name)
+    return None
+
+
+#: Plug-in Gait outputs at (or, for the hip, next to) the lower-limb joint centres, per joint of
+#: ``models/human.urdf``: explicit joint-centre outputs first, then the bone points.
+_PIG_CENTRE_LABELS: dict[str, tuple[str, ...]] = {
+    "hip_l": ("LHJC", "LHipJC", "LFEP"),
+    "hip_r": ("RHJC", "RHipJC", "RFEP"),
+    "knee_l": ("LKJC", "LKneeJC", "LFEO"),
+    "knee_r": ("RKJC", "RKneeJC", "RFEO"),
+    "ankle_l": ("LAJC", "LAnkleJC", "LTIO"),
+    "ankle_r": ("RAJC", "RAnkleJC", "RTIO"),
+}
+
+
+def plugin_gait_centres(trial: Trial) -> dict[str, np.ndarray]:
+    """Plug-in Gait's own hip, knee and ankle joint centres from a trial's model outputs.
+
+    Returns ``{'hip_l': (n_frames, 3), ..., 'ankle_r': ...}`` in metres (lab frame, NaN where
+    the file has a gap), keyed by the joint names of ``models/human.urdf``; a joint is absent when
+    the file carries none of its outputs.  Explicit joint-centre points (``LHJC``, ``LKJC``,
+    ``LAJC``, and pyCGM's ``LHipJC``...) are used when present, else the Plug-in Gait bones:
+
+    - knee: the femur origin ``LFEO``/``RFEO`` (Plug-in Gait's knee joint centre, KJC);
+    - ankle: the tibia origin ``LTIO``/``RTIO`` (its ankle joint centre, AJC);
+    - hip: the femur proximal point ``LFEP``/``RFEP`` (its hip joint centre, HJC, from the Davis
+      regression; Plug-in Gait writes no hip-centre point of its own); the pelvis bone origin
+      ``PELO`` is the midpoint of the two.
+
+    Checked on the pyCGM sample subject (docs/calibration.md, "Vicon model outputs"): ``LFEO``
+    is KneeWidth/2 + marker radius from ``LKNE`` in every frame, ``LTIO`` AnkleWidth/2 + marker
+    radius from ``LANK`` (Plug-in Gait's chord function), and ``LFEP``, ``RFEP`` sit where the
+    Davis regression with the file's own subject measurements puts the hip centres in the pelvis.
+    """
+    found: dict[str, np.ndarray] = {}
+    for joint, names in _PIG_CENTRE_LABELS.items():
+        for name in names:
+            if name in trial.model_outputs and trial.output_kinds.get(name) == "point":
+                found[joint] = np.array(trial.model_outputs[name], dtype=float)
+                break
+    return found
+
+
 def _unique_labels(raw: Iterable[str], numbers: Iterable[int] | None = None) -> tuple[str, ...]:
     """Strip labels, name empty ones ``unlabelled_<n>``, suffix duplicates ``_2``, ``_3``...
 
@@ -204,6 +311,15 @@ class Trial:
     rate: float
     first_frame: int = 0
     source: str | None = None
+    #: Points a modelling program wrote into the file (Vicon Plug-in Gait's bones, joint centres,
+    #: angles, forces...): label -> (n_frames, 3), SI units (``output_units``), NaN in gaps.  They
+    #: are never markers: calibration does not see them.
+    model_outputs: Mapping[str, np.ndarray] = field(default_factory=dict)
+    #: label -> 'point', 'angle', 'force', 'moment', 'power', 'scalar' or 'reaction'.
+    output_kinds: Mapping[str, str] = field(default_factory=dict)
+    #: label -> unit of its values in ``model_outputs`` ('m', 'rad', 'N', 'N m', 'W', or the
+    #: file's own unit when it is not one converted on reading).
+    output_units: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         where = _where(self.source)
@@ -249,6 +365,17 @@ class Trial:
             raise TrialError(f"{where}: first frame must be 0 or more (0-based), got {first_frame}")
 
         source = None if self.source is None else str(self.source)
+        outputs: dict[str, np.ndarray] = {}
+        for name, values in dict(self.model_outputs).items():
+            array = np.array(values, dtype=np.float64, copy=True)
+            if array.shape != (markers.shape[0], 3):
+                raise TrialError(f"{where}: model output {name!r} has shape {array.shape}, expected "
+                                 f"({markers.shape[0]}, 3) like the markers")
+            array.flags.writeable = False
+            outputs[str(name)] = array
+        object.__setattr__(self, "model_outputs", outputs)
+        object.__setattr__(self, "output_kinds", {str(k): str(v) for k, v in dict(self.output_kinds).items()})
+        object.__setattr__(self, "output_units", {str(k): str(v) for k, v in dict(self.output_units).items()})
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "markers", markers)
         object.__setattr__(self, "rate", rate)
@@ -307,6 +434,9 @@ class Trial:
             rate=self.rate,
             first_frame=self.first_frame,
             source=self.source,
+            model_outputs=self.model_outputs,
+            output_kinds=self.output_kinds,
+            output_units=self.output_units,
         )
 
     def frames(self, start: int, stop: int) -> Trial:
@@ -328,6 +458,9 @@ class Trial:
             rate=self.rate,
             first_frame=self.first_frame + start,
             source=self.source,
+            model_outputs={name: values[start:stop] for name, values in self.model_outputs.items()},
+            output_kinds=self.output_kinds,
+            output_units=self.output_units,
         )
 
 
@@ -691,18 +824,22 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         k += 1
     raw_labels = (raw_labels + [""] * n_points)[:n_points]
 
-    not_positions = {label for group in _C3D_NON_POSITION for label in _c3d_strings(_c3d_param(params, "POINT", group))}
-    keep = [i for i, label in enumerate(raw_labels) if not (label and label in not_positions)]
+    kinds = _c3d_output_kinds(params, raw_labels)
+    keep = [i for i, label in enumerate(raw_labels) if i not in kinds]
     if not keep:
         raise _fail(
             path,
-            "C3D file contains no marker trajectories, only modelled outputs (POINT:ANGLES, FORCES, ...)",
+            "C3D file contains no marker trajectories, only model outputs (POINT:ANGLES, FORCES, PELO, ...)",
             "export the trial with its markers",
         )
     kept_labels = [raw_labels[i] for i in keep]
+    outputs = sorted(kinds)
+    output_labels = [raw_labels[i] for i in outputs]
     if strip_prefix:
-        kept_labels, _ = strip_subject_prefix(kept_labels)
+        both, _ = strip_subject_prefix(kept_labels + output_labels)
+        kept_labels, output_labels = both[: len(keep)], both[len(keep) :]
     labels = _unique_labels(kept_labels, numbers=[i + 1 for i in keep])
+    output_labels = list(_unique_labels(output_labels, numbers=[i + 1 for i in outputs]))
 
     units_value = _c3d_strings(_c3d_param(params, "POINT", "UNITS"))
     units = units_value[0] if units_value else ""
@@ -721,8 +858,71 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     if residuals.ndim == 3 and residuals.shape[1] >= n_points and residuals.shape[2] >= n_frames:
         gap |= (residuals[0, keep, :n_frames] < 0).T
     xyz[gap] = np.nan
+    model_outputs: dict[str, np.ndarray] = {}
+    output_kinds: dict[str, str] = {}
+    output_units: dict[str, str] = {}
+    for i, label in zip(outputs, output_labels, strict=True):
+        kind, unit = kinds[i]
+        factor, si = (scale, "m") if kind == "point" and not unit else _output_factor(kind, unit)
+        values = points[:3, i, :n_frames].T * factor
+        bad = ~np.isfinite(values).all(axis=1)
+        if kind == "point":
+            bad |= (values == 0.0).all(axis=1)
+        if residuals.ndim == 3 and residuals.shape[1] > i and residuals.shape[2] >= n_frames:
+            bad |= residuals[0, i, :n_frames] < 0
+        values[bad] = np.nan
+        model_outputs[label], output_kinds[label], output_units[label] = values, kind, si
     first_frame = layout.first_frame if layout.first_frame is not None else max(header_first, 0)
-    return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path))
+    return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path),
+                 model_outputs=model_outputs, output_kinds=output_kinds, output_units=output_units)
+
+
+def _output_factor(kind: str, unit: str) -> tuple[float, str]:
+    """Factor from a model output's file unit to SI, and the unit of the result (the file's when unknown)."""
+    key = re.sub(r"[\s.·*]", "", unit).lower()
+    factors = _OUTPUT_UNIT_FACTORS.get(kind, {})
+    if key in factors:
+        return factors[key], OUTPUT_SI_UNITS[kind]
+    if not key and kind == "angle":  # Vicon writes angles in degrees
+        return factors["deg"], OUTPUT_SI_UNITS[kind]
+    return 1.0, unit.strip() or "file units"
+
+
+def _c3d_output_kinds(params: dict, raw_labels: list[str]) -> dict[int, tuple[str, str]]:
+    """Point index -> (kind, file unit) for every point that is a model output, not a marker.
+
+    By the file's parameters: the labels listed in POINT:ANGLES, FORCES, ... (unit from
+    ANGLE_UNITS, FORCE_UNITS, ...) and in every group POINT:TYPE_GROUPS names (pairs of group
+    and singular name: ``ANGLES, ANGLE, MODELED_MARKERS, MODELED_MARKER``); then by name
+    (:func:`is_model_output`), the units of the group of that kind.
+    """
+    groups = dict(_C3D_OUTPUT_GROUPS)
+    singular = {"ANGLES": "ANGLE", "FORCES": "FORCE", "MOMENTS": "MOMENT", "POWERS": "POWER",
+                "SCALARS": "SCALAR", "REACTIONS": "REACTION", "MODELED_MARKERS": "MODELED_MARKER"}
+    pairs = [str(v).strip().upper() for v in _c3d_strings(_c3d_param(params, "POINT", "TYPE_GROUPS"))]
+    for group, single in zip(pairs[0::2], pairs[1::2], strict=False):
+        if group and group not in groups:
+            groups[group] = single.lower() or group.lower()
+            singular[group] = single
+    unit_of: dict[str, str] = {}
+    listed: dict[str, tuple[str, str]] = {}
+    for group, kind in groups.items():
+        units = _c3d_strings(_c3d_param(params, "POINT", f"{singular.get(group, group)}_UNITS"))
+        unit = str(units[0]).strip() if units else ""
+        unit_of.setdefault(kind, unit)
+        for label in _c3d_strings(_c3d_param(params, "POINT", group)):
+            if str(label).strip():
+                listed.setdefault(str(label).strip(), (kind, unit))
+    out: dict[int, tuple[str, str]] = {}
+    for i, label in enumerate(raw_labels):
+        label = str(label).strip()
+        if not label:
+            continue
+        if label in listed:
+            out[i] = listed[label]
+        elif (kind := is_model_output(label)) is not None:
+            out[i] = (kind, "" if kind == "point" else unit_of.get(kind, ""))
+    return out
 
 
 def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
@@ -732,7 +932,8 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     (``DataRate`` and ``Units`` required; ``Units`` mm, cm or m, also spelt out), line 4
     ``Frame#``, ``Time`` and one label every three columns (labels may contain spaces and
     dots), line 5 the X/Y/Z names, data from line 6 on (blank lines skipped).  A subject
-    prefix shared by the labels is removed unless ``strip_prefix`` is False.
+    prefix shared by the labels is removed unless ``strip_prefix`` is False.  Columns with a
+    Plug-in Gait output name (:func:`is_model_output`) go to :attr:`Trial.model_outputs`.
     """
     path = Path(path)
     _check_input_file(path)
@@ -848,12 +1049,20 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     if not np.isfinite(first_number) or first_number != int(first_number):
         raise _fail(path, f"line {line_numbers[0]}: Frame# should be a whole number, got {rows[0][0]!r}", redo)
     markers = values_array[:, 2:].reshape(len(rows), n_markers, 3) * scale
+    kinds = {i: kind for i, label in enumerate(labels) if (kind := is_model_output(label)) is not None}
+    keep = [i for i in range(n_markers) if i not in kinds]
+    if not keep:
+        raise _fail(path, "TRC file holds only model outputs (PELO, LFEO, ...), no markers",
+                    "export the trial with its markers")
     return Trial(
-        labels=labels,
-        markers=markers,
+        labels=tuple(labels[i] for i in keep),
+        markers=markers[:, keep],
         rate=rate,
         first_frame=max(int(first_number) - 1, 0),
         source=str(path),
+        model_outputs={labels[i]: markers[:, i] / (1.0 if kind == "point" else scale) for i, kind in kinds.items()},
+        output_kinds={labels[i]: kind for i, kind in kinds.items()},
+        output_units={labels[i]: "m" if kind == "point" else "file units" for i, kind in kinds.items()},
     )
 
 

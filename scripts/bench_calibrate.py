@@ -212,7 +212,7 @@ def work_compare(spec: dict) -> dict:
     from calibrate.ik import marker_columns
     from calibrate.kinematics import build_kinematics
     from calibrate.model import load_model
-    from calibrate.problem import Problem, Settings
+    from calibrate.problem import Problem, Settings, State
     from calibrate.simulate import simulate_squats
 
     model = load_model(MODEL)
@@ -225,6 +225,8 @@ def work_compare(spec: dict) -> dict:
     # calibrate() runs everything with one BLAS thread; so does every solver here.
     with threadpool_limits(limits=1, user_api="blas"):
         state0 = start_poses(kin, obs, seed.params)
+        # In the URDF's angles (every ball's reference the identity): the form the baselines solve in.
+        state0 = State(*kin.absolute(state0.Z, state0.Q, state0.B), state0.p)
         problem = Problem(model, obs, settings, kin)
         setup = time.perf_counter() - t0
         out = compare_solvers(problem, state0, spec)
@@ -330,8 +332,10 @@ def ipopt_objective(problem, state0, hessian: bool):
     p = ca.DM(p0) + ca.mtimes(ca.sparsify(ca.DM(T0)), xp)
     markers, _ = kin.h(z, q, p)
     th = z[6:]
+    so3 = [d for b in kin.balls for d in b.dofs]  # no limit term on balls (on SO(3) in Problem)
     lo = np.where(np.isfinite(problem.lower), problem.lower, -1e20)
     hi = np.where(np.isfinite(problem.upper), problem.upper, 1e20)
+    lo[so3], hi[so3] = -1e20, 1e20
     outside = th - ca.fmin(ca.fmax(th, lo), hi)
     frame = 0.5 * ca.sumsqr(w * (ca.vec(markers) - r) / st.noise) + 0.5 * (LIMIT_WEIGHT / st.noise) ** 2 * ca.sumsqr(
         outside)

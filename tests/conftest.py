@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from calibrate.kinematics import build_kinematics
@@ -21,3 +23,14 @@ def human():
 @pytest.fixture(scope="session")
 def human_kin(human):
     return build_kinematics(human)
+
+
+NUMBER = r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?"
+
+
+def assert_same_text_and_numbers(got: str, want: str, rtol: float = 1e-12) -> None:
+    """The same text with its numbers equal to `rtol`: the last digit of a float printed from a
+    product of floats may differ between numpy builds (it did: ...83599994 vs ...83600014)."""
+    assert re.split(NUMBER, got) == re.split(NUMBER, want)
+    assert np.allclose([float(x) for x in re.findall(NUMBER, got)], [float(x) for x in re.findall(NUMBER, want)],
+                       rtol=rtol, atol=1e-15)

@@ -200,9 +200,9 @@ def assert_one_line(excinfo: pytest.ExceptionInfo[TrialError], path: Path) -> No
 def test_vicon_nexus_subject_prefix_residuals_and_modelled_outputs(tmp_path: Path) -> None:
     """ezc3d-written, as Nexus exports: Subject: prefixes, residuals, unlabelled and modelled points."""
     n_frames = 12
-    markers = [f"Sub01:{label}" for label in PIG] + ["Sub01:LHJC", "*12"]
+    markers = [f"Sub01:{label}" for label in PIG] + ["*12"]
     outputs = ["Sub01:LHipAngles", "Sub01:LKneeMoment", "Sub01:LAnklePower"]
-    labels = markers[:4] + outputs[:1] + markers[4:] + outputs[1:]
+    labels = markers[:4] + outputs[:1] + markers[4:] + ["Sub01:LHJC"] + outputs[1:]  # LHJC: a model output by name
     n = len(labels)
     xyz = positions_mm(n_frames, n, seed=1)
     residuals = np.full((n_frames, n), 0.8)
@@ -237,7 +237,13 @@ def test_vicon_nexus_subject_prefix_residuals_and_modelled_outputs(tmp_path: Pat
     assert ezc3d.c3d(str(path))["parameters"]["POINT"]["SCALE"]["value"][0] == pytest.approx(-0.01)
 
     trial = read_trial(path)
-    assert trial.labels == (*PIG, "LHJC", "*12")  # prefix gone, modelled outputs left out
+    assert trial.labels == (*PIG, "*12")  # prefix gone, modelled outputs kept apart
+    assert set(trial.model_outputs) == {"LHJC", "LHipAngles", "LKneeMoment", "LAnklePower"}
+    hjc = xyz[:, labels.index("Sub01:LHJC")] / 1000.0
+    hjc[(residuals[:, labels.index("Sub01:LHJC")] < 0) | (hjc == 0).all(axis=1)] = np.nan
+    assert_positions(trial.model_outputs["LHJC"], hjc)
+    assert trial.output_kinds["LHipAngles"] == "angle" and trial.output_units["LHipAngles"] == "rad"
+    assert np.allclose(trial.model_outputs["LHipAngles"], np.radians(xyz[:, labels.index("Sub01:LHipAngles")]))
     assert trial.rate == 100.0 and trial.first_frame == 0
     keep = [labels.index(label) for label in markers]
     want = xyz[:, keep] / 1000.0

@@ -120,7 +120,10 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin,
     prior_r, _ = problem.prior(state.p, jacobian=False)
     lo = np.array([lock.get(d.name, d.lower - LIMIT_MARGIN) for d in human.dofs])
     hi = np.array([lock.get(d.name, d.upper + LIMIT_MARGIN) for d in human.dofs])
-    w = np.array([(LOCK_WEIGHT if d.name in lock else 1.0) / 0.001 for d in human.dofs])
+    # Ball joints are on SO(3) during the solve (their angles are increments): no limit term, unless
+    # one of their coordinates is locked (then the joint keeps its three angles and the lock holds).
+    so3 = {d for j in human.joints if j.kind == "ball" and not any(x in lock for x in j.dofs) for d in j.dofs}
+    w = np.array([0.0 if d.name in so3 else (LOCK_WEIGHT if d.name in lock else 1.0) / 0.001 for d in human.dofs])
     th = state.Z[:, 6:]
     by_hand += 0.5 * prior_r @ prior_r + 0.5 * np.sum((w * (th - np.clip(th, lo, hi))) ** 2)
     assert problem.cost(state) == pytest.approx(by_hand, rel=1e-12)
@@ -224,9 +227,23 @@ def test_noise_free_recovers_the_subject(noise_free):
             assert cmp.axis_error_deg[j] <= 0.01, j
 
 
-def _assert_one_mm_targets(cal, cmp) -> None:
+# Today's figures (commit 097f7ea + the tests branch), per joint: centre error in mm (hinges: from
+# the true axis line) and hinge-axis error in degrees.  PIN_MARGIN = 1.5: the noise of a changed
+# default stays inside, a 2-3x regression fails (a 4.5 mm neck or a 0.7 deg knee axis fails).
+# Re-pin here when a change of defaults moves them (say so in the commit).
+PIN_MARGIN = 1.5
+TODAY_NOISY = {"hip_l": 0.845, "hip_r": 0.841, "lumbar": 0.750, "neck": 0.527, "shoulder_l": 0.657,
+               "shoulder_r": 0.621, "knee_l": (0.664, 0.209), "knee_r": (0.666, 0.206),
+               "elbow_l": (0.741, 0.901), "elbow_r": (0.589, 0.352)}
+TODAY_BASIN = {"hip_l": 0.907, "hip_r": 0.882, "lumbar": 1.041, "neck": 0.635, "shoulder_l": 0.978,
+               "shoulder_r": 0.590, "knee_l": (0.632, 0.282), "knee_r": (0.735, 0.459),
+               "elbow_l": (0.696, 0.340), "elbow_r": (0.648, 0.412)}
+
+
+def _assert_one_mm_targets(cal, cmp, today: dict) -> None:
     """Issue 4's 1 mm-noise figures for the joints the markers identify (the foot's hinges and the
-    wrists are flagged as not identified and measured by the benchmark)."""
+    wrists are flagged as not identified and measured by the benchmark), and each joint within
+    PIN_MARGIN of today's figure."""
     assert cal.converged, cal.summary.termination
     assert cmp.marker_rms <= 1.05 * cmp.floor_rms
     balls = [cmp.centre_error[j] for j in SOLID_BALLS]
@@ -234,11 +251,17 @@ def _assert_one_mm_targets(cal, cmp) -> None:
     for j in SOLID_HINGES:
         assert cmp.axis_error_deg[j] < 1.0, j
         assert cmp.centre_error[j] < 0.002, j
+    for j in SOLID_BALLS:
+        assert 1000 * cmp.centre_error[j] < PIN_MARGIN * today[j], (j, 1000 * cmp.centre_error[j])
+    for j in SOLID_HINGES:
+        mm, deg = today[j]
+        assert 1000 * cmp.centre_error[j] < PIN_MARGIN * mm, (j, 1000 * cmp.centre_error[j])
+        assert cmp.axis_error_deg[j] < PIN_MARGIN * deg, (j, cmp.axis_error_deg[j])
 
 
 def test_one_mm_noise_accuracy(noisy):
     sim, cal, cmp = noisy
-    _assert_one_mm_targets(cal, cmp)
+    _assert_one_mm_targets(cal, cmp, TODAY_NOISY)
     # A segment frame's turn is held by the priors; without that constant offset the angles follow.
     assert cmp.angle_rms_offset_free_deg < 2.0
 
@@ -249,7 +272,7 @@ def test_basin_base_model_15_percent_too_small(human, tmp_path):
     write_model(human, tmp_path / "small.urdf", Parameters(0.85 * b.scale, b.centre, b.axis, b.marker))
     small = load_model(tmp_path / "small.urdf")
     cal = calibrate(small, sim.trial)
-    _assert_one_mm_targets(cal, compare_to_truth(cal, sim))
+    _assert_one_mm_targets(cal, compare_to_truth(cal, sim), TODAY_BASIN)
 
 
 def test_identifiability_flags(noisy):
@@ -266,9 +289,10 @@ def test_identifiability_flags(noisy):
     for d in ("wrist_l_flexion", "wrist_r_deviation"):
         assert not by[f"axis[{d}]"].identified, d
     # Every flagged quantity stayed near the base model: the prior held it (no drift into nonsense).
+    # Today the largest such change is ankle_r's 41.4 mm (the markerless talus); PIN_MARGIN of it.
     for c in cal.changes:
         if c.name.startswith("centre[") and not c.identified:
-            assert c.change < 100.0, c.name  # mm
+            assert c.change < PIN_MARGIN * 41.4, c.name  # mm
     # Every joint moves in these squats: no coordinate is noted as still or driven past its limits.
     assert cal.notes == ()
 
@@ -328,14 +352,24 @@ def test_outputs_read_back(noisy, tmp_path):
     fids = [pm.getFrameId(n) for n in subject.marker_names]
     obs = marker_columns(subject, sim.trial)
     err = []
-    for f in range(0, len(motion.times), 10):
+    for f in range(len(motion.times)):
         q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
         pin.framesForwardKinematics(pm, data, q)
         pos = np.array([data.oMf[i].translation for i in fids])
         err.append(np.linalg.norm(pos - obs[f], axis=1))
-    rms = float(np.sqrt(np.nanmean(np.array(err) ** 2)))
+    err = np.array(err)
+    rms = float(np.sqrt(np.nanmean(err**2)))
     rep = json.loads((tmp_path / "s.json").read_text())
-    assert rms == pytest.approx(rep["markers"]["rms_mm"] / 1000, rel=0.05)
+    # Every frame, every marker: the report's figures are Pinocchio's to their rounding (1e-6 mm);
+    # per marker, so that one marker put in the wrong place cannot hide in the aggregate.
+    assert rms == pytest.approx(rep["markers"]["rms_mm"] / 1000, rel=1e-6)
+    per = rep["markers"]["per_marker"]
+    assert set(per) == set(subject.marker_names)
+    for k, name in enumerate(subject.marker_names):
+        e = err[:, k][np.isfinite(err[:, k])]
+        assert per[name]["frames"] == e.size
+        assert 1000 * np.sqrt(np.mean(e**2)) == pytest.approx(per[name]["rms_mm"], rel=1e-6, abs=2e-6), name
+        assert 1000 * e.max() == pytest.approx(per[name]["max_mm"], rel=1e-6, abs=2e-6), name
     assert rep["solver"]["converged"] is True and rep["solver"]["rounds"] == 1 and rep["held_axes"] == []
     assert rep["solver"]["cost_history"][0] == pytest.approx(cal.summary.initial_cost)
     assert set(rep["times_s"]) >= {"seed", "start", "build", "solve", "write"}
@@ -511,6 +545,21 @@ def test_only_markers_free_holds_the_rest(human):
     assert np.array_equal(cal.params.axis, base.axis)
     assert np.array_equal(cal.params.scale, base.scale)
     assert not np.allclose(cal.params.marker, base.marker)
+    # The markers moved toward the truth.  Their offsets also absorb the base model's wrong joint
+    # centres and scales (and a segment frame's turn is a gauge), so compare what neither touches:
+    # the distances between markers of one segment.  The base model is 8.1 mm off the truth's
+    # (median over the 43 pairs, up to 26 mm); calibrated, 0.15 mm (max 0.35) today.  Every pair
+    # must improve, median within 2x, max within 2x of today's.
+    seg = np.array([human.segment_index(m.segment) for m in human.markers])
+    pairs = [(i, j) for i in range(len(seg)) for j in range(i + 1, len(seg)) if seg[i] == seg[j]]
+
+    def pair_errors(P: Parameters) -> np.ndarray:
+        x, t = P.scale[seg, None] * P.marker, sim.truth.scale[seg, None] * sim.truth.marker
+        return np.array([abs(np.linalg.norm(x[i] - x[j]) - np.linalg.norm(t[i] - t[j])) for i, j in pairs])
+
+    before, after = pair_errors(base), pair_errors(cal.params)
+    assert len(pairs) == 43 and np.all(after < before)
+    assert np.median(after) < 0.0003 and after.max() < 0.0007
 
 
 def test_too_few_markers_or_frames(human):
@@ -560,7 +609,8 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
     r = _cli(tmp_path / "s01.c3d", human.path, "-q")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--overwrite" in r.stderr
     assert (tmp_path / "s01.urdf").read_text() == before
-    # Bad input: one line each, non-zero exit.
+    # Bad input: one line each ('calibrate: error: ...'), exit status 2 (the README's promise; 1 means
+    # 'did not converge').
     (tmp_path / "notes.urdf").write_text("hello")
     cases = [
         ([tmp_path / "s01.c3d", tmp_path / "notes.urdf", "-o", tmp_path / "x.urdf"], "not valid XML"),
@@ -578,7 +628,8 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
     ]
     for args, msg in cases:
         r = _cli(*args, "--motion", tmp_path / "m.csv", "--report", tmp_path / "r.json", "-q")
-        assert r.returncode != 0 and msg in r.stderr, (args, r.stderr)
+        assert r.returncode == 2 and msg in r.stderr, (args, r.returncode, r.stderr)
+        assert r.stderr.startswith("calibrate: error: "), r.stderr
         assert r.stderr.strip().count("\n") == 0, r.stderr
     assert not (tmp_path / "x.urdf").exists() and not (tmp_path / "y.urdf").exists()
 
@@ -594,3 +645,18 @@ def test_worst_ratio_singular_prior_block():
     ratio, v = worst_ratio(C, C0)
     assert ratio == pytest.approx(0.6)
     assert abs(v @ U[:, 2]) == pytest.approx(1.0)
+
+
+def test_scale_retraction_stays_positive(human, human_kin):
+    """A scale factor moves on R+: s exp(ds / s), which is s + ds to first order (checked at
+    ds = 1e-6: difference 5e-13, the second-order term ds²/2s) and stays positive for a step larger
+    than the scale itself (ds = -2 s), which s + ds would have turned into a mirror image."""
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=0)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    p = human.parameters().vector()
+    col = next(k for k, i in problem._direct if i == human.segment_index("talus_l"))
+    for ds, check in ((1e-6, lambda s: abs(s - (1 + 1e-6)) < 1e-12), (-2.0, lambda s: abs(s - np.exp(-2.0)) < 1e-15)):
+        dp = np.zeros(problem.n_free)
+        dp[col] = ds
+        s = problem.retract_parameters(p, dp)[human.segment_index("talus_l")]
+        assert s > 0 and check(s)

@@ -196,14 +196,21 @@ def test_hybrid_scheme_solves_chain_5():
         assert all(j.ok for j in est)
         assert est.order[1] == "j1"  # the JMV step comes right after the first MTB joint
         errs.append(rse(est, ch.centres))
-    assert np.mean(errs) < 2.8e-2  # seed 000 Table IV: 2.8e-2
+    # Seed 000 Table IV reports 2.8e-2 for its JMV step; ours converges Newton on exact data to
+    # machine precision (~1e-15 measured).  1e-9, as for the pure MTB chains: a JMV step stopped
+    # early, or a centre biased by the start, is 1e-6 or more off.
+    assert max(errs) < 1e-9
 
 
 def test_noise_gives_errors_of_the_order_of_the_noise():
     ch = simulate_chain(CHAINS[2], frames=200, noise=1e-3, seed=3)
     est = estimate_joints(ch.points(), ch.groups, [JointSpec(*j) for j in ch.joints])
     err = np.linalg.norm(est.centres() - ch.centres, axis=2)
-    assert np.median(err) < 0.02  # 1e-3 marker noise, markers 0.1-0.4 from a segment 1 long
+    # 1e-3 marker noise, markers 0.1-0.4 from a segment 1 long: 1.45e-3 measured (each joint
+    # 1.25e-3 to 1.86e-3).  3e-3: a 2x regression (a propagated error, an unrefined closed-form
+    # start) fails, while the noise of another seed does not.
+    assert np.median(err) < 3e-3
+    assert np.median(err, axis=0).max() < 4e-3
     assert all(1e-4 < j.rms < 3e-3 for j in est)  # the JMV residual reflects the noise
 
 
@@ -238,7 +245,7 @@ def test_unestimable_joints_are_reported_with_a_reason():
     gappy[ch.groups["s0"][0]][5:] = np.nan
     gappy[ch.groups["s0"][1]][5:] = np.nan
     est = estimate_joints(gappy, ch.groups, [JointSpec("j0", "s0", "s1")])
-    assert not est["j0"].ok and est["j0"].reason
+    assert not est["j0"].ok and "only 5 frames see s0's frame" in est["j0"].reason and "need 10" in est["j0"].reason
 
 
 def test_gaps_are_left_out_frame_by_frame():
@@ -306,6 +313,28 @@ def test_human_hip_knee_elbow_accuracy(human, squats):
             assert np.allclose(np.linalg.norm(e.axis, axis=1), 1.0)
 
 
+def test_human_ball_joint_accuracy(human, squats):
+    """Centres of the ball joints against the simulator's truth (medians over frames, today):
+    lumbar 0.51, neck 0.28, shoulders 0.63 / 0.37, wrists 0.40 / 1.31 mm.  3 mm, about 2x the worst
+    of them: a regression of 2-3x fails, and so does a centre off by a marker's offset (1 cm)."""
+    sim, est, axes = squats
+    for name in ("lumbar", "neck", "shoulder_l", "shoulder_r", "wrist_l", "wrist_r"):
+        err = np.linalg.norm(est[name].centre - sim.clean_centres[:, human.joint_index(name)], axis=1)
+        assert np.median(err) < 0.003, (name, np.median(err))
+    # Ankles: the talus carries no markers, so the ankle is found as the centre of rotation of the
+    # calcaneus against the tibia, through the talocrural and subtalar hinges together.  Their axes
+    # pass within 2-6 mm of each other, so that point lies on the true talocrural axis (0.57 mm left,
+    # 1.69 mm right, today) but anywhere along it (14.8 mm left, 8.0 mm right from the true centre).
+    # Expected: within 4 mm of the axis (a centre off the axis fails), and within 25 mm of the true
+    # centre (along the axis: less than a third of the ankle-subtalar distance, 58-82 mm).
+    for name in ("ankle_l", "ankle_r"):
+        v = est[name].centre - sim.clean_centres[:, human.joint_index(name)]
+        ax = axes[name]
+        off_axis = np.linalg.norm(v - np.sum(v * ax, axis=1)[:, None] * ax, axis=1)
+        assert np.median(off_axis) < 0.004, (name, np.median(off_axis))
+        assert np.median(np.linalg.norm(v, axis=1)) < 0.025, name
+
+
 def test_human_with_gaps(human):
     sim = simulate_squats(human, frames=300, noise_mm=1.0, gaps=True, seed=2)
     est = estimate_model_joints(human, sim.trial)
@@ -313,8 +342,10 @@ def test_human_with_gaps(human):
     k = human.joint_index("hip_r")
     err = np.linalg.norm(est["hip_r"].centre - sim.clean_centres[:, k], axis=1)
     assert np.nanmedian(err) < 0.005
-    # frames where no femur/pelvis frame can be formed are NaN, never garbage
-    assert np.nanmax(err) < 0.05
+    # frames where no femur/pelvis frame can be formed are NaN, never garbage: the worst frame is
+    # 2.0 mm off (median 1.2 mm).  5 mm: a frame formed from too few markers, or a gap filled with
+    # a stale position, is a marker offset (cm) off.
+    assert np.nanmax(err) < 0.005
 
 
 def test_missing_segment_markers_are_reported(human):
@@ -323,7 +354,8 @@ def test_missing_segment_markers_are_reported(human):
     trial = sim.trial.select(keep)
     est = estimate_model_joints(human, trial)
     sub = est["subtalar_l"]
-    assert not sub.ok and sub.method == "failed" and sub.reason
+    assert not sub.ok and sub.method == "failed"
+    assert "JMV needs 4 or more points around the joint; talus_l and calcn_l have 3" in sub.reason
     assert est["hip_l"].ok and est["knee_l"].ok
 
 
@@ -381,5 +413,12 @@ def test_cli_joints_places_markers_the_model_does_not_know(human, tmp_path, caps
     assert "-> tibia_r" in line
     with_extra = estimate_model_joints(human, trial, extra_markers={"RSHIN": "tibia_r"})
     assert with_extra["ankle_r"].ok
+    # The talus carries no markers: the 'ankle' is found against the calcaneus, a point on the true
+    # talocrural axis (1.8 mm from it today, 2.0 with RSHIN) whose place along the axis the data do
+    # not fix (6.6 mm from the true centre).  4 mm from the axis: a centre off the axis fails.
+    k = human.joint_index("ankle_r")
+    ax = joint_axes_world(human, sim.truth, sim.motion)["ankle_r"]
+    v = with_extra["ankle_r"].centre - sim.clean_centres[:, k]
+    assert np.median(np.linalg.norm(v - np.sum(v * ax, axis=1)[:, None] * ax, axis=1)) < 0.004
     with pytest.raises(ValueError, match="not a segment"):
         estimate_model_joints(human, trial, extra_markers={"RSHIN": "shin"})

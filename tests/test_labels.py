@@ -293,3 +293,35 @@ def test_round_trip_through_c3d(tmp_path: Path, human) -> None:  # noqa: ANN001
     for old, new in zip(labels, relabelled.labels, strict=True):
         np.testing.assert_allclose(relabelled.marker(new), trial.marker(old), rtol=0, atol=1e-6, equal_nan=True)
     assert relabelled.source == str(path)
+
+
+# ISB / CAST / Van Sint Jan landmark names -> the Plug-in Gait marker put on the same landmark.
+ISB_NAMES = {
+    "RIAS": "RASI", "L_IAS": "LASI", "R.IPS": "RPSI", "LIPS": "LPSI",
+    "R_FLE": "RKNE", "LLFE": "LKNE", "RFAL": "RANK", "L_LM": "LANK", "RFCC": "RHEE", "L_CA": "LHEE",
+    "RFM2": "RTOE", "L_SM": "LTOE", "RCAJ": "RSHO", "L_AC": "LSHO", "RHLE": "RELB", "L_EL": "LELB",
+    "RRSP": "RWRA", "L_RS": "LWRA", "RUSP": "RWRB", "L_US": "LWRB", "RHM2": "RFIN", "L_HM2": "LFIN",
+    "SJN": "CLAV", "PX": "STRN", "CV7": "C7", "TV10": "T10",
+}
+
+
+def test_isb_landmark_names_become_plug_in_gait_labels(human) -> None:  # noqa: ANN001
+    """A trial labelled with anatomical landmark names: every one is renamed to the model's marker on
+    that landmark (alias), medial landmarks with no Plug-in Gait marker stay unknown, data unchanged."""
+    labels = [*ISB_NAMES, "R_FME", "L_MM", "R.EM", "LTHI"]
+    trial = make_trial(labels)
+    renamed, mapping = map_labels(trial, human.marker_names)
+    want = [*ISB_NAMES.values(), "R_FME", "L_MM", "R.EM", "LTHI"]
+    assert renamed.labels == tuple(want)
+    hows = {m.trial_label: m.how for m in mapping}
+    assert all(hows[name] == "alias" for name in ISB_NAMES)
+    assert mapping.unknown == ("R_FME", "L_MM", "R.EM")
+    np.testing.assert_array_equal(renamed.markers, trial.markers)
+
+
+def test_model_outputs_travel_with_the_relabelled_trial() -> None:
+    trial = Trial(labels=("R.ASIS",), markers=np.zeros((3, 1, 3)), rate=100.0,
+                  model_outputs={"LFEO": np.ones((3, 3))}, output_kinds={"LFEO": "point"}, output_units={"LFEO": "m"})
+    renamed, _ = map_labels(trial, PIG)
+    assert renamed.labels == ("RASI",) and list(renamed.model_outputs) == ["LFEO"]
+    np.testing.assert_array_equal(renamed.model_outputs["LFEO"], np.ones((3, 3)))

@@ -1,0 +1,197 @@
+"""Which segments a marker set cannot place: the coordinates the markers do not see.
+
+A frame's coordinates z (root translation and rotation, joint angles) are resolved by the
+markers when no change of them leaves every marker where it is: when the Jacobian J of the
+available markers' positions with respect to z has full column rank.  Its null space holds the
+motions the markers cannot see.  A segment is *unresolved* when one of those motions moves it
+(its twist J_s n is not zero for some null vector n); the coordinates to blame are those with a
+component in the null space.
+
+The test is exact and general (any tree, any marker set): J and the segment twists come from
+Pinocchio's frame Jacobians (the same kinematics as calibrate.kinematics, in Pinocchio's
+velocity coordinates, which differ from z only by a rotation of the root translation), at a few
+random poses within the joint limits.  A singular value below ``tol`` counts as zero: by
+default 5 mm of marker motion (the norm over all markers' coordinates) per radian, so that with
+1 mm marker noise such a combination of coordinates would be known to no better than 0.2 rad
+(11 degrees) per frame.  With the full Plug-in Gait set on models/human.urdf the smallest
+singular value is about 0.02 m/rad; without a forearm's two wrist markers (LWRA, LWRB) it is
+0.0003-0.002 m/rad (the finger marker alone barely turns the radius): that forearm and the hand
+are reported.  A segment is reported when it is unresolved at every pose tried (a pose that is
+singular by chance, such as a straight elbow, does not make it unresolved).
+
+A segment without markers can still be resolved through those below it: the talus of the
+human model carries none, but the ankle and subtalar angles both move the calcaneus markers.
+
+:func:`resolve` also picks coordinates to *lock* so that the rest are resolved: going from the
+root outwards (the model's DoF order), a coordinate is kept when it adds to the rank of the
+kept ones, else locked.  With one marker on a thigh, for example, hip flexion and adduction are
+kept and the thigh's axial rotation is locked.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from .model import Model
+
+__all__ = ["Resolution", "UnresolvedSegment", "resolve", "unresolved"]
+
+TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
+MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
+SHARE = 0.05  # a coordinate has a share in the null space when its component exceeds this (of a unit vector)
+
+
+@dataclass(frozen=True)
+class UnresolvedSegment:
+    """A segment whose pose the markers do not fix, the coordinates to blame, and why."""
+
+    segment: str
+    coordinates: tuple[str, ...]  # DoF names (or 'root') with a component in the markers' null space
+    reason: str
+
+    def to_json(self) -> dict[str, object]:
+        return {"segment": self.segment, "coordinates": list(self.coordinates), "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class Resolution:
+    """What a marker set resolves of a model: unresolved segments (tree order), whether the root
+    is resolved, and the coordinates to lock so that the others are resolved."""
+
+    segments: tuple[UnresolvedSegment, ...]
+    root_resolved: bool
+    lock: tuple[str, ...]
+    markers: tuple[str, ...]  # the model markers the test used
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(s.segment for s in self.segments)
+
+
+def _descendants(model: Model) -> dict[str, list[str]]:
+    """Segment -> itself and every segment below it."""
+    kids: dict[str, list[str]] = {s.name: [] for s in model.segments}
+    for j in model.joints:
+        kids[j.parent].append(j.child)
+    out: dict[str, list[str]] = {}
+    for s in reversed(model.segments):  # tree order: children after parents
+        out[s.name] = [s.name] + [d for k in kids[s.name] for d in out[k]]
+    return out
+
+
+def _path_dofs(model: Model) -> dict[str, list[int]]:
+    """Segment -> indices of the DoFs between it and the root."""
+    joint_of = {j.child: j for j in model.joints}
+    out: dict[str, list[int]] = {model.root: []}
+    for s in model.segments[1:]:
+        j = joint_of[s.name]
+        out[s.name] = out[j.parent] + [model.dof_index(d) for d in j.dofs]
+    return out
+
+
+def _poses(model: Model, n: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """`n` random joint-angle vectors inside the limits (their middle 80 %; ±90° where unlimited)."""
+    lo = np.array([d.lower if np.isfinite(d.lower) else -np.pi / 2 for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else np.pi / 2 for d in model.dofs])
+    pad = 0.1 * (hi - lo)
+    return [rng.uniform(lo + pad, hi - pad) for _ in range(n)]
+
+
+def _jacobians(model: Model, labels: Sequence[str], angles: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Marker Jacobian (3 per marker × nv) and segment twists (6 × nv, in the segment frame), at a pose."""
+    pm = model.pin
+    data = pm.createData()
+    q = model.pin_configuration(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]), angles)
+    pin.computeJointJacobians(pm, data, q)
+    pin.updateFramePlacements(pm, data)
+    rows = [pin.getFrameJacobian(pm, data, pm.getFrameId(m), pin.LOCAL_WORLD_ALIGNED)[:3] for m in labels]
+    J = np.vstack(rows) if rows else np.zeros((0, pm.nv))
+    twists = {s.name: pin.getFrameJacobian(pm, data, pm.getFrameId(s.name), pin.LOCAL) for s in model.segments}
+    return J, twists
+
+
+def _null_space(J: np.ndarray, tol: float) -> np.ndarray:
+    """Orthonormal basis (columns) of the directions J maps to less than `tol`."""
+    n = J.shape[1]
+    if J.shape[0] == 0:
+        return np.eye(n)
+    _, s, vt = np.linalg.svd(J, full_matrices=True)
+    rank = int(np.sum(s > tol))
+    return vt[rank:].T
+
+
+def _full_rank(J: np.ndarray, tol: float) -> bool:
+    """Whether every column of J moves the rows by more than `tol` in every combination."""
+    if J.shape[0] < J.shape[1]:
+        return False
+    return bool(np.linalg.svd(J, compute_uv=False).min() > tol)
+
+
+def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), poses: int = 4, seed: int = 0,
+            tol: float = TOL) -> Resolution:
+    """Which segments of `model` the markers `labels` (trial labels; those the model lacks are
+    ignored) cannot place, with the coordinates `locked` held; and a set of coordinates to lock.
+
+    See the module docstring for the method.  Raises nothing for an empty marker set: then every
+    segment, the root included, is unresolved.
+    """
+    present = set(labels)
+    markers = tuple(m for m in model.marker_names if m in present)
+    held = {model.dof_index(d) for d in locked}
+    free = [c for c in range(6 + model.n_dofs) if c < 6 or c - 6 not in held]
+    names = ["root"] * 6 + list(model.dof_names)
+    rng = np.random.default_rng(seed)
+    below = _descendants(model)
+    path = _path_dofs(model)
+
+    moves: dict[str, list[bool]] = {s.name: [] for s in model.segments}
+    share: list[np.ndarray] = []
+    Js: list[np.ndarray] = []
+    for angles in _poses(model, poses, rng):
+        J, twists = _jacobians(model, markers, angles)
+        J = J[:, free]
+        Js.append(J)
+        N = _null_space(J, tol)
+        row = np.zeros(6 + model.n_dofs)
+        row[free] = np.linalg.norm(N, axis=1) if N.size else 0.0
+        share.append(row)
+        for s in model.segments:
+            T = twists[s.name][:, free]
+            moves[s.name].append(bool(N.size) and float(np.linalg.norm(T @ N, 2)) > MOVES)
+    unresolved_set = [s.name for s in model.segments if all(moves[s.name])]
+    shares = np.array(share)
+    often = (shares > SHARE).mean(axis=0) >= 0.5  # coordinates in the null space at half the poses or more
+
+    segments: list[UnresolvedSegment] = []
+    for name in unresolved_set:
+        on_path = [6 + d for d in path[name] if 6 + d in free]
+        blamed = [c for c in on_path if often[c]] or sorted(on_path, key=lambda c: -shares[:, c].mean())[:1]
+        coord_names = (("root",) if often[:6].any() else ()) + tuple(names[c] for c in blamed)
+        seen = [m for s in below[name] for m in model.segments[model.segment_index(s)].markers if m in present]
+        if not seen:
+            why = f"no marker on {name} or below it"
+        else:
+            why = (f"its markers and those below it ({', '.join(seen)}) leave "
+                   f"{', '.join(coord_names) or 'some coordinates'} free: some motion moves {name} and no marker")
+        segments.append(UnresolvedSegment(name, coord_names, why))
+
+    # Coordinates to lock: keep each (root first, then the DoFs in tree order) if it adds to the rank.
+    kept: list[int] = []
+    lock: list[str] = []
+    for k, c in enumerate(free):
+        trial_cols = [*kept, k]
+        ok = [_full_rank(J[:, trial_cols], tol) for J in Js]
+        if sum(ok) * 2 > len(ok):
+            kept.append(k)
+        elif c >= 6:
+            lock.append(names[c])
+    return Resolution(tuple(segments), model.root not in unresolved_set, tuple(lock), markers)
+
+
+def unresolved(model: Model, labels: Iterable[str], **kwargs) -> list[UnresolvedSegment]:
+    """The segments of `model` whose pose the markers `labels` cannot fix (see :func:`resolve`)."""
+    return list(resolve(model, labels, **kwargs).segments)

@@ -1,0 +1,84 @@
+"""scripts/bench_real.py recomputes its figures from the files a calibration writes (Pinocchio on the
+subject URDF and motion CSV): they must agree with the calibration's own on a simulated trial."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.calibration import calibrate
+from calibrate.evaluate import compare_to_truth
+from calibrate.simulate import simulate_squats, write_simulation
+from calibrate.trial import read_trial
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "scripts"))
+import bench_real  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def written(human, tmp_path_factory):
+    """A short 1 mm-noise squat trial, calibrated, with every output written."""
+    d = tmp_path_factory.mktemp("bench_real")
+    sim = simulate_squats(human, frames=60, noise_mm=1.0, seed=11)
+    paths = write_simulation(sim, d)
+    cal = calibrate(human, read_trial(paths["trial"]))
+    cal.write(urdf=d / "subject.urdf", motion=d / "trial_motion.csv", report=d / "report.json")
+    return sim, cal, d
+
+
+def test_marker_rms_recomputed_from_the_files_equals_the_calibrations(written):
+    _, cal, d = written
+    assert not cal.outliers  # every position is in both figures
+    report = json.loads((d / "report.json").read_text())
+    kin = bench_real.UrdfKinematics(d / "subject.urdf")
+    fit = bench_real.marker_fit(kin, [(d / "trial.c3d", d / "trial_motion.csv")], report)
+    assert fit["positions"] == int(np.isfinite(cal.residuals[..., 0]).sum())
+    assert fit["rms_mm"] == pytest.approx(1e3 * cal.marker_rms, abs=1e-6)
+
+
+def test_truth_errors_from_the_files_equal_compare_to_truth(written):
+    sim, cal, d = written
+    kin = bench_real.UrdfKinematics(d / "subject.urdf")
+    ours = bench_real.truth_errors(kin, d / "trial_motion.csv", bench_real.UrdfKinematics(d / "truth.urdf"),
+                                   d / "truth_motion.csv", [])
+    ref = compare_to_truth(cal, sim, floor=0.0)
+    for j, v in ref.centre_error.items():
+        assert ours["centre_mm"][j] == pytest.approx(1e3 * v, abs=1e-6), j
+    for j, v in ref.axis_error_deg.items():
+        assert ours["axis_deg"][j] == pytest.approx(v, abs=1e-5), j
+
+
+def test_joint_shifts_and_lengths_of_the_base_model_itself():
+    """The base model against itself: no shift; left and right segments of equal length."""
+    kin = bench_real.UrdfKinematics(bench_real.MODEL)
+    shifts = bench_real.joint_shifts(kin, bench_real.MODEL, {"parameters": []})
+    assert max(shifts["shift_mm"].values()) < 1e-9
+    lengths = bench_real.segment_lengths(kin)
+    assert len(lengths["lengths"]) == 4 and lengths["asymmetry_pct"] < 1e-9
+    thigh = lengths["lengths"]["thigh (hip-knee)"]["left_mm"]
+    assert thigh == pytest.approx(1e3 * np.linalg.norm(kin.origin["knee_l"]), abs=1e-9)
+
+
+def test_sliced_c3d_keeps_the_frames(written, tmp_path):
+    _, _, d = written
+    cut = bench_real.slice_c3d(d / "trial.c3d", tmp_path / "cut.c3d", 10, 35)
+    a, b = read_trial(d / "trial.c3d"), read_trial(cut)
+    assert b.n_frames == 25 and b.labels == a.labels and b.first_frame == a.first_frame + 10
+    np.testing.assert_array_equal(b.markers, a.markers[10:35])
+
+
+def test_corruptions_caught_matches_frame_and_marker(tmp_path):
+    (tmp_path / "truth_corruptions.csv").write_text("kind,frame,marker\nspike,3,LKNE\nswap,7,LASI\nswap,7,RASI\n")
+    report = {"outliers": {"count": 3, "rejected": [{"trial": 0, "frame": 3, "marker": "LKNE"},
+                                                     {"trial": 0, "frame": 7, "marker": "LASI"},
+                                                     {"trial": 0, "frame": 8, "marker": "RASI"}]}}
+    c = bench_real.corruptions_caught(tmp_path, report)
+    assert (c["corruptions"], c["caught"]) == (3, 2) and c["per_kind"]["swap"] == {"n": 2, "caught": 1}
+    assert "note" not in c  # every rejected position is listed
+    report["outliers"]["count"] = 500
+    assert "lower bound" in bench_real.corruptions_caught(tmp_path, report)["note"]

@@ -1,0 +1,96 @@
+"""Unresolved segments (calibrate.resolve): the markers' Jacobian null space, and calibration with
+the coordinates the markers do not see locked."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import HUMAN, ROOT
+
+from calibrate.calibration import calibrate
+from calibrate.errors import CalibrateError
+from calibrate.problem import Settings
+from calibrate.report import calibration_report, summary_text
+from calibrate.resolve import resolve, unresolved
+from calibrate.simulate import simulate_squats
+from calibrate.trial import write_c3d
+
+PELVIS = ("LASI", "RASI", "LPSI", "RPSI")
+
+
+def test_full_marker_set_resolves_every_segment_talus_included(human):
+    res = resolve(human, human.marker_names)
+    assert res.root_resolved and res.segments == () and res.lock == ()
+    assert not human.segments[human.segment_index("talus_l")].markers  # no marker of its own, resolved via calcn
+
+
+def test_forearm_without_its_two_wrist_markers(human):
+    """LWRA and LWRB removed: the radius (and the hand below it) cannot be placed; the rest can."""
+    labels = [m for m in human.marker_names if m not in ("LWRA", "LWRB")]
+    found = unresolved(human, labels)
+    assert [u.segment for u in found] == ["radius_l", "hand_l"]
+    assert "radioulnar_l" in found[0].coordinates
+    assert all("LFIN" in u.reason for u in found)
+
+
+def test_foot_without_markers_and_an_independent_rank_check(human):
+    """Heel and toe removed: talus and calcaneus unresolved.  Checked independently: with Pinocchio,
+    turning the ankle and subtalar joints moves no remaining marker but moves the calcaneus."""
+    labels = [m for m in human.marker_names if m not in ("LHEE", "LTOE")]
+    res = resolve(human, labels)
+    assert res.names == ("talus_l", "calcn_l") and set(res.lock) == {"ankle_l", "subtalar_l"}
+    pm, data = human.pin, human.pin.createData()
+    angles = np.zeros(human.n_dofs)
+    q0 = human.pin_configuration(np.zeros(3), [0, 0, 0, 1], angles)
+    angles[human.dof_index("ankle_l")] = 0.3
+    q1 = human.pin_configuration(np.zeros(3), [0, 0, 0, 1], angles)
+    where = []
+    for q in (q0, q1):
+        pin.framesForwardKinematics(pm, data, q)
+        where.append({f.name: data.oMf[i].translation.copy() for i, f in enumerate(pm.frames)})
+    assert max(np.linalg.norm(where[0][m] - where[1][m]) for m in labels) < 1e-12
+    assert np.linalg.norm(where[0]["LHEE"] - where[1]["LHEE"]) > 0.01  # the calcaneus moves
+
+
+def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
+    """A trial sharing only the four pelvis markers and LKNE with the model: calibration locks the
+    coordinates the markers do not see, lists the unresolved segments, and those coordinates stay put."""
+    sim = simulate_squats(human, frames=40, noise_mm=0.5, seed=4)
+    trial = sim.trial.select([*PELVIS, "LKNE"])
+    cal = calibrate(human, trial, Settings(max_iterations=15))
+    names = [u.segment for u in cal.unresolved]
+    assert "pelvis" not in names and "femur_l" in names and "hand_r" in names and len(names) == 18
+    locked = dict(cal.settings.lock)
+    assert "hip_l_rotation" in locked and "knee_l" in locked and "hip_l_flexion" not in locked
+    for dof, value in locked.items():
+        k = human.dof_index(dof)
+        assert np.abs(cal.motion.angles[:, k] - value).max() < 1e-3, dof
+    assert np.isfinite(cal.marker_rms)
+    # No marker on or below a segment: the joint centres it carries and its scale stay the base model's.
+    base, below = human.parameters(), {"LKNE": "femur_l"}
+    for k, j in enumerate(human.joints):
+        if j.parent in names and j.parent not in below.values():
+            assert np.allclose(cal.params.centre[k], base.centre[k], atol=1e-9), j.name
+            assert cal.params.scale[human.segment_index(j.parent)] == pytest.approx(1.0, abs=1e-9), j.parent
+    report = calibration_report(cal)
+    assert [u["segment"] for u in report["unresolved"]] == names
+    assert "hip_l_rotation" in report["unresolved"][0]["coordinates"]
+    text = summary_text(cal)
+    assert "18 segments the markers cannot place" in text and "femur_l: " in text
+
+
+def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):
+    sim = simulate_squats(human, frames=20, noise_mm=0.5, seed=5)
+    trial = sim.trial.select(["LKNE", "RKNE", "LANK", "RANK", "C7"])
+    with pytest.raises(CalibrateError, match="cannot place the pelvis.*unresolved: pelvis, femur_l"):
+        calibrate(human, trial)
+    path = tmp_path / "five.c3d"
+    write_c3d(path, trial)
+    out = subprocess.run([sys.executable, "-m", "calibrate.cli", str(path), str(HUMAN)], capture_output=True,
+                         text=True, cwd=ROOT, timeout=300)
+    assert out.returncode == 2
+    assert out.stderr.startswith("calibrate: error: ") and "pelvis" in out.stderr and "--markers" in out.stderr

@@ -1,0 +1,164 @@
+"""Vicon model outputs (Plug-in Gait bones, joint centres, angles, moments...) are never markers:
+the C3D reader keeps them apart in Trial.model_outputs, in SI units; plugin_gait_centres reads
+Plug-in Gait's own hip, knee and ankle centres from them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+import pytest
+
+from calibrate.calibration import calibrate
+from calibrate.problem import Settings
+from calibrate.report import calibration_report, summary_text
+from calibrate.simulate import simulate_squats
+from calibrate.trial import is_model_output, plugin_gait_centres, read_c3d, read_trc, write_trc
+
+REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real" / "pig_walk"
+PLACED_BEFORE = ("HEDO", "HEDA", "HEDL", "HEDP", "LRAO", "LHNP", "RHUO", "RRAO", "RRAP", "RHNP")
+
+
+def write_vicon_file(path: Path, markers: dict[str, np.ndarray], outputs: dict[str, np.ndarray],
+                     groups: dict[str, list[str]], units: dict[str, str]) -> None:
+    """A C3D as Nexus writes it: markers, then outputs; POINT:<group> lists and <unit> parameters."""
+    labels = [*markers, *outputs]
+    data = np.stack([*markers.values(), *outputs.values()], axis=1)  # (frames, points, 3)
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = labels
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    for group, names in groups.items():
+        c3d.add_parameter("POINT", group, names)
+    for name, unit in units.items():
+        c3d.add_parameter("POINT", name, [unit])
+    c3d.add_parameter("POINT", "TYPE_GROUPS", ["ANGLES", "ANGLE", "MODELED_MARKERS", "MODELED_MARKER",
+                                               "EXTRAS", "EXTRA"])
+    points = np.ones((4, len(labels), data.shape[0]))
+    points[:3] = data.transpose(2, 1, 0)
+    c3d["data"]["points"] = points
+    c3d.write(str(path))
+
+
+def test_outputs_by_parameter_and_by_name_are_kept_apart_in_si_units(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    frames = 5
+    markers = {name: rng.uniform(100, 900, (frames, 3)) for name in ("LASI", "RASI", "LKNE", "R.Knee")}
+    outputs = {
+        "LKneeAngles": rng.uniform(-40, 40, (frames, 3)),       # POINT:ANGLES, deg
+        "LKneeMoment": rng.uniform(-900, 900, (frames, 3)),     # POINT:MOMENTS, N mm
+        "CentreOfMass": rng.uniform(100, 900, (frames, 3)),    # POINT:MODELED_MARKERS, mm
+        "Extra1": rng.uniform(1, 2, (frames, 3)),              # a group named only in TYPE_GROUPS
+        "LFEO": rng.uniform(100, 900, (frames, 3)),            # in no group: a Plug-in Gait bone by name
+        "LTIO": rng.uniform(100, 900, (frames, 3)),
+        "LFEP": rng.uniform(100, 900, (frames, 3)),
+        "RHJC": rng.uniform(100, 900, (frames, 3)),            # a joint centre by name
+    }
+    path = tmp_path / "nexus.c3d"
+    write_vicon_file(path, markers, outputs,
+                     {"ANGLES": ["LKneeAngles"], "MOMENTS": ["LKneeMoment"], "MODELED_MARKERS": ["CentreOfMass"],
+                      "EXTRAS": ["Extra1"]},
+                     {"ANGLE_UNITS": "deg", "MOMENT_UNITS": "Nmm", "MODELED_MARKER_UNITS": "mm",
+                      "EXTRA_UNITS": "furlong"})
+    trial = read_c3d(path)
+    assert trial.labels == ("LASI", "RASI", "LKNE", "R.Knee")
+    assert set(trial.model_outputs) == set(outputs)
+    got = trial.model_outputs
+    assert np.allclose(got["LKneeAngles"], np.radians(outputs["LKneeAngles"]), atol=1e-6)
+    assert np.allclose(got["LKneeMoment"], outputs["LKneeMoment"] / 1000.0, atol=1e-6)
+    assert np.allclose(got["CentreOfMass"], outputs["CentreOfMass"] / 1000.0, atol=1e-7)
+    assert np.allclose(got["LFEO"], outputs["LFEO"] / 1000.0, atol=1e-7)
+    assert np.allclose(got["Extra1"], outputs["Extra1"], atol=1e-6)  # unknown unit: file values kept
+    assert trial.output_units == {"LKneeAngles": "rad", "LKneeMoment": "N m", "CentreOfMass": "m", "Extra1": "furlong",
+                                  "LFEO": "m", "LTIO": "m", "LFEP": "m", "RHJC": "m"}
+    assert trial.output_kinds["Extra1"] == "extra" and trial.output_kinds["LFEO"] == "point"
+    centres = plugin_gait_centres(trial)
+    assert set(centres) == {"knee_l", "ankle_l", "hip_l", "hip_r"}
+    assert np.allclose(centres["knee_l"], outputs["LFEO"] / 1000.0, atol=1e-7)
+    assert np.allclose(centres["hip_r"], outputs["RHJC"] / 1000.0, atol=1e-7)
+    part = trial.frames(1, 3)  # outputs follow frame selection
+    assert np.array_equal(part.model_outputs["LFEO"], got["LFEO"][1:3])
+
+
+@pytest.mark.parametrize("label", ["PELO", "LFEA", "RHNP", "HEDL", "TRXO", "Sub01:LTIO", "LHJC", "RKneeJC",
+                                   "CentreOfMassFloor", "LNormalisedGRF", "RAbsAnkleAngle", "LWaistPower"])
+def test_plug_in_gait_output_names(label: str) -> None:
+    assert is_model_output(label) is not None
+
+
+@pytest.mark.parametrize("label", ["LASI", "RKNE", "LFHD", "CLAV", "RFIN", "LFE", "*115", "R.Knee", "PELVIS",
+                                   "LHEE", "RTOE", "LFEOX"])
+def test_markers_are_not_outputs(label: str) -> None:
+    assert is_model_output(label) is None
+
+
+def test_trc_columns_with_output_names_are_outputs(tmp_path: Path, human) -> None:  # noqa: ANN001
+    sim = simulate_squats(human, frames=4, noise_mm=0.0, seed=0)
+    trial = sim.trial.select(["LASI", "RASI", "LKNE"])
+    from calibrate.trial import Trial
+    renamed = Trial(("LASI", "RASI", "LFEO"), trial.markers, trial.rate)
+    write_trc(tmp_path / "t.trc", renamed)
+    back = read_trc(tmp_path / "t.trc")
+    assert back.labels == ("LASI", "RASI") and np.allclose(back.model_outputs["LFEO"], trial.marker("LKNE"))
+
+
+def test_calibration_ignores_outputs_and_says_so(human) -> None:  # noqa: ANN001
+    """Outputs never become markers (not placed by rigidity, not left out); the summary says how many."""
+    sim = simulate_squats(human, frames=30, noise_mm=0.5, seed=2)
+    t = sim.trial
+    from calibrate.trial import Trial
+    trial = Trial(t.labels, t.markers, t.rate, model_outputs={"LFEO": t.marker("LKNE"), "HEDO": t.marker("LFHD")},
+                  output_kinds={"LFEO": "point", "HEDO": "point"})
+    cal = calibrate(human, trial, Settings(max_iterations=5))
+    assert not cal.new_markers and not cal.ignored_labels and "LFEO" not in cal.model.marker_names
+    assert "2 Vicon model outputs ignored" in summary_text(cal)
+    report = calibration_report(cal)
+    assert report["model_outputs_ignored"] == ["HEDO", "LFEO"] and report["unresolved"] == []
+
+
+needs_real = pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
+
+
+@needs_real
+@pytest.mark.parametrize("name", ["static.c3d", "walk.c3d"])
+def test_real_plug_in_gait_files(name: str) -> None:
+    """The pyCGM sample subject: no Plug-in Gait output is a marker, and Plug-in Gait's knee and
+    ankle centres (femur and tibia origins) sit KneeWidth/2 and AnkleWidth/2 plus the marker radius
+    (7 mm) from the KNE and ANK markers, the subject's widths read from the file's PROCESSING group."""
+    path = REAL / name
+    trial = read_c3d(path)
+    assert not set(PLACED_BEFORE) & set(trial.labels)
+    assert not [label for label in trial.labels if is_model_output(label)]
+    assert set(PLACED_BEFORE) <= set(trial.model_outputs)
+    assert {"LKneeAngles", "PELO", "LFEO"} <= set(trial.model_outputs)
+    processing = ezc3d.c3d(str(path))["parameters"]["PROCESSING"]
+    centres = plugin_gait_centres(trial)
+    assert set(centres) == {"hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r"}
+    for side, s in (("L", "l"), ("R", "r")):
+        for joint, marker, width in (("knee", "KNE", "KneeWidth"), ("ankle", "ANK", "AnkleWidth")):
+            want = (processing[f"{side}{width}"]["value"][0] / 2 + 7.0) / 1000.0
+            dist = np.linalg.norm(centres[f"{joint}_{s}"] - trial.marker(side + marker), axis=1)
+            assert np.nanmedian(np.abs(dist - want)) < 1e-4, (joint, side)
+    # Hip centres: symmetric about PELO, the pelvis bone's origin.
+    mid = (centres["hip_l"] + centres["hip_r"]) / 2
+    assert np.nanmax(np.linalg.norm(mid - trial.model_outputs["PELO"], axis=1)) < 1e-4
+
+
+def test_unlabelled_trajectories_are_never_placed(human, tmp_path):
+    """Vicon's unlabelled trajectories ('*115') are left out, never placed on a segment as new
+    markers even when they ride rigidly on one (here: the midpoint of the femur's LKNE and LTHI),
+    and the summary says so in one line; a named unknown marker at the same place is placed."""
+    from calibrate import calibrate
+    from calibrate.simulate import simulate_squats
+    from calibrate.trial import Trial
+
+    sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=4)
+    k, j = sim.trial.labels.index("LKNE"), sim.trial.labels.index("LTHI")
+    extra = 0.5 * (sim.trial.markers[:, k] + sim.trial.markers[:, j])
+    trial = Trial(sim.trial.labels + ("*115", "LKNE2"), np.concatenate([sim.trial.markers, extra[:, None],
+                                                                         extra[:, None]], axis=1), sim.trial.rate)
+    cal = calibrate(human, trial)
+    assert "*115" in cal.ignored_labels and "*115" not in cal.model.marker_names
+    assert [(m.label, m.segment) for m in cal.new_markers] == [("LKNE2", "femur_l")]
+    assert "1 unlabelled trajectories ignored (*115)" in cal.text()
