@@ -686,7 +686,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # worst marker of each frame, re-solve those poses, and look again.
         found = 0
         for _ in range(OUTLIER_ROUNDS):
-            bad, err = _outliers(problem, state, settings, scatter)
+            bad, err = _outliers(problem, state, settings, scatter, trial_of)
             if not bad.any():
                 break
             worst = np.where(bad, err, -1.0).argmax(axis=1)
@@ -1058,8 +1058,8 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     return learnt, tau
 
 
-def _outliers(problem: Problem, state: State, settings: Settings,
-              sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _outliers(problem: Problem, state: State, settings: Settings, sigma: np.ndarray | None = None,
+              trial_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
     `settings.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
     that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
@@ -1073,7 +1073,18 @@ def _outliers(problem: Problem, state: State, settings: Settings,
     err = err / np.sqrt(np.clip(1.0 - h, 0.05, 1.0))
     sigma = problem.sigma if sigma is None else sigma
     scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)
-    return ok & (err > settings.outliers * scale * sigma), err
+    sd = np.broadcast_to(scale * sigma, err.shape).copy()
+    # Per trial and marker, never below what its own median error shows: a shoulder marker riding the
+    # scapula scatters 10-20 mm in a walk and 1 mm in the static trial, and its noise SD, learnt over
+    # both, would otherwise reject every walking frame of it (outliers are the rare exceptions).
+    trial_of = np.zeros(problem.F, dtype=int) if trial_of is None else trial_of
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for t in np.unique(trial_of):
+            rows = trial_of == t
+            med = np.nanmedian(np.where(ok[rows], err[rows], np.nan), axis=0) / 1.538
+            sd[rows] = np.maximum(sd[rows], np.where(np.isfinite(med), med, 0.0)[None, :])
+    return ok & (err > settings.outliers * sd), err
 
 
 def _most_motion(model: Model, trials: Sequence[Trial]) -> int:

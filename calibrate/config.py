@@ -21,8 +21,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     centre_mm = 20.0
     axis_deg = 10.0
     scale = 0.25
-    symmetry_scale = 0.02   # SD of a left/right difference of segment scales (0: off)
-    symmetry_centre_mm = 10.0  # SD of a left/right difference of mirrored joint centres (0: off)
+    symmetry_scale = 0.05   # SD of a left/right difference of segment scales (0: off)
+    symmetry_centre_mm = 20.0  # SD of a left/right difference of mirrored joint centres (0: off)
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)

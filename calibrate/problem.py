@@ -72,8 +72,8 @@ class Priors:
     # and its right partner's mirrored through the sagittal plane (m, at the subject's scale), each
     # counted relative to the base model's own asymmetry.  Soft-tissue artefact pulls the two sides
     # apart by different amounts; a subject's bones are symmetric to a few per cent.
-    symmetry_scale: float = 0.02
-    symmetry_centre: float = 0.01
+    symmetry_scale: float = 0.05
+    symmetry_centre: float = 0.02
 
 
 @dataclass(frozen=True)

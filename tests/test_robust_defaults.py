@@ -244,6 +244,5 @@ def test_start_fits_the_subjects_size(human, human_kin, k):
     err = seed.params.scale[carried] / k - 1
     assert np.median(np.abs(err)) < 0.03 and np.abs(err).max() < 0.12
     obs = marker_columns(human, trial)
-    st = start_poses(human_kin, obs, seed.params)
-    M0, _ = human_kin.batch(st.Z, st.Q, seed.params)
-    assert _rms(M0 - obs) < 0.015
+    st = start_poses(human_kin, obs, seed.params)  # with the balls' reference rotations (State.B)
+    assert _rms(Problem(human, obs, Settings(), human_kin).marker_residuals(st)) < 0.015
