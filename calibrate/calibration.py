@@ -631,6 +631,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     spans = _spans(trials)
     seen = np.all(np.isfinite(obs), axis=2)
     unused = tuple(n for k, n in enumerate(subject.marker_names) if not seen[:, k].any() and n in known)
+    blind = _segments_without_data(subject, {n for k, n in enumerate(subject.marker_names) if seen[:, k].any()})
+    if blind:  # nothing in the data reaches their geometry: held at the base model's (Settings.hold_segments)
+        settings = replace(settings, hold_segments=tuple(sorted(set(settings.hold_segments) | set(blind))))
     n_good = int(np.sum(seen.sum(1) >= 3))
     if n_good < MIN_FRAMES:
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
@@ -650,6 +653,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                                                                                      "marker"))),
                     seed.notes, seed.joints, seed.seconds)
     params0 = _on_model(subject, model, _fixed_groups(model.parameters(), seed.params, settings.free))
+    params0 = _hold_segments(subject, params0, settings.hold_segments)
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say("build: residuals and Jacobian (CasADi)")
@@ -831,6 +835,39 @@ def _spans(trials: Sequence[Trial]) -> list[slice]:
 def _stack_states(states: Sequence[State]) -> State:
     B = None if any(s.B is None for s in states) else np.concatenate([s.B for s in states])
     return State(np.concatenate([s.Z for s in states]), np.concatenate([s.Q for s in states]), states[0].p.copy(), B)
+
+
+def _hold_segments(model: Model, params: Parameters, segments: Sequence[str]) -> Parameters:
+    """`params` with the base model's geometry on `segments` (Settings.hold_segments): their scale, the
+    joint centres and markers in them, the axes of the joints into them."""
+    if not segments:
+        return params
+    out, base, held = params.copy(), model.parameters(), set(segments)
+    for i, sg in enumerate(model.segments):
+        if sg.name in held:
+            out.scale[i] = base.scale[i]
+    for ji, j in enumerate(model.joints):
+        if j.parent in held:
+            out.centre[ji] = base.centre[ji]
+        if j.child in held:
+            for d in j.dofs:
+                out.axis[model.dof_index(d)] = base.axis[model.dof_index(d)]
+    for k, mk in enumerate(model.markers):
+        if mk.segment in held:
+            out.marker[k] = base.marker[k]
+    return out
+
+
+def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
+    """Segments with no seen marker on them or on any segment below them in the tree."""
+    below: dict[str, bool] = {}
+    for j in reversed(model.joints):  # children after parents in model order: walk leaves first
+        below[j.child] = below.get(j.child, False) or any(m in seen for m in model.segments[
+            model.segment_index(j.child)].markers)
+        below[j.parent] = below.get(j.parent, False) or below[j.child]
+    root = model.segments[0].name
+    below[root] = below.get(root, False) or any(m in seen for m in model.segments[0].markers)
+    return [s.name for s in model.segments if not below.get(s.name, False)]
 
 
 def _frames(state: State, idx) -> State:

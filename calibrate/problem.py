@@ -108,6 +108,11 @@ class Settings:
     # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
     # axis, and left free the axis drifts far from the base model's by fitting noise.
     auto_hold: bool = True
+    # Segments whose geometry is held at the base model's: their scale, the joint centres and markers
+    # expressed in them, the axes of the joints into them.  calibrate holds the segments with no seen
+    # marker on or below them (calibrate.resolve): nothing in the data reaches their parameters, and
+    # left free only the priors' couplings (e.g. left/right symmetry) would move them.
+    hold_segments: tuple[str, ...] = ()
     # Learn each marker's noise SD from the trial's residuals (a robust scale, iterated with the solve;
     # calibrate.calibration.learned_noise) instead of taking `noise` for all.  None (default): learn
     # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
@@ -326,8 +331,9 @@ class Problem:
         free = set(self.settings.free)
         # Axes that are calibrated: those of hinge and universal joints (never a ball's).
         held = {name for name, _ in self.settings.lock} | set(self.settings.hold_axes)
-        self.axis_dofs = [m.dof_index(d) for j in m.joints if j.kind in ("hinge", "universal") for d in j.dofs
-                          if d not in held] if "axis" in free else []
+        still = set(self.settings.hold_segments)
+        self.axis_dofs = [m.dof_index(d) for j in m.joints if j.kind in ("hinge", "universal") and j.child not in still
+                          for d in j.dofs if d not in held] if "axis" in free else []
         seg_of = {s.name: i for i, s in enumerate(m.segments)}
         self.marker_segment = np.array([seg_of[mk.segment] for mk in m.markers])
         self.centre_segment = np.array([seg_of[j.parent] for j in m.joints])
@@ -336,13 +342,15 @@ class Problem:
         # Segment scales: the data see only scale x offset, so the split between a segment's
         # scale and its offsets is decided by the priors (a flat but straight valley).
         if "scale" in free:
-            cols += [(names[i], i, -1) for i in range(ns)]
+            cols += [(names[i], i, -1) for i in range(ns) if m.segments[i].name not in still]
         if "centre" in free:
-            cols += [(names[self.offsets["centre"] + i], self.offsets["centre"] + i, -1) for i in range(3 * nj)]
+            cols += [(names[self.offsets["centre"] + i], self.offsets["centre"] + i, -1) for i in range(3 * nj)
+                     if m.joints[i // 3].parent not in still]
         for d in self.axis_dofs:
             cols += [(f"axis[{m.dofs[d].name}].u{k}", -1, d) for k in (1, 2)]
         if "marker" in free:
-            cols += [(names[self.offsets["marker"] + i], self.offsets["marker"] + i, -1) for i in range(3 * nm)]
+            cols += [(names[self.offsets["marker"] + i], self.offsets["marker"] + i, -1) for i in range(3 * nm)
+                     if m.markers[i // 3].segment not in still]
         self.free_names = [c[0] for c in cols]
         self.n_free = len(cols)
         self._direct = np.array([(k, c[1]) for k, c in enumerate(cols) if c[1] >= 0], dtype=int).reshape(-1, 2)
@@ -364,6 +372,7 @@ class Problem:
         # A frame's turn is carried into the segments below only if all they hold is free.
         self._carries = {"centre", "axis", "marker"} <= free
         self._slides = [ji for ji, j in enumerate(m.joints) if j.kind == "hinge" and "centre" in free
+                        and j.parent not in still and j.child not in still
                         and ("marker" in free or not np.any(self.marker_segment == m.segment_index(j.child)))]
 
     def _find_gauges(self, through_held: bool = False) -> list[tuple[int, str]]:
@@ -376,13 +385,16 @@ class Problem:
         locked = {name for name, _ in self.settings.lock} | (set() if through_held else set(self.settings.hold_axes))
         out = []
         into = {j.child: j for j in m.joints}
+        still = set(self.settings.hold_segments)  # their geometry cannot turn with a frame
 
         def held_below(name: str) -> bool:
-            """A held or locked DoF down the hinge and universal chains below segment `name`."""
-            return any(any(d in locked for d in j.dofs) or held_below(j.child)
+            """A held or locked DoF (or a held segment) down the hinge and universal chains below `name`."""
+            return any(any(d in locked for d in j.dofs) or j.child in still or held_below(j.child)
                        for j in m.joints if j.parent == name and j.kind in ("hinge", "universal"))
 
         for si, seg in enumerate(m.segments):
+            if seg.name in still or any(j.child in still for j in m.joints if j.parent == seg.name):
+                continue
             has_mk = bool(np.any(self.marker_segment == si))
             kids = [j for j in m.joints if j.parent == seg.name]
             if (has_mk and "marker" not in free) or (kids and "centre" not in free):

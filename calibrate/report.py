@@ -92,6 +92,7 @@ def calibration_report(cal) -> dict:
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
                      "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise},
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
+                     "hold_segments": list(st.hold_segments),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in getattr(cal, "unresolved", ())],
