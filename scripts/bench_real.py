@@ -576,9 +576,14 @@ def section_realistic(a, tmp: Path, cap: float, log) -> dict:
 def section_clean(a, tmp: Path, cap: float, log) -> dict:
     frames = a.frames or (200 if a.quick else 1000)
     out = {}
-    for name, noise, stated in (("1 mm noise", 1.0, None), ("noise-free", 0.0, NOISE_FREE_STATED_MM)):
-        log(f"clean: {name}, {frames} squat frames")
-        d, err = simulate(tmp, "clean_" + name.split()[0], frames, a.seed, ["--noise-mm", noise], cap)
+    # The overhead trial takes both shoulders through 180 deg (the gimbal lock of their angles): the SO(3)
+    # ball joints must calibrate it as well as the squats.
+    for name, noise, stated, motion in (("1 mm noise", 1.0, None, "squats"),
+                                        ("noise-free", 0.0, NOISE_FREE_STATED_MM, "squats"),
+                                        ("overhead, 1 mm noise", 1.0, None, "overhead")):
+        log(f"clean: {name}, {frames} {motion} frames")
+        d, err = simulate(tmp, "clean_" + name.split()[0].strip(","), frames, a.seed,
+                          ["--noise-mm", noise, "--motion", motion], cap)
         if err:
             out[name] = err
             continue
