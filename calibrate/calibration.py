@@ -1369,6 +1369,11 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
                       f"and its neighbour trade off beyond what the posterior SD shows; held by the prior")
              for j in model.joints if j.parent in bare or j.child in bare}
 
+    still = set(problem.settings.hold_segments)  # no marker seen on or below: held at the base model's
+
+    def unseen(segment: str) -> str:
+        return f"no marker seen on or below {segment}: held at the base model's"
+
     def block_cov(idx: list[str]) -> tuple[np.ndarray, np.ndarray] | None:
         """Posterior and prior-only covariance of a position at the subject's scale (its free
         coordinates, see Problem.tangent_map: what the data see)."""
@@ -1383,7 +1388,9 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         sl = o["centre"] + 3 * ji
         CC = block_cov(names[sl:sl + 3])
         value, base = s * P.centre[ji], B.centre[ji]
-        if CC is None:
+        if CC is None and j.parent in still:
+            std, ident, note = np.full(3, np.nan), False, unseen(j.parent)
+        elif CC is None:
             std, ident, note = np.full(3, np.nan), True, "held (not free)"
         else:
             std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
@@ -1428,7 +1435,9 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         CC = block_cov(names[sl:sl + 3])
         value, base = s * P.marker[k], B.marker[k]
         seen = bool(problem.seen[:, k].any())
-        if CC is None:
+        if CC is None and mk.segment in still:
+            std, ident, note = np.full(3, np.nan), False, unseen(mk.segment)
+        elif CC is None:
             std, ident, note = np.full(3, np.nan), True, "held (not free)"
         else:
             std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
@@ -1443,8 +1452,8 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         free = name in col
         std = np.array([math.sqrt(max(cov[col[name], col[name]], 0.0))]) if free else np.array([np.nan])
         ratio = float(std[0] / math.sqrt(prior_cov[col[name], col[name]])) if free else float("nan")
-        ident = not free or ratio < IDENTIFIED
-        note = ("held (not free)" if not free else "" if ident
+        ident = (not free or ratio < IDENTIFIED) and sg.name not in still
+        note = (unseen(sg.name) if sg.name in still else "held (not free)" if not free else "" if ident
                 else "the trial barely sizes this segment: held by the prior")
         out.append(ParameterChange(f"scale[{sg.name}]", np.array([1.0]), np.array([seg_scale[si]]),
                                    float(seg_scale[si] - 1.0), std, ident, note, ratio))

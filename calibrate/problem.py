@@ -393,7 +393,7 @@ class Problem:
                        for j in m.joints if j.parent == name and j.kind in ("hinge", "universal"))
 
         for si, seg in enumerate(m.segments):
-            if seg.name in still or any(j.child in still for j in m.joints if j.parent == seg.name):
+            if seg.name in still:  # (a held kid below a ball joint does not block: the ball's angles absorb the turn)
                 continue
             has_mk = bool(np.any(self.marker_segment == si))
             kids = [j for j in m.joints if j.parent == seg.name]
