@@ -226,3 +226,25 @@ def similarity_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray,
     var = np.sum(a**2)
     s = float(np.sum(S * D) / var) if var > 0 else 1.0
     return s, R, md - s * R @ ms
+
+
+Transform = tuple[np.ndarray, np.ndarray]  # a rigid transform (R (3, 3), t (3,)): x -> R x + t
+
+
+def compose(a: Transform, b: Transform) -> Transform:
+    """a ∘ b: first b, then a."""
+    return a[0] @ b[0], a[0] @ b[1] + a[1]
+
+
+def invert(a: Transform) -> Transform:
+    """The inverse rigid transform."""
+    return a[0].T, -a[0].T @ a[1]
+
+
+def identity_transform() -> Transform:
+    return np.eye(3), np.zeros(3)
+
+
+def apply(X: Transform, x: np.ndarray) -> np.ndarray:
+    """X applied to a point x (3,)."""
+    return X[0] @ x + X[1]

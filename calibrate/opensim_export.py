@@ -66,6 +66,7 @@ from scipy.spatial.transform import Rotation
 
 from ._text import atomic_write_text, fmt_float, fmt_vec
 from .errors import CalibrateError, ModelError
+from .geometry import Transform, compose, identity_transform, invert
 from .model import Model, Parameters, UrdfJoint
 from .motion import Motion
 
@@ -77,20 +78,10 @@ UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the ro
 UNBOUNDED_TRANSLATION = 100.0  # m, range written for the root's translations (unclamped)
 _ZERO_OFFSET = 1e-12  # m: a chain origin translating less than this counts as none
 
-Transform = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)): x -> R x + t
 
 
 # ---------------------------------------------------------------------- geometry
-def _compose(a: Transform, b: Transform) -> Transform:
-    return a[0] @ b[0], a[0] @ b[1] + a[1]
 
-
-def _inverse(a: Transform) -> Transform:
-    return a[0].T, -a[0].T @ a[1]
-
-
-def _identity() -> Transform:
-    return np.eye(3), np.zeros(3)
 
 
 def _euler_xyz(R: np.ndarray) -> np.ndarray:
@@ -241,22 +232,22 @@ class _Builder:
         else:
             root_coords = [(n, ez[k], "rotation") for n, k in zip(ROOT_ROTATIONS, (2, 1, 0), strict=True)]
             root_coords += [(n, ez[k], "translation") for k, n in enumerate(ROOT_TRANSLATIONS)]
-            self.joint("CustomJoint", f"ground_{model.root}", "ground", _identity(), model.root, _identity(),
-                       root_coords)
+            self.joint("CustomJoint", f"ground_{model.root}", "ground", identity_transform(), model.root,
+                       identity_transform(), root_coords)
         for j in model.joints:
             self.anatomical_joint(j.name, j.parent, j.child, [self.urdf[n] for n in j.urdf_joints])
 
     def anatomical_joint(self, name: str, parent: str, child: str, chain: list[UrdfJoint]) -> None:
         # Split the chain into O0 · Rot(a1) · O1 · Rot(a2) · ... · On.
-        offsets: list[Transform] = [_identity()]
+        offsets: list[Transform] = [identity_transform()]
         rotations: list[tuple[UrdfJoint, np.ndarray]] = []
         for u in chain:
-            offsets[-1] = _compose(offsets[-1], self.origin(u))
+            offsets[-1] = compose(offsets[-1], self.origin(u))
             if u.dof >= 0:
                 rotations.append((u, self.axis(u)))
-                offsets.append(_identity())
+                offsets.append(identity_transform())
         if not rotations:
-            self.joint("WeldJoint", name, parent, offsets[0], child, _identity())
+            self.joint("WeldJoint", name, parent, offsets[0], child, identity_transform())
             return
         inner = offsets[1:-1]
         if len(rotations) <= 3 and all(np.linalg.norm(t) < _ZERO_OFFSET for _, t in inner):
@@ -270,7 +261,7 @@ class _Builder:
             if _independent(axes):
                 end = (R_acc @ offsets[-1][0], R_acc @ offsets[-1][1])
                 coords = [(u.name, b, "rotation") for (u, _), b in zip(rotations, axes, strict=True)]
-                self.joint("CustomJoint", name, parent, offsets[0], child, _inverse(end), coords)
+                self.joint("CustomJoint", name, parent, offsets[0], child, invert(end), coords)
                 return
         # General chain: one single-rotation joint per URDF joint, through massless connector bodies.
         prev = parent
@@ -279,7 +270,7 @@ class _Builder:
             body = child if last else u.child_link
             if not last:
                 self.body(body, 0.0, np.zeros(3), np.zeros((3, 3)))
-            child_offset = _inverse(offsets[-1]) if last else _identity()
+            child_offset = invert(offsets[-1]) if last else identity_transform()
             self.joint("CustomJoint", u.name, prev, offsets[k], body, child_offset, [(u.name, a, "rotation")])
             prev = body
 

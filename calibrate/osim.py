@@ -54,8 +54,8 @@ from scipy.spatial.transform import Rotation
 
 from ._text import fmt_float, fmt_vec
 from .errors import ModelError
+from .geometry import Transform, apply, compose, identity_transform, invert
 
-Transform = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)): x -> R x + t
 JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
                "PlanarJoint", "SliderJoint")
 FUNCTION_TYPES = ("Constant", "LinearFunction", "PolynomialFunction", "SimmSpline", "NaturalCubicSpline",
@@ -124,20 +124,8 @@ def _rot(axis: np.ndarray, angle) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
-def _compose(a: Transform, b: Transform) -> Transform:
-    return a[0] @ b[0], a[0] @ b[1] + a[1]
 
 
-def _inverse(a: Transform) -> Transform:
-    return a[0].T, -a[0].T @ a[1]
-
-
-def _identity() -> Transform:
-    return np.eye(3), np.zeros(3)
-
-
-def _apply(X: Transform, x: np.ndarray) -> np.ndarray:
-    return X[0] @ x + X[1]
 
 
 def _rpy(R: np.ndarray) -> np.ndarray:
@@ -409,9 +397,9 @@ class _Reader:
             if _body_name(parent) == name:
                 raise ModelError(f"{where}: frame '{ref}' is its own parent; fix its socket_parent")
             body, X = self.frame(parent, {}, where)
-            return body, _compose(X, _frame_of(el, where))
+            return body, compose(X, _frame_of(el, where))
         if name == "ground" or name in self.bodies:
-            return name, _identity()
+            return name, identity_transform()
         raise ModelError(f"{where}: frame '{ref}' is not a body or an offset frame of the model; fix the path")
 
     def _joint(self, jel: ET.Element, m: ET.Element) -> _Joint:
@@ -501,7 +489,7 @@ class _Reader:
             raise ModelError(f"{src}: marker '{name}' is on body '{ref.strip()}', which {self.path.name} does not "
                              f"have; attach it to one of its bodies ({', '.join(list(self.bodies)[:6])}, ...)")
         body, X = self.frame(ref, {}, src)  # a marker on an offset frame: its location in the body
-        self.markers[name] = (body, _apply(X, loc))
+        self.markers[name] = (body, apply(X, loc))
 
     def add_marker_set(self, path: Path) -> None:
         text = _read(path, "an OpenSim MarkerSet file (.xml)")
@@ -559,10 +547,10 @@ def _body_aligned(ops: list[_Op], child_offset: Transform) -> tuple[list[_Op], T
     (a translation only)."""
     idx = [i for i, op in enumerate(ops) if op.coord is not None]
     first, last = idx[0], idx[-1]
-    tail = _identity()
+    tail = identity_transform()
     for op in ops[last + 1:]:
-        tail = _compose(tail, op.fixed)  # type: ignore[arg-type]
-    tail = _compose(tail, _inverse(child_offset))
+        tail = compose(tail, op.fixed)  # type: ignore[arg-type]
+    tail = compose(tail, invert(child_offset))
     R = tail[0]
     out = ops[:first] + [_Op(fixed=(R, np.zeros(3)))]
     for op in ops[first:last + 1]:
@@ -702,7 +690,7 @@ class _Importer:
         tr = p[-1] - Rr @ p[0]
         c0 = np.linalg.lstsq(np.eye(3) - Rr, tr - (a0 @ tr) * a0, rcond=None)[0]
         mid = q.size // 2
-        Ym = _compose((_rot(a0, -q[mid]), np.zeros(3)), _compose((np.eye(3), -c0), (R[mid], p[mid])))
+        Ym = compose((_rot(a0, -q[mid]), np.zeros(3)), compose((np.eye(3), -c0), (R[mid], p[mid])))
         x0 = np.concatenate([a0, c0, Rotation.from_matrix(Ym[0]).as_rotvec(), Ym[1]])
 
         def model(x: np.ndarray) -> np.ndarray:
@@ -738,8 +726,8 @@ class _Importer:
     def _fit_points(self, j: _Joint) -> np.ndarray:
         """Points in the joint's M frame that the hinge fit matches: the child's markers and child joint
         frames at the default pose, plus a 10 cm cross so that the fit is never underdetermined."""
-        inv = _inverse(j.child_offset)  # body -> M
-        pts = [_apply(inv, x) for x in self.points_below(j.child).values()]
+        inv = invert(j.child_offset)  # body -> M
+        pts = [apply(inv, x) for x in self.points_below(j.child).values()]
         pts += [s * e for e in np.eye(3) * 0.1 for s in (1, -1)]
         return np.array(pts)
 
@@ -753,10 +741,10 @@ class _Importer:
         for cj in self.children[body]:
             vals = {c.name: np.array([dv[c.name]]) for c in cj.coords}
             R, p = cj.transform(vals, 1)
-            X = _compose(cj.parent_offset, _compose((R[0], p[0]), _inverse(cj.child_offset)))  # child body in body
+            X = compose(cj.parent_offset, compose((R[0], p[0]), invert(cj.child_offset)))  # child body in body
             out[f"joint {cj.name}"] = X[1]
             for k, x in self.points_below(cj.child).items():
-                out[k] = _apply(X, x)
+                out[k] = apply(X, x)
         return out
 
     def reach(self, body: str, origin: np.ndarray) -> float:
@@ -796,8 +784,8 @@ class _Importer:
         """Largest marker effect over the range (defaults elsewhere) and the any-pose bound."""
         pts = self.points_below(j.child)
         markers = {k: v for k, v in pts.items() if not k.startswith("joint ")}
-        inv = _inverse(j.child_offset)
-        w = np.array([_apply(inv, x) for x in markers.values()]).reshape(-1, 3)
+        inv = invert(j.child_offset)
+        w = np.array([apply(inv, x) for x in markers.values()]).reshape(-1, 3)
         names = list(markers)
         drivers = [c for c in j.coords if c.name not in self.r.couplers] or \
             [self.r.coords[self.r.couplers[c.name][0]] for c in j.coords]
@@ -838,7 +826,7 @@ class _Importer:
     def build(self) -> tuple[str, OsimInfo]:
         r = self.r
         self.defaults = self.default_values()
-        seg_X: dict[str, Transform] = {self.root_joint.child: _identity()}  # body coords -> segment frame
+        seg_X: dict[str, Transform] = {self.root_joint.child: identity_transform()}  # body coords -> segment frame
         links: list[str] = []
         joints: list[str] = []
         approximations: list[Approximation] = []
@@ -864,18 +852,18 @@ class _Importer:
             if approx is not None:
                 approximations.append(self.measure(j, ops, *approx))
             revs = [op for op in ops if op.coord is not None]
-            tail = _identity()
+            tail = identity_transform()
             if revs:
                 ops, tail = _body_aligned(ops, j.child_offset)
             for c in j.coords:
                 if c.name not in {op.coord for op in revs}:
                     dropped.append(c.name)
-            pending = _compose(seg_X[j.parent], j.parent_offset)
+            pending = compose(seg_X[j.parent], j.parent_offset)
             prev = j.parent
             k = 0
             for op in ops:
                 if op.fixed is not None:
-                    pending = _compose(pending, op.fixed)
+                    pending = compose(pending, op.fixed)
                     continue
                 k += 1
                 last = k == len(revs)
@@ -888,19 +876,19 @@ class _Importer:
                 add_joint(op.coord, "revolute", prev, child, pending, lim,  # type: ignore[arg-type]
                           anatomical=j.name if k == 1 else None)
                 dofs.append(op.coord)  # type: ignore[arg-type]
-                pending = _identity()
+                pending = identity_transform()
                 prev = child
             if not revs:
                 name = j.name if j.name not in r.coords else f"{j.name}_weld"
-                add_joint(name, "fixed", j.parent, j.child, _compose(pending, _inverse(j.child_offset)),
+                add_joint(name, "fixed", j.parent, j.child, compose(pending, invert(j.child_offset)),
                           anatomical=j.name)
-                seg_X[j.child] = _identity()
+                seg_X[j.child] = identity_transform()
             else:
                 seg_X[j.child] = tail
         # segments
         for body, (mass, com, inertia) in r.bodies.items():
             X = seg_X[body]
-            c = _apply(X, com)
+            c = apply(X, com)
             I = X[0] @ inertia @ X[0].T
             links.append(
                 f'  <link name="{body}">\n    <inertial>\n      <origin xyz="{fmt_vec(c)}" rpy="0 0 0"/>\n'
@@ -915,7 +903,7 @@ class _Importer:
                 skipped.append(name)
                 continue
             links.append(f'  <link name="{name}"/>')
-            add_joint(f"{name}_marker", "fixed", body, name, (np.eye(3), _apply(seg_X[body], loc)))
+            add_joint(f"{name}_marker", "fixed", body, name, (np.eye(3), apply(seg_X[body], loc)))
         if not [m for m in r.markers if m not in skipped]:
             raise ModelError(f"{self.where}: the model has no markers on its bodies; give its marker set with "
                              f"--marker-set FILE.xml (marker_set=...)")
