@@ -32,7 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from ._text import atomic_write_text, fmt_float, fmt_vec
-from .errors import ModelError
+from .errors import ModelError, read_text_file
 
 MOVING = ("revolute", "continuous")
 
@@ -139,7 +139,7 @@ class Model:
         where it came from, e.g. the base model a model with added markers was made from)."""
         self.path = Path(path)
         if text is None:
-            text = _read_text(self.path)
+            text = read_text_file(self.path, "the model's .urdf file")
         try:
             root_el = ET.fromstring(text)
         except ET.ParseError as e:
@@ -610,18 +610,6 @@ def _pin_axes(pm: pin.Model, where: str) -> list[np.ndarray]:
     return axes
 
 
-def _read_text(path: Path) -> str:
-    if not path.exists():
-        raise ModelError(f"{path}: no such file; check the path to the model URDF")
-    if path.is_dir():
-        raise ModelError(f"{path}: is a directory; give the model's .urdf file")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise ModelError(f"{path}: cannot read ({e}); is it a text URDF file?") from None
-    if not text.strip():
-        raise ModelError(f"{path}: empty file; give a URDF model")
-    return text
 
 
 __all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "add_markers", "load_model",

@@ -53,7 +53,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ._text import fmt_float, fmt_vec
-from .errors import ModelError
+from .errors import ModelError, read_text_file
 from .geometry import Transform, apply, compose, identity_transform, invert
 
 JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
@@ -492,7 +492,7 @@ class _Reader:
         self.markers[name] = (body, apply(X, loc))
 
     def add_marker_set(self, path: Path) -> None:
-        text = _read(path, "an OpenSim MarkerSet file (.xml)")
+        text = read_text_file(path, "an OpenSim MarkerSet file (.xml)")
         try:
             root = ET.fromstring(text)
         except ET.ParseError as e:
@@ -502,20 +502,6 @@ class _Reader:
             raise ModelError(f"{path}: no <MarkerSet>; give an OpenSim MarkerSet file (as the Scale tool reads)")
         for mk in ms.findall("objects/Marker"):
             self._marker(mk, str(path), source=str(path))
-
-
-def _read(path: Path, what: str) -> str:
-    if not path.exists():
-        raise ModelError(f"{path}: no such file; check the path to {what}")
-    if path.is_dir():
-        raise ModelError(f"{path}: is a directory; give {what}")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise ModelError(f"{path}: cannot read ({e}); give {what}") from None
-    if not text.strip():
-        raise ModelError(f"{path}: empty file; give {what}")
-    return text
 
 
 # ---------------------------------------------------------------------- the import
@@ -985,7 +971,7 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
                  ) -> tuple[str, OsimInfo]:
     """The calibrate URDF text of an OpenSim model (and MarkerSet file), with its OsimInfo."""
     path = Path(path)
-    reader = _Reader(path, _read(path, "an OpenSim model (.osim)"))
+    reader = _Reader(path, read_text_file(path, "an OpenSim model (.osim)"))
     if marker_set is not None:
         reader.add_marker_set(Path(marker_set))
     return _Importer(reader).build()
