@@ -16,6 +16,9 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     outlier_sigmas = 6.0    # reject a marker in a frame whose error exceeds this many noise SDs (0: off)
     geodesic = true         # geodesic acceleration of the solver's steps (follows curved valleys)
 
+    hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
+    auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
+
     [priors]                # SDs of the pull towards the base model
     marker_mm = 20.0
     centre_mm = 20.0
@@ -26,9 +29,6 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
-
-    hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
-    auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
 
     [lock_deg]              # coordinates held at a value in every frame (none by default)
     # subtalar_r = 0.0      # e.g. what a two-marker foot cannot resolve
