@@ -85,7 +85,7 @@ REALISTIC_PARTS = (("--sta-mm", "10"), ("--motion", "overhead"), ("--height", "1
 QUICK_ITERATIONS = 15  # --quick: the solver's iteration cap (settings file), so a CI smoke run stays short
 FOOT = ("ankle", "subtalar")  # hinge axes the realistic target leaves out
 # Plug-in Gait's joint centres in its output points (Vicon's segment outputs: O origin, P proximal)
-PIG_CENTRES = {"hip": "FEP", "knee": "FEO", "ankle": "TIO"}
+PIG_CENTRES = {"hip": "FEP", "knee": "FEO", "ankle": "TIO", "shoulder": "HUP", "elbow": "HUO", "wrist": "RAO"}
 # segment lengths compared left/right: (name, proximal joint, distal joint)
 LENGTHS = (("thigh (hip-knee)", "hip", "knee"), ("shank (knee-ankle)", "knee", "ankle"),
            ("upper arm (shoulder-elbow)", "shoulder", "elbow"), ("forearm (elbow-wrist)", "elbow", "wrist"))
@@ -553,6 +553,57 @@ def realistic_flags(help_text: str) -> tuple[list[str], str | None]:
                    f"({what}; with --gaps), so these are not the realistic figures")
 
 
+def axis_profile(d: Path, run: dict, truth: dict, cap: float, extra: list, log) -> dict:
+    """Do the trial's markers prefer the true hinge axes or ours?  For the non-foot hinge axes beyond
+    the target, two calibrations with the same marker weights (every marker's noise SD stated as the
+    first run learnt it, so both costs are on one scale): one as usual, one from models/human.urdf with
+    those axes replaced by the truth's and held (--hold-axes).  If holding the true axes raises the
+    cost, the data themselves prefer the calibrated axes: no method that fits the markers rigidly to
+    their segments can find the true ones in this trial (soft-tissue artefact moves the markers with
+    the joint angles as a turned axis would)."""
+    from calibrate.model import Parameters, load_model, write_model
+
+    over = sorted(n for n, v in truth["axis_deg"].items() if not n.startswith(FOOT) and v > REAL_HINGE_DEG)
+    if not over:
+        return {"skipped": "no non-foot hinge axis beyond the target"}
+    noise = run["report"]["noise"]
+    sd = noise.get("weight_sd_mm") or noise.get("per_marker_mm")
+    if not sd:
+        return {"skipped": "the report has no learnt noise"}
+    cfg = d / "profile.toml"
+    cfg.write_text(f"noise_mm = {float(np.median(list(sd.values()))):.6f}\n[marker_noise_mm]\n"
+                   + "".join(f"{k} = {v:.6f}\n" for k, v in sd.items()))
+    base = load_model(MODEL)
+    true = load_model(d / "truth.urdf").parameters()
+    p = base.parameters()
+    axis = p.axis.copy()
+    for n in over:
+        k = base.dof_index(base.joints[base.joint_index(n)].dofs[0])
+        axis[k] = true.axis[k]
+    held_model = write_model(base, d / "base_true_axes.urdf", Parameters(p.scale, p.centre, axis, p.marker))
+    rows = {}
+    for name, model, more in (("free", MODEL, []), ("true axes held", held_model, ["--hold-axes", ",".join(over)])):
+        out = d / ("profile_" + name.split()[0])
+        out.mkdir(exist_ok=True)
+        trial = Path(shutil.copy(d / "trial.c3d", out / "trial.c3d"))
+        log(f"realistic: axis profile, {name}")
+        urdf, rep = out / "subject.urdf", out / "report.json"
+        r = cli([trial, model, "-o", urdf, "--report", rep, "--overwrite", "-q", *extra, "--config", cfg, *more], cap)
+        if r["rc"] not in (0, 1) or not rep.exists():
+            return {"error": f"{name}: exit {r['rc']}: " + (r["stderr"].strip().splitlines() or ["no output"])[-1]}
+        report = json.loads(rep.read_text())
+        rows[name] = {"final_cost": report["solver"]["final_cost"], "marker_rms_mm": report["markers"]["rms_mm"],
+                      "outliers": report["outliers"]["count"]}
+        if name == "free":
+            kin = UrdfKinematics(urdf)
+            t = truth_errors(kin, trial.with_name("trial_motion.csv"), UrdfKinematics(d / "truth.urdf"),
+                             d / "truth_motion.csv", [])
+            rows[name]["axis_deg"] = {n: t["axis_deg"][n] for n in over}
+    return {"axes": over, "runs": rows,
+            "cost_rise": rows["true axes held"]["final_cost"] - rows["free"]["final_cost"],
+            "rms_rise_mm": rows["true axes held"]["marker_rms_mm"] - rows["free"]["marker_rms_mm"]}
+
+
 def section_realistic(a, tmp: Path, cap: float, log) -> dict:
     frames = a.frames or (200 if a.quick else 1000)
     flags, note = realistic_flags(cli_help("simulate"))
@@ -568,6 +619,8 @@ def section_realistic(a, tmp: Path, cap: float, log) -> dict:
     out = truth_section(d, run)
     out.update({"realistic": realistic, "simulate_flags": flags, "simulated_frames": frames,
                 "corruptions": corruptions_caught(d, run["report"])})
+    if not a.quick:
+        out["axis_profile"] = guarded(axis_profile, d, run, out["truth"], cap, a.extra, log)
     if note:
         out["note"] = note
     return out
@@ -726,8 +779,8 @@ def report(res: dict) -> None:
     p = res.get("pig", {})
     if "converged" in p:
         say()
-        say("pig_walk: our centres vs Plug-in Gait's own (LFEP/RFEP hip, LFEO/RFEO knee, LTIO/RTIO ankle), "
-            "median over the walk's frames (mm)")
+        say("pig_walk: our centres vs Plug-in Gait's own (FEP hip, FEO knee, TIO ankle, HUP shoulder, HUO elbow, "
+            "RAO wrist; L/R prefix), median over the walk's frames (mm)")
         say("  " + "  ".join(f"{j} {fmt(v['median_mm'], '.1f')}" for j, v in p["pig_centres"].items()))
         say(f"pig_walk: joint centres shifted more than {SHIFT_MM:g} mm from the size-scaled base "
             f"(scale: {p['shift_scale_from']}, equal to the URDF visuals' to "
@@ -759,6 +812,17 @@ def report(res: dict) -> None:
         say("  per joint, centre mm / axis deg: " + ", ".join(
             f"{j} {v:.1f}" + (f"/{t['axis_deg'][j]:.1f}" if j in t["axis_deg"] else "")
             for j, v in t["centre_mm"].items()))
+        ap = r.get("axis_profile", {})
+        if "runs" in ap:
+            fr, hd = ap["runs"]["free"], ap["runs"]["true axes held"]
+            say(f"realistic: axis profile ({', '.join(ap['axes'])}; both with the first run's learnt SDs stated): "
+                f"calibrated as usual, cost {fr['final_cost']:.1f}, marker RMS {fr['marker_rms_mm']:.6f} mm, axes "
+                + ", ".join(f"{k} {v:.2f} deg" for k, v in fr["axis_deg"].items())
+                + f"; with the true axes held, cost {hd['final_cost']:.1f} ({ap['cost_rise']:+.1f}), marker RMS "
+                f"{hd['marker_rms_mm']:.6f} mm ({1e3 * ap['rms_rise_mm']:+.4f} um): "
+                + ("the markers prefer the calibrated axes" if ap["cost_rise"] > 0 else "the true axes fit better"))
+        elif ap:
+            say(f"realistic: axis profile {ap.get('skipped') or 'ERROR ' + str(ap.get('error'))}")
         c = r["corruptions"]
         say("realistic: corruptions " + (f"SKIPPED: {c['skipped']}" if "skipped" in c else
                                          f"{c['caught']}/{c['corruptions']} caught ({c['caught_pct']:.1f} %), "
