@@ -42,6 +42,8 @@ MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
 SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
 SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated centre may scale it
 SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
+START_FRAMES = 60  # frames of the subsample on which choose_start solves each candidate start
+START_ITERATIONS = 30  # ... for at most this many iterations
 STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
 HOLD_ROUNDS = 2  # rounds of holding the axes of still coordinates (Settings.auto_hold), each a new subsample solve
 LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
@@ -664,6 +666,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     say("start: frame-wise inverse kinematics")
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
+    if settings.seed:
+        base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments)
+        params0, choice = choose_start(problem, known_obs, spans, {"the MTB seed": params0, "the base model": base0},
+                                       say)
+        seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
     start = _stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
     if new:
@@ -883,6 +890,39 @@ def absolute(kin: Kinematics, state: State, spans: Sequence[slice] | None = None
     parts = [kin.absolute(state.Z[sl], state.Q[sl], None if state.B is None else state.B[sl])
              for sl in spans]
     return np.concatenate([z for z, _ in parts]), np.concatenate([q for _, q in parts])
+
+
+def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice], candidates: Mapping[str, Parameters],
+                 say: Callable[[str], None]) -> tuple[Parameters, str]:
+    """The start whose basin fits best: each candidate geometry (e.g. the MTB seed and the base
+    model) solved with its poses on the subsample of frames the global solve starts from (the
+    markers the model knows; the problem's settings before any noise is learnt), and the one that
+    ends at the lowest cost kept.  Real trials need this: the MTB seed is only as good as the
+    joints' motion lets it be (a walking trial's elbows flex 10-15 deg), and an arm started a few
+    per cent too long or short settles in a basin with its elbow tens of degrees off, which no
+    later step leaves; the cost, the same objective on the same frames, tells the basins apart.
+    Returns the chosen geometry and a note naming each candidate's cost."""
+    names = list(candidates)
+    if len(names) == 1:
+        return candidates[names[0]], f"started from {names[0]}"
+    seen = np.all(np.isfinite(observed), axis=2)
+    coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(START_FRAMES * (sl.stop - sl.start)
+                                                                          / problem.F))) for sl in spans])
+    sub = Problem(problem.model, observed[coarse], problem.settings, problem.kin, problem.base)
+    costs = {}
+    for name in names:
+        params = candidates[name]
+        say(f"start: {name}, solved on {coarse.size} frames")
+        state = start_poses(problem.kin, observed[coarse], params, stride=1,
+                            evaluator=sub.frame_evaluator(params.vector()))
+        with_p = replace(state, p=params.vector())
+        _, summary = levenberg_marquardt(sub, with_p, max_iterations=START_ITERATIONS)
+        costs[name] = summary.final_cost
+    best = min(costs, key=costs.get)
+    note = (f"started from {best}: of " + ", ".join(f"{n} (cost {c:.4g})" for n, c in costs.items())
+            + f", solved on {coarse.size} frames, its basin fits best")
+    say("start: " + note)
+    return candidates[best], note
 
 
 def _solve(problem: Problem, start: State, spans: list[slice],
