@@ -233,6 +233,10 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     """
     t0 = time.perf_counter()
     notes: list[str] = []
+    trial, broken = _without_broken(model, trial)
+    if broken:
+        notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: their distances to "
+                     f"markers on the same segment broken)")
     if joints is None:
         thinned = _seed_trial(trial, SEED_FRAMES)
         cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
@@ -368,6 +372,8 @@ SIZE_POSES = 60  # random poses (angles anywhere in their ranges): is a marker p
 SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this fraction over those poses ...
 SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
 SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
+SEED_BROKEN_SDS = 6.0  # a rigid marker pair's distance this many robust SDs from its median over the trial ...
+SEED_BROKEN_MIN = 0.015  # m ... and at least this far: a swapped label or a spike (broken_samples)
 SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
 
 
@@ -402,25 +408,9 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     the trials' frames, compared with the base model's (median over frames / neutral pose); a limb's
     factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
     overall factor the median of all.  None if no pair qualifies."""
-    import pinocchio as pin
-
     names = [m.name for m in model.markers]
     seg = np.array([model.segment_index(m.segment) for m in model.markers])
-    pm = model.pin
-    data = pm.createData()
-    fid = [pm.getFrameId(n) for n in names]
-    rng = np.random.default_rng(seed)
-    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
-    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
-    poses = []
-    for i in range(SIZE_POSES + 1):
-        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
-        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
-        poses.append(np.array([data.oMf[f].translation for f in fid]))
-    P = np.array(poses)  # (poses, markers, 3)
-    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
-    d0 = D[0]
-    model_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
+    d0, model_cv = marker_distance_spread(model, seed)
     # The trials' distances, on at most ~300 frames of each.
     parts = []
     for t in trials:
@@ -457,6 +447,76 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
 
 
+def marker_distance_spread(model: Model, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Distances between the base model's markers in the neutral pose (M, M, m) and how much each
+    varies over SIZE_POSES random poses (angles anywhere in their ranges), as a fraction of it: below
+    SIZE_MODEL_CV the pair is rigid in any pose (one segment, or across a joint near its axis)."""
+    import pinocchio as pin
+
+    pm = model.pin
+    data = pm.createData()
+    fid = [pm.getFrameId(m.name) for m in model.markers]
+    rng = np.random.default_rng(seed)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
+    poses = []
+    for i in range(SIZE_POSES + 1):
+        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
+        poses.append(np.array([data.oMf[f].translation for f in fid]))
+    P = np.array(poses)  # (poses, markers, 3)
+    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
+    return D[0], D.std(axis=0) / np.maximum(D[0], 1e-9)
+
+
+def broken_samples(model: Model, trial: Trial, spread: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the
+    markers it is rigid with (marker_distance_spread; pairs steady over the trial, as size_from_markers
+    uses): a swapped label or a spike.  A pair is broken in a frame when its distance is further than
+    SEED_BROKEN_SDS robust SDs (and SEED_BROKEN_MIN) from its median; in each frame the marker in most
+    broken pairs is flagged (all of them on a tie: two markers alone cannot tell which), its pairs set
+    aside, and so on until no broken pair is left."""
+    d0, model_cv = spread if spread is not None else marker_distance_spread(model)
+    X = marker_columns(model, trial)
+    a, b = np.nonzero((model_cv < SIZE_MODEL_CV) & np.triu(np.ones_like(d0, dtype=bool), 1))
+    flagged = np.zeros(X.shape[:2], dtype=bool)
+    if a.size == 0:
+        return flagged
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        d = np.linalg.norm(X[:, a] - X[:, b], axis=2)  # (F, pairs)
+        med = np.nanmedian(d, axis=0)
+        mad = MAD_SD * np.nanmedian(np.abs(d - med), axis=0)
+        n = np.sum(np.isfinite(d), axis=0)
+        steady = (n >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
+        broken = np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)
+    broken &= steady & np.isfinite(d)
+    M = X.shape[1]
+    inc = np.zeros((a.size, M))
+    inc[np.arange(a.size), a] = 1.0
+    inc[np.arange(a.size), b] = 1.0
+    while broken.any():
+        count = broken.astype(float) @ inc  # (F, M): broken pairs of each marker
+        top = count.max(axis=1, keepdims=True)
+        worst = (count == top) & (top > 0)
+        flagged |= worst
+        broken &= ~(worst[:, a] | worst[:, b])
+    return flagged
+
+
+def _without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
+    """`trial` with the samples broken_samples flags set to gaps, and how many there were."""
+    bad = broken_samples(model, trial)
+    if not bad.any():
+        return trial, 0
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    markers = np.array(trial.markers)
+    for k, name in enumerate(model.marker_names):
+        if name in index:
+            markers[bad[:, k], index[name]] = np.nan
+    return replace(trial, markers=markers), int(bad.sum())
+
+
 def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
     """The value below and above which lie at most half the total weight."""
     order = np.argsort(x)
@@ -470,7 +530,8 @@ def _seed_trial(trial: Trial, max_frames: int) -> Trial:
     k = trial.n_frames // max_frames
     if k < 2 or not SEED_CUTOFF_HZ < trial.rate / 2:
         return trial
-    markers = lowpass(trial.markers, trial.rate, SEED_CUTOFF_HZ)[::k]
+    markers = np.stack([lowpass(trial.markers[:, i], trial.rate, SEED_CUTOFF_HZ)[::k]  # each marker's own runs
+                        for i in range(trial.n_markers)], axis=1)
     return Trial(trial.labels, markers, trial.rate / k, trial.first_frame, trial.source)
 
 
