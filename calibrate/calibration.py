@@ -373,7 +373,8 @@ SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this 
 SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
 SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
 SEED_BROKEN_SDS = 6.0  # a rigid marker pair's distance this many robust SDs from its median over the trial ...
-SEED_BROKEN_MIN = 0.015  # m ... and at least this far: a swapped label or a spike (broken_samples)
+SEED_BROKEN_MIN = 0.010  # m ... and at least this far: a swapped label or a spike (broken_samples)
+SEED_BROKEN_GROUP = 12  # markers rigid with one another checked together (2^n candidate sets) at most
 SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
 
 
@@ -471,15 +472,18 @@ def marker_distance_spread(model: Model, seed: int = 0) -> tuple[np.ndarray, np.
 
 def broken_samples(model: Model, trial: Trial, spread: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the
-    markers it is rigid with (marker_distance_spread; pairs steady over the trial, as size_from_markers
-    uses): a swapped label or a spike.  A pair is broken in a frame when its distance is further than
-    SEED_BROKEN_SDS robust SDs (and SEED_BROKEN_MIN) from its median; in each frame the marker in most
-    broken pairs is flagged (all of them on a tie: two markers alone cannot tell which), its pairs set
-    aside, and so on until no broken pair is left."""
+    markers it is rigid with (marker_distance_spread: the same segment, or across a joint near its axis;
+    pairs steady over the trial, as size_from_markers uses): a swapped label or a spike.
+
+    A pair is broken in a frame when its distance is further than SEED_BROKEN_SDS robust SDs (and
+    SEED_BROKEN_MIN) from its median over the trial.  Within each group of markers rigid with one
+    another, a frame keeps the markers common to every largest set with no broken pair among them:
+    one marker off is flagged alone, two swapped labels both, and when the distances cannot tell
+    which markers are wrong (two markers alone, or a swap on a near-symmetric segment) all of them."""
     d0, model_cv = spread if spread is not None else marker_distance_spread(model)
     X = marker_columns(model, trial)
-    a, b = np.nonzero((model_cv < SIZE_MODEL_CV) & np.triu(np.ones_like(d0, dtype=bool), 1))
     flagged = np.zeros(X.shape[:2], dtype=bool)
+    a, b = np.nonzero((model_cv < SIZE_MODEL_CV) & np.triu(np.ones_like(d0, dtype=bool), 1))
     if a.size == 0:
         return flagged
     with warnings.catch_warnings():
@@ -490,17 +494,35 @@ def broken_samples(model: Model, trial: Trial, spread: tuple[np.ndarray, np.ndar
         n = np.sum(np.isfinite(d), axis=0)
         steady = (n >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
         broken = np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)
-    broken &= steady & np.isfinite(d)
-    M = X.shape[1]
-    inc = np.zeros((a.size, M))
-    inc[np.arange(a.size), a] = 1.0
-    inc[np.arange(a.size), b] = 1.0
-    while broken.any():
-        count = broken.astype(float) @ inc  # (F, M): broken pairs of each marker
-        top = count.max(axis=1, keepdims=True)
-        worst = (count == top) & (top > 0)
-        flagged |= worst
-        broken &= ~(worst[:, a] | worst[:, b])
+    a, b, broken = a[steady], b[steady], (broken & np.isfinite(d))[:, steady]
+    seen = np.all(np.isfinite(X), axis=2)
+    # groups: connected components of the steady pairs
+    root = list(range(X.shape[1]))
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            i = root[i]
+        return i
+
+    for i, j in zip(a, b, strict=True):
+        root[find(int(i))] = find(int(j))
+    for g in {find(k) for k in range(X.shape[1])}:
+        members = np.array([k for k in range(X.shape[1]) if find(k) == g])
+        inside = np.isin(a, members)
+        frames = np.flatnonzero(broken[:, inside].any(axis=1))
+        if members.size < 2 or frames.size == 0 or members.size > SEED_BROKEN_GROUP:
+            continue
+        pos = {int(k): i for i, k in enumerate(members)}
+        ia = np.array([pos[int(k)] for k in a[inside]])
+        ib = np.array([pos[int(k)] for k in b[inside]])
+        subsets = (np.arange(2 ** members.size)[:, None] >> np.arange(members.size)) & 1  # (S, n)
+        both = (subsets[:, ia] & subsets[:, ib]).T.astype(float)  # (pairs, S): pair inside the subset
+        consistent = (broken[np.ix_(frames, np.flatnonzero(inside))].astype(float) @ both) == 0  # (frames, S)
+        vis = seen[np.ix_(frames, members)]
+        size = np.where(consistent, vis.astype(float) @ subsets.T, -1.0)
+        largest = size == size.max(axis=1, keepdims=True)
+        keep = (largest.astype(float) @ (1 - subsets)) == 0  # in every largest consistent set
+        flagged[np.ix_(frames, members)] = vis & ~keep
     return flagged
 
 
