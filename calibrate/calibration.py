@@ -235,8 +235,8 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     notes: list[str] = []
     trial, broken = _without_broken(model, trial)
     if broken:
-        notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: their distances to "
-                     f"markers on the same segment broken)")
+        notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: jumps and back, or "
+                     f"distances to markers on the same segment broken)")
     if joints is None:
         thinned = _seed_trial(trial, SEED_FRAMES)
         cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
@@ -374,7 +374,12 @@ SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / me
 SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
 SEED_BROKEN_SDS = 6.0  # a rigid marker pair's distance this many robust SDs from its median over the trial ...
 SEED_BROKEN_MIN = 0.010  # m ... and at least this far: a swapped label or a spike (broken_samples)
-SEED_BROKEN_GROUP = 12  # markers rigid with one another checked together (2^n candidate sets) at most
+SEED_JUMP_MIN = 0.02  # m: a marker's frame-to-frame step this far from the steps around it is a jump ...
+SEED_JUMP_SDS = 8.0  # ... if also this many robust SDs of the marker's own (jump_episodes)
+SEED_JUMP_WINDOW = 3  # frames each side whose steps' median predicts a step
+SEED_JUMP_UNDO = 0.5  # two jumps undo each other when their sum is shorter than this fraction of the larger
+SEED_EPISODE_S = 1.0  # s: a spike or swapped-label episode lasts at most this long
+SEED_BROKEN_GROUP = 12  # a segment with more markers is not checked (2^n candidate sets)
 SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
 
 
@@ -409,9 +414,25 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     the trials' frames, compared with the base model's (median over frames / neutral pose); a limb's
     factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
     overall factor the median of all.  None if no pair qualifies."""
+    import pinocchio as pin
+
     names = [m.name for m in model.markers]
     seg = np.array([model.segment_index(m.segment) for m in model.markers])
-    d0, model_cv = marker_distance_spread(model, seed)
+    pm = model.pin
+    data = pm.createData()
+    fid = [pm.getFrameId(n) for n in names]
+    rng = np.random.default_rng(seed)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
+    poses = []
+    for i in range(SIZE_POSES + 1):
+        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
+        poses.append(np.array([data.oMf[f].translation for f in fid]))
+    P = np.array(poses)  # (poses, markers, 3)
+    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
+    d0 = D[0]
+    model_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
     # The trials' distances, on at most ~300 frames of each.
     parts = []
     for t in trials:
@@ -448,76 +469,37 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
 
 
-def marker_distance_spread(model: Model, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Distances between the base model's markers in the neutral pose (M, M, m) and how much each
-    varies over SIZE_POSES random poses (angles anywhere in their ranges), as a fraction of it: below
-    SIZE_MODEL_CV the pair is rigid in any pose (one segment, or across a joint near its axis)."""
-    import pinocchio as pin
-
-    pm = model.pin
-    data = pm.createData()
-    fid = [pm.getFrameId(m.name) for m in model.markers]
-    rng = np.random.default_rng(seed)
-    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
-    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
-    poses = []
-    for i in range(SIZE_POSES + 1):
-        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
-        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
-        poses.append(np.array([data.oMf[f].translation for f in fid]))
-    P = np.array(poses)  # (poses, markers, 3)
-    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
-    return D[0], D.std(axis=0) / np.maximum(D[0], 1e-9)
-
-
-def broken_samples(model: Model, trial: Trial, spread: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the
-    markers it is rigid with (marker_distance_spread: the same segment, or across a joint near its axis;
-    pairs steady over the trial, as size_from_markers uses): a swapped label or a spike.
+def broken_samples(model: Model, trial: Trial) -> np.ndarray:
+    """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the other
+    markers of its segment: a swapped label or a spike.
 
     A pair is broken in a frame when its distance is further than SEED_BROKEN_SDS robust SDs (and
-    SEED_BROKEN_MIN) from its median over the trial.  Within each group of markers rigid with one
-    another, a frame keeps the markers common to every largest set with no broken pair among them:
-    one marker off is flagged alone, two swapped labels both, and when the distances cannot tell
-    which markers are wrong (two markers alone, or a swap on a near-symmetric segment) all of them."""
-    d0, model_cv = spread if spread is not None else marker_distance_spread(model)
+    SEED_BROKEN_MIN) from its median over the trial (pairs whose distance is not steady over the
+    trial, SIZE_TRIAL_CV, are not used).  Within a segment, a frame keeps the markers common to every
+    largest set with no broken pair among them: one marker off is flagged alone, two swapped labels
+    both, and when the distances cannot tell which markers are wrong (two markers alone, or a swap on
+    a near-symmetric segment) all of them."""
     X = marker_columns(model, trial)
     flagged = np.zeros(X.shape[:2], dtype=bool)
-    a, b = np.nonzero((model_cv < SIZE_MODEL_CV) & np.triu(np.ones_like(d0, dtype=bool), 1))
-    if a.size == 0:
-        return flagged
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        d = np.linalg.norm(X[:, a] - X[:, b], axis=2)  # (F, pairs)
-        med = np.nanmedian(d, axis=0)
-        mad = MAD_SD * np.nanmedian(np.abs(d - med), axis=0)
-        n = np.sum(np.isfinite(d), axis=0)
-        steady = (n >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
-        broken = np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)
-    a, b, broken = a[steady], b[steady], (broken & np.isfinite(d))[:, steady]
     seen = np.all(np.isfinite(X), axis=2)
-    # groups: connected components of the steady pairs
-    root = list(range(X.shape[1]))
-
-    def find(i: int) -> int:
-        while root[i] != i:
-            i = root[i]
-        return i
-
-    for i, j in zip(a, b, strict=True):
-        root[find(int(i))] = find(int(j))
-    for g in {find(k) for k in range(X.shape[1])}:
-        members = np.array([k for k in range(X.shape[1]) if find(k) == g])
-        inside = np.isin(a, members)
-        frames = np.flatnonzero(broken[:, inside].any(axis=1))
-        if members.size < 2 or frames.size == 0 or members.size > SEED_BROKEN_GROUP:
+    for sg in model.segments:
+        members = np.array([model.marker_index(m) for m in sg.markers])
+        if members.size < 2 or members.size > SEED_BROKEN_GROUP:
             continue
-        pos = {int(k): i for i, k in enumerate(members)}
-        ia = np.array([pos[int(k)] for k in a[inside]])
-        ib = np.array([pos[int(k)] for k in b[inside]])
+        ia, ib = np.triu_indices(members.size, 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.linalg.norm(X[:, members[ia]] - X[:, members[ib]], axis=2)  # (F, pairs)
+            med = np.nanmedian(d, axis=0)
+            mad = MAD_SD * np.nanmedian(np.abs(d - med), axis=0)
+            steady = (np.sum(np.isfinite(d), axis=0) >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
+            broken = (np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)) & steady
+        frames = np.flatnonzero(broken.any(axis=1))
+        if frames.size == 0:
+            continue
         subsets = (np.arange(2 ** members.size)[:, None] >> np.arange(members.size)) & 1  # (S, n)
         both = (subsets[:, ia] & subsets[:, ib]).T.astype(float)  # (pairs, S): pair inside the subset
-        consistent = (broken[np.ix_(frames, np.flatnonzero(inside))].astype(float) @ both) == 0  # (frames, S)
+        consistent = (broken[frames].astype(float) @ both) == 0  # (frames, S)
         vis = seen[np.ix_(frames, members)]
         size = np.where(consistent, vis.astype(float) @ subsets.T, -1.0)
         largest = size == size.max(axis=1, keepdims=True)
@@ -526,16 +508,57 @@ def broken_samples(model: Model, trial: Trial, spread: tuple[np.ndarray, np.ndar
     return flagged
 
 
+def jump_episodes(trial: Trial) -> np.ndarray:
+    """(n_frames, n_markers) True where a marker trajectory sits between a jump and the jump that undoes
+    it (a spike: one frame; a swapped label: until the labels swap back).  A jump is a frame-to-frame
+    step further than SEED_JUMP_MIN (and SEED_JUMP_SDS robust SDs of the marker's own) from the median
+    of the steps around it (SEED_JUMP_WINDOW frames each side: constant acceleration cancels); two
+    jumps of one marker at most SEED_EPISODE_S apart, with no gap between, that undo each other (their
+    sum shorter than SEED_JUMP_UNDO of the larger) bound an episode."""
+    X = np.asarray(trial.markers)
+    F = X.shape[0]
+    out = np.zeros(X.shape[:2], dtype=bool)
+    if F < 2 * SEED_JUMP_WINDOW + 2:
+        return out
+    longest = max(1, int(round(SEED_EPISODE_S * trial.rate)))
+    d = np.diff(X, axis=0)  # (F-1, M, 3): step into frame f+1; NaN across gaps
+    W = SEED_JUMP_WINDOW
+    pad = np.full((W, *d.shape[1:]), np.nan)
+    dp = np.concatenate([pad, d, pad])
+    around = np.stack([dp[W + o: W + o + len(d)] for o in range(-W, W + 1) if o], axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        s = d - np.nanmedian(around, axis=0)  # (F-1, M, 3)
+        size = np.linalg.norm(s, axis=2)
+        sd = MAD_SD * np.nanmedian(size, axis=0)
+    jump = np.isfinite(size) & (size > np.maximum(SEED_JUMP_SDS * np.nan_to_num(sd), SEED_JUMP_MIN))
+    seen = np.all(np.isfinite(X), axis=2)
+    for k in np.flatnonzero(jump.any(axis=0)):
+        steps = np.flatnonzero(jump[:, k])
+        i = 0
+        while i < steps.size - 1:
+            a, b = steps[i], steps[i + 1]  # jumps into frames a+1 and b+1
+            undo = np.linalg.norm(s[a, k] + s[b, k]) <= SEED_JUMP_UNDO * max(size[a, k], size[b, k])
+            if undo and b - a <= longest and seen[a + 1:b + 1, k].all():
+                out[a + 1:b + 1, k] = True
+                i += 2
+            else:
+                i += 1
+    return out
+
+
 def _without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
-    """`trial` with the samples broken_samples flags set to gaps, and how many there were."""
-    bad = broken_samples(model, trial)
-    if not bad.any():
-        return trial, 0
+    """`trial` with the samples broken_samples and jump_episodes flag set to gaps, and how many there were."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
-    markers = np.array(trial.markers)
+    bad = jump_episodes(trial)
+    rigid = broken_samples(model, trial)
     for k, name in enumerate(model.marker_names):
         if name in index:
-            markers[bad[:, k], index[name]] = np.nan
+            bad[:, index[name]] |= rigid[:, k]
+    if not bad.any():
+        return trial, 0
+    markers = np.array(trial.markers)
+    markers[bad] = np.nan
     return replace(trial, markers=markers), int(bad.sum())
 
 
