@@ -575,8 +575,7 @@ def _seed_trial(trial: Trial, max_frames: int) -> Trial:
     k = trial.n_frames // max_frames
     if k < 2 or not SEED_CUTOFF_HZ < trial.rate / 2:
         return trial
-    markers = np.stack([lowpass(trial.markers[:, i], trial.rate, SEED_CUTOFF_HZ)[::k]  # each marker's own runs
-                        for i in range(trial.n_markers)], axis=1)
+    markers = lowpass(trial.markers, trial.rate, SEED_CUTOFF_HZ)[::k]
     return Trial(trial.labels, markers, trial.rate / k, trial.first_frame, trial.source)
 
 
