@@ -6,14 +6,18 @@ centimetres off.  Truths are the simulator's."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from calibrate.calibration import broken_samples, jump_episodes, seed_parameters
 from calibrate.ik import marker_columns
+from calibrate.labels import map_labels
 from calibrate.simulate import simulate_squats
+from calibrate.trial import read_trial
 
+REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real" / "pig_walk"
 SWAP = slice(100, 112)  # frames whose C7 and LSHO labels are exchanged
 
 
@@ -102,3 +106,11 @@ def test_upper_arm_swap_is_a_jump_episode(human, squats):
     assert jumps[SWAP, i].all() and jumps[SWAP, j].all()
     assert jumps.sum() == 2 * (SWAP.stop - SWAP.start)
     assert not jump_episodes(squats.trial).any()
+
+
+@pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
+def test_real_walk_loses_no_samples(human):
+    """A clean Vicon walk (pig_walk, 120 Hz): no jump episode and no broken segment distance."""
+    trial, _ = map_labels(read_trial(REAL / "walk.c3d"), human.marker_names)
+    assert not jump_episodes(trial).any()
+    assert not broken_samples(human, trial).any()
