@@ -547,6 +547,21 @@ def jump_episodes(trial: Trial) -> np.ndarray:
     return out
 
 
+def jumped_samples(model: Model, trials: Sequence[Trial]) -> np.ndarray:
+    """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order,
+    stacked as the calibration stacks the trials."""
+    parts = []
+    for t in trials:
+        jumps = jump_episodes(t)
+        index = {lab: i for i, lab in enumerate(t.labels)}
+        out = np.zeros((t.n_frames, len(model.markers)), dtype=bool)
+        for k, name in enumerate(model.marker_names):
+            if name in index:
+                out[:, k] = jumps[:, index[name]]
+        parts.append(out)
+    return np.concatenate(parts)
+
+
 def _without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
     """`trial` with the samples broken_samples and jump_episodes flag set to gaps, and how many there were."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
@@ -763,6 +778,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     t0 = time.perf_counter()
     say("build: residuals and Jacobian (CasADi)")
     kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
+    # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
+    # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
+    # before the solve's own outlier rejection can see them.  They are reported with the other outliers.
+    jumped = jumped_samples(subject, trials) if settings.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
+    raw = obs
+    if jumped.any():
+        say(f"markers: {int(jumped.sum())} positions jump away and back (swapped labels, spikes); left out")
+        obs = np.where(jumped[..., None], np.nan, obs)
     problem = Problem(subject, obs, settings, kin, progress=progress)
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -848,6 +871,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     Z, Q = absolute(problem.kin, state, spans)
     notes = coordinate_notes(subject, Z[:, 6:], lin.A, settings)
     times["covariance"] = time.perf_counter() - t0
+    if jumped.any():  # their distance from where the fitted model puts them
+        Zr = np.column_stack([Z[:, :3], np.zeros((len(Z), 3)), Z[:, 6:]])
+        err = np.linalg.norm(problem.kin.batch(Zr, Q, params)[0] - raw, axis=2)
+        rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
+                            float(err[f, k])) for f, k in np.argwhere(jumped)] + rejected
     residuals = problem.marker_residuals(state)
     motions = tuple(Motion(t.times.copy(), Z[sl, :3].copy(), Q[sl].copy(), Z[sl, 6:].copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
