@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibrate.calibration import broken_samples, jump_episodes, seed_parameters
+from calibrate.calibration import broken_samples, calibrate, jump_episodes, seed_parameters
+from calibrate.evaluate import compare_to_truth
 from calibrate.ik import marker_columns
 from calibrate.labels import map_labels
 from calibrate.simulate import simulate_squats
@@ -114,3 +115,20 @@ def test_real_walk_loses_no_samples(human):
     trial, _ = map_labels(read_trial(REAL / "walk.c3d"), human.marker_names)
     assert not jump_episodes(trial).any()
     assert not broken_samples(human, trial).any()
+
+
+def test_jumps_are_left_out_of_the_solve_and_reported(human):
+    """Eight frames of LELB and LUPA exchanged: the calibration leaves all 16 positions out before the
+    start and reports them as outliers, each with its error at the fit close to the distance the swap
+    moved it (simulator truth); the left shoulder comes out as on the clean trial."""
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=5)
+    frames = slice(60, 68)
+    cal = calibrate(human, _swapped(sim.trial, "LELB", "LUPA", frames))
+    got = {(o.frame, o.marker): o.error for o in cal.outliers}
+    i, j = human.marker_index("LELB"), human.marker_index("LUPA")
+    moved = np.linalg.norm(sim.clean_markers[frames, i] - sim.clean_markers[frames, j], axis=1)
+    for f, d in zip(range(frames.start, frames.stop), moved, strict=True):
+        for m in ("LELB", "LUPA"):
+            assert (f, m) in got
+            assert abs(got[f, m] - d) < 0.01, (f, m, got[f, m], d)
+    assert compare_to_truth(cal, sim).ball()["shoulder_l"] < 0.004
