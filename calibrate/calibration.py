@@ -521,25 +521,26 @@ def jump_episodes(trial: Trial) -> np.ndarray:
     if F < 2 * SEED_JUMP_WINDOW + 2:
         return out
     longest = max(1, int(round(SEED_EPISODE_S * trial.rate)))
-    d = np.diff(X, axis=0)  # (F-1, M, 3): step into frame f+1; NaN across gaps
     W = SEED_JUMP_WINDOW
-    pad = np.full((W, *d.shape[1:]), np.nan)
-    dp = np.concatenate([pad, d, pad])
-    around = np.stack([dp[W + o: W + o + len(d)] for o in range(-W, W + 1) if o], axis=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        s = d - np.nanmedian(around, axis=0)  # (F-1, M, 3)
-        size = np.linalg.norm(s, axis=2)
-        sd = MAD_SD * np.nanmedian(size, axis=0)
-    jump = np.isfinite(size) & (size > np.maximum(SEED_JUMP_SDS * np.nan_to_num(sd), SEED_JUMP_MIN))
-    seen = np.all(np.isfinite(X), axis=2)
-    for k in np.flatnonzero(jump.any(axis=0)):
-        steps = np.flatnonzero(jump[:, k])
+    pad = np.full((W, 3), np.nan)
+    for k in range(X.shape[1]):  # one marker at a time: memory stays 2W x the trajectory
+        x = X[:, k]
+        d = np.diff(x, axis=0)  # (F-1, 3): step into frame f+1; NaN across gaps
+        dp = np.concatenate([pad, d, pad])
+        around = np.stack([dp[W + o: W + o + len(d)] for o in range(-W, W + 1) if o], axis=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            s = d - np.nanmedian(around, axis=0)  # (F-1, 3)
+            size = np.linalg.norm(s, axis=1)
+            sd = MAD_SD * np.nanmedian(size)
+        jump = np.isfinite(size) & (size > max(SEED_JUMP_SDS * float(np.nan_to_num(sd)), SEED_JUMP_MIN))
+        steps = np.flatnonzero(jump)
+        seen = np.all(np.isfinite(x), axis=1)
         i = 0
         while i < steps.size - 1:
             a, b = steps[i], steps[i + 1]  # jumps into frames a+1 and b+1
-            undo = np.linalg.norm(s[a, k] + s[b, k]) <= SEED_JUMP_UNDO * max(size[a, k], size[b, k])
-            if undo and b - a <= longest and seen[a + 1:b + 1, k].all():
+            undo = np.linalg.norm(s[a] + s[b]) <= SEED_JUMP_UNDO * max(size[a], size[b])
+            if undo and b - a <= longest and seen[a + 1:b + 1].all():
                 out[a + 1:b + 1, k] = True
                 i += 2
             else:
