@@ -235,6 +235,10 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     """
     t0 = time.perf_counter()
     notes: list[str] = []
+    trial, broken = _without_broken(model, trial)
+    if broken:
+        notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: jumps and back, or "
+                     f"distances to markers on the same segment broken)")
     if joints is None:
         thinned = _seed_trial(trial, SEED_FRAMES)
         cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
@@ -370,6 +374,14 @@ SIZE_POSES = 60  # random poses (angles anywhere in their ranges): is a marker p
 SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this fraction over those poses ...
 SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
 SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
+SEED_BROKEN_SDS = 6.0  # a rigid marker pair's distance this many robust SDs from its median over the trial ...
+SEED_BROKEN_MIN = 0.010  # m ... and at least this far: a swapped label or a spike (broken_samples)
+SEED_JUMP_MIN = 0.02  # m: a marker's frame-to-frame step this far from the steps around it is a jump ...
+SEED_JUMP_SDS = 8.0  # ... if also this many robust SDs of the marker's own (jump_episodes)
+SEED_JUMP_WINDOW = 3  # frames each side whose steps' median predicts a step
+SEED_JUMP_UNDO = 0.5  # two jumps undo each other when their sum is shorter than this fraction of the larger
+SEED_EPISODE_S = 1.0  # s: a spike or swapped-label episode lasts at most this long
+SEED_BROKEN_GROUP = 12  # a segment with more markers is not checked (2^n candidate sets)
 SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
 
 
@@ -457,6 +469,115 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
             factors[name] = _weighted_median(ratio[inside], wt[inside])
             scale[segs] = factors[name]
     return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
+
+
+def broken_samples(model: Model, trial: Trial) -> np.ndarray:
+    """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the other
+    markers of its segment: a swapped label or a spike.
+
+    A pair is broken in a frame when its distance is further than SEED_BROKEN_SDS robust SDs (and
+    SEED_BROKEN_MIN) from its median over the trial (pairs whose distance is not steady over the
+    trial, SIZE_TRIAL_CV, are not used).  Within a segment, a frame keeps the markers common to every
+    largest set with no broken pair among them: one marker off is flagged alone, two swapped labels
+    both, and when the distances cannot tell which markers are wrong (two markers alone, or a swap on
+    a near-symmetric segment) all of them."""
+    X = marker_columns(model, trial)
+    flagged = np.zeros(X.shape[:2], dtype=bool)
+    seen = np.all(np.isfinite(X), axis=2)
+    for sg in model.segments:
+        members = np.array([model.marker_index(m) for m in sg.markers])
+        if members.size < 2 or members.size > SEED_BROKEN_GROUP:
+            continue
+        ia, ib = np.triu_indices(members.size, 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.linalg.norm(X[:, members[ia]] - X[:, members[ib]], axis=2)  # (F, pairs)
+            med = np.nanmedian(d, axis=0)
+            mad = MAD_SD * np.nanmedian(np.abs(d - med), axis=0)
+            steady = (np.sum(np.isfinite(d), axis=0) >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
+            broken = (np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)) & steady
+        frames = np.flatnonzero(broken.any(axis=1))
+        if frames.size == 0:
+            continue
+        subsets = (np.arange(2 ** members.size)[:, None] >> np.arange(members.size)) & 1  # (S, n)
+        both = (subsets[:, ia] & subsets[:, ib]).T.astype(float)  # (pairs, S): pair inside the subset
+        consistent = (broken[frames].astype(float) @ both) == 0  # (frames, S)
+        vis = seen[np.ix_(frames, members)]
+        size = np.where(consistent, vis.astype(float) @ subsets.T, -1.0)
+        largest = size == size.max(axis=1, keepdims=True)
+        keep = (largest.astype(float) @ (1 - subsets)) == 0  # in every largest consistent set
+        flagged[np.ix_(frames, members)] = vis & ~keep
+    return flagged
+
+
+def jump_episodes(trial: Trial) -> np.ndarray:
+    """(n_frames, n_markers) True where a marker trajectory sits between a jump and the jump that undoes
+    it (a spike: one frame; a swapped label: until the labels swap back).  A jump is a frame-to-frame
+    step further than SEED_JUMP_MIN (and SEED_JUMP_SDS robust SDs of the marker's own) from the median
+    of the steps around it (SEED_JUMP_WINDOW frames each side: constant acceleration cancels); two
+    jumps of one marker at most SEED_EPISODE_S apart, with no gap between, that undo each other (their
+    sum shorter than SEED_JUMP_UNDO of the larger) bound an episode."""
+    X = np.asarray(trial.markers)
+    F = X.shape[0]
+    out = np.zeros(X.shape[:2], dtype=bool)
+    if F < 2 * SEED_JUMP_WINDOW + 2:
+        return out
+    longest = max(1, int(round(SEED_EPISODE_S * trial.rate)))
+    W = SEED_JUMP_WINDOW
+    pad = np.full((W, 3), np.nan)
+    for k in range(X.shape[1]):  # one marker at a time: memory stays 2W x the trajectory
+        x = X[:, k]
+        d = np.diff(x, axis=0)  # (F-1, 3): step into frame f+1; NaN across gaps
+        dp = np.concatenate([pad, d, pad])
+        around = np.stack([dp[W + o: W + o + len(d)] for o in range(-W, W + 1) if o], axis=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            s = d - np.nanmedian(around, axis=0)  # (F-1, 3)
+            size = np.linalg.norm(s, axis=1)
+            sd = MAD_SD * np.nanmedian(size)
+        jump = np.isfinite(size) & (size > max(SEED_JUMP_SDS * float(np.nan_to_num(sd)), SEED_JUMP_MIN))
+        steps = np.flatnonzero(jump)
+        seen = np.all(np.isfinite(x), axis=1)
+        i = 0
+        while i < steps.size - 1:
+            a, b = steps[i], steps[i + 1]  # jumps into frames a+1 and b+1
+            undo = np.linalg.norm(s[a] + s[b]) <= SEED_JUMP_UNDO * max(size[a], size[b])
+            if undo and b - a <= longest and seen[a + 1:b + 1].all():
+                out[a + 1:b + 1, k] = True
+                i += 2
+            else:
+                i += 1
+    return out
+
+
+def jumped_samples(model: Model, trials: Sequence[Trial]) -> np.ndarray:
+    """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order,
+    stacked as the calibration stacks the trials."""
+    parts = []
+    for t in trials:
+        jumps = jump_episodes(t)
+        index = {lab: i for i, lab in enumerate(t.labels)}
+        out = np.zeros((t.n_frames, len(model.markers)), dtype=bool)
+        for k, name in enumerate(model.marker_names):
+            if name in index:
+                out[:, k] = jumps[:, index[name]]
+        parts.append(out)
+    return np.concatenate(parts)
+
+
+def _without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
+    """`trial` with the samples broken_samples and jump_episodes flag set to gaps, and how many there were."""
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    bad = jump_episodes(trial)
+    rigid = broken_samples(model, trial)
+    for k, name in enumerate(model.marker_names):
+        if name in index:
+            bad[:, index[name]] |= rigid[:, k]
+    if not bad.any():
+        return trial, 0
+    markers = np.array(trial.markers)
+    markers[bad] = np.nan
+    return replace(trial, markers=markers), int(bad.sum())
 
 
 def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
@@ -660,6 +781,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     t0 = time.perf_counter()
     say("build: residuals and Jacobian (CasADi)")
     kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
+    # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
+    # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
+    # before the solve's own outlier rejection can see them.  They are reported with the other outliers.
+    jumped = jumped_samples(subject, trials) if settings.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
+    raw = obs
+    if jumped.any():
+        say(f"markers: {int(jumped.sum())} positions jump away and back (swapped labels, spikes); left out")
+        obs = np.where(jumped[..., None], np.nan, obs)
     problem = Problem(subject, obs, settings, kin, progress=progress)
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -750,6 +879,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     Z, Q = absolute(problem.kin, state, spans)
     notes = coordinate_notes(subject, Z[:, 6:], lin.A, settings)
     times["covariance"] = time.perf_counter() - t0
+    if jumped.any():  # their distance from where the fitted model puts them
+        Zr = np.column_stack([Z[:, :3], np.zeros((len(Z), 3)), Z[:, 6:]])
+        err = np.linalg.norm(problem.kin.batch(Zr, Q, params)[0] - raw, axis=2)
+        rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
+                            float(err[f, k])) for f, k in np.argwhere(jumped)] + rejected
     residuals = problem.marker_residuals(state)
     motions = tuple(Motion(t.times.copy(), Z[sl, :3].copy(), Q[sl].copy(), Z[sl, 6:].copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
