@@ -24,6 +24,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,13 +41,25 @@ def split_frames(F: int, min_frames: int = 64) -> list[slice]:
     return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
+@functools.cache
+def _workers(n: int) -> ThreadPoolExecutor:
+    """The process's pool of `n` worker threads, started once: a solve calls in_parallel several
+    times per iteration, and starting threads afresh each time cost more than some of the work."""
+    return ThreadPoolExecutor(n, thread_name_prefix=_WORKER_NAME)
+
+
+_WORKER_NAME = "calibrate-worker"
+
+
 def in_parallel(work, parts: list) -> list:
-    """work(part) for every part, on WORKERS threads (numpy's batched kernels and the compiled
-    kernels here release the GIL)."""
-    if len(parts) == 1:
-        return [work(parts[0])]
-    with ThreadPoolExecutor(len(parts)) as pool:
-        return list(pool.map(work, parts))
+    """work(part) for every part: the first in the calling thread, the others on the worker pool
+    (numpy's batched kernels and the compiled kernels here release the GIL).  Called from a worker
+    itself, the parts run one after another (a nested wait on the pool could deadlock it)."""
+    if len(parts) == 1 or threading.current_thread().name.startswith(_WORKER_NAME):
+        return [work(p) for p in parts]
+    pool = _workers(max(1, WORKERS - 1))
+    later = [pool.submit(work, p) for p in parts[1:]]
+    return [work(parts[0]), *(f.result() for f in later)]
 
 
 @dataclass(frozen=True)

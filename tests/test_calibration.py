@@ -8,12 +8,14 @@ import math
 import shutil
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pinocchio as pin
 import pytest
 import yourdfpy
 
+from calibrate.assembly import in_parallel, split_frames
 from calibrate.calibration import calibrate
 from calibrate.config import load_settings, settings_from_dict
 from calibrate.errors import CalibrateError
@@ -660,3 +662,16 @@ def test_scale_retraction_stays_positive(human, human_kin):
         dp[col] = ds
         s = problem.retract_parameters(p, dp)[human.segment_index("talus_l")]
         assert s > 0 and check(s)
+
+
+def test_in_parallel_runs_each_part_once_in_order_and_nests():
+    """The worker pool (kept between calls) runs every part once, returns the results in the parts'
+    order, and a call made from a worker runs its parts there instead of waiting on the pool."""
+    parts = split_frames(1000)
+    out = in_parallel(lambda fr: (fr.start, fr.stop, threading.current_thread().name), parts)
+    assert [(a, b) for a, b, _ in out] == [(p.start, p.stop) for p in parts]
+    assert out[0][2] == threading.current_thread().name  # the first part in the calling thread
+    for _ in range(3):  # the pool is reused, and a nested call completes
+        nested = in_parallel(lambda fr: sum(in_parallel(lambda g: g.stop - g.start, split_frames(fr.stop - fr.start))),
+                             parts)
+        assert nested == [p.stop - p.start for p in parts]

@@ -13,6 +13,7 @@ from calibrate.calibration import (
     _rms,
     calibrate,
     learned_noise,
+    leverage,
     seed_parameters,
     size_from_markers,
     start_poses,
@@ -246,3 +247,24 @@ def test_start_fits_the_subjects_size(human, human_kin, k):
     obs = marker_columns(human, trial)
     st = start_poses(human_kin, obs, seed.params)  # with the balls' reference rotations (State.B)
     assert _rms(Problem(human, obs, Settings(), human_kin).marker_residuals(st)) < 0.015
+
+
+def test_leverage_is_the_hat_matrix_diagonal(human, human_kin):
+    """leverage(): per marker, the trace of its three rows of the hat matrix J (J'J)⁻¹ J' of its frame's
+    coordinates (weighted rows), / 3 — checked against that matrix formed densely from the sparse Jacobian."""
+    sim = simulate_squats(human, frames=12, noise_mm=1.0, seed=5)
+    obs = marker_columns(human, sim.trial)
+    obs[4, 7] = np.nan  # a gap: no leverage there
+    problem = Problem(human, obs, Settings(noise=0.002, marker_noise={"LTHI": 0.005}), human_kin)
+    Z, Q = _truth_state(sim)
+    state, _ = levenberg_marquardt(problem, State(Z, Q, sim.truth.vector()), pose_only=True, max_iterations=5)
+    h, _ = leverage(problem, state)
+    _, J = problem.full_jacobian(state)
+    J = J.toarray()
+    nm, nz = len(human.markers), human.nz
+    for f in (0, 4, 11):
+        Jf = J[f * 3 * nm:(f + 1) * 3 * nm, f * nz:(f + 1) * nz]
+        hat = Jf @ np.linalg.pinv(Jf.T @ Jf) @ Jf.T
+        expect = np.diag(hat).reshape(nm, 3).sum(axis=1) / 3
+        np.testing.assert_allclose(h[f], np.where(problem.seen[f], expect, 0.0), atol=1e-9)
+    assert h[4, 7] == 0.0 and 0.0 < h.max() < 1.0
