@@ -44,6 +44,7 @@ SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated
 SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
 START_FRAMES = 60  # frames of the subsample on which choose_start solves each candidate start
 START_ITERATIONS = 30  # ... for at most this many iterations
+START_GOOD_FIT = 1.5  # a candidate whose chi-square per observed coordinate is below this is taken at once
 STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
 HOLD_ROUNDS = 2  # rounds of holding the axes of still coordinates (Settings.auto_hold), each a new subsample solve
 LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
@@ -1052,6 +1053,13 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
         with_p = replace(state, p=params.vector())
         _, summary = levenberg_marquardt(sub, with_p, max_iterations=START_ITERATIONS)
         costs[name] = summary.final_cost
+        # A start that fits the subsample to the stated noise (chi-square per coordinate near 1:
+        # clean data) has nothing to gain from another.
+        if 2.0 * summary.final_cost / (3 * max(int(sub.seen.sum()), 1)) <= START_GOOD_FIT:
+            note = (f"started from {name}: solved on {coarse.size} frames it fits them to the stated noise "
+                    f"(cost {summary.final_cost:.4g}), so no other start was tried")
+            say("start: " + note)
+            return params, note
     best = min(costs, key=costs.get)
     note = (f"started from {best}: of " + ", ".join(f"{n} (cost {c:.4g})" for n, c in costs.items())
             + f", solved on {coarse.size} frames, its basin fits best")

@@ -1,0 +1,75 @@
+"""choose_start: of several start geometries, the one whose basin ends at the lowest cost on the
+subsample starts the calibration; one that already fits to the stated noise is taken at once."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibrate.calibration import calibrate, choose_start, start_poses
+from calibrate.ik import marker_columns
+from calibrate.kinematics import build_kinematics
+from calibrate.model import Parameters, load_model
+from calibrate.problem import Problem, Settings
+from calibrate.simulate import simulate_squats
+from calibrate.solver import levenberg_marquardt
+
+
+@pytest.fixture(scope="module")
+def human():
+    from pathlib import Path
+
+    return load_model(Path(__file__).resolve().parents[1] / "models" / "human.urdf")
+
+
+@pytest.fixture(scope="module")
+def human_kin(human):
+    return build_kinematics(human)
+
+
+def _wrong(p: Parameters) -> Parameters:
+    """A start far from the subject: every segment 30 % too large."""
+    return Parameters(p.scale * 1.3, p.centre.copy(), p.axis.copy(), p.marker.copy())
+
+
+def test_the_lower_cost_start_is_chosen(human, human_kin):
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=11)
+    obs = marker_columns(human, sim.trial)
+    loose = Settings(noise=0.0005)  # half the simulated noise: no start fits to it, so the costs decide
+    problem = Problem(human, obs, loose, human_kin)
+    truth = sim.truth
+    said: list[str] = []
+    # the wrong start first, so that the good-fit shortcut cannot decide
+    chosen, note = choose_start(problem, obs, [slice(0, len(obs))], {"a wrong start": _wrong(truth),
+                                                                     "the truth": truth}, said.append)
+    assert np.allclose(chosen.vector(), truth.vector())
+    assert note.startswith("started from the truth: of a wrong start (cost ")
+    # the costs in the note are the ones each start reaches: recompute the truth's independently
+    # (the same subsample, poses and 30 iterations) and compare with the note's figure
+    costs = [float(x.split(")")[0]) for x in note.split("(cost ")[1:]]
+    assert costs[1] < costs[0]
+    seen = np.all(np.isfinite(obs), axis=2)
+    from calibrate.calibration import START_FRAMES, START_ITERATIONS, coarse_frames
+    coarse = coarse_frames(seen, START_FRAMES)
+    sub = Problem(human, obs[coarse], loose, human_kin)
+    st = start_poses(human_kin, obs[coarse], truth, stride=1, evaluator=sub.frame_evaluator(truth.vector()))
+    _, summary = levenberg_marquardt(sub, st, max_iterations=START_ITERATIONS)
+    assert summary.final_cost == pytest.approx(costs[1], rel=1e-3)
+
+
+def test_a_start_at_the_noise_is_taken_at_once(human, human_kin):
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=12)
+    obs = marker_columns(human, sim.trial)
+    problem = Problem(human, obs, Settings(), human_kin)
+    said: list[str] = []
+    chosen, note = choose_start(problem, obs, [slice(0, len(obs))], {"the truth": sim.truth,
+                                                                     "a wrong start": _wrong(sim.truth)}, said.append)
+    assert np.allclose(chosen.vector(), sim.truth.vector())
+    assert "no other start was tried" in note
+    assert not any("a wrong start" in s for s in said)  # never solved
+
+
+def test_calibration_reports_its_start(human, human_kin):
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=13)
+    cal = calibrate(human, sim.trial, kinematics=human_kin)
+    assert sum(n.startswith("started from ") for n in cal.seed.notes) == 1
