@@ -1041,8 +1041,7 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     if len(names) == 1:
         return candidates[names[0]], f"started from {names[0]}"
     seen = np.all(np.isfinite(observed), axis=2)
-    coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(START_FRAMES * (sl.stop - sl.start)
-                                                                          / problem.F))) for sl in spans])
+    coarse = spread_frames(seen, spans, START_FRAMES)
     sub = Problem(problem.model, observed[coarse], problem.settings, problem.kin, problem.base)
     costs = {}
     for name in names:
@@ -1075,8 +1074,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
     subsample solved again (returns the problem with those settings)."""
     settings = problem.settings
     seen = problem.seen
-    coarse = np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(COARSE_FRAMES * (sl.stop - sl.start)
-                                                                           / problem.F))) for sl in spans])
+    coarse = spread_frames(seen, spans, COARSE_FRAMES)
     fixed = _fixed_noise(problem.model, settings)
     scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
@@ -1387,6 +1385,14 @@ def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.nd
         by_label[name] = NewMarker(name, m.segment, s[i] * offset, m.reason)
     result = [by_label[m.label] for m in placed]
     return out, base, result
+
+
+def spread_frames(seen: np.ndarray, spans: Sequence[slice], target: int) -> np.ndarray:
+    """About `target` frames (indices into all trials' frames) spread over the trials of `spans` by
+    their length, evenly within each (coarse_frames; at least 2 per trial)."""
+    total = sum(sl.stop - sl.start for sl in spans)
+    return np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(target * (sl.stop - sl.start) / total)))
+                           for sl in spans])
 
 
 def coarse_frames(seen: np.ndarray, target: int = COARSE_FRAMES) -> np.ndarray:
