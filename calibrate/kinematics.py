@@ -92,14 +92,15 @@ def cayley_np(delta: np.ndarray) -> np.ndarray:
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternions (x, y, z, w), vectorised over leading axes."""
-    ax, ay, az, aw = np.moveaxis(np.asarray(a, float), -1, 0)
-    bx, by, bz, bw = np.moveaxis(np.asarray(b, float), -1, 0)
-    return np.stack([
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-        aw * bw - ax * bx - ay * by - az * bz,
-    ], axis=-1)
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = aw * bx + ax * bw + ay * bz - az * by
+    out[..., 1] = aw * by - ax * bz + ay * bw + az * bx
+    out[..., 2] = aw * bz + ax * by - ay * bx + az * bw
+    out[..., 3] = aw * bw - ax * bx - ay * by - az * bz
+    return out
 
 
 def cayley_quat(delta: np.ndarray) -> np.ndarray:
@@ -281,6 +282,16 @@ class Kinematics:
     def n_params(self) -> int:
         return int(self.h.size1_in(2))
 
+    @cached_property
+    def _ball_dofs(self) -> np.ndarray:
+        """(n_balls, 3) DoF indices of the SO(3) balls, proximal first (retract)."""
+        return np.array([b.dofs for b in self.balls], dtype=int).reshape(-1, 3)
+
+    @cached_property
+    def _ball_axes(self) -> np.ndarray:
+        """(n_balls, 3, 3) the balls' revolute axes, row k the k-th (retract)."""
+        return np.array([b.axes for b in self.balls], dtype=float).reshape(-1, 3, 3)
+
     @property
     def n_refs(self) -> int:
         """Length of the solver form's reference input: 4 (root) + 4 per SO(3) ball joint."""
@@ -316,16 +327,21 @@ class Kinematics:
         Q = retract_root(Q, Z[:, 3:6])
         Z[:, 3:6] = 0.0
         F = Z.shape[0]
-        Bn = np.empty((F, len(self.balls), 4))
-        for i, b in enumerate(self.balls):
-            cols = 6 + np.array(b.dofs)
-            q = b.quaternion(Z[:, cols])
-            if B is not None:
-                q = quat_multiply(B[:, i], q)
-            q /= np.linalg.norm(q, axis=1, keepdims=True)
-            Bn[:, i] = np.where(q[:, 3:4] < 0, -q, q)
-            Z[:, cols] = 0.0
-        return Z, Q, Bn
+        if not self.balls:
+            return Z, Q, np.empty((F, 0, 4))
+        # Every ball at once: E(theta) = R(a1, t1) R(a2, t2) R(a3, t3) as quaternions (F, n_balls, 4).
+        cols = 6 + self._ball_dofs  # (n_balls, 3)
+        h = 0.5 * Z[:, cols]  # (F, n_balls, 3)
+        axes = self._ball_axes  # (n_balls, 3, 3): row k the k-th revolute's axis
+        q = None
+        for k in range(3):
+            qk = np.concatenate([np.sin(h[..., k:k + 1]) * axes[:, k], np.cos(h[..., k:k + 1])], axis=-1)
+            q = qk if q is None else quat_multiply(q, qk)
+        if B is not None:
+            q = quat_multiply(B, q)
+        q /= np.linalg.norm(q, axis=-1, keepdims=True)
+        Z[:, cols.ravel()] = 0.0
+        return Z, Q, np.where(q[..., 3:4] < 0, -q, q)
 
     def retract_refs(self, Z: np.ndarray, refs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """retract for poses in the refs form (F, n_refs) (per-frame solvers)."""

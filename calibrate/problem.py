@@ -355,6 +355,8 @@ class Problem:
         self.n_free = len(cols)
         self._direct = np.array([(k, c[1]) for k, c in enumerate(cols) if c[1] >= 0], dtype=int).reshape(-1, 2)
         self._tangent = [(k, c[2]) for k, c in enumerate(cols) if c[1] < 0]
+        # each free axis's two tangent columns (retract_parameters, once per step)
+        self._tangent_cols = {d: [k for k, dd in self._tangent if dd == d] for d in self.axis_dofs}
         # Free joint centres and markers: full index, free column, owning segment (whose scale
         # multiplies them), and that segment's free scale column (-1 if the scale is held).
         owner_of = {}
@@ -653,8 +655,7 @@ class Problem:
         rows, cols, owner, _ = self._positions
         if rows.size:
             out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
-        for d in self.axis_dofs:
-            cols = [k for k, dd in self._tangent if dd == d]
+        for d, cols in self._tangent_cols.items():
             a = self._axis(p, d)
             a = a + perpendicular_basis(a) @ dp[cols]
             sl = slice(self.offsets["axis"] + 3 * d, self.offsets["axis"] + 3 * d + 3)
@@ -776,13 +777,24 @@ class Problem:
         w = np.where(self.seen, np.sqrt(drho) / sigma, 0.0)
         return cost, w
 
+    def _prior_centres(self) -> tuple[np.ndarray, tuple]:
+        """The base model's parameter vector and its left/right pairs (symmetry_pairs), kept while
+        `base` is the same object (prior runs at every cost evaluation)."""
+        cached = self.__dict__.get("_prior_cache")
+        if cached is None or cached[0] is not self.base:
+            base = self.base.vector()
+            o = self.offsets
+            cached = (self.base, base, symmetry_pairs(self.model, base[o["centre"]:o["axis"]].reshape(-1, 3)))
+            self._prior_cache = cached
+        return cached[1], cached[2]
+
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,
               jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Prior residuals and their Jacobian (n_prior, n_free) at full parameters `p`, through the
         free-parameter map `T` (default: tangent_map(p)); no Jacobian (None) if not `jacobian`."""
         st, m, o = self.settings, self.model, self.offsets
         free = set(st.free)
-        base = self.base.vector()
+        base, (seg_pairs, joint_pairs, mirror) = self._prior_centres()
         scale = p[:len(m.segments)]
         res: list[np.ndarray] = []
         jac: list[np.ndarray] = []  # d residual / d p_full
@@ -792,6 +804,8 @@ class Problem:
             s = scale[seg_of][:, None]
             diff = p[idx] - base[idx]
             res.append((s * diff / sigma).ravel())
+            if not jacobian:
+                return
             J = np.zeros((3 * count, self.np_full))
             rows = np.arange(3 * count)
             J[rows, idx.ravel()] = np.repeat(scale[seg_of], 3) / sigma
@@ -805,27 +819,29 @@ class Problem:
         for d in self.axis_dofs:
             sl = slice(o["axis"] + 3 * d, o["axis"] + 3 * d + 3)
             res.append((p[sl] - base[sl] / np.linalg.norm(base[sl])) / st.priors.axis)
-            J = np.zeros((3, self.np_full))
-            J[:, sl] = np.eye(3) / st.priors.axis
-            jac.append(J)
+            if jacobian:
+                J = np.zeros((3, self.np_full))
+                J[:, sl] = np.eye(3) / st.priors.axis
+                jac.append(J)
         if "scale" in free:
             ns = len(m.segments)
             res.append((scale - base[:ns]) / st.priors.scale)
-            J = np.zeros((ns, self.np_full))
-            J[np.arange(ns), np.arange(ns)] = 1.0 / st.priors.scale
-            jac.append(J)
+            if jacobian:
+                J = np.zeros((ns, self.np_full))
+                J[np.arange(ns), np.arange(ns)] = 1.0 / st.priors.scale
+                jac.append(J)
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
-        seg_pairs, joint_pairs, mirror = symmetry_pairs(m, base[o["centre"]:o["axis"]].reshape(-1, 3))
         sd = st.priors.symmetry_scale
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
             res.append(((scale[a] - scale[b]) - (base[a] - base[b])) / sd)
-            J = np.zeros((a.size, self.np_full))
-            J[np.arange(a.size), a] = 1.0 / sd
-            J[np.arange(a.size), b] = -1.0 / sd
-            jac.append(J)
+            if jacobian:
+                J = np.zeros((a.size, self.np_full))
+                J[np.arange(a.size), a] = 1.0 / sd
+                J[np.arange(a.size), b] = -1.0 / sd
+                jac.append(J)
         sd = st.priors.symmetry_centre
         if "centre" in free and sd > 0 and joint_pairs:
             for jl, jr in joint_pairs:
@@ -833,6 +849,8 @@ class Problem:
                 il = o["centre"] + 3 * jl + np.arange(3)
                 ir = o["centre"] + 3 * jr + np.arange(3)
                 res.append((scale[sa] * p[il] - mirror * (scale[sb] * p[ir]) - (base[il] - mirror * base[ir])) / sd)
+                if not jacobian:
+                    continue
                 J = np.zeros((3, self.np_full))
                 J[np.arange(3), il] = scale[sa] / sd
                 J[np.arange(3), ir] = -mirror * scale[sb] / sd
