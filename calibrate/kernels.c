@@ -1,0 +1,166 @@
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+typedef int64_t I;
+
+/* Normal equations of frames f0..f1-1 (see calibrate.assembly.assemble).  Blocks are kept
+   transposed (column by row) so that every inner product runs over contiguous memory. */
+int cal_assemble(const double *d, const double *w, const double *jz, const double *jp,
+                 I nrow, I njz, I njp, I nz, I n, I f0, I f1, I with_p, I grad_only, I n_groups,
+                 const I *rows, const I *row_off, const I *zcols, const I *zc_off,
+                 const I *z_src, const I *z_r, const I *z_c, const I *z_off,
+                 const I *fcols, const I *fc_off, const I *p_src, const I *p_r, const I *p_c,
+                 const double *p_val, const I *p_off,
+                 double *A, double *B, double *gz, double *Ct, double *gt)
+{
+    I max_r = 1, max_zc = 1, max_fc = 1;
+    for (I g = 0; g < n_groups; ++g) {
+        if (row_off[g + 1] - row_off[g] > max_r) max_r = row_off[g + 1] - row_off[g];
+        if (zc_off[g + 1] - zc_off[g] > max_zc) max_zc = zc_off[g + 1] - zc_off[g];
+        if (with_p && fc_off[g + 1] - fc_off[g] > max_fc) max_fc = fc_off[g + 1] - fc_off[g];
+    }
+    double *Jz = calloc((size_t)(max_zc * max_r), sizeof(double));
+    double *Jp = calloc((size_t)(max_fc * max_r), sizeof(double));
+    double *e = calloc((size_t)max_r, sizeof(double));
+    double *wr = calloc((size_t)max_r, sizeof(double));
+    if (!Jz || !Jp || !e || !wr) { free(Jz); free(Jp); free(e); free(wr); return 0; }
+    for (I f = f0; f < f1; ++f) {
+        const double *df = d + f * nrow, *wf = w + f * nrow, *jzf = jz + f * njz, *jpf = jp + f * njp;
+        double *Af = A + f * nz * nz, *Bf = B + f * nz * n, *gzf = gz + f * nz;
+        memset(gzf, 0, (size_t)nz * sizeof(double));
+        if (!grad_only) {
+            memset(Af, 0, (size_t)(nz * nz) * sizeof(double));
+            if (with_p) memset(Bf, 0, (size_t)(nz * n) * sizeof(double));
+        }
+        for (I g = 0; g < n_groups; ++g) {
+            I r0 = row_off[g], nr = row_off[g + 1] - r0, seen = 0;
+            for (I a = 0; a < nr; ++a) {
+                wr[a] = wf[rows[r0 + a]];
+                e[a] = df[rows[r0 + a]] * wr[a];
+                if (wr[a] != 0.0) seen = 1;
+            }
+            if (!seen) continue;
+            I c0 = zc_off[g], nc = zc_off[g + 1] - c0;
+            memset(Jz, 0, (size_t)(nc * max_r) * sizeof(double));
+            for (I k = z_off[g]; k < z_off[g + 1]; ++k) Jz[z_c[k] * max_r + z_r[k]] = jzf[z_src[k]] * wr[z_r[k]];
+            for (I a = 0; a < nc; ++a) {
+                const double *za = Jz + a * max_r;
+                I ia = zcols[c0 + a];
+                double s = 0.0;
+                for (I r = 0; r < nr; ++r) s += za[r] * e[r];
+                gzf[ia] += s;
+                if (grad_only) continue;
+                for (I b = 0; b < nc; ++b) {
+                    const double *zb = Jz + b * max_r;
+                    s = 0.0;
+                    for (I r = 0; r < nr; ++r) s += za[r] * zb[r];
+                    Af[ia * nz + zcols[c0 + b]] += s;
+                }
+            }
+            if (!with_p) continue;
+            I q0 = fc_off[g], nq = fc_off[g + 1] - q0;
+            if (nq == 0) continue;
+            memset(Jp, 0, (size_t)(nq * max_r) * sizeof(double));
+            for (I k = p_off[g]; k < p_off[g + 1]; ++k)
+                Jp[p_c[k] * max_r + p_r[k]] += jpf[p_src[k]] * p_val[k] * wr[p_r[k]];
+            if (!grad_only) {
+                for (I a = 0; a < nc; ++a) {
+                    const double *za = Jz + a * max_r;
+                    double *Brow = Bf + zcols[c0 + a] * n;
+                    for (I b = 0; b < nq; ++b) {
+                        const double *pb = Jp + b * max_r;
+                        double s = 0.0;
+                        for (I r = 0; r < nr; ++r) s += za[r] * pb[r];
+                        Brow[fcols[q0 + b]] += s;
+                    }
+                }
+            }
+            for (I a = 0; a < nq; ++a) {
+                const double *pa = Jp + a * max_r;
+                I ka = fcols[q0 + a];
+                double s = 0.0;
+                for (I r = 0; r < nr; ++r) s += pa[r] * e[r];
+                gt[ka] += s;
+                if (grad_only) continue;
+                for (I b = 0; b <= a; ++b) {
+                    const double *pb = Jp + b * max_r;
+                    I kb = fcols[q0 + b];
+                    s = 0.0;
+                    for (I r = 0; r < nr; ++r) s += pa[r] * pb[r];
+                    if (ka >= kb) Ct[ka * n + kb] += s; else Ct[kb * n + ka] += s;
+                }
+            }
+        }
+    }
+    free(Jz); free(Jp); free(e); free(wr);
+    return 1;
+}
+
+/* Cholesky of A_f + diag(damping_f) in reverse coordinate order, Y = L^-1 B_f, yz = L^-1 g_z
+   (rows reversed); 0 if a block is not positive definite. */
+int cal_factor(const double *A, const double *damping, const double *B, const double *gz,
+               double *L, double *Y, double *yz, I nz, I n, I f0, I f1)
+{
+    int ok = 1;
+    for (I f = f0; f < f1; ++f) {
+        const double *Af = A + f * nz * nz;
+        double *Lf = L + f * nz * nz;
+        for (I i = 0; i < nz; ++i) {
+            for (I j = 0; j < nz; ++j) Lf[i * nz + j] = j <= i ? Af[(nz - 1 - i) * nz + (nz - 1 - j)] : 0.0;
+            Lf[i * nz + i] += damping[f * nz + nz - 1 - i];
+        }
+        for (I j = 0; j < nz; ++j) {
+            double s = Lf[j * nz + j];
+            for (I k = 0; k < j; ++k) if (Lf[j * nz + k] != 0.0) s -= Lf[j * nz + k] * Lf[j * nz + k];
+            if (!(s > 0.0)) { ok = 0; s = 1.0; }
+            double piv = sqrt(s);
+            Lf[j * nz + j] = piv;
+            for (I i = j + 1; i < nz; ++i) {
+                s = Lf[i * nz + j];
+                for (I k = 0; k < j; ++k) if (Lf[j * nz + k] != 0.0) s -= Lf[i * nz + k] * Lf[j * nz + k];
+                Lf[i * nz + j] = s / piv;
+            }
+        }
+        for (I i = 0; i < nz; ++i) {
+            double *yi = Y + (f * nz + i) * n;
+            memcpy(yi, B + (f * nz + nz - 1 - i) * n, (size_t)n * sizeof(double));
+            double s = gz[f * nz + nz - 1 - i];
+            for (I k = 0; k < i; ++k) {
+                double lik = Lf[i * nz + k];
+                if (lik == 0.0) continue;
+                s -= lik * yz[f * nz + k];
+                const double *yk = Y + (f * nz + k) * n;
+                for (I c = 0; c < n; ++c) yi[c] -= lik * yk[c];
+            }
+            double inv = 1.0 / Lf[i * nz + i];
+            yz[f * nz + i] = s * inv;
+            for (I c = 0; c < n; ++c) yi[c] *= inv;
+        }
+    }
+    return ok;
+}
+
+/* x with L_f' x_f = t_f. */
+int cal_back(const double *L, const double *t, double *x, I nz, I f0, I f1)
+{
+    for (I f = f0; f < f1; ++f)
+        for (I i = nz - 1; i >= 0; --i) {
+            double s = t[f * nz + i];
+            for (I k = i + 1; k < nz; ++k) s -= L[(f * nz + k) * nz + i] * x[f * nz + k];
+            x[f * nz + i] = s / L[(f * nz + i) * nz + i];
+        }
+    return 1;
+}
+
+/* y with L_f y_f = g_f reversed. */
+int cal_forward(const double *L, const double *g, double *y, I nz, I f0, I f1)
+{
+    for (I f = f0; f < f1; ++f)
+        for (I i = 0; i < nz; ++i) {
+            double s = g[f * nz + nz - 1 - i];
+            for (I k = 0; k < i; ++k) s -= L[(f * nz + i) * nz + k] * y[f * nz + k];
+            y[f * nz + i] = s / L[(f * nz + i) * nz + i];
+        }
+    return 1;
+}
