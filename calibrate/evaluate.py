@@ -60,7 +60,7 @@ def true_model_floor(sim: Simulation) -> tuple[float, float]:
     m = sim.motion
     Z = np.column_stack([m.root_translation, np.zeros((len(m.times), 3)), m.angles])
     state = State(Z, m.root_quaternion.copy(), sim.truth.vector())
-    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=20)
+    state, _ = levenberg_marquardt(problem, state, problem.settings.solver, pose_only=True, max_iterations=20)
     res = problem.marker_residuals(state)
     Z, _ = problem.kin.absolute(state.Z, state.Q, state.B, previous=m.angles[0])
     dang = np.degrees(np.angle(np.exp(1j * (Z[:, 6:] - m.angles))))

@@ -247,7 +247,7 @@ def compare_solvers(problem, state0, spec: dict) -> dict:
 
     out: dict = {"initial_cost": problem.cost(state0)}
     t0 = time.perf_counter()
-    state, summary = levenberg_marquardt(problem, state0)
+    state, summary = levenberg_marquardt(problem, state0, problem.settings.solver)
     out["ours"] = {"seconds": time.perf_counter() - t0, "iterations": summary.iterations,
                    "accepted": summary.accepted, "cost": problem.cost(state), "summary_cost": summary.final_cost,
                    "status": summary.termination, "converged": bool(summary.converged)}
