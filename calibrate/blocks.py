@@ -108,6 +108,7 @@ class FrameBlock:
 class FrameLayout:
     """Where the root pose and each DoF's angle sit in a frame's coordinates z (nz = 6 + n_dofs)."""
 
+    n_root = ROOT  # coordinates of the root pose
     translation = slice(0, 3)
     rotation = slice(3, ROOT)  # the root's rotation increment (retracted into its reference quaternion)
     root_pose = slice(0, ROOT)
@@ -196,8 +197,8 @@ class ParameterLayout:
         """The segments' scale factors in p (segment i at entry i)."""
         return self.group("scale")
 
-    def scale(self, i: int) -> int:
-        """Segment i's scale factor's entry in p."""
+    def scale(self, i: int | np.ndarray) -> int | np.ndarray:
+        """Segment i's scale factor's entry (entries) in p."""
         return self.offsets["scale"] + i
 
     def centre(self, j: int) -> slice:

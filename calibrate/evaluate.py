@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .blocks import FrameLayout
 from .calibration import Calibration
 from .ik import marker_columns
 from .kinematics import build_kinematics
@@ -63,7 +64,7 @@ def true_model_floor(sim: Simulation) -> tuple[float, float]:
     state, _ = levenberg_marquardt(problem, state, problem.settings.solver, pose_only=True, max_iterations=20)
     res = problem.marker_residuals(state)
     Z, _ = problem.kin.absolute(state.Z, state.Q, state.B, previous=m.angles[0])
-    dang = np.degrees(np.angle(np.exp(1j * (Z[:, 6:] - m.angles))))
+    dang = np.degrees(np.angle(np.exp(1j * (FrameLayout.angles(Z) - m.angles))))
     return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2)))), float(np.sqrt(np.mean(dang**2)))
 
 

@@ -324,12 +324,31 @@ class Problem:
         """(F, n_markers, 3) the observed marker positions (m), NaN where not seen or left out (see without)."""
         return self._observed
 
+    @property
+    def F(self) -> int:
+        """Frames."""
+        return self._observed.shape[0]
+
+    @property
+    def seen(self) -> np.ndarray:
+        """(F, n_markers) bool: which markers are observed (have residual rows) in each frame."""
+        return self._seen
+
+    @property
+    def target(self) -> np.ndarray:
+        """(F, 3 n_markers) the observed positions, 0 where not seen (the per-frame functions' input)."""
+        return self._target
+
+    @property
+    def n_obs(self) -> int:
+        """Observed marker positions (frame, marker pairs)."""
+        return self._n_obs
+
     def _set_observed(self, obs: np.ndarray) -> None:
         self._observed = obs
-        self.F = obs.shape[0]
-        self.seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
-        self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
-        self.n_obs = int(self.seen.sum())
+        self._seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
+        self._target = np.where(self._seen[..., None], obs, 0.0).reshape(obs.shape[0], -1)
+        self._n_obs = int(self._seen.sum())
 
     def buffers(self) -> dict:
         """Scratch memory that calibrate.solver keeps between its runs on this problem (large
@@ -420,10 +439,10 @@ class Problem:
         owner_of = {}
         for ji in range(nj):
             for i in L.entries("centre", [ji])[0]:
-                owner_of[int(i)] = int(self.centre_segment[ji])
+                owner_of[int(i)] = L.scale(int(self.centre_segment[ji]))  # its segment's scale
         for k in range(nm):
             for i in L.entries("marker", [k])[0]:
-                owner_of[int(i)] = int(self.marker_segment[k])
+                owner_of[int(i)] = L.scale(int(self.marker_segment[k]))
         scale_col = {i: k for k, i in self._direct if i in range(L.scales.start, L.scales.stop)}
         pos = [(i, k, owner_of[i], scale_col.get(owner_of[i], -1)) for k, i in self._direct if i in owner_of]
         self._positions = tuple(np.array([x[c] for x in pos], dtype=int) for c in range(4))
@@ -489,7 +508,7 @@ class Problem:
         out = p.copy()
         moves = []
         for si, kind in self._gauges:
-            s = out[si]
+            s = out[L.scale(si)]
             pts, pts0, wts = [], [], []
             for k in np.flatnonzero(self.marker_segment == si):
                 if not self.seen[:, k].any():
@@ -593,7 +612,7 @@ class Problem:
         (R(Kᵀa, θ) = Kᵀ R(a, θ) K), so its angles are unchanged: the turn is carried down the
         tree until a ball joint, whose angles absorb it."""
         m, L = self.model, self.layout
-        shift = np.zeros(3) if t is None else t / out[si]
+        shift = np.zeros(3) if t is None else t / out[L.scale(si)]
         for k in np.flatnonzero(self.marker_segment == si):
             sl = L.marker(k)
             out[sl] = G.T @ (out[sl] - shift)
@@ -626,7 +645,7 @@ class Problem:
         rows: list[np.ndarray] = []
         for si, kind in self._gauges:
             items: list[tuple[np.ndarray, np.ndarray, float, np.ndarray | None]] = []  # x, cols, weight, basis
-            s = p[si]  # free positions are at the subject's scale (see tangent_map)
+            s = p[L.scale(si)]  # free positions are at the subject's scale (see tangent_map)
             for k in np.flatnonzero(self.marker_segment == si):
                 items.append((s * p[L.marker(k)], L.cols("marker", k), 1 / pr.marker**2, None))
             for ji in np.flatnonzero(self.centre_segment == si):
@@ -843,7 +862,7 @@ class Problem:
         st, m, L = self.settings, self.model, self.layout
         free = set(st.free)
         base, (seg_pairs, joint_pairs, mirror) = self._prior_centres()
-        scale = p[:len(m.segments)]
+        scale = p[L.scales]
         res: list[np.ndarray] = []
         jac: list[np.ndarray] = []  # d residual / d p_full
 
@@ -857,7 +876,7 @@ class Problem:
             J = np.zeros((3 * count, self.np_full))
             rows = np.arange(3 * count)
             J[rows, idx.ravel()] = np.repeat(scale[seg_of], 3) / sigma
-            J[rows, np.repeat(seg_of, 3)] = diff.ravel() / sigma
+            J[rows, L.scale(np.repeat(seg_of, 3))] = diff.ravel() / sigma
             jac.append(J)
 
         if "marker" in free:
@@ -873,10 +892,10 @@ class Problem:
                 jac.append(J)
         if "scale" in free:
             ns = len(m.segments)
-            res.append((scale - base[:ns]) / st.priors.scale)
+            res.append((scale - base[L.scales]) / st.priors.scale)
             if jacobian:
                 J = np.zeros((ns, self.np_full))
-                J[np.arange(ns), np.arange(ns)] = 1.0 / st.priors.scale
+                J[np.arange(ns), np.r_[L.scales]] = 1.0 / st.priors.scale
                 jac.append(J)
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
@@ -884,11 +903,11 @@ class Problem:
         sd = st.priors.symmetry_scale
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
-            res.append(((scale[a] - scale[b]) - (base[a] - base[b])) / sd)
+            res.append(((scale[a] - scale[b]) - (base[L.scale(a)] - base[L.scale(b)])) / sd)
             if jacobian:
                 J = np.zeros((a.size, self.np_full))
-                J[np.arange(a.size), a] = 1.0 / sd
-                J[np.arange(a.size), b] = -1.0 / sd
+                J[np.arange(a.size), L.scale(a)] = 1.0 / sd
+                J[np.arange(a.size), L.scale(b)] = -1.0 / sd
                 jac.append(J)
         sd = st.priors.symmetry_centre
         if "centre" in free and sd > 0 and joint_pairs:
@@ -901,8 +920,8 @@ class Problem:
                 J = np.zeros((3, self.np_full))
                 J[np.arange(3), il] = scale[sa] / sd
                 J[np.arange(3), ir] = -mirror * scale[sb] / sd
-                J[:, sa] += p[il] / sd
-                J[:, sb] -= mirror * p[ir] / sd
+                J[:, L.scale(sa)] += p[il] / sd
+                J[:, L.scale(sb)] -= mirror * p[ir] / sd
                 jac.append(J)
         if not res:
             return np.zeros(0), np.zeros((0, self.n_free))
