@@ -132,6 +132,12 @@ class FrameLayout:
         return col - ROOT
 
     @staticmethod
+    def coordinates(translation: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """Coordinates Z (F, nz) of root translations (F, 3) and joint angles (F, n_dofs), the root's
+        rotation increments zero (its orientation is the reference quaternion's)."""
+        return np.column_stack([translation, np.zeros((len(translation), 3)), angles])
+
+    @staticmethod
     def angles(Z: np.ndarray) -> np.ndarray:
         """The joint angles of coordinates Z (..., nz): a view (..., n_dofs)."""
         return Z[..., ROOT:]
@@ -174,13 +180,28 @@ class ParameterLayout:
             if free_of[key]:
                 at[key] = col
                 col += TANGENT[key[0]]
-        self.n_free = col
+        self.n_free = col  # segment scales are free with their offsets: the priors split s x between them
         names = {"scale": [s.name for s in m.segments], "centre": [j.name for j in m.joints],
                  "axis": [d.name for d in m.dofs], "marker": [mk.name for mk in m.markers]}
         self._blocks = {g: tuple(Block(g, i, n, self.offsets[g] + SIZE[g] * i, at.get((g, i), -1))
                                  for i, n in enumerate(names[g])) for g in GROUPS}
         self.blocks = tuple(b for g in GROUPS for b in self._blocks[g])  # in p's order
         self.free_blocks = tuple(sorted((b for b in self.blocks if not b.held), key=lambda b: b.free_offset))
+        # (free column, entry of p) of the free columns that move one entry of p each (every free
+        # block but the axes, whose tangent is a basis).
+        self.direct = np.array([(b.free_offset + c, b.offset + c) for b in self.free_blocks if b.group != "axis"
+                                for c in range(b.tangent)], dtype=int).reshape(-1, 2)
+        # Free joint centres and markers: entry of p, free column, the entry of the scale of the segment
+        # that holds them (which multiplies them), and that scale's free column (-1 if it is held).
+        seg_of = {s.name: i for i, s in enumerate(m.segments)}
+        owner_of = {}
+        for group, owners in (("centre", [j.parent for j in m.joints]), ("marker", [mk.segment for mk in m.markers])):
+            for i, name in enumerate(owners):
+                for e in self.entries(group, [i])[0]:
+                    owner_of[int(e)] = self.scale(seg_of[name])
+        scale_col = {i: k for k, i in self.direct if i < self.scales.stop}
+        pos = [(i, k, owner_of[i], scale_col.get(owner_of[i], -1)) for k, i in self.direct if i in owner_of]
+        self._positions = tuple(np.array([x[c] for x in pos], dtype=int) for c in range(4))
 
     # ---------------------------------------------------------------- the full vector p
     def block(self, group: str, i: int) -> Block:
@@ -250,9 +271,48 @@ class ParameterLayout:
                 out += [b.label if b.size == 1 else f"{b.label}.{c}" for c in "xyz"[:b.size]]
         return out
 
-    def direct(self) -> np.ndarray:
-        """(n, 2) (free column, entry of p) of the free columns that move one entry of p each
-        (every free block but the axes, whose tangent is a basis)."""
-        pairs = [(b.free_offset + c, b.offset + c) for b in self.free_blocks if b.group != "axis"
-                 for c in range(b.tangent)]
-        return np.array(pairs, dtype=int).reshape(-1, 2)
+    # ---------------------------------------------------------------- manifolds
+    def axis_direction(self, p: np.ndarray, d: int) -> np.ndarray:
+        """DoF d's axis in `p`, normalised (unit)."""
+        a = p[self.axis(d)]
+        return a / np.linalg.norm(a)
+
+    def tangent_map(self, p: np.ndarray) -> np.ndarray:
+        """T (n_full, n_free): change of p per unit change of the free coordinates at `p`.
+
+        The free coordinates of joint centres and markers are positions at the subject's scale
+        (q = s x, metres), and a scale step keeps them fixed (x ← (s x + dq)/(s + ds)): the data
+        see only s x, so a segment's size then trades against its offsets along a straight line
+        (the priors, linear in (s, q), settle it in one step) instead of the hyperbola s x = const
+        that Gauss-Newton would only crawl along.  An axis moves along its tangent basis B."""
+        T = np.zeros((self.n_full, self.n_free))
+        if self.direct.size:
+            T[self.direct[:, 1], self.direct[:, 0]] = 1.0
+        rows, cols, owner, scol = self._positions
+        if rows.size:
+            s = p[owner]
+            T[rows, cols] = 1.0 / s
+            with_scale = scol >= 0
+            T[rows[with_scale], scol[with_scale]] = -p[rows[with_scale]] / s[with_scale]
+        for d in self.axis_dofs:
+            T[self.axis(d), self.axis_cols(d)] = perpendicular_basis(self.axis_direction(p, d))
+        return T
+
+    def retract(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
+        """p moved by the free step dp, each block on its manifold: scales to s exp(ds / s) (s + ds to
+        first order, and never zero or negative: a segment with no marker of its own, whose scale only
+        the priors hold, must not shrink through zero into a mirror image), free positions to
+        (s x + dq)/s' (see tangent_map), axes kept unit (normalise(a + B u))."""
+        out = p.copy()
+        if self.direct.size:
+            out[self.direct[:, 1]] += dp[self.direct[:, 0]]
+            sc = self.direct[self.direct[:, 1] < self.scales.stop]
+            out[sc[:, 1]] = p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]])
+        rows, cols, owner, _ = self._positions
+        if rows.size:
+            out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
+        for d in self.axis_dofs:  # normalise(a + B u)
+            a = self.axis_direction(p, d)
+            a = a + perpendicular_basis(a) @ dp[self.axis_cols(d)]
+            out[self.axis(d)] = a / np.linalg.norm(a)
+        return out

@@ -882,7 +882,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     notes = coordinate_notes(subject, FrameLayout.angles(Z), lin.A, settings)
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
-        Zr = np.column_stack([Z[:, FrameLayout.translation], np.zeros((len(Z), 3)), FrameLayout.angles(Z)])
+        Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
         err = np.linalg.norm(problem.kin.batch(Zr, Q, params)[0] - raw, axis=2)
         rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
                             float(err[f, k])) for f, k in np.argwhere(jumped)] + rejected

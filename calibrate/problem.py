@@ -417,7 +417,6 @@ class Problem:
     # ------------------------------------------------------------------ layout
     def _layout(self) -> None:
         m, st = self.model, self.settings
-        nj, nm = len(m.joints), len(m.markers)
         free = set(st.free)
         still = set(st.hold_segments)
         # Locked and held coordinates keep their axes; held segments all their geometry (blocks.py).
@@ -429,23 +428,9 @@ class Problem:
         seg_of = {s.name: i for i, s in enumerate(m.segments)}
         self.marker_segment = np.array([seg_of[mk.segment] for mk in m.markers])
         self.centre_segment = np.array([seg_of[j.parent] for j in m.joints])
-        # Segment scales: the data see only scale x offset, so the split between a segment's
-        # scale and its offsets is decided by the priors (a flat but straight valley).
         self.free_names = L.free_names
         self.n_free = L.n_free
-        self._direct = L.direct()  # (free column, p entry) of every free column but the axes' tangents
-        # Free joint centres and markers: full index, free column, owning segment (whose scale
-        # multiplies them), and that segment's free scale column (-1 if the scale is held).
-        owner_of = {}
-        for ji in range(nj):
-            for i in L.entries("centre", [ji])[0]:
-                owner_of[int(i)] = L.scale(int(self.centre_segment[ji]))  # its segment's scale
-        for k in range(nm):
-            for i in L.entries("marker", [k])[0]:
-                owner_of[int(i)] = L.scale(int(self.marker_segment[k]))
-        scale_col = {i: k for k, i in self._direct if i in range(L.scales.start, L.scales.stop)}
-        pos = [(i, k, owner_of[i], scale_col.get(owner_of[i], -1)) for k, i in self._direct if i in owner_of]
-        self._positions = tuple(np.array([x[c] for x in pos], dtype=int) for c in range(4))
+        self._direct = L.direct  # (free column, p entry) of every free column but the axes' tangents
         self._gauges = self._find_gauges()
         self._urdf = {u.name: u for u in m.urdf_joints}
         # A frame's turn is carried into the segments below only if all they hold is free.
@@ -686,49 +671,17 @@ class Problem:
         return np.array(rows, dtype=float).reshape(len(rows), self.n_free)
 
     def tangent_map(self, p: np.ndarray) -> np.ndarray:
-        """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`.
-
-        The free coordinates of joint centres and markers are positions at the subject's scale
-        (q = s x, metres), and a scale step keeps them fixed (x ← (s x + dq)/(s + ds)): the data
-        see only s x, so a segment's size then trades against its offsets along a straight line
-        (the priors, linear in (s, q), settle it in one step) instead of the hyperbola s x = const
-        that Gauss-Newton would only crawl along."""
-        T = np.zeros((self.np_full, self.n_free))
-        if self._direct.size:
-            T[self._direct[:, 1], self._direct[:, 0]] = 1.0
-        rows, cols, owner, scol = self._positions
-        if rows.size:
-            s = p[owner]
-            T[rows, cols] = 1.0 / s
-            with_scale = scol >= 0
-            T[rows[with_scale], scol[with_scale]] = -p[rows[with_scale]] / s[with_scale]
-        for d in self.axis_dofs:
-            T[self.layout.axis(d), self.layout.axis_cols(d)] = perpendicular_basis(self.axis_direction(p, d))
-        return T
+        """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`
+        (ParameterLayout.tangent_map)."""
+        return self.layout.tangent_map(p)
 
     def axis_direction(self, p: np.ndarray, d: int) -> np.ndarray:
         """DoF d's axis in `p`, normalised (unit)."""
-        a = p[self.layout.axis(d)]
-        return a / np.linalg.norm(a)
+        return self.layout.axis_direction(p, d)
 
     def retract_parameters(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """p moved by the free-parameter step dp: scales to s exp(ds / s) (s + ds to first order, and
-        never zero or negative: a segment with no marker of its own, whose scale only the priors
-        hold, must not shrink through zero into a mirror image), free positions to (s x + dq)/s'
-        (see tangent_map), axes kept unit (normalise(a + B u))."""
-        out = p.copy()
-        if self._direct.size:
-            out[self._direct[:, 1]] += dp[self._direct[:, 0]]
-            sc = self._direct[self._direct[:, 1] < self.layout.scales.stop]
-            out[sc[:, 1]] = p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]])
-        rows, cols, owner, _ = self._positions
-        if rows.size:
-            out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
-        for d in self.axis_dofs:  # normalise(a + B u)
-            a = self.axis_direction(p, d)
-            a = a + perpendicular_basis(a) @ dp[self.layout.axis_cols(d)]
-            out[self.layout.axis(d)] = a / np.linalg.norm(a)
-        return out
+        """p moved by the free-parameter step dp, each block on its manifold (ParameterLayout.retract)."""
+        return self.layout.retract(p, dp)
 
     # ------------------------------------------------------------------ CasADi
     def _build_functions(self) -> None:
