@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from threadpoolctl import threadpool_limits
 
 from .association import associate_to_model, distance_variance
+from .blocks import FrameLayout, perpendicular_basis
 from .errors import CalibrateError
 from .geometry import kabsch_batch
 from .ik import _FrameSolver, marker_columns
@@ -34,7 +35,7 @@ from .labels import UNLABELLED
 from .model import Model, Parameters, add_markers, mass_factor
 from .motion import Motion
 from .osim import with_locked
-from .problem import Problem, Settings, State, perpendicular_basis
+from .problem import Problem, Settings, State
 from .solver import SolverSummary, covariance, levenberg_marquardt
 from .trial import Trial
 
@@ -642,7 +643,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
             Q[:, s:s + 4] = Slerp(keys, Rotation.from_quat(Qk[:, s:s + 4]))(inside).as_quat()
     Q = Q.reshape(F, -1, 4)
     Q = np.where(Q[..., 3:4] < 0, -Q, Q)
-    Z[:, 3:6] = 0.0
+    Z[:, FrameLayout.rotation] = 0.0
     return State(Z, Q[:, 0].copy(), p.copy(), Q[:, 1:].copy())
 
 
@@ -805,7 +806,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     start = _stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
-        problem.base = base
+        problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
     times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
@@ -839,18 +840,18 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 rejected.append(Outlier(i, int(f - spans[i].start), subject.marker_names[k], float(err[f, k])))
             found += frames.size
             say(f"solve: {frames.size} marker positions rejected as outliers")
-            problem.drop(bad)
+            problem = problem.without(bad)
             # A spike or a swapped label drags its frame's pose (a leg folded to reach a swapped ankle
             # marker) further than a few steps undo: such frames restart from their unaffected neighbours'.
             new_hit = np.zeros_like(hit)
             new_hit[frames[~hit[frames]]] = True
             hit |= new_hit
             state = _bridge(state, new_hit, hit, spans)
-            state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
+            state, _ = levenberg_marquardt(problem, state, settings.solver, pose_only=True, max_iterations=10)
         if not found and not reweighed:
             break
         say("solve: again without the outliers" if found else "solve: again with the noise learnt again")
-        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        state, again = levenberg_marquardt(problem, state, settings.solver)
         summary = _merge(summary, again)
         reweighed = False
         if fixed is None or not found:
@@ -863,7 +864,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         problem = problem.with_noise(sigma)
         reweighed = True
     if reweighed:
-        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        state, again = levenberg_marquardt(problem, state, settings.solver)
         summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
@@ -873,20 +874,21 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         summary.termination += "; then the segment frames turned to the neutral trial (the priors' cost changes)"
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    lin = problem.linearize(state, reuse=problem.scratch.pop(("lin", False), None))
+    lin = problem.linearize(state, reuse=True)
     cov = covariance(problem, state, lin)
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
-    notes = coordinate_notes(subject, Z[:, 6:], lin.A, settings)
+    notes = coordinate_notes(subject, FrameLayout.angles(Z), lin.A, settings)
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
-        Zr = np.column_stack([Z[:, :3], np.zeros((len(Z), 3)), Z[:, 6:]])
+        Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
         err = np.linalg.norm(problem.kin.batch(Zr, Q, params)[0] - raw, axis=2)
         rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
                             float(err[f, k])) for f, k in np.argwhere(jumped)] + rejected
     residuals = problem.marker_residuals(state)
-    motions = tuple(Motion(t.times.copy(), Z[sl, :3].copy(), Q[sl].copy(), Z[sl, 6:].copy(),
+    motions = tuple(Motion(t.times.copy(), Z[sl, FrameLayout.translation].copy(), Q[sl].copy(),
+                           FrameLayout.angles(Z[sl]).copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
@@ -917,7 +919,7 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     # A ridge at one global scale: a frame (or direction) with no data gets a huge SD, not a failure.
     ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
     cov = np.linalg.inv(A + ridge * np.eye(nz))
-    sd = np.sqrt(np.maximum(np.diagonal(cov, axis1=1, axis2=2)[:, 6:], 0.0))
+    sd = np.sqrt(np.maximum(FrameLayout.angles(np.diagonal(cov, axis1=1, axis2=2)), 0.0))
     out = []
     for k, d in enumerate(model.dofs):
         if d.name in locked:
@@ -1050,7 +1052,7 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
         state = start_poses(problem.kin, observed[coarse], params, stride=1,
                             evaluator=sub.frame_evaluator(params.vector()))
         with_p = replace(state, p=params.vector())
-        _, summary = levenberg_marquardt(sub, with_p, max_iterations=START_ITERATIONS)
+        _, summary = levenberg_marquardt(sub, with_p, sub.settings.solver, max_iterations=START_ITERATIONS)
         costs[name] = summary.final_cost
         # A start that fits the subsample to the stated noise (chi-square per coordinate near 1:
         # clean data) has nothing to gain from another.
@@ -1096,7 +1098,7 @@ def _solve(problem: Problem, start: State, spans: list[slice],
             break
         axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
         lin = sub.linearize(state, with_parameters=False)
-        angles = absolute(sub.kin, state)[0][:, 6:]
+        angles = FrameLayout.angles(absolute(sub.kin, state)[0])
         still = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, settings) if name in axes]
         if not still:
             break
@@ -1107,8 +1109,8 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
         p, base = start.p.copy(), problem.base.vector()
         for name in still:
-            k = problem.offsets["axis"] + 3 * problem.model.dof_index(name)
-            p[k:k + 3] = base[k:k + 3]
+            k = problem.layout.axis(problem.model.dof_index(name))
+            p[k] = base[k]
         start = replace(start, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
@@ -1121,13 +1123,13 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         parts.append(spread_poses(_frames(state, mine), coarse[mine] - sl.start, _frames(start, sl)))
     state = replace(_stack_states(parts), p=state.p.copy())
     state, summary = levenberg_marquardt(
-        problem, state,
+        problem, state, settings.solver,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
     if fixed is not None:
         sigma, scatter = _relearn(problem, state, fixed, say, trial_of)
     if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
         problem = problem.with_noise(sigma)
-        state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+        state, again = levenberg_marquardt(problem, state, settings.solver)
         summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
@@ -1434,7 +1436,7 @@ def spread_poses(solved: State, frames: np.ndarray, start: State) -> State:
         nb = solved.B.shape[1]
         sb = start.B if start.B is not None else np.broadcast_to(IDENTITY, (F, nb, 4))
         B = np.zeros((F, 0, 4)) if nb == 0 else np.stack([carry(solved.B[:, i], sb[:, i]) for i in range(nb)], axis=1)
-    Z[:, 3:6] = 0.0
+    Z[:, FrameLayout.rotation] = 0.0
     return State(Z, Q, solved.p.copy(), B)
 
 
@@ -1443,22 +1445,21 @@ def _solve_geometry(problem: Problem, state: State, settings: Settings,
     """Poses, then poses and geometry together, then the segment frames turned to where the
     priors want them and (`polish`) a last run from there: the whole solve on the frames of `problem`."""
     say(f"solve: refine poses ({problem.F} frames)")
-    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=2)
+    options = settings.solver
+    state, _ = levenberg_marquardt(problem, state, options, pose_only=True, max_iterations=2)
     if settings.loss != "linear":
         # A robust loss is not convex: reach its basin with plain least squares first.
         say("solve: least squares before the robust loss")
-        problem.loss = "linear"
-        state, _ = levenberg_marquardt(problem, state, max_iterations=30)
-        problem.loss = settings.loss
+        state, _ = levenberg_marquardt(problem.with_loss("linear"), state, options, max_iterations=30)
     say(f"solve: global Levenberg-Marquardt ({problem.F} frames)")
     state, summary = levenberg_marquardt(
-        problem, state,
+        problem, state, options,
         progress=lambda it, c, lam: say(f"solve: iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
     say("solve: align segment frames with the base model (gauge)")
     state = align_gauge(problem, state)
     if not polish:
         return state, summary
-    state, polished = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
+    state, polished = levenberg_marquardt(problem, state, options)
     return state, _merge(summary, polished)
 
 
@@ -1471,16 +1472,16 @@ def align_gauge(problem: Problem, state: State) -> State:
     for si, kind, G, t in moves:
         if kind == "rigid":
             R = Rotation.from_quat(Q).as_matrix()
-            Z[:, :3] += np.einsum("fij,j->fi", R, t)
+            Z[:, FrameLayout.translation] += np.einsum("fij,j->fi", R, t)
             Q = Rotation.from_matrix(R @ G).as_quat()
         elif kind == "axis":
             j = next(j for j in model.joints if j.child == model.segments[si].name)
             d = model.dof_index(j.dofs[-1])
-            a = problem._axis(state.p, d)
-            Z[:, 6 + d] += float(Rotation.from_matrix(G).as_rotvec() @ a)  # G turns about the hinge axis
+            a = problem.axis_direction(state.p, d)
+            Z[:, FrameLayout.angle(d)] += float(Rotation.from_matrix(G).as_rotvec() @ a)  # G turns about the hinge axis
     Q = np.where(Q[:, 3:4] < 0, -Q, Q)
     aligned = State(Z, Q, p, state.B)
-    aligned, _ = levenberg_marquardt(problem, aligned, pose_only=True, max_iterations=20)
+    aligned, _ = levenberg_marquardt(problem, aligned, problem.settings.solver, pose_only=True, max_iterations=20)
     return aligned
 
 
@@ -1501,8 +1502,10 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
         for si, kind, G, _ in moves:
             if kind == "axis":  # G turns about the hinge's (last) axis: its angle follows
                 d = model.dof_index(into[model.segments[si].name].dofs[-1])
-                Z[:, 6 + d] += float(Rotation.from_matrix(G).as_rotvec() @ problem._axis(state.p, d))
-        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p, state.B), pose_only=True, max_iterations=20)
+                Z[:, FrameLayout.angle(d)] += float(Rotation.from_matrix(G).as_rotvec()
+                                                    @ problem.axis_direction(state.p, d))
+        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p, state.B), problem.settings.solver,
+                                       pose_only=True, max_iterations=20)
     return state
 
 
@@ -1546,7 +1549,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     B = problem.base
     col = {n: k for k, n in enumerate(problem.free_names)}
     names = model.parameter_names()
-    o = problem.offsets
+    L = problem.layout
     out: list[ParameterChange] = []
     seg_scale = P.scale
 
@@ -1574,8 +1577,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
 
     for ji, j in enumerate(model.joints):
         s = seg_scale[problem.centre_segment[ji]]
-        sl = o["centre"] + 3 * ji
-        CC = block_cov(names[sl:sl + 3])
+        CC = block_cov(names[L.centre(ji)])
         value, base = s * P.centre[ji], B.centre[ji]
         if CC is None and j.parent in still:
             std, ident, note = np.full(3, np.nan), False, unseen(j.parent)
@@ -1608,7 +1610,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     for d in problem.axis_dofs:
         a = P.axis[d] / np.linalg.norm(P.axis[d])
         a0 = B.axis[d] / np.linalg.norm(B.axis[d])
-        cols = [k for k, dd in problem._tangent if dd == d]
+        cols = L.axis_cols(d)
         C = cov[np.ix_(cols, cols)]
         std = np.degrees(np.sqrt(np.clip(np.diag(C), 0, None)))
         ratio = worst_ratio(C, prior_cov[np.ix_(cols, cols)])[0]
@@ -1620,8 +1622,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         out.append(ParameterChange(f"axis[{model.dofs[d].name}]", a0, a, ang, std, ident, note, ratio))
     for k, mk in enumerate(model.markers):
         s = seg_scale[problem.marker_segment[k]]
-        sl = o["marker"] + 3 * k
-        CC = block_cov(names[sl:sl + 3])
+        CC = block_cov(names[L.marker(k)])
         value, base = s * P.marker[k], B.marker[k]
         seen = bool(problem.seen[:, k].any())
         if CC is None and mk.segment in still:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .blocks import FrameLayout
 from .calibration import Calibration
 from .ik import marker_columns
 from .kinematics import build_kinematics
@@ -58,12 +59,12 @@ def true_model_floor(sim: Simulation) -> tuple[float, float]:
     obs = marker_columns(model, sim.trial)
     problem = Problem(model, obs, Settings(free=()), build_kinematics(model), base=sim.truth)
     m = sim.motion
-    Z = np.column_stack([m.root_translation, np.zeros((len(m.times), 3)), m.angles])
+    Z = FrameLayout.coordinates(m.root_translation, m.angles)
     state = State(Z, m.root_quaternion.copy(), sim.truth.vector())
-    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=20)
+    state, _ = levenberg_marquardt(problem, state, problem.settings.solver, pose_only=True, max_iterations=20)
     res = problem.marker_residuals(state)
     Z, _ = problem.kin.absolute(state.Z, state.Q, state.B, previous=m.angles[0])
-    dang = np.degrees(np.angle(np.exp(1j * (Z[:, 6:] - m.angles))))
+    dang = np.degrees(np.angle(np.exp(1j * (FrameLayout.angles(Z) - m.angles))))
     return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2)))), float(np.sqrt(np.mean(dang**2)))
 
 
@@ -77,7 +78,7 @@ def compare_to_truth(cal: Calibration, sim: Simulation, floor: float | None = No
     model = cal.model
     kin = build_kinematics(model)
     mo = cal.motion
-    Z = np.column_stack([mo.root_translation, np.zeros((len(mo.times), 3)), mo.angles])
+    Z = FrameLayout.coordinates(mo.root_translation, mo.angles)
     _, C = kin.batch(Z, mo.root_quaternion, cal.params)
     true_index = {j.name: i for i, j in enumerate(sim.model.joints)}
     ax_est = joint_axes_world(model, cal.params, mo)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .blocks import FrameLayout
 from .kinematics import IDENTITY, Kinematics, retract_root
 from .model import Model, Parameters
 from .motion import Motion
@@ -79,8 +80,8 @@ class _FrameSolver:
         self.evaluate = evaluator or kin.frame_evaluator(p, reference=True)
         model = kin.model
         self.identity = kin.refs(IDENTITY, None)[0]  # refs of the root and every ball unturned
-        ref_slot = {6 + b.dofs[0]: 4 + 4 * i for i, b in enumerate(kin.balls)}
-        self.ball_cols = np.array(sorted(6 + d for b in kin.balls for d in b.dofs), dtype=int)
+        ref_slot = {FrameLayout.angle(b.dofs[0]): 4 + 4 * i for i, b in enumerate(kin.balls)}
+        self.ball_cols = np.array(sorted(FrameLayout.angle(d) for b in kin.balls for d in b.dofs), dtype=int)
         self.nz = model.nz
         seg_joint = {j.child: j for j in model.joints}
         children: dict[str, list[str]] = {s.name: [] for s in model.segments}
@@ -89,15 +90,15 @@ class _FrameSolver:
         # For each joint: its own DoF columns, the subtree's DoF columns and marker indices.
         self.plan = []
         for j in model.joints:
-            own = [6 + model.dof_index(d) for d in j.dofs]
+            own = [FrameLayout.angle(model.dof_index(d)) for d in j.dofs]
             stack, sub_dofs, sub_mk = [j.child], [], []
             while stack:
                 s = stack.pop()
-                sub_dofs += [6 + model.dof_index(d) for d in seg_joint[s].dofs]
+                sub_dofs += [FrameLayout.angle(model.dof_index(d)) for d in seg_joint[s].dofs]
                 sub_mk += [model.marker_index(m) for m in model.segments[model.segment_index(s)].markers]
                 stack += children[s]
             child_mk = [model.marker_index(m) for m in model.segments[model.segment_index(j.child)].markers]
-            lims = [(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in (model.dofs[c - 6] for c in own)]
+            lims = [(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in (model.dofs[FrameLayout.dof(c)] for c in own)]
             # reference slots of the balls in the subtree: reset with its angles before a grid search
             slots = [ref_slot[c] for c in sub_dofs if c in ref_slot]
             self.plan.append((own, sorted(sub_dofs), sub_mk, child_mk, lims, slots))
@@ -117,8 +118,8 @@ class _FrameSolver:
         free = np.asarray(free)
         rot = bool(np.isin([3, 4, 5], free).any())
         balls = bool(np.isin(self.ball_cols, free).any())
-        dof_cols = np.setdiff1d(free[free >= 6], self.ball_cols)  # no limits on SO(3) increments
-        lo, hi = self.lower[dof_cols - 6], self.upper[dof_cols - 6]
+        dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], self.ball_cols)  # no limits on SO(3) increments
+        lo, hi = self.lower[FrameLayout.dof(dof_cols)], self.upper[FrameLayout.dof(dof_cols)]
         position = {int(c): i for i, c in enumerate(free)}
         col_of = np.array([position[int(c)] for c in dof_cols], dtype=int)  # limit rows -> columns of Jf
 
@@ -147,8 +148,8 @@ class _FrameSolver:
                 qn = q
                 if rot:
                     qn = q.copy()
-                    qn[:4] = retract_root(q[:4], zn[3:6])
-                    zn[3:6] = 0.0
+                    qn[:4] = retract_root(q[:4], zn[FrameLayout.rotation])
+                    zn[FrameLayout.rotation] = 0.0
                 rn, Jn, outn = evaluate(zn, qn)
                 cn = rn @ rn
                 if cn < cost or lam > 1e10:
@@ -176,10 +177,10 @@ class _FrameSolver:
             a = self.evaluate(z, q)[0].reshape(-1, 3)[root_seen]
             R0, t0 = kabsch(a, obs[root_seen])
             q[:4] = Rotation.from_matrix(R0).as_quat()
-            z[:3] = t0
-            z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(6), 50)
+            z[FrameLayout.translation] = t0
+            z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(FrameLayout.n_root), 50)
         else:
-            z[:3] = np.nanmean(obs[seen], axis=0)
+            z[FrameLayout.translation] = np.nanmean(obs[seen], axis=0)
         for own, sub_dofs, sub_mk, child_mk, lims, slots in self.plan:
             fit_mk = [k for k in child_mk if seen[k]]
             free = own
@@ -267,5 +268,6 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     with warnings.catch_warnings():  # frames with no marker give NaN, on purpose
         warnings.simplefilter("ignore", RuntimeWarning)
         rms_f = np.sqrt(np.nanmean(np.sum(res**2, axis=2), axis=1))
-    motion = Motion(trial.times.copy(), Z[:, :3].copy(), Q, Z[:, 6:].copy(), model.dof_names)
+    motion = Motion(trial.times.copy(), Z[:, FrameLayout.translation].copy(), Q, FrameLayout.angles(Z).copy(),
+                    model.dof_names)
     return IKResult(motion, rms_f, res, iters)

@@ -45,6 +45,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from .blocks import FrameLayout
 from .model import Model, Parameters
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])  # unit quaternion (x, y, z, w) of no rotation
@@ -324,13 +325,13 @@ class Kinematics:
         """Fold the root's rotation increments Z[:, 3:6] into Q and every SO(3) ball's increments
         into B (B ← B · E(theta)), resetting them to zero: (Z, Q, B) of the same pose, new arrays."""
         Z = np.array(Z, dtype=float)
-        Q = retract_root(Q, Z[:, 3:6])
-        Z[:, 3:6] = 0.0
+        Q = retract_root(Q, Z[:, FrameLayout.rotation])
+        Z[:, FrameLayout.rotation] = 0.0
         F = Z.shape[0]
         if not self.balls:
             return Z, Q, np.empty((F, 0, 4))
         # Every ball at once: E(theta) = R(a1, t1) R(a2, t2) R(a3, t3) as quaternions (F, n_balls, 4).
-        cols = 6 + self._ball_dofs  # (n_balls, 3)
+        cols = FrameLayout.angle(self._ball_dofs)  # (n_balls, 3)
         h = 0.5 * Z[:, cols]  # (F, n_balls, 3)
         axes = self._ball_axes  # (n_balls, 3, 3): row k the k-th revolute's axis
         q = None
@@ -355,12 +356,12 @@ class Kinematics:
         of a solver-form pose, the ball angles continuous over the frames (BallJoint.angles;
         `previous`: the angles (n_dofs,) the first frame continues from, default zero)."""
         Z = np.array(Z, dtype=float)
-        Q = retract_root(Q, Z[:, 3:6])
-        Z[:, 3:6] = 0.0
+        Q = retract_root(Q, Z[:, FrameLayout.rotation])
+        Z[:, FrameLayout.rotation] = 0.0
         if B is None:
             return Z, Q
         for i, b in enumerate(self.balls):
-            cols = 6 + np.array(b.dofs)
+            cols = FrameLayout.angle(b.dofs)
             R = quat_matrices(quat_multiply(B[:, i], b.quaternion(Z[:, cols])))
             Z[:, cols] = b.angles(R, None if previous is None else np.asarray(previous)[list(b.dofs)])
         return Z, Q
@@ -421,25 +422,25 @@ def build_kinematics(model: Model, euler: tuple[str, ...] = ()) -> Kinematics:
     `model` (SX graphs, one frame).  `euler`: ball joints the solver keeps on their three angles
     (those with a locked coordinate; see so3_balls)."""
     nz = model.nz
-    ns, nj, nd, nm = len(model.segments), len(model.joints), model.n_dofs, len(model.markers)
+    nj, nd, nm = len(model.joints), model.n_dofs, len(model.markers)
     balls = so3_balls(model, tuple(euler))
     z = ca.SX.sym("z", nz)
     q_ref = ca.SX.sym("q_ref", 4)
     refs = ca.SX.sym("refs", 4 * (1 + len(balls)))
-    p = ca.SX.sym("p", ns + 3 * (nj + nd + nm))
-    a = np.cumsum([0, ns, 3 * nj, 3 * nd, 3 * nm])
-    scale = p[a[0]:a[1]]
-    centre = ca.reshape(p[a[1]:a[2]], 3, nj)  # column j = centre of joint j
-    axis = ca.reshape(p[a[2]:a[3]], 3, nd)
-    marker = ca.reshape(p[a[3]:a[4]], 3, nm)
-    theta = z[6:]
+    L = model.layout
+    p = ca.SX.sym("p", L.n_full)
+    scale = p[L.scales]
+    centre = ca.reshape(p[L.group("centre")], 3, nj)  # column j = centre of joint j
+    axis = ca.reshape(p[L.group("axis")], 3, nd)
+    marker = ca.reshape(p[L.group("marker")], 3, nm)
+    theta = z[L.frame.all_angles]
     seg_idx = {s.name: i for i, s in enumerate(model.segments)}
     # First DoF of each SO(3) ball -> (reference slot, constant unit axes of its three DoFs).
     first = {b.dofs[0]: i for i, b in enumerate(balls)}
     ball_axis = {d: b.axes[k] for b in balls for k, d in enumerate(b.dofs)}
 
     def walk(R_root, so3: bool):
-        pose: dict[str, tuple[ca.SX, ca.SX]] = {model.root: (R_root, z[0:3])}
+        pose: dict[str, tuple[ca.SX, ca.SX]] = {model.root: (R_root, z[FrameLayout.translation])}
         mk_pos: list[ca.SX] = [None] * nm  # type: ignore[list-item]
         jc_pos: list[ca.SX] = [None] * nj  # type: ignore[list-item]
         for u in model.urdf_joints:
@@ -470,7 +471,7 @@ def build_kinematics(model: Model, euler: tuple[str, ...] = ()) -> Kinematics:
 
     outs = []
     for name, arg, q_in, so3 in (("h", "q_ref", q_ref, False), ("h_ref", "refs", refs, True)):
-        M, C = walk(quat_to_matrix(q_in[0:4]) @ cayley(z[3:6]), so3)
+        M, C = walk(quat_to_matrix(q_in[0:4]) @ cayley(z[FrameLayout.rotation]), so3)
         m_vec = ca.vec(M)
         outs.append(ca.Function(name, [z, q_in, p], [M, C], ["z", arg, "p"], ["markers", "centres"]))
         outs.append(ca.Function(f"{name}_jz", [z, q_in, p], [m_vec, ca.densify(ca.jacobian(m_vec, z))],

@@ -26,12 +26,14 @@ import os
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
 from ._text import atomic_write_text, fmt_float, fmt_vec
+from .blocks import GROUPS, ParameterLayout
 from .errors import ModelError, read_text_file
 
 MOVING = ("revolute", "continuous")
@@ -115,7 +117,7 @@ class Parameters:
     axis: np.ndarray  # (n_dofs, 3) revolute axes in the URDF joint frame (unit)
     marker: np.ndarray  # (n_markers, 3) marker offsets, segment frame (m)
 
-    BLOCKS = ("scale", "centre", "axis", "marker")
+    BLOCKS = GROUPS  # their order in vector() (calibrate.blocks)
 
     def vector(self) -> np.ndarray:
         """Flat p = [scale, centre.ravel(), axis.ravel(), marker.ravel()]."""
@@ -316,7 +318,7 @@ class Model:
     @property
     def nz(self) -> int:
         """Coordinates per frame: root translation (3) + root rotation (3) + joint angles."""
-        return 6 + len(self.dofs)
+        return self.layout.frame.nz
 
     @property
     def total_mass(self) -> float:
@@ -359,26 +361,18 @@ class Model:
             marker=np.array([m.offset for m in self.markers]).reshape(-1, 3),
         )
 
+    @cached_property
+    def layout(self) -> ParameterLayout:
+        """The named blocks of Parameters.vector() (calibrate.blocks), every block free."""
+        return ParameterLayout(self)
+
     def parameter_names(self) -> list[str]:
         """One name per entry of Parameters.vector(), e.g. 'centre[knee_r].y'."""
-        out = [f"scale[{s.name}]" for s in self.segments]
-        out += [f"centre[{j.name}].{c}" for j in self.joints for c in "xyz"]
-        out += [f"axis[{d.name}].{c}" for d in self.dofs for c in "xyz"]
-        out += [f"marker[{m.name}].{c}" for m in self.markers for c in "xyz"]
-        return out
+        return self.layout.names()
 
     def unpack(self, p: np.ndarray) -> Parameters:
         """Inverse of Parameters.vector() for this model's sizes."""
-        p = np.asarray(p, dtype=float).ravel()
-        ns, nj, nd, nm = len(self.segments), len(self.joints), len(self.dofs), len(self.markers)
-        n = ns + 3 * (nj + nd + nm)
-        if p.size != n:
-            raise ValueError(f"parameter vector: expected {n} entries, got {p.size}")
-        a = np.cumsum([0, ns, 3 * nj, 3 * nd, 3 * nm])
-        return Parameters(
-            p[a[0]:a[1]].copy(), p[a[1]:a[2]].reshape(nj, 3).copy(),
-            p[a[2]:a[3]].reshape(nd, 3).copy(), p[a[3]:a[4]].reshape(nm, 3).copy(),
-        )
+        return Parameters(**self.layout.split(p))
 
     def pin_configuration(self, root_translation, root_quaternion, angles) -> np.ndarray:
         """Pinocchio q from root translation (3), unit quaternion (x, y, z, w) and joint angles."""

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ._text import atomic_write_text
+from .blocks import FrameLayout
 from .errors import CalibrateError
 
 ROOT_COLUMNS = ("root_x", "root_y", "root_z", "root_qx", "root_qy", "root_qz", "root_qw")
@@ -50,8 +51,7 @@ class Motion:
 
         Pair with ``root_quaternion`` as the reference orientation (see calibrate.kinematics).
         """
-        nf = self.n_frames
-        return np.hstack([self.root_translation, np.zeros((nf, 3)), self.angles])
+        return FrameLayout.coordinates(self.root_translation, self.angles)
 
 
 def write_motion_csv(path: str | os.PathLike[str], motion: Motion) -> Path:

@@ -38,17 +38,18 @@ import os
 import subprocess
 import tempfile
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
 from .assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from .blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
 from .kinematics import Kinematics, build_kinematics
 from .model import Model, Parameters
+from .options import SolverOptions
 
-GROUPS = ("scale", "centre", "axis", "marker")
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.ik)
 LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's value (Settings.lock)
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
@@ -117,6 +118,11 @@ class Settings:
     # calibrate.calibration.learned_noise) instead of taking `noise` for all.  None (default): learn
     # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
     learn_noise: bool | None = None
+
+    @property
+    def solver(self) -> SolverOptions:
+        """The options of the Levenberg–Marquardt solver among these settings (calibrate.solver)."""
+        return SolverOptions(self.max_iterations, self.ftol, self.atol, self.xtol, self.gtol, self.geodesic)
 
     @property
     def learns_noise(self) -> bool:
@@ -227,7 +233,11 @@ def _robust(s: np.ndarray, loss: str, c2: float) -> tuple[np.ndarray, np.ndarray
 
 
 class Problem:
-    """Residuals, cost and block-arrow normal equations of one trial and one model."""
+    """Residuals, cost and block-arrow normal equations of one trial and one model.
+
+    Immutable once built: another loss, base model, noise, set of frames or of observations is a
+    new Problem (with_loss, with_base, with_noise, subset, without, with_settings) that shares the
+    kinematics and the compiled per-frame functions.  Its arrays are not to be written to."""
 
     def __init__(self, model: Model, observed: np.ndarray, settings: Settings | None = None,
                  kinematics: Kinematics | None = None, base: Parameters | None = None,
@@ -235,14 +245,14 @@ class Problem:
         """`observed` (F, n_model_markers, 3) in metres, NaN where a marker is not seen; `progress`
         hears of the one slow step of building (compiling a model structure never seen before)."""
         self._progress = progress
-        self.model = model
-        self.settings = settings or Settings()
+        self._model = model
+        self._settings = settings or Settings()
         # Ball joints with a locked coordinate stay on their three angles (the lock holds an angle).
         locked_balls = tuple(j.name for j in model.joints if j.kind == "ball"
                              and any(d in dict(self.settings.lock) for d in j.dofs))
-        self.kin = kinematics or build_kinematics(model, euler=locked_balls)
+        self._kin = kinematics or build_kinematics(model, euler=locked_balls)
         if any(b.name in locked_balls for b in self.kin.balls):
-            self.kin = build_kinematics(model, euler=locked_balls)
+            self._kin = build_kinematics(model, euler=locked_balls)
         obs = np.asarray(observed, dtype=float)
         nm = len(model.markers)
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
@@ -251,12 +261,11 @@ class Problem:
         self._mapped: dict[tuple[str, int], tuple] = {}
         self._set_observed(obs)
         # Noise SD of each model marker (m): Settings.noise unless Settings.marker_noise names it.
-        self.sigma = np.full(nm, self.settings.noise)
+        self._sigma = np.full(nm, self.settings.noise)
         for label, v in self.settings.marker_noise:
             if label in model.marker_names:
-                self.sigma[model.marker_index(label)] = v
-        self.base = base or model.parameters()
-        self.loss = self.settings.loss  # the loss in use (calibrate starts robust fits with 'linear')
+                self._sigma[model.marker_index(label)] = v
+        self._base = base or model.parameters()
         # Joint limits, widened by LIMIT_MARGIN: a segment frame's zero may settle a little away
         # from the base model's, and the limits must not fight the data over it.
         self.lower = np.array([d.lower for d in model.dofs]) - LIMIT_MARGIN
@@ -275,25 +284,115 @@ class Problem:
             self._limit_w[list(b.dofs)] = 0.0
         self._layout()
         self._build_functions()
-        # Scratch memory of the solver (large per-frame arrays kept between its runs; see
-        # solver.levenberg_marquardt): like Pinocchio's Data, owned here, never read as a result.
-        self.scratch: dict = {}
+        # Scratch memory of the solver (large per-frame arrays kept between its runs; see buffers()):
+        # like Pinocchio's Data, owned here, never read as a result.
+        self._work: dict = {}
+
+    # ------------------------------------------------------------------ what the problem is made of
+    @property
+    def model(self) -> Model:
+        """The subject's model (its structure; the parameters are the state's)."""
+        return self._model
+
+    @property
+    def settings(self) -> Settings:
+        """What is calibrated and how (the problem's options: free groups, noise, priors, loss, locks, held axes)."""
+        return self._settings
+
+    @property
+    def kin(self) -> Kinematics:
+        """The symbolic kinematics the per-frame functions were built from."""
+        return self._kin
+
+    @property
+    def loss(self) -> str:
+        """The robust loss in use ('linear', 'huber' or 'cauchy'; see with_loss)."""
+        return self._settings.loss
+
+    @property
+    def base(self) -> Parameters:
+        """The base model's parameters: the priors' centres (see with_base)."""
+        return self._base
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """(n_markers,) each marker's noise SD (m; see with_noise).  Not to be written to."""
+        return self._sigma
+
+    @property
+    def observed(self) -> np.ndarray:
+        """(F, n_markers, 3) the observed marker positions (m), NaN where not seen or left out (see without)."""
+        return self._observed
+
+    @property
+    def F(self) -> int:
+        """Frames."""
+        return self._observed.shape[0]
+
+    @property
+    def seen(self) -> np.ndarray:
+        """(F, n_markers) bool: which markers are observed (have residual rows) in each frame."""
+        return self._seen
+
+    @property
+    def target(self) -> np.ndarray:
+        """(F, 3 n_markers) the observed positions, 0 where not seen (the per-frame functions' input)."""
+        return self._target
+
+    @property
+    def n_obs(self) -> int:
+        """Observed marker positions (frame, marker pairs)."""
+        return self._n_obs
 
     def _set_observed(self, obs: np.ndarray) -> None:
-        self.observed = obs
-        self.F = obs.shape[0]
-        self.seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
-        self.target = np.where(self.seen[..., None], obs, 0.0).reshape(self.F, -1)
-        self.n_obs = int(self.seen.sum())
+        self._observed = obs
+        self._seen = np.all(np.isfinite(obs), axis=2)  # (F, nm)
+        self._target = np.where(self._seen[..., None], obs, 0.0).reshape(obs.shape[0], -1)
+        self._n_obs = int(self._seen.sum())
+
+    def buffers(self) -> dict:
+        """Scratch memory that calibrate.solver keeps between its runs on this problem (large
+        per-frame arrays, whose first touches cost as much as a short run's steps): owned by the
+        problem, shared with its copies on the same frames (with_loss, with_base, without), never
+        a result.  Runs on one problem and its copies must not overlap in time."""
+        return self._work
+
+    def recycle(self, lin: Linearization) -> None:
+        """Hand back a Linearization no longer needed: its arrays become the buffers of the next
+        linearize(reuse=True) of the same kind (with or without the parameters)."""
+        self._work[("lin", lin.jacobian is None or lin.jacobian[2] is None)] = lin
 
     def with_settings(self, settings: Settings, sigma: np.ndarray | None = None) -> Problem:
         """The same trial, model and prior centres under other settings (e.g. more axes held),
         sharing the kinematics and the compiled functions' cache; `sigma`: the markers' noise SDs
         (m, e.g. learnt from the residuals) instead of the settings'."""
         new = Problem(self.model, self.observed, settings, self.kin, self.base, self._progress)
-        new.loss = self.loss
         if sigma is not None:
-            new.sigma = np.array(sigma, dtype=float)
+            new._sigma = np.array(sigma, dtype=float)
+        return new
+
+    def with_loss(self, loss: str) -> Problem:
+        """The same problem under another robust loss ('linear', 'huber', 'cauchy'; its scale
+        Settings.loss_scale), sharing everything else, the solver's buffers included."""
+        new = copy.copy(self)
+        new._settings = replace(self._settings, loss=loss)
+        return new
+
+    def with_base(self, base: Parameters) -> Problem:
+        """The same problem with other prior centres `base` (e.g. with new markers placed), sharing
+        everything else, the solver's buffers included."""
+        new = copy.copy(self)
+        new._base = base
+        return new
+
+    def without(self, mask: np.ndarray) -> Problem:
+        """The same problem with the observations where `mask` (F, n_markers) is true left out
+        (rejected outliers): they lose their rows, as gaps do.  Shares everything else, the
+        solver's buffers included."""
+        obs = self.observed.copy()
+        obs[np.asarray(mask, dtype=bool)] = np.nan
+        new = copy.copy(self)
+        new._set_observed(obs)
         return new
 
     def with_noise(self, sigma: np.ndarray) -> Problem:
@@ -303,72 +402,35 @@ class Problem:
         if sigma.shape != self.sigma.shape or not np.all(np.isfinite(sigma) & (sigma > 0)):
             raise ValueError(f"sigma: expected {self.sigma.size} positive noise SDs, got {sigma!r}")
         new = copy.copy(self)
-        new.scratch = {}
-        new.sigma = sigma.copy()
+        new._work = {}
+        new._sigma = sigma.copy()
         return new
-
-    def drop(self, mask: np.ndarray) -> None:
-        """Leave out the observations where `mask` (F, n_markers) is true (rejected outliers): they
-        lose their rows, as gaps do."""
-        obs = self.observed.copy()
-        obs[np.asarray(mask, dtype=bool)] = np.nan
-        self._set_observed(obs)
 
     def subset(self, frames: np.ndarray) -> Problem:
         """The same problem on some of its frames (e.g. an evenly spaced subsample that finds
         the geometry's basin cheaply), sharing the compiled functions."""
         new = copy.copy(self)
-        new.scratch = {}
+        new._work = {}
         new._set_observed(self.observed[np.asarray(frames)])
         return new
 
     # ------------------------------------------------------------------ layout
     def _layout(self) -> None:
-        m = self.model
-        ns, nj, nd, nm = len(m.segments), len(m.joints), m.n_dofs, len(m.markers)
-        self.offsets = dict(zip(GROUPS, np.cumsum([0, ns, 3 * nj, 3 * nd]), strict=True))
-        self.np_full = ns + 3 * (nj + nd + nm)
-        free = set(self.settings.free)
-        # Axes that are calibrated: those of hinge and universal joints (never a ball's).
-        held = {name for name, _ in self.settings.lock} | set(self.settings.hold_axes)
-        still = set(self.settings.hold_segments)
-        self.axis_dofs = [m.dof_index(d) for j in m.joints if j.kind in ("hinge", "universal") and j.child not in still
-                          for d in j.dofs if d not in held] if "axis" in free else []
+        m, st = self.model, self.settings
+        free = set(st.free)
+        still = set(st.hold_segments)
+        # Locked and held coordinates keep their axes; held segments all their geometry (blocks.py).
+        self.layout = ParameterLayout(m, free, {name for name, _ in st.lock} | set(st.hold_axes), still,
+                                      self.kin.balls)
+        L = self.layout
+        self.np_full = L.n_full
+        self.axis_dofs = L.axis_dofs  # axes that are calibrated: hinge and universal joints' (never a ball's)
         seg_of = {s.name: i for i, s in enumerate(m.segments)}
         self.marker_segment = np.array([seg_of[mk.segment] for mk in m.markers])
         self.centre_segment = np.array([seg_of[j.parent] for j in m.joints])
-        names = m.parameter_names()
-        cols: list[tuple[str, int, int]] = []  # (label, full index or -1 for tangent, axis dof)
-        # Segment scales: the data see only scale x offset, so the split between a segment's
-        # scale and its offsets is decided by the priors (a flat but straight valley).
-        if "scale" in free:
-            cols += [(names[i], i, -1) for i in range(ns) if m.segments[i].name not in still]
-        if "centre" in free:
-            cols += [(names[self.offsets["centre"] + i], self.offsets["centre"] + i, -1) for i in range(3 * nj)
-                     if m.joints[i // 3].parent not in still]
-        for d in self.axis_dofs:
-            cols += [(f"axis[{m.dofs[d].name}].u{k}", -1, d) for k in (1, 2)]
-        if "marker" in free:
-            cols += [(names[self.offsets["marker"] + i], self.offsets["marker"] + i, -1) for i in range(3 * nm)
-                     if m.markers[i // 3].segment not in still]
-        self.free_names = [c[0] for c in cols]
-        self.n_free = len(cols)
-        self._direct = np.array([(k, c[1]) for k, c in enumerate(cols) if c[1] >= 0], dtype=int).reshape(-1, 2)
-        self._tangent = [(k, c[2]) for k, c in enumerate(cols) if c[1] < 0]
-        # each free axis's two tangent columns (retract_parameters, once per step)
-        self._tangent_cols = {d: [k for k, dd in self._tangent if dd == d] for d in self.axis_dofs}
-        # Free joint centres and markers: full index, free column, owning segment (whose scale
-        # multiplies them), and that segment's free scale column (-1 if the scale is held).
-        owner_of = {}
-        for ji in range(nj):
-            for c in range(3):
-                owner_of[self.offsets["centre"] + 3 * ji + c] = int(self.centre_segment[ji])
-        for k in range(nm):
-            for c in range(3):
-                owner_of[self.offsets["marker"] + 3 * k + c] = int(self.marker_segment[k])
-        scale_col = {i: k for k, i in self._direct if i < ns}
-        pos = [(i, k, owner_of[i], scale_col.get(owner_of[i], -1)) for k, i in self._direct if i in owner_of]
-        self._positions = tuple(np.array([x[c] for x in pos], dtype=int) for c in range(4))
+        self.free_names = L.free_names
+        self.n_free = L.n_free
+        self._direct = L.direct  # (free column, p entry) of every free column but the axes' tangents
         self._gauges = self._find_gauges()
         self._urdf = {u.name: u for u in m.urdf_joints}
         # A frame's turn is carried into the segments below only if all they hold is free.
@@ -426,24 +488,24 @@ class Problem:
         segments below (see _turn), so that the data are unchanged once each turned frame's
         coordinates follow (root pose, a hinge's angle; ball angles are re-solved by the caller).
         Returns the new p and (segment, kind, G, t) per segment."""
-        m, o, pr = self.model, self.offsets, self.settings.priors
+        m, L, pr = self.model, self.layout, self.settings.priors
         base = self.base.vector()
         out = p.copy()
         moves = []
         for si, kind in self._gauges:
-            s = out[si]
+            s = out[L.scale(si)]
             pts, pts0, wts = [], [], []
             for k in np.flatnonzero(self.marker_segment == si):
                 if not self.seen[:, k].any():
                     continue
-                sl = o["marker"] + 3 * k
-                pts.append(s * out[sl:sl + 3])
-                pts0.append(s * base[sl:sl + 3])
+                sl = L.marker(k)
+                pts.append(s * out[sl])
+                pts0.append(s * base[sl])
                 wts.append(1 / pr.marker**2)
             for ji in np.flatnonzero(self.centre_segment == si):
-                sl = o["centre"] + 3 * ji
-                pts.append(s * out[sl:sl + 3])
-                pts0.append(s * base[sl:sl + 3])
+                sl = L.centre(ji)
+                pts.append(s * out[sl])
+                pts0.append(s * base[sl])
                 wts.append(1 / pr.centre**2)
             dirs, dirs0, dw = [], [], []
             for ji in np.flatnonzero(self.centre_segment == si):
@@ -452,9 +514,9 @@ class Problem:
                     d = m.dof_index(j.dofs[0])
                     if d in self.axis_dofs:
                         u = self._urdf[j.urdf_joints[0]]
-                        sl = o["axis"] + 3 * d
-                        dirs.append(u.rotation @ self._axis(out, d))
-                        dirs0.append(u.rotation @ (base[sl:sl + 3] / np.linalg.norm(base[sl:sl + 3])))
+                        sl = L.axis(d)
+                        dirs.append(u.rotation @ self.axis_direction(out, d))
+                        dirs0.append(u.rotation @ (base[sl] / np.linalg.norm(base[sl])))
                         dw.append(1 / pr.axis**2)
             X = np.array(pts + dirs).reshape(-1, 3)
             X0 = np.array(pts0 + dirs0).reshape(-1, 3)
@@ -470,7 +532,7 @@ class Problem:
                 Xc = X
             if kind == "axis":
                 j = next(j for j in m.joints if j.child == m.segments[si].name)
-                a = self._axis(out, m.dof_index(j.dofs[-1]))
+                a = self.axis_direction(out, m.dof_index(j.dofs[-1]))
                 u0 = X0 - np.outer(X0 @ a, a)
                 u1 = Xc - np.outer(Xc @ a, a)
                 phi = math.atan2(float(np.sum(w * (np.cross(u0, u1) @ a))), float(np.sum(w * np.sum(u0 * u1, axis=1))))
@@ -501,7 +563,7 @@ class Problem:
         as in align_frames; returns the new p and (segment, kind, G, 0) per segment."""
         from scipy.spatial.transform import Rotation
 
-        m = self.model
+        m, fl = self.model, self.layout.frame
         out = p.copy()
         moves = []
         into = {j.child: j for j in m.joints}
@@ -511,8 +573,8 @@ class Problem:
                 R = np.broadcast_to(np.eye(3), (Z.shape[0], 3, 3))
                 R0 = np.eye(3)
                 for u in (self._urdf[n] for n in j.urdf_joints):
-                    turn = np.eye(3) if u.dof < 0 else \
-                        Rotation.from_rotvec(np.outer(Z[:, 6 + u.dof], self._axis(out, u.dof))).as_matrix()
+                    turn = np.eye(3) if u.dof < 0 else Rotation.from_rotvec(
+                        np.outer(Z[:, fl.angle(u.dof)], self.axis_direction(out, u.dof))).as_matrix()
                     R = R @ u.rotation @ turn
                     R0 = R0 @ u.rotation
                 U, _, Vt = np.linalg.svd(R.sum(axis=0))
@@ -520,7 +582,7 @@ class Problem:
                 G = mean.T @ R0
             elif kind == "axis":
                 d = m.dof_index(j.dofs[-1])
-                G = Rotation.from_rotvec(-float(np.mean(Z[:, 6 + d])) * self._axis(out, d)).as_matrix()
+                G = Rotation.from_rotvec(-float(np.mean(Z[:, fl.angle(d)])) * self.axis_direction(out, d)).as_matrix()
             else:
                 continue
             self._turn(out, si, G)
@@ -534,13 +596,13 @@ class Problem:
         joint's fixed origin rotation O, with the joint's axes turned back in their own frames
         (R(Kᵀa, θ) = Kᵀ R(a, θ) K), so its angles are unchanged: the turn is carried down the
         tree until a ball joint, whose angles absorb it."""
-        m, o = self.model, self.offsets
-        shift = np.zeros(3) if t is None else t / out[si]
+        m, L = self.model, self.layout
+        shift = np.zeros(3) if t is None else t / out[L.scale(si)]
         for k in np.flatnonzero(self.marker_segment == si):
-            sl = slice(o["marker"] + 3 * k, o["marker"] + 3 * k + 3)
+            sl = L.marker(k)
             out[sl] = G.T @ (out[sl] - shift)
         for ji in np.flatnonzero(self.centre_segment == si):
-            sl = slice(o["centre"] + 3 * ji, o["centre"] + 3 * ji + 3)
+            sl = L.centre(ji)
             out[sl] = G.T @ (out[sl] - shift)
             j = m.joints[ji]
             if j.kind not in ("hinge", "universal") or not self._carries:
@@ -552,7 +614,7 @@ class Problem:
             for u in chain:
                 K = u.rotation.T @ K @ u.rotation
                 if u.dof >= 0:
-                    sl = slice(o["axis"] + 3 * u.dof, o["axis"] + 3 * u.dof + 3)
+                    sl = L.axis(u.dof)
                     out[sl] = K.T @ out[sl]
             self._turn(out, m.segment_index(j.child), K)
 
@@ -563,35 +625,30 @@ class Problem:
         the priors would hold that motion; it is a curved valley that slows Levenberg–Marquardt.
         Fixing it keeps each segment's frame oriented as in the start (the base model's
         orientation), which is what the priors choose to first order."""
-        m, o = self.model, self.offsets
-        col = {name: k for k, name in enumerate(self.free_names)}
-        names = m.parameter_names()
+        m, L = self.model, self.layout
         pr = self.settings.priors
         rows: list[np.ndarray] = []
         for si, kind in self._gauges:
-            items: list[tuple[np.ndarray, list[int], float, np.ndarray | None]] = []  # x, cols, weight, basis
-            s = p[si]  # free positions are at the subject's scale (see tangent_map)
+            items: list[tuple[np.ndarray, np.ndarray, float, np.ndarray | None]] = []  # x, cols, weight, basis
+            s = p[L.scale(si)]  # free positions are at the subject's scale (see tangent_map)
             for k in np.flatnonzero(self.marker_segment == si):
-                sl = o["marker"] + 3 * k
-                items.append((s * p[sl:sl + 3], [col[names[sl + c]] for c in range(3)], 1 / pr.marker**2, None))
+                items.append((s * p[L.marker(k)], L.cols("marker", k), 1 / pr.marker**2, None))
             for ji in np.flatnonzero(self.centre_segment == si):
-                sl = o["centre"] + 3 * ji
-                items.append((s * p[sl:sl + 3], [col[names[sl + c]] for c in range(3)], 1 / pr.centre**2, None))
+                items.append((s * p[L.centre(ji)], L.cols("centre", ji), 1 / pr.centre**2, None))
                 for dname in m.joints[ji].dofs:
                     d = m.dof_index(dname)
                     if d in self.axis_dofs:
-                        cols = [k for k, dd in self._tangent if dd == d]
-                        a = self._axis(p, d)
-                        items.append((a, cols, 1 / pr.axis**2, perpendicular_basis(a)))
+                        a = self.axis_direction(p, d)
+                        items.append((a, L.axis_cols(d), 1 / pr.axis**2, perpendicular_basis(a)))
             if kind == "axis":
                 j = next(j for j in m.joints if j.child == m.segments[si].name)
-                omegas = [self._axis(p, m.dof_index(j.dofs[-1]))]
+                omegas = [self.axis_direction(p, m.dof_index(j.dofs[-1]))]
             else:
                 omegas = list(np.eye(3))
             for w in omegas:
                 r = np.zeros(self.n_free)
                 for x, cols, wt, B in items:
-                    v = wt * _cross(w, x)
+                    v = wt * cross3(w, x)
                     r[cols] += v if B is None else v @ B
                 rows.append(r)
             if kind == "rigid":
@@ -607,60 +664,24 @@ class Problem:
             j = m.joints[ji]
             d = m.dof_index(j.dofs[0])
             u = self._urdf[j.urdf_joints[0]]
-            a = u.rotation @ self._axis(p, d)
-            sl = o["centre"] + 3 * ji
+            a = u.rotation @ self.axis_direction(p, d)
             r = np.zeros(self.n_free)
-            r[[col[names[sl + c]] for c in range(3)]] = a
+            r[L.cols("centre", ji)] = a
             rows.append(r)
         return np.array(rows, dtype=float).reshape(len(rows), self.n_free)
 
     def tangent_map(self, p: np.ndarray) -> np.ndarray:
-        """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`.
+        """T (np_full, n_free): full-parameter change per unit free-parameter change at `p`
+        (ParameterLayout.tangent_map)."""
+        return self.layout.tangent_map(p)
 
-        The free coordinates of joint centres and markers are positions at the subject's scale
-        (q = s x, metres), and a scale step keeps them fixed (x ← (s x + dq)/(s + ds)): the data
-        see only s x, so a segment's size then trades against its offsets along a straight line
-        (the priors, linear in (s, q), settle it in one step) instead of the hyperbola s x = const
-        that Gauss-Newton would only crawl along."""
-        T = np.zeros((self.np_full, self.n_free))
-        if self._direct.size:
-            T[self._direct[:, 1], self._direct[:, 0]] = 1.0
-        rows, cols, owner, scol = self._positions
-        if rows.size:
-            s = p[owner]
-            T[rows, cols] = 1.0 / s
-            with_scale = scol >= 0
-            T[rows[with_scale], scol[with_scale]] = -p[rows[with_scale]] / s[with_scale]
-        for d in self.axis_dofs:
-            B = perpendicular_basis(self._axis(p, d))
-            cols_d = [k for k, dd in self._tangent if dd == d]
-            rows_d = self.offsets["axis"] + 3 * d + np.arange(3)
-            T[np.ix_(rows_d, cols_d)] = B
-        return T
-
-    def _axis(self, p: np.ndarray, d: int) -> np.ndarray:
-        a = p[self.offsets["axis"] + 3 * d: self.offsets["axis"] + 3 * d + 3]
-        return a / np.linalg.norm(a)
+    def axis_direction(self, p: np.ndarray, d: int) -> np.ndarray:
+        """DoF d's axis in `p`, normalised (unit)."""
+        return self.layout.axis_direction(p, d)
 
     def retract_parameters(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
-        """p moved by the free-parameter step dp: scales to s exp(ds / s) (s + ds to first order, and
-        never zero or negative: a segment with no marker of its own, whose scale only the priors
-        hold, must not shrink through zero into a mirror image), free positions to (s x + dq)/s'
-        (see tangent_map), axes kept unit (normalise(a + B u))."""
-        out = p.copy()
-        if self._direct.size:
-            out[self._direct[:, 1]] += dp[self._direct[:, 0]]
-            sc = self._direct[self._direct[:, 1] < len(self.model.segments)]
-            out[sc[:, 1]] = p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]])
-        rows, cols, owner, _ = self._positions
-        if rows.size:
-            out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
-        for d, cols in self._tangent_cols.items():
-            a = self._axis(p, d)
-            a = a + perpendicular_basis(a) @ dp[cols]
-            sl = slice(self.offsets["axis"] + 3 * d, self.offsets["axis"] + 3 * d + 3)
-            out[sl] = a / np.linalg.norm(a)
-        return out
+        """p moved by the free-parameter step dp, each block on its manifold (ParameterLayout.retract)."""
+        return self.layout.retract(p, dp)
 
     # ------------------------------------------------------------------ CasADi
     def _build_functions(self) -> None:
@@ -772,7 +793,7 @@ class Problem:
         st = self.settings
         sigma = self.sigma
         s = np.where(self.seen, np.sum(d.reshape(self.F, -1, 3) ** 2, axis=2), 0.0) / sigma**2
-        rho, drho = _robust(s, self.loss, st.loss_scale**2)
+        rho, drho = _robust(s, st.loss, st.loss_scale**2)
         cost = 0.5 * float(np.sum(rho[self.seen]))
         w = np.where(self.seen, np.sqrt(drho) / sigma, 0.0)
         return cost, w
@@ -783,8 +804,7 @@ class Problem:
         cached = self.__dict__.get("_prior_cache")
         if cached is None or cached[0] is not self.base:
             base = self.base.vector()
-            o = self.offsets
-            cached = (self.base, base, symmetry_pairs(self.model, base[o["centre"]:o["axis"]].reshape(-1, 3)))
+            cached = (self.base, base, symmetry_pairs(self.model, base[self.layout.group("centre")].reshape(-1, 3)))
             self._prior_cache = cached
         return cached[1], cached[2]
 
@@ -792,15 +812,15 @@ class Problem:
               jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Prior residuals and their Jacobian (n_prior, n_free) at full parameters `p`, through the
         free-parameter map `T` (default: tangent_map(p)); no Jacobian (None) if not `jacobian`."""
-        st, m, o = self.settings, self.model, self.offsets
+        st, m, L = self.settings, self.model, self.layout
         free = set(st.free)
         base, (seg_pairs, joint_pairs, mirror) = self._prior_centres()
-        scale = p[:len(m.segments)]
+        scale = p[L.scales]
         res: list[np.ndarray] = []
         jac: list[np.ndarray] = []  # d residual / d p_full
 
         def block(group: str, count: int, seg_of: np.ndarray, sigma: float) -> None:
-            idx = o[group] + 3 * np.arange(count)[:, None] + np.arange(3)  # (count, 3) full indices
+            idx = L.entries(group)  # (count, 3) full indices
             s = scale[seg_of][:, None]
             diff = p[idx] - base[idx]
             res.append((s * diff / sigma).ravel())
@@ -809,7 +829,7 @@ class Problem:
             J = np.zeros((3 * count, self.np_full))
             rows = np.arange(3 * count)
             J[rows, idx.ravel()] = np.repeat(scale[seg_of], 3) / sigma
-            J[rows, np.repeat(seg_of, 3)] = diff.ravel() / sigma
+            J[rows, L.scale(np.repeat(seg_of, 3))] = diff.ravel() / sigma
             jac.append(J)
 
         if "marker" in free:
@@ -817,7 +837,7 @@ class Problem:
         if "centre" in free:
             block("centre", len(m.joints), self.centre_segment, st.priors.centre)
         for d in self.axis_dofs:
-            sl = slice(o["axis"] + 3 * d, o["axis"] + 3 * d + 3)
+            sl = L.axis(d)
             res.append((p[sl] - base[sl] / np.linalg.norm(base[sl])) / st.priors.axis)
             if jacobian:
                 J = np.zeros((3, self.np_full))
@@ -825,10 +845,10 @@ class Problem:
                 jac.append(J)
         if "scale" in free:
             ns = len(m.segments)
-            res.append((scale - base[:ns]) / st.priors.scale)
+            res.append((scale - base[L.scales]) / st.priors.scale)
             if jacobian:
                 J = np.zeros((ns, self.np_full))
-                J[np.arange(ns), np.arange(ns)] = 1.0 / st.priors.scale
+                J[np.arange(ns), np.r_[L.scales]] = 1.0 / st.priors.scale
                 jac.append(J)
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
@@ -836,26 +856,25 @@ class Problem:
         sd = st.priors.symmetry_scale
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
-            res.append(((scale[a] - scale[b]) - (base[a] - base[b])) / sd)
+            res.append(((scale[a] - scale[b]) - (base[L.scale(a)] - base[L.scale(b)])) / sd)
             if jacobian:
                 J = np.zeros((a.size, self.np_full))
-                J[np.arange(a.size), a] = 1.0 / sd
-                J[np.arange(a.size), b] = -1.0 / sd
+                J[np.arange(a.size), L.scale(a)] = 1.0 / sd
+                J[np.arange(a.size), L.scale(b)] = -1.0 / sd
                 jac.append(J)
         sd = st.priors.symmetry_centre
         if "centre" in free and sd > 0 and joint_pairs:
             for jl, jr in joint_pairs:
                 sa, sb = int(self.centre_segment[jl]), int(self.centre_segment[jr])
-                il = o["centre"] + 3 * jl + np.arange(3)
-                ir = o["centre"] + 3 * jr + np.arange(3)
+                il, ir = L.entries("centre", [jl, jr])
                 res.append((scale[sa] * p[il] - mirror * (scale[sb] * p[ir]) - (base[il] - mirror * base[ir])) / sd)
                 if not jacobian:
                     continue
                 J = np.zeros((3, self.np_full))
                 J[np.arange(3), il] = scale[sa] / sd
                 J[np.arange(3), ir] = -mirror * scale[sb] / sd
-                J[:, sa] += p[il] / sd
-                J[:, sb] -= mirror * p[ir] / sd
+                J[:, L.scale(sa)] += p[il] / sd
+                J[:, L.scale(sb)] -= mirror * p[ir] / sd
                 jac.append(J)
         if not res:
             return np.zeros(0), np.zeros((0, self.n_free))
@@ -868,7 +887,7 @@ class Problem:
         """Joint-limit residuals (F, n_dofs): LIMIT_WEIGHT/σ × how far each angle lies outside its
         range (zero inside it).  They never bias a pose within the range of motion; they keep a
         frame from sliding into a mirror-image branch or a full turn while the geometry is poor."""
-        th = Z[:, 6:]
+        th = self.layout.frame.angles(Z)
         return self._limit_w * (th - np.clip(th, self.lower, self.upper))
 
     def _limit_active(self, lim: np.ndarray) -> np.ndarray:
@@ -885,14 +904,19 @@ class Problem:
 
     # ------------------------------------------------------------------ normal equations
     def linearize(self, state: State, with_parameters: bool = True,
-                  reuse: Linearization | None = None) -> Linearization:
+                  reuse: Linearization | bool | None = None) -> Linearization:
         """Cost and block-arrow normal equations at `state` (weights from the robust loss).
         `reuse`: a Linearization no longer needed, whose arrays are overwritten (saves allocating
-        the large B afresh at every iteration).
+        the large B afresh at every iteration); True: the one last handed back by recycle() (the
+        solver's last run on this problem), if any.
 
         The per-segment Jacobian blocks are gathered and multiplied frame by frame in compiled
         loops (calibrate.assembly): the time is linear in the frames."""
         F, nz = self.F, self.model.nz
+        if reuse is True:
+            reuse = self._work.pop(("lin", not with_parameters), None)
+        elif reuse is False:
+            reuse = None
         old = reuse.jacobian[:3] if reuse is not None and reuse.jacobian is not None else None  # (d, jz, jp)
         if with_parameters:
             d, jz, jp = self._run("full", state, old)
@@ -918,8 +942,9 @@ class Problem:
             cost += 0.5 * float(np.sum(lim**2))
             f, d_ = np.nonzero(out)
             k = self._limit_w[d_]
-            A[f, 6 + d_, 6 + d_] += k * k
-            gz[f, 6 + d_] += k * lim[f, d_]
+            c = self.layout.frame.angle(d_)
+            A[f, c, c] += k * k
+            gz[f, c] += k * lim[f, d_]
         r, Jr = self.prior(state.p)
         cost += 0.5 * float(r @ r)
         if with_parameters:
@@ -946,7 +971,7 @@ class Problem:
                          gradient_only=True)
         if on.any():
             f, k = np.nonzero(on)
-            gz[f, 6 + k] += self._limit_w[k] * lim[f, k]
+            gz[f, self.layout.frame.angle(k)] += self._limit_w[k] * lim[f, k]
         if n:
             gp = gp + Jr.T @ r
         return gz, gp
@@ -993,7 +1018,7 @@ class Problem:
         nd = lim.shape[1]
         lf, ld = np.nonzero(self._limit_active(lim))
         blocks_r.append(F * rows3 + lf * nd + ld)
-        blocks_c.append(lf * nz + 6 + ld)
+        blocks_c.append(lf * nz + self.layout.frame.angle(ld))
         blocks_v.append(self._limit_w[ld])
         r, Jr = self.prior(state.p, T)
         pr, pc = np.nonzero(Jr)
@@ -1063,21 +1088,6 @@ def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
     return row, col
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b for 3-vectors (np.cross costs tens of microseconds per call in its axis handling)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def perpendicular_basis(a: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal columns perpendicular to unit `a` (a fixed, smooth-enough choice)."""
-    k = int(np.argmin(np.abs(a)))
-    e = np.zeros(3)
-    e[k] = 1.0
-    u = _cross(a, e)
-    u /= math.sqrt(float(u @ u))
-    return np.column_stack([u, _cross(a, u)])
-
-
 def _structure_key(model: Model, kin: Kinematics) -> str | None:
     """A digest of everything the per-frame functions are built from: the model's kinematic
     structure (tree, fixed rotations and offsets, which parameter each origin reads) and the code
@@ -1086,7 +1096,7 @@ def _structure_key(model: Model, kin: Kinematics) -> str | None:
     if c_compiler() is None:
         return None
     h = hashlib.sha256(f"{ca.__version__} -O1 {model.root} {model.nz} {len(model.markers)}".encode())
-    for src in (Path(__file__), Path(__file__).with_name("kinematics.py")):
+    for src in (Path(__file__), Path(__file__).with_name("kinematics.py"), Path(__file__).with_name("blocks.py")):
         h.update(src.read_bytes())
     h.update(repr([s.name for s in model.segments]).encode())
     h.update(repr([(b.name, b.axes.tolist()) for b in kin.balls]).encode())

@@ -587,7 +587,7 @@ def _skin_markers(kin: Kinematics, Z: np.ndarray, quat: np.ndarray, truth: Param
     """Markers (F, M, 3) with per-frame marker offsets (F, M, 3; unscaled, segment frames)."""
     nf, nm = offsets.shape[:2]
     P = np.tile(truth.vector()[:, None], (1, nf))
-    P[P.shape[0] - 3 * nm:, :] = offsets.reshape(nf, 3 * nm).T  # the marker block is last
+    P[kin.model.layout.group("marker"), :] = offsets.reshape(nf, 3 * nm).T
     M, _ = kin.h.map(nf, "thread", 2)(Z.T, quat.T, P)
     return np.asarray(M).reshape(3, nf, nm).transpose(1, 2, 0)
 

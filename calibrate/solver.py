@@ -33,7 +33,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .assembly import back_substitute, factor_frames, forward_substitute
+from .options import SolverOptions
 from .problem import Linearization, Problem, State, in_parallel, split_frames
+
+__all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "covariance", "levenberg_marquardt"]
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
 GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
@@ -262,21 +265,22 @@ def _model_decrease(lin: Linearization, dz: np.ndarray, dp: np.ndarray) -> float
     return -(lin_term + 0.5 * quad)
 
 
-def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = False,
-                        max_iterations: int | None = None, geodesic: bool | None = None,
+def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions | None = None, *,
+                        pose_only: bool = False, max_iterations: int | None = None,
                         progress: Callable[[int, float, float], None] | None = None) -> tuple[State, SolverSummary]:
-    """Minimise the problem's cost from `state`.  `pose_only` keeps p fixed (frame-wise inverse
-    kinematics of all frames at once).  `geodesic`: geodesic acceleration on or off (default:
-    Settings.geodesic).  `progress(iteration, cost, lam)` after each step."""
-    st = problem.settings
+    """Minimise the problem's cost from `state` (tolerances, iteration limit and geodesic
+    acceleration: `options`, default SolverOptions(); `max_iterations` overrides its limit).
+    `pose_only` keeps p fixed (frame-wise inverse kinematics of all frames at once).
+    `progress(iteration, cost, lam)` after each step."""
+    st = SolverOptions() if options is None else options
     max_it = max_iterations or st.max_iterations
     summary = SolverSummary()
     t_start = time.perf_counter()
     # Buffers shared by every step, and by later runs on this problem (first touches of the large
     # per-step arrays, in page faults, cost as much as a step of a short run).
-    work = problem.scratch
+    work = problem.buffers()
     t0 = time.perf_counter()
-    lin = problem.linearize(state, with_parameters=not pose_only, reuse=work.pop(("lin", pose_only), None))
+    lin = problem.linearize(state, with_parameters=not pose_only, reuse=True)
     summary.linearize_seconds += time.perf_counter() - t0
     cost = lin.cost
     summary.initial_cost = cost
@@ -284,7 +288,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
     lam, nu = 1e-4, 2.0
     # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
     # weights would blur: plain least squares only.
-    accelerate = (st.geodesic if geodesic is None else geodesic) and problem.loss == "linear"
+    accelerate = st.geodesic and problem.loss == "linear"
     here = problem.residual_parts(state) if accelerate else None
     N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
     x_norm = lambda s: float(np.sqrt(np.sum(s.Z**2) + np.sum(s.p**2)))  # noqa: E731
@@ -354,7 +358,7 @@ def levenberg_marquardt(problem: Problem, state: State, *, pose_only: bool = Fal
                 termination = "no step lowers the cost (damping exhausted): converged to the available precision"
                 converged = True
                 break
-    work[("lin", pose_only)] = lin  # its arrays are the next run's buffers
+    problem.recycle(lin)  # its arrays are the next run's buffers
     summary.final_cost = cost
     summary.termination = termination
     summary.converged = converged

@@ -247,7 +247,7 @@ def compare_solvers(problem, state0, spec: dict) -> dict:
 
     out: dict = {"initial_cost": problem.cost(state0)}
     t0 = time.perf_counter()
-    state, summary = levenberg_marquardt(problem, state0)
+    state, summary = levenberg_marquardt(problem, state0, problem.settings.solver)
     out["ours"] = {"seconds": time.perf_counter() - t0, "iterations": summary.iterations,
                    "accepted": summary.accepted, "cost": problem.cost(state), "summary_cost": summary.final_cost,
                    "status": summary.termination, "converged": bool(summary.converged)}
@@ -342,16 +342,16 @@ def ipopt_objective(problem, state0, hessian: bool):
     frame = 0.5 * ca.sumsqr(w * (ca.vec(markers) - r) / st.noise) + 0.5 * (LIMIT_WEIGHT / st.noise) ** 2 * ca.sumsqr(
         outside)
     # prior, as Problem.prior
-    o, pri, base = problem.offsets, st.priors, problem.base.vector()
+    L, pri, base = problem.layout, st.priors, problem.base.vector()
     res = []
     for group, count, seg_of, sigma in (("marker", nm, problem.marker_segment, pri.marker),
                                         ("centre", len(m.joints), problem.centre_segment, pri.centre)):
         if group in st.free:
             for i in range(count):
-                sl = slice(o[group] + 3 * i, o[group] + 3 * i + 3)
+                sl = L.block(group, i).full
                 res.append(p[int(seg_of[i])] * (p[sl] - base[sl]) / sigma)
     for d in problem.axis_dofs:
-        sl = slice(o["axis"] + 3 * d, o["axis"] + 3 * d + 3)
+        sl = L.axis(d)
         res.append((p[sl] - base[sl] / np.linalg.norm(base[sl])) / pri.axis)
     if "scale" in st.free:
         ns = len(m.segments)

@@ -1,0 +1,121 @@
+"""Named parameter blocks (calibrate.blocks), the immutable Problem and the solver's options.
+
+The layout is checked against the model's own numbers (each block's entries hold the base model's
+joint centre, axis, marker offset, scale), the tangent map against finite differences of the
+retraction, and each Problem copy against the original left unchanged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibrate.blocks import FrameLayout, ParameterLayout
+from calibrate.ik import marker_columns
+from calibrate.options import SolverOptions
+from calibrate.problem import Problem, Settings
+from calibrate.simulate import simulate_squats
+from calibrate.solver import State, levenberg_marquardt
+
+
+def test_blocks_hold_the_model_numbers(human):
+    L = ParameterLayout(human)
+    P = human.parameters()
+    p = P.vector()
+    assert L.n_full == p.size
+    for j, joint in enumerate(human.joints):
+        assert np.array_equal(p[L.centre(j)], joint.centre)
+        assert L.block("centre", j).label == f"centre[{joint.name}]"
+    for d, dof in enumerate(human.dofs):
+        assert np.array_equal(p[L.axis(d)], dof.axis)
+    for k, mk in enumerate(human.markers):
+        assert np.array_equal(p[L.marker(k)], mk.offset)
+    assert np.array_equal(p[L.scales], np.ones(len(human.segments)))
+    # Every entry of p in exactly one block, in order.
+    covered = np.concatenate([np.arange(b.offset, b.offset + b.size) for b in L.blocks])
+    assert np.array_equal(covered, np.arange(p.size))
+    # The free columns: 1 per scale, 3 per centre and marker, 2 per hinge/universal axis, none per ball axis.
+    hinge_axes = sum(len(j.dofs) for j in human.joints if j.kind in ("hinge", "universal"))
+    assert L.n_free == len(human.segments) + 3 * len(human.joints) + 2 * hinge_axes + 3 * len(human.markers)
+    assert len(L.free_names) == L.n_free == len(set(L.free_names))
+
+
+def test_held_blocks_have_no_columns(human):
+    knee = human.dof_index("knee_r")
+    L = ParameterLayout(human, free=("centre", "axis"), held_axes=("knee_r",), held_segments=("hand_r",))
+    assert L.block("axis", knee).held and L.axis_cols(knee).size == 0
+    assert all(L.block("scale", i).held for i in range(len(human.segments)))
+    assert all(L.block("marker", k).held for k in range(len(human.markers)))
+    for j, joint in enumerate(human.joints):
+        assert L.block("centre", j).held == (joint.parent == "hand_r")
+    cols = np.concatenate([b.cols for b in L.free_blocks])
+    assert np.array_equal(cols, np.arange(L.n_free))
+
+
+def test_tangent_map_is_the_retraction_derivative(human):
+    """Column k of T(p) against the central difference of retract(p, ±h e_k)."""
+    L = ParameterLayout(human)
+    rng = np.random.default_rng(1)
+    P = human.parameters()
+    P.scale[:] = 1 + 0.1 * rng.normal(size=P.scale.shape)
+    p = P.vector()
+    T = L.tangent_map(p)
+    h = 1e-6
+    for k in rng.choice(L.n_free, 40, replace=False):
+        e = np.zeros(L.n_free)
+        e[k] = h
+        fd = (L.retract(p, e) - L.retract(p, -e)) / (2 * h)
+        assert np.allclose(fd, T[:, k], atol=1e-7), L.free_names[k]
+    # Axes stay unit after any step.
+    q = L.retract(p, rng.normal(size=L.n_free))
+    for d in L.axis_dofs:
+        assert np.linalg.norm(q[L.axis(d)]) == pytest.approx(1.0, abs=1e-14)
+
+
+def test_frame_layout(human):
+    F = FrameLayout(human.n_dofs)
+    Z = np.arange(3 * human.nz, dtype=float).reshape(3, human.nz)
+    assert F.nz == human.nz
+    assert np.array_equal(F.angles(Z)[:, 4], Z[:, F.angle(4)])
+    assert F.dof(F.angle(7)) == 7
+    t, a = np.ones((3, 3)), np.full((3, human.n_dofs), 2.0)
+    W = F.coordinates(t, a)
+    assert np.array_equal(W[:, F.translation], t) and not W[:, F.rotation].any() and np.array_equal(F.angles(W), a)
+
+
+def test_problem_copies_leave_the_original_unchanged(human, human_kin):
+    sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=0)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(loss="huber"), human_kin)
+    with pytest.raises(AttributeError):
+        problem.loss = "linear"
+    with pytest.raises(AttributeError):
+        problem.base = human.parameters()
+    linear = problem.with_loss("linear")
+    assert linear.loss == "linear" and problem.loss == "huber" and linear.settings.loss_scale == 3.0
+    mask = np.zeros(problem.seen.shape, dtype=bool)
+    mask[1, 2] = True
+    fewer = problem.without(mask)
+    assert fewer.n_obs == problem.n_obs - 1 and problem.seen[1, 2] and not fewer.seen[1, 2]
+    moved = human.parameters()
+    moved.marker[0] += 0.01
+    based = problem.with_base(moved)
+    assert based.base is moved and problem.base is not moved
+    # The prior sees the new base: its first marker residual is the 1 cm move over the prior SD.
+    p = human.parameters().vector()
+    r0 = problem.prior(p, jacobian=False)[0]
+    r1 = based.prior(p, jacobian=False)[0]
+    assert np.allclose(r1[:3] - r0[:3], -0.01 / problem.settings.priors.marker)
+
+
+def test_solver_options(human, human_kin):
+    s = Settings(max_iterations=7, ftol=1e-3, atol=0.1, xtol=1e-5, gtol=1e-4, geodesic=False)
+    assert s.solver == SolverOptions(7, 1e-3, 0.1, 1e-5, 1e-4, False)
+    assert Settings().solver == SolverOptions()
+    with pytest.raises(ValueError):
+        SolverOptions(ftol=0.0)
+    sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=0)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(free=()), human_kin)
+    m = sim.motion
+    state = State(FrameLayout.coordinates(m.root_translation, m.angles) + 0.05, m.root_quaternion.copy(),
+                  sim.truth.vector())
+    _, one = levenberg_marquardt(problem, state, SolverOptions(max_iterations=1), pose_only=True)
+    assert one.iterations == 1 and not one.converged and "max_iterations (1)" in one.termination
