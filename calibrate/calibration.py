@@ -244,7 +244,7 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     geo = model_geometry(model)
     # Only direct MTB solutions seed the geometry: JMV fallbacks and joints seen through a
     # markerless segment are flagged by the joint-centre stage as 10-60 mm uncertain.
-    ok = {j.name: j for j in joints if j.ok and j.method.startswith("MTB") and not j.note}
+    ok = {j.name: j for j in joints if j.ok and j.mtb and not j.note}
     for j in joints:
         if not j.ok:
             notes.append(f"{j.name}: no joint-centre seed ({j.reason}); base model used")

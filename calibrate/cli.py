@@ -611,10 +611,7 @@ def cmd_import_osim(args: argparse.Namespace) -> int:
     out: Path = args.output or src.with_suffix(".urdf")
     if out.suffix.lower() != ".urdf":
         raise CalibrateError(f"{out}: the output is a URDF; give it a .urdf name")
-    if out.exists() and not args.overwrite:
-        raise CalibrateError(f"{out}: exists; pass --overwrite to replace it or choose another -o")
-    if not out.parent.is_dir():
-        raise CalibrateError(f"{out}: directory '{out.parent}' does not exist; create it first")
+    check_targets([out], args.overwrite, exists_hint="pass --overwrite to replace it or choose another -o")
     model = load_model(src, args.marker_set)
     try:
         atomic_write_text(out, model._text)

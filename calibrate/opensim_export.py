@@ -505,7 +505,7 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
     writers = {path: (lambda p: write_trc(p, trial)) if kind == "trc"  # type: ignore[arg-type]
                else (lambda p, kind=kind: _write(p, texts[kind])) for kind, path in targets.items()}
     try:
-        write_all(writers)
+        write_all(writers, keep_names=True)
     except OSError as e:
         raise CalibrateError(f"{targets['osim'].parent}: cannot write ({e.strerror}); choose a writable place") \
             from None

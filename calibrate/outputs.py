@@ -43,18 +43,24 @@ def check_targets(targets: Sequence[Path], overwrite: bool, *, inputs: Mapping[P
             raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
 
 
-def write_all(writers: Mapping[Path, Writer]) -> None:
-    """Write every output (destination -> its writer) or none.  Each writer writes to a path with
-    the destination's own file name (what a TRC header quotes), in a fresh folder beside it, in the
-    given order; then all are renamed into place (place_all).  The destinations should have passed
-    check_targets."""
+def write_all(writers: Mapping[Path, Writer], keep_names: bool = False) -> None:
+    """Write every output (destination -> its writer, called in this order) or none, then rename all
+    into place (place_all).  Each writer writes to a staging file beside its destination: a hidden
+    temporary ('.NAME.*.part'), or with `keep_names` a file of the destination's own name in a fresh
+    hidden folder (for a format that quotes its file name, as a TRC header does).  The destinations
+    should have passed check_targets."""
     staged: dict[Path, Path] = {}
     folders: list[Path] = []
     try:
         for target, write in writers.items():
             target = Path(target)
-            folders.append(Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent)))
-            staged[target] = folders[-1] / target.name
+            if keep_names:
+                folders.append(Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent)))
+                staged[target] = folders[-1] / target.name
+            else:
+                fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+                os.close(fd)
+                staged[target] = Path(tmp)
             write(staged[target])
         place_all(staged)
     finally:
