@@ -716,7 +716,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
     if unknown and settings.new_markers:
-        say(f"markers: placing {len(unknown)} trial markers the model does not know")
+        say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         placed = _assign_new_markers(model, trials, unknown)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
@@ -731,8 +731,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
     if res.lock:
-        say(f"markers: {len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
-            f"{', '.join(res.lock)}")
+        say(Progress("markers", f"{len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
+                                f"{', '.join(res.lock)}"))
         settings = replace(settings, lock=settings.lock + tuple(
             (d, float(np.clip(0.0, subject.dofs[subject.dof_index(d)].lower, subject.dofs[subject.dof_index(d)].upper)))
             for d in res.lock))
@@ -748,7 +748,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     if settings.seed:
-        say("seed: the subject's size from marker distances, then joint centres (MTB)")
+        say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         size = size_from_markers(model, trials)
         pick = _most_motion(model, trials)
         seed = seed_parameters(model, trials[pick], extra_markers=new, size=size)
@@ -765,7 +765,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params0 = _hold_segments(subject, params0, settings.hold_segments)
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    say("build: residuals and Jacobian (CasADi)")
+    say(Progress("build", "residuals and Jacobian (CasADi)"))
     kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
     # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
     # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
@@ -773,12 +773,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     jumped = jumped_samples(subject, trials) if settings.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
-        say(f"markers: {int(jumped.sum())} positions jump away and back (swapped labels, spikes); left out")
+        say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes); "
+                                "left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
     problem = Problem(subject, obs, settings, kin, progress=say)
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    say("start: frame-wise inverse kinematics")
+    say(Progress("start", "frame-wise inverse kinematics"))
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
     if settings.seed:
@@ -823,7 +824,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 i = next(i for i, sl in enumerate(spans) if sl.start <= f < sl.stop)
                 rejected.append(Outlier(i, int(f - spans[i].start), subject.marker_names[k], float(err[f, k])))
             found += frames.size
-            say(f"solve: {frames.size} marker positions rejected as outliers")
+            say(Progress("solve", f"{frames.size} marker positions rejected as outliers"))
             problem.drop(bad)
             # A spike or a swapped label drags its frame's pose (a leg folded to reach a swapped ankle
             # marker) further than a few steps undo: such frames restart from their unaffected neighbours'.
@@ -834,7 +835,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=10)
         if not found and not reweighed:
             break
-        say("solve: again without the outliers" if found else "solve: again with the noise learnt again")
+        say(Progress("solve", "again without the outliers" if found else "again with the noise learnt again"))
         state, again = levenberg_marquardt(problem, state, max_iterations=settings.max_iterations)
         summary = _merge(summary, again)
         reweighed = False
@@ -852,7 +853,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
-        say(f"solve: segment frames turned to zero joint angles in {trials[neutral].source or 'the neutral trial'}")
+        say(Progress("solve", f"segment frames turned to zero joint angles in "
+                              f"{trials[neutral].source or 'the neutral trial'}"))
         state = align_neutral(problem, state, in_neutral)
         summary = replace(summary, final_cost=problem.cost(state), termination=summary.termination
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
@@ -1148,7 +1150,7 @@ def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
     return np.array([n in named for n in model.marker_names])
 
 
-def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str], None],
+def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str | Progress], None],
              trial_of: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
     """learned_noise at `state`: the weights' SDs sigma sqrt(τ) (a marker whose residuals are correlated
     over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
@@ -1157,9 +1159,9 @@ def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[s
     scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True)
     sigma = scatter * np.sqrt(tau)
     change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
-    say(f"noise: learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
-        f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to {tau.max():.1f}); "
-        f"9 in 10 weights changed by <= {100 * change:.0f} %")
+    say(Progress("noise", f"learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
+                          f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to "
+                          f"{tau.max():.1f}); 9 in 10 weights changed by <= {100 * change:.0f} %"))
     return (sigma if change > NOISE_CHANGE else None), scatter
 
 

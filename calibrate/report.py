@@ -103,7 +103,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "hold_segments": list(st.hold_segments),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
-        "unresolved": [u.to_json() for u in getattr(cal, "unresolved", ())],
+        "unresolved": [u.to_json() for u in cal.unresolved],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
@@ -284,7 +284,7 @@ def summary_text(cal) -> str:
             lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
         else:
             lines.append(f"  left out {m.label}: {m.reason}")
-    unresolved = getattr(cal, "unresolved", ())
+    unresolved = cal.unresolved
     if unresolved:
         lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "
                      f"locked): {', '.join(u.segment for u in unresolved)}")
