@@ -18,7 +18,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from .association import associate_to_model, distance_variance
 from .blocks import FrameLayout, perpendicular_basis
 from .errors import CalibrateError
-from .geometry import kabsch_batch
+from .geometry import kabsch_batch, marker_rms
 from .ik import _FrameSolver, marker_columns
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 from .kinematics import IDENTITY, Kinematics, build_kinematics
@@ -36,6 +36,8 @@ from .model import Model, Parameters, add_markers, mass_factor
 from .motion import Motion
 from .osim import with_locked
 from .problem import Problem, Settings, State
+from .records import CoordinateNote, Identified, LimitNote, ParameterChange, Progress, StillNote
+from .report import calibration_report, summary_text, write_outputs
 from .solver import SolverSummary, covariance, levenberg_marquardt
 from .trial import Trial
 
@@ -78,20 +80,6 @@ class Seed:
 
 
 @dataclass(frozen=True)
-class ParameterChange:
-    """One calibrated quantity against the base model, with its posterior uncertainty."""
-
-    name: str  # e.g. 'centre[knee_r]', 'axis[knee_r]', 'marker[RKNE]', 'scale[femur_r]'
-    base: np.ndarray  # base model value (m for positions at base scale, unit vector, scale factor)
-    value: np.ndarray  # calibrated value (positions at the subject's scale)
-    change: float  # |value − base|: mm for positions, degrees for axes, fraction for scales
-    std: np.ndarray  # posterior std per coordinate (mm / deg / fraction); NaN when not free
-    identified: bool  # False: the trial could not pin it and its prior holds it
-    note: str = ""
-    prior_ratio: float = float("nan")  # worst-direction posterior std / prior-only std (0: data alone, 1: prior alone)
-
-
-@dataclass(frozen=True)
 class NewMarker:
     """A trial marker the base model does not know, and where calibration put it."""
 
@@ -111,7 +99,7 @@ class Outlier:
     error: float  # m, when it was rejected
 
 
-@dataclass
+@dataclass(frozen=True)
 class Calibration:
     """Everything `calibrate` found.  Units: metres, radians, seconds.
 
@@ -138,7 +126,8 @@ class Calibration:
     outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
     label_maps: tuple = ()  # per trial: calibrate.labels.LabelMapping (trial label -> model label), if mapped
     mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
-    notes: tuple[str, ...] = ()  # what the user should look at (e.g. coordinates driven beyond their limits)
+    coordinate_notes: tuple[CoordinateNote, ...] = ()  # what the user should look at (e.g. coordinates driven
+    # beyond their limits); `notes` is their text
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     unresolved: tuple = ()  # calibrate.resolve.UnresolvedSegment per segment the markers cannot place (locked)
@@ -146,6 +135,11 @@ class Calibration:
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
     noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
     # (m): the noise SD times the square root of its residuals' correlation time in frames (learnt noise only)
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        """The coordinate notes as the user reads them."""
+        return tuple(n.text() for n in self.coordinate_notes)
 
     @property
     def trial(self) -> Trial:
@@ -164,7 +158,7 @@ class Calibration:
     @property
     def marker_rms(self) -> float:
         """RMS 3-D marker error over every observed marker in every frame (m)."""
-        return _rms(self.residuals)
+        return marker_rms(self.residuals)
 
     @property
     def marker_max(self) -> float:
@@ -192,27 +186,20 @@ class Calibration:
 
     def report(self) -> dict:
         """The report as plain JSON-ready data (mm, degrees, seconds at the edges)."""
-        from .report import calibration_report
-
         return calibration_report(self)
 
     def text(self) -> str:
         """A human-readable summary (what the CLI prints)."""
-        from .report import summary_text
-
         return summary_text(self)
 
-    def write(self, urdf=None, motion=None, report=None, overwrite: bool = False) -> dict:
+    def write(self, urdf=None, motion=None, report=None, overwrite: bool = False,
+              extra_times: dict[str, float] | None = None) -> dict:
         """Write the subject URDF, motion CSV and report JSON (those given); see report.write_outputs."""
-        from .report import write_outputs
+        return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite,
+                             extra_times=extra_times)
 
-        return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite)
 
-
-def _rms(res: np.ndarray) -> float:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2))))
+_rms = marker_rms  # the name tests and scripts import
 
 
 # ---------------------------------------------------------------------- seed
@@ -258,7 +245,7 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     geo = model_geometry(model)
     # Only direct MTB solutions seed the geometry: JMV fallbacks and joints seen through a
     # markerless segment are flagged by the joint-centre stage as 10-60 mm uncertain.
-    ok = {j.name: j for j in joints if j.ok and j.method.startswith("MTB") and not j.note}
+    ok = {j.name: j for j in joints if j.ok and j.mtb and not j.note}
     for j in joints:
         if not j.ok:
             notes.append(f"{j.name}: no joint-centre seed ({j.reason}); base model used")
@@ -651,7 +638,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
 def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings | None = None, *,
               marker_map: Mapping[str, Sequence[str]] | None = None, aliases: bool = True,
               kinematics: Kinematics | None = None, mass: float | None = None, neutral: int | None = None,
-              progress: Callable[[str], None] | None = None) -> Calibration:
+              progress: Callable[[Progress], None] | None = None) -> Calibration:
     """Calibrate `model` to one trial or several trials of one subject: the subject's scales, joint
     centres, hinge axes and marker positions (shared by every trial), and every frame's
     coordinates, in one least-squares problem (module docstring).
@@ -667,6 +654,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     trial): every segment frame that markers do not fix (see docs/calibration.md, gauges) is turned
     so that the joint angles of that trial are zero on average, as a lab's static calibration
     defines them (None: the frames sit where the priors put them).
+    `progress` receives a calibrate.records.Progress per step (its stage and text; str() is the line to show).
     Raises CalibrateError with one line if the trials and model share too few markers or frames.
     """
     trials = (trials,) if isinstance(trials, Trial) else tuple(trials)
@@ -706,15 +694,12 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
                              f"(0 for the first)")
     with threadpool_limits(limits=1, user_api="blas"):
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral)
-    cal.label_maps = label_maps
-    cal.mass = None if mass is None else float(mass)
-    cal.neutral = neutral
-    return cal
+    return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral)
 
 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,
-               progress: Callable[[str], None] | None, neutral: int | None = None) -> Calibration:
-    say = progress or (lambda msg: None)
+               progress: Callable[[Progress], None] | None, neutral: int | None = None) -> Calibration:
+    say = _announcer(progress)
     times: dict[str, float] = {}
     where = ", ".join(t.source or "trial" for t in trials)
     if len(model.markers) == 0:
@@ -732,7 +717,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
     if unknown and settings.new_markers:
-        say(f"markers: placing {len(unknown)} trial markers the model does not know")
+        say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         placed = _assign_new_markers(model, trials, unknown)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
@@ -747,8 +732,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
     if res.lock:
-        say(f"markers: {len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
-            f"{', '.join(res.lock)}")
+        say(Progress("markers", f"{len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
+                                f"{', '.join(res.lock)}"))
         settings = replace(settings, lock=settings.lock + tuple(
             (d, float(np.clip(0.0, subject.dofs[subject.dof_index(d)].lower, subject.dofs[subject.dof_index(d)].upper)))
             for d in res.lock))
@@ -764,7 +749,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     if settings.seed:
-        say("seed: the subject's size from marker distances, then joint centres (MTB)")
+        say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         size = size_from_markers(model, trials)
         pick = _most_motion(model, trials)
         seed = seed_parameters(model, trials[pick], extra_markers=new, size=size)
@@ -781,7 +766,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params0 = _hold_segments(subject, params0, settings.hold_segments)
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    say("build: residuals and Jacobian (CasADi)")
+    say(Progress("build", "residuals and Jacobian (CasADi)"))
     kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
     # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
     # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
@@ -789,12 +774,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     jumped = jumped_samples(subject, trials) if settings.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
-        say(f"markers: {int(jumped.sum())} positions jump away and back (swapped labels, spikes); left out")
+        say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes); "
+                                "left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
-    problem = Problem(subject, obs, settings, kin, progress=progress)
+    problem = Problem(subject, obs, settings, kin, progress=say)
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    say("start: frame-wise inverse kinematics")
+    say(Progress("start", "frame-wise inverse kinematics"))
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
     if settings.seed:
@@ -839,7 +825,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 i = next(i for i, sl in enumerate(spans) if sl.start <= f < sl.stop)
                 rejected.append(Outlier(i, int(f - spans[i].start), subject.marker_names[k], float(err[f, k])))
             found += frames.size
-            say(f"solve: {frames.size} marker positions rejected as outliers")
+            say(Progress("solve", f"{frames.size} marker positions rejected as outliers"))
             problem = problem.without(bad)
             # A spike or a swapped label drags its frame's pose (a leg folded to reach a swapped ankle
             # marker) further than a few steps undo: such frames restart from their unaffected neighbours'.
@@ -850,7 +836,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             state, _ = levenberg_marquardt(problem, state, settings.solver, pose_only=True, max_iterations=10)
         if not found and not reweighed:
             break
-        say("solve: again without the outliers" if found else "solve: again with the noise learnt again")
+        say(Progress("solve", "again without the outliers" if found else "again with the noise learnt again"))
         state, again = levenberg_marquardt(problem, state, settings.solver)
         summary = _merge(summary, again)
         reweighed = False
@@ -868,10 +854,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
-        say(f"solve: segment frames turned to zero joint angles in {trials[neutral].source or 'the neutral trial'}")
+        say(Progress("solve", f"segment frames turned to zero joint angles in "
+                              f"{trials[neutral].source or 'the neutral trial'}"))
         state = align_neutral(problem, state, in_neutral)
-        summary.final_cost = problem.cost(state)
-        summary.termination += "; then the segment frames turned to the neutral trial (the priors' cost changes)"
+        summary = replace(summary, final_cost=problem.cost(state), termination=summary.termination
+                          + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     lin = problem.linearize(state, reuse=True)
@@ -892,17 +879,18 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), notes=notes, held_axes=held, unresolved=res.segments,
+                       outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=settings.learns_noise)
 
 
-def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
-    """still_notes, then limit_notes for the coordinates not already named."""
-    still = still_notes(model, angles, A, settings)
-    named = {n.split(":")[0] for n in still}
-    return still + tuple(n for n in limit_notes(model, angles, settings) if n.split(":")[0] not in named)
+def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray,
+                     settings: Settings) -> tuple[CoordinateNote, ...]:
+    """still_records, then limit_records for the coordinates not already named."""
+    still = still_records(model, angles, A, settings)
+    named = {n.coordinate for n in still}
+    return still + tuple(n for n in limit_records(model, angles, settings) if n.coordinate not in named)
 
 
 def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
@@ -930,23 +918,18 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     return out
 
 
-def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+def still_records(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[StillNote, ...]:
     """A note per coordinate that still_coordinates names, with what was done and what to do."""
-    out = []
-    for name, spread, per_frame in still_coordinates(model, angles, A, settings):
-        seen = (f"{name}: moved no more than the markers fix it in a frame (SD over frames "
-                f"{math.degrees(spread):.1f} deg, one frame's {math.degrees(per_frame):.1f} deg): the trial does not "
-                f"show this joint moving, so ")
-        if name in settings.hold_axes:
-            out.append(seen + f"its axis was held at the base model's and its angle's zero is not found; if it "
-                              f"did not move at all, hold the angle too (--lock {name}, or [lock_deg] in the config)")
-        else:
-            out.append(seen + f"its axis and zero are not found; if it hardly moved, hold it (--lock {name}, or "
-                              f"[lock_deg] in the config)")
-    return tuple(out)
+    return tuple(StillNote(name, spread, per_frame, name in settings.hold_axes)
+                 for name, spread, per_frame in still_coordinates(model, angles, A, settings))
 
 
-def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[str, ...]:
+def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """still_records as the user reads them."""
+    return tuple(n.text() for n in still_records(model, angles, A, settings))
+
+
+def limit_records(model: Model, angles: np.ndarray, settings: Settings) -> tuple[LimitNote, ...]:
     """A note per coordinate that the fit drove beyond the base model's joint limits (by more than
     LIMIT_NOTE_DEG) in more than LIMIT_NOTE_FRACTION of the frames.  A coordinate the markers cannot
     resolve (a joint that did not move, under a segment with too few markers) drifts like this, and
@@ -960,11 +943,13 @@ def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[s
         th = angles[:, k]
         beyond = (th < d.lower - tol) | (th > d.upper + tol)
         if beyond.mean() > LIMIT_NOTE_FRACTION:
-            worst = float(np.max(np.maximum(d.lower - th, th - d.upper)))
-            out.append(f"{d.name}: beyond the base model's joint limits in {100 * beyond.mean():.0f} % of frames "
-                       f"(by up to {math.degrees(worst):.0f} deg): the markers may not resolve this coordinate; if "
-                       f"the joint hardly moved, hold it (--lock {d.name}, or [lock_deg] in the config)")
+            out.append(LimitNote(d.name, float(beyond.mean()), float(np.max(np.maximum(d.lower - th, th - d.upper)))))
     return tuple(out)
+
+
+def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """limit_records as the user reads them."""
+    return tuple(n.text() for n in limit_records(model, angles, settings))
 
 
 def _spans(trials: Sequence[Trial]) -> list[slice]:
@@ -1167,7 +1152,7 @@ def _fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
     return np.array([n in named for n in model.marker_names])
 
 
-def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str], None],
+def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str | Progress], None],
              trial_of: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
     """learned_noise at `state`: the weights' SDs sigma sqrt(τ) (a marker whose residuals are correlated
     over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
@@ -1176,9 +1161,9 @@ def _relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[s
     scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True)
     sigma = scatter * np.sqrt(tau)
     change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
-    say(f"noise: learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
-        f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to {tau.max():.1f}); "
-        f"9 in 10 weights changed by <= {100 * change:.0f} %")
+    say(Progress("noise", f"learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
+                          f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to "
+                          f"{tau.max():.1f}); 9 in 10 weights changed by <= {100 * change:.0f} %"))
     return (sigma if change > NOISE_CHANGE else None), scatter
 
 
@@ -1509,15 +1494,34 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
     return state
 
 
-def _merge(a: SolverSummary, b: SolverSummary) -> SolverSummary:
-    """One summary for two consecutive solver runs."""
-    return SolverSummary(
-        iterations=a.iterations + b.iterations, accepted=a.accepted + b.accepted, initial_cost=a.initial_cost,
-        final_cost=b.final_cost, cost_history=a.cost_history + b.cost_history[1:], termination=b.termination,
-        converged=b.converged, seconds=a.seconds + b.seconds,
-        linearize_seconds=a.linearize_seconds + b.linearize_seconds,
-        linear_solver_seconds=a.linear_solver_seconds + b.linear_solver_seconds,
-        evaluate_seconds=a.evaluate_seconds + b.evaluate_seconds, coarse=a.coarse, coarse_frames=a.coarse_frames)
+_SUMMED = ("iterations", "accepted", "seconds", "linearize_seconds", "linear_solver_seconds", "evaluate_seconds")
+_FROM_FIRST = ("initial_cost", "coarse", "coarse_frames")  # the start, and any subsample solve before it
+_FROM_SECOND = ("final_cost", "termination", "converged")  # the end
+
+
+def merge_summaries(a: SolverSummary, b: SolverSummary) -> SolverSummary:
+    """One summary for two consecutive solver runs: counts and times added, the cost histories joined,
+    the start from the first run, the end from the second; any other field as a fresh summary has it."""
+    parts = {"cost_history": a.cost_history + b.cost_history[1:]}
+    for f in fields(SolverSummary):
+        if f.name in _SUMMED:
+            parts[f.name] = getattr(a, f.name) + getattr(b, f.name)
+        elif f.name in _FROM_FIRST:
+            parts[f.name] = getattr(a, f.name)
+        elif f.name in _FROM_SECOND:
+            parts[f.name] = getattr(b, f.name)
+    return SolverSummary(**parts)
+
+
+_merge = merge_summaries  # the name the solve steps call
+
+
+def _announcer(progress: Callable[[Progress], None] | None) -> Callable[[str | Progress], None]:
+    """What the pipeline's steps call with a progress message (a Progress, or its text as Problem and the
+    solve steps still word it): `progress` receives it as a Progress record."""
+    if progress is None:
+        return lambda message: None
+    return lambda message: progress(Progress.of(message))
 
 
 def _fixed_groups(base: Parameters, seeded: Parameters, free) -> Parameters:
@@ -1580,9 +1584,9 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         CC = block_cov(names[L.centre(ji)])
         value, base = s * P.centre[ji], B.centre[ji]
         if CC is None and j.parent in still:
-            std, ident, note = np.full(3, np.nan), False, unseen(j.parent)
+            std, status, note = np.full(3, np.nan), Identified.UNSEEN, unseen(j.parent)
         elif CC is None:
-            std, ident, note = np.full(3, np.nan), True, "held (not free)"
+            std, status, note = np.full(3, np.nan), Identified.FIXED, "held (not free)"
         else:
             std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
             if j.kind == "hinge":
@@ -1593,20 +1597,20 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
                 a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
                 Qp = perpendicular_basis(a)
                 ratio, _ = worst_ratio(Qp.T @ CC[0] @ Qp, Qp.T @ CC[1] @ Qp)
-                ident = False
+                status = Identified.ACROSS_AXIS if ratio < IDENTIFIED else Identified.NO
                 axis_txt = ", ".join(f"{x:+.2f}" for x in a)
                 note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
                         f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
                                                              " either: held by the prior"))
             else:
                 ratio, v = worst_ratio(*CC)
-                ident = ratio < IDENTIFIED
-                note = "" if ident else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
+                status = Identified.YES if ratio < IDENTIFIED else Identified.NO
+                note = "" if status.identified else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
                                          f"in the {j.parent} frame: held by the prior")
         if CC is not None and j.name in blind:
-            ident, note = False, blind[j.name]
-        out.append(ParameterChange(f"centre[{j.name}]", base, value, 1000 * float(np.linalg.norm(value - base)),
-                                   std, ident, note, ratio if CC is not None else float("nan")))
+            status, note = Identified.NO, blind[j.name]
+        out.append(ParameterChange("centre", j.name, base, value, 1000 * float(np.linalg.norm(value - base)),
+                                   std, status, note, ratio if CC is not None else float("nan")))
     for d in problem.axis_dofs:
         a = P.axis[d] / np.linalg.norm(P.axis[d])
         a0 = B.axis[d] / np.linalg.norm(B.axis[d])
@@ -1614,37 +1618,38 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         C = cov[np.ix_(cols, cols)]
         std = np.degrees(np.sqrt(np.clip(np.diag(C), 0, None)))
         ratio = worst_ratio(C, prior_cov[np.ix_(cols, cols)])[0]
-        ident = ratio < IDENTIFIED
+        status = Identified.YES if ratio < IDENTIFIED else Identified.NO
         ang = math.degrees(math.acos(min(1.0, abs(float(a @ a0)))))
-        note = "" if ident else "the joint did not turn enough about it: held by the prior"
+        note = "" if status.identified else "the joint did not turn enough about it: held by the prior"
         if model.dofs[d].joint in blind:
-            ident, note = False, blind[model.dofs[d].joint]
-        out.append(ParameterChange(f"axis[{model.dofs[d].name}]", a0, a, ang, std, ident, note, ratio))
+            status, note = Identified.NO, blind[model.dofs[d].joint]
+        out.append(ParameterChange("axis", model.dofs[d].name, a0, a, ang, std, status, note, ratio))
     for k, mk in enumerate(model.markers):
         s = seg_scale[problem.marker_segment[k]]
         CC = block_cov(names[L.marker(k)])
         value, base = s * P.marker[k], B.marker[k]
         seen = bool(problem.seen[:, k].any())
         if CC is None and mk.segment in still:
-            std, ident, note = np.full(3, np.nan), False, unseen(mk.segment)
+            std, status, note = np.full(3, np.nan), Identified.UNSEEN, unseen(mk.segment)
         elif CC is None:
-            std, ident, note = np.full(3, np.nan), True, "held (not free)"
+            std, status, note = np.full(3, np.nan), Identified.FIXED, "held (not free)"
         else:
             std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
             ratio = worst_ratio(*CC)[0]
-            ident = seen and ratio < IDENTIFIED
-            note = "" if ident else ("never seen in the trial: base model kept" if not seen
+            status = Identified.YES if seen and ratio < IDENTIFIED else Identified.NO
+            note = "" if status.identified else ("never seen in the trial: base model kept" if not seen
                                      else "poorly seen: held by the prior")
-        out.append(ParameterChange(f"marker[{mk.name}]", base, value, 1000 * float(np.linalg.norm(value - base)),
-                                   std, ident, note, ratio if CC is not None else float("nan")))
+        out.append(ParameterChange("marker", mk.name, base, value, 1000 * float(np.linalg.norm(value - base)),
+                                   std, status, note, ratio if CC is not None else float("nan")))
     for si, sg in enumerate(model.segments):
         name = names[si]
         free = name in col
         std = np.array([math.sqrt(max(cov[col[name], col[name]], 0.0))]) if free else np.array([np.nan])
         ratio = float(std[0] / math.sqrt(prior_cov[col[name], col[name]])) if free else float("nan")
-        ident = (not free or ratio < IDENTIFIED) and sg.name not in still
-        note = (unseen(sg.name) if sg.name in still else "held (not free)" if not free else "" if ident
+        status = (Identified.UNSEEN if sg.name in still else Identified.FIXED if not free
+                  else Identified.YES if ratio < IDENTIFIED else Identified.NO)
+        note = (unseen(sg.name) if sg.name in still else "held (not free)" if not free else "" if status.identified
                 else "the trial barely sizes this segment: held by the prior")
-        out.append(ParameterChange(f"scale[{sg.name}]", np.array([1.0]), np.array([seg_scale[si]]),
-                                   float(seg_scale[si] - 1.0), std, ident, note, ratio))
+        out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
+                                   float(seg_scale[si] - 1.0), std, status, note, ratio))
     return out

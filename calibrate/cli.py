@@ -11,11 +11,15 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from .errors import CalibrateError
+from .geometry import marker_rms
+from .outputs import check_targets
+from .records import Progress
 
 DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 
@@ -439,17 +443,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if from_osim:
         outputs += [out_osim, *out_mots]
     # Check the destinations before any work, so a long run never ends in a refusal.
-    if len({p.resolve() for p in outputs}) < len(outputs):
-        raise CalibrateError("two outputs would be the same file (two trials with the same name?); use -o/--report "
-                             "or rename the trials")
-    for p in outputs:
-        if p.resolve() == model_path.resolve():
-            raise CalibrateError(f"{p}: that is the base model; refusing to overwrite it (choose another -o)")
-    for p in outputs:
-        if p.exists() and not args.overwrite:
-            raise CalibrateError(f"{p}: exists; pass --overwrite to replace it or choose another name")
-        if not p.parent.is_dir():
-            raise CalibrateError(f"{p}: directory '{p.parent}' does not exist; create it first")
+    check_targets(outputs, args.overwrite,
+                  inputs={model_path: "that is the base model; refusing to overwrite it (choose another -o)"},
+                  same="two outputs would be the same file (two trials with the same name?); use -o/--report "
+                       "or rename the trials",
+                  exists_hint="pass --overwrite to replace it or choose another name")
     say = (lambda msg: None) if args.quiet else _Timed()
     t0 = time.perf_counter()
     model = load_model(model_path, args.marker_set)
@@ -481,8 +479,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         why = "are not markers of" if not settings.new_markers else "ride on no segment of"
         print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
               f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
-    cal.times = {"load": load_s, **cal.times}
-    cal.write(urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
+    cal = replace(cal, times={"load": load_s, **cal.times})
+    cal = _write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
     if from_osim:
         from .opensim_export import export_osim, write_mot
 
@@ -500,18 +498,24 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_timed(cal, **outputs):
+    """cal.write(**outputs); returns cal with the time that took as times['write'] (what the summary shows)."""
+    t0 = time.perf_counter()
+    cal.write(**outputs)
+    return replace(cal, times={**cal.times, "write": time.perf_counter() - t0})
+
+
 class _Timed:
-    """Progress on stderr with the elapsed time, shown once the run has taken a second."""
+    """Progress on stderr with the elapsed time, shown once the run has taken a second (a long step's
+    announcement at once; solver iterations at most twice a second)."""
 
     def __init__(self):
         self.t0 = time.perf_counter()
-        self.pending: list[str] = []
+        self.last = 0.0
 
-    def __call__(self, msg: str) -> None:
+    def __call__(self, msg: Progress) -> None:
         now = time.perf_counter() - self.t0
-        long_step = msg.startswith("build: compiling")  # announced before it starts, however early
-        if (now >= 1.0 or long_step) and (not msg.startswith("solve: iteration")
-                                           or now - getattr(self, "last", 0.0) >= 0.5):
+        if (now >= 1.0 or msg.long) and (msg.iteration is None or now - self.last >= 0.5):
             self.last = now
             _progress(f"  [{now:6.2f} s] {msg}")
 
@@ -529,8 +533,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     cal = calibrate(model, trial, progress=_Timed())
     t_cal = time.perf_counter() - t0
-    cal.write(urdf=args.out / "subject.urdf", motion=args.out / "subject_motion.csv",
-              report=args.out / "subject_report.json", overwrite=True)
+    cal = _write_timed(cal, urdf=args.out / "subject.urdf", motion=args.out / "subject_motion.csv",
+                       report=args.out / "subject_report.json", overwrite=True)
     cmp = compare_to_truth(cal, sim)
     gaps = float(np.isnan(trial.markers[..., 0]).mean())
     print(cal.text())
@@ -546,17 +550,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
         ax = f"{cmp.axis_error_deg[name]:15.2f}" if name in cmp.axis_error_deg else f"{'':15s}"
         print(f"  {name:14s} {cmp.kinds[name]:9s} {1000 * err:16.2f} {ax}")
     print("  (hinge centre error: distance from the true axis line; medians over frames)")
-    print(f"  marker RMS   start (seeded geometry) {1000 * _rms(cal.initial_residuals):.2f} mm -> calibrated "
+    print(f"  marker RMS   start (seeded geometry) {1000 * marker_rms(cal.initial_residuals):.2f} mm -> calibrated "
           f"{1000 * cmp.marker_rms:.3f} mm; true model refitted (noise floor) {1000 * cmp.floor_rms:.3f} mm")
     print(f"  joint angles RMS vs truth {cmp.angle_rms_deg:.2f} deg ({cmp.angle_rms_offset_free_deg:.2f} deg "
           f"without each DoF's constant offset); true model refitted {cmp.floor_angle_rms_deg:.2f} deg")
     print(f"  time         calibration {t_cal:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
           + ")")
     return 0
-
-
-def _rms(res: np.ndarray) -> float:
-    return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2))))
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
@@ -611,10 +611,7 @@ def cmd_import_osim(args: argparse.Namespace) -> int:
     out: Path = args.output or src.with_suffix(".urdf")
     if out.suffix.lower() != ".urdf":
         raise CalibrateError(f"{out}: the output is a URDF; give it a .urdf name")
-    if out.exists() and not args.overwrite:
-        raise CalibrateError(f"{out}: exists; pass --overwrite to replace it or choose another -o")
-    if not out.parent.is_dir():
-        raise CalibrateError(f"{out}: directory '{out.parent}' does not exist; create it first")
+    check_targets([out], args.overwrite, exists_hint="pass --overwrite to replace it or choose another -o")
     model = load_model(src, args.marker_set)
     try:
         atomic_write_text(out, model._text)

@@ -24,6 +24,7 @@ import numpy as np
 
 from .blocks import FrameLayout
 from .calibration import Calibration
+from .geometry import marker_rms
 from .ik import marker_columns
 from .kinematics import build_kinematics
 from .problem import Problem, Settings, State
@@ -65,7 +66,7 @@ def true_model_floor(sim: Simulation) -> tuple[float, float]:
     res = problem.marker_residuals(state)
     Z, _ = problem.kin.absolute(state.Z, state.Q, state.B, previous=m.angles[0])
     dang = np.degrees(np.angle(np.exp(1j * (FrameLayout.angles(Z) - m.angles))))
-    return float(np.sqrt(np.nanmean(np.sum(res**2, axis=2)))), float(np.sqrt(np.mean(dang**2)))
+    return marker_rms(res), float(np.sqrt(np.mean(dang**2)))
 
 
 def true_marker_floor(sim: Simulation) -> float:

@@ -10,10 +10,14 @@ treats NaN as a gap: a sample that is NaN is left out of that frame's fit.
   direction in which the points do not move).
 - similarity_fit: scale, rotation and translation between two point sets (Umeyama),
   used to carry a base model's joint centre into a segment's local frame.
+- kabsch / kabsch_rotation: the rigid motion between two point sets, and the rotation
+  nearest to a cross-covariance (one point set; kabsch_batch: weighted, every frame at once).
+- marker_rms: RMS 3-D marker error of a residual array.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,14 +219,35 @@ def sphere_fit(points: np.ndarray, hinge: bool = False, near: np.ndarray | None 
     return SphereFit(c + origin, axis, evals, radii_full, rms, int(seen.sum()))
 
 
+def kabsch_rotation(H: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rotation R maximising trace(R H) for a cross-covariance H = Σ w_i a_i b_iᵀ (3, 3) of
+    centred point sets (so R a_i ≈ b_i): R, H's singular values S and the signs D (the last -1 where
+    the best orthogonal matrix would be a reflection)."""
+    U, S, Vt = np.linalg.svd(H)
+    D = np.array([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ np.diag(D) @ U.T, S, D
+
+
+def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R, t minimising Σ |R a_i + t − b_i|² (rows are points)."""
+    ca, cb = a.mean(0), b.mean(0)
+    R = kabsch_rotation((a - ca).T @ (b - cb))[0]
+    return R, cb - R @ ca
+
+
+def marker_rms(residuals: np.ndarray) -> float:
+    """RMS 3-D marker error over every observed marker in every frame of residuals (F, M, 3) (m);
+    NaN where a marker is not seen, and the result NaN if none is."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return float(np.sqrt(np.nanmean(np.sum(residuals**2, axis=2))))
+
+
 def similarity_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """s, R, t minimising Σ |s R src_i + t − dst_i|² (Umeyama 1991); rows are points."""
     ms, md = src.mean(0), dst.mean(0)
     a, b = src - ms, dst - md
-    U, S, Vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    D = np.array([1.0, 1.0, d])
-    R = Vt.T @ np.diag(D) @ U.T
+    R, S, D = kabsch_rotation(a.T @ b)
     var = np.sum(a**2)
     s = float(np.sum(S * D) / var) if var > 0 else 1.0
     return s, R, md - s * R @ ms

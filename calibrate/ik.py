@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .blocks import FrameLayout
+from .geometry import kabsch, marker_rms
 from .kinematics import IDENTITY, Kinematics, retract_root
 from .model import Model, Parameters
 from .motion import Motion
@@ -44,7 +45,7 @@ class IKResult:
     @property
     def rms(self) -> float:
         """RMS 3-D marker error over every observed marker in every frame (m)."""
-        return float(np.sqrt(np.nanmean(np.sum(self.residuals**2, axis=2))))
+        return marker_rms(self.residuals)
 
     @property
     def max_error(self) -> float:
@@ -60,16 +61,6 @@ def marker_columns(model: Model, trial: Trial) -> np.ndarray:
         if name in index:
             out[:, k] = trial.markers[:, index[name]]
     return out
-
-
-def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """R, t minimising Σ |R a_i + t − b_i|² (rows are points)."""
-    ca_, cb = a.mean(0), b.mean(0)
-    H = (a - ca_).T @ (b - cb)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cb - R @ ca_
 
 
 class _FrameSolver:

@@ -84,6 +84,11 @@ class JointEstimate:
     axis_local: np.ndarray | None = field(default=None, repr=False)  # hinge axis in the anchor frame
     centre_local: np.ndarray | None = field(default=None, repr=False)  # centre in the anchor frame
 
+    @property
+    def mtb(self) -> bool:
+        """Estimated by the MTB framework (directly or propagated), not by JMV alone."""
+        return self.method in ("MTB", "MTB (propagated)")
+
 
 @dataclass(frozen=True)
 class JointEstimates:

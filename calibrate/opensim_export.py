@@ -56,7 +56,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
@@ -69,6 +68,7 @@ from .errors import CalibrateError, ModelError
 from .geometry import Transform, compose, identity_transform, invert
 from .model import Model, Parameters, UrdfJoint
 from .motion import Motion
+from .outputs import check_targets, write_all
 
 ROOT_ROTATIONS = ("root_rz", "root_ry", "root_rx")  # body-fixed z, y', x'' (scipy "ZYX")
 ROOT_TRANSLATIONS = ("root_x", "root_y", "root_z")  # ground axes, as the motion CSV's columns
@@ -367,14 +367,7 @@ def osim_text(model: Model, params: Parameters | None = None) -> str:
 
 
 def _check_target(path: Path, overwrite: bool = True) -> None:
-    if path.is_dir():
-        raise CalibrateError(f"{path}: is a directory; give a file name")
-    if not path.parent.is_dir():
-        raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
-    if not os.access(path.parent, os.W_OK):
-        raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
-    if path.exists() and not overwrite:
-        raise CalibrateError(f"{path}: exists; pass --overwrite (overwrite=True) or choose another name")
+    check_targets([path], overwrite)
 
 
 def _write(path: Path, text: str) -> None:
@@ -496,11 +489,9 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
     for kind, path in targets.items():
         if path.suffix.lower() != f".{kind}":
             raise CalibrateError(f"{path}: the {kind} output should end in .{kind}; rename it")
-        if any(path.resolve() == s.resolve() for s in sources):
-            raise CalibrateError(f"{path}: that is an input file; refusing to overwrite it (choose another name)")
-        _check_target(path, args.overwrite)
-    if len({p.resolve() for p in targets.values()}) < len(targets):
-        raise CalibrateError("the .osim, .mot and .trc outputs must be different files")
+    check_targets(list(targets.values()), args.overwrite,
+                  inputs={s: "that is an input file; refusing to overwrite it (choose another name)" for s in sources},
+                  same="the .osim, .mot and .trc outputs must be different files")
     model = load_model(model_path)
     texts = {"osim": osim_text(model)}
     if args.motion is not None:
@@ -511,26 +502,13 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
         if len(unknown) == trial.n_markers:
             raise CalibrateError(f"{args.trial}: none of its labels is a marker of {model_path} (e.g. "
                                  f"'{unknown[0]}'); is it a trial of this model?")
-    staged: dict[str, Path] = {}
-    dirs: list[Path] = []
+    writers = {path: (lambda p: write_trc(p, trial)) if kind == "trc"  # type: ignore[arg-type]
+               else (lambda p, kind=kind: _write(p, texts[kind])) for kind, path in targets.items()}
     try:
-        for kind, path in targets.items():  # each file under its own name in a fresh folder beside it
-            dirs.append(Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent)))
-            staged[kind] = dirs[-1] / path.name
-            if kind == "trc":
-                write_trc(staged[kind], trial)  # type: ignore[arg-type]
-            else:
-                _write(staged[kind], texts[kind])
-        for kind, tmp in staged.items():
-            os.replace(tmp, targets[kind])
+        write_all(writers, keep_names=True)
     except OSError as e:
         raise CalibrateError(f"{targets['osim'].parent}: cannot write ({e.strerror}); choose a writable place") \
             from None
-    finally:
-        for tmp in staged.values():
-            tmp.unlink(missing_ok=True)
-        for d in dirs:
-            d.rmdir()
     print(f"{model.summary()}")
     print(f"wrote {targets['osim']}  ({len(model.segments)} bodies, {len(model.joints) + 1} joints, "
           f"{len(model.markers)} markers)")

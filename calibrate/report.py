@@ -9,18 +9,26 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import __version__
 from ._text import atomic_write_text
 from .errors import CalibrateError
+from .geometry import marker_rms
 from .labels import UNLABELLED
 from .model import mass_factor, write_model
 from .motion import write_motion_csv
+from .outputs import check_targets, write_all
+from .problem import symmetry_pairs
+from .records import Identified
+
+if TYPE_CHECKING:
+    from .calibration import Calibration
 
 
 def _mm(x: float) -> float:
@@ -31,14 +39,14 @@ def _list(a) -> list:
     return [None if not math.isfinite(float(v)) else round(float(v), 9) for v in np.ravel(a)]
 
 
-def calibration_report(cal) -> dict:
+def calibration_report(cal: Calibration) -> dict:
     """Plain, JSON-ready description of a Calibration."""
     model, st, s = cal.model, cal.settings, cal.summary
     per = cal.per_marker()
     kinds = {j.name: j.kind for j in model.joints}
     params = []
     for c in cal.changes:
-        group = c.name.split("[")[0]
+        group = c.group
         unit = {"centre": "mm", "marker": "mm", "axis": "deg", "scale": "fraction"}[group]
         if group in ("centre", "marker"):
             base, value = [_mm(v) for v in c.base], [_mm(v) for v in c.value]
@@ -47,7 +55,7 @@ def calibration_report(cal) -> dict:
         entry = {"name": c.name, "group": group, "unit": unit, "base": base, "value": value,
                  "change": round(c.change, 6), "std": _list(c.std), "identified": c.identified}
         if group == "centre":
-            entry["kind"] = kinds[c.name[7:-1]]
+            entry["kind"] = kinds[c.item]
         if c.note:
             entry["note"] = c.note
         params.append(entry)
@@ -56,7 +64,7 @@ def calibration_report(cal) -> dict:
         res = cal.residuals[cal.trial_frames(i)]
         err = np.linalg.norm(res, axis=2)
         entry = {"source": t.source, "frames": t.n_frames, "rate_hz": t.rate, "first_frame": t.first_frame,
-                 "rms_mm": _mm(_rms_of(res)), "max_mm": _mm(np.nanmax(err)) if np.isfinite(err).any() else None,
+                 "rms_mm": _mm(marker_rms(res)), "max_mm": _mm(np.nanmax(err)) if np.isfinite(err).any() else None,
                  "outliers": sum(1 for o in cal.outliers if o.trial == i)}
         if i < len(cal.label_maps) and cal.label_maps[i] is not None:
             entry["labels"] = cal.label_maps[i].to_json()
@@ -95,14 +103,14 @@ def calibration_report(cal) -> dict:
                      "hold_segments": list(st.hold_segments),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
-        "unresolved": [u.to_json() for u in getattr(cal, "unresolved", ())],
+        "unresolved": [u.to_json() for u in cal.unresolved],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
         "symmetry": symmetry_table(cal),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
-                    "initial_rms_mm": _mm(_rms_of(cal.initial_residuals)),
+                    "initial_rms_mm": _mm(marker_rms(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
                                    for n, (r, m, f) in per.items()}},
         "solver": {"iterations": s.iterations, "accepted_steps": s.accepted, "initial_cost": s.initial_cost,
@@ -131,18 +139,11 @@ def _mass(cal) -> dict:
             "segments_kg": {sg.name: round(k * sg.mass, 6) for sg in cal.model.segments if sg.mass > 0}}
 
 
-def _rms_of(res: np.ndarray) -> float:
-    d = np.sum(res**2, axis=2)
-    return float(np.sqrt(np.nanmean(d))) if np.isfinite(d).any() else float("nan")
-
-
 def symmetry_table(cal) -> dict:
     """Left/right differences of the result: per segment pair the scale difference (fraction of their
     mean) and the length difference of the segments that carry a joint centre below them (mm, %), per
     joint pair the distance between the left centre and the mirrored right one (mm, at the subject's
     scale); the largest of each, and the symmetry prior's SDs."""
-    from .problem import symmetry_pairs
-
     model, p = cal.model, cal.params
     segs, joints, mirror = symmetry_pairs(model, model.parameters().centre)
     scale = {}
@@ -205,7 +206,7 @@ def summary_text(cal) -> str:
     for i, trial in enumerate(cal.trials):
         res = cal.residuals[cal.trial_frames(i)]
         lines.append(f"  {'trial' if i == 0 else '':13s}{trial.source or '(in memory)'}: {trial.n_frames} frames at "
-                     f"{trial.rate:g} Hz, marker RMS {1000 * _rms_of(res):.2f} mm")
+                     f"{trial.rate:g} Hz, marker RMS {1000 * marker_rms(res):.2f} mm")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
         f"rigidity), {len(cal.ignored_labels)} trial labels left out, {len(cal.outliers)} outliers rejected",
@@ -226,7 +227,7 @@ def summary_text(cal) -> str:
           if cal.settings.hold_axes else []),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
-        f"  {'marker RMS (mm)':22s}{1000 * _rms_of(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
+        f"  {'marker RMS (mm)':22s}{1000 * marker_rms(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
         f"  {'cost':22s}{s.initial_cost:12.4e}{s.final_cost:12.4e}",
         *_noise_lines(cal),
         "",
@@ -244,17 +245,17 @@ def summary_text(cal) -> str:
         "  joint centres: change from base model (mm) +- posterior std (mm, worst axis)",
     ]
     for c in cal.changes:
-        if c.name.startswith("centre["):
+        if c.group == "centre":
             std = np.nanmax(c.std) if np.isfinite(c.std).any() else float("nan")
             flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else "  (held by prior)")
-            lines.append(f"    {c.name[7:-1]:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
-    axes = [c for c in cal.changes if c.name.startswith("axis[")]
+            lines.append(f"    {c.item:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
+    axes = [c for c in cal.changes if c.group == "axis"]
     if axes:
         lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg)")
         for c in axes:
             std = np.nanmax(c.std)
             flag = "" if c.identified else "  (held by prior)"
-            lines.append(f"    {c.name[5:-1]:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
+            lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")
@@ -269,8 +270,8 @@ def summary_text(cal) -> str:
     for note in cal.notes[:4]:
         lines.append(f"  note: {note}")
     if len(cal.notes) > 4:
-        lines.append(f"  ... and {len(cal.notes) - 4} more notes ({', '.join(n.split(':')[0] for n in cal.notes[4:])}; "
-                     "see the report)")
+        more = ", ".join(n.coordinate for n in cal.coordinate_notes[4:])
+        lines.append(f"  ... and {len(cal.notes) - 4} more notes ({more}; see the report)")
     for i, mapping in enumerate(cal.label_maps):
         renamed = [m for m in mapping if m.how in ("map", "alias")]
         if renamed:
@@ -283,7 +284,7 @@ def summary_text(cal) -> str:
             lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
         else:
             lines.append(f"  left out {m.label}: {m.reason}")
-    unresolved = getattr(cal, "unresolved", ())
+    unresolved = cal.unresolved
     if unresolved:
         lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "
                      f"locked): {', '.join(u.segment for u in unresolved)}")
@@ -314,17 +315,17 @@ def summary_text(cal) -> str:
 
 def _slide_only(c) -> bool:
     """A hinge centre identified across its axis (only its slide along the axis is prior-held)."""
-    return c.name.startswith("centre[") and "across the axis identified" in c.note
+    return c.status is Identified.ACROSS_AXIS
 
 
-def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = False,
+def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s) and the report JSON (whichever are given).
 
     `motion`: one path per trial (a single path for a single trial).  Every destination is checked
-    first (its folder exists; it is not the base model; it does
-    not exist unless `overwrite`), then each file goes to a temporary name beside its
-    destination and all are renamed at the end: a failure leaves no output half-written.
+    first (its folder exists; it is not the base model; it does not exist unless `overwrite`), then
+    all are written at once or none (calibrate.outputs.write_all).  The report's times are
+    `cal.times` with the time of this writing (so far) and `extra_times`.
     """
     motions = [] if motion is None else [motion] if isinstance(motion, (str, os.PathLike)) else list(motion)
     if motions and len(motions) != len(cal.trials):
@@ -332,71 +333,28 @@ def write_outputs(cal, urdf=None, motion=None, report=None, overwrite: bool = Fa
     targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report)) if v is not None}
     keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
-    for path in targets.values():
-        if path.resolve() == (cal.base_model or cal.model).path.resolve():
-            raise CalibrateError(f"{path}: that is the base model; refusing to overwrite it (choose another -o)")
-        if not path.parent.is_dir():
-            raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
-        if path.exists() and not overwrite:
-            raise CalibrateError(f"{path}: exists; pass --overwrite (overwrite=True) or choose another name")
-        if not os.access(path.parent, os.W_OK):
-            raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
-    if len({p.resolve() for p in targets.values()}) < len(targets):
-        raise CalibrateError("the URDF, motion and report outputs must all be different files")
+    check_targets(list(targets.values()), overwrite,
+                  inputs={(cal.base_model or cal.model).path: "that is the base model; refusing to overwrite it "
+                                                              "(choose another -o)"},
+                  same="the URDF, motion and report outputs must all be different files")
     t0 = time.perf_counter()
-    staged: dict[str, Path] = {}
-    try:
-        for kind, path in targets.items():
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-            os.close(fd)
-            staged[kind] = Path(tmp)
-        if "urdf" in staged:
-            write_model(cal.model, staged["urdf"], cal.params, overwrite=True, mass=cal.mass)
-        for k, m in zip(keys, cal.motions, strict=False):  # keys is empty without motion outputs
-            write_motion_csv(staged[k], m)
-        if "report" in staged:
-            cal.times["write"] = time.perf_counter() - t0
-            for k, v in (extra_times or {}).items():
-                cal.times[k] = v
-            rep = calibration_report(cal)
-            rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
-            rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
-            text = json.dumps(rep, indent=1, allow_nan=False, default=_json_default)
-            atomic_write_text(staged["report"], text + "\n")
-        _place_all(staged, targets)
-    except BaseException:
-        for tmp in staged.values():
-            Path(tmp).unlink(missing_ok=True)
-        raise
-    cal.times["write"] = time.perf_counter() - t0
+
+    def write_report(path: Path) -> None:
+        timed = replace(cal, times={**cal.times, "write": time.perf_counter() - t0, **(extra_times or {})})
+        rep = calibration_report(timed)
+        rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
+        rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
+        atomic_write_text(path, json.dumps(rep, indent=1, allow_nan=False, default=_json_default) + "\n")
+
+    writers = {}
+    if "urdf" in targets:
+        writers[targets["urdf"]] = lambda path: write_model(cal.model, path, cal.params, overwrite=True, mass=cal.mass)
+    for k, m in zip(keys, cal.motions, strict=False):  # keys is empty without motion outputs
+        writers[targets[k]] = lambda path, m=m: write_motion_csv(path, m)
+    if "report" in targets:
+        writers[targets["report"]] = write_report
+    write_all(writers)
     return targets
-
-
-def _place_all(staged: dict[str, Path], targets: dict[str, Path]) -> None:
-    """Rename every staged file onto its target, all or none: a file a target replaces is first
-    moved aside, and if any rename fails, the targets already placed are undone (removed, or
-    their old file moved back) before the error goes on."""
-    placed: list[tuple[Path, Path | None]] = []  # (target, where its previous file waits)
-    try:
-        for kind, tmp in staged.items():
-            target, aside = targets[kind], None
-            if target.exists():
-                fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent)
-                os.close(fd)
-                aside = Path(name)
-                os.replace(target, aside)
-            placed.append((target, aside))
-            os.replace(tmp, target)
-    except BaseException:
-        for target, aside in reversed(placed):
-            if aside is not None:
-                os.replace(aside, target)
-            else:
-                target.unlink(missing_ok=True)
-        raise
-    for _, aside in placed:
-        if aside is not None:
-            aside.unlink(missing_ok=True)
 
 
 def _json_default(o):

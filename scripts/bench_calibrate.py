@@ -192,8 +192,7 @@ def work_calibrate(spec: dict) -> dict:
                "termination": s.termination, "initial_cost": s.initial_cost, "final_cost": s.final_cost,
                "compiled": bool(cal.compiled), "marker_rms_m": cal.marker_rms, "held_axes": list(cal.held_axes),
                "unidentified": [c.name for c in cal.unidentified],
-               "axis_std_deg": {c.name[5:-1]: float(np.nanmax(c.std)) for c in cal.changes
-                                if c.name.startswith("axis[")}}
+               "axis_std_deg": {c.item: float(np.nanmax(c.std)) for c in cal.changes if c.group == "axis"}}
         if spec.get("truth", True):
             c = compare_to_truth(cal, sim)
             out.update({"centre_err_m": c.centre_error, "axis_err_deg": c.axis_error_deg, "kinds": c.kinds,

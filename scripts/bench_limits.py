@@ -49,7 +49,7 @@ def one_seed(model, frames: int, seed: int) -> dict:
     sim = simulate_squats(model, frames, noise_mm=1.0, seed=seed)
     cal = calibrate(model, sim.trial, Settings())
     cc = compare_to_truth(cal, sim)
-    sd = {c.name[len("axis["):-1]: float(np.nanmax(c.std)) for c in cal.changes if c.name.startswith("axis[")}
+    sd = {c.item: float(np.nanmax(c.std)) for c in cal.changes if c.group == "axis"}
     centres = cc.hinge()
     foot = {k: {"axis_err_deg": cc.axis_error_deg[k], "axis_sd_deg": sd[k], "z": cc.axis_error_deg[k] / sd[k],
                 "centre_err_mm": 1000 * centres[k]} for k in FOOT}

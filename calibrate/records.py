@@ -1,0 +1,119 @@
+"""Typed records a calibration hands to its report and its user: a calibrated quantity's change and
+whether the trial identified it, notes on coordinates, and progress messages.
+
+The report and the command line read their fields; their text (`name`, `note`, `text()`, `str()`)
+is what the user reads, worded as before.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+GROUPS = ("scale", "centre", "axis", "marker")  # the parameter blocks a ParameterChange belongs to
+
+
+class Identified(enum.Enum):
+    """How far a trial pinned a calibrated quantity."""
+
+    YES = "identified"  # the data fix it (its posterior SD well below its prior's)
+    FIXED = "not free"  # not calibrated: kept at its value (counts as identified)
+    ACROSS_AXIS = "across the axis only"  # a hinge centre: across its axis by the data, along it by the prior
+    NO = "not identified"  # the prior holds it
+    UNSEEN = "unseen"  # no marker seen on or below its segment: held at the base model's
+
+    @property
+    def identified(self) -> bool:
+        return self in (Identified.YES, Identified.FIXED)
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """One calibrated quantity against the base model, with its posterior uncertainty."""
+
+    group: str  # the parameter block: 'scale', 'centre', 'axis' or 'marker'
+    item: str  # the segment (scale), joint (centre), DoF (axis) or marker it belongs to
+    base: np.ndarray  # base model value (m for positions at base scale, unit vector, scale factor)
+    value: np.ndarray  # calibrated value (positions at the subject's scale)
+    change: float  # |value − base|: mm for positions, degrees for axes, fraction for scales
+    std: np.ndarray  # posterior std per coordinate (mm / deg / fraction); NaN when not free
+    status: Identified  # whether the trial identified it (or the prior holds it, and how)
+    note: str = ""  # why not identified, in words ('' when identified)
+    prior_ratio: float = float("nan")  # worst-direction posterior std / prior-only std (0: data alone, 1: prior alone)
+
+    @property
+    def name(self) -> str:
+        """e.g. 'centre[knee_r]', 'axis[knee_r]', 'marker[RKNE]', 'scale[femur_r]' (the report's names)."""
+        return f"{self.group}[{self.item}]"
+
+    @property
+    def identified(self) -> bool:
+        """False: the trial could not pin it and its prior holds it."""
+        return self.status.identified
+
+
+@dataclass(frozen=True)
+class StillNote:
+    """A coordinate that moved no more than one frame's markers fix it (calibration.still_coordinates)."""
+
+    coordinate: str  # DoF name
+    spread: float  # rad: its SD over the frames
+    per_frame: float  # rad: the SD with which one frame's markers fix it
+    axis_held: bool  # its hinge axis was held at the base model's
+
+    def text(self) -> str:
+        seen = (f"{self.coordinate}: moved no more than the markers fix it in a frame (SD over frames "
+                f"{math.degrees(self.spread):.1f} deg, one frame's {math.degrees(self.per_frame):.1f} deg): the trial "
+                f"does not show this joint moving, so ")
+        if self.axis_held:
+            return seen + (f"its axis was held at the base model's and its angle's zero is not found; if it did not "
+                           f"move at all, hold the angle too (--lock {self.coordinate}, or [lock_deg] in the config)")
+        return seen + (f"its axis and zero are not found; if it hardly moved, hold it (--lock {self.coordinate}, or "
+                       f"[lock_deg] in the config)")
+
+
+@dataclass(frozen=True)
+class LimitNote:
+    """A coordinate the fit drove beyond the base model's joint limits (calibration.limit_notes)."""
+
+    coordinate: str  # DoF name
+    fraction: float  # of the frames beyond the limits
+    worst: float  # rad: furthest beyond them
+
+    def text(self) -> str:
+        return (f"{self.coordinate}: beyond the base model's joint limits in {100 * self.fraction:.0f} % of frames "
+                f"(by up to {math.degrees(self.worst):.0f} deg): the markers may not resolve this coordinate; if "
+                f"the joint hardly moved, hold it (--lock {self.coordinate}, or [lock_deg] in the config)")
+
+
+CoordinateNote = StillNote | LimitNote
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One progress message of a calibration: its stage ('markers', 'seed', 'build', 'start', 'noise',
+    'solve') and what happens; str() is the line the user reads ('stage: text')."""
+
+    stage: str
+    text: str
+    iteration: int | None = None  # a solver iteration's line (subsample or single solve): its number
+    long: bool = False  # announces a step that takes long (C compilation), before it starts
+
+    def __str__(self) -> str:
+        return f"{self.stage}: {self.text}" if self.stage else self.text
+
+    @classmethod
+    def of(cls, message: str | Progress) -> Progress:
+        """The record of a message given as text ('stage: text', as Problem and the solver's callers
+        still word theirs)."""
+        if isinstance(message, Progress):
+            return message
+        stage, sep, text = message.partition(": ")
+        if not sep:
+            return cls("", message)
+        it = text.split()[1] if text.startswith("iteration ") else None
+        return cls(stage, text, int(it) if it is not None and it.isdigit() else None,
+                   long=stage == "build" and text.startswith("compiling"))
