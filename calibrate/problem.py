@@ -86,6 +86,7 @@ class Settings:
     loss: str = "linear"  # 'linear', 'huber' or 'cauchy'
     loss_scale: float = 3.0  # in units of `noise`: residuals beyond it count less (robust losses)
     priors: Priors = field(default_factory=Priors)
+    # The solver's options (calibrate.options.SolverOptions; `solver` gives them to levenberg_marquardt):
     max_iterations: int = 100
     ftol: float = 1e-6  # stop when the relative cost decrease of a step falls below this (as Ceres)
     atol: float = 0.5  # ... or a step lowers the cost by less than this: χ² by less than 1, its one-sigma level
