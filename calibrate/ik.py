@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .geometry import kabsch, marker_rms
+from .geometry import kabsch, marker_max, marker_rms
 from .kinematics import IDENTITY, Kinematics, retract_root
 from .model import Model, Parameters
 from .motion import Motion
@@ -49,7 +49,7 @@ class IKResult:
     @property
     def max_error(self) -> float:
         """Largest 3-D marker error over the trial (m)."""
-        return float(np.nanmax(np.linalg.norm(self.residuals, axis=2)))
+        return marker_max(self.residuals)
 
 
 def marker_columns(model: Model, trial: Trial) -> np.ndarray:
