@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from .association import associate_to_model, distance_variance
 from .blocks import FrameLayout, perpendicular_basis
 from .errors import CalibrateError
-from .geometry import kabsch_batch, marker_rms
+from .geometry import kabsch_batch, marker_max, marker_rms
 from .ik import _FrameSolver, marker_columns
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 from .kinematics import IDENTITY, Kinematics, build_kinematics
@@ -163,7 +163,7 @@ class Calibration:
     @property
     def marker_max(self) -> float:
         """Largest 3-D marker error (m)."""
-        return float(np.nanmax(np.linalg.norm(self.residuals, axis=2)))
+        return marker_max(self.residuals)
 
     @property
     def converged(self) -> bool:

@@ -12,7 +12,7 @@ treats NaN as a gap: a sample that is NaN is left out of that frame's fit.
   used to carry a base model's joint centre into a segment's local frame.
 - kabsch / kabsch_rotation: the rigid motion between two point sets, and the rotation
   nearest to a cross-covariance (one point set; kabsch_batch: weighted, every frame at once).
-- marker_rms: RMS 3-D marker error of a residual array.
+- marker_rms, marker_max: RMS and largest 3-D marker error of a residual array.
 """
 
 from __future__ import annotations
@@ -241,6 +241,11 @@ def marker_rms(residuals: np.ndarray) -> float:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return float(np.sqrt(np.nanmean(np.sum(residuals**2, axis=2))))
+
+
+def marker_max(residuals: np.ndarray) -> float:
+    """Largest 3-D marker error in residuals (F, M, 3) (m), NaN where a marker is not seen."""
+    return float(np.nanmax(np.linalg.norm(residuals, axis=2)))
 
 
 def similarity_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .blocks import FrameLayout
-from .geometry import kabsch, marker_rms
+from .geometry import kabsch, marker_max, marker_rms
 from .kinematics import IDENTITY, Kinematics, retract_root
 from .model import Model, Parameters
 from .motion import Motion
@@ -50,7 +50,7 @@ class IKResult:
     @property
     def max_error(self) -> float:
         """Largest 3-D marker error over the trial (m)."""
-        return float(np.nanmax(np.linalg.norm(self.residuals, axis=2)))
+        return marker_max(self.residuals)
 
 
 def marker_columns(model: Model, trial: Trial) -> np.ndarray:
