@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .calibration.records import Progress
 from .errors import CalibrateError
-from .geometry import marker_rms
-from .outputs import check_targets
-from .records import Progress
+from .io.outputs import check_targets
+from .seed.geometry import marker_rms
 
 DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 
@@ -106,12 +106,12 @@ def _fraction_arg(text: str) -> float:
 
 def _default_model() -> Path:
     """models/human.urdf of the source tree; in an installed package (no source tree) the same
-    model is generated from calibrate.human into the temporary directory."""
+    model is generated from calibrate.model.human into the temporary directory."""
     if DEFAULT_MODEL.exists():
         return DEFAULT_MODEL
     import tempfile
 
-    from .human import build_human_urdf
+    from .model.human import build_human_urdf
 
     path = Path(tempfile.gettempdir()) / "calibrate-human.urdf"
     text = build_human_urdf()
@@ -207,7 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
     jo.add_argument("--mode", choices=("framework", "jmv"), default="framework",
                     help="'framework' (default) or 'jmv': every joint by per-frame JMV only (slow baseline)")
-    from .opensim_export import add_export_osim_parser
+    from .io.osim_export import add_export_osim_parser
 
     add_export_osim_parser(sub)
     io = sub.add_parser("import-osim", help="write an OpenSim model (.osim) as a calibrate model URDF",
@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         ap.print_help()
         return 2
-    from .opensim_export import cmd_export_osim
+    from .io.osim_export import cmd_export_osim
 
     commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
                 "export-osim": cmd_export_osim, "import-osim": cmd_import_osim}
@@ -332,8 +332,8 @@ def _guard(command, args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace):
-    from .model import load_model
-    from .simulate import MOTIONS, simulate_realistic, write_simulation
+    from .model.model import load_model
+    from .simulation.simulate import MOTIONS, simulate_realistic, write_simulation
 
     model = load_model(args.model or _default_model())
     if args.out.exists() and not args.out.is_dir():
@@ -391,12 +391,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .calibration import calibrate
-    from .config import load_settings, settings_from_dict
-    from .labels import load_marker_map
-    from .model import load_model
-    from .problem import Settings
-    from .trial import Trial, read_trial
+    from .calibration.pipeline import calibrate
+    from .io.config import load_settings, settings_from_dict
+    from .io.labels import load_marker_map
+    from .io.trial import Trial, read_trial
+    from .model.model import load_model
+    from .problem.problem import Settings
 
     if len(args.inputs) < 2:
         raise CalibrateError("give one or more trials and then the base model: calibrate TRIAL [TRIAL ...] MODEL")
@@ -452,7 +452,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     model = load_model(model_path, args.marker_set)
     if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
-        from .osim import osim_info, with_locked
+        from .io.osim import osim_info, with_locked
 
         settings = with_locked(model, settings)
         approx = osim_info(model).approximations  # type: ignore[union-attr]
@@ -482,7 +482,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     cal = replace(cal, times={"load": load_s, **cal.times})
     cal = _write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
     if from_osim:
-        from .opensim_export import export_osim, write_mot
+        from .io.osim_export import export_osim, write_mot
 
         subject = load_model(out_urdf)
         export_osim(subject, out_osim)
@@ -521,9 +521,9 @@ class _Timed:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .calibration import calibrate
-    from .evaluate import compare_to_truth
-    from .trial import read_trial
+    from .calibration.evaluate import compare_to_truth
+    from .calibration.pipeline import calibrate
+    from .io.trial import read_trial
 
     model, sim, paths, dt = _simulate(args)
     trial = read_trial(paths["trial"])  # what a user would have: the C3D file
@@ -562,7 +562,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_inspect(args: argparse.Namespace) -> int:
     path: Path = args.file
     if path.suffix.lower() in (".urdf", ".osim"):
-        from .model import load_model
+        from .model.model import load_model
 
         m = load_model(path, getattr(args, "marker_set", None))
         print(m.summary())
@@ -576,7 +576,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
                 print(f"    {s.name:12s} {' '.join(s.markers)}")
         _print_osim(m)
         return 0
-    from .trial import read_trial
+    from .io.trial import read_trial
 
     t = read_trial(path)
     gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
@@ -589,7 +589,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def _print_osim(model) -> None:
     """What an OpenSim import approximated, locked and dropped (nothing for a model not from a .osim)."""
-    from .osim import approximation_table, osim_info
+    from .io.osim import approximation_table, osim_info
 
     info = osim_info(model)
     if info is None:
@@ -604,8 +604,8 @@ def _print_osim(model) -> None:
 
 def cmd_import_osim(args: argparse.Namespace) -> int:
     """``calibrate import-osim MODEL.osim [--marker-set XML] [-o URDF]``."""
-    from ._text import atomic_write_text
-    from .model import load_model
+    from .io.text import atomic_write_text
+    from .model.model import load_model
 
     src: Path = args.model
     out: Path = args.output or src.with_suffix(".urdf")
@@ -624,10 +624,10 @@ def cmd_import_osim(args: argparse.Namespace) -> int:
 
 
 def cmd_joints(args: argparse.Namespace) -> int:
-    from .joints import estimate_model_joints, write_centres_csv
-    from .labels import load_marker_map, map_labels
-    from .model import load_model
-    from .trial import read_trial
+    from .io.labels import load_marker_map, map_labels
+    from .io.trial import read_trial
+    from .model.model import load_model
+    from .seed.joints import estimate_model_joints, write_centres_csv
 
     out: Path | None = args.out
     if out is not None:
@@ -660,7 +660,7 @@ def cmd_joints(args: argparse.Namespace) -> int:
           f"({len(used)} in the model)")
     print(f"model  {args.model}: {len(model.segments)} segments, {len(model.joints)} joints, "
           f"{len(model.markers)} markers")
-    from .association import associate_to_model
+    from .seed.association import associate_to_model
 
     assoc = associate_to_model(model, trial)
     extra = {m.label: m.segment for m in assoc.markers if m.status == "assigned" and m.segment}

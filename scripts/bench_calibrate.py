@@ -2,7 +2,7 @@
 
 1. accuracy: `calibrate` on `simulate_squats` trials of models/human.urdf (default 1000 frames),
    noise-free, with 1 mm marker noise, and with 1 mm noise from a base model scaled 0.85 and
-   1.15 (basin of convergence); errors from `calibrate.evaluate.compare_to_truth`; then a treadmill
+   1.15 (basin of convergence); errors from `calibrate.calibration.evaluate.compare_to_truth`; then a treadmill
    gait trial (`simulate_gait`, same frames, 1 mm noise; no targets), with the axes of still
    coordinates held (the default) and left free (auto_hold=False);
 2. speed: time per stage and peak memory of each calibration (every timed run in a fresh
@@ -138,7 +138,7 @@ def _logger(path: str):
 
 def base_model(scale: float, tmp: str):
     """models/human.urdf, or the same with every segment scaled by `scale`."""
-    from calibrate.model import Parameters, load_model, write_model
+    from calibrate.model.model import Parameters, load_model, write_model
 
     model = load_model(MODEL)
     if scale == 1.0:
@@ -151,10 +151,10 @@ def base_model(scale: float, tmp: str):
 
 def work_warmup(spec: dict) -> dict:
     """A short calibration: compiles and caches the model's C code, warms the file cache."""
-    from calibrate.calibration import calibrate
-    from calibrate.model import load_model
-    from calibrate.problem import Settings
-    from calibrate.simulate import simulate_squats
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.model.model import load_model
+    from calibrate.problem.problem import Settings
+    from calibrate.simulation.simulate import simulate_squats
 
     model = load_model(MODEL)
     sim = simulate_squats(model, 100, seed=spec["seed"])
@@ -165,11 +165,11 @@ def work_warmup(spec: dict) -> dict:
 
 def work_calibrate(spec: dict) -> dict:
     """One timed `calibrate` of a simulated trial, then (untimed) its errors against the truth."""
-    from calibrate.calibration import calibrate
-    from calibrate.evaluate import compare_to_truth
-    from calibrate.model import load_model
-    from calibrate.problem import Settings
-    from calibrate.simulate import simulate_gait, simulate_squats
+    from calibrate.calibration.evaluate import compare_to_truth
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.model.model import load_model
+    from calibrate.problem.problem import Settings
+    from calibrate.simulation.simulate import simulate_gait, simulate_squats
 
     with tempfile.TemporaryDirectory() as tmp:
         model = base_model(spec["scale"], tmp)
@@ -207,12 +207,12 @@ def work_compare(spec: dict) -> dict:
     """One problem, built as `calibrate` builds it, solved by ours, scipy and IPOPT (see compare_solvers)."""
     from threadpoolctl import threadpool_limits
 
-    from calibrate.calibration import seed_parameters, start_poses
-    from calibrate.ik import marker_columns
-    from calibrate.kinematics import build_kinematics
-    from calibrate.model import load_model
-    from calibrate.problem import Priors, Problem, Settings, State
-    from calibrate.simulate import simulate_squats
+    from calibrate.calibration.pipeline import seed_parameters, start_poses
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.model import load_model
+    from calibrate.problem.problem import Priors, Problem, Settings, State
+    from calibrate.simulation.simulate import simulate_squats
+    from calibrate.solve.ik import marker_columns
 
     model = load_model(MODEL)
     sim = simulate_squats(model, spec["frames"], noise_mm=1.0, seed=spec["seed"])
@@ -242,7 +242,7 @@ WORKERS = {"warmup": work_warmup, "calibrate": work_calibrate, "compare": work_c
 # ====================================================================== the three solvers
 def compare_solvers(problem, state0, spec: dict) -> dict:
     """Ours, scipy and IPOPT from `state0`; every final cost is problem.cost of the final State."""
-    from calibrate.solver import levenberg_marquardt
+    from calibrate.solve.lm import levenberg_marquardt
 
     out: dict = {"initial_cost": problem.cost(state0)}
     t0 = time.perf_counter()
@@ -257,7 +257,7 @@ def compare_solvers(problem, state0, spec: dict) -> dict:
 
 def baseline_state(problem, state0, x: np.ndarray, T0: np.ndarray):
     """State at x = [vec(dZ), x_p]: Z = Z0 + dZ (q_ref fixed), p = p0 + T0 x_p (axes not renormalised)."""
-    from calibrate.problem import State
+    from calibrate.problem.problem import State
 
     F, nz = problem.F, problem.model.nz
     return State(state0.Z + x[:F * nz].reshape(F, nz), state0.Q, state0.p + T0 @ x[F * nz:])
@@ -320,7 +320,7 @@ def ipopt_objective(problem, state0, hessian: bool):
     Hessian of the whole mapped graph takes minutes to build even for 50 frames."""
     import casadi as ca
 
-    from calibrate.problem import LIMIT_WEIGHT
+    from calibrate.problem.problem import LIMIT_WEIGHT
 
     st, m, kin = problem.settings, problem.model, problem.kin
     if st.loss != "linear":
@@ -396,7 +396,7 @@ def ipopt_checks(problem, state0) -> dict:
     own on the first 3 frames."""
     import casadi as ca
 
-    from calibrate.problem import Problem, State
+    from calibrate.problem.problem import Problem, State
 
     x, f, _, _ = ipopt_objective(problem, state0, hessian=False)
     c_sym = float(ca.Function("f", [x], [f])(np.zeros(x.numel())))
@@ -559,8 +559,8 @@ def collect(a: argparse.Namespace, log) -> dict:
     t_start = time.perf_counter()
     res: dict = {"quick": a.quick, "seed": a.seed, "frames": frames, "compare_frames": cframes, "cap_s": cap}
 
-    from calibrate.model import load_model
-    from calibrate.problem import Problem, Settings
+    from calibrate.model.model import load_model
+    from calibrate.problem.problem import Problem, Settings
 
     model = load_model(MODEL)
     n_free = Problem(model, np.zeros((2, len(model.markers), 3)), Settings(compile=False)).n_free

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from calibrate.ik import inverse_kinematics
-from calibrate.kinematics import build_kinematics
-from calibrate.model import load_model
-from calibrate.simulate import simulate_squats
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import inverse_kinematics
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 

@@ -2,7 +2,7 @@
 
 For each seed, `calibrate` runs on a 1 mm-noise squat trial of models/human.urdf (the issue's
 benchmark: full body, Plug-in Gait markers, default 1000 frames at 100 Hz) and is compared with
-the truth (`calibrate.evaluate.compare_to_truth`).  Printed per seed:
+the truth (`calibrate.calibration.evaluate.compare_to_truth`).  Printed per seed:
 
 * each foot hinge (ankle, subtalar): its axis error beside the trial's own posterior SD for that
   axis (worst direction; `Calibration.changes`), their ratio z, and its centre's distance from the
@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.calibration import calibrate
-from calibrate.evaluate import compare_to_truth
-from calibrate.model import load_model
-from calibrate.problem import Settings
-from calibrate.simulate import simulate_squats
+from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.pipeline import calibrate
+from calibrate.model.model import load_model
+from calibrate.problem.problem import Settings
+from calibrate.simulation.simulate import simulate_squats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_calibrate import machine  # noqa: E402

@@ -1,7 +1,7 @@
 """Reproduce the simulations of Hang, Lasenby & Li (MTB joint estimation), Section IV.
 
-Synthetic chains (calibrate.chains.simulate_chain) of rigid segments 1 apart, solved by
-calibrate.joints.estimate_joints three ways: the framework (MTB + solvability propagation
+Synthetic chains (calibrate.simulation.chains.simulate_chain) of rigid segments 1 apart, solved by
+calibrate.seed.joints.estimate_joints three ways: the framework (MTB + solvability propagation
 + hybrid JMV) with the paper's affine basis (four markers, or three plus Eq. 9's auxiliary
 point) -- the method of the paper; the same framework with calibrate's default basis (the
 least-squares rigid frame of all of a segment's points); and the JMV-only baseline
@@ -30,8 +30,8 @@ import time
 import numpy as np
 import scipy
 
-from calibrate.chains import Chain, simulate_chain
-from calibrate.joints import JointSpec, estimate_joints
+from calibrate.seed.joints import JointSpec, estimate_joints
+from calibrate.simulation.chains import Chain, simulate_chain
 
 CHAINS: dict[str, tuple[int, ...]] = {
     "1": (4, 3, 3),
@@ -120,10 +120,10 @@ def human(seeds: list[int], frames: int = 1000, noise_mm: float = 1.0) -> dict:
     """Issue 3 item 9 on models/human.urdf: simulated squats, estimate_model_joints, errors against truth."""
     from pathlib import Path
 
-    from calibrate.association import associate
-    from calibrate.joints import estimate_model_joints
-    from calibrate.model import load_model
-    from calibrate.simulate import joint_axes_world, simulate_squats
+    from calibrate.model.model import load_model
+    from calibrate.seed.association import associate
+    from calibrate.seed.joints import estimate_model_joints
+    from calibrate.simulation.simulate import joint_axes_world, simulate_squats
 
     model = load_model(Path(__file__).resolve().parent.parent / "models" / "human.urdf")
     rows = []

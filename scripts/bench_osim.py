@@ -181,11 +181,11 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles."""
     import pinocchio as pin
 
-    from calibrate.calibration import calibrate
-    from calibrate.model import load_model, write_model
-    from calibrate.osim import with_locked
-    from calibrate.problem import Settings
-    from calibrate.trial import Trial, read_trial
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.osim import with_locked
+    from calibrate.io.trial import Trial, read_trial
+    from calibrate.model.model import load_model, write_model
+    from calibrate.problem.problem import Settings
 
     t0 = time.perf_counter()
     model = load_model(spec["osim"], spec["marker_set"])

@@ -1,12 +1,12 @@
 """Benchmark calibrate against its peers on one synthetic squat (or gait) trial whose truth is known.
 
-1. A squat trial of a random subject (`calibrate.simulate.simulate_squats`, 1 mm noise) and a
+1. A squat trial of a random subject (`calibrate.simulation.simulate.simulate_squats`, 1 mm noise) and a
    1 s static trial of the same subject standing in the neutral pose
-   (`calibrate.simulate.simulate_static`, same noise); `--motion gait`: a treadmill walking trial
-   (`calibrate.simulate.simulate_gait`) in place of the squats; the base model (models/human.urdf)
-   exported to .osim (`calibrate.opensim_export`), both trials to .trc.
+   (`calibrate.simulation.simulate.simulate_static`, same noise); `--motion gait`: a treadmill walking trial
+   (`calibrate.simulation.simulate.simulate_gait`) in place of the squats; the base model (models/human.urdf)
+   exported to .osim (`calibrate.io.osim_export`), both trials to .trc.
 2. calibrate: `calibrate.calibrate(base model, squat trial)` (after one untimed warm-up that fills
-   the compiled-code cache), scored by `calibrate.evaluate.compare_to_truth`.
+   the compiled-code cache), scored by `calibrate.calibration.evaluate.compare_to_truth`.
 3. OpenSim (`pip install -e '.[peers]'`): ScaleTool on the static trial — ModelScaler with one
    marker-pair measurement per segment (SCALE_PAIRS; isotropic scale factors, mass distribution
    kept) and MarkerPlacer (markers moved to the static trial) — then InverseKinematicsTool on the
@@ -25,7 +25,7 @@
    (see the hook below), else "not run".
 
 Every method is scored the same way, against the truth in the lab frame, as
-`calibrate.evaluate` does: ball/universal centres: distance to the true centre, median over
+`calibrate.calibration.evaluate` does: ball/universal centres: distance to the true centre, median over
 frames; hinge centres: distance to the true axis line, median over frames; hinge axes: angle to
 the true axis, median over frames; joint angles: RMS over frames and DoFs of the difference from
 the truth, as is and with each DoF's constant offset removed; marker RMS: model markers against the
@@ -267,9 +267,10 @@ def _read_scale_factors(path: Path) -> dict[str, float]:
 
 # ====================================================================== data
 def make_trials(model, frames: int, noise_mm: float, seed: int, motion: str = "squats"):
-    """The squat (or gait) simulation and a static trial of the same subject (calibrate.simulate.simulate_static:
+    """The squat (or gait) simulation and a static trial of the same subject
+    (calibrate.simulation.simulate.simulate_static:
     standing in the neutral pose, a few mm of sway, about 0.5 deg of drift per joint)."""
-    from calibrate.simulate import simulate_gait, simulate_squats, simulate_static
+    from calibrate.simulation.simulate import simulate_gait, simulate_squats, simulate_static
 
     simulate = simulate_gait if motion == "gait" else simulate_squats
     sim = simulate(model, frames=frames, noise_mm=noise_mm, seed=seed)
@@ -279,7 +280,7 @@ def make_trials(model, frames: int, noise_mm: float, seed: int, motion: str = "s
 
 
 def truth_of(sim) -> dict:
-    from calibrate.simulate import joint_axes_world
+    from calibrate.simulation.simulate import joint_axes_world
 
     model = sim.model
     return {"kinds": {j.name: j.kind for j in model.joints},
@@ -295,7 +296,7 @@ def marker_rms(model_markers: np.ndarray, observed: np.ndarray) -> float:
 
 
 def score(truth: dict, centres: dict, axes: dict, angles: dict, rms: float | None) -> dict:
-    """A method's lab-frame results against the truth (as calibrate.evaluate scores a calibration)."""
+    """A method's lab-frame results against the truth (as calibrate.calibration.evaluate scores a calibration)."""
     centre, axis = {}, {}
     for name, kind in truth["kinds"].items():
         if name not in centres:
@@ -339,9 +340,9 @@ def run_calibrate(model, sim, truth: dict, log, static=None) -> dict:
     """calibrate on the squat trial (or, with `static`, on the static and the squat trial together, as
     OpenSim gets them); the figures are of the squat trial's frames."""
     from calibrate import calibrate, compare_to_truth
-    from calibrate.kinematics import build_kinematics
-    from calibrate.simulate import joint_axes_world
-    from calibrate.trial import Trial
+    from calibrate.io.trial import Trial
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.simulation.simulate import joint_axes_world
 
     warm = Trial(sim.trial.labels, sim.trial.markers[: min(60, sim.trial.n_frames)], sim.trial.rate, 0, None)
     log("calibrate: warm-up (compiled-code cache)...")
@@ -481,7 +482,7 @@ def run_nimble_peer(model, sim, truth: dict, work: Path, files: dict[str, Path],
 # ====================================================================== report
 def collect(a: argparse.Namespace, log) -> dict:
     from calibrate import load_model, write_trc
-    from calibrate.opensim_export import export_osim
+    from calibrate.io.osim_export import export_osim
 
     model = load_model(MODEL)
     log(f"simulating {a.frames} {a.motion} frames and a {STATIC_SECONDS:g} s static trial (seed {a.seed})...")
@@ -578,7 +579,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     ap.add_argument("--noise-mm", type=float, default=1.0, help="marker noise SD in mm (default 1)")
     ap.add_argument("--motion", choices=("squats", "gait"), default="squats",
-                    help="the movement trial: squats (default) or treadmill gait (calibrate.simulate.simulate_gait)")
+                    help="the movement trial: squats (default) or treadmill gait (simulate_gait)")
     ap.add_argument("--quick", action="store_true", help="a short run (300 frames)")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     ap.add_argument("--static-weight", type=float, default=1.0,

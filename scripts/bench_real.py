@@ -16,7 +16,7 @@ frames) and compared with the trials' markers.
    (the file's model outputs, read with ezc3d: femur proximal point LFEP/RFEP = hip joint centre,
    femur origin LFEO/RFEO = knee joint centre, tibia origin LTIO/RTIO = ankle joint centre), median
    over the walk's frames; and a held-out check: calibrate on static + the walk's first half, then
-   the subject URDF fixed, the second half fitted frame by frame (`calibrate.ik.inverse_kinematics`),
+   the subject URDF fixed, the second half fitted frame by frame (`calibrate.solve.ik.inverse_kinematics`),
    its marker RMS beside the in-sample one (the walk's first half).
 2. A realistic simulated trial (`calibrate simulate --realistic`, when the CLI has it; otherwise the
    plain simulator, with a note), 1000 frames: the same figures, and against the truth (truth.urdf,
@@ -149,7 +149,7 @@ def report_scales(report: dict) -> dict[str, float]:
 
 def trial_markers(path: Path, report: dict | None, index: int):
     """A trial's labels (renamed as the report says the calibration renamed them) and markers (m)."""
-    from calibrate.trial import read_trial
+    from calibrate.io.trial import read_trial
 
     t = read_trial(path)
     labels = list(t.labels)
@@ -168,7 +168,7 @@ class UrdfKinematics:
     def __init__(self, path: Path):
         import pinocchio as pin
 
-        from calibrate.model import load_model
+        from calibrate.model.model import load_model
 
         self.pinm = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
         self.data = self.pinm.createData()
@@ -442,11 +442,11 @@ def pig_distances(kin: UrdfKinematics, motion: Path, trial: Path) -> dict:
 def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) -> dict:
     """Calibrate on static + the walk's first half, then fit the second half frame by frame with the
     subject URDF fixed: marker RMS of each (recomputed with Pinocchio from the files)."""
-    from calibrate.ik import inverse_kinematics
-    from calibrate.kinematics import build_kinematics
-    from calibrate.model import load_model
-    from calibrate.motion import write_motion_csv
-    from calibrate.trial import read_trial
+    from calibrate.io.motion import write_motion_csv
+    from calibrate.io.trial import read_trial
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.model import load_model
+    from calibrate.solve.ik import inverse_kinematics
 
     d = tmp / "held_out"
     d.mkdir(parents=True, exist_ok=True)
@@ -561,7 +561,7 @@ def axis_profile(d: Path, run: dict, truth: dict, cap: float, extra: list, log) 
     cost, the data themselves prefer the calibrated axes: no method that fits the markers rigidly to
     their segments can find the true ones in this trial (soft-tissue artefact moves the markers with
     the joint angles as a turned axis would)."""
-    from calibrate.model import Parameters, load_model, write_model
+    from calibrate.model.model import Parameters, load_model, write_model
 
     over = sorted(n for n, v in truth["axis_deg"].items() if not n.startswith(FOOT) and v > REAL_HINGE_DEG)
     if not over:

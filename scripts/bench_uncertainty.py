@@ -47,7 +47,7 @@ def world_geometry(model, params, motion) -> dict[str, np.ndarray]:
     centres (F, n_joints, 3) and hinge axes in the lab (F, n_joints, 3; NaN for other joints)."""
     import pinocchio as pin
 
-    from calibrate.model import load_model, write_model
+    from calibrate.model.model import load_model, write_model
 
     with tempfile.TemporaryDirectory() as d:
         path = write_model(model, Path(d) / "subject.urdf", params)
@@ -77,8 +77,8 @@ def world_geometry(model, params, motion) -> dict[str, np.ndarray]:
 
 def one_subject(model, frames: int, seed: int) -> list[dict]:
     """Calibrate one simulated subject; one row per z-score of an identified parameter."""
-    from calibrate.calibration import calibrate
-    from calibrate.simulate import simulate_squats
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.simulation.simulate import simulate_squats
 
     sim = simulate_squats(model, frames=frames, noise_mm=1.0, seed=seed)
     cal = calibrate(model, sim.trial)
@@ -183,9 +183,9 @@ def _offset(cal, key: str) -> np.ndarray:
 def _gauges(cal, trial) -> list[tuple[int, str]]:
     """The calibration's gauge segments (segment index, 'rigid' | 'rotation' | 'axis'), as its
     Problem finds them for its settings."""
-    from calibrate.ik import marker_columns
-    from calibrate.kinematics import build_kinematics
-    from calibrate.problem import Problem
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.problem.problem import Problem
+    from calibrate.solve.ik import marker_columns
 
     problem = Problem(cal.model, marker_columns(cal.model, trial), cal.settings, build_kinematics(cal.model))
     return list(problem._gauges)
@@ -217,7 +217,7 @@ def summarise(rows: list[dict]) -> dict:
 
 def run(subjects: int, frames: int, progress=None) -> dict:
     """The benchmark: `subjects` simulated subjects (seeds 0..subjects-1) of `frames` frames."""
-    from calibrate.model import load_model
+    from calibrate.model.model import load_model
 
     model = load_model(MODEL)
     rows: list[dict] = []

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from calibrate.human import build_human_urdf
+from calibrate.model.human import build_human_urdf
 
 
 def main() -> None:

@@ -513,9 +513,9 @@ def check_against_model(model: Any, osim_path: Path, n_poses: int = 20, seed: in
     kinematics (Pinocchio) at random poses: max marker and joint-centre distances (m)."""
     from scipy.spatial.transform import Rotation
 
-    from calibrate.kinematics import build_kinematics
-    from calibrate.motion import Motion
-    from calibrate.opensim_export import mot_columns
+    from calibrate.io.motion import Motion
+    from calibrate.io.osim_export import mot_columns
+    from calibrate.model.kinematics import build_kinematics
 
     rng = np.random.default_rng(seed)
     p = params if params is not None else model.parameters()
@@ -551,9 +551,9 @@ def _selftest(frames: int, out: Path | None) -> int:
     """Export models/human.urdf, simulate a squat, check nimble's reading, fit, print a summary."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from calibrate import load_model
-    from calibrate.opensim_export import export_osim
-    from calibrate.simulate import simulate_squats
-    from calibrate.trial import write_trc
+    from calibrate.io.osim_export import export_osim
+    from calibrate.io.trial import write_trc
+    from calibrate.simulation.simulate import simulate_squats
 
     work = Path(tempfile.mkdtemp(prefix="calibrate-nimble-selftest-"))
     t = time.perf_counter()

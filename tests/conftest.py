@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibrate.kinematics import build_kinematics
-from calibrate.model import load_model
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model
 
 ROOT = Path(__file__).resolve().parent.parent
 HUMAN = ROOT / "models" / "human.urdf"

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibrate.association import (
+from calibrate.io.trial import Trial
+from calibrate.model.model import load_model
+from calibrate.seed.association import (
     RIGID_FLOOR,
     associate,
     associate_to_model,
@@ -20,9 +22,7 @@ from calibrate.association import (
     rigid_threshold,
     tied_hypotheses,
 )
-from calibrate.model import load_model
-from calibrate.simulate import simulate_squats
-from calibrate.trial import Trial
+from calibrate.simulation.simulate import simulate_squats
 
 HUMAN = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 FRAMES = 300

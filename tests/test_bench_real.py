@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibrate.calibration import calibrate
-from calibrate.evaluate import compare_to_truth
-from calibrate.simulate import simulate_squats, write_simulation
-from calibrate.trial import read_trial
+from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.pipeline import calibrate
+from calibrate.io.trial import read_trial
+from calibrate.simulation.simulate import simulate_squats, write_simulation
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "scripts"))

@@ -1,4 +1,4 @@
-"""Named parameter blocks (calibrate.blocks), the immutable Problem and the solver's options.
+"""Named parameter blocks (calibrate.model.blocks), the immutable Problem and the solver's options.
 
 The layout is checked against the model's own numbers (each block's entries hold the base model's
 joint centre, axis, marker offset, scale), the tangent map against finite differences of the
@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibrate.blocks import FrameLayout, ParameterLayout
-from calibrate.ik import marker_columns
-from calibrate.options import SolverOptions
-from calibrate.problem import Problem, Settings
-from calibrate.simulate import simulate_squats
-from calibrate.solver import State, levenberg_marquardt
+from calibrate.model.blocks import FrameLayout, ParameterLayout
+from calibrate.problem.options import SolverOptions
+from calibrate.problem.problem import Problem, Settings
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import marker_columns
+from calibrate.solve.lm import State, levenberg_marquardt
 
 
 def test_blocks_hold_the_model_numbers(human):

@@ -15,18 +15,18 @@ import pinocchio as pin
 import pytest
 import yourdfpy
 
-from calibrate.assembly import in_parallel, split_frames
-from calibrate.calibration import calibrate
-from calibrate.config import load_settings, settings_from_dict
+from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.pipeline import calibrate
 from calibrate.errors import CalibrateError
-from calibrate.evaluate import compare_to_truth
-from calibrate.ik import marker_columns
-from calibrate.model import Parameters, add_markers, load_model, write_model
-from calibrate.motion import read_motion_csv
-from calibrate.problem import Priors, Problem, Settings, State
-from calibrate.simulate import simulate_gait, simulate_squats
-from calibrate.solver import factor_step, levenberg_marquardt, solve_step
-from calibrate.trial import Trial, write_c3d
+from calibrate.io.config import load_settings, settings_from_dict
+from calibrate.io.motion import read_motion_csv
+from calibrate.io.trial import Trial, write_c3d
+from calibrate.model.model import Parameters, add_markers, load_model, write_model
+from calibrate.problem.problem import Priors, Problem, Settings, State
+from calibrate.simulation.simulate import simulate_gait, simulate_squats
+from calibrate.solve.assembly import in_parallel, split_frames
+from calibrate.solve.ik import marker_columns
+from calibrate.solve.lm import factor_step, levenberg_marquardt, solve_step
 
 SOLID_BALLS = ("hip_l", "hip_r", "lumbar", "neck", "shoulder_l", "shoulder_r")
 SOLID_HINGES = ("knee_l", "knee_r", "elbow_l", "elbow_r")
@@ -97,7 +97,7 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin,
     """What the geodesic acceleration uses: J'ρ for any residual-shaped ρ (Problem.gradient) and the
     factored normal equations solved for any right-hand side, against the full sparse Jacobian;
     with one noise SD for all markers, and with per-marker SDs and locked coordinates."""
-    from calibrate.problem import LIMIT_MARGIN, LOCK_WEIGHT
+    from calibrate.problem.problem import LIMIT_MARGIN, LOCK_WEIGHT
 
     sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=3)
     obs = marker_columns(human, sim.trial)
@@ -151,7 +151,7 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin,
 def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
     """The normal equations and the LM step from the C kernels (compiled with the system's compiler)
     and from numba's versions of the same loops (the fallback without a compiler) agree."""
-    from calibrate import _numba_kernels, assembly
+    from calibrate.solve import assembly, numba_kernels
 
     if not isinstance(assembly.kernels(), assembly._CKernels):
         pytest.skip("no C compiler: only the numba kernels exist here")
@@ -161,7 +161,7 @@ def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
     state = State(np.column_stack([m.root_translation, np.zeros((70, 3)), m.angles]) + 0.01,
                   m.root_quaternion.copy(), sim.truth.vector())
     runs = []
-    for backend in (assembly.kernels(), _numba_kernels):
+    for backend in (assembly.kernels(), numba_kernels):
         monkeypatch.setattr(assembly, "kernels", lambda b=backend: b)
         lin = problem.linearize(state)
         Dz = np.diagonal(lin.A, axis1=1, axis2=2).copy()
@@ -520,7 +520,7 @@ def test_treadmill_gait(human, human_kin):
 
 
 def test_limit_notes_name_coordinates_driven_past_their_limits(human):
-    from calibrate.calibration import limit_notes
+    from calibrate.calibration.pipeline import limit_notes
 
     F = 100
     angles = np.zeros((F, human.n_dofs))
@@ -640,7 +640,7 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
 def test_worst_ratio_singular_prior_block():
     """A prior-only covariance block that is singular (a direction the gauge constraints fix) must
     not break the identifiability test; the ratio is found on the directions it leaves open."""
-    from calibrate.calibration import worst_ratio
+    from calibrate.calibration.pipeline import worst_ratio
 
     U = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
     C0 = U @ np.diag([0.0, 0.04, 0.047]) @ U.T

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibrate.chains import Chain, simulate_chain
-from calibrate.geometry import rigid_fit, sphere_fit, spread
+from calibrate.seed.geometry import rigid_fit, sphere_fit, spread
+from calibrate.simulation.chains import Chain, simulate_chain
 
 CHAINS = [(4, 3, 3), (4, 3, 3, 4, 3), (4, 3, 3, 4, 3, 3, 3, 3), (3, 2, 2, 2, 2), (3, 1, 2, 2, 2, 2)]
 

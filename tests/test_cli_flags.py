@@ -14,16 +14,16 @@ import pinocchio as pin
 import pytest
 import yourdfpy
 
-from calibrate.calibration import calibrate
+from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.pipeline import calibrate
 from calibrate.cli import main
 from calibrate.errors import CalibrateError
-from calibrate.evaluate import compare_to_truth
-from calibrate.joints import estimate_model_joints
-from calibrate.labels import map_labels
-from calibrate.model import load_model
-from calibrate.motion import read_motion_csv
-from calibrate.simulate import simulate_squats, simulate_static, write_simulation
-from calibrate.trial import Trial, read_trial, write_c3d
+from calibrate.io.labels import map_labels
+from calibrate.io.motion import read_motion_csv
+from calibrate.io.trial import Trial, read_trial, write_c3d
+from calibrate.model.model import load_model
+from calibrate.seed.joints import estimate_model_joints
+from calibrate.simulation.simulate import simulate_squats, simulate_static, write_simulation
 
 FRAMES = 150
 # Hips from 150 frames: 0.9 and 3.2 mm today with every default (world centres, medians over frames).

@@ -6,8 +6,8 @@ import math
 import re
 from pathlib import Path
 
-from calibrate import config
-from calibrate.config import load_settings
+from calibrate.io import config
+from calibrate.io.config import load_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -20,7 +20,7 @@ def _docs_example() -> str:
 
 
 def _module_example() -> str:
-    """The example in calibrate.config's docstring (indented by four spaces)."""
+    """The example in calibrate.io.config's docstring (indented by four spaces)."""
     doc = config.__doc__
     body = doc.split("::", 1)[1]
     return "\n".join(line[4:] for line in body.splitlines())

@@ -18,9 +18,9 @@ import pinocchio as pin
 import pytest
 from conftest import HUMAN
 
-from calibrate.calibration import calibrate
-from calibrate.model import load_model
-from calibrate.trial import read_trial
+from calibrate.calibration.pipeline import calibrate
+from calibrate.io.trial import read_trial
+from calibrate.model.model import load_model
 
 FRAMES, RATE = 300, 100.0
 # The hand edits: URDF joint -> new origin xyz (m, parent frame) or new axis (unit, joint frame).

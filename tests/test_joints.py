@@ -1,4 +1,4 @@
-"""Joint-centre estimation (calibrate.joints, calibrate.geometry): closed forms, the MTB framework on
+"""Joint-centre estimation (calibrate.seed.joints, calibrate.seed.geometry): closed forms, the MTB framework on
 synthetic chains (seed 000 Section IV) and on simulated squats of models/human.urdf, and the CLI."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibrate.chains import simulate_chain
 from calibrate.cli import main
-from calibrate.geometry import rigid_fit, similarity_fit, sphere_fit
-from calibrate.joints import (
+from calibrate.io.trial import Trial
+from calibrate.seed.geometry import rigid_fit, similarity_fit, sphere_fit
+from calibrate.seed.joints import (
     JointSpec,
     affine_basis,
     auxiliary_point,
@@ -24,8 +24,8 @@ from calibrate.joints import (
     mtb_refine,
     rigid_basis,
 )
-from calibrate.simulate import joint_axes_world, simulate_squats, write_simulation
-from calibrate.trial import Trial
+from calibrate.simulation.chains import simulate_chain
+from calibrate.simulation.simulate import joint_axes_world, simulate_squats, write_simulation
 
 CHAINS = {1: (4, 3, 3), 2: (4, 3, 3, 4, 3), 3: (4, 3, 3, 4, 3, 3, 3, 3), 4: (3, 2, 2, 2, 2), 5: (3, 1, 2, 2, 2, 2)}
 
@@ -385,7 +385,7 @@ def test_cli_joints_bad_input(human, tmp_path, capsys):
     sim = simulate_squats(human, frames=50, noise_mm=1.0, seed=5)
     paths = write_simulation(sim, tmp_path)
     renamed = Trial(tuple(f"X{i}" for i in range(sim.trial.n_markers)), sim.trial.markers, 100.0, 0, None)
-    from calibrate.trial import write_c3d
+    from calibrate.io.trial import write_c3d
 
     write_c3d(tmp_path / "renamed.c3d", renamed)
     code = main(["joints", str(tmp_path / "renamed.c3d"), str(human.path)])
@@ -403,7 +403,7 @@ def test_cli_joints_places_markers_the_model_does_not_know(human, tmp_path, caps
     shin = shin + np.random.default_rng(0).normal(0, 1e-3, shin.shape)
     markers = np.concatenate([sim.trial.markers, shin[:, None, :]], axis=1)
     trial = Trial((*sim.trial.labels, "RSHIN"), markers, sim.trial.rate, 0, None)
-    from calibrate.trial import write_c3d
+    from calibrate.io.trial import write_c3d
 
     write_c3d(tmp_path / "extra.c3d", trial)
     code = main(["joints", str(tmp_path / "extra.c3d"), str(human.path)])

@@ -6,10 +6,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from calibrate.ik import inverse_kinematics
-from calibrate.kinematics import build_kinematics, cayley_np, retract_root
-from calibrate.model import load_model, write_model
-from calibrate.simulate import perturb_parameters, simulate_squats
+from calibrate.model.kinematics import build_kinematics, cayley_np, retract_root
+from calibrate.model.model import load_model, write_model
+from calibrate.simulation.simulate import perturb_parameters, simulate_squats
+from calibrate.solve.ik import inverse_kinematics
 
 
 def _pin_points(model, q):

@@ -1,4 +1,4 @@
-"""Tests for calibrate.labels: marker map files, built-in aliases, conflicts, the mapping report."""
+"""Tests for calibrate.io.labels: marker map files, built-in aliases, conflicts, the mapping report."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from calibrate.errors import CalibrateError
-from calibrate.labels import LabelConflictWarning, alias_for, load_marker_map, map_labels
-from calibrate.trial import Trial, read_trial, write_c3d
+from calibrate.io.labels import LabelConflictWarning, alias_for, load_marker_map, map_labels
+from calibrate.io.trial import Trial, read_trial, write_c3d
 
 # Hand-written from the Plug-in Gait marker set of models/human.urdf (checked against the model below).
 PIG = (

@@ -9,8 +9,8 @@ import yourdfpy
 from conftest import HUMAN
 
 from calibrate.errors import ModelError
-from calibrate.human import build_human_urdf
-from calibrate.model import load_model, write_model
+from calibrate.model.human import build_human_urdf
+from calibrate.model.model import load_model, write_model
 
 PLUG_IN_GAIT = set(
     "LFHD RFHD LBHD RBHD C7 T10 CLAV STRN RBAK LASI RASI LPSI RPSI".split()

@@ -1,4 +1,4 @@
-"""OpenSim models as base models (calibrate.osim): marker positions of the imported model, by Pinocchio,
+"""OpenSim models as base models (calibrate.io.osim): marker positions of the imported model, by Pinocchio,
 equal OpenSim's own (the `opensim` package in a child process) to 1e-6 m where the import is exact, and
 stay within the reported bound where it approximates; Gait2392, Rajagopal 2016 and a hand-made model
 with every joint and function type; bad input; the CLI.
@@ -21,8 +21,8 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.cli import main
 from calibrate.errors import ModelError
-from calibrate.model import load_model
-from calibrate.osim import osim_info, root_coordinates
+from calibrate.io.osim import osim_info, root_coordinates
+from calibrate.model.model import load_model
 
 HAVE_OPENSIM = importlib.util.find_spec("opensim") is not None
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
@@ -246,7 +246,7 @@ def _cases(model, n: int, seed: int, ranges: dict[str, tuple[float, float]]) -> 
 
 
 def _ranges(path: Path) -> dict[str, tuple[float, float]]:
-    """Every non-root coordinate's range, from the .osim (independent of calibrate.osim), within one turn."""
+    """Every non-root coordinate's range, from the .osim (independent of calibrate.io.osim), within one turn."""
     import xml.etree.ElementTree as ET
 
     out = {}
@@ -401,8 +401,8 @@ def test_rajagopal_locked_and_coupled():
             np.testing.assert_allclose(seg.offset, np.array(mk.findtext("location").split(), float), atol=1e-12)
             same += 1
     assert same > 40
-    from calibrate.osim import with_locked
-    from calibrate.problem import Settings
+    from calibrate.io.osim import with_locked
+    from calibrate.problem.problem import Settings
 
     s = with_locked(m, Settings(lock={"mtp_angle_r": 0.1}))
     assert dict(s.lock)["mtp_angle_r"] == 0.1 and dict(s.lock)["subtalar_angle_l"] == 0.0
@@ -526,9 +526,9 @@ def test_export_keeps_names_and_kinematics(tmp_path):
     """A calibrated-like subject of each imported model, exported as .osim with a .mot of random poses:
     OpenSim puts every marker where Pinocchio puts it on the written subject URDF (1e-6 m), and the
     bodies, joints and coordinates have the original model's names."""
-    from calibrate.model import Parameters, write_model
-    from calibrate.motion import Motion
-    from calibrate.opensim_export import export_osim, write_mot
+    from calibrate.io.motion import Motion
+    from calibrate.io.osim_export import export_osim, write_mot
+    from calibrate.model.model import Parameters, write_model
 
     hand = tmp_path / "handmade.osim"
     hand.write_text(hand_made_osim())
@@ -583,7 +583,7 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     """`calibrate TRIAL MODEL.osim --marker-set XML` end to end on a trial made from the model's own markers
     (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
     columns are OpenSim's coordinate names, and it recovers the motion's marker positions."""
-    from calibrate.trial import Trial, write_trc
+    from calibrate.io.trial import Trial, write_trc
 
     model = load_model(GAIT, GAIT_MARKERS)
     n, rng = 40, np.random.default_rng(4)

@@ -1,6 +1,6 @@
 """A pose-only fit (`free = []`, `--free ""`): inverse kinematics with the base model held fixed.
 
-The global solver's poses are checked against the frame-wise inverse kinematics of calibrate.ik
+The global solver's poses are checked against the frame-wise inverse kinematics of calibrate.solve.ik
 (a separate solver) and, through the written files, against Pinocchio's forward kinematics."""
 
 from __future__ import annotations
@@ -11,15 +11,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from calibrate.calibration import calibrate
+from calibrate.calibration.pipeline import calibrate
 from calibrate.cli import main
-from calibrate.config import load_settings
-from calibrate.ik import inverse_kinematics, marker_columns
-from calibrate.kinematics import build_kinematics
-from calibrate.model import load_model, write_model
-from calibrate.motion import read_motion_csv
-from calibrate.simulate import simulate_squats
-from calibrate.trial import write_c3d
+from calibrate.io.config import load_settings
+from calibrate.io.motion import read_motion_csv
+from calibrate.io.trial import write_c3d
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model, write_model
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import inverse_kinematics, marker_columns
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +34,7 @@ def truth_case(human, tmp_path_factory):
 
 def test_free_nothing_gives_the_frame_wise_inverse_kinematics(truth_case, tmp_path):
     """free = [] (read from a config file, as a user would write it): the geometry stays the base
-    model's to the bit and every frame's pose is the one calibrate.ik finds frame by frame."""
+    model's to the bit and every frame's pose is the one calibrate.solve.ik finds frame by frame."""
     sim, truth, _ = truth_case
     (tmp_path / "c.toml").write_text("free = []\n")
     settings = load_settings(tmp_path / "c.toml")
@@ -77,7 +77,7 @@ def test_cli_free_empty_with_the_base_model(truth_case, tmp_path, human, capsys)
     motion = read_motion_csv(tmp_path / "s.csv")
     pm, data = subject.pin, subject.pin.createData()
     fids = [pm.getFrameId(n) for n in subject.marker_names]
-    from calibrate.trial import read_trial
+    from calibrate.io.trial import read_trial
 
     obs = marker_columns(subject, read_trial(d / "trial.c3d"))
     sq = []

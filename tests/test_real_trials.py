@@ -12,15 +12,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from calibrate.calibration import calibrate
+from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.pipeline import calibrate
 from calibrate.errors import CalibrateError
-from calibrate.evaluate import compare_to_truth
-from calibrate.kinematics import build_kinematics
-from calibrate.model import add_markers, load_model
-from calibrate.motion import read_motion_csv
-from calibrate.problem import Settings
-from calibrate.simulate import simulate_squats, simulate_static
-from calibrate.trial import Trial, read_trial, write_c3d
+from calibrate.io.motion import read_motion_csv
+from calibrate.io.trial import Trial, read_trial, write_c3d
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import add_markers, load_model
+from calibrate.problem.problem import Settings
+from calibrate.simulation.simulate import simulate_squats, simulate_static
 
 # A thigh plate (three markers), a shank pair and a hand marker, in segment frames (m): markers a
 # lab adds to the model's set.

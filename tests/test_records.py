@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calibrate.calibration import merge_summaries
+from calibrate.calibration.pipeline import merge_summaries
+from calibrate.calibration.records import Identified, LimitNote, ParameterChange, Progress, StillNote
 from calibrate.errors import CalibrateError
-from calibrate.geometry import kabsch, kabsch_batch, marker_rms, similarity_fit
-from calibrate.outputs import check_targets, write_all
-from calibrate.records import Identified, LimitNote, ParameterChange, Progress, StillNote
-from calibrate.solver import SolverSummary
+from calibrate.io.outputs import check_targets, write_all
+from calibrate.seed.geometry import kabsch, kabsch_batch, marker_rms, similarity_fit
+from calibrate.solve.lm import SolverSummary
 
 
 def test_kabsch_recovers_a_rigid_motion():

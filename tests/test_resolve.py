@@ -1,4 +1,4 @@
-"""Unresolved segments (calibrate.resolve): the markers' Jacobian null space, and calibration with
+"""Unresolved segments (calibrate.model.resolve): the markers' Jacobian null space, and calibration with
 the coordinates the markers do not see locked."""
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ import pinocchio as pin
 import pytest
 from conftest import HUMAN, ROOT
 
-from calibrate.calibration import calibrate
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.errors import CalibrateError
-from calibrate.problem import Settings
-from calibrate.report import calibration_report, summary_text
-from calibrate.resolve import resolve, unresolved
-from calibrate.simulate import simulate_squats
-from calibrate.trial import write_c3d
+from calibrate.io.trial import write_c3d
+from calibrate.model.resolve import resolve, unresolved
+from calibrate.problem.problem import Settings
+from calibrate.simulation.simulate import simulate_squats
 
 PELVIS = ("LASI", "RASI", "LPSI", "RPSI")
 

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from calibrate.ik import marker_columns
-from calibrate.problem import Problem, Settings, State, _robust
-from calibrate.simulate import simulate_squats
+from calibrate.problem.problem import Problem, Settings, State, _robust
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import marker_columns
 
 
 def huber_by_hand(s: float, c: float) -> tuple[float, float]:

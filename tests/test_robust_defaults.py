@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from calibrate.calibration import (
+from calibrate.calibration.pipeline import (
     _rms,
     calibrate,
     learned_noise,
@@ -18,14 +18,14 @@ from calibrate.calibration import (
     size_from_markers,
     start_poses,
 )
-from calibrate.config import settings_from_dict
 from calibrate.errors import CalibrateError
-from calibrate.ik import marker_columns
-from calibrate.model import Parameters
-from calibrate.problem import Priors, Problem, Settings, State, symmetry_pairs
-from calibrate.simulate import simulate_squats
-from calibrate.solver import covariance, levenberg_marquardt
-from calibrate.trial import Trial
+from calibrate.io.config import settings_from_dict
+from calibrate.io.trial import Trial
+from calibrate.model.model import Parameters
+from calibrate.problem.problem import Priors, Problem, Settings, State, symmetry_pairs
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import marker_columns
+from calibrate.solve.lm import covariance, levenberg_marquardt
 
 
 def _with_markers(sim, markers: np.ndarray) -> Trial:

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibrate.calibration import broken_samples, calibrate, jump_episodes, seed_parameters
-from calibrate.evaluate import compare_to_truth
-from calibrate.ik import marker_columns
-from calibrate.labels import map_labels
-from calibrate.simulate import simulate_squats
-from calibrate.trial import read_trial
+from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.pipeline import broken_samples, calibrate, jump_episodes, seed_parameters
+from calibrate.io.labels import map_labels
+from calibrate.io.trial import read_trial
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import marker_columns
 
 REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real" / "pig_walk"
 SWAP = slice(100, 112)  # frames whose C7 and LSHO labels are exchanged

@@ -10,10 +10,10 @@ import pinocchio as pin
 import pytest
 
 from calibrate.cli import main
-from calibrate.model import load_model
-from calibrate.motion import read_motion_csv
-from calibrate.simulate import simulate_gait, simulate_squats
-from calibrate.trial import read_c3d
+from calibrate.io.motion import read_motion_csv
+from calibrate.io.trial import read_c3d
+from calibrate.model.model import load_model
+from calibrate.simulation.simulate import simulate_gait, simulate_squats
 
 
 def test_simulate_writes_consistent_files(tmp_path, human):

@@ -10,8 +10,8 @@ import pinocchio as pin
 import pytest
 
 from calibrate.cli import main
-from calibrate.model import load_model
-from calibrate.simulate import (
+from calibrate.model.model import load_model
+from calibrate.simulation.simulate import (
     STA_ACROMION,
     STA_FACTOR,
     STA_SPREAD,
@@ -123,7 +123,7 @@ def test_overhead_arms_pass_the_gimbal_lock_far_above_the_head(human, tmp_path):
 @pytest.mark.parametrize("height", [1.5, 2.0])
 def test_height_sets_the_stature_with_varied_proportions(human, tmp_path, height):
     """Stature from Pinocchio's neutral pose of the truth URDF: neck centre above the ankle centres plus
-    calibrate.human's sole-to-ankle (0.07/1.75) and neck-to-vertex (0.25/1.75) heights scaled by the feet
+    calibrate.model.human's sole-to-ankle (0.07/1.75) and neck-to-vertex (0.25/1.75) heights scaled by the feet
     and head; within 1 mm of the request.  The head markers sit where a 1.5 or 2.0 m subject's do."""
     sim = simulate_squats(human, frames=10, seed=4, height=height)
     subject = _pin_subject(sim, tmp_path)

@@ -1,4 +1,4 @@
-"""Ball joints on SO(3) in the solver (the solver's form h_ref of calibrate.kinematics): against
+"""Ball joints on SO(3) in the solver (the solver's form h_ref of calibrate.model.kinematics): against
 Pinocchio and finite differences, and through 180 degrees of shoulder abduction, where the
 URDF's flexion-adduction-rotation angles meet their gimbal lock at 90 degrees."""
 
@@ -8,9 +8,9 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from calibrate.kinematics import IDENTITY
-from calibrate.problem import Problem, Settings, State
-from calibrate.solver import levenberg_marquardt
+from calibrate.model.kinematics import IDENTITY
+from calibrate.problem.problem import Problem, Settings, State
+from calibrate.solve.lm import levenberg_marquardt
 
 
 def _pin_markers(model, t, quat, th):
@@ -148,8 +148,8 @@ def test_overhead_trial_calibrates_as_squats_do(human, human_kin):
     measured, from t1/t3 near the lock where only their sum is well defined; limit 15 degrees,
     where a wrong branch costs 100-180)."""
     from calibrate import calibrate
-    from calibrate.evaluate import compare_to_truth
-    from calibrate.simulate import simulate_overhead
+    from calibrate.calibration.evaluate import compare_to_truth
+    from calibrate.simulation.simulate import simulate_overhead
 
     sim = simulate_overhead(human, frames=300, noise_mm=1.0, seed=1)
     cal = calibrate(human, sim.trial, kinematics=human_kin)

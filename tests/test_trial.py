@@ -1,4 +1,4 @@
-"""Tests for calibrate.trial: reading and writing C3D/TRC trials, gaps, units, bad files."""
+"""Tests for calibrate.io.trial: reading and writing C3D/TRC trials, gaps, units, bad files."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calibrate.errors import CalibrateError, TrialError
-from calibrate.trial import (
+from calibrate.io.trial import (
     Trial,
     read_c3d,
     read_trc,
@@ -658,7 +658,7 @@ def test_failed_write_leaves_the_old_file_alone(tmp_path: Path) -> None:
 def test_trc_header_values_padded_with_empty_fields(tmp_path):
     """Some exporters pad line 3 (the header values) with empty tab fields between the values, as
     Rajagopal's motion_capture_walk.trc does: the values are still matched to their keys."""
-    from calibrate.trial import Trial, read_trc, write_trc
+    from calibrate.io.trial import Trial, read_trc, write_trc
 
     rng = np.random.default_rng(0)
     trial = Trial(("A", "B"), rng.normal(size=(4, 2, 3)), 100.0)

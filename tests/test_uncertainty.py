@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from calibrate.simulate import simulate_squats
+from calibrate.simulation.simulate import simulate_squats
 
 
 @pytest.fixture(scope="module")

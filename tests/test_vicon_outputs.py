@@ -10,11 +10,11 @@ import ezc3d
 import numpy as np
 import pytest
 
-from calibrate.calibration import calibrate
-from calibrate.problem import Settings
-from calibrate.report import calibration_report, summary_text
-from calibrate.simulate import simulate_squats
-from calibrate.trial import is_model_output, plugin_gait_centres, read_c3d, read_trc, write_trc
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.report import calibration_report, summary_text
+from calibrate.io.trial import is_model_output, plugin_gait_centres, read_c3d, read_trc, write_trc
+from calibrate.problem.problem import Settings
+from calibrate.simulation.simulate import simulate_squats
 
 REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real" / "pig_walk"
 PLACED_BEFORE = ("HEDO", "HEDA", "HEDL", "HEDP", "LRAO", "LHNP", "RHUO", "RRAO", "RRAP", "RHNP")
@@ -96,7 +96,7 @@ def test_markers_are_not_outputs(label: str) -> None:
 def test_trc_columns_with_output_names_are_outputs(tmp_path: Path, human) -> None:  # noqa: ANN001
     sim = simulate_squats(human, frames=4, noise_mm=0.0, seed=0)
     trial = sim.trial.select(["LASI", "RASI", "LKNE"])
-    from calibrate.trial import Trial
+    from calibrate.io.trial import Trial
     renamed = Trial(("LASI", "RASI", "LFEO"), trial.markers, trial.rate)
     write_trc(tmp_path / "t.trc", renamed)
     back = read_trc(tmp_path / "t.trc")
@@ -107,7 +107,7 @@ def test_calibration_ignores_outputs_and_says_so(human) -> None:  # noqa: ANN001
     """Outputs never become markers (not placed by rigidity, not left out); the summary says how many."""
     sim = simulate_squats(human, frames=30, noise_mm=0.5, seed=2)
     t = sim.trial
-    from calibrate.trial import Trial
+    from calibrate.io.trial import Trial
     trial = Trial(t.labels, t.markers, t.rate, model_outputs={"LFEO": t.marker("LKNE"), "HEDO": t.marker("LFHD")},
                   output_kinds={"LFEO": "point", "HEDO": "point"})
     cal = calibrate(human, trial, Settings(max_iterations=5))
@@ -150,8 +150,8 @@ def test_unlabelled_trajectories_are_never_placed(human, tmp_path):
     markers even when they ride rigidly on one (here: the midpoint of the femur's LKNE and LTHI),
     and the summary says so in one line; a named unknown marker at the same place is placed."""
     from calibrate import calibrate
-    from calibrate.simulate import simulate_squats
-    from calibrate.trial import Trial
+    from calibrate.io.trial import Trial
+    from calibrate.simulation.simulate import simulate_squats
 
     sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=4)
     k, j = sim.trial.labels.index("LKNE"), sim.trial.labels.index("LTHI")

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io.trial import Trial
+from ..model.model import Model
 from .geometry import rigid_fit, sphere_fit
-from .model import Model
-from .trial import Trial
 
 MIN_FRAMES = 10  # pairs seen together in fewer frames get D = +inf (no evidence of rigidity)
 RIGID_FLOOR = (0.1e-3) ** 2  # m²: smallest rigidity threshold (0.1 mm std), so noise-free data works

@@ -94,7 +94,7 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import CalibrateError
+from ..errors import CalibrateError
 from .trial import Trial
 
 UNLABELLED = re.compile(r"\*\d+")  # an unlabelled trajectory's label (Vicon Nexus: '*115')

@@ -43,7 +43,7 @@ in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte
 - subject prefixes: when every label with a ``:`` has the same prefix (Vicon Nexus
   ``Sub01:RASI``, OptiTrack Motive ``Skeleton:RASI``), the prefix is removed (``RASI``),
   unless that would make two labels the same.  With several prefixes (two subjects, a
-  skeleton and rigid bodies) the labels are kept whole: :func:`calibrate.labels.map_labels`
+  skeleton and rigid bodies) the labels are kept whole: :func:`calibrate.io.labels.map_labels`
   matches their names after the prefix.  ``strip_prefix=False`` keeps every label whole.
 - model outputs are not markers: the points a modelling program (Vicon Plug-in Gait) wrote
   into the file are kept apart in :attr:`Trial.model_outputs` (never among the markers).  They

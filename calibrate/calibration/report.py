@@ -16,19 +16,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import __version__
-from ._text import atomic_write_text
-from .errors import CalibrateError
-from .geometry import marker_rms
-from .labels import UNLABELLED
-from .model import mass_factor, write_model
-from .motion import write_motion_csv
-from .outputs import check_targets, write_all
-from .problem import symmetry_pairs
+from .. import __version__
+from ..errors import CalibrateError
+from ..io.labels import UNLABELLED
+from ..io.motion import write_motion_csv
+from ..io.outputs import check_targets, write_all
+from ..io.text import atomic_write_text
+from ..model.model import mass_factor, write_model
+from ..problem.problem import symmetry_pairs
+from ..seed.geometry import marker_rms
 from .records import Identified
 
 if TYPE_CHECKING:
-    from .calibration import Calibration
+    from .pipeline import Calibration
 
 
 def _mm(x: float) -> float:
@@ -324,7 +324,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
 
     `motion`: one path per trial (a single path for a single trial).  Every destination is checked
     first (its folder exists; it is not the base model; it does not exist unless `overwrite`), then
-    all are written at once or none (calibrate.outputs.write_all).  The report's times are
+    all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
     `cal.times` with the time of this writing (so far) and `extra_times`.
     """
     motions = [] if motion is None else [motion] if isinstance(motion, (str, os.PathLike)) else list(motion)

@@ -1,4 +1,4 @@
-"""Options of the Levenberg–Marquardt solver (calibrate.solver), passed to it by the caller."""
+"""Options of the Levenberg–Marquardt solver (calibrate.solve.lm), passed to it by the caller."""
 
 from __future__ import annotations
 

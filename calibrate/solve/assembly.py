@@ -260,13 +260,13 @@ def cache_dir() -> Path:
 @functools.cache
 def kernels():
     """The per-frame kernels: compiled from kernels.c with the system's C compiler (once per machine,
-    kept in the cache directory of calibrate.problem), else numba's versions of the same loops."""
+    kept in the cache directory of calibrate.problem.problem), else numba's versions of the same loops."""
     path = _compile_kernels()
     if path is not None:
         return _CKernels(path)
-    from . import _numba_kernels
+    from . import numba_kernels
 
-    return _numba_kernels
+    return numba_kernels
 
 
 def c_compiler() -> str | None:

@@ -44,13 +44,13 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
-from .blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
-from .kinematics import Kinematics, build_kinematics
-from .model import Model, Parameters
+from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
+from ..model.kinematics import Kinematics, build_kinematics
+from ..model.model import Model, Parameters
+from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
 from .options import SolverOptions
 
-LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.ik)
+LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.solve.ik)
 LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's value (Settings.lock)
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 LOSSES = ("linear", "huber", "cauchy")
@@ -86,7 +86,7 @@ class Settings:
     loss: str = "linear"  # 'linear', 'huber' or 'cauchy'
     loss_scale: float = 3.0  # in units of `noise`: residuals beyond it count less (robust losses)
     priors: Priors = field(default_factory=Priors)
-    # The solver's options (calibrate.options.SolverOptions; `solver` gives them to levenberg_marquardt):
+    # The solver's options (calibrate.problem.options.SolverOptions; `solver` gives them to levenberg_marquardt):
     max_iterations: int = 100
     ftol: float = 1e-6  # stop when the relative cost decrease of a step falls below this (as Ceres)
     atol: float = 0.5  # ... or a step lowers the cost by less than this: χ² by less than 1, its one-sigma level
@@ -96,7 +96,7 @@ class Settings:
     compile: bool = True  # compile the per-frame function with the C compiler, if there is one
     new_markers: bool = True  # place trial markers the model does not know on segments (by rigidity) and fit them
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
-    geodesic: bool = True  # geodesic acceleration of the LM steps (follows curved valleys; calibrate.solver)
+    geodesic: bool = True  # geodesic acceleration of the LM steps (follows curved valleys; calibrate.solve.lm)
     # Per-marker noise SD (m) where a marker is noisier or steadier than `noise`, e.g. wand markers
     # on soft tissue: ((label, SD), ...) or a dict.  An OpenSim marker weight w is the SD noise/sqrt(w).
     marker_noise: tuple[tuple[str, float], ...] = ()
@@ -112,17 +112,17 @@ class Settings:
     auto_hold: bool = True
     # Segments whose geometry is held at the base model's: their scale, the joint centres and markers
     # expressed in them, the axes of the joints into them.  calibrate holds the segments with no seen
-    # marker on or below them (calibrate.resolve): nothing in the data reaches their parameters, and
+    # marker on or below them (calibrate.model.resolve): nothing in the data reaches their parameters, and
     # left free only the priors' couplings (e.g. left/right symmetry) would move them.
     hold_segments: tuple[str, ...] = ()
     # Learn each marker's noise SD from the trial's residuals (a robust scale, iterated with the solve;
-    # calibrate.calibration.learned_noise) instead of taking `noise` for all.  None (default): learn
+    # calibrate.calibration.pipeline.learned_noise) instead of taking `noise` for all.  None (default): learn
     # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
     learn_noise: bool | None = None
 
     @property
     def solver(self) -> SolverOptions:
-        """The options of the Levenberg–Marquardt solver among these settings (calibrate.solver)."""
+        """The options of the Levenberg–Marquardt solver among these settings (calibrate.solve.lm)."""
         return SolverOptions(self.max_iterations, self.ftol, self.atol, self.xtol, self.gtol, self.geodesic)
 
     @property
@@ -352,7 +352,7 @@ class Problem:
         self._n_obs = int(self._seen.sum())
 
     def buffers(self) -> dict:
-        """Scratch memory that calibrate.solver keeps between its runs on this problem (large
+        """Scratch memory that calibrate.solve.lm keeps between its runs on this problem (large
         per-frame arrays, whose first touches cost as much as a short run's steps): owned by the
         problem, shared with its copies on the same frames (with_loss, with_base, without), never
         a result.  Runs on one problem and its copies must not overlap in time."""
@@ -912,7 +912,7 @@ class Problem:
         solver's last run on this problem), if any.
 
         The per-segment Jacobian blocks are gathered and multiplied frame by frame in compiled
-        loops (calibrate.assembly): the time is linear in the frames."""
+        loops (calibrate.solve.assembly): the time is linear in the frames."""
         F, nz = self.F, self.model.nz
         if reuse is True:
             reuse = self._work.pop(("lin", not with_parameters), None)
@@ -1097,7 +1097,8 @@ def _structure_key(model: Model, kin: Kinematics) -> str | None:
     if c_compiler() is None:
         return None
     h = hashlib.sha256(f"{ca.__version__} -O1 {model.root} {model.nz} {len(model.markers)}".encode())
-    for src in (Path(__file__), Path(__file__).with_name("kinematics.py"), Path(__file__).with_name("blocks.py")):
+    for src in (Path(__file__), Path(__file__).parent.parent / "model" / "kinematics.py",
+                Path(__file__).parent.parent / "model" / "blocks.py"):
         h.update(src.read_bytes())
     h.update(repr([s.name for s in model.segments]).encode())
     h.update(repr([(b.name, b.axes.tolist()) for b in kin.balls]).encode())

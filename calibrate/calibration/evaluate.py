@@ -22,14 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .blocks import FrameLayout
-from .calibration import Calibration
-from .geometry import marker_rms
-from .ik import marker_columns
-from .kinematics import build_kinematics
-from .problem import Problem, Settings, State
-from .simulate import Simulation, joint_axes_world
-from .solver import levenberg_marquardt
+from ..model.blocks import FrameLayout
+from ..model.kinematics import build_kinematics
+from ..problem.problem import Problem, Settings, State
+from ..seed.geometry import marker_rms
+from ..simulation.simulate import Simulation, joint_axes_world
+from ..solve.ik import marker_columns
+from ..solve.lm import levenberg_marquardt
+from .pipeline import Calibration
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._text import atomic_write_text
-from .blocks import FrameLayout
-from .errors import CalibrateError
+from ..errors import CalibrateError
+from ..model.blocks import FrameLayout
+from .text import atomic_write_text
 
 ROOT_COLUMNS = ("root_x", "root_y", "root_z", "root_qx", "root_qy", "root_qz", "root_qw")
 
@@ -49,7 +49,7 @@ class Motion:
     def z(self) -> np.ndarray:
         """Per-frame coordinates (n_frames, 6 + n_dofs) with zero rotation increments.
 
-        Pair with ``root_quaternion`` as the reference orientation (see calibrate.kinematics).
+        Pair with ``root_quaternion`` as the reference orientation (see calibrate.model.kinematics).
         """
         return FrameLayout.coordinates(self.root_translation, self.angles)
 

@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from ._text import atomic_write_text, fmt_float, fmt_vec
+from ..errors import ModelError, read_text_file
+from ..io.text import atomic_write_text, fmt_float, fmt_vec
 from .blocks import GROUPS, ParameterLayout
-from .errors import ModelError, read_text_file
 
 MOVING = ("revolute", "continuous")
 
@@ -117,7 +117,7 @@ class Parameters:
     axis: np.ndarray  # (n_dofs, 3) revolute axes in the URDF joint frame (unit)
     marker: np.ndarray  # (n_markers, 3) marker offsets, segment frame (m)
 
-    BLOCKS = GROUPS  # their order in vector() (calibrate.blocks)
+    BLOCKS = GROUPS  # their order in vector() (calibrate.model.blocks)
 
     def vector(self) -> np.ndarray:
         """Flat p = [scale, centre.ravel(), axis.ravel(), marker.ravel()]."""
@@ -363,7 +363,7 @@ class Model:
 
     @cached_property
     def layout(self) -> ParameterLayout:
-        """The named blocks of Parameters.vector() (calibrate.blocks), every block free."""
+        """The named blocks of Parameters.vector() (calibrate.model.blocks), every block free."""
         return ParameterLayout(self)
 
     def parameter_names(self) -> list[str]:
@@ -401,9 +401,9 @@ class Model:
 
 def load_model(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None) -> Model:
     """Load a calibrate model (URDF), or an OpenSim model (.osim, with an optional OpenSim MarkerSet
-    file, calibrate.osim); raises ModelError with one line on bad input."""
+    file, calibrate.io.osim); raises ModelError with one line on bad input."""
     if Path(path).suffix.lower() == ".osim":
-        from .osim import load_osim
+        from ..io.osim import load_osim
 
         return load_osim(path, marker_set)
     if marker_set is not None:

@@ -35,12 +35,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ._text import atomic_write_text
-from .errors import ModelError
-from .kinematics import Kinematics, build_kinematics
-from .model import Model, Parameters, write_model
-from .motion import Motion, write_motion_csv
-from .trial import Trial, write_c3d
+from ..errors import ModelError
+from ..io.motion import Motion, write_motion_csv
+from ..io.text import atomic_write_text
+from ..io.trial import Trial, write_c3d
+from ..model.kinematics import Kinematics, build_kinematics
+from ..model.model import Model, Parameters, write_model
 
 SCALE_RANGE = 0.10  # ± fraction
 CENTRE_RANGE = 0.015  # ± m per coordinate
@@ -364,16 +364,16 @@ def sized_subject(model: Model, params: Parameters, height: float, rng: np.rando
 
 
 def _human_landmarks() -> tuple[float, float, float]:
-    """Neck, ankle and vertex heights of calibrate.human's reference subject (m)."""
-    from .human import _MID, _R
+    """Neck, ankle and vertex heights of calibrate.model.human's reference subject (m)."""
+    from ..model.human import _MID, _R
 
     return _MID["neck"][2], _R["ankle"][2], _MID["vertex"][2]
 
 
 def stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> float:
-    """The stature (m) of a subject of a calibrate.human-style model: in the neutral pose, the
+    """The stature (m) of a subject of a calibrate.model.human-style model: in the neutral pose, the
     height of the neck joint centre above the mean of the ankle centres, plus the sole-to-ankle and
-    neck-to-vertex heights of calibrate.human's proportions (0.07 and 0.25 of the neck-to-ankle
+    neck-to-vertex heights of calibrate.model.human's proportions (0.07 and 0.25 of the neck-to-ankle
     1.43 of its 1.75 m reference) sized to the base model and multiplied by the scales of the feet
     (calcn) and the head.  The base model itself: its generator's height (1.75 m for models/human.urdf)."""
     names = [j.name for j in model.joints]
@@ -381,7 +381,7 @@ def stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> 
     need_j, need_s = ("neck", "ankle_r", "ankle_l"), ("head", "calcn_r", "calcn_l")
     if not all(n in names for n in need_j) or not all(n in segs for n in need_s):
         raise ModelError(f"{model.path}: a stature needs joints {', '.join(need_j)} and segments "
-                         f"{', '.join(need_s)} (a calibrate.human model); leave the height out")
+                         f"{', '.join(need_s)} (a calibrate.model.human model); leave the height out")
     kin = kin or build_kinematics(model)
 
     def neck_above_ankles(p: Parameters) -> float:

@@ -32,10 +32,10 @@ How the OpenSim model becomes a calibrate URDF:
 
 The import's OpenSim facts (source file, the ground joint's coordinates and frames, locked coordinates,
 approximations) are kept in the URDF in an ``<opensim>`` element (ignored by URDF readers, kept by
-:func:`calibrate.model.write_model`), so a calibrated subject exported with ``calibrate export-osim``
+:func:`calibrate.model.model.write_model`), so a calibrated subject exported with ``calibrate export-osim``
 gets OpenSim's names back (:func:`osim_info`).
 
-Do not ``import opensim`` in a process that uses calibrate (see calibrate.opensim_export).
+Do not ``import opensim`` in a process that uses calibrate (see calibrate.io.osim_export).
 """
 
 from __future__ import annotations
@@ -52,9 +52,9 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ._text import fmt_float, fmt_vec
-from .errors import ModelError, read_text_file
-from .geometry import Transform, apply, compose, identity_transform, invert
+from ..errors import ModelError, read_text_file
+from ..seed.geometry import Transform, apply, compose, identity_transform, invert
+from .text import fmt_float, fmt_vec
 
 JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
                "PlanarJoint", "SliderJoint")
@@ -982,7 +982,7 @@ def load_osim(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] |
 
     The model's ``osim`` attribute (also :func:`osim_info`) lists the locked coordinates and the
     approximations.  Raises ModelError with one line on bad input."""
-    from .model import Model
+    from ..model.model import Model
 
     text, info = osim_to_urdf(path, marker_set)
     model = Model(Path(path), text=text)

@@ -1,7 +1,7 @@
 """Symbolic forward kinematics h(z, p) in CasADi, built by walking the model's tree.
 
 The ``pin`` wheel has no ``pinocchio.casadi``, so the expressions are assembled here
-from the joint types, origins and axes that :class:`calibrate.model.Model` read off
+from the joint types, origins and axes that :class:`calibrate.model.model.Model` read off
 Pinocchio's frame tree.  Pinocchio stays the numerical reference (tests compare the two).
 
 Per-frame coordinates (the optimiser's unknowns for one frame)::
@@ -133,7 +133,7 @@ def quat_matrices(q: np.ndarray) -> np.ndarray:
 @dataclass(frozen=True)
 class BallJoint:
     """A ball joint the solver keeps on SO(3): three revolutes about orthonormal axes with
-    coincident origins (calibrate.model: a ball joint), whose rotation is B · E(theta)."""
+    coincident origins (calibrate.model.model: a ball joint), whose rotation is B · E(theta)."""
 
     name: str
     dofs: tuple[int, int, int]  # indices into the DoF vector, proximal first

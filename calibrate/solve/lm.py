@@ -7,7 +7,7 @@ Frames are coupled only through the parameters p, so the damped normal equations
     [ B_1'  ...        C + λD_p     ] [ dp ]     [g_p]
 
 are solved by eliminating every frame block (a Cholesky of each small A_f, in compiled loops:
-calibrate.assembly):
+calibrate.solve.assembly):
 S = C + λD_p − Σ_f B_f' (A_f + λD_f)⁻¹ B_f is only n_free × n_free, then each dz_f is
 back-substituted.  Time and memory grow linearly with the number of frames; the full
 (nz·F + n)² matrix is never formed.  D is Marquardt's diagonal scaling (diag of the
@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..problem.options import SolverOptions
+from ..problem.problem import Linearization, Problem, State, in_parallel, split_frames
 from .assembly import back_substitute, factor_frames, forward_substitute
-from .options import SolverOptions
-from .problem import Linearization, Problem, State, in_parallel, split_frames
 
 __all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "covariance", "levenberg_marquardt"]
 
@@ -121,7 +121,7 @@ def _eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = 
                work: dict | None = None) -> _Elimination | None:
     """Cholesky of every A_f + diag(damping_f) and the frames' share of the Schur complement;
     None if a block is not positive definite.  The factorisation runs in compiled loops
-    (calibrate.assembly.factor_frames); the Schur complement is accumulated by BLAS, class by
+    (calibrate.solve.assembly.factor_frames); the Schur complement is accumulated by BLAS, class by
     class of Y's rows, with the frames split between the cores.  `work`: buffers to reuse."""
     F, nz, n = lin.B.shape
     n = n if with_parameters else 0

@@ -11,7 +11,7 @@ import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from .errors import CalibrateError
+from ..errors import CalibrateError
 
 Writer = Callable[[Path], None]  # writes one output file at the path it is given
 

@@ -32,15 +32,15 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
 * **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
 * gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); visuals are not exported.
-* **a model imported from an OpenSim model** (calibrate.osim; its URDF keeps an ``<opensim>`` element,
+* **a model imported from an OpenSim model** (calibrate.io.osim; its URDF keeps an ``<opensim>`` element,
   also after calibration) gets OpenSim's names back: the ground joint's name, frames and six
   coordinates (e.g. ``ground_pelvis``: ``pelvis_tilt``, ``pelvis_list``, ``pelvis_rotation``,
   ``pelvis_tx``...), the coordinates' default values and locked flags, and gravity along the
   original's -y; bodies, joints and coordinates already carry the original names.  The .mot then has
   those root columns (OpenSim's coordinate values of the root pose).
 
-With ``params`` (a calibrated or perturbed :class:`calibrate.model.Parameters`) positions are
-placed exactly as calibrate.kinematics and :func:`calibrate.model.write_model` place them
+With ``params`` (a calibrated or perturbed :class:`calibrate.model.model.Parameters`) positions are
+placed exactly as calibrate.model.kinematics and :func:`calibrate.model.model.write_model` place them
 (scale × centre, scale × marker, scale × later chain origins, axis/|axis|, inertia × scale²).
 
 Motion (``.mot``, OpenSim Storage, ``inDegrees=yes``): ``time``, the root's Euler angles
@@ -63,12 +63,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ._text import atomic_write_text, fmt_float, fmt_vec
-from .errors import CalibrateError, ModelError
-from .geometry import Transform, compose, identity_transform, invert
-from .model import Model, Parameters, UrdfJoint
+from ..errors import CalibrateError, ModelError
+from ..model.model import Model, Parameters, UrdfJoint
+from ..seed.geometry import Transform, compose, identity_transform, invert
 from .motion import Motion
 from .outputs import check_targets, write_all
+from .text import atomic_write_text, fmt_float, fmt_vec
 
 ROOT_ROTATIONS = ("root_rz", "root_ry", "root_rx")  # body-fixed z, y', x'' (scipy "ZYX")
 ROOT_TRANSLATIONS = ("root_x", "root_y", "root_z")  # ground axes, as the motion CSV's columns
@@ -151,7 +151,7 @@ class _Builder:
         self.info = osim_info(model)
 
     def origin(self, u: UrdfJoint) -> Transform:
-        """A URDF joint's origin with the parameters applied (as calibrate.kinematics does)."""
+        """A URDF joint's origin with the parameters applied (as calibrate.model.kinematics does)."""
         s = self.scale[u.owner]
         if u.role == "centre":
             xyz = s * self.p.centre[u.index]
@@ -470,7 +470,7 @@ def add_export_osim_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_export_osim(args: argparse.Namespace) -> int:
     """``calibrate export-osim``: check every destination, build every file, then write them all."""
-    from .model import load_model
+    from ..model.model import load_model
     from .motion import read_motion_csv
     from .trial import read_trial, write_trc
 

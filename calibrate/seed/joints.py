@@ -42,10 +42,10 @@ import pinocchio as pin
 from scipy.optimize import least_squares
 from scipy.signal import butter, filtfilt
 
-from ._text import atomic_write_text
+from ..io.text import atomic_write_text
+from ..io.trial import Trial
+from ..model.model import Model
 from .geometry import MIN_SPREAD, RigidFrames, rigid_fit, similarity_fit, sphere_fit, spread, triad_frames
-from .model import Model
-from .trial import Trial
 
 HINGE_RATIO = 0.01  # smallest/middle eigenvalue of the rotation fit below this: the joint moved as a hinge
 MIN_MOTION = 0.005  # m: RMS relative motion below this means the joint did not move enough to locate it
@@ -890,7 +890,7 @@ def estimate_model_joints(model: Model, trial: Trial, *, mode: str = "framework"
     trial has), the topology is the model's joint tree, hinges come from the model, and the base
     model's centres choose the point on each hinge axis.  Markers are low-passed at `cutoff_hz`
     (None: raw) unless the trial's rate is too low for it.  `extra_markers` (trial label ->
-    segment, e.g. from calibrate.association.associate_to_model) adds markers the model does not
+    segment, e.g. from calibrate.seed.association.associate_to_model) adds markers the model does not
     know to the segments they ride on."""
     if cutoff_hz is not None and not cutoff_hz < trial.rate / 2:
         cutoff_hz = None

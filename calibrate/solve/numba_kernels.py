@@ -1,7 +1,7 @@
-"""The per-frame kernels of calibrate.assembly compiled by numba: the fallback where no C compiler
-is found (calibrate.assembly compiles its C versions of the same loops with the system's
+"""The per-frame kernels of calibrate.solve.assembly compiled by numba: the fallback where no C compiler
+is found (calibrate.solve.assembly compiles its C versions of the same loops with the system's
 compiler, which loads in a millisecond where numba's first call in a process costs 0.2-0.4 s).
-Arguments and results as the C functions in calibrate/kernels.c (calibrate.assembly)."""
+Arguments and results as the C functions in calibrate/kernels.c (calibrate.solve.assembly)."""
 
 import numpy as np
 from numba import njit

@@ -42,8 +42,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from .errors import CalibrateError
-from .problem import Priors, Settings
+from ..errors import CalibrateError
+from ..problem.problem import Priors, Settings
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -1,13 +1,13 @@
 """Subject calibration from one trial: seed, start, global solve, result (seed 003).
 
     calibrate(model, trial, settings)  ->  Calibration
-      1. seed    MTB joint centres (calibrate.joints) -> segment scale factors, joint centres
+      1. seed    MTB joint centres (calibrate.seed.joints) -> segment scale factors, joint centres
                  and hinge axes in segment frames; the base model where the seed fails.
       2. start   frame-wise inverse kinematics with the seeded geometry on key frames (every
                  `stride`-th, warm-started key frame to key frame), interpolated between
                  them, then refined for all frames at once with the geometry held.
       3. solve   one Levenberg–Marquardt over every frame's coordinates and the free
-                 parameters (calibrate.problem, calibrate.solver).
+                 parameters (calibrate.problem.problem, calibrate.solve.lm).
       4. result  parameters, motion, marker errors, posterior standard deviations and the
                  parameters the trial could not identify (held by their priors).
 """
@@ -24,22 +24,22 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 from threadpoolctl import threadpool_limits
 
-from .association import associate_to_model, distance_variance
-from .blocks import FrameLayout, perpendicular_basis
-from .errors import CalibrateError
-from .geometry import kabsch_batch, marker_max, marker_rms
-from .ik import _FrameSolver, marker_columns
-from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
-from .kinematics import IDENTITY, Kinematics, build_kinematics
-from .labels import UNLABELLED
-from .model import Model, Parameters, add_markers, mass_factor
-from .motion import Motion
-from .osim import with_locked
-from .problem import Problem, Settings, State
+from ..errors import CalibrateError
+from ..io.labels import UNLABELLED
+from ..io.motion import Motion
+from ..io.osim import with_locked
+from ..io.trial import Trial
+from ..model.blocks import FrameLayout, perpendicular_basis
+from ..model.kinematics import IDENTITY, Kinematics, build_kinematics
+from ..model.model import Model, Parameters, add_markers, mass_factor
+from ..problem.problem import Problem, Settings, State
+from ..seed.association import associate_to_model, distance_variance
+from ..seed.geometry import kabsch_batch, marker_max, marker_rms
+from ..seed.joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
+from ..solve.ik import _FrameSolver, marker_columns
+from ..solve.lm import SolverSummary, covariance, levenberg_marquardt
 from .records import CoordinateNote, Identified, LimitNote, ParameterChange, Progress, StillNote
 from .report import calibration_report, summary_text, write_outputs
-from .solver import SolverSummary, covariance, levenberg_marquardt
-from .trial import Trial
 
 MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
 SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
@@ -58,7 +58,7 @@ COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly s
 SEED_FRAMES = 150  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
 OUTLIER_PASSES = 2  # rejection rounds, solve, noise learnt again: at most this many times
-SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.joints does by default)
+SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.seed.joints does by default)
 NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
 NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it)
 NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or all markers') median learnt SD
@@ -124,13 +124,13 @@ class Calibration:
     base_model: Model | None = None  # the model calibrated (without the new markers)
     new_markers: tuple[NewMarker, ...] = ()  # trial markers the base model did not know
     outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
-    label_maps: tuple = ()  # per trial: calibrate.labels.LabelMapping (trial label -> model label), if mapped
+    label_maps: tuple = ()  # per trial: calibrate.io.labels.LabelMapping (trial label -> model label), if mapped
     mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
     coordinate_notes: tuple[CoordinateNote, ...] = ()  # what the user should look at (e.g. coordinates driven
     # beyond their limits); `notes` is their text
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
-    unresolved: tuple = ()  # calibrate.resolve.UnresolvedSegment per segment the markers cannot place (locked)
+    unresolved: tuple = ()  # calibrate.model.resolve.UnresolvedSegment per segment the markers cannot place (locked)
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
     noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
@@ -603,7 +603,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
     if keys.size and keys[-1] != usable[-1]:
         keys = np.append(keys, usable[-1])
     Zk = np.zeros((keys.size, model.nz))
-    Qk = np.zeros((keys.size, kin.n_refs))  # refs: root, then every SO(3) ball (calibrate.kinematics)
+    Qk = np.zeros((keys.size, kin.n_refs))  # refs: root, then every SO(3) ball (calibrate.model.kinematics)
     z = q = None
     fits: list[float] = []
     for i, f in enumerate(keys):
@@ -644,8 +644,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     coordinates, in one least-squares problem (module docstring).
 
     Trial labels are first renamed to the model's: by `marker_map` (model label -> trial labels,
-    calibrate.labels.load_marker_map) and, with `aliases`, the common spellings of the same
-    landmarks (R.ASIS, RASIS -> RASI; calibrate.labels).  Labels the model still does not know are
+    calibrate.io.labels.load_marker_map) and, with `aliases`, the common spellings of the same
+    landmarks (R.ASIS, RASIS -> RASI; calibrate.io.labels).  Labels the model still does not know are
     placed on segments by rigidity and fitted like the model's markers (``Settings.new_markers``);
     those that fit no segment are left out and listed.
     `mass`: the subject's body mass (kg); the written model's segment masses (and inertias) are
@@ -654,7 +654,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     trial): every segment frame that markers do not fix (see docs/calibration.md, gauges) is turned
     so that the joint angles of that trial are zero on average, as a lab's static calibration
     defines them (None: the frames sit where the priors put them).
-    `progress` receives a calibrate.records.Progress per step (its stage and text; str() is the line to show).
+    `progress` receives a Progress record (calibrate.calibration.records) per step (its stage and
+    text; str() is the line to show).
     Raises CalibrateError with one line if the trials and model share too few markers or frames.
     """
     trials = (trials,) if isinstance(trials, Trial) else tuple(trials)
@@ -668,12 +669,12 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     # faster than several (which also fight CasADi's two evaluation threads for the cores).
     label_maps: tuple = ()
     if marker_map or aliases:
-        from .labels import map_labels
+        from ..io.labels import map_labels
 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
-    # A model imported from OpenSim locks its locked coordinates (calibrate.osim), unless settings lock them.
+    # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them.
     settings = with_locked(model, settings or Settings())
     known = set(model.marker_names).union(*(t.labels for t in trials))
     unknown = [label for label, _ in settings.marker_noise if label not in known]
@@ -722,9 +723,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
-    # Segments the markers cannot place (calibrate.resolve): refuse without a root pose, else lock
+    # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from .resolve import resolve
+    from ..model.resolve import resolve
 
     res = resolve(subject, [*shared, *new], locked=[d for d, _ in settings.lock])
     if not res.root_resolved:
@@ -1313,7 +1314,7 @@ def _most_motion(model: Model, trials: Sequence[Trial]) -> int:
 
 def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str]) -> list[NewMarker]:
     """Segments for the trial markers the model does not know (seed 002's rigidity, against the
-    model's known markers: calibrate.association.associate_to_model over all trials' frames)."""
+    model's known markers: calibrate.seed.association.associate_to_model over all trials' frames)."""
     labels = (*model.marker_names, *unknown)
     parts = []
     for t in trials:

@@ -8,7 +8,7 @@ motions the markers cannot see.  A segment is *unresolved* when one of those mot
 component in the null space.
 
 The test is exact and general (any tree, any marker set): J and the segment twists come from
-Pinocchio's frame Jacobians (the same kinematics as calibrate.kinematics, in Pinocchio's
+Pinocchio's frame Jacobians (the same kinematics as calibrate.model.kinematics, in Pinocchio's
 velocity coordinates, which differ from z only by a rotation of the root translation), at a few
 random poses within the joint limits.  A singular value below ``tol`` counts as zero: by
 default 5 mm of marker motion (the norm over all markers' coordinates) per radian, so that with

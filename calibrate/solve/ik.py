@@ -4,7 +4,7 @@ for fixed geometric parameters p.
 Each frame is a small least-squares problem  min_z Σ_k |h_k(z, p) − r_k|²  over the
 markers seen in that frame, solved by Levenberg–Marquardt on the exact CasADi
 Jacobian; the root rotation and every ball joint's are updated on SO(3) (the solver's form
-of calibrate.kinematics: a pose is z with the refs vector of reference rotations).  Frames
+of calibrate.model.kinematics: a pose is z with the refs vector of reference rotations).  Frames
 are solved in order, each warm-started from the previous one.  The first frame (and any
 frame whose fit jumps) gets a global start: the root from its markers (Kabsch), then
 joint by joint down the tree, each joint's angles from a small grid of starts, so a
@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .blocks import FrameLayout
-from .geometry import kabsch, marker_max, marker_rms
-from .kinematics import IDENTITY, Kinematics, retract_root
-from .model import Model, Parameters
-from .motion import Motion
-from .trial import Trial
+from ..io.motion import Motion
+from ..io.trial import Trial
+from ..model.blocks import FrameLayout
+from ..model.kinematics import IDENTITY, Kinematics, retract_root
+from ..model.model import Model, Parameters
+from ..seed.geometry import kabsch, marker_max, marker_rms
 
 LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
 REINIT_RMS = 0.02  # m: a frame fitting worse than this (and 5x the running median) is restarted

@@ -1,0 +1,1 @@
+"""The pipeline (seed, start, solve, outliers, learnt noise), its result, and the report."""
