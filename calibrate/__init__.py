@@ -26,15 +26,20 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 from .calibration.evaluate import TruthComparison, compare_to_truth
-from .calibration.pipeline import Calibration, NewMarker, Outlier, ParameterChange, calibrate, seed_parameters
+from .calibration.pipeline import ParameterChange, calibrate
+from .calibration.result import Calibration, NewMarker, Outlier
 from .errors import CalibrateError, ModelError, TrialError
+from .io.c3d import read_c3d, write_c3d
 from .io.config import load_settings
 from .io.labels import LabelMapping, load_marker_map, map_labels
 from .io.motion import Motion, read_motion_csv, write_motion_csv
-from .io.trial import Trial, read_c3d, read_trc, read_trial, write_c3d, write_trc
+from .io.read import read_trial
+from .io.trc import read_trc, write_trc
+from .io.trial import Trial
 from .model.kinematics import Kinematics, build_kinematics
 from .model.model import Model, Parameters, add_markers, load_model, write_model
-from .problem.problem import Priors, Problem, Settings
+from .problem.problem import Problem
+from .problem.settings import Priors, Settings
 from .seed.association import Association, ModelAssociation, associate, associate_to_model
 from .seed.joints import (
     JointEstimate,
@@ -44,6 +49,7 @@ from .seed.joints import (
     estimate_model_joints,
     write_centres_csv,
 )
+from .seed.seeding import seed_parameters
 from .simulation.chains import Chain, simulate_chain
 from .simulation.simulate import Simulation, simulate_squats, simulate_static, write_simulation
 from .solve.ik import IKResult, inverse_kinematics

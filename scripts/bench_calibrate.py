@@ -153,7 +153,7 @@ def work_warmup(spec: dict) -> dict:
     """A short calibration: compiles and caches the model's C code, warms the file cache."""
     from calibrate.calibration.pipeline import calibrate
     from calibrate.model.model import load_model
-    from calibrate.problem.problem import Settings
+    from calibrate.problem.settings import Settings
     from calibrate.simulation.simulate import simulate_squats
 
     model = load_model(MODEL)
@@ -168,7 +168,7 @@ def work_calibrate(spec: dict) -> dict:
     from calibrate.calibration.evaluate import compare_to_truth
     from calibrate.calibration.pipeline import calibrate
     from calibrate.model.model import load_model
-    from calibrate.problem.problem import Settings
+    from calibrate.problem.settings import Settings
     from calibrate.simulation.simulate import simulate_gait, simulate_squats
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -207,10 +207,13 @@ def work_compare(spec: dict) -> dict:
     """One problem, built as `calibrate` builds it, solved by ours, scipy and IPOPT (see compare_solvers)."""
     from threadpoolctl import threadpool_limits
 
-    from calibrate.calibration.pipeline import seed_parameters, start_poses
+    from calibrate.calibration.start import start_poses
     from calibrate.model.kinematics import build_kinematics
     from calibrate.model.model import load_model
-    from calibrate.problem.problem import Priors, Problem, Settings, State
+    from calibrate.problem.problem import Problem
+    from calibrate.problem.settings import Priors, Settings
+    from calibrate.problem.state import State
+    from calibrate.seed.seeding import seed_parameters
     from calibrate.simulation.simulate import simulate_squats
     from calibrate.solve.ik import marker_columns
 
@@ -257,7 +260,7 @@ def compare_solvers(problem, state0, spec: dict) -> dict:
 
 def baseline_state(problem, state0, x: np.ndarray, T0: np.ndarray):
     """State at x = [vec(dZ), x_p]: Z = Z0 + dZ (q_ref fixed), p = p0 + T0 x_p (axes not renormalised)."""
-    from calibrate.problem.problem import State
+    from calibrate.problem.state import State
 
     F, nz = problem.F, problem.model.nz
     return State(state0.Z + x[:F * nz].reshape(F, nz), state0.Q, state0.p + T0 @ x[F * nz:])
@@ -396,7 +399,8 @@ def ipopt_checks(problem, state0) -> dict:
     own on the first 3 frames."""
     import casadi as ca
 
-    from calibrate.problem.problem import Problem, State
+    from calibrate.problem.problem import Problem
+    from calibrate.problem.state import State
 
     x, f, _, _ = ipopt_objective(problem, state0, hessian=False)
     c_sym = float(ca.Function("f", [x], [f])(np.zeros(x.numel())))
@@ -560,7 +564,8 @@ def collect(a: argparse.Namespace, log) -> dict:
     res: dict = {"quick": a.quick, "seed": a.seed, "frames": frames, "compare_frames": cframes, "cap_s": cap}
 
     from calibrate.model.model import load_model
-    from calibrate.problem.problem import Problem, Settings
+    from calibrate.problem.problem import Problem
+    from calibrate.problem.settings import Settings
 
     model = load_model(MODEL)
     n_free = Problem(model, np.zeros((2, len(model.markers), 3)), Settings(compile=False)).n_free

@@ -30,7 +30,7 @@ import numpy as np
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
 from calibrate.model.model import load_model
-from calibrate.problem.problem import Settings
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -182,10 +182,11 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     import pinocchio as pin
 
     from calibrate.calibration.pipeline import calibrate
-    from calibrate.io.osim import with_locked
-    from calibrate.io.trial import Trial, read_trial
+    from calibrate.io.osim_info import with_locked
+    from calibrate.io.read import read_trial
+    from calibrate.io.trial import Trial
     from calibrate.model.model import load_model, write_model
-    from calibrate.problem.problem import Settings
+    from calibrate.problem.settings import Settings
 
     t0 = time.perf_counter()
     model = load_model(spec["osim"], spec["marker_set"])

@@ -149,7 +149,7 @@ def report_scales(report: dict) -> dict[str, float]:
 
 def trial_markers(path: Path, report: dict | None, index: int):
     """A trial's labels (renamed as the report says the calibration renamed them) and markers (m)."""
-    from calibrate.io.trial import read_trial
+    from calibrate.io.read import read_trial
 
     t = read_trial(path)
     labels = list(t.labels)
@@ -443,7 +443,7 @@ def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) 
     """Calibrate on static + the walk's first half, then fit the second half frame by frame with the
     subject URDF fixed: marker RMS of each (recomputed with Pinocchio from the files)."""
     from calibrate.io.motion import write_motion_csv
-    from calibrate.io.trial import read_trial
+    from calibrate.io.read import read_trial
     from calibrate.model.kinematics import build_kinematics
     from calibrate.model.model import load_model
     from calibrate.solve.ik import inverse_kinematics

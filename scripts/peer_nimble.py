@@ -552,7 +552,7 @@ def _selftest(frames: int, out: Path | None) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from calibrate import load_model
     from calibrate.io.osim_export import export_osim
-    from calibrate.io.trial import write_trc
+    from calibrate.io.trc import write_trc
     from calibrate.simulation.simulate import simulate_squats
 
     work = Path(tempfile.mkdtemp(prefix="calibrate-nimble-selftest-"))

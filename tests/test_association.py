@@ -11,17 +11,8 @@ import pytest
 
 from calibrate.io.trial import Trial
 from calibrate.model.model import load_model
-from calibrate.seed.association import (
-    RIGID_FLOOR,
-    associate,
-    associate_to_model,
-    distance_variance,
-    group_adjacency,
-    group_markers,
-    pair_distance_level,
-    rigid_threshold,
-    tied_hypotheses,
-)
+from calibrate.seed.association import associate, associate_to_model, group_adjacency, tied_hypotheses
+from calibrate.seed.rigidity import RIGID_FLOOR, distance_variance, group_markers, pair_distance_level, rigid_threshold
 from calibrate.simulation.simulate import simulate_squats
 
 HUMAN = Path(__file__).resolve().parent.parent / "models" / "human.urdf"

@@ -12,7 +12,7 @@ import pytest
 
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
-from calibrate.io.trial import read_trial
+from calibrate.io.read import read_trial
 from calibrate.simulation.simulate import simulate_squats, write_simulation
 
 ROOT = Path(__file__).resolve().parent.parent

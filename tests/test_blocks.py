@@ -11,7 +11,8 @@ import pytest
 
 from calibrate.model.blocks import FrameLayout, ParameterLayout
 from calibrate.problem.options import SolverOptions
-from calibrate.problem.problem import Problem, Settings
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
 from calibrate.solve.lm import State, levenberg_marquardt

@@ -31,7 +31,8 @@ import numpy as np
 import pytest
 
 from calibrate.errors import CalibrateError, TrialError
-from calibrate.io.trial import read_c3d, read_trial
+from calibrate.io.c3d import read_c3d
+from calibrate.io.read import read_trial
 
 ATOL = 1e-6  # metres: float32 storage in mm or m is good to well below a micrometre
 

@@ -18,11 +18,14 @@ import yourdfpy
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
 from calibrate.errors import CalibrateError
+from calibrate.io.c3d import write_c3d
 from calibrate.io.config import load_settings, settings_from_dict
 from calibrate.io.motion import read_motion_csv
-from calibrate.io.trial import Trial, write_c3d
+from calibrate.io.trial import Trial
 from calibrate.model.model import Parameters, add_markers, load_model, write_model
-from calibrate.problem.problem import Priors, Problem, Settings, State
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Priors, Settings
+from calibrate.problem.state import State
 from calibrate.simulation.simulate import simulate_gait, simulate_squats
 from calibrate.solve.assembly import in_parallel, split_frames
 from calibrate.solve.ik import marker_columns
@@ -520,7 +523,7 @@ def test_treadmill_gait(human, human_kin):
 
 
 def test_limit_notes_name_coordinates_driven_past_their_limits(human):
-    from calibrate.calibration.pipeline import limit_notes
+    from calibrate.calibration.identifiability import limit_notes
 
     F = 100
     angles = np.zeros((F, human.n_dofs))
@@ -640,7 +643,7 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
 def test_worst_ratio_singular_prior_block():
     """A prior-only covariance block that is singular (a direction the gauge constraints fix) must
     not break the identifiability test; the ratio is found on the directions it leaves open."""
-    from calibrate.calibration.pipeline import worst_ratio
+    from calibrate.calibration.identifiability import worst_ratio
 
     U = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]
     C0 = U @ np.diag([0.0, 0.04, 0.047]) @ U.T

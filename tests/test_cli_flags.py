@@ -18,9 +18,11 @@ from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
 from calibrate.cli import main
 from calibrate.errors import CalibrateError
+from calibrate.io.c3d import write_c3d
 from calibrate.io.labels import map_labels
 from calibrate.io.motion import read_motion_csv
-from calibrate.io.trial import Trial, read_trial, write_c3d
+from calibrate.io.read import read_trial
+from calibrate.io.trial import Trial
 from calibrate.model.model import load_model
 from calibrate.seed.joints import estimate_model_joints
 from calibrate.simulation.simulate import simulate_squats, simulate_static, write_simulation

@@ -19,7 +19,7 @@ import pytest
 from conftest import HUMAN
 
 from calibrate.calibration.pipeline import calibrate
-from calibrate.io.trial import read_trial
+from calibrate.io.read import read_trial
 from calibrate.model.model import load_model
 
 FRAMES, RATE = 300, 100.0

@@ -12,18 +12,8 @@ from scipy.spatial.transform import Rotation
 from calibrate.cli import main
 from calibrate.io.trial import Trial
 from calibrate.seed.geometry import rigid_fit, similarity_fit, sphere_fit
-from calibrate.seed.joints import (
-    JointSpec,
-    affine_basis,
-    auxiliary_point,
-    estimate_joints,
-    estimate_model_joints,
-    jmv_cost,
-    jmv_frames,
-    lowpass,
-    mtb_refine,
-    rigid_basis,
-)
+from calibrate.seed.joints import JointSpec, estimate_joints, estimate_model_joints, lowpass
+from calibrate.seed.mtb import affine_basis, auxiliary_point, jmv_cost, jmv_frames, mtb_refine, rigid_basis
 from calibrate.simulation.chains import simulate_chain
 from calibrate.simulation.simulate import joint_axes_world, simulate_squats, write_simulation
 
@@ -385,7 +375,7 @@ def test_cli_joints_bad_input(human, tmp_path, capsys):
     sim = simulate_squats(human, frames=50, noise_mm=1.0, seed=5)
     paths = write_simulation(sim, tmp_path)
     renamed = Trial(tuple(f"X{i}" for i in range(sim.trial.n_markers)), sim.trial.markers, 100.0, 0, None)
-    from calibrate.io.trial import write_c3d
+    from calibrate.io.c3d import write_c3d
 
     write_c3d(tmp_path / "renamed.c3d", renamed)
     code = main(["joints", str(tmp_path / "renamed.c3d"), str(human.path)])
@@ -403,7 +393,7 @@ def test_cli_joints_places_markers_the_model_does_not_know(human, tmp_path, caps
     shin = shin + np.random.default_rng(0).normal(0, 1e-3, shin.shape)
     markers = np.concatenate([sim.trial.markers, shin[:, None, :]], axis=1)
     trial = Trial((*sim.trial.labels, "RSHIN"), markers, sim.trial.rate, 0, None)
-    from calibrate.io.trial import write_c3d
+    from calibrate.io.c3d import write_c3d
 
     write_c3d(tmp_path / "extra.c3d", trial)
     code = main(["joints", str(tmp_path / "extra.c3d"), str(human.path)])

@@ -8,7 +8,8 @@ import pytest
 
 from calibrate.model.kinematics import build_kinematics, cayley_np, retract_root
 from calibrate.model.model import load_model, write_model
-from calibrate.simulation.simulate import perturb_parameters, simulate_squats
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.simulation.subject import perturb_parameters
 from calibrate.solve.ik import inverse_kinematics
 
 

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from calibrate.errors import CalibrateError
+from calibrate.io.c3d import write_c3d
 from calibrate.io.labels import LabelConflictWarning, alias_for, load_marker_map, map_labels
-from calibrate.io.trial import Trial, read_trial, write_c3d
+from calibrate.io.read import read_trial
+from calibrate.io.trial import Trial
 
 # Hand-written from the Plug-in Gait marker set of models/human.urdf (checked against the model below).
 PIG = (

@@ -26,11 +26,13 @@ from conftest import HUMAN
 from scipy.spatial.transform import Rotation
 
 from calibrate.errors import CalibrateError
+from calibrate.io.c3d import write_c3d
 from calibrate.io.motion import Motion, write_motion_csv
 from calibrate.io.osim_export import add_export_osim_parser, cmd_export_osim, export_osim, write_mot
-from calibrate.io.trial import read_trc, write_c3d
+from calibrate.io.trc import read_trc
 from calibrate.model.model import Parameters, load_model, write_model
-from calibrate.simulation.simulate import simulate_squats, tilt
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.simulation.subject import tilt
 
 HAVE_OPENSIM = importlib.util.find_spec("opensim") is not None
 needs_opensim = pytest.mark.skipif(

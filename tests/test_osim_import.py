@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.cli import main
 from calibrate.errors import ModelError
-from calibrate.io.osim import osim_info, root_coordinates
+from calibrate.io.osim_info import osim_info, root_coordinates
 from calibrate.model.model import load_model
 
 HAVE_OPENSIM = importlib.util.find_spec("opensim") is not None
@@ -401,8 +401,8 @@ def test_rajagopal_locked_and_coupled():
             np.testing.assert_allclose(seg.offset, np.array(mk.findtext("location").split(), float), atol=1e-12)
             same += 1
     assert same > 40
-    from calibrate.io.osim import with_locked
-    from calibrate.problem.problem import Settings
+    from calibrate.io.osim_info import with_locked
+    from calibrate.problem.settings import Settings
 
     s = with_locked(m, Settings(lock={"mtp_angle_r": 0.1}))
     assert dict(s.lock)["mtp_angle_r"] == 0.1 and dict(s.lock)["subtalar_angle_l"] == 0.0
@@ -583,7 +583,8 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     """`calibrate TRIAL MODEL.osim --marker-set XML` end to end on a trial made from the model's own markers
     (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
     columns are OpenSim's coordinate names, and it recovers the motion's marker positions."""
-    from calibrate.io.trial import Trial, write_trc
+    from calibrate.io.trc import write_trc
+    from calibrate.io.trial import Trial
 
     model = load_model(GAIT, GAIT_MARKERS)
     n, rng = 40, np.random.default_rng(4)

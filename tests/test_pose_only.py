@@ -13,9 +13,9 @@ import pytest
 
 from calibrate.calibration.pipeline import calibrate
 from calibrate.cli import main
+from calibrate.io.c3d import write_c3d
 from calibrate.io.config import load_settings
 from calibrate.io.motion import read_motion_csv
-from calibrate.io.trial import write_c3d
 from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import load_model, write_model
 from calibrate.simulation.simulate import simulate_squats
@@ -77,7 +77,7 @@ def test_cli_free_empty_with_the_base_model(truth_case, tmp_path, human, capsys)
     motion = read_motion_csv(tmp_path / "s.csv")
     pm, data = subject.pin, subject.pin.createData()
     fids = [pm.getFrameId(n) for n in subject.marker_names]
-    from calibrate.io.trial import read_trial
+    from calibrate.io.read import read_trial
 
     obs = marker_columns(subject, read_trial(d / "trial.c3d"))
     sq = []

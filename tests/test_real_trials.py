@@ -15,11 +15,13 @@ import pytest
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
 from calibrate.errors import CalibrateError
+from calibrate.io.c3d import write_c3d
 from calibrate.io.motion import read_motion_csv
-from calibrate.io.trial import Trial, read_trial, write_c3d
+from calibrate.io.read import read_trial
+from calibrate.io.trial import Trial
 from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import add_markers, load_model
-from calibrate.problem.problem import Settings
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats, simulate_static
 
 # A thigh plate (three markers), a shank pair and a hand marker, in segment frames (m): markers a

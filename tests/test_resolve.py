@@ -14,9 +14,9 @@ from conftest import HUMAN, ROOT
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.errors import CalibrateError
-from calibrate.io.trial import write_c3d
+from calibrate.io.c3d import write_c3d
 from calibrate.model.resolve import resolve, unresolved
-from calibrate.problem.problem import Settings
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 
 PELVIS = ("LASI", "RASI", "LPSI", "RPSI")

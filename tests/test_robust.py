@@ -8,7 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from calibrate.problem.problem import Problem, Settings, State, _robust
+from calibrate.problem.problem import Problem, _robust
+from calibrate.problem.settings import Settings
+from calibrate.problem.state import State
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
 

@@ -9,20 +9,19 @@ import math
 import numpy as np
 import pytest
 
-from calibrate.calibration.pipeline import (
-    _rms,
-    calibrate,
-    learned_noise,
-    leverage,
-    seed_parameters,
-    size_from_markers,
-    start_poses,
-)
+from calibrate.calibration.noise import learned_noise, leverage
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.result import rms
+from calibrate.calibration.start import start_poses
 from calibrate.errors import CalibrateError
 from calibrate.io.config import settings_from_dict
 from calibrate.io.trial import Trial
 from calibrate.model.model import Parameters
-from calibrate.problem.problem import Priors, Problem, Settings, State, symmetry_pairs
+from calibrate.problem.priors import symmetry_pairs
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Priors, Settings
+from calibrate.problem.state import State
+from calibrate.seed.seeding import seed_parameters, size_from_markers
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
 from calibrate.solve.lm import covariance, levenberg_marquardt
@@ -162,7 +161,7 @@ def test_learnt_noise_is_the_white_noise_sd(human):
     assert cal.noise_learnt
     assert 0.95 < np.median(sd) < 1.05
     assert sd.min() > 0.8 and sd.max() < 1.25
-    raw = 1000 * _rms(cal.residuals) / math.sqrt(3)
+    raw = 1000 * rms(cal.residuals) / math.sqrt(3)
     assert raw < 0.9  # what a learnt SD without the correction would have been
     rep = json.loads(json.dumps(cal.report()))
     assert rep["noise"]["learnt"] and set(rep["noise"]["per_marker_mm"]) == set(human.marker_names)
@@ -246,7 +245,7 @@ def test_start_fits_the_subjects_size(human, human_kin, k):
     assert np.median(np.abs(err)) < 0.03 and np.abs(err).max() < 0.12
     obs = marker_columns(human, trial)
     st = start_poses(human_kin, obs, seed.params)  # with the balls' reference rotations (State.B)
-    assert _rms(Problem(human, obs, Settings(), human_kin).marker_residuals(st)) < 0.015
+    assert rms(Problem(human, obs, Settings(), human_kin).marker_residuals(st)) < 0.015
 
 
 def test_leverage_is_the_hat_matrix_diagonal(human, human_kin):

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from calibrate.calibration.evaluate import compare_to_truth
-from calibrate.calibration.pipeline import broken_samples, calibrate, jump_episodes, seed_parameters
+from calibrate.calibration.pipeline import calibrate
 from calibrate.io.labels import map_labels
-from calibrate.io.trial import read_trial
+from calibrate.io.read import read_trial
+from calibrate.seed.seeding import broken_samples, jump_episodes, seed_parameters
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
 

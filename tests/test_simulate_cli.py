@@ -10,8 +10,8 @@ import pinocchio as pin
 import pytest
 
 from calibrate.cli import main
+from calibrate.io.c3d import read_c3d
 from calibrate.io.motion import read_motion_csv
-from calibrate.io.trial import read_c3d
 from calibrate.model.model import load_model
 from calibrate.simulation.simulate import simulate_gait, simulate_squats
 
@@ -161,14 +161,14 @@ def test_default_model_without_source_tree(tmp_path, monkeypatch):
     """An installed package has no models/ folder: the same model is generated instead."""
     from conftest import HUMAN, assert_same_text_and_numbers
 
-    import calibrate.cli as cli
+    import calibrate.cli.commands as cli
 
     monkeypatch.setattr(cli, "DEFAULT_MODEL", tmp_path / "absent" / "human.urdf")
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     import tempfile
 
     monkeypatch.setattr(tempfile, "tempdir", None)
-    path = cli._default_model()
+    path = cli.default_model()
     assert path.parent == tmp_path
     assert_same_text_and_numbers(path.read_text(), HUMAN.read_text())
 

@@ -11,11 +11,8 @@ import pytest
 
 from calibrate.cli import main
 from calibrate.model.model import load_model
+from calibrate.simulation.artefacts import STA_ACROMION, STA_FACTOR, STA_SPREAD, read_corruptions
 from calibrate.simulation.simulate import (
-    STA_ACROMION,
-    STA_FACTOR,
-    STA_SPREAD,
-    read_corruptions,
     simulate_gait,
     simulate_overhead,
     simulate_realistic,

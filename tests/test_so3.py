@@ -9,7 +9,9 @@ import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
 from calibrate.model.kinematics import IDENTITY
-from calibrate.problem.problem import Problem, Settings, State
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+from calibrate.problem.state import State
 from calibrate.solve.lm import levenberg_marquardt
 
 

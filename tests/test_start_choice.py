@@ -6,10 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibrate.calibration.pipeline import calibrate, choose_start, start_poses
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.start import choose_start, start_poses
 from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import Parameters, load_model
-from calibrate.problem.problem import Problem, Settings
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
 from calibrate.solve.lm import levenberg_marquardt
@@ -49,7 +51,7 @@ def test_the_lower_cost_start_is_chosen(human, human_kin):
     costs = [float(x.split(")")[0]) for x in note.split("(cost ")[1:]]
     assert costs[1] < costs[0]
     seen = np.all(np.isfinite(obs), axis=2)
-    from calibrate.calibration.pipeline import START_FRAMES, START_ITERATIONS, coarse_frames
+    from calibrate.calibration.start import START_FRAMES, START_ITERATIONS, coarse_frames
     coarse = coarse_frames(seen, START_FRAMES)
     sub = Problem(human, obs[coarse], loose, human_kin)
     st = start_poses(human_kin, obs[coarse], truth, stride=1, evaluator=sub.frame_evaluator(truth.vector()))

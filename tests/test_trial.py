@@ -9,15 +9,10 @@ import numpy as np
 import pytest
 
 from calibrate.errors import CalibrateError, TrialError
-from calibrate.io.trial import (
-    Trial,
-    read_c3d,
-    read_trc,
-    read_trial,
-    strip_subject_prefix,
-    write_c3d,
-    write_trc,
-)
+from calibrate.io.c3d import read_c3d, write_c3d
+from calibrate.io.read import read_trial
+from calibrate.io.trc import read_trc, write_trc
+from calibrate.io.trial import Trial, strip_subject_prefix
 
 ATOL = 1e-6  # metres: float32 C3D storage in mm or m is good to well below a micrometre
 
@@ -658,7 +653,8 @@ def test_failed_write_leaves_the_old_file_alone(tmp_path: Path) -> None:
 def test_trc_header_values_padded_with_empty_fields(tmp_path):
     """Some exporters pad line 3 (the header values) with empty tab fields between the values, as
     Rajagopal's motion_capture_walk.trc does: the values are still matched to their keys."""
-    from calibrate.io.trial import Trial, read_trc, write_trc
+    from calibrate.io.trc import read_trc, write_trc
+    from calibrate.io.trial import Trial
 
     rng = np.random.default_rng(0)
     trial = Trial(("A", "B"), rng.normal(size=(4, 2, 3)), 100.0)

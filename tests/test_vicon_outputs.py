@@ -12,8 +12,10 @@ import pytest
 
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
-from calibrate.io.trial import is_model_output, plugin_gait_centres, read_c3d, read_trc, write_trc
-from calibrate.problem.problem import Settings
+from calibrate.io.c3d import read_c3d
+from calibrate.io.trc import read_trc, write_trc
+from calibrate.io.vicon import is_model_output, plugin_gait_centres
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 
 REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real" / "pig_walk"

@@ -24,12 +24,14 @@ import numpy as np
 
 from ..model.blocks import FrameLayout
 from ..model.kinematics import build_kinematics
-from ..problem.problem import Problem, Settings, State
+from ..problem.problem import Problem
+from ..problem.settings import Settings
+from ..problem.state import State
 from ..seed.geometry import marker_rms
 from ..simulation.simulate import Simulation, joint_axes_world
 from ..solve.ik import marker_columns
 from ..solve.lm import levenberg_marquardt
-from .pipeline import Calibration
+from .result import Calibration
 
 
 @dataclass(frozen=True)

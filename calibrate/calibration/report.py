@@ -23,12 +23,12 @@ from ..io.motion import write_motion_csv
 from ..io.outputs import check_targets, write_all
 from ..io.text import atomic_write_text
 from ..model.model import mass_factor, write_model
-from ..problem.problem import symmetry_pairs
+from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
 from .records import Identified
 
 if TYPE_CHECKING:
-    from .pipeline import Calibration
+    from .result import Calibration
 
 
 def _mm(x: float) -> float:

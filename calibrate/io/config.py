@@ -43,7 +43,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..errors import CalibrateError
-from ..problem.problem import Priors, Settings
+from ..problem.settings import Priors, Settings
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -33,34 +33,32 @@ How the OpenSim model becomes a calibrate URDF:
 The import's OpenSim facts (source file, the ground joint's coordinates and frames, locked coordinates,
 approximations) are kept in the URDF in an ``<opensim>`` element (ignored by URDF readers, kept by
 :func:`calibrate.model.model.write_model`), so a calibrated subject exported with ``calibrate export-osim``
-gets OpenSim's names back (:func:`osim_info`).
+gets OpenSim's names back (:func:`calibrate.io.osim_info.osim_info`).
 
 Do not ``import opensim`` in a process that uses calibrate (see calibrate.io.osim_export).
 """
 
 from __future__ import annotations
 
-import math
 import os
 import xml.etree.ElementTree as ET
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+
+from calibrate.io.osim_read import OsimCoordinate, OsimJoint, OsimReader, axis_rotation, urdf_rpy
 
 from ..errors import ModelError, read_text_file
 from ..seed.geometry import Transform, apply, compose, identity_transform, invert
 from .text import fmt_float, fmt_vec
 
-JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
-               "PlanarJoint", "SliderJoint")
-FUNCTION_TYPES = ("Constant", "LinearFunction", "PolynomialFunction", "SimmSpline", "NaturalCubicSpline",
-                  "PiecewiseLinearFunction", "MultiplierFunction")
 GRID = 401  # coordinate values over a range at which approximations are measured
+
+
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
 
 
@@ -114,396 +112,6 @@ class OsimInfo:
     dropped: tuple[str, ...] = field(default=())  # coordinates that are not DoFs (coupled, frozen)
 
 
-# ---------------------------------------------------------------------- geometry
-def _rot(axis: np.ndarray, angle) -> np.ndarray:
-    """Rotation matrices about a unit axis, for an angle or an array of angles ((..., 3, 3))."""
-    a = np.asarray(axis, dtype=float)
-    th = np.asarray(angle, dtype=float)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    s, c = np.sin(th)[..., None, None], np.cos(th)[..., None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
-
-
-
-
-
-
-def _rpy(R: np.ndarray) -> np.ndarray:
-    """URDF rpy (R = Rz(y) Ry(p) Rx(r)); exactly 0 for I."""
-    if np.allclose(R, np.eye(3), atol=1e-15, rtol=0):
-        return np.zeros(3)
-    return Rotation.from_matrix(R).as_euler("xyz")
-
-
-# ---------------------------------------------------------------------- functions
-@dataclass(frozen=True)
-class _Function:
-    """An OpenSim function of one coordinate: kind, evaluation, and (a, b) when it is a*x + b."""
-
-    kind: str
-    f: Callable[[np.ndarray], np.ndarray]
-    linear: tuple[float, float] | None = None  # (slope, intercept)
-    constant: float | None = None
-
-    def __call__(self, x) -> np.ndarray:
-        return self.f(np.asarray(x, dtype=float))
-
-
-def _floats(text: str | None) -> np.ndarray:
-    return np.array([float(v) for v in (text or "").split()], dtype=float)
-
-
-def _simm_spline(x: np.ndarray, y: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """OpenSim's SimmSpline: a cubic spline whose end third derivatives match the divided differences
-    of the first/last four points (two points: a line); continued along the end tangents outside."""
-    n = len(x)
-    tiny = 1e-7
-    b, c, d = np.zeros(n), np.zeros(n), np.zeros(n)
-    if n == 2:
-        b[:] = (y[1] - y[0]) / max(x[1] - x[0], tiny)
-    else:
-        d[0] = max(x[1] - x[0], tiny)
-        c[1] = (y[1] - y[0]) / d[0]
-        for i in range(1, n - 1):
-            d[i] = max(x[i + 1] - x[i], tiny)
-            b[i] = 2.0 * (d[i - 1] + d[i])
-            c[i + 1] = (y[i + 1] - y[i]) / d[i]
-            c[i] = c[i + 1] - c[i]
-        b[0], b[-1] = -d[0], -d[n - 2]
-        c[0] = c[-1] = 0.0
-        if n > 3:
-            c0 = c[2] / max(x[3] - x[1], tiny) - c[1] / max(x[2] - x[0], tiny)
-            cn = c[n - 2] / max(x[-1] - x[n - 3], tiny) - c[n - 3] / max(x[n - 2] - x[n - 4], tiny)
-            c[0] = c0 * d[0] * d[0] / max(x[3] - x[0], tiny)
-            c[-1] = -cn * d[n - 2] * d[n - 2] / max(x[-1] - x[n - 4], tiny)
-        for i in range(1, n):
-            t = d[i - 1] / b[i - 1]
-            b[i] -= t * d[i - 1]
-            c[i] -= t * c[i - 1]
-        c[-1] /= b[-1]
-        for i in range(n - 2, -1, -1):
-            c[i] = (c[i] - d[i] * c[i + 1]) / b[i]
-        b[-1] = (y[-1] - y[n - 2]) / d[n - 2] + d[n - 2] * (c[n - 2] + 2.0 * c[-1])
-        for i in range(n - 1):
-            b[i] = (y[i + 1] - y[i]) / d[i] - d[i] * (c[i + 1] + 2.0 * c[i])
-            d[i] = (c[i + 1] - c[i]) / d[i]
-            c[i] *= 3.0
-        c[-1] *= 3.0
-        d[-1] = d[n - 2]
-
-    def f(v: np.ndarray) -> np.ndarray:
-        v = np.asarray(v, dtype=float)
-        k = np.clip(np.searchsorted(x, v, side="right") - 1, 0, n - 2)
-        dx = v - x[k]
-        out = y[k] + dx * (b[k] + dx * (c[k] + dx * d[k]))
-        out = np.where(v < x[0], y[0] + (v - x[0]) * b[0], out)
-        return np.where(v > x[-1], y[-1] + (v - x[-1]) * b[-1], out)
-
-    return f
-
-
-def _function(el: ET.Element, where: str) -> _Function:
-    tag = el.tag
-    if tag == "Constant":
-        v = float(el.findtext("value", "0"))
-        return _Function(tag, lambda x: np.full(np.shape(x), v), linear=(0.0, v), constant=v)
-    if tag == "LinearFunction":
-        co = _floats(el.findtext("coefficients", "1 0"))
-        if co.size != 2:
-            raise ModelError(f"{where}: LinearFunction needs 2 coefficients, has {co.size}; fix the model")
-        a, b = float(co[0]), float(co[1])
-        return _Function(tag, lambda x: a * x + b, linear=(a, b), constant=b if a == 0 else None)
-    if tag == "PolynomialFunction":  # coefficients from the highest order to the lowest
-        co = _floats(el.findtext("coefficients", "0"))
-        if co.size == 0:
-            raise ModelError(f"{where}: PolynomialFunction without coefficients; fix the model")
-        nz = np.flatnonzero(co)
-        co = co[nz[0]:] if nz.size else np.zeros(1)
-        if co.size <= 2:  # constant or linear: exact
-            a, b = (0.0, float(co[0])) if co.size == 1 else (float(co[0]), float(co[1]))
-            return _Function(tag, lambda x: a * x + b, linear=(a, b), constant=b if a == 0 else None)
-        return _Function(tag, lambda x: np.polyval(co, x))
-    if tag in ("SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction"):
-        x, y = _floats(el.findtext("x")), _floats(el.findtext("y"))
-        if x.size < 2 or x.size != y.size or np.any(np.diff(x) <= 0):
-            raise ModelError(f"{where}: {tag} needs at least 2 points with increasing x; fix the model")
-        if tag == "SimmSpline":
-            return _Function(tag, _simm_spline(x, y))
-        if tag == "PiecewiseLinearFunction":
-            def pl(v: np.ndarray) -> np.ndarray:
-                k = np.clip(np.searchsorted(x, v, side="right") - 1, 0, x.size - 2)
-                return y[k] + (v - x[k]) * (y[k + 1] - y[k]) / (x[k + 1] - x[k])
-            return _Function(tag, pl)
-        if x.size == 2:
-            return _Function(tag, lambda v: y[0] + (v - x[0]) * (y[1] - y[0]) / (x[1] - x[0]))
-        cs = CubicSpline(x, y, bc_type="natural", extrapolate=True)
-        return _Function(tag, lambda v: cs(v))
-    if tag == "MultiplierFunction":
-        s = float(el.findtext("scale", "1"))
-        inner = _inner_function(el, where)
-        lin = None if inner.linear is None else (s * inner.linear[0], s * inner.linear[1])
-        return _Function(tag, lambda x: s * inner(x), linear=lin,
-                         constant=None if inner.constant is None else s * inner.constant)
-    raise ModelError(f"{where}: function type {tag} is not read (calibrate reads {', '.join(FUNCTION_TYPES)}); "
-                     f"replace it with one of those")
-
-
-def _inner_function(el: ET.Element, where: str) -> _Function:
-    """The function held by a TransformAxis, MultiplierFunction or coupler (directly or in <function>)."""
-    for child in el:
-        if child.tag == "function" and len(child) and not child.get("name"):
-            return _function(child[0], where)
-        if child.tag in ("function", "coupled_coordinates_function") and len(child):
-            return _function(child[0], where)
-        if child.get("name") == "function" or child.tag in FUNCTION_TYPES:
-            return _function(child, where)
-    raise ModelError(f"{where}: no function; give it one (e.g. <LinearFunction>)")
-
-
-# ---------------------------------------------------------------------- the OpenSim model
-@dataclass
-class _Coord:
-    name: str
-    joint: str
-    lo: float
-    hi: float
-    default: float
-    locked: bool
-    translational: bool = False
-
-    def span(self) -> tuple[float, float]:
-        """The range, limited to one turn for rotations (couplers declare +-99999)."""
-        if self.translational:
-            return self.lo, self.hi
-        return max(self.lo, -np.pi), min(self.hi, np.pi)
-
-
-@dataclass
-class _Axis:
-    motion: str  # 'rotation' | 'translation'
-    axis: np.ndarray  # unit
-    coord: str | None
-    func: _Function
-
-
-@dataclass
-class _Joint:
-    name: str
-    type: str
-    parent: str  # body name or 'ground'
-    parent_offset: Transform  # pose of F in the parent body
-    child: str
-    child_offset: Transform  # pose of M in the child body
-    coords: list[_Coord]
-    axes: list[_Axis]  # rotations (body-fixed, in order) then translations (in F)
-
-    def transform(self, values: Mapping[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
-        """X_FM for n coordinate sets: (R (n, 3, 3), p (n, 3)), OpenSim's SpatialTransform."""
-        R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        p = np.zeros((n, 3))
-        for ax in self.axes:
-            x = values[ax.coord] if ax.coord is not None else np.zeros(n)
-            v = np.broadcast_to(ax.func(x), (n,))
-            if ax.motion == "rotation":
-                R = R @ _rot(ax.axis, v)
-            else:
-                p = p + v[:, None] * ax.axis
-        return R, p
-
-
-def _frame_of(el: ET.Element, where: str) -> Transform:
-    t = _floats(el.findtext("translation", "0 0 0"))
-    o = _floats(el.findtext("orientation", "0 0 0"))
-    if t.size != 3 or o.size != 3:
-        raise ModelError(f"{where}: frame '{el.get('name')}' needs 3 translation and 3 orientation values")
-    R = np.eye(3) if not np.any(o) else Rotation.from_euler("XYZ", o).as_matrix()  # body-fixed x-y-z
-    return R, t
-
-
-def _body_name(path: str) -> str:
-    """'/bodyset/femur_r', '../bodyset/femur_r', 'femur_r', '/ground' -> body name (or 'ground')."""
-    return path.strip().rstrip("/").split("/")[-1]
-
-
-class _Reader:
-    """Parses the .osim document into bodies, joints, coordinates, couplers and markers."""
-
-    def __init__(self, path: Path, text: str):
-        self.path = path
-        where = str(path)
-        try:
-            root = ET.fromstring(text)
-        except ET.ParseError as e:
-            raise ModelError(f"{where}: not valid XML ({e}); give an OpenSim model file (.osim)") from None
-        if root.tag != "OpenSimDocument" or root.find("Model") is None:
-            raise ModelError(f"{where}: top element is <{root.tag}>, not an OpenSimDocument with a <Model>; "
-                             f"is this an OpenSim model (.osim)?")
-        try:
-            version = int(root.get("Version", "0"))
-        except ValueError:
-            version = 0
-        if version < 30000 or version < 40000 and root.find("Model/BodySet/objects/Body/Joint") is not None:
-            raise ModelError(f"{where}: an OpenSim 3.x model (Version {root.get('Version')}); open it in OpenSim 4 "
-                             f"and save it (File > Save Model) to convert it to the 4.x format")
-        m = root.find("Model")
-        assert m is not None
-        self.name = m.get("name", path.stem)
-        self.bodies: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
-        for b in m.findall("BodySet/objects/Body"):
-            name = b.get("name", "")
-            mass = float(b.findtext("mass", "0"))
-            com = _floats(b.findtext("mass_center", "0 0 0"))
-            iv = _floats(b.findtext("inertia", "0 0 0 0 0 0"))
-            if iv.size != 6 or com.size != 3:
-                raise ModelError(f"{where}: body '{name}' needs 3 mass_center and 6 inertia values; fix the model")
-            inertia = np.array([[iv[0], iv[3], iv[4]], [iv[3], iv[1], iv[5]], [iv[4], iv[5], iv[2]]])
-            self.bodies[name] = (mass, com, inertia)
-        # Offset frames anywhere in the model (joints' <frames>, bodies' <components>, the model's <components>),
-        # for sockets that name them by path; a name used twice is not resolved by name alone.
-        self.frames: dict[str, ET.Element | None] = {}
-        for f in m.iter("PhysicalOffsetFrame"):
-            name = f.get("name", "")
-            self.frames[name] = None if name in self.frames else f
-        self.coords: dict[str, _Coord] = {}
-        self.joints: list[_Joint] = []
-        for jel in m.findall("JointSet/objects/*"):
-            self.joints.append(self._joint(jel, m))
-        self.couplers: dict[str, tuple[str, _Function, float]] = {}  # dependent -> (independent, f, scale)
-        for c in m.findall("ConstraintSet/objects/*"):
-            cw = f"{where}: constraint '{c.get('name')}'"
-            if c.tag != "CoordinateCouplerConstraint":
-                continue  # other constraints (e.g. point on line) do not change the tree's kinematics here
-            if c.findtext("isEnforced", "true").strip().lower() == "false":
-                continue
-            indep = (c.findtext("independent_coordinate_names") or "").split()
-            dep = (c.findtext("dependent_coordinate_name") or "").strip()
-            if len(indep) != 1 or dep not in self.coords or indep[0] not in self.coords:
-                raise ModelError(f"{cw}: couples '{dep}' to {indep}, which are not one coordinate of the model; "
-                                 f"fix its coordinate names")
-            self.couplers[dep] = (indep[0], _inner_function(c, cw), float(c.findtext("scale_factor", "1")))
-        self.markers: dict[str, tuple[str, np.ndarray]] = {}
-        for mk in m.findall("MarkerSet/objects/Marker"):
-            self._marker(mk, where)
-
-    def frame(self, ref: str, local: dict[str, ET.Element], where: str) -> tuple[str, Transform]:
-        """(body, pose of the frame in the body) of a socket path."""
-        ref = ref.strip()
-        name = _body_name(ref)
-        el = local.get(name)
-        if el is None and name not in self.bodies and name != "ground":
-            el = self.frames.get(name)
-        if el is not None:
-            parent = el.findtext("socket_parent", "")
-            if _body_name(parent) == name:
-                raise ModelError(f"{where}: frame '{ref}' is its own parent; fix its socket_parent")
-            body, X = self.frame(parent, {}, where)
-            return body, compose(X, _frame_of(el, where))
-        if name == "ground" or name in self.bodies:
-            return name, identity_transform()
-        raise ModelError(f"{where}: frame '{ref}' is not a body or an offset frame of the model; fix the path")
-
-    def _joint(self, jel: ET.Element, m: ET.Element) -> _Joint:
-        name = jel.get("name", "")
-        where = f"{self.path}: joint '{name}'"
-        if jel.tag not in JOINT_TYPES:
-            raise ModelError(f"{where}: joint type {jel.tag} is not read (calibrate reads {', '.join(JOINT_TYPES)}); "
-                             f"replace it with a CustomJoint")
-        local = {f.get("name", ""): f for f in jel.findall("frames/PhysicalOffsetFrame")}
-        parent, X_pf = self.frame(jel.findtext("socket_parent_frame", ""), local, where)
-        child, X_bm = self.frame(jel.findtext("socket_child_frame", ""), local, where)
-        if child == "ground":
-            raise ModelError(f"{where}: has ground as its child; make ground the parent frame")
-        coords: list[_Coord] = []
-        for c in jel.findall("coordinates/Coordinate"):
-            rng = _floats(c.findtext("range", "-3.14159 3.14159"))
-            co = _Coord(c.get("name", ""), name, float(rng[0]), float(rng[1]), float(c.findtext("default_value", "0")),
-                        c.findtext("locked", "false").strip().lower() == "true")
-            if co.name in self.coords:
-                raise ModelError(f"{where}: coordinate '{co.name}' is declared twice; rename one")
-            self.coords[co.name] = co
-            coords.append(co)
-        cn = [c.name for c in coords]
-        e = np.eye(3)
-        lin = _Function("LinearFunction", lambda x: x, linear=(1.0, 0.0))
-        zero = _Function("Constant", lambda x: np.zeros(np.shape(x)), linear=(0.0, 0.0), constant=0.0)
-        axes: list[_Axis] = []
-        want = {"WeldJoint": 0, "PinJoint": 1, "UniversalJoint": 2, "BallJoint": 3, "GimbalJoint": 3, "FreeJoint": 6,
-                "PlanarJoint": 3, "SliderJoint": 1}
-        if jel.tag in want and len(cn) != want[jel.tag]:
-            raise ModelError(f"{where}: a {jel.tag} needs {want[jel.tag]} coordinates, has {len(cn)}; fix the model")
-        if jel.tag == "PinJoint":
-            axes = [_Axis("rotation", e[2], cn[0], lin)]
-        elif jel.tag == "UniversalJoint":
-            axes = [_Axis("rotation", e[0], cn[0], lin), _Axis("rotation", e[1], cn[1], lin)]
-        elif jel.tag in ("BallJoint", "GimbalJoint"):
-            axes = [_Axis("rotation", e[k], cn[k], lin) for k in range(3)]
-        elif jel.tag == "PlanarJoint":  # rotation about z, translations along x and y of the parent frame
-            axes = [_Axis("rotation", e[2], cn[0], lin), _Axis("translation", e[0], cn[1], lin),
-                    _Axis("translation", e[1], cn[2], lin)]
-            for c in coords[1:]:
-                c.translational = True
-        elif jel.tag == "SliderJoint":  # translation along x
-            axes = [_Axis("translation", e[0], cn[0], lin)]
-            coords[0].translational = True
-        elif jel.tag == "FreeJoint":
-            axes = [_Axis("rotation", e[k], cn[k], lin) for k in range(3)]
-            axes += [_Axis("translation", e[k], cn[3 + k], lin) for k in range(3)]
-            for c in coords[3:]:
-                c.translational = True
-        elif jel.tag == "CustomJoint":
-            st = jel.find("SpatialTransform")
-            if st is None:
-                raise ModelError(f"{where}: CustomJoint without a SpatialTransform; fix the model")
-            for motion in ("rotation", "translation"):
-                for k in (1, 2, 3):
-                    ta = st.find(f"TransformAxis[@name='{motion}{k}']")
-                    if ta is None:
-                        continue
-                    aw = f"{where}, {motion}{k}"
-                    a = _floats(ta.findtext("axis", "0 0 1"))
-                    if a.size != 3 or np.linalg.norm(a) == 0:
-                        raise ModelError(f"{aw}: axis must be 3 numbers, not all 0; fix the model")
-                    names = (ta.findtext("coordinates") or "").split()
-                    if len(names) > 1:
-                        raise ModelError(f"{aw}: a function of {len(names)} coordinates is not read; use one")
-                    if names and names[0] not in cn:
-                        raise ModelError(f"{aw}: coordinate '{names[0]}' is not one of the joint's ({', '.join(cn)})")
-                    has_f = any(ch.tag not in ("coordinates", "axis") for ch in ta)
-                    f = _inner_function(ta, aw) if has_f else (lin if names else zero)
-                    axes.append(_Axis(motion, a / np.linalg.norm(a), names[0] if names else None, f))
-                    if motion == "translation" and names:
-                        tr = [x for x in axes if x.coord == names[0]]
-                        if all(x.motion == "translation" for x in tr):
-                            self.coords[names[0]].translational = True
-        return _Joint(name, jel.tag, parent, X_pf, child, X_bm, coords, axes)
-
-    def _marker(self, mk: ET.Element, where: str, source: str | None = None) -> None:
-        name = mk.get("name", "")
-        ref = mk.findtext("socket_parent_frame") or mk.findtext("body") or ""
-        loc = _floats(mk.findtext("location", "0 0 0"))
-        src = source or where
-        body = _body_name(ref)
-        if loc.size != 3:
-            raise ModelError(f"{src}: marker '{name}' needs 3 location values; fix the file")
-        if body not in self.bodies and body != "ground" and self.frames.get(body) is None:
-            raise ModelError(f"{src}: marker '{name}' is on body '{ref.strip()}', which {self.path.name} does not "
-                             f"have; attach it to one of its bodies ({', '.join(list(self.bodies)[:6])}, ...)")
-        body, X = self.frame(ref, {}, src)  # a marker on an offset frame: its location in the body
-        self.markers[name] = (body, apply(X, loc))
-
-    def add_marker_set(self, path: Path) -> None:
-        text = read_text_file(path, "an OpenSim MarkerSet file (.xml)")
-        try:
-            root = ET.fromstring(text)
-        except ET.ParseError as e:
-            raise ModelError(f"{path}: not valid XML ({e}); give an OpenSim MarkerSet file") from None
-        ms = root if root.tag == "MarkerSet" else root.find(".//MarkerSet")
-        if ms is None:
-            raise ModelError(f"{path}: no <MarkerSet>; give an OpenSim MarkerSet file (as the Scale tool reads)")
-        for mk in ms.findall("objects/Marker"):
-            self._marker(mk, str(path), source=str(path))
-
-
 # ---------------------------------------------------------------------- the import
 @dataclass
 class _Op:
@@ -522,7 +130,7 @@ def _ops_transform(ops: list[_Op], values: Mapping[str, np.ndarray], n: int) -> 
             p = p + np.einsum("nij,j->ni", R, op.fixed[1])
             R = R @ op.fixed[0]
         else:
-            R = R @ _rot(op.axis, values[op.coord])  # type: ignore[arg-type,index]
+            R = R @ axis_rotation(op.axis, values[op.coord])  # type: ignore[arg-type,index]
     return R, p
 
 
@@ -548,10 +156,10 @@ def _body_aligned(ops: list[_Op], child_offset: Transform) -> tuple[list[_Op], T
 
 
 class _Importer:
-    def __init__(self, reader: _Reader):
+    def __init__(self, reader: OsimReader):
         self.r = reader
         self.where = str(reader.path)
-        by_child: dict[str, _Joint] = {}
+        by_child: dict[str, OsimJoint] = {}
         for j in reader.joints:
             if j.child in by_child:
                 raise ModelError(f"{self.where}: body '{j.child}' is the child of two joints "
@@ -564,7 +172,7 @@ class _Importer:
             raise ModelError(f"{self.where}: {len(grounded)} joints connect a body to ground; calibrate needs exactly "
                              f"one (the root's, e.g. ground_pelvis)")
         self.root_joint = grounded[0]
-        self.children: dict[str, list[_Joint]] = {b: [] for b in reader.bodies}
+        self.children: dict[str, list[OsimJoint]] = {b: [] for b in reader.bodies}
         for j in reader.joints:
             if j.parent != "ground":
                 if j.parent not in reader.bodies:
@@ -573,7 +181,7 @@ class _Importer:
         orphans = [b for b in reader.bodies if b not in by_child]
         if orphans:
             raise ModelError(f"{self.where}: body '{orphans[0]}' has no joint; connect it with a joint")
-        self.order: list[_Joint] = []  # depth-first from the root
+        self.order: list[OsimJoint] = []  # depth-first from the root
 
         def walk(body: str) -> None:
             for j in self.children[body]:
@@ -602,7 +210,7 @@ class _Importer:
         return out
 
     # -------------------------------------------------------------- per joint
-    def joint_ops(self, j: _Joint) -> tuple[list[_Op], tuple[str, str] | None]:
+    def joint_ops(self, j: OsimJoint) -> tuple[list[_Op], tuple[str, str] | None]:
         """Ops of the imported joint and, if approximated, (kind, detail)."""
         free = [c for c in j.coords if c.name not in self.r.couplers and not c.translational]
         used: set[str] = set()
@@ -633,7 +241,7 @@ class _Importer:
         return self._exact_ops(j, frozen, freeze_nonlinear=True), ("frozen", "; ".join(why) + "; those axes frozen at "
                                                                     "mid-range")
 
-    def _exact_ops(self, j: _Joint, frozen: set[str], freeze_nonlinear: bool = False) -> list[_Op]:
+    def _exact_ops(self, j: OsimJoint, frozen: set[str], freeze_nonlinear: bool = False) -> list[_Op]:
         p = np.zeros(3)
         ops: list[_Op] = []
         used: set[str] = set()
@@ -650,15 +258,15 @@ class _Importer:
             moving = (ax.coord is not None and ax.func.constant is None and ax.coord not in frozen
                       and ax.coord not in used and lin is not None and abs(abs(lin[0]) - 1) <= 1e-12)
             if moving:
-                ops.append(_Op(fixed=(_rot(ax.axis, lin[1]), np.zeros(3))))  # type: ignore[index]
+                ops.append(_Op(fixed=(axis_rotation(ax.axis, lin[1]), np.zeros(3))))  # type: ignore[index]
                 ops.append(_Op(coord=ax.coord, axis=np.sign(lin[0]) * ax.axis))  # type: ignore[index]
                 used.add(ax.coord)  # type: ignore[arg-type]
             else:
                 x = self.ref_value(ax.coord) if ax.coord is not None else 0.0
-                ops.append(_Op(fixed=(_rot(ax.axis, float(ax.func(np.array(x)))), np.zeros(3))))
+                ops.append(_Op(fixed=(axis_rotation(ax.axis, float(ax.func(np.array(x)))), np.zeros(3))))
         return ops
 
-    def _hinge_fit(self, j: _Joint, c: _Coord) -> list[_Op]:
+    def _hinge_fit(self, j: OsimJoint, c: OsimCoordinate) -> list[_Op]:
         """Trans(centre) Rot(axis, q) Y, fitted to the child's points over the coordinate's range."""
         lo, hi = c.span()
         q = np.linspace(lo, hi, 61)
@@ -676,13 +284,13 @@ class _Importer:
         tr = p[-1] - Rr @ p[0]
         c0 = np.linalg.lstsq(np.eye(3) - Rr, tr - (a0 @ tr) * a0, rcond=None)[0]
         mid = q.size // 2
-        Ym = compose((_rot(a0, -q[mid]), np.zeros(3)), compose((np.eye(3), -c0), (R[mid], p[mid])))
+        Ym = compose((axis_rotation(a0, -q[mid]), np.zeros(3)), compose((np.eye(3), -c0), (R[mid], p[mid])))
         x0 = np.concatenate([a0, c0, Rotation.from_matrix(Ym[0]).as_rotvec(), Ym[1]])
 
         def model(x: np.ndarray) -> np.ndarray:
             a = x[:3] / np.linalg.norm(x[:3])
             RY = Rotation.from_rotvec(x[6:9]).as_matrix()
-            Rq = _rot(a, q)
+            Rq = axis_rotation(a, q)
             RR = Rq @ RY
             pp = np.einsum("nij,j->ni", Rq, x[9:12]) + x[3:6]
             return np.einsum("nij,kj->nki", RR, pts) + pp[:, None, :]
@@ -698,7 +306,7 @@ class _Importer:
         Y = (Y[0], Y[1] - shift * a)
         return [_Op(fixed=(np.eye(3), cen)), _Op(coord=c.name, axis=a), _Op(fixed=Y)]
 
-    def _joint_values(self, j: _Joint, name: str, q: np.ndarray) -> dict[str, np.ndarray]:
+    def _joint_values(self, j: OsimJoint, name: str, q: np.ndarray) -> dict[str, np.ndarray]:
         """Every coordinate of joint j when `name` takes the values q (couplers followed, others at reference)."""
         vals = {c.name: np.full(q.shape, self.ref_value(c.name)) for c in j.coords}
         vals[name] = q
@@ -709,7 +317,7 @@ class _Importer:
                     vals[c.name] = s * f(q)
         return vals
 
-    def _fit_points(self, j: _Joint) -> np.ndarray:
+    def _fit_points(self, j: OsimJoint) -> np.ndarray:
         """Points in the joint's M frame that the hinge fit matches: the child's markers and child joint
         frames at the default pose, plus a 10 cm cross so that the fit is never underdetermined."""
         inv = invert(j.child_offset)  # body -> M
@@ -753,7 +361,7 @@ class _Importer:
         return any(b == body for b, _ in self.r.markers.values()) or any(
             self.has_markers_below(cj.child) for cj in self.children[body])
 
-    def max_translation(self, j: _Joint) -> float:
+    def max_translation(self, j: OsimJoint) -> float:
         """max |p(q)| of a joint's SpatialTransform translation over its coordinates' ranges (sampled)."""
         if not any(ax.motion == "translation" and ax.func.constant is None for ax in j.axes):
             _, p = j.transform({c.name: np.zeros(1) for c in j.coords}, 1)
@@ -766,7 +374,7 @@ class _Importer:
             best = max(best, float(np.linalg.norm(p, axis=1).max()))
         return best * 1.01
 
-    def measure(self, j: _Joint, ops: list[_Op], kind: str, detail: str) -> Approximation:
+    def measure(self, j: OsimJoint, ops: list[_Op], kind: str, detail: str) -> Approximation:
         """Largest marker effect over the range (defaults elsewhere) and the any-pose bound."""
         pts = self.points_below(j.child)
         markers = {k: v for k, v in pts.items() if not k.startswith("joint ")}
@@ -821,7 +429,7 @@ class _Importer:
         urdf_names: set[str] = set()
 
         def origin(X: Transform) -> str:
-            return f'<origin xyz="{fmt_vec(X[1])}" rpy="{fmt_vec(_rpy(X[0]))}"/>'
+            return f'<origin xyz="{fmt_vec(X[1])}" rpy="{fmt_vec(urdf_rpy(X[0]))}"/>'
 
         def add_joint(name: str, kind: str, parent: str, child: str, X: Transform, extra: str = "",
                       anatomical: str | None = None) -> None:
@@ -916,7 +524,7 @@ def _info_xml(info: OsimInfo) -> str:
         rt = info.root
         r = ET.SubElement(el, "root", joint=rt.joint)
         for tag, X in (("parent_offset", rt.parent_offset), ("child_offset", rt.child_offset)):
-            ET.SubElement(r, tag, xyz=fmt_vec(X[1]), rpy=fmt_vec(_rpy(X[0])))
+            ET.SubElement(r, tag, xyz=fmt_vec(X[1]), rpy=fmt_vec(urdf_rpy(X[0])))
         for tag, items in (("rotation", rt.rotations), ("translation", rt.translations)):
             for name, axis in items:
                 ET.SubElement(r, tag, coordinate=name, axis=fmt_vec(axis))
@@ -933,114 +541,15 @@ def _info_xml(info: OsimInfo) -> str:
     return "  " + ET.tostring(el, encoding="unicode")
 
 
-def osim_info(model) -> OsimInfo | None:
-    """The OpenSim facts of a model imported from a .osim (or written from one), else None."""
-    try:
-        robot = ET.fromstring(model._text)
-    except ET.ParseError:  # pragma: no cover - a Model's text is valid XML
-        return None
-    el = robot.find("opensim")
-    if el is None:
-        return None
-
-    def X(e: ET.Element | None) -> Transform:
-        xyz = _floats(e.get("xyz", "0 0 0")) if e is not None else np.zeros(3)
-        rpy = _floats(e.get("rpy", "0 0 0")) if e is not None else np.zeros(3)
-        R = np.eye(3) if not np.any(rpy) else Rotation.from_euler("xyz", rpy).as_matrix()
-        return R, xyz
-
-    root = None
-    r = el.find("root")
-    if r is not None:
-        root = RootInfo(r.get("joint", ""), X(r.find("parent_offset")), X(r.find("child_offset")),
-                        tuple((e.get("coordinate", ""), _floats(e.get("axis"))) for e in r.findall("rotation")),
-                        tuple((e.get("coordinate", ""), _floats(e.get("axis"))) for e in r.findall("translation")))
-    defaults = {e.get("name", ""): float(e.get("default", "0")) for e in el.findall("coordinate")}
-    locked = {e.get("name", ""): float(e.get("default", "0")) for e in el.findall("coordinate")
-              if e.get("locked") == "true"}
-    approx = tuple(Approximation(e.get("joint", ""), e.get("kind", ""), tuple(e.get("coordinates", "").split()),
-                                 e.get("detail", ""), float(e.get("max_marker_mm", "0")), e.get("marker", ""),
-                                 float(e.get("bound_mm", "0")), tuple(e.get("markers", "").split()))
-                   for e in el.findall("approximation"))
-    dropped = tuple(e.get("coordinate", "") for e in el.findall("dropped"))
-    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped)
-
-
 # ---------------------------------------------------------------------- public API
 def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None
                  ) -> tuple[str, OsimInfo]:
     """The calibrate URDF text of an OpenSim model (and MarkerSet file), with its OsimInfo."""
     path = Path(path)
-    reader = _Reader(path, read_text_file(path, "an OpenSim model (.osim)"))
+    reader = OsimReader(path, read_text_file(path, "an OpenSim model (.osim)"))
     if marker_set is not None:
         reader.add_marker_set(Path(marker_set))
     return _Importer(reader).build()
 
 
-def load_osim(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None):
-    """Load an OpenSim 4 model (and optionally a MarkerSet file) as a calibrate Model.
-
-    The model's ``osim`` attribute (also :func:`osim_info`) lists the locked coordinates and the
-    approximations.  Raises ModelError with one line on bad input."""
-    from ..model.model import Model
-
-    text, info = osim_to_urdf(path, marker_set)
-    model = Model(Path(path), text=text)
-    model.osim = info  # type: ignore[attr-defined]
-    return model
-
-
-def with_locked(model, settings):
-    """`settings` with the model's locked OpenSim coordinates added to Settings.lock (those the settings
-    already lock keep their values)."""
-    from dataclasses import replace
-
-    info = osim_info(model)
-    if info is None or not info.locked:
-        return settings
-    have = dict(settings.lock)
-    merged = {**{k: v for k, v in info.locked.items() if k in set(model.dof_names)}, **have}
-    return replace(settings, lock=tuple(sorted(merged.items())))
-
-
-def approximation_table(info: OsimInfo) -> str:
-    """One line per approximated joint (for `calibrate inspect MODEL.osim`)."""
-    if not info.approximations:
-        return "  every joint imported exactly"
-    return "\n".join("  " + a.text() for a in info.approximations)
-
-
-def root_coordinates(info: OsimInfo, root_translation: np.ndarray, root_quaternion: np.ndarray,
-                     root_scale: float = 1.0) -> dict[str, np.ndarray]:
-    """OpenSim's ground-joint coordinates (rad, m) of root poses (n, 3) and quaternions (n, 4; x, y, z, w)
-    of the root segment.  The rotation axes must be coordinate axes (as in every OpenSim ground joint)."""
-    rt = info.root
-    if rt is None:
-        raise ModelError(f"{info.source}: its ground joint is not three rotations and three translations of "
-                         f"coordinates; cannot write its coordinates")
-    letters = ""
-    signs = []
-    for name, a in rt.rotations:
-        k = int(np.argmax(np.abs(a)))
-        if abs(abs(a[k]) - 1) > 1e-9:
-            raise ModelError(f"{info.source}: the ground joint's rotation axis for '{name}' is not a coordinate axis; "
-                             f"cannot write its coordinates")
-        letters += "XYZ"[k]
-        signs.append(math.copysign(1.0, a[k]))
-    Rm, tm = rt.child_offset[0], rt.child_offset[1] * root_scale
-    RG = Rotation.from_quat(np.asarray(root_quaternion, float)).as_matrix()  # (n, 3, 3) root segment in lab
-    Rf, tf = rt.parent_offset
-    # X_FM = X_GF^-1 X_GB X_BM
-    R_fm = np.einsum("ij,njk,kl->nil", Rf.T, RG, Rm)
-    p_fm = np.einsum("ij,nj->ni", Rf.T, np.einsum("nij,j->ni", RG, tm) + np.asarray(root_translation, float) - tf)
-    ang = Rotation.from_matrix(R_fm).as_euler(letters)  # intrinsic (body-fixed) sequence
-    ang = np.unwrap(ang * np.array(signs), axis=0)
-    T = np.array([a for _, a in rt.translations]).T
-    tr = np.linalg.solve(T, p_fm.T).T
-    out = {name: ang[:, k] for k, (name, _) in enumerate(rt.rotations)}
-    out.update({name: tr[:, k] for k, (name, _) in enumerate(rt.translations)})
-    return out
-
-
-__all__ = ["Approximation", "OsimInfo", "RootInfo", "approximation_table", "load_osim", "osim_info", "osim_to_urdf",
-           "root_coordinates", "with_locked"]
+__all__ = ["Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]

@@ -114,7 +114,7 @@ def _inertia_vec6(I: np.ndarray) -> np.ndarray:
 
 def _urdf_inertials(model: Model) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
     """link -> (mass, centre of mass (3,), inertia about it in the link frame (3, 3)), base model."""
-    robot = ET.fromstring(model._text)
+    robot = ET.fromstring(model.text)
     out = {}
     for link in robot.findall("link"):
         el = link.find("inertial")
@@ -146,7 +146,7 @@ class _Builder:
         self.scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
         self.urdf = {u.name: u for u in model.urdf_joints}
         self.limits = {d.name: (d.lower, d.upper, d.continuous) for d in model.dofs}
-        from .osim import osim_info
+        from .osim_info import osim_info
 
         self.info = osim_info(model)
 
@@ -344,7 +344,7 @@ def _check_names(model: Model) -> None:
         if bad:
             raise ModelError(f"{model.path}: {what} name {n!r} contains {bad[0]!r}, which OpenSim does not allow "
                              f"in names; rename it in the URDF")
-    from .osim import osim_info
+    from .osim_info import osim_info
 
     info = osim_info(model)
     root = info.root if info is not None else None
@@ -406,7 +406,7 @@ def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) 
     if np.any(norms < 1e-9):
         raise CalibrateError("motion: has a zero root quaternion; give unit quaternions (x, y, z, w)")
     order = [motion.dof_names.index(d) for d in model.dof_names]
-    from .osim import osim_info, root_coordinates
+    from .osim_info import osim_info, root_coordinates
 
     info = osim_info(model)
     if info is not None and info.root is not None:  # OpenSim's own ground-joint coordinates
@@ -423,7 +423,7 @@ def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) 
 
 def mot_text(model: Model, motion: Motion, name: str = "motion", params: Parameters | None = None) -> str:
     """The .mot document (OpenSim Storage, angles in degrees) of `motion`."""
-    from .osim import osim_info
+    from .osim_info import osim_info
 
     names, values = mot_columns(model, motion, params)
     info = osim_info(model)
@@ -472,7 +472,8 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
     """``calibrate export-osim``: check every destination, build every file, then write them all."""
     from ..model.model import load_model
     from .motion import read_motion_csv
-    from .trial import read_trial, write_trc
+    from .read import read_trial
+    from .trc import write_trc
 
     model_path: Path = args.model
     if args.mot is not None and args.motion is None:

@@ -59,7 +59,7 @@ UPPER_TRUNK_MM, MIDDLE_TRUNK_MM = 242.1, 215.5
 
 # Neutral-pose landmarks of the 1.75 m reference (metres, lab frame, floor at z = 0).
 # Right side only (y < 0); the left side is the mirror image y -> -y.
-_R = {
+RIGHT_LANDMARKS = {
     "hip": (0.0, -0.088, 0.930),
     "knee": (0.0, -0.090, 0.506),
     "ankle": (0.0, -0.090, 0.070),
@@ -73,7 +73,7 @@ _R = {
     "wrist": (-0.010, -0.170, 0.857),
     "hand_end": (-0.005, -0.175, 0.770),
 }
-_MID = {
+MIDLINE_LANDMARKS = {
     "pelvis": (0.0, 0.0, 0.930),  # mid-point of the hip joint centres
     "lumbar": (-0.040, 0.0, 1.050),
     "neck": (-0.040, 0.0, 1.500),
@@ -117,7 +117,7 @@ def _unit(v) -> tuple[float, float, float]:
 
 
 # Right-side hinge axes in the parent frame, positive sense as named.
-_PRONATION_R = _unit(np.subtract(_R["radial_head"], _R["ulnar_head"]))
+_PRONATION_R = _unit(np.subtract(RIGHT_LANDMARKS["radial_head"], RIGHT_LANDMARKS["ulnar_head"]))
 _AXES_R = {
     "knee": _unit((0.0, 0.9994, 0.035)),  # flexion +
     "ankle": _unit((-0.10501355, -0.97912632, -0.17402245)),  # dorsiflexion + (gait2392)
@@ -171,9 +171,9 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
     def P(p) -> np.ndarray:
         return k * np.asarray(p, dtype=float)
 
-    pts: dict[str, np.ndarray] = {n: P(p) for n, p in _MID.items()}
+    pts: dict[str, np.ndarray] = {n: P(p) for n, p in MIDLINE_LANDMARKS.items()}
     for side, sgn in (("r", 1.0), ("l", -1.0)):
-        for n, p in _R.items():
+        for n, p in RIGHT_LANDMARKS.items():
             pts[f"{n}_{side}"] = P(p if sgn > 0 else _mirror_point(p))
 
     segs: list[_Seg] = []
@@ -225,7 +225,7 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
     segs[-1].visual_at = pts["neck"] + k * np.array([0.03, 0.0, 0.13])
 
     for s in ("r", "l"):
-        g = {n: pts[f"{n}_{s}"] for n in _R}
+        g = {n: pts[f"{n}_{s}"] for n in RIGHT_LANDMARKS}
         long_segment(f"humerus_{s}", "upper_arm", g["shoulder"], g["elbow"], g["shoulder"], radius=0.04)
         long_segment(f"ulna_{s}", "forearm", g["elbow"], g["wrist"], g["elbow"], frac=0.5, radius=0.022)
         long_segment(f"radius_{s}", "forearm", g["elbow"], g["wrist"], g["radial_head"], frac=0.5, radius=0.022)

@@ -33,6 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import ModelError, read_text_file
+from ..io.osim import osim_to_urdf
 from ..io.text import atomic_write_text, fmt_float, fmt_vec
 from .blocks import GROUPS, ParameterLayout
 
@@ -158,6 +159,12 @@ class Model:
         self._build(root_el)
 
     # ------------------------------------------------------------------ structure
+
+    @property
+    def text(self) -> str:
+        """The model's URDF text, as read (or as generated from an OpenSim model)."""
+        return self._text
+
     def _build(self, robot: ET.Element) -> None:
         where = str(self.path)
         links: dict[str, ET.Element] = {}
@@ -403,9 +410,10 @@ def load_model(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] 
     """Load a calibrate model (URDF), or an OpenSim model (.osim, with an optional OpenSim MarkerSet
     file, calibrate.io.osim); raises ModelError with one line on bad input."""
     if Path(path).suffix.lower() == ".osim":
-        from ..io.osim import load_osim
-
-        return load_osim(path, marker_set)
+        text, info = osim_to_urdf(path, marker_set)
+        model = Model(Path(path), text=text)
+        model.osim = info  # what the URDF keeps of its OpenSim origin (calibrate.io.osim_info)
+        return model
     if marker_set is not None:
         raise ModelError(f"{marker_set}: a marker-set file goes with an OpenSim model (.osim), not {path}")
     return Model(path)
@@ -435,7 +443,7 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
     p = model.parameters() if params is None else params
     _check_sizes(model, p)
     k_mass = mass_factor(model, mass)
-    tree = ET.ElementTree(ET.fromstring(model._text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
+    tree = ET.ElementTree(ET.fromstring(model.text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
     robot = tree.getroot()
     seg_scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
     joint_el = {el.get("name"): el for el in robot.findall("joint")}
@@ -461,8 +469,8 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
             continue
         _scale_link(link, s, k_mass)
     data = ET.tostring(robot, encoding="unicode")
-    start = model._text.find("<robot")
-    head = model._text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
+    start = model.text.find("<robot")
+    head = model.text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
     atomic_write_text(path, head + data + "\n")
     return path
 
@@ -475,7 +483,7 @@ def add_markers(model: Model, markers: Mapping[str, tuple[str, np.ndarray]]) -> 
     model raise ModelError."""
     if not markers:
         return model
-    tree = ET.ElementTree(ET.fromstring(model._text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
+    tree = ET.ElementTree(ET.fromstring(model.text, parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))))
     robot = tree.getroot()
     names = {el.get("name") for el in robot.findall("link")} | {el.get("name") for el in robot.findall("joint")}
     segments = {s.name for s in model.segments}
@@ -498,8 +506,8 @@ def add_markers(model: Model, markers: Mapping[str, tuple[str, np.ndarray]]) -> 
             ET.indent(el, space="  ", level=1)
             el.tail = "\n  "
     robot[-1].tail = "\n"
-    start = model._text.find("<robot")
-    head = model._text[:start] if start > 0 else '<?xml version="1.0"?>\n'
+    start = model.text.find("<robot")
+    head = model.text[:start] if start > 0 else '<?xml version="1.0"?>\n'
     return Model(model.path, text=head + ET.tostring(robot, encoding="unicode") + "\n")
 
 

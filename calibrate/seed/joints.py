@@ -29,28 +29,43 @@ Entry points: :func:`estimate_joints` (trajectories + groups + topology) and
 
 from __future__ import annotations
 
-import itertools
 import math
 import time
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.optimize import least_squares
 from scipy.signal import butter, filtfilt
+
+from calibrate.seed.mtb import (
+    MIN_FRAMES,
+    affine_basis,
+    affine_triangle,
+    jmv_multistart,
+    jmv_rms,
+    mtb_refine,
+    reference_shape,
+    rigid_basis,
+    solve_direction,
+    solve_lambda,
+)
 
 from ..io.text import atomic_write_text
 from ..io.trial import Trial
 from ..model.model import Model
-from .geometry import MIN_SPREAD, RigidFrames, rigid_fit, similarity_fit, sphere_fit, spread, triad_frames
+from .geometry import RigidFrames, rigid_fit, similarity_fit, sphere_fit, triad_frames
 
 HINGE_RATIO = 0.01  # smallest/middle eigenvalue of the rotation fit below this: the joint moved as a hinge
+
+
 MIN_MOTION = 0.005  # m: RMS relative motion below this means the joint did not move enough to locate it
-MIN_FRAMES = 10  # fewer usable frames than this: no estimate
+
+
 MIN_WIDTH = 0.005  # m: a segment's points must lie this far (RMS) from their best-fit line to give it a frame
+
+
 KINDS = ("ball", "hinge", "universal")
 
 
@@ -137,262 +152,6 @@ class JointEstimates:
         return "\n".join(line.rstrip() for line in lines)
 
 
-# --------------------------------------------------------------------------- bases
-@dataclass(frozen=True)
-class Basis:
-    """A segment's marker-trajectory basis: a point fixed on the segment is o[f] + B[f] @ λ."""
-
-    o: np.ndarray  # (F, 3)
-    B: np.ndarray  # (F, 3, 3); NaN in frames where a basis point is missing
-    kind: str  # 'affine' (seed 000 Eq. 1-6, four points or three plus Eq. 9's auxiliary) or 'rigid'
-
-    def point(self, lam: np.ndarray) -> np.ndarray:
-        return self.o + self.B @ lam
-
-
-def auxiliary_point(r1: np.ndarray, r2: np.ndarray, r3: np.ndarray) -> np.ndarray:
-    """Seed 000 Eq. 9: r3 + (r1 − r3) × (r2 − r3), a virtual fourth point rigid with three others."""
-    return r3 + _cross(r1 - r3, r2 - r3)
-
-
-def affine_basis(points: np.ndarray, names: Sequence[str] | None = None) -> Basis:
-    """The MTB basis of seed 000 from 3 non-collinear or 4 non-coplanar trajectories (F, P, 3).
-
-    With four non-coplanar points the basis vectors are a_i = r_i − r_4; with three (or
-    four nearly coplanar ones) the auxiliary point of Eq. 9 replaces the fourth.
-    """
-    P = points.shape[1]
-    ref = _reference_shape(points)
-    if P == 4 and spread(ref)[1] > MIN_SPREAD:
-        r1, r2, r3, r4 = (points[:, i] for i in range(4))
-    else:
-        idx = _best_triangle(ref) if P > 3 else (0, 1, 2)
-        r1, r2, r3 = (points[:, i] for i in idx)
-        r4 = auxiliary_point(r1, r2, r3)
-    B = np.stack([r1 - r4, r2 - r4, r3 - r4], axis=2)
-    return Basis(r4, B, "affine")
-
-
-def _affine_triangle(points: np.ndarray) -> tuple[int, int, int]:
-    """The three points the closed forms use when the MTB basis is affine: the largest triangle."""
-    return _best_triangle(_reference_shape(points)) if points.shape[1] > 3 else (0, 1, 2)
-
-
-def rigid_basis(frames: RigidFrames) -> Basis:
-    """A basis from a least-squares rigid frame (used for segments with more than four points)."""
-    return Basis(frames.t, frames.R, "rigid")
-
-
-def _reference_shape(points: np.ndarray) -> np.ndarray:
-    """Positions (P, 3) in the frame that sees most of the points (gaps 0-filled)."""
-    seen = np.all(np.isfinite(points), axis=2)
-    f = int(np.argmax(seen.sum(1)))
-    return np.where(seen[f][:, None], points[f], np.nan)
-
-
-def _best_triangle(ref: np.ndarray) -> tuple[int, int, int]:
-    """The three points spanning the largest triangle."""
-    combos = np.array(list(itertools.combinations(range(len(ref)), 3)))
-    a, b, c = ref[combos[:, 0]], ref[combos[:, 1]], ref[combos[:, 2]]
-    area = np.linalg.norm(_cross(b - a, c - a), axis=1)
-    area = np.where(np.isfinite(area), area, -1.0)
-    return tuple(int(i) for i in combos[int(np.argmax(area))])  # type: ignore[return-value]
-
-
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Cross product along the last axis (np.cross without its per-call overhead)."""
-    return np.stack([u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1], u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
-                     u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]], axis=-1)
-
-
-# --------------------------------------------------------------------------- costs
-def jmv_cost(centre: np.ndarray, points: np.ndarray, alpha: float = 0.0) -> float:
-    """Seed 000 Eq. 8: mean over points of [variance over frames of |c − r| + α · mean |c − r|].
-
-    centre (F, 3), points (F, P, 3); frames where either is NaN are left out per point.
-    """
-    d = np.linalg.norm(points - centre[:, None, :], axis=2)
-    seen = np.isfinite(d)
-    n = seen.sum(0)
-    use = n > 1
-    d0 = np.where(seen, d, 0.0)
-    mean = d0.sum(0) / np.maximum(n, 1)
-    var = np.where(seen, (d - mean) ** 2, 0.0).sum(0) / np.maximum(n, 1)
-    return float(np.mean((var + alpha * mean)[use])) if np.any(use) else math.nan
-
-
-def _jmv_rms(centre: np.ndarray, points: np.ndarray) -> float:
-    d = np.linalg.norm(points - centre[:, None, :], axis=2)
-    seen = np.isfinite(d)
-    n = seen.sum(0)
-    mean = np.where(seen, d, 0.0).sum(0) / np.maximum(n, 1)
-    dev = np.where(seen, d - mean, 0.0)
-    return float(np.sqrt(np.sum(dev**2) / max(int(seen.sum()), 1)))
-
-
-def mtb_refine(basis: Basis, points: np.ndarray, lam0: np.ndarray, alpha: float = 0.0,
-               fixed: np.ndarray | None = None, iterations: int = 30) -> tuple[np.ndarray, float, int]:
-    """Minimise Eq. 8 over λ by damped Newton with the exact gradient and Hessian.
-
-    points (F, P, 3) are the markers (and solved joints) of both segments.  `fixed` is a
-    direction in λ-space that is not changed (a hinge's axis).  Returns λ, cost, iterations.
-    """
-    ok = np.all(np.isfinite(basis.B.reshape(len(basis.B), -1)), axis=1) & np.isfinite(basis.o[:, 0])
-    o, B, r = basis.o[ok], basis.B[ok], points[ok]
-    seen = np.all(np.isfinite(r), axis=2)  # (F, P)
-    r = np.where(seen[..., None], r, 0.0)
-    w = seen.astype(float)
-    n = np.maximum(w.sum(0), 1.0)  # (P,)
-    use = w.sum(0) > 1
-    w[:, ~use] = 0.0
-    P_used = max(int(use.sum()), 1)
-    if fixed is not None:
-        f = fixed / np.linalg.norm(fixed)
-        N = np.linalg.svd(np.eye(3) - np.outer(f, f))[0][:, :2]
-    else:
-        N = np.eye(3)
-
-    def evaluate(lam: np.ndarray, hessian: bool):
-        c = o + B @ lam
-        diff = c[:, None, :] - r  # (F, P, 3)
-        d = np.sqrt(np.sum(diff**2, axis=2))
-        d = np.where(w > 0, np.maximum(d, 1e-12), 1.0)
-        mean = (w * d).sum(0) / n
-        dev = w * (d - mean)
-        cost = float(np.sum(((dev**2).sum(0) / n + alpha * mean)[use]) / P_used)
-        if not hessian:
-            return cost, None, None
-        u = diff / d[..., None]
-        g = np.matmul(u, B)  # ∂d/∂λ = Bᵀ u   (F, P, 3)
-        gw = w[..., None] * g
-        gbar = gw.sum(0) / n[:, None]  # (P, 3)
-        grad = 2 * (dev[..., None] * g).sum(0) / n[:, None] + alpha * gbar
-        grad = grad[use].sum(0) / P_used
-        gc = w[..., None] * (g - gbar[None])
-        H = 2 * np.matmul(gc.transpose(1, 2, 0), g.transpose(1, 0, 2)) / n[:, None, None]
-        # second-order term: Σ (2 (d − d̄) + α) ∂²d / n, with ∂²d = Bᵀ (I − u uᵀ) B / d
-        coef = (2 * dev + alpha * w) / d / n[None, :]
-        coef[:, ~use] = 0.0
-        BtB = np.matmul(np.swapaxes(B, 1, 2), B)
-        Bu = g  # Bᵀu
-        H2 = np.tensordot(coef.sum(1), BtB, 1) - (coef[..., None] * Bu).reshape(-1, 3).T @ Bu.reshape(-1, 3)
-        H = H[use].sum(0) / P_used + H2 / P_used
-        return cost, grad, H
-
-    lam = np.array(lam0, dtype=float)
-    cost, grad, H = evaluate(lam, True)
-    mu = 0.0
-    it = 0
-    for it in range(1, iterations + 1):  # noqa: B007
-        gN, HN = N.T @ grad, N.T @ H @ N
-        scale = np.maximum(np.abs(np.diag(HN)), 1e-30)
-        if cost <= 1e-28 * (1.0 + float(np.mean(np.sum(r**2, axis=2)))):
-            break  # exact fit (noise-free data): nothing left to gain
-        accepted = False
-        for _ in range(20):
-            try:
-                step = -np.linalg.solve(HN + mu * np.diag(scale), gN)
-            except np.linalg.LinAlgError:
-                mu = max(mu * 10, 1e-6)
-                continue
-            if np.linalg.norm(step) <= 1e-13 * (1 + np.linalg.norm(lam)):
-                break  # converged to rounding
-            trial = lam + N @ step
-            new = evaluate(trial, False)[0]
-            if new <= cost:
-                accepted = True
-                break
-            mu = max(mu * 10, 1e-6)
-        if not accepted:
-            break
-        small = np.linalg.norm(step) <= 1e-12 * (1 + np.linalg.norm(lam))
-        flat = cost - new <= 1e-15 * max(cost, 1e-300)
-        lam, cost = trial, new
-        mu = mu / 10 if mu > 1e-9 else 0.0
-        if small or flat:
-            break
-        cost, grad, H = evaluate(lam, True)
-    return lam, cost, it
-
-
-def _inv_sym3(A: np.ndarray) -> np.ndarray:
-    """Inverses of symmetric 3x3 matrices (F, 3, 3) by cofactors (vectorised; no per-matrix LAPACK call)."""
-    a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
-    d, e, f = A[:, 1, 1], A[:, 1, 2], A[:, 2, 2]
-    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
-    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
-    det = a * c00 + b * c01 + c * c02
-    inv = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], axis=1).reshape(-1, 3, 3)
-    return inv / det[:, None, None]
-
-
-def jmv_frames(points: np.ndarray, start: np.ndarray, iterations: int = 100) -> tuple[np.ndarray, np.ndarray, float]:
-    """Condition-free JMV optimisation: a joint position in every frame (Kirk et al. 2005).
-
-    Minimises Σ_f Σ_p (|c_f − r_fp| − ρ_p)² over the positions c_f (3 per frame) and the
-    joint–point distances ρ_p (the variance part of Eq. 8, with α = 0), by
-    Levenberg–Marquardt.  The normal equations are block-arrow (frames coupled only through
-    ρ) and are solved by a Schur complement on ρ, so the cost is linear in the frames.
-    Returns c (F, 3; NaN where fewer than 3 points are seen), ρ (P,), final RMS residual.
-    """
-    seen = np.all(np.isfinite(points), axis=2)
-    ok = seen.sum(1) >= 3
-    r = np.where(seen[..., None], points, 0.0)[ok]
-    w = seen[ok].astype(float)
-    c = np.array(start, dtype=float)[ok]
-    c = np.where(np.isfinite(c), c, (w[..., None] * r).sum(1) / np.maximum(w.sum(1), 1)[:, None])
-
-    def dist(c):
-        diff = c[:, None, :] - r
-        d = np.sqrt(np.sum(diff**2, axis=2))
-        return diff, np.maximum(d, 1e-12)
-
-    diff, d = dist(c)
-    rho = (w * d).sum(0) / np.maximum(w.sum(0), 1)
-    e = w * (d - rho)
-    cost = float(np.sum(e**2))
-    mu = 1e-3
-    for _ in range(iterations):
-        u = diff / d[..., None]
-        A = np.matmul(np.swapaxes(u * w[..., None], 1, 2), u)
-        gc = (e[..., None] * u).sum(1)
-        grho = -e.sum(0)
-        Dd = w.sum(0)
-        accepted = False
-        for _ in range(20):
-            Ad = A + mu * (np.diagonal(A, axis1=1, axis2=2)[..., None] * np.eye(3) + 1e-12 * np.eye(3))
-            Ainv = _inv_sym3(Ad)
-            C = -(w[..., None] * u)  # (F, P, 3): column p of C_f is C[f, p]
-            AiC = np.matmul(C, Ainv)  # Ainv is symmetric
-            S = np.diag(Dd * (1 + mu) + 1e-12) - np.tensordot(C, AiC, axes=([0, 2], [0, 2]))
-            Aig = np.matmul(Ainv, gc[..., None])[..., 0]
-            rhs = -grho + np.tensordot(C, Aig, axes=([0, 2], [0, 1]))
-            try:
-                drho = np.linalg.solve(S, rhs)
-            except np.linalg.LinAlgError:
-                mu *= 10
-                continue
-            dc = -Aig - np.tensordot(AiC, drho, axes=([1], [0]))
-            c_new, rho_new = c + dc, rho + drho
-            diff_n, d_n = dist(c_new)
-            e_n = w * (d_n - rho_new)
-            new = float(np.sum(e_n**2))
-            if new <= cost:
-                accepted = True
-                break
-            mu *= 10
-        if not accepted:
-            break
-        done = cost - new <= 1e-10 * cost or new < 1e-28
-        c, rho, diff, d, e, cost = c_new, rho_new, diff_n, d_n, e_n, new
-        mu = max(mu / 10, 1e-12)
-        if done:
-            break
-    out = np.full((len(points), 3), np.nan)
-    out[ok] = c
-    return out, rho, float(np.sqrt(cost / max(w.sum(), 1)))
-
-
 # --------------------------------------------------------------------------- framework
 @dataclass
 class _Point:
@@ -434,7 +193,7 @@ class _Framework:
     def has_frame(self, s: str, without: str = "") -> bool:
         """Whether the segment's points (less `without`) span a frame: 3 or more, not (nearly) collinear."""
         pts = [p for p in self.seg[s] if p.name != without]
-        return len(pts) >= 3 and _frame_width(_reference_shape(np.stack([p.traj for p in pts], axis=1))) > MIN_WIDTH
+        return len(pts) >= 3 and _frame_width(reference_shape(np.stack([p.traj for p in pts], axis=1))) > MIN_WIDTH
 
     def other_points(self, spec: JointSpec, anchor: str) -> tuple[list[_Point], str]:
         """Points that move with the far side of the joint; looks through a markerless segment."""
@@ -485,7 +244,7 @@ class _Framework:
         A = np.stack([p.traj for p in apts], axis=1)
         O = np.stack([p.traj for p in opts], axis=1)
         paper = self.basis == "affine" and len(apts) <= 4
-        frames = triad_frames(A, _affine_triangle(A)) if paper else rigid_fit(A)
+        frames = triad_frames(A, affine_triangle(A)) if paper else rigid_fit(A)
         Q = frames.to_local(O)
         Q[~frames.valid] = np.nan
         usable = frames.valid & np.any(np.all(np.isfinite(O), axis=2), axis=1)
@@ -513,11 +272,11 @@ class _Framework:
         # MTB refinement (Eq. 8) in the paper's basis of at most four points, else the rigid frame
         basis = affine_basis(A) if paper else rigid_basis(frames)
         c_world = frames.to_world(fit.centre)
-        lam0 = _solve_lambda(basis, c_world)
+        lam0 = solve_lambda(basis, c_world)
         allpts = np.concatenate([A, O], axis=1)
         fixed = None
         if hinge:
-            fixed = _solve_direction(basis, frames, fit.axis)
+            fixed = solve_direction(basis, frames, fit.axis)
         lam, _, _ = mtb_refine(basis, allpts, lam0, self.alpha, fixed=fixed)
         centre = basis.point(lam)
         centre[~usable] = np.nan
@@ -531,7 +290,7 @@ class _Framework:
         return JointEstimate(
             spec.name, spec.parent, spec.child, "hinge" if hinge else "ball",
             "MTB (propagated)" if propagated else "MTB", centre, axis_world, anchor,
-            _jmv_rms(centre, allpts), int(np.isfinite(centre[:, 0]).sum()), True, "", note,
+            jmv_rms(centre, allpts), int(np.isfinite(centre[:, 0]).sum()), True, "", note,
             axis_local=fit.axis if hinge else None, centre_local=c_local)
 
     def prior_local(self, spec: JointSpec, anchor: str, apts: list[_Point], frames: RigidFrames) -> np.ndarray | None:
@@ -566,14 +325,14 @@ class _Framework:
         ga = [p.traj for p in self.seg[a] if p.name != spec.name]
         gb = [p.traj for p in self.seg[b] if p.name != spec.name]
         # a hinge's JMV optimum is a whole line, so the global search for the one true point is skipped
-        centre = _jmv_multistart(X, ga, gb, self.F, search=spec.kind != "hinge")
+        centre = jmv_multistart(X, ga, gb, self.F, search=spec.kind != "hinge")
         n = int(np.isfinite(centre[:, 0]).sum())
         if n < MIN_FRAMES:
             return self._fail(spec, f"only {n} frames see 3 or more points around the joint; need {MIN_FRAMES}")
         if spec.kind == "hinge":
             note = "; ".join(filter(None, [note, "a hinge solved by per-frame JMV: where the centre lies along the "
                                                   "axis is not determined by the data"]))
-        return JointEstimate(spec.name, a, b, spec.kind or "ball", "JMV", centre, None, None, _jmv_rms(centre, X),
+        return JointEstimate(spec.name, a, b, spec.kind or "ball", "JMV", centre, None, None, jmv_rms(centre, X),
                              n, True, "", note)
 
     def _fail(self, spec: JointSpec, reason: str) -> JointEstimate:
@@ -621,123 +380,6 @@ class _Framework:
                     break
 
 
-def _jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F: int,
-                    search: bool = True) -> np.ndarray:
-    """Per-frame JMV from several starts (the cost has mirror-image and local minima); the lowest
-    residual wins.
-
-    Starts: the best few of a grid search over the joint's distances to three of the points
-    (trilateration, see _trilateration_starts), the midpoint of the two segments' centroids, each
-    centroid, and, for a segment with two points p, q, the points beyond either end of pq.
-    """
-    ca, cb = _centroid(ga, F), _centroid(gb, F)
-    starts = (_trilateration_starts(X) if search else []) + [0.5 * (ca + cb), ca, cb]
-    for g in (ga, gb):
-        if len(g) == 2:
-            p, q = g
-            starts += [p + 1.5 * (q - p), q + 1.5 * (p - q)]
-    best, best_rms = None, math.inf
-    for start in starts:  # a few iterations from every start, then the most promising is finished
-        if not np.any(np.isfinite(start)):
-            continue
-        with warnings.catch_warnings():  # a frame with no marker at all has no mean: it stays NaN
-            warnings.simplefilter("ignore", RuntimeWarning)
-            fill = np.nanmean(X, axis=1)
-        centre, _, rms = jmv_frames(X, np.where(np.isfinite(start), start, fill), iterations=8)
-        if rms < best_rms:
-            best, best_rms = centre, rms
-        if best_rms < 1e-12:
-            break
-    if best is not None and best_rms >= 1e-12:
-        best, _, _ = jmv_frames(X, best)
-    return best if best is not None else np.full((F, 3), np.nan)
-
-
-def _trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_frames: int = 100) -> list[np.ndarray]:
-    """Global starts for per-frame JMV: a joint keeps fixed distances (ρa, ρb, ρc) to three of the points
-    around it, so on a grid of those three distances every frame's joint follows by trilateration (two
-    mirror solutions; one side is kept for the whole trial).  Each grid point is scored by how much the
-    joint's distances to the other points vary; the `keep` best become starts (trajectories (F, 3)).
-    The search runs on at most `max_frames` evenly spaced frames; trilateration then fills all frames."""
-    F, P, _ = X.shape
-    if P < 4:
-        return []
-    seen = np.all(np.isfinite(X), axis=2)
-    full = np.flatnonzero(seen.all(1))
-    if len(full) < MIN_FRAMES:
-        return []
-    # the three points spanning the largest triangle on average, the rest score
-    ref = X[full[len(full) // 2]]
-    a, b, c = _best_triangle(ref)
-    rest = [k for k in range(P) if k not in (a, b, c)]
-    sub = full[np.linspace(0, len(full) - 1, min(max_frames, len(full))).astype(int)]
-    span = np.nanmax(np.linalg.norm(X[sub][:, :, None] - X[sub][:, None, :], axis=3))
-    grid = np.linspace(span / steps, span, steps)
-    ra, rb, rc = (g.ravel() for g in np.meshgrid(grid, grid, grid, indexing="ij"))
-    Xs, Xr = X[sub], X[sub][:, rest]
-
-    def candidates(r: np.ndarray, Xa, Xb, Xc, Xrest) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per frame, the trilaterated joint on the side of the plane that fits the other points
-        (the joint may cross the plane of the three during the trial): (G, f, 3), distances, misses."""
-        both = [_trilaterate(Xa, Xb, Xc, r[0], r[1], r[2], sign) for sign in (1.0, -1.0)]
-        d = [np.linalg.norm(cen[:, :, None, :] - Xrest[None], axis=3) for cen, _ in both]  # (G, f, R)
-        med = [np.median(x, axis=1, keepdims=True) for x in d]
-        one_side = [np.sum(np.var(x, axis=1), axis=1) for x in d]
-        ref = np.where((one_side[0] <= one_side[1])[:, None, None], med[0], med[1])
-        pick = np.sum((d[0] - ref) ** 2, axis=2) <= np.sum((d[1] - ref) ** 2, axis=2)  # (G, f)
-        cen = np.where(pick[..., None], both[0][0], both[1][0])
-        return cen, np.where(pick[..., None], d[0], d[1]), np.where(pick, both[0][1], both[1][1])
-
-    def score(r: np.ndarray) -> np.ndarray:
-        _, d, bad = candidates(r, Xs[:, a], Xs[:, b], Xs[:, c], Xr)
-        beyond = np.sum(np.maximum(np.abs(r - 0.5 * span) - 0.5 * span, 0.0) ** 2, axis=0)  # keep 0 < ρ < span
-        return d.var(axis=1).sum(1) + bad.mean(1) + beyond
-
-    def residuals(r: np.ndarray) -> np.ndarray:
-        _, d, bad = candidates(r[:, None], Xs[:, a], Xs[:, b], Xs[:, c], Xr)
-        beyond = np.maximum(np.abs(r - 0.5 * span) - 0.5 * span, 0.0)
-        return np.concatenate([(d[0] - d[0].mean(0)).ravel() / math.sqrt(len(sub)), np.sqrt(bad[0] / len(sub)),
-                               beyond])
-
-    sc = score(np.stack([ra, rb, rc]))
-    best: list[tuple[float, np.ndarray]] = []
-    picked: list[np.ndarray] = []
-    for g in np.argsort(sc):  # the best distinct grid points, each polished by least squares in (ρa, ρb, ρc)
-        r0 = np.array([ra[g], rb[g], rc[g]])
-        if any(np.max(np.abs(r0 - q)) <= 1.5 * span / steps for q in picked):
-            continue
-        picked.append(r0)
-        res = least_squares(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
-        best.append((float(2 * res.cost), res.x))
-        if len(picked) == keep or res.cost < 1e-24:
-            break
-    best.sort(key=lambda item: item[0])
-    rest_all = X[:, rest]
-    return [candidates(r[:, None], X[:, a], X[:, b], X[:, c], rest_all)[0][0] for _, r in best]
-
-
-def _trilaterate(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, r1: np.ndarray, r2: np.ndarray,
-                 r3: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points at distances r1, r2, r3 (G,) from p1, p2, p3 (f, 3) on the `sign` side of their plane:
-    (G, f, 3), and how far (m²) the spheres miss each other where they do not meet (0 where they do)."""
-    ex = p2 - p1
-    dd = np.linalg.norm(ex, axis=1)
-    ex = ex / dd[:, None]
-    v = p3 - p1
-    i = np.sum(ex * v, axis=1)
-    ey = v - i[:, None] * ex
-    j = np.linalg.norm(ey, axis=1)
-    ey = ey / j[:, None]
-    ez = _cross(ex, ey)
-    r1, r2, r3 = r1[:, None], r2[:, None], r3[:, None]
-    x = (r1**2 - r2**2 + dd**2) / (2 * dd)
-    y = (r1**2 - r3**2 + i**2 + j**2) / (2 * j) - (i / j) * x
-    z2 = r1**2 - x**2 - y**2
-    z = sign * np.sqrt(np.maximum(z2, 0.0))
-    pts = p1 + x[..., None] * ex + y[..., None] * ey + z[..., None] * ez
-    return pts, np.maximum(-z2, 0.0)
-
-
 def _frame_width(ref: np.ndarray) -> float:
     """RMS distance (m) of points (P, 3) from their best-fit line; 0 if fewer than 3 are seen."""
     pts = ref[np.all(np.isfinite(ref), axis=1)]
@@ -745,33 +387,6 @@ def _frame_width(ref: np.ndarray) -> float:
         return 0.0
     sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
     return float(np.sqrt(np.sum(sv[1:] ** 2) / len(pts)))
-
-
-def _centroid(trajs: list[np.ndarray], F: int) -> np.ndarray:
-    """Per-frame mean of the trajectories seen in that frame (NaN if none)."""
-    if not trajs:
-        return np.full((F, 3), np.nan)
-    X = np.stack(trajs, axis=1)
-    seen = np.all(np.isfinite(X), axis=2)
-    n = seen.sum(1)
-    out = np.where(seen[..., None], X, 0.0).sum(1) / np.maximum(n, 1)[:, None]
-    out[n == 0] = np.nan
-    return out
-
-
-def _solve_lambda(basis: Basis, c: np.ndarray) -> np.ndarray:
-    """λ with o + B λ closest to the trajectory c (F, 3) over the frames where all are defined."""
-    ok = np.isfinite(c[:, 0]) & np.all(np.isfinite(basis.B.reshape(len(c), -1)), axis=1)
-    B, r = basis.B[ok], (c - basis.o)[ok]
-    return np.linalg.solve(np.matmul(np.swapaxes(B, 1, 2), B).sum(0), np.matmul(r[:, None, :], B).sum((0, 1)))
-
-
-def _solve_direction(basis: Basis, frames: RigidFrames, axis_local: np.ndarray) -> np.ndarray:
-    """A direction fixed in the rigid frame, expressed in λ-space of the basis."""
-    ok = frames.valid & np.all(np.isfinite(basis.B.reshape(len(basis.B), -1)), axis=1)
-    v = frames.R[ok] @ axis_local
-    B = basis.B[ok]
-    return np.linalg.solve(np.matmul(np.swapaxes(B, 1, 2), B).sum(0), np.matmul(v[:, None, :], B).sum((0, 1)))
 
 
 def _n_frames(points: Mapping[str, np.ndarray]) -> int:

@@ -63,7 +63,7 @@ def marker_columns(model: Model, trial: Trial) -> np.ndarray:
     return out
 
 
-class _FrameSolver:
+class FrameSolver:
     """Levenberg–Marquardt on a subset of one frame's coordinates and markers."""
 
     def __init__(self, kin: Kinematics, p: np.ndarray, evaluator=None):
@@ -215,7 +215,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     obs = marker_columns(model, trial)
     nf = obs.shape[0]
     p = params.vector()
-    solver = _FrameSolver(kin, p)
+    solver = FrameSolver(kin, p)
     all_free = np.arange(model.nz)
     Z = np.zeros((nf, model.nz))
     Q = np.tile(solver.identity, (nf, 1))  # refs (root, balls) per frame

@@ -33,7 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..problem.options import SolverOptions
-from ..problem.problem import Linearization, Problem, State, in_parallel, split_frames
+from ..problem.problem import Problem, in_parallel, split_frames
+from ..problem.state import Linearization, State
 from .assembly import back_substitute, factor_frames, forward_substitute
 
 __all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "covariance", "levenberg_marquardt"]

@@ -1,0 +1,215 @@
+"""What the trial identified: each parameter's change against its prior-only uncertainty, coordinates
+the trial does not show moving or drives past their limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..model.blocks import FrameLayout, perpendicular_basis
+from ..model.model import Model
+from ..problem.problem import Problem
+from ..problem.settings import Settings
+from .records import CoordinateNote, Identified, LimitNote, ParameterChange, StillNote
+
+STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
+
+
+LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
+
+
+LIMIT_NOTE_FRACTION = 0.05  # ... in more than this fraction of the frames is noted (limit_notes)
+
+
+IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
+
+
+def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray,
+                     settings: Settings) -> tuple[CoordinateNote, ...]:
+    """still_records, then limit_records for the coordinates not already named."""
+    still = still_records(model, angles, A, settings)
+    named = {n.coordinate for n in still}
+    return still + tuple(n for n in limit_records(model, angles, settings) if n.coordinate not in named)
+
+
+def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
+                      settings: Settings) -> list[tuple[str, float, float]]:
+    """The coordinates (not locked) whose estimated motion is no larger than the noise: their spread
+    over the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix them (the
+    median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block).  Such a joint
+    did not move as far as the trial shows, so nothing pins its axis or its angle's zero, and the
+    fit can trade them for noise (a still subtalar joint under a two-marker foot ends at its
+    widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad."""
+    locked = {n for n, _ in settings.lock}
+    nz = A.shape[1]
+    A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), 500)).astype(int))]  # a median needs no more
+    # A ridge at one global scale: a frame (or direction) with no data gets a huge SD, not a failure.
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    cov = np.linalg.inv(A + ridge * np.eye(nz))
+    sd = np.sqrt(np.maximum(FrameLayout.angles(np.diagonal(cov, axis1=1, axis2=2)), 0.0))
+    out = []
+    for k, d in enumerate(model.dofs):
+        if d.name in locked:
+            continue
+        spread, per_frame = float(np.std(angles[:, k])), float(np.median(sd[:, k]))
+        if spread < STILL_RATIO * per_frame:
+            out.append((d.name, spread, per_frame))
+    return out
+
+
+def still_records(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[StillNote, ...]:
+    """A note per coordinate that still_coordinates names, with what was done and what to do."""
+    return tuple(StillNote(name, spread, per_frame, name in settings.hold_axes)
+                 for name, spread, per_frame in still_coordinates(model, angles, A, settings))
+
+
+def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """still_records as the user reads them."""
+    return tuple(n.text() for n in still_records(model, angles, A, settings))
+
+
+def limit_records(model: Model, angles: np.ndarray, settings: Settings) -> tuple[LimitNote, ...]:
+    """A note per coordinate that the fit drove beyond the base model's joint limits (by more than
+    LIMIT_NOTE_DEG) in more than LIMIT_NOTE_FRACTION of the frames.  A coordinate the markers cannot
+    resolve (a joint that did not move, under a segment with too few markers) drifts like this, and
+    the geometry around it with it; one the subject really moved past the model's range does too."""
+    locked = {n for n, _ in settings.lock}
+    tol = math.radians(LIMIT_NOTE_DEG)
+    out = []
+    for k, d in enumerate(model.dofs):
+        if d.name in locked or not (np.isfinite(d.lower) and np.isfinite(d.upper)):
+            continue
+        th = angles[:, k]
+        beyond = (th < d.lower - tol) | (th > d.upper + tol)
+        if beyond.mean() > LIMIT_NOTE_FRACTION:
+            out.append(LimitNote(d.name, float(beyond.mean()), float(np.max(np.maximum(d.lower - th, th - d.upper)))))
+    return tuple(out)
+
+
+def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[str, ...]:
+    """limit_records as the user reads them."""
+    return tuple(n.text() for n in limit_records(model, angles, settings))
+
+
+def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
+    """Largest posterior/prior-only std ratio over directions, and that direction."""
+    ev0, U = np.linalg.eigh(0.5 * (C0 + C0.T))
+    keep = ev0 > 1e-12 * max(float(ev0.max(initial=0.0)), 1e-300)  # directions the priors alone leave open
+    if not keep.any():
+        return 0.0, U[:, -1]
+    Wh = U[:, keep] / np.sqrt(ev0[keep])  # whitening by the prior-only covariance on its range
+    ev, V = np.linalg.eigh(Wh.T @ C @ Wh)
+    v = U[:, keep] @ (np.sqrt(ev0[keep]) * V[:, -1])
+    return math.sqrt(max(float(ev[-1]), 0.0)), v / np.linalg.norm(v)
+
+
+def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> list[ParameterChange]:
+    """Per joint centre, hinge axis, marker and scale: change from the base model, posterior std,
+    and whether the trial identified it: in its worst direction, the posterior std must be below
+    IDENTIFIED times the std the priors alone would leave (else the prior holds it)."""
+    model = problem.model
+    P = model.unpack(p)
+    B = problem.base
+    col = {n: k for k, n in enumerate(problem.free_names)}
+    names = model.parameter_names()
+    L = problem.layout
+    out: list[ParameterChange] = []
+    seg_scale = P.scale
+
+    # A segment without markers (the talus) is seen only through its neighbours: its two joints trade
+    # off along a curved valley that the linearised posterior SD understates (on squats the subtalar
+    # axes end 5-10 deg from the truth with a 1-2 deg SD), so they are never called identified.
+    bare = {sg.name for sg in model.segments if not sg.markers}
+    blind = {j.name: (f"next to {j.parent if j.parent in bare else j.child}, which carries no markers: this joint "
+                      f"and its neighbour trade off beyond what the posterior SD shows; held by the prior")
+             for j in model.joints if j.parent in bare or j.child in bare}
+
+    still = set(problem.settings.hold_segments)  # no marker seen on or below: held at the base model's
+
+    def unseen(segment: str) -> str:
+        return f"no marker seen on or below {segment}: held at the base model's"
+
+    def block_cov(idx: list[str]) -> tuple[np.ndarray, np.ndarray] | None:
+        """Posterior and prior-only covariance of a position at the subject's scale (its free
+        coordinates, see Problem.tangent_map: what the data see)."""
+        if not all(n in col for n in idx):
+            return None
+        c = [col[n] for n in idx]
+        return cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
+
+
+    for ji, j in enumerate(model.joints):
+        s = seg_scale[problem.centre_segment[ji]]
+        CC = block_cov(names[L.centre(ji)])
+        value, base = s * P.centre[ji], B.centre[ji]
+        if CC is None and j.parent in still:
+            std, status, note = np.full(3, np.nan), Identified.UNSEEN, unseen(j.parent)
+        elif CC is None:
+            std, status, note = np.full(3, np.nan), Identified.FIXED, "held (not free)"
+        else:
+            std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
+            if j.kind == "hinge":
+                # Along its axis a hinge centre is a gauge: no motion moves the markers when it
+                # slides there (the child's contents slide back), so the prior alone holds it.
+                d = model.dof_index(j.dofs[0])
+                u = next(u for u in model.urdf_joints if u.name == j.urdf_joints[0])
+                a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
+                Qp = perpendicular_basis(a)
+                ratio, _ = worst_ratio(Qp.T @ CC[0] @ Qp, Qp.T @ CC[1] @ Qp)
+                status = Identified.ACROSS_AXIS if ratio < IDENTIFIED else Identified.NO
+                axis_txt = ", ".join(f"{x:+.2f}" for x in a)
+                note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
+                        f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
+                                                             " either: held by the prior"))
+            else:
+                ratio, v = worst_ratio(*CC)
+                status = Identified.YES if ratio < IDENTIFIED else Identified.NO
+                note = "" if status.identified else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
+                                         f"in the {j.parent} frame: held by the prior")
+        if CC is not None and j.name in blind:
+            status, note = Identified.NO, blind[j.name]
+        out.append(ParameterChange("centre", j.name, base, value, 1000 * float(np.linalg.norm(value - base)),
+                                   std, status, note, ratio if CC is not None else float("nan")))
+    for d in problem.axis_dofs:
+        a = P.axis[d] / np.linalg.norm(P.axis[d])
+        a0 = B.axis[d] / np.linalg.norm(B.axis[d])
+        cols = L.axis_cols(d)
+        C = cov[np.ix_(cols, cols)]
+        std = np.degrees(np.sqrt(np.clip(np.diag(C), 0, None)))
+        ratio = worst_ratio(C, prior_cov[np.ix_(cols, cols)])[0]
+        status = Identified.YES if ratio < IDENTIFIED else Identified.NO
+        ang = math.degrees(math.acos(min(1.0, abs(float(a @ a0)))))
+        note = "" if status.identified else "the joint did not turn enough about it: held by the prior"
+        if model.dofs[d].joint in blind:
+            status, note = Identified.NO, blind[model.dofs[d].joint]
+        out.append(ParameterChange("axis", model.dofs[d].name, a0, a, ang, std, status, note, ratio))
+    for k, mk in enumerate(model.markers):
+        s = seg_scale[problem.marker_segment[k]]
+        CC = block_cov(names[L.marker(k)])
+        value, base = s * P.marker[k], B.marker[k]
+        seen = bool(problem.seen[:, k].any())
+        if CC is None and mk.segment in still:
+            std, status, note = np.full(3, np.nan), Identified.UNSEEN, unseen(mk.segment)
+        elif CC is None:
+            std, status, note = np.full(3, np.nan), Identified.FIXED, "held (not free)"
+        else:
+            std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
+            ratio = worst_ratio(*CC)[0]
+            status = Identified.YES if seen and ratio < IDENTIFIED else Identified.NO
+            note = "" if status.identified else ("never seen in the trial: base model kept" if not seen
+                                     else "poorly seen: held by the prior")
+        out.append(ParameterChange("marker", mk.name, base, value, 1000 * float(np.linalg.norm(value - base)),
+                                   std, status, note, ratio if CC is not None else float("nan")))
+    for si, sg in enumerate(model.segments):
+        name = names[si]
+        free = name in col
+        std = np.array([math.sqrt(max(cov[col[name], col[name]], 0.0))]) if free else np.array([np.nan])
+        ratio = float(std[0] / math.sqrt(prior_cov[col[name], col[name]])) if free else float("nan")
+        status = (Identified.UNSEEN if sg.name in still else Identified.FIXED if not free
+                  else Identified.YES if ratio < IDENTIFIED else Identified.NO)
+        note = (unseen(sg.name) if sg.name in still else "held (not free)" if not free else "" if status.identified
+                else "the trial barely sizes this segment: held by the prior")
+        out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
+                                   float(seg_scale[si] - 1.0), std, status, note, ratio))
+    return out

@@ -1,0 +1,183 @@
+"""The markers' noise learnt from the trial (leverage-corrected, winsorised residual scatter and its
+correlation time) and the outliers measured against it."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+from calibrate.seed.seeding import MAD_SD
+
+from ..model.model import Model
+from ..problem.problem import Problem
+from ..problem.settings import Settings
+from ..problem.state import State
+from .records import Progress
+
+NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
+
+
+NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it)
+
+
+NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or all markers') median learnt SD
+
+
+NOISE_CHANGE = 0.1  # stop re-learning when no marker's SD changes by more than this fraction
+
+
+NOISE_TAU_MAX = 16.0  # frames: a marker's residual correlation time counts up to this (its weight SD: 4 x its SD)
+
+
+NOISE_CLIP = 4.0  # a residual counts in the learnt SD up to this many robust SDs per coordinate (spikes: no more)
+
+
+def fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
+    """Markers whose noise SD is the user's (Settings.marker_noise), or None when nothing is learnt."""
+    if not settings.learns_noise:
+        return None
+    named = {label for label, _ in settings.marker_noise}
+    return np.array([n in named for n in model.marker_names])
+
+
+def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str | Progress], None],
+             trial_of: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """learned_noise at `state`: the weights' SDs sigma sqrt(τ) (a marker whose residuals are correlated
+    over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
+    None if nine markers in ten changed their weights' SD by no more than NOISE_CHANGE (a few poorly
+    seen markers may go on wavering without moving the geometry)."""
+    scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True)
+    sigma = scatter * np.sqrt(tau)
+    change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
+    say(Progress("noise", f"learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
+                          f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to "
+                          f"{tau.max():.1f}); 9 in 10 weights changed by <= {100 * change:.0f} %"))
+    return (sigma if change > NOISE_CHANGE else None), scatter
+
+
+def leverage(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
+    """(F, n_markers) leverage of each observed marker in its frame — the trace of the weighted hat
+    matrix J_z A_f⁻¹ J_zᵀ W over its three rows, / 3: the fraction of its error the frame's pose
+    absorbs — and the raw residuals (F, 3 n_markers) at `state`."""
+    nm = len(problem.model.markers)
+    lin = problem.linearize(state, with_parameters=False)
+    d, jz, _, wrow = lin.jacobian[:4]
+    zr, zc, nrows, nz = problem.jz_pattern
+    F = problem.F
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(lin.A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    h = np.zeros((F, nm))
+    for s in range(0, F, 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
+        e = min(F, s + 128)
+        J = np.zeros((e - s, nrows, nz))
+        J[:, zr, zc] = jz[s:e]
+        J *= wrow[s:e, :, None]
+        Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
+        # diag(J A⁻¹ J') row by row: a batched matrix product (BLAS), then a row-wise dot product
+        h[s:e] = np.sum(np.matmul(J, Ainv) * J, axis=2).reshape(e - s, nm, 3).sum(axis=2) / 3
+    return np.where(problem.seen, h, 0.0), d
+
+
+def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
+                  trial_of: np.ndarray | None = None, correlation: bool = False):
+    """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
+    residuals over the frames, each winsorised at NOISE_CLIP robust SDs per coordinate (MAD_SD times
+    the median absolute deviation of its components in the same trial: `trial_of` (F,) gives each
+    frame's trial; a static trial's scatter is smaller than a walk's), so that skin-motion scatter
+    counts and spikes count no more than a few SDs.  A residual is smaller than the noise by the
+    part of it the fit absorbs, so each is first divided by sqrt(1 − h): h its frame's leverage
+    (the trace of the weighted hat matrix J_z A_f⁻¹ J_zᵀ W over the marker's three rows, / 3:
+    one frame's 38 coordinates absorb about a third of 39 markers' 117 coordinates) plus 1/n for
+    the marker's own offset, fitted over its n frames.  Markers seen in fewer than NOISE_MIN_FRAMES
+    frames or almost wholly absorbed (h > 0.8) take the median of their segment's (else of all
+    markers'); `fixed` markers (the user's marker_noise) keep problem.sigma.  Clipped to
+    [NOISE_FLOOR, NOISE_CAP].
+
+    `correlation`: also return each marker's correlation time τ (frames of `problem`; 1 for white
+    noise): (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation of its standardised residuals within each
+    trial, in [1, NOISE_TAU_MAX] (a fixed marker: 1)."""
+    model = problem.model
+    nm = len(model.markers)
+    F = problem.F
+    h, d = leverage(problem, state)
+    res = d.reshape(F, nm, 3)
+    seen = problem.seen
+    n = seen.sum(axis=0)
+    sigma = problem.sigma.copy()
+    learnt = np.full(nm, np.nan)
+    trial_of = np.zeros(F, dtype=int) if trial_of is None else np.asarray(trial_of)
+    for k in range(nm):
+        use = seen[:, k]
+        if n[k] < NOISE_MIN_FRAMES:
+            continue
+        lev = h[use, k] + 1.0 / n[k]
+        if np.median(lev) > 0.8:
+            continue
+        r = res[use, k]
+        keep = np.clip(1.0 - lev, 0.2, 1.0)
+        u = r / np.sqrt(keep)[:, None]
+        cap = np.empty(use.sum())
+        for t in np.unique(trial_of[use]):
+            mine = trial_of[use] == t
+            s0 = MAD_SD * float(np.median(np.abs(u[mine] - np.median(u[mine], axis=0))))
+            cap[mine] = 3 * (NOISE_CLIP * s0) ** 2 * keep[mine]
+        # The mean square, winsorised at NOISE_CLIP robust SDs: a marker whose residual the fit confines
+        # to fewer than 3 directions (a single hand marker: 1) has no Gaussian components for the MAD,
+        # but E|r|^2 = 3 sigma^2 (1 - h) whatever the rank.
+        sq = np.minimum(np.sum(r**2, axis=1), cap)
+        learnt[k] = math.sqrt(float(np.sum(sq)) / float(np.sum(3 * keep)))
+    seg = problem.marker_segment
+    overall = float(np.nanmedian(learnt)) if np.isfinite(learnt).any() else float(np.median(sigma))
+    for k in np.flatnonzero(~np.isfinite(learnt)):
+        mine = learnt[(seg == seg[k]) & np.isfinite(learnt)]
+        learnt[k] = float(np.median(mine)) if mine.size else overall
+    learnt = np.clip(learnt, NOISE_FLOOR, NOISE_CAP)
+    if fixed is not None:
+        learnt = np.where(fixed, sigma, learnt)
+    if not correlation:
+        return learnt
+    tau = np.ones(nm)
+    lag = seen[1:] & seen[:-1] & (trial_of[1:] == trial_of[:-1])[:, None]  # (F-1, nm): consecutive pairs
+    for k in range(nm):
+        if lag[:, k].sum() < NOISE_MIN_FRAMES or (fixed is not None and fixed[k]):
+            continue
+        u = np.where(seen[:, k, None], res[:, k], 0.0)
+        for t in np.unique(trial_of):
+            mine = (trial_of == t) & seen[:, k]
+            if mine.any():
+                u[mine] -= u[mine].mean(axis=0)
+        a, b = u[:-1][lag[:, k]], u[1:][lag[:, k]]
+        rho = float(np.sum(a * b)) / max(math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b))), 1e-300)
+        tau[k] = float(np.clip((1 + rho) / max(1 - rho, 1e-9), 1.0, NOISE_TAU_MAX))
+    return learnt, tau
+
+
+def find_outliers(problem: Problem, state: State, settings: Settings, sigma: np.ndarray | None = None,
+              trial_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
+    `settings.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
+    that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
+    absorbs most of it (one of a foot's two markers) keeps its small residual but not its studentised
+    one.  Returns the mask and the studentised errors times σ (m: comparable across markers)."""
+    err = np.linalg.norm(problem.marker_residuals(state), axis=2)
+    ok = np.isfinite(err)
+    if not ok.any():
+        return np.zeros_like(ok), err
+    h, _ = leverage(problem, state)
+    err = err / np.sqrt(np.clip(1.0 - h, 0.05, 1.0))
+    sigma = problem.sigma if sigma is None else sigma
+    scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)
+    sd = np.broadcast_to(scale * sigma, err.shape).copy()
+    # Per trial and marker, never below what its own median error shows: a shoulder marker riding the
+    # scapula scatters 10-20 mm in a walk and 1 mm in the static trial, and its noise SD, learnt over
+    # both, would otherwise reject every walking frame of it (outliers are the rare exceptions).
+    trial_of = np.zeros(problem.F, dtype=int) if trial_of is None else trial_of
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for t in np.unique(trial_of):
+            rows = trial_of == t
+            med = np.nanmedian(np.where(ok[rows], err[rows], np.nan), axis=0) / 1.538
+            sd[rows] = np.maximum(sd[rows], np.where(np.isfinite(med), med, 0.0)[None, :])
+    return ok & (err > settings.outliers * sd), err

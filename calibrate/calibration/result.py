@@ -1,0 +1,152 @@
+"""What a calibration returns: the Calibration (frozen when made) and its records — the seed, each
+parameter's change, placed markers, rejected outliers."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibrate.seed.seeding import Seed
+
+from ..io.motion import Motion
+from ..io.trial import Trial
+from ..model.model import Model, Parameters
+from ..problem.settings import Settings
+from ..seed.geometry import marker_max, marker_rms
+from ..solve.lm import SolverSummary
+from .records import CoordinateNote, ParameterChange
+from .report import calibration_report, summary_text, write_outputs
+
+
+@dataclass(frozen=True)
+class NewMarker:
+    """A trial marker the base model does not know, and where calibration put it."""
+
+    label: str
+    segment: str | None  # None: it rides on no segment (left out)
+    position: np.ndarray | None  # (3,) m in the segment frame at the start (subject scale); None if left out
+    reason: str  # why this segment (or why none)
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """One marker position left out of the fit: too far from where the fitted model puts it."""
+
+    trial: int  # index into Calibration.trials
+    frame: int  # frame of that trial (0-based)
+    marker: str
+    error: float  # m, when it was rejected
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything `calibrate` found.  Units: metres, radians, seconds.
+
+    Several trials share `params`; each has its own motion (`motions`, in trial order), and
+    `residuals` stacks their frames in that order (`trial_frames(i)` is trial i's slice).
+    """
+
+    model: Model  # the subject model's structure: the base model plus any new markers
+    trials: tuple[Trial, ...]
+    settings: Settings
+    params: Parameters  # the subject's geometric parameters
+    motions: tuple[Motion, ...]  # coordinates of every frame, per trial
+    residuals: np.ndarray  # (F, n_model_markers, 3) model − trial markers (m); NaN where not seen
+    initial_residuals: np.ndarray  # the same at the start: seeded geometry, key-frame inverse kinematics
+    summary: SolverSummary
+    seed: Seed
+    changes: list[ParameterChange]
+    times: dict[str, float] = field(default_factory=dict)  # stage -> seconds
+    ignored_labels: tuple[str, ...] = ()  # trial labels left out (unknown to the model and on no segment)
+    unused_markers: tuple[str, ...] = ()  # model markers the trials never show
+    compiled: bool = False
+    base_model: Model | None = None  # the model calibrated (without the new markers)
+    new_markers: tuple[NewMarker, ...] = ()  # trial markers the base model did not know
+    outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
+    label_maps: tuple = ()  # per trial: calibrate.io.labels.LabelMapping (trial label -> model label), if mapped
+    mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
+    coordinate_notes: tuple[CoordinateNote, ...] = ()  # what the user should look at (e.g. coordinates driven
+    # beyond their limits); `notes` is their text
+    held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
+    neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
+    unresolved: tuple = ()  # calibrate.model.resolve.UnresolvedSegment per segment the markers cannot place (locked)
+    noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
+    noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
+    noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
+    # (m): the noise SD times the square root of its residuals' correlation time in frames (learnt noise only)
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        """The coordinate notes as the user reads them."""
+        return tuple(n.text() for n in self.coordinate_notes)
+
+    @property
+    def trial(self) -> Trial:
+        """The first (or only) trial."""
+        return self.trials[0]
+
+    @property
+    def motion(self) -> Motion:
+        """The first (or only) trial's motion; see `motions` for several trials."""
+        return self.motions[0]
+
+    def trial_frames(self, i: int) -> slice:
+        """Rows of `residuals` that belong to trial i."""
+        return trial_spans(self.trials)[i]
+
+    @property
+    def marker_rms(self) -> float:
+        """RMS 3-D marker error over every observed marker in every frame (m)."""
+        return marker_rms(self.residuals)
+
+    @property
+    def marker_max(self) -> float:
+        """Largest 3-D marker error (m)."""
+        return marker_max(self.residuals)
+
+    @property
+    def converged(self) -> bool:
+        return self.summary.converged
+
+    @property
+    def unidentified(self) -> list[ParameterChange]:
+        return [c for c in self.changes if not c.identified]
+
+    def per_marker(self) -> dict[str, tuple[float, float, int]]:
+        """Marker name -> (RMS m, max m, frames seen)."""
+        out = {}
+        err = np.linalg.norm(self.residuals, axis=2)
+        for k, name in enumerate(self.model.marker_names):
+            e = err[:, k]
+            seen = np.isfinite(e)
+            if seen.any():
+                out[name] = (float(np.sqrt(np.mean(e[seen] ** 2))), float(e[seen].max()), int(seen.sum()))
+        return out
+
+    def report(self) -> dict:
+        """The report as plain JSON-ready data (mm, degrees, seconds at the edges)."""
+        return calibration_report(self)
+
+    def text(self) -> str:
+        """A human-readable summary (what the CLI prints)."""
+        return summary_text(self)
+
+    def write(self, urdf=None, motion=None, report=None, overwrite: bool = False,
+              extra_times: dict[str, float] | None = None) -> dict:
+        """Write the subject URDF, motion CSV and report JSON (those given); see report.write_outputs."""
+        return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite,
+                             extra_times=extra_times)
+
+
+rms = marker_rms  # the name tests and scripts import
+
+
+def trial_spans(trials: Sequence[Trial]) -> list[slice]:
+    """Each trial's frames in the stacked problem."""
+    out, at = [], 0
+    for t in trials:
+        out.append(slice(at, at + t.n_frames))
+        at += t.n_frames
+    return out

@@ -1,0 +1,409 @@
+"""The commands behind the command line (calibrate.cli.main parses, these run): calibrate, simulate,
+demo, inspect, import-osim, joints."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from calibrate.cli.args import lock_arg
+
+from ..calibration.records import Progress
+from ..errors import CalibrateError
+from ..io.outputs import check_targets
+from ..seed.geometry import marker_rms
+
+DEFAULT_MODEL = Path(__file__).resolve().parent.parent.parent / "models" / "human.urdf"
+
+
+def default_model() -> Path:
+    """models/human.urdf of the source tree; in an installed package (no source tree) the same
+    model is generated from calibrate.model.human into the temporary directory."""
+    if DEFAULT_MODEL.exists():
+        return DEFAULT_MODEL
+    import tempfile
+
+    from ..model.human import build_human_urdf
+
+    path = Path(tempfile.gettempdir()) / "calibrate-human.urdf"
+    text = build_human_urdf()
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+    return path
+
+
+def progress_printer(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def run_simulation(args: argparse.Namespace):
+    from ..model.model import load_model
+    from ..simulation.simulate import MOTIONS, simulate_realistic, write_simulation
+
+    model = load_model(args.model or default_model())
+    if args.out.exists() and not args.out.is_dir():
+        raise CalibrateError(f"{args.out}: exists and is not a directory; choose another --out")
+    if not getattr(args, "overwrite", True):
+        for name in ("trial.c3d", "truth.urdf", "truth_motion.csv", "truth_corruptions.csv"):
+            if (args.out / name).exists():
+                raise CalibrateError(
+                    f"{args.out / name}: exists; pass --overwrite to replace it or choose another --out"
+                )
+    t0 = time.perf_counter()
+    opts = {k: v for k, v in (("sta_mm", args.sta_mm), ("height", args.height), ("swaps", args.swaps),
+                              ("spikes", args.spikes), ("gap_fraction", args.gap_fraction)) if v is not None}
+    try:
+        if args.realistic:
+            if args.gaps:  # the occlusions of --gaps in place of the gap fraction
+                opts.setdefault("gap_fraction", 0.0)
+            sim = simulate_realistic(model, args.seed, args.frames, args.rate, args.noise_mm,
+                                     motion=args.motion or "overhead", gaps=args.gaps, **opts)
+        else:
+            simulate = MOTIONS[args.motion or "squats"]
+            sim = simulate(model, frames=args.frames, rate=args.rate, noise_mm=args.noise_mm, gaps=args.gaps,
+                           seed=args.seed, **opts)
+    except ValueError as e:
+        raise CalibrateError(f"simulate: {e}") from None
+    stale = args.out / "truth_corruptions.csv"
+    if not sim.corruptions and stale.exists():
+        stale.unlink()  # from an earlier run into this folder (overwriting was allowed above)
+    try:
+        paths = write_simulation(sim, args.out)
+    except OSError as e:
+        raise CalibrateError(f"{args.out}: cannot write ({e.strerror}); choose a writable --out") from None
+    return model, sim, paths, time.perf_counter() - t0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    model, sim, paths, dt = run_simulation(args)
+    gaps = float(np.isnan(sim.trial.markers[..., 0]).mean())
+    print(f"simulated {sim.trial.n_frames} frames at {sim.trial.rate:g} Hz of {len(model.markers)} markers "
+          f"(noise {args.noise_mm:g} mm, gaps {100 * gaps:.1f} %) in {dt:.2f} s")
+    extras = []
+    if sim.stature is not None:
+        extras.append(f"stature {sim.stature:.3f} m")
+    if sim.sta_amplitude is not None:
+        extras.append(f"soft-tissue artefact up to {1000 * np.linalg.norm(sim.artefact, axis=2).max():.1f} mm")
+    if sim.corruptions:
+        kinds = [c.kind for c in sim.corruptions]
+        extras.append(f"{kinds.count('swap')} swapped and {kinds.count('spike')} spiked marker samples")
+    if extras:
+        print("  " + "; ".join(extras))
+    for key in ("trial", "truth", "motion", "corruptions"):
+        if key in paths:
+            print(f"  {key:11s} {paths[key]}")
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..calibration.pipeline import calibrate
+    from ..io.config import load_settings, settings_from_dict
+    from ..io.labels import load_marker_map
+    from ..io.read import read_trial
+    from ..io.trial import Trial
+    from ..model.model import load_model
+    from ..problem.settings import Settings
+
+    if len(args.inputs) < 2:
+        raise CalibrateError("give one or more trials and then the base model: calibrate TRIAL [TRIAL ...] MODEL")
+    *trial_paths, model_path = args.inputs
+    if model_path.suffix.lower() in (".c3d", ".trc"):
+        raise CalibrateError(f"{model_path}: the last argument must be the base model (.urdf), after the trials")
+    if args.frames is not None and len(trial_paths) > 1:
+        raise CalibrateError("--frames applies to a single trial; cut the trials first or give one trial")
+    if args.motion is not None and len(trial_paths) > 1:
+        raise CalibrateError("--motion names one file; with several trials each gets TRIAL_motion.csv beside it")
+    stem = trial_paths[0].with_suffix("")
+    out_urdf = args.output or stem.with_name(stem.name + ".urdf")
+    out_motions = [args.motion] if args.motion else [t.with_suffix("").with_name(t.stem + "_motion.csv")
+                                                      for t in trial_paths]
+    out_report = args.report or stem.with_name(stem.name + "_report.json")
+    settings = load_settings(args.config) if args.config else Settings()
+    flags: dict = {}
+    if args.free is not None:
+        flags["free"] = [g.strip() for g in args.free.split(",") if g.strip()]
+    if args.loss is not None:
+        flags["loss"] = args.loss
+    if args.noise_mm is not None:
+        flags["noise_mm"] = args.noise_mm
+    if args.no_learn_noise:
+        flags["learn_noise"] = False
+    if args.no_seed:
+        flags["seed"] = False
+    if args.no_new_markers:
+        flags["new_markers"] = False
+    if args.outlier_sigmas is not None:
+        flags["outlier_sigmas"] = args.outlier_sigmas
+    if args.lock is not None:
+        flags["lock_deg"] = lock_arg(args.lock)
+    if args.hold_axes is not None:
+        flags["hold_axes"] = [d.strip() for d in args.hold_axes.split(",") if d.strip()]
+    if args.no_auto_hold:
+        flags["auto_hold"] = False
+    if flags:
+        settings = settings_from_dict(flags, "command line", settings)
+    outputs = [out_urdf, *out_motions, out_report]
+    from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
+    out_osim = out_urdf.with_suffix(".osim")
+    out_mots = [m.with_suffix(".mot") for m in out_motions]
+    if from_osim:
+        outputs += [out_osim, *out_mots]
+    # Check the destinations before any work, so a long run never ends in a refusal.
+    check_targets(outputs, args.overwrite,
+                  inputs={model_path: "that is the base model; refusing to overwrite it (choose another -o)"},
+                  same="two outputs would be the same file (two trials with the same name?); use -o/--report "
+                       "or rename the trials",
+                  exists_hint="pass --overwrite to replace it or choose another name")
+    say = (lambda msg: None) if args.quiet else Timed()
+    t0 = time.perf_counter()
+    model = load_model(model_path, args.marker_set)
+    if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
+        from ..io.osim_info import osim_info, with_locked
+
+        settings = with_locked(model, settings)
+        approx = osim_info(model).approximations  # type: ignore[union-attr]
+        if approx and not args.quiet:
+            progress_printer(f"note: {model_path.name}: {len(approx)} joints approximated (" + ", ".join(
+                f"{a.joint} {a.max_marker_mm:.1f} mm" for a in approx) + f"); see 'calibrate inspect {model_path}'")
+    marker_map = load_marker_map(args.markers) if args.markers else None
+    trials = [read_trial(t) for t in trial_paths]
+    if args.frames is not None:
+        trial = trials[0]
+        idx = range(trial.n_frames)[args.frames]
+        if len(idx) == 0 or idx.step != 1:
+            raise CalibrateError(f"--frames {args.frames.start}:{args.frames.stop}: selects no frames of "
+                                 f"{trial_paths[0]} ({trial.n_frames} frames, 0-based)")
+        trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
+                          trial.first_frame + idx.start, trial.source)
+    load_s = time.perf_counter() - t0
+    if args.neutral is not None and args.neutral > len(trials):
+        raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of the "
+                             f"static trial (1 = the first)")
+    cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
+                    neutral=None if args.neutral is None else args.neutral - 1, progress=say)
+    if cal.ignored_labels:
+        why = "are not markers of" if not settings.new_markers else "ride on no segment of"
+        print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
+              f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
+    cal = replace(cal, times={"load": load_s, **cal.times})
+    cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
+    if from_osim:
+        from ..io.osim_export import export_osim, write_mot
+
+        subject = load_model(out_urdf)
+        export_osim(subject, out_osim)
+        for path, motion in zip(out_mots, cal.motions, strict=True):
+            write_mot(path, subject, motion)
+    print(cal.text())
+    print("")
+    print("wrote " + "\n      ".join(str(p) for p in outputs))
+    if not cal.converged:
+        print(f"warning: the solver did not converge ({cal.summary.termination}); the best result so far was "
+              "written and is flagged in the report", file=sys.stderr)
+        return 1
+    return 0
+
+
+def write_timed(cal, **outputs):
+    """cal.write(**outputs); returns cal with the time that took as times['write'] (what the summary shows)."""
+    t0 = time.perf_counter()
+    cal.write(**outputs)
+    return replace(cal, times={**cal.times, "write": time.perf_counter() - t0})
+
+
+class Timed:
+    """Progress on stderr with the elapsed time, shown once the run has taken a second (a long step's
+    announcement at once; solver iterations at most twice a second)."""
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+
+    def __call__(self, msg: Progress) -> None:
+        now = time.perf_counter() - self.t0
+        if (now >= 1.0 or msg.long) and (msg.iteration is None or now - self.last >= 0.5):
+            self.last = now
+            progress_printer(f"  [{now:6.2f} s] {msg}")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ..calibration.evaluate import compare_to_truth
+    from ..calibration.pipeline import calibrate
+    from ..io.read import read_trial
+
+    model, sim, paths, dt = run_simulation(args)
+    trial = read_trial(paths["trial"])  # what a user would have: the C3D file
+    kind = {"gait": "gait", "overhead": "overhead"}.get(args.motion or "", "squat")
+    kind = "realistic " + kind if args.realistic else kind
+    progress_printer(f"simulated a {kind} trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
+    t0 = time.perf_counter()
+    cal = calibrate(model, trial, progress=Timed())
+    t_cal = time.perf_counter() - t0
+    cal = write_timed(cal, urdf=args.out / "subject.urdf", motion=args.out / "subject_motion.csv",
+                       report=args.out / "subject_report.json", overwrite=True)
+    cmp = compare_to_truth(cal, sim)
+    gaps = float(np.isnan(trial.markers[..., 0]).mean())
+    print(cal.text())
+    print("")
+    print(f"calibrate demo: {model.summary()}")
+    print(f"trial   {paths['trial']}: {trial.n_frames} frames at {trial.rate:g} Hz, noise {args.noise_mm:g} mm, "
+          f"gaps {100 * gaps:.1f} %; truth in {paths['truth']}")
+    print(f"result  {args.out / 'subject.urdf'}, subject_motion.csv, subject_report.json")
+    print("")
+    print("truth vs estimate")
+    print(f"  {'joint':14s} {'kind':9s} {'centre err (mm)':>16s} {'axis err (deg)':>15s}")
+    for name, err in cmp.centre_error.items():
+        ax = f"{cmp.axis_error_deg[name]:15.2f}" if name in cmp.axis_error_deg else f"{'':15s}"
+        print(f"  {name:14s} {cmp.kinds[name]:9s} {1000 * err:16.2f} {ax}")
+    print("  (hinge centre error: distance from the true axis line; medians over frames)")
+    print(f"  marker RMS   start (seeded geometry) {1000 * marker_rms(cal.initial_residuals):.2f} mm -> calibrated "
+          f"{1000 * cmp.marker_rms:.3f} mm; true model refitted (noise floor) {1000 * cmp.floor_rms:.3f} mm")
+    print(f"  joint angles RMS vs truth {cmp.angle_rms_deg:.2f} deg ({cmp.angle_rms_offset_free_deg:.2f} deg "
+          f"without each DoF's constant offset); true model refitted {cmp.floor_angle_rms_deg:.2f} deg")
+    print(f"  time         calibration {t_cal:.2f} s (" + ", ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
+          + ")")
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    path: Path = args.file
+    if path.suffix.lower() in (".urdf", ".osim"):
+        from ..model.model import load_model
+
+        m = load_model(path, getattr(args, "marker_set", None))
+        print(m.summary())
+        print(f"  {'joint':16s} {'kind':9s} {'parent -> child':28s} centre (m, parent frame)")
+        for j in m.joints:
+            c = " ".join(f"{x:+.4f}" for x in j.centre)
+            print(f"  {j.name:16s} {j.kind:9s} {j.parent + ' -> ' + j.child:28s} {c}")
+        print("  markers per segment:")
+        for s in m.segments:
+            if s.markers:
+                print(f"    {s.name:12s} {' '.join(s.markers)}")
+        print_osim(m)
+        return 0
+    from ..io.read import read_trial
+
+    t = read_trial(path)
+    gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
+    print(f"{path}: {t.n_frames} frames at {t.rate:g} Hz ({t.n_frames / t.rate:.2f} s), {t.n_markers} markers, "
+          f"first frame {t.first_frame}")
+    for lab, g in zip(t.labels, gaps, strict=True):
+        print(f"  {lab:16s} gaps {100 * g:5.1f} %")
+    return 0
+
+
+def print_osim(model) -> None:
+    """What an OpenSim import approximated, locked and dropped (nothing for a model not from a .osim)."""
+    from ..io.osim_info import approximation_table, osim_info
+
+    info = osim_info(model)
+    if info is None:
+        return
+    print(f"  imported from OpenSim model {info.source}; approximated joints:")
+    print(approximation_table(info))
+    if info.locked:
+        print(f"  locked coordinates (held in every frame): {', '.join(info.locked)}")
+    if info.dropped:
+        print(f"  coordinates that are not degrees of freedom here: {', '.join(info.dropped)}")
+
+
+def cmd_import_osim(args: argparse.Namespace) -> int:
+    """``calibrate import-osim MODEL.osim [--marker-set XML] [-o URDF]``."""
+    from ..io.text import atomic_write_text
+    from ..model.model import load_model
+
+    src: Path = args.model
+    out: Path = args.output or src.with_suffix(".urdf")
+    if out.suffix.lower() != ".urdf":
+        raise CalibrateError(f"{out}: the output is a URDF; give it a .urdf name")
+    check_targets([out], args.overwrite, exists_hint="pass --overwrite to replace it or choose another -o")
+    model = load_model(src, args.marker_set)
+    try:
+        atomic_write_text(out, model.text)
+    except OSError as e:
+        raise CalibrateError(f"{out}: cannot write ({e.strerror}); choose a writable place") from None
+    print(model.summary())
+    print_osim(model)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_joints(args: argparse.Namespace) -> int:
+    from ..io.labels import load_marker_map, map_labels
+    from ..io.read import read_trial
+    from ..model.model import load_model
+    from ..seed.joints import estimate_model_joints, write_centres_csv
+
+    out: Path | None = args.out
+    if out is not None:
+        if out.exists() and not args.overwrite:
+            raise CalibrateError(f"{out}: already exists; pass --overwrite to replace it or choose another --out")
+        if out.suffix.lower() in (".urdf", ".c3d", ".trc"):
+            raise CalibrateError(f"{out}: --out is a CSV of joint centres; give it a .csv name")
+        if not out.parent.exists() and str(out.parent) not in ("", "."):
+            raise CalibrateError(f"{out}: directory {out.parent} does not exist; create it first")
+    t0 = time.perf_counter()
+    model = load_model(args.model)
+    if not model.markers:
+        raise CalibrateError(f"{args.model}: the model has no markers, so no segment can be followed; "
+                             "add marker links (see docs/model-format.md)")
+    trial = read_trial(args.trial)
+    marker_map = load_marker_map(args.markers) if args.markers else None
+    trial, mapping = map_labels(trial, model.marker_names, marker_map, aliases=not args.no_aliases)
+    renamed = [m for m in mapping if m.how in ("map", "alias")]
+    if renamed:
+        print(f"labels {len(renamed)} renamed to the model's: "
+              + ", ".join(f"{m.trial_label} -> {m.label}" for m in renamed[:8]) + (" ..." if len(renamed) > 8 else ""))
+    known = set(model.marker_names)
+    used = [lab for lab in trial.labels if lab in known]
+    unknown = [lab for lab in trial.labels if lab not in known]
+    if not used:
+        raise CalibrateError(f"{args.trial}: none of its {trial.n_markers} labels is a marker of {args.model} "
+                             f"(e.g. '{trial.labels[0] if trial.labels else ''}'); rename the markers to the model's")
+    load_s = time.perf_counter() - t0
+    print(f"trial  {args.trial}: {trial.n_frames} frames at {trial.rate:g} Hz, {trial.n_markers} markers "
+          f"({len(used)} in the model)")
+    print(f"model  {args.model}: {len(model.segments)} segments, {len(model.joints)} joints, "
+          f"{len(model.markers)} markers")
+    from ..seed.association import associate_to_model
+
+    assoc = associate_to_model(model, trial)
+    extra = {m.label: m.segment for m in assoc.markers if m.status == "assigned" and m.segment}
+    if unknown:
+        print(f"{len(unknown)} trial markers are not in the model; placed by rigidity with the segments' markers:")
+        for lab in unknown:
+            m = assoc[lab]
+            where = f"-> {m.segment} (distance std {1000 * m.spread:.1f} mm)" if m.segment else f"left out: {m.reason}"
+            print(f"  {lab:12s} {where}")
+    for lab in assoc.suspects:
+        print(f"warning: {lab} does not move rigidly with the other markers of {assoc[lab].segment} "
+              f"({assoc[lab].reason}); is it mislabelled?", file=sys.stderr)
+    missing = [m for m in model.marker_names if m not in set(trial.labels)]
+    if missing:
+        print(f"warning: {len(missing)} model markers are not in the trial: {', '.join(missing)}", file=sys.stderr)
+    cutoff = None if args.no_filter else args.cutoff_hz
+    if cutoff is not None and cutoff >= trial.rate / 2:
+        print(f"warning: --cutoff-hz {cutoff:g} is not below half the frame rate ({trial.rate / 2:g} Hz); "
+              "markers are not filtered", file=sys.stderr)
+        cutoff = None
+    est = estimate_model_joints(model, trial, mode=args.mode, cutoff_hz=cutoff, extra_markers=extra)
+    print("")
+    print(est.table())
+    print("")
+    n_ok = sum(j.ok for j in est)
+    methods = {m: sum(j.method == m for j in est) for m in ("MTB", "MTB (propagated)", "JMV")}
+    filt = f"low-passed at {cutoff:g} Hz" if cutoff else "unfiltered"
+    print(f"{n_ok}/{len(est)} joints estimated (" + ", ".join(f"{v} {k}" for k, v in methods.items() if v)
+          + f") in {est.seconds:.2f} s; markers {filt}; load {load_s:.2f} s")
+    print("resid mm: RMS change of the joint-to-marker distances over the trial (0 for a perfect rigid joint; "
+          "about the marker noise for a good estimate).")
+    if out is not None:
+        write_centres_csv(out, est, overwrite=True)
+        print(f"wrote {out}")
+    return 0 if n_ok == len(est) else 1

@@ -1,0 +1,222 @@
+"""Command line: ``calibrate TRIAL [TRIAL ...] MODEL`` (calibrate a subject), ``calibrate simulate``,
+``calibrate demo``, ``calibrate inspect``, ``calibrate joints``, ``calibrate export-osim``.
+
+A thin layer over the Python API.  Bad input gives one line on stderr
+(``calibrate: error: ...``) and exit status 2; nothing half-written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from calibrate.cli.args import (
+    count_arg,
+    fraction_arg,
+    frames_arg,
+    height_arg,
+    int_at_least,
+    nonneg_float,
+    positive_float,
+    positive_int,
+)
+from calibrate.cli.commands import cmd_calibrate, cmd_demo, cmd_import_osim, cmd_inspect, cmd_joints, cmd_simulate
+
+from ..errors import CalibrateError
+
+
+def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
+    p.add_argument("--frames", type=positive_int, default=frames, help=f"number of frames (default {frames})")
+    p.add_argument("--rate", type=positive_float, default=100.0, help="frame rate in Hz (default 100)")
+    p.add_argument("--noise-mm", type=nonneg_float, default=1.0, help="marker noise SD in mm (default 1)")
+    p.add_argument("--gaps", action="store_true", help="add realistic occlusion gaps")
+    p.add_argument("--gap-fraction", type=fraction_arg, default=None, metavar="F",
+                   help="occlusion gaps (0.05-0.6 s each) covering fraction F of the marker samples, e.g. 0.05")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--motion", choices=("squats", "gait", "overhead"), default=None,
+                   help="squats (every joint through a wide arc), treadmill gait (normal walking ranges: "
+                        "forearms, wrists, neck and subtalar joints hardly move) or overhead (serve- and "
+                        "throw-like arm arcs to 155-172 deg of shoulder abduction or flexion, the rest of the "
+                        "body in smaller squat-like arcs); default squats")
+    p.add_argument("--sta-mm", type=nonneg_float, default=None, metavar="X",
+                   help="soft-tissue artefact: skin markers move relative to their bones with the joint angles, "
+                        "X mm at the shank, 2X at the thigh, by segment (docs/simulation.md); default 0")
+    p.add_argument("--height", type=height_arg, default=None, metavar="M",
+                   help="the subject's stature in m (1.4-2.2), segment proportions varied by +-4 %%")
+    p.add_argument("--swaps", type=count_arg, default=None, metavar="N",
+                   help="N episodes of 3-10 frames with two neighbouring markers' labels exchanged")
+    p.add_argument("--spikes", type=count_arg, default=None, metavar="N",
+                   help="N single-frame gross errors of 30-100 mm on random markers (swapped and spiked samples "
+                        "are listed in OUT/truth_corruptions.csv)")
+    p.add_argument("--realistic", action="store_true",
+                   help="as a lab records it: overhead arm arcs with every joint through ~70 %% of its range, "
+                        "--sta-mm 3, a random stature of 1.5-2.0 m, --gap-fraction 0.05, --swaps 3, --spikes 5, "
+                        "1 mm noise; the flags above override")
+    p.add_argument("--model", type=Path, default=None, help="base model URDF (default: models/human.urdf)")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: 'calibrate simulate: error: ...; see --help', exit 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = _Parser(
+        prog="calibrate",
+        usage="calibrate TRIAL [TRIAL ...] MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
+              "       calibrate COMMAND ...",
+        description="Subject-specific human models from motion-capture trials.  'calibrate TRIAL [TRIAL ...] "
+                    "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.",
+    )
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser, prog="calibrate")
+    sim = sub.add_parser("simulate", help="write a synthetic squat, gait or overhead trial with its truth",
+                         description="Simulate squats (or treadmill gait, --motion gait, or overhead arm arcs, "
+                                     "--motion overhead) of a random synthetic subject derived from a base model; "
+                                     "writes OUT/trial.c3d, OUT/truth.urdf and OUT/truth_motion.csv (and "
+                                     "OUT/truth_corruptions.csv with --swaps/--spikes).  What a lab adds: "
+                                     "--sta-mm, --height, --gap-fraction, --swaps, --spikes, or --realistic.")
+    sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
+    sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
+    _add_sim_args(sim, 1000)
+    demo = sub.add_parser("demo", help="simulate squats, calibrate the base model to them, compare with the truth",
+                          description="Simulate a squat trial of a synthetic subject into ./calibrate-demo/ (its "
+                                      "files are replaced on every run), calibrate the base model to it, and print "
+                                      "truth vs estimate: joint-centre and axis errors, marker RMS, time.")
+    demo.add_argument("--out", type=Path, default=Path("calibrate-demo"), help="output directory")
+    _add_sim_args(demo, 1000)
+    ins = sub.add_parser("inspect", help="describe a model (.urdf, .osim) or a trial (.c3d/.trc)")
+    ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d or .trc file")
+    ins.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                     help="with a .osim: an OpenSim MarkerSet file whose markers are added (as the Scale tool does)")
+    jo = sub.add_parser("joints", help="joint-centre trajectories of a trial (MTB framework)",
+                        description="Estimate every joint centre of MODEL's topology, frame by frame, from TRIAL's "
+                                    "markers alone (marker-trajectory bases, solvability propagation, JMV fallback; "
+                                    "hinge axes by closed-form fit).  Prints a table per joint; --out writes the "
+                                    "trajectories as CSV (m).")
+    jo.add_argument("trial", type=Path, help="trial (.c3d or .trc)")
+    jo.add_argument("model", type=Path, help="base model (.urdf): marker groups, joint tree, hinge priors")
+    jo.add_argument("--out", type=Path, default=None, help="write the centre trajectories to this CSV")
+    jo.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    jo.add_argument("--cutoff-hz", type=positive_float, default=6.0,
+                    help="low-pass the markers at this frequency first (default 6 Hz)")
+    jo.add_argument("--no-filter", action="store_true", help="use the raw markers (no low-pass)")
+    jo.add_argument("--markers", type=Path, default=None,
+                    help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss")
+    jo.add_argument("--no-aliases", action="store_true",
+                    help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
+    jo.add_argument("--mode", choices=("framework", "jmv"), default="framework",
+                    help="'framework' (default) or 'jmv': every joint by per-frame JMV only (slow baseline)")
+    from ..io.osim_export import add_export_osim_parser
+
+    add_export_osim_parser(sub)
+    io = sub.add_parser("import-osim", help="write an OpenSim model (.osim) as a calibrate model URDF",
+                        description="Read an OpenSim 4 model (and optionally a MarkerSet file) and write it in "
+                                    "calibrate's model format; lists what the format could only approximate "
+                                    "(docs/opensim.md).  Nothing is written on an error.")
+    io.add_argument("model", type=Path, metavar="MODEL.osim", help="the OpenSim model")
+    io.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                    help="an OpenSim MarkerSet file whose markers are added, replacing those of the same name")
+    io.add_argument("-o", "--output", type=Path, default=None, metavar="URDF",
+                    help="the URDF to write (default: MODEL's name + .urdf)")
+    io.add_argument("--overwrite", action="store_true", help="replace the output if it exists")
+    return ap
+
+
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim")
+
+
+def build_calibrate_parser() -> argparse.ArgumentParser:
+    ap = _Parser(
+        prog="calibrate",
+        usage="calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
+              "       calibrate {simulate,demo,inspect,joints,export-osim} ...",
+        description="Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
+                    "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
+                    "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
+                    "subject URDF, a motion CSV per trial and a report JSON next to the first trial.  Other "
+                    "commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
+    ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
+                    help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
+    ap.add_argument("-o", "--output", type=Path, default=None,
+                    help="subject URDF (default: the first TRIAL's name + .urdf)")
+    ap.add_argument("--motion", type=Path, default=None,
+                    help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial)")
+    ap.add_argument("--report", type=Path, default=None,
+                    help="report JSON (default: the first TRIAL's name + _report.json)")
+    ap.add_argument("--frames", type=frames_arg, default=None,
+                    help="use frames A:B only (0-based, B excluded; a single trial only)")
+    ap.add_argument("--markers", type=Path, default=None,
+                    help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss")
+    ap.add_argument("--no-aliases", action="store_true",
+                    help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
+    ap.add_argument("--no-new-markers", action="store_true",
+                    help="ignore trial markers the model does not know (default: place them on segments and fit)")
+    ap.add_argument("--outlier-sigmas", type=nonneg_float, default=None,
+                    help="reject marker positions further than this many noise SDs from the fit (default 6; 0: off)")
+    ap.add_argument("--config", type=Path, default=None, help="settings file (TOML; see docs/calibration.md)")
+    ap.add_argument("--free", default=None,
+                    help="comma-separated parameter groups to calibrate: scale,centre,axis,marker (default all)")
+    ap.add_argument("--loss", choices=("linear", "huber", "cauchy"), default=None,
+                    help="robust loss against marker outliers (default linear)")
+    ap.add_argument("--noise-mm", type=positive_float, default=None,
+                    help="marker noise SD in mm, kept as given (default: learnt per marker from the residuals)")
+    ap.add_argument("--no-learn-noise", action="store_true",
+                    help="do not learn the markers' noise SDs from the residuals; use --noise-mm (default 1) for all")
+    ap.add_argument("--no-seed", action="store_true", help="start from the base model, not from MTB joint centres")
+    ap.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
+                    help="hold coordinates at a value (default 0 deg) in every frame, e.g. "
+                         "subtalar_r,subtalar_l: what the marker set cannot resolve (as OpenSim's locked coordinates)")
+    ap.add_argument("--hold-axes", default=None, metavar="DOF,...",
+                    help="keep these hinge/universal axes at the base model's (their angles stay free)")
+    ap.add_argument("--no-auto-hold", action="store_true",
+                    help="calibrate the axes of coordinates the trial does not show moving too (by default they "
+                         "are held at the base model's, and the summary says which)")
+    ap.add_argument("--neutral", type=int_at_least(1), default=None, metavar="K",
+                    help="trial K (1 = the first) shows the subject standing in the model's neutral pose (a static "
+                         "trial): segment frames are turned so that its joint angles are zero")
+    ap.add_argument("--mass", type=positive_float, default=None,
+                    help="subject's body mass in kg: segment masses and inertias are the base model's scaled to "
+                         "it (default: the base model's masses kept)")
+    ap.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                    help="with an OpenSim MODEL.osim: an OpenSim MarkerSet file whose markers are added, replacing "
+                         "those of the same name (as OpenSim's Scale tool does)")
+    ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    first = next((a for a in argv if not a.startswith("-")), None)
+    if first is not None and first not in COMMANDS and not any(a in ("-h", "--help") for a in argv[:1]):
+        args = build_calibrate_parser().parse_args(argv)
+        return _guard(cmd_calibrate, args)
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.command is None:
+        ap.print_help()
+        return 2
+    from ..io.osim_export import cmd_export_osim
+
+    commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
+                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim}
+    return _guard(commands[args.command], args)
+
+
+def _guard(command, args: argparse.Namespace) -> int:
+    """Run a command; one-line errors (exit 2) for bad input."""
+    try:
+        return command(args)
+    except CalibrateError as e:
+        print(f"calibrate: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("calibrate: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,506 @@
+"""C3D trials: read with ezc3d after checking the header and parameter section, written with ezc3d
+(gaps the standard way).  What the reader accepts: see calibrate.io.trial."""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+
+from calibrate.errors import TrialError
+from calibrate.io.trial import (
+    UNITS_TO_METRES,
+    Trial,
+    check_input_file,
+    discard,
+    fail,
+    one_line,
+    output_target,
+    parse_units,
+    strip_subject_prefix,
+    temporary_sibling,
+    unique_labels,
+)
+from calibrate.io.vicon import is_model_output, output_factor
+
+#: POINT parameters in which Vicon lists its model outputs, with the kind of quantity.
+_C3D_OUTPUT_GROUPS: dict[str, str] = {
+    "ANGLES": "angle",
+    "FORCES": "force",
+    "MOMENTS": "moment",
+    "POWERS": "power",
+    "SCALARS": "scalar",
+    "REACTIONS": "reaction",
+    "MODELED_MARKERS": "point",
+}
+
+
+_C3D_MAX_HEADER_FRAME = 65535  # the C3D header stores frame numbers as 16-bit words
+
+
+class _BadC3D(ValueError):
+    """Internal: a structural problem found in a C3D file before ezc3d reads it."""
+
+
+def _c3d_float(raw: bytes, processor: int) -> float:
+    """One 4-byte float in the file's processor format (84 Intel, 85 DEC, 86 MIPS)."""
+    if processor == 86:
+        return struct.unpack(">f", raw)[0]
+    if processor == 85:  # DEC F-float: swap the 16-bit words, read as IEEE, divide by 4
+        return struct.unpack("<f", raw[2:4] + raw[0:2])[0] / 4.0
+    return struct.unpack("<f", raw)[0]
+
+
+def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
+    """Walk the records of a C3D parameter section; map (GROUP, NAME) to (type, dimensions, raw data).
+
+    Raises _BadC3D when a record does not fit the section, names an unknown type, or
+    belongs to no group: ezc3d can crash the interpreter on such files.
+    """
+    endian = ">" if processor == 86 else "<"
+    end = len(section)
+    pos = 4
+    groups: dict[int, str] = {}
+    records: list[tuple[int, str, int, tuple[int, ...], bytes]] = []
+    while pos + 2 <= end:
+        n_chars = struct.unpack("b", section[pos : pos + 1])[0]
+        if n_chars == 0:
+            break
+        group_id = struct.unpack("b", section[pos + 1 : pos + 2])[0]
+        name_end = pos + 2 + abs(n_chars)
+        if group_id == 0 or name_end + 2 > end:
+            raise _BadC3D("a parameter record is broken")
+        name = section[pos + 2 : name_end].decode("latin-1")
+        if not name.isprintable() or not name.strip():
+            raise _BadC3D("a parameter name is not text")
+        link = struct.unpack(endian + "h", section[name_end : name_end + 2])[0]
+        body = name_end + 2
+        if group_id < 0:
+            data_end = body
+            groups[-group_id] = name.strip().upper()
+        else:
+            if body + 2 > end:
+                raise _BadC3D(f"parameter {name} is cut short")
+            kind = struct.unpack("b", section[body : body + 1])[0]
+            n_dims = section[body + 1]
+            if kind not in (-1, 1, 2, 4) or n_dims > 7:
+                raise _BadC3D(f"parameter {name} has an unknown type or shape")
+            dims = tuple(section[body + 2 : body + 2 + n_dims])
+            data_start = body + 2 + n_dims
+            data_end = data_start + int(np.prod(dims, dtype=np.int64)) * abs(kind)
+            records.append((group_id, name.strip().upper(), kind, dims, section[data_start:data_end]))
+        if data_end + 1 > end:
+            raise _BadC3D(f"parameter {name} runs past the parameter section")
+        record_end = data_end + 1 + section[data_end]  # after the description
+        if record_end > end:
+            raise _BadC3D(f"the description of {name} runs past the parameter section")
+        if link == 0:
+            break
+        following = name_end + link
+        if link < 0 or following < record_end or following > end:
+            raise _BadC3D(f"the link after {name} does not lead to the next parameter")
+        pos = following
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]] = {}
+    for group_id, name, kind, dims, raw in records:
+        if group_id not in groups:
+            raise _BadC3D(f"parameter {name} belongs to no group")
+        table[(groups[group_id], name)] = (kind, dims, raw)
+    return table
+
+
+def _c3d_integer(
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
+) -> int | None:
+    """First value of an integer or float parameter read as a whole number, or None."""
+    if key not in table:
+        return None
+    kind, _, raw = table[key]
+    if kind == 2 and len(raw) >= 2:
+        return struct.unpack((">" if processor == 86 else "<") + "H", raw[:2])[0]
+    if kind == 1 and raw:
+        return raw[0]
+    if kind == 4 and len(raw) >= 4:
+        value = _c3d_float(raw[:4], processor)
+        return int(value) if np.isfinite(value) else None
+    return None
+
+
+def _c3d_number(
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
+) -> float | None:
+    """First value of a float or integer parameter (integers signed, as C3D stores them), or None."""
+    if key not in table:
+        return None
+    kind, _, raw = table[key]
+    if kind == 4 and len(raw) >= 4:
+        value = _c3d_float(raw[:4], processor)
+        return float(value) if np.isfinite(value) else None
+    if kind == 2 and len(raw) >= 2:
+        return float(struct.unpack((">" if processor == 86 else "<") + "h", raw[:2])[0])
+    if kind == 1 and raw:
+        return float(raw[0])
+    return None
+
+
+def _c3d_long_field(
+    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
+) -> int | None:
+    """A TRIAL:ACTUAL_*_FIELD frame number: two unsigned 16-bit words, low word first; None when absent."""
+    if key not in table:
+        return None
+    kind, _, raw = table[key]
+    if kind == 2 and len(raw) >= 4:
+        low, high = struct.unpack((">" if processor == 86 else "<") + "2H", raw[:4])
+        return low + (high << 16)
+    if kind == 4 and len(raw) >= 8:  # some writers store the two words as floats
+        low, high = _c3d_float(raw[:4], processor), _c3d_float(raw[4:8], processor)
+        if np.isfinite(low) and np.isfinite(high) and low >= 0 and high >= 0:
+            return int(low) + (int(high) << 16)
+    return None
+
+
+@dataclass(frozen=True)
+class _C3DLayout:
+    """What the reader needs from a C3D file's header and parameters besides what ezc3d gives."""
+
+    frames: int | None  # frames of a trial too long for the header; None: ezc3d's count is used as is
+    first_frame: int | None  # 0-based first frame from TRIAL:ACTUAL_START_FIELD past the header's 65535, else None
+
+
+def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
+    """Check a C3D file's header and parameter section against its size before ezc3d reads it.
+
+    ezc3d can crash the interpreter on a file cut or damaged inside its parameter
+    section, and silently drops frames from a file cut inside its data; both are caught here.
+    Returns the frame count and first frame the file gives for trials too long for the header.
+    """
+    redo = "export it again from your capture software"
+
+    def bad(reason: str) -> TrialError:
+        return fail(path, f"not a readable C3D file ({reason})", redo)
+
+    if size < 512:
+        raise bad(f"only {size} bytes, shorter than a C3D header")
+    with open(path, "rb") as fh:
+        header = fh.read(512)
+        if header[0] == 0:  # some writers pad the start with zeros; ezc3d skips them
+            return _C3DLayout(frames=None, first_frame=None)
+        if header[1] != 0x50 or header[0] < 2:
+            raise bad("no C3D signature in its header")
+        param_start = (header[0] - 1) * 512
+        fh.seek(param_start)
+        head = fh.read(4)
+        if len(head) < 4:
+            raise bad("truncated: its parameter section is missing")
+        n_blocks, processor = head[2], head[3]
+        if processor not in (84, 85, 86):
+            raise bad(f"unknown processor type {processor} in its parameter section")
+        if processor == 86:
+            raise fail(
+                path,
+                "C3D file is in the big-endian MIPS (SGI) format, whose data ezc3d cannot read",
+                "convert it to an Intel (PC) C3D file, e.g. by opening and saving it in Mokka, or export it as TRC",
+            )
+        if n_blocks == 0 or param_start + 512 * n_blocks > size:
+            raise bad("truncated inside its parameter section")
+        fh.seek(param_start)
+        section = fh.read(512 * n_blocks)
+        fh.seek(max(size - 512, 0))
+        tail = fh.read(512)
+    try:
+        table = _c3d_parameter_section(section, processor)
+    except _BadC3D as exc:
+        raise bad(f"damaged parameter section: {exc}") from None
+
+    endian = "<"  # Intel and DEC store integers little-endian
+    n_points, n_analog, first, last = struct.unpack(endian + "4H", header[2:10])
+    data_block = struct.unpack(endian + "H", header[16:18])[0]
+    is_float = _c3d_float(header[12:16], processor) < 0
+    used = _c3d_integer(table, ("POINT", "USED"), processor)
+    if used is not None and used != n_points:
+        raise bad(f"its header lists {n_points} points but POINT:USED says {used}")
+    point_scale = _c3d_number(table, ("POINT", "SCALE"), processor)
+    if n_points and point_scale is not None:  # ezc3d reads the points by POINT:SCALE, the size check by the header
+        if point_scale == 0:
+            raise bad("POINT:SCALE is 0, which would make every coordinate 0")
+        if (point_scale < 0) != is_float:
+            raise bad(
+                f"its header says {'float' if is_float else 'integer'} storage but POINT:SCALE "
+                f"({point_scale:g}) says {'float' if point_scale < 0 else 'integer'}"
+            )
+    analog_per_frame = struct.unpack(endian + "H", header[18:20])[0]
+    n_channels = max(
+        n_analog // analog_per_frame if analog_per_frame else 0,
+        _c3d_integer(table, ("ANALOG", "USED"), processor) or 0,
+    )
+    for name in ("SCALE", "OFFSET"):  # ezc3d crashes when these are shorter than the channel list
+        _, dims, _ = table.get(("ANALOG", name), (0, (0,), b""))
+        if n_channels and int(np.prod(dims, dtype=np.int64)) < n_channels:
+            raise bad(f"ANALOG:{name} does not cover its {n_channels} analog channels")
+    if data_block == 0 or (data_block - 1) * 512 > size:
+        raise bad("truncated before its data section")
+
+    frame_bytes = (4 * n_points + n_analog) * (4 if is_float else 2)
+    data_start = (data_block - 1) * 512
+    start_field = _c3d_long_field(table, ("TRIAL", "ACTUAL_START_FIELD"), processor)
+    end_field = _c3d_long_field(table, ("TRIAL", "ACTUAL_END_FIELD"), processor)
+    long_frames = _c3d_number(table, ("POINT", "LONG_FRAMES"), processor)
+    n_frames: int | None = _c3d_integer(table, ("POINT", "FRAMES"), processor)
+    long_count: int | None = None  # the count of a trial that may be longer than the header can say
+    if (last == 0xFFFF or n_frames == 0xFFFF) and frame_bytes:
+        if long_frames is not None and long_frames >= 1:
+            long_count = int(long_frames)
+        elif start_field and end_field and end_field >= start_field:
+            long_count = end_field - start_field + 1
+    if long_count is None and (n_frames is None or n_frames == 0xFFFF) and last == 0xFFFF and frame_bytes:
+        # The header is capped at 65535 and nothing else gives the count: as many frames as
+        # the data section holds, less the zero bytes that pad its last 512-byte block.
+        held = max(size - data_start, 0)
+        zeros = min(len(tail) - len(tail.rstrip(b"\x00")), 511, held)
+        long_count = min(-(-(held - zeros) // frame_bytes), held // frame_bytes)
+    if long_count is not None:
+        n_frames = long_count
+    elif n_frames is None or n_frames == 0xFFFF:  # no count, or a long trial counted elsewhere
+        n_frames = last - first + 1 if first >= 1 and last >= first else 0
+    if frame_bytes and data_start + n_frames * frame_bytes > size:
+        held = max(size - data_start, 0) // frame_bytes
+        raise fail(
+            path,
+            f"C3D file is truncated: it should hold {n_frames} frames but holds only {held}",
+            redo,
+        )
+    first_frame = start_field - 1 if start_field and first == 0xFFFF else None  # past what the header holds
+    return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame)
+
+
+def _c3d_param(params: object, group: str, name: str) -> list | np.ndarray | None:
+    """Value of parameter GROUP:NAME, or None when it is absent."""
+    try:
+        return params[group][name]["value"]  # type: ignore[index]
+    except (KeyError, TypeError):
+        return None
+
+
+def _first_number(value: list | np.ndarray | None) -> float | None:
+    """First element of a numeric parameter value, or None."""
+    if value is None:
+        return None
+    flat = np.asarray(value).ravel()
+    if flat.size == 0:
+        return None
+    try:
+        return float(flat[0])
+    except (TypeError, ValueError):
+        return None
+
+
+def _c3d_strings(value: list | np.ndarray | None) -> list[str]:
+    """A character parameter's entries as stripped strings (NUL padding removed)."""
+    if value is None:
+        return []
+    return [str(v).replace("\x00", " ").strip() for v in np.asarray(value, dtype=object).ravel()]
+
+
+def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
+    """Read the marker trajectories of a C3D file (via ezc3d) into a trial in metres.
+
+    Labels come from POINT:LABELS, LABELS2, ... for the first POINT:USED points;
+    an empty label becomes ``unlabelled_<n>`` (n the 1-based point number) and a
+    repeated label gets a suffix (``RASI_2``).  A subject prefix shared by the labels
+    is removed unless ``strip_prefix`` is False (:func:`strip_subject_prefix`).  Points
+    Vicon lists as angles, forces, moments, powers, scalars or reactions are left out.
+    POINT:UNITS may be mm, cm or m (mm when absent).  Points with a negative residual,
+    all three coordinates exactly zero, or a non-finite coordinate are gaps (NaN).
+    The module docstring lists the vendor conventions this covers.
+    """
+    path = Path(path)
+    size = check_input_file(path)
+    layout = _check_c3d_layout(path, size)
+    redo = "export it again from your capture software"
+    try:
+        c3d = ezc3d.c3d(str(path))
+        params = c3d["parameters"]
+        points = np.asarray(c3d["data"]["points"], dtype=np.float64)
+        residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)
+        header_first = int(c3d["header"]["points"]["first_frame"])
+        header_rate = float(c3d["header"]["points"]["frame_rate"])
+    except Exception as exc:  # noqa: BLE001 - ezc3d raises OSError, RuntimeError, ValueError, ... on bad files
+        raise fail(path, f"not a readable C3D file (ezc3d: {one_line(exc) or type(exc).__name__})", redo) from None
+
+    if "POINT" not in params:
+        raise fail(path, "C3D file has no POINT group, so no marker trajectories", redo)
+    used = _first_number(_c3d_param(params, "POINT", "USED"))
+    n_points = points.shape[1] if points.ndim == 3 else 0
+    if used is not None:
+        n_points = min(n_points, max(int(used), 0))
+    n_frames = points.shape[2] if points.ndim == 3 else 0
+    if layout.frames is not None and n_frames != layout.frames:
+        if n_frames < layout.frames:
+            raise fail(
+                path,
+                f"C3D file holds {layout.frames} frames but ezc3d reads only {n_frames} of them",
+                "export the trial in parts of at most 65535 frames, or as a TRC file",
+            )
+        n_frames = layout.frames  # ezc3d read the zero padding after the last frame as frames
+    if n_points == 0:
+        raise fail(
+            path, "C3D file contains no marker trajectories (POINT:USED is 0)", "export the trial with its markers"
+        )
+    if n_frames == 0:
+        raise fail(path, "C3D file contains no frames", "export the trial again with its frames")
+
+    raw_labels: list[str] = []
+    k = 1
+    while True:
+        name = "LABELS" if k == 1 else f"LABELS{k}"
+        value = _c3d_param(params, "POINT", name)
+        if value is None:
+            break
+        raw_labels.extend(_c3d_strings(value))
+        k += 1
+    raw_labels = (raw_labels + [""] * n_points)[:n_points]
+
+    kinds = _c3d_output_kinds(params, raw_labels)
+    keep = [i for i, label in enumerate(raw_labels) if i not in kinds]
+    if not keep:
+        raise fail(
+            path,
+            "C3D file contains no marker trajectories, only model outputs (POINT:ANGLES, FORCES, PELO, ...)",
+            "export the trial with its markers",
+        )
+    kept_labels = [raw_labels[i] for i in keep]
+    outputs = sorted(kinds)
+    output_labels = [raw_labels[i] for i in outputs]
+    if strip_prefix:
+        both, _ = strip_subject_prefix(kept_labels + output_labels)
+        kept_labels, output_labels = both[: len(keep)], both[len(keep) :]
+    labels = unique_labels(kept_labels, numbers=[i + 1 for i in keep])
+    output_labels = list(unique_labels(output_labels, numbers=[i + 1 for i in outputs]))
+
+    units_value = _c3d_strings(_c3d_param(params, "POINT", "UNITS"))
+    units = units_value[0] if units_value else ""
+    scale = (
+        parse_units(units, path, "set POINT:UNITS to mm, cm or m", reading=True) if units else UNITS_TO_METRES["mm"]
+    )
+
+    rate = _first_number(_c3d_param(params, "POINT", "RATE"))
+    if rate is None or not np.isfinite(rate) or rate <= 0:
+        rate = header_rate
+    if not np.isfinite(rate) or rate <= 0:
+        raise fail(path, "C3D file gives no valid frame rate (POINT:RATE)", redo)
+
+    xyz = points[:3, keep, :n_frames].transpose(2, 1, 0) * scale  # (frames, markers, 3)
+    gap = ~np.isfinite(xyz).all(axis=2) | (xyz == 0.0).all(axis=2)
+    if residuals.ndim == 3 and residuals.shape[1] >= n_points and residuals.shape[2] >= n_frames:
+        gap |= (residuals[0, keep, :n_frames] < 0).T
+    xyz[gap] = np.nan
+    model_outputs: dict[str, np.ndarray] = {}
+    output_kinds: dict[str, str] = {}
+    output_units: dict[str, str] = {}
+    for i, label in zip(outputs, output_labels, strict=True):
+        kind, unit = kinds[i]
+        factor, si = (scale, "m") if kind == "point" and not unit else output_factor(kind, unit)
+        values = points[:3, i, :n_frames].T * factor
+        bad = ~np.isfinite(values).all(axis=1)
+        if kind == "point":
+            bad |= (values == 0.0).all(axis=1)
+        if residuals.ndim == 3 and residuals.shape[1] > i and residuals.shape[2] >= n_frames:
+            bad |= residuals[0, i, :n_frames] < 0
+        values[bad] = np.nan
+        model_outputs[label], output_kinds[label], output_units[label] = values, kind, si
+    first_frame = layout.first_frame if layout.first_frame is not None else max(header_first, 0)
+    return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path),
+                 model_outputs=model_outputs, output_kinds=output_kinds, output_units=output_units)
+
+
+def _c3d_output_kinds(params: dict, raw_labels: list[str]) -> dict[int, tuple[str, str]]:
+    """Point index -> (kind, file unit) for every point that is a model output, not a marker.
+
+    By the file's parameters: the labels listed in POINT:ANGLES, FORCES, ... (unit from
+    ANGLE_UNITS, FORCE_UNITS, ...) and in every group POINT:TYPE_GROUPS names (pairs of group
+    and singular name: ``ANGLES, ANGLE, MODELED_MARKERS, MODELED_MARKER``); then by name
+    (:func:`is_model_output`), the units of the group of that kind.
+    """
+    groups = dict(_C3D_OUTPUT_GROUPS)
+    singular = {"ANGLES": "ANGLE", "FORCES": "FORCE", "MOMENTS": "MOMENT", "POWERS": "POWER",
+                "SCALARS": "SCALAR", "REACTIONS": "REACTION", "MODELED_MARKERS": "MODELED_MARKER"}
+    pairs = [str(v).strip().upper() for v in _c3d_strings(_c3d_param(params, "POINT", "TYPE_GROUPS"))]
+    for group, single in zip(pairs[0::2], pairs[1::2], strict=False):
+        if group and group not in groups:
+            groups[group] = single.lower() or group.lower()
+            singular[group] = single
+    unit_of: dict[str, str] = {}
+    listed: dict[str, tuple[str, str]] = {}
+    for group, kind in groups.items():
+        units = _c3d_strings(_c3d_param(params, "POINT", f"{singular.get(group, group)}_UNITS"))
+        unit = str(units[0]).strip() if units else ""
+        unit_of.setdefault(kind, unit)
+        for label in _c3d_strings(_c3d_param(params, "POINT", group)):
+            if str(label).strip():
+                listed.setdefault(str(label).strip(), (kind, unit))
+    out: dict[int, tuple[str, str]] = {}
+    for i, label in enumerate(raw_labels):
+        label = str(label).strip()
+        if not label:
+            continue
+        if label in listed:
+            out[i] = listed[label]
+        elif (kind := is_model_output(label)) is not None:
+            out[i] = (kind, "" if kind == "point" else unit_of.get(kind, ""))
+    return out
+
+
+def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> None:
+    """Write a trial's marker trajectories to a C3D file (float data, POINT:UNITS ``units``).
+
+    Gaps are written as coordinates 0 with residual -1 (the C3D "invalid point").
+    At most 65535 frames: ezc3d does not read longer files back whole.
+    The file is written next to its target and then moved into place.
+    """
+    path, key, scale = output_target(path, trial, units)
+    if trial.n_frames > _C3D_MAX_HEADER_FRAME:
+        raise fail(
+            path,
+            f"{trial.n_frames} frames are more than a C3D file written here can hold ({_C3D_MAX_HEADER_FRAME}; "
+            "ezc3d reads back only that many)",
+            "write a TRC file instead or split the trial with Trial.frames",
+        )
+    if trial.first_frame + 1 > _C3D_MAX_HEADER_FRAME:
+        raise fail(
+            path,
+            f"first frame {trial.first_frame} is past the last frame number a C3D header can hold "
+            f"({_C3D_MAX_HEADER_FRAME})",
+            "write a TRC file instead or start the trial at an earlier frame",
+        )
+    xyz = trial.markers / scale  # (frames, markers, 3) in file units
+    gap = np.isnan(xyz).any(axis=2)  # (frames, markers)
+    points = np.zeros((4, trial.n_markers, trial.n_frames))
+    points[:3] = np.where(gap[:, :, None], 0.0, xyz).transpose(2, 1, 0)
+    points[3] = 1.0
+    residuals = np.where(gap.T, -1.0, 0.0)[None, :, :]
+
+    tmp = temporary_sibling(path, ".c3d")  # ezc3d appends .c3d to names without it
+    try:
+        c3d = ezc3d.c3d()
+        c3d["parameters"]["POINT"]["RATE"]["value"] = [trial.rate]
+        c3d["parameters"]["POINT"]["LABELS"]["value"] = list(trial.labels)
+        c3d["parameters"]["POINT"]["UNITS"]["value"] = [key]
+        c3d["header"]["points"]["first_frame"] = trial.first_frame  # 0-based; stored 1-based in the file
+        c3d["data"]["points"] = points
+        c3d["data"]["meta_points"] = {"residuals": residuals}
+        c3d.write(str(tmp))
+        os.replace(tmp, path)
+    except Exception as exc:  # noqa: BLE001 - any ezc3d or OS failure becomes one TrialError line
+        discard(tmp)
+        raise fail(
+            path,
+            f"could not write the C3D file ({one_line(exc) or type(exc).__name__})",
+            "check the directory is writable and has free space",
+        ) from None
+    except BaseException:
+        discard(tmp)
+        raise

@@ -1,0 +1,104 @@
+"""What an imported OpenSim model carries beyond the URDF (calibrate.io.osim): its locked coordinates,
+approximations and root coordinates, read back from the URDF's <osim> element."""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calibrate.io.osim import Approximation, OsimInfo, RootInfo
+from calibrate.io.osim_read import xml_floats
+
+from ..errors import ModelError
+from ..seed.geometry import Transform
+
+
+def osim_info(model) -> OsimInfo | None:
+    """The OpenSim facts of a model imported from a .osim (or written from one), else None."""
+    try:
+        robot = ET.fromstring(model.text)
+    except ET.ParseError:  # pragma: no cover - a Model's text is valid XML
+        return None
+    el = robot.find("opensim")
+    if el is None:
+        return None
+
+    def X(e: ET.Element | None) -> Transform:
+        xyz = xml_floats(e.get("xyz", "0 0 0")) if e is not None else np.zeros(3)
+        rpy = xml_floats(e.get("rpy", "0 0 0")) if e is not None else np.zeros(3)
+        R = np.eye(3) if not np.any(rpy) else Rotation.from_euler("xyz", rpy).as_matrix()
+        return R, xyz
+
+    root = None
+    r = el.find("root")
+    if r is not None:
+        root = RootInfo(r.get("joint", ""), X(r.find("parent_offset")), X(r.find("child_offset")),
+                        tuple((e.get("coordinate", ""), xml_floats(e.get("axis"))) for e in r.findall("rotation")),
+                        tuple((e.get("coordinate", ""), xml_floats(e.get("axis"))) for e in r.findall("translation")))
+    defaults = {e.get("name", ""): float(e.get("default", "0")) for e in el.findall("coordinate")}
+    locked = {e.get("name", ""): float(e.get("default", "0")) for e in el.findall("coordinate")
+              if e.get("locked") == "true"}
+    approx = tuple(Approximation(e.get("joint", ""), e.get("kind", ""), tuple(e.get("coordinates", "").split()),
+                                 e.get("detail", ""), float(e.get("max_marker_mm", "0")), e.get("marker", ""),
+                                 float(e.get("bound_mm", "0")), tuple(e.get("markers", "").split()))
+                   for e in el.findall("approximation"))
+    dropped = tuple(e.get("coordinate", "") for e in el.findall("dropped"))
+    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped)
+
+
+def with_locked(model, settings):
+    """`settings` with the model's locked OpenSim coordinates added to Settings.lock (those the settings
+    already lock keep their values)."""
+    from dataclasses import replace
+
+    info = osim_info(model)
+    if info is None or not info.locked:
+        return settings
+    have = dict(settings.lock)
+    merged = {**{k: v for k, v in info.locked.items() if k in set(model.dof_names)}, **have}
+    return replace(settings, lock=tuple(sorted(merged.items())))
+
+
+def approximation_table(info: OsimInfo) -> str:
+    """One line per approximated joint (for `calibrate inspect MODEL.osim`)."""
+    if not info.approximations:
+        return "  every joint imported exactly"
+    return "\n".join("  " + a.text() for a in info.approximations)
+
+
+def root_coordinates(info: OsimInfo, root_translation: np.ndarray, root_quaternion: np.ndarray,
+                     root_scale: float = 1.0) -> dict[str, np.ndarray]:
+    """OpenSim's ground-joint coordinates (rad, m) of root poses (n, 3) and quaternions (n, 4; x, y, z, w)
+    of the root segment.  The rotation axes must be coordinate axes (as in every OpenSim ground joint)."""
+    rt = info.root
+    if rt is None:
+        raise ModelError(f"{info.source}: its ground joint is not three rotations and three translations of "
+                         f"coordinates; cannot write its coordinates")
+    letters = ""
+    signs = []
+    for name, a in rt.rotations:
+        k = int(np.argmax(np.abs(a)))
+        if abs(abs(a[k]) - 1) > 1e-9:
+            raise ModelError(f"{info.source}: the ground joint's rotation axis for '{name}' is not a coordinate axis; "
+                             f"cannot write its coordinates")
+        letters += "XYZ"[k]
+        signs.append(math.copysign(1.0, a[k]))
+    Rm, tm = rt.child_offset[0], rt.child_offset[1] * root_scale
+    RG = Rotation.from_quat(np.asarray(root_quaternion, float)).as_matrix()  # (n, 3, 3) root segment in lab
+    Rf, tf = rt.parent_offset
+    # X_FM = X_GF^-1 X_GB X_BM
+    R_fm = np.einsum("ij,njk,kl->nil", Rf.T, RG, Rm)
+    p_fm = np.einsum("ij,nj->ni", Rf.T, np.einsum("nij,j->ni", RG, tm) + np.asarray(root_translation, float) - tf)
+    ang = Rotation.from_matrix(R_fm).as_euler(letters)  # intrinsic (body-fixed) sequence
+    ang = np.unwrap(ang * np.array(signs), axis=0)
+    T = np.array([a for _, a in rt.translations]).T
+    tr = np.linalg.solve(T, p_fm.T).T
+    out = {name: ang[:, k] for k, (name, _) in enumerate(rt.rotations)}
+    out.update({name: tr[:, k] for k, (name, _) in enumerate(rt.translations)})
+    return out
+
+
+__all__ = ["approximation_table", "osim_info", "root_coordinates", "with_locked"]

@@ -1,0 +1,232 @@
+"""TRC trials (OpenSim's marker format): read and written, units at the edge."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from calibrate.io.trial import (
+    Trial,
+    check_input_file,
+    discard,
+    fail,
+    one_line,
+    output_target,
+    parse_units,
+    strip_subject_prefix,
+    temporary_sibling,
+    unique_labels,
+)
+from calibrate.io.vicon import is_model_output
+
+_TRC_KEYS = (
+    "DataRate",
+    "CameraRate",
+    "NumFrames",
+    "NumMarkers",
+    "Units",
+    "OrigDataRate",
+    "OrigDataStartFrame",
+    "OrigNumFrames",
+)
+
+
+def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
+    """Read an OpenSim-style TRC marker file into a trial in metres; blank (or NaN) cells are gaps.
+
+    Tab-separated, as OpenSim reads and writes it: line 2 the header keys, line 3 their values
+    (``DataRate`` and ``Units`` required; ``Units`` mm, cm or m, also spelt out), line 4
+    ``Frame#``, ``Time`` and one label every three columns (labels may contain spaces and
+    dots), line 5 the X/Y/Z names, data from line 6 on (blank lines skipped).  A subject
+    prefix shared by the labels is removed unless ``strip_prefix`` is False.  Columns with a
+    Plug-in Gait output name (:func:`is_model_output`) go to :attr:`Trial.model_outputs`.
+    """
+    path = Path(path)
+    check_input_file(path)
+    redo = "export the TRC file again"
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise fail(path, f"cannot be read ({one_line(exc.strerror or exc)})", "check the file permissions") from None
+    if b"\x00" in data:
+        raise fail(path, "not a TRC text file (it contains binary data)", redo)
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if len(lines) < 5:
+        raise fail(path, f"not a TRC file ({len(lines)} line(s), a TRC header needs 5)", redo)
+    if not lines[0].lstrip().startswith("PathFileType"):
+        raise fail(path, "not a TRC file (line 1 should start with PathFileType)", redo)
+
+    keys = [cell.strip() for cell in lines[1].split("\t") if cell.strip()]
+    values = [cell.strip() for cell in lines[2].split("\t")]
+    filled = [v for v in values if v]
+    if len(filled) == len(keys) and len(values) != len(keys):  # values padded with empty fields (some exporters)
+        values = filled
+    values = values[: len(keys)] + [""] * (len(keys) - len(values))
+    meta = dict(zip(keys, values, strict=True))
+    for key in ("DataRate", "Units"):
+        if not meta.get(key):
+            raise fail(path, f"TRC header has no {key} value (lines 2-3)", redo)
+    try:
+        rate = float(meta["DataRate"])
+    except ValueError:
+        raise fail(path, f"TRC DataRate {meta['DataRate']!r} is not a number", redo) from None
+    if not np.isfinite(rate) or rate <= 0:
+        raise fail(path, f"TRC DataRate must be a positive number of frames per second, got {meta['DataRate']}", redo)
+    scale = parse_units(meta["Units"], path, "set Units in the TRC header to mm, cm or m", reading=True)
+
+    def header_int(key: str) -> int | None:
+        if not meta.get(key):
+            return None
+        try:
+            return int(float(meta[key]))
+        except (ValueError, OverflowError):
+            raise fail(path, f"TRC {key} {meta[key]!r} is not a number", redo) from None
+
+    num_markers = header_int("NumMarkers")
+    num_frames = header_int("NumFrames")
+
+    label_cells = lines[3].split("\t")
+    if len(label_cells) < 2 or label_cells[0].strip() != "Frame#" or label_cells[1].strip() != "Time":
+        raise fail(path, "TRC line 4 should start with Frame# and Time", redo)
+    marker_cells = label_cells[2:]
+    misplaced = [cell.strip() for i, cell in enumerate(marker_cells) if i % 3 and cell.strip()]
+    if misplaced:
+        raise fail(
+            path,
+            f"TRC line 4 has marker labels out of step with the X/Y/Z columns (near {misplaced[0]!r})",
+            redo,
+        )
+    raw_labels = marker_cells[0::3]
+    while raw_labels and not raw_labels[-1].strip():
+        raw_labels.pop()
+    n_markers = len(raw_labels)
+    if num_markers is not None and num_markers != n_markers:
+        raise fail(path, f"TRC header says NumMarkers {num_markers} but line 4 names {n_markers} markers", redo)
+    if n_markers == 0:
+        raise fail(path, "TRC file names no markers", "export the trial with its markers")
+    if strip_prefix:
+        raw_labels, _ = strip_subject_prefix(raw_labels)
+    labels = unique_labels(raw_labels)
+
+    width = 2 + 3 * n_markers
+    rows: list[list[str]] = []
+    line_numbers: list[int] = []
+    for number, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        cells = [cell.strip() for cell in line.split("\t")]
+        if len(cells) > width:
+            extra = [cell for cell in cells[width:] if cell]
+            if extra:
+                raise fail(
+                    path,
+                    f"line {number} has more values than the {n_markers} markers named in the header",
+                    redo,
+                )
+            cells = cells[:width]
+        cells += [""] * (width - len(cells))
+        rows.append(cells)
+        line_numbers.append(number)
+    if not rows:
+        raise fail(path, "TRC file contains no frames", "export the trial again with its frames")
+    if num_frames is not None and num_frames != len(rows):
+        raise fail(
+            path,
+            f"TRC header says NumFrames {num_frames} but the file has {len(rows)} data rows (truncated?)",
+            redo,
+        )
+
+    values_array = np.empty((len(rows), width), dtype=np.float64)
+    for r, cells in enumerate(rows):
+        try:
+            values_array[r] = [float(cell) if cell else np.nan for cell in cells]
+        except ValueError:
+            column = next(i for i, cell in enumerate(cells) if cell and not _is_number(cell))
+            raise fail(
+                path,
+                f"line {line_numbers[r]}, column {column + 1}: {cells[column]!r} is not a number",
+                "fix that cell or export the file again",
+            ) from None
+
+    first_number = values_array[0, 0]
+    if not np.isfinite(first_number) or first_number != int(first_number):
+        raise fail(path, f"line {line_numbers[0]}: Frame# should be a whole number, got {rows[0][0]!r}", redo)
+    markers = values_array[:, 2:].reshape(len(rows), n_markers, 3) * scale
+    kinds = {i: kind for i, label in enumerate(labels) if (kind := is_model_output(label)) is not None}
+    keep = [i for i in range(n_markers) if i not in kinds]
+    if not keep:
+        raise fail(path, "TRC file holds only model outputs (PELO, LFEO, ...), no markers",
+                    "export the trial with its markers")
+    return Trial(
+        labels=tuple(labels[i] for i in keep),
+        markers=markers[:, keep],
+        rate=rate,
+        first_frame=max(int(first_number) - 1, 0),
+        source=str(path),
+        model_outputs={labels[i]: markers[:, i] / (1.0 if kind == "point" else scale) for i, kind in kinds.items()},
+        output_kinds={labels[i]: kind for i, kind in kinds.items()},
+        output_units={labels[i]: "m" if kind == "point" else "file units" for i, kind in kinds.items()},
+    )
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def write_trc(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> None:
+    """Write a trial to an OpenSim-style TRC file in ``units``; gaps are empty cells.
+
+    Frame numbers are 1-based (``first_frame + 1`` onwards), times in seconds.
+    The file is written next to its target and then moved into place.
+    """
+    path, key, scale = output_target(path, trial, units)
+    bad = [label for label in trial.labels if any(ch in label for ch in "\t\r\n")]
+    if bad:
+        raise fail(path, f"marker label {bad[0]!r} contains a tab or line break", "rename the marker")
+    decimals = {"mm": 6, "cm": 7, "m": 9}[key]  # nanometre resolution in every unit
+    rate = f"{trial.rate:.12g}"
+    n = trial.n_markers
+    head = [
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        "\t".join(_TRC_KEYS),
+        "\t".join(
+            [rate, rate, str(trial.n_frames), str(n), key, rate, str(trial.first_frame + 1), str(trial.n_frames)]
+        ),
+        "Frame#\tTime\t" + "".join(f"{label}\t\t\t" for label in trial.labels),
+        "\t\t" + "".join(f"X{i}\tY{i}\tZ{i}\t" for i in range(1, n + 1)),
+        "",
+    ]
+    rows = (trial.markers / scale).reshape(trial.n_frames, 3 * n).tolist()
+    times = trial.times.tolist()
+    spec = f".{decimals}f"
+
+    tmp = temporary_sibling(path, ".trc")
+    try:
+        with open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+            fh.write("\n".join(head) + "\n")
+            for i, row in enumerate(rows):
+                cells = "\t".join("" if v != v else format(v, spec) for v in row)  # v != v: NaN, a gap
+                fh.write(f"{trial.first_frame + i + 1}\t{times[i]:.9g}\t{cells}\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        discard(tmp)
+        raise fail(
+            path,
+            f"could not write the TRC file ({one_line(exc)})",
+            "check the directory is writable and has free space",
+        ) from None
+    except BaseException:
+        discard(tmp)
+        raise

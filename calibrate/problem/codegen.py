@@ -1,0 +1,241 @@
+"""The compiled per-frame functions of the calibration problem: CasADi residuals and exact sparse
+Jacobians, C-compiled and kept on disk by the model's structure, evaluated over frames in blocks."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from calibrate.problem.state import FrameGroup, State
+
+from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
+from ..model.kinematics import Kinematics
+from ..model.model import Model
+from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+
+EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
+
+
+EVAL_PAD = 32  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
+
+
+class _FrameEvaluator:
+    """Evaluates the per-frame 'pose' function (observed markers set to zero, so its residual is
+    the model markers) into preallocated memory; the Jacobian nonzeros are spread into a dense,
+    reused (3 n_markers, nz) array.  Outputs are overwritten by the next call."""
+
+    def __init__(self, f: ca.Function, p: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, int, int],
+                 n_refs: int = 4):
+        rows, cols, n_rows, nz = pattern
+        self._f = f  # keep the Function alive while its buffer is used
+        self._buf, self._eval = f.buffer()
+        self._z, self._q, self._p, self._r = np.zeros(nz), np.zeros(n_refs), p.copy(), np.zeros(n_rows)
+        self.markers = np.zeros(n_rows)
+        self._jnz = np.zeros(rows.size)
+        self.jacobian = np.zeros((n_rows, nz))
+        self._flat = rows * nz + cols
+        for i, a in enumerate((self._z, self._q, self._p, self._r)):
+            self._buf.set_arg(i, memoryview(a))
+        self._buf.set_res(0, memoryview(self.markers))
+        self._buf.set_res(1, memoryview(self._jnz))
+
+    def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._z[:] = z
+        self._q[:] = q_ref
+        self._eval()
+        self.jacobian.reshape(-1)[self._flat] = self._jnz
+        return self.markers, self.jacobian
+
+
+def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) of every nonzero of a CasADi sparsity, in nonzero order (column-major)."""
+    colind = np.asarray(sp.colind())
+    row = np.asarray(sp.row())
+    col = np.repeat(np.arange(sp.size2()), np.diff(colind))
+    return row, col
+
+
+def _structure_key(model: Model, kin: Kinematics) -> str | None:
+    """A digest of everything the per-frame functions are built from: the model's kinematic
+    structure (tree, fixed rotations and offsets, which parameter each origin reads) and the code
+    that builds them, so that a cached build is reused exactly when it would come out the same.
+    None without a C compiler (nothing to cache)."""
+    if c_compiler() is None:
+        return None
+    h = hashlib.sha256(f"{ca.__version__} -O1 {model.root} {model.nz} {len(model.markers)}".encode())
+    for src in (Path(__file__), Path(__file__).parent.parent / "model" / "kinematics.py",
+                Path(__file__).parent.parent / "model" / "blocks.py"):
+        h.update(src.read_bytes())
+    h.update(repr([s.name for s in model.segments]).encode())
+    h.update(repr([(b.name, b.axes.tolist()) for b in kin.balls]).encode())
+    for u in model.urdf_joints:
+        fixed_xyz = u.role not in ("centre", "marker")
+        h.update(repr((u.parent_link, u.child_link, u.owner, u.role, u.index, u.dof)).encode())
+        h.update(np.asarray(u.rotation, dtype=float).tobytes())
+        if fixed_xyz:
+            h.update(np.asarray(u.xyz, dtype=float).tobytes())
+    return h.hexdigest()[:20]
+
+
+def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
+    """The compiled per-frame functions and their Jacobian patterns cached under `key`, or None."""
+    so, npz = cache_dir() / f"frame_{key}.so", cache_dir() / f"frame_{key}.npz"
+    if not (so.exists() and npz.exists()):
+        return None
+    try:
+        with np.load(npz) as z:
+            patterns = (z["zr"], z["zc"], z["pr"], z["pc"], z["shape"])
+        return [ca.external(n, str(so)) for n in ("calibrate_frame", "calibrate_pose", "calibrate_resid")], patterns
+    except (OSError, RuntimeError, KeyError, ValueError):
+        return None
+
+
+def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]) -> list[ca.Function] | None:
+    """Generate C for `funcs`, compile it, keep it (with the Jacobian `patterns` beside it) in the
+    cache under `key`, and load it.
+
+    Returns None (the caller then keeps CasADi's virtual machine) when there is no C
+    compiler or the compile fails: compiling is an optimisation, never a requirement.
+    """
+    cc = c_compiler()
+    if cc is None:
+        return None
+    try:
+        cache = cache_dir()
+        cache.mkdir(parents=True, exist_ok=True)
+        so = cache / f"frame_{key}.so"
+        with tempfile.TemporaryDirectory() as tmp:
+            # One translation unit per function, compiled side by side (the per-frame function with
+            # its Jacobians takes most of the time), then linked into one library.  -Og: on this
+            # straight-line code it compiles in 60 % of -O1's time and runs within ~5 % of it.
+            objs, jobs = [], []
+            for f in funcs:
+                cg = ca.CodeGenerator(f"{f.name()}.c", {"with_header": False})
+                cg.add(f)
+                cg.generate(tmp + os.sep)
+                src, obj = Path(tmp) / f"{f.name()}.c", Path(tmp) / f"{f.name()}.o"
+                objs.append(str(obj))
+                jobs.append(subprocess.Popen([cc, "-Og", "-fPIC", "-c", str(src), "-o", str(obj)],
+                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            failed = [j.wait(timeout=600) for j in jobs]
+            if any(failed):
+                raise RuntimeError("C compile failed")
+            part = cache / f".frame_{key}.{os.getpid()}.so"
+            subprocess.run([cc, "-shared", *objs, "-o", str(part)], check=True, capture_output=True, timeout=600)
+            side = cache / f".frame_{key}.{os.getpid()}.npz"
+            with open(side, "wb") as fh:
+                np.savez(fh, **patterns)
+            os.replace(part, so)
+            os.replace(side, cache / f"frame_{key}.npz")
+        return [ca.external(f.name(), str(so)) for f in funcs]
+    except (OSError, subprocess.SubprocessError, RuntimeError):
+        return None
+
+
+class CodegenMixin:
+    """Problem's compiled functions (calibrate.problem.problem.Problem inherits it)."""
+
+    # ------------------------------------------------------------------ CasADi
+    def _build_functions(self) -> None:
+        m, kin = self.model, self.kin
+        nz, nm = m.nz, len(m.markers)
+        key = _structure_key(m, kin) if self.settings.compile else None
+        cached = _load_compiled(key) if key else None
+        self.compiled = cached is not None
+        if cached is not None:  # a model of this structure was compiled before: no symbolic work
+            (full, pose, resid), (zr, zc, pr, pc, shape) = cached
+        else:
+            z = ca.SX.sym("z", nz)
+            q = ca.SX.sym("refs", kin.n_refs)
+            p = ca.SX.sym("p", self.np_full)
+            r = ca.SX.sym("r", 3 * nm)
+            M, _ = kin.h_ref(z, q, p)
+            d = ca.vec(M) - r
+            Jz = ca.jacobian(d, z)
+            Jp = ca.jacobian(d, p)
+            nzs = lambda J: ca.vertcat(*[J.nz[i] for i in range(J.nnz())])  # noqa: E731
+            full = ca.Function("calibrate_frame", [z, q, p, r], [d, nzs(Jz), nzs(Jp)])
+            pose = ca.Function("calibrate_pose", [z, q, p, r], [d, nzs(Jz)])
+            resid = ca.Function("calibrate_resid", [z, q, p, r], [d])
+            zr, zc = _pattern(Jz.sparsity())
+            pr, pc = _pattern(Jp.sparsity())
+            shape = np.array([Jz.size1(), Jz.size2()])
+            if key:
+                if self._progress is not None and c_compiler() is not None:
+                    self._progress("build: compiling the model's C code (once per model structure; cached)")
+                comp = _compile([full, pose, resid], key, {"zr": zr, "zc": zc, "pr": pr, "pc": pc, "shape": shape})
+                if comp is not None:
+                    full, pose, resid = comp
+                    self.compiled = True
+        self._funcs = {"full": full, "pose": pose, "resid": resid}
+        # Per-segment groups from the sparsity patterns.
+        self._jz_pattern = (zr, zc, int(shape[0]), int(shape[1]))
+        self.groups: list[FrameGroup] = []
+        for s in range(len(m.segments)):
+            mk = np.flatnonzero(self.marker_segment == s)
+            if mk.size == 0:
+                continue
+            rows = (3 * mk[:, None] + np.arange(3)).ravel()
+            row_pos = {int(x): i for i, x in enumerate(rows)}
+            zsel = np.isin(zr, rows)
+            psel = np.isin(pr, rows)
+            zcols = np.unique(zc[zsel])
+            pcols = np.unique(pc[psel])
+            zpos = {int(c): i for i, c in enumerate(zcols)}
+            ppos = {int(c): i for i, c in enumerate(pcols)}
+            z_src = np.flatnonzero(zsel)
+            p_src = np.flatnonzero(psel)
+            z_dst = np.array([row_pos[int(zr[i])] * zcols.size + zpos[int(zc[i])] for i in z_src], dtype=int)
+            p_dst = np.array([row_pos[int(pr[i])] * pcols.size + ppos[int(pc[i])] for i in p_src], dtype=int)
+            self.groups.append(FrameGroup(rows, zcols, pcols, z_src, z_dst, p_src, p_dst))
+        self._layout_z = group_layout(self.groups)
+
+    def frame_evaluator(self, p: np.ndarray) -> _FrameEvaluator:
+        """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
+        parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
+        return _FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern, self.kin.n_refs)
+
+    def _run(self, kind: str, state: State, out: tuple | None = None) -> list[np.ndarray]:
+        """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
+        call (a map's construction grows with its size, and costs ~15 ms: a short last block is
+        padded with copies of its last frame so that one map size serves every problem), into
+        numpy arrays (F, nnz_out): those of `out` where their shapes fit (buffers no longer
+        needed), else fresh ones."""
+        F = state.Z.shape[0]
+        f0 = self._funcs[kind]
+        outs = [np.empty((F, f0.nnz_out(i))) for i in range(f0.n_out())]
+        for i, o in enumerate(out or ()):
+            if i < len(outs) and isinstance(o, np.ndarray) and o.shape == outs[i].shape:
+                outs[i] = o
+        Z = np.ascontiguousarray(state.Z, dtype=float)
+        Q = np.ascontiguousarray(self.kin.refs(state.Q, state.B), dtype=float)
+        P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
+        for s in range(0, F, EVAL_BLOCK):
+            e = min(F, s + EVAL_BLOCK)
+            n = e - s
+            size = EVAL_BLOCK if n > EVAL_PAD else n
+            key = (kind, size)
+            if key not in self._mapped:
+                fm = f0.map(size, "thread", 2)
+                self._mapped[key] = (fm, *fm.buffer())
+            _, buf, ev = self._mapped[key]
+            ins = [Z[s:e], Q[s:e], self.target[s:e]]
+            res = [o[s:e] for o in outs]
+            if size > n:
+                ins = [np.concatenate([a, np.repeat(a[-1:], size - n, axis=0)]) for a in ins]
+                res = [np.empty((size, o.shape[1])) for o in outs]
+            for i, a in enumerate((ins[0], ins[1], P[:size * self.np_full], ins[2])):
+                buf.set_arg(i, memoryview(a))
+            for i, o in enumerate(res):
+                buf.set_res(i, memoryview(o))
+            ev()
+            if size > n:
+                for o, r in zip(outs, res, strict=True):
+                    o[s:e] = r[:n]
+        return outs

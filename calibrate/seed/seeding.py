@@ -1,0 +1,457 @@
+"""The calibration's seed: the subject's size from pose-independent marker distances, MTB joint centres
+turned into segment scales, centres and axes, with swapped labels and spikes left out first."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import CalibrateError
+from ..io.trial import Trial
+from ..model.model import Model, Parameters
+from ..seed.geometry import kabsch_batch
+from ..solve.ik import marker_columns
+from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
+
+MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
+
+
+SEED_MAX_SHIFT = 0.06  # m: a seeded joint centre further than this from the (scaled) base model is not used
+
+
+SEED_MARKER_LEVER = 0.15  # m: a marker this far from a segment's only estimated centre may scale it
+
+
+SEED_MAX_TILT = math.radians(30.0)  # a seeded hinge axis further than this from the base model's is not used
+
+
+SEED_FRAMES = 150  # the MTB seed uses at most about this many evenly spaced (low-passed) frames
+
+
+SEED_CUTOFF_HZ = 6.0  # low-pass of the markers before the MTB seed (as calibrate.seed.joints does by default)
+
+
+MAD_SD = 1.4826  # SD of a Gaussian per unit median absolute deviation
+
+
+@dataclass(frozen=True)
+class Seed:
+    """Starting geometry from the MTB joint centres, and what was not seeded (and why)."""
+
+    params: Parameters
+    notes: tuple[str, ...]
+    joints: JointEstimates | None
+    seconds: float
+
+
+# ---------------------------------------------------------------------- seed
+def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None,
+                    extra_markers: Mapping[str, str] | None = None, size: Size | None = None) -> Seed:
+    """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
+
+    * scale of a segment: the median over frames of the distances between its estimated joint
+      centres, over the base model's distances (the subject's median scale where a segment
+      has fewer than two estimated centres);
+    * each segment's pose per frame: least-squares fit of its base-model markers and joint
+      centres (scaled) to the observed markers and estimated centres;
+    * a joint centre: its trajectory carried into the parent segment's frame and averaged;
+      a hinge axis likewise.  A joint whose estimate failed, or lands further than
+      SEED_MAX_SHIFT from the scaled base model, keeps the base model's (and the note says so).
+
+    `extra_markers` (trial label -> segment) adds markers the model does not know to the MTB
+    estimate of the joint centres (they are placed on their segments later, in `calibrate`).
+    `size` (size_from_markers): the subject's limb sizes from marker distances; a segment without
+    estimated centres takes its limb's factor, and so does one whose centres give a factor further
+    than SIZE_TOLERANCE from it (an MTB centre off by a few centimetres on a short segment).
+    """
+    t0 = time.perf_counter()
+    notes: list[str] = []
+    trial, broken = without_broken(model, trial)
+    if broken:
+        notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: jumps and back, or "
+                     f"distances to markers on the same segment broken)")
+    if joints is None:
+        thinned = seed_trial(trial, SEED_FRAMES)
+        cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
+        trial = thinned
+        try:
+            joints = estimate_model_joints(model, trial, cutoff_hz=cutoff, extra_markers=extra_markers)
+        except (ValueError, CalibrateError) as e:
+            notes.append(f"joint-centre seed unavailable ({e}); starting from the base model"
+                         + (" scaled to the markers" if size is not None else ""))
+            p0 = model.parameters()
+            if size is not None:
+                p0.scale[:] = size.scale
+            return Seed(p0, tuple(notes), None, time.perf_counter() - t0)
+    base = model.parameters()
+    geo = model_geometry(model)
+    # Only direct MTB solutions seed the geometry: JMV fallbacks and joints seen through a
+    # markerless segment are flagged by the joint-centre stage as 10-60 mm uncertain.
+    ok = {j.name: j for j in joints if j.ok and j.mtb and not j.note}
+    for j in joints:
+        if not j.ok:
+            notes.append(f"{j.name}: no joint-centre seed ({j.reason}); base model used")
+        elif j.name not in ok:
+            notes.append(f"{j.name}: joint-centre seed too uncertain ({j.note or j.method}); base model used")
+    obs = marker_columns(model, trial)
+    # Scale factors from distances between estimated centres within each segment.
+    ratios: dict[str, list[float]] = {s.name: [] for s in model.segments}
+    for s in model.segments:
+        names = [n for n in geo[s.name] if n in ok]
+        for a in range(len(names)):
+            for b in range(a + 1, len(names)):
+                d0 = np.linalg.norm(geo[s.name][names[a]] - geo[s.name][names[b]])
+                if d0 < 0.05:
+                    continue
+                d = np.linalg.norm(ok[names[a]].centre - ok[names[b]].centre, axis=1)
+                if np.isfinite(d).sum() >= 3:
+                    ratios[s.name].append(float(np.nanmedian(d)) / d0)
+        if not ratios[s.name]:
+            # One estimated centre only (e.g. a shank whose ankle is seen through the markerless
+            # talus): its distances to the segment's far markers, each known to about a centimetre.
+            for n in names:
+                for mk in s.markers:
+                    d0 = np.linalg.norm(geo[s.name][mk] - geo[s.name][n])
+                    d = np.linalg.norm(obs[:, model.marker_index(mk)] - ok[n].centre, axis=1)
+                    if d0 >= SEED_MARKER_LEVER and np.isfinite(d).sum() >= 3:
+                        ratios[s.name].append(float(np.nanmedian(d)) / d0)
+    known = [np.median(r) for r in ratios.values() if r]
+    overall = float(np.median(known)) if known else 1.0
+    scale = np.array([float(np.median(ratios[s.name])) if ratios[s.name] else overall for s in model.segments])
+    if size is not None:
+        for si, sg in enumerate(model.segments):
+            if not ratios[sg.name]:
+                scale[si] = size.scale[si]
+            elif abs(scale[si] / size.scale[si] - 1.0) > SIZE_TOLERANCE:
+                notes.append(f"{sg.name}: scale {scale[si]:.2f} from its joint centres is more than "
+                             f"{100 * SIZE_TOLERANCE:.0f} % from its limb's {size.scale[si]:.2f} (marker distances); "
+                             f"the limb's used")
+                scale[si] = size.scale[si]
+    scale = np.clip(scale, 0.7, 1.4)
+    centre = base.centre.copy()
+    axis = base.axis.copy()
+    marker = base.marker.copy()
+    for si, s in enumerate(model.segments):
+        pts_local, pts_world = [], []
+        for mk in s.markers:
+            k = model.marker_index(mk)
+            pts_local.append(scale[si] * base.marker[k])
+            pts_world.append(obs[:, k])
+        for n, pos in geo[s.name].items():
+            if n in ok:
+                pts_local.append(scale[si] * pos)
+                pts_world.append(ok[n].centre)
+        if len(pts_local) < 3:
+            continue
+        local = np.array(pts_local)
+        world = np.stack(pts_world, axis=1)
+        w = np.all(np.isfinite(world), axis=2).astype(float)
+        R, t = kabsch_batch(local, np.where(w[..., None] > 0, world, 0.0), w)
+        valid = np.isfinite(t[:, 0])
+        if valid.sum() < 3:
+            continue
+        # Each marker where the trial shows it in this frame (seed 002's closed form): the global
+        # solve then starts near the data instead of at the base model's ~1 cm guesses.
+        for mk in s.markers:
+            k = model.marker_index(mk)
+            use = valid & np.all(np.isfinite(obs[:, k]), axis=1)
+            if use.sum() >= 3:
+                m_loc = np.einsum("fji,fj->fi", R[use], obs[use, k] - t[use]).mean(0) / scale[si]
+                if scale[si] * np.linalg.norm(m_loc - base.marker[k]) <= SEED_MAX_SHIFT:
+                    marker[k] = m_loc
+        for ji, j in enumerate(model.joints):
+            if j.parent != s.name or j.name not in ok:
+                continue
+            est = ok[j.name]
+            use = valid & np.isfinite(est.centre[:, 0])
+            if use.sum() < 3:
+                continue
+            c_loc = np.einsum("fji,fj->fi", R[use], est.centre[use] - t[use]).mean(0)
+            c = c_loc / scale[si]
+            shift = float(np.linalg.norm(scale[si] * (c - base.centre[ji])))
+            if shift > SEED_MAX_SHIFT:
+                notes.append(f"{j.name}: seeded centre {1000 * shift:.0f} mm from the scaled base model; "
+                             "base model used")
+                continue
+            centre[ji] = c
+            if j.kind == "hinge" and est.axis is not None:
+                a_loc = np.einsum("fji,fj->fi", R[use], est.axis[use])
+                d = model.dof_index(j.dofs[0])
+                u = next(u for u in model.urdf_joints if u.name == j.dofs[0])
+                a0 = base.axis[d] / np.linalg.norm(base.axis[d])
+                a_loc = a_loc * np.sign(a_loc @ (u.rotation @ a0))[:, None]
+                a = u.rotation.T @ np.nanmean(a_loc, axis=0)
+                a /= np.linalg.norm(a)
+                if math.acos(min(1.0, abs(float(a @ a0)))) <= SEED_MAX_TILT:
+                    axis[d] = a
+                else:
+                    notes.append(f"{j.name}: seeded axis more than {math.degrees(SEED_MAX_TILT):.0f} deg from the "
+                                 f"base model's; base model axis used")
+    params = Parameters(scale, centre, axis, marker)
+    return Seed(params, tuple(notes), joints, time.perf_counter() - t0)
+
+
+@dataclass(frozen=True)
+class Size:
+    """The subject's size from the markers alone (size_from_markers): per segment, limb and overall."""
+
+    scale: np.ndarray  # (n_segments,) factor of each segment: its limb's
+    limbs: dict[str, float]  # limb (named by its first segment) -> factor (median of its pairs' ratios)
+    overall: float  # median ratio over every pair
+    pairs: int  # marker pairs used
+
+
+SIZE_POSES = 60  # random poses (angles anywhere in their ranges): is a marker pair's distance pose-independent?
+
+
+SIZE_MODEL_CV = 0.01  # a pair is used if its distance varies by less than this fraction over those poses ...
+
+
+SIZE_TRIAL_CV = 0.05  # ... and over the trial's frames (robust: 1.4826 MAD / median)
+
+
+SIZE_MIN_DISTANCE = 0.10  # m: closer pairs (a centimetre of marker placement is 10 % of them) are not used
+
+
+SEED_BROKEN_SDS = 6.0  # a rigid marker pair's distance this many robust SDs from its median over the trial ...
+
+
+SEED_BROKEN_MIN = 0.010  # m ... and at least this far: a swapped label or a spike (broken_samples)
+
+
+SEED_JUMP_MIN = 0.02  # m: a marker's frame-to-frame step this far from the steps around it is a jump ...
+
+
+SEED_JUMP_SDS = 8.0  # ... if also this many robust SDs of the marker's own (jump_episodes)
+
+
+SEED_JUMP_WINDOW = 3  # frames each side whose steps' median predicts a step
+
+
+SEED_JUMP_UNDO = 0.5  # two jumps undo each other when their sum is shorter than this fraction of the larger
+
+
+SEED_EPISODE_S = 1.0  # s: a spike or swapped-label episode lasts at most this long
+
+
+SEED_BROKEN_GROUP = 12  # a segment with more markers is not checked (2^n candidate sets)
+
+
+SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
+
+
+def limb_groups(model: Model) -> dict[str, list[int]]:
+    """Segments grouped into limbs: each trunk segment alone (the root and every segment with two or
+    more child joints: pelvis, torso) and each chain hanging from them (a leg, an arm, the head), named
+    by its first segment."""
+    kids: dict[str, list[str]] = {s.name: [] for s in model.segments}
+    for j in model.joints:
+        kids[j.parent].append(j.child)
+    trunk = {model.segments[0].name} | {n for n, k in kids.items() if len(k) >= 2}
+    out: dict[str, list[int]] = {n: [model.segment_index(n)] for n in sorted(trunk, key=model.segment_index)}
+
+    def walk(name: str, into: list[int]) -> None:
+        into.append(model.segment_index(name))
+        for k in kids[name]:
+            if k not in trunk:
+                walk(k, into)
+
+    for t in trunk:
+        for k in kids[t]:
+            if k not in trunk:
+                out[k] = []
+                walk(k, out[k])
+    return out
+
+
+def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> Size | None:
+    """The subject's size against the base model, from marker distances only (before any joint
+    centre is known): every pair of model markers whose distance is the same in any pose of the base
+    model (the same segment, or across a joint near its axis: knee to ankle markers) and steady over
+    the trials' frames, compared with the base model's (median over frames / neutral pose); a limb's
+    factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
+    overall factor the median of all.  None if no pair qualifies."""
+    import pinocchio as pin
+
+    names = [m.name for m in model.markers]
+    seg = np.array([model.segment_index(m.segment) for m in model.markers])
+    pm = model.pin
+    data = pm.createData()
+    fid = [pm.getFrameId(n) for n in names]
+    rng = np.random.default_rng(seed)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
+    poses = []
+    for i in range(SIZE_POSES + 1):
+        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
+        poses.append(np.array([data.oMf[f].translation for f in fid]))
+    P = np.array(poses)  # (poses, markers, 3)
+    D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
+    d0 = D[0]
+    model_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
+    # The trials' distances, on at most ~300 frames of each.
+    parts = []
+    for t in trials:
+        X = np.full((t.n_frames, len(names), 3), np.nan)
+        have = [k for k, n in enumerate(names) if n in t.labels]
+        X[:, have] = t.select([names[k] for k in have]).markers
+        parts.append(X[:: max(1, t.n_frames // 300)])
+    X = np.concatenate(parts)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        Dt = np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3)
+        med = np.nanmedian(Dt, axis=0)
+        mad = MAD_SD * np.nanmedian(np.abs(Dt - med), axis=0)
+        n = np.sum(np.isfinite(Dt), axis=0)
+    ok = ((model_cv < SIZE_MODEL_CV) & (n >= 3) & (mad < SIZE_TRIAL_CV * med) & (d0 >= SIZE_MIN_DISTANCE)
+          & np.triu(np.ones_like(d0, dtype=bool), 1))
+    a, b = np.nonzero(ok)
+    if a.size == 0:
+        return None
+    ratio = med[a, b] / d0[a, b]
+    # A marker sits a few centimetres from where the base model puts it (wands above all: Plug-in
+    # Gait's TIB marker is 10 cm lower than ours), which changes a pair's ratio by about that over its
+    # length: the weighted median, weight d0², trusts the long pairs (knee to ankle) most.
+    wt = d0[a, b] ** 2
+    overall = weighted_median(ratio, wt)
+    limbs = limb_groups(model)
+    scale = np.full(len(model.segments), overall)
+    factors: dict[str, float] = {}
+    for name, segs in limbs.items():
+        inside = np.isin(seg[a], segs) & np.isin(seg[b], segs)
+        if inside.sum() >= 1:
+            factors[name] = weighted_median(ratio[inside], wt[inside])
+            scale[segs] = factors[name]
+    return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
+
+
+def broken_samples(model: Model, trial: Trial) -> np.ndarray:
+    """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the other
+    markers of its segment: a swapped label or a spike.
+
+    A pair is broken in a frame when its distance is further than SEED_BROKEN_SDS robust SDs (and
+    SEED_BROKEN_MIN) from its median over the trial (pairs whose distance is not steady over the
+    trial, SIZE_TRIAL_CV, are not used).  Within a segment, a frame keeps the markers common to every
+    largest set with no broken pair among them: one marker off is flagged alone, two swapped labels
+    both, and when the distances cannot tell which markers are wrong (two markers alone, or a swap on
+    a near-symmetric segment) all of them."""
+    X = marker_columns(model, trial)
+    flagged = np.zeros(X.shape[:2], dtype=bool)
+    seen = np.all(np.isfinite(X), axis=2)
+    for sg in model.segments:
+        members = np.array([model.marker_index(m) for m in sg.markers])
+        if members.size < 2 or members.size > SEED_BROKEN_GROUP:
+            continue
+        ia, ib = np.triu_indices(members.size, 1)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.linalg.norm(X[:, members[ia]] - X[:, members[ib]], axis=2)  # (F, pairs)
+            med = np.nanmedian(d, axis=0)
+            mad = MAD_SD * np.nanmedian(np.abs(d - med), axis=0)
+            steady = (np.sum(np.isfinite(d), axis=0) >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
+            broken = (np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)) & steady
+        frames = np.flatnonzero(broken.any(axis=1))
+        if frames.size == 0:
+            continue
+        subsets = (np.arange(2 ** members.size)[:, None] >> np.arange(members.size)) & 1  # (S, n)
+        both = (subsets[:, ia] & subsets[:, ib]).T.astype(float)  # (pairs, S): pair inside the subset
+        consistent = (broken[frames].astype(float) @ both) == 0  # (frames, S)
+        vis = seen[np.ix_(frames, members)]
+        size = np.where(consistent, vis.astype(float) @ subsets.T, -1.0)
+        largest = size == size.max(axis=1, keepdims=True)
+        keep = (largest.astype(float) @ (1 - subsets)) == 0  # in every largest consistent set
+        flagged[np.ix_(frames, members)] = vis & ~keep
+    return flagged
+
+
+def jump_episodes(trial: Trial) -> np.ndarray:
+    """(n_frames, n_markers) True where a marker trajectory sits between a jump and the jump that undoes
+    it (a spike: one frame; a swapped label: until the labels swap back).  A jump is a frame-to-frame
+    step further than SEED_JUMP_MIN (and SEED_JUMP_SDS robust SDs of the marker's own) from the median
+    of the steps around it (SEED_JUMP_WINDOW frames each side: constant acceleration cancels); two
+    jumps of one marker at most SEED_EPISODE_S apart, with no gap between, that undo each other (their
+    sum shorter than SEED_JUMP_UNDO of the larger) bound an episode."""
+    X = np.asarray(trial.markers)
+    F = X.shape[0]
+    out = np.zeros(X.shape[:2], dtype=bool)
+    if F < 2 * SEED_JUMP_WINDOW + 2:
+        return out
+    longest = max(1, int(round(SEED_EPISODE_S * trial.rate)))
+    W = SEED_JUMP_WINDOW
+    pad = np.full((W, 3), np.nan)
+    for k in range(X.shape[1]):  # one marker at a time: memory stays 2W x the trajectory
+        x = X[:, k]
+        d = np.diff(x, axis=0)  # (F-1, 3): step into frame f+1; NaN across gaps
+        dp = np.concatenate([pad, d, pad])
+        around = np.stack([dp[W + o: W + o + len(d)] for o in range(-W, W + 1) if o], axis=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            s = d - np.nanmedian(around, axis=0)  # (F-1, 3)
+            size = np.linalg.norm(s, axis=1)
+            sd = MAD_SD * np.nanmedian(size)
+        jump = np.isfinite(size) & (size > max(SEED_JUMP_SDS * float(np.nan_to_num(sd)), SEED_JUMP_MIN))
+        steps = np.flatnonzero(jump)
+        seen = np.all(np.isfinite(x), axis=1)
+        i = 0
+        while i < steps.size - 1:
+            a, b = steps[i], steps[i + 1]  # jumps into frames a+1 and b+1
+            undo = np.linalg.norm(s[a] + s[b]) <= SEED_JUMP_UNDO * max(size[a], size[b])
+            if undo and b - a <= longest and seen[a + 1:b + 1].all():
+                out[a + 1:b + 1, k] = True
+                i += 2
+            else:
+                i += 1
+    return out
+
+
+def jumped_samples(model: Model, trials: Sequence[Trial]) -> np.ndarray:
+    """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order,
+    stacked as the calibration stacks the trials."""
+    parts = []
+    for t in trials:
+        jumps = jump_episodes(t)
+        index = {lab: i for i, lab in enumerate(t.labels)}
+        out = np.zeros((t.n_frames, len(model.markers)), dtype=bool)
+        for k, name in enumerate(model.marker_names):
+            if name in index:
+                out[:, k] = jumps[:, index[name]]
+        parts.append(out)
+    return np.concatenate(parts)
+
+
+def without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
+    """`trial` with the samples broken_samples and jump_episodes flag set to gaps, and how many there were."""
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    bad = jump_episodes(trial)
+    rigid = broken_samples(model, trial)
+    for k, name in enumerate(model.marker_names):
+        if name in index:
+            bad[:, index[name]] |= rigid[:, k]
+    if not bad.any():
+        return trial, 0
+    markers = np.array(trial.markers)
+    markers[bad] = np.nan
+    return replace(trial, markers=markers), int(bad.sum())
+
+
+def weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The value below and above which lie at most half the total weight."""
+    order = np.argsort(x)
+    c = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def seed_trial(trial: Trial, max_frames: int) -> Trial:
+    """The trial low-passed at SEED_CUTOFF_HZ and thinned to about `max_frames` evenly spaced
+    frames: the MTB seed's cost grows with the frames and it needs only a few hundred."""
+    k = trial.n_frames // max_frames
+    if k < 2 or not SEED_CUTOFF_HZ < trial.rate / 2:
+        return trial
+    markers = lowpass(trial.markers, trial.rate, SEED_CUTOFF_HZ)[::k]
+    return Trial(trial.labels, markers, trial.rate / k, trial.first_frame, trial.source)

@@ -1,0 +1,173 @@
+"""Joint-angle trajectories of the simulated movements: squats, treadmill gait (a table of published
+gait curves), overhead serve- and throw-like arm arcs; root orientations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..model.model import Model
+
+SQUAT_PERIOD = 2.5  # s
+
+
+GAIT_CYCLE = (1.0, 1.2)  # s: stride time, drawn per subject
+
+
+# DoF-name suffix -> (offset, amplitude at the stride frequency, at twice it, own slow sinusoid), degrees:
+# a normal gait cycle's ranges (Winter's); the last column keeps nearly still joints from being exactly still.
+GAIT_TABLE = {
+    "hip_flexion": (10, 22, 3, 1), "hip_adduction": (0, 5, 2, 1), "hip_rotation": (0, 5, 1, 1),
+    "knee": (30, 25, 12, 1), "ankle": (0, 12, 5, 1), "subtalar": (0, 3, 1, 0.5),
+    "lumbar_flexion": (3, 2, 1, 0.5), "lumbar_bending": (0, 3, 0, 0.5), "lumbar_rotation": (0, 5, 0, 0.5),
+    "neck_flexion": (0, 1, 0, 1), "neck_bending": (0, 1, 0, 0.5), "neck_rotation": (0, 2, 0, 1),
+    "shoulder_flexion": (5, 15, 0, 1), "shoulder_adduction": (-10, 3, 0, 0.5), "shoulder_rotation": (0, 3, 0, 0.5),
+    "elbow": (30, 10, 0, 1), "radioulnar": (0, 2, 0, 0.5), "wrist_flexion": (0, 3, 0, 0.5),
+    "wrist_deviation": (0, 2, 0, 0.5),
+}
+
+
+OVERHEAD_ARC = (1.6, 2.4)  # s: one serve or throw arc of an arm
+
+
+OVERHEAD_PEAK = (155.0, 172.0)  # deg: shoulder flexion (serve) or abduction (throw) at the top of an arc
+
+
+# DoF-name suffix -> fraction of its swept interval below the standing angle (0) in simulate_overhead's
+# whole-body arcs (default 0.5: centred); the squat-coupled ones deepen with the squat.
+REACH_START = {"hip_flexion": 0.15, "knee": 0.03, "ankle": 0.4, "lumbar_flexion": 0.25, "elbow": 0.05}
+
+
+SQUAT_COUPLED = ("hip_flexion", "knee", "ankle", "lumbar_flexion")
+
+
+def squat_angles(model: Model, times: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Joint angles (n_frames, n_dofs): squats plus a distinct slow sinusoid per DoF, within limits."""
+    deg = math.radians
+    s = 0.5 * (1.0 - np.cos(2 * np.pi * times / SQUAT_PERIOD))  # 0 standing .. 1 deepest
+    # DoF-name suffix -> (offset, squat amplitude, own amplitude), degrees.
+    table = {
+        "hip_flexion": (10, 90, 10), "hip_adduction": (-8, 0, 15), "hip_rotation": (0, 0, 20),
+        "knee": (8, 105, 8), "ankle": (0, 25, 8), "subtalar": (0, 0, 12),
+        "lumbar_flexion": (5, 20, 12), "lumbar_bending": (0, 0, 15), "lumbar_rotation": (0, 0, 20),
+        "neck_flexion": (0, 0, 25), "neck_bending": (0, 0, 20), "neck_rotation": (0, 0, 35),
+        "shoulder_flexion": (60, 0, 60), "shoulder_adduction": (-40, 0, 30), "shoulder_rotation": (0, 0, 40),
+        "elbow": (60, 0, 50), "radioulnar": (0, 0, 50), "wrist_flexion": (0, 0, 35), "wrist_deviation": (5, 0, 15),
+    }
+    out = np.zeros((times.size, model.n_dofs))
+    for i, d in enumerate(model.dofs):
+        key = generic_dof_name(d.name)
+        off, sq, own = table.get(key, (0, 0, 20))
+        freq = rng.uniform(0.13, 0.55)  # Hz; distinct per DoF
+        phase = rng.uniform(0, 2 * np.pi)
+        th = deg(off) + deg(sq) * s + deg(own) * np.sin(2 * np.pi * freq * times + phase)
+        lo, hi = d.lower, d.upper
+        if np.isfinite(lo) and np.isfinite(hi):
+            margin = 0.02 * (hi - lo)
+            th = np.clip(th, lo + margin, hi - margin)
+        out[:, i] = th
+    return out
+
+
+def generic_dof_name(name: str) -> str:
+    """'hip_r_flexion' -> 'hip_flexion', 'knee_l' -> 'knee' (side removed)."""
+    parts = [p for p in name.split("_") if p not in ("r", "l")]
+    return "_".join(parts)
+
+
+def gait_angles(model: Model, times: np.ndarray, cycle: float, rng: np.random.Generator) -> np.ndarray:
+    """Joint angles (n_frames, n_dofs) of treadmill walking with stride time `cycle` (s): GAIT_TABLE's
+    ranges, the left side half a cycle after the right, within limits."""
+    deg = math.radians
+    phase = 2 * np.pi * times / cycle
+    out = np.zeros((times.size, model.n_dofs))
+    for i, d in enumerate(model.dofs):
+        off, a1, a2, own = GAIT_TABLE.get(generic_dof_name(d.name), (0, 2, 0, 0.5))
+        ph = phase + (np.pi if "_l_" in f"_{d.name}_" else 0.0)  # the left side half a stride later
+        th = (deg(off) + deg(a1) * np.sin(ph) + deg(a2) * np.sin(2 * ph + 0.5)
+              + deg(own) * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * times + rng.uniform(0, 2 * np.pi)))
+        lo, hi = d.lower, d.upper
+        if np.isfinite(lo) and np.isfinite(hi):
+            th = np.clip(th, lo + 0.02 * (hi - lo), hi - 0.02 * (hi - lo))
+        out[:, i] = th
+    return out
+
+
+def gait_root_orientation(times: np.ndarray, cycle: float, rng: np.random.Generator) -> np.ndarray:
+    """Pelvis orientation (n_frames, 4 quaternion x, y, z, w) in walking: a random heading, with
+    the pelvis's rotation, tilt and obliquity over the stride."""
+    phase = 2 * np.pi * times / cycle
+    yaw = rng.uniform(-np.pi, np.pi) + np.radians(5) * np.sin(phase)
+    pitch = np.radians(3) * np.sin(2 * phase)
+    roll = np.radians(4) * np.sin(phase + 1.0)
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()
+
+
+def root_orientation(times: np.ndarray, squat: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Pelvis orientation (n_frames, 4 quaternion x, y, z, w): slow turning, tilt with the squat, sway."""
+    yaw = rng.uniform(-np.pi, np.pi) + np.radians(40) * np.sin(2 * np.pi * 0.07 * times)
+    pitch = np.radians(15) * squat + np.radians(4) * np.sin(2 * np.pi * 0.31 * times)
+    roll = np.radians(6) * np.sin(2 * np.pi * 0.23 * times + 1.0)
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()
+
+
+def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, reach: float = 0.35) -> np.ndarray:
+    """Joint angles (n_frames, n_dofs): each arm alternates serve-like arcs (shoulder flexion to 155-172°)
+    and throw-like arcs (abduction to 155-172°, i.e. adduction through -90°, the gimbal lock of the
+    shoulder's flexion-adduction-rotation sequence, with the humerus turning about its long axis), the
+    left arm half an arc after the right; every other DoF sweeps `reach` of its range (between its limits)
+    in arcs coupled to squats (hips, knees, ankles, lumbar flexion) or its own slow sinusoid."""
+    deg = math.radians
+    squat = 0.5 * (1.0 - np.cos(2 * np.pi * times / SQUAT_PERIOD))
+    out = np.zeros((times.size, model.n_dofs))
+    arcs = {side: arm_arcs(times, rng, delay) for side, delay in (("r", 0.0), ("l", 0.5 * OVERHEAD_ARC[0]))}
+    for i, d in enumerate(model.dofs):
+        key = generic_dof_name(d.name)
+        own = np.sin(2 * np.pi * rng.uniform(0.13, 0.55) * times + rng.uniform(0, 2 * np.pi))
+        lo, hi = d.lower, d.upper
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            lo, hi = -np.pi, np.pi
+        margin = 0.02 * (hi - lo)
+        lo, hi = lo + margin, hi - margin
+        side = "l" if "_l_" in f"_{d.name}_" else "r"
+        if key in ("shoulder_flexion", "shoulder_adduction", "shoulder_rotation"):
+            serve, throw, u_s, u_t, peak = arcs[side]
+            rest = 1.0 - serve - throw
+            if key == "shoulder_flexion":  # serve: up in front; throw: arm in the frontal plane
+                th = (deg(15) + deg(10) * own) * rest + serve * np.radians(peak) + throw * deg(5)
+            elif key == "shoulder_adduction":  # negative = abduction
+                th = (deg(-15) + deg(8) * own) * rest + serve * deg(-10) - throw * np.radians(peak)
+            else:  # the humerus turns out and in about its long axis during each arc
+                th = (deg(15) * own * rest + deg(60) * np.sin(2 * np.pi * u_s) * np.sin(np.pi * u_s)
+                      - deg(80) * np.sin(2 * np.pi * u_t) * np.sin(np.pi * u_t))
+            out[:, i] = np.clip(th, lo, hi)
+            continue
+        span = reach * (hi - lo)
+        below = REACH_START.get(key, 0.5)
+        start = min(max(-below * span, lo), hi - span)  # the swept interval [start, start + span]
+        o = 0.5 + 0.5 * own
+        w = 0.75 * squat + 0.25 * o if key in SQUAT_COUPLED else o
+        out[:, i] = start + span * w
+    return out
+
+
+def arm_arcs(times: np.ndarray, rng: np.random.Generator, delay: float):
+    """Serve and throw arcs of one arm: weights (F,) rising 0 -> 1 -> 0 as sin² over each arc
+    (alternating, never overlapping), each arc's phase u in [0, 1] (0 outside) and its peak angle
+    (deg, drawn in OVERHEAD_PEAK per arc; it changes only between arcs, where the weights are 0)."""
+    serve, throw = np.zeros(times.size), np.zeros(times.size)
+    u_s, u_t, peak = np.zeros(times.size), np.zeros(times.size), np.zeros(times.size)
+    t0, k = delay + rng.uniform(0.1, 0.4), int(rng.integers(2))
+    end = times[-1] if times.size else 0.0
+    while t0 < end:
+        dur = rng.uniform(*OVERHEAD_ARC)
+        inside = (times >= t0) & (times <= t0 + dur)
+        u = (times[inside] - t0) / dur
+        (serve if k % 2 == 0 else throw)[inside] = np.sin(np.pi * u) ** 2
+        (u_s if k % 2 == 0 else u_t)[inside] = u
+        peak[inside] = rng.uniform(*OVERHEAD_PEAK)
+        t0 += dur + rng.uniform(0.2, 0.6)
+        k += 1
+    return serve, throw, u_s, u_t, peak

@@ -1,0 +1,92 @@
+"""Simulated subjects: the base model's geometry perturbed (scales, joint centres, axes, markers),
+sized to a stature, and the stature of a model."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ModelError
+from ..model.kinematics import Kinematics, build_kinematics
+from ..model.model import Model, Parameters
+
+SCALE_RANGE = 0.10  # ± fraction
+
+
+CENTRE_RANGE = 0.015  # ± m per coordinate
+
+
+AXIS_TILT_DEG = 5.0  # max tilt of hinge axes
+
+
+MARKER_RANGE = 0.010  # ± m per coordinate
+
+
+SIZE_SPREAD = 0.04  # ± fraction: per-segment factors around the overall one when a stature is asked for
+
+
+def perturb_parameters(model: Model, rng: np.random.Generator) -> Parameters:
+    """A random plausible subject: the base model's parameters with the documented changes."""
+    p = model.parameters()
+    scale = 1.0 + rng.uniform(-SCALE_RANGE, SCALE_RANGE, p.scale.shape)
+    centre = p.centre + rng.uniform(-CENTRE_RANGE, CENTRE_RANGE, p.centre.shape)
+    marker = p.marker + rng.uniform(-MARKER_RANGE, MARKER_RANGE, p.marker.shape)
+    axis = p.axis.copy()
+    hinge_dofs = [model.dof_index(j.dofs[0]) for j in model.joints if j.kind == "hinge"]
+    for i in hinge_dofs:
+        axis[i] = tilt(axis[i], math.radians(rng.uniform(0.3, 1.0) * AXIS_TILT_DEG), rng)
+    return Parameters(scale, centre, axis, marker)
+
+
+def tilt(axis: np.ndarray, angle: float, rng: np.random.Generator) -> np.ndarray:
+    """Unit `axis` tilted by `angle` (rad) towards a random perpendicular direction."""
+    a = axis / np.linalg.norm(axis)
+    v = rng.normal(size=3)
+    v -= (v @ a) * a
+    v /= np.linalg.norm(v)
+    return math.cos(angle) * a + math.sin(angle) * v
+
+
+def sized_subject(model: Model, params: Parameters, height: float, rng: np.random.Generator,
+                  spread: float = SIZE_SPREAD) -> Parameters:
+    """`params` with every segment's scale replaced by c·(1 + u), u uniform in ±`spread` per segment
+    (the proportions vary) and c the one overall factor that makes the stature (see `stature`)
+    exactly `height` (m).  Joint centres, axes and marker offsets are kept (positions scale with c)."""
+    s = 1.0 + rng.uniform(-spread, spread, params.scale.shape)
+    p = Parameters(s, params.centre, params.axis, params.marker)
+    c = height / stature(model, p)  # the stature is linear in the scales (every length is)
+    return Parameters(c * s, params.centre, params.axis, params.marker)
+
+
+def human_landmarks() -> tuple[float, float, float]:
+    """Neck, ankle and vertex heights of calibrate.model.human's reference subject (m)."""
+    from ..model.human import MIDLINE_LANDMARKS, RIGHT_LANDMARKS
+
+    return MIDLINE_LANDMARKS["neck"][2], RIGHT_LANDMARKS["ankle"][2], MIDLINE_LANDMARKS["vertex"][2]
+
+
+def stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> float:
+    """The stature (m) of a subject of a calibrate.model.human-style model: in the neutral pose, the
+    height of the neck joint centre above the mean of the ankle centres, plus the sole-to-ankle and
+    neck-to-vertex heights of calibrate.model.human's proportions (0.07 and 0.25 of the neck-to-ankle
+    1.43 of its 1.75 m reference) sized to the base model and multiplied by the scales of the feet
+    (calcn) and the head.  The base model itself: its generator's height (1.75 m for models/human.urdf)."""
+    names = [j.name for j in model.joints]
+    segs = [s.name for s in model.segments]
+    need_j, need_s = ("neck", "ankle_r", "ankle_l"), ("head", "calcn_r", "calcn_l")
+    if not all(n in names for n in need_j) or not all(n in segs for n in need_s):
+        raise ModelError(f"{model.path}: a stature needs joints {', '.join(need_j)} and segments "
+                         f"{', '.join(need_s)} (a calibrate.model.human model); leave the height out")
+    kin = kin or build_kinematics(model)
+
+    def neck_above_ankles(p: Parameters) -> float:
+        _, c = kin.batch(np.zeros((1, model.nz)), np.array([[0.0, 0.0, 0.0, 1.0]]), p)
+        z = c[0, :, 2]
+        return float(z[names.index("neck")] - 0.5 * (z[names.index("ankle_r")] + z[names.index("ankle_l")]))
+
+    neck, ankle, vertex = human_landmarks()
+    k0 = neck_above_ankles(model.parameters()) / (neck - ankle)  # the base model's size vs the reference
+    foot = 0.5 * (params.scale[segs.index("calcn_r")] + params.scale[segs.index("calcn_l")])
+    head = params.scale[segs.index("head")]
+    return neck_above_ankles(params) + k0 * (ankle * foot + (vertex - neck) * head)
