@@ -339,7 +339,8 @@ def score(truth: dict, centres: dict, axes: dict, angles: dict, rms: float | Non
 def run_calibrate(model, sim, truth: dict, log, static=None) -> dict:
     """calibrate on the squat trial (or, with `static`, on the static and the squat trial together, as
     OpenSim gets them); the figures are of the squat trial's frames."""
-    from calibrate import calibrate, compare_to_truth
+    from calibrate import calibrate
+    from calibrate.calibration import compare_to_truth
     from calibrate.io.trial import Trial
     from calibrate.model.kinematics import build_kinematics
     from calibrate.simulation.simulate import joint_axes_world
@@ -481,7 +482,8 @@ def run_nimble_peer(model, sim, truth: dict, work: Path, files: dict[str, Path],
 
 # ====================================================================== report
 def collect(a: argparse.Namespace, log) -> dict:
-    from calibrate import load_model, write_trc
+    from calibrate import load_model
+    from calibrate.io import write_trc
     from calibrate.io.osim_export import export_osim
 
     model = load_model(MODEL)

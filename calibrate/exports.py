@@ -1,0 +1,24 @@
+"""Sub-package exports resolved on first use (PEP 562): ``calibrate.io.read_c3d`` imports
+calibrate.io.c3d only when asked for, so importing one sub-package does not import the others
+(and no import cycle arises between sub-packages that use each other's modules)."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+
+
+def lazy_exports(package: str, table: Mapping[str, str]) -> tuple[Callable[[str], object], Callable[[], list[str]]]:
+    """``__getattr__`` and ``__dir__`` for `package`, exporting each name of `table` from its
+    module (a module path relative to the package, e.g. ``'.c3d'``)."""
+
+    def __getattr__(name: str) -> object:
+        module = table.get(name)
+        if module is None:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(importlib.import_module(module, package), name)
+
+    def __dir__() -> list[str]:
+        return sorted(table)
+
+    return __getattr__, __dir__
