@@ -73,7 +73,7 @@ class Settings:
     # left free only the priors' couplings (e.g. left/right symmetry) would move them.
     hold_segments: tuple[str, ...] = ()
     # Learn each marker's noise SD from the trial's residuals (a robust scale, iterated with the solve;
-    # calibrate.calibration.pipeline.learned_noise) instead of taking `noise` for all.  None (default): learn
+    # calibrate.calibration.noise.learned_noise) instead of taking `noise` for all.  None (default): learn
     # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
     learn_noise: bool | None = None
 
