@@ -1,4 +1,4 @@
-"""Sub-package exports resolved on first use (PEP 562): ``calibrate.io.c3d.read_c3d`` imports
+"""Sub-package exports resolved on first use (PEP 562): ``calibrate.io.read_c3d`` imports
 calibrate.io.c3d only when asked for, so importing one sub-package does not import the others
 (and no import cycle arises between sub-packages that use each other's modules)."""
 
