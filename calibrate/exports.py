@@ -5,12 +5,17 @@ calibrate.io.c3d only when asked for, so importing one sub-package does not impo
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 
 
-def lazy_exports(package: str, table: Mapping[str, str]) -> tuple[Callable[[str], object], Callable[[], list[str]]]:
-    """``__getattr__`` and ``__dir__`` for `package`, exporting each name of `table` from its
-    module (a module path relative to the package, e.g. ``'.c3d'``)."""
+def lazy_exports(package: str, spec: str) -> tuple[Callable[[str], object], Callable[[], list[str]], list[str]]:
+    """``__getattr__``, ``__dir__`` and ``__all__`` for `package`, exporting names from its modules:
+    `spec` is ``.module:name,name .other:name ...`` (module paths relative to the package)."""
+    table: dict[str, str] = {}
+    for item in spec.split():
+        module, _, names = item.partition(":")
+        for name in names.split(","):
+            table[name] = module
 
     def __getattr__(name: str) -> object:
         module = table.get(name)
@@ -21,4 +26,4 @@ def lazy_exports(package: str, table: Mapping[str, str]) -> tuple[Callable[[str]
     def __dir__() -> list[str]:
         return sorted(table)
 
-    return __getattr__, __dir__
+    return __getattr__, __dir__, sorted(table)

@@ -1,31 +1,15 @@
 """The model: URDF read into segments, markers, joints and parameters (Model, Parameters), URDF writing, symbolic
 kinematics, the parametric human model, which segments a marker set resolves.
 
-Exports (each from its module, imported on first use):
-
-    Model, Parameters, add_markers, load_model, write_model   -- calibrate.model.model
-    ParameterLayout, FrameLayout, Block   -- calibrate.model.blocks
-    Kinematics, build_kinematics   -- calibrate.model.kinematics
-    build_human_urdf   -- calibrate.model.human
-    resolve, unresolved   -- calibrate.model.resolve
+Exports (each imported from its module on first use): Model, Parameters, add_markers, load_model, write_model from
+calibrate.model.model; ParameterLayout, FrameLayout, Block from calibrate.model.blocks; Kinematics, build_kinematics
+from calibrate.model.kinematics; build_human_urdf from calibrate.model.human; resolve, unresolved from
+calibrate.model.resolve.
 """
 
 from ..exports import lazy_exports
 
-_EXPORTS = {
-    "Model": ".model",
-    "Parameters": ".model",
-    "add_markers": ".model",
-    "load_model": ".model",
-    "write_model": ".model",
-    "ParameterLayout": ".blocks",
-    "FrameLayout": ".blocks",
-    "Block": ".blocks",
-    "Kinematics": ".kinematics",
-    "build_kinematics": ".kinematics",
-    "build_human_urdf": ".human",
-    "resolve": ".resolve",
-    "unresolved": ".resolve",
-}
-__all__ = sorted(_EXPORTS)
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, """
+.model:Model,Parameters,add_markers,load_model,write_model .blocks:ParameterLayout,FrameLayout,Block
+.kinematics:Kinematics,build_kinematics .human:build_human_urdf .resolve:resolve,unresolved
+""")

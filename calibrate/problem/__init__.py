@@ -1,22 +1,12 @@
 """The global least-squares problem of seed 003: parameters, residuals, priors, gauges and the compiled per-frame
 functions.
 
-Exports (each from its module, imported on first use):
-
-    Problem   -- calibrate.problem.problem
-    Priors, Settings   -- calibrate.problem.settings
-    SolverOptions   -- calibrate.problem.options
-    State   -- calibrate.problem.state
+Exports (each imported from its module on first use): Problem from calibrate.problem.problem; Priors, Settings from
+calibrate.problem.settings; SolverOptions from calibrate.problem.options; State from calibrate.problem.state.
 """
 
 from ..exports import lazy_exports
 
-_EXPORTS = {
-    "Problem": ".problem",
-    "Priors": ".settings",
-    "Settings": ".settings",
-    "SolverOptions": ".options",
-    "State": ".state",
-}
-__all__ = sorted(_EXPORTS)
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, """
+.problem:Problem .settings:Priors,Settings .options:SolverOptions .state:State
+""")
