@@ -386,30 +386,46 @@ class Kinematics:
 
 
 class FrameEvaluator:
-    """Evaluates h_jz into preallocated numpy memory (CasADi's Function.buffer), skipping the
-    DM-to-numpy conversion that otherwise costs more than the evaluation itself.
+    """Evaluates a per-frame function f(z, q_ref, p, ...) -> (markers, d markers/dz) into preallocated
+    numpy memory (CasADi's Function.buffer), skipping the DM-to-numpy conversion that otherwise
+    costs more than the evaluation itself.  Inputs after p (e.g. the calibration problem's observed
+    markers) are held at zero.  The Jacobian output is dense (Kinematics.h_jz), or sparse with
+    `pattern` = (rows, cols, n_rows, nz) of its nonzeros, which are spread into a dense array.
 
     ``ev(z, q_ref)`` returns (markers (3 n_markers,), dm_dz (3 n_markers, nz)); both are
     reused buffers, overwritten by the next call: copy what you keep.
     """
 
-    def __init__(self, h_jz: ca.Function, p: np.ndarray):
-        self._f = h_jz  # keep the Function alive while its buffer is used
-        self._buf, self._eval = h_jz.buffer()
-        self._z = np.zeros(h_jz.nnz_in(0))
-        self._q = np.zeros(h_jz.nnz_in(1))
+    def __init__(self, f: ca.Function, p: np.ndarray,
+                 pattern: tuple[np.ndarray, np.ndarray, int, int] | None = None):
+        self._f = f  # keep the Function alive while its buffer is used
+        self._buf, self._eval = f.buffer()
+        self._z = np.zeros(f.nnz_in(0))
+        self._q = np.zeros(f.nnz_in(1))
         self._p = np.array(p, dtype=float)
-        self.markers = np.zeros(h_jz.nnz_out(0))
-        self.jacobian = np.zeros(h_jz.size_out(1), order="F")
-        for i, a in enumerate((self._z, self._q, self._p)):
+        args = [self._z, self._q, self._p] + [np.zeros(f.nnz_in(i)) for i in range(3, f.n_in())]
+        self._args = args
+        self.markers = np.zeros(f.nnz_out(0))
+        if pattern is None:
+            self.jacobian = np.zeros(f.size_out(1), order="F")
+            self._jnz = self.jacobian.reshape(-1, order="F")
+            self._flat = None
+        else:
+            rows, cols, n_rows, nz = pattern
+            self._jnz = np.zeros(rows.size)
+            self.jacobian = np.zeros((n_rows, nz))
+            self._flat = rows * nz + cols
+        for i, a in enumerate(args):
             self._buf.set_arg(i, memoryview(a))
         self._buf.set_res(0, memoryview(self.markers))
-        self._buf.set_res(1, memoryview(self.jacobian.reshape(-1, order="F")))
+        self._buf.set_res(1, memoryview(self._jnz))
 
     def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self._z[:] = z
         self._q[:] = q_ref
         self._eval()
+        if self._flat is not None:
+            self.jacobian.reshape(-1)[self._flat] = self._jnz
         return self.markers, self.jacobian
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from calibrate.problem.state import FrameGroup, State
 
 from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
-from ..model.kinematics import Kinematics
+from ..model.kinematics import FrameEvaluator, Kinematics
 from ..model.model import Model
 from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
 
@@ -23,34 +23,6 @@ EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more tha
 
 
 EVAL_PAD = 32  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
-
-
-class _FrameEvaluator:
-    """Evaluates the per-frame 'pose' function (observed markers set to zero, so its residual is
-    the model markers) into preallocated memory; the Jacobian nonzeros are spread into a dense,
-    reused (3 n_markers, nz) array.  Outputs are overwritten by the next call."""
-
-    def __init__(self, f: ca.Function, p: np.ndarray, pattern: tuple[np.ndarray, np.ndarray, int, int],
-                 n_refs: int = 4):
-        rows, cols, n_rows, nz = pattern
-        self._f = f  # keep the Function alive while its buffer is used
-        self._buf, self._eval = f.buffer()
-        self._z, self._q, self._p, self._r = np.zeros(nz), np.zeros(n_refs), p.copy(), np.zeros(n_rows)
-        self.markers = np.zeros(n_rows)
-        self._jnz = np.zeros(rows.size)
-        self.jacobian = np.zeros((n_rows, nz))
-        self._flat = rows * nz + cols
-        for i, a in enumerate((self._z, self._q, self._p, self._r)):
-            self._buf.set_arg(i, memoryview(a))
-        self._buf.set_res(0, memoryview(self.markers))
-        self._buf.set_res(1, memoryview(self._jnz))
-
-    def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self._z[:] = z
-        self._q[:] = q_ref
-        self._eval()
-        self.jacobian.reshape(-1)[self._flat] = self._jnz
-        return self.markers, self.jacobian
 
 
 def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
@@ -196,10 +168,10 @@ class CodegenMixin:
             self.groups.append(FrameGroup(rows, zcols, pcols, z_src, z_dst, p_src, p_dst))
         self._layout_z = group_layout(self.groups)
 
-    def frame_evaluator(self, p: np.ndarray) -> _FrameEvaluator:
+    def frame_evaluator(self, p: np.ndarray) -> FrameEvaluator:
         """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
         parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
-        return _FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern, self.kin.n_refs)
+        return FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
 
     def _run(self, kind: str, state: State, out: tuple | None = None) -> list[np.ndarray]:
         """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
