@@ -14,10 +14,9 @@ import numpy as np
 
 from calibrate.problem.state import FrameGroup, State
 
-from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
 from ..model.kinematics import FrameEvaluator, Kinematics
 from ..model.model import Model
-from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from ..solve.assembly import c_compiler, cache_dir, group_layout
 
 EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
 

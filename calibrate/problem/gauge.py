@@ -10,8 +10,7 @@ import numpy as np
 
 from calibrate.problem.state import FrameTurn
 
-from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
-from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from ..model.blocks import cross3, perpendicular_basis
 
 
 class GaugeMixin:

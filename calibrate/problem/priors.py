@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
 from ..model.model import Model
-from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
 
 
 def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]],

@@ -44,10 +44,10 @@ from calibrate.problem.priors import PriorsMixin
 from calibrate.problem.settings import Settings
 from calibrate.problem.state import Linearization, State
 
-from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
+from ..model.blocks import ParameterLayout
 from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters
-from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from ..solve.assembly import assemble, parameter_layout
 
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.solve.ik)
 

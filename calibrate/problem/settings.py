@@ -7,8 +7,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
-from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
+from ..model.blocks import GROUPS
 from .options import SolverOptions
 
 LOSSES = ("linear", "huber", "cauchy")

@@ -7,9 +7,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model.blocks import GROUPS, ParameterLayout, cross3, perpendicular_basis  # noqa: F401
-from ..solve.assembly import assemble, c_compiler, cache_dir, group_layout, in_parallel, parameter_layout, split_frames  # noqa: F401
-
 
 @dataclass
 class State:

@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..problem.options import SolverOptions
-from ..problem.problem import Problem, in_parallel, split_frames
+from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import back_substitute, factor_frames, forward_substitute
+from .assembly import back_substitute, factor_frames, forward_substitute, in_parallel, split_frames
 
 __all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "covariance", "levenberg_marquardt"]
 
