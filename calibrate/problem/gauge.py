@@ -11,6 +11,7 @@ import numpy as np
 from calibrate.problem.state import FrameTurn
 
 from ..model.blocks import cross3, perpendicular_basis
+from ..seed.geometry import kabsch_rotation
 
 
 class GaugeMixin:
@@ -118,10 +119,7 @@ class GaugeMixin:
             else:
                 if len(X) < 2:
                     continue
-                H = (X0 * w[:, None]).T @ Xc
-                U, _, Vt = np.linalg.svd(H)
-                D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-                G = Vt.T @ D @ U.T  # G @ x0 ≈ x
+                G = kabsch_rotation((X0 * w[:, None]).T @ Xc)[0]  # G @ x0 ≈ x
             self._turn(out, si, G, t)
             moves.append((si, kind, G, t))
         return out, moves
@@ -154,8 +152,7 @@ class GaugeMixin:
                         np.outer(Z[:, fl.angle(u.dof)], self.axis_direction(out, u.dof))).as_matrix()
                     R = R @ u.rotation @ turn
                     R0 = R0 @ u.rotation
-                U, _, Vt = np.linalg.svd(R.sum(axis=0))
-                mean = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+                mean = kabsch_rotation(R.sum(axis=0).T)[0]  # the chordal mean of the joint's rotations
                 G = mean.T @ R0
             elif kind == "axis":
                 d = m.dof_index(j.dofs[-1])

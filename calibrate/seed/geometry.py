@@ -76,11 +76,7 @@ def kabsch_batch(local: np.ndarray, world: np.ndarray, w: np.ndarray) -> tuple[n
     a = local[None, :, :] - lc[:, None, :]
     b = world - wc[:, None, :]
     H = np.matmul(np.swapaxes(a * w[..., None], 1, 2), b)
-    U, S, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.einsum("fji,fkj->fik", Vt, U)))
-    D = np.ones((len(w), 3))
-    D[:, 2] = d
-    R = np.einsum("fji,fj,fkj->fik", Vt, D, U)
+    R, S, _ = kabsch_rotation(H)
     t = wc - np.einsum("fij,fj->fi", R, lc)
     # H's singular values are products of spreads: a collinear set leaves S[1] ~ (ratio)^2 S[0].
     bad = (np.count_nonzero(w > 0, axis=1) < 3) | ~(S[:, 1] > MIN_SPREAD**2 * S[:, 0])
@@ -221,11 +217,15 @@ def sphere_fit(points: np.ndarray, hinge: bool = False, near: np.ndarray | None 
 
 def kabsch_rotation(H: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rotation R maximising trace(R H) for a cross-covariance H = Σ w_i a_i b_iᵀ (3, 3) of
-    centred point sets (so R a_i ≈ b_i): R, H's singular values S and the signs D (the last -1 where
-    the best orthogonal matrix would be a reflection)."""
+    centred point sets (so R a_i ≈ b_i), or for each of a stack of them (..., 3, 3): R, H's singular
+    values S and the signs D (the last -1 where the best orthogonal matrix would be a reflection).
+    The one Kabsch of the package: rigid fits, frame alignments and chordal means of rotations
+    (the mean of R_f is kabsch_rotation(Σ R_fᵀ)) all come here."""
     U, S, Vt = np.linalg.svd(H)
-    D = np.array([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ np.diag(D) @ U.T, S, D
+    V, Ut = np.swapaxes(Vt, -1, -2), np.swapaxes(U, -1, -2)
+    D = np.ones(S.shape)
+    D[..., 2] = np.sign(np.linalg.det(V @ Ut))
+    return V @ (D[..., :, None] * Ut), S, D
 
 
 def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

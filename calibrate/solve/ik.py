@@ -26,11 +26,15 @@ from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import IDENTITY, Kinematics, retract_root
 from ..model.model import Model, Parameters
-from ..seed.geometry import kabsch, marker_max, marker_rms
+from ..problem.options import SolverOptions
+from ..seed.geometry import kabsch, marker_rms
+from .lm import marquardt_diagonal, minimise
 
 LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
 REINIT_RMS = 0.02  # m: a frame fitting worse than this (and 5x the running median) is restarted
 GLOBAL_KEEP = 4  # grid starts per joint that the global start solves (the best-fitting as they stand)
+STEP_TOL = 1e-8  # a frame's fit stops when its step is shorter than this (relative to |z|)
+TINY = 1e-300  # the absolute-decrease and gradient tests, off for a frame (its cost is in m², not χ²)
 
 
 @dataclass(frozen=True)
@@ -47,10 +51,6 @@ class IKResult:
         """RMS 3-D marker error over every observed marker in every frame (m)."""
         return marker_rms(self.residuals)
 
-    @property
-    def max_error(self) -> float:
-        """Largest 3-D marker error over the trial (m)."""
-        return marker_max(self.residuals)
 
 
 def marker_columns(model: Model, trial: Trial) -> np.ndarray:
@@ -61,6 +61,70 @@ def marker_columns(model: Model, trial: Trial) -> np.ndarray:
         if name in index:
             out[:, k] = trial.markers[:, index[name]]
     return out
+
+
+class _FrameFit:
+    """One frame's fit as a calibrate.solve.lm.StepProblem, x = (z, q): the markers `seen_mk` of the
+    frame `obs` by the coordinates `free`, with the soft joint limits (FrameSolver.solve).  Cost |r|²."""
+
+    def __init__(self, solver: FrameSolver, obs: np.ndarray, seen_mk, free):
+        self.evaluate = solver.evaluate
+        self.rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
+        self.target = obs[seen_mk].ravel()
+        self.free = free = np.asarray(free)
+        self.rot = bool(np.isin([3, 4, 5], free).any())
+        self.balls = bool(np.isin(solver.ball_cols, free).any())
+        self.dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], solver.ball_cols)  # SO(3): no limits
+        self.lo = solver.lower[FrameLayout.dof(self.dof_cols)]
+        self.hi = solver.upper[FrameLayout.dof(self.dof_cols)]
+        position = {int(c): i for i, c in enumerate(free)}
+        self.col_of = np.array([position[int(c)] for c in self.dof_cols], dtype=int)  # limit rows -> columns
+        self.last: tuple | None = None  # (x, residuals, Jacobian, beyond limits) at the last point costed
+        self.g = self.A = np.zeros(0)
+
+    def residuals(self, x: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        m, J = self.evaluate(*x)
+        th = x[0][self.dof_cols]
+        out = (th < self.lo) | (th > self.hi)
+        r = np.concatenate([m[self.rows] - self.target, LIMIT_WEIGHT * (th - np.clip(th, self.lo, self.hi))])
+        return r, J[np.ix_(self.rows, self.free)], out
+
+    def linearize(self, x: tuple[np.ndarray, np.ndarray]) -> float:
+        r, J, out = self.last[1:] if self.last is not None and self.last[0] is x else self.residuals(x)
+        n_mk = self.rows.size
+        Jf = np.zeros((n_mk + self.dof_cols.size, self.free.size))
+        Jf[:n_mk] = J
+        Jf[n_mk + np.arange(self.dof_cols.size), self.col_of] = LIMIT_WEIGHT * out
+        self.g, self.A = Jf.T @ r, Jf.T @ Jf
+        return float(r @ r)
+
+    def gradient_max(self) -> float:
+        return 2.0 * float(np.abs(self.g).max(initial=0.0))
+
+    def step(self, x: tuple[np.ndarray, np.ndarray], lam: float) -> tuple[tuple, float, float] | None:
+        A, g = self.A, self.g
+        D = marquardt_diagonal(np.diag(A), float(A.max(initial=0.0)))
+        try:
+            step = -np.linalg.solve(A + lam * np.diag(D), g)
+        except np.linalg.LinAlgError:
+            return None
+        z, q = x
+        zn = z.copy()
+        zn[self.free] += step
+        if self.rot:
+            q = q.copy()
+            q[:4] = retract_root(q[:4], zn[FrameLayout.rotation])
+            zn[FrameLayout.rotation] = 0.0
+        predicted = -(2.0 * float(g @ step) + float(step @ A @ step))
+        return (zn, q), predicted, float(np.linalg.norm(step))
+
+    def cost(self, x: tuple[np.ndarray, np.ndarray]) -> float:
+        r, J, out = self.residuals(x)
+        self.last = (x, r, J, out)  # the linearization there, if the step is accepted
+        return float(r @ r)
+
+    def norm(self, x: tuple[np.ndarray, np.ndarray]) -> float:
+        return float(np.linalg.norm(x[0]))
 
 
 class FrameSolver:
@@ -98,65 +162,21 @@ class FrameSolver:
         self.upper = np.array([d.upper for d in model.dofs])
 
     def solve(self, z, q, obs, seen_mk, free, budget, tol=1e-8):
-        """LM over coordinates `free` fitting markers `seen_mk`; returns (z, q, cost, iterations).
+        """Levenberg–Marquardt (calibrate.solve.lm.minimise) over coordinates `free` fitting markers
+        `seen_mk`, at most `budget` steps, stopping when a step lowers the cost by less than the
+        fraction `tol`; returns (z, q, cost, steps).
 
         Joint limits enter as soft residuals LIMIT_WEIGHT * (theta - clip(theta, lower, upper)):
         zero inside the range of motion, so they never bias a pose that respects it, but
         they keep a poorly fitting model out of mirror-image branches.
         """
-        rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
-        target = obs[seen_mk].ravel()
-        free = np.asarray(free)
-        rot = bool(np.isin([3, 4, 5], free).any())
-        balls = bool(np.isin(self.ball_cols, free).any())
-        dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], self.ball_cols)  # no limits on SO(3) increments
-        lo, hi = self.lower[FrameLayout.dof(dof_cols)], self.upper[FrameLayout.dof(dof_cols)]
-        position = {int(c): i for i, c in enumerate(free)}
-        col_of = np.array([position[int(c)] for c in dof_cols], dtype=int)  # limit rows -> columns of Jf
-
-        def evaluate(zz, qq):
-            m, J = self.evaluate(zz, qq)
-            th = zz[dof_cols]
-            r = np.concatenate([m[rows] - target, LIMIT_WEIGHT * (th - np.clip(th, lo, hi))])
-            return r, J[np.ix_(rows, free)], (th < lo) | (th > hi)
-
-        z = z.copy()
-        r, J, out = evaluate(z, q)
-        cost, lam, used = r @ r, 1e-3, 0
-        n_mk = rows.size
-        for it in range(1, budget + 1):
-            used = it
-            Jf = np.zeros((n_mk + dof_cols.size, free.size))
-            Jf[:n_mk] = J
-            Jf[n_mk + np.arange(dof_cols.size), col_of] = LIMIT_WEIGHT * out
-            g = Jf.T @ r
-            A = Jf.T @ Jf
-            D = np.maximum(np.diag(A), 1e-9)
-            while True:
-                step = -np.linalg.solve(A + lam * np.diag(D), g)
-                zn = z.copy()
-                zn[free] += step
-                qn = q
-                if rot:
-                    qn = q.copy()
-                    qn[:4] = retract_root(q[:4], zn[FrameLayout.rotation])
-                    zn[FrameLayout.rotation] = 0.0
-                rn, Jn, outn = evaluate(zn, qn)
-                cn = rn @ rn
-                if cn < cost or lam > 1e10:
-                    break
-                lam *= 4.0
-            if cn >= cost:
-                break
-            lam = max(lam / 3.0, 1e-9)
-            rel = (cost - cn) / max(cost, 1e-300)
-            z, q, r, J, out, cost = zn, qn, rn, Jn, outn, cn
-            if rel < tol or np.linalg.norm(step) < 1e-8:
-                break
-        if balls:  # the balls' increments folded once per solve: the next starts at full rank
+        fit = _FrameFit(self, obs, seen_mk, free)
+        options = SolverOptions(max_iterations=budget, ftol=tol, atol=TINY, xtol=STEP_TOL, gtol=TINY, geodesic=False)
+        (z, q), summary = minimise(fit, (z, q), options)
+        if fit.balls:  # the balls' increments folded once per solve: the next starts at full rank
             zr, qr = self.kin.retract_refs(z, q)
             z, q = zr[0], qr[0]
-        return z, q, cost, used
+        return z, q, summary.final_cost, summary.iterations
 
     def global_start(self, obs, seen):
         """A pose for one frame from scratch: root by Kabsch, then joint by joint with multi-starts."""

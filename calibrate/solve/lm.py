@@ -29,6 +29,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -37,7 +38,8 @@ from ..problem.problem import Problem
 from ..problem.state import Linearization, State
 from .assembly import back_substitute, factor_frames, forward_substitute, in_parallel, split_frames
 
-__all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "covariance", "levenberg_marquardt"]
+__all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "levenberg_marquardt",
+           "minimise"]
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
 GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
@@ -198,7 +200,7 @@ def factor_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool 
     # Marquardt scaling on the reduced system: damp each parameter by its own curvature once the
     # frames are eliminated (diag S), not by diag C, which counts curvature the poses explain away.
     dS = np.diag(S)
-    S = S + np.diag(lam * np.maximum(dS, DIAG_FLOOR * max(1.0, float(dS.max(initial=0.0)))))
+    S = S + np.diag(lam * marquardt_diagonal(dS, float(dS.max(initial=0.0))))
     if N is not None:
         S = N.T @ S @ N
     try:
@@ -266,6 +268,162 @@ def _model_decrease(lin: Linearization, dz: np.ndarray, dp: np.ndarray) -> float
     return -(lin_term + 0.5 * quad)
 
 
+class StepProblem(Protocol):
+    """A least-squares problem as the Levenberg–Marquardt loop (`minimise`) sees it: the block-arrow
+    calibration problem (`levenberg_marquardt`) and one frame's inverse kinematics
+    (calibrate.solve.ik.FrameSolver) alike.  A scratch object for one run, like Pinocchio's Data:
+    `linearize` keeps the linearization that `gradient_max` and `step` then use."""
+
+    def linearize(self, x: Any) -> float:
+        """Linearize the residuals at `x` (the start, then each accepted point); its cost."""
+
+    def gradient_max(self) -> float:
+        """Largest gradient entry at the last linearization."""
+
+    def step(self, x: Any, lam: float) -> tuple[Any, float, float] | None:
+        """The step of damping `lam` (scaling: marquardt_diagonal) from the last linearization:
+        (the point it reaches, the Gauss–Newton model's predicted cost decrease, |step|); None
+        if the damped normal equations are not positive definite."""
+
+    def cost(self, x: Any) -> float:
+        """The cost at a trial point."""
+
+    def norm(self, x: Any) -> float:
+        """|x|, for the step tolerance."""
+
+
+def marquardt_diagonal(diagonal: np.ndarray, largest: float) -> np.ndarray:
+    """Marquardt's scaling: the normal matrix's diagonal, floored relative to its largest entry
+    (a coordinate the markers do not reach still gets some damping)."""
+    return np.maximum(diagonal, DIAG_FLOOR * max(1.0, largest))
+
+
+def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
+             progress: Callable[[int, float, float], None] | None = None,
+             summary: SolverSummary | None = None) -> tuple[Any, SolverSummary]:
+    """Levenberg–Marquardt from `x`: Marquardt-scaled damping λ following Nielsen's update on the
+    gain ratio, and the termination tests of the module docstring (tolerances and iteration limit:
+    `options`; `max_iterations` overrides its limit; every step, accepted or not, counts).
+    `progress(iteration, cost, lam)` after each accepted step."""
+    max_it = max_iterations or options.max_iterations
+    summary = SolverSummary() if summary is None else summary
+    cost = steps.linearize(x)
+    summary.initial_cost = cost
+    summary.cost_history.append(cost)
+    lam, nu = 1e-4, 2.0
+    termination, converged = "", False
+    while True:
+        g_max = steps.gradient_max()
+        if g_max < options.gtol:
+            termination, converged = f"gradient {g_max:.2e} below gtol {options.gtol:.0e}", True
+            break
+        if summary.iterations >= max_it:
+            termination = f"reached max_iterations ({max_it}) before converging"
+            break
+        summary.iterations += 1
+        proposed = steps.step(x, lam)
+        if proposed is None:
+            lam, nu = lam * nu, nu * 2
+            if lam > 1e16:
+                termination, converged = "normal equations not positive definite at any damping", False
+                break
+            continue
+        trial, predicted, step_norm = proposed
+        new_cost = steps.cost(trial)
+        rho = (cost - new_cost) / predicted if predicted > 0 else -1.0
+        if np.isfinite(new_cost) and rho > 1e-4 and new_cost < cost:
+            rel = (cost - new_cost) / max(cost, 1e-300)
+            x, cost = trial, new_cost
+            summary.accepted += 1
+            summary.cost_history.append(cost)
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            if progress is not None:
+                progress(summary.iterations, cost, lam)
+            if rel < options.ftol:
+                termination, converged = f"relative cost decrease {rel:.2e} below ftol {options.ftol:.0e}", True
+                break
+            if summary.accepted > 1 and (summary.cost_history[-2] - cost) < options.atol:
+                termination = f"cost decrease {summary.cost_history[-2] - cost:.2e} below atol {options.atol:g}"
+                converged = True
+                break
+            if step_norm < options.xtol * (steps.norm(x) + options.xtol):
+                termination, converged = f"step {step_norm:.2e} below xtol {options.xtol:.0e}", True
+                break
+            steps.linearize(x)
+        else:
+            lam, nu = lam * nu, nu * 2
+            if step_norm < options.xtol * (steps.norm(x) + options.xtol):
+                termination, converged = f"step {step_norm:.2e} below xtol {options.xtol:.0e}", True
+                break
+            if lam > 1e16:
+                termination = "no step lowers the cost (damping exhausted): converged to the available precision"
+                converged = True
+                break
+    summary.final_cost = cost
+    summary.termination = termination
+    summary.converged = converged
+    return x, summary
+
+
+class _BlockArrow:
+    """The calibration problem as a StepProblem: steps from the Schur complement on p (factor_step),
+    with geodesic acceleration when the loss is plain least squares; stage times go to `summary`."""
+
+    def __init__(self, problem: Problem, options: SolverOptions, pose_only: bool, summary: SolverSummary):
+        self.problem, self.pose_only, self.summary = problem, pose_only, summary
+        # Buffers shared by every step, and by later runs on this problem (first touches of the large
+        # per-step arrays, in page faults, cost as much as a step of a short run).
+        self.work = problem.buffers()
+        # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
+        # weights would blur: plain least squares only.
+        self.accelerate = options.geodesic and problem.loss == "linear"
+        self.lin: Linearization | None = None
+        self.here: tuple | None = None
+        self.N: np.ndarray | None = None
+
+    def linearize(self, state: State) -> float:
+        problem = self.problem
+        t0 = time.perf_counter()
+        self.lin = problem.linearize(state, with_parameters=not self.pose_only,
+                                     reuse=True if self.lin is None else self.lin)
+        self.here = problem.residual_parts(state) if self.accelerate else None
+        self.summary.linearize_seconds += time.perf_counter() - t0
+        self.N = None if self.pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
+        return self.lin.cost
+
+    def gradient_max(self) -> float:
+        lin = self.lin
+        return max(float(np.abs(lin.gz).max(initial=0.0)), float(np.abs(lin.gp).max(initial=0.0)))
+
+    def step(self, state: State, lam: float) -> tuple[State, float, float] | None:
+        lin, summary = self.lin, self.summary
+        Dz = marquardt_diagonal(np.diagonal(lin.A, axis1=1, axis2=2), float(lin.A.max(initial=0.0)))
+        t0 = time.perf_counter()
+        fac = factor_step(lin, lam, Dz, self.pose_only, self.N, self.work)
+        if fac is None:
+            summary.linear_solver_seconds += time.perf_counter() - t0
+            return None
+        dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
+        summary.linear_solver_seconds += time.perf_counter() - t0
+        predicted = _model_decrease(lin, dz, dp)
+        if self.accelerate:
+            t0 = time.perf_counter()
+            dz, dp = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
+            summary.evaluate_seconds += time.perf_counter() - t0
+        step_norm = float(np.sqrt(np.sum(dz**2) + np.sum(dp**2)))
+        return retract(self.problem, state, dz, dp), predicted, step_norm
+
+    def cost(self, state: State) -> float:
+        t0 = time.perf_counter()
+        c = self.problem.cost(state)
+        self.summary.evaluate_seconds += time.perf_counter() - t0
+        return c
+
+    def norm(self, state: State) -> float:
+        return float(np.sqrt(np.sum(state.Z**2) + np.sum(state.p**2)))
+
+
 def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions | None = None, *,
                         pose_only: bool = False, max_iterations: int | None = None,
                         progress: Callable[[int, float, float], None] | None = None) -> tuple[State, SolverSummary]:
@@ -273,96 +431,12 @@ def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions |
     acceleration: `options`, default SolverOptions(); `max_iterations` overrides its limit).
     `pose_only` keeps p fixed (frame-wise inverse kinematics of all frames at once).
     `progress(iteration, cost, lam)` after each step."""
-    st = SolverOptions() if options is None else options
-    max_it = max_iterations or st.max_iterations
+    options = SolverOptions() if options is None else options
     summary = SolverSummary()
     t_start = time.perf_counter()
-    # Buffers shared by every step, and by later runs on this problem (first touches of the large
-    # per-step arrays, in page faults, cost as much as a step of a short run).
-    work = problem.buffers()
-    t0 = time.perf_counter()
-    lin = problem.linearize(state, with_parameters=not pose_only, reuse=True)
-    summary.linearize_seconds += time.perf_counter() - t0
-    cost = lin.cost
-    summary.initial_cost = cost
-    summary.cost_history.append(cost)
-    lam, nu = 1e-4, 2.0
-    # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
-    # weights would blur: plain least squares only.
-    accelerate = st.geodesic and problem.loss == "linear"
-    here = problem.residual_parts(state) if accelerate else None
-    N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
-    x_norm = lambda s: float(np.sqrt(np.sum(s.Z**2) + np.sum(s.p**2)))  # noqa: E731
-    termination, converged = "", False
-    while True:
-        g_max = max(float(np.abs(lin.gz).max(initial=0.0)), float(np.abs(lin.gp).max(initial=0.0)))
-        if g_max < st.gtol:
-            termination, converged = f"gradient {g_max:.2e} below gtol {st.gtol:.0e}", True
-            break
-        if summary.iterations >= max_it:
-            termination = f"reached max_iterations ({max_it}) before converging"
-            break
-        summary.iterations += 1
-        Dz = np.maximum(np.diagonal(lin.A, axis1=1, axis2=2), DIAG_FLOOR * max(1.0, float(lin.A.max(initial=0.0))))
-        t0 = time.perf_counter()
-        fac = factor_step(lin, lam, Dz, pose_only, N, work)
-        if fac is None:
-            summary.linear_solver_seconds += time.perf_counter() - t0
-            lam, nu = lam * nu, nu * 2
-            if lam > 1e16:
-                termination, converged = "normal equations not positive definite at any damping", False
-                break
-            continue
-        dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
-        summary.linear_solver_seconds += time.perf_counter() - t0
-        predicted = _model_decrease(lin, dz, dp)
-        if accelerate:
-            t0 = time.perf_counter()
-            dz, dp = _accelerate(problem, state, lin, fac, dz, dp, here)
-            summary.evaluate_seconds += time.perf_counter() - t0
-        step_norm = float(np.sqrt(np.sum(dz**2) + np.sum(dp**2)))
-        trial = retract(problem, state, dz, dp)
-        t0 = time.perf_counter()
-        new_cost = problem.cost(trial)
-        summary.evaluate_seconds += time.perf_counter() - t0
-        rho = (cost - new_cost) / predicted if predicted > 0 else -1.0
-        if np.isfinite(new_cost) and rho > 1e-4 and new_cost < cost:
-            rel = (cost - new_cost) / max(cost, 1e-300)
-            state, cost = trial, new_cost
-            summary.accepted += 1
-            summary.cost_history.append(cost)
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-            nu = 2.0
-            if progress is not None:
-                progress(summary.iterations, cost, lam)
-            if rel < st.ftol:
-                termination, converged = f"relative cost decrease {rel:.2e} below ftol {st.ftol:.0e}", True
-                break
-            if summary.accepted > 1 and (summary.cost_history[-2] - cost) < st.atol:
-                termination = f"cost decrease {summary.cost_history[-2] - cost:.2e} below atol {st.atol:g}"
-                converged = True
-                break
-            if step_norm < st.xtol * (x_norm(state) + st.xtol):
-                termination, converged = f"step {step_norm:.2e} below xtol {st.xtol:.0e}", True
-                break
-            t0 = time.perf_counter()
-            lin = problem.linearize(state, with_parameters=not pose_only, reuse=lin)
-            here = problem.residual_parts(state) if accelerate else None
-            summary.linearize_seconds += time.perf_counter() - t0
-            N = None if pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
-        else:
-            lam, nu = lam * nu, nu * 2
-            if step_norm < st.xtol * (x_norm(state) + st.xtol):
-                termination, converged = f"step {step_norm:.2e} below xtol {st.xtol:.0e}", True
-                break
-            if lam > 1e16:
-                termination = "no step lowers the cost (damping exhausted): converged to the available precision"
-                converged = True
-                break
-    problem.recycle(lin)  # its arrays are the next run's buffers
-    summary.final_cost = cost
-    summary.termination = termination
-    summary.converged = converged
+    steps = _BlockArrow(problem, options, pose_only, summary)
+    state, summary = minimise(steps, state, options, max_iterations, progress, summary)
+    problem.recycle(steps.lin)  # its arrays are the next run's buffers
     summary.seconds = time.perf_counter() - t_start
     return state, summary
 
