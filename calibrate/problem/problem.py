@@ -63,7 +63,7 @@ LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 
 
-def problem_options(settings: ProblemOptions | Settings | None) -> ProblemOptions:
+def _problem_options(settings: ProblemOptions | Settings | None) -> ProblemOptions:
     """The problem's options of `settings` (its Settings.problem view if it is the user's Settings)."""
     if settings is None:
         return ProblemOptions()
@@ -114,7 +114,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         problem's view (Settings.problem: never the solver's or the pipeline's options)."""
         self._progress = progress
         self._model = model
-        self._settings = problem_options(settings)
+        self._settings = _problem_options(settings)
         # Ball joints with a locked coordinate stay on their three angles (the lock holds an angle).
         locked_balls = tuple(j.name for j in model.joints if j.kind == "ball"
                              and any(d in dict(self.settings.lock) for d in j.dofs))
