@@ -233,7 +233,7 @@ def work_compare(spec: dict) -> dict:
         state0 = State(*kin.absolute(state0.Z, state0.Q, state0.B), state0.p)
         problem = Problem(model, obs, settings, kin)
         setup = time.perf_counter() - t0
-        out = compare_solvers(problem, state0, spec)
+        out = compare_solvers(problem, state0, spec, settings.solver)
     out.update({"frames": spec["frames"], "setup_s": setup, "n_free": problem.n_free,
                 "variables": problem.F * model.nz + problem.n_free})
     return out
@@ -243,17 +243,18 @@ WORKERS = {"warmup": work_warmup, "calibrate": work_calibrate, "compare": work_c
 
 
 # ====================================================================== the three solvers
-def compare_solvers(problem, state0, spec: dict) -> dict:
-    """Ours, scipy and IPOPT from `state0`; every final cost is problem.cost of the final State."""
+def compare_solvers(problem, state0, spec: dict, options) -> dict:
+    """Ours, scipy and IPOPT from `state0` (`options`: the solver options, SolverOptions, ours and scipy's
+    tolerances); every final cost is problem.cost of the final State."""
     from calibrate.solve.lm import levenberg_marquardt
 
     out: dict = {"initial_cost": problem.cost(state0)}
     t0 = time.perf_counter()
-    state, summary = levenberg_marquardt(problem, state0, problem.settings.solver)
+    state, summary = levenberg_marquardt(problem, state0, options)
     out["ours"] = {"seconds": time.perf_counter() - t0, "iterations": summary.iterations,
                    "accepted": summary.accepted, "cost": problem.cost(state), "summary_cost": summary.final_cost,
                    "status": summary.termination, "converged": bool(summary.converged)}
-    out["scipy"] = solve_scipy(problem, state0, spec["cap"])
+    out["scipy"] = solve_scipy(problem, state0, spec["cap"], options)
     out["ipopt"] = solve_ipopt(problem, state0, spec["cap"], spec["hessian"])
     return out
 
@@ -270,12 +271,12 @@ class _Cap(Exception):
     """The time cap of a baseline solver was reached."""
 
 
-def solve_scipy(problem, state0, cap: float) -> dict:
+def solve_scipy(problem, state0, cap: float, options) -> dict:
     """scipy.optimize.least_squares (trf, lsmr, x_scale='jac') on the residual vector with our exact sparse
     Jacobian; stopped at `cap` seconds (the best point evaluated so far is kept)."""
     from scipy.optimize import least_squares
 
-    st = problem.settings
+    st = options
     T0 = problem.tangent_map(state0.p)
     n = problem.F * problem.model.nz + problem.n_free
     J0 = problem.full_jacobian(state0, T0)[1]

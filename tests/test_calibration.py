@@ -209,7 +209,7 @@ def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_
     rng = np.random.default_rng(0)
     Z = np.column_stack([m.root_translation, np.zeros((60, 3)), m.angles]) + 0.02 * rng.normal(size=(60, human.nz))
     state, summary = levenberg_marquardt(problem, State(Z, m.root_quaternion.copy(), human.parameters().vector()),
-                                         problem.settings.solver)
+                                         Settings(geodesic=geodesic).solver)
     assert summary.converged, summary.termination
     assert summary.cost_history == sorted(summary.cost_history, reverse=True)
     res = problem.marker_residuals(state)

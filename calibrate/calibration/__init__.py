@@ -2,7 +2,8 @@
 
 Exports (each imported from its module on first use): calibrate from calibrate.calibration.pipeline; Calibration,
 NewMarker, Outlier from calibrate.calibration.result; Identified, ParameterChange, Progress, StillNote, LimitNote
-from calibrate.calibration.records; TruthComparison, compare_to_truth from calibrate.calibration.evaluate.
+from calibrate.calibration.records; TruthComparison, compare_to_truth from calibrate.calibration.evaluate;
+PipelineOptions (Settings.pipeline: the pipeline's switches) from calibrate.calibration.options.
 """
 
 from ..exports import lazy_exports
@@ -10,4 +11,5 @@ from ..exports import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(__name__, """
 .pipeline:calibrate .result:Calibration,NewMarker,Outlier
 .records:Identified,ParameterChange,Progress,StillNote,LimitNote .evaluate:TruthComparison,compare_to_truth
+.options:PipelineOptions
 """)

@@ -24,8 +24,8 @@ import numpy as np
 
 from ..model.blocks import FrameLayout
 from ..model.kinematics import build_kinematics
+from ..problem.options import ProblemOptions
 from ..problem.problem import Problem
-from ..problem.settings import Settings
 from ..problem.state import State
 from ..seed.geometry import marker_rms
 from ..simulation.simulate import Simulation, joint_axes_world
@@ -60,11 +60,11 @@ def true_model_floor(sim: Simulation) -> tuple[float, float]:
     and the RMS of its joint angles against the true ones (deg): the floors the noise sets."""
     model = sim.model
     obs = marker_columns(model, sim.trial)
-    problem = Problem(model, obs, Settings(free=()), build_kinematics(model), base=sim.truth)
+    problem = Problem(model, obs, ProblemOptions(free=()), build_kinematics(model), base=sim.truth)
     m = sim.motion
     Z = FrameLayout.coordinates(m.root_translation, m.angles)
     state = State(Z, m.root_quaternion.copy(), sim.truth.vector())
-    state, _ = levenberg_marquardt(problem, state, problem.settings.solver, pose_only=True, max_iterations=20)
+    state, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=20)
     res = problem.marker_residuals(state)
     Z, _ = problem.kin.absolute(state.Z, state.Q, state.B, previous=m.angles[0])
     dang = np.degrees(np.angle(np.exp(1j * (FrameLayout.angles(Z) - m.angles))))

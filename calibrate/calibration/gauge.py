@@ -9,14 +9,16 @@ from scipy.spatial.transform import Rotation
 from calibrate.calibration.start import absolute, frames_of
 
 from ..model.blocks import FrameLayout
+from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import State
 from ..solve.lm import levenberg_marquardt
 
 
-def align_gauge(problem: Problem, state: State) -> State:
+def align_gauge(problem: Problem, state: State, options: SolverOptions | None = None) -> State:
     """Turn every free segment frame to the orientation the priors prefer (Problem.align_frames)
-    and re-solve the frame coordinates for it (the data fit is unchanged by construction)."""
+    and re-solve the frame coordinates for it (the data fit is unchanged by construction; the
+    solver's `options`, default SolverOptions())."""
     model = problem.model
     p, moves = problem.align_frames(state.p)
     Z, Q = state.Z.copy(), state.Q.copy()
@@ -32,14 +34,15 @@ def align_gauge(problem: Problem, state: State) -> State:
             Z[:, FrameLayout.angle(d)] += float(Rotation.from_matrix(G).as_rotvec() @ a)  # G turns about the hinge axis
     Q = np.where(Q[:, 3:4] < 0, -Q, Q)
     aligned = State(Z, Q, p, state.B)
-    aligned, _ = levenberg_marquardt(problem, aligned, problem.settings.solver, pose_only=True, max_iterations=20)
+    aligned, _ = levenberg_marquardt(problem, aligned, options, pose_only=True, max_iterations=20)
     return aligned
 
 
-def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
+def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: SolverOptions | None = None) -> State:
     """Turn every free segment frame but the root's (Problem.neutral_frames) so that the frames
     marked `neutral` have zero joint angles on average, a tree level at a time (a turn changes the
-    ball angles below it, which are re-solved before the next level); the data fit is unchanged."""
+    ball angles below it, which are re-solved before the next level, with the solver's `options`); the
+    data fit is unchanged."""
     model = problem.model
     depth = {model.segments[0].name: 0}
     for j in model.joints:  # parents come first
@@ -55,6 +58,6 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray) -> State:
                 d = model.dof_index(into[model.segments[si].name].dofs[-1])
                 Z[:, FrameLayout.angle(d)] += float(Rotation.from_matrix(G).as_rotvec()
                                                     @ problem.axis_direction(state.p, d))
-        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p, state.B), problem.settings.solver,
+        state, _ = levenberg_marquardt(problem, State(Z, state.Q, p, state.B), options,
                                        pose_only=True, max_iterations=20)
     return state

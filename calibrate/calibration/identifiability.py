@@ -4,13 +4,15 @@ the trial does not show moving or drives past their limits."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 
 from ..model.blocks import FrameLayout, perpendicular_basis
-from ..model.model import Model
+from ..model.model import Joint, Model, Parameters
+from ..problem.options import ProblemOptions
 from ..problem.problem import Problem
-from ..problem.settings import Settings
 from .records import CoordinateNote, Identified, LimitNote, ParameterChange, StillNote
 
 STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
@@ -26,22 +28,23 @@ IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction):
 
 
 def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray,
-                     settings: Settings) -> tuple[CoordinateNote, ...]:
-    """still_records, then limit_records for the coordinates not already named."""
-    still = still_records(model, angles, A, settings)
+                     options: ProblemOptions) -> tuple[CoordinateNote, ...]:
+    """still_records, then limit_records for the coordinates not already named (`options`: the problem's,
+    whose locked coordinates and held axes they read; a Settings, which has the same fields, serves too)."""
+    still = still_records(model, angles, A, options)
     named = {n.coordinate for n in still}
-    return still + tuple(n for n in limit_records(model, angles, settings) if n.coordinate not in named)
+    return still + tuple(n for n in limit_records(model, angles, options) if n.coordinate not in named)
 
 
 def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
-                      settings: Settings) -> list[tuple[str, float, float]]:
+                      options: ProblemOptions) -> list[tuple[str, float, float]]:
     """The coordinates (not locked) whose estimated motion is no larger than the noise: their spread
     over the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix them (the
     median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block).  Such a joint
     did not move as far as the trial shows, so nothing pins its axis or its angle's zero, and the
     fit can trade them for noise (a still subtalar joint under a two-marker foot ends at its
     widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad."""
-    locked = {n for n, _ in settings.lock}
+    locked = {n for n, _ in options.lock}
     nz = A.shape[1]
     A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), 500)).astype(int))]  # a median needs no more
     # A ridge at one global scale: a frame (or direction) with no data gets a huge SD, not a failure.
@@ -58,23 +61,23 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     return out
 
 
-def still_records(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[StillNote, ...]:
+def still_records(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions) -> tuple[StillNote, ...]:
     """A note per coordinate that still_coordinates names, with what was done and what to do."""
-    return tuple(StillNote(name, spread, per_frame, name in settings.hold_axes)
-                 for name, spread, per_frame in still_coordinates(model, angles, A, settings))
+    return tuple(StillNote(name, spread, per_frame, name in options.hold_axes)
+                 for name, spread, per_frame in still_coordinates(model, angles, A, options))
 
 
-def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, settings: Settings) -> tuple[str, ...]:
+def still_notes(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions) -> tuple[str, ...]:
     """still_records as the user reads them."""
-    return tuple(n.text() for n in still_records(model, angles, A, settings))
+    return tuple(n.text() for n in still_records(model, angles, A, options))
 
 
-def limit_records(model: Model, angles: np.ndarray, settings: Settings) -> tuple[LimitNote, ...]:
+def limit_records(model: Model, angles: np.ndarray, options: ProblemOptions) -> tuple[LimitNote, ...]:
     """A note per coordinate that the fit drove beyond the base model's joint limits (by more than
     LIMIT_NOTE_DEG) in more than LIMIT_NOTE_FRACTION of the frames.  A coordinate the markers cannot
     resolve (a joint that did not move, under a segment with too few markers) drifts like this, and
     the geometry around it with it; one the subject really moved past the model's range does too."""
-    locked = {n for n, _ in settings.lock}
+    locked = {n for n, _ in options.lock}
     tol = math.radians(LIMIT_NOTE_DEG)
     out = []
     for k, d in enumerate(model.dofs):
@@ -87,9 +90,9 @@ def limit_records(model: Model, angles: np.ndarray, settings: Settings) -> tuple
     return tuple(out)
 
 
-def limit_notes(model: Model, angles: np.ndarray, settings: Settings) -> tuple[str, ...]:
+def limit_notes(model: Model, angles: np.ndarray, options: ProblemOptions) -> tuple[str, ...]:
     """limit_records as the user reads them."""
-    return tuple(n.text() for n in limit_records(model, angles, settings))
+    return tuple(n.text() for n in limit_records(model, angles, options))
 
 
 def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
@@ -107,12 +110,11 @@ def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
 def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> list[ParameterChange]:
     """Per joint centre, hinge axis, marker and scale: change from the base model, posterior std,
     and whether the trial identified it: in its worst direction, the posterior std must be below
-    IDENTIFIED times the std the priors alone would leave (else the prior holds it)."""
+    IDENTIFIED times the std the priors alone would leave (else the prior holds it).  `cov` and
+    `prior_cov` are over the free columns, each block's found from the problem's layout."""
     model = problem.model
     P = model.unpack(p)
     B = problem.base
-    col = {n: k for k, n in enumerate(problem.free_names)}
-    names = model.parameter_names()
     L = problem.layout
     out: list[ParameterChange] = []
     seg_scale = P.scale
@@ -130,47 +132,31 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     def unseen(segment: str) -> str:
         return f"no marker seen on or below {segment}: held at the base model's"
 
-    def block_cov(idx: list[str]) -> tuple[np.ndarray, np.ndarray] | None:
-        """Posterior and prior-only covariance of a position at the subject's scale (its free
-        coordinates, see Problem.tangent_map: what the data see)."""
-        if not all(n in col for n in idx):
-            return None
-        c = [col[n] for n in idx]
-        return cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
+    def held(owner: str) -> tuple[Identified, str]:
+        """Why a block that is not free is held (`owner`: the segment it belongs to)."""
+        return (Identified.UNSEEN, unseen(owner)) if owner in still else (Identified.FIXED, "held (not free)")
 
+    def position(group: str, i: int, name: str, owner: str, judge: Judge) -> ParameterChange:
+        """The change of joint centre or marker `i` of `group` (a position in segment `owner`): the value
+        and its posterior and prior-only covariance at the subject's scale (its free coordinates, see
+        Problem.tangent_map: what the data see), judged by `judge`."""
+        value = seg_scale[model.segment_index(owner)] * getattr(P, group)[i]
+        base = getattr(B, group)[i]
+        block = L.block(group, i)
+        if block.held:
+            std, ratio = np.full(3, np.nan), float("nan")
+            status, note = held(owner)
+        else:
+            c = block.cols
+            C, C0 = cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
+            std = 1000 * np.sqrt(np.clip(np.diag(C), 0, None))
+            status, note, ratio = judge(C, C0)
+        return ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
+                               note, ratio)
 
     for ji, j in enumerate(model.joints):
-        s = seg_scale[problem.centre_segment[ji]]
-        CC = block_cov(names[L.centre(ji)])
-        value, base = s * P.centre[ji], B.centre[ji]
-        if CC is None and j.parent in still:
-            std, status, note = np.full(3, np.nan), Identified.UNSEEN, unseen(j.parent)
-        elif CC is None:
-            std, status, note = np.full(3, np.nan), Identified.FIXED, "held (not free)"
-        else:
-            std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
-            if j.kind == "hinge":
-                # Along its axis a hinge centre is a gauge: no motion moves the markers when it
-                # slides there (the child's contents slide back), so the prior alone holds it.
-                d = model.dof_index(j.dofs[0])
-                u = next(u for u in model.urdf_joints if u.name == j.urdf_joints[0])
-                a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
-                Qp = perpendicular_basis(a)
-                ratio, _ = worst_ratio(Qp.T @ CC[0] @ Qp, Qp.T @ CC[1] @ Qp)
-                status = Identified.ACROSS_AXIS if ratio < IDENTIFIED else Identified.NO
-                axis_txt = ", ".join(f"{x:+.2f}" for x in a)
-                note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
-                        f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
-                                                             " either: held by the prior"))
-            else:
-                ratio, v = worst_ratio(*CC)
-                status = Identified.YES if ratio < IDENTIFIED else Identified.NO
-                note = "" if status.identified else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
-                                         f"in the {j.parent} frame: held by the prior")
-        if CC is not None and j.name in blind:
-            status, note = Identified.NO, blind[j.name]
-        out.append(ParameterChange("centre", j.name, base, value, 1000 * float(np.linalg.norm(value - base)),
-                                   std, status, note, ratio if CC is not None else float("nan")))
+        judge = partial(_judge_centre, model, P, j, blind.get(j.name))
+        out.append(position("centre", ji, j.name, j.parent, judge))
     for d in problem.axis_dofs:
         a = P.axis[d] / np.linalg.norm(P.axis[d])
         a0 = B.axis[d] / np.linalg.norm(B.axis[d])
@@ -185,31 +171,58 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             status, note = Identified.NO, blind[model.dofs[d].joint]
         out.append(ParameterChange("axis", model.dofs[d].name, a0, a, ang, std, status, note, ratio))
     for k, mk in enumerate(model.markers):
-        s = seg_scale[problem.marker_segment[k]]
-        CC = block_cov(names[L.marker(k)])
-        value, base = s * P.marker[k], B.marker[k]
-        seen = bool(problem.seen[:, k].any())
-        if CC is None and mk.segment in still:
-            std, status, note = np.full(3, np.nan), Identified.UNSEEN, unseen(mk.segment)
-        elif CC is None:
-            std, status, note = np.full(3, np.nan), Identified.FIXED, "held (not free)"
-        else:
-            std = 1000 * np.sqrt(np.clip(np.diag(CC[0]), 0, None))
-            ratio = worst_ratio(*CC)[0]
-            status = Identified.YES if seen and ratio < IDENTIFIED else Identified.NO
-            note = "" if status.identified else ("never seen in the trial: base model kept" if not seen
-                                     else "poorly seen: held by the prior")
-        out.append(ParameterChange("marker", mk.name, base, value, 1000 * float(np.linalg.norm(value - base)),
-                                   std, status, note, ratio if CC is not None else float("nan")))
+        out.append(position("marker", k, mk.name, mk.segment, partial(_judge_marker, bool(problem.seen[:, k].any()))))
     for si, sg in enumerate(model.segments):
-        name = names[si]
-        free = name in col
-        std = np.array([math.sqrt(max(cov[col[name], col[name]], 0.0))]) if free else np.array([np.nan])
-        ratio = float(std[0] / math.sqrt(prior_cov[col[name], col[name]])) if free else float("nan")
-        status = (Identified.UNSEEN if sg.name in still else Identified.FIXED if not free
-                  else Identified.YES if ratio < IDENTIFIED else Identified.NO)
-        note = (unseen(sg.name) if sg.name in still else "held (not free)" if not free else "" if status.identified
-                else "the trial barely sizes this segment: held by the prior")
+        block = L.block("scale", si)
+        if block.held:
+            std, ratio = np.array([np.nan]), float("nan")
+            status, note = held(sg.name)
+        else:
+            c = int(block.cols[0])
+            std = np.array([math.sqrt(max(cov[c, c], 0.0))])
+            ratio = float(std[0] / math.sqrt(prior_cov[c, c]))
+            status = Identified.YES if ratio < IDENTIFIED else Identified.NO
+            note = "" if status.identified else "the trial barely sizes this segment: held by the prior"
         out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
                                    float(seg_scale[si] - 1.0), std, status, note, ratio))
     return out
+
+
+Judge = Callable[[np.ndarray, np.ndarray], tuple[Identified, str, float]]  # (posterior, prior-only cov) -> verdict
+
+
+def _judge_centre(model: Model, P: Parameters, j: Joint, blind: str | None, C: np.ndarray,
+                  C0: np.ndarray) -> tuple[Identified, str, float]:
+    """Whether the trial identified joint `j`'s free centre, from its posterior and prior-only covariance
+    (m²) at `P`; `blind`: why a joint next to a segment without markers is never identified."""
+    if j.kind == "hinge":
+        # Along its axis a hinge centre is a gauge: no motion moves the markers when it
+        # slides there (the child's contents slide back), so the prior alone holds it.
+        d = model.dof_index(j.dofs[0])
+        u = next(u for u in model.urdf_joints if u.name == j.urdf_joints[0])
+        a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
+        Qp = perpendicular_basis(a)
+        ratio, _ = worst_ratio(Qp.T @ C @ Qp, Qp.T @ C0 @ Qp)
+        status = Identified.ACROSS_AXIS if ratio < IDENTIFIED else Identified.NO
+        axis_txt = ", ".join(f"{x:+.2f}" for x in a)
+        note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
+                f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
+                                                     " either: held by the prior"))
+    else:
+        ratio, v = worst_ratio(C, C0)
+        status = Identified.YES if ratio < IDENTIFIED else Identified.NO
+        note = "" if status.identified else (f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) "
+                                             f"in the {j.parent} frame: held by the prior")
+    if blind is not None:
+        status, note = Identified.NO, blind
+    return status, note, ratio
+
+
+def _judge_marker(seen: bool, C: np.ndarray, C0: np.ndarray) -> tuple[Identified, str, float]:
+    """Whether the trial identified a free marker offset (`seen`: in some frame), from its posterior and
+    prior-only covariance."""
+    ratio = worst_ratio(C, C0)[0]
+    status = Identified.YES if seen and ratio < IDENTIFIED else Identified.NO
+    note = "" if status.identified else ("never seen in the trial: base model kept" if not seen
+                                         else "poorly seen: held by the prior")
+    return status, note, ratio

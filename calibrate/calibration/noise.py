@@ -11,10 +11,9 @@ import numpy as np
 
 from calibrate.seed.seeding import MAD_SD
 
-from ..model.model import Model
 from ..problem.problem import Problem
-from ..problem.settings import Settings
 from ..problem.state import State
+from .options import PipelineOptions
 from .records import Progress
 
 NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
@@ -35,12 +34,13 @@ NOISE_TAU_MAX = 16.0  # frames: a marker's residual correlation time counts up t
 NOISE_CLIP = 4.0  # a residual counts in the learnt SD up to this many robust SDs per coordinate (spikes: no more)
 
 
-def fixed_noise(model: Model, settings: Settings) -> np.ndarray | None:
-    """Markers whose noise SD is the user's (Settings.marker_noise), or None when nothing is learnt."""
-    if not settings.learns_noise:
+def fixed_noise(problem: Problem, options: PipelineOptions) -> np.ndarray | None:
+    """The problem's markers whose noise SD is the user's (ProblemOptions.marker_noise), or None when
+    nothing is learnt (PipelineOptions.learn_noise)."""
+    if not options.learn_noise:
         return None
-    named = {label for label, _ in settings.marker_noise}
-    return np.array([n in named for n in model.marker_names])
+    named = {label for label, _ in problem.settings.marker_noise}
+    return np.array([n in named for n in problem.model.marker_names])
 
 
 def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str | Progress], None],
@@ -154,10 +154,10 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     return learnt, tau
 
 
-def find_outliers(problem: Problem, state: State, settings: Settings, sigma: np.ndarray | None = None,
-              trial_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def find_outliers(problem: Problem, state: State, options: PipelineOptions, sigma: np.ndarray | None = None,
+                  trial_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
-    `settings.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
+    `options.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
     that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
     absorbs most of it (one of a foot's two markers) keeps its small residual but not its studentised
     one.  Returns the mask and the studentised errors times σ (m: comparable across markers)."""
@@ -180,4 +180,4 @@ def find_outliers(problem: Problem, state: State, settings: Settings, sigma: np.
             rows = trial_of == t
             med = np.nanmedian(np.where(ok[rows], err[rows], np.nan), axis=0) / 1.538
             sd[rows] = np.maximum(sd[rows], np.where(np.isfinite(med), med, 0.0)[None, :])
-    return ok & (err > settings.outliers * sd), err
+    return ok & (err > options.outliers * sd), err

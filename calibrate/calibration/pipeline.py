@@ -46,6 +46,7 @@ from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters, add_markers, mass_factor
+from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
@@ -53,9 +54,10 @@ from ..seed.association import associate_to_model
 from ..seed.rigidity import distance_variance
 from ..solve.ik import marker_columns
 from ..solve.lm import SolverSummary, covariance, levenberg_marquardt
+from .options import PipelineOptions
 from .records import Progress
 
-HOLD_ROUNDS = 2  # rounds of holding the axes of still coordinates (Settings.auto_hold), each a new subsample solve
+HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
 
 
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
@@ -134,6 +136,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,
                progress: Callable[[Progress], None] | None, neutral: int | None = None) -> Calibration:
     say = _announcer(progress)
+    run, solver = settings.pipeline, settings.solver  # the pipeline's and the solver's options (never changed here)
     times: dict[str, float] = {}
     where = ", ".join(t.source or "trial" for t in trials)
     if len(model.markers) == 0:
@@ -150,7 +153,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
-    if unknown and settings.new_markers:
+    if unknown and run.new_markers:
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         placed = _assign_new_markers(model, trials, unknown)
     new = {m.label: m.segment for m in placed if m.segment is not None}
@@ -182,7 +185,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if n_good < MIN_FRAMES:
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
-    if settings.seed:
+    if run.seed:
         say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         size = size_from_markers(model, trials)
         pick = _most_motion(model, trials)
@@ -205,22 +208,22 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
     # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
     # before the solve's own outlier rejection can see them.  They are reported with the other outliers.
-    jumped = jumped_samples(subject, trials) if settings.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
+    jumped = jumped_samples(subject, trials) if run.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
         say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes); "
                                 "left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
-    problem = Problem(subject, obs, settings, kin, progress=say)
+    problem = Problem(subject, obs, settings.problem, kin, progress=say)
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(Progress("start", "frame-wise inverse kinematics"))
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
-    if settings.seed:
+    if run.seed:
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments)
         params0, choice = choose_start(problem, known_obs, spans, {"the MTB seed": params0, "the base model": base0},
-                                       say)
+                                       say, solver)
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
     start = stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
@@ -235,20 +238,20 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
-    problem, state, summary, scatter = _solve(problem, start, spans, say)
+    problem, state, summary, scatter = _solve(problem, start, spans, run, solver, say)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
-    settings = problem.settings
+    settings = replace(settings, hold_axes=problem.settings.hold_axes)  # as used: with the axes held above
     rejected: list[Outlier] = []
     hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
-    fixed = fixed_noise(subject, settings)
+    fixed = fixed_noise(problem, run)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     reweighed = False  # the noise was learnt again and nothing solved since
-    for _ in range(OUTLIER_PASSES if settings.outliers > 0 else 0):
+    for _ in range(OUTLIER_PASSES if run.outliers > 0 else 0):
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
         # worst marker of each frame, re-solve those poses, and look again.
         found = 0
         for _ in range(OUTLIER_ROUNDS):
-            bad, err = find_outliers(problem, state, settings, scatter, trial_of)
+            bad, err = find_outliers(problem, state, run, scatter, trial_of)
             if not bad.any():
                 break
             worst = np.where(bad, err, -1.0).argmax(axis=1)
@@ -267,11 +270,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             new_hit[frames[~hit[frames]]] = True
             hit |= new_hit
             state = bridge(state, new_hit, hit, spans)
-            state, _ = levenberg_marquardt(problem, state, settings.solver, pose_only=True, max_iterations=10)
+            state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=10)
         if not found and not reweighed:
             break
         say(Progress("solve", "again without the outliers" if found else "again with the noise learnt again"))
-        state, again = levenberg_marquardt(problem, state, settings.solver)
+        state, again = levenberg_marquardt(problem, state, solver)
         summary = _merge(summary, again)
         reweighed = False
         if fixed is None or not found:
@@ -284,13 +287,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         problem = problem.with_noise(sigma)
         reweighed = True
     if reweighed:
-        state, again = levenberg_marquardt(problem, state, settings.solver)
+        state, again = levenberg_marquardt(problem, state, solver)
         summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
         say(Progress("solve", f"segment frames turned to zero joint angles in "
                               f"{trials[neutral].source or 'the neutral trial'}"))
-        state = align_neutral(problem, state, in_neutral)
+        state = align_neutral(problem, state, in_neutral, solver)
         summary = replace(summary, final_cost=problem.cost(state), termination=summary.termination
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     times["solve"] = time.perf_counter() - t0
@@ -300,7 +303,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
-    notes = coordinate_notes(subject, FrameLayout.angles(Z), lin.A, settings)
+    notes = coordinate_notes(subject, FrameLayout.angles(Z), lin.A, problem.settings)
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
@@ -316,7 +319,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=settings.learns_noise)
+                       noise_learnt=run.learn_noise)
 
 
 def _hold_segments(model: Model, params: Parameters, segments: Sequence[str]) -> Parameters:
@@ -352,22 +355,22 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
     return [s.name for s in model.segments if not below.get(s.name, False)]
 
 
-def _solve(problem: Problem, start: State, spans: list[slice],
-           say: Callable[[str], None]) -> tuple[Problem, State, SolverSummary]:
+def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
+           say: Callable[[str], None]) -> tuple[Problem, State, SolverSummary, np.ndarray]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
-    the trials by their length), then every frame.  With Settings.auto_hold, the axes of the
+    the trials by their length), then every frame.  With `run.auto_hold`, the axes of the
     coordinates that the subsample's solution shows still are held at the base model's and the
-    subsample solved again (returns the problem with those settings)."""
-    settings = problem.settings
+    subsample solved again.  Returns the problem (with those axes held and the noise learnt), the
+    solution, its summary and the markers' noise SDs."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, COARSE_FRAMES)
-    fixed = fixed_noise(problem.model, settings)
+    fixed = fixed_noise(problem, run)
     scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     for round_ in range(HOLD_ROUNDS + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
-        state, coarse_summary = _solve_geometry(sub, frames_of(start, coarse), settings,
+        state, coarse_summary = _solve_geometry(sub, frames_of(start, coarse), solver,
                                                 say, polish=sub is problem)
         for _ in range(NOISE_ROUNDS if fixed is not None else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
@@ -376,20 +379,20 @@ def _solve(problem: Problem, start: State, spans: list[slice],
                 break
             problem = problem.with_noise(sigma)
             sub = problem if coarse.size == problem.F else problem.subset(coarse)
-            state, again = _solve_geometry(sub, state, settings, say, polish=sub is problem)
+            state, again = _solve_geometry(sub, state, solver, say, polish=sub is problem)
             coarse_summary = _merge(coarse_summary, again)
-        if not settings.auto_hold or round_ == HOLD_ROUNDS:
+        if not run.auto_hold or round_ == HOLD_ROUNDS:
             break
         axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
         lin = sub.linearize(state, with_parameters=False)
         angles = FrameLayout.angles(absolute(sub.kin, state)[0])
-        still = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, settings) if name in axes]
+        still = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, sub.settings) if name in axes]
         if not still:
             break
         say(f"solve: the trial does not show {', '.join(still)} moving: holding "
             f"{'its axis' if len(still) == 1 else 'their axes'} at the base model's, solving again")
-        settings = replace(settings, hold_axes=settings.hold_axes + tuple(still))
-        problem = problem.with_settings(settings, sigma=problem.sigma)
+        options = replace(problem.settings, hold_axes=problem.settings.hold_axes + tuple(still))
+        problem = problem.with_settings(options, sigma=problem.sigma)
         # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
         p, base = start.p.copy(), problem.base.vector()
         for name in still:
@@ -407,13 +410,13 @@ def _solve(problem: Problem, start: State, spans: list[slice],
         parts.append(spread_poses(frames_of(state, mine), coarse[mine] - sl.start, frames_of(start, sl)))
     state = replace(stack_states(parts), p=state.p.copy())
     state, summary = levenberg_marquardt(
-        problem, state, settings.solver,
+        problem, state, solver,
         progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
     if fixed is not None:
         sigma, scatter = relearn(problem, state, fixed, say, trial_of)
     if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
         problem = problem.with_noise(sigma)
-        state, again = levenberg_marquardt(problem, state, settings.solver)
+        state, again = levenberg_marquardt(problem, state, solver)
         summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
@@ -502,14 +505,14 @@ def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.nd
     return out, base, result
 
 
-def _solve_geometry(problem: Problem, state: State, settings: Settings,
+def _solve_geometry(problem: Problem, state: State, options: SolverOptions,
                     say: Callable[[str], None], polish: bool = True) -> tuple[State, SolverSummary]:
     """Poses, then poses and geometry together, then the segment frames turned to where the
-    priors want them and (`polish`) a last run from there: the whole solve on the frames of `problem`."""
+    priors want them and (`polish`) a last run from there: the whole solve on the frames of `problem`
+    (the solver's `options`)."""
     say(f"solve: refine poses ({problem.F} frames)")
-    options = settings.solver
     state, _ = levenberg_marquardt(problem, state, options, pose_only=True, max_iterations=2)
-    if settings.loss != "linear":
+    if problem.loss != "linear":
         # A robust loss is not convex: reach its basin with plain least squares first.
         say("solve: least squares before the robust loss")
         state, _ = levenberg_marquardt(problem.with_loss("linear"), state, options, max_iterations=30)
@@ -518,7 +521,7 @@ def _solve_geometry(problem: Problem, state: State, settings: Settings,
         problem, state, options,
         progress=lambda it, c, lam: say(f"solve: iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
     say("solve: align segment frames with the base model (gauge)")
-    state = align_gauge(problem, state)
+    state = align_gauge(problem, state, options)
     if not polish:
         return state, summary
     state, polished = levenberg_marquardt(problem, state, options)

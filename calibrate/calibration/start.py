@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from ..model.blocks import FrameLayout
 from ..model.kinematics import IDENTITY, Kinematics
 from ..model.model import Parameters
+from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import State
 from ..solve.ik import FrameSolver
@@ -102,7 +103,7 @@ def absolute(kin: Kinematics, state: State, spans: Sequence[slice] | None = None
 
 
 def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice], candidates: Mapping[str, Parameters],
-                 say: Callable[[str], None]) -> tuple[Parameters, str]:
+                 say: Callable[[str], None], options: SolverOptions | None = None) -> tuple[Parameters, str]:
     """The start whose basin fits best: each candidate geometry (e.g. the MTB seed and the base
     model) solved with its poses on the subsample of frames the global solve starts from (the
     markers the model knows; the problem's settings before any noise is learnt), and the one that
@@ -110,7 +111,8 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     joints' motion lets it be (a walking trial's elbows flex 10-15 deg), and an arm started a few
     per cent too long or short settles in a basin with its elbow tens of degrees off, which no
     later step leaves; the cost, the same objective on the same frames, tells the basins apart.
-    Returns the chosen geometry and a note naming each candidate's cost."""
+    `options`: the solver's (default SolverOptions()).  Returns the chosen geometry and a note naming each
+    candidate's cost."""
     names = list(candidates)
     if len(names) == 1:
         return candidates[names[0]], f"started from {names[0]}"
@@ -124,7 +126,7 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
         state = start_poses(problem.kin, observed[coarse], params, stride=1,
                             evaluator=sub.frame_evaluator(params.vector()))
         with_p = replace(state, p=params.vector())
-        _, summary = levenberg_marquardt(sub, with_p, sub.settings.solver, max_iterations=START_ITERATIONS)
+        _, summary = levenberg_marquardt(sub, with_p, options, max_iterations=START_ITERATIONS)
         costs[name] = summary.final_cost
         # A start that fits the subsample to the stated noise (chi-square per coordinate near 1:
         # clean data) has nothing to gain from another.

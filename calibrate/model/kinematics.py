@@ -322,7 +322,7 @@ class Kinematics:
 
     def retract(self, Z: np.ndarray, Q: np.ndarray,
                 B: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Fold the root's rotation increments Z[:, 3:6] into Q and every SO(3) ball's increments
+        """Fold the root's rotation increments Z[:, FrameLayout.rotation] into Q and every SO(3) ball's increments
         into B (B ← B · E(theta)), resetting them to zero: (Z, Q, B) of the same pose, new arrays."""
         Z = np.array(Z, dtype=float)
         Q = retract_root(Q, Z[:, FrameLayout.rotation])

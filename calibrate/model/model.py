@@ -399,7 +399,7 @@ class Model:
         kind_txt = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items()))
         return (
             f"{self.name}: {len(self.segments)} segments, {len(self.joints)} joints ({kind_txt}), "
-            f"{6 + self.n_dofs} DoF (6 root + {self.n_dofs}), {len(self.markers)} markers"
+            f"{self.nz} DoF ({self.layout.frame.n_root} root + {self.n_dofs}), {len(self.markers)} markers"
         )
 
     def __repr__(self) -> str:

@@ -142,8 +142,10 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
     present = set(labels)
     markers = tuple(m for m in model.marker_names if m in present)
     held = {model.dof_index(d) for d in locked}
-    free = [c for c in range(6 + model.n_dofs) if c < 6 or c - 6 not in held]
-    names = ["root"] * 6 + list(model.dof_names)
+    # Coordinates as a frame's (FrameLayout: the root's 6, then one per DoF), as Pinocchio's velocity.
+    F = model.layout.frame
+    free = [*F.root.cols.tolist(), *(F.angle(d) for d in range(model.n_dofs) if d not in held)]
+    names = ["root"] * F.n_root + list(model.dof_names)
     rng = np.random.default_rng(seed)
     below = _descendants(model)
     path = _path_dofs(model)
@@ -156,7 +158,7 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
         J = J[:, free]
         Js.append(J)
         N = _null_space(J, tol)
-        row = np.zeros(6 + model.n_dofs)
+        row = np.zeros(F.nz)
         row[free] = np.linalg.norm(N, axis=1) if N.size else 0.0
         share.append(row)
         for s in model.segments:
@@ -168,9 +170,9 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
 
     segments: list[UnresolvedSegment] = []
     for name in unresolved_set:
-        on_path = [6 + d for d in path[name] if 6 + d in free]
+        on_path = [F.angle(d) for d in path[name] if d not in held]
         blamed = [c for c in on_path if often[c]] or sorted(on_path, key=lambda c: -shares[:, c].mean())[:1]
-        coord_names = (("root",) if often[:6].any() else ()) + tuple(names[c] for c in blamed)
+        coord_names = (("root",) if often[F.root_pose].any() else ()) + tuple(names[c] for c in blamed)
         seen = [m for s in below[name] for m in model.segments[model.segment_index(s)].markers if m in present]
         if not seen:
             why = f"no marker on {name} or below it"
@@ -187,7 +189,7 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
         ok = [_full_rank(J[:, trial_cols], tol) for J in Js]
         if sum(ok) * 2 > len(ok):
             kept.append(k)
-        elif c >= 6:
+        elif c not in F.root.cols:
             lock.append(names[c])
     return Resolution(tuple(segments), model.root not in unresolved_set, tuple(lock), markers)
 

@@ -1,9 +1,102 @@
-"""Options of the Levenberg–Marquardt solver (calibrate.solve.lm), passed to it by the caller."""
+"""The options of the least-squares problem (ProblemOptions, with its Priors) and of the Levenberg–Marquardt
+solver (SolverOptions): typed views of the user's flat Settings (calibrate.problem.settings), each given only
+to the part that reads it.  Units: metres, radians."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from ..model.blocks import GROUPS
+
+LOSSES = ("linear", "huber", "cauchy")
+
+
+NOISE_DEFAULT = 0.001  # m: Settings.noise unless given (then learnt from the data: Settings.learn_noise)
+
+
+def _positive(name: str, v: object) -> None:
+    """Raise ValueError unless `v` is a positive finite number."""
+    if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+        raise ValueError(f"{name}: must be a positive number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class Priors:
+    """Standard deviations of the priors that pull p towards the base model."""
+
+    marker: float = 0.02  # m: how far a subject's marker may sit from the base model's place
+    centre: float = 0.02  # m: same for a joint centre
+    axis: float = math.radians(10.0)  # rad: tilt of a hinge axis
+    scale: float = 0.25  # fraction: segment scale factor about 1
+    # Left/right symmetry (segments and joints named *_l / *_r; 0: off): SD of the difference between
+    # a left segment's scale factor and its right partner's (fraction), and between a left joint centre
+    # and its right partner's mirrored through the sagittal plane (m, at the subject's scale), each
+    # counted relative to the base model's own asymmetry.  Soft-tissue artefact pulls the two sides
+    # apart by different amounts; a subject's bones are symmetric to a few per cent.
+    symmetry_scale: float = 0.05
+    symmetry_centre: float = 0.02
+
+
+@dataclass(frozen=True)
+class ProblemOptions:
+    """What the least-squares problem is (calibrate.problem.problem.Problem reads these and nothing else):
+    the free parameter groups, the markers' noise, the robust loss, the priors, locked coordinates, held
+    axes and segments, and whether the per-frame function is compiled (the meanings of Settings' fields of
+    the same names)."""
+
+    free: tuple[str, ...] = GROUPS
+    noise: float = NOISE_DEFAULT  # m
+    loss: str = "linear"
+    loss_scale: float = 3.0  # in units of `noise`
+    priors: Priors = field(default_factory=Priors)
+    marker_noise: tuple[tuple[str, float], ...] = ()  # ((label, SD in m), ...) or a dict
+    lock: tuple[tuple[str, float], ...] = ()  # ((DoF, angle in rad), ...), a dict, or DoF names (held at 0)
+    hold_axes: tuple[str, ...] = ()
+    hold_segments: tuple[str, ...] = ()
+    compile: bool = True
+
+    def __post_init__(self) -> None:
+        hold = (self.hold_axes,) if isinstance(self.hold_axes, str) else self.hold_axes
+        object.__setattr__(self, "hold_axes", tuple(sorted(set(hold))))
+        for name in self.hold_axes:
+            if not isinstance(name, str):
+                raise ValueError(f"hold_axes: expected DoF names, got {name!r}")
+        if isinstance(self.marker_noise, Mapping):
+            object.__setattr__(self, "marker_noise", tuple(sorted(self.marker_noise.items())))
+        lock = self.lock
+        if isinstance(lock, Mapping):
+            lock = tuple(sorted(lock.items()))
+        elif isinstance(lock, str):
+            lock = ((lock, 0.0),)
+        else:
+            lock = tuple(sorted((x, 0.0) if isinstance(x, str) else tuple(x) for x in lock))
+        object.__setattr__(self, "lock", lock)
+        for item in self.lock:
+            if len(item) != 2 or not isinstance(item[0], str):
+                raise ValueError(f"lock: expected DoF names or (DoF, angle) pairs, got {item!r}")
+            v = item[1]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"lock: {item[0]}: the angle must be a number in radians, got {v!r}")
+        for label, v in self.marker_noise:
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"marker_noise: {label}: must be a positive noise SD in metres, got {v!r}")
+        bad = [g for g in self.free if g not in GROUPS]
+        if bad:
+            raise ValueError(f"free: unknown parameter group(s) {', '.join(bad)}; choose from {', '.join(GROUPS)}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss: '{self.loss}' is not one of {', '.join(LOSSES)}")
+        _positive("noise", self.noise)
+        _positive("loss_scale", self.loss_scale)
+        for name in ("marker", "centre", "axis", "scale"):
+            v = getattr(self.priors, name)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")
+        for name in ("symmetry_scale", "symmetry_centre"):
+            v = getattr(self.priors, name)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
+                raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -19,8 +112,6 @@ class SolverOptions:
 
     def __post_init__(self) -> None:
         for name in ("ftol", "atol", "xtol", "gtol"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
-                raise ValueError(f"{name}: must be a positive number, got {v!r}")
+            _positive(name, getattr(self, name))
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
             raise ValueError(f"max_iterations: must be a whole number >= 1, got {self.max_iterations!r}")

@@ -35,11 +35,13 @@ import copy
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from typing import Generic, TypeVar
 
 import numpy as np
 
 from calibrate.problem.codegen import CodegenMixin
 from calibrate.problem.gauge import GaugeMixin
+from calibrate.problem.options import ProblemOptions
 from calibrate.problem.priors import PriorsMixin
 from calibrate.problem.settings import Settings
 from calibrate.problem.state import Linearization, State
@@ -49,6 +51,9 @@ from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters
 from ..solve.assembly import assemble, parameter_layout
 
+T = TypeVar("T")
+
+
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.solve.ik)
 
 
@@ -56,6 +61,13 @@ LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's
 
 
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
+
+
+def _problem_options(settings: ProblemOptions | Settings | None) -> ProblemOptions:
+    """The problem's options of `settings` (its Settings.problem view if it is the user's Settings)."""
+    if settings is None:
+        return ProblemOptions()
+    return settings.problem if isinstance(settings, Settings) else settings
 
 
 def _robust(s: np.ndarray, loss: str, c2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -70,6 +82,22 @@ def _robust(s: np.ndarray, loss: str, c2: float) -> tuple[np.ndarray, np.ndarray
     return s, np.ones_like(s)
 
 
+class Frozen(Generic[T]):
+    """An attribute of a Problem that is set while it is built (as `_<name>`) and read-only afterwards."""
+
+    def __init__(self, doc: str):
+        self.__doc__ = doc
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name, self.attr = name, "_" + name
+
+    def __get__(self, obj: object, owner: type | None = None) -> T:
+        return self if obj is None else getattr(obj, self.attr)
+
+    def __set__(self, obj: object, value: object) -> None:
+        raise AttributeError(f"{self.name}: a Problem does not change once built; make a new one (with_* methods)")
+
+
 class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
     """Residuals, cost and block-arrow normal equations of one trial and one model.
 
@@ -77,14 +105,16 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
     new Problem (with_loss, with_base, with_noise, subset, without, with_settings) that shares the
     kinematics and the compiled per-frame functions.  Its arrays are not to be written to."""
 
-    def __init__(self, model: Model, observed: np.ndarray, settings: Settings | None = None,
+    def __init__(self, model: Model, observed: np.ndarray, settings: ProblemOptions | Settings | None = None,
                  kinematics: Kinematics | None = None, base: Parameters | None = None,
                  progress: Callable[[str], None] | None = None):
         """`observed` (F, n_model_markers, 3) in metres, NaN where a marker is not seen; `progress`
-        hears of the one slow step of building (compiling a model structure never seen before)."""
+        hears of the one slow step of building (compiling a model structure never seen before).
+        `settings`: the problem's options, or the user's Settings, of which it keeps only their
+        problem's view (Settings.problem: never the solver's or the pipeline's options)."""
         self._progress = progress
         self._model = model
-        self._settings = settings or Settings()
+        self._settings = _problem_options(settings)
         # Ball joints with a locked coordinate stay on their three angles (the lock holds an angle).
         locked_balls = tuple(j.name for j in model.joints if j.kind == "ball"
                              and any(d in dict(self.settings.lock) for d in j.dofs))
@@ -127,25 +157,16 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         self._work: dict = {}
 
     # ------------------------------------------------------------------ what the problem is made of
-    @property
-    def jz_pattern(self) -> tuple:
-        """(rows, cols, n_rows, nz) of the per-frame d markers / dz Jacobian's nonzeros."""
-        return self._jz_pattern
-
-    @property
-    def model(self) -> Model:
-        """The subject's model (its structure; the parameters are the state's)."""
-        return self._model
-
-    @property
-    def settings(self) -> Settings:
-        """What is calibrated and how (the problem's options: free groups, noise, priors, loss, locks, held axes)."""
-        return self._settings
-
-    @property
-    def kin(self) -> Kinematics:
-        """The symbolic kinematics the per-frame functions were built from."""
-        return self._kin
+    model = Frozen[Model]("The subject's model (its structure; the parameters are the state's).")
+    settings = Frozen[ProblemOptions]("The problem's options: free groups, noise, priors, loss, locks, held axes.")
+    kin = Frozen[Kinematics]("The symbolic kinematics the per-frame functions were built from.")
+    base = Frozen[Parameters]("The base model's parameters: the priors' centres (see with_base).")
+    sigma = Frozen[np.ndarray]("(n_markers,) each marker's noise SD (m; see with_noise).")
+    observed = Frozen[np.ndarray]("(F, n_markers, 3) observed marker positions (m), NaN where not seen or left out.")
+    seen = Frozen[np.ndarray]("(F, n_markers) bool: which markers are observed (have residual rows) in each frame.")
+    target = Frozen[np.ndarray]("(F, 3 n_markers) the observed positions, 0 where not seen (per-frame input).")
+    n_obs = Frozen[int]("Observed marker positions (frame, marker pairs).")
+    jz_pattern = Frozen[tuple]("(rows, cols, n_rows, nz) of the per-frame d markers / dz Jacobian's nonzeros.")
 
     @property
     def loss(self) -> str:
@@ -153,39 +174,9 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         return self._settings.loss
 
     @property
-    def base(self) -> Parameters:
-        """The base model's parameters: the priors' centres (see with_base)."""
-        return self._base
-
-    @property
-    def sigma(self) -> np.ndarray:
-        """(n_markers,) each marker's noise SD (m; see with_noise).  Not to be written to."""
-        return self._sigma
-
-    @property
-    def observed(self) -> np.ndarray:
-        """(F, n_markers, 3) the observed marker positions (m), NaN where not seen or left out (see without)."""
-        return self._observed
-
-    @property
     def F(self) -> int:
         """Frames."""
         return self._observed.shape[0]
-
-    @property
-    def seen(self) -> np.ndarray:
-        """(F, n_markers) bool: which markers are observed (have residual rows) in each frame."""
-        return self._seen
-
-    @property
-    def target(self) -> np.ndarray:
-        """(F, 3 n_markers) the observed positions, 0 where not seen (the per-frame functions' input)."""
-        return self._target
-
-    @property
-    def n_obs(self) -> int:
-        """Observed marker positions (frame, marker pairs)."""
-        return self._n_obs
 
     def _set_observed(self, obs: np.ndarray) -> None:
         self._observed = obs
@@ -205,8 +196,8 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         linearize(reuse=True) of the same kind (with or without the parameters)."""
         self._work[("lin", lin.jacobian is None or lin.jacobian[2] is None)] = lin
 
-    def with_settings(self, settings: Settings, sigma: np.ndarray | None = None) -> Problem:
-        """The same trial, model and prior centres under other settings (e.g. more axes held),
+    def with_settings(self, settings: ProblemOptions | Settings, sigma: np.ndarray | None = None) -> Problem:
+        """The same trial, model and prior centres under other options (e.g. more axes held),
         sharing the kinematics and the compiled functions' cache; `sigma`: the markers' noise SDs
         (m, e.g. learnt from the residuals) instead of the settings'."""
         new = Problem(self.model, self.observed, settings, self.kin, self.base, self._progress)

@@ -1,41 +1,32 @@
-"""What is calibrated and how: Settings (parameter groups, noise, loss, priors, locks, held axes, the
-pipeline's switches) and the Priors' standard deviations.  Units: metres, radians."""
+"""What is calibrated and how: Settings, the user's one flat set of options (parameter groups, noise, loss,
+priors, locks, held axes, the solver's tolerances, the pipeline's switches), and its typed views for the parts
+that read them: Settings.problem (ProblemOptions: the least-squares problem), Settings.solver (SolverOptions:
+Levenberg–Marquardt) and Settings.pipeline (PipelineOptions: calibrate()).  Units: metres, radians."""
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from typing import TypeVar
 
+from ..calibration.options import PipelineOptions
 from ..model.blocks import GROUPS
-from .options import SolverOptions
+from .options import NOISE_DEFAULT, Priors, ProblemOptions, SolverOptions
 
-LOSSES = ("linear", "huber", "cauchy")
-
-
-NOISE_DEFAULT = 0.001  # m: Settings.noise unless given (then learnt from the data: Settings.learn_noise)
+__all__ = ["Priors", "Settings"]  # Priors: defined in calibrate.problem.options, imported from here too
 
 
-@dataclass(frozen=True)
-class Priors:
-    """Standard deviations of the priors that pull p towards the base model."""
+T = TypeVar("T")
 
-    marker: float = 0.02  # m: how far a subject's marker may sit from the base model's place
-    centre: float = 0.02  # m: same for a joint centre
-    axis: float = math.radians(10.0)  # rad: tilt of a hinge axis
-    scale: float = 0.25  # fraction: segment scale factor about 1
-    # Left/right symmetry (segments and joints named *_l / *_r; 0: off): SD of the difference between
-    # a left segment's scale factor and its right partner's (fraction), and between a left joint centre
-    # and its right partner's mirrored through the sagittal plane (m, at the subject's scale), each
-    # counted relative to the base model's own asymmetry.  Soft-tissue artefact pulls the two sides
-    # apart by different amounts; a subject's bones are symmetric to a few per cent.
-    symmetry_scale: float = 0.05
-    symmetry_centre: float = 0.02
+
+def _view(cls: type[T], settings: Settings, **resolved: object) -> T:
+    """An instance of the options dataclass `cls` with the fields of the same names taken from `settings`."""
+    return cls(**{f.name: resolved.get(f.name, getattr(settings, f.name)) for f in fields(cls)})
 
 
 @dataclass(frozen=True)
 class Settings:
-    """What is calibrated and how.  Units: metres, radians."""
+    """What is calibrated and how, as the user states it (Python, a settings file, the command line).  Units:
+    metres, radians.  Each part of calibrate reads its own view: `problem`, `solver`, `pipeline`."""
 
     free: tuple[str, ...] = GROUPS  # parameter groups the solve may change
     noise: float = NOISE_DEFAULT  # m: marker noise SD (weights the marker residuals; the start when learnt)
@@ -77,9 +68,20 @@ class Settings:
     learn_noise: bool | None = None
 
     @property
+    def problem(self) -> ProblemOptions:
+        """The options of the least-squares problem among these settings (calibrate.problem.problem.Problem)."""
+        return _view(ProblemOptions, self)
+
+    @property
     def solver(self) -> SolverOptions:
         """The options of the Levenberg–Marquardt solver among these settings (calibrate.solve.lm)."""
-        return SolverOptions(self.max_iterations, self.ftol, self.atol, self.xtol, self.gtol, self.geodesic)
+        return _view(SolverOptions, self)
+
+    @property
+    def pipeline(self) -> PipelineOptions:
+        """The options of the pipeline among these settings (calibrate.calibration.pipeline), whether the
+        noise is learnt decided (learns_noise)."""
+        return _view(PipelineOptions, self, learn_noise=self.learns_noise)
 
     @property
     def learns_noise(self) -> bool:
@@ -87,50 +89,11 @@ class Settings:
         return self.noise == NOISE_DEFAULT if self.learn_noise is None else bool(self.learn_noise)
 
     def __post_init__(self) -> None:
-        hold = (self.hold_axes,) if isinstance(self.hold_axes, str) else self.hold_axes
-        object.__setattr__(self, "hold_axes", tuple(sorted(set(hold))))
-        for name in self.hold_axes:
-            if not isinstance(name, str):
-                raise ValueError(f"hold_axes: expected DoF names, got {name!r}")
-        if isinstance(self.marker_noise, Mapping):
-            object.__setattr__(self, "marker_noise", tuple(sorted(self.marker_noise.items())))
-        lock = self.lock
-        if isinstance(lock, Mapping):
-            lock = tuple(sorted(lock.items()))
-        elif isinstance(lock, str):
-            lock = ((lock, 0.0),)
-        else:
-            lock = tuple(sorted((x, 0.0) if isinstance(x, str) else tuple(x) for x in lock))
-        object.__setattr__(self, "lock", lock)
-        for item in self.lock:
-            if len(item) != 2 or not isinstance(item[0], str):
-                raise ValueError(f"lock: expected DoF names or (DoF, angle) pairs, got {item!r}")
-            v = item[1]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"lock: {item[0]}: the angle must be a number in radians, got {v!r}")
-        for label, v in self.marker_noise:
-            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 and math.isfinite(v)):
-                raise ValueError(f"marker_noise: {label}: must be a positive noise SD in metres, got {v!r}")
-        bad = [g for g in self.free if g not in GROUPS]
-        if bad:
-            raise ValueError(f"free: unknown parameter group(s) {', '.join(bad)}; choose from {', '.join(GROUPS)}")
-        if self.loss not in LOSSES:
-            raise ValueError(f"loss: '{self.loss}' is not one of {', '.join(LOSSES)}")
-        for name in ("noise", "loss_scale", "ftol", "atol", "xtol", "gtol"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
-                raise ValueError(f"{name}: must be a positive number, got {v!r}")
-        for name in ("marker", "centre", "axis", "scale"):
-            v = getattr(self.priors, name)
-            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
-                raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")
-        for name in ("symmetry_scale", "symmetry_centre"):
-            v = getattr(self.priors, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
-                raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")
+        # Each view normalises (dicts and single names to sorted tuples) and checks its own fields.
+        problem = _view(ProblemOptions, self)
+        for name in ("marker_noise", "lock", "hold_axes"):
+            object.__setattr__(self, name, getattr(problem, name))
+        _view(SolverOptions, self)
         if self.learn_noise is not None and not isinstance(self.learn_noise, bool):
             raise ValueError(f"learn_noise: must be true, false or None (auto), got {self.learn_noise!r}")
-        if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):
-            raise ValueError(f"outliers: must be 0 (off) or a positive number of noise SDs, got {self.outliers!r}")
-        if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
-            raise ValueError(f"max_iterations: must be a whole number >= 1, got {self.max_iterations!r}")
+        _view(PipelineOptions, self, learn_noise=self.learns_noise)

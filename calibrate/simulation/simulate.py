@@ -58,6 +58,7 @@ from calibrate.simulation.subject import perturb_parameters, sized_subject, stat
 from ..io.c3d import write_c3d
 from ..io.motion import Motion, write_motion_csv
 from ..io.trial import Trial
+from ..model.blocks import FrameLayout
 from ..model.kinematics import build_kinematics
 from ..model.model import Model, Parameters, write_model
 
@@ -229,7 +230,7 @@ def _observe(model: Model, truth: Parameters, times: np.ndarray, angles: np.ndar
     lab = lab or Lab()
     frames = times.size
     kin = build_kinematics(model)
-    Z = np.hstack([np.zeros((frames, 6)), angles])
+    Z = FrameLayout.coordinates(np.zeros((frames, 3)), angles)  # the root at the origin, turned by quat
     markers, centres = kin.batch(Z, quat, truth)
     ankles = [model.joint_index(j.name) for j in model.joints if j.name.startswith("ankle")]
     if ankles:
@@ -283,7 +284,7 @@ def simulate_static(model: Model, truth: Parameters, frames: int = 200, rate: fl
     quat = Rotation.from_euler("ZYX", np.column_stack([np.full(frames, yaw), np.radians(1) * np.sin(times),
                                                        np.zeros(frames)])).as_quat()
     kin = build_kinematics(model)
-    markers, centres = kin.batch(np.hstack([np.zeros((frames, 6)), angles]), quat, truth)
+    markers, centres = kin.batch(FrameLayout.coordinates(np.zeros((frames, 3)), angles), quat, truth)
     root = np.array([0.0, 0.0, 0.95]) * float(np.mean(truth.scale)) + 0.003 * np.column_stack(
         [np.sin(2 * np.pi * 0.2 * times), np.cos(2 * np.pi * 0.15 * times), np.zeros(frames)])
     markers = markers + root[:, None, :]

@@ -1,0 +1,24 @@
+"""The pipeline's options (calibrate.calibration.pipeline): its switches and thresholds, a typed view of the
+user's flat Settings (Settings.pipeline)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PipelineOptions:
+    """What calibrate() does around the solves (the meanings of Settings' fields of the same names)."""
+
+    seed: bool = True  # start from MTB joint centres (else from the base model)
+    new_markers: bool = True  # place trial markers the model does not know on segments and fit them
+    outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
+    auto_hold: bool = True  # hold the axes of the coordinates the trial does not show moving
+    learn_noise: bool = True  # learn each marker's noise SD from the residuals (Settings.learns_noise: decided)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.learn_noise, bool):
+            raise ValueError(f"learn_noise: must be true or false, got {self.learn_noise!r}")
+        if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):
+            raise ValueError(f"outliers: must be 0 (off) or a positive number of noise SDs, got {self.outliers!r}")

@@ -1,0 +1,113 @@
+"""The typed views of Settings (issue 19 item 3): the problem's, the solver's and the pipeline's options
+split the user's flat Settings between them, a Problem keeps only its own, and parameter_changes reads
+each block's free columns from the problem's layout (checked here against the columns' names)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.identifiability import parameter_changes
+from calibrate.calibration.options import PipelineOptions
+from calibrate.problem.options import Priors, ProblemOptions, SolverOptions
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import marker_columns
+from calibrate.solve.lm import State
+
+CHANGED = dict(free=("centre", "marker"), noise=0.002, loss="huber", loss_scale=2.0, priors=Priors(centre=0.03),
+               max_iterations=7, ftol=1e-3, atol=0.1, xtol=1e-5, gtol=1e-4, seed=False, compile=False,
+               new_markers=False, outliers=4.0, geodesic=False, marker_noise={"RTHI": 0.003},
+               lock={"subtalar_r": 0.1}, hold_axes=("knee_r",), auto_hold=False, hold_segments=("talus_r",),
+               learn_noise=True)
+
+
+def test_the_views_split_the_settings_field_by_field():
+    names = [f.name for f in dataclasses.fields(Settings)]
+    assert sorted(CHANGED) == sorted(names)  # every field set away from its default
+    s = Settings(**CHANGED)
+    views = (s.problem, s.solver, s.pipeline)
+    assert (type(s.problem), type(s.solver), type(s.pipeline)) == (ProblemOptions, SolverOptions, PipelineOptions)
+    parts = [[f.name for f in dataclasses.fields(v)] for v in views]
+    # Each field of Settings in exactly one view, with the value Settings holds (normalised alike).
+    assert sorted(sum(parts, [])) == sorted(names)
+    for view, fields in zip(views, parts, strict=True):
+        for name in fields:
+            assert getattr(view, name) == getattr(s, name), name
+    assert s.problem.marker_noise == (("RTHI", 0.003),) and s.problem.lock == (("subtalar_r", 0.1),)
+    # learn_noise: None in Settings means "decided by the noise"; the pipeline gets the decision.
+    assert Settings().pipeline.learn_noise is True and Settings(noise=0.003).pipeline.learn_noise is False
+    assert Settings().problem == ProblemOptions() and Settings().solver == SolverOptions()
+    assert Settings().pipeline == PipelineOptions()
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(loss="l2"), "loss: 'l2' is not one of"), (dict(noise=0.0), "noise: must be a positive number"),
+    (dict(lock={"knee_r": float("nan")}), "lock: knee_r: the angle must be a number"),
+    (dict(free=("scale", "size")), "free: unknown parameter group(s) size"),
+    (dict(priors=Priors(axis=-1.0)), "priors.axis: must be a positive standard deviation"),
+])
+def test_problem_options_check_their_fields_as_settings_do(bad, message):
+    for cls in (Settings, ProblemOptions):
+        with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+            cls(**bad)
+    with pytest.raises(ValueError, match="outliers: must be 0"):
+        Settings(outliers=-1.0)
+    with pytest.raises(ValueError, match="outliers: must be 0"):
+        PipelineOptions(outliers=-1.0)
+
+
+def test_a_problem_keeps_only_its_options(human, human_kin):
+    sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=3)
+    obs = marker_columns(human, sim.trial)
+    s = Settings(loss="huber", noise=0.002, max_iterations=3, outliers=2.0, seed=False)
+    from_settings = Problem(human, obs, s, human_kin)
+    from_options = Problem(human, obs, ProblemOptions(loss="huber", noise=0.002), human_kin)
+    assert from_settings.settings == s.problem == from_options.settings
+    for name in ("max_iterations", "seed", "outliers", "auto_hold", "new_markers", "geodesic", "solver"):
+        assert not hasattr(from_settings.settings, name)
+    state = State(np.column_stack([sim.motion.root_translation, np.zeros((6, 3)), sim.motion.angles]),
+                  sim.motion.root_quaternion.copy(), sim.truth.vector())
+    assert from_settings.cost(state) == from_options.cost(state)
+    held = from_settings.with_settings(dataclasses.replace(from_settings.settings, hold_axes=("knee_r",)))
+    assert held.settings.hold_axes == ("knee_r",) and from_settings.settings.hold_axes == ()
+    assert held.n_free == from_settings.n_free - 2  # the knee's axis: two tangent columns fewer
+
+
+def test_parameter_changes_read_the_columns_the_names_give(human, human_kin):
+    sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=4)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(hold_segments=("hand_r",)), human_kin)
+    n = problem.n_free
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(n, n))
+    cov = 1e-6 * (A @ A.T + n * np.eye(n))
+    prior_cov = 4.0 * cov
+    changes = parameter_changes(problem, sim.truth.vector(), cov, prior_cov)
+    col = {name: k for k, name in enumerate(problem.free_names)}  # the columns found by their names
+    scale = {sg.name: sim.truth.scale[i] for i, sg in enumerate(human.segments)}
+    checked = 0
+    for c in changes:
+        if c.group in ("centre", "marker"):
+            cols = [col.get(f"{c.name}.{x}") for x in "xyz"]
+            if cols[0] is None:
+                assert np.all(np.isnan(c.std)) and not c.status.identified
+                continue
+            assert np.allclose(c.std, 1000 * np.sqrt(np.diag(cov)[cols]), rtol=1e-12)
+            checked += 1
+        elif c.group == "scale":
+            k = col.get(c.name)
+            if k is None:
+                assert np.isnan(c.std[0]) and c.item == "hand_r"
+                continue
+            assert c.std[0] == pytest.approx(np.sqrt(cov[k, k]), rel=1e-12)
+            assert c.prior_ratio == pytest.approx(0.5, rel=1e-12)  # prior-only covariance 4 times the posterior
+            assert c.value[0] == scale[c.item]
+            checked += 1
+        else:
+            cols = [col[f"{c.name}.u{i}"] for i in (1, 2)]
+            assert np.allclose(c.std, np.degrees(np.sqrt(np.diag(cov)[cols])), rtol=1e-12)
+            checked += 1
+    assert checked == len(problem.layout.free_blocks)
