@@ -367,11 +367,11 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     fixed = fixed_noise(problem, run)
     scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
+    state = frames_of(start, coarse)
     for round_ in range(HOLD_ROUNDS + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
-        state, coarse_summary = _solve_geometry(sub, frames_of(start, coarse), solver,
-                                                say, polish=sub is problem)
+        state, coarse_summary = _solve_geometry(sub, state, solver, say, polish=sub is problem)
         for _ in range(NOISE_ROUNDS if fixed is not None else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
             sigma, scatter = relearn(sub, state, fixed, say, trial_of[coarse] if sub is not problem else trial_of)
@@ -393,12 +393,15 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             f"{'its axis' if len(still) == 1 else 'their axes'} at the base model's, solving again")
         options = replace(problem.settings, hold_axes=problem.settings.hold_axes + tuple(still))
         problem = problem.with_settings(options, sigma=problem.sigma)
-        # A held axis is the base model's (the seed's estimate of a still joint's axis is noise).
-        p, base = start.p.copy(), problem.base.vector()
+        # A held axis is the base model's (the estimate of a still joint's axis is noise).  The solve
+        # goes on from this solution, not from the start: the rest of the geometry has found its basin,
+        # and started afresh under the learnt weights the subsample may settle in another (pig_walk:
+        # femurs 30 % long, on a change of 1e-8 m in the start poses).
+        p, base = state.p.copy(), problem.base.vector()
         for name in still:
             k = problem.layout.axis(problem.model.dof_index(name))
             p[k] = base[k]
-        start = replace(start, p=p)
+        state = replace(state, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
         return problem, state, coarse_summary, scatter

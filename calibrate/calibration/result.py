@@ -116,14 +116,11 @@ class Calibration:
 
     def per_marker(self) -> dict[str, tuple[float, float, int]]:
         """Marker name -> (RMS m, max m, frames seen)."""
-        out = {}
-        err = np.linalg.norm(self.residuals, axis=2)
-        for k, name in enumerate(self.model.marker_names):
-            e = err[:, k]
-            seen = np.isfinite(e)
-            if seen.any():
-                out[name] = (float(np.sqrt(np.mean(e[seen] ** 2))), float(e[seen].max()), int(seen.sum()))
-        return out
+        seen = np.isfinite(self.residuals[..., 0]).sum(axis=0)
+        rms = marker_rms(self.residuals, axis=0)
+        worst = np.nanmax(np.where(seen[None] > 0, np.linalg.norm(self.residuals, axis=2), 0.0), axis=0)
+        return {name: (float(rms[k]), float(worst[k]), int(seen[k]))
+                for k, name in enumerate(self.model.marker_names) if seen[k]}
 
     def report(self) -> dict:
         """The report as plain JSON-ready data (mm, degrees, seconds at the edges)."""

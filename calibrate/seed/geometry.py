@@ -235,12 +235,14 @@ def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cb - R @ ca
 
 
-def marker_rms(residuals: np.ndarray) -> float:
-    """RMS 3-D marker error over every observed marker in every frame of residuals (F, M, 3) (m);
-    NaN where a marker is not seen, and the result NaN if none is."""
+def marker_rms(residuals: np.ndarray, axis: int | None = None) -> float | np.ndarray:
+    """RMS 3-D marker error of residuals (F, M, 3) (m; NaN where a marker is not seen): over every
+    observed marker in every frame, or along `axis` only (1: per frame, 0: per marker); NaN where
+    nothing is seen.  The one RMS of marker errors in the package."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return float(np.sqrt(np.nanmean(np.sum(residuals**2, axis=2))))
+        rms = np.sqrt(np.nanmean(np.sum(residuals**2, axis=-1), axis=axis))
+    return float(rms) if axis is None else rms
 
 
 def marker_max(residuals: np.ndarray) -> float:

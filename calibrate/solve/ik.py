@@ -14,7 +14,6 @@ limb far from the neutral pose is not caught in a mirror-image minimum.
 from __future__ import annotations
 
 import itertools
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -276,9 +275,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
-    with warnings.catch_warnings():  # frames with no marker give NaN, on purpose
-        warnings.simplefilter("ignore", RuntimeWarning)
-        rms_f = np.sqrt(np.nanmean(np.sum(res**2, axis=2), axis=1))
+    rms_f = marker_rms(res, axis=1)  # NaN in frames with no marker, on purpose
     motion = Motion(trial.times.copy(), Z[:, FrameLayout.translation].copy(), Q, FrameLayout.angles(Z).copy(),
                     model.dof_names)
     return IKResult(motion, rms_f, res, iters)
