@@ -620,6 +620,7 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert set(cols[7:]) == set(model.dof_names)
     text = (tmp_path / "subject.osim").read_text()
     assert '<CustomJoint name="ground_pelvis">' in text and '<CustomJoint name="knee_r">' in text
+    assert text == (tmp_path / "again.osim").read_text()  # written with the others = exported from the URDF
 
 
 def test_marker_set_needs_an_osim(tmp_path):

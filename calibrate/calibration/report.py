@@ -22,7 +22,7 @@ from ..io.labels import UNLABELLED
 from ..io.motion import write_motion_csv
 from ..io.outputs import check_targets, write_all
 from ..io.text import atomic_write_text
-from ..model.model import mass_factor, write_model
+from ..model.model import Model, mass_factor, urdf_text, write_model
 from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
 from .records import Identified
@@ -318,22 +318,32 @@ def _slide_only(c) -> bool:
     return c.status is Identified.ACROSS_AXIS
 
 
-def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
-                  extra_times: dict[str, float] | None = None) -> dict[str, Path]:
-    """Write the subject URDF, the motion CSV(s) and the report JSON (whichever are given).
+def _per_trial(cal: Calibration, paths, what: str) -> list:
+    """One output path per trial from None, a path (a single trial) or a sequence of paths."""
+    out = [] if paths is None else [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    if out and len(out) != len(cal.trials):
+        raise CalibrateError(f"{len(out)} {what} outputs for {len(cal.trials)} trials; give one per trial")
+    return out
 
-    `motion`: one path per trial (a single path for a single trial).  Every destination is checked
-    first (its folder exists; it is not the base model; it does not exist unless `overwrite`), then
-    all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
+
+def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
+                  extra_times: dict[str, float] | None = None, osim=None, mot=None) -> dict[str, Path]:
+    """Write the subject URDF, the motion CSV(s), the report JSON and, for OpenSim, the subject as an
+    .osim model and the motions as .mot files (whichever are given).
+
+    `motion`, `mot`: one path per trial (a single path for a single trial).  Every destination is
+    checked first (its folder exists; it is not the base model; it does not exist unless `overwrite`),
+    then all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
     `cal.times` with the time of this writing (so far) and `extra_times`.
     """
-    motions = [] if motion is None else [motion] if isinstance(motion, (str, os.PathLike)) else list(motion)
-    if motions and len(motions) != len(cal.trials):
-        raise CalibrateError(f"{len(motions)} motion outputs for {len(cal.trials)} trials; give one per trial")
+    motions = _per_trial(cal, motion, "motion")
+    mots = _per_trial(cal, mot, ".mot")
     targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report)) if v is not None}
     keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
-    check_targets(list(targets.values()), overwrite,
+    opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots))]
+               if v is not None}
+    check_targets([*targets.values(), *opensim.values()], overwrite,
                   inputs={(cal.base_model or cal.model).path: "that is the base model; refusing to overwrite it "
                                                               "(choose another -o)"},
                   same="the URDF, motion and report outputs must all be different files")
@@ -353,8 +363,19 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         writers[targets[k]] = lambda path, m=m: write_motion_csv(path, m)
     if "report" in targets:
         writers[targets["report"]] = write_report
+    if opensim:
+        from ..io.osim_export import mot_text, osim_text  # OpenSim export: only for these outputs
+
+        # The subject as the written URDF loads (named after it), for OpenSim's names and masses.
+        subject = Model(Path(urdf) if urdf is not None else cal.model.path,
+                        text=urdf_text(cal.model, cal.params, cal.mass))
+        if "osim" in opensim:
+            writers[opensim["osim"]] = lambda path: atomic_write_text(path, osim_text(subject))
+        for i, m in enumerate(cal.motions[:len(mots)]):
+            target = opensim[f"mot[{i}]"]
+            writers[target] = lambda path, m=m, name=target.stem: atomic_write_text(path, mot_text(subject, m, name))
     write_all(writers)
-    return targets
+    return {**targets, **opensim}
 
 
 def _json_default(o):

@@ -191,14 +191,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
               f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
     cal = replace(cal, times={"load": load_s, **cal.times})
-    cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite)
-    if from_osim:
-        from ..io.osim_export import export_osim, write_mot
-
-        subject = load_model(out_urdf)
-        export_osim(subject, out_osim)
-        for path, motion in zip(out_mots, cal.motions, strict=True):
-            write_mot(path, subject, motion)
+    opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
+    cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite, **opensim)
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))

@@ -440,6 +440,14 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
         raise ModelError(f"{path}: refusing to overwrite the base model; choose another output name")
     if not path.parent.is_dir():
         raise ModelError(f"{path}: directory '{path.parent}' does not exist; create it first")
+    atomic_write_text(path, urdf_text(model, params, mass))
+    return path
+
+
+def urdf_text(model: Model, params: Parameters | None = None, mass: float | None = None) -> str:
+    """The URDF document (text) that write_model writes: `model` with geometric parameters `params`
+    (default: its own) and segment masses scaled to the body `mass` (kg; None: kept).
+    ``Model(path, text=urdf_text(...))`` is the model that loading the written file gives."""
     p = model.parameters() if params is None else params
     _check_sizes(model, p)
     k_mass = mass_factor(model, mass)
@@ -471,8 +479,7 @@ def write_model(model: Model, path: str | os.PathLike[str], params: Parameters |
     data = ET.tostring(robot, encoding="unicode")
     start = model.text.find("<robot")
     head = model.text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
-    atomic_write_text(path, head + data + "\n")
-    return path
+    return head + data + "\n"
 
 
 def add_markers(model: Model, markers: Mapping[str, tuple[str, np.ndarray]]) -> Model:
