@@ -13,7 +13,7 @@ Then, over the runs: the largest spread of every joint centre (mm), hinge axis (
 (%) beside its largest posterior SD, and the runs whose femur scale is more than 10 % from the median
 run's ("another basin").
 
-    python scripts/bench_stability.py [--runs 6] [--sd 1e-9] [--json] [--quick]
+    python scripts/bench_stability.py [--runs 6] [--sd 1e-9] [--atol A] [--json] [--quick]
 
 `--quick` (CI smoke run): 2 runs on 100 static + 160 walk frames; its figures are not the benchmark's.
 """
@@ -37,14 +37,15 @@ ROOT = Path(__file__).resolve().parent.parent
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
 
 
-def one_run(model, trials, sd: float, seed: int) -> dict:
-    """Calibrate `trials` with their markers moved by N(0, sd) (seeded); the figures of one run."""
+def one_run(model, trials, sd: float, seed: int, settings=None) -> dict:
+    """Calibrate `trials` with their markers moved by N(0, sd) (seeded) under `settings` (default
+    Settings()); the figures of one run."""
     from calibrate import Settings, calibrate
 
     rng = np.random.default_rng(seed)
     moved = [replace(t, markers=t.markers + rng.normal(0.0, sd, t.markers.shape)) if sd > 0 else t for t in trials]
     t0 = time.perf_counter()
-    cal = calibrate(model, moved, Settings())
+    cal = calibrate(model, moved, settings or Settings())
     seconds = time.perf_counter() - t0
     changes = {c.name: c for c in cal.changes}
     s = cal.summary
@@ -83,10 +84,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=6)
     ap.add_argument("--sd", type=float, default=1e-9, help="SD of the change of every marker coordinate (m)")
+    ap.add_argument("--atol", type=float, default=None,
+                    help="the solver's absolute cost tolerance (default Settings'; smaller: closer to the minimum)")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
-    from calibrate import load_model, read_trial
+    from calibrate import Settings, load_model, read_trial
 
     if not PIG.is_dir():
         print(f"bench_stability: {PIG} not found; the real trials live in ../shared/data/real", file=sys.stderr)
@@ -97,9 +100,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.quick:
         trials = [trials[0].frames(0, 100), trials[1].frames(0, 160)]
         runs_n = 2
+    settings = Settings() if a.atol is None else Settings(atol=a.atol, max_iterations=400)
     runs = []
     for seed in range(runs_n):
-        r = one_run(model, trials, a.sd if seed else 0.0, seed)  # run 0: the trials as recorded
+        r = one_run(model, trials, a.sd if seed else 0.0, seed, settings)  # run 0: the trials as recorded
         runs.append(r)
         if not a.json:
             v = r["values"]
@@ -115,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
              for g in ("centre", "axis", "scale", "marker")}
     result = {
         "date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": machine(),
-        "sd_m": a.sd, "quick": a.quick,
+        "sd_m": a.sd, "quick": a.quick, "atol": settings.atol,
         "runs": [{k: v for k, v in r.items() if k not in ("values", "std")} for r in runs],
         "iterations": [r["iterations"] for r in runs], "final_costs": [r["final_cost"] for r in runs],
         "other_basin_runs": other, "largest_spread": {g: [{"name": n, "spread": s, "sd": d} for s, n, d in w]
