@@ -40,54 +40,37 @@ def lock_arg(text: str) -> dict[str, float]:
     return out
 
 
-def positive_float(text: str) -> float:
+def _number(text: str, convert, ok, rule: str, expected: str = "a number", shown=None) -> float | int:
+    """`text` converted (`convert`: float, int, ...) and satisfying `ok`, else argparse's one-line error
+    ('expected <expected>, got ...' or 'must be <rule>, got <shown or text>')."""
     try:
-        v = float(text)
+        v = convert(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not (v > 0 and np.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        raise argparse.ArgumentTypeError(f"expected {expected}, got '{text}'") from None
+    if not ok(v):
+        raise argparse.ArgumentTypeError(f"must be {rule}, got {text if shown is None else shown(v)}")
     return v
+
+
+def positive_float(text: str) -> float:
+    return _number(text, float, lambda v: v > 0 and np.isfinite(v), "positive")
 
 
 def nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got '{text}'") from None
-    if not (v >= 0 and np.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"must be zero or positive, got {text}")
-    return v
+    return _number(text, float, lambda v: v >= 0 and np.isfinite(v), "zero or positive")
 
 
 def count_arg(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be zero or positive, got {v}")
-    return v
+    return _number(text, int, lambda v: v >= 0, "zero or positive", "a whole number", shown=str)
 
 
 def height_arg(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a stature in metres, got '{text}'") from None
-    if not (1.4 <= v <= 2.2):
-        raise argparse.ArgumentTypeError(f"must be a stature of 1.4-2.2 m, got {text}")
-    return v
+    return _number(text, float, lambda v: 1.4 <= v <= 2.2, "a stature of 1.4-2.2 m", "a stature in metres")
 
 
 def fraction_arg(text: str) -> float:
-    try:
-        v = float(text[:-1]) / 100 if text.endswith("%") else float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a fraction such as 0.05 or 5%, got '{text}'") from None
-    if not (0 <= v <= 0.5):
-        raise argparse.ArgumentTypeError(f"must be a fraction of 0-0.5 (0-50 %), got {text}")
-    return v
+    return _number(text, lambda t: float(t[:-1]) / 100 if t.endswith("%") else float(t), lambda v: 0 <= v <= 0.5,
+                   "a fraction of 0-0.5 (0-50 %)", "a fraction such as 0.05 or 5%")
 
 
 def frames_arg(text: str) -> slice:

@@ -63,14 +63,16 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+def _top(usage: str, description: str) -> _Parser:
+    """A parser of the program itself, 'calibrate' (its commands, or the calibration its arguments ask for)."""
+    return _Parser(prog="calibrate", usage=usage, description=description)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = _Parser(
-        prog="calibrate",
-        usage="calibrate TRIAL [TRIAL ...] MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
+    ap = _top("calibrate TRIAL [TRIAL ...] MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
               "       calibrate COMMAND ...",
-        description="Subject-specific human models from motion-capture trials.  'calibrate TRIAL [TRIAL ...] "
-                    "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.",
-    )
+              "Subject-specific human models from motion-capture trials.  'calibrate TRIAL [TRIAL ...] "
+              "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser, prog="calibrate")
     sim = sub.add_parser("simulate", help="write a synthetic squat, gait or overhead trial with its truth",
                          description="Simulate squats (or treadmill gait, --motion gait, or overhead arm arcs, "
@@ -129,15 +131,13 @@ COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim
 
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
-    ap = _Parser(
-        prog="calibrate",
-        usage="calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
+    ap = _top("calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
               "       calibrate {simulate,demo,inspect,joints,export-osim} ...",
-        description="Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
-                    "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
-                    "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
-                    "subject URDF, a motion CSV per trial and a report JSON next to the first trial.  Other "
-                    "commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
+              "Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
+              "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
+              "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
+              "subject URDF, a motion CSV per trial and a report JSON next to the first trial.  Other "
+              "commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
     ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
                     help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
     ap.add_argument("-o", "--output", type=Path, default=None,

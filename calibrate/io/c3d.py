@@ -16,14 +16,12 @@ from calibrate.io.trial import (
     UNITS_TO_METRES,
     Trial,
     check_input_file,
-    discard,
     fail,
+    file_labels,
     one_line,
     output_target,
     parse_units,
-    strip_subject_prefix,
-    temporary_sibling,
-    unique_labels,
+    write_staged,
 )
 from calibrate.io.vicon import is_model_output, output_factor
 
@@ -112,27 +110,11 @@ def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, st
     return table
 
 
-def _c3d_integer(
-    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
-) -> int | None:
-    """First value of an integer or float parameter read as a whole number, or None."""
-    if key not in table:
-        return None
-    kind, _, raw = table[key]
-    if kind == 2 and len(raw) >= 2:
-        return struct.unpack((">" if processor == 86 else "<") + "H", raw[:2])[0]
-    if kind == 1 and raw:
-        return raw[0]
-    if kind == 4 and len(raw) >= 4:
-        value = _c3d_float(raw[:4], processor)
-        return int(value) if np.isfinite(value) else None
-    return None
+_Table = dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]  # (group, name) -> (type, dims, bytes)
 
 
-def _c3d_number(
-    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
-) -> float | None:
-    """First value of a float or integer parameter (integers signed, as C3D stores them), or None."""
+def _c3d_first(table: _Table, key: tuple[str, str], processor: int, signed: bool) -> float | None:
+    """First value of a float, 16-bit integer (signed or not) or byte parameter, or None."""
     if key not in table:
         return None
     kind, _, raw = table[key]
@@ -140,15 +122,24 @@ def _c3d_number(
         value = _c3d_float(raw[:4], processor)
         return float(value) if np.isfinite(value) else None
     if kind == 2 and len(raw) >= 2:
-        return float(struct.unpack((">" if processor == 86 else "<") + "h", raw[:2])[0])
+        return float(struct.unpack((">" if processor == 86 else "<") + ("h" if signed else "H"), raw[:2])[0])
     if kind == 1 and raw:
         return float(raw[0])
     return None
 
 
-def _c3d_long_field(
-    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]], key: tuple[str, str], processor: int
-) -> int | None:
+def _c3d_integer(table: _Table, key: tuple[str, str], processor: int) -> int | None:
+    """First value of an integer or float parameter read as a whole number (16-bit integers unsigned), or None."""
+    value = _c3d_first(table, key, processor, signed=False)
+    return None if value is None else int(value)
+
+
+def _c3d_number(table: _Table, key: tuple[str, str], processor: int) -> float | None:
+    """First value of a float or integer parameter (integers signed, as C3D stores them), or None."""
+    return _c3d_first(table, key, processor, signed=True)
+
+
+def _c3d_long_field(table: _Table, key: tuple[str, str], processor: int) -> int | None:
     """A TRIAL:ACTUAL_*_FIELD frame number: two unsigned 16-bit words, low word first; None when absent."""
     if key not in table:
         return None
@@ -375,11 +366,9 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     kept_labels = [raw_labels[i] for i in keep]
     outputs = sorted(kinds)
     output_labels = [raw_labels[i] for i in outputs]
-    if strip_prefix:
-        both, _ = strip_subject_prefix(kept_labels + output_labels)
-        kept_labels, output_labels = both[: len(keep)], both[len(keep) :]
-    labels = unique_labels(kept_labels, numbers=[i + 1 for i in keep])
-    output_labels = list(unique_labels(output_labels, numbers=[i + 1 for i in outputs]))
+    labels, output_labels = file_labels([kept_labels, output_labels], [[i + 1 for i in keep], [i + 1 for i in outputs]],
+                                        strip_prefix)
+    output_labels = list(output_labels)
 
     units_value = _c3d_strings(_c3d_param(params, "POINT", "UNITS"))
     units = units_value[0] if units_value else ""
@@ -483,8 +472,7 @@ def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
     points[3] = 1.0
     residuals = np.where(gap.T, -1.0, 0.0)[None, :, :]
 
-    tmp = temporary_sibling(path, ".c3d")  # ezc3d appends .c3d to names without it
-    try:
+    def write(staged: Path) -> None:  # the staged name ends in .c3d (ezc3d appends it to names without)
         c3d = ezc3d.c3d()
         c3d["parameters"]["POINT"]["RATE"]["value"] = [trial.rate]
         c3d["parameters"]["POINT"]["LABELS"]["value"] = list(trial.labels)
@@ -492,15 +480,6 @@ def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
         c3d["header"]["points"]["first_frame"] = trial.first_frame  # 0-based; stored 1-based in the file
         c3d["data"]["points"] = points
         c3d["data"]["meta_points"] = {"residuals": residuals}
-        c3d.write(str(tmp))
-        os.replace(tmp, path)
-    except Exception as exc:  # noqa: BLE001 - any ezc3d or OS failure becomes one TrialError line
-        discard(tmp)
-        raise fail(
-            path,
-            f"could not write the C3D file ({one_line(exc) or type(exc).__name__})",
-            "check the directory is writable and has free space",
-        ) from None
-    except BaseException:
-        discard(tmp)
-        raise
+        c3d.write(str(staged))
+
+    write_staged(path, "C3D", write, (Exception,))  # any ezc3d or OS failure: one line

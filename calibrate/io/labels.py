@@ -91,7 +91,7 @@ import re
 import sys
 import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import CalibrateError
@@ -477,16 +477,7 @@ def map_labels(
 
     if len(set(labels)) != len(labels):  # cannot happen: unknown labels are never model labels
         raise CalibrateError(f"{trial.source or 'trial'}: relabelling made two markers the same; check the marker map")
-    relabelled = Trial(
-        labels=tuple(labels),
-        markers=trial.markers,
-        rate=trial.rate,
-        first_frame=trial.first_frame,
-        source=trial.source,
-        model_outputs=trial.model_outputs,
-        output_kinds=trial.output_kinds,
-        output_units=trial.output_units,
-    )
+    relabelled = replace(trial, labels=tuple(labels))
     matches = tuple(
         LabelMatch(trial_label=old, label=new, how=how, note=note)
         for old, new, how, note in zip(trial.labels, labels, hows, notes, strict=True)

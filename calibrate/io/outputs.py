@@ -46,7 +46,7 @@ def check_targets(targets: Sequence[Path], overwrite: bool, *, inputs: Mapping[P
 def write_all(writers: Mapping[Path, Writer], keep_names: bool = False) -> None:
     """Write every output (destination -> its writer, called in this order) or none, then rename all
     into place (place_all).  Each writer writes to a staging file beside its destination: a hidden
-    temporary ('.NAME.*.part'), or with `keep_names` a file of the destination's own name in a fresh
+    temporary ('.NAME.*.part.SUFFIX'), or with `keep_names` a file of the destination's own name in a fresh
     hidden folder (for a format that quotes its file name, as a TRC header does).  The destinations
     should have passed check_targets."""
     staged: dict[Path, Path] = {}
@@ -58,7 +58,9 @@ def write_all(writers: Mapping[Path, Writer], keep_names: bool = False) -> None:
                 folders.append(Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent)))
                 staged[target] = folders[-1] / target.name
             else:
-                fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+                # the destination's suffix last, in lower case: a writer may insist on it (ezc3d appends .c3d otherwise)
+                fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".part{target.suffix.lower()}",
+                                           dir=target.parent)
                 os.close(fd)
                 staged[target] = Path(tmp)
             write(staged[target])
@@ -74,6 +76,10 @@ def place_all(staged: Mapping[Path, Path]) -> None:
     """Rename every staged file (destination -> staged file) onto its destination, all or none: a
     file a destination replaces is first moved aside, and if any rename fails, the destinations
     already placed are undone (removed, or their old file moved back) before the error goes on."""
+    if len(staged) == 1:  # one file: a rename is atomic by itself, and leaves nothing to undo
+        for target, tmp in staged.items():
+            os.replace(tmp, target)
+        return
     placed: list[tuple[Path, Path | None]] = []  # (target, where its previous file waits)
     try:
         for target, tmp in staged.items():
@@ -95,3 +101,9 @@ def place_all(staged: Mapping[Path, Path]) -> None:
     for _, aside in placed:
         if aside is not None:
             aside.unlink(missing_ok=True)
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write `text` to `path` through a staged file renamed into place (write_all): a failure part-way
+    leaves `path` as it was (absent or the old content), never half-written."""
+    write_all({Path(path): lambda staged: staged.write_text(text, encoding="utf-8", newline="")})

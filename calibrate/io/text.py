@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .outputs import write_text
 
 
 def fmt_float(x: float) -> str:
@@ -21,15 +21,6 @@ def fmt_vec(v) -> str:
 
 
 def atomic_write_text(path: Path, text: str) -> None:
-    """Write `text` to a temporary file beside `path`, then rename it into place.
-
-    A failure part-way leaves `path` as it was (absent or the old content), never half-written.
-    """
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write `text` to `path` all or nothing (calibrate.io.outputs.write_text): a failure part-way
+    leaves `path` as it was (absent or the old content), never half-written."""
+    write_text(path, text)

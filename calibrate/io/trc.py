@@ -9,15 +9,12 @@ import numpy as np
 
 from calibrate.io.trial import (
     Trial,
-    check_input_file,
-    discard,
     fail,
-    one_line,
+    file_labels,
     output_target,
     parse_units,
-    strip_subject_prefix,
-    temporary_sibling,
-    unique_labels,
+    read_input_file,
+    write_staged,
 )
 from calibrate.io.vicon import is_model_output
 
@@ -44,12 +41,8 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     Plug-in Gait output name (:func:`is_model_output`) go to :attr:`Trial.model_outputs`.
     """
     path = Path(path)
-    check_input_file(path)
+    data = read_input_file(path)
     redo = "export the TRC file again"
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise fail(path, f"cannot be read ({one_line(exc.strerror or exc)})", "check the file permissions") from None
     if b"\x00" in data:
         raise fail(path, "not a TRC text file (it contains binary data)", redo)
     try:
@@ -112,9 +105,7 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         raise fail(path, f"TRC header says NumMarkers {num_markers} but line 4 names {n_markers} markers", redo)
     if n_markers == 0:
         raise fail(path, "TRC file names no markers", "export the trial with its markers")
-    if strip_prefix:
-        raw_labels, _ = strip_subject_prefix(raw_labels)
-    labels = unique_labels(raw_labels)
+    (labels,) = file_labels([raw_labels], strip=strip_prefix)
 
     width = 2 + 3 * n_markers
     rows: list[list[str]] = []
@@ -212,21 +203,11 @@ def write_trc(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
     times = trial.times.tolist()
     spec = f".{decimals}f"
 
-    tmp = temporary_sibling(path, ".trc")
-    try:
-        with open(tmp, "x", encoding="utf-8", newline="\n") as fh:
+    def write(staged: Path) -> None:
+        with open(staged, "w", encoding="utf-8", newline="\n") as fh:
             fh.write("\n".join(head) + "\n")
             for i, row in enumerate(rows):
                 cells = "\t".join("" if v != v else format(v, spec) for v in row)  # v != v: NaN, a gap
                 fh.write(f"{trial.first_frame + i + 1}\t{times[i]:.9g}\t{cells}\n")
-        os.replace(tmp, path)
-    except OSError as exc:
-        discard(tmp)
-        raise fail(
-            path,
-            f"could not write the TRC file ({one_line(exc)})",
-            "check the directory is writable and has free space",
-        ) from None
-    except BaseException:
-        discard(tmp)
-        raise
+
+    write_staged(path, "TRC", write)

@@ -67,14 +67,14 @@ from __future__ import annotations
 
 import operator
 import os
-import uuid
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from calibrate.errors import TrialError
+from calibrate.io.outputs import write_all
 
 __all__ = [
     "Trial",
@@ -173,6 +173,22 @@ def unique_labels(raw: Iterable[str], numbers: Iterable[int] | None = None) -> t
         used.add(label)
         out.append(label)
     return tuple(out)
+
+
+def file_labels(groups: Sequence[Sequence[str]], numbers: Sequence[Sequence[int]] | None = None,
+                strip: bool = True) -> list[tuple[str, ...]]:
+    """A trial file's point labels, group by group (e.g. markers, then model outputs): the subject
+    prefix they all share removed (strip_subject_prefix, when `strip`), then each group made unique
+    (unique_labels; `numbers`: each label's 1-based point number in the file, per group)."""
+    sizes = [len(g) for g in groups]
+    everything = [label for g in groups for label in g]
+    if strip:
+        everything, _ = strip_subject_prefix(everything)
+    out, at = [], 0
+    for i, n in enumerate(sizes):
+        out.append(unique_labels(everything[at:at + n], None if numbers is None else numbers[i]))
+        at += n
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -307,16 +323,7 @@ class Trial:
         """Trial with only the given markers, in the given order."""
         wanted = (labels,) if isinstance(labels, str) else tuple(labels)
         idx = [self._index(label) for label in wanted]
-        return Trial(
-            labels=wanted,
-            markers=self.markers[:, idx, :],
-            rate=self.rate,
-            first_frame=self.first_frame,
-            source=self.source,
-            model_outputs=self.model_outputs,
-            output_kinds=self.output_kinds,
-            output_units=self.output_units,
-        )
+        return replace(self, labels=wanted, markers=self.markers[:, idx, :])
 
     def frames(self, start: int, stop: int) -> Trial:
         """Frames ``start`` to ``stop - 1`` of this trial (0-based, relative to this trial's first frame)."""
@@ -331,16 +338,8 @@ class Trial:
                 f"{origin(self.source)}: frames {start}:{stop} are outside this trial's 0:{self.n_frames}; "
                 "choose start and stop with 0 <= start <= stop <= number of frames"
             )
-        return Trial(
-            labels=self.labels,
-            markers=self.markers[start:stop],
-            rate=self.rate,
-            first_frame=self.first_frame + start,
-            source=self.source,
-            model_outputs={name: values[start:stop] for name, values in self.model_outputs.items()},
-            output_kinds=self.output_kinds,
-            output_units=self.output_units,
-        )
+        return replace(self, markers=self.markers[start:stop], first_frame=self.first_frame + start,
+                       model_outputs={name: values[start:stop] for name, values in self.model_outputs.items()})
 
 
 def check_input_file(path: Path) -> int:
@@ -356,6 +355,16 @@ def check_input_file(path: Path) -> int:
     if size == 0:
         raise fail(path, "file is empty", "export the trial again from your capture software")
     return size
+
+
+def read_input_file(path: Path) -> bytes:
+    """The bytes of the trial file at ``path`` (checked as check_input_file does); one TrialError line if
+    it cannot be read."""
+    check_input_file(path)
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise fail(path, f"cannot be read ({one_line(exc.strerror or exc)})", "check the file permissions") from None
 
 
 def output_target(path: str | os.PathLike[str], trial: Trial, units: str) -> tuple[Path, str, float]:
@@ -380,13 +389,12 @@ def output_target(path: str | os.PathLike[str], trial: Trial, units: str) -> tup
     return path, key, scale
 
 
-def temporary_sibling(path: Path, suffix: str) -> Path:
-    """A fresh hidden name in the same directory, for writing before replacing."""
-    return path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{suffix}")
-
-
-def discard(tmp: Path) -> None:
+def write_staged(path: Path, kind: str, write: Callable[[Path], None],
+                 errors: tuple[type[Exception], ...] = (OSError,)) -> None:
+    """Write a trial file through `write` (given a staged file beside `path`; calibrate.io.outputs.write_all:
+    all or nothing); a failure among `errors` becomes one TrialError line naming the `kind` of file."""
     try:
-        tmp.unlink()
-    except OSError:
-        pass
+        write_all({path: write})
+    except errors as exc:
+        raise fail(path, f"could not write the {kind} file ({one_line(exc) or type(exc).__name__})",
+                   "check the directory is writable and has free space") from None

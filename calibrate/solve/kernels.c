@@ -4,6 +4,13 @@
 #include <string.h>
 typedef int64_t I;
 
+/* Σ_r a[r] b[r], summed in order (the same rounding wherever it is used). */
+static inline double dot(const double *a, const double *b, I n) {
+    double s = 0.0;
+    for (I r = 0; r < n; ++r) s += a[r] * b[r];
+    return s;
+}
+
 /* Normal equations of frames f0..f1-1 (see calibrate.assembly.assemble).  Blocks are kept
    transposed (column by row) so that every inner product runs over contiguous memory. */
 int cal_assemble(const double *d, const double *w, const double *jz, const double *jp,
@@ -47,15 +54,10 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
             for (I a = 0; a < nc; ++a) {
                 const double *za = Jz + a * max_r;
                 I ia = zcols[c0 + a];
-                double s = 0.0;
-                for (I r = 0; r < nr; ++r) s += za[r] * e[r];
-                gzf[ia] += s;
+                gzf[ia] += dot(za, e, nr);
                 if (grad_only) continue;
                 for (I b = 0; b < nc; ++b) {
-                    const double *zb = Jz + b * max_r;
-                    s = 0.0;
-                    for (I r = 0; r < nr; ++r) s += za[r] * zb[r];
-                    Af[ia * nz + zcols[c0 + b]] += s;
+                    Af[ia * nz + zcols[c0 + b]] += dot(za, Jz + b * max_r, nr);
                 }
             }
             if (!with_p) continue;
@@ -69,25 +71,18 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
                     const double *za = Jz + a * max_r;
                     double *Brow = Bf + zcols[c0 + a] * n;
                     for (I b = 0; b < nq; ++b) {
-                        const double *pb = Jp + b * max_r;
-                        double s = 0.0;
-                        for (I r = 0; r < nr; ++r) s += za[r] * pb[r];
-                        Brow[fcols[q0 + b]] += s;
+                        Brow[fcols[q0 + b]] += dot(za, Jp + b * max_r, nr);
                     }
                 }
             }
             for (I a = 0; a < nq; ++a) {
                 const double *pa = Jp + a * max_r;
                 I ka = fcols[q0 + a];
-                double s = 0.0;
-                for (I r = 0; r < nr; ++r) s += pa[r] * e[r];
-                gt[ka] += s;
+                gt[ka] += dot(pa, e, nr);
                 if (grad_only) continue;
                 for (I b = 0; b <= a; ++b) {
-                    const double *pb = Jp + b * max_r;
                     I kb = fcols[q0 + b];
-                    s = 0.0;
-                    for (I r = 0; r < nr; ++r) s += pa[r] * pb[r];
+                    double s = dot(pa, Jp + b * max_r, nr);
                     if (ka >= kb) Ct[ka * n + kb] += s; else Ct[kb * n + ka] += s;
                 }
             }

@@ -8,6 +8,15 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, fastmath=True)
+def _dot(a, b, n):  # pragma: no cover (compiled)
+    """Σ_r a[r] b[r] over the first n entries (inlined by numba)."""
+    s = 0.0
+    for r in range(n):
+        s += a[r] * b[r]
+    return s
+
+
+@njit(cache=True, nogil=True, fastmath=True)
 def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_off, z_src, z_r, z_c, z_off,
               fcols, fc_off, p_src, p_r, p_c, p_val, p_off, A, B, gz, Ct, gt):  # pragma: no cover (compiled)
     # The blocks are kept transposed (column by row) so that every inner product runs over
@@ -50,18 +59,11 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
             for a in range(nc):
                 ia = zcols[c0 + a]
                 za = Jz[a]
-                s = 0.0
-                for r in range(nr):
-                    s += za[r] * e[r]
-                gz[f, ia] += s
+                gz[f, ia] += _dot(za, e, nr)
                 if grad_only:
                     continue
                 for b in range(nc):
-                    zb = Jz[b]
-                    s = 0.0
-                    for r in range(nr):
-                        s += za[r] * zb[r]
-                    A[f, ia, zcols[c0 + b]] += s
+                    A[f, ia, zcols[c0 + b]] += _dot(za, Jz[b], nr)
             if not with_p:
                 continue
             q0 = fc_off[g]
@@ -75,26 +77,16 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
                 ia = zcols[c0 + a]
                 za = Jz[a]
                 for b in range(nq):
-                    pb = Jp[b]
-                    s = 0.0
-                    for r in range(nr):
-                        s += za[r] * pb[r]
-                    B[f, ia, fcols[q0 + b]] += s
+                    B[f, ia, fcols[q0 + b]] += _dot(za, Jp[b], nr)
             for a in range(nq):
                 ka = fcols[q0 + a]
                 pa = Jp[a]
-                s = 0.0
-                for r in range(nr):
-                    s += pa[r] * e[r]
-                gt[ka] += s
+                gt[ka] += _dot(pa, e, nr)
                 if grad_only:
                     continue
                 for b in range(a + 1):
                     kb = fcols[q0 + b]
-                    pb = Jp[b]
-                    s = 0.0
-                    for r in range(nr):
-                        s += pa[r] * pb[r]
+                    s = _dot(pa, Jp[b], nr)
                     if ka >= kb:
                         Ct[ka, kb] += s
                     else:
