@@ -45,7 +45,8 @@ from ..io.osim_info import with_locked
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics, build_kinematics
-from ..model.model import Model, Parameters, add_markers, mass_factor
+from ..model.model import Model, Parameters, add_markers
+from ..model.urdf import mass_factor
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.settings import Settings

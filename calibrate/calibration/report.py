@@ -22,7 +22,8 @@ from ..io.labels import UNLABELLED
 from ..io.motion import write_motion_csv
 from ..io.outputs import check_targets, write_all
 from ..io.text import atomic_write_text
-from ..model.model import Model, mass_factor, urdf_text, write_model
+from ..model.model import Model, write_model
+from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
 from .records import Identified
