@@ -222,10 +222,9 @@ def kabsch_rotation(H: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     The one Kabsch of the package: rigid fits, frame alignments and chordal means of rotations
     (the mean of R_f is kabsch_rotation(Σ R_fᵀ)) all come here."""
     U, S, Vt = np.linalg.svd(H)
-    V, Ut = np.swapaxes(Vt, -1, -2), np.swapaxes(U, -1, -2)
     D = np.ones(S.shape)
-    D[..., 2] = np.sign(np.linalg.det(V @ Ut))
-    return V @ (D[..., :, None] * Ut), S, D
+    D[..., 2] = np.sign(np.linalg.det(np.einsum("...ji,...kj->...ik", Vt, U)))  # det(V Uᵀ)
+    return np.einsum("...ji,...j,...kj->...ik", Vt, D, U), S, D  # V diag(D) Uᵀ
 
 
 def kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
