@@ -404,17 +404,17 @@ def small_cal(human, squat):
 
 
 def test_failure_while_staging_leaves_nothing(small_cal, tmp_path, monkeypatch):
-    """The disk fills while the report is staged (its os.replace onto the staging file fails): the
-    URDF and motion already staged are removed, no output exists, an old output is kept."""
+    """The disk fills while the report is staged (writing its staging file fails): the URDF and
+    motion already staged are removed, no output exists, an old output is kept."""
     (tmp_path / "s.csv").write_text("old motion")
-    real = os.replace
+    real = Path.write_text
 
-    def full_disk(src, dst):
-        if Path(dst).name.startswith(".s.json."):  # the report's staging file
+    def full_disk(self, *args, **kwargs):
+        if self.name.startswith(".s.json."):  # the report's staging file
             raise OSError(28, "No space left on device")
-        return real(src, dst)
+        return real(self, *args, **kwargs)
 
-    monkeypatch.setattr(os, "replace", full_disk)
+    monkeypatch.setattr(Path, "write_text", full_disk)
     with pytest.raises(OSError, match="No space"):
         small_cal.write(urdf=tmp_path / "s.urdf", motion=tmp_path / "s.csv", report=tmp_path / "s.json",
                         overwrite=True)

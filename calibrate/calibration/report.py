@@ -19,10 +19,9 @@ import numpy as np
 from .. import __version__
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
-from ..io.motion import write_motion_csv
-from ..io.outputs import check_targets, write_all
-from ..io.text import atomic_write_text
-from ..model.model import Model, write_model
+from ..io.motion import motion_csv_text
+from ..io.outputs import check_targets, put_text, write_all
+from ..model.model import Model
 from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
@@ -355,26 +354,27 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         rep = calibration_report(timed)
         rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
         rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
-        atomic_write_text(path, json.dumps(rep, indent=1, allow_nan=False, default=_json_default) + "\n")
+        put_text(path, json.dumps(rep, indent=1, allow_nan=False, default=_json_default) + "\n")
 
     writers = {}
+    # The subject's URDF document, made once: the URDF output and the OpenSim exports are of it.
+    text = urdf_text(cal.model, cal.params, cal.mass) if "urdf" in targets or opensim else ""
     if "urdf" in targets:
-        writers[targets["urdf"]] = lambda path: write_model(cal.model, path, cal.params, overwrite=True, mass=cal.mass)
+        writers[targets["urdf"]] = lambda path: put_text(path, text)
     for k, m in zip(keys, cal.motions, strict=False):  # keys is empty without motion outputs
-        writers[targets[k]] = lambda path, m=m: write_motion_csv(path, m)
+        writers[targets[k]] = lambda path, m=m: put_text(path, motion_csv_text(m))
     if "report" in targets:
         writers[targets["report"]] = write_report
     if opensim:
         from ..io.osim_export import mot_text, osim_text  # OpenSim export: only for these outputs
 
         # The subject as the written URDF loads (named after it), for OpenSim's names and masses.
-        subject = Model(Path(urdf) if urdf is not None else cal.model.path,
-                        text=urdf_text(cal.model, cal.params, cal.mass))
+        subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text)
         if "osim" in opensim:
-            writers[opensim["osim"]] = lambda path: atomic_write_text(path, osim_text(subject))
+            writers[opensim["osim"]] = lambda path: put_text(path, osim_text(subject))
         for i, m in enumerate(cal.motions[:len(mots)]):
             target = opensim[f"mot[{i}]"]
-            writers[target] = lambda path, m=m, name=target.stem: atomic_write_text(path, mot_text(subject, m, name))
+            writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))
     write_all(writers)
     return {**targets, **opensim}
 

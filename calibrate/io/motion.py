@@ -54,17 +54,22 @@ class Motion:
         return FrameLayout.coordinates(self.root_translation, self.angles)
 
 
-def write_motion_csv(path: str | os.PathLike[str], motion: Motion) -> Path:
-    """Write `motion` as CSV (atomically: temporary file, then rename)."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
+def motion_csv_text(motion: Motion) -> str:
+    """The motion CSV document: time, root position, root quaternion (x, y, z, w), angles by DoF name."""
     data = np.hstack([motion.times[:, None], motion.root_translation, motion.root_quaternion, motion.angles])
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(("time", *ROOT_COLUMNS, *motion.dof_names))
     w.writerows([[repr(float(x)) for x in row] for row in data])
-    atomic_write_text(path, buf.getvalue())
+    return buf.getvalue()
+
+
+def write_motion_csv(path: str | os.PathLike[str], motion: Motion) -> Path:
+    """Write `motion` as CSV (atomically: temporary file, then rename)."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise CalibrateError(f"{path}: directory '{path.parent}' does not exist; create it first")
+    atomic_write_text(path, motion_csv_text(motion))
     return path
 
 

@@ -103,7 +103,13 @@ def place_all(staged: Mapping[Path, Path]) -> None:
             aside.unlink(missing_ok=True)
 
 
+def put_text(staged: Path, text: str) -> None:
+    """A writer's body for a text file: `text` as UTF-8 at the staged path write_all gives it (staged
+    already: no second temporary file)."""
+    staged.write_text(text, encoding="utf-8", newline="")
+
+
 def write_text(path: Path, text: str) -> None:
     """Write `text` to `path` through a staged file renamed into place (write_all): a failure part-way
     leaves `path` as it was (absent or the old content), never half-written."""
-    write_all({Path(path): lambda staged: staged.write_text(text, encoding="utf-8", newline="")})
+    write_all({Path(path): lambda staged: put_text(staged, text)})

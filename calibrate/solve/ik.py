@@ -51,7 +51,6 @@ class IKResult:
         return marker_rms(self.residuals)
 
 
-
 def marker_columns(model: Model, trial: Trial) -> np.ndarray:
     """Trial markers in the model's marker order, (n_frames, n_model_markers, 3); NaN where absent."""
     out = np.full((trial.n_frames, len(model.markers), 3), np.nan)
@@ -71,7 +70,7 @@ class _FrameFit:
         self.rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
         self.target = obs[seen_mk].ravel()
         self.free = free = np.asarray(free)
-        self.rot = bool(np.isin([3, 4, 5], free).any())
+        self.rot = bool(np.isin(np.arange(FrameLayout.n_root)[FrameLayout.rotation], free).any())
         self.balls = bool(np.isin(solver.ball_cols, free).any())
         self.dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], solver.ball_cols)  # SO(3): no limits
         self.lo = solver.lower[FrameLayout.dof(self.dof_cols)]
