@@ -24,6 +24,8 @@ LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
 LIMIT_NOTE_FRACTION = 0.05  # ... in more than this fraction of the frames is noted (limit_notes)
 
 
+STILL_SAMPLE = 500  # frames whose blocks still_coordinates reads (a median over frames needs no more)
+
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
 
 
@@ -46,7 +48,7 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad."""
     locked = {n for n, _ in options.lock}
     nz = A.shape[1]
-    A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), 500)).astype(int))]  # a median needs no more
+    A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), STILL_SAMPLE)).astype(int))]  # a median needs no more
     # A ridge at one global scale: a frame (or direction) with no data gets a huge SD, not a failure.
     ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
     cov = np.linalg.inv(A + ridge * np.eye(nz))

@@ -13,6 +13,7 @@ from calibrate.seed.seeding import MAD_SD
 
 from ..problem.problem import Problem
 from ..problem.state import State
+from ..solve.chunks import FrameBlocks
 from .options import PipelineOptions
 from .records import Progress
 
@@ -61,22 +62,26 @@ def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[st
 def leverage(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
     """(F, n_markers) leverage of each observed marker in its frame — the trace of the weighted hat
     matrix J_z A_f⁻¹ J_zᵀ W over its three rows, / 3: the fraction of its error the frame's pose
-    absorbs — and the raw residuals (F, 3 n_markers) at `state`."""
+    absorbs — and the raw residuals (F, 3 n_markers) at `state`.  The frames' blocks are formed chunk
+    by chunk within the problem's memory budget (calibrate.solve.chunks)."""
     nm = len(problem.model.markers)
-    lin = problem.linearize(state, with_parameters=False)
-    d, jz, _, wrow = lin.jacobian[:4]
+    blocks = FrameBlocks(problem, state, False, problem.settings.memory_mb * 1e6)
     zr, zc, nrows, nz = problem.jz_pattern
     F = problem.F
-    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(lin.A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    ridge = 1e-12 * max(float(np.max(np.abs(blocks.diagonal), initial=0.0)), 1e-300)
     h = np.zeros((F, nm))
-    for s in range(0, F, 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
-        e = min(F, s + 128)
-        J = np.zeros((e - s, nrows, nz))
-        J[:, zr, zc] = jz[s:e]
-        J *= wrow[s:e, :, None]
-        Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
-        # diag(J A⁻¹ J') row by row: a batched matrix product (BLAS), then a row-wise dot product
-        h[s:e] = np.sum(np.matmul(J, Ainv) * J, axis=2).reshape(e - s, nm, 3).sum(axis=2) / 3
+    d = np.empty((F, nrows))
+    for _, sl, lin in blocks.chunks():
+        dc, jz, _, wrow = lin.jacobian[:4]
+        d[sl] = dc
+        for s in range(0, dc.shape[0], 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
+            e = min(dc.shape[0], s + 128)
+            J = np.zeros((e - s, nrows, nz))
+            J[:, zr, zc] = jz[s:e]
+            J *= wrow[s:e, :, None]
+            Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
+            # diag(J A⁻¹ J') row by row: a batched matrix product (BLAS), then a row-wise dot product
+            h[sl.start + s:sl.start + e] = np.sum(np.matmul(J, Ainv) * J, axis=2).reshape(e - s, nm, 3).sum(axis=2) / 3
     return np.where(problem.seen, h, 0.0), d
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.gauge import align_gauge, align_neutral
-from calibrate.calibration.identifiability import coordinate_notes, parameter_changes, still_coordinates
+from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
 from calibrate.calibration.noise import find_outliers, fixed_noise, relearn
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
@@ -56,7 +56,7 @@ from ..seed.rigidity import distance_variance
 from ..solve.ik import marker_columns
 from ..solve.lm import SolverSummary, covariance, levenberg_marquardt
 from .options import PipelineOptions
-from .records import Progress
+from .records import Countdown, IterationClock, Progress
 
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
 
@@ -227,7 +227,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                        say, solver)
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
-    start = stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator) for sl in spans])
+    posed = Countdown(say, "start", "frame-wise inverse kinematics of every trial's frames")
+    start = stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator,
+                                      progress=lambda done, sl=sl: posed((sl.start + done * (sl.stop - sl.start))
+                                                                         / problem.F))
+                          for sl in spans])
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
         problem = problem.with_base(base)
@@ -299,12 +303,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    lin = problem.linearize(state, reuse=True)
-    cov = covariance(problem, state, lin)
+    cov = covariance(problem, state, progress=Countdown(say, "covariance", "the parameters' posterior covariance"))
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
-    notes = coordinate_notes(subject, FrameLayout.angles(Z), lin.A, problem.settings)
+    notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state), problem.settings)
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
@@ -321,6 +324,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise)
+
+
+def _sampled_blocks(problem: Problem, state: State) -> np.ndarray:
+    """The frame blocks A_f of the normal equations at `state` on at most STILL_SAMPLE evenly spaced
+    frames (what still_coordinates reads: a median over frames needs no more; a long trial's are
+    never all formed at once)."""
+    idx = np.unique(np.linspace(0, problem.F - 1, min(problem.F, STILL_SAMPLE)).astype(int))
+    return problem.subset(idx).linearize(frames_of(state, idx), with_parameters=False).A
 
 
 def _hold_segments(model: Model, params: Parameters, segments: Sequence[str]) -> Parameters:
@@ -413,9 +424,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         mine = np.flatnonzero((coarse >= sl.start) & (coarse < sl.stop))
         parts.append(spread_poses(frames_of(state, mine), coarse[mine] - sl.start, frames_of(start, sl)))
     state = replace(stack_states(parts), p=state.p.copy())
-    state, summary = levenberg_marquardt(
-        problem, state, solver,
-        progress=lambda it, c, lam: say(f"solve: all frames, iteration {it:3d}  cost {c:.6e}  lambda {lam:.1e}"))
+    state, summary = levenberg_marquardt(problem, state, solver,
+                                         progress=IterationClock(say, "all frames, ", solver.atol, solver.ftol))
     if fixed is not None:
         sigma, scatter = relearn(problem, state, fixed, say, trial_of)
     if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did

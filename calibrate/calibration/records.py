@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import enum
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -117,3 +119,46 @@ class Progress:
         it = text.split()[1] if text.startswith("iteration ") else None
         return cls(stage, text, int(it) if it is not None and it.isdigit() else None,
                    long=stage == "build" and text.startswith("compiling"))
+
+
+class Countdown:
+    """Progress of a long step whose share done is known (frames posed, chunks passed): one message
+    at most every `every` seconds once a second has passed, with the time left at the rate so far."""
+
+    def __init__(self, say: Callable[[Progress], None], stage: str, text: str, every: float = 1.0):
+        self.say, self.stage, self.text, self.every = say, stage, text, every
+        self.t0 = self.last = time.perf_counter()
+
+    def __call__(self, done: float) -> None:
+        now = time.perf_counter()
+        if now - self.last < self.every or now - self.t0 < 1.0 or not 0.0 < done < 1.0:
+            return
+        self.last = now
+        left = (now - self.t0) * (1.0 - done) / done
+        self.say(Progress(self.stage, f"{self.text} {100 * done:.0f} % (about {left:.0f} s left)"))
+
+
+class IterationClock:
+    """Progress of a Levenberg–Marquardt run: each accepted iteration's line with its time and, once the
+    cost's decreases shrink geometrically, how many more iterations and seconds the tolerances allow
+    (the decrease falls below atol, or below ftol of the cost, after log(threshold/Δ)/log(rate) more)."""
+
+    def __init__(self, say: Callable[[Progress], None], label: str, atol: float, ftol: float):
+        self.say, self.label, self.atol, self.ftol = say, label, atol, ftol
+        self.t0 = self.last = time.perf_counter()
+        self.costs: list[float] = []
+
+    def __call__(self, iteration: int, cost: float, lam: float) -> None:
+        now = time.perf_counter()
+        took, self.last = now - self.last, now
+        self.costs.append(cost)
+        line = f"{self.label}iteration {iteration:3d}  cost {cost:.6e}  lambda {lam:.1e}  ({took:.1f} s)"
+        c = self.costs
+        if len(c) >= 3:
+            d1, d2 = c[-3] - c[-2], c[-2] - c[-1]
+            threshold = max(self.atol, self.ftol * cost)
+            if 0.0 < d2 < d1 and d2 >= threshold:
+                more = math.ceil(math.log(threshold / d2) / math.log(d2 / d1))
+                per = (now - self.t0) / len(c)
+                line += f"; about {more} more, {more * per:.0f} s"
+        self.say(Progress.of(f"solve: {line}"))

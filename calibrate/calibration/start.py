@@ -36,11 +36,12 @@ COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly s
 
 # ---------------------------------------------------------------------- start
 def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, stride: int = STRIDE,
-                evaluator: Callable | None = None) -> State:
+                evaluator: Callable | None = None, progress: Callable[[float], None] | None = None) -> State:
     """Per-frame coordinates for fixed geometry: frame-wise IK on every `stride`-th frame (warm-started
     key frame to key frame, the first from a global search), interpolated in between (slerp for
     the root rotation).  Frames with fewer than 3 markers take the nearest key frame's pose.
-    `evaluator`: a faster per-frame (markers, d markers/dz) at `params` (Problem.frame_evaluator)."""
+    `evaluator`: a faster per-frame (markers, d markers/dz) at `params` (Problem.frame_evaluator);
+    `progress(share of the key frames done)` after each key frame."""
     model = kin.model
     F = observed.shape[0]
     p = params.vector()
@@ -64,6 +65,8 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
         z, q, cost, _ = solver.solve(z, q, observed[f], idx, np.arange(model.nz), budget, 1e-8)
         fits.append(math.sqrt(cost / idx.size))
         Zk[i], Qk[i] = z, q
+        if progress is not None:
+            progress((i + 1) / keys.size)
     frames = np.arange(F)
     Z = np.zeros((F, model.nz))
     if keys.size == 1:

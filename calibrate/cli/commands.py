@@ -49,7 +49,10 @@ def run_simulation(args: argparse.Namespace):
     if args.out.exists() and not args.out.is_dir():
         raise CalibrateError(f"{args.out}: exists and is not a directory; choose another --out")
     if not getattr(args, "overwrite", True):
-        for name in ("trial.c3d", "truth.urdf", "truth_motion.csv", "truth_corruptions.csv"):
+        from ..io.c3d import C3D_MAX_FRAMES
+
+        trial_name = "trial.trc" if args.frames > C3D_MAX_FRAMES else "trial.c3d"
+        for name in (trial_name, "truth.urdf", "truth_motion.csv", "truth_corruptions.csv"):
             if (args.out / name).exists():
                 raise CalibrateError(
                     f"{args.out / name}: exists; pass --overwrite to replace it or choose another --out"

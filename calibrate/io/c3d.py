@@ -37,7 +37,7 @@ _C3D_OUTPUT_GROUPS: dict[str, str] = {
 }
 
 
-_C3D_MAX_HEADER_FRAME = 65535  # the C3D header stores frame numbers as 16-bit words
+C3D_MAX_FRAMES = 65535  # the C3D header stores frame numbers as 16-bit words: the longest trial written here
 
 
 class _BadC3D(ValueError):
@@ -382,11 +382,15 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     if not np.isfinite(rate) or rate <= 0:
         raise fail(path, "C3D file gives no valid frame rate (POINT:RATE)", redo)
 
-    xyz = points[:3, keep, :n_frames].transpose(2, 1, 0) * scale  # (frames, markers, 3)
+    # (frames, markers, 3) in metres: the one copy of the marker array besides ezc3d's, which the trial
+    # takes over (read-only) rather than copies.
+    xyz = np.empty((n_frames, len(keep), 3))
+    np.multiply(points[:3, keep, :n_frames].transpose(2, 1, 0), scale, out=xyz)
     gap = ~np.isfinite(xyz).all(axis=2) | (xyz == 0.0).all(axis=2)
     if residuals.ndim == 3 and residuals.shape[1] >= n_points and residuals.shape[2] >= n_frames:
         gap |= (residuals[0, keep, :n_frames] < 0).T
     xyz[gap] = np.nan
+    xyz.flags.writeable = False
     model_outputs: dict[str, np.ndarray] = {}
     output_kinds: dict[str, str] = {}
     output_units: dict[str, str] = {}
@@ -402,6 +406,7 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         values[bad] = np.nan
         model_outputs[label], output_kinds[label], output_units[label] = values, kind, si
     first_frame = layout.first_frame if layout.first_frame is not None else max(header_first, 0)
+    del c3d, points, residuals  # ezc3d's copies, before the trial is made
     return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path),
                  model_outputs=model_outputs, output_kinds=output_kinds, output_units=output_units)
 
@@ -451,18 +456,18 @@ def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
     The file is written next to its target and then moved into place.
     """
     path, key, scale = output_target(path, trial, units)
-    if trial.n_frames > _C3D_MAX_HEADER_FRAME:
+    if trial.n_frames > C3D_MAX_FRAMES:
         raise fail(
             path,
-            f"{trial.n_frames} frames are more than a C3D file written here can hold ({_C3D_MAX_HEADER_FRAME}; "
+            f"{trial.n_frames} frames are more than a C3D file written here can hold ({C3D_MAX_FRAMES}; "
             "ezc3d reads back only that many)",
             "write a TRC file instead or split the trial with Trial.frames",
         )
-    if trial.first_frame + 1 > _C3D_MAX_HEADER_FRAME:
+    if trial.first_frame + 1 > C3D_MAX_FRAMES:
         raise fail(
             path,
             f"first frame {trial.first_frame} is past the last frame number a C3D header can hold "
-            f"({_C3D_MAX_HEADER_FRAME})",
+            f"({C3D_MAX_FRAMES})",
             "write a TRC file instead or start the trial at an earlier frame",
         )
     xyz = trial.markers / scale  # (frames, markers, 3) in file units

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from calibrate.io.trial import (
     Trial,
+    check_input_file,
     fail,
     file_labels,
+    one_line,
     output_target,
     parse_units,
-    read_input_file,
     write_staged,
 )
 from calibrate.io.vicon import is_model_output
@@ -39,19 +41,44 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     dots), line 5 the X/Y/Z names, data from line 6 on (blank lines skipped).  A subject
     prefix shared by the labels is removed unless ``strip_prefix`` is False.  Columns with a
     Plug-in Gait output name (:func:`is_model_output`) go to :attr:`Trial.model_outputs`.
+    The file is read line by line, twice (count, then parse): a long trial's marker array is
+    the only copy of it held.
     """
     path = Path(path)
-    data = read_input_file(path)
-    redo = "export the TRC file again"
-    if b"\x00" in data:
-        raise fail(path, "not a TRC text file (it contains binary data)", redo)
+    check_input_file(path)
+    for encoding in ("utf-8-sig", "latin-1"):
+        try:
+            return _read_trc(path, encoding, strip_prefix)
+        except UnicodeDecodeError:
+            continue
+    raise AssertionError("latin-1 decodes any bytes")  # pragma: no cover
+
+
+def _lines(path: Path, encoding: str) -> Iterator[tuple[int, str]]:
+    """(0-based line number, text without its line end) of every line of `path`."""
     try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")
-    lines = text.splitlines()
-    while lines and not lines[-1].strip():
-        lines.pop()
+        with open(path, encoding=encoding, newline=None) as fh:
+            for number, line in enumerate(fh):
+                yield number, line.rstrip("\n")
+    except OSError as exc:
+        raise fail(path, f"cannot be read ({one_line(exc.strerror or exc)})", "check the file permissions") from None
+
+
+def _read_trc(path: Path, encoding: str, strip_prefix: bool) -> Trial:
+    redo = "export the TRC file again"
+    binary = fail(path, "not a TRC text file (it contains binary data)", redo)
+    # Pass 1: the header's five lines, then how many data rows follow (blank lines skipped).
+    lines: list[str] = []
+    n_rows = n_lines = 0
+    for number, line in _lines(path, encoding):
+        if "\x00" in line:
+            raise binary
+        n_lines = number + 1 if line.strip() else n_lines
+        if number < 5:
+            lines.append(line)
+        elif line.strip():
+            n_rows += 1
+    lines = lines[:n_lines]
     if len(lines) < 5:
         raise fail(path, f"not a TRC file ({len(lines)} line(s), a TRC header needs 5)", redo)
     if not lines[0].lstrip().startswith("PathFileType"):
@@ -108,61 +135,60 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     (labels,) = file_labels([raw_labels], strip=strip_prefix)
 
     width = 2 + 3 * n_markers
-    rows: list[list[str]] = []
-    line_numbers: list[int] = []
-    for number, line in enumerate(lines[5:], start=6):
-        if not line.strip():
-            continue
-        cells = [cell.strip() for cell in line.split("\t")]
-        if len(cells) > width:
-            extra = [cell for cell in cells[width:] if cell]
-            if extra:
-                raise fail(
-                    path,
-                    f"line {number} has more values than the {n_markers} markers named in the header",
-                    redo,
-                )
-            cells = cells[:width]
-        cells += [""] * (width - len(cells))
-        rows.append(cells)
-        line_numbers.append(number)
-    if not rows:
+    if n_rows == 0:
         raise fail(path, "TRC file contains no frames", "export the trial again with its frames")
-    if num_frames is not None and num_frames != len(rows):
+    if num_frames is not None and num_frames != n_rows:
         raise fail(
             path,
-            f"TRC header says NumFrames {num_frames} but the file has {len(rows)} data rows (truncated?)",
+            f"TRC header says NumFrames {num_frames} but the file has {n_rows} data rows (truncated?)",
             redo,
         )
-
-    values_array = np.empty((len(rows), width), dtype=np.float64)
-    for r, cells in enumerate(rows):
-        try:
-            values_array[r] = [float(cell) if cell else np.nan for cell in cells]
-        except ValueError:
-            column = next(i for i, cell in enumerate(cells) if cell and not _is_number(cell))
-            raise fail(
-                path,
-                f"line {line_numbers[r]}, column {column + 1}: {cells[column]!r} is not a number",
-                "fix that cell or export the file again",
-            ) from None
-
-    first_number = values_array[0, 0]
-    if not np.isfinite(first_number) or first_number != int(first_number):
-        raise fail(path, f"line {line_numbers[0]}: Frame# should be a whole number, got {rows[0][0]!r}", redo)
-    markers = values_array[:, 2:].reshape(len(rows), n_markers, 3) * scale
     kinds = {i: kind for i, label in enumerate(labels) if (kind := is_model_output(label)) is not None}
     keep = [i for i in range(n_markers) if i not in kinds]
     if not keep:
         raise fail(path, "TRC file holds only model outputs (PELO, LFEO, ...), no markers",
                     "export the trial with its markers")
+    # Pass 2: each row parsed straight into the marker array (metres) and the model outputs' columns.
+    markers = np.empty((n_rows, len(keep), 3))
+    outputs = {i: np.empty((n_rows, 3)) for i in kinds}
+    keep_cols = (2 + 3 * np.asarray(keep)[:, None] + np.arange(3)).ravel()
+    first_number = np.nan
+    r = 0
+    for number, line in _lines(path, encoding):
+        if number < 5 or not line.strip():
+            continue
+        cells = [cell.strip() for cell in line.split("\t")]
+        if len(cells) > width:
+            if any(cells[width:]):
+                raise fail(path, f"line {number + 1} has more values than the {n_markers} markers named in the header",
+                           redo)
+            cells = cells[:width]
+        cells += [""] * (width - len(cells))
+        try:
+            row = np.array([float(cell) if cell else np.nan for cell in cells])
+        except ValueError:
+            column = next(i for i, cell in enumerate(cells) if cell and not _is_number(cell))
+            raise fail(
+                path,
+                f"line {number + 1}, column {column + 1}: {cells[column]!r} is not a number",
+                "fix that cell or export the file again",
+            ) from None
+        if r == 0:
+            first_number = row[0]
+            if not np.isfinite(first_number) or first_number != int(first_number):
+                raise fail(path, f"line {number + 1}: Frame# should be a whole number, got {cells[0]!r}", redo)
+        markers[r] = (row[keep_cols] * scale).reshape(len(keep), 3)
+        for i, out in outputs.items():
+            out[r] = row[2 + 3 * i:5 + 3 * i]
+        r += 1
+    markers.flags.writeable = False  # the trial takes it over rather than copies it
     return Trial(
         labels=tuple(labels[i] for i in keep),
-        markers=markers[:, keep],
+        markers=markers,
         rate=rate,
         first_frame=max(int(first_number) - 1, 0),
         source=str(path),
-        model_outputs={labels[i]: markers[:, i] / (1.0 if kind == "point" else scale) for i, kind in kinds.items()},
+        model_outputs={labels[i]: outputs[i] * (scale if kind == "point" else 1.0) for i, kind in kinds.items()},
         output_kinds={labels[i]: kind for i, kind in kinds.items()},
         output_units={labels[i]: "m" if kind == "point" else "file units" for i, kind in kinds.items()},
     )

@@ -234,16 +234,26 @@ class Trial:
         if dupes:
             raise TrialError(f"{where}: marker labels must be unique; repeated: {', '.join(sorted(dupes)[:5])}")
 
-        try:
-            markers = np.array(self.markers, dtype=np.float64, copy=True)
-        except (TypeError, ValueError) as exc:
-            raise TrialError(f"{where}: marker positions are not numbers ({one_line(exc)})") from None
+        markers = self.markers
+        # A read-only float64 array that owns its memory (what the readers make) is taken as it is: a
+        # long trial's marker array is never held twice.  Anything else is copied (the trial is immutable).
+        adopt = (isinstance(markers, np.ndarray) and markers.dtype == np.float64 and markers.base is None
+                 and not markers.flags.writeable and markers.flags.c_contiguous)
+        if not adopt:
+            try:
+                markers = np.array(markers, dtype=np.float64, copy=True)
+            except (TypeError, ValueError) as exc:
+                raise TrialError(f"{where}: marker positions are not numbers ({one_line(exc)})") from None
         if markers.ndim != 3 or markers.shape[2] != 3 or markers.shape[1] != len(labels):
             raise TrialError(
                 f"{where}: marker array has shape {markers.shape}, expected (n_frames, {len(labels)}, 3) "
                 f"for {len(labels)} labels"
             )
-        markers[~np.isfinite(markers).all(axis=2)] = np.nan
+        bad = ~np.isfinite(markers).all(axis=2)  # a gap: all three coordinates NaN
+        if bad.any() and not np.isnan(markers[bad]).all():
+            markers = markers.copy() if adopt else markers
+            markers.flags.writeable = True
+            markers[bad] = np.nan
         markers.flags.writeable = False
 
         try:

@@ -147,6 +147,7 @@ class CodegenMixin:
         self._funcs = {"full": full, "pose": pose, "resid": resid}
         # Per-segment groups from the sparsity patterns.
         self._jz_pattern = (zr, zc, int(shape[0]), int(shape[1]))
+        self._jp_pattern = (pr, pc)
         self.groups: list[FrameGroup] = []
         for s in range(len(m.segments)):
             mk = np.flatnonzero(self.marker_segment == s)
@@ -167,25 +168,50 @@ class CodegenMixin:
             self.groups.append(FrameGroup(rows, zcols, pcols, z_src, z_dst, p_src, p_dst))
         self._layout_z = group_layout(self.groups)
 
+    def jacobian_rows(self) -> tuple:
+        """(rows_z, cols_z, rows_p, cols_p): for the per-frame Jacobians' nonzeros, sparse (nnz, rows)
+        maps of each nonzero to its residual row, and each nonzero's column (z, or full p)."""
+        if getattr(self, "_rows_of", None) is None:
+            from scipy import sparse
+
+            zr, zc, nrows, _ = self._jz_pattern
+            pr, pc = self._jp_pattern
+            rz = sparse.csr_matrix((np.ones(zr.size), (np.arange(zr.size), zr)), shape=(zr.size, nrows))
+            rp = sparse.csr_matrix((np.ones(pr.size), (np.arange(pr.size), pr)), shape=(pr.size, nrows))
+            self._rows_of = (rz, np.asarray(zc), rp, np.asarray(pc))
+        return self._rows_of
+
+    @property
+    def output_sizes(self) -> tuple[int, int, int]:
+        """Per frame: residual rows, nonzeros of d markers/dz and of d markers/dp (what one frame's
+        evaluation writes; calibrate.solve.chunks sizes its chunks by them)."""
+        f = self._funcs["full"]
+        return f.nnz_out(0), f.nnz_out(1), f.nnz_out(2)
+
     def frame_evaluator(self, p: np.ndarray) -> FrameEvaluator:
         """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
         parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
         return FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
 
-    def _run(self, kind: str, state: State, out: tuple | None = None) -> list[np.ndarray]:
+    def _run(self, kind: str, state: State, out: tuple | None = None, frames: slice = slice(None)) -> list[np.ndarray]:
         """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
         call (a map's construction grows with its size, and costs ~15 ms: a short last block is
         padded with copies of its last frame so that one map size serves every problem), into
         numpy arrays (F, nnz_out): those of `out` where their shapes fit (buffers no longer
-        needed), else fresh ones."""
-        F = state.Z.shape[0]
+        needed), else fresh ones.  `frames`: only those frames (a chunk of a long trial), taken from `state`
+        or, if it has as many frames as they are, its own."""
+        n_sel = len(range(*frames.indices(self.F)))
+        state = state if state.Z.shape[0] == n_sel else State(state.Z[frames], state.Q[frames], state.p,
+                                                              None if state.B is None else state.B[frames])
+        Z = np.ascontiguousarray(state.Z, dtype=float)
+        F = Z.shape[0]
         f0 = self._funcs[kind]
         outs = [np.empty((F, f0.nnz_out(i))) for i in range(f0.n_out())]
         for i, o in enumerate(out or ()):
             if i < len(outs) and isinstance(o, np.ndarray) and o.shape == outs[i].shape:
                 outs[i] = o
-        Z = np.ascontiguousarray(state.Z, dtype=float)
         Q = np.ascontiguousarray(self.kin.refs(state.Q, state.B), dtype=float)
+        target = self.target[frames]
         P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
         for s in range(0, F, EVAL_BLOCK):
             e = min(F, s + EVAL_BLOCK)
@@ -196,7 +222,7 @@ class CodegenMixin:
                 fm = f0.map(size, "thread", 2)
                 self._mapped[key] = (fm, *fm.buffer())
             _, buf, ev = self._mapped[key]
-            ins = [Z[s:e], Q[s:e], self.target[s:e]]
+            ins = [Z[s:e], Q[s:e], target[s:e]]
             res = [o[s:e] for o in outs]
             if size > n:
                 ins = [np.concatenate([a, np.repeat(a[-1:], size - n, axis=0)]) for a in ins]

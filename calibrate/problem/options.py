@@ -56,6 +56,9 @@ class ProblemOptions:
     hold_axes: tuple[str, ...] = ()
     hold_segments: tuple[str, ...] = ()
     compile: bool = True
+    # Memory (MB) for the frames' blocks of the normal equations at once; a longer trial's are formed chunk
+    # by chunk, and again when a pass needs them (calibrate.solve.chunks): ~170 kB per frame, full body.
+    memory_mb: float = 200.0
 
     def __post_init__(self) -> None:
         hold = (self.hold_axes,) if isinstance(self.hold_axes, str) else self.hold_axes
@@ -89,6 +92,7 @@ class ProblemOptions:
             raise ValueError(f"loss: '{self.loss}' is not one of {', '.join(LOSSES)}")
         _positive("noise", self.noise)
         _positive("loss_scale", self.loss_scale)
+        _positive("memory_mb", self.memory_mb)
         for name in ("marker", "centre", "axis", "scale"):
             v = getattr(self.priors, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):

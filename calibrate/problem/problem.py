@@ -49,9 +49,12 @@ from calibrate.problem.state import Linearization, State
 from ..model.blocks import ParameterLayout
 from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters
+from ..solve.assembly import ParameterLayout as ColumnLayout
 from ..solve.assembly import assemble, parameter_layout
 
 T = TypeVar("T")
+
+ALL = slice(None)  # every frame (the `frames` argument of the per-frame evaluations)
 
 
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.solve.ik)
@@ -294,14 +297,16 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         d = self._run("resid", state)[0].reshape(self.F, -1, 3)
         return np.where(self.seen[..., None], d, np.nan)
 
-    def _weights(self, d: np.ndarray) -> tuple[float, np.ndarray]:
-        """Data cost and per-(frame, marker) row weights sqrt(ρ')/σ (0 where not seen)."""
+    def _weights(self, d: np.ndarray, frames: slice = ALL) -> tuple[float, np.ndarray]:
+        """Data cost and per-(frame, marker) row weights sqrt(ρ')/σ (0 where not seen) of the
+        residuals `d` of `frames`."""
         st = self.settings
         sigma = self.sigma
-        s = np.where(self.seen, np.sum(d.reshape(self.F, -1, 3) ** 2, axis=2), 0.0) / sigma**2
+        seen = self.seen[frames]
+        s = np.where(seen, np.sum(d.reshape(seen.shape[0], -1, 3) ** 2, axis=2), 0.0) / sigma**2
         rho, drho = _robust(s, st.loss, st.loss_scale**2)
-        cost = 0.5 * float(np.sum(rho[self.seen]))
-        w = np.where(self.seen, np.sqrt(drho) / sigma, 0.0)
+        cost = 0.5 * float(np.sum(rho[seen]))
+        w = np.where(seen, np.sqrt(drho) / sigma, 0.0)
         return cost, w
 
 
@@ -315,39 +320,46 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
 
     # ------------------------------------------------------------------ normal equations
     def linearize(self, state: State, with_parameters: bool = True,
-                  reuse: Linearization | bool | None = None) -> Linearization:
+                  reuse: Linearization | bool | None = None, frames: slice | None = None,
+                  parts: str = "all", layout: ColumnLayout | None = None) -> Linearization:
         """Cost and block-arrow normal equations at `state` (weights from the robust loss).
         `reuse`: a Linearization no longer needed, whose arrays are overwritten (saves allocating
         the large B afresh at every iteration); True: the one last handed back by recycle() (the
-        solver's last run on this problem), if any.
+        solver's last run on this problem), if any.  `frames`: only those frames' blocks (a chunk
+        of a long trial, calibrate.solve.chunks): their data and joint-limit terms, no priors
+        (prior_normal gives those once).  `parts` (with the parameters): 'all'; 'no_coupling' (B left
+        with no columns); 'coupling' (C and g_p zero); 'frames' (A_f and g_z only, the Jacobian kept
+        for coupling_times / coupling_transpose): what each pass over a long trial's chunks needs.
+        `layout`: the parameter layout at `state.p` (parameter_layout), if already made.
 
         The per-segment Jacobian blocks are gathered and multiplied frame by frame in compiled
         loops (calibrate.solve.assembly): the time is linear in the frames."""
-        F, nz = self.F, self.model.nz
+        sel = ALL if frames is None else frames
+        F, nz = self.seen[sel].shape[0], self.model.nz
         if reuse is True:
             reuse = self._work.pop(("lin", not with_parameters), None)
         elif reuse is False:
             reuse = None
         old = reuse.jacobian[:3] if reuse is not None and reuse.jacobian is not None else None  # (d, jz, jp)
         if with_parameters:
-            d, jz, jp = self._run("full", state, old)
+            d, jz, jp = self._run("full", state, old, sel)
         else:
-            (d, jz), jp = self._run("pose", state, old), None
-        cost, w = self._weights(d)
+            (d, jz), jp = self._run("pose", state, old, sel), None
+        cost, w = self._weights(d, sel)
         wrow = np.repeat(w, 3, axis=1)  # (F, 3 nm)
         n = self.n_free if with_parameters else 0
+        nb = n if parts in ("all", "coupling") else 0
         A = reuse.A if reuse is not None and reuse.A.shape == (F, nz, nz) else np.empty((F, nz, nz))
-        B = reuse.B if reuse is not None and reuse.B.shape == (F, nz, n) else np.empty((F, nz, n))
+        B = reuse.B if reuse is not None and reuse.B.shape == (F, nz, nb) else np.empty((F, nz, nb))
         gz = np.empty((F, nz))
-        pl = parameter_layout(self.groups, self.tangent_map(state.p)) if with_parameters else None
-        C, gp = assemble(d, wrow, jz, jp, self._layout_z, pl, A, B, gz, n)
-        a_pat = np.eye(nz, dtype=bool)
-        b_pat = np.zeros((nz, n), dtype=bool)
-        for k, g in enumerate(self.groups):
-            a_pat[np.ix_(g.zcols, g.zcols)] = True
-            if pl is not None:
-                b_pat[np.ix_(g.zcols, pl.fcols[pl.fc_off[k]:pl.fc_off[k + 1]])] = True
-        lim = self.limits(state.Z)
+        pl = (layout or self.parameter_layout(state.p)) if with_parameters else None
+        if parts == "frames":
+            C, gp = assemble(d, wrow, jz, None, self._layout_z, None, A, B, gz, 0)
+            C, gp = np.zeros((n, n)), np.zeros(n)
+        else:
+            C, gp = assemble(d, wrow, jz, jp, self._layout_z, pl, A, B, gz, n, parts=parts)
+        a_pat, b_pat = self.block_patterns(pl)
+        lim = self.limits(state.Z[sel])
         out = self._limit_active(lim)
         if out.any():
             cost += 0.5 * float(np.sum(lim**2))
@@ -356,24 +368,82 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
             c = self.layout.frame.angle(d_)
             A[f, c, c] += k * k
             gz[f, c] += k * lim[f, d_]
-        r, Jr = self.prior(state.p)
-        cost += 0.5 * float(r @ r)
-        if with_parameters:
-            C += Jr.T @ Jr
-            gp += Jr.T @ r
+        Jr = None
+        if frames is None:
+            r, Jr = self.prior(state.p)
+            cost += 0.5 * float(r @ r)
+            if with_parameters:
+                C += Jr.T @ Jr
+                gp += Jr.T @ r
         return Linearization(cost, A, B, C, gz, gp, a_pat, b_pat, (d, jz, jp, wrow, pl, Jr, out))
 
-    def residual_parts(self, state: State) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def parameter_layout(self, p: np.ndarray) -> ColumnLayout:
+        """The gather of ∂r/∂p_free from the per-frame Jacobian's nonzeros at parameters `p`
+        (calibrate.solve.assembly.parameter_layout through tangent_map(p)): one per state, shared by
+        its chunks."""
+        return parameter_layout(self.groups, self.tangent_map(p))
+
+    def coupling_times(self, lin: Linearization, full_step: np.ndarray) -> np.ndarray:
+        """B_f dp for every frame of `lin` (F, nz), from its Jacobian (Jz' W² Jp dp) without B_f;
+        `full_step`: the step of the full parameters, tangent_map(p) dp."""
+        _, jz, jp, wrow, pl = lin.jacobian[:5]
+        rows_z, cols_z, rows_p, cols_p = self.jacobian_rows()
+        v = (rows_p.T @ (jp * full_step[cols_p]).T).T
+        gz = np.empty((v.shape[0], self.model.nz))
+        assemble(np.ascontiguousarray(v), wrow, jz, None, self._layout_z, None, lin.A, lin.B, gz, 0,
+                 gradient_only=True)
+        return gz
+
+    def coupling_transpose(self, lin: Linearization, u: np.ndarray) -> np.ndarray:
+        """Σ_f B_f' u_f over the frames of `lin` (u: (F, nz)), from its Jacobian (Jp' W² Jz u) without B_f."""
+        _, jz, jp, wrow, pl = lin.jacobian[:5]
+        rows_z, cols_z, rows_p, cols_p = self.jacobian_rows()
+        v = (rows_z.T @ (jz * u[:, cols_z]).T).T
+        gz = np.empty((v.shape[0], self.model.nz))
+        _, gp = assemble(np.ascontiguousarray(v), wrow, jz, jp, self._layout_z, pl, lin.A, lin.B, gz, self.n_free,
+                         gradient_only=True)
+        return gp
+
+    def block_patterns(self, pl) -> tuple[np.ndarray, np.ndarray]:
+        """(nz, nz) and (nz, n) bool: which entries of a frame's A_f and B_f can be nonzero (B's
+        columns: the free parameters of the parameter layout `pl`; none without it)."""
+        nz = self.model.nz
+        n = self.n_free if pl is not None else 0
+        a_pat = np.eye(nz, dtype=bool)
+        b_pat = np.zeros((nz, n), dtype=bool)
+        for k, g in enumerate(self.groups):
+            a_pat[np.ix_(g.zcols, g.zcols)] = True
+            if pl is not None:
+                b_pat[np.ix_(g.zcols, pl.fcols[pl.fc_off[k]:pl.fc_off[k + 1]])] = True
+        return a_pat, b_pat
+
+    def prior_gradient(self, p: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Jr'r: the priors' Jacobian at `p` times a prior-shaped residual `r` (Problem.gradient's
+        prior part, for blocks formed chunk by chunk)."""
+        return self.prior(p)[1].T @ r
+
+    def prior_normal(self, p: np.ndarray, with_parameters: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+        """The priors' share of the normal equations at `p`: (cost, Jr'Jr, Jr'r) (empty without the
+        parameters), what linearize adds once to the frames' blocks."""
+        r, Jr = self.prior(p)
+        if not with_parameters:
+            return 0.5 * float(r @ r), np.zeros((0, 0)), np.zeros(0)
+        return 0.5 * float(r @ r), Jr.T @ Jr, Jr.T @ r
+
+    def residual_parts(self, state: State, frames: slice = ALL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The residuals at `state`, unweighted markers (F, 3 n_markers; 0 where not seen), joint
-        limits (F, n_dofs) and priors: what the geodesic acceleration differentiates twice."""
-        d = self._run("resid", state)[0]
-        r, _ = self.prior(state.p, jacobian=False)
-        return np.where(np.repeat(self.seen, 3, axis=1), d, 0.0), self.limits(state.Z), r
+        limits (F, n_dofs) and priors: what the geodesic acceleration differentiates twice.  `frames`:
+        a chunk of frames, which `state` holds alone (then the priors' part is empty)."""
+        d = self._run("resid", state, frames=frames)[0]
+        whole = frames == ALL
+        r = self.prior(state.p, jacobian=False)[0] if whole else np.zeros(0)
+        return np.where(np.repeat(self.seen[frames], 3, axis=1), d, 0.0), self.limits(state.Z), r
 
     def gradient(self, lin: Linearization, d: np.ndarray, lim: np.ndarray,
                  r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """J'ρ for residuals ρ = (markers d (F, 3 n_markers) unweighted, limits lim, priors r), with
-        the Jacobian J and weights of `lin`: (g_z (F, nz), g_p (n,))."""
+        the Jacobian J and weights of `lin`: (g_z (F, nz), g_p (n,)); a linearization of some frames
+        only (linearize's `frames`) takes their d and lim, and no priors (r: ignored)."""
         _, jz, jp, wrow, pl, Jr, on = lin.jacobian
         F, nz = lin.gz.shape
         n = lin.gp.size
@@ -383,7 +453,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         if on.any():
             f, k = np.nonzero(on)
             gz[f, self.layout.frame.angle(k)] += self._limit_w[k] * lim[f, k]
-        if n:
+        if n and Jr is not None:
             gp = gp + Jr.T @ r
         return gz, gp
 

@@ -55,8 +55,9 @@ from calibrate.simulation.motions import (
 )
 from calibrate.simulation.subject import perturb_parameters, sized_subject, stature
 
-from ..io.c3d import write_c3d
+from ..io.c3d import C3D_MAX_FRAMES, write_c3d
 from ..io.motion import Motion, write_motion_csv
+from ..io.trc import write_trc
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import build_kinematics
@@ -321,12 +322,15 @@ def joint_axes_world(model: Model, params: Parameters, motion: Motion) -> dict[s
 
 
 def write_simulation(sim: Simulation, out_dir: str | os.PathLike[str]) -> dict[str, Path]:
-    """Write trial.c3d, truth.urdf and truth_motion.csv into `out_dir` (created if missing), and
-    truth_corruptions.csv when the trial has swapped or spiked samples (see `write_corruptions`)."""
+    """Write trial.c3d (trial.trc if it has more frames than a C3D file holds, C3D_MAX_FRAMES),
+    truth.urdf and truth_motion.csv into `out_dir` (created if missing), and truth_corruptions.csv
+    when the trial has swapped or spiked samples (see `write_corruptions`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"trial": out / "trial.c3d", "truth": out / "truth.urdf", "motion": out / "truth_motion.csv"}
-    write_c3d(paths["trial"], sim.trial)
+    long = sim.trial.n_frames > C3D_MAX_FRAMES
+    paths = {"trial": out / ("trial.trc" if long else "trial.c3d"), "truth": out / "truth.urdf",
+             "motion": out / "truth_motion.csv"}
+    (write_trc if long else write_c3d)(paths["trial"], sim.trial)
     write_model(sim.model, paths["truth"], sim.truth)
     write_motion_csv(paths["motion"], sim.motion)
     if sim.corruptions:

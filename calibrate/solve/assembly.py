@@ -138,14 +138,19 @@ def group_layout(groups) -> GroupLayout:
     return GroupLayout(i(rows), o(row_off), i(zcols), o(zc_off), i(src), i(r), i(c), o(z_off))
 
 
+PARTS = {"all": 1, "no_coupling": 2, "coupling": 3}  # the kernels' with_p codes
+
+
 def assemble(d: np.ndarray, w: np.ndarray, jz: np.ndarray, jp: np.ndarray | None, gl: GroupLayout,
              pl: ParameterLayout | None, A: np.ndarray, B: np.ndarray, gz: np.ndarray,
-             n: int, gradient_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+             n: int, gradient_only: bool = False, parts: str = "all") -> tuple[np.ndarray, np.ndarray]:
     """Fill A (F, nz, nz), B (F, nz, n), gz (F, nz) in place from the residuals d (F, rows),
     row weights w (F, rows; 0 where a marker is not seen) and the CasADi nonzeros jz, jp;
     return (C, g_p) of the data.  `jp`/`pl` None: poses only (B, C, g_p untouched / empty).
     `gradient_only`: only g_z = Jz'(w d) and g_p (A, B and C untouched; C returned empty), e.g.
-    for the geodesic acceleration, whose right-hand side is J' times a second derivative."""
+    for the geodesic acceleration, whose right-hand side is J' times a second derivative.
+    `parts`: 'all'; 'no_coupling' (B untouched: it may have no columns); 'coupling' (B but not C
+    or g_p, returned as zeros): what a long trial's chunks need in each pass (calibrate.solve.chunks)."""
     F = d.shape[0]
     with_p = jp is not None and pl is not None and n > 0
     if not with_p:
@@ -155,7 +160,7 @@ def assemble(d: np.ndarray, w: np.ndarray, jz: np.ndarray, jp: np.ndarray | None
 
     def part(fr: slice) -> tuple[np.ndarray, np.ndarray]:
         Ct, gt = np.zeros((n, n)), np.zeros(n)
-        kernels().assemble(d, w, jz, jp, fr.start, fr.stop, with_p, gradient_only,
+        kernels().assemble(d, w, jz, jp, fr.start, fr.stop, PARTS[parts] if with_p else 0, gradient_only,
                   gl.rows, gl.row_off, gl.zcols, gl.zc_off, gl.z_src, gl.z_r, gl.z_c, gl.z_off,
                   pl.fcols, pl.fc_off, pl.p_src, pl.p_r, pl.p_c, pl.p_val, pl.p_off, A, B, gz, Ct, gt)
         return Ct, gt
@@ -235,7 +240,7 @@ class _CKernels:
         ints = [_ptr(x, np.int64) for x in (rows, row_off, zcols, zc_off, z_src, z_r, z_c, z_off,
                                             fcols, fc_off, p_src, p_r, p_c)]
         ok = self._assemble(_ptr(d), _ptr(w), _ptr(jz), _ptr(jp), d.shape[1], jz.shape[1], jp.shape[1], A.shape[1],
-                            B.shape[2], f0, f1, int(with_p), int(grad_only), row_off.size - 1, *ints, _ptr(p_val),
+                            Ct.shape[0], f0, f1, int(with_p), int(grad_only), row_off.size - 1, *ints, _ptr(p_val),
                             _ptr(p_off, np.int64), _ptr(A), _ptr(B), _ptr(gz), _ptr(Ct), _ptr(gt))
         if not ok:
             raise MemoryError("calibrate kernels: out of memory assembling the normal equations")

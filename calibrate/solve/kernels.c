@@ -11,7 +11,8 @@ static inline double dot(const double *a, const double *b, I n) {
     return s;
 }
 
-/* Normal equations of frames f0..f1-1 (see calibrate.assembly.assemble).  Blocks are kept
+/* Normal equations of frames f0..f1-1 (see calibrate.solve.assembly.assemble; with_p: 0 no parameters,
+   1 B, C and g_p, 2 C and g_p only, 3 B only).  Blocks are kept
    transposed (column by row) so that every inner product runs over contiguous memory. */
 int cal_assemble(const double *d, const double *w, const double *jz, const double *jp,
                  I nrow, I njz, I njp, I nz, I n, I f0, I f1, I with_p, I grad_only, I n_groups,
@@ -38,7 +39,7 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
         memset(gzf, 0, (size_t)nz * sizeof(double));
         if (!grad_only) {
             memset(Af, 0, (size_t)(nz * nz) * sizeof(double));
-            if (with_p) memset(Bf, 0, (size_t)(nz * n) * sizeof(double));
+            if (with_p == 1 || with_p == 3) memset(Bf, 0, (size_t)(nz * n) * sizeof(double));
         }
         for (I g = 0; g < n_groups; ++g) {
             I r0 = row_off[g], nr = row_off[g + 1] - r0, seen = 0;
@@ -66,7 +67,7 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
             memset(Jp, 0, (size_t)(nq * max_r) * sizeof(double));
             for (I k = p_off[g]; k < p_off[g + 1]; ++k)
                 Jp[p_c[k] * max_r + p_r[k]] += jpf[p_src[k]] * p_val[k] * wr[p_r[k]];
-            if (!grad_only) {
+            if (!grad_only && with_p != 2) {
                 for (I a = 0; a < nc; ++a) {
                     const double *za = Jz + a * max_r;
                     double *Brow = Bf + zcols[c0 + a] * n;
@@ -75,6 +76,7 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
                     }
                 }
             }
+            if (with_p == 3) continue;  /* the coupling blocks B only */
             for (I a = 0; a < nq; ++a) {
                 const double *pa = Jp + a * max_r;
                 I ka = fcols[q0 + a];

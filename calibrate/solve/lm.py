@@ -36,14 +36,13 @@ import numpy as np
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import back_substitute, factor_frames, forward_substitute, in_parallel, split_frames
+from .assembly import back_substitute, forward_substitute
+from .chunks import FrameBlocks, chunked_step
+from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, model_decrease, retract
 
 __all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "levenberg_marquardt",
            "minimise"]
 
-DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
-GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
-GEODESIC_RATIO = 0.75  # the acceleration is used while 2|a| <= this times |v| (Transtrum & Sethna's alpha)
 
 
 @dataclass
@@ -75,98 +74,12 @@ class Covariance:
     prior_only: np.ndarray  # (n_free, n_free): the same with no marker data
 
 
-@dataclass
-class _Elimination:
-    """The frame blocks eliminated, each in reverse coordinate order (leaves of the kinematic
-    tree first, the root last), the order in which a Cholesky factor of A_f has no fill-in
-    and Y_f = L_f⁻¹ B_f keeps the sparsity of B_f: a coordinate's row couples only with the
-    parameters of the segments below it."""
-
-    L: np.ndarray  # (F, nz, nz) Cholesky factor of the reversed (damped) A_f
-    Y: np.ndarray  # (F, nz, n)  L⁻¹ B_f (rows reversed)
-    yz: np.ndarray  # (F, nz)    L⁻¹ g_z (rows reversed)
-    S: np.ndarray  # (n, n)      Σ_f Y_f' Y_f
-
-
-def _row_classes(lin: Linearization, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Rows of Y (reversed order) grouped by their nonzero columns: (rows, columns) per class.
-    The pattern is propagated symbolically through the factorisation, so it is exact whatever
-    the coordinate order."""
-    nz = lin.A.shape[1]
-    if lin.a_pattern is None or lin.b_pattern is None:
-        return [(np.arange(nz), np.arange(n))]
-    P = lin.a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
-    for k in range(nz):  # symbolic Cholesky: eliminating k joins its later neighbours
-        nb = k + 1 + np.flatnonzero(P[k + 1:, k])
-        P[np.ix_(nb, nb)] = True
-    Yp = lin.b_pattern[::-1].copy()
-    for i in range(nz):
-        for j in np.flatnonzero(P[i, :i]):
-            Yp[i] |= Yp[j]
-    classes: dict[bytes, list[int]] = {}
-    for i in range(nz):
-        classes.setdefault(Yp[i].tobytes(), []).append(i)
-    return [(np.array(rows), np.flatnonzero(Yp[rows[0]])) for rows in classes.values()]
-
-
-def _buffer(work: dict | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
-    """An uninitialised array, kept in `work` and reused by later calls (large temporaries
-    allocated afresh on every step cost page faults and allocator churn)."""
-    if work is None:
-        return np.empty(shape)
-    a = work.get((name, shape))
-    if a is None:
-        a = work[(name, shape)] = np.empty(shape)
-    return a
-
-
-def _eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = True,
-               work: dict | None = None) -> _Elimination | None:
-    """Cholesky of every A_f + diag(damping_f) and the frames' share of the Schur complement;
-    None if a block is not positive definite.  The factorisation runs in compiled loops
-    (calibrate.solve.assembly.factor_frames); the Schur complement is accumulated by BLAS, class by
-    class of Y's rows, with the frames split between the cores.  `work`: buffers to reuse."""
-    F, nz, n = lin.B.shape
-    n = n if with_parameters else 0
-    L = _buffer(work, "L", (F, nz, nz))
-    yz = _buffer(work, "yz", (F, nz))
-    Y = _buffer(work, "Y", (F, nz, n))
-    B = lin.B if n else np.empty((F, nz, 0))
-    if not factor_frames(lin.A, np.ascontiguousarray(damping, dtype=float), B, lin.gz, L, Y, yz):
-        return None
-    if n == 0:
-        return _Elimination(L, Y, yz, np.zeros((0, 0)))
-    key = None if lin.a_pattern is None or lin.b_pattern is None else \
-        ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
-    classes = None if work is None or key is None else work.get(key)
-    if classes is None:
-        classes = _row_classes(lin, n)
-        if work is not None and key is not None:
-            work[key] = classes  # the patterns change only with the free set: one per problem
-
-    def part(fr: slice) -> np.ndarray:
-        S = np.zeros((n, n))
-        for rows, cols in classes:
-            if cols.size == 0:
-                continue
-            if rows[-1] - rows[0] + 1 == rows.size:  # consecutive rows (a joint's coordinates): a view
-                M = np.take(Y[fr, rows[0]:rows[-1] + 1], cols, axis=2)
-            else:
-                M = np.take(Y[fr][:, rows], cols, axis=2)
-            M = M.reshape(-1, cols.size)
-            S[np.ix_(cols, cols)] += M.T @ M
-        return S
-
-    results = in_parallel(part, split_frames(F))
-    return _Elimination(L, Y, yz, sum(results[1:], results[0]))
-
-
 class _Factored:
     """The damped normal equations of one LM iteration, factored: solve(g_z, g_p) gives the step
     for any right-hand side (the LM step, then the geodesic acceleration) at the cost of a few
     substitutions."""
 
-    def __init__(self, el: _Elimination, Ls: np.ndarray | None, N: np.ndarray | None):
+    def __init__(self, el: Elimination, Ls: np.ndarray | None, N: np.ndarray | None):
         self.el, self.Ls, self.N = el, Ls, N
 
     def solve(self, gz: np.ndarray, gp: np.ndarray, yz: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +104,7 @@ def factor_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool 
     """The damped normal equations for damping `lam` factored (frames eliminated, the Schur
     complement on p Cholesky-factored, restricted to the columns of `N` (gauge constraints) if
     given); None if a block is not positive definite.  `work`: buffers reused between steps."""
-    el = _eliminate(lin, lam * Dz, with_parameters=not pose_only, work=work)
+    el = eliminate(lin, lam * Dz, with_parameters=not pose_only, work=work)
     if el is None:
         return None
     if pose_only or lin.C.size == 0:
@@ -215,14 +128,6 @@ def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool =
     not positive definite."""
     fac = factor_step(lin, lam, Dz, pose_only, N, work)
     return None if fac is None else fac.solve(lin.gz, lin.gp, fac.el.yz)
-
-
-def retract(problem: Problem, state: State, dz: np.ndarray, dp: np.ndarray) -> State:
-    """`state` moved by (dz, dp): root and ball-joint rotations folded into their references
-    (Kinematics.retract), axes kept unit."""
-    Z, Q, B = problem.kin.retract(state.Z + dz, state.Q, state.B)
-    p = problem.retract_parameters(state.p, dp) if dp.size else state.p.copy()
-    return State(Z, Q, p, B)
 
 
 def null_space(K: np.ndarray, n: int) -> np.ndarray | None:
@@ -256,18 +161,6 @@ def _accelerate(problem: Problem, state: State, lin: Linearization, fac: _Factor
     return dz + 0.5 * az, dp + 0.5 * ap
 
 
-def _model_decrease(lin: Linearization, dz: np.ndarray, dp: np.ndarray) -> float:
-    """Decrease of the Gauss–Newton model −(g'h + ½ h'Hh) for the step h = (dz, dp)."""
-    Adz = np.matmul(lin.A, dz[:, :, None])[:, :, 0]
-    quad = float(np.sum(dz * Adz))
-    lin_term = float(np.sum(lin.gz * dz))
-    if dp.size:
-        Bdp = np.matmul(lin.B, dp)
-        quad += 2.0 * float(np.sum(dz * Bdp)) + float(dp @ lin.C @ dp)
-        lin_term += float(lin.gp @ dp)
-    return -(lin_term + 0.5 * quad)
-
-
 class StepProblem(Protocol):
     """A least-squares problem as the Levenberg–Marquardt loop (`minimise`) sees it: the block-arrow
     calibration problem (`levenberg_marquardt`) and one frame's inverse kinematics
@@ -290,12 +183,6 @@ class StepProblem(Protocol):
 
     def norm(self, x: Any) -> float:
         """|x|, for the step tolerance."""
-
-
-def marquardt_diagonal(diagonal: np.ndarray, largest: float) -> np.ndarray:
-    """Marquardt's scaling: the normal matrix's diagonal, floored relative to its largest entry
-    (a coordinate the markers do not reach still gets some damping)."""
-    return np.maximum(diagonal, DIAG_FLOOR * max(1.0, largest))
 
 
 def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
@@ -368,49 +255,62 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
 
 class _BlockArrow:
     """The calibration problem as a StepProblem: steps from the Schur complement on p (factor_step),
-    with geodesic acceleration when the loss is plain least squares; stage times go to `summary`."""
+    with geodesic acceleration when the loss is plain least squares; the frame blocks held chunk by
+    chunk within the memory budget (calibrate.solve.chunks); stage times go to `summary`."""
 
     def __init__(self, problem: Problem, options: SolverOptions, pose_only: bool, summary: SolverSummary):
         self.problem, self.pose_only, self.summary = problem, pose_only, summary
+        self.budget = problem.settings.memory_mb * 1e6
         # Buffers shared by every step, and by later runs on this problem (first touches of the large
         # per-step arrays, in page faults, cost as much as a step of a short run).
         self.work = problem.buffers()
+        self.chunk_work: list[dict] = []  # buffers of each chunk kept in memory (long trials)
+        self.scratch: dict = {}  # buffers of the chunks formed again in each pass
         # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
         # weights would blur: plain least squares only.
         self.accelerate = options.geodesic and problem.loss == "linear"
-        self.lin: Linearization | None = None
+        self.blocks: FrameBlocks | None = None
         self.here: tuple | None = None
         self.N: np.ndarray | None = None
 
     def linearize(self, state: State) -> float:
         problem = self.problem
         t0 = time.perf_counter()
-        self.lin = problem.linearize(state, with_parameters=not self.pose_only,
-                                     reuse=True if self.lin is None else self.lin)
+        self.blocks = FrameBlocks(problem, state, not self.pose_only, self.budget, previous=self.blocks)
+        if not self.blocks.whole:
+            self.chunk_work.extend({} for _ in range(self.blocks.n_kept - len(self.chunk_work)))
         self.here = problem.residual_parts(state) if self.accelerate else None
         self.summary.linearize_seconds += time.perf_counter() - t0
         self.N = None if self.pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
-        return self.lin.cost
+        return self.blocks.cost
 
     def gradient_max(self) -> float:
-        lin = self.lin
-        return max(float(np.abs(lin.gz).max(initial=0.0)), float(np.abs(lin.gp).max(initial=0.0)))
+        return self.blocks.gradient_max()
 
     def step(self, state: State, lam: float) -> tuple[State, float, float] | None:
-        lin, summary = self.lin, self.summary
-        Dz = marquardt_diagonal(np.diagonal(lin.A, axis1=1, axis2=2), float(lin.A.max(initial=0.0)))
+        blocks, summary = self.blocks, self.summary
+        Dz = marquardt_diagonal(blocks.diagonal, float(blocks.diagonal.max(initial=0.0)))
         t0 = time.perf_counter()
-        fac = factor_step(lin, lam, Dz, self.pose_only, self.N, self.work)
-        if fac is None:
+        if not blocks.whole:  # a long trial: its blocks chunk by chunk (calibrate.solve.chunks)
+            out = chunked_step(self.problem, blocks, state, lam, Dz, self.N, self.accelerate, self.here,
+                               self.scratch, self.chunk_work)
             summary.linear_solver_seconds += time.perf_counter() - t0
-            return None
-        dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
-        summary.linear_solver_seconds += time.perf_counter() - t0
-        predicted = _model_decrease(lin, dz, dp)
-        if self.accelerate:
-            t0 = time.perf_counter()
-            dz, dp = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
-            summary.evaluate_seconds += time.perf_counter() - t0
+            if out is None:
+                return None
+            dz, dp, predicted = out
+        else:
+            lin = blocks.linearization
+            fac = factor_step(lin, lam, Dz, self.pose_only, self.N, self.work)
+            if fac is None:
+                summary.linear_solver_seconds += time.perf_counter() - t0
+                return None
+            dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
+            summary.linear_solver_seconds += time.perf_counter() - t0
+            predicted = model_decrease(lin, dz, dp)
+            if self.accelerate:
+                t0 = time.perf_counter()
+                dz, dp = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
+                summary.evaluate_seconds += time.perf_counter() - t0
         step_norm = float(np.sqrt(np.sum(dz**2) + np.sum(dp**2)))
         return retract(self.problem, state, dz, dp), predicted, step_norm
 
@@ -427,8 +327,9 @@ class _BlockArrow:
 def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions | None = None, *,
                         pose_only: bool = False, max_iterations: int | None = None,
                         progress: Callable[[int, float, float], None] | None = None) -> tuple[State, SolverSummary]:
-    """Minimise the problem's cost from `state` (tolerances, iteration limit and geodesic
-    acceleration: `options`, default SolverOptions(); `max_iterations` overrides its limit).
+    """Minimise the problem's cost from `state` (tolerances, iteration limit and geodesic acceleration:
+    `options`, default SolverOptions(); `max_iterations` overrides its limit; the memory budget of the
+    frames' blocks: the problem's, ProblemOptions.memory_mb).
     `pose_only` keeps p fixed (frame-wise inverse kinematics of all frames at once).
     `progress(iteration, cost, lam)` after each step."""
     options = SolverOptions() if options is None else options
@@ -436,24 +337,34 @@ def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions |
     t_start = time.perf_counter()
     steps = _BlockArrow(problem, options, pose_only, summary)
     state, summary = minimise(steps, state, options, max_iterations, progress, summary)
-    problem.recycle(steps.lin)  # its arrays are the next run's buffers
+    steps.blocks.recycle()  # the whole trial's arrays are the next run's buffers
     summary.seconds = time.perf_counter() - t_start
     return state, summary
 
 
-def covariance(problem: Problem, state: State, lin: Linearization | None = None) -> Covariance:
+def covariance(problem: Problem, state: State, lin: Linearization | None = None,
+               progress: Callable[[float], None] | None = None) -> Covariance:
     """Posterior covariance of the free parameters: the inverse of the Schur complement
     S = C − Σ B_f' A_f⁻¹ B_f at the solution (λ = 0), with each segment frame's orientation
     held (the gauge; otherwise every offset in a segment would share its frame's uncertain
     turn).  A hinge centre's slide along its axis is *not* held here, so its prior-only
-    uncertainty shows.  Singular directions get a pseudo-inverse."""
-    lin = lin or problem.linearize(state)
-    Dz = np.diagonal(lin.A, axis1=1, axis2=2)
+    uncertainty shows.  Singular directions get a pseudo-inverse.  The frames' blocks are formed
+    chunk by chunk within the problem's memory budget (or taken from `lin`, the whole trial's);
+    `progress(share of the frames done)` after each chunk."""
+    budget = problem.settings.memory_mb * 1e6
+    blocks = FrameBlocks(problem, state, True, budget, linearization=lin) if lin is not None else \
+        FrameBlocks(problem, state, True, budget)
+    Dz = blocks.diagonal
     eps = 1e-12 * max(1.0, float(Dz.max(initial=0.0)))
-    el = _eliminate(lin, np.full(Dz.shape, eps))
-    if el is None:
-        raise np.linalg.LinAlgError("covariance: a frame's normal matrix is not positive definite")
-    S = lin.C - el.S
+    n = blocks.gp.size
+    S = blocks.C.copy()
+    for i, sl in enumerate(blocks.slices):
+        el = eliminate(blocks.chunk(i), np.full((sl.stop - sl.start, Dz.shape[1]), eps))
+        if el is None:
+            raise np.linalg.LinAlgError("covariance: a frame's normal matrix is not positive definite")
+        S = S - el.S if n else S
+        if progress is not None:
+            progress(sl.stop / blocks.gz.shape[0])
     S = 0.5 * (S + S.T)
     _, Jr = problem.prior(state.p)
     P = Jr.T @ Jr

@@ -38,7 +38,7 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
         gz[f] = 0.0
         if not grad_only:
             A[f] = 0.0
-            if with_p:
+            if with_p == 1 or with_p == 3:
                 B[f] = 0.0
         for g in range(n_groups):
             r0 = row_off[g]
@@ -73,11 +73,13 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
             Jp[:nq, :nr] = 0.0
             for k in range(p_off[g], p_off[g + 1]):
                 Jp[p_c[k], p_r[k]] += jp[f, p_src[k]] * p_val[k] * wr[p_r[k]]
-            for a in range(nc if not grad_only else 0):
+            for a in range(nc if not grad_only and with_p != 2 else 0):
                 ia = zcols[c0 + a]
                 za = Jz[a]
                 for b in range(nq):
                     B[f, ia, fcols[q0 + b]] += _dot(za, Jp[b], nr)
+            if with_p == 3:  # the coupling blocks B only
+                continue
             for a in range(nq):
                 ka = fcols[q0 + a]
                 pa = Jp[a]

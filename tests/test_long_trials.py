@@ -1,0 +1,136 @@
+"""Long trials in bounded memory (issue 22): the frame blocks formed chunk by chunk give the same
+solve, covariance and leverage as the whole trial's blocks held at once; the products that replace
+B_f in the later passes equal B_f's; readers hand their one marker array to the trial; the simulator
+writes a TRC where a C3D cannot hold the frames; progress estimates the time left."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.noise import leverage
+from calibrate.calibration.records import IterationClock
+from calibrate.io.read import read_trial
+from calibrate.io.trial import Trial
+from calibrate.problem.options import SolverOptions
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_squats, write_simulation
+from calibrate.solve import chunks
+from calibrate.solve.ik import marker_columns
+from calibrate.solve.lm import State, covariance, levenberg_marquardt
+
+F = 30
+
+
+@pytest.fixture(scope="module")
+def squats(human, human_kin):
+    sim = simulate_squats(human, frames=F, noise_mm=1.0, seed=3)
+    obs = marker_columns(human, sim.trial)
+    obs[4, 7] = np.nan  # a gap
+    problem = Problem(human, obs, Settings(), human_kin)
+    m = sim.motion
+    Z = np.column_stack([m.root_translation, np.zeros((F, 3)), m.angles]) + 0.02
+    return problem, State(Z, m.root_quaternion.copy(), human.parameters().vector())
+
+
+def _budget(problem: Problem, frames: float) -> Problem:
+    """The problem with a memory budget of `frames` frames' blocks (ProblemOptions.memory_mb)."""
+    mb = chunks.frame_bytes(problem, True) * frames / 1e6
+    return problem.with_settings(replace(problem.settings, memory_mb=mb))
+
+
+@pytest.mark.parametrize("kept", [0, 2], ids=["none-kept", "two-kept"])
+def test_chunked_solve_equals_the_whole(squats, monkeypatch, kept):
+    """Levenberg-Marquardt (with its geodesic acceleration) on blocks formed chunk by chunk, none or two
+    chunks kept, takes the same steps as on the whole trial's blocks: the same iterations, and the
+    solution and cost to the last digits (the sums only run in another order)."""
+    problem, state = squats
+    monkeypatch.setattr(chunks, "CHUNK_FRAMES", 7)
+    whole, s_whole = levenberg_marquardt(problem, state, SolverOptions(max_iterations=12))
+    chunked = _budget(problem, 7 * kept + 0.5)
+    blocks = chunks.FrameBlocks(chunked, state, True, chunked.settings.memory_mb * 1e6)
+    assert len(blocks.slices) == 5 and blocks.n_kept == kept
+    part, s_part = levenberg_marquardt(chunked, state, SolverOptions(max_iterations=12))
+    assert s_part.iterations == s_whole.iterations and s_part.accepted == s_whole.accepted
+    assert s_part.final_cost == pytest.approx(s_whole.final_cost, rel=1e-12)
+    assert np.abs(part.Z - whole.Z).max() < 1e-9 and np.abs(part.p - whole.p).max() < 1e-9
+    # Pose-only runs go through the same passes.
+    pz, _ = levenberg_marquardt(chunked, state, pose_only=True, max_iterations=3)
+    wz, _ = levenberg_marquardt(problem, state, pose_only=True, max_iterations=3)
+    assert np.abs(pz.Z - wz.Z).max() < 1e-9
+
+
+def test_chunked_covariance_and_leverage_equal_the_whole(squats, monkeypatch):
+    problem, state = squats
+    monkeypatch.setattr(chunks, "CHUNK_FRAMES", 4)
+    chunked = _budget(problem, 0.5)
+    a, b = covariance(problem, state), covariance(chunked, state)
+    assert np.allclose(b.matrix, a.matrix, rtol=1e-7, atol=1e-9 * np.abs(a.matrix).max())
+    assert np.allclose(b.prior_only, a.prior_only)
+    (h1, d1), (h2, d2) = leverage(problem, state), leverage(chunked, state)
+    assert np.allclose(h1, h2, rtol=1e-10, atol=1e-12) and np.array_equal(d1, d2)
+    assert 0.0 < h1[problem.seen].mean() < 1.0
+
+
+def test_coupling_products_equal_the_coupling_blocks(squats):
+    """B_f dp and Σ_f B_f' u_f from the Jacobian alone (the passes that do not form B_f) equal the
+    products with the assembled B_f."""
+    problem, state = squats
+    lin = problem.linearize(state)
+    frames = problem.linearize(state, parts="frames")
+    assert frames.B.shape[2] == 0 and np.array_equal(frames.A, lin.A) and np.array_equal(frames.gz, lin.gz)
+    rng = np.random.default_rng(0)
+    dp = rng.normal(size=problem.n_free)
+    u = rng.normal(size=(F, problem.model.nz))
+    ref = np.matmul(lin.B, dp)
+    got = problem.coupling_times(frames, problem.tangent_map(state.p) @ dp)
+    assert np.allclose(got, ref, rtol=1e-10, atol=1e-10 * np.abs(ref).max())
+    ref_t = np.einsum("fij,fi->j", lin.B, u)
+    assert np.allclose(problem.coupling_transpose(frames, u), ref_t, rtol=1e-10, atol=1e-10 * np.abs(ref_t).max())
+    # Without B, the linearization's C and g_p are those of the full one ('no_coupling').
+    nc = problem.linearize(state, parts="no_coupling")
+    assert nc.B.shape[2] == 0 and np.allclose(nc.C, lin.C) and np.allclose(nc.gp, lin.gp)
+
+
+def test_trial_takes_a_readers_array_without_copying(tmp_path):
+    """A read-only float64 array that owns its memory becomes the trial's own (the readers' one copy);
+    anything else is copied, so the trial never changes under its caller."""
+    a = np.zeros((5, 2, 3))
+    a.flags.writeable = False
+    t = Trial(labels=("A", "B"), markers=a, rate=100.0)
+    assert t.markers is a
+    b = np.zeros((5, 2, 3))
+    t = Trial(labels=("A", "B"), markers=b, rate=100.0)
+    assert not np.shares_memory(t.markers, b) and not t.markers.flags.writeable
+    c = np.zeros((5, 2, 3))
+    c[1, 0, 2] = np.inf
+    c.flags.writeable = False
+    t = Trial(labels=("A", "B"), markers=c, rate=100.0)  # an infinite coordinate: a gap, in a copy
+    assert np.isnan(t.markers[1, 0]).all() and c[1, 0, 2] == np.inf
+
+
+def test_long_simulation_written_as_trc_and_read_back(human, tmp_path, monkeypatch):
+    """More frames than a C3D file holds: the simulator writes trial.trc, read back in metres as the
+    one (read-only) marker array of the trial."""
+    import calibrate.simulation.simulate as simulate
+
+    monkeypatch.setattr(simulate, "C3D_MAX_FRAMES", 40)
+    sim = simulate_squats(human, frames=50, noise_mm=1.0, seed=1)
+    paths = write_simulation(sim, tmp_path)
+    assert paths["trial"].name == "trial.trc" and not (tmp_path / "trial.c3d").exists()
+    back = read_trial(paths["trial"])
+    assert back.markers.base is None and not back.markers.flags.writeable
+    assert np.allclose(back.markers, sim.trial.markers, atol=1e-6, equal_nan=True)
+
+
+def test_iteration_clock_estimates_the_iterations_left():
+    """Decreases halving (50, 25) with atol 0.5: log(0.5/25)/log(0.5) = 5.6, so 6 more iterations."""
+    said = []
+    clock = IterationClock(said.append, "all frames, ", atol=0.5, ftol=1e-12)
+    for it, cost in enumerate((100.0, 50.0, 25.0), start=1):
+        clock(it, cost, 1e-3)
+    assert "about" not in str(said[1]) and "about 6 more" in str(said[2])
+    assert said[2].stage == "solve" and str(said[2]).startswith("solve: all frames, iteration   3")
