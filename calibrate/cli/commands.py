@@ -148,6 +148,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["hold_axes"] = [d.strip() for d in args.hold_axes.split(",") if d.strip()]
     if args.no_auto_hold:
         flags["auto_hold"] = False
+    if args.memory_mb is not None:
+        flags["memory_mb"] = args.memory_mb
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
     outputs = [out_urdf, *out_motions, out_report]

@@ -174,6 +174,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")
+    ap.add_argument("--memory-mb", type=positive_float, default=None, metavar="MB",
+                    help="memory for the frames' normal-equation blocks at once (default 200; ~170 kB per frame "
+                         "for the full body): a longer trial's are formed chunk by chunk, in bounded memory")
     ap.add_argument("--neutral", type=int_at_least(1), default=None, metavar="K",
                     help="trial K (1 = the first) shows the subject standing in the model's neutral pose (a static "
                          "trial): segment frames are turned so that its joint angles are zero")

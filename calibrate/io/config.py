@@ -15,6 +15,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     new_markers = true      # place trial markers the model does not know on segments and fit them
     outlier_sigmas = 6.0    # reject a marker in a frame whose error exceeds this many noise SDs (0: off)
     geodesic = true         # geodesic acceleration of the solver's steps (follows curved valleys)
+    memory_mb = 200.0       # the frames' normal-equation blocks held at once (~170 kB per frame, full body);
+                            # a longer trial's are formed chunk by chunk (bounded memory, a little more time)
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
     auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
@@ -51,8 +53,8 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
-        "new_markers", "outlier_sigmas", "geodesic", "priors", "marker_noise_mm", "lock_deg", "hold_axes", "auto_hold",
-        "learn_noise"}
+        "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
+        "auto_hold", "learn_noise"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm"}
 
 
@@ -120,7 +122,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        gtol=num(data, "gtol", s.gtol), seed=data.get("seed", s.seed),
                        compile=data.get("compile", s.compile), new_markers=data.get("new_markers", s.new_markers),
                        outliers=num(data, "outlier_sigmas", s.outliers),
-                       geodesic=data.get("geodesic", s.geodesic), marker_noise=marker_noise, lock=lock,
+                       geodesic=data.get("geodesic", s.geodesic), memory_mb=num(data, "memory_mb", s.memory_mb),
+                       marker_noise=marker_noise, lock=lock,
                        hold_axes=tuple(hold), auto_hold=auto_hold)
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
