@@ -243,15 +243,18 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
     predicted = -(lin_term + 0.5 * quad)
     if not accelerate:
         return dz, dp, predicted
-    # Pass 3: the acceleration a = −(J'J + λD)⁻¹ J' r_vv back-substituted; kept while 2|a| <= ratio |v|.
+    # Pass 3: the acceleration a = −(J'J + λD)⁻¹ J' r_vv back-substituted; kept while 2|a| <= ratio |v|
+    # (its parameters' part alone may already be too large: then no pass).
     ap = parameters(g2p, rhs2)
+    v2 = float(np.sum(dz**2) + np.sum(dp**2))
+    if 4.0 * float(np.sum(ap**2)) > GEODESIC_RATIO**2 * v2:
+        return dz, dp, predicted
     az = np.empty_like(dz)
     full_step = blocks.tangent @ ap if n else None
     for i, sl, lin in blocks.chunks("frames"):
         L, el = factors(i, sl, lin)
         Bdp = (np.matmul(lin.B, ap) if el is not None else problem.coupling_times(lin, full_step)) if n else None
         az[sl] = _frame_steps(L, el, g2z[sl], Bdp, ap)
-    v2 = float(np.sum(dz**2) + np.sum(dp**2))
     a2 = float(np.sum(az**2) + np.sum(ap**2))
     if 4.0 * a2 > GEODESIC_RATIO**2 * v2:
         return dz, dp, predicted
