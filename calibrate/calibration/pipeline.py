@@ -53,6 +53,7 @@ from ..problem.settings import Settings
 from ..problem.state import State
 from ..seed.association import associate_to_model
 from ..seed.rigidity import distance_variance
+from ..solve.chunks import frame_bytes
 from ..solve.ik import marker_columns
 from ..solve.lm import SolverSummary, covariance, levenberg_marquardt
 from .options import PipelineOptions
@@ -275,11 +276,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             new_hit[frames[~hit[frames]]] = True
             hit |= new_hit
             state = bridge(state, new_hit, hit, spans)
-            state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=10)
+            state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=10,
+                                           progress=_clock(say, problem, solver, "poses, "))
         if not found and not reweighed:
             break
         say(Progress("solve", "again without the outliers" if found else "again with the noise learnt again"))
-        state, again = levenberg_marquardt(problem, state, solver)
+        state, again = levenberg_marquardt(problem, state, solver,
+                                           progress=_clock(say, problem, solver, "again, "))
         summary = _merge(summary, again)
         reweighed = False
         if fixed is None or not found:
@@ -292,7 +295,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         problem = problem.with_noise(sigma)
         reweighed = True
     if reweighed:
-        state, again = levenberg_marquardt(problem, state, solver)
+        state, again = levenberg_marquardt(problem, state, solver,
+                                           progress=_clock(say, problem, solver, "again, "))
         summary = _merge(summary, again)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
@@ -430,7 +434,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         sigma, scatter = relearn(problem, state, fixed, say, trial_of)
     if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
         problem = problem.with_noise(sigma)
-        state, again = levenberg_marquardt(problem, state, solver)
+        state, again = levenberg_marquardt(problem, state, solver,
+                                             progress=_clock(say, problem, solver, "again, "))
         summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
@@ -566,6 +571,14 @@ def merge_summaries(a: SolverSummary, b: SolverSummary) -> SolverSummary:
 
 
 _merge = merge_summaries  # the name the solve steps call
+
+
+def _clock(say: Callable[[str | Progress], None], problem: Problem, solver: SolverOptions,
+           label: str) -> IterationClock | None:
+    """Iteration lines with the time left for a solve on a long trial (one whose frame blocks do not all
+    fit in the memory budget: its iterations take seconds); None (silent) on a shorter one."""
+    fits = problem.F * frame_bytes(problem, True) <= problem.settings.memory_mb * 1e6
+    return None if fits else IterationClock(say, label, solver.atol, solver.ftol)
 
 
 def _announcer(progress: Callable[[Progress], None] | None) -> Callable[[str | Progress], None]:
