@@ -134,3 +134,22 @@ def test_iteration_clock_estimates_the_iterations_left():
         clock(it, cost, 1e-3)
     assert "about" not in str(said[1]) and "about 6 more" in str(said[2])
     assert said[2].stage == "solve" and str(said[2]).startswith("solve: all frames, iteration   3")
+
+
+def test_nanmedian_first_is_numpys():
+    """The jump detector's median over a few frames' steps (seed.seeding.nanmedian_first) is numpy's
+    nanmedian, gaps (NaN) and all-NaN columns included."""
+    import warnings
+
+    from calibrate.seed.seeding import nanmedian_first
+
+    rng = np.random.default_rng(2)
+    for shape in [(6, 500, 3), (5, 40, 3), (1, 7, 2)]:
+        a = rng.normal(size=shape)
+        a[rng.random(shape) < 0.3] = np.nan
+        a[:, 3] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ref = np.nanmedian(a, axis=0)
+        assert np.array_equal(np.isnan(ref), np.isnan(nanmedian_first(a)))
+        assert np.allclose(nanmedian_first(a), ref, equal_nan=True)

@@ -13,7 +13,7 @@ import numpy as np
 
 from calibrate.cli.args import lock_arg
 
-from ..calibration.records import Progress
+from ..calibration.records import Countdown, Progress
 from ..errors import CalibrateError
 from ..io.outputs import check_targets
 from ..seed.geometry import marker_rms
@@ -176,7 +176,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             progress_printer(f"note: {model_path.name}: {len(approx)} joints approximated (" + ", ".join(
                 f"{a.joint} {a.max_marker_mm:.1f} mm" for a in approx) + f"); see 'calibrate inspect {model_path}'")
     marker_map = load_marker_map(args.markers) if args.markers else None
-    trials = [read_trial(t) for t in trial_paths]
+    trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]
     if args.frames is not None:
         trial = trials[0]
         idx = range(trial.n_frames)[args.frames]

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +32,8 @@ _TRC_KEYS = (
 )
 
 
-def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Trial:
+def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True,
+             progress: Callable[[float], None] | None = None) -> Trial:
     """Read an OpenSim-style TRC marker file into a trial in metres; blank (or NaN) cells are gaps.
 
     Tab-separated, as OpenSim reads and writes it: line 2 the header keys, line 3 their values
@@ -42,13 +43,13 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     prefix shared by the labels is removed unless ``strip_prefix`` is False.  Columns with a
     Plug-in Gait output name (:func:`is_model_output`) go to :attr:`Trial.model_outputs`.
     The file is read line by line, twice (count, then parse): a long trial's marker array is
-    the only copy of it held.
+    the only copy of it held.  ``progress(share of the rows parsed)`` every 1000 rows.
     """
     path = Path(path)
     check_input_file(path)
     for encoding in ("utf-8-sig", "latin-1"):
         try:
-            return _read_trc(path, encoding, strip_prefix)
+            return _read_trc(path, encoding, strip_prefix, progress)
         except UnicodeDecodeError:
             continue
     raise AssertionError("latin-1 decodes any bytes")  # pragma: no cover
@@ -64,7 +65,7 @@ def _lines(path: Path, encoding: str) -> Iterator[tuple[int, str]]:
         raise fail(path, f"cannot be read ({one_line(exc.strerror or exc)})", "check the file permissions") from None
 
 
-def _read_trc(path: Path, encoding: str, strip_prefix: bool) -> Trial:
+def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[[float], None] | None) -> Trial:
     redo = "export the TRC file again"
     binary = fail(path, "not a TRC text file (it contains binary data)", redo)
     # Pass 1: the header's five lines, then how many data rows follow (blank lines skipped).
@@ -181,6 +182,8 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool) -> Trial:
         for i, out in outputs.items():
             out[r] = row[2 + 3 * i:5 + 3 * i]
         r += 1
+        if progress is not None and r % 1000 == 0:
+            progress(r / n_rows)
     markers.flags.writeable = False  # the trial takes it over rather than copies it
     return Trial(
         labels=tuple(labels[i] for i in keep),
