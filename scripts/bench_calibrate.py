@@ -827,6 +827,28 @@ def report(res: dict) -> None:
         f"CasADi {m['casadi']}; {res['date']}; benchmark wall time {res['wall_s']:.0f} s")
 
 
+def output_args(ap: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """The options every benchmark script shares: --json, --from-json, and the hidden ones of its child
+    processes (--_worker KIND --_spec JSON --_out FILE)."""
+    ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
+    ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
+    ap.add_argument("--_worker", help=argparse.SUPPRESS)
+    ap.add_argument("--_spec", help=argparse.SUPPRESS)
+    ap.add_argument("--_out", help=argparse.SUPPRESS)
+    return ap
+
+
+def worker_or_saved(a: argparse.Namespace, workers: dict, report) -> bool:
+    """Run the child's worker (writing its result) or print a saved result's tables: True if done so."""
+    if a._worker:
+        Path(a._out).write_text(json.dumps(clean_json(workers[a._worker](json.loads(a._spec)))))
+        return True
+    if a.from_json:
+        report(json.loads(a.from_json.read_text()))
+        return True
+    return False
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=None, help="frames of the accuracy runs (default 1000; quick 300)")
@@ -839,18 +861,8 @@ def main() -> None:
                                                              "quick 20)")
     ap.add_argument("--big-cap", type=float, default=900.0, help="time cap (s) of the 10k-frame run (default 900)")
     ap.add_argument("--ipopt-hessian", choices=("exact", "limited-memory"), default="exact")
-    ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
-    ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
-    ap.add_argument("--_worker", help=argparse.SUPPRESS)
-    ap.add_argument("--_spec", help=argparse.SUPPRESS)
-    ap.add_argument("--_out", help=argparse.SUPPRESS)
-    a = ap.parse_args()
-    if a._worker:
-        result = WORKERS[a._worker](json.loads(a._spec))
-        Path(a._out).write_text(json.dumps(clean_json(result)))
-        return
-    if a.from_json:
-        report(json.loads(a.from_json.read_text()))
+    a = output_args(ap).parse_args()
+    if worker_or_saved(a, WORKERS, report):
         return
     t0 = time.perf_counter()
     res = collect(a, lambda msg: print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", file=sys.stderr, flush=True))

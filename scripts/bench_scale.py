@@ -21,17 +21,14 @@ import argparse
 import datetime
 import json
 import math
-import os
-import platform
 import resource
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
+from bench_calibrate import machine, output_args, run_child, worker_or_saved  # shared with the other benches
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "human.urdf"
@@ -41,23 +38,6 @@ TARGET_MB = {10000: 600.0, 100000: 2048.0}
 
 
 # ====================================================================== child processes
-def run_child(cmd: list[str], cap: float) -> dict:
-    """Run `cmd`, killing it after `cap` seconds: wall time, exit status, peak memory (wait4), stderr."""
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=out, stderr=err, cwd=ROOT)
-        timer = threading.Timer(cap, proc.kill)
-        timer.start()
-        try:
-            _, status, usage = os.wait4(proc.pid, 0)
-        finally:
-            timer.cancel()
-        err.seek(0)
-        rc = os.waitstatus_to_exitcode(status)
-        return {"rc": rc, "seconds": time.perf_counter() - t0, "peak_mb": usage.ru_maxrss / 1024,
-                "stderr": err.read().decode(errors="replace")}
-
-
 def worker(kind: str, spec: dict, cap: float) -> dict:
     """`kind` (see WORKERS) in a fresh process of this script: its result, or what went wrong."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -155,18 +135,6 @@ WORKERS = {"simulate": work_simulate, "calibrate": work_calibrate, "read": work_
 
 
 # ====================================================================== the run
-def machine() -> dict:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version()}
-
-
 def slope(x: list[float], y: list[float]) -> float:
     """Least-squares slope of y against x (per 1000 frames when x is in frames / 1000)."""
     if len(x) < 2:
@@ -278,17 +246,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cap", type=float, default=3600.0, help="time cap (s) of each child process")
     ap.add_argument("--quick", action="store_true", help="CI smoke: 300 and 1500 frames of squats")
-    ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
-    ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
-    ap.add_argument("--_worker", help=argparse.SUPPRESS)
-    ap.add_argument("--_spec", help=argparse.SUPPRESS)
-    ap.add_argument("--_out", help=argparse.SUPPRESS)
-    a = ap.parse_args()
-    if a._worker:
-        Path(a._out).write_text(json.dumps(WORKERS[a._worker](json.loads(a._spec))))
-        return
-    if a.from_json:
-        report(json.loads(a.from_json.read_text()))
+    a = output_args(ap).parse_args()
+    if worker_or_saved(a, WORKERS, report):
         return
     if a.quick:
         a.frames, a.motions = a.frames or "300,1500", "squats"
