@@ -53,7 +53,7 @@ class TrackSettings:
     prediction_sd: float = 2.0  # σ_p: spread of a predicted projection one frame ahead
     reward: float = 25.0  # κ: worth of one detection explained (also the gate: d < √κ σ_p)
     epipolar_px: float = 1.5  # first frame / new tracks: RMS reprojection error of a pair of rays
-    new_views: int = 3  # cameras that must agree to start a track after the first frame
+    new_views: int = 3  # cameras that must agree to start a track (the paper: 2, in the first frame)
     max_lost: float = 0.3  # s: a track unseen for longer is dropped
     max_iterations: int = 20  # Lagrangian-relaxation iterations per frame
     method: str = "lagrangian"  # or "greedy": the baseline (nearest prediction per camera; pairs greedily)
@@ -276,14 +276,14 @@ class Tracker:
                 seen = nview > 0
                 v[live[seen]] = np.where(lost[live[seen], None] == 0, newpos[seen] - y[live[seen]], v[live[seen]])
                 y[live] = newpos
-                lost[live] = np.where(seen, 0, lost[live] + 1)
+                lost[live] = np.where(nview >= 2, 0, lost[live] + 1)  # one ray alone does not keep a track
                 for j, n_ in zip(live, nview, strict=True):
                     if n_:
                         pos[j][k] = y[j]
                         views[j][k] = n_
                 alive[live[lost[live] > max_lost]] = False
             if free.any():
-                X, edges = self._views(fr, free, 2 if k == 0 else st.new_views)
+                X, edges = self._views(fr, free, st.new_views)
                 for X_, e in zip(X, edges, strict=True):
                     j = len(pos)
                     pos.append(np.full((F, 3), np.nan))
