@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import tomllib
 from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError
@@ -189,7 +189,8 @@ def read_cameras(path: str | Path) -> list[Camera]:
     except (OSError, UnicodeDecodeError) as e:
         raise CameraError(f"{path}: cannot read ({e}); give the camera calibration as a text file") from None
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as e:
-        raise CameraError(f"{path}: not valid {path.suffix.lstrip('.').upper() or 'TOML'} ({e}); fix the file") from None
+        kind = path.suffix.lstrip(".").upper() or "TOML"
+        raise CameraError(f"{path}: not valid {kind} ({e}); fix the file") from None
     cams = data.get("camera") if isinstance(data, dict) else None
     if not isinstance(cams, list) or not cams:
         raise CameraError(f"{path}: no cameras; list them as [[camera]] tables (JSON: \"camera\": [...])")
