@@ -154,3 +154,41 @@ def test_tracking_a_simulated_squat_against_the_truth(tmp_path):
     # the greedy baseline runs on the same input
     greedy = Tracker(cams, TrackSettings(method="greedy")).run(det)
     assert greedy.positions.shape[0] == 120
+
+
+def test_end_to_end_from_detections_to_a_subject(tmp_path, capsys):
+    """calibrate simulate --cameras 8, then calibrate track CAMERAS DETECTIONS MODEL: every track labelled with
+    the marker it follows, the subject written with the tracker's figures in the report."""
+    from calibrate.cli.main import main
+    from calibrate.io.c3d import read_c3d
+
+    out = tmp_path / "sim"
+    assert main(["simulate", "--out", str(out), "--frames", "150", "--noise-mm", "0", "--cameras", "8",
+                 "--seed", "2"]) == 0
+    for name in ("cameras.toml", "detections.npz", "truth_detections.npz", "trial.c3d"):
+        assert (out / name).exists()
+    truth = np.load(out / "truth_detections.npz")["markers"]
+    args = ["track", str(out / "cameras.toml"), str(out / "detections.npz"), MODEL, "-o", str(tmp_path / "s.urdf")]
+    code = main(args)
+    assert code in (0, 1)
+    tracked = read_c3d(out / "detections_tracks.c3d")
+    names = load_model(MODEL).marker_names
+    assert sorted(tracked.labels) == sorted(names)
+    for i, label in enumerate(tracked.labels):  # each label on the track nearest that marker's truth
+        err = np.linalg.norm(tracked.markers[:, i] - truth[:, names.index(label)], axis=1)
+        assert np.nanmedian(err) < 3e-3, label
+    rep = json.loads((out / "detections_report.json").read_text())
+    assert rep["tracker"]["tracks"] >= 39 and rep["tracker"]["assigned_share"] > 0.95
+    assert (tmp_path / "s.urdf").exists() and (out / "detections_motion.csv").exists()
+    # again: refused (exit 2, one line), nothing overwritten
+    before = (tmp_path / "s.urdf").stat().st_mtime_ns
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists" in err[0]
+    assert (tmp_path / "s.urdf").stat().st_mtime_ns == before
+    # a calibration of the wrong number of cameras: one line, exit 2
+    (tmp_path / "two.toml").write_text(cameras_toml(ring_cameras(2)))
+    assert main(["track", str(tmp_path / "two.toml"), str(out / "detections.npz"), "--c3d",
+                 str(tmp_path / "x.c3d")]) == 2
+    assert "calibration has 2 cameras" in capsys.readouterr().err
+    assert not (tmp_path / "x.c3d").exists()
