@@ -28,6 +28,7 @@
 from __future__ import annotations
 
 import itertools
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,7 +158,10 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     span = np.nanmax(Y[..., 2], axis=1) - np.nanmin(Y[..., 2], axis=1)
     ok = np.isfinite(span)
     tall = np.flatnonzero(ok & (span >= np.quantile(span[ok], 1 - STANDING_SHARE)))
-    med = np.nanmedian(Y[tall], axis=0)
+    with warnings.catch_warnings():  # tracks unseen while standing tall: their median over every frame
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(Y[tall], axis=0)
+        med = np.where(np.isfinite(med), med, np.nanmedian(Y, axis=0))
     ref = scale * neutral
     cost = np.full((len(groups), len(segs)), 1e6)
     best_perm: dict[tuple[int, int], tuple[int, ...]] = {}
@@ -172,6 +176,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
             k = int(np.argmin(total))
             cost[a, b] = total[k]
             best_perm[a, b] = perms[k]
+    cost = np.where(np.isfinite(cost), cost, 1e6)
     rows, cols = linear_sum_assignment(cost)
     for a, b in zip(rows, cols, strict=True):  # a group of 3 or more: of the orderings its distances cannot
         idx = seg_idx[segs[b].name]             # tell apart, the one turned least from the root's heading
@@ -193,7 +198,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
                           med_dist, neutral)
     used = {names.index(v) for v in labels.values()}
     # 5. leftovers one by one, by their distances to the labelled tracks of the neighbouring segments
-    left = [i for i in range(trial.n_markers) if trial.labels[i] not in labels and np.all(np.isfinite(med[i]))]
+    left = [i for i in range(trial.n_markers) if trial.labels[i] not in labels]
     free = [j for j in range(len(names)) if j not in used and model.markers[j].segment in seg_idx]
     if left and free:
         near = _neighbours(model)

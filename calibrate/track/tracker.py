@@ -26,7 +26,9 @@ Per frame k:
 The first frame has no prediction: the M-dimensional assignment between the cameras' detections alone
 (candidates from pairs of rays that meet within ``epipolar_px`` and the detections of the other cameras
 near their point).  Later, detections no track took start new tracks the same way when ``new_views``
-cameras agree; a track unseen for longer than ``max_lost`` seconds is dropped.
+cameras agree; a track unseen (by two or more cameras) for longer than ``max_lost`` seconds is dropped, and
+of two tracks closer than ``merge_distance`` (one marker whose rays were split between them: the
+per-detection reward does not prefer one track of six rays to two of three) the younger is dropped.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ class TrackSettings:
     epipolar_px: float = 1.5  # first frame / new tracks: RMS reprojection error of a pair of rays
     new_views: int = 3  # cameras that must agree to start a track (the paper: 2, in the first frame)
     max_lost: float = 0.3  # s: a track unseen for longer is dropped
+    merge_distance: float = 0.008  # m: two tracks this close are one marker; the younger is dropped
     max_iterations: int = 20  # Lagrangian-relaxation iterations per frame
     method: str = "lagrangian"  # or "greedy": the baseline (nearest prediction per camera; pairs greedily)
 
@@ -92,11 +95,47 @@ class Tracks:
                 "mean_iterations": float(self.iterations.mean()),
                 "seen_share": float(seen.mean()), "ms_per_frame": float(1e3 * self.seconds.mean())}
 
-    def trial(self, min_frames: int = 10, prefix: str = "T") -> Trial:
-        """The tracks seen in at least `min_frames` frames as an unlabelled trial (labels T1, T2, ...)."""
-        keep = np.flatnonzero(np.isfinite(self.positions[..., 0]).sum(0) >= min_frames)
-        labels = [f"{prefix}{i + 1}" for i in keep]
-        return Trial(labels=labels, markers=self.positions[:, keep], rate=self.rate, first_frame=0, source=None)
+    def stitched(self, max_gap: float = 1.0, speed: float = 1.5) -> tuple[np.ndarray, list[list[int]]]:
+        """Broken tracks joined: a track that starts after another ended (at most `max_gap` s later) and
+        within reach of its last position (`speed` m/s over the gap, plus 2 cm) continues it, the nearest
+        first.  Returns positions (F, T', 3) and the tracks joined into each."""
+        P = self.positions
+        seen = np.isfinite(P[..., 0])
+        has = np.flatnonzero(seen.any(0))
+        first = {j: int(np.flatnonzero(seen[:, j])[0]) for j in has}
+        last = {j: int(np.flatnonzero(seen[:, j])[-1]) for j in has}
+        chains: list[list[int]] = []
+        end_of: dict[int, int] = {}  # chain index -> its last track
+        for j in sorted(has, key=lambda j: first[j]):
+            best, where = np.inf, None
+            for c, tail in end_of.items():
+                gap = first[j] - last[tail]
+                if 0 < gap <= max_gap * self.rate:
+                    d = float(np.linalg.norm(P[first[j], j] - P[last[tail], tail]))
+                    if d <= speed * gap / self.rate + 0.02 and d < best:
+                        best, where = d, c
+            if where is None:
+                chains.append([j])
+                end_of[len(chains) - 1] = j
+            else:
+                chains[where].append(j)
+                end_of[where] = j
+        out = np.full((P.shape[0], len(chains), 3), np.nan)
+        for c, chain in enumerate(chains):
+            for j in chain:
+                out[seen[:, j], c] = P[seen[:, j], j]
+        return out, chains
+
+    def trial(self, min_frames: int = 10, prefix: str = "T", stitch: bool = True) -> Trial:
+        """The tracks (broken ones joined, `stitched`) seen in at least `min_frames` frames as an unlabelled
+        trial (labels T1, T2, ...: the first track of each)."""
+        if stitch:
+            P, chains = self.stitched()
+        else:
+            P, chains = self.positions, [[j] for j in range(self.n_tracks)]
+        keep = np.flatnonzero(np.isfinite(P[..., 0]).sum(0) >= min_frames)
+        labels = [f"{prefix}{chains[i][0] + 1}" for i in keep]
+        return Trial(labels=labels, markers=P[:, keep], rate=self.rate, first_frame=0, source=None)
 
 
 class _Frame:
@@ -282,6 +321,18 @@ class Tracker:
                         pos[j][k] = y[j]
                         views[j][k] = n_
                 alive[live[lost[live] > max_lost]] = False
+                # two tracks on one marker (each with some of its rays): the younger is merged into the older
+                on = live[(nview >= 1) & alive[live]]
+                if on.size > 1:
+                    d = np.linalg.norm(y[on][:, None] - y[on][None], axis=2)
+                    close = np.argwhere(np.triu(d < st.merge_distance, 1))
+                    for i, j in close:
+                        old, young = on[i], on[j]
+                        if alive[old] and alive[young]:
+                            alive[young] = False
+                            det_track[fr.rows[det_track[fr.rows] == young]] = old
+                            pos[young][k] = np.nan
+                            views[young][k] = 0
             if free.any():
                 X, edges = self._views(fr, free, st.new_views)
                 for X_, e in zip(X, edges, strict=True):
