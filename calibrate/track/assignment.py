@@ -112,15 +112,12 @@ def _stage(group: np.ndarray, n_groups: int, col: np.ndarray, n_cols: int, cost:
 def _recover(edges: np.ndarray, cost: np.ndarray, sizes, u: list[np.ndarray], first):
     """Primal recovery from the dual's first stage (`first`: its result); returns (selected edges, cost)."""
     D = edges.shape[1]
-    group, n_groups = first[0], first[1]
+    group, n_groups, _, chosen = first
     for d in range(2, D):
         c = cost.copy()
         for e in range(d + 1, D):
             c += np.where(edges[:, e] >= 0, u[e][np.maximum(edges[:, e], 0)], 0.0)
         group, n_groups, _, chosen = _stage(group, n_groups, edges[:, d], sizes[d], c)
-    else:
-        if D == 2:
-            chosen = first[3]
     return chosen, float(cost[chosen].sum()) if len(chosen) else 0.0
 
 
