@@ -28,7 +28,8 @@ The first frame has no prediction: the M-dimensional assignment between the came
 near their point).  Later, detections no track took start new tracks the same way when ``new_views``
 cameras agree; a track unseen (by two or more cameras) for longer than ``max_lost`` seconds is dropped, and
 of two tracks closer than ``merge_distance`` (one marker whose rays were split between them: the
-per-detection reward does not prefer one track of six rays to two of three) the younger is dropped.
+per-detection reward does not prefer one track of six rays to two of three) the one fewer cameras see
+(on a tie the younger) is dropped.
 """
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ class TrackSettings:
     epipolar_px: float = 1.5  # first frame / new tracks: RMS reprojection error of a pair of rays
     new_views: int = 3  # cameras that must agree to start a track (the paper: 2, in the first frame)
     max_lost: float = 0.3  # s: a track unseen for longer is dropped
-    merge_distance: float = 0.008  # m: two tracks this close are one marker; the younger is dropped
+    merge_distance: float = 0.008  # m: two tracks this close are one marker; the one fewer cameras see (or the
+    #                                 younger) is dropped
     max_iterations: int = 20  # Lagrangian-relaxation iterations per frame
     method: str = "lagrangian"  # or "greedy": the baseline (nearest prediction per camera; pairs greedily)
 
@@ -322,12 +324,15 @@ class Tracker:
                         views[j][k] = n_
                 alive[live[lost[live] > max_lost]] = False
                 # two tracks on one marker (each with some of its rays): the younger is merged into the older
-                on = live[(nview >= 1) & alive[live]]
+                on = live[(nview >= 2) & alive[live]]  # triangulated both: the same point in space
                 if on.size > 1:
                     d = np.linalg.norm(y[on][:, None] - y[on][None], axis=2)
                     close = np.argwhere(np.triu(d < st.merge_distance, 1))
+                    vis = dict(zip(live, nview, strict=True))
                     for i, j in close:
                         old, young = on[i], on[j]
+                        if vis[young] > vis[old]:  # the one more cameras see stays
+                            old, young = young, old
                         if alive[old] and alive[young]:
                             alive[young] = False
                             det_track[fr.rows[det_track[fr.rows] == young]] = old
