@@ -13,7 +13,8 @@ Per frame k:
 
    r: the squared reprojection error (px², first order) of the point triangulated from the detections;
    d: the pixel distance of a detection from the track's predicted projection; g = σ² / σ_p², the ratio
-   of the detection noise to the prediction's (``prediction_sd``, growing while a track is unseen); κ
+   of the detection noise to the prediction's (``prediction_sd``, growing linearly while a track is unseen, up to ``max_spread`` times: a wider gate
+   lets a lost track jump onto a neighbour's detections); κ
    (``reward``): what explaining one detection is worth against calling it a false detection (it also
    gates: a detection further than √κ σ_p from the prediction is never a candidate).  Without κ every
    cost is ≥ 0 and the empty association would be best.  Candidates per track: the nearest gated
@@ -54,6 +55,7 @@ class TrackSettings:
 
     pixel_sd: float = 0.3  # σ: detection noise
     prediction_sd: float = 2.0  # σ_p: spread of a predicted projection one frame ahead
+    max_spread: float = 4.0  # σ_p grows with the frames a track goes unseen, (1 + frames), up to this factor
     reward: float = 25.0  # κ: worth of one detection explained (also the gate: d < √κ σ_p)
     epipolar_px: float = 1.5  # first frame / new tracks: RMS reprojection error of a pair of rays
     new_views: int = 3  # cameras that must agree to start a track (the paper: 2, in the first frame)
@@ -288,7 +290,7 @@ class Tracker:
             live = np.flatnonzero(alive)
             if live.size:
                 pred = y[live] + v[live]
-                sd = st.prediction_sd * (1.0 + lost[live]) ** 1.5
+                sd = st.prediction_sd * np.minimum(1.0 + lost[live], st.max_spread)
                 res = self._associate(fr, pred, sd)
                 chosen_edges, primal[k], dual[k], iters[k], gated = res
                 for m in range(M):  # detections near a live track never start another one
