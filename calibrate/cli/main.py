@@ -83,8 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      "--sta-mm, --height, --gap-fraction, --swaps, --spikes, or --realistic.")
     sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
     sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
-    sim.add_argument("--cameras", type=int_at_least(2), default=None, metavar="N",
-                     help="also N synthetic cameras around the volume (8 is typical): OUT/cameras.toml, the "
+    sim.add_argument("--cameras", type=int_at_least(2), nargs="?", const=8, default=None, metavar="N",
+                     help="also N synthetic cameras around the volume (--cameras alone: 8): OUT/cameras.toml, the "
                           "unlabelled 2-D detections OUT/detections.npz and OUT/truth_detections.npz, the input "
                           "of 'calibrate track' (docs/tracking.md)")
     _add_sim_args(sim, 1000)

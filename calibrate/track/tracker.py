@@ -13,14 +13,15 @@ Per frame k:
 
    r: the squared reprojection error (px², first order) of the point triangulated from the detections;
    d: the pixel distance of a detection from the track's predicted projection; g = σ² / σ_p², the ratio
-   of the detection noise to the prediction's (``prediction_sd``, growing linearly while a track is unseen, up to ``max_spread`` times: a wider gate
-   lets a lost track jump onto a neighbour's detections); κ
-   (``reward``): what explaining one detection is worth against calling it a false detection (it also
-   gates: a detection further than √κ σ_p from the prediction is never a candidate).  Without κ every
-   cost is ≥ 0 and the empty association would be best.  Candidates per track: the nearest gated
-   detection of every camera, that set without each one of them, and with each other gated detection
-   in its place.  Solved by Lagrangian relaxation (calibrate.track.assignment), the primal–dual gap kept
-   per frame.
+   of the detection noise to the prediction's (``prediction_sd``, growing linearly while a track is
+   unseen, up to ``max_spread`` times: a wider gate lets a lost track jump onto a neighbour's
+   detections); κ (``reward``): what explaining one detection is worth against calling it a false
+   detection (it also gates: a detection further than √κ σ_p from the prediction is never a candidate).
+   Without κ every cost is ≥ 0 and the empty association would be best.  Candidates per track: the
+   nearest gated detection of every camera; in the cameras where the choice is open (another gated
+   detection, or one another track also gates) every combination of the nearest options and none (at
+   most ``MAX_COMBINATIONS``); and the settled cameras left out one at a time.  Solved by Lagrangian
+   relaxation (calibrate.track.assignment), the primal–dual gap kept per frame.
 3. **Estimate** y_n(k): two or more cameras — weighted least-squares triangulation; one camera — the
    compromise between ŷ_n(k) and that camera's ray; none — ŷ_n(k) (reported as a gap).
 
