@@ -295,8 +295,8 @@ class Tracker:
                 res = self._associate(fr, pred, sd)
                 chosen_edges, primal[k], dual[k], iters[k], gated = res
                 for m in range(M):  # detections near a live track never start another one
-                    for g in gated[m]:
-                        free[fr.offset[m] + g] = False
+                    if fr.sizes[m]:
+                        free[fr.offset[m]:fr.offset[m] + fr.sizes[m]] &= ~gated[m]
                 newpos = pred.copy()
                 nview = np.zeros(live.size, dtype=np.int64)
                 if len(chosen_edges):
@@ -367,55 +367,73 @@ class Tracker:
     def _associate(self, fr: _Frame, pred: np.ndarray, sd: np.ndarray):
         """The (M+1)-dimensional assignment of tracks (predictions `pred`, spreads `sd` px) to the frame's
         detections: (chosen hyperedges (h, 1+M): track, then a local detection per camera), primal, dual,
-        iterations, and per camera and track the gated detections (local indices, nearest first)."""
+        iterations, and per camera a mask of the detections some track gates."""
         st = self.settings
         M = len(self.cameras)
         T = len(pred)
         uvp, z = self._project(pred)
-        gated: list[list[np.ndarray]] = []  # per camera, per track: local indices in order of distance
+        near = np.full((T, M, 3), -1, dtype=np.int64)  # per track and camera: the 3 nearest gated detections
+        count = np.zeros((T, M), dtype=np.int64)  # how many detections each track gates in each camera
+        contested = np.zeros((T, M), dtype=bool)  # its nearest is gated by another track too
         dist: list[np.ndarray] = []
+        gated_mask: list[np.ndarray] = []
         for m in range(M):
             q = fr.sizes[m]
             if q == 0:
-                gated.append([np.zeros(0, dtype=np.int64)] * T)
                 dist.append(np.zeros((T, 0)))
+                gated_mask.append(np.zeros(0, dtype=bool))
                 continue
             uv = fr.uv[fr.offset[m]:fr.offset[m] + q]
             d2 = np.sum((uvp[m][:, None, :] - uv[None]) ** 2, axis=2) / sd[:, None] ** 2
             d2[z[m] <= 0] = np.inf
             dist.append(d2)
-            order = np.argsort(d2, axis=1)
-            within = np.take_along_axis(d2, order, axis=1) < st.reward
-            gated.append([order[n][within[n]][:3] for n in range(T)])
+            inside = d2 < st.reward
+            count[:, m] = inside.sum(1)
+            taken = inside.sum(0)
+            gated_mask.append(taken > 0)
+            k = min(3, q)
+            order = np.argsort(d2, axis=1)[:, :k]
+            ok = np.take_along_axis(inside, order, axis=1)
+            near[:, m, :k] = np.where(ok, order, -1)
+            contested[:, m] = (near[:, m, 0] >= 0) & (taken[np.maximum(near[:, m, 0], 0)] > 1)
         if st.method == "greedy":
-            return (*_greedy_tracks(gated, dist, T, M), gated)
-        taken = [np.bincount(np.concatenate(g + [np.zeros(0, np.int64)]), minlength=fr.sizes[m])
-                 for m, g in enumerate(gated)]  # how many tracks gate each detection
+            return (*_greedy_tracks(near, dist, T, M), gated_mask)
+        base = near[:, :, 0]
+        open_ = (count > 1) | contested  # cameras where the choice is open
+        simple = ~open_.any(1)
         edges = []
-        for n in range(T):
-            base = np.array([g[n][0] if len(g[n]) else -1 for g in gated], dtype=np.int64)
-            # cameras where the choice is open: another gated detection, or one another track also gates
-            open_ = [m for m in range(M) if len(gated[m][n]) > 1 or (base[m] >= 0 and taken[m][base[m]] > 1)]
-            width = 3 if 3 ** len(open_) <= MAX_COMBINATIONS else 2
-            if width ** len(open_) > MAX_COMBINATIONS:
-                open_ = open_[:int(np.log(MAX_COMBINATIONS) / np.log(2))]
-            combos = base[None].copy()
-            for m in open_:  # every combination of the open cameras' options (nearest ones, or none)
-                opts = np.concatenate([gated[m][n][:width - 1], [-1]])
+        # tracks with nothing open: their nearest detections, and each of them left out in turn
+        n_s = np.flatnonzero(simple)
+        if n_s.size:
+            edges.append(np.column_stack([n_s, base[n_s]]))
+            tt, mm = np.nonzero(base[n_s] >= 0)
+            drop = base[n_s[tt]].copy()
+            drop[np.arange(tt.size), mm] = -1
+            edges.append(np.column_stack([n_s[tt], drop]))
+        for n in np.flatnonzero(~simple):
+            opened = list(np.flatnonzero(open_[n]))
+            width = 3 if 3 ** len(opened) <= MAX_COMBINATIONS else 2
+            if width ** len(opened) > MAX_COMBINATIONS:
+                opened = opened[:int(np.log(MAX_COMBINATIONS) / np.log(2))]
+            combos = base[n][None].copy()
+            for m in opened:  # every combination of the open cameras' options (nearest ones, or none)
+                opts = np.concatenate([near[n, m, :width - 1][near[n, m, :width - 1] >= 0], [-1]])
                 combos = np.repeat(combos, len(opts), axis=0)
                 combos[:, m] = np.tile(opts, len(combos) // len(opts))
             rows = [combos]
-            for m in np.flatnonzero(base >= 0):  # each settled camera left out in turn
-                if m not in open_:
+            for m in np.flatnonzero(base[n] >= 0):  # each settled camera left out in turn
+                if m not in opened:
                     e = combos.copy()
                     e[:, m] = -1
                     rows.append(e)
             E = np.concatenate(rows)
             edges.append(np.column_stack([np.full(len(E), n), E]))
+        if not edges:
+            return np.zeros((0, M + 1), dtype=np.int64), 0.0, 0.0, 0, gated_mask
         edges = np.unique(np.concatenate(edges), axis=0)
         edges = edges[(edges[:, 1:] >= 0).any(1)]
         if len(edges) == 0:
-            return np.zeros((0, M + 1), dtype=np.int64), 0.0, 0.0, 0, gated
+            return np.zeros((0, M + 1), dtype=np.int64), 0.0, 0.0, 0, gated_mask
         tr, e = edges[:, 0], edges[:, 1:]
         w, _ = self._weights(pred)
         _, r, n = _edge_points(fr, e, w[tr])
@@ -426,7 +444,7 @@ class Tracker:
         # c = r/σ² + g Σ d²/σ² − κ n with g = σ²/σ_p²: the d term is Σ d²/σ_p² (`dist` is already scaled)
         cost = r / st.pixel_sd ** 2 + d - st.reward * n
         a = solve_assignment(edges, cost, [T, *fr.sizes], st.max_iterations)
-        return edges[a.chosen], a.primal, a.dual, a.iterations, gated
+        return edges[a.chosen], a.primal, a.dual, a.iterations, gated_mask
 
 
 def _depth(cam: Camera, X: np.ndarray) -> float:
@@ -447,12 +465,12 @@ def _greedy(edges: np.ndarray, cost: np.ndarray) -> np.ndarray:
     return np.array(out, dtype=np.int64)
 
 
-def _greedy_tracks(gated, dist, T: int, M: int):
+def _greedy_tracks(near: np.ndarray, dist, T: int, M: int):
     """The baseline association: in every camera, (track, detection) pairs within the gate taken greedily by
     distance to the prediction."""
     E = np.full((T, M), -1, dtype=np.int64)
     for m in range(M):
-        pairs = [(dist[m][n, j], n, int(j)) for n in range(T) for j in gated[m][n]]
+        pairs = [(dist[m][n, j], n, int(j)) for n in range(T) for j in near[n, m] if j >= 0]
         taken: set = set()
         for _, n, j in sorted(pairs):
             if E[n, m] < 0 and j not in taken:
