@@ -146,7 +146,7 @@ class Tracks:
 class _Frame:
     """One frame's detections with their rays, camera by camera."""
 
-    def __init__(self, cameras: Sequence[Camera], det: Detections, k: int):
+    def __init__(self, cameras: Sequence[Camera], det: Detections, k: int, rays: RayTable):
         self.spans = [det.span(k, m) for m in range(len(cameras))]
         self.rows = np.arange(self.spans[0].start, self.spans[-1].stop)
         self.cam = det.camera[self.rows]
@@ -154,14 +154,31 @@ class _Frame:
         self.uv = det.uv[self.rows]
         self.sizes = [s.stop - s.start for s in self.spans]
         self.offset = np.array([s.start - self.spans[0].start for s in self.spans], dtype=np.int64)
-        dirs = np.zeros((len(self.rows), 3))
+        sl = slice(self.spans[0].start, self.spans[-1].stop)
+        self.centres = rays.centres[sl]
+        self.dirs = rays.dirs[sl]
+        self.P, self.Pc, self.s = rays.P[sl], rays.Pc[sl], rays.s[sl]
+
+
+@dataclass(frozen=True)
+class RayTable:
+    """The ray of every detection of a recording (computed once, all frames of a camera at a time)."""
+
+    centres: np.ndarray  # (n, 3)
+    dirs: np.ndarray  # (n, 3) unit
+    P: np.ndarray  # (n, 3, 3) I − d dᵀ
+    Pc: np.ndarray  # (n, 3)
+    s: np.ndarray  # (n,)
+
+    @classmethod
+    def of(cls, cameras: Sequence[Camera], det: Detections) -> RayTable:
+        dirs = np.zeros((len(det.frame), 3))
         for m, cam in enumerate(cameras):
-            i = slice(self.offset[m], self.offset[m] + self.sizes[m])
-            if self.sizes[m]:
-                dirs[i] = cam.rays(self.uv[i])
-        self.centres = np.array([c.centre for c in cameras])[self.cam]
-        self.P, self.Pc, self.s = ray_terms(self.centres, dirs)
-        self.dirs = dirs
+            rows = det.camera == m
+            if rows.any():
+                dirs[rows] = cam.rays(det.uv[rows])
+        centres = np.array([c.centre for c in cameras])[det.camera] if len(det.frame) else np.zeros((0, 3))
+        return cls(centres, dirs, *ray_terms(centres, dirs))
 
 
 def _edge_points(fr: _Frame, edges: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -282,11 +299,14 @@ class Tracker:
         lost = np.zeros(0, dtype=np.int64)
         alive = np.zeros(0, dtype=bool)
         det_track = np.full(len(det.frame), -1, dtype=np.int64)
+        t_rays = time.perf_counter()
+        rays = RayTable.of(self.cameras, det)
+        t_rays = time.perf_counter() - t_rays  # shared out over the frames' times below
         primal, dual = np.zeros(F), np.zeros(F)
         iters, secs = np.zeros(F, dtype=np.int64), np.zeros(F)
         for k in range(F):
             t0 = time.perf_counter()
-            fr = _Frame(self.cameras, det, k)
+            fr = _Frame(self.cameras, det, k, rays)
             free = np.ones(len(fr.rows), dtype=bool)
             live = np.flatnonzero(alive)
             if live.size:
@@ -357,7 +377,7 @@ class Tracker:
                     v = np.vstack([v, np.zeros((len(X), 3))])
                     lost = np.concatenate([lost, np.zeros(len(X), dtype=np.int64)])
                     alive = np.concatenate([alive, np.ones(len(X), dtype=bool)])
-            secs[k] = time.perf_counter() - t0
+            secs[k] = time.perf_counter() - t0 + t_rays / max(F, 1)
             if progress is not None and (k + 1) % 200 == 0:
                 progress(k + 1, F)
         positions = np.stack(pos, axis=1) if pos else np.zeros((F, 0, 3))
@@ -430,7 +450,7 @@ class Tracker:
             edges.append(np.column_stack([np.full(len(E), n), E]))
         if not edges:
             return np.zeros((0, M + 1), dtype=np.int64), 0.0, 0.0, 0, gated_mask
-        edges = np.unique(np.concatenate(edges), axis=0)
+        edges = np.concatenate(edges)  # a repeated hyperedge does no harm
         edges = edges[(edges[:, 1:] >= 0).any(1)]
         if len(edges) == 0:
             return np.zeros((0, M + 1), dtype=np.int64), 0.0, 0.0, 0, gated_mask
