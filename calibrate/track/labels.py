@@ -3,8 +3,9 @@
 1. The tracks are grouped into rigid segments and the groups joined into a tree by seed 002's Section 3
    (calibrate.seed.associate).
 2. The root segment (the pelvis) is the group whose inter-marker distances best match the root's markers
-   (one overall scale factor allowed); of its orderings that match equally well (a left–right mirror has
-   the same distances), the one whose fitted rotation keeps the lab's up axis (+z) up.
+   (one overall scale factor in ``SCALES`` allowed; at most ``ROOT_MISFIT`` RMS, else no labels); of its
+   orderings that match equally well (a left–right mirror has the same distances), the one whose fitted
+   rotation keeps the lab's up axis (+z) up.
 3. Every frame's root pose (Kabsch fit of the scaled base-model root markers), reduced to its heading (a
    turn about the lab's vertical: a tilted pelvis must not swing the legs sideways), carries every track
    into the root's frame; each track's median position there, over the frames in which the subject stands
@@ -40,6 +41,12 @@ from ..model.kinematics import build_kinematics
 from ..model.model import Model
 from ..seed.association import associate
 from ..seed.geometry import kabsch_batch
+
+SCALES = (0.75, 1.3)  # the subject's size relative to the base model's that distances may be scaled by
+
+
+ROOT_MISFIT = 0.01  # m: RMS inter-marker distance misfit a group may have to be taken for the root
+
 
 SHAPE_WEIGHT = 5.0  # metres of root-frame distance per metre of inter-marker distance misfit
 
@@ -106,7 +113,7 @@ def _shape(Dg: np.ndarray, Ds: np.ndarray, scale: float | None) -> tuple[float, 
     errs = np.empty(len(perms))
     for i, p in enumerate(perms):
         d = Ds[np.ix_(p, p)][iu]
-        c = scale if scale is not None else float(d @ Dg[iu] / max(d @ d, 1e-12))
+        c = scale if scale is not None else float(np.clip(d @ Dg[iu] / max(d @ d, 1e-12), *SCALES))
         errs[i] = np.sqrt(np.mean((Dg[iu] - c * d) ** 2))
     return float(errs.min()), perms, errs
 
@@ -127,9 +134,12 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     # 2. the root: best distance match among groups of its size; the mirror resolved by the up axis
     cands = [(i, *_shape(med_dist[i], _distances(neutral[R_idx]), None)) for i, g in enumerate(groups)
              if len(g) == len(R_idx)]
+    cands = [c for c in cands if c[1] <= ROOT_MISFIT]
     if not cands:
         raise CalibrateError(f"{model.path}: no group of {len(R_idx)} tracks moves rigidly like the "
-                             f"{root.name}'s markers; the tracks cannot be labelled")
+                             f"{root.name}'s markers (within {1e3 * ROOT_MISFIT:g} mm of their distances, scaled "
+                             f"{SCALES[0]:g}-{SCALES[1]:g}); the tracks cannot be labelled: check the tracks "
+                             "(calibrate track without MODEL) and that MODEL has the subject's marker set")
     gi, best, perms, errs = min(cands, key=lambda c: c[1])
     iu = np.triu_indices(len(R_idx), 1)
     tied = [perms[i] for i in np.flatnonzero(errs <= best + 0.002)]

@@ -23,7 +23,8 @@ Per frame k:
    most ``MAX_COMBINATIONS``); and the settled cameras left out one at a time.  Solved by Lagrangian
    relaxation (calibrate.track.assignment), the primal–dual gap kept per frame.
 3. **Estimate** y_n(k): two or more cameras — weighted least-squares triangulation; one camera — the
-   compromise between ŷ_n(k) and that camera's ray; none — ŷ_n(k) (reported as a gap).
+   compromise between ŷ_n(k) and that camera's ray (the track's state; reported only with
+   ``single_view_positions``, else a gap: a wrong ray drags it far); none — ŷ_n(k) (a gap).
 
 The first frame has no prediction: the M-dimensional assignment between the cameras' detections alone
 (candidates from pairs of rays that meet within ``epipolar_px`` and the detections of the other cameras
@@ -37,6 +38,7 @@ per-detection reward does not prefer one track of six rays to two of three) the 
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -64,6 +66,7 @@ class TrackSettings:
     merge_distance: float = 0.008  # m: two tracks this close are one marker; the one fewer cameras see (or the
     #                                 younger) is dropped
     max_iterations: int = 20  # Lagrangian-relaxation iterations per frame
+    single_view_positions: bool = False  # report the one-camera compromise (else a gap; it is still the state)
     method: str = "lagrangian"  # or "greedy": the baseline (nearest prediction per camera; pairs greedily)
 
 
@@ -132,15 +135,32 @@ class Tracks:
         return out, chains
 
     def trial(self, min_frames: int = 10, prefix: str = "T", stitch: bool = True) -> Trial:
-        """The tracks (broken ones joined, `stitched`) seen in at least `min_frames` frames as an unlabelled
-        trial (labels T1, T2, ...: the first track of each)."""
+        """The tracks (broken ones joined, `stitched`; brief jumps removed, `despiked`) seen in at least
+        `min_frames` frames as an unlabelled trial (labels T1, T2, ...: the first track of each)."""
         if stitch:
             P, chains = self.stitched()
         else:
             P, chains = self.positions, [[j] for j in range(self.n_tracks)]
+        P = despiked(P)
         keep = np.flatnonzero(np.isfinite(P[..., 0]).sum(0) >= min_frames)
         labels = [f"{prefix}{chains[i][0] + 1}" for i in keep]
         return Trial(labels=labels, markers=P[:, keep], rate=self.rate, first_frame=0, source=None)
+
+
+def despiked(P: np.ndarray, window: int = 5, limit: float = 0.008) -> np.ndarray:
+    """Trajectories (F, T, 3) with the samples further than `limit` (m) from the running median of
+    `window` frames made gaps: a track that briefly took another marker's rays must not break the
+    rigidity its segment's grouping relies on."""
+    F = P.shape[0]
+    h = window // 2
+    pad = np.concatenate([np.full((h,) + P.shape[1:], np.nan), P, np.full((h,) + P.shape[1:], np.nan)])
+    stack = np.stack([pad[i:i + F] for i in range(window)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(stack, axis=0)
+    out = P.copy()
+    out[np.linalg.norm(P - med, axis=2) > limit] = np.nan
+    return out
 
 
 class _Frame:
@@ -342,9 +362,9 @@ class Tracker:
                 y[live] = newpos
                 lost[live] = np.where(nview >= 2, 0, lost[live] + 1)  # one ray alone does not keep a track
                 for j, n_ in zip(live, nview, strict=True):
-                    if n_:
+                    if n_ >= (1 if st.single_view_positions else 2):
                         pos[j][k] = y[j]
-                        views[j][k] = n_
+                    views[j][k] = n_
                 alive[live[lost[live] > max_lost]] = False
                 # two tracks on one marker (each with some of its rays): the younger is merged into the older
                 on = live[(nview >= 2) & alive[live]]  # triangulated both: the same point in space
