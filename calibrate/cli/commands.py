@@ -52,7 +52,8 @@ def run_simulation(args: argparse.Namespace):
         from ..io.c3d import C3D_MAX_FRAMES
 
         trial_name = "trial.trc" if args.frames > C3D_MAX_FRAMES else "trial.c3d"
-        for name in (trial_name, "truth.urdf", "truth_motion.csv", "truth_corruptions.csv"):
+        extra = ("cameras.toml", "detections.npz", "truth_detections.npz") if getattr(args, "cameras", None) else ()
+        for name in (trial_name, "truth.urdf", "truth_motion.csv", "truth_corruptions.csv", *extra):
             if (args.out / name).exists():
                 raise CalibrateError(
                     f"{args.out / name}: exists; pass --overwrite to replace it or choose another --out"
@@ -77,6 +78,10 @@ def run_simulation(args: argparse.Namespace):
         stale.unlink()  # from an earlier run into this folder (overwriting was allowed above)
     try:
         paths = write_simulation(sim, args.out)
+        if getattr(args, "cameras", None):
+            from .track import write_simulated_cameras
+
+            paths.update(write_simulated_cameras(sim, args.out, args.cameras, args.seed))
     except OSError as e:
         raise CalibrateError(f"{args.out}: cannot write ({e.strerror}); choose a writable --out") from None
     return model, sim, paths, time.perf_counter() - t0
@@ -97,7 +102,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         extras.append(f"{kinds.count('swap')} swapped and {kinds.count('spike')} spiked marker samples")
     if extras:
         print("  " + "; ".join(extras))
-    for key in ("trial", "truth", "motion", "corruptions"):
+    for key in ("trial", "truth", "motion", "corruptions", "cameras", "detections", "truth_detections"):
         if key in paths:
             print(f"  {key:11s} {paths[key]}")
     return 0

@@ -22,6 +22,7 @@ from calibrate.cli.args import (
     positive_int,
 )
 from calibrate.cli.commands import cmd_calibrate, cmd_demo, cmd_import_osim, cmd_inspect, cmd_joints, cmd_simulate
+from calibrate.cli.track import add_track_parser, cmd_track
 
 from ..errors import CalibrateError
 
@@ -82,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      "--sta-mm, --height, --gap-fraction, --swaps, --spikes, or --realistic.")
     sim.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
     sim.add_argument("--overwrite", action="store_true", help="replace trial.c3d/truth.urdf/truth_motion.csv in OUT")
+    sim.add_argument("--cameras", type=int_at_least(2), nargs="?", const=8, default=None, metavar="N",
+                     help="also N synthetic cameras around the volume (--cameras alone: 8): OUT/cameras.toml, the "
+                          "unlabelled 2-D detections OUT/detections.npz and OUT/truth_detections.npz, the input "
+                          "of 'calibrate track' (docs/tracking.md)")
     _add_sim_args(sim, 1000)
     demo = sub.add_parser("demo", help="simulate squats, calibrate the base model to them, compare with the truth",
                           description="Simulate a squat trial of a synthetic subject into ./calibrate-demo/ (its "
@@ -114,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ..io.osim_export import add_export_osim_parser
 
     add_export_osim_parser(sub)
+    add_track_parser(sub)
     io = sub.add_parser("import-osim", help="write an OpenSim model (.osim) as a calibrate model URDF",
                         description="Read an OpenSim 4 model (and optionally a MarkerSet file) and write it in "
                                     "calibrate's model format; lists what the format could only approximate "
@@ -127,7 +133,7 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim")
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track")
 
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
@@ -205,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     from ..io.osim_export import cmd_export_osim
 
     commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
-                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim}
+                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim, "track": cmd_track}
     return _guard(commands[args.command], args)
 
 
