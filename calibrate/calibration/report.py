@@ -26,6 +26,7 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
 from .records import Identified
+from .series import report_series
 
 if TYPE_CHECKING:
     from .result import Calibration
@@ -129,6 +130,7 @@ def calibration_report(cal: Calibration) -> dict:
         "unidentified": [c.name for c in cal.changes if not c.identified],
         "notes": list(cal.notes),
         "times_s": {k: round(v, 6) for k, v in cal.times.items()},
+        "series": report_series(cal),
     }
 
 
