@@ -241,10 +241,10 @@ def _segments(report: dict, go) -> str:
         go.Bar(x=x, y=[lengths[n]["subject_mm"] for n in single], name="subject", marker_color="#2a7a2a")])
     fig.update_layout(barmode="group", title="segment lengths (mm): base model vs subject, left and right side "
                       "by side", yaxis_title="mm")
-    rows = [[lengths[p + "_l"]["segment"][:-2], p, f"{lengths[p + '_l']['base_mm']:.1f}",
-             f"{lengths[p + '_l']['subject_mm']:.1f}", f"{lengths[p + '_r']['subject_mm']:.1f}",
-             f"{100 * abs(lengths[p + '_l']['subject_mm'] - lengths[p + '_r']['subject_mm']) / (0.5 * (lengths[p + '_l']['subject_mm'] + lengths[p + '_r']['subject_mm'])):.1f}"]
-            for p in pairs]
+    rows = []
+    for p, a_mm, b_mm in zip(pairs, left, right, strict=True):
+        rows.append([lengths[p + "_l"]["segment"][:-2], p, f"{lengths[p + '_l']['base_mm']:.1f}", f"{a_mm:.1f}",
+                     f"{b_mm:.1f}", f"{100 * abs(a_mm - b_mm) / (0.5 * (a_mm + b_mm)):.1f}"])
     rows += [[lengths[n]["segment"], n, f"{lengths[n]['base_mm']:.1f}", f"{lengths[n]['subject_mm']:.1f}", "", ""]
              for n in single]
     return ("<h2 id=segments>Segment lengths</h2>" + _figure(fig, 400)
