@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import html
 import json
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -28,6 +29,9 @@ th{background:#f3f3f3;text-align:left}td.n{text-align:right;font-variant-numeric
 .notes{background:#fff6e0;border-left:4px solid #e0a000;padding:.5em 1em}.ok{color:#2a7a2a}.bad{color:#b00020}
 .muted{color:#777}
 """
+
+
+_UUID = re.compile(r"\b[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}\b")
 
 
 def _e(x) -> str:
@@ -273,9 +277,12 @@ def report_html(report: Mapping, title: str | None = None) -> str:
             _notes(rep), _summary(rep), _marker_figures(rep, go), _angle_figures(rep, go, subplots),
             _parameters(rep, go), _segments(rep, go)]
     js = plotly.offline.get_plotlyjs()
+    # the figures' random element ids numbered instead: the same report gives the same page
+    ids: dict[str, str] = {}
+    page = re.sub(_UUID, lambda m: ids.setdefault(m.group(0), f"figure-{len(ids) + 1}"), "".join(body))
     return ("<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
             f"<title>calibrate report: {_e(name)}</title><style>{STYLE}</style>"
-            f"<script type=\"text/javascript\">{js}</script></head><body>" + "".join(body) + "</body></html>\n")
+            f"<script type=\"text/javascript\">{js}</script></head><body>" + page + "</body></html>\n")
 
 
 def read_report(path: Path) -> dict:

@@ -59,14 +59,14 @@ class Bars:
     """Progress of a calibration as rich progress bars on stderr (a terminal): one line per stage,
     a bar over the solver's iterations (out of `max_iterations`).  Use as a context manager."""
 
-    def __init__(self, max_iterations: int):
+    def __init__(self, max_iterations: int, stream=None):
         from rich.console import Console
         from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
         self.max_iterations = max_iterations
         self.bars = Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(),
                              TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(),
-                             console=Console(file=sys.stderr), transient=False)
+                             console=Console(file=sys.stderr if stream is None else stream), transient=False)
         self.task = None
         self.stage = None
 
@@ -105,7 +105,7 @@ def progress_for(quiet: bool, max_iterations: int, plain, stream=None):
         return nullcontext(lambda msg: None)
     if stream.isatty():
         try:
-            return Bars(max_iterations)
+            return Bars(max_iterations, stream)
         except ImportError:
             pass
     return nullcontext(plain())
