@@ -75,16 +75,19 @@ class Bars:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self.task is not None:
-            self.bars.update(self.task, completed=self.bars.tasks[-1].total)
+        self._finish()
         self.bars.stop()
+
+    def _finish(self) -> None:
+        """Close the current line: a solve's bar ends at the iterations it took."""
+        if self.task is not None:
+            done = max(1, int(self.bars.tasks[-1].completed)) if self.stage and self.stage[1] else 1
+            self.bars.update(self.task, total=done, completed=done)
 
     def __call__(self, msg: Progress) -> None:
         key = (msg.stage, msg.iteration is not None)
         if key != self.stage:
-            if self.task is not None:
-                t = self.bars.tasks[-1]
-                self.bars.update(self.task, completed=t.total)
+            self._finish()
             self.stage = key
             total = self.max_iterations if msg.iteration is not None else 1
             self.task = self.bars.add_task(str(msg)[:70], total=total)
