@@ -22,8 +22,8 @@ if TYPE_CHECKING:
 MAX_POINTS = 400  # instants per trial in the report's series
 
 
-def _rounded(a: np.ndarray, step: float) -> list:
-    return [None if not math.isfinite(float(v)) else round(float(v) / step) * step for v in a]
+def _rounded(a: np.ndarray, digits: int) -> list:
+    return [None if not math.isfinite(float(v)) else round(float(v), digits) for v in a]
 
 
 def blocks(n_frames: int, max_points: int = MAX_POINTS) -> np.ndarray:
@@ -46,11 +46,11 @@ def trial_series(cal: Calibration, i: int, max_points: int = MAX_POINTS) -> dict
     names = cal.model.marker_names
     return {
         "frames": [int(s) for s in starts],
-        "times_s": _rounded(motion.times[starts], 1e-4),
+        "times_s": _rounded(motion.times[starts], 4),
         "block": int(starts[1] - starts[0]) if len(starts) > 1 else 1,
-        "residual_mm": {n: _rounded(peak[:, k], 0.1) for k, n in enumerate(names)
+        "residual_mm": {n: _rounded(peak[:, k], 1) for k, n in enumerate(names)
                         if np.isfinite(peak[:, k]).any()},
-        "angles_deg": {d: _rounded(np.degrees(motion.angles[starts, k]), 0.01)
+        "angles_deg": {d: _rounded(np.degrees(motion.angles[starts, k]), 2)
                        for k, d in enumerate(motion.dof_names)},
     }
 
