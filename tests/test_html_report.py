@@ -4,6 +4,7 @@ calibration (squats with spiked marker samples, so positions are rejected)."""
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import json
 import re
@@ -213,14 +214,23 @@ def test_cli_report_from_the_json(run, tmp_path):
     assert main(["report", str(run["report"]), "-o", str(tmp_path / "r.txt")]) == 2
 
 
-def test_cli_calibrate_html_flag(run, tmp_path, capsys):
-    trial = tmp_path / "t.c3d"
+def test_cli_calibrate_html_flag(run, tmp_path, capsys, monkeypatch):
+    """`--html` beside the other outputs; the view found the files of a report written with relative
+    names from another folder."""
+    (tmp_path / "lab").mkdir()
+    trial = tmp_path / "lab" / "t.c3d"
     shutil.copy(run["dir"] / "trial.c3d", trial)
-    assert main([str(trial), str(MODEL), "--html", str(tmp_path / "t.html"), "-q"]) in (0, 1)
-    rep = json.loads((tmp_path / "t_report.json").read_text())
-    assert rep["outputs"]["html"] == str(tmp_path / "t.html")
-    page = (tmp_path / "t.html").read_text()
+    monkeypatch.chdir(tmp_path)
+    assert main(["lab/t.c3d", str(MODEL), "--html", "lab/t.html", "-q"]) in (0, 1)
+    rep = json.loads((tmp_path / "lab" / "t_report.json").read_text())
+    assert rep["outputs"]["html"] == "lab/t.html"
+    page = (tmp_path / "lab" / "t.html").read_text()
     assert page.startswith("<!DOCTYPE html>") and "id=segments>" in page
+    monkeypatch.chdir(tmp_path / "lab")  # the report's relative names do not hold from here
+    if importlib.util.find_spec("rerun") is not None:
+        assert main(["view", "t_report.json", "--rrd", "t.rrd"]) == 0
+        assert len(_rrd_points(tmp_path / "lab" / "t.rrd", "/markers/measured")) == FRAMES
+    trial = tmp_path / "lab" / "t.c3d"
     # a wrong name is refused before any work, nothing written
     assert main([str(trial), str(MODEL), "--html", str(tmp_path / "x.pdf"), "--overwrite"]) == 2
     assert "needs an .html name" in capsys.readouterr().err

@@ -78,8 +78,13 @@ def scene_of(cal: Calibration) -> Scene:
 
 
 def _resolve(name: str, folder: Path) -> Path:
+    """A path the report names: as written (from where the calibration ran), else beside the report."""
     p = Path(name)
-    return p if p.exists() or p.is_absolute() else folder / p
+    for cand in (p, folder / p, folder / p.name):
+        if cand.exists():
+            return cand
+    raise CalibrateError(f"{name}: named by the report but not found (nor in {folder}); run from where the "
+                         "calibration ran or put the file beside the report")
 
 
 def log_report(report: dict, folder: Path) -> Scene:
