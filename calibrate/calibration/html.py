@@ -51,8 +51,8 @@ def _table(head: list[str], rows: list[list], numeric: set[int] | None = None) -
     return "".join(out) + "</table>"
 
 
-def _figure(fig, height: int = 420) -> str:
-    fig.update_layout(height=height, margin={"l": 60, "r": 20, "t": 40, "b": 50}, template="plotly_white")
+def _figure(fig, height: int = 420, top: int = 40) -> str:
+    fig.update_layout(height=height, margin={"l": 60, "r": 20, "t": top, "b": 50}, template="plotly_white")
     return fig.to_html(full_html=False, include_plotlyjs=False, config={"displaylogo": False})
 
 
@@ -181,12 +181,17 @@ def _angle_figures(report: dict, go, subplots) -> str:
             lo, hi = limits.get(d, [None, None])
             if lo is not None and hi is not None:
                 fig.add_trace(go.Scatter(x=ts["times_s"] + ts["times_s"][::-1], y=[hi] * len(y) + [lo] * len(y),
-                                         fill="toself", fillcolor="rgba(100,150,255,0.15)", line={"width": 0},
+                                         fill="toself", fillcolor="rgba(100,150,255,0.18)",
+                                         line={"width": 1, "color": "rgba(60,100,200,0.6)", "dash": "dot"},
                                          hoverinfo="skip", showlegend=False), row=r, col=c)
+            span = [v for v in [*y, lo, hi] if v is not None]
+            if span:  # the range's edges inside the plot
+                pad = 0.08 * (max(span) - min(span) or 1.0)
+                fig.update_yaxes(range=[min(span) - pad, max(span) + pad], row=r, col=c)
             fig.add_trace(go.Scatter(x=ts["times_s"], y=y, mode="lines", name=d, showlegend=False,
                                      line={"color": "#1f4e99"}), row=r, col=c)
         fig.update_layout(title=f"{tr['source'] or f'trial {i + 1}'}: joint angles (deg) over time (s)")
-        out.append(_figure(fig, 190 * rows + 80))
+        out.append(_figure(fig, 190 * rows + 110, top=80))
     return "".join(out)
 
 
