@@ -212,6 +212,13 @@ def test_cli_report_from_the_json(run, tmp_path):
     assert main(["report", str(bad), "-o", str(tmp_path / "b.html")]) == 2
     assert not (tmp_path / "b.html").exists()
     assert main(["report", str(run["report"]), "-o", str(tmp_path / "r.txt")]) == 2
+    # a report written before the series: the tables still, the figures it can draw
+    old = {k: v for k, v in run["rep"].items() if k != "series"}
+    page = report_html(old)
+    assert "made by an older calibrate" in page and all(f"<td>{p['name']}</td>" in page for p in old["parameters"])
+    (tmp_path / "no.json").write_text(json.dumps({"trials": []}))
+    assert main(["report", str(tmp_path / "no.json"), "-o", str(tmp_path / "no.html")]) == 2
+    assert not (tmp_path / "no.html").exists()
 
 
 def test_cli_calibrate_html_flag(run, tmp_path, capsys, monkeypatch):
