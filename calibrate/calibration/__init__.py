@@ -3,7 +3,9 @@
 Exports (each imported from its module on first use): calibrate from calibrate.calibration.pipeline; Calibration,
 NewMarker, Outlier from calibrate.calibration.result; Identified, ParameterChange, Progress, StillNote, LimitNote
 from calibrate.calibration.records; TruthComparison, compare_to_truth from calibrate.calibration.evaluate;
-PipelineOptions (Settings.pipeline: the pipeline's switches) from calibrate.calibration.options.
+PipelineOptions (Settings.pipeline: the pipeline's switches) from calibrate.calibration.options; report_html,
+write_report_html from calibrate.calibration.html (the HTML report); scene_of, view_scene from
+calibrate.calibration.view (the 3-D view in rerun).
 """
 
 from ..exports import lazy_exports
@@ -11,5 +13,5 @@ from ..exports import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(__name__, """
 .pipeline:calibrate .result:Calibration,NewMarker,Outlier
 .records:Identified,ParameterChange,Progress,StillNote,LimitNote .evaluate:TruthComparison,compare_to_truth
-.options:PipelineOptions
+.options:PipelineOptions .html:report_html,write_report_html .view:scene_of,view_scene
 """)

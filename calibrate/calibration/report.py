@@ -25,7 +25,9 @@ from ..model.model import Model
 from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
+from .html import report_html
 from .records import Identified
+from .series import report_series
 
 if TYPE_CHECKING:
     from .result import Calibration
@@ -129,6 +131,7 @@ def calibration_report(cal: Calibration) -> dict:
         "unidentified": [c.name for c in cal.changes if not c.identified],
         "notes": list(cal.notes),
         "times_s": {k: round(v, 6) for k, v in cal.times.items()},
+        "series": report_series(cal),
     }
 
 
@@ -327,9 +330,10 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 
 
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
-                  extra_times: dict[str, float] | None = None, osim=None, mot=None) -> dict[str, Path]:
-    """Write the subject URDF, the motion CSV(s), the report JSON and, for OpenSim, the subject as an
-    .osim model and the motions as .mot files (whichever are given).
+                  extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None) -> dict[str, Path]:
+    """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
+    (calibrate.calibration.html) and, for OpenSim, the subject as an .osim model and the motions as
+    .mot files (whichever are given).
 
     `motion`, `mot`: one path per trial (a single path for a single trial).  Every destination is
     checked first (its folder exists; it is not the base model; it does not exist unless `overwrite`),
@@ -338,7 +342,9 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     """
     motions = _per_trial(cal, motion, "motion")
     mots = _per_trial(cal, mot, ".mot")
-    targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report)) if v is not None}
+    targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report), ("html", html)) if v is not None}
+    if html is not None and Path(html).suffix.lower() not in (".html", ".htm"):
+        raise CalibrateError(f"{html}: the HTML report needs an .html name")
     keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
     opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots))]
@@ -349,12 +355,22 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
                   same="the URDF, motion and report outputs must all be different files")
     t0 = time.perf_counter()
 
+    made: list[dict] = []  # the report, made once for the JSON and the HTML
+
+    def the_report() -> dict:
+        if not made:
+            timed = replace(cal, times={**cal.times, "write": time.perf_counter() - t0, **(extra_times or {})})
+            rep = calibration_report(timed)
+            rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
+            rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
+            made.append(rep)
+        return made[0]
+
     def write_report(path: Path) -> None:
-        timed = replace(cal, times={**cal.times, "write": time.perf_counter() - t0, **(extra_times or {})})
-        rep = calibration_report(timed)
-        rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
-        rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
-        put_text(path, json.dumps(rep, indent=1, allow_nan=False, default=_json_default) + "\n")
+        put_text(path, json.dumps(the_report(), indent=1, allow_nan=False, default=_json_default) + "\n")
+
+    def write_html(path: Path) -> None:
+        put_text(path, report_html(the_report()))
 
     writers = {}
     # The subject's URDF document, made once: the URDF output and the OpenSim exports are of it.
@@ -365,6 +381,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         writers[targets[k]] = lambda path, m=m: put_text(path, motion_csv_text(m))
     if "report" in targets:
         writers[targets["report"]] = write_report
+    if "html" in targets:
+        writers[targets["html"]] = write_html
     if opensim:
         from ..io.osim_export import mot_text, osim_text  # OpenSim export: only for these outputs
 

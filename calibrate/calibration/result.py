@@ -131,11 +131,11 @@ class Calibration:
         return summary_text(self)
 
     def write(self, urdf=None, motion=None, report=None, overwrite: bool = False,
-              extra_times: dict[str, float] | None = None, osim=None, mot=None) -> dict:
-        """Write the subject URDF, motion CSV(s), report JSON and, for OpenSim, the subject .osim and .mot
-        motions (those given), all or none; see report.write_outputs."""
+              extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None) -> dict:
+        """Write the subject URDF, motion CSV(s), report JSON, the HTML report and, for OpenSim, the
+        subject .osim and .mot motions (those given), all or none; see report.write_outputs."""
         return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite,
-                             extra_times=extra_times, osim=osim, mot=mot)
+                             extra_times=extra_times, osim=osim, mot=mot, html=html)
 
 
 rms = marker_rms  # the name tests and scripts import

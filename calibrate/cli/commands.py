@@ -17,6 +17,7 @@ from ..calibration.records import Countdown, Progress
 from ..errors import CalibrateError
 from ..io.outputs import check_targets
 from ..seed.geometry import marker_rms
+from .report import progress_for
 
 DEFAULT_MODEL = Path(__file__).resolve().parent.parent.parent / "models" / "human.urdf"
 
@@ -157,7 +158,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["memory_mb"] = args.memory_mb
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
-    outputs = [out_urdf, *out_motions, out_report]
+    outputs = [out_urdf, *out_motions, out_report, *([args.html] if args.html is not None else [])]
+    if args.html is not None and args.html.suffix.lower() not in (".html", ".htm"):
+        raise CalibrateError(f"{args.html}: the HTML report needs an .html name (--html report.html)")
     from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
     out_osim = out_urdf.with_suffix(".osim")
     out_mots = [m.with_suffix(".mot") for m in out_motions]
@@ -169,7 +172,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   same="two outputs would be the same file (two trials with the same name?); use -o/--report "
                        "or rename the trials",
                   exists_hint="pass --overwrite to replace it or choose another name")
-    say = (lambda msg: None) if args.quiet else Timed()
+    progress = progress_for(args.quiet, settings.max_iterations, Timed)
     t0 = time.perf_counter()
     model = load_model(model_path, args.marker_set)
     if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
@@ -194,15 +197,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.neutral is not None and args.neutral > len(trials):
         raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of the "
                              f"static trial (1 = the first)")
-    cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
-                    neutral=None if args.neutral is None else args.neutral - 1, progress=say)
+    with progress as say:
+        cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
+                        neutral=None if args.neutral is None else args.neutral - 1, progress=say)
     if cal.ignored_labels:
         why = "are not markers of" if not settings.new_markers else "ride on no segment of"
         print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
               f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
     cal = replace(cal, times={"load": load_s, **cal.times})
     opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
-    cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite, **opensim)
+    cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
+                      html=args.html, **opensim)
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))
@@ -246,7 +251,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     kind = "realistic " + kind if args.realistic else kind
     progress_printer(f"simulated a {kind} trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
     t0 = time.perf_counter()
-    cal = calibrate(model, trial, progress=Timed())
+    with progress_for(False, 100, Timed) as say:
+        cal = calibrate(model, trial, progress=say)
     t_cal = time.perf_counter() - t0
     cal = write_timed(cal, urdf=args.out / "subject.urdf", motion=args.out / "subject_motion.csv",
                        report=args.out / "subject_report.json", overwrite=True)

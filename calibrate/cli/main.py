@@ -1,5 +1,6 @@
 """Command line: ``calibrate TRIAL [TRIAL ...] MODEL`` (calibrate a subject), ``calibrate simulate``,
-``calibrate demo``, ``calibrate inspect``, ``calibrate joints``, ``calibrate export-osim``.
+``calibrate demo``, ``calibrate inspect``, ``calibrate joints``, ``calibrate export-osim``,
+``calibrate report`` (HTML report), ``calibrate view`` (3-D view).
 
 A thin layer over the Python API.  Bad input gives one line on stderr
 (``calibrate: error: ...``) and exit status 2; nothing half-written.
@@ -120,6 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_export_osim_parser(sub)
     add_track_parser(sub)
+
+    from calibrate.cli.report import add_report_parsers
+
+    add_report_parsers(sub)
     io = sub.add_parser("import-osim", help="write an OpenSim model (.osim) as a calibrate model URDF",
                         description="Read an OpenSim 4 model (and optionally a MarkerSet file) and write it in "
                                     "calibrate's model format; lists what the format could only approximate "
@@ -133,12 +138,12 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track")
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track", "report", "view")
 
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
     ap = _top("calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
-              "       calibrate {simulate,demo,inspect,joints,export-osim} ...",
+              "       calibrate {simulate,demo,inspect,joints,export-osim,import-osim,report,view} ...",
               "Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
               "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
               "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
@@ -152,6 +157,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial)")
     ap.add_argument("--report", type=Path, default=None,
                     help="report JSON (default: the first TRIAL's name + _report.json)")
+    ap.add_argument("--html", type=Path, default=None, metavar="HTML",
+                    help="also write the HTML report (one offline file; docs/report.md), e.g. report.html")
     ap.add_argument("--frames", type=frames_arg, default=None,
                     help="use frames A:B only (0-based, B excluded; a single trial only)")
     ap.add_argument("--markers", type=Path, default=None,
@@ -209,8 +216,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.print_help()
         return 2
     from ..io.osim_export import cmd_export_osim
+    from .report import cmd_report, cmd_view
 
-    commands = {"simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
+    commands = {"report": cmd_report, "view": cmd_view,
+                "simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
                 "export-osim": cmd_export_osim, "import-osim": cmd_import_osim, "track": cmd_track}
     return _guard(commands[args.command], args)
 

@@ -1,0 +1,319 @@
+"""The HTML report of a calibration: one self-contained file (plotly.js embedded once, no network)
+made from the report JSON alone (calibrate.calibration.report), so `calibrate report REPORT.json`
+rebuilds it without the trials.
+
+Order, for a reader at a glance: the notes (unresolved segments, still joints, held axes, parameters
+the trial does not identify), the summary tables, marker errors (RMS per marker, marker x time heat
+map with rejected positions marked, residual curves per trial), joint angles against the base model's
+limits, parameter changes with their posterior SD and identifiability, segment lengths base vs
+subject (left and right side by side).  Figures: plotly (interactive: hover for values, zoom a long
+trial), see docs/report.md.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from collections.abc import Mapping
+from pathlib import Path
+
+from ..errors import CalibrateError
+from ..io.outputs import check_targets, put_text, write_all
+
+STYLE = """
+body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1200px;color:#222;padding:0 1em}
+h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;margin-top:1.8em}
+table{border-collapse:collapse;margin:.5em 0;font-size:.9em}td,th{border:1px solid #ddd;padding:2px 8px}
+th{background:#f3f3f3;text-align:left}td.n{text-align:right;font-variant-numeric:tabular-nums}
+.notes{background:#fff6e0;border-left:4px solid #e0a000;padding:.5em 1em}.ok{color:#2a7a2a}.bad{color:#b00020}
+.muted{color:#777}
+"""
+
+
+_UUID = re.compile(r"\b[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}\b")
+
+
+def _e(x) -> str:
+    return html.escape(str(x))
+
+
+def _num(v, fmt: str = "{:.2f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def _table(head: list[str], rows: list[list], numeric: set[int] | None = None) -> str:
+    numeric = numeric or set()
+    out = ["<table><tr>" + "".join(f"<th>{_e(h)}</th>" for h in head) + "</tr>"]
+    for row in rows:
+        out.append("<tr>" + "".join(f"<td class=n>{_e(c)}</td>" if i in numeric else f"<td>{_e(c)}</td>"
+                                    for i, c in enumerate(row)) + "</tr>")
+    return "".join(out) + "</table>"
+
+
+def _figure(fig, height: int = 420, top: int = 40) -> str:
+    fig.update_layout(height=height, margin={"l": 60, "r": 20, "t": top, "b": 50}, template="plotly_white")
+    return fig.to_html(full_html=False, include_plotlyjs=False, config={"displaylogo": False})
+
+
+def _notes(report: dict) -> str:
+    items = []
+    conv = report["solver"]["converged"]
+    items.append(f"<li class={'ok' if conv else 'bad'}>solver {'converged' if conv else 'DID NOT CONVERGE'}: "
+                 f"{_e(report['solver']['termination'])}</li>")
+    for u in report.get("unresolved", []):
+        items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
+                     f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")
+    if report.get("held_axes"):
+        items.append(f"<li>axes held at the base model's (the trials do not show these joints moving): "
+                     f"{_e(', '.join(report['held_axes']))}</li>")
+    for n in report.get("notes", []):
+        items.append(f"<li>{_e(n)}</li>")
+    for n in report.get("seed", {}).get("notes", []):
+        items.append(f"<li>seed: {_e(n)}</li>")
+    un = report.get("unidentified", [])
+    if un:
+        items.append(f"<li>{len(un)} parameters not identified by these trials (held by their priors): "
+                     f"{_e(', '.join(un))}</li>")
+    if report.get("marker_set", {}).get("unused_model_markers"):
+        items.append("<li>model markers never seen (base positions kept): "
+                     f"{_e(', '.join(report['marker_set']['unused_model_markers']))}</li>")
+    if report["outliers"]["count"]:
+        per = sorted(report["outliers"]["per_marker"].items(), key=lambda kv: -kv[1])
+        items.append(f"<li>{report['outliers']['count']} marker positions rejected as outliers "
+                     f"({report['outliers']['threshold_noise_sd']:g} noise SDs): "
+                     + _e(", ".join(f"{k} x{v}" for k, v in per[:12])) + "</li>")
+    return "<div class=notes><h2 id=notes>Notes</h2><ul>" + "".join(items) + "</ul></div>"
+
+
+def _summary(report: dict) -> str:
+    m, s, mk = report["model"], report["solver"], report["markers"]
+    trials = _table(["trial", "frames", "rate (Hz)", "marker RMS (mm)", "max (mm)", "outliers"],
+                    [[t["source"] or "(in memory)", t["frames"], f"{t['rate_hz']:g}", _num(t["rms_mm"]),
+                      _num(t["max_mm"]), t["outliers"]] for t in report["trials"]], {1, 2, 3, 4, 5})
+    mass = report.get("mass", {})
+    rows = [
+        ["model", f"{m['source']}: {m['segments']} segments, {m['joints']} joints, {m['dof']} coordinates per "
+                  f"frame, {m['markers']} markers ({m['new_markers']} new)"],
+        ["markers", f"{len(report['marker_set']['used'])} used, {len(report['marker_set']['ignored_labels'])} "
+                    f"trial labels left out, {report['outliers']['count']} outliers rejected"],
+        ["marker RMS (mm)", f"start {_num(mk['initial_rms_mm'], '{:.3f}')}, final {_num(mk['rms_mm'], '{:.3f}')}, "
+                            f"largest {_num(mk['max_mm'])}"],
+        ["cost", f"{s['initial_cost']:.4e} -> {s['final_cost']:.4e}"],
+        ["iterations", f"{s['iterations']} ({s['accepted_steps']} accepted)"
+                       + (f"; coarse solve of {s['coarse']['frames']} frames: {s['coarse']['iterations']}"
+                          if s.get("coarse") else "")],
+        ["termination", f"{'CONVERGED' if s['converged'] else 'NOT CONVERGED'}: {s['termination']}"],
+        ["mass", f"{mass.get('subject_kg')} kg (segment masses x{mass.get('factor', 1):.3f})"
+                 if mass.get("subject_kg") else f"{mass.get('base_kg')} kg, the base model's"],
+        ["free parameters", ", ".join(report["settings"]["free"])],
+        ["noise", "learnt per marker" if report["noise"]["learnt"] else f"{report['settings']['noise_mm']:g} mm"],
+        ["time (s)", "  ".join(f"{k} {v:.2f}" for k, v in report["times_s"].items())
+                     + f"  total {sum(report['times_s'].values()):.2f}"],
+        ["calibrate", report.get("calibrate_version", "")],
+    ]
+    outs = report.get("outputs", {})
+    if outs:
+        rows.append(["outputs", ", ".join(str(v) if not isinstance(v, list) else ", ".join(v) for v in outs.values())])
+    sym = report.get("symmetry", {})
+    if sym.get("largest_length_difference") is not None:
+        rows.append(["left/right", f"segment lengths differ by up to {100 * sym['largest_length_difference']:.1f} %"
+                     + (f", mirrored centres by up to {sym['largest_centre_mirror_mm']:.1f} mm"
+                        if sym.get("largest_centre_mirror_mm") is not None else "")])
+    return "<h2 id=summary>Summary</h2>" + trials + _table(["", ""], rows)
+
+
+def _marker_figures(report: dict, go) -> str:
+    per = report["markers"]["per_marker"]
+    names = sorted(per, key=lambda n: -per[n]["rms_mm"])
+    bars = go.Figure(go.Bar(x=names, y=[per[n]["rms_mm"] for n in names], name="RMS",
+                            error_y={"type": "data", "symmetric": False, "array": [
+                                per[n]["max_mm"] - per[n]["rms_mm"] for n in names], "visible": True}))
+    bars.update_layout(title="marker RMS per marker (mm; whisker up to the largest)", yaxis_title="mm")
+    out = ["<h2 id=markers>Marker errors</h2>", _figure(bars, 380)]
+    series = report.get("series")
+    if not series:
+        return "".join(out) + "<p class=muted>(this report has no series: made by an older calibrate)</p>"
+    rejected = report["outliers"]["rejected"]
+    for i, (tr, ts) in enumerate(zip(report["trials"], series["trials"], strict=False)):
+        name = tr["source"] or f"trial {i + 1}"
+        markers = [n for n in names if n in ts["residual_mm"]]
+        z = [ts["residual_mm"][n] for n in markers]
+        block = ts["block"]
+        heat = go.Figure(go.Heatmap(x=ts["times_s"], y=markers, z=z, colorscale="Viridis",
+                                    colorbar={"title": "mm"}, hoverongaps=False,
+                                    hovertemplate="%{y} at %{x:.2f} s: %{z:.1f} mm<extra></extra>"))
+        rej = [o for o in rejected if o["trial"] == i and o["marker"] in markers]
+        if rej:
+            t = [ts["times_s"][min(o["frame"] // block, len(ts["times_s"]) - 1)] for o in rej]
+            heat.add_trace(go.Scatter(x=t, y=[o["marker"] for o in rej], mode="markers", name="rejected",
+                                      marker={"symbol": "x", "color": "red", "size": 9},
+                                      text=[f"rejected: {o['error_mm']:.1f} mm" for o in rej]))
+        heat.update_layout(title=f"{name}: residual per marker over time (mm"
+                           + (f"; largest of each {block} frames" if block > 1 else "")
+                           + "; red x: rejected positions)", xaxis_title="time (s)",
+                           yaxis={"autorange": "reversed"})
+        curves = go.Figure([go.Scatter(x=ts["times_s"], y=ts["residual_mm"][n], name=n, mode="lines")
+                            for n in markers])
+        curves.update_layout(title=f"{name}: residual curves per marker (mm)", xaxis_title="time (s)",
+                             yaxis_title="mm")
+        out += [_figure(heat, max(300, 14 * len(markers) + 120)), _figure(curves, 380)]
+    return "".join(out)
+
+
+def _angle_figures(report: dict, go, subplots) -> str:
+    series = report.get("series")
+    if not series:
+        return ""
+    limits = series["limits_deg"]
+    out = ["<h2 id=angles>Joint angles</h2><p class=muted>Shaded: the base model's range of each coordinate."
+           "</p>"]
+    for i, (tr, ts) in enumerate(zip(report["trials"], series["trials"], strict=False)):
+        dofs = list(ts["angles_deg"])
+        if not dofs:
+            continue
+        cols = 4
+        rows = (len(dofs) + cols - 1) // cols
+        fig = subplots.make_subplots(rows=rows, cols=cols, subplot_titles=dofs, vertical_spacing=min(0.08, 0.5 / rows))
+        for k, d in enumerate(dofs):
+            r, c = k // cols + 1, k % cols + 1
+            y = ts["angles_deg"][d]
+            lo, hi = limits.get(d, [None, None])
+            if lo is not None and hi is not None:
+                fig.add_trace(go.Scatter(x=ts["times_s"] + ts["times_s"][::-1], y=[hi] * len(y) + [lo] * len(y),
+                                         fill="toself", fillcolor="rgba(100,150,255,0.18)",
+                                         line={"width": 1, "color": "rgba(60,100,200,0.6)", "dash": "dot"},
+                                         hoverinfo="skip", showlegend=False), row=r, col=c)
+            span = [v for v in [*y, lo, hi] if v is not None]
+            if span:  # the range's edges inside the plot
+                pad = 0.08 * (max(span) - min(span) or 1.0)
+                fig.update_yaxes(range=[min(span) - pad, max(span) + pad], row=r, col=c)
+            fig.add_trace(go.Scatter(x=ts["times_s"], y=y, mode="lines", name=d, showlegend=False,
+                                     line={"color": "#1f4e99"}), row=r, col=c)
+        fig.update_layout(title=f"{tr['source'] or f'trial {i + 1}'}: joint angles (deg) over time (s)")
+        out.append(_figure(fig, 190 * rows + 110, top=80))
+    return "".join(out)
+
+
+def _parameters(report: dict, go) -> str:
+    params = report["parameters"]
+    rows = []
+    for p in params:
+        std = [v for v in p["std"] if v is not None]
+        rows.append([p["name"], p["group"], p["unit"], " ".join(_num(v, "{:.4g}") for v in p["base"]),
+                     " ".join(_num(v, "{:.4g}") for v in p["value"]), f"{p['change']:.4g}",
+                     _num(max(std) if std else None, "{:.3g}"), "yes" if p["identified"] else "no (prior)",
+                     p.get("note", "")])
+    out = ["<h2 id=parameters>Parameters: change from the base model</h2>"]
+    for group, unit in (("centre", "mm"), ("axis", "deg"), ("scale", "fraction"), ("marker", "mm")):
+        sel = [p for p in params if p["group"] == group]
+        if not sel:
+            continue
+        sd = [max((v for v in p["std"] if v is not None), default=None) for p in sel]
+        ident = [p["identified"] for p in sel]
+        fig = go.Figure(go.Bar(x=[p["name"] for p in sel], y=[p["change"] for p in sel],
+                               error_y={"type": "data", "array": [v or 0 for v in sd], "visible": True},
+                               marker_color=["#2a7a2a" if k else "#c08000" for k in ident],
+                               hovertext=["identified" if k else "held by prior" for k in ident]))
+        fig.update_layout(title=f"{group}: change ({unit}) +- posterior SD (worst axis); green: identified, "
+                          "amber: held by its prior", yaxis_title=unit)
+        out.append(_figure(fig, 360))
+    out.append(_table(["parameter", "group", "unit", "base", "subject", "change", "posterior SD", "identified",
+                       "note"], rows, {5, 6}))
+    return "".join(out)
+
+
+def _segments(report: dict, go) -> str:
+    lengths = (report.get("series") or {}).get("segment_lengths") or {}
+    if not lengths:
+        return ""
+    names = list(lengths)
+    pairs, single = [], []
+    for n in names:
+        if n.endswith("_l") and n[:-2] + "_r" in lengths:
+            pairs.append(n[:-2])
+        elif not (n.endswith("_r") and n[:-2] + "_l" in lengths):
+            single.append(n)
+    x = [f"{lengths[n]['segment']} (to {n})" for n in single]
+    base = [lengths[n]["base_mm"] for n in single]
+    xs, left, right, lb = [], [], [], []
+    for p in pairs:
+        a, b = lengths[p + "_l"], lengths[p + "_r"]
+        xs.append(f"{a['segment'][:-2]} (to {p})")
+        left.append(a["subject_mm"])
+        right.append(b["subject_mm"])
+        lb.append(a["base_mm"])
+    fig = go.Figure([
+        go.Bar(x=xs + x, y=lb + base, name="base model", marker_color="#999"),
+        go.Bar(x=xs, y=left, name="subject left", marker_color="#1f77b4"),
+        go.Bar(x=xs, y=right, name="subject right", marker_color="#d62728"),
+        go.Bar(x=x, y=[lengths[n]["subject_mm"] for n in single], name="subject", marker_color="#2a7a2a")])
+    fig.update_layout(barmode="group", title="segment lengths (mm): base model vs subject, left and right side "
+                      "by side", yaxis_title="mm")
+    rows = []
+    for p, a_mm, b_mm in zip(pairs, left, right, strict=True):
+        rows.append([lengths[p + "_l"]["segment"][:-2], p, f"{lengths[p + '_l']['base_mm']:.1f}", f"{a_mm:.1f}",
+                     f"{b_mm:.1f}", f"{100 * abs(a_mm - b_mm) / (0.5 * (a_mm + b_mm)):.1f}"])
+    rows += [[lengths[n]["segment"], n, f"{lengths[n]['base_mm']:.1f}", f"{lengths[n]['subject_mm']:.1f}", "", ""]
+             for n in single]
+    return ("<h2 id=segments>Segment lengths</h2>" + _figure(fig, 400)
+            + _table(["segment", "to joint", "base (mm)", "subject left / one (mm)", "subject right (mm)",
+                      "left/right difference (%)"], rows, {2, 3, 4, 5}))
+
+
+def report_html(report: Mapping, title: str | None = None) -> str:
+    """The HTML report (one self-contained page, module docstring) of a report JSON's content."""
+    try:
+        import plotly
+        import plotly.graph_objects as go
+        from plotly import subplots
+    except ImportError:  # pragma: no cover - plotly is a dependency
+        raise CalibrateError("the HTML report needs plotly: pip install plotly") from None
+    rep = dict(report)
+    for key in ("trials", "markers", "solver", "parameters", "model", "outliers", "settings"):
+        if key not in rep:
+            raise CalibrateError(f"not a calibrate report: it has no '{key}' (give the _report.json a calibration "
+                                 "wrote)")
+    name = title or (rep["trials"][0]["source"] if rep["trials"] and rep["trials"][0]["source"] else "calibration")
+    body = [f"<h1>calibrate report: {_e(name)}</h1>",
+            "<p class=muted><a href=#notes>notes</a> · <a href=#summary>summary</a> · <a href=#markers>marker "
+            "errors</a> · <a href=#angles>joint angles</a> · <a href=#parameters>parameters</a> · "
+            "<a href=#segments>segment lengths</a></p>",
+            _notes(rep), _summary(rep), _marker_figures(rep, go), _angle_figures(rep, go, subplots),
+            _parameters(rep, go), _segments(rep, go)]
+    js = plotly.offline.get_plotlyjs()
+    # the figures' random element ids numbered instead: the same report gives the same page
+    ids: dict[str, str] = {}
+    page = re.sub(_UUID, lambda m: ids.setdefault(m.group(0), f"figure-{len(ids) + 1}"), "".join(body))
+    return ("<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
+            f"<title>calibrate report: {_e(name)}</title><style>{STYLE}</style>"
+            f"<script type=\"text/javascript\">{js}</script></head><body>" + page + "</body></html>\n")
+
+
+def read_report(path: Path) -> dict:
+    """A report JSON, or CalibrateError (one line) saying what is wrong with the file."""
+    try:
+        rep = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise CalibrateError(f"{path}: no such file; give the _report.json a calibration wrote") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise CalibrateError(f"{path}: cannot read ({e}); give the _report.json a calibration wrote") from None
+    except json.JSONDecodeError as e:
+        raise CalibrateError(f"{path}: not JSON (line {e.lineno}: {e.msg}); give the _report.json a calibration "
+                             "wrote") from None
+    if not isinstance(rep, dict) or "parameters" not in rep or "trials" not in rep:
+        raise CalibrateError(f"{path}: not a calibrate report (no 'parameters' or 'trials'); give the _report.json "
+                             "a calibration wrote")
+    return rep
+
+
+def write_report_html(report: Mapping, path, overwrite: bool = False, title: str | None = None) -> Path:
+    """Write the HTML report of `report` (a report JSON's content) to `path`, all or nothing
+    (calibrate.io.outputs); refuses an existing file unless `overwrite`."""
+    path = Path(path)
+    if path.suffix.lower() not in (".html", ".htm"):
+        raise CalibrateError(f"{path}: the HTML report needs an .html name")
+    check_targets([path], overwrite)
+    text = report_html(report, title)
+    write_all({path: lambda staged: put_text(staged, text)})
+    return path

@@ -1,0 +1,304 @@
+"""The HTML report (calibrate.calibration.html), the report JSON's series, `calibrate report`,
+`--html`, the 3-D view's rerun recording read back, and the progress bars: on a small simulated
+calibration (squats with spiked marker samples, so positions are rejected)."""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.html import report_html
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.records import Progress
+from calibrate.calibration.series import trial_series
+from calibrate.cli.main import main
+from calibrate.io.read import read_trial
+from calibrate.model.blocks import FrameLayout
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model
+from calibrate.simulation import simulate_squats, write_simulation
+from calibrate.solve.ik import marker_columns
+
+MODEL = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
+FRAMES = 40
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A calibration of a simulated 40-frame squat trial (3 spikes), written with its HTML report."""
+    d = tmp_path_factory.mktemp("html")
+    model = load_model(MODEL)
+    sim = simulate_squats(model, frames=FRAMES, noise_mm=1.0, seed=7, spikes=3)
+    paths = write_simulation(sim, d)
+    trial = read_trial(paths["trial"])
+    cal = calibrate(model, trial)
+    out = {"urdf": d / "subject.urdf", "motion": d / "subject_motion.csv", "report": d / "subject_report.json",
+           "html": d / "subject.html"}
+    cal.write(**out)
+    return {"dir": d, "sim": sim, "cal": cal, "trial": trial, "model": model,
+            **out, "rep": json.loads(out["report"].read_text())}
+
+
+def test_series_residuals_are_the_model_markers_minus_the_trial(run):
+    """The JSON's per-marker residual norms: model markers (forward kinematics of the written motion and
+    parameters) minus the trial's markers, computed here afresh."""
+    cal, rep = run["cal"], run["rep"]
+    ts = rep["series"]["trials"][0]
+    assert ts["frames"] == list(range(FRAMES)) and ts["block"] == 1
+    kin = build_kinematics(cal.model)
+    mo = cal.motion
+    M, _ = kin.batch(FrameLayout.coordinates(mo.root_translation, mo.angles), mo.root_quaternion, cal.params)
+    obs = marker_columns(cal.model, run["trial"])
+    err = 1000 * np.linalg.norm(M - obs, axis=2)
+    rejected = {(o["frame"], o["marker"]) for o in rep["outliers"]["rejected"]}
+    checked = 0
+    for k, name in enumerate(cal.model.marker_names):
+        got = ts["residual_mm"].get(name)
+        if got is None:
+            continue
+        for f in range(FRAMES):
+            if got[f] is None or (f, name) in rejected:
+                continue
+            assert abs(got[f] - err[f, k]) < 0.06, (name, f)
+            checked += 1
+    assert checked > 0.9 * FRAMES * len(ts["residual_mm"])
+    # joint angles: the motion CSV's, in degrees
+    for k, dof in enumerate(mo.dof_names):
+        np.testing.assert_allclose(ts["angles_deg"][dof], np.degrees(mo.angles[:, k]), atol=0.006)
+    # the base model's limits
+    for dof in run["model"].dofs:
+        lo, hi = rep["series"]["limits_deg"][dof.name]
+        if np.isfinite(dof.lower):
+            assert lo == pytest.approx(np.degrees(dof.lower), abs=1e-3)
+            assert hi == pytest.approx(np.degrees(dof.upper), abs=1e-3)
+
+
+def test_series_blocks_keep_the_largest_residual(run):
+    """A long trial is cut into blocks: each block's value is the largest residual in it (brute force)."""
+    cal = run["cal"]
+    ts = trial_series(cal, 0, max_points=7)
+    err = 1000 * np.linalg.norm(cal.residuals, axis=2)
+    step = ts["block"]
+    assert step == 6 and ts["frames"] == list(range(0, FRAMES, 6)) and len(ts["frames"]) <= 7
+    for k, name in enumerate(cal.model.marker_names):
+        if name not in ts["residual_mm"]:
+            continue
+        for b, start in enumerate(ts["frames"]):
+            block = err[start:start + step, k]
+            want = np.nanmax(block) if np.isfinite(block).any() else None
+            got = ts["residual_mm"][name][b]
+            assert (got is None and want is None) or abs(got - want) < 0.06
+
+
+def test_segment_lengths_are_distances_between_joint_centres(run):
+    """Subject segment lengths: the world distance between the centres of a segment's two joints."""
+    cal, rep = run["cal"], run["rep"]
+    lengths = rep["series"]["segment_lengths"]
+    kin = build_kinematics(cal.model)
+    mo = cal.motion
+    _, C = kin.batch(FrameLayout.coordinates(mo.root_translation, mo.angles), mo.root_quaternion, cal.params)
+    names = [j.name for j in cal.model.joints]
+    base = load_model(MODEL)
+    into = {j.child: j.name for j in cal.model.joints}  # the joint into each segment
+    checked = 0
+    for name, entry in lengths.items():
+        upper = into.get(entry["segment"])
+        if upper is None:  # the root segment: its origin is no joint centre
+            continue
+        d = 1000 * np.linalg.norm(C[:, names.index(name)] - C[:, names.index(upper)], axis=1)
+        assert entry["subject_mm"] == pytest.approx(float(np.median(d)), abs=0.5), name
+        assert np.ptp(d) < 0.5  # a rigid segment
+        j = base.joints[base.joint_index(name)]
+        assert entry["base_mm"] == pytest.approx(1000 * np.linalg.norm(j.centre), abs=0.01)
+        checked += 1
+    assert checked >= 10
+
+
+def _plot_data(page: str) -> list[dict]:
+    """The traces of every plotly figure of a page."""
+    traces = []
+    body = page[page.index("</head>"):]
+    for m in re.finditer(r'Plotly\.newPlot\(\s*"figure-\d+",\s*(\[.*?\]),\s*\{"template"', body, re.S):
+        traces += json.loads(m.group(1))
+    return traces
+
+
+def test_html_report_has_its_tables_and_figures(run):
+    rep = run["rep"]
+    page = run["html"].read_text()
+    assert page == report_html(rep)  # the file written beside the JSON is the JSON's report
+    # self-contained: plotly.js inside, nothing fetched
+    head, body = page[:page.index("<script")], page[page.index("</head>"):]
+    assert page.count("<script type=\"text/javascript\">") == 1 and len(page) > 3_000_000  # plotly.js, once
+    for part in (head, body):
+        assert not re.search(r"<(script|link|img|iframe)\b[^>]*\b(src|href)=", part)
+    # the notes come first, then the sections in order
+    order = [page.index(f"id={s}>") for s in ("notes", "summary", "markers", "angles", "parameters", "segments")]
+    assert order == sorted(order)
+    for note in rep["notes"]:
+        assert note.split(":")[0] in page[order[0]:order[1]]
+    # summary table: the trial's RMS and the iterations
+    assert f"{rep['trials'][0]['rms_mm']:.2f}" in page
+    assert f"{rep['solver']['iterations']} ({rep['solver']['accepted_steps']} accepted)" in page
+    traces = _plot_data(page)
+    kinds = [t.get("type") for t in traces]
+    bars = [t for t in traces if t.get("type") == "bar"]
+    # marker RMS bars: every marker with its RMS
+    rms = bars[0]
+    assert sorted(rms["x"]) == sorted(rep["markers"]["per_marker"])
+    for x, y in zip(rms["x"], rms["y"], strict=True):
+        assert y == pytest.approx(rep["markers"]["per_marker"][x]["rms_mm"])
+    # heat map marker x time, the rejected positions marked
+    heat = next(t for t in traces if t.get("type") == "heatmap")
+    assert len(heat["x"]) == FRAMES and set(heat["y"]) == set(rep["series"]["trials"][0]["residual_mm"])
+    assert rep["outliers"]["count"] >= 1
+    rej = next(t for t in traces if t.get("name") == "rejected")
+    assert sorted(rej["y"]) == sorted(o["marker"] for o in rep["outliers"]["rejected"])
+    # residual curves per marker, joint-angle curves per coordinate with their limits shaded
+    names = {t.get("name") for t in traces if t.get("type") == "scatter"}
+    assert set(rep["series"]["trials"][0]["residual_mm"]) <= names
+    assert set(rep["series"]["trials"][0]["angles_deg"]) <= names
+    shaded = [t for t in traces if t.get("fill") == "toself"]
+    assert len(shaded) == sum(1 for lo, hi in rep["series"]["limits_deg"].values() if lo is not None)
+    # parameters: every one in the table with its SD and identifiability; bars per group
+    for p in rep["parameters"]:
+        assert f"<td>{p['name']}</td>" in page
+    assert any(set(b["x"]) == {p["name"] for p in rep["parameters"] if p["group"] == "centre"} for b in bars)
+    assert "no (prior)" in page and ">yes<" in page
+    # segment lengths: left and right side by side
+    left = next(t for t in bars if t.get("name") == "subject left")
+    right = next(t for t in bars if t.get("name") == "subject right")
+    assert left["x"] == right["x"] and len(left["x"]) >= 4
+    assert "heatmap" in kinds
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None and not Path("/usr/bin/chromium").exists(),
+                    reason="chromium is not installed (Debian: apt-get install chromium)")
+def test_chromium_renders_the_report(run, tmp_path):
+    """Headless Chromium renders the page offline; the screenshot is not blank."""
+    from PIL import Image
+
+    exe = shutil.which("chromium") or "/usr/bin/chromium"
+    shot = tmp_path / "shot.png"
+    subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                    "--virtual-time-budget=10000", f"--screenshot={shot}", "--window-size=1200,2400",
+                    run["html"].as_uri()], check=True, capture_output=True, timeout=120)
+    img = np.asarray(Image.open(shot).convert("L"), dtype=float)
+    assert img.shape == (2400, 1200)
+    assert img.std() > 20  # not a blank page
+    assert (img < 200).mean() > 0.03  # text and figures drawn
+    # the figures drew: coloured pixels (bars, heat map), not only black text on white
+    rgb = np.asarray(Image.open(shot).convert("RGB"), dtype=float)
+    assert (rgb.max(axis=2) - rgb.min(axis=2) > 60).mean() > 0.02
+
+
+def test_cli_report_from_the_json(run, tmp_path):
+    out = tmp_path / "r.html"
+    assert main(["report", str(run["report"]), "-o", str(out)]) == 0
+    assert out.read_text() == report_html(json.loads(run["report"].read_text()))
+    before = out.stat().st_mtime_ns
+    assert main(["report", str(run["report"]), "-o", str(out)]) == 2  # exists: refused, untouched
+    assert out.stat().st_mtime_ns == before
+    bad = tmp_path / "bad.json"
+    bad.write_text("{ not json")
+    assert main(["report", str(bad), "-o", str(tmp_path / "b.html")]) == 2
+    assert not (tmp_path / "b.html").exists()
+    assert main(["report", str(run["report"]), "-o", str(tmp_path / "r.txt")]) == 2
+    # a report written before the series: the tables still, the figures it can draw
+    old = {k: v for k, v in run["rep"].items() if k != "series"}
+    page = report_html(old)
+    assert "made by an older calibrate" in page and all(f"<td>{p['name']}</td>" in page for p in old["parameters"])
+    (tmp_path / "no.json").write_text(json.dumps({"trials": []}))
+    assert main(["report", str(tmp_path / "no.json"), "-o", str(tmp_path / "no.html")]) == 2
+    assert not (tmp_path / "no.html").exists()
+
+
+def test_cli_calibrate_html_flag(run, tmp_path, capsys, monkeypatch):
+    """`--html` beside the other outputs; the view found the files of a report written with relative
+    names from another folder."""
+    (tmp_path / "lab").mkdir()
+    trial = tmp_path / "lab" / "t.c3d"
+    shutil.copy(run["dir"] / "trial.c3d", trial)
+    monkeypatch.chdir(tmp_path)
+    assert main(["lab/t.c3d", str(MODEL), "--html", "lab/t.html", "-q"]) in (0, 1)
+    rep = json.loads((tmp_path / "lab" / "t_report.json").read_text())
+    assert rep["outputs"]["html"] == "lab/t.html"
+    page = (tmp_path / "lab" / "t.html").read_text()
+    assert page.startswith("<!DOCTYPE html>") and "id=segments>" in page
+    monkeypatch.chdir(tmp_path / "lab")  # the report's relative names do not hold from here
+    if importlib.util.find_spec("rerun") is not None:
+        assert main(["view", "t_report.json", "--rrd", "t.rrd"]) == 0
+        assert len(_rrd_points(tmp_path / "lab" / "t.rrd", "/markers/measured")) == FRAMES
+    trial = tmp_path / "lab" / "t.c3d"
+    # a wrong name is refused before any work, nothing written
+    assert main([str(trial), str(MODEL), "--html", str(tmp_path / "x.pdf"), "--overwrite"]) == 2
+    assert "needs an .html name" in capsys.readouterr().err
+
+
+def _rrd_points(path: Path, entity: str) -> list[np.ndarray]:
+    """Per frame (by the 'frame' timeline), the Points3D positions logged at `entity` in a .rrd file."""
+    chunk = pytest.importorskip("rerun.chunk")
+    frames: dict[int, np.ndarray] = {}
+    for c in chunk.RrdReader(path).stream():
+        if str(c.entity_path) != entity:
+            continue
+        b = c.to_record_batch()
+        names = b.schema.names
+        col = b.column(names.index("Points3D:positions")).to_pylist()
+        for f, pos in zip(b.column(names.index("frame")).to_pylist(), col, strict=True):
+            frames[f] = np.array(pos, dtype=float).reshape(-1, 3)
+    return [frames[f] for f in sorted(frames)]
+
+
+def test_rerun_recording_read_back(run, tmp_path):
+    """The recording `calibrate view --rrd` saves: per frame the trial's measured markers (as the
+    simulator wrote them), the model's markers and every joint centre."""
+    pytest.importorskip("rerun")
+    out = tmp_path / "v.rrd"
+    assert main(["view", str(run["report"]), "--rrd", str(out)]) == 0
+    measured = _rrd_points(out, "/markers/measured")
+    joints = _rrd_points(out, "/skeleton/joints")
+    model_markers = _rrd_points(out, "/markers/model")
+    assert len(measured) == len(joints) == len(model_markers) == FRAMES
+    trial = run["sim"].trial
+    for f in (0, FRAMES // 2, FRAMES - 1):
+        want = trial.markers[f][np.isfinite(trial.markers[f]).all(axis=1)]
+        np.testing.assert_allclose(np.sort(measured[f], axis=0), np.sort(want, axis=0), atol=1e-5)
+        assert joints[f].shape == (len(run["cal"].model.joints), 3)
+    # the model markers are the calibration's: trial + residual where seen
+    cal = run["cal"]
+    f = FRAMES // 2
+    seen = np.isfinite(cal.residuals[f]).all(axis=1)
+    obs = marker_columns(cal.model, run["trial"])[f]
+    np.testing.assert_allclose(model_markers[f][seen], obs[seen] + cal.residuals[f][seen], atol=1e-4)
+    assert main(["view", str(run["report"]), "--rrd", str(out)]) == 2  # exists: refused
+
+
+def test_progress_bars_on_a_terminal_plain_lines_otherwise():
+    from calibrate.cli.commands import Timed
+    from calibrate.cli.report import Bars, progress_for
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    term = Terminal()
+    with progress_for(False, 20, Timed, term) as say:
+        assert isinstance(say, Bars)
+        say(Progress("seed", "joint centres by MTB"))
+        for i in range(1, 6):
+            say(Progress("solve", f"iteration {i} cost 1.0", iteration=i))
+    text = term.getvalue()  # the solve's bar ends at the iterations it took (5/5)
+    assert "seed: joint centres by MTB" in text and "solve: iteration 5" in text and "5/5" in text
+    with progress_for(False, 20, Timed, io.StringIO()) as say:
+        assert isinstance(say, Timed)
+    with progress_for(True, 20, Timed, term) as say:
+        assert not isinstance(say, (Bars, Timed))
