@@ -184,20 +184,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             progress_printer(f"note: {model_path.name}: {len(approx)} joints approximated (" + ", ".join(
                 f"{a.joint} {a.max_marker_mm:.1f} mm" for a in approx) + f"); see 'calibrate inspect {model_path}'")
     marker_map = load_marker_map(args.markers) if args.markers else None
-    trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]
-    if args.frames is not None:
-        trial = trials[0]
-        idx = range(trial.n_frames)[args.frames]
-        if len(idx) == 0 or idx.step != 1:
-            raise CalibrateError(f"--frames {args.frames.start}:{args.frames.stop}: selects no frames of "
-                                 f"{trial_paths[0]} ({trial.n_frames} frames, 0-based)")
-        trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
-                          trial.first_frame + idx.start, trial.source)
-    load_s = time.perf_counter() - t0
-    if args.neutral is not None and args.neutral > len(trials):
-        raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of the "
-                             f"static trial (1 = the first)")
     with progress as say:
+        trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]
+        if args.frames is not None:
+            trial = trials[0]
+            idx = range(trial.n_frames)[args.frames]
+            if len(idx) == 0 or idx.step != 1:
+                raise CalibrateError(f"--frames {args.frames.start}:{args.frames.stop}: selects no frames of "
+                                     f"{trial_paths[0]} ({trial.n_frames} frames, 0-based)")
+            trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
+                              trial.first_frame + idx.start, trial.source)
+        load_s = time.perf_counter() - t0
+        if args.neutral is not None and args.neutral > len(trials):
+            raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of "
+                                 f"the static trial (1 = the first)")
         cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
                         neutral=None if args.neutral is None else args.neutral - 1, progress=say)
     if cal.ignored_labels:
