@@ -428,6 +428,14 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         mine = np.flatnonzero((coarse >= sl.start) & (coarse < sl.stop))
         parts.append(spread_poses(frames_of(state, mine), coarse[mine] - sl.start, frames_of(start, sl)))
     state = replace(stack_states(parts), p=state.p.copy())
+    gap = int(np.diff(coarse).max(initial=0))
+    if gap > SPREAD_FRAMES:
+        # Solved frames far apart (a long trial): the pose corrections interpolated between them miss the
+        # motion in between (30 000 squat frames, 250 apart: a start cost 200 times the final, and the joint
+        # solve crawling from it at a large damping).  The poses are fitted to the solved geometry first.
+        say(f"solve: every frame's pose fitted to the geometry (the solved frames are up to {gap} frames apart)")
+        state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=POSE_ITERATIONS,
+                                       progress=_clock(say, problem, solver, "poses, "))
     state, summary = levenberg_marquardt(problem, state, solver,
                                          progress=IterationClock(say, "all frames, ", solver.atol, solver.ftol))
     if fixed is not None:
@@ -440,6 +448,10 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     return problem, state, summary, scatter
+
+
+SPREAD_FRAMES = 50  # solved frames further apart than this (0.5 s at 100 Hz): every frame's pose refitted first
+POSE_ITERATIONS = 10  # pose-only iterations of that refit (at most; it stops on the solver's tolerances)
 
 
 def _most_motion(model: Model, trials: Sequence[Trial]) -> int:

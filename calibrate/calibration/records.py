@@ -140,8 +140,9 @@ class Countdown:
 
 class IterationClock:
     """Progress of a Levenberg–Marquardt run: each accepted iteration's line with its time and, once the
-    cost's decreases shrink geometrically, how many more iterations and seconds the tolerances allow
-    (the decrease falls below atol, or below ftol of the cost, after log(threshold/Δ)/log(rate) more)."""
+    cost's decreases shrink geometrically (the geometric mean ratio r of the last few below 0.9), how many
+    more iterations and seconds the tolerances allow (the decrease falls below atol, or below ftol of the
+    cost, after log(threshold/Δ)/log(r) more)."""
 
     def __init__(self, say: Callable[[Progress], None], label: str, atol: float, ftol: float):
         self.say, self.label, self.atol, self.ftol = say, label, atol, ftol
@@ -153,12 +154,12 @@ class IterationClock:
         took, self.last = now - self.last, now
         self.costs.append(cost)
         line = f"{self.label}iteration {iteration:3d}  cost {cost:.6e}  lambda {lam:.1e}  ({took:.1f} s)"
-        c = self.costs
-        if len(c) >= 3:
-            d1, d2 = c[-3] - c[-2], c[-2] - c[-1]
-            threshold = max(self.atol, self.ftol * cost)
-            if 0.0 < d2 < d1 and d2 >= threshold:
-                more = math.ceil(math.log(threshold / d2) / math.log(d2 / d1))
-                per = (now - self.t0) / len(c)
+        d = -np.diff(self.costs[-5:])  # the last (up to) four decreases
+        threshold = max(self.atol, self.ftol * cost)
+        if d.size >= 2 and np.all(d > 0) and d[-1] >= threshold:
+            rate = float(np.exp(np.mean(np.log(d[1:] / d[:-1]))))  # their geometric mean ratio
+            if rate < 0.9:
+                more = math.ceil(math.log(threshold / d[-1]) / math.log(rate))
+                per = (now - self.t0) / len(self.costs)
                 line += f"; about {more} more, {more * per:.0f} s"
         self.say(Progress.of(f"solve: {line}"))
