@@ -50,7 +50,7 @@ def test_chunked_solve_equals_the_whole(squats, monkeypatch, kept):
     problem, state = squats
     monkeypatch.setattr(chunks, "CHUNK_FRAMES", 7)
     whole, s_whole = levenberg_marquardt(problem, state, SolverOptions(max_iterations=12))
-    chunked = _budget(problem, 7 * kept + 0.5)
+    chunked = _budget(problem, 7 * (kept + chunks.SCRATCH_CHUNKS) + 0.5)
     blocks = chunks.FrameBlocks(chunked, state, True, chunked.settings.memory_mb * 1e6)
     assert len(blocks.slices) == 5 and blocks.n_kept == kept
     part, s_part = levenberg_marquardt(chunked, state, SolverOptions(max_iterations=12))

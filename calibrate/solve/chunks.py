@@ -27,6 +27,9 @@ from .assembly import back_substitute, forward_substitute
 from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, retract
 
 CHUNK_FRAMES = 256  # frames per chunk of a trial whose blocks do not all fit in the budget
+# The arrays of the chunks formed again in each pass (blocks with and without B, an elimination, a factor),
+# in chunks' worth of the kept blocks: counted in the budget before any chunk is kept.
+SCRATCH_CHUNKS = 1.5
 
 
 def frame_bytes(problem: Problem, with_parameters: bool) -> int:
@@ -39,12 +42,14 @@ def frame_bytes(problem: Problem, with_parameters: bool) -> int:
 
 def chunk_slices(F: int, per_frame: int, budget: float, chunk_frames: int) -> tuple[list[slice], int]:
     """The chunks of F frames and how many of them (the first) stay in memory: one chunk, kept,
-    if the whole trial fits in `budget` bytes; else chunks of `chunk_frames`, as many kept as fit."""
+    if the whole trial fits in `budget` bytes; else chunks of `chunk_frames`, as many kept as fit
+    besides the scratch arrays of the chunks formed again (SCRATCH_CHUNKS chunks' worth)."""
     if F * per_frame <= budget:
         return [slice(0, F)], 1
     edges = list(range(0, F, chunk_frames)) + [F]
     slices = [slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-    return slices, int(max(0.0, budget) // (chunk_frames * per_frame))
+    chunk = chunk_frames * per_frame
+    return slices, int(max(0.0, budget - SCRATCH_CHUNKS * chunk) // chunk)
 
 
 class FrameBlocks:
