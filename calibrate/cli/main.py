@@ -122,9 +122,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_osim_parser(sub)
     add_track_parser(sub)
 
+    from calibrate.cli.batch import add_batch_parser
     from calibrate.cli.report import add_report_parsers
 
     add_report_parsers(sub)
+    add_batch_parser(sub)
     io = sub.add_parser("import-osim", help="write an OpenSim model (.osim) as a calibrate model URDF",
                         description="Read an OpenSim 4 model (and optionally a MarkerSet file) and write it in "
                                     "calibrate's model format; lists what the format could only approximate "
@@ -138,7 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track", "report", "view")
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track", "report", "view",
+            "batch")
 
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
@@ -216,9 +219,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.print_help()
         return 2
     from ..io.osim_export import cmd_export_osim
+    from .batch import cmd_batch
     from .report import cmd_report, cmd_view
 
-    commands = {"report": cmd_report, "view": cmd_view,
+    commands = {"report": cmd_report, "view": cmd_view, "batch": cmd_batch,
                 "simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
                 "export-osim": cmd_export_osim, "import-osim": cmd_import_osim, "track": cmd_track}
     return _guard(commands[args.command], args)

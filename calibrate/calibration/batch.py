@@ -1,0 +1,243 @@
+"""A lab's database calibrated in parallel on Dask: a manifest of subjects (trials, base model, marker map,
+mass), one folder of outputs per subject, a summary CSV and an HTML index across subjects.
+
+Each subject is one task on a dask.distributed cluster (a LocalCluster of worker processes by default,
+or an existing cluster by its scheduler's address).  A subject that fails (a broken trial, a model
+that does not fit) is reported with its one-line error and does not stop the others.  A subject whose
+report JSON exists is done (the outputs are written all or none, the report among them) and is
+skipped unless `overwrite`: a batch stopped half way is run again to finish it.  The per-frame
+functions compiled for a model's structure are kept on disk (calibrate.problem.codegen) and loaded,
+not compiled again, by every later subject on every worker; a worker process also keeps the base
+models it read.
+
+Manifest (TOML or CSV; paths relative to the manifest's folder):
+
+    [[subject]]                       # TOML: one table per subject
+    id = "S01"
+    trials = ["S01/static.c3d", "S01/walk.c3d"]
+    model = "models/human.urdf"       # or an OpenSim .osim
+    markers = "labels.toml"           # optional: the lab's label map (calibrate --markers)
+    mass = 68.0                       # optional: kg
+
+    subject,trials,model,markers,mass # CSV: trials separated by ';', markers and mass may be empty
+    S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import html
+import io
+import math
+import os
+import re
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import CalibrateError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+REPORT = "report.json"  # each subject's report: written last of its outputs, with them; marks it done
+SUMMARY_COLUMNS = ("subject", "status", "marker_rms_mm", "iterations", "converged", "seconds", "warnings",
+                   "error", "folder")
+_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+@dataclass(frozen=True)
+class Subject:
+    """One subject of a manifest: its trials (static and movement), base model, label map and mass."""
+
+    id: str
+    trials: tuple[Path, ...]
+    model: Path
+    markers: Path | None = None
+    mass: float | None = None
+
+
+def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
+    """The subjects of a TOML or CSV manifest (module docstring); one-line CalibrateError if it is bad."""
+    path = Path(path)
+    if not path.is_file():
+        raise CalibrateError(f"{path}: no such manifest; give a .toml or .csv file (see docs/batch.md)")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise CalibrateError(f"{path}: cannot be read as text ({e}); give a .toml or .csv manifest") from None
+    if path.suffix.lower() == ".toml":
+        try:
+            rows = tomllib.loads(text).get("subject")
+        except tomllib.TOMLDecodeError as e:
+            raise CalibrateError(f"{path}: not valid TOML ({e})") from None
+        if not isinstance(rows, list) or not rows:
+            raise CalibrateError(f"{path}: no [[subject]] tables; add one per subject (see docs/batch.md)")
+    elif path.suffix.lower() == ".csv":
+        reader = csv.DictReader(io.StringIO(text))
+        missing = {"subject", "trials", "model"} - set(reader.fieldnames or ())
+        if missing:
+            raise CalibrateError(f"{path}: CSV header lacks {', '.join(sorted(missing))}; the columns are "
+                                 "subject,trials,model,markers,mass")
+        rows = [{"id": r["subject"], "trials": [t for t in (r["trials"] or "").split(";") if t.strip()],
+                 "model": r["model"], "markers": r.get("markers") or None,
+                 "mass": float(r["mass"]) if (r.get("mass") or "").strip() else None} for r in reader]
+    else:
+        raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
+    base = path.parent
+    subjects, seen = [], set()
+    for k, row in enumerate(rows, start=1):
+        where = f"{path}: subject {k}"
+        if not isinstance(row, dict):
+            raise CalibrateError(f"{where}: expected a table of id, trials, model")
+        sid = str(row.get("id", "")).strip()
+        if not _ID.match(sid):
+            raise CalibrateError(f"{where}: id {sid!r} must be letters, digits, '.', '_' or '-' (a folder name)")
+        if sid in seen:
+            raise CalibrateError(f"{where}: id {sid!r} appears twice; give each subject its own id")
+        seen.add(sid)
+        trials = row.get("trials")
+        if isinstance(trials, str):
+            trials = [trials]
+        if not trials or not all(isinstance(t, str) and t.strip() for t in trials):
+            raise CalibrateError(f"{where} ({sid}): 'trials' must list one or more trial files")
+        if not isinstance(row.get("model"), str) or not row["model"].strip():
+            raise CalibrateError(f"{where} ({sid}): 'model' must name the base model (.urdf or .osim)")
+        mass = row.get("mass")
+        if mass is not None and (isinstance(mass, bool) or not isinstance(mass, (int, float)) or not mass > 0):
+            raise CalibrateError(f"{where} ({sid}): 'mass' must be a positive number of kg, got {mass!r}")
+        markers = row.get("markers")
+        subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
+                                None if not markers else base / str(markers).strip(),
+                                None if mass is None else float(mass)))
+    return subjects
+
+
+@functools.lru_cache(maxsize=8)
+def _base_model(path: str, mtime: float):
+    """A base model read once per worker process (and again only if its file changed)."""
+    from ..model.model import load_model
+
+    return load_model(path)
+
+
+def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool) -> dict:
+    """Write one subject's outputs into `folder`, all or none: subject.urdf, one <trial>_motion.csv per
+    trial, the HTML report and, last, the report JSON (the subject's done-marker)."""
+    motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
+    return cal.write(urdf=folder / "subject.urdf", motion=motions, report=folder / REPORT,
+                     html=folder / "report.html", overwrite=overwrite)
+
+
+def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: bool = False) -> dict:
+    """Calibrate one subject into out/<id>/ (a task on a worker): its summary row.  Never raises: a
+    failure is the row's status 'failed' with the error's one line."""
+    folder = Path(out) / subject.id
+    row = {"subject": subject.id, "status": "", "marker_rms_mm": math.nan, "iterations": 0, "converged": False,
+           "seconds": 0.0, "warnings": 0, "error": "", "folder": subject.id}
+    if (folder / REPORT).exists() and not overwrite:
+        return {**row, "status": "skipped"}
+    t0 = time.perf_counter()
+    try:
+        from ..io.labels import load_marker_map
+        from ..io.read import read_trial
+        from .pipeline import calibrate
+
+        model = _base_model(str(subject.model), subject.model.stat().st_mtime if subject.model.exists() else 0.0)
+        trials = [read_trial(t) for t in subject.trials]
+        marker_map = load_marker_map(subject.markers) if subject.markers else None
+        cal = calibrate(model, trials, marker_map=marker_map, mass=subject.mass)
+        folder.mkdir(parents=True, exist_ok=True)
+        subject_outputs(cal, folder, subject.trials, overwrite=True)
+        warnings = len(cal.notes) + len(cal.unidentified) + (0 if cal.converged else 1)
+        return {**row, "status": "ok" if cal.converged else "not converged", "marker_rms_mm": 1000 * cal.marker_rms,
+                "iterations": cal.summary.iterations, "converged": bool(cal.converged),
+                "seconds": time.perf_counter() - t0, "warnings": warnings}
+    except Exception as e:  # noqa: BLE001 - one subject's failure, whatever it is, is reported, not raised
+        line = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        return {**row, "status": "failed", "seconds": time.perf_counter() - t0, "error": line}
+
+
+def run_batch(subjects: Sequence[Subject], out: str | os.PathLike[str], workers: int = 2,
+              scheduler: str | None = None, overwrite: bool = False,
+              progress: Callable[[dict, int, int], None] | None = None) -> list[dict]:
+    """Calibrate every subject on a Dask cluster (a LocalCluster of `workers` processes, one thread each,
+    or the cluster at `scheduler`'s address); write out/summary.csv and out/index.html; the rows in the
+    manifest's order.  `progress(row, done, total)` as each subject finishes."""
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if scheduler:
+        client, cluster = Client(scheduler), None
+    else:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+    try:
+        futures = {client.submit(calibrate_subject, s, str(out), overwrite, key=f"calibrate-{s.id}-{time.time_ns()}",
+                                 pure=False): s.id for s in subjects}
+        rows: dict[str, dict] = {}
+        for k, fut in enumerate(as_completed(futures), start=1):
+            sid = futures[fut]
+            try:
+                row = fut.result()
+            except Exception as e:  # noqa: BLE001 - a worker lost: the subject is reported, the others go on
+                row = {"subject": sid, "status": "failed", "marker_rms_mm": math.nan, "iterations": 0,
+                       "converged": False, "seconds": 0.0, "warnings": 0, "error": f"worker failed: {e}",
+                       "folder": sid}
+            rows[sid] = row
+            if progress is not None:
+                progress(row, k, len(subjects))
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    ordered = [rows[s.id] for s in subjects]
+    write_summary(ordered, out)
+    return ordered
+
+
+def write_summary(rows: Sequence[dict], out: Path) -> None:
+    """out/summary.csv (one row per subject) and out/index.html (the same, with links to each subject's
+    HTML report and report JSON)."""
+    from ..io.outputs import put_text, write_all
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: (f"{r[k]:.3f}" if isinstance(r[k], float) else r[k]) for k in SUMMARY_COLUMNS})
+    write_all({out / "summary.csv": lambda p: put_text(p, buf.getvalue()),
+               out / "index.html": lambda p: put_text(p, index_html(rows, out))})
+
+
+def index_html(rows: Sequence[dict], out: Path) -> str:
+    """The HTML index across subjects: status, marker RMS, iterations, time, warnings, links."""
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "not converged", "failed", "skipped")}
+    body = []
+    for r in rows:
+        sid = html.escape(r["subject"])
+        links = []
+        if (out / r["folder"] / "report.html").exists():
+            links.append(f'<a href="{sid}/report.html">report</a>')
+        if (out / r["folder"] / REPORT).exists():
+            links.append(f'<a href="{sid}/{REPORT}">JSON</a>')
+        rms = "" if not math.isfinite(r["marker_rms_mm"]) else f"{r['marker_rms_mm']:.2f}"
+        cls = {"failed": "bad", "not converged": "bad"}.get(r["status"], "")
+        body.append(f'<tr><td>{sid}</td><td class="{cls}">{html.escape(r["status"])}</td><td class="n">{rms}</td>'
+                    f'<td class="n">{r["iterations"] or ""}</td><td class="n">{r["seconds"]:.1f}</td>'
+                    f'<td class="n">{r["warnings"] or ""}</td><td>{" ".join(links)}</td>'
+                    f'<td>{html.escape(r["error"])}</td></tr>')
+    return ("<!doctype html><html><head><meta charset='utf-8'><title>calibrate batch</title><style>"
+            "body{font-family:system-ui,sans-serif;margin:1.5em}table{border-collapse:collapse}"
+            "td,th{border:1px solid #ddd;padding:2px 8px}th{background:#f3f3f3}td.n{text-align:right}"
+            ".bad{color:#b00020}</style></head><body><h1>calibrate batch</h1>"
+            f"<p>{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + "</p>"
+            "<table><tr><th>subject</th><th>status</th><th>marker RMS (mm)</th><th>iterations</th>"
+            "<th>time (s)</th><th>warnings</th><th>outputs</th><th>error</th></tr>"
+            + "".join(body) + "</table></body></html>\n")

@@ -1,0 +1,53 @@
+"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--overwrite]``: a lab's subjects
+calibrated in parallel on Dask (calibrate.calibration.batch), a thin layer over run_batch."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from calibrate.cli.args import positive_int
+
+from ..errors import CalibrateError
+
+
+def add_batch_parser(sub) -> None:
+    """The 'batch' command's parser."""
+    bp = sub.add_parser("batch", help="calibrate a manifest of subjects in parallel on Dask",
+                        description="Calibrate every subject of MANIFEST (TOML or CSV: id, trials, base model, "
+                                    "marker map, mass; docs/batch.md) on a Dask cluster: one folder of outputs per "
+                                    "subject in --out (subject.urdf, motion CSVs, report.json, report.html), "
+                                    "summary.csv and index.html across them.  Subjects already done are skipped "
+                                    "unless --overwrite; a failing subject is reported and the others go on.")
+    bp.add_argument("manifest", type=Path, metavar="MANIFEST", help="the subjects (.toml or .csv)")
+    bp.add_argument("--out", type=Path, required=True, metavar="DIR", help="the folder of the outputs")
+    where = bp.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=positive_int, default=2, metavar="N",
+                       help="worker processes of the local cluster (default 2, one thread each)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="an existing Dask cluster's scheduler (e.g. tcp://10.0.0.5:8786) instead")
+    bp.add_argument("--overwrite", action="store_true", help="calibrate again the subjects already done")
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    try:
+        from ..calibration.batch import read_manifest, run_batch
+    except ImportError as e:  # dask is an extra
+        raise CalibrateError(f"calibrate batch needs dask.distributed ({e}); pip install -e \".[batch]\"") from None
+    subjects = read_manifest(args.manifest)
+    if args.out.exists() and not args.out.is_dir():
+        raise CalibrateError(f"{args.out}: exists and is not a folder; choose another --out")
+
+    def progress(row: dict, done: int, total: int) -> None:
+        what = row["error"] if row["status"] == "failed" else (
+            "already done" if row["status"] == "skipped" else
+            f"marker RMS {row['marker_rms_mm']:.2f} mm, {row['iterations']} iterations, {row['seconds']:.1f} s")
+        print(f"  [{done}/{total}] {row['subject']}: {row['status']} ({what})", file=sys.stderr, flush=True)
+
+    rows = run_batch(subjects, args.out, workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite,
+                     progress=progress)
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "not converged", "failed", "skipped")}
+    print(f"{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n))
+    print(f"wrote {args.out / 'summary.csv'}\n      {args.out / 'index.html'}")
+    return 1 if counts["failed"] or counts["not converged"] else 0
