@@ -246,7 +246,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from ..io.read import read_trial
 
     model, sim, paths, dt = run_simulation(args)
-    trial = read_trial(paths["trial"])  # what a user would have: the C3D file
+    trial = read_trial(paths["trial"])  # what a user would have: the trial file (C3D, or TRC past 65 535 frames)
     kind = {"gait": "gait", "overhead": "overhead"}.get(args.motion or "", "squat")
     kind = "realistic " + kind if args.realistic else kind
     progress_printer(f"simulated a {kind} trial in {dt:.2f} s -> {args.out}/; calibrating {model.path.name} to it...")
