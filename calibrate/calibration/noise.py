@@ -15,7 +15,7 @@ from ..problem.problem import Problem
 from ..problem.state import State
 from ..solve.chunks import FrameBlocks
 from .options import PipelineOptions
-from .records import Progress
+from .records import Countdown, Progress
 
 NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
 
@@ -50,7 +50,8 @@ def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[st
     over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
     None if nine markers in ten changed their weights' SD by no more than NOISE_CHANGE (a few poorly
     seen markers may go on wavering without moving the geometry)."""
-    scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True)
+    scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True,
+                                 progress=Countdown(say, "noise", "the markers' scatter over every frame"))
     sigma = scatter * np.sqrt(tau)
     change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
     say(Progress("noise", f"learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
@@ -59,11 +60,13 @@ def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[st
     return (sigma if change > NOISE_CHANGE else None), scatter
 
 
-def leverage(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
+def leverage(problem: Problem, state: State,
+             progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(F, n_markers) leverage of each observed marker in its frame — the trace of the weighted hat
     matrix J_z A_f⁻¹ J_zᵀ W over its three rows, / 3: the fraction of its error the frame's pose
     absorbs — and the raw residuals (F, 3 n_markers) at `state`.  The frames' blocks are formed chunk
-    by chunk within the problem's memory budget (calibrate.solve.chunks)."""
+    by chunk within the problem's memory budget (calibrate.solve.chunks); `progress(share of the frames
+    done)` after each chunk."""
     nm = len(problem.model.markers)
     blocks = FrameBlocks(problem, state, False, problem.settings.memory_mb * 1e6)
     zr, zc, nrows, nz = problem.jz_pattern
@@ -82,11 +85,14 @@ def leverage(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
             Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
             # diag(J A⁻¹ J') row by row: a batched matrix product (BLAS), then a row-wise dot product
             h[sl.start + s:sl.start + e] = np.sum(np.matmul(J, Ainv) * J, axis=2).reshape(e - s, nm, 3).sum(axis=2) / 3
+        if progress is not None:
+            progress(sl.stop / F)
     return np.where(problem.seen, h, 0.0), d
 
 
 def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
-                  trial_of: np.ndarray | None = None, correlation: bool = False):
+                  trial_of: np.ndarray | None = None, correlation: bool = False,
+                  progress: Callable[[float], None] | None = None):
     """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
     residuals over the frames, each winsorised at NOISE_CLIP robust SDs per coordinate (MAD_SD times
     the median absolute deviation of its components in the same trial: `trial_of` (F,) gives each
@@ -106,7 +112,7 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     model = problem.model
     nm = len(model.markers)
     F = problem.F
-    h, d = leverage(problem, state)
+    h, d = leverage(problem, state, progress)
     res = d.reshape(F, nm, 3)
     seen = problem.seen
     n = seen.sum(axis=0)
@@ -160,7 +166,8 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
 
 
 def find_outliers(problem: Problem, state: State, options: PipelineOptions, sigma: np.ndarray | None = None,
-                  trial_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  trial_of: np.ndarray | None = None,
+                  progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
     `options.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
     that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
@@ -170,7 +177,7 @@ def find_outliers(problem: Problem, state: State, options: PipelineOptions, sigm
     ok = np.isfinite(err)
     if not ok.any():
         return np.zeros_like(ok), err
-    h, _ = leverage(problem, state)
+    h, _ = leverage(problem, state, progress)
     err = err / np.sqrt(np.clip(1.0 - h, 0.05, 1.0))
     sigma = problem.sigma if sigma is None else sigma
     scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)

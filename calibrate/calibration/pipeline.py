@@ -191,7 +191,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         size = size_from_markers(model, trials)
         pick = _most_motion(model, trials)
-        seed = seed_parameters(model, trials[pick], extra_markers=new, size=size)
+        seed = seed_parameters(model, trials[pick], extra_markers=new, size=size,
+                               progress=Countdown(say, "seed", "joint centres (MTB)"))
         if len(trials) > 1:
             seed = Seed(seed.params, (f"seeded from {trials[pick].source or f'trial {pick + 1}'} (the trial with "
                                       f"the most joint motion)", *seed.notes), seed.joints, seed.seconds)
@@ -257,7 +258,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # worst marker of each frame, re-solve those poses, and look again.
         found = 0
         for _ in range(OUTLIER_ROUNDS):
-            bad, err = find_outliers(problem, state, run, scatter, trial_of)
+            bad, err = find_outliers(problem, state, run, scatter, trial_of,
+                                     progress=Countdown(say, "solve", "outlier test of every marker position"))
             if not bad.any():
                 break
             worst = np.where(bad, err, -1.0).argmax(axis=1)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -51,7 +51,8 @@ class Seed:
 
 # ---------------------------------------------------------------------- seed
 def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None,
-                    extra_markers: Mapping[str, str] | None = None, size: Size | None = None) -> Seed:
+                    extra_markers: Mapping[str, str] | None = None, size: Size | None = None,
+                    progress: Callable[[float], None] | None = None) -> Seed:
     """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
 
     * scale of a segment: the median over frames of the distances between its estimated joint
@@ -68,10 +69,13 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     `size` (size_from_markers): the subject's limb sizes from marker distances; a segment without
     estimated centres takes its limb's factor, and so does one whose centres give a factor further
     than SIZE_TOLERANCE from it (an MTB centre off by a few centimetres on a short segment).
+    `progress(share done)` after each of its steps (a long trial's take seconds).
     """
     t0 = time.perf_counter()
     notes: list[str] = []
+    tick = progress or (lambda done: None)
     trial, broken = without_broken(model, trial)
+    tick(0.5)
     if broken:
         notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: jumps and back, or "
                      f"distances to markers on the same segment broken)")
@@ -79,6 +83,7 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
         thinned = seed_trial(trial, SEED_FRAMES)
         cutoff = SEED_CUTOFF_HZ if thinned is trial else None  # a thinned trial is low-passed already
         trial = thinned
+        tick(0.7)
         try:
             joints = estimate_model_joints(model, trial, cutoff_hz=cutoff, extra_markers=extra_markers)
         except (ValueError, CalibrateError) as e:
