@@ -114,7 +114,7 @@ def report(res: dict) -> None:
               f"{r['subject_s_median']:8.2f} {r['subject_s_first']:7.2f} "
               f"{', '.join(f'{p:.0f}' for p in r['worker_peak_mb']):>16}")
     print(f"  speed-up 2 vs 1 worker: {res['speedup']:.2f}x; cost per subject: "
-          + ", ".join(f"{s:.2f} worker-s ({w} worker{'s' if w > 1 else ''})"
+          + ", ".join(f"{s:.2f} worker-s ({w} worker{'s' if int(w) > 1 else ''})"
                       for w, s in res["per_subject_worker_s"].items()))
     print("  1000 subjects: " + ", ".join(f"{h:.1f} h on {n} workers"
                                           for n, h in res["projection_hours_1000"].items()))
