@@ -63,6 +63,28 @@ def test_chunked_solve_equals_the_whole(squats, monkeypatch, kept):
     assert np.abs(pz.Z - wz.Z).max() < 1e-9
 
 
+def test_blocks_eliminated_as_they_are_formed(squats, monkeypatch):
+    """The first step after each linearization uses the elimination made while the blocks were formed:
+    a chunk not kept is formed with its coupling block again only for the steps after a rejected one."""
+    problem, state = squats
+    monkeypatch.setattr(chunks, "CHUNK_FRAMES", 7)
+    chunked = _budget(problem, 7 * chunks.SCRATCH_CHUNKS + 0.5)  # five chunks, none kept
+    formed: list[str] = []
+    linearize = Problem.linearize
+
+    def counting(self, *args, **kwargs):
+        formed.append(kwargs.get("parts", "all"))
+        return linearize(self, *args, **kwargs)
+
+    monkeypatch.setattr(Problem, "linearize", counting)
+    _, s = levenberg_marquardt(chunked, state, SolverOptions(max_iterations=12))
+    assert s.accepted >= 3
+    assert formed.count("coupling") == 5 * (s.iterations - s.accepted)  # pass 1 of the steps after a rejection
+    # Every linearization, eliminated as formed: the start and each accepted point but the last if the
+    # run ended on its convergence test.
+    assert formed.count("all") in (5 * s.accepted, 5 * (s.accepted + 1))
+
+
 def test_chunked_covariance_and_leverage_equal_the_whole(squats, monkeypatch):
     problem, state = squats
     monkeypatch.setattr(chunks, "CHUNK_FRAMES", 4)

@@ -19,7 +19,7 @@ class Rosenbrock:
         J = np.array([[-20 * x[0], 10.0], [-1.0, 0.0]])
         return r, J
 
-    def linearize(self, x: np.ndarray) -> float:
+    def linearize(self, x: np.ndarray, lam: float) -> float:
         r, J = self.residuals(x)
         self.g, self.A = J.T @ r, J.T @ J
         return float(r @ r)

@@ -18,13 +18,14 @@ with the geodesic acceleration, the second right-hand side forward and back.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
 from .assembly import back_substitute, forward_substitute
-from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, retract
+from .schur import DIAG_FLOOR, GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, retract
 
 CHUNK_FRAMES = 256  # frames per chunk of a trial whose blocks do not all fit in the budget
 # The arrays of the chunks formed again in each pass (blocks with and without B, an elimination, a factor),
@@ -52,6 +53,16 @@ def chunk_slices(F: int, per_frame: int, budget: float, chunk_frames: int) -> tu
     return slices, int(max(0.0, budget - SCRATCH_CHUNKS * chunk) // chunk)
 
 
+@dataclass(frozen=True)
+class Prepared:
+    """The first pass of the step of damping `lam` (chunked_step), made as the blocks were formed."""
+
+    lam: float
+    S: np.ndarray  # −Σ_f Y_f' Y_f
+    rhs: np.ndarray  # Σ_f Y_f' L_f⁻¹ g_f
+    els: list[Elimination]  # the kept chunks' eliminations
+
+
 class FrameBlocks:
     """The normal equations at one state, their frame blocks held chunk by chunk.
 
@@ -60,11 +71,16 @@ class FrameBlocks:
 
     def __init__(self, problem: Problem | None, state: State | None, with_parameters: bool, budget: float,
                  previous: FrameBlocks | None = None, chunk_frames: int | None = None,
-                 linearization: Linearization | None = None):
+                 linearization: Linearization | None = None, eliminate_at: float | None = None,
+                 work: tuple[list[dict], dict] | None = None):
         """`previous`: the blocks of an earlier state no longer needed, whose kept arrays are overwritten
         (else the problem's buffers from its last solve); `linearization`: blocks already formed for
-        the whole trial (then `problem` and `state` may be None)."""
+        the whole trial (then `problem` and `state` may be None).  `eliminate_at`: the damping λ of
+        the step to come: a long trial's chunks are then eliminated as they are formed, and that
+        step's first pass is saved (`prepared`); `work`: the buffers of the kept chunks (one dict
+        each, extended here) and of the others."""
         self.problem, self.state, self.with_parameters = problem, state, with_parameters
+        self.prepared: Prepared | None = None
         if linearization is not None:
             self.slices, self.n_kept = [slice(0, linearization.A.shape[0])], 1
         else:
@@ -90,8 +106,15 @@ class FrameBlocks:
         self.tangent = problem.tangent_map(state.p) if with_parameters else None
         self.gz, self.diagonal = np.empty((F, nz)), np.empty((F, nz))
         cost, C, gp = problem.prior_normal(state.p, with_parameters)
+        kept_work, scratch = work if work is not None else ([], {})
+        kept_work.extend({} for _ in range(self.n_kept - len(kept_work)))
+        self.kept_work, self.scratch = kept_work, scratch
+        prepare = eliminate_at is not None and with_parameters
+        if prepare:
+            n = gp.size
+            S, rhs, els, largest, floors = np.zeros((n, n)), np.zeros(n), [], 0.0, []
         for i, sl in enumerate(self.slices):
-            lin = self._form(i, "no_coupling")
+            lin = self._form(i, "all" if prepare else "no_coupling")
             cost += lin.cost
             if with_parameters:
                 C = C + lin.C
@@ -99,8 +122,25 @@ class FrameBlocks:
             self.gz[sl] = lin.gz
             self.diagonal[sl] = np.diagonal(lin.A, axis1=1, axis2=2)
             self.a_pattern, self.b_pattern = lin.a_pattern, lin.b_pattern
+            if prepare:  # the next step's first pass (chunked_step), with the largest diagonal so far
+                largest = max(largest, float(self.diagonal[sl].max(initial=0.0)))
+                floors.append(largest)
+                el = eliminate(lin, eliminate_at * marquardt_diagonal(self.diagonal[sl], largest), True,
+                               work=kept_work[i] if i < self.n_kept else scratch)
+                if el is None:
+                    prepare = False
+                    continue
+                if i < self.n_kept:
+                    els.append(el)
+                S -= el.S
+                rhs += el.Y.reshape(-1, n).T @ el.yz.reshape(-1)
         self.cost, self.C, self.gp = cost, C, gp
         self._previous = []
+        if prepare:  # valid if the floor of Marquardt's scaling changed no frame's damping since
+            final = max(1.0, largest)
+            if all(max(1.0, f) == final or bool(np.all(self.diagonal[sl] >= DIAG_FLOOR * final))
+                   for f, sl in zip(floors, self.slices, strict=True)):
+                self.prepared = Prepared(eliminate_at, S, rhs, els)
 
     @property
     def linearization(self) -> Linearization | None:
@@ -116,9 +156,10 @@ class FrameBlocks:
             lin = self.problem.linearize(self.state, self.with_parameters, reuse=old, frames=sl, layout=self.layout)
             self.kept.append(lin)
             return lin
-        lin = self.problem.linearize(self.state, self.with_parameters, reuse=self._scratch_parts.get(parts),
+        key = "with_B" if parts in ("all", "coupling") else parts  # never two of these at once
+        lin = self.problem.linearize(self.state, self.with_parameters, reuse=self._scratch_parts.get(key),
                                      frames=sl, parts=parts, layout=self.layout)
-        self._scratch_parts[parts] = lin
+        self._scratch_parts[key] = lin
         return lin
 
     def chunk(self, i: int, parts: str = "all") -> Linearization:
@@ -165,10 +206,15 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
     wp = blocks.with_parameters
     n = blocks.gp.size if wp else 0
     damping = lam * Dz
+    if n == 0:
+        return _pose_step(problem, blocks, state, damping, accelerate, here, scratch, kept_work)
     pose_work: dict = {}
-    # Pass 1: every chunk eliminated, the Schur complement and its right-hand side summed.
-    S, rhs, els = np.zeros((n, n)), np.zeros(n), []
-    for i, sl, lin in blocks.chunks("coupling"):
+    # Pass 1: every chunk eliminated, the Schur complement and its right-hand side summed (done already
+    # if the blocks were eliminated at this damping as they were formed).
+    pre = blocks.prepared
+    S, rhs, els = (pre.S.copy(), pre.rhs, pre.els) if pre is not None and pre.lam == lam else \
+        (np.zeros((n, n)), np.zeros(n), [])
+    for i, sl, lin in (() if pre is not None and pre.lam == lam else blocks.chunks("coupling")):
         el = eliminate(lin, damping[sl], wp, work=kept_work[i] if i < blocks.n_kept else scratch)
         if el is None:
             return None
@@ -264,3 +310,38 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
     if 4.0 * a2 > GEODESIC_RATIO**2 * v2:
         return dz, dp, predicted
     return dz + 0.5 * az, dp + 0.5 * ap, predicted
+
+
+def _pose_step(problem: Problem, blocks: FrameBlocks, state: State, damping: np.ndarray, accelerate: bool,
+               here: tuple | None, scratch: dict, kept_work: list[dict]) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """chunked_step with the parameters fixed: the frames are not coupled, so each chunk's step, its
+    predicted decrease and its geodesic acceleration are made in one pass (each chunk formed and
+    factorised once instead of three times)."""
+    h, dp = GEODESIC_H, np.zeros(0)
+    dz = np.empty_like(blocks.gz)
+    az = np.empty_like(dz) if accelerate else None
+    quad = lin_term = 0.0
+    for i, sl, lin in blocks.chunks("frames"):
+        el = eliminate(lin, damping[sl], False, work=kept_work[i] if i < blocks.n_kept else scratch)
+        if el is None:
+            return None
+        dz[sl] = _frame_steps(el.L, el, lin.gz, None, dp, el.yz)
+        quad += float(np.sum(dz[sl] * np.matmul(lin.A, dz[sl][:, :, None])[:, :, 0]))
+        lin_term += float(np.sum(lin.gz * dz[sl]))
+        if not accelerate:
+            continue
+        sub = State(state.Z[sl], state.Q[sl], state.p, None if state.B is None else state.B[sl])
+        plus = problem.residual_parts(retract(problem, sub, h * dz[sl], dp), frames=sl)
+        minus = problem.residual_parts(retract(problem, sub, -h * dz[sl], dp), frames=sl)
+        second = [(pl - 2.0 * x[sl] + mi) / h**2 for pl, x, mi in zip(plus[:2], here[:2], minus[:2], strict=True)]
+        if not all(np.all(np.isfinite(v)) for v in second):
+            accelerate = False
+            continue
+        g2z, _ = problem.gradient(lin, second[0], second[1], None)
+        az[sl] = _frame_steps(el.L, el, g2z, None, dp)
+    predicted = -(lin_term + 0.5 * quad)
+    if not accelerate:
+        return dz, dp, predicted
+    if 4.0 * float(np.sum(az**2)) > GEODESIC_RATIO**2 * float(np.sum(dz**2)):
+        return dz, dp, predicted
+    return dz + 0.5 * az, dp, predicted

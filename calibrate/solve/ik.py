@@ -87,7 +87,7 @@ class _FrameFit:
         r = np.concatenate([m[self.rows] - self.target, LIMIT_WEIGHT * (th - np.clip(th, self.lo, self.hi))])
         return r, J[np.ix_(self.rows, self.free)], out
 
-    def linearize(self, x: tuple[np.ndarray, np.ndarray]) -> float:
+    def linearize(self, x: tuple[np.ndarray, np.ndarray], lam: float = 0.0) -> float:
         r, J, out = self.last[1:] if self.last is not None and self.last[0] is x else self.residuals(x)
         n_mk = self.rows.size
         Jf = np.zeros((n_mk + self.dof_cols.size, self.free.size))

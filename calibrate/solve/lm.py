@@ -167,8 +167,10 @@ class StepProblem(Protocol):
     (calibrate.solve.ik.FrameSolver) alike.  A scratch object for one run, like Pinocchio's Data:
     `linearize` keeps the linearization that `gradient_max` and `step` then use."""
 
-    def linearize(self, x: Any) -> float:
-        """Linearize the residuals at `x` (the start, then each accepted point); its cost."""
+    def linearize(self, x: Any, lam: float) -> float:
+        """Linearize the residuals at `x` (the start, then each accepted point); its cost.  `lam`:
+        the damping of the step that comes next (a long trial's blocks are eliminated with it as
+        they are formed)."""
 
     def gradient_max(self) -> float:
         """Largest gradient entry at the last linearization."""
@@ -194,10 +196,10 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
     `progress(iteration, cost, lam)` after each accepted step."""
     max_it = max_iterations or options.max_iterations
     summary = SolverSummary() if summary is None else summary
-    cost = steps.linearize(x)
+    lam, nu = 1e-4, 2.0
+    cost = steps.linearize(x, lam)
     summary.initial_cost = cost
     summary.cost_history.append(cost)
-    lam, nu = 1e-4, 2.0
     termination, converged = "", False
     while True:
         g_max = steps.gradient_max()
@@ -237,7 +239,7 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
             if step_norm < options.xtol * (steps.norm(x) + options.xtol):
                 termination, converged = f"step {step_norm:.2e} below xtol {options.xtol:.0e}", True
                 break
-            steps.linearize(x)
+            steps.linearize(x, lam)
         else:
             lam, nu = lam * nu, nu * 2
             if step_norm < options.xtol * (steps.norm(x) + options.xtol):
@@ -273,12 +275,11 @@ class _BlockArrow:
         self.here: tuple | None = None
         self.N: np.ndarray | None = None
 
-    def linearize(self, state: State) -> float:
+    def linearize(self, state: State, lam: float) -> float:
         problem = self.problem
         t0 = time.perf_counter()
-        self.blocks = FrameBlocks(problem, state, not self.pose_only, self.budget, previous=self.blocks)
-        if not self.blocks.whole:
-            self.chunk_work.extend({} for _ in range(self.blocks.n_kept - len(self.chunk_work)))
+        self.blocks = FrameBlocks(problem, state, not self.pose_only, self.budget, previous=self.blocks,
+                                  eliminate_at=lam, work=(self.chunk_work, self.scratch))
         self.here = problem.residual_parts(state) if self.accelerate else None
         self.summary.linearize_seconds += time.perf_counter() - t0
         self.N = None if self.pose_only else null_space(problem.gauge_constraints(state.p), problem.n_free)
