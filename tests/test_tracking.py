@@ -192,3 +192,26 @@ def test_end_to_end_from_detections_to_a_subject(tmp_path, capsys):
                  str(tmp_path / "x.c3d")]) == 2
     assert "calibration has 2 cameras" in capsys.readouterr().err
     assert not (tmp_path / "x.c3d").exists()
+
+
+def test_labelling_a_walk_whose_arms_move_as_one_body_with_spikes():
+    """Unlabelled true trajectories of a walk (forearm, wrist and hand barely bend: their tracks form one
+    rigid group per arm) with four tracks that follow another marker for three frames: every track gets the
+    marker it follows (the simulator's truth), the arms through chains of segments."""
+    from calibrate.io.trial import Trial
+    from calibrate.simulation.simulate import simulate_gait
+    from calibrate.track.labels import label_tracks
+
+    model = load_model(MODEL)
+    sim = simulate_gait(model, frames=300, noise_mm=0.5, seed=2)
+    rng = np.random.default_rng(2)
+    perm = rng.permutation(sim.trial.n_markers)
+    X = sim.trial.markers[:, perm].copy()
+    truth = {f"T{i + 1}": sim.trial.labels[p] for i, p in enumerate(perm)}
+    for _ in range(4):
+        i, j = rng.choice(len(perm), 2, replace=False)
+        f0 = int(rng.integers(20, 280))
+        X[f0:f0 + 3, i] = X[f0:f0 + 3, j]
+    lab = label_tracks(model, Trial(list(truth), X, sim.trial.rate, 0, None))
+    assert lab.labels == truth
+    assert {"ulna_l+radius_l+hand_l", "ulna_r+radius_r+hand_r"} <= set(lab.segments.values())
