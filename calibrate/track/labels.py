@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import itertools
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -110,6 +110,13 @@ SUSPECT = 2.0  # a marker the scaled base model fits this many times worse than 
 REPAIR_ROUNDS = 4  # changes step 6 may make, one per round
 
 
+JOIN_FACTOR = 1.5  # a union of two groups taken for the root may vary this much more than either group
+RIGID_SD = 0.0005  # m: the SD of a rigid pair's distance assumed at least (tracked markers' noise)
+
+
+SAME_MARKER = 0.01  # m: two tracks of a group never seen together are one marker if their distances to the rest agree
+
+
 MAX_RELABEL = 0.1  # m: mean distance misfit beyond which step 7 leaves a track unlabelled
 
 
@@ -128,9 +135,69 @@ class Labelling:
     segments: dict[int, str]  # group index -> model segment
     scale: float  # the subject's size relative to the base model (from the root's markers)
 
+    merged: dict[str, str] = field(default_factory=dict)  # a track found to be another's marker -> that track
+
     def trial(self, trial: Trial) -> Trial:
-        """`trial` with its tracks renamed to the model's labels (unlabelled ones keep their names)."""
+        """`trial` with the tracks of one marker joined (`merged`) and its tracks renamed to the model's
+        labels (unlabelled ones keep their names)."""
+        trial = _merged(trial, self.merged)
         return Trial(_renamed(trial.labels, self.labels), trial.markers, trial.rate, trial.first_frame, trial.source)
+
+
+def _merged(trial: Trial, merged: dict[str, str]) -> Trial:
+    """`trial` with each track of `merged` moved into the track it maps to (its frames fill that track's gaps)."""
+    if not merged:
+        return trial
+    M = np.array(trial.markers, dtype=float)
+    for drop, keep in merged.items():
+        i, j = trial.labels.index(keep), trial.labels.index(drop)
+        gap = ~np.isfinite(M[:, i, 0])
+        M[gap, i] = M[gap, j]
+    cols = [k for k, x in enumerate(trial.labels) if x not in merged]
+    return Trial([trial.labels[k] for k in cols], M[:, cols], trial.rate, trial.first_frame, trial.source)
+
+
+def _joined_root(X: np.ndarray, groups: list[list[int]], size: int) -> tuple[int, int] | None:
+    """Two groups of `size` tracks in all whose union is as rigid as the groups themselves (the largest
+    SD of a distance within the union at most ``JOIN_FACTOR`` times the largest within either): the grouping
+    split a segment that moves as one.  The most rigid such pair, or None."""
+    def spread(g: list[int]) -> float:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sd = np.nanstd(_distances_series(X[:, g]), axis=0)
+        return float(np.nanmax(sd)) if len(g) > 1 else 0.0
+
+    best, out = np.inf, None
+    for a, b in itertools.combinations(range(len(groups)), 2):
+        if len(groups[a]) + len(groups[b]) != size or len(groups[a]) < 2 or len(groups[b]) < 2:
+            continue
+        own = max(spread(groups[a]), spread(groups[b]), RIGID_SD)
+        union = spread(groups[a] + groups[b])
+        if union <= JOIN_FACTOR * own and union < best:
+            best, out = union, (a, b)
+    return out
+
+
+def _same_markers(X: np.ndarray, groups: list[list[int]], names: list[str]) -> dict[str, str]:
+    """Tracks of one marker in a rigid group: two tracks never seen in the same frame whose median
+    distances to the group's other tracks agree within ``SAME_MARKER`` (a track the tracker lost and
+    started again, too late or too far away to be stitched).  Returns {the shorter: the longer}."""
+    seen = np.isfinite(X[..., 0])
+    out: dict[str, str] = {}
+    for g in groups:
+        if len(g) < 3:
+            continue
+        for i, j in itertools.combinations(sorted(g, key=lambda k: -seen[:, k].sum()), 2):
+            if names[i] in out or names[j] in out or np.any(seen[:, i] & seen[:, j]):
+                continue
+            others = [k for k in g if k not in (i, j) and names[k] not in out]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                di = np.nanmedian(np.linalg.norm(X[:, [i]] - X[:, others], axis=2), axis=0)
+                dj = np.nanmedian(np.linalg.norm(X[:, [j]] - X[:, others], axis=2), axis=0)
+            if np.all(np.isfinite(di - dj)) and np.max(np.abs(di - dj)) <= SAME_MARKER:
+                out[names[j]] = names[i]
+    return out
 
 
 def _renamed(names, labels: dict[str, str]) -> list[str]:
@@ -168,6 +235,11 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     """Labels of the base model for the unlabelled tracks of `trial` (module docstring)."""
     X = _despiked(trial.markers)
     assoc = associate(X)
+    merged = _same_markers(X, [list(g) for g in assoc.groups], list(trial.labels))
+    if merged:  # one marker's tracks joined, then grouped again
+        trial = _merged(trial, merged)
+        X = _despiked(trial.markers)
+        assoc = associate(X)
     groups = [list(g) for g in assoc.groups]
     kin = build_kinematics(model)
     neutral = np.asarray(kin.markers(np.zeros(model.nz), np.array([0.0, 0.0, 0.0, 1.0]), model.parameters()))
@@ -181,6 +253,14 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     cands = [(i, *_shape(med_dist[i], _distances(neutral[R_idx]), None)) for i, g in enumerate(groups)
              if len(g) == len(R_idx)]
     cands = [c for c in cands if c[1] <= ROOT_MISFIT]
+    if not cands:  # the root's markers split into two groups that together move as one
+        joined = _joined_root(X, groups, len(R_idx))
+        if joined is not None:
+            a, b = joined
+            groups = [g for k, g in enumerate(groups) if k not in (a, b)] + [groups[a] + groups[b]]
+            med_dist = [np.nanmedian(_distances_series(X[:, g]), axis=0) for g in groups]
+            cands = [(len(groups) - 1, *_shape(med_dist[-1], _distances(neutral[R_idx]), None))]
+            cands = [c for c in cands if c[1] <= ROOT_MISFIT]
     if not cands:
         raise CalibrateError(f"{model.path}: no group of {len(R_idx)} tracks moves rigidly like the "
                              f"{root.name}'s markers (within {1e3 * ROOT_MISFIT:g} mm of their distances, scaled "
@@ -294,7 +374,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     # 6. what the base model's fit still shows: a swapped pair, a track on a neighbour's marker, a track left out
     labels = _repair(model, kin, trial, scale, labels)
     labels = _relabel_limbs(model, kin, X, trial, scale, labels, neutral, med, ref)
-    return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale)
+    return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale, merged)
 
 
 def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]):

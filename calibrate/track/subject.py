@@ -29,7 +29,7 @@ class TrackedSubject:
         rep["tracker"]["written_tracks"] = self.trial.n_markers
         rep["tracker"]["new_tracks_after_first_frame"] = int(sum(1 for s in self.tracks.started if s > 0))
         rep["labels"] = {"tracks": self.labelling.labels, "groups": self.labelling.groups,
-                         "scale": self.labelling.scale,
+                         "scale": self.labelling.scale, "merged": self.labelling.merged,
                          "unlabelled": [x for x in self.trial.labels if x not in self.labelling.labels.values()]}
         return rep
 

@@ -9,7 +9,7 @@ Per frame k:
    A candidate hyperedge joins a track with at most one detection per camera; its cost is the paper's
    Eq. (2), in units of the detection noise σ (``pixel_sd``):
 
-       c = r(i_1..i_M) / σ² + g Σ_m d(n, i_m)² / σ² − κ · (number of detections)
+       c = r(i_1..i_M) / σ² + g Σ_m d(n, i_m)² / σ² + |X − ŷ_n|² / s_n² − κ · (number of detections)
 
    r: the squared reprojection error (px², first order) of the point triangulated from the detections;
    d: the pixel distance of a detection from the track's predicted projection; g = σ² / σ_p², the ratio
@@ -17,6 +17,12 @@ Per frame k:
    unseen, up to ``max_spread`` times: a wider gate lets a lost track jump onto a neighbour's
    detections); κ (``reward``): what explaining one detection is worth against calling it a false
    detection (it also gates: a detection further than √κ σ_p from the prediction is never a candidate).
+   The third term is the paper's distance to the prediction taken in 3-D as well: X, the point
+   triangulated from two or more of the detections, against ŷ_n, with s_n the prediction's spread σ_p
+   carried to metres at the track's depth in its nearest camera.  Pixel distances alone miss a
+   discrepancy in depth: two cameras looking along the line between two neighbouring markers (the
+   wrist pair) see one where the other was predicted, and a track whose marker is hidden there would
+   take its neighbour's rays.
    Without κ every cost is ≥ 0 and the empty association would be best.  Candidates per track: the
    nearest gated detection of every camera; in the cameras where the choice is open (another gated
    detection, or one another track also gates) every combination of the nearest options and none (at
@@ -50,6 +56,10 @@ from .assignment import solve_assignment
 from .geometry import ray_compromise, ray_terms, solve_points
 
 MAX_COMBINATIONS = 64  # candidate hyperedges per track from the cameras where its choice is open
+
+
+STITCH_FRAMES = 3  # frames over which an ended track's last velocity is taken
+STITCH_AHEAD = 0.2  # s: the longest stretch of a gap over which that velocity is carried
 
 
 @dataclass(frozen=True)
@@ -106,12 +116,20 @@ class Tracks:
     def stitched(self, max_gap: float = 1.0, speed: float = 1.5) -> tuple[np.ndarray, list[list[int]]]:
         """Broken tracks joined: a track that starts after another ended (at most `max_gap` s later) and
         within reach of its last position (`speed` m/s over the gap, plus 2 cm) continues it, the nearest
-        first.  Returns positions (F, T', 3) and the tracks joined into each."""
+        first — nearest to where the ended track was heading (its last velocity carried over at most
+        ``STITCH_AHEAD`` s of the gap: two neighbouring markers lost together and found again are told
+        apart by where each was going).  Returns positions (F, T', 3) and the tracks joined into each."""
         P = self.positions
         seen = np.isfinite(P[..., 0])
         has = np.flatnonzero(seen.any(0))
         first = {j: int(np.flatnonzero(seen[:, j])[0]) for j in has}
         last = {j: int(np.flatnonzero(seen[:, j])[-1]) for j in has}
+        velocity = {}  # m per frame over the track's last frames, where they are consecutive
+        for j in has:
+            k = last[j] - STITCH_FRAMES
+            velocity[j] = (P[last[j], j] - P[k, j]) / STITCH_FRAMES if k >= 0 and seen[k:last[j] + 1, j].all() \
+                else np.zeros(3)
+        ahead = int(round(STITCH_AHEAD * self.rate))
         chains: list[list[int]] = []
         end_of: dict[int, int] = {}  # chain index -> its last track
         for j in sorted(has, key=lambda j: first[j]):
@@ -119,7 +137,8 @@ class Tracks:
             for c, tail in end_of.items():
                 gap = first[j] - last[tail]
                 if 0 < gap <= max_gap * self.rate:
-                    d = float(np.linalg.norm(P[first[j], j] - P[last[tail], tail]))
+                    heading = P[last[tail], tail] + velocity[tail] * min(gap, ahead)
+                    d = float(np.linalg.norm(P[first[j], j] - heading))
                     if d <= speed * gap / self.rate + 0.02 and d < best:
                         best, where = d, c
             if where is None:
@@ -476,8 +495,13 @@ class Tracker:
             return np.zeros((0, M + 1), dtype=np.int64), 0.0, 0.0, 0, gated_mask
         tr, e = edges[:, 0], edges[:, 1:]
         w, _ = self._weights(pred)
-        _, r, n = _edge_points(fr, e, w[tr])
+        X, r, n = _edge_points(fr, e, w[tr])
         d = np.zeros(len(edges))
+        # the triangulated point against the prediction in 3-D, at the prediction's spread in metres: a
+        # camera pair looking along the line between two markers sees one where the other was predicted
+        sd3 = sd[tr] * np.sqrt(1.0 / np.maximum(w[tr].max(1), 1e-12))
+        multi = n >= 2
+        d[multi] += np.sum((X[multi] - pred[tr[multi]]) ** 2, axis=1) / sd3[multi] ** 2
         for m in range(M):
             has = e[:, m] >= 0
             d[has] += dist[m][tr[has], e[has, m]]
