@@ -196,8 +196,9 @@ def test_end_to_end_from_detections_to_a_subject(tmp_path, capsys):
 
 def test_labelling_a_walk_whose_arms_move_as_one_body_with_spikes():
     """Unlabelled true trajectories of a walk (forearm, wrist and hand barely bend: their tracks form one
-    rigid group per arm) with four tracks that follow another marker for three frames: every track gets the
-    marker it follows (the simulator's truth), the arms through chains of segments."""
+    rigid group per arm) with four tracks that follow another marker for three frames and one marker's track
+    broken in two: every track gets the marker it follows (the simulator's truth), the arms through chains
+    of segments, the broken track's two parts joined."""
     from calibrate.io.trial import Trial
     from calibrate.simulation.simulate import simulate_gait
     from calibrate.track.labels import label_tracks
@@ -212,6 +213,13 @@ def test_labelling_a_walk_whose_arms_move_as_one_body_with_spikes():
         i, j = rng.choice(len(perm), 2, replace=False)
         f0 = int(rng.integers(20, 280))
         X[f0:f0 + 3, i] = X[f0:f0 + 3, j]
-    lab = label_tracks(model, Trial(list(truth), X, sim.trial.rate, 0, None))
-    assert lab.labels == truth
+    # the pelvis marker RASI's track lost at frame 150 and found again as another track
+    k = list(truth.values()).index("RASI")
+    late = np.full_like(X[:, :1], np.nan)
+    late[150:], X[150:, k] = X[150:, k:k + 1], np.nan
+    names = [*truth, "T40"]
+    lab = label_tracks(model, Trial(names, np.concatenate([X, late], axis=1), sim.trial.rate, 0, None))
+    assert len(lab.merged) == 1 and set(*lab.merged.items()) == {"T40", f"T{k + 1}"}
+    assert {t: lab.labels.get(lab.merged.get(t, t)) for t in truth} == truth
+    assert set(lab.labels) == set(truth) - set(lab.merged) | set(lab.merged.values())
     assert {"ulna_l+radius_l+hand_l", "ulna_r+radius_r+hand_r"} <= set(lab.segments.values())
