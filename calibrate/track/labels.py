@@ -308,12 +308,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
             idx = seg_idx[s.name]
             if len(idx) != len(g):
                 continue
-            _, perms, errs = _shape(med_dist[a], _distances(neutral[idx]), scale)
-            pos = np.array([np.mean(np.linalg.norm(med[g] - ref[[idx[j] for j in p]], axis=1)) for p in perms])
-            total = pos + SHAPE_WEIGHT * errs
-            k = int(np.argmin(total))
-            cost[a, b] = total[k]
-            best_perm[a, b] = perms[k]
+            cost[a, b], best_perm[a, b] = _match_cost(med[g], med_dist[a], neutral, ref, idx, scale)
     cost = np.where(np.isfinite(cost), cost, 1e6)
     rows, cols = linear_sum_assignment(cost)
     for a, b in zip(rows, cols, strict=True):  # a group of 3 or more: of the orderings its distances cannot
@@ -533,6 +528,18 @@ def _relabel_limbs(model: Model, kin, X: np.ndarray, trial: Trial, scale: float,
     return new if better else labels
 
 
+def _match_cost(pos_g: np.ndarray, dist_g: np.ndarray, neutral: np.ndarray, ref: np.ndarray, idx: list[int],
+                scale: float) -> tuple[float, tuple[int, ...]]:
+    """Step 3's cost of a group (median root-frame positions `pos_g`, median distances `dist_g`) on the
+    model markers `idx`: mean distance to their scaled neutral places (`ref`) plus ``SHAPE_WEIGHT`` times
+    the distance misfit, for the best ordering; returns it and that ordering."""
+    _, perms, errs = _shape(dist_g, _distances(neutral[idx]), scale)
+    pos = np.array([np.mean(np.linalg.norm(pos_g - ref[[idx[j] for j in p]], axis=1)) for p in perms])
+    total = pos + SHAPE_WEIGHT * errs
+    k = int(np.argmin(total))
+    return float(total[k]), perms[k]
+
+
 def _chain_matches(model: Model, groups: list[list[int]], matched: set[int], free_segs: list[str],
                    seg_idx: dict[str, list[int]], med: np.ndarray, med_dist: list[np.ndarray], neutral: np.ndarray,
                    ref: np.ndarray, scale: float) -> list[tuple[int, tuple[str, ...], list[int], tuple[int, ...]]]:
@@ -558,11 +565,8 @@ def _chain_matches(model: Model, groups: list[list[int]], matched: set[int], fre
             idx = [i for s in chain for i in seg_idx[s]]
             if len(idx) != len(g):
                 continue
-            _, perms, errs = _shape(med_dist[a], _distances(neutral[idx]), scale)
-            pos = np.array([np.mean(np.linalg.norm(med[g] - ref[[idx[j] for j in p]], axis=1)) for p in perms])
-            total = pos + SHAPE_WEIGHT * errs
-            k = int(np.argmin(total))
-            options.append((float(total[k]), a, chain, idx, perms[k]))
+            c, perm = _match_cost(med[g], med_dist[a], neutral, ref, idx, scale)
+            options.append((c, a, chain, idx, perm))
     out, used_groups, used_segs = [], set(), set()
     for c, a, chain, idx, perm in sorted(options, key=lambda o: o[0]):
         if c <= MAX_CHAIN_COST and a not in used_groups and not used_segs & set(chain):
