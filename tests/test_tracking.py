@@ -179,6 +179,8 @@ def test_end_to_end_from_detections_to_a_subject(tmp_path, capsys):
         assert np.nanmedian(err) < 3e-3, label
     rep = json.loads((out / "detections_report.json").read_text())
     assert rep["tracker"]["tracks"] >= 39 and rep["tracker"]["assigned_share"] > 0.95
+    # every track is written, joined into another (a break) or left out as too short
+    assert 0 <= rep["tracker"]["written_tracks"] + rep["tracker"]["breaks_joined"] <= rep["tracker"]["tracks"]
     assert (tmp_path / "s.urdf").exists() and (out / "detections_motion.csv").exists()
     # again: refused (exit 2, one line), nothing overwritten
     before = (tmp_path / "s.urdf").stat().st_mtime_ns

@@ -28,6 +28,9 @@ class TrackedSubject:
         rep["tracker"] = self.tracks.figures()
         rep["tracker"]["written_tracks"] = self.trial.n_markers
         rep["tracker"]["new_tracks_after_first_frame"] = int(sum(1 for s in self.tracks.started if s > 0))
+        # breaks: a marker's track lost and found again as another (joined by stitching or by the labelling)
+        _, chains = self.tracks.stitched()
+        rep["tracker"]["breaks_joined"] = int(sum(len(c) - 1 for c in chains)) + len(self.labelling.merged)
         rep["labels"] = {"tracks": self.labelling.labels, "groups": self.labelling.groups,
                          "scale": self.labelling.scale, "merged": self.labelling.merged,
                          "unlabelled": [x for x in self.trial.labels if x not in self.labelling.labels.values()]}
