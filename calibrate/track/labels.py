@@ -44,6 +44,9 @@ Two refinements for what real tracking gives (docs/tracking.md, "Labelling"):
 * 7. What step 6 cannot mend: the well-fitted markers are trusted and every other track is matched afresh
   by its distances to the trusted markers of the nearest segment up the tree (``_relabel_limbs``), kept
   only if it labels as many tracks and fits better.
+* 8. A track still unlabelled that continues a labelled one — seen with it in at most ``OVERLAP_FRAMES``
+  frames, its distances to the marker's segment-mates the same — is joined to it (``_continuations``;
+  ``Labelling.merged``, as the tracks of one group joined before grouping).
 
 Measured on 8 simulated 8-camera trials (300 frames, squats and gait) and the 1000-frame benchmark trial:
 every track labelled right in all but one, in which one arm's six markers stay scrambled (the scaled
@@ -112,6 +115,9 @@ REPAIR_ROUNDS = 4  # changes step 6 may make, one per round
 
 JOIN_FACTOR = 1.5  # a union of two groups taken for the root may vary this much more than either group
 RIGID_SD = 0.0005  # m: the SD of a rigid pair's distance assumed at least (tracked markers' noise)
+
+
+OVERLAP_FRAMES = 2  # frames two tracks of one marker may share (the ends a track followed a stray ray in)
 
 
 SAME_MARKER = 0.01  # m: two tracks of a group never seen together are one marker if their distances to the rest agree
@@ -369,7 +375,42 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     # 6. what the base model's fit still shows: a swapped pair, a track on a neighbour's marker, a track left out
     labels = _repair(model, kin, trial, scale, labels)
     labels = _relabel_limbs(model, kin, X, trial, scale, labels, neutral, med, ref)
+    # 8. a track still unlabelled that continues a labelled one (one marker lost and found again)
+    merged = merged | _continuations(model, X, trial.labels, labels)
     return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale, merged)
+
+
+def _continuations(model: Model, X: np.ndarray, names: list[str], labels: dict[str, str]) -> dict[str, str]:
+    """Unlabelled tracks that are a labelled track's marker at other times: seen together with it in at
+    most ``OVERLAP_FRAMES`` frames, and with median distances to the labelled markers of that marker's
+    segment (else of its neighbours) within ``SAME_MARKER`` of its own.  Only a track that continues
+    exactly one labelled track is joined to it.  Returns {unlabelled track: labelled track}."""
+    seen = np.isfinite(X[..., 0])
+    col = {t: i for i, t in enumerate(names)}
+    track_of = {v: k for k, v in labels.items()}
+    seg_of = {m.name: m.segment for m in model.markers}
+    on = {sg.name: [m for m in sg.markers if m in track_of] for sg in model.segments}
+    near = _neighbours(model)
+    out: dict[str, str] = {}
+    for u in [t for t in names if t not in labels]:
+        hits = []
+        for t, m in labels.items():
+            if np.sum(seen[:, col[u]] & seen[:, col[t]]) > OVERLAP_FRAMES:
+                continue
+            refs = [x for x in on[seg_of[m]] if x != m] or \
+                [x for sg in near[seg_of[m]] if sg != seg_of[m] for x in on[sg]]
+            if not refs:
+                continue
+            cols = [col[track_of[x]] for x in refs]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                du = np.nanmedian(np.linalg.norm(X[:, [col[u]]] - X[:, cols], axis=2), axis=0)
+                dt = np.nanmedian(np.linalg.norm(X[:, [col[t]]] - X[:, cols], axis=2), axis=0)
+            if np.all(np.isfinite(du - dt)) and np.max(np.abs(du - dt)) <= SAME_MARKER:
+                hits.append(t)
+        if len(hits) == 1 and hits[0] not in out.values():
+            out[u] = hits[0]
+    return out
 
 
 def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]):
