@@ -257,7 +257,9 @@ def subject(frames: int, n_cameras: int, seed: int) -> dict:
     true_names = {f"T{j + 1}": names[lab[j]] for j in np.flatnonzero(kept) if lab[j] >= 0}
     lab_of = res.labelling.labels
     merged = res.labelling.merged  # a track joined into another: that one's label
-    right = sum(lab_of.get(merged.get(k, k)) == v for k, v in true_names.items())
+    _, chains = res.tracks.stitched()  # a track stitched onto another goes by the first one's name
+    head = {f"T{j + 1}": f"T{c[0] + 1}" for c in chains for j in c}
+    right = sum(lab_of.get(merged.get(head[k], head[k])) == v for k, v in true_names.items())
     t0 = time.perf_counter()
     cal_true = calibrate(model, sim.trial)
     t_true = time.perf_counter() - t0
