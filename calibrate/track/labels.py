@@ -454,9 +454,9 @@ def _repair(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str
     markers labelled); a marker whose fit is ``SUSPECT`` times worse than the median marker's is tried
     swapped with every labelled marker of its own and the neighbouring segments and moved to every free
     marker there; a track left unlabelled is tried on every free marker whose segment or a neighbour has
-    labelled markers.  The change that lowers the fit's RMS
-    most (a swap) or fits the moved or added marker within ``SUSPECT`` times the median (a move, an
-    addition) is kept; then again, at most ``REPAIR_ROUNDS`` times."""
+    labelled markers.  The change that lowers the fit's RMS most (a swap) or fits the moved or added marker
+    within ``SUSPECT`` times the median (a move, an addition) is kept; then again, at most
+    ``REPAIR_ROUNDS`` times."""
     names = model.marker_names
     seg_of = {m.name: m.segment for m in model.markers}
     near = _neighbours(model)
@@ -494,12 +494,13 @@ def _repair(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str
                     changes.append({t: b})
         best, best_score = None, 0.0
         rms0 = _typical_rms(base)
-        for change in changes:
+        unique = {frozenset(c.items()): c for c in reversed(changes)}  # a swap found from either side: once
+        for change in [c for c in changes if unique.get(frozenset(c.items())) is c]:
             new = {k: v for k, v in labels.items() if k not in change and v not in change.values()}
             new.update(change)
             res = _fit(model, kin, trial, scale, new)
             e = _marker_errors(res, names, new)
-            moved = [v for v in change.values()]
+            moved = list(change.values())
             if len(change) == 2 and all(k in labels for k in change):  # a swap: the whole fit must improve
                 score = rms0 - _typical_rms(res)
             else:  # a move or an addition: the marker it places must fit like the others
