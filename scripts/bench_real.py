@@ -378,7 +378,7 @@ def calibrate_cli(trials: list[Path], out: Path, cap: float, extra: list | None 
     run = {"rc": r["rc"], "seconds": r["seconds"], "peak_mb": r["peak_mb"], "timed_out": r["timed_out"],
            "command": "calibrate " + " ".join(Path(str(a)).name if os.sep in str(a) else str(a) for a in cmd),
            "urdf": urdf, "report_path": report,
-           "motions": [t.with_name(t.stem + "_motion.csv") for t in trials], "trials": trials}
+           "motions": [out / (t.stem + "_motion.csv") for t in trials], "trials": trials}
     if r["timed_out"]:
         run["error"] = f"stopped at the {cap:.0f} s cap"
     elif r["rc"] not in (0, 1) or not report.exists():

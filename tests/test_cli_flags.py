@@ -396,6 +396,19 @@ def test_trc_end_to_end(human, squat, tmp_path, capsys):
     assert max(errs.values()) < HIP_MM, errs
 
 
+def test_outputs_go_beside_the_output_urdf(human, squat, tmp_path, capsys):
+    """With only -o given, the motion CSV and the report go beside the URDF it names (named by the
+    trial), and nothing is written beside the trial (a lab's data folder may be shared or read-only)."""
+    _, sim_dir = squat
+    before = sorted(p.name for p in sim_dir.iterdir())
+    code, out, err = run(capsys, sim_dir / "trial.c3d", human.path, "-o", tmp_path / "sub.urdf", "--frames", "0:60")
+    assert code in (0, 1), err
+    assert sorted(p.name for p in sim_dir.iterdir()) == before
+    assert read_motion_csv(tmp_path / "trial_motion.csv").n_frames == 60
+    assert json.loads((tmp_path / "trial_report.json").read_text())["trials"][0]["frames"] == 60
+    assert load_model(tmp_path / "sub.urdf").nz == human.nz
+
+
 # ---------------------------------------------------------------------- all or nothing
 @pytest.fixture(scope="module")
 def small_cal(human, squat):

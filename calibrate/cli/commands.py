@@ -126,12 +126,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.frames is not None and len(trial_paths) > 1:
         raise CalibrateError("--frames applies to a single trial; cut the trials first or give one trial")
     if args.motion is not None and len(trial_paths) > 1:
-        raise CalibrateError("--motion names one file; with several trials each gets TRIAL_motion.csv beside it")
+        raise CalibrateError("--motion names one file; with several trials each gets TRIAL_motion.csv (beside -o's "
+                             "URDF, or beside the trial)")
     stem = trial_paths[0].with_suffix("")
     out_urdf = args.output or stem.with_name(stem.name + ".urdf")
-    out_motions = [args.motion] if args.motion else [t.with_suffix("").with_name(t.stem + "_motion.csv")
+    # The outputs stay together: beside -o's URDF when it is given (a trial's own folder may be a shared,
+    # read-only data set), else beside the first trial.
+    folder = out_urdf.parent if args.output else None
+    out_motions = [args.motion] if args.motion else [(folder or t.parent) / (t.stem + "_motion.csv")
                                                       for t in trial_paths]
-    out_report = args.report or stem.with_name(stem.name + "_report.json")
+    out_report = args.report or (folder or stem.parent) / (stem.name + "_report.json")
     settings = load_settings(args.config) if args.config else Settings()
     flags: dict = {}
     if args.free is not None:

@@ -150,16 +150,18 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
               "Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
               "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
               "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
-              "subject URDF, a motion CSV per trial and a report JSON next to the first trial.  Other "
-              "commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
+              "subject URDF, a motion CSV per trial and a report JSON next to the first trial (or beside -o's "
+              "URDF).  Other commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
     ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
                     help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
     ap.add_argument("-o", "--output", type=Path, default=None,
                     help="subject URDF (default: the first TRIAL's name + .urdf)")
     ap.add_argument("--motion", type=Path, default=None,
-                    help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial)")
+                    help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial, "
+                         "beside -o's URDF if given, else beside the trial)")
     ap.add_argument("--report", type=Path, default=None,
-                    help="report JSON (default: the first TRIAL's name + _report.json)")
+                    help="report JSON (default: the first TRIAL's name + _report.json, beside -o's URDF if given, "
+                         "else beside the trial)")
     ap.add_argument("--html", type=Path, default=None, metavar="HTML",
                     help="also write the HTML report (one offline file; docs/report.md), e.g. report.html")
     ap.add_argument("--frames", type=frames_arg, default=None,
