@@ -187,6 +187,13 @@ class StepProblem(Protocol):
         """|x|, for the step tolerance."""
 
 
+# The least damping after a rejected step.  Doubling λ (Nielsen) from the 1e-12 it reaches along a
+# well-modelled stretch takes six or more rejected steps before the step changes at all (each as dear as
+# an iteration on a long trial); at this damping a step is shortened only in directions whose curvature
+# (Marquardt-scaled) is under a millionth of the largest: those a rejected step has overshot.
+LAMBDA_REJECTED = 1e-6
+
+
 def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
              progress: Callable[[int, float, float], None] | None = None,
              summary: SolverSummary | None = None) -> tuple[Any, SolverSummary]:
@@ -241,7 +248,7 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
                 break
             steps.linearize(x, lam)
         else:
-            lam, nu = lam * nu, nu * 2
+            lam, nu = max(lam * nu, LAMBDA_REJECTED), nu * 2
             if step_norm < options.xtol * (steps.norm(x) + options.xtol):
                 termination, converged = f"step {step_norm:.2e} below xtol {options.xtol:.0e}", True
                 break
