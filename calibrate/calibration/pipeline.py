@@ -423,23 +423,25 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     coarse_summary.rounds = round_ + 1
     if sub is problem:
         return problem, state, coarse_summary, scatter
-    # The geometry's basin is found on the subsample; every frame then joins for the last steps.
+    # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
+    # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
+    # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
+    # lie far from that of 30 000, the crawl along it is walked at a fraction of the cost per iteration.
+    solved, levels = coarse, []
+    target = coarse.size * LEVEL_GROWTH
+    while problem.F >= LEVEL_ROOM * target:
+        idx = spread_frames(seen, spans, target)
+        sub = problem.subset(idx)
+        say(f"solve: {idx.size} evenly spaced frames")
+        full = _carried(state, solved, start, spans)
+        gap = int(np.diff(solved).max(initial=0))
+        state, part = _solve_frames(sub, frames_of(full, idx), gap, solver, say, f"{idx.size} frames, ")
+        levels.append((int(idx.size), part.iterations))
+        solved, target = idx, target * LEVEL_GROWTH
     say(f"solve: all {problem.F} frames")
-    parts = []
-    for sl in spans:
-        mine = np.flatnonzero((coarse >= sl.start) & (coarse < sl.stop))
-        parts.append(spread_poses(frames_of(state, mine), coarse[mine] - sl.start, frames_of(start, sl)))
-    state = replace(stack_states(parts), p=state.p.copy())
-    gap = int(np.diff(coarse).max(initial=0))
-    if gap > SPREAD_FRAMES:
-        # Solved frames far apart (a long trial): the pose corrections interpolated between them miss the
-        # motion in between (30 000 squat frames, 250 apart: a start cost 200 times the final, and the joint
-        # solve crawling from it at a large damping).  The poses are fitted to the solved geometry first.
-        say(f"solve: every frame's pose fitted to the geometry (the solved frames are up to {gap} frames apart)")
-        state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=POSE_ITERATIONS,
-                                       progress=_clock(say, problem, solver, "poses, "))
-    state, summary = levenberg_marquardt(problem, state, solver,
-                                         progress=IterationClock(say, "all frames, ", solver.atol, solver.ftol))
+    state, summary = _solve_frames(problem, _carried(state, solved, start, spans), int(np.diff(solved).max(initial=0)),
+                                   solver, say, "all frames, ", IterationClock(say, "all frames, ", solver.atol,
+                                                                                solver.ftol))
     if fixed is not None:
         sigma, scatter = relearn(problem, state, fixed, say, trial_of)
     if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
@@ -449,7 +451,36 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         summary = _merge(summary, again)
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
+    summary.levels = levels
     return problem, state, summary, scatter
+
+
+def _carried(state: State, solved: np.ndarray, start: State, spans: list[slice]) -> State:
+    """Every frame's pose from a solution on the frames `solved` (spread_poses within each trial) and
+    its geometry."""
+    parts = []
+    for sl in spans:
+        mine = np.flatnonzero((solved >= sl.start) & (solved < sl.stop))
+        parts.append(spread_poses(frames_of(state, mine), solved[mine] - sl.start, frames_of(start, sl)))
+    return replace(stack_states(parts), p=state.p.copy())
+
+
+def _solve_frames(problem: Problem, state: State, gap: int, solver: SolverOptions, say: Callable[[str], None],
+                  label: str, progress: IterationClock | None = None) -> tuple[State, SolverSummary]:
+    """Poses and geometry solved on `problem` from poses carried from solved frames up to `gap` frames
+    apart (_carried): where they were far apart, each pose is fitted to the geometry first."""
+    if gap > SPREAD_FRAMES:
+        # Solved frames far apart (a long trial): the pose corrections interpolated between them miss the
+        # motion in between (30 000 squat frames, 250 apart: a start cost 200 times the final, and the joint
+        # solve crawling from it at a large damping).  The poses are fitted to the solved geometry first.
+        say(f"solve: every frame's pose fitted to the geometry (the solved frames are up to {gap} frames apart)")
+        state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=POSE_ITERATIONS,
+                                       progress=_clock(say, problem, solver, "poses, "))
+    return levenberg_marquardt(problem, state, solver, progress=progress or _clock(say, problem, solver, label))
+
+
+LEVEL_GROWTH = 8  # each larger subsample of a long trial: this many times the frames of the last
+LEVEL_ROOM = 3  # ... taken while the trial has at least this many times its frames
 
 
 SPREAD_FRAMES = 50  # solved frames further apart than this (0.5 s at 100 Hz): every frame's pose refitted first
@@ -564,7 +595,7 @@ def _solve_geometry(problem: Problem, state: State, options: SolverOptions,
 _SUMMED = ("iterations", "accepted", "seconds", "linearize_seconds", "linear_solver_seconds", "evaluate_seconds")
 
 
-_FROM_FIRST = ("initial_cost", "coarse", "coarse_frames")  # the start, and any subsample solve before it
+_FROM_FIRST = ("initial_cost", "coarse", "coarse_frames", "levels")  # the start, and any subsample solve before it
 
 
 _FROM_SECOND = ("final_cost", "termination", "converged")  # the end

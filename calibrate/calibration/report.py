@@ -123,7 +123,8 @@ def calibration_report(cal: Calibration) -> dict:
                    "coarse": None if s.coarse is None else {
                        "frames": s.coarse_frames, "iterations": s.coarse.iterations,
                        "initial_cost": s.coarse.initial_cost, "final_cost": s.coarse.final_cost,
-                       "cost_history": list(s.coarse.cost_history), "termination": s.coarse.termination}},
+                       "cost_history": list(s.coarse.cost_history), "termination": s.coarse.termination},
+                   "levels": [{"frames": f, "iterations": i} for f, i in s.levels]},
         "seed": {"notes": list(cal.seed.notes),
                  "joints": {j.name: {"method": j.method, "ok": j.ok} for j in cal.seed.joints}
                  if cal.seed.joints is not None else {}},
@@ -237,6 +238,8 @@ def summary_text(cal) -> str:
         *([f"  coarse solve {s.coarse_frames} evenly spaced frames: {s.coarse.iterations} iterations, cost "
             f"{s.coarse.initial_cost:.4e} -> {s.coarse.final_cost:.4e} ({s.coarse.termination})"]
           if s.coarse is not None else []),
+        *(["  then         " + ", ".join(f"{f} frames: {i} iterations" for f, i in s.levels)
+           + " (larger evenly spaced subsamples of this long trial)"] if s.levels else []),
         *([f"  rounds       {(s.coarse or s).rounds} solves of the {'subsample' if s.coarse else 'trial'}: solved "
            f"again after holding the axes of joints it does not show moving (the figures above: the last)"]
           if (s.coarse or s).rounds > 1 else []),

@@ -63,6 +63,7 @@ class SolverSummary:
     coarse: SolverSummary | None = None  # the solve on a subsample of frames that preceded this one
     coarse_frames: int = 0  # frames of that subsample
     rounds: int = 1  # solves of the subsample (or short trial): more when axes were held and it was solved again
+    levels: list[tuple[int, int]] = field(default_factory=list)  # larger subsamples solved next: (frames, iterations)
 
 
 @dataclass
