@@ -431,11 +431,11 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     target = coarse.size * LEVEL_GROWTH
     while problem.F >= LEVEL_ROOM * target:
         idx = spread_frames(seen, spans, target)
-        sub = problem.subset(idx)
         say(f"solve: {idx.size} evenly spaced frames")
-        full = _carried(state, solved, start, spans)
         gap = int(np.diff(solved).max(initial=0))
-        state, part = _solve_frames(sub, frames_of(full, idx), gap, solver, say, f"{idx.size} frames, ")
+        # The subsample's problem (and its blocks' buffers) is dropped as soon as it is solved.
+        state, part = _solve_frames(problem.subset(idx), frames_of(_carried(state, solved, start, spans), idx), gap,
+                                    solver, say, f"{idx.size} frames, ")
         levels.append((int(idx.size), part.iterations))
         solved, target = idx, target * LEVEL_GROWTH
     say(f"solve: all {problem.F} frames")
