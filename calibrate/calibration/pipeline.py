@@ -438,8 +438,6 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                                     solver, say, f"{idx.size} frames, ")
         levels.append((int(idx.size), part.iterations))
         solved, target = idx, target * LEVEL_GROWTH
-        if part.iterations <= LEVEL_QUICK:  # no valley walked here: a larger subsample would walk none either
-            break
     say(f"solve: all {problem.F} frames")
     state, summary = _solve_frames(problem, _carried(state, solved, start, spans), int(np.diff(solved).max(initial=0)),
                                    solver, say, "all frames, ", IterationClock(say, "all frames, ", solver.atol,
@@ -483,7 +481,6 @@ def _solve_frames(problem: Problem, state: State, gap: int, solver: SolverOption
 
 LEVEL_GROWTH = 8  # each larger subsample of a long trial: this many times the frames of the last
 LEVEL_ROOM = 3  # ... taken while the trial has at least this many times its frames
-LEVEL_QUICK = 5  # ... and while the last took more iterations than this
 
 
 SPREAD_FRAMES = 50  # solved frames further apart than this (0.5 s at 100 Hz): every frame's pose refitted first
