@@ -432,16 +432,14 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     while problem.F >= LEVEL_ROOM * target:
         idx = spread_frames(seen, spans, target)
         say(f"solve: {idx.size} evenly spaced frames")
-        gap = int(np.diff(solved).max(initial=0))
         # The subsample's problem (and its blocks' buffers) is dropped as soon as it is solved.
-        state, part = _solve_frames(problem.subset(idx), frames_of(_carried(state, solved, start, spans), idx), gap,
+        state, part = _solve_frames(problem.subset(idx), frames_of(_carried(state, solved, start, spans), idx), solved,
                                     solver, say, f"{idx.size} frames, ")
         levels.append((int(idx.size), part.iterations))
         solved, target = idx, target * LEVEL_GROWTH
     say(f"solve: all {problem.F} frames")
-    state, summary = _solve_frames(problem, _carried(state, solved, start, spans), int(np.diff(solved).max(initial=0)),
-                                   solver, say, "all frames, ", IterationClock(say, "all frames, ", solver.atol,
-                                                                                solver.ftol))
+    state, summary = _solve_frames(problem, _carried(state, solved, start, spans), solved, solver, say,
+                                   "all frames, ", IterationClock(say, "all frames, ", solver.atol, solver.ftol))
     if fixed is not None:
         sigma, scatter = relearn(problem, state, fixed, say, trial_of)
     if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
@@ -465,10 +463,12 @@ def _carried(state: State, solved: np.ndarray, start: State, spans: list[slice])
     return replace(stack_states(parts), p=state.p.copy())
 
 
-def _solve_frames(problem: Problem, state: State, gap: int, solver: SolverOptions, say: Callable[[str], None],
-                  label: str, progress: IterationClock | None = None) -> tuple[State, SolverSummary]:
-    """Poses and geometry solved on `problem` from poses carried from solved frames up to `gap` frames
-    apart (_carried): where they were far apart, each pose is fitted to the geometry first."""
+def _solve_frames(problem: Problem, state: State, solved: np.ndarray, solver: SolverOptions,
+                  say: Callable[[str], None], label: str,
+                  progress: IterationClock | None = None) -> tuple[State, SolverSummary]:
+    """Poses and geometry solved on `problem` from poses carried from the frames `solved` (_carried):
+    where those were far apart, each pose is fitted to the geometry first."""
+    gap = int(np.diff(solved).max(initial=0))
     if gap > SPREAD_FRAMES:
         # Solved frames far apart (a long trial): the pose corrections interpolated between them miss the
         # motion in between (30 000 squat frames, 250 apart: a start cost 200 times the final, and the joint
