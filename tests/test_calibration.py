@@ -326,6 +326,27 @@ def test_missing_marker_everywhere_keeps_base_position(human):
     assert np.linalg.norm(s * cal.params.marker[k] - human.markers[k].offset) < 0.03
 
 
+
+def test_a_marker_no_frame_shows_changes_nothing_else(human):
+    """A model marker the trial never shows has no residual: held (no free column), left at its base
+    offset whatever the segment frames do, and the calibration of everything else is the one of the
+    model without it (the same parameters, to round-off)."""
+    sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=6)
+    ghost_at = np.array([0.01, -0.02, 0.03])
+    plus = add_markers(human, {"GHOST": ("hand_r", ghost_at)})
+    obs = marker_columns(human, sim.trial)
+    obs_plus = marker_columns(plus, sim.trial)
+    assert np.isnan(obs_plus[:, plus.marker_index("GHOST")]).all()
+    assert Problem(plus, obs_plus).n_free == Problem(human, obs).n_free
+    a, b = calibrate(human, sim.trial), calibrate(plus, sim.trial)
+    assert b.unused_markers == ("GHOST",)
+    assert np.array_equal(b.params.marker[plus.marker_index("GHOST")], ghost_at)
+    shown = [plus.marker_index(n) for n in human.marker_names]
+    for group in ("scale", "centre", "axis"):
+        np.testing.assert_allclose(getattr(b.params, group), getattr(a.params, group), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(b.params.marker[shown], a.params.marker, rtol=0, atol=1e-9)
+    assert abs(b.summary.final_cost - a.summary.final_cost) < 1e-9 * a.summary.final_cost
+
 def test_robust_loss_resists_marker_spikes(human):
     sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=7)
     rng = np.random.default_rng(0)

@@ -53,10 +53,12 @@ def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[st
     scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True,
                                  progress=Countdown(say, "noise", "the markers' scatter over every frame"))
     sigma = scatter * np.sqrt(tau)
-    change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0), 0.9))
-    say(Progress("noise", f"learnt marker SDs {1000 * np.median(scatter):.2f} mm median ({1000 * scatter.min():.2f}-"
-                          f"{1000 * scatter.max():.2f}), correlation times {np.median(tau):.1f} frames median (up to "
-                          f"{tau.max():.1f}); 9 in 10 weights changed by <= {100 * change:.0f} %"))
+    shown = ~problem.unseen  # a marker no frame shows weighs nothing: its SD neither counts nor shows
+    sc, ta = scatter[shown], tau[shown]
+    change = float(np.quantile(np.abs(sigma / problem.sigma - 1.0)[shown], 0.9))
+    say(Progress("noise", f"learnt marker SDs {1000 * np.median(sc):.2f} mm median ({1000 * sc.min():.2f}-"
+                          f"{1000 * sc.max():.2f}), correlation times {np.median(ta):.1f} frames median (up to "
+                          f"{ta.max():.1f}); 9 in 10 weights changed by <= {100 * change:.0f} %"))
     return (sigma if change > NOISE_CHANGE else None), scatter
 
 

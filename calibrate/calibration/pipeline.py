@@ -204,6 +204,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                     seed.notes, seed.joints, seed.seconds)
     params0 = _on_model(subject, model, _fixed_groups(model.parameters(), seed.params, settings.free))
     params0 = _hold_segments(subject, params0, settings.hold_segments)
+    params0 = _unseen_at_base(subject, model, params0, unused)
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(Progress("build", "residuals and Jacobian (CasADi)"))
@@ -518,6 +519,17 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         parts.append(cols)
     assoc = associate_to_model(model, Trial(labels, np.concatenate(parts), trials[0].rate))
     return [NewMarker(lab, assoc[lab].segment, None, assoc[lab].reason) for lab in unknown]
+
+
+def _unseen_at_base(subject: Model, model: Model, params: Parameters, unseen: Sequence[str]) -> Parameters:
+    """`params` with the markers no frame shows at the base model's offsets, where the problem holds
+    them (Problem.unseen): nothing in the data places them."""
+    if not unseen:
+        return params
+    marker, base = params.marker.copy(), model.parameters().marker
+    for name in unseen:
+        marker[subject.marker_index(name)] = base[model.marker_index(name)]
+    return Parameters(params.scale, params.centre, params.axis, marker)
 
 
 def _on_model(subject: Model, model: Model, params: Parameters) -> Parameters:

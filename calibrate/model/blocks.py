@@ -148,13 +148,14 @@ class ParameterLayout:
 
     `free`: the groups that are free (GROUPS); `held_axes`: DoF names whose axis is held (locked or
     held coordinates); `held_segments`: segments whose geometry is held (their scale, the joint
-    centres and markers expressed in them, the axes of the joints into them); `balls`: the SO(3)
-    ball joints of the frames' coordinates (Kinematics.balls)."""
+    centres and markers expressed in them, the axes of the joints into them); `held_markers`: markers
+    whose offsets are held (those no frame shows); `balls`: the SO(3) ball joints of the frames'
+    coordinates (Kinematics.balls)."""
 
     def __init__(self, model: Model, free: Iterable[str] = GROUPS, held_axes: Iterable[str] = (),
-                 held_segments: Iterable[str] = (), balls: Iterable = ()):
+                 held_segments: Iterable[str] = (), balls: Iterable = (), held_markers: Iterable[str] = ()):
         m = model
-        free, held, still = set(free), set(held_axes), set(held_segments)
+        free, held, still, ghosts = set(free), set(held_axes), set(held_segments), set(held_markers)
         ns, nj, nd, nm = len(m.segments), len(m.joints), m.n_dofs, len(m.markers)
         self.offsets = dict(zip(GROUPS, (int(x) for x in np.cumsum([0, ns, 3 * nj, 3 * nd])), strict=True))
         self.n_full = ns + 3 * (nj + nd + nm)
@@ -168,7 +169,7 @@ class ParameterLayout:
         for i, j in enumerate(m.joints):
             free_of["centre", i] = "centre" in free and j.parent not in still
         for i, mk in enumerate(m.markers):
-            free_of["marker", i] = "marker" in free and mk.segment not in still
+            free_of["marker", i] = "marker" in free and mk.segment not in still and mk.name not in ghosts
         free_axes = set(self.axis_dofs)
         for i in range(nd):
             free_of["axis", i] = i in free_axes

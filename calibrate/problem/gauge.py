@@ -172,7 +172,9 @@ class GaugeMixin:
         tree until a ball joint, whose angles absorb it."""
         m, L = self.model, self.layout
         shift = np.zeros(3) if t is None else t / out[L.scale(si)]
-        for k in np.flatnonzero(self.marker_segment == si):
+        # A marker no frame shows stays at its offset in the turned frame: nothing places it but its
+        # prior, whose centre (the base model's offset) is in the segment's frame wherever that turns.
+        for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):
             sl = L.marker(k)
             out[sl] = G.T @ (out[sl] - shift)
         for ji in np.flatnonzero(self.centre_segment == si):
@@ -205,7 +207,7 @@ class GaugeMixin:
         for si, kind in self._gauges:
             items: list[tuple[np.ndarray, np.ndarray, float, np.ndarray | None]] = []  # x, cols, weight, basis
             s = p[L.scale(si)]  # free positions are at the subject's scale (see tangent_map)
-            for k in np.flatnonzero(self.marker_segment == si):
+            for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):  # (unseen: held, see _turn)
                 items.append((s * p[L.marker(k)], L.cols("marker", k), 1 / pr.marker**2, None))
             for ji in np.flatnonzero(self.centre_segment == si):
                 items.append((s * p[L.centre(ji)], L.cols("centre", ji), 1 / pr.centre**2, None))

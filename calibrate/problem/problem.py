@@ -257,8 +257,12 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         free = set(st.free)
         still = set(st.hold_segments)
         # Locked and held coordinates keep their axes; held segments all their geometry (blocks.py).
+        # A marker no frame shows has no residual: only its prior would move it (to its base offset,
+        # where it starts), and as free columns it would only widen every step's Schur complement (the
+        # 67 markers of Rajagopal2016.osim absent from its example trials: 201 of 383 columns).  Held.
+        self.unseen = ~self._seen.any(axis=0)
         self.layout = ParameterLayout(m, free, {name for name, _ in st.lock} | set(st.hold_axes), still,
-                                      self.kin.balls)
+                                      self.kin.balls, [m.markers[k].name for k in np.flatnonzero(self.unseen)])
         L = self.layout
         self.np_full = L.n_full
         self.axis_dofs = L.axis_dofs  # axes that are calibrated: hinge and universal joints' (never a ball's)
