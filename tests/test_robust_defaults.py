@@ -90,6 +90,29 @@ def test_symmetry_prior_jacobian_matches_finite_differences(human, human_kin):
     assert np.allclose(problem.prior(human.parameters().vector(), jacobian=False)[0][rows], 0.0)
 
 
+
+@pytest.mark.parametrize("free", [("scale", "centre", "axis", "marker"), ("centre", "axis")])
+def test_every_prior_row_jacobian_matches_finite_differences(human, human_kin, free):
+    """The whole prior Jacobian (built from its nonzeros), every row and free column, against central
+    differences through the parameters' retraction; with a marker no frame shows (held)."""
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
+    obs = marker_columns(human, sim.trial)
+    obs[:, human.marker_index("RFIN")] = np.nan
+    problem = Problem(human, obs, Settings(free=free, priors=Priors(symmetry_scale=0.02, symmetry_centre=0.01)),
+                      human_kin)
+    rng = np.random.default_rng(2)
+    p = problem.retract_parameters(sim.truth.vector(), 0.02 * rng.normal(size=problem.n_free))
+    r, J = problem.prior(p)
+    assert J.shape == (r.size, problem.n_free)
+    h = 1e-6
+    fd = np.zeros_like(J)
+    for k in range(problem.n_free):
+        e = np.zeros(problem.n_free)
+        e[k] = h
+        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
+                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
+    np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
+
 def test_symmetry_prior_pulls_as_a_gaussian_observation_predicts(human, human_kin):
     """Scales of an asymmetric subject (left leg 6 % longer than the right), every other parameter
     known: the symmetry prior moves the left/right differences by what conditioning the posterior

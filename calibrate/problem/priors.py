@@ -3,7 +3,10 @@ symmetry, and the joint-limit residuals."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
+from scipy import sparse
 
 from ..model.model import Model
 
@@ -32,15 +35,21 @@ def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, i
 class PriorsMixin:
     """Problem's priors and limits (calibrate.problem.problem.Problem inherits it)."""
 
-    def _prior_centres(self) -> tuple[np.ndarray, tuple]:
-        """The base model's parameter vector and its left/right pairs (symmetry_pairs), kept while
+    def _prior_centres(self) -> tuple[np.ndarray, tuple, np.ndarray]:
+        """The base model's parameter vector, its left/right pairs (symmetry_pairs) and the vector with
+        the calibrated axes normalised (their priors' centres), kept while
         `base` is the same object (prior runs at every cost evaluation)."""
         cached = self.__dict__.get("_prior_cache")
         if cached is None or cached[0] is not self.base:
             base = self.base.vector()
-            cached = (self.base, base, symmetry_pairs(self.model, base[self.layout.group("centre")].reshape(-1, 3)))
+            unit = base.copy()  # with the calibrated axes normalised: their priors' centres
+            for d in self.axis_dofs:
+                sl = self.layout.axis(d)
+                unit[sl] = base[sl] / np.linalg.norm(base[sl])
+            cached = (self.base, base, symmetry_pairs(self.model, base[self.layout.group("centre")].reshape(-1, 3)),
+                      unit)
             self._prior_cache = cached
-        return cached[1], cached[2]
+        return cached[1], cached[2], cached[3]
 
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,
               jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
@@ -48,74 +57,71 @@ class PriorsMixin:
         free-parameter map `T` (default: tangent_map(p)); no Jacobian (None) if not `jacobian`."""
         st, m, L = self.settings, self.model, self.layout
         free = set(st.free)
-        base, (seg_pairs, joint_pairs, mirror) = self._prior_centres()
+        base, (seg_pairs, joint_pairs, mirror), unit = self._prior_centres()
         scale = p[L.scales]
         res: list[np.ndarray] = []
-        jac: list[np.ndarray] = []  # d residual / d p_full
+        # d residual / d p_full as (row, column, value) triplets: each row has one to four nonzeros,
+        # and a dense (n_prior, n_full) product with T was most of a large model's prior time.
+        trip: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        row = [0]
 
-        def block(group: str, count: int, seg_of: np.ndarray, sigma: float) -> None:
+        def add(r: np.ndarray, nonzeros: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
+            """Residuals `r`; with `jacobian`, their nonzeros (rows counted from r's first, columns, values)."""
+            if jacobian:
+                rows, cols, vals = nonzeros()
+                trip.append((row[0] + np.ravel(rows), np.ravel(cols), np.ravel(vals)))
+            res.append(r)
+            row[0] += r.size
+
+        def block(group: str, seg_of: np.ndarray, sigma: float) -> None:
             idx = L.entries(group)  # (count, 3) full indices
             s = scale[seg_of][:, None]
             diff = p[idx] - base[idx]
-            res.append((s * diff / sigma).ravel())
-            if not jacobian:
-                return
-            J = np.zeros((3 * count, self.np_full))
-            rows = np.arange(3 * count)
-            J[rows, idx.ravel()] = np.repeat(scale[seg_of], 3) / sigma
-            J[rows, L.scale(np.repeat(seg_of, 3))] = diff.ravel() / sigma
-            jac.append(J)
+            rows = np.arange(idx.size)
+            add((s * diff / sigma).ravel(), lambda: (
+                np.r_[rows, rows], np.r_[idx.ravel(), L.scale(np.repeat(seg_of, 3))],
+                np.r_[np.repeat(scale[seg_of], 3) / sigma, diff.ravel() / sigma]))
 
         if "marker" in free:
-            block("marker", len(m.markers), self.marker_segment, st.priors.marker)
+            block("marker", self.marker_segment, st.priors.marker)
         if "centre" in free:
-            block("centre", len(m.joints), self.centre_segment, st.priors.centre)
+            block("centre", self.centre_segment, st.priors.centre)
         for d in self.axis_dofs:
             sl = L.axis(d)
-            res.append((p[sl] - base[sl] / np.linalg.norm(base[sl])) / st.priors.axis)
-            if jacobian:
-                J = np.zeros((3, self.np_full))
-                J[:, sl] = np.eye(3) / st.priors.axis
-                jac.append(J)
+            add((p[sl] - unit[sl]) / st.priors.axis, lambda sl=sl: (
+                np.arange(3), np.arange(sl.start, sl.stop), np.full(3, 1.0 / st.priors.axis)))
         if "scale" in free:
             ns = len(m.segments)
-            res.append((scale - base[L.scales]) / st.priors.scale)
-            if jacobian:
-                J = np.zeros((ns, self.np_full))
-                J[np.arange(ns), np.r_[L.scales]] = 1.0 / st.priors.scale
-                jac.append(J)
+            add((scale - base[L.scales]) / st.priors.scale, lambda: (
+                np.arange(ns), np.arange(L.scales.start, L.scales.stop), np.full(ns, 1.0 / st.priors.scale)))
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
         sd = st.priors.symmetry_scale
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
-            res.append(((scale[a] - scale[b]) - (base[L.scale(a)] - base[L.scale(b)])) / sd)
-            if jacobian:
-                J = np.zeros((a.size, self.np_full))
-                J[np.arange(a.size), L.scale(a)] = 1.0 / sd
-                J[np.arange(a.size), L.scale(b)] = -1.0 / sd
-                jac.append(J)
+            k = np.arange(a.size)
+            add(((scale[a] - scale[b]) - (base[L.scale(a)] - base[L.scale(b)])) / sd, lambda: (
+                np.r_[k, k], np.r_[L.scale(a), L.scale(b)],
+                np.r_[np.full(a.size, 1.0 / sd), np.full(a.size, -1.0 / sd)]))
         sd = st.priors.symmetry_centre
         if "centre" in free and sd > 0 and joint_pairs:
+            k = np.arange(3)
             for jl, jr in joint_pairs:
                 sa, sb = int(self.centre_segment[jl]), int(self.centre_segment[jr])
                 il, ir = L.entries("centre", [jl, jr])
-                res.append((scale[sa] * p[il] - mirror * (scale[sb] * p[ir]) - (base[il] - mirror * base[ir])) / sd)
-                if not jacobian:
-                    continue
-                J = np.zeros((3, self.np_full))
-                J[np.arange(3), il] = scale[sa] / sd
-                J[np.arange(3), ir] = -mirror * scale[sb] / sd
-                J[:, L.scale(sa)] += p[il] / sd
-                J[:, L.scale(sb)] -= mirror * p[ir] / sd
-                jac.append(J)
+                add((scale[sa] * p[il] - mirror * (scale[sb] * p[ir]) - (base[il] - mirror * base[ir])) / sd,
+                    lambda sa=sa, sb=sb, il=il, ir=ir: (
+                        np.r_[k, k, k, k], np.r_[il, ir, np.full(3, L.scale(sa)), np.full(3, L.scale(sb))],
+                        np.r_[np.full(3, scale[sa] / sd), -mirror * scale[sb] / sd, p[il] / sd, -mirror * p[ir] / sd]))
         if not res:
             return np.zeros(0), np.zeros((0, self.n_free))
         if not jacobian:
             return np.concatenate(res), None
         T = self.tangent_map(p) if T is None else T
-        return np.concatenate(res), np.vstack(jac) @ T
+        rows, cols, vals = (np.concatenate(x) for x in zip(*trip, strict=True))
+        J = sparse.csr_matrix((vals, (rows, cols)), shape=(row[0], self.np_full))  # repeated entries add up
+        return np.concatenate(res), np.asarray(J @ T)
 
     def limits(self, Z: np.ndarray) -> np.ndarray:
         """Joint-limit residuals (F, n_dofs): LIMIT_WEIGHT/σ × how far each angle lies outside its

@@ -283,8 +283,11 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     overall factor the median of all.  None if no pair qualifies."""
     import pinocchio as pin
 
-    names = [m.name for m in model.markers]
-    seg = np.array([model.segment_index(m.segment) for m in model.markers])
+    # The model's markers that some trial shows (a model may carry many more: Rajagopal2016.osim 131,
+    # its trials 64; the distances of the rest are all NaN and slow to take medians of).
+    shown = {lab for t in trials for lab in t.labels}
+    names = [m.name for m in model.markers if m.name in shown]
+    seg = np.array([model.segment_index(m.segment) for m in model.markers if m.name in shown], dtype=int)
     pm = model.pin
     data = pm.createData()
     fid = [pm.getFrameId(n) for n in names]
