@@ -169,6 +169,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
     seen = Frozen[np.ndarray]("(F, n_markers) bool: which markers are observed (have residual rows) in each frame.")
     target = Frozen[np.ndarray]("(F, 3 n_markers) the observed positions, 0 where not seen (per-frame input).")
     n_obs = Frozen[int]("Observed marker positions (frame, marker pairs).")
+    unseen = Frozen[np.ndarray]("(n_markers,) bool: markers no frame of the trial shows (held at their offsets).")
     jz_pattern = Frozen[tuple]("(rows, cols, n_rows, nz) of the per-frame d markers / dz Jacobian's nonzeros.")
 
     @property
@@ -260,9 +261,9 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         # A marker no frame shows has no residual: only its prior would move it (to its base offset,
         # where it starts), and as free columns it would only widen every step's Schur complement (the
         # 67 markers of Rajagopal2016.osim absent from its example trials: 201 of 383 columns).  Held.
-        self.unseen = ~self._seen.any(axis=0)
+        self._unseen = ~self._seen.any(axis=0)
         self.layout = ParameterLayout(m, free, {name for name, _ in st.lock} | set(st.hold_axes), still,
-                                      self.kin.balls, [m.markers[k].name for k in np.flatnonzero(self.unseen)])
+                                      self.kin.balls, [m.markers[k].name for k in np.flatnonzero(self._unseen)])
         L = self.layout
         self.np_full = L.n_full
         self.axis_dofs = L.axis_dofs  # axes that are calibrated: hinge and universal joints' (never a ball's)
