@@ -391,7 +391,10 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         sub = problem if coarse.size == problem.F else problem.subset(coarse)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
         state, coarse_summary = _solve_geometry(sub, state, solver, say, polish=sub is problem)
-        for _ in range(NOISE_ROUNDS if fixed is not None else 0):
+        # After axes are held the noise learnt so far carries over (holding a few still axes barely moves
+        # the residuals); every frame learns it once more.  Learning it again here took Rajagopal's run
+        # three more subsample solves, its weights wandering 22, 15, 11 % (docs/benchmarks.md).
+        for _ in range(NOISE_ROUNDS if fixed is not None and round_ == 0 else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
             sigma, scatter = relearn(sub, state, fixed, say, trial_of[coarse] if sub is not problem else trial_of)
             if sigma is None:
