@@ -63,15 +63,13 @@ class PriorsMixin:
         # d residual / d p_full as (row, column, value) triplets: each row has one to four nonzeros,
         # and a dense (n_prior, n_full) product with T was most of a large model's prior time.
         trip: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        row = [0]
 
         def add(r: np.ndarray, nonzeros: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]]) -> None:
             """Residuals `r`; with `jacobian`, their nonzeros (rows counted from r's first, columns, values)."""
             if jacobian:
                 rows, cols, vals = nonzeros()
-                trip.append((row[0] + np.ravel(rows), np.ravel(cols), np.ravel(vals)))
+                trip.append((sum(x.size for x in res) + np.ravel(rows), np.ravel(cols), np.ravel(vals)))
             res.append(r)
-            row[0] += r.size
 
         def block(group: str, seg_of: np.ndarray, sigma: float) -> None:
             idx = L.entries(group)  # (count, 3) full indices
@@ -119,9 +117,10 @@ class PriorsMixin:
         if not jacobian:
             return np.concatenate(res), None
         T = self.tangent_map(p) if T is None else T
+        r = np.concatenate(res)
         rows, cols, vals = (np.concatenate(x) for x in zip(*trip, strict=True))
-        J = sparse.csr_matrix((vals, (rows, cols)), shape=(row[0], self.np_full))  # repeated entries add up
-        return np.concatenate(res), np.asarray(J @ T)
+        J = sparse.csr_matrix((vals, (rows, cols)), shape=(r.size, self.np_full))  # repeated entries add up
+        return r, np.asarray(J @ T)
 
     def limits(self, Z: np.ndarray) -> np.ndarray:
         """Joint-limit residuals (F, n_dofs): LIMIT_WEIGHT/σ × how far each angle lies outside its
