@@ -13,7 +13,8 @@ from calibrate.seed.seeding import MAD_SD
 
 from ..problem.problem import Problem
 from ..problem.state import State
-from ..solve.chunks import FrameBlocks
+from ..solve.assembly import factor_frames
+from ..solve.chunks import each_chunk
 from .options import PipelineOptions
 from .records import Countdown, Progress
 
@@ -66,30 +67,46 @@ def leverage(problem: Problem, state: State,
              progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(F, n_markers) leverage of each observed marker in its frame — the trace of the weighted hat
     matrix J_z A_f⁻¹ J_zᵀ W over its three rows, / 3: the fraction of its error the frame's pose
-    absorbs — and the raw residuals (F, 3 n_markers) at `state`.  The frames' blocks are formed chunk
-    by chunk within the problem's memory budget (calibrate.solve.chunks); `progress(share of the frames
-    done)` after each chunk."""
+    absorbs — and the raw residuals (F, 3 n_markers) at `state`.  With A_f = L L' (the compiled
+    Cholesky of the solver's frame blocks), each row's hat-matrix diagonal is |L⁻¹ J_row'|².  The
+    frames' blocks are formed once each, chunk by chunk within the problem's memory budget
+    (calibrate.solve.chunks.each_chunk); `progress(share of the frames done)` after each chunk."""
     nm = len(problem.model.markers)
-    blocks = FrameBlocks(problem, state, False, problem.settings.memory_mb * 1e6)
     zr, zc, nrows, nz = problem.jz_pattern
     F = problem.F
-    ridge = 1e-12 * max(float(np.max(np.abs(blocks.diagonal), initial=0.0)), 1e-300)
     h = np.zeros((F, nm))
     d = np.empty((F, nrows))
-    for _, sl, lin in blocks.chunks():
+    for sl, lin in each_chunk(problem, state, False, problem.settings.memory_mb * 1e6):
         dc, jz, _, wrow = lin.jacobian[:4]
         d[sl] = dc
-        for s in range(0, dc.shape[0], 128):  # frames in blocks: the dense per-frame Jacobians are (rows x nz)
-            e = min(dc.shape[0], s + 128)
-            J = np.zeros((e - s, nrows, nz))
-            J[:, zr, zc] = jz[s:e]
-            J *= wrow[s:e, :, None]
-            Ainv = np.linalg.inv(lin.A[s:e] + ridge * np.eye(nz))
-            # diag(J A⁻¹ J') row by row: a batched matrix product (BLAS), then a row-wise dot product
-            h[sl.start + s:sl.start + e] = np.sum(np.matmul(J, Ainv) * J, axis=2).reshape(e - s, nm, 3).sum(axis=2) / 3
+        for s in range(0, dc.shape[0], LEVERAGE_FRAMES):  # the dense per-frame Jacobians are (rows x nz)
+            e = min(dc.shape[0], s + LEVERAGE_FRAMES)
+            h[sl.start + s:sl.start + e] = _hat_diagonal(lin.A[s:e], jz[s:e], wrow[s:e], zr, zc, nrows) \
+                .reshape(e - s, nm, 3).sum(axis=2) / 3
         if progress is not None:
             progress(sl.stop / F)
     return np.where(problem.seen, h, 0.0), d
+
+
+LEVERAGE_FRAMES = 256  # frames whose dense Jacobians (rows x nz) leverage() holds at once
+
+
+def _hat_diagonal(A: np.ndarray, jz: np.ndarray, wrow: np.ndarray, zr: np.ndarray, zc: np.ndarray,
+                  nrows: int) -> np.ndarray:
+    """(frames, rows) diagonal of each frame's weighted hat matrix W J A⁻¹ J' (A = J'WJ + limits):
+    J' forward-substituted through the Cholesky factor of A + a 1e-12 relative ridge (a coordinate no
+    marker reaches has a zero column in J and a zero row in A)."""
+    e, nz = A.shape[0], A.shape[1]
+    Jt = np.zeros((e, nz, nrows))
+    Jt[:, zc, zr] = jz
+    Jt *= wrow[:, None, :]
+    ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
+    L, Y, yz = np.empty((e, nz, nz)), np.empty((e, nz, nrows)), np.empty((e, nz))
+    if factor_frames(np.ascontiguousarray(A), np.full((e, nz), ridge), Jt, np.zeros((e, nz)), L, Y, yz):
+        return np.einsum("fir,fir->fr", Y, Y)
+    # A block not positive definite even with the ridge (rounding): the inverse, as a fallback.
+    Ainv = np.linalg.inv(A + ridge * np.eye(nz))
+    return np.einsum("fir,fij,fjr->fr", Jt, Ainv, Jt, optimize=True)
 
 
 def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
@@ -168,18 +185,21 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
 
 
 def find_outliers(problem: Problem, state: State, options: PipelineOptions, sigma: np.ndarray | None = None,
-                  trial_of: np.ndarray | None = None,
-                  progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  trial_of: np.ndarray | None = None, progress: Callable[[float], None] | None = None,
+                  h: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Observations (F, n_markers) whose studentised 3-D error |r| / (σ sqrt(1 − h)) exceeds
     `options.outliers` (σ: `sigma`, default problem.sigma, scaled up if the fit shows more noise than
     that: median / 1.538, a 3-D Gaussian's; h: the leverage): a spike on a marker whose frame's pose
     absorbs most of it (one of a foot's two markers) keeps its small residual but not its studentised
-    one.  Returns the mask and the studentised errors times σ (m: comparable across markers)."""
+    one.  `h`: the leverage at `state` if known (leverage(); e.g. kept from the last test and formed
+    again only on the frames changed since).  Returns the mask and the studentised errors times σ (m:
+    comparable across markers)."""
     err = np.linalg.norm(problem.marker_residuals(state), axis=2)
     ok = np.isfinite(err)
     if not ok.any():
         return np.zeros_like(ok), err
-    h, _ = leverage(problem, state, progress)
+    if h is None:
+        h, _ = leverage(problem, state, progress)
     err = err / np.sqrt(np.clip(1.0 - h, 0.05, 1.0))
     sigma = problem.sigma if sigma is None else sigma
     scale = max(1.0, float(np.median((err / sigma)[ok])) / 1.538)

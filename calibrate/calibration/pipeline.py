@@ -23,7 +23,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.gauge import align_gauge, align_neutral
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
-from calibrate.calibration.noise import find_outliers, fixed_noise, relearn
+from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
     COARSE_FRAMES,
@@ -35,6 +35,7 @@ from calibrate.calibration.start import (
     spread_poses,
     stack_states,
     start_poses,
+    with_frames,
 )
 from calibrate.seed.seeding import MIN_FRAMES, Seed, jumped_samples, seed_parameters, size_from_markers
 
@@ -258,9 +259,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
         # worst marker of each frame, re-solve those poses, and look again.
         found = 0
+        h = None  # the leverage at the current problem and state: formed again only where a round changes them
         for _ in range(OUTLIER_ROUNDS):
-            bad, err = find_outliers(problem, state, run, scatter, trial_of,
-                                     progress=Countdown(say, "solve", "outlier test of every marker position"))
+            if h is None:
+                h, _ = leverage(problem, state, Countdown(say, "solve", "outlier test of every marker position"))
+            bad, err = find_outliers(problem, state, run, scatter, trial_of, h=h)
             if not bad.any():
                 break
             worst = np.where(bad, err, -1.0).argmax(axis=1)
@@ -279,8 +282,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             new_hit[frames[~hit[frames]]] = True
             hit |= new_hit
             state = bridge(state, new_hit, hit, spans)
-            state, _ = levenberg_marquardt(problem, state, solver, pose_only=True, max_iterations=10,
-                                           progress=_clock(say, problem, solver, "poses, "))
+            # Only these frames' observations changed: their poses alone are fitted again (the frames are
+            # independent with the geometry held), and their leverage formed again.
+            sub = problem.subset(frames)
+            part, _ = levenberg_marquardt(sub, frames_of(state, frames), solver, pose_only=True, max_iterations=10,
+                                          progress=_clock(say, sub, solver, "poses, "))
+            state = with_frames(state, frames, part)
+            h = h.copy()
+            h[frames] = leverage(sub, part)[0]
         if not found and not reweighed:
             break
         say(Progress("solve", "again without the outliers" if found else "again with the noise learnt again"))

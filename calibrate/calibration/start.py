@@ -95,6 +95,17 @@ def frames_of(state: State, idx) -> State:
     return State(state.Z[idx], state.Q[idx], state.p, None if state.B is None else state.B[idx])
 
 
+def with_frames(state: State, idx: np.ndarray, part: State) -> State:
+    """`state` with the poses of frames `idx` replaced by those of `part` (a state of those frames)."""
+    Z, Q = state.Z.copy(), state.Q.copy()
+    Z[idx], Q[idx] = part.Z, part.Q
+    B = None
+    if state.B is not None:
+        B = state.B.copy()
+        B[idx] = part.B
+    return State(Z, Q, state.p, B)
+
+
 def absolute(kin: Kinematics, state: State, spans: Sequence[slice] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every frame's URDF coordinates (Z with absolute joint angles, root quaternions Q) of a solver
     state of a problem with kinematics `kin`, the ball angles continuous within each trial of

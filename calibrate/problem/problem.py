@@ -55,6 +55,7 @@ from ..solve.assembly import assemble, parameter_layout
 T = TypeVar("T")
 
 ALL = slice(None)  # every frame (the `frames` argument of the per-frame evaluations)
+COST_FRAMES = 4096  # frames whose residuals Problem.cost forms at once
 
 
 LIMIT_WEIGHT = 1.0  # m of marker error per rad beyond a joint limit (as in calibrate.solve.ik)
@@ -316,9 +317,14 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
 
 
     def cost(self, state: State) -> float:
-        """Total cost (markers + joint limits + priors) at `state`."""
-        d = self._run("resid", state)[0]
-        c, _ = self._weights(d)
+        """Total cost (markers + joint limits + priors) at `state`.  The residuals are formed COST_FRAMES
+        frames at a time: a long trial's residual array would not stay in the cache (100 000 frames:
+        94 MB, read by every step's cost 2.3 times slower per frame than 10 000 frames')."""
+        c, out = 0.0, None
+        for a in range(0, self.F, COST_FRAMES):
+            sel = slice(a, min(self.F, a + COST_FRAMES))
+            out = self._run("resid", state, out, sel)
+            c += self._weights(out[0], sel)[0]
         r, _ = self.prior(state.p, jacobian=False)
         lim = self.limits(state.Z)
         return c + 0.5 * float(r @ r) + 0.5 * float(np.sum(lim**2))

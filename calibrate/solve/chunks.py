@@ -180,6 +180,18 @@ class FrameBlocks:
             yield i, sl, self.chunk(i, parts)
 
 
+def each_chunk(problem: Problem, state: State, with_parameters: bool, budget: float,
+               parts: str = "all") -> Iterator[tuple[slice, Linearization]]:
+    """(frames, blocks) of every chunk at `state` in turn, each formed once (Problem.linearize `parts`;
+    no priors) into arrays the next chunk overwrites: for a single pass over the frames (the
+    leverage, the covariance), which FrameBlocks would form twice where chunks are not kept."""
+    slices, _ = chunk_slices(problem.F, frame_bytes(problem, with_parameters), budget, CHUNK_FRAMES)
+    layout = problem.parameter_layout(state.p) if with_parameters else None
+    lin = None
+    for sl in slices:
+        lin = problem.linearize(state, with_parameters, reuse=lin, frames=sl, parts=parts, layout=layout)
+        yield sl, lin
+
 
 def _frame_steps(L: np.ndarray, el: Elimination | None, g: np.ndarray, Bdp: np.ndarray | None, dp: np.ndarray,
                  yz: np.ndarray | None = None) -> np.ndarray:

@@ -27,7 +27,7 @@ Termination (first met wins, reported in words):
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -37,7 +37,7 @@ from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
 from .assembly import back_substitute, forward_substitute
-from .chunks import FrameBlocks, chunked_step
+from .chunks import FrameBlocks, chunked_step, each_chunk
 from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, model_decrease, retract
 
 __all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "levenberg_marquardt",
@@ -360,20 +360,23 @@ def covariance(problem: Problem, state: State, lin: Linearization | None = None,
     uncertainty shows.  Singular directions get a pseudo-inverse.  The frames' blocks are formed
     chunk by chunk within the problem's memory budget (or taken from `lin`, the whole trial's);
     `progress(share of the frames done)` after each chunk."""
-    budget = problem.settings.memory_mb * 1e6
-    blocks = FrameBlocks(problem, state, True, budget, linearization=lin) if lin is not None else \
-        FrameBlocks(problem, state, True, budget)
-    Dz = blocks.diagonal
-    eps = 1e-12 * max(1.0, float(Dz.max(initial=0.0)))
-    n = blocks.gp.size
-    S = blocks.C.copy()
-    for i, sl in enumerate(blocks.slices):
-        el = eliminate(blocks.chunk(i), np.full((sl.stop - sl.start, Dz.shape[1]), eps))
+    if lin is not None:
+        S, n = lin.C.copy(), lin.C.shape[0]
+        chunks: Iterable[tuple[slice, Linearization]] = [(slice(0, lin.A.shape[0]), lin)]
+    else:
+        _, S, gp = problem.prior_normal(state.p, True)
+        n = gp.size
+        chunks = each_chunk(problem, state, True, problem.settings.memory_mb * 1e6)
+    for sl, part in chunks:
+        if lin is None:
+            S = S + part.C
+        eps = 1e-12 * max(1.0, float(np.diagonal(part.A, axis1=1, axis2=2).max(initial=0.0)))
+        el = eliminate(part, np.full((sl.stop - sl.start, part.A.shape[1]), eps))
         if el is None:
             raise np.linalg.LinAlgError("covariance: a frame's normal matrix is not positive definite")
         S = S - el.S if n else S
         if progress is not None:
-            progress(sl.stop / blocks.gz.shape[0])
+            progress(sl.stop / problem.F)
     S = 0.5 * (S + S.T)
     _, Jr = problem.prior(state.p)
     P = Jr.T @ Jr
