@@ -100,6 +100,21 @@ def test_chunked_covariance_and_leverage_equal_the_whole(squats, monkeypatch):
     assert 0.0 < h1[problem.seen].mean() < 1.0
 
 
+def test_cost_in_pieces_equals_the_residuals_summed(squats, monkeypatch):
+    """Problem.cost, formed a few frames at a time, equals ½ Σ (|r| / σ)² over every marker position
+    (the residuals of all frames at once) plus the priors and joint limits."""
+    import calibrate.problem.problem as problem_module
+
+    problem, state = squats
+    monkeypatch.setattr(problem_module, "COST_FRAMES", 7)  # 30 frames: four whole pieces and a short one
+    r = problem.marker_residuals(state)
+    data = 0.5 * np.nansum(np.sum(r**2, axis=2) / problem.sigma**2)
+    prior, _ = problem.prior(state.p, jacobian=False)
+    expect = data + 0.5 * float(prior @ prior) + 0.5 * float(np.sum(problem.limits(state.Z) ** 2))
+    assert problem.loss == "linear" and data > 0
+    assert problem.cost(state) == pytest.approx(expect, rel=1e-12)
+
+
 def test_coupling_products_equal_the_coupling_blocks(squats):
     """B_f dp and Σ_f B_f' u_f from the Jacobian alone (the passes that do not form B_f) equal the
     products with the assembled B_f."""

@@ -88,7 +88,7 @@ def leverage(problem: Problem, state: State,
     return np.where(problem.seen, h, 0.0), d
 
 
-LEVERAGE_FRAMES = 256  # frames whose dense Jacobians (rows x nz) leverage() holds at once
+LEVERAGE_FRAMES = 128  # frames whose dense Jacobians (rows x nz) leverage() holds at once
 
 
 def _hat_diagonal(A: np.ndarray, jz: np.ndarray, wrow: np.ndarray, zr: np.ndarray, zc: np.ndarray,

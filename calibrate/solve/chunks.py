@@ -187,7 +187,7 @@ def each_chunk(problem: Problem, state: State, with_parameters: bool, budget: fl
     leverage, the covariance), which FrameBlocks would form twice where chunks are not kept."""
     slices, _ = chunk_slices(problem.F, frame_bytes(problem, with_parameters), budget, CHUNK_FRAMES)
     layout = problem.parameter_layout(state.p) if with_parameters else None
-    lin = None
+    lin: Linearization | bool = len(slices) == 1  # a whole trial: in the arrays of the solver's last run on it
     for sl in slices:
         lin = problem.linearize(state, with_parameters, reuse=lin, frames=sl, parts=parts, layout=layout)
         yield sl, lin
