@@ -213,7 +213,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
     # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
     # before the solve's own outlier rejection can see them.  They are reported with the other outliers.
-    jumped = jumped_samples(subject, trials) if run.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
+    jumped = jumped_samples(subject, trials, Countdown(say, "build", "jumps (swapped labels, spikes) in every "
+                                                                   "trajectory")) \
+        if run.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
         say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes); "
@@ -450,7 +452,11 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                                     solver, say, f"{idx.size} frames, ")
         levels.append((int(idx.size), part.iterations))
         solved, target = idx, target * LEVEL_GROWTH
-    say(f"solve: all {problem.F} frames")
+        per_frame = part.seconds / max(part.iterations, 1) / idx.size  # s per iteration and frame, for the estimate
+    # A long trial's first iteration on every frame takes a while before its line: say how long, from the
+    # largest subsample's pace (the time per iteration is linear in the frames).
+    say(f"solve: all {problem.F} frames" + (f" (about {per_frame * problem.F:.0f} s per iteration, at the "
+                                              f"{solved.size}-frame subsample's pace)" if levels else ""))
     state, summary = _solve_frames(problem, _carried(state, solved, start, spans), solved, solver, say,
                                    "all frames, ", IterationClock(say, "all frames, ", solver.atol, solver.ftol))
     if fixed is not None:

@@ -10,6 +10,7 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -333,7 +334,8 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 
 
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
-                  extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None) -> dict[str, Path]:
+                  extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
+                  progress: Callable[[float], None] | None = None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
     (calibrate.calibration.html) and, for OpenSim, the subject as an .osim model and the motions as
     .mot files (whichever are given).
@@ -341,7 +343,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     `motion`, `mot`: one path per trial (a single path for a single trial).  Every destination is
     checked first (its folder exists; it is not the base model; it does not exist unless `overwrite`),
     then all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
-    `cal.times` with the time of this writing (so far) and `extra_times`.
+    `cal.times` with the time of this writing (so far) and `extra_times`.  `progress(share done)`, by the
+    motion CSVs' frames (most of a long trial's writing).
     """
     motions = _per_trial(cal, motion, "motion")
     mots = _per_trial(cal, mot, ".mot")
@@ -380,8 +383,12 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     text = urdf_text(cal.model, cal.params, cal.mass) if "urdf" in targets or opensim else ""
     if "urdf" in targets:
         writers[targets["urdf"]] = lambda path: put_text(path, text)
-    for k, m in zip(keys, cal.motions, strict=False):  # keys is empty without motion outputs
-        writers[targets[k]] = lambda path, m=m: put_text(path, motion_csv_text(m))
+    total = sum(m.times.size for m in cal.motions[:len(keys)])
+    before = np.cumsum([0, *(m.times.size for m in cal.motions[:len(keys)])])
+    for i, (k, m) in enumerate(zip(keys, cal.motions, strict=False)):  # keys is empty without motion outputs
+        share = None if progress is None else \
+            (lambda done, i=i, m=m: progress((before[i] + done * m.times.size) / max(total, 1)))
+        writers[targets[k]] = lambda path, m=m, share=share: put_text(path, motion_csv_text(m, share))
     if "report" in targets:
         writers[targets["report"]] = write_report
     if "html" in targets:

@@ -3,7 +3,7 @@ parameter's change, placed markers, rejected outliers."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -131,11 +131,13 @@ class Calibration:
         return summary_text(self)
 
     def write(self, urdf=None, motion=None, report=None, overwrite: bool = False,
-              extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None) -> dict:
+              extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
+              progress: Callable[[float], None] | None = None) -> dict:
         """Write the subject URDF, motion CSV(s), report JSON, the HTML report and, for OpenSim, the
-        subject .osim and .mot motions (those given), all or none; see report.write_outputs."""
+        subject .osim and .mot motions (those given), all or none; see report.write_outputs
+        (`progress(share done)`)."""
         return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite,
-                             extra_times=extra_times, osim=osim, mot=mot, html=html)
+                             extra_times=extra_times, osim=osim, mot=mot, html=html, progress=progress)
 
 
 rms = marker_rms  # the name tests and scripts import

@@ -204,14 +204,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                  f"the static trial (1 = the first)")
         cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
                         neutral=None if args.neutral is None else args.neutral - 1, progress=say)
+        cal = replace(cal, times={"load": load_s, **cal.times})
+        opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
+        cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
+                          html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
+                          **opensim)
     if cal.ignored_labels:
         why = "are not markers of" if not settings.new_markers else "ride on no segment of"
         print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
               f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
-    cal = replace(cal, times={"load": load_s, **cal.times})
-    opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
-    cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
-                      html=args.html, **opensim)
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))

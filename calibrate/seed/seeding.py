@@ -378,13 +378,14 @@ def broken_samples(model: Model, trial: Trial) -> np.ndarray:
     return flagged
 
 
-def jump_episodes(trial: Trial) -> np.ndarray:
+def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None) -> np.ndarray:
     """(n_frames, n_markers) True where a marker trajectory sits between a jump and the jump that undoes
     it (a spike: one frame; a swapped label: until the labels swap back).  A jump is a frame-to-frame
     step further than SEED_JUMP_MIN (and SEED_JUMP_SDS robust SDs of the marker's own) from the median
     of the steps around it (SEED_JUMP_WINDOW frames each side: constant acceleration cancels); two
     jumps of one marker at most SEED_EPISODE_S apart, with no gap between, that undo each other (their
-    sum shorter than SEED_JUMP_UNDO of the larger) bound an episode."""
+    sum shorter than SEED_JUMP_UNDO of the larger) bound an episode.  `progress(share of the markers
+    done)` after each marker (100 000 frames take about a second)."""
     X = np.asarray(trial.markers)
     F = X.shape[0]
     out = np.zeros(X.shape[:2], dtype=bool)
@@ -415,6 +416,8 @@ def jump_episodes(trial: Trial) -> np.ndarray:
                 i += 2
             else:
                 i += 1
+        if progress is not None:
+            progress((k + 1) / X.shape[1])
     return out
 
 
@@ -429,12 +432,16 @@ def nanmedian_first(a: np.ndarray) -> np.ndarray:
     return np.where(n > 0, 0.5 * (lo + hi), np.nan)
 
 
-def jumped_samples(model: Model, trials: Sequence[Trial]) -> np.ndarray:
+def jumped_samples(model: Model, trials: Sequence[Trial],
+                   progress: Callable[[float], None] | None = None) -> np.ndarray:
     """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order,
-    stacked as the calibration stacks the trials."""
+    stacked as the calibration stacks the trials; `progress(share of the frames done)`."""
     parts = []
+    total = max(1, sum(t.n_frames for t in trials))
     for t in trials:
-        jumps = jump_episodes(t)
+        before = sum(len(x) for x in parts)
+        jumps = jump_episodes(t, None if progress is None else
+                              lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))
         index = {lab: i for i, lab in enumerate(t.labels)}
         out = np.zeros((t.n_frames, len(model.markers)), dtype=bool)
         for k, name in enumerate(model.marker_names):
