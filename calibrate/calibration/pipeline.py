@@ -290,7 +290,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             part, _ = levenberg_marquardt(sub, frames_of(state, frames), solver, pose_only=True, max_iterations=10,
                                           progress=_clock(say, sub, solver, "poses, "))
             state = with_frames(state, frames, part)
-            h = h.copy()
             h[frames] = leverage(sub, part)[0]
         if not found and not reweighed:
             break
