@@ -383,11 +383,10 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     text = urdf_text(cal.model, cal.params, cal.mass) if "urdf" in targets or opensim else ""
     if "urdf" in targets:
         writers[targets["urdf"]] = lambda path: put_text(path, text)
-    total = sum(m.times.size for m in cal.motions[:len(keys)])
-    before = np.cumsum([0, *(m.times.size for m in cal.motions[:len(keys)])])
+    before = np.cumsum([0, *(m.times.size for m in cal.motions[:len(keys)])])  # frames written before each motion
     for i, (k, m) in enumerate(zip(keys, cal.motions, strict=False)):  # keys is empty without motion outputs
         share = None if progress is None else \
-            (lambda done, i=i, m=m: progress((before[i] + done * m.times.size) / max(total, 1)))
+            (lambda done, i=i, m=m: progress((before[i] + done * m.times.size) / max(before[-1], 1)))
         writers[targets[k]] = lambda path, m=m, share=share: put_text(path, motion_csv_text(m, share))
     if "report" in targets:
         writers[targets["report"]] = write_report

@@ -437,11 +437,11 @@ def jumped_samples(model: Model, trials: Sequence[Trial],
     """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order,
     stacked as the calibration stacks the trials; `progress(share of the frames done)`."""
     parts = []
-    total = max(1, sum(t.n_frames for t in trials))
+    total, before = max(1, sum(t.n_frames for t in trials)), 0  # frames, and those of the trials done
     for t in trials:
-        before = sum(len(x) for x in parts)
         jumps = jump_episodes(t, None if progress is None else
                               lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))
+        before += t.n_frames
         index = {lab: i for i, lab in enumerate(t.labels)}
         out = np.zeros((t.n_frames, len(model.markers)), dtype=bool)
         for k, name in enumerate(model.marker_names):
