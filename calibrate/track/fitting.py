@@ -158,7 +158,7 @@ def _layout_fit(local: np.ndarray, world: np.ndarray) -> tuple[float, float]:
 
 def _typical_rms(kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Parameters, labels: dict[str, str]) -> float:
     """Median over the frames of the per-frame marker RMS (m) of the model posed to `labels`."""
-    sub = Trial([labels.get(t, t) for t in trial.labels], Xs, trial.rate, 0, None)
+    sub = Trial(fitted_names(trial.labels, labels), Xs, trial.rate, 0, None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return float(np.nanmedian(inverse_kinematics(kin, sub, params, max_iterations=15).marker_rms))
@@ -179,6 +179,12 @@ def _pair_swaps(model: Model, kin: Kinematics, trial: Trial, Xs: np.ndarray, par
         if r < rms:
             labels, rms, track_of = swapped, r, {m: t for t, m in swapped.items()}
     return labels
+
+
+def fitted_names(tracks: list[str], labels: dict[str, str]) -> list[str]:
+    """The names a model is fitted to: each track's label, an unlabelled track 'track:NAME' (the tracker's
+    track 'T10' must not pass for the model's marker T10)."""
+    return [labels.get(t, f"track:{t}") for t in tracks]
 
 
 def _frames(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -227,7 +233,7 @@ def _rounds(kin: Kinematics, trial: Trial, Xs: np.ndarray, M: np.ndarray, tall: 
 def _posed(kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Parameters,
            labels: dict[str, str]) -> np.ndarray:
     """The model's markers (frames, markers, 3) posed by inverse kinematics to `labels`."""
-    sub = Trial([labels.get(t, t) for t in trial.labels], Xs, trial.rate, 0, None)
+    sub = Trial(fitted_names(trial.labels, labels), Xs, trial.rate, 0, None)
     m = inverse_kinematics(kin, sub, params, max_iterations=15).motion
     return np.asarray(kin.batch(FrameLayout.coordinates(m.root_translation, m.angles), m.root_quaternion,
                                 params)[0])

@@ -44,10 +44,12 @@ Two refinements for what real tracking gives (docs/tracking.md, "Labelling"):
 * 7. What step 6 cannot mend: the well-fitted markers are trusted and every other track is matched afresh
   by its distances to the trusted markers of the nearest segment up the tree (``_relabel_limbs``), kept
   only if it labels as many tracks and fits better.
-* 2b and 9. The base model fitted instead (calibrate.track.fitting: tracks assigned to the scaled model's
-  markers and the model posed to them in turn, as iterative closest point does): when no group can be
-  the root (skin markers, whose groups split), and otherwise as a second labelling, then step 8; of the
-  two, the one whose base-model fit is better (``_misfit``) is kept.
+* 2b. When no group can be the root (skin markers, whose groups split): the base model fitted instead
+  (calibrate.track.fitting: tracks assigned to the scaled model's markers and the model posed to them in
+  turn, as iterative closest point does), then step 8; refused in one line if it labels fewer than half
+  the tracks.  (Run on every trial and kept when it named every track, or when it fitted better than the
+  groups' labelling, it cost a simulated 8-camera squat trial 8 of 39 labels — a foot's markers turned
+  round — so the groups keep the first word where they find a root.)
 * 8. A track still unlabelled that continues a labelled one — seen with it in at most ``OVERLAP_FRAMES``
   frames, its distances to the marker's segment-mates the same — is joined to it (``_continuations``;
   ``Labelling.merged``, as the tracks of one group joined before grouping).
@@ -132,9 +134,6 @@ MAX_RELABEL = 0.1  # m: mean distance misfit beyond which step 7 leaves a track 
 
 
 IK_FRAMES = 40  # frames of the subsample the ties are settled on
-
-
-UNLABELLED_MISFIT = 0.06  # m: the error a track left unlabelled counts as when two labellings are compared (step 9)
 
 
 STANDING_SHARE = 0.1  # share of the frames, those with the tallest posture, whose median positions are compared
@@ -276,7 +275,13 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
             cands = [(len(groups) - 1, *_shape(med_dist[-1], _distances(neutral[R_idx]), None))]
             cands = [c for c in cands if c[1] <= ROOT_MISFIT]
     if not cands:  # skin markers that do not group into rigid segments: the base model fitted instead
-        return _by_fitting(model, kin, trial, X, groups, merged)
+        fitted = _by_fitting(model, kin, trial, X, groups, merged)
+        if 2 * len(fitted.labels) < trial.n_markers:
+            raise CalibrateError(f"{model.path}: the tracks neither group into the model's rigid segments (no "
+                                 f"group moves like the {root.name}'s markers) nor does the scaled base model fit "
+                                 f"them ({len(fitted.labels)} of {trial.n_markers} tracks labelled); check the "
+                                 "tracks (calibrate track without MODEL) and that MODEL has the subject's marker set")
+        return fitted
     gi, best, perms, errs = min(cands, key=lambda c: c[1])
     iu = np.triu_indices(len(R_idx), 1)
     tied = [perms[i] for i in np.flatnonzero(errs <= best + 0.002)]
@@ -382,14 +387,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     labels = _relabel_limbs(model, kin, X, trial, scale, labels, neutral, med, ref)
     # 8. a track still unlabelled that continues a labelled one (one marker lost and found again)
     merged = merged | _continuations(model, X, trial.labels, labels)
-    grouped = Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale, merged)
-    # 9. the base model fitted to the tracks instead (as when no group is the root): the labelling that fits
-    #    better is kept (skin markers group loosely, and a group split or merged mislabels whole segments)
-    try:
-        fitted = _by_fitting(model, kin, trial, X, groups, merged)
-    except CalibrateError:
-        return grouped
-    return fitted if _misfit(model, kin, trial, fitted) < _misfit(model, kin, trial, grouped) else grouped
+    return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale, merged)
 
 
 def _continuations(model: Model, X: np.ndarray, names: list[str], labels: dict[str, str]) -> dict[str, str]:
@@ -427,28 +425,11 @@ def _continuations(model: Model, X: np.ndarray, names: list[str], labels: dict[s
 
 def _by_fitting(model: Model, kin, trial: Trial, X: np.ndarray, groups: list[list[int]],
                 merged: dict[str, str]) -> Labelling:
-    """The labelling when no group can be taken for the root (skin markers whose groups split): the base
-    model fitted to the tracks (calibrate.track.fitting), then step 8; refused with one line if
-    fewer than half the tracks are labelled."""
+    """The labelling by fitting the scaled base model to the tracks (calibrate.track.fitting; no groups
+    needed), then step 8."""
     fitted = fit_labels(model, kin, trial, X)
-    labels = fitted.labels
-    merged = merged | _continuations(model, X, trial.labels, labels)
-    if 2 * len(labels) < trial.n_markers:
-        raise CalibrateError(f"{model.path}: the tracks neither group into the model's rigid segments (no group "
-                             f"moves like the {model.segments[0].name}'s markers) nor does the scaled base model "
-                             f"fit them ({len(labels)} of {trial.n_markers} tracks labelled); check the tracks "
-                             "(calibrate track without MODEL) and that MODEL has the subject's marker set")
-    return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], {}, fitted.scale, merged)
-
-
-def _misfit(model: Model, kin, trial: Trial, labelling: Labelling) -> float:
-    """How badly a labelling fits (m): the RMS over the tracks of each labelled marker's median error in the
-    scaled base model's fit (`_fit`), a track left unlabelled (not joined to another) counted as an error of
-    ``UNLABELLED_MISFIT``."""
-    labels = labelling.labels
-    err = _marker_errors(_fit(model, kin, trial, labelling.scale, labels), model.marker_names, labels)
-    n_out = sum(t not in labels and t not in labelling.merged for t in trial.labels)  # a joined track is named
-    return float(np.sqrt((sum(e * e for e in err.values()) + n_out * UNLABELLED_MISFIT**2) / trial.n_markers))
+    merged = merged | _continuations(model, X, trial.labels, fitted.labels)
+    return Labelling(fitted.labels, [[trial.labels[i] for i in g] for g in groups], {}, fitted.scale, merged)
 
 
 def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]):
