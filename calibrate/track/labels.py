@@ -75,7 +75,7 @@ from ..model.kinematics import build_kinematics
 from ..model.model import Model
 from ..seed.association import associate
 from ..seed.geometry import kabsch_batch
-from .fitting import fit_labels
+from .fitting import fit_labels, fitted_names
 
 SCALES = (0.75, 1.3)  # the subject's size relative to the base model's that distances may be scaled by
 
@@ -440,7 +440,7 @@ def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]):
     step = max(1, trial.n_frames // IK_FRAMES)
     params = model.parameters()
     params = type(params)(params.scale * scale, params.centre, params.axis, params.marker)
-    sub = Trial(_renamed(trial.labels, labels), trial.markers[::step], trial.rate / step, 0, None)
+    sub = Trial(fitted_names(trial.labels, labels), trial.markers[::step], trial.rate / step, 0, None)
     return inverse_kinematics(kin, sub, params, max_iterations=15)
 
 
