@@ -100,23 +100,21 @@ def fit_labels(model: Model, kin: Kinematics, trial: Trial, X: np.ndarray | None
         labels, cost, M = _rounds(kin, trial, Xs, M, tall, params, names)
         if best is None or cost < best[0].cost:
             best = FittedLabels(labels, scale, float(heading), cost), M
-    # The heading chosen: its leftovers labelled, its two-marker segments checked
+    # The heading chosen: its leftovers labelled, its segments' orderings and two-marker pairs checked
     fitted, M = best
     labels, cost = _leftovers(trial, Xs, M, names, fitted.labels, fitted.cost)
-    labels = _shapes(model, kin, trial, Xs, params, labels)
+    labels = _shapes(model, trial, Xs, standing, labels)
     return FittedLabels(_pair_swaps(model, kin, trial, Xs, params, labels), scale, fitted.heading, cost)
 
 
-def _shapes(model: Model, kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Parameters,
+def _shapes(model: Model, trial: Trial, Xs: np.ndarray, layout: np.ndarray,
             labels: dict[str, str]) -> dict[str, str]:
     """Each segment of 3 to ``SHAPE_MARKERS`` labelled markers (the pelvis, the head) ordered as the
-    model's layout fits its tracks best (_layout_misfit): a heading tried 45° off can leave the pelvis's
-    four markers turned a quarter round, which the inverse kinematics fits by turning the pelvis.  Of the
+    model's layout (`layout`: its markers standing, scaled) fits its tracks best (_layout_fit): a
+    heading tried 45° off can leave the pelvis's four markers turned a quarter round, which the inverse kinematics fits by turning the pelvis.  Of the
     orderings that fit within ``SHAPE_GAIN`` of the best (a layout symmetric under a half turn about the
     vertical, as the head's four markers), the one whose heading is nearest the root segment's (the
     pelvis's, settled first): a head faces where the pelvis does."""
-    z0, q0 = np.zeros(model.nz), np.array([0.0, 0.0, 0.0, 1.0])
-    layout = np.asarray(kin.markers(z0, q0, params))
     track_of = {m: t for t, m in labels.items()}
     col = {t: i for i, t in enumerate(trial.labels)}
     labels = dict(labels)
