@@ -112,9 +112,10 @@ def _shapes(model: Model, trial: Trial, Xs: np.ndarray, layout: np.ndarray,
     """Each segment of 3 to ``SHAPE_MARKERS`` labelled markers (the pelvis, the head) ordered as the
     model's layout (`layout`: its markers standing, scaled) fits its tracks best (_layout_fit): a
     heading tried 45° off can leave the pelvis's four markers turned a quarter round, which the inverse
-    kinematics fits by turning the pelvis.  Of the orderings that fit within ``SHAPE_GAIN`` of the best (a layout symmetric under a half turn about the
-    vertical, as the head's four markers), the one whose heading is nearest the root segment's (the
-    pelvis's, settled first): a head faces where the pelvis does."""
+    kinematics fits by turning the pelvis.  Of the orderings that fit within ``SHAPE_GAIN`` of the best
+    (a layout symmetric under a half turn about the vertical, as the head's four markers), the one whose
+    heading is nearest the root segment's (the pelvis's, settled first): a head faces where the pelvis
+    does."""
     track_of = {m: t for t, m in labels.items()}
     col = {t: i for i, t in enumerate(trial.labels)}
     labels = dict(labels)
