@@ -15,7 +15,7 @@ from calibrate.io.trial import Trial
 from calibrate.model.kinematics import build_kinematics
 from calibrate.simulation.simulate import simulate_gait
 from calibrate.track.fitting import fit_labels
-from calibrate.track.labels import label_tracks
+from calibrate.track.labels import Labelling, label_tracks
 
 REAL = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "real" / "pig_walk"
 
@@ -50,6 +50,16 @@ def test_label_tracks_names_the_real_walk_whose_markers_do_not_group(human):
     labelling = label_tracks(human, trial)
     assert labelling.segments == {}  # the fallback: no group was matched to a segment
     assert {t: labelling.labels.get(t) for t in truth} == truth
+    assert labelling.reserved == frozenset(human.marker_names)
+
+
+def test_an_unlabelled_track_never_keeps_a_model_marker_name():
+    """The labelled trial written out: a track left unlabelled whose name is a model marker's (the tracker's
+    T10, when no track was labelled T10) is renamed, so reading the file back does not take it for T10."""
+    X = np.zeros((5, 3, 3))
+    labelling = Labelling({"T1": "LASI"}, [], {}, 1.0, reserved=frozenset({"LASI", "T10"}))
+    out = labelling.trial(Trial(["T1", "T10", "T11"], X, 100.0, 0, None))
+    assert list(out.labels) == ["LASI", "track:T10", "T11"]
 
 
 def test_tracks_no_body_made_are_refused_in_one_line(human):

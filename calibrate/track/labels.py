@@ -149,12 +149,16 @@ class Labelling:
     scale: float  # the subject's size relative to the base model (from the root's markers)
 
     merged: dict[str, str] = field(default_factory=dict)  # a track found to be another's marker -> that track
+    # The base model's marker names: an unlabelled track never keeps one as its name (the tracker's track
+    # 'T10' written into the labelled C3D would be read back as the model's marker T10).
+    reserved: frozenset[str] = frozenset()
 
     def trial(self, trial: Trial) -> Trial:
         """`trial` with the tracks of one marker joined (`merged`) and its tracks renamed to the model's
-        labels (unlabelled ones keep their names)."""
+        labels (unlabelled ones keep their names, or become 'track:NAME' where that is a model marker's)."""
         trial = _merged(trial, self.merged)
-        return Trial(_renamed(trial.labels, self.labels), trial.markers, trial.rate, trial.first_frame, trial.source)
+        return Trial(_renamed(trial.labels, self.labels, self.reserved), trial.markers, trial.rate, trial.first_frame,
+                     trial.source)
 
 
 def _merged(trial: Trial, merged: dict[str, str]) -> Trial:
@@ -213,9 +217,10 @@ def _same_markers(X: np.ndarray, groups: list[list[int]], names: list[str]) -> d
     return out
 
 
-def _renamed(names, labels: dict[str, str]) -> list[str]:
-    """Track names with their labels; an unlabelled track whose name is someone's label becomes 'track:NAME'."""
-    taken = set(labels.values())
+def _renamed(names, labels: dict[str, str], reserved: frozenset[str] = frozenset()) -> list[str]:
+    """Track names with their labels; an unlabelled track whose name is someone's label or in `reserved` (the
+    model's markers) becomes 'track:NAME'."""
+    taken = set(labels.values()) | reserved
     return [labels.get(x, f"track:{x}" if x in taken else x) for x in names]
 
 
@@ -387,7 +392,8 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
     labels = _relabel_limbs(model, kin, X, trial, scale, labels, neutral, med, ref)
     # 8. a track still unlabelled that continues a labelled one (one marker lost and found again)
     merged = merged | _continuations(model, X, trial.labels, labels)
-    return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale, merged)
+    return Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale, merged,
+                     frozenset(model.marker_names))
 
 
 def _continuations(model: Model, X: np.ndarray, names: list[str], labels: dict[str, str]) -> dict[str, str]:
@@ -429,7 +435,8 @@ def _by_fitting(model: Model, kin, trial: Trial, X: np.ndarray, groups: list[lis
     needed), then step 8."""
     fitted = fit_labels(model, kin, trial, X)
     merged = merged | _continuations(model, X, trial.labels, fitted.labels)
-    return Labelling(fitted.labels, [[trial.labels[i] for i in g] for g in groups], {}, fitted.scale, merged)
+    return Labelling(fitted.labels, [[trial.labels[i] for i in g] for g in groups], {}, fitted.scale, merged,
+                     frozenset(model.marker_names))
 
 
 def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]):
