@@ -220,6 +220,46 @@ def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_
     assert np.allclose(np.linalg.norm(state.Q, axis=1), 1.0, atol=1e-12)
 
 
+def test_each_step_is_the_better_of_plain_and_bent_and_a_bend_that_does_not_pay_is_dropped(human, human_kin,
+                                                                                             monkeypatch):
+    """The geodesic acceleration's bent step against the plain Gauss–Newton step from the same linearization,
+    both evaluated independently here (factor_step, _accelerate, retract, Problem.cost): the solver takes the
+    one of lower cost.  A bend that cannot pay is dropped after lm.BEND_TRIALS steps."""
+    from calibrate.solve import lm
+    from calibrate.solve.schur import marquardt_diagonal, retract
+
+    sim = simulate_gait(human, frames=40, noise_mm=1.0, seed=1)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    rng = np.random.default_rng(0)
+    Z = np.column_stack([m.root_translation, np.zeros((40, 3)), m.angles]) + 0.02 * rng.normal(size=(40, human.nz))
+    state = State(Z, m.root_quaternion.copy(), human.parameters().vector())
+    options = Settings().solver
+    bends = 0
+    for _ in range(4):
+        steps = lm._BlockArrow(problem, options, False, lm.SolverSummary())
+        steps.linearize(state, 1e-3)
+        lin = steps.blocks.linearization
+        Dz = marquardt_diagonal(steps.blocks.diagonal, float(steps.blocks.diagonal.max()))
+        fac = lm.factor_step(lin, 1e-3, Dz, False, steps.N)
+        dz, dp = fac.solve(lin.gz, lin.gp)
+        bend = lm._accelerate(problem, state, lin, fac, dz, dp, problem.residual_parts(state))
+        costs = [problem.cost(retract(problem, state, dz, dp))]
+        if bend is not None:  # none on the first step: the acceleration is too large there
+            costs.append(problem.cost(retract(problem, state, dz + bend[0], dp + bend[1])))
+            bends += 1
+        trial, _, _ = steps.step(state, 1e-3)
+        assert problem.cost(trial) == pytest.approx(min(costs), rel=1e-12)
+        assert steps.cost(trial) == problem.cost(trial)
+        state = trial
+    assert bends >= 2
+    # A bend of zero reaches the plain step's point: it never pays, so it is dropped once BEND_TRIALS steps
+    # lowering the cost have judged it (rejected steps tell nothing), and never taken.
+    monkeypatch.setattr(lm, "_accelerate", lambda problem, state, lin, fac, dz, dp, here: (0 * dz, 0 * dp))
+    _, summary = levenberg_marquardt(problem, state, options)
+    assert lm.BEND_TRIALS <= summary.bend_dropped < summary.iterations and summary.bent == 0
+
+
 # ---------------------------------------------------------------------- accuracy
 def test_noise_free_recovers_the_subject(noise_free):
     sim, cal = noise_free

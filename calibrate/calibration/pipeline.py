@@ -621,7 +621,8 @@ def _solve_geometry(problem: Problem, state: State, options: SolverOptions,
     return state, _merge(summary, polished)
 
 
-_SUMMED = ("iterations", "accepted", "seconds", "linearize_seconds", "linear_solver_seconds", "evaluate_seconds")
+_SUMMED = ("iterations", "accepted", "seconds", "linearize_seconds", "linear_solver_seconds", "evaluate_seconds",
+           "bent")
 
 
 _FROM_FIRST = ("initial_cost", "coarse", "coarse_frames", "levels")  # the start, and any subsample solve before it

@@ -27,6 +27,7 @@ from ..problem.state import Linearization, State
 from .assembly import back_substitute, forward_substitute
 from .schur import DIAG_FLOOR, GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, retract
 
+Bend = tuple[np.ndarray, np.ndarray] | None  # half a step's geodesic acceleration (dz, dp), to add to it
 CHUNK_FRAMES = 256  # frames per chunk of a trial whose blocks do not all fit in the budget
 # The arrays of the chunks formed again in each pass (blocks with and without B, an elimination, a factor),
 # in chunks' worth of the kept blocks: counted in the budget before any chunk is kept.
@@ -207,13 +208,14 @@ def _frame_steps(L: np.ndarray, el: Elimination | None, g: np.ndarray, Bdp: np.n
 
 def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float, Dz: np.ndarray,
                  N: np.ndarray | None, accelerate: bool, here: tuple | None, scratch: dict,
-                 kept_work: list[dict]) -> tuple[np.ndarray, np.ndarray, float] | None:
+                 kept_work: list[dict]) -> tuple[np.ndarray, np.ndarray, float, Bend] | None:
     """One Levenberg–Marquardt step of damping `lam` (scaling Dz (F, nz); gauge basis N) on blocks
-    held chunk by chunk: (dz, dp, the Gauss–Newton model's predicted decrease), the step bent by the
-    geodesic acceleration if `accelerate` (`here`: the residual parts at `state`); None if a block
-    is not positive definite.  Chunks not kept are formed again in each pass: once to eliminate them
-    (the Schur complement), once to back-substitute (the step, its predicted decrease and the
-    acceleration's right-hand side), once more for the acceleration's back-substitution.  The same
+    held chunk by chunk: (dz, dp, the Gauss–Newton model's predicted decrease, the bend), the bend
+    (half the geodesic acceleration, to add to the step) if `accelerate` and it is small enough, else
+    None (`here`: the residual parts at `state`); None if a block is not positive definite.  Chunks
+    not kept are formed again in each pass: once to eliminate them (the Schur complement), once to
+    back-substitute (the step, its predicted decrease and the acceleration's right-hand side), once
+    more for the acceleration's back-substitution.  The same
     arithmetic as calibrate.solve.lm's step on the whole trial, up to the order of sums."""
     wp = blocks.with_parameters
     n = blocks.gp.size if wp else 0
@@ -305,13 +307,13 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
         lin_term += float(blocks.gp @ dp)
     predicted = -(lin_term + 0.5 * quad)
     if not accelerate:
-        return dz, dp, predicted
+        return dz, dp, predicted, None
     # Pass 3: the acceleration a = −(J'J + λD)⁻¹ J' r_vv back-substituted; kept while 2|a| <= ratio |v|
     # (its parameters' part alone may already be too large: then no pass).
     ap = parameters(g2p, rhs2)
     v2 = float(np.sum(dz**2) + np.sum(dp**2))
     if 4.0 * float(np.sum(ap**2)) > GEODESIC_RATIO**2 * v2:
-        return dz, dp, predicted
+        return dz, dp, predicted, None
     az = np.empty_like(dz)
     full_step = blocks.tangent @ ap if n else None
     for i, sl, lin in blocks.chunks("frames"):
@@ -320,12 +322,13 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
         az[sl] = _frame_steps(L, el, g2z[sl], Bdp, ap)
     a2 = float(np.sum(az**2) + np.sum(ap**2))
     if 4.0 * a2 > GEODESIC_RATIO**2 * v2:
-        return dz, dp, predicted
-    return dz + 0.5 * az, dp + 0.5 * ap, predicted
+        return dz, dp, predicted, None
+    return dz, dp, predicted, (0.5 * az, 0.5 * ap)
 
 
 def _pose_step(problem: Problem, blocks: FrameBlocks, state: State, damping: np.ndarray, accelerate: bool,
-               here: tuple | None, scratch: dict, kept_work: list[dict]) -> tuple[np.ndarray, np.ndarray, float] | None:
+               here: tuple | None, scratch: dict,
+               kept_work: list[dict]) -> tuple[np.ndarray, np.ndarray, float, Bend] | None:
     """chunked_step with the parameters fixed: the frames are not coupled, so each chunk's step, its
     predicted decrease and its geodesic acceleration are made in one pass (each chunk formed and
     factorised once instead of three times)."""
@@ -353,7 +356,7 @@ def _pose_step(problem: Problem, blocks: FrameBlocks, state: State, damping: np.
         az[sl] = _frame_steps(el.L, el, g2z, None, dp)
     predicted = -(lin_term + 0.5 * quad)
     if not accelerate:
-        return dz, dp, predicted
+        return dz, dp, predicted, None
     if 4.0 * float(np.sum(az**2)) > GEODESIC_RATIO**2 * float(np.sum(dz**2)):
-        return dz, dp, predicted
-    return dz + 0.5 * az, dp, predicted
+        return dz, dp, predicted, None
+    return dz, dp, predicted, (0.5 * az, dp)

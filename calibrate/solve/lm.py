@@ -13,8 +13,10 @@ back-substituted.  Time and memory grow linearly with the number of frames; the 
 (nz·F + n)² matrix is never formed.  D is Marquardt's diagonal scaling (diag of the
 normal matrix, floored), λ follows Nielsen's update on the gain ratio.  The root rotation
 and the hinge axes are updated on their manifolds (see Problem.retract_parameters and
-kinematics.retract_root).  Each step carries a geodesic acceleration (Transtrum & Sethna 2012),
-which lets it bend along curved valleys of the cost (see _accelerate).
+kinematics.retract_root).  Each step may carry a geodesic acceleration (Transtrum & Sethna 2012),
+which lets it bend along curved valleys of the cost (see _accelerate); the bent and the plain step
+are both evaluated, the lower taken, and the acceleration is dropped for the rest of a run where its
+bend does not pay (_BlockArrow._bent_or_not).
 
 Termination (first met wins, reported in words):
   relative cost decrease of an accepted step < ftol;  its absolute decrease < atol (the cost is
@@ -37,7 +39,7 @@ from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
 from .assembly import back_substitute, forward_substitute
-from .chunks import FrameBlocks, chunked_step, each_chunk
+from .chunks import Bend, FrameBlocks, chunked_step, each_chunk
 from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, model_decrease, retract
 
 __all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "levenberg_marquardt",
@@ -64,6 +66,8 @@ class SolverSummary:
     coarse_frames: int = 0  # frames of that subsample
     rounds: int = 1  # solves of the subsample (or short trial): more when axes were held and it was solved again
     levels: list[tuple[int, int]] = field(default_factory=list)  # larger subsamples solved next: (frames, iterations)
+    bent: int = 0  # steps taken bent by the geodesic acceleration
+    bend_dropped: int = 0  # the iteration after which the acceleration was dropped (its bend did not pay); 0: never
 
 
 @dataclass
@@ -142,24 +146,24 @@ def null_space(K: np.ndarray, n: int) -> np.ndarray | None:
 
 
 def _accelerate(problem: Problem, state: State, lin: Linearization, fac: _Factored, dz: np.ndarray,
-                dp: np.ndarray, here: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """The LM step v = (dz, dp) with geodesic acceleration (Transtrum & Sethna 2012): the residuals'
-    second derivative along v, r_vv ≈ (r(x + hv) − 2 r(x) + r(x − hv)) / h², gives the correction
-    a = −(J'J + λD)⁻¹ J' r_vv, and the step becomes v + a/2: it bends with a curved valley (such as
-    two hinges in series across a segment with no markers) instead of leaving it.  Kept only while
-    small, 2|a| ≤ GEODESIC_RATIO |v|; otherwise v alone."""
+                dp: np.ndarray, here: tuple) -> Bend:
+    """Half the geodesic acceleration (Transtrum & Sethna 2012) of the LM step v = (dz, dp): the
+    residuals' second derivative along v, r_vv ≈ (r(x + hv) − 2 r(x) + r(x − hv)) / h², gives the
+    correction a = −(J'J + λD)⁻¹ J' r_vv, and the step v + a/2 bends with a curved valley (such as
+    two hinges in series across a segment with no markers) instead of leaving it.  None unless
+    small, 2|a| ≤ GEODESIC_RATIO |v|."""
     h = GEODESIC_H
     plus = problem.residual_parts(retract(problem, state, h * dz, h * dp))
     minus = problem.residual_parts(retract(problem, state, -h * dz, -h * dp))
     second = [(p - 2.0 * x + m) / h**2 for p, x, m in zip(plus, here, minus, strict=True)]
     if not all(np.all(np.isfinite(s)) for s in second):
-        return dz, dp
+        return None
     az, ap = fac.solve(*problem.gradient(lin, *second))
     v2 = float(np.sum(dz**2) + np.sum(dp**2))
     a2 = float(np.sum(az**2) + np.sum(ap**2))
     if 4.0 * a2 > GEODESIC_RATIO**2 * v2:
-        return dz, dp
-    return dz + 0.5 * az, dp + 0.5 * ap
+        return None
+    return 0.5 * az, 0.5 * ap
 
 
 class StepProblem(Protocol):
@@ -193,6 +197,10 @@ class StepProblem(Protocol):
 # an iteration on a long trial); at this damping a step is shortened only in directions whose curvature
 # (Marquardt-scaled) is under a millionth of the largest: those a rejected step has overshot.
 LAMBDA_REJECTED = 1e-6
+# The geodesic acceleration is kept while its bend pays: a bent step lowering the cost by at least BEND_GAIN
+# times what the plain step does (a bent step costs about a third more), judged on BEND_TRIALS steps running.
+BEND_GAIN = 1.25
+BEND_TRIALS = 2
 
 
 def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
@@ -279,6 +287,8 @@ class _BlockArrow:
         # Geodesic acceleration needs the residuals' second derivative, which a robust loss's changing
         # weights would blur: plain least squares only.
         self.accelerate = options.geodesic and problem.loss == "linear"
+        self.unpaid = 0  # steps running whose bend did not pay (_bent_or_not)
+        self.costs: dict[int, tuple[State, float]] = {}  # the cost of the point the last step chose
         self.blocks: FrameBlocks | None = None
         self.here: tuple | None = None
         self.N: np.ndarray | None = None
@@ -306,7 +316,7 @@ class _BlockArrow:
             summary.linear_solver_seconds += time.perf_counter() - t0
             if out is None:
                 return None
-            dz, dp, predicted = out
+            dz, dp, predicted, bend = out
         else:
             lin = blocks.linearization
             fac = factor_step(lin, lam, Dz, self.pose_only, self.N, self.work)
@@ -316,14 +326,46 @@ class _BlockArrow:
             dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
             summary.linear_solver_seconds += time.perf_counter() - t0
             predicted = model_decrease(lin, dz, dp)
+            bend = None
             if self.accelerate:
                 t0 = time.perf_counter()
-                dz, dp = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
+                bend = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
                 summary.evaluate_seconds += time.perf_counter() - t0
+        trial = retract(self.problem, state, dz, dp)
+        self.costs = {}
+        if bend is not None:
+            trial, dz, dp = self._bent_or_not(state, trial, dz, dp, bend)
         step_norm = float(np.sqrt(np.sum(dz**2) + np.sum(dp**2)))
-        return retract(self.problem, state, dz, dp), predicted, step_norm
+        return trial, predicted, step_norm
+
+    def _bent_or_not(self, state: State, plain: State, dz: np.ndarray, dp: np.ndarray,
+                     bend: tuple[np.ndarray, np.ndarray]) -> tuple[State, np.ndarray, np.ndarray]:
+        """The step bent by the geodesic acceleration or the plain step, whichever reaches the lower cost
+        (both are evaluated; the chosen point's cost is kept for the loop's test).  Where the bend does not
+        lower the cost by BEND_GAIN times the plain step's decrease in BEND_TRIALS steps running, the
+        acceleration is dropped for the rest of the run: on gait's valleys it bends the steps no better than
+        plain Gauss–Newton and costs a third more per step (docs/benchmarks.md)."""
+        bz, bp = bend
+        bent = retract(self.problem, state, dz + bz, dp + bp)
+        c0, c_plain, c_bent = self.blocks.cost, self.cost(plain), self.cost(bent)
+        if c_bent < c0 and (c_plain >= c0 or c0 - c_bent >= BEND_GAIN * (c0 - c_plain)):
+            self.unpaid = 0
+        elif c_plain < c0:  # both rejected tells nothing
+            self.unpaid += 1
+            if self.unpaid >= BEND_TRIALS:
+                self.accelerate = False
+                self.summary.bend_dropped = self.summary.iterations
+        if c_bent < c_plain:
+            self.costs[id(bent)] = (bent, c_bent)
+            self.summary.bent += 1
+            return bent, dz + bz, dp + bp
+        self.costs[id(plain)] = (plain, c_plain)
+        return plain, dz, dp
 
     def cost(self, state: State) -> float:
+        kept = self.costs.get(id(state))
+        if kept is not None and kept[0] is state:
+            return kept[1]
         t0 = time.perf_counter()
         c = self.problem.cost(state)
         self.summary.evaluate_seconds += time.perf_counter() - t0
