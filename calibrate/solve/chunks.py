@@ -215,8 +215,8 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
     None (`here`: the residual parts at `state`); None if a block is not positive definite.  Chunks
     not kept are formed again in each pass: once to eliminate them (the Schur complement), once to
     back-substitute (the step, its predicted decrease and the acceleration's right-hand side), once
-    more for the acceleration's back-substitution.  The same
-    arithmetic as calibrate.solve.lm's step on the whole trial, up to the order of sums."""
+    more for the acceleration's back-substitution.  The same arithmetic as calibrate.solve.lm's step
+    on the whole trial, up to the order of sums."""
     wp = blocks.with_parameters
     n = blocks.gp.size if wp else 0
     damping = lam * Dz

@@ -66,8 +66,10 @@ class SolverSummary:
     coarse_frames: int = 0  # frames of that subsample
     rounds: int = 1  # solves of the subsample (or short trial): more when axes were held and it was solved again
     levels: list[tuple[int, int]] = field(default_factory=list)  # larger subsamples solved next: (frames, iterations)
-    bent: int = 0  # steps taken bent by the geodesic acceleration
-    bend_dropped: int = 0  # the iteration after which the acceleration was dropped (its bend did not pay); 0: never
+    bent: int = 0  # steps whose bent point (geodesic acceleration) was chosen over the plain one, accepted or not
+    # The iteration of this run after which the acceleration was dropped (its bend did not pay); 0: never.  A
+    # summary merged from several runs (calibrate.calibration.pipeline.merge_summaries) keeps 0.
+    bend_dropped: int = 0
 
 
 @dataclass
