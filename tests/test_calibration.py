@@ -260,6 +260,34 @@ def test_each_step_is_the_better_of_plain_and_bent_and_a_bend_that_does_not_pay_
     assert lm.BEND_TRIALS <= summary.bend_dropped < summary.iterations and summary.bent == 0
 
 
+def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
+    """Soft-tissue squats with the right heel and toe labels exchanged for the whole trial: the calibration
+    completes (a segment scale's prior-only variance came out a rounding below zero and its identifiability
+    ratio raised ValueError), its marker RMS shows the swap, many times the true labels' ~1 mm, and the
+    segment sizes it ends in are flagged as implausible (summary and report), with the labels to check."""
+    sim = simulate_squats(human, frames=600, noise_mm=0.5, sta_mm=3.0, seed=2)
+    labels = list(sim.trial.labels)
+    i, j = labels.index("RHEE"), labels.index("RTOE")
+    labels[i], labels[j] = labels[j], labels[i]
+    trial = Trial(labels, sim.trial.markers[::4], sim.trial.rate / 4, 0, None)
+    cal = calibrate(human, trial, Settings(outliers=0))
+    scales = [c for c in cal.changes if c.group == "scale"]
+    assert len(scales) == len(human.segments)
+    assert all(math.isnan(c.prior_ratio) or c.prior_ratio >= 0 for c in scales)
+    assert cal.marker_rms > 0.005
+    # ... and the geometry it ends in is no body: flagged, with the swapped labels among those to check
+    bad = {b.segment: b for b in cal.implausible}
+    scale = dict(zip([sg.name for sg in human.segments], cal.params.scale, strict=True))
+    median = float(np.median(cal.params.scale))
+    assert bad and all(not 1 / 1.8 <= scale[n] / median <= 1.8 for n in bad)
+    assert any({"RHEE", "RTOE"} <= set(b.labels) for b in bad.values())
+    assert "implausible" in cal.text() and cal.report()["implausible"][0]["segment"] in bad
+    # the true labels: nothing flagged
+    right = calibrate(human, Trial(list(sim.trial.labels), sim.trial.markers[::4], sim.trial.rate / 4, 0, None),
+                      Settings(outliers=0))
+    assert right.implausible == [] and right.marker_rms < 0.002
+
+
 # ---------------------------------------------------------------------- accuracy
 def test_noise_free_recovers_the_subject(noise_free):
     sim, cal = noise_free

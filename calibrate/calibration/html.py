@@ -61,6 +61,10 @@ def _notes(report: dict) -> str:
     conv = report["solver"]["converged"]
     items.append(f"<li class={'ok' if conv else 'bad'}>solver {'converged' if conv else 'DID NOT CONVERGE'}: "
                  f"{_e(report['solver']['termination'])}</li>")
+    for b in report.get("implausible", []):
+        items.append(f"<li class=bad>implausible size: {_e(b.get('segment'))} scale {b.get('scale', 0):.2f} "
+                     f"({b.get('relative_to_median', 0):.2f} of the subject's median); check the labels "
+                     f"{_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

@@ -182,7 +182,9 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         else:
             c = int(block.cols[0])
             std = np.array([math.sqrt(max(cov[c, c], 0.0))])
-            ratio = float(std[0] / math.sqrt(prior_cov[c, c]))
+            # The prior-only variance (a pseudo-inverse) can come out zero or a rounding below it: no ratio.
+            prior_sd = math.sqrt(max(float(prior_cov[c, c]), 0.0))
+            ratio = float(std[0] / prior_sd) if prior_sd > 0 else float("nan")
             status = Identified.YES if ratio < IDENTIFIED else Identified.NO
             note = "" if status.identified else "the trial barely sizes this segment: held by the prior"
         out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),

@@ -107,6 +107,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in cal.unresolved],
+        "implausible": [b.to_json() for b in cal.implausible],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
@@ -291,6 +292,13 @@ def summary_text(cal) -> str:
             lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
         else:
             lines.append(f"  left out {m.label}: {m.reason}")
+    bad = cal.implausible
+    if bad:
+        median = float(np.median(cal.params.scale))
+        lines.append("  implausible  " + ", ".join(f"{b.segment} scale {b.scale:.2f}" for b in bad)
+                     + f" against the subject's median {median:.2f}: the markers do not fit the model there; "
+                     f"check the labels of {', '.join(dict.fromkeys(x for b in bad for x in b.labels)) or '-'} "
+                     "(a swap for the whole trial?)")
     unresolved = cal.unresolved
     if unresolved:
         lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "

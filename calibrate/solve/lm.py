@@ -309,6 +309,12 @@ class _BlockArrow:
         return self.blocks.gradient_max()
 
     def step(self, state: State, lam: float) -> tuple[State, float, float] | None:
+        # A step far too long (a scale's exp overflowing, a position divided by a scale gone to zero) gives
+        # a non-finite point, which the loop rejects: no floating-point warnings for it.
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            return self._step(state, lam)
+
+    def _step(self, state: State, lam: float) -> tuple[State, float, float] | None:
         blocks, summary = self.blocks, self.summary
         Dz = marquardt_diagonal(blocks.diagonal, float(blocks.diagonal.max(initial=0.0)))
         t0 = time.perf_counter()
@@ -349,7 +355,8 @@ class _BlockArrow:
         plain Gauss–Newton and costs a third more per step (docs/benchmarks.md)."""
         bz, bp = bend
         bent = retract(self.problem, state, dz + bz, dp + bp)
-        c0, c_plain, c_bent = self.blocks.cost, self.cost(plain), self.cost(bent)
+        c0 = self.blocks.cost
+        c_plain, c_bent = (c if np.isfinite(c) else np.inf for c in (self.cost(plain), self.cost(bent)))
         if c_bent < c0 and (c_plain >= c0 or c0 - c_bent >= BEND_GAIN * (c0 - c_plain)):
             self.unpaid = 0
         elif c_plain < c0:  # both rejected tells nothing
@@ -369,7 +376,8 @@ class _BlockArrow:
         if kept is not None and kept[0] is state:
             return kept[1]
         t0 = time.perf_counter()
-        c = self.problem.cost(state)
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            c = self.problem.cost(state)
         self.summary.evaluate_seconds += time.perf_counter() - t0
         return c
 
