@@ -150,7 +150,7 @@ class Calibration:
                 continue
             near = [sg.name] + [j.parent for j in model.joints if j.child == sg.name] \
                 + [j.child for j in model.joints if j.parent == sg.name]
-            labels = tuple(dict.fromkeys(m for n in near for m in by_name[n].markers))
+            labels = tuple(dict.fromkeys(m for n in near if n in by_name for m in by_name[n].markers))
             out.append(Implausible(sg.name, float(s), rel, labels))
         return out
 
