@@ -71,3 +71,31 @@ def test_tracks_no_body_made_are_refused_in_one_line(human):
     with pytest.raises(CalibrateError) as e:
         label_tracks(human, trial)
     assert "\n" not in str(e.value) and "nor does the scaled base model fit them" in str(e.value)
+
+
+def test_the_labelling_whose_calibration_fits_better_is_kept(human):
+    """Step 9 of label_tracks: of two labellings of one walk, the right one (the simulator's truth) is kept,
+    whichever route gave it — against a heel track taken for the ankle marker (the motion shows it: the
+    ankle bends), against the elbow and forearm markers exchanged (a walk barely bends its elbows, so the
+    fit hardly shows it; the calibration moves those markers far from their places on the base model),
+    and against the same labels with the wrist and finger tracks left unlabelled."""
+    from calibrate.track.labels import _check, better_labelling
+
+    sim = simulate_gait(human, 300, noise_mm=0.5, sta_mm=3.0, seed=1)
+    keep = [i for i, n in enumerate(sim.trial.labels) if n in human.marker_names]
+    tracks, truth = _unlabelled(sim.trial, keep, seed=3)
+    inverse = {v: k for k, v in truth.items()}
+    right = Labelling(dict(truth), [], {}, 1.0, reserved=frozenset(human.marker_names))
+    heel = {k: v for k, v in truth.items() if v not in ("LHEE", "LANK")} | {inverse["LHEE"]: "LANK"}
+    elbow = dict(truth) | {inverse["RELB"]: "RFRM", inverse["RFRM"]: "RELB"}
+    hands = {k: v for k, v in truth.items() if v not in ("LWRA", "LWRB", "LFIN", "RWRA", "RWRB", "RFIN")}
+    fit_right, moved_right = _check(human, tracks, right)
+    for labels, changed in ((heel, ("LANK",)), (elbow, ("RELB", "RFRM"))):
+        wrong = Labelling(labels, [], {}, 1.0, reserved=frozenset(human.marker_names))
+        fit_wrong, moved_wrong = _check(human, tracks, wrong)
+        assert fit_wrong > fit_right
+        assert max(moved_wrong[m] for m in changed) > max(moved_right[m] for m in changed)
+    for labels in (heel, elbow, hands):
+        other = Labelling(labels, [], {}, 1.0, reserved=frozenset(human.marker_names))
+        assert better_labelling(human, tracks, right, other) is right
+        assert better_labelling(human, tracks, other, right) is right

@@ -382,7 +382,8 @@ class _BlockArrow:
         return c
 
     def norm(self, state: State) -> float:
-        return float(np.sqrt(np.sum(state.Z**2) + np.sum(state.p**2)))
+        with np.errstate(over="ignore"):  # a trial step gone far astray (rejected by its cost): inf, quietly
+            return float(np.sqrt(np.sum(state.Z**2) + np.sum(state.p**2)))
 
 
 def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions | None = None, *,

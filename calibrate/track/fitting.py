@@ -1,5 +1,6 @@
 """Labels for unlabelled tracks by fitting the base model to them (what label_tracks falls back on when
-the tracks do not group into rigid segments: skin markers).
+the tracks do not group into rigid segments: skin markers; where they do, the labelling it checks the
+groups' against).
 
 Seed 002's grouping (calibrate.seed.associate) needs markers that ride rigidly on their segments.  Skin
 markers do not: on the real Plug-in Gait walk (../shared/data/real/pig_walk) the pelvis markers' distances
