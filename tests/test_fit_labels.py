@@ -53,6 +53,48 @@ def test_label_tracks_names_the_real_walk_whose_markers_do_not_group(human):
     assert labelling.reserved == frozenset(human.marker_names)
 
 
+@pytest.mark.skipif(not (REAL / "static.c3d").exists(), reason="real pig_walk trials not present")
+def test_fit_labels_names_the_real_static_trial_with_its_arms_held_out(human):
+    """The real Plug-in Gait static trial (arms abducted, elbows bent), labels removed: the first assignment
+    with the model's arms down took a thigh track for the hand and left the ten arm tracks unlabelled;
+    with the arms raised sideways tried too, every track is named right."""
+    static = read_trial(REAL / "static.c3d")
+    trial, truth = _unlabelled(static, [i for i, name in enumerate(static.labels) if name in human.marker_names],
+                               seed=0)
+    fitted = fit_labels(human, build_kinematics(human), trial)
+    assert {t: fitted.labels.get(t) for t in truth} == truth
+
+
+def test_arms_raised_turn_only_the_arms_about_their_shoulders(human):
+    """The raised-arm layouts of the first assignment: every arm marker keeps its distance to its shoulder's
+    centre and rises; every other marker stays where it stands."""
+    from calibrate.track.fitting import ARM_ANGLES, _arms_raised
+
+    kin = build_kinematics(human)
+    params = human.parameters()
+    z0, q0 = np.zeros(human.nz), np.array([0.0, 0.0, 0.0, 1.0])
+    standing = np.asarray(kin.markers(z0, q0, params))
+    centres = np.asarray(kin.centres(z0, q0, params))
+    layouts = _arms_raised(human, kin, params, standing)
+    assert len(layouts) == len(ARM_ANGLES)
+    shoulders = {side: centres[[j.name for j in human.joints].index(f"shoulder_{side}")] for side in "lr"}
+    for layout, angle in zip(layouts, ARM_ANGLES, strict=True):
+        for k, marker in enumerate(human.markers):
+            side = marker.name[0].lower()
+            arm = marker.name[1:] in ("UPA", "ELB", "FRM", "WRA", "WRB", "FIN")
+            if not arm:
+                np.testing.assert_allclose(layout[k], standing[k], atol=1e-12)
+                continue
+            c = shoulders[side]
+            assert np.linalg.norm(layout[k] - c) == pytest.approx(np.linalg.norm(standing[k] - c), abs=1e-9)
+            out = 1.0 if side == "l" else -1.0  # the outward direction: +y on the left
+            before, after = standing[k] - c, layout[k] - c
+            assert after[0] == pytest.approx(before[0], abs=1e-12)  # turned about the forward axis
+            turn = np.arctan2(after[2], out * after[1]) - np.arctan2(before[2], out * before[1])
+            turn = np.angle(np.exp(1j * turn))
+            assert turn == pytest.approx(angle, abs=1e-9)  # raised sideways, outward
+
+
 def test_an_unlabelled_track_never_keeps_a_model_marker_name():
     """The labelled trial written out: a track left unlabelled whose name is a model marker's (the tracker's
     T10, when no track was labelled T10) is renamed, so reading the file back does not take it for T10."""

@@ -19,15 +19,17 @@ until the labels stop changing.  The first assignment compares the subject in th
 stands tallest with the model standing (its neutral pose), scaled to the tracks' height, its lowest
 markers on the lowest tracks, its centroid on theirs, turned to each of ``HEADINGS`` headings about the
 vertical (and to the direction of travel when the tracks travel): the heading whose labelling fits best
-(assignment cost, tracks left out counted at ``NEAR``) is kept.  Then the tracks still unlabelled are
-matched to the model's markers still free at a looser ``LEFTOVER``; each segment of a few markers
-reordered where its layout fits better (_shapes: the pelvis, the head); each two-marker segment's pair
-exchanged where the model then fits better (_pair_swaps: the wrist's).
+(assignment cost, tracks left out counted at ``NEAR``) is kept; at that heading the model with its arms
+raised sideways (``ARM_ANGLES``; a static trial holds the arms out from the body) is tried too.  Then the
+tracks still unlabelled are matched to the model's markers still free at a looser ``LEFTOVER``; each
+segment of a few markers reordered where its layout fits better (_shapes: the pelvis, the head); each
+two-marker segment's pair exchanged where the model then fits better (_pair_swaps: the wrist's).
 
 Measured (scripts/bench_labelling.py; the true trajectories with their labels removed and shuffled): the
-Plug-in Gait walk 39 of 39 right (refused by the grouping); simulated gait with soft-tissue artefact 3
-and 10 mm, two seeds, 37–39 of 39, at most one wrong; simulated squats, whose arms sweep 120° and which
-stand in place (no direction of travel), 26–32 right and up to 3 wrong (a foot's markers turned round).
+Plug-in Gait walk and static trial 39 of 39 right (the walk refused by the grouping); simulated gait with
+soft-tissue artefact 3 and 10 mm, two seeds, 37–39 of 39, at most one wrong; simulated squats, whose arms
+sweep 120° and which stand in place (no direction of travel), 32–36 right and 2–3 wrong (a foot's markers
+turned round, or an arm's).
 """
 
 from __future__ import annotations
@@ -58,6 +60,9 @@ ROUNDS = 14  # assignment and inverse-kinematics rounds at most, per heading
 SHAPE_MARKERS = 5  # segments of at most this many labelled markers have their orderings checked (_shapes)
 SHAPE_GAIN = 0.002  # m: a reordering must fit the segment's layout this much better to be taken
 SCALES = (0.75, 1.3)  # the subject's height over the base model's, at most
+ARM_ANGLES = (np.radians(45.0), np.radians(90.0))  # arms raised sideways, tried for the first assignment
+SHOULDER_HEIGHT = 0.7  # a shoulder sits above this share of the standing markers' height ...
+SHOULDER_WIDTH = 0.06  # ... and this share of it off the midline, its parent joint nearer the midline
 
 
 @dataclass(frozen=True)
@@ -93,19 +98,69 @@ def fit_labels(model: Model, kin: Kinematics, trial: Trial, X: np.ndarray | None
     if np.hypot(travel[0], travel[1]) > TRAVEL:
         headings.insert(0, float(np.arctan2(travel[1], travel[0])))
     best: tuple[FittedLabels, np.ndarray] | None = None
-    for heading in headings:
+
+    def first(layout: np.ndarray, heading: float) -> None:
+        nonlocal best
         c, s = np.cos(heading), np.sin(heading)
-        M = (standing - standing.mean(axis=0)) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+        M = (layout - layout.mean(axis=0)) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
         M = centroid[:, None, :] + M[None]
         M[..., 2] += (floor - M[..., 2].min(axis=1))[:, None]  # arms held up or forward move the centroid
         labels, cost, M = _rounds(kin, trial, Xs, M, tall, params, names)
         if best is None or cost < best[0].cost:
             best = FittedLabels(labels, scale, float(heading), cost), M
+
+    for heading in headings:
+        first(standing, heading)
+    # A static trial holds the arms out from the body (Plug-in Gait's: abducted, elbows bent): at the best
+    # heading the first assignment is tried again with the model's arms raised sideways.
+    for layout in _arms_raised(model, kin, params, standing):
+        first(layout, best[0].heading)
     # The heading chosen: its leftovers labelled, its segments' orderings and two-marker pairs checked
     fitted, M = best
     labels, cost = _leftovers(trial, Xs, M, names, fitted.labels, fitted.cost)
     labels = _shapes(model, trial, Xs, standing, labels)
     return FittedLabels(_pair_swaps(model, kin, trial, Xs, params, labels), scale, fitted.heading, cost)
+
+
+def _arms_raised(model: Model, kin: Kinematics, params: Parameters, standing: np.ndarray) -> list[np.ndarray]:
+    """The standing model's markers (`standing`) with its arms raised sideways by each of ``ARM_ANGLES``:
+    every marker below a shoulder turned about the forward axis (+x) through its centre.  A shoulder is a
+    joint high on the body (above ``SHOULDER_HEIGHT`` of the markers' height) and off the midline (by
+    more than ``SHOULDER_WIDTH`` of it) whose parent joint is on the midline: the arm's branch from the
+    trunk, whatever the model calls it.  Nothing when the model has no such joint."""
+    z0, q0 = np.zeros(model.nz), np.array([0.0, 0.0, 0.0, 1.0])
+    centres = np.asarray(kin.centres(z0, q0, params))
+    low, height = standing[:, 2].min(), np.ptp(standing[:, 2])
+    mid = float(np.median(standing[:, 1]))
+    index = {j.name: k for k, j in enumerate(model.joints)}
+    into = {j.child: j.name for j in model.joints}  # segment -> the joint that carries it
+    below: dict[str, list[str]] = {}
+    for j in model.joints:
+        below.setdefault(j.parent, []).append(j.child)
+    arms = []
+    for j in model.joints:
+        c = centres[index[j.name]]
+        up = into.get(j.parent)
+        if (c[2] < low + SHOULDER_HEIGHT * height or abs(c[1] - mid) < SHOULDER_WIDTH * height or up is None
+                or abs(centres[index[up]][1] - mid) >= SHOULDER_WIDTH * height):
+            continue
+        segs, todo = set(), [j.child]
+        while todo:
+            seg = todo.pop()
+            segs.add(seg)
+            todo += below.get(seg, [])
+        on = [k for k, m in enumerate(model.markers) if m.segment in segs]
+        if on:
+            arms.append((c, np.sign(c[1] - mid), on))
+    out = []
+    for angle in (ARM_ANGLES if arms else ()):
+        layout = standing.copy()
+        for c, side, on in arms:
+            a = side * angle
+            R = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+            layout[on] = c + (standing[on] - c) @ R.T
+        out.append(layout)
+    return out
 
 
 def _shapes(model: Model, trial: Trial, Xs: np.ndarray, layout: np.ndarray,
