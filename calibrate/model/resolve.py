@@ -72,7 +72,7 @@ class Resolution:
         return tuple(s.segment for s in self.segments)
 
 
-def _descendants(model: Model) -> dict[str, list[str]]:
+def descendants(model: Model) -> dict[str, list[str]]:
     """Segment -> itself and every segment below it."""
     kids: dict[str, list[str]] = {s.name: [] for s in model.segments}
     for j in model.joints:
@@ -147,7 +147,7 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
     free = [*F.root.cols.tolist(), *(F.angle(d) for d in range(model.n_dofs) if d not in held)]
     names = ["root"] * F.n_root + list(model.dof_names)
     rng = np.random.default_rng(seed)
-    below = _descendants(model)
+    below = descendants(model)
     path = _path_dofs(model)
 
     moves: dict[str, list[bool]] = {s.name: [] for s in model.segments}

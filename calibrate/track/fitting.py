@@ -45,6 +45,7 @@ from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics
 from ..model.model import Model, Parameters
+from ..model.resolve import descendants
 from ..seed.geometry import kabsch_batch
 from ..solve.ik import inverse_kinematics
 
@@ -134,9 +135,7 @@ def _arms_raised(model: Model, kin: Kinematics, params: Parameters, standing: np
     mid = float(np.median(standing[:, 1]))
     index = {j.name: k for k, j in enumerate(model.joints)}
     into = {j.child: j.name for j in model.joints}  # segment -> the joint that carries it
-    below: dict[str, list[str]] = {}
-    for j in model.joints:
-        below.setdefault(j.parent, []).append(j.child)
+    below = descendants(model)
     arms = []
     for j in model.joints:
         c = centres[index[j.name]]
@@ -144,11 +143,7 @@ def _arms_raised(model: Model, kin: Kinematics, params: Parameters, standing: np
         if (c[2] < low + SHOULDER_HEIGHT * height or abs(c[1] - mid) < SHOULDER_WIDTH * height or up is None
                 or abs(centres[index[up]][1] - mid) >= SHOULDER_WIDTH * height):
             continue
-        segs, todo = set(), [j.child]
-        while todo:
-            seg = todo.pop()
-            segs.add(seg)
-            todo += below.get(seg, [])
+        segs = set(below[j.child])
         on = [k for k, m in enumerate(model.markers) if m.segment in segs]
         if on:
             arms.append((c, np.sign(c[1] - mid), on))
