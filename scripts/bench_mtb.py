@@ -202,12 +202,13 @@ def spread3(c: dict, suffix: str) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=50, help="simulations per chain / frame count (default 50)")
-    ap.add_argument("--quick", action="store_true", help="5 runs (CI smoke)")
+    ap.add_argument("--runs", type=int, default=None, help="simulations per chain / frame count (default 50; "
+                                                           "--quick: 5)")
+    ap.add_argument("--quick", action="store_true", help="5 runs and 2 squat seeds (CI smoke)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     a = ap.parse_args()
-    runs = 5 if a.quick else a.runs
+    runs = a.runs if a.runs is not None else (5 if a.quick else 50)
     if runs < 1:
         ap.error("--runs: need at least 1")
     say = (lambda *_: None) if a.json else (lambda s="": print(s, flush=True))

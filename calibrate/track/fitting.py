@@ -18,7 +18,8 @@ it alternates, as iterative closest point does, between
 until the labels stop changing.  The first assignment compares the subject in the frames in which it
 stands tallest with the model standing (its neutral pose), scaled to the tracks' height, its lowest
 markers on the lowest tracks, its centroid on theirs, turned to each of ``HEADINGS`` headings about the
-vertical (and to the direction of travel when the tracks travel): the heading whose labelling fits best
+vertical (and to the direction of travel when the tracks travel), each for ``SCREEN_ROUNDS`` rounds, the
+``SCREEN_KEEP`` whose labellings then fit best to the end: the heading whose labelling fits best
 (assignment cost, tracks left out counted at ``NEAR``) is kept; at that heading the model with its arms
 raised sideways (``ARM_ANGLES``; a static trial holds the arms out from the body) is tried too.  Then the
 tracks still unlabelled are matched to the model's markers still free at a looser ``LEFTOVER``; each
@@ -58,6 +59,8 @@ NEAR = 0.06  # m: ... shrinking by SHRINK a round to this
 SHRINK = 0.7
 LEFTOVER = 0.15  # m: a track still unlabelled takes a free model marker within this median distance
 ROUNDS = 14  # assignment and inverse-kinematics rounds at most, per heading
+SCREEN_ROUNDS = 3  # rounds every heading runs; then ...
+SCREEN_KEEP = 3  # ... the headings whose labels fit best after them run to the end
 SHAPE_MARKERS = 5  # segments of at most this many labelled markers have their orderings checked (_shapes)
 SHAPE_GAIN = 0.002  # m: a reordering must fit the segment's layout this much better to be taken
 SCALES = (0.75, 1.3)  # the subject's height over the base model's, at most
@@ -100,22 +103,28 @@ def fit_labels(model: Model, kin: Kinematics, trial: Trial, X: np.ndarray | None
         headings.insert(0, float(np.arctan2(travel[1], travel[0])))
     best: tuple[FittedLabels, np.ndarray] | None = None
 
-    def first(layout: np.ndarray, heading: float) -> None:
-        nonlocal best
+    def placed(layout: np.ndarray, heading: float) -> np.ndarray:
+        """The model's markers (frames, markers, 3): `layout` turned to `heading`, on the tracks' centroid and floor."""
         c, s = np.cos(heading), np.sin(heading)
         M = (layout - layout.mean(axis=0)) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
         M = centroid[:, None, :] + M[None]
         M[..., 2] += (floor - M[..., 2].min(axis=1))[:, None]  # arms held up or forward move the centroid
-        labels, cost, M = _rounds(kin, trial, Xs, M, tall, params, names)
-        if best is None or cost < best[0].cost:
-            best = FittedLabels(labels, scale, float(heading), cost), M
+        return M
 
-    for heading in headings:
-        first(standing, heading)
+    def keep(heading: float, fitted: _Rounds) -> None:
+        nonlocal best
+        if best is None or fitted.cost < best[0].cost:
+            best = FittedLabels(fitted.labels, scale, float(heading), fitted.cost), fitted.M
+
+    # Every heading's first SCREEN_ROUNDS rounds; the SCREEN_KEEP that fit best then run to the end.
+    screened = [(h, _rounds(kin, trial, Xs, placed(standing, h), tall, params, names, stop=SCREEN_ROUNDS))
+                for h in headings]
+    for heading, fitted in sorted(screened, key=lambda x: x[1].cost)[:SCREEN_KEEP]:
+        keep(heading, _rounds(kin, trial, Xs, fitted.M, tall, params, names, resume=fitted))
     # A static trial holds the arms out from the body (Plug-in Gait's: abducted, elbows bent): at the best
     # heading the first assignment is tried again with the model's arms raised sideways.
     for layout in _arms_raised(model, kin, params, standing):
-        first(layout, best[0].heading)
+        keep(best[0].heading, _rounds(kin, trial, Xs, placed(layout, best[0].heading), tall, params, names))
     # The heading chosen: its leftovers labelled, its segments' orderings and two-marker pairs checked
     fitted, M = best
     labels, cost = _leftovers(trial, Xs, M, names, fitted.labels, fitted.cost)
@@ -262,24 +271,40 @@ def _median_distances(Xs: np.ndarray, M: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(C), C, 1e3)
 
 
+@dataclass(frozen=True)
+class _Rounds:
+    """Where _rounds stopped: the labels, their assignment cost, the model's markers at the last poses, the
+    next round and whether the labels had settled."""
+
+    labels: dict[str, str]
+    cost: float
+    M: np.ndarray
+    next: int
+    settled: bool
+
+
 def _rounds(kin: Kinematics, trial: Trial, Xs: np.ndarray, M: np.ndarray, tall: np.ndarray, params: Parameters,
-            names: list[str]) -> tuple[dict[str, str], float, np.ndarray]:
-    """Step 1 and 2 of the module docstring from the model's markers `M` (frames, markers, 3): the labels,
-    their assignment cost and the model's markers at the last poses."""
+            names: list[str], stop: int = ROUNDS, resume: _Rounds | None = None) -> _Rounds:
+    """Step 1 and 2 of the module docstring from the model's markers `M` (frames, markers, 3), rounds up to
+    `stop` (or until the labels settle); `resume`: go on from where an earlier call stopped."""
     n = Xs.shape[1]
-    labels: dict[str, str] = {}
-    cost = np.inf
-    for k in range(ROUNDS):
+    labels: dict[str, str] = {} if resume is None else resume.labels
+    cost = np.inf if resume is None else resume.cost
+    if resume is not None and resume.settled:
+        return resume
+    k = 0 if resume is None else resume.next
+    while k < stop:
         leave = max(NEAR, FAR * SHRINK**k)
         C = _median_distances(Xs[tall] if k == 0 else Xs, M[tall] if k == 0 else M)
         rows, cols = linear_sum_assignment(np.hstack([C, np.full((n, n), leave)]))
         new = {trial.labels[i]: names[j] for i, j in zip(rows, cols, strict=True) if j < len(names)}
         cost = float(sum(C[i, j] if j < len(names) else NEAR for i, j in zip(rows, cols, strict=True)))
+        k += 1
         if new == labels and leave <= NEAR:
-            break
+            return _Rounds(labels, cost, M, k, True)
         labels = new
         M = _posed(kin, trial, Xs, params, labels)
-    return labels, cost, M
+    return _Rounds(labels, cost, M, k, k >= ROUNDS)
 
 
 def _posed(kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Parameters,
