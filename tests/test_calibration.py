@@ -453,8 +453,11 @@ def test_outputs_read_back(noisy, tmp_path):
         pos = np.array([data.oMf[i].translation for i in fids])
         err.append(np.linalg.norm(pos - obs[f], axis=1))
     err = np.array(err)
+    for o in cal.outliers:  # the report's figures are over the positions kept (rejected ones: its own list)
+        err[o.frame, subject.marker_index(o.marker)] = np.nan
     rms = float(np.sqrt(np.nanmean(err**2)))
     rep = json.loads((tmp_path / "s.json").read_text())
+    assert rep["outliers"]["count"] == len(cal.outliers) <= 3
     # Every frame, every marker: the report's figures are Pinocchio's to their rounding (1e-6 mm);
     # per marker, so that one marker put in the wrong place cannot hide in the aggregate.
     assert rms == pytest.approx(rep["markers"]["rms_mm"] / 1000, rel=1e-6)

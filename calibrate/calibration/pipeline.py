@@ -66,7 +66,7 @@ HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.au
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
 
 
-OUTLIER_PASSES = 2  # rejection rounds, solve, noise learnt again: at most this many times
+SETTLE_PASSES = 2  # outlier tests, each then a solve (the second with the noise learnt at the first's solution)
 
 
 NOISE_ROUNDS = 3  # learn-and-solve rounds on the subsample (then once more on every frame)
@@ -249,20 +249,47 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
-    problem, state, summary, scatter = _solve(problem, start, spans, run, solver, say)
+    problem, state, summary, scatter, solved = _solve(problem, start, spans, run, solver, say)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = replace(settings, hold_axes=problem.settings.hold_axes)  # as used: with the axes held above
     rejected: list[Outlier] = []
     hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
     fixed = fixed_noise(problem, run)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
-    reweighed = False  # the noise was learnt again and nothing solved since
-    for _ in range(OUTLIER_PASSES if run.outliers > 0 else 0):
-        # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
-        # worst marker of each frame, re-solve those poses, and look again.
+    # Unless the trial was short enough to be solved whole, _solve fitted every frame's pose to the
+    # subsample's geometry and learnt the noise there: the outliers are tested at those poses and every frame
+    # then solved, once whatever the test found.
+    unsolved = not solved
+    observed = problem.observed.copy()  # before any rejection: what a rejected position was
+    for _ in range(SETTLE_PASSES):
+        # At the solution: the noise learnt again and the outliers tested against it, both at once; if either
+        # changed the problem, solved again.
+        changed = unsolved
+        if fixed is not None and not unsolved:
+            sigma, scatter = relearn(problem, state, fixed, say, trial_of)
+            if sigma is not None:
+                problem = problem.with_noise(sigma)
+                changed = True
+        if rejected and not unsolved:
+            # Rejected at poses not yet solved jointly, or against a scatter since learnt again: a position
+            # that this solution fits within the outlier test (against the scatter just learnt) is an
+            # observation again.
+            back = np.zeros(problem.seen.shape, dtype=bool)
+            for o in rejected:
+                back[spans[o.trial].start + o.frame, subject.marker_index(o.marker)] = True
+            back &= ~find_outliers(problem.with_observed(np.where(back[..., None], observed, problem.observed)),
+                                   state, run, scatter, trial_of)[0]
+            if back.any():
+                say(Progress("solve", f"{int(back.sum())} rejected marker positions fit the solution: kept"))
+                problem = problem.with_observed(np.where(back[..., None], observed, problem.observed))
+                rejected = [o for o in rejected if not back[spans[o.trial].start + o.frame,
+                                                            subject.marker_index(o.marker)]]
+                changed = True
         found = 0
         h = None  # the leverage at the current problem and state: formed again only where a round changes them
-        for _ in range(OUTLIER_ROUNDS):
+        for _ in range(OUTLIER_ROUNDS if run.outliers > 0 else 0):
+            # One spike drags its frame's pose, so every marker of that frame looks bad: reject only the
+            # worst marker of each frame, re-solve those poses, and look again.
             if h is None:
                 h, _ = leverage(problem, state, Countdown(say, "solve", "outlier test of every marker position"))
             bad, err = find_outliers(problem, state, run, scatter, trial_of, h=h)
@@ -291,26 +318,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                           progress=_clock(say, sub, solver, "poses, "))
             state = with_frames(state, frames, part)
             h[frames] = leverage(sub, part)[0]
-        if not found and not reweighed:
+        if not (found or changed):
             break
-        say(Progress("solve", "again without the outliers" if found else "again with the noise learnt again"))
-        state, again = levenberg_marquardt(problem, state, solver,
-                                           progress=_clock(say, problem, solver, "again, "))
+        say(Progress("solve", f"all {problem.F} frames" if unsolved else "again without the outliers" +
+                     (" and with the noise learnt again" if changed else "") if found else
+                     "again with the noise learnt again"))
+        state, again = levenberg_marquardt(problem, state, solver, progress=IterationClock(
+            say, "all frames, ", solver.atol, solver.ftol) if unsolved else _clock(say, problem, solver, "again, "))
         summary = _merge(summary, again)
-        reweighed = False
-        if fixed is None or not found:
-            break
-        # The scatter measured before, at a fit dragged by what is now left out, was too large: measure
-        # it again and, if it changed, look for outliers against it and solve again.
-        sigma, scatter = relearn(problem, state, fixed, say, trial_of)
-        if sigma is None:
-            break
-        problem = problem.with_noise(sigma)
-        reweighed = True
-    if reweighed:
-        state, again = levenberg_marquardt(problem, state, solver,
-                                           progress=_clock(say, problem, solver, "again, "))
-        summary = _merge(summary, again)
+        unsolved = False
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
         say(Progress("solve", f"segment frames turned to zero joint angles in "
@@ -385,12 +401,14 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 
 
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
-           say: Callable[[str], None]) -> tuple[Problem, State, SolverSummary, np.ndarray]:
+           say: Callable[[str], None]) -> tuple[Problem, State, SolverSummary, np.ndarray, bool]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
-    the trials by their length), then every frame.  With `run.auto_hold`, the axes of the
+    the trials by their length; a long trial then through larger subsamples), then every frame's pose
+    fitted to that geometry and the noise learnt on every frame.  With `run.auto_hold`, the axes of the
     coordinates that the subsample's solution shows still are held at the base model's and the
     subsample solved again.  Returns the problem (with those axes held and the noise learnt), the
-    solution, its summary and the markers' noise SDs."""
+    state, its summary, the markers' noise SDs and whether every frame was solved jointly (a short trial,
+    solved whole; otherwise the caller's solve on every frame follows)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, COARSE_FRAMES)
     fixed = fixed_noise(problem, run)
@@ -436,7 +454,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         state = replace(state, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary, scatter
+        return problem, state, coarse_summary, scatter, True
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -454,21 +472,26 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         per_frame = part.seconds / max(part.iterations, 1) / idx.size  # s per iteration and frame, for the estimate
     # A long trial's first iteration on every frame takes a while before its line: say how long, from the
     # largest subsample's pace (the time per iteration is linear in the frames).
-    say(f"solve: all {problem.F} frames" + (f" (about {per_frame * problem.F:.0f} s per iteration, at the "
-                                              f"{solved.size}-frame subsample's pace)" if levels else ""))
-    state, summary = _solve_frames(problem, _carried(state, solved, start, spans), solved, solver, say,
-                                   "all frames, ", IterationClock(say, "all frames, ", solver.atol, solver.ftol))
+    # Every frame's pose fitted to the subsample's geometry and the noise learnt on every frame there: the
+    # solve on every frame (_calibrate, after the outlier test) then starts under the weights every frame
+    # shows.  Solved first under the subsample's weights and then again under these, pig_walk took two runs
+    # of 15-50 steps where one now takes 16 (docs/benchmarks.md).
+    say(f"solve: all {problem.F} frames: poses fitted to the subsample's geometry, the noise learnt there"
+        + (f" (then about {per_frame * problem.F:.0f} s per iteration, at the {solved.size}-frame subsample's "
+           "pace)" if levels else ""))
+    state, _ = levenberg_marquardt(problem, _carried(state, solved, start, spans), solver, pose_only=True,
+                                   max_iterations=POSE_ITERATIONS, progress=_clock(say, problem, solver, "poses, "))
     if fixed is not None:
         sigma, scatter = relearn(problem, state, fixed, say, trial_of)
-    if fixed is not None and sigma is not None:  # every frame shows another scatter than the subsample did
-        problem = problem.with_noise(sigma)
-        state, again = levenberg_marquardt(problem, state, solver,
-                                             progress=_clock(say, problem, solver, "again, "))
-        summary = _merge(summary, again)
+        if sigma is not None:
+            problem = problem.with_noise(sigma)
+    cost = problem.cost(state)
+    summary = SolverSummary(initial_cost=cost, final_cost=cost, cost_history=[cost],
+                            termination="not solved on every frame yet")
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter
+    return problem, state, summary, scatter, False
 
 
 def _carried(state: State, solved: np.ndarray, start: State, spans: list[slice]) -> State:

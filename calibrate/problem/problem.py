@@ -234,6 +234,16 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         new._set_observed(obs)
         return new
 
+    def with_observed(self, observed: np.ndarray) -> Problem:
+        """The same problem with other observations (F, n_markers, 3; NaN: not seen) in the same frames,
+        e.g. rejected positions restored; shares everything else."""
+        observed = np.asarray(observed, dtype=float)
+        if observed.shape != self.observed.shape:
+            raise ValueError(f"observed: expected shape {self.observed.shape}, got {observed.shape}")
+        new = copy.copy(self)
+        new._set_observed(observed.copy())
+        return new
+
     def with_noise(self, sigma: np.ndarray) -> Problem:
         """The same problem with other per-marker noise SDs (m; e.g. learnt from the residuals),
         sharing everything else (the observations, compiled functions, prior centres)."""

@@ -199,6 +199,14 @@ class StepProblem(Protocol):
 # an iteration on a long trial); at this damping a step is shortened only in directions whose curvature
 # (Marquardt-scaled) is under a millionth of the largest: those a rejected step has overshot.
 LAMBDA_REJECTED = 1e-6
+# The damping of a run's first step: a run of the calibration starts near its optimum (from a subsample's
+# solution, or the last run's under new weights or without outliers), where a Gauss–Newton step carries the
+# angles the markers barely fix (a foot on its markers' plane, a wrist) far past their joint limits, and
+# the limits' residuals, with no Jacobian row inside the range, are what the step's model cannot see:
+# pig_walk's runs began with 4-5 such rejected steps each, from 1e-4 up to 0.1.  Frame-wise inverse
+# kinematics (calibrate.solve.ik; pose_only) starts at LAMBDA_START_POSES.
+LAMBDA_START = 0.1
+LAMBDA_START_POSES = 1e-4
 # The geodesic acceleration is kept while its bend pays: a bent step lowering the cost by at least BEND_GAIN
 # times what the plain step does (a bent step costs about a third more), judged on BEND_TRIALS steps running.
 BEND_GAIN = 1.25
@@ -207,14 +215,14 @@ BEND_TRIALS = 2
 
 def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
              progress: Callable[[int, float, float], None] | None = None,
-             summary: SolverSummary | None = None) -> tuple[Any, SolverSummary]:
+             summary: SolverSummary | None = None, lam0: float = LAMBDA_START_POSES) -> tuple[Any, SolverSummary]:
     """Levenberg–Marquardt from `x`: Marquardt-scaled damping λ following Nielsen's update on the
     gain ratio, and the termination tests of the module docstring (tolerances and iteration limit:
     `options`; `max_iterations` overrides its limit; every step, accepted or not, counts).
-    `progress(iteration, cost, lam)` after each accepted step."""
+    `progress(iteration, cost, lam)` after each accepted step; `lam0` the first step's damping."""
     max_it = max_iterations or options.max_iterations
     summary = SolverSummary() if summary is None else summary
-    lam, nu = 1e-4, 2.0
+    lam, nu = lam0, 2.0
     cost = steps.linearize(x, lam)
     summary.initial_cost = cost
     summary.cost_history.append(cost)
@@ -398,7 +406,8 @@ def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions |
     summary = SolverSummary()
     t_start = time.perf_counter()
     steps = _BlockArrow(problem, options, pose_only, summary)
-    state, summary = minimise(steps, state, options, max_iterations, progress, summary)
+    state, summary = minimise(steps, state, options, max_iterations, progress, summary,
+                              LAMBDA_START_POSES if pose_only else LAMBDA_START)
     steps.blocks.recycle()  # the whole trial's arrays are the next run's buffers
     summary.seconds = time.perf_counter() - t_start
     return state, summary
