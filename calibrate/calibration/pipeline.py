@@ -31,6 +31,7 @@ from calibrate.calibration.start import (
     bridge,
     choose_start,
     frames_of,
+    key_stride,
     spread_frames,
     spread_poses,
     stack_states,
@@ -234,10 +235,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
     posed = Countdown(say, "start", "frame-wise inverse kinematics of every trial's frames")
-    start = stack_states([start_poses(problem.kin, known_obs[sl], params0, evaluator=evaluator,
+    start = stack_states([start_poses(problem.kin, known_obs[sl], params0, key_stride(t.rate), evaluator=evaluator,
                                       progress=lambda done, sl=sl: posed((sl.start + done * (sl.stop - sl.start))
                                                                          / problem.F))
-                          for sl in spans])
+                          for sl, t in zip(spans, trials, strict=True)])
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
         problem = problem.with_base(base)

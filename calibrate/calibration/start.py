@@ -28,7 +28,18 @@ START_ITERATIONS = 30  # ... for at most this many iterations
 START_GOOD_FIT = 1.5  # a candidate whose chi-square per observed coordinate is below this is taken at once
 
 
-STRIDE = 10  # key-frame spacing of the start (frames of the trial)
+STRIDE = 10  # key-frame spacing of the start (frames of the trial) ...
+STRIDE_SECONDS = 0.1  # ... and never further apart in time than this (a trial read at a lower rate)
+
+
+def key_stride(rate: float) -> int:
+    """Key-frame spacing of the start (start_poses) for a trial sampled at `rate` Hz: STRIDE frames, or
+    fewer where STRIDE frames span more than STRIDE_SECONDS.  Each key frame is warm-started from the
+    last, and squats' arms sweep 120° in about a second: read at 17 Hz (every 6th frame of 100), ten frames
+    apart the wrist left the last key frame's basin and the calibration ended with it 150 mm off."""
+    if not (math.isfinite(rate) and rate > 0):
+        return STRIDE
+    return max(1, min(STRIDE, int(round(STRIDE_SECONDS * rate))))
 
 
 COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly spaced frames first
