@@ -29,7 +29,7 @@ START_GOOD_FIT = 1.5  # a candidate whose chi-square per observed coordinate is 
 
 
 STRIDE = 10  # key-frame spacing of the start (frames of the trial) ...
-STRIDE_SECONDS = 0.1  # ... and never further apart in time than this (a trial read at a lower rate)
+STRIDE_SECONDS = 0.2  # ... and never further apart in time than this (a trial read at a lower rate)
 
 
 def key_stride(rate: float) -> int:
