@@ -122,8 +122,8 @@ def report(res: dict) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--subjects", type=int, default=16)
-    ap.add_argument("--frames", type=int, default=1000)
+    ap.add_argument("--subjects", type=int, default=None, help="subjects (default 16; --quick: 4)")
+    ap.add_argument("--frames", type=int, default=None, help="frames per subject (default 1000; --quick: 100)")
     ap.add_argument("--quick", action="store_true", help="CI smoke: 4 subjects of 100 frames")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
@@ -131,8 +131,8 @@ def main() -> None:
     if a.from_json:
         report(json.loads(a.from_json.read_text()))
         return
-    if a.quick:
-        a.subjects, a.frames = 4, 100
+    a.subjects = a.subjects if a.subjects is not None else (4 if a.quick else 16)
+    a.frames = a.frames if a.frames is not None else (100 if a.quick else 1000)
     res = collect(a)
     if a.json:
         print(json.dumps(res, indent=1, default=float))
