@@ -275,16 +275,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             # Rejected at poses not yet solved jointly, or against a scatter since learnt again: a position
             # that this solution fits within the outlier test (against the scatter just learnt) is an
             # observation again.
+            at = [(spans[o.trial].start + o.frame, subject.marker_index(o.marker)) for o in rejected]
             back = np.zeros(problem.seen.shape, dtype=bool)
-            for o in rejected:
-                back[spans[o.trial].start + o.frame, subject.marker_index(o.marker)] = True
+            back[tuple(np.array(at).T)] = True
             back &= ~find_outliers(problem.with_observed(np.where(back[..., None], observed, problem.observed)),
                                    state, run, scatter, trial_of)[0]
             if back.any():
                 say(Progress("solve", f"{int(back.sum())} rejected marker positions fit the solution: kept"))
                 problem = problem.with_observed(np.where(back[..., None], observed, problem.observed))
-                rejected = [o for o in rejected if not back[spans[o.trial].start + o.frame,
-                                                            subject.marker_index(o.marker)]]
+                rejected = [o for o, fk in zip(rejected, at, strict=True) if not back[fk]]
                 changed = True
         found = 0
         h = None  # the leverage at the current problem and state: formed again only where a round changes them
@@ -321,9 +320,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             h[frames] = leverage(sub, part)[0]
         if not (found or changed):
             break
-        say(Progress("solve", f"all {problem.F} frames" if unsolved else "again without the outliers" +
-                     (" and with the noise learnt again" if changed else "") if found else
-                     "again with the noise learnt again"))
+        if unsolved:
+            say(Progress("solve", f"all {problem.F} frames"))
+        elif found:
+            say(Progress("solve", "again without the outliers" + (" and with the noise learnt again" if changed
+                                                                  else "")))
+        else:
+            say(Progress("solve", "again with the noise learnt again"))
         state, again = levenberg_marquardt(problem, state, solver, progress=IterationClock(
             say, "all frames, ", solver.atol, solver.ftol) if unsolved else _clock(say, problem, solver, "again, "))
         summary = _merge(summary, again)

@@ -230,9 +230,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         solver's buffers included."""
         obs = self.observed.copy()
         obs[np.asarray(mask, dtype=bool)] = np.nan
-        new = copy.copy(self)
-        new._set_observed(obs)
-        return new
+        return self.with_observed(obs)
 
     def with_observed(self, observed: np.ndarray) -> Problem:
         """The same problem with other observations (F, n_markers, 3; NaN: not seen) in the same frames,
