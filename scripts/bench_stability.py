@@ -15,7 +15,8 @@ run's ("another basin").
 
     python scripts/bench_stability.py [--runs 6] [--sd 1e-9] [--atol A] [--json] [--quick]
 
-`--quick` (CI smoke run): 2 runs on 100 static + 160 walk frames; its figures are not the benchmark's.
+`--quick` (CI smoke run): 2 runs (fewer with --runs) on 100 static + 160 walk frames; its figures are not
+the benchmark's.
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     runs_n = a.runs
     if a.quick:
         trials = [trials[0].frames(0, 100), trials[1].frames(0, 160)]
-        runs_n = 2
+        runs_n = min(a.runs, 2)
     settings = Settings() if a.atol is None else Settings(atol=a.atol, max_iterations=400)
     runs = []
     for seed in range(runs_n):
