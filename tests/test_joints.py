@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from calibrate.cli import main
 from calibrate.io.trial import Trial
 from calibrate.seed.geometry import rigid_fit, similarity_fit, sphere_fit
-from calibrate.seed.joints import JointSpec, estimate_joints, estimate_model_joints, lowpass
+from calibrate.seed.joints import JointSpec, butter_lowpass, estimate_joints, estimate_model_joints, filtfilt, lowpass
 from calibrate.seed.mtb import affine_basis, auxiliary_point, jmv_cost, jmv_frames, mtb_refine, rigid_basis
 from calibrate.simulation.chains import simulate_chain
 from calibrate.simulation.simulate import joint_axes_world, simulate_squats, write_simulation
@@ -161,6 +161,21 @@ def test_lowpass_keeps_slow_motion_removes_noise_and_respects_gaps():
     inner = np.r_[50:350, 470:950]
     err = np.sqrt(np.mean((out[inner] - clean[inner]) ** 2))
     assert err < 0.5e-3  # 6 Hz of a 50 Hz band keeps about a third of white noise
+
+
+@pytest.mark.parametrize("order", [2, 4, 5])
+@pytest.mark.parametrize("wn", [0.05, 0.1, 0.5, 0.9])
+def test_butterworth_and_zero_phase_filter_equal_scipy_signal(order, wn):
+    # Written out to spare every command scipy.signal's import; scipy.signal is the reference.
+    from scipy import signal
+
+    b, a = butter_lowpass(order, wn)
+    b0, a0 = signal.butter(order, wn)
+    np.testing.assert_allclose(b, b0, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(a, a0, rtol=1e-12, atol=1e-15)
+    x = np.random.default_rng(order).standard_normal((300, 4, 3)).cumsum(axis=0)  # a wandering trajectory
+    ref = signal.filtfilt(b0, a0, x, axis=0)
+    np.testing.assert_allclose(filtfilt(b, a, x), ref, rtol=0, atol=1e-9 * np.abs(x).max())
 
 
 # ------------------------------------------------------------------ chains (seed 000 Section IV)

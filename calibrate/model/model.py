@@ -32,7 +32,6 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import ModelError, read_text_file
-from ..io.osim import osim_to_urdf
 from ..io.text import atomic_write_text, fmt_vec
 from .blocks import GROUPS, ParameterLayout
 from .urdf import urdf_text
@@ -410,6 +409,8 @@ def load_model(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] 
     """Load a calibrate model (URDF), or an OpenSim model (.osim, with an optional OpenSim MarkerSet
     file, calibrate.io.osim); raises ModelError with one line on bad input."""
     if Path(path).suffix.lower() == ".osim":
+        from ..io.osim import osim_to_urdf  # (only for OpenSim models: its readers cost every command 0.1 s of imports)
+
         text, info = osim_to_urdf(path, marker_set)
         model = Model(Path(path), text=text)
         model.osim = info  # what the URDF keeps of its OpenSim origin (calibrate.io.osim_info)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.signal import butter, filtfilt
+from scipy.linalg import solve_banded
 
 from calibrate.seed.mtb import (
     MIN_FRAMES,
@@ -467,7 +467,7 @@ def estimate_joints(points: Mapping[str, np.ndarray], groups: Mapping[str, Seque
 def lowpass(traj: np.ndarray, rate: float, cutoff_hz: float, order: int = 4) -> np.ndarray:
     """Zero-lag Butterworth low-pass of a trajectory (F, ...) along frames; each gap-free run is
     filtered on its own, runs too short to filter are kept as they are, gaps stay NaN."""
-    b, a = butter(order, cutoff_hz / (rate / 2))
+    b, a = butter_lowpass(order, cutoff_hz / (rate / 2))
     pad = 3 * max(len(a), len(b))
     out = np.array(traj, dtype=float)
     flat = out.reshape(len(out), -1)
@@ -475,8 +475,62 @@ def lowpass(traj: np.ndarray, rate: float, cutoff_hz: float, order: int = 4) -> 
     edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
         if stop - start > pad:
-            flat[start:stop] = filtfilt(b, a, flat[start:stop], axis=0)
+            flat[start:stop] = filtfilt(b, a, flat[start:stop])
     return out
+
+
+# scipy.signal's butter and filtfilt, written out: importing scipy.signal (and scipy.stats with it) took
+# 0.35 s of every command's 1 s of imports; the seed needs only these two (tests/test_joints.py checks
+# them against scipy.signal's to 1e-12).
+def butter_lowpass(order: int, wn: float) -> tuple[np.ndarray, np.ndarray]:
+    """Digital Butterworth low-pass (b, a) of `order` at `wn` (the cutoff over the Nyquist frequency,
+    0 < wn < 1): the analogue prototype's poles, pre-warped and carried over by the bilinear
+    transform, as scipy.signal.butter(order, wn) designs it."""
+    if not 0 < wn < 1:
+        raise ValueError(f"butter_lowpass: the cutoff must lie between 0 and the Nyquist frequency, got {wn}")
+    poles = -np.exp(1j * np.pi * np.arange(-order + 1, order, 2) / (2 * order))  # analogue prototype, cutoff 1
+    warped = 4.0 * math.tan(math.pi * wn / 2.0)  # the cutoff pre-warped (sampling rate 2)
+    poles = warped * poles
+    gain = warped**order / np.real(np.prod(4.0 - poles))
+    zd = (4.0 + poles) / (4.0 - poles)  # bilinear transform; every zero goes to z = -1
+    return gain * np.real(np.poly(-np.ones(order))), np.real(np.poly(zd))
+
+
+def _lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
+    """The IIR filter (b, a) along axis 0 of x (n, m) from the initial state zi (order, m), as
+    scipy.signal.lfilter: the difference equation Σ a_k y[n-k] = Σ b_k x[n-k] (+ zi in the first
+    rows), a banded lower-triangular system solved for every column at once."""
+    order, n = len(a) - 1, len(x)
+    rhs = np.zeros_like(x)
+    for k in range(order + 1):
+        rhs[k:] += b[k] * x[:n - k]
+    rhs[:order] += zi[:n]
+    bands = np.zeros((order + 1, n))
+    for k in range(order + 1):
+        bands[k, :n - k] = a[k]
+    return solve_banded((order, 0), bands, rhs)
+
+
+def filtfilt(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Zero-phase filtering of x (n, ...) along axis 0, forward then backward, as
+    scipy.signal.filtfilt(b, a, x, axis=0) with its defaults: odd extension by 3 × the filter's length
+    at both ends, each pass started from the steady state of a step (lfilter_zi)."""
+    b, a = np.asarray(b, float) / a[0], np.asarray(a, float) / a[0]
+    order = len(a) - 1
+    # The steady-state initial condition of a unit step (scipy.signal.lfilter_zi).
+    companion = np.zeros((order, order))
+    companion[0] = -a[1:]
+    companion[1:, :-1] = np.eye(order - 1)
+    zi = np.linalg.solve(np.eye(order) - companion.T, b[1:] - a[1:] * b[0])
+    x = np.asarray(x, dtype=float)
+    flat = x.reshape(len(x), -1)
+    pad = 3 * max(len(a), len(b))
+    if len(flat) <= pad:
+        raise ValueError(f"filtfilt: {len(flat)} samples, need more than {pad}")
+    ext = np.concatenate([2 * flat[:1] - flat[pad:0:-1], flat, 2 * flat[-1:] - flat[-2:-pad - 2:-1]])
+    y = _lfilter(b, a, ext, np.outer(zi, ext[0]))
+    y = _lfilter(b, a, y[::-1], np.outer(zi, y[-1]))[::-1]
+    return y[pad:len(y) - pad].reshape(x.shape)
 
 
 # --------------------------------------------------------------------------- models and trials
