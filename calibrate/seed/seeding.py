@@ -311,18 +311,20 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
         X[:, have] = t.select([names[k] for k in have]).markers
         parts.append(X[:: max(1, t.n_frames // 300)])
     X = np.concatenate(parts)
+    # The trial's distances of the pairs the base model keeps steady (the medians over frames are most
+    # of this function's time: only those pairs').
+    a, b = np.nonzero((model_cv < SIZE_MODEL_CV) & (d0 >= SIZE_MIN_DISTANCE) & np.triu(np.ones_like(d0, dtype=bool), 1))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        Dt = np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3)
+        Dt = np.linalg.norm(X[:, a] - X[:, b], axis=2)
         med = np.nanmedian(Dt, axis=0)
         mad = MAD_SD * np.nanmedian(np.abs(Dt - med), axis=0)
         n = np.sum(np.isfinite(Dt), axis=0)
-    ok = ((model_cv < SIZE_MODEL_CV) & (n >= 3) & (mad < SIZE_TRIAL_CV * med) & (d0 >= SIZE_MIN_DISTANCE)
-          & np.triu(np.ones_like(d0, dtype=bool), 1))
-    a, b = np.nonzero(ok)
+    ok = (n >= 3) & (mad < SIZE_TRIAL_CV * med)
+    a, b, med = a[ok], b[ok], med[ok]
     if a.size == 0:
         return None
-    ratio = med[a, b] / d0[a, b]
+    ratio = med / d0[a, b]
     # A marker sits a few centimetres from where the base model puts it (wands above all: Plug-in
     # Gait's TIB marker is 10 cm lower than ours), which changes a pair's ratio by about that over its
     # length: the weighted median, weight d0², trusts the long pairs (knee to ankle) most.
