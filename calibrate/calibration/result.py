@@ -135,8 +135,8 @@ class Calibration:
     @property
     def implausible(self) -> list[Implausible]:
         """Segments calibrated IMPLAUSIBLE_SCALE times larger or smaller than the subject's median segment
-        scale (a converged fit that is no body: e.g. a tibia scaled to zero and the talus doubled when a
-        heel and a toe label are exchanged for the whole trial), with the labels to check."""
+        scale (a converged fit that is no body: e.g. a talus at half the median when a heel and a toe label
+        are exchanged for the whole trial), with the labels to check."""
         scale = np.asarray(self.params.scale, dtype=float)
         median = float(np.median(scale))
         if not median > 0:
