@@ -38,6 +38,12 @@ GROUPS = ("scale", "centre", "axis", "marker")
 SIZE = {"scale": 1, "centre": 3, "axis": 3, "marker": 3}
 TANGENT = {"scale": 1, "centre": 3, "axis": 2, "marker": 3}
 ROOT = 6  # root translation (3) + rotation increment (3) at the start of a frame's coordinates
+# A segment's scale stays within these bounds of the base model's (ParameterLayout.retract).  Labels the model
+# cannot fit (a knee and an ankle label exchanged for a whole trial) drove a tibia's scale towards zero: the
+# positions expressed in it, stored unscaled, grew without bound, and the solve stopped "converged" on the step
+# tolerance, relative to |p| ~ 1e51.  No subject is a fifth or five times the base model in any segment;
+# within the bounds nothing changes, and a scale held at one is flagged (Calibration.implausible).
+SCALE_BOUNDS = (0.2, 5.0)
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -302,13 +308,13 @@ class ParameterLayout:
     def retract(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """p moved by the free step dp, each block on its manifold: scales to s exp(ds / s) (s + ds to
         first order, and never zero or negative: a segment with no marker of its own, whose scale only
-        the priors hold, must not shrink through zero into a mirror image), free positions to
+        the priors hold, must not shrink through zero into a mirror image; kept within SCALE_BOUNDS), free positions to
         (s x + dq)/s' (see tangent_map), axes kept unit (normalise(a + B u))."""
         out = p.copy()
         if self.direct.size:
             out[self.direct[:, 1]] += dp[self.direct[:, 0]]
             sc = self.direct[self.direct[:, 1] < self.scales.stop]
-            out[sc[:, 1]] = p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]])
+            out[sc[:, 1]] = np.clip(p[sc[:, 1]] * np.exp(dp[sc[:, 0]] / p[sc[:, 1]]), *SCALE_BOUNDS)
         rows, cols, owner, _ = self._positions
         if rows.size:
             out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
