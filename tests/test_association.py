@@ -11,7 +11,13 @@ import pytest
 
 from calibrate.io.trial import Trial
 from calibrate.model.model import load_model
-from calibrate.seed.association import associate, associate_to_model, group_adjacency, tied_hypotheses
+from calibrate.seed.association import (
+    associate,
+    associate_to_model,
+    group_adjacency,
+    misplaced_labels,
+    tied_hypotheses,
+)
 from calibrate.seed.rigidity import RIGID_FLOOR, distance_variance, group_markers, pair_distance_level, rigid_threshold
 from calibrate.simulation.simulate import simulate_squats
 
@@ -211,3 +217,37 @@ def test_associate_to_model_reports_mislabelled_markers(human):
     assert res["T10"].segment == "torso"  # reported, not moved
     assert all(m in res["LPSI"].reason for m in ("LASI", "RASI", "RPSI"))
     assert all(res[lab].status == "known" for lab in labels if lab not in ("T10", "LPSI"))
+
+
+PIG = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "pig_walk"
+
+
+@pytest.mark.parametrize("sta_mm", [3.0, 10.0])
+def test_a_label_exchanged_across_segments_for_the_whole_trial_is_named(sta_mm):
+    """Squats with soft-tissue artefact: the true labels ride with their segments; a knee label exchanged with
+    the ankle's for the whole trial rides with the foot's markers, and is named with the segment it moves with.
+    (The simulator's truth: which marker is on which segment.)"""
+    human = _human()
+    trial = simulate_squats(human, frames=300, noise_mm=0.5, sta_mm=sta_mm, seed=2).trial
+    assert misplaced_labels(human, [trial]) == ()
+    labels = list(trial.labels)
+    i, j = labels.index("RKNE"), labels.index("RANK")
+    labels[i], labels[j] = labels[j], labels[i]
+    found = {m.label: m for m in misplaced_labels(human, [Trial(labels, trial.markers, trial.rate)])}
+    assert "RKNE" in found and found["RKNE"].segment == "femur_r"
+    assert found["RKNE"].rides_with in ("tibia_r", "talus_r", "calcn_r")  # the shank or the foot: the ankle marker's
+    assert found["RKNE"].sd_own > 3 * found["RKNE"].sd_other
+    # within one segment an exchange cannot be seen by rigidity (and only moves the two markers' offsets)
+    labels = list(trial.labels)
+    i, j = labels.index("RHEE"), labels.index("RTOE")
+    labels[i], labels[j] = labels[j], labels[i]
+    assert misplaced_labels(human, [Trial(labels, trial.markers, trial.rate)]) == ()
+
+
+def test_the_real_plug_in_gait_trials_raise_no_label_to_check():
+    if not (PIG / "walk.c3d").exists():
+        pytest.skip("pig_walk is not in ../shared/data/real")
+    from calibrate.io.read import read_trial
+
+    for name in ("static.c3d", "walk.c3d"):
+        assert misplaced_labels(_human(), [read_trial(PIG / name)]) == (), name

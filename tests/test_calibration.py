@@ -299,7 +299,8 @@ def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
     """A knee and an ankle label exchanged for the whole trial pull the shank's scale towards zero; without
     SCALE_BOUNDS the positions stored unscaled in it grew to ~1e51 and the run either crashed (the covariance's
     eigenvalues did not converge) or stopped "converged" on the step tolerance relative to that |p|, its marker
-    RMS 2.6 times the start's.  Bounded, it fits the trial far better than its start."""
+    RMS 2.6 times the start's.  Bounded, it fits the trial far better than its start, and the rigidity check names
+    the knee label (calibrate.seed.association.misplaced_labels)."""
     from calibrate.calibration.evaluate import marker_rms
     from calibrate.model.blocks import SCALE_BOUNDS
 
@@ -312,6 +313,10 @@ def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
     assert np.all((scale >= SCALE_BOUNDS[0]) & (scale <= SCALE_BOUNDS[1]))
     assert np.all(np.abs(cal.params.marker) < 1.0) and np.all(np.abs(cal.params.centre) < 1.0)  # metres
     assert cal.marker_rms < 0.5 * marker_rms(cal.initial_residuals)  # 24-28 mm from 98.5 (was 262 from 101)
+    # ... and the label is named as one to check, in the summary and the report
+    assert "RKNE" in {m.label for _, m in cal.misplaced}
+    assert "check label  trial 1: RKNE moves with" in cal.text()
+    assert any(x["label"] == "RKNE" and x["segment"] == "femur_r" for x in cal.report()["suspect_labels"])
 
 
 # ---------------------------------------------------------------------- accuracy
@@ -788,12 +793,16 @@ def test_worst_ratio_singular_prior_block():
 def test_scale_retraction_stays_positive(human, human_kin):
     """A scale factor moves on R+: s exp(ds / s), which is s + ds to first order (checked at
     ds = 1e-6: difference 5e-13, the second-order term ds²/2s) and stays positive for a step larger
-    than the scale itself (ds = -2 s), which s + ds would have turned into a mirror image."""
+    than the scale itself (ds = -s), which s + ds would have turned into zero; beyond SCALE_BOUNDS it stops
+    at the bound."""
+    from calibrate.model.blocks import SCALE_BOUNDS
+
     sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=0)
     problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
     p = human.parameters().vector()
     col = next(k for k, i in problem._direct if i == human.segment_index("talus_l"))
-    for ds, check in ((1e-6, lambda s: abs(s - (1 + 1e-6)) < 1e-12), (-2.0, lambda s: abs(s - np.exp(-2.0)) < 1e-15)):
+    for ds, check in ((1e-6, lambda s: abs(s - (1 + 1e-6)) < 1e-12), (-1.0, lambda s: abs(s - np.exp(-1.0)) < 1e-15),
+                      (-5.0, lambda s: s == SCALE_BOUNDS[0]), (10.0, lambda s: s == SCALE_BOUNDS[1])):
         dp = np.zeros(problem.n_free)
         dp[col] = ds
         s = problem.retract_parameters(p, dp)[human.segment_index("talus_l")]

@@ -53,7 +53,7 @@ from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
-from ..seed.association import associate_to_model
+from ..seed.association import associate_to_model, misplaced_labels
 from ..seed.rigidity import distance_variance
 from ..solve.chunks import frame_bytes
 from ..solve.ik import marker_columns
@@ -153,6 +153,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
                              f"(--markers map.toml) or use a model with this marker set")
     t0 = time.perf_counter()
+    # A label exchanged for a whole trial (a knee marker named as the ankle's) bends the geometry to fit it, and
+    # no frame's outlier test sees it: each trial's labels are checked against the model's segments by rigidity.
+    misplaced = tuple((i, m) for i, t in enumerate(trials) for m in misplaced_labels(model, [t])) \
+        if run.outliers > 0 else ()
+    for i, m in misplaced:
+        say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
     # Unlabelled trajectories (Vicon's '*115'): ghosts, reflections or markers the operator left
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
@@ -360,7 +366,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise)
+                       noise_learnt=run.learn_noise, misplaced=misplaced)
 
 
 def _sampled_blocks(problem: Problem, state: State) -> np.ndarray:

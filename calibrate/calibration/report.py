@@ -108,6 +108,10 @@ def calibration_report(cal: Calibration) -> dict:
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in cal.unresolved],
         "implausible": [b.to_json() for b in cal.implausible],
+        "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
+                            "moves_with": m.rides_with, "segment_labels": list(m.partners),
+                            "distance_sd_own_mm": 1e3 * m.sd_own,
+                            "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
@@ -299,6 +303,9 @@ def summary_text(cal) -> str:
                      + f" against the subject's median {median:.2f}: the markers do not fit the model there; "
                      f"check the labels of {', '.join(dict.fromkeys(x for b in bad for x in b.labels)) or '-'} "
                      "(a swap for the whole trial?)")
+    for i, m in cal.misplaced:
+        lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
+                     "trial? each label of an exchanged pair can look misplaced; nothing was changed)")
     unresolved = cal.unresolved
     if unresolved:
         lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "

@@ -98,6 +98,9 @@ class Calibration:
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
     noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
     # (m): the noise SD times the square root of its residuals' correlation time in frames (learnt noise only)
+    # (trial index, calibrate.seed.association.Misplaced) per label whose marker rides with another segment than
+    # the model's in that trial: labels to check (a label exchanged for the whole trial), reported, not changed
+    misplaced: tuple = ()
 
     @property
     def notes(self) -> tuple[str, ...]:

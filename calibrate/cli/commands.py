@@ -216,6 +216,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))
+    if cal.misplaced:
+        check = dict.fromkeys(x for _, m in cal.misplaced for x in (m.label, *m.partners))
+        print(f"warning: labels to check (they move with another segment's markers than the model's; exchanged for "
+              f"the whole trial?): {', '.join(check)} (see 'check label' above)", file=sys.stderr)
     if not cal.converged:
         print(f"warning: the solver did not converge ({cal.summary.termination}); the best result so far was "
               "written and is flagged in the report", file=sys.stderr)

@@ -25,6 +25,7 @@ Units: metres (variances in m²).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -538,3 +539,76 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
 
 def _mm(x: float) -> str:
     return f"{1000.0 * x:.1f} mm"
+
+
+# A model marker is taken for another segment's when its distances to its own segment's other markers vary
+# MISPLACED_RATIO times more (SD over the frames) than to some other segment's, and by more than MISPLACED_FLOOR:
+# a label exchanged for the whole trial (a knee marker named as the ankle's) rides with the wrong segment in
+# every frame.  Measured (2026-11-27): no marker so taken on pig_walk (static, walk), gait2392, Rajagopal or
+# simulated squats with 3-10 mm soft-tissue artefact; exchanged across segments on those squats, the marker
+# on the wrong segment rides with it 10-20 times closer (RKNE/RANK 81 against 4 mm, RELB/RWRA 65 against 2).
+# Exchanges within one segment, or across a joint that hardly moves in the trial, cannot be seen this way.
+MISPLACED_RATIO = 3.0
+MISPLACED_FLOOR = 0.005  # m
+MISPLACED_FRAMES = 150  # about this many evenly spaced frames of a trial are read (the SDs need no more)
+
+
+@dataclass(frozen=True)
+class Misplaced:
+    """A trial label whose marker rides with another segment than the model's for it."""
+
+    label: str
+    segment: str  # the model's segment for the label
+    rides_with: str  # the segment whose markers keep the steadiest distances to it
+    sd_own: float  # m: median SD over frames of its distances to its own segment's other markers
+    sd_other: float  # m: the same against `rides_with`'s markers
+    partners: tuple[str, ...] = ()  # its segment's other labels it was judged against (one may be the wrong one)
+
+    def text(self) -> str:
+        return (f"{self.label} moves with {self.rides_with}'s markers (distances steady to "
+                f"{1e3 * self.sd_other:.1f} mm SD), not with {self.segment}'s ({', '.join(self.partners)}: "
+                f"{1e3 * self.sd_own:.1f} mm)")
+
+
+def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPLACED_RATIO,
+                     floor: float = MISPLACED_FLOOR) -> tuple[Misplaced, ...]:
+    """The trials' labels of model markers that ride with another segment than the model's: a label exchanged
+    for the whole trial, or put on the wrong marker.  Per label, the median SD over frames of its distances to
+    its segment's other markers against the same to each other segment's; the worst taken first and left out
+    of every segment's markers before the others are judged again (a label exchanged with one of them makes its
+    partners look misplaced too).  Frames of all `trials` together: pass one trial to judge its labelling alone.
+    Which label of an exchanged pair is named can be its partner's (a segment with two markers: each looks
+    misplaced against the other), so the result is labels to check, not a correction."""
+    labels = [m.name for m in model.markers if any(m.name in t.labels for t in trials)]
+    if not labels:
+        return ()
+    segment = {m.name: m.segment for m in model.markers}
+    parts = []
+    for t in trials:
+        X = np.full((t.n_frames, len(labels), 3), np.nan)
+        have = [k for k, n in enumerate(labels) if n in t.labels]
+        X[:, have] = t.select([labels[k] for k in have]).markers
+        parts.append(X[:: max(1, t.n_frames // MISPLACED_FRAMES)])
+    sd = np.sqrt(distance_variance(np.concatenate(parts)))
+    members: dict[str, list[int]] = {}
+    for k, n in enumerate(labels):
+        members.setdefault(segment[n], []).append(k)
+    out: list[Misplaced] = []
+    while True:
+        worst = None
+        for k, n in enumerate(labels):
+            own = [m for m in members.get(segment[n], []) if m != k]
+            if k not in members.get(segment[n], []) or not own:
+                continue
+            s_own = float(np.median(sd[k, own]))
+            others = [(float(np.median(sd[k, ms])), seg) for seg, ms in members.items() if seg != segment[n] and ms]
+            if not others or not np.isfinite(s_own):
+                continue
+            s_other, seg = min(others)
+            if s_own > floor and s_other * ratio < s_own and (worst is None or s_own / s_other > worst[0]):
+                worst = (s_own / s_other, Misplaced(n, segment[n], seg, s_own, s_other,
+                                                    tuple(labels[m] for m in own)), k)
+        if worst is None:
+            return tuple(out)
+        out.append(worst[1])
+        members[segment[worst[1].label]].remove(worst[2])
