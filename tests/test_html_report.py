@@ -180,6 +180,18 @@ def test_html_report_has_its_tables_and_figures(run):
     assert "heatmap" in kinds
 
 
+def test_a_label_to_check_is_among_the_notes(run):
+    """A report's suspect label (Calibration.misplaced, as the report JSON carries it) is a note of the HTML
+    report, before the summary, with the segment it moves with and its own segment's labels."""
+    rep = dict(run["rep"], suspect_labels=[{"trial": "walk.c3d", "label": "RKNE", "segment": "femur_r",
+                                            "moves_with": "calcn_r", "segment_labels": ["RTHI"],
+                                            "distance_sd_own_mm": 81.0, "distance_sd_other_mm": 4.0}])
+    page = report_html(rep)
+    notes = page[page.index("id=notes>"):page.index("id=summary>")]
+    assert "check label RKNE (walk.c3d): it moves with calcn_r's markers" in notes and "(RTHI: 81.0 mm)" in notes
+    assert "check label" not in report_html(run["rep"])  # the calibration's own labels raised none
+
+
 @pytest.mark.skipif(shutil.which("chromium") is None and not Path("/usr/bin/chromium").exists(),
                     reason="chromium is not installed (Debian: apt-get install chromium)")
 def test_chromium_renders_the_report(run, tmp_path):

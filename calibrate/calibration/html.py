@@ -65,6 +65,12 @@ def _notes(report: dict) -> str:
         items.append(f"<li class=bad>implausible size: {_e(b.get('segment'))} scale {b.get('scale', 0):.2f} "
                      f"({b.get('relative_to_median', 0):.2f} of the subject's median); check the labels "
                      f"{_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
+    for m in report.get("suspect_labels", []):
+        items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
+                     f"{_e(m.get('moves_with'))}'s markers (distances steady to "
+                     f"{m.get('distance_sd_other_mm', 0):.1f} mm SD), not with {_e(m.get('segment'))}'s "
+                     f"({_e(', '.join(m.get('segment_labels', [])))}: {m.get('distance_sd_own_mm', 0):.1f} mm); "
+                     "exchanged for the whole trial?</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")
