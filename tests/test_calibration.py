@@ -267,8 +267,10 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
     ratio raised ValueError) and its marker RMS shows the swap, many times the true labels' ~1 mm.  A segment
     sized beyond IMPLAUSIBLE_SCALE of the median is flagged (summary and report) with the labels to check.
     Where this swap leaves the right talus depends on the solver's path: 0.48-0.63 of the median over five
-    runs whose markers differ by 1e-10 m, flagged in two (RMS 32-35 mm in all) — so the flag is checked on
-    this calibration with the talus where those runs put it, and the true labels must raise none."""
+    runs whose markers differ by 1e-10 m, beyond 1.8x the median in two (RMS 32-35 mm in all), the right femur 25 %
+    or more from the left in all five (IMPLAUSIBLE_ASYMMETRY) — so the size flag is checked on this calibration with
+    the talus where those runs put it, the left/right flag with a talus at 0.7 of its partner, and the true labels
+    must raise none."""
     sim = simulate_squats(human, frames=600, noise_mm=0.5, sta_mm=3.0, seed=2)
     labels = list(sim.trial.labels)
     i, j = labels.index("RHEE"), labels.index("RTOE")
@@ -279,6 +281,9 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
     assert len(scales) == len(human.segments)
     assert all(math.isnan(c.prior_ratio) or c.prior_ratio >= 0 for c in scales)
     assert cal.marker_rms > 0.005
+    # the fit it ends in is flagged: the right femur 25 % or more from the left in five of five runs whose markers
+    # differ by 1e-10 m (beyond 1.8x the median in two of them)
+    assert cal.implausible
     # ... a talus at 0.48 of the median (as in two of five runs): flagged, the swapped labels among those to check
     k = human.segment_index("talus_r")
     scale = np.asarray(cal.params.scale, dtype=float).copy()
@@ -286,9 +291,21 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
     small = dataclasses.replace(cal, params=Parameters(scale, cal.params.centre, cal.params.axis, cal.params.marker))
     median = float(np.median(scale))
     bad = {b.segment: b for b in small.implausible}
-    assert "talus_r" in bad and all(not 1 / 1.8 <= scale[human.segment_index(n)] / median <= 1.8 for n in bad)
+    assert "talus_r" in bad and all(not 1 / 1.8 <= scale[human.segment_index(n)] / median <= 1.8
+                                    for n, b in bad.items() if not b.partner)  # (the others: against their partner)
     assert {"RHEE", "RTOE"} <= set(bad["talus_r"].labels)  # the calcaneus below it carries them
     assert "implausible" in small.text() and small.report()["implausible"][0]["segment"] in bad
+    # ... a talus at 0.7 of its partner's, within 1.8x of the median: flagged against the other side
+    m = float(np.median(np.delete(scale, [k, human.segment_index("talus_l")])))
+    scale[human.segment_index("talus_l")], scale[k] = m, 0.7 * m
+    lopsided = dataclasses.replace(cal, params=Parameters(scale, cal.params.centre, cal.params.axis,
+                                                          cal.params.marker))
+    (flag,) = [b for b in lopsided.implausible if "talus" in b.segment]
+    assert 1 / 1.8 < flag.relative < 1.8 and (flag.segment, flag.partner) == ("talus_r", "talus_l")
+    assert min(flag.scale, flag.partner_scale) / max(flag.scale, flag.partner_scale) == pytest.approx(0.7)
+    assert f"talus_r scale {flag.scale:.2f} (talus_l {flag.partner_scale:.2f}: 43 % apart)" in lopsided.text()
+    assert {"segment": "talus_r", "partner": "talus_l"}.items() <= next(
+        b for b in lopsided.report()["implausible"] if b["segment"] == "talus_r").items()
     # the true labels: nothing flagged
     right = calibrate(human, Trial(list(sim.trial.labels), sim.trial.markers[::4], sim.trial.rate / 4, 0, None),
                       Settings(outliers=0))

@@ -62,8 +62,10 @@ def _notes(report: dict) -> str:
     items.append(f"<li class={'ok' if conv else 'bad'}>solver {'converged' if conv else 'DID NOT CONVERGE'}: "
                  f"{_e(report['solver']['termination'])}</li>")
     for b in report.get("implausible", []):
+        partner = (f", {_e(b['partner'])} {b.get('partner_scale', 0):.2f} on the other side" if b.get("partner")
+                   else "")
         items.append(f"<li class=bad>implausible size: {_e(b.get('segment'))} scale {b.get('scale', 0):.2f} "
-                     f"({b.get('relative_to_median', 0):.2f} of the subject's median); check the labels "
+                     f"({b.get('relative_to_median', 0):.2f} of the subject's median{partner}); check the labels "
                      f"{_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "

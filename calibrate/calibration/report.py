@@ -299,7 +299,7 @@ def summary_text(cal) -> str:
     bad = cal.implausible
     if bad:
         median = float(np.median(cal.params.scale))
-        lines.append("  implausible  " + ", ".join(f"{b.segment} scale {b.scale:.2f}" for b in bad)
+        lines.append("  implausible  " + ", ".join(b.text() for b in bad)
                      + f" against the subject's median {median:.2f}: the markers do not fit the model there; "
                      f"check the labels of {', '.join(dict.fromkeys(x for b in bad for x in b.labels)) or '-'} "
                      "(a swap for the whole trial?)")
