@@ -26,12 +26,15 @@ frames) and compared with the trials' markers.
 3. The clean simulated squats of the earlier issue (1000 frames): 1 mm noise (ball centres <= 2 mm
    median) and noise-free (exact: marker RMS <= 1 um, ball centres <= 0.1 mm, axes <= 0.01 deg);
    here the recomputed marker RMS is also checked against the report's (they must agree).
+4. `swaps`: pig_walk with two of the walk's labels exchanged for the whole walk (SWAPS): which labels
+   calibrate names to check, which segments it flags as implausible, the fit (no target; not in --quick
+   unless named in --only).
 
 Targets are printed PASS/FAIL beside each figure; the exit status is 0 whatever they say.  A
 feature the code does not have yet (the realistic simulator, the corruption list) is detected and
 its row skipped with a note.  An untimed warm-up run compiles the model's C code first.
 
-    python scripts/bench_real.py [--quick] [--json] [--seed 0] [--frames 1000] [--only pig,realistic,clean]
+    python scripts/bench_real.py [--quick] [--json] [--seed 0] [--frames 1000] [--only pig,realistic,clean,swaps]
                                  [--keep DIR]
 """
 
@@ -58,7 +61,7 @@ from bench_calibrate import clean_json, fmt, machine, run_child  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "human.urdf"
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
-SECTIONS = ("pig", "realistic", "clean")
+SECTIONS = ("pig", "realistic", "clean", "swaps")
 # targets (issue 16): percent, mm, degrees, seconds
 PIG_REJECTED_PCT = 1.0
 ASYMMETRY_PCT = 5.0
@@ -526,6 +529,58 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     return out
 
 
+SWAPS = (("RKNE", "RANK"), ("LASI", "LTHI"), ("RHEE", "RTOE"))  # pig_walk's walk labels exchanged (section "swaps")
+
+
+def swap_c3d(src: Path, dst: Path, a: str, b: str) -> Path:
+    """The C3D with the labels `a` and `b` exchanged for the whole trial (ezc3d; everything else kept)."""
+    import ezc3d
+
+    c = ezc3d.c3d(str(src))
+    labels = list(c["parameters"]["POINT"]["LABELS"]["value"])
+    i, j = labels.index(a), labels.index(b)
+    labels[i], labels[j] = labels[j], labels[i]
+    c["parameters"]["POINT"]["LABELS"]["value"] = labels
+    c.write(str(dst))
+    return dst
+
+
+def section_swaps(a, tmp: Path, cap: float, log) -> dict:
+    """pig_walk with two of the walk's labels exchanged for the whole walk (a labelling template's error):
+    which labels calibrate names to check, which segments it flags as implausible, and what the fit does."""
+    static, walk = PIG / "static.c3d", PIG / "walk.c3d"
+    if not (static.exists() and walk.exists()):
+        return {"skipped": f"{PIG} not found (static.c3d, walk.c3d)"}
+    out = {}
+    for x, y in SWAPS:
+        d = tmp / f"swap_{x}_{y}"
+        d.mkdir(parents=True, exist_ok=True)
+        st = Path(shutil.copy(static, d / "static.c3d"))
+        wk = swap_c3d(walk, d / "walk.c3d", x, y)
+        log(f"swaps: pig_walk with {x} and {y} exchanged in the walk")
+        run = calibrate_cli([st, wk], d, cap, a.extra)
+        if "error" in run:
+            out[f"{x}/{y}"] = {"error": run["error"]}
+            continue
+        rep = run["report"]
+        scales = report_scales(rep)
+        named = [m["label"] for m in rep.get("suspect_labels", [])]
+        flagged = rep.get("implausible", [])
+        out[f"{x}/{y}"] = {
+            "wall_s": run["seconds"], "converged": bool(rep["solver"]["converged"]),
+            "iterations": rep["solver"]["iterations"], "marker_rms_mm": rep["markers"]["rms_mm"],
+            "named": named, "named_with": sorted({lab for m in rep.get("suspect_labels", [])
+                                                  for lab in (m["label"], *m.get("segment_labels", []))}),
+            "implausible": [b["segment"] + (f" vs {b['partner']}" if b.get("partner") else "") for b in flagged],
+            "implausible_labels": sorted({lab for b in flagged for lab in b["check_labels"]}),
+            "scale_min": min(scales.values()), "scale_max": max(scales.values()),
+            "asymmetry_pct": segment_lengths(UrdfKinematics(run["urdf"]))["asymmetry_pct"],
+            "pair_pointed_at": bool({x, y} & set(named + [lab for m in rep.get("suspect_labels", [])
+                                                           for lab in m.get("segment_labels", [])]))
+                               or bool({x, y} & {lab for b in flagged for lab in b["check_labels"]})}
+    return out
+
+
 def simulate(tmp: Path, name: str, frames: int, seed: int, args: list, cap: float) -> tuple[Path, dict]:
     d = tmp / name
     r = cli(["simulate", "--out", d, "--frames", frames, "--seed", seed, "--overwrite", *args], cap)
@@ -848,6 +903,18 @@ def report(res: dict) -> None:
                 except (KeyError, TypeError):
                     cells.append("-")
             say(f"{label:38s}" + "".join(f"{x:>18s}" for x in cells))
+    sw = res.get("swaps", {})
+    if sw and "skipped" not in sw:
+        say()
+        say("4. pig_walk with two walk labels exchanged for the whole walk (static.c3d as recorded)")
+        for pair, v in sw.items():
+            if "error" in v:
+                say(f"  {pair}: ERROR {v['error']}")
+                continue
+            say(f"  {pair}: converged {v['converged']}, {v['iterations']} its, marker RMS {v['marker_rms_mm']:.2f} mm, "
+                f"scales {v['scale_min']:.2f}-{v['scale_max']:.2f}, L/R {v['asymmetry_pct']:.1f} %; labels named "
+                f"{', '.join(v['named']) or 'none'} (with {', '.join(v['named_with']) or '-'}); implausible "
+                f"{', '.join(v['implausible']) or 'none'}; the pair pointed at: {v['pair_pointed_at']}")
     say()
     say("Targets")
     for c in res["checks"]:
@@ -896,6 +963,8 @@ def collect(a: argparse.Namespace, log) -> dict:
                 res["skipped"].append(f"realistic: corruptions caught: {r['corruptions']['skipped']}")
         if "clean" in only:
             res["clean"] = guarded(section_clean, a, tmp, cap, log)
+        if "swaps" in only and not (a.quick and not a.only):  # not in the CI smoke run unless asked for
+            res["swaps"] = guarded(section_swaps, a, tmp, cap, log)
     finally:
         if tmp_ctx:
             tmp_ctx.cleanup()
