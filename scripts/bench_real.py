@@ -569,7 +569,9 @@ def section_swaps(a, tmp: Path, cap: float, log) -> dict:
         out[f"{x}/{y}"] = {
             "wall_s": run["seconds"], "converged": bool(rep["solver"]["converged"]),
             "iterations": rep["solver"]["iterations"], "marker_rms_mm": rep["markers"]["rms_mm"],
-            "named": named, "named_with": sorted({lab for m in rep.get("suspect_labels", [])
+            "named": named, "exchanges": sorted({"/".join(x) for m in rep.get("suspect_labels", [])
+                                                 for x in m.get("exchanges", [])}),
+            "named_with": sorted({lab for m in rep.get("suspect_labels", [])
                                                   for lab in (m["label"], *m.get("segment_labels", []))}),
             "implausible": [b["segment"] + (f" vs {b['partner']}" if b.get("partner") else "") for b in flagged],
             "implausible_labels": sorted({lab for b in flagged for lab in b["check_labels"]}),
@@ -913,7 +915,8 @@ def report(res: dict) -> None:
                 continue
             say(f"  {pair}: converged {v['converged']}, {v['iterations']} its, marker RMS {v['marker_rms_mm']:.2f} mm, "
                 f"scales {v['scale_min']:.2f}-{v['scale_max']:.2f}, L/R {v['asymmetry_pct']:.1f} %; labels named "
-                f"{', '.join(v['named']) or 'none'} (with {', '.join(v['named_with']) or '-'}); implausible "
+                f"{', '.join(v['named']) or 'none'} (with {', '.join(v['named_with']) or '-'}; exchanges that fit: "
+                f"{', '.join(v.get('exchanges', [])) or '-'}); implausible "
                 f"{', '.join(v['implausible']) or 'none'}; the pair pointed at: {v['pair_pointed_at']}")
     say()
     say("Targets")

@@ -237,6 +237,9 @@ def test_a_label_exchanged_across_segments_for_the_whole_trial_is_named(sta_mm):
     assert "RKNE" in found and found["RKNE"].segment == "femur_r"
     assert found["RKNE"].rides_with in ("tibia_r", "talus_r", "calcn_r")  # the shank or the foot: the ankle marker's
     assert found["RKNE"].sd_own > 3 * found["RKNE"].sd_other
+    # the exchange that puts every label back on its segment is proposed (with the thigh and shank wands', which
+    # rigidity cannot tell from it: both segments carry two markers)
+    assert ("RKNE", "RANK") in found["RKNE"].exchanges and ("RTHI", "RTIB") in found["RKNE"].exchanges
     # within one segment an exchange cannot be seen by rigidity (and only moves the two markers' offsets)
     labels = list(trial.labels)
     i, j = labels.index("RHEE"), labels.index("RTOE")

@@ -72,7 +72,8 @@ def _notes(report: dict) -> str:
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "
                      f"{m.get('distance_sd_other_mm', 0):.1f} mm SD), not with {_e(m.get('segment'))}'s "
                      f"({_e(', '.join(m.get('segment_labels', [])))}: {m.get('distance_sd_own_mm', 0):.1f} mm); "
-                     "exchanged for the whole trial?</li>")
+                     "exchanged for the whole trial?"
+                     + ("".join(f" {_e(a)} and {_e(b)}?" for a, b in m.get("exchanges", []))) + "</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

@@ -110,6 +110,7 @@ def calibration_report(cal: Calibration) -> dict:
         "implausible": [b.to_json() for b in cal.implausible],
         "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
                             "moves_with": m.rides_with, "segment_labels": list(m.partners),
+                            "exchanges": [list(x) for x in m.exchanges],
                             "distance_sd_own_mm": 1e3 * m.sd_own,
                             "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),

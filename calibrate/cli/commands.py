@@ -218,8 +218,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print("wrote " + "\n      ".join(str(p) for p in outputs))
     if cal.misplaced:
         check = dict.fromkeys(x for _, m in cal.misplaced for x in (m.label, *m.partners))
+        pairs = dict.fromkeys(f"{a}/{b}" for _, m in cal.misplaced for a, b in m.exchanges)
         print(f"warning: labels to check (they move with another segment's markers than the model's; exchanged for "
-              f"the whole trial?): {', '.join(check)} (see 'check label' above)", file=sys.stderr)
+              f"the whole trial?): {', '.join(check)}" + (f"; exchanges that fit: {', '.join(pairs)}" if pairs else "")
+              + " (see 'check label' above)", file=sys.stderr)
     if not cal.converged:
         print(f"warning: the solver did not converge ({cal.summary.termination}); the best result so far was "
               "written and is flagged in the report", file=sys.stderr)
