@@ -657,6 +657,6 @@ def _exchanges(sd: np.ndarray, labels: list[str], seg: list[str], found: tuple[M
             out.setdefault(frozenset((a, b)), (score, labels[a], labels[b]))
     # Only the steadiest: an exchange that restores the trial's labelling gives exactly the steadiness of the
     # right labels, and so does its twin where two segments carry two markers each (the same pairs within each
-    # segment); others that also leave none misplaced are steadier by less (3-12 % on squats and pig_walk).
+    # segment); others that also leave none misplaced are 3-12 % less steady (on squats and pig_walk).
     best = min((v[0] for v in out.values()), default=0.0)
     return tuple((a, b) for score, a, b in out.values() if score <= best * (1 + 1e-9))
