@@ -384,6 +384,16 @@ def test_cli_joints_prints_table_and_writes_csv(human, tmp_path, capsys):
     code = main(["joints", str(paths["trial"]), str(human.path), "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and "already exists" in err and err.count("\n") == 1
+    # a knee label exchanged with the ankle's for the whole trial: named, with the exchange that explains it
+    from calibrate.io.c3d import write_c3d
+
+    labels = list(sim.trial.labels)
+    i, j = labels.index("RKNE"), labels.index("RANK")
+    labels[i], labels[j] = labels[j], labels[i]
+    write_c3d(tmp_path / "swapped.c3d", Trial(labels, sim.trial.markers, sim.trial.rate, 0, None))
+    main(["joints", str(tmp_path / "swapped.c3d"), str(human.path)])
+    err = capsys.readouterr().err
+    assert "warning: RKNE moves with" in err and "RKNE and RANK" in err
 
 
 def test_cli_joints_bad_input(human, tmp_path, capsys):

@@ -392,7 +392,7 @@ def cmd_joints(args: argparse.Namespace) -> int:
           f"({len(used)} in the model)")
     print(f"model  {args.model}: {len(model.segments)} segments, {len(model.joints)} joints, "
           f"{len(model.markers)} markers")
-    from ..seed.association import associate_to_model
+    from ..seed.association import associate_to_model, misplaced_labels
 
     assoc = associate_to_model(model, trial)
     extra = {m.label: m.segment for m in assoc.markers if m.status == "assigned" and m.segment}
@@ -405,6 +405,8 @@ def cmd_joints(args: argparse.Namespace) -> int:
     for lab in assoc.suspects:
         print(f"warning: {lab} does not move rigidly with the other markers of {assoc[lab].segment} "
               f"({assoc[lab].reason}); is it mislabelled?", file=sys.stderr)
+    for m in misplaced_labels(model, [trial]):  # a label exchanged for the whole trial (docs/calibration.md)
+        print(f"warning: {m.text()}; check the label", file=sys.stderr)
     missing = [m for m in model.marker_names if m not in set(trial.labels)]
     if missing:
         print(f"warning: {len(missing)} model markers are not in the trial: {', '.join(missing)}", file=sys.stderr)
