@@ -14,6 +14,7 @@ from calibrate.seed.seeding import Seed
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.model import Model, Parameters
+from ..problem.priors import symmetry_pairs
 from ..problem.settings import Settings
 from ..seed.geometry import marker_max, marker_rms
 from ..solve.lm import SolverSummary
@@ -168,8 +169,6 @@ class Calibration:
             return []
         model = self.model
         by_name = {sg.name: sg for sg in model.segments}
-        index = {sg.name: i for i, sg in enumerate(model.segments)}
-
         def labels(name: str) -> tuple[str, ...]:
             near = [name] + [j.parent for j in model.joints if j.child == name] \
                 + [j.child for j in model.joints if j.parent == name]
@@ -181,16 +180,16 @@ class Calibration:
             if not 1.0 / IMPLAUSIBLE_SCALE <= rel <= IMPLAUSIBLE_SCALE:
                 out.append(Implausible(sg.name, float(s), rel, labels(sg.name)))
         flagged = {b.segment for b in out}
-        for left in (sg.name for sg in model.segments if sg.name.endswith("_l")):
-            right = left[:-2] + "_r"
-            if right not in index or flagged & {left, right}:
+        for il, ir in symmetry_pairs(model, model.parameters().centre)[0]:
+            left, right = model.segments[il].name, model.segments[ir].name
+            if flagged & {left, right}:
                 continue
-            sl, sr = float(scale[index[left]]), float(scale[index[right]])
+            sl, sr = float(scale[il]), float(scale[ir])
             if max(sl, sr) <= IMPLAUSIBLE_ASYMMETRY * min(sl, sr):
                 continue
             # the side further from the subject's median is the one its labels bent
             name, other = (left, right) if abs(math.log(sl / median)) >= abs(math.log(sr / median)) else (right, left)
-            s, s_other = float(scale[index[name]]), float(scale[index[other]])
+            s, s_other = (sl, sr) if name == left else (sr, sl)
             out.append(Implausible(name, s, s / median, labels(name), other, s_other))
         return out
 

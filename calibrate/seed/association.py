@@ -639,7 +639,7 @@ def _exchanges(sd: np.ndarray, labels: list[str], seg: list[str], found: tuple[M
     partners, and a label of another segment; the EXCHANGE_TRIES candidates that make every segment steadiest
     (the sum of its markers' distance SDs) tried, and of those that pass, the steadiest kept."""
     at = {n: k for k, n in enumerate(labels)}
-    same = np.array([[a == b for b in seg] for a in seg]) & ~np.eye(len(seg), dtype=bool)
+    same = np.equal.outer(np.array(seg), np.array(seg)) & ~np.eye(len(seg), dtype=bool)
     firsts = dict.fromkeys(at[x] for m in found for x in (m.label, *m.partners))
     cands = []
     for a in firsts:
