@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibrate.model.blocks import FrameLayout, ParameterLayout
+from calibrate.model.blocks import FrameLayout, ParameterLayout, perpendicular_bases, perpendicular_basis
 from calibrate.problem.options import SolverOptions
 from calibrate.problem.problem import Problem
 from calibrate.problem.settings import Settings
@@ -120,3 +120,65 @@ def test_solver_options(human, human_kin):
                   sim.truth.vector())
     _, one = levenberg_marquardt(problem, state, SolverOptions(max_iterations=1), pose_only=True)
     assert one.iterations == 1 and not one.converged and "max_iterations (1)" in one.termination
+
+
+def test_gauge_constraints_and_axis_bases_match_their_definitions(human, human_kin):
+    """The gathered gauge constraints (Problem.gauge_constraints) against the definition written out
+    segment by segment: for each gauged segment and turn axis w, the row Σ weight · (w × x) over the
+    positions x it holds (at the subject's scale) and, through each axis's tangent basis, its axes;
+    the root's shift rows; each hinge centre's slide along its axis.  And the tangent bases: unit,
+    perpendicular to their axis and to each other."""
+    sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=0)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    L, m, pr = problem.layout, human, problem.settings.priors
+    rng = np.random.default_rng(4)
+    p = problem.retract_parameters(human.parameters().vector(), 0.05 * rng.normal(size=problem.n_free))
+    rows = []
+    for si, kind in problem._gauges:
+        items = []
+        s = p[L.scale(si)]
+        for k in np.flatnonzero((problem.marker_segment == si) & ~problem.unseen):
+            items.append((s * p[L.marker(k)], L.cols("marker", k), 1 / pr.marker**2, None))
+        for ji in np.flatnonzero(problem.centre_segment == si):
+            items.append((s * p[L.centre(ji)], L.cols("centre", ji), 1 / pr.centre**2, None))
+            for name in m.joints[ji].dofs:
+                d = m.dof_index(name)
+                if d in problem.axis_dofs:
+                    a = p[L.axis(d)] / np.linalg.norm(p[L.axis(d)])
+                    items.append((a, L.axis_cols(d), 1 / pr.axis**2, perpendicular_basis(a)))
+        if kind == "axis":
+            j = next(j for j in m.joints if j.child == m.segments[si].name)
+            a = p[L.axis(m.dof_index(j.dofs[-1]))]
+            omegas = [a / np.linalg.norm(a)]
+        else:
+            omegas = list(np.eye(3))
+        for w in omegas:
+            r = np.zeros(problem.n_free)
+            for x, cols, wt, B in items:
+                v = wt * np.cross(w, x)
+                r[cols] += v if B is None else v @ B
+            rows.append(r)
+        if kind == "rigid":
+            for c in range(3):
+                r = np.zeros(problem.n_free)
+                for _, cols, wt, B in items:
+                    if B is None:
+                        r[cols[c]] += wt
+                rows.append(r)
+    kinds = {kind for _, kind in problem._gauges}
+    assert {"rigid", "rotation", "axis"} <= kinds
+    K = problem.gauge_constraints(p, slides=False)
+    assert K.shape == (len(rows), problem.n_free)
+    assert np.allclose(K, np.array(rows), rtol=1e-12, atol=1e-9)
+    slides = problem.gauge_constraints(p)[len(rows):]
+    assert slides.shape[0] == len(problem._slides) > 0
+    for r, ji in zip(slides, problem._slides, strict=True):
+        j = m.joints[ji]
+        a = p[L.axis(m.dof_index(j.dofs[0]))]
+        want = np.zeros(problem.n_free)
+        want[L.cols("centre", ji)] = problem._urdf[j.urdf_joints[0]].rotation @ (a / np.linalg.norm(a))
+        assert np.allclose(r, want, rtol=1e-12, atol=1e-15)
+    A = L.axis_directions(p)
+    B = perpendicular_bases(A)
+    assert np.allclose(np.einsum("nij,nik->njk", B, B), np.eye(2), atol=1e-14)
+    assert np.allclose(np.einsum("ni,nij->nj", A, B), 0.0, atol=1e-14)

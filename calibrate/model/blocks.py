@@ -24,7 +24,6 @@ increments about its own reference quaternion (Kinematics.balls).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -54,12 +53,29 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def perpendicular_basis(a: np.ndarray) -> np.ndarray:
     """(3, 2) orthonormal columns perpendicular to unit `a` (a fixed, smooth-enough choice): the
     tangent basis B of an axis block."""
-    k = int(np.argmin(np.abs(a)))
-    e = np.zeros(3)
-    e[k] = 1.0
-    u = cross3(a, e)
-    u /= math.sqrt(float(u @ u))
-    return np.column_stack([u, cross3(a, u)])
+    return perpendicular_bases(np.asarray(a, dtype=float)[None])[0]
+
+
+def perpendicular_bases(a: np.ndarray) -> np.ndarray:
+    """(n, 3, 2): perpendicular_basis of each row of unit vectors `a` (n, 3), in one pass: u = a × e_k
+    with k the smallest component of a, normalised, and a × u."""
+    n = a.shape[0]
+    e = np.zeros((n, 3))
+    e[np.arange(n), np.argmin(np.abs(a), axis=1)] = 1.0
+    u = cross_rows(a, e)
+    u /= np.sqrt(u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1] + u[:, 2] * u[:, 2])[:, None]
+    return np.stack([u, cross_rows(a, u)], axis=2)
+
+
+def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b of (n, 3) arrays (cross3's arithmetic)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+def unit_rows(a: np.ndarray) -> np.ndarray:
+    """Each row of (n, 3) `a` divided by its length."""
+    return a / np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])[:, None]
 
 
 @dataclass(frozen=True)
@@ -209,6 +225,9 @@ class ParameterLayout:
         scale_col = {i: k for k, i in self.direct if i < self.scales.stop}
         pos = [(i, k, owner_of[i], scale_col.get(owner_of[i], -1)) for k, i in self.direct if i in owner_of]
         self._positions = tuple(np.array([x[c] for x in pos], dtype=int) for c in range(4))
+        # The calibrated axes' entries in p (n, 3) and free columns (n, 2), in axis_dofs' order.
+        self.axis_entries = self.entries("axis", self.axis_dofs)
+        self.axis_columns = np.array([self.axis_cols(d) for d in self.axis_dofs], dtype=int).reshape(-1, 2)
 
     # ---------------------------------------------------------------- the full vector p
     def block(self, group: str, i: int) -> Block:
@@ -281,8 +300,11 @@ class ParameterLayout:
     # ---------------------------------------------------------------- manifolds
     def axis_direction(self, p: np.ndarray, d: int) -> np.ndarray:
         """DoF d's axis in `p`, normalised (unit)."""
-        a = p[self.axis(d)]
-        return a / np.linalg.norm(a)
+        return unit_rows(p[self.axis(d)][None])[0]
+
+    def axis_directions(self, p: np.ndarray) -> np.ndarray:
+        """(n, 3) the calibrated axes (axis_dofs' order) in `p`, normalised."""
+        return unit_rows(p[self.axis_entries])
 
     def tangent_map(self, p: np.ndarray) -> np.ndarray:
         """T (n_full, n_free): change of p per unit change of the free coordinates at `p`.
@@ -301,8 +323,9 @@ class ParameterLayout:
             T[rows, cols] = 1.0 / s
             with_scale = scol >= 0
             T[rows[with_scale], scol[with_scale]] = -p[rows[with_scale]] / s[with_scale]
-        for d in self.axis_dofs:
-            T[self.axis(d), self.axis_cols(d)] = perpendicular_basis(self.axis_direction(p, d))
+        if self.axis_dofs:
+            B = perpendicular_bases(self.axis_directions(p))
+            T[self.axis_entries[:, :, None], self.axis_columns[:, None, :]] = B
         return T
 
     def retract(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
@@ -318,8 +341,8 @@ class ParameterLayout:
         rows, cols, owner, _ = self._positions
         if rows.size:
             out[rows] = (p[owner] * p[rows] + dp[cols]) / out[owner]
-        for d in self.axis_dofs:  # normalise(a + B u)
-            a = self.axis_direction(p, d)
-            a = a + perpendicular_basis(a) @ dp[self.axis_cols(d)]
-            out[self.axis(d)] = a / np.linalg.norm(a)
+        if self.axis_dofs:  # normalise(a + B u)
+            a = self.axis_directions(p)
+            B, u = perpendicular_bases(a), dp[self.axis_columns]
+            out[self.axis_entries] = unit_rows(a + B[:, :, 0] * u[:, :1] + B[:, :, 1] * u[:, 1:])
         return out

@@ -10,7 +10,7 @@ import numpy as np
 
 from calibrate.problem.state import FrameTurn
 
-from ..model.blocks import cross3, perpendicular_basis
+from ..model.blocks import cross_rows, perpendicular_bases
 from ..seed.geometry import kabsch_rotation
 
 
@@ -194,6 +194,52 @@ class GaugeMixin:
                     out[sl] = K.T @ out[sl]
             self._turn(out, m.segment_index(j.child), K)
 
+    def _gauge_plan(self) -> dict:
+        """gauge_constraints' index arrays (they depend on the layout and the gauges, not on p): each
+        constraint row's gauge, and each gauge's positions (markers, joint centres) and axes."""
+        cached = self.__dict__.get("_gauge_plan_cache")
+        if cached is not None and cached[0] is self.layout and cached[1] is self._gauges:
+            return cached[2]
+        m, L = self.model, self.layout
+        pr = self.settings.priors
+        axis_at = {d: i for i, d in enumerate(self.axis_dofs)}
+        pos_g, pos_idx, pos_scale, pos_cols, pos_w = [], [], [], [], []
+        ax_g, ax_i, ax_w = [], [], []
+        row_g, row_omega, rigid_rows = [], [], []  # omega: -1 for e_x, e_y, e_z (by row_axis), else an axis index
+        row_axis = []
+        for g, (si, kind) in enumerate(self._gauges):
+            for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):  # (unseen: held, see _turn)
+                pos_g.append(g), pos_idx.append(np.arange(L.marker(k).start, L.marker(k).stop))
+                pos_scale.append(L.scale(si)), pos_cols.append(L.cols("marker", k)), pos_w.append(1 / pr.marker**2)
+            for ji in np.flatnonzero(self.centre_segment == si):
+                pos_g.append(g), pos_idx.append(np.arange(L.centre(ji).start, L.centre(ji).stop))
+                pos_scale.append(L.scale(si)), pos_cols.append(L.cols("centre", ji)), pos_w.append(1 / pr.centre**2)
+                for dname in m.joints[ji].dofs:
+                    d = m.dof_index(dname)
+                    if d in axis_at:
+                        ax_g.append(g), ax_i.append(axis_at[d]), ax_w.append(1 / pr.axis**2)
+            if kind == "axis":
+                j = next(j for j in m.joints if j.child == m.segments[si].name)
+                row_g.append(g), row_omega.append(m.dof_index(j.dofs[-1])), row_axis.append(-1)
+            else:
+                for c in range(3):
+                    row_g.append(g), row_omega.append(-1), row_axis.append(c)
+            if kind == "rigid":
+                rigid_rows.append(g)
+        pos_g, ax_g, row_g = np.array(pos_g, dtype=int), np.array(ax_g, dtype=int), np.array(row_g, dtype=int)
+        # (row, position) and (row, axis) pairs of the same gauge
+        pr_row, pr_pos = np.nonzero(row_g[:, None] == pos_g[None, :])
+        ar_row, ar_ax = np.nonzero(row_g[:, None] == ax_g[None, :])
+        plan = dict(n_rows=row_g.size, pos_idx=np.array(pos_idx, dtype=int).reshape(-1, 3),
+                    pos_scale=np.array(pos_scale, dtype=int), pos_cols=np.array(pos_cols, dtype=int).reshape(-1, 3),
+                    pos_w=np.array(pos_w), ax_i=np.array(ax_i, dtype=int), ax_w=np.array(ax_w),
+                    row_omega=np.array(row_omega, dtype=int), row_axis=np.array(row_axis, dtype=int),
+                    pr_row=pr_row, pr_pos=pr_pos, ar_row=ar_row, ar_ax=ar_ax,
+                    rigid={g: np.flatnonzero(pos_g == g) for g in rigid_rows},
+                    gauge_rows=[np.flatnonzero(row_g == g) for g in range(len(self._gauges))])
+        self._gauge_plan_cache = (self.layout, self._gauges, plan)
+        return plan
+
     def gauge_constraints(self, p: np.ndarray, slides: bool = True) -> np.ndarray:
         """K (n_gauge, n_free): steps with K dp = 0 do not turn (or, for the root, shift) a
         segment's frame against its contents.  Each segment's frame may turn freely with its
@@ -202,38 +248,35 @@ class GaugeMixin:
         Fixing it keeps each segment's frame oriented as in the start (the base model's
         orientation), which is what the priors choose to first order."""
         m, L = self.model, self.layout
-        pr = self.settings.priors
-        rows: list[np.ndarray] = []
-        for si, kind in self._gauges:
-            items: list[tuple[np.ndarray, np.ndarray, float, np.ndarray | None]] = []  # x, cols, weight, basis
-            s = p[L.scale(si)]  # free positions are at the subject's scale (see tangent_map)
-            for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):  # (unseen: held, see _turn)
-                items.append((s * p[L.marker(k)], L.cols("marker", k), 1 / pr.marker**2, None))
-            for ji in np.flatnonzero(self.centre_segment == si):
-                items.append((s * p[L.centre(ji)], L.cols("centre", ji), 1 / pr.centre**2, None))
-                for dname in m.joints[ji].dofs:
-                    d = m.dof_index(dname)
-                    if d in self.axis_dofs:
-                        a = self.axis_direction(p, d)
-                        items.append((a, L.axis_cols(d), 1 / pr.axis**2, perpendicular_basis(a)))
-            if kind == "axis":
-                j = next(j for j in m.joints if j.child == m.segments[si].name)
-                omegas = [self.axis_direction(p, m.dof_index(j.dofs[-1]))]
-            else:
-                omegas = list(np.eye(3))
-            for w in omegas:
-                r = np.zeros(self.n_free)
-                for x, cols, wt, B in items:
-                    v = wt * cross3(w, x)
-                    r[cols] += v if B is None else v @ B
-                rows.append(r)
-            if kind == "rigid":
+        plan = self._gauge_plan()
+        n_rows = plan["n_rows"]
+        K = np.zeros((n_rows, self.n_free))
+        if n_rows:
+            # each row's turn axis: a coordinate axis, or the hinge axis into an 'axis' gauge's segment
+            W = np.zeros((n_rows, 3))
+            fixed = plan["row_axis"] >= 0
+            W[np.flatnonzero(fixed), plan["row_axis"][fixed]] = 1.0
+            for r in np.flatnonzero(~fixed):
+                W[r] = self.axis_direction(p, int(plan["row_omega"][r]))
+            X = p[plan["pos_scale"]][:, None] * p[plan["pos_idx"]]  # free positions are at the subject's scale
+            rr, pp = plan["pr_row"], plan["pr_pos"]
+            K[rr[:, None], plan["pos_cols"][pp]] = plan["pos_w"][pp, None] * cross_rows(W[rr], X[pp])
+            if plan["ax_i"].size:
+                A = L.axis_directions(p)[plan["ax_i"]]
+                B = perpendicular_bases(A)
+                rr, aa = plan["ar_row"], plan["ar_ax"]
+                v = plan["ax_w"][aa, None] * cross_rows(W[rr], A[aa])
+                K[rr[:, None], L.axis_columns[plan["ax_i"][aa]]] = \
+                    v[:, :1] * B[aa, 0] + v[:, 1:2] * B[aa, 1] + v[:, 2:] * B[aa, 2]
+        rows = []
+        for g, at in enumerate(plan["gauge_rows"]):  # each gauge's turns, then (the root) its shifts
+            rows.append(K[at])
+            items = plan["rigid"].get(g)
+            if items is not None:  # the root's shift: its positions move with it
+                r = np.zeros((3, self.n_free))
                 for c in range(3):
-                    r = np.zeros(self.n_free)
-                    for _, cols, wt, B in items:
-                        if B is None:
-                            r[cols[c]] += wt
-                    rows.append(r)
+                    r[c, plan["pos_cols"][items, c]] = plan["pos_w"][items]
+                rows.append(r)
         # A hinge centre can slide along its axis with the child's contents sliding back: hold
         # it where it starts (the base model's or the seed's point on the axis).
         for ji in self._slides if slides else []:
@@ -241,7 +284,7 @@ class GaugeMixin:
             d = m.dof_index(j.dofs[0])
             u = self._urdf[j.urdf_joints[0]]
             a = u.rotation @ self.axis_direction(p, d)
-            r = np.zeros(self.n_free)
-            r[L.cols("centre", ji)] = a
+            r = np.zeros((1, self.n_free))
+            r[0, L.cols("centre", ji)] = a
             rows.append(r)
-        return np.array(rows, dtype=float).reshape(len(rows), self.n_free)
+        return np.concatenate(rows) if rows else np.zeros((0, self.n_free))

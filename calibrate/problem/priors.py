@@ -84,10 +84,10 @@ class PriorsMixin:
             block("marker", self.marker_segment, st.priors.marker)
         if "centre" in free:
             block("centre", self.centre_segment, st.priors.centre)
-        for d in self.axis_dofs:
-            sl = L.axis(d)
-            add((p[sl] - unit[sl]) / st.priors.axis, lambda sl=sl: (
-                np.arange(3), np.arange(sl.start, sl.stop), np.full(3, 1.0 / st.priors.axis)))
+        if self.axis_dofs:
+            idx = L.axis_entries.ravel()
+            add((p[idx] - unit[idx]) / st.priors.axis, lambda: (
+                np.arange(idx.size), idx, np.full(idx.size, 1.0 / st.priors.axis)))
         if "scale" in free:
             ns = len(m.segments)
             add((scale - base[L.scales]) / st.priors.scale, lambda: (
@@ -104,14 +104,14 @@ class PriorsMixin:
                 np.r_[np.full(a.size, 1.0 / sd), np.full(a.size, -1.0 / sd)]))
         sd = st.priors.symmetry_centre
         if "centre" in free and sd > 0 and joint_pairs:
-            k = np.arange(3)
-            for jl, jr in joint_pairs:
-                sa, sb = int(self.centre_segment[jl]), int(self.centre_segment[jr])
-                il, ir = L.entries("centre", [jl, jr])
-                add((scale[sa] * p[il] - mirror * (scale[sb] * p[ir]) - (base[il] - mirror * base[ir])) / sd,
-                    lambda sa=sa, sb=sb, il=il, ir=ir: (
-                        np.r_[k, k, k, k], np.r_[il, ir, np.full(3, L.scale(sa)), np.full(3, L.scale(sb))],
-                        np.r_[np.full(3, scale[sa] / sd), -mirror * scale[sb] / sd, p[il] / sd, -mirror * p[ir] / sd]))
+            jl, jr = np.array(joint_pairs, dtype=int).T
+            sa, sb = self.centre_segment[jl], self.centre_segment[jr]
+            il, ir = L.entries("centre", jl), L.entries("centre", jr)  # (pairs, 3)
+            ka, kb = scale[sa][:, None], scale[sb][:, None]
+            k = np.broadcast_to(np.arange(il.size).reshape(-1, 1, 3), (il.shape[0], 4, 3))  # pair by pair, as rows
+            add(((ka * p[il] - mirror * (kb * p[ir]) - (base[il] - mirror * base[ir])) / sd).ravel(), lambda: (
+                k, np.stack([il, ir, np.repeat(L.scale(sa)[:, None], 3, 1), np.repeat(L.scale(sb)[:, None], 3, 1)], 1),
+                np.stack([np.repeat(ka / sd, 3, 1), -mirror * kb / sd, p[il] / sd, -mirror * p[ir] / sd], 1)))
         if not res:
             return np.zeros(0), np.zeros((0, self.n_free))
         if not jacobian:

@@ -50,7 +50,7 @@ from ..model.blocks import ParameterLayout
 from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters
 from ..solve.assembly import ParameterLayout as ColumnLayout
-from ..solve.assembly import assemble, parameter_layout
+from ..solve.assembly import assemble, parameter_layout, parameter_pattern
 
 T = TypeVar("T")
 
@@ -377,7 +377,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
             C, gp = np.zeros((n, n)), np.zeros(n)
         else:
             C, gp = assemble(d, wrow, jz, jp, self._layout_z, pl, A, B, gz, n, parts=parts)
-        a_pat, b_pat = self.block_patterns(pl)
+        a_pat, b_pat = self._block_patterns(pl)
         lim = self.limits(state.Z[sel])
         out = self._limit_active(lim)
         if out.any():
@@ -400,7 +400,23 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         """The gather of ∂r/∂p_free from the per-frame Jacobian's nonzeros at parameters `p`
         (calibrate.solve.assembly.parameter_layout through tangent_map(p)): one per state, shared by
         its chunks."""
-        return parameter_layout(self.groups, self.tangent_map(p))
+        T = self.tangent_map(p)
+        # Where T is nonzero changes only when an entry of p passes through zero (an axis's tangent basis
+        # switches, a base offset leaves zero): the gather's indices are kept while it does not.
+        key = (T.shape, np.packbits(T != 0).tobytes())
+        cached = self.__dict__.get("_pattern_cache")
+        if cached is None or cached[0] is not self.groups or cached[1] != key:
+            pattern = parameter_pattern(self.groups, T)
+            cached = (self.groups, key, pattern, self.block_patterns(pattern[0]))
+            self._pattern_cache = cached
+        return parameter_layout(self.groups, T, cached[2])
+
+    def _block_patterns(self, pl: ColumnLayout | None) -> tuple[np.ndarray, np.ndarray]:
+        """block_patterns(pl), kept with the gather's pattern (parameter_layout) when `pl` is built on it."""
+        cached = self.__dict__.get("_pattern_cache")
+        if pl is not None and cached is not None and cached[0] is self.groups and pl.fcols is cached[2][0].fcols:
+            return cached[3]
+        return self.block_patterns(pl)
 
     def coupling_times(self, lin: Linearization, full_step: np.ndarray) -> np.ndarray:
         """B_f dp for every frame of `lin` (F, nz), from its Jacobian (Jz' W² Jp dp) without B_f;

@@ -26,7 +26,7 @@ import subprocess
 import tempfile
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
@@ -91,9 +91,11 @@ class ParameterLayout:
     p_off: np.ndarray
 
 
-def parameter_layout(groups, T: np.ndarray) -> ParameterLayout:
-    """The gather of ∂r/∂p_free from ∂r/∂p_full's nonzeros through the free-parameter map T (n_full, n_free)."""
-    fcols, src, rr, cc, val = [], [], [], [], []
+def parameter_pattern(groups, T: np.ndarray) -> tuple[ParameterLayout, np.ndarray, np.ndarray]:
+    """The part of parameter_layout that depends only on where T is nonzero: the layout with empty values
+    and the (row, column) of T each value is read from (parameter_layout(groups, T) is
+    layout with p_val = T[rows, cols])."""
+    fcols, src, rr, cc, vr, vc = [], [], [], [], [], []
     fc_off, off = [0], [0]
     for g in groups:
         Tg = T[g.pcols]
@@ -110,13 +112,23 @@ def parameter_layout(groups, T: np.ndarray) -> ParameterLayout:
         src.append(g.p_src[rep])
         rr.append(r_of[rep])
         cc.append(local[tj[at]])
-        val.append(Tg[c_of[rep], tj[at]])
+        vr.append(g.pcols[c_of[rep]])
+        vc.append(tj[at])
         fcols.append(fc)
         fc_off.append(fc_off[-1] + fc.size)
         off.append(off[-1] + rep.size)
     cat = lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)  # noqa: E731
-    return ParameterLayout(cat(fcols, np.int64), np.array(fc_off, dtype=np.int64), cat(src, np.int64),
-                           cat(rr, np.int64), cat(cc, np.int64), cat(val, np.float64), np.array(off, dtype=np.int64))
+    layout = ParameterLayout(cat(fcols, np.int64), np.array(fc_off, dtype=np.int64), cat(src, np.int64),
+                             cat(rr, np.int64), cat(cc, np.int64), np.zeros(0), np.array(off, dtype=np.int64))
+    return layout, cat(vr, np.int64), cat(vc, np.int64)
+
+
+def parameter_layout(groups, T: np.ndarray,
+                     pattern: tuple[ParameterLayout, np.ndarray, np.ndarray] | None = None) -> ParameterLayout:
+    """The gather of ∂r/∂p_free from ∂r/∂p_full's nonzeros through the free-parameter map T (n_full, n_free).
+    `pattern`: parameter_pattern(groups, T) if known (it is the same for every T with the same nonzeros)."""
+    layout, rows, cols = pattern or parameter_pattern(groups, T)
+    return replace(layout, p_val=np.ascontiguousarray(T[rows, cols], dtype=np.float64))
 
 
 def group_layout(groups) -> GroupLayout:
