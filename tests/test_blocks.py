@@ -182,3 +182,37 @@ def test_gauge_constraints_and_axis_bases_match_their_definitions(human, human_k
     B = perpendicular_bases(A)
     assert np.allclose(np.einsum("nij,nik->njk", B, B), np.eye(2), atol=1e-14)
     assert np.allclose(np.einsum("ni,nij->nj", A, B), 0.0, atol=1e-14)
+
+
+def test_hinge_centres_slide_along_their_axes_without_moving_a_marker(human, human_kin):
+    """Problem.slide_centres: every marker in every frame where it was (the problem's CasADi residuals, to
+    1e-12 m), the priors' cost lower, no slide left that lowers it further (the
+    priors' gradient along each hinge's slide is zero), and a second slide changes nothing."""
+    sim = simulate_squats(human, frames=4, noise_mm=1.0, seed=0)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    rng = np.random.default_rng(7)
+    p = problem.retract_parameters(sim.truth.vector(), 0.03 * rng.normal(size=problem.n_free))
+    m = sim.motion
+    state = State(FrameLayout.coordinates(m.root_translation, m.angles), m.root_quaternion.copy(), p)
+    slid = State(state.Z, state.Q, problem.slide_centres(p))
+    assert np.abs(slid.p - p).max() > 1e-3  # the random geometry had hinge centres off along their axes
+    before = problem.marker_residuals(state)
+    after = problem.marker_residuals(slid)
+    assert np.nanmax(np.abs(after - before)) < 1e-12
+    r0, _ = problem.prior(p, jacobian=False)
+    r1, J1 = problem.prior(slid.p)
+    assert r1 @ r1 < r0 @ r0
+    # The slide directions at the slid point (centre along the axis, the child's contents back), as written out.
+    L = problem.layout
+    for ji in problem._slides:
+        j = human.joints[ji]
+        a = L.axis_direction(slid.p, human.dof_index(j.dofs[0]))
+        g = np.zeros(problem.n_free)
+        g[L.cols("centre", ji)] = problem._urdf[j.urdf_joints[0]].rotation @ a
+        child = human.segment_index(j.child)
+        for k in np.flatnonzero(problem.marker_segment == child):
+            g[L.cols("marker", k)] = -a
+        for jk in np.flatnonzero(problem.centre_segment == child):
+            g[L.cols("centre", jk)] = -a
+        assert abs(g @ (J1.T @ r1)) < 1e-8 * np.linalg.norm(J1.T @ r1), j.name
+    assert np.abs(problem.slide_centres(slid.p) - slid.p).max() < 1e-9

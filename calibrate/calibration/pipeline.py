@@ -344,6 +344,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         state = align_neutral(problem, state, in_neutral, solver)
         summary = replace(summary, final_cost=problem.cost(state), termination=summary.termination
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
+    # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
+    # (Problem.slide_centres): no marker and no joint angle moves, only the priors' cost falls.
+    slid = replace(state, p=problem.slide_centres(state.p))
+    summary = replace(summary, final_cost=problem.cost(slid))
+    state = slid
     times["solve"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     cov = covariance(problem, state, progress=Countdown(say, "covariance", "the parameters' posterior covariance"))

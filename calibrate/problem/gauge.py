@@ -124,6 +124,46 @@ class GaugeMixin:
             moves.append((si, kind, G, t))
         return out, moves
 
+    def slide_centres(self, p: np.ndarray) -> np.ndarray:
+        """Slide every hinge centre along its axis to where the priors want it, the child segment's
+        contents (its markers, the centres of the joints below it) slid back: the markers' places in
+        the world and every joint angle are unchanged, so only the priors' cost changes (it falls).
+
+        The data cannot see where along its axis a hinge sits; the solve holds each hinge centre's
+        place along the axis where it started (gauge_constraints), but that place drifts as the axis
+        turns in the solve or is held again at the base model's, and then reads as a shift of the
+        centre (pig_walk: the knee centres 85 mm along the flexion axis from the base model's middle of
+        the knee).  The slides of all hinges are found together: the priors are linear in the free
+        positions at fixed scales, so one least-squares solve over the slide lengths is exact."""
+        m, L = self.model, self.layout
+        cols = []
+        for ji in self._slides:
+            j = m.joints[ji]
+            d = m.dof_index(j.dofs[0])
+            a = self.axis_direction(p, d)
+            g = np.zeros(self.n_free)
+            cc = L.cols("centre", ji)
+            if cc.size == 0:
+                continue
+            g[cc] = self._urdf[j.urdf_joints[0]].rotation @ a  # the axis in the parent's frame
+            child = m.segment_index(j.child)
+            for k in np.flatnonzero(self.marker_segment == child):
+                mc = L.cols("marker", k)
+                if mc.size:
+                    g[mc] = -a  # the axis in the child's frame (the hinge turns about it)
+            for jk in np.flatnonzero(self.centre_segment == child):
+                kc = L.cols("centre", jk)
+                if kc.size:
+                    g[kc] = -a
+            cols.append(g)
+        if not cols:
+            return p.copy()
+        G = np.array(cols).T
+        r, Jr = self.prior(p)
+        M = Jr @ G
+        t = np.linalg.lstsq(M, -r, rcond=None)[0]
+        return self.retract_parameters(p, G @ t)
+
     def neutral_gauges(self) -> list[tuple[int, str]]:
         """The segment frames that a neutral trial may turn (neutral_frames): the gauges, held axes
         not blocking (a held axis keeps its direction against the markers, re-expressed)."""
