@@ -132,8 +132,8 @@ class GaugeMixin:
         The data cannot see where along its axis a hinge sits; the solve holds each hinge centre's
         place along the axis where it started (gauge_constraints), but that place drifts as the axis
         turns in the solve or is held again at the base model's, and then reads as a shift of the
-        centre (pig_walk: the knee centres 85 mm along the flexion axis from the base model's middle of
-        the knee).  The slides of all hinges are found together: the priors are linear in the free
+        centre (pig_walk: the left knee centre 37 mm along its flexion axis from the base model's place,
+        the subtalar centres 36 mm).  The slides of all hinges are found together: the priors are linear in the free
         positions at fixed scales, so one least-squares solve over the slide lengths is exact."""
         m, L = self.model, self.layout
         cols = []
