@@ -132,7 +132,7 @@ class GaugeMixin:
         The data cannot see where along its axis a hinge sits; the solve holds each hinge centre's
         place along the axis where it started (gauge_constraints), but that place drifts as the axis
         turns in the solve or is held again at the base model's, and then reads as a shift of the
-        centre (pig_walk: the left knee centre 37 mm along its flexion axis from the base model's place,
+        centre (pig_walk: the left knee centre 40 mm along its flexion axis from the base model's place,
         the subtalar centres 36 mm).  The slides of all hinges are found together: the priors are linear in the free
         positions at fixed scales, so one least-squares solve over the slide lengths is exact."""
         m, L = self.model, self.layout
