@@ -243,29 +243,29 @@ class GaugeMixin:
         m, L = self.model, self.layout
         pr = self.settings.priors
         axis_at = {d: i for i, d in enumerate(self.axis_dofs)}
-        pos_g, pos_idx, pos_scale, pos_cols, pos_w = [], [], [], [], []
-        ax_g, ax_i, ax_w = [], [], []
-        row_g, row_omega, rigid_rows = [], [], []  # omega: -1 for e_x, e_y, e_z (by row_axis), else an axis index
-        row_axis = []
+        positions = []  # (gauge, entries in p, its segment's scale entry, free columns, weight)
+        axes = []  # (gauge, index in axis_dofs, weight)
+        rows = []  # (gauge, turn about e_row_axis (0-2), or -1: about the axis of DoF row_omega)
+        rigid_rows = []
         for g, (si, kind) in enumerate(self._gauges):
             for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):  # (unseen: held, see _turn)
-                pos_g.append(g), pos_idx.append(np.arange(L.marker(k).start, L.marker(k).stop))
-                pos_scale.append(L.scale(si)), pos_cols.append(L.cols("marker", k)), pos_w.append(1 / pr.marker**2)
+                sl = L.marker(k)
+                positions.append((g, np.arange(sl.start, sl.stop), L.scale(si), L.cols("marker", k), 1 / pr.marker**2))
             for ji in np.flatnonzero(self.centre_segment == si):
-                pos_g.append(g), pos_idx.append(np.arange(L.centre(ji).start, L.centre(ji).stop))
-                pos_scale.append(L.scale(si)), pos_cols.append(L.cols("centre", ji)), pos_w.append(1 / pr.centre**2)
-                for dname in m.joints[ji].dofs:
-                    d = m.dof_index(dname)
-                    if d in axis_at:
-                        ax_g.append(g), ax_i.append(axis_at[d]), ax_w.append(1 / pr.axis**2)
+                sl = L.centre(ji)
+                positions.append((g, np.arange(sl.start, sl.stop), L.scale(si), L.cols("centre", ji), 1 / pr.centre**2))
+                axes += [(g, axis_at[d], 1 / pr.axis**2) for d in map(m.dof_index, m.joints[ji].dofs) if d in axis_at]
             if kind == "axis":
                 j = next(j for j in m.joints if j.child == m.segments[si].name)
-                row_g.append(g), row_omega.append(m.dof_index(j.dofs[-1])), row_axis.append(-1)
+                rows.append((g, -1, m.dof_index(j.dofs[-1])))
             else:
-                for c in range(3):
-                    row_g.append(g), row_omega.append(-1), row_axis.append(c)
+                rows += [(g, c, -1) for c in range(3)]
             if kind == "rigid":
                 rigid_rows.append(g)
+        pos_g, pos_idx, pos_scale, pos_cols, pos_w = (list(x) for x in zip(*positions, strict=True)) if positions \
+            else ([], [], [], [], [])
+        ax_g, ax_i, ax_w = (list(x) for x in zip(*axes, strict=True)) if axes else ([], [], [])
+        row_g, row_axis, row_omega = (list(x) for x in zip(*rows, strict=True)) if rows else ([], [], [])
         pos_g, ax_g, row_g = np.array(pos_g, dtype=int), np.array(ax_g, dtype=int), np.array(row_g, dtype=int)
         # (row, position) and (row, axis) pairs of the same gauge
         pr_row, pr_pos = np.nonzero(row_g[:, None] == pos_g[None, :])
