@@ -3,6 +3,8 @@ subsample starts the calibration; one that already fits to the stated noise is t
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -75,3 +77,51 @@ def test_calibration_reports_its_start(human, human_kin):
     sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=13)
     cal = calibrate(human, sim.trial, kinematics=human_kin)
     assert sum(n.startswith("started from ") for n in cal.seed.notes) == 1
+
+
+def test_a_run_advanced_in_parts_takes_the_steps_of_one_run(human, human_kin):
+    """lm.Run, which choose_start's race pauses after START_CHECK steps: advanced 3, then 4 steps, then to
+    its end, it reaches the very point (bit for bit) and summary that one levenberg_marquardt call does."""
+    from calibrate.solve.lm import Run
+
+    sim = simulate_squats(human, frames=40, noise_mm=1.0, seed=14)
+    obs = marker_columns(human, sim.trial)
+    problem = Problem(human, obs, Settings(), human_kin)
+    start = _wrong(sim.truth)
+    st = start_poses(human_kin, obs, start, stride=1, evaluator=problem.frame_evaluator(start.vector()))
+    st = replace(st, p=start.vector())
+    whole, s1 = levenberg_marquardt(problem, st, max_iterations=15)
+    run = Run(Problem(human, obs, Settings(), human_kin), st, max_iterations=15)
+    assert run.advance(3).summary.iterations == 3 and not run.done
+    assert run.cost == run.summary.cost_history[-1] < s1.initial_cost
+    run.advance(7)
+    assert run.summary.iterations == 7
+    parts, s2 = run.finish()
+    assert run.done and s2.iterations == s1.iterations > 7
+    assert np.array_equal(parts.p, whole.p) and np.array_equal(parts.Z, whole.Z)
+    assert s2.cost_history == s1.cost_history and s2.termination == s1.termination
+
+
+def test_a_start_far_ahead_after_the_check_is_taken_there(human, human_kin):
+    """The race: the truth against a start twice the subject's size; after START_CHECK steps each the
+    truth's cost is under START_LEAD times the other's, so neither is solved further, and the note's
+    costs are those of START_CHECK steps (recomputed here)."""
+    from calibrate.calibration.start import START_CHECK, START_FRAMES, coarse_frames
+
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=15)
+    obs = marker_columns(human, sim.trial)
+    loose = Settings(noise=0.0005)  # no start fits to half the simulated noise: the race decides
+    far = Parameters(sim.truth.scale * 2.0, sim.truth.centre.copy(), sim.truth.axis.copy(), sim.truth.marker.copy())
+    problem = Problem(human, obs, loose, human_kin)
+    chosen, note = choose_start(problem, obs, [slice(0, len(obs))], {"a far start": far, "the truth": sim.truth},
+                                lambda s: None)
+    assert np.allclose(chosen.vector(), sim.truth.vector())
+    assert f"({START_CHECK} iterations each: one far ahead)" in note
+    costs = [float(x.split(")")[0]) for x in note.split("(cost ")[1:]]
+    coarse = coarse_frames(np.all(np.isfinite(obs), axis=2), START_FRAMES)
+    for params, cost in zip((far, sim.truth), costs, strict=True):
+        sub = Problem(human, obs[coarse], loose, human_kin)
+        st = start_poses(human_kin, obs[coarse], params, stride=1, evaluator=sub.frame_evaluator(params.vector()))
+        _, summary = levenberg_marquardt(sub, replace(st, p=params.vector()), max_iterations=START_CHECK)
+        assert summary.final_cost == pytest.approx(cost, rel=1e-3)
+    assert costs[1] < 0.75 * costs[0]

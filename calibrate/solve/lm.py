@@ -42,8 +42,8 @@ from .assembly import back_substitute, forward_substitute
 from .chunks import Bend, FrameBlocks, chunked_step, each_chunk
 from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, model_decrease, retract
 
-__all__ = ["Covariance", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "levenberg_marquardt",
-           "minimise"]
+__all__ = ["Covariance", "Run", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "iterate",
+           "levenberg_marquardt", "minimise"]
 
 
 
@@ -220,6 +220,20 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
     gain ratio, and the termination tests of the module docstring (tolerances and iteration limit:
     `options`; `max_iterations` overrides its limit; every step, accepted or not, counts).
     `progress(iteration, cost, lam)` after each accepted step; `lam0` the first step's damping."""
+    loop = iterate(steps, x, options, max_iterations, progress, summary, lam0)
+    while True:
+        try:
+            next(loop)
+        except StopIteration as done:
+            return done.value
+
+
+def iterate(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
+            progress: Callable[[int, float, float], None] | None = None,
+            summary: SolverSummary | None = None, lam0: float = LAMBDA_START_POSES):
+    """minimise one iteration at a time: a generator that yields the current point after each step
+    (accepted or not) and returns (point, summary) when a termination test is met; a caller may stop
+    pulling and the run simply ends there (choose_start races candidate starts this way)."""
     max_it = max_iterations or options.max_iterations
     summary = SolverSummary() if summary is None else summary
     lam, nu = lam0, 2.0
@@ -228,6 +242,8 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
     summary.cost_history.append(cost)
     termination, converged = "", False
     while True:
+        if summary.iterations:
+            yield x
         g_max = steps.gradient_max()
         if g_max < options.gtol:
             termination, converged = f"gradient {g_max:.2e} below gtol {options.gtol:.0e}", True
@@ -402,15 +418,50 @@ def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions |
     frames' blocks: the problem's, ProblemOptions.memory_mb).
     `pose_only` keeps p fixed (frame-wise inverse kinematics of all frames at once).
     `progress(iteration, cost, lam)` after each step."""
-    options = SolverOptions() if options is None else options
-    summary = SolverSummary()
-    t_start = time.perf_counter()
-    steps = _BlockArrow(problem, options, pose_only, summary)
-    state, summary = minimise(steps, state, options, max_iterations, progress, summary,
-                              LAMBDA_START_POSES if pose_only else LAMBDA_START)
-    steps.blocks.recycle()  # the whole trial's arrays are the next run's buffers
-    summary.seconds = time.perf_counter() - t_start
-    return state, summary
+    return Run(problem, state, options, pose_only=pose_only, max_iterations=max_iterations,
+               progress=progress).finish()
+
+
+class Run:
+    """A levenberg_marquardt run (same arguments) taken a few iterations at a time: `advance(n)` runs
+    it until n steps are done or it ends, `cost` is its cost so far, `finish()` runs it to the end
+    and returns (state, summary) as levenberg_marquardt does.  Advanced in parts, a run takes exactly
+    the steps it takes in one go."""
+
+    def __init__(self, problem: Problem, state: State, options: SolverOptions | None = None, *,
+                 pose_only: bool = False, max_iterations: int | None = None,
+                 progress: Callable[[int, float, float], None] | None = None):
+        t0 = time.perf_counter()
+        options = SolverOptions() if options is None else options
+        self.summary = SolverSummary()
+        self.state, self.done = state, False
+        self._steps = _BlockArrow(problem, options, pose_only, self.summary)
+        self._loop = iterate(self._steps, state, options, max_iterations, progress, self.summary,
+                             LAMBDA_START_POSES if pose_only else LAMBDA_START)
+        self._t = time.perf_counter() - t0
+
+    @property
+    def cost(self) -> float:
+        """The cost at the run's point (its last accepted step's)."""
+        return self.summary.cost_history[-1] if self.summary.cost_history else float("nan")
+
+    def advance(self, iterations: int | None = None) -> Run:
+        """Run on until `iterations` steps in all are done (None: to the end) or a termination test is met."""
+        t0 = time.perf_counter()
+        while not self.done and (iterations is None or self.summary.iterations < iterations):
+            try:
+                self.state = next(self._loop)
+            except StopIteration as end:
+                self.state, _ = end.value
+                self.done = True
+                self._steps.blocks.recycle()  # the whole trial's arrays are the next run's buffers
+        self._t += time.perf_counter() - t0
+        self.summary.seconds = self._t
+        return self
+
+    def finish(self) -> tuple[State, SolverSummary]:
+        self.advance()
+        return self.state, self.summary
 
 
 def covariance(problem: Problem, state: State, lin: Linearization | None = None,
