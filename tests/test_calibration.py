@@ -837,3 +837,26 @@ def test_in_parallel_runs_each_part_once_in_order_and_nests():
         nested = in_parallel(lambda fr: sum(in_parallel(lambda g: g.stop - g.start, split_frames(fr.stop - fr.start))),
                              parts)
         assert nested == [p.stop - p.start for p in parts]
+
+
+def test_the_first_solve_on_every_frame_pauses_and_goes_on_if_nothing_changes(human, human_kin, monkeypatch):
+    """pipeline.FIRST_RUN_ATOL: the first solve on every frame pauses at 10 x atol, because the noise learnt
+    again and the outlier test follow it.  When they change nothing (noise given, no outlier test) the paused
+    solve goes on (lm.Run, its frame blocks let go meanwhile and formed again) and takes exactly the steps of
+    one uninterrupted run: the same answer, bit for bit, as with FIRST_RUN_ATOL = 1 (never paused)."""
+    from calibrate.calibration import pipeline
+
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=21)  # > 2 x COARSE_FRAMES: a subsample first
+    st = Settings(outliers=0.0, learn_noise=False)
+    said: list[str] = []
+    cal = calibrate(human, sim.trial, st, kinematics=human_kin, progress=lambda p: said.append(str(p)))
+    assert any("again, to the tolerance" in s for s in said)
+    monkeypatch.setattr(pipeline, "FIRST_RUN_ATOL", 1.0)
+    said.clear()
+    ref = calibrate(human, sim.trial, st, kinematics=human_kin, progress=lambda p: said.append(str(p)))
+    assert not any("again, to the tolerance" in s for s in said)
+    assert cal.converged and ref.converged and cal.summary.termination == ref.summary.termination
+    assert cal.summary.iterations == ref.summary.iterations
+    assert cal.summary.final_cost == ref.summary.final_cost
+    assert np.array_equal(cal.params.vector(), ref.params.vector())
+    assert all(np.array_equal(a.angles, b.angles) for a, b in zip(cal.motions, ref.motions, strict=True))

@@ -321,6 +321,7 @@ class _BlockArrow:
 
     def linearize(self, state: State, lam: float) -> float:
         problem = self.problem
+        self.lam_at = lam  # Run.advance linearizes a suspended run again at the same point and damping
         t0 = time.perf_counter()
         self.blocks = FrameBlocks(problem, state, not self.pose_only, self.budget, previous=self.blocks,
                                   eliminate_at=lam, work=(self.chunk_work, self.scratch))
@@ -424,9 +425,11 @@ def levenberg_marquardt(problem: Problem, state: State, options: SolverOptions |
 
 class Run:
     """A levenberg_marquardt run (same arguments) taken a few iterations at a time: `advance(n)` runs
-    it until n steps are done or it ends, `cost` is its cost so far, `finish()` runs it to the end
-    and returns (state, summary) as levenberg_marquardt does.  Advanced in parts, a run takes exactly
-    the steps it takes in one go."""
+    it until n steps are done, a condition holds or it ends; `cost` is its cost so far; `finish()` runs
+    it to the end and returns (state, summary) as levenberg_marquardt does.  Advanced in parts, a run
+    takes exactly the steps it takes in one go.  `suspend()` lets its frame blocks go while it waits (the
+    memory budget's worth of them on a long trial); the next `advance` forms them again at the same point
+    and damping, so that the steps stay the same."""
 
     def __init__(self, problem: Problem, state: State, options: SolverOptions | None = None, *,
                  pose_only: bool = False, max_iterations: int | None = None,
@@ -434,7 +437,7 @@ class Run:
         t0 = time.perf_counter()
         options = SolverOptions() if options is None else options
         self.summary = SolverSummary()
-        self.state, self.done = state, False
+        self.state, self.done, self._suspended = state, False, False
         self._steps = _BlockArrow(problem, options, pose_only, self.summary)
         self._loop = iterate(self._steps, state, options, max_iterations, progress, self.summary,
                              LAMBDA_START_POSES if pose_only else LAMBDA_START)
@@ -445,9 +448,13 @@ class Run:
         """The cost at the run's point (its last accepted step's)."""
         return self.summary.cost_history[-1] if self.summary.cost_history else float("nan")
 
-    def advance(self, iterations: int | None = None) -> Run:
-        """Run on until `iterations` steps in all are done (None: to the end) or a termination test is met."""
+    def advance(self, iterations: int | None = None, until: Callable[[SolverSummary], bool] | None = None) -> Run:
+        """Run on until `iterations` steps in all are done (None: no limit but the run's own), `until(summary)`
+        holds after a step, or a termination test is met."""
         t0 = time.perf_counter()
+        if self._suspended and not self.done:
+            self._steps.linearize(self.state, self._steps.lam_at)
+            self._suspended = False
         while not self.done and (iterations is None or self.summary.iterations < iterations):
             try:
                 self.state = next(self._loop)
@@ -455,9 +462,19 @@ class Run:
                 self.state, _ = end.value
                 self.done = True
                 self._steps.blocks.recycle()  # the whole trial's arrays are the next run's buffers
+                break
+            if until is not None and until(self.summary):
+                break
         self._t += time.perf_counter() - t0
         self.summary.seconds = self._t
         return self
+
+    def suspend(self) -> None:
+        """Let the frame blocks go until the next `advance` (which forms them again)."""
+        if not self.done and not self._suspended:
+            self._steps.blocks.recycle()
+            self._steps.blocks = None
+            self._suspended = True
 
     def finish(self) -> tuple[State, SolverSummary]:
         self.advance()
