@@ -43,7 +43,6 @@ from calibrate.seed.seeding import MIN_FRAMES, Seed, jumped_samples, seed_parame
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
 from ..io.motion import Motion
-from ..io.osim_info import with_locked
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics, build_kinematics
@@ -122,8 +121,13 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
-    # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them.
-    settings = with_locked(model, settings or Settings())
+    # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them;
+    # the OpenSim readers (50 ms of imports) are loaded only for such a model.
+    settings = settings or Settings()
+    if "<opensim" in model.text:
+        from ..io.osim_info import with_locked
+
+        settings = with_locked(model, settings)
     known = set(model.marker_names).union(*(t.labels for t in trials))
     unknown = [label for label, _ in settings.marker_noise if label not in known]
     if unknown:
