@@ -67,6 +67,11 @@ def _notes(report: dict) -> str:
         items.append(f"<li class=bad>implausible size: {_e(b.get('segment'))} scale {b.get('scale', 0):.2f} "
                      f"({b.get('relative_to_median', 0):.2f} of the subject's median{partner}); check the labels "
                      f"{_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
+    for h in (report.get("static_pose") or {}).get("flagged", []):
+        items.append(f"<li class=bad>implausible static pose in {_e(h.get('trial'))}: {_e(h.get('left'))} "
+                     f"{h.get('left_deg', 0):.1f}° against {_e(h.get('right'))} {h.get('right_deg', 0):.1f}° "
+                     f"({h.get('difference_deg', 0):.1f}° apart): one side's segment frames sit turned where its "
+                     "markers leave them to the priors</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "

@@ -117,6 +117,7 @@ def calibration_report(cal: Calibration) -> dict:
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
         "symmetry": symmetry_table(cal),
+        "static_pose": static_pose_table(cal),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(marker_rms(cal.initial_residuals)),
@@ -181,6 +182,21 @@ def symmetry_table(cal) -> dict:
             "largest_scale_difference": max(scale.values(), default=None),
             "largest_length_difference": max((v["difference"] for v in length.values()), default=None),
             "largest_centre_mirror_mm": max(centre.values(), default=None)}
+
+
+def static_pose_table(cal) -> dict:
+    """Left/right hinge angles in the static trials (calibrate.calibration.result.static_hinges; degrees)
+    and the pairs further apart than STATIC_ASYMMETRY_DEG (Calibration.static_asymmetry)."""
+    from .result import STATIC_ASYMMETRY_DEG, static_hinges, static_trials
+
+    def name(i: int) -> str:
+        return cal.trials[i].source or f"trial {i + 1}"
+
+    return {"threshold_deg": STATIC_ASYMMETRY_DEG,
+            "trials": [name(i) for i in static_trials(cal.model, cal.motions, cal.neutral)],
+            "hinges": [{"trial": name(h.trial), "joint": h.joint, **h.to_json()}
+                       for h in static_hinges(cal.model, cal.motions, cal.neutral)],
+            "flagged": [{"trial": name(h.trial), "joint": h.joint, **h.to_json()} for h in cal.static_asymmetry]}
 
 
 def _noise_lines(cal) -> list[str]:
@@ -304,6 +320,13 @@ def summary_text(cal) -> str:
                      + f" against the subject's median {median:.2f}: the markers do not fit the model there; "
                      f"check the labels of {', '.join(dict.fromkeys(x for b in bad for x in b.labels)) or '-'} "
                      "(a swap for the whole trial?)")
+    turned = cal.static_asymmetry
+    if turned:
+        lines.append("  implausible  " + "; ".join(f"{cal.trials[h.trial].source or f'trial {h.trial + 1}'} (static): "
+                                                   f"{h.text()}" for h in turned)
+                     + ": standing still, a subject holds a left and a right joint within a few degrees; one side's "
+                     "segment frames sit turned where its markers leave them to the priors, and that joint's angles "
+                     "carry the difference as an offset")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

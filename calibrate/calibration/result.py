@@ -84,6 +84,73 @@ class Implausible:
         return out
 
 
+# A trial whose joint angles barely move (the median over the coordinates of their SD over its frames under
+# STILL_TRIAL_DEG) is a static trial; in it a standing subject holds each left hinge within a few degrees of its
+# right partner.  A hinge pair further apart than STATIC_ASYMMETRY_DEG there is flagged
+# (Calibration.static_asymmetry): one side's segment frames sit turned where its markers leave them to the
+# priors, and every angle of that joint carries the difference as an offset.  Measured (2026-11-27):
+# pig_walk's static trial ankle 26.1 deg (ankle_l -27.0, ankle_r -0.9; Plug-in Gait's own static offsets
+# 14.5 and 13.7 deg: the subject's feet are alike), elbow 15.5 (Plug-in Gait's elbows 88.5 and 95.1 deg:
+# 6.6 apart), radioulnar 4.3, knee 2.6, subtalar 0.4.
+STILL_TRIAL_DEG = 2.0
+STATIC_ASYMMETRY_DEG = 20.0
+
+
+@dataclass(frozen=True)
+class StaticHinge:
+    """A left/right hinge pair's angles in a static trial: medians over its frames (rad), signed alike
+    (their axes mirrored through the sagittal plane)."""
+
+    trial: int
+    joint: str  # the anatomical joint without its side ('ankle')
+    left: str  # coordinate names
+    right: str
+    left_angle: float
+    right_angle: float
+
+    @property
+    def difference(self) -> float:
+        return abs(self.left_angle - self.right_angle)
+
+    def text(self) -> str:
+        return (f"{self.left} {math.degrees(self.left_angle):.1f} deg against {self.right} "
+                f"{math.degrees(self.right_angle):.1f} ({math.degrees(self.difference):.1f} apart)")
+
+    def to_json(self) -> dict:
+        return {"left": self.left, "right": self.right, "left_deg": round(math.degrees(self.left_angle), 3),
+                "right_deg": round(math.degrees(self.right_angle), 3),
+                "difference_deg": round(math.degrees(self.difference), 3)}
+
+
+def static_trials(model: Model, motions: Sequence[Motion], neutral: int | None = None) -> list[int]:
+    """The static trials among `motions`: the neutral one if given, else those whose joint angles barely
+    move (STILL_TRIAL_DEG)."""
+    if neutral is not None:
+        return [neutral]
+    return [i for i, m in enumerate(motions) if m.n_frames and model.n_dofs
+            and math.degrees(float(np.median(np.std(m.angles, axis=0)))) < STILL_TRIAL_DEG]
+
+
+def static_hinges(model: Model, motions: Sequence[Motion], neutral: int | None = None) -> list[StaticHinge]:
+    """Every left/right hinge pair (joints named X_l / X_r with one coordinate each whose axes mirror each
+    other, as in models/human.urdf and OpenSim's gait models) in every static trial (static_trials)."""
+    _, joints, mirror = symmetry_pairs(model, model.parameters().centre)
+    out = []
+    for t in static_trials(model, motions, neutral):
+        med = np.median(motions[t].angles, axis=0)
+        for a, b in joints:
+            ja, jb = model.joints[a], model.joints[b]
+            if len(ja.dofs) != 1 or len(jb.dofs) != 1:
+                continue
+            da, db = model.dof_index(ja.dofs[0]), model.dof_index(jb.dofs[0])
+            c = float(model.dofs[da].axis @ (-mirror * model.dofs[db].axis))  # an axis mirrors as a pseudovector
+            if abs(c) < 0.9:  # axes not mirrored: their angles do not compare
+                continue
+            out.append(StaticHinge(t, ja.name[:-2], ja.dofs[0], jb.dofs[0], float(med[da]),
+                                   float(math.copysign(1.0, c) * med[db])))
+    return out
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Everything `calibrate` found.  Units: metres, radians, seconds.
@@ -192,6 +259,12 @@ class Calibration:
             s, s_other = (sl, sr) if name == left else (sr, sl)
             out.append(Implausible(name, s, s / median, labels(name), other, s_other))
         return out
+
+    @property
+    def static_asymmetry(self) -> list[StaticHinge]:
+        """Left/right hinge pairs more than STATIC_ASYMMETRY_DEG apart in a static trial (static_hinges)."""
+        return [h for h in static_hinges(self.model, self.motions, self.neutral)
+                if h.difference > math.radians(STATIC_ASYMMETRY_DEG)]
 
     @property
     def unidentified(self) -> list[ParameterChange]:

@@ -1,0 +1,64 @@
+"""Calibration.static_asymmetry: in a static trial a subject holds each left hinge within a few degrees of its
+right partner; a pair further apart than STATIC_ASYMMETRY_DEG is flagged in the report and the summary."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.result import STATIC_ASYMMETRY_DEG, static_hinges, static_trials
+from calibrate.io.trial import Trial
+from calibrate.model.blocks import FrameLayout
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model
+from calibrate.simulation.simulate import simulate_squats
+
+
+@pytest.fixture(scope="module")
+def human():
+    return load_model(Path(__file__).resolve().parents[1] / "models" / "human.urdf")
+
+
+def _static(model, kin, sim, degrees: dict[str, float], frames: int = 80, seed: int = 0) -> Trial:
+    """The simulated subject standing still in one pose (coordinates in degrees, the rest zero), 1 mm noise."""
+    angles = np.zeros((frames, model.n_dofs))
+    for name, value in degrees.items():
+        angles[:, model.dof_index(name)] = math.radians(value)
+    Z = FrameLayout.coordinates(np.zeros((frames, 3)), angles)
+    quat = np.tile(sim.motion.root_quaternion[0], (frames, 1))
+    markers, _ = kin.batch(Z, quat, sim.truth)
+    markers = markers + sim.motion.root_translation[0]
+    markers = markers + np.random.default_rng(seed).normal(0.0, 0.001, markers.shape)
+    return Trial(model.marker_names, markers, 100.0, 0, f"static{seed}")
+
+
+def test_a_static_trial_whose_left_ankle_is_turned_is_flagged(human):
+    kin = build_kinematics(human)
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=31)
+    pose = {"hip_l_flexion": 10.0, "hip_r_flexion": 10.0, "knee_l": 20.0, "knee_r": 20.0,
+            "elbow_l": 30.0, "elbow_r": 30.0}
+    even = _static(human, kin, sim, pose, seed=1)
+    turned = _static(human, kin, sim, {**pose, "ankle_l": -35.0}, seed=2)  # the left foot turned 35 deg
+    cal = calibrate(human, [sim.trial, even, turned], kinematics=kin)
+    assert static_trials(cal.model, cal.motions) == [1, 2]  # the squats move: not static
+    hinges = {(h.trial, h.joint): h for h in static_hinges(cal.model, cal.motions)}
+    assert {"knee", "ankle", "subtalar", "elbow", "radioulnar"} <= {j for _, j in hinges}
+    # signed alike on both sides: the symmetric pose's knees and elbows (20 and 30 deg) agree, and are those angles
+    for j, value in (("knee", 20.0), ("elbow", 30.0)):
+        h = hinges[(1, j)]
+        assert math.degrees(h.difference) < 3.0
+        assert math.degrees(h.left_angle) == pytest.approx(value, abs=4.0)
+    # the turn shows, to the few degrees a foot on two markers is known to (the even trial's ankles: 4 apart)
+    assert math.degrees(hinges[(2, "ankle")].difference) == pytest.approx(35.0, abs=6.0)
+    assert math.degrees(hinges[(1, "ankle")].difference) < 10.0
+    assert max(math.degrees(h.difference) for (t, _), h in hinges.items() if t == 1) < STATIC_ASYMMETRY_DEG
+    flagged = cal.static_asymmetry
+    assert [(h.trial, h.joint) for h in flagged] == [(2, "ankle")]
+    report = cal.report()["static_pose"]
+    assert report["trials"] == ["static1", "static2"]
+    assert [(f["trial"], f["joint"]) for f in report["flagged"]] == [("static2", "ankle")]
+    assert "implausible  static2 (static): ankle_l" in cal.text()
