@@ -70,8 +70,8 @@ def _notes(report: dict) -> str:
     for h in (report.get("static_pose") or {}).get("flagged", []):
         items.append(f"<li class=bad>implausible static pose in {_e(h.get('trial'))}: {_e(h.get('left'))} "
                      f"{h.get('left_deg', 0):.1f}° against {_e(h.get('right'))} {h.get('right_deg', 0):.1f}° "
-                     f"({h.get('difference_deg', 0):.1f}° apart): one side's segment frames sit turned where its "
-                     "markers leave them to the priors</li>")
+                     f"({h.get('difference_deg', 0):.1f}° apart): unless the subject stood asymmetrically, one side's "
+                     "segment frames sit turned where its markers leave them to the priors</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "

@@ -324,9 +324,8 @@ def summary_text(cal) -> str:
     if turned:
         lines.append("  implausible  " + "; ".join(f"{cal.trials[h.trial].source or f'trial {h.trial + 1}'} (static): "
                                                    f"{h.text()}" for h in turned)
-                     + ": standing still, a subject holds a left and a right joint within a few degrees; one side's "
-                     "segment frames sit turned where its markers leave them to the priors, and that joint's angles "
-                     "carry the difference as an offset")
+                     + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
+                     "its markers leave them to the priors, and that joint's angles carry the difference as an offset")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")
