@@ -526,6 +526,9 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     out["shifts_over_target"] = {j: {"shift_mm": v, "pig_mm": out["pig_centres"].get(j, {}).get("median_mm")}
                                  for j, v in sorted(big.items(), key=lambda kv: -kv[1])}
     out["held_out"] = guarded(held_out, st, wk, d, cap, log, a.extra)
+    sp = run["report"].get("static_pose") or {}  # the report's left/right hinge angles in the static trial
+    out["static_pose"] = {"hinges": {h["joint"]: [h["left_deg"], h["right_deg"]] for h in sp.get("hinges", [])},
+                          "flagged": [h["joint"] for h in sp.get("flagged", [])]}
     return out
 
 
@@ -847,6 +850,11 @@ def report(res: dict) -> None:
         say("pig_walk: segment lengths L/R (mm): " + ", ".join(
             f"{k} {v['left_mm']:.0f}/{v['right_mm']:.0f} ({v['asymmetry_pct']:.1f} %)"
             for k, v in p["lengths"].items()))
+        sp = p.get("static_pose") or {}
+        if sp.get("hinges"):
+            say("pig_walk: static trial's hinge angles L / R (deg; the report's static_pose, flagged beyond 20 apart): "
+                + ", ".join(f"{j} {lr[0]:.1f} / {lr[1]:.1f}" for j, lr in sp["hinges"].items())
+                + f"; flagged: {', '.join(sp['flagged']) or 'none'}")
         h = p["held_out"]
         if "ratio" in h:
             say(f"pig_walk held-out: calibrated on static + walk frames 0:{h['frames_in']}, the subject URDF fixed, "
