@@ -189,14 +189,15 @@ def static_pose_table(cal) -> dict:
     and the pairs further apart than STATIC_ASYMMETRY_DEG (Calibration.static_asymmetry)."""
     from .result import STATIC_ASYMMETRY_DEG, static_hinges, static_trials
 
-    def name(i: int) -> str:
-        return cal.trials[i].source or f"trial {i + 1}"
+    def row(h) -> dict:
+        return {"trial": cal.trials[h.trial].source or f"trial {h.trial + 1}", "joint": h.joint, **h.to_json()}
 
+    hinges = static_hinges(cal.model, cal.motions, cal.neutral)
     return {"threshold_deg": STATIC_ASYMMETRY_DEG,
-            "trials": [name(i) for i in static_trials(cal.model, cal.motions, cal.neutral)],
-            "hinges": [{"trial": name(h.trial), "joint": h.joint, **h.to_json()}
-                       for h in static_hinges(cal.model, cal.motions, cal.neutral)],
-            "flagged": [{"trial": name(h.trial), "joint": h.joint, **h.to_json()} for h in cal.static_asymmetry]}
+            "trials": [cal.trials[i].source or f"trial {i + 1}" for i in static_trials(cal.model, cal.motions,
+                                                                                       cal.neutral)],
+            "hinges": [row(h) for h in hinges],
+            "flagged": [row(h) for h in hinges if h.flagged]}
 
 
 def _noise_lines(cal) -> list[str]:

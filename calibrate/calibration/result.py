@@ -112,6 +112,11 @@ class StaticHinge:
     def difference(self) -> float:
         return abs(self.left_angle - self.right_angle)
 
+    @property
+    def flagged(self) -> bool:
+        """Further apart than STATIC_ASYMMETRY_DEG."""
+        return self.difference > math.radians(STATIC_ASYMMETRY_DEG)
+
     def text(self) -> str:
         return (f"{self.left} {math.degrees(self.left_angle):.1f} deg against {self.right} "
                 f"{math.degrees(self.right_angle):.1f} ({math.degrees(self.difference):.1f} apart)")
@@ -263,8 +268,7 @@ class Calibration:
     @property
     def static_asymmetry(self) -> list[StaticHinge]:
         """Left/right hinge pairs more than STATIC_ASYMMETRY_DEG apart in a static trial (static_hinges)."""
-        return [h for h in static_hinges(self.model, self.motions, self.neutral)
-                if h.difference > math.radians(STATIC_ASYMMETRY_DEG)]
+        return [h for h in static_hinges(self.model, self.motions, self.neutral) if h.flagged]
 
     @property
     def unidentified(self) -> list[ParameterChange]:
