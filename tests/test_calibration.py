@@ -175,6 +175,37 @@ def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
         assert np.allclose(a, b, rtol=1e-10, atol=1e-11 * np.abs(a).max())
 
 
+def test_frame_factor_on_the_nonzero_pattern_equals_the_dense_one(human, human_kin, monkeypatch):
+    """Y = L⁻¹ B_f formed only on its symbolic nonzero pattern (schur.y_pattern as column runs) equals,
+    bit for bit, the factorisation over every column, in the C kernels and in numba's; and the dense
+    Y has no nonzero outside that pattern (the symbolic propagation is exact)."""
+    from calibrate.solve import assembly, numba_kernels
+    from calibrate.solve.assembly import column_runs, factor_frames
+    from calibrate.solve.schur import y_pattern
+
+    sim = simulate_squats(human, frames=20, noise_mm=1.0, seed=3)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    state = State(np.column_stack([m.root_translation, np.zeros((20, 3)), m.angles]) + 0.01,
+                  m.root_quaternion.copy(), sim.truth.vector())
+    lin = problem.linearize(state)
+    F, nz, n = lin.B.shape
+    pattern = y_pattern(lin, n)
+    assert 0 < pattern.sum() < 0.6 * pattern.size  # the leaves' rows reach only their segments' parameters
+    damping = 1e-3 * np.diagonal(lin.A, axis1=1, axis2=2).copy()
+    backends = [numba_kernels] + ([assembly.kernels()] if isinstance(assembly.kernels(), assembly._CKernels) else [])
+    for backend in backends:
+        monkeypatch.setattr(assembly, "kernels", lambda b=backend: b)
+        out = []
+        for runs in (None, column_runs(pattern)):
+            L, Y, yz = np.empty((F, nz, nz)), np.zeros((F, nz, n)), np.empty((F, nz))
+            assert factor_frames(lin.A, damping, lin.B, lin.gz, L, Y, yz, runs)
+            out.append((L, Y, yz))
+        (L0, Y0, yz0), (L1, Y1, yz1) = out
+        assert np.array_equal(L0, L1) and np.array_equal(Y0, Y1) and np.array_equal(yz0, yz1)
+        assert not np.any(Y0[:, ~pattern]) and np.any(Y0[:, pattern])
+
+
 def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):
     """A second Problem of the same model loads the compiled functions (no symbolic build) and
     evaluates exactly what CasADi's virtual machine does; another structure gets its own build."""

@@ -187,12 +187,34 @@ def assemble(d: np.ndarray, w: np.ndarray, jz: np.ndarray, jp: np.ndarray | None
 
 
 def factor_frames(A: np.ndarray, damping: np.ndarray, B: np.ndarray, gz: np.ndarray, L: np.ndarray,
-                  Y: np.ndarray, yz: np.ndarray) -> bool:
+                  Y: np.ndarray, yz: np.ndarray, runs: ColumnRuns | None = None) -> bool:
     """Cholesky of every frame block A_f + diag(damping_f), in reverse coordinate order (leaves of the
     kinematic tree first: no fill-in), into L (F, nz, nz); Y = L⁻¹ B_f and yz = L⁻¹ g_z (rows
-    reversed), in place.  False if a block is not positive definite."""
-    return all(in_parallel(lambda fr: kernels().factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop),
+    reversed), in place.  `runs`: Y's nonzero columns row by row (column_runs), the only ones formed
+    (Y must already hold zeros elsewhere); None: every column.  False if a block is not positive definite."""
+    nz, n = B.shape[1], B.shape[2]
+    runs = runs or dense_runs(nz, n)
+    return all(in_parallel(lambda fr: kernels().factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop, *runs),
                            split_frames(A.shape[0])))
+
+
+ColumnRuns = tuple[np.ndarray, np.ndarray, np.ndarray]  # (run_off (rows + 1,), run_lo, run_hi): half-open runs
+
+
+def dense_runs(rows: int, n: int) -> ColumnRuns:
+    """Every row's columns as one run [0, n)."""
+    return (np.arange(rows + 1, dtype=np.int64), np.zeros(rows, np.int64), np.full(rows, n, np.int64))
+
+
+def column_runs(pattern: np.ndarray) -> ColumnRuns:
+    """A boolean (rows, n) pattern as each row's runs of consecutive True columns."""
+    off, lo, hi = [0], [], []
+    for row in pattern:
+        edges = np.flatnonzero(np.diff(np.r_[0, row.astype(np.int8), 0]))
+        lo.extend(edges[0::2])
+        hi.extend(edges[1::2])
+        off.append(len(lo))
+    return np.array(off, np.int64), np.array(lo, np.int64), np.array(hi, np.int64)
 
 
 def back_substitute(L: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -240,7 +262,7 @@ class _CKernels:
         self._assemble = lib.cal_assemble
         self._assemble.argtypes = [P] * 4 + [I] * 10 + [P] * 20
         self._factor = lib.cal_factor
-        self._factor.argtypes = [P] * 7 + [I] * 4
+        self._factor.argtypes = [P] * 7 + [I] * 4 + [P] * 3
         self._back, self._forward = lib.cal_back, lib.cal_forward
         for f in (self._back, self._forward):
             f.argtypes = [P] * 3 + [I] * 3
@@ -257,9 +279,10 @@ class _CKernels:
         if not ok:
             raise MemoryError("calibrate kernels: out of memory assembling the normal equations")
 
-    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1) -> bool:
+    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi) -> bool:
+        runs = [_ptr(x, np.int64) for x in (run_off, run_lo, run_hi)]
         return bool(self._factor(_ptr(A), _ptr(damping), _ptr(B), _ptr(gz), _ptr(L), _ptr(Y), _ptr(yz),
-                                 A.shape[1], B.shape[2], f0, f1))
+                                 A.shape[1], B.shape[2], f0, f1, *runs))
 
     def back(self, L, t, x, f0, f1) -> None:
         self._back(_ptr(L), _ptr(t), _ptr(x), L.shape[1], f0, f1)

@@ -95,9 +95,12 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
 }
 
 /* Cholesky of A_f + diag(damping_f) in reverse coordinate order, Y = L^-1 B_f, yz = L^-1 g_z
-   (rows reversed); 0 if a block is not positive definite. */
+   (rows reversed); 0 if a block is not positive definite.  Row i of Y is formed only on its column runs
+   [run_lo[r], run_hi[r]) for r in run_off[i]..run_off[i+1]-1 (Y's nonzero pattern: the columns outside
+   them are zero in B and in every row it is reduced with, and are left as they are in Y). */
 int cal_factor(const double *A, const double *damping, const double *B, const double *gz,
-               double *L, double *Y, double *yz, I nz, I n, I f0, I f1)
+               double *L, double *Y, double *yz, I nz, I n, I f0, I f1,
+               const I *run_off, const I *run_lo, const I *run_hi)
 {
     int ok = 1;
     for (I f = f0; f < f1; ++f) {
@@ -121,18 +124,22 @@ int cal_factor(const double *A, const double *damping, const double *B, const do
         }
         for (I i = 0; i < nz; ++i) {
             double *yi = Y + (f * nz + i) * n;
-            memcpy(yi, B + (f * nz + nz - 1 - i) * n, (size_t)n * sizeof(double));
+            const double *bi = B + (f * nz + nz - 1 - i) * n;
+            for (I r = run_off[i]; r < run_off[i + 1]; ++r)
+                memcpy(yi + run_lo[r], bi + run_lo[r], (size_t)(run_hi[r] - run_lo[r]) * sizeof(double));
             double s = gz[f * nz + nz - 1 - i];
             for (I k = 0; k < i; ++k) {
                 double lik = Lf[i * nz + k];
                 if (lik == 0.0) continue;
                 s -= lik * yz[f * nz + k];
                 const double *yk = Y + (f * nz + k) * n;
-                for (I c = 0; c < n; ++c) yi[c] -= lik * yk[c];
+                for (I r = run_off[k]; r < run_off[k + 1]; ++r)
+                    for (I c = run_lo[r]; c < run_hi[r]; ++c) yi[c] -= lik * yk[c];
             }
             double inv = 1.0 / Lf[i * nz + i];
             yz[f * nz + i] = s * inv;
-            for (I c = 0; c < n; ++c) yi[c] *= inv;
+            for (I r = run_off[i]; r < run_off[i + 1]; ++r)
+                for (I c = run_lo[r]; c < run_hi[r]; ++c) yi[c] *= inv;
         }
     }
     return ok;

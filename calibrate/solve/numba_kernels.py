@@ -96,9 +96,8 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def factor(A, damping, B, gz, L, Y, yz, f0, f1):  # pragma: no cover (compiled)
+def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi):  # pragma: no cover (compiled)
     nz = A.shape[1]
-    n = B.shape[2]
     ok = True
     for f in range(f0, f1):
         Lf = L[f]
@@ -124,19 +123,24 @@ def factor(A, damping, B, gz, L, Y, yz, f0, f1):  # pragma: no cover (compiled)
                 Lf[i, j] = s / piv
         for i in range(nz):
             yi = Y[f, i]
-            yi[:] = B[f, nz - 1 - i]
+            bi = B[f, nz - 1 - i]
+            for r in range(run_off[i], run_off[i + 1]):
+                for c in range(run_lo[r], run_hi[r]):
+                    yi[c] = bi[c]
             s = gz[f, nz - 1 - i]
             for k in range(i):
                 lik = Lf[i, k]
                 if lik != 0.0:
                     s -= lik * yz[f, k]
                     yk = Y[f, k]
-                    for c in range(n):
-                        yi[c] -= lik * yk[c]
+                    for r in range(run_off[k], run_off[k + 1]):
+                        for c in range(run_lo[r], run_hi[r]):
+                            yi[c] -= lik * yk[c]
             inv = 1.0 / Lf[i, i]
             yz[f, i] = s * inv
-            for c in range(n):
-                yi[c] *= inv
+            for r in range(run_off[i], run_off[i + 1]):
+                for c in range(run_lo[r], run_hi[r]):
+                    yi[c] *= inv
     return ok
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import factor_frames, in_parallel, split_frames
+from .assembly import column_runs, factor_frames, in_parallel, split_frames
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
 GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
@@ -30,13 +30,12 @@ class Elimination:
     S: np.ndarray  # (n, n)      Σ_f Y_f' Y_f
 
 
-def row_classes(lin: Linearization, n: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Rows of Y (reversed order) grouped by their nonzero columns: (rows, columns) per class.
-    The pattern is propagated symbolically through the factorisation, so it is exact whatever
-    the coordinate order."""
+def y_pattern(lin: Linearization, n: int) -> np.ndarray:
+    """Where Y = L⁻¹ B_f (rows reversed) can be nonzero, (nz, n) booleans: B's pattern propagated
+    symbolically through the factorisation, so it is exact whatever the coordinate order."""
     nz = lin.A.shape[1]
     if lin.a_pattern is None or lin.b_pattern is None:
-        return [(np.arange(nz), np.arange(n))]
+        return np.ones((nz, n), dtype=bool)
     P = lin.a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
     for k in range(nz):  # symbolic Cholesky: eliminating k joins its later neighbours
         nb = k + 1 + np.flatnonzero(P[k + 1:, k])
@@ -45,6 +44,13 @@ def row_classes(lin: Linearization, n: int) -> list[tuple[np.ndarray, np.ndarray
     for i in range(nz):
         for j in np.flatnonzero(P[i, :i]):
             Yp[i] |= Yp[j]
+    return Yp
+
+
+def row_classes(lin: Linearization, n: int, Yp: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Rows of Y (reversed order) grouped by their nonzero columns (y_pattern): (rows, columns) per class."""
+    nz = lin.A.shape[1]
+    Yp = y_pattern(lin, n) if Yp is None else Yp
     classes: dict[bytes, list[int]] = {}
     for i in range(nz):
         classes.setdefault(Yp[i].tobytes(), []).append(i)
@@ -73,18 +79,26 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
     L = buffer(work, "L", (F, nz, nz))
     yz = buffer(work, "yz", (F, nz))
     Y = buffer(work, "Y", (F, nz, n))
-    B = lin.B if n else np.empty((F, nz, 0))
-    if not factor_frames(lin.A, np.ascontiguousarray(damping, dtype=float), B, lin.gz, L, Y, yz):
-        return None
+    damping = np.ascontiguousarray(damping, dtype=float)
     if n == 0:
-        return Elimination(L, Y, yz, np.zeros((0, 0)))
+        ok = factor_frames(lin.A, damping, np.empty((F, nz, 0)), lin.gz, L, Y, yz)
+        return Elimination(L, Y, yz, np.zeros((0, 0))) if ok else None
     key = None if lin.a_pattern is None or lin.b_pattern is None else \
         ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
-    classes = None if work is None or key is None else work.get(key)
-    if classes is None:
-        classes = row_classes(lin, n)
+    cached = None if work is None or key is None else work.get(key)
+    if cached is None:
+        Yp = y_pattern(lin, n)
+        cached = (row_classes(lin, n, Yp), None if Yp.all() else column_runs(Yp))
         if work is not None and key is not None:
-            work[key] = classes  # the patterns change only with the free set: one per problem
+            work[key] = cached  # the patterns change only with the free set: one per problem
+    classes, runs = cached
+    # Y is formed only on its nonzero pattern (factor_frames): the rest of the buffer is zeroed, once per pattern.
+    if runs is not None and (work is None or work.get(("Y zero outside", Y.shape)) != key):
+        Y.fill(0.0)
+        if work is not None:
+            work[("Y zero outside", Y.shape)] = key
+    if not factor_frames(lin.A, damping, lin.B, lin.gz, L, Y, yz, runs):
+        return None
 
     def part(fr: slice) -> np.ndarray:
         S = np.zeros((n, n))
