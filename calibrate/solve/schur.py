@@ -78,10 +78,10 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
     n = n if with_parameters else 0
     L = buffer(work, "L", (F, nz, nz))
     yz = buffer(work, "yz", (F, nz))
-    Y = buffer(work, "Y", (F, nz, n))
     damping = np.ascontiguousarray(damping, dtype=float)
     if n == 0:
-        ok = factor_frames(lin.A, damping, np.empty((F, nz, 0)), lin.gz, L, Y, yz)
+        Y = np.empty((F, nz, 0))
+        ok = factor_frames(lin.A, damping, Y, lin.gz, L, Y, yz)
         return Elimination(L, Y, yz, np.zeros((0, 0))) if ok else None
     key = None if lin.a_pattern is None or lin.b_pattern is None else \
         ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
@@ -92,11 +92,19 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
         if work is not None and key is not None:
             work[key] = cached  # the patterns change only with the free set: one per problem
     classes, runs = cached
-    # Y is formed only on its nonzero pattern (factor_frames): the rest of the buffer is zeroed, once per pattern.
-    if runs is not None and (work is None or work.get(("Y zero outside", Y.shape)) != key):
-        Y.fill(0.0)
+    # Y is formed only on its nonzero pattern (factor_frames): the rest stays zero.  A new buffer is zeroed
+    # by the allocator (its pages first touched by the factorisation's threads); a kept one again only when
+    # the pattern changes.
+    shape = (F, nz, n)
+    Y = None if work is None else work.get(("Y", shape))
+    if Y is None:
+        Y = np.zeros(shape)
         if work is not None:
-            work[("Y zero outside", Y.shape)] = key
+            work[("Y", shape)] = Y
+    elif runs is not None and work.get(("Y zero outside", shape)) != key:
+        Y.fill(0.0)
+    if work is not None:
+        work[("Y zero outside", shape)] = key
     if not factor_frames(lin.A, damping, lin.B, lin.gz, L, Y, yz, runs):
         return None
 
