@@ -95,16 +95,13 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
     # Y is formed only on its nonzero pattern (factor_frames): the rest stays zero.  A new buffer is zeroed
     # by the allocator (its pages first touched by the factorisation's threads); a kept one again only when
     # the pattern changes.
-    shape = (F, nz, n)
-    Y = None if work is None else work.get(("Y", shape))
+    Y, zeroed_for = (None, None) if work is None else work.get(("Y", (F, nz, n)), (None, None))
     if Y is None:
-        Y = np.zeros(shape)
-        if work is not None:
-            work[("Y", shape)] = Y
-    elif runs is not None and work.get(("Y zero outside", shape)) != key:
+        Y = np.zeros((F, nz, n))
+    elif runs is not None and zeroed_for != key:
         Y.fill(0.0)
     if work is not None:
-        work[("Y zero outside", shape)] = key
+        work[("Y", Y.shape)] = (Y, key)
     if not factor_frames(lin.A, damping, lin.B, lin.gz, L, Y, yz, runs):
         return None
 
