@@ -442,6 +442,44 @@ def pig_distances(kin: UrdfKinematics, motion: Path, trial: Path) -> dict:
     return out
 
 
+LATERAL = {"knee": ("KneeWidth", "KNE"), "ankle": ("AnkleWidth", "ANK"), "elbow": ("ElbowWidth", "ELB")}
+PIG_MARKER_RADIUS_MM = 7.0  # Vicon's 14 mm markers (the file states no MarkerDiameter)
+
+
+def lateral_figures(kin: UrdfKinematics, trial: Path, report: dict) -> dict:
+    """Per knee, ankle and elbow: its lateral marker's distance from our joint centre along our hinge axis
+    (the subject URDF through Pinocchio at the neutral pose, towards the side where models/human.urdf has the
+    marker) against Plug-in Gait's half measured width plus the marker's radius (the file's PROCESSING, read
+    with ezc3d), and whether calibrate used that width (the report)."""
+    import ezc3d
+
+    proc = ezc3d.c3d(str(trial), extract_forceplat_data=False)["parameters"].get("PROCESSING", {})
+    base = UrdfKinematics(MODEL)
+    used = {row["joint"] for row in report.get("settings", {}).get("lateral_markers", [])}
+
+    def along(k: UrdfKinematics, joint: str, marker: str) -> float:
+        q = np.zeros((1, k.pinm.nq))
+        q[0, 6] = 1.0  # identity root quaternion (x, y, z, w)
+        for jid in range(2, k.pinm.njoints):
+            if k.pinm.joints[jid].nq == 2:  # continuous: cos, sin
+                q[0, k.pinm.joints[jid].idx_q] = 1.0
+        P, _ = k.frames(q, [k.centre_joint[joint], marker])
+        a = k.hinge_axes(q, [joint])[0, 0]
+        return float(a @ (P[0, 1] - P[0, 0]))
+
+    out = {}
+    for joint, (width, label) in LATERAL.items():
+        for side, prefix in (("l", "L"), ("r", "R")):
+            name, marker = f"{joint}_{side}", prefix + label
+            w = proc.get(prefix + width, {}).get("value")
+            if name not in kin.joints or marker not in kin.fid or w is None or not float(np.ravel(w)[0]) > 0:
+                continue
+            sign = 1.0 if along(base, name, marker) >= 0 else -1.0
+            out[name] = {"marker": marker, "ours_mm": 1e3 * sign * along(kin, name, marker),
+                         "measured_mm": 0.5 * float(np.ravel(w)[0]) + PIG_MARKER_RADIUS_MM, "used": name in used}
+    return out
+
+
 def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) -> dict:
     """Calibrate on static + the walk's first half, then fit the second half frame by frame with the
     subject URDF fixed: marker RMS of each (recomputed with Pinocchio from the files)."""
@@ -525,6 +563,7 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     big = {j: v for j, v in out["shift_mm"].items() if v > SHIFT_MM}
     out["shifts_over_target"] = {j: {"shift_mm": v, "pig_mm": out["pig_centres"].get(j, {}).get("median_mm")}
                                  for j, v in sorted(big.items(), key=lambda kv: -kv[1])}
+    out["lateral"] = lateral_figures(kin, st, run["report"])
     out["held_out"] = guarded(held_out, st, wk, d, cap, log, a.extra)
     sp = run["report"].get("static_pose") or {}  # the report's left/right hinge angles in the static trial
     out["static_pose"] = {"hinges": {h["joint"]: [h["left_deg"], h["right_deg"]] for h in sp.get("hinges", [])},
@@ -855,6 +894,11 @@ def report(res: dict) -> None:
             say("pig_walk: static trial's hinge angles L / R (deg; the report's static_pose, flagged beyond 20 apart): "
                 + ", ".join(f"{j} {lr[0]:.1f} / {lr[1]:.1f}" for j, lr in sp["hinges"].items())
                 + f"; flagged: {', '.join(sp['flagged']) or 'none'}")
+        if p.get("lateral"):
+            say("pig_walk: lateral marker to our joint centre along our hinge axis vs Plug-in Gait's half measured "
+                "width + 7 mm (mm): " + ", ".join(f"{j} {v['ours_mm']:.1f}/{v['measured_mm']:.1f}"
+                                                  + ("" if v["used"] else " (width not used)")
+                                                  for j, v in p["lateral"].items()))
         h = p["held_out"]
         if "ratio" in h:
             say(f"pig_walk held-out: calibrated on static + walk frames 0:{h['frames_in']}, the subject URDF fixed, "

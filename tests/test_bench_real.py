@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
+from calibrate.io.measurements import SubjectMeasurements
 from calibrate.io.read import read_trial
 from calibrate.simulation.simulate import simulate_squats, write_simulation
 
@@ -25,6 +27,9 @@ def written(human, tmp_path_factory):
     """A short 1 mm-noise squat trial, calibrated, with every output written."""
     d = tmp_path_factory.mktemp("bench_real")
     sim = simulate_squats(human, frames=60, noise_mm=1.0, seed=11)
+    # With a session's measurements in the C3D (PROCESSING), as Plug-in Gait trials carry them.
+    widths = {"knee_l": 0.105, "knee_r": 0.102, "ankle_l": 0.072, "ankle_r": 0.07, "elbow_l": 0.07, "elbow_r": 0.068}
+    sim = replace(sim, trial=replace(sim.trial, measurements=SubjectMeasurements(mass=71.0, widths=widths)))
     paths = write_simulation(sim, d)
     cal = calibrate(human, read_trial(paths["trial"]))
     cal.write(urdf=d / "subject.urdf", motion=d / "trial_motion.csv", report=d / "report.json")
@@ -51,6 +56,21 @@ def test_truth_errors_from_the_files_equal_compare_to_truth(written):
         assert ours["centre_mm"][j] == pytest.approx(1e3 * v, abs=1e-6), j
     for j, v in ref.axis_error_deg.items():
         assert ours["axis_deg"][j] == pytest.approx(v, abs=1e-5), j
+
+
+def test_lateral_distances_from_the_files_equal_the_reports(written):
+    """The lateral markers' distances from the joint centres along the hinge axes, recomputed with Pinocchio from
+    the subject URDF against the widths read with ezc3d, equal the report's; knees and ankles used, elbows not."""
+    _, cal, d = written
+    report = json.loads((d / "report.json").read_text())
+    ours = bench_real.lateral_figures(bench_real.UrdfKinematics(d / "subject.urdf"), d / "trial.c3d", report)
+    rep = report["measurements"]["lateral_mm"]
+    assert set(ours) == set(rep) == {"knee_l", "knee_r", "ankle_l", "ankle_r", "elbow_l", "elbow_r"}
+    for j, v in ours.items():
+        assert v["ours_mm"] == pytest.approx(rep[j]["calibrated_mm"], abs=1e-6), j
+        assert v["measured_mm"] == pytest.approx(rep[j]["measured_mm"], abs=1e-9), j
+        assert v["used"] == rep[j]["used"] == (not j.startswith("elbow")), j
+    assert report["mass"]["subject_kg"] == 71.0
 
 
 def test_joint_shifts_and_lengths_of_the_base_model_itself():

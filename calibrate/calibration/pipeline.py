@@ -42,6 +42,7 @@ from calibrate.seed.seeding import MIN_FRAMES, Seed, jumped_samples, seed_parame
 
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
+from ..io.measurements import WIDTHS, SubjectMeasurements, first_measurements
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
@@ -142,12 +143,52 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if bad:
         raise CalibrateError(f"hold_axes: '{bad[0]}' is not a hinge or universal-joint coordinate of "
                              f"{model.path.name}; use one of {', '.join(axis_dofs[:6])}, ... (see calibrate inspect)")
+    hinges = {j.name: j for j in model.joints if j.kind == "hinge"}
+    for joint, marker, _ in settings.lateral_markers:
+        if joint not in hinges:
+            raise CalibrateError(f"lateral_markers: '{joint}' is not a hinge joint of {model.path.name}; use one of "
+                                 f"{', '.join(list(hinges)[:6])}, ... (see calibrate inspect)")
+        if marker not in model.segments[model.segment_index(hinges[joint].parent)].markers:
+            raise CalibrateError(f"lateral_markers: '{marker}' is not a marker of {hinges[joint].parent}, the segment "
+                                 f"{joint} hangs from; use one of its markers")
     if neutral is not None and not (isinstance(neutral, int) and 0 <= neutral < len(trials)):
         raise CalibrateError(f"neutral: {neutral!r} is not the index of one of the {len(trials)} trials "
                              f"(0 for the first)")
+    measured = first_measurements(trials)
+    mass_from = None if mass is None else "given"
+    if mass is None and measured is not None and measured.mass is not None:
+        mass, mass_from = measured.mass, measured.source or "the trial's subject measurements"
+    if not settings.lateral_markers and measured is not None:
+        settings = replace(settings, lateral_markers=lateral_markers(model, measured))
     with threadpool_limits(limits=1, user_api="blas"):
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral)
-    return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral)
+    return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
+                   mass_from=mass_from, measurements=measured)
+
+
+#: The joints whose measured width places their centre along the hinge axis (Problem.slide_centres): Plug-in
+#: Gait's knee and ankle.  The elbow's is measured too but not used: sliding the elbow centre to it slides the
+#: forearm's contents back, and the radioulnar centre, which walking's forearm barely places, then lands
+#: 70 mm from the base model's on pig_walk (docs/calibration.md, "Subject measurements").
+WIDTH_JOINTS = ("knee", "ankle")
+
+
+def lateral_markers(model: Model, measured: SubjectMeasurements) -> tuple[tuple[str, str, float], ...]:
+    """(joint, lateral marker, distance) for Settings.lateral_markers from a subject's measured widths: each
+    knee and ankle of `model` (hinges named knee_l, ankle_r, ... as in models/human.urdf) whose measured width
+    is known and whose parent segment carries the Plug-in Gait lateral marker (LKNE, RANK, ...), at half the
+    width plus the marker's radius."""
+    joints = {j.name: j for j in model.joints}
+    on = {mk.name: mk.segment for mk in model.markers}
+    out = []
+    for joint in WIDTH_JOINTS:
+        label = WIDTHS[joint][1]
+        for side, prefix in (("l", "L"), ("r", "R")):
+            name, marker = f"{joint}_{side}", prefix + label
+            j, d = joints.get(name), measured.lateral_distance(f"{joint}_{side}")
+            if j is not None and j.kind == "hinge" and d is not None and on.get(marker) == j.parent:
+                out.append((name, marker, d))
+    return tuple(out)
 
 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,

@@ -20,9 +20,10 @@ import numpy as np
 from .. import __version__
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
+from ..io.measurements import WIDTHS
 from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
-from ..model.model import Model
+from ..model.model import Model, Parameters
 from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
 from ..seed.geometry import marker_rms
@@ -92,12 +93,16 @@ def calibration_report(cal: Calibration) -> dict:
                   "dof": model.nz, "markers": len(model.markers),
                   "new_markers": sum(1 for m in cal.new_markers if m.segment is not None)},
         "mass": _mass(cal),
+        "measurements": measurements_table(cal),
         "settings": {"free": list(st.free), "noise_mm": 1000 * st.noise, "loss": st.loss,
                      "loss_scale": st.loss_scale,
                      "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
                                 "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale,
                                 "symmetry_scale": st.priors.symmetry_scale,
-                                "symmetry_centre_mm": 1000 * st.priors.symmetry_centre},
+                                "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
+                                "width_mm": 1000 * st.priors.width},
+                     "lateral_markers": [{"joint": j, "marker": mk, "distance_mm": 1000 * d}
+                                         for j, mk, d in st.lateral_markers],
                      "learn_noise": st.learns_noise,
                      "max_iterations": st.max_iterations, "ftol": st.ftol, "xtol": st.xtol, "gtol": st.gtol,
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
@@ -145,10 +150,93 @@ def calibration_report(cal: Calibration) -> dict:
 
 
 def _mass(cal) -> dict:
-    """Segment masses written to the subject URDF: the base model's, scaled to the subject's mass if given."""
+    """Segment masses written to the subject URDF: the base model's, scaled to the subject's mass if given
+    (or measured: the trial's subject measurements)."""
     k = mass_factor(cal.model, cal.mass)
-    return {"subject_kg": cal.mass, "base_kg": cal.model.total_mass, "factor": k,
+    return {"subject_kg": cal.mass, "from": cal.mass_from, "base_kg": cal.model.total_mass, "factor": k,
             "segments_kg": {sg.name: round(k * sg.mass, 6) for sg in cal.model.segments if sg.mass > 0}}
+
+
+def lateral_distance(model: Model, params, base, joint: str, marker: str) -> float:
+    """A hinge joint's lateral marker's distance from the joint centre along the hinge axis (m) in geometry
+    `params`, counted towards the side where the base geometry `base` has the marker (what a measured joint
+    width fixes: calibrate.io.measurements)."""
+    ji = next(i for i, j in enumerate(model.joints) if j.name == joint)
+    mi = model.marker_names.index(marker)
+    jt = model.joints[ji]
+    rotation = next(u.rotation for u in model.urdf_joints if u.name == jt.urdf_joints[0])
+    d = model.dof_index(jt.dofs[0])
+
+    def along(p) -> float:
+        a = rotation @ (p.axis[d] / np.linalg.norm(p.axis[d]))
+        return float(a @ (p.marker[mi] - p.centre[ji])) * float(p.scale[model.segment_index(jt.parent)])
+
+    side = 1.0 if along(base) >= 0 else -1.0
+    return side * along(params)
+
+
+# A lateral marker further than this (m) along the axis from where the joint's measured width puts it is flagged
+# (the summary's `implausible` lines, the report's measurements.lateral_mm.*.flagged): a caliper and a marker
+# placed by a clinician agree to a few mm.  pig_walk (2026-11-27): knees 4-5 mm, ankles 5-7 mm with the widths
+# used; its elbows 47 and 66 mm (not used).
+MEASURED_TOLERANCE = 0.020
+
+
+def measurements_table(cal) -> dict | None:
+    """The trials' subject measurements (calibrate.io.measurements) and, for each knee, ankle and elbow with its
+    lateral marker, that marker's distance from the calibrated centre along the hinge axis against the
+    measured one (half the width plus the marker's radius), and whether the measurement placed the centre
+    (Settings.lateral_markers)."""
+    m = cal.measurements
+    used = {(j, mk): d for j, mk, d in cal.settings.lateral_markers}
+    if m is None and not used:
+        return None
+    model = cal.model
+    base = (cal.base_model or model).parameters()
+    if len(base.marker) != len(cal.params.marker):  # new markers: the base model's own come first
+        extra = cal.params.marker[len(base.marker):]
+        base = Parameters(base.scale, base.centre, base.axis, np.vstack([base.marker, extra]))
+    lateral = {}
+    joints = {j.name: j for j in model.joints}
+    on = {mk.name: mk.segment for mk in model.markers}
+    for joint, (_, label) in WIDTHS.items():
+        for side, prefix in (("l", "L"), ("r", "R")):
+            name, marker = f"{joint}_{side}", f"{prefix}{label}"
+            j = joints.get(name)
+            measured = used.get((name, marker), None if m is None else m.lateral_distance(name))
+            if label is None or j is None or j.kind != "hinge" or on.get(marker) != j.parent or measured is None:
+                continue
+            lateral[name] = {"marker": marker, "measured_mm": 1000 * measured,
+                             "calibrated_mm": 1000 * lateral_distance(model, cal.params, base, name, marker),
+                             "used": (name, marker) in used}
+            lateral[name]["flagged"] = abs(lateral[name]["calibrated_mm"] - 1000 * measured) > 1000 * MEASURED_TOLERANCE
+    out = m.as_dict() if m is not None else {"source": "settings (lateral_markers)"}
+    out["lateral_mm"] = lateral
+    out["width_prior_mm"] = 1000 * cal.settings.priors.width
+    return out
+
+
+def _measurement_lines(cal) -> list[str]:
+    """The summary's lines on the subject measurements: what was read, and each lateral marker's distance
+    from its joint centre along the axis, calibrated against measured."""
+    t = measurements_table(cal)
+    if t is None:
+        return []
+    what = [f"height {t['height_mm'] / 1000:g} m" if t.get("height_mm") else "",
+            f"mass {t['mass_kg']:g} kg" if t.get("mass_kg") else ""]
+    out = [f"  measured     {t['source']}" + (": " + ", ".join(w for w in what if w) if any(what) else "")]
+    lat = t["lateral_mm"]
+    if lat:
+        pairs = [f"{j} {v['calibrated_mm']:.0f}/{v['measured_mm']:.0f}" + ("" if v["used"] else " (not used)")
+                 for j, v in lat.items()]
+        out.append(f"  {'':13s}lateral marker to joint centre along the axis, calibrated / measured (mm): "
+                   + ", ".join(pairs))
+    for j, v in lat.items():
+        if v["flagged"]:
+            out.append(f"  implausible  {j}: {v['marker']} {v['calibrated_mm']:.0f} mm from the centre along the axis, "
+                       f"the measured width puts it {v['measured_mm']:.0f} mm lateral"
+                       + ("" if v["used"] else " (the width was not used; docs/calibration.md, subject measurements)"))
+    return out
 
 
 def symmetry_table(cal) -> dict:
@@ -242,9 +330,11 @@ def summary_text(cal) -> str:
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
         f"({', '.join(cal.settings.free)}); {n_free} quantities reported",
-        "  mass         " + (f"{cal.mass:g} kg: the base model's segment masses x{mass_factor(model, cal.mass):.3f}"
+        "  mass         " + (f"{cal.mass:g} kg" + ("" if cal.mass_from in (None, "given") else f" ({cal.mass_from})")
+                              + f": the base model's segment masses x{mass_factor(model, cal.mass):.3f}"
                               if cal.mass is not None else
                               f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
+        *_measurement_lines(cal),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
         *([f"  neutral      segment frames turned so that the joint angles of "

@@ -11,6 +11,7 @@ import numpy as np
 
 from calibrate.seed.seeding import Seed
 
+from ..io.measurements import SubjectMeasurements
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.model import Model, Parameters
@@ -183,6 +184,8 @@ class Calibration:
     outliers: tuple[Outlier, ...] = ()  # marker positions rejected from the fit
     label_maps: tuple = ()  # per trial: calibrate.io.labels.LabelMapping (trial label -> model label), if mapped
     mass: float | None = None  # subject's body mass (kg): segment masses scaled to it on writing; None: kept
+    mass_from: str | None = None  # where `mass` came from: "given", or the trial measurements' source
+    measurements: SubjectMeasurements | None = None  # the trials' subject measurements (calibrate.io.measurements)
     coordinate_notes: tuple[CoordinateNote, ...] = ()  # what the user should look at (e.g. coordinates driven
     # beyond their limits); `notes` is their text
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)

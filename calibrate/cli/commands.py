@@ -314,6 +314,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
     print(f"{path}: {t.n_frames} frames at {t.rate:g} Hz ({t.n_frames / t.rate:.2f} s), {t.n_markers} markers, "
           f"first frame {t.first_frame}")
+    if (m := t.measurements) is not None:  # a Plug-in Gait session's subject measurements (PROCESSING)
+        parts = ([f"mass {m.mass:g} kg"] if m.mass is not None else []) + \
+            ([f"height {m.height:g} m"] if m.height is not None else []) + \
+            [f"{j} width {1000 * w:g} mm" for j, w in sorted(m.widths.items())]
+        print(f"  measured ({m.source}): " + ", ".join(parts))
     for lab, g in zip(t.labels, gaps, strict=True):
         print(f"  {lab:16s} gaps {100 * g:5.1f} %")
     return 0

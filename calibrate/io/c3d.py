@@ -12,6 +12,7 @@ import ezc3d
 import numpy as np
 
 from calibrate.errors import TrialError
+from calibrate.io.measurements import c3d_processing, measurements_from_c3d
 from calibrate.io.trial import (
     UNITS_TO_METRES,
     Trial,
@@ -406,9 +407,11 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         values[bad] = np.nan
         model_outputs[label], output_kinds[label], output_units[label] = values, kind, si
     first_frame = layout.first_frame if layout.first_frame is not None else max(header_first, 0)
+    measurements = measurements_from_c3d(params, f"{path.name} PROCESSING")
     del c3d, points, residuals  # ezc3d's copies, before the trial is made
     return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path),
-                 model_outputs=model_outputs, output_kinds=output_kinds, output_units=output_units)
+                 model_outputs=model_outputs, output_kinds=output_kinds, output_units=output_units,
+                 measurements=measurements)
 
 
 def _c3d_output_kinds(params: dict, raw_labels: list[str]) -> dict[int, tuple[str, str]]:
@@ -485,6 +488,9 @@ def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
         c3d["header"]["points"]["first_frame"] = trial.first_frame  # 0-based; stored 1-based in the file
         c3d["data"]["points"] = points
         c3d["data"]["meta_points"] = {"residuals": residuals}
+        if trial.measurements is not None:  # the session's subject measurements, where Nexus writes them
+            for name, value in c3d_processing(trial.measurements).items():
+                c3d.add_parameter("PROCESSING", name, [float(value)])
         c3d.write(str(staged))
 
     write_staged(path, "C3D", write, (Exception,))  # any ezc3d or OS failure: one line

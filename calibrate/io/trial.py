@@ -74,6 +74,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.errors import TrialError
+from calibrate.io.measurements import SubjectMeasurements
 from calibrate.io.outputs import write_all
 
 __all__ = [
@@ -215,6 +216,9 @@ class Trial:
     #: label -> unit of its values in ``model_outputs`` ('m', 'rad', 'N', 'N m', 'W', or the
     #: file's own unit when it is not one converted on reading).
     output_units: Mapping[str, str] = field(default_factory=dict)
+    #: What the lab measured on the subject (body mass, height, joint widths: a Plug-in Gait session's
+    #: PROCESSING parameters), None when the file carries none.
+    measurements: SubjectMeasurements | None = None
 
     def __post_init__(self) -> None:
         where = origin(self.source)
@@ -279,6 +283,9 @@ class Trial:
             array.flags.writeable = False
             outputs[str(name)] = array
         object.__setattr__(self, "model_outputs", outputs)
+        if self.measurements is not None and not isinstance(self.measurements, SubjectMeasurements):
+            raise TrialError(f"{where}: measurements must be a SubjectMeasurements, got "
+                             f"{type(self.measurements).__name__}")
         object.__setattr__(self, "output_kinds", {str(k): str(v) for k, v in dict(self.output_kinds).items()})
         object.__setattr__(self, "output_units", {str(k): str(v) for k, v in dict(self.output_units).items()})
         object.__setattr__(self, "labels", labels)

@@ -134,7 +134,9 @@ class GaugeMixin:
         turns in the solve or is held again at the base model's, and then reads as a shift of the
         centre (pig_walk: the left knee centre 40 mm along its flexion axis from the base model's place,
         the subtalar centres 36 mm).  The slides of all hinges are found together: the priors are linear in the free
-        positions at fixed scales, so one least-squares solve over the slide lengths is exact."""
+        positions at fixed scales, so one least-squares solve over the slide lengths is exact.  Where the lab
+        measured a joint's width (ProblemOptions.lateral_markers, priors.width), its lateral marker's distance
+        from the centre along the axis joins the priors: the one place the measurement fixes what no marker shows."""
         m, L = self.model, self.layout
         cols = []
         for ji in self._slides:
@@ -160,6 +162,8 @@ class GaugeMixin:
             return p.copy()
         G = np.array(cols).T
         r, Jr = self.prior(p)
+        rw, Jw = self.lateral_residuals(p)  # the lab's measured joint widths, where it gave them
+        r, Jr = np.concatenate([r, rw]), np.vstack([Jr, Jw])
         M = Jr @ G
         t = np.linalg.lstsq(M, -r, rcond=None)[0]
         return self.retract_parameters(p, G @ t)

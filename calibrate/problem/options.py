@@ -37,6 +37,10 @@ class Priors:
     # apart by different amounts; a subject's bones are symmetric to a few per cent.
     symmetry_scale: float = 0.05
     symmetry_centre: float = 0.02
+    # A measured joint width (ProblemOptions.lateral_markers): SD of the distance along the hinge axis
+    # from the lateral marker to the joint centre (m; 0: the measurements are not used).  A caliper reads
+    # a knee to a few mm; the marker sits on skin over the epicondyle or malleolus.
+    width: float = 0.005
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,11 @@ class ProblemOptions:
     lock: tuple[tuple[str, float], ...] = ()  # ((DoF, angle in rad), ...), a dict, or DoF names (held at 0)
     hold_axes: tuple[str, ...] = ()
     hold_segments: tuple[str, ...] = ()
+    # Where along its axis a hinge's centre lies, which no marker shows (Problem.slide_centres), as the lab
+    # measured it: ((hinge joint, the lateral marker on its parent segment, that marker's distance from
+    # the centre along the axis in m), ...) — Plug-in Gait's half knee or ankle width plus the marker's
+    # radius (calibrate.io.measurements); the pipeline fills it from the trials' measurements.
+    lateral_markers: tuple[tuple[str, str, float], ...] = ()
     compile: bool = True
     # Memory (MB) for the frames' blocks of the normal equations at once; a longer trial's are formed chunk
     # by chunk, and again when a pass needs them (calibrate.solve.chunks): ~170 kB per frame, full body.
@@ -76,6 +85,12 @@ class ProblemOptions:
         else:
             lock = tuple(sorted((x, 0.0) if isinstance(x, str) else tuple(x) for x in lock))
         object.__setattr__(self, "lock", lock)
+        try:
+            lateral = tuple((str(j), str(mk), d) for j, mk, d in self.lateral_markers)
+        except (TypeError, ValueError):
+            raise ValueError(f"lateral_markers: expected (joint, marker, distance in m) triples, got "
+                             f"{self.lateral_markers!r}") from None
+        object.__setattr__(self, "lateral_markers", lateral)
         for item in self.lock:
             if len(item) != 2 or not isinstance(item[0], str):
                 raise ValueError(f"lock: expected DoF names or (DoF, angle) pairs, got {item!r}")
@@ -97,7 +112,11 @@ class ProblemOptions:
             v = getattr(self.priors, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")
-        for name in ("symmetry_scale", "symmetry_centre"):
+        for joint, marker, d in self.lateral_markers:
+            if not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 and math.isfinite(d)):
+                raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
+                                 f"in metres, got {d!r}")
+        for name in ("symmetry_scale", "symmetry_centre", "width"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

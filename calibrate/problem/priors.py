@@ -51,6 +51,69 @@ class PriorsMixin:
             self._prior_cache = cached
         return cached[1], cached[2], cached[3]
 
+    def _lateral_terms(self) -> list[tuple[int, int, int, float, float]]:
+        """ProblemOptions.lateral_markers as (joint, marker, DoF index, distance, side): the side (+1 or -1)
+        is the one of the base model's marker along its hinge axis, so that the distance is measured
+        towards the lateral side whichever way the axis points.  Kept while `base` is the same object."""
+        cached = self.__dict__.get("_lateral_cache")
+        if cached is not None and cached[0] is self.base:
+            return cached[1]
+        m, L = self.model, self.layout
+        base = self.base.vector()
+        joints = {j.name: i for i, j in enumerate(m.joints)}
+        markers = {mk.name: i for i, mk in enumerate(m.markers)}
+        out = []
+        for jname, mname, dist in self.settings.lateral_markers:
+            ji, mi = joints.get(jname), markers.get(mname)
+            if ji is None or m.joints[ji].kind != "hinge":
+                raise ValueError(f"lateral_markers: '{jname}' is not a hinge joint of the model")
+            if mi is None or m.markers[mi].segment != m.joints[ji].parent:
+                raise ValueError(f"lateral_markers: '{mname}' is not a marker of {m.joints[ji].parent}, the "
+                                 f"segment {jname} hangs from")
+            d = m.dof_index(m.joints[ji].dofs[0])
+            a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(base, d)
+            side = 1.0 if float(a @ (base[L.marker(mi)] - base[L.centre(ji)])) >= 0 else -1.0
+            out.append((ji, mi, d, float(dist), side))
+        self._lateral_cache = (self.base, out)
+        return out
+
+    def lateral_distances(self, p: np.ndarray) -> list[tuple[str, str, float, float]]:
+        """(joint, marker, distance at `p`, measured distance) per lateral marker (lateral_markers): the
+        marker's distance from the joint centre along the hinge axis, towards the lateral side (m)."""
+        m, L = self.model, self.layout
+        out = []
+        for ji, mi, d, dist, side in self._lateral_terms():
+            s = p[L.scale(self.centre_segment[ji])]
+            a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(p, d)
+            out.append((m.joints[ji].name, m.markers[mi].name,
+                        side * s * float(a @ (p[L.marker(mi)] - p[L.centre(ji)])), dist))
+        return out
+
+    def lateral_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The measured joint widths' residuals (calibrated - measured lateral distance) / priors.width and
+        their Jacobian (n, n_free) at `p`; none when priors.width is 0."""
+        sd = self.settings.priors.width
+        terms = self._lateral_terms() if sd > 0 else []
+        if not terms:
+            return np.zeros(0), np.zeros((0, self.n_free))
+        m, L = self.model, self.layout
+        r, J = np.zeros(len(terms)), np.zeros((len(terms), self.np_full))
+        for k, (ji, mi, d, dist, side) in enumerate(terms):
+            seg = self.centre_segment[ji]
+            s = p[L.scale(seg)]
+            R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
+            v = p[L.axis(d)]
+            nv = float(np.linalg.norm(v))
+            u = v / nv
+            a = R @ u
+            x = p[L.marker(mi)] - p[L.centre(ji)]
+            r[k] = (side * s * float(a @ x) - dist) / sd
+            J[k, L.marker(mi)] += side * s * a / sd
+            J[k, L.centre(ji)] -= side * s * a / sd
+            J[k, L.scale(seg)] += side * float(a @ x) / sd
+            J[k, L.axis(d)] += side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
+        return r, J @ self.tangent_map(p)
+
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,
               jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Prior residuals and their Jacobian (n_prior, n_free) at full parameters `p`, through the

@@ -63,6 +63,11 @@ class Settings:
     # marker on or below them (calibrate.model.resolve): nothing in the data reaches their parameters, and
     # left free only the priors' couplings (e.g. left/right symmetry) would move them.
     hold_segments: tuple[str, ...] = ()
+    # A hinge centre's distance along its axis from the lateral marker beside it (m), as the lab measured
+    # it: ((joint, marker, distance), ...).  () (default): from the trials' subject measurements where they
+    # carry them (Plug-in Gait's knee and ankle widths: half the width plus the marker's radius;
+    # calibrate.io.measurements); priors.width = 0 leaves them unused.
+    lateral_markers: tuple[tuple[str, str, float], ...] = ()
     # Learn each marker's noise SD from the trial's residuals (a robust scale, iterated with the solve;
     # calibrate.calibration.noise.learned_noise) instead of taking `noise` for all.  None (default): learn
     # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
@@ -92,7 +97,7 @@ class Settings:
     def __post_init__(self) -> None:
         # Each view normalises (dicts and single names to sorted tuples) and checks its own fields.
         problem = _view(ProblemOptions, self)
-        for name in ("marker_noise", "lock", "hold_axes"):
+        for name in ("marker_noise", "lock", "hold_axes", "lateral_markers"):
             object.__setattr__(self, name, getattr(problem, name))
         _view(SolverOptions, self)
         if self.learn_noise is not None and not isinstance(self.learn_noise, bool):
