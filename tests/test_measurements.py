@@ -4,6 +4,7 @@ widths placing those hinge centres along their axes — checked against the simu
 
 from __future__ import annotations
 
+import json
 import xml.etree.ElementTree as ET
 from dataclasses import replace
 
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 
 from calibrate import calibrate
+from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import lateral_markers
 from calibrate.calibration.report import calibration_report, lateral_distance
 from calibrate.cli import main
@@ -103,6 +105,8 @@ def test_measured_widths_place_knee_and_ankle_centres_along_their_axes(measured_
         assert row["marker"] == mk and row["used"] and not row["flagged"]
         assert row["measured_mm"] == pytest.approx(1000 * truth[j])
         assert row["calibrated_mm"] == pytest.approx(1000 * lateral_distance(human, with_widths.params, base, j, mk))
+    html = report_html(json.loads(json.dumps(calibration_report(with_widths), default=float)))
+    assert "measured widths" in html and f"knee_l {rep['lateral_mm']['knee_l']['calibrated_mm']:.0f}/" in html
     # priors.width = 0: the measurements read but not used, the slide the priors' alone.
     off = calibrate(human, with_widths.trials[0], Settings(priors=replace(Settings().priors, width=0.0)))
     assert np.allclose(off.params.centre, without.params.centre, atol=1e-9)

@@ -72,6 +72,12 @@ def _notes(report: dict) -> str:
                      f"{h.get('left_deg', 0):.1f}° against {_e(h.get('right'))} {h.get('right_deg', 0):.1f}° "
                      f"({h.get('difference_deg', 0):.1f}° apart): unless the subject stood asymmetrically, one side's "
                      "segment frames sit turned where its markers leave them to the priors</li>")
+    for j, v in ((report.get("measurements") or {}).get("lateral_mm") or {}).items():
+        if v.get("flagged"):
+            items.append(f"<li class=bad>implausible {_e(j)} centre: {_e(v.get('marker'))} "
+                         f"{v.get('calibrated_mm', 0):.0f} mm from it along the axis, the measured width puts it "
+                         f"{v.get('measured_mm', 0):.0f} mm lateral"
+                         + ("" if v.get("used") else " (the width was not used)") + "</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "
@@ -122,7 +128,8 @@ def _summary(report: dict) -> str:
                        + (f"; coarse solve of {s['coarse']['frames']} frames: {s['coarse']['iterations']}"
                           if s.get("coarse") else "")],
         ["termination", f"{'CONVERGED' if s['converged'] else 'NOT CONVERGED'}: {s['termination']}"],
-        ["mass", f"{mass.get('subject_kg')} kg (segment masses x{mass.get('factor', 1):.3f})"
+        ["mass", f"{mass.get('subject_kg')} kg (segment masses x{mass.get('factor', 1):.3f}"
+                 + (f"; from {mass['from']})" if mass.get("from") not in (None, "given") else ")")
                  if mass.get("subject_kg") else f"{mass.get('base_kg')} kg, the base model's"],
         ["free parameters", ", ".join(report["settings"]["free"])],
         ["noise", "learnt per marker" if report["noise"]["learnt"] else f"{report['settings']['noise_mm']:g} mm"],
@@ -133,6 +140,12 @@ def _summary(report: dict) -> str:
     outs = report.get("outputs", {})
     if outs:
         rows.append(["outputs", ", ".join(str(v) if not isinstance(v, list) else ", ".join(v) for v in outs.values())])
+    meas = report.get("measurements") or {}
+    if meas.get("lateral_mm"):
+        rows.append(["measured widths", f"{meas.get('source')}: lateral marker to joint centre along the axis, "
+                     "calibrated / measured (mm): " + ", ".join(
+                         f"{j} {v['calibrated_mm']:.0f}/{v['measured_mm']:.0f}" + ("" if v["used"] else " (not used)")
+                         for j, v in meas["lateral_mm"].items())])
     sym = report.get("symmetry", {})
     if sym.get("largest_length_difference") is not None:
         rows.append(["left/right", f"segment lengths differ by up to {100 * sym['largest_length_difference']:.1f} %"
