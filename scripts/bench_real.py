@@ -116,6 +116,22 @@ def slice_c3d(src: Path, dst: Path, start: int, stop: int) -> Path:
     return dst
 
 
+def perturb_c3d(src: Path, dst: Path, sd_mm: float, seed: int) -> Path:
+    """A copy of a C3D with N(0, sd_mm) added to every coordinate of every valid point (residual >= 0, not all
+    zero; model outputs alike, which calibrate never reads), every parameter kept."""
+    import ezc3d
+
+    c = ezc3d.c3d(str(src))
+    pts = np.array(c["data"]["points"], dtype=float)
+    res = np.asarray(c["data"]["meta_points"]["residuals"])
+    valid = (res[0] >= 0) & ~(pts[:3] == 0).all(axis=0) & np.isfinite(pts[:3]).all(axis=0)
+    noise = np.random.default_rng(seed).normal(0.0, sd_mm, pts[:3].shape)  # the file's units are mm here
+    pts[:3] = np.where(valid[None], pts[:3] + noise, pts[:3])
+    c["data"]["points"] = pts
+    c.write(str(dst))
+    return dst
+
+
 def read_c3d_points(path: Path, labels: list[str]) -> dict[str, np.ndarray]:
     """Points of a C3D by label (frames x 3, metres), NaN where invalid (residual < 0 or all zero)."""
     import ezc3d
@@ -571,6 +587,34 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     return out
 
 
+PERTURB_MM = 0.1  # the noise added to pig_walk's copies (section "perturbed"): a tenth of the trial's own scatter
+
+
+def section_perturbed(a, tmp: Path, cap: float, log) -> dict:
+    """pig_walk again on `a.perturb` copies with N(0, 0.1 mm) added to every coordinate (seeds 1..N): which
+    figures are the data's and which one solver path's.  The same command line and figures as section "pig"."""
+    static, walk = PIG / "static.c3d", PIG / "walk.c3d"
+    if not (static.exists() and walk.exists()):
+        return {"skipped": f"{PIG} not found (static.c3d, walk.c3d)"}
+    runs = []
+    for seed in range(1, a.perturb + 1):
+        d = tmp / f"pig_perturbed_{seed}"
+        d.mkdir(parents=True, exist_ok=True)
+        st = perturb_c3d(static, d / "static.c3d", PERTURB_MM, 2 * seed)
+        wk = perturb_c3d(walk, d / "walk.c3d", PERTURB_MM, 2 * seed + 1)
+        log(f"pig_walk + {PERTURB_MM:g} mm noise, copy {seed}: calibrate static.c3d walk.c3d")
+        run = calibrate_cli([st, wk], d, cap, a.extra)
+        if "error" in run:
+            runs.append({"seed": seed, "error": run["error"]})
+            continue
+        f = run_figures(run)
+        f.pop("kin")
+        runs.append({"seed": seed, **{k: f[k] for k in ("converged", "iterations", "coarse_iterations", "rejected_pct",
+                                                           "marker_rms_mm", "max_shift_mm", "max_shift_joint",
+                                                           "asymmetry_pct", "worst", "wall_s", "s_per_1000_frames")}})
+    return {"sd_mm": PERTURB_MM, "runs": runs}
+
+
 SWAPS = (("RKNE", "RANK"), ("LASI", "LTHI"), ("RHEE", "RTOE"))  # pig_walk's walk labels exchanged (section "swaps")
 
 
@@ -899,6 +943,21 @@ def report(res: dict) -> None:
                 "width + 7 mm (mm): " + ", ".join(f"{j} {v['ours_mm']:.1f}/{v['measured_mm']:.1f}"
                                                   + ("" if v["used"] else " (width not used)")
                                                   for j, v in p["lateral"].items()))
+        pp = res.get("pig_perturbed") or {}
+        if pp.get("runs"):
+            ok = [r for r in pp["runs"] if "error" not in r]
+            say(f"pig_walk on {len(pp['runs'])} copies with N(0, {pp['sd_mm']:g} mm) added to every coordinate "
+                "(seed: iterations on all frames (coarse), % rejected, RMS mm, largest shift mm, worst L/R %): "
+                + "; ".join(f"{r['seed']}: ERROR {r['error']}" if "error" in r else
+                            f"{r['seed']}: {r['iterations']} ({r['coarse_iterations']}), {r['rejected_pct']:.2f}, "
+                            f"{r['marker_rms_mm']:.2f}, {r['max_shift_mm']:.1f} {r['max_shift_joint']}, "
+                            f"{r['asymmetry_pct']:.1f} {r['worst']}" for r in pp["runs"]))
+            say(f"  of {len(pp['runs'])}: converged {sum(r['converged'] for r in ok)}, iterations <= {ITERATIONS} "
+                f"{sum(r['iterations'] <= ITERATIONS for r in ok)}, every shift <= {SHIFT_MM:g} mm "
+                f"{sum(r['max_shift_mm'] <= SHIFT_MM for r in ok)}, L/R <= {ASYMMETRY_PCT:g} % "
+                f"{sum(r['asymmetry_pct'] <= ASYMMETRY_PCT for r in ok)} (no targets: the recorded run's are)")
+        elif pp.get("error") or pp.get("skipped"):
+            say(f"pig_walk perturbed copies: {pp.get('error') or pp.get('skipped')}")
         h = p["held_out"]
         if "ratio" in h:
             say(f"pig_walk held-out: calibrated on static + walk frames 0:{h['frames_in']}, the subject URDF fixed, "
@@ -1009,6 +1068,8 @@ def collect(a: argparse.Namespace, log) -> dict:
             res["pig"] = guarded(section_pig, a, tmp, cap, log)
             if "skipped" in res["pig"]:
                 res["skipped"].append(f"pig_walk: {res['pig']['skipped']}")
+        if "pig" in only and a.perturb:
+            res["pig_perturbed"] = guarded(section_perturbed, a, tmp, cap, log)
         if "realistic" in only:
             res["realistic"] = guarded(section_realistic, a, tmp, cap, log)
             r = res["realistic"]
@@ -1039,6 +1100,8 @@ def main() -> None:
     ap.add_argument("--only", default=None, help=f"comma-separated sections among {','.join(SECTIONS)} (default all)")
     ap.add_argument("--cap", type=float, default=None, help="time cap (s) of each command (default 1800; quick 300)")
     ap.add_argument("--keep", type=Path, default=None, help="keep every trial and output in this folder")
+    ap.add_argument("--perturb", type=int, default=0, metavar="N",
+                    help=f"also calibrate N copies of pig_walk with N(0, {PERTURB_MM:g} mm) noise added (default 0)")
     ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
     a = ap.parse_args()
     if a.from_json:

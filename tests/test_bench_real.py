@@ -92,6 +92,16 @@ def test_sliced_c3d_keeps_the_frames(written, tmp_path):
     np.testing.assert_array_equal(b.markers, a.markers[10:35])
 
 
+def test_perturbed_c3d_adds_the_noise_and_keeps_the_rest(written, tmp_path):
+    _, _, d = written
+    noisy = bench_real.perturb_c3d(d / "trial.c3d", tmp_path / "noisy.c3d", 0.1, seed=1)
+    a, b = read_trial(d / "trial.c3d"), read_trial(noisy)
+    assert b.labels == a.labels and b.measurements.widths == a.measurements.widths
+    np.testing.assert_array_equal(np.isnan(b.markers), np.isnan(a.markers))  # gaps stay gaps
+    diff = 1000 * (b.markers - a.markers)[np.isfinite(a.markers)]  # mm
+    assert abs(diff.std() - 0.1) < 0.005 and abs(diff.mean()) < 0.005
+
+
 def test_corruptions_caught_matches_frame_and_marker(tmp_path):
     (tmp_path / "truth_corruptions.csv").write_text("kind,frame,marker\nspike,3,LKNE\nswap,7,LASI\nswap,7,RASI\n")
     report = {"outliers": {"count": 3, "rejected": [{"trial": 0, "frame": 3, "marker": "LKNE"},
