@@ -294,10 +294,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                        say, solver)
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
+    # Each trial's first key frame also from a local solve from the default pose (the better fit taken): on
+    # Rajagopal2016 the joint-by-joint search alone turned the walking left arm 154 deg from OpenSim's IK
+    # (arm_rot_l; 41 deg with it).  Not in the race above: there it made pig_walk's race take the MTB seed,
+    # whose lumbar then ended 64-66 mm out (docs/benchmarks.md).
     posed = Countdown(say, "start", "frame-wise inverse kinematics of every trial's frames")
     start = stack_states([start_poses(problem.kin, known_obs[sl], params0, key_stride(t.rate), evaluator=evaluator,
                                       progress=lambda done, sl=sl: posed((sl.start + done * (sl.stop - sl.start))
-                                                                         / problem.F))
+                                                                         / problem.F), local=True)
                           for sl, t in zip(spans, trials, strict=True)])
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)

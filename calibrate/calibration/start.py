@@ -51,12 +51,14 @@ COARSE_FRAMES = 120  # the geometry's basin is found on about this many evenly s
 
 # ---------------------------------------------------------------------- start
 def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, stride: int = STRIDE,
-                evaluator: Callable | None = None, progress: Callable[[float], None] | None = None) -> State:
+                evaluator: Callable | None = None, progress: Callable[[float], None] | None = None,
+                local: bool = False) -> State:
     """Per-frame coordinates for fixed geometry: frame-wise IK on every `stride`-th frame (warm-started
     key frame to key frame, the first from a global search), interpolated in between (slerp for
     the root rotation).  Frames with fewer than 3 markers take the nearest key frame's pose.
     `evaluator`: a faster per-frame (markers, d markers/dz) at `params` (Problem.frame_evaluator);
-    `progress(share of the key frames done)` after each key frame."""
+    `progress(share of the key frames done)` after each key frame; `local`: the first key frame also from
+    a local solve from the default pose, the better fit taken (FrameSolver.global_start)."""
     model = kin.model
     F = observed.shape[0]
     p = params.vector()
@@ -73,7 +75,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
     for i, f in enumerate(keys):
         idx = np.flatnonzero(seen[f])
         if z is None:
-            z, q = solver.global_start(observed[f], seen[f])
+            z, q = solver.global_start(observed[f], seen[f], local=local)
             budget = 200
         else:
             budget = 30

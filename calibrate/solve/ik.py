@@ -176,10 +176,26 @@ class FrameSolver:
             z, q = zr[0], qr[0]
         return z, q, summary.final_cost, summary.iterations
 
-    def global_start(self, obs, seen):
-        """A pose for one frame from scratch: root by Kabsch, then joint by joint with multi-starts."""
-        nz = self.nz
-        z = np.zeros(nz)
+    def global_start(self, obs, seen, local: bool = False):
+        """A pose for one frame from scratch: root by Kabsch, then joint by joint with multi-starts.  With
+        `local`, also every coordinate solved at once from the model's default pose (root by Kabsch), and
+        the one of the two that fits the frame better, each solved to convergence.  A segment with two
+        markers (and its joint centre) fixes its own rotation, and on a base model whose marker places differ
+        from the subject's that rotation can point to a basin the segments below fit little worse
+        (Rajagopal2016's humerus: arm_rot -95 deg, the elbow at its limit, 0.5 % above the anatomical pose's
+        cost); the local solve from the default pose, as OpenSim's IK starts, stays near the anatomical one."""
+        root = self._root_start(obs, seen)
+        z, q = self._joint_by_joint(*root, obs, seen)
+        if not local:
+            return z, q
+        idx, every = np.flatnonzero(seen), np.arange(self.nz)
+        z, q, cost, _ = self.solve(z, q, obs, idx, every, 200)
+        zl, ql, cost_l, _ = self.solve(*root, obs, idx, every, 200)
+        return (zl, ql) if cost_l < cost else (z, q)
+
+    def _root_start(self, obs, seen) -> tuple[np.ndarray, np.ndarray]:
+        """The default pose with the root placed on its markers (Kabsch), or at the markers' mean."""
+        z = np.zeros(self.nz)
         q = self.identity.copy()
         root_seen = [k for k in self.root_markers if seen[k]]
         if len(root_seen) >= 3:
@@ -190,6 +206,10 @@ class FrameSolver:
             z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(FrameLayout.n_root), 50)
         else:
             z[FrameLayout.translation] = np.nanmean(obs[seen], axis=0)
+        return z, q
+
+    def _joint_by_joint(self, z, q, obs, seen) -> tuple[np.ndarray, np.ndarray]:
+        """From the root's pose, each joint down the tree from the best of a grid of starts."""
         for own, sub_dofs, sub_mk, child_mk, lims, slots in self.plan:
             fit_mk = [k for k in child_mk if seen[k]]
             free = own
