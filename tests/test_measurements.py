@@ -121,3 +121,27 @@ def test_measured_mass_scales_the_segments_unless_a_mass_is_given(measured_squat
     assert sum(masses) == pytest.approx(80.0, rel=1e-9)
     given = calibrate(human, with_widths.trials[0], Settings(max_iterations=2), mass=70.0)
     assert given.mass == 70.0 and given.mass_from == "given"
+
+
+def test_width_residuals_jacobian_against_finite_differences(human):
+    """Problem.lateral_residuals' Jacobian in the free coordinates (marker and centre positions, the segment's
+    scale, the hinge axis on its tangent plane) against central differences of the residuals along each free
+    column, through the problem's own retraction, at a perturbed geometry with a free knee axis."""
+    from calibrate.problem.problem import Problem
+    from calibrate.solve.ik import marker_columns
+
+    sim = simulate_squats(human, frames=5, seed=1)
+    settings = Settings(lateral_markers=(("knee_l", "LKNE", 0.06), ("ankle_r", "RANK", 0.05)), auto_hold=False)
+    problem = Problem(human, marker_columns(human, sim.trial), settings.problem)
+    p = sim.truth.vector()
+    r, J = problem.lateral_residuals(p)
+    assert r.shape == (2,) and J.shape == (2, problem.n_free)
+    h = 1e-6
+    num = np.empty_like(J)
+    for k in range(problem.n_free):
+        e = np.zeros(problem.n_free)
+        e[k] = h
+        num[:, k] = (problem.lateral_residuals(problem.retract_parameters(p, e))[0]
+                     - problem.lateral_residuals(problem.retract_parameters(p, -e))[0]) / (2 * h)
+    assert np.count_nonzero(np.abs(J) > 1e-9) >= 10  # positions, scales and the knee axis all enter
+    np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-6)

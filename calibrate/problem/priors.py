@@ -77,18 +77,6 @@ class PriorsMixin:
         self._lateral_cache = (self.base, out)
         return out
 
-    def lateral_distances(self, p: np.ndarray) -> list[tuple[str, str, float, float]]:
-        """(joint, marker, distance at `p`, measured distance) per lateral marker (lateral_markers): the
-        marker's distance from the joint centre along the hinge axis, towards the lateral side (m)."""
-        m, L = self.model, self.layout
-        out = []
-        for ji, mi, d, dist, side in self._lateral_terms():
-            s = p[L.scale(self.centre_segment[ji])]
-            a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(p, d)
-            out.append((m.joints[ji].name, m.markers[mi].name,
-                        side * s * float(a @ (p[L.marker(mi)] - p[L.centre(ji)])), dist))
-        return out
-
     def lateral_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The measured joint widths' residuals (calibrated - measured lateral distance) / priors.width and
         their Jacobian (n, n_free) at `p`; none when priors.width is 0."""
