@@ -462,6 +462,26 @@ LATERAL = {"knee": ("KneeWidth", "KNE"), "ankle": ("AnkleWidth", "ANK"), "elbow"
 PIG_MARKER_RADIUS_MM = 7.0  # Vicon's 14 mm markers (the file states no MarkerDiameter)
 
 
+def axis_distance(k: UrdfKinematics, joint: str, marker: str) -> float:
+    """A marker's distance from a hinge joint's centre along its axis (m): the URDF through Pinocchio at the
+    neutral pose (any pose gives the same: both ride the joint's parent segment)."""
+    q = np.zeros((1, k.pinm.nq))
+    q[0, 6] = 1.0  # identity root quaternion (x, y, z, w)
+    for jid in range(2, k.pinm.njoints):
+        if k.pinm.joints[jid].nq == 2:  # continuous: cos, sin
+            q[0, k.pinm.joints[jid].idx_q] = 1.0
+    P, _ = k.frames(q, [k.centre_joint[joint], marker])
+    a = k.hinge_axes(q, [joint])[0, 0]
+    return float(a @ (P[0, 1] - P[0, 0]))
+
+
+def lateral_pairs(kin: UrdfKinematics) -> list[tuple[str, str, str]]:
+    """(joint, lateral marker, Plug-in Gait width name) of every knee, ankle and elbow the URDF has with its marker."""
+    return [(f"{joint}_{side}", prefix + label, prefix + width) for joint, (width, label) in LATERAL.items()
+            for side, prefix in (("l", "L"), ("r", "R"))
+            if f"{joint}_{side}" in kin.joints and prefix + label in kin.fid]
+
+
 def lateral_figures(kin: UrdfKinematics, trial: Path, report: dict) -> dict:
     """Per knee, ankle and elbow: its lateral marker's distance from our joint centre along our hinge axis
     (the subject URDF through Pinocchio at the neutral pose, towards the side where models/human.urdf has the
@@ -472,28 +492,28 @@ def lateral_figures(kin: UrdfKinematics, trial: Path, report: dict) -> dict:
     proc = ezc3d.c3d(str(trial), extract_forceplat_data=False)["parameters"].get("PROCESSING", {})
     base = UrdfKinematics(MODEL)
     used = {row["joint"] for row in report.get("settings", {}).get("lateral_markers", [])}
-
-    def along(k: UrdfKinematics, joint: str, marker: str) -> float:
-        q = np.zeros((1, k.pinm.nq))
-        q[0, 6] = 1.0  # identity root quaternion (x, y, z, w)
-        for jid in range(2, k.pinm.njoints):
-            if k.pinm.joints[jid].nq == 2:  # continuous: cos, sin
-                q[0, k.pinm.joints[jid].idx_q] = 1.0
-        P, _ = k.frames(q, [k.centre_joint[joint], marker])
-        a = k.hinge_axes(q, [joint])[0, 0]
-        return float(a @ (P[0, 1] - P[0, 0]))
-
     out = {}
-    for joint, (width, label) in LATERAL.items():
-        for side, prefix in (("l", "L"), ("r", "R")):
-            name, marker = f"{joint}_{side}", prefix + label
-            w = proc.get(prefix + width, {}).get("value")
-            if name not in kin.joints or marker not in kin.fid or w is None or not float(np.ravel(w)[0]) > 0:
-                continue
-            sign = 1.0 if along(base, name, marker) >= 0 else -1.0
-            out[name] = {"marker": marker, "ours_mm": 1e3 * sign * along(kin, name, marker),
-                         "measured_mm": 0.5 * float(np.ravel(w)[0]) + PIG_MARKER_RADIUS_MM, "used": name in used}
+    for name, marker, width in lateral_pairs(kin):
+        w = proc.get(width, {}).get("value")
+        if w is None or not float(np.ravel(w)[0]) > 0:
+            continue
+        sign = 1.0 if axis_distance(base, name, marker) >= 0 else -1.0
+        out[name] = {"marker": marker, "ours_mm": 1e3 * sign * axis_distance(kin, name, marker),
+                     "measured_mm": 0.5 * float(np.ravel(w)[0]) + PIG_MARKER_RADIUS_MM, "used": name in used}
     return out
+
+
+def lateral_truth(kin: UrdfKinematics, truth: UrdfKinematics) -> dict:
+    """Per knee, ankle and elbow: |ours - truth| (mm) of the lateral marker's distance from the joint centre along
+    the hinge axis, each in its own URDF (where along the axis the centre lies: what a measured width fixes)."""
+    return {name: 1e3 * abs(axis_distance(kin, name, marker) - axis_distance(truth, name, marker))
+            for name, marker, _ in lateral_pairs(kin) if name in truth.joints and marker in truth.fid}
+
+
+def truth_lateral_section(d: Path, run: dict) -> dict:
+    """lateral_truth of a simulated run, with which widths calibrate used (the report)."""
+    used = [row["joint"] for row in run["report"].get("settings", {}).get("lateral_markers", [])]
+    return {"mm": lateral_truth(UrdfKinematics(run["urdf"]), UrdfKinematics(d / "truth.urdf")), "used": used}
 
 
 def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) -> dict:
@@ -681,6 +701,7 @@ def truth_section(d: Path, run: dict) -> dict:
     kin = out.pop("kin")
     out["truth"] = truth_errors(kin, run["motions"][0], UrdfKinematics(d / "truth.urdf"), d / "truth_motion.csv",
                                 out["held_axes"])
+    out["lateral_truth"] = truth_lateral_section(d, run)
     return out
 
 
@@ -992,6 +1013,11 @@ def report(res: dict) -> None:
         elif ap:
             say(f"realistic: axis profile {ap.get('skipped') or 'ERROR ' + str(ap.get('error'))}")
         c = r["corruptions"]
+        lt = r.get("lateral_truth") or {}
+        if lt.get("mm"):
+            say("realistic: lateral marker to joint centre along the axis, |ours - truth| (mm; the simulated lab's "
+                "widths used for " + (", ".join(lt["used"]) or "none") + "): "
+                + ", ".join(f"{j} {v:.1f}" for j, v in lt["mm"].items()))
         say("realistic: corruptions " + (f"SKIPPED: {c['skipped']}" if "skipped" in c else
                                          f"{c['caught']}/{c['corruptions']} caught ({c['caught_pct']:.1f} %), "
                                          + ", ".join(f"{k} {v['caught']}/{v['n']}" for k, v in c["per_kind"].items())

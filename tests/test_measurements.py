@@ -15,10 +15,10 @@ import pytest
 from calibrate import calibrate
 from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import lateral_markers
-from calibrate.calibration.report import calibration_report, lateral_distance
+from calibrate.calibration.report import calibration_report
 from calibrate.cli import main
 from calibrate.io.c3d import read_c3d, write_c3d
-from calibrate.io.measurements import DEFAULT_MARKER_DIAMETER, SubjectMeasurements
+from calibrate.io.measurements import DEFAULT_MARKER_DIAMETER, SubjectMeasurements, lateral_distance
 from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 
@@ -145,3 +145,25 @@ def test_width_residuals_jacobian_against_finite_differences(human):
                      - problem.lateral_residuals(problem.retract_parameters(p, -e))[0]) / (2 * h)
     assert np.count_nonzero(np.abs(J) > 1e-9) >= 10  # positions, scales and the knee axis all enter
     np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-6)
+
+
+def test_the_simulated_lab_measures_the_truths_widths(human):
+    """simulate_*(measured=True): each knee, ankle and elbow width is twice the true lateral marker's distance
+    from the joint centre along the true axis less the marker's radius, within a caliper's error; the rest of
+    the trial is exactly that of the same seed without it (an independent random stream)."""
+    from calibrate.simulation.simulate import CALIPER_SD
+
+    sim = simulate_squats(human, frames=20, seed=5, measured=True)
+    plain = simulate_squats(human, frames=20, seed=5)
+    np.testing.assert_array_equal(sim.trial.markers, plain.trial.markers)
+    assert plain.trial.measurements is None
+    m = sim.trial.measurements
+    base = human.parameters()
+    assert set(m.widths) == {f"{j}_{s}" for j in ("knee", "ankle", "elbow") for s in "lr"}
+    errors = []
+    for joint, width in m.widths.items():
+        marker = ("L" if joint.endswith("_l") else "R") + {"knee": "KNE", "ankle": "ANK", "elbow": "ELB"}[joint[:-2]]
+        d = lateral_distance(human, sim.truth, base, joint, marker)
+        if width > 0.02:  # not at the 20 mm floor (a random subject's marker can sit nearer its centre than that)
+            errors.append(width - 2 * (d - DEFAULT_MARKER_DIAMETER / 2))
+    assert len(errors) >= 4 and np.max(np.abs(errors)) < 4 * CALIPER_SD and 0 < np.std(errors)

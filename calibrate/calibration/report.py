@@ -20,7 +20,7 @@ import numpy as np
 from .. import __version__
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
-from ..io.measurements import WIDTHS
+from ..io.measurements import WIDTHS, lateral_distance
 from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters
@@ -155,24 +155,6 @@ def _mass(cal) -> dict:
     k = mass_factor(cal.model, cal.mass)
     return {"subject_kg": cal.mass, "from": cal.mass_from, "base_kg": cal.model.total_mass, "factor": k,
             "segments_kg": {sg.name: round(k * sg.mass, 6) for sg in cal.model.segments if sg.mass > 0}}
-
-
-def lateral_distance(model: Model, params, base, joint: str, marker: str) -> float:
-    """A hinge joint's lateral marker's distance from the joint centre along the hinge axis (m) in geometry
-    `params`, counted towards the side where the base geometry `base` has the marker (what a measured joint
-    width fixes: calibrate.io.measurements)."""
-    ji = next(i for i, j in enumerate(model.joints) if j.name == joint)
-    mi = model.marker_names.index(marker)
-    jt = model.joints[ji]
-    rotation = next(u.rotation for u in model.urdf_joints if u.name == jt.urdf_joints[0])
-    d = model.dof_index(jt.dofs[0])
-
-    def along(p) -> float:
-        a = rotation @ (p.axis[d] / np.linalg.norm(p.axis[d]))
-        return float(a @ (p.marker[mi] - p.centre[ji])) * float(p.scale[model.segment_index(jt.parent)])
-
-    side = 1.0 if along(base) >= 0 else -1.0
-    return side * along(params)
 
 
 # A lateral marker further than this (m) along the axis from where the joint's measured width puts it is flagged

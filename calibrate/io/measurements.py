@@ -12,8 +12,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from calibrate.model.model import Model, Parameters
 
 #: Plug-in Gait's marker diameter (mm) where the file does not state one (Vicon's 14 mm markers).
 DEFAULT_MARKER_DIAMETER = 0.014
@@ -124,3 +128,21 @@ def first_measurements(trials) -> SubjectMeasurements | None:
         if getattr(t, "measurements", None) is not None:
             return t.measurements
     return None
+
+
+def lateral_distance(model: Model, params: Parameters, base: Parameters, joint: str, marker: str) -> float:
+    """A hinge joint's lateral marker's distance from the joint centre along the hinge axis (m) in geometry
+    `params`, counted towards the side where the base geometry `base` has the marker (what a measured joint
+    width fixes: calibrate.io.measurements)."""
+    ji = next(i for i, j in enumerate(model.joints) if j.name == joint)
+    mi = model.marker_names.index(marker)
+    jt = model.joints[ji]
+    rotation = next(u.rotation for u in model.urdf_joints if u.name == jt.urdf_joints[0])
+    d = model.dof_index(jt.dofs[0])
+
+    def along(p) -> float:
+        a = rotation @ (p.axis[d] / np.linalg.norm(p.axis[d]))
+        return float(a @ (p.marker[mi] - p.centre[ji])) * float(p.scale[model.segment_index(jt.parent)])
+
+    side = 1.0 if along(base) >= 0 else -1.0
+    return side * along(params)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from calibrate.io.measurements import DEFAULT_MARKER_DIAMETER, WIDTHS, SubjectMeasurements, lateral_distance
 from calibrate.simulation.artefacts import (
     Corruption,
     corrupt,
@@ -69,7 +70,7 @@ HEIGHT_RANGE = (1.4, 2.2)  # m: statures the simulator accepts
 REALISTIC_HEIGHTS = (1.5, 2.0)  # m: simulate_realistic draws the stature from this range
 
 
-_STREAMS = {"size": 1, "sta": 2, "gaps": 3, "corrupt": 4, "realistic": 5}
+_STREAMS = {"size": 1, "sta": 2, "gaps": 3, "corrupt": 4, "realistic": 5, "measure": 6}
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,7 @@ class Lab:
     gap_fraction: float = 0.0  # fraction of marker samples in occlusion gaps (0: none beyond `gaps`)
     swaps: int = 0  # episodes of two exchanged labels
     spikes: int = 0  # single-frame gross errors
+    measured: bool = False  # the subject's knee, ankle and elbow widths (a caliper's) written with the trial
 
 
 def _check_args(frames: int, rate: float, noise_mm: float, lab: Lab | None = None, gaps: bool = False) -> None:
@@ -130,13 +132,14 @@ def _stream(seed: int, name: str) -> np.random.Generator:
 
 def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
                     gaps: bool = False, seed: int = 0, *, sta_mm: float = 0.0, height: float | None = None,
-                    gap_fraction: float = 0.0, swaps: int = 0, spikes: int = 0) -> Simulation:
+                    gap_fraction: float = 0.0, swaps: int = 0, spikes: int = 0, measured: bool = False) -> Simulation:
     """Simulate a squat trial of a random subject derived from `model` (see module docstring).
 
     Keywords (all off by default): `sta_mm` soft-tissue artefact level (mm), `height` the subject's
     stature (m, 1.4-2.2), `gap_fraction` of marker samples in gaps, `swaps` swapped-label episodes,
-    `spikes` single-frame gross errors."""
-    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes)
+    `spikes` single-frame gross errors, `measured` the lab's caliper measurements written with the trial
+    (lab_measurements)."""
+    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes, measured)
     _check_args(frames, rate, noise_mm, lab, gaps)
     rng = np.random.default_rng(seed)
     truth = _subject(model, rng, lab, seed)
@@ -152,11 +155,11 @@ def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise
 
 def simulate_gait(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
                   gaps: bool = False, seed: int = 0, *, sta_mm: float = 0.0, height: float | None = None,
-                  gap_fraction: float = 0.0, swaps: int = 0, spikes: int = 0) -> Simulation:
+                  gap_fraction: float = 0.0, swaps: int = 0, spikes: int = 0, measured: bool = False) -> Simulation:
     """Simulate treadmill walking of a random subject derived from `model` (see module docstring):
     the subject as simulate_squats draws it for the same seed, the motion of gait_angles.
     Keywords as simulate_squats'."""
-    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes)
+    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes, measured)
     _check_args(frames, rate, noise_mm, lab, gaps)
     rng = np.random.default_rng(seed)
     truth = _subject(model, rng, lab, seed)
@@ -173,11 +176,11 @@ def simulate_gait(model: Model, frames: int = 1000, rate: float = 100.0, noise_m
 def simulate_overhead(model: Model, frames: int = 1000, rate: float = 100.0, noise_mm: float = 1.0,
                       gaps: bool = False, seed: int = 0, *, reach: float = 0.35, sta_mm: float = 0.0,
                       height: float | None = None, gap_fraction: float = 0.0, swaps: int = 0,
-                      spikes: int = 0) -> Simulation:
+                      spikes: int = 0, measured: bool = False) -> Simulation:
     """Simulate serve- and throw-like arm arcs far overhead (overhead_angles) of the subject
     simulate_squats draws for the seed, the other joints sweeping `reach` of their ranges in
     squat-like arcs, the feet planted.  Keywords as simulate_squats'."""
-    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes)
+    lab = Lab(sta_mm, height, gap_fraction, swaps, spikes, measured)
     _check_args(frames, rate, noise_mm, lab, gaps)
     if not (0.0 < reach <= 0.95):
         raise ValueError(f"reach: must be a fraction of each joint's range in (0, 0.95], got {reach}")
@@ -198,11 +201,12 @@ MOTIONS = {"squats": simulate_squats, "gait": simulate_gait, "overhead": simulat
 def simulate_realistic(model: Model, seed: int = 0, frames: int = 1000, rate: float = 100.0,
                        noise_mm: float = 1.0, *, motion: str = "overhead", reach: float = 0.7, sta_mm: float = 3.0,
                        height: float | None = None, gap_fraction: float = 0.05, swaps: int = 3,
-                       spikes: int = 5, gaps: bool = False) -> Simulation:
+                       spikes: int = 5, gaps: bool = False, measured: bool = True) -> Simulation:
     """A trial as a lab records it, for benchmarks: overhead arm arcs with every other joint sweeping
     70 % of its range in squat-like arcs (`motion`, `reach`), 3 mm soft-tissue artefact, a random
     stature in 1.5-2.0 m (unless `height`), 5 % of marker samples in gaps, 3 swapped-label episodes,
-    5 spikes and 1 mm noise.  Every figure can be overridden (`gaps=True` with `gap_fraction=0`: the
+    5 spikes, 1 mm noise, and the lab's knee, ankle and elbow widths (`measured`, lab_measurements).
+    Every figure can be overridden (`gaps=True` with `gap_fraction=0`: the
     occlusions of `occlusions` instead)."""
     if motion not in MOTIONS:
         raise ValueError(f"motion: one of {', '.join(MOTIONS)}, got '{motion}'")
@@ -210,7 +214,7 @@ def simulate_realistic(model: Model, seed: int = 0, frames: int = 1000, rate: fl
         height = float(_stream(seed, "realistic").uniform(*REALISTIC_HEIGHTS))
     extra = {"reach": reach} if motion == "overhead" else {}
     return MOTIONS[motion](model, frames, rate, noise_mm, gaps, seed, sta_mm=sta_mm, height=height,
-                           gap_fraction=gap_fraction, swaps=swaps, spikes=spikes, **extra)
+                           gap_fraction=gap_fraction, swaps=swaps, spikes=spikes, measured=measured, **extra)
 
 
 def _subject(model: Model, rng: np.random.Generator, lab: Lab, seed: int) -> Parameters:
@@ -264,8 +268,35 @@ def _observe(model: Model, truth: Parameters, times: np.ndarray, angles: np.ndar
         neutral = kin.markers(np.zeros(model.nz), np.array([0.0, 0.0, 0.0, 1.0]), truth)
         corruptions = corrupt(model, observed, skin, neutral, lab.swaps, lab.spikes, _stream(seed, "corrupt"))
     height = stature(model, truth, kin) if lab.height is not None else None
-    trial = Trial(labels=model.marker_names, markers=observed, rate=float(rate), first_frame=0, source=None)
+    measurements = lab_measurements(model, truth, height, _stream(seed, "measure")) if lab.measured else None
+    trial = Trial(labels=model.marker_names, markers=observed, rate=float(rate), first_frame=0, source=None,
+                  measurements=measurements)
     return Simulation(model, truth, motion, trial, markers, centres, artefact, amp, corruptions, height)
+
+
+CALIPER_SD = 0.002  # m: a measured joint width's error (caliper and palpation of the epicondyles, malleoli)
+
+
+def lab_measurements(model: Model, truth: Parameters, height: float | None,
+                     rng: np.random.Generator) -> SubjectMeasurements:
+    """What a Plug-in Gait lab measures on the subject `truth`: each knee, ankle and elbow width whose lateral
+    marker (KNE, ANK, ELB) the model carries — twice the true lateral marker's distance from the joint centre
+    along the true axis less the marker's radius, plus a caliper's error (CALIPER_SD) — and the stature when one
+    was asked for.  The width a lab would enter for the subject calibrate.io.measurements reads back."""
+    base = model.parameters()
+    joints = {j.name: j for j in model.joints}
+    on = {mk.name: mk.segment for mk in model.markers}
+    widths = {}
+    for joint, (_, label) in WIDTHS.items():
+        for side, prefix in (("l", "L"), ("r", "R")):
+            name, marker = f"{joint}_{side}", f"{prefix}{label}"
+            j = joints.get(name)
+            if label is None or j is None or j.kind != "hinge" or on.get(marker) != j.parent:
+                continue
+            d = lateral_distance(model, truth, base, name, marker)
+            widths[name] = max(2.0 * (d - DEFAULT_MARKER_DIAMETER / 2) + float(rng.normal(0.0, CALIPER_SD)), 0.02)
+    return SubjectMeasurements(height=None if height is None else float(height), widths=widths,
+                               source="the simulated lab's measurements")
 
 
 def simulate_static(model: Model, truth: Parameters, frames: int = 200, rate: float = 100.0, noise_mm: float = 1.0,
