@@ -4,6 +4,7 @@ right partner; a pair further apart than STATIC_ASYMMETRY_DEG is flagged in the 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -62,3 +63,8 @@ def test_a_static_trial_whose_left_ankle_is_turned_is_flagged(human):
     assert report["trials"] == ["static1", "static2"]
     assert [(f["trial"], f["joint"]) for f in report["flagged"]] == [("static2", "ankle")]
     assert "implausible  static2 (static): ankle_l" in cal.text()
+    # the feet carry HEE and TOE only: the line says how to hold the subtalars; locked, it does not
+    assert "--lock subtalar_l,subtalar_r holds them at 0" in cal.text()
+    assert cal.report()["static_pose"]["advice"].startswith("the feet carry two markers each")
+    held = replace(cal, settings=replace(cal.settings, lock=(("subtalar_l", 0.0), ("subtalar_r", 0.0))))
+    assert "implausible  static2 (static): ankle_l" in held.text() and "--lock subtalar" not in held.text()

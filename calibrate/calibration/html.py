@@ -71,7 +71,9 @@ def _notes(report: dict) -> str:
         items.append(f"<li class=bad>implausible static pose in {_e(h.get('trial'))}: {_e(h.get('left'))} "
                      f"{h.get('left_deg', 0):.1f}° against {_e(h.get('right'))} {h.get('right_deg', 0):.1f}° "
                      f"({h.get('difference_deg', 0):.1f}° apart): unless the subject stood asymmetrically, one side's "
-                     "segment frames sit turned where its markers leave them to the priors</li>")
+                     "segment frames sit turned where its markers leave them to the priors"
+                     + (f"; {_e(report['static_pose']['advice'])}" if report["static_pose"].get("advice") else "")
+                     + "</li>")
     for j, v in ((report.get("measurements") or {}).get("lateral_mm") or {}).items():
         if v.get("flagged"):
             items.append(f"<li class=bad>implausible {_e(j)} centre: {_e(v.get('marker'))} "

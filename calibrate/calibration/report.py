@@ -254,6 +254,23 @@ def symmetry_table(cal) -> dict:
             "largest_centre_mirror_mm": max(centre.values(), default=None)}
 
 
+def _foot_hint(cal, joints: list[str]) -> str:
+    """What to do when a flagged static ankle or subtalar sits under a foot whose segment carries two markers
+    or fewer and whose subtalar joints are free: lock them, as OpenSim's gait models do.  On pig_walk (HEE and TOE
+    on each foot) the locked subtalars hold the static ankles at 1.8 / -3.3 deg against -26.8 / -0.9 free
+    (docs/benchmarks.md)."""
+    if not {"ankle", "subtalar"} & set(joints):
+        return ""
+    model, locked = cal.model, {n for n, _ in cal.settings.lock}
+    free = [d for d in ("subtalar_l", "subtalar_r") if d in model.dof_names and d not in locked]
+    used = set(model.marker_names) - set(cal.unused_markers)
+    feet = [s for s in model.segments if s.name in ("calcn_l", "calcn_r")]
+    if not free or not feet or any(sum(m in used for m in s.markers) > 2 for s in feet):
+        return ""
+    return (f"; the feet carry two markers each, which leave the subtalar joints to the priors: --lock "
+            f"{','.join(free)} holds them at 0, as OpenSim's gait models do")
+
+
 def static_pose_table(cal) -> dict:
     """Left/right hinge angles in the static trials (calibrate.calibration.result.static_hinges; degrees)
     and the pairs further apart than STATIC_ASYMMETRY_DEG (Calibration.static_asymmetry)."""
@@ -267,7 +284,8 @@ def static_pose_table(cal) -> dict:
             "trials": [cal.trials[i].source or f"trial {i + 1}" for i in static_trials(cal.model, cal.motions,
                                                                                        cal.neutral)],
             "hinges": [row(h) for h in hinges],
-            "flagged": [row(h) for h in hinges if h.flagged]}
+            "flagged": [row(h) for h in hinges if h.flagged],
+            "advice": _foot_hint(cal, [h.joint for h in hinges if h.flagged]).lstrip("; ")}
 
 
 def _noise_lines(cal) -> list[str]:
@@ -398,7 +416,8 @@ def summary_text(cal) -> str:
         lines.append("  implausible  " + "; ".join(f"{cal.trials[h.trial].source or f'trial {h.trial + 1}'} (static): "
                                                    f"{h.text()}" for h in turned)
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
-                     "its markers leave them to the priors, and that joint's angles carry the difference as an offset")
+                     "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
+                     + _foot_hint(cal, [h.joint for h in turned]))
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")
