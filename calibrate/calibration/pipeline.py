@@ -42,7 +42,7 @@ from calibrate.seed.seeding import MIN_FRAMES, Seed, jumped_samples, seed_parame
 
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
-from ..io.measurements import WIDTHS, SubjectMeasurements, first_measurements
+from ..io.measurements import SubjectMeasurements, first_measurements, lateral_markers_of
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
@@ -178,17 +178,8 @@ def lateral_markers(model: Model, measured: SubjectMeasurements) -> tuple[tuple[
     knee and ankle of `model` (hinges named knee_l, ankle_r, ... as in models/human.urdf) whose measured width
     is known and whose parent segment carries the Plug-in Gait lateral marker (LKNE, RANK, ...), at half the
     width plus the marker's radius."""
-    joints = {j.name: j for j in model.joints}
-    on = {mk.name: mk.segment for mk in model.markers}
-    out = []
-    for joint in WIDTH_JOINTS:
-        label = WIDTHS[joint][1]
-        for side, prefix in (("l", "L"), ("r", "R")):
-            name, marker = f"{joint}_{side}", prefix + label
-            j, d = joints.get(name), measured.lateral_distance(f"{joint}_{side}")
-            if j is not None and j.kind == "hinge" and d is not None and on.get(marker) == j.parent:
-                out.append((name, marker, d))
-    return tuple(out)
+    return tuple((name, marker, d) for name, marker in lateral_markers_of(model, WIDTH_JOINTS)
+                 if (d := measured.lateral_distance(name)) is not None)
 
 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,

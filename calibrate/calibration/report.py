@@ -20,7 +20,7 @@ import numpy as np
 from .. import __version__
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
-from ..io.measurements import WIDTHS, lateral_distance
+from ..io.measurements import lateral_distance, lateral_markers_of
 from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters
@@ -179,19 +179,14 @@ def measurements_table(cal) -> dict | None:
         extra = cal.params.marker[len(base.marker):]
         base = Parameters(base.scale, base.centre, base.axis, np.vstack([base.marker, extra]))
     lateral = {}
-    joints = {j.name: j for j in model.joints}
-    on = {mk.name: mk.segment for mk in model.markers}
-    for joint, (_, label) in WIDTHS.items():
-        for side, prefix in (("l", "L"), ("r", "R")):
-            name, marker = f"{joint}_{side}", f"{prefix}{label}"
-            j = joints.get(name)
-            measured = used.get((name, marker), None if m is None else m.lateral_distance(name))
-            if label is None or j is None or j.kind != "hinge" or on.get(marker) != j.parent or measured is None:
-                continue
-            lateral[name] = {"marker": marker, "measured_mm": 1000 * measured,
-                             "calibrated_mm": 1000 * lateral_distance(model, cal.params, base, name, marker),
-                             "used": (name, marker) in used}
-            lateral[name]["flagged"] = abs(lateral[name]["calibrated_mm"] - 1000 * measured) > 1000 * MEASURED_TOLERANCE
+    for name, marker in lateral_markers_of(model):
+        measured = used.get((name, marker), None if m is None else m.lateral_distance(name))
+        if measured is None:
+            continue
+        calibrated = lateral_distance(model, cal.params, base, name, marker)
+        lateral[name] = {"marker": marker, "measured_mm": 1000 * measured, "calibrated_mm": 1000 * calibrated,
+                         "used": (name, marker) in used,
+                         "flagged": abs(calibrated - measured) > MEASURED_TOLERANCE}
     out = m.as_dict() if m is not None else {"source": "settings (lateral_markers)"}
     out["lateral_mm"] = lateral
     out["width_prior_mm"] = 1000 * cal.settings.priors.width

@@ -122,6 +122,21 @@ def c3d_processing(m: SubjectMeasurements) -> dict[str, float]:
     return out
 
 
+def lateral_markers_of(model: Model, joints=tuple(WIDTHS)) -> list[tuple[str, str]]:
+    """(joint, lateral marker) for each of `joints` (knee, ankle, elbow; left then right) that `model` has as a
+    hinge with the Plug-in Gait lateral marker (LKNE, RANK, ...) on the segment it hangs from."""
+    hinges = {j.name: j for j in model.joints if j.kind == "hinge"}
+    on = {mk.name: mk.segment for mk in model.markers}
+    out = []
+    for joint in joints:
+        label = WIDTHS[joint][1]
+        for side, prefix in (("l", "L"), ("r", "R")):
+            name, marker = f"{joint}_{side}", prefix + (label or "")
+            if label is not None and name in hinges and on.get(marker) == hinges[name].parent:
+                out.append((name, marker))
+    return out
+
+
 def first_measurements(trials) -> SubjectMeasurements | None:
     """The first trial's measurements that has any (a session's trials carry the same)."""
     for t in trials:

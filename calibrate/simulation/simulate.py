@@ -35,7 +35,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibrate.io.measurements import DEFAULT_MARKER_DIAMETER, WIDTHS, SubjectMeasurements, lateral_distance
+from calibrate.io.measurements import (
+    DEFAULT_MARKER_DIAMETER,
+    SubjectMeasurements,
+    lateral_distance,
+    lateral_markers_of,
+)
 from calibrate.simulation.artefacts import (
     Corruption,
     corrupt,
@@ -284,17 +289,10 @@ def lab_measurements(model: Model, truth: Parameters, height: float | None,
     along the true axis less the marker's radius, plus a caliper's error (CALIPER_SD) — and the stature when one
     was asked for.  The width a lab would enter for the subject calibrate.io.measurements reads back."""
     base = model.parameters()
-    joints = {j.name: j for j in model.joints}
-    on = {mk.name: mk.segment for mk in model.markers}
     widths = {}
-    for joint, (_, label) in WIDTHS.items():
-        for side, prefix in (("l", "L"), ("r", "R")):
-            name, marker = f"{joint}_{side}", f"{prefix}{label}"
-            j = joints.get(name)
-            if label is None or j is None or j.kind != "hinge" or on.get(marker) != j.parent:
-                continue
-            d = lateral_distance(model, truth, base, name, marker)
-            widths[name] = max(2.0 * (d - DEFAULT_MARKER_DIAMETER / 2) + float(rng.normal(0.0, CALIPER_SD)), 0.02)
+    for name, marker in lateral_markers_of(model):
+        d = lateral_distance(model, truth, base, name, marker)
+        widths[name] = max(2.0 * (d - DEFAULT_MARKER_DIAMETER / 2) + float(rng.normal(0.0, CALIPER_SD)), 0.02)
     return SubjectMeasurements(height=None if height is None else float(height), widths=widths,
                                source="the simulated lab's measurements")
 
