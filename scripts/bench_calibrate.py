@@ -63,11 +63,12 @@ LINEAR = 1.2  # time per frame (per iteration) at 10k frames over that at 1k fra
 
 
 # ====================================================================== child processes
-def run_child(cmd: list[str], cap: float) -> dict:
-    """Run `cmd`, killing it after `cap` seconds: wall time, exit status, peak memory (wait4), output."""
+def run_child(cmd: list[str], cap: float, env: dict[str, str] | None = None) -> dict:
+    """Run `cmd` (in `env`, default this process's), killing it after `cap` seconds: wall time, exit status,
+    peak memory (wait4), output."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=out, stderr=err, cwd=ROOT)
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, cwd=ROOT, env=env)
         timer = threading.Timer(cap, proc.kill)
         timer.start()
         try:

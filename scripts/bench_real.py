@@ -32,7 +32,8 @@ frames) and compared with the trials' markers.
 
 Targets are printed PASS/FAIL beside each figure; the exit status is 0 whatever they say.  A
 feature the code does not have yet (the realistic simulator, the corruption list) is detected and
-its row skipped with a note.  An untimed warm-up run compiles the model's C code first.
+its row skipped with a note.  An untimed warm-up run compiles the model's C code and the package's
+bytecode first (PYTHONDONTWRITEBYTECODE is unset for the command lines: an installed package has its bytecode).
 
     python scripts/bench_real.py [--quick] [--json] [--seed 0] [--frames 1000] [--only pig,realistic,clean,swaps]
                                  [--keep DIR]
@@ -379,8 +380,11 @@ def truth_errors(kin: UrdfKinematics, motion: Path, truth: UrdfKinematics, truth
 
 # ====================================================================== runs
 def cli(args: list, cap: float) -> dict:
-    """`python -m calibrate.cli ARGS` in a child process (this worktree's code): rc, wall time, output."""
-    return run_child([sys.executable, "-m", "calibrate.cli", *[str(a) for a in args]], cap)
+    """`python -m calibrate.cli ARGS` in a child process (this worktree's code): rc, wall time, output.
+    Python may cache the package's bytecode (PYTHONDONTWRITEBYTECODE unset), as an installed package has
+    it: the warm-up run compiles it, with the model's C code."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return run_child([sys.executable, "-m", "calibrate.cli", *[str(a) for a in args]], cap, env)
 
 
 def cli_help(command: str) -> str:
@@ -815,8 +819,8 @@ def section_clean(a, tmp: Path, cap: float, log) -> dict:
 
 
 def warm_up(tmp: Path, cap: float, log) -> dict:
-    """An untimed 100-frame calibration: compiles and caches the model's C code."""
-    log("warm-up: a 100-frame calibration (compiles the model's C code once per machine)")
+    """An untimed 100-frame calibration: compiles and caches the model's C code and the package's bytecode."""
+    log("warm-up: a 100-frame calibration (compiles the model's C code once per machine, and the bytecode)")
     d, err = simulate(tmp, "warmup", 100, 0, [], cap)
     if err:
         return err

@@ -231,6 +231,30 @@ def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch
     assert len(list(tmp_path.glob("frame_*.so"))) == 2
 
 
+def test_frames_evaluated_in_parts_equal_each_frame_on_its_own(human, human_kin):
+    """The per-frame function over many frames (split between the worker threads, 64 frames a call, a
+    short last call padded) gives exactly what one call of the unmapped function gives for each frame,
+    whole trial or a chunk of it, for frame counts that leave every kind of remainder."""
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=5)
+    obs = marker_columns(human, sim.trial)
+    m = sim.motion
+    p = sim.truth.vector()
+    for F, frames in ((1, slice(None)), (20, slice(None)), (64, slice(None)), (70, slice(None)),
+                      (150, slice(None)), (150, slice(40, 131))):
+        problem = Problem(human, obs[:F], Settings(), human_kin)
+        state = State(np.column_stack([m.root_translation[:F], np.zeros((F, 3)), m.angles[:F]]),
+                      m.root_quaternion[:F].copy(), p)
+        for kind in ("full", "pose", "resid"):
+            outs = problem._run(kind, state, frames=frames)
+            f0 = problem._funcs[kind]
+            Q = problem.kin.refs(state.Q, state.B)
+            for k, f in enumerate(range(F)[frames]):
+                one = f0(state.Z[f], Q[f], p, problem.target[f])
+                one = one if isinstance(one, (list, tuple)) else [one]
+                for o, ref in zip(outs, one, strict=True):
+                    assert np.array_equal(o[k], np.asarray(ref.nonzeros())), (F, frames, kind, f)
+
+
 @pytest.mark.parametrize("geodesic", [True, False])
 def test_solver_converges_from_perturbed_poses_and_keeps_axes_unit(human, human_kin, geodesic):
     """Frame coordinates 0.02 off and the base model's geometry: LM reaches the data to the micrometre,

@@ -16,12 +16,12 @@ from calibrate.problem.state import FrameGroup, State
 
 from ..model.kinematics import FrameEvaluator, Kinematics
 from ..model.model import Model
-from ..solve.assembly import c_compiler, cache_dir, group_layout
+from ..solve.assembly import c_compiler, cache_dir, group_layout, in_parallel, split_frames
 
-EVAL_BLOCK = 128  # frames per mapped CasADi call (building a map costs more than linearly in its size)
+EVAL_BLOCK = 64  # frames per call of a mapped CasADi function (building a map costs more than linearly in its size)
 
 
-EVAL_PAD = 32  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
+EVAL_PAD = 16  # a shorter last block is padded to EVAL_BLOCK frames when longer than this (one map size)
 
 
 def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
@@ -194,12 +194,14 @@ class CodegenMixin:
         return FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
 
     def _run(self, kind: str, state: State, out: tuple | None = None, frames: slice = slice(None)) -> list[np.ndarray]:
-        """Evaluate the per-frame function `kind` over every frame, EVAL_BLOCK frames per mapped
-        call (a map's construction grows with its size, and costs ~15 ms: a short last block is
-        padded with copies of its last frame so that one map size serves every problem), into
-        numpy arrays (F, nnz_out): those of `out` where their shapes fit (buffers no longer
-        needed), else fresh ones.  `frames`: only those frames (a chunk of a long trial), taken from `state`
-        or, if it has as many frames as they are, its own."""
+        """Evaluate the per-frame function `kind` over every frame, into numpy arrays (F, nnz_out): those
+        of `out` where their shapes fit (buffers no longer needed), else fresh ones.  The frames are split
+        between the worker threads (calibrate.solve.assembly.in_parallel; CasADi's evaluation releases the
+        GIL), each evaluating EVAL_BLOCK frames per call of a serial map (a map's construction grows with its
+        size, and costs ~15 ms: a short last block is padded with copies of its last frame so that one map
+        size serves every problem).  CasADi's own threaded map started two threads per call: 3 700 on
+        pig_walk.  `frames`: only those frames (a chunk of a long trial), taken from `state` or, if it has as
+        many frames as they are, its own."""
         n_sel = len(range(*frames.indices(self.F)))
         state = state if state.Z.shape[0] == n_sel else State(state.Z[frames], state.Q[frames], state.p,
                                                               None if state.B is None else state.B[frames])
@@ -213,26 +215,36 @@ class CodegenMixin:
         Q = np.ascontiguousarray(self.kin.refs(state.Q, state.B), dtype=float)
         target = self.target[frames]
         P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
-        for s in range(0, F, EVAL_BLOCK):
-            e = min(F, s + EVAL_BLOCK)
-            n = e - s
-            size = EVAL_BLOCK if n > EVAL_PAD else n
-            key = (kind, size)
-            if key not in self._mapped:
-                fm = f0.map(size, "thread", 2)
-                self._mapped[key] = (fm, *fm.buffer())
-            _, buf, ev = self._mapped[key]
-            ins = [Z[s:e], Q[s:e], target[s:e]]
-            res = [o[s:e] for o in outs]
-            if size > n:
-                ins = [np.concatenate([a, np.repeat(a[-1:], size - n, axis=0)]) for a in ins]
-                res = [np.empty((size, o.shape[1])) for o in outs]
-            for i, a in enumerate((ins[0], ins[1], P[:size * self.np_full], ins[2])):
-                buf.set_arg(i, memoryview(a))
-            for i, o in enumerate(res):
-                buf.set_res(i, memoryview(o))
-            ev()
-            if size > n:
-                for o, r in zip(outs, res, strict=True):
-                    o[s:e] = r[:n]
+        parts = split_frames(F, EVAL_BLOCK)
+        # Each part's buffers its own (a buffer is one evaluation's memory); made here, in the calling thread.
+        sizes = [[EVAL_BLOCK if min(sl.stop, s + EVAL_BLOCK) - s > EVAL_PAD else min(sl.stop, s + EVAL_BLOCK) - s
+                  for s in range(sl.start, sl.stop, EVAL_BLOCK)] for sl in parts]
+        for k, part_sizes in enumerate(sizes):
+            for size in set(part_sizes):
+                if (kind, size, k) not in self._mapped:
+                    fm = self._mapped[(kind, size)][0] if (kind, size) in self._mapped else f0.map(size, "serial")
+                    self._mapped.setdefault((kind, size), (fm,))
+                    self._mapped[(kind, size, k)] = fm.buffer()
+
+        def evaluate(k: int) -> None:
+            sl = parts[k]
+            for s, size in zip(range(sl.start, sl.stop, EVAL_BLOCK), sizes[k], strict=True):
+                e = min(sl.stop, s + EVAL_BLOCK)
+                n = e - s
+                buf, ev = self._mapped[(kind, size, k)]
+                ins = [Z[s:e], Q[s:e], target[s:e]]
+                res = [o[s:e] for o in outs]
+                if size > n:
+                    ins = [np.concatenate([a, np.repeat(a[-1:], size - n, axis=0)]) for a in ins]
+                    res = [np.empty((size, o.shape[1])) for o in outs]
+                for i, a in enumerate((ins[0], ins[1], P[:size * self.np_full], ins[2])):
+                    buf.set_arg(i, memoryview(a))
+                for i, o in enumerate(res):
+                    buf.set_res(i, memoryview(o))
+                ev()
+                if size > n:
+                    for o, r in zip(outs, res, strict=True):
+                        o[s:e] = r[:n]
+
+        in_parallel(evaluate, list(range(len(parts))))
         return outs

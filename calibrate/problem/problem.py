@@ -130,7 +130,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):
             raise ValueError(f"observed: expected (frames, {nm}, 3), got {obs.shape}")
         # Mapped per-frame functions by (kind, frames), shared with subsets (they depend on no data).
-        self._mapped: dict[tuple[str, int], tuple] = {}
+        self._mapped: dict[tuple, tuple] = {}  # (kind, frames): the map; (kind, frames, part): its buffer
         self._set_observed(obs)
         # Noise SD of each model marker (m): Settings.noise unless Settings.marker_noise names it.
         self._sigma = np.full(nm, self.settings.noise)
