@@ -81,7 +81,8 @@ def test_calibration_reports_its_start(human, human_kin):
 
 def test_a_run_advanced_in_parts_takes_the_steps_of_one_run(human, human_kin):
     """lm.Run, which choose_start's race pauses after START_CHECK steps: advanced 3, then 4 steps, then to
-    its end, it reaches the very point (bit for bit) and summary that one levenberg_marquardt call does."""
+    its end, suspended (every frame block and buffer let go) between the parts, it reaches the very point
+    (bit for bit) and summary that one levenberg_marquardt call does."""
     from calibrate.solve.lm import Run
 
     sim = simulate_squats(human, frames=40, noise_mm=1.0, seed=14)
@@ -94,8 +95,11 @@ def test_a_run_advanced_in_parts_takes_the_steps_of_one_run(human, human_kin):
     run = Run(Problem(human, obs, Settings(), human_kin), st, max_iterations=15)
     assert run.advance(3).summary.iterations == 3 and not run.done
     assert run.cost == run.summary.cost_history[-1] < s1.initial_cost
+    run.suspend()
+    assert run._steps.blocks is None and not run._steps.work  # nothing of the frames' blocks held
     run.advance(7)
     assert run.summary.iterations == 7
+    run.suspend()
     parts, s2 = run.finish()
     assert run.done and s2.iterations == s1.iterations > 7
     assert np.array_equal(parts.p, whole.p) and np.array_equal(parts.Z, whole.Z)

@@ -58,7 +58,7 @@ from ..seed.rigidity import distance_variance
 from ..solve.chunks import frame_bytes
 from ..solve.ik import marker_columns
 from ..solve.lm import Run, SolverSummary, covariance, levenberg_marquardt
-from ..solve.memory import reused_memory
+from ..solve.memory import no_huge_pages
 from .options import PipelineOptions
 from .records import Countdown, IterationClock, Progress
 
@@ -161,7 +161,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mass, mass_from = measured.mass, measured.source or "the trial's subject measurements"
     if not settings.lateral_markers and measured is not None:
         settings = replace(settings, lateral_markers=lateral_markers(model, measured))
-    with threadpool_limits(limits=1, user_api="blas"), reused_memory():
+    with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
                    mass_from=mass_from, measurements=measured)
@@ -401,6 +401,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             else:
                 paused = first
                 paused.suspend()  # its frame blocks go while the pass runs
+            first = None  # the paused run is held (and let go) by `paused` alone
         else:
             state, again = levenberg_marquardt(problem, state, solver, progress=IterationClock(
                 say, "all frames, ", solver.atol, solver.ftol) if unsolved else _clock(say, problem, solver, "again, "))
