@@ -2,11 +2,11 @@
 
 A calibration makes new problems as it goes (a subsample, the noise learnt again, outliers left out), and
 each forms its frame blocks afresh: tens of MB each.  numpy advises transparent huge pages for every
-array over 4 MB, so the kernel zeroes each new array 2 MB at a time on first touch, most of which a
-solve's short-lived arrays never use: on pig_walk a tenth of the command line's CPU time went to that
-(docs/benchmarks.md).  Within `no_huge_pages` numpy gives no such advice (its setting restored on exit).
-Keeping freed memory in the C library's heap as well (glibc's mallopt) saved little more and raised a
-100 000-frame trial's peak memory by 5 %: not done.
+array over 4 MB, so the kernel zeroes each new array 2 MB at a time on first touch: on pig_walk a tenth of
+the command line's CPU samples (docs/benchmarks.md).  Within `no_huge_pages` numpy gives no such advice
+(its setting restored on exit): the command line 0.3 s faster.  Keeping freed memory in the C library's
+heap as well (glibc's mallopt) saved little more and raised 100 000 squat frames' peak memory (2 125
+against 2 098 MB): not done.
 """
 
 from __future__ import annotations
