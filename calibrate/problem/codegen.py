@@ -215,21 +215,20 @@ class CodegenMixin:
         Q = np.ascontiguousarray(self.kin.refs(state.Q, state.B), dtype=float)
         target = self.target[frames]
         P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
-        parts = split_frames(F, EVAL_BLOCK)
-        # Each part's buffers its own (a buffer is one evaluation's memory); made here, in the calling thread.
-        sizes = [[EVAL_BLOCK if min(sl.stop, s + EVAL_BLOCK) - s > EVAL_PAD else min(sl.stop, s + EVAL_BLOCK) - s
-                  for s in range(sl.start, sl.stop, EVAL_BLOCK)] for sl in parts]
-        for k, part_sizes in enumerate(sizes):
-            for size in set(part_sizes):
+        # Each part's blocks (first frame, end, map size), and each part its own buffers (a buffer is one
+        # evaluation's memory), made here in the calling thread.
+        blocks = []
+        for k, sl in enumerate(split_frames(F, EVAL_BLOCK)):
+            ends = [(s, min(sl.stop, s + EVAL_BLOCK)) for s in range(sl.start, sl.stop, EVAL_BLOCK)]
+            blocks.append([(s, e, EVAL_BLOCK if e - s > EVAL_PAD else e - s) for s, e in ends])
+            for _, _, size in blocks[k]:
                 if (kind, size, k) not in self._mapped:
-                    fm = self._mapped[(kind, size)][0] if (kind, size) in self._mapped else f0.map(size, "serial")
-                    self._mapped.setdefault((kind, size), (fm,))
-                    self._mapped[(kind, size, k)] = fm.buffer()
+                    if (kind, size) not in self._mapped:
+                        self._mapped[(kind, size)] = (f0.map(size, "serial"),)
+                    self._mapped[(kind, size, k)] = self._mapped[(kind, size)][0].buffer()
 
         def evaluate(k: int) -> None:
-            sl = parts[k]
-            for s, size in zip(range(sl.start, sl.stop, EVAL_BLOCK), sizes[k], strict=True):
-                e = min(sl.stop, s + EVAL_BLOCK)
+            for s, e, size in blocks[k]:
                 n = e - s
                 buf, ev = self._mapped[(kind, size, k)]
                 ins = [Z[s:e], Q[s:e], target[s:e]]
@@ -246,5 +245,5 @@ class CodegenMixin:
                     for o, r in zip(outs, res, strict=True):
                         o[s:e] = r[:n]
 
-        in_parallel(evaluate, list(range(len(parts))))
+        in_parallel(evaluate, list(range(len(blocks))))
         return outs
