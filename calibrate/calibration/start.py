@@ -4,7 +4,7 @@ best, the subsample of frames, and poses carried from the subsample to every fra
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -16,6 +16,7 @@ from ..model.model import Parameters
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import State
+from ..solve.ahead import run_ahead
 from ..solve.ik import FrameSolver
 from ..solve.lm import Run
 
@@ -145,6 +146,7 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     The candidates race: each is solved for START_CHECK iterations first, and one whose cost is then
     below START_LEAD times every other's is taken (pig_walk: the base model's 1.03e5 against the
     seed's 1.54e5); otherwise each goes on, from where it stopped, to START_ITERATIONS in all.
+    Every candidate after the first is solved on the other core meanwhile (calibrate.solve.ahead).
     `options`: the solver's (default SolverOptions()).  Returns the chosen geometry and a note naming each
     candidate's cost."""
     names = list(candidates)
@@ -155,36 +157,45 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     problems = {name: Problem(problem.model, observed[coarse], problem.settings, problem.kin, problem.base)
                 for name in names}  # each its own: a paused run keeps its buffers (Problem.buffers) while another runs
     n_seen = 3 * max(int(problems[names[0]].seen.sum()), 1)
-    runs: dict[str, Run] = {}
+
+    def leg(name: str) -> Iterator[float]:
+        """The candidate's cost after START_CHECK iterations, then after START_ITERATIONS in all."""
+        params, mine = candidates[name], problems[name]
+        state = start_poses(problem.kin, observed[coarse], params, stride=1,
+                            evaluator=mine.frame_evaluator(params.vector()))
+        run = Run(mine, replace(state, p=params.vector()), options, max_iterations=START_ITERATIONS)
+        yield run.advance(START_CHECK).cost
+        yield run.advance().cost
 
     def fits(name: str, first: bool = True) -> str | None:
         """The note taking `name` at once, if it fits the subsample to the stated noise (chi-square per
         coordinate near 1: clean data, nothing to gain from another start); `first`: in the first pass."""
-        cost = runs[name].cost
-        if 2.0 * cost / n_seen > START_GOOD_FIT:
+        if 2.0 * costs[name] / n_seen > START_GOOD_FIT:
             return None
         return (f"started from {name}: solved on {coarse.size} frames it fits them to the stated noise "
-                f"(cost {cost:.4g}), so " + ("no other start was tried" if first else "it was taken"))
+                f"(cost {costs[name]:.4g}), so " + ("no other start was tried" if first else "it was taken"))
 
-    for name in names:
-        params = candidates[name]
-        say(f"start: {name}, solved on {coarse.size} frames")
-        mine = problems[name]
-        state = start_poses(problem.kin, observed[coarse], params, stride=1,
-                            evaluator=mine.frame_evaluator(params.vector()))
-        runs[name] = Run(mine, replace(state, p=params.vector()), options,
-                         max_iterations=START_ITERATIONS).advance(START_CHECK)
-        if note := fits(name):
-            say("start: " + note)
-            return params, note
-    costs = {name: run.cost for name, run in runs.items()}
-    best = min(costs, key=costs.get)
-    ahead = all(costs[best] < START_LEAD * c for n, c in costs.items() if n != best)
-    for name in [] if ahead else names:
-        costs[name] = runs[name].advance().cost
-        if note := fits(name, first=False):
-            say("start: " + note)
-            return candidates[name], note
+    # Every candidate after the first is solved ahead on the other core (calibrate.solve.ahead): the
+    # same steps as here, in the same order of decisions; a candidate not needed is stopped.
+    legs = {name: leg(name) if k == 0 else run_ahead(leg(name)) for k, name in enumerate(names)}
+    costs: dict[str, float] = {}
+    try:
+        for name in names:
+            say(f"start: {name}, solved on {coarse.size} frames")
+            costs[name] = next(legs[name])
+            if note := fits(name):
+                say("start: " + note)
+                return candidates[name], note
+        best = min(costs, key=costs.get)
+        ahead = all(costs[best] < START_LEAD * c for n, c in costs.items() if n != best)
+        for name in [] if ahead else names:
+            costs[name] = next(legs[name])
+            if note := fits(name, first=False):
+                say("start: " + note)
+                return candidates[name], note
+    finally:
+        for values in legs.values():
+            values.close()
     best = min(costs, key=costs.get)
     raced = f" ({START_CHECK} iterations each: one far ahead)" if ahead else ""
     note = (f"started from {best}: of " + ", ".join(f"{n} (cost {c:.4g})" for n, c in costs.items())

@@ -46,17 +46,23 @@ def split_frames(F: int, min_frames: int = 64) -> list[slice]:
 def _workers(n: int) -> ThreadPoolExecutor:
     """The process's pool of `n` worker threads, started once: a solve calls in_parallel several
     times per iteration, and starting threads afresh each time cost more than some of the work."""
-    return ThreadPoolExecutor(n, thread_name_prefix=_WORKER_NAME)
+    return ThreadPoolExecutor(n, thread_name_prefix=WORKER_NAME)
 
 
-_WORKER_NAME = "calibrate-worker"
+WORKER_NAME = "calibrate-worker"  # the pool's threads' names start with it (and a child of run_ahead's is named so)
+
+
+def worker_thread() -> bool:
+    """Whether this thread is a worker (the pool's, or a calibrate.solve.ahead child's): its parallel
+    parts run one after another."""
+    return threading.current_thread().name.startswith(WORKER_NAME)
 
 
 def in_parallel(work, parts: list) -> list:
     """work(part) for every part: the first in the calling thread, the others on the worker pool
     (numpy's batched kernels and the compiled kernels here release the GIL).  Called from a worker
     itself, the parts run one after another (a nested wait on the pool could deadlock it)."""
-    if len(parts) == 1 or threading.current_thread().name.startswith(_WORKER_NAME):
+    if len(parts) == 1 or worker_thread():
         return [work(p) for p in parts]
     pool = _workers(max(1, WORKERS - 1))
     later = [pool.submit(work, p) for p in parts[1:]]

@@ -1,0 +1,103 @@
+"""run_ahead: an iterator's values made in a forked child process (the other core) are the values the
+caller would have made; the child's failure is raised in the caller; a child no longer needed is stopped;
+and a calibration gives the same bits with its work run ahead as without."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.pipeline import calibrate
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ahead import can_run_ahead, run_ahead
+from calibrate.solve.assembly import WORKER_NAME, worker_thread
+
+forks = pytest.mark.skipif(not can_run_ahead(), reason="run_ahead forks only on Linux with two or more cores")
+
+
+def _values(n: int):
+    for k in range(n):
+        yield k, os.getpid(), worker_thread(), np.linalg.cholesky(np.eye(3) * (k + 1.5) + 0.1)
+
+
+@forks
+def test_values_are_made_in_a_child_in_order_and_equal_the_callers():
+    got = list(run_ahead(_values(3)))
+    here = list(_values(3))
+    assert [g[0] for g in got] == [0, 1, 2]
+    assert all(g[1] != os.getpid() for g in got)  # another process made them ...
+    assert all(g[2] for g in got)  # ... as a worker: its parallel parts run one after another
+    assert not here[0][2]
+    for g, h in zip(got, here, strict=True):
+        np.testing.assert_array_equal(g[3], h[3])
+
+
+def _fails():
+    yield 1
+    raise ValueError("marker RASI: no frames")
+
+
+@forks
+def test_the_childs_exception_is_raised_at_the_value_that_raised_it():
+    values = run_ahead(_fails())
+    assert next(values) == 1
+    with pytest.raises(ValueError, match="marker RASI: no frames"):
+        next(values)
+    assert list(values) == []  # ended
+
+
+def _forever():
+    yield os.getpid()
+    while True:
+        time.sleep(0.05)
+
+
+@forks
+def test_closing_early_stops_and_reaps_the_child():
+    values = run_ahead(_forever())
+    pid = next(values)
+    values.close()
+    with pytest.raises(ProcessLookupError):  # killed and reaped: no such process left
+        os.kill(pid, 0)
+
+
+def test_from_a_worker_the_iterator_is_kept_as_it_is():
+    gen = _values(1)
+    out = {}
+    t = threading.Thread(target=lambda: out.setdefault("it", run_ahead(gen)), name=f"{WORKER_NAME}-test")
+    t.start()
+    t.join()
+    assert out["it"] is gen
+
+
+@forks
+def test_calibration_is_the_same_with_its_work_run_ahead():
+    """Two trials (every second trial's start poses in a child) and a stated noise no start fits (so both
+    candidates of the start's race are solved, the second in a child): the same start, the same bits."""
+    human = load_model(Path(__file__).resolve().parents[1] / "models" / "human.urdf")
+    kin = build_kinematics(human)
+    trials = [simulate_squats(human, frames=90, noise_mm=1.0, seed=s).trial for s in (31, 32)]
+    settings = Settings(noise=0.0005)
+    ahead = calibrate(human, trials, settings, kinematics=kin)
+    out = {}
+
+    def reference():  # in a worker-named thread nothing is forked: every part runs here
+        out["cal"] = calibrate(human, trials, settings, kinematics=kin)
+
+    t = threading.Thread(target=reference, name=f"{WORKER_NAME}-reference")
+    t.start()
+    t.join()
+    here = out["cal"]
+    race = [n for n in ahead.seed.notes if n.startswith("started from")]
+    assert race == [n for n in here.seed.notes if n.startswith("started from")]
+    assert "(cost" in race[0] and race[0].count("(cost") == 2  # both candidates solved
+    np.testing.assert_array_equal(ahead.initial_residuals, here.initial_residuals)
+    np.testing.assert_array_equal(ahead.params.vector(), here.params.vector())
