@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .geometry import MIN_SPREAD, RigidFrames, spread
 
@@ -196,6 +195,15 @@ def mtb_refine(basis: Basis, points: np.ndarray, lam0: np.ndarray, alpha: float 
     return lam, cost, it
 
 
+def _least_squares():
+    """scipy.optimize.least_squares, imported where it is needed: scipy.optimize takes 0.03-0.04 s to
+    import (a tenth of the command line's imports), and only the trilateration search of a ball joint's
+    JMV start calls it (not on pig_walk)."""
+    from scipy.optimize import least_squares
+
+    return least_squares
+
+
 def inv_sym3(A: np.ndarray) -> np.ndarray:
     """Inverses of symmetric 3x3 matrices (F, 3, 3) by cofactors (vectorised; no per-matrix LAPACK call)."""
     a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
@@ -360,7 +368,7 @@ def trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_fram
         if any(np.max(np.abs(r0 - q)) <= 1.5 * span / steps for q in picked):
             continue
         picked.append(r0)
-        res = least_squares(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+        res = _least_squares()(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
         best.append((float(2 * res.cost), res.x))
         if len(picked) == keep or res.cost < 1e-24:
             break
