@@ -146,12 +146,14 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
     try:
         from ..io.labels import load_marker_map
         from ..io.read import read_trial
+        from ..problem.settings import Settings
         from .pipeline import calibrate
 
         model = _base_model(str(subject.model), subject.model.stat().st_mtime if subject.model.exists() else 0.0)
         trials = [read_trial(t) for t in subject.trials]
         marker_map = load_marker_map(subject.markers) if subject.markers else None
-        cal = calibrate(model, trials, marker_map=marker_map, mass=subject.mass)
+        # The workers keep the cores busy already: nothing is run ahead in another process (Settings.ahead).
+        cal = calibrate(model, trials, Settings(ahead=False), marker_map=marker_map, mass=subject.mass)
         folder.mkdir(parents=True, exist_ok=True)
         subject_outputs(cal, folder, subject.trials, overwrite=True)
         warnings = len(cal.notes) + len(cal.unidentified) + (0 if cal.converged else 1)

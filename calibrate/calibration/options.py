@@ -16,8 +16,11 @@ class PipelineOptions:
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
     auto_hold: bool = True  # hold the axes of the coordinates the trial does not show moving
     learn_noise: bool = True  # learn each marker's noise SD from the residuals (Settings.learns_noise: decided)
+    ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.ahead, bool):
+            raise ValueError(f"ahead: must be true or false, got {self.ahead!r}")
         if not isinstance(self.learn_noise, bool):
             raise ValueError(f"learn_noise: must be true or false, got {self.learn_noise!r}")
         if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):

@@ -284,7 +284,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if run.seed:
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments)
         params0, choice = choose_start(problem, known_obs, spans, {"the MTB seed": params0, "the base model": base0},
-                                       say, solver)
+                                       say, solver, ahead=run.ahead)
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
     # Each trial's first key frame also from a local solve from the default pose (the better fit taken): on
@@ -301,7 +301,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
 
     # Every second trial's poses are found ahead on the other core (calibrate.solve.ahead; no progress from
     # there), the others here: the same poses, 0.1 s sooner on pig_walk.
-    theirs = run_ahead(trial_start(k) for k in range(1, len(trials), 2)) if len(trials) > 1 else iter(())
+    theirs = (trial_start(k) for k in range(1, len(trials), 2))
+    theirs = run_ahead(theirs) if run.ahead and len(trials) > 1 else theirs
     mine = {k: trial_start(k, progress=True) for k in range(0, len(trials), 2)}
     mine.update(zip(range(1, len(trials), 2), theirs, strict=True))
     start = stack_states([mine[k] for k in range(len(trials))])

@@ -135,7 +135,8 @@ def absolute(kin: Kinematics, state: State, spans: Sequence[slice] | None = None
 
 
 def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice], candidates: Mapping[str, Parameters],
-                 say: Callable[[str], None], options: SolverOptions | None = None) -> tuple[Parameters, str]:
+                 say: Callable[[str], None], options: SolverOptions | None = None,
+                 ahead: bool = True) -> tuple[Parameters, str]:
     """The start whose basin fits best: each candidate geometry (e.g. the MTB seed and the base
     model) solved with its poses on the subsample of frames the global solve starts from (the
     markers the model knows; the problem's settings before any noise is learnt), and the one that
@@ -146,7 +147,8 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     The candidates race: each is solved for START_CHECK iterations first, and one whose cost is then
     below START_LEAD times every other's is taken (pig_walk: the base model's 1.03e5 against the
     seed's 1.54e5); otherwise each goes on, from where it stopped, to START_ITERATIONS in all.
-    Every candidate after the first is solved on the other core meanwhile (calibrate.solve.ahead).
+    Every candidate after the first is solved on the other core meanwhile (calibrate.solve.ahead), unless
+    `ahead` is false.
     `options`: the solver's (default SolverOptions()).  Returns the chosen geometry and a note naming each
     candidate's cost."""
     names = list(candidates)
@@ -177,7 +179,7 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
 
     # Every candidate after the first is solved ahead on the other core (calibrate.solve.ahead): the
     # same steps as here, in the same order of decisions; a candidate not needed is stopped.
-    legs = {name: leg(name) if k == 0 else run_ahead(leg(name)) for k, name in enumerate(names)}
+    legs = {name: run_ahead(leg(name)) if k and ahead else leg(name) for k, name in enumerate(names)}
     costs: dict[str, float] = {}
     try:
         for name in names:

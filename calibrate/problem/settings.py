@@ -72,6 +72,11 @@ class Settings:
     # calibrate.calibration.noise.learned_noise) instead of taking `noise` for all.  None (default): learn
     # unless `noise` was set away from NOISE_DEFAULT; markers named in `marker_noise` keep their value.
     learn_noise: bool | None = None
+    # Run the start's parts that hold the GIL (the second candidate of the start's race, every second
+    # trial's start poses) in a forked process on the other core (Linux, two or more cores;
+    # calibrate.solve.ahead).  The results are the same bits either way; off, they run one after another
+    # here (e.g. where the cores are busy already, as in a batch's worker processes).
+    ahead: bool = True
 
     @property
     def problem(self) -> ProblemOptions:
