@@ -303,8 +303,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # there), the others here: the same poses, 0.1 s sooner on pig_walk.
     theirs = (trial_start(k) for k in range(1, len(trials), 2))
     theirs = run_ahead(theirs) if run.ahead and len(trials) > 1 else theirs
-    mine = {k: trial_start(k, progress=True) for k in range(0, len(trials), 2)}
-    mine.update(zip(range(1, len(trials), 2), theirs, strict=True))
+    try:
+        mine = {k: trial_start(k, progress=True) for k in range(0, len(trials), 2)}
+        mine.update(zip(range(1, len(trials), 2), theirs, strict=True))
+    finally:
+        theirs.close()  # a child still running (this process failed first) stopped at once
     start = stack_states([mine[k] for k in range(len(trials))])
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
