@@ -37,9 +37,15 @@ WORKERS = max(1, min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaf
 
 def split_frames(F: int, min_frames: int = 64) -> list[slice]:
     """Frames 0..F-1 in one contiguous part per worker thread (a single part for few frames)."""
+    return list(_split_frames(F, min_frames))
+
+
+@functools.cache
+def _split_frames(F: int, min_frames: int) -> tuple[slice, ...]:
+    """split_frames, kept: it is asked for the same few frame counts several times in every step."""
     k = max(1, min(WORKERS, F // min_frames))
     edges = np.linspace(0, F, k + 1).astype(int)
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    return tuple(slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True))
 
 
 @functools.cache
@@ -188,8 +194,17 @@ def assemble(d: np.ndarray, w: np.ndarray, jz: np.ndarray, jp: np.ndarray | None
     gp = sum(g for _, g in parts)
     if gradient_only:
         return np.zeros((0, 0)), gp
-    C = np.tril(C) + np.tril(C, -1).T  # the kernel fills the lower triangle
-    return C, gp
+    # The kernel fills the lower triangle; mirrored (+ 0.0: the same bits, signed zeros included, as the
+    # sum of np.tril(C) and np.tril(C, -1).T), with the mask kept for the size.
+    return np.where(_lower_triangle(n), C, C.T) + 0.0, gp
+
+
+@functools.cache
+def _lower_triangle(n: int) -> np.ndarray:
+    """(n, n) mask of the lower triangle and the diagonal (read-only: shared by every call)."""
+    mask = np.tri(n, dtype=bool)
+    mask.setflags(write=False)
+    return mask
 
 
 def factor_frames(A: np.ndarray, damping: np.ndarray, B: np.ndarray, gz: np.ndarray, L: np.ndarray,
