@@ -317,7 +317,10 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         st = self.settings
         sigma = self.sigma
         seen = self.seen[frames]
-        s = np.where(seen, np.sum(d.reshape(seen.shape[0], -1, 3) ** 2, axis=2), 0.0) / sigma**2
+        # |d|² per marker as x² + y² + z², in the order np.sum(…, axis=2) adds them (the same bits) but
+        # 10x sooner: numpy's reduction over an axis of 3 is slow.
+        sq = d.reshape(seen.shape[0], -1, 3) ** 2
+        s = np.where(seen, sq[..., 0] + sq[..., 1] + sq[..., 2], 0.0) / sigma**2
         rho, drho = _robust(s, st.loss, st.loss_scale**2)
         cost = 0.5 * float(np.sum(rho[seen]))
         w = np.where(seen, np.sqrt(drho) / sigma, 0.0)

@@ -12,6 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# Imported here, not where the trilateration search first calls it: imported there (0.03 s saved at
+# start), gait2392's calibration came out as one of two results, 1e-6 apart, from run to run; the cause
+# was not found (the libraries threadpoolctl limits are the same either way; docs/benchmarks.md).
+from scipy.optimize import least_squares
+
 from .geometry import MIN_SPREAD, RigidFrames, spread
 
 MIN_FRAMES = 10  # fewer usable frames than this: no estimate
@@ -195,15 +200,6 @@ def mtb_refine(basis: Basis, points: np.ndarray, lam0: np.ndarray, alpha: float 
     return lam, cost, it
 
 
-def _least_squares():
-    """scipy.optimize.least_squares, imported where it is needed: scipy.optimize takes 0.03-0.04 s to
-    import (a tenth of the command line's imports), and only the trilateration search of a ball joint's
-    JMV start calls it (not on pig_walk)."""
-    from scipy.optimize import least_squares
-
-    return least_squares
-
-
 def inv_sym3(A: np.ndarray) -> np.ndarray:
     """Inverses of symmetric 3x3 matrices (F, 3, 3) by cofactors (vectorised; no per-matrix LAPACK call)."""
     a, b, c = A[:, 0, 0], A[:, 0, 1], A[:, 0, 2]
@@ -368,7 +364,7 @@ def trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_fram
         if any(np.max(np.abs(r0 - q)) <= 1.5 * span / steps for q in picked):
             continue
         picked.append(r0)
-        res = _least_squares()(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+        res = least_squares(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
         best.append((float(2 * res.cost), res.x))
         if len(picked) == keep or res.cost < 1e-24:
             break
