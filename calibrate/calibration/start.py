@@ -189,8 +189,8 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
                 say("start: " + note)
                 return candidates[name], note
         best = min(costs, key=costs.get)
-        ahead = all(costs[best] < START_LEAD * c for n, c in costs.items() if n != best)
-        for name in [] if ahead else names:
+        far_ahead = all(costs[best] < START_LEAD * c for n, c in costs.items() if n != best)
+        for name in [] if far_ahead else names:
             costs[name] = next(legs[name])
             if note := fits(name, first=False):
                 say("start: " + note)
@@ -199,7 +199,7 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
         for values in legs.values():
             values.close()
     best = min(costs, key=costs.get)
-    raced = f" ({START_CHECK} iterations each: one far ahead)" if ahead else ""
+    raced = f" ({START_CHECK} iterations each: one far ahead)" if far_ahead else ""
     note = (f"started from {best}: of " + ", ".join(f"{n} (cost {c:.4g})" for n, c in costs.items())
             + f", solved on {coarse.size} frames{raced}, its basin fits best")
     say("start: " + note)
