@@ -99,6 +99,26 @@ def test_write_all_writes_every_file_or_none(tmp_path: Path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]  # no temporary left behind
 
 
+def test_write_all_gives_new_files_the_users_permissions_and_keeps_replaced_ones(tmp_path: Path):
+    """A new output is created as any new file is (0666 less the umask), not with a temporary file's
+    0600 that would hide a lab's results from its group; a replaced output keeps its permissions."""
+    import os
+    import stat
+
+    old = os.umask(0o027)
+    try:
+        a, b, c = tmp_path / "a.urdf", tmp_path / "b.csv", tmp_path / "c.json"
+        c.write_text("old")
+        os.chmod(c, 0o604)
+        write_all({a: lambda p: p.write_text("a"), b: lambda p: p.write_text("b"), c: lambda p: p.write_text("c")})
+        write_all({tmp_path / "d.trc": lambda p: p.write_text("d")}, keep_names=True)
+    finally:
+        os.umask(old)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in tmp_path.iterdir()}
+    assert modes == {"a.urdf": 0o640, "b.csv": 0o640, "c.json": 0o604, "d.trc": 0o640}
+    assert c.read_text() == "c"
+
+
 def test_check_targets_refuses_before_any_work(tmp_path: Path):
     a = tmp_path / "a.txt"
     a.write_text("x")

@@ -6,7 +6,9 @@ leaves no output half-written and no destination changed.
 from __future__ import annotations
 
 import os
+import secrets
 import shutil
+import stat
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -58,18 +60,31 @@ def write_all(writers: Mapping[Path, Writer], keep_names: bool = False) -> None:
                 folders.append(Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent)))
                 staged[target] = folders[-1] / target.name
             else:
-                # the destination's suffix last, in lower case: a writer may insist on it (ezc3d appends .c3d otherwise)
-                fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".part{target.suffix.lower()}",
-                                           dir=target.parent)
-                os.close(fd)
-                staged[target] = Path(tmp)
+                staged[target] = _staging_file(target)
             write(staged[target])
+            # A file it replaces keeps its permissions; a new one gets the user's (umask), not mkstemp's 0600.
+            if target.exists():
+                os.chmod(staged[target], stat.S_IMODE(target.stat().st_mode))
         place_all(staged)
     finally:
         for tmp in staged.values():
             tmp.unlink(missing_ok=True)
         for folder in folders:
             shutil.rmtree(folder, ignore_errors=True)
+
+
+def _staging_file(target: Path) -> Path:
+    """A new, empty hidden file beside `target` ('.NAME.xxxxxxxx.part.SUFFIX': the destination's suffix
+    last, in lower case, as a writer may insist on it; ezc3d appends .c3d otherwise), created as a new
+    file is (mode 0666 less the umask: readable by whom the user's other files are)."""
+    for _ in range(100):
+        path = target.parent / f".{target.name}.{secrets.token_hex(4)}.part{target.suffix.lower()}"
+        try:
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(f"{target}: no free name for its staging file in '{target.parent}'")
 
 
 def place_all(staged: Mapping[Path, Path]) -> None:
