@@ -460,3 +460,35 @@ def test_failure_reports_a_calibrate_error_for_an_unwritable_target(small_cal, t
     with pytest.raises(CalibrateError, match="does not exist"):
         small_cal.write(urdf=tmp_path / "s.urdf", motion=tmp_path / "file" / "s.csv", report=tmp_path / "s.json")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_the_program_ends_at_once_after_a_calibration_with_its_exit_handlers_run(tmp_path):
+    """`calibrate` (calibrate.cli.main.run) skips Python's teardown after a calibration: its summary is
+    on stdout in full, the files are written, exit handlers registered before it still run, and the
+    status is main's (0; 2 for bad input).  Under a profiler it ends as usual: the profile is written."""
+    import subprocess
+    import sys
+
+    human_path = Path(__file__).resolve().parents[1] / "models" / "human.urdf"
+    write_c3d(tmp_path / "t.c3d", simulate_squats(load_model(human_path), frames=90, noise_mm=1.0, seed=3).trial)
+    prog = ("import atexit, sys; atexit.register(lambda: print('exit handler ran', flush=True)); "
+            "from calibrate.cli.main import run; run()")
+
+    def calibrate_cli(*args, before=()):
+        return subprocess.run([sys.executable, *before, "-c", prog, *map(str, args)], capture_output=True,
+                              text=True, cwd=tmp_path, timeout=300)
+
+    r = calibrate_cli(tmp_path / "t.c3d", human_path, "-o", tmp_path / "s.urdf", "-q")
+    assert r.returncode == 0, r.stderr
+    assert "wrote" in r.stdout and r.stdout.rstrip().endswith("exit handler ran")
+    assert yourdfpy.URDF.load(str(tmp_path / "s.urdf"), load_meshes=False).robot.name
+    assert len(read_motion_csv(tmp_path / "t_motion.csv").times) == 90
+    bad = calibrate_cli(tmp_path / "missing.c3d", human_path, "-o", tmp_path / "x.urdf", "-q")
+    assert bad.returncode == 2 and bad.stderr.startswith("calibrate: error:") and "exit handler ran" in bad.stdout
+    # cProfile's own report comes after main() returns: under it the program must end as usual.
+    prof = tmp_path / "p.prof"
+    r = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "calibrate.cli", tmp_path / "t.c3d",
+                        human_path, "-o", tmp_path / "s2.urdf", "--overwrite", "-q"], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert prof.stat().st_size > 0 and (tmp_path / "s2.urdf").exists()

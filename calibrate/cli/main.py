@@ -248,7 +248,7 @@ def run() -> None:
         sys.stdout.flush()
         sys.stderr.flush()
         atexit._run_exitfuncs()
-        os._exit(code)
+        os._exit(code or 0)
     sys.exit(code)
 
 
