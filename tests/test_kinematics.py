@@ -196,3 +196,50 @@ def test_generic_tree_rpy_continuous_and_welded_segments(tmp_path):
     p.axis[:] += rng.normal(0, 0.1, p.axis.shape)
     other = load_model(write_model(model, tmp_path / "perturbed.urdf", p))
     assert _max_fk_error(model, kin, p, other, rng, n=30) < 1e-12
+
+
+# ------------------------------------------------------------------ rotations in numpy, against scipy's Rotation
+def test_rotation_helpers_equal_scipy_rotation():
+    # Written out so that no command imports scipy on its way (0.25 s); scipy's Rotation is the reference.
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from calibrate.model.kinematics import (
+        matrix_quats,
+        quat_inverse,
+        quat_multiply,
+        quat_rotvecs,
+        rotvec_quats,
+        slerp_quats,
+    )
+
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(2000, 4))
+    q[:5] = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [0, 0, 0, -1]]  # half turns, no turn
+    q[5:10] = np.array([0, 0, 0, 1.0]) + 1e-9 * rng.normal(size=(5, 4))  # below the series' switch
+    R = Rotation.from_quat(q)
+    M = R.as_matrix()
+    np.testing.assert_allclose(matrix_quats(M), Rotation.from_matrix(M).as_quat(), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(quat_rotvecs(q), R.as_rotvec(), rtol=0, atol=1e-14)
+    v = rng.normal(size=(2000, 3)) * np.r_[1e-7, 1e-4, 1.0, 3.0][rng.integers(0, 4, 2000)][:, None]
+    np.testing.assert_allclose(rotvec_quats(v), Rotation.from_rotvec(v).as_quat(), rtol=0, atol=1e-15)
+    a, b = q[:1000], q[1000:]
+    ours = quat_multiply(a, quat_inverse(b / np.linalg.norm(b, axis=1, keepdims=True)))
+    theirs = (Rotation.from_quat(a) * Rotation.from_quat(b).inv()).as_matrix()
+    np.testing.assert_allclose(Rotation.from_quat(ours).as_matrix(), theirs, rtol=0, atol=1e-14)
+    keys = np.sort(rng.choice(400, 30, replace=False)).astype(float)
+    at = np.r_[keys[0], rng.uniform(keys[0], keys[-1], 500), keys, keys[-1]]
+    k = q[10:40]  # random keys (between two half turns the shortest arc has no one direction)
+    ours = Rotation.from_quat(slerp_quats(keys, k, at)).as_matrix()  # the same rotation (q or -q)
+    np.testing.assert_allclose(ours, Slerp(keys, Rotation.from_quat(k))(at).as_matrix(), rtol=0, atol=1e-14)
+    with pytest.raises(ValueError, match="within the key times"):
+        slerp_quats(keys, k, keys[-1:] + 1)
+
+
+def test_importing_calibrate_imports_no_scipy():
+    # scipy stays a dependency (OpenSim import, tracking, tests) but no command pays for it on its way in.
+    import subprocess
+    import sys
+
+    code = "import sys, calibrate, calibrate.cli.main; print(sorted(m for m in sys.modules if m.startswith('scipy')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

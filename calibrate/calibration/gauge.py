@@ -4,11 +4,11 @@ data fit unchanged."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calibrate.calibration.start import absolute, frames_of
 
 from ..model.blocks import FrameLayout
+from ..model.kinematics import matrix_quats, quat_matrices, quat_rotvecs
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import State
@@ -24,14 +24,14 @@ def align_gauge(problem: Problem, state: State, options: SolverOptions | None = 
     Z, Q = state.Z.copy(), state.Q.copy()
     for si, kind, G, t in moves:
         if kind == "rigid":
-            R = Rotation.from_quat(Q).as_matrix()
+            R = quat_matrices(Q)
             Z[:, FrameLayout.translation] += np.einsum("fij,j->fi", R, t)
-            Q = Rotation.from_matrix(R @ G).as_quat()
+            Q = matrix_quats(R @ G)
         elif kind == "axis":
             j = next(j for j in model.joints if j.child == model.segments[si].name)
             d = model.dof_index(j.dofs[-1])
             a = problem.axis_direction(state.p, d)
-            Z[:, FrameLayout.angle(d)] += float(Rotation.from_matrix(G).as_rotvec() @ a)  # G turns about the hinge axis
+            Z[:, FrameLayout.angle(d)] += float(quat_rotvecs(matrix_quats(G)) @ a)  # G turns about the hinge axis
     Q = np.where(Q[:, 3:4] < 0, -Q, Q)
     aligned = State(Z, Q, p, state.B)
     aligned, _ = levenberg_marquardt(problem, aligned, options, pose_only=True, max_iterations=20)
@@ -56,7 +56,7 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: 
         for si, kind, G, _ in moves:
             if kind == "axis":  # G turns about the hinge's (last) axis: its angle follows
                 d = model.dof_index(into[model.segments[si].name].dofs[-1])
-                Z[:, FrameLayout.angle(d)] += float(Rotation.from_matrix(G).as_rotvec()
+                Z[:, FrameLayout.angle(d)] += float(quat_rotvecs(matrix_quats(G))
                                                     @ problem.axis_direction(state.p, d))
         state, _ = levenberg_marquardt(problem, State(Z, state.Q, p, state.B), options,
                                        pose_only=True, max_iterations=20)

@@ -8,10 +8,9 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from ..model.blocks import FrameLayout
-from ..model.kinematics import IDENTITY, Kinematics
+from ..model.kinematics import IDENTITY, Kinematics, quat_inverse, quat_multiply, slerp_quats
 from ..model.model import Parameters
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
@@ -96,7 +95,7 @@ def start_poses(kin: Kinematics, observed: np.ndarray, params: Parameters, strid
         Q = np.empty((F, Qk.shape[1]))
         inside = np.clip(frames, keys[0], keys[-1])
         for s in range(0, Qk.shape[1], 4):  # slerp each reference rotation
-            Q[:, s:s + 4] = Slerp(keys, Rotation.from_quat(Qk[:, s:s + 4]))(inside).as_quat()
+            Q[:, s:s + 4] = slerp_quats(keys, Qk[:, s:s + 4], inside)
     Q = Q.reshape(F, -1, 4)
     Q = np.where(Q[..., 3:4] < 0, -Q, Q)
     Z[:, FrameLayout.rotation] = 0.0
@@ -223,7 +222,7 @@ def bridge(state: State, redo: np.ndarray, hit: np.ndarray, spans: list[slice]) 
             if good.size == 1:
                 Q[sl.start + bad] = Q[sl.start + good[0]]
             else:
-                rot = Slerp(good, Rotation.from_quat(Q[sl.start + good]))(np.clip(bad, good[0], good[-1])).as_quat()
+                rot = slerp_quats(good, Q[sl.start + good], np.clip(bad, good[0], good[-1]))
                 Q[sl.start + bad] = np.where(rot[:, 3:4] < 0, -rot, rot)
     B = None if state.B is None else np.stack(rots[1:], axis=1) if rots[1:] else state.B.copy()
     return State(Z, rots[0], state.p, B)
@@ -262,12 +261,14 @@ def spread_poses(solved: State, frames: np.ndarray, start: State) -> State:
 
     def carry(q_solved: np.ndarray, q_start: np.ndarray) -> np.ndarray:
         """Rotations: the solve's change (a turn on the left) slerped between the solved frames."""
-        turn = Rotation.from_quat(q_solved) * Rotation.from_quat(q_start[frames]).inv()
+        unit = q_start / np.linalg.norm(q_start, axis=-1, keepdims=True)
+        turn = quat_multiply(q_solved / np.linalg.norm(q_solved, axis=-1, keepdims=True), quat_inverse(unit[frames]))
         if frames.size == 1:
-            turns = Rotation.from_quat(np.tile(turn.as_quat()[0], (F, 1)))
+            turns = np.tile(turn[0], (F, 1))
         else:
-            turns = Slerp(frames, turn)(np.clip(every, frames[0], frames[-1]))
-        q = (turns * Rotation.from_quat(q_start)).as_quat()
+            turns = slerp_quats(frames, turn, np.clip(every, frames[0], frames[-1]))
+        q = quat_multiply(turns, unit)
+        q = q / np.linalg.norm(q, axis=-1, keepdims=True)
         return np.where(q[:, 3:4] < 0, -q, q)
 
     Q = carry(solved.Q, start.Q)

@@ -130,6 +130,75 @@ def quat_matrices(q: np.ndarray) -> np.ndarray:
     ], -2)
 
 
+# Rotations in numpy, as scipy.spatial.transform.Rotation computes them (tests/test_kinematics.py checks
+# them against it): importing scipy took a quarter of a second of every command's start.
+def matrix_quats(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) (x, y, z, w) of rotation matrices (..., 3, 3), by the largest of
+    the trace and the diagonal (Markley's choice), as Rotation.from_matrix(R).as_quat()."""
+    R = np.asarray(R, dtype=float)
+    d = np.concatenate([np.diagonal(R, axis1=-2, axis2=-1), np.trace(R, axis1=-2, axis2=-1)[..., None]], axis=-1)
+    choice = d.argmax(axis=-1)
+    q = np.empty(R.shape[:-2] + (4,))
+    q[..., 0] = R[..., 2, 1] - R[..., 1, 2]
+    q[..., 1] = R[..., 0, 2] - R[..., 2, 0]
+    q[..., 2] = R[..., 1, 0] - R[..., 0, 1]
+    q[..., 3] = 1 + d[..., 3]
+    for i in range(3):
+        j, k = (i + 1) % 3, (i + 2) % 3
+        on = choice == i
+        q[on, i] = 1 - d[on, 3] + 2 * R[on, i, i]
+        q[on, j] = R[on, j, i] + R[on, i, j]
+        q[on, k] = R[on, k, i] + R[on, i, k]
+        q[on, 3] = R[on, k, j] - R[on, j, k]
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_rotvecs(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) (axis × angle, angle in [0, π]) of quaternions (..., 4) (x, y, z, w),
+    as Rotation.from_quat(q).as_rotvec()."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., 3:4] < 0, -q, q)
+    s = np.linalg.norm(q[..., :3], axis=-1)
+    angle = 2 * np.arctan2(s, q[..., 3])
+    small = angle <= 1e-3
+    a2 = angle * angle
+    scale = np.where(small, 2 + a2 / 12 + 7 * a2 * a2 / 2880, angle / np.sin(np.where(small, 1.0, angle / 2)))
+    return scale[..., None] * q[..., :3]
+
+
+def rotvec_quats(v: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) (x, y, z, w) of rotation vectors (..., 3), as
+    Rotation.from_rotvec(v).as_quat()."""
+    v = np.asarray(v, dtype=float)
+    angle = np.linalg.norm(v, axis=-1)
+    small = angle <= 1e-3
+    a2 = angle * angle
+    scale = np.where(small, 0.5 - a2 / 48 + a2 * a2 / 3840, np.sin(angle / 2) / np.where(small, 1.0, angle))
+    return np.concatenate([scale[..., None] * v, np.cos(angle / 2)[..., None]], axis=-1)
+
+
+def quat_inverse(q: np.ndarray) -> np.ndarray:
+    """The inverse rotations of unit quaternions (..., 4) (x, y, z, w): their conjugates."""
+    q = np.asarray(q, dtype=float)
+    return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
+
+
+def slerp_quats(times: np.ndarray, q: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Rotations (n, 4) between key rotations q (k, 4) (x, y, z, w) at increasing `times` (k ≥ 2),
+    at times `at` (n, within the keys' range): along the shortest arc between the neighbouring keys,
+    as scipy's Slerp(times, Rotation.from_quat(q))(at).as_quat()."""
+    times, at = np.asarray(times, dtype=float), np.asarray(at, dtype=float)
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(at < times[0]) or np.any(at > times[-1]):
+        raise ValueError("slerp_quats: interpolation times must lie within the key times")
+    i = np.clip(np.searchsorted(times, at, side="right") - 1, 0, times.size - 2)
+    step = quat_rotvecs(quat_multiply(quat_inverse(q[:-1]), q[1:]))  # from each key to the next
+    alpha = (at - times[i]) / np.diff(times)[i]
+    return quat_multiply(q[i], rotvec_quats(step[i] * alpha[:, None]))
+
+
 @dataclass(frozen=True)
 class BallJoint:
     """A ball joint the solver keeps on SO(3): three revolutes about orthonormal axes with

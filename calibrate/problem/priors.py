@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy import sparse
 
 from ..model.model import Model
 
@@ -170,8 +169,7 @@ class PriorsMixin:
         T = self.tangent_map(p) if T is None else T
         r = np.concatenate(res)
         rows, cols, vals = (np.concatenate(x) for x in zip(*trip, strict=True))
-        J = sparse.csr_matrix((vals, (rows, cols)), shape=(r.size, self.np_full))  # repeated entries add up
-        return r, np.asarray(J @ T)
+        return r, _sparse_product(rows, cols, vals, T, r.size)
 
     def limits(self, Z: np.ndarray) -> np.ndarray:
         """Joint-limit residuals (F, n_dofs): LIMIT_WEIGHT/σ × how far each angle lies outside its
@@ -183,3 +181,19 @@ class PriorsMixin:
     def _limit_active(self, lim: np.ndarray) -> np.ndarray:
         """(F, n_dofs) where a limit residual has a Jacobian row: outside a limit, or locked."""
         return (lim != 0) | self.locked
+
+
+def _sparse_product(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, T: np.ndarray, n_rows: int) -> np.ndarray:
+    """J @ T (n_rows, T's columns) for the matrix J given by its nonzeros (rows, cols, vals; repeated
+    entries add up) and a T with few nonzeros per row (the tangent map: an identity but for each hinge
+    axis's 3 × 2 block): every product of a nonzero of J with one of T's row, summed into place."""
+    order = np.lexsort((cols, rows))  # each sum in one order, whatever order the triplets came in
+    rows, cols, vals = rows[order], cols[order], vals[order]
+    t_rows, t_cols = np.nonzero(T)
+    counts = np.bincount(t_rows, minlength=T.shape[0])
+    first = np.cumsum(counts) - counts  # where each row of T starts among its nonzeros
+    n = counts[cols]
+    at = np.repeat(first[cols] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))  # T's nonzeros, row by row
+    out = np.bincount(np.repeat(rows, n) * T.shape[1] + t_cols[at],
+                      weights=np.repeat(vals, n) * T[t_rows[at], t_cols[at]], minlength=n_rows * T.shape[1])
+    return out.reshape(n_rows, T.shape[1])

@@ -37,7 +37,6 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.linalg import solve_banded
 
 from calibrate.seed.mtb import (
     MIN_FRAMES,
@@ -497,18 +496,18 @@ def butter_lowpass(order: int, wn: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
-    """The IIR filter (b, a) along axis 0 of x (n, m) from the initial state zi (order, m), as
+    """The IIR filter (b, a) (a[0] = 1) along axis 0 of x (n, m) from the initial state zi (order, m), as
     scipy.signal.lfilter: the difference equation Σ a_k y[n-k] = Σ b_k x[n-k] (+ zi in the first
-    rows), a banded lower-triangular system solved for every column at once."""
+    rows), run forward for every column at once."""
     order, n = len(a) - 1, len(x)
-    rhs = np.zeros_like(x)
+    y = np.zeros((n + order,) + x.shape[1:])  # `order` zero rows ahead of the output
     for k in range(order + 1):
-        rhs[k:] += b[k] * x[:n - k]
-    rhs[:order] += zi[:n]
-    bands = np.zeros((order + 1, n))
-    for k in range(order + 1):
-        bands[k, :n - k] = a[k]
-    return solve_banded((order, 0), bands, rhs)
+        y[order + k:] += b[k] * x[:n - k]
+    y[order:2 * order] += zi[:n]
+    for i in range(order, n + order):
+        for k in range(1, order + 1):
+            y[i] -= a[k] * y[i - k]
+    return y[order:]
 
 
 def filtfilt(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:

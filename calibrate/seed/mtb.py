@@ -12,11 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Imported here, not where the trilateration search first calls it: imported there (0.03 s saved at
-# start), gait2392's calibration came out as one of two results, 1e-6 apart, from run to run; the cause
-# was not found (the libraries threadpoolctl limits are the same either way; docs/benchmarks.md).
-from scipy.optimize import least_squares
-
 from .geometry import MIN_SPREAD, RigidFrames, spread
 
 MIN_FRAMES = 10  # fewer usable frames than this: no estimate
@@ -316,6 +311,8 @@ def trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_fram
     mirror solutions; one side is kept for the whole trial).  Each grid point is scored by how much the
     joint's distances to the other points vary; the `keep` best become starts (trajectories (F, 3)).
     The search runs on at most `max_frames` evenly spaced frames; trilateration then fills all frames."""
+    from scipy.optimize import least_squares  # here, not at the top: importing scipy costs every command 0.25 s
+
     F, P, _ = X.shape
     if P < 4:
         return []

@@ -18,12 +18,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
-from ..model.kinematics import IDENTITY, Kinematics, retract_root
+from ..model.kinematics import IDENTITY, Kinematics, matrix_quats, retract_root
 from ..model.model import Model, Parameters
 from ..problem.options import SolverOptions
 from ..seed.geometry import kabsch, marker_rms
@@ -201,7 +200,7 @@ class FrameSolver:
         if len(root_seen) >= 3:
             a = self.evaluate(z, q)[0].reshape(-1, 3)[root_seen]
             R0, t0 = kabsch(a, obs[root_seen])
-            q[:4] = Rotation.from_matrix(R0).as_quat()
+            q[:4] = matrix_quats(R0)
             z[FrameLayout.translation] = t0
             z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(FrameLayout.n_root), 50)
         else:
