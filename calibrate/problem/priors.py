@@ -178,6 +178,26 @@ class PriorsMixin:
         th = self.layout.frame.angles(Z)
         return self._limit_w * (th - np.clip(th, self.lower, self.upper))
 
+    def limit_crossings(self, Z: np.ndarray,
+                        dz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The joint limits a step dz (F, nz) from the poses Z (F, nz) carries an angle across (within its
+        range at Z, more than one noise SD's worth of residual beyond it after the step): (frames, DoFs,
+        weights w, residuals), each residual the limit's w·(θ − bound) continued to Z, inside the range.  A
+        step's Gauss–Newton model has no limit row for an angle inside its range, so a step that takes one
+        far past its limit (an angle the markers barely fix) is judged on a cost its model never saw; taken
+        into the model, these rows keep such a step at the limit.  None if no limit is crossed."""
+        th = self.layout.frame.angles(Z)
+        after = th + self.layout.frame.angles(dz)
+        w = self._limit_w
+        inside = (th >= self.lower) & (th <= self.upper) & (w > 0) & ~self.locked
+        # (A step that only grazes a limit, w·overshoot ≤ 1, is judged well enough on the model without it.)
+        up, down = inside & (w * (after - self.upper) > 1.0), inside & (w * (self.lower - after) > 1.0)
+        if not (up.any() or down.any()):
+            return None
+        f, d = np.nonzero(up | down)
+        bound = np.where(up[f, d], self.upper[d], self.lower[d])
+        return f, d, w[d], w[d] * (th[f, d] - bound)
+
     def _limit_active(self, lim: np.ndarray) -> np.ndarray:
         """(F, n_dofs) where a limit residual has a Jacobian row: outside a limit, or locked."""
         return (lim != 0) | self.locked

@@ -40,7 +40,16 @@ from ..problem.problem import Problem
 from ..problem.state import Linearization, State
 from .assembly import back_substitute, forward_substitute
 from .chunks import Bend, FrameBlocks, chunked_step, each_chunk
-from .schur import GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, model_decrease, retract
+from .schur import (
+    GEODESIC_H,
+    GEODESIC_RATIO,
+    Elimination,
+    eliminate,
+    marquardt_diagonal,
+    model_decrease,
+    refactor_frames,
+    retract,
+)
 
 __all__ = ["Covariance", "Run", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "iterate",
            "levenberg_marquardt", "minimise"]
@@ -112,8 +121,12 @@ def factor_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool 
     complement on p Cholesky-factored, restricted to the columns of `N` (gauge constraints) if
     given); None if a block is not positive definite.  `work`: buffers reused between steps."""
     el = eliminate(lin, lam * Dz, with_parameters=not pose_only, work=work)
-    if el is None:
-        return None
+    return None if el is None else _factor_schur(lin, el, lam, pose_only, N)
+
+
+def _factor_schur(lin: Linearization, el: Elimination, lam: float, pose_only: bool,
+                  N: np.ndarray | None) -> _Factored | None:
+    """factor_step's second half: the damped Schur complement of the eliminated frames `el` factored."""
     if pose_only or lin.C.size == 0:
         return _Factored(el, None, None)
     S = lin.C - el.S
@@ -297,6 +310,47 @@ def iterate(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: 
     return x, summary
 
 
+# A step that carries joint angles across their limits is solved again with those limits in its model
+# (Problem.limit_crossings; only those frames factored again), this many times at most: without them such a
+# step was judged on limit residuals its model never saw, and 28 of pig_walk's 30 rejected steps were; with
+# them, 3 (docs/benchmarks.md); two rounds left 4, at more factorisations.
+LIMIT_ROUNDS = 1
+
+
+class _HeldLimits:
+    """Joint-limit rows taken into one step's Gauss–Newton model: each (frame, DoF) adds its weight w² to
+    A_f's diagonal and w·r to g_f, in place in the linearization, whose entries are put back as they were
+    by release().  `offset`: the added rows' ½Σr² at the current point, where the limit costs nothing, so
+    the model's decrease less it is the decrease of the cost the step is judged on."""
+
+    def __init__(self, lin: Linearization, frame):
+        self.lin, self.frame = lin, frame
+        self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.done: set[tuple[int, int]] = set()
+        self.offset = 0.0
+
+    def take(self, f: np.ndarray, d: np.ndarray, w: np.ndarray, r: np.ndarray) -> bool:
+        """Add the limits (frames f, DoFs d, weights w, residuals r) not taken yet; whether any was."""
+        new = np.array([(int(a), int(b)) not in self.done for a, b in zip(f, d, strict=True)], dtype=bool)
+        if not new.any():
+            return False
+        f, d, w, r = f[new], d[new], w[new], r[new]
+        self.done.update(zip(f.tolist(), d.tolist(), strict=True))
+        c = self.frame.angle(d)
+        lin = self.lin
+        self.rows.append((f, c, lin.A[f, c, c].copy(), lin.gz[f, c].copy()))
+        lin.A[f, c, c] += w * w
+        lin.gz[f, c] += w * r
+        self.offset += 0.5 * float(r @ r)
+        return True
+
+    def release(self) -> None:
+        for f, c, a, g in reversed(self.rows):
+            self.lin.A[f, c, c] = a
+            self.lin.gz[f, c] = g
+        self.rows.clear()
+
+
 class _BlockArrow:
     """The calibration problem as a StepProblem: steps from the Schur complement on p (factor_step),
     with geodesic acceleration when the loss is plain least squares; the frame blocks held chunk by
@@ -359,18 +413,30 @@ class _BlockArrow:
             dz, dp, predicted, bend = out
         else:
             lin = blocks.linearization
-            fac = factor_step(lin, lam, Dz, self.pose_only, self.N, self.work)
-            if fac is None:
+            held = _HeldLimits(lin, self.problem.layout.frame)
+            try:
+                fac = factor_step(lin, lam, Dz, self.pose_only, self.N, self.work)
+                for rounds in range(LIMIT_ROUNDS + 1):
+                    if fac is None:
+                        summary.linear_solver_seconds += time.perf_counter() - t0
+                        return None
+                    dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
+                    crossed = self.problem.limit_crossings(state.Z, dz) if rounds < LIMIT_ROUNDS else None
+                    if crossed is None or not held.take(*crossed):
+                        break
+                    # Only the frames whose limits were taken in are factored again (Schur's share swapped).
+                    el = fac.el
+                    ok = refactor_frames(lin, lam * Dz, el, held.rows[-1][0], self.work)
+                    fac = _factor_schur(lin, el, lam, self.pose_only, self.N) if ok else None
                 summary.linear_solver_seconds += time.perf_counter() - t0
-                return None
-            dz, dp = fac.solve(lin.gz, lin.gp, fac.el.yz)
-            summary.linear_solver_seconds += time.perf_counter() - t0
-            predicted = model_decrease(lin, dz, dp)
-            bend = None
-            if self.accelerate:
-                t0 = time.perf_counter()
-                bend = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
-                summary.evaluate_seconds += time.perf_counter() - t0
+                predicted = model_decrease(lin, dz, dp) - held.offset
+                bend = None
+                if self.accelerate:
+                    t0 = time.perf_counter()
+                    bend = _accelerate(self.problem, state, lin, fac, dz, dp, self.here)
+                    summary.evaluate_seconds += time.perf_counter() - t0
+            finally:
+                held.release()
         trial = retract(self.problem, state, dz, dp)
         self.costs = {}
         if bend is not None:

@@ -127,6 +127,31 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
     return Elimination(L, Y, yz, sum(results[1:], results[0]))
 
 
+def refactor_frames(lin: Linearization, damping: np.ndarray, el: Elimination, frames: np.ndarray,
+                    work: dict | None = None) -> bool:
+    """`el` (eliminate's, at the same damping) brought up to date after the blocks of `frames` changed in
+    `lin` (A_f, g_f): their factors formed again and their share of the Schur complement swapped, the other
+    frames' untouched.  In place; False if one of the blocks is not positive definite."""
+    frames = np.unique(frames)
+    F, nz, n = el.Y.shape
+    key = None if lin.a_pattern is None or lin.b_pattern is None else \
+        ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
+    cached = None if work is None or key is None else work.get(key)
+    runs = None if cached is None or n == 0 else cached[1]
+    L, Y, yz = np.empty((frames.size, nz, nz)), np.zeros((frames.size, nz, n)), np.empty((frames.size, nz))
+    B = lin.B[frames] if n else np.empty((frames.size, nz, 0))
+    if not factor_frames(lin.A[frames], np.ascontiguousarray(damping[frames]), B, lin.gz[frames], L, Y, yz, runs):
+        return False
+    if n:
+        old = el.Y[frames].reshape(-1, n)
+        el.S -= old.T @ old
+        new = Y.reshape(-1, n)
+        el.S += new.T @ new
+        el.Y[frames] = Y
+    el.L[frames], el.yz[frames] = L, yz
+    return True
+
+
 def retract(problem: Problem, state: State, dz: np.ndarray, dp: np.ndarray) -> State:
     """`state` moved by (dz, dp): root and ball-joint rotations folded into their references
     (Kinematics.retract), axes kept unit."""
