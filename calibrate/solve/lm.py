@@ -35,6 +35,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ..model.blocks import FrameLayout
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
@@ -323,7 +324,7 @@ class _HeldLimits:
     by release().  `offset`: the added rows' ½Σr² at the current point, where the limit costs nothing, so
     the model's decrease less it is the decrease of the cost the step is judged on."""
 
-    def __init__(self, lin: Linearization, frame):
+    def __init__(self, lin: Linearization, frame: FrameLayout):
         self.lin, self.frame = lin, frame
         self.rows: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self.done: set[tuple[int, int]] = set()
