@@ -68,6 +68,14 @@ def buffer(work: dict | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
     return a
 
 
+def _pattern_key(lin: Linearization) -> tuple | None:
+    """The key under which `work` keeps Y's row classes and column runs for the blocks' nonzero patterns
+    (they change only with the free set); None without patterns."""
+    if lin.a_pattern is None or lin.b_pattern is None:
+        return None
+    return ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
+
+
 def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = True,
                work: dict | None = None) -> Elimination | None:
     """Cholesky of every A_f + diag(damping_f) and the frames' share of the Schur complement;
@@ -83,8 +91,7 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
         Y = np.empty((F, nz, 0))
         ok = factor_frames(lin.A, damping, Y, lin.gz, L, Y, yz)
         return Elimination(L, Y, yz, np.zeros((0, 0))) if ok else None
-    key = None if lin.a_pattern is None or lin.b_pattern is None else \
-        ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
+    key = _pattern_key(lin)
     cached = None if work is None or key is None else work.get(key)
     if cached is None:
         Yp = y_pattern(lin, n)
@@ -133,9 +140,8 @@ def refactor_frames(lin: Linearization, damping: np.ndarray, el: Elimination, fr
     `lin` (A_f, g_f): their factors formed again and their share of the Schur complement swapped, the other
     frames' untouched.  In place; False if one of the blocks is not positive definite."""
     frames = np.unique(frames)
-    F, nz, n = el.Y.shape
-    key = None if lin.a_pattern is None or lin.b_pattern is None else \
-        ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
+    _, nz, n = el.Y.shape
+    key = _pattern_key(lin)
     cached = None if work is None or key is None else work.get(key)
     runs = None if cached is None or n == 0 else cached[1]
     L, Y, yz = np.empty((frames.size, nz, nz)), np.zeros((frames.size, nz, n)), np.empty((frames.size, nz))
