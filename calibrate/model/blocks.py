@@ -328,6 +328,20 @@ class ParameterLayout:
             T[self.axis_entries[:, :, None], self.axis_columns[:, None, :]] = B
         return T
 
+    def tangent_pattern(self) -> np.ndarray:
+        """(n_full, n_free) booleans: where tangent_map(p) may be nonzero at some p.  An entry of T can be
+        zero at one p and not at the next (an axis's tangent basis turns to another component as the axis
+        moves; an offset leaves zero), so what is built on T's nonzeros is built on this instead."""
+        T = np.zeros((self.n_full, self.n_free), dtype=bool)
+        if self.direct.size:
+            T[self.direct[:, 1], self.direct[:, 0]] = True
+        rows, _, _, scol = self._positions
+        if rows.size:
+            T[rows[scol >= 0], scol[scol >= 0]] = True
+        if self.axis_dofs:
+            T[self.axis_entries[:, :, None], self.axis_columns[:, None, :]] = True
+        return T
+
     def retract(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """p moved by the free step dp, each block on its manifold: scales to s exp(ds / s) (s + ds to
         first order, and never zero or negative: a segment with no marker of its own, whose scale only

@@ -402,23 +402,22 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
     def parameter_layout(self, p: np.ndarray) -> ColumnLayout:
         """The gather of ∂r/∂p_free from the per-frame Jacobian's nonzeros at parameters `p`
         (calibrate.solve.assembly.parameter_layout through tangent_map(p)): one per state, shared by
-        its chunks."""
-        T = self.tangent_map(p)
-        # Where T is nonzero changes only when an entry of p passes through zero (an axis's tangent basis
-        # switches, a base offset leaves zero): the gather's indices are kept while it does not.
-        key = (T.shape, np.packbits(T != 0).tobytes())
+        its chunks.  Its indices are built once, on where T may be nonzero at any p
+        (ParameterLayout.tangent_pattern): built on T's nonzeros at each p, they were built again at
+        every other step of pig_walk (an axis's tangent basis turning from one component to another),
+        and with them the Schur complement's row classes."""
         cached = self.__dict__.get("_pattern_cache")
-        if cached is None or cached[0] is not self.groups or cached[1] != key:
-            pattern = parameter_pattern(self.groups, T)
-            cached = (self.groups, key, pattern, self.block_patterns(pattern[0]))
+        if cached is None or cached[0] is not self.groups:
+            pattern = parameter_pattern(self.groups, self.layout.tangent_pattern())
+            cached = (self.groups, pattern, self.block_patterns(pattern[0]))
             self._pattern_cache = cached
-        return parameter_layout(self.groups, T, cached[2])
+        return parameter_layout(self.groups, self.tangent_map(p), cached[1])
 
     def _block_patterns(self, pl: ColumnLayout | None) -> tuple[np.ndarray, np.ndarray]:
         """block_patterns(pl), kept with the gather's pattern (parameter_layout) when `pl` is built on it."""
         cached = self.__dict__.get("_pattern_cache")
-        if pl is not None and cached is not None and cached[0] is self.groups and pl.fcols is cached[2][0].fcols:
-            return cached[3]
+        if pl is not None and cached is not None and cached[0] is self.groups and pl.fcols is cached[1][0].fcols:
+            return cached[2]
         return self.block_patterns(pl)
 
     def coupling_times(self, lin: Linearization, full_step: np.ndarray) -> np.ndarray:

@@ -25,7 +25,16 @@ import numpy as np
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
 from .assembly import back_substitute, forward_substitute
-from .schur import DIAG_FLOOR, GEODESIC_H, GEODESIC_RATIO, Elimination, eliminate, marquardt_diagonal, retract
+from .schur import (
+    DIAG_FLOOR,
+    GEODESIC_H,
+    GEODESIC_RATIO,
+    Elimination,
+    eliminate,
+    frames_times,
+    marquardt_diagonal,
+    retract,
+)
 
 Bend = tuple[np.ndarray, np.ndarray] | None  # half a step's geodesic acceleration (dz, dp), to add to it
 CHUNK_FRAMES = 256  # frames per chunk of a trial whose blocks do not all fit in the budget
@@ -200,7 +209,7 @@ def _frame_steps(L: np.ndarray, el: Elimination | None, g: np.ndarray, Bdp: np.n
     chunk's elimination kept, through Y = L⁻¹B (yz: L⁻¹g if known); else from B dp (`Bdp`)."""
     if el is not None:
         yz = forward_substitute(L, g) if yz is None else yz
-        t = yz + np.matmul(el.Y, dp) if dp.size else yz
+        t = yz + frames_times(el.Y, dp) if dp.size else yz
         return -back_substitute(L, t)[:, ::-1]
     t = g + Bdp if Bdp is not None else g
     return -back_substitute(L, forward_substitute(L, np.ascontiguousarray(t)))[:, ::-1]
@@ -279,7 +288,7 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
     full_step = blocks.tangent @ dp if n else None
     for i, sl, lin in blocks.chunks("frames"):
         L, el = factors(i, sl, lin)
-        Bdp = (np.matmul(lin.B, dp) if el is not None else problem.coupling_times(lin, full_step)) if n else None
+        Bdp = (frames_times(lin.B, dp) if el is not None else problem.coupling_times(lin, full_step)) if n else None
         dz[sl] = _frame_steps(L, el, lin.gz, Bdp, dp, el.yz if el is not None else None)
         quad += float(np.sum(dz[sl] * np.matmul(lin.A, dz[sl][:, :, None])[:, :, 0]))
         lin_term += float(np.sum(lin.gz * dz[sl]))
@@ -318,7 +327,7 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
     full_step = blocks.tangent @ ap if n else None
     for i, sl, lin in blocks.chunks("frames"):
         L, el = factors(i, sl, lin)
-        Bdp = (np.matmul(lin.B, ap) if el is not None else problem.coupling_times(lin, full_step)) if n else None
+        Bdp = (frames_times(lin.B, ap) if el is not None else problem.coupling_times(lin, full_step)) if n else None
         az[sl] = _frame_steps(L, el, g2z[sl], Bdp, ap)
     a2 = float(np.sum(az**2) + np.sum(ap**2))
     if 4.0 * a2 > GEODESIC_RATIO**2 * v2:

@@ -4,16 +4,13 @@
 #include <string.h>
 typedef int64_t I;
 
-/* Σ_r a[r] b[r], summed in order (the same rounding wherever it is used). */
-static inline double dot(const double *a, const double *b, I n) {
-    double s = 0.0;
-    for (I r = 0; r < n; ++r) s += a[r] * b[r];
-    return s;
-}
-
 /* Normal equations of frames f0..f1-1 (see calibrate.solve.assembly.assemble; with_p: 0 no parameters,
-   1 B, C and g_p, 2 C and g_p only, 3 B only).  Blocks are kept
-   transposed (column by row) so that every inner product runs over contiguous memory. */
+   1 B, C and g_p, 2 C and g_p only, 3 B only).  Each group's weighted Jacobian rows are gathered row by
+   row (a row: every coordinate's, every free column's entry) and its products formed as sums of the rows'
+   outer products into small dense blocks, whose inner loops run over contiguous memory and vectorise (the
+   groups are small: inner products over their 3-21 rows cost more in loop overhead than in arithmetic);
+   then added where they belong.  A group's share of C and g_p is summed over the frames first and added
+   to Ct and gt once, at the end. */
 int cal_assemble(const double *d, const double *w, const double *jz, const double *jp,
                  I nrow, I njz, I njp, I nz, I n, I f0, I f1, I with_p, I grad_only, I n_groups,
                  const I *rows, const I *row_off, const I *zcols, const I *zc_off,
@@ -22,26 +19,43 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
                  const double *p_val, const I *p_off,
                  double *A, double *B, double *gz, double *Ct, double *gt)
 {
-    I max_r = 1, max_zc = 1, max_fc = 1;
+    I max_r = 1, max_zc = 1, max_fc = 1, c_size = 1, g_size = 1;
     for (I g = 0; g < n_groups; ++g) {
+        I nq = with_p ? fc_off[g + 1] - fc_off[g] : 0;
         if (row_off[g + 1] - row_off[g] > max_r) max_r = row_off[g + 1] - row_off[g];
         if (zc_off[g + 1] - zc_off[g] > max_zc) max_zc = zc_off[g + 1] - zc_off[g];
-        if (with_p && fc_off[g + 1] - fc_off[g] > max_fc) max_fc = fc_off[g + 1] - fc_off[g];
+        if (nq > max_fc) max_fc = nq;
+        c_size += nq * nq;
+        g_size += nq;
     }
-    double *Jz = calloc((size_t)(max_zc * max_r), sizeof(double));
-    double *Jp = calloc((size_t)(max_fc * max_r), sizeof(double));
-    double *e = calloc((size_t)max_r, sizeof(double));
-    double *wr = calloc((size_t)max_r, sizeof(double));
-    if (!Jz || !Jp || !e || !wr) { free(Jz); free(Jp); free(e); free(wr); return 0; }
+    int want_b = with_p && !grad_only && with_p != 2, want_c = with_p && with_p != 3;
+    double *Jz = malloc((size_t)(max_zc * max_r) * sizeof(double));
+    double *Jp = malloc((size_t)(max_fc * max_r) * sizeof(double));
+    double *e = malloc((size_t)max_r * sizeof(double));
+    double *wr = malloc((size_t)max_r * sizeof(double));
+    double *Al = malloc((size_t)(max_zc * max_zc) * sizeof(double));
+    double *Bl = malloc((size_t)(max_zc * max_fc) * sizeof(double));
+    double *gl = malloc((size_t)max_zc * sizeof(double));
+    double *Cg = calloc((size_t)c_size, sizeof(double));  /* each group's share of C (lower triangle) ... */
+    double *Gg = calloc((size_t)g_size, sizeof(double));  /* ... and of g_p, over the frames */
+    if (!Jz || !Jp || !e || !wr || !Al || !Bl || !gl || !Cg || !Gg) {
+        free(Jz); free(Jp); free(e); free(wr); free(Al); free(Bl); free(gl); free(Cg); free(Gg);
+        return 0;
+    }
     for (I f = f0; f < f1; ++f) {
         const double *df = d + f * nrow, *wf = w + f * nrow, *jzf = jz + f * njz, *jpf = jp + f * njp;
         double *Af = A + f * nz * nz, *Bf = B + f * nz * n, *gzf = gz + f * nz;
         memset(gzf, 0, (size_t)nz * sizeof(double));
         if (!grad_only) {
             memset(Af, 0, (size_t)(nz * nz) * sizeof(double));
-            if (with_p == 1 || with_p == 3) memset(Bf, 0, (size_t)(nz * n) * sizeof(double));
+            if (want_b) memset(Bf, 0, (size_t)(nz * n) * sizeof(double));
         }
+        I c_at = 0, g_at = 0;
         for (I g = 0; g < n_groups; ++g) {
+            I q0 = fc_off[g], nq = with_p ? fc_off[g + 1] - q0 : 0;
+            double *Cgg = Cg + c_at, *Ggg = Gg + g_at;
+            c_at += nq * nq;
+            g_at += nq;
             I r0 = row_off[g], nr = row_off[g + 1] - r0, seen = 0;
             for (I a = 0; a < nr; ++a) {
                 wr[a] = wf[rows[r0 + a]];
@@ -50,47 +64,89 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
             }
             if (!seen) continue;
             I c0 = zc_off[g], nc = zc_off[g + 1] - c0;
-            memset(Jz, 0, (size_t)(nc * max_r) * sizeof(double));
-            for (I k = z_off[g]; k < z_off[g + 1]; ++k) Jz[z_c[k] * max_r + z_r[k]] = jzf[z_src[k]] * wr[z_r[k]];
-            for (I a = 0; a < nc; ++a) {
-                const double *za = Jz + a * max_r;
-                I ia = zcols[c0 + a];
-                gzf[ia] += dot(za, e, nr);
-                if (grad_only) continue;
-                for (I b = 0; b < nc; ++b) {
-                    Af[ia * nz + zcols[c0 + b]] += dot(za, Jz + b * max_r, nr);
-                }
+            const I *zc = zcols + c0;
+            /* Jz row by row: Jz[r * nc + a] */
+            memset(Jz, 0, (size_t)(nc * nr) * sizeof(double));
+            for (I k = z_off[g]; k < z_off[g + 1]; ++k) Jz[z_r[k] * nc + z_c[k]] = jzf[z_src[k]] * wr[z_r[k]];
+            for (I a = 0; a < nc; ++a) gl[a] = 0.0;
+            for (I r = 0; r < nr; ++r) {
+                const double *zr = Jz + r * nc;
+                double er = e[r];
+                for (I a = 0; a < nc; ++a) gl[a] += zr[a] * er;
             }
-            if (!with_p) continue;
-            I q0 = fc_off[g], nq = fc_off[g + 1] - q0;
-            if (nq == 0) continue;
-            memset(Jp, 0, (size_t)(nq * max_r) * sizeof(double));
-            for (I k = p_off[g]; k < p_off[g + 1]; ++k)
-                Jp[p_c[k] * max_r + p_r[k]] += jpf[p_src[k]] * p_val[k] * wr[p_r[k]];
-            if (!grad_only && with_p != 2) {
-                for (I a = 0; a < nc; ++a) {
-                    const double *za = Jz + a * max_r;
-                    double *Brow = Bf + zcols[c0 + a] * n;
-                    for (I b = 0; b < nq; ++b) {
-                        Brow[fcols[q0 + b]] += dot(za, Jp + b * max_r, nr);
+            for (I a = 0; a < nc; ++a) gzf[zc[a]] += gl[a];
+            if (!grad_only) {
+                memset(Al, 0, (size_t)(nc * nc) * sizeof(double));
+                for (I r = 0; r < nr; ++r) {
+                    const double *zr = Jz + r * nc;
+                    for (I a = 0; a < nc; ++a) {
+                        double s = zr[a];
+                        double *Ala = Al + a * nc;
+                        for (I b = 0; b < nc; ++b) Ala[b] += s * zr[b];
                     }
                 }
+                for (I a = 0; a < nc; ++a) {
+                    double *Afa = Af + zc[a] * nz;
+                    const double *Ala = Al + a * nc;
+                    for (I b = 0; b < nc; ++b) Afa[zc[b]] += Ala[b];
+                }
             }
-            if (with_p == 3) continue;  /* the coupling blocks B only */
-            for (I a = 0; a < nq; ++a) {
-                const double *pa = Jp + a * max_r;
-                I ka = fcols[q0 + a];
-                gt[ka] += dot(pa, e, nr);
-                if (grad_only) continue;
-                for (I b = 0; b <= a; ++b) {
-                    I kb = fcols[q0 + b];
-                    double s = dot(pa, Jp + b * max_r, nr);
-                    if (ka >= kb) Ct[ka * n + kb] += s; else Ct[kb * n + ka] += s;
+            if (nq == 0) continue;
+            const I *fc = fcols + q0;
+            /* Jp row by row: Jp[r * nq + b] */
+            memset(Jp, 0, (size_t)(nq * nr) * sizeof(double));
+            for (I k = p_off[g]; k < p_off[g + 1]; ++k)
+                Jp[p_r[k] * nq + p_c[k]] += jpf[p_src[k]] * p_val[k] * wr[p_r[k]];
+            if (want_b) {
+                memset(Bl, 0, (size_t)(nc * nq) * sizeof(double));
+                for (I r = 0; r < nr; ++r) {
+                    const double *zr = Jz + r * nc, *pr = Jp + r * nq;
+                    for (I a = 0; a < nc; ++a) {
+                        double s = zr[a];
+                        double *Bla = Bl + a * nq;
+                        for (I b = 0; b < nq; ++b) Bla[b] += s * pr[b];
+                    }
+                }
+                for (I a = 0; a < nc; ++a) {
+                    double *Brow = Bf + zc[a] * n;
+                    const double *Bla = Bl + a * nq;
+                    for (I b = 0; b < nq; ++b) Brow[fc[b]] += Bla[b];
+                }
+            }
+            if (!want_c) continue;
+            for (I r = 0; r < nr; ++r) {
+                const double *pr = Jp + r * nq;
+                double er = e[r];
+                for (I a = 0; a < nq; ++a) {
+                    double s = pr[a];
+                    if (s == 0.0) continue;  /* a marker's own columns: zero in the other markers' rows */
+                    Ggg[a] += s * er;
+                    if (grad_only) continue;
+                    double *Ca = Cgg + a * nq;
+                    for (I b = 0; b <= a; ++b) Ca[b] += s * pr[b];
                 }
             }
         }
     }
-    free(Jz); free(Jp); free(e); free(wr);
+    if (want_c) {
+        I c_at = 0, g_at = 0;
+        for (I g = 0; g < n_groups; ++g) {
+            I q0 = fc_off[g], nq = fc_off[g + 1] - q0;
+            const double *Cgg = Cg + c_at, *Ggg = Gg + g_at;
+            c_at += nq * nq;
+            g_at += nq;
+            for (I a = 0; a < nq; ++a) {
+                I ka = fcols[q0 + a];
+                gt[ka] += Ggg[a];
+                if (grad_only) continue;
+                for (I b = 0; b <= a; ++b) {
+                    I kb = fcols[q0 + b];
+                    if (ka >= kb) Ct[ka * n + kb] += Cgg[a * nq + b]; else Ct[kb * n + ka] += Cgg[a * nq + b];
+                }
+            }
+        }
+    }
+    free(Jz); free(Jp); free(e); free(wr); free(Al); free(Bl); free(gl); free(Cg); free(Gg);
     return 1;
 }
 

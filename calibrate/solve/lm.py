@@ -46,6 +46,7 @@ from .schur import (
     GEODESIC_RATIO,
     Elimination,
     eliminate,
+    frames_times,
     marquardt_diagonal,
     model_decrease,
     refactor_frames,
@@ -112,7 +113,7 @@ class _Factored:
         dp = np.linalg.solve(self.Ls.T, np.linalg.solve(self.Ls, rhs))
         if self.N is not None:
             dp = self.N @ dp
-        t = yz + np.matmul(el.Y, dp)  # L⁻¹ (g_z + B dp), reversed rows
+        t = yz + frames_times(el.Y, dp)  # L⁻¹ (g_z + B dp), reversed rows
         return -back_substitute(el.L, t)[:, ::-1], dp
 
 
