@@ -72,6 +72,42 @@ def test_tangent_map_is_the_retraction_derivative(human):
         assert np.linalg.norm(q[L.axis(d)]) == pytest.approx(1.0, abs=1e-14)
 
 
+def test_tangent_pattern_holds_every_tangent_map(human, human_kin):
+    """T(p)'s nonzeros lie in tangent_pattern() at every p: at the base model's (offsets with exact zeros,
+    axes along frame axes) and at random ones whose axes' tangent bases use other components; and the
+    normal equations gathered on that one pattern (Problem.parameter_layout, built once) equal those
+    gathered on T(p)'s own nonzeros."""
+    from calibrate.solve.assembly import assemble, parameter_layout
+
+    L = ParameterLayout(human)
+    pattern = L.tangent_pattern()
+    rng = np.random.default_rng(4)
+    base = human.parameters().vector()
+    bases_used = set()
+    for trial in range(30):
+        p = base.copy() if trial == 0 else base + 0.05 * rng.normal(size=base.size)
+        T = L.tangent_map(p)
+        assert not np.any((T != 0) & ~pattern)
+        bases_used.add(np.packbits(T != 0).tobytes())
+    assert len(bases_used) > 2  # T's own nonzeros changed with p; the pattern did not need to
+    sim = simulate_squats(human, frames=12, noise_mm=1.0, seed=6)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    p = sim.truth.vector() + 0.02 * rng.normal(size=base.size)
+    state = State(np.column_stack([m.root_translation, np.zeros((12, 3)), m.angles]), m.root_quaternion.copy(), p)
+    lin = problem.linearize(state)
+    d, jz, jp, wrow, _ = lin.jacobian[:5]
+    F, nz, n = lin.B.shape
+    A, B, gz = np.empty((F, nz, nz)), np.empty((F, nz, n)), np.empty((F, nz))
+    C, gp = assemble(d, wrow, jz, jp, problem._layout_z, parameter_layout(problem.groups, problem.tangent_map(p)),
+                     A, B, gz, n)
+    prior = lin.jacobian[5]
+    r = problem.prior(p)[0]
+    assert np.allclose(lin.A, A, rtol=1e-13, atol=0) and np.allclose(lin.B, B, rtol=1e-13, atol=1e-300)
+    assert np.allclose(lin.C, C + prior.T @ prior, rtol=1e-12, atol=1e-12 * np.abs(C).max())
+    assert np.allclose(lin.gp, gp + prior.T @ r, rtol=1e-12, atol=1e-12 * np.abs(gp).max())
+
+
 def test_frame_layout(human):
     F = FrameLayout(human.n_dofs)
     Z = np.arange(3 * human.nz, dtype=float).reshape(3, human.nz)
