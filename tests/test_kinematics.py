@@ -243,3 +243,41 @@ def test_importing_calibrate_imports_no_scipy():
     code = "import sys, calibrate, calibrate.cli.main; print(sorted(m for m in sys.modules if m.startswith('scipy')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_one_quaternion_retracts_to_the_same_bits_as_many():
+    """retract_root of one quaternion (its float path, used at every step of frame-wise inverse kinematics)
+    gives the bits of the vectorised path, over increments from 1e-8 to 1 rad."""
+    rng = np.random.default_rng(11)
+    Q = rng.normal(size=(5000, 4))
+    Q /= np.linalg.norm(Q, axis=1, keepdims=True)
+    D = rng.normal(size=(5000, 3)) * 10 ** rng.uniform(-8, 0, size=(5000, 1))
+    many = retract_root(Q, D)
+    one = np.array([retract_root(q, d) for q, d in zip(Q, D, strict=True)])
+    assert np.array_equal(one, many)
+    assert np.all(one[:, 3] >= 0)
+
+
+def test_compiled_kinematics_fit_as_the_virtual_machine_does(human, human_kin):
+    """compiled_kinematics' per-frame evaluator (the model's compiled C code) gives CasADi's markers and
+    Jacobian to rounding, and frame-wise inverse kinematics through it the same poses."""
+    from calibrate.problem.problem import compiled_kinematics
+
+    kin = compiled_kinematics(human_kin)
+    if kin.compiled is None:
+        pytest.skip("no C compiler: nothing compiled")
+    assert compiled_kinematics(kin) is kin
+    sim = simulate_squats(human, frames=15, noise_mm=1.0, seed=8)
+    p = sim.truth.vector()
+    vm, cc = human_kin.frame_evaluator(p, reference=True), kin.frame_evaluator(p, reference=True)
+    rng = np.random.default_rng(3)
+    refs = human_kin.refs(np.array([0.1, -0.2, 0.3, 0.9]) / np.linalg.norm([0.1, -0.2, 0.3, 0.9]), None)[0]
+    for _ in range(5):
+        z = 0.3 * rng.normal(size=human.nz)
+        m0, j0 = (a.copy() for a in vm(z, refs))
+        m1, j1 = cc(z, refs)
+        assert np.allclose(m1, m0, rtol=0, atol=1e-12) and np.allclose(j1, j0, rtol=0, atol=1e-12)
+    a = inverse_kinematics(human_kin, sim.trial, sim.truth)
+    b = inverse_kinematics(kin, sim.trial, sim.truth)
+    assert np.allclose(b.motion.angles, a.motion.angles, atol=1e-7)
+    assert abs(b.rms - a.rms) < 1e-9

@@ -67,6 +67,18 @@ LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 
 
+def compiled_kinematics(kin: Kinematics) -> Kinematics:
+    """`kin` whose per-frame evaluator (Kinematics.frame_evaluator with reference=True, what frame-wise
+    inverse kinematics calls at every step) runs the compiled per-frame function of its model's structure
+    (calibrate.problem.codegen: compiled once per structure and kept on disk) instead of CasADi's virtual
+    machine; `kin` itself without a C compiler.  For work that fits the same model to many trials or
+    labellings (calibrate.track: 100+ frame-wise fits), where one compile pays many times over."""
+    if kin.compiled is not None:
+        return kin
+    problem = Problem(kin.model, np.full((1, len(kin.model.markers), 3), np.nan), None, kin)
+    return replace(kin, compiled=problem.frame_evaluator) if problem.compiled else kin
+
+
 def _problem_options(settings: ProblemOptions | Settings | None) -> ProblemOptions:
     """The problem's options of `settings` (its Settings.problem view if it is the user's Settings)."""
     if settings is None:

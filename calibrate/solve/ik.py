@@ -76,6 +76,7 @@ class _FrameFit:
         self.hi = solver.upper[FrameLayout.dof(self.dof_cols)]
         position = {int(c): i for i, c in enumerate(free)}
         self.col_of = np.array([position[int(c)] for c in self.dof_cols], dtype=int)  # limit rows -> columns
+        self.every = free.size == solver.nz and bool(np.all(free == np.arange(solver.nz)))  # J's rows only
         self.last: tuple | None = None  # (x, residuals, Jacobian, beyond limits) at the last point costed
         self.g = self.A = np.zeros(0)
 
@@ -84,7 +85,7 @@ class _FrameFit:
         th = x[0][self.dof_cols]
         out = (th < self.lo) | (th > self.hi)
         r = np.concatenate([m[self.rows] - self.target, LIMIT_WEIGHT * (th - np.clip(th, self.lo, self.hi))])
-        return r, J[np.ix_(self.rows, self.free)], out
+        return r, J[self.rows] if self.every else J[np.ix_(self.rows, self.free)], out
 
     def linearize(self, x: tuple[np.ndarray, np.ndarray], lam: float = 0.0) -> float:
         r, J, out = self.last[1:] if self.last is not None and self.last[0] is x else self.residuals(x)
@@ -100,9 +101,11 @@ class _FrameFit:
 
     def step(self, x: tuple[np.ndarray, np.ndarray], lam: float) -> tuple[tuple, float, float] | None:
         A, g = self.A, self.g
-        D = marquardt_diagonal(np.diag(A), float(A.max(initial=0.0)))
+        D = marquardt_diagonal(A.diagonal(), float(A.max(initial=0.0)))
+        damped = A.copy()
+        damped.flat[::A.shape[0] + 1] += lam * D
         try:
-            step = -np.linalg.solve(A + lam * np.diag(D), g)
+            step = -np.linalg.solve(damped, g)
         except np.linalg.LinAlgError:
             return None
         z, q = x

@@ -47,6 +47,7 @@ from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics
 from ..model.model import Model, Parameters
 from ..model.resolve import descendants
+from ..problem.problem import compiled_kinematics
 from ..seed.geometry import kabsch_batch
 from ..solve.ik import inverse_kinematics
 
@@ -83,6 +84,7 @@ def fit_labels(model: Model, kin: Kinematics, trial: Trial, X: np.ndarray | None
     """Labels of `model`'s markers for the unlabelled tracks of `trial` by fitting the scaled base model
     to them (module docstring).  `X`: the tracks to read (e.g. despiked; default the trial's markers)."""
     X = np.asarray(trial.markers if X is None else X, dtype=float)
+    kin = compiled_kinematics(kin)  # the model is fitted frame by frame to every labelling tried
     names = model.marker_names
     frames, tall = _frames(X)
     Xs = X[frames]

@@ -74,6 +74,7 @@ from ..errors import CalibrateError
 from ..io.trial import Trial
 from ..model.kinematics import build_kinematics
 from ..model.model import Model
+from ..problem.problem import compiled_kinematics
 from ..seed.association import associate
 from ..seed.geometry import kabsch_batch
 from .fitting import fit_labels, fitted_names
@@ -267,7 +268,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
         X = _despiked(trial.markers)
         assoc = associate(X)
     groups = [list(g) for g in assoc.groups]
-    kin = build_kinematics(model)
+    kin = compiled_kinematics(build_kinematics(model))  # 100+ frame-wise fits of one model follow
     neutral = np.asarray(kin.markers(np.zeros(model.nz), np.array([0.0, 0.0, 0.0, 1.0]), model.parameters()))
     names = model.marker_names
     segs = [s for s in model.segments if s.markers]
