@@ -4,6 +4,31 @@
 #include <string.h>
 typedef int64_t I;
 
+/* O (nx × ny) = Σ_r x_r y_rᵀ over the nr rows of X (nr × nx) and Y (nr × ny), row by row: the inner loop runs
+   over contiguous memory and vectorises. */
+static inline __attribute__((always_inline)) void outer_sum(const double *X, I nx, const double *Y, I ny, I nr, double *O)
+{
+    memset(O, 0, (size_t)(nx * ny) * sizeof(double));
+    for (I r = 0; r < nr; ++r) {
+        const double *xr = X + r * nx, *yr = Y + r * ny;
+        for (I a = 0; a < nx; ++a) {
+            double s = xr[a];
+            double *Oa = O + a * ny;
+            for (I b = 0; b < ny; ++b) Oa[b] += s * yr[b];
+        }
+    }
+}
+
+/* M[ri[a] * stride + ci[b]] += O[a * ny + b]: a dense block added where its rows and columns belong. */
+static inline __attribute__((always_inline)) void scatter_add(const double *O, I nx, I ny, const I *ri, const I *ci, double *M, I stride)
+{
+    for (I a = 0; a < nx; ++a) {
+        double *Ma = M + ri[a] * stride;
+        const double *Oa = O + a * ny;
+        for (I b = 0; b < ny; ++b) Ma[ci[b]] += Oa[b];
+    }
+}
+
 /* Normal equations of frames f0..f1-1 (see calibrate.solve.assembly.assemble; with_p: 0 no parameters,
    1 B, C and g_p, 2 C and g_p only, 3 B only).  Each group's weighted Jacobian rows are gathered row by
    row (a row: every coordinate's, every free column's entry) and its products formed as sums of the rows'
@@ -76,20 +101,8 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
             }
             for (I a = 0; a < nc; ++a) gzf[zc[a]] += gl[a];
             if (!grad_only) {
-                memset(Al, 0, (size_t)(nc * nc) * sizeof(double));
-                for (I r = 0; r < nr; ++r) {
-                    const double *zr = Jz + r * nc;
-                    for (I a = 0; a < nc; ++a) {
-                        double s = zr[a];
-                        double *Ala = Al + a * nc;
-                        for (I b = 0; b < nc; ++b) Ala[b] += s * zr[b];
-                    }
-                }
-                for (I a = 0; a < nc; ++a) {
-                    double *Afa = Af + zc[a] * nz;
-                    const double *Ala = Al + a * nc;
-                    for (I b = 0; b < nc; ++b) Afa[zc[b]] += Ala[b];
-                }
+                outer_sum(Jz, nc, Jz, nc, nr, Al);
+                scatter_add(Al, nc, nc, zc, zc, Af, nz);
             }
             if (nq == 0) continue;
             const I *fc = fcols + q0;
@@ -98,20 +111,8 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
             for (I k = p_off[g]; k < p_off[g + 1]; ++k)
                 Jp[p_r[k] * nq + p_c[k]] += jpf[p_src[k]] * p_val[k] * wr[p_r[k]];
             if (want_b) {
-                memset(Bl, 0, (size_t)(nc * nq) * sizeof(double));
-                for (I r = 0; r < nr; ++r) {
-                    const double *zr = Jz + r * nc, *pr = Jp + r * nq;
-                    for (I a = 0; a < nc; ++a) {
-                        double s = zr[a];
-                        double *Bla = Bl + a * nq;
-                        for (I b = 0; b < nq; ++b) Bla[b] += s * pr[b];
-                    }
-                }
-                for (I a = 0; a < nc; ++a) {
-                    double *Brow = Bf + zc[a] * n;
-                    const double *Bla = Bl + a * nq;
-                    for (I b = 0; b < nq; ++b) Brow[fc[b]] += Bla[b];
-                }
+                outer_sum(Jz, nc, Jp, nq, nr, Bl);
+                scatter_add(Bl, nc, nq, zc, fc, Bf, n);
             }
             if (!want_c) continue;
             for (I r = 0; r < nr; ++r) {
