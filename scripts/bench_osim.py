@@ -247,6 +247,11 @@ def bench(case: str, work: Path, log, outliers: float) -> dict:
     frames = slice(first, first + len(osr["times"]))
     if not np.allclose(t_walk[frames], osr["times"], atol=1e-6):
         raise RuntimeError(f"{case}: the IK frames are not consecutive trial frames")
+    # Warm-up, untimed: a calibration on 30 walk frames compiles the model's per-frame C code where this machine
+    # has none for its structure (once per machine and structure, kept on disk; bench_real warms up likewise), so
+    # that the timed run is the work alone, as OpenSim's is.
+    log(f"{case}: warm-up (compiles the model's C code once per machine) ...")
+    run_calibrate(spec, slice(frames.start, frames.start + 30), outliers)
     log(f"{case}: calibrate on the static + walk trials ({len(osr['times'])} walk frames) ...")
     cr = run_calibrate(spec, frames, outliers)
     log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
