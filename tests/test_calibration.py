@@ -206,6 +206,46 @@ def test_frame_factor_on_the_nonzero_pattern_equals_the_dense_one(human, human_k
         assert not np.any(Y0[:, ~pattern]) and np.any(Y0[:, pattern])
 
 
+def test_packed_rows_hold_the_dense_factorisation_and_its_products(human, human_kin, monkeypatch):
+    """Y packed row class by row class (schur.PackedRows, as eliminate keeps it) holds, bit for bit, the
+    dense factorisation's Y in the C kernels and in numba's; its products (Y x, Y' v, Σ Y_f' Y_f) equal
+    numpy's on the dense array; rows put back for some frames read back."""
+    from calibrate.solve import assembly, numba_kernels
+    from calibrate.solve.assembly import column_runs, factor_frames
+    from calibrate.solve.schur import PackedRows, RowPacking, row_classes, y_pattern
+
+    sim = simulate_squats(human, frames=12, noise_mm=1.0, seed=5)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    state = State(np.column_stack([m.root_translation, np.zeros((12, 3)), m.angles]) + 0.01,
+                  m.root_quaternion.copy(), sim.truth.vector())
+    lin = problem.linearize(state)
+    F, nz, n = lin.B.shape
+    pattern = y_pattern(lin, n)
+    runs = column_runs(pattern)
+    layout = RowPacking.of(row_classes(lin, n, pattern), runs, F, nz, n)
+    assert layout.size == F * pattern.sum()  # the nonzero pattern only
+    damping = 1e-3 * np.diagonal(lin.A, axis1=1, axis2=2).copy()
+    backends = [numba_kernels] + ([assembly.kernels()] if isinstance(assembly.kernels(), assembly._CKernels) else [])
+    rng = np.random.default_rng(0)
+    for backend in backends:
+        monkeypatch.setattr(assembly, "kernels", lambda b=backend: b)
+        L, Y, yz = np.empty((F, nz, nz)), np.zeros((F, nz, n)), np.empty((F, nz))
+        assert factor_frames(lin.A, damping, lin.B, lin.gz, L, Y, yz)
+        L2, yz2, data = np.empty((F, nz, nz)), np.empty((F, nz)), np.full(layout.size, np.nan)
+        assert factor_frames(lin.A, damping, lin.B, lin.gz, L2, data, yz2, runs, layout.packing)
+        packed = PackedRows(layout, data)
+        assert np.array_equal(packed.dense(), Y) and np.array_equal(L2, L) and np.array_equal(yz2, yz)
+        x, v = rng.normal(size=n), rng.normal(size=(F, nz))
+        np.testing.assert_allclose(packed.times(x), np.einsum("fij,j->fi", Y, x), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(packed.transpose_times(v), np.einsum("fij,fi->j", Y, v), rtol=1e-12, atol=1e-12)
+        S = np.einsum("fki,fkj->ij", Y, Y)
+        np.testing.assert_allclose(packed.gram(slice(0, F)), S, rtol=1e-12, atol=1e-12 * np.abs(S).max())
+        frames = np.array([2, 7])
+        packed.put(frames, 2.0 * Y[frames])
+        assert np.array_equal(packed.dense(frames), 2.0 * Y[frames]) and np.array_equal(packed.dense([0]), Y[[0]])
+
+
 def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):
     """A second Problem of the same model loads the compiled functions (no symbolic build) and
     evaluates exactly what CasADi's virtual machine does; another structure gets its own build."""

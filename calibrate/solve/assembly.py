@@ -208,15 +208,20 @@ def _lower_triangle(n: int) -> np.ndarray:
 
 
 def factor_frames(A: np.ndarray, damping: np.ndarray, B: np.ndarray, gz: np.ndarray, L: np.ndarray,
-                  Y: np.ndarray, yz: np.ndarray, runs: ColumnRuns | None = None) -> bool:
+                  Y: np.ndarray, yz: np.ndarray, runs: ColumnRuns | None = None,
+                  packing: Packing | None = None) -> bool:
     """Cholesky of every frame block A_f + diag(damping_f), in reverse coordinate order (leaves of the
     kinematic tree first: no fill-in), into L (F, nz, nz); Y = L⁻¹ B_f and yz = L⁻¹ g_z (rows
     reversed), in place.  `runs`: Y's nonzero columns row by row (column_runs), the only ones formed
-    (Y must already hold zeros elsewhere); None: every column.  False if a block is not positive definite."""
+    (a dense Y must already hold zeros elsewhere); None: every column.  `packing`: where each row's runs
+    go in Y, a flat buffer (calibrate.solve.schur.PackedRows); None: Y dense (F, nz, n).  False if a
+    block is not positive definite."""
     nz, n = B.shape[1], B.shape[2]
     runs = runs or dense_runs(nz, n)
-    return all(in_parallel(lambda fr: kernels().factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop, *runs),
-                           split_frames(A.shape[0])))
+    packing = packing or dense_packing(runs, nz, n)
+    Y = Y.reshape(-1)  # a view (C-contiguous): the kernels write through it
+    return all(in_parallel(lambda fr: kernels().factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop, *runs,
+                                                       *packing), split_frames(A.shape[0])))
 
 
 ColumnRuns = tuple[np.ndarray, np.ndarray, np.ndarray]  # (run_off (rows + 1,), run_lo, run_hi): half-open runs
@@ -225,6 +230,14 @@ ColumnRuns = tuple[np.ndarray, np.ndarray, np.ndarray]  # (run_off (rows + 1,), 
 def dense_runs(rows: int, n: int) -> ColumnRuns:
     """Every row's columns as one run [0, n)."""
     return (np.arange(rows + 1, dtype=np.int64), np.zeros(rows, np.int64), np.full(rows, n, np.int64))
+
+
+Packing = tuple[np.ndarray, np.ndarray, np.ndarray]  # (dst_base (rows,), dst_fstride (rows,), run_dst (runs,))
+
+
+def dense_packing(runs: ColumnRuns, rows: int, n: int) -> Packing:
+    """Each row's runs written where they lie in a dense (F, rows, n) Y."""
+    return (np.arange(rows, dtype=np.int64) * n, np.full(rows, rows * n, np.int64), runs[1])
 
 
 def column_runs(pattern: np.ndarray) -> ColumnRuns:
@@ -252,6 +265,18 @@ def forward_substitute(L: np.ndarray, g: np.ndarray) -> np.ndarray:
     g = np.ascontiguousarray(g)
     in_parallel(lambda fr: kernels().forward(L, g, y, fr.start, fr.stop), split_frames(L.shape[0]))
     return y
+
+
+def cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x with L Lᵀ x = b for one dense lower Cholesky factor L (n, n), by the frames' substitution
+    kernels (one frame of n coordinates): 20 µs for the Schur complement's n = 200, where two LU
+    solves (np.linalg.solve, which does not see that L is triangular) take 330 µs."""
+    n = b.size
+    L = np.ascontiguousarray(L, dtype=float)[None]
+    y, x = np.empty((1, n)), np.empty((1, n))
+    kernels().forward(L, np.ascontiguousarray(b[::-1], dtype=float)[None], y, 0, 1)  # L y = b
+    kernels().back(L, y, x, 0, 1)  # Lᵀ x = y
+    return x[0]
 
 
 # ---------------------------------------------------------------------- kernels
@@ -283,7 +308,7 @@ class _CKernels:
         self._assemble = lib.cal_assemble
         self._assemble.argtypes = [P] * 4 + [I] * 10 + [P] * 20
         self._factor = lib.cal_factor
-        self._factor.argtypes = [P] * 7 + [I] * 4 + [P] * 3
+        self._factor.argtypes = [P] * 7 + [I] * 4 + [P] * 6
         self._back, self._forward = lib.cal_back, lib.cal_forward
         for f in (self._back, self._forward):
             f.argtypes = [P] * 3 + [I] * 3
@@ -300,10 +325,14 @@ class _CKernels:
         if not ok:
             raise MemoryError("calibrate kernels: out of memory assembling the normal equations")
 
-    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi) -> bool:
-        runs = [_ptr(x, np.int64) for x in (run_off, run_lo, run_hi)]
-        return bool(self._factor(_ptr(A), _ptr(damping), _ptr(B), _ptr(gz), _ptr(L), _ptr(Y), _ptr(yz),
-                                 A.shape[1], B.shape[2], f0, f1, *runs))
+    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, dst_base, dst_fstride,
+               run_dst) -> bool:
+        ints = [_ptr(x, np.int64) for x in (run_off, run_lo, run_hi, dst_base, dst_fstride, run_dst)]
+        ok = self._factor(_ptr(A), _ptr(damping), _ptr(B), _ptr(gz), _ptr(L), _ptr(Y), _ptr(yz),
+                          A.shape[1], B.shape[2], f0, f1, *ints)
+        if ok < 0:
+            raise MemoryError("calibrate kernels: out of memory factoring the frame blocks")
+        return bool(ok)
 
     def back(self, L, t, x, f0, f1) -> None:
         self._back(_ptr(L), _ptr(t), _ptr(x), L.shape[1], f0, f1)

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import back_substitute, forward_substitute
+from .assembly import back_substitute, cho_solve, forward_substitute
 from .schur import (
     DIAG_FLOOR,
     GEODESIC_H,
@@ -143,7 +143,7 @@ class FrameBlocks:
                 if i < self.n_kept:
                     els.append(el)
                 S -= el.S
-                rhs += el.Y.reshape(-1, n).T @ el.yz.reshape(-1)
+                rhs += el.Y.transpose_times(el.yz)
         self.cost, self.C, self.gp = cost, C, gp
         self._previous = []
         if prepare:  # valid if the floor of Marquardt's scaling changed no frame's damping since
@@ -209,7 +209,7 @@ def _frame_steps(L: np.ndarray, el: Elimination | None, g: np.ndarray, Bdp: np.n
     chunk's elimination kept, through Y = L⁻¹B (yz: L⁻¹g if known); else from B dp (`Bdp`)."""
     if el is not None:
         yz = forward_substitute(L, g) if yz is None else yz
-        t = yz + frames_times(el.Y, dp) if dp.size else yz
+        t = yz + el.Y.times(dp) if dp.size else yz
         return -back_substitute(L, t)[:, ::-1]
     t = g + Bdp if Bdp is not None else g
     return -back_substitute(L, forward_substitute(L, np.ascontiguousarray(t)))[:, ::-1]
@@ -245,7 +245,7 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
             els.append(el)
         if n:
             S -= el.S
-            rhs += el.Y.reshape(-1, n).T @ el.yz.reshape(-1)
+            rhs += el.Y.transpose_times(el.yz)
     Ls = None
     if n:
         S = blocks.C + S
@@ -264,7 +264,7 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
         r = -g + r
         if N is not None:
             r = N.T @ r
-        x = np.linalg.solve(Ls.T, np.linalg.solve(Ls, r))
+        x = cho_solve(Ls, r)
         return N @ x if N is not None else x
 
     def factors(i: int, sl: slice, lin: Linearization) -> tuple[np.ndarray, Elimination | None]:
@@ -307,7 +307,7 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
         if n:
             g2p = g2p + gp_c
             if el is not None:
-                rhs2 += el.Y.reshape(-1, n).T @ forward_substitute(L, g2z[sl]).reshape(-1)
+                rhs2 += el.Y.transpose_times(forward_substitute(L, g2z[sl]))
             else:
                 u = back_substitute(L, forward_substitute(L, np.ascontiguousarray(g2z[sl])))[:, ::-1]
                 rhs2 += problem.coupling_transpose(lin, np.ascontiguousarray(u))

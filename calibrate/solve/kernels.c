@@ -154,12 +154,18 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
 /* Cholesky of A_f + diag(damping_f) in reverse coordinate order, Y = L^-1 B_f, yz = L^-1 g_z
    (rows reversed); 0 if a block is not positive definite.  Row i of Y is formed only on its column runs
    [run_lo[r], run_hi[r]) for r in run_off[i]..run_off[i+1]-1 (Y's nonzero pattern: the columns outside
-   them are zero in B and in every row it is reduced with, and are left as they are in Y). */
+   them are zero in B and in every row it is reduced with), in a scratch frame that stays in the cache,
+   and each run is then written to Y + dst_base[i] + f * dst_fstride[i] + run_dst[r]: a dense (F, nz, n)
+   Y (dst_base i * n, dst_fstride nz * n, run_dst run_lo; the columns outside the runs left as they are)
+   or Y packed row class by row class (calibrate.solve.schur.PackedRows). */
 int cal_factor(const double *A, const double *damping, const double *B, const double *gz,
                double *L, double *Y, double *yz, I nz, I n, I f0, I f1,
-               const I *run_off, const I *run_lo, const I *run_hi)
+               const I *run_off, const I *run_lo, const I *run_hi,
+               const I *dst_base, const I *dst_fstride, const I *run_dst)
 {
     int ok = 1;
+    double *W = malloc((size_t)(nz * (n > 0 ? n : 1)) * sizeof(double));
+    if (!W) return -1;
     for (I f = f0; f < f1; ++f) {
         const double *Af = A + f * nz * nz;
         double *Lf = L + f * nz * nz;
@@ -180,7 +186,7 @@ int cal_factor(const double *A, const double *damping, const double *B, const do
             }
         }
         for (I i = 0; i < nz; ++i) {
-            double *yi = Y + (f * nz + i) * n;
+            double *yi = W + i * n;
             const double *bi = B + (f * nz + nz - 1 - i) * n;
             for (I r = run_off[i]; r < run_off[i + 1]; ++r)
                 memcpy(yi + run_lo[r], bi + run_lo[r], (size_t)(run_hi[r] - run_lo[r]) * sizeof(double));
@@ -189,16 +195,20 @@ int cal_factor(const double *A, const double *damping, const double *B, const do
                 double lik = Lf[i * nz + k];
                 if (lik == 0.0) continue;
                 s -= lik * yz[f * nz + k];
-                const double *yk = Y + (f * nz + k) * n;
+                const double *yk = W + k * n;
                 for (I r = run_off[k]; r < run_off[k + 1]; ++r)
                     for (I c = run_lo[r]; c < run_hi[r]; ++c) yi[c] -= lik * yk[c];
             }
             double inv = 1.0 / Lf[i * nz + i];
             yz[f * nz + i] = s * inv;
-            for (I r = run_off[i]; r < run_off[i + 1]; ++r)
+            double *out = Y + dst_base[i] + f * dst_fstride[i];
+            for (I r = run_off[i]; r < run_off[i + 1]; ++r) {
                 for (I c = run_lo[r]; c < run_hi[r]; ++c) yi[c] *= inv;
+                memcpy(out + run_dst[r], yi + run_lo[r], (size_t)(run_hi[r] - run_lo[r]) * sizeof(double));
+            }
         }
     }
+    free(W);
     return ok;
 }
 

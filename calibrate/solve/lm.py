@@ -39,14 +39,13 @@ from ..model.blocks import FrameLayout
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import back_substitute, forward_substitute
+from .assembly import back_substitute, cho_solve, forward_substitute
 from .chunks import Bend, FrameBlocks, chunked_step, each_chunk
 from .schur import (
     GEODESIC_H,
     GEODESIC_RATIO,
     Elimination,
     eliminate,
-    frames_times,
     marquardt_diagonal,
     model_decrease,
     refactor_frames,
@@ -106,14 +105,13 @@ class _Factored:
         yz = forward_substitute(el.L, gz) if yz is None else yz  # L⁻¹ g_z, reversed rows
         if self.Ls is None:
             return -back_substitute(el.L, yz)[:, ::-1], np.zeros(0)
-        F, nz, n = el.Y.shape
-        rhs = -gp + el.Y.reshape(F * nz, n).T @ yz.reshape(-1)
+        rhs = -gp + el.Y.transpose_times(yz)
         if self.N is not None:
             rhs = self.N.T @ rhs
-        dp = np.linalg.solve(self.Ls.T, np.linalg.solve(self.Ls, rhs))
+        dp = cho_solve(self.Ls, rhs)
         if self.N is not None:
             dp = self.N @ dp
-        t = yz + frames_times(el.Y, dp)  # L⁻¹ (g_z + B dp), reversed rows
+        t = yz + el.Y.times(dp)  # L⁻¹ (g_z + B dp), reversed rows
         return -back_substitute(el.L, t)[:, ::-1], dp
 
 

@@ -96,8 +96,10 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi):  # pragma: no cover (compiled)
-    nz = A.shape[1]
+def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, dst_base, dst_fstride,
+           run_dst):  # pragma: no cover (compiled)
+    nz, n = A.shape[1], B.shape[2]
+    W = np.empty((nz, max(n, 1)))  # the frame's rows of Y, formed here and then written out (Y: flat)
     ok = True
     for f in range(f0, f1):
         Lf = L[f]
@@ -122,7 +124,7 @@ def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi):  # pra
                         s -= Lf[i, k] * Lf[j, k]
                 Lf[i, j] = s / piv
         for i in range(nz):
-            yi = Y[f, i]
+            yi = W[i]
             bi = B[f, nz - 1 - i]
             for r in range(run_off[i], run_off[i + 1]):
                 for c in range(run_lo[r], run_hi[r]):
@@ -132,15 +134,18 @@ def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi):  # pra
                 lik = Lf[i, k]
                 if lik != 0.0:
                     s -= lik * yz[f, k]
-                    yk = Y[f, k]
+                    yk = W[k]
                     for r in range(run_off[k], run_off[k + 1]):
                         for c in range(run_lo[r], run_hi[r]):
                             yi[c] -= lik * yk[c]
             inv = 1.0 / Lf[i, i]
             yz[f, i] = s * inv
+            at = dst_base[i] + f * dst_fstride[i]
             for r in range(run_off[i], run_off[i + 1]):
+                to = at + run_dst[r] - run_lo[r]
                 for c in range(run_lo[r], run_hi[r]):
                     yi[c] *= inv
+                    Y[to + c] = yi[c]
     return ok
 
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import column_runs, factor_frames, in_parallel, split_frames
+from .assembly import ColumnRuns, Packing, column_runs, factor_frames, in_parallel, split_frames
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
 GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
@@ -25,9 +25,104 @@ class Elimination:
     parameters of the segments below it."""
 
     L: np.ndarray  # (F, nz, nz) Cholesky factor of the reversed (damped) A_f
-    Y: np.ndarray  # (F, nz, n)  L⁻¹ B_f (rows reversed)
+    Y: PackedRows  # (F, nz, n)  L⁻¹ B_f (rows reversed), stored by its row classes
     yz: np.ndarray  # (F, nz)    L⁻¹ g_z (rows reversed)
     S: np.ndarray  # (n, n)      Σ_f Y_f' Y_f
+
+
+@dataclass(frozen=True)
+class RowPacking:
+    """Where PackedRows keeps each row class of Y for F frames: the classes' blocks (F, rows, columns) one
+    after another in one flat buffer, and the factorisation kernel's destination of each row's runs."""
+
+    F: int
+    nz: int
+    n: int
+    classes: tuple[tuple[np.ndarray, np.ndarray, int], ...]  # (rows, columns, offset in the buffer) per class
+    runs: ColumnRuns  # each row's nonzero columns as runs (column_runs of y_pattern)
+    packing: Packing  # factor_frames' destinations of the runs
+    size: int  # the buffer's length
+
+    @staticmethod
+    def of(classes: list[tuple[np.ndarray, np.ndarray]], runs: ColumnRuns, F: int, nz: int, n: int) -> RowPacking:
+        """The packing of Y's row classes (row_classes; classes with no columns are not kept: their rows are
+        zero) for F frames, each row's runs (`runs`, the same pattern) in the order of its class's columns."""
+        run_off, run_lo, run_hi = runs
+        base, fstride = np.zeros(nz, np.int64), np.zeros(nz, np.int64)
+        run_dst = np.zeros(run_lo.size, np.int64)
+        kept, at = [], 0
+        for rows, cols in classes:
+            if cols.size == 0:
+                continue
+            kept.append((rows, cols, at))
+            for j, i in enumerate(rows):
+                base[i], fstride[i] = at + j * cols.size, rows.size * cols.size
+                rs = slice(run_off[i], run_off[i + 1])
+                lengths = run_hi[rs] - run_lo[rs]
+                run_dst[rs] = np.cumsum(lengths) - lengths  # each run's place among the row's columns
+            at += F * rows.size * cols.size
+        return RowPacking(F, nz, n, tuple(kept), runs, (base, fstride, run_dst), at)
+
+
+class PackedRows:
+    """Y = L⁻¹ B_f of every frame (F, nz, n; rows reversed) stored row class by row class (row_classes: rows
+    with the same nonzero columns), each class as one contiguous (F, rows, columns) block of its nonzero
+    columns only: about a third of the dense array on gait models, and the Schur complement's products
+    run on views of it (no gathers)."""
+
+    def __init__(self, layout: RowPacking, data: np.ndarray):
+        self.layout, self.data = layout, data
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.layout.F, self.layout.nz, self.layout.n
+
+    def blocks(self, frames: slice | None = None):
+        """(rows, columns, block) of every class, block (frames, rows, columns) a view of the buffer."""
+        F = self.layout.F
+        for rows, cols, at in self.layout.classes:
+            block = self.data[at:at + F * rows.size * cols.size].reshape(F, rows.size, cols.size)
+            yield rows, cols, block if frames is None else block[frames]
+
+    def times(self, x: np.ndarray) -> np.ndarray:
+        """Y_f x for every frame: (F, nz)."""
+        F, nz, _ = self.shape
+        out = np.zeros((F, nz))
+        for rows, cols, block in self.blocks():
+            out[:, rows] = (block.reshape(-1, cols.size) @ x[cols]).reshape(F, rows.size)
+        return out
+
+    def transpose_times(self, v: np.ndarray) -> np.ndarray:
+        """Σ_f Y_f' v_f for v (F, nz): (n,)."""
+        out = np.zeros(self.layout.n)
+        for rows, cols, block in self.blocks():
+            out[cols] += block.reshape(-1, cols.size).T @ v[:, rows].reshape(-1)
+        return out
+
+    def gram(self, frames: slice) -> np.ndarray:
+        """Σ_f Y_f' Y_f over `frames` (a slice): (n, n), each class's product by BLAS on a view."""
+        n = self.layout.n
+        S = np.zeros((n, n))
+        for _, cols, block in self.blocks(frames):
+            M = block.reshape(-1, cols.size)
+            if cols.size == n:
+                S += M.T @ M
+            else:
+                S[np.ix_(cols, cols)] += M.T @ M
+        return S
+
+    def dense(self, frames: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Y of `frames` as a dense (frames, nz, n) array."""
+        F, nz, n = self.shape
+        out = np.zeros((np.arange(F)[frames].size, nz, n))
+        for rows, cols, block in self.blocks():
+            out[:, rows[:, None], cols] = block[frames]
+        return out
+
+    def put(self, frames: np.ndarray, dense: np.ndarray) -> None:
+        """Y of `frames` set from a dense (frames, nz, n) array (zero outside the pattern)."""
+        for rows, cols, block in self.blocks():
+            block[frames] = dense[:, rows[:, None], cols]
 
 
 def y_pattern(lin: Linearization, n: int) -> np.ndarray:
@@ -88,50 +183,30 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
     yz = buffer(work, "yz", (F, nz))
     damping = np.ascontiguousarray(damping, dtype=float)
     if n == 0:
-        Y = np.empty((F, nz, 0))
-        ok = factor_frames(lin.A, damping, Y, lin.gz, L, Y, yz)
+        none = np.empty((F, nz, 0))
+        ok = factor_frames(lin.A, damping, none, lin.gz, L, none, yz)
+        Y = PackedRows(RowPacking.of([], column_runs(np.zeros((nz, 0), dtype=bool)), F, nz, 0), np.zeros(0))
         return Elimination(L, Y, yz, np.zeros((0, 0))) if ok else None
-    key = _pattern_key(lin)
-    cached = None if work is None or key is None else work.get(key)
-    if cached is None:
-        Yp = y_pattern(lin, n)
-        cached = (row_classes(lin, n, Yp), None if Yp.all() else column_runs(Yp))
-        if work is not None and key is not None:
-            work[key] = cached  # the patterns change only with the free set: one per problem
-    classes, runs = cached
-    # Y is formed only on its nonzero pattern (factor_frames): the rest stays zero.  A new buffer is zeroed
-    # by the allocator (its pages first touched by the factorisation's threads); a kept one again only when
-    # the pattern changes.
-    Y, zeroed_for = (None, None) if work is None else work.get(("Y", (F, nz, n)), (None, None))
-    if Y is None:
-        Y = np.zeros((F, nz, n))
-    elif runs is not None and zeroed_for != key:
-        Y.fill(0.0)
-    if work is not None:
-        work[("Y", Y.shape)] = (Y, key)
-    if not factor_frames(lin.A, damping, lin.B, lin.gz, L, Y, yz, runs):
+    packed = _packing(lin, F, n, work)
+    data = buffer(work, "Y", (packed.size,))
+    if not factor_frames(lin.A, damping, lin.B, lin.gz, L, data, yz, packed.runs, packed.packing):
         return None
-
-    def part(fr: slice) -> np.ndarray:
-        S = np.zeros((n, n))
-        for rows, cols in classes:
-            if cols.size == 0:
-                continue
-            if rows[-1] - rows[0] + 1 == rows.size and cols.size == n:  # every column (the root's rows): a copy,
-                M = np.ascontiguousarray(Y[fr, rows[0]:rows[-1] + 1])  # the same array as take's, 15x sooner
-                M = M.reshape(-1, n)
-                S += M.T @ M
-                continue
-            if rows[-1] - rows[0] + 1 == rows.size:  # consecutive rows (a joint's coordinates): a view
-                M = np.take(Y[fr, rows[0]:rows[-1] + 1], cols, axis=2)
-            else:
-                M = np.take(Y[fr][:, rows], cols, axis=2)
-            M = M.reshape(-1, cols.size)
-            S[np.ix_(cols, cols)] += M.T @ M
-        return S
-
-    results = in_parallel(part, split_frames(F))
+    Y = PackedRows(packed, data)
+    results = in_parallel(Y.gram, split_frames(F))
     return Elimination(L, Y, yz, sum(results[1:], results[0]))
+
+
+def _packing(lin: Linearization, F: int, n: int, work: dict | None) -> RowPacking:
+    """Y's row classes packed for F frames (kept in `work`: the patterns change only with the free set)."""
+    key = _pattern_key(lin)
+    key = None if key is None else (*key, F, n)
+    packed = None if work is None or key is None else work.get(key)
+    if packed is None:
+        Yp = y_pattern(lin, n)
+        packed = RowPacking.of(row_classes(lin, n, Yp), column_runs(Yp), F, lin.A.shape[1], n)
+        if work is not None and key is not None:
+            work[key] = packed
+    return packed
 
 
 def refactor_frames(lin: Linearization, damping: np.ndarray, el: Elimination, frames: np.ndarray,
@@ -141,19 +216,17 @@ def refactor_frames(lin: Linearization, damping: np.ndarray, el: Elimination, fr
     frames' untouched.  In place; False if one of the blocks is not positive definite."""
     frames = np.unique(frames)
     _, nz, n = el.Y.shape
-    key = _pattern_key(lin)
-    cached = None if work is None or key is None else work.get(key)
-    runs = None if cached is None or n == 0 else cached[1]
+    runs = _packing(lin, el.Y.shape[0], n, work).runs if n else None
     L, Y, yz = np.empty((frames.size, nz, nz)), np.zeros((frames.size, nz, n)), np.empty((frames.size, nz))
     B = lin.B[frames] if n else np.empty((frames.size, nz, 0))
     if not factor_frames(lin.A[frames], np.ascontiguousarray(damping[frames]), B, lin.gz[frames], L, Y, yz, runs):
         return False
     if n:
-        old = el.Y[frames].reshape(-1, n)
+        old = el.Y.dense(frames).reshape(-1, n)
         el.S -= old.T @ old
         new = Y.reshape(-1, n)
         el.S += new.T @ new
-        el.Y[frames] = Y
+        el.Y.put(frames, Y)
     el.L[frames], el.yz[frames] = L, yz
     return True
 
