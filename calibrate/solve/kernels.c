@@ -4,19 +4,53 @@
 #include <string.h>
 typedef int64_t I;
 
-/* O (nx × ny) = Σ_r x_r y_rᵀ over the nr rows of X (nr × nx) and Y (nr × ny), row by row: the inner loop runs
-   over contiguous memory and vectorises. */
-static inline __attribute__((always_inline)) void outer_sum(const double *X, I nx, const double *Y, I ny, I nr, double *O)
+/* O (nx × ny) += Σ_r x_r y_rᵀ over the nr rows of X (nr × nx) and Y (nr × ny) (`lower`: only O[a][b] with
+   b <= a), four rows at a time: each pass over O adds four rows' products (loads and stores of O, not the
+   arithmetic, bound a row-by-row update), and its inner loop runs over contiguous memory and vectorises.  A
+   row of X whose entry is zero adds nothing to that row of O (a marker's own columns in the other markers'
+   rows). */
+static inline __attribute__((always_inline)) void rank_update(const double *X, I nx, const double *Y, I ny, I nr,
+                                                              double *O, int lower)
 {
-    memset(O, 0, (size_t)(nx * ny) * sizeof(double));
-    for (I r = 0; r < nr; ++r) {
+    I r = 0;
+    for (; r + 4 <= nr; r += 4) {
+        const double *x0 = X + r * nx, *x1 = x0 + nx, *x2 = x1 + nx, *x3 = x2 + nx;
+        const double *y0 = Y + r * ny, *y1 = y0 + ny, *y2 = y1 + ny, *y3 = y2 + ny;
+        for (I a = 0; a < nx; ++a) {
+            double s0 = x0[a], s1 = x1[a], s2 = x2[a], s3 = x3[a];
+            if (s0 == 0.0 && s1 == 0.0 && s2 == 0.0 && s3 == 0.0) continue;
+            double *Oa = O + a * ny;
+            I nb = lower ? a + 1 : ny;
+            for (I b = 0; b < nb; ++b) Oa[b] += s0 * y0[b] + s1 * y1[b] + s2 * y2[b] + s3 * y3[b];
+        }
+    }
+    for (; r + 2 <= nr; r += 2) {
+        const double *x0 = X + r * nx, *x1 = x0 + nx, *y0 = Y + r * ny, *y1 = y0 + ny;
+        for (I a = 0; a < nx; ++a) {
+            double s0 = x0[a], s1 = x1[a];
+            if (s0 == 0.0 && s1 == 0.0) continue;
+            double *Oa = O + a * ny;
+            I nb = lower ? a + 1 : ny;
+            for (I b = 0; b < nb; ++b) Oa[b] += s0 * y0[b] + s1 * y1[b];
+        }
+    }
+    for (; r < nr; ++r) {
         const double *xr = X + r * nx, *yr = Y + r * ny;
         for (I a = 0; a < nx; ++a) {
             double s = xr[a];
+            if (s == 0.0) continue;
             double *Oa = O + a * ny;
-            for (I b = 0; b < ny; ++b) Oa[b] += s * yr[b];
+            I nb = lower ? a + 1 : ny;
+            for (I b = 0; b < nb; ++b) Oa[b] += s * yr[b];
         }
     }
+}
+
+/* O (nx × ny) = Σ_r x_r y_rᵀ (rank_update from zero). */
+static inline __attribute__((always_inline)) void outer_sum(const double *X, I nx, const double *Y, I ny, I nr, double *O)
+{
+    memset(O, 0, (size_t)(nx * ny) * sizeof(double));
+    rank_update(X, nx, Y, ny, nr, O, 0);
 }
 
 /* M[ri[a] * stride + ci[b]] += O[a * ny + b]: a dense block added where its rows and columns belong. */
@@ -118,15 +152,9 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
             for (I r = 0; r < nr; ++r) {
                 const double *pr = Jp + r * nq;
                 double er = e[r];
-                for (I a = 0; a < nq; ++a) {
-                    double s = pr[a];
-                    if (s == 0.0) continue;  /* a marker's own columns: zero in the other markers' rows */
-                    Ggg[a] += s * er;
-                    if (grad_only) continue;
-                    double *Ca = Cgg + a * nq;
-                    for (I b = 0; b <= a; ++b) Ca[b] += s * pr[b];
-                }
+                for (I a = 0; a < nq; ++a) Ggg[a] += pr[a] * er;
             }
+            if (!grad_only) rank_update(Jp, nq, Jp, nq, nr, Cgg, 1);
         }
     }
     if (want_c) {
