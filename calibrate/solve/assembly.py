@@ -209,30 +209,54 @@ def _lower_triangle(n: int) -> np.ndarray:
 
 def factor_frames(A: np.ndarray, damping: np.ndarray, B: np.ndarray, gz: np.ndarray, L: np.ndarray,
                   Y: np.ndarray, yz: np.ndarray, runs: ColumnRuns | None = None,
-                  packing: Packing | None = None) -> bool:
+                  packing: Packing | None = None, structure: Structure | None = None) -> bool:
     """Cholesky of every frame block A_f + diag(damping_f), in reverse coordinate order (leaves of the
     kinematic tree first: no fill-in), into L (F, nz, nz); Y = L⁻¹ B_f and yz = L⁻¹ g_z (rows
     reversed), in place.  `runs`: Y's nonzero columns row by row (column_runs), the only ones formed
     (a dense Y must already hold zeros elsewhere); None: every column.  `packing`: where each row's runs
-    go in Y, a flat buffer (calibrate.solve.schur.PackedRows); None: Y dense (F, nz, n).  False if a
-    block is not positive definite."""
+    go in Y, a flat buffer (calibrate.solve.schur.PackedRows); None: Y dense (F, nz, n).  `structure`: the
+    factor's nonzero structure (factor_structure of the symbolic factorisation), the only entries formed;
+    None: the whole lower triangle.  False if a block is not positive definite."""
     nz, n = B.shape[1], B.shape[2]
     runs = runs or dense_runs(nz, n)
     packing = packing or dense_packing(runs, nz, n)
+    structure = structure or dense_structure(nz)
     Y = Y.reshape(-1)  # a view (C-contiguous): the kernels write through it
     return all(in_parallel(lambda fr: kernels().factor(A, damping, B, gz, L, Y, yz, fr.start, fr.stop, *runs,
-                                                       *packing), split_frames(A.shape[0])))
+                                                       *packing, *structure), split_frames(A.shape[0])))
 
 
-ColumnRuns = tuple[np.ndarray, np.ndarray, np.ndarray]  # (run_off (rows + 1,), run_lo, run_hi): half-open runs
+# (run_off (rows + 1,), run_lo, run_hi, run_class (rows,)): each row's half-open runs, and a class number the
+# rows with the same runs share (the factorisation reduces up to four such rows at once)
+ColumnRuns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 def dense_runs(rows: int, n: int) -> ColumnRuns:
     """Every row's columns as one run [0, n)."""
-    return (np.arange(rows + 1, dtype=np.int64), np.zeros(rows, np.int64), np.full(rows, n, np.int64))
+    return (np.arange(rows + 1, dtype=np.int64), np.zeros(rows, np.int64), np.full(rows, n, np.int64),
+            np.zeros(rows, np.int64))
 
 
 Packing = tuple[np.ndarray, np.ndarray, np.ndarray]  # (dst_base (rows,), dst_fstride (rows,), run_dst (runs,))
+
+
+Structure = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # (row_off, row_idx, col_off, col_idx)
+
+
+def factor_structure(pattern: np.ndarray) -> Structure:
+    """A Cholesky factor's structure from its (nz, nz) pattern (lower triangle used): each row's nonzeros left
+    of the diagonal and each column's below it, in ascending order, as offsets and indices."""
+    low = np.tril(pattern, -1)
+    rows, cols = np.nonzero(low)  # row-major: each row's columns ascending
+    c_cols, c_rows = np.nonzero(low.T)  # column by column: each column's rows ascending
+    off = lambda counts: np.r_[0, np.cumsum(counts)].astype(np.int64)  # noqa: E731
+    return off(low.sum(1)), cols.astype(np.int64), off(low.sum(0)), c_rows.astype(np.int64)
+
+
+@functools.cache
+def dense_structure(nz: int) -> Structure:
+    """factor_structure of a full lower triangle (kept: asked for by every factorisation without a pattern)."""
+    return factor_structure(np.tri(nz, dtype=bool))
 
 
 def dense_packing(runs: ColumnRuns, rows: int, n: int) -> Packing:
@@ -241,14 +265,17 @@ def dense_packing(runs: ColumnRuns, rows: int, n: int) -> Packing:
 
 
 def column_runs(pattern: np.ndarray) -> ColumnRuns:
-    """A boolean (rows, n) pattern as each row's runs of consecutive True columns."""
+    """A boolean (rows, n) pattern as each row's runs of consecutive True columns (and the rows' classes:
+    rows with the same pattern, the same class)."""
     off, lo, hi = [0], [], []
     for row in pattern:
         edges = np.flatnonzero(np.diff(np.r_[0, row.astype(np.int8), 0]))
         lo.extend(edges[0::2])
         hi.extend(edges[1::2])
         off.append(len(lo))
-    return np.array(off, np.int64), np.array(lo, np.int64), np.array(hi, np.int64)
+    _, cls = np.unique(pattern.reshape(pattern.shape[0], -1), axis=0, return_inverse=True)
+    return (np.array(off, np.int64), np.array(lo, np.int64), np.array(hi, np.int64),
+            np.asarray(cls, np.int64).reshape(-1))
 
 
 def back_substitute(L: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -308,7 +335,7 @@ class _CKernels:
         self._assemble = lib.cal_assemble
         self._assemble.argtypes = [P] * 4 + [I] * 10 + [P] * 20
         self._factor = lib.cal_factor
-        self._factor.argtypes = [P] * 7 + [I] * 4 + [P] * 6
+        self._factor.argtypes = [P] * 7 + [I] * 4 + [P] * 11
         self._back, self._forward = lib.cal_back, lib.cal_forward
         for f in (self._back, self._forward):
             f.argtypes = [P] * 3 + [I] * 3
@@ -325,9 +352,10 @@ class _CKernels:
         if not ok:
             raise MemoryError("calibrate kernels: out of memory assembling the normal equations")
 
-    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, dst_base, dst_fstride,
-               run_dst) -> bool:
-        ints = [_ptr(x, np.int64) for x in (run_off, run_lo, run_hi, dst_base, dst_fstride, run_dst)]
+    def factor(self, A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, run_class, dst_base,
+               dst_fstride, run_dst, lrow_off, lrow_idx, lcol_off, lcol_idx) -> bool:
+        ints = [_ptr(x, np.int64) for x in (run_off, run_lo, run_hi, dst_base, dst_fstride, run_dst,
+                                            lrow_off, lrow_idx, lcol_off, lcol_idx, run_class)]
         ok = self._factor(_ptr(A), _ptr(damping), _ptr(B), _ptr(gz), _ptr(L), _ptr(Y), _ptr(yz),
                           A.shape[1], B.shape[2], f0, f1, *ints)
         if ok < 0:

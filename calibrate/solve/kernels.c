@@ -189,7 +189,8 @@ int cal_assemble(const double *d, const double *w, const double *jz, const doubl
 int cal_factor(const double *A, const double *damping, const double *B, const double *gz,
                double *L, double *Y, double *yz, I nz, I n, I f0, I f1,
                const I *run_off, const I *run_lo, const I *run_hi,
-               const I *dst_base, const I *dst_fstride, const I *run_dst)
+               const I *dst_base, const I *dst_fstride, const I *run_dst,
+               const I *lrow_off, const I *lrow_idx, const I *lcol_off, const I *lcol_idx, const I *run_class)
 {
     int ok = 1;
     double *W = malloc((size_t)(nz * (n > 0 ? n : 1)) * sizeof(double));
@@ -201,15 +202,26 @@ int cal_factor(const double *A, const double *damping, const double *B, const do
             for (I j = 0; j < nz; ++j) Lf[i * nz + j] = j <= i ? Af[(nz - 1 - i) * nz + (nz - 1 - j)] : 0.0;
             Lf[i * nz + i] += damping[f * nz + nz - 1 - i];
         }
+        /* L's structure: row j's nonzeros left of the diagonal lrow_idx[lrow_off[j]..] (ascending), column j's
+           below it lcol_idx[lcol_off[j]..]; every other entry below the diagonal stays zero. */
         for (I j = 0; j < nz; ++j) {
+            const I *rj = lrow_idx + lrow_off[j];
+            I nrj = lrow_off[j + 1] - lrow_off[j];
             double s = Lf[j * nz + j];
-            for (I k = 0; k < j; ++k) if (Lf[j * nz + k] != 0.0) s -= Lf[j * nz + k] * Lf[j * nz + k];
+            for (I t = 0; t < nrj; ++t) {
+                double v = Lf[j * nz + rj[t]];
+                if (v != 0.0) s -= v * v;
+            }
             if (!(s > 0.0)) { ok = 0; s = 1.0; }
             double piv = sqrt(s);
             Lf[j * nz + j] = piv;
-            for (I i = j + 1; i < nz; ++i) {
+            for (I u = lcol_off[j]; u < lcol_off[j + 1]; ++u) {
+                I i = lcol_idx[u];
                 s = Lf[i * nz + j];
-                for (I k = 0; k < j; ++k) if (Lf[j * nz + k] != 0.0) s -= Lf[i * nz + k] * Lf[j * nz + k];
+                for (I t = 0; t < nrj; ++t) {
+                    double v = Lf[j * nz + rj[t]];
+                    if (v != 0.0) s -= Lf[i * nz + rj[t]] * v;
+                }
                 Lf[i * nz + j] = s / piv;
             }
         }
@@ -219,13 +231,30 @@ int cal_factor(const double *A, const double *damping, const double *B, const do
             for (I r = run_off[i]; r < run_off[i + 1]; ++r)
                 memcpy(yi + run_lo[r], bi + run_lo[r], (size_t)(run_hi[r] - run_lo[r]) * sizeof(double));
             double s = gz[f * nz + nz - 1 - i];
-            for (I k = 0; k < i; ++k) {
-                double lik = Lf[i * nz + k];
-                if (lik == 0.0) continue;
-                s -= lik * yz[f * nz + k];
-                const double *yk = W + k * n;
-                for (I r = run_off[k]; r < run_off[k + 1]; ++r)
-                    for (I c = run_lo[r]; c < run_hi[r]; ++c) yi[c] -= lik * yk[c];
+            /* yi -= Σ_k L_ik y_k, up to four rows k of one run class (the same runs: class[k]) per pass */
+            for (I t = lrow_off[i], te = lrow_off[i + 1]; t < te;) {
+                I k0 = lrow_idx[t], m = 1;
+                while (m < 4 && t + m < te && run_class[lrow_idx[t + m]] == run_class[k0]) ++m;
+                double l0 = 0.0, l1 = 0.0, l2 = 0.0, l3 = 0.0;
+                const double *y0 = W, *y1 = W, *y2 = W, *y3 = W;
+                for (I q = 0; q < m; ++q) {
+                    I k = lrow_idx[t + q];
+                    double lik = Lf[i * nz + k];
+                    s -= lik * yz[f * nz + k];
+                    if (q == 0) { l0 = lik; y0 = W + k * n; }
+                    else if (q == 1) { l1 = lik; y1 = W + k * n; }
+                    else if (q == 2) { l2 = lik; y2 = W + k * n; }
+                    else { l3 = lik; y3 = W + k * n; }
+                }
+                t += m;
+                if (l0 == 0.0 && l1 == 0.0 && l2 == 0.0 && l3 == 0.0) continue;
+                for (I r = run_off[k0]; r < run_off[k0 + 1]; ++r) {
+                    I c0 = run_lo[r], c1 = run_hi[r];
+                    if (m == 1) for (I c = c0; c < c1; ++c) yi[c] -= l0 * y0[c];
+                    else if (m == 2) for (I c = c0; c < c1; ++c) yi[c] -= l0 * y0[c] + l1 * y1[c];
+                    else if (m == 3) for (I c = c0; c < c1; ++c) yi[c] -= l0 * y0[c] + l1 * y1[c] + l2 * y2[c];
+                    else for (I c = c0; c < c1; ++c) yi[c] -= l0 * y0[c] + l1 * y1[c] + l2 * y2[c] + l3 * y3[c];
+                }
             }
             double inv = 1.0 / Lf[i * nz + i];
             yz[f * nz + i] = s * inv;

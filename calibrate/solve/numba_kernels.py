@@ -96,8 +96,9 @@ def assemble(d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_o
 
 
 @njit(cache=True, nogil=True, fastmath=True)
-def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, dst_base, dst_fstride,
-           run_dst):  # pragma: no cover (compiled)
+def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, run_class, dst_base, dst_fstride,
+           run_dst, lrow_off, lrow_idx, lcol_off, lcol_idx):  # pragma: no cover (compiled)
+    # (run_class: the C kernel reduces rows of one class together; here one row at a time, the same sums)
     nz, n = A.shape[1], B.shape[2]
     W = np.empty((nz, max(n, 1)))  # the frame's rows of Y, formed here and then written out (Y: flat)
     ok = True
@@ -107,21 +108,24 @@ def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, dst_bas
             for j in range(nz):
                 Lf[i, j] = A[f, nz - 1 - i, nz - 1 - j] if j <= i else 0.0
             Lf[i, i] += damping[f, nz - 1 - i]
-        for j in range(nz):
+        for j in range(nz):  # L's structure: row j's nonzeros lrow_idx, column j's lcol_idx (ascending)
             s = Lf[j, j]
-            for k in range(j):
-                if Lf[j, k] != 0.0:
-                    s -= Lf[j, k] * Lf[j, k]
+            for t in range(lrow_off[j], lrow_off[j + 1]):
+                v = Lf[j, lrow_idx[t]]
+                if v != 0.0:
+                    s -= v * v
             if not s > 0.0:
                 ok = False
                 s = 1.0
             piv = np.sqrt(s)
             Lf[j, j] = piv
-            for i in range(j + 1, nz):
+            for u in range(lcol_off[j], lcol_off[j + 1]):
+                i = lcol_idx[u]
                 s = Lf[i, j]
-                for k in range(j):
-                    if Lf[j, k] != 0.0:
-                        s -= Lf[i, k] * Lf[j, k]
+                for t in range(lrow_off[j], lrow_off[j + 1]):
+                    v = Lf[j, lrow_idx[t]]
+                    if v != 0.0:
+                        s -= Lf[i, lrow_idx[t]] * v
                 Lf[i, j] = s / piv
         for i in range(nz):
             yi = W[i]
@@ -130,7 +134,8 @@ def factor(A, damping, B, gz, L, Y, yz, f0, f1, run_off, run_lo, run_hi, dst_bas
                 for c in range(run_lo[r], run_hi[r]):
                     yi[c] = bi[c]
             s = gz[f, nz - 1 - i]
-            for k in range(i):
+            for t in range(lrow_off[i], lrow_off[i + 1]):
+                k = lrow_idx[t]
                 lik = Lf[i, k]
                 if lik != 0.0:
                     s -= lik * yz[f, k]

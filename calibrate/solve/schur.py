@@ -10,7 +10,16 @@ import numpy as np
 
 from ..problem.problem import Problem
 from ..problem.state import Linearization, State
-from .assembly import ColumnRuns, Packing, column_runs, factor_frames, in_parallel, split_frames
+from .assembly import (
+    ColumnRuns,
+    Packing,
+    Structure,
+    column_runs,
+    factor_frames,
+    factor_structure,
+    in_parallel,
+    split_frames,
+)
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
 GEODESIC_H = 0.1  # finite-difference step (fraction of the LM step) of the geodesic acceleration
@@ -42,12 +51,14 @@ class RowPacking:
     runs: ColumnRuns  # each row's nonzero columns as runs (column_runs of y_pattern)
     packing: Packing  # factor_frames' destinations of the runs
     size: int  # the buffer's length
+    structure: Structure | None = None  # the factor's nonzero structure (factor_structure), None: dense
 
     @staticmethod
-    def of(classes: list[tuple[np.ndarray, np.ndarray]], runs: ColumnRuns, F: int, nz: int, n: int) -> RowPacking:
+    def of(classes: list[tuple[np.ndarray, np.ndarray]], runs: ColumnRuns, F: int, nz: int, n: int,
+           structure: Structure | None = None) -> RowPacking:
         """The packing of Y's row classes (row_classes; classes with no columns are not kept: their rows are
         zero) for F frames, each row's runs (`runs`, the same pattern) in the order of its class's columns."""
-        run_off, run_lo, run_hi = runs
+        run_off, run_lo, run_hi, _ = runs
         base, fstride = np.zeros(nz, np.int64), np.zeros(nz, np.int64)
         run_dst = np.zeros(run_lo.size, np.int64)
         kept, at = [], 0
@@ -61,7 +72,7 @@ class RowPacking:
                 lengths = run_hi[rs] - run_lo[rs]
                 run_dst[rs] = np.cumsum(lengths) - lengths  # each run's place among the row's columns
             at += F * rows.size * cols.size
-        return RowPacking(F, nz, n, tuple(kept), runs, (base, fstride, run_dst), at)
+        return RowPacking(F, nz, n, tuple(kept), runs, (base, fstride, run_dst), at, structure)
 
 
 class PackedRows:
@@ -125,16 +136,26 @@ class PackedRows:
             block[frames] = dense[:, rows[:, None], cols]
 
 
+def factor_pattern(lin: Linearization) -> np.ndarray:
+    """Where the Cholesky factor of the reversed A_f can be nonzero, (nz, nz) booleans (symbolic Cholesky:
+    eliminating a coordinate joins its later neighbours); every entry without patterns."""
+    nz = lin.A.shape[1]
+    if lin.a_pattern is None:
+        return np.ones((nz, nz), dtype=bool)
+    P = lin.a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
+    for k in range(nz):
+        nb = k + 1 + np.flatnonzero(P[k + 1:, k])
+        P[np.ix_(nb, nb)] = True
+    return P
+
+
 def y_pattern(lin: Linearization, n: int) -> np.ndarray:
     """Where Y = L⁻¹ B_f (rows reversed) can be nonzero, (nz, n) booleans: B's pattern propagated
     symbolically through the factorisation, so it is exact whatever the coordinate order."""
     nz = lin.A.shape[1]
     if lin.a_pattern is None or lin.b_pattern is None:
         return np.ones((nz, n), dtype=bool)
-    P = lin.a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
-    for k in range(nz):  # symbolic Cholesky: eliminating k joins its later neighbours
-        nb = k + 1 + np.flatnonzero(P[k + 1:, k])
-        P[np.ix_(nb, nb)] = True
+    P = factor_pattern(lin)
     Yp = lin.b_pattern[::-1].copy()
     for i in range(nz):
         for j in np.flatnonzero(P[i, :i]):
@@ -182,14 +203,13 @@ def eliminate(lin: Linearization, damping: np.ndarray, with_parameters: bool = T
     L = buffer(work, "L", (F, nz, nz))
     yz = buffer(work, "yz", (F, nz))
     damping = np.ascontiguousarray(damping, dtype=float)
+    packed = _packing(lin, F, n, work)
     if n == 0:
         none = np.empty((F, nz, 0))
-        ok = factor_frames(lin.A, damping, none, lin.gz, L, none, yz)
-        Y = PackedRows(RowPacking.of([], column_runs(np.zeros((nz, 0), dtype=bool)), F, nz, 0), np.zeros(0))
-        return Elimination(L, Y, yz, np.zeros((0, 0))) if ok else None
-    packed = _packing(lin, F, n, work)
+        ok = factor_frames(lin.A, damping, none, lin.gz, L, none, yz, structure=packed.structure)
+        return Elimination(L, PackedRows(packed, np.zeros(0)), yz, np.zeros((0, 0))) if ok else None
     data = buffer(work, "Y", (packed.size,))
-    if not factor_frames(lin.A, damping, lin.B, lin.gz, L, data, yz, packed.runs, packed.packing):
+    if not factor_frames(lin.A, damping, lin.B, lin.gz, L, data, yz, packed.runs, packed.packing, packed.structure):
         return None
     Y = PackedRows(packed, data)
     results = in_parallel(Y.gram, split_frames(F))
@@ -203,7 +223,8 @@ def _packing(lin: Linearization, F: int, n: int, work: dict | None) -> RowPackin
     packed = None if work is None or key is None else work.get(key)
     if packed is None:
         Yp = y_pattern(lin, n)
-        packed = RowPacking.of(row_classes(lin, n, Yp), column_runs(Yp), F, lin.A.shape[1], n)
+        structure = None if lin.a_pattern is None else factor_structure(factor_pattern(lin))
+        packed = RowPacking.of(row_classes(lin, n, Yp), column_runs(Yp), F, lin.A.shape[1], n, structure)
         if work is not None and key is not None:
             work[key] = packed
     return packed
@@ -216,10 +237,11 @@ def refactor_frames(lin: Linearization, damping: np.ndarray, el: Elimination, fr
     frames' untouched.  In place; False if one of the blocks is not positive definite."""
     frames = np.unique(frames)
     _, nz, n = el.Y.shape
-    runs = _packing(lin, el.Y.shape[0], n, work).runs if n else None
+    packed = _packing(lin, el.Y.shape[0], n, work)
     L, Y, yz = np.empty((frames.size, nz, nz)), np.zeros((frames.size, nz, n)), np.empty((frames.size, nz))
     B = lin.B[frames] if n else np.empty((frames.size, nz, 0))
-    if not factor_frames(lin.A[frames], np.ascontiguousarray(damping[frames]), B, lin.gz[frames], L, Y, yz, runs):
+    if not factor_frames(lin.A[frames], np.ascontiguousarray(damping[frames]), B, lin.gz[frames], L, Y, yz,
+                         packed.runs if n else None, structure=packed.structure):
         return False
     if n:
         old = el.Y.dense(frames).reshape(-1, n)
