@@ -152,6 +152,16 @@ def test_gradient_and_factored_solve_match_the_sparse_jacobian(human, human_kin,
     assert np.allclose(step[0], again[0]) and np.allclose(step[1], again[1])
 
 
+def _squats_problem(human, human_kin, frames: int, seed: int) -> tuple[Problem, State]:
+    """A simulated squat trial's problem and a state 0.01 off its truth (poses and geometry)."""
+    sim = simulate_squats(human, frames=frames, noise_mm=1.0, seed=seed)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    m = sim.motion
+    state = State(np.column_stack([m.root_translation, np.zeros((frames, 3)), m.angles]) + 0.01,
+                  m.root_quaternion.copy(), sim.truth.vector())
+    return problem, state
+
+
 def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
     """The normal equations and the LM step from the C kernels (compiled with the system's compiler)
     and from numba's versions of the same loops (the fallback without a compiler) agree."""
@@ -159,11 +169,7 @@ def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
 
     if not isinstance(assembly.kernels(), assembly._CKernels):
         pytest.skip("no C compiler: only the numba kernels exist here")
-    sim = simulate_squats(human, frames=70, noise_mm=1.0, seed=5)
-    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
-    m = sim.motion
-    state = State(np.column_stack([m.root_translation, np.zeros((70, 3)), m.angles]) + 0.01,
-                  m.root_quaternion.copy(), sim.truth.vector())
+    problem, state = _squats_problem(human, human_kin, 70, 5)
     runs = []
     for backend in (assembly.kernels(), numba_kernels):
         monkeypatch.setattr(assembly, "kernels", lambda b=backend: b)
@@ -184,11 +190,7 @@ def test_frame_factor_on_the_nonzero_pattern_equals_the_dense_one(human, human_k
     from calibrate.solve.assembly import column_runs, factor_frames
     from calibrate.solve.schur import y_pattern
 
-    sim = simulate_squats(human, frames=20, noise_mm=1.0, seed=3)
-    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
-    m = sim.motion
-    state = State(np.column_stack([m.root_translation, np.zeros((20, 3)), m.angles]) + 0.01,
-                  m.root_quaternion.copy(), sim.truth.vector())
+    problem, state = _squats_problem(human, human_kin, 20, 3)
     lin = problem.linearize(state)
     F, nz, n = lin.B.shape
     pattern = y_pattern(lin, n)
@@ -217,11 +219,7 @@ def test_packed_rows_hold_the_dense_factorisation_and_its_products(human, human_
     from calibrate.solve.assembly import column_runs, factor_frames, factor_structure
     from calibrate.solve.schur import PackedRows, RowPacking, factor_pattern, row_classes, y_pattern
 
-    sim = simulate_squats(human, frames=12, noise_mm=1.0, seed=5)
-    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
-    m = sim.motion
-    state = State(np.column_stack([m.root_translation, np.zeros((12, 3)), m.angles]) + 0.01,
-                  m.root_quaternion.copy(), sim.truth.vector())
+    problem, state = _squats_problem(human, human_kin, 12, 5)
     lin = problem.linearize(state)
     F, nz, n = lin.B.shape
     pattern = y_pattern(lin, n)
