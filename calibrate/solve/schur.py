@@ -185,8 +185,8 @@ def buffer(work: dict | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def _pattern_key(lin: Linearization) -> tuple | None:
-    """The key under which `work` keeps Y's row classes and column runs for the blocks' nonzero patterns
-    (they change only with the free set); None without patterns."""
+    """The key (with the frames' and parameters' counts: _packing) under which `work` keeps Y's packing for
+    the blocks' nonzero patterns (they change only with the free set); None without patterns."""
     if lin.a_pattern is None or lin.b_pattern is None:
         return None
     return ("row_classes", lin.a_pattern.tobytes(), lin.b_pattern.tobytes(), lin.b_pattern.shape)
