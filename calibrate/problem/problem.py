@@ -50,7 +50,7 @@ from ..model.blocks import ParameterLayout
 from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters
 from ..solve.assembly import ParameterLayout as ColumnLayout
-from ..solve.assembly import assemble, parameter_layout, parameter_pattern
+from ..solve.assembly import assemble, parameter_layout, parameter_pattern, y_pattern_of
 
 T = TypeVar("T")
 
@@ -424,6 +424,16 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
             cached = (self.groups, pattern, self.block_patterns(pattern[0]))
             self._pattern_cache = cached
         return parameter_layout(self.groups, self.tangent_map(p), cached[1])
+
+    def y_entries(self) -> int:
+        """Nonzeros of a frame's Y = L⁻¹ B_f (calibrate.solve.schur: the elimination keeps only these) over
+        the free parameters, at any parameters (the gather's pattern, parameter_layout)."""
+        cached = self.__dict__.get("_y_entries")
+        if cached is None or cached[0] is not self.groups:
+            self.parameter_layout(self.base.vector())  # the patterns, built once (_pattern_cache)
+            a_pat, b_pat = self._pattern_cache[2]
+            cached = self._y_entries = (self.groups, int(y_pattern_of(a_pat, b_pat).sum()))
+        return cached[1]
 
     def _block_patterns(self, pl: ColumnLayout | None) -> tuple[np.ndarray, np.ndarray]:
         """block_patterns(pl), kept with the gather's pattern (parameter_layout) when `pl` is built on it."""

@@ -243,6 +243,29 @@ Packing = tuple[np.ndarray, np.ndarray, np.ndarray]  # (dst_base (rows,), dst_fs
 Structure = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # (row_off, row_idx, col_off, col_idx)
 
 
+def factor_pattern_of(a_pattern: np.ndarray) -> np.ndarray:
+    """Where the Cholesky factor of the reversed A_f (pattern `a_pattern`, (nz, nz)) can be nonzero, (nz, nz)
+    booleans: the symbolic Cholesky, in which eliminating a coordinate joins its later neighbours."""
+    nz = a_pattern.shape[0]
+    P = a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
+    for k in range(nz):
+        nb = k + 1 + np.flatnonzero(P[k + 1:, k])
+        P[np.ix_(nb, nb)] = True
+    return P
+
+
+def y_pattern_of(a_pattern: np.ndarray, b_pattern: np.ndarray) -> np.ndarray:
+    """Where Y = L⁻¹ B_f (rows reversed) can be nonzero, (nz, n) booleans, from A_f's and B_f's patterns: B's
+    pattern propagated symbolically through the factorisation (factor_pattern_of), exact in any coordinate
+    order."""
+    P = factor_pattern_of(a_pattern)
+    Yp = b_pattern[::-1].copy()
+    for i in range(Yp.shape[0]):
+        for j in np.flatnonzero(P[i, :i]):
+            Yp[i] |= Yp[j]
+    return Yp
+
+
 def factor_structure(pattern: np.ndarray) -> Structure:
     """A Cholesky factor's structure from its (nz, nz) pattern (lower triangle used): each row's nonzeros left
     of the diagonal and each column's below it, in ascending order, as offsets and indices."""

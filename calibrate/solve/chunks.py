@@ -44,11 +44,13 @@ SCRATCH_CHUNKS = 1.5
 
 
 def frame_bytes(problem: Problem, with_parameters: bool) -> int:
-    """Bytes of one frame's blocks while a step uses them: A_f, B_f, L_f, Y_f, the gradient and
-    L_f⁻¹ g_f, the residuals and their weights, and the Jacobian's nonzeros."""
+    """Bytes of one frame's blocks while a step uses them: A_f, B_f, L_f, Y_f (its nonzeros only:
+    calibrate.solve.schur.PackedRows), the gradient and L_f⁻¹ g_f, the residuals and their weights, and
+    the Jacobian's nonzeros."""
     nz, n = problem.model.nz, (problem.n_free if with_parameters else 0)
     rows, nnz_z, nnz_p = problem.output_sizes
-    return 8 * (2 * nz * nz + 2 * nz * n + 3 * nz + 2 * rows + nnz_z + (nnz_p if with_parameters else 0))
+    y = problem.y_entries() if n else 0
+    return 8 * (2 * nz * nz + nz * n + y + 3 * nz + 2 * rows + nnz_z + (nnz_p if with_parameters else 0))
 
 
 def chunk_slices(F: int, per_frame: int, budget: float, chunk_frames: int) -> tuple[list[slice], int]:

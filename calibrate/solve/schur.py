@@ -16,9 +16,11 @@ from .assembly import (
     Structure,
     column_runs,
     factor_frames,
+    factor_pattern_of,
     factor_structure,
     in_parallel,
     split_frames,
+    y_pattern_of,
 )
 
 DIAG_FLOOR = 1e-9  # relative floor of Marquardt's scaling diagonal
@@ -137,30 +139,19 @@ class PackedRows:
 
 
 def factor_pattern(lin: Linearization) -> np.ndarray:
-    """Where the Cholesky factor of the reversed A_f can be nonzero, (nz, nz) booleans (symbolic Cholesky:
-    eliminating a coordinate joins its later neighbours); every entry without patterns."""
+    """Where the Cholesky factor of the reversed A_f can be nonzero, (nz, nz) booleans (factor_pattern_of);
+    every entry without patterns."""
     nz = lin.A.shape[1]
-    if lin.a_pattern is None:
-        return np.ones((nz, nz), dtype=bool)
-    P = lin.a_pattern[::-1, ::-1] | np.eye(nz, dtype=bool)
-    for k in range(nz):
-        nb = k + 1 + np.flatnonzero(P[k + 1:, k])
-        P[np.ix_(nb, nb)] = True
-    return P
+    return np.ones((nz, nz), dtype=bool) if lin.a_pattern is None else factor_pattern_of(lin.a_pattern)
 
 
 def y_pattern(lin: Linearization, n: int) -> np.ndarray:
     """Where Y = L⁻¹ B_f (rows reversed) can be nonzero, (nz, n) booleans: B's pattern propagated
-    symbolically through the factorisation, so it is exact whatever the coordinate order."""
+    symbolically through the factorisation (y_pattern_of), so it is exact whatever the coordinate order."""
     nz = lin.A.shape[1]
     if lin.a_pattern is None or lin.b_pattern is None:
         return np.ones((nz, n), dtype=bool)
-    P = factor_pattern(lin)
-    Yp = lin.b_pattern[::-1].copy()
-    for i in range(nz):
-        for j in np.flatnonzero(P[i, :i]):
-            Yp[i] |= Yp[j]
-    return Yp
+    return y_pattern_of(lin.a_pattern, lin.b_pattern)
 
 
 def row_classes(lin: Linearization, n: int, Yp: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
