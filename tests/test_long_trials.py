@@ -42,6 +42,20 @@ def _budget(problem: Problem, frames: float) -> Problem:
     return problem.with_settings(replace(problem.settings, memory_mb=mb))
 
 
+def test_the_budget_counts_the_eliminations_packed_y(squats):
+    """frame_bytes counts a frame's Y by its nonzeros (Problem.y_entries): the elimination's packed buffer
+    holds exactly that many per frame, at a point other than the one y_entries was built at."""
+    from calibrate.solve.schur import eliminate
+
+    problem, state = squats
+    lin = problem.linearize(replace(state, p=state.p * 1.01))
+    el = eliminate(lin, np.full(lin.gz.shape, 1e-3))
+    nz, n = lin.B.shape[1:]
+    assert el.Y.layout.size == F * problem.y_entries() < F * nz * n
+    assert chunks.frame_bytes(problem, True) - chunks.frame_bytes(problem, False) == \
+        8 * (nz * n + problem.y_entries() + problem.output_sizes[2])
+
+
 @pytest.mark.parametrize("kept", [0, 2], ids=["none-kept", "two-kept"])
 def test_chunked_solve_equals_the_whole(squats, monkeypatch, kept):
     """Levenberg-Marquardt (with its geodesic acceleration) on blocks formed chunk by chunk, none or two
