@@ -418,22 +418,23 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         (ParameterLayout.tangent_pattern): built on T's nonzeros at each p, they were built again at
         every other step of pig_walk (an axis's tangent basis turning from one component to another),
         and with them the Schur complement's row classes."""
+        return parameter_layout(self.groups, self.tangent_map(p), self._gather_patterns()[1])
+
+    def _gather_patterns(self) -> tuple:
+        """(groups, the gather's pattern, the blocks' patterns (A_f, B_f) on it, Y's nonzeros per frame): built
+        once per free set, on where T may be nonzero at any p (parameter_layout)."""
         cached = self.__dict__.get("_pattern_cache")
         if cached is None or cached[0] is not self.groups:
             pattern = parameter_pattern(self.groups, self.layout.tangent_pattern())
-            cached = (self.groups, pattern, self.block_patterns(pattern[0]))
+            a_pat, b_pat = self.block_patterns(pattern[0])
+            cached = (self.groups, pattern, (a_pat, b_pat), int(y_pattern_of(a_pat, b_pat).sum()))
             self._pattern_cache = cached
-        return parameter_layout(self.groups, self.tangent_map(p), cached[1])
+        return cached
 
     def y_entries(self) -> int:
         """Nonzeros of a frame's Y = L⁻¹ B_f (calibrate.solve.schur: the elimination keeps only these) over
         the free parameters, at any parameters (the gather's pattern, parameter_layout)."""
-        cached = self.__dict__.get("_y_entries")
-        if cached is None or cached[0] is not self.groups:
-            self.parameter_layout(self.base.vector())  # the patterns, built once (_pattern_cache)
-            a_pat, b_pat = self._pattern_cache[2]
-            cached = self._y_entries = (self.groups, int(y_pattern_of(a_pat, b_pat).sum()))
-        return cached[1]
+        return self._gather_patterns()[3]
 
     def _block_patterns(self, pl: ColumnLayout | None) -> tuple[np.ndarray, np.ndarray]:
         """block_patterns(pl), kept with the gather's pattern (parameter_layout) when `pl` is built on it."""
