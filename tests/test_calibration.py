@@ -210,6 +210,35 @@ def test_frame_factor_on_the_nonzero_pattern_equals_the_dense_one(human, human_k
         assert not np.any(Y0[:, ~pattern]) and np.any(Y0[:, pattern])
 
 
+def test_gauge_basis_spans_the_constraints_null_space_and_projects_as_the_dense_basis(human, human_kin):
+    """The gauge basis held as Householder reflectors (schur.GaugeBasis, what the solver restricts the
+    Schur complement to) is an orthonormal basis of the null space of the model's gauge constraints K, the
+    same subspace as scipy's SVD null space; its reduced matrix NᵀSN and its products Nᵀv, N x equal the
+    dense basis's, including for constraints with a dependent row (a rank below K's row count)."""
+    from scipy.linalg import null_space as svd_null_space
+
+    from calibrate.solve.schur import GaugeBasis
+
+    problem, state = _squats_problem(human, human_kin, 20, 5)
+    K0 = problem.gauge_constraints(state.p)
+    rng = np.random.default_rng(3)
+    for K in (K0, np.vstack([K0, K0[:2].sum(0, keepdims=True)])):  # the second: one row the sum of two others
+        n = K.shape[1]
+        basis = GaugeBasis(K)
+        N = basis.dense()
+        Ref = svd_null_space(K)
+        assert N.shape == Ref.shape and basis.rank == np.linalg.matrix_rank(K)
+        np.testing.assert_allclose(N.T @ N, np.eye(N.shape[1]), atol=1e-12)
+        np.testing.assert_allclose(K @ N, 0.0, atol=1e-10 * np.abs(K).max())
+        np.testing.assert_allclose(N @ (N.T @ Ref), Ref, atol=1e-10)  # the same subspace
+        A = rng.standard_normal((n, n))
+        S = A @ A.T
+        np.testing.assert_allclose(basis.project(S), N.T @ S @ N, atol=1e-12 * np.abs(S).max())
+        v, x = rng.standard_normal(n), rng.standard_normal(N.shape[1])
+        np.testing.assert_allclose(basis.down(v), N.T @ v, atol=1e-12)
+        np.testing.assert_allclose(basis.up(x), N @ x, atol=1e-12)
+
+
 def test_packed_rows_hold_the_dense_factorisation_and_its_products(human, human_kin, monkeypatch):
     """Y packed row class by row class (schur.PackedRows, as eliminate keeps it) holds the dense
     factorisation's Y (to rounding, as the pattern test above) in the C kernels and in numba's, and the

@@ -30,6 +30,7 @@ from .schur import (
     GEODESIC_H,
     GEODESIC_RATIO,
     Elimination,
+    GaugeBasis,
     eliminate,
     frames_times,
     marquardt_diagonal,
@@ -218,7 +219,7 @@ def _frame_steps(L: np.ndarray, el: Elimination | None, g: np.ndarray, Bdp: np.n
 
 
 def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float, Dz: np.ndarray,
-                 N: np.ndarray | None, accelerate: bool, here: tuple | None, scratch: dict,
+                 N: GaugeBasis | None, accelerate: bool, here: tuple | None, scratch: dict,
                  kept_work: list[dict]) -> tuple[np.ndarray, np.ndarray, float, Bend] | None:
     """One Levenberg–Marquardt step of damping `lam` (scaling Dz (F, nz); gauge basis N) on blocks
     held chunk by chunk: (dz, dp, the Gauss–Newton model's predicted decrease, the bend), the bend
@@ -254,7 +255,7 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
         dS = np.diag(S)
         S = S + np.diag(lam * marquardt_diagonal(dS, float(dS.max(initial=0.0))))
         if N is not None:
-            S = N.T @ S @ N
+            S = N.project(S)
         try:
             Ls = np.linalg.cholesky(S)
         except np.linalg.LinAlgError:
@@ -265,9 +266,9 @@ def chunked_step(problem: Problem, blocks: FrameBlocks, state: State, lam: float
             return np.zeros(0)
         r = -g + r
         if N is not None:
-            r = N.T @ r
+            r = N.down(r)
         x = cho_solve(Ls, r)
-        return N @ x if N is not None else x
+        return N.up(x) if N is not None else x
 
     def factors(i: int, sl: slice, lin: Linearization) -> tuple[np.ndarray, Elimination | None]:
         if i < len(els):

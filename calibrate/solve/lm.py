@@ -45,6 +45,7 @@ from .schur import (
     GEODESIC_H,
     GEODESIC_RATIO,
     Elimination,
+    GaugeBasis,
     eliminate,
     marquardt_diagonal,
     model_decrease,
@@ -96,7 +97,7 @@ class _Factored:
     for any right-hand side (the LM step, then the geodesic acceleration) at the cost of a few
     substitutions."""
 
-    def __init__(self, el: Elimination, Ls: np.ndarray | None, N: np.ndarray | None):
+    def __init__(self, el: Elimination, Ls: np.ndarray | None, N: GaugeBasis | None):
         self.el, self.Ls, self.N = el, Ls, N
 
     def solve(self, gz: np.ndarray, gp: np.ndarray, yz: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -107,16 +108,16 @@ class _Factored:
             return -back_substitute(el.L, yz)[:, ::-1], np.zeros(0)
         rhs = -gp + el.Y.transpose_times(yz)
         if self.N is not None:
-            rhs = self.N.T @ rhs
+            rhs = self.N.down(rhs)
         dp = cho_solve(self.Ls, rhs)
         if self.N is not None:
-            dp = self.N @ dp
+            dp = self.N.up(dp)
         t = yz + el.Y.times(dp)  # L⁻¹ (g_z + B dp), reversed rows
         return -back_substitute(el.L, t)[:, ::-1], dp
 
 
 def factor_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool = False,
-                N: np.ndarray | None = None, work: dict | None = None) -> _Factored | None:
+                N: GaugeBasis | None = None, work: dict | None = None) -> _Factored | None:
     """The damped normal equations for damping `lam` factored (frames eliminated, the Schur
     complement on p Cholesky-factored, restricted to the columns of `N` (gauge constraints) if
     given); None if a block is not positive definite.  `work`: buffers reused between steps."""
@@ -125,7 +126,7 @@ def factor_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool 
 
 
 def _factor_schur(lin: Linearization, el: Elimination, lam: float, pose_only: bool,
-                  N: np.ndarray | None) -> _Factored | None:
+                  N: GaugeBasis | None) -> _Factored | None:
     """factor_step's second half: the damped Schur complement of the eliminated frames `el` factored."""
     if pose_only or lin.C.size == 0:
         return _Factored(el, None, None)
@@ -135,7 +136,7 @@ def _factor_schur(lin: Linearization, el: Elimination, lam: float, pose_only: bo
     dS = np.diag(S)
     S = S + np.diag(lam * marquardt_diagonal(dS, float(dS.max(initial=0.0))))
     if N is not None:
-        S = N.T @ S @ N
+        S = N.project(S)
     try:
         return _Factored(el, np.linalg.cholesky(S), N)
     except np.linalg.LinAlgError:
@@ -143,21 +144,16 @@ def _factor_schur(lin: Linearization, el: Elimination, lam: float, pose_only: bo
 
 
 def solve_step(lin: Linearization, lam: float, Dz: np.ndarray, pose_only: bool = False,
-               N: np.ndarray | None = None, work: dict | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+               N: GaugeBasis | None = None, work: dict | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """The LM step (dz (F, nz), dp (n,)) for damping `lam` (see factor_step); None if a block is
     not positive definite."""
     fac = factor_step(lin, lam, Dz, pose_only, N, work)
     return None if fac is None else fac.solve(lin.gz, lin.gp, fac.el.yz)
 
 
-def null_space(K: np.ndarray, n: int) -> np.ndarray | None:
+def null_space(K: np.ndarray, n: int) -> GaugeBasis | None:
     """Orthonormal basis (n, n − rank K) of the steps that satisfy K dp = 0; None without constraints."""
-    if K.shape[0] == 0:
-        return None
-    Qm, R = np.linalg.qr(K.T, mode="complete")
-    d = np.abs(np.diag(R))
-    rank = int(np.sum(d > 1e-10 * max(1e-300, d.max(initial=0.0))))
-    return Qm[:, rank:]
+    return None if K.shape[0] == 0 else GaugeBasis(K)
 
 
 def _accelerate(problem: Problem, state: State, lin: Linearization, fac: _Factored, dz: np.ndarray,
@@ -371,7 +367,7 @@ class _BlockArrow:
         self.costs: dict[int, tuple[State, float]] = {}  # the cost of the point the last step chose
         self.blocks: FrameBlocks | None = None
         self.here: tuple | None = None
-        self.N: np.ndarray | None = None
+        self.N: GaugeBasis | None = None
 
     def linearize(self, state: State, lam: float) -> float:
         problem = self.problem
@@ -587,5 +583,6 @@ def covariance(problem: Problem, state: State, lin: Linearization | None = None,
     N = null_space(problem.gauge_constraints(state.p, slides=False), problem.n_free)
     if N is None:
         return Covariance(np.linalg.pinv(S, hermitian=True), np.linalg.pinv(P, hermitian=True))
-    return Covariance(N @ np.linalg.pinv(N.T @ S @ N, hermitian=True) @ N.T,
-                      N @ np.linalg.pinv(N.T @ P @ N, hermitian=True) @ N.T)
+    D = N.dense()
+    return Covariance(D @ np.linalg.pinv(N.project(S), hermitian=True) @ D.T,
+                      D @ np.linalg.pinv(N.project(P), hermitian=True) @ D.T)
