@@ -252,3 +252,23 @@ def test_hinge_centres_slide_along_their_axes_without_moving_a_marker(human, hum
             g[L.cols("centre", jk)] = -a
         assert abs(g @ (J1.T @ r1)) < 1e-8 * np.linalg.norm(J1.T @ r1), j.name
     assert np.abs(problem.slide_centres(slid.p) - slid.p).max() < 1e-9
+
+
+def test_sparse_gram_and_dense_sum_repeated_nonzeros_as_the_dense_products():
+    """The priors' Jacobian from its nonzeros (priors._dense, np.add.at) is the matrix np.bincount
+    builds, bit for bit; its Gram matrix from the nonzeros (priors.sparse_gram: each row's products, a
+    position repeated within a row and rows without any) equals JᵀJ of the dense matrix."""
+    from calibrate.problem.priors import _dense, sparse_gram
+
+    rng = np.random.default_rng(11)
+    m, n = 40, 25
+    rows = np.sort(rng.integers(0, m, 150))
+    cols = rng.integers(0, n, 150)
+    cols[1] = cols[0]
+    rows[1] = rows[0]  # one position given twice
+    vals = rng.standard_normal(150)
+    J = _dense(rows, cols, vals, (m, n))
+    ref = np.bincount(rows * n + cols, weights=vals, minlength=m * n).reshape(m, n)
+    assert np.array_equal(J, ref)
+    assert np.any(~J.any(axis=1))  # some rows without nonzeros
+    np.testing.assert_allclose(sparse_gram(rows, cols, vals, n), J.T @ J, rtol=1e-13, atol=1e-13)

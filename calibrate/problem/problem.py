@@ -404,10 +404,10 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
             gz[f, c] += k * lim[f, d_]
         Jr = None
         if frames is None:
-            r, Jr = self.prior(state.p)
+            r, Jr, G = self.prior_gram(state.p)
             cost += 0.5 * float(r @ r)
             if with_parameters:
-                C += Jr.T @ Jr
+                C += G
                 gp += Jr.T @ r
         return Linearization(cost, A, B, C, gz, gp, a_pat, b_pat, (d, jz, jp, wrow, pl, Jr, out))
 
@@ -485,10 +485,11 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
     def prior_normal(self, p: np.ndarray, with_parameters: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
         """The priors' share of the normal equations at `p`: (cost, Jr'Jr, Jr'r) (empty without the
         parameters), what linearize adds once to the frames' blocks."""
-        r, Jr = self.prior(p)
         if not with_parameters:
+            r, _ = self.prior(p, jacobian=False)
             return 0.5 * float(r @ r), np.zeros((0, 0)), np.zeros(0)
-        return 0.5 * float(r @ r), Jr.T @ Jr, Jr.T @ r
+        r, Jr, G = self.prior_gram(p)
+        return 0.5 * float(r @ r), G, Jr.T @ r
 
     def residual_parts(self, state: State, frames: slice = ALL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The residuals at `state`, unweighted markers (F, 3 n_markers; 0 where not seen), joint
