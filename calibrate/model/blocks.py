@@ -342,6 +342,12 @@ class ParameterLayout:
             T[self.axis_entries[:, :, None], self.axis_columns[:, None, :]] = True
         return T
 
+    def tangent_nonzeros(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, columns) of tangent_pattern's entries, row by row: made once per layout."""
+        if getattr(self, "_tangent_nonzeros", None) is None:
+            self._tangent_nonzeros = np.nonzero(self.tangent_pattern())
+        return self._tangent_nonzeros
+
     def retract(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """p moved by the free step dp, each block on its manifold: scales to s exp(ds / s) (s + ds to
         first order, and never zero or negative: a segment with no marker of its own, whose scale only

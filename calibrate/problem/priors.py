@@ -183,10 +183,12 @@ class PriorsMixin:
             return np.zeros(0), None
         if not jacobian:
             return np.concatenate(res), None
+        # T's nonzeros: where the layout's tangent map may be nonzero (a zero among them adds nothing).
+        nonzeros = L.tangent_nonzeros() if T is None else np.nonzero(T)
         T = self.tangent_map(p) if T is None else T
         r = np.concatenate(res)
         rows, cols, vals = (np.concatenate(x) for x in zip(*trip, strict=True))
-        return r, _sparse_product(rows, cols, vals, T)
+        return r, _sparse_product(rows, cols, vals, T, nonzeros)
 
     def limits(self, Z: np.ndarray) -> np.ndarray:
         """Joint-limit residuals (F, n_dofs): LIMIT_WEIGHT/σ × how far each angle lies outside its
@@ -220,15 +222,15 @@ class PriorsMixin:
         return (lim != 0) | self.locked
 
 
-def _sparse_product(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray,
-                    T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _sparse_product(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, T: np.ndarray,
+                    t_nonzeros: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The nonzeros of J @ T (rows in order, columns, values; a position may repeat) for the matrix J
     given by its nonzeros (rows, cols, vals; repeated entries add up) and a T with few nonzeros per row
-    (the tangent map: an identity but for each hinge axis's 3 × 2 block): every product of a nonzero of J
-    with one of T's row."""
+    (the tangent map: an identity but for each hinge axis's 3 × 2 block) at `t_nonzeros` (its rows in
+    order, columns; a superset does too): every product of a nonzero of J with one of T's row."""
     order = np.lexsort((cols, rows))  # each sum in one order, whatever order the triplets came in
     rows, cols, vals = rows[order], cols[order], vals[order]
-    t_rows, t_cols = np.nonzero(T)
+    t_rows, t_cols = t_nonzeros
     counts = np.bincount(t_rows, minlength=T.shape[0])
     first = np.cumsum(counts) - counts  # where each row of T starts among its nonzeros
     n = counts[cols]
