@@ -111,3 +111,34 @@ def test_parameter_changes_read_the_columns_the_names_give(human, human_kin):
             assert np.allclose(c.std, np.degrees(np.sqrt(np.diag(cov)[cols])), rtol=1e-12)
             checked += 1
     assert checked == len(problem.layout.free_blocks)
+
+
+def test_an_unidentified_axis_far_beyond_its_prior_is_reported_unreliable(human, human_kin):
+    """A hinge axis the trial does not identify (posterior SD as its prior-only SD) but that ended more than
+    3 prior SDs (30 deg) from the base model's is reported unreliable, with how far and what to do; one
+    turned less far, or identified (posterior SD a tenth of the prior-only), is not.  The report's JSON
+    lists the unreliable ones."""
+    from calibrate.calibration.identifiability import FAR_FROM_PRIOR
+
+    sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=4)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    p = human.parameters().vector()
+    turned = {"knee_r": 40.0, "elbow_r": 20.0}
+    for name, deg in turned.items():
+        k = problem.layout.axis(human.dof_index(name))
+        a = p[k] / np.linalg.norm(p[k])
+        perp = np.cross(a, [0.0, 0.0, 1.0] if abs(a[2]) < 0.9 else [1.0, 0.0, 0.0])
+        perp /= np.linalg.norm(perp)
+        t = np.radians(deg)
+        p[k] = np.cos(t) * a + np.sin(t) * perp
+    n = problem.n_free
+    cov = 1e-6 * np.eye(n)
+    by = {c.item: c for c in parameter_changes(problem, p, cov, cov) if c.group == "axis"}
+    assert FAR_FROM_PRIOR * np.degrees(problem.settings.priors.axis) == pytest.approx(30.0)
+    assert by["knee_r"].change == pytest.approx(40.0, abs=1e-6) and by["knee_r"].unreliable
+    assert not by["knee_r"].identified and "4.0 prior SDs" in by["knee_r"].note
+    assert "--hold-axes knee_r" in by["knee_r"].note
+    assert by["elbow_r"].change == pytest.approx(20.0, abs=1e-6) and not by["elbow_r"].unreliable
+    assert sum(c.unreliable for c in by.values()) == 1
+    identified = {c.item: c for c in parameter_changes(problem, p, cov, 100.0 * cov) if c.group == "axis"}
+    assert identified["knee_r"].identified and not identified["knee_r"].unreliable

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -189,7 +190,29 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             note = "" if status.identified else "the trial barely sizes this segment: held by the prior"
         out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
                                    float(seg_scale[si] - 1.0), std, status, note, ratio))
-    return out
+    return [_far_from_prior(c, problem.settings.priors) for c in out]
+
+
+FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far from the base model's is not "held"
+
+
+def _far_from_prior(change: ParameterChange, priors) -> ParameterChange:
+    """`change` with its note corrected where it is a hinge axis the trial did not identify that yet lies
+    more than FAR_FROM_PRIOR prior SDs (Priors.axis) from the base model's: the prior did not hold it
+    there, a valley of the fit (a trade with a neighbour the data do not separate) carried it, so the
+    value is not to be trusted (gait2392's ankle axis next to the markerless talus: 54 deg, 5.4 prior SDs).
+    (A position's change includes the segment's scaling, which its prior does not count against it.)"""
+    sd = math.degrees(priors.axis)
+    if change.group != "axis" or change.status is not Identified.NO or not sd > 0:
+        return change
+    k = change.change / sd
+    if k <= FAR_FROM_PRIOR:
+        return change
+    why = change.note.removesuffix(": held by the prior").removesuffix("; held by the prior")
+    note = (f"{why}; yet {change.change:.0f} deg from the base model's ({k:.1f} prior SDs), so the prior did not hold "
+            f"it: a trade the data do not separate carried it there, and the axis is not reliable (--hold-axes "
+            f"{change.item} keeps the base model's)")
+    return replace(change, unreliable=True, note=note)
 
 
 Judge = Callable[[np.ndarray, np.ndarray], tuple[Identified, str, float]]  # (posterior, prior-only cov) -> verdict

@@ -45,6 +45,9 @@ class ParameterChange:
     status: Identified  # whether the trial identified it (or the prior holds it, and how)
     note: str = ""  # why not identified, in words ('' when identified)
     prior_ratio: float = float("nan")  # worst-direction posterior std / prior-only std (0: data alone, 1: prior alone)
+    # Not identified, and yet further from the base model's than its prior allows: a trade the data do not separate
+    # carried it there (calibration.identifiability: a hinge axis beyond FAR_FROM_PRIOR prior SDs), not to be trusted.
+    unreliable: bool = False
 
     @property
     def name(self) -> str:

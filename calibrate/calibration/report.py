@@ -58,6 +58,8 @@ def calibration_report(cal: Calibration) -> dict:
             base, value = _list(c.base), _list(c.value)
         entry = {"name": c.name, "group": group, "unit": unit, "base": base, "value": value,
                  "change": round(c.change, 6), "std": _list(c.std), "identified": c.identified}
+        if c.unreliable:
+            entry["unreliable"] = True
         if group == "centre":
             entry["kind"] = kinds[c.item]
         if c.note:
@@ -143,6 +145,7 @@ def calibration_report(cal: Calibration) -> dict:
                  if cal.seed.joints is not None else {}},
         "parameters": params,
         "unidentified": [c.name for c in cal.changes if not c.identified],
+        "unreliable": [c.name for c in cal.changes if c.unreliable],
         "notes": list(cal.notes),
         "times_s": {k: round(v, 6) for k, v in cal.times.items()},
         "series": report_series(cal),
@@ -369,13 +372,16 @@ def summary_text(cal) -> str:
         lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg)")
         for c in axes:
             std = np.nanmax(c.std)
-            flag = "" if c.identified else "  (held by prior)"
+            flag = "" if c.identified else "  (not identified; unreliable)" if c.unreliable else "  (held by prior)"
             lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")
     if un:
-        lines.append(f"  not identified by this trial (held by their priors): {len(un)}")
+        far = sum(c.unreliable for c in un)
+        lines.append("  not identified by this trial (held by their priors" + (f"; {far} carried further than "
+                     "their priors allow, unreliable" if far else "") + f"): {len(un)}")
+        un = sorted(un, key=lambda c: not c.unreliable)  # the unreliable first
         for c in un[:12]:
             lines.append(f"    {c.name}: {c.note}")
         if len(un) > 12:
