@@ -14,6 +14,7 @@ limb far from the neutral pose is not caught in a mirror-image minimum.
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -69,30 +70,29 @@ class _FrameFit:
         self.rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
         self.target = obs[seen_mk].ravel()
         self.free = free = np.asarray(free)
-        self.rot = bool(np.isin(np.arange(FrameLayout.n_root)[FrameLayout.rotation], free).any())
-        self.balls = bool(np.isin(solver.ball_cols, free).any())
-        self.dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], solver.ball_cols)  # SO(3): no limits
-        self.lo = solver.lower[FrameLayout.dof(self.dof_cols)]
-        self.hi = solver.upper[FrameLayout.dof(self.dof_cols)]
-        position = {int(c): i for i, c in enumerate(free)}
-        self.col_of = np.array([position[int(c)] for c in self.dof_cols], dtype=int)  # limit rows -> columns
         self.every = free.size == solver.nz and bool(np.all(free == np.arange(solver.nz)))  # J's rows only
+        # The columns' roles (root rotation, balls, limited DoFs): the same for every solve over all coordinates.
+        self.rot, self.balls, self.dof_cols, self.lo, self.hi, self.col_of = solver.columns(free, self.every)
         self.last: tuple | None = None  # (x, residuals, Jacobian, beyond limits) at the last point costed
         self.g = self.A = np.zeros(0)
+        # linearize's Jacobian, markers' rows then one row per limited DoF (its one entry rewritten each time)
+        self.Jf = np.zeros((self.rows.size + self.dof_cols.size, free.size))
+        self.limit_rows = self.rows.size + np.arange(self.dof_cols.size)
 
     def residuals(self, x: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         m, J = self.evaluate(*x)
         th = x[0][self.dof_cols]
         out = (th < self.lo) | (th > self.hi)
-        r = np.concatenate([m[self.rows] - self.target, LIMIT_WEIGHT * (th - np.clip(th, self.lo, self.hi))])
+        # np.minimum(np.maximum(...)) is np.clip's arithmetic, without its wrapper's checks
+        r = np.concatenate([m[self.rows] - self.target,
+                            LIMIT_WEIGHT * (th - np.minimum(np.maximum(th, self.lo), self.hi))])
         return r, J[self.rows] if self.every else J[np.ix_(self.rows, self.free)], out
 
     def linearize(self, x: tuple[np.ndarray, np.ndarray], lam: float = 0.0) -> float:
         r, J, out = self.last[1:] if self.last is not None and self.last[0] is x else self.residuals(x)
-        n_mk = self.rows.size
-        Jf = np.zeros((n_mk + self.dof_cols.size, self.free.size))
-        Jf[:n_mk] = J
-        Jf[n_mk + np.arange(self.dof_cols.size), self.col_of] = LIMIT_WEIGHT * out
+        Jf = self.Jf
+        Jf[:self.rows.size] = J
+        Jf[self.limit_rows, self.col_of] = LIMIT_WEIGHT * out
         self.g, self.A = Jf.T @ r, Jf.T @ Jf
         return float(r @ r)
 
@@ -116,7 +116,7 @@ class _FrameFit:
             q[:4] = retract_root(q[:4], zn[FrameLayout.rotation])
             zn[FrameLayout.rotation] = 0.0
         predicted = -(2.0 * float(g @ step) + float(step @ A @ step))
-        return (zn, q), predicted, float(np.linalg.norm(step))
+        return (zn, q), predicted, math.sqrt(float(step @ step))  # np.linalg.norm's arithmetic, without its checks
 
     def cost(self, x: tuple[np.ndarray, np.ndarray]) -> float:
         r, J, out = self.residuals(x)
@@ -124,7 +124,7 @@ class _FrameFit:
         return float(r @ r)
 
     def norm(self, x: tuple[np.ndarray, np.ndarray]) -> float:
-        return float(np.linalg.norm(x[0]))
+        return math.sqrt(float(x[0] @ x[0]))
 
 
 class FrameSolver:
@@ -160,6 +160,27 @@ class FrameSolver:
         self.root_markers = [model.marker_index(m) for m in model.segments[0].markers]
         self.lower = np.array([d.lower for d in model.dofs])
         self.upper = np.array([d.upper for d in model.dofs])
+        self._columns: dict[tuple[int, ...] | None, tuple] = {}  # columns(), by the coordinates solved for
+
+    def columns(self, free: np.ndarray, every: bool = False) -> tuple[bool, bool, np.ndarray, np.ndarray,
+                                                                      np.ndarray, np.ndarray]:
+        """The roles of the coordinates `free` (`every`: all of them, in order) in a frame's fit: whether
+        the root's rotation and any ball is among them, the limited DoFs' columns (hinge and universal
+        angles: a ball is on SO(3), without limits), their lower and upper limits, and each one's place
+        among `free`.  Made once per set of coordinates (the global start solves each joint's many times)."""
+        key = None if every else tuple(int(c) for c in free)
+        if key not in self._columns:
+            self._columns[key] = self._roles(np.arange(self.nz) if every else np.asarray(free))
+        return self._columns[key]
+
+    def _roles(self, free: np.ndarray) -> tuple[bool, bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        rot = bool(np.isin(np.arange(FrameLayout.n_root)[FrameLayout.rotation], free).any())
+        balls = bool(np.isin(self.ball_cols, free).any())
+        dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], self.ball_cols)
+        position = {int(c): i for i, c in enumerate(free)}
+        col_of = np.array([position[int(c)] for c in dof_cols], dtype=int)  # limit rows -> columns
+        return (rot, balls, dof_cols, self.lower[FrameLayout.dof(dof_cols)], self.upper[FrameLayout.dof(dof_cols)],
+                col_of)
 
     def solve(self, z, q, obs, seen_mk, free, budget, tol=1e-8):
         """Levenberg–Marquardt (calibrate.solve.lm.minimise) over coordinates `free` fitting markers
