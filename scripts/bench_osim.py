@@ -225,6 +225,7 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
             "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations],
+            "unreliable": [f"{c.item} {c.change:.0f} deg" for c in cal.changes if c.unreliable],
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
 
 
@@ -291,6 +292,8 @@ def bench(case: str, work: Path, log, outliers: float) -> dict:
                 diffs[name] = row
         out[label] = diffs
     out["static_asymmetry"] = cr["static_asymmetry"]
+    # Axes the trial did not identify that ended beyond 3 prior SDs from the base model's (the report's `unreliable`)
+    out["calibrate_unreliable_axes"] = cr["unreliable"]
     return out
 
 
@@ -321,6 +324,9 @@ def report(res: dict) -> None:
                     extra += " [arm: beyond issue 17's list, no target]"
                 print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
                       f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
+        if r.get("calibrate_unreliable_axes"):
+            far = ", ".join(r["calibrate_unreliable_axes"])
+            print(f"  axes not identified, beyond their priors (unreliable): {far}")
         for line in r.get("static_asymmetry", []):
             print(f"  static pose flagged (calibrate): {line}")
         for a in r["approximations"]:
