@@ -214,7 +214,8 @@ def test_gauge_basis_spans_the_constraints_null_space_and_projects_as_the_dense_
     """The gauge basis held as Householder reflectors (schur.GaugeBasis, what the solver restricts the
     Schur complement to) is an orthonormal basis of the null space of the model's gauge constraints K, the
     same subspace as scipy's SVD null space; its reduced matrix NᵀSN and its products Nᵀv, N x equal the
-    dense basis's, including for constraints with a dependent row (a rank below K's row count)."""
+    dense basis's, including for constraints with a dependent row (a rank below K's row count), after the
+    rows it depends on or before others."""
     from scipy.linalg import null_space as svd_null_space
 
     from calibrate.solve.schur import GaugeBasis
@@ -222,7 +223,8 @@ def test_gauge_basis_spans_the_constraints_null_space_and_projects_as_the_dense_
     problem, state = _squats_problem(human, human_kin, 20, 5)
     K0 = problem.gauge_constraints(state.p)
     rng = np.random.default_rng(3)
-    for K in (K0, np.vstack([K0, K0[:2].sum(0, keepdims=True)])):  # the second: one row the sum of two others
+    dependent = K0[:2].sum(0, keepdims=True)  # a row the sum of two others: last, then in the middle
+    for K in (K0, np.vstack([K0, dependent]), np.vstack([K0[:3], dependent, K0[3:]])):
         n = K.shape[1]
         basis = GaugeBasis(K)
         N = basis.dense()
