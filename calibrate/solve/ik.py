@@ -71,7 +71,7 @@ class _FrameFit:
         self.target = obs[seen_mk].ravel()
         self.free = free = np.asarray(free)
         self.every = free.size == solver.nz and bool(np.all(free == np.arange(solver.nz)))  # J's rows only
-        # The columns' roles (root rotation, balls, limited DoFs): the same for every solve over all coordinates.
+        # The columns' roles (root rotation, balls, limited DoFs), made once per set of coordinates.
         self.rot, self.balls, self.dof_cols, self.lo, self.hi, self.col_of = solver.columns(free, self.every)
         self.last: tuple | None = None  # (x, residuals, Jacobian, beyond limits) at the last point costed
         self.g = self.A = np.zeros(0)
