@@ -12,7 +12,7 @@ import numpy as np
 
 from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
-from ..problem.options import ProblemOptions
+from ..problem.options import Priors, ProblemOptions
 from ..problem.problem import Problem
 from .records import CoordinateNote, Identified, LimitNote, ParameterChange, StillNote
 
@@ -196,7 +196,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
 FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far from the base model's is not "held"
 
 
-def _far_from_prior(change: ParameterChange, priors) -> ParameterChange:
+def _far_from_prior(change: ParameterChange, priors: Priors) -> ParameterChange:
     """`change` with its note corrected where it is a hinge axis the trial did not identify that yet lies
     more than FAR_FROM_PRIOR prior SDs (Priors.axis) from the base model's: the prior did not hold it
     there, a valley of the fit (a trade with a neighbour the data do not separate) carried it, so the

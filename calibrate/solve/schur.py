@@ -148,14 +148,14 @@ class GaugeBasis:
     def __init__(self, K: np.ndarray):
         k, n = K.shape
         h, tau = np.linalg.qr(K.T, mode="raw")  # h: LAPACK's (k, n) output, the reflectors below R's diagonal
-        d = np.abs(np.diagonal(h))
-        independent = d > 1e-10 * max(1e-300, d.max(initial=0.0))
+        independent = _independent_rows(h)
         if 0 < independent.sum() < k:
             # A row (numerically) in the span of the rows before it adds no constraint; without it the first
             # reflectors span K's rows and the rest its null space, wherever in K the dependent row was.
             K = K[independent]
             k = K.shape[0]
             h, tau = np.linalg.qr(K.T, mode="raw")
+            independent = _independent_rows(h)
         V = np.tril(h.T, -1)
         V[np.arange(k), np.arange(k)] = 1.0
         T = np.zeros((k, k))  # Q = H_1 ... H_k = I − V T Vᵀ, T upper triangular (LAPACK's dlarft, forward)
@@ -163,8 +163,7 @@ class GaugeBasis:
             T[j, j] = tau[j]
             if j:
                 T[:j, j] = -tau[j] * (T[:j, :j] @ (V[:, :j].T @ V[:, j]))
-        d = np.abs(np.diagonal(h))
-        self.rank = int(np.sum(d > 1e-10 * max(1e-300, d.max(initial=0.0))))  # k, unless K is all zero
+        self.rank = int(independent.sum())  # k, unless K is all zero
         self.n = n
         self.V, self.T = V, T
 
@@ -191,6 +190,13 @@ class GaugeBasis:
         E = np.zeros((self.n, self.n - self.rank))
         E[self.rank:] = np.eye(self.n - self.rank)
         return E - self.V @ (self.T @ self.V[self.rank:].T)
+
+
+def _independent_rows(h: np.ndarray) -> np.ndarray:
+    """Which rows of K are independent of the rows before it, from its QR (np.linalg.qr's raw `h`): R's
+    diagonal entry above a relative tolerance."""
+    d = np.abs(np.diagonal(h))
+    return d > 1e-10 * max(1e-300, d.max(initial=0.0))
 
 
 def factor_pattern(lin: Linearization) -> np.ndarray:
