@@ -210,6 +210,87 @@ def test_frame_factor_on_the_nonzero_pattern_equals_the_dense_one(human, human_k
         assert not np.any(Y0[:, ~pattern]) and np.any(Y0[:, pattern])
 
 
+def _rotation(axis, degrees: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(math.radians(degrees) * np.asarray(axis, float) / np.linalg.norm(axis)).as_matrix()
+
+
+def test_the_root_frame_alignment_undoes_a_rigid_turn_of_its_contents(human, human_kin):
+    """Problem.align_frames on the root (pelvis) whose contents (markers, the hip and lumbar centres) are the
+    base model's turned 40° and shifted: the turn and shift it takes out return every one of them to the base
+    model's place (the rotation about the contents' centroid and t = c - G c0; the earlier shift by the
+    centroids' difference alone left about a tenth of a 14° turn)."""
+    problem, _ = _squats_problem(human, human_kin, 6, 2)
+    base = human.parameters().vector()
+    moved = base.copy()
+    problem._turn(moved, 0, _rotation([0.3, -1.0, 0.4], 40.0), np.array([0.05, -0.02, 0.1]))
+    assert np.abs(moved - base).max() > 0.05
+    out, moves = problem.align_frames(moved)
+    assert moves[0][:2] == (0, "rigid")
+    np.testing.assert_allclose(out, base, atol=1e-12)
+
+
+def test_turned_segment_frames_keep_every_marker_where_it_was(human, human_kin):
+    """calibration.gauge.turn_frames (what align_gauge re-solves from): segment frames turned by tens of
+    degrees — the root's, a ball joint's child's (its SO(3) reference rotation carried through the turns of
+    both its segments) and a hinge's child's about its axis — with the frame coordinates carried along, and
+    every marker the kinematics place is where it was, to 1e-9 m."""
+    from calibrate.calibration.gauge import turn_frames
+
+    problem, state = _squats_problem(human, human_kin, 12, 3)
+    p = state.p.copy()
+    kinds = dict(problem._gauges)
+    femur, tibia = human.segment_index("femur_r"), human.segment_index("tibia_r")
+    assert kinds[0] == "rigid" and kinds[femur] == "rotation" and kinds[tibia] == "axis"
+    problem._turn(p, 0, _rotation([0.2, 1.0, -0.3], 25.0), np.array([0.02, 0.01, -0.03]))
+    problem._turn(p, femur, _rotation([1.0, 0.2, 0.5], 30.0))
+    knee = next(j for j in human.joints if j.child == "tibia_r")
+    problem._turn(p, tibia, _rotation(problem.axis_direction(p, human.dof_index(knee.dofs[-1])), 35.0))
+    before = replace_p(state, p)
+    net: dict[int, np.ndarray] = {}
+    problem.align_frames(p, net=net)
+    turned = {si: math.degrees(np.arccos(np.clip((np.trace(N) - 1) / 2, -1, 1))) for si, N in net.items()}
+    assert min(turned[0], turned[femur], turned[tibia]) > 20.0
+    after = turn_frames(problem, before)
+    assert after.B is not None and not np.allclose(after.p, p)
+    np.testing.assert_allclose(problem.marker_residuals(after), problem.marker_residuals(before), atol=1e-9)
+
+
+def replace_p(state: State, p: np.ndarray) -> State:
+    return State(state.Z.copy(), state.Q.copy(), p, state.B)
+
+
+def test_align_markers_turns_the_pelvis_to_its_markers_where_a_far_centre_turns_the_priors_gauge(human, human_kin):
+    """A lumbar centre 80 mm from the base model's (gait2392's ends 73 mm off) turns the root frame the priors
+    prefer (align_gauge) by degrees against the pelvis markers; align_markers turns it to them: the base
+    model's pelvis markers then fit the calibrated ones with no turn (scipy's align_vectors about their
+    centroids: under 0.2°, against over 2° in the priors' gauge), and the data fit is kept."""
+    from scipy.spatial.transform import Rotation
+
+    from calibrate.calibration.gauge import align_gauge, align_markers
+
+    problem, state = _squats_problem(human, human_kin, 12, 3)
+    p = state.p.copy()
+    lumbar = next(ji for ji, j in enumerate(human.joints) if j.parent == human.root and j.name == "lumbar")
+    p[problem.layout.centre(lumbar)] += np.array([0.06, 0.05, 0.0])
+    state, _ = levenberg_marquardt(problem, replace_p(state, p), pose_only=True)  # the poses fitted: the fit to keep
+    pelvis = [k for k, mk in enumerate(human.markers) if mk.segment == human.root]
+    base = human.parameters()
+
+    def turn_to_markers(st: State) -> float:
+        params = human.unpack(st.p)
+        x = params.scale[0] * params.marker[pelvis]
+        x0 = base.scale[0] * base.marker[pelvis]
+        R, _ = Rotation.align_vectors(x - x.mean(0), x0 - x0.mean(0))
+        return math.degrees(R.magnitude())
+
+    priors, markers = align_gauge(problem, state), align_markers(problem, state)
+    assert turn_to_markers(priors) > 2.0 and turn_to_markers(markers) < 0.2
+    fit = [np.sqrt(np.nanmean(np.sum(problem.marker_residuals(s) ** 2, axis=2))) for s in (state, markers)]
+    assert abs(fit[1] - fit[0]) < 1e-4
+
+
 def test_gauge_basis_spans_the_constraints_null_space_and_projects_as_the_dense_basis(human, human_kin):
     """The gauge basis held as Householder reflectors (schur.GaugeBasis, what the solver restricts the
     Schur complement to) is an orthonormal basis of the null space of the model's gauge constraints K, the
@@ -702,6 +783,8 @@ def test_config_file(tmp_path):
     cfg.write_text('hold_axes = ["subtalar_r", "ankle_l"]\nauto_hold = false\n')
     held = load_settings(cfg)
     assert held.hold_axes == ("ankle_l", "subtalar_r") and held.auto_hold is False and Settings().auto_hold is True
+    cfg.write_text('segment_frames = "markers"\n')
+    assert load_settings(cfg).segment_frames == "markers" and Settings().segment_frames is None
     assert s.free == ("centre", "marker") and s.loss == "huber" and s.noise == pytest.approx(0.002)
     assert s.geodesic is False and Settings().geodesic is True
     assert s.priors.centre == pytest.approx(0.01) and s.priors.axis == pytest.approx(math.radians(5))
@@ -714,7 +797,8 @@ def test_config_file(tmp_path):
                       ("lock_deg = ['subtalar_r']", "'lock_deg' must be a table"),
                       ("[lock_deg]\nsubtalar_r = 'zero'", "'subtalar_r' must be a number"),
                       ("hold_axes = 'subtalar_r'", "'hold_axes' must be a list of DoF names"),
-                      ("auto_hold = 'no'", "'auto_hold' must be true or false")):
+                      ("auto_hold = 'no'", "'auto_hold' must be true or false"),
+                      ("segment_frames = 'bones'", "segment_frames: must be 'markers' or 'priors'")):
         cfg.write_text(text)
         with pytest.raises(CalibrateError, match=msg):
             load_settings(cfg)

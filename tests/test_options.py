@@ -21,7 +21,8 @@ from calibrate.solve.lm import State
 CHANGED = dict(free=("centre", "marker"), noise=0.002, loss="huber", loss_scale=2.0, priors=Priors(centre=0.03),
                max_iterations=7, ftol=1e-3, atol=0.1, xtol=1e-5, gtol=1e-4, seed=False, compile=False,
                new_markers=False, outliers=4.0, geodesic=False, marker_noise={"RTHI": 0.003},
-               lock={"subtalar_r": 0.1}, hold_axes=("knee_r",), auto_hold=False, hold_segments=("talus_r",),
+               lock={"subtalar_r": 0.1}, hold_axes=("knee_r",), auto_hold=False, segment_frames="priors",
+               hold_segments=("talus_r",),
                learn_noise=True, memory_mb=50.0, lateral_markers=(("knee_l", "LKNE", 0.08),), ahead=False)
 
 

@@ -15,10 +15,13 @@ class PipelineOptions:
     new_markers: bool = True  # place trial markers the model does not know on segments and fit them
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
     auto_hold: bool = True  # hold the axes of the coordinates the trial does not show moving
+    segment_frames: str | None = None  # "markers" | "priors" | None: the model's (Settings.segment_frames)
     learn_noise: bool = True  # learn each marker's noise SD from the residuals (Settings.learns_noise: decided)
     ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)
 
     def __post_init__(self) -> None:
+        if self.segment_frames not in (None, "markers", "priors"):
+            raise ValueError(f"segment_frames: must be 'markers' or 'priors', got {self.segment_frames!r}")
         if not isinstance(self.ahead, bool):
             raise ValueError(f"ahead: must be true or false, got {self.ahead!r}")
         if not isinstance(self.learn_noise, bool):

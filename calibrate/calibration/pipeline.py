@@ -21,7 +21,7 @@ from dataclasses import fields, replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from calibrate.calibration.gauge import align_gauge, align_neutral
+from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
@@ -425,6 +425,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("solve", "again, to the tolerance"))
         state, again = paused.finish()
         summary = _merge(summary, again)
+    # Last (with the neutral trial's turn and the centres' slide below), where Settings.segment_frames says so
+    # (by default for an OpenSim model): the segment frames turned to where their markers put them, the frames in
+    # which the lab's model defines its joint angles (align_markers).  A change of gauge (the data fit stays), so
+    # no solve may follow and undo it.
+    if (run.segment_frames or ("markers" if "<opensim" in model.text else "priors")) == "markers":
+        say(Progress("solve", "segment frames turned to where their markers put them"))
+        state = align_markers(problem, state, solver)
     if in_neutral is not None:
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
         say(Progress("solve", f"segment frames turned to zero joint angles in "

@@ -194,6 +194,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")
+    ap.add_argument("--segment-frames", choices=("markers", "priors"), default=None,
+                    help="where the segment frames end, in which the joint angles are read: 'markers' (turned to "
+                         "where each segment's markers put them, as the model defines them) or 'priors' (where the "
+                         "priors hold the geometry least); default: markers for an OpenSim model, else priors")
     ap.add_argument("--memory-mb", type=positive_float, default=None, metavar="MB",
                     help="memory for the frames' normal-equation blocks at once (default 200; ~170 kB per frame "
                          "for the full body): a longer trial's are formed chunk by chunk, in bounded memory")

@@ -21,6 +21,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
     auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
+    segment_frames = "markers"  # joint angles in the frames the segments' markers put ("priors": the solve's);
+                            # default: "markers" for an OpenSim model, "priors" for a URDF
 
     [priors]                # SDs of the pull towards the base model
     marker_mm = 20.0
@@ -56,7 +58,7 @@ else:  # pragma: no cover
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
         "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
-        "auto_hold", "learn_noise", "ahead"}
+        "auto_hold", "segment_frames", "learn_noise", "ahead"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm"}
 
 
@@ -127,7 +129,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        outliers=num(data, "outlier_sigmas", s.outliers),
                        geodesic=data.get("geodesic", s.geodesic), memory_mb=num(data, "memory_mb", s.memory_mb),
                        marker_noise=marker_noise, lock=lock,
-                       hold_axes=tuple(hold), auto_hold=auto_hold, ahead=data.get("ahead", s.ahead))
+                       hold_axes=tuple(hold), auto_hold=auto_hold, ahead=data.get("ahead", s.ahead),
+                       segment_frames=data.get("segment_frames", s.segment_frames))
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

@@ -13,6 +13,9 @@ from calibrate.problem.state import FrameTurn
 from ..model.blocks import cross_rows, perpendicular_bases
 from ..seed.geometry import kabsch_rotation
 
+MARKER_FRAMES = 0.01  # a joint centre's weight, relative to its prior's, where the segment frames follow the markers
+# (calibrate.calibration.gauge.align_markers): the centres only break ties (a segment with too few markers).
+
 
 class GaugeMixin:
     """Problem's gauge handling (calibrate.problem.problem.Problem inherits it)."""
@@ -56,16 +59,19 @@ class GaugeMixin:
                 out.append((si, "axis"))
         return out
 
-    def align_frames(self, p: np.ndarray) -> tuple[np.ndarray, list[FrameTurn]]:
+    def align_frames(self, p: np.ndarray, centre_weight: float = 1.0,
+                     net: dict[int, np.ndarray] | None = None) -> tuple[np.ndarray, list[FrameTurn]]:
         """Turn each free segment frame (see gauge_constraints) to where the priors want it.
 
         Per segment (parents first), the rotation G (root: and shift t) that best carries the
         base model's markers, joint centres and child hinge axes onto the current ones (weighted
-        by the prior SDs; about the hinge axis only for a hinge's child) is taken out of the
+        by the prior SDs, the centres' times `centre_weight`: MARKER_FRAMES for the frames the
+        markers define; about the hinge axis only for a hinge's child) is taken out of the
         contents: x ← Gᵀ(x − t), and carried through hinge and universal joints into the
         segments below (see _turn), so that the data are unchanged once each turned frame's
         coordinates follow (root pose, a hinge's angle; ball angles are re-solved by the caller).
-        Returns the new p and (segment, kind, G, t) per segment."""
+        Returns the new p and (segment, kind, G, t) per segment; `net`, where given, gathers every
+        segment's whole turn N (its frame R becomes R N), the turns carried down included (_turn)."""
         m, L, pr = self.model, self.layout, self.settings.priors
         base = self.base.vector()
         out = p.copy()
@@ -84,7 +90,7 @@ class GaugeMixin:
                 sl = L.centre(ji)
                 pts.append(s * out[sl])
                 pts0.append(s * base[sl])
-                wts.append(1 / pr.centre**2)
+                wts.append(centre_weight / pr.centre**2)
             dirs, dirs0, dw = [], [], []
             for ji in np.flatnonzero(self.centre_segment == si):
                 j = m.joints[ji]
@@ -101,11 +107,16 @@ class GaugeMixin:
             w = np.array(wts + dw)
             n_pts = len(pts)
             t = np.zeros(3)
+            c0 = np.zeros(3)
             if kind == "rigid" and n_pts:
+                # G and t of min Σ w |G x0 + t - x|²: the points' weighted centroids c0 and c, G by Kabsch on the
+                # points about them, t = c - G c0 (x0 ≈ Gᵀ(x - t))
                 wp = w[:n_pts] / w[:n_pts].sum()
-                t = wp @ X[:n_pts] - wp @ X0[:n_pts]
+                c0, c = wp @ X0[:n_pts], wp @ X[:n_pts]
+                X0 = X0.copy()
+                X0[:n_pts] -= c0
                 Xc = X.copy()
-                Xc[:n_pts] -= t
+                Xc[:n_pts] -= c
             else:
                 Xc = X
             if kind == "axis":
@@ -120,7 +131,9 @@ class GaugeMixin:
                 if len(X) < 2:
                     continue
                 G = kabsch_rotation((X0 * w[:, None]).T @ Xc)[0]  # G @ x0 ≈ x
-            self._turn(out, si, G, t)
+                if kind == "rigid" and n_pts:
+                    t = c - G @ c0
+            self._turn(out, si, G, t, net)
             moves.append((si, kind, G, t))
         return out, moves
 
@@ -207,8 +220,10 @@ class GaugeMixin:
             moves.append((si, kind, G, np.zeros(3)))
         return out, moves
 
-    def _turn(self, out: np.ndarray, si: int, G: np.ndarray, t: np.ndarray | None = None) -> None:
-        """Express segment si's contents in its frame turned by G (and shifted by t): in place.
+    def _turn(self, out: np.ndarray, si: int, G: np.ndarray, t: np.ndarray | None = None,
+              net: dict[int, np.ndarray] | None = None) -> None:
+        """Express segment si's contents in its frame turned by G (and shifted by t): in place; each
+        segment's whole turn composed into `net` where given (its frame R becomes R net[si]).
 
         Below a hinge or universal joint the child's frame then turns too, by Oᵀ G O for the
         joint's fixed origin rotation O, with the joint's axes turned back in their own frames
@@ -216,6 +231,8 @@ class GaugeMixin:
         tree until a ball joint, whose angles absorb it."""
         m, L = self.model, self.layout
         shift = np.zeros(3) if t is None else t / out[L.scale(si)]
+        if net is not None:
+            net[si] = net[si] @ G if si in net else G
         # A marker no frame shows stays at its offset in the turned frame: nothing places it but its
         # prior, whose centre (the base model's offset) is in the segment's frame wherever that turns.
         for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):
@@ -236,7 +253,7 @@ class GaugeMixin:
                 if u.dof >= 0:
                     sl = L.axis(u.dof)
                     out[sl] = K.T @ out[sl]
-            self._turn(out, m.segment_index(j.child), K)
+            self._turn(out, m.segment_index(j.child), K, net=net)
 
     def _gauge_plan(self) -> dict:
         """gauge_constraints' index arrays (they depend on the layout and the gauges, not on p): each

@@ -58,6 +58,11 @@ class Settings:
     # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
     # axis, and left free the axis drifts far from the base model's by fitting noise.
     auto_hold: bool = True
+    # Where the segment frames end, in which the joint angles are read (calibrate.calibration.gauge): "markers",
+    # turned to where each segment's markers put them against the base model's (the frames a lab's model defines
+    # by its markers, as OpenSim's marker placer does), or "priors", where the priors hold the geometry least (the
+    # gauge the solve runs in).  None (default): "markers" for a model read from an OpenSim file, else "priors".
+    segment_frames: str | None = None
     # Segments whose geometry is held at the base model's: their scale, the joint centres and markers
     # expressed in them, the axes of the joints into them.  calibrate holds the segments with no seen
     # marker on or below them (calibrate.model.resolve): nothing in the data reaches their parameters, and
