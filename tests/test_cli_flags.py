@@ -185,6 +185,7 @@ def test_free_no_seed_and_lock_in_degrees(human, squat, tmp_path, capsys):
     assert code == 0, err
     rep = json.loads((tmp_path / "f.json").read_text())
     assert rep["settings"]["free"] == ["centre", "marker"]
+    assert rep["settings"]["segment_frames"] == "priors"  # a URDF's default: where the priors hold the geometry least
     assert {p["group"] for p in rep["parameters"] if "not free" not in p.get("note", "")} == {"centre", "marker"}
     subject = load_model(tmp_path / "f.urdf")
     P, B = subject.parameters(), human.parameters()

@@ -609,6 +609,7 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert set(model.dof_names) <= set(head)
     report = json.loads((tmp_path / "walk_report.json").read_text())
     assert report["trials"][0]["rms_mm"] < 1.0  # noise-free markers of the model itself
+    assert report["settings"]["segment_frames"] == "markers"  # an OpenSim model's default: its frames by its markers
     # back to OpenSim: the subject and its motion in OpenSim's names, written with them and by export-osim
     assert (tmp_path / "subject.osim").is_file() and (tmp_path / "walk_motion.mot").is_file()
     assert main(["export-osim", str(out), "--motion", str(tmp_path / "walk_motion.csv"), "-o",

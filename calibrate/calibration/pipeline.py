@@ -429,7 +429,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # (by default for an OpenSim model): the segment frames turned to where their markers put them, the frames in
     # which the lab's model defines its joint angles (align_markers).  A change of gauge (the data fit stays), so
     # no solve may follow and undo it.
-    if (run.segment_frames or ("markers" if "<opensim" in model.text else "priors")) == "markers":
+    frames = run.segment_frames or ("markers" if "<opensim" in model.text else "priors")
+    settings = replace(settings, segment_frames=frames)  # as used
+    if frames == "markers":
         say(Progress("solve", "segment frames turned to where their markers put them"))
         state = align_markers(problem, state, solver)
     if in_neutral is not None:

@@ -110,6 +110,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "seed": st.seed, "new_markers": st.new_markers, "outlier_sigmas": st.outliers,
                      "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise},
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
+                     "segment_frames": st.segment_frames,
                      "hold_segments": list(st.hold_segments),
                      "auto_hold": st.auto_hold, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
@@ -335,6 +336,8 @@ def summary_text(cal) -> str:
         *_measurement_lines(cal),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
+        *(["  frames       segment frames turned to where their markers put them (--segment-frames)"]
+          if cal.settings.segment_frames == "markers" and cal.neutral is None else []),
         *([f"  neutral      segment frames turned so that the joint angles of "
            f"{cal.trials[cal.neutral].source or f'trial {cal.neutral + 1}'} are zero on average"]
           if cal.neutral is not None else []),
