@@ -124,13 +124,17 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
-    # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them;
-    # the OpenSim readers (50 ms of imports) are loaded only for such a model.
+    # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them,
+    # and its segment frames end where its markers put them (Settings.segment_frames), unless settings say
+    # otherwise; the OpenSim readers (50 ms of imports) are loaded only for such a model.
     settings = settings or Settings()
-    if "<opensim" in model.text:
+    opensim = "<opensim" in model.text
+    if opensim:
         from ..io.osim_info import with_locked
 
         settings = with_locked(model, settings)
+    if settings.segment_frames is None:
+        settings = replace(settings, segment_frames="markers" if opensim else "priors")
     known = set(model.marker_names).union(*(t.labels for t in trials))
     unknown = [label for label, _ in settings.marker_noise if label not in known]
     if unknown:
@@ -429,9 +433,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # (by default for an OpenSim model): the segment frames turned to where their markers put them, the frames in
     # which the lab's model defines its joint angles (align_markers).  A change of gauge (the data fit stays), so
     # no solve may follow and undo it.
-    frames = run.segment_frames or ("markers" if "<opensim" in model.text else "priors")
-    settings = replace(settings, segment_frames=frames)  # as used
-    if frames == "markers":
+    if run.segment_frames == "markers":
         say(Progress("solve", "segment frames turned to where their markers put them"))
         state = align_markers(problem, state, solver)
     if in_neutral is not None:
