@@ -210,6 +210,8 @@ def fit(req: dict[str, Any]) -> dict[str, Any]:
         tr = trajectories(skel, markers, poses, back)
         mpos = tr.pop("markers_world")
         tr["marker_rms_m"] = marker_rms(tr["marker_names"], mpos, obs, back)
+        if cfg.get("marker_positions"):  # every frame's model markers (lab frame), for a caller's own scoring
+            tr["markers_world"] = mpos.tolist()
         report = nimble.biomechanics.IKErrorReport(skel, markers, poses, obs)
         tr["nimble_ik_rms_m"] = float(report.averageRootMeanSquaredError)
         tr["error"] = None

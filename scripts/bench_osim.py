@@ -16,7 +16,15 @@ difference from OpenSim's IK (deg; gait2392 also from the repository's reference
 IK separately) and their ratio.  calibrate runs with its default settings, the .osim's locked coordinates
 locked and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
 
-    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only gait2392|rajagopal]
+nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
+with numpy < 2, made on first use) is the third row, unless ``--no-nimble``: the same generic .osim with
+the marker set's markers written into it (replacing those of the same name, as the ScaleTool does), the
+same static trial and the same walk frames, AddBiomechanics' settings (left and right scaled together, no
+height prior: the trials give no height); scored as the others on the IK frames and tracked markers, its
+time the fit alone (marker clean-up and the multi-trial pipeline; the venv, imports and model loading left
+out, as calibrate's imports are).
+
+    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only gait2392|rajagopal] [--no-nimble]
 """
 
 from __future__ import annotations
@@ -34,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+NIMBLE = Path(__file__).resolve().with_name("peer_nimble.py")
 COORDS = ("hip_flexion", "hip_adduction", "hip_rotation", "knee_angle", "ankle_angle")
 ARM_COORDS = ("arm_flex", "arm_add", "arm_rot", "elbow_flex", "pro_sup")  # beyond issue 17's list: shown, no target
 
@@ -229,6 +238,125 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
 
 
+def osim_with_markers(spec: dict, out: Path) -> Path:
+    """The generic .osim with the marker set file's markers in its MarkerSet (replacing those of the same
+    name, as OpenSim's ScaleTool does), each in OpenSim 4's form (socket_parent_frame): the model nimble reads."""
+    import xml.etree.ElementTree as ET
+
+    tree = ET.parse(spec["osim"])
+    model = tree.getroot().find("Model")
+    ms = model.find("MarkerSet")
+    if ms is None:
+        ms = ET.SubElement(model, "MarkerSet", name="markerset")
+    objects = ms.find("objects")
+    if objects is None:
+        objects = ET.SubElement(ms, "objects")
+    if spec.get("marker_set"):
+        for mk in ET.parse(spec["marker_set"]).getroot().iter("Marker"):
+            name = mk.get("name", "")
+            for old in [o for o in objects.findall("Marker") if o.get("name") == name]:
+                objects.remove(old)
+            body = (mk.findtext("body") or "").strip()
+            frame = (mk.findtext("socket_parent_frame") or "").strip() or ("/ground" if body == "ground"
+                                                                           else f"/bodyset/{body}")
+            el = ET.SubElement(objects, "Marker", name=name)
+            ET.SubElement(el, "socket_parent_frame").text = frame
+            ET.SubElement(el, "location").text = " ".join((mk.findtext("location") or "0 0 0").split())
+            ET.SubElement(el, "fixed").text = (mk.findtext("fixed") or "false").strip()
+    tree.write(out, encoding="UTF-8", xml_declaration=True)
+    return out
+
+
+def nimble_reading(mod, osim: Path, poses: int = 20) -> dict:
+    """How nimble reads `osim`: its marker positions against calibrate's kinematics of the same file (equal to
+    OpenSim's where the import is exact: tests/test_osim_import.py) at random poses within the coordinates' ranges;
+    the largest difference on the markers above every approximated joint, and on all markers (below an
+    approximated joint: within the import's reported bound)."""
+    from scipy.spatial.transform import Rotation
+
+    from calibrate.io.motion import Motion
+    from calibrate.io.osim_export import mot_columns
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.model import load_model
+
+    model = load_model(osim)
+    rng = np.random.default_rng(0)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -np.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else np.pi for d in model.dofs])
+    angles = lo + (hi - lo) * rng.uniform(0.1, 0.9, (poses, len(model.dofs)))
+    quat, root = Rotation.random(poses, random_state=0).as_quat(), rng.uniform(-1, 1, (poses, 3))
+    ours, _ = build_kinematics(model).batch(np.hstack([np.zeros((poses, 6)), angles]), quat, model.parameters())
+    cols, values = mot_columns(model, Motion(np.arange(poses, dtype=float), root, quat, angles, model.dof_names))
+    try:
+        ans = mod.nimble_fk(osim, {c: values[:, i] for i, c in enumerate(cols) if c != "time"})
+    except RuntimeError as e:
+        return {"error": str(e)}
+    approximated = {c for a in model.osim.approximations for c in a.coordinates}
+    below: set[str] = set()
+    for j in model.joints:  # parents before children
+        if j.parent in below or approximated & set(j.dofs):
+            below.add(j.child)
+    names = list(ans["marker_names"])
+    err = np.linalg.norm(ans["markers_world"] - (ours + root[:, None, :])[:, [model.marker_index(m) for m in names]],
+                         axis=2).max(axis=0)
+    exact = np.array([model.markers[model.marker_index(m)].segment not in below for m in names])
+    return {"exact_max_mm": 1000 * float(err[exact].max(initial=0.0)), "exact_markers": int(exact.sum()),
+            "all_max_mm": 1000 * float(err.max()), "worst_marker": names[int(np.argmax(err))],
+            "below_approximated": sorted(below)}
+
+
+def run_nimble_row(spec: dict, frames: slice, work: Path, trial, use: list[str], osr: dict) -> dict:
+    """nimblephysics' MarkerFitter on the generic .osim (with the marker set), the static trial and the walk's IK
+    frames, scored as the other rows; {"status": "not run: ..."} when it cannot run."""
+    import importlib.util
+
+    from calibrate.io.read import read_trial
+    from calibrate.io.trc import write_trc
+    from calibrate.io.trial import Trial
+
+    if not NIMBLE.exists():
+        return {"status": f"not run: {NIMBLE.name} is not there"}
+    try:
+        mspec = importlib.util.spec_from_file_location("peer_nimble", NIMBLE)
+        mod = importlib.util.module_from_spec(mspec)  # type: ignore[arg-type]
+        mspec.loader.exec_module(mod)  # type: ignore[union-attr]
+    except Exception as e:  # a broken helper must not stop the benchmark
+        return {"status": f"not run: cannot load {NIMBLE.name} ({type(e).__name__}: {e})"}
+    d = Path(spec["dir"])
+    osim = osim_with_markers(spec, d / "generic_with_markers_nimble.osim")
+    walk = read_trial(_plain_trc(spec["walk"], spec["dir"]))
+    walk_trc = d / "walk_ik_frames.trc"
+    write_trc(walk_trc, Trial(walk.labels, walk.markers[frames], walk.rate, walk.first_frame + frames.start,
+                              walk.source))
+    res = mod.run_nimble(osim, [_plain_trc(spec["static"], spec["dir"]), walk_trc], mass_kg=float(spec["mass"]),
+                         height_m=0.0, work_dir=d / "nimble", settings={"symmetric": True, "marker_positions": True})
+    if res.get("error"):
+        return {"status": f"not run: {res['error']}"}
+    tr = res["trials"][1]
+    if tr.get("error"):
+        return {"status": f"not run: the walk trial: {tr['error']}"}
+    pred, names = np.asarray(tr["markers_world"]), list(tr["marker_names"])
+    if pred.shape[0] != trial.n_frames:
+        return {"status": f"not run: nimble returned {pred.shape[0]} walk frames, expected {trial.n_frames}"}
+    scored = [m for m in use if m in names]
+    row = marker_scores(pred, names, trial, scored)
+    row.update(status="ran", time_s=float(res["time_s"]), total_s=float(res["total_s"]),
+               ratio_to_opensim_ik=float(res["time_s"]) / osr["ik_s"],
+               markers_used=sum(m in trial.labels for m in names), notes=list(res.get("notes", [])))
+    coords = {}
+    for side in ("r", "l"):
+        for c in COORDS:
+            name = f"{c}_{side}"
+            if name in tr["angles"] and name in osr["coords"]:
+                diff = np.degrees(np.asarray(tr["angles"][name]) - osr["q"][:, osr["coords"].index(name)])
+                rms, offset, spread = np.sqrt(np.mean(diff**2)), np.mean(diff), np.std(diff)
+                coords[name] = {"vs_opensim_ik_deg": float(rms), "offset_deg": float(offset),
+                                "vs_opensim_ik_offset_free_deg": float(spread)}
+    row["coordinates"] = coords
+    row["reading"] = nimble_reading(mod, osim)
+    return row
+
+
 def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> dict:
     """Mean per-frame RMS and mean per-frame max error (mm) over markers `use` seen in the frame."""
     idx_p = [names.index(u) for u in use]
@@ -239,7 +367,7 @@ def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> 
             "markers": len(use)}
 
 
-def bench(case: str, work: Path, log, outliers: float) -> dict:
+def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> dict:
     spec = prepare(case, work)
     log(f"{case}: OpenSim Scale + IK (child process) ...")
     osr = run_opensim(spec, work)
@@ -291,6 +419,11 @@ def bench(case: str, work: Path, log, outliers: float) -> dict:
                     row["vs_reference_ik_deg"] = float(np.sqrt(np.mean((ours - r) ** 2)))
                 diffs[name] = row
         out[label] = diffs
+    if nimble:
+        log(f"{case}: nimblephysics' MarkerFitter (its own venv; minutes) ...")
+        out["nimble"] = run_nimble_row(spec, frames, work, trial, use, osr)
+    else:
+        out["nimble"] = {"status": "not run: --no-nimble"}
     out["static_asymmetry"] = cr["static_asymmetry"]
     # Axes the trial did not identify that ended beyond 3 prior SDs from the base model's (the report's `unreliable`)
     out["calibrate_unreliable_axes"] = cr["unreliable"]
@@ -309,6 +442,13 @@ def report(res: dict) -> None:
               f"(/ OpenSim IK: {r['ratio_calibrate_to_opensim_ik']:.2f})")
         h = r["calibrate_axes_held"]
         print(f"  {'calibrate, axes held':22s} {h['rms_mm']:8.2f} {h['max_mm']:8.2f} {h['wall_s']:10.2f}")
+        nb = r.get("nimble", {})
+        if nb.get("status") == "ran":
+            print(f"  {'nimble MarkerFitter':22s} {nb['rms_mm']:8.2f} {nb['max_mm']:8.2f} {nb['time_s']:10.2f} "
+                  f"(/ OpenSim IK: {nb['ratio_to_opensim_ik']:.2f}; AddBiomechanics' kinematics pass, the fit alone; "
+                  f"{nb['markers']} of the markers scored)")
+        elif nb:
+            print(f"  {'nimble MarkerFitter':22s} {nb['status']}")
         k = r.get("calibrate_ik_only")
         if k:
             print(f"  {'calibrate, IK only':22s} {k['rms_mm_all_markers']:8.2f} {'':>8s} {k['wall_s']:10.2f} "
@@ -324,6 +464,15 @@ def report(res: dict) -> None:
                     extra += " [arm: beyond issue 17's list, no target]"
                 print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
                       f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
+        if nb.get("status") == "ran":
+            rd = nb.get("reading", {})
+            print("  nimble's reading of the .osim: " + (f"not checked ({rd['error']})" if "error" in rd else
+                  f"its markers {rd['exact_max_mm']:.4f} mm from calibrate's where the import is exact "
+                  f"({rd['exact_markers']} markers), {rd['all_max_mm']:.2f} mm below the approximated joints "
+                  f"({rd['worst_marker']}); 20 random poses"))
+            print("  joint angles, nimble MarkerFitter (RMS difference vs OpenSim IK, deg; mean offset):")
+            print("    " + ", ".join(f"{n} {d['vs_opensim_ik_deg']:.1f} ({d['offset_deg']:+.1f})"
+                                     for n, d in nb["coordinates"].items()))
         if r.get("calibrate_unreliable_axes"):
             far = ", ".join(r["calibrate_unreliable_axes"])
             print(f"  axes not identified, beyond their priors (unreliable): {far}")
@@ -340,6 +489,8 @@ def main() -> int:
     ap.add_argument("--outlier-sigmas", type=float, default=0.0,
                     help="calibrate's outlier rejection (noise SDs; default 0: off, as OpenSim's IK keeps every "
                          "marker; calibrate's own default, 6, rejects gait2392's rigid-trunk markers in most frames)")
+    ap.add_argument("--no-nimble", action="store_true",
+                    help="leave out nimblephysics' MarkerFitter (run by default: scripts/peer_nimble.py, its own venv)")
     ap.add_argument("--_opensim", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a._opensim:
@@ -354,7 +505,7 @@ def main() -> int:
     cases = [a.only] if a.only else ["gait2392", "rajagopal"]
     with tempfile.TemporaryDirectory(prefix="bench_osim_") as tmp:
         res = {"outlier_sigmas": a.outlier_sigmas,
-               "results": [bench(c, Path(tmp), log, a.outlier_sigmas) for c in cases]}
+               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble) for c in cases]}
     report(res)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))

@@ -442,7 +442,9 @@ def run_nimble(osim_path: Path, trc_paths: list[Path], *, mass_kg: float, height
     `settings` (all optional): iterations (500), initial_ik_restarts (150), bilevel_samples (150),
     symmetric (True: left/right share scales, as AddBiomechanics), height_prior (True with a
     URDF), clean_markers (True), ignore_joint_limits (False), analytical_ik (nimble's default),
-    markers ("addbiomechanics": AddBiomechanics' rule, which with <= 10 markers marked
+    marker_positions (False; True: every trial's model markers per frame, lab frame, as ``markers_world``
+    (n, m, 3) in the order of ``marker_names`` in ``trials``), markers ("addbiomechanics":
+    AddBiomechanics' rule, which with <= 10 markers marked
     ``<fixed>true</fixed>`` treats every marker not named like a triad (…1/2/3) as anatomical, its
     offset held near the model's (weight 10); "file": the .osim's ``<fixed>false</fixed>`` markers
     tracking (weight 0.05), free to move).

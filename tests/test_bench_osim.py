@@ -1,0 +1,40 @@
+"""scripts/bench_osim.py's pieces that need neither OpenSim nor nimblephysics: the .osim it hands nimble."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.model.model import load_model
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "data" / "real"
+sys.path.insert(0, str(ROOT / "scripts"))
+import bench_osim  # noqa: E402
+
+CASES = {"gait2392": (REAL / "gait2392" / "gait2392.osim", REAL / "gait2392" / "gait2392_Scale_MarkerSet.xml"),
+         "rajagopal": (REAL / "rajagopal_walk" / "Rajagopal2016.osim",
+                       REAL / "rajagopal_walk" / "markerset_walk_preScale.xml")}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_the_marker_set_written_into_the_osim_is_the_model_the_scale_tool_would_read(tmp_path, case):
+    """nimble reads one .osim, so bench_osim writes the marker set file's markers into the generic model (OpenSim 3
+    <body> markers as OpenSim 4 socket_parent_frame ones, replacing those of the same name): read back by
+    calibrate's OpenSim reader, that file must carry exactly the markers of the model read with the marker set
+    file beside it (which test_osim_import checks against OpenSim itself)."""
+    osim, marker_set = CASES[case]
+    if not osim.exists():
+        pytest.skip(f"{osim} not found (the real trials)")
+    written = bench_osim.osim_with_markers({"osim": str(osim), "marker_set": str(marker_set)},
+                                           tmp_path / f"{case}_with_markers.osim")
+    merged, reference = load_model(written), load_model(osim, marker_set)
+    assert sorted(merged.marker_names) == sorted(reference.marker_names)
+    for name in reference.marker_names:
+        a, b = merged.markers[merged.marker_index(name)], reference.markers[reference.marker_index(name)]
+        assert a.segment == b.segment, name
+        np.testing.assert_allclose(a.offset, b.offset, atol=1e-12, err_msg=name)
+    # The generic model's kinematics are untouched: the same joints, axes and centres.
+    np.testing.assert_allclose(merged.parameters().centre, reference.parameters().centre, atol=1e-12)
+    np.testing.assert_allclose(merged.parameters().axis, reference.parameters().axis, atol=1e-12)
