@@ -42,7 +42,6 @@ from pathlib import Path
 import numpy as np
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
-NIMBLE = Path(__file__).resolve().with_name("peer_nimble.py")
 COORDS = ("hip_flexion", "hip_adduction", "hip_rotation", "knee_angle", "ankle_angle")
 ARM_COORDS = ("arm_flex", "arm_add", "arm_rot", "elbow_flex", "pro_sup")  # beyond issue 17's list: shown, no target
 
@@ -308,20 +307,14 @@ def nimble_reading(mod, osim: Path, poses: int = 20) -> dict:
 def run_nimble_row(spec: dict, frames: slice, work: Path, trial, use: list[str], osr: dict) -> dict:
     """nimblephysics' MarkerFitter on the generic .osim (with the marker set), the static trial and the walk's IK
     frames, scored as the other rows; {"status": "not run: ..."} when it cannot run."""
-    import importlib.util
-
     from calibrate.io.read import read_trial
     from calibrate.io.trc import write_trc
     from calibrate.io.trial import Trial
 
-    if not NIMBLE.exists():
-        return {"status": f"not run: {NIMBLE.name} is not there"}
     try:
-        mspec = importlib.util.spec_from_file_location("peer_nimble", NIMBLE)
-        mod = importlib.util.module_from_spec(mspec)  # type: ignore[arg-type]
-        mspec.loader.exec_module(mod)  # type: ignore[union-attr]
+        import peer_nimble as mod  # beside this script (scripts/ is on the path when it runs)
     except Exception as e:  # a broken helper must not stop the benchmark
-        return {"status": f"not run: cannot load {NIMBLE.name} ({type(e).__name__}: {e})"}
+        return {"status": f"not run: cannot load scripts/peer_nimble.py ({type(e).__name__}: {e})"}
     d = Path(spec["dir"])
     osim = osim_with_markers(spec, d / "generic_with_markers_nimble.osim")
     walk = read_trial(_plain_trc(spec["walk"], spec["dir"]))
