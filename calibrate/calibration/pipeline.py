@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import fields, replace
+from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -642,37 +643,58 @@ SPREAD_FRAMES = 50  # solved frames further apart than this (0.5 s at 100 Hz): e
 POSE_ITERATIONS = 10  # pose-only iterations of that refit (at most; it stops on the solver's tolerances)
 
 
+STILL_MOTION = 0.005  # m: a trial whose markers on different segments move less than this (median SD) is still
+
+
+def _motion(model: Model, trial: Trial) -> float:
+    """How much the trial's markers on different segments move relative to each other: the median over
+    such pairs of their distance's SD (m; a static trial's: 0.4-1.6 mm on the real recordings, their
+    walks' 20-55 mm)."""
+    seg = {m.name: m.segment for m in model.markers}
+    labs = [lab for lab in trial.labels if lab in seg]
+    X = trial.select(labs).markers[:: max(1, trial.n_frames // 200)]
+    D = distance_variance(X, min_frames=3)
+    other = np.array([[seg[a] != seg[b] for b in labs] for a in labs])
+    vals = np.sqrt(D[other & np.isfinite(D)]) if labs else np.zeros(0)
+    return float(np.median(vals)) if vals.size else 0.0
+
+
 def _most_motion(model: Model, trials: Sequence[Trial]) -> int:
     """The trial whose markers on different segments move most relative to each other (a static
     trial's barely do): the one the joint-centre seed can use."""
     if len(trials) == 1:
         return 0
-    seg = {m.name: m.segment for m in model.markers}
-    best, pick = -1.0, 0
-    for i, t in enumerate(trials):
-        labs = [lab for lab in t.labels if lab in seg]
-        X = t.select(labs).markers[:: max(1, t.n_frames // 200)]
-        D = distance_variance(X, min_frames=3)
-        other = np.array([[seg[a] != seg[b] for b in labs] for a in labs])
-        vals = np.sqrt(D[other & np.isfinite(D)])
-        amount = float(np.median(vals)) if vals.size else 0.0
-        if amount > best:
-            best, pick = amount, i
-    return pick
+    amounts = [_motion(model, t) for t in trials]
+    return int(np.argmax(amounts))
 
 
 def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str]) -> list[NewMarker]:
     """Segments for the trial markers the model does not know (seed 002's rigidity, against the
-    model's known markers: calibrate.seed.association.associate_to_model over all trials' frames)."""
+    model's known markers: calibrate.seed.association.associate_to_model over the trials' frames).
+    Rigidity is judged on the trials that move (STILL_MOTION), if any: in a static trial every marker
+    keeps its distance to every other, so its frames would pass any marker as rigid with any segment
+    and set the rigidity threshold at the static's noise (gait2392: 0.2 mm, its walk's 1.1 mm; pig_walk's
+    thigh marker then came out closer to the right femur than to the left)."""
+    moving = [i for i, t in enumerate(trials) if len(trials) == 1 or _motion(model, t) >= STILL_MOTION]
+    used = [trials[i] for i in (moving or range(len(trials)))]
     labels = (*model.marker_names, *unknown)
     parts = []
-    for t in trials:
+    for t in used:
         cols = np.full((t.n_frames, len(labels), 3), np.nan)
         have = [k for k, lab in enumerate(labels) if lab in t.labels]
         cols[:, have] = t.select([labels[k] for k in have]).markers
         parts.append(cols)
-    assoc = associate_to_model(model, Trial(labels, np.concatenate(parts), trials[0].rate))
-    return [NewMarker(lab, assoc[lab].segment, None, assoc[lab].reason) for lab in unknown]
+    assoc = associate_to_model(model, Trial(labels, np.concatenate(parts), used[0].rate))
+    out = []
+    for lab in unknown:
+        if len(used) < len(trials) and not any(lab in t.labels for t in used):
+            still = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}"
+                              for i, t in enumerate(trials) if i not in moving)
+            out.append(NewMarker(lab, None, None, f"seen only in still trials ({still}): no motion shows which "
+                                                  "segment it rides on"))
+        else:
+            out.append(NewMarker(lab, assoc[lab].segment, None, assoc[lab].reason))
+    return out
 
 
 def _unseen_at_base(subject: Model, model: Model, params: Parameters, unseen: Sequence[str]) -> Parameters:
