@@ -215,9 +215,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
+    motion: list[float] | None = None  # each trial's relative marker motion (_trial_motion), measured once if needed
     if unknown and run.new_markers:
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
-        placed = _assign_new_markers(model, trials, unknown)
+        motion = _trial_motion(model, trials)
+        placed = _assign_new_markers(model, trials, unknown, motion)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
@@ -250,7 +252,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if run.seed:
         say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         size = size_from_markers(model, trials)
-        pick = _most_motion(model, trials)
+        # The trial whose markers on different segments move most relative to each other (a static trial's
+        # barely do): the one the joint-centre seed can use.
+        pick = int(np.argmax(motion if motion is not None else _trial_motion(model, trials)))
         seed = seed_parameters(model, trials[pick], extra_markers=new, size=size,
                                progress=Countdown(say, "seed", "joint centres (MTB)"))
         if len(trials) > 1:
@@ -659,23 +663,20 @@ def _motion(model: Model, trial: Trial) -> float:
     return float(np.median(vals)) if vals.size else 0.0
 
 
-def _most_motion(model: Model, trials: Sequence[Trial]) -> int:
-    """The trial whose markers on different segments move most relative to each other (a static
-    trial's barely do): the one the joint-centre seed can use."""
-    if len(trials) == 1:
-        return 0
-    amounts = [_motion(model, t) for t in trials]
-    return int(np.argmax(amounts))
+def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
+    """_motion of every trial (one trial: not measured, nothing to compare it with)."""
+    return [_motion(model, t) for t in trials] if len(trials) > 1 else [0.0]
 
 
-def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str]) -> list[NewMarker]:
+def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str],
+                        motion: Sequence[float]) -> list[NewMarker]:
     """Segments for the trial markers the model does not know (seed 002's rigidity, against the
     model's known markers: calibrate.seed.association.associate_to_model over the trials' frames).
     Rigidity is judged on the trials that move (STILL_MOTION), if any: in a static trial every marker
     keeps its distance to every other, so its frames would pass any marker as rigid with any segment
     and set the rigidity threshold at the static's noise (gait2392: 0.2 mm, its walk's 1.1 mm; pig_walk's
-    thigh marker then came out closer to the right femur than to the left)."""
-    moving = [i for i, t in enumerate(trials) if len(trials) == 1 or _motion(model, t) >= STILL_MOTION]
+    thigh marker then came out closer to the right femur than to the left).  `motion`: _trial_motion."""
+    moving = [i for i, a in enumerate(motion) if a >= STILL_MOTION] if len(trials) > 1 else [0]
     used = [trials[i] for i in (moving or range(len(trials)))]
     labels = (*model.marker_names, *unknown)
     parts = []
