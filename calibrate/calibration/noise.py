@@ -134,7 +134,9 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     h, d = leverage(problem, state, progress)
     res = d.reshape(F, nm, 3)
     seen = problem.seen
-    n = seen.sum(axis=0)
+    # A frame of weight w (Problem.frame_weight: a static trial's) counts w times in every sum and median.
+    fw = problem.frame_weight
+    n = seen.sum(axis=0) if fw is None else fw @ seen
     sigma = problem.sigma.copy()
     learnt = np.full(nm, np.nan)
     trial_of = np.zeros(F, dtype=int) if trial_of is None else np.asarray(trial_of)
@@ -143,7 +145,8 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
         if n[k] < NOISE_MIN_FRAMES:
             continue
         lev = h[use, k] + 1.0 / n[k]
-        if np.median(lev) > 0.8:
+        wk = None if fw is None else fw[use]
+        if _median(lev, wk) > 0.8:
             continue
         r = res[use, k]
         keep = np.clip(1.0 - lev, 0.2, 1.0)
@@ -157,7 +160,10 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
         # to fewer than 3 directions (a single hand marker: 1) has no Gaussian components for the MAD,
         # but E|r|^2 = 3 sigma^2 (1 - h) whatever the rank.
         sq = np.minimum(np.sum(r**2, axis=1), cap)
-        learnt[k] = math.sqrt(float(np.sum(sq)) / float(np.sum(3 * keep)))
+        if wk is None:
+            learnt[k] = math.sqrt(float(np.sum(sq)) / float(np.sum(3 * keep)))
+        else:
+            learnt[k] = math.sqrt(float(np.sum(wk * sq)) / float(np.sum(3 * wk * keep)))
     seg = problem.marker_segment
     overall = float(np.nanmedian(learnt)) if np.isfinite(learnt).any() else float(np.median(sigma))
     for k in np.flatnonzero(~np.isfinite(learnt)):
@@ -170,8 +176,10 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
         return learnt
     tau = np.ones(nm)
     lag = seen[1:] & seen[:-1] & (trial_of[1:] == trial_of[:-1])[:, None]  # (F-1, nm): consecutive pairs
+    pair_w = None if fw is None else fw[1:]  # a pair within a trial weighs as its frames (one trial: one weight)
     for k in range(nm):
-        if lag[:, k].sum() < NOISE_MIN_FRAMES or (fixed is not None and fixed[k]):
+        pairs = lag[:, k].sum() if pair_w is None else float(pair_w[lag[:, k]].sum())
+        if pairs < NOISE_MIN_FRAMES or (fixed is not None and fixed[k]):
             continue
         u = np.where(seen[:, k, None], res[:, k], 0.0)
         for t in np.unique(trial_of):
@@ -179,9 +187,22 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
             if mine.any():
                 u[mine] -= u[mine].mean(axis=0)
         a, b = u[:-1][lag[:, k]], u[1:][lag[:, k]]
+        if pair_w is not None:
+            q = np.sqrt(pair_w[lag[:, k]])[:, None]
+            a, b = a * q, b * q
         rho = float(np.sum(a * b)) / max(math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b))), 1e-300)
         tau[k] = float(np.clip((1 + rho) / max(1 - rho, 1e-9), 1.0, NOISE_TAU_MAX))
     return learnt, tau
+
+
+def _median(x: np.ndarray, weight: np.ndarray | None = None) -> float:
+    """The median of `x`, each value counted `weight` times (the weighted median: where the cumulative
+    weight reaches half); None: np.median."""
+    if weight is None:
+        return float(np.median(x))
+    order = np.argsort(x, kind="stable")
+    end = np.cumsum(weight[order])
+    return float(x[order][min(int(np.searchsorted(end, 0.5 * end[-1])), x.size - 1)])
 
 
 def find_outliers(problem: Problem, state: State, options: PipelineOptions, sigma: np.ndarray | None = None,

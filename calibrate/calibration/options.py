@@ -18,12 +18,16 @@ class PipelineOptions:
     segment_frames: str | None = None  # "markers" | "priors" | None: the model's (Settings.segment_frames)
     learn_noise: bool = True  # learn each marker's noise SD from the residuals (Settings.learns_noise: decided)
     ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)
+    still_weight: float = 0.0  # frames a still trial counts as in all beside a moving one (0: every frame once)
 
     def __post_init__(self) -> None:
         if self.segment_frames not in (None, "markers", "priors"):
             raise ValueError(f"segment_frames: must be 'markers' or 'priors', got {self.segment_frames!r}")
         if not isinstance(self.ahead, bool):
             raise ValueError(f"ahead: must be true or false, got {self.ahead!r}")
+        if not (isinstance(self.still_weight, (int, float)) and self.still_weight >= 0
+                and math.isfinite(self.still_weight)):
+            raise ValueError(f"still_weight: must be 0 (off) or a positive number of frames, got {self.still_weight!r}")
         if not isinstance(self.learn_noise, bool):
             raise ValueError(f"learn_noise: must be true or false, got {self.learn_noise!r}")
         if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):

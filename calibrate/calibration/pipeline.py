@@ -37,6 +37,7 @@ from calibrate.calibration.start import (
     spread_poses,
     stack_states,
     start_poses,
+    subsample_weight,
     with_frames,
 )
 from calibrate.seed.seeding import MIN_FRAMES, Seed, jumped_samples, seed_parameters, size_from_markers
@@ -220,6 +221,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         motion = _trial_motion(model, trials)
         placed = _assign_new_markers(model, trials, unknown, motion)
+    if motion is None and len(trials) > 1 and run.still_weight > 0:  # a still trial's weight (_still_lengths)
+        motion = _trial_motion(model, trials)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
@@ -285,6 +288,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                 "left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
     problem = Problem(subject, obs, settings.problem, kin, progress=say)
+    lengths = _still_lengths(trials, motion, run.still_weight) if motion is not None else None
+    if lengths is not None:
+        still = [t.source or f"trial {i + 1}" for i, (t, n) in enumerate(zip(trials, lengths, strict=True))
+                 if n < t.n_frames]
+        say(Progress("build", f"{', '.join(still)}: still (one pose repeated, its errors with it); "
+                              f"{'its frames count' if len(still) == 1 else 'the frames of each count'} "
+                              f"as {run.still_weight:g} frames in all"))
+        problem = problem.with_frame_weight(np.concatenate([np.full(t.n_frames, n / t.n_frames)
+                                                            for t, n in zip(trials, lengths, strict=True)]))
     times["build"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(Progress("start", "frame-wise inverse kinematics"))
@@ -293,7 +305,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if run.seed:
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments)
         params0, choice = choose_start(problem, known_obs, spans, {"the MTB seed": params0, "the base model": base0},
-                                       say, solver, ahead=run.ahead)
+                                       say, solver, ahead=run.ahead, lengths=lengths)
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())
     # Each trial's first key frame also from a local solve from the default pose (the better fit taken): on
@@ -329,7 +341,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
-    problem, state, summary, scatter, solved = _solve(problem, start, spans, run, solver, say)
+    problem, state, summary, scatter, solved = _solve(problem, start, spans, run, solver, say, lengths)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = replace(settings, hold_axes=problem.settings.hold_axes)  # as used: with the axes held above
     rejected: list[Outlier] = []
@@ -520,22 +532,25 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 
 
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
-           say: Callable[[str], None]) -> tuple[Problem, State, SolverSummary, np.ndarray, bool]:
+           say: Callable[[str], None], lengths: Sequence[float] | None = None
+           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
     the trials by their length; a long trial then through larger subsamples), then every frame's pose
     fitted to that geometry and the noise learnt on every frame.  With `run.auto_hold`, the axes of the
     coordinates that the subsample's solution shows still are held at the base model's and the
     subsample solved again.  Returns the problem (with those axes held and the noise learnt), the
     state, its summary, the markers' noise SDs and whether every frame was solved jointly (a short trial,
-    solved whole; otherwise the caller's solve on every frame follows)."""
+    solved whole; otherwise the caller's solve on every frame follows).  `lengths`: what each trial counts
+    as in frames (_still_lengths), the subsamples spread and weighted by it."""
     seen = problem.seen
-    coarse = spread_frames(seen, spans, COARSE_FRAMES)
+    coarse = spread_frames(seen, spans, COARSE_FRAMES, lengths)
+    coarse_w = subsample_weight(coarse, spans, lengths)
     fixed = fixed_noise(problem, run)
     scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     state = frames_of(start, coarse)
     for round_ in range(HOLD_ROUNDS + 1):
-        sub = problem if coarse.size == problem.F else problem.subset(coarse)
+        sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
         state, coarse_summary = _solve_geometry(sub, state, solver, say, polish=sub is problem)
         # After axes are held the noise learnt so far carries over (holding a few still axes barely moves
@@ -547,7 +562,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             if sigma is None:
                 break
             problem = problem.with_noise(sigma)
-            sub = problem if coarse.size == problem.F else problem.subset(coarse)
+            sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
             state, again = _solve_geometry(sub, state, solver, say, polish=sub is problem)
             coarse_summary = _merge(coarse_summary, again)
         if not run.auto_hold or round_ == HOLD_ROUNDS:
@@ -581,10 +596,11 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     solved, levels = coarse, []
     target = coarse.size * LEVEL_GROWTH
     while problem.F >= LEVEL_ROOM * target:
-        idx = spread_frames(seen, spans, target)
+        idx = spread_frames(seen, spans, target, lengths)
         say(f"solve: {idx.size} evenly spaced frames")
         # The subsample's problem (and its blocks' buffers) is dropped as soon as it is solved.
-        state, part = _solve_frames(problem.subset(idx), frames_of(_carried(state, solved, start, spans), idx), solved,
+        state, part = _solve_frames(problem.subset(idx, subsample_weight(idx, spans, lengths)),
+                                    frames_of(_carried(state, solved, start, spans), idx), solved,
                                     solver, say, f"{idx.size} frames, ")
         levels.append((int(idx.size), part.iterations))
         solved, target = idx, target * LEVEL_GROWTH
@@ -648,6 +664,23 @@ POSE_ITERATIONS = 10  # pose-only iterations of that refit (at most; it stops on
 
 
 STILL_MOTION = 0.005  # m: a trial whose markers on different segments move less than this (median SD) is still
+
+
+def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: float) -> list[float] | None:
+    """What each trial counts as in frames: a still trial (STILL_MOTION) longer than `weight` frames
+    as `weight` (PipelineOptions.still_weight), any other as its length; None when `weight` is 0, no trial
+    is still or none moves.  A static
+    trial repeats one pose, and with it the pose's errors (skin over a bone held still, an acromion
+    marker lifted with the arm): its frames are not independent, and counted one by one they
+    outweighed the walk (gait2392's 300 standing frames beside 121 walking; the learnt correlation
+    time caps at NOISE_TAU_MAX), bending the geometry to the one pose: the walk's held-out frames
+    fitted 4-6 mm RMS worse on each real recording (docs/benchmarks.md)."""
+    still = [m < STILL_MOTION for m in motion]
+    if weight <= 0 or not any(still) or all(still):
+        return None
+    lengths = [min(float(t.n_frames), weight) if s else float(t.n_frames)
+               for t, s in zip(trials, still, strict=True)]
+    return lengths if any(n < t.n_frames for n, t in zip(lengths, trials, strict=True)) else None
 
 
 def _motion(model: Model, trial: Trial) -> float:

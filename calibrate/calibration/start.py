@@ -138,7 +138,7 @@ def absolute(kin: Kinematics, state: State, spans: Sequence[slice] | None = None
 
 def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice], candidates: Mapping[str, Parameters],
                  say: Callable[[str], None], options: SolverOptions | None = None,
-                 ahead: bool = True) -> tuple[Parameters, str]:
+                 ahead: bool = True, lengths: Sequence[float] | None = None) -> tuple[Parameters, str]:
     """The start whose basin fits best: each candidate geometry (e.g. the MTB seed and the base
     model) solved with its poses on the subsample of frames the global solve starts from (the
     markers the model knows; the problem's settings before any noise is learnt), and the one that
@@ -150,17 +150,20 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     below START_LEAD times every other's is taken (pig_walk: the base model's 1.03e5 against the
     seed's 1.54e5); otherwise each goes on, from where it stopped, to START_ITERATIONS in all.
     Every candidate after the first is solved on the other core meanwhile (calibrate.solve.ahead), unless
-    `ahead` is false.
+    `ahead` is false.  `lengths`: what each trial counts as in frames (spread_frames).
     `options`: the solver's (default SolverOptions()).  Returns the chosen geometry and a note naming each
     candidate's cost."""
     names = list(candidates)
     if len(names) == 1:
         return candidates[names[0]], f"started from {names[0]}"
     seen = np.all(np.isfinite(observed), axis=2)
-    coarse = spread_frames(seen, spans, START_FRAMES)
-    problems = {name: Problem(problem.model, observed[coarse], problem.settings, problem.kin, problem.base)
+    coarse = spread_frames(seen, spans, START_FRAMES, lengths)
+    weight = subsample_weight(coarse, spans, lengths)
+    problems = {name: Problem(problem.model, observed[coarse], problem.settings, problem.kin,
+                              problem.base).with_frame_weight(weight)
                 for name in names}  # each its own: a paused run keeps its buffers (Problem.buffers) while another runs
-    n_seen = 3 * max(int(problems[names[0]].seen.sum()), 1)
+    per_frame = problems[names[0]].seen.sum(axis=1)
+    n_seen = 3 * max(float(per_frame.sum() if weight is None else weight @ per_frame), 1.0)  # coordinates, weighted
 
     def leg(name: str) -> Iterator[float]:
         """The candidate's cost after START_CHECK iterations, then after START_ITERATIONS in all."""
@@ -231,12 +234,30 @@ def bridge(state: State, redo: np.ndarray, hit: np.ndarray, spans: list[slice]) 
     return State(Z, rots[0], state.p, B)
 
 
-def spread_frames(seen: np.ndarray, spans: Sequence[slice], target: int) -> np.ndarray:
+def spread_frames(seen: np.ndarray, spans: Sequence[slice], target: int,
+                  lengths: Sequence[float] | None = None) -> np.ndarray:
     """About `target` frames (indices into all trials' frames) spread over the trials of `spans` by
-    their length, evenly within each (coarse_frames; at least 2 per trial)."""
-    total = sum(sl.stop - sl.start for sl in spans)
-    return np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(target * (sl.stop - sl.start) / total)))
-                           for sl in spans])
+    their length, evenly within each (coarse_frames; at least 2 per trial).  `lengths`: what each
+    trial counts as in frames, if not its length (a static trial weighed as a few frames,
+    Problem.frame_weight)."""
+    lengths = [sl.stop - sl.start for sl in spans] if lengths is None else lengths
+    total = sum(lengths)
+    return np.concatenate([sl.start + coarse_frames(seen[sl], max(2, round(target * n / total)))
+                           for sl, n in zip(spans, lengths, strict=True)])
+
+
+def subsample_weight(frames: np.ndarray, spans: Sequence[slice], lengths: Sequence[float] | None) -> np.ndarray | None:
+    """Frame weights of the subsample `frames` (spread_frames with `lengths`) for Problem.subset: a trial
+    that counts as fewer frames than it has (a static trial) weighs so that it keeps its share of the cost
+    against the others, whose frames weigh 1; None when `lengths` is None (every trial as long as it is)."""
+    if lengths is None:
+        return None
+    full = [sl.stop - sl.start for sl in spans]
+    count = [int(np.sum((frames >= sl.start) & (frames < sl.stop))) for sl in spans]
+    whole = [k for k in range(len(spans)) if lengths[k] >= full[k]]
+    per = sum(full[k] for k in whole) / max(sum(count[k] for k in whole), 1) if whole else 1.0
+    return np.concatenate([np.full(count[k], 1.0 if k in whole else lengths[k] / max(count[k], 1) / per)
+                           for k in range(len(spans))])
 
 
 def coarse_frames(seen: np.ndarray, target: int = COARSE_FRAMES) -> np.ndarray:

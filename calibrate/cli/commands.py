@@ -146,6 +146,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["noise_mm"] = args.noise_mm
     if args.no_learn_noise:
         flags["learn_noise"] = False
+    if args.still_weight is not None:
+        flags["still_weight"] = args.still_weight
     if args.no_seed:
         flags["seed"] = False
     if args.no_new_markers:

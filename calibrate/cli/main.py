@@ -185,6 +185,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="marker noise SD in mm, kept as given (default: learnt per marker from the residuals)")
     ap.add_argument("--no-learn-noise", action="store_true",
                     help="do not learn the markers' noise SDs from the residuals; use --noise-mm (default 1) for all")
+    ap.add_argument("--still-weight", type=float, default=None, metavar="FRAMES",
+                    help="what a still (static) trial counts as, in frames in all, beside a trial that moves "
+                         "(default 0: every frame once; 16 fits the walk's new frames better, docs/calibration.md)")
     ap.add_argument("--no-seed", action="store_true", help="start from the base model, not from MTB joint centres")
     ap.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                     help="hold coordinates at a value (default 0 deg) in every frame, e.g. "

@@ -67,6 +67,14 @@ LOCK_WEIGHT = 100.0  # m of marker error per rad away from a locked coordinate's
 LIMIT_MARGIN = math.radians(15.0)  # the limits of the global problem are this much wider than the model's
 
 
+def _checked_weight(weight: np.ndarray, n: int) -> np.ndarray | None:
+    """Frame weights as a float array of `n` positive numbers (None when every one is 1)."""
+    weight = np.asarray(weight, dtype=float)
+    if weight.shape != (n,) or not np.all(np.isfinite(weight) & (weight > 0)):
+        raise ValueError(f"frame weights: expected {n} positive numbers, got shape {weight.shape}")
+    return None if np.all(weight == 1.0) else weight
+
+
 def compiled_kinematics(kin: Kinematics) -> Kinematics:
     """`kin` whose per-frame evaluator (Kinematics.frame_evaluator with reference=True, what frame-wise
     inverse kinematics calls at every step) runs the compiled per-frame function of its model's structure
@@ -144,6 +152,7 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         # Mapped per-frame functions by (kind, frames), shared with subsets (they depend on no data).
         self._mapped: dict[tuple, tuple] = {}  # (kind, frames): the map; (kind, frames, part): its buffer
         self._set_observed(obs)
+        self._frame_weight: np.ndarray | None = None  # (F,) see frame_weight; None: every frame counts once
         # Noise SD of each model marker (m): Settings.noise unless Settings.marker_noise names it.
         self._sigma = np.full(nm, self.settings.noise)
         for label, v in self.settings.marker_noise:
@@ -214,12 +223,13 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         self._work[("lin", lin.jacobian is None or lin.jacobian[2] is None)] = lin
 
     def with_settings(self, settings: ProblemOptions | Settings, sigma: np.ndarray | None = None) -> Problem:
-        """The same trial, model and prior centres under other options (e.g. more axes held),
+        """The same trial, model, prior centres and frame weights under other options (e.g. more axes held),
         sharing the kinematics and the compiled functions' cache; `sigma`: the markers' noise SDs
         (m, e.g. learnt from the residuals) instead of the settings'."""
         new = Problem(self.model, self.observed, settings, self.kin, self.base, self._progress)
         if sigma is not None:
             new._sigma = np.array(sigma, dtype=float)
+        new._frame_weight = self._frame_weight
         return new
 
     def with_loss(self, loss: str) -> Problem:
@@ -265,13 +275,35 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         new._sigma = sigma.copy()
         return new
 
-    def subset(self, frames: np.ndarray) -> Problem:
+    def subset(self, frames: np.ndarray, weight: np.ndarray | None = None) -> Problem:
         """The same problem on some of its frames (e.g. an evenly spaced subsample that finds
-        the geometry's basin cheaply), sharing the compiled functions."""
+        the geometry's basin cheaply), sharing the compiled functions.  `weight` (one per frame of
+        `frames`): their frame_weight; None: as in this problem."""
+        frames = np.asarray(frames)
         new = copy.copy(self)
         new._work = {}
-        new._set_observed(self.observed[np.asarray(frames)])
+        new._set_observed(self.observed[frames])
+        if weight is not None:
+            new._frame_weight = _checked_weight(weight, frames.size)
+        elif self._frame_weight is not None:
+            new._frame_weight = self._frame_weight[frames]
         return new
+
+    def with_frame_weight(self, weight: np.ndarray | None) -> Problem:
+        """The same problem with each frame's markers counted `weight` (F,) times (frame_weight; None:
+        once each), sharing everything else."""
+        new = copy.copy(self)
+        new._work = {}
+        new._frame_weight = None if weight is None else _checked_weight(weight, self.F)
+        return new
+
+    @property
+    def frame_weight(self) -> np.ndarray | None:
+        """(F,) how much each frame's markers count in the cost and the normal equations (their squared
+        residuals times this): a static trial's frames repeat one pose, and their errors with it, so
+        together may count as a few frames (Settings.still_weight), not as many
+        as the walk's; None: every frame once.  The joint limits count once per frame."""
+        return self._frame_weight
 
     # ------------------------------------------------------------------ layout
     def _layout(self) -> None:
@@ -334,6 +366,9 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         sq = d.reshape(seen.shape[0], -1, 3) ** 2
         s = np.where(seen, sq[..., 0] + sq[..., 1] + sq[..., 2], 0.0) / sigma**2
         rho, drho = _robust(s, st.loss, st.loss_scale**2)
+        if self._frame_weight is not None:
+            fw = self._frame_weight[frames][:, None]
+            rho, drho = rho * fw, drho * fw
         cost = 0.5 * float(np.sum(rho[seen]))
         w = np.where(seen, np.sqrt(drho) / sigma, 0.0)
         return cost, w

@@ -82,6 +82,10 @@ class Settings:
     # calibrate.solve.ahead).  The results are the same bits either way; off, they run one after another
     # here (e.g. where the cores are busy already, as in a batch's worker processes).
     ahead: bool = True
+    # What a still trial (a static: one pose repeated, its errors with it) counts as, in frames in all, beside a
+    # trial that moves (calibrate.calibration.pipeline._still_lengths); 0 (default): every frame once.  16 fitted
+    # the walks' held-out frames 33-53 % better on the three real recordings (docs/benchmarks.md).
+    still_weight: float = 0.0
 
     @property
     def problem(self) -> ProblemOptions:
