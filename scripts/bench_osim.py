@@ -233,7 +233,8 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
             "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations],
-            "unreliable": [f"{c.item} {c.change:.0f} deg" for c in cal.changes if c.unreliable],
+            "unreliable": [f"{c.group} {c.item} {c.change:.0f} {'deg' if c.group == 'axis' else 'mm'}"
+                           for c in cal.changes if c.unreliable],
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
 
 
@@ -418,8 +419,9 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     else:
         out["nimble"] = {"status": "not run: --no-nimble"}
     out["static_asymmetry"] = cr["static_asymmetry"]
-    # Axes the trial did not identify that ended beyond 3 prior SDs from the base model's (the report's `unreliable`)
-    out["calibrate_unreliable_axes"] = cr["unreliable"]
+    # Axes, centres and markers the trial did not identify that ended beyond 3 prior SDs from where their priors
+    # put them (the report's `unreliable`)
+    out["calibrate_unreliable"] = cr["unreliable"]
     return out
 
 
@@ -466,9 +468,9 @@ def report(res: dict) -> None:
             print("  joint angles, nimble MarkerFitter (RMS difference vs OpenSim IK, deg; mean offset):")
             print("    " + ", ".join(f"{n} {d['vs_opensim_ik_deg']:.1f} ({d['offset_deg']:+.1f})"
                                      for n, d in nb["coordinates"].items()))
-        if r.get("calibrate_unreliable_axes"):
-            far = ", ".join(r["calibrate_unreliable_axes"])
-            print(f"  axes not identified, beyond their priors (unreliable): {far}")
+        if r.get("calibrate_unreliable"):
+            far = ", ".join(r["calibrate_unreliable"])
+            print(f"  not identified, beyond their priors (unreliable; change from the base model): {far}")
         for line in r.get("static_asymmetry", []):
             print(f"  static pose flagged (calibrate): {line}")
         for a in r["approximations"]:

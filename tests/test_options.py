@@ -144,3 +144,27 @@ def test_an_unidentified_axis_far_beyond_its_prior_is_reported_unreliable(human,
     assert sum(c.unreliable for c in by.values()) == 1
     identified = {c.item: c for c in parameter_changes(problem, p, cov, 100.0 * cov) if c.group == "axis"}
     assert identified["knee_r"].identified and not identified["knee_r"].unreliable
+
+
+def test_an_unidentified_position_far_beyond_its_prior_is_reported_unreliable(human, human_kin):
+    """A marker or joint centre the trial does not identify but that ended more than 3 prior SDs (60 mm at
+    the default 20 mm) from where its prior puts it is unreliable, not "held by the prior"; one moved
+    less far, or identified, is not.  (The summary's and the HTML report's lists read the same flag.)"""
+    sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=4)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    L, p = problem.layout, human.parameters().vector()
+    far, near = human.marker_names[0], human.marker_names[1]
+    p[L.entries("marker")[0]] += [0.08, 0.0, 0.0]
+    p[L.entries("marker")[1]] += [0.0, 0.05, 0.0]
+    hip = next(i for i, j in enumerate(human.joints) if j.kind != "hinge")
+    p[L.entries("centre")[hip]] += [0.0, 0.0, 0.07]
+    cov = 1e-6 * np.eye(problem.n_free)
+    by = {(c.group, c.item): c for c in parameter_changes(problem, p, cov, cov)}
+    m_far, m_near = by[("marker", far)], by[("marker", near)]
+    centre = by[("centre", human.joints[hip].name)]
+    assert m_far.unreliable and not m_far.identified and "80 mm" in m_far.note and "4.0 prior SDs" in m_far.note
+    assert not m_near.unreliable and m_near.note == "poorly seen: held by the prior"
+    assert centre.unreliable and "3.5 prior SDs" in centre.note
+    assert sum(c.unreliable for c in by.values()) == 2
+    identified = {(c.group, c.item): c for c in parameter_changes(problem, p, cov, 100.0 * cov)}
+    assert identified[("marker", far)].identified and not identified[("marker", far)].unreliable

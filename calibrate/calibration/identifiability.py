@@ -154,8 +154,12 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             C, C0 = cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
             std = 1000 * np.sqrt(np.clip(np.diag(C), 0, None))
             status, note, ratio = judge(C, C0)
-        return ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
-                               note, ratio)
+        change = ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
+                                 note, ratio)
+        # Its prior pulls the offset from the base model's, at the subject's scale, towards zero (Priors).
+        sd = problem.settings.priors.marker if group == "marker" else problem.settings.priors.centre
+        off = float(np.linalg.norm(value - seg_scale[model.segment_index(owner)] * base))
+        return _position_far_from_prior(change, off, sd) if not block.held else change
 
     for ji, j in enumerate(model.joints):
         judge = partial(_judge_centre, model, P, j, blind.get(j.name))
@@ -212,6 +216,21 @@ def _far_from_prior(change: ParameterChange, priors: Priors) -> ParameterChange:
     note = (f"{why}; yet {change.change:.0f} deg from the base model's ({k:.1f} prior SDs), so the prior did not hold "
             f"it: a trade the data do not separate carried it there, and the axis is not reliable (--hold-axes "
             f"{change.item} keeps the base model's)")
+    return replace(change, unreliable=True, note=note)
+
+
+def _position_far_from_prior(change: ParameterChange, off: float, sd: float) -> ParameterChange:
+    """`change` (a joint centre or marker) with its note corrected where the trial did not identify it and
+    yet it lies `off` (m) from where its prior puts it (the base model's, at the subject's scale), more than
+    FAR_FROM_PRIOR prior SDs `sd`: as for an axis (_far_from_prior), the prior did not hold it there and its
+    place is not to be trusted (Rajagopal's elbow_l with the elbow axes held: 153 mm, "held by the prior")."""
+    if change.status is not Identified.NO or not sd > 0 or off / sd <= FAR_FROM_PRIOR:
+        return change
+    why = change.note.removesuffix(": held by the prior").removesuffix("; held by the prior")
+    why = why.removesuffix(" either: held by the prior").removesuffix(" either")
+    what = "marker's place" if change.group == "marker" else "centre"
+    note = (f"{why}; yet {1000 * off:.0f} mm from where its prior puts it ({off / sd:.1f} prior SDs), so the prior "
+            f"did not hold it: a trade the data do not separate carried it there, and the {what} is not reliable")
     return replace(change, unreliable=True, note=note)
 
 
