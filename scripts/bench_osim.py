@@ -238,6 +238,36 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
 
 
+def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float) -> dict:
+    """calibrate on the static and the first half of the IK frames, then the subject fixed and the second half's
+    poses fitted frame by frame (calibrate.solve.ik): the markers it predicts there, for the held-out row."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.osim_info import with_locked
+    from calibrate.io.read import read_trial
+    from calibrate.io.trial import Trial
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.model import load_model
+    from calibrate.problem.settings import Settings
+    from calibrate.solve.ik import inverse_kinematics, marker_columns
+
+    model = load_model(spec["osim"], spec["marker_set"])
+    static = read_trial(_plain_trc(spec["static"], spec["dir"]))
+    walk = read_trial(_plain_trc(spec["walk"], spec["dir"]))
+    half = (frames.start + frames.stop) // 2
+    first = Trial(walk.labels, walk.markers[frames.start:half], walk.rate, walk.first_frame + frames.start, walk.source)
+    second = Trial(walk.labels, walk.markers[half:frames.stop], walk.rate, walk.first_frame + half, walk.source)
+    cal = calibrate(model, [static, first], with_locked(model, Settings(outliers=outliers, still_weight=still_weight)),
+                    mass=spec["mass"])
+    fit = inverse_kinematics(build_kinematics(cal.model), second, cal.params)
+    return {"markers": marker_columns(cal.model, second) + fit.residuals, "marker_names": list(cal.model.marker_names),
+            "in_sample_rms_mm": 1000 * float(np.sqrt(np.nanmean(np.sum(cal.residuals[cal.trials[0].n_frames:] ** 2,
+                                                                       axis=2)))),
+            "second_half_from": half - frames.start}
+
+
+HELDOUT_STILL_WEIGHT = 16.0  # the held-out row's second calibrate: the static counted as this many frames
+
+
 def osim_with_markers(spec: dict, out: Path) -> Path:
     """The generic .osim with the marker set file's markers in its MarkerSet (replacing those of the same
     name, as OpenSim's ScaleTool does), each in OpenSim 4's form (socket_parent_frame): the model nimble reads."""
@@ -379,6 +409,8 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     cr = run_calibrate(spec, frames, outliers)
     log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
     ch = run_calibrate(spec, frames, outliers, hold_axes=True)
+    log(f"{case}: held-out: calibrate on the static + the first half of the IK frames, the second half fitted ...")
+    held = {w: run_heldout(spec, frames, outliers, w) for w in (0.0, HELDOUT_STILL_WEIGHT)}
     trial = cr["trial"]
     use = [m for m in osr["tracked"] if m in trial.labels and m in cr["marker_names"] and m in osr["marker_names"]]
     missing = [m for m in osr["tracked"] if m in trial.labels and m not in cr["marker_names"]]
@@ -418,6 +450,16 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
         out["nimble"] = run_nimble_row(spec, frames, work, trial, use, osr)
     else:
         out["nimble"] = {"status": "not run: --no-nimble"}
+    # Held out: the second half of the IK frames, which neither OpenSim's scaling (the static) nor calibrate's
+    # (the static + the first half) saw; OpenSim's IK and calibrate's frame-by-frame fit with the subject fixed.
+    k = held[0.0]["second_half_from"]
+    second = type(trial)(trial.labels, trial.markers[k:], trial.rate, trial.first_frame + k, trial.source)
+    out["heldout"] = {"frames": second.n_frames, "opensim": marker_scores(osr["markers"][k:], osr["marker_names"],
+                                                                           second, use)}
+    for w, h in held.items():
+        row = marker_scores(h["markers"], h["marker_names"], second, use)
+        row["in_sample_rms_mm_all_markers"] = h["in_sample_rms_mm"]
+        out["heldout"]["calibrate" if w == 0 else f"calibrate_still_weight_{w:g}"] = row
     out["static_asymmetry"] = cr["static_asymmetry"]
     # Axes, centres and markers the trial did not identify that ended beyond 3 prior SDs from where their priors
     # put them (the report's `unreliable`)
@@ -451,6 +493,19 @@ def report(res: dict) -> None:
                   "subject model fixed; RMS over every marker)")
         print(f"  marker RMS ratio calibrate / OpenSim: {c['rms_mm'] / o['rms_mm']:.2f} (axes held "
               f"{h['rms_mm'] / o['rms_mm']:.2f})")
+        ho = r.get("heldout")
+        if ho:
+            print(f"  held out (the last {ho['frames']} IK frames; scaled on the static + the first half, the subject "
+                  "then fixed):")
+            for key, row in ho.items():
+                if key == "frames":
+                    continue
+                label = {"opensim": "OpenSim Scale + IK"}.get(key, key.replace("calibrate_still_weight_",
+                                                                               "calibrate, still_weight "))
+                extra = (f"  (in-sample, first half: {row['in_sample_rms_mm_all_markers']:.2f} mm over every marker)"
+                         if "in_sample_rms_mm_all_markers" in row else "")
+                ratio = f", / OpenSim {row['rms_mm'] / ho['opensim']['rms_mm']:.2f}" if key != "opensim" else ""
+                print(f"    {label:28s} {row['rms_mm']:8.2f} {row['max_mm']:8.2f}{ratio}{extra}")
         for label in ("coordinates", "coordinates_axes_held"):
             print(f"  joint angles, {'calibrate' if label == 'coordinates' else 'calibrate with axes held'}:")
             for name, d in r[label].items():
