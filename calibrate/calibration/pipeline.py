@@ -487,7 +487,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise, misplaced=misplaced)
+                       noise_learnt=run.learn_noise, misplaced=misplaced,
+                       trial_weights=() if lengths is None else tuple(float(n) for n in lengths))
 
 
 def _sampled_blocks(problem: Problem, state: State) -> np.ndarray:

@@ -72,6 +72,8 @@ def calibration_report(cal: Calibration) -> dict:
         entry = {"source": t.source, "frames": t.n_frames, "rate_hz": t.rate, "first_frame": t.first_frame,
                  "rms_mm": _mm(marker_rms(res)), "max_mm": _mm(np.nanmax(err)) if np.isfinite(err).any() else None,
                  "outliers": sum(1 for o in cal.outliers if o.trial == i)}
+        if cal.trial_weights and cal.trial_weights[i] < t.n_frames:  # a still trial counted as a few frames
+            entry["counted_as_frames"] = cal.trial_weights[i]
         if i < len(cal.label_maps) and cal.label_maps[i] is not None:
             entry["labels"] = cal.label_maps[i].to_json()
         trials.append(entry)
@@ -320,8 +322,10 @@ def summary_text(cal) -> str:
     lines = ["calibrate: subject calibration"]
     for i, trial in enumerate(cal.trials):
         res = cal.residuals[cal.trial_frames(i)]
+        weighed = (f" (still: its frames count as {cal.trial_weights[i]:g} in all, --still-weight)"
+                   if cal.trial_weights and cal.trial_weights[i] < trial.n_frames else "")
         lines.append(f"  {'trial' if i == 0 else '':13s}{trial.source or '(in memory)'}: {trial.n_frames} frames at "
-                     f"{trial.rate:g} Hz, marker RMS {1000 * marker_rms(res):.2f} mm")
+                     f"{trial.rate:g} Hz, marker RMS {1000 * marker_rms(res):.2f} mm{weighed}")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
         f"rigidity), {len(cal.ignored_labels)} trial labels left out, {len(cal.outliers)} outliers rejected",
