@@ -1092,6 +1092,9 @@ def collect(a: argparse.Namespace, log) -> dict:
         cfg.write_text(f"max_iterations = {QUICK_ITERATIONS}\n")
         a.extra = ["--config", cfg]
         res["quick_max_iterations"] = QUICK_ITERATIONS
+    if a.still_weight is not None:  # every calibrate command of the run with a static trial weighed so
+        a.extra = [*a.extra, "--still-weight", f"{a.still_weight:g}"]
+        res["still_weight"] = a.still_weight
     try:
         res["warmup"] = guarded(warm_up, tmp, cap, log)
         if "pig" in only:
@@ -1132,6 +1135,8 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="keep every trial and output in this folder")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
                     help=f"also calibrate N copies of pig_walk with N(0, {PERTURB_MM:g} mm) noise added (default 0)")
+    ap.add_argument("--still-weight", type=float, default=None, metavar="FRAMES",
+                    help="pass --still-weight to every calibrate command (a static trial counted as FRAMES frames)")
     ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")
     a = ap.parse_args()
     if a.from_json:
