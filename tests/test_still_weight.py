@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from calibrate.calibration import pipeline as pipeline_module
+from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import _still_lengths, _trial_motion, calibrate
 from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.calibration.start import spread_frames, subsample_weight
@@ -115,6 +116,7 @@ def test_a_calibration_with_the_static_weighted_finds_the_simulated_subject(huma
     report = calibration_report(runs[16.0])
     assert report["trials"][0]["counted_as_frames"] == 16.0 and "counted_as_frames" not in report["trials"][1]
     assert "its frames count as 16 in all" in summary_text(runs[16.0])
+    assert "400 (counted as 16)" in report_html(report)
     assert "count as" not in summary_text(runs[0.0])
     assert np.median(error(runs[16.0])) < np.median(error(runs[0.0])) + 0.001, (error(runs[16.0]), error(runs[0.0]))
     assert np.max(error(runs[16.0])) < 0.02

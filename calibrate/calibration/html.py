@@ -120,7 +120,8 @@ def _notes(report: dict) -> str:
 def _summary(report: dict) -> str:
     m, s, mk = report["model"], report["solver"], report["markers"]
     trials = _table(["trial", "frames", "rate (Hz)", "marker RMS (mm)", "max (mm)", "outliers"],
-                    [[t["source"] or "(in memory)", t["frames"], f"{t['rate_hz']:g}", _num(t["rms_mm"]),
+                    [[t["source"] or "(in memory)", t["frames"] if "counted_as_frames" not in t else
+                      f"{t['frames']} (counted as {t['counted_as_frames']:g})", f"{t['rate_hz']:g}", _num(t["rms_mm"]),
                       _num(t["max_mm"]), t["outliers"]] for t in report["trials"]], {1, 2, 3, 4, 5})
     mass = report.get("mass", {})
     rows = [
