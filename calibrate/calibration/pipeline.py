@@ -670,12 +670,11 @@ STILL_MOTION = 0.005  # m: a trial whose markers on different segments move less
 def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: float) -> list[float] | None:
     """What each trial counts as in frames: a still trial (STILL_MOTION) longer than `weight` frames
     as `weight` (PipelineOptions.still_weight), any other as its length; None when `weight` is 0, no trial
-    is still or none moves.  A static
-    trial repeats one pose, and with it the pose's errors (skin over a bone held still, an acromion
-    marker lifted with the arm): its frames are not independent, and counted one by one they
-    outweighed the walk (gait2392's 300 standing frames beside 121 walking; the learnt correlation
-    time caps at NOISE_TAU_MAX), bending the geometry to the one pose: the walk's held-out frames
-    fitted 4-6 mm RMS worse on each real recording (docs/benchmarks.md)."""
+    is still or none moves.  A static trial repeats one pose, and with it the pose's errors (skin over a
+    bone held still, an acromion marker lifted with the arm): its frames are not independent, and counted
+    one by one they outweigh the walk (gait2392's 300 standing frames beside 121 walking; the learnt
+    correlation time caps at NOISE_TAU_MAX), bending the geometry to the one pose: counted as 16, the
+    walks' held-out frames fitted 3-6 mm RMS better on each real recording (docs/benchmarks.md)."""
     still = [m < STILL_MOTION for m in motion]
     if weight <= 0 or not any(still) or all(still):
         return None
