@@ -87,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sd", type=float, default=1e-9, help="SD of the change of every marker coordinate (m)")
     ap.add_argument("--atol", type=float, default=None,
                     help="the solver's absolute cost tolerance (default Settings'; smaller: closer to the minimum)")
+    ap.add_argument("--still-weight", type=float, default=0.0, metavar="FRAMES",
+                    help="Settings.still_weight: the static counted as FRAMES frames (default 0: each frame once)")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
@@ -102,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         trials = [trials[0].frames(0, 100), trials[1].frames(0, 160)]
         runs_n = min(a.runs, 2)
     settings = Settings() if a.atol is None else Settings(atol=a.atol, max_iterations=400)
+    settings = replace(settings, still_weight=a.still_weight)
     runs = []
     for seed in range(runs_n):
         r = one_run(model, trials, a.sd if seed else 0.0, seed, settings)  # run 0: the trials as recorded
