@@ -193,8 +193,6 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
 
     from calibrate.calibration.pipeline import calibrate
     from calibrate.io.osim_info import with_locked
-    from calibrate.io.read import read_trial
-    from calibrate.io.trial import Trial
     from calibrate.model.model import load_model, write_model
     from calibrate.problem.settings import Settings
 
@@ -202,10 +200,8 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     # opensim package is outside OpenSim's: the timings compare the work, not Python's imports.
     importlib.import_module("calibrate.io.osim")
     t0 = time.perf_counter()
-    model = load_model(spec["osim"], spec["marker_set"])
-    static, walk = read_trial(_plain_trc(spec["static"], spec["dir"])), \
-        read_trial(_plain_trc(spec["walk"], spec["dir"]))
-    walk = Trial(walk.labels, walk.markers[frames], walk.rate, walk.first_frame + frames.start, walk.source)
+    model, static, walk = read_case(spec)
+    walk = walk.frames(frames.start, frames.stop)
     free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
     settings = with_locked(model, Settings(outliers=outliers, free=free))
     cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
@@ -238,24 +234,27 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
 
 
+def read_case(spec: dict):
+    """The case's generic model (with its marker set) and its static and walking trials, as calibrate reads them."""
+    from calibrate.io.read import read_trial
+    from calibrate.model.model import load_model
+
+    return (load_model(spec["osim"], spec["marker_set"]), read_trial(_plain_trc(spec["static"], spec["dir"])),
+            read_trial(_plain_trc(spec["walk"], spec["dir"])))
+
+
 def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float) -> dict:
     """calibrate on the static and the first half of the IK frames, then the subject fixed and the second half's
     poses fitted frame by frame (calibrate.solve.ik): the markers it predicts there, for the held-out row."""
     from calibrate.calibration.pipeline import calibrate
     from calibrate.io.osim_info import with_locked
-    from calibrate.io.read import read_trial
-    from calibrate.io.trial import Trial
     from calibrate.model.kinematics import build_kinematics
-    from calibrate.model.model import load_model
     from calibrate.problem.settings import Settings
     from calibrate.solve.ik import inverse_kinematics, marker_columns
 
-    model = load_model(spec["osim"], spec["marker_set"])
-    static = read_trial(_plain_trc(spec["static"], spec["dir"]))
-    walk = read_trial(_plain_trc(spec["walk"], spec["dir"]))
+    model, static, walk = read_case(spec)
     half = (frames.start + frames.stop) // 2
-    first = Trial(walk.labels, walk.markers[frames.start:half], walk.rate, walk.first_frame + frames.start, walk.source)
-    second = Trial(walk.labels, walk.markers[half:frames.stop], walk.rate, walk.first_frame + half, walk.source)
+    first, second = walk.frames(frames.start, half), walk.frames(half, frames.stop)
     cal = calibrate(model, [static, first], with_locked(model, Settings(outliers=outliers, still_weight=still_weight)),
                     mass=spec["mass"])
     fit = inverse_kinematics(build_kinematics(cal.model), second, cal.params)
@@ -453,7 +452,7 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     # Held out: the second half of the IK frames, which neither OpenSim's scaling (the static) nor calibrate's
     # (the static + the first half) saw; OpenSim's IK and calibrate's frame-by-frame fit with the subject fixed.
     k = held[0.0]["second_half_from"]
-    second = type(trial)(trial.labels, trial.markers[k:], trial.rate, trial.first_frame + k, trial.source)
+    second = trial.frames(k, trial.n_frames)
     out["heldout"] = {"frames": second.n_frames, "opensim": marker_scores(osr["markers"][k:], osr["marker_names"],
                                                                            second, use)}
     for w, h in held.items():

@@ -156,10 +156,12 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             status, note, ratio = judge(C, C0)
         change = ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
                                  note, ratio)
+        if block.held:
+            return change
         # Its prior pulls the offset from the base model's, at the subject's scale, towards zero (Priors).
         sd = problem.settings.priors.marker if group == "marker" else problem.settings.priors.centre
         off = float(np.linalg.norm(value - seg_scale[model.segment_index(owner)] * base))
-        return _position_far_from_prior(change, off, sd) if not block.held else change
+        return _position_far_from_prior(change, off, sd)
 
     for ji, j in enumerate(model.joints):
         judge = partial(_judge_centre, model, P, j, blind.get(j.name))
