@@ -94,3 +94,30 @@ def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):
                          text=True, cwd=ROOT, timeout=300)
     assert out.returncode == 2
     assert out.stderr.startswith("calibrate: error: ") and "pelvis" in out.stderr and "--markers" in out.stderr
+
+
+def test_left_out_markers_share_the_unmarked_segments_clause_once(human):
+    """Two trial markers that ride on no segment (each a random walk of its own) are left out by the rigidity
+    association, each reason naming the segments that carry no markers (the talus); the summary says that shared
+    clause once, after the markers, and keeps each marker's own figure on its line."""
+    from calibrate.calibration.report import left_out_lines
+    from calibrate.io.trial import Trial
+    from calibrate.seed.association import associate_to_model
+
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=3)
+    rng = np.random.default_rng(0)
+    loose = np.cumsum(rng.normal(0, 0.01, (200, 2, 3)), axis=0) + np.array([0.0, 0.0, 1.0])
+    trial = Trial(sim.trial.labels + ("LOOSE1", "LOOSE2"), np.concatenate([sim.trial.markers, loose], axis=1),
+                  sim.trial.rate)
+    left = [(m.label, m.reason) for m in associate_to_model(human, trial).markers if m.segment is None]
+    assert [label for label, _ in left] == ["LOOSE1", "LOOSE2"]
+    clause = "segments without markers (talus_l, talus_r) cannot receive markers"
+    assert all(reason.endswith("; " + clause) for _, reason in left)
+    lines = left_out_lines(left)
+    assert lines[-1] == f"  left out, all 2: {clause}"
+    assert [line.count("cannot receive") for line in lines] == [0, 0, 1]
+    for (label, reason), line in zip(left, lines, strict=False):
+        assert line == f"  left out {label}: {reason.removesuffix('; ' + clause)}"
+    # One marker, or reasons without a shared last clause: every line as it was.
+    assert left_out_lines(left[:1]) == [f"  left out LOOSE1: {left[0][1]}"]
+    assert left_out_lines([("A", "x; y"), ("B", "x; z")]) == ["  left out A: x; y", "  left out B: x; z"]

@@ -312,6 +312,17 @@ def _noise_lines(cal) -> list[str]:
     return out
 
 
+def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
+    """The summary's lines for the trial markers left out, (label, reason) each: a last clause that every
+    reason shares (e.g. which segments carry no markers and so cannot receive one) said once, after them,
+    rather than on every line."""
+    parts = [reason.rsplit("; ", 1) for _, reason in left]
+    shared = parts[0][1] if len(left) > 1 and all(len(p) == 2 and p[1] == parts[0][1] for p in parts) else None
+    lines = [f"  left out {label}: {p[0] if shared else reason}"
+             for (label, reason), p in zip(left, parts, strict=True)]
+    return lines + ([f"  left out, all {len(left)}: {shared}"] if shared else [])
+
+
 def summary_text(cal) -> str:
     """Human-readable summary in the spirit of Ceres' Solver::Summary::FullReport()."""
     model, s = cal.model, cal.summary
@@ -407,11 +418,8 @@ def summary_text(cal) -> str:
             lines.append(f"  labels{where}: {len(renamed)} renamed to the model's ("
                          + ", ".join(f"{m.trial_label} -> {m.label} ({m.how})" for m in renamed[:6])
                          + (", ..." if len(renamed) > 6 else "") + ")")
-    for m in cal.new_markers:
-        if m.segment is not None:
-            lines.append(f"  new marker {m.label} on {m.segment}: {m.reason}")
-        else:
-            lines.append(f"  left out {m.label}: {m.reason}")
+    lines.extend(f"  new marker {m.label} on {m.segment}: {m.reason}" for m in cal.new_markers if m.segment is not None)
+    lines.extend(left_out_lines([(m.label, m.reason) for m in cal.new_markers if m.segment is None]))
     bad = cal.implausible
     if bad:
         median = float(np.median(cal.params.scale))
