@@ -192,6 +192,27 @@ def test_a_label_to_check_is_among_the_notes(run):
     assert "check label" not in report_html(run["rep"])  # the calibration's own labels raised none
 
 
+def test_left_out_labels_are_among_the_notes_with_their_reasons(run):
+    """Trial labels left out (the report JSON's marker_set.left_out) are a note of the HTML report, each with its
+    own reason; the clause every reason shares (the segments that carry no markers) is said once."""
+    from calibrate.seed.association import UNMARKED
+
+    clause = UNMARKED.format("talus_l, talus_r")
+    left = [{"label": "LOOSE1", "reason": "varies by 5.3 mm std or more; " + clause},
+            {"label": "LOOSE2", "reason": "never seen long enough together with any model marker; " + clause}]
+    rep = dict(run["rep"], marker_set=dict(run["rep"]["marker_set"], left_out=left))
+    page = report_html(rep)
+    notes = page[page.index("id=notes>"):page.index("id=summary>")]
+    assert f"2 trial labels left out ({clause}):" in notes and notes.count("cannot receive markers") == 1
+    assert "<li>LOOSE1: varies by 5.3 mm std or more</li>" in notes
+    assert "<li>LOOSE2: never seen long enough together with any model marker</li>" in notes
+    # Reasons without the shared clause are shown whole; the calibration's own trial left none out.
+    rep = dict(run["rep"], marker_set=dict(run["rep"]["marker_set"], left_out=[{"label": "X", "reason": "a; b"}]))
+    assert "<li>X: a; b</li>" in report_html(rep)
+    page = report_html(run["rep"])
+    assert "trial labels left out" not in page[page.index("id=notes>"):page.index("id=summary>")]
+
+
 @pytest.mark.skipif(shutil.which("chromium") is None and not Path("/usr/bin/chromium").exists(),
                     reason="chromium is not installed (Debian: apt-get install chromium)")
 def test_chromium_renders_the_report(run, tmp_path):

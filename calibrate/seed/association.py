@@ -531,10 +531,21 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
         else:
             why = "never seen long enough together with any model marker"
         if empty:
-            why += f"; segments without markers ({', '.join(empty)}) cannot receive markers"
+            why += "; " + UNMARKED.format(", ".join(empty))
         out[k] = MarkerAssignment(labels[k], None, "unassigned",
                                   float(np.sqrt(closest[0])) if np.isfinite(closest[0]) else np.nan, why)
     return ModelAssociation(tuple(out[k] for k in range(N)), float(threshold))
+
+
+UNMARKED = "segments without markers ({}) cannot receive markers"  # the last clause of a left-out marker's reason
+
+
+def split_reason(reason: str) -> tuple[str, str | None]:
+    """A left-out marker's reason as its own part and the clause naming the model's segments without markers
+    (UNMARKED: the same for every marker left out on one model, so a listing says it once), or None."""
+    own, sep, clause = reason.rpartition("; ")
+    head = UNMARKED.split("{}")[0]
+    return (own, clause) if sep and clause.startswith(head) else (reason, None)
 
 
 def _mm(x: float) -> str:
