@@ -14,6 +14,10 @@ Then, over the runs: the largest spread of every joint centre (mm), hinge axis (
 run's ("another basin").
 
     python scripts/bench_stability.py [--runs 6] [--sd 1e-9] [--atol A] [--json] [--quick]
+    python scripts/bench_stability.py --every 1,2,3 [--json]
+
+`--every K,...`: instead of moved markers, one run per K with both trials read at every K-th frame (their
+rate / K; 1: as recorded): how much of the answer is the capture rate's, not the subject's.
 
 `--quick` (CI smoke run): 2 runs (fewer with --runs) on 100 static + 160 walk frames; its figures are not
 the benchmark's.
@@ -60,6 +64,15 @@ def one_run(model, trials, sd: float, seed: int, settings=None) -> dict:
     }
 
 
+def every(trial, k: int):
+    """`trial` read at every `k`-th frame: its rate / k (the modelling program's outputs dropped: calibration
+    does not read them)."""
+    if k == 1:
+        return trial
+    return replace(trial, markers=trial.markers[::k], rate=trial.rate / k, model_outputs={}, output_kinds={},
+                   output_units={})
+
+
 def spread(runs: list[dict]) -> dict:
     """Per parameter, the largest departure of a run from the runs' mean (mm, deg or %) and the largest
     posterior SD any run reported for it (same units)."""
@@ -89,9 +102,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="the solver's absolute cost tolerance (default Settings'; smaller: closer to the minimum)")
     ap.add_argument("--still-weight", type=float, default=0.0, metavar="FRAMES",
                     help="Settings.still_weight: the static counted as FRAMES frames (default 0: each frame once)")
+    ap.add_argument("--every", default=None, metavar="K,...",
+                    help="one run per K, the trials read at every K-th frame (rate / K), instead of moved markers")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
+    steps = [int(k) for k in a.every.split(",")] if a.every else None
+    if steps is not None and (not steps or min(steps) < 1):
+        print(f"bench_stability: --every {a.every}: give frame steps of 1 or more, e.g. --every 1,2,3", file=sys.stderr)
+        return 2
     from calibrate import Settings, load_model, read_trial
 
     if not PIG.is_dir():
@@ -106,12 +125,17 @@ def main(argv: list[str] | None = None) -> int:
     settings = Settings() if a.atol is None else Settings(atol=a.atol, max_iterations=400)
     settings = replace(settings, still_weight=a.still_weight)
     runs = []
-    for seed in range(runs_n):
-        r = one_run(model, trials, a.sd if seed else 0.0, seed, settings)  # run 0: the trials as recorded
+    for seed in range(runs_n if steps is None else len(steps)):
+        if steps is None:
+            r = one_run(model, trials, a.sd if seed else 0.0, seed, settings)  # run 0: the trials as recorded
+        else:
+            r = one_run(model, [every(t, steps[seed]) for t in trials], 0.0, seed, settings)
+            r["every"], r["rate_hz"] = steps[seed], trials[-1].rate / steps[seed]
         runs.append(r)
         if not a.json:
             v = r["values"]
-            print(f"run {seed}: {r['iterations']} iterations ({r['coarse_iterations']} on the subsample), "
+            at = f" (1 frame in {r['every']}: {r['rate_hz']:g} Hz)" if steps is not None else ""
+            print(f"run {seed}{at}: {r['iterations']} iterations ({r['coarse_iterations']} on the subsample), "
                   f"cost {r['final_cost']:.6g}, {len(r['held_axes'])} axes held, {r['outliers']} outliers, "
                   f"femur scales {v['scale[femur_l]'][0]:.3f} {v['scale[femur_r]'][0]:.3f}, "
                   f"pelvis {v['scale[pelvis]'][0]:.3f}, {r['seconds']:.1f} s", flush=True)
@@ -123,18 +147,29 @@ def main(argv: list[str] | None = None) -> int:
              for g in ("centre", "axis", "scale", "marker")}
     result = {
         "date": datetime.datetime.now().isoformat(timespec="seconds"), "machine": machine(),
-        "sd_m": a.sd, "quick": a.quick, "atol": settings.atol,
+        "sd_m": a.sd if steps is None else 0.0, "every": steps, "quick": a.quick, "atol": settings.atol,
         "runs": [{k: v for k, v in r.items() if k not in ("values", "std")} for r in runs],
         "iterations": [r["iterations"] for r in runs], "final_costs": [r["final_cost"] for r in runs],
         "other_basin_runs": other, "largest_spread": {g: [{"name": n, "spread": s, "sd": d} for s, n, d in w]
                                                       for g, w in worst.items()},
     }
+    if steps is not None:  # each run's joint centres against the first run's (the trials as the first K reads them)
+        centres = sorted(k for k in runs[0]["values"] if k.startswith("centre["))
+        result["centres_from_first_run_mm"] = []
+        for r in runs[1:]:
+            d = [1e3 * float(np.linalg.norm(np.subtract(r["values"][k], runs[0]["values"][k]))) for k in centres]
+            result["centres_from_first_run_mm"].append(
+                {"every": r["every"], "min": min(d), "median": float(np.median(d)), "max": max(d)})
     if a.json:
         print(json.dumps(clean_json(result), indent=1))
         return 0
-    print(f"\n{len(runs)} runs, markers moved by N(0, {a.sd:g} m): iterations {min(result['iterations'])}-"
+    how = f"markers moved by N(0, {a.sd:g} m)" if steps is None else f"trials read at 1 frame in {a.every}"
+    print(f"\n{len(runs)} runs, {how}: iterations {min(result['iterations'])}-"
           f"{max(result['iterations'])}, final cost {min(result['final_costs']):.6g}-{max(result['final_costs']):.6g}; "
           f"runs in another basin (femur scale > 10 % from the median run's): {other or 'none'}")
+    for c in result.get("centres_from_first_run_mm", []):
+        print(f"  joint centres at 1 frame in {c['every']} against the first run's: {c['min']:.1f}-{c['max']:.1f} mm, "
+              f"median {c['median']:.1f}")
     units = {"centre": "mm", "axis": "deg", "scale": "%", "marker": "mm"}
     for g, w in worst.items():
         print(f"  largest spread, {g} ({units[g]}): " + ", ".join(

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from calibrate.calibration.noise import learned_noise, leverage
+from calibrate.calibration.noise import NOISE_TAU_SECONDS, learned_noise, leverage, tau_cap
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.result import rms
 from calibrate.calibration.start import start_poses
@@ -201,6 +201,32 @@ def test_learnt_noise_is_larger_for_skin_motion(sta_run):
         assert 1000 * cal.noise_weight[name] > 1.3 * sd[name]  # smooth skin motion: correlated over frames
     assert np.median([cal.noise_weight[k] / cal.noise[k] for k in cal.noise if k not in thigh]) < 1.1
     assert len(cal.outliers) < 0.005 * cal.residuals.shape[0] * cal.residuals.shape[1]
+
+
+def test_a_correlation_time_counts_up_to_the_same_seconds_at_any_rate(human):
+    """Four thigh and knee markers drift on the skin (8 mm, periods of 2.5-3.5 s): their residuals stay correlated
+    for longer than the cap, so each weighs as one frame in NOISE_TAU_SECONDS' worth of frames (the weight's SD over
+    the noise SD, squared): 13.3 frames at 100 Hz and 3.3 when the same trial is read at 25 Hz (every fourth frame),
+    so that a second of the trial weighs the same against the priors at either rate (a cap of 16 frames at every
+    rate made a 25 Hz frame count 1/16).  The white-noise markers stay near 1."""
+    sim = simulate_squats(human, frames=400, noise_mm=1.0, seed=1)
+    drift = ("LTHI", "RTHI", "LKNE", "RKNE")
+    X, t = sim.trial.markers.copy(), sim.trial.times
+    for i, name in enumerate(drift):
+        X[:, human.marker_index(name)] += 0.008 * np.column_stack(
+            [np.sin(2 * np.pi * t / 3 + 1.3 * i), np.cos(2 * np.pi * t / 2.5 + 1.3 * i),
+             np.sin(2 * np.pi * t / 3.5 + 2.6 * i)])
+    for step in (1, 4):
+        trial = Trial(sim.trial.labels, X[::step], sim.trial.rate / step, 0, None)
+        cal = calibrate(human, trial)
+        frames = {k: (cal.noise_weight[k] / cal.noise[k]) ** 2 for k in cal.noise}
+        cap = NOISE_TAU_SECONDS * trial.rate
+        assert cap == pytest.approx(tau_cap(np.array([trial.rate]), np.array([trial.n_frames])))
+        for name in drift:
+            assert abs(frames[name] / cap - 1) < 0.05, (trial.rate, name, frames[name], cap)
+        assert np.median([v for k, v in frames.items() if k not in drift]) < 1.1
+    # Trials at different rates: the cap at their mean rate, each weighted by its frames.
+    assert tau_cap(np.array([120.0, 60.0]), np.array([300, 100])) == pytest.approx(NOISE_TAU_SECONDS * 105.0)
 
 
 def test_learned_noise_keeps_fixed_markers(human, human_kin):

@@ -30,7 +30,11 @@ NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or a
 NOISE_CHANGE = 0.1  # stop re-learning when no marker's SD changes by more than this fraction
 
 
-NOISE_TAU_MAX = 16.0  # frames: a marker's residual correlation time counts up to this (its weight SD: 4 x its SD)
+NOISE_TAU_SECONDS = 16 / 120  # s: on every frame a marker's residual correlation time counts up to this (16
+#   frames at pig_walk's 120 Hz, where the cap was set as 16 frames; a cap in frames weighed a trial by its rate) ...
+
+
+NOISE_TAU_MAX = 16.0  # ... and on a subsample, whose rows lie frames apart, up to this many of its rows
 
 
 NOISE_CLIP = 4.0  # a residual counts in the learnt SD up to this many robust SDs per coordinate (spikes: no more)
@@ -46,13 +50,14 @@ def fixed_noise(problem: Problem, options: PipelineOptions) -> np.ndarray | None
 
 
 def relearn(problem: Problem, state: State, fixed: np.ndarray, say: Callable[[str | Progress], None],
-             trial_of: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+             trial_of: np.ndarray, tau_max: float | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """learned_noise at `state`: the weights' SDs sigma sqrt(τ) (a marker whose residuals are correlated
     over τ frames carries the information of 1/τ of its frames) and the noise SDs sigma.  The first is
     None if nine markers in ten changed their weights' SD by no more than NOISE_CHANGE (a few poorly
-    seen markers may go on wavering without moving the geometry)."""
+    seen markers may go on wavering without moving the geometry).  `tau_max`: learned_noise's."""
     scatter, tau = learned_noise(problem, state, fixed, trial_of, correlation=True,
-                                 progress=Countdown(say, "noise", "the markers' scatter over every frame"))
+                                 progress=Countdown(say, "noise", "the markers' scatter over every frame"),
+                                 tau_max=tau_max)
     sigma = scatter * np.sqrt(tau)
     shown = ~problem.unseen  # a marker no frame shows weighs nothing: its SD neither counts nor shows
     sc, ta = scatter[shown], tau[shown]
@@ -109,9 +114,18 @@ def _hat_diagonal(A: np.ndarray, jz: np.ndarray, wrow: np.ndarray, zr: np.ndarra
     return np.einsum("fir,fij,fjr->fr", Jt, Ainv, Jt, optimize=True)
 
 
+def tau_cap(rates: np.ndarray, frames: np.ndarray) -> float:
+    """The longest correlation time (in frames) that a marker's residuals count for on every frame of trials
+    read at `rates` (Hz) with `frames` frames each: NOISE_TAU_SECONDS at the trials' frame-weighted mean rate.
+    A cap in seconds keeps what a second of trial weighs whatever its rate (in frames, the same walk read at
+    60 Hz counted half as much as at 120 Hz against the priors: pig_walk's joint centres moved 0.7-15.8 mm)."""
+    frames = np.asarray(frames, dtype=float)
+    return NOISE_TAU_SECONDS * float(np.asarray(rates, dtype=float) @ frames / max(frames.sum(), 1.0))
+
+
 def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = None,
                   trial_of: np.ndarray | None = None, correlation: bool = False,
-                  progress: Callable[[float], None] | None = None):
+                  progress: Callable[[float], None] | None = None, tau_max: float | None = None):
     """Each marker's noise SD (m) from the residuals at `state`: the root mean square of its 3-D
     residuals over the frames, each winsorised at NOISE_CLIP robust SDs per coordinate (MAD_SD times
     the median absolute deviation of its components in the same trial: `trial_of` (F,) gives each
@@ -125,9 +139,10 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     markers'); `fixed` markers (the user's marker_noise) keep problem.sigma.  Clipped to
     [NOISE_FLOOR, NOISE_CAP].
 
-    `correlation`: also return each marker's correlation time τ (frames of `problem`; 1 for white
+    `correlation`: also return each marker's correlation time τ (rows of `problem`; 1 for white
     noise): (1 + ρ)/(1 − ρ), ρ the lag-1 autocorrelation of its standardised residuals within each
-    trial, in [1, NOISE_TAU_MAX] (a fixed marker: 1)."""
+    trial, in [1, `tau_max`] (a fixed marker: 1).  `tau_max`: for a problem of every frame, tau_cap of its
+    trials; None: NOISE_TAU_MAX rows (a subsample, its rows frames apart)."""
     model = problem.model
     nm = len(model.markers)
     F = problem.F
@@ -175,6 +190,7 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
     if not correlation:
         return learnt
     tau = np.ones(nm)
+    cap = NOISE_TAU_MAX if tau_max is None else max(1.0, float(tau_max))
     lag = seen[1:] & seen[:-1] & (trial_of[1:] == trial_of[:-1])[:, None]  # (F-1, nm): consecutive pairs
     pair_w = None if fw is None else fw[1:]  # a pair within a trial weighs as its frames (one trial: one weight)
     for k in range(nm):
@@ -191,7 +207,7 @@ def learned_noise(problem: Problem, state: State, fixed: np.ndarray | None = Non
             q = np.sqrt(pair_w[lag[:, k]])[:, None]
             a, b = a * q, b * q
         rho = float(np.sum(a * b)) / max(math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b))), 1e-300)
-        tau[k] = float(np.clip((1 + rho) / max(1 - rho, 1e-9), 1.0, NOISE_TAU_MAX))
+        tau[k] = float(np.clip((1 + rho) / max(1 - rho, 1e-9), 1.0, cap))
     return learnt, tau
 
 

@@ -24,7 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
-from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn
+from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
     COARSE_FRAMES,
@@ -341,7 +341,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
-    problem, state, summary, scatter, solved = _solve(problem, start, spans, run, solver, say, lengths)
+    # On every frame a marker's correlation time counts up to NOISE_TAU_SECONDS whatever the trials' rate.
+    cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
+    problem, state, summary, scatter, solved = _solve(problem, start, spans, run, solver, say, lengths, cap)
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = replace(settings, hold_axes=problem.settings.hold_axes)  # as used: with the axes held above
     rejected: list[Outlier] = []
@@ -359,7 +361,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # changed the problem, solved again.
         changed = unsolved
         if fixed is not None and not unsolved:
-            sigma, scatter = relearn(problem, state, fixed, say, trial_of)
+            sigma, scatter = relearn(problem, state, fixed, say, trial_of, cap)
             if sigma is not None:
                 problem = problem.with_noise(sigma)
                 changed = True
@@ -533,7 +535,7 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 
 
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
-           say: Callable[[str], None], lengths: Sequence[float] | None = None
+           say: Callable[[str], None], lengths: Sequence[float] | None = None, tau_max: float | None = None
            ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
     the trials by their length; a long trial then through larger subsamples), then every frame's pose
@@ -542,7 +544,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     subsample solved again.  Returns the problem (with those axes held and the noise learnt), the
     state, its summary, the markers' noise SDs and whether every frame was solved jointly (a short trial,
     solved whole; otherwise the caller's solve on every frame follows).  `lengths`: what each trial counts
-    as in frames (_still_lengths), the subsamples spread and weighted by it."""
+    as in frames (_still_lengths), the subsamples spread and weighted by it.  `tau_max`: the longest
+    correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its own)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, COARSE_FRAMES, lengths)
     coarse_w = subsample_weight(coarse, spans, lengths)
@@ -559,7 +562,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         # three more subsample solves, its weights wandering 22, 15, 11 % (docs/benchmarks.md).
         for _ in range(NOISE_ROUNDS if fixed is not None and round_ == 0 else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
-            sigma, scatter = relearn(sub, state, fixed, say, trial_of[coarse] if sub is not problem else trial_of)
+            sigma, scatter = (relearn(sub, state, fixed, say, trial_of[coarse]) if sub is not problem
+                              else relearn(sub, state, fixed, say, trial_of, tau_max))
             if sigma is None:
                 break
             problem = problem.with_noise(sigma)
@@ -618,7 +622,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     state, _ = levenberg_marquardt(problem, _carried(state, solved, start, spans), solver, pose_only=True,
                                    max_iterations=POSE_ITERATIONS, progress=_clock(say, problem, solver, "poses, "))
     if fixed is not None:
-        sigma, scatter = relearn(problem, state, fixed, say, trial_of)
+        sigma, scatter = relearn(problem, state, fixed, say, trial_of, tau_max)
         if sigma is not None:
             problem = problem.with_noise(sigma)
     cost = problem.cost(state)
@@ -673,7 +677,7 @@ def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: flo
     is still or none moves.  A static trial repeats one pose, and with it the pose's errors (skin over a
     bone held still, an acromion marker lifted with the arm): its frames are not independent, and counted
     one by one they outweigh the walk (gait2392's 300 standing frames beside 121 walking; the learnt
-    correlation time caps at NOISE_TAU_MAX), bending the geometry to the one pose: counted as 16, the
+    correlation time caps at NOISE_TAU_SECONDS), bending the geometry to the one pose: counted as 16, the
     walks' held-out frames fitted 3-6 mm RMS better on each real recording (docs/benchmarks.md)."""
     still = [m < STILL_MOTION for m in motion]
     if weight <= 0 or not any(still) or all(still):
