@@ -225,6 +225,8 @@ def test_a_correlation_time_counts_up_to_the_same_seconds_at_any_rate(human):
         for name in drift:
             assert abs(frames[name] / cap - 1) < 0.05, (trial.rate, name, frames[name], cap)
         assert np.median([v for k, v in frames.items() if k not in drift]) < 1.1
+        noise = json.loads(json.dumps(cal.report()))["noise"]  # the report states the cap, in seconds and frames
+        assert noise["correlation_cap_s"] == NOISE_TAU_SECONDS and noise["correlation_cap_frames"] == pytest.approx(cap)
     # Trials at different rates: the cap at their mean rate, each weighted by its frames.
     assert tau_cap(np.array([120.0, 60.0]), np.array([300, 100])) == pytest.approx(NOISE_TAU_SECONDS * 105.0)
 

@@ -29,6 +29,7 @@ from ..problem.priors import symmetry_pairs
 from ..seed.association import split_reason
 from ..seed.geometry import marker_rms
 from .html import report_html
+from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified
 from .series import report_series
 
@@ -126,7 +127,12 @@ def calibration_report(cal: Calibration) -> dict:
                             "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
-                  "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()}},
+                  "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()},
+                  # the longest correlation time a marker's residuals counted for on every frame (its weight's SD
+                  # is at most its SD times the square root of this many frames)
+                  "correlation_cap_s": NOISE_TAU_SECONDS,
+                  "correlation_cap_frames": tau_cap(np.array([t.rate for t in cal.trials]),
+                                                    np.array([t.n_frames for t in cal.trials]))},
         "symmetry": symmetry_table(cal),
         "static_pose": static_pose_table(cal),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
