@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ..errors import CalibrateError
 from ..io.outputs import check_targets, put_text, write_all
-from ..seed.association import split_reason
+from ..seed.association import shared_clause
 
 STYLE = """
 body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1200px;color:#222;padding:0 1em}
@@ -111,11 +111,10 @@ def _notes(report: dict) -> str:
         items.append(f"<li>new marker {_e(m.get('label'))} placed on {_e(m.get('segment'))}</li>")
     left = report.get("marker_set", {}).get("left_out", [])
     if left:
-        parts = [split_reason(m.get("reason", "")) for m in left]
-        shared = parts[0][1] if all(c is not None and c == parts[0][1] for _, c in parts) else None
+        reasons, shared = shared_clause([m.get("reason", "") for m in left])
         items.append(f"<li>{len(left)} trial labels left out" + (f" ({_e(shared)})" if shared else "") + ":<ul>"
-                     + "".join(f"<li>{_e(m.get('label'))}: {_e(own if shared else m.get('reason'))}</li>"
-                               for m, (own, _) in zip(left, parts, strict=True)) + "</ul></li>")
+                     + "".join(f"<li>{_e(m.get('label'))}: {_e(reason)}</li>"
+                               for m, reason in zip(left, reasons, strict=True)) + "</ul></li>")
     if report.get("marker_set", {}).get("unused_model_markers"):
         items.append("<li>model markers never seen (base positions kept): "
                      f"{_e(', '.join(report['marker_set']['unused_model_markers']))}</li>")

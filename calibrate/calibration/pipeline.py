@@ -562,8 +562,9 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         # three more subsample solves, its weights wandering 22, 15, 11 % (docs/benchmarks.md).
         for _ in range(NOISE_ROUNDS if fixed is not None and round_ == 0 else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
-            sigma, scatter = (relearn(sub, state, fixed, say, trial_of[coarse]) if sub is not problem
-                              else relearn(sub, state, fixed, say, trial_of, tau_max))
+            whole = sub is problem  # every frame: the cap in seconds; a subsample's rows: its own (tau_max)
+            sigma, scatter = relearn(sub, state, fixed, say, trial_of if whole else trial_of[coarse],
+                                     tau_max if whole else None)
             if sigma is None:
                 break
             problem = problem.with_noise(sigma)

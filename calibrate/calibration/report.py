@@ -26,7 +26,7 @@ from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters
 from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
-from ..seed.association import split_reason
+from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
 from .html import report_html
 from .noise import NOISE_TAU_SECONDS, tau_cap
@@ -321,11 +321,9 @@ def _noise_lines(cal) -> list[str]:
 
 def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
     """The summary's lines for the trial markers left out, (label, reason) each; the clause naming the segments
-    that carry no markers (association.split_reason), when every reason ends with it, said once after them."""
-    parts = [split_reason(reason) for _, reason in left]
-    shared = parts[0][1] if len(left) > 1 and all(c is not None and c == parts[0][1] for _, c in parts) else None
-    lines = [f"  left out {label}: {own if shared else reason}"
-             for (label, reason), (own, _) in zip(left, parts, strict=True)]
+    that carry no markers (association.shared_clause), when every reason ends with it, said once after them."""
+    reasons, shared = shared_clause([reason for _, reason in left]) if len(left) > 1 else ([r for _, r in left], None)
+    lines = [f"  left out {label}: {reason}" for (label, _), reason in zip(left, reasons, strict=True)]
     return lines + ([f"  left out, all {len(left)}: {shared}"] if shared else [])
 
 

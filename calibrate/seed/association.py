@@ -548,6 +548,15 @@ def split_reason(reason: str) -> tuple[str, str | None]:
     return (own, clause) if sep and clause.startswith(head) else (reason, None)
 
 
+def shared_clause(reasons: list[str]) -> tuple[list[str], str | None]:
+    """Left-out markers' reasons without the UNMARKED clause when every one ends with the same (it then said
+    once, returned second); else the reasons whole and None."""
+    parts = [split_reason(r) for r in reasons]
+    if parts and all(c is not None and c == parts[0][1] for _, c in parts):
+        return [own for own, _ in parts], parts[0][1]
+    return list(reasons), None
+
+
 def _mm(x: float) -> str:
     return f"{1000.0 * x:.1f} mm"
 
