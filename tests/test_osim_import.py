@@ -601,7 +601,9 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     write_trc(trc, Trial(list(model.marker_names), markers, 60.0, 0, str(trc)))
     out = tmp_path / "subject.urdf"
     code = main([str(trc), str(GAIT), "--marker-set", str(GAIT_MARKERS), "-o", str(out), "--no-new-markers", "-q"])
-    assert code == 0, capsys.readouterr().err
+    said = capsys.readouterr()
+    assert code == 0, said.err
+    assert "subject.osim: forces: 92 of gait2392.osim's 92 carried" in said.out  # its 92 muscles
     subject = load_model(out)
     info = osim_info(subject)
     assert info is not None and info.root is not None and info.root.joint == "ground_pelvis"
@@ -622,6 +624,7 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert set(cols[7:]) == set(model.dof_names)
     text = (tmp_path / "subject.osim").read_text()
     assert '<CustomJoint name="ground_pelvis">' in text and '<CustomJoint name="knee_r">' in text
+    assert text.count("<Thelen2003Muscle ") == 92
     assert text == (tmp_path / "again.osim").read_text()  # written with the others = exported from the URDF
 
 
@@ -646,3 +649,188 @@ def test_hinge_fit_is_the_same_in_every_process():
     seen = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                            env={**os.environ, "PYTHONHASHSEED": str(seed)}).stdout for seed in range(5)}
     assert len(seen) == 1, seen
+
+
+# ---------------------------------------------------------------------- the source model's muscles
+def muscle_osim() -> str:
+    """A leg with muscles: translating child offset frames (the thigh's and shank's segment frames are not their
+    body frames), non-zero default angles, a path over a wrap cylinder, a conditional and a moving path point
+    (spline, linear and constant location functions), a CoordinateActuator (carried) and a PointActuator (left
+    out)."""
+    body = ("<Body name=\"{n}\"><mass>{m}</mass><mass_center>0.01 -0.1 0.02</mass_center>"
+            "<inertia>0.1 0.12 0.05 0 0 0</inertia>{w}</Body>")
+    cyl = ("<WrapObjectSet name=\"wrapobjectset\"><objects><WrapCylinder name=\"thigh_cyl\">"
+           "<xyz_body_rotation>0.1 0 0.2</xyz_body_rotation><translation>0.04 -0.36 0.0</translation>"
+           "<quadrant>all</quadrant><radius>0.03</radius><length>0.12</length></WrapCylinder></objects>"
+           "</WrapObjectSet>")
+    bodies = "".join(body.format(n=n, m=m, w=cyl if n == "thigh" else "")
+                     for n, m in (("pelvis", 10), ("thigh", 7), ("shank", 3)))
+
+    def coords(name: str, lo: float, hi: float, default: float) -> str:
+        return (f"<coordinates><Coordinate name=\"{name}\"><default_value>{default}</default_value><range>{lo} {hi}"
+                f"</range><clamped>true</clamped><locked>false</locked></Coordinate></coordinates>")
+
+    joints = (
+        f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0 0.9 0', '0 0 0')}"
+        + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
+                  ('p_tz', -2, 2)) + "</FreeJoint>"
+        f"<PinJoint name=\"hip\">{_frames('pelvis', 'thigh', '-0.07 -0.08 0.08', '0 0 0', '0.01 0.03 -0.02', '0 0 0')}"
+        f"{coords('hip_q', -1.5, 1.5, 0.2)}</PinJoint>"
+        f"<PinJoint name=\"knee\">{_frames('thigh', 'shank', '0 -0.4 0', '0 0 0', '0.005 0.01 0', '0 0 0')}"
+        f"{coords('knee_q', -2, 0.2, -0.3)}"
+        "</PinJoint>")
+
+    def point(name: str, bodyname: str, loc: str) -> str:
+        return (f"<PathPoint name=\"{name}\"><socket_parent_frame>/bodyset/{bodyname}</socket_parent_frame>"
+                f"<location>{loc}</location></PathPoint>")
+
+    def muscle(name: str, points: str, wrap: str = "") -> str:
+        wraps = (f"<PathWrapSet><objects><PathWrap name=\"{name}_wrap\"><wrap_object>{wrap}</wrap_object>"
+                 "<method>hybrid</method><range>-1 -1</range></PathWrap></objects></PathWrapSet>") if wrap else ""
+        return (f"<Thelen2003Muscle name=\"{name}\"><GeometryPath name=\"geometrypath\"><PathPointSet><objects>"
+                f"{points}</objects></PathPointSet>{wraps}</GeometryPath><max_isometric_force>500"
+                "</max_isometric_force><optimal_fiber_length>0.1</optimal_fiber_length><tendon_slack_length>0.12"
+                "</tendon_slack_length><pennation_angle_at_optimal>0</pennation_angle_at_optimal></Thelen2003Muscle>")
+
+    conditional = ("<ConditionalPathPoint name=\"hipm-P2\"><socket_parent_frame>/bodyset/thigh</socket_parent_frame>"
+                   "<location>-0.01 -0.1 0.03</location><socket_coordinate>/jointset/hip/hip_q</socket_coordinate>"
+                   "<range>-1 1</range></ConditionalPathPoint>")
+    moving = ("<MovingPathPoint name=\"kneem-P3\"><socket_parent_frame>/bodyset/shank</socket_parent_frame>"
+              "<socket_x_coordinate>/jointset/knee/knee_q</socket_x_coordinate>"
+              "<socket_y_coordinate>/jointset/knee/knee_q</socket_y_coordinate>"
+              "<socket_z_coordinate>/jointset/knee/knee_q</socket_z_coordinate>"
+              "<x_location><SimmSpline><x>-2 -1 0 0.2</x><y>0.02 0.025 0.03 0.031</y></SimmSpline></x_location>"
+              "<y_location><LinearFunction><coefficients>0.01 -0.05</coefficients></LinearFunction></y_location>"
+              "<z_location><Constant><value>0.01</value></Constant></z_location></MovingPathPoint>")
+    forces = (muscle("hipm", point("hipm-P1", "pelvis", "0.02 0.01 0.05") + conditional
+                     + point("hipm-P3", "thigh", "0.01 -0.3 0.03"))
+              + muscle("kneem", point("kneem-P1", "pelvis", "0.0 -0.05 0.06") + point("kneem-P2", "thigh",
+                                                                                     "0.05 -0.3 0.01") + moving,
+                       wrap="thigh_cyl")
+              + "<CoordinateActuator name=\"knee_act\"><coordinate>knee_q</coordinate><optimal_force>100"
+                "</optimal_force></CoordinateActuator>"
+              + "<PointActuator name=\"push\"><body>shank</body><point>0 -0.2 0</point><direction>1 0 0</direction>"
+                "<optimal_force>10</optimal_force></PointActuator>")
+    markers = "".join(f"<Marker name=\"M{k}\"><socket_parent_frame>/bodyset/{b}</socket_parent_frame>"
+                      f"<location>{loc}</location></Marker>"
+                      for k, (b, loc) in enumerate((("pelvis", "0.1 0 0.1"), ("pelvis", "-0.1 0 0.1"),
+                                                    ("pelvis", "0 0.05 -0.1"), ("thigh", "0.05 -0.2 0.05"),
+                                                    ("thigh", "0.05 -0.3 -0.05"), ("shank", "0.04 -0.2 0.05"),
+                                                    ("shank", "0.04 -0.3 -0.04"))))
+    return ("<?xml version=\"1.0\" encoding=\"UTF-8\" ?>\n<OpenSimDocument Version=\"40000\"><Model name=\"muscled\">"
+            "<Ground name=\"ground\"/><gravity>0 -9.80665 0</gravity>"
+            f"<BodySet name=\"bodyset\"><objects>{bodies}</objects></BodySet>"
+            f"<JointSet name=\"jointset\"><objects>{joints}</objects></JointSet>"
+            f"<ForceSet name=\"forceset\"><objects>{forces}</objects></ForceSet>"
+            f"<MarkerSet name=\"markerset\"><objects>{markers}</objects></MarkerSet></Model></OpenSimDocument>\n")
+
+
+# {"jobs": [{"source", "exported", "scales": {body: factor}}]} -> per job: per muscle of the source scaled by
+# OpenSim's own Model::scale (the same factor on every axis of a body) and of the exported subject: its length
+# in the default pose (wrapping included), optimal fibre and tendon slack length; and the forces' names.
+_MUSCLE_WORKER = r"""
+import json, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+out = []
+for job in json.load(open(sys.argv[1]))["jobs"]:
+    res = {}
+    for key in ("source", "exported"):
+        model = osim.Model(job[key])
+        state = model.initSystem()
+        if key == "source":
+            scales = osim.ScaleSet()
+            for body, f in job["scales"].items():
+                sc = osim.Scale()
+                sc.setSegmentName(body)
+                sc.setScaleFactors(osim.Vec3(f, f, f))
+                sc.setApply(True)
+                scales.cloneAndAppend(sc)
+            model.scale(state, scales, True)
+            state = model.initSystem()
+        model.realizePosition(state)
+        muscles = model.getMuscles()
+        res[key] = {muscles.get(i).getName(): [muscles.get(i).getLength(state), muscles.get(i).getOptimalFiberLength(),
+                                               muscles.get(i).getTendonSlackLength()] for i in range(muscles.getSize())}
+        fs = model.getForceSet()
+        res[key + " forces"] = [fs.get(i).getName() for i in range(fs.getSize())]
+    out.append(res)
+json.dump(out, open(sys.argv[2], "w"))
+"""
+
+
+@pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed")
+def test_export_carries_the_source_muscles_scaled_as_opensim_scales_them(tmp_path):
+    """A subject whose segments are the source model's scaled (each by its own factor), exported as .osim: its
+    muscles, in OpenSim, have the lengths OpenSim's own Model::scale gives the source with the same factors (1e-6
+    m, wrapping included), and the same optimal fibre and tendon slack lengths (1e-9 where the path does not wrap;
+    within 1 % over the wrap cylinder, whose path calibrate measures straight); a force on a body is left out and
+    said so.  Gait2392 and Rajagopal too, where the files are: every muscle whose path does not cross the
+    approximated knee has OpenSim's length to 1e-6 m."""
+    from calibrate.io.osim_export import export_osim, osim_document
+    from calibrate.io.osim_forces import forces_lines, forces_written
+    from calibrate.model.model import Parameters, write_model
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    sources = [(src, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
+        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
+    jobs = []
+    for k, (path, ms) in enumerate(sources):
+        model = load_model(path, ms)
+        p0 = model.parameters()
+        scale = 1 + np.random.default_rng(k).uniform(-0.15, 0.15, p0.scale.shape)
+        subject = load_model(write_model(model, tmp_path / f"m{k}.urdf", Parameters(scale, p0.centre, p0.axis,
+                                                                                    p0.marker)))
+        out = export_osim(subject, tmp_path / f"m{k}.osim")
+        jobs.append({"source": str(path), "exported": str(out),
+                     "scales": {s.name: float(scale[i]) for i, s in enumerate(model.segments)}})
+        if k == 0:
+            _, carried = osim_document(subject)
+            assert [f.get("name") for f in carried.forces] == ["hipm", "kneem", "knee_act"]
+            assert len(carried.left_out) == 1 and carried.left_out[0].startswith("PointActuator push (acts on a body")
+            assert any("left out: PointActuator push" in line for line in forces_lines(carried))
+            assert forces_written(out) == forces_lines(carried)  # said in the file too
+    spec, result = tmp_path / "jobs.json", tmp_path / "result.json"
+    spec.write_text(json.dumps({"jobs": jobs}))
+    proc = subprocess.run([sys.executable, "-c", _MUSCLE_WORKER, str(spec), str(result)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
+    knee = ("bflh", "bfsh", "gaslat", "gasmed", "grac", "recfem", "sart", "semimem", "semiten", "tfl", "vasint",
+            "vaslat", "vasmed", "bifemlh", "bifemsh", "lat_gas", "med_gas", "rect_fem", "sar", "vas_int", "vas_lat",
+            "vas_med")
+    for (path, _), res in zip(sources, json.loads(result.read_text()), strict=True):
+        ref, got = res["source"], res["exported"]
+        assert set(got) == set(ref), path.name
+        if path == src:
+            assert res["exported forces"] == ["hipm", "kneem", "knee_act"]
+            for name in got:
+                assert abs(got[name][0] - ref[name][0]) < TOL, (name, got[name], ref[name])
+            assert np.allclose(got["hipm"][1:], ref["hipm"][1:], rtol=1e-9, atol=0)
+            assert np.allclose(got["kneem"][1:], ref["kneem"][1:], rtol=0.01, atol=0)
+            assert not np.allclose(got["kneem"][1:], [0.1, 0.12], rtol=0.01)  # scaled, not kept
+            continue
+        assert len(res["exported forces"]) == len(res["source forces"]), path.name
+        straight = [m for m in got if m.rsplit("_", 1)[0] not in knee]
+        assert len(straight) > 40
+        worst = max(abs(got[m][0] - ref[m][0]) for m in straight)
+        assert worst < TOL, f"{path.name}: muscle lengths off by {worst:.3g} m"
+
+
+def test_export_without_its_source_model_says_so(tmp_path):
+    """The source .osim moved away after the import: the subject is still exported, without forces, and the
+    file and the export say why."""
+    from calibrate.io.osim_export import osim_document
+    from calibrate.model.model import write_model
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    subject = load_model(write_model(load_model(src), tmp_path / "s.urdf"))
+    text, carried = osim_document(subject)
+    assert "<ForceSet" in text and len(carried.forces) == 3
+    src.rename(tmp_path / "moved.osim")
+    text, carried = osim_document(subject)
+    assert "<ForceSet" not in text and "<Marker " in text
+    assert "not carried: the source model" in carried.note and str(src) in carried.note
+    assert f"<!-- calibrate: {carried.note} -->" in text

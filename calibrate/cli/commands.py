@@ -220,6 +220,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))
+    if from_osim:
+        from ..io.osim_forces import forces_written
+
+        for line in forces_written(out_osim):
+            print(f"      {out_osim.name}: {line}")
     if cal.misplaced:
         check = dict.fromkeys(x for _, m in cal.misplaced for x in (m.label, *m.partners))
         pairs = dict.fromkeys(f"{a}/{b}" for _, m in cal.misplaced for a, b in m.exchanges)

@@ -110,6 +110,10 @@ class OsimInfo:
     defaults: dict[str, float]  # coordinate -> default value (rad, m)
     approximations: tuple[Approximation, ...]
     dropped: tuple[str, ...] = field(default=())  # coordinates that are not DoFs (coupled, frozen)
+    # each OpenSim body's coordinates -> its segment frame (a translation when the child offset frame translates;
+    # else the identity): where the source model's muscle points and wrap objects go (calibrate.io.osim_forces)
+    bodies: dict[str, Transform] = field(default_factory=dict)
+    body_scale: dict[str, float] = field(default_factory=dict)  # each body's scale from the source's (written models)
 
 
 # ---------------------------------------------------------------------- the import
@@ -419,7 +423,9 @@ class _Importer:
                              1000 * bound, tuple(names))
 
     # -------------------------------------------------------------- the URDF
-    def build(self) -> tuple[str, OsimInfo]:
+    def build(self, need_markers: bool = True) -> tuple[str, OsimInfo]:
+        """The URDF text and its OsimInfo; `need_markers` False: a model without markers is read too (its
+        kinematics only, e.g. the source model's muscle lengths at export, calibrate.io.osim_forces)."""
         r = self.r
         self.defaults = self.default_values()
         seg_X: dict[str, Transform] = {self.root_joint.child: identity_transform()}  # body coords -> segment frame
@@ -500,7 +506,7 @@ class _Importer:
                 continue
             links.append(f'  <link name="{name}"/>')
             add_joint(f"{name}_marker", "fixed", body, name, (np.eye(3), apply(seg_X[body], loc)))
-        if not [m for m in r.markers if m not in skipped]:
+        if need_markers and not [m for m in r.markers if m not in skipped]:
             raise ModelError(f"{self.where}: the model has no markers on its bodies; give its marker set with "
                              f"--marker-set FILE.xml (marker_set=...)")
         rj = self.root_joint
@@ -511,8 +517,9 @@ class _Importer:
         if len(rots) == 3 and len(trs) == 3 and lin_ok and rj.type in ("CustomJoint", "FreeJoint"):
             root = RootInfo(rj.name, rj.parent_offset, rj.child_offset, tuple(rots), tuple(trs))  # type: ignore[arg-type]
         locked = {c.name: c.default for c in r.coords.values() if c.locked and c.name in dofs}
-        info = OsimInfo(str(r.path), root, locked, {n: self.defaults[n] for n in dofs}, tuple(approximations),
-                        tuple(dropped))
+        # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
+        info = OsimInfo(str(r.path.resolve()), root, locked, {n: self.defaults[n] for n in dofs}, tuple(approximations),
+                        tuple(dropped), {b: seg_X[b] for b in r.bodies})
         text = (f'<?xml version="1.0"?>\n<!-- imported by calibrate from {r.path.name} -->\n'
                 f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
                 + _info_xml(info) + "\n</robot>\n")
@@ -535,6 +542,8 @@ def _info_xml(info: OsimInfo) -> str:
                       locked="true" if name in info.locked else "false")
     for name in info.dropped:
         ET.SubElement(el, "dropped", coordinate=name)
+    for name, (R, t) in info.bodies.items():
+        ET.SubElement(el, "body", name=name, xyz=fmt_vec(t), rpy=fmt_vec(urdf_rpy(R)))
     for a in info.approximations:
         ET.SubElement(el, "approximation", joint=a.joint, kind=a.kind, coordinates=" ".join(a.coordinates),
                       detail=a.detail, max_marker_mm=fmt_float(a.max_marker_mm), marker=a.marker,
@@ -544,14 +553,15 @@ def _info_xml(info: OsimInfo) -> str:
 
 
 # ---------------------------------------------------------------------- public API
-def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None
-                 ) -> tuple[str, OsimInfo]:
-    """The calibrate URDF text of an OpenSim model (and MarkerSet file), with its OsimInfo."""
+def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None,
+                 need_markers: bool = True) -> tuple[str, OsimInfo]:
+    """The calibrate URDF text of an OpenSim model (and MarkerSet file), with its OsimInfo (`need_markers`
+    False: a model without markers is read too)."""
     path = Path(path)
     reader = OsimReader(path, read_text_file(path, "an OpenSim model (.osim)"))
     if marker_set is not None:
         reader.add_marker_set(Path(marker_set))
-    return _Importer(reader).build()
+    return _Importer(reader).build(need_markers)
 
 
 __all__ = ["Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]

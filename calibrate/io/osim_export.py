@@ -32,6 +32,9 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
 * **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
 * gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); visuals are not exported.
+* **forces** — for a model imported from OpenSim, the source model's muscles (path points moved and scaled
+  with their segments, fibre and tendon slack lengths scaled with the path, as OpenSim's Scale tool does),
+  the bodies' wrap objects, and the forces on coordinates the subject has: calibrate.io.osim_forces.
 * **a model imported from an OpenSim model** (calibrate.io.osim; its URDF keeps an ``<opensim>`` element,
   also after calibration) gets OpenSim's names back: the ground joint's name, frames and six
   coordinates (e.g. ``ground_pelvis``: ``pelvis_tilt``, ``pelvis_list``, ``pelvis_rotation``,
@@ -67,6 +70,7 @@ from ..errors import CalibrateError, ModelError
 from ..model.model import Model, Parameters, UrdfJoint
 from ..seed.geometry import Transform, compose, identity_transform, invert
 from .motion import Motion
+from .osim_forces import NOTE_MARK, CarriedForces, carried_forces, forces_lines
 from .outputs import check_targets, write_all
 from .text import atomic_write_text, fmt_float, fmt_vec
 
@@ -283,9 +287,20 @@ class _Builder:
         _text(m, "force_units", "N")
         _text(m, "gravity", fmt_vec((0.0, -9.80665, 0.0) if self.info is not None else GRAVITY))
         ET.SubElement(m, "Ground", name="ground")
+        self.carried = None
+        if self.info is not None:  # the source model's muscles and other forces (calibrate.io.osim_forces)
+            coordinates = {c.get("name", ""): f"/jointset/{j.get('name')}/{c.get('name')}"
+                           for j in self.joints for c in j.iter("Coordinate")}
+            self.carried = carried_forces(model, self.p, self.info, coordinates)
+            for b in self.bodies:
+                wraps = self.carried.wraps.get(b.get("name", ""))
+                if wraps is not None:
+                    b.append(wraps)
         for set_name, tag, items in (("bodyset", "BodySet", self.bodies), ("jointset", "JointSet", self.joints)):
             objs = ET.SubElement(ET.SubElement(m, tag, name=set_name), "objects")
             objs.extend(items)
+        if self.carried is not None and self.carried.forces:
+            ET.SubElement(ET.SubElement(m, "ForceSet", name="forceset"), "objects").extend(self.carried.forces)
         objs = ET.SubElement(ET.SubElement(m, "MarkerSet", name="markerset"), "objects")
         for i, mk in enumerate(model.markers):
             el = ET.SubElement(objs, "Marker", name=mk.name)
@@ -358,12 +373,28 @@ def _check_names(model: Model) -> None:
 
 def osim_text(model: Model, params: Parameters | None = None) -> str:
     """The .osim document (text) of `model` with geometric parameters `params` (default: the model's)."""
+    return osim_document(model, params)[0]
+
+
+def osim_document(model: Model, params: Parameters | None = None) -> tuple[str, CarriedForces | None]:
+    """osim_text, and for a model imported from OpenSim what came of its source's forces (muscles carried and
+    scaled, forces left out; calibrate.io.osim_forces), else None."""
     p = model.parameters() if params is None else params
     _check_params(model, p)
     _check_names(model)
     b = _Builder(model, p)
     b.build()
-    return b.document()
+    text = b.document()
+    notes = forces_lines(b.carried)
+    if notes:  # said in the file too: whoever opens it in OpenSim sees what came of the source's forces
+        head, rest = text.split("\n", 1)
+        text = head + "\n" + "".join(f"<!-- {NOTE_MARK} {_comment(line)} -->\n" for line in notes) + rest
+    return text, b.carried
+
+
+def _comment(text: str) -> str:
+    """Text safe inside an XML comment (no '--')."""
+    return text.replace("--", "- -")
 
 
 def _check_target(path: Path, overwrite: bool = True) -> None:
@@ -494,7 +525,8 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
                   inputs={s: "that is an input file; refusing to overwrite it (choose another name)" for s in sources},
                   same="the .osim, .mot and .trc outputs must be different files")
     model = load_model(model_path)
-    texts = {"osim": osim_text(model)}
+    osim, carried = osim_document(model)
+    texts = {"osim": osim}
     if args.motion is not None:
         texts["mot"] = mot_text(model, read_motion_csv(args.motion), targets["mot"].stem)
     trial = read_trial(args.trial) if args.trial is not None else None
@@ -513,6 +545,8 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
     print(f"{model.summary()}")
     print(f"wrote {targets['osim']}  ({len(model.segments)} bodies, {len(model.joints) + 1} joints, "
           f"{len(model.markers)} markers)")
+    for line in forces_lines(carried):
+        print(f"      {line}")
     if "mot" in targets:
         print(f"      {targets['mot']}  (OpenSim motion, angles in degrees)")
     if "trc" in targets:
@@ -521,4 +555,4 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
 
 
 __all__ = ["ROOT_ROTATIONS", "ROOT_TRANSLATIONS", "add_export_osim_parser", "cmd_export_osim", "export_osim",
-           "mot_columns", "mot_text", "osim_text", "write_mot"]
+           "mot_columns", "mot_text", "osim_document", "osim_text", "write_mot"]

@@ -46,7 +46,9 @@ def osim_info(model) -> OsimInfo | None:
                                  float(e.get("bound_mm", "0")), tuple(e.get("markers", "").split()))
                    for e in el.findall("approximation"))
     dropped = tuple(e.get("coordinate", "") for e in el.findall("dropped"))
-    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped)
+    bodies = {e.get("name", ""): X(e) for e in el.findall("body")}
+    body_scale = {e.get("name", ""): float(e.get("scale", "1")) for e in el.findall("body")}
+    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale)
 
 
 def with_locked(model, settings):

@@ -49,6 +49,12 @@ def urdf_text(model: Model, params: Parameters | None = None, mass: float | None
         if s is None or (s == 1.0 and k_mass == 1.0):
             continue
         _scale_link(link, s, k_mass)
+    # A model imported from OpenSim keeps each source body's scale (calibrate.io.osim_forces: where the source
+    # model's muscle points go): the written segment's scale times the one it had.
+    for body in robot.findall("opensim/body"):
+        s = seg_scale.get(body.get("name", ""))
+        if s is not None and s != 1.0:
+            body.set("scale", fmt_float(float(body.get("scale", "1")) * s))
     data = ET.tostring(robot, encoding="unicode")
     start = model.text.find("<robot")
     head = model.text[:start] if start > 0 else '<?xml version="1.0"?>\n'  # declaration and comments
