@@ -14,7 +14,9 @@ marker RMS and of the per-frame largest marker error (mm); each hip, knee and an
 difference from OpenSim's IK (deg; gait2392 also from the repository's reference IK); wall times
 (calibrate: the whole run, load + scaling + marker placement + every frame's pose; OpenSim: Scale and
 IK separately) and their ratio.  calibrate runs with its default settings, the .osim's locked coordinates
-locked and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
+locked, the coordinates the IK setup's coordinate tasks hold locked as the command line's ``--ik-setup`` does
+(Gait2392's pipeline holds its subtalar and mtp angles at 0; a row without them follows), and outlier rejection
+off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
 
 nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
 with numpy < 2, made on first use) is the third row, unless ``--no-nimble``: the same generic .osim with
@@ -187,8 +189,10 @@ def _plain_trc(path: str, spec_dir: str) -> Path:
     return out
 
 
-def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False) -> dict:
-    """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles."""
+def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False, ik_setup: bool = True) -> dict:
+    """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles.
+    `ik_setup`: the coordinates the pipeline's IK setup holds by its coordinate tasks locked, as the command line's
+    --ik-setup does (the lab's pipeline moved to calibrate)."""
     import pinocchio as pin
 
     from calibrate.calibration.pipeline import calibrate
@@ -203,7 +207,7 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     model, static, walk = read_case(spec)
     walk = walk.frames(frames.start, frames.stop)
     free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
-    settings = with_locked(model, Settings(outliers=outliers, free=free))
+    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, free=free)), ik_setup)
     cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
     wall = time.perf_counter() - t0
     # The part of the run OpenSim's IK does: every walk frame's pose fitted to the subject model, frame by frame
@@ -229,9 +233,17 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
             "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations],
+            "locked": [f"{n} {np.degrees(v):g} deg" for n, v in settings.lock],
             "unreliable": [f"{c.group} {c.item} {c.change:.0f} {'deg' if c.group == 'axis' else 'mm'}"
                            for c in cal.changes if c.unreliable],
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
+
+
+def with_setup(spec: dict, model, settings, ik_setup: bool):
+    """`settings` with the coordinates the pipeline's IK setup holds locked (calibrate.io.osim_setup), if `ik_setup`."""
+    from calibrate.io.osim_setup import with_ik_setup
+
+    return with_ik_setup(model, settings, Path(spec["dir"]) / spec["ik"]) if ik_setup else settings
 
 
 def read_case(spec: dict):
@@ -243,7 +255,7 @@ def read_case(spec: dict):
             read_trial(_plain_trc(spec["walk"], spec["dir"])))
 
 
-def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float) -> dict:
+def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float, ik_setup: bool = True) -> dict:
     """calibrate on the static and the first half of the IK frames, then the subject fixed and the second half's
     poses fitted frame by frame (calibrate.solve.ik): the markers it predicts there, for the held-out row."""
     from calibrate.calibration.pipeline import calibrate
@@ -255,8 +267,9 @@ def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float)
     model, static, walk = read_case(spec)
     half = (frames.start + frames.stop) // 2
     first, second = walk.frames(frames.start, half), walk.frames(half, frames.stop)
-    cal = calibrate(model, [static, first], with_locked(model, Settings(outliers=outliers, still_weight=still_weight)),
-                    mass=spec["mass"])
+    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, still_weight=still_weight)),
+                          ik_setup)
+    cal = calibrate(model, [static, first], settings, mass=spec["mass"])
     fit = inverse_kinematics(build_kinematics(cal.model), second, cal.params)
     return {"markers": marker_columns(cal.model, second) + fit.residuals, "marker_names": list(cal.model.marker_names),
             "in_sample_rms_mm": 1000 * float(np.sqrt(np.nanmean(np.sum(cal.residuals[cal.trials[0].n_frames:] ** 2,
@@ -408,6 +421,8 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     cr = run_calibrate(spec, frames, outliers)
     log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
     ch = run_calibrate(spec, frames, outliers, hold_axes=True)
+    log(f"{case}: calibrate again, without the IK setup's held coordinates ...")
+    cn = run_calibrate(spec, frames, outliers, ik_setup=False)
     log(f"{case}: held-out: calibrate on the static + the first half of the IK frames, the second half fitted ...")
     held = {w: run_heldout(spec, frames, outliers, w) for w in (0.0, HELDOUT_STILL_WEIGHT)}
     trial = cr["trial"]
@@ -421,6 +436,10 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     out["calibrate"]["markers_used"] = sum(m in trial.labels for m in cr["marker_names"])
     out["calibrate_axes_held"] = marker_scores(ch["markers"], ch["marker_names"], trial, use)
     out["calibrate_axes_held"].update(wall_s=ch["wall_s"], converged=ch["converged"])
+    out["calibrate_locked"] = cr["locked"]  # the model's locked coordinates and those the IK setup holds
+    out["calibrate_no_ik_setup"] = marker_scores(cn["markers"], cn["marker_names"], trial, use)
+    out["calibrate_no_ik_setup"].update(wall_s=cn["wall_s"], converged=cn["converged"], locked=cn["locked"],
+                                        unreliable=cn["unreliable"], static_asymmetry=cn["static_asymmetry"])
     out["opensim"].update(scale_s=osr["scale_s"], ik_s=osr["ik_s"], total_s=osr["scale_s"] + osr["ik_s"])
     out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"])
     out["ratio_calibrate_to_opensim_ik"] = cr["wall_s"] / osr["ik_s"]
@@ -428,7 +447,7 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
                                 "ratio_to_opensim_ik": cr["ik_only_s"] / osr["ik_s"]}
     diffs: dict[str, dict[str, float]] = {}
     ref = read_mot(spec["reference"]) if spec["reference"] else None
-    for label, run in (("coordinates", cr), ("coordinates_axes_held", ch)):
+    for label, run in (("coordinates", cr), ("coordinates_axes_held", ch), ("coordinates_no_ik_setup", cn)):
         diffs = {}
         for side in ("r", "l"):
             for c in COORDS + ARM_COORDS:
@@ -478,6 +497,13 @@ def report(res: dict) -> None:
               f"(/ OpenSim IK: {r['ratio_calibrate_to_opensim_ik']:.2f})")
         h = r["calibrate_axes_held"]
         print(f"  {'calibrate, axes held':22s} {h['rms_mm']:8.2f} {h['max_mm']:8.2f} {h['wall_s']:10.2f}")
+        n = r.get("calibrate_no_ik_setup")
+        if n:
+            print(f"  {'calibrate, no IK setup':22s} {n['rms_mm']:8.2f} {n['max_mm']:8.2f} {n['wall_s']:10.2f} "
+                  f"(the IK setup's coordinate tasks not held; locked: {', '.join(n['locked']) or 'none'})")
+        locks = ", ".join(r.get("calibrate_locked", [])) or "none"
+        print(f"  calibrate locks: {locks} (the model's locked coordinates and those the IK setup's coordinate tasks "
+              "hold)")
         nb = r.get("nimble", {})
         if nb.get("status") == "ran":
             print(f"  {'nimble MarkerFitter':22s} {nb['rms_mm']:8.2f} {nb['max_mm']:8.2f} {nb['time_s']:10.2f} "
@@ -505,8 +531,11 @@ def report(res: dict) -> None:
                          if "in_sample_rms_mm_all_markers" in row else "")
                 ratio = f", / OpenSim {row['rms_mm'] / ho['opensim']['rms_mm']:.2f}" if key != "opensim" else ""
                 print(f"    {label:28s} {row['rms_mm']:8.2f} {row['max_mm']:8.2f}{ratio}{extra}")
-        for label in ("coordinates", "coordinates_axes_held"):
-            print(f"  joint angles, {'calibrate' if label == 'coordinates' else 'calibrate with axes held'}:")
+        for label in ("coordinates", "coordinates_axes_held", "coordinates_no_ik_setup"):
+            if label not in r:
+                continue
+            print("  joint angles, " + {"coordinates": "calibrate", "coordinates_axes_held": "calibrate with axes held",
+                                        "coordinates_no_ik_setup": "calibrate without the IK setup"}[label] + ":")
             for name, d in r[label].items():
                 extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
                 if name.rsplit("_", 1)[0] in ARM_COORDS:

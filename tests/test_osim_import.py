@@ -834,3 +834,66 @@ def test_export_without_its_source_model_says_so(tmp_path):
     assert "<ForceSet" not in text and "<Marker " in text
     assert "not carried: the source model" in carried.note and str(src) in carried.note
     assert f"<!-- calibrate: {carried.note} -->" in text
+
+
+# ---------------------------------------------------------------------- the lab's IK setup
+def _ik_setup(tasks: str, tool: str = "InverseKinematicsTool") -> str:
+    return (f"<?xml version=\"1.0\" encoding=\"UTF-8\" ?>\n<OpenSimDocument Version=\"40000\"><{tool} name=\"ik\">"
+            f"<IKTaskSet><objects><IKMarkerTask name=\"M0\"><apply>true</apply><weight>10</weight></IKMarkerTask>"
+            f"{tasks}</objects></IKTaskSet></{tool}></OpenSimDocument>\n")
+
+
+def _task(name: str, kind: str = "default_value", value: float = 0.0, apply: str = "true") -> str:
+    return (f"<IKCoordinateTask name=\"{name}\"><apply>{apply}</apply><weight>1000</weight>"
+            f"<value_type>{kind}</value_type><value>{value}</value></IKCoordinateTask>")
+
+
+def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
+    """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml`: each applied coordinate task of the lab's IK setup locks its
+    coordinate, at the model's default (default_value) or at the task's value (manual_value); a task not applied
+    locks nothing; the motion then holds those coordinates there in every frame.  The setup's task on a coordinate
+    the model lacks, a value from a file, a file that is not an IK setup: one line each, exit 2, nothing written."""
+    from calibrate.io.osim_setup import ik_setup_locks
+    from calibrate.io.trc import write_trc
+    from calibrate.io.trial import Trial
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    model = load_model(src)
+    setup = tmp_path / "setup_IK.xml"
+    setup.write_text(_ik_setup(_task("hip_q") + _task("knee_q", "manual_value", -0.25)
+                               + _task("p_rx", apply="false")))
+    assert dict(ik_setup_locks(setup, model)) == {"hip_q": 0.2, "knee_q": -0.25}  # hip_q's default in the model
+    # a short trial of the model's own markers, the hip and knee moving
+    n, rng = 30, np.random.default_rng(5)
+    t = np.arange(n) / 60
+    angles = np.column_stack([0.4 * np.sin(2 * np.pi * t), -0.6 + 0.5 * np.sin(2 * np.pi * t + 1)])
+    quat = Rotation.from_euler("y", 0.2 * np.sin(2 * np.pi * t)[:, None]).as_quat()
+    root = np.column_stack([t, np.full(n, 0.9), np.zeros(n)])
+    frames = [_pin_markers(model, root[f], quat[f], angles[f]) for f in range(n)]
+    markers = np.array([[frames[f][m] for m in model.marker_names] for f in range(n)])
+    trc = tmp_path / "trial.trc"
+    write_trc(trc, Trial(list(model.marker_names), markers + rng.normal(0, 2e-4, markers.shape), 60.0, 0, str(trc)))
+    out = tmp_path / "subject.urdf"
+    code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(out), "--no-new-markers", "-q"])
+    assert code == 0, capsys.readouterr().err
+    report = json.loads((tmp_path / "trial_report.json").read_text())
+    assert report["settings"]["lock_deg"] == pytest.approx({"hip_q": np.degrees(0.2), "knee_q": np.degrees(-0.25)})
+    rows = (tmp_path / "trial_motion.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    values = np.array([[float(v) for v in r.split(",")] for r in rows[1:]])
+    assert np.allclose(values[:, head.index("hip_q")], 0.2, atol=1e-6)
+    assert np.allclose(values[:, head.index("knee_q")], -0.25, atol=1e-6)
+    # bad setups: one line, exit 2, nothing written
+    for k, (text, needle) in enumerate([
+            (_ik_setup(_task("ankle_q")), "coordinate task 'ankle_q' names no coordinate of"),
+            (_ik_setup(_task("hip_q", "from_file")), "takes its value 'from_file'"),
+            (_ik_setup(_task("hip_q"), tool="ScaleTool"), "no <InverseKinematicsTool>"),
+            ("not xml", "not valid XML")]):
+        bad = tmp_path / f"bad{k}.xml"
+        bad.write_text(text)
+        (tmp_path / f"out{k}").mkdir()
+        code = main([str(trc), str(src), "--ik-setup", str(bad), "-o", str(tmp_path / f"out{k}" / "s.urdf"), "-q"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and needle in err[0] and str(bad) in err[0], err
+        assert not any((tmp_path / f"out{k}").iterdir())

@@ -213,6 +213,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--marker-set", type=Path, default=None, metavar="XML",
                     help="with an OpenSim MODEL.osim: an OpenSim MarkerSet file whose markers are added, replacing "
                          "those of the same name (as OpenSim's Scale tool does)")
+    ap.add_argument("--ik-setup", type=Path, default=None, metavar="XML",
+                    help="a lab's OpenSim IK setup file (e.g. subject01_Setup_IK.xml): the coordinates its coordinate "
+                         "tasks hold (Gait2392's subtalar and mtp angles) are locked at their values, as its IK "
+                         "holds them (--lock overrides; docs/opensim.md)")
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     return ap
