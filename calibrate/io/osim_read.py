@@ -55,6 +55,21 @@ class OsimFunction:
         return self.f(np.asarray(x, dtype=float))
 
 
+def xml_element(path: Path, tag: str, read_as: str, give: str, missing: str) -> ET.Element:
+    """The <tag> element of the XML file at `path` (its root or the first below it); ModelError with one line when
+    the file cannot be read (`read_as`: what it should be), is not XML (`give`: what to give instead) or has no
+    such element (`missing`: what to do)."""
+    text = read_text_file(path, read_as)
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise ModelError(f"{path}: not valid XML ({e}); give {give}") from None
+    el = root if root.tag == tag else root.find(f".//{tag}")
+    if el is None:
+        raise ModelError(f"{path}: no <{tag}>; {missing}")
+    return el
+
+
 def xml_floats(text: str | None) -> np.ndarray:
     return np.array([float(v) for v in (text or "").split()], dtype=float)
 
@@ -399,13 +414,7 @@ class OsimReader:
         self.markers[name] = (body, apply(X, loc))
 
     def add_marker_set(self, path: Path) -> None:
-        text = read_text_file(path, "an OpenSim MarkerSet file (.xml)")
-        try:
-            root = ET.fromstring(text)
-        except ET.ParseError as e:
-            raise ModelError(f"{path}: not valid XML ({e}); give an OpenSim MarkerSet file") from None
-        ms = root if root.tag == "MarkerSet" else root.find(".//MarkerSet")
-        if ms is None:
-            raise ModelError(f"{path}: no <MarkerSet>; give an OpenSim MarkerSet file (as the Scale tool reads)")
+        ms = xml_element(path, "MarkerSet", "an OpenSim MarkerSet file (.xml)", "an OpenSim MarkerSet file",
+                         "give an OpenSim MarkerSet file (as the Scale tool reads)")
         for mk in ms.findall("objects/Marker"):
             self._marker(mk, str(path), source=str(path))

@@ -14,10 +14,10 @@ knee marker of the static trial).
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from ..errors import ModelError, read_text_file
+from ..errors import ModelError
+from .osim_read import xml_element
 
 
 def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
@@ -26,15 +26,9 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     ModelError with one line on a file that is not an IK setup, a task on a coordinate the model does not
     have, or a value read from a file."""
     path = Path(path)
-    text = read_text_file(path, "an OpenSim IK setup file (.xml)")
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as e:
-        raise ModelError(f"{path}: not valid XML ({e}); give an OpenSim Inverse Kinematics setup file") from None
-    tool = root if root.tag == "InverseKinematicsTool" else root.find(".//InverseKinematicsTool")
-    if tool is None:
-        raise ModelError(f"{path}: no <InverseKinematicsTool>; give the IK setup file (e.g. subject01_Setup_IK.xml), "
-                         f"not a Scale or other setup")
+    tool = xml_element(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                       "an OpenSim Inverse Kinematics setup file",
+                       "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
     from .osim_info import osim_info
 
     info = osim_info(model)
