@@ -113,11 +113,17 @@ def carried_forces(model: Model, p: Parameters, info: OsimInfo, coordinates: dic
         name = f"{f.tag} {f.get('name', '')}"
         try:
             el = copy.deepcopy(f)
+            for sock in el.iter():  # every socket naming a coordinate (conditional and moving points' too)
+                if sock.tag.startswith("socket_") and sock.tag.endswith("coordinate") and sock.text:
+                    c = body_name(sock.text)
+                    if c not in coordinates:
+                        raise _Skip(f"follows '{c}', which the subject does not have")
+                    sock.text = coordinates[c]
             path = el.find("GeometryPath")
             if path is None:
                 _check_coordinates(el, coordinates)
             else:
-                before, after, spanned = _move_path(path, frames, scale, coordinates, lengths)
+                before, after, spanned = _move_path(path, frames, scale, lengths)
                 ratio = after / before if before > 0 else 1.0
                 if abs(np.log(ratio / spanned)) > np.log(PATH_CHANGE):
                     out.changed[f.get("name", "")] = (ratio, spanned)
@@ -126,12 +132,6 @@ def carried_forces(model: Model, p: Parameters, info: OsimInfo, coordinates: dic
                     if v is not None and v.text:
                         v.text = fmt_float(float(v.text) * ratio)
                 out.scaled[f.get("name", "")] = ratio
-            for sock in el.iter():
-                if sock.tag.startswith("socket_") and sock.tag.endswith("coordinate") and sock.text:
-                    c = body_name(sock.text)
-                    if c not in coordinates:
-                        raise _Skip(f"follows '{c}', which the subject does not have")
-                    sock.text = coordinates[c]
             out.forces.append(el)
         except _Skip as e:
             out.left_out.append(f"{name} ({e})")
@@ -161,7 +161,7 @@ def _moved_wraps(ws: ET.Element, X: Transform, s: float) -> ET.Element:
 
 
 def _coordinate(el: ET.Element, tag: str) -> str:
-    """The coordinate a socket (or a 3.x name element) names: its last path element."""
+    """The coordinate a socket names: its last path element."""
     return body_name(el.findtext(tag, ""))
 
 
@@ -183,7 +183,7 @@ def _check_coordinates(el: ET.Element, coordinates: dict[str, str]) -> None:
         raise _Skip(f"on {', '.join(missing)}, which the subject does not have")
 
 
-def _move_path(path: ET.Element, frames: dict[str, Transform], scale: dict[str, float], coordinates: dict[str, str],
+def _move_path(path: ET.Element, frames: dict[str, Transform], scale: dict[str, float],
                lengths: _PathLengths) -> tuple[float, float, float]:
     """The path's points moved into the subject's bodies (in place); its length before and after, in the
     default pose, and the geometric mean scale of the segments its active points are on."""
@@ -196,15 +196,13 @@ def _move_path(path: ET.Element, frames: dict[str, Transform], scale: dict[str, 
             raise _Skip(f"a path point is on '{body}', which is not a body of the subject")
         X, s = frames[body], scale[body]
         if pt.tag == "MovingPathPoint":
-            loc = _move_functions(pt, X, s, coordinates, lengths.defaults)
+            loc = _move_functions(pt, X, s, lengths.defaults)
         else:
             loc = xml_floats(pt.findtext("location", "0 0 0"))
             pt.find("location").text = fmt_vec(_moved(X, s, loc))  # type: ignore[union-attr]
         active = True
         if pt.tag == "ConditionalPathPoint":
-            c = _coordinate(pt, "socket_coordinate") or (pt.findtext("coordinate") or "").strip()
-            if c not in coordinates:
-                raise _Skip(f"a conditional path point follows '{c}', which the subject does not have")
+            c = _coordinate(pt, "socket_coordinate")
             lo, hi = xml_floats(pt.findtext("range", "0 0"))[:2]
             active = bool(lo <= lengths.defaults.get(c, 0.0) <= hi)
         if active:
@@ -217,8 +215,7 @@ def _move_path(path: ET.Element, frames: dict[str, Transform], scale: dict[str, 
     return length(before), length(after), float(np.exp(np.mean(np.log(scales))))
 
 
-def _move_functions(pt: ET.Element, X: Transform, s: float, coordinates: dict[str, str],
-                    defaults: dict[str, float]) -> np.ndarray:
+def _move_functions(pt: ET.Element, X: Transform, s: float, defaults: dict[str, float]) -> np.ndarray:
     """A moving path point's location functions (x, y, z of one coordinate each) turned into the subject's
     body: each value v becomes s (v + t) for the segment frame's translation t (its rotation must be the
     identity, as the import makes it).  Returns the source location in the default pose."""
@@ -230,9 +227,7 @@ def _move_functions(pt: ET.Element, X: Transform, s: float, coordinates: dict[st
         if holder is None or not len(holder):
             raise _Skip(f"a moving path point without its {axis}_location function")
         fn = holder[0]
-        c = _coordinate(pt, f"socket_{axis}_coordinate") or (pt.findtext(f"{axis}_coordinate") or "").strip()
-        if c not in coordinates:
-            raise _Skip(f"a moving path point follows '{c}', which the subject does not have")
+        c = _coordinate(pt, f"socket_{axis}_coordinate")
         try:
             loc[k] = float(osim_function(fn, "moving path point")(defaults.get(c, 0.0)))
         except ModelError as e:
@@ -272,14 +267,11 @@ class _PathLengths:
 
     def _placements(self, model: Model, p: Parameters | None) -> dict[str, pin.SE3]:
         """Each segment's placement in the default pose (root at the origin, unturned)."""
-        if p is not None:
-            import tempfile
-
+        if p is not None:  # the model as the URDF written with `p` loads (calibrate.model.urdf.urdf_text)
             from ..model.model import Model as _Model
-            from ..model.model import write_model
+            from ..model.urdf import urdf_text
 
-            with tempfile.TemporaryDirectory() as tmp:
-                model = _Model(write_model(model, Path(tmp) / "subject.urdf", p))
+            model = _Model(model.path, text=urdf_text(model, p))
         angles = [self.defaults.get(d.name, 0.0) for d in model.dofs]
         q = model.pin_configuration(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]), angles)
         pm = model.pin
