@@ -189,10 +189,11 @@ def _plain_trc(path: str, spec_dir: str) -> Path:
     return out
 
 
-def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False, ik_setup: bool = True) -> dict:
+def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False, ik_setup: bool = True,
+                  moved: bool = False) -> dict:
     """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles.
     `ik_setup`: the coordinates the pipeline's IK setup holds by its coordinate tasks locked, as the command line's
-    --ik-setup does (the lab's pipeline moved to calibrate)."""
+    --ik-setup does (the lab's pipeline moved to calibrate).  `moved`: Settings.moved_markers (--moved-markers)."""
     import pinocchio as pin
 
     from calibrate.calibration.pipeline import calibrate
@@ -207,7 +208,8 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     model, static, walk = read_case(spec)
     walk = walk.frames(frames.start, frames.stop)
     free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
-    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, free=free)), ik_setup)
+    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, free=free, moved_markers=moved)),
+                          ik_setup)
     cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
     wall = time.perf_counter() - t0
     # The part of the run OpenSim's IK does: every walk frame's pose fitted to the subject model, frame by frame
@@ -236,7 +238,8 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "locked": [f"{n} {np.degrees(v):g} deg" for n, v in settings.lock],
             "unreliable": [f"{c.group} {c.item} {c.change:.0f} {'deg' if c.group == 'axis' else 'mm'}"
                            for c in cal.changes if c.unreliable],
-            "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry]}
+            "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry],
+            "moved": [f"{m.marker} {1e3 * m.distance:.0f} mm" for m in cal.moved]}
 
 
 def with_setup(spec: dict, model, settings, ik_setup: bool):
@@ -255,7 +258,8 @@ def read_case(spec: dict):
             read_trial(_plain_trc(spec["walk"], spec["dir"])))
 
 
-def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float, ik_setup: bool = True) -> dict:
+def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float, ik_setup: bool = True,
+                moved: bool = False) -> dict:
     """calibrate on the static and the first half of the IK frames, then the subject fixed and the second half's
     poses fitted frame by frame (calibrate.solve.ik): the markers it predicts there, for the held-out row."""
     from calibrate.calibration.pipeline import calibrate
@@ -267,8 +271,8 @@ def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float,
     model, static, walk = read_case(spec)
     half = (frames.start + frames.stop) // 2
     first, second = walk.frames(frames.start, half), walk.frames(half, frames.stop)
-    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, still_weight=still_weight)),
-                          ik_setup)
+    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, still_weight=still_weight,
+                                                                   moved_markers=moved)), ik_setup)
     cal = calibrate(model, [static, first], settings, mass=spec["mass"])
     fit = inverse_kinematics(build_kinematics(cal.model), second, cal.params)
     return {"markers": marker_columns(cal.model, second) + fit.residuals, "marker_names": list(cal.model.marker_names),
@@ -424,7 +428,12 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     log(f"{case}: calibrate again, without the IK setup's held coordinates ...")
     cn = run_calibrate(spec, frames, outliers, ik_setup=False)
     log(f"{case}: held-out: calibrate on the static + the first half of the IK frames, the second half fitted ...")
-    held = {w: run_heldout(spec, frames, outliers, w) for w in (0.0, HELDOUT_STILL_WEIGHT)}
+    log(f"{case}: calibrate again, markers the static shows elsewhere left out there (--moved-markers) ...")
+    cm = run_calibrate(spec, frames, outliers, moved=True)
+    held = {"calibrate": run_heldout(spec, frames, outliers, 0.0),
+            f"calibrate_still_weight_{HELDOUT_STILL_WEIGHT:g}":
+                run_heldout(spec, frames, outliers, HELDOUT_STILL_WEIGHT),
+            "calibrate_moved_markers": run_heldout(spec, frames, outliers, 0.0, moved=True)}
     trial = cr["trial"]
     use = [m for m in osr["tracked"] if m in trial.labels and m in cr["marker_names"] and m in osr["marker_names"]]
     missing = [m for m in osr["tracked"] if m in trial.labels and m not in cr["marker_names"]]
@@ -436,6 +445,9 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     out["calibrate"]["markers_used"] = sum(m in trial.labels for m in cr["marker_names"])
     out["calibrate_axes_held"] = marker_scores(ch["markers"], ch["marker_names"], trial, use)
     out["calibrate_axes_held"].update(wall_s=ch["wall_s"], converged=ch["converged"])
+    out["calibrate_moved_markers"] = marker_scores(cm["markers"], cm["marker_names"], trial, use)
+    out["calibrate_moved_markers"].update(wall_s=cm["wall_s"], converged=cm["converged"], moved=cm["moved"],
+                                          unreliable=cm["unreliable"], static_asymmetry=cm["static_asymmetry"])
     out["calibrate_locked"] = cr["locked"]  # the model's locked coordinates and those the IK setup holds
     out["calibrate_no_ik_setup"] = marker_scores(cn["markers"], cn["marker_names"], trial, use)
     out["calibrate_no_ik_setup"].update(wall_s=cn["wall_s"], converged=cn["converged"], locked=cn["locked"],
@@ -447,7 +459,8 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
                                 "ratio_to_opensim_ik": cr["ik_only_s"] / osr["ik_s"]}
     diffs: dict[str, dict[str, float]] = {}
     ref = read_mot(spec["reference"]) if spec["reference"] else None
-    for label, run in (("coordinates", cr), ("coordinates_axes_held", ch), ("coordinates_no_ik_setup", cn)):
+    for label, run in (("coordinates", cr), ("coordinates_axes_held", ch), ("coordinates_no_ik_setup", cn),
+                       ("coordinates_moved_markers", cm)):
         diffs = {}
         for side in ("r", "l"):
             for c in COORDS + ARM_COORDS:
@@ -470,14 +483,14 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
         out["nimble"] = {"status": "not run: --no-nimble"}
     # Held out: the second half of the IK frames, which neither OpenSim's scaling (the static) nor calibrate's
     # (the static + the first half) saw; OpenSim's IK and calibrate's frame-by-frame fit with the subject fixed.
-    k = held[0.0]["second_half_from"]
+    k = held["calibrate"]["second_half_from"]
     second = trial.frames(k, trial.n_frames)
     out["heldout"] = {"frames": second.n_frames, "opensim": marker_scores(osr["markers"][k:], osr["marker_names"],
                                                                            second, use)}
-    for w, h in held.items():
+    for key, h in held.items():
         row = marker_scores(h["markers"], h["marker_names"], second, use)
         row["in_sample_rms_mm_all_markers"] = h["in_sample_rms_mm"]
-        out["heldout"]["calibrate" if w == 0 else f"calibrate_still_weight_{w:g}"] = row
+        out["heldout"][key] = row
     out["static_asymmetry"] = cr["static_asymmetry"]
     # Axes, centres and markers the trial did not identify that ended beyond 3 prior SDs from where their priors
     # put them (the report's `unreliable`)
@@ -501,6 +514,10 @@ def report(res: dict) -> None:
         if n:
             print(f"  {'calibrate, no IK setup':22s} {n['rms_mm']:8.2f} {n['max_mm']:8.2f} {n['wall_s']:10.2f} "
                   f"(the IK setup's coordinate tasks not held; locked: {', '.join(n['locked']) or 'none'})")
+        mm = r.get("calibrate_moved_markers")
+        if mm:
+            print(f"  {'calibrate, moved markers':22s} {mm['rms_mm']:8.2f} {mm['max_mm']:8.2f} {mm['wall_s']:10.2f} "
+                  f"(--moved-markers; the static's positions of {', '.join(mm['moved']) or 'none'} left out)")
         locks = ", ".join(r.get("calibrate_locked", [])) or "none"
         print(f"  calibrate locks: {locks} (the model's locked coordinates and those the IK setup's coordinate tasks "
               "hold)")
@@ -525,17 +542,18 @@ def report(res: dict) -> None:
             for key, row in ho.items():
                 if key == "frames":
                     continue
-                label = {"opensim": "OpenSim Scale + IK"}.get(key, key.replace("calibrate_still_weight_",
-                                                                               "calibrate, still_weight "))
+                label = {"opensim": "OpenSim Scale + IK", "calibrate_moved_markers": "calibrate, --moved-markers"}.get(
+                    key, key.replace("calibrate_still_weight_", "calibrate, still_weight "))
                 extra = (f"  (in-sample, first half: {row['in_sample_rms_mm_all_markers']:.2f} mm over every marker)"
                          if "in_sample_rms_mm_all_markers" in row else "")
                 ratio = f", / OpenSim {row['rms_mm'] / ho['opensim']['rms_mm']:.2f}" if key != "opensim" else ""
                 print(f"    {label:28s} {row['rms_mm']:8.2f} {row['max_mm']:8.2f}{ratio}{extra}")
-        for label in ("coordinates", "coordinates_axes_held", "coordinates_no_ik_setup"):
+        for label in ("coordinates", "coordinates_axes_held", "coordinates_no_ik_setup", "coordinates_moved_markers"):
             if label not in r:
                 continue
             print("  joint angles, " + {"coordinates": "calibrate", "coordinates_axes_held": "calibrate with axes held",
-                                        "coordinates_no_ik_setup": "calibrate without the IK setup"}[label] + ":")
+                                        "coordinates_no_ik_setup": "calibrate without the IK setup",
+                                        "coordinates_moved_markers": "calibrate with --moved-markers"}[label] + ":")
             for name, d in r[label].items():
                 extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
                 if name.rsplit("_", 1)[0] in ARM_COORDS:

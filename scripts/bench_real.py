@@ -1095,6 +1095,9 @@ def collect(a: argparse.Namespace, log) -> dict:
     if a.still_weight is not None:  # every calibrate command of the run with a static trial weighed so
         a.extra = [*a.extra, "--still-weight", f"{a.still_weight:g}"]
         res["still_weight"] = a.still_weight
+    if a.moved_markers:  # every calibrate command: a static's positions of markers the walk puts elsewhere left out
+        a.extra = [*a.extra, "--moved-markers"]
+        res["moved_markers"] = True
     try:
         res["warmup"] = guarded(warm_up, tmp, cap, log)
         if "pig" in only:
@@ -1135,6 +1138,9 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="keep every trial and output in this folder")
     ap.add_argument("--perturb", type=int, default=0, metavar="N",
                     help=f"also calibrate N copies of pig_walk with N(0, {PERTURB_MM:g} mm) noise added (default 0)")
+    ap.add_argument("--moved-markers", action="store_true",
+                    help="pass --moved-markers to every calibrate command (a static's positions of markers the "
+                         "moving trials put elsewhere on their segments left out)")
     ap.add_argument("--still-weight", type=float, default=None, metavar="FRAMES",
                     help="pass --still-weight to every calibrate command (a static trial counted as FRAMES frames)")
     ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")

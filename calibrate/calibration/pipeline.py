@@ -24,6 +24,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
+from calibrate.calibration.moved import MovedMarker, moved_markers
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
@@ -65,6 +66,7 @@ from ..solve.memory import no_huge_pages
 from .options import PipelineOptions
 from .records import Countdown, IterationClock, Progress
 
+MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
 
 
@@ -221,8 +223,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         motion = _trial_motion(model, trials)
         placed = _assign_new_markers(model, trials, unknown, motion)
-    if motion is None and len(trials) > 1 and run.still_weight > 0:  # a still trial's weight (_still_lengths)
-        motion = _trial_motion(model, trials)
+    if motion is None and len(trials) > 1 and (run.still_weight > 0 or run.moved_markers):
+        motion = _trial_motion(model, trials)  # which trials are still (_still_lengths, moved markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
@@ -343,7 +345,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         in_neutral[spans[neutral]] = True
     # On every frame a marker's correlation time counts up to NOISE_TAU_SECONDS whatever the trials' rate.
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
-    problem, state, summary, scatter, solved = _solve(problem, start, spans, run, solver, say, lengths, cap)
+    still = [m < STILL_MOTION for m in motion] if motion is not None and run.moved_markers else None
+    problem, state, summary, scatter, solved, moved = _solve(problem, start, spans, run, solver, say, lengths, cap,
+                                                             still, [t.source for t in trials])
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
     settings = replace(settings, hold_axes=problem.settings.hold_axes)  # as used: with the axes held above
     rejected: list[Outlier] = []
@@ -489,7 +493,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise, misplaced=misplaced,
+                       noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths))
 
 
@@ -535,17 +539,21 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 
 
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
-           say: Callable[[str], None], lengths: Sequence[float] | None = None, tau_max: float | None = None
-           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool]:
+           say: Callable[[str], None], lengths: Sequence[float] | None = None, tau_max: float | None = None,
+           still: Sequence[bool] | None = None, sources: Sequence[str] = ()
+           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker]]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
     the trials by their length; a long trial then through larger subsamples), then every frame's pose
     fitted to that geometry and the noise learnt on every frame.  With `run.auto_hold`, the axes of the
     coordinates that the subsample's solution shows still are held at the base model's and the
     subsample solved again.  Returns the problem (with those axes held and the noise learnt), the
-    state, its summary, the markers' noise SDs and whether every frame was solved jointly (a short trial,
-    solved whole; otherwise the caller's solve on every frame follows).  `lengths`: what each trial counts
-    as in frames (_still_lengths), the subsamples spread and weighted by it.  `tau_max`: the longest
-    correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its own)."""
+    state, its summary, the markers' noise SDs, whether every frame was solved jointly (a short trial,
+    solved whole; otherwise the caller's solve on every frame follows) and the markers moved in a still
+    trial.  `lengths`: what each trial counts as in frames (_still_lengths), the subsamples spread and
+    weighted by it.  `tau_max`: the longest correlation time learnt on every frame (noise.tau_cap; a
+    subsample's rows lie frames apart: its own).  `still`: which trials are still, where the markers that
+    sit elsewhere in them than in the moving trials are looked for after the first subsample solve
+    (calibrate.calibration.moved; their positions there left out and the subsample solved again)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, COARSE_FRAMES, lengths)
     coarse_w = subsample_weight(coarse, spans, lengths)
@@ -553,7 +561,10 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     state = frames_of(start, coarse)
-    for round_ in range(HOLD_ROUNDS + 1):
+    whole_sub = coarse.size == problem.F
+    names = [sources[i] if i < len(sources) and sources[i] else f"trial {i + 1}" for i in range(len(spans))]
+    moved: list[MovedMarker] = []
+    for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.
         state, coarse_summary = _solve_geometry(sub, state, solver, say, polish=sub is problem)
@@ -571,30 +582,46 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
             state, again = _solve_geometry(sub, state, solver, say, polish=sub is problem)
             coarse_summary = _merge(coarse_summary, again)
-        if not run.auto_hold or round_ == HOLD_ROUNDS:
+        found = []
+        if round_ < MOVED_PASSES and still is not None:
+            # Markers the still trials show elsewhere on their segment than the moving trials: their still
+            # positions left out, and the subsample solved again from here (the moving trials' place kept).
+            # A second look after that solve: with the worst gone, a slipped cluster's other markers stand out.
+            found = moved_markers(sub, state, trial_of if whole_sub else trial_of[coarse], still)
+            for m in found:
+                say(Progress("markers", m.text(names[m.trial]) + "; left out there"))
+            if found:
+                out = np.zeros(problem.seen.shape, dtype=bool)
+                for m in found:
+                    out[spans[m.trial], problem.model.marker_index(m.marker)] = True
+                problem = problem.without(out)
+                sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
+                moved += found
+        held = []
+        if run.auto_hold and round_ < HOLD_ROUNDS:
+            axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
+            lin = sub.linearize(state, with_parameters=False)
+            angles = FrameLayout.angles(absolute(sub.kin, state)[0])
+            held = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, sub.settings) if name in axes]
+        if not held and not found:
             break
-        axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
-        lin = sub.linearize(state, with_parameters=False)
-        angles = FrameLayout.angles(absolute(sub.kin, state)[0])
-        still = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, sub.settings) if name in axes]
-        if not still:
-            break
-        say(f"solve: the trial does not show {', '.join(still)} moving: holding "
-            f"{'its axis' if len(still) == 1 else 'their axes'} at the base model's, solving again")
-        options = replace(problem.settings, hold_axes=problem.settings.hold_axes + tuple(still))
-        problem = problem.with_settings(options, sigma=problem.sigma)
-        # A held axis is the base model's (the estimate of a still joint's axis is noise).  The solve
-        # goes on from this solution, not from the start: the rest of the geometry has found its basin,
-        # and started afresh under the learnt weights the subsample may settle in another (pig_walk:
-        # femurs 30 % long, on a change of 1e-8 m in the start poses).
-        p, base = state.p.copy(), problem.base.vector()
-        for name in still:
-            k = problem.layout.axis(problem.model.dof_index(name))
-            p[k] = base[k]
-        state = replace(state, p=p)
+        if held:
+            say(f"solve: the trial does not show {', '.join(held)} moving: holding "
+                f"{'its axis' if len(held) == 1 else 'their axes'} at the base model's, solving again")
+            options = replace(problem.settings, hold_axes=problem.settings.hold_axes + tuple(held))
+            problem = problem.with_settings(options, sigma=problem.sigma)
+            # A held axis is the base model's (the estimate of a still joint's axis is noise).  The solve
+            # goes on from this solution, not from the start: the rest of the geometry has found its basin,
+            # and started afresh under the learnt weights the subsample may settle in another (pig_walk:
+            # femurs 30 % long, on a change of 1e-8 m in the start poses).
+            p, base = state.p.copy(), problem.base.vector()
+            for name in held:
+                k = problem.layout.axis(problem.model.dof_index(name))
+                p[k] = base[k]
+            state = replace(state, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary, scatter, True
+        return problem, state, coarse_summary, scatter, True, moved
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -632,7 +659,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter, False
+    return problem, state, summary, scatter, False, moved
 
 
 def _carried(state: State, solved: np.ndarray, start: State, spans: list[slice]) -> State:

@@ -116,7 +116,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "segment_frames": st.segment_frames,
                      "hold_segments": list(st.hold_segments),
-                     "auto_hold": st.auto_hold, "compiled": cal.compiled},
+                     "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in cal.unresolved],
         "implausible": [b.to_json() for b in cal.implausible],
@@ -125,6 +125,10 @@ def calibration_report(cal: Calibration) -> dict:
                             "exchanges": [list(x) for x in m.exchanges],
                             "distance_sd_own_mm": 1e3 * m.sd_own,
                             "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
+        # markers a still trial showed elsewhere on their segment than the moving trials (Settings.moved_markers):
+        # their positions there left out, the model keeping the moving trials' place
+        "moved_markers": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
+                          for m in cal.moved],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()},
@@ -438,6 +442,15 @@ def summary_text(cal) -> str:
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
                      "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
                      + _foot_hint(cal, [h.joint for h in turned]))
+    if cal.moved:
+        by_trial: dict[int, list] = {}
+        for m in cal.moved:
+            by_trial.setdefault(m.trial, []).append(m)
+        for t, ms in by_trial.items():
+            lines.append(f"  moved        {cal.trials[t].source or f'trial {t + 1}'} (still) shows "
+                         + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
+                         + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
+                         "with the pose): their positions there left out, the model keeps the moving trials' place")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

@@ -198,6 +198,9 @@ class Calibration:
     # (trial index, calibrate.seed.association.Misplaced) per label whose marker rides with another segment than
     # the model's in that trial: labels to check (a label exchanged for the whole trial), reported, not changed
     misplaced: tuple = ()
+    # calibrate.calibration.moved.MovedMarker per marker that a still trial shows elsewhere on its segment than
+    # the moving trials do: its positions in that still trial were left out (Settings.moved_markers)
+    moved: tuple = ()
     # What each trial counted as, in frames (Settings.still_weight: a still trial as a few); () when every frame
     # counted once.
     trial_weights: tuple[float, ...] = ()

@@ -160,6 +160,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["hold_axes"] = [d.strip() for d in args.hold_axes.split(",") if d.strip()]
     if args.no_auto_hold:
         flags["auto_hold"] = False
+    if args.moved_markers:
+        flags["moved_markers"] = True
     if args.segment_frames is not None:
         flags["segment_frames"] = args.segment_frames
     if args.memory_mb is not None:

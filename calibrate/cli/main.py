@@ -194,6 +194,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                          "subtalar_r,subtalar_l: what the marker set cannot resolve (as OpenSim's locked coordinates)")
     ap.add_argument("--hold-axes", default=None, metavar="DOF,...",
                     help="keep these hinge/universal axes at the base model's (their angles stay free)")
+    ap.add_argument("--moved-markers", action="store_true",
+                    help="leave out a static trial's positions of markers it shows elsewhere on their segment than "
+                         "the moving trials do (a slipped cluster, an acromion marker lifted with the arms); the "
+                         "model keeps the moving trials' place and the summary names them")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")

@@ -19,6 +19,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
                             # a longer trial's are formed chunk by chunk (bounded memory, a little more time)
     ahead = true            # the start's GIL-bound parts in a forked process on the other core (same results)
     still_weight = 0        # frames a still (static) trial counts as in all beside a moving one (0: every frame)
+    moved_markers = false   # leave out a still trial's positions of markers the moving trials put elsewhere
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
     auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
@@ -59,7 +60,7 @@ else:  # pragma: no cover
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
         "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
-        "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight"}
+        "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm"}
 
 
@@ -132,7 +133,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        marker_noise=marker_noise, lock=lock,
                        hold_axes=tuple(hold), auto_hold=auto_hold, ahead=data.get("ahead", s.ahead),
                        segment_frames=data.get("segment_frames", s.segment_frames),
-                       still_weight=num(data, "still_weight", s.still_weight))
+                       still_weight=num(data, "still_weight", s.still_weight),
+                       moved_markers=data.get("moved_markers", s.moved_markers))
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None
 

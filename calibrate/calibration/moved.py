@@ -1,0 +1,100 @@
+"""Markers that sit elsewhere on their segment in a still trial than in the moving trials.
+
+A static trial and the walks after it share each marker's place on its segment (one offset in p).  Real
+sessions break that: a thigh cluster slips down the strap, an acromion marker rides on skin that the arm
+raised in the static lifts, a head band or a sternum marker is put back after the static.  Fitted with
+one place, such a marker bends the geometry towards a compromise between the two (Rajagopal2016's
+recording: the left femur 464 mm where its landmarks say 415, every walk frame 11 mm RMS off).
+
+Test (after a solve): a marker is linear in its own offset, so each frame's residual says where on the
+segment that frame puts the marker (the offset that would fit it exactly).  In a still trial those
+places cluster at one point; in the moving trials they spread with the skin's motion.  A marker is
+*moved* in a still trial when its place there lies both MOVED_MIN from the moving trials' mean place and
+MOVED_SIGMAS of their spread away from it (Mahalanobis): the moving trials never put it there.  The
+still trial's positions of a moved marker are then left out of the fit (with one pose, a place of its
+own would fit them exactly and tell nothing else); the model keeps the moving trials' place."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..problem.problem import Problem
+from ..problem.state import State
+
+MOVED_MIN = 0.010  # m: a slipped cluster or a marker put back moves a centimetre or more (skin over bone, less)
+MOVED_SIGMAS = 3.0  # Mahalanobis distance from the moving trials' places (chi2, 3 dof: outside 97 % of them)
+MIN_STILL_FRAMES = 3  # frames of the still trial that show the marker, at least
+MIN_MOVING_FRAMES = 12  # frames of the moving trials that show it (their spread is measured on them)
+_DELTA = 1e-3  # step in the offset entries of p: the marker is linear in them (exact differences)
+_FLOOR = 5e-4  # m: added to the moving trials' SD on each axis (their spread can be tiny: a rigid cluster)
+
+
+@dataclass(frozen=True)
+class MovedMarker:
+    """A marker whose place on its segment in still trial `trial` is not where the moving trials put it."""
+
+    trial: int  # index of the still trial among the calibration's trials
+    marker: str
+    segment: str
+    distance: float  # m: from the moving trials' mean place to the still trial's
+    sigmas: float  # that difference against the moving trials' spread (Mahalanobis)
+
+    def text(self, source: str) -> str:
+        return (f"{self.marker} sits {1e3 * self.distance:.0f} mm elsewhere on {self.segment} in {source} than in the "
+                f"moving trials ({self.sigmas:.0f} SD of their spread)")
+
+    def to_json(self) -> dict:
+        return {"trial": self.trial, "marker": self.marker, "segment": self.segment,
+                "distance_mm": 1e3 * self.distance, "sigmas": self.sigmas}
+
+
+def marker_places(problem: Problem, state: State) -> np.ndarray:
+    """(F, n_markers, 3) where each frame puts each marker on its segment: the displacement (m, segment
+    axes) from the marker's fitted place that would make the frame's model marker meet the observed one
+    (NaN where not seen)."""
+    d0 = problem.marker_residuals(state)
+    entries = problem.layout.entries("marker")  # (n_markers, 3) the offsets' entries in p
+    A = np.empty(d0.shape + (3,))  # d(model marker)/d(offset): the segment's rotation times its scale
+    for c in range(3):
+        p = state.p.copy()
+        p[entries[:, c]] += _DELTA
+        A[..., c] = (problem.marker_residuals(replace(state, p=p)) - d0) / _DELTA
+    seen = np.all(np.isfinite(d0), axis=2)
+    out = np.full(d0.shape, np.nan)
+    As, ds = A[seen], d0[seen]
+    scale = np.linalg.norm(As[:, :, 0], axis=1)  # the segment's scale (its rotation's columns are unit)
+    out[seen] = -np.linalg.solve(As, ds[..., None])[..., 0] * scale[:, None]
+    return out
+
+
+def moved_markers(problem: Problem, state: State, trial_of: np.ndarray, still: Sequence[bool]) -> list[MovedMarker]:
+    """The markers moved in each still trial (module docstring), worst first: `trial_of` (F,) the trial of
+    each frame of `problem`, `still` which trials are still."""
+    still_arr = np.asarray(still, dtype=bool)
+    if not still_arr.any() or still_arr.all():
+        return []
+    places = marker_places(problem, state)
+    moving = ~still_arr[trial_of]
+    seg_of = {m.name: m.segment for m in problem.model.markers}
+    out = []
+    for k, name in enumerate(problem.model.marker_names):
+        mv = places[moving, k]
+        mv = mv[np.all(np.isfinite(mv), axis=1)]
+        if len(mv) < MIN_MOVING_FRAMES:
+            continue
+        mean = mv.mean(axis=0)
+        cov = np.cov(mv.T) + _FLOOR**2 * np.eye(3)
+        for t in np.flatnonzero(still_arr):
+            st = places[trial_of == t, k]
+            st = st[np.all(np.isfinite(st), axis=1)]
+            if len(st) < MIN_STILL_FRAMES:
+                continue
+            diff = st.mean(axis=0) - mean
+            dist = float(np.linalg.norm(diff))
+            sig = float(np.sqrt(diff @ np.linalg.solve(cov, diff)))
+            if dist >= MOVED_MIN and sig >= MOVED_SIGMAS:
+                out.append(MovedMarker(int(t), name, seg_of[name], dist, sig))
+    return sorted(out, key=lambda m: -m.distance)

@@ -1,0 +1,139 @@
+"""Markers that sit elsewhere on their segment in a still trial than in the moving trials
+(calibrate.calibration.moved; Settings.moved_markers, off by default).
+
+The simulator's subject squats with every marker where its truth puts it; its static is recorded with
+the left thigh marker 25 mm up its segment and the left shoulder marker 30 mm forward (a slipped wand, an
+acromion marker lifted with the arms).  The test must name exactly those two in the static, measure the
+shifts, leave their static positions out, and place them where the squats put them; a static with no
+marker moved must change nothing."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.moved import marker_places, moved_markers
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.report import calibration_report, summary_text
+from calibrate.cli import main
+from calibrate.io.c3d import write_c3d
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+from calibrate.problem.state import State
+from calibrate.simulation.simulate import simulate_squats, simulate_static
+from calibrate.solve.ik import marker_columns
+
+SHIFTS = {"LTHI": np.array([0.0, 0.0, 0.025]), "LSHO": np.array([0.030, 0.0, 0.0])}  # m, in the segment's axes
+
+
+def _mates(model, params, name: str) -> np.ndarray:
+    """Distances (m, at the subject's scale) from marker `name` to the other markers of its segment."""
+    k = model.marker_index(name)
+    seg = model.markers[k].segment
+    s = params.scale[model.segment_index(seg)]
+    return np.array([np.linalg.norm(s * (params.marker[k] - params.marker[j]))
+                     for j, mk in enumerate(model.markers) if mk.segment == seg and j != k])
+
+
+@pytest.fixture(scope="module")
+def session(human):
+    squats = simulate_squats(human, frames=300, noise_mm=1.0, seed=7)
+    truth = squats.truth
+    moved = truth.copy()
+    for name, shift in SHIFTS.items():
+        k = human.marker_index(name)
+        moved.marker[k] += shift / truth.scale[human.segment_index(human.markers[k].segment)]
+    static = simulate_static(human, moved, frames=300, noise_mm=1.0, seed=7)
+    plain = simulate_static(human, truth, frames=300, noise_mm=1.0, seed=7)
+    return squats, static, plain
+
+
+def test_marker_places_are_where_each_frame_puts_the_marker_on_its_segment(human, human_kin, session):
+    """At the truth, a noise-free static with one marker shifted: that marker's place is the shift in its
+    segment's axes (metres, at the subject's scale) in every frame, every other marker's is zero."""
+    squats, static, _ = session
+    obs = static.clean_markers.copy()  # noise-free, the shifted markers where the static puts them
+    problem = Problem(human, obs, Settings(), human_kin)
+    m = static.motion
+    Z = np.column_stack([m.root_translation, np.zeros((m.times.size, 3)), m.angles])
+    places = marker_places(problem, State(Z, m.root_quaternion.copy(), squats.truth.vector()))
+    for name, shift in SHIFTS.items():
+        k = human.marker_index(name)
+        assert np.allclose(places[:, k], shift, atol=1e-9)
+    others = [k for k, n in enumerate(human.marker_names) if n not in SHIFTS]
+    assert np.abs(places[:, others]).max() < 1e-9
+
+
+def test_the_moved_markers_are_named_left_out_of_the_static_and_placed_where_the_movement_puts_them(human, session):
+    squats, static, plain = session
+    said: list[str] = []
+    cal = calibrate(human, [static.trial, squats.trial], Settings(outliers=0.0, moved_markers=True),
+                    progress=lambda p: said.append(str(p)))
+    assert sorted(m.marker for m in cal.moved) == sorted(SHIFTS)
+    for m in cal.moved:
+        assert m.trial == 0
+        assert m.distance == pytest.approx(np.linalg.norm(SHIFTS[m.marker]), abs=0.004)
+        assert sum(m.marker in s and "left out there" in s for s in said) == 1
+        k = human.marker_index(m.marker)
+        assert np.all(np.isnan(cal.residuals[:static.trial.n_frames, k]))  # its static positions: not fitted
+        # Placed where the squats put it (the truth), not where the static does: its distances to the other
+        # markers of its segment (free of the segment frame's gauge) within 1 mm of the truth's.
+        assert np.abs(_mates(human, cal.params, m.marker) - _mates(human, squats.truth, m.marker)).max() < 0.001
+    report = calibration_report(cal)
+    assert sorted(x["marker"] for x in report["moved_markers"]) == sorted(SHIFTS)
+    assert "moved" in summary_text(cal)
+
+    # Fitted as they are (the default), the static pulls them towards its places.
+    kept = calibrate(human, [static.trial, squats.trial], Settings(outliers=0.0))
+    assert kept.moved == ()
+    for name in SHIFTS:
+        assert np.abs(_mates(human, kept.params, name) - _mates(human, squats.truth, name)).max() > 0.004
+    F0 = static.trial.n_frames
+    rms = [np.sqrt(np.nanmean(np.sum(c.residuals[F0:] ** 2, axis=2))) for c in (cal, kept)]
+    assert rms[0] < 0.002 < rms[1]  # the squats' markers: 1 mm noise each way; fitted as they are, not
+
+    # A static with every marker where the squats put it: nothing moved.
+    same = calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0, moved_markers=True))
+    assert same.moved == ()
+    assert "moved_markers" in calibration_report(same) and calibration_report(same)["moved_markers"] == []
+
+
+def test_one_moving_trial_alone_or_two_still_trials_look_for_nothing(human, human_kin, session):
+    squats, static, plain = session
+    obs = np.concatenate([marker_columns(human, t) for t in (static.trial, squats.trial)])
+    problem = Problem(human, obs, Settings(), human_kin)
+    F0 = static.trial.n_frames
+    m0, m1 = static.motion, squats.motion
+    Z = np.concatenate([np.column_stack([m.root_translation, np.zeros((m.times.size, 3)), m.angles]) for m in (m0, m1)])
+    Q = np.concatenate([m0.root_quaternion, m1.root_quaternion])
+    state = State(Z, Q, squats.truth.vector())
+    trial_of = np.r_[np.zeros(F0, dtype=int), np.ones(obs.shape[0] - F0, dtype=int)]
+    assert moved_markers(problem, state, trial_of, [False, False]) == []
+    assert moved_markers(problem, state, trial_of, [True, True]) == []
+    found = moved_markers(problem, state, trial_of, [True, False])
+    assert sorted(m.marker for m in found) == sorted(SHIFTS)
+
+
+def test_the_command_line_leaves_them_out_with_moved_markers(human, session, tmp_path, capsys):
+    """`calibrate STATIC WALK MODEL --moved-markers`: the report names the two markers and the setting, the
+    summary says what was left out; without the flag nothing is looked for."""
+    squats, static, _ = session
+    write_c3d(tmp_path / "static.c3d", static.trial)
+    write_c3d(tmp_path / "squats.c3d", squats.trial)
+    for flag, name in ((["--moved-markers"], "on"), ([], "off")):
+        (tmp_path / name).mkdir()
+        code = main([str(tmp_path / "static.c3d"), str(tmp_path / "squats.c3d"), str(human.path), "-o",
+                     str(tmp_path / name / "subject.urdf"), "--report", str(tmp_path / name / "report.json"),
+                     "--outlier-sigmas", "0", *flag])
+        out, err = capsys.readouterr()
+        assert code == 0, err
+        rep = json.loads((tmp_path / name / "report.json").read_text())
+        assert rep["settings"]["moved_markers"] is bool(flag)
+        if flag:
+            assert sorted(m["marker"] for m in rep["moved_markers"]) == sorted(SHIFTS)
+            assert all(m["trial"].endswith("static.c3d") for m in rep["moved_markers"])
+            assert "moved" in out and "LTHI" in out
+        else:
+            assert rep["moved_markers"] == [] and "  moved  " not in out
