@@ -566,8 +566,10 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     moved: list[MovedMarker] = []
     for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
-        # On a subsample the polish after the gauge alignment is left to the run on every frame.
-        state, coarse_summary = _solve_geometry(sub, state, solver, say, polish=sub is problem)
+        # On a subsample the polish after the gauge alignment is left to the run on every frame.  A round after
+        # the first (axes held, moved markers left out) adds its iterations to the first's.
+        state, part = _solve_geometry(sub, state, solver, say, polish=sub is problem)
+        coarse_summary = part if round_ == 0 else _merge(coarse_summary, part)
         # After axes are held the noise learnt so far carries over (holding a few still axes barely moves
         # the residuals); every frame learns it once more.  Learning it again here took Rajagopal's run
         # three more subsample solves, its weights wandering 22, 15, 11 % (docs/benchmarks.md).
