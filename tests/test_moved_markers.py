@@ -14,6 +14,7 @@ import json
 import numpy as np
 import pytest
 
+from calibrate.calibration.html import report_html
 from calibrate.calibration.moved import marker_places, moved_markers
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
@@ -84,6 +85,8 @@ def test_the_moved_markers_are_named_left_out_of_the_static_and_placed_where_the
     report = calibration_report(cal)
     assert sorted(x["marker"] for x in report["moved_markers"]) == sorted(SHIFTS)
     assert "moved" in summary_text(cal)
+    page = report_html(report)
+    assert all(f"moved marker {name}" in page for name in SHIFTS)
 
     # Fitted as they are (the default), the static pulls them towards its places.
     kept = calibrate(human, [static.trial, squats.trial], Settings(outliers=0.0))

@@ -88,6 +88,10 @@ def _notes(report: dict) -> str:
                      f"({_e(', '.join(m.get('segment_labels', [])))}: {m.get('distance_sd_own_mm', 0):.1f} mm); "
                      "exchanged for the whole trial?"
                      + ("".join(f" {_e(a)} and {_e(b)}?" for a, b in m.get("exchanges", []))) + "</li>")
+    for m in report.get("moved_markers", []):
+        items.append(f"<li>moved marker {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
+                     f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "
+                     f"({m.get('sigmas', 0):.0f} SD of their spread); its positions there left out</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

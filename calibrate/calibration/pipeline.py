@@ -564,12 +564,13 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     whole_sub = coarse.size == problem.F
     names = [sources[i] if i < len(sources) and sources[i] else f"trial {i + 1}" for i in range(len(spans))]
     moved: list[MovedMarker] = []
+    coarse_summary: SolverSummary | None = None
     for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
         sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.  A round after
         # the first (axes held, moved markers left out) adds its iterations to the first's.
         state, part = _solve_geometry(sub, state, solver, say, polish=sub is problem)
-        coarse_summary = part if round_ == 0 else _merge(coarse_summary, part)
+        coarse_summary = part if coarse_summary is None else _merge(coarse_summary, part)
         # After axes are held the noise learnt so far carries over (holding a few still axes barely moves
         # the residuals); every frame learns it once more.  Learning it again here took Rajagopal's run
         # three more subsample solves, its weights wandering 22, 15, 11 % (docs/benchmarks.md).
