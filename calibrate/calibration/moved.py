@@ -4,7 +4,8 @@ A static trial and the walks after it share each marker's place on its segment (
 sessions break that: a thigh cluster slips down the strap, an acromion marker rides on skin that the arm
 raised in the static lifts, a head band or a sternum marker is put back after the static.  Fitted with
 one place, such a marker bends the geometry towards a compromise between the two (Rajagopal2016's
-recording: the left femur 464 mm where its landmarks say 415, every walk frame 11 mm RMS off).
+recording: the left femur 464 mm where the lab's HJC and knee-joint markers say 416, every walk frame 11 mm RMS
+off).
 
 Test (after a solve): a marker is linear in its own offset, so each frame's residual says where on the
 segment that frame puts the marker (the offset that would fit it exactly).  In a still trial those
