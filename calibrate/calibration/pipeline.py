@@ -561,12 +561,18 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     scatter = problem.sigma.copy()  # the markers' noise SDs (learnt: without the correlation time)
     trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
     state = frames_of(start, coarse)
-    whole_sub = coarse.size == problem.F
+    whole = coarse.size == problem.F  # a short trial: its subsample is every frame
+
+    def subsample(pr: Problem) -> Problem:
+        return pr if whole else pr.subset(coarse, coarse_w)
+
+    sub_trial = trial_of if whole else trial_of[coarse]  # the trial of each subsample row
+
     names = [sources[i] if i < len(sources) and sources[i] else f"trial {i + 1}" for i in range(len(spans))]
     moved: list[MovedMarker] = []
     coarse_summary: SolverSummary | None = None
     for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
-        sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
+        sub = subsample(problem)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.  A round after
         # the first (axes held, moved markers left out) adds its iterations to the first's.
         state, part = _solve_geometry(sub, state, solver, say, polish=sub is problem)
@@ -576,13 +582,13 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         # three more subsample solves, its weights wandering 22, 15, 11 % (docs/benchmarks.md).
         for _ in range(NOISE_ROUNDS if fixed is not None and round_ == 0 else 0):
             # The trial's own scatter, measured at this solution: re-weigh and solve again from here.
-            whole = sub is problem  # every frame: the cap in seconds; a subsample's rows: its own (tau_max)
-            sigma, scatter = relearn(sub, state, fixed, say, trial_of if whole else trial_of[coarse],
+            # Every frame: the cap in seconds; a subsample's rows: its own (tau_max).
+            sigma, scatter = relearn(sub, state, fixed, say, sub_trial,
                                      tau_max if whole else None)
             if sigma is None:
                 break
             problem = problem.with_noise(sigma)
-            sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
+            sub = subsample(problem)
             state, again = _solve_geometry(sub, state, solver, say, polish=sub is problem)
             coarse_summary = _merge(coarse_summary, again)
         found = []
@@ -590,7 +596,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # Markers the still trials show elsewhere on their segment than the moving trials: their still
             # positions left out, and the subsample solved again from here (the moving trials' place kept).
             # A second look after that solve: with the worst gone, a slipped cluster's other markers stand out.
-            found = moved_markers(sub, state, trial_of if whole_sub else trial_of[coarse], still)
+            found = moved_markers(sub, state, sub_trial, still)
             for m in found:
                 say(Progress("markers", m.text(names[m.trial]) + "; left out there"))
             if found:
@@ -598,7 +604,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                 for m in found:
                     out[spans[m.trial], problem.model.marker_index(m.marker)] = True
                 problem = problem.without(out)
-                sub = problem if coarse.size == problem.F else problem.subset(coarse, coarse_w)
+                sub = subsample(problem)
                 moved += found
         held = []
         if run.auto_hold and round_ < HOLD_ROUNDS:
