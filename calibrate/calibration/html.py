@@ -92,6 +92,11 @@ def _notes(report: dict) -> str:
         items.append(f"<li>moved marker {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
                      f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "
                      f"({m.get('sigmas', 0):.0f} SD of their spread); its positions there left out</li>")
+    for m in report.get("joint_centre_markers", []):
+        items.append(f"<li>joint-centre marker {_e(m.get('marker'))} at {_e(m.get('joint'))}: kept "
+                     f"{m.get('offset_mm', 0):.1f} mm from the centre (base model "
+                     f"{m.get('base_offset_mm', 0):.1f} mm); "
+                     "its positions place the centre</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

@@ -64,7 +64,7 @@ from ..solve.ik import marker_columns
 from ..solve.lm import Run, SolverSummary, covariance, levenberg_marquardt
 from ..solve.memory import no_huge_pages
 from .options import PipelineOptions
-from .records import Countdown, IterationClock, Progress
+from .records import Countdown, IterationClock, JointCentreMarker, Progress
 
 MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
@@ -494,7 +494,22 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved),
-                       trial_weights=() if lengths is None else tuple(float(n) for n in lengths))
+                       trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
+                       joint_markers=_joint_markers(problem, params, unused))
+
+
+def _joint_markers(problem: Problem, params: Parameters, unused: Sequence[str]) -> tuple[JointCentreMarker, ...]:
+    """The joint-centre markers the trials show (Problem.joint_markers), with their offsets from their centres."""
+    m = problem.model
+
+    def offset(P: Parameters, k: int, j: int, on_parent: bool) -> float:
+        seg = m.segment_index(m.markers[k].segment)
+        return float(P.scale[seg] * np.linalg.norm(P.marker[k] - (P.centre[j] if on_parent else 0.0)))
+
+    return tuple(JointCentreMarker(m.markers[t.marker].name, m.joints[t.joint].name,
+                                   offset(params, t.marker, t.joint, t.on_parent),
+                                   offset(problem.base, t.marker, t.joint, t.on_parent))
+                 for t in problem.joint_markers() if m.markers[t.marker].name not in unused)
 
 
 def _sampled_blocks(problem: Problem, state: State) -> np.ndarray:

@@ -18,6 +18,22 @@ import numpy as np
 GROUPS = ("scale", "centre", "axis", "marker")  # the parameter blocks a ParameterChange belongs to
 
 
+@dataclass(frozen=True)
+class JointCentreMarker:
+    """A marker the base model puts at a joint centre (calibrate.problem.priors.joint_centre_markers): a point
+    the lab computed there (OpenSim's R_HJC at the femur's origin), not skin, so the calibration keeps its
+    offset from the centre within Priors.joint_marker and the trial's positions of it place the centre."""
+
+    marker: str
+    joint: str
+    offset: float  # m: its distance from the joint centre in the subject
+    base_offset: float  # m: the same in the base model
+
+    def to_json(self) -> dict:
+        return {"marker": self.marker, "joint": self.joint, "offset_mm": 1e3 * self.offset,
+                "base_offset_mm": 1e3 * self.base_offset}
+
+
 class Identified(enum.Enum):
     """How far a trial pinned a calibrated quantity."""
 

@@ -106,7 +106,8 @@ def calibration_report(cal: Calibration) -> dict:
                                 "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale,
                                 "symmetry_scale": st.priors.symmetry_scale,
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
-                                "width_mm": 1000 * st.priors.width},
+                                "width_mm": 1000 * st.priors.width,
+                                "joint_marker_mm": 1000 * st.priors.joint_marker},
                      "lateral_markers": [{"joint": j, "marker": mk, "distance_mm": 1000 * d}
                                          for j, mk, d in st.lateral_markers],
                      "learn_noise": st.learns_noise,
@@ -129,6 +130,9 @@ def calibration_report(cal: Calibration) -> dict:
         # their positions there left out, the model keeping the moving trials' place
         "moved_markers": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
                           for m in cal.moved],
+        # markers at a joint centre (points the lab computed there, e.g. R_HJC): kept at their offsets from the
+        # centres within settings.priors.joint_marker_mm, so that the trials' positions of them place the centres
+        "joint_centre_markers": [m.to_json() for m in cal.joint_markers],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()},
@@ -451,6 +455,10 @@ def summary_text(cal) -> str:
                          + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
                          + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
                          "with the pose): their positions there left out, the model keeps the moving trials' place")
+    if cal.joint_markers:
+        lines.append("  joint marker " + ", ".join(f"{m.marker} at {m.joint}" for m in cal.joint_markers)
+                     + f": points the lab computed at joint centres, each kept at its offset from the centre "
+                     f"within {1e3 * cal.settings.priors.joint_marker:g} mm (they place the centres)")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

@@ -19,7 +19,7 @@ from ..problem.priors import symmetry_pairs
 from ..problem.settings import Settings
 from ..seed.geometry import marker_max, marker_rms
 from ..solve.lm import SolverSummary
-from .records import CoordinateNote, ParameterChange
+from .records import CoordinateNote, JointCentreMarker, ParameterChange
 from .report import calibration_report, summary_text, write_outputs
 
 
@@ -204,6 +204,9 @@ class Calibration:
     # What each trial counted as, in frames (Settings.still_weight: a still trial as a few); () when every frame
     # counted once.
     trial_weights: tuple[float, ...] = ()
+    # Markers at a joint centre (points the lab computed there, e.g. OpenSim's R_HJC) that the trials show: each
+    # kept at its base-model offset from the centre within Settings.priors.joint_marker
+    joint_markers: tuple[JointCentreMarker, ...] = ()
 
     @property
     def notes(self) -> tuple[str, ...]:

@@ -321,6 +321,13 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         for s in m.segments:
             if s.markers:
                 print(f"    {s.name:12s} {' '.join(s.markers)}")
+        from ..problem.priors import JOINT_MARKER_RADIUS, joint_centre_markers
+
+        ties = joint_centre_markers(m, m.parameters())
+        if ties:
+            print(f"  joint-centre markers (within {1000 * JOINT_MARKER_RADIUS:g} mm of a joint centre of their "
+                  "segment: points computed at the centre, kept there; priors.joint_marker_mm):")
+            print("    " + ", ".join(f"{m.markers[t.marker].name} ({m.joints[t.joint].name})" for t in ties))
         print_osim(m)
         return 0
     from ..io.read import read_trial

@@ -34,6 +34,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     symmetry_scale = 0.05   # SD of a left/right difference of segment scales (0: off)
     symmetry_centre_mm = 20.0  # SD of a left/right difference of mirrored joint centres (0: off)
     width_mm = 5.0          # SD of a measured knee/ankle width's lateral distance (0: measurements not used)
+    joint_marker_mm = 1.0   # SD of a joint-centre marker's offset from its centre (e.g. R_HJC; 0: an ordinary marker)
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
@@ -61,7 +62,8 @@ else:  # pragma: no cover
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
         "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
         "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers"}
-_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm"}
+_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm",
+           "joint_marker_mm"}
 
 
 def settings_from_dict(data: dict, where: str = "settings", base: Settings | None = None) -> Settings:
@@ -91,6 +93,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         symmetry_scale=num(pri, "symmetry_scale", s.priors.symmetry_scale),
         symmetry_centre=num(pri, "symmetry_centre_mm", 1000 * s.priors.symmetry_centre) / 1000,
         width=num(pri, "width_mm", 1000 * s.priors.width) / 1000,
+        joint_marker=num(pri, "joint_marker_mm", 1000 * s.priors.joint_marker) / 1000,
     )
     free = data.get("free", list(s.free))
     if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):

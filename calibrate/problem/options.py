@@ -41,6 +41,11 @@ class Priors:
     # from the lateral marker to the joint centre (m; 0: the measurements are not used).  A caliper reads
     # a knee to a few mm; the marker sits on skin over the epicondyle or malleolus.
     width: float = 0.005
+    # A joint-centre marker (calibrate.problem.priors.joint_centre_markers: the base model puts it within
+    # JOINT_MARKER_RADIUS of a joint centre of its segment, e.g. OpenSim's R_HJC at the femur's origin): a
+    # point the lab computed at that centre, not skin.  SD of its offset from the centre about the base
+    # model's (m; 0: an ordinary marker, held by `marker` alone).
+    joint_marker: float = 0.001
 
 
 @dataclass(frozen=True)
@@ -116,7 +121,7 @@ class ProblemOptions:
             if not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 and math.isfinite(d)):
                 raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
                                  f"in metres, got {d!r}")
-        for name in ("symmetry_scale", "symmetry_centre", "width"):
+        for name in ("symmetry_scale", "symmetry_centre", "width", "joint_marker"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

@@ -4,10 +4,11 @@ symmetry, and the joint-limit residuals."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..model.model import Model
+from ..model.model import Model, Parameters
 
 
 def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, int]], list[tuple[int, int]],
@@ -31,6 +32,42 @@ def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, i
     return seg, jnt, mirror
 
 
+#: m, at the base model's scale: a marker this close to a joint centre of its own segment is a point computed at
+#: that centre (OpenSim's R_HJC at the femur's origin: 0 mm), not skin (20 mm or more from every centre in
+#: models/human.urdf, gait2392 and Rajagopal).  Rajagopal's mid-epicondyle KneeJoint, 8 mm from its fitted knee
+#: hinge, is near a centre, not at it: tied as well, it turned the left ankle 4 deg further from OpenSim's IK.
+JOINT_MARKER_RADIUS = 0.005
+
+
+@dataclass(frozen=True)
+class JointMarker:
+    """A joint-centre marker (joint_centre_markers): marker `marker` (index) at joint `joint`'s centre, on the
+    joint's parent segment (`on_parent`: its offset from the centre in that frame) or its child (its offset
+    from the child segment's origin, where the joint is)."""
+
+    marker: int
+    joint: int
+    on_parent: bool
+
+
+def joint_centre_markers(model: Model, base: Parameters) -> tuple[JointMarker, ...]:
+    """The markers the base model puts within JOINT_MARKER_RADIUS of a centre of a joint of their segment (as
+    the joint's parent or its child; the nearest such joint), in marker order."""
+    out = []
+    for k, mk in enumerate(model.markers):
+        s = float(base.scale[model.segment_index(mk.segment)])
+        best: tuple[float, int, bool] | None = None
+        for j, jt in enumerate(model.joints):
+            for on_parent, seg, at in ((True, jt.parent, base.centre[j]), (False, jt.child, np.zeros(3))):
+                if seg == mk.segment:
+                    d = s * float(np.linalg.norm(base.marker[k] - at))
+                    if d <= JOINT_MARKER_RADIUS and (best is None or d < best[0]):
+                        best = (d, j, on_parent)
+        if best is not None:
+            out.append(JointMarker(k, best[1], best[2]))
+    return tuple(out)
+
+
 class PriorsMixin:
     """Problem's priors and limits (calibrate.problem.problem.Problem inherits it)."""
 
@@ -49,6 +86,17 @@ class PriorsMixin:
                       unit)
             self._prior_cache = cached
         return cached[1], cached[2], cached[3]
+
+    def joint_markers(self) -> tuple[JointMarker, ...]:
+        """The model's joint-centre markers (joint_centre_markers of the base model; none when
+        priors.joint_marker is 0 or the markers are not free), kept while `base` is the same object."""
+        if self.settings.priors.joint_marker <= 0 or "marker" not in self.settings.free:
+            return ()
+        cached = self.__dict__.get("_joint_marker_cache")
+        if cached is None or cached[0] is not self.base:
+            cached = (self.base, joint_centre_markers(self.model, self.base))
+            self._joint_marker_cache = cached
+        return cached[1]
 
     def _lateral_terms(self) -> list[tuple[int, int, int, float, float]]:
         """ProblemOptions.lateral_markers as (joint, marker, DoF index, distance, side): the side (+1 or -1)
@@ -179,6 +227,23 @@ class PriorsMixin:
             add(((ka * p[il] - mirror * (kb * p[ir]) - (base[il] - mirror * base[ir])) / sd).ravel(), lambda: (
                 k, np.stack([il, ir, np.repeat(L.scale(sa)[:, None], 3, 1), np.repeat(L.scale(sb)[:, None], 3, 1)], 1),
                 np.stack([np.repeat(ka / sd, 3, 1), -mirror * kb / sd, p[il] / sd, -mirror * p[ir] / sd], 1)))
+        # A joint-centre marker keeps its base-model offset from its centre (Priors.joint_marker): on the joint's
+        # parent, marker minus centre in that frame; on its child, the marker's offset from the child's origin.
+        ties = self.joint_markers()
+        if ties:
+            sd = st.priors.joint_marker
+            mk = L.entries("marker", np.array([t.marker for t in ties]))  # (n, 3)
+            par = np.array([t.on_parent for t in ties])
+            ce = L.entries("centre", np.array([t.joint for t in ties]))
+            seg = self.marker_segment[[t.marker for t in ties]]
+            x = p[mk] - np.where(par[:, None], p[ce], 0.0)
+            x0 = base[mk] - np.where(par[:, None], base[ce], 0.0)
+            s = scale[seg][:, None]
+            k = np.arange(mk.size).reshape(-1, 3)
+            add((s * (x - x0) / sd).ravel(), lambda: (
+                np.r_[k.ravel(), k[par].ravel(), k.ravel()],
+                np.r_[mk.ravel(), ce[par].ravel(), np.repeat(L.scale(seg), 3)],
+                np.r_[np.repeat(s.ravel() / sd, 3), np.repeat(-s[par].ravel() / sd, 3), ((x - x0) / sd).ravel()]))
         if not res:
             return np.zeros(0), None
         if not jacobian:

@@ -1,0 +1,133 @@
+"""Joint-centre markers (calibrate.problem.priors.joint_centre_markers, Priors.joint_marker): a marker the base
+model puts at a joint centre is a point the lab computed there (OpenSim's R_HJC at the femur's origin), not
+skin, and keeps its offset from the centre, so that the trials' positions of it place the centre.
+
+The simulated subject carries RHJC at its right hip centre in the base model; the "lab" computed it 20 mm
+anterior of the true centre, and the static trial records it there."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from calibrate.calibration.html import report_html
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.report import calibration_report, summary_text
+from calibrate.errors import CalibrateError
+from calibrate.io.config import settings_from_dict
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import add_markers, load_model, write_model
+from calibrate.problem.options import Priors
+from calibrate.problem.priors import JOINT_MARKER_RADIUS, joint_centre_markers
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_squats, simulate_static
+from calibrate.solve.ik import marker_columns
+
+LAB_OFFSET = np.array([0.020, 0.0, 0.0])  # m, in the femur's axes: where the lab's computed hip centre sits
+
+
+@pytest.fixture(scope="module")
+def tied(human):
+    """human.urdf with RHJC at the right hip (the femur's origin), LHJC on the pelvis 3 mm from the left hip
+    centre, RKJC on the femur 2 mm from the knee centre, and XSKN 8 mm from the right hip centre (near it, not
+    at it, as Rajagopal's mid-epicondyle KneeJoint is from its knee)."""
+    c = human.parameters().centre
+    joint = {j.name: i for i, j in enumerate(human.joints)}
+    return add_markers(human, {"RHJC": ("femur_r", np.zeros(3)),
+                               "LHJC": ("pelvis", c[joint["hip_l"]] + [0.0, 0.0, 0.003]),
+                               "RKJC": ("femur_r", c[joint["knee_r"]] + [0.002, 0.0, 0.0]),
+                               "XSKN": ("femur_r", np.array([0.008, 0.0, 0.0]))})
+
+
+def test_joint_centre_markers_are_found_by_their_place(human, tied):
+    found = {(tied.markers[t.marker].name, tied.joints[t.joint].name, t.on_parent)
+             for t in joint_centre_markers(tied, tied.parameters())}
+    assert found == {("RHJC", "hip_r", False), ("LHJC", "hip_l", True), ("RKJC", "knee_r", True)}
+    assert 0.003 < JOINT_MARKER_RADIUS < 0.008  # XSKN, 8 mm from the hip, is not tied
+    # models/human.urdf's own markers all sit on skin, 20 mm or more from every centre
+    assert joint_centre_markers(human, human.parameters()) == ()
+
+
+@pytest.mark.parametrize("free", [("scale", "centre", "axis", "marker"), ("centre", "marker"), ("scale", "marker")])
+def test_prior_jacobian_with_joint_centre_markers_matches_finite_differences(tied, free):
+    """Every prior row (the ties among them) and free column against central differences through the
+    parameters' retraction."""
+    sim = simulate_squats(tied, frames=3, noise_mm=1.0, seed=5)
+    problem = Problem(tied, marker_columns(tied, sim.trial), Settings(free=free), build_kinematics(tied))
+    assert len(problem.joint_markers()) == 3
+    rng = np.random.default_rng(2)
+    p = problem.retract_parameters(sim.truth.vector(), 0.02 * rng.normal(size=problem.n_free))
+    r, J = problem.prior(p)
+    off = Problem(tied, marker_columns(tied, sim.trial), Settings(free=free, priors=Priors(joint_marker=0.0)),
+                  build_kinematics(tied))
+    assert r.size == off.prior(p)[0].size + 9  # three ties of three rows
+    h = 1e-6
+    fd = np.zeros_like(J)
+    for k in range(problem.n_free):
+        e = np.zeros(problem.n_free)
+        e[k] = h
+        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
+                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
+    np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
+
+
+def _hip_from_urdf(cal, path) -> np.ndarray:
+    """The right hip centre in the world in every frame of the first trial: the written subject URDF read back
+    and posed by Pinocchio at the calibrated coordinates."""
+    subject = load_model(write_model(cal.model, path, cal.params))
+    data = subject.pin.createData()
+    jid = subject.pin.getJointId("hip_r_flexion")
+    m = cal.motions[0]
+    out = []
+    for f in range(m.n_frames):
+        pin.forwardKinematics(subject.pin, data, subject.pin_configuration(m.root_translation[f],
+                                                                           m.root_quaternion[f], m.angles[f]))
+        out.append(data.oMi[jid].translation.copy())
+    return np.array(out)
+
+
+def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_path):
+    """A static alone shows no motion to place a hip by: with the tie the right hip goes to the lab's RHJC
+    (within 3 mm, every frame), without it (joint_marker 0) RHJC is an ordinary marker that floats off the
+    centre and the hip stays with the priors, more than 15 mm from it."""
+    model = add_markers(human, {"RHJC": ("femur_r", np.zeros(3))})
+    truth = simulate_squats(model, frames=3, noise_mm=0.0, seed=7).truth
+    lab = truth.copy()
+    k = model.marker_index("RHJC")
+    lab.marker[k] = LAB_OFFSET / truth.scale[model.segment_index("femur_r")]
+    static = simulate_static(model, lab, frames=60, noise_mm=1.0, seed=7).trial
+    rhjc = static.markers[:, static.labels.index("RHJC")]
+
+    cal = calibrate(model, [static], Settings(outliers=0.0))
+    assert [(m.marker, m.joint) for m in cal.joint_markers] == [("RHJC", "hip_r")]
+    assert cal.joint_markers[0].offset < 0.002 and cal.joint_markers[0].base_offset == 0.0
+    gap = np.linalg.norm(_hip_from_urdf(cal, tmp_path / "tied.urdf") - rhjc, axis=1)
+    assert gap.max() < 0.003
+    report = calibration_report(cal)
+    assert report["joint_centre_markers"][0]["marker"] == "RHJC"
+    assert report["settings"]["priors"]["joint_marker_mm"] == pytest.approx(1.0)
+    assert "joint marker RHJC at hip_r" in summary_text(cal)
+    assert "joint-centre marker RHJC at hip_r" in report_html(report)
+
+    loose = calibrate(model, [static], Settings(outliers=0.0, priors=Priors(joint_marker=0.0)))
+    assert loose.joint_markers == () and calibration_report(loose)["joint_centre_markers"] == []
+    assert np.linalg.norm(_hip_from_urdf(loose, tmp_path / "loose.urdf") - rhjc, axis=1).min() > 0.015
+
+
+def test_the_config_file_sets_the_tie():
+    assert settings_from_dict({"priors": {"joint_marker_mm": 0.5}}).priors.joint_marker == pytest.approx(0.0005)
+    assert settings_from_dict({"priors": {"joint_marker_mm": 0}}).priors.joint_marker == 0.0
+    with pytest.raises(CalibrateError, match="joint_marker"):
+        settings_from_dict({"priors": {"joint_marker_mm": -1.0}})
+
+
+def test_inspect_lists_the_joint_centre_markers(human, tied, tmp_path, capsys):
+    from calibrate.cli import main
+
+    assert main(["inspect", str(write_model(tied, tmp_path / "tied.urdf"))]) == 0
+    out = capsys.readouterr().out
+    assert "joint-centre markers" in out and "RHJC (hip_r)" in out and "LHJC (hip_l)" in out and "XSKN (" not in out
+    assert main(["inspect", str(human.path)]) == 0
+    assert "joint-centre markers" not in capsys.readouterr().out
