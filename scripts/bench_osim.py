@@ -13,10 +13,11 @@ the markers OpenSim's IK tracks (weight > 0) that the trial has: mean over frame
 marker RMS and of the per-frame largest marker error (mm); each hip, knee and ankle coordinate's RMS
 difference from OpenSim's IK (deg; gait2392 also from the repository's reference IK); wall times
 (calibrate: the whole run, load + scaling + marker placement + every frame's pose; OpenSim: Scale and
-IK separately) and their ratio.  calibrate runs with its default settings, the .osim's locked coordinates
-locked, the coordinates the IK setup's coordinate tasks hold locked as the command line's ``--ik-setup`` does
-(Gait2392's pipeline holds its subtalar and mtp angles at 0; a row without them follows), and outlier rejection
-off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
+IK separately) and their ratio; where the static carries the lab's hip joint centres (Rajagopal's R_HJC /
+L_HJC), each hip centre's median distance from them in the static.  calibrate runs with its default settings,
+the .osim's locked coordinates locked, the coordinates the IK setup's coordinate tasks hold locked as the
+command line's ``--ik-setup`` does (Gait2392's pipeline holds its subtalar and mtp angles at 0; a row without
+them follows), and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
 
 nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
 with numpy < 2, made on first use) is the third row, unless ``--no-nimble``: the same generic .osim with
@@ -232,6 +233,7 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             mk[f, k] = data.oMf[subject.pin.getFrameId(name, pin.FrameType.BODY)].translation
     trial = cal.trials[1]
     return {"wall_s": wall, "ik_only_s": ik_wall, "ik_only_rms_mm": 1000 * ik_fit.rms,
+            "lab_hjc_mm": lab_hip_distances(cal, subject),
             "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
             "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations],
@@ -240,6 +242,33 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
                            for c in cal.changes if c.unreliable],
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry],
             "moved": [f"{m.marker} {1e3 * m.distance:.0f} mm" for m in cal.moved]}
+
+
+def lab_hip_distances(cal, subject) -> dict[str, float]:
+    """Per hip whose joint-centre marker the static carries (Rajagopal's R_HJC / L_HJC, the lab's hip joint
+    centres): the median over the static's frames of its distance (mm) from our hip centre, the subject URDF
+    posed by Pinocchio at the static's calibrated coordinates."""
+    import pinocchio as pin
+
+    static, m = cal.trials[0], cal.motions[0]
+    data = subject.pin.createData()
+    out = {}
+    for side in ("r", "l"):
+        label = f"{side.upper()}_HJC"
+        joint = next((j for j in cal.model.joints if j.name == f"hip_{side}"), None)
+        if label not in static.labels or joint is None:
+            continue
+        jid = subject.pin.getJointId(joint.urdf_joints[0])
+        seen = static.markers[:, static.labels.index(label)]
+        d = []
+        for f in range(m.n_frames):
+            if np.all(np.isfinite(seen[f])):
+                q = subject.pin_configuration(m.root_translation[f], m.root_quaternion[f], m.angles[f])
+                pin.forwardKinematics(subject.pin, data, q)
+                d.append(np.linalg.norm(data.oMi[jid].translation - seen[f]))
+        if d:
+            out[f"hip_{side}"] = 1000 * float(np.median(d))
+    return out
 
 
 def with_setup(spec: dict, model, settings, ik_setup: bool):
@@ -453,7 +482,8 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     out["calibrate_no_ik_setup"].update(wall_s=cn["wall_s"], converged=cn["converged"], locked=cn["locked"],
                                         unreliable=cn["unreliable"], static_asymmetry=cn["static_asymmetry"])
     out["opensim"].update(scale_s=osr["scale_s"], ik_s=osr["ik_s"], total_s=osr["scale_s"] + osr["ik_s"])
-    out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"])
+    out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"], lab_hjc_mm=cr["lab_hjc_mm"])
+    out["calibrate_moved_markers"]["lab_hjc_mm"] = cm["lab_hjc_mm"]
     out["ratio_calibrate_to_opensim_ik"] = cr["wall_s"] / osr["ik_s"]
     out["calibrate_ik_only"] = {"wall_s": cr["ik_only_s"], "rms_mm_all_markers": cr["ik_only_rms_mm"],
                                 "ratio_to_opensim_ik": cr["ik_only_s"] / osr["ik_s"]}
@@ -535,6 +565,11 @@ def report(res: dict) -> None:
                   "subject model fixed; RMS over every marker)")
         print(f"  marker RMS ratio calibrate / OpenSim: {c['rms_mm'] / o['rms_mm']:.2f} (axes held "
               f"{h['rms_mm'] / o['rms_mm']:.2f})")
+        if c.get("lab_hjc_mm"):
+            mm = r.get("calibrate_moved_markers", {}).get("lab_hjc_mm", {})
+            print("  hip centres from the lab's HJC markers in the static (median mm): "
+                  + ", ".join(f"{j} {v:.1f}" + (f" (moved markers {mm[j]:.1f})" if j in mm else "")
+                              for j, v in c["lab_hjc_mm"].items()))
         ho = r.get("heldout")
         if ho:
             print(f"  held out (the last {ho['frames']} IK frames; scaled on the static + the first half, the subject "
