@@ -1098,6 +1098,9 @@ def collect(a: argparse.Namespace, log) -> dict:
     if a.moved_markers:  # every calibrate command: a static's positions of markers the walk puts elsewhere left out
         a.extra = [*a.extra, "--moved-markers"]
         res["moved_markers"] = True
+    if a.hip_regression:  # every calibrate command: the hips placed by Harrington's regression from the pelvis markers
+        a.extra = [*a.extra, "--hip-regression"]
+        res["hip_regression"] = True
     try:
         res["warmup"] = guarded(warm_up, tmp, cap, log)
         if "pig" in only:
@@ -1141,6 +1144,8 @@ def main() -> None:
     ap.add_argument("--moved-markers", action="store_true",
                     help="pass --moved-markers to every calibrate command (a static's positions of markers the "
                          "moving trials put elsewhere on their segments left out)")
+    ap.add_argument("--hip-regression", action="store_true",
+                    help="pass --hip-regression to every calibrate command (the hips by Harrington's regression)")
     ap.add_argument("--still-weight", type=float, default=None, metavar="FRAMES",
                     help="pass --still-weight to every calibrate command (a static trial counted as FRAMES frames)")
     ap.add_argument("--from-json", type=Path, default=None, help="print the tables of a saved --json result")

@@ -131,3 +131,99 @@ def test_inspect_lists_the_joint_centre_markers(human, tied, tmp_path, capsys):
     assert "joint-centre markers" in out and "RHJC (hip_r)" in out and "LHJC (hip_l)" in out and "XSKN (" not in out
     assert main(["inspect", str(human.path)]) == 0
     assert "joint-centre markers" not in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------------- hips by Harrington's regression
+def _harrington_by_hand(trial) -> tuple[np.ndarray, np.ndarray]:
+    """Harrington et al. (2007) from the trial's RASI, LASI, RPSI, LPSI, written out frame by frame: the pelvis
+    axes at mid-ASIS, then the paper's three coordinates (mm) from the pelvis width PW and depth PD."""
+    out = []
+    for f in range(trial.n_frames):
+        p = {n: trial.markers[f, trial.labels.index(n)] * 1000.0 for n in ("RASI", "LASI", "RPSI", "LPSI")}
+        origin = (p["RASI"] + p["LASI"]) / 2
+        back = (p["RPSI"] + p["LPSI"]) / 2
+        right = (p["RASI"] - p["LASI"]) / np.linalg.norm(p["RASI"] - p["LASI"])
+        fwd = (origin - back) - np.dot(origin - back, right) * right
+        fwd /= np.linalg.norm(fwd)
+        up = np.cross(right, fwd)
+        pw, pd = np.linalg.norm(p["RASI"] - p["LASI"]), np.linalg.norm(origin - back)
+        x, y, z = -0.24 * pd - 9.9, -0.30 * pw - 10.9, 0.33 * pw + 7.3
+        out.append([(origin + x * fwd + y * up + s * z * right) / 1000.0 for s in (1, -1)])
+    out = np.array(out)
+    return out[:, 0], out[:, 1]
+
+
+def _hips_from_urdf(cal, path) -> tuple[np.ndarray, np.ndarray]:
+    subject = load_model(write_model(cal.model, path, cal.params))
+    data = subject.pin.createData()
+    m = cal.motions[0]
+    out = []
+    for f in range(m.n_frames):
+        pin.forwardKinematics(subject.pin, data, subject.pin_configuration(m.root_translation[f],
+                                                                           m.root_quaternion[f], m.angles[f]))
+        out.append([data.oMi[subject.pin.getJointId(f"hip_{s}_flexion")].translation.copy() for s in "rl"])
+    out = np.array(out)
+    return out[:, 0], out[:, 1]
+
+
+def test_hip_regression_puts_the_hips_where_harrington_does(human, tmp_path):
+    """A static alone: with hip_regression both hips end within 2 mm of Harrington's centres computed by hand
+    from the trial's pelvis markers (every frame), through the written URDF; without it they stay with the
+    simulated subject's own hips, more than 8 mm from them."""
+    truth = simulate_squats(human, frames=3, noise_mm=0.0, seed=7).truth
+    static = simulate_static(human, truth, frames=40, noise_mm=1.0, seed=7).trial
+    want = _harrington_by_hand(static)
+    cal = calibrate(human, [static], Settings(outliers=0.0, hip_regression=True))
+    got = _hips_from_urdf(cal, tmp_path / "reg.urdf")
+    for g, w in zip(got, want, strict=True):
+        assert np.linalg.norm(g - w, axis=1).max() < 0.002
+    assert sorted((m.marker, m.joint) for m in cal.joint_markers) == [("LHJC_harrington", "hip_l"),
+                                                                       ("RHJC_harrington", "hip_r")]
+    assert calibration_report(cal)["settings"]["hip_regression"] is True
+    plain = calibrate(human, [static], Settings(outliers=0.0))
+    got = _hips_from_urdf(plain, tmp_path / "plain.urdf")
+    assert min(np.linalg.norm(g - w, axis=1).min() for g, w in zip(got, want, strict=True)) > 0.008
+
+
+def test_hip_regression_needs_the_pelvis_landmarks(human, tmp_path):
+    """A trial without the PSIS markers: one line naming them; with a sacral marker the model knows, that stands
+    in for their midpoint (gait2392's V.Sacral); the command line refuses with exit 2 and writes nothing."""
+    from calibrate.calibration.regression import regression_hips
+    from calibrate.cli import main
+    from calibrate.io.c3d import write_c3d
+
+    static = simulate_static(human, human.parameters(), frames=5, noise_mm=0.0, seed=1).trial
+    no_back = static.select([lab for lab in static.labels if lab not in ("RPSI", "LPSI")])
+    with pytest.raises(CalibrateError, match="hip_regression: .*has no RPSI and LPSI"):
+        regression_hips(human, (no_back,))
+    P = human.parameters()
+    mid = 0.5 * (P.marker[human.marker_index("RPSI")] + P.marker[human.marker_index("LPSI")])
+    with_sacr = add_markers(human, {"SACR": ("pelvis", mid)})
+    rp, lp = static.labels.index("RPSI"), static.labels.index("LPSI")
+    sacral = 0.5 * (static.markers[:, rp] + static.markers[:, lp])
+    trial = no_back.__class__(no_back.labels + ("SACR",), np.concatenate([no_back.markers, sacral[:, None]], axis=1),
+                              no_back.rate)
+    _, (out,), used = regression_hips(with_sacr, (trial,))
+    assert used == {"RASI": "RASI", "LASI": "LASI", "SACR": "SACR"}
+    right, left = _harrington_by_hand(static)  # the PSIS midpoint is where the sacral marker is
+    np.testing.assert_allclose(out.markers[:, out.labels.index("RHJC_harrington")], right, atol=1e-12)
+    np.testing.assert_allclose(out.markers[:, out.labels.index("LHJC_harrington")], left, atol=1e-12)
+    write_c3d(tmp_path / "static.c3d", no_back)
+    code = main([str(tmp_path / "static.c3d"), str(human.path), "-o", str(tmp_path / "out" / "s.urdf"),
+                 "--hip-regression"])
+    assert code == 2 and not (tmp_path / "out").exists()
+
+
+def test_joint_centre_markers_are_not_judged_as_labels(human):
+    """A point at the hip centre rides rigidly with the pelvis as well as the thigh: the labelling check by
+    rigidity would name it (and its thigh's markers after it), so calibrate leaves the joint-centre markers out."""
+    from calibrate.calibration.regression import regression_hips
+    from calibrate.seed.association import misplaced_labels
+
+    squats = simulate_squats(human, frames=200, noise_mm=1.0, seed=3)
+    model, (trial,), _ = regression_hips(human, (squats.trial,))
+    assert {m.label for m in misplaced_labels(model, [trial])} == {"RHJC_harrington", "LHJC_harrington"}
+    centred = {model.markers[t.marker].name for t in joint_centre_markers(model, model.parameters())}
+    assert misplaced_labels(model, [trial], skip=centred) == ()
+    cal = calibrate(human, [squats.trial], Settings(hip_regression=True))  # outlier test on: labels judged
+    assert cal.misplaced == ()

@@ -20,6 +20,7 @@ class PipelineOptions:
     ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)
     still_weight: float = 0.0  # frames a still trial counts as in all beside a moving one (0: every frame once)
     moved_markers: bool = False  # a still trial's positions of markers the moving trials put elsewhere: left out
+    hip_regression: bool = False  # hip centres by Harrington's regression from the pelvis markers
 
     def __post_init__(self) -> None:
         if self.segment_frames not in (None, "markers", "priors"):
@@ -31,6 +32,8 @@ class PipelineOptions:
             raise ValueError(f"still_weight: must be 0 (off) or a positive number of frames, got {self.still_weight!r}")
         if not isinstance(self.moved_markers, bool):
             raise ValueError(f"moved_markers: must be true or false, got {self.moved_markers!r}")
+        if not isinstance(self.hip_regression, bool):
+            raise ValueError(f"hip_regression: must be true or false, got {self.hip_regression!r}")
         if not isinstance(self.learn_noise, bool):
             raise ValueError(f"learn_noise: must be true or false, got {self.learn_noise!r}")
         if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):

@@ -26,6 +26,7 @@ from calibrate.calibration.gauge import align_gauge, align_markers, align_neutra
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
 from calibrate.calibration.moved import MovedMarker, moved_markers
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
+from calibrate.calibration.regression import regression_hips
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
     COARSE_FRAMES,
@@ -53,6 +54,7 @@ from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters, add_markers
 from ..model.urdf import mass_factor
 from ..problem.options import SolverOptions
+from ..problem.priors import joint_centre_markers
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
@@ -128,10 +130,12 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
+    settings = settings or Settings()
+    if settings.pipeline.hip_regression:  # a virtual marker at each hip, where Harrington's regression puts it
+        model, trials, _ = regression_hips(model, trials)
     # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them,
     # and its segment frames end where its markers put them (Settings.segment_frames), unless settings say
     # otherwise; the OpenSim readers (50 ms of imports) are loaded only for such a model.
-    settings = settings or Settings()
     opensim = "<opensim" in model.text
     if opensim:
         from ..io.osim_info import with_locked
@@ -210,7 +214,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     t0 = time.perf_counter()
     # A label exchanged for a whole trial (a knee marker named as the ankle's) bends the geometry to fit it, and
     # no frame's outlier test sees it: each trial's labels are checked against the model's segments by rigidity.
-    misplaced = tuple((i, m) for i, t in enumerate(trials) for m in misplaced_labels(model, [t])) \
+    # A marker at a joint centre (R_HJC, --hip-regression's) rides with both of its joint's segments: not judged.
+    centred = {model.markers[t.marker].name for t in joint_centre_markers(model, model.parameters())}
+    misplaced = tuple((i, m) for i, t in enumerate(trials) for m in misplaced_labels(model, [t], skip=centred)) \
         if run.outliers > 0 else ()
     for i, m in misplaced:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))

@@ -117,7 +117,8 @@ def calibration_report(cal: Calibration) -> dict:
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "segment_frames": st.segment_frames,
                      "hold_segments": list(st.hold_segments),
-                     "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "compiled": cal.compiled},
+                     "auto_hold": st.auto_hold, "moved_markers": st.moved_markers,
+                     "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in cal.unresolved],
         "implausible": [b.to_json() for b in cal.implausible],
@@ -457,8 +458,9 @@ def summary_text(cal) -> str:
                          "with the pose): their positions there left out, the model keeps the moving trials' place")
     if cal.joint_markers:
         lines.append("  joint marker " + ", ".join(f"{m.marker} at {m.joint}" for m in cal.joint_markers)
-                     + f": points the lab computed at joint centres, each kept at its offset from the centre "
-                     f"within {1e3 * cal.settings.priors.joint_marker:g} mm (they place the centres)")
+                     + ": points computed at joint centres (by the lab, or --hip-regression), each kept at its "
+                     f"offset from the centre within {1e3 * cal.settings.priors.joint_marker:g} mm (they place the "
+                     "centres)")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

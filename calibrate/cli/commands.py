@@ -162,6 +162,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["auto_hold"] = False
     if args.moved_markers:
         flags["moved_markers"] = True
+    if args.hip_regression:
+        flags["hip_regression"] = True
     if args.segment_frames is not None:
         flags["segment_frames"] = args.segment_frames
     if args.memory_mb is not None:

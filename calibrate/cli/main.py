@@ -198,6 +198,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="leave out a static trial's positions of markers it shows elsewhere on their segment than "
                          "the moving trials do (a slipped cluster, an acromion marker lifted with the arms); the "
                          "model keeps the moving trials' place and the summary names them")
+    ap.add_argument("--hip-regression", action="store_true",
+                    help="place the hip centres by Harrington's regression from the pelvis markers (ASIS, PSIS or "
+                         "sacrum), as gait labs do where no functional hip trial places them: a walk does not")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (by default they "
                          "are held at the base model's, and the summary says which)")

@@ -93,6 +93,10 @@ class Settings:
     # calibration's own frames better still (pig_walk's held-out ratio 1.32x, past bench_real's 1.2x target;
     # docs/benchmarks.md).
     moved_markers: bool = False
+    # Place the hip centres by Harrington's regression from the pelvis markers (calibrate.calibration.regression:
+    # a virtual marker at each hip, kept there as a joint-centre marker), as gait labs do where no functional
+    # trial places them: a walk does not (docs/benchmarks.md, "Hip centres from a walk").  Off by default.
+    hip_regression: bool = False
 
     @property
     def problem(self) -> ProblemOptions:

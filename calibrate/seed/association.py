@@ -25,7 +25,7 @@ Units: metres (variances in m²).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -599,7 +599,7 @@ class Misplaced:
 
 
 def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPLACED_RATIO,
-                     floor: float = MISPLACED_FLOOR) -> tuple[Misplaced, ...]:
+                     floor: float = MISPLACED_FLOOR, skip: Collection[str] = ()) -> tuple[Misplaced, ...]:
     """The trials' labels of model markers that ride with another segment than the model's: a label exchanged
     for the whole trial, or put on the wrong marker.  Per label, the median SD over frames of its distances to
     its segment's other markers against the same to each other segment's; the worst taken first and left out
@@ -608,8 +608,9 @@ def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPL
     Which label of an exchanged pair is named can be its partner's (a segment with two markers: each looks
     misplaced against the other), so the result is labels to check, not a correction; where exchanging two
     labels (a named one or its segment's partner, with a marker of another segment) leaves none misplaced,
-    every entry carries those pairs (`exchanges`)."""
-    labels = [m.name for m in model.markers if any(m.name in t.labels for t in trials)]
+    every entry carries those pairs (`exchanges`).  `skip`: labels not judged (a joint-centre marker rides with
+    both segments of its joint)."""
+    labels = [m.name for m in model.markers if m.name not in skip and any(m.name in t.labels for t in trials)]
     if not labels:
         return ()
     segment = {m.name: m.segment for m in model.markers}

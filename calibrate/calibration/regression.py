@@ -1,0 +1,97 @@
+"""Hip joint centres by regression from the pelvis markers (Settings.hip_regression, ``--hip-regression``).
+
+A walk does not place the hips: thigh skin artefact that follows hip flexion is, for the thigh's markers, the
+same signal as a displaced hip centre, and on the three real recordings the walk-fitted hips end 28–65 mm from
+the labs' centres and from Harrington's regression (docs/benchmarks.md, "Hip centres from a walk").  Gait labs
+place them by regression from the pelvis landmarks; this does the same: Harrington et al. (2007, J Biomech
+40:595), the regression a CT study found nearest (12 ± 6 mm), is computed in every frame from the trials' ASIS
+and PSIS markers (or the sacral marker as the PSIS midpoint) and added as a virtual marker at each hip centre,
+which calibrate keeps there as a joint-centre marker (calibrate.problem.priors.joint_centre_markers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import CalibrateError
+from ..io.labels import alias_for
+from ..io.trial import Trial
+from ..model.model import Model, add_markers
+
+LANDMARKS = ("RASI", "LASI", "RPSI", "LPSI", "SACR")  # Plug-in Gait's names; other spellings by alias
+#: The virtual markers' labels (model and trials), right and left.
+VIRTUAL = ("RHJC_harrington", "LHJC_harrington")
+
+
+def harrington(rasi: np.ndarray, lasi: np.ndarray, psis_mid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Right and left hip centres (n, 3) from the ASIS markers and the PSIS midpoint (n, 3), metres, by
+    Harrington et al. (2007): in the pelvis frame at mid-ASIS (z to the right ASIS, x anterior towards it
+    from the PSIS midpoint, y up), x = −0.24 PD − 9.9 mm, y = −0.30 PW − 10.9 mm, z = ±(0.33 PW + 7.3 mm),
+    PW the ASIS distance and PD the mid-ASIS to mid-PSIS distance."""
+    o = 0.5 * (rasi + lasi)
+    z = rasi - lasi
+    pw = np.linalg.norm(z, axis=-1, keepdims=True)
+    z = z / pw
+    x = o - psis_mid
+    pd = np.linalg.norm(x, axis=-1, keepdims=True)
+    x = x - z * np.sum(x * z, axis=-1, keepdims=True)
+    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    y = np.cross(z, x)
+    mid = o + x * (-0.24 * pd - 0.0099) + y * (-0.30 * pw - 0.0109)
+    side = z * (0.33 * pw + 0.0073)
+    return mid + side, mid - side
+
+
+def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tuple[Trial, ...], dict[str, str]]:
+    """The model with a virtual marker at each hip centre (on the thigh's origin, where the hip is) and the trials
+    with its Harrington position in every frame (NaN where a landmark is not seen); and the landmarks used
+    (Plug-in Gait name -> the model's label).  The trials' labels must be the model's (calibrate maps them
+    first).  One-line CalibrateError when the model lacks a hip or a landmark, or a trial lacks a landmark."""
+    found: dict[str, str] = {}
+    for mk in model.markers:
+        hit = mk.name if mk.name in LANDMARKS else (alias_for(mk.name, LANDMARKS) or (None,))[0]
+        if hit is not None and hit not in found:
+            found[hit] = mk.name
+    need = [c for c in ("RASI", "LASI") if c not in found]
+    if not need and not ("RPSI" in found and "LPSI" in found or "SACR" in found):
+        need = ["RPSI and LPSI, or SACR"]
+    if need:
+        raise CalibrateError(f"hip_regression: {model.path.name} has no marker for {', '.join(need)} (the pelvis "
+                             "landmarks Harrington's regression needs); add them to the model or leave "
+                             "hip_regression off")
+    pelvis = model.markers[model.marker_index(found["RASI"])].segment
+    hips = {}
+    for j in model.joints:
+        if j.parent == pelvis and j.kind == "ball" and j.name.lower().startswith("hip"):
+            side = j.name.lower()[-2:]
+            if side in ("_r", "_l"):
+                hips[side[1]] = j
+    if set(hips) != {"r", "l"}:
+        raise CalibrateError(f"hip_regression: {model.path.name} has no left and right hip (ball joints named hip_l "
+                             f"and hip_r below {pelvis}); leave hip_regression off")
+    for name in VIRTUAL:
+        if name in model.marker_names:
+            raise CalibrateError(f"hip_regression: {model.path.name} already has a marker {name}; rename it")
+    used: dict[str, str] = {}
+    out = []
+    for t in trials:
+        have = {c: label for c, label in found.items() if label in t.labels}
+        back = ("RPSI", "LPSI") if "RPSI" in have and "LPSI" in have else ("SACR",) if "SACR" in have else None
+        if "RASI" not in have or "LASI" not in have or back is None:
+            missing = [found[c] for c in ("RASI", "LASI") if c not in have]
+            if back is None:
+                pair = " and ".join(found[c] for c in ("RPSI", "LPSI") if c in found)
+                missing.append(" or ".join(x for x in (pair, found.get("SACR", "")) if x))
+            raise CalibrateError(f"hip_regression: {t.source or 'a trial'} has no {', '.join(missing)} (the pelvis "
+                                 "landmarks Harrington's regression needs); leave hip_regression off")
+        at = {c: t.markers[:, t.labels.index(have[c])] for c in ("RASI", "LASI", *back)}
+        used.update((c, have[c]) for c in at)
+        mid = 0.5 * (at["RPSI"] + at["LPSI"]) if back != ("SACR",) else at["SACR"]
+        with np.errstate(invalid="ignore"):
+            right, left = harrington(at["RASI"], at["LASI"], mid)
+        out.append(replace(t, labels=t.labels + VIRTUAL,
+                           markers=np.concatenate([t.markers, right[:, None], left[:, None]], axis=1)))
+    model = add_markers(model, {VIRTUAL[0]: (hips["r"].child, np.zeros(3)), VIRTUAL[1]: (hips["l"].child, np.zeros(3))})
+    return model, tuple(out), used
