@@ -34,3 +34,15 @@ def assert_same_text_and_numbers(got: str, want: str, rtol: float = 1e-12) -> No
     assert re.split(NUMBER, got) == re.split(NUMBER, want)
     assert np.allclose([float(x) for x in re.findall(NUMBER, got)], [float(x) for x in re.findall(NUMBER, want)],
                        rtol=rtol, atol=1e-15)
+
+
+def prior_jacobian_by_differences(problem, p: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """The prior residuals' Jacobian (n_prior, n_free) at full parameters `p` by central differences through the
+    parameters' retraction: what Problem.prior's analytic Jacobian must equal."""
+    fd = np.zeros((problem.prior(p, jacobian=False)[0].size, problem.n_free))
+    for k in range(problem.n_free):
+        e = np.zeros(problem.n_free)
+        e[k] = h
+        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
+                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
+    return fd

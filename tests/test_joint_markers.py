@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import prior_jacobian_by_differences
 
 from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
@@ -63,13 +64,7 @@ def test_prior_jacobian_with_joint_centre_markers_matches_finite_differences(tie
     off = Problem(tied, marker_columns(tied, sim.trial), Settings(free=free, priors=Priors(joint_marker=0.0)),
                   build_kinematics(tied))
     assert r.size == off.prior(p)[0].size + 9  # three ties of three rows
-    h = 1e-6
-    fd = np.zeros_like(J)
-    for k in range(problem.n_free):
-        e = np.zeros(problem.n_free)
-        e[k] = h
-        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
-                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
+    fd = prior_jacobian_by_differences(problem, p)
     np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
 
 

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import prior_jacobian_by_differences
 
 from calibrate.calibration.noise import NOISE_TAU_SECONDS, learned_noise, leverage, tau_cap
 from calibrate.calibration.pipeline import calibrate
@@ -78,13 +79,7 @@ def test_symmetry_prior_jacobian_matches_finite_differences(human, human_kin):
     rows = slice(r.size - n_sym, r.size)
     # the rows before the symmetry block are the old priors, unchanged
     np.testing.assert_array_equal(r[: r.size - n_sym], off.prior(p)[0])
-    h = 1e-6
-    fd = np.zeros((n_sym, problem.n_free))
-    for k in range(problem.n_free):
-        e = np.zeros(problem.n_free)
-        e[k] = h
-        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0][rows]
-                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0][rows]) / (2 * h)
+    fd = prior_jacobian_by_differences(problem, p)[rows]
     np.testing.assert_allclose(J[rows], fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
     # symmetric geometry costs nothing: the base model itself
     assert np.allclose(problem.prior(human.parameters().vector(), jacobian=False)[0][rows], 0.0)
@@ -104,13 +99,7 @@ def test_every_prior_row_jacobian_matches_finite_differences(human, human_kin, f
     p = problem.retract_parameters(sim.truth.vector(), 0.02 * rng.normal(size=problem.n_free))
     r, J = problem.prior(p)
     assert J.shape == (r.size, problem.n_free)
-    h = 1e-6
-    fd = np.zeros_like(J)
-    for k in range(problem.n_free):
-        e = np.zeros(problem.n_free)
-        e[k] = h
-        fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
-                    - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
+    fd = prior_jacobian_by_differences(problem, p)
     np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
 
 def test_symmetry_prior_pulls_as_a_gaussian_observation_predicts(human, human_kin):
