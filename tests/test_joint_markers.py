@@ -23,7 +23,7 @@ from calibrate.problem.options import Priors
 from calibrate.problem.priors import JOINT_MARKER_RADIUS, joint_centre_markers
 from calibrate.problem.problem import Problem
 from calibrate.problem.settings import Settings
-from calibrate.simulation.simulate import simulate_squats, simulate_static
+from calibrate.simulation.simulate import simulate_gait, simulate_squats, simulate_static
 from calibrate.solve.ik import marker_columns
 
 LAB_OFFSET = np.array([0.020, 0.0, 0.0])  # m, in the femur's axes: where the lab's computed hip centre sits
@@ -222,3 +222,29 @@ def test_joint_centre_markers_are_not_judged_as_labels(human):
     assert misplaced_labels(model, [trial], skip=centred) == ()
     cal = calibrate(human, [squats.trial], Settings(hip_regression=True))  # outlier test on: labels judged
     assert cal.misplaced == ()
+
+
+def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human):
+    """The simulator's treadmill walk turns the hips through 44 deg of flexion but 11-12 deg of adduction and
+    rotation: each hip's reported ranges match the simulated motion's own (its 5th to 95th percentile), the
+    summary names the hips and points to --hip-regression, and the report and HTML say it; with
+    --hip-regression the hips are placed by their markers and the line goes.  The squats' hips (28-37 deg of
+    adduction or rotation besides flexion) are placed by motion: nothing said."""
+    walk = simulate_gait(human, frames=300, noise_mm=1.0, seed=2)
+    cal = calibrate(human, [walk.trial], Settings(outliers=0.0))
+    assert [h.joint for h in cal.hip_motion] == ["hip_l", "hip_r"]
+    for h in cal.hip_motion:
+        assert not h.places_centre
+        for d, v in h.ranges.items():
+            a = walk.motion.angles[:, walk.motion.dof_names.index(d)]
+            assert v == pytest.approx(np.diff(np.percentile(a, [5, 95]))[0], abs=np.radians(2.0))
+    text = summary_text(cal)
+    assert "  hips         the trials turn hip_l through flexion" in text and "--hip-regression" in text
+    report = calibration_report(cal)
+    assert [h["places_centre"] for h in report["hip_motion"]] == [False, False]
+    assert "hip_l: the trials turn it through" in report_html(report)
+    placed = calibrate(human, [walk.trial], Settings(outliers=0.0, hip_regression=True))
+    assert len(placed.hip_motion) == 2 and "  hips  " not in summary_text(placed)
+    squats = simulate_squats(human, frames=200, noise_mm=1.0, seed=0)
+    moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
+    assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)

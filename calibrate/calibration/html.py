@@ -97,6 +97,13 @@ def _notes(report: dict) -> str:
                      f"{m.get('offset_mm', 0):.1f} mm from the centre (base model "
                      f"{m.get('base_offset_mm', 0):.1f} mm); "
                      "its positions place the centre</li>")
+    tied = {m.get("joint") for m in report.get("joint_centre_markers", [])}
+    for h in report.get("hip_motion", []):
+        if not h.get("places_centre", True) and h.get("joint") not in tied:
+            items.append(f"<li>{_e(h.get('joint'))}: the trials turn it through "
+                         + ", ".join(f"{_e(d)} {v:.0f}" for d, v in h.get("range_deg", {}).items())
+                         + " deg, too little in two of its angles to place its centre (a walk's motion does not); "
+                         "<code>--hip-regression</code> places it by Harrington's regression</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

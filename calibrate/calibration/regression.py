@@ -11,15 +11,21 @@ which calibrate keeps there as a joint-centre marker (calibrate.problem.priors.j
 
 from __future__ import annotations
 
-from dataclasses import replace
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import CalibrateError
 from ..io.labels import alias_for
 from ..io.trial import Trial
-from ..model.model import Model, add_markers
+from ..model.model import Joint, Model, add_markers
 
+#: A hip centre is placed by motion only through enough range in two of its three angles (a star arc: flexion
+#: and abduction, 30 deg each in the functional-calibration protocols); real walks turn the hips through 10-15 deg
+#: in their second (gait2392, rajagopal_walk, pig_walk), the simulator's squats through 19-40 deg.
+FUNCTIONAL_RANGE = math.radians(20.0)
 LANDMARKS = ("RASI", "LASI", "RPSI", "LPSI", "SACR")  # Plug-in Gait's names; other spellings by alias
 #: The virtual markers' labels (model and trials), right and left.
 VIRTUAL = ("RHJC_harrington", "LHJC_harrington")
@@ -44,6 +50,61 @@ def harrington(rasi: np.ndarray, lasi: np.ndarray, psis_mid: np.ndarray) -> tupl
     return mid + side, mid - side
 
 
+def hip_joints(model: Model, pelvis: str | None = None) -> dict[str, Joint]:
+    """The model's hips: 'r' and 'l' -> its ball joint named hip_r / hip_l (any spelling starting with 'hip' and
+    ending in _r / _l), below `pelvis` if given."""
+    hips = {}
+    for j in model.joints:
+        if j.kind == "ball" and j.name.lower().startswith("hip") and (pelvis is None or j.parent == pelvis):
+            side = j.name.lower()[-2:]
+            if side in ("_r", "_l"):
+                hips[side[1]] = j
+    return hips
+
+
+@dataclass(frozen=True)
+class HipMotion:
+    """How far the trials turn a hip: each of its three angles' range (5th to 95th percentile of its frames, the
+    largest over the trials, rad).  Through less than FUNCTIONAL_RANGE in two of them the motion does not place the
+    centre (on real walks it ends 28-65 mm from the labs' and Harrington's: docs/benchmarks.md)."""
+
+    joint: str
+    ranges: dict[str, float]
+
+    @property
+    def places_centre(self) -> bool:
+        return sorted(self.ranges.values())[-2] >= FUNCTIONAL_RANGE
+
+    def text(self) -> str:
+        """e.g. 'hip_l through flexion 31, adduction 8, rotation 13 deg' (the DoF names without the joint's)."""
+        own = set(self.joint.split("_"))
+        return f"{self.joint} through " + ", ".join(
+            f"{'_'.join(w for w in d.split('_') if w not in own) or d} {math.degrees(v):.0f}"
+            for d, v in self.ranges.items()) + " deg"
+
+    def to_json(self) -> dict:
+        return {"joint": self.joint, "range_deg": {k: math.degrees(v) for k, v in self.ranges.items()},
+                "places_centre": self.places_centre}
+
+
+def hip_motion(model: Model, motions: Sequence) -> tuple[HipMotion, ...]:
+    """HipMotion of each hip (hip_joints) over `motions` (calibrate.io.motion.Motion per trial, the model's DoFs)."""
+    out = []
+    for side in ("l", "r"):
+        joint = hip_joints(model).get(side)
+        if joint is None:
+            continue
+        ranges = {}
+        for d in joint.dofs:
+            spans = [float(np.diff(np.percentile(m.angles[:, m.dof_names.index(d)], [5, 95]))[0])
+                     for m in motions if m.n_frames and d in m.dof_names]
+            if spans:
+                ranges[d] = max(spans)
+        if len(ranges) == 3:
+            out.append(HipMotion(joint.name, ranges))
+    return tuple(out)
+
+
 def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tuple[Trial, ...], dict[str, str]]:
     """The model with a virtual marker at each hip centre (on the thigh's origin, where the hip is) and the trials
     with its Harrington position in every frame (NaN where a landmark is not seen); and the landmarks used
@@ -62,12 +123,7 @@ def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tup
                              "landmarks Harrington's regression needs); add them to the model or leave "
                              "hip_regression off")
     pelvis = model.markers[model.marker_index(found["RASI"])].segment
-    hips = {}
-    for j in model.joints:
-        if j.parent == pelvis and j.kind == "ball" and j.name.lower().startswith("hip"):
-            side = j.name.lower()[-2:]
-            if side in ("_r", "_l"):
-                hips[side[1]] = j
+    hips = hip_joints(model, pelvis)
     if set(hips) != {"r", "l"}:
         raise CalibrateError(f"hip_regression: {model.path.name} has no left and right hip (ball joints named hip_l "
                              f"and hip_r below {pelvis}); leave hip_regression off")

@@ -31,6 +31,7 @@ from ..seed.geometry import marker_rms
 from .html import report_html
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified
+from .regression import FUNCTIONAL_RANGE
 from .series import report_series
 
 if TYPE_CHECKING:
@@ -134,6 +135,8 @@ def calibration_report(cal: Calibration) -> dict:
         # markers at a joint centre (points the lab computed there, e.g. R_HJC): kept at their offsets from the
         # centres within settings.priors.joint_marker_mm, so that the trials' positions of them place the centres
         "joint_centre_markers": [m.to_json() for m in cal.joint_markers],
+        # how far the trials turn each hip, and whether that places its centre (calibrate.calibration.regression)
+        "hip_motion": [h.to_json() for h in cal.hip_motion],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()},
@@ -461,6 +464,14 @@ def summary_text(cal) -> str:
                      + ": points computed at joint centres (by the lab, or --hip-regression), each kept at its "
                      f"offset from the centre within {1e3 * cal.settings.priors.joint_marker:g} mm (they place the "
                      "centres)")
+    tied = {m.joint for m in cal.joint_markers}
+    loose = [h for h in cal.hip_motion if not h.places_centre and h.joint not in tied]
+    if loose:
+        lines.append("  hips         the trials turn " + " and ".join(h.text() for h in loose)
+                     + f": a hip centre is placed by motion through {math.degrees(FUNCTIONAL_RANGE):.0f} deg in two "
+                     "of its angles (a star arc); a walk's do not, and on real walks the centres end 28-65 mm from "
+                     "the labs' (docs/benchmarks.md): --hip-regression places them by Harrington's regression from "
+                     "the pelvis markers")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

@@ -207,6 +207,9 @@ class Calibration:
     # Markers at a joint centre (points the lab computed there, e.g. OpenSim's R_HJC) that the trials show: each
     # kept at its base-model offset from the centre within Settings.priors.joint_marker
     joint_markers: tuple[JointCentreMarker, ...] = ()
+    # calibrate.calibration.regression.HipMotion per hip: how far the trials turn it, and whether that places its
+    # centre (two of its angles through 20 deg; a walk's do not)
+    hip_motion: tuple = ()
 
     @property
     def notes(self) -> tuple[str, ...]:
