@@ -133,6 +133,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     settings = settings or Settings()
     if settings.pipeline.hip_regression:  # a virtual marker at each hip, where Harrington's regression puts it
         model, trials, _ = regression_hips(model, trials)
+        kinematics = None  # built for the model without them
     # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them,
     # and its segment frames end where its markers put them (Settings.segment_frames), unless settings say
     # otherwise; the OpenSim readers (50 ms of imports) are loaded only for such a model.

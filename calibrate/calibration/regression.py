@@ -90,8 +90,9 @@ class HipMotion:
 def hip_motion(model: Model, motions: Sequence) -> tuple[HipMotion, ...]:
     """HipMotion of each hip (hip_joints) over `motions` (calibrate.io.motion.Motion per trial, the model's DoFs)."""
     out = []
+    hips = hip_joints(model)
     for side in ("l", "r"):
-        joint = hip_joints(model).get(side)
+        joint = hips.get(side)
         if joint is None:
             continue
         ranges = {}
