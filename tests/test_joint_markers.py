@@ -68,19 +68,19 @@ def test_prior_jacobian_with_joint_centre_markers_matches_finite_differences(tie
     np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(fd).max()))
 
 
-def _hip_from_urdf(cal, path) -> np.ndarray:
-    """The right hip centre in the world in every frame of the first trial: the written subject URDF read back
-    and posed by Pinocchio at the calibrated coordinates."""
+def _hips_from_urdf(cal, path) -> tuple[np.ndarray, np.ndarray]:
+    """The right and left hip centres in the world in every frame of the first trial: the written subject URDF
+    read back and posed by Pinocchio at the calibrated coordinates."""
     subject = load_model(write_model(cal.model, path, cal.params))
     data = subject.pin.createData()
-    jid = subject.pin.getJointId("hip_r_flexion")
     m = cal.motions[0]
     out = []
     for f in range(m.n_frames):
         pin.forwardKinematics(subject.pin, data, subject.pin_configuration(m.root_translation[f],
                                                                            m.root_quaternion[f], m.angles[f]))
-        out.append(data.oMi[jid].translation.copy())
-    return np.array(out)
+        out.append([data.oMi[subject.pin.getJointId(f"hip_{s}_flexion")].translation.copy() for s in "rl"])
+    out = np.array(out)
+    return out[:, 0], out[:, 1]
 
 
 def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_path):
@@ -98,7 +98,7 @@ def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_pat
     cal = calibrate(model, [static], Settings(outliers=0.0))
     assert [(m.marker, m.joint) for m in cal.joint_markers] == [("RHJC", "hip_r")]
     assert cal.joint_markers[0].offset < 0.002 and cal.joint_markers[0].base_offset == 0.0
-    gap = np.linalg.norm(_hip_from_urdf(cal, tmp_path / "tied.urdf") - rhjc, axis=1)
+    gap = np.linalg.norm(_hips_from_urdf(cal, tmp_path / "tied.urdf")[0] - rhjc, axis=1)
     assert gap.max() < 0.003
     report = calibration_report(cal)
     assert report["joint_centre_markers"][0]["marker"] == "RHJC"
@@ -108,7 +108,7 @@ def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_pat
 
     loose = calibrate(model, [static], Settings(outliers=0.0, priors=Priors(joint_marker=0.0)))
     assert loose.joint_markers == () and calibration_report(loose)["joint_centre_markers"] == []
-    assert np.linalg.norm(_hip_from_urdf(loose, tmp_path / "loose.urdf") - rhjc, axis=1).min() > 0.015
+    assert np.linalg.norm(_hips_from_urdf(loose, tmp_path / "loose.urdf")[0] - rhjc, axis=1).min() > 0.015
 
 
 def test_the_config_file_sets_the_tie():
@@ -144,19 +144,6 @@ def _harrington_by_hand(trial) -> tuple[np.ndarray, np.ndarray]:
         pw, pd = np.linalg.norm(p["RASI"] - p["LASI"]), np.linalg.norm(origin - back)
         x, y, z = -0.24 * pd - 9.9, -0.30 * pw - 10.9, 0.33 * pw + 7.3
         out.append([(origin + x * fwd + y * up + s * z * right) / 1000.0 for s in (1, -1)])
-    out = np.array(out)
-    return out[:, 0], out[:, 1]
-
-
-def _hips_from_urdf(cal, path) -> tuple[np.ndarray, np.ndarray]:
-    subject = load_model(write_model(cal.model, path, cal.params))
-    data = subject.pin.createData()
-    m = cal.motions[0]
-    out = []
-    for f in range(m.n_frames):
-        pin.forwardKinematics(subject.pin, data, subject.pin_configuration(m.root_translation[f],
-                                                                           m.root_quaternion[f], m.angles[f]))
-        out.append([data.oMi[subject.pin.getJointId(f"hip_{s}_flexion")].translation.copy() for s in "rl"])
     out = np.array(out)
     return out[:, 0], out[:, 1]
 
