@@ -604,6 +604,9 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     out["shifts_over_target"] = {j: {"shift_mm": v, "pig_mm": out["pig_centres"].get(j, {}).get("median_mm")}
                                  for j, v in sorted(big.items(), key=lambda kv: -kv[1])}
     out["lateral"] = lateral_figures(kin, st, run["report"])
+    # Plug-in Gait's knee axes against the axis its own tibia turns about in its femur (the report's check): where
+    # they are turned, its knee centres are off the knee's axis and the FEO distances above measure that too.
+    out["pig_knee_axes"] = run["report"].get("plugin_gait_knees", [])
     out["held_out"] = guarded(held_out, st, wk, d, cap, log, a.extra)
     sp = run["report"].get("static_pose") or {}  # the report's left/right hinge angles in the static trial
     out["static_pose"] = {"hinges": {h["joint"]: [h["left_deg"], h["right_deg"]] for h in sp.get("hinges", [])},
@@ -950,6 +953,12 @@ def report(res: dict) -> None:
         say("pig_walk: our centres vs Plug-in Gait's own (FEP hip, FEO knee, TIO ankle, HUP shoulder, HUO elbow, "
             "RAO wrist; L/R prefix), median over the walk's frames (mm)")
         say("  " + "  ".join(f"{j} {fmt(v['median_mm'], '.1f')}" for j, v in p["pig_centres"].items()))
+        for k in p.get("pig_knee_axes", []):
+            say(f"pig_walk: Plug-in Gait's {k['joint']} axis {fmt(k['plugin_gait_axis_deg'], '.1f')} deg from the axis "
+                f"its tibia turns about in its femur ({fmt(k['turn_deg'], '.0f')} deg), ours "
+                f"{fmt(k['our_axis_deg'], '.1f')} deg; its varus-valgus range "
+                f"{fmt(k['varus_valgus_range_deg'], '.0f')} deg; its knee centre "
+                f"{fmt(k['plugin_gait_centre_from_our_axis_mm'], '.0f')} mm from our knee axis")
         say(f"pig_walk: joint centres shifted more than {SHIFT_MM:g} mm from the size-scaled base "
             f"(scale: {p['shift_scale_from']}, equal to the URDF visuals' to "
             f"{fmt(p.get('scale_vs_urdf_max_diff'), '.1e')}): "

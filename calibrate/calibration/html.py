@@ -104,6 +104,13 @@ def _notes(report: dict) -> str:
                          + ", ".join(f"{_e(d)} {v:.0f}" for d, v in h.get("range_deg", {}).items())
                          + " deg, too little in two of its angles to place its centre (a walk's motion does not); "
                          "<code>--hip-regression</code> places it by Harrington's regression</li>")
+    for k in report.get("plugin_gait_knees", []):
+        if k.get("misaligned"):
+            items.append(f"<li>Plug-in Gait in {_e(k.get('trial'))}: its {_e(k.get('joint'))} axis is "
+                         f"{k.get('plugin_gait_axis_deg', 0):.0f} deg from the axis its tibia turns about"
+                         + (f" (calibrate's: {k['our_axis_deg']:.0f} deg)" if k.get("our_axis_deg") is not None else "")
+                         + ": its femur frame is turned about the thigh (a thigh wand or KAD off the plane the "
+                         "knee flexes in), which mixes its knee flexion into varus-valgus</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

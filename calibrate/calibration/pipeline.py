@@ -26,6 +26,7 @@ from calibrate.calibration.gauge import align_gauge, align_markers, align_neutra
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
 from calibrate.calibration.moved import MovedMarker, moved_markers
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
+from calibrate.calibration.plugin_gait import knee_axis_checks
 from calibrate.calibration.regression import hip_motion, regression_hips
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
@@ -502,7 +503,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
-                       joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions))
+                       joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),
+                       knee_axes=knee_axis_checks(subject, params, trials, motions))
 
 
 def _joint_markers(problem: Problem, params: Parameters, unused: Sequence[str]) -> tuple[JointCentreMarker, ...]:

@@ -137,6 +137,9 @@ def calibration_report(cal: Calibration) -> dict:
         "joint_centre_markers": [m.to_json() for m in cal.joint_markers],
         # how far the trials turn each hip, and whether that places its centre (calibrate.calibration.regression)
         "hip_motion": [h.to_json() for h in cal.hip_motion],
+        # Plug-in Gait's knee axes (its femur bones' lateral axes, in trials that carry its bones) against the axis
+        # its own tibia turns about in its femur, and the calibrated knees' (calibrate.calibration.plugin_gait)
+        "plugin_gait_knees": [k.to_json() for k in cal.knee_axes],
         "model_outputs_ignored": sorted(set().union(*(t.model_outputs for t in cal.trials))),
         "noise": {"learnt": cal.noise_learnt, "per_marker_mm": {k: _mm(v) for k, v in cal.noise.items()},
                   "weight_sd_mm": {k: _mm(v) for k, v in cal.noise_weight.items()},
@@ -486,6 +489,14 @@ def summary_text(cal) -> str:
     outputs = set().union(*(t.model_outputs for t in cal.trials))
     if outputs:
         lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
+    misaligned: dict[str, list] = {}
+    for k in cal.knee_axes:
+        if k.misaligned:
+            misaligned.setdefault(k.source, []).append(k)
+    for source, ks in misaligned.items():
+        lines.append(f"  plug-in gait {source}: " + "; ".join(k.text() for k in ks)
+                     + ": its femur frame is turned about the thigh (a thigh wand or KAD off the plane the knee flexes "
+                     "in, the usual cause), which mixes its knee flexion into varus-valgus")
     unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
     if unlabelled:
         lines.append(f"  {len(unlabelled)} unlabelled trajectories ignored ({', '.join(unlabelled[:4])}"

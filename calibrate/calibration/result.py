@@ -210,6 +210,9 @@ class Calibration:
     # calibrate.calibration.regression.HipMotion per hip: how far the trials turn it, and whether that places its
     # centre (two of its angles through 20 deg; a walk's do not)
     hip_motion: tuple = ()
+    # calibrate.calibration.plugin_gait.KneeAxisCheck per knee of each trial carrying Plug-in Gait's femur and tibia
+    # bones: its knee axis against the axis its own tibia turns about, and the calibrated knee's
+    knee_axes: tuple = ()
 
     @property
     def notes(self) -> tuple[str, ...]:
