@@ -20,7 +20,10 @@ the SDs are right, the z-scores have RMS about 1 and about 95 % lie within 2 (th
 [0.8, 1.25], at least 90 % within 2 SD).  Printed per group and per parameter kind, so that an
 over- or under-confident group shows.
 
-    python scripts/bench_uncertainty.py [--subjects 20] [--frames 150] [--json]
+    python scripts/bench_uncertainty.py [--subjects 20] [--frames 150] [--sta-mm X] [--json]
+
+`--sta-mm X` adds the simulator's soft-tissue artefact (each skin marker moved on its bone as a smooth function
+of the adjacent joints' angles; `calibrate simulate --sta-mm`): the errors then include the artefact's bias.
 """
 
 from __future__ import annotations
@@ -75,12 +78,12 @@ def world_geometry(model, params, motion) -> dict[str, np.ndarray]:
     return out
 
 
-def one_subject(model, frames: int, seed: int) -> list[dict]:
+def one_subject(model, frames: int, seed: int, sta_mm: float = 0.0) -> list[dict]:
     """Calibrate one simulated subject; one row per z-score of an identified parameter."""
     from calibrate.calibration.pipeline import calibrate
     from calibrate.simulation.simulate import simulate_squats
 
-    sim = simulate_squats(model, frames=frames, noise_mm=1.0, seed=seed)
+    sim = simulate_squats(model, frames=frames, noise_mm=1.0, seed=seed, sta_mm=sta_mm)
     cal = calibrate(model, sim.trial)
     est = world_geometry(cal.model, cal.params, cal.motion)
     true = world_geometry(sim.model, sim.truth, sim.motion)
@@ -215,23 +218,26 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
-def run(subjects: int, frames: int, progress=None) -> dict:
-    """The benchmark: `subjects` simulated subjects (seeds 0..subjects-1) of `frames` frames."""
+def run(subjects: int, frames: int, progress=None, sta_mm: float = 0.0) -> dict:
+    """The benchmark: `subjects` simulated subjects (seeds 0..subjects-1) of `frames` frames, with the simulator's
+    soft-tissue artefact at `sta_mm` (0: none)."""
     from calibrate.model.model import load_model
 
     model = load_model(MODEL)
     rows: list[dict] = []
     for seed in range(subjects):
-        rows.extend(one_subject(model, frames, seed))
+        rows.extend(one_subject(model, frames, seed, sta_mm))
         if progress is not None:
             progress(f"bench_uncertainty: subject {seed + 1}/{subjects} done")
-    return {"subjects": subjects, "frames": frames, "noise_mm": 1.0, "rows": rows, "summary": summarise(rows)}
+    return {"subjects": subjects, "frames": frames, "noise_mm": 1.0, "sta_mm": sta_mm, "rows": rows,
+            "summary": summarise(rows)}
 
 
 def print_tables(out: dict) -> None:
     s = out["summary"]
+    sta = f", soft-tissue artefact {out['sta_mm']:g} mm" if out.get("sta_mm") else ""
     print(f"posterior SDs vs errors: {out['subjects']} simulated subjects, {out['frames']} frames of squats, "
-          f"1 mm noise ({out['date']}, {out['machine']})")
+          f"1 mm noise{sta} ({out['date']}, {out['machine']})")
     print(f"  {'group':8s} {'n':>6s} {'RMS z':>7s} {'mean z':>7s} {'|z|<=2':>7s}")
     for g, st in [("all", s["all"]), *s["groups"].items()]:
         if st["n"]:
@@ -246,14 +252,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--subjects", type=int, default=20, help="simulated subjects, seeds 0..N-1 (default 20)")
     ap.add_argument("--frames", type=int, default=150, help="frames per trial (default 150)")
+    ap.add_argument("--sta-mm", type=float, default=0.0,
+                    help="the simulator's soft-tissue artefact level (calibrate simulate --sta-mm; default 0: none)")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     a = ap.parse_args()
-    if a.subjects < 1 or a.frames < 100:
-        sys.exit("bench_uncertainty: --subjects must be at least 1 and --frames at least 100")
+    if a.subjects < 1 or a.frames < 100 or a.sta_mm < 0:
+        sys.exit("bench_uncertainty: --subjects must be at least 1, --frames at least 100 and --sta-mm at least 0")
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_calibrate import machine
 
-    out = run(a.subjects, a.frames, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    out = run(a.subjects, a.frames, progress=lambda msg: print(msg, file=sys.stderr, flush=True), sta_mm=a.sta_mm)
     mc = machine()
     out.update({"date": datetime.date.today().isoformat(), "machine": f"{mc['cpu']}, {mc['cores']} cores"})
     if a.json:

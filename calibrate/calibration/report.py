@@ -397,7 +397,8 @@ def summary_text(cal) -> str:
         "  time (s)     " + "  ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
         + f"  total {sum(cal.times.values()):.2f}",
         "",
-        "  joint centres: change from base model (mm) +- posterior std (mm, worst axis)",
+        "  joint centres: change from base model (mm) +- posterior std (mm, worst axis; the markers' scatter only: "
+        "skin artefact's bias adds to it)",
     ]
     for c in cal.changes:
         if c.group == "centre":
@@ -406,7 +407,7 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.item:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]
     if axes:
-        lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg)")
+        lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg; the markers' scatter only)")
         for c in axes:
             std = np.nanmax(c.std)
             flag = "" if c.identified else "  (not identified; unreliable)" if c.unreliable else "  (held by prior)"
