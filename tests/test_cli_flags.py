@@ -262,6 +262,15 @@ def test_neutral_static_trial(human, squat, tmp_path, capsys):
     assert code == 2 and "--neutral 2: there are only 1 trials" in err
 
 
+def test_a_subject_osim_needs_an_opensim_base_model(human, tmp_path, capsys):
+    """-o NAME.osim from a URDF base model: one line, exit 2, nothing written (the .osim path with an OpenSim base:
+    test_osim_import.test_cli_calibrates_from_osim)."""
+    write_c3d(tmp_path / "s.c3d", simulate_squats(human, frames=5, seed=1).trial)
+    code, _, err = run(capsys, tmp_path / "s.c3d", human.path, "-o", tmp_path / "subject.osim")
+    assert code == 2 and "a subject .osim is written from an OpenSim base model" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.c3d"]
+
+
 def test_neutral_first_trial_is_accepted(human, tmp_path, capsys):
     """--neutral 1 names the first trial (the help: '1 = the first'); here the only one."""
     from calibrate.cli import build_calibrate_parser

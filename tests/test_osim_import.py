@@ -581,8 +581,8 @@ def test_export_keeps_names_and_kinematics(tmp_path):
 
 @pytest.mark.skipif(not GAIT.exists(), reason="gait2392 is not in ../shared/data/real")
 def test_cli_calibrates_from_osim(tmp_path, capsys):
-    """`calibrate TRIAL MODEL.osim --marker-set XML` end to end on a trial made from the model's own markers
-    (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
+    """`calibrate TRIAL MODEL.osim --marker-set XML -o subject.osim` end to end on a trial made from the model's own
+    markers (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
     columns are OpenSim's coordinate names, and it recovers the motion's marker positions."""
     from calibrate.io.trc import write_trc
     from calibrate.io.trial import Trial
@@ -599,8 +599,9 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     markers = np.array([[frames[f][m] for m in model.marker_names] for f in range(n)])
     trc = tmp_path / "walk.trc"
     write_trc(trc, Trial(list(model.marker_names), markers, 60.0, 0, str(trc)))
-    out = tmp_path / "subject.urdf"
-    code = main([str(trc), str(GAIT), "--marker-set", str(GAIT_MARKERS), "-o", str(out), "--no-new-markers", "-q"])
+    out = tmp_path / "subject.urdf"  # -o names the subject .osim, as an OpenSim user would: the URDF beside it
+    code = main([str(trc), str(GAIT), "--marker-set", str(GAIT_MARKERS), "-o", str(tmp_path / "subject.osim"),
+                 "--no-new-markers", "-q"])
     said = capsys.readouterr()
     assert code == 0, said.err
     assert "subject.osim: forces: 92 of gait2392.osim's 92 carried" in said.out  # its 92 muscles

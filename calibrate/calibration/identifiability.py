@@ -222,11 +222,23 @@ def _far_from_prior(change: ParameterChange, priors: Priors) -> ParameterChange:
 
 
 def _position_far_from_prior(change: ParameterChange, off: float, sd: float) -> ParameterChange:
-    """`change` (a joint centre or marker) with its note corrected where the trial did not identify it and
-    yet it lies `off` (m) from where its prior puts it (the base model's, at the subject's scale), more than
-    FAR_FROM_PRIOR prior SDs `sd`: as for an axis (_far_from_prior), the prior did not hold it there and its
-    place is not to be trusted (Rajagopal's elbow_l with the elbow axes held: 153 mm, "held by the prior")."""
-    if change.status is not Identified.NO or not sd > 0 or off / sd <= FAR_FROM_PRIOR:
+    """`change` (a joint centre or marker) with its note corrected where it lies `off` (m) from where its prior puts
+    it (the base model's, at the subject's scale), more than FAR_FROM_PRIOR prior SDs `sd`: where the trial did not
+    identify it, as for an axis (_far_from_prior), the prior did not hold it there and its place is not to be
+    trusted (Rajagopal's elbow_l with the elbow axes held: 153 mm, "held by the prior"); a joint centre the trial
+    places there is no more to be trusted (a marker may sit anywhere the lab put it)."""
+    if not sd > 0 or off / sd <= FAR_FROM_PRIOR:
+        return change
+    if change.group == "centre" and change.status in (Identified.YES, Identified.ACROSS_AXIS):
+        # The data place it, and place it where no anatomy does: skin that moves with the joint's motion (or a
+        # displaced marker) carries a centre so with a small posterior SD (docs/calibration.md, "What the posterior
+        # SD does not count"); gait2392's lumbar centre on its whole walk: 116 mm.
+        note = (f"the trial places it (posterior SD {np.nanmax(change.std):.0f} mm), yet {1000 * off:.0f} mm from "
+                f"where its prior puts it, the base model's at the subject's scale ({off / sd:.1f} prior SDs): a joint "
+                "centre is seldom so far from a scaled generic model's, and skin that moves with the joints or a "
+                "displaced marker can carry it there with a small SD; not reliable")
+        return replace(change, unreliable=True, note=note)
+    if change.status is not Identified.NO:
         return change
     why = change.note.removesuffix(": held by the prior").removesuffix("; held by the prior")
     why = why.removesuffix(" either: held by the prior").removesuffix(" either")

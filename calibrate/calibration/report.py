@@ -404,6 +404,8 @@ def summary_text(cal) -> str:
         if c.group == "centre":
             std = np.nanmax(c.std) if np.isfinite(c.std).any() else float("nan")
             flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else "  (held by prior)")
+            if c.unreliable and (c.identified or _slide_only(c)):
+                flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
             lines.append(f"    {c.item:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]
     if axes:
@@ -412,6 +414,9 @@ def summary_text(cal) -> str:
             std = np.nanmax(c.std)
             flag = "" if c.identified else "  (not identified; unreliable)" if c.unreliable else "  (held by prior)"
             lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
+    for c in cal.changes:
+        if c.group == "centre" and c.unreliable and (c.identified or _slide_only(c)):
+            lines.append(f"  implausible  centre[{c.item}]: {c.note}")
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")

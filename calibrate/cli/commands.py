@@ -128,11 +128,19 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.motion is not None and len(trial_paths) > 1:
         raise CalibrateError("--motion names one file; with several trials each gets TRIAL_motion.csv (beside -o's "
                              "URDF, or beside the trial)")
+    from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
+    output = args.output
+    if output is not None and output.suffix.lower() == ".osim":
+        # An OpenSim user names the subject .osim: the URDF goes beside it under the same name.
+        if not from_osim:
+            raise CalibrateError(f"{output}: a subject .osim is written from an OpenSim base model, and "
+                                 f"{model_path.name} is not one; give -o NAME.urdf")
+        output = output.with_suffix(".urdf")
     stem = trial_paths[0].with_suffix("")
-    out_urdf = args.output or stem.with_name(stem.name + ".urdf")
+    out_urdf = output or stem.with_name(stem.name + ".urdf")
     # The outputs stay together: beside -o's URDF when it is given (a trial's own folder may be a shared,
     # read-only data set), else beside the first trial.
-    folder = out_urdf.parent if args.output else None
+    folder = out_urdf.parent if output else None
     out_motions = [args.motion] if args.motion else [(folder or t.parent) / (t.stem + "_motion.csv")
                                                       for t in trial_paths]
     out_report = args.report or (folder or stem.parent) / (stem.name + "_report.json")
@@ -173,7 +181,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     outputs = [out_urdf, *out_motions, out_report, *([args.html] if args.html is not None else [])]
     if args.html is not None and args.html.suffix.lower() not in (".html", ".htm"):
         raise CalibrateError(f"{args.html}: the HTML report needs an .html name (--html report.html)")
-    from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
     out_osim = out_urdf.with_suffix(".osim")
     out_mots = [m.with_suffix(".mot") for m in out_motions]
     if from_osim:

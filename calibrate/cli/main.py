@@ -157,7 +157,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
                     help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
     ap.add_argument("-o", "--output", type=Path, default=None,
-                    help="subject URDF (default: the first TRIAL's name + .urdf)")
+                    help="subject URDF (default: the first TRIAL's name + .urdf); from an OpenSim base model, "
+                         "NAME.osim names the subject .osim too (both written, side by side)")
     ap.add_argument("--motion", type=Path, default=None,
                     help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial, "
                          "beside -o's URDF if given, else beside the trial)")
