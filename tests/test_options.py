@@ -149,7 +149,8 @@ def test_an_unidentified_axis_far_beyond_its_prior_is_reported_unreliable(human,
 def test_an_unidentified_position_far_beyond_its_prior_is_reported_unreliable(human, human_kin):
     """A marker or joint centre the trial does not identify but that ended more than 3 prior SDs (60 mm at
     the default 20 mm) from where its prior puts it is unreliable, not "held by the prior"; one moved
-    less far, or identified, is not.  (The summary's and the HTML report's lists read the same flag.)"""
+    less far is not, nor an identified marker; an identified joint centre is.  (The summary's and the HTML
+    report's lists read the same flag.)"""
     sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=4)
     problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
     L, p = problem.layout, human.parameters().vector()
@@ -168,3 +169,9 @@ def test_an_unidentified_position_far_beyond_its_prior_is_reported_unreliable(hu
     assert sum(c.unreliable for c in by.values()) == 2
     identified = {(c.group, c.item): c for c in parameter_changes(problem, p, cov, 100.0 * cov)}
     assert identified[("marker", far)].identified and not identified[("marker", far)].unreliable
+    # A joint centre the trial places that far is no more to be trusted (skin artefact carries centres so with a
+    # small SD); a marker may sit anywhere the lab put it.
+    placed = identified[("centre", human.joints[hip].name)]
+    assert placed.identified and placed.unreliable and "the trial places it" in placed.note
+    assert "70 mm from where its prior puts it" in placed.note and "3.5 prior SDs" in placed.note
+    assert sum(c.unreliable for c in identified.values()) == 1
