@@ -606,7 +606,8 @@ def report(res: dict) -> None:
                                      for n, d in nb["coordinates"].items()))
         if r.get("calibrate_unreliable"):
             far = ", ".join(r["calibrate_unreliable"])
-            print(f"  not identified, beyond their priors (unreliable; change from the base model): {far}")
+            print("  unreliable (beyond their priors unidentified, or centres placed over 3 prior SDs from the scaled "
+                  f"base; change from the base model): {far}")
         for line in r.get("static_asymmetry", []):
             print(f"  static pose flagged (calibrate): {line}")
         for a in r["approximations"]:
