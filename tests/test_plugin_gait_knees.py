@@ -114,3 +114,24 @@ def test_a_calibration_reports_a_turned_femur_frame_and_finds_the_knee_axis(squa
     assert [r["joint"] for r in report] == ["knee_l", "knee_r"]
     assert report[0]["plugin_gait_axis_deg"] == pytest.approx(math.degrees(cal.knee_axes[0].pig))
     assert report[0]["varus_valgus_range_deg"] == pytest.approx(math.degrees(half)) and report[0]["misaligned"]
+
+
+def test_inspect_checks_a_c3d_files_own_knee_axes(squats, tmp_path, capsys) -> None:
+    """`calibrate inspect TRIAL.c3d` runs the check on the file alone (written as Nexus writes its bones, in mm):
+    the femur frame turned 30 deg is named misaligned, one turned 5 deg is not."""
+    from test_vicon_outputs import write_vicon_file
+
+    from calibrate.cli import main
+
+    sim = squats
+    markers = {lab: 1000 * sim.trial.markers[:, k] for k, lab in enumerate(sim.trial.labels)}
+    for turn, misaligned in ((30.0, True), (5.0, False)):
+        bones = {k: 1000 * v for k, v in pig_bones(sim, math.radians(turn)).items()}
+        path = tmp_path / f"turned{turn:g}.c3d"
+        write_vicon_file(path, markers, bones, {}, {})
+        assert main(["inspect", str(path)]) == 0
+        out = capsys.readouterr().out
+        for side in "lr":
+            line = next(x for x in out.splitlines() if f"plug-in gait: its knee_{side} axis is" in x)
+            got = float(line.split("axis is ")[1].split(" deg")[0])
+            assert abs(got - turn) <= 2.5 and ("misaligned" in line) == misaligned, line

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -108,39 +108,52 @@ def turn_axis(parent: np.ndarray, child: np.ndarray) -> tuple[np.ndarray, float]
     return axis, float(np.percentile(s, 95) - np.percentile(s, 5))
 
 
+def plugin_gait_knees(trial: Trial, index: int = 0) -> list[tuple[KneeAxisCheck, np.ndarray, np.ndarray]]:
+    """KneeAxisCheck of each knee whose Plug-in Gait femur and tibia bones the trial carries, seen in enough frames
+    and turning through MIN_TURN, from the file alone (no calibrated knee: `ours` and `centre` None), each with the
+    frames used (bool mask) and the axis found in the femur bone's frame.  `index`: the trial's in a calibration."""
+    out = []
+    for joint, side in KNEES:
+        femur, tibia = bone_frames(trial, side + "FE"), bone_frames(trial, side + "TI")
+        if femur is None or tibia is None:
+            continue
+        ok = np.all(np.isfinite(femur), axis=(1, 2)) & np.all(np.isfinite(tibia), axis=(1, 2))
+        found = turn_axis(femur[ok], tibia[ok])
+        if found is None or found[1] < MIN_TURN:
+            continue
+        axis, turn = found
+        pig = math.acos(min(1.0, abs(float(axis[1]))))
+        check = KneeAxisCheck(joint, index, trial.source or f"trial {index + 1}", int(ok.sum()), turn, pig,
+                              _range(trial, side + "KneeAngles", 1, ok), None, None)
+        out.append((check, ok, axis))
+    return out
+
+
 def knee_axis_checks(model: Model, params: Parameters, trials: Sequence[Trial],
                      motions: Sequence[Motion]) -> tuple[KneeAxisCheck, ...]:
-    """KneeAxisCheck of each knee in each trial whose Plug-in Gait femur and tibia bones are seen in enough frames
-    and turn through MIN_TURN; the calibrated knee (a hinge named knee_l / knee_r) compared where the model has it."""
+    """plugin_gait_knees of every trial, each compared with the calibrated knee (a hinge named knee_l / knee_r) where
+    the model has it: the calibrated axis's angle from the axis Plug-in Gait's tibia turns about, and Plug-in
+    Gait's knee centre's distance from the calibrated knee's line."""
     out = []
     for i, (trial, motion) in enumerate(zip(trials, motions, strict=True)):
         lines: dict | None = None  # the model's hinge lines over this trial, formed when first needed
-        for joint, side in KNEES:
-            femur, tibia = bone_frames(trial, side + "FE"), bone_frames(trial, side + "TI")
-            if femur is None or tibia is None:
+        for check, ok, axis in plugin_gait_knees(trial, i):
+            joint = check.joint
+            if not any(j.name == joint and j.kind == "hinge" for j in model.joints):
+                out.append(check)
                 continue
-            ok = np.all(np.isfinite(femur), axis=(1, 2)) & np.all(np.isfinite(tibia), axis=(1, 2))
-            found = turn_axis(femur[ok], tibia[ok])
-            if found is None or found[1] < MIN_TURN:
-                continue
-            axis, turn = found
-            pig = math.acos(min(1.0, abs(float(axis[1]))))
-            varus = _range(trial, side + "KneeAngles", 1, ok)
-            ours = centre = None
-            if any(j.name == joint and j.kind == "hinge" for j in model.joints):
-                if lines is None:
-                    from ..simulation.simulate import hinge_lines_world  # imports scipy: only when needed
+            if lines is None:
+                from ..simulation.simulate import hinge_lines_world  # imports scipy: only when needed
 
-                    lines = hinge_lines_world(model, params, motion)
-                at, a = lines[joint]
-                local = np.einsum("fji,fj->fi", femur[ok], a[ok])  # our axis in Plug-in Gait's femur frame
-                mean = np.median(local * np.sign(local @ axis)[:, None], axis=0)
-                ours = math.acos(min(1.0, abs(float(axis @ mean)) / float(np.linalg.norm(mean))))
-                kjc = np.asarray(trial.model_outputs[side + "FEO"], dtype=float)[ok] - at[ok]
-                across = kjc - np.sum(kjc * a[ok], axis=1, keepdims=True) * a[ok]
-                centre = float(np.median(np.linalg.norm(across, axis=1)))
-            out.append(KneeAxisCheck(joint, i, trial.source or f"trial {i + 1}", int(ok.sum()), turn, pig, varus,
-                                     ours, centre))
+                lines = hinge_lines_world(model, params, motion)
+            at, a = lines[joint]
+            femur = bone_frames(trial, joint[-1].upper() + "FE")[ok]
+            local = np.einsum("fji,fj->fi", femur, a[ok])  # our axis in Plug-in Gait's femur frame
+            mean = np.median(local * np.sign(local @ axis)[:, None], axis=0)
+            ours = math.acos(min(1.0, abs(float(axis @ mean)) / float(np.linalg.norm(mean))))
+            kjc = np.asarray(trial.model_outputs[joint[-1].upper() + "FEO"], dtype=float)[ok] - at[ok]
+            across = kjc - np.sum(kjc * a[ok], axis=1, keepdims=True) * a[ok]
+            out.append(replace(check, ours=ours, centre=float(np.median(np.linalg.norm(across, axis=1)))))
     return tuple(out)
 
 
