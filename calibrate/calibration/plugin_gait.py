@@ -147,11 +147,12 @@ def knee_axis_checks(model: Model, params: Parameters, trials: Sequence[Trial],
 
                 lines = hinge_lines_world(model, params, motion)
             at, a = lines[joint]
-            femur = bone_frames(trial, joint[-1].upper() + "FE")[ok]
+            side = dict(KNEES)[joint]
+            femur = bone_frames(trial, side + "FE")[ok]
             local = np.einsum("fji,fj->fi", femur, a[ok])  # our axis in Plug-in Gait's femur frame
             mean = np.median(local * np.sign(local @ axis)[:, None], axis=0)
             ours = math.acos(min(1.0, abs(float(axis @ mean)) / float(np.linalg.norm(mean))))
-            kjc = np.asarray(trial.model_outputs[joint[-1].upper() + "FEO"], dtype=float)[ok] - at[ok]
+            kjc = np.asarray(trial.model_outputs[side + "FEO"], dtype=float)[ok] - at[ok]
             across = kjc - np.sum(kjc * a[ok], axis=1, keepdims=True) * a[ok]
             out.append(replace(check, ours=ours, centre=float(np.median(np.linalg.norm(across, axis=1)))))
     return tuple(out)
