@@ -123,9 +123,9 @@ def _notes(report: dict) -> str:
         items.append(f"<li>seed: {_e(n)}</li>")
     far = report.get("unreliable", [])
     if far:
-        items.append(f"<li>{len(far)} parameters not identified by these trials and yet carried further from the "
-                     f"base model's than their priors allow (unreliable; --hold-axes keeps an axis at the base "
-                     f"model's): {_e(', '.join(far))}</li>")
+        items.append(f"<li>{len(far)} parameters carried further from the base model's than their priors allow, "
+                     f"whether or not these trials identify them (unreliable: a trade the data do not separate, or "
+                     f"skin artefact; --hold-axes keeps an axis at the base model's): {_e(', '.join(far))}</li>")
     un = report.get("unidentified", [])
     if un:
         items.append(f"<li>{len(un)} parameters not identified by these trials (held by their priors): "
