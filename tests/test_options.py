@@ -175,3 +175,40 @@ def test_an_unidentified_position_far_beyond_its_prior_is_reported_unreliable(hu
     assert placed.identified and placed.unreliable and "the trial places it" in placed.note
     assert "70 mm from where its prior puts it" in placed.note and "3.5 prior SDs" in placed.note
     assert sum(c.unreliable for c in identified.values()) == 1
+
+
+def test_a_centre_placed_far_from_the_base_is_named_implausible(human):
+    """End to end: a base model whose left hip sits 120 mm off (the simulated subject's is where models/human.urdf
+    has it): the squats place the hip (posterior SD a few mm, within 5 mm of the truth in the lab), over 60 mm from
+    where the shifted base puts it, and the summary and the report call it unreliable.  The flag measures the
+    distance from the base model, which a generic model keeps small for real subjects (docs/calibration.md)."""
+    import tempfile
+    from pathlib import Path
+
+    import pinocchio as pin
+
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.calibration.report import calibration_report, summary_text
+    from calibrate.model.model import Parameters, load_model, write_model
+
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=3)
+    P = human.parameters()
+    j = [x.name for x in human.joints].index("hip_l")
+    centre = P.centre.copy()
+    centre[j] += [0.0, 0.0, 0.12]
+    with tempfile.TemporaryDirectory() as d:
+        base = load_model(write_model(human, Path(d) / "shifted.urdf", Parameters(P.scale, centre, P.axis, P.marker)))
+        cal = calibrate(base, sim.trial, Settings())
+        subject = load_model(write_model(cal.model, Path(d) / "subject.urdf", cal.params))
+    hip = next(c for c in cal.changes if c.group == "centre" and c.item == "hip_l")
+    assert hip.identified and hip.unreliable and "the trial places it" in hip.note
+    data, jid = subject.pin.createData(), subject.pin.getJointId(subject.joints[j].urdf_joints[0])
+    err = []
+    for f in range(0, cal.motion.n_frames, 10):
+        m = cal.motion
+        pin.forwardKinematics(subject.pin, data, subject.pin_configuration(m.root_translation[f],
+                                                                           m.root_quaternion[f], m.angles[f]))
+        err.append(np.linalg.norm(data.oMi[jid].translation - sim.clean_centres[f, j]))
+    assert np.median(err) < 0.005
+    assert f"  implausible  centre[hip_l]: {hip.note}" in summary_text(cal).splitlines()
+    assert calibration_report(cal)["unreliable"] == ["centre[hip_l]"]

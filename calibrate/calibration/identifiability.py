@@ -234,9 +234,10 @@ def _position_far_from_prior(change: ParameterChange, off: float, sd: float) -> 
         # displaced marker) carries a centre so with a small posterior SD (docs/calibration.md, "What the posterior
         # SD does not count"); gait2392's lumbar centre on its whole walk: 116 mm.
         note = (f"the trial places it (posterior SD {np.nanmax(change.std):.0f} mm), yet {1000 * off:.0f} mm from "
-                f"where its prior puts it, the base model's at the subject's scale ({off / sd:.1f} prior SDs): a joint "
-                "centre is seldom so far from a scaled generic model's, and skin that moves with the joints or a "
-                "displaced marker can carry it there with a small SD; not reliable")
+                f"where its prior puts it, the base model's at the subject's scale ({off / sd:.1f} prior SDs): few "
+                "subjects are so far from a scaled generic model, while skin that moves with the joints or a displaced "
+                "marker can carry a centre so far with a small SD; not reliable unless the base model is that far "
+                "from this subject")
         return replace(change, unreliable=True, note=note)
     if change.status is not Identified.NO:
         return change
