@@ -440,6 +440,30 @@ def run_figures(run: dict) -> dict:
     return out
 
 
+def pig_knees_on_their_axis(kin: UrdfKinematics, motion: Path, trial: Path) -> dict:
+    """Per knee: median distance (mm) of our knee centre from Plug-in Gait's chord-function centre moved onto the axis
+    its own tibia bone turns about in its femur bone (KNE + its KJC's distance along that axis, not along its femur's
+    lateral axis: calibrate.calibration.plugin_gait), and how far that moves its centre."""
+    from calibrate.calibration.plugin_gait import bone_frames, plugin_gait_knees
+    from calibrate.io.read import read_trial
+
+    t = read_trial(trial)
+    Q = kin.configurations(motion)
+    out = {}
+    for check, _, axis in plugin_gait_knees(t):
+        s = check.joint[-1].upper()
+        if check.joint not in kin.joints or s + "KNE" not in t.labels:
+            continue
+        a = np.einsum("fij,j->fi", bone_frames(t, s + "FE"), axis)  # the axis, in the lab
+        kne, kjc = t.marker(s + "KNE"), np.asarray(t.model_outputs[s + "FEO"])
+        d = kjc - kne
+        moved = kne + (np.sign(np.sum(d * a, axis=1)) * np.linalg.norm(d, axis=1))[:, None] * a
+        ours = kin.centres(Q, [check.joint])[:, 0]
+        out[check.joint] = {"ours_from_moved_mm": 1e3 * float(np.nanmedian(np.linalg.norm(ours - moved, axis=1))),
+                            "moved_by_mm": 1e3 * float(np.nanmedian(np.linalg.norm(moved - kjc, axis=1)))}
+    return out
+
+
 def pig_distances(kin: UrdfKinematics, motion: Path, trial: Path) -> dict:
     """Per joint: median over frames of the distance between our centre and Plug-in Gait's own."""
     Q = kin.configurations(motion)
@@ -607,6 +631,7 @@ def section_pig(a, tmp: Path, cap: float, log) -> dict:
     # Plug-in Gait's knee axes against the axis its own tibia turns about in its femur (the report's check): where
     # they are turned, its knee centres are off the knee's axis and the FEO distances above measure that too.
     out["pig_knee_axes"] = run["report"].get("plugin_gait_knees", [])
+    out["pig_knees_on_their_axis"] = pig_knees_on_their_axis(kin, run["motions"][1], wk)
     out["held_out"] = guarded(held_out, st, wk, d, cap, log, a.extra)
     sp = run["report"].get("static_pose") or {}  # the report's left/right hinge angles in the static trial
     out["static_pose"] = {"hinges": {h["joint"]: [h["left_deg"], h["right_deg"]] for h in sp.get("hinges", [])},
@@ -959,6 +984,10 @@ def report(res: dict) -> None:
                 f"{fmt(k['our_axis_deg'], '.1f')} deg; its varus-valgus range "
                 f"{fmt(k['varus_valgus_range_deg'], '.0f')} deg; its knee centre "
                 f"{fmt(k['plugin_gait_centre_from_our_axis_mm'], '.0f')} mm from our knee axis")
+        for j, v in p.get("pig_knees_on_their_axis", {}).items():
+            say(f"pig_walk: our {j} centre {fmt(v['ours_from_moved_mm'], '.0f')} mm from Plug-in Gait's moved onto the "
+                f"axis its tibia turns about (KNE + its chord distance along that axis; its centre moved "
+                f"{fmt(v['moved_by_mm'], '.0f')} mm)")
         say(f"pig_walk: joint centres shifted more than {SHIFT_MM:g} mm from the size-scaled base "
             f"(scale: {p['shift_scale_from']}, equal to the URDF visuals' to "
             f"{fmt(p.get('scale_vs_urdf_max_diff'), '.1e')}): "
