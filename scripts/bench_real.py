@@ -444,17 +444,17 @@ def pig_knees_on_their_axis(kin: UrdfKinematics, motion: Path, trial: Path) -> d
     """Per knee: median distance (mm) of our knee centre from Plug-in Gait's chord-function centre moved onto the axis
     its own tibia bone turns about in its femur bone (KNE + its KJC's distance along that axis, not along its femur's
     lateral axis: calibrate.calibration.plugin_gait), and how far that moves its centre."""
-    from calibrate.calibration.plugin_gait import bone_frames, plugin_gait_knees
+    from calibrate.calibration.plugin_gait import KNEES, plugin_gait_knees
     from calibrate.io.read import read_trial
 
     t = read_trial(trial)
     Q = kin.configurations(motion)
     out = {}
-    for check, _, axis in plugin_gait_knees(t):
-        s = check.joint[-1].upper()
+    for check, _, axis, femur in plugin_gait_knees(t):
+        s = dict(KNEES)[check.joint]
         if check.joint not in kin.joints or s + "KNE" not in t.labels:
             continue
-        a = np.einsum("fij,j->fi", bone_frames(t, s + "FE"), axis)  # the axis, in the lab
+        a = np.einsum("fij,j->fi", femur, axis)  # the axis, in the lab
         kne, kjc = t.marker(s + "KNE"), np.asarray(t.model_outputs[s + "FEO"])
         d = kjc - kne
         moved = kne + (np.sign(np.sum(d * a, axis=1)) * np.linalg.norm(d, axis=1))[:, None] * a

@@ -108,10 +108,11 @@ def turn_axis(parent: np.ndarray, child: np.ndarray) -> tuple[np.ndarray, float]
     return axis, float(np.percentile(s, 95) - np.percentile(s, 5))
 
 
-def plugin_gait_knees(trial: Trial, index: int = 0) -> list[tuple[KneeAxisCheck, np.ndarray, np.ndarray]]:
+def plugin_gait_knees(trial: Trial, index: int = 0) -> list[tuple[KneeAxisCheck, np.ndarray, np.ndarray, np.ndarray]]:
     """KneeAxisCheck of each knee whose Plug-in Gait femur and tibia bones the trial carries, seen in enough frames
     and turning through MIN_TURN, from the file alone (no calibrated knee: `ours` and `centre` None), each with the
-    frames used (bool mask) and the axis found in the femur bone's frame.  `index`: the trial's in a calibration."""
+    frames used (bool mask), the axis found in the femur bone's frame and the femur bone's rotations (bone_frames).
+    `index`: the trial's in a calibration."""
     out = []
     for joint, side in KNEES:
         femur, tibia = bone_frames(trial, side + "FE"), bone_frames(trial, side + "TI")
@@ -125,7 +126,7 @@ def plugin_gait_knees(trial: Trial, index: int = 0) -> list[tuple[KneeAxisCheck,
         pig = math.acos(min(1.0, abs(float(axis[1]))))
         check = KneeAxisCheck(joint, index, trial.source or f"trial {index + 1}", int(ok.sum()), turn, pig,
                               _range(trial, side + "KneeAngles", 1, ok), None, None)
-        out.append((check, ok, axis))
+        out.append((check, ok, axis, femur))
     return out
 
 
@@ -137,7 +138,7 @@ def knee_axis_checks(model: Model, params: Parameters, trials: Sequence[Trial],
     out = []
     for i, (trial, motion) in enumerate(zip(trials, motions, strict=True)):
         lines: dict | None = None  # the model's hinge lines over this trial, formed when first needed
-        for check, ok, axis in plugin_gait_knees(trial, i):
+        for check, ok, axis, femur in plugin_gait_knees(trial, i):
             joint = check.joint
             if not any(j.name == joint and j.kind == "hinge" for j in model.joints):
                 out.append(check)
@@ -147,12 +148,10 @@ def knee_axis_checks(model: Model, params: Parameters, trials: Sequence[Trial],
 
                 lines = hinge_lines_world(model, params, motion)
             at, a = lines[joint]
-            side = dict(KNEES)[joint]
-            femur = bone_frames(trial, side + "FE")[ok]
-            local = np.einsum("fji,fj->fi", femur, a[ok])  # our axis in Plug-in Gait's femur frame
+            local = np.einsum("fji,fj->fi", femur[ok], a[ok])  # our axis in Plug-in Gait's femur frame
             mean = np.median(local * np.sign(local @ axis)[:, None], axis=0)
             ours = math.acos(min(1.0, abs(float(axis @ mean)) / float(np.linalg.norm(mean))))
-            kjc = np.asarray(trial.model_outputs[side + "FEO"], dtype=float)[ok] - at[ok]
+            kjc = np.asarray(trial.model_outputs[dict(KNEES)[joint] + "FEO"], dtype=float)[ok] - at[ok]
             across = kjc - np.sum(kjc * a[ok], axis=1, keepdims=True) * a[ok]
             out.append(replace(check, ours=ours, centre=float(np.median(np.linalg.norm(across, axis=1)))))
     return tuple(out)

@@ -354,7 +354,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         print(f"  {lab:16s} gaps {100 * g:5.1f} %")
     from ..calibration.plugin_gait import plugin_gait_knees
 
-    for check, _, _ in plugin_gait_knees(t):  # the file's Plug-in Gait bones, checked against their own motion
+    for check, *_ in plugin_gait_knees(t):  # the file's Plug-in Gait bones, checked against their own motion
         print(f"  plug-in gait: {check.text()}" + (": misaligned (its femur frame turned about the thigh: a thigh "
                                                  "wand or KAD off the plane the knee flexes in)" if check.misaligned
                                                  else ""))
