@@ -24,7 +24,7 @@ CHANGED = dict(free=("centre", "marker"), noise=0.002, loss="huber", loss_scale=
                lock={"subtalar_r": 0.1}, hold_axes=("knee_r",), auto_hold=False, segment_frames="priors",
                hold_segments=("talus_r",),
                learn_noise=True, memory_mb=50.0, lateral_markers=(("knee_l", "LKNE", 0.08),), ahead=False,
-               still_weight=16.0, moved_markers=True, hip_regression=True)
+               still_weight=16.0, moved_markers=True, far_joints=False, hip_regression=True)
 
 
 def test_the_views_split_the_settings_field_by_field():

@@ -21,6 +21,7 @@ class PipelineOptions:
     still_weight: float = 0.0  # frames a still trial counts as in all beside a moving one (0: every frame once)
     moved_markers: bool = False  # a still trial's positions of markers the moving trials put elsewhere: left out
     hip_regression: bool = False  # hip centres by Harrington's regression from the pelvis markers
+    far_joints: bool = True  # a still trial's markers beyond a joint it holds where no moving trial goes: left out
 
     def __post_init__(self) -> None:
         if self.segment_frames not in (None, "markers", "priors"):
@@ -32,6 +33,8 @@ class PipelineOptions:
             raise ValueError(f"still_weight: must be 0 (off) or a positive number of frames, got {self.still_weight!r}")
         if not isinstance(self.moved_markers, bool):
             raise ValueError(f"moved_markers: must be true or false, got {self.moved_markers!r}")
+        if not isinstance(self.far_joints, bool):
+            raise ValueError(f"far_joints: must be true or false, got {self.far_joints!r}")
         if not isinstance(self.hip_regression, bool):
             raise ValueError(f"hip_regression: must be true or false, got {self.hip_regression!r}")
         if not isinstance(self.learn_noise, bool):

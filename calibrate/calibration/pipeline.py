@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
 from calibrate.calibration.moved import MovedMarker, moved_markers
@@ -345,6 +346,21 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
     times["start"] = time.perf_counter() - t0
+    far: list[FarJoint] = []
+    far_obs = None  # the still trials' positions left out beyond their far joints
+    if run.far_joints and len(trials) > 1:
+        # A still trial holding a joint where the moving trials never go (arms out in the static, at the
+        # sides in the walk): its markers beyond it left out (calibrate.calibration.far_joints).
+        motion = motion if motion is not None else _trial_motion(model, trials)
+        Zs, Qs = absolute(problem.kin, start, spans)
+        far = far_joints(subject, Zs, Qs, spans, [m < STILL_MOTION for m in motion], problem.seen)
+        if far:
+            out = np.zeros(problem.seen.shape, dtype=bool)
+            for fj in far:
+                say(Progress("markers", fj.text(trials[fj.trial].source or f"trial {fj.trial + 1}")))
+                out[spans[fj.trial], [subject.marker_index(m) for m in fj.markers]] = True
+            far_obs = np.where(out[..., None], problem.observed, np.nan)
+            problem = problem.without(out)
     initial = problem.marker_residuals(start)
     t0 = time.perf_counter()
     in_neutral = None
@@ -477,6 +493,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
     # (Problem.slide_centres): no marker and no joint angle moves, only the priors' cost falls.
     slid = replace(state, p=problem.slide_centres(state.p))
+    if far_obs is not None:
+        # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
+        # markers left out of the fit: they reach no other coordinate, so the cost keeps but for joint limits).
+        slid = refit_beyond(problem.kin, slid, far_obs, far, spans)
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid
     times["solve"] = time.perf_counter() - t0
@@ -501,7 +521,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved),
+                       noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved), far_joints=tuple(far),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),
                        knee_axes=knee_axis_checks(subject, params, trials, motions))

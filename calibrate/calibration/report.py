@@ -118,7 +118,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "segment_frames": st.segment_frames,
                      "hold_segments": list(st.hold_segments),
-                     "auto_hold": st.auto_hold, "moved_markers": st.moved_markers,
+                     "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "far_joints": st.far_joints,
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "unresolved": [u.to_json() for u in cal.unresolved],
@@ -132,6 +132,10 @@ def calibration_report(cal: Calibration) -> dict:
         # their positions there left out, the model keeping the moving trials' place
         "moved_markers": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
                           for m in cal.moved],
+        # joints a still trial held where the moving trials never go (Settings.far_joints): its positions of the
+        # markers beyond them left out, its angles there the start's
+        "far_joints": [{**f.to_json(), "trial": cal.trials[f.trial].source or f"trial {f.trial + 1}"}
+                       for f in cal.far_joints],
         # markers at a joint centre (points the lab computed there, e.g. R_HJC): kept at their offsets from the
         # centres within settings.priors.joint_marker_mm, so that the trials' positions of them place the centres
         "joint_centre_markers": [m.to_json() for m in cal.joint_markers],
@@ -468,6 +472,17 @@ def summary_text(cal) -> str:
                          + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
                          + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
                          "with the pose): their positions there left out, the model keeps the moving trials' place")
+    if cal.far_joints:
+        by_trial = {}
+        for f in cal.far_joints:
+            by_trial.setdefault(f.trial, []).append(f)
+        for t, fs in by_trial.items():
+            lines.append(f"  far pose     {cal.trials[t].source or f'trial {t + 1}'} (still) holds "
+                         + ", ".join(f"{f.joint} {math.degrees(f.angle):.0f} deg" for f in fs)
+                         + " from every pose the moving trials reach (arms out in a static, at the sides in a walk: "
+                         "a model's shoulder without its blade cannot be both); its markers beyond them left out "
+                         "of the fit there, its angles beyond them fitted to them afterwards (--keep-far-joints "
+                         "keeps them)")
     if cal.joint_markers:
         lines.append("  joint marker " + ", ".join(f"{m.marker} at {m.joint}" for m in cal.joint_markers)
                      + ": points computed at joint centres (by the lab, or --hip-regression), each kept at its "

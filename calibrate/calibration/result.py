@@ -201,6 +201,9 @@ class Calibration:
     # calibrate.calibration.moved.MovedMarker per marker that a still trial shows elsewhere on its segment than
     # the moving trials do: its positions in that still trial were left out (Settings.moved_markers)
     moved: tuple = ()
+    # calibrate.calibration.far_joints.FarJoint per joint that a still trial holds where the moving trials never go:
+    # its markers beyond it left out there (Settings.far_joints)
+    far_joints: tuple = ()
     # What each trial counted as, in frames (Settings.still_weight: a still trial as a few); () when every frame
     # counted once.
     trial_weights: tuple[float, ...] = ()

@@ -170,6 +170,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["auto_hold"] = False
     if args.moved_markers:
         flags["moved_markers"] = True
+    if args.keep_far_joints:
+        flags["far_joints"] = False
     if args.hip_regression:
         flags["hip_regression"] = True
     if args.segment_frames is not None:

@@ -199,6 +199,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="leave out a static trial's positions of markers it shows elsewhere on their segment than "
                          "the moving trials do (a slipped cluster, an acromion marker lifted with the arms); the "
                          "model keeps the moving trials' place and the summary names them")
+    ap.add_argument("--keep-far-joints", action="store_true",
+                    help="keep a static trial's markers beyond a joint it holds where the moving trials never go "
+                         "(by default left out: arms out in the static, at the sides in the walk; a shoulder "
+                         "without its blade cannot be both)")
     ap.add_argument("--hip-regression", action="store_true",
                     help="place the hip centres by Harrington's regression from the pelvis markers (ASIS, PSIS or "
                          "sacrum), as gait labs do where no functional hip trial places them: a walk does not")

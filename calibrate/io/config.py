@@ -20,6 +20,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     ahead = true            # the start's GIL-bound parts in a forked process on the other core (same results)
     still_weight = 0        # frames a still (static) trial counts as in all beside a moving one (0: every frame)
     moved_markers = false   # leave out a still trial's positions of markers the moving trials put elsewhere
+    far_joints = true       # leave out a still trial's markers beyond a joint it holds where the moving trials never go
     hip_regression = false  # hip centres by Harrington's regression from the pelvis markers
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
@@ -63,7 +64,7 @@ else:  # pragma: no cover
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
         "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
         "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers",
-        "hip_regression"}
+        "far_joints", "hip_regression"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm",
            "joint_marker_mm"}
 
@@ -140,6 +141,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        segment_frames=data.get("segment_frames", s.segment_frames),
                        still_weight=num(data, "still_weight", s.still_weight),
                        moved_markers=data.get("moved_markers", s.moved_markers),
+                       far_joints=data.get("far_joints", s.far_joints),
                        hip_regression=data.get("hip_regression", s.hip_regression))
     except ValueError as e:
         raise CalibrateError(f"{where}: {e}") from None

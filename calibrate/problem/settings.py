@@ -93,6 +93,10 @@ class Settings:
     # calibration's own frames better still (pig_walk's held-out ratio 1.32x, past bench_real's 1.2x target;
     # docs/benchmarks.md).
     moved_markers: bool = False
+    # Leave out a still trial's markers beyond a joint it holds where the moving trials never go (the arms out in
+    # a static, at the sides in the walk: a shoulder without its blade cannot be both; calibrate.calibration.
+    # far_joints), and say which.  Rajagopal2016's left elbow otherwise ends folded to 164 deg.
+    far_joints: bool = True
     # Place the hip centres by Harrington's regression from the pelvis markers (calibrate.calibration.regression:
     # a virtual marker at each hip, kept there as a joint-centre marker), as gait labs do where no functional
     # trial places them: a walk does not (docs/benchmarks.md, "Hip centres from a walk").  Off by default.

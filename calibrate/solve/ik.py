@@ -130,7 +130,9 @@ class _FrameFit:
 class FrameSolver:
     """Levenberg–Marquardt on a subset of one frame's coordinates and markers."""
 
-    def __init__(self, kin: Kinematics, p: np.ndarray, evaluator=None):
+    def __init__(self, kin: Kinematics, p: np.ndarray, evaluator=None, margin: float = 0.0):
+        """`margin` (rad): the joint limits this much wider than the model's (the global problem's
+        calibrate.problem.problem.LIMIT_MARGIN, for poses that must agree with it)."""
         self.kin, self.p = kin, p
         self.evaluate = evaluator or kin.frame_evaluator(p, reference=True)
         model = kin.model
@@ -158,8 +160,8 @@ class FrameSolver:
             slots = [ref_slot[c] for c in sub_dofs if c in ref_slot]
             self.plan.append((own, sorted(sub_dofs), sub_mk, child_mk, lims, slots))
         self.root_markers = [model.marker_index(m) for m in model.segments[0].markers]
-        self.lower = np.array([d.lower for d in model.dofs])
-        self.upper = np.array([d.upper for d in model.dofs])
+        self.lower = np.array([d.lower for d in model.dofs]) - margin
+        self.upper = np.array([d.upper for d in model.dofs]) + margin
         self._columns: dict[tuple[int, ...] | None, tuple] = {}  # columns(), by the coordinates solved for
 
     def columns(self, free: np.ndarray, every: bool = False) -> tuple[bool, bool, np.ndarray, np.ndarray,

@@ -1,0 +1,150 @@
+"""A static holding the arms out where the moving trial keeps them low (calibrate.calibration.far_joints): the
+static's arm markers are left out, so that a shoulder the static shows elsewhere (its blade turned up, which the
+model's shoulder cannot follow) does not bend the arm's geometry.  Simulated: the truth known."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from calibrate.calibration.far_joints import FAR_POSE, far_joints
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.report import calibration_report, summary_text
+from calibrate.io.trial import Trial
+from calibrate.model.blocks import FrameLayout
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_gait
+
+ABDUCTION = math.radians(85.0)
+ARM = ("LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN", "RUPA", "RELB", "RFRM", "RWRA", "RWRB", "RFIN")
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model("models/human.urdf")
+
+
+@pytest.fixture(scope="module")
+def walk(model):
+    """A simulated walk: the arms swing at the sides (shoulder flexion 5 +- 15 deg, abduction 10 deg)."""
+    return simulate_gait(model, frames=300, seed=3)
+
+
+def arms_out_static(model, sim, frames: int = 60, lift: float = 0.0, seed: int = 1):
+    """(Trial, angles) of a static of `sim`'s subject with both arms abducted ABDUCTION; `lift` (m): the arm
+    markers raised by that much, as a shoulder blade turned up carries the arm (what the model cannot do)."""
+    rng = np.random.default_rng(seed)
+    angles = np.zeros((frames, model.n_dofs))
+    for side in "lr":
+        angles[:, model.dof_index(f"shoulder_{side}_adduction")] = -ABDUCTION
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1))
+    markers, _ = build_kinematics(model).batch(FrameLayout.coordinates(np.zeros((frames, 3)), angles), quat,
+                                               sim.truth)
+    markers = markers + np.array([0.0, 0.0, 0.95])
+    for lab in ARM:
+        markers[:, model.marker_index(lab), 2] += lift
+    observed = markers + rng.normal(0.0, 0.001, markers.shape)
+    return Trial(model.marker_names, observed, 100.0, 0, "static.c3d"), angles, quat
+
+
+def test_the_shoulders_a_static_holds_out_are_found_and_nothing_else(model, walk):
+    static, angles, quat = arms_out_static(model, walk)
+    Z = np.concatenate([FrameLayout.coordinates(np.zeros((static.n_frames, 3)), angles),
+                        FrameLayout.coordinates(walk.motion.root_translation, walk.motion.angles)])
+    Q = np.concatenate([quat, walk.motion.root_quaternion])
+    spans = [slice(0, static.n_frames), slice(static.n_frames, Z.shape[0])]
+    seen = np.ones((Z.shape[0], len(model.markers)), dtype=bool)
+    found = far_joints(model, Z, Q, spans, [True, False], seen)
+    assert sorted(f.joint for f in found) == ["shoulder_l", "shoulder_r"]
+    for f in found:
+        side = f.joint[-1].upper()
+        assert f.trial == 0 and set(f.markers) == {lab for lab in ARM if lab[0] == side}
+        # The walk's arms: their own abduction's range, measured here from the truth, sets the distance.
+        ab = -walk.motion.angles[:, model.dof_index(f"shoulder_{f.joint[-1]}_adduction")]
+        assert FAR_POSE < f.angle <= ABDUCTION - ab.max() + math.radians(10)
+    # The walk is no still trial; a static in the walk's own poses is near them.
+    assert far_joints(model, Z, Q, spans, [False, False], seen) == []
+    near = walk.motion.angles[:40]
+    Zn = np.concatenate([FrameLayout.coordinates(np.zeros((40, 3)), near), Z[static.n_frames:]])
+    Qn = np.concatenate([walk.motion.root_quaternion[:40], Q[static.n_frames:]])
+    assert far_joints(model, Zn, Qn, [slice(0, 40), slice(40, Zn.shape[0])], [True, False],
+                      np.ones((Zn.shape[0], len(model.markers)), dtype=bool)) == []
+    # The moving trial must show the markers beyond the joint: the static's are then its only ones, kept.
+    blind = seen.copy()
+    blind[static.n_frames:, [model.marker_index(lab) for lab in ARM]] = False
+    assert far_joints(model, Z, Q, spans, [True, False], blind) == []
+
+
+def test_a_static_arm_the_model_cannot_follow_no_longer_bends_the_shoulders(model, walk):
+    """The static's arm markers 40 mm higher than the model's shoulder puts them (a blade turned up): left out,
+    the shoulder centres end about where a static the model can follow puts them; kept (--keep-far-joints),
+    the compromise moves them."""
+    static, _, _ = arms_out_static(model, walk, lift=0.04)
+    consistent, _, _ = arms_out_static(model, walk)
+    errors = {}
+    for name, trial, far in (("consistent", consistent, False), ("left out", static, True),
+                             ("kept", static, False)):
+        cal = calibrate(model, [trial, walk.trial], Settings(far_joints=far))
+        # Each shoulder centre's world path over the walk against the truth's (median distance, mm).
+        mo = cal.motions[1]
+        _, C = build_kinematics(cal.model).batch(FrameLayout.coordinates(mo.root_translation, mo.angles),
+                                                 mo.root_quaternion, cal.params)
+        errors[name] = np.array([1e3 * float(np.median(np.linalg.norm(C[:, k] - walk.clean_centres[:, k], axis=1)))
+                                 for k in (model.joint_index("shoulder_l"), model.joint_index("shoulder_r"))])
+        if far:
+            assert sorted(f.joint for f in cal.far_joints) == ["shoulder_l", "shoulder_r"]
+            # The static's positions of the arm markers left out (unseen there), the walk's kept.
+            arm = [cal.model.marker_index(lab) for lab in ARM]
+            assert np.isnan(cal.residuals[:static.n_frames, arm]).all()
+            assert np.isfinite(cal.residuals[static.n_frames:, arm]).mean() > 0.9
+            # The static's arm angles fitted to its own markers afterwards (not left at the start's): its
+            # abduction, and up to ~8 deg more for the lift (40 mm over a 0.3 m upper arm).
+            for side in "lr":
+                ab = -cal.motions[0].angles[:, model.dof_index(f"shoulder_{side}_adduction")]
+                assert ABDUCTION - math.radians(2) < np.median(ab) < ABDUCTION + math.radians(12)
+            report = calibration_report(cal)
+            assert [f["joint"] for f in report["far_joints"]] == [f.joint for f in cal.far_joints]
+            assert report["far_joints"][0]["trial"] == "static.c3d"
+            assert "far pose     static.c3d (still) holds shoulder_" in summary_text(cal)
+        else:
+            assert cal.far_joints == ()
+    # A static the model follows places the shoulders best (sub-millimetre); without the static's arm the walk
+    # alone places them less well, yet far better than the compromise with a static it cannot follow.
+    assert np.all(errors["consistent"] < 2.0), errors
+    assert np.all(errors["left out"] < 0.6 * errors["kept"]) and errors["kept"].min() > 25.0, errors
+
+
+def test_the_command_line_names_them_and_keep_far_joints_keeps_them(model, walk, tmp_path, capsys):
+    """From C3D files: the summary's `far pose` line, the report's far_joints and the HTML name the shoulders;
+    --keep-far-joints (and a config's far_joints = false) keep the static's arm markers."""
+    import json
+
+    from calibrate.calibration.html import report_html
+    from calibrate.cli.main import main
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.config import settings_from_dict
+
+    static, _, _ = arms_out_static(model, walk, lift=0.04)
+    write_c3d(tmp_path / "static.c3d", static)
+    write_c3d(tmp_path / "walk.c3d", walk.trial)
+    reports = {}
+    for flag in ([], ["--keep-far-joints"]):
+        out = tmp_path / ("kept" if flag else "default")
+        out.mkdir()
+        code = main([str(tmp_path / "static.c3d"), str(tmp_path / "walk.c3d"), str(model.path), "-o",
+                     str(out / "s.urdf"), *flag])
+        assert code == 0
+        summary = capsys.readouterr().out
+        assert ("far pose     " in summary) is not bool(flag)
+        reports[bool(flag)] = json.loads((out / "static_report.json").read_text())
+    far = reports[False]["far_joints"]
+    assert sorted(f["joint"] for f in far) == ["shoulder_l", "shoulder_r"]
+    assert all(f["trial"].endswith("static.c3d") and f["angle_deg"] > 45.0 for f in far)
+    assert reports[False]["settings"]["far_joints"] is True
+    assert reports[True]["far_joints"] == [] and reports[True]["settings"]["far_joints"] is False
+    assert "far pose: " in report_html(reports[False]) and "far pose: " not in report_html(reports[True])
+    assert settings_from_dict({"far_joints": False}).far_joints is False
