@@ -148,3 +148,18 @@ def test_the_command_line_names_them_and_keep_far_joints_keeps_them(model, walk,
     assert reports[True]["far_joints"] == [] and reports[True]["settings"]["far_joints"] is False
     assert "far pose: " in report_html(reports[False]) and "far pose: " not in report_html(reports[True])
     assert settings_from_dict({"far_joints": False}).far_joints is False
+
+
+def test_a_neutral_static_with_its_arms_out_reads_zero_at_its_arms(model, walk):
+    """--neutral on the arms-out static: its arm angles are fitted to its markers before the segment frames are
+    turned to them, so the static reads zero at the shoulders and elbows as at every other joint."""
+    static, _, _ = arms_out_static(model, walk, lift=0.04)
+    cal = calibrate(model, [static, walk.trial], neutral=0)
+    assert sorted(f.joint for f in cal.far_joints) == ["shoulder_l", "shoulder_r"]
+    mo = cal.motions[0]
+    for name in ("shoulder_l_adduction", "shoulder_r_adduction", "shoulder_l_flexion", "elbow_l", "elbow_r",
+                 "hip_l_flexion", "knee_r"):
+        assert abs(math.degrees(np.mean(mo.angles[:, mo.dof_names.index(name)]))) < 2.0, name
+    # The walk's arms then hang about the static's abduction below zero (the neutral is the arms-out pose).
+    ab = -cal.motions[1].angles[:, model.dof_index("shoulder_l_adduction")]
+    assert np.median(ab) < -math.radians(45.0)

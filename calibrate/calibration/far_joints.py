@@ -147,8 +147,9 @@ def refit_beyond(kin: Kinematics, state: State, observed: np.ndarray, far: Seque
     """`state` with each far joint's still-trial frames' coordinates of that joint and every joint below it
     fitted to the markers beyond it (`observed`: the positions left out of the fit, (F, n_markers, 3)) at
     the geometry state.p, the rest of each frame's pose held: the still trial's arm angles as its markers
-    show them, though those markers did not shape the geometry.  Each frame starts from the last one's
-    fit (a still trial holds one pose)."""
+    show them, though those markers did not shape the geometry.  A still trial holds one pose: REFIT_FRAMES
+    of its frames, evenly spread, are fitted (each from the last one's fit) and every other frame takes the
+    nearest one's angles beyond the joint."""
     solver = FrameSolver(kin, state.p, margin=LIMIT_MARGIN)  # the limits as the solve's
     Z, Q = state.Z.copy(), state.Q.copy()
     B = None if state.B is None else state.B.copy()
@@ -157,23 +158,32 @@ def refit_beyond(kin: Kinematics, state: State, observed: np.ndarray, far: Seque
     for fj in far:
         _, sub_dofs, sub_mk, *_ = solver.plan[names.index(fj.joint)]
         free = np.asarray(sub_dofs)
-        # the reference quaternions (in a frame's q: root, then each ball) of the balls among the joints beyond
-        mine = np.zeros(4 + 4 * nb, dtype=bool)
-        for b, ball in enumerate(kin.balls):
-            if np.isin(FrameLayout.angle(np.asarray(ball.dofs)), free).any():
-                mine[4 + 4 * b:8 + 4 * b] = True
+        # the balls among the joints beyond: their reference quaternions travel with the angles
+        balls = [b for b, ball in enumerate(kin.balls) if np.isin(FrameLayout.angle(np.asarray(ball.dofs)), free).any()]
+        frames = np.arange(spans[fj.trial].start, spans[fj.trial].stop)
+        frames = frames[[len([k for k in sub_mk if np.isfinite(observed[f, k, 0])]) >= 2 for f in frames]]
+        if not frames.size:
+            continue
+        fitted = frames[np.unique(np.linspace(0, frames.size - 1, min(REFIT_FRAMES, frames.size)).round().astype(int))]
         last = None
-        for f in range(spans[fj.trial].start, spans[fj.trial].stop):
+        for f in fitted:
             seen = [k for k in sub_mk if np.isfinite(observed[f, k, 0])]
-            if len(seen) < 2:
-                continue
             z = Z[f].copy()
             q = Q[f] if B is None else np.concatenate([Q[f], B[f].ravel()])
-            if last is not None:  # the last frame's angles of the joints beyond, and their balls' references
-                z[free], q = last[0][free], np.where(mine, last[1], q)
+            if last is not None:  # the last fitted frame's angles beyond the joint, and its balls' references
+                z[free] = Z[last, free]
+                for b in balls:
+                    q[4 + 4 * b:8 + 4 * b] = B[last, b]
             z, q, _, _ = solver.solve(z, q, observed[f], seen, free, 20 if last is None else 6)
             Z[f] = z
             if nb:
                 B[f] = q[4:].reshape(nb, 4)
-            last = (z, q)
+            last = f
+        nearest = fitted[np.abs(frames[:, None] - fitted[None, :]).argmin(axis=1)]
+        Z[frames[:, None], free[None, :]] = Z[nearest[:, None], free[None, :]]
+        if balls:
+            B[frames[:, None], np.array(balls)[None, :]] = B[nearest[:, None], np.array(balls)[None, :]]
     return State(Z, Q, state.p, B)
+
+
+REFIT_FRAMES = 40  # frames of a still trial whose angles beyond a far joint are fitted (the rest: the nearest's)

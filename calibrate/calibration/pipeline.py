@@ -476,6 +476,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("solve", "again, to the tolerance"))
         state, again = paused.finish()
         summary = _merge(summary, again)
+    if far_obs is not None:
+        # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
+        # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before
+        # a turn of the segment frames below reads them (a neutral static's arms).
+        state = refit_beyond(problem.kin, state, far_obs, far, spans)
     # Last (with the neutral trial's turn and the centres' slide below), where Settings.segment_frames says so
     # (by default for an OpenSim model): the segment frames turned to where their markers put them, the frames in
     # which the lab's model defines its joint angles (align_markers).  A change of gauge (the data fit stays), so
@@ -493,9 +498,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
     # (Problem.slide_centres): no marker and no joint angle moves, only the priors' cost falls.
     slid = replace(state, p=problem.slide_centres(state.p))
-    if far_obs is not None:
-        # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
-        # markers left out of the fit: they reach no other coordinate, so the cost keeps but for joint limits).
+    if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
+        # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
         slid = refit_beyond(problem.kin, slid, far_obs, far, spans)
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid
