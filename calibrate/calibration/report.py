@@ -133,7 +133,7 @@ def calibration_report(cal: Calibration) -> dict:
         "moved_markers": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
                           for m in cal.moved],
         # joints a still trial held where the moving trials never go (Settings.far_joints): its positions of the
-        # markers beyond them left out, its angles there the start's
+        # markers beyond them left out of the fit, its angles there fitted to them afterwards
         "far_joints": [{**f.to_json(), "trial": cal.trials[f.trial].source or f"trial {f.trial + 1}"}
                        for f in cal.far_joints],
         # markers at a joint centre (points the lab computed there, e.g. R_HJC): kept at their offsets from the
