@@ -346,6 +346,15 @@ def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
     return lines + ([f"  left out, all {len(left)}: {shared}"] if shared else [])
 
 
+def _by_still_trial(cal, records) -> list[tuple[str, list]]:
+    """(the still trial's name, its records) for records that carry a `trial` index (moved markers, far
+    joints), each trial once, in the records' order."""
+    by_trial: dict[int, list] = {}
+    for r in records:
+        by_trial.setdefault(r.trial, []).append(r)
+    return [(cal.trials[t].source or f"trial {t + 1}", rs) for t, rs in by_trial.items()]
+
+
 def summary_text(cal) -> str:
     """Human-readable summary in the spirit of Ceres' Solver::Summary::FullReport()."""
     model, s = cal.model, cal.summary
@@ -463,26 +472,18 @@ def summary_text(cal) -> str:
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
                      "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
                      + _foot_hint(cal, [h.joint for h in turned]))
-    if cal.moved:
-        by_trial: dict[int, list] = {}
-        for m in cal.moved:
-            by_trial.setdefault(m.trial, []).append(m)
-        for t, ms in by_trial.items():
-            lines.append(f"  moved        {cal.trials[t].source or f'trial {t + 1}'} (still) shows "
-                         + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
-                         + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
-                         "with the pose): their positions there left out, the model keeps the moving trials' place")
-    if cal.far_joints:
-        by_trial = {}
-        for f in cal.far_joints:
-            by_trial.setdefault(f.trial, []).append(f)
-        for t, fs in by_trial.items():
-            lines.append(f"  far pose     {cal.trials[t].source or f'trial {t + 1}'} (still) holds "
-                         + ", ".join(f"{f.joint} {math.degrees(f.angle):.0f} deg" for f in fs)
-                         + " from every pose the moving trials reach (arms out in a static, at the sides in a walk: "
-                         "a model's shoulder without its blade cannot be both); its markers beyond them left out "
-                         "of the fit there, its angles beyond them fitted to them afterwards (--keep-far-joints "
-                         "keeps them)")
+    for name, ms in _by_still_trial(cal, cal.moved):
+        lines.append(f"  moved        {name} (still) shows "
+                     + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
+                     + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
+                     "with the pose): their positions there left out, the model keeps the moving trials' place")
+    for name, fs in _by_still_trial(cal, cal.far_joints):
+        lines.append(f"  far pose     {name} (still) holds "
+                     + ", ".join(f"{f.joint} {math.degrees(f.angle):.0f} deg" for f in fs)
+                     + " from every pose the moving trials reach (arms out in a static, at the sides in a walk: "
+                     "a model's shoulder without its blade cannot be both); its markers beyond them left out "
+                     "of the fit there, its angles beyond them fitted to them afterwards (--keep-far-joints "
+                     "keeps them)")
     if cal.joint_markers:
         lines.append("  joint marker " + ", ".join(f"{m.marker} at {m.joint}" for m in cal.joint_markers)
                      + ": points computed at joint centres (by the lab, or --hip-regression), each kept at its "
