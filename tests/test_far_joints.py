@@ -34,13 +34,14 @@ def walk(model):
     return simulate_gait(model, frames=300, seed=3)
 
 
-def arms_out_static(model, sim, frames: int = 60, lift: float = 0.0, seed: int = 1):
-    """(Trial, angles) of a static of `sim`'s subject with both arms abducted ABDUCTION; `lift` (m): the arm
-    markers raised by that much, as a shoulder blade turned up carries the arm (what the model cannot do)."""
+def arms_out_static(model, sim, frames: int = 60, lift: float = 0.0, seed: int = 1, abduction: float = ABDUCTION):
+    """(Trial, angles, root quaternions) of a static of `sim`'s subject with both arms abducted `abduction`; `lift`
+    (m): the arm markers raised by that much, as a shoulder blade turned up carries the arm (what the model cannot
+    do)."""
     rng = np.random.default_rng(seed)
     angles = np.zeros((frames, model.n_dofs))
     for side in "lr":
-        angles[:, model.dof_index(f"shoulder_{side}_adduction")] = -ABDUCTION
+        angles[:, model.dof_index(f"shoulder_{side}_adduction")] = -abduction
     quat = np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1))
     markers, _ = build_kinematics(model).batch(FrameLayout.coordinates(np.zeros((frames, 3)), angles), quat,
                                                sim.truth)
@@ -73,6 +74,10 @@ def test_the_shoulders_a_static_holds_out_are_found_and_nothing_else(model, walk
     Qn = np.concatenate([walk.motion.root_quaternion[:40], Q[static.n_frames:]])
     assert far_joints(model, Zn, Qn, [slice(0, 40), slice(40, Zn.shape[0])], [True, False],
                       np.ones((Zn.shape[0], len(model.markers)), dtype=bool)) == []
+    # An "A" pose (arms 30 deg out; the walk swings them about 10 deg out) is near the walk's poses: kept.
+    a_pose, a_angles, _ = arms_out_static(model, walk, abduction=math.radians(30.0))
+    Za = np.concatenate([FrameLayout.coordinates(np.zeros((a_pose.n_frames, 3)), a_angles), Z[static.n_frames:]])
+    assert far_joints(model, Za, Q, spans, [True, False], seen) == []
     # The moving trial must show the markers beyond the joint: the static's are then its only ones, kept.
     blind = seen.copy()
     blind[static.n_frames:, [model.marker_index(lab) for lab in ARM]] = False
