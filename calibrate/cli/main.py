@@ -202,7 +202,7 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--keep-far-joints", action="store_true",
                     help="keep a static trial's markers beyond a joint it holds where the moving trials never go "
                          "(by default left out: arms out in the static, at the sides in the walk; a shoulder "
-                         "without its blade cannot be both)")
+                         "without its blade cannot be both; a model whose shoulder blade moves can)")
     ap.add_argument("--hip-regression", action="store_true",
                     help="place the hip centres by Harrington's regression from the pelvis markers (ASIS, PSIS or "
                          "sacrum), as gait labs do where no functional hip trial places them: a walk does not")
