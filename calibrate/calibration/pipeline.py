@@ -345,7 +345,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
         problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
-    times["start"] = time.perf_counter() - t0
     far: list[FarJoint] = []
     far_obs = None  # the still trials' positions left out beyond their far joints
     if run.far_joints and len(trials) > 1:
@@ -361,6 +360,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 out[spans[fj.trial], [subject.marker_index(m) for m in fj.markers]] = True
             far_obs = np.where(out[..., None], problem.observed, np.nan)
             problem = problem.without(out)
+    times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
     t0 = time.perf_counter()
     in_neutral = None
