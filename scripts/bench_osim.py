@@ -18,6 +18,7 @@ L_HJC), each hip centre's median distance from them in the static.  calibrate ru
 the .osim's locked coordinates locked, the coordinates the IK setup's coordinate tasks hold locked as the
 command line's ``--ik-setup`` does (Gait2392's pipeline holds its subtalar and mtp angles at 0; a row without
 them follows), and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
+Rows with the axes held, without the IK setup, with ``--moved-markers`` and with ``--hip-regression`` follow.
 
 nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
 with numpy < 2, made on first use) is the third row, unless ``--no-nimble``: the same generic .osim with
@@ -191,10 +192,11 @@ def _plain_trc(path: str, spec_dir: str) -> Path:
 
 
 def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = False, ik_setup: bool = True,
-                  moved: bool = False) -> dict:
+                  moved: bool = False, hip_regression: bool = False) -> dict:
     """calibrate on static + walk (the walk cut to the IK frames) from the generic .osim; markers and angles.
     `ik_setup`: the coordinates the pipeline's IK setup holds by its coordinate tasks locked, as the command line's
-    --ik-setup does (the lab's pipeline moved to calibrate).  `moved`: Settings.moved_markers (--moved-markers)."""
+    --ik-setup does (the lab's pipeline moved to calibrate).  `moved`: Settings.moved_markers (--moved-markers);
+    `hip_regression`: Settings.hip_regression (--hip-regression)."""
     import pinocchio as pin
 
     from calibrate.calibration.pipeline import calibrate
@@ -209,8 +211,8 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     model, static, walk = read_case(spec)
     walk = walk.frames(frames.start, frames.stop)
     free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
-    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, free=free, moved_markers=moved)),
-                          ik_setup)
+    settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, free=free, moved_markers=moved,
+                                                                   hip_regression=hip_regression)), ik_setup)
     cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
     wall = time.perf_counter() - t0
     # The part of the run OpenSim's IK does: every walk frame's pose fitted to the subject model, frame by frame
@@ -459,6 +461,8 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     log(f"{case}: held-out: calibrate on the static + the first half of the IK frames, the second half fitted ...")
     log(f"{case}: calibrate again, markers the static shows elsewhere left out there (--moved-markers) ...")
     cm = run_calibrate(spec, frames, outliers, moved=True)
+    log(f"{case}: calibrate again, the hips by Harrington's regression (--hip-regression) ...")
+    cg = run_calibrate(spec, frames, outliers, hip_regression=True)
     held = {"calibrate": run_heldout(spec, frames, outliers, 0.0),
             f"calibrate_still_weight_{HELDOUT_STILL_WEIGHT:g}":
                 run_heldout(spec, frames, outliers, HELDOUT_STILL_WEIGHT),
@@ -477,6 +481,9 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     out["calibrate_moved_markers"] = marker_scores(cm["markers"], cm["marker_names"], trial, use)
     out["calibrate_moved_markers"].update(wall_s=cm["wall_s"], converged=cm["converged"], moved=cm["moved"],
                                           unreliable=cm["unreliable"], static_asymmetry=cm["static_asymmetry"])
+    out["calibrate_hip_regression"] = marker_scores(cg["markers"], cg["marker_names"], trial, use)
+    out["calibrate_hip_regression"].update(wall_s=cg["wall_s"], converged=cg["converged"], lab_hjc_mm=cg["lab_hjc_mm"],
+                                           unreliable=cg["unreliable"])
     out["calibrate_locked"] = cr["locked"]  # the model's locked coordinates and those the IK setup holds
     out["calibrate_no_ik_setup"] = marker_scores(cn["markers"], cn["marker_names"], trial, use)
     out["calibrate_no_ik_setup"].update(wall_s=cn["wall_s"], converged=cn["converged"], locked=cn["locked"],
@@ -490,7 +497,7 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> d
     diffs: dict[str, dict[str, float]] = {}
     ref = read_mot(spec["reference"]) if spec["reference"] else None
     for label, run in (("coordinates", cr), ("coordinates_axes_held", ch), ("coordinates_no_ik_setup", cn),
-                       ("coordinates_moved_markers", cm)):
+                       ("coordinates_moved_markers", cm), ("coordinates_hip_regression", cg)):
         diffs = {}
         for side in ("r", "l"):
             for c in COORDS + ARM_COORDS:
@@ -548,6 +555,10 @@ def report(res: dict) -> None:
         if mm:
             print(f"  {'calibrate, moved markers':22s} {mm['rms_mm']:8.2f} {mm['max_mm']:8.2f} {mm['wall_s']:10.2f} "
                   f"(--moved-markers; the static's positions of {', '.join(mm['moved']) or 'none'} left out)")
+        hr = r.get("calibrate_hip_regression")
+        if hr:
+            print(f"  {'calibrate, hip regr.':22s} {hr['rms_mm']:8.2f} {hr['max_mm']:8.2f} {hr['wall_s']:10.2f} "
+                  f"(--hip-regression; unreliable: {', '.join(hr['unreliable']) or 'none'})")
         locks = ", ".join(r.get("calibrate_locked", [])) or "none"
         print(f"  calibrate locks: {locks} (the model's locked coordinates and those the IK setup's coordinate tasks "
               "hold)")
@@ -567,8 +578,10 @@ def report(res: dict) -> None:
               f"{h['rms_mm'] / o['rms_mm']:.2f})")
         if c.get("lab_hjc_mm"):
             mm = r.get("calibrate_moved_markers", {}).get("lab_hjc_mm", {})
+            hg = r.get("calibrate_hip_regression", {}).get("lab_hjc_mm", {})
             print("  hip centres from the lab's HJC markers in the static (median mm): "
                   + ", ".join(f"{j} {v:.1f}" + (f" (moved markers {mm[j]:.1f})" if j in mm else "")
+                              + (f" (hip regression {hg[j]:.1f})" if j in hg else "")
                               for j, v in c["lab_hjc_mm"].items()))
         ho = r.get("heldout")
         if ho:
@@ -583,12 +596,14 @@ def report(res: dict) -> None:
                          if "in_sample_rms_mm_all_markers" in row else "")
                 ratio = f", / OpenSim {row['rms_mm'] / ho['opensim']['rms_mm']:.2f}" if key != "opensim" else ""
                 print(f"    {label:28s} {row['rms_mm']:8.2f} {row['max_mm']:8.2f}{ratio}{extra}")
-        for label in ("coordinates", "coordinates_axes_held", "coordinates_no_ik_setup", "coordinates_moved_markers"):
+        for label in ("coordinates", "coordinates_axes_held", "coordinates_no_ik_setup", "coordinates_moved_markers",
+                      "coordinates_hip_regression"):
             if label not in r:
                 continue
             print("  joint angles, " + {"coordinates": "calibrate", "coordinates_axes_held": "calibrate with axes held",
                                         "coordinates_no_ik_setup": "calibrate without the IK setup",
-                                        "coordinates_moved_markers": "calibrate with --moved-markers"}[label] + ":")
+                                        "coordinates_moved_markers": "calibrate with --moved-markers",
+                                        "coordinates_hip_regression": "calibrate with --hip-regression"}[label] + ":")
             for name, d in r[label].items():
                 extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
                 if name.rsplit("_", 1)[0] in ARM_COORDS:
