@@ -99,12 +99,9 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
     moving = [sl for sl, s in zip(spans, still, strict=True) if not s]
     if not moving or not any(still):
         return []
-    depth = {model.segments[0].name: 0}
-    for _ in model.joints:  # each pass settles at least one more level of the tree
-        depth.update({j.child: depth[j.parent] + 1 for j in model.joints if j.parent in depth})
-    joints = sorted((j for j in model.joints if len(j.dofs) >= 2
-                     and model.pin.existFrame(j.parent) and model.pin.existFrame(j.child)),
-                    key=lambda j: depth.get(j.child, 0))  # a far joint's own descendants are not tested again
+    # Model.joints lists parents first: a far joint's own descendants come after it and are not tested again.
+    joints = [j for j in model.joints if len(j.dofs) >= 2
+              and model.pin.existFrame(j.parent) and model.pin.existFrame(j.child)]
     if not joints:
         return []
     moving_frames = np.concatenate([np.arange(sl.start, sl.stop) for sl in moving])
