@@ -162,9 +162,42 @@ def test_a_neutral_static_with_its_arms_out_reads_zero_at_its_arms(model, walk):
     cal = calibrate(model, [static, walk.trial], neutral=0)
     assert sorted(f.joint for f in cal.far_joints) == ["shoulder_l", "shoulder_r"]
     mo = cal.motions[0]
-    for name in ("shoulder_l_adduction", "shoulder_r_adduction", "shoulder_l_flexion", "elbow_l", "elbow_r",
-                 "hip_l_flexion", "knee_r"):
-        assert abs(math.degrees(np.mean(mo.angles[:, mo.dof_names.index(name)]))) < 2.0, name
+    # Within 2 deg; the shoulders' flexion within 3: after the turn their angles are fitted afresh to the static's
+    # arm markers, whose 40 mm lift no pose of the model meets (1.9-2.7 deg over the last changes to the code).
+    for name, tol in (("shoulder_l_adduction", 2.0), ("shoulder_r_adduction", 2.0), ("shoulder_l_flexion", 3.0),
+                      ("shoulder_r_flexion", 3.0), ("elbow_l", 2.0), ("elbow_r", 2.0), ("hip_l_flexion", 2.0),
+                      ("knee_r", 2.0)):
+        assert abs(math.degrees(np.mean(mo.angles[:, mo.dof_names.index(name)]))) < tol, name
     # The walk's arms then hang about the static's abduction below zero (the neutral is the arms-out pose).
     ab = -cal.motions[1].angles[:, model.dof_index("shoulder_l_adduction")]
     assert np.median(ab) < -math.radians(45.0)
+
+
+def test_frames_whose_markers_do_not_fix_a_coordinate_do_not_call_it_still(model):
+    """still_coordinates over a static (the larger part of the frames) whose arm markers far_joints left out: the
+    arm's coordinates are judged on the frames that see them.  Counted, those frames' unbounded per-frame SD made
+    the median theirs, and every arm coordinate of Rajagopal's walk read "still" (one frame's SD 573 deg)."""
+    from calibrate.calibration.identifiability import STILL_RATIO, even_frames, still_coordinates
+
+    F, sigma = 1000, 0.01  # frames; one frame's SD of every coordinate its markers fix (rad)
+    nz = FrameLayout.coordinates(np.zeros((1, 3)), np.zeros((1, model.n_dofs))).shape[1]
+    rows = even_frames(F, 500)  # the frames whose blocks the pipeline forms (_sampled_blocks)
+    A = np.tile(np.eye(nz) / sigma**2, (rows.size, 1, 1))
+    unseen = rows < 0.6 * F  # the static: its first 60 % of the frames
+    swing, quiet = model.dof_index("shoulder_l_flexion"), model.dof_index("elbow_l")
+    for d in (swing, quiet):
+        c = FrameLayout.angle(d)
+        A[unseen, c, :] = A[unseen, :, c] = 0.0
+    rng = np.random.default_rng(0)
+    angles = rng.normal(0.0, 0.2, (F, model.n_dofs))  # every other coordinate moves: not still
+    walk = np.arange(F) >= 0.6 * F
+    angles[walk, quiet] = rng.normal(0.0, 0.5 * sigma, walk.sum())  # still where it is seen ...
+    angles[~walk, quiet] = 1.5  # ... and wherever the start left it in the static
+    still = {name: (spread, per) for name, spread, per in still_coordinates(model, angles, A, Settings())}
+    assert set(still) == {"elbow_l"}, still
+    spread, per = still["elbow_l"]
+    assert per == pytest.approx(sigma, rel=1e-6)
+    assert spread == pytest.approx(np.std(angles[rows[~unseen], quiet]), rel=1e-9) and spread < STILL_RATIO * sigma
+    # Every frame seen: the spread over every frame, as before.
+    full = np.tile(np.eye(nz) / sigma**2, (F, 1, 1))
+    assert {n for n, _, _ in still_coordinates(model, angles, full, Settings())} == set()

@@ -27,6 +27,8 @@ LIMIT_NOTE_FRACTION = 0.05  # ... in more than this fraction of the frames is no
 
 STILL_SAMPLE = 500  # frames whose blocks still_coordinates reads (a median over frames needs no more)
 
+UNOBSERVED = 1.0  # rad: one frame's SD of a coordinate above this, its markers do not fix it there at all
+
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
 
 
@@ -46,10 +48,18 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block).  Such a joint
     did not move as far as the trial shows, so nothing pins its axis or its angle's zero, and the
     fit can trade them for noise (a still subtalar joint under a two-marker foot ends at its
-    widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad."""
+    widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad.
+
+    `A`: the blocks of every frame of `angles`, or of at most STILL_SAMPLE evenly spaced ones (as
+    pipeline._sampled_blocks forms them).  Frames whose markers do not fix a coordinate at all (one
+    frame's SD over UNOBSERVED: a static's arm markers left out, far_joints) count for neither figure of it:
+    counted, they made the median the unobserved frames' and every arm coordinate of a walk "still"."""
     locked = {n for n, _ in options.lock}
     nz = A.shape[1]
-    A = A[np.unique(np.linspace(0, len(A) - 1, min(len(A), STILL_SAMPLE)).astype(int))]  # a median needs no more
+    # The frames of `angles` that A's blocks belong to; then at most STILL_SAMPLE of them (a median needs no more).
+    frames = np.arange(len(angles)) if len(A) == len(angles) else even_frames(len(angles), len(A))
+    rows = even_frames(len(A), STILL_SAMPLE)
+    A, frames = A[rows], frames[rows]
     # A ridge at one global scale: a frame (or direction) with no data gets a huge SD, not a failure.
     ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
     cov = np.linalg.inv(A + ridge * np.eye(nz))
@@ -58,10 +68,20 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     for k, d in enumerate(model.dofs):
         if d.name in locked:
             continue
-        spread, per_frame = float(np.std(angles[:, k])), float(np.median(sd[:, k]))
+        seen = sd[:, k] < UNOBSERVED
+        if not seen.any():
+            continue  # no frame's markers reach it (an unresolved segment's, locked elsewhere)
+        # Every frame observed: the spread over all of them, as before; else over the observed sampled ones.
+        th = angles[:, k] if seen.all() else angles[frames[seen], k]
+        spread, per_frame = float(np.std(th)), float(np.median(sd[seen, k]))
         if spread < STILL_RATIO * per_frame:
             out.append((d.name, spread, per_frame))
     return out
+
+
+def even_frames(n: int, count: int) -> np.ndarray:
+    """At most `count` evenly spaced frames of `n`, the first and the last included."""
+    return np.unique(np.linspace(0, n - 1, min(n, count)).astype(int))
 
 
 def still_records(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions) -> tuple[StillNote, ...]:

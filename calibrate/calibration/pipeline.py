@@ -24,7 +24,13 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
-from calibrate.calibration.identifiability import STILL_SAMPLE, coordinate_notes, parameter_changes, still_coordinates
+from calibrate.calibration.identifiability import (
+    STILL_SAMPLE,
+    coordinate_notes,
+    even_frames,
+    parameter_changes,
+    still_coordinates,
+)
 from calibrate.calibration.moved import MovedMarker, moved_markers
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.plugin_gait import knee_axis_checks
@@ -549,7 +555,7 @@ def _sampled_blocks(problem: Problem, state: State) -> np.ndarray:
     """The frame blocks A_f of the normal equations at `state` on at most STILL_SAMPLE evenly spaced
     frames (what still_coordinates reads: a median over frames needs no more; a long trial's are
     never all formed at once)."""
-    idx = np.unique(np.linspace(0, problem.F - 1, min(problem.F, STILL_SAMPLE)).astype(int))
+    idx = even_frames(problem.F, STILL_SAMPLE)
     return problem.subset(idx).linearize(frames_of(state, idx), with_parameters=False).A
 
 
