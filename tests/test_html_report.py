@@ -192,6 +192,20 @@ def test_a_label_to_check_is_among_the_notes(run):
     assert "check label" not in report_html(run["rep"])  # the calibration's own labels raised none
 
 
+def test_an_unreliable_parameter_is_marked_so_in_the_table_and_the_bars(run):
+    """A parameter the report calls unreliable (far beyond its prior, identified or not) reads so in the
+    parameters table and its bar is red, not "held by prior" (gait2392's back centre with its IK setup)."""
+    params = [dict(p) for p in run["rep"]["parameters"]]
+    centre = next(p for p in params if p["group"] == "centre")
+    centre.update(identified=False, unreliable=True)
+    page = report_html(dict(run["rep"], parameters=params))
+    row = page[page.index(f"<td>{centre['name']}</td>"):]
+    assert row[:row.index("</tr>")].count("<td>no (unreliable)</td>") == 1
+    bars = [t for t in _plot_data(page) if t.get("type") == "bar" and centre["name"] in t.get("x", [])]
+    k = bars[0]["x"].index(centre["name"])
+    assert bars[0]["marker"]["color"][k] == "#b02020" and bars[0]["hovertext"][k] == "identified: no (unreliable)"
+
+
 def test_left_out_labels_are_among_the_notes_with_their_reasons(run):
     """Trial labels left out (the report JSON's marker_set.left_out) are a note of the HTML report, each with its
     own reason; the clause every reason shares (the segments that carry no markers) is said once."""

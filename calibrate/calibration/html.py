@@ -270,6 +270,14 @@ def _angle_figures(report: dict, go, subplots) -> str:
     return "".join(out)
 
 
+def _verdict(p: dict) -> str:
+    """A parameter's identified column: yes, no (held by its prior), or unreliable (far beyond its prior, or a
+    centre the trial places where no anatomy does)."""
+    if p.get("unreliable"):
+        return "yes (unreliable)" if p["identified"] else "no (unreliable)"
+    return "yes" if p["identified"] else "no (prior)"
+
+
 def _parameters(report: dict, go) -> str:
     params = report["parameters"]
     rows = []
@@ -277,21 +285,22 @@ def _parameters(report: dict, go) -> str:
         std = [v for v in p["std"] if v is not None]
         rows.append([p["name"], p["group"], p["unit"], " ".join(_num(v, "{:.4g}") for v in p["base"]),
                      " ".join(_num(v, "{:.4g}") for v in p["value"]), f"{p['change']:.4g}",
-                     _num(max(std) if std else None, "{:.3g}"), "yes" if p["identified"] else "no (prior)",
-                     p.get("note", "")])
+                     _num(max(std) if std else None, "{:.3g}"), _verdict(p), p.get("note", "")])
     out = ["<h2 id=parameters>Parameters: change from the base model</h2>"]
     for group, unit in (("centre", "mm"), ("axis", "deg"), ("scale", "fraction"), ("marker", "mm")):
         sel = [p for p in params if p["group"] == group]
         if not sel:
             continue
         sd = [max((v for v in p["std"] if v is not None), default=None) for p in sel]
-        ident = [p["identified"] for p in sel]
+        colour = {"yes": "#2a7a2a", "no (prior)": "#c08000", "no (unreliable)": "#b02020",
+                  "yes (unreliable)": "#b02020"}
+        verdicts = [_verdict(p) for p in sel]
         fig = go.Figure(go.Bar(x=[p["name"] for p in sel], y=[p["change"] for p in sel],
                                error_y={"type": "data", "array": [v or 0 for v in sd], "visible": True},
-                               marker_color=["#2a7a2a" if k else "#c08000" for k in ident],
-                               hovertext=["identified" if k else "held by prior" for k in ident]))
+                               marker_color=[colour[v] for v in verdicts],
+                               hovertext=[f"identified: {v}" for v in verdicts]))
         fig.update_layout(title=f"{group}: change ({unit}) +- posterior SD (worst axis); green: identified, "
-                          "amber: held by its prior", yaxis_title=unit)
+                          "amber: held by its prior, red: unreliable", yaxis_title=unit)
         out.append(_figure(fig, 360))
     out.append(_table(["parameter", "group", "unit", "base", "subject", "change", "posterior SD", "identified",
                        "note"], rows, {5, 6}))

@@ -416,7 +416,8 @@ def summary_text(cal) -> str:
     for c in cal.changes:
         if c.group == "centre":
             std = np.nanmax(c.std) if np.isfinite(c.std).any() else float("nan")
-            flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else "  (held by prior)")
+            flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else
+                                            "  (not identified; unreliable)" if c.unreliable else "  (held by prior)")
             if c.unreliable and (c.identified or _slide_only(c)):
                 flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
             lines.append(f"    {c.item:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
