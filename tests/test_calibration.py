@@ -826,9 +826,14 @@ def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_p
     trial, still = _held_still(human, human_kin, sim, ("subtalar_r", "subtalar_l"), seed=8)
     # Left free, the fit says that these two did not move and what to do.
     free = calibrate(human, trial, Settings(), kinematics=human_kin)
-    named = {n.split(":")[0] for n in free.notes if "moved no more than the markers fix it" in n}
+    # Beside the markerless talus: one frame fixes them only loosely (the ankle takes up their turn), and they
+    # moved no more than that.
+    named = {n.split(":")[0] for n in free.notes if "moved no more than that allows" in n}
     assert named == {"subtalar_r", "subtalar_l"}, free.notes
-    assert all("--lock subtalar_" in n for n in free.notes)
+    assert all(f"trade off across talus_{n[-1]}, which carries no markers" in t for n in named for t in free.notes
+               if t.startswith(n))
+    assert all(f"if one of subtalar_{n[-1]} or ankle_{n[-1]} hardly moved" in t for n in named for t in free.notes
+               if t.startswith(n))
     cal = calibrate(human, trial, Settings(lock=("subtalar_r", "subtalar_l")), kinematics=human_kin)
     assert cal.notes == ()
     assert cal.converged

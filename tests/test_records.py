@@ -71,6 +71,15 @@ def test_records_render_the_words_the_user_reads():
     still = StillNote("knee_l", math.radians(0.5), math.radians(0.4), axis_held=True)
     assert still.text().startswith("knee_l: moved no more than the markers fix it in a frame (SD over frames 0.5 deg")
     assert "its axis was held" in still.text()
+    ankle = StillNote("ankle_l", math.radians(15.3), math.radians(5.9), axis_held=True, bare="talus_l",
+                      neighbours=("subtalar_l",))
+    assert ankle.text().startswith("ankle_l: one frame's markers fix it only to 5.9 deg (its joint and the next trade "
+                                   "off across talus_l, which carries no markers), and it moved no more than that "
+                                   "allows (SD over frames 15.3 deg)")
+    assert "does not show this joint moving" not in ankle.text()
+    assert ankle.text().endswith("its axis was held at the base model's; if one of ankle_l or subtalar_l hardly moved "
+                                 "(a subtalar joint in a walk), lock that one (--lock NAME, or [lock_deg] in the "
+                                 "config), as OpenSim's gait pipelines do: the other is then found")
     for msg in ("solve: iteration   3  cost 1.0e+00  lambda 1.0e-03", "build: compiling the model's C code",
                 "solve: all frames, iteration   2  cost 1.0e+00  lambda 1.0e-03", "no stage here"):
         assert str(Progress.of(msg)) == msg

@@ -86,7 +86,19 @@ def even_frames(n: int, count: int) -> np.ndarray:
 
 def still_records(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions) -> tuple[StillNote, ...]:
     """A note per coordinate that still_coordinates names, with what was done and what to do."""
-    return tuple(StillNote(name, spread, per_frame, name in options.hold_axes)
+    bare = {sg.name for sg in model.segments if not sg.markers}
+
+    locked = {n for n, _ in options.lock}
+
+    def beside(name: str) -> tuple[str, tuple[str, ...]]:
+        """The markerless segment at `name`'s joint and the free coordinates of the other joints there."""
+        j = model.joints[model.joint_index(model.dofs[model.dof_index(name)].joint)]
+        seg = j.child if j.child in bare else j.parent if j.parent in bare else ""
+        others = tuple(d for o in model.joints if o.name != j.name and seg in (o.parent, o.child)
+                       for d in o.dofs if d not in locked) if seg else ()
+        return (seg, others) if others else ("", ())  # its neighbours locked: nothing to trade with
+
+    return tuple(StillNote(name, spread, per_frame, name in options.hold_axes, *beside(name))
                  for name, spread, per_frame in still_coordinates(model, angles, A, options))
 
 

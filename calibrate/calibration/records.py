@@ -84,11 +84,27 @@ class StillNote:
     spread: float  # rad: its SD over the frames
     per_frame: float  # rad: the SD with which one frame's markers fix it
     axis_held: bool  # its hinge axis was held at the base model's
+    bare: str = ""  # the segment without markers beside its joint (the talus), across which it trades with the next
+    neighbours: tuple[str, ...] = ()  # the coordinates of the other joints at `bare` (subtalar beside the ankle)
 
     def text(self) -> str:
-        seen = (f"{self.coordinate}: moved no more than the markers fix it in a frame (SD over frames "
-                f"{math.degrees(self.spread):.1f} deg, one frame's {math.degrees(self.per_frame):.1f} deg): the trial "
-                f"does not show this joint moving, so ")
+        if self.bare:
+            # An ankle that turns 15 deg in a walk is no still joint: the markers cannot tell its turn from its
+            # neighbour's across the markerless segment, so one frame fixes it only loosely.
+            seen = (f"{self.coordinate}: one frame's markers fix it only to {math.degrees(self.per_frame):.1f} deg "
+                    f"(its joint and the next trade off across {self.bare}, which carries no markers), and it "
+                    f"moved no more than that allows (SD over frames {math.degrees(self.spread):.1f} deg): the trial "
+                    f"does not separate its motion from its neighbour's, so ")
+        else:
+            seen = (f"{self.coordinate}: moved no more than the markers fix it in a frame (SD over frames "
+                    f"{math.degrees(self.spread):.1f} deg, one frame's {math.degrees(self.per_frame):.1f} deg): the "
+                    f"trial does not show this joint moving, so ")
+        if self.bare and self.neighbours:
+            held = "its axis was held at the base model's" if self.axis_held else "its axis is not found"
+            pair = " or ".join((self.coordinate, *self.neighbours))
+            return seen + (f"{held}; if one of {pair} hardly moved (a subtalar joint in a walk), lock that one "
+                           f"(--lock NAME, or [lock_deg] in the config), as OpenSim's gait pipelines do: the other is "
+                           f"then found")
         if self.axis_held:
             return seen + (f"its axis was held at the base model's and its angle's zero is not found; if it did not "
                            f"move at all, hold the angle too (--lock {self.coordinate}, or [lock_deg] in the config)")
