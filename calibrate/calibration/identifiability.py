@@ -212,7 +212,8 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             status, note = Identified.NO, blind[model.dofs[d].joint]
         out.append(ParameterChange("axis", model.dofs[d].name, a0, a, ang, std, status, note, ratio))
     for k, mk in enumerate(model.markers):
-        out.append(position("marker", k, mk.name, mk.segment, partial(_judge_marker, bool(problem.seen[:, k].any()))))
+        out.append(position("marker", k, mk.name, mk.segment,
+                            partial(_judge_marker, bool(problem.seen[:, k].any()), mk.segment)))
     for si, sg in enumerate(model.segments):
         block = L.block("scale", si)
         if block.held:
@@ -311,11 +312,14 @@ def _judge_centre(model: Model, P: Parameters, j: Joint, blind: str | None, C: n
     return status, note, ratio
 
 
-def _judge_marker(seen: bool, C: np.ndarray, C0: np.ndarray) -> tuple[Identified, str, float]:
-    """Whether the trial identified a free marker offset (`seen`: in some frame), from its posterior and
-    prior-only covariance."""
-    ratio = worst_ratio(C, C0)[0]
+def _judge_marker(seen: bool, segment: str, C: np.ndarray, C0: np.ndarray) -> tuple[Identified, str, float]:
+    """Whether the trial identified a free marker offset (`seen`: in some frame) on `segment`, from its posterior
+    and prior-only covariance.  A marker seen in every frame can still leave a direction of its place open: a
+    tibia wand's place around the shank trades with the shank's turn about its long axis, which only the hinge
+    axes fix."""
+    ratio, v = worst_ratio(C, C0)
     status = Identified.YES if seen and ratio < IDENTIFIED else Identified.NO
-    note = "" if status.identified else ("never seen in the trial: base model kept" if not seen
-                                         else "poorly seen: held by the prior")
+    note = "" if status.identified else ("never seen in the trial: base model kept" if not seen else
+                                         f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) in the "
+                                         f"{segment} frame: held by the prior")
     return status, note, ratio
