@@ -145,6 +145,19 @@ def test_an_unidentified_axis_far_beyond_its_prior_is_reported_unreliable(human,
     assert sum(c.unreliable for c in by.values()) == 1
     identified = {c.item: c for c in parameter_changes(problem, p, cov, 100.0 * cov) if c.group == "axis"}
     assert identified["knee_r"].identified and not identified["knee_r"].unreliable
+    # Beside the markerless talus, the advice names the pair to lock one of (gait2392's ankles without the IK setup
+    # that locks its subtalar joints); locked, the subtalar is no longer named.
+    k = problem.layout.axis(human.dof_index("ankle_r"))
+    side = np.cross(p[k], [1.0, 0.0, 0.0])
+    p[k] = np.cos(np.radians(40.0)) * p[k] + np.sin(np.radians(40.0)) * side / np.linalg.norm(side)
+    ankle = next(c for c in parameter_changes(problem, p, cov, cov) if c.group == "axis" and c.item == "ankle_r")
+    assert ankle.unreliable
+    assert "if one of ankle_r or subtalar_r hardly moves (a subtalar joint in a walk)" in ankle.note
+    assert ankle.note.endswith("--hold-axes ankle_r keeps the base model's)")
+    locked = Problem(human, marker_columns(human, sim.trial), Settings(lock=("subtalar_r",)), human_kin)
+    eye = 1e-6 * np.eye(locked.n_free)
+    note = next(c for c in parameter_changes(locked, p, eye, eye) if c.group == "axis" and c.item == "ankle_r").note
+    assert "if one of" not in note and "--hold-axes ankle_r" in note
 
 
 def test_an_unidentified_position_far_beyond_its_prior_is_reported_unreliable(human, human_kin):

@@ -229,17 +229,25 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             note = "" if status.identified else "the trial barely sizes this segment: held by the prior"
         out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
                                    float(seg_scale[si] - 1.0), std, status, note, ratio))
-    return [_far_from_prior(c, problem.settings.priors) for c in out]
+    # Each coordinate beside a markerless segment: its neighbours' there, one of which to lock (_far_from_prior).
+    locked = {n for n, _ in problem.settings.lock}
+    pairs = {d: tuple(e for o in model.joints if o.name != j.name and seg in (o.parent, o.child)
+                      for e in o.dofs if e not in locked)
+             for j in model.joints for seg in (j.parent, j.child) if seg in bare for d in j.dofs}
+    return [_far_from_prior(c, problem.settings.priors, pairs.get(c.item, ())) for c in out]
 
 
 FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far from the base model's is not "held"
 
 
-def _far_from_prior(change: ParameterChange, priors: Priors) -> ParameterChange:
+def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[str, ...] = ()) -> ParameterChange:
     """`change` with its note corrected where it is a hinge axis the trial did not identify that yet lies
     more than FAR_FROM_PRIOR prior SDs (Priors.axis) from the base model's: the prior did not hold it
     there, a valley of the fit (a trade with a neighbour the data do not separate) carried it, so the
     value is not to be trusted (gait2392's ankle axis next to the markerless talus: 54 deg, 5.4 prior SDs).
+    `neighbours`: the free coordinates it trades with across a markerless segment; locking the one of the pair
+    that hardly moves is what finds the other (gait2392 with its IK setup's subtalar locked: its ankles within
+    2-5 deg of OpenSim's IK; holding the axis instead turned the thigh 30 deg, docs/benchmarks.md).
     (A position's change includes the segment's scaling, which its prior does not count against it.)"""
     sd = math.degrees(priors.axis)
     if change.group != "axis" or change.status is not Identified.NO or not sd > 0:
@@ -249,8 +257,12 @@ def _far_from_prior(change: ParameterChange, priors: Priors) -> ParameterChange:
         return change
     why = change.note.removesuffix(": held by the prior").removesuffix("; held by the prior")
     note = (f"{why}; yet {change.change:.0f} deg from the base model's ({k:.1f} prior SDs), so the prior did not hold "
-            f"it: a trade the data do not separate carried it there, and the axis is not reliable (--hold-axes "
-            f"{change.item} keeps the base model's)")
+            f"it: a trade the data do not separate carried it there, and the axis is not reliable (")
+    if neighbours:
+        note += (f"if one of {' or '.join((change.item, *neighbours))} hardly moves (a subtalar joint in a walk), lock "
+                 f"that one (--lock NAME; an OpenSim model: --ik-setup locks what the lab's IK holds) and the other's "
+                 f"axis is found; ")
+    note += f"--hold-axes {change.item} keeps the base model's)"
     return replace(change, unreliable=True, note=note)
 
 
