@@ -243,3 +243,28 @@ def test_a_centre_placed_far_from_the_base_is_named_implausible(human):
     loose = replace(cal, changes=[replace(c, status=Identified.NO) if c is hip else c for c in cal.changes])
     row = next(line for line in summary_text(loose).splitlines() if line.startswith("    hip_l "))
     assert row.endswith("(not identified; unreliable)") and "held by prior" not in row, row
+
+
+def test_joints_trade_across_a_segment_whose_markers_the_trials_do_not_show(human, human_kin):
+    """Rajagopal2016's talus carries a joint-centre marker (LAJC) its trials do not show: the ankle and subtalar
+    joints beside it trade off as beside a talus without markers, and the report says so; with the subtalar locked
+    (the IK setups of gait2392 and Rajagopal2016) the talus moves with the calcaneus's markers and the ankle is
+    judged as any hinge."""
+    from calibrate.calibration.identifiability import trading_joints
+    from calibrate.model.model import add_markers
+
+    sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=4)
+    model = add_markers(human, {"RAJC": ("talus_r", np.zeros(3))})
+    assert "ankle_r" not in trading_joints(model)
+    assert trading_joints(model, set(human.marker_names))["ankle_r"] == ("talus_r", ("subtalar_r",))
+    assert trading_joints(human)["subtalar_l"] == ("talus_l", ("ankle_l",))
+    assert not {"ankle_r", "subtalar_r"} & set(trading_joints(human, locked=("subtalar_r",)))
+    problem = Problem(model, marker_columns(model, sim.trial), Settings())  # RAJC: not in the trial
+    eye = 1e-6 * np.eye(problem.n_free)
+    by = {c.name: c for c in parameter_changes(problem, model.parameters().vector(), eye, eye)}
+    for name in ("centre[ankle_r]", "centre[subtalar_r]", "axis[ankle_r]"):
+        assert by[name].note.startswith("next to talus_r, which carries no markers the trials show"), by[name].note
+    locked = Problem(model, marker_columns(model, sim.trial), Settings(lock=("subtalar_r",)))
+    eye = 1e-6 * np.eye(locked.n_free)
+    by = {c.name: c for c in parameter_changes(locked, model.parameters().vector(), eye, eye)}
+    assert by["axis[ankle_r]"].note == "the joint did not turn enough about it: held by the prior"

@@ -74,8 +74,8 @@ def test_records_render_the_words_the_user_reads():
     ankle = StillNote("ankle_l", math.radians(15.3), math.radians(5.9), axis_held=True, bare="talus_l",
                       neighbours=("subtalar_l",))
     assert ankle.text().startswith("ankle_l: one frame's markers fix it only to 5.9 deg (its joint and the next trade "
-                                   "off across talus_l, which carries no markers), and it moved no more than that "
-                                   "allows (SD over frames 15.3 deg)")
+                                   "off across talus_l, which carries no markers the trials show), and it moved no "
+                                   "more than that allows (SD over frames 15.3 deg)")
     assert "does not show this joint moving" not in ankle.text()
     assert ankle.text().endswith("its axis was held at the base model's; if one of ankle_l or subtalar_l hardly moved "
                                  "(a subtalar joint in a walk), lock that one (--lock NAME, or [lock_deg] in the "

@@ -4,7 +4,7 @@ the trial does not show moving or drives past their limits."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import replace
 from functools import partial
 
@@ -32,11 +32,12 @@ UNOBSERVED = 1.0  # rad: one frame's SD of a coordinate above this, its markers 
 IDENTIFIED = 0.5  # posterior std / prior-only std above this (worst direction): the trial did not identify it
 
 
-def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray,
-                     options: ProblemOptions) -> tuple[CoordinateNote, ...]:
+def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions,
+                     seen: Collection[str] | None = None) -> tuple[CoordinateNote, ...]:
     """still_records, then limit_records for the coordinates not already named (`options`: the problem's,
-    whose locked coordinates and held axes they read; a Settings, which has the same fields, serves too)."""
-    still = still_records(model, angles, A, options)
+    whose locked coordinates and held axes they read; a Settings, which has the same fields, serves too;
+    `seen`: the markers the trials show, see trading_joints)."""
+    still = still_records(model, angles, A, options, seen)
     named = {n.coordinate for n in still}
     return still + tuple(n for n in limit_records(model, angles, options) if n.coordinate not in named)
 
@@ -84,19 +85,36 @@ def even_frames(n: int, count: int) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, min(n, count)).astype(int))
 
 
-def still_records(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions) -> tuple[StillNote, ...]:
-    """A note per coordinate that still_coordinates names, with what was done and what to do."""
-    bare = {sg.name for sg in model.segments if not sg.markers}
+def trading_joints(model: Model, seen: Collection[str] | None = None,
+                   locked: Collection[str] = ()) -> dict[str, tuple[str, tuple[str, ...]]]:
+    """Joints that trade their turn with a neighbour across a segment carrying no marker the trials show (`seen`:
+    those markers' names; None: every model marker): joint name -> (that segment, the neighbours' free
+    coordinates).  Both joints must turn (a coordinate of each not in `locked`): the ankle beside a talus whose
+    subtalar joint is free; with the subtalar locked (gait2392's and Rajagopal2016's IK setups) the talus moves
+    with the calcaneus's markers and the ankle is seen as any hinge.  (Rajagopal2016's talus carries a joint-centre
+    marker, LAJC, that its trials do not show.)"""
+    bare = {sg.name for sg in model.segments if not any(seen is None or m in seen for m in sg.markers)}
+    free = {j.name: tuple(d for d in j.dofs if d not in locked) for j in model.joints}
+    out: dict[str, tuple[str, tuple[str, ...]]] = {}
+    for j in model.joints:
+        for seg in (j.child, j.parent):
+            partners = tuple(d for o in model.joints if o.name != j.name and seg in (o.parent, o.child)
+                             for d in free[o.name])
+            if seg in bare and free[j.name] and partners:
+                out[j.name] = (seg, partners)
+                break
+    return out
 
-    locked = {n for n, _ in options.lock}
+
+def still_records(model: Model, angles: np.ndarray, A: np.ndarray, options: ProblemOptions,
+                  seen: Collection[str] | None = None) -> tuple[StillNote, ...]:
+    """A note per coordinate that still_coordinates names, with what was done and what to do (`seen`: the markers
+    the trials show, for trading_joints)."""
+    trading = trading_joints(model, seen, {n for n, _ in options.lock})
 
     def beside(name: str) -> tuple[str, tuple[str, ...]]:
         """The markerless segment at `name`'s joint and the free coordinates of the other joints there."""
-        j = model.joints[model.joint_index(model.dofs[model.dof_index(name)].joint)]
-        seg = j.child if j.child in bare else j.parent if j.parent in bare else ""
-        others = tuple(d for o in model.joints if o.name != j.name and seg in (o.parent, o.child)
-                       for d in o.dofs if d not in locked) if seg else ()
-        return (seg, others) if others else ("", ())  # its neighbours locked: nothing to trade with
+        return trading.get(model.dofs[model.dof_index(name)].joint, ("", ()))
 
     return tuple(StillNote(name, spread, per_frame, name in options.hold_axes, *beside(name))
                  for name, spread, per_frame in still_coordinates(model, angles, A, options))
@@ -157,10 +175,10 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     # A segment without markers (the talus) is seen only through its neighbours: its two joints trade
     # off along a curved valley that the linearised posterior SD understates (on squats the subtalar
     # axes end 5-10 deg from the truth with a 1-2 deg SD), so they are never called identified.
-    bare = {sg.name for sg in model.segments if not sg.markers}
-    blind = {j.name: (f"next to {j.parent if j.parent in bare else j.child}, which carries no markers: this joint "
-                      f"and its neighbour trade off beyond what the posterior SD shows; held by the prior")
-             for j in model.joints if j.parent in bare or j.child in bare}
+    trading = trading_joints(model, {mk.name for k, mk in enumerate(model.markers) if problem.seen[:, k].any()},
+                             {n for n, _ in problem.settings.lock})
+    blind = {name: (f"next to {seg}, which carries no markers the trials show: this joint and its neighbour trade "
+                    f"off beyond what the posterior SD shows; held by the prior") for name, (seg, _) in trading.items()}
 
     still = set(problem.settings.hold_segments)  # no marker seen on or below: held at the base model's
 
@@ -230,10 +248,8 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
                                    float(seg_scale[si] - 1.0), std, status, note, ratio))
     # Each coordinate beside a markerless segment: its neighbours' there, one of which to lock (_far_from_prior).
-    locked = {n for n, _ in problem.settings.lock}
-    pairs = {d: tuple(e for o in model.joints if o.name != j.name and seg in (o.parent, o.child)
-                      for e in o.dofs if e not in locked)
-             for j in model.joints for seg in (j.parent, j.child) if seg in bare for d in j.dofs}
+    pairs = {d: partners for name, (_, partners) in trading.items()
+             for d in model.joints[model.joint_index(name)].dofs}
     return [_far_from_prior(c, problem.settings.priors, pairs.get(c.item, ())) for c in out]
 
 

@@ -515,7 +515,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
-    notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state), problem.settings)
+    notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state), problem.settings,
+                             {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()})
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))

@@ -92,9 +92,9 @@ class StillNote:
             # An ankle that turns 15 deg in a walk is no still joint: the markers cannot tell its turn from its
             # neighbour's across the markerless segment, so one frame fixes it only loosely.
             seen = (f"{self.coordinate}: one frame's markers fix it only to {math.degrees(self.per_frame):.1f} deg "
-                    f"(its joint and the next trade off across {self.bare}, which carries no markers), and it "
-                    f"moved no more than that allows (SD over frames {math.degrees(self.spread):.1f} deg): the trial "
-                    f"does not separate its motion from its neighbour's, so ")
+                    f"(its joint and the next trade off across {self.bare}, which carries no markers the trials show), "
+                    f"and it moved no more than that allows (SD over frames {math.degrees(self.spread):.1f} deg): the "
+                    f"trial does not separate its motion from its neighbour's, so ")
         else:
             seen = (f"{self.coordinate}: moved no more than the markers fix it in a frame (SD over frames "
                     f"{math.degrees(self.spread):.1f} deg, one frame's {math.degrees(self.per_frame):.1f} deg): the "
