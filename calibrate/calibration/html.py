@@ -92,6 +92,11 @@ def _notes(report: dict) -> str:
         items.append(f"<li>moved marker {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
                      f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "
                      f"({m.get('sigmas', 0):.0f} SD of their spread); its positions there left out</li>")
+    for m in report.get("moved_markers_kept", []):
+        items.append(f"<li>moved marker? {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
+                     f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "
+                     f"({m.get('sigmas', 0):.0f} SD of their spread); kept in the fit (--moved-markers leaves its "
+                     f"positions there out)</li>")
     for f in report.get("far_joints", []):
         items.append(f"<li>far pose: {_e(f.get('trial'))} (still) holds {_e(f.get('joint'))} "
                      f"{f.get('angle_deg', 0):.0f}&deg; from every pose the moving trials reach; its "

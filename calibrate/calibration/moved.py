@@ -13,7 +13,9 @@ places cluster at one point; in the moving trials they spread with the skin's mo
 *moved* in a still trial when its place there lies both MOVED_MIN from the moving trials' mean place and
 MOVED_SIGMAS of their spread away from it (Mahalanobis): the moving trials never put it there.  The
 still trial's positions of a moved marker are then left out of the fit (with one pose, a place of its
-own would fit them exactly and tell nothing else); the model keeps the moving trials' place."""
+own would fit them exactly and tell nothing else); the model keeps the moving trials' place.  With
+Settings.moved_markers off, the test runs once at the solution and its finds are only named
+(Calibration.moved_kept)."""
 
 from __future__ import annotations
 

@@ -482,6 +482,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("solve", "again, to the tolerance"))
         state, again = paused.finish()
         summary = _merge(summary, again)
+    kept: list[MovedMarker] = []
+    if not run.moved_markers and motion is not None and len(trials) > 1:
+        # Markers a still trial shows elsewhere on their segment than the moving trials, looked for but kept
+        # (Settings.moved_markers off): named, so that the user sees what pulls the geometry (gait2392's static
+        # acromia, 53-63 mm, and its back centre 120 mm from the base model's) and the option that leaves them out.
+        kept = moved_markers(problem, state, trial_of, [m < STILL_MOTION for m in motion])
     if far_obs is not None:
         # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
         # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before
@@ -532,7 +538,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved), far_joints=tuple(far),
+                       noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved), moved_kept=tuple(kept),
+                       far_joints=tuple(far),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),
                        knee_axes=knee_axis_checks(subject, params, trials, motions))

@@ -132,6 +132,9 @@ def calibration_report(cal: Calibration) -> dict:
         # their positions there left out, the model keeping the moving trials' place
         "moved_markers": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
                           for m in cal.moved],
+        # the same, found with the option off: their positions kept in the fit (--moved-markers leaves them out)
+        "moved_markers_kept": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
+                               for m in cal.moved_kept],
         # joints a still trial held where the moving trials never go (Settings.far_joints): its positions of the
         # markers beyond them left out of the fit, its angles there fitted to them afterwards
         "far_joints": [{**f.to_json(), "trial": cal.trials[f.trial].source or f"trial {f.trial + 1}"}
@@ -478,6 +481,12 @@ def summary_text(cal) -> str:
                      + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
                      + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
                      "with the pose): their positions there left out, the model keeps the moving trials' place")
+    for name, ms in _by_still_trial(cal, cal.moved_kept):
+        lines.append(f"  moved?       {name} (still) shows "
+                     + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
+                     + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
+                     "with the pose): kept in the fit, which then bends the geometry between the two places; "
+                     "--moved-markers leaves their positions there out")
     for name, fs in _by_still_trial(cal, cal.far_joints):
         lines.append(f"  far pose     {name} (still) holds "
                      + ", ".join(f"{f.joint} {math.degrees(f.angle):.0f} deg" for f in fs)

@@ -201,6 +201,8 @@ class Calibration:
     # calibrate.calibration.moved.MovedMarker per marker that a still trial shows elsewhere on its segment than
     # the moving trials do: its positions in that still trial were left out (Settings.moved_markers)
     moved: tuple = ()
+    # The same test's finds where Settings.moved_markers is off: named, their positions kept in the fit
+    moved_kept: tuple = ()
     # calibrate.calibration.far_joints.FarJoint per joint that a still trial holds where the moving trials never go:
     # its markers beyond it left out there (Settings.far_joints)
     far_joints: tuple = ()
