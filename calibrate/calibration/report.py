@@ -349,6 +349,26 @@ def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
     return lines + ([f"  left out, all {len(left)}: {shared}"] if shared else [])
 
 
+def _moved_hint(cal, change) -> str:
+    """For an unreliable joint centre, axis or marker: the kept moved markers (Calibration.moved_kept) on the
+    segments it belongs to, which pull it (gait2392's back centre and its static's acromia), or ''."""
+    model = cal.model
+    if change.group in ("centre", "axis"):
+        name = change.item if change.group == "centre" else model.dofs[model.dof_index(change.item)].joint
+        j = model.joints[model.joint_index(name)]
+        segments = {j.parent, j.child}
+    elif change.group == "marker":
+        segments = {model.markers[model.marker_index(change.item)].segment}
+    else:
+        segments = {change.item}
+    near = [m for m in cal.moved_kept if m.segment in segments]
+    if not near:
+        return ""
+    return ("; the still trial shows " + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in near)
+            + f" elsewhere on {', '.join(sorted({m.segment for m in near}))} than the moving trials (moved?): "
+            "--moved-markers leaves those positions out")
+
+
 def _by_still_trial(cal, records) -> list[tuple[str, list]]:
     """(the still trial's name, its records) for records that carry a `trial` index (moved markers, far
     joints), each trial once, in the records' order."""
@@ -433,7 +453,7 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
     for c in cal.changes:
         if c.group == "centre" and c.unreliable and (c.identified or _slide_only(c)):
-            lines.append(f"  implausible  centre[{c.item}]: {c.note}")
+            lines.append(f"  implausible  centre[{c.item}]: {c.note}{_moved_hint(cal, c)}")
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")
@@ -443,7 +463,7 @@ def summary_text(cal) -> str:
                      "their priors allow, unreliable" if far else "") + f"): {len(un)}")
         un = sorted(un, key=lambda c: not c.unreliable)  # the unreliable first
         for c in un[:12]:
-            lines.append(f"    {c.name}: {c.note}")
+            lines.append(f"    {c.name}: {c.note}{_moved_hint(cal, c) if c.unreliable else ''}")
         if len(un) > 12:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
     for note in cal.seed.notes:
