@@ -847,6 +847,11 @@ def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_p
     assert "locked       subtalar_l at 0 deg, subtalar_r at 0 deg" in cal.text()
     with pytest.raises(CalibrateError, match="'subtalar' is not a coordinate"):
         calibrate(human, trial, Settings(lock=("subtalar",)))
+    # Outside the joint's range (the base model's limits): refused, not solved into a model no subject has.
+    knee = human.dofs[human.dof_index("knee_r")]
+    with pytest.raises(CalibrateError, match=rf"lock: knee_r at 500 deg is outside its range in human.urdf "
+                                             rf"\({np.degrees(knee.lower):g} to {np.degrees(knee.upper):g} deg\)"):
+        calibrate(human, trial, Settings(lock={"knee_r": np.radians(500.0)}))
 
 
 def test_axes_of_still_coordinates_are_held_at_the_base_models(human, human_kin):

@@ -145,6 +145,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them,
     # and its segment frames end where its markers put them (Settings.segment_frames), unless settings say
     # otherwise; the OpenSim readers (50 ms of imports) are loaded only for such a model.
+    given = settings.lock  # the user's locks (Settings.lock, --lock, an IK setup's tasks), checked against the ranges
     opensim = "<opensim" in model.text
     if opensim:
         from ..io.osim_info import with_locked
@@ -161,6 +162,14 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if bad:
         raise CalibrateError(f"lock: '{bad[0]}' is not a coordinate of {model.path.name}; use one of its DoF names "
                              f"({', '.join(model.dof_names[:6])}, ...; see calibrate inspect)")
+    for name, value in given:
+        # A coordinate held outside the joint's range poses the segments where no subject can (--lock knee_r=500
+        # ran to a femur 200 mm off and tibias 47 % apart, reported converged).
+        d = model.dofs[model.dof_index(name)]  # every DoF turns (rad); a continuous one has no range
+        if not d.lower - 1e-9 <= value <= d.upper + 1e-9:
+            raise CalibrateError(f"lock: {name} at {np.degrees(value):g} deg is outside its range in "
+                                 f"{model.path.name} ({np.degrees(d.lower):g} to {np.degrees(d.upper):g} deg); give a "
+                                 f"value within it")
     axis_dofs = [d for j in model.joints if j.kind in ("hinge", "universal") for d in j.dofs]
     bad = [name for name in settings.hold_axes if name not in axis_dofs]
     if bad:
