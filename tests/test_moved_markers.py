@@ -162,3 +162,22 @@ def test_the_command_line_leaves_them_out_with_moved_markers(human, session, tmp
         else:
             assert rep["moved_markers"] == [] and "  moved  " not in out
             assert sorted(m["marker"] for m in rep["moved_markers_kept"]) == sorted(SHIFTS) and "  moved?  " in out
+
+
+def test_a_static_alone_is_named_still_only(human, session):
+    """A static calibrated alone: no joint turns, so the summary, the report and the HTML say that the joints stay
+    the base model's (scaled) and what to add; a static with a movement trial is not."""
+    squats, _, plain = session
+    cal = calibrate(human, plain.trial, Settings(outliers=0.0))
+    assert cal.still_only is not None and cal.still_only < 0.005
+    line = next(x for x in summary_text(cal).splitlines() if x.startswith("  still only   the trial is still"))
+    assert "add a movement trial (calibrate STATIC WALK MODEL)" in line
+    rep = calibration_report(cal)
+    assert rep["still_only_mm"] == pytest.approx(1e3 * cal.still_only)
+    assert "still only: no trial moves" in report_html(rep)
+    # No joint turns: every hinge axis the model calibrates is held as still (Settings.auto_hold).
+    hinges = {d for j in human.joints if j.kind == "hinge" for d in j.dofs}
+    assert hinges <= set(cal.held_axes), hinges - set(cal.held_axes)
+    both = calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0))
+    assert both.still_only is None and "still only" not in summary_text(both)
+    assert calibration_report(both)["still_only_mm"] is None

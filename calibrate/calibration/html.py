@@ -92,6 +92,10 @@ def _notes(report: dict) -> str:
         items.append(f"<li>moved marker {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
                      f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "
                      f"({m.get('sigmas', 0):.0f} SD of their spread); its positions there left out</li>")
+    if report.get("still_only_mm") is not None:
+        items.append(f"<li class=bad>still only: no trial moves (markers on different segments keep their distances "
+                     f"to {report['still_only_mm']:.1f} mm SD): no motion places the joint centres and axes, which "
+                     "stay near the base model's, scaled; add a movement trial to place them</li>")
     for m in report.get("moved_markers_kept", []):
         items.append(f"<li>moved marker? {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
                      f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "

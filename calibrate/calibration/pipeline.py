@@ -548,7 +548,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved), moved_kept=tuple(kept),
-                       far_joints=tuple(far),
+                       far_joints=tuple(far), still_only=_still_only(model, trials, motion),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),
                        knee_axes=knee_axis_checks(subject, params, trials, motions))
@@ -806,6 +806,14 @@ def _motion(model: Model, trial: Trial) -> float:
     other = np.array([[seg[a] != seg[b] for b in labs] for a in labs])
     vals = np.sqrt(D[other & np.isfinite(D)]) if labs else np.zeros(0)
     return float(np.median(vals)) if vals.size else 0.0
+
+
+def _still_only(model: Model, trials: Sequence[Trial], motion: Sequence[float] | None) -> float | None:
+    """The largest _motion of the trials if every one is still (a static calibrated alone: nothing places the
+    joints), else None.  `motion`: _trial_motion, if measured."""
+    if motion is None or len(trials) == 1:
+        motion = [_motion(model, t) for t in trials]
+    return max(motion) if max(motion) < STILL_MOTION else None
 
 
 def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:

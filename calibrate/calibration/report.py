@@ -135,6 +135,8 @@ def calibration_report(cal: Calibration) -> dict:
         # the same, found with the option off: their positions kept in the fit (--moved-markers leaves them out)
         "moved_markers_kept": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
                                for m in cal.moved_kept],
+        # every trial still (a static alone): the largest relative marker motion of the trials (mm), else null
+        "still_only_mm": None if cal.still_only is None else 1e3 * cal.still_only,
         # joints a still trial held where the moving trials never go (Settings.far_joints): its positions of the
         # markers beyond them left out of the fit, its angles there fitted to them afterwards
         "far_joints": [{**f.to_json(), "trial": cal.trials[f.trial].source or f"trial {f.trial + 1}"}
@@ -392,6 +394,12 @@ def summary_text(cal) -> str:
                    if cal.trial_weights and cal.trial_weights[i] < trial.n_frames else "")
         lines.append(f"  {'trial' if i == 0 else '':13s}{trial.source or '(in memory)'}: {trial.n_frames} frames at "
                      f"{trial.rate:g} Hz, marker RMS {1000 * marker_rms(res):.2f} mm{weighed}")
+    if cal.still_only is not None:
+        lines.append(f"  still only   {'every trial is' if len(cal.trials) > 1 else 'the trial is'} still (markers on "
+                     f"different segments keep their distances to {1e3 * cal.still_only:.1f} mm SD; a walk's move "
+                     "20-55 mm): no joint turns, so no motion places the joint centres and axes; they stay near the "
+                     "base model's, scaled, where the priors of the centres and of the markers around them balance; "
+                     "add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
         f"rigidity), {len(cal.ignored_labels)} trial labels left out, {len(cal.outliers)} outliers rejected",

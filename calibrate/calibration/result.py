@@ -203,6 +203,9 @@ class Calibration:
     moved: tuple = ()
     # The same test's finds where Settings.moved_markers is off: named, their positions kept in the fit
     moved_kept: tuple = ()
+    # Every trial still (a static alone): no joint turned, so the joints stay the base model's, scaled; the median
+    # SD of the distances between markers on different segments, m, of the trial that moved most (else None)
+    still_only: float | None = None
     # calibrate.calibration.far_joints.FarJoint per joint that a still trial holds where the moving trials never go:
     # its markers beyond it left out there (Settings.far_joints)
     far_joints: tuple = ()
