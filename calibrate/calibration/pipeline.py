@@ -76,6 +76,7 @@ from ..solve.memory import no_huge_pages
 from .options import PipelineOptions
 from .records import Countdown, IterationClock, JointCentreMarker, Progress
 
+MOVED_SAMPLE = 500  # frames of each trial the moved-marker test reads when it only names what it finds
 MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
 
@@ -496,7 +497,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # Markers a still trial shows elsewhere on their segment than the moving trials, looked for but kept
         # (Settings.moved_markers off): named, so that the user sees what pulls the geometry (gait2392's static
         # acromia, 53-63 mm, and its back centre 120 mm from the base model's) and the option that leaves them out.
-        kept = moved_markers(problem, state, trial_of, [m < STILL_MOTION for m in motion])
+        # On at most MOVED_SAMPLE evenly spaced frames of each trial: its places' mean and spread need no more, and
+        # a long trial's every frame would hold (F, markers, 3, 3) arrays at once.
+        idx = np.concatenate([sl.start + even_frames(sl.stop - sl.start, MOVED_SAMPLE) for sl in spans])
+        kept = moved_markers(problem.subset(idx), frames_of(state, idx), trial_of[idx],
+                             [m < STILL_MOTION for m in motion])
     if far_obs is not None:
         # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
         # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before
