@@ -193,3 +193,27 @@ def test_inspect_model_and_trial(tmp_path, capsys):
     capsys.readouterr()
     assert main(["inspect", str(tmp_path / "trial.c3d")]) == 0
     assert "5 frames at 100 Hz" in capsys.readouterr().out
+
+
+def test_inspect_says_whether_a_trial_keeps_still(tmp_path, capsys):
+    """`calibrate inspect TRIAL` measures how much its markers move relative to each other (the median over pairs of
+    their distance's SD, computed here with numpy alone): a static keeps still, squats move."""
+    import re
+
+    from conftest import HUMAN
+
+    from calibrate.io.c3d import write_c3d
+    from calibrate.simulation.simulate import simulate_static
+
+    human = load_model(HUMAN)
+    squats = simulate_squats(human, frames=60, noise_mm=1.0, seed=2)
+    static = simulate_static(human, squats.truth, frames=60, noise_mm=1.0, seed=2)
+    for name, sim, word in (("static", static, "still, a static trial"), ("squats", squats, "a movement trial")):
+        write_c3d(tmp_path / f"{name}.c3d", sim.trial)
+        assert main(["inspect", str(tmp_path / f"{name}.c3d")]) == 0
+        line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("  motion: "))
+        X = read_c3d(tmp_path / f"{name}.c3d").markers
+        d = np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3)
+        sd = np.std(d, axis=0, ddof=1)[np.triu_indices(X.shape[1], 1)]
+        assert float(re.search(r"to ([0-9.]+) mm SD", line).group(1)) == pytest.approx(1000 * np.median(sd), abs=0.06)
+        assert word in line, line

@@ -800,30 +800,33 @@ def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: flo
     return lengths if any(n < t.n_frames for n, t in zip(lengths, trials, strict=True)) else None
 
 
-def _motion(model: Model, trial: Trial) -> float:
-    """How much the trial's markers on different segments move relative to each other: the median over
-    such pairs of their distance's SD (m; a static trial's: 0.4-1.6 mm on the real recordings, their
-    walks' 20-55 mm)."""
-    seg = {m.name: m.segment for m in model.markers}
-    labs = [lab for lab in trial.labels if lab in seg]
+def relative_motion(trial: Trial, model: Model | None = None) -> float:
+    """How much the trial's markers on different segments of `model` move relative to each other: the median
+    over such pairs of their distance's SD (m; a static trial's: 0.4-1.6 mm on the real recordings, their
+    walks' 20-55 mm).  Without a model, over every pair of labelled markers (the few on one segment barely
+    move the median; the real recordings: statics 0.4-1.6 mm, walks 14-24 mm).  A trial under STILL_MOTION is
+    still."""
+    seg = {m.name: m.segment for m in model.markers} if model is not None else None
+    labs = [lab for lab in trial.labels if (lab in seg if seg is not None else not UNLABELLED.fullmatch(lab))]
     X = trial.select(labs).markers[:: max(1, trial.n_frames // 200)]
     D = distance_variance(X, min_frames=3)
-    other = np.array([[seg[a] != seg[b] for b in labs] for a in labs])
+    other = (np.array([[seg[a] != seg[b] for b in labs] for a in labs]) if seg is not None
+             else ~np.eye(len(labs), dtype=bool))
     vals = np.sqrt(D[other & np.isfinite(D)]) if labs else np.zeros(0)
     return float(np.median(vals)) if vals.size else 0.0
 
 
 def _still_only(model: Model, trials: Sequence[Trial], motion: Sequence[float] | None) -> float | None:
-    """The largest _motion of the trials if every one is still (a static calibrated alone: nothing places the
+    """The largest relative_motion of the trials if every one is still (a static calibrated alone: nothing places the
     joints), else None.  `motion`: _trial_motion, if measured."""
     if motion is None or len(trials) == 1:
-        motion = [_motion(model, t) for t in trials]
+        motion = [relative_motion(t, model) for t in trials]
     return max(motion) if max(motion) < STILL_MOTION else None
 
 
 def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
-    """_motion of every trial (one trial: not measured, nothing to compare it with)."""
-    return [_motion(model, t) for t in trials] if len(trials) > 1 else [0.0]
+    """relative_motion of every trial (one trial: not measured, nothing to compare it with)."""
+    return [relative_motion(t, model) for t in trials] if len(trials) > 1 else [0.0]
 
 
 def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str],

@@ -352,6 +352,12 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             ([f"height {m.height:g} m"] if m.height is not None else []) + \
             [f"{j} width {1000 * w:g} mm" for j, w in sorted(m.widths.items())]
         print(f"  measured ({m.source}): " + ", ".join(parts))
+    from ..calibration.pipeline import STILL_MOTION, relative_motion
+
+    moves = relative_motion(t)  # which trial is the static (--neutral, --still-weight): the one that keeps still
+    print(f"  motion: its markers keep their distances to {1000 * moves:.1f} mm SD (median over marker pairs): "
+          + ("still, a static trial" if moves < STILL_MOTION else
+             "a movement trial (a static keeps them to 0.4-1.6 mm)"))
     for lab, g in zip(t.labels, gaps, strict=True):
         print(f"  {lab:16s} gaps {100 * g:5.1f} %")
     from ..calibration.plugin_gait import plugin_gait_knees
