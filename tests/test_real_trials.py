@@ -175,6 +175,9 @@ def test_neutral_static_trial_sets_the_zero_of_the_joint_angles(human):
     assert "neutral      segment frames turned" in cal.text() and cal.report()["neutral_trial"] == 0
     with pytest.raises(CalibrateError, match="neutral: 2 is not the index"):
         calibrate(human, [static.trial, sim.trial], neutral=2)
+    # The moving trial as the neutral one (every segment frame would turn by its mean pose): refused, the static named.
+    with pytest.raises(CalibrateError, match=r"neutral: trial 2 \(.*\) moves .* give trial 1"):
+        calibrate(human, [static.trial, sim.trial], neutral=1)
 
 
 def test_static_trial_alone_scales_and_flags_what_it_cannot_identify(human):

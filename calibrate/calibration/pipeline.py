@@ -187,6 +187,14 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if neutral is not None and not (isinstance(neutral, int) and 0 <= neutral < len(trials)):
         raise CalibrateError(f"neutral: {neutral!r} is not the index of one of the {len(trials)} trials "
                              f"(0 for the first)")
+    if neutral is not None and (moves := relative_motion(trials[neutral], model)) >= STILL_MOTION:
+        # Its joint angles made zero on average would turn every segment frame by a walk's mean pose.
+        still = [i for i, t in enumerate(trials) if relative_motion(t, model) < STILL_MOTION]
+        raise CalibrateError(f"neutral: trial {neutral + 1} ({trials[neutral].source or 'in memory'}) moves (markers "
+                             f"on different segments change their distances by {1000 * moves:.1f} mm SD; a static "
+                             "keeps them to 0.4-1.6 mm); the neutral trial is a static in the model's neutral pose: "
+                             + (f"give trial {still[0] + 1} ({trials[still[0]].source or 'in memory'})" if still
+                                else "record one, or leave --neutral out"))
     measured = first_measurements(trials)
     mass_from = None if mass is None else "given"
     if mass is None and measured is not None and measured.mass is not None:
@@ -803,7 +811,7 @@ def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: flo
 def relative_motion(trial: Trial, model: Model | None = None) -> float:
     """How much the trial's markers on different segments of `model` move relative to each other: the median
     over such pairs of their distance's SD (m; a static trial's: 0.4-1.6 mm on the real recordings, their
-    walks' 20-55 mm).  Without a model, over every pair of labelled markers (the few on one segment barely
+    walks' 15 mm and more).  Without a model, over every pair of labelled markers (the few on one segment barely
     move the median; the real recordings: statics 0.4-1.6 mm, walks 14-24 mm).  A trial under STILL_MOTION is
     still."""
     seg = {m.name: m.segment for m in model.markers} if model is not None else None
