@@ -27,7 +27,7 @@ from calibrate.model.model import Parameters, add_markers, load_model, write_mod
 from calibrate.problem.problem import Problem
 from calibrate.problem.settings import Priors, Settings
 from calibrate.problem.state import State
-from calibrate.simulation.simulate import simulate_gait, simulate_squats
+from calibrate.simulation.simulate import simulate_gait, simulate_squats, simulate_static
 from calibrate.solve.assembly import in_parallel, split_frames
 from calibrate.solve.ik import marker_columns
 from calibrate.solve.lm import factor_step, levenberg_marquardt, solve_step
@@ -816,6 +816,20 @@ def _held_still(human, human_kin, sim, dofs, seed):
     noisy = M + np.random.default_rng(seed).normal(scale=0.001, size=M.shape)
     trial = Trial(human.marker_names, noisy, sim.trial.rate)
     return trial, replace(sim, trial=trial, motion=replace(m, angles=ang), clean_markers=M, clean_centres=C)
+
+
+def test_a_trial_in_the_wrong_units_is_refused(human):
+    """A trial whose coordinates are 1000 times too large (mm read as m) or small converged, before, to segments
+    scaled to the start's bounds; now it is refused with one line naming the file and the units, whichever of
+    several trials it is."""
+    sim = simulate_squats(human, frames=30, noise_mm=1.0, seed=4)
+    static = simulate_static(human, sim.truth, frames=20, seed=4)
+    for factor in (1000.0, 0.001, 10.0):
+        bad = Trial(sim.trial.labels, sim.trial.markers * factor, sim.trial.rate, 0, "walk_mm.c3d")
+        for trials in ([bad], [static.trial, bad]):
+            with pytest.raises(CalibrateError, match=r"walk_mm.c3d: its markers put the subject at [0-9.e+-]+ "
+                                                     r"times the size of human.urdf .* check the file's units"):
+                calibrate(human, trials)
 
 
 def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_path):

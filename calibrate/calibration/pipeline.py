@@ -287,9 +287,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if n_good < MIN_FRAMES:
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
+    size = size_from_markers(model, trials)
+    _check_size(model, trials, size)
     if run.seed:
         say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
-        size = size_from_markers(model, trials)
         # The trial whose markers on different segments move most relative to each other (a static trial's
         # barely do): the one the joint-centre seed can use.
         pick = int(np.argmax(motion if motion is not None else _trial_motion(model, trials)))
@@ -806,6 +807,25 @@ def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: flo
     lengths = [min(float(t.n_frames), weight) if s else float(t.n_frames)
                for t, s in zip(trials, still, strict=True)]
     return lengths if any(n < t.n_frames for n, t in zip(lengths, trials, strict=True)) else None
+
+
+SIZE_RANGE = (0.3, 3.0)  # the subject's size against the base model's beyond which the units are wrong (mm read as m)
+
+
+def _check_size(model: Model, trials: Sequence[Trial], size) -> None:
+    """Refuse trials whose markers put the subject at a size no unit-consistent trial does (SIZE_RANGE times the
+    base model's: a subject of 0.5 or 5 m against a 1.7 m model): a trial in mm read as m is 1000 times too large,
+    and the calibration would converge to segments scaled to the bound.  The trial to blame is named by its own
+    size where the trials differ."""
+    lo, hi = SIZE_RANGE
+    if size is None or lo < size.overall < hi:
+        return
+    own = [(t, size_from_markers(model, [t])) for t in trials] if len(trials) > 1 else [(trials[0], size)]
+    t, s = next(((t, s) for t, s in own if s is not None and not lo < s.overall < hi), own[0])
+    s = s if s is not None else size
+    raise CalibrateError(f"{t.source or 'the trial'}: its markers put the subject at {s.overall:.3g} times the size of "
+                         f"{model.path.name} ({s.pairs} marker pairs of steady distance); check the file's units (mm "
+                         "read as m makes it 1000 times too large; a C3D's POINT:UNITS, a TRC's Units) or its labels")
 
 
 def relative_motion(trial: Trial, model: Model | None = None) -> float:
