@@ -504,17 +504,15 @@ def summary_text(cal) -> str:
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
                      "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
                      + _foot_hint(cal, [h.joint for h in turned]))
-    for name, ms in _by_still_trial(cal, cal.moved):
-        lines.append(f"  moved        {name} (still) shows "
-                     + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
-                     + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
-                     "with the pose): their positions there left out, the model keeps the moving trials' place")
-    for name, ms in _by_still_trial(cal, cal.moved_kept):
-        lines.append(f"  moved?       {name} (still) shows "
-                     + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
-                     + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
-                     "with the pose): kept in the fit, which then bends the geometry between the two places; "
-                     "--moved-markers leaves their positions there out")
+    for tag, records, done in (("moved   ", cal.moved, "their positions there left out, the model keeps the moving "
+                                "trials' place"),
+                               ("moved?  ", cal.moved_kept, "kept in the fit, which then bends the geometry between "
+                                "the two places; --moved-markers leaves their positions there out")):
+        for name, ms in _by_still_trial(cal, records):
+            lines.append(f"  {tag}     {name} (still) shows "
+                         + ", ".join(f"{m.marker} {1e3 * m.distance:.0f} mm" for m in ms)
+                         + " elsewhere on their segments than the moving trials (slipped, re-placed, or skin moved "
+                         f"with the pose): {done}")
     for name, fs in _by_still_trial(cal, cal.far_joints):
         lines.append(f"  far pose     {name} (still) holds "
                      + ", ".join(f"{f.joint} {math.degrees(f.angle):.0f} deg" for f in fs)
