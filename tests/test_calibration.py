@@ -833,13 +833,44 @@ def test_a_trial_in_the_wrong_units_is_refused(human):
 
 
 def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_path):
-    """A subject whose subtalar joints do not move, under Plug-in Gait's two-marker feet: with them
-    locked (as OpenSim users lock them) every frame keeps them at the value, and the ankle axes come
-    out within 1 deg of the truth; the report and summary say what was locked."""
+    """A subject whose subtalar joints do not move, under Plug-in Gait's two-marker feet.  By default calibrate
+    sees that each subtalar trades its turn with the ankle across the markerless talus and moved no more than one
+    frame's markers fix it, so it locks the subtalar at 0 (the less-seen of the pair) and finds the ankle: the
+    same answer as the user's own lock (as OpenSim users lock them), the ankle axes within 1 deg of the truth
+    either way; the report and summary say what was locked and why.  With auto_hold off both stay free and the
+    notes say what to do."""
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
     trial, still = _held_still(human, human_kin, sim, ("subtalar_r", "subtalar_l"), seed=8)
-    # Left free, the fit says that these two did not move and what to do.
-    free = calibrate(human, trial, Settings(), kinematics=human_kin)
+    sub = [human.dof_index(d) for d in ("subtalar_r", "subtalar_l")]
+    auto = calibrate(human, trial, Settings(), kinematics=human_kin)
+    assert {lk.coordinate for lk in auto.auto_locked} == {"subtalar_r", "subtalar_l"}
+    for lk in auto.auto_locked:
+        side = lk.coordinate[-1]
+        assert (lk.bare, lk.neighbours, lk.value) == (f"talus_{side}", (f"ankle_{side}",), 0.0)
+        # The locked one is the one one frame's markers fix less well, and it moved no more than that.
+        assert lk.per_frame > lk.neighbour_per_frame[0] and lk.spread < 3.0 * lk.per_frame
+    assert np.abs(auto.motion.angles[:, sub]).max() < 1e-5
+    assert dict(auto.settings.lock) == {"subtalar_l": 0.0, "subtalar_r": 0.0}
+    assert not {"ankle_r", "ankle_l"} & set(auto.held_axes)  # the ankles found, not held
+    assert not [n for n in auto.notes if n.startswith(("ankle", "subtalar"))], auto.notes
+    cmp = compare_to_truth(auto, still, floor=0.0)
+    assert cmp.axis_error_deg["ankle_r"] <= 1.0 and cmp.axis_error_deg["ankle_l"] <= 1.0, cmp.axis_error_deg
+    text = auto.text()
+    assert "locked       subtalar_l at 0 deg, subtalar_r at 0 deg" in text or \
+        "locked       subtalar_r at 0 deg, subtalar_l at 0 deg" in text
+    assert "auto-locked  subtalar_r at 0 deg: its turn and ankle_r's trade across talus_r" in text
+    rep = auto.report()
+    assert {a["coordinate"]: (a["segment"], a["neighbours"]) for a in rep["auto_locked"]} == {
+        "subtalar_r": ("talus_r", ["ankle_r"]), "subtalar_l": ("talus_l", ["ankle_l"])}
+    assert rep["settings"]["lock_deg"] == {"subtalar_l": 0.0, "subtalar_r": 0.0}
+    from calibrate.calibration import report_html
+    assert "<li>locked: subtalar_r at 0 deg: its turn and ankle_r&#x27;s trade across talus_r" in report_html(rep)
+    # The same subject with its subtalars turning (SD 8 deg over the squats): nothing locked, nothing held.
+    moving = calibrate(human, sim.trial, Settings(), kinematics=human_kin)
+    assert moving.auto_locked == () and moving.held_axes == () and moving.settings.lock == ()
+    # auto_hold off: both left free, and the notes say that these two did not move and what to do.
+    free = calibrate(human, trial, Settings(auto_hold=False), kinematics=human_kin)
+    assert free.auto_locked == () and free.settings.lock == ()
     # Beside the markerless talus: one frame fixes them only loosely (the ankle takes up their turn), and they
     # moved no more than that.
     named = {n.split(":")[0] for n in free.notes if "moved no more than that allows" in n}
@@ -849,9 +880,8 @@ def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_p
     assert all(f"if one of subtalar_{n[-1]} or ankle_{n[-1]} hardly moved" in t for n in named for t in free.notes
                if t.startswith(n))
     cal = calibrate(human, trial, Settings(lock=("subtalar_r", "subtalar_l")), kinematics=human_kin)
-    assert cal.notes == ()
+    assert cal.notes == () and cal.auto_locked == ()
     assert cal.converged
-    sub = [human.dof_index(d) for d in ("subtalar_r", "subtalar_l")]
     assert np.abs(cal.motion.angles[:, sub]).max() < 1e-5
     cmp = compare_to_truth(cal, still, floor=0.0)
     assert cmp.axis_error_deg["ankle_r"] <= 1.0 and cmp.axis_error_deg["ankle_l"] <= 1.0, cmp.axis_error_deg

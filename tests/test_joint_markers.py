@@ -85,8 +85,8 @@ def _hips_from_urdf(cal, path) -> tuple[np.ndarray, np.ndarray]:
 
 def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_path):
     """A static alone shows no motion to place a hip by: with the tie the right hip goes to the lab's RHJC
-    (within 3 mm, every frame), without it (joint_marker 0) RHJC is an ordinary marker that floats off the
-    centre and the hip stays with the priors, more than 15 mm from it."""
+    (to the marker's 1 mm noise, every frame), without it (joint_marker 0) RHJC is an ordinary marker that floats
+    off the centre and the hip stays with the priors, more than 15 mm from it."""
     model = add_markers(human, {"RHJC": ("femur_r", np.zeros(3))})
     truth = simulate_squats(model, frames=3, noise_mm=0.0, seed=7).truth
     lab = truth.copy()
@@ -98,8 +98,10 @@ def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_pat
     cal = calibrate(model, [static], Settings(outliers=0.0))
     assert [(m.marker, m.joint) for m in cal.joint_markers] == [("RHJC", "hip_r")]
     assert cal.joint_markers[0].offset < 0.002 and cal.joint_markers[0].base_offset == 0.0
+    # Each frame's RHJC carries the simulator's 1 mm noise per coordinate (its 3-D norm: median 1.5 mm, the largest
+    # of 60 frames about 3 mm): the hip sits at the marker to that.
     gap = np.linalg.norm(_hips_from_urdf(cal, tmp_path / "tied.urdf")[0] - rhjc, axis=1)
-    assert gap.max() < 0.003
+    assert np.median(gap) < 0.002 and gap.max() < 0.004
     report = calibration_report(cal)
     assert report["joint_centre_markers"][0]["marker"] == "RHJC"
     assert report["settings"]["priors"]["joint_marker_mm"] == pytest.approx(1.0)

@@ -175,9 +175,12 @@ def test_a_static_alone_is_named_still_only(human, session):
     rep = calibration_report(cal)
     assert rep["still_only_mm"] == pytest.approx(1e3 * cal.still_only)
     assert "still only: no trial moves" in report_html(rep)
-    # No joint turns: every hinge axis the model calibrates is held as still (Settings.auto_hold).
+    # No joint turns: every hinge axis the model calibrates is held as still (Settings.auto_hold), but the
+    # subtalars', which trade with the ankles across the markerless tali: they are locked at 0 (their axes with them).
     hinges = {d for j in human.joints if j.kind == "hinge" for d in j.dofs}
-    assert hinges <= set(cal.held_axes), hinges - set(cal.held_axes)
+    locked = {lk.coordinate for lk in cal.auto_locked}
+    assert locked == {"subtalar_l", "subtalar_r"} and dict(cal.settings.lock) == dict.fromkeys(locked, 0.0)
+    assert hinges <= set(cal.held_axes) | locked, hinges - set(cal.held_axes) - locked
     both = calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0))
     assert both.still_only is None and "still only" not in summary_text(both)
     assert calibration_report(both)["still_only_mm"] is None

@@ -130,6 +130,8 @@ def _notes(report: dict) -> str:
     if report.get("held_axes"):
         items.append(f"<li>axes held at the base model's (the trials do not show these joints moving): "
                      f"{_e(', '.join(report['held_axes']))}</li>")
+    for lk in report.get("auto_locked", []):
+        items.append(f"<li>locked: {_e(lk.get('note', ''))}</li>")
     for n in report.get("notes", []):
         items.append(f"<li>{_e(n)}</li>")
     for n in report.get("seed", {}).get("notes", []):

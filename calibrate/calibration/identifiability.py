@@ -14,7 +14,7 @@ from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
 from ..problem.options import Priors, ProblemOptions
 from ..problem.problem import Problem
-from .records import CoordinateNote, Identified, LimitNote, ParameterChange, StillNote
+from .records import CoordinateNote, Identified, LimitNote, ParameterChange, StillNote, TradingLock
 
 STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
 
@@ -42,19 +42,17 @@ def coordinate_notes(model: Model, angles: np.ndarray, A: np.ndarray, options: P
     return still + tuple(n for n in limit_records(model, angles, options) if n.coordinate not in named)
 
 
-def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
-                      options: ProblemOptions) -> list[tuple[str, float, float]]:
-    """The coordinates (not locked) whose estimated motion is no larger than the noise: their spread
-    over the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix them (the
-    median over frames of sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block).  Such a joint
-    did not move as far as the trial shows, so nothing pins its axis or its angle's zero, and the
-    fit can trade them for noise (a still subtalar joint under a two-marker foot ends at its
-    widened limit with its axis turned tens of degrees).  (name, spread, per-frame SD) in rad.
+def coordinate_spreads(model: Model, angles: np.ndarray, A: np.ndarray,
+                       options: ProblemOptions) -> dict[str, tuple[float, float]]:
+    """Each coordinate's (not locked) motion against what one frame's markers fix: name -> (its spread over
+    the frames (SD), the median over frames of the SD with which one frame's markers fix it,
+    sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block), in rad.
 
     `A`: the blocks of every frame of `angles`, or of at most STILL_SAMPLE evenly spaced ones (as
     pipeline._sampled_blocks forms them).  Frames whose markers do not fix a coordinate at all (one
     frame's SD over UNOBSERVED: a static's arm markers left out, far_joints) count for neither figure of it:
-    counted, they made the median the unobserved frames' and every arm coordinate of a walk "still"."""
+    counted, they made the median the unobserved frames' and every arm coordinate of a walk "still".  A
+    coordinate no frame's markers reach is left out."""
     locked = {n for n, _ in options.lock}
     nz = A.shape[1]
     # The frames of `angles` that A's blocks belong to; then at most STILL_SAMPLE of them (a median needs no more).
@@ -65,7 +63,7 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
     ridge = 1e-12 * max(float(np.max(np.abs(np.diagonal(A, axis1=1, axis2=2)), initial=0.0)), 1e-300)
     cov = np.linalg.inv(A + ridge * np.eye(nz))
     sd = np.sqrt(np.maximum(FrameLayout.angles(np.diagonal(cov, axis1=1, axis2=2)), 0.0))
-    out = []
+    out = {}
     for k, d in enumerate(model.dofs):
         if d.name in locked:
             continue
@@ -74,10 +72,50 @@ def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
             continue  # no frame's markers reach it (an unresolved segment's, locked elsewhere)
         # Every frame observed: the spread over all of them, as before; else over the observed sampled ones.
         th = angles[:, k] if seen.all() else angles[frames[seen], k]
-        spread, per_frame = float(np.std(th)), float(np.median(sd[seen, k]))
-        if spread < STILL_RATIO * per_frame:
-            out.append((d.name, spread, per_frame))
+        out[d.name] = (float(np.std(th)), float(np.median(sd[seen, k])))
     return out
+
+
+def still_coordinates(model: Model, angles: np.ndarray, A: np.ndarray,
+                      options: ProblemOptions) -> list[tuple[str, float, float]]:
+    """The coordinates (not locked) whose estimated motion is no larger than the noise: their spread
+    over the frames (SD) below STILL_RATIO times the SD with which one frame's markers fix them
+    (coordinate_spreads, which says which frames count).  Such a joint did not move as far as the trial
+    shows, so nothing pins its axis or its angle's zero, and the fit can trade them for noise (a still
+    subtalar joint under a two-marker foot ends at its widened limit with its axis turned tens of
+    degrees).  (name, spread, per-frame SD) in rad."""
+    return still_of(coordinate_spreads(model, angles, A, options))
+
+
+def still_of(spreads: dict[str, tuple[float, float]]) -> list[tuple[str, float, float]]:
+    """The coordinates of coordinate_spreads that still_coordinates names."""
+    return [(n, spread, per_frame) for n, (spread, per_frame) in spreads.items() if spread < STILL_RATIO * per_frame]
+
+
+def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: Collection[str] | None = None,
+                  locked: Collection[str] = ()) -> tuple[TradingLock, ...]:
+    """The hinges to lock because the trials cannot separate their turn from a neighbour's
+    (PipelineOptions.auto_hold): a hinge that trades its turn with the next joint's across a segment whose
+    markers the trials do not show (trading_joints: the subtalar beside the ankle, across the talus), that
+    moved no more than one frame's markers fix it (still_coordinates), and that those markers fix less well
+    than every neighbour's coordinate there.  Left free, both joints' turns, their axes and the foot's markers
+    trade in every frame (pig_walk's two-marker feet: a static ankle at -35.6 deg against the other's -5.8, a
+    toe marker 124 mm from its place); locked at 0 (clipped to its range), as OpenSim's gait models lock the
+    subtalar, the neighbour is found as any hinge.  `spreads`: coordinate_spreads; `seen`, `locked`: as for
+    trading_joints."""
+    trading = trading_joints(model, seen, locked)
+    out = []
+    for name, (spread, per_frame) in spreads.items():
+        dof = model.dofs[model.dof_index(name)]
+        joint = model.joints[model.joint_index(dof.joint)]
+        if dof.joint not in trading or len(joint.dofs) != 1 or spread >= STILL_RATIO * per_frame:
+            continue
+        bare, neighbours = trading[dof.joint]
+        others = [spreads[n][1] for n in neighbours if n in spreads]
+        if len(others) == len(neighbours) and all(per_frame > o for o in others):
+            value = min(max(0.0, dof.lower), dof.upper)
+            out.append(TradingLock(name, value, bare, neighbours, spread, per_frame, tuple(others)))
+    return tuple(out)
 
 
 def even_frames(n: int, count: int) -> np.ndarray:

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import fields, replace
@@ -27,9 +28,11 @@ from calibrate.calibration.gauge import align_gauge, align_markers, align_neutra
 from calibrate.calibration.identifiability import (
     STILL_SAMPLE,
     coordinate_notes,
+    coordinate_spreads,
     even_frames,
     parameter_changes,
-    still_coordinates,
+    still_of,
+    trading_locks,
 )
 from calibrate.calibration.moved import MovedMarker, moved_markers
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
@@ -74,10 +77,11 @@ from ..solve.ik import marker_columns
 from ..solve.lm import Run, SolverSummary, covariance, levenberg_marquardt
 from ..solve.memory import no_huge_pages
 from .options import PipelineOptions
-from .records import Countdown, IterationClock, JointCentreMarker, Progress
+from .records import Countdown, IterationClock, JointCentreMarker, Progress, StillNote, TradingLock
 
 MOVED_SAMPLE = 500  # frames of each trial the moved-marker test reads when it only names what it finds
 MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
+FOUND_RATIO = 2.0  # a locked hinge's neighbour turning more than this many one-frame SDs keeps its axis free
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
 
 
@@ -395,10 +399,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # On every frame a marker's correlation time counts up to NOISE_TAU_SECONDS whatever the trials' rate.
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
     still = [m < STILL_MOTION for m in motion] if motion is not None and run.moved_markers else None
-    problem, state, summary, scatter, solved, moved = _solve(problem, start, spans, run, solver, say, lengths, cap,
-                                                             still, [t.source for t in trials])
+    problem, state, summary, scatter, solved, moved, locks = _solve(problem, start, spans, run, solver, say, lengths,
+                                                                    cap, still, [t.source for t in trials])
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
-    settings = replace(settings, hold_axes=problem.settings.hold_axes)  # as used: with the axes held above
+    # As used: with the axes held and the hinges locked above.
+    settings = replace(settings, hold_axes=problem.settings.hold_axes, lock=problem.settings.lock)
     rejected: list[Outlier] = []
     hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
     fixed = fixed_noise(problem, run)
@@ -546,6 +551,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     Z, Q = absolute(problem.kin, state, spans)
     notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state), problem.settings,
                              {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()})
+    # The neighbour of a hinge locked for trading (an ankle beside a locked subtalar) was judged with it and found
+    # the better seen: no note tells the user to lock it too (pig_walk's left ankle, 60 deg through the walk).
+    found = {n for lk in locks for n in lk.neighbours}
+    notes = tuple(n for n in notes if not (isinstance(n, StillNote) and n.coordinate in found))
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
@@ -558,7 +567,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
-                       outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, unresolved=res.segments,
+                       outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
+                       unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved), moved_kept=tuple(kept),
@@ -626,7 +636,7 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
            say: Callable[[str], None], lengths: Sequence[float] | None = None, tau_max: float | None = None,
            still: Sequence[bool] | None = None, sources: Sequence[str] = ()
-           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker]]:
+           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker], tuple[TradingLock, ...]]:
     """The global solve: the geometry's basin on about COARSE_FRAMES evenly spaced frames (spread over
     the trials by their length; a long trial then through larger subsamples), then every frame's pose
     fitted to that geometry and the noise learnt on every frame.  With `run.auto_hold`, the axes of the
@@ -655,6 +665,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
 
     names = [sources[i] if i < len(sources) and sources[i] else f"trial {i + 1}" for i in range(len(spans))]
     moved: list[MovedMarker] = []
+    locks: tuple[TradingLock, ...] = ()
     coarse_summary: SolverSummary | None = None
     for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
         sub = subsample(problem)
@@ -696,9 +707,40 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
             lin = sub.linearize(state, with_parameters=False)
             angles = FrameLayout.angles(absolute(sub.kin, state)[0])
-            held = [name for name, _, _ in still_coordinates(sub.model, angles, lin.A, sub.settings) if name in axes]
-        if not held and not found:
+            spreads = coordinate_spreads(sub.model, angles, lin.A, sub.settings)
+            seen_names = {mk.name for k, mk in enumerate(problem.model.markers) if problem.seen[:, k].any()}
+            new_locks = trading_locks(problem.model, spreads, seen_names, {n for n, _ in problem.settings.lock})
+            # A locked hinge's neighbour that turns more than FOUND_RATIO times what one frame's markers fix keeps
+            # its axis free: its turn no longer shared, it is found.  (The still rule's margin, STILL_RATIO times one
+            # frame's SD under the learnt correlation time, called pig_walk's left ankle still after the lock, 14.1
+            # deg over frames against one frame's 5.9, turning through 60 deg: one ankle's axis of two held.  A
+            # static's ankle, which does not turn, is held as before: its spread is about one frame's SD.)
+            skip = {lk.coordinate for lk in new_locks} | {
+                n for lk in locks + new_locks for n in lk.neighbours
+                if n in spreads and spreads[n][0] > FOUND_RATIO * spreads[n][1]}
+            held = [name for name, _, _ in still_of(spreads) if name in axes and name not in skip]
+        else:
+            new_locks = ()
+        if not held and not found and not new_locks:
             break
+        if new_locks:
+            for lk in new_locks:
+                say(f"solve: {lk.coordinate} and {' and '.join(lk.neighbours)} trade across {lk.bare} (no markers "
+                    f"the trials show) and the trial does not separate them: locking {lk.coordinate} at "
+                    f"{math.degrees(lk.value):g} deg, solving again")
+            locks += new_locks
+            options = replace(problem.settings, lock=problem.settings.lock + tuple((lk.coordinate, lk.value)
+                                                                               for lk in new_locks))
+            problem = problem.with_settings(options, sigma=problem.sigma)
+            # Its angle in every frame at the lock and its axis (held by the lock) at the base model's: the
+            # neighbour takes the turn, from this solution.
+            p, base, Z = state.p.copy(), problem.base.vector(), state.Z.copy()
+            for lk in new_locks:
+                d = problem.model.dof_index(lk.coordinate)
+                k = problem.layout.axis(d)
+                p[k] = base[k]
+                Z[:, FrameLayout.angle(d)] = lk.value
+            state = replace(state, p=p, Z=Z)
         if held:
             say(f"solve: the trial does not show {', '.join(held)} moving: holding "
                 f"{'its axis' if len(held) == 1 else 'their axes'} at the base model's, solving again")
@@ -715,7 +757,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             state = replace(state, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary, scatter, True, moved
+        return problem, state, coarse_summary, scatter, True, moved, locks
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -753,7 +795,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter, False, moved
+    return problem, state, summary, scatter, False, moved, locks
 
 
 def _carried(state: State, solved: np.ndarray, start: State, spans: list[slice]) -> State:

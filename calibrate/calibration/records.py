@@ -113,6 +113,31 @@ class StillNote:
 
 
 @dataclass(frozen=True)
+class TradingLock:
+    """A hinge calibrate locked because the trials cannot separate its turn from a neighbour's across a segment
+    without markers the trials show (calibration.identifiability.trading_locks; PipelineOptions.auto_hold)."""
+
+    coordinate: str  # DoF name
+    value: float  # rad: where it is held in every frame
+    bare: str  # the segment without seen markers between the two joints (the talus)
+    neighbours: tuple[str, ...]  # the other joints' coordinates at `bare` (the ankle beside the subtalar)
+    spread: float  # rad: its SD over the frames before the lock
+    per_frame: float  # rad: the SD with which one frame's markers fixed it
+    neighbour_per_frame: tuple[float, ...]  # rad: the same for each of `neighbours`
+
+    def text(self) -> str:
+        others = ", ".join(f"{n} to {math.degrees(v):.1f}" for n, v in zip(self.neighbours, self.neighbour_per_frame,
+                                                                         strict=True))
+        pair = " and ".join(self.neighbours)
+        return (f"{self.coordinate} at {math.degrees(self.value):g} deg: its turn and {pair}'s trade across "
+                f"{self.bare}, which carries no markers the trials show; one frame's markers fix it only "
+                f"to {math.degrees(self.per_frame):.1f} deg ({others}) and it moved no more than that (SD over frames "
+                f"{math.degrees(self.spread):.1f} deg), so the trials cannot separate the two: the less-seen one is "
+                f"held, as OpenSim's gait models hold the subtalar, and the other found (--no-auto-hold leaves it "
+                f"free; --lock sets your own)")
+
+
+@dataclass(frozen=True)
 class LimitNote:
     """A coordinate the fit drove beyond the base model's joint limits (calibration.limit_notes)."""
 

@@ -121,6 +121,11 @@ def calibration_report(cal: Calibration) -> dict:
                      "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "far_joints": st.far_joints,
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
+        "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
+                         "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
+                         "per_frame_deg": math.degrees(lk.per_frame),
+                         "neighbour_per_frame_deg": [math.degrees(v) for v in lk.neighbour_per_frame],
+                         "note": lk.text()} for lk in cal.auto_locked],
         "unresolved": [u.to_json() for u in cal.unresolved],
         "implausible": [b.to_json() for b in cal.implausible],
         "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
@@ -289,8 +294,9 @@ def symmetry_table(cal) -> dict:
 def _foot_hint(cal, joints: list[str]) -> str:
     """What to do when a flagged static ankle or subtalar sits under a foot whose segment carries two markers
     or fewer and whose subtalar joints are free: lock them, as OpenSim's gait models do.  On pig_walk (HEE and TOE
-    on each foot) the locked subtalars hold the static ankles at 1.8 / -3.3 deg against -26.8 / -0.9 free
-    (docs/benchmarks.md)."""
+    on each foot) the locked subtalars hold the static ankles at 1.9 / -3.5 deg against -35.6 / -5.8 free
+    (docs/benchmarks.md); auto_hold locks them by itself (identifiability.trading_locks), so this is said when
+    it is off or the trials showed them turning."""
     if not {"ankle", "subtalar"} & set(joints):
         return ""
     model, locked = cal.model, {n for n, _ in cal.settings.lock}
@@ -414,6 +420,7 @@ def summary_text(cal) -> str:
         *_measurement_lines(cal),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
+        *["  auto-locked  " + lk.text() for lk in cal.auto_locked],
         *(["  frames       segment frames turned to where their markers put them (--segment-frames)"]
           if cal.settings.segment_frames == "markers" and cal.neutral is None else []),
         *([f"  neutral      segment frames turned so that the joint angles of "

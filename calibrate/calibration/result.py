@@ -189,6 +189,7 @@ class Calibration:
     coordinate_notes: tuple[CoordinateNote, ...] = ()  # what the user should look at (e.g. coordinates driven
     # beyond their limits); `notes` is their text
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
+    auto_locked: tuple = ()  # records.TradingLock per hinge calibrate locked: its turn and a neighbour's not separated
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     unresolved: tuple = ()  # calibrate.model.resolve.UnresolvedSegment per segment the markers cannot place (locked)
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
