@@ -268,3 +268,40 @@ def test_joints_trade_across_a_segment_whose_markers_the_trials_do_not_show(huma
     eye = 1e-6 * np.eye(locked.n_free)
     by = {c.name: c for c in parameter_changes(locked, model.parameters().vector(), eye, eye)}
     assert by["axis[ankle_r]"].note == "the joint did not turn enough about it: held by the prior"
+
+
+def test_which_hinge_of_a_trading_pair_is_locked(human):
+    """identifiability.trading_locks, the rule behind auto_hold's locks: of a pair that trades across the talus, the
+    hinge that moved no more than one frame's markers fix it and that they fix less well than its neighbour (the
+    subtalar under pig_walk's two-marker feet); or, where the fit carried the pair's axes beyond the limit (the
+    trade turning both joints through tens of degrees, gait2392 without its IK setup), the one the start's geometry
+    saw less.  Nothing where the joints are told apart, the talus's marker is seen or the subtalar locked."""
+    from calibrate.calibration.identifiability import STILL_RATIO, trading_locks
+    from calibrate.model.model import add_markers
+
+    d = np.radians
+    # pig_walk's left foot: subtalar 14.4 deg SD, one frame 13.6 deg; ankle 17.4 / 8.5 deg.
+    still = {"ankle_l": (d(17.4), d(8.5)), "subtalar_l": (d(14.4), d(13.6)), "knee_l": (d(20.0), d(0.5))}
+    (lock,) = trading_locks(human, still)
+    assert (lock.coordinate, lock.bare, lock.neighbours, lock.value, lock.turned) == (
+        "subtalar_l", "talus_l", ("ankle_l",), 0.0, 0.0)
+    assert (lock.spread, lock.per_frame, lock.neighbour_per_frame) == (d(14.4), d(13.6), (d(8.5),))
+    assert "moved no more than that (SD over frames 14.4 deg)" in lock.text()
+    # The same subtalar turning beyond STILL_RATIO of its one-frame SD: nothing.
+    assert trading_locks(human, {**still, "subtalar_l": (d(13.6) * STILL_RATIO * 1.01, d(13.6))}) == ()
+    # The less-seen one is locked, not the still one: an ankle still but seen better stays free.
+    assert trading_locks(human, {"ankle_l": (d(1.0), d(2.0)), "subtalar_l": (d(30.0), d(3.0))}) == ()
+    assert trading_locks(human, still, locked=("subtalar_l",)) == ()
+    seen_talus = add_markers(human, {"LTAL": ("talus_l", np.zeros(3))})
+    assert trading_locks(seen_talus, still) == ()
+    # gait2392 without its IK setup: both turn 43 deg SD, one frame fixes either to 5 deg, the subtalar's axis
+    # carried 56 deg off; at the start one frame fixed the subtalar to 0.9 deg, the ankle to 0.5.
+    traded = {"ankle_l": (d(43.0), d(5.02)), "subtalar_l": (d(43.3), d(5.035))}
+    turns = {"ankle_l": d(12.0), "subtalar_l": d(56.0)}
+    start = {"ankle_l": (d(3.4), d(0.5)), "subtalar_l": (d(3.9), d(0.9))}
+    (lock,) = trading_locks(human, traded, turns=turns, start=start, limit=d(30.0))
+    assert (lock.coordinate, lock.turned, lock.per_frame, lock.neighbour_per_frame) == (
+        "subtalar_l", d(56.0), d(0.9), (d(0.5),))
+    assert "the fit carried their axes 56 deg from the base model's" in lock.text()
+    assert trading_locks(human, traded, turns=turns, start=start, limit=d(60.0)) == ()
+    assert trading_locks(human, traded, turns=turns, limit=d(30.0)) == ()  # no start: no reading of who is seen less

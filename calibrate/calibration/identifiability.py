@@ -93,28 +93,45 @@ def still_of(spreads: dict[str, tuple[float, float]]) -> list[tuple[str, float, 
 
 
 def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: Collection[str] | None = None,
-                  locked: Collection[str] = ()) -> tuple[TradingLock, ...]:
+                  locked: Collection[str] = (), turns: dict[str, float] | None = None,
+                  start: dict[str, tuple[float, float]] | None = None, limit: float = math.inf
+                  ) -> tuple[TradingLock, ...]:
     """The hinges to lock because the trials cannot separate their turn from a neighbour's
-    (PipelineOptions.auto_hold): a hinge that trades its turn with the next joint's across a segment whose
-    markers the trials do not show (trading_joints: the subtalar beside the ankle, across the talus), that
-    moved no more than one frame's markers fix it (still_coordinates), and that those markers fix less well
-    than every neighbour's coordinate there.  Left free, both joints' turns, their axes and the foot's markers
-    trade in every frame (pig_walk's two-marker feet: a static ankle at -35.6 deg against the other's -5.8, a
-    toe marker 124 mm from its place); locked at 0 (clipped to its range), as OpenSim's gait models lock the
-    subtalar, the neighbour is found as any hinge.  `spreads`: coordinate_spreads; `seen`, `locked`: as for
-    trading_joints."""
+    (PipelineOptions.auto_hold).  A hinge qualifies that trades its turn with the next joint's across a segment
+    whose markers the trials do not show (trading_joints: the subtalar beside the ankle, across the talus) and
+
+    - moved no more than one frame's markers fix it (still_coordinates), those markers fixing it less well than
+      every neighbour's coordinate there (`spreads`, coordinate_spreads at the solution); or
+    - whose pair's axes the fit carried more than `limit` (rad) from the base model's (`turns`: each free hinge
+      axis's angle from the base model's), the trade turning both joints through tens of degrees, while at the
+      start's geometry (`start`: coordinate_spreads there, before the trade) one frame's markers fixed it less
+      well than every neighbour (gait2392 without its IK setup: subtalar_angle_l 0.9 deg against the ankle's
+      0.5; the fit then turned its axis 56 deg and both angles through 43 deg SD).
+
+    Left free, both joints' turns, their axes and the foot's markers trade in every frame (pig_walk's two-marker
+    feet: a static ankle at -35.6 deg against the other's -5.8, a toe marker 124 mm from its place); locked at 0
+    (clipped to its range), as OpenSim's gait models lock the subtalar, the neighbour is found as any hinge.
+    `seen`, `locked`: as for trading_joints."""
     trading = trading_joints(model, seen, locked)
     out = []
     for name, (spread, per_frame) in spreads.items():
         dof = model.dofs[model.dof_index(name)]
         joint = model.joints[model.joint_index(dof.joint)]
-        if dof.joint not in trading or len(joint.dofs) != 1 or spread >= STILL_RATIO * per_frame:
+        if dof.joint not in trading or len(joint.dofs) != 1:
             continue
         bare, neighbours = trading[dof.joint]
-        others = [spreads[n][1] for n in neighbours if n in spreads]
-        if len(others) == len(neighbours) and all(per_frame > o for o in others):
-            value = min(max(0.0, dof.lower), dof.upper)
-            out.append(TradingLock(name, value, bare, neighbours, spread, per_frame, tuple(others)))
+        if not all(n in spreads for n in neighbours):
+            continue
+        value = min(max(0.0, dof.lower), dof.upper)
+        others = tuple(spreads[n][1] for n in neighbours)
+        if spread < STILL_RATIO * per_frame and all(per_frame > o for o in others):
+            out.append(TradingLock(name, value, bare, neighbours, spread, per_frame, others))
+            continue
+        turned = max((turns or {}).get(n, 0.0) for n in (name, *neighbours))
+        if turned > limit and start is not None and all(n in start for n in (name, *neighbours)):
+            first = tuple(start[n][1] for n in neighbours)
+            if all(start[name][1] > o for o in first):
+                out.append(TradingLock(name, value, bare, neighbours, spread, start[name][1], first, turned))
     return tuple(out)
 
 

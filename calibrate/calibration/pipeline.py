@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -26,6 +26,7 @@ from threadpoolctl import threadpool_limits
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.identifiability import (
+    FAR_FROM_PRIOR,
     STILL_SAMPLE,
     coordinate_notes,
     coordinate_spreads,
@@ -709,7 +710,17 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             angles = FrameLayout.angles(absolute(sub.kin, state)[0])
             spreads = coordinate_spreads(sub.model, angles, lin.A, sub.settings)
             seen_names = {mk.name for k, mk in enumerate(problem.model.markers) if problem.seen[:, k].any()}
-            new_locks = trading_locks(problem.model, spreads, seen_names, {n for n, _ in problem.settings.lock})
+            turns = _axis_turns(problem, state.p, axes)
+            limit = FAR_FROM_PRIOR * problem.settings.priors.axis
+            # A pair's axes carried beyond their prior by the fit: which of the two one frame's markers fix less
+            # well is read at the start's geometry, before the trade (one linearization of the subsample).
+            first = None
+            if max(turns.values(), default=0.0) > limit:
+                st0 = frames_of(start, coarse)
+                first = coordinate_spreads(sub.model, FrameLayout.angles(absolute(sub.kin, st0)[0]),
+                                           sub.linearize(st0, with_parameters=False).A, sub.settings)
+            new_locks = trading_locks(problem.model, spreads, seen_names, {n for n, _ in problem.settings.lock},
+                                      turns, first, limit)
             # A locked hinge's neighbour that turns more than FOUND_RATIO times what one frame's markers fix keeps
             # its axis free: its turn no longer shared, it is found.  (The still rule's margin, STILL_RATIO times one
             # frame's SD under the learnt correlation time, called pig_walk's left ankle still after the lock, 14.1
@@ -725,22 +736,29 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             break
         if new_locks:
             for lk in new_locks:
+                why = (f"the fit carried their axes {math.degrees(lk.turned):.0f} deg from the base model's"
+                       if lk.turned else "the trial does not separate them")
                 say(f"solve: {lk.coordinate} and {' and '.join(lk.neighbours)} trade across {lk.bare} (no markers "
-                    f"the trials show) and the trial does not separate them: locking {lk.coordinate} at "
-                    f"{math.degrees(lk.value):g} deg, solving again")
+                    f"the trials show) and {why}: locking {lk.coordinate} at {math.degrees(lk.value):g} deg, solving "
+                    + ("the subsample again from the start" if lk.turned else "again"))
             locks += new_locks
             options = replace(problem.settings, lock=problem.settings.lock + tuple((lk.coordinate, lk.value)
                                                                                for lk in new_locks))
             problem = problem.with_settings(options, sigma=problem.sigma)
-            # Its angle in every frame at the lock and its axis (held by the lock) at the base model's: the
-            # neighbour takes the turn, from this solution.
-            p, base, Z = state.p.copy(), problem.base.vector(), state.Z.copy()
+            # The locked angle in every frame at its value and its axis (held by the lock) at the base model's; the
+            # subsample solved again from this solution, or, where the trade had carried the pair's axes beyond their
+            # priors, from the start (poses and geometry; the noise learnt so far kept): from the trade's solution,
+            # where the axes and the foot's markers had wandered, gait2392 without its IK setup kept its left ankle
+            # 9-12 deg from OpenSim's IK, from the start 4.2 deg; pig_walk's still subtalars, from the start, spread
+            # its thighs' L/R over 4.6-5.9 % on copies 0.1 mm apart, against 4.2-5.2 (docs/benchmarks.md).
+            restart = frames_of(start, coarse) if any(lk.turned for lk in new_locks) else state
+            p, base, Z = restart.p.copy(), problem.base.vector(), restart.Z.copy()
             for lk in new_locks:
                 d = problem.model.dof_index(lk.coordinate)
                 k = problem.layout.axis(d)
                 p[k] = base[k]
                 Z[:, FrameLayout.angle(d)] = lk.value
-            state = replace(state, p=p, Z=Z)
+            state = replace(restart, p=p, Z=Z)
         if held:
             say(f"solve: the trial does not show {', '.join(held)} moving: holding "
                 f"{'its axis' if len(held) == 1 else 'their axes'} at the base model's, solving again")
@@ -796,6 +814,17 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
     return problem, state, summary, scatter, False, moved, locks
+
+
+def _axis_turns(problem: Problem, p: np.ndarray, names: Collection[str]) -> dict[str, float]:
+    """The angle (rad) of each named hinge or universal axis in `p` from the base model's."""
+    base = problem.base.vector()
+    out = {}
+    for name in names:
+        k = problem.layout.axis(problem.model.dof_index(name))
+        a, b = p[k], base[k]
+        out[name] = float(np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0)))
+    return out
 
 
 def _carried(state: State, solved: np.ndarray, start: State, spans: list[slice]) -> State:

@@ -124,17 +124,25 @@ class TradingLock:
     spread: float  # rad: its SD over the frames before the lock
     per_frame: float  # rad: the SD with which one frame's markers fixed it
     neighbour_per_frame: tuple[float, ...]  # rad: the same for each of `neighbours`
+    # rad: the pair's axes carried this far from the base model's by the trade, when that decided the lock (the
+    # per-frame SDs are then the start's geometry's); 0 when the still test did
+    turned: float = 0.0
 
     def text(self) -> str:
-        others = ", ".join(f"{n} to {math.degrees(v):.1f}" for n, v in zip(self.neighbours, self.neighbour_per_frame,
-                                                                         strict=True))
+        fix = ", ".join(f"{n} to {math.degrees(v):.1f}" for n, v in zip(self.neighbours, self.neighbour_per_frame,
+                                                                      strict=True))
         pair = " and ".join(self.neighbours)
-        return (f"{self.coordinate} at {math.degrees(self.value):g} deg: its turn and {pair}'s trade across "
-                f"{self.bare}, which carries no markers the trials show; one frame's markers fix it only "
-                f"to {math.degrees(self.per_frame):.1f} deg ({others}) and it moved no more than that (SD over frames "
-                f"{math.degrees(self.spread):.1f} deg), so the trials cannot separate the two: the less-seen one is "
-                f"held, as OpenSim's gait models hold the subtalar, and the other found (--no-auto-hold leaves it "
-                f"free; --lock sets your own)")
+        head = (f"{self.coordinate} at {math.degrees(self.value):g} deg: its turn and {pair}'s trade across "
+                f"{self.bare}, which carries no markers the trials show")
+        tail = ("the less-seen one is held, as OpenSim's gait models hold the subtalar, and the other found "
+                "(--no-auto-hold leaves it free; --lock sets your own)")
+        if self.turned:
+            return (f"{head}, and the fit carried their axes {math.degrees(self.turned):.0f} deg from the base "
+                    f"model's (the trade, not the data); at the start's geometry one frame's markers fixed it to "
+                    f"{math.degrees(self.per_frame):.1f} deg ({fix}): {tail}")
+        return (f"{head}; one frame's markers fix it only to {math.degrees(self.per_frame):.1f} deg ({fix}) and it "
+                f"moved no more than that (SD over frames {math.degrees(self.spread):.1f} deg), so the trials cannot "
+                f"separate the two: {tail}")
 
 
 @dataclass(frozen=True)
