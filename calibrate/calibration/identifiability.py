@@ -14,10 +14,7 @@ from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
 from ..problem.options import Priors, ProblemOptions
 from ..problem.problem import Problem
-from .records import CoordinateNote, Identified, LimitNote, ParameterChange, StillNote, TradingLock
-
-STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
-
+from .records import STILL_RATIO, CoordinateNote, Identified, LimitNote, ParameterChange, StillNote, TradingLock
 
 LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
 
@@ -171,7 +168,11 @@ def still_records(model: Model, angles: np.ndarray, A: np.ndarray, options: Prob
         """The markerless segment at `name`'s joint and the free coordinates of the other joints there."""
         return trading.get(model.dofs[model.dof_index(name)].joint, ("", ()))
 
-    return tuple(StillNote(name, spread, per_frame, name in options.hold_axes, *beside(name))
+    def ball(name: str) -> str:
+        joint = model.joints[model.joint_index(model.dofs[model.dof_index(name)].joint)]
+        return joint.name if joint.kind == "ball" else ""
+
+    return tuple(StillNote(name, spread, per_frame, name in options.hold_axes, *beside(name), ball=ball(name))
                  for name, spread, per_frame in still_coordinates(model, angles, A, options))
 
 

@@ -76,6 +76,9 @@ class ParameterChange:
         return self.status.identified
 
 
+STILL_RATIO = 3.0  # a coordinate whose spread over frames is below this many per-frame SDs is noted (still_notes)
+
+
 @dataclass(frozen=True)
 class StillNote:
     """A coordinate that moved no more than one frame's markers fix it (calibration.still_coordinates)."""
@@ -86,8 +89,17 @@ class StillNote:
     axis_held: bool  # its hinge axis was held at the base model's
     bare: str = ""  # the segment without markers beside its joint (the talus), across which it trades with the next
     neighbours: tuple[str, ...] = ()  # the coordinates of the other joints at `bare` (subtalar beside the ankle)
+    ball: str = ""  # the ball joint it is one rotation of (hip_l for hip_l_adduction), if it is
 
     def text(self) -> str:
+        if self.ball:
+            # A ball joint has no axis to hold, and a walk's hip adduction (1.5 deg SD in pig_walk, Plug-in Gait's
+            # own about 2) is no rotation to lock: the note says what the trials show, without that advice.
+            return (f"{self.coordinate}: turned {math.degrees(self.spread):.1f} deg SD over the frames, under "
+                    f"{STILL_RATIO:g} times what one frame's markers fix ({math.degrees(self.per_frame):.1f} deg, "
+                    f"their noise's correlation over time counted): the trials show little of this rotation of "
+                    f"{self.ball}, so its centre rests on its other rotations and the segment frame's zero about it "
+                    f"on the priors (--lock {self.coordinate} holds it, if the subject kept it still)")
         if self.bare:
             # An ankle that turns 15 deg in a walk is no still joint: the markers cannot tell its turn from its
             # neighbour's across the markerless segment, so one frame fixes it only loosely.
