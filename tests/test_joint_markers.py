@@ -7,6 +7,8 @@ anterior of the true centre, and the static trial records it there."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -127,7 +129,16 @@ def test_inspect_lists_the_joint_centre_markers(human, tied, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "joint-centre markers" in out and "RHJC (hip_r)" in out and "LHJC (hip_l)" in out and "XSKN (" not in out
     assert main(["inspect", str(human.path)]) == 0
-    assert "joint-centre markers" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "joint-centre markers" not in out
+    # The tali carry no markers: their joints' turns trade (identifiability.trading_joints), said before any trial.
+    assert "segments without markers between turning joints" in out
+    assert re.search(r"\n    talus_l +ankle_l / subtalar_l\n    talus_r +ankle_r / subtalar_r\n", out), out
+    # A marker on the talus ends it.
+    talus = add_markers(human, {"LTAL": ("talus_l", np.zeros(3))})
+    assert main(["inspect", str(write_model(talus, tmp_path / "talus.urdf"))]) == 0
+    out = capsys.readouterr().out
+    assert "talus_r " in out and "talus_l " not in out.split("segments without markers")[1]
 
 
 # ---------------------------------------------------------------------- hips by Harrington's regression

@@ -339,6 +339,18 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             print(f"  joint-centre markers (within {1000 * JOINT_MARKER_RADIUS:g} mm of a joint centre of their "
                   "segment: points computed at the centre, kept there; priors.joint_marker_mm):")
             print("    " + ", ".join(f"{m.markers[t.marker].name} ({m.joints[t.joint].name})" for t in ties))
+        from ..calibration.identifiability import trading_joints
+        from ..io.osim_info import osim_info
+
+        info = osim_info(m)  # an OpenSim model's locked coordinates (its subtalars in Rajagopal2016) end a trade
+        trading = trading_joints(m, locked=info.locked if info is not None else ())
+        bare = sorted({seg for seg, _ in trading.values()})
+        if bare:
+            print("  segments without markers between turning joints (their turns trade; a hinge the trials cannot "
+                  "tell from its neighbour is locked at 0, docs/calibration.md):")
+            for seg in bare:
+                pair = [j for j, (sg, _) in trading.items() if sg == seg]
+                print(f"    {seg:12s} {' / '.join(pair)}")
         print_osim(m)
         return 0
     from ..io.read import read_trial
