@@ -711,7 +711,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             spreads = coordinate_spreads(sub.model, angles, lin.A, sub.settings)
             seen_names = {mk.name for k, mk in enumerate(problem.model.markers) if problem.seen[:, k].any()}
             turns = _axis_turns(problem, state.p, axes)
-            limit = FAR_FROM_PRIOR * problem.settings.priors.axis
+            # Beyond the axis prior (none given: no limit to read a trade by).
+            limit = FAR_FROM_PRIOR * problem.settings.priors.axis if problem.settings.priors.axis > 0 else math.inf
             # A pair's axes carried beyond their prior by the fit: which of the two one frame's markers fix less
             # well is read at the start's geometry, before the trade (one linearization of the subsample).
             first = None
