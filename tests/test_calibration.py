@@ -861,8 +861,8 @@ def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_p
         "locked       subtalar_r at 0 deg, subtalar_l at 0 deg" in text
     assert "auto-locked  subtalar_r at 0 deg: its turn and ankle_r's trade across talus_r" in text
     rep = auto.report()
-    assert {a["coordinate"]: (a["segment"], a["neighbours"]) for a in rep["auto_locked"]} == {
-        "subtalar_r": ("talus_r", ["ankle_r"]), "subtalar_l": ("talus_l", ["ankle_l"])}
+    assert {a["coordinate"]: (a["segment"], a["neighbours"], a["turned_deg"]) for a in rep["auto_locked"]} == {
+        "subtalar_r": ("talus_r", ["ankle_r"], 0.0), "subtalar_l": ("talus_l", ["ankle_l"], 0.0)}
     assert rep["settings"]["lock_deg"] == {"subtalar_l": 0.0, "subtalar_r": 0.0}
     from calibrate.calibration import report_html
     assert "<li>locked: subtalar_r at 0 deg: its turn and ankle_r&#x27;s trade across talus_r" in report_html(rep)

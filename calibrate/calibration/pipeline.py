@@ -751,7 +751,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # priors, from the start (poses and geometry; the noise learnt so far kept): from the trade's solution,
             # where the axes and the foot's markers had wandered, gait2392 without its IK setup kept its left ankle
             # 9-12 deg from OpenSim's IK, from the start 4.2 deg; pig_walk's still subtalars, from the start, spread
-            # its thighs' L/R over 4.6-5.9 % on copies 0.1 mm apart, against 4.2-5.2 (docs/benchmarks.md).
+            # its thighs' L/R over 4.8-5.9 % on copies 0.1 mm apart, against 4.2-5.2 (docs/benchmarks.md).
             restart = frames_of(start, coarse) if any(lk.turned for lk in new_locks) else state
             p, base, Z = restart.p.copy(), problem.base.vector(), restart.Z.copy()
             for lk in new_locks:

@@ -125,7 +125,7 @@ def calibration_report(cal: Calibration) -> dict:
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
                          "per_frame_deg": math.degrees(lk.per_frame),
                          "neighbour_per_frame_deg": [math.degrees(v) for v in lk.neighbour_per_frame],
-                         "note": lk.text()} for lk in cal.auto_locked],
+                         "turned_deg": math.degrees(lk.turned), "note": lk.text()} for lk in cal.auto_locked],
         "unresolved": [u.to_json() for u in cal.unresolved],
         "implausible": [b.to_json() for b in cal.implausible],
         "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
