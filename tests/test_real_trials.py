@@ -180,6 +180,37 @@ def test_neutral_static_trial_sets_the_zero_of_the_joint_angles(human):
         calibrate(human, [static.trial, sim.trial], neutral=1)
 
 
+def test_a_neutral_static_that_bends_its_elbows_keeps_their_zero_and_the_fit(human):
+    """A "neutral" static with the elbows bent to 90 deg (pig_walk's: 101 / 114 deg) is not the model's neutral pose
+    there: turned to zero, the squats' elbows went 90 deg past their limits, and the re-solve against the limits
+    dragged the other trial's fit (19.7 mm against 1.4; pig_walk's walk: 8.7 -> 62 mm).  A hinge whose zero there
+    would carry the trials beyond its limits is not turned and is named; the rest are, and the fit is unchanged.
+    Under locked subtalars (auto_hold's lock on two-marker feet) the legs are still turned: a turn is carried
+    through a joint locked at its value."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=3)
+    base = simulate_static(human, sim.truth, frames=100, seed=4)
+    ang = base.motion.angles.copy()
+    bent = [human.dof_index(d) for d in ("elbow_l", "elbow_r")]
+    ang[:, bent] = np.radians(90.0)
+    kin = build_kinematics(human)
+    F = ang.shape[0]
+    M, _ = kin.batch(np.column_stack([np.zeros((F, 3)), np.zeros((F, 3)), ang]), base.motion.root_quaternion, sim.truth)
+    M = M + base.motion.root_translation[:, None, :] + np.random.default_rng(5).normal(0.0, 0.001, M.shape)
+    static = Trial(human.marker_names, M, base.trial.rate)
+    for settings in (Settings(), Settings(lock=("subtalar_l", "subtalar_r"))):
+        free = calibrate(human, [static, sim.trial], settings)
+        cal = calibrate(human, [static, sim.trial], settings, neutral=0)
+        assert cal.marker_rms == pytest.approx(free.marker_rms, rel=1e-4)
+        assert {j for j, _ in cal.not_neutral} == {"elbow_l", "elbow_r"}
+        assert all(abs(np.degrees(a) - 90.0) < 10.0 for _, a in cal.not_neutral)
+        mean_static = np.degrees(cal.motions[0].angles.mean(axis=0))
+        legs = [human.dof_index(d) for d in ("knee_l", "knee_r", "ankle_l", "ankle_r")]
+        assert np.abs(mean_static[legs]).max() < 0.1, mean_static[legs]
+        assert np.all(np.abs(mean_static[bent] - 90.0) < 10.0), mean_static[bent]  # the model's zero kept
+        assert "not turned: elbow_l (" in cal.text()
+        assert {n["joint"] for n in cal.report()["not_neutral"]} == {"elbow_l", "elbow_r"}
+
+
 def test_static_trial_alone_scales_and_flags_what_it_cannot_identify(human):
     sim = simulate_squats(human, frames=10, noise_mm=1.0, seed=8)  # only for a subject's truth
     static = simulate_static(human, sim.truth, frames=150, seed=9)

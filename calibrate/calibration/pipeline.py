@@ -393,7 +393,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     times["start"] = time.perf_counter() - t0
     initial = problem.marker_residuals(start)
     t0 = time.perf_counter()
-    in_neutral = None
+    in_neutral, not_neutral = None, []
     if neutral is not None:
         in_neutral = np.zeros(problem.F, dtype=bool)
         in_neutral[spans[neutral]] = True
@@ -533,7 +533,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
         say(Progress("solve", f"segment frames turned to zero joint angles in "
                               f"{trials[neutral].source or 'the neutral trial'}"))
-        state = align_neutral(problem, state, in_neutral, solver)
+        state, not_neutral = align_neutral(problem, state, in_neutral, solver)
         summary = replace(summary, final_cost=problem.cost(state), termination=summary.termination
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
@@ -569,6 +569,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
+                       not_neutral=tuple(not_neutral),
                        unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},

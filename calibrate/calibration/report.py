@@ -165,6 +165,7 @@ def calibration_report(cal: Calibration) -> dict:
         "symmetry": symmetry_table(cal),
         "static_pose": static_pose_table(cal),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
+        "not_neutral": [{"joint": j, "mean_deg": math.degrees(a)} for j, a in cal.not_neutral],
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(marker_rms(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
@@ -424,7 +425,10 @@ def summary_text(cal) -> str:
         *(["  frames       segment frames turned to where their markers put them (--segment-frames)"]
           if cal.settings.segment_frames == "markers" and cal.neutral is None else []),
         *([f"  neutral      segment frames turned so that the joint angles of "
-           f"{cal.trials[cal.neutral].source or f'trial {cal.neutral + 1}'} are zero on average"]
+           f"{cal.trials[cal.neutral].source or f'trial {cal.neutral + 1}'} are zero on average"
+           + (f"; not turned: {', '.join(f'{j} ({math.degrees(a):.0f} deg)' for j, a in cal.not_neutral)}: zero "
+              f"there, the trials' angles would leave the joint's range (not the model's neutral pose; their zero "
+              f"stays the model's)" if cal.not_neutral else "")]
           if cal.neutral is not None else []),
         *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
            + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]

@@ -191,6 +191,8 @@ class Calibration:
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
     auto_locked: tuple = ()  # records.TradingLock per hinge calibrate locked: its turn and a neighbour's not separated
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
+    # (joint, its mean angle there, rad) per hinge whose zero there would carry the trials past its limits: not turned
+    not_neutral: tuple[tuple[str, float], ...] = ()
     unresolved: tuple = ()  # calibrate.model.resolve.UnresolvedSegment per segment the markers cannot place (locked)
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)

@@ -28,13 +28,17 @@ class GaugeMixin:
         m, free = self.model, set(self.settings.free)
         # A held axis is fixed in its parent's frame (and its child's), as a locked coordinate's is.
         locked = {name for name, _ in self.settings.lock} | (set() if through_held else set(self.settings.hold_axes))
+        # A turn carried down the chains below (_turn) re-expresses the axes it passes: a neutral turn may pass a
+        # locked coordinate's too (its angle, at the lock, unchanged; its axis's direction against the markers kept),
+        # which --neutral needs under a locked subtalar (pig_walk's legs otherwise kept their static angles).
+        carried = set() if through_held else locked
         out = []
         into = {j.child: j for j in m.joints}
         still = set(self.settings.hold_segments)  # their geometry cannot turn with a frame
 
         def held_below(name: str) -> bool:
-            """A held or locked DoF (or a held segment) down the hinge and universal chains below `name`."""
-            return any(any(d in locked for d in j.dofs) or j.child in still or held_below(j.child)
+            """A held or locked DoF (`carried`; or a held segment) down the hinge and universal chains below `name`."""
+            return any(any(d in carried for d in j.dofs) or j.child in still or held_below(j.child)
                        for j in m.joints if j.parent == name and j.kind in ("hinge", "universal"))
 
         for si, seg in enumerate(m.segments):
@@ -186,13 +190,14 @@ class GaugeMixin:
         not blocking (a held axis keeps its direction against the markers, re-expressed)."""
         return self._find_gauges(through_held=True)
 
-    def neutral_frames(self, p: np.ndarray, Z: np.ndarray,
-                       segments: list[tuple[int, str]]) -> tuple[np.ndarray, list[FrameTurn]]:
+    def neutral_frames(self, p: np.ndarray, Z: np.ndarray, segments: list[tuple[int, str]],
+                       net: dict[int, np.ndarray] | None = None) -> tuple[np.ndarray, list[FrameTurn]]:
         """Turn the frames of `segments` (from neutral_gauges; not the root) so that the
         coordinates of the frames Z (F, nz) — a trial in the model's neutral pose — are zero on average:
         below a ball joint, by the mean (chordal) rotation of the joint in those frames; below a
         hinge or universal joint, about its last axis by the mean angle.  The contents are turned
-        as in align_frames; returns the new p and (segment, kind, G, 0) per segment."""
+        as in align_frames; returns the new p and (segment, kind, G, 0) per segment; `net`, where given,
+        gathers every segment's whole turn (as align_frames')."""
         from scipy.spatial.transform import Rotation
 
         m, fl = self.model, self.layout.frame
@@ -216,7 +221,7 @@ class GaugeMixin:
                 G = Rotation.from_rotvec(-float(np.mean(Z[:, fl.angle(d)])) * self.axis_direction(out, d)).as_matrix()
             else:
                 continue
-            self._turn(out, si, G)
+            self._turn(out, si, G, net=net)
             moves.append((si, kind, G, np.zeros(3)))
         return out, moves
 
