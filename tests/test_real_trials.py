@@ -209,6 +209,8 @@ def test_a_neutral_static_that_bends_its_elbows_keeps_their_zero_and_the_fit(hum
         assert np.all(np.abs(mean_static[bent] - 90.0) < 10.0), mean_static[bent]  # the model's zero kept
         assert "not turned: elbow_l (" in cal.text()
         assert {n["joint"] for n in cal.report()["not_neutral"]} == {"elbow_l", "elbow_r"}
+        from calibrate.calibration import report_html
+        assert "<li>neutral trial: not turned to zero there, elbow_l (" in report_html(cal.report())
 
 
 def test_static_trial_alone_scales_and_flags_what_it_cannot_identify(human):

@@ -132,6 +132,10 @@ def _notes(report: dict) -> str:
                      f"{_e(', '.join(report['held_axes']))}</li>")
     for lk in report.get("auto_locked", []):
         items.append(f"<li>locked: {_e(lk.get('note', ''))}</li>")
+    if report.get("not_neutral"):
+        held = ", ".join(f"{_e(n.get('joint'))} ({n.get('mean_deg', 0):.0f} deg)" for n in report["not_neutral"])
+        items.append(f"<li>neutral trial: not turned to zero there, {held}: zero there, the trials' angles would "
+                     "leave the joint's range (their zero stays the model's)</li>")
     for n in report.get("notes", []):
         items.append(f"<li>{_e(n)}</li>")
     for n in report.get("seed", {}).get("notes", []):
