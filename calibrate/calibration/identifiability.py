@@ -216,6 +216,19 @@ def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
     return math.sqrt(max(float(ev[-1]), 0.0)), v / np.linalg.norm(v)
 
 
+def open_directions(C: np.ndarray, C0: np.ndarray, limit: float = IDENTIFIED) -> np.ndarray:
+    """An orthonormal basis (3, k) of the directions whose posterior/prior-only std ratio is at least `limit`:
+    what the trial left to the prior (worst_ratio's direction among them)."""
+    ev0, U = np.linalg.eigh(0.5 * (C0 + C0.T))
+    keep = ev0 > 1e-12 * max(float(ev0.max(initial=0.0)), 1e-300)
+    if not keep.any():
+        return np.zeros((C.shape[0], 0))
+    Wh = U[:, keep] / np.sqrt(ev0[keep])
+    ev, V = np.linalg.eigh(Wh.T @ C @ Wh)
+    dirs = U[:, keep] @ (np.sqrt(ev0[keep])[:, None] * V[:, ev >= limit**2])
+    return np.linalg.qr(dirs)[0] if dirs.shape[1] else dirs
+
+
 def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> list[ParameterChange]:
     """Per joint centre, hinge axis, marker and scale: change from the base model, posterior std,
     and whether the trial identified it: in its worst direction, the posterior std must be below
@@ -252,6 +265,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         value = seg_scale[model.segment_index(owner)] * getattr(P, group)[i]
         base = getattr(B, group)[i]
         block = L.block(group, i)
+        open_dir = None
         if block.held:
             std, ratio = np.full(3, np.nan), float("nan")
             status, note = held(owner)
@@ -259,15 +273,20 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             c = block.cols
             C, C0 = cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
             std = 1000 * np.sqrt(np.clip(np.diag(C), 0, None))
-            status, note, ratio = judge(C, C0)
+            status, note, ratio, open_dir = judge(C, C0)
         change = ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
                                  note, ratio)
         if block.held:
             return change
         # Its prior pulls the offset from the base model's, at the subject's scale, towards zero (Priors).
         sd = problem.settings.priors.marker if group == "marker" else problem.settings.priors.centre
-        off = float(np.linalg.norm(value - seg_scale[model.segment_index(owner)] * base))
-        return _position_far_from_prior(change, off, sd)
+        gap = value - seg_scale[model.segment_index(owner)] * base
+        off = float(np.linalg.norm(gap))
+        # A marker the trial places but for some directions: how far its prior failed to hold it is read in those
+        # directions (pig_walk's tibia wands sit 120-130 mm higher than the base model's, the lab's wand height, which
+        # the walk fixes to 3 mm; around the shank, the direction left open, 44 and 65 mm).
+        along = None if open_dir is None else float(np.linalg.norm(open_dir.T @ gap))
+        return _position_far_from_prior(change, off, sd, along)
 
     for ji, j in enumerate(model.joints):
         judge = partial(_judge_centre, model, P, j, blind.get(j.name))
@@ -338,12 +357,23 @@ def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[s
     return replace(change, unreliable=True, note=note)
 
 
-def _position_far_from_prior(change: ParameterChange, off: float, sd: float) -> ParameterChange:
+def _position_far_from_prior(change: ParameterChange, off: float, sd: float,
+                             along: float | None = None) -> ParameterChange:
     """`change` (a joint centre or marker) with its note corrected where it lies `off` (m) from where its prior puts
     it (the base model's, at the subject's scale), more than FAR_FROM_PRIOR prior SDs `sd`: where the trial did not
     identify it, as for an axis (_far_from_prior), the prior did not hold it there and its place is not to be
     trusted (Rajagopal's elbow_l with the elbow axes held: 153 mm, "held by the prior"); a joint centre the trial
-    places there is no more to be trusted (a marker may sit anywhere the lab put it)."""
+    places there is no more to be trusted (a marker may sit anywhere the lab put it).  `along`: for a marker the
+    trial left open in some directions, its distance from the prior's place in those directions, which is what is
+    judged (the rest the trial placed)."""
+    if along is not None and change.status is Identified.NO:
+        if not sd > 0 or along / sd <= FAR_FROM_PRIOR:
+            return change
+        why = change.note.removesuffix(": held by the prior")
+        note = (f"{why}; yet {1000 * along:.0f} mm from where its prior puts it in what the trial leaves open "
+                f"({along / sd:.1f} prior SDs; {1000 * off:.0f} mm in all), so the prior did not hold it: a trade the "
+                "data do not separate carried it there, and the marker's place is not reliable")
+        return replace(change, unreliable=True, note=note)
     if not sd > 0 or off / sd <= FAR_FROM_PRIOR:
         return change
     if change.group == "centre" and change.status in (Identified.YES, Identified.ACROSS_AXIS):
@@ -366,7 +396,9 @@ def _position_far_from_prior(change: ParameterChange, off: float, sd: float) -> 
     return replace(change, unreliable=True, note=note)
 
 
-Judge = Callable[[np.ndarray, np.ndarray], tuple[Identified, str, float]]  # (posterior, prior-only cov) -> verdict
+# (posterior, prior-only cov) -> verdict, note, worst ratio, and the directions left open (an orthonormal basis (3, k);
+# None: a centre, judged as a whole)
+Judge = Callable[[np.ndarray, np.ndarray], tuple[Identified, str, float, np.ndarray | None]]
 
 
 def _judge_centre(model: Model, P: Parameters, j: Joint, blind: str | None, C: np.ndarray,
@@ -393,10 +425,11 @@ def _judge_centre(model: Model, P: Parameters, j: Joint, blind: str | None, C: n
                                              f"in the {j.parent} frame: held by the prior")
     if blind is not None:
         status, note = Identified.NO, blind
-    return status, note, ratio
+    return status, note, ratio, None
 
 
-def _judge_marker(seen: bool, segment: str, C: np.ndarray, C0: np.ndarray) -> tuple[Identified, str, float]:
+def _judge_marker(seen: bool, segment: str, C: np.ndarray,
+                  C0: np.ndarray) -> tuple[Identified, str, float, np.ndarray | None]:
     """Whether the trial identified a free marker offset (`seen`: in some frame) on `segment`, from its posterior
     and prior-only covariance.  A marker seen in every frame can still leave a direction of its place open: a
     tibia wand's place around the shank trades with the shank's turn about its long axis, which only the hinge
@@ -406,4 +439,4 @@ def _judge_marker(seen: bool, segment: str, C: np.ndarray, C0: np.ndarray) -> tu
     note = "" if status.identified else ("never seen in the trial: base model kept" if not seen else
                                          f"not identified along ({', '.join(f'{x:+.2f}' for x in v)}) in the "
                                          f"{segment} frame: held by the prior")
-    return status, note, ratio
+    return status, note, ratio, (open_directions(C, C0) if seen and not status.identified else None)
