@@ -187,6 +187,14 @@ def test_an_unidentified_position_far_beyond_its_prior_is_reported_unreliable(hu
     loose[np.ix_(c, c)] = np.diag([1e-8, 1e-6, 1e-8])[: len(c), : len(c)]
     note = next(x for x in parameter_changes(problem, p, loose, cov) if x.group == "marker" and x.item == near).note
     assert re.search(r"along \([-+]0\.00, [-+]1\.00, [-+]0\.00\)", note), note
+    # Its prior's hold is judged where the data leave it open: 80 mm along x, which the data fix, is a lab's
+    # placement (pig_walk's tibia wands, 120 mm higher than the base model's); 80 mm along the open y is not.
+    for shift, flagged in (([0.08, 0.0, 0.0], False), ([0.0, 0.08, 0.0], True), ([0.08, 0.07, 0.0], True)):
+        q = human.parameters().vector()
+        q[L.entries("marker")[1]] += shift
+        judged = next(x for x in parameter_changes(problem, q, loose, cov) if x.group == "marker" and x.item == near)
+        assert judged.unreliable is flagged, (shift, judged.note)
+    assert "in what the trial leaves open (3.5 prior SDs; 106 mm in all)" in judged.note
     assert centre.unreliable and "3.5 prior SDs" in centre.note
     assert sum(c.unreliable for c in by.values()) == 2
     identified = {(c.group, c.item): c for c in parameter_changes(problem, p, cov, 100.0 * cov)}
