@@ -204,28 +204,36 @@ def limit_notes(model: Model, angles: np.ndarray, options: ProblemOptions) -> tu
     return tuple(n.text() for n in limit_records(model, angles, options))
 
 
-def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
-    """Largest posterior/prior-only std ratio over directions, and that direction."""
+def _ratio_directions(C: np.ndarray, C0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The squared posterior/prior-only std ratios (ascending) over directions and those directions (columns, not
+    normalised): the generalised eigenproblem of C against C0 on the range of C0 (None: the priors alone leave
+    no direction open)."""
     ev0, U = np.linalg.eigh(0.5 * (C0 + C0.T))
     keep = ev0 > 1e-12 * max(float(ev0.max(initial=0.0)), 1e-300)  # directions the priors alone leave open
     if not keep.any():
-        return 0.0, U[:, -1]
+        return None
     Wh = U[:, keep] / np.sqrt(ev0[keep])  # whitening by the prior-only covariance on its range
     ev, V = np.linalg.eigh(Wh.T @ C @ Wh)
-    v = U[:, keep] @ (np.sqrt(ev0[keep]) * V[:, -1])
-    return math.sqrt(max(float(ev[-1]), 0.0)), v / np.linalg.norm(v)
+    return ev, U[:, keep] @ (np.sqrt(ev0[keep])[:, None] * V)
+
+
+def worst_ratio(C: np.ndarray, C0: np.ndarray) -> tuple[float, np.ndarray]:
+    """Largest posterior/prior-only std ratio over directions, and that direction."""
+    found = _ratio_directions(C, C0)
+    if found is None:
+        return 0.0, np.linalg.eigh(0.5 * (C0 + C0.T))[1][:, -1]
+    ev, dirs = found
+    return math.sqrt(max(float(ev[-1]), 0.0)), dirs[:, -1] / np.linalg.norm(dirs[:, -1])
 
 
 def open_directions(C: np.ndarray, C0: np.ndarray, limit: float = IDENTIFIED) -> np.ndarray:
     """An orthonormal basis (3, k) of the directions whose posterior/prior-only std ratio is at least `limit`:
     what the trial left to the prior (worst_ratio's direction among them)."""
-    ev0, U = np.linalg.eigh(0.5 * (C0 + C0.T))
-    keep = ev0 > 1e-12 * max(float(ev0.max(initial=0.0)), 1e-300)
-    if not keep.any():
+    found = _ratio_directions(C, C0)
+    if found is None:
         return np.zeros((C.shape[0], 0))
-    Wh = U[:, keep] / np.sqrt(ev0[keep])
-    ev, V = np.linalg.eigh(Wh.T @ C @ Wh)
-    dirs = U[:, keep] @ (np.sqrt(ev0[keep])[:, None] * V[:, ev >= limit**2])
+    ev, dirs = found
+    dirs = dirs[:, ev >= limit**2]
     return np.linalg.qr(dirs)[0] if dirs.shape[1] else dirs
 
 

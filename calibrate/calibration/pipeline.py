@@ -823,9 +823,9 @@ def _axis_turns(problem: Problem, p: np.ndarray, names: Collection[str]) -> dict
     base = problem.base.vector()
     out = {}
     for name in names:
-        k = problem.layout.axis(problem.model.dof_index(name))
-        a, b = p[k], base[k]
-        out[name] = float(np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0)))
+        d = problem.model.dof_index(name)
+        cos = float(problem.axis_direction(p, d) @ problem.axis_direction(base, d))
+        out[name] = float(np.arccos(np.clip(cos, -1.0, 1.0)))
     return out
 
 
