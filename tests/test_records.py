@@ -68,13 +68,13 @@ def test_records_render_the_words_the_user_reads():
     note = LimitNote("subtalar_r", 0.1, math.radians(12))
     assert note.text().startswith("subtalar_r: beyond the base model's joint limits in 10 % of frames "
                                   "(by up to 12 deg)")
-    # One rotation of a ball joint (pig_walk's hip adduction in the walk, 1.5 deg SD): what the trials show, no
-    # axis to hold and no advice to lock what a walk moves.
+    # One rotation of a ball joint (a walk's hip adduction, 1.5 deg SD): what the trials show, no axis to hold and
+    # no advice to lock what a walk moves.
     hip = StillNote("hip_l_adduction", math.radians(1.5), math.radians(1.4), axis_held=False, ball="hip_l")
     assert hip.text() == ("hip_l_adduction: turned 1.5 deg SD over the frames, under 3 times what one frame's markers "
-                          "fix (1.4 deg, their noise's correlation over time counted): the trials show little of this "
-                          "rotation of hip_l, so its centre rests on its other rotations and the segment frame's zero "
-                          "about it on the priors (--lock hip_l_adduction holds it, if the subject kept it still)")
+                          "fix (1.4 deg): the trials show little of this rotation of hip_l, so its centre rests on its "
+                          "other rotations and the segment frame's zero about it on the priors (--lock hip_l_adduction "
+                          "holds it, if the subject kept it still)")
     still = StillNote("knee_l", math.radians(0.5), math.radians(0.4), axis_held=True)
     assert still.text().startswith("knee_l: moved no more than the markers fix it in a frame (SD over frames 0.5 deg")
     assert "its axis was held" in still.text()

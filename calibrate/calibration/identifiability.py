@@ -43,7 +43,8 @@ def coordinate_spreads(model: Model, angles: np.ndarray, A: np.ndarray,
                        options: ProblemOptions) -> dict[str, tuple[float, float]]:
     """Each coordinate's (not locked) motion against what one frame's markers fix: name -> (its spread over
     the frames (SD), the median over frames of the SD with which one frame's markers fix it,
-    sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block), in rad.
+    sqrt((A_f⁻¹)_kk), A_f the frame's normal-equation block as one frame's markers alone weigh it: under their
+    scatter, every frame once, pipeline._frame_blocks), in rad.
 
     `A`: the blocks of every frame of `angles`, or of at most STILL_SAMPLE evenly spaced ones (as
     pipeline._sampled_blocks forms them).  Frames whose markers do not fix a coordinate at all (one

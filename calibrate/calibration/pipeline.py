@@ -82,7 +82,6 @@ from .records import Countdown, IterationClock, JointCentreMarker, Progress, Sti
 
 MOVED_SAMPLE = 500  # frames of each trial the moved-marker test reads when it only names what it finds
 MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
-FOUND_RATIO = 2.0  # a locked hinge's neighbour turning more than this many one-frame SDs keeps its axis free
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
 
 
@@ -550,7 +549,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
-    notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state), problem.settings,
+    notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state, scatter), problem.settings,
                              {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()})
     # The neighbour of a hinge locked for trading (an ankle beside a locked subtalar) was judged with it and found
     # the better seen: no note tells the user to lock it too (pig_walk's left ankle, 60 deg through the walk).
@@ -594,12 +593,22 @@ def _joint_markers(problem: Problem, params: Parameters, unused: Sequence[str]) 
                  for t in problem.joint_markers() if m.markers[t.marker].name not in unused)
 
 
-def _sampled_blocks(problem: Problem, state: State) -> np.ndarray:
-    """The frame blocks A_f of the normal equations at `state` on at most STILL_SAMPLE evenly spaced
-    frames (what still_coordinates reads: a median over frames needs no more; a long trial's are
-    never all formed at once)."""
+def _sampled_blocks(problem: Problem, state: State, scatter: np.ndarray) -> np.ndarray:
+    """_frame_blocks at `state` on at most STILL_SAMPLE evenly spaced frames (what still_coordinates reads: a
+    median over frames needs no more; a long trial's are never all formed at once)."""
     idx = even_frames(problem.F, STILL_SAMPLE)
-    return problem.subset(idx).linearize(frames_of(state, idx), with_parameters=False).A
+    return _frame_blocks(problem.subset(idx), frames_of(state, idx), scatter)
+
+
+def _frame_blocks(problem: Problem, state: State, scatter: np.ndarray) -> np.ndarray:
+    """Each frame's block A_f of the normal equations at `state` as one frame's markers alone weigh it: under
+    their scatter (the noise SDs without the correlation time) and every frame counted once, so that A_f⁻¹ is
+    what one frame fixes its pose to.  The solver's weights read a frame as 1/τ of one (a marker's errors
+    correlated over τ frames) and a still trial's frame as a fraction of one (Settings.still_weight): under them
+    one frame's SD came out 3-4 times too wide on pig_walk's walk (its ankles, 17 deg SD over the frames against
+    2.2 deg one frame fixes, called still; docs/benchmarks.md)."""
+    sigma = np.where(np.isfinite(scatter) & (scatter > 0), scatter, problem.sigma)
+    return problem.with_noise(sigma).with_frame_weight(None).linearize(state, with_parameters=False).A
 
 
 def _hold_segments(model: Model, params: Parameters, segments: Sequence[str]) -> Parameters:
@@ -707,9 +716,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         held = []
         if run.auto_hold and round_ < HOLD_ROUNDS:
             axes = {problem.model.dofs[d].name for d in sub.axis_dofs}
-            lin = sub.linearize(state, with_parameters=False)
             angles = FrameLayout.angles(absolute(sub.kin, state)[0])
-            spreads = coordinate_spreads(sub.model, angles, lin.A, sub.settings)
+            spreads = coordinate_spreads(sub.model, angles, _frame_blocks(sub, state, scatter), sub.settings)
             seen_names = {mk.name for k, mk in enumerate(problem.model.markers) if problem.seen[:, k].any()}
             turns = _axis_turns(problem, state.p, axes)
             # Beyond the axis prior (none given: no limit to read a trade by).
@@ -720,17 +728,12 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             if max(turns.values(), default=0.0) > limit:
                 st0 = frames_of(start, coarse)
                 first = coordinate_spreads(sub.model, FrameLayout.angles(absolute(sub.kin, st0)[0]),
-                                           sub.linearize(st0, with_parameters=False).A, sub.settings)
+                                           _frame_blocks(sub, st0, scatter), sub.settings)
             new_locks = trading_locks(problem.model, spreads, seen_names, {n for n, _ in problem.settings.lock},
                                       turns, first, limit)
-            # A locked hinge's neighbour that turns more than FOUND_RATIO times what one frame's markers fix keeps
-            # its axis free: its turn no longer shared, it is found.  (The still rule's margin, STILL_RATIO times one
-            # frame's SD under the learnt correlation time, called pig_walk's left ankle still after the lock, 14.1
-            # deg over frames against one frame's 5.9, turning through 60 deg: one ankle's axis of two held.  A
-            # static's ankle, which does not turn, is held as before: its spread is about one frame's SD.)
-            skip = {lk.coordinate for lk in new_locks} | {
-                n for lk in locks + new_locks for n in lk.neighbours
-                if n in spreads and spreads[n][0] > FOUND_RATIO * spreads[n][1]}
+            # A locked hinge's neighbour is judged by the still test as any other coordinate: its turn no longer
+            # shared, it is found (pig_walk's ankles turn 15-17 deg SD in the walk, one frame fixes them to 2.2-2.4).
+            skip = {lk.coordinate for lk in new_locks}
             held = [name for name, _, _ in still_of(spreads) if name in axes and name not in skip]
         else:
             new_locks = ()

@@ -93,11 +93,12 @@ class StillNote:
 
     def text(self) -> str:
         if self.ball:
-            # A ball joint has no axis to hold, and a walk's hip adduction (1.5 deg SD in pig_walk, Plug-in Gait's
-            # own about 2) is no rotation to lock: the note says what the trials show, without that advice.
+            # A ball joint has no axis to hold, and a walk's trunk rotation (Rajagopal's lumbar_rotation, 4.3 deg SD
+            # in its walk, one frame fixing it to 1.5) is no rotation to lock: the note says what the trials show,
+            # without that advice.
             return (f"{self.coordinate}: turned {math.degrees(self.spread):.1f} deg SD over the frames, under "
-                    f"{STILL_RATIO:g} times what one frame's markers fix ({math.degrees(self.per_frame):.1f} deg, "
-                    f"their noise's correlation over time counted): the trials show little of this rotation of "
+                    f"{STILL_RATIO:g} times what one frame's markers fix ({math.degrees(self.per_frame):.1f} deg): the "
+                    f"trials show little of this rotation of "
                     f"{self.ball}, so its centre rests on its other rotations and the segment frame's zero about it "
                     f"on the priors (--lock {self.coordinate} holds it, if the subject kept it still)")
         if self.bare:
