@@ -13,6 +13,7 @@ import json
 import os
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -849,23 +850,11 @@ def _task(name: str, kind: str = "default_value", value: float = 0.0, apply: str
             f"<value_type>{kind}</value_type><value>{value}</value></IKCoordinateTask>")
 
 
-def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
-    """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml`: each applied coordinate task of the lab's IK setup locks its
-    coordinate, at the model's default (default_value) or at the task's value (manual_value); a task not applied
-    locks nothing; the motion then holds those coordinates there in every frame.  The setup's task on a coordinate
-    the model lacks, a value from a file, a file that is not an IK setup: one line each, exit 2, nothing written."""
-    from calibrate.io.osim_setup import ik_setup_locks
+def _muscled_trial(tmp_path, model) -> Path:
+    """trial.trc in `tmp_path`: 30 frames of `model`'s own markers (muscle_osim), the hip and knee moving."""
     from calibrate.io.trc import write_trc
     from calibrate.io.trial import Trial
 
-    src = tmp_path / "muscled.osim"
-    src.write_text(muscle_osim())
-    model = load_model(src)
-    setup = tmp_path / "setup_IK.xml"
-    setup.write_text(_ik_setup(_task("hip_q") + _task("knee_q", "manual_value", -0.25)
-                               + _task("p_rx", apply="false")))
-    assert dict(ik_setup_locks(setup, model)) == {"hip_q": 0.2, "knee_q": -0.25}  # hip_q's default in the model
-    # a short trial of the model's own markers, the hip and knee moving
     n, rng = 30, np.random.default_rng(5)
     t = np.arange(n) / 60
     angles = np.column_stack([0.4 * np.sin(2 * np.pi * t), -0.6 + 0.5 * np.sin(2 * np.pi * t + 1)])
@@ -875,6 +864,24 @@ def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
     markers = np.array([[frames[f][m] for m in model.marker_names] for f in range(n)])
     trc = tmp_path / "trial.trc"
     write_trc(trc, Trial(list(model.marker_names), markers + rng.normal(0, 2e-4, markers.shape), 60.0, 0, str(trc)))
+    return trc
+
+
+def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
+    """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml`: each applied coordinate task of the lab's IK setup locks its
+    coordinate, at the model's default (default_value) or at the task's value (manual_value); a task not applied
+    locks nothing; the motion then holds those coordinates there in every frame.  The setup's task on a coordinate
+    the model lacks, a value from a file, a file that is not an IK setup: one line each, exit 2, nothing written."""
+    from calibrate.io.osim_setup import ik_setup_locks
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    model = load_model(src)
+    setup = tmp_path / "setup_IK.xml"
+    setup.write_text(_ik_setup(_task("hip_q") + _task("knee_q", "manual_value", -0.25)
+                               + _task("p_rx", apply="false")))
+    assert dict(ik_setup_locks(setup, model)) == {"hip_q": 0.2, "knee_q": -0.25}  # hip_q's default in the model
+    trc = _muscled_trial(tmp_path, model)
     out = tmp_path / "subject.urdf"
     code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(out), "--no-new-markers", "-q"])
     assert code == 0, capsys.readouterr().err
@@ -895,6 +902,63 @@ def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
         bad.write_text(text)
         (tmp_path / f"out{k}").mkdir()
         code = main([str(trc), str(src), "--ik-setup", str(bad), "-o", str(tmp_path / f"out{k}" / "s.urdf"), "-q"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and needle in err[0] and str(bad) in err[0], err
+        assert not any((tmp_path / f"out{k}").iterdir())
+
+
+def _scale_setup(mass: str, marker_set: str, tool: str = "ScaleTool") -> str:
+    return (f"<?xml version=\"1.0\" encoding=\"UTF-8\" ?>\n<OpenSimDocument Version=\"40000\"><{tool} name=\"s\">"
+            f"<mass>{mass}</mass><height>1700</height><GenericModelMaker><model_file>generic.osim</model_file>"
+            f"<marker_set_file>{marker_set}</marker_set_file></GenericModelMaker></{tool}></OpenSimDocument>\n")
+
+
+def test_scale_setup_gives_the_mass_and_the_marker_set(tmp_path, capsys):
+    """`calibrate TRIAL MODEL.osim --scale-setup FILE.xml`: the lab's Scale setup gives the subject's body mass (the
+    subject .osim's bodies then weigh it in all, the report names the file) and the marker set it names (read
+    against the setup's folder: its markers in the subject); --mass and --marker-set win.  A file that is not a
+    Scale setup, a mass that is not a number, a marker set that is not there, a URDF base model: one line each,
+    exit 2, nothing written."""
+    from calibrate.io.osim_setup import scale_setup
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    model = load_model(src)
+    trc = _muscled_trial(tmp_path, model)
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "ms.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects><Marker name='NEW'>"
+        "<socket_parent_frame>/bodyset/shank</socket_parent_frame><location>0.05 -0.25 0</location></Marker>"
+        "</objects></MarkerSet></OpenSimDocument>")
+    setup = tmp_path / "lab" / "setup_Scale.xml"
+    setup.write_text(_scale_setup("61.5", "ms.xml"))
+    assert scale_setup(setup).mass == 61.5 and scale_setup(setup).marker_set == tmp_path / "lab" / "ms.xml"
+    for k, (extra, kg, source) in enumerate([([], 61.5, str(setup)), (["--mass", "70"], 70.0, "given")]):
+        out = tmp_path / f"run{k}"
+        out.mkdir()
+        code = main([str(trc), str(src), "--scale-setup", str(setup), "-o", str(out / "s.osim"), *extra])
+        captured = capsys.readouterr()
+        assert code == 0, captured.err
+        report = json.loads((out / "trial_report.json").read_text())
+        assert report["mass"]["subject_kg"] == pytest.approx(kg) and report["mass"]["from"] == source
+        bodies = ET.parse(out / "s.osim").getroot().iter("Body")
+        assert sum(float(b.findtext("mass")) for b in bodies) == pytest.approx(kg, rel=1e-6)
+        assert "NEW" in load_model(out / "s.urdf").marker_names  # the setup's marker set, on the shank
+        taken = "mass 61.5 kg, marker set ms.xml taken" if k == 0 else "marker set ms.xml taken"  # --mass: given
+        assert f"note: {setup.name}: {taken}" in captured.err, captured.err
+    # bad input: one line, exit 2, nothing written
+    from calibrate.model.model import write_model
+
+    urdf = write_model(model, tmp_path / "base.urdf")
+    cases = [(src, _scale_setup("61.5", "ms.xml", tool="InverseKinematicsTool"), "no <ScaleTool>"),
+             (src, _scale_setup("heavy", "ms.xml"), "<mass> 'heavy' is not a number"),
+             (src, _scale_setup("61.5", "nothere.xml"), "its marker set file 'nothere.xml' is not at"),
+             (urdf, _scale_setup("61.5", "ms.xml"), "is not one; give --mass")]
+    for k, (base, text, needle) in enumerate(cases):
+        bad = tmp_path / "lab" / f"bad{k}.xml"
+        bad.write_text(text)
+        (tmp_path / f"out{k}").mkdir()
+        code = main([str(trc), str(base), "--scale-setup", str(bad), "-o", str(tmp_path / f"out{k}" / "s.urdf"), "-q"])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and needle in err[0] and str(bad) in err[0], err
         assert not any((tmp_path / f"out{k}").iterdir())

@@ -195,7 +195,22 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                   exists_hint="pass --overwrite to replace it or choose another name")
     progress = progress_for(args.quiet, settings.max_iterations, Timed)
     t0 = time.perf_counter()
-    model = load_model(model_path, args.marker_set)
+    setup = None
+    if args.scale_setup is not None:  # the lab's Scale setup: the subject's mass and its marker set
+        if not from_osim:
+            raise CalibrateError(f"{args.scale_setup}: --scale-setup reads an OpenSim pipeline's Scale setup for an "
+                                 f"OpenSim base model (MODEL.osim), and {model_path.name} is not one; give --mass")
+        from ..io.osim_setup import scale_setup
+
+        setup = scale_setup(args.scale_setup)
+    marker_set = args.marker_set if args.marker_set is not None or setup is None else setup.marker_set
+    mass = args.mass if args.mass is not None or setup is None else setup.mass
+    model = load_model(model_path, marker_set)
+    if setup is not None and not args.quiet:
+        taken = ([f"mass {mass:g} kg"] if args.mass is None and mass is not None else []) + (
+            [f"marker set {marker_set.name}"] if args.marker_set is None and marker_set is not None else [])
+        progress_printer(f"note: {setup.path.name}: " + (", ".join(taken) + " taken" if taken else "nothing taken "
+                         "(no mass or marker set there, or given on the command line)"))
     if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
         from ..io.osim_info import osim_info, with_locked
 
@@ -223,8 +238,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if args.neutral is not None and args.neutral > len(trials):
             raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of "
                                  f"the static trial (1 = the first)")
-        cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=args.mass,
+        cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=mass,
                         neutral=None if args.neutral is None else args.neutral - 1, progress=say)
+        if setup is not None and args.mass is None and mass is not None:
+            cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})
         opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,

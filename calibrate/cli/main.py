@@ -225,6 +225,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--marker-set", type=Path, default=None, metavar="XML",
                     help="with an OpenSim MODEL.osim: an OpenSim MarkerSet file whose markers are added, replacing "
                          "those of the same name (as OpenSim's Scale tool does)")
+    ap.add_argument("--scale-setup", type=Path, default=None, metavar="XML",
+                    help="with an OpenSim MODEL.osim: the lab's OpenSim Scale setup file (e.g. "
+                         "subject01_Setup_Scale.xml), for the subject's body mass and the marker set it names (--mass "
+                         "and --marker-set win; docs/opensim.md)")
     ap.add_argument("--ik-setup", type=Path, default=None, metavar="XML",
                     help="a lab's OpenSim IK setup file (e.g. subject01_Setup_IK.xml): the coordinates its coordinate "
                          "tasks hold (Gait2392's subtalar and mtp angles) are locked at their values, as its IK "

@@ -6,8 +6,8 @@ read_trial from calibrate.io.read; read_c3d, write_c3d from calibrate.io.c3d; re
 calibrate.io.trc; is_model_output, plugin_gait_centres from calibrate.io.vicon; Motion, read_motion_csv,
 write_motion_csv from calibrate.io.motion; LabelMapping, load_marker_map, map_labels from calibrate.io.labels;
 load_settings, settings_from_dict from calibrate.io.config; approximation_table, osim_info, with_locked from
-calibrate.io.osim_info; export_osim, write_mot from calibrate.io.osim_export; ik_setup_locks, with_ik_setup from
-calibrate.io.osim_setup.
+calibrate.io.osim_info; export_osim, write_mot from calibrate.io.osim_export; ik_setup_locks, with_ik_setup,
+scale_setup, ScaleSetup from calibrate.io.osim_setup.
 """
 
 from ..exports import lazy_exports
@@ -17,5 +17,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, """
 .vicon:is_model_output,plugin_gait_centres .motion:Motion,read_motion_csv,write_motion_csv
 .labels:LabelMapping,load_marker_map,map_labels .config:load_settings,settings_from_dict
 .osim_info:approximation_table,osim_info,with_locked .osim_export:export_osim,write_mot
-.osim_setup:ik_setup_locks,with_ik_setup
+.osim_setup:ik_setup_locks,with_ik_setup,scale_setup,ScaleSetup
 """)

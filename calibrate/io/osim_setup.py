@@ -9,11 +9,18 @@ default; ``manual_value``: the task's value).  ``from_file`` values, which chang
 refused.  The file's marker tasks (weights, markers left out of IK) are not used: calibrate learns each
 marker's noise from the trial, and a marker OpenSim's IK leaves out may still help the scaling (a medial
 knee marker of the static trial).
+
+A lab's Scale setup file gives the subject's body mass and the marker set the Scale tool adds to the generic
+model (``--scale-setup subject01_Setup_Scale.xml``): the mass scales the subject's segment masses and inertias
+(what the lab's ID, Static Optimization and CMC setups read from the subject .osim); its measurement pairs,
+marker weights and static time range are not used: calibrate scales and places the markers from every frame of
+the trials given.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ModelError
@@ -68,4 +75,40 @@ def with_ik_setup(model, settings, path: str | Path):
     return replace(settings, lock=tuple(sorted(merged.items())))
 
 
-__all__ = ["ik_setup_locks", "with_ik_setup"]
+@dataclass(frozen=True)
+class ScaleSetup:
+    """What calibrate takes from a lab's OpenSim Scale setup file (its ScaleTool)."""
+
+    path: Path
+    mass: float | None  # kg, the subject's body mass (<mass>); None where the file leaves it unset (0, -1)
+    marker_set: Path | None  # the GenericModelMaker's marker_set_file, against the setup's folder; None: 'Unassigned'
+
+
+def scale_setup(path: str | Path) -> ScaleSetup:
+    """The subject's mass and the marker set named by the OpenSim Scale setup at `path` (a relative marker set path
+    is read against the setup's folder, as OpenSim's Scale tool reads it).  Raises ModelError with one line on a
+    file that is not a Scale setup, a mass that is not a number, or a marker set file that is not there."""
+    path = Path(path)
+    tool = xml_element(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+                       "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+    text = (tool.findtext("mass") or "").strip()
+    mass = None
+    if text:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not math.isfinite(value):
+            raise ModelError(f"{path}: <mass> '{text}' is not a number; give the subject's body mass in kg")
+        mass = value if value > 0 else None
+    name = (tool.findtext("GenericModelMaker/marker_set_file") or "").strip()
+    marker_set = None
+    if name and name != "Unassigned":
+        marker_set = Path(name) if Path(name).is_absolute() else path.parent / name
+        if not marker_set.is_file():
+            raise ModelError(f"{path}: its marker set file '{name}' is not at {marker_set}; put it there, or give "
+                             f"the marker set with --marker-set")
+    return ScaleSetup(path, mass, marker_set)
+
+
+__all__ = ["ScaleSetup", "ik_setup_locks", "scale_setup", "with_ik_setup"]
