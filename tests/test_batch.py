@@ -89,3 +89,51 @@ def test_csv_manifest_and_bad_manifests(tmp_path):
                           str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "trials" in run.stderr and not (tmp_path / "o").exists()
     assert np.isfinite(s.mass)
+
+
+def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
+    """A subject on an OpenSim base model (models/human.urdf exported as .osim) with the lab's marker set, IK setup
+    and Scale setup in the manifest: the Scale setup's mass and marker set are taken (the report names the file),
+    the IK setup's coordinate task holds its coordinate in every frame, the marker set's extra marker is in the
+    subject, and the subject is written as subject.osim and a .mot per trial beside the URDF and CSVs.  The setups
+    with a URDF model: one line."""
+    from calibrate.calibration.batch import calibrate_subject
+    from calibrate.io.osim_export import export_osim
+
+    human = load_model(HUMAN)
+    export_osim(human, tmp_path / "human.osim")
+    write_simulation(simulate_squats(human, frames=80, noise_mm=1.0, seed=12), tmp_path / "S1")
+    (tmp_path / "ms.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects><Marker name='EXTRA'>"
+        "<socket_parent_frame>/bodyset/femur_r</socket_parent_frame><location>0.05 -0.2 0.04</location></Marker>"
+        "</objects></MarkerSet></OpenSimDocument>")
+    (tmp_path / "Setup_Scale.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='S1'><mass>61.5</mass>"
+        "<GenericModelMaker><marker_set_file>ms.xml</marker_set_file></GenericModelMaker></ScaleTool>"
+        "</OpenSimDocument>")
+    (tmp_path / "Setup_IK.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='ik'><IKTaskSet><objects>"
+        "<IKCoordinateTask name='subtalar_r'><apply>true</apply><weight>1000</weight><value_type>manual_value"
+        "</value_type><value>0.1</value></IKCoordinateTask></objects></IKTaskSet></InverseKinematicsTool>"
+        "</OpenSimDocument>")
+    (tmp_path / "lab.toml").write_text('[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
+                                       'ik_setup = "Setup_IK.xml"\nscale_setup = "Setup_Scale.xml"\n')
+    (subject,) = read_manifest(tmp_path / "lab.toml")
+    row = calibrate_subject(subject, tmp_path / "out")
+    assert row["status"] in ("ok", "not converged"), row
+    folder = tmp_path / "out" / "S1"
+    assert {p.name for p in folder.iterdir()} >= {"subject.urdf", "subject.osim", "trial_motion.csv",
+                                                  "trial_motion.mot", "report.json"}
+    rep = json.loads((folder / "report.json").read_text())
+    assert rep["mass"]["subject_kg"] == pytest.approx(61.5) and rep["mass"]["from"] == str(tmp_path / "Setup_Scale.xml")
+    assert rep["settings"]["lock_deg"]["subtalar_r"] == pytest.approx(np.degrees(0.1))
+    assert "EXTRA" in load_model(folder / "subject.osim").marker_names
+    lines = (folder / "trial_motion.mot").read_text().splitlines()
+    head = lines.index("endheader") + 1
+    cols = lines[head].split("\t")
+    rows = np.array([[float(v) for v in line.split("\t")] for line in lines[head + 1:]])
+    assert len(rows) == 80 and np.allclose(rows[:, cols.index("subtalar_r")], np.degrees(0.1), atol=1e-3)  # degrees
+    (tmp_path / "bad.toml").write_text(f'[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "{HUMAN}"\n'
+                                       'marker_set = "ms.xml"\n')
+    with pytest.raises(CalibrateError, match="'marker_set' applies to an OpenSim base model"):
+        read_manifest(tmp_path / "bad.toml")

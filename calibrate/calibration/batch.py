@@ -18,9 +18,14 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     model = "models/human.urdf"       # or an OpenSim .osim
     markers = "labels.toml"           # optional: the lab's label map (calibrate --markers)
     mass = 68.0                       # optional: kg
+    marker_set = "gait2392_Scale_MarkerSet.xml"   # optional, an .osim model only: as --marker-set
+    ik_setup = "S01/Setup_IK.xml"                 # ... as --ik-setup (the coordinates it holds locked)
+    scale_setup = "S01/Setup_Scale.xml"           # ... as --scale-setup (mass and marker set, unless given)
 
-    subject,trials,model,markers,mass # CSV: trials separated by ';', markers and mass may be empty
-    S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68
+    subject,trials,model,markers,mass # CSV: trials separated by ';', markers and mass may be empty; optional
+    S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup
+
+An OpenSim base model's subject is also written as subject.osim, its motions as <trial>_motion.mot.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ import re
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import CalibrateError
@@ -49,6 +54,7 @@ REPORT = "report.json"  # each subject's report: written last of its outputs, wi
 SUMMARY_COLUMNS = ("subject", "status", "marker_rms_mm", "iterations", "converged", "seconds", "warnings",
                    "error", "folder")
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+OPENSIM_FILES = ("marker_set", "ik_setup", "scale_setup")  # a subject's OpenSim files (an .osim model only)
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,9 @@ class Subject:
     model: Path
     markers: Path | None = None
     mass: float | None = None
+    marker_set: Path | None = None  # an OpenSim model's MarkerSet file (calibrate --marker-set)
+    ik_setup: Path | None = None  # the lab's OpenSim IK setup: the coordinates it holds locked (--ik-setup)
+    scale_setup: Path | None = None  # the lab's OpenSim Scale setup: mass and marker set (--scale-setup)
 
 
 def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
@@ -83,10 +92,12 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         missing = {"subject", "trials", "model"} - set(reader.fieldnames or ())
         if missing:
             raise CalibrateError(f"{path}: CSV header lacks {', '.join(sorted(missing))}; the columns are "
-                                 "subject,trials,model,markers,mass")
+                                 "subject,trials,model,markers,mass (and, for an .osim model, "
+                                 "marker_set,ik_setup,scale_setup)")
         rows = [{"id": r["subject"], "trials": [t for t in (r["trials"] or "").split(";") if t.strip()],
                  "model": r["model"], "markers": r.get("markers") or None,
-                 "mass": float(r["mass"]) if (r.get("mass") or "").strip() else None} for r in reader]
+                 "mass": float(r["mass"]) if (r.get("mass") or "").strip() else None,
+                 **{k: r[k] for k in OPENSIM_FILES if (r.get(k) or "").strip()}} for r in reader]
     else:
         raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
     base = path.parent
@@ -112,26 +123,44 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         if mass is not None and (isinstance(mass, bool) or not isinstance(mass, (int, float)) or not mass > 0):
             raise CalibrateError(f"{where} ({sid}): 'mass' must be a positive number of kg, got {mass!r}")
         markers = row.get("markers")
+        opensim = {}
+        for key in OPENSIM_FILES:
+            value = row.get(key)
+            if value is None:
+                continue
+            if not isinstance(value, str) or not value.strip():
+                raise CalibrateError(f"{where} ({sid}): '{key}' must name a file (an OpenSim {key.replace('_', ' ')})")
+            if not row["model"].strip().lower().endswith(".osim"):
+                raise CalibrateError(f"{where} ({sid}): '{key}' applies to an OpenSim base model (.osim), and "
+                                     f"{row['model'].strip()} is not one; leave it out or give the .osim")
+            opensim[key] = base / value.strip()
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
-                                None if mass is None else float(mass)))
+                                None if mass is None else float(mass), **opensim))
     return subjects
 
 
 @functools.lru_cache(maxsize=8)
-def _base_model(path: str, mtime: float):
-    """A base model read once per worker process (and again only if its file changed)."""
+def _base_model(path: str, mtime: float, marker_set: str | None = None, marker_set_mtime: float = 0.0):
+    """A base model (with an OpenSim model's marker set) read once per worker process (and again only if a file
+    changed)."""
     from ..model.model import load_model
 
-    return load_model(path)
+    return load_model(path, marker_set)
 
 
-def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool) -> dict:
+def _mtime(path: Path | None) -> float:
+    return path.stat().st_mtime if path is not None and path.exists() else 0.0
+
+
+def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, opensim: bool = False) -> dict:
     """Write one subject's outputs into `folder`, all or none: subject.urdf, one <trial>_motion.csv per
-    trial, the HTML report and, last, the report JSON (the subject's done-marker)."""
+    trial (`opensim`: also subject.osim and a <trial>_motion.mot each), the HTML report and, last, the report
+    JSON (the subject's done-marker)."""
     motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
+    extra = {"osim": folder / "subject.osim", "mot": [m.with_suffix(".mot") for m in motions]} if opensim else {}
     return cal.write(urdf=folder / "subject.urdf", motion=motions, report=folder / REPORT,
-                     html=folder / "report.html", overwrite=overwrite)
+                     html=folder / "report.html", overwrite=overwrite, **extra)
 
 
 def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: bool = False) -> dict:
@@ -149,13 +178,28 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         from ..problem.settings import Settings
         from .pipeline import calibrate
 
-        model = _base_model(str(subject.model), subject.model.stat().st_mtime if subject.model.exists() else 0.0)
+        setup = None
+        if subject.scale_setup is not None:  # the lab's Scale setup: the subject's mass and its marker set
+            from ..io.osim_setup import scale_setup
+
+            setup = scale_setup(subject.scale_setup)
+        marker_set = subject.marker_set if subject.marker_set is not None or setup is None else setup.marker_set
+        mass = subject.mass if subject.mass is not None or setup is None else setup.mass
+        model = _base_model(str(subject.model), _mtime(subject.model), None if marker_set is None else str(marker_set),
+                            _mtime(marker_set))
+        # The workers keep the cores busy already: nothing is run ahead in another process (Settings.ahead).
+        settings = Settings(ahead=False)
+        if subject.ik_setup is not None:
+            from ..io.osim_setup import with_ik_setup
+
+            settings = with_ik_setup(model, settings, subject.ik_setup)
         trials = [read_trial(t) for t in subject.trials]
         marker_map = load_marker_map(subject.markers) if subject.markers else None
-        # The workers keep the cores busy already: nothing is run ahead in another process (Settings.ahead).
-        cal = calibrate(model, trials, Settings(ahead=False), marker_map=marker_map, mass=subject.mass)
+        cal = calibrate(model, trials, settings, marker_map=marker_map, mass=mass)
+        if setup is not None and subject.mass is None and mass is not None:
+            cal = replace(cal, mass_from=str(setup.path))
         folder.mkdir(parents=True, exist_ok=True)
-        subject_outputs(cal, folder, subject.trials, overwrite=True)
+        subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim")
         warnings = len(cal.notes) + len(cal.unidentified) + (0 if cal.converged else 1)
         return {**row, "status": "ok" if cal.converged else "not converged", "marker_rms_mm": 1000 * cal.marker_rms,
                 "iterations": cal.summary.iterations, "converged": bool(cal.converged),
