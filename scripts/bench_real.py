@@ -715,9 +715,11 @@ def section_swaps(a, tmp: Path, cap: float, log) -> dict:
             "implausible_labels": sorted({lab for b in flagged for lab in b["check_labels"]}),
             "scale_min": min(scales.values()), "scale_max": max(scales.values()),
             "asymmetry_pct": segment_lengths(UrdfKinematics(run["urdf"]))["asymmetry_pct"],
+            "exchanged_named": ["/".join(e["labels"]) for e in rep.get("exchanged_labels", [])],
             "pair_pointed_at": bool({x, y} & set(named + [lab for m in rep.get("suspect_labels", [])
                                                            for lab in m.get("segment_labels", [])]))
-                               or bool({x, y} & {lab for b in flagged for lab in b["check_labels"]})}
+                               or bool({x, y} & {lab for b in flagged for lab in b["check_labels"]})
+                               or any({x, y} == set(e["labels"]) for e in rep.get("exchanged_labels", []))}
     return out
 
 
@@ -1095,7 +1097,8 @@ def report(res: dict) -> None:
             say(f"  {pair}: converged {v['converged']}, {v['iterations']} its, marker RMS {v['marker_rms_mm']:.2f} mm, "
                 f"scales {v['scale_min']:.2f}-{v['scale_max']:.2f}, L/R {v['asymmetry_pct']:.1f} %; labels named "
                 f"{', '.join(v['named']) or 'none'} (with {', '.join(v['named_with']) or '-'}; exchanges that fit: "
-                f"{', '.join(v.get('exchanges', [])) or '-'}); implausible "
+                f"{', '.join(v.get('exchanges', [])) or '-'}); exchanged within a segment "
+                f"{', '.join(v.get('exchanged_named', [])) or 'none'}; implausible "
                 f"{', '.join(v['implausible']) or 'none'}; the pair pointed at: {v['pair_pointed_at']}")
     say()
     say("Targets")

@@ -81,6 +81,10 @@ def _notes(report: dict) -> str:
                          f"{v.get('calibrated_mm', 0):.0f} mm from it along the axis, the measured width puts it "
                          f"{v.get('measured_mm', 0):.0f} mm lateral"
                          + ("" if v.get("used") else " (the width was not used)") + "</li>")
+    for x in report.get("exchanged_labels", []):
+        items.append(f"<li class=bad>check labels: {_e(x.get('note'))}"
+                     + (f"; their positions in {_e(x['odd_trial'])} left out of the fit" if x.get("odd_trial") else "")
+                     + "</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "

@@ -70,7 +70,7 @@ from ..problem.priors import joint_centre_markers
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
-from ..seed.association import associate_to_model, misplaced_labels
+from ..seed.association import associate_to_model, exchanged_between, misplaced_labels
 from ..seed.rigidity import distance_variance
 from ..solve.ahead import run_ahead
 from ..solve.chunks import frame_bytes
@@ -251,6 +251,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         if run.outliers > 0 else ()
     for i, m in misplaced:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
+    # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe): rigidity cannot
+    # see it; their distances to the markers near them can.
+    exchanged = exchanged_between(model, trials, skip=centred) if run.outliers > 0 else ()
+    for x in exchanged:
+        say(Progress("markers", x.text([t.source or f"trial {k + 1}" for k, t in enumerate(trials)])
+                     + ("; their positions there left out" if x.odd is not None else "; check the labels")))
     # Unlabelled trajectories (Vicon's '*115'): ghosts, reflections or markers the operator left
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
@@ -282,6 +288,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             for d in res.lock))
     obs = np.concatenate([marker_columns(subject, t) for t in trials])
     spans = trial_spans(trials)
+    for x in exchanged:  # the trial the base model says has them exchanged: their positions there left out
+        if x.odd is not None:
+            obs[spans[x.odd], [subject.marker_index(n) for n in x.labels]] = np.nan
     seen = np.all(np.isfinite(obs), axis=2)
     unused = tuple(n for k, n in enumerate(subject.marker_names) if not seen[:, k].any() and n in known)
     blind = _segments_without_data(subject, {n for k, n in enumerate(subject.marker_names) if seen[:, k].any()})
@@ -572,7 +581,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise, misplaced=misplaced, moved=tuple(moved), moved_kept=tuple(kept),
+                       noise_learnt=run.learn_noise, misplaced=misplaced, exchanged=exchanged, moved=tuple(moved),
+                       moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=_still_only(model, trials, motion),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),

@@ -133,6 +133,14 @@ def calibration_report(cal: Calibration) -> dict:
                             "exchanges": [list(x) for x in m.exchanges],
                             "distance_sd_own_mm": 1e3 * m.sd_own,
                             "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
+        # two labels of one segment exchanged between two trials (calibrate.seed.association.exchanged_between)
+        "exchanged_labels": [{"labels": list(x.labels), "segment": x.segment,
+                              "trials": [_trial_name(cal, k) for k in x.trials],
+                              "kept_mm": 1e3 * x.kept, "exchanged_mm": 1e3 * x.exchanged,
+                              "references": list(x.references),
+                              "odd_trial": None if x.odd is None else _trial_name(cal, x.odd),
+                              "note": x.text([_trial_name(cal, k) for k in range(len(cal.trials))])}
+                             for x in cal.exchanged],
         # markers a still trial showed elsewhere on their segment than the moving trials (Settings.moved_markers):
         # their positions there left out, the model keeping the moving trials' place
         "moved_markers": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
@@ -257,6 +265,11 @@ def _measurement_lines(cal) -> list[str]:
                        f"the measured width puts it {v['measured_mm']:.0f} mm lateral"
                        + ("" if v["used"] else " (the width was not used; docs/calibration.md, subject measurements)"))
     return out
+
+
+def _trial_name(cal, k: int) -> str:
+    """Trial k's file (or 'trial k+1' for one read from memory)."""
+    return cal.trials[k].source or f"trial {k + 1}"
 
 
 def symmetry_table(cal) -> dict:
@@ -547,6 +560,11 @@ def summary_text(cal) -> str:
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")
+    for x in cal.exchanged:
+        lines.append(f"  check labels {x.text([_trial_name(cal, k) for k in range(len(cal.trials))])} "
+                     + (f"(their positions in {_trial_name(cal, x.odd)} left out of the fit: exchange them in its file "
+                        "and calibrate again to use them)" if x.odd is not None else
+                        "(nothing was changed: exchange them in the trial's file that has them wrong)"))
     unresolved = cal.unresolved
     if unresolved:
         lines.append(f"  unresolved   {len(unresolved)} segments the markers cannot place (their coordinates "

@@ -201,6 +201,9 @@ class Calibration:
     # (trial index, calibrate.seed.association.Misplaced) per label whose marker rides with another segment than
     # the model's in that trial: labels to check (a label exchanged for the whole trial), reported, not changed
     misplaced: tuple = ()
+    # calibrate.seed.association.Exchanged per pair of one segment's labels exchanged between two trials (a walk's
+    # heel and toe): labels to check, reported, not changed
+    exchanged: tuple = ()
     # calibrate.calibration.moved.MovedMarker per marker that a still trial shows elsewhere on its segment than
     # the moving trials do: its positions in that still trial were left out (Settings.moved_markers)
     moved: tuple = ()

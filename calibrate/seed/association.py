@@ -681,3 +681,160 @@ def _exchanges(sd: np.ndarray, labels: list[str], seg: list[str], found: tuple[M
     # segment); others that also leave none misplaced are 3-12 % less steady (on squats and pig_walk).
     best = min((v[0] for v in out.values()), default=0.0)
     return tuple((a, b) for score, a, b in out.values() if score <= best * (1 + 1e-9))
+
+
+
+# Two labels of one segment's markers exchanged in one trial and not in another (a walk labelled with the heel and
+# toe exchanged, its static right): rigidity cannot see it (both ride with their segment), and with two markers on
+# the segment the fit turns the segment round rather than showing either marker elsewhere on it.  Their distances to
+# the markers near them (on their segment and within two joints of it) can: in one trial they are the other trial's
+# with the two exchanged.  Measured (2026-11-29, median distances over the frames, RMS over those markers): pig_walk
+# with RHEE and RTOE exchanged in the walk, 90 mm as labelled against 25 mm exchanged; on the recorded trials of
+# pig_walk, gait2392 and Rajagopal2016 no pair fits better exchanged (the best 47 against 48 mm).  A pair exchanged
+# in every trial alike cannot be seen this way.
+EXCHANGE_RATIO = 2.5  # as labelled, the distances differ between the trials this many times more than exchanged ...
+EXCHANGE_SIGNIFICANT = 3.0  # ... and this many times their spread over the frames (each trial's, added) ...
+EXCHANGE_GAIN = 0.03  # ... and by this much more (m, RMS over the markers near them)
+EXCHANGE_SPREAD_FLOOR = 0.005  # m, added to the spreads (a rigid pair's is the noise alone)
+EXCHANGE_STEADY = 0.015  # m: markers whose distances to the pair spread over frames by more are not compared
+EXCHANGE_JOINTS = 2  # markers on segments within this many joints of the pair's are compared
+EXCHANGE_FRAMES = 60  # about this many evenly spaced frames of a trial are read (medians need no more)
+
+
+@dataclass(frozen=True)
+class Exchanged:
+    """Two labels of one segment's markers exchanged between two trials (exchanged_between)."""
+
+    labels: tuple[str, str]
+    segment: str
+    trials: tuple[int, int]  # the two trials compared (indices)
+    kept: float  # m: RMS difference of the pair's distances to the markers near them between the trials, as labelled
+    exchanged: float  # m: the same with the two labels exchanged in the second trial
+    references: tuple[str, ...]  # the markers near them
+    odd: int | None = None  # the trial whose labels the base model's distances say are exchanged (None: no telling)
+
+    def text(self, names: Sequence[str]) -> str:
+        a, b = self.labels
+        i, j = (names[k] for k in self.trials)
+        out = (f"{a} and {b} (both on {self.segment}) are exchanged between {i} and {j}: their distances to "
+               f"{', '.join(self.references[:4])}{', ...' if len(self.references) > 4 else ''} differ by "
+               f"{1e3 * self.kept:.0f} mm between the two as labelled, {1e3 * self.exchanged:.0f} mm exchanged")
+        if self.odd is not None:
+            out += f"; against the base model's, {names[self.odd]}'s are the exchanged ones"
+        return out
+
+
+def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[str] = ()) -> tuple[Exchanged, ...]:
+    """Pairs of labels of one segment's markers exchanged between two of `trials` (see EXCHANGE_RATIO): per trial the
+    median over frames of each marker pair's distance and its spread, compared between every two trials for the
+    pair's distances to the markers near it that keep steady (EXCHANGE_STEADY), as labelled and with the two
+    exchanged in the second.  `odd`: the trial whose distances fit the base model's (scaled by the median ratio of
+    the trial's same-segment distances to the model's) better exchanged, when just one of the two does.  `skip`:
+    labels not judged (joint-centre markers)."""
+    if len(trials) < 2:
+        return ()
+    names = [m.name for m in model.markers if m.name not in skip and all(m.name in t.labels for t in trials)]
+    if len(names) < 4:
+        return ()
+    seg = [model.markers[model.marker_index(n)].segment for n in names]
+    stats = []  # per trial: (median distances, their spreads)
+    for t in trials:
+        X = t.select(names).markers[:: max(1, t.n_frames // EXCHANGE_FRAMES)]
+        stats.append(_median_distances(np.linalg.norm(X[:, :, None] - X[:, None], axis=-1)))
+    ref = None  # the base model's distances, formed when a pair is found
+    same = np.equal.outer(np.array(seg), np.array(seg)) & ~np.eye(len(names), dtype=bool)
+    out = []
+    for s in dict.fromkeys(seg):
+        on = [k for k in range(len(names)) if seg[k] == s]
+        near = _within_joints(model, s, EXCHANGE_JOINTS)
+        for x, a in enumerate(on):
+            for b in on[x + 1:]:
+                refs = [c for c in range(len(names)) if c not in (a, b) and seg[c] in near]
+                for i in range(len(trials)):
+                    for j in range(i + 1, len(trials)):
+                        found = _exchange(stats[i], stats[j], a, b, refs)
+                        if found is None:
+                            continue
+                        ref = _model_distances(model, names) if ref is None else ref
+                        steady, kept, swapped = found
+                        worse = [k for k in (i, j) if _mismatch_model(*stats[k], ref, same, a, b, steady, True)
+                                 < _mismatch_model(*stats[k], ref, same, a, b, steady, False)]
+                        out.append(Exchanged((names[a], names[b]), s, (i, j), kept, swapped,
+                                             tuple(names[c] for c in steady), worse[0] if len(worse) == 1 else None))
+    return tuple(out)
+
+
+def _exchange(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray], a: int, b: int,
+              refs: list[int]) -> tuple[list[int], float, float] | None:
+    """Whether labels a and b are exchanged in the second trial against the first (exchanged_between): the markers
+    of `refs` whose distances to both keep steady in both trials, and the RMS mismatch (m) of those distances as
+    labelled and exchanged; None if not."""
+    (Di, Si), (Dj, Sj) = first, second
+    # On the segment, or across a joint near its axis: across a joint that turns far (a squat's knee) the distances
+    # move with the pose, not with the labels.
+    steady = [c for c in refs if max(Si[a, c], Si[b, c], Sj[a, c], Sj[b, c]) <= EXCHANGE_STEADY]
+    if not steady:
+        return None
+    z = [_mismatch(Di, Dj, a, b, steady, e, (Si, Sj)) for e in (False, True)]
+    kept, swapped = (_mismatch(Di, Dj, a, b, steady, e) for e in (False, True))
+    if z[0] >= EXCHANGE_SIGNIFICANT and z[0] >= EXCHANGE_RATIO * z[1] and kept - swapped >= EXCHANGE_GAIN:
+        return steady, kept, swapped
+    return None
+
+
+def _median_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, n) median over frames of (frames, n, n) distances and their spread (1.4826 times the median absolute
+    deviation), NaN where a pair is never seen together."""
+    seen = np.isfinite(D).any(axis=0)
+    med, sd = np.full(D.shape[1:], np.nan), np.full(D.shape[1:], np.nan)
+    med[seen] = np.nanmedian(D[:, seen], axis=0)
+    sd[seen] = 1.4826 * np.nanmedian(np.abs(D[:, seen] - med[seen]), axis=0)
+    return med, sd
+
+
+def _model_distances(model: Model, names: Sequence[str]) -> np.ndarray:
+    """(n, n) distances between the named markers of the base model in its neutral pose."""
+    from ..model.blocks import FrameLayout
+    from ..model.kinematics import build_kinematics
+
+    Z = FrameLayout.coordinates(np.zeros((1, 3)), np.zeros((1, model.n_dofs)))
+    M, _ = build_kinematics(model).batch(Z, np.array([[0.0, 0.0, 0.0, 1.0]]), model.parameters())
+    P = M[0][[model.marker_index(n) for n in names]]
+    return np.linalg.norm(P[:, None] - P[None], axis=-1)
+
+
+def _within_joints(model: Model, segment: str, joints: int) -> set[str]:
+    """The segments at most `joints` joints from `segment` (itself included)."""
+    adj: dict[str, set[str]] = {}
+    for j in model.joints:
+        adj.setdefault(j.parent, set()).add(j.child)
+        adj.setdefault(j.child, set()).add(j.parent)
+    out, front = {segment}, {segment}
+    for _ in range(joints):
+        front = {n for s in front for n in adj.get(s, ())} - out
+        out |= front
+    return out
+
+
+def _mismatch(Di: np.ndarray, Dj: np.ndarray, a: int, b: int, refs: list[int], exchanged: bool,
+              spread: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """RMS difference (m) of a's and b's distances to `refs` between two trials (b's and a's in the second); with
+    `spread` (each trial's distance spreads), each difference over the root sum of the two spreads and
+    EXCHANGE_SPREAD_FLOOR squared (dimensionless)."""
+    x, y = (b, a) if exchanged else (a, b)
+    d = np.concatenate([Dj[x, refs] - Di[a, refs], Dj[y, refs] - Di[b, refs]])
+    if spread is not None:
+        Si, Sj = spread
+        d = d / np.sqrt(np.concatenate([Sj[x, refs] ** 2 + Si[a, refs] ** 2, Sj[y, refs] ** 2 + Si[b, refs] ** 2])
+                        + EXCHANGE_SPREAD_FLOOR ** 2)
+    d = d[np.isfinite(d)]
+    return float(np.sqrt(np.mean(d ** 2))) if d.size else float("nan")
+
+
+def _mismatch_model(D: np.ndarray, S: np.ndarray, ref: np.ndarray, same: np.ndarray, a: int, b: int,
+                    refs: list[int], exchanged: bool) -> float:
+    """_mismatch of a trial's distances (spreads S) against the base model's in its neutral pose, scaled to the
+    trial by the median ratio of its same-segment distances to the model's."""
+    ok = same & np.isfinite(D) & (ref > 0.02)
+    scale = float(np.median(D[ok] / ref[ok])) if ok.any() else 1.0
+    return _mismatch(scale * ref, D, a, b, refs, exchanged, (np.zeros_like(S), S))
