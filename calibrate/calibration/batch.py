@@ -200,7 +200,8 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
             cal = replace(cal, mass_from=str(setup.path))
         folder.mkdir(parents=True, exist_ok=True)
         subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim")
-        warnings = len(cal.notes) + len(cal.unidentified) + (0 if cal.converged else 1)
+        warnings = (len(cal.notes) + len(cal.unidentified) + len(cal.misplaced) + len(cal.exchanged)
+                    + (0 if cal.converged else 1))
         return {**row, "status": "ok" if cal.converged else "not converged", "marker_rms_mm": 1000 * cal.marker_rms,
                 "iterations": cal.summary.iterations, "converged": bool(cal.converged),
                 "seconds": time.perf_counter() - t0, "warnings": warnings}
