@@ -79,3 +79,22 @@ def test_the_calibration_leaves_them_out_and_names_them_everywhere(human, sessio
     assert r["odd_trial"] == "squats.c3d" and r["kept_mm"] == pytest.approx(1e3 * x.kept)
     assert "check labels: LKNE and LTHI" in report_html(rep)
     assert cal.trials[1].labels.index("LKNE") == squats.labels.index("LTHI")  # as given
+
+
+def test_a_pair_exchanged_alike_in_every_trial_is_named_against_the_base_model(human, session):
+    """Exchanged in the squats alone, or in both trials: no trial tells which is right, so the pair's steady
+    distances are compared with the base model's (neutral pose, scaled to the trial) and it is named for the trials
+    that have it so; nothing is left out (a lab's marker protocol may differ from the model's)."""
+    static, squats = session
+    assert exchanged_between(human, [squats]) == () and exchanged_between(human, [static]) == ()
+    (x,) = exchanged_between(human, [_exchanged(squats, "LKNE", "LTHI")])
+    assert x.against_model and x.trials == (0,) and x.odd is None and x.kept >= EXCHANGE_RATIO * x.exchanged
+    (y,) = exchanged_between(human, [_exchanged(static, "LKNE", "LTHI"), _exchanged(squats, "LKNE", "LTHI")])
+    assert y.against_model and y.trials == (0, 1) and "sit each where the other belongs in a and b" in y.text("ab")
+    cal = calibrate(human, [_exchanged(static, "LKNE", "LTHI"), _exchanged(squats, "LKNE", "LTHI")],
+                    Settings(max_iterations=5))
+    (z,) = cal.exchanged
+    pair = [human.marker_index(n) for n in z.labels]
+    assert z.against_model and np.isfinite(cal.residuals[:, pair]).any(axis=0).all()  # kept in the fit
+    line = next(s for s in summary_text(cal).splitlines() if s.startswith("  check labels "))
+    assert "nothing was changed" in line

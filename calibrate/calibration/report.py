@@ -139,6 +139,7 @@ def calibration_report(cal: Calibration) -> dict:
                               "kept_mm": 1e3 * x.kept, "exchanged_mm": 1e3 * x.exchanged,
                               "references": list(x.references),
                               "odd_trial": None if x.odd is None else _trial_name(cal, x.odd),
+                              "against_model": x.against_model,
                               "note": x.text([_trial_name(cal, k) for k in range(len(cal.trials))])}
                              for x in cal.exchanged],
         # markers a still trial showed elsewhere on their segment than the moving trials (Settings.moved_markers):

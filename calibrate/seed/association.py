@@ -703,46 +703,57 @@ EXCHANGE_FRAMES = 60  # about this many evenly spaced frames of a trial are read
 
 @dataclass(frozen=True)
 class Exchanged:
-    """Two labels of one segment's markers exchanged between two trials (exchanged_between)."""
+    """Two labels of one segment's markers exchanged: between two trials, or against the base model in trials that
+    all have them alike (exchanged_between)."""
 
     labels: tuple[str, str]
     segment: str
-    trials: tuple[int, int]  # the two trials compared (indices)
-    kept: float  # m: RMS difference of the pair's distances to the markers near them between the trials, as labelled
-    exchanged: float  # m: the same with the two labels exchanged in the second trial
-    references: tuple[str, ...]  # the markers near them
-    odd: int | None = None  # the trial whose labels the base model's distances say are exchanged (None: no telling)
+    # two trials compared (indices), the second with them exchanged against the first; or the trials whose
+    # distances are the base model's exchanged (then every trial that shows them has them alike)
+    trials: tuple[int, ...]
+    kept: float  # m: RMS difference of the pair's distances to the markers near them, as labelled
+    exchanged: float  # m: the same with the two labels exchanged
+    references: tuple[str, ...]  # the markers near them compared
+    odd: int | None = None  # between two trials: the one the base model's distances say has them exchanged
+    against_model: bool = False  # compared with the base model's distances, not between trials
 
     def text(self, names: Sequence[str]) -> str:
         a, b = self.labels
+        near = f"{', '.join(self.references[:4])}{', ...' if len(self.references) > 4 else ''}"
+        if self.against_model:
+            where = " and ".join(names[k] for k in self.trials)
+            return (f"{a} and {b} (both on {self.segment}) sit each where the other belongs in {where}: their "
+                    f"distances to {near} differ from the base model's by {1e3 * self.kept:.0f} mm as labelled, "
+                    f"{1e3 * self.exchanged:.0f} mm exchanged (the trials alike: no trial tells which is right; a "
+                    f"lab's marker protocol may differ from the model's)")
         i, j = (names[k] for k in self.trials)
-        out = (f"{a} and {b} (both on {self.segment}) are exchanged between {i} and {j}: their distances to "
-               f"{', '.join(self.references[:4])}{', ...' if len(self.references) > 4 else ''} differ by "
-               f"{1e3 * self.kept:.0f} mm between the two as labelled, {1e3 * self.exchanged:.0f} mm exchanged")
+        out = (f"{a} and {b} (both on {self.segment}) are exchanged between {i} and {j}: their distances to {near} "
+               f"differ by {1e3 * self.kept:.0f} mm between the two as labelled, {1e3 * self.exchanged:.0f} mm "
+               f"exchanged")
         if self.odd is not None:
             out += f"; against the base model's, {names[self.odd]}'s are the exchanged ones"
         return out
 
 
 def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[str] = ()) -> tuple[Exchanged, ...]:
-    """Pairs of labels of one segment's markers exchanged between two of `trials` (see EXCHANGE_RATIO): per trial the
-    median over frames of each marker pair's distance and its spread, compared between every two trials for the
-    pair's distances to the markers near it that keep steady (EXCHANGE_STEADY), as labelled and with the two
-    exchanged in the second.  `odd`: the trial whose distances fit the base model's (scaled by the median ratio of
-    the trial's same-segment distances to the model's) better exchanged, when just one of the two does.  `skip`:
-    labels not judged (joint-centre markers)."""
-    if len(trials) < 2:
-        return ()
+    """Pairs of labels of one segment's markers exchanged (see EXCHANGE_RATIO): per trial the median over frames of
+    each marker pair's distance and its spread; for each pair of labels on one segment, its distances to the markers
+    near it that keep steady (EXCHANGE_STEADY) compared between every two trials, as labelled and with the two
+    exchanged in the second (`odd`: the trial whose distances fit the base model's, in its neutral pose scaled by the
+    median ratio of the trial's same-segment distances to the model's, better exchanged, when just one of the two
+    does); a pair not so found, compared in each trial with the base model's (`against_model`: the trials where
+    it fits them better exchanged, all alike).  `skip`: labels not judged (joint-centre markers)."""
     names = [m.name for m in model.markers if m.name not in skip and all(m.name in t.labels for t in trials)]
-    if len(names) < 4:
+    if not trials or len(names) < 4:
         return ()
     seg = [model.markers[model.marker_index(n)].segment for n in names]
     stats = []  # per trial: (median distances, their spreads)
     for t in trials:
         X = t.select(names).markers[:: max(1, t.n_frames // EXCHANGE_FRAMES)]
         stats.append(_median_distances(np.linalg.norm(X[:, :, None] - X[:, None], axis=-1)))
-    ref = None  # the base model's distances, formed when a pair is found
+    ref = _model_distances(model, names)
     same = np.equal.outer(np.array(seg), np.array(seg)) & ~np.eye(len(names), dtype=bool)
+    scaled = [(_trial_scale(D, ref, same) * ref, np.zeros_like(S)) for D, S in stats]  # the base model's, per trial
     out = []
     for s in dict.fromkeys(seg):
         on = [k for k in range(len(names)) if seg[k] == s]
@@ -750,18 +761,40 @@ def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[st
         for x, a in enumerate(on):
             for b in on[x + 1:]:
                 refs = [c for c in range(len(names)) if c not in (a, b) and seg[c] in near]
+                found = []
                 for i in range(len(trials)):
                     for j in range(i + 1, len(trials)):
-                        found = _exchange(stats[i], stats[j], a, b, refs)
-                        if found is None:
+                        hit = _exchange(stats[i], stats[j], a, b, refs)
+                        if hit is None:
                             continue
-                        ref = _model_distances(model, names) if ref is None else ref
-                        steady, kept, swapped = found
-                        worse = [k for k in (i, j) if _mismatch_model(*stats[k], ref, same, a, b, steady, True)
-                                 < _mismatch_model(*stats[k], ref, same, a, b, steady, False)]
-                        out.append(Exchanged((names[a], names[b]), s, (i, j), kept, swapped,
-                                             tuple(names[c] for c in steady), worse[0] if len(worse) == 1 else None))
+                        steady, kept, swapped = hit
+                        worse = [k for k in (i, j) if _fits_exchanged(scaled[k], stats[k], a, b, steady)]
+                        found.append(Exchanged((names[a], names[b]), s, (i, j), kept, swapped,
+                                               tuple(names[c] for c in steady), worse[0] if len(worse) == 1 else None))
+                if not found:  # alike in every trial: each against the base model
+                    hits = [(k, h) for k in range(len(trials))
+                            if (h := _exchange(scaled[k], stats[k], a, b, refs)) is not None]
+                    if hits:
+                        first = hits[0][1]
+                        found.append(Exchanged((names[a], names[b]), s, tuple(k for k, _ in hits),
+                                               float(np.mean([h[1] for _, h in hits])),
+                                               float(np.mean([h[2] for _, h in hits])),
+                                               tuple(names[c] for c in first[0]), None, True))
+                out += found
     return tuple(out)
+
+
+def _fits_exchanged(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray], a: int, b: int,
+                    refs: list[int]) -> bool:
+    """Whether the second (distances, spreads)' a and b fit the first's better exchanged (in units of the spreads)."""
+    (Di, Si), (Dj, Sj) = first, second
+    return _mismatch(Di, Dj, a, b, refs, True, (Si, Sj)) < _mismatch(Di, Dj, a, b, refs, False, (Si, Sj))
+
+
+def _trial_scale(D: np.ndarray, ref: np.ndarray, same: np.ndarray) -> float:
+    """The median ratio of a trial's same-segment marker distances to the base model's."""
+    ok = same & np.isfinite(D) & (ref > 0.02)
+    return float(np.median(D[ok] / ref[ok])) if ok.any() else 1.0
 
 
 def _exchange(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray], a: int, b: int,
@@ -793,13 +826,13 @@ def _median_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _model_distances(model: Model, names: Sequence[str]) -> np.ndarray:
-    """(n, n) distances between the named markers of the base model in its neutral pose."""
-    from ..model.blocks import FrameLayout
-    from ..model.kinematics import build_kinematics
+    """(n, n) distances between the named markers of the base model in its neutral pose (Pinocchio)."""
+    import pinocchio as pin
 
-    Z = FrameLayout.coordinates(np.zeros((1, 3)), np.zeros((1, model.n_dofs)))
-    M, _ = build_kinematics(model).batch(Z, np.array([[0.0, 0.0, 0.0, 1.0]]), model.parameters())
-    P = M[0][[model.marker_index(n) for n in names]]
+    pm = model.pin
+    data = pm.createData()
+    pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], np.zeros(model.n_dofs)))
+    P = np.array([data.oMf[pm.getFrameId(n)].translation for n in names])
     return np.linalg.norm(P[:, None] - P[None], axis=-1)
 
 
@@ -829,12 +862,3 @@ def _mismatch(Di: np.ndarray, Dj: np.ndarray, a: int, b: int, refs: list[int], e
                         + EXCHANGE_SPREAD_FLOOR ** 2)
     d = d[np.isfinite(d)]
     return float(np.sqrt(np.mean(d ** 2))) if d.size else float("nan")
-
-
-def _mismatch_model(D: np.ndarray, S: np.ndarray, ref: np.ndarray, same: np.ndarray, a: int, b: int,
-                    refs: list[int], exchanged: bool) -> float:
-    """_mismatch of a trial's distances (spreads S) against the base model's in its neutral pose, scaled to the
-    trial by the median ratio of its same-segment distances to the model's."""
-    ok = same & np.isfinite(D) & (ref > 0.02)
-    scale = float(np.median(D[ok] / ref[ok])) if ok.any() else 1.0
-    return _mismatch(scale * ref, D, a, b, refs, exchanged, (np.zeros_like(S), S))
