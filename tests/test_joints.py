@@ -422,6 +422,14 @@ def test_cli_joints_prints_table_and_writes_csv(human, tmp_path, capsys):
     main(["joints", str(tmp_path / "swapped.c3d"), str(human.path)])
     err = capsys.readouterr().err
     assert "warning: RKNE moves with" in err and "RKNE and RANK" in err
+    # two labels of one segment exchanged: against the base model's distances
+    labels = list(sim.trial.labels)
+    i, j = labels.index("LKNE"), labels.index("LTHI")
+    labels[i], labels[j] = labels[j], labels[i]
+    write_c3d(tmp_path / "within.c3d", Trial(labels, sim.trial.markers, sim.trial.rate, 0, None))
+    main(["joints", str(tmp_path / "within.c3d"), str(human.path), "--out", str(tmp_path / "within")])
+    err = capsys.readouterr().err
+    assert "warning: LKNE and LTHI (both on femur_l) sit each where the other belongs in within.c3d" in err
 
 
 def test_cli_joints_bad_input(human, tmp_path, capsys):

@@ -475,7 +475,7 @@ def cmd_joints(args: argparse.Namespace) -> int:
           f"({len(used)} in the model)")
     print(f"model  {args.model}: {len(model.segments)} segments, {len(model.joints)} joints, "
           f"{len(model.markers)} markers")
-    from ..seed.association import associate_to_model, misplaced_labels
+    from ..seed.association import associate_to_model, exchanged_between, misplaced_labels
 
     assoc = associate_to_model(model, trial)
     extra = {m.label: m.segment for m in assoc.markers if m.status == "assigned" and m.segment}
@@ -490,6 +490,8 @@ def cmd_joints(args: argparse.Namespace) -> int:
               f"({assoc[lab].reason}); is it mislabelled?", file=sys.stderr)
     for m in misplaced_labels(model, [trial]):  # a label exchanged for the whole trial (docs/calibration.md)
         print(f"warning: {m.text()}; check the label", file=sys.stderr)
+    for x in exchanged_between(model, [trial]):  # two labels of one segment exchanged (against the base model's)
+        print(f"warning: {x.text([args.trial.name])}; check the labels", file=sys.stderr)
     missing = [m for m in model.marker_names if m not in set(trial.labels)]
     if missing:
         print(f"warning: {len(missing)} model markers are not in the trial: {', '.join(missing)}", file=sys.stderr)
