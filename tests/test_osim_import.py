@@ -900,11 +900,17 @@ def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
             ("not xml", "not valid XML")]):
         bad = tmp_path / f"bad{k}.xml"
         bad.write_text(text)
-        (tmp_path / f"out{k}").mkdir()
-        code = main([str(trc), str(src), "--ik-setup", str(bad), "-o", str(tmp_path / f"out{k}" / "s.urdf"), "-q"])
-        err = capsys.readouterr().err.strip().splitlines()
-        assert code == 2 and len(err) == 1 and needle in err[0] and str(bad) in err[0], err
-        assert not any((tmp_path / f"out{k}").iterdir())
+        _assert_refused(capsys, tmp_path / f"out{k}", trc, src, "--ik-setup", bad, needle)
+
+
+def _assert_refused(capsys, out: Path, trc: Path, base: Path, flag: str, bad: Path, needle: str) -> None:
+    """`calibrate TRIAL BASE FLAG BAD -o out/s.urdf`: one line naming BAD and saying `needle`, exit 2, nothing in
+    `out` (made here)."""
+    out.mkdir()
+    code = main([str(trc), str(base), flag, str(bad), "-o", str(out / "s.urdf"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and needle in err[0] and str(bad) in err[0], err
+    assert not any(out.iterdir())
 
 
 def _scale_setup(mass: str, marker_set: str, tool: str = "ScaleTool") -> str:
@@ -957,8 +963,4 @@ def test_scale_setup_gives_the_mass_and_the_marker_set(tmp_path, capsys):
     for k, (base, text, needle) in enumerate(cases):
         bad = tmp_path / "lab" / f"bad{k}.xml"
         bad.write_text(text)
-        (tmp_path / f"out{k}").mkdir()
-        code = main([str(trc), str(base), "--scale-setup", str(bad), "-o", str(tmp_path / f"out{k}" / "s.urdf"), "-q"])
-        err = capsys.readouterr().err.strip().splitlines()
-        assert code == 2 and len(err) == 1 and needle in err[0] and str(bad) in err[0], err
-        assert not any((tmp_path / f"out{k}").iterdir())
+        _assert_refused(capsys, tmp_path / f"out{k}", trc, base, "--scale-setup", bad, needle)
