@@ -251,8 +251,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         if run.outliers > 0 else ()
     for i, m in misplaced:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
-    # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe): rigidity cannot
-    # see it; their distances to the markers near them can.
+    # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe), or alike in every
+    # trial: rigidity cannot see it; their distances to the markers near them can (between the trials, or against
+    # the base model's).
     exchanged = exchanged_between(model, trials, skip=centred) if run.outliers > 0 else ()
     for x in exchanged:
         say(Progress("markers", x.text([t.source or f"trial {k + 1}" for k, t in enumerate(trials)])

@@ -133,7 +133,8 @@ def calibration_report(cal: Calibration) -> dict:
                             "exchanges": [list(x) for x in m.exchanges],
                             "distance_sd_own_mm": 1e3 * m.sd_own,
                             "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
-        # two labels of one segment exchanged between two trials (calibrate.seed.association.exchanged_between)
+        # two labels of one segment exchanged between two trials, or against the base model in trials that have them
+        # alike (calibrate.seed.association.exchanged_between)
         "exchanged_labels": [{"labels": list(x.labels), "segment": x.segment,
                               "trials": [_trial_name(cal, k) for k in x.trials],
                               "kept_mm": 1e3 * x.kept, "exchanged_mm": 1e3 * x.exchanged,

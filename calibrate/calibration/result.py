@@ -202,7 +202,8 @@ class Calibration:
     # the model's in that trial: labels to check (a label exchanged for the whole trial), reported, not changed
     misplaced: tuple = ()
     # calibrate.seed.association.Exchanged per pair of one segment's labels exchanged between two trials (a walk's
-    # heel and toe): labels to check, reported, not changed
+    # heel and toe; their positions left out of the trial the base model says has them exchanged) or, alike in
+    # every trial, against the base model (reported, not changed): labels to check
     exchanged: tuple = ()
     # calibrate.calibration.moved.MovedMarker per marker that a still trial shows elsewhere on its segment than
     # the moving trials do: its positions in that still trial were left out (Settings.moved_markers)

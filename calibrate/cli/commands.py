@@ -267,8 +267,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               + " (see 'check label' above)", file=sys.stderr)
     for x in cal.exchanged:
         pair = [Path(cal.trials[k].source).name if cal.trials[k].source else f"trial {k + 1}" for k in x.trials]
-        print(f"warning: labels to check: {' and '.join(x.labels)} exchanged between {' and '.join(pair)} (see 'check "
-              "labels' above)", file=sys.stderr)
+        names = " and ".join(pair)
+        where = f"in {names}, against the base model" if x.against_model else f"between {names}"
+        print(f"warning: labels to check: {' and '.join(x.labels)} exchanged {where} (see 'check labels' above)",
+              file=sys.stderr)
     if not cal.converged:
         print(f"warning: the solver did not converge ({cal.summary.termination}); the best result so far was "
               "written and is flagged in the report", file=sys.stderr)
