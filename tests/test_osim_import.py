@@ -964,3 +964,24 @@ def test_scale_setup_gives_the_mass_and_the_marker_set(tmp_path, capsys):
         bad = tmp_path / "lab" / f"bad{k}.xml"
         bad.write_text(text)
         _assert_refused(capsys, tmp_path / f"out{k}", trc, base, "--scale-setup", bad, needle)
+
+
+def test_inspect_a_setup_says_what_calibrate_takes(tmp_path, capsys):
+    """`calibrate inspect FILE.xml`: a Scale setup's mass and marker set, an IK setup's applied coordinate tasks (what
+    --scale-setup and --ik-setup take) and what neither uses; a MarkerSet or other XML: one line, exit 2."""
+    (tmp_path / "ms.xml").write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects/>"
+                                     "</MarkerSet></OpenSimDocument>")
+    scale = tmp_path / "setup_Scale.xml"
+    scale.write_text(_scale_setup("61.5", "ms.xml"))
+    assert main(["inspect", str(scale)]) == 0
+    out = capsys.readouterr().out
+    assert "an OpenSim Scale setup" in out and f"body mass 61.5 kg, marker set {tmp_path / 'ms.xml'}" in out
+    ik = tmp_path / "setup_IK.xml"
+    ik.write_text(_ik_setup(_task("hip_q") + _task("knee_q", "manual_value", -0.25) + _task("p_rx", apply="false")))
+    assert main(["inspect", str(ik)]) == 0
+    out = capsys.readouterr().out
+    assert "locks 2 coordinates its tasks hold: hip_q (the model's default), knee_q (-0.25)" in out
+    assert "its 1 applied marker tasks" in out
+    assert main(["inspect", str(tmp_path / "ms.xml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "calibrate inspect MODEL.osim --marker-set ms.xml" in err[0]

@@ -342,6 +342,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_inspect(args: argparse.Namespace) -> int:
     path: Path = args.file
+    if path.suffix.lower() == ".xml":  # a lab's OpenSim Scale or IK setup: what calibrate takes from it
+        from ..io.osim_setup import describe_setup
+
+        print("\n".join(describe_setup(path)))
+        return 0
     if path.suffix.lower() in (".urdf", ".osim"):
         from ..model.model import load_model
 

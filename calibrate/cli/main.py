@@ -97,8 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
                                       "truth vs estimate: joint-centre and axis errors, marker RMS, time.")
     demo.add_argument("--out", type=Path, default=Path("calibrate-demo"), help="output directory")
     _add_sim_args(demo, 1000)
-    ins = sub.add_parser("inspect", help="describe a model (.urdf, .osim) or a trial (.c3d/.trc)")
-    ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d or .trc file")
+    ins = sub.add_parser("inspect", help="describe a model (.urdf, .osim), a trial (.c3d/.trc) or an OpenSim Scale or "
+                                         "IK setup (.xml)")
+    ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d, .trc or OpenSim setup .xml file")
     ins.add_argument("--marker-set", type=Path, default=None, metavar="XML",
                      help="with a .osim: an OpenSim MarkerSet file whose markers are added (as the Scale tool does)")
     jo = sub.add_parser("joints", help="joint-centre trajectories of a trial (MTB framework)",

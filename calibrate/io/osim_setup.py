@@ -111,4 +111,51 @@ def scale_setup(path: str | Path) -> ScaleSetup:
     return ScaleSetup(path, mass, marker_set)
 
 
-__all__ = ["ScaleSetup", "ik_setup_locks", "scale_setup", "with_ik_setup"]
+def describe_setup(path: str | Path) -> list[str]:
+    """Lines saying what calibrate takes from the OpenSim Scale or IK setup file at `path` and what it leaves
+    (``calibrate inspect FILE.xml``).  ModelError with one line on a file that is neither."""
+    path = Path(path)
+    root = xml_element(path, "OpenSimDocument", "an OpenSim setup file (.xml)", "an OpenSim Scale or IK setup file",
+                       "give an OpenSim Scale or IK setup file")
+    if root.find(".//ScaleTool") is not None:
+        setup = scale_setup(path)
+        tool = root.find(".//ScaleTool")
+        pairs = len(tool.findall(".//MeasurementSet//MarkerPair"))
+        tasks = len(tool.findall(".//MarkerPlacer//IKMarkerTask"))
+        times = (tool.findtext(".//MarkerPlacer/time_range") or "").split()
+        return [f"{path}: an OpenSim Scale setup",
+                "  --scale-setup takes: body mass " + (f"{setup.mass:g} kg" if setup.mass is not None else "unset")
+                + ", marker set " + (str(setup.marker_set) if setup.marker_set is not None else "unset"),
+                f"  not used: its {pairs} measurement marker pairs, {tasks} marker-placer marker tasks and their "
+                "weights" + (f", the static's time range {_seconds(times)}" if len(times) == 2 else "")
+                + " (calibrate scales every segment and places every marker from all frames of the trials given)"]
+    tool = root.find(".//InverseKinematicsTool")
+    if tool is None:
+        hint = (f"an OpenSim MarkerSet is read with its model: calibrate inspect MODEL.osim --marker-set {path.name}"
+                if root.find(".//MarkerSet") is not None else "give an OpenSim Scale or IK setup file")
+        raise ModelError(f"{path}: neither a <ScaleTool> nor an <InverseKinematicsTool>; {hint}")
+    held = []
+    for task in tool.iter("IKCoordinateTask"):
+        if (task.findtext("apply") or "true").strip().lower() != "true":
+            continue
+        kind = (task.findtext("value_type") or "default_value").strip()
+        held.append(f"{task.get('name', '')} (" + ("the model's default" if kind == "default_value" else
+                    f"{float(task.findtext('value') or 0.0):g}" if kind == "manual_value" else kind) + ")")
+    markers = [t for t in tool.iter("IKMarkerTask") if (t.findtext("apply") or "true").strip().lower() == "true"]
+    times = (tool.findtext("time_range") or "").split()
+    return [f"{path}: an OpenSim IK setup",
+            f"  --ik-setup locks {len(held)} coordinates its tasks hold: " + (", ".join(held) or "none"),
+            f"  not used: its {len(markers)} applied marker tasks and their weights (calibrate learns each marker's "
+            "noise)" + (f", the trial {tool.findtext('marker_file', '').strip()}" if tool.findtext("marker_file")
+                        else "") + (f" and its time range {_seconds(times)}" if len(times) == 2 else "")
+            + " (give the trials on the command line)"]
+
+
+def _seconds(times: list[str]) -> str:
+    try:
+        return f"{float(times[0]):g} to {float(times[1]):g} s"
+    except ValueError:
+        return " to ".join(times)
+
+
+__all__ = ["ScaleSetup", "describe_setup", "ik_setup_locks", "scale_setup", "with_ik_setup"]
