@@ -53,6 +53,11 @@ def test_a_knee_and_thigh_label_exchanged_in_one_trial_are_named(human, session)
     # the other side and another segment
     (y,) = exchanged_between(human, [static, _exchanged(squats, "LELB", "LUPA")])
     assert set(y.labels) == {"LELB", "LUPA"} and y.odd == 1
+    # the pelvis's PSIS exchanged: its ASIS exchanged fits as well (a mirror image; distances cannot tell
+    # handedness), so both pairs are named and neither trial is taken for the odd one (nothing left out)
+    mirror = exchanged_between(human, [static, _exchanged(squats, "LPSI", "RPSI")])
+    assert {x.labels for x in mirror} == {("LASI", "RASI"), ("LPSI", "RPSI")}
+    assert all(x.odd is None and x.segment == "pelvis" for x in mirror)
     # every trial as recorded against one with the pair exchanged in the first: the first is the odd one
     (z,) = exchanged_between(human, [_exchanged(static, "LKNE", "LTHI"), squats])
     assert set(z.labels) == {"LKNE", "LTHI"} and z.odd == 0

@@ -25,6 +25,7 @@ Units: metres (variances in m²).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 
@@ -760,7 +761,10 @@ def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[st
         near = _within_joints(model, s, EXCHANGE_JOINTS)
         for x, a in enumerate(on):
             for b in on[x + 1:]:
-                refs = [c for c in range(len(names)) if c not in (a, b) and seg[c] in near]
+                # The segment's other markers where it has any (rigid: the pose cannot move their distances between
+                # trials), else those within EXCHANGE_JOINTS joints.
+                refs = [c for c in on if c not in (a, b)] or [c for c in range(len(names))
+                                                             if c not in (a, b) and seg[c] in near]
                 found = []
                 for i in range(len(trials)):
                     for j in range(i + 1, len(trials)):
@@ -781,7 +785,10 @@ def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[st
                                                float(np.mean([h[2] for _, h in hits])),
                                                tuple(names[c] for c in first[0]), None, True))
                 out += found
-    return tuple(out)
+    # Exchanges on one segment between the same trials that each explain the distances: a mirror image (the
+    # pelvis's PSIS exchanged reads as its ASIS exchanged, distances cannot tell handedness): named, none left out.
+    twins = Counter((x.segment, x.trials) for x in out if not x.against_model)
+    return tuple(replace(x, odd=None) if not x.against_model and twins[(x.segment, x.trials)] > 1 else x for x in out)
 
 
 def _fits_exchanged(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray], a: int, b: int,
