@@ -667,7 +667,8 @@ def section_perturbed(a, tmp: Path, cap: float, log) -> dict:
     return {"sd_mm": PERTURB_MM, "runs": runs}
 
 
-SWAPS = (("RKNE", "RANK"), ("LASI", "LTHI"), ("RHEE", "RTOE"))  # pig_walk's walk labels exchanged (section "swaps")
+# pig_walk's walk labels exchanged (section "swaps"); "both": in the static too (the session's labelling template)
+SWAPS = (("RKNE", "RANK", "walk"), ("LASI", "LTHI", "walk"), ("RHEE", "RTOE", "walk"), ("RHEE", "RTOE", "both"))
 
 
 def swap_c3d(src: Path, dst: Path, a: str, b: str) -> Path:
@@ -690,21 +691,22 @@ def section_swaps(a, tmp: Path, cap: float, log) -> dict:
     if not (static.exists() and walk.exists()):
         return {"skipped": f"{PIG} not found (static.c3d, walk.c3d)"}
     out = {}
-    for x, y in SWAPS:
-        d = tmp / f"swap_{x}_{y}"
+    for x, y, where in SWAPS:
+        d = tmp / f"swap_{x}_{y}_{where}"
         d.mkdir(parents=True, exist_ok=True)
-        st = Path(shutil.copy(static, d / "static.c3d"))
+        st = (swap_c3d(static, d / "static.c3d", x, y) if where == "both"
+              else Path(shutil.copy(static, d / "static.c3d")))
         wk = swap_c3d(walk, d / "walk.c3d", x, y)
-        log(f"swaps: pig_walk with {x} and {y} exchanged in the walk")
+        log(f"swaps: pig_walk with {x} and {y} exchanged in the walk" + (" and the static" if where == "both" else ""))
         run = calibrate_cli([st, wk], d, cap, a.extra)
         if "error" in run:
-            out[f"{x}/{y}"] = {"error": run["error"]}
+            out[f"{x}/{y}" + (" (static too)" if where == "both" else "")] = {"error": run["error"]}
             continue
         rep = run["report"]
         scales = report_scales(rep)
         named = [m["label"] for m in rep.get("suspect_labels", [])]
         flagged = rep.get("implausible", [])
-        out[f"{x}/{y}"] = {
+        out[f"{x}/{y}" + (" (static too)" if where == "both" else "")] = {
             "wall_s": run["seconds"], "converged": bool(rep["solver"]["converged"]),
             "iterations": rep["solver"]["iterations"], "marker_rms_mm": rep["markers"]["rms_mm"],
             "named": named, "exchanges": sorted({"/".join(x) for m in rep.get("suspect_labels", [])
@@ -1089,7 +1091,7 @@ def report(res: dict) -> None:
     sw = res.get("swaps", {})
     if sw and "skipped" not in sw:
         say()
-        say("4. pig_walk with two walk labels exchanged for the whole walk (static.c3d as recorded)")
+        say("4. pig_walk with two labels exchanged for the whole walk (static.c3d as recorded, unless 'static too')")
         for pair, v in sw.items():
             if "error" in v:
                 say(f"  {pair}: ERROR {v['error']}")
