@@ -48,6 +48,7 @@ from calibrate.seed.rigidity import (
 from ..io.trial import Trial
 from ..model.model import Model
 from .geometry import rigid_fit, sphere_fit
+from .seeding import MAD_SD
 
 Z_ADMISSIBLE = 5.0  # standard errors of a group's residual allowed above the noise
 
@@ -688,11 +689,11 @@ def _exchanges(sd: np.ndarray, labels: list[str], seg: list[str], found: tuple[M
 # Two labels of one segment's markers exchanged in one trial and not in another (a walk labelled with the heel and
 # toe exchanged, its static right): rigidity cannot see it (both ride with their segment), and with two markers on
 # the segment the fit turns the segment round rather than showing either marker elsewhere on it.  Their distances to
-# the markers near them (on their segment and within two joints of it) can: in one trial they are the other trial's
-# with the two exchanged.  Measured (2026-11-29, median distances over the frames, RMS over those markers): pig_walk
-# with RHEE and RTOE exchanged in the walk, 90 mm as labelled against 25 mm exchanged; on the recorded trials of
-# pig_walk, gait2392 and Rajagopal2016 no pair fits better exchanged (the best 47 against 48 mm).  A pair exchanged
-# in every trial alike cannot be seen this way.
+# the markers near them that keep steady (the segment's others, else across a joint near its axis) can: in one trial
+# they are the other trial's with the two exchanged; exchanged alike in every trial, the base model's.  Measured
+# (2026-11-29, median distances over the frames, RMS over those markers): pig_walk with RHEE and RTOE exchanged in
+# the walk, 86 mm as labelled against 4 mm exchanged (their distances to RANK); on the recorded trials of pig_walk,
+# gait2392 and Rajagopal2016, together or alone, nothing named (docs/calibration.md).
 EXCHANGE_RATIO = 2.5  # as labelled, the distances differ between the trials this many times more than exchanged ...
 EXCHANGE_SIGNIFICANT = 3.0  # ... and this many times their spread over the frames (each trial's, added) ...
 EXCHANGE_GAIN = 0.03  # ... and by this much more (m, RMS over the markers near them)
@@ -823,12 +824,12 @@ def _exchange(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np
 
 
 def _median_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(n, n) median over frames of (frames, n, n) distances and their spread (1.4826 times the median absolute
+    """(n, n) median over frames of (frames, n, n) distances and their spread (MAD_SD times the median absolute
     deviation), NaN where a pair is never seen together."""
     seen = np.isfinite(D).any(axis=0)
     med, sd = np.full(D.shape[1:], np.nan), np.full(D.shape[1:], np.nan)
     med[seen] = np.nanmedian(D[:, seen], axis=0)
-    sd[seen] = 1.4826 * np.nanmedian(np.abs(D[:, seen] - med[seen]), axis=0)
+    sd[seen] = MAD_SD * np.nanmedian(np.abs(D[:, seen] - med[seen]), axis=0)
     return med, sd
 
 
