@@ -5,7 +5,13 @@ OpenSim example pipelines in ../shared/data/real (issue 17, item 5):
   OpenSim runs the pipeline's own subject01_Setup_Scale.xml and subject01_Setup_IK.xml;
 * ``rajagopal``: static_walk_1.trc + motion_capture_walk.trc, Rajagopal2016.osim (its own markers);
   OpenSim runs scale_setup_walk_scaleOnly.xml, scale_setup_walk.xml (its static trial, absent here,
-  replaced by static_walk_1.trc) and ik_setup_walk.xml.
+  replaced by static_walk_1.trc) and ik_setup_walk.xml;
+* ``hamner``, with ``--hamner DIR`` only (not in ../shared/data/real): DIR holds opensim-models'
+  ``Pipelines/Hamner`` (a running subject: subject02_static.trc + subject02_running.trc, 600 frames at 60 Hz,
+  FullBodyModel_Hamner2010_v2_0.osim with its own markers, Setup_Scale.xml, Setup_IK.xml, and the repository's
+  reference IK in outputReference/ResultsIK/subject02_running_ik.mot).  Two names adapted in the copies OpenSim
+  runs: the Scale setup's generic model (``Unassigned``) is the .osim, and the IK setup's model
+  (``subject01_registered.osim``) is the Scale setup's output, ``subject02_registered.osim``.
 
 OpenSim runs in a child process of this script (``--_opensim``) that never imports calibrate (the
 opensim wheel's libcasadi clashes with casadi's).  Both are scored on the IK setup's frames and on
@@ -28,7 +34,8 @@ height prior: the trials give no height); scored as the others on the IK frames 
 time the fit alone (marker clean-up and the multi-trial pipeline; the venv, imports and model loading left
 out, as calibrate's imports are).
 
-    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only gait2392|rajagopal] [--no-nimble]
+    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only gait2392|rajagopal|hamner] [--no-nimble]
+        [--hamner DIR]
 """
 
 from __future__ import annotations
@@ -113,8 +120,30 @@ def opensim_child(spec_path: str, out_path: str) -> int:
 
 
 # ---------------------------------------------------------------------- the two pipelines
-def prepare(case: str, work: Path) -> dict:
+HAMNER_FILES = ("FullBodyModel_Hamner2010_v2_0.osim", "Setup_Scale.xml", "Setup_IK.xml", "subject02_static.trc",
+                "subject02_running.trc")
+HAMNER_REFERENCE = "outputReference/ResultsIK/subject02_running_ik.mot"
+
+
+def prepare(case: str, work: Path, hamner: Path | None = None) -> dict:
     """Copy the pipeline's files under the names its setups expect; the spec for the child and calibrate."""
+    if case == "hamner":
+        d = work / "hamner"
+        d.mkdir()
+        for f in HAMNER_FILES:
+            shutil.copy(hamner / f, d / f)
+        osim = hamner / HAMNER_FILES[0]
+        scale = (d / "Setup_Scale.xml").read_text()
+        scale = scale.replace("<model_file> Unassigned </model_file>", f"<model_file>{osim.name}</model_file>", 1)
+        (d / "Setup_Scale.xml").write_text(scale)
+        ik = (d / "Setup_IK.xml").read_text().replace("subject01_registered.osim", "subject02_registered.osim")
+        (d / "Setup_IK.xml").write_text(ik)
+        (d / "ResultsIK").mkdir()  # where the IK setup writes its motion (OpenSim does not make the folder)
+        ref = hamner / HAMNER_REFERENCE
+        return {"dir": str(d), "scale": [["Setup_Scale.xml", None]], "ik": "Setup_IK.xml", "osim": str(osim),
+                "marker_set": None, "static": str(hamner / "subject02_static.trc"),
+                "walk": str(hamner / "subject02_running.trc"), "mass": 65.9,
+                "reference": str(ref) if ref.exists() else None}
     if case == "gait2392":
         src = REAL / "gait2392"
         d = work / "gait2392"
@@ -438,8 +467,8 @@ def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> 
             "markers": len(use)}
 
 
-def bench(case: str, work: Path, log, outliers: float, nimble: bool = True) -> dict:
-    spec = prepare(case, work)
+def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, hamner: Path | None = None) -> dict:
+    spec = prepare(case, work, hamner)
     log(f"{case}: OpenSim Scale + IK (child process) ...")
     osr = run_opensim(spec, work)
     t_walk = trc_times(spec["walk"])
@@ -632,7 +661,9 @@ def report(res: dict) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
-    ap.add_argument("--only", choices=("gait2392", "rajagopal"), default=None)
+    ap.add_argument("--only", choices=("gait2392", "rajagopal", "hamner"), default=None)
+    ap.add_argument("--hamner", type=Path, default=None,
+                    help="a folder holding opensim-models' Pipelines/Hamner: adds the running subject as a third case")
     ap.add_argument("--outlier-sigmas", type=float, default=0.0,
                     help="calibrate's outlier rejection (noise SDs; default 0: off, as OpenSim's IK keeps every "
                          "marker; calibrate's own default, 6, rejects gait2392's rigid-trunk markers in most frames)")
@@ -649,10 +680,15 @@ def main() -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    cases = [a.only] if a.only else ["gait2392", "rajagopal"]
+    if (a.hamner is not None or a.only == "hamner") and not all((a.hamner or Path()).joinpath(f).is_file()
+                                                                 for f in HAMNER_FILES):
+        print(f"bench_osim: --hamner {a.hamner}: give the folder holding opensim-models' Pipelines/Hamner "
+              f"({', '.join(HAMNER_FILES)})", file=sys.stderr)
+        return 2
+    cases = [a.only] if a.only else ["gait2392", "rajagopal"] + (["hamner"] if a.hamner else [])
     with tempfile.TemporaryDirectory(prefix="bench_osim_") as tmp:
         res = {"outlier_sigmas": a.outlier_sigmas,
-               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble) for c in cases]}
+               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, a.hamner) for c in cases]}
     report(res)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))

@@ -207,6 +207,30 @@ def test_associate_to_model_places_unknown_markers(human):
     assert res.suspects == [] and res.unassigned == ["X5"]
 
 
+def test_model_markers_the_trial_never_shows_neither_check_nor_place_others(human):
+    """The pipeline hands every model marker to associate_to_model, seen or not: a model marker with no sample
+    (gait models' virtual joint-centre markers, a marker written as zeros throughout) must not make its segment's
+    seen markers 'suspect', nor hide a trial marker's rigidity with the segment behind a NaN ('never seen long
+    enough' for the Hamner running trial's head markers, seen in every frame)."""
+    sim = _sim(0, 1.0, False)
+    labels = list(sim.trial.labels)
+    markers = sim.trial.markers.copy()
+    for lab in ("C7", "T10", "CLAV", "LKNE"):  # in the trial, never seen
+        markers[:, labels.index(lab)] = np.nan
+    labels[labels.index("STRN")] = "X3"  # the torso's sternum marker, unknown to the model
+    res = associate_to_model(human, Trial(labels=tuple(labels), markers=markers, rate=sim.trial.rate))
+    assert res["X3"].segment == "torso" and res["X3"].status == "assigned", res["X3"].reason
+    assert res.suspects == []
+    for lab in ("C7", "T10", "CLAV", "LKNE"):
+        assert res[lab].status == "known" and "not in the trial" in res[lab].reason
+    assert res["LTHI"].status == "known"  # its only partner never seen: nothing to check it against
+    # A trial marker rigid with no segment gets the figure that ruled it out, not 'never seen'.
+    walk = markers[:, labels.index("LASI")] + np.cumsum(np.random.default_rng(3).normal(0, 3e-3, (FRAMES, 3)), 0)
+    res = associate_to_model(human, Trial(labels=(*labels, "X5"), markers=np.concatenate([markers, walk[:, None]], 1),
+                                          rate=sim.trial.rate))
+    assert res["X5"].status == "unassigned" and res["X5"].reason.startswith("varies by"), res["X5"].reason
+
+
 def test_associate_to_model_reports_mislabelled_markers(human):
     sim = _sim(2, 1.0, True)
     labels = list(sim.trial.labels)

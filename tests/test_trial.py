@@ -429,6 +429,18 @@ def test_read_trc_opensim_example_layout(tmp_path: Path, units: str, blank_line:
     want[0, 1] = want[1, 3] = want[2, 4] = np.nan
     np.testing.assert_allclose(trial.markers, want, rtol=0, atol=1e-9, equal_nan=True)
 
+    # A marker written as exactly 0, 0, 0 is a gap too, as C3D's convention has it (the Hamner running trial of
+    # OpenSim's models repository holds L.Bicep so in every frame); one coordinate at 0 is a position.
+    cells[1][0:3] = ["0", "0", "0"]
+    cells[2][6:9] = ["0.000000", "-0.000000", "0"]
+    cells[0][12:15] = ["0", "5", "0"]
+    rows = [[str(i + 1), f"{i / 60:.5f}", *c] for i, c in enumerate(cells)]
+    path.write_text(_opensim_trc(path.name, labels, rows, units, blank_line))
+    trial = read_trc(path)
+    want[1, 0] = want[2, 2] = np.nan
+    want[0, 4] = np.array([0.0, 5.0, 0.0]) * (1.0 if units == "m" else 1e-3)
+    np.testing.assert_allclose(trial.markers, want, rtol=0, atol=1e-9, equal_nan=True)
+
 
 def test_read_trc_subject_prefix(tmp_path: Path) -> None:
     labels = ["Sub01:RASI", "Sub01:LASI", "C7"]

@@ -450,8 +450,12 @@ def summary_text(cal) -> str:
           if cal.settings.hold_axes else []),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
-        f"  {'marker RMS (mm)':22s}{1000 * marker_rms(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}",
-        f"  {'cost':22s}{s.initial_cost:12.4e}{s.final_cost:12.4e}",
+        f"  {'marker RMS (mm)':22s}{1000 * marker_rms(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}"
+        "  (start: the seeded geometry)",
+        # The solve on every frame starts from the subsample's geometry, under the noise learnt until then: its
+        # start is not the marker RMS's, and a noise learnt again before its last run can end it above its start.
+        f"  {'cost, every frame':22s}{s.initial_cost:12.4e}{s.final_cost:12.4e}"
+        + ("  (start: the subsample's geometry, under the noise learnt by then)" if s.coarse is not None else ""),
         *_noise_lines(cal),
         "",
         *([f"  coarse solve {s.coarse_frames} evenly spaced frames: {s.coarse.iterations} iterations, cost "

@@ -34,7 +34,9 @@ _TRC_KEYS = (
 
 def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True,
              progress: Callable[[float], None] | None = None) -> Trial:
-    """Read an OpenSim-style TRC marker file into a trial in metres; blank (or NaN) cells are gaps.
+    """Read an OpenSim-style TRC marker file into a trial in metres; blank (or NaN) cells are gaps, and so
+    is a marker written as exactly 0, 0, 0 (as several exporters write a marker they did not see: the
+    Hamner running trial of OpenSim's models repository holds L.Bicep so for all its 600 frames).
 
     Tab-separated, as OpenSim reads and writes it: line 2 the header keys, line 3 their values
     (``DataRate`` and ``Units`` required; ``Units`` mm, cm or m, also spelt out), line 4
@@ -184,6 +186,7 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
         r += 1
         if progress is not None and r % 1000 == 0:
             progress(r / n_rows)
+    markers[(markers == 0.0).all(axis=2)] = np.nan  # the C3D reader's rule too (calibrate.io.c3d)
     markers.flags.writeable = False  # the trial takes it over rather than copies it
     return Trial(
         labels=tuple(labels[i] for i in keep),

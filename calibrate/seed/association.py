@@ -472,9 +472,10 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
     sigma = noise_sigma(D, n_typ)
     scorer = _Scorer(X, D, sigma)
     known = {m.name: m.segment for m in model.markers}
+    seen = np.isfinite(X).all(axis=2).any(axis=0)
     seg_members: dict[str, list[int]] = {}
     for k, lab in enumerate(labels):
-        if lab in known:
+        if lab in known and seen[k]:  # a model marker the trial never shows can neither check nor place another
             seg_members.setdefault(known[lab], []).append(k)
 
     out: dict[int, MarkerAssignment] = {}
@@ -482,7 +483,7 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
     for seg, members in seg_members.items():
         good = []
         for k in members:
-            others = [m for m in members if m != k]
+            others = [m for m in members if m != k and np.isfinite(D[k, m])]  # pairs seen together long enough
             if not others:
                 out[k] = MarkerAssignment(labels[k], seg, "known", np.nan,
                                           f"model marker on {seg} (no other marker of {seg} in the trial to check)")
@@ -505,9 +506,14 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
     for k in range(N):
         if k in out:
             continue
+        if labels[k] in known:  # a model marker the trial never shows
+            out[k] = MarkerAssignment(labels[k], known[labels[k]], "known", np.nan,
+                                      f"model marker on {known[labels[k]]} (not in the trial)")
+            continue
         cands = []
         closest = (np.inf, "")
-        for seg, ref in reference.items():
+        for seg, members in reference.items():
+            ref = [m for m in members if np.isfinite(D[k, m])]  # those seen together with it long enough
             if not ref:
                 continue
             worst = float(np.max(D[k, ref]))
