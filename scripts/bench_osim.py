@@ -6,12 +6,16 @@ OpenSim example pipelines in ../shared/data/real (issue 17, item 5):
 * ``rajagopal``: static_walk_1.trc + motion_capture_walk.trc, Rajagopal2016.osim (its own markers);
   OpenSim runs scale_setup_walk_scaleOnly.xml, scale_setup_walk.xml (its static trial, absent here,
   replaced by static_walk_1.trc) and ik_setup_walk.xml;
-* ``hamner``, with ``--hamner DIR`` only (not in ../shared/data/real): DIR holds opensim-models'
-  ``Pipelines/Hamner`` (a running subject: subject02_static.trc + subject02_running.trc, 600 frames at 60 Hz,
+* with ``--opensim-models DIR`` only (DIR a checkout of opensim-models; these are not in ../shared/data/real),
+  two running subjects:
+  ``hamner``: ``Pipelines/Hamner`` (subject02_static.trc + subject02_running.trc, 600 frames at 60 Hz,
   FullBodyModel_Hamner2010_v2_0.osim with its own markers, Setup_Scale.xml, Setup_IK.xml, and the repository's
   reference IK in outputReference/ResultsIK/subject02_running_ik.mot).  Two names adapted in the copies OpenSim
   runs: the Scale setup's generic model (``Unassigned``) is the .osim, and the IK setup's model
-  (``subject01_registered.osim``) is the Scale setup's output, ``subject02_registered.osim``.
+  (``subject01_registered.osim``) is the Scale setup's output, ``subject02_registered.osim``;
+  ``rajagopal_run``: ``Pipelines/Rajagopal`` (ExpData/static_run.trc + motion_capture_run.trc, 100 Hz,
+  scale_setup_run.xml and ik_setup_run.xml) with ``Models/Rajagopal/Rajagopal2016.osim`` (its own markers) as the
+  ``generic_unscaled.osim`` the setups name; no reference IK.
 
 OpenSim runs in a child process of this script (``--_opensim``) that never imports calibrate (the
 opensim wheel's libcasadi clashes with casadi's).  Both are scored on the IK setup's frames and on
@@ -34,8 +38,7 @@ height prior: the trials give no height); scored as the others on the IK frames 
 time the fit alone (marker clean-up and the multi-trial pipeline; the venv, imports and model loading left
 out, as calibrate's imports are).
 
-    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only gait2392|rajagopal|hamner] [--no-nimble]
-        [--hamner DIR]
+    PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only CASE] [--no-nimble] [--opensim-models DIR]
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -125,9 +129,36 @@ HAMNER_FILES = ("FullBodyModel_Hamner2010_v2_0.osim", "Setup_Scale.xml", "Setup_
 HAMNER_REFERENCE = "outputReference/ResultsIK/subject02_running_ik.mot"
 
 
-def prepare(case: str, work: Path, hamner: Path | None = None) -> dict:
-    """Copy the pipeline's files under the names its setups expect; the spec for the child and calibrate."""
+RAJAGOPAL_RUN = ("ExpData/static_run.trc", "ExpData/motion_capture_run.trc", "Scale/scale_setup_run.xml",
+                 "IK/ik_setup_run.xml")
+EXTRA_CASES = ("hamner", "rajagopal_run")  # from an opensim-models checkout (--opensim-models)
+
+
+def extra_files(repo: Path) -> list[Path]:
+    """The files of an opensim-models checkout that the EXTRA_CASES read."""
+    return ([repo / "Pipelines" / "Hamner" / f for f in HAMNER_FILES]
+            + [repo / "Pipelines" / "Rajagopal" / f for f in RAJAGOPAL_RUN]
+            + [repo / "Models" / "Rajagopal" / "Rajagopal2016.osim"])
+
+
+def prepare(case: str, work: Path, repo: Path | None = None) -> dict:
+    """Copy the pipeline's files under the names its setups expect; the spec for the child and calibrate.
+    `repo`: an opensim-models checkout (the EXTRA_CASES)."""
+    if case == "rajagopal_run":
+        src = repo / "Pipelines" / "Rajagopal"
+        d = work / "rajagopal_run"
+        for f in RAJAGOPAL_RUN:
+            (d / f).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(src / f, d / f)
+        osim = repo / "Models" / "Rajagopal" / "Rajagopal2016.osim"
+        shutil.copy(osim, d / "generic_unscaled.osim")
+        (d / "IK" / "results_run").mkdir()
+        mass = float(ET.parse(src / "Scale" / "scale_setup_run.xml").getroot().findtext(".//mass"))
+        return {"dir": str(d), "scale": [["Scale/scale_setup_run.xml", None]], "ik": "IK/ik_setup_run.xml",
+                "osim": str(osim), "marker_set": None, "static": str(src / RAJAGOPAL_RUN[0]),
+                "walk": str(src / RAJAGOPAL_RUN[1]), "mass": mass, "reference": None}
     if case == "hamner":
+        hamner = repo / "Pipelines" / "Hamner"
         d = work / "hamner"
         d.mkdir()
         for f in HAMNER_FILES:
@@ -347,7 +378,6 @@ HELDOUT_STILL_WEIGHT = 16.0  # the held-out row's second calibrate: the static c
 def osim_with_markers(spec: dict, out: Path) -> Path:
     """The generic .osim with the marker set file's markers in its MarkerSet (replacing those of the same
     name, as OpenSim's ScaleTool does), each in OpenSim 4's form (socket_parent_frame): the model nimble reads."""
-    import xml.etree.ElementTree as ET
 
     tree = ET.parse(spec["osim"])
     model = tree.getroot().find("Model")
@@ -467,8 +497,8 @@ def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> 
             "markers": len(use)}
 
 
-def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, hamner: Path | None = None) -> dict:
-    spec = prepare(case, work, hamner)
+def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo: Path | None = None) -> dict:
+    spec = prepare(case, work, repo)
     log(f"{case}: OpenSim Scale + IK (child process) ...")
     osr = run_opensim(spec, work)
     t_walk = trc_times(spec["walk"])
@@ -661,9 +691,9 @@ def report(res: dict) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
-    ap.add_argument("--only", choices=("gait2392", "rajagopal", "hamner"), default=None)
-    ap.add_argument("--hamner", type=Path, default=None,
-                    help="a folder holding opensim-models' Pipelines/Hamner: adds the running subject as a third case")
+    ap.add_argument("--only", choices=("gait2392", "rajagopal", *EXTRA_CASES), default=None)
+    ap.add_argument("--opensim-models", type=Path, default=None, metavar="DIR",
+                    help="a checkout of opensim-models: adds its Hamner and Rajagopal running pipelines as cases")
     ap.add_argument("--outlier-sigmas", type=float, default=0.0,
                     help="calibrate's outlier rejection (noise SDs; default 0: off, as OpenSim's IK keeps every "
                          "marker; calibrate's own default, 6, rejects gait2392's rigid-trunk markers in most frames)")
@@ -680,15 +710,17 @@ def main() -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    if (a.hamner is not None or a.only == "hamner") and not all((a.hamner or Path()).joinpath(f).is_file()
-                                                                 for f in HAMNER_FILES):
-        print(f"bench_osim: --hamner {a.hamner}: give the folder holding opensim-models' Pipelines/Hamner "
-              f"({', '.join(HAMNER_FILES)})", file=sys.stderr)
-        return 2
-    cases = [a.only] if a.only else ["gait2392", "rajagopal"] + (["hamner"] if a.hamner else [])
+    repo = a.opensim_models
+    if repo is not None or a.only in EXTRA_CASES:
+        missing = [f for f in extra_files(repo or Path("(none given)")) if not f.is_file()]
+        if missing:
+            print(f"bench_osim: --opensim-models {repo}: {missing[0]} not found; give a checkout of opensim-models "
+                  f"(its Pipelines/Hamner, Pipelines/Rajagopal and Models/Rajagopal)", file=sys.stderr)
+            return 2
+    cases = [a.only] if a.only else ["gait2392", "rajagopal"] + (list(EXTRA_CASES) if repo else [])
     with tempfile.TemporaryDirectory(prefix="bench_osim_") as tmp:
         res = {"outlier_sigmas": a.outlier_sigmas,
-               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, a.hamner) for c in cases]}
+               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, repo) for c in cases]}
     report(res)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))

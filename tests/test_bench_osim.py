@@ -38,3 +38,17 @@ def test_the_marker_set_written_into_the_osim_is_the_model_the_scale_tool_would_
     # The generic model's kinematics are untouched: the same joints, axes and centres.
     np.testing.assert_allclose(merged.parameters().centre, reference.parameters().centre, atol=1e-12)
     np.testing.assert_allclose(merged.parameters().axis, reference.parameters().axis, atol=1e-12)
+
+
+def test_the_running_pipelines_need_an_opensim_models_checkout(tmp_path):
+    """The running cases read an opensim-models checkout (not in ../shared): asked for without one, or with a folder
+    lacking their files, bench_osim says which file it did not find and exits 2 before running anything."""
+    import subprocess
+
+    script = str(ROOT / "scripts" / "bench_osim.py")
+    for args in (["--only", "hamner"], ["--opensim-models", str(tmp_path)]):
+        proc = subprocess.run([sys.executable, script, *args, "--no-nimble"], capture_output=True, text=True,
+                              timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and "not found" in lines[0] and "Pipelines" in lines[0] and "opensim-models" in lines[0]
