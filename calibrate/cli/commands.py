@@ -226,6 +226,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     marker_map = load_marker_map(args.markers) if args.markers else None
     with progress as say:
         trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]
+        from ..model.sides import side_mismatches
+
+        sides = [x for x in side_mismatches(model) if any(x.marker in t.labels for t in trials)]
+        if sides:  # the trial's marker of that name would be fitted on the other side (Hamner2010's LHJC / RHJC)
+            print(f"warning: {model_path.name}: " + "; ".join(x.text() for x in sides) + " (the model's labels "
+                  "exchanged? the trials' markers of those names are fitted where the model puts them; see "
+                  f"'calibrate inspect {model_path}')", file=sys.stderr)
         if args.frames is not None:
             trial = trials[0]
             idx = range(trial.n_frames)[args.frames]
@@ -367,6 +374,14 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             print(f"  joint-centre markers (within {1000 * JOINT_MARKER_RADIUS:g} mm of a joint centre of their "
                   "segment: points computed at the centre, kept there; priors.joint_marker_mm):")
             print("    " + ", ".join(f"{m.markers[t.marker].name} ({m.joints[t.joint].name})" for t in ties))
+        from ..model.sides import side_mismatches
+
+        sides = side_mismatches(m)
+        if sides:
+            print("  markers on the other side than their names say (the model's labels exchanged? a trial's marker "
+                  "of that name would be fitted there):")
+            for x in sides:
+                print(f"    {x.text()}")
         from ..calibration.identifiability import trading_joints
         from ..io.osim_info import osim_info
 
