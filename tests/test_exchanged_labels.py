@@ -89,7 +89,9 @@ def test_the_calibration_leaves_them_out_and_names_them_everywhere(human, sessio
 def test_a_pair_exchanged_alike_in_every_trial_is_named_against_the_base_model(human, session):
     """Exchanged in the squats alone, or in both trials: no trial tells which is right, so the pair's steady
     distances are compared with the base model's (neutral pose, scaled to the trial) and it is named for the trials
-    that have it so; nothing is left out (a lab's marker protocol may differ from the model's)."""
+    that have it so; nothing is left out (a lab's marker protocol may differ from the model's), and the fit takes
+    that protocol: it starts with each where the base model has the other, and its priors hold them there (the
+    labels kept).  Without it the report read LKNE 176 mm from the base model's place, the prior pulling it so."""
     static, squats = session
     assert exchanged_between(human, [squats]) == () and exchanged_between(human, [static]) == ()
     (x,) = exchanged_between(human, [_exchanged(squats, "LKNE", "LTHI")])
@@ -100,6 +102,16 @@ def test_a_pair_exchanged_alike_in_every_trial_is_named_against_the_base_model(h
                     Settings(max_iterations=5))
     (z,) = cal.exchanged
     pair = [human.marker_index(n) for n in z.labels]
-    assert z.against_model and np.isfinite(cal.residuals[:, pair]).any(axis=0).all()  # kept in the fit
+    assert z.against_model and z.protocol and np.isfinite(cal.residuals[:, pair]).any(axis=0).all()  # kept in the fit
     line = next(s for s in summary_text(cal).splitlines() if s.startswith("  check labels "))
-    assert "nothing was changed" in line
+    assert "the labels kept, the lab's protocol taken" in line
+    assert cal.trials[1].labels.index("LKNE") == squats.labels.index("LTHI")  # as given
+    # Each fitted where the base model has the other: its change from the base (now the exchanged places) is the
+    # subject's, a few mm, where the two places lie 171 mm apart on the femur (the base model's, scaled).
+    base = human.parameters()
+    apart = float(base.scale[human.segment_index("femur_l")]
+                  * np.linalg.norm(base.marker[pair[0]] - base.marker[pair[1]]))
+    changes = {c.item: c.change for c in cal.changes if c.group == "marker"}
+    assert apart > 0.15 and max(changes["LKNE"], changes["LTHI"]) < 20.0  # mm
+    assert calibration_report(cal)["exchanged_labels"][0]["protocol"] is True
+    assert "the lab's protocol" in report_html(calibration_report(cal))

@@ -84,6 +84,8 @@ def _notes(report: dict) -> str:
     for x in report.get("exchanged_labels", []):
         items.append(f"<li class=bad>check labels: {_e(x.get('note'))}"
                      + (f"; their positions in {_e(x['odd_trial'])} left out of the fit" if x.get("odd_trial") else "")
+                     + ("; the labels kept, the base model's places of the two exchanged for the fit (the lab's "
+                        "protocol)" if x.get("protocol") else "")
                      + "</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import Counter
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import fields, replace
 from pathlib import Path
@@ -255,9 +256,16 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # trial: rigidity cannot see it; their distances to the markers near them can (between the trials, or against
     # the base model's).
     exchanged = exchanged_between(model, trials, skip=centred) if run.outliers > 0 else ()
+    # Alike in every trial and unlike the base model, and the only such pair on its segment (a mirror pair's twin
+    # reads alike): the lab's protocol puts each where the model has the other.  The labels stay; the base model's
+    # places of the two are exchanged where the fit starts and where its priors hold them (_protocol_places).
+    sole = Counter(x.segment for x in exchanged if x.against_model)
+    exchanged = tuple(replace(x, protocol=True) if x.against_model and sole[x.segment] == 1 else x for x in exchanged)
     for x in exchanged:
         say(Progress("markers", x.text([t.source or f"trial {k + 1}" for k, t in enumerate(trials)])
-                     + ("; their positions there left out" if x.odd is not None else "; check the labels")))
+                     + ("; their positions there left out" if x.odd is not None else
+                        "; their places in the base model exchanged for the fit" if x.protocol else
+                        "; check the labels")))
     # Unlabelled trajectories (Vicon's '*115'): ghosts, reflections or markers the operator left
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
@@ -322,6 +330,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params0 = _on_model(subject, model, _fixed_groups(model.parameters(), seed.params, settings.free))
     params0 = _hold_segments(subject, params0, settings.hold_segments)
     params0 = _unseen_at_base(subject, model, params0, unused)
+    protocol = [x.labels for x in exchanged if x.protocol]
+    params0 = _protocol_places(subject, params0, protocol)
     times["seed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     say(Progress("build", "residuals and Jacobian (CasADi)"))
@@ -337,7 +347,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes); "
                                 "left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
-    problem = Problem(subject, obs, settings.problem, kin, progress=say)
+    problem = Problem(subject, obs, settings.problem, kin, progress=say,
+                      base=_protocol_places(subject, subject.parameters(), protocol) if protocol else None)
     lengths = _still_lengths(trials, motion, run.still_weight) if motion is not None else None
     if lengths is not None:
         still = [t.source or f"trial {i + 1}" for i, (t, n) in enumerate(zip(trials, lengths, strict=True))
@@ -972,6 +983,18 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         else:
             out.append(NewMarker(lab, assoc[lab].segment, None, assoc[lab].reason))
     return out
+
+
+def _protocol_places(subject: Model, params: Parameters, pairs: Sequence[tuple[str, str]]) -> Parameters:
+    """`params` with the marker offsets of each pair of labels exchanged (both on one segment): a lab's protocol that
+    puts each where the base model has the other (association.Exchanged.protocol)."""
+    if not pairs:
+        return params
+    marker = params.marker.copy()
+    for a, b in pairs:
+        i, j = subject.marker_index(a), subject.marker_index(b)
+        marker[[i, j]] = marker[[j, i]]
+    return Parameters(params.scale, params.centre, params.axis, marker)
 
 
 def _unseen_at_base(subject: Model, model: Model, params: Parameters, unseen: Sequence[str]) -> Parameters:

@@ -141,6 +141,8 @@ def calibration_report(cal: Calibration) -> dict:
                               "references": list(x.references),
                               "odd_trial": None if x.odd is None else _trial_name(cal, x.odd),
                               "against_model": x.against_model,
+                              # the lab's protocol taken: the base model's places of the two exchanged for the fit
+                              "protocol": x.protocol,
                               "note": x.text([_trial_name(cal, k) for k in range(len(cal.trials))])}
                              for x in cal.exchanged],
         # markers a still trial showed elsewhere on their segment than the moving trials (Settings.moved_markers):
@@ -570,6 +572,8 @@ def summary_text(cal) -> str:
         lines.append(f"  check labels {x.text([_trial_name(cal, k) for k in range(len(cal.trials))])} "
                      + (f"(their positions in {_trial_name(cal, x.odd)} left out of the fit: exchange them in its file "
                         "and calibrate again to use them)" if x.odd is not None else
+                        "(the labels kept, the lab's protocol taken: the fit starts with each where the base model "
+                        "has the other, and its priors hold them there)" if x.protocol else
                         "(nothing was changed: exchange them in the trial's file that has them wrong)"))
     unresolved = cal.unresolved
     if unresolved:

@@ -724,6 +724,10 @@ class Exchanged:
     references: tuple[str, ...]  # the markers near them compared
     odd: int | None = None  # between two trials: the one the base model's distances say has them exchanged
     against_model: bool = False  # compared with the base model's distances, not between trials
+    # against the model, the only such pair on its segment: the fit took the lab's protocol, the base model's places
+    # of the two exchanged where it starts and where its priors hold them (the labels kept; calibrate.calibration.
+    # pipeline)
+    protocol: bool = False
 
     def text(self, names: Sequence[str]) -> str:
         a, b = self.labels
