@@ -122,6 +122,26 @@ def test_segment_lengths_are_distances_between_joint_centres(run):
     assert checked >= 10
 
 
+def test_the_left_right_headline_leaves_short_segments_out(run):
+    """The summary's and the HTML's left/right line name the largest relative length difference among segments at
+    least SHORT_SEGMENT_MM long on both sides, with its mm (a 5 mm difference of a 50 mm ulna read 10 %): recomputed
+    here from the report's symmetry rows; a short segment's larger share does not take the headline."""
+    from calibrate.calibration.html import SHORT_SEGMENT_MM, longest_asymmetry
+    from calibrate.calibration.report import summary_text
+
+    cal, rep = run["cal"], run["rep"]
+    rows = rep["symmetry"]["segment_length"]
+    long = {k: v for k, v in rows.items() if min(v["left_mm"], v["right_mm"]) >= SHORT_SEGMENT_MM}
+    name = max(long, key=lambda k: abs(long[k]["left_mm"] - long[k]["right_mm"]) / np.mean(
+        [long[k]["left_mm"], long[k]["right_mm"]]))
+    mm = abs(long[name]["left_mm"] - long[name]["right_mm"])
+    want = f"segment lengths differ by up to {100 * long[name]['difference']:.1f} % ({name}, {mm:.1f} mm)"
+    assert want in summary_text(cal) and want in report_html(rep)
+    short = {**long, "ulna": {"left_mm": 50.5, "right_mm": 55.9, "difference": 0.101}}
+    assert longest_asymmetry(short)[0] == name
+    assert longest_asymmetry({"ulna": short["ulna"]})[0] == "ulna"  # nothing longer: the short one
+
+
 def _plot_data(page: str) -> list[dict]:
     """The traces of every plotly figure of a page."""
     traces = []

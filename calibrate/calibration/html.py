@@ -212,8 +212,11 @@ def _summary(report: dict) -> str:
                          f"{j} {v['calibrated_mm']:.0f}/{v['measured_mm']:.0f}" + ("" if v["used"] else " (not used)")
                          for j, v in meas["lateral_mm"].items())])
     sym = report.get("symmetry", {})
-    if sym.get("largest_length_difference") is not None:
-        rows.append(["left/right", f"segment lengths differ by up to {100 * sym['largest_length_difference']:.1f} %"
+    worst = longest_asymmetry(sym.get("segment_length") or {})
+    if worst is not None:
+        name, row = worst
+        rows.append(["left/right", f"segment lengths differ by up to {100 * row['difference']:.1f} % ({name}, "
+                                   f"{abs(row['left_mm'] - row['right_mm']):.1f} mm)"
                      + (f", mirrored centres by up to {sym['largest_centre_mirror_mm']:.1f} mm"
                         if sym.get("largest_centre_mirror_mm") is not None else "")])
     return "<h2 id=summary>Summary</h2>" + trials + _table(["", ""], rows)
@@ -364,6 +367,18 @@ def _segments(report: dict, go) -> str:
     return ("<h2 id=segments>Segment lengths</h2>" + _figure(fig, 400)
             + _table(["segment", "to joint", "base (mm)", "subject left / one (mm)", "subject right (mm)",
                       "left/right difference (%)"], rows, {2, 3, 4, 5}))
+
+
+#: mm: segments shorter than this on either side are left out of the headline left/right difference (their share
+#: is of a few mm: Hamner2010's ulna, 50 / 56 mm between the elbow and the radioulnar joint, read 10 %)
+SHORT_SEGMENT_MM = 100.0
+
+
+def longest_asymmetry(lengths: dict) -> tuple[str, dict] | None:
+    """The (segment, row) of symmetry_table's segment_length with the largest relative difference among the segments
+    at least SHORT_SEGMENT_MM long on both sides (all of them where none is)."""
+    long = {k: v for k, v in lengths.items() if min(v["left_mm"], v["right_mm"]) >= SHORT_SEGMENT_MM} or lengths
+    return max(long.items(), key=lambda kv: kv[1]["difference"], default=None)
 
 
 def report_html(report: Mapping, title: str | None = None) -> str:

@@ -28,7 +28,7 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
-from .html import report_html
+from .html import longest_asymmetry, report_html
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified
 from .regression import FUNCTIONAL_RANGE
@@ -356,11 +356,12 @@ def _noise_lines(cal) -> list[str]:
                    f"{v.min():.2f} ({names[lo]}) to {v.max():.2f} ({names[hi]})")
     sym = symmetry_table(cal)
     if sym["scale_difference"]:
-        worst_len = max(sym["segment_length"].items(), key=lambda kv: kv[1]["difference"], default=None)
+        worst_len = longest_asymmetry(sym["segment_length"])
         worst_c = max(sym["centre_mirror_mm"].items(), key=lambda kv: kv[1], default=None)
         st = cal.settings.priors
         out.append(f"  {'left/right':22s}{'':12s}  segment lengths differ by up to "
-                   + (f"{100 * worst_len[1]['difference']:.1f} % ({worst_len[0]})" if worst_len else "-")
+                   + (f"{100 * worst_len[1]['difference']:.1f} % ({worst_len[0]}, "
+                      f"{abs(worst_len[1]['left_mm'] - worst_len[1]['right_mm']):.1f} mm)" if worst_len else "-")
                    + (f", mirrored centres by up to {worst_c[1]:.1f} mm ({worst_c[0]})" if worst_c else "")
                    + (f" (symmetry prior SD {100 * st.symmetry_scale:g} %, {1000 * st.symmetry_centre:g} mm)"
                       if st.symmetry_scale or st.symmetry_centre else " (no symmetry prior)"))
