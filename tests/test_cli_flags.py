@@ -419,6 +419,17 @@ def test_outputs_go_beside_the_output_urdf(human, squat, tmp_path, capsys):
     assert load_model(tmp_path / "sub.urdf").nz == human.nz
 
 
+def test_an_output_name_without_suffix_is_the_subject_urdf(human, squat, tmp_path, capsys):
+    """-o out/subject02 names the subject: written subject02.urdf (not a file without a suffix), the motion and the
+    report beside it."""
+    _, sim_dir = squat
+    code, out, err = run(capsys, sim_dir / "trial.c3d", human.path, "-o", tmp_path / "subject02", "--frames", "0:60")
+    assert code in (0, 1), err
+    assert not (tmp_path / "subject02").exists()
+    assert load_model(tmp_path / "subject02.urdf").nz == human.nz
+    assert (tmp_path / "trial_motion.csv").exists() and (tmp_path / "trial_report.json").exists()
+
+
 # ---------------------------------------------------------------------- all or nothing
 @pytest.fixture(scope="module")
 def small_cal(human, squat):

@@ -136,6 +136,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             raise CalibrateError(f"{output}: a subject .osim is written from an OpenSim base model, and "
                                  f"{model_path.name} is not one; give -o NAME.urdf")
         output = output.with_suffix(".urdf")
+    elif output is not None and not output.suffix:  # -o out/subject02: the subject's name, written subject02.urdf
+        output = output.with_name(output.name + ".urdf")
     stem = trial_paths[0].with_suffix("")
     out_urdf = output or stem.with_name(stem.name + ".urdf")
     # The outputs stay together: beside -o's URDF when it is given (a trial's own folder may be a shared,
