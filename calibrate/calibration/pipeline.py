@@ -257,9 +257,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # the base model's).
     exchanged = exchanged_between(model, trials, skip=centred) if run.outliers > 0 else ()
     # Alike in every trial and unlike the base model, and the only such pair on its segment (a mirror pair's twin
-    # reads alike): the lab's protocol puts each where the model has the other.  The labels stay; the base model's
-    # places of the two are exchanged where the fit starts and where its priors hold them (_protocol_places).
+    # reads alike): the lab's protocol puts each where the model has the other.  The labels stay; the base
+    # model's places of the two are exchanged where the fit starts and where its priors hold them (_protocol_places).
     sole = Counter(x.segment for x in exchanged if x.against_model)
+    # (Named against the model only where no two trials differ (association.exchanged_between): a trial the model
+    # comparison passes over, pig_walk's static with the heel and toe exchanged in both, has them alike.)
     exchanged = tuple(replace(x, protocol=True) if x.against_model and sole[x.segment] == 1 else x for x in exchanged)
     for x in exchanged:
         say(Progress("markers", x.text([t.source or f"trial {k + 1}" for k, t in enumerate(trials)])
