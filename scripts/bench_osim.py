@@ -511,7 +511,7 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
     # that the timed run is the work alone, as OpenSim's is.
     log(f"{case}: warm-up (compiles the model's C code once per machine) ...")
     run_calibrate(spec, slice(frames.start, frames.start + 30), outliers)
-    log(f"{case}: calibrate on the static + walk trials ({len(osr['times'])} walk frames) ...")
+    log(f"{case}: calibrate on the static + walk trials ({len(osr['times'])} IK frames) ...")
     cr = run_calibrate(spec, frames, outliers)
     log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
     ch = run_calibrate(spec, frames, outliers, hold_axes=True)
@@ -597,7 +597,7 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
 def report(res: dict) -> None:
     for r in res["results"]:
         o, c = r["opensim"], r["calibrate"]
-        print(f"\n== {r['case']}: {r['frames']} walk frames, {len(r['markers_scored'])} markers scored "
+        print(f"\n== {r['case']}: {r['frames']} IK frames (walk or run), {len(r['markers_scored'])} markers scored "
               f"(OpenSim's IK tracks {len(r['markers_tracked_by_opensim'])}; calibrate uses {c['markers_used']})")
         print(f"  {'':22s} {'RMS mm':>8s} {'max mm':>8s} {'time s':>10s}")
         print(f"  {'OpenSim Scale + IK':22s} {o['rms_mm']:8.2f} {o['max_mm']:8.2f} {o['total_s']:10.2f} "
