@@ -988,14 +988,18 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
 
 
 def _protocol_places(subject: Model, params: Parameters, pairs: Sequence[tuple[str, str]]) -> Parameters:
-    """`params` with the marker offsets of each pair of labels exchanged (both on one segment): a lab's protocol that
-    puts each where the base model has the other (association.Exchanged.protocol)."""
+    """`params` with each pair of labels (both on one segment) placed where the base model has the other: a lab's
+    protocol that puts them so (association.Exchanged.protocol).  A marker the seed placed where the trial shows it
+    (seeding: within SEED_MAX_SHIFT of its base place, so only where the two places are that close) stays there."""
     if not pairs:
         return params
+    base = subject.parameters().marker
     marker = params.marker.copy()
     for a, b in pairs:
         i, j = subject.marker_index(a), subject.marker_index(b)
-        marker[[i, j]] = marker[[j, i]]
+        for k, other in ((i, j), (j, i)):
+            if np.array_equal(params.marker[k], base[k]):
+                marker[k] = base[other]
     return Parameters(params.scale, params.centre, params.axis, marker)
 
 
