@@ -52,6 +52,10 @@ def test_batch_on_a_local_cluster_isolates_a_broken_subject_and_resumes(lab):
         rep = json.loads((folder / "report.json").read_text())
         row = next(r for r in rows if r["subject"] == sid)
         assert row["marker_rms_mm"] == pytest.approx(rep["markers"]["rms_mm"], abs=1e-5) and row["marker_rms_mm"] < 5
+        # Its warnings: what the report asks to look at (notes, unreliable parameters, labels to check, no
+        # convergence), not the parameters the trial leaves to the priors.
+        assert row["warnings"] == (len(rep["notes"]) + len(rep["unreliable"]) + len(rep["suspect_labels"])
+                                   + len(rep["exchanged_labels"]) + (0 if rep["solver"]["converged"] else 1))
         assert read_trial(lab / sid / "trial.c3d").n_frames == 80
     with open(out / "summary.csv") as f:
         table = list(csv.DictReader(f))
