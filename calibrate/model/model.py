@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -389,6 +389,14 @@ class Model:
         for d, a in zip(self.dofs, angles, strict=True):
             q.append(np.array([np.cos(a), np.sin(a)]) if d.continuous else np.array([a]))
         return np.concatenate(q)
+
+    def neutral_positions(self, names: Sequence[str]) -> np.ndarray:
+        """(n, 3) world positions (m) of the named frames (markers, segments) in the base model's neutral pose: root
+        at the origin, every angle 0 (Pinocchio)."""
+        data = self.pin.createData()
+        pin.framesForwardKinematics(self.pin, data, self.pin_configuration(np.zeros(3), [0, 0, 0, 1],
+                                                                           np.zeros(self.n_dofs)))
+        return np.array([data.oMf[self.pin.getFrameId(n)].translation for n in names]).reshape(-1, 3)
 
     def summary(self) -> str:
         """A short human-readable description (segments, joints, DoF, markers)."""

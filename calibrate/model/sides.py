@@ -56,32 +56,22 @@ def side_mismatches(model: Model) -> tuple[SideMismatch, ...]:
     than SIDE_MARGIN on the other side of its sagittal plane: the plane through the midpoints of the segment
     origins paired by name (X_l / X_r), normal to their mean left-to-right direction.  () where no segments are
     so paired."""
-    import pinocchio as pin
-
     names = {s.name for s in model.segments}
     pairs = [(n, n[:-2] + "_r") for n in sorted(names) if n.endswith("_l") and n[:-2] + "_r" in names]
     if not pairs:
         return ()
-    pm = model.pin
-    data = pm.createData()
-    pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], np.zeros(model.n_dofs)))
-
-    def origin(name: str) -> np.ndarray:
-        return data.oMf[pm.getFrameId(name, pin.FrameType.BODY)].translation.copy()
-
-    lefts = np.array([origin(a) for a, _ in pairs])
-    rights = np.array([origin(b) for _, b in pairs])
+    lefts = model.neutral_positions([a for a, _ in pairs])
+    rights = model.neutral_positions([b for _, b in pairs])
     lateral = np.sum(rights - lefts, axis=0)
     if np.linalg.norm(lateral) < 1e-9:
         return ()
     lateral /= np.linalg.norm(lateral)
     middle = np.mean((lefts + rights) / 2, axis=0)
+    sided = [(mk, named) for mk in model.markers if (named := named_side(mk.name)) is not None]
+    at = model.neutral_positions([mk.name for mk, _ in sided])
     out = []
-    for mk in model.markers:
-        named = named_side(mk.name)
-        if named is None:
-            continue
-        d = float((data.oMf[pm.getFrameId(mk.name)].translation - middle) @ lateral)  # > 0: right
+    for (mk, named), p in zip(sided, at, strict=True):
+        d = float((p - middle) @ lateral)  # > 0: right
         if (d < -SIDE_MARGIN and named == "right") or (d > SIDE_MARGIN and named == "left"):
             out.append(SideMismatch(mk.name, mk.segment, named, abs(d)))
     return tuple(out)

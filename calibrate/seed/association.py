@@ -845,12 +845,7 @@ def _median_distances(D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _model_distances(model: Model, names: Sequence[str]) -> np.ndarray:
     """(n, n) distances between the named markers of the base model in its neutral pose (Pinocchio)."""
-    import pinocchio as pin
-
-    pm = model.pin
-    data = pm.createData()
-    pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], np.zeros(model.n_dofs)))
-    P = np.array([data.oMf[pm.getFrameId(n)].translation for n in names])
+    P = model.neutral_positions(names)
     return np.linalg.norm(P[:, None] - P[None], axis=-1)
 
 
