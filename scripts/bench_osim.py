@@ -27,7 +27,9 @@ IK separately) and their ratio; where the static carries the lab's hip joint cen
 L_HJC), each hip centre's median distance from them in the static.  calibrate runs with its default settings,
 the .osim's locked coordinates locked, the coordinates the IK setup's coordinate tasks hold locked as the
 command line's ``--ik-setup`` does (Gait2392's pipeline holds its subtalar and mtp angles at 0; a row without
-them follows), and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
+them follows), the static cut to the time range the (first) Scale setup's scaler and marker placer use, as the
+command line's ``--scale-setup`` cuts it (gait2392: 1 to 2 s, 61 of 300 frames; ``--whole-trials``: every
+frame), and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
 Rows with the axes held, without the IK setup, with ``--moved-markers`` and with ``--hip-regression`` follow.
 
 nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
@@ -39,6 +41,7 @@ time the fit alone (marker clean-up and the multi-trial pipeline; the venv, impo
 out, as calibrate's imports are).
 
     PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only CASE] [--no-nimble] [--opensim-models DIR]
+        [--whole-trials]
 """
 
 from __future__ import annotations
@@ -295,6 +298,7 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             mk[f, k] = data.oMf[subject.pin.getFrameId(name, pin.FrameType.BODY)].translation
     trial = cal.trials[1]
     return {"wall_s": wall, "ik_only_s": ik_wall, "ik_only_rms_mm": 1000 * ik_fit.rms,
+            "static_frames": static.n_frames, "static_seconds": [float(static.times[0]), float(static.times[-1])],
             "lab_hjc_mm": lab_hip_distances(cal, subject),
             "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
@@ -341,12 +345,18 @@ def with_setup(spec: dict, model, settings, ik_setup: bool):
 
 
 def read_case(spec: dict):
-    """The case's generic model (with its marker set) and its static and walking trials, as calibrate reads them."""
+    """The case's generic model (with its marker set) and its static and walking trials, as calibrate reads them:
+    the static cut to the time range the pipeline's (first) Scale setup uses, as the command line's --scale-setup
+    cuts it, unless spec["whole_trials"] (--whole-trials)."""
+    from calibrate.io.osim_setup import apply_time_ranges, scale_setup
     from calibrate.io.read import read_trial
     from calibrate.model.model import load_model
 
-    return (load_model(spec["osim"], spec["marker_set"]), read_trial(_plain_trc(spec["static"], spec["dir"])),
-            read_trial(_plain_trc(spec["walk"], spec["dir"])))
+    static = read_trial(_plain_trc(spec["static"], spec["dir"]))
+    if not spec.get("whole_trials"):
+        ranges = scale_setup(Path(spec["dir"]) / spec["scale"][0][0]).ranges
+        (static,), _ = apply_time_ranges([static], ranges, names=[spec["static"]])
+    return load_model(spec["osim"], spec["marker_set"]), static, read_trial(_plain_trc(spec["walk"], spec["dir"]))
 
 
 def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float, ik_setup: bool = True,
@@ -497,8 +507,9 @@ def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> 
             "markers": len(use)}
 
 
-def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo: Path | None = None) -> dict:
-    spec = prepare(case, work, repo)
+def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo: Path | None = None,
+          whole_trials: bool = False) -> dict:
+    spec = {**prepare(case, work, repo), "whole_trials": whole_trials}
     log(f"{case}: OpenSim Scale + IK (child process) ...")
     osr = run_opensim(spec, work)
     t_walk = trc_times(spec["walk"])
@@ -531,7 +542,8 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
     missing = [m for m in osr["tracked"] if m in trial.labels and m not in cr["marker_names"]]
     out = {"case": case, "frames": len(osr["times"]), "markers_tracked_by_opensim": osr["tracked"],
            "markers_scored": use, "opensim_tracked_markers_calibrate_lacks": missing,
-           "approximations": cr["approximations"], "calibrate_converged": cr["converged"]}
+           "approximations": cr["approximations"], "calibrate_converged": cr["converged"],
+           "static_frames": cr["static_frames"], "static_seconds": cr["static_seconds"]}
     out["opensim"] = marker_scores(osr["markers"], osr["marker_names"], trial, use)
     out["calibrate"] = marker_scores(cr["markers"], cr["marker_names"], trial, use)
     out["calibrate"]["markers_used"] = sum(m in trial.labels for m in cr["marker_names"])
@@ -597,7 +609,9 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
 def report(res: dict) -> None:
     for r in res["results"]:
         o, c = r["opensim"], r["calibrate"]
-        print(f"\n== {r['case']}: {r['frames']} IK frames (walk or run), {len(r['markers_scored'])} markers scored "
+        t0, t1 = r["static_seconds"]
+        print(f"\n== {r['case']}: {r['frames']} IK frames (walk or run), static {r['static_frames']} frames "
+              f"({t0:g} to {t1:g} s), {len(r['markers_scored'])} markers scored "
               f"(OpenSim's IK tracks {len(r['markers_tracked_by_opensim'])}; calibrate uses {c['markers_used']})")
         print(f"  {'':22s} {'RMS mm':>8s} {'max mm':>8s} {'time s':>10s}")
         print(f"  {'OpenSim Scale + IK':22s} {o['rms_mm']:8.2f} {o['max_mm']:8.2f} {o['total_s']:10.2f} "
@@ -699,6 +713,9 @@ def main() -> int:
                          "marker; calibrate's own default, 6, rejects gait2392's rigid-trunk markers in most frames)")
     ap.add_argument("--no-nimble", action="store_true",
                     help="leave out nimblephysics' MarkerFitter (run by default: scripts/peer_nimble.py, its own venv)")
+    ap.add_argument("--whole-trials", action="store_true",
+                    help="calibrate on every frame of the static, not the Scale setup's time range (OpenSim's Scale "
+                         "uses that range either way)")
     ap.add_argument("--_opensim", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a._opensim:
@@ -719,8 +736,9 @@ def main() -> int:
             return 2
     cases = [a.only] if a.only else ["gait2392", "rajagopal"] + (list(EXTRA_CASES) if repo else [])
     with tempfile.TemporaryDirectory(prefix="bench_osim_") as tmp:
-        res = {"outlier_sigmas": a.outlier_sigmas,
-               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, repo) for c in cases]}
+        res = {"outlier_sigmas": a.outlier_sigmas, "whole_trials": a.whole_trials,
+               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, repo, a.whole_trials)
+                           for c in cases]}
     report(res)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))

@@ -98,9 +98,10 @@ def test_csv_manifest_and_bad_manifests(tmp_path):
 def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     """A subject on an OpenSim base model (models/human.urdf exported as .osim) with the lab's marker set, IK setup
     and Scale setup in the manifest: the Scale setup's mass and marker set are taken (the report names the file),
-    the IK setup's coordinate task holds its coordinate in every frame, the marker set's extra marker is in the
-    subject, and the subject is written as subject.osim and a .mot per trial beside the URDF and CSVs.  The setups
-    with a URDF model: one line."""
+    the IK setup's coordinate task holds its coordinate in every frame and its time range cuts the trial it names
+    (by the stem: the lab's .trc, the .c3d here; ``whole_trials`` keeps every frame), the marker set's extra marker
+    is in the subject, and the subject is written as subject.osim and a .mot per trial beside the URDF and CSVs.
+    The setups with a URDF model: one line."""
     from calibrate.calibration.batch import calibrate_subject
     from calibrate.io.osim_export import export_osim
 
@@ -118,8 +119,9 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     (tmp_path / "Setup_IK.xml").write_text(
         "<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='ik'><IKTaskSet><objects>"
         "<IKCoordinateTask name='subtalar_r'><apply>true</apply><weight>1000</weight><value_type>manual_value"
-        "</value_type><value>0.1</value></IKCoordinateTask></objects></IKTaskSet></InverseKinematicsTool>"
-        "</OpenSimDocument>")
+        "</value_type><value>0.1</value></IKCoordinateTask></objects></IKTaskSet>"
+        "<marker_file>trial.trc</marker_file><time_range>0.1 0.6</time_range></InverseKinematicsTool>"
+        "</OpenSimDocument>")  # the lab's IK on the .trc export of this trial, from 0.1 to 0.6 s
     (tmp_path / "lab.toml").write_text('[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
                                        'ik_setup = "Setup_IK.xml"\nscale_setup = "Setup_Scale.xml"\n')
     (subject,) = read_manifest(tmp_path / "lab.toml")
@@ -136,7 +138,17 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     head = lines.index("endheader") + 1
     cols = lines[head].split("\t")
     rows = np.array([[float(v) for v in line.split("\t")] for line in lines[head + 1:]])
-    assert len(rows) == 80 and np.allclose(rows[:, cols.index("subtalar_r")], np.degrees(0.1), atol=1e-3)  # degrees
+    assert np.allclose(rows[:, cols.index("subtalar_r")], np.degrees(0.1), atol=1e-3)  # degrees
+    # the IK setup's frames only, as the command line cuts them: 0.1 to 0.6 s of the 80 frames at 100 Hz
+    assert len(rows) == 51 and np.allclose(rows[:, 0], np.arange(10, 61) / 100, atol=1e-9)
+    (tmp_path / "whole.toml").write_text((tmp_path / "lab.toml").read_text() + "whole_trials = true\n")
+    (tmp_path / "whole.csv").write_text("subject,trials,model,ik_setup,whole_trials\nS1,S1/trial.c3d,human.osim,"
+                                        "Setup_IK.xml,yes\nS2,S1/trial.c3d,human.osim,Setup_IK.xml,\n")
+    assert read_manifest(tmp_path / "whole.toml")[0].whole_trials and not subject.whole_trials
+    assert [s.whole_trials for s in read_manifest(tmp_path / "whole.csv")] == [True, False]
+    (tmp_path / "bad.csv").write_text("subject,trials,model,whole_trials\nS1,S1/trial.c3d,human.osim,maybe\n")
+    with pytest.raises(CalibrateError, match="whole_trials 'maybe' must be true or false"):
+        read_manifest(tmp_path / "bad.csv")
     (tmp_path / "bad.toml").write_text(f'[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "{HUMAN}"\n'
                                        'marker_set = "ms.xml"\n')
     with pytest.raises(CalibrateError, match="'marker_set' applies to an OpenSim base model"):

@@ -21,9 +21,11 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     marker_set = "gait2392_Scale_MarkerSet.xml"   # optional, an .osim model only: as --marker-set
     ik_setup = "S01/Setup_IK.xml"                 # ... as --ik-setup (the coordinates it holds locked)
     scale_setup = "S01/Setup_Scale.xml"           # ... as --scale-setup (mass and marker set, unless given)
+    whole_trials = true                           # optional: as --whole-trials (not the setups' time ranges)
 
     subject,trials,model,markers,mass # CSV: trials separated by ';', markers and mass may be empty; optional
-    S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup
+    S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup,
+                                                            # whole_trials
 
 An OpenSim base model's subject is also written as subject.osim, its motions as <trial>_motion.mot.
 """
@@ -69,6 +71,15 @@ class Subject:
     marker_set: Path | None = None  # an OpenSim model's MarkerSet file (calibrate --marker-set)
     ik_setup: Path | None = None  # the lab's OpenSim IK setup: the coordinates it holds locked (--ik-setup)
     scale_setup: Path | None = None  # the lab's OpenSim Scale setup: mass and marker set (--scale-setup)
+    whole_trials: bool = False  # every frame, not the setups' time ranges (--whole-trials)
+
+
+def _flag(text: str, path: Path, subject: str) -> bool:
+    """A CSV manifest's true/false cell."""
+    value = text.strip().lower()
+    if value not in ("true", "false", "1", "0", "yes", "no"):
+        raise CalibrateError(f"{path}: subject {subject}: whole_trials {text.strip()!r} must be true or false")
+    return value in ("true", "1", "yes")
 
 
 def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
@@ -97,7 +108,9 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         rows = [{"id": r["subject"], "trials": [t for t in (r["trials"] or "").split(";") if t.strip()],
                  "model": r["model"], "markers": r.get("markers") or None,
                  "mass": float(r["mass"]) if (r.get("mass") or "").strip() else None,
-                 **{k: r[k] for k in OPENSIM_FILES if (r.get(k) or "").strip()}} for r in reader]
+                 **{k: r[k] for k in OPENSIM_FILES if (r.get(k) or "").strip()},
+                 **({"whole_trials": _flag(r["whole_trials"], path, r["subject"])}
+                    if (r.get("whole_trials") or "").strip() else {})} for r in reader]
     else:
         raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
     base = path.parent
@@ -134,9 +147,12 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
                 raise CalibrateError(f"{where} ({sid}): '{key}' applies to an OpenSim base model (.osim), and "
                                      f"{row['model'].strip()} is not one; leave it out or give the .osim")
             opensim[key] = base / value.strip()
+        whole = row.get("whole_trials", False)
+        if not isinstance(whole, bool):
+            raise CalibrateError(f"{where} ({sid}): 'whole_trials' must be true or false, got {whole!r}")
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
-                                None if mass is None else float(mass), **opensim))
+                                None if mass is None else float(mass), **opensim, whole_trials=whole))
     return subjects
 
 
@@ -194,6 +210,11 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
 
             settings = with_ik_setup(model, settings, subject.ik_setup)
         trials = [read_trial(t) for t in subject.trials]
+        if not subject.whole_trials and (setup is not None or subject.ik_setup is not None):
+            # The frames the lab's Scale and IK tools fit, as the command line cuts them (--whole-trials: every one).
+            from ..io.osim_setup import cut_to_setups
+
+            trials, _ = cut_to_setups(trials, setup, subject.ik_setup)
         marker_map = load_marker_map(subject.markers) if subject.markers else None
         cal = calibrate(model, trials, settings, marker_map=marker_map, mass=mass)
         if setup is not None and subject.mass is None and mass is not None:

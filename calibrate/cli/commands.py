@@ -114,7 +114,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..io.config import load_settings, settings_from_dict
     from ..io.labels import load_marker_map
     from ..io.read import read_trial
-    from ..io.trial import Trial
     from ..model.model import load_model
     from ..problem.settings import Settings
 
@@ -235,14 +234,25 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"warning: {model_path.name}: " + "; ".join(x.text() for x in sides) + " (the model's labels "
                   "exchanged? the trials' markers of those names are fitted where the model puts them; see "
                   f"'calibrate inspect {model_path}')", file=sys.stderr)
+        if not args.whole_trials and (setup is not None or args.ik_setup is not None):
+            # The frames the lab's Scale and IK tools fit: the static's still span, the walk's cycle.
+            from ..io.osim_setup import cut_to_setups
+
+            before = [t.n_frames for t in trials]
+            trials, lines = cut_to_setups(trials, setup, args.ik_setup)
+            if args.frames is not None and trials[0].n_frames != before[0]:
+                raise CalibrateError(f"--frames and the setup's time range both select frames of {trial_paths[0]}; "
+                                     "drop --frames, or pass --whole-trials to use --frames alone")
+            if not args.quiet:
+                for line in lines:
+                    progress_printer("note: " + line)
         if args.frames is not None:
             trial = trials[0]
             idx = range(trial.n_frames)[args.frames]
             if len(idx) == 0 or idx.step != 1:
                 raise CalibrateError(f"--frames {args.frames.start}:{args.frames.stop}: selects no frames of "
                                      f"{trial_paths[0]} ({trial.n_frames} frames, 0-based)")
-            trials[0] = Trial(trial.labels, trial.markers[idx.start:idx.stop], trial.rate,
-                              trial.first_frame + idx.start, trial.source)
+            trials[0] = trial.frames(idx.start, idx.stop)
         load_s = time.perf_counter() - t0
         if args.neutral is not None and args.neutral > len(trials):
             raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of "

@@ -1,5 +1,5 @@
 """A lab's OpenSim Inverse Kinematics setup file, read for what calibrate can use of it: the coordinates its
-IK holds (``calibrate TRIAL ... MODEL --ik-setup subject01_Setup_IK.xml``).
+IK holds (``calibrate TRIAL ... MODEL --ik-setup subject01_Setup_IK.xml``) and the frames it fits.
 
 OpenSim's IK weighs each ``IKCoordinateTask`` against the markers; labs use them, at weights of 1000 against
 the markers' 1-10, to hold what their marker set cannot resolve at a value (Gait2392's pipeline holds both
@@ -12,19 +12,25 @@ knee marker of the static trial).
 
 A lab's Scale setup file gives the subject's body mass and the marker set the Scale tool adds to the generic
 model (``--scale-setup subject01_Setup_Scale.xml``): the mass scales the subject's segment masses and inertias
-(what the lab's ID, Static Optimization and CMC setups read from the subject .osim); its measurement pairs,
-marker weights and static time range are not used: calibrate scales and places the markers from every frame of
-the trials given.
+(what the lab's ID, Static Optimization and CMC setups read from the subject .osim); its measurement pairs and
+marker weights are not used: calibrate scales and places the markers from every frame it is given.
+
+Both setups name a trial file and the time range the lab chose in it (``marker_file``, ``time_range``: the
+static's still second, the walk's cycle): each is a ``TimeRange``, and ``apply_time_ranges`` cuts the trials
+the setups name to them, so that calibrate fits the frames the lab's Scale and IK tools fit (gait2392's
+pipeline: 61 of the static's 300 frames, 121 of the walk's 151).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ModelError
 from .osim_read import xml_element
+from .trial import Trial
 
 
 def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
@@ -44,7 +50,7 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     locks: list[tuple[str, float]] = []
     for task in tool.iter("IKCoordinateTask"):
         name = task.get("name", "")
-        if (task.findtext("apply") or "true").strip().lower() != "true":
+        if not _applied(task):
             continue
         if name not in dofs:
             dropped = info is not None and name in info.dropped
@@ -76,12 +82,30 @@ def with_ik_setup(model, settings, path: str | Path):
 
 
 @dataclass(frozen=True)
+class TimeRange:
+    """The frames of one trial file a step of a lab's OpenSim setup uses (its ``marker_file`` and ``time_range``)."""
+
+    setup: Path  # the setup file
+    step: str  # 'ModelScaler', 'MarkerPlacer' (a Scale setup) or 'InverseKinematicsTool'
+    file: str  # the trial file as the setup names it
+    start: float  # s, as the file's Time column counts
+    stop: float  # s
+
+    def text(self) -> str:
+        """'1 to 2 s', for the lines that say what was cut."""
+        return f"{self.start:g} to {self.stop:g} s"
+
+
+@dataclass(frozen=True)
 class ScaleSetup:
     """What calibrate takes from a lab's OpenSim Scale setup file (its ScaleTool)."""
 
     path: Path
     mass: float | None  # kg, the subject's body mass (<mass>); None where the file leaves it unset (0, -1)
     marker_set: Path | None  # the GenericModelMaker's marker_set_file, against the setup's folder; None: 'Unassigned'
+    #: The static's frames its applied ModelScaler and MarkerPlacer use (none where a step names no file or its
+    #: range is OpenSim's "whole file", -1 -1).
+    ranges: tuple[TimeRange, ...] = ()
 
 
 def scale_setup(path: str | Path) -> ScaleSetup:
@@ -108,7 +132,82 @@ def scale_setup(path: str | Path) -> ScaleSetup:
         if not marker_set.is_file():
             raise ModelError(f"{path}: its marker set file '{name}' is not at {marker_set}; put it there, or give "
                              f"the marker set with --marker-set")
-    return ScaleSetup(path, mass, marker_set)
+    ranges = tuple(r for step in ("ModelScaler", "MarkerPlacer")
+                   if (el := tool.find(step)) is not None and _applied(el)
+                   and (r := _time_range(path, step, el)) is not None)
+    return ScaleSetup(path, mass, marker_set, ranges)
+
+
+def ik_setup_range(path: str | Path) -> TimeRange | None:
+    """The trial file and time range the OpenSim IK setup at `path` fits (None: no file named, or the whole file).
+    ModelError with one line on a file that is not an IK setup or a time range that is not two numbers."""
+    path = Path(path)
+    tool = xml_element(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                       "an OpenSim Inverse Kinematics setup file",
+                       "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+    return _time_range(path, "InverseKinematicsTool", tool)
+
+
+def _applied(element) -> bool:
+    return (element.findtext("apply") or "true").strip().lower() == "true"
+
+
+def _time_range(path: Path, step: str, element) -> TimeRange | None:
+    """`element`'s marker_file and time_range as a TimeRange; None when it names no file ('Unassigned', empty) or
+    its range is the whole file (OpenSim's -1 -1, or none given)."""
+    name = (element.findtext("marker_file") or "").strip()
+    text = (element.findtext("time_range") or "").split()
+    if not name or name == "Unassigned" or not text:
+        return None
+    try:
+        start, stop = (float(v) for v in text)
+    except ValueError:
+        raise ModelError(f"{path}: the {step}'s time_range '{' '.join(text)}' is not two numbers; give the start "
+                         "and end time in seconds") from None
+    if start == -1 and stop == -1:
+        return None
+    return TimeRange(path, step, name, start, stop)
+
+
+def apply_time_ranges(trials: Sequence[Trial], ranges: Sequence[TimeRange | None],
+                      names: Sequence[str] | None = None) -> tuple[list[Trial], list[str]]:
+    """The trials with each one a setup names cut to its time range (to the span of all its ranges where two steps
+    name it, as a Scale setup's ModelScaler and MarkerPlacer may), and one line per setup range saying what was cut
+    or that its file is not among the trials.  A range names a trial by its file name, else by its stem (the .c3d
+    of a setup's .trc); `names`: the trials' file names when not their ``source`` (a copy read in the lab's
+    stead); a None in `ranges` (ik_setup_range of a setup that cuts nothing) is passed over.  TrialError with one
+    line when a range lies outside its trial."""
+    names = [Path(t.source or "").name for t in trials] if names is None else [Path(n).name for n in names]
+    out, lines = list(trials), []
+    spans: dict[int, list[TimeRange]] = {}
+    for r in ranges:
+        if r is None:
+            continue
+        want = Path(r.file.replace("\\", "/")).name
+        hit = [i for i, n in enumerate(names) if n == want] or [
+            i for i, n in enumerate(names) if Path(n).stem == Path(want).stem]
+        if not hit:
+            lines.append(f"{r.setup.name}: its {r.step} names {r.file}, not among the trials; its time range "
+                         f"{r.text()} not applied")
+            continue
+        spans.setdefault(hit[0], []).append(r)
+    for i, rs in spans.items():
+        start, stop = min(r.start for r in rs), max(r.stop for r in rs)
+        before = out[i].n_frames
+        out[i] = out[i].time_range(start, stop)
+        setups = sorted({r.setup.name for r in rs})
+        steps = " and ".join(dict.fromkeys(r.step for r in rs))
+        lines.append(f"{', '.join(setups)}: {names[i]} cut to {start:g} to {stop:g} s, {out[i].n_frames} of its "
+                     f"{before} frames (the {steps}'s time range; --whole-trials to use every frame)")
+    return out, lines
+
+
+def cut_to_setups(trials: Sequence[Trial], scale: ScaleSetup | None,
+                  ik: str | Path | None) -> tuple[list[Trial], list[str]]:
+    """The trials cut to the spans a lab's Scale setup (read by scale_setup) and IK setup (a path) fit, and the
+    lines saying so (apply_time_ranges): what ``--scale-setup`` and ``--ik-setup`` do to the trials."""
+    return apply_time_ranges(trials, [*(scale.ranges if scale is not None else ()),
+                                      ik_setup_range(ik) if ik is not None else None])
 
 
 def describe_setup(path: str | Path) -> list[str]:
@@ -122,13 +221,13 @@ def describe_setup(path: str | Path) -> list[str]:
         tool = root.find(".//ScaleTool")
         pairs = len(tool.findall(".//MeasurementSet//MarkerPair"))
         tasks = len(tool.findall(".//MarkerPlacer//IKMarkerTask"))
-        times = (tool.findtext(".//MarkerPlacer/time_range") or "").split()
+        cut = "; ".join(f"the {r.step} cuts {r.file} to {r.text()}" for r in setup.ranges)
         return [f"{path}: an OpenSim Scale setup",
                 "  --scale-setup takes: body mass " + (f"{setup.mass:g} kg" if setup.mass is not None else "unset")
-                + ", marker set " + (str(setup.marker_set) if setup.marker_set is not None else "unset"),
+                + ", marker set " + (str(setup.marker_set) if setup.marker_set is not None else "unset")
+                + (f"; {cut} (--whole-trials: every frame)" if cut else ""),
                 f"  not used: its {pairs} measurement marker pairs, {tasks} marker-placer marker tasks and their "
-                "weights" + (f", the static's time range {_seconds(times)}" if len(times) == 2 else "")
-                + " (calibrate scales every segment and places every marker from all frames of the trials given)"]
+                "weights (calibrate scales every segment and places every marker from the frames it is given)"]
     tool = root.find(".//InverseKinematicsTool")
     if tool is None:
         hint = (f"an OpenSim MarkerSet is read with its model: calibrate inspect MODEL.osim --marker-set {path.name}"
@@ -136,26 +235,19 @@ def describe_setup(path: str | Path) -> list[str]:
         raise ModelError(f"{path}: neither a <ScaleTool> nor an <InverseKinematicsTool>; {hint}")
     held = []
     for task in tool.iter("IKCoordinateTask"):
-        if (task.findtext("apply") or "true").strip().lower() != "true":
+        if not _applied(task):
             continue
         kind = (task.findtext("value_type") or "default_value").strip()
         held.append(f"{task.get('name', '')} (" + ("the model's default" if kind == "default_value" else
                     f"{float(task.findtext('value') or 0.0):g}" if kind == "manual_value" else kind) + ")")
-    markers = [t for t in tool.iter("IKMarkerTask") if (t.findtext("apply") or "true").strip().lower() == "true"]
-    times = (tool.findtext("time_range") or "").split()
+    markers = [t for t in tool.iter("IKMarkerTask") if _applied(t)]
+    span = ik_setup_range(path)
     return [f"{path}: an OpenSim IK setup",
-            f"  --ik-setup locks {len(held)} coordinates its tasks hold: " + (", ".join(held) or "none"),
+            f"  --ik-setup locks {len(held)} coordinates its tasks hold: " + (", ".join(held) or "none")
+            + (f"; cuts {span.file} to {span.text()} (--whole-trials: every frame)" if span is not None else ""),
             f"  not used: its {len(markers)} applied marker tasks and their weights (calibrate learns each marker's "
-            "noise)" + (f", the trial {tool.findtext('marker_file', '').strip()}" if tool.findtext("marker_file")
-                        else "") + (f" and its time range {_seconds(times)}" if len(times) == 2 else "")
-            + " (give the trials on the command line)"]
+            "noise)"]
 
 
-def _seconds(times: list[str]) -> str:
-    try:
-        return f"{float(times[0]):g} to {float(times[1]):g} s"
-    except ValueError:
-        return " to ".join(times)
-
-
-__all__ = ["ScaleSetup", "describe_setup", "ik_setup_locks", "scale_setup", "with_ik_setup"]
+__all__ = ["ScaleSetup", "TimeRange", "apply_time_ranges", "cut_to_setups", "describe_setup", "ik_setup_locks",
+           "ik_setup_range", "scale_setup", "with_ik_setup"]

@@ -156,6 +156,7 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
     outputs = {i: np.empty((n_rows, 3)) for i in kinds}
     keep_cols = (2 + 3 * np.asarray(keep)[:, None] + np.arange(3)).ravel()
     first_number = np.nan
+    first_time = None  # the Time column's first value (OpenSim's time ranges count from it)
     r = 0
     for number, line in _lines(path, encoding):
         if number < 5 or not line.strip():
@@ -180,6 +181,7 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
             first_number = row[0]
             if not np.isfinite(first_number) or first_number != int(first_number):
                 raise fail(path, f"line {number + 1}: Frame# should be a whole number, got {cells[0]!r}", redo)
+            first_time = float(row[1]) if np.isfinite(row[1]) else None
         markers[r] = (row[keep_cols] * scale).reshape(len(keep), 3)
         for i, out in outputs.items():
             out[r] = row[2 + 3 * i:5 + 3 * i]
@@ -194,6 +196,7 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
         rate=rate,
         first_frame=max(int(first_number) - 1, 0),
         source=str(path),
+        start_time=first_time,
         model_outputs={labels[i]: outputs[i] * (scale if kind == "point" else 1.0) for i, kind in kinds.items()},
         output_kinds={labels[i]: kind for i, kind in kinds.items()},
         output_units={labels[i]: "m" if kind == "point" else "file units" for i, kind in kinds.items()},

@@ -219,6 +219,10 @@ class Trial:
     #: What the lab measured on the subject (body mass, height, joint widths: a Plug-in Gait session's
     #: PROCESSING parameters), None when the file carries none.
     measurements: SubjectMeasurements | None = None
+    #: Time of the first frame in seconds as the file gives it (a TRC's Time column, which need not be
+    #: ``first_frame / rate``: OpenSim's example running trial starts at frame 23, 0.23 s at 100 Hz); None:
+    #: ``first_frame / rate``.  The lab's time ranges (an OpenSim setup's) and the motion's times count from it.
+    start_time: float | None = None
 
     def __post_init__(self) -> None:
         where = origin(self.source)
@@ -273,6 +277,14 @@ class Trial:
         if first_frame < 0:
             raise TrialError(f"{where}: first frame must be 0 or more (0-based), got {first_frame}")
 
+        if self.start_time is not None:
+            try:
+                start_time = float(self.start_time)
+            except (TypeError, ValueError):
+                raise TrialError(f"{where}: start time {self.start_time!r} is not a number") from None
+            if not np.isfinite(start_time):
+                raise TrialError(f"{where}: start time must be a finite number of seconds, got {start_time}")
+            object.__setattr__(self, "start_time", start_time)
         source = None if self.source is None else str(self.source)
         outputs: dict[str, np.ndarray] = {}
         for name, values in dict(self.model_outputs).items():
@@ -312,7 +324,10 @@ class Trial:
 
     @property
     def times(self) -> np.ndarray:
-        """Time of each frame in seconds, counted from the first frame of the original recording."""
+        """Time of each frame in seconds: from ``start_time`` where the file gave one, else counted from the
+        first frame of the original recording (``first_frame / rate``)."""
+        if self.start_time is not None:
+            return self.start_time + np.arange(self.n_frames) / self.rate
         return (self.first_frame + np.arange(self.n_frames)) / self.rate
 
     def _index(self, label: str) -> int:
@@ -356,7 +371,26 @@ class Trial:
                 "choose start and stop with 0 <= start <= stop <= number of frames"
             )
         return replace(self, markers=self.markers[start:stop], first_frame=self.first_frame + start,
-                       model_outputs={name: values[start:stop] for name, values in self.model_outputs.items()})
+                       model_outputs={name: values[start:stop] for name, values in self.model_outputs.items()},
+                       start_time=None if self.start_time is None else self.start_time + start / self.rate)
+
+    def time_range(self, start: float, stop: float) -> Trial:
+        """The frames from time `start` to `stop` (s, as ``times`` counts them), both ends taken to the nearest
+        frame and kept, as OpenSim's tools read a setup's ``time_range``.  TrialError with one line when the range
+        is reversed or lies wholly outside the trial."""
+        start, stop = float(start), float(stop)
+        times = self.times
+        half = 0.5 / self.rate
+        if not (np.isfinite(start) and np.isfinite(stop)) or stop < start:
+            raise TrialError(f"{origin(self.source)}: time range {start:g} to {stop:g} s is not a range; give the "
+                             "start first")
+        if self.n_frames == 0 or stop < times[0] - half or start > times[-1] + half:
+            span = f"{times[0]:g} to {times[-1]:g} s" if self.n_frames else "no frames"
+            raise TrialError(f"{origin(self.source)}: time range {start:g} to {stop:g} s lies outside the trial "
+                             f"({span}); check the setup's time_range against this trial")
+        first = int(np.clip(np.rint((start - times[0]) * self.rate), 0, self.n_frames - 1))
+        last = int(np.clip(np.rint((stop - times[0]) * self.rate), first, self.n_frames - 1))
+        return self.frames(first, last + 1)
 
 
 def check_input_file(path: Path) -> int:

@@ -1,0 +1,124 @@
+"""The time ranges of a lab's OpenSim setups: a TRC's Time column, the Scale setup's static span and the IK setup's
+span cut from the trials they name (calibrate.io.osim_setup.apply_time_ranges; --whole-trials keeps every frame)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.cli.main import main
+from calibrate.errors import TrialError
+from calibrate.io.osim_setup import TimeRange, apply_time_ranges, ik_setup_range, scale_setup
+from calibrate.io.read import read_trial
+from calibrate.io.trc import read_trc
+from calibrate.model.model import load_model
+from tests.test_osim_import import _muscled_trial, muscle_osim
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
+
+
+def _trc_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The Time column and the first marker's x (file units) of a TRC, read with numpy alone."""
+    rows = [line.split("\t") for line in path.read_text().splitlines()[5:] if line.strip()]
+    return np.array([float(r[1]) for r in rows]), np.array([float(r[2]) for r in rows])
+
+
+def test_a_trc_time_column_gives_the_trial_its_times(tmp_path):
+    """A TRC whose Time column is not (Frame# - 1) / rate (OpenSim's running trial: frame 23 at 0.23 s, 100 Hz): the
+    trial's times are the file's, ``frames`` keeps them, and ``time_range`` takes the frames nearest a range's ends
+    (both kept); a reversed range or one outside the trial: one line."""
+    lines = ["PathFileType\t4\t(X/Y/Z)\trun.trc",
+             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+             "100\t100\t40\t1\tmm\t100\t23\t40", "Frame#\tTime\tA\t\t", "\t\tX1\tY1\tZ1", ""]
+    lines += [f"{23 + i}\t{0.23 + i / 100:.6f}\t{i + 1.0}\t2\t3" for i in range(40)]
+    path = tmp_path / "run.trc"
+    path.write_text("\n".join(lines) + "\n")
+    times, x = _trc_columns(path)
+    trial = read_trc(path)
+    assert trial.first_frame == 22 and trial.times == pytest.approx(times, abs=1e-9)  # not (22 + i) / 100
+    assert trial.frames(5, 9).times == pytest.approx(times[5:9], abs=1e-9)
+    cut = trial.time_range(0.25, 0.30)
+    keep = (times > 0.25 - 0.005) & (times < 0.30 + 0.005)
+    assert cut.n_frames == keep.sum() == 6
+    assert cut.times == pytest.approx(times[keep], abs=1e-9)
+    assert cut.markers[:, 0, 0] == pytest.approx(x[keep] / 1000)
+    assert trial.time_range(0.0, 9.0).n_frames == 40  # beyond the ends: to the ends
+    for start, stop, needle in [(0.3, 0.25, "is not a range"), (1.0, 2.0, "lies outside the trial (0.23 to 0.62 s)")]:
+        with pytest.raises(TrialError) as e:
+            trial.time_range(start, stop)
+        assert needle in str(e.value) and str(path) in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.skipif(not (REAL / "gait2392").is_dir(), reason="the real trials (../shared/data/real) are not here")
+def test_the_gait2392_pipelines_setups_cut_its_static_and_walk():
+    """OpenSim's gait2392 example: its Scale setup's scaler and marker placer both use 1 to 2 s of
+    subject01_static.trc, its IK setup 0.5 to 2.5 s of subject01_walk1.trc; cut, the trials keep exactly the rows
+    of those times (61 and 121: the frames OpenSim's tools fit), marker for marker.  A range naming a trial not
+    given is reported, not applied; a .c3d of the setup's .trc (same stem) is cut as the .trc would be."""
+    d = REAL / "gait2392"
+    setup = scale_setup(d / "subject01_Setup_Scale.xml")
+    assert [(r.step, r.file, r.start, r.stop) for r in setup.ranges] == [
+        ("ModelScaler", "subject01_static.trc", 1.0, 2.0), ("MarkerPlacer", "subject01_static.trc", 1.0, 2.0)]
+    ik = ik_setup_range(d / "subject01_Setup_IK.xml")
+    assert (ik.file, ik.start, ik.stop) == ("subject01_walk1.trc", 0.5, 2.5)
+    static, walk = read_trial(d / "subject01_static.trc"), read_trial(d / "subject01_walk1.trc")
+    absent = TimeRange(d / "other_Setup.xml", "MarkerPlacer", "static_2.trc", 0.0, 0.1)
+    (cs, cw), lines = apply_time_ranges([static, walk], [*setup.ranges, ik, absent])
+    for trial, cut, (lo, hi) in [(static, cs, (1.0, 2.0)), (walk, cw, (0.5, 2.5))]:
+        times, x = _trc_columns(Path(trial.source))
+        keep = (times > lo - 1e-6) & (times < hi + 1e-6)  # the file's own times, rounded to 3 decimals
+        assert cut.n_frames == keep.sum()
+        assert np.allclose(cut.markers[:, 0, 0] * 1000, x[keep], rtol=0, atol=1e-9)
+    assert (cs.n_frames, cw.n_frames) == (61, 121)
+    assert lines == [
+        "other_Setup.xml: its MarkerPlacer names static_2.trc, not among the trials; its time range 0 to 0.1 s "
+        "not applied",
+        "subject01_Setup_Scale.xml: subject01_static.trc cut to 1 to 2 s, 61 of its 300 frames (the ModelScaler and "
+        "MarkerPlacer's time range; --whole-trials to use every frame)",
+        "subject01_Setup_IK.xml: subject01_walk1.trc cut to 0.5 to 2.5 s, 121 of its 151 frames (the "
+        "InverseKinematicsTool's time range; --whole-trials to use every frame)"]
+    (c3d_cut,), _ = apply_time_ranges([static], setup.ranges, names=["lab/subject01_static.c3d"])
+    assert c3d_cut.n_frames == 61
+
+
+def _ik_setup_with_range(trial: str, start: float, stop: float) -> str:
+    return ("<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='ik'><IKTaskSet>"
+            "<objects/></IKTaskSet>"
+            f"<marker_file>{trial}</marker_file><time_range> {start} {stop}</time_range></InverseKinematicsTool>"
+            "</OpenSimDocument>")
+
+
+def test_the_command_line_fits_the_ik_setups_frames(tmp_path, capsys):
+    """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml` whose setup names the trial and 0.1 to 0.3 s of it: the motion
+    (CSV and .mot) holds those 13 frames at their times, and a note says so; --whole-trials: all 30; --frames beside
+    the range: one line, exit 2, nothing written.  `calibrate inspect` says what the setup cuts."""
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    trc = _muscled_trial(tmp_path, load_model(src))  # 30 frames at 60 Hz
+    setup = tmp_path / "Setup_IK.xml"
+    setup.write_text(_ik_setup_with_range("trial.trc", 0.1, 0.3))
+    for k, extra, frames in [(0, [], 13), (1, ["--whole-trials"], 30)]:
+        out = tmp_path / f"run{k}"
+        out.mkdir()
+        code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(out / "s.urdf"), "--no-new-markers",
+                     *extra])
+        err = capsys.readouterr().err
+        assert code == 0, err
+        rows = (out / "trial_motion.csv").read_text().splitlines()[1:]
+        times = np.array([float(r.split(",")[0]) for r in rows])
+        assert times == pytest.approx((np.arange(frames) + (6 if k == 0 else 0)) / 60, abs=1e-9)
+        report = json.loads((out / "trial_report.json").read_text())
+        assert report["trials"][0]["frames"] == frames
+        note = "note: Setup_IK.xml: trial.trc cut to 0.1 to 0.3 s, 13 of its 30 frames"
+        assert (note in err) == (k == 0), err
+    out = tmp_path / "run2"
+    out.mkdir()
+    code = main([str(trc), str(src), "--ik-setup", str(setup), "--frames", "0:20", "-o", str(out / "s.urdf"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--frames and the setup's time range both select frames" in err[0], err
+    assert not any(out.iterdir())
+    assert main(["inspect", str(setup)]) == 0
+    assert "cuts trial.trc to 0.1 to 0.3 s (--whole-trials: every frame)" in capsys.readouterr().out
