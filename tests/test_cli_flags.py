@@ -513,3 +513,17 @@ def test_the_program_ends_at_once_after_a_calibration_with_its_exit_handlers_run
                        cwd=tmp_path, timeout=300)
     assert r.returncode == 0, r.stderr
     assert prof.stat().st_size > 0 and (tmp_path / "s2.urdf").exists()
+
+
+def test_output_piped_into_a_reader_that_stops_ends_quietly(tmp_path):
+    """`calibrate inspect MODEL | head`: the reader gone before calibrate writes, the program ends with 141 (128 +
+    SIGPIPE, as Unix tools do) and no traceback on stderr."""
+    import subprocess
+    import sys
+
+    model = Path(__file__).resolve().parents[1] / "models" / "human.urdf"
+    proc = subprocess.Popen([sys.executable, "-c", "from calibrate.cli.main import run; run()", "inspect",
+                             str(model)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # before the interpreter has even imported calibrate: every write finds no reader
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141 and "Traceback" not in err and "BrokenPipe" not in err, err

@@ -26,10 +26,10 @@ def _trc_columns(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array([float(r[1]) for r in rows]), np.array([float(r[2]) for r in rows])
 
 
-def test_a_trc_time_column_gives_the_trial_its_times(tmp_path):
+def test_a_trc_time_column_gives_the_trial_its_times(tmp_path, capsys):
     """A TRC whose Time column is not (Frame# - 1) / rate (OpenSim's running trial: frame 23 at 0.23 s, 100 Hz): the
     trial's times are the file's, ``frames`` keeps them, and ``time_range`` takes the frames nearest a range's ends
-    (both kept); a reversed range or one outside the trial: one line."""
+    (both kept); `calibrate inspect` shows those times; a reversed range or one outside the trial: one line."""
     lines = ["PathFileType\t4\t(X/Y/Z)\trun.trc",
              "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
              "100\t100\t40\t1\tmm\t100\t23\t40", "Frame#\tTime\tA\t\t", "\t\tX1\tY1\tZ1", ""]
@@ -46,6 +46,8 @@ def test_a_trc_time_column_gives_the_trial_its_times(tmp_path):
     assert cut.times == pytest.approx(times[keep], abs=1e-9)
     assert cut.markers[:, 0, 0] == pytest.approx(x[keep] / 1000)
     assert trial.time_range(0.0, 9.0).n_frames == 40  # beyond the ends: to the ends
+    assert main(["inspect", str(path)]) == 0
+    assert "first frame 22 (0-based), times 0.23 to 0.62 s" in capsys.readouterr().out
     for start, stop, needle in [(0.3, 0.25, "is not a range"), (1.0, 2.0, "lies outside the trial (0.23 to 0.62 s)")]:
         with pytest.raises(TrialError) as e:
             trial.time_range(start, stop)

@@ -413,7 +413,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     t = read_trial(path)
     gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
     print(f"{path}: {t.n_frames} frames at {t.rate:g} Hz ({t.n_frames / t.rate:.2f} s), {t.n_markers} markers, "
-          f"first frame {t.first_frame}")
+          f"first frame {t.first_frame} (0-based)" + (f", times {t.times[0]:g} to {t.times[-1]:g} s (a setup's "
+                                                      "time_range counts in these)" if t.n_frames else ""))
     if (m := t.measurements) is not None:  # a Plug-in Gait session's subject measurements (PROCESSING)
         parts = ([f"mass {m.mass:g} kg"] if m.mass is not None else []) + \
             ([f"height {m.height:g} m"] if m.height is not None else []) + \

@@ -273,8 +273,14 @@ def run() -> None:
     calibration out at once.  Python's teardown then frees every module and object one by one, 0.1 s
     of a 4.5 s run on pig_walk; the outputs are written and closed by then, the worker threads idle and
     any child reaped.  The exit handlers still run.  Under a profiler or tracer (cProfile, coverage)
-    Python ends as usual, so that theirs can report."""
-    code = main()
+    Python ends as usual, so that theirs can report.  Output piped into a reader that stops early
+    (``calibrate inspect model.osim | head``) ends the program quietly, as Unix tools do."""
+    try:
+        code = main()
+    except BrokenPipeError:
+        # Python's own flush of stdout at exit would raise again: point stdout at /dev/null first.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        os._exit(141)  # 128 + SIGPIPE, what a shell reports for a tool the pipe closed on
     if _calibrating(sys.argv[1:]) and sys.getprofile() is None and sys.gettrace() is None:
         sys.stdout.flush()
         sys.stderr.flush()
