@@ -96,7 +96,8 @@ def _ik_setup_with_range(trial: str, start: float, stop: float) -> str:
 def test_the_command_line_fits_the_ik_setups_frames(tmp_path, capsys):
     """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml` whose setup names the trial and 0.1 to 0.3 s of it: the motion
     (CSV and .mot) holds those 13 frames at their times, and a note says so; --whole-trials: all 30; --frames beside
-    the range: one line, exit 2, nothing written.  `calibrate inspect` says what the setup cuts."""
+    the range, or a range beyond the trial: one line, exit 2, nothing written.  `calibrate inspect` says what the setup
+    cuts."""
     src = tmp_path / "muscled.osim"
     src.write_text(muscle_osim())
     trc = _muscled_trial(tmp_path, load_model(src))  # 30 frames at 60 Hz
@@ -124,3 +125,10 @@ def test_the_command_line_fits_the_ik_setups_frames(tmp_path, capsys):
     assert not any(out.iterdir())
     assert main(["inspect", str(setup)]) == 0
     assert "cuts trial.trc to 0.1 to 0.3 s (--whole-trials: every frame)" in capsys.readouterr().out
+    far = tmp_path / "Setup_IK_far.xml"  # a range beyond the trial's 0.48 s: one line naming the setup, exit 2
+    far.write_text(_ik_setup_with_range("trial.trc", 10, 12))
+    code = main([str(trc), str(src), "--ik-setup", str(far), "-o", str(out / "s.urdf"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("calibrate: error: Setup_IK_far.xml: ") and (
+        "time range 10 to 12 s lies outside the trial" in err[0] and "--whole-trials" in err[0]), err
+    assert not any(out.iterdir())

@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ModelError
+from ..errors import ModelError, TrialError
 from .osim_read import xml_element
 from .trial import Trial
 
@@ -194,8 +194,11 @@ def apply_time_ranges(trials: Sequence[Trial], ranges: Sequence[TimeRange | None
     for i, rs in spans.items():
         start, stop = min(r.start for r in rs), max(r.stop for r in rs)
         before = out[i].n_frames
-        out[i] = out[i].time_range(start, stop)
         setups = sorted({r.setup.name for r in rs})
+        try:
+            out[i] = out[i].time_range(start, stop)
+        except TrialError as e:  # the setup named, and the way round it
+            raise TrialError(f"{', '.join(setups)}: {e}; or pass --whole-trials") from None
         steps = " and ".join(dict.fromkeys(r.step for r in rs))
         lines.append(f"{', '.join(setups)}: {names[i]} cut to {start:g} to {stop:g} s, {out[i].n_frames} of its "
                      f"{before} frames (the {steps}'s time range; --whole-trials to use every frame)")
