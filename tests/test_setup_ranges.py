@@ -95,7 +95,8 @@ def _ik_setup_with_range(trial: str, start: float, stop: float) -> str:
 
 def test_the_command_line_fits_the_ik_setups_frames(tmp_path, capsys):
     """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml` whose setup names the trial and 0.1 to 0.3 s of it: the motion
-    (CSV and .mot) holds those 13 frames at their times, and a note says so; --whole-trials: all 30; --frames beside
+    (CSV and .mot) holds those 13 frames at their times, a note says so, the summary and the report give the span;
+    --whole-trials: all 30; --frames beside
     the range, or a range beyond the trial: one line, exit 2, nothing written.  `calibrate inspect` says what the setup
     cuts."""
     src = tmp_path / "muscled.osim"
@@ -108,13 +109,17 @@ def test_the_command_line_fits_the_ik_setups_frames(tmp_path, capsys):
         out.mkdir()
         code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(out / "s.urdf"), "--no-new-markers",
                      *extra])
-        err = capsys.readouterr().err
+        captured = capsys.readouterr()
+        err = captured.err
         assert code == 0, err
         rows = (out / "trial_motion.csv").read_text().splitlines()[1:]
         times = np.array([float(r.split(",")[0]) for r in rows])
         assert times == pytest.approx((np.arange(frames) + (6 if k == 0 else 0)) / 60, abs=1e-9)
         report = json.loads((out / "trial_report.json").read_text())
         assert report["trials"][0]["frames"] == frames
+        span = [0.1, 0.3] if k == 0 else [0.0, 29 / 60]
+        assert report["trials"][0]["times_s"] == pytest.approx(span, abs=1e-6)
+        assert f"trial.trc: {frames} frames at 60 Hz ({span[0]:.4g} to {span[1]:.4g} s)" in captured.out
         note = "note: Setup_IK.xml: trial.trc cut to 0.1 to 0.3 s, 13 of its 30 frames"
         assert (note in err) == (k == 0), err
     out = tmp_path / "run2"

@@ -73,6 +73,7 @@ def calibration_report(cal: Calibration) -> dict:
         res = cal.residuals[cal.trial_frames(i)]
         err = np.linalg.norm(res, axis=2)
         entry = {"source": t.source, "frames": t.n_frames, "rate_hz": t.rate, "first_frame": t.first_frame,
+                 "times_s": [round(float(t.times[0]), 6), round(float(t.times[-1]), 6)] if t.n_frames else None,
                  "rms_mm": _mm(marker_rms(res)), "max_mm": _mm(np.nanmax(err)) if np.isfinite(err).any() else None,
                  "outliers": sum(1 for o in cal.outliers if o.trial == i)}
         if cal.trial_weights and cal.trial_weights[i] < t.n_frames:  # a still trial counted as a few frames
@@ -417,8 +418,9 @@ def summary_text(cal) -> str:
         res = cal.residuals[cal.trial_frames(i)]
         weighed = (f" (still: its frames count as {cal.trial_weights[i]:g} in all, --still-weight)"
                    if cal.trial_weights and cal.trial_weights[i] < trial.n_frames else "")
+        span = f" ({trial.times[0]:.4g} to {trial.times[-1]:.4g} s)" if trial.n_frames else ""
         lines.append(f"  {'trial' if i == 0 else '':13s}{trial.source or '(in memory)'}: {trial.n_frames} frames at "
-                     f"{trial.rate:g} Hz, marker RMS {1000 * marker_rms(res):.2f} mm{weighed}")
+                     f"{trial.rate:g} Hz{span}, marker RMS {1000 * marker_rms(res):.2f} mm{weighed}")
     if cal.still_only is not None:
         lines.append(f"  still only   {'every trial is' if len(cal.trials) > 1 else 'the trial is'} still (markers on "
                      f"different segments keep their distances to {1e3 * cal.still_only:.1f} mm SD; a walk's move "
