@@ -137,3 +137,51 @@ def test_the_command_line_fits_the_ik_setups_frames(tmp_path, capsys):
     assert code == 2 and len(err) == 1 and err[0].startswith("calibrate: error: Setup_IK_far.xml: ") and (
         "time range 10 to 12 s lies outside the trial" in err[0] and "--whole-trials" in err[0]), err
     assert not any(out.iterdir())
+
+
+def test_one_ik_setup_per_trial(tmp_path, capsys):
+    """A lab keeps one IK setup per trial: `--ik-setup A.xml --ik-setup B.xml` cuts each trial to its own setup's span
+    and locks what either holds; two setups holding one coordinate at different values: one line naming both, exit
+    2, nothing written.  A batch manifest lists them (TOML) or separates them by ';' (CSV)."""
+    import shutil
+
+    from calibrate.calibration.batch import read_manifest
+    from tests.test_osim_import import _task
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    trc = _muscled_trial(tmp_path, load_model(src))  # 30 frames at 60 Hz
+    shutil.copy(trc, tmp_path / "trial2.trc")
+
+    def setup(name: str, trial: str, start: float, stop: float, task: str) -> Path:
+        path = tmp_path / name
+        path.write_text(_ik_setup_with_range(trial, start, stop).replace("<objects/>", f"<objects>{task}</objects>"))
+        return path
+
+    a = setup("A.xml", "trial.trc", 0.1, 0.3, _task("knee_q", "manual_value", -0.25))
+    b = setup("B.xml", "trial2.trc", 0.2, 0.4, _task("knee_q", "manual_value", -0.25))
+    out = tmp_path / "run"
+    out.mkdir()
+    code = main([str(trc), str(tmp_path / "trial2.trc"), str(src), "--ik-setup", str(a), "--ik-setup", str(b),
+                 "-o", str(out / "s.urdf"), "--no-new-markers", "-q"])
+    assert code == 0, capsys.readouterr().err
+    for name, first in [("trial", 6), ("trial2", 12)]:
+        rows = (out / f"{name}_motion.csv").read_text().splitlines()
+        head = rows[0].split(",")
+        values = np.array([[float(v) for v in r.split(",")] for r in rows[1:]])
+        assert values[:, 0] == pytest.approx((first + np.arange(13)) / 60, abs=1e-9)
+        assert np.allclose(values[:, head.index("knee_q")], -0.25, atol=1e-6)
+    c = setup("C.xml", "trial2.trc", 0.2, 0.4, _task("knee_q", "manual_value", 0.1))
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    code = main([str(trc), str(tmp_path / "trial2.trc"), str(src), "--ik-setup", str(a), "--ik-setup", str(c),
+                 "-o", str(bad / "s.urdf"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and str(c) in err[0] and "A.xml's at -0.25" in err[0], err
+    assert not any(bad.iterdir())
+    (tmp_path / "m.toml").write_text('[[subject]]\nid = "S"\ntrials = ["trial.trc", "trial2.trc"]\n'
+                                     'model = "muscled.osim"\nik_setup = ["A.xml", "B.xml"]\n')
+    (tmp_path / "m.csv").write_text("subject,trials,model,ik_setup\nS,trial.trc;trial2.trc,muscled.osim,A.xml;B.xml\n"
+                                    "T,trial.trc,muscled.osim,A.xml\n")
+    assert read_manifest(tmp_path / "m.toml")[0].ik_setup == (a, b)
+    assert [s.ik_setup for s in read_manifest(tmp_path / "m.csv")] == [(a, b), (a,)]

@@ -19,11 +19,13 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     markers = "labels.toml"           # optional: the lab's label map (calibrate --markers)
     mass = 68.0                       # optional: kg
     marker_set = "gait2392_Scale_MarkerSet.xml"   # optional, an .osim model only: as --marker-set
-    ik_setup = "S01/Setup_IK.xml"                 # ... as --ik-setup (the coordinates it holds locked)
+    ik_setup = "S01/Setup_IK.xml"                 # ... as --ik-setup (the coordinates it holds locked; a list:
+                                                  #     one per trial)
     scale_setup = "S01/Setup_Scale.xml"           # ... as --scale-setup (mass and marker set, unless given)
     whole_trials = true                           # optional: as --whole-trials (not the setups' time ranges)
 
-    subject,trials,model,markers,mass # CSV: trials separated by ';', markers and mass may be empty; optional
+    subject,trials,model,markers,mass # CSV: trials (and IK setups) separated by ';', markers and mass may be
+                                      # empty; optional
     S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup,
                                                             # whole_trials
 
@@ -69,7 +71,7 @@ class Subject:
     markers: Path | None = None
     mass: float | None = None
     marker_set: Path | None = None  # an OpenSim model's MarkerSet file (calibrate --marker-set)
-    ik_setup: Path | None = None  # the lab's OpenSim IK setup: the coordinates it holds locked (--ik-setup)
+    ik_setup: tuple[Path, ...] = ()  # the lab's OpenSim IK setups (one per trial): what they hold locked (--ik-setup)
     scale_setup: Path | None = None  # the lab's OpenSim Scale setup: mass and marker set (--scale-setup)
     whole_trials: bool = False  # every frame, not the setups' time ranges (--whole-trials)
 
@@ -141,12 +143,16 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
             value = row.get(key)
             if value is None:
                 continue
-            if not isinstance(value, str) or not value.strip():
-                raise CalibrateError(f"{where} ({sid}): '{key}' must name a file (an OpenSim {key.replace('_', ' ')})")
+            many = key == "ik_setup"  # one IK setup per trial: a list, or (CSV) files separated by ';'
+            items = ([v for v in value.split(";") if v.strip()] if many and isinstance(value, str)
+                     else value if many else [value])
+            if not isinstance(items, list) or not items or not all(isinstance(v, str) and v.strip() for v in items):
+                raise CalibrateError(f"{where} ({sid}): '{key}' must name a file (an OpenSim {key.replace('_', ' ')})"
+                                     + (", or list one per trial" if many else ""))
             if not row["model"].strip().lower().endswith(".osim"):
                 raise CalibrateError(f"{where} ({sid}): '{key}' applies to an OpenSim base model (.osim), and "
                                      f"{row['model'].strip()} is not one; leave it out or give the .osim")
-            opensim[key] = base / value.strip()
+            opensim[key] = tuple(base / v.strip() for v in items) if many else base / items[0].strip()
         whole = row.get("whole_trials", False)
         if not isinstance(whole, bool):
             raise CalibrateError(f"{where} ({sid}): 'whole_trials' must be true or false, got {whole!r}")
@@ -205,12 +211,12 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
                             _mtime(marker_set))
         # The workers keep the cores busy already: nothing is run ahead in another process (Settings.ahead).
         settings = Settings(ahead=False)
-        if subject.ik_setup is not None:
+        if subject.ik_setup:
             from ..io.osim_setup import with_ik_setup
 
             settings = with_ik_setup(model, settings, subject.ik_setup)
         trials = [read_trial(t) for t in subject.trials]
-        if not subject.whole_trials and (setup is not None or subject.ik_setup is not None):
+        if not subject.whole_trials and (setup is not None or subject.ik_setup):
             # The frames the lab's Scale and IK tools fit, as the command line cuts them (--whole-trials: every one).
             from ..io.osim_setup import cut_to_setups
 

@@ -231,10 +231,11 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                          "subject01_Setup_Scale.xml), for the subject's body mass and the marker set it names (--mass "
                          "and --marker-set win), and the static's time range its scaler and marker placer use "
                          "(docs/opensim.md)")
-    ap.add_argument("--ik-setup", type=Path, default=None, metavar="XML",
+    ap.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",
                     help="a lab's OpenSim IK setup file (e.g. subject01_Setup_IK.xml): the coordinates its coordinate "
                          "tasks hold (Gait2392's subtalar and mtp angles) are locked at their values, as its IK "
-                         "holds them (--lock overrides), and its trial is cut to its time range (docs/opensim.md)")
+                         "holds them (--lock overrides), and its trial is cut to its time range; repeat it for "
+                         "each trial's setup (docs/opensim.md)")
     ap.add_argument("--whole-trials", action="store_true",
                     help="use every frame of the trials, not the time ranges --scale-setup and --ik-setup name")
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")

@@ -71,14 +71,29 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     return tuple(locks)
 
 
-def with_ik_setup(model, settings, path: str | Path):
-    """`settings` with the IK setup's held coordinates added to Settings.lock (those the settings already lock
-    keep their values)."""
+def with_ik_setup(model, settings, path: str | Path | Sequence[str | Path]):
+    """`settings` with the held coordinates of the IK setup at `path` (or of several: a lab keeps one per trial)
+    added to Settings.lock (those the settings already lock keep their values).  Two setups that hold one
+    coordinate at different values: ModelError with one line naming both."""
     from dataclasses import replace
 
-    have = dict(settings.lock)
-    merged = {**dict(ik_setup_locks(path, model)), **have}
+    held: dict[str, float] = {}
+    where: dict[str, Path] = {}
+    for one in _paths(path):
+        for name, value in ik_setup_locks(one, model):
+            if name in held and not math.isclose(held[name], value, rel_tol=0.0, abs_tol=1e-12):
+                raise ModelError(f"{one}: its task holds {name} at {value:g}, and {where[name].name}'s at "
+                                 f"{held[name]:g} (rad or m); make the setups agree, or hold it with --lock {name}=DEG")
+            held[name], where[name] = value, Path(one)
+    merged = {**held, **dict(settings.lock)}
     return replace(settings, lock=tuple(sorted(merged.items())))
+
+
+def _paths(path: str | Path | Sequence[str | Path] | None) -> list[Path]:
+    """One setup path or several, as a list (none for None)."""
+    if path is None:
+        return []
+    return [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
 
 
 @dataclass(frozen=True)
@@ -206,11 +221,12 @@ def apply_time_ranges(trials: Sequence[Trial], ranges: Sequence[TimeRange | None
 
 
 def cut_to_setups(trials: Sequence[Trial], scale: ScaleSetup | None,
-                  ik: str | Path | None) -> tuple[list[Trial], list[str]]:
-    """The trials cut to the spans a lab's Scale setup (read by scale_setup) and IK setup (a path) fit, and the
-    lines saying so (apply_time_ranges): what ``--scale-setup`` and ``--ik-setup`` do to the trials."""
+                  ik: str | Path | Sequence[str | Path] | None) -> tuple[list[Trial], list[str]]:
+    """The trials cut to the spans a lab's Scale setup (read by scale_setup) and IK setups (a path or several, one
+    per trial) fit, and the lines saying so (apply_time_ranges): what ``--scale-setup`` and ``--ik-setup`` do to
+    the trials."""
     return apply_time_ranges(trials, [*(scale.ranges if scale is not None else ()),
-                                      ik_setup_range(ik) if ik is not None else None])
+                                      *(ik_setup_range(one) for one in _paths(ik))])
 
 
 def describe_setup(path: str | Path) -> list[str]:
