@@ -185,3 +185,31 @@ def test_one_ik_setup_per_trial(tmp_path, capsys):
                                     "T,trial.trc,muscled.osim,A.xml\n")
     assert read_manifest(tmp_path / "m.toml")[0].ik_setup == (a, b)
     assert [s.ik_setup for s in read_manifest(tmp_path / "m.csv")] == [(a, b), (a,)]
+
+
+def test_a_scale_setup_that_does_not_preserve_the_mass_distribution_is_named(tmp_path, capsys):
+    """A Scale setup whose ModelScaler says preserve_mass_distribution false (OpenSim would scale each segment's mass
+    by its size first): calibrate still scales every mass alike, and says so in the run's note and in `inspect`;
+    its ModelScaler's static span cuts the trial (0 to 0.2 s: 13 of 30 frames at 60 Hz)."""
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    trc = _muscled_trial(tmp_path, load_model(src))
+    setup = tmp_path / "Setup_Scale.xml"
+    setup.write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='s'><mass>61.5</mass>"
+                     "<ModelScaler><apply>true</apply><marker_file>trial.trc</marker_file><time_range>0 0.2"
+                     "</time_range><preserve_mass_distribution>false</preserve_mass_distribution></ModelScaler>"
+                     "</ScaleTool></OpenSimDocument>")
+    got = scale_setup(setup)
+    assert not got.preserve_mass and got.mass == 61.5 and [(r.step, r.start, r.stop) for r in got.ranges] == [
+        ("ModelScaler", 0.0, 0.2)]
+    out = tmp_path / "run"
+    out.mkdir()
+    code = main([str(trc), str(src), "--scale-setup", str(setup), "-o", str(out / "s.urdf"), "--no-new-markers"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert ("note: Setup_Scale.xml: mass 61.5 kg taken; its preserve_mass_distribution is false, yet calibrate "
+            "scales every segment's mass alike") in captured.err
+    assert "trial.trc cut to 0 to 0.2 s, 13 of its 30 frames (the ModelScaler's time range" in captured.err
+    assert json.loads((out / "trial_report.json").read_text())["trials"][0]["frames"] == 13
+    assert main(["inspect", str(setup)]) == 0
+    assert "preserve_mass_distribution false (calibrate scales every segment's mass alike)" in capsys.readouterr().out

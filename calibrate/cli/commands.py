@@ -211,7 +211,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         taken = ([f"mass {mass:g} kg"] if args.mass is None and mass is not None else []) + (
             [f"marker set {marker_set.name}"] if args.marker_set is None and marker_set is not None else [])
         progress_printer(f"note: {setup.path.name}: " + (", ".join(taken) + " taken" if taken else "nothing taken "
-                         "(no mass or marker set there, or given on the command line)"))
+                         "(no mass or marker set there, or given on the command line)")
+                         + ("; its preserve_mass_distribution is false, yet calibrate scales every segment's mass "
+                            "alike (OpenSim's Scale would first scale each by its size)"
+                            if mass is not None and not setup.preserve_mass else ""))
     if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
         from ..io.osim_info import osim_info, with_locked
 

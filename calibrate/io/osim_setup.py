@@ -121,6 +121,9 @@ class ScaleSetup:
     #: The static's frames its applied ModelScaler and MarkerPlacer use (none where a step names no file or its
     #: range is OpenSim's "whole file", -1 -1).
     ranges: tuple[TimeRange, ...] = ()
+    #: The ModelScaler's preserve_mass_distribution.  calibrate always keeps the distribution (every segment's
+    #: mass scaled alike to the subject's); false, OpenSim would first scale each segment's mass by its size.
+    preserve_mass: bool = True
 
 
 def scale_setup(path: str | Path) -> ScaleSetup:
@@ -150,7 +153,8 @@ def scale_setup(path: str | Path) -> ScaleSetup:
     ranges = tuple(r for step in ("ModelScaler", "MarkerPlacer")
                    if (el := tool.find(step)) is not None and _applied(el)
                    and (r := _time_range(path, step, el)) is not None)
-    return ScaleSetup(path, mass, marker_set, ranges)
+    preserve = (tool.findtext("ModelScaler/preserve_mass_distribution") or "true").strip().lower() != "false"
+    return ScaleSetup(path, mass, marker_set, ranges, preserve)
 
 
 def ik_setup_range(path: str | Path) -> TimeRange | None:
@@ -246,7 +250,9 @@ def describe_setup(path: str | Path) -> list[str]:
                 + ", marker set " + (str(setup.marker_set) if setup.marker_set is not None else "unset")
                 + (f"; {cut} (--whole-trials: every frame)" if cut else ""),
                 f"  not used: its {pairs} measurement marker pairs, {tasks} marker-placer marker tasks and their "
-                "weights (calibrate scales every segment and places every marker from the frames it is given)"]
+                "weights (calibrate scales every segment and places every marker from the frames it is given)"
+                + ("; preserve_mass_distribution false (calibrate scales every segment's mass alike)"
+                   if not setup.preserve_mass else "")]
     tool = root.find(".//InverseKinematicsTool")
     if tool is None:
         hint = (f"an OpenSim MarkerSet is read with its model: calibrate inspect MODEL.osim --marker-set {path.name}"
