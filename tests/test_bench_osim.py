@@ -52,3 +52,24 @@ def test_the_running_pipelines_need_an_opensim_models_checkout(tmp_path):
         assert proc.returncode == 2, proc.stderr
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and "not found" in lines[0] and "Pipelines" in lines[0] and "opensim-models" in lines[0]
+
+
+def test_bench_dynamics_needs_the_hamner_pipeline_with_its_dynamics_files(tmp_path):
+    """bench_dynamics reads Pipelines/Hamner of an opensim-models checkout, its ground forces and RRA setup too:
+    without a checkout, or with one lacking the RRA setup, it names the file it did not find, exits 2 and runs
+    nothing."""
+    import subprocess
+
+    hamner = tmp_path / "repo" / "Pipelines" / "Hamner"
+    hamner.mkdir(parents=True)
+    for name in ("FullBodyModel_Hamner2010_v2_0.osim", "Setup_Scale.xml", "Setup_IK.xml", "subject02_static.trc",
+                 "subject02_running.trc", "External_Loads.xml", "subject02_running_grf.mot", "Actuators_RRA.xml",
+                 "Tasks_RRA.xml"):
+        (hamner / name).write_text("placeholder")  # every file but Setup_RRA.xml
+    script = str(ROOT / "scripts" / "bench_dynamics.py")
+    for args, needle in (([], "no --opensim-models given"), (["--opensim-models", str(tmp_path / "repo")],
+                                                               str(hamner / "Setup_RRA.xml"))):
+        proc = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=120,
+                              cwd=tmp_path)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and needle in lines[0] and "not found" in lines[0], lines
