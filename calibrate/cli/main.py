@@ -124,6 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_export_osim_parser(sub)
     add_track_parser(sub)
+    from calibrate.cli.ik import add_ik_parser
+
+    add_ik_parser(sub)
 
     from calibrate.cli.batch import add_batch_parser
     from calibrate.cli.report import add_report_parsers
@@ -144,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track", "report", "view",
-            "batch")
+            "batch", "ik")
 
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
@@ -261,11 +264,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from ..io.osim_export import cmd_export_osim
     from .batch import cmd_batch
+    from .ik import cmd_ik
     from .report import cmd_report, cmd_view
 
     commands = {"report": cmd_report, "view": cmd_view, "batch": cmd_batch,
                 "simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
-                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim, "track": cmd_track}
+                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim, "track": cmd_track, "ik": cmd_ik}
     return _guard(commands[args.command], args)
 
 

@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import CalibrateError
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
@@ -49,6 +50,26 @@ class IKResult:
     def rms(self) -> float:
         """RMS 3-D marker error over every observed marker in every frame (m)."""
         return marker_rms(self.residuals)
+
+
+def _locked_columns(kin: Kinematics, locked: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The frame-coordinate columns of the `locked` coordinates and their values; CalibrateError with one line
+    for a name the model lacks or a ball joint's coordinate (its angles are increments about a reference)."""
+    model = kin.model
+    unknown = [n for n in locked if n not in model.dof_names]
+    if unknown:
+        raise CalibrateError(f"locked coordinate {unknown[0]!r} is not one of {model.path.name}'s "
+                             f"({', '.join(model.dof_names[:6])}, ...); check the name")
+    balls = {d for b in kin.balls for d in b.dofs}
+    cols, vals = [], []
+    for name, value in locked.items():
+        d = model.dof_index(name)
+        if d in balls:
+            raise CalibrateError(f"locked coordinate {name!r} belongs to a ball joint of {model.path.name}; "
+                                 "only a hinge's or universal joint's coordinate can be held")
+        cols.append(FrameLayout.angle(d))
+        vals.append(float(value))
+    return np.array(cols, dtype=int), np.array(vals)
 
 
 def marker_columns(model: Model, trial: Trial) -> np.ndarray:
@@ -266,12 +287,15 @@ class FrameSolver:
 
 
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
-                       tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None) -> IKResult:
+                       tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
+                       locked: Mapping[str, float] | None = None) -> IKResult:
     """Solve every frame of `trial` for the model of `kin` with geometry `params`.
 
     Markers are matched by label; model markers absent from the trial are ignored.
     Each frame stops when the relative cost decrease falls below `tolerance` or the step
     below 1e-8 (m, rad), after at most `max_iterations` (200 for a frame started from scratch).
+    `locked`: coordinates held at a value (rad or m) in every frame, as OpenSim's locked coordinates and
+    its IK's heavily weighted coordinate tasks hold them (a hinge's or universal joint's, not a ball's).
     `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
@@ -279,7 +303,14 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     nf = obs.shape[0]
     p = params.vector()
     solver = FrameSolver(kin, p)
-    all_free = np.arange(model.nz)
+    lock_cols, lock_vals = _locked_columns(kin, locked or {})
+    all_free = np.setdiff1d(np.arange(model.nz), lock_cols)
+
+    def held(z: np.ndarray) -> np.ndarray:
+        if lock_cols.size:
+            z = z.copy()
+            z[lock_cols] = lock_vals
+        return z
     Z = np.zeros((nf, model.nz))
     Q = np.tile(solver.identity, (nf, 1))  # refs (root, balls) per frame
     iters = np.zeros(nf, dtype=int)
@@ -295,6 +326,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
             continue
         if z is None:
             z, q = solver.global_start(obs[f], seen)
+            z = held(z)
             budget = 200
         else:
             budget = max_iterations
@@ -308,7 +340,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         rms = np.sqrt(cost / seen.sum())
         if frame_rms and rms > REINIT_RMS and rms > 5 * np.median(frame_rms[-50:]):
             z2, q2 = solver.global_start(obs[f], seen)
-            z2, q2, cost2, it2 = solver.solve(z2, q2, obs[f], seen_idx, all_free, 200, tolerance)
+            z2, q2, cost2, it2 = solver.solve(held(z2), q2, obs[f], seen_idx, all_free, 200, tolerance)
             if cost2 < cost:
                 z, q, cost, it = z2, q2, cost2, it + it2
                 rms = np.sqrt(cost / seen.sum())

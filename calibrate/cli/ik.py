@@ -1,0 +1,122 @@
+"""``calibrate ik``: every frame's pose of more trials of a subject already calibrated, the subject held fixed.
+
+A lab calibrates a subject once (its static and a trial) and then needs the joint angles of the subject's other
+trials: OpenSim's IK tool with the scaled model.  This fits each frame of each trial to the calibrated subject's
+markers (calibrate.solve.ik.inverse_kinematics: frame by frame, warm-started from the previous frame), holding
+the coordinates an OpenSim subject locks, those its IK setups hold (``--ik-setup``, repeatable; each also cuts its
+trial to its time range) and ``--lock``'s.  Writes ``<trial>_motion.csv`` per trial (and ``<trial>_motion.mot``
+for an OpenSim subject), prints each trial's marker RMS and the markers it fits worst.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CalibrateError
+from .args import lock_arg
+
+
+def add_ik_parser(subparsers) -> argparse.ArgumentParser:
+    """Add ``ik`` to the CLI's subparsers."""
+    p = subparsers.add_parser(
+        "ik", help="every frame's pose of more trials with a calibrated subject held fixed (inverse kinematics)",
+        description="Fit every frame of each TRIAL to SUBJECT, a subject calibrate wrote (subject.urdf or "
+                    "subject.osim), held fixed: the joint angles of a subject's other trials, as OpenSim's IK "
+                    "tool gives them with the scaled model.  Writes <trial>_motion.csv (and .mot for an .osim "
+                    "subject) beside each trial or in --out.  Nothing is written on an error.")
+    p.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... SUBJECT",
+                   help="the trials (.c3d or .trc), then the calibrated subject (.urdf or .osim)")
+    p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
+                   help="the folder for the motions (default: beside each trial)")
+    p.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",
+                   help="a lab's OpenSim IK setup: the coordinates its tasks hold are locked, its trial cut to its "
+                        "time range (repeat it for each trial's setup)")
+    p.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
+                   help="hold these coordinates at a value (default 0 deg) in every frame")
+    p.add_argument("--whole-trials", action="store_true", help="every frame, not the IK setups' time ranges")
+    p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
+    p.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    return p
+
+
+def cmd_ik(args: argparse.Namespace) -> int:
+    from ..io.labels import map_labels
+    from ..io.motion import write_motion_csv
+    from ..io.outputs import check_targets
+    from ..io.read import read_trial
+    from ..model.kinematics import build_kinematics
+    from ..model.model import load_model
+    from ..problem.settings import Settings
+    from ..solve.ik import inverse_kinematics
+
+    if len(args.inputs) < 2:
+        raise CalibrateError("give one or more trials and then the calibrated subject: calibrate ik TRIAL ... SUBJECT")
+    *trial_paths, subject_path = args.inputs
+    osim = subject_path.suffix.lower() == ".osim"
+    if args.out is not None and not args.out.is_dir():
+        raise CalibrateError(f"{args.out}: no such folder; create it first or choose another --out")
+    outputs = []
+    for t in trial_paths:
+        folder = args.out if args.out is not None else t.parent
+        outputs += [folder / f"{t.stem}_motion.csv"] + ([folder / f"{t.stem}_motion.mot"] if osim else [])
+    check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
+                  same="two trials with the same name would write the same motion; use --out or rename them",
+                  exists_hint="pass --overwrite to replace it or choose another --out")
+    t0 = time.perf_counter()
+    model = load_model(subject_path)
+    settings = Settings()
+    if osim:  # the coordinates the OpenSim subject locks
+        from ..io.osim_info import with_locked
+
+        settings = with_locked(model, settings)
+    if args.ik_setup:
+        from ..io.osim_setup import with_ik_setup
+
+        settings = with_ik_setup(model, settings, args.ik_setup)
+    locked = dict(settings.lock)
+    if args.lock is not None:
+        locked.update({name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()})
+    trials = [read_trial(t) for t in trial_paths]
+    lines: list[str] = []
+    if args.ik_setup and not args.whole_trials:
+        from ..io.osim_setup import cut_to_setups
+
+        trials, lines = cut_to_setups(trials, None, args.ik_setup)
+    kin = build_kinematics(model)
+    params = model.parameters()
+    results = []
+    for path, trial in zip(trial_paths, trials, strict=True):
+        trial, _ = map_labels(trial, model.marker_names, None, aliases=True)
+        shared = [m for m in model.marker_names if m in trial.labels]
+        if len(shared) < 3:
+            raise CalibrateError(f"{path}: only {len(shared)} of its labels are markers of {subject_path.name}; "
+                                 "give the subject calibrated from this lab's marker set")
+        start = time.perf_counter()
+        fit = inverse_kinematics(kin, trial, params, locked=locked)
+        results.append((path, trial, fit, time.perf_counter() - start))
+    for (path, _, fit, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
+        write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
+        if osim:
+            from ..io.osim_export import write_mot
+
+            write_mot(folder / f"{path.stem}_motion.mot", model, fit.motion)
+    if not args.quiet:
+        for line in lines:
+            print("note: " + line, file=sys.stderr)
+        print(f"calibrate ik: {subject_path} held fixed ({len(model.dof_names)} joint coordinates, "
+              f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'})")
+        for path, trial, fit, seconds in results:
+            err = np.linalg.norm(fit.residuals, axis=2)
+            seen = np.flatnonzero(np.isfinite(err).any(axis=0))  # the subject's markers this trial shows
+            per_marker = np.sqrt(np.nanmean(err[:, seen] ** 2, axis=0))
+            worst = [(model.marker_names[seen[k]], per_marker[k]) for k in np.argsort(-per_marker)[:3]]
+            print(f"  {path.name}: {trial.n_frames} frames ({trial.times[0]:.4g} to {trial.times[-1]:.4g} s), "
+                  f"marker RMS {1000 * fit.rms:.2f} mm, largest {1000 * np.nanmax(err):.1f} mm; worst markers "
+                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst) + f" mm; {seconds:.2f} s")
+        print(f"  time {time.perf_counter() - t0:.2f} s; wrote " + ", ".join(str(o) for o in outputs))
+    return 0

@@ -1,0 +1,82 @@
+"""`calibrate ik TRIAL ... SUBJECT`: a calibrated subject held fixed, every frame's pose of more trials; checked
+against the simulator's true motion, Pinocchio-free of the solver (the truth is the simulator's), and the .osim
+subject against the URDF one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibrate.cli.main import main
+from calibrate.io.motion import read_motion_csv
+from calibrate.io.osim_export import export_osim
+from calibrate.model.model import load_model
+from calibrate.simulation.simulate import simulate_squats, write_simulation
+
+HUMAN = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
+
+
+@pytest.fixture(scope="module")
+def squats(tmp_path_factory) -> Path:
+    """A noise-free simulated squat trial (60 frames) with its true subject and motion."""
+    d = tmp_path_factory.mktemp("ik")
+    write_simulation(simulate_squats(load_model(HUMAN), frames=60, noise_mm=0.0, seed=3), d / "sim")
+    return d / "sim"
+
+
+def test_ik_on_the_true_subject_gives_the_true_motion(squats, tmp_path, capsys):
+    """The simulator's subject held fixed and its noise-free markers: every frame's joint angles equal the true
+    motion's (1e-5 rad) and the root its position (1e-6 m); the same subject as an .osim gives the same motion and
+    a .mot beside it; the summary names the trial and its marker RMS (0.00 mm)."""
+    out = tmp_path / "urdf"
+    out.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "trial.c3d: 60 frames" in text and "marker RMS 0.00 mm" in text, text
+    got, truth = read_motion_csv(out / "trial_motion.csv"), read_motion_csv(squats / "truth_motion.csv")
+    assert got.dof_names == truth.dof_names
+    assert np.allclose(got.times, truth.times, atol=1e-9)
+    assert np.abs(got.angles - truth.angles).max() < 1e-5
+    assert np.abs(got.root_translation - truth.root_translation).max() < 1e-6
+    osim = export_osim(load_model(squats / "truth.urdf"), tmp_path / "truth.osim")
+    out2 = tmp_path / "osim"
+    out2.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(osim), "-o", str(out2), "-q"]) == 0
+    via_osim = read_motion_csv(out2 / "trial_motion.csv")
+    assert np.abs(via_osim.angles - got.angles).max() < 1e-8 and (out2 / "trial_motion.mot").is_file()
+
+
+def test_ik_holds_locked_coordinates_and_refuses_bad_input(squats, tmp_path, capsys):
+    """--lock holds a coordinate at its value in every frame (the rest refitted around it); no trial, a trial that
+    shares too few markers, a lock the subject lacks, an existing output without --overwrite: one line each,
+    exit 2, nothing written."""
+    subject = load_model(squats / "truth.urdf")
+    hinge = next(j.dofs[0] for j in subject.joints if j.kind == "hinge")
+    out = tmp_path / "lock"
+    out.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--lock",
+                 f"{hinge}=10", "-q"]) == 0
+    m = read_motion_csv(out / "trial_motion.csv")
+    assert np.allclose(m.angles[:, m.dof_names.index(hinge)], np.radians(10.0), atol=1e-12)
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    trial = read_trial(squats / "trial.c3d")
+    write_c3d(tmp_path / "few.c3d", trial.select(trial.labels[:2]))
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "trial_motion.csv").write_text("keep me")
+    cases = [(["ik", str(squats / "truth.urdf")], "give one or more trials and then the calibrated subject"),
+             (["ik", str(tmp_path / "few.c3d"), str(squats / "truth.urdf"), "-o", str(out)],
+              "only 2 of its labels are markers of truth.urdf"),
+             (["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--overwrite",
+               "--lock", "no_such_dof"], "locked coordinate 'no_such_dof' is not one of truth.urdf's"),
+             (["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(bad)], "exists")]
+    before = sorted(p.name for p in out.iterdir())
+    for argv, needle in cases:
+        code = main(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and needle in err[0], (argv, err)
+    assert sorted(p.name for p in out.iterdir()) == before and (bad / "trial_motion.csv").read_text() == "keep me"
