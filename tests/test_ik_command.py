@@ -80,3 +80,20 @@ def test_ik_holds_locked_coordinates_and_refuses_bad_input(squats, tmp_path, cap
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and needle in err[0], (argv, err)
     assert sorted(p.name for p in out.iterdir()) == before and (bad / "trial_motion.csv").read_text() == "keep me"
+
+
+def test_a_calibrations_locked_coordinates_are_what_its_motion_holds(squats):
+    """Calibration.locked: the settings' locks and calibrate's own auto-locks, each at the value the calibrated
+    motion holds in every frame (what `calibrate ik` and bench_osim's held-out fit hold)."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.read import read_trial
+    from calibrate.problem.settings import Settings
+
+    model = load_model(HUMAN)
+    hinge = next(j.dofs[0] for j in model.joints if j.kind == "hinge")
+    cal = calibrate(model, read_trial(squats / "trial.c3d"), Settings(lock=((hinge, 0.2),), max_iterations=5))
+    assert cal.locked[hinge] == 0.2
+    assert {lk.coordinate for lk in cal.auto_locked} <= set(cal.locked)
+    motion = cal.motions[0]
+    for name, value in cal.locked.items():
+        assert np.allclose(motion.angles[:, motion.dof_names.index(name)], value, atol=1e-9), name

@@ -254,6 +254,13 @@ class Calibration:
         return marker_rms(self.residuals)
 
     @property
+    def locked(self) -> dict[str, float]:
+        """Every coordinate held at one value in every frame (rad or m): the settings' (the model's locked ones,
+        an IK setup's, --lock's, those of segments the markers cannot place) and the hinges calibrate locked itself
+        (``auto_locked``).  What a later fit of more trials with this subject holds (calibrate.solve.ik)."""
+        return {**dict(self.settings.lock), **{lk.coordinate: lk.value for lk in self.auto_locked}}
+
+    @property
     def marker_max(self) -> float:
         """Largest 3-D marker error (m)."""
         return marker_max(self.residuals)
