@@ -16,7 +16,8 @@ frames) and compared with the trials' markers.
    (the file's model outputs, read with ezc3d: femur proximal point LFEP/RFEP = hip joint centre,
    femur origin LFEO/RFEO = knee joint centre, tibia origin LTIO/RTIO = ankle joint centre), median
    over the walk's frames; and a held-out check: calibrate on static + the walk's first half, then
-   the subject URDF fixed, the second half fitted frame by frame (`calibrate.solve.ik.inverse_kinematics`),
+   the subject URDF fixed, the second half fitted frame by frame (`calibrate.solve.ik.inverse_kinematics`, the
+   coordinates the calibration locked held),
    its marker RMS beside the in-sample one (the walk's first half).
 2. A realistic simulated trial (`calibrate simulate --realistic`, when the CLI has it; otherwise the
    plain simulator, with a note), 1000 frames: the same figures, and against the truth (truth.urdf,
@@ -547,6 +548,7 @@ def truth_lateral_section(d: Path, run: dict) -> dict:
 def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) -> dict:
     """Calibrate on static + the walk's first half, then fit the second half frame by frame with the
     subject URDF fixed: marker RMS of each (recomputed with Pinocchio from the files)."""
+    from calibrate.calibration.report import report_locks
     from calibrate.io.motion import write_motion_csv
     from calibrate.io.read import read_trial
     from calibrate.model.kinematics import build_kinematics
@@ -570,7 +572,10 @@ def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) 
     log(f"held-out: fitting walk frames {half}:{n} frame by frame")
     subject = load_model(run["urdf"])
     t0 = time.perf_counter()
-    fit = inverse_kinematics(build_kinematics(subject), read_trial(second), subject.parameters())
+    # the coordinates the calibration held (its report: locks and auto-locks), held here too, as `calibrate ik
+    # --report` holds them
+    fit = inverse_kinematics(build_kinematics(subject), read_trial(second), subject.parameters(),
+                             locked=report_locks(rep))
     ik_s = time.perf_counter() - t0
     motion = write_motion_csv(d / "walk_second_motion.csv", fit.motion)
     out_walk = marker_fit(kin, [(second, motion)], None)

@@ -97,3 +97,29 @@ def test_a_calibrations_locked_coordinates_are_what_its_motion_holds(squats):
     motion = cal.motions[0]
     for name, value in cal.locked.items():
         assert np.allclose(motion.angles[:, motion.dof_names.index(name)], value, atol=1e-9), name
+
+
+def test_ik_holds_what_the_calibration_held_from_its_report(squats, tmp_path, capsys):
+    """`calibrate ik TRIAL subject.urdf --report subject_report.json`: the coordinates the calibration locked (here
+    by --lock) are held where its own motion holds them; a file that is not a report: one line, exit 2."""
+    model = load_model(HUMAN)
+    hinge = next(j.dofs[0] for j in model.joints if j.kind == "hinge")
+    cal_dir = tmp_path / "cal"
+    cal_dir.mkdir()
+    assert main([str(squats / "trial.c3d"), str(HUMAN), "-o", str(cal_dir / "subject.urdf"), "--lock",
+                 f"{hinge}=5", "-q"]) in (0, 1)
+    report = cal_dir / "trial_report.json"
+    calibrated = read_motion_csv(cal_dir / "trial_motion.csv")
+    out = tmp_path / "ik"
+    out.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(cal_dir / "subject.urdf"), "--report", str(report), "-o",
+                 str(out), "-q"]) == 0
+    m = read_motion_csv(out / "trial_motion.csv")
+    k = m.dof_names.index(hinge)
+    assert np.allclose(m.angles[:, k], calibrated.angles[:, k], atol=1e-9)
+    assert np.allclose(m.angles[:, k], np.radians(5.0), atol=1e-9)
+    capsys.readouterr()
+    code = main(["ik", str(squats / "trial.c3d"), str(cal_dir / "subject.urdf"), "--report",
+                 str(squats / "truth_motion.csv"), "-o", str(out), "--overwrite", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "cannot be read as a calibrate report JSON" in err[0], err

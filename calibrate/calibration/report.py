@@ -205,6 +205,15 @@ def calibration_report(cal: Calibration) -> dict:
     }
 
 
+def report_locks(report: dict) -> dict[str, float]:
+    """The coordinates a calibration held in every frame (rad or m), from its report JSON (``calibration_report``):
+    its settings' ``lock_deg`` and its ``auto_locked`` hinges; Calibration.locked of the run that wrote it."""
+    settings = report.get("settings") or {}
+    locked = {k: math.radians(v) for k, v in (settings.get("lock_deg") or {}).items()}
+    locked.update({x["coordinate"]: math.radians(x["value_deg"]) for x in report.get("auto_locked") or []})
+    return locked
+
+
 def _mass(cal) -> dict:
     """Segment masses written to the subject URDF: the base model's, scaled to the subject's mass if given
     (or measured: the trial's subject measurements)."""

@@ -3,9 +3,10 @@
 A lab calibrates a subject once (its static and a trial) and then needs the joint angles of the subject's other
 trials: OpenSim's IK tool with the scaled model.  This fits each frame of each trial to the calibrated subject's
 markers (calibrate.solve.ik.inverse_kinematics: frame by frame, warm-started from the previous frame), holding
-the coordinates an OpenSim subject locks, those its IK setups hold (``--ik-setup``, repeatable; each also cuts its
-trial to its time range) and ``--lock``'s.  Writes ``<trial>_motion.csv`` per trial (and ``<trial>_motion.mot``
-for an OpenSim subject), prints each trial's marker RMS and the markers it fits worst.
+the coordinates an OpenSim subject locks, those the calibration held (``--report``: its report JSON), those its
+IK setups hold (``--ik-setup``, repeatable; each also cuts its trial to its time range) and ``--lock``'s.
+Writes ``<trial>_motion.csv`` per trial (and ``<trial>_motion.mot`` for an OpenSim subject), prints each trial's
+marker RMS and the markers it fits worst.
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",
                    help="a lab's OpenSim IK setup: the coordinates its tasks hold are locked, its trial cut to its "
                         "time range (repeat it for each trial's setup)")
+    p.add_argument("--report", type=Path, default=None, metavar="JSON",
+                   help="the report of the calibration that wrote SUBJECT: hold what it held (its locked and "
+                        "auto-locked coordinates), as its own motion does")
     p.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                    help="hold these coordinates at a value (default 0 deg) in every frame")
     p.add_argument("--whole-trials", action="store_true", help="every frame, not the IK setups' time ranges")
@@ -79,6 +83,20 @@ def cmd_ik(args: argparse.Namespace) -> int:
 
         settings = with_ik_setup(model, settings, args.ik_setup)
     locked = dict(settings.lock)
+    if args.report is not None:  # what the calibration held, as its motion holds it
+        import json
+
+        from ..calibration.report import report_locks
+
+        try:
+            report = json.loads(args.report.read_text())
+        except (OSError, ValueError) as e:
+            raise CalibrateError(f"{args.report}: cannot be read as a calibrate report JSON ({e}); give the "
+                                 "<trial>_report.json the calibration wrote") from None
+        if not isinstance(report, dict) or "settings" not in report:
+            raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
+                                 "<trial>_report.json the calibration wrote")
+        locked.update(report_locks(report))
     if args.lock is not None:
         locked.update({name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()})
     trials = [read_trial(t) for t in trial_paths]
