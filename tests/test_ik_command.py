@@ -123,3 +123,40 @@ def test_ik_holds_what_the_calibration_held_from_its_report(squats, tmp_path, ca
                  str(squats / "truth_motion.csv"), "-o", str(out), "--overwrite", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "cannot be read as a calibrate report JSON" in err[0], err
+
+
+def test_marker_weights_as_an_ik_setup_gives_them(squats, tmp_path):
+    """An IK setup's marker tasks weigh the markers: a marker weighed 0 (or its task not applied) is left out, the
+    fit then equal to one on the trial without it; a heavier weight pulls the fit to a displaced marker; a marker
+    two setups weigh differently: one line."""
+    from calibrate.errors import CalibrateError
+    from calibrate.io.osim_setup import ik_setup_weights
+    from calibrate.io.read import read_trial
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.solve.ik import inverse_kinematics
+
+    subject = load_model(squats / "truth.urdf")
+    kin, p = build_kinematics(subject), subject.parameters()
+    trial = read_trial(squats / "trial.c3d").frames(0, 20)
+    names = subject.marker_names
+    out, moved = names[5], names[9]
+    weights = {n: 1.0 for n in names} | {out: 0.0}
+    a = inverse_kinematics(kin, trial, p, weights=weights)
+    b = inverse_kinematics(kin, trial.select([n for n in trial.labels if n != out]), p)
+    assert np.isnan(a.residuals[:, names.index(out)]).all()
+    assert np.abs(a.motion.angles - b.motion.angles).max() < 1e-8
+    markers = trial.markers.copy()
+    markers[:, trial.labels.index(moved)] += [0.01, 0.0, 0.0]  # one marker displaced 10 mm
+    shifted = type(trial)(trial.labels, markers, trial.rate, trial.first_frame, trial.source)
+    err = {k: np.linalg.norm(inverse_kinematics(kin, shifted, p, weights={moved: k}).residuals[:, names.index(moved)],
+                             axis=1).mean() for k in (1.0, 100.0)}
+    assert err[100.0] < 0.5 * err[1.0], err
+    task = "<IKMarkerTask name='{}'><apply>{}</apply><weight>{}</weight></IKMarkerTask>"
+    for name, tasks in [("a.xml", task.format("A", "true", 10) + task.format("B", "false", 5)),
+                        ("b.xml", task.format("A", "true", 2))]:
+        (tmp_path / name).write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool>"
+                                     f"<IKTaskSet><objects>{tasks}</objects></IKTaskSet></InverseKinematicsTool>"
+                                     "</OpenSimDocument>")
+    assert ik_setup_weights(tmp_path / "a.xml") == {"A": 10.0, "B": 0.0}
+    with pytest.raises(CalibrateError, match="weighs marker A 2, and a.xml 10"):
+        ik_setup_weights([tmp_path / "a.xml", tmp_path / "b.xml"])

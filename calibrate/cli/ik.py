@@ -4,7 +4,8 @@ A lab calibrates a subject once (its static and a trial) and then needs the join
 trials: OpenSim's IK tool with the scaled model.  This fits each frame of each trial to the calibrated subject's
 markers (calibrate.solve.ik.inverse_kinematics: frame by frame, warm-started from the previous frame), holding
 the coordinates an OpenSim subject locks, those the calibration held (``--report``: its report JSON), those its
-IK setups hold (``--ik-setup``, repeatable; each also cuts its trial to its time range) and ``--lock``'s.
+IK setups hold (``--ik-setup``, repeatable; their marker tasks' weights weigh the markers, and each cuts its trial
+to its time range) and ``--lock``'s.
 Writes ``<trial>_motion.csv`` per trial (and ``<trial>_motion.mot`` for an OpenSim subject), prints each trial's
 marker RMS and the markers it fits worst.
 """
@@ -35,8 +36,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="the folder for the motions (default: beside each trial)")
     p.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",
-                   help="a lab's OpenSim IK setup: the coordinates its tasks hold are locked, its trial cut to its "
-                        "time range (repeat it for each trial's setup)")
+                   help="a lab's OpenSim IK setup: its marker tasks' weights weigh the markers (a marker without a "
+                        "task is not fitted), the coordinates its tasks hold are locked, its trial cut to its time "
+                        "range (repeat it for each trial's setup)")
     p.add_argument("--report", type=Path, default=None, metavar="JSON",
                    help="the report of the calibration that wrote SUBJECT: hold what it held (its locked and "
                         "auto-locked coordinates), as its own motion does")
@@ -78,10 +80,13 @@ def cmd_ik(args: argparse.Namespace) -> int:
         from ..io.osim_info import with_locked
 
         settings = with_locked(model, settings)
-    if args.ik_setup:
-        from ..io.osim_setup import with_ik_setup
+    weights = None
+    if args.ik_setup:  # what its coordinate tasks hold, and its marker tasks' weights (a marker it has no task for:
+        # not fitted, as the setup's IK tracks only its tasks)
+        from ..io.osim_setup import ik_setup_weights, with_ik_setup
 
         settings = with_ik_setup(model, settings, args.ik_setup)
+        weights = ik_setup_weights(args.ik_setup)
     locked = dict(settings.lock)
     if args.report is not None:  # what the calibration held, as its motion holds it
         import json
@@ -110,12 +115,12 @@ def cmd_ik(args: argparse.Namespace) -> int:
     results = []
     for path, trial in zip(trial_paths, trials, strict=True):
         trial, _ = map_labels(trial, model.marker_names, None, aliases=True)
-        shared = [m for m in model.marker_names if m in trial.labels]
+        shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
         if len(shared) < 3:
             raise CalibrateError(f"{path}: only {len(shared)} of its labels are markers of {subject_path.name}; "
                                  "give the subject calibrated from this lab's marker set")
         start = time.perf_counter()
-        fit = inverse_kinematics(kin, trial, params, locked=locked)
+        fit = inverse_kinematics(kin, trial, params, locked=locked, weights=weights, default_weight=0.0)
         results.append((path, trial, fit, time.perf_counter() - start))
     for (path, _, fit, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)

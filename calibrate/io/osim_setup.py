@@ -71,6 +71,31 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     return tuple(locks)
 
 
+def ik_setup_weights(path: str | Path | Sequence[str | Path]) -> dict[str, float]:
+    """Each marker's weight in the IK setup(s) at `path` (its IKMarkerTasks; 0 for a task not applied), as
+    OpenSim's IK weighs the markers.  Two setups that weigh one marker differently: ModelError with one line."""
+    weights: dict[str, float] = {}
+    where: dict[str, Path] = {}
+    for one in _paths(path):
+        tool = xml_element(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                           "an OpenSim Inverse Kinematics setup file",
+                           "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+        for task in tool.iter("IKMarkerTask"):
+            name = task.get("name", "")
+            try:
+                value = float(task.findtext("weight") or 0.0) if _applied(task) else 0.0
+            except ValueError:
+                raise ModelError(f"{one}: marker task '{name}' has weight {task.findtext('weight')!r}; give a "
+                                 "number") from None
+            if not (math.isfinite(value) and value >= 0):
+                raise ModelError(f"{one}: marker task '{name}' has weight {value}; give a number >= 0")
+            if name in weights and weights[name] != value:
+                raise ModelError(f"{one}: weighs marker {name} {value:g}, and {where[name].name} {weights[name]:g}; "
+                                 "make the setups agree")
+            weights[name], where[name] = value, Path(one)
+    return weights
+
+
 def with_ik_setup(model, settings, path: str | Path | Sequence[str | Path]):
     """`settings` with the held coordinates of the IK setup at `path` (or of several: a lab keeps one per trial)
     added to Settings.lock (those the settings already lock keep their values).  Two setups that hold one
@@ -275,4 +300,4 @@ def describe_setup(path: str | Path) -> list[str]:
 
 
 __all__ = ["ScaleSetup", "TimeRange", "apply_time_ranges", "cut_to_setups", "describe_setup", "ik_setup_locks",
-           "ik_setup_range", "scale_setup", "with_ik_setup"]
+           "ik_setup_range", "ik_setup_weights", "scale_setup", "with_ik_setup"]

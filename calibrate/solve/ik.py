@@ -86,10 +86,12 @@ class _FrameFit:
     """One frame's fit as a calibrate.solve.lm.StepProblem, x = (z, q): the markers `seen_mk` of the
     frame `obs` by the coordinates `free`, with the soft joint limits (FrameSolver.solve).  Cost |r|²."""
 
-    def __init__(self, solver: FrameSolver, obs: np.ndarray, seen_mk, free):
+    def __init__(self, solver: FrameSolver, obs: np.ndarray, seen_mk, free, weight: np.ndarray | None = None):
         self.evaluate = solver.evaluate
         self.rows = (3 * np.asarray(seen_mk)[:, None] + np.arange(3)).ravel()
         self.target = obs[seen_mk].ravel()
+        # each marker's rows times the square root of its weight (an IK setup's), or all alike
+        self.scale = None if weight is None else np.repeat(np.sqrt(np.asarray(weight, float)[seen_mk]), 3)
         self.free = free = np.asarray(free)
         self.every = free.size == solver.nz and bool(np.all(free == np.arange(solver.nz)))  # J's rows only
         # The columns' roles (root rotation, balls, limited DoFs), made once per set of coordinates.
@@ -105,9 +107,12 @@ class _FrameFit:
         th = x[0][self.dof_cols]
         out = (th < self.lo) | (th > self.hi)
         # np.minimum(np.maximum(...)) is np.clip's arithmetic, without its wrapper's checks
-        r = np.concatenate([m[self.rows] - self.target,
-                            LIMIT_WEIGHT * (th - np.minimum(np.maximum(th, self.lo), self.hi))])
-        return r, J[self.rows] if self.every else J[np.ix_(self.rows, self.free)], out
+        fit = m[self.rows] - self.target
+        J = J[self.rows] if self.every else J[np.ix_(self.rows, self.free)]
+        if self.scale is not None:
+            fit, J = fit * self.scale, J * self.scale[:, None]
+        r = np.concatenate([fit, LIMIT_WEIGHT * (th - np.minimum(np.maximum(th, self.lo), self.hi))])
+        return r, J, out
 
     def linearize(self, x: tuple[np.ndarray, np.ndarray], lam: float = 0.0) -> float:
         r, J, out = self.last[1:] if self.last is not None and self.last[0] is x else self.residuals(x)
@@ -205,16 +210,16 @@ class FrameSolver:
         return (rot, balls, dof_cols, self.lower[FrameLayout.dof(dof_cols)], self.upper[FrameLayout.dof(dof_cols)],
                 col_of)
 
-    def solve(self, z, q, obs, seen_mk, free, budget, tol=1e-8):
+    def solve(self, z, q, obs, seen_mk, free, budget, tol=1e-8, weight: np.ndarray | None = None):
         """Levenberg–Marquardt (calibrate.solve.lm.minimise) over coordinates `free` fitting markers
-        `seen_mk`, at most `budget` steps, stopping when a step lowers the cost by less than the
-        fraction `tol`; returns (z, q, cost, steps).
+        `seen_mk` (each weighted by `weight`, per model marker, if given), at most `budget` steps, stopping when a
+        step lowers the cost by less than the fraction `tol`; returns (z, q, cost, steps).
 
         Joint limits enter as soft residuals LIMIT_WEIGHT * (theta - clip(theta, lower, upper)):
         zero inside the range of motion, so they never bias a pose that respects it, but
         they keep a poorly fitting model out of mirror-image branches.
         """
-        fit = _FrameFit(self, obs, seen_mk, free)
+        fit = _FrameFit(self, obs, seen_mk, free, weight)
         options = SolverOptions(max_iterations=budget, ftol=tol, atol=TINY, xtol=STEP_TOL, gtol=TINY, geodesic=False)
         (z, q), summary = minimise(fit, (z, q), options)
         if fit.balls:  # the balls' increments folded once per solve: the next starts at full rank
@@ -288,7 +293,8 @@ class FrameSolver:
 
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
                        tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
-                       locked: Mapping[str, float] | None = None) -> IKResult:
+                       locked: Mapping[str, float] | None = None, weights: Mapping[str, float] | None = None,
+                       default_weight: float = 1.0) -> IKResult:
     """Solve every frame of `trial` for the model of `kin` with geometry `params`.
 
     Markers are matched by label; model markers absent from the trial are ignored.
@@ -296,10 +302,19 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     below 1e-8 (m, rad), after at most `max_iterations` (200 for a frame started from scratch).
     `locked`: coordinates held at a value (rad or m) in every frame, as OpenSim's locked coordinates and
     its IK's heavily weighted coordinate tasks hold them (a hinge's or universal joint's, not a ball's).
+    `weights`: each marker's weight in the fit (an IK setup's marker tasks), `default_weight` for a marker it does
+    not name; a weight of 0 leaves the marker out (its residuals NaN).  None: every marker alike.
     `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
     obs = marker_columns(model, trial)
+    weight = None
+    if weights is not None:
+        weight = np.array([float(weights.get(n, default_weight)) for n in model.marker_names])
+        if not np.all(np.isfinite(weight) & (weight >= 0)):
+            raise CalibrateError("marker weights must be finite numbers >= 0")
+        obs = obs.copy()
+        obs[:, weight <= 0] = np.nan  # weight 0: not fitted, as OpenSim's IK leaves such a marker out
     nf = obs.shape[0]
     p = params.vector()
     solver = FrameSolver(kin, p)
@@ -336,11 +351,11 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
                 z = z_guess
             else:
                 z_prev = z
-        z, q, cost, it = solver.solve(z, q, obs[f], seen_idx, all_free, budget, tolerance)
+        z, q, cost, it = solver.solve(z, q, obs[f], seen_idx, all_free, budget, tolerance, weight)
         rms = np.sqrt(cost / seen.sum())
         if frame_rms and rms > REINIT_RMS and rms > 5 * np.median(frame_rms[-50:]):
             z2, q2 = solver.global_start(obs[f], seen)
-            z2, q2, cost2, it2 = solver.solve(held(z2), q2, obs[f], seen_idx, all_free, 200, tolerance)
+            z2, q2, cost2, it2 = solver.solve(held(z2), q2, obs[f], seen_idx, all_free, 200, tolerance, weight)
             if cost2 < cost:
                 z, q, cost, it = z2, q2, cost2, it + it2
                 rms = np.sqrt(cost / seen.sum())
