@@ -227,21 +227,25 @@ class FrameSolver:
             z, q = zr[0], qr[0]
         return z, q, summary.final_cost, summary.iterations
 
-    def global_start(self, obs, seen, local: bool = False):
+    def global_start(self, obs, seen, local: bool = False, free=None, weight=None, held=None):
         """A pose for one frame from scratch: root by Kabsch, then joint by joint with multi-starts.  With
         `local`, also every coordinate solved at once from the model's default pose (root by Kabsch), and
         the one of the two that fits the frame better, each solved to convergence.  A segment with two
         markers (and its joint centre) fixes its own rotation, and on a base model whose marker places differ
         from the subject's that rotation can point to a basin the segments below fit little worse
         (Rajagopal2016's humerus: arm_rot -95 deg, the elbow at its limit, 0.5 % above the anatomical pose's
-        cost); the local solve from the default pose, as OpenSim's IK starts, stays near the anatomical one."""
+        cost); the local solve from the default pose, as OpenSim's IK starts, stays near the anatomical one.
+        The two local solves over the coordinates `free` (default all), the markers weighted by `weight`, from
+        starts passed through `held` (the locked coordinates set; calibrate.solve.ik.inverse_kinematics)."""
         root = self._root_start(obs, seen)
         z, q = self._joint_by_joint(*root, obs, seen)
         if not local:
             return z, q
-        idx, every = np.flatnonzero(seen), np.arange(self.nz)
-        z, q, cost, _ = self.solve(z, q, obs, idx, every, 200)
-        zl, ql, cost_l, _ = self.solve(*root, obs, idx, every, 200)
+        idx = np.flatnonzero(seen)
+        every = np.arange(self.nz) if free is None else free
+        held = held or (lambda z: z)
+        z, q, cost, _ = self.solve(held(z), q, obs, idx, every, 200, weight=weight)
+        zl, ql, cost_l, _ = self.solve(held(root[0]), root[1], obs, idx, every, 200, weight=weight)
         return (zl, ql) if cost_l < cost else (z, q)
 
     def _root_start(self, obs, seen) -> tuple[np.ndarray, np.ndarray]:
@@ -340,7 +344,9 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
                 Z[f], Q[f] = z, q
             continue
         if z is None:
-            z, q = solver.global_start(obs[f], seen)
+            # from scratch, also from the default pose as OpenSim's IK starts (the better): Rajagopal2016's humerus
+            # otherwise turns 166 deg about its length on calibrate's subject, held there by every later frame
+            z, q = solver.global_start(obs[f], seen, local=True, free=all_free, weight=weight, held=held)
             z = held(z)
             budget = 200
         else:
@@ -354,7 +360,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         z, q, cost, it = solver.solve(z, q, obs[f], seen_idx, all_free, budget, tolerance, weight)
         rms = np.sqrt(cost / seen.sum())
         if frame_rms and rms > REINIT_RMS and rms > 5 * np.median(frame_rms[-50:]):
-            z2, q2 = solver.global_start(obs[f], seen)
+            z2, q2 = solver.global_start(obs[f], seen, local=True, free=all_free, weight=weight, held=held)
             z2, q2, cost2, it2 = solver.solve(held(z2), q2, obs[f], seen_idx, all_free, 200, tolerance, weight)
             if cost2 < cost:
                 z, q, cost, it = z2, q2, cost2, it + it2
