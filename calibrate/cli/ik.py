@@ -117,8 +117,10 @@ def cmd_ik(args: argparse.Namespace) -> int:
         trial, _ = map_labels(trial, model.marker_names, None, aliases=True)
         shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
         if len(shared) < 3:
-            raise CalibrateError(f"{path}: only {len(shared)} of its labels are markers of {subject_path.name}; "
-                                 "give the subject calibrated from this lab's marker set")
+            tasks = " with a marker task of the IK setup" if weights is not None else ""
+            raise CalibrateError(f"{path}: only {len(shared)} of its labels are markers of {subject_path.name}{tasks}; "
+                                 "give the subject calibrated from this lab's marker set"
+                                 + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
         fit = inverse_kinematics(kin, trial, params, locked=locked, weights=weights, default_weight=0.0)
         results.append((path, trial, fit, time.perf_counter() - start))
