@@ -3,11 +3,11 @@
 A lab calibrates a subject once (its static and a trial) and then needs the joint angles of the subject's other
 trials: OpenSim's IK tool with the scaled model.  This fits each frame of each trial to the calibrated subject's
 markers (calibrate.solve.ik.inverse_kinematics: frame by frame, warm-started from the previous frame), holding
-the coordinates an OpenSim subject locks, those the calibration held (``--report``: its report JSON), those its
-IK setups hold (``--ik-setup``, repeatable; their marker tasks' weights weigh the markers, and each cuts its trial
-to its time range) and ``--lock``'s.
-Writes ``<trial>_motion.csv`` per trial (and ``<trial>_motion.mot`` for an OpenSim subject), prints each trial's
-marker RMS and the markers it fits worst.
+the coordinates an OpenSim subject locks, those the calibration held (``--report``: its report JSON, whose learnt
+noise also weighs the markers), those its IK setups hold (``--ik-setup``, repeatable; their marker tasks' weights
+weigh the markers, and each cuts its trial to its time range) and ``--lock``'s.  Writes ``<trial>_motion.csv``
+per trial (and ``<trial>_motion.mot`` for an OpenSim subject), prints each trial's marker RMS and the markers it
+fits worst.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                         "range (repeat it for each trial's setup)")
     p.add_argument("--report", type=Path, default=None, metavar="JSON",
                    help="the report of the calibration that wrote SUBJECT: hold what it held (its locked and "
-                        "auto-locked coordinates), as its own motion does")
+                        "auto-locked coordinates) and weigh the markers as it weighed them (its learnt noise; an "
+                        "--ik-setup's weights win), as its own motion does")
     p.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                    help="hold these coordinates at a value (default 0 deg) in every frame")
     p.add_argument("--whole-trials", action="store_true", help="every frame, not the IK setups' time ranges")
@@ -102,6 +103,13 @@ def cmd_ik(args: argparse.Namespace) -> int:
             raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
                                  "<trial>_report.json the calibration wrote")
         locked.update(report_locks(report))
+        if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
+            sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
+                  if isinstance(v, (int, float)) and v > 0}
+            if sd:
+                w = {k: 1.0 / v**2 for k, v in sd.items()}
+                mid = float(np.median(list(w.values())))
+                weights = {k: v / mid for k, v in w.items()}
     if args.lock is not None:
         locked.update({name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()})
     trials = [read_trial(t) for t in trial_paths]
