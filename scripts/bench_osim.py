@@ -41,7 +41,7 @@ time the fit alone (marker clean-up and the multi-trial pipeline; the venv, impo
 out, as calibrate's imports are).
 
     PYTHONPATH=. python scripts/bench_osim.py [--json out.json] [--only CASE] [--no-nimble] [--opensim-models DIR]
-        [--whole-trials]
+        [--whole-trials] [--repeat N]
 """
 
 from __future__ import annotations
@@ -509,7 +509,7 @@ def marker_scores(pred: np.ndarray, names: list[str], trial, use: list[str]) -> 
 
 
 def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo: Path | None = None,
-          whole_trials: bool = False) -> dict:
+          whole_trials: bool = False, repeat: int = 1) -> dict:
     spec = {**prepare(case, work, repo), "whole_trials": whole_trials}
     log(f"{case}: OpenSim Scale + IK (child process) ...")
     osr = run_opensim(spec, work)
@@ -525,6 +525,14 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
     run_calibrate(spec, slice(frames.start, frames.start + 30), outliers)
     log(f"{case}: calibrate on the static + walk trials ({len(osr['times'])} IK frames) ...")
     cr = run_calibrate(spec, frames, outliers)
+    # `repeat`: OpenSim's Scale + IK and calibrate timed again, one after the other, so that both meet the same phases
+    # of the machine; the medians are the figures (this machine's run-to-run spread is 15-25 %).
+    ik_runs, cal_runs = [osr["ik_s"]], [cr["wall_s"]]
+    for k in range(1, repeat):
+        log(f"{case}: timing run {k + 1} of {repeat} (OpenSim Scale + IK, then calibrate) ...")
+        ik_runs.append(run_opensim(spec, work)["ik_s"])
+        cal_runs.append(run_calibrate(spec, frames, outliers)["wall_s"])
+    osr["ik_s"], cr["wall_s"] = float(np.median(ik_runs)), float(np.median(cal_runs))
     log(f"{case}: calibrate again, every axis held at the model's (OpenSim's angle definitions) ...")
     ch = run_calibrate(spec, frames, outliers, hold_axes=True)
     log(f"{case}: calibrate again, without the IK setup's held coordinates ...")
@@ -561,7 +569,9 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
     out["calibrate_no_ik_setup"].update(wall_s=cn["wall_s"], converged=cn["converged"], locked=cn["locked"],
                                         unreliable=cn["unreliable"], static_asymmetry=cn["static_asymmetry"])
     out["opensim"].update(scale_s=osr["scale_s"], ik_s=osr["ik_s"], total_s=osr["scale_s"] + osr["ik_s"])
-    out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"], lab_hjc_mm=cr["lab_hjc_mm"])
+    out["calibrate"].update(wall_s=cr["wall_s"], stages_s=cr["times"], lab_hjc_mm=cr["lab_hjc_mm"],
+                            wall_s_runs=cal_runs)
+    out["opensim"]["ik_s_runs"] = ik_runs
     out["calibrate_moved_markers"]["lab_hjc_mm"] = cm["lab_hjc_mm"]
     out["ratio_calibrate_to_opensim_ik"] = cr["wall_s"] / osr["ik_s"]
     out["calibrate_ik_only"] = {"wall_s": cr["ik_only_s"], "rms_mm_all_markers": cr["ik_only_rms_mm"],
@@ -619,6 +629,12 @@ def report(res: dict) -> None:
               f"(scale {o['scale_s']:.2f}, IK {o['ik_s']:.2f})")
         print(f"  {'calibrate':22s} {c['rms_mm']:8.2f} {c['max_mm']:8.2f} {c['wall_s']:10.2f} "
               f"(/ OpenSim IK: {r['ratio_calibrate_to_opensim_ik']:.2f})")
+        runs = c.get("wall_s_runs") or []
+        if len(runs) > 1:
+            ratios = [a / b for a, b in zip(runs, o["ik_s_runs"], strict=True)]
+            print(f"  {'':22s} times: medians of {len(runs)} runs each; calibrate {min(runs):.2f}-{max(runs):.2f} s, "
+                  f"OpenSim IK {min(o['ik_s_runs']):.2f}-{max(o['ik_s_runs']):.2f} s, run by run "
+                  f"{min(ratios):.2f}-{max(ratios):.2f}x")
         h = r["calibrate_axes_held"]
         print(f"  {'calibrate, axes held':22s} {h['rms_mm']:8.2f} {h['max_mm']:8.2f} {h['wall_s']:10.2f}")
         n = r.get("calibrate_no_ik_setup")
@@ -714,6 +730,9 @@ def main() -> int:
                          "marker; calibrate's own default, 6, rejects gait2392's rigid-trunk markers in most frames)")
     ap.add_argument("--no-nimble", action="store_true",
                     help="leave out nimblephysics' MarkerFitter (run by default: scripts/peer_nimble.py, its own venv)")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N",
+                    help="time OpenSim's Scale + IK and calibrate N times each, alternately, and report the medians "
+                         "(default 1)")
     ap.add_argument("--whole-trials", action="store_true",
                     help="calibrate on every frame of the static, not the Scale setup's time range (OpenSim's Scale "
                          "uses that range either way)")
@@ -721,6 +740,9 @@ def main() -> int:
     a = ap.parse_args()
     if a._opensim:
         return opensim_child(*a._opensim)
+    if a.repeat < 1:
+        print(f"bench_osim: --repeat {a.repeat}: give 1 or more runs", file=sys.stderr)
+        return 2
     if not REAL.exists():
         print(f"bench_osim: {REAL} not found (the real trials)", file=sys.stderr)
         return 2
@@ -738,8 +760,9 @@ def main() -> int:
     cases = [a.only] if a.only else ["gait2392", "rajagopal"] + (list(EXTRA_CASES) if repo else [])
     with tempfile.TemporaryDirectory(prefix="bench_osim_") as tmp:
         res = {"outlier_sigmas": a.outlier_sigmas, "whole_trials": a.whole_trials,
-               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, repo, a.whole_trials)
-                           for c in cases]}
+               "repeat": a.repeat,
+               "results": [bench(c, Path(tmp), log, a.outlier_sigmas, not a.no_nimble, repo, a.whole_trials,
+                                 a.repeat) for c in cases]}
     report(res)
     if a.json:
         a.json.write_text(json.dumps(res, indent=1, default=float))
