@@ -62,6 +62,7 @@ import numpy as np
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 COORDS = ("hip_flexion", "hip_adduction", "hip_rotation", "knee_angle", "ankle_angle")
 ARM_COORDS = ("arm_flex", "arm_add", "arm_rot", "elbow_flex", "pro_sup")  # beyond issue 17's list: shown, no target
+TRUNK_COORDS = ("lumbar_extension", "lumbar_bending", "lumbar_rotation")  # likewise (no side)
 
 
 # ---------------------------------------------------------------------- the OpenSim child
@@ -276,7 +277,7 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     free = ("scale", "centre", "marker") if hold_axes else ("scale", "centre", "axis", "marker")
     settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, free=free, moved_markers=moved,
                                                                    hip_regression=hip_regression)), ik_setup)
-    cal = calibrate(model, [static, walk], settings, mass=spec["mass"])
+    cal = calibrate(model, [static, walk], settings, mass=spec["mass"], **static_pose_of(spec, model, static, walk))
     wall = time.perf_counter() - t0
     # The part of the run OpenSim's IK does: every walk frame's pose fitted to the subject model, frame by frame
     # from scratch, the locked coordinates held (calibrate.solve.ik.inverse_kinematics, as `calibrate ik` runs it;
@@ -345,6 +346,20 @@ def with_setup(spec: dict, model, settings, ik_setup: bool):
     return with_ik_setup(model, settings, Path(spec["dir"]) / spec["ik"]) if ik_setup else settings
 
 
+def static_pose_of(spec: dict, model, static, walk) -> dict:
+    """calibrate's `neutral` and `pose` from the pipeline's Scale setups, as the command line's --scale-setup takes
+    them (calibrate.io.osim_setup.setup_pose: the static pose its MarkerPlacer's coordinate tasks hold); {} where
+    they hold none."""
+    from calibrate.io.osim_setup import setup_pose
+
+    for step in spec["scale"]:
+        k, pose, _ = setup_pose(Path(spec["dir"]) / step[0], model, [static, walk],
+                                [Path(spec["static"]).name, Path(spec["walk"]).name])
+        if pose is not None:
+            return {"neutral": k, "pose": pose}
+    return {}
+
+
 def read_case(spec: dict):
     """The case's generic model (with its marker set) and its static and walking trials, as calibrate reads them:
     the static cut to the time range the pipeline's (first) Scale setup uses, as the command line's --scale-setup
@@ -375,7 +390,7 @@ def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float,
     first, second = walk.frames(frames.start, half), walk.frames(half, frames.stop)
     settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, still_weight=still_weight,
                                                                    moved_markers=moved)), ik_setup)
-    cal = calibrate(model, [static, first], settings, mass=spec["mass"])
+    cal = calibrate(model, [static, first], settings, mass=spec["mass"], **static_pose_of(spec, model, static, first))
     fit = inverse_kinematics(build_kinematics(cal.model), second, cal.params, locked=cal.locked)
     return {"markers": marker_columns(cal.model, second) + fit.residuals, "marker_names": list(cal.model.marker_names),
             "in_sample_rms_mm": 1000 * float(np.sqrt(np.nanmean(np.sum(cal.residuals[cal.trials[0].n_frames:] ** 2,
@@ -581,9 +596,9 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
     for label, run in (("coordinates", cr), ("coordinates_axes_held", ch), ("coordinates_no_ik_setup", cn),
                        ("coordinates_moved_markers", cm), ("coordinates_hip_regression", cg)):
         diffs = {}
-        for side in ("r", "l"):
-            for c in COORDS + ARM_COORDS:
-                name = f"{c}_{side}"
+        for side in ("r", "l", ""):
+            for c in (TRUNK_COORDS if not side else COORDS + ARM_COORDS):
+                name = f"{c}_{side}" if side else c
                 if name not in run["angles"] or name not in osr["coords"]:
                     continue
                 ours = np.degrees(run["angles"][name])
@@ -698,6 +713,8 @@ def report(res: dict) -> None:
                 extra = f", vs reference IK {d['vs_reference_ik_deg']:.2f}" if "vs_reference_ik_deg" in d else ""
                 if name.rsplit("_", 1)[0] in ARM_COORDS:
                     extra += " [arm: beyond issue 17's list, no target]"
+                elif name in TRUNK_COORDS:
+                    extra += " [trunk: beyond issue 17's list, no target]"
                 print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
                       f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
         if nb.get("status") == "ran":

@@ -213,3 +213,109 @@ def test_a_scale_setup_that_does_not_preserve_the_mass_distribution_is_named(tmp
     assert json.loads((out / "trial_report.json").read_text())["trials"][0]["frames"] == 13
     assert main(["inspect", str(setup)]) == 0
     assert "preserve_mass_distribution false (calibrate scales every segment's mass alike)" in capsys.readouterr().out
+
+
+def _scale_setup_with_pose(trial: str, tasks: str) -> str:
+    return ("<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='s'><MarkerPlacer><apply>true"
+            f"</apply><IKTaskSet><objects>{tasks}</objects></IKTaskSet><marker_file>{trial}</marker_file>"
+            "<time_range>-1 -1</time_range></MarkerPlacer></ScaleTool></OpenSimDocument>")
+
+
+def _motion(path: Path) -> tuple[list[str], np.ndarray]:
+    rows = path.read_text().splitlines()
+    return rows[0].split(","), np.array([[float(v) for v in r.split(",")] for r in rows[1:]])
+
+
+def test_the_scale_setups_coordinate_tasks_set_the_static_pose(tmp_path, capsys):
+    """`--scale-setup` whose MarkerPlacer holds knee_q at -0.8 rad (manual_value) and hip_q at the model's default
+    (0.2 rad) in trial.trc: the trial's mean knee_q and hip_q are those values (the segment frames turned at the end,
+    as OpenSim places its markers on the model so posed), the marker fit is that of the run without the setup, the
+    summary and the report say so, the note names the root's p_tx as not set; `--neutral` beside it takes over (a note;
+    it then refuses this moving trial); a setup posing a trial not given: a note, nothing turned; a value whose turn
+    would carry the trial past the joint's range: not turned, said with where the angle ends; a task of weight 5 (a
+    preference OpenSim weighs against the markers): not applied, said.  `inspect` lists the pose; the HTML report
+    names it."""
+    from tests.test_osim_import import _task
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    trc = _muscled_trial(tmp_path, load_model(src))  # 30 frames at 60 Hz, the hip and knee moving
+    setup = tmp_path / "Setup_Scale.xml"
+    setup.write_text(_scale_setup_with_pose("trial.trc", _task("knee_q", "manual_value", -0.8) + _task("hip_q")
+                                            + _task("p_tx") + _task("knee_q_x", apply="false")))
+    far = tmp_path / "Setup_Scale_far.xml"  # 0.15 rad: the turn would carry the trial's knees past 0.2 rad, its limit
+    far.write_text(_scale_setup_with_pose("trial.trc", _task("knee_q", "manual_value", 0.15)))
+    soft = tmp_path / "Setup_Scale_soft.xml"  # weight 5: a preference OpenSim weighs against the markers
+    soft.write_text(_scale_setup_with_pose("trial.trc", _task("knee_q", "manual_value", -0.8).replace(
+        "<weight>1000</weight>", "<weight>5</weight>")))
+    other = tmp_path / "Setup_Scale_other.xml"
+    other.write_text(_scale_setup_with_pose("static.trc", _task("knee_q", "manual_value", -0.8)))
+    runs = {}
+    for key, extra in [("none", []), ("pose", ["--scale-setup", str(setup), "--html", str(tmp_path / "pose.html")]),
+                       ("neutral", ["--scale-setup", str(setup), "--neutral", "1"]),
+                       ("other", ["--scale-setup", str(other)]), ("far", ["--scale-setup", str(far)]),
+                       ("soft", ["--scale-setup", str(soft)])]:
+        out = tmp_path / key
+        out.mkdir()
+        code = main([str(trc), str(src), "-o", str(out / "s.urdf"), "--no-new-markers", "--mass", "70", *extra])
+        captured = capsys.readouterr()
+        if key == "neutral":  # the setup's pose yields to --neutral, which refuses this moving trial
+            assert code == 2 and "--neutral turns every joint to zero instead" in captured.err, captured.err
+            assert "neutral: trial 1" in captured.err and "moves" in captured.err
+            continue
+        assert code == 0, captured.err
+        head, values = _motion(out / "trial_motion.csv")
+        runs[key] = (head, values, json.loads((out / "trial_report.json").read_text()), captured)
+    head, values, report, captured = runs["pose"]
+    assert values[:, head.index("knee_q")].mean() == pytest.approx(-0.8, abs=1e-6)
+    assert values[:, head.index("hip_q")].mean() == pytest.approx(0.2, abs=1e-6)  # the model's default
+    h0, v0, r0, _ = runs["none"]
+    assert abs(v0[:, h0.index("knee_q")].mean() + 0.8) > 0.05  # not so without the setup
+    # The same fit: the turn is a change of gauge.
+    assert report["trials"][0]["rms_mm"] == pytest.approx(r0["trials"][0]["rms_mm"], abs=1e-4)
+    assert report["neutral_pose_deg"] == pytest.approx({"knee_q": np.degrees(-0.8), "hip_q": np.degrees(0.2)})
+    assert report["neutral_pose_not_set"] == []
+    assert ("note: Setup_Scale.xml: in trial.trc its MarkerPlacer holds knee_q -45.8 deg, hip_q 11.5 deg: the segment "
+            "frames are turned so at the end") in captured.err and "; not p_tx (the ground joint's" in captured.err
+    assert "knee_q is -45.8 deg, hip_q is 11.5 deg on average (the lab's static pose)" in captured.out
+    assert ("static pose: segment frames turned so that the neutral trial holds knee_q -45.8 deg, hip_q 11.5 deg on "
+            "average") in (tmp_path / "pose.html").read_text()
+    head, values, report, captured = runs["other"]
+    assert "its MarkerPlacer poses static.trc, not among the trials; its coordinate tasks (knee_q -45.8 deg) not " \
+        "applied" in captured.err
+    assert report["neutral_pose_deg"] is None
+    assert values[:, head.index("knee_q")].mean() == pytest.approx(v0[:, h0.index("knee_q")].mean(), abs=1e-6)
+    head, values, report, captured = runs["far"]  # not turned, and said with where the angle ends
+    knee = v0[:, h0.index("knee_q")].mean()
+    assert values[:, head.index("knee_q")].mean() == pytest.approx(knee, abs=1e-6)
+    assert report["neutral_pose_not_set"] == [f"knee_q ({np.degrees(knee):.1f} deg)"]
+    assert report["trials"][0]["rms_mm"] == pytest.approx(r0["trials"][0]["rms_mm"], abs=1e-4)
+    assert f"not met: knee_q ({np.degrees(knee):.1f} deg)" in captured.out
+    head, values, report, captured = runs["soft"]
+    assert ("no coordinate held in trial.trc; its lighter tasks (knee_q weight 5) are preferences OpenSim weighs "
+            "against the markers, not applied") in captured.err, captured.err
+    assert report["neutral_pose_deg"] is None
+    assert values[:, head.index("knee_q")].mean() == pytest.approx(v0[:, h0.index("knee_q")].mean(), abs=1e-6)
+    assert main(["inspect", str(soft)]) == 0
+    assert "knee_q (-0.8, weight 5: not applied)" in capsys.readouterr().out
+    assert main(["inspect", str(setup)]) == 0
+    assert ("the static pose its MarkerPlacer holds in trial.trc: knee_q (-0.8), hip_q (the model's default), p_tx "
+            "(the model's default) (segment frames turned so)") in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not (REAL / "gait2392").is_dir(), reason="the real trials (../shared/data/real) are not here")
+def test_the_gait2392_scale_setup_poses_its_static():
+    """OpenSim's gait2392 Scale setup: its MarkerPlacer holds both subtalar and mtp angles and lumbar_extension at
+    the model's defaults (0) in subject01_static.trc; the static trial is found by its file name."""
+    from calibrate.io.osim_setup import setup_pose, static_pose
+
+    d = REAL / "gait2392"
+    model = load_model(d / "gait2392.osim", d / "gait2392_Scale_MarkerSet.xml")
+    pose = static_pose(d / "subject01_Setup_Scale.xml", model)
+    assert pose.file == "subject01_static.trc"
+    assert dict(pose.values) == {"subtalar_angle_r": 0.0, "mtp_angle_r": 0.0, "subtalar_angle_l": 0.0,
+                                 "mtp_angle_l": 0.0, "lumbar_extension": 0.0}
+    assert pose.soft == () and pose.root == ()  # every task of weight 1000: held
+    static, walk = read_trial(d / "subject01_static.trc"), read_trial(d / "subject01_walk1.trc")
+    k, held, lines = setup_pose(d / "subject01_Setup_Scale.xml", model, [walk, static])
+    assert k == 1 and held == dict(pose.values) and len(lines) == 1

@@ -222,7 +222,12 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
 
             trials, _ = cut_to_setups(trials, setup, subject.ik_setup)
         marker_map = load_marker_map(subject.markers) if subject.markers else None
-        cal = calibrate(model, trials, settings, marker_map=marker_map, mass=mass)
+        neutral, pose = None, None
+        if setup is not None:  # the static pose the lab's marker placer holds, as the command line takes it
+            from ..io.osim_setup import setup_pose
+
+            neutral, pose, _ = setup_pose(setup.path, model, trials, [Path(t).name for t in subject.trials])
+        cal = calibrate(model, trials, settings, marker_map=marker_map, mass=mass, neutral=neutral, pose=pose)
         if setup is not None and subject.mass is None and mass is not None:
             cal = replace(cal, mass_from=str(setup.path))
         folder.mkdir(parents=True, exist_ok=True)

@@ -4,6 +4,7 @@ them, the data fit unchanged."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -90,10 +91,12 @@ def align_markers(problem: Problem, state: State, options: SolverOptions | None 
 
 
 NEUTRAL_MAX = math.radians(45.0)  # a hinge held further from zero in the neutral trial may be no neutral pose
+POSE_LIMIT_SLACK = math.radians(0.1)  # a lab's pose turn may carry no frame further than this past a limit
 
 
-def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: SolverOptions | None = None
-                  ) -> tuple[State, list[tuple[str, float]]]:
+def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: SolverOptions | None = None,
+                  pose: Mapping[str, float] | None = None
+                  ) -> tuple[State, list[tuple[str, float]], list[str]]:
     """Turn every free segment frame but the root's (Problem.neutral_gauges) so that the frames
     marked `neutral` have zero joint angles on average, a tree level at a time, every frame's coordinates
     carried through the turns (as turn_frames carries them) and then re-solved against the joint limits
@@ -103,8 +106,11 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: 
     model has no neutral pose, and is not turned: pig_walk's static holds its elbows at 101 / 114 deg, and turned
     to zero there, the walk's elbows went 70-90 deg past their limits, whose re-solve dragged the walk's fit from
     8.7 to 62 mm.  (A ball joint has no limits in the solve: an arms-out static's shoulders are turned, the neutral
-    being the arms-out pose.)  Returns the state and (joint, its mean angle in the neutral trial, rad) per joint
-    not turned."""
+    being the arms-out pose.)  `pose` (coordinate -> rad): a lab's static pose (its Scale setup's coordinate
+    tasks, calibrate.io.osim_setup.StaticPose): only the joints of the coordinates it names are turned, each
+    named angle to its value on average (a ball joint's others kept at their means).  Returns the state,
+    (joint, its mean angle in the neutral trial, rad) per joint not turned, and the coordinates of `pose` no turn
+    can set (the root's, a frame its markers or a held axis fix, a universal joint's first angle)."""
     from .identifiability import LIMIT_NOTE_DEG, LIMIT_NOTE_FRACTION
 
     model = problem.model
@@ -113,6 +119,20 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: 
         depth[j.child] = depth[j.parent] + 1
     segs = [(si, kind) for si, kind in problem.neutral_gauges() if kind != "rigid"]
     into = {j.child: j for j in model.joints}
+    unset: list[str] = []
+    targets: dict[int, float] | None = None
+    if pose is not None:
+        turnable = {model.segments[si].name: kind for si, kind in segs}
+        targets = {}
+        for name, value in pose.items():
+            j = next((j for j in model.joints if name in j.dofs), None)
+            kind = None if j is None else turnable.get(j.child)
+            if kind is None or (kind == "axis" and name != j.dofs[-1]):
+                unset.append(name)
+            else:
+                targets[model.dof_index(name)] = float(value)
+        named = {model.dofs[d].name for d in targets}
+        segs = [(si, kind) for si, kind in segs if any(d in named for d in into[model.segments[si].name].dofs)]
     skipped: list[tuple[str, float]] = []
     tol = math.radians(LIMIT_NOTE_DEG)
     for level in sorted({depth[model.segments[si].name] for si, _ in segs}):
@@ -124,21 +144,30 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: 
             if kind == "axis":
                 dof = model.dofs[model.dof_index(into[model.segments[si].name].dofs[-1])]
                 k = model.dof_index(dof.name)
-                mean = float(np.mean(FrameLayout.angles(Zn)[:, k]))
+                mean = float(np.mean(FrameLayout.angles(Zn)[:, k])) - (targets or {}).get(k, 0.0)  # the turn
 
                 def beyond(th: np.ndarray, d=dof) -> float:
                     return float(np.mean((th < d.lower - tol) | (th > d.upper + tol)))
+
+                def past(th: np.ndarray, d=dof) -> np.ndarray:  # how far each frame lies beyond the range
+                    return np.maximum(np.maximum(d.lower - th, th - d.upper), 0.0)
 
                 # A large turn (a joint held bent) that carries a share of the frames past the limits: a few
                 # degrees near a limit (squats' ankles at human.urdf's 30 deg) the re-solve absorbs.
                 if abs(mean) > NEUTRAL_MAX and beyond(every[:, k] - mean) > beyond(every[:, k]) + LIMIT_NOTE_FRACTION:
                     skipped.append((into[model.segments[si].name].name, mean))
                     continue
+                # A lab's pose is met only by a pure change of gauge: a turn that carries any frame further past the
+                # joint's limits (which the re-solve would pull back, moving the fit) is left and said (Hamner2010's
+                # static elbows, 39 deg there, turned to the setup's 5 deg put the walk's past full extension).
+                if targets is not None and np.any(past(every[:, k] - mean) > past(every[:, k]) + POSE_LIMIT_SLACK):
+                    skipped.append((into[model.segments[si].name].name, mean))
+                    continue
             keep.append((si, kind))
         if not keep:
             continue
         net: dict[int, np.ndarray] = {}
-        p, moves = problem.neutral_frames(state.p, Zn, keep, net)
+        p, moves = problem.neutral_frames(state.p, Zn, keep, net, targets)
         # Every frame's coordinates carried through the turns: a hinge's angle by its child's turn, the balls'
         # reference rotations through every segment's (_balls_carried); the re-solve then answers the limits.
         Z, Q, B = problem.kin.retract(state.Z, state.Q, state.B)
@@ -149,4 +178,4 @@ def align_neutral(problem: Problem, state: State, neutral: np.ndarray, options: 
                                                     @ problem.axis_direction(state.p, d))
         state, _ = levenberg_marquardt(problem, State(Z, Q, p, _balls_carried(problem, B, net)), options,
                                        pose_only=True, max_iterations=20)
-    return state, skipped
+    return state, skipped, unset

@@ -142,6 +142,11 @@ def _notes(report: dict) -> str:
         held = ", ".join(f"{_e(n.get('joint'))} ({n.get('mean_deg', 0):.0f} deg)" for n in report["not_neutral"])
         items.append(f"<li>neutral trial: not turned to zero there, {held}: zero there, the trials' angles would "
                      "leave the joint's range (their zero stays the model's)</li>")
+    if report.get("neutral_pose_deg") is not None:  # a lab's static pose (its Scale setup's coordinate tasks)
+        pose = ", ".join(f"{_e(n)} {v:.3g} deg" for n, v in report["neutral_pose_deg"].items()) or "nothing"
+        unset = report.get("neutral_pose_not_set") or []
+        items.append(f"<li>static pose: segment frames turned so that the neutral trial holds {pose} on average"
+                     + (f"; not met: {_e(', '.join(unset))}" if unset else "") + "</li>")
     for n in report.get("notes", []):
         items.append(f"<li>{_e(n)}</li>")
     for n in report.get("seed", {}).get("notes", []):

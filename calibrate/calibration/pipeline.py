@@ -101,6 +101,7 @@ SETTLE_PASSES = 2  # outlier tests, each then a solve (the second with the noise
 FIRST_RUN_ATOL = 10.0
 
 
+POSE_MISS = math.radians(0.5)  # a lab's static pose angle further than this from its value at the end is said
 NOISE_ROUNDS = 3  # learn-and-solve rounds on the subsample (then once more on every frame)
 
 
@@ -108,6 +109,7 @@ NOISE_ROUNDS = 3  # learn-and-solve rounds on the subsample (then once more on e
 def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings | None = None, *,
               marker_map: Mapping[str, Sequence[str]] | None = None, aliases: bool = True,
               kinematics: Kinematics | None = None, mass: float | None = None, neutral: int | None = None,
+              pose: Mapping[str, float] | None = None,
               progress: Callable[[Progress], None] | None = None) -> Calibration:
     """Calibrate `model` to one trial or several trials of one subject: the subject's scales, joint
     centres, hinge axes and marker positions (shared by every trial), and every frame's
@@ -124,6 +126,11 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     trial): every segment frame that markers do not fix (see docs/calibration.md, gauges) is turned
     so that the joint angles of that trial are zero on average, as a lab's static calibration
     defines them (None: the frames sit where the priors put them).
+    `pose`: the angles (coordinate -> rad) trial `neutral` holds, where the lab defines its static pose by a few
+    coordinates rather than all at zero (its OpenSim Scale setup's coordinate tasks, which OpenSim's marker placer
+    poses the model by: calibrate.io.osim_setup.static_pose): only the segment frames of those coordinates' joints
+    are turned, each named angle to its value on average in that trial (which then need not be still); the data
+    fit is unchanged.
     `progress` receives a Progress record (calibrate.calibration.records) per step (its stage and
     text; str() is the line to show).
     Raises CalibrateError with one line if the trials and model share too few markers or frames.
@@ -192,7 +199,15 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if neutral is not None and not (isinstance(neutral, int) and 0 <= neutral < len(trials)):
         raise CalibrateError(f"neutral: {neutral!r} is not the index of one of the {len(trials)} trials "
                              f"(0 for the first)")
-    if neutral is not None and (moves := relative_motion(trials[neutral], model)) >= STILL_MOTION:
+    if pose is not None:
+        if neutral is None:
+            raise CalibrateError("pose: the coordinates a trial holds need that trial: give neutral=K as well")
+        bad = [name for name in pose if name not in model.dof_names]
+        if bad:
+            raise CalibrateError(f"pose: '{bad[0]}' is not a coordinate of {model.path.name}; use one of its DoF names "
+                                 f"({', '.join(model.dof_names[:6])}, ...; see calibrate inspect)")
+        pose = {name: float(v) for name, v in pose.items()}
+    if neutral is not None and pose is None and (moves := relative_motion(trials[neutral], model)) >= STILL_MOTION:
         # Its joint angles made zero on average would turn every segment frame by a walk's mean pose.
         still = [i for i, t in enumerate(trials) if relative_motion(t, model) < STILL_MOTION]
         raise CalibrateError(f"neutral: trial {neutral + 1} ({trials[neutral].source or 'in memory'}) moves (markers "
@@ -207,7 +222,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if not settings.lateral_markers and measured is not None:
         settings = replace(settings, lateral_markers=lateral_markers(model, measured))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
-        cal = _calibrate(model, trials, settings, kinematics, progress, neutral)
+        cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
                    mass_from=mass_from, measurements=measured)
 
@@ -229,7 +244,8 @@ def lateral_markers(model: Model, measured: SubjectMeasurements) -> tuple[tuple[
 
 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,
-               progress: Callable[[Progress], None] | None, neutral: int | None = None) -> Calibration:
+               progress: Callable[[Progress], None] | None, neutral: int | None = None,
+               pose: Mapping[str, float] | None = None) -> Calibration:
     say = _announcer(progress)
     run, solver = settings.pipeline, settings.solver  # the pipeline's and the solver's options (never changed here)
     times: dict[str, float] = {}
@@ -551,11 +567,22 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if run.segment_frames == "markers":
         say(Progress("solve", "segment frames turned to where their markers put them"))
         state = align_markers(problem, state, solver)
+    pose_used: dict[str, float] = {}
+    pose_unset: list[str] = []
     if in_neutral is not None:
-        # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.
-        say(Progress("solve", f"segment frames turned to zero joint angles in "
-                              f"{trials[neutral].source or 'the neutral trial'}"))
-        state, not_neutral = align_neutral(problem, state, in_neutral, solver)
+        # Last: a change of gauge (the data fit stays), so no solve may follow and undo it.  A coordinate the run
+        # holds (locked, auto-locked) stays at its value: a pose naming it at another is not met there.
+        held_at = dict(problem.settings.lock)
+        if pose is not None:
+            pose_used = {n: v for n, v in pose.items() if n not in held_at}
+            pose_unset = [n for n, v in pose.items() if n in held_at and not math.isclose(held_at[n], v, abs_tol=1e-9)]
+        say(Progress("solve", "segment frames turned to " + (
+            f"{', '.join(f'{n} {math.degrees(v):.3g}' for n, v in pose_used.items())} deg on average"
+            if pose is not None else "zero joint angles") + f" in {trials[neutral].source or 'the neutral trial'}"))
+        state, not_neutral, unset = align_neutral(problem, state, in_neutral, solver,
+                                                  pose_used if pose is not None else None)
+        pose_unset += unset
+        pose_used = {n: v for n, v in pose_used.items() if n not in unset}
         summary = replace(summary, final_cost=problem.cost(state), termination=summary.termination
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
@@ -572,6 +599,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
+    if pose_used:  # what the static holds at the end (a far arm's angles are fitted again after the turn): a named
+        # angle more than POSE_MISS from its value is said, with where it ended, rather than claimed
+        at_static = FrameLayout.angles(Z[spans[neutral]]).mean(axis=0)
+        ended = {n: float(at_static[subject.dof_index(n)]) for n in pose_used}
+        missed = [n for n in pose_used if abs(ended[n] - pose_used[n]) > POSE_MISS]
+        pose_unset += [f"{n} ({math.degrees(ended[n]):.1f} deg)" for n in missed]
+        pose_used = {n: v for n, v in pose_used.items() if n not in missed}
     notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state, scatter), problem.settings,
                              {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()})
     # The neighbour of a hinge locked for trading (an ankle beside a locked subtalar) was judged with it and found
@@ -592,6 +626,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
                        not_neutral=tuple(not_neutral),
+                       pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
                        unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},

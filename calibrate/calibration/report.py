@@ -179,6 +179,8 @@ def calibration_report(cal: Calibration) -> dict:
         "static_pose": static_pose_table(cal),
         "neutral_trial": None if cal.neutral is None else (cal.trials[cal.neutral].source or cal.neutral),
         "not_neutral": [{"joint": j, "mean_deg": math.degrees(a)} for j, a in cal.not_neutral],
+        "neutral_pose_deg": None if cal.pose is None else {n: math.degrees(v) for n, v in cal.pose},
+        "neutral_pose_not_set": list(cal.pose_unset),
         "markers": {"rms_mm": _mm(cal.marker_rms), "max_mm": _mm(cal.marker_max),
                     "initial_rms_mm": _mm(marker_rms(cal.initial_residuals)),
                     "per_marker": {n: {"rms_mm": _mm(r), "max_mm": _mm(m), "frames": f}
@@ -453,12 +455,21 @@ def summary_text(cal) -> str:
         *["  auto-locked  " + lk.text() for lk in cal.auto_locked],
         *(["  frames       segment frames turned to where their markers put them (--segment-frames)"]
           if cal.settings.segment_frames == "markers" and cal.neutral is None else []),
+        *([f"  neutral      segment frames turned so that in "
+           f"{cal.trials[cal.neutral].source or f'trial {cal.neutral + 1}'} "
+           + (", ".join(f"{n} is {math.degrees(v):.3g} deg" for n, v in cal.pose) or "nothing") + " on average (the "
+           "lab's static pose)" + (f"; not met: {', '.join(cal.pose_unset)} (held at another value, a frame its "
+                                   "markers fix, or a turn the joint's range would undo; in brackets where the angle "
+                                   "ends)" if cal.pose_unset else "")
+           + (f"; not turned: {', '.join(f'{j} ({math.degrees(a):.0f} deg from it)' for j, a in cal.not_neutral)}: "
+              "there the trials' angles would leave the joint's range" if cal.not_neutral else "")]
+          if cal.neutral is not None and cal.pose is not None else []),
         *([f"  neutral      segment frames turned so that the joint angles of "
            f"{cal.trials[cal.neutral].source or f'trial {cal.neutral + 1}'} are zero on average"
            + (f"; not turned: {', '.join(f'{j} ({math.degrees(a):.0f} deg)' for j, a in cal.not_neutral)}: zero "
               f"there, the trials' angles would leave the joint's range (not the model's neutral pose; their zero "
               f"stays the model's)" if cal.not_neutral else "")]
-          if cal.neutral is not None else []),
+          if cal.neutral is not None and cal.pose is None else []),
         *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
            + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]
           if cal.settings.hold_axes else []),

@@ -193,6 +193,12 @@ class Calibration:
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     # (joint, its mean angle there, rad) per hinge whose zero there would carry the trials past its limits: not turned
     not_neutral: tuple[tuple[str, float], ...] = ()
+    # (coordinate, rad) the neutral trial was turned to hold on average (calibrate's `pose`: a lab's static pose);
+    # None where every angle was turned to zero or no trial is neutral
+    pose: tuple[tuple[str, float], ...] | None = None
+    # coordinates of `pose` not met: locked at another value, a frame markers fix, a turn past the joint's range ('name
+    # (N deg)' where the angle ended more than POSE_MISS from the value)
+    pose_unset: tuple[str, ...] = ()
     unresolved: tuple = ()  # calibrate.model.resolve.UnresolvedSegment per segment the markers cannot place (locked)
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)

@@ -260,8 +260,21 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if args.neutral is not None and args.neutral > len(trials):
             raise CalibrateError(f"--neutral {args.neutral}: there are only {len(trials)} trials; give the number of "
                                  f"the static trial (1 = the first)")
+        neutral, pose = None if args.neutral is None else args.neutral - 1, None
+        if setup is not None:  # the static pose the lab's marker placer holds (its coordinate tasks)
+            from ..io.osim_setup import setup_pose
+
+            k, held, lines = setup_pose(setup.path, model, trials, [p.name for p in trial_paths])
+            if held is not None and neutral is not None:
+                lines = [f"{setup.path.name}: its MarkerPlacer's coordinate tasks not applied: --neutral turns every "
+                         "joint to zero instead"]
+            elif held is not None:
+                neutral, pose = k, held
+            if not args.quiet:
+                for line in lines:
+                    progress_printer("note: " + line)
         cal = calibrate(model, trials, settings, marker_map=marker_map, aliases=not args.no_aliases, mass=mass,
-                        neutral=None if args.neutral is None else args.neutral - 1, progress=say)
+                        neutral=neutral, pose=pose, progress=say)
         if setup is not None and args.mass is None and mass is not None:
             cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})

@@ -7,8 +7,8 @@ calibrate.io.trc; is_model_output, plugin_gait_centres from calibrate.io.vicon; 
 write_motion_csv from calibrate.io.motion; LabelMapping, load_marker_map, map_labels from calibrate.io.labels;
 load_settings, settings_from_dict from calibrate.io.config; approximation_table, osim_info, with_locked from
 calibrate.io.osim_info; export_osim, write_mot from calibrate.io.osim_export; ik_setup_locks, with_ik_setup,
-ik_setup_range, scale_setup, ScaleSetup, TimeRange, apply_time_ranges, cut_to_setups from
-calibrate.io.osim_setup.
+ik_setup_range, scale_setup, ScaleSetup, TimeRange, apply_time_ranges, cut_to_setups, static_pose, setup_pose,
+StaticPose from calibrate.io.osim_setup.
 """
 
 from ..exports import lazy_exports
@@ -19,4 +19,5 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, """
 .labels:LabelMapping,load_marker_map,map_labels .config:load_settings,settings_from_dict
 .osim_info:approximation_table,osim_info,with_locked .osim_export:export_osim,write_mot
 .osim_setup:ik_setup_locks,with_ik_setup,ik_setup_range,scale_setup,ScaleSetup,TimeRange,apply_time_ranges,cut_to_setups
+.osim_setup:static_pose,setup_pose,StaticPose
 """)

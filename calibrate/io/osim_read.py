@@ -55,15 +55,21 @@ class OsimFunction:
         return self.f(np.asarray(x, dtype=float))
 
 
+def xml_root(path: Path, read_as: str, give: str) -> ET.Element:
+    """The root element of the XML file at `path`; ModelError with one line when the file cannot be read (`read_as`:
+    what it should be) or is not XML (`give`: what to give instead)."""
+    text = read_text_file(path, read_as)
+    try:
+        return ET.fromstring(text)
+    except ET.ParseError as e:
+        raise ModelError(f"{path}: not valid XML ({e}); give {give}") from None
+
+
 def xml_element(path: Path, tag: str, read_as: str, give: str, missing: str) -> ET.Element:
     """The <tag> element of the XML file at `path` (its root or the first below it); ModelError with one line when
     the file cannot be read (`read_as`: what it should be), is not XML (`give`: what to give instead) or has no
     such element (`missing`: what to do)."""
-    text = read_text_file(path, read_as)
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as e:
-        raise ModelError(f"{path}: not valid XML ({e}); give {give}") from None
+    root = xml_root(path, read_as, give)
     el = root if root.tag == tag else root.find(f".//{tag}")
     if el is None:
         raise ModelError(f"{path}: no <{tag}>; {missing}")

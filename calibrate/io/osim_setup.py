@@ -13,7 +13,10 @@ knee marker of the static trial).
 A lab's Scale setup file gives the subject's body mass and the marker set the Scale tool adds to the generic
 model (``--scale-setup subject01_Setup_Scale.xml``): the mass scales the subject's segment masses and inertias
 (what the lab's ID, Static Optimization and CMC setups read from the subject .osim); its measurement pairs and
-marker weights are not used: calibrate scales and places the markers from every frame it is given.
+marker weights are not used: calibrate scales and places the markers from every frame it is given.  Its marker
+placer's coordinate tasks of weight POSE_TASK_WEIGHT or more are the static's pose (``static_pose``,
+``setup_pose``): OpenSim places the markers on the model so posed, and calibrate turns the segment frames so that
+the static's mean angles are those values (a change of gauge; the fit is unchanged).
 
 Both setups name a trial file and the time range the lab chose in it (``marker_file``, ``time_range``: the
 static's still second, the walk's cycle): each is a ``TimeRange``, and ``apply_time_ranges`` cuts the trials
@@ -29,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ModelError, TrialError
-from .osim_read import xml_element
+from .osim_read import xml_element, xml_root
 from .trial import Trial
 
 
@@ -42,15 +45,33 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     tool = xml_element(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
                        "an OpenSim Inverse Kinematics setup file",
                        "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+    return tuple(_coordinate_values(path, tool, model)[0])
+
+
+POSE_TASK_WEIGHT = 100.0  # a marker placer's coordinate task this heavy defines the static's angle (Gait2392's: 1000)
+
+
+def _coordinate_values(path: Path, tool, model, root_ok: bool = False) -> tuple[list[tuple[str, float]], list[str]]:
+    """(coordinate, value in rad or m) of every applied IKCoordinateTask under `tool` (an IK tool, or a Scale
+    setup's MarkerPlacer), for `model`: ``default_value`` the model's default, ``manual_value`` the task's value (in
+    OpenSim's internal units, as its IK reads it).  ModelError with one line on a task on a coordinate the model
+    does not have, a value read from a file, or a value that is not finite.  `root_ok`: tasks on the ground joint's
+    coordinates are returned apart (second list) instead (a static pose's: the root's frame is its markers')."""
     from .osim_info import osim_info
 
     info = osim_info(model)
     defaults = info.defaults if info is not None else {}
     dofs = set(model.dof_names)
-    locks: list[tuple[str, float]] = []
+    root = {n for n, _ in info.root.rotations + info.root.translations} if (
+        root_ok and info is not None and info.root is not None) else set()
+    out: list[tuple[str, float]] = []
+    at_root: list[str] = []
     for task in tool.iter("IKCoordinateTask"):
         name = task.get("name", "")
         if not _applied(task):
+            continue
+        if name in root:
+            at_root.append(name)
             continue
         if name not in dofs:
             dropped = info is not None and name in info.dropped
@@ -61,14 +82,104 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
         if kind == "default_value":
             value = defaults.get(name, 0.0)
         elif kind == "manual_value":
-            value = float(task.findtext("value") or 0.0)
+            try:
+                value = float(task.findtext("value") or 0.0)
+            except ValueError:
+                value = math.nan
         else:
             raise ModelError(f"{path}: coordinate task '{name}' takes its value {kind!r}; calibrate holds a coordinate "
                              f"at one value (default_value or manual_value): change the task or lock it with --lock")
         if not math.isfinite(value):
-            raise ModelError(f"{path}: coordinate task '{name}' has value {value}; give a finite value")
-        locks.append((name, value))
-    return tuple(locks)
+            raise ModelError(f"{path}: coordinate task '{name}' has value {task.findtext('value')!r}; give a finite "
+                             "value")
+        out.append((name, value))
+    return out, at_root
+
+
+@dataclass(frozen=True)
+class StaticPose:
+    """What a lab's Scale setup says its static shows: the MarkerPlacer's trial file and the coordinates its
+    coordinate tasks hold there (OpenSim places the markers on the model posed so).  calibrate turns the segment
+    frames so that the trial's mean angles are these (``calibrate(..., neutral=K, pose=...)``): the data fit is
+    unchanged, the angles' zero is the lab's."""
+
+    setup: Path
+    file: str  # the MarkerPlacer's marker_file, as the setup names it
+    values: tuple[tuple[str, float], ...]  # (coordinate, rad or m)
+    root: tuple[str, ...] = ()  # the ground joint's coordinates it names: not set (the root's frame is its markers')
+    #: (coordinate, weight) of the tasks lighter than POSE_TASK_WEIGHT: a preference OpenSim weighs against the
+    #: markers (Hamner's 1-10 against its markers' 10-100), which settles between the two; not applied
+    soft: tuple[tuple[str, float], ...] = ()
+
+    def text(self) -> str:
+        """'lumbar_extension 0 deg, mtp_angle_r 0 deg'."""
+        return ", ".join(f"{n} {math.degrees(v):.3g} deg" for n, v in self.values)
+
+
+def static_pose(path: str | Path, model) -> StaticPose | None:
+    """The static pose the Scale setup at `path` asks of `model` (its applied MarkerPlacer's coordinate tasks and
+    trial; StaticPose), or None where the MarkerPlacer is not applied, names no trial or holds no coordinate.
+    ModelError with one line as for an IK setup's tasks (ik_setup_locks)."""
+    path = Path(path)
+    tool = xml_element(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+                       "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+    placer = tool.find("MarkerPlacer")
+    if placer is None or not _applied(placer):
+        return None
+    name = (placer.findtext("marker_file") or "").strip()
+    values, root = _coordinate_values(path, placer, model, root_ok=True)
+    weight = {t.get("name", ""): _weight(path, t) for t in placer.iter("IKCoordinateTask") if _applied(t)}
+    soft = tuple((n, weight[n]) for n, _ in values if weight[n] < POSE_TASK_WEIGHT)
+    values = [(n, v) for n, v in values if weight[n] >= POSE_TASK_WEIGHT]
+    if not name or name == "Unassigned" or not (values or soft):
+        return None
+    return StaticPose(path, name, tuple(values), tuple(root), soft)
+
+
+def _weight(path: Path, task) -> float:
+    """A task's <weight> (1 where the file leaves it out); ModelError with one line when it is not a number >= 0."""
+    text = (task.findtext("weight") or "1").strip()
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise ModelError(f"{path}: task '{task.get('name', '')}' has weight {text!r}; give a number >= 0")
+    return value
+
+
+def setup_pose(path: str | Path, model, trials: Sequence[Trial], names: Sequence[str] | None = None
+               ) -> tuple[int | None, dict[str, float] | None, list[str]]:
+    """What ``--scale-setup`` passes to calibrate as its ``neutral`` and ``pose``: the trial the Scale setup at `path`
+    poses (static_pose, pose_trial) and the coordinates it holds there, and a line saying so (or why not: its trial
+    not among `trials`); (None, None, []) where the setup holds no coordinate.  `names` as for pose_trial."""
+    pose = static_pose(path, model)
+    if pose is None:
+        return None, None, []
+    soft = (f"; its lighter tasks ({', '.join(f'{n} weight {w:g}' for n, w in pose.soft)}) are preferences OpenSim "
+            f"weighs against the markers, not applied (calibrate holds those of weight {POSE_TASK_WEIGHT:g} or more)"
+            if pose.soft else "")
+    root = (f"; not {', '.join(pose.root)} (the ground joint's: the root's frame is where its markers put it)"
+            if pose.root and pose.values else "")
+    if not pose.values:
+        return None, None, [f"{pose.setup.name}: no coordinate held in {pose.file}" + soft]
+    k = pose_trial(pose, trials, names)
+    if k is None:
+        return None, None, [f"{pose.setup.name}: its MarkerPlacer poses {pose.file}, not among the trials; its "
+                            f"coordinate tasks ({pose.text()}) not applied"]
+    return k, dict(pose.values), [f"{pose.setup.name}: in {pose.file} its MarkerPlacer holds {pose.text()}: the "
+                                  "segment frames are turned so at the end (as OpenSim places the markers; the fit "
+                                  "is unchanged)" + root + soft]
+
+
+def pose_trial(pose: StaticPose, trials: Sequence[Trial], names: Sequence[str] | None = None) -> int | None:
+    """The index of the trial the static pose names (by file name, else by stem, as apply_time_ranges matches a
+    range); None when it is not among them.  `names`: the trials' file names when not their ``source``."""
+    names = [Path(t.source or "").name for t in trials] if names is None else [Path(n).name for n in names]
+    want = Path(pose.file.replace("\\", "/")).name
+    hit = [i for i, n in enumerate(names) if n == want] or [
+        i for i, n in enumerate(names) if Path(n).stem == Path(want).stem]
+    return hit[0] if hit else None
 
 
 def ik_setup_weights(path: str | Path | Sequence[str | Path]) -> dict[str, float]:
@@ -112,6 +223,18 @@ def with_ik_setup(model, settings, path: str | Path | Sequence[str | Path]):
             held[name], where[name] = value, Path(one)
     merged = {**held, **dict(settings.lock)}
     return replace(settings, lock=tuple(sorted(merged.items())))
+
+
+def _task_value(task) -> str:
+    """What a coordinate task holds its coordinate at, in words: 'the model's default', '0.1', 'from_file'."""
+    kind = (task.findtext("value_type") or "default_value").strip()
+    if kind != "manual_value":
+        return "the model's default" if kind == "default_value" else kind
+    text = (task.findtext("value") or "0").strip()
+    try:
+        return f"{float(text):g}"
+    except ValueError:
+        return text
 
 
 def _paths(path: str | Path | Sequence[str | Path] | None) -> list[Path]:
@@ -262,23 +385,29 @@ def describe_setup(path: str | Path) -> list[str]:
     """Lines saying what calibrate takes from the OpenSim Scale or IK setup file at `path` and what it leaves
     (``calibrate inspect FILE.xml``).  ModelError with one line on a file that is neither."""
     path = Path(path)
-    root = xml_element(path, "OpenSimDocument", "an OpenSim setup file (.xml)", "an OpenSim Scale or IK setup file",
-                       "give an OpenSim Scale or IK setup file")
-    if root.find(".//ScaleTool") is not None:
+    # A setup is an <OpenSimDocument> holding the tool, or (an older file: Hamner's Setup_Scale.xml) the tool itself.
+    root = xml_root(path, "an OpenSim setup file (.xml)", "an OpenSim Scale or IK setup file")
+    if root.tag == "ScaleTool" or root.find(".//ScaleTool") is not None:
         setup = scale_setup(path)
-        tool = root.find(".//ScaleTool")
+        tool = root if root.tag == "ScaleTool" else root.find(".//ScaleTool")
         pairs = len(tool.findall(".//MeasurementSet//MarkerPair"))
         tasks = len(tool.findall(".//MarkerPlacer//IKMarkerTask"))
         cut = "; ".join(f"the {r.step} cuts {r.file} to {r.text()}" for r in setup.ranges)
+        placer = tool.find("MarkerPlacer")
+        held = [f"{t.get('name', '')} (" + _task_value(t) + (f", weight {_weight(path, t):g}: not applied" if
+                _weight(path, t) < POSE_TASK_WEIGHT else "") + ")" for t in
+                (placer.iter("IKCoordinateTask") if placer is not None and _applied(placer) else ()) if _applied(t)]
         return [f"{path}: an OpenSim Scale setup",
                 "  --scale-setup takes: body mass " + (f"{setup.mass:g} kg" if setup.mass is not None else "unset")
                 + ", marker set " + (str(setup.marker_set) if setup.marker_set is not None else "unset")
-                + (f"; {cut} (--whole-trials: every frame)" if cut else ""),
+                + (f"; {cut} (--whole-trials: every frame)" if cut else "")
+                + (f"; the static pose its MarkerPlacer holds in {placer.findtext('marker_file', '').strip()}: "
+                   + ", ".join(held) + " (segment frames turned so)" if held else ""),
                 f"  not used: its {pairs} measurement marker pairs, {tasks} marker-placer marker tasks and their "
                 "weights (calibrate scales every segment and places every marker from the frames it is given)"
                 + ("; preserve_mass_distribution false (calibrate scales every segment's mass alike)"
                    if not setup.preserve_mass else "")]
-    tool = root.find(".//InverseKinematicsTool")
+    tool = root if root.tag == "InverseKinematicsTool" else root.find(".//InverseKinematicsTool")
     if tool is None:
         hint = (f"an OpenSim MarkerSet is read with its model: calibrate inspect MODEL.osim --marker-set {path.name}"
                 if root.find(".//MarkerSet") is not None else "give an OpenSim Scale or IK setup file")
@@ -287,9 +416,7 @@ def describe_setup(path: str | Path) -> list[str]:
     for task in tool.iter("IKCoordinateTask"):
         if not _applied(task):
             continue
-        kind = (task.findtext("value_type") or "default_value").strip()
-        held.append(f"{task.get('name', '')} (" + ("the model's default" if kind == "default_value" else
-                    f"{float(task.findtext('value') or 0.0):g}" if kind == "manual_value" else kind) + ")")
+        held.append(f"{task.get('name', '')} (" + _task_value(task) + ")")
     markers = [t for t in tool.iter("IKMarkerTask") if _applied(t)]
     span = ik_setup_range(path)
     return [f"{path}: an OpenSim IK setup",
@@ -299,5 +426,6 @@ def describe_setup(path: str | Path) -> list[str]:
             "noise)"]
 
 
-__all__ = ["ScaleSetup", "TimeRange", "apply_time_ranges", "cut_to_setups", "describe_setup", "ik_setup_locks",
-           "ik_setup_range", "ik_setup_weights", "scale_setup", "with_ik_setup"]
+__all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "StaticPose", "TimeRange", "apply_time_ranges", "cut_to_setups",
+           "describe_setup", "ik_setup_locks", "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup",
+           "setup_pose", "static_pose", "with_ik_setup"]

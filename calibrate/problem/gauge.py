@@ -35,10 +35,14 @@ class GaugeMixin:
         out = []
         into = {j.child: j for j in m.joints}
         still = set(self.settings.hold_segments)  # their geometry cannot turn with a frame
+        # ... though a neutral turn may carry through one, re-expressing the axis into it as a held axis's: such a
+        # segment (a markerless hand or toes, held because no data reach it) otherwise kept every limb above it from
+        # turning (Hamner2010's legs and arms under its blind toes and hands).
+        blocking = set() if through_held else still
 
         def held_below(name: str) -> bool:
             """A held or locked DoF (`carried`; or a held segment) down the hinge and universal chains below `name`."""
-            return any(any(d in carried for d in j.dofs) or j.child in still or held_below(j.child)
+            return any(any(d in carried for d in j.dofs) or j.child in blocking or held_below(j.child)
                        for j in m.joints if j.parent == name and j.kind in ("hinge", "universal"))
 
         for si, seg in enumerate(m.segments):
@@ -191,12 +195,15 @@ class GaugeMixin:
         return self._find_gauges(through_held=True)
 
     def neutral_frames(self, p: np.ndarray, Z: np.ndarray, segments: list[tuple[int, str]],
-                       net: dict[int, np.ndarray] | None = None) -> tuple[np.ndarray, list[FrameTurn]]:
+                       net: dict[int, np.ndarray] | None = None,
+                       targets: dict[int, float] | None = None) -> tuple[np.ndarray, list[FrameTurn]]:
         """Turn the frames of `segments` (from neutral_gauges; not the root) so that the
         coordinates of the frames Z (F, nz) — a trial in the model's neutral pose — are zero on average:
         below a ball joint, by the mean (chordal) rotation of the joint in those frames; below a
-        hinge or universal joint, about its last axis by the mean angle.  The contents are turned
-        as in align_frames; returns the new p and (segment, kind, G, 0) per segment; `net`, where given,
+        hinge or universal joint, about its last axis by the mean angle.  `targets` (DoF index -> angle, rad):
+        a static pose's values instead of zero for the DoFs it names; a ball joint's other angles then stay at
+        their means in those frames (its mean rotation turned to the chain's at those angles).  The contents are
+        turned as in align_frames; returns the new p and (segment, kind, G, 0) per segment; `net`, where given,
         gathers every segment's whole turn (as align_frames')."""
         from scipy.spatial.transform import Rotation
 
@@ -214,11 +221,16 @@ class GaugeMixin:
                         np.outer(Z[:, fl.angle(u.dof)], self.axis_direction(out, u.dof))).as_matrix()
                     R = R @ u.rotation @ turn
                     R0 = R0 @ u.rotation
+                    if u.dof >= 0 and targets is not None:  # the pose's angle, else this DoF's mean there
+                        aim = targets.get(u.dof, float(np.mean(Z[:, fl.angle(u.dof)])))
+                        R0 = R0 @ Rotation.from_rotvec(aim * self.axis_direction(out, u.dof)).as_matrix()
                 mean = kabsch_rotation(R.sum(axis=0).T)[0]  # the chordal mean of the joint's rotations
                 G = mean.T @ R0
             elif kind == "axis":
                 d = m.dof_index(j.dofs[-1])
-                G = Rotation.from_rotvec(-float(np.mean(Z[:, fl.angle(d)])) * self.axis_direction(out, d)).as_matrix()
+                aim = (targets or {}).get(d, 0.0)
+                G = Rotation.from_rotvec(-(float(np.mean(Z[:, fl.angle(d)])) - aim)
+                                         * self.axis_direction(out, d)).as_matrix()
             else:
                 continue
             self._turn(out, si, G, net=net)
