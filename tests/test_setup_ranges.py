@@ -319,3 +319,32 @@ def test_the_gait2392_scale_setup_poses_its_static():
     static, walk = read_trial(d / "subject01_static.trc"), read_trial(d / "subject01_walk1.trc")
     k, held, lines = setup_pose(d / "subject01_Setup_Scale.xml", model, [walk, static])
     assert k == 1 and held == dict(pose.values) and len(lines) == 1
+
+
+def test_a_markerless_held_segment_does_not_stop_the_pose_above_it(tmp_path, capsys):
+    """The trial without the shank's markers: the shank is held at the base model's (no data reach it) and its knee
+    locked; the thigh's frame above it is still turned to the pose (hip_q 0.5 rad on average), the fit unchanged.
+    An OpenSim setup whose root is the tool itself (Hamner's Setup_Scale.xml has no <OpenSimDocument>): inspect reads
+    it."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.trial import Trial
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    model = load_model(src)
+    full = read_trial(_muscled_trial(tmp_path, model))
+    keep = [k for k, name in enumerate(full.labels) if model.markers[model.marker_index(name)].segment != "shank"]
+    assert len(keep) == len(full.labels) - 2
+    trial = Trial([full.labels[k] for k in keep], full.markers[:, keep], full.rate, 0, full.source)
+    plain = calibrate(model, [trial])
+    posed = calibrate(model, [trial], neutral=0, pose={"hip_q": 0.5})
+    assert "shank" in posed.settings.hold_segments
+    assert posed.pose == (("hip_q", 0.5),) and posed.pose_unset == ()
+    hip = posed.motions[0].dof_names.index("hip_q")
+    assert posed.motions[0].angles[:, hip].mean() == pytest.approx(0.5, abs=1e-6)
+    assert abs(plain.motions[0].angles[:, hip].mean() - 0.5) > 0.05
+    assert posed.marker_rms == pytest.approx(plain.marker_rms, abs=1e-7)
+    bare = tmp_path / "Setup_Scale_bare.xml"  # the tool as the file's root
+    bare.write_text("<?xml version='1.0'?><ScaleTool name='s'><mass>61</mass></ScaleTool>")
+    assert main(["inspect", str(bare)]) == 0
+    assert "an OpenSim Scale setup" in capsys.readouterr().out
