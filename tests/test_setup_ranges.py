@@ -348,3 +348,37 @@ def test_a_markerless_held_segment_does_not_stop_the_pose_above_it(tmp_path, cap
     bare.write_text("<?xml version='1.0'?><ScaleTool name='s'><mass>61</mass></ScaleTool>")
     assert main(["inspect", str(bare)]) == 0
     assert "an OpenSim Scale setup" in capsys.readouterr().out
+
+
+def test_a_setups_task_set_file_is_read(tmp_path, capsys):
+    """A setup whose IKTaskSet names a file (`<IKTaskSet file="Tasks.xml"/>`, as OpenSim's GUI writes a Scale setup's
+    tasks): its coordinate tasks lock (IK setup) or pose the static (Scale setup's MarkerPlacer) as written inline;
+    the file not there: one line naming it, exit 2, nothing written."""
+    from calibrate.io.osim_setup import ik_setup_locks, static_pose
+    from tests.test_osim_import import _task
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    model = load_model(src)
+    trc = _muscled_trial(tmp_path, model)
+    (tmp_path / "Tasks.xml").write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><IKTaskSet name='t'>"
+                                        f"<objects>{_task('knee_q', 'manual_value', -0.25)}</objects></IKTaskSet>"
+                                        "</OpenSimDocument>")
+    ik = tmp_path / "Setup_IK.xml"
+    ik.write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='ik'>"
+                  "<IKTaskSet file='Tasks.xml'/></InverseKinematicsTool></OpenSimDocument>")
+    assert ik_setup_locks(ik, model) == (("knee_q", -0.25),)
+    scale = tmp_path / "Setup_Scale.xml"
+    scale.write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='s'><MarkerPlacer>"
+                     "<apply>true</apply><IKTaskSet file='Tasks.xml'/><marker_file>trial.trc</marker_file>"
+                     "</MarkerPlacer></ScaleTool></OpenSimDocument>")
+    assert static_pose(scale, model).values == (("knee_q", -0.25),)
+    assert main(["inspect", str(ik)]) == 0
+    assert "knee_q (-0.25)" in capsys.readouterr().out
+    (tmp_path / "Tasks.xml").unlink()
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main([str(trc), str(src), "--ik-setup", str(ik), "-o", str(out / "s.urdf"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "its task set file 'Tasks.xml' is not at" in err[0], err
+    assert not any(out.iterdir())

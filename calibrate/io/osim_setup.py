@@ -42,7 +42,7 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     ModelError with one line on a file that is not an IK setup, a task on a coordinate the model does not
     have, or a value read from a file."""
     path = Path(path)
-    tool = xml_element(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+    tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
                        "an OpenSim Inverse Kinematics setup file",
                        "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
     return tuple(_coordinate_values(path, tool, model)[0])
@@ -121,7 +121,7 @@ def static_pose(path: str | Path, model) -> StaticPose | None:
     trial; StaticPose), or None where the MarkerPlacer is not applied, names no trial or holds no coordinate.
     ModelError with one line as for an IK setup's tasks (ik_setup_locks)."""
     path = Path(path)
-    tool = xml_element(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+    tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
                        "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
     placer = tool.find("MarkerPlacer")
     if placer is None or not _applied(placer):
@@ -188,7 +188,7 @@ def ik_setup_weights(path: str | Path | Sequence[str | Path]) -> dict[str, float
     weights: dict[str, float] = {}
     where: dict[str, Path] = {}
     for one in _paths(path):
-        tool = xml_element(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+        tool = _tool(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
                            "an OpenSim Inverse Kinematics setup file",
                            "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
         for task in tool.iter("IKMarkerTask"):
@@ -223,6 +223,32 @@ def with_ik_setup(model, settings, path: str | Path | Sequence[str | Path]):
             held[name], where[name] = value, Path(one)
     merged = {**held, **dict(settings.lock)}
     return replace(settings, lock=tuple(sorted(merged.items())))
+
+
+def _tool(path: Path, tag: str, read_as: str, give: str, missing: str):
+    """The <tag> element of the setup at `path` (xml_element), its task sets read in (_inline_task_sets)."""
+    return _inline_task_sets(path, xml_element(path, tag, read_as, give, missing))
+
+
+def _inline_task_sets(path: Path, element):
+    """`element` with every <IKTaskSet file="..."> filled with the tasks of that file (read against the setup's
+    folder, as OpenSim reads it: OpenSim's GUI writes a Scale setup's tasks so, e.g. gait2354_Scale_Tasks.xml).
+    ModelError with one line when the file is not there or holds no IKTaskSet."""
+    for ts in list(element.iter("IKTaskSet")):
+        name = (ts.get("file") or "").strip()
+        if not name or name == "Unassigned":
+            continue
+        where = Path(name) if Path(name).is_absolute() else path.parent / name
+        if not where.is_file():
+            raise ModelError(f"{path}: its task set file '{name}' is not at {where}; put it there, or write the "
+                             "tasks into the setup")
+        root = xml_root(where, "an OpenSim IK task set file (.xml)", "an OpenSim IK task set file")
+        tasks = root if root.tag == "IKTaskSet" else root.find(".//IKTaskSet")
+        if tasks is None:
+            raise ModelError(f"{where}: no <IKTaskSet>; give the task set file the setup {path.name} names")
+        for child in list(tasks):
+            ts.append(child)
+    return element
 
 
 def _task_value(task) -> str:
@@ -279,7 +305,7 @@ def scale_setup(path: str | Path) -> ScaleSetup:
     is read against the setup's folder, as OpenSim's Scale tool reads it).  Raises ModelError with one line on a
     file that is not a Scale setup, a mass that is not a number, or a marker set file that is not there."""
     path = Path(path)
-    tool = xml_element(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+    tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
                        "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
     text = (tool.findtext("mass") or "").strip()
     mass = None
@@ -309,7 +335,7 @@ def ik_setup_range(path: str | Path) -> TimeRange | None:
     """The trial file and time range the OpenSim IK setup at `path` fits (None: no file named, or the whole file).
     ModelError with one line on a file that is not an IK setup or a time range that is not two numbers."""
     path = Path(path)
-    tool = xml_element(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+    tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
                        "an OpenSim Inverse Kinematics setup file",
                        "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
     return _time_range(path, "InverseKinematicsTool", tool)
@@ -386,7 +412,7 @@ def describe_setup(path: str | Path) -> list[str]:
     (``calibrate inspect FILE.xml``).  ModelError with one line on a file that is neither."""
     path = Path(path)
     # A setup is an <OpenSimDocument> holding the tool, or (an older file: Hamner's Setup_Scale.xml) the tool itself.
-    root = xml_root(path, "an OpenSim setup file (.xml)", "an OpenSim Scale or IK setup file")
+    root = _inline_task_sets(path, xml_root(path, "an OpenSim setup file (.xml)", "an OpenSim Scale or IK setup file"))
     if root.tag == "ScaleTool" or root.find(".//ScaleTool") is not None:
         setup = scale_setup(path)
         tool = root if root.tag == "ScaleTool" else root.find(".//ScaleTool")
