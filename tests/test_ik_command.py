@@ -120,7 +120,7 @@ def test_ik_with_the_calibrations_report_gives_its_own_motion(squats, tmp_path, 
     model = load_model(HUMAN)
     hinges = [j.dofs[0] for j in model.joints if j.kind == "hinge"]
     report = tmp_path / "report.json"  # a report's held coordinates: its settings' locks and its auto-locks
-    report.write_text(json.dumps({"settings": {"lock_deg": {hinges[0]: 5.0}},
+    report.write_text(json.dumps({"parameters": {}, "trials": [], "settings": {"lock_deg": {hinges[0]: 5.0}},
                                   "auto_locked": [{"coordinate": hinges[1], "value_deg": -2.0}]}))
     capsys.readouterr()
     assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "--report", str(report), "-o", str(out),
@@ -131,7 +131,7 @@ def test_ik_with_the_calibrations_report_gives_its_own_motion(squats, tmp_path, 
     code = main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "--report",
                  str(squats / "truth_motion.csv"), "-o", str(out), "--overwrite", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "cannot be read as a calibrate report JSON" in err[0], err
+    assert code == 2 and len(err) == 1 and "truth_motion.csv: not JSON (line 1" in err[0], err
 
 
 def test_marker_weights_as_an_ik_setup_gives_them(squats, tmp_path):

@@ -90,16 +90,11 @@ def cmd_ik(args: argparse.Namespace) -> int:
         weights = ik_setup_weights(args.ik_setup)
     locked = dict(settings.lock)
     if args.report is not None:  # what the calibration held, as its motion holds it
-        import json
-
+        from ..calibration.html import read_report
         from ..calibration.report import report_locks
 
-        try:
-            report = json.loads(args.report.read_text())
-        except (OSError, ValueError) as e:
-            raise CalibrateError(f"{args.report}: cannot be read as a calibrate report JSON ({e}); give the "
-                                 "<trial>_report.json the calibration wrote") from None
-        if not isinstance(report, dict) or "settings" not in report:
+        report = read_report(args.report)
+        if "settings" not in report:
             raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
                                  "<trial>_report.json the calibration wrote")
         locked.update(report_locks(report))
