@@ -382,3 +382,32 @@ def test_a_setups_task_set_file_is_read(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "its task set file 'Tasks.xml' is not at" in err[0], err
     assert not any(out.iterdir())
+
+
+def test_a_pose_on_one_angle_of_a_ball_joint():
+    """A pose naming one angle of a ball joint (human.urdf's hip_r_flexion at 0.1 rad, lumbar_flexion at -0.05 in a
+    simulated static): the static's mean of each named angle is its value, the joint's other angles keep the means
+    they have without the pose, every joint the pose does not name keeps its angles, and the fit is unchanged."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.simulation.simulate import simulate_gait
+    from tests.test_far_joints import arms_out_static
+
+    model = load_model(Path(__file__).resolve().parents[1] / "models" / "human.urdf")
+    walk = simulate_gait(model, frames=200, seed=3)
+    static, _, _ = arms_out_static(model, walk, abduction=0.0)  # standing, arms down
+    pose = {"hip_r_flexion": 0.1, "lumbar_flexion": -0.05}
+    plain = calibrate(model, [static, walk.trial])  # the segment frames where the priors put them
+    posed = calibrate(model, [static, walk.trial], neutral=0, pose=pose)
+    assert dict(posed.pose) == pose and posed.pose_unset == ()
+    a0, a1 = plain.motions[0].angles.mean(axis=0), posed.motions[0].angles.mean(axis=0)
+    names = plain.motions[0].dof_names
+    for name, value in pose.items():
+        assert a1[names.index(name)] == pytest.approx(value, abs=1e-4), name
+    for name in ("hip_r_adduction", "hip_r_rotation", "lumbar_bending", "lumbar_rotation"):
+        # A ball's other angles stay (to second order in the named turn: the chain's angles are not independent).
+        assert a1[names.index(name)] == pytest.approx(a0[names.index(name)], abs=np.radians(0.5)), name
+    # The balls below the turned torso (neck, shoulders) absorb its turn; the hinges below the turned thigh (knee,
+    # ankle) turn with it, their angles unchanged; every joint elsewhere keeps its angles (to the re-solve's 0.06 deg).
+    others = [i for i, n in enumerate(names) if not n.startswith(("hip_r", "lumbar", "neck", "shoulder"))]
+    assert np.abs(a1[others] - a0[others]).max() < 1e-3, [names[i] for i in others]
+    assert posed.marker_rms == pytest.approx(plain.marker_rms, abs=1e-7)
