@@ -304,7 +304,7 @@ def test_the_scale_setups_coordinate_tasks_set_the_static_pose(tmp_path, capsys)
 
 
 @pytest.mark.skipif(not (REAL / "gait2392").is_dir(), reason="the real trials (../shared/data/real) are not here")
-def test_the_gait2392_scale_setup_poses_its_static():
+def test_the_gait2392_scale_setup_poses_its_static(capsys):
     """OpenSim's gait2392 Scale setup: its MarkerPlacer holds both subtalar and mtp angles and lumbar_extension at
     the model's defaults (0) in subject01_static.trc; the static trial is found by its file name."""
     from calibrate.io.osim_setup import setup_pose, static_pose
@@ -319,6 +319,9 @@ def test_the_gait2392_scale_setup_poses_its_static():
     static, walk = read_trial(d / "subject01_static.trc"), read_trial(d / "subject01_walk1.trc")
     k, held, lines = setup_pose(d / "subject01_Setup_Scale.xml", model, [walk, static])
     assert k == 1 and held == dict(pose.values) and len(lines) == 1
+    assert main(["inspect", str(d / "subject01_Setup_Scale.xml")]) == 0  # what it does not take, said
+    assert ("its manual scale factors (femur_r 1.14724, femur_l 1.14724, tibia_r 0.988523, tibia_l 0.988523)"
+            in capsys.readouterr().out)
 
 
 def test_a_markerless_held_segment_does_not_stop_the_pose_above_it(tmp_path, capsys):

@@ -251,6 +251,15 @@ def _inline_task_sets(path: Path, element):
     return element
 
 
+def _number(text: str | None) -> str:
+    """The first number of `text` as '%g' ('1.14724'); the text itself where it is no number."""
+    first = (text or "").split()[0] if (text or "").split() else ""
+    try:
+        return f"{float(first):g}"
+    except ValueError:
+        return first
+
+
 def _task_value(task) -> str:
     """What a coordinate task holds its coordinate at, in words: 'the model's default', '0.1', 'from_file'."""
     kind = (task.findtext("value_type") or "default_value").strip()
@@ -417,6 +426,11 @@ def describe_setup(path: str | Path) -> list[str]:
         setup = scale_setup(path)
         tool = root if root.tag == "ScaleTool" else root.find(".//ScaleTool")
         pairs = len(tool.findall(".//MeasurementSet//MarkerPair"))
+        scaler = tool.find("ModelScaler")
+        manual = [f"{(sc.findtext('segment') or '').strip()} {_number(sc.findtext('scales'))}"
+                  for sc in (scaler.iter("Scale") if scaler is not None else ())
+                  if _applied(sc) and (sc.findtext("scales") or "").split()]
+        order = (scaler.findtext("scaling_order") or "").split() if scaler is not None else []
         tasks = len(tool.findall(".//MarkerPlacer//IKMarkerTask"))
         cut = "; ".join(f"the {r.step} cuts {r.file} to {r.text()}" for r in setup.ranges)
         placer = tool.find("MarkerPlacer")
@@ -430,7 +444,9 @@ def describe_setup(path: str | Path) -> list[str]:
                 + (f"; the static pose its MarkerPlacer holds in {placer.findtext('marker_file', '').strip()}: "
                    + ", ".join(held) + " (segment frames turned so)" if held else ""),
                 f"  not used: its {pairs} measurement marker pairs, {tasks} marker-placer marker tasks and their "
-                "weights (calibrate scales every segment and places every marker from the frames it is given)"
+                "weights" + (f", its manual scale factors ({', '.join(manual)})" if manual and "manualScale" in order
+                             else "") + " (calibrate scales every segment and places every marker from the frames it "
+                "is given)"
                 + ("; preserve_mass_distribution false (calibrate scales every segment's mass alike)"
                    if not setup.preserve_mass else "")]
     tool = root if root.tag == "InverseKinematicsTool" else root.find(".//InverseKinematicsTool")
