@@ -870,7 +870,8 @@ def _muscled_trial(tmp_path, model) -> Path:
 def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
     """`calibrate TRIAL MODEL.osim --ik-setup FILE.xml`: each applied coordinate task of the lab's IK setup locks its
     coordinate, at the model's default (default_value) or at the task's value (manual_value); a task not applied
-    locks nothing; the motion then holds those coordinates there in every frame.  The setup's task on a coordinate
+    locks nothing, nor one on the ground joint's coordinate (a note says so); the motion then holds those coordinates
+    there in every frame.  The setup's task on a coordinate
     the model lacks, a value from a file, a file that is not an IK setup: one line each, exit 2, nothing written."""
     from calibrate.io.osim_setup import ik_setup_locks
 
@@ -879,12 +880,15 @@ def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
     model = load_model(src)
     setup = tmp_path / "setup_IK.xml"
     setup.write_text(_ik_setup(_task("hip_q") + _task("knee_q", "manual_value", -0.25)
-                               + _task("p_rx", apply="false")))
+                               + _task("p_rx", apply="false") + _task("p_ry")))
     assert dict(ik_setup_locks(setup, model)) == {"hip_q": 0.2, "knee_q": -0.25}  # hip_q's default in the model
     trc = _muscled_trial(tmp_path, model)
     out = tmp_path / "subject.urdf"
-    code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(out), "--no-new-markers", "-q"])
-    assert code == 0, capsys.readouterr().err
+    code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(out), "--no-new-markers"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    # A task on the ground joint's coordinate (p_ry) holds nothing, and says so.
+    assert "note: setup_IK.xml: its tasks on p_ry (the ground joint's) are not held" in err, err
     report = json.loads((tmp_path / "trial_report.json").read_text())
     assert report["settings"]["lock_deg"] == pytest.approx({"hip_q": np.degrees(0.2), "knee_q": np.degrees(-0.25)})
     rows = (tmp_path / "trial_motion.csv").read_text().splitlines()

@@ -224,9 +224,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             progress_printer(f"note: {model_path.name}: {len(approx)} joints approximated (" + ", ".join(
                 f"{a.joint} {a.max_marker_mm:.1f} mm" for a in approx) + f"); see 'calibrate inspect {model_path}'")
     if args.ik_setup is not None:  # the coordinates the lab's IK holds, unless --lock/--config set them
-        from ..io.osim_setup import with_ik_setup
+        from ..io.osim_setup import ik_setup_notes, with_ik_setup
 
         settings = with_ik_setup(model, settings, args.ik_setup)
+        if not args.quiet:
+            for line in ik_setup_notes(args.ik_setup, model):
+                progress_printer("note: " + line)
     marker_map = load_marker_map(args.markers) if args.markers else None
     with progress as say:
         trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]

@@ -82,12 +82,14 @@ def cmd_ik(args: argparse.Namespace) -> int:
 
         settings = with_locked(model, settings)
     weights = None
+    setup_lines: list[str] = []
     if args.ik_setup:  # what its coordinate tasks hold, and its marker tasks' weights (a marker it has no task for:
         # not fitted, as the setup's IK tracks only its tasks)
-        from ..io.osim_setup import ik_setup_weights, with_ik_setup
+        from ..io.osim_setup import ik_setup_notes, ik_setup_weights, with_ik_setup
 
         settings = with_ik_setup(model, settings, args.ik_setup)
         weights = ik_setup_weights(args.ik_setup)
+        setup_lines = ik_setup_notes(args.ik_setup, model)
     locked = dict(settings.lock)
     if args.report is not None:  # what the calibration held, as its motion holds it
         from ..calibration.html import read_report
@@ -113,6 +115,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         from ..io.osim_setup import cut_to_setups
 
         trials, lines = cut_to_setups(trials, None, args.ik_setup)
+    lines = setup_lines + lines
     kin = build_kinematics(model)
     params = model.parameters()
     results = []

@@ -45,7 +45,23 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
                        "an OpenSim Inverse Kinematics setup file",
                        "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
-    return tuple(_coordinate_values(path, tool, model)[0])
+    return tuple(_coordinate_values(path, tool, model, root_ok=True)[0])
+
+
+def ik_setup_notes(path: str | Path | Sequence[str | Path], model) -> list[str]:
+    """A line per IK setup at `path` (one or several) whose coordinate tasks name the ground joint's coordinates,
+    which no lock can hold (the root's pose is every frame's own, fitted to its markers): what ``--ik-setup`` says
+    it leaves."""
+    lines = []
+    for one in _paths(path):
+        tool = _tool(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                     "an OpenSim Inverse Kinematics setup file",
+                     "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+        root = _coordinate_values(one, tool, model, root_ok=True)[1]
+        if root:
+            lines.append(f"{one.name}: its tasks on {', '.join(root)} (the ground joint's) are not held: the root's "
+                         "pose is each frame's own, fitted to its markers")
+    return lines
 
 
 POSE_TASK_WEIGHT = 100.0  # a marker placer's coordinate task this heavy defines the static's angle (Gait2392's: 1000)
@@ -469,5 +485,5 @@ def describe_setup(path: str | Path) -> list[str]:
 
 
 __all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "StaticPose", "TimeRange", "apply_time_ranges", "cut_to_setups",
-           "describe_setup", "ik_setup_locks", "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup",
-           "setup_pose", "static_pose", "with_ik_setup"]
+           "describe_setup", "ik_setup_locks", "ik_setup_notes", "ik_setup_range", "ik_setup_weights", "pose_trial",
+           "scale_setup", "setup_pose", "static_pose", "with_ik_setup"]
