@@ -188,6 +188,11 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if bad:
         raise CalibrateError(f"hold_axes: '{bad[0]}' is not a hinge or universal-joint coordinate of "
                              f"{model.path.name}; use one of {', '.join(axis_dofs[:6])}, ... (see calibrate inspect)")
+    joints = [j.name for j in model.joints]
+    bad = [name for name in settings.hold_centres if name not in joints]
+    if bad:
+        raise CalibrateError(f"hold_centres: '{bad[0]}' is not a joint of {model.path.name}; use one of "
+                             f"{', '.join(joints[:6])}, ... (see calibrate inspect)")
     hinges = {j.name: j for j in model.joints if j.kind == "hinge"}
     for joint, marker, _ in settings.lateral_markers:
         if joint not in hinges:
@@ -346,7 +351,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                                                                                      "marker"))),
                     seed.notes, seed.joints, seed.seconds)
     params0 = _on_model(subject, model, _fixed_groups(model.parameters(), seed.params, settings.free))
-    params0 = _hold_segments(subject, params0, settings.hold_segments)
+    params0 = _hold_segments(subject, params0, settings.hold_segments, settings.hold_centres)
     params0 = _unseen_at_base(subject, model, params0, unused)
     protocol = [x.labels for x in exchanged if x.protocol]
     params0 = _protocol_places(subject, params0, protocol)
@@ -382,7 +387,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
     if run.seed:
-        base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments)
+        base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments,
+                               settings.hold_centres)
         params0, choice = choose_start(problem, known_obs, spans, {"the MTB seed": params0, "the base model": base0},
                                        say, solver, ahead=run.ahead, lengths=lengths)
         seed = replace(seed, notes=(*seed.notes, choice))
@@ -670,17 +676,19 @@ def _frame_blocks(problem: Problem, state: State, scatter: np.ndarray) -> np.nda
     return problem.with_noise(sigma).with_frame_weight(None).linearize(state, with_parameters=False).A
 
 
-def _hold_segments(model: Model, params: Parameters, segments: Sequence[str]) -> Parameters:
+def _hold_segments(model: Model, params: Parameters, segments: Sequence[str], centres: Sequence[str] = ()
+                   ) -> Parameters:
     """`params` with the base model's geometry on `segments` (Settings.hold_segments): their scale, the
-    joint centres and markers in them, the axes of the joints into them."""
-    if not segments:
+    joint centres and markers in them, the axes of the joints into them; and the base model's centres of the
+    joints `centres` (Settings.hold_centres)."""
+    if not segments and not centres:
         return params
     out, base, held = params.copy(), model.parameters(), set(segments)
     for i, sg in enumerate(model.segments):
         if sg.name in held:
             out.scale[i] = base.scale[i]
     for ji, j in enumerate(model.joints):
-        if j.parent in held:
+        if j.parent in held or j.name in centres:
             out.centre[ji] = base.centre[ji]
         if j.child in held:
             for d in j.dofs:

@@ -109,7 +109,8 @@ def calibration_report(cal: Calibration) -> dict:
                                 "symmetry_scale": st.priors.symmetry_scale,
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
                                 "width_mm": 1000 * st.priors.width,
-                                "joint_marker_mm": 1000 * st.priors.joint_marker},
+                                "joint_marker_mm": 1000 * st.priors.joint_marker,
+                                "held_centre_mm": 1000 * st.priors.held_centre},
                      "lateral_markers": [{"joint": j, "marker": mk, "distance_mm": 1000 * d}
                                          for j, mk, d in st.lateral_markers],
                      "learn_noise": st.learns_noise,
@@ -118,7 +119,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "marker_noise_mm": {k: 1000 * v for k, v in st.marker_noise},
                      "lock_deg": {k: math.degrees(v) for k, v in st.lock}, "hold_axes": list(st.hold_axes),
                      "segment_frames": st.segment_frames,
-                     "hold_segments": list(st.hold_segments),
+                     "hold_segments": list(st.hold_segments), "hold_centres": list(st.hold_centres),
                      "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "far_joints": st.far_joints,
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
@@ -388,6 +389,18 @@ def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
     return lines + ([f"  left out, all {len(left)}: {shared}"] if shared else [])
 
 
+def _held_against(cal, joint: str) -> str:
+    """What a held centre (Settings.hold_centres) keeps: its offset from its parent segment's markers, where three
+    or more of them are seen (Problem.held_centres; the change shown is then the frame's against the base model's),
+    else its place in that segment's frame."""
+    model = cal.model
+    parent = model.joints[model.joint_index(joint)].parent
+    seen = [mk.name for mk in model.markers if mk.segment == parent and mk.name not in set(cal.unused_markers)]
+    if len(seen) >= 3:
+        return f"the base model's offset from {parent}'s {len(seen)} markers"
+    return f"the base model's place in {parent}'s frame ({len(seen)} markers seen there)"
+
+
 def _moved_hint(cal, change) -> str:
     """For an unreliable joint centre, axis or marker: the kept moved markers (Calibration.moved_kept) on the
     segments it belongs to, which pull it (gait2392's back centre and its static's acromia), or ''."""
@@ -473,6 +486,9 @@ def summary_text(cal) -> str:
         *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
            + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]
           if cal.settings.hold_axes else []),
+        *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
+                                         for j in cal.settings.hold_centres) + " (--hold-centres)"]
+          if cal.settings.hold_centres else []),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
         f"  {'marker RMS (mm)':22s}{1000 * marker_rms(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}"
@@ -506,6 +522,8 @@ def summary_text(cal) -> str:
                                             "  (not identified; unreliable)" if c.unreliable else "  (held by prior)")
             if c.unreliable and (c.identified or _slide_only(c)):
                 flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
+            if c.item in cal.settings.hold_centres:
+                flag = f"  (held: --hold-centres; {_held_against(cal, c.item)})"
             lines.append(f"    {c.item:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]
     if axes:
@@ -516,7 +534,8 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
     for c in cal.changes:
         if c.group == "centre" and c.unreliable and (c.identified or _slide_only(c)):
-            lines.append(f"  implausible  centre[{c.item}]: {c.note}{_moved_hint(cal, c)}")
+            lines.append(f"  implausible  centre[{c.item}]: {c.note}{_moved_hint(cal, c)}; --hold-centres "
+                         f"{c.item} holds it at the base model's")
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")

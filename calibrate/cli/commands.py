@@ -167,6 +167,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["lock_deg"] = lock_arg(args.lock)
     if args.hold_axes is not None:
         flags["hold_axes"] = [d.strip() for d in args.hold_axes.split(",") if d.strip()]
+    if args.hold_centres is not None:
+        flags["hold_centres"] = [d.strip() for d in args.hold_centres.split(",") if d.strip()]
     if args.no_auto_hold:
         flags["auto_hold"] = False
     if args.moved_markers:

@@ -24,6 +24,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     hip_regression = false  # hip centres by Harrington's regression from the pelvis markers
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
+    hold_centres = []       # joints whose centre stays the base model's, scaled (a lumbar joint a walk barely turns)
     auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
     segment_frames = "markers"  # joint angles in the frames the segments' markers put ("priors": the solve's);
                             # default: "markers" for an OpenSim model, "priors" for a URDF
@@ -37,6 +38,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     symmetry_centre_mm = 20.0  # SD of a left/right difference of mirrored joint centres (0: off)
     width_mm = 5.0          # SD of a measured knee/ankle width's lateral distance (0: measurements not used)
     joint_marker_mm = 1.0   # SD of a joint-centre marker's offset from its centre (e.g. R_HJC; 0: an ordinary marker)
+    held_centre_mm = 0.1    # SD of a held joint centre (hold_centres) from the base model's
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
@@ -63,10 +65,10 @@ else:  # pragma: no cover
 
 _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "atol", "xtol", "gtol", "seed", "compile",
         "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
-        "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers",
+        "hold_centres", "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers",
         "far_joints", "hip_regression"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm",
-           "joint_marker_mm"}
+           "joint_marker_mm", "held_centre_mm"}
 
 
 def settings_from_dict(data: dict, where: str = "settings", base: Settings | None = None) -> Settings:
@@ -97,6 +99,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         symmetry_centre=num(pri, "symmetry_centre_mm", 1000 * s.priors.symmetry_centre) / 1000,
         width=num(pri, "width_mm", 1000 * s.priors.width) / 1000,
         joint_marker=num(pri, "joint_marker_mm", 1000 * s.priors.joint_marker) / 1000,
+        held_centre=num(pri, "held_centre_mm", 1000 * s.priors.held_centre) / 1000,
     )
     free = data.get("free", list(s.free))
     if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):
@@ -122,6 +125,9 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
     hold = data.get("hold_axes", s.hold_axes)
     if not (isinstance(hold, (list, tuple)) and all(isinstance(x, str) for x in hold)):
         raise CalibrateError(f"{where}: 'hold_axes' must be a list of DoF names, e.g. [\"subtalar_r\"]")
+    centres = data.get("hold_centres", s.hold_centres)
+    if not (isinstance(centres, (list, tuple)) and all(isinstance(x, str) for x in centres)):
+        raise CalibrateError(f"{where}: 'hold_centres' must be a list of joint names, e.g. [\"back\"]")
     auto_hold = data.get("auto_hold", s.auto_hold)
     if not isinstance(auto_hold, bool):
         raise CalibrateError(f"{where}: 'auto_hold' must be true or false, got {auto_hold!r}")
@@ -137,7 +143,8 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
                        outliers=num(data, "outlier_sigmas", s.outliers),
                        geodesic=data.get("geodesic", s.geodesic), memory_mb=num(data, "memory_mb", s.memory_mb),
                        marker_noise=marker_noise, lock=lock,
-                       hold_axes=tuple(hold), auto_hold=auto_hold, ahead=data.get("ahead", s.ahead),
+                       hold_axes=tuple(hold), hold_centres=tuple(centres), auto_hold=auto_hold,
+                       ahead=data.get("ahead", s.ahead),
                        segment_frames=data.get("segment_frames", s.segment_frames),
                        still_weight=num(data, "still_weight", s.still_weight),
                        moved_markers=data.get("moved_markers", s.moved_markers),

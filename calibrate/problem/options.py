@@ -46,6 +46,9 @@ class Priors:
     # point the lab computed at that centre, not skin.  SD of its offset from the centre about the base
     # model's (m; 0: an ordinary marker, held by `marker` alone).
     joint_marker: float = 0.001
+    # A held joint centre (ProblemOptions.hold_centres): SD of its offset from the centroid of its parent segment's
+    # seen markers about the base model's (m, at the segment's scale).
+    held_centre: float = 0.0001
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,7 @@ class ProblemOptions:
     lock: tuple[tuple[str, float], ...] = ()  # ((DoF, angle in rad), ...), a dict, or DoF names (held at 0)
     hold_axes: tuple[str, ...] = ()
     hold_segments: tuple[str, ...] = ()
+    hold_centres: tuple[str, ...] = ()  # joints whose centre keeps the base model's place (Priors.held_centre)
     # Where along its axis a hinge's centre lies, which no marker shows (Problem.slide_centres), as the lab
     # measured it: ((hinge joint, the lateral marker on its parent segment, that marker's distance from
     # the centre along the axis in m), ...) — Plug-in Gait's half knee or ankle width plus the marker's
@@ -75,11 +79,13 @@ class ProblemOptions:
     memory_mb: float = 200.0
 
     def __post_init__(self) -> None:
-        hold = (self.hold_axes,) if isinstance(self.hold_axes, str) else self.hold_axes
-        object.__setattr__(self, "hold_axes", tuple(sorted(set(hold))))
-        for name in self.hold_axes:
-            if not isinstance(name, str):
-                raise ValueError(f"hold_axes: expected DoF names, got {name!r}")
+        for field_, what in (("hold_axes", "DoF"), ("hold_centres", "joint")):
+            hold = getattr(self, field_)
+            hold = (hold,) if isinstance(hold, str) else hold
+            for name in hold:
+                if not isinstance(name, str):
+                    raise ValueError(f"{field_}: expected {what} names, got {name!r}")
+            object.__setattr__(self, field_, tuple(sorted(set(hold))))
         if isinstance(self.marker_noise, Mapping):
             object.__setattr__(self, "marker_noise", tuple(sorted(self.marker_noise.items())))
         lock = self.lock
@@ -113,7 +119,7 @@ class ProblemOptions:
         _positive("noise", self.noise)
         _positive("loss_scale", self.loss_scale)
         _positive("memory_mb", self.memory_mb)
-        for name in ("marker", "centre", "axis", "scale"):
+        for name in ("marker", "centre", "axis", "scale", "held_centre"):
             v = getattr(self.priors, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")

@@ -98,6 +98,19 @@ class PriorsMixin:
             self._joint_marker_cache = cached
         return cached[1]
 
+    def held_centres(self) -> list[tuple[int, list[int]]]:
+        """(joint, its parent segment's seen markers) of each held centre (ProblemOptions.hold_centres) whose parent
+        shows three or more markers, which place it; none when the centres are not free."""
+        if "centre" not in self.settings.free or not self.settings.hold_centres:
+            return []
+        out = []
+        for ji, j in enumerate(self.model.joints):
+            if j.name in self.settings.hold_centres:
+                mks = [k for k, mk in enumerate(self.model.markers) if mk.segment == j.parent and not self._unseen[k]]
+                if len(mks) >= 3:
+                    out.append((ji, mks))
+        return out
+
     def _lateral_terms(self) -> list[tuple[int, int, int, float, float]]:
         """ProblemOptions.lateral_markers as (joint, marker, DoF index, distance, side): the side (+1 or -1)
         is the one of the base model's marker along its hinge axis, so that the distance is measured
@@ -186,19 +199,25 @@ class PriorsMixin:
                 trip.append((sum(x.size for x in res) + np.ravel(rows), np.ravel(cols), np.ravel(vals)))
             res.append(r)
 
-        def block(group: str, seg_of: np.ndarray, sigma: float) -> None:
+        def block(group: str, seg_of: np.ndarray, sigma: float | np.ndarray) -> None:
+            """Each entry's pull towards the base model's, at its segment's scale; `sigma` one SD or one per block."""
             idx = L.entries(group)  # (count, 3) full indices
             s = scale[seg_of][:, None]
+            sd = np.broadcast_to(np.reshape(sigma, (-1, 1)), idx.shape)
             diff = p[idx] - base[idx]
             rows = np.arange(idx.size)
-            add((s * diff / sigma).ravel(), lambda: (
+            add((s * diff / sd).ravel(), lambda: (
                 np.r_[rows, rows], np.r_[idx.ravel(), L.scale(np.repeat(seg_of, 3))],
-                np.r_[np.repeat(scale[seg_of], 3) / sigma, diff.ravel() / sigma]))
+                np.r_[np.broadcast_to(s / sd, idx.shape).ravel(), (diff / sd).ravel()]))
 
         if "marker" in free:
             block("marker", self.marker_segment, st.priors.marker)
+        held = self.held_centres()
         if "centre" in free:
-            block("centre", self.centre_segment, st.priors.centre)
+            # A held centre whose parent shows too few markers to place it against them: held in the frame itself.
+            alone = set(st.hold_centres) - {m.joints[ji].name for ji, _ in held}
+            sds = [st.priors.held_centre if j.name in alone else st.priors.centre for j in m.joints]
+            block("centre", self.centre_segment, np.array(sds) if alone else st.priors.centre)
         if self.axis_dofs:
             idx = L.axis_entries.ravel()
             add((p[idx] - unit[idx]) / st.priors.axis, lambda: (
@@ -227,6 +246,23 @@ class PriorsMixin:
             add(((ka * p[il] - mirror * (kb * p[ir]) - (base[il] - mirror * base[ir])) / sd).ravel(), lambda: (
                 k, np.stack([il, ir, np.repeat(L.scale(sa)[:, None], 3, 1), np.repeat(L.scale(sb)[:, None], 3, 1)], 1),
                 np.stack([np.repeat(ka / sd, 3, 1), -mirror * kb / sd, p[il] / sd, -mirror * p[ir] / sd], 1)))
+        # A held centre (ProblemOptions.hold_centres) keeps its base-model offset from the centroid of its parent
+        # segment's seen markers (Priors.held_centre): where the markers put the segment, as OpenSim's marker placer
+        # puts its frame, the centre is the base model's; the data cannot tell a shift of the whole frame.
+        if held:
+            sd = st.priors.held_centre
+            for ji, mks in held:
+                ce = L.entries("centre", np.array([ji]))[0]
+                mk = L.entries("marker", np.array(mks))  # (n, 3)
+                seg = self.centre_segment[ji]
+                x = p[ce] - p[mk].mean(axis=0)
+                x0 = base[ce] - base[mk].mean(axis=0)
+                s = scale[seg]
+                n, k = len(mks), np.arange(3)
+                add(s * (x - x0) / sd, lambda ce=ce, mk=mk, n=n, k=k, s=s, x=x, x0=x0, seg=seg: (
+                    np.r_[k, np.tile(k, n), k],
+                    np.r_[ce, mk.ravel(), np.full(3, L.scale(seg))],
+                    np.r_[np.full(3, s / sd), np.full(3 * n, -s / (n * sd)), (x - x0) / sd]))
         # A joint-centre marker keeps its base-model offset from its centre (Priors.joint_marker): on the joint's
         # parent, marker minus centre in that frame; on its child, the marker's offset from the child's origin.
         ties = self.joint_markers()

@@ -68,6 +68,12 @@ class Settings:
     # marker on or below them (calibrate.model.resolve): nothing in the data reaches their parameters, and
     # left free only the priors' couplings (e.g. left/right symmetry) would move them.
     hold_segments: tuple[str, ...] = ()
+    # Joints whose centre keeps the base model's place against the markers of the segment it is expressed in (its
+    # offset from their centroid, at the segment's scale; Priors.held_centre, 0.1 mm): a joint the trials barely
+    # turn (a walk's lumbar, 1-6 deg SD) places its centre by a lever of a few degrees, and skin moving with the
+    # arms carries it tens of mm (Rajagopal2016's back: 77-100 mm from the scaled model).  Where that segment shows
+    # fewer than three markers, the centre is held in the segment's frame.
+    hold_centres: tuple[str, ...] = ()
     # A hinge centre's distance along its axis from the lateral marker beside it (m), as the lab measured
     # it: ((joint, marker, distance), ...).  () (default): from the trials' subject measurements where they
     # carry them (Plug-in Gait's knee and ankle widths: half the width plus the marker's radius;
@@ -126,7 +132,7 @@ class Settings:
     def __post_init__(self) -> None:
         # Each view normalises (dicts and single names to sorted tuples) and checks its own fields.
         problem = _view(ProblemOptions, self)
-        for name in ("marker_noise", "lock", "hold_axes", "lateral_markers"):
+        for name in ("marker_noise", "lock", "hold_axes", "hold_centres", "lateral_markers"):
             object.__setattr__(self, name, getattr(problem, name))
         _view(SolverOptions, self)
         if self.learn_noise is not None and not isinstance(self.learn_noise, bool):
