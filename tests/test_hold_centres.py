@@ -135,3 +135,8 @@ def test_the_command_line_holds_and_reports_them(human, tmp_path, capsys):
     report = json.loads((tmp_path / "walk_report.json").read_text())
     assert report["settings"]["hold_centres"] == ["lumbar", "neck"]
     assert report["settings"]["priors"]["held_centre_mm"] == pytest.approx(0.1)
+    from calibrate.calibration.html import report_html
+
+    html = report_html(report)
+    assert "centres held at the base model's offset from their parent segment's markers (--hold-centres): " \
+           "lumbar, neck" in html

@@ -136,6 +136,9 @@ def _notes(report: dict) -> str:
     if report.get("held_axes"):
         items.append(f"<li>axes held at the base model's (the trials do not show these joints moving): "
                      f"{_e(', '.join(report['held_axes']))}</li>")
+    if (report.get("settings") or {}).get("hold_centres"):
+        items.append(f"<li>centres held at the base model's offset from their parent segment's markers "
+                     f"(--hold-centres): {_e(', '.join(report['settings']['hold_centres']))}</li>")
     for lk in report.get("auto_locked", []):
         items.append(f"<li>locked: {_e(lk.get('note', ''))}</li>")
     if report.get("not_neutral"):
@@ -155,7 +158,8 @@ def _notes(report: dict) -> str:
     if far:
         items.append(f"<li>{len(far)} parameters carried further from the base model's than their priors allow, "
                      f"whether or not these trials identify them (unreliable: a trade the data do not separate, or "
-                     f"skin artefact; --hold-axes keeps an axis at the base model's): {_e(', '.join(far))}</li>")
+                     f"skin artefact; --hold-axes keeps an axis, --hold-centres a centre at the base model's): "
+                     f"{_e(', '.join(far))}</li>")
     un = report.get("unidentified", [])
     if un:
         items.append(f"<li>{len(un)} parameters not identified by these trials (held by their priors): "
