@@ -200,9 +200,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--hold-axes", default=None, metavar="DOF,...",
                     help="keep these hinge/universal axes at the base model's (their angles stay free)")
     ap.add_argument("--hold-centres", default=None, metavar="JOINT,...",
-                    help="keep these joints' centres at the base model's, scaled with the subject (a joint the trials "
-                         "barely turn, e.g. a walk's lumbar joint 'back', whose fitted centre the summary calls "
-                         "unreliable)")
+                    help="keep each of these joints' centres at the base model's offset from the markers of the "
+                         "segment it is expressed in, at the subject's scale (a joint the trials barely turn, e.g. a "
+                         "walk's lumbar joint 'back', whose fitted centre the summary calls implausible)")
     ap.add_argument("--moved-markers", action="store_true",
                     help="leave out a static trial's positions of markers it shows elsewhere on their segment than "
                          "the moving trials do (a slipped cluster, an acromion marker lifted with the arms); the "

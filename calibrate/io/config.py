@@ -24,7 +24,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     hip_regression = false  # hip centres by Harrington's regression from the pelvis markers
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
-    hold_centres = []       # joints whose centre stays the base model's, scaled (a lumbar joint a walk barely turns)
+    hold_centres = []       # joints whose centre keeps the base model's offset from its parent's markers (["back"])
     auto_hold = true        # also hold the axis of every coordinate the trial does not show moving
     segment_frames = "markers"  # joint angles in the frames the segments' markers put ("priors": the solve's);
                             # default: "markers" for an OpenSim model, "priors" for a URDF
@@ -38,7 +38,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     symmetry_centre_mm = 20.0  # SD of a left/right difference of mirrored joint centres (0: off)
     width_mm = 5.0          # SD of a measured knee/ankle width's lateral distance (0: measurements not used)
     joint_marker_mm = 1.0   # SD of a joint-centre marker's offset from its centre (e.g. R_HJC; 0: an ordinary marker)
-    held_centre_mm = 0.1    # SD of a held joint centre (hold_centres) from the base model's
+    held_centre_mm = 0.1    # SD of a held centre's offset from its parent's markers (hold_centres)
 
     [marker_noise_mm]       # per-marker noise SD where it differs from noise_mm (none by default)
     # RTHI = 3.0            # e.g. a wand marker on soft tissue counts 1/9 as much (OpenSim weight 1/9)
