@@ -252,6 +252,8 @@ def test_a_centre_placed_far_from_the_base_is_named_implausible(human):
     loose = replace(cal, changes=[replace(c, status=Identified.NO) if c is hip else c for c in cal.changes])
     row = next(line for line in summary_text(loose).splitlines() if line.startswith("    hip_l "))
     assert row.endswith("(not identified; unreliable)") and "held by prior" not in row, row
+    listed = next(line for line in summary_text(loose).splitlines() if line.startswith("    centre[hip_l]: "))
+    assert listed.endswith("; --hold-centres hip_l holds it at the base model's"), listed
 
 
 def test_joints_trade_across_a_segment_whose_markers_the_trials_do_not_show(human, human_kin):

@@ -545,7 +545,10 @@ def summary_text(cal) -> str:
                      "their priors allow, unreliable" if far else "") + f"): {len(un)}")
         un = sorted(un, key=lambda c: not c.unreliable)  # the unreliable first
         for c in un[:12]:
-            lines.append(f"    {c.name}: {c.note}{_moved_hint(cal, c) if c.unreliable else ''}")
+            hint = _moved_hint(cal, c) if c.unreliable else ""
+            if c.unreliable and c.group == "centre":
+                hint += f"; --hold-centres {c.item} holds it at the base model's"
+            lines.append(f"    {c.name}: {c.note}{hint}")
         if len(un) > 12:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
     for note in cal.seed.notes:
