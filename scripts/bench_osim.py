@@ -102,6 +102,17 @@ def opensim_child(spec_path: str, out_path: str) -> int:
     if not ik.run():
         raise RuntimeError("InverseKinematicsTool.run() failed")
     ik_s = time.perf_counter() - t0
+    # spec["ik_ranges"] (scripts/bench_length.py): the same IK again on each [start, end] time range, timed alike.
+    range_s = []
+    for k, (start, end) in enumerate(spec.get("ik_ranges", [])):
+        part = osim.InverseKinematicsTool(Path(spec["ik"]).name)
+        part.setStartTime(float(start))
+        part.setEndTime(float(end))
+        part.setOutputMotionFileName(f"range_{k}.mot")
+        t0 = time.perf_counter()
+        if not part.run():
+            raise RuntimeError(f"InverseKinematicsTool.run() failed on {start}-{end} s")
+        range_s.append(time.perf_counter() - t0)
     model_file = (root / Path(spec["ik"]).parent / ik.get_model_file()).resolve()
     mot_file = (root / Path(spec["ik"]).parent / ik.getOutputMotionFileName()).resolve()
     model = osim.Model(str(model_file))
@@ -125,7 +136,8 @@ def opensim_child(spec_path: str, out_path: str) -> int:
         for m in range(len(names)):
             markers[f, m] = ms.get(m).getLocationInGround(state).to_numpy()
     np.savez(out_path, times=np.array(list(mot.getIndependentColumn())), q=Q, coords=np.array(cols),
-             markers=markers, marker_names=np.array(names), tracked=np.array(tracked), scale_s=scale_s, ik_s=ik_s)
+             markers=markers, marker_names=np.array(names), tracked=np.array(tracked), scale_s=scale_s, ik_s=ik_s,
+             ik_range_s=np.array(range_s))
     return 0
 
 
@@ -224,7 +236,8 @@ def run_opensim(spec: dict, work: Path) -> dict:
     z = np.load(out_path)
     return {"times": z["times"], "q": z["q"], "coords": [str(c) for c in z["coords"]], "markers": z["markers"],
             "marker_names": [str(c) for c in z["marker_names"]], "tracked": [str(c) for c in z["tracked"]],
-            "scale_s": float(z["scale_s"]), "ik_s": float(z["ik_s"]), "child_wall_s": wall}
+            "scale_s": float(z["scale_s"]), "ik_s": float(z["ik_s"]), "child_wall_s": wall,
+            "ik_range_s": [float(x) for x in z["ik_range_s"]] if "ik_range_s" in z else []}
 
 
 def trc_times(path: str) -> np.ndarray:

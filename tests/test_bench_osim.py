@@ -73,3 +73,18 @@ def test_bench_dynamics_needs_the_hamner_pipeline_with_its_dynamics_files(tmp_pa
                               cwd=tmp_path)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and needle in lines[0] and "not found" in lines[0], lines
+
+
+def test_bench_length_refuses_lengths_it_cannot_time(tmp_path):
+    """bench_length's --lengths: not whole numbers, or shorter than 30 frames (its warm-up's length): one line, exit 2,
+    nothing run; the running cases without an opensim-models checkout likewise."""
+    import subprocess
+
+    script = str(ROOT / "scripts" / "bench_length.py")
+    for args, needle in ((["--lengths", "60,abc"], "give whole numbers of frames"),
+                         (["--lengths", "10,60"], "30 frames or more"),
+                         (["--only", "hamner"], "not found")):
+        proc = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=120,
+                              cwd=tmp_path)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
