@@ -369,3 +369,21 @@ def test_progress_bars_on_a_terminal_plain_lines_otherwise():
         assert isinstance(say, Timed)
     with progress_for(True, 20, Timed, term) as say:
         assert not isinstance(say, (Bars, Timed))
+
+
+def test_the_summary_names_a_dozen_unseen_model_markers_and_counts_the_rest(run):
+    """A model carrying many markers the trials never show (Rajagopal2016 beside its walk: 90): the summary counts
+    them and names the first UNUSED_SHOWN, the report keeps every name; a few are all named."""
+    from dataclasses import replace
+
+    from calibrate.calibration.report import UNUSED_SHOWN, calibration_report, summary_text
+
+    names = tuple(run["cal"].model.marker_names)
+    many = replace(run["cal"], unused_markers=names)
+    line = next(x for x in summary_text(many).splitlines() if x.startswith("  model markers never seen: "))
+    assert line.startswith(f"  model markers never seen: {len(names)} ({', '.join(names[:UNUSED_SHOWN])}, ... and "
+                           f"{len(names) - UNUSED_SHOWN} more: the report's marker_set.unused_model_markers")
+    assert calibration_report(many)["marker_set"]["unused_model_markers"] == list(names)
+    few = replace(run["cal"], unused_markers=names[:2])
+    line = next(x for x in summary_text(few).splitlines() if x.startswith("  model markers never seen: "))
+    assert line == f"  model markers never seen: 2 ({names[0]}, {names[1]}; base positions kept)"

@@ -389,6 +389,9 @@ def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
     return lines + ([f"  left out, all {len(left)}: {shared}"] if shared else [])
 
 
+UNUSED_SHOWN = 12  # model markers the trials never show, named in the summary (all of them in the report)
+
+
 def _held_against(cal, joint: str) -> str:
     """What a held centre (Settings.hold_centres) keeps: its offset from its parent segment's markers, where three
     or more of them are seen (Problem.held_centres; the change shown is then the frame's against the base model's),
@@ -653,7 +656,11 @@ def summary_text(cal) -> str:
         lines.append(f"  outliers rejected ({cal.settings.outliers:g} noise SDs): "
                      + ", ".join(f"{k} x{v}" for k, v in sorted(per.items(), key=lambda kv: -kv[1])[:10]))
     if cal.unused_markers:
-        lines.append(f"  model markers never seen: {', '.join(cal.unused_markers)} (base positions kept)")
+        unused = cal.unused_markers
+        more = len(unused) - UNUSED_SHOWN
+        shown = ", ".join(unused[:UNUSED_SHOWN]) + (
+            f", ... and {more} more: the report's marker_set.unused_model_markers" if more > 0 else "")
+        lines.append(f"  model markers never seen: {len(unused)} ({shown}; base positions kept)")
     return "\n".join(lines)
 
 
