@@ -845,8 +845,8 @@ def _ik_setup(tasks: str, tool: str = "InverseKinematicsTool") -> str:
             f"{tasks}</objects></IKTaskSet></{tool}></OpenSimDocument>\n")
 
 
-def _task(name: str, kind: str = "default_value", value: float = 0.0, apply: str = "true") -> str:
-    return (f"<IKCoordinateTask name=\"{name}\"><apply>{apply}</apply><weight>1000</weight>"
+def _task(name: str, kind: str = "default_value", value: float = 0.0, apply: str = "true", weight: float = 1000) -> str:
+    return (f"<IKCoordinateTask name=\"{name}\"><apply>{apply}</apply><weight>{weight:g}</weight>"
             f"<value_type>{kind}</value_type><value>{value}</value></IKCoordinateTask>")
 
 
@@ -905,6 +905,31 @@ def test_ik_setup_locks_the_coordinates_its_tasks_hold(tmp_path, capsys):
         bad = tmp_path / f"bad{k}.xml"
         bad.write_text(text)
         _assert_refused(capsys, tmp_path / f"out{k}", trc, src, "--ik-setup", bad, needle)
+
+
+def test_a_light_ik_coordinate_task_is_held_and_said(tmp_path, capsys):
+    """An IK setup's coordinate task lighter than POSE_TASK_WEIGHT (a preference OpenSim's IK weighs against the
+    markers) is held as a lock as the heavy ones are, and the note and `calibrate inspect` say so with its weight and
+    the marker tasks' weights."""
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    model = load_model(src)
+    setup = tmp_path / "setup_IK.xml"
+    setup.write_text(_ik_setup(_task("hip_q", weight=5) + _task("knee_q", "manual_value", -0.25)))
+    trc = _muscled_trial(tmp_path, model)
+    code = main([str(trc), str(src), "--ik-setup", str(setup), "-o", str(tmp_path / "s.urdf"), "--no-new-markers"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert ("note: setup_IK.xml: its tasks on hip_q (weight 5) weigh less than 100 (its marker tasks weigh 10): "
+            "OpenSim's IK lets the markers pull that coordinate a little off the value; calibrate holds it there in "
+            "every frame (remove the task to leave it free)") in err, err
+    assert "knee_q (weight" not in err
+    report = json.loads((tmp_path / "trial_report.json").read_text())
+    assert report["settings"]["lock_deg"] == pytest.approx({"hip_q": np.degrees(0.2), "knee_q": np.degrees(-0.25)})
+    assert main(["inspect", str(setup)]) == 0
+    out = capsys.readouterr().out
+    assert ("locks 2 coordinates its tasks hold: hip_q (the model's default, weight 5: OpenSim weighs it against "
+            "the markers), knee_q (-0.25)") in out, out
 
 
 def _assert_refused(capsys, out: Path, trc: Path, base: Path, flag: str, bad: Path, needle: str) -> None:

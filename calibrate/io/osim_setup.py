@@ -57,11 +57,44 @@ def ik_setup_notes(path: str | Path | Sequence[str | Path], model) -> list[str]:
         tool = _tool(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
                      "an OpenSim Inverse Kinematics setup file",
                      "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
-        root = _coordinate_values(one, tool, model, root_ok=True)[1]
+        held, root = _coordinate_values(one, tool, model, root_ok=True)
         if root:
             lines.append(f"{one.name}: its tasks on {', '.join(root)} (the ground joint's) are not held: the root's "
                          "pose is each frame's own, fitted to its markers")
+        light = _light_tasks(one, tool, {n for n, _ in held})
+        if light:
+            lines.append(f"{one.name}: its tasks on {', '.join(f'{n} (weight {w:g})' for n, w in light)} weigh less "
+                         f"than {POSE_TASK_WEIGHT:g}{_marker_weights(tool)}: OpenSim's IK lets the markers pull "
+                         f"{'that coordinate' if len(light) == 1 else 'those coordinates'} a little off the value; "
+                         "calibrate holds it there in every frame (remove the task to leave it free)")
     return lines
+
+
+def _light_tasks(path: Path, tool, names: set[str]) -> list[tuple[str, float]]:
+    """(coordinate, weight) of the applied coordinate tasks under `tool` on `names` lighter than POSE_TASK_WEIGHT."""
+    out = []
+    for task in tool.iter("IKCoordinateTask"):
+        if _applied(task) and task.get("name", "") in names:
+            w = _weight(path, task)
+            if w < POSE_TASK_WEIGHT:
+                out.append((task.get("name", ""), w))
+    return out
+
+
+def _marker_weights(tool) -> str:
+    """' (its marker tasks weigh A-B)', or '' where it has no applied marker task with a readable weight."""
+    weights = []
+    for task in tool.iter("IKMarkerTask"):
+        try:
+            weights.append(float(task.findtext("weight") or 1.0))
+        except ValueError:
+            continue
+        if not _applied(task):
+            weights.pop()
+    if not weights:
+        return ""
+    lo, hi = min(weights), max(weights)
+    return f" (its marker tasks weigh {lo:g}" + (f"-{hi:g})" if hi > lo else ")")
 
 
 POSE_TASK_WEIGHT = 100.0  # a marker placer's coordinate task this heavy defines the static's angle (Gait2392's: 1000)
@@ -474,7 +507,9 @@ def describe_setup(path: str | Path) -> list[str]:
     for task in tool.iter("IKCoordinateTask"):
         if not _applied(task):
             continue
-        held.append(f"{task.get('name', '')} (" + _task_value(task) + ")")
+        w = _weight(path, task)
+        held.append(f"{task.get('name', '')} (" + _task_value(task) + (
+            f", weight {w:g}: OpenSim weighs it against the markers" if w < POSE_TASK_WEIGHT else "") + ")")
     markers = [t for t in tool.iter("IKMarkerTask") if _applied(t)]
     span = ik_setup_range(path)
     return [f"{path}: an OpenSim IK setup",
