@@ -172,10 +172,11 @@ class _Importer:
             by_child[j.child] = j
         self.by_child = by_child
         grounded = [j for j in reader.joints if j.parent == "ground"]
-        if len(grounded) != 1:
-            raise ModelError(f"{self.where}: {len(grounded)} joints connect a body to ground; calibrate needs exactly "
-                             f"one (the root's, e.g. ground_pelvis)")
-        self.root_joint = grounded[0]
+        if not grounded:
+            raise ModelError(f"{self.where}: no joint connects a body to ground; calibrate needs one (the root's, "
+                             f"e.g. ground_pelvis)")
+        self.left_out: list[Approximation] = []  # other trees on ground (a platform, a ball), left out of the subject
+        self.root_joint = grounded[0] if len(grounded) == 1 else self._one_tree(grounded)
         self.children: dict[str, list[OsimJoint]] = {b: [] for b in reader.bodies}
         for j in reader.joints:
             if j.parent != "ground":
@@ -194,6 +195,47 @@ class _Importer:
         walk(self.root_joint.child)
         if len(self.order) + 1 != len(reader.joints):
             raise ModelError(f"{self.where}: some joints are not connected to the root body; fix the tree")
+
+    def _one_tree(self, grounded: list[OsimJoint]) -> OsimJoint:
+        """The subject's tree when several joints connect bodies to ground (a landing platform, a ball, a
+        goal-keeper beside the subject): the tree that carries the markers (without markers, the largest).
+        The others' bodies, joints and coordinates are taken out of the reader and named in `left_out`."""
+        r = self.r
+        below: dict[str, list[OsimJoint]] = {}
+        for j in r.joints:
+            below.setdefault(j.parent, []).append(j)
+
+        def tree(body: str) -> list[str]:
+            out = [body]
+            for j in below.get(body, []):
+                out += tree(j.child)
+            return out
+
+        trees = {j.name: tree(j.child) for j in grounded}
+        marked = {j.name: [m for m, (b, _) in r.markers.items() if b in trees[j.name]] for j in grounded}
+        with_markers = [j for j in grounded if marked[j.name]]
+        if len(with_markers) > 1:
+            which = ", ".join(f"{j.name}: {len(marked[j.name])}" for j in with_markers)
+            raise ModelError(f"{self.where}: markers on {len(with_markers)} separate trees on ground ({which} "
+                             f"markers); calibrate fits one subject: remove the other trees' markers from the model or "
+                             f"marker set")
+        root = with_markers[0] if with_markers else max(grounded, key=lambda j: len(trees[j.name]))
+        gone: set[str] = set()
+        for j in grounded:
+            if j is root:
+                continue
+            bodies = trees[j.name]
+            gone.update(bodies)
+            coords = tuple(c.name for k in r.joints if k.child in bodies for c in k.coords)
+            self.left_out.append(Approximation(
+                j.name, "left out", coords, f"a second tree on ground, no marker on it: {', '.join(bodies)}; not in "
+                f"the subject nor in its .osim export", 0.0, "", 0.0, ()))
+        r.joints = [j for j in r.joints if j.child not in gone]
+        r.bodies = {b: v for b, v in r.bodies.items() if b not in gone}
+        kept = {c.name for j in r.joints for c in j.coords}
+        r.coords = {n: c for n, c in r.coords.items() if n in kept}
+        r.couplers = {d: v for d, v in r.couplers.items() if d in kept and v[0] in kept}
+        return root
 
     # -------------------------------------------------------------- values
     def ref_value(self, name: str) -> float:
@@ -431,8 +473,8 @@ class _Importer:
         seg_X: dict[str, Transform] = {self.root_joint.child: identity_transform()}  # body coords -> segment frame
         links: list[str] = []
         joints: list[str] = []
-        approximations: list[Approximation] = []
-        dropped: list[str] = []
+        approximations: list[Approximation] = list(self.left_out)
+        dropped: list[str] = [c for a in self.left_out for c in a.coordinates]
         dofs: list[str] = []
         urdf_names: set[str] = set()
 

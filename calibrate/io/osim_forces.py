@@ -39,7 +39,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import ModelError
 from ..seed.geometry import Transform, apply
-from .osim_read import body_name, osim_function, xml_floats
+from .osim_read import body_name, osim_function, parse_xml, xml_floats
 from .text import fmt_float, fmt_vec
 
 if TYPE_CHECKING:
@@ -86,7 +86,7 @@ def carried_forces(model: Model, p: Parameters, info: OsimInfo, coordinates: dic
         return CarriedForces(note="muscles and other forces not carried: this model was written before calibrate kept "
                                   "its OpenSim bodies' frames and scales; import the .osim again and calibrate it")
     try:
-        root = ET.parse(src).getroot()
+        root = parse_xml(src.read_text(encoding="utf-8", errors="replace"))
     except (ET.ParseError, OSError) as e:
         return CarriedForces(note=f"muscles and other forces not carried: {src} cannot be read ({e})")
     m = root.find("Model")
@@ -174,6 +174,8 @@ def _check_coordinates(el: ET.Element, coordinates: dict[str, str]) -> None:
             continue
         if "body" in tag or tag.startswith("socket_") and "coordinate" not in tag or tag == "frame":
             raise _Skip("acts on a body or frame, which the export does not carry")
+        if tag == "geometry":  # HuntCrossleyForce, ElasticFoundationForce: between the model's contact geometry
+            raise _Skip("a contact force: the export does not carry contact geometry")
         if tag in ("coordinate", "socket_coordinate") or tag.endswith("_coordinate"):
             named.append(body_name(child.text))
     if not named:

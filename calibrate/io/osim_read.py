@@ -8,6 +8,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from xml.parsers import expat
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -55,12 +56,35 @@ class OsimFunction:
         return self.f(np.asarray(x, dtype=float))
 
 
+def parse_xml(text: str) -> ET.Element:
+    """The root element of an OpenSim XML document.  OpenSim names some nested classes with C++ scope
+    (`<HuntCrossleyForce::ContactParametersSet>`, in every model with contact forces): well-formed XML 1.0,
+    but not namespace-well-formed, which ElementTree's parser requires.  Such a document is parsed again by
+    expat without namespace processing, the tags kept as written.  ET.ParseError when neither reads it."""
+    try:
+        return ET.fromstring(text)
+    except ET.ParseError as first:
+        if "::" not in text:
+            raise
+        builder = ET.TreeBuilder()
+        parser = expat.ParserCreate()
+        parser.buffer_text = True
+        parser.StartElementHandler = builder.start
+        parser.EndElementHandler = builder.end
+        parser.CharacterDataHandler = builder.data
+        try:
+            parser.Parse(text, True)
+        except expat.ExpatError:
+            raise first from None
+        return builder.close()
+
+
 def xml_root(path: Path, read_as: str, give: str) -> ET.Element:
     """The root element of the XML file at `path`; ModelError with one line when the file cannot be read (`read_as`:
     what it should be) or is not XML (`give`: what to give instead)."""
     text = read_text_file(path, read_as)
     try:
-        return ET.fromstring(text)
+        return parse_xml(text)
     except ET.ParseError as e:
         raise ModelError(f"{path}: not valid XML ({e}); give {give}") from None
 
@@ -259,7 +283,7 @@ class OsimReader:
         self.path = path
         where = str(path)
         try:
-            root = ET.fromstring(text)
+            root = parse_xml(text)
         except ET.ParseError as e:
             raise ModelError(f"{where}: not valid XML ({e}); give an OpenSim model file (.osim)") from None
         if root.tag != "OpenSimDocument" or root.find("Model") is None:

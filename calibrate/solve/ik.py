@@ -198,13 +198,13 @@ class FrameSolver:
         among `free`.  Made once per set of coordinates (the global start solves each joint's many times)."""
         key = None if every else tuple(int(c) for c in free)
         if key not in self._columns:
-            self._columns[key] = self._roles(np.arange(self.nz) if every else np.asarray(free))
+            self._columns[key] = self._roles(np.arange(self.nz) if every else np.asarray(free, dtype=int))
         return self._columns[key]
 
     def _roles(self, free: np.ndarray) -> tuple[bool, bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         rot = bool(np.isin(np.arange(FrameLayout.n_root)[FrameLayout.rotation], free).any())
         balls = bool(np.isin(self.ball_cols, free).any())
-        dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], self.ball_cols)
+        dof_cols = np.setdiff1d(free[free >= FrameLayout.angle(0)], self.ball_cols).astype(int)
         position = {int(c): i for i, c in enumerate(free)}
         col_of = np.array([position[int(c)] for c in dof_cols], dtype=int)  # limit rows -> columns
         return (rot, balls, dof_cols, self.lower[FrameLayout.dof(dof_cols)], self.upper[FrameLayout.dof(dof_cols)],
@@ -270,7 +270,7 @@ class FrameSolver:
             free = own
             if 3 * len(fit_mk) < len(own) + 3:  # too few on the child itself: use the whole subtree
                 fit_mk, free = [k for k in sub_mk if seen[k]], sub_dofs
-            if not fit_mk:
+            if not fit_mk or not free:  # nothing seen, or a weld: its child's markers ride (the joints below follow)
                 continue
             n_grid = {1: 7, 2: 5}.get(len(own), 3)
             rows = (3 * np.asarray(fit_mk)[:, None] + np.arange(3)).ravel()
