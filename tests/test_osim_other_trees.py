@@ -165,11 +165,14 @@ def test_calibrates_a_model_with_other_trees_and_a_welded_marker_segment(tmp_pat
     trc = tmp_path / "landing.trc"
     write_trc(trc, Trial(list(model.marker_names), np.array([[fr[m] for m in model.marker_names] for fr in frames]),
                          60.0, 0, str(trc)))
-    code = main([str(trc), str(path), "-o", str(tmp_path / "subject.osim"), "--no-new-markers", "-q"])
+    code = main([str(trc), str(path), "-o", str(tmp_path / "subject.osim"), "--no-new-markers"])
     said = capsys.readouterr()
     assert code == 0, said.err
+    printed = said.err + said.out
+    assert "landing.osim: 6 joints approximated (" in printed
+    assert "; other trees on ground left out (ground_platform, ball_free); see 'calibrate inspect" in printed
     report = json.loads((tmp_path / "landing_report.json").read_text())
     assert report["trials"][0]["rms_mm"] < 1.0
-    assert "HuntCrossleyForce foot_platform (a contact force: the export does not carry contact geometry)" in said.out
+    assert "HuntCrossleyForce foot_platform (a contact force: the export does not carry contact geometry)" in printed
     text = (tmp_path / "subject.osim").read_text()
     assert '<WeldJoint name="cap_weld">' in text and 'name="platform"' not in text and 'name="ball"' not in text

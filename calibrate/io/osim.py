@@ -63,6 +63,9 @@ MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this ma
 
 
 # ---------------------------------------------------------------------- records
+LEFT_OUT = "left out"  # Approximation.kind of a tree on ground that is not the subject's (a platform, a ball)
+
+
 @dataclass(frozen=True)
 class Approximation:
     """One joint the model format cannot express exactly, and what the approximation costs.
@@ -228,7 +231,7 @@ class _Importer:
             gone.update(bodies)
             coords = tuple(c.name for k in r.joints if k.child in bodies for c in k.coords)
             self.left_out.append(Approximation(
-                j.name, "left out", coords, f"a second tree on ground, no marker on it: {', '.join(bodies)}; not in "
+                j.name, LEFT_OUT, coords, f"a second tree on ground, no marker on it: {', '.join(bodies)}; not in "
                 f"the subject nor in its .osim export", 0.0, "", 0.0, ()))
         r.joints = [j for j in r.joints if j.child not in gone]
         r.bodies = {b: v for b, v in r.bodies.items() if b not in gone}
@@ -606,4 +609,4 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]
+__all__ = ["LEFT_OUT", "Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]
