@@ -185,3 +185,32 @@ def test_a_static_alone_is_named_still_only(human, session):
     both = calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0))
     assert both.still_only is None and "still only" not in summary_text(both)
     assert calibration_report(both)["still_only_mm"] is None
+
+
+def test_one_joint_turning_among_three_markers_is_not_still(human):
+    """arm26's elbow flexion (opensim-models): three markers on three segments, one on the shoulder, one at the
+    elbow's axis, one at the wrist.  Two of the three pairs keep their distance (the elbow marker sits on the
+    axis), so the median pair (the still test's) is still; the shoulder-wrist pair moves with the flexion, and
+    the trial is not named still only."""
+    from calibrate.calibration.pipeline import STILL_MOTION, STILL_PAIR, _still_only, relative_motion
+    from calibrate.io.trial import Trial
+
+    segs: dict[str, str] = {}
+    for m in human.markers:  # one marker on each of three segments
+        if m.segment not in segs.values() and len(segs) < 3:
+            segs[m.name] = m.segment
+    names = list(segs)
+    rng = np.random.default_rng(2)
+    n = 121
+    flex = np.linspace(0.0, np.radians(95), n)  # the elbow turns 95 deg about z through the elbow marker
+    shoulder = np.zeros((n, 3))
+    elbow = np.tile([0.0, -0.30, 0.0], (n, 1))
+    wrist = elbow + 0.25 * np.column_stack([np.sin(flex), -np.cos(flex), np.zeros(n)])
+    X = np.stack([shoulder, elbow, wrist], axis=1) + rng.normal(0, 2e-4, (n, 3, 3))
+    trial = Trial(names, X, 120.0, 0, "elbow_flex.trc")
+    moving = np.linalg.norm(X[:, 0] - X[:, 2], axis=1).std()  # the shoulder-wrist pair, measured here
+    assert relative_motion(trial, human) < STILL_MOTION  # the median pair: still by itself
+    assert relative_motion(trial, human, 100.0) == pytest.approx(moving, rel=0.02) and moving > STILL_PAIR
+    assert _still_only(human, [trial], None) is None
+    still = Trial(names, X[:1].repeat(n, axis=0) + rng.normal(0, 2e-4, (n, 3, 3)), 120.0, 0, "still.trc")
+    assert _still_only(human, [still], None) is not None  # the same markers held: still

@@ -934,6 +934,11 @@ POSE_ITERATIONS = 10  # pose-only iterations of that refit (at most; it stops on
 
 
 STILL_MOTION = 0.005  # m: a trial whose markers on different segments move less than this (median SD) is still
+# m: ... unless one such pair moves more than this (SD): a joint turns.  arm26's elbow flexion has three markers on
+# three segments, two pairs of them across the elbow's axis or on the welded shoulder (0.4, 1.7 mm) and one that
+# the flexion moves (58 mm): its median, 1.7 mm, called it still.  The real statics' largest pair: 1.6 (gait2392),
+# 4.3 (Hamner), 15 mm (Rajagopal's, whose arms drift).
+STILL_PAIR = 0.025
 
 
 def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: float) -> list[float] | None:
@@ -971,12 +976,12 @@ def _check_size(model: Model, trials: Sequence[Trial], size) -> None:
                          "read as m makes it 1000 times too large; a C3D's POINT:UNITS, a TRC's Units) or its labels")
 
 
-def relative_motion(trial: Trial, model: Model | None = None) -> float:
+def relative_motion(trial: Trial, model: Model | None = None, percentile: float = 50.0) -> float:
     """How much the trial's markers on different segments of `model` move relative to each other: the median
     over such pairs of their distance's SD (m; a static trial's: 0.4-1.6 mm on the real recordings, their
     walks' 15 mm and more).  Without a model, over every pair of labelled markers (the few on one segment barely
     move the median; the real recordings: statics 0.4-1.6 mm, walks 14-24 mm).  A trial under STILL_MOTION is
-    still."""
+    still.  `percentile`: another percentile over the pairs than the median (100: the pair that moves most)."""
     seg = {m.name: m.segment for m in model.markers} if model is not None else None
     labs = [lab for lab in trial.labels if (lab in seg if seg is not None else not UNLABELLED.fullmatch(lab))]
     X = trial.select(labs).markers[:: max(1, trial.n_frames // 200)]
@@ -984,15 +989,18 @@ def relative_motion(trial: Trial, model: Model | None = None) -> float:
     other = (np.array([[seg[a] != seg[b] for b in labs] for a in labs]) if seg is not None
              else ~np.eye(len(labs), dtype=bool))
     vals = np.sqrt(D[other & np.isfinite(D)]) if labs else np.zeros(0)
-    return float(np.median(vals)) if vals.size else 0.0
+    return float(np.percentile(vals, percentile)) if vals.size else 0.0
 
 
 def _still_only(model: Model, trials: Sequence[Trial], motion: Sequence[float] | None) -> float | None:
     """The largest relative_motion of the trials if every one is still (a static calibrated alone: nothing places the
-    joints), else None.  `motion`: _trial_motion, if measured."""
+    joints) and none has a pair of markers on two segments moving more than STILL_PAIR, else None.  `motion`:
+    _trial_motion, if measured."""
     if motion is None or len(trials) == 1:
         motion = [relative_motion(t, model) for t in trials]
-    return max(motion) if max(motion) < STILL_MOTION else None
+    if max(motion) >= STILL_MOTION or any(relative_motion(t, model, 100.0) > STILL_PAIR for t in trials):
+        return None
+    return max(motion)
 
 
 def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
