@@ -176,3 +176,49 @@ def test_calibrates_a_model_with_other_trees_and_a_welded_marker_segment(tmp_pat
     assert "HuntCrossleyForce foot_platform (a contact force: the export does not carry contact geometry)" in printed
     text = (tmp_path / "subject.osim").read_text()
     assert '<WeldJoint name="cap_weld">' in text and 'name="platform"' not in text and 'name="ball"' not in text
+
+
+def test_a_welded_or_pinned_root_floats_and_keeps_its_name(tmp_path, capsys):
+    """A ground joint of fewer than six coordinates (arm26's WeldJoint 'offset', SoccerKick's PinJoint
+    'ground_pelvis'): calibrate's root floats, which inspect and the calibration's note say, its coordinate is
+    not a coordinate here, and the .osim export writes the floating root under the source joint's name (it had
+    written ground_<root>, which SoccerKick's weld 'ground_swivel' already had: two joints of one name).  OpenSim
+    loads the export, and its markers at random coordinates are where Pinocchio puts them."""
+    from tests.test_opensim_export import _coordinates, _random_poses, _run_worker
+
+    hand = hand_made_osim()
+    start = hand.index('<FreeJoint name="ground_pelvis">')
+    end = hand.index("</FreeJoint>") + len("</FreeJoint>")
+    pin_root = (hand[start:end].replace('<FreeJoint name="ground_pelvis">', '<PinJoint name="offset">')
+                .replace("</FreeJoint>", "</PinJoint>"))
+    c0 = pin_root.index("<coordinates>")
+    c1 = pin_root.index("</coordinates>") + len("</coordinates>")
+    pin_root = (pin_root[:c0] + '<coordinates><Coordinate name="base_rot"><default_value>0</default_value>'
+                '<range>-3 3</range></Coordinate></coordinates>' + pin_root[c1:])
+    text = hand[:start] + pin_root + hand[end:]
+    text = text.replace('<WeldJoint name="cap_weld">', '<WeldJoint name="ground_pelvis">')
+    path = tmp_path / "pinned.osim"
+    path.write_text(text)
+    model = load_model(path)
+    info = osim_info(model)
+    floating = [a for a in info.approximations if a.kind == "floating base"]
+    assert [a.joint for a in floating] == ["offset"] and floating[0].coordinates == ("base_rot",)
+    assert "base_rot" in info.dropped and info.root is None
+    assert main(["inspect", str(path)]) == 0
+    assert "offset: floating base (its PinJoint from ground to pelvis gives 1 of 6 coordinates" in \
+        capsys.readouterr().out
+    urdf = tmp_path / "pinned.urdf"
+    assert main(["import-osim", str(path), "-o", str(urdf)]) == 0
+    out = tmp_path / "back.osim"
+    assert main(["export-osim", str(urdf), "-o", str(out)]) == 0
+    capsys.readouterr()
+    import xml.etree.ElementTree as ET
+
+    names = [j.get("name") for j in ET.parse(out).getroot().find("Model/JointSet/objects")]
+    assert names.count("offset") == 1 and names.count("ground_pelvis") == 1 and len(names) == len(set(names))
+    poses = _random_poses(model, 5, 3)
+    theirs = _run_worker(tmp_path, [{"osim": str(out), "poses": [_coordinates(model, p) for p in poses]}])[0]
+    ours = [_pin_markers(model, t, q, a) for t, q, a in poses]
+    worst = max(np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs["poses"], ours, strict=True)
+                for m in model.marker_names)
+    assert worst < TOL

@@ -64,6 +64,8 @@ MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this ma
 
 # ---------------------------------------------------------------------- records
 LEFT_OUT = "left out"  # Approximation.kind of a tree on ground that is not the subject's (a platform, a ball)
+FLOATING = "floating base"  # Approximation.kind of a ground joint that is not six coordinates (a weld, a pin)
+NO_MARKER_EFFECT = (LEFT_OUT, FLOATING)  # kinds that move no marker of the subject: no effect or bound to state
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,8 @@ class Approximation:
     markers: tuple[str, ...]  # markers on the child body and below
 
     def text(self) -> str:
+        if self.kind in NO_MARKER_EFFECT:
+            return f"{self.joint}: {self.kind} ({self.detail})"
         where = f" at {self.marker}" if self.marker else " (no marker below)"
         return (f"{self.joint}: {self.kind} ({self.detail}); largest marker effect {self.max_marker_mm:.2f} mm"
                 f"{where}, bound {self.bound_mm:.2f} mm in any pose")
@@ -561,6 +565,14 @@ class _Importer:
         lin_ok = all(ax.func.linear == (1.0, 0.0) for ax in rj.axes if ax.coord is not None)
         if len(rots) == 3 and len(trs) == 3 and lin_ok and rj.type in ("CustomJoint", "FreeJoint"):
             root = RootInfo(rj.name, rj.parent_offset, rj.child_offset, tuple(rots), tuple(trs))  # type: ignore[arg-type]
+        else:  # a weld, a pin, a planar joint...: calibrate's root floats (the export writes it under this name)
+            gone = tuple(c.name for c in rj.coords)
+            held = f" ({', '.join(gone)} not a coordinate here)" if gone else ""
+            approximations.insert(0, Approximation(
+                rj.name, FLOATING, gone, f"its {rj.type} from ground to {rj.child} gives {len(gone)} of 6 coordinates; "
+                f"calibrate fits the root segment's pose freely in every frame{held}, and the .osim export writes "
+                f"it as a CustomJoint '{rj.name}' of six coordinates (root_rz ... root_z)", 0.0, "", 0.0, ()))
+            dropped.extend(c for c in gone if c not in dropped)
         locked = {c.name: c.default for c in r.coords.values() if c.locked and c.name in dofs}
         # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
         info = OsimInfo(str(r.path.resolve()), root, locked, {n: self.defaults[n] for n in dofs}, tuple(approximations),
@@ -609,4 +621,4 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["LEFT_OUT", "Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]
+__all__ = ["FLOATING", "LEFT_OUT", "NO_MARKER_EFFECT", "Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]

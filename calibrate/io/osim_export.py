@@ -10,7 +10,8 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   mass, centre of mass (the URDF ``<inertial><origin xyz>`` × segment scale) and inertia
   about the centre of mass in the body frame (R I Rᵀ with R from the inertial origin's
   ``rpy``, × scale²).  Connectors and markers are not bodies (but see the chain case below).
-* **root** — ``CustomJoint`` ``ground_<root>`` from ground: three rotations about the body-fixed
+* **root** — ``CustomJoint`` ``ground_<root>`` (from a .osim whose ground joint had fewer than six
+  coordinates, a weld or a pin: that joint's name) from ground: three rotations about the body-fixed
   z, y', x'' axes (coordinates ``root_rz``, ``root_ry``, ``root_rx``: R = Rz Ry Rx, as
   ``scipy`` ``as_euler("ZYX")``) then three translations along the ground axes (``root_x``,
   ``root_y``, ``root_z``: the root origin in the lab, as in the motion CSV).  The Euler angles
@@ -236,10 +237,22 @@ class _Builder:
         else:
             root_coords = [(n, ez[k], "rotation") for n, k in zip(ROOT_ROTATIONS, (2, 1, 0), strict=True)]
             root_coords += [(n, ez[k], "translation") for k, n in enumerate(ROOT_TRANSLATIONS)]
-            self.joint("CustomJoint", f"ground_{model.root}", "ground", identity_transform(), model.root,
+            self.joint("CustomJoint", self._root_name(), "ground", identity_transform(), model.root,
                        identity_transform(), root_coords)
         for j in model.joints:
             self.anatomical_joint(j.name, j.parent, j.child, [self.urdf[n] for n in j.urdf_joints])
+
+    def _root_name(self) -> str:
+        """The floating root's joint: the source model's ground joint's name (a weld or pin made a floating base,
+        calibrate.io.osim.FLOATING), else ground_<root>; either with '_free' added while another joint has it."""
+        from .osim import FLOATING
+
+        info, model = self.info, self.model
+        source = [a.joint for a in info.approximations if a.kind == FLOATING] if info is not None else []
+        name = source[0] if source else f"ground_{model.root}"
+        while name in {j.name for j in model.joints}:
+            name += "_free"
+        return name
 
     def anatomical_joint(self, name: str, parent: str, child: str, chain: list[UrdfJoint]) -> None:
         # Split the chain into O0 · Rot(a1) · O1 · Rot(a2) · ... · On.
