@@ -259,6 +259,12 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
                     f"off beyond what the posterior SD shows; held by the prior") for name, (seg, _) in trading.items()}
 
     still = set(problem.settings.hold_segments)  # no marker seen on or below: held at the base model's
+    # Joint centres a joint-centre marker the trials show places (Priors.joint_marker: the lab's HJC markers, or
+    # --hip-regression's virtual markers at Harrington's centres): judged against that marker, not the base model.
+    tied: dict[int, list[str]] = {}
+    for t in problem.joint_markers():
+        if problem.seen[:, t.marker].any():
+            tied.setdefault(t.joint, []).append(model.markers[t.marker].name)
 
     def unseen(segment: str) -> str:
         return f"no marker seen on or below {segment}: held at the base model's"
@@ -295,6 +301,12 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         # directions (pig_walk's tibia wands sit 120-130 mm higher than the base model's, the lab's wand height, which
         # the walk fixes to 3 mm; around the shank, the direction left open, 44 and 65 mm).
         along = None if open_dir is None else float(np.linalg.norm(open_dir.T @ gap))
+        if group == "centre" and i in tied and change.status in (Identified.YES, Identified.ACROSS_AXIS):
+            if off / sd > FAR_FROM_PRIOR:  # where the lab's (or the regression's) marker puts it: not a trade
+                note = (f"placed by its joint-centre marker {', '.join(tied[i])} ({1000 * off:.0f} mm from the base "
+                        f"model's at the subject's scale: where the marker puts it)")
+                return replace(change, note=note)
+            return change
         return _position_far_from_prior(change, off, sd, along)
 
     for ji, j in enumerate(model.joints):
