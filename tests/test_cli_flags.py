@@ -430,6 +430,24 @@ def test_an_output_name_without_suffix_is_the_subject_urdf(human, squat, tmp_pat
     assert (tmp_path / "trial_motion.csv").exists() and (tmp_path / "trial_report.json").exists()
 
 
+def test_an_output_folder_takes_every_output(human, squat, tmp_path, capsys):
+    """-o results/ (or an existing folder without the slash): the subject under the trial's name in it, the motion
+    and the report beside it (it had written results.urdf beside the folder); a folder that is not there: one line,
+    exit 2, nothing written."""
+    _, sim_dir = squat
+    folder = tmp_path / "results"
+    folder.mkdir()
+    for given in (f"{folder}/", folder):
+        code, out, err = run(capsys, sim_dir / "trial.c3d", human.path, "-o", given, "--frames", "0:60", "--overwrite")
+        assert code in (0, 1), err
+        assert sorted(p.name for p in folder.iterdir()) == ["trial.urdf", "trial_motion.csv", "trial_report.json"]
+        assert load_model(folder / "trial.urdf").nz == human.nz
+        assert not (tmp_path / "results.urdf").exists()
+    code, out, err = run(capsys, sim_dir / "trial.c3d", human.path, "-o", f"{tmp_path / 'missing'}/")
+    assert code == 2 and err.count("\n") == 1 and "missing/: no such folder; create it first" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]
+
+
 # ---------------------------------------------------------------------- all or nothing
 @pytest.fixture(scope="module")
 def small_cal(human, squat):

@@ -4,6 +4,7 @@ demo, inspect, import-osim, joints."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from dataclasses import replace
@@ -128,7 +129,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CalibrateError("--motion names one file; with several trials each gets TRIAL_motion.csv (beside -o's "
                              "URDF, or beside the trial)")
     from_osim = model_path.suffix.lower() == ".osim"  # then also the subject .osim and .mot motions, OpenSim's names
-    output = args.output
+    output = None if args.output is None else Path(args.output)
+    stem = trial_paths[0].with_suffix("")
+    if output is not None and (str(args.output).endswith(("/", os.sep)) or output.is_dir()):
+        # -o results/ (a folder): the subject under the first trial's name in it, the other outputs beside it
+        if not output.is_dir():
+            raise CalibrateError(f"{args.output}: no such folder; create it first or choose another -o")
+        output = output / (stem.name + ".urdf")
     if output is not None and output.suffix.lower() == ".osim":
         # An OpenSim user names the subject .osim: the URDF goes beside it under the same name.
         if not from_osim:
@@ -137,7 +144,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         output = output.with_suffix(".urdf")
     elif output is not None and not output.suffix:  # -o out/subject02: the subject's name, written subject02.urdf
         output = output.with_name(output.name + ".urdf")
-    stem = trial_paths[0].with_suffix("")
     out_urdf = output or stem.with_name(stem.name + ".urdf")
     # The outputs stay together: beside -o's URDF when it is given (a trial's own folder may be a shared,
     # read-only data set), else beside the first trial.

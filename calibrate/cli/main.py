@@ -160,9 +160,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
               "URDF).  Other commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
     ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
                     help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
-    ap.add_argument("-o", "--output", type=Path, default=None,
+    ap.add_argument("-o", "--output", type=str, default=None,
                     help="subject URDF (default: the first TRIAL's name + .urdf); from an OpenSim base model, "
-                         "NAME.osim names the subject .osim too (both written, side by side)")
+                         "NAME.osim names the subject .osim too (both written, side by side); a folder (results/): "
+                         "every output in it, under the first TRIAL's name")
     ap.add_argument("--motion", type=Path, default=None,
                     help="motion CSV of a single trial (default: TRIAL's name + _motion.csv, for each trial, "
                          "beside -o's URDF if given, else beside the trial)")
