@@ -321,6 +321,15 @@ def test_isb_landmark_names_become_plug_in_gait_labels(human) -> None:  # noqa: 
     np.testing.assert_array_equal(renamed.markers, trial.markers)
 
 
+def test_qualisys_head_and_jugular_spellings(human) -> None:  # noqa: ANN001
+    """Qualisys's sample full-body file (ezc3d's test files, Qualisys.c3d) spells the jugular notch SNJ and the head
+    markers L_HDF / R_HDB: the Plug-in Gait markers on those points."""
+    trial = make_trial(["SNJ", "L_HDF", "R_HDF", "L_HDB", "R_HDB", "TV8"])
+    renamed, mapping = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("CLAV", "LFHD", "RFHD", "LBHD", "RBHD", "TV8")
+    assert mapping.unknown == ("TV8",)
+
+
 def test_model_outputs_travel_with_the_relabelled_trial() -> None:
     trial = Trial(labels=("R.ASIS",), markers=np.zeros((3, 1, 3)), rate=100.0,
                   model_outputs={"LFEO": np.ones((3, 3))}, output_kinds={"LFEO": "point"}, output_units={"LFEO": "m"})

@@ -50,12 +50,12 @@ xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, rad
 xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna,
               us, usp, ulnarstyloidprocess
 xFIN          fin, finger, mcp2, mc2, hand, hm2
-xFHD          fhd, fronthead, headfront, forehead, temple
-xBHD          bhd, backhead, headback, rearhead, headrear
+xFHD          fhd, fronthead, headfront, forehead, temple, hdf
+xBHD          bhd, backhead, headback, rearhead, headrear, hdb
 xBAK          bak, back, scapula
 C7            c7, vertebrac7, cv7
 T10           t10, th10, vertebrat10, tv10
-CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn
+CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn, snj
 STRN          strn, sternum, xiphoid, xiphoidprocess, px, sxs
 SACR          sacr, sacrum, sacral
 ============  =====================================================================================
@@ -151,8 +151,8 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
         "us", "usp", "ulnarstyloidprocess",
     ),
     "FIN": ("fin", "finger", "mcp2", "mc2", "hand", "hm2"),
-    "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple"),
-    "BHD": ("bhd", "backhead", "headback", "rearhead", "headrear"),
+    "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple", "hdf"),
+    "BHD": ("bhd", "backhead", "headback", "rearhead", "headrear", "hdb"),
     "BAK": ("bak", "back", "scapula"),
 }
 
@@ -160,7 +160,7 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
 MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
     "C7": ("c7", "vertebrac7", "cv7"),
     "T10": ("t10", "th10", "vertebrat10", "tv10"),
-    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch", "ij", "sjn"),
+    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch", "ij", "sjn", "snj"),
     "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess", "px", "sxs"),
     "SACR": ("sacr", "sacrum", "sacral"),
 }
