@@ -322,12 +322,34 @@ def test_isb_landmark_names_become_plug_in_gait_labels(human) -> None:  # noqa: 
 
 
 def test_qualisys_head_and_jugular_spellings(human) -> None:  # noqa: ANN001
-    """Qualisys's sample full-body file (ezc3d's test files, Qualisys.c3d) spells the jugular notch SNJ and the head
-    markers L_HDF / R_HDB: the Plug-in Gait markers on those points."""
-    trial = make_trial(["SNJ", "L_HDF", "R_HDF", "L_HDB", "R_HDB", "TV8"])
+    """Qualisys's sample full-body file (ezc3d's test files, Qualisys.c3d) spells the jugular notch SNJ, the head
+    markers L_HDF / R_HDB and the scapula R_SCAP: the Plug-in Gait markers on those points."""
+    trial = make_trial(["SNJ", "L_HDF", "R_HDF", "L_HDB", "R_HDB", "R_SCAP", "TV8"])
     renamed, mapping = map_labels(trial, human.marker_names)
-    assert renamed.labels == ("CLAV", "LFHD", "RFHD", "LBHD", "RBHD", "TV8")
+    assert renamed.labels == ("CLAV", "LFHD", "RFHD", "LBHD", "RBHD", "RBAK", "TV8")
     assert mapping.unknown == ("TV8",)
+
+
+def test_inspect_a_trial_against_a_model(human, tmp_path, capsys) -> None:  # noqa: ANN001
+    """`calibrate inspect TRIAL --model MODEL [--markers MAP]`: each label's fate before a calibration, counted, and
+    the model's markers the trial lacks; --markers without --model: one line, exit 2."""
+    from calibrate.cli import main
+    from calibrate.io.trc import write_trc
+
+    trc = tmp_path / "walk.trc"
+    write_trc(trc, make_trial(["RASI", "L_IAS", "Thigh_R", "TV8"]))
+    table = tmp_path / "map.toml"
+    table.write_text('RTHI = ["Thigh_R"]\n')
+    assert main(["inspect", str(trc), "--model", str(human.path), "--markers", str(table)]) == 0
+    out = capsys.readouterr().out
+    assert "labels against human.urdf's 39 markers: 1 exact, 1 map, 1 alias, 1 unknown" in out
+    lines = {ln.split()[0]: ln for ln in out.splitlines() if ln.startswith("  ") and "gaps" in ln}
+    assert lines["RASI"].endswith("-> RASI (exact)") and lines["L_IAS"].endswith("-> LASI (alias)")
+    assert lines["Thigh_R"].endswith("-> RTHI (map)") and lines["TV8"].endswith("unknown")
+    lacks = next(ln for ln in out.splitlines() if "markers the trial lacks" in ln)
+    assert "(36)" in lacks and "LTHI" in lacks and "RASI" not in lacks.split(":", 1)[1]
+    assert main(["inspect", str(trc), "--markers", str(table)]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
 
 
 def test_model_outputs_travel_with_the_relabelled_trial() -> None:

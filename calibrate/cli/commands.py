@@ -445,8 +445,20 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         return 0
     from ..io.read import read_trial
 
+    model_path = getattr(args, "model", None)
+    if model_path is None and getattr(args, "markers", None) is not None:
+        raise CalibrateError("--markers: give the model too (--model MODEL) to see what the labels become")
     t = read_trial(path)
     gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
+    became: dict[str, str] = {}
+    if model_path is not None:
+        from ..io.labels import load_marker_map, map_labels
+        from ..model.model import load_model
+
+        model = load_model(model_path, getattr(args, "marker_set", None))
+        _, mapping = map_labels(t, model.marker_names, load_marker_map(args.markers) if args.markers else None)
+        became = {m.trial_label: (f"-> {m.label} ({m.how})" if m.how != "unknown" else "unknown")
+                  + (f"; {m.note}" if m.note else "") for m in mapping}
     print(f"{path}: {t.n_frames} frames at {t.rate:g} Hz ({t.n_frames / t.rate:.2f} s), {t.n_markers} markers, "
           f"first frame {t.first_frame} (0-based)" + (f", times {t.times[0]:g} to {t.times[-1]:g} s (a setup's "
                                                       "time_range counts in these)" if t.n_frames else ""))
@@ -461,8 +473,17 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     print(f"  motion: its markers keep their distances to {1000 * moves:.1f} mm SD (median over marker pairs): "
           + ("still, a static trial" if moves < STILL_MOTION else
              "a movement trial (a static keeps them to 0.4-1.6 mm)"))
+    if became:
+        hows = [m.how for m in mapping]
+        print(f"  labels against {model_path.name}'s {len(model.marker_names)} markers: "
+              + ", ".join(f"{hows.count(h)} {h}" for h in ("exact", "map", "alias", "unknown") if h in hows)
+              + " (an unknown label is placed on a segment by rigidity when calibrating, if one carries it; "
+                "--markers map.toml names it)")
+        if mapping.missing:
+            print(f"  {model_path.name}'s markers the trial lacks ({len(mapping.missing)}): "
+                  + ", ".join(mapping.missing))
     for lab, g in zip(t.labels, gaps, strict=True):
-        print(f"  {lab:16s} gaps {100 * g:5.1f} %")
+        print(f"  {lab:16s} gaps {100 * g:5.1f} %" + (f"  {became[lab]}" if became else ""))
     from ..calibration.plugin_gait import plugin_gait_knees
 
     for check, *_ in plugin_gait_knees(t):  # the file's Plug-in Gait bones, checked against their own motion

@@ -102,6 +102,11 @@ def build_parser() -> argparse.ArgumentParser:
     ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d, .trc or OpenSim setup .xml file")
     ins.add_argument("--marker-set", type=Path, default=None, metavar="XML",
                      help="with a .osim: an OpenSim MarkerSet file whose markers are added (as the Scale tool does)")
+    ins.add_argument("--model", type=Path, default=None, metavar="MODEL",
+                     help="with a trial: what each of its labels becomes against MODEL's markers (exact, --markers "
+                          "map, built-in alias, unknown) and which of MODEL's markers it lacks, before calibrating")
+    ins.add_argument("--markers", type=Path, default=None, metavar="TOML",
+                     help="with --model: the marker map a calibration would be given (model label = [trial labels])")
     jo = sub.add_parser("joints", help="joint-centre trajectories of a trial (MTB framework)",
                         description="Estimate every joint centre of MODEL's topology, frame by frame, from TRIAL's "
                                     "markers alone (marker-trajectory bases, solvability propagation, JMV fallback; "

@@ -52,7 +52,7 @@ xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnars
 xFIN          fin, finger, mcp2, mc2, hand, hm2
 xFHD          fhd, fronthead, headfront, forehead, temple, hdf
 xBHD          bhd, backhead, headback, rearhead, headrear, hdb
-xBAK          bak, back, scapula
+xBAK          bak, back, scapula, scap
 C7            c7, vertebrac7, cv7
 T10           t10, th10, vertebrat10, tv10
 CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn, snj
@@ -153,7 +153,7 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "FIN": ("fin", "finger", "mcp2", "mc2", "hand", "hm2"),
     "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple", "hdf"),
     "BHD": ("bhd", "backhead", "headback", "rearhead", "headrear", "hdb"),
-    "BAK": ("bak", "back", "scapula"),
+    "BAK": ("bak", "back", "scapula", "scap"),
 }
 
 #: Midline Plug-in Gait markers, with alias names after normalisation, most specific first.
