@@ -125,6 +125,37 @@ def test_the_moved_markers_are_named_left_out_of_the_static_and_placed_where_the
     assert calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0)).moved_kept == ()
 
 
+def test_a_re_placed_thigh_marker_is_left_out_of_the_static_by_default(human, session):
+    """A marker 100 mm elsewhere in the static than in the squats (AddBiomechanics' Expert1: its left thigh cluster
+    75-145 mm, put back elsewhere after the static): no skin carries it so far, so without --moved-markers its
+    static positions are left out all the same, with those of its segment's other moved markers; the 30 mm shoulder
+    marker (skin-borne, as the real acromia's 46-63 mm) is kept and named as before."""
+    from calibrate.calibration.moved import REPLACED_MIN
+
+    squats, _, plain = session
+    far = {"LTHI": np.array([0.0, 0.0, 0.100]), "LKNE": np.array([0.0, 0.0, 0.025]),
+           "LSHO": np.array([0.030, 0.0, 0.0])}
+    truth = squats.truth
+    moved = truth.copy()
+    for name, shift in far.items():
+        k = human.marker_index(name)
+        moved.marker[k] += shift / truth.scale[human.segment_index(human.markers[k].segment)]
+    static = simulate_static(human, moved, frames=300, noise_mm=1.0, seed=7)
+    cal = calibrate(human, [static.trial, squats.trial], Settings(outliers=0.0))
+    assert {m.marker for m in cal.moved} == {"LTHI", "LKNE"}  # the femur's: re-placed, with its nearer mate
+    thi = next(m for m in cal.moved if m.marker == "LTHI")
+    assert REPLACED_MIN <= thi.distance < 0.104  # seen at the first round's compromise: 92 mm of the 100
+    for name in ("LTHI", "LKNE"):  # placed where the squats put them: within 1 mm of the truth's distances
+        assert np.abs(_mates(human, cal.params, name) - _mates(human, truth, name)).max() < 0.001
+    assert [m.marker for m in cal.moved_kept] == ["LSHO"]
+    line = next(x for x in summary_text(cal).splitlines() if x.startswith("  moved        "))
+    assert f"LTHI {1e3 * thi.distance:.0f} mm" in line
+    assert "re-placed, not skin; without --moved-markers only such are left out" in line
+    F0 = static.trial.n_frames
+    k = human.marker_index("LTHI")
+    assert np.all(np.isnan(cal.residuals[:F0, k])) and not np.all(np.isnan(cal.residuals[F0:, k]))
+
+
 def test_one_moving_trial_alone_or_two_still_trials_look_for_nothing(human, human_kin, session):
     squats, static, plain = session
     obs = np.concatenate([marker_columns(human, t) for t in (static.trial, squats.trial)])

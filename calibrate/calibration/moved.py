@@ -15,7 +15,7 @@ MOVED_SIGMAS of their spread away from it (Mahalanobis): the moving trials never
 still trial's positions of a moved marker are then left out of the fit (with one pose, a place of its
 own would fit them exactly and tell nothing else); the model keeps the moving trials' place.  With
 Settings.moved_markers off, the test runs once at the solution and its finds are only named
-(Calibration.moved_kept)."""
+(Calibration.moved_kept), except for markers re-placed, REPLACED_MIN or more away, which are left out all the same."""
 
 from __future__ import annotations
 
@@ -28,6 +28,12 @@ from ..problem.problem import Problem
 from ..problem.state import State
 
 MOVED_MIN = 0.010  # m: a slipped cluster or a marker put back moves a centimetre or more (skin over bone, less)
+# m: a marker this far elsewhere in a still trial was re-placed (or its cluster's labels exchanged), not carried by
+# skin: the real recordings' skin-borne shifts reach 46-63 mm (acromia lifted by the static's arms, a cluster slid down
+# its strap), AddBiomechanics' Expert1 static shows its left thigh cluster 75-145 mm from the walk's places.  Without
+# Settings.moved_markers the still trial's positions of such a marker, and of its segment's other moved markers,
+# are left out all the same (replaced()).
+REPLACED_MIN = 0.080
 MOVED_SIGMAS = 3.0  # Mahalanobis distance from the moving trials' places (chi2, 3 dof: outside 97 % of them)
 MIN_STILL_FRAMES = 3  # frames of the still trial that show the marker, at least
 MIN_MOVING_FRAMES = 12  # frames of the moving trials that show it (their spread is measured on them)
@@ -52,6 +58,14 @@ class MovedMarker:
     def to_json(self) -> dict:
         return {"trial": self.trial, "marker": self.marker, "segment": self.segment,
                 "distance_mm": 1e3 * self.distance, "sigmas": self.sigmas}
+
+
+def replaced(found: Sequence[MovedMarker], before: Sequence[MovedMarker] = ()) -> list[MovedMarker]:
+    """The moved markers of `found` on a segment that one of them (or of `before`, an earlier look's) left by
+    REPLACED_MIN or more in that still trial: a cluster put back elsewhere moves as a whole, its nearer markers
+    with it."""
+    far = {(m.trial, m.segment) for m in (*found, *before) if m.distance >= REPLACED_MIN}
+    return [m for m in found if (m.trial, m.segment) in far]
 
 
 def marker_places(problem: Problem, state: State) -> np.ndarray:

@@ -36,7 +36,7 @@ from calibrate.calibration.identifiability import (
     still_of,
     trading_locks,
 )
-from calibrate.calibration.moved import MovedMarker, moved_markers
+from calibrate.calibration.moved import MovedMarker, moved_markers, replaced
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.plugin_gait import knee_axis_checks
 from calibrate.calibration.regression import hip_motion, regression_hips
@@ -298,8 +298,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         motion = _trial_motion(model, trials)
         placed = _assign_new_markers(model, trials, unknown, motion)
-    if motion is None and len(trials) > 1 and (run.still_weight > 0 or run.moved_markers):
-        motion = _trial_motion(model, trials)  # which trials are still (_still_lengths, moved markers)
+    if motion is None and len(trials) > 1:
+        motion = _trial_motion(model, trials)  # which trials are still (_still_lengths, moved and re-placed markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
@@ -443,7 +443,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         in_neutral[spans[neutral]] = True
     # On every frame a marker's correlation time counts up to NOISE_TAU_SECONDS whatever the trials' rate.
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
-    still = [m < STILL_MOTION for m in motion] if motion is not None and run.moved_markers else None
+    # Which trials are still: their moved markers looked for (with run.moved_markers off, only the re-placed left out)
+    still = [m < STILL_MOTION for m in motion] if motion is not None and len(trials) > 1 else None
     problem, state, summary, scatter, solved, moved, locks = _solve(problem, start, spans, run, solver, say, lengths,
                                                                     cap, still, [t.source for t in trials])
     held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
@@ -771,6 +772,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # positions left out, and the subsample solved again from here (the moving trials' place kept).
             # A second look after that solve: with the worst gone, a slipped cluster's other markers stand out.
             found = moved_markers(sub, state, sub_trial, still)
+            if not run.moved_markers:  # only the re-placed (REPLACED_MIN): skin-borne shifts wait for the option
+                found = replaced(found, moved)
             for m in found:
                 say(Progress("markers", m.text(names[m.trial]) + "; left out there"))
             if found:

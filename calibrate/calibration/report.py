@@ -29,6 +29,7 @@ from ..problem.priors import symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
 from .html import longest_asymmetry, report_html
+from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified
 from .regression import FUNCTIONAL_RANGE
@@ -584,8 +585,11 @@ def summary_text(cal) -> str:
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
                      "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
                      + _foot_hint(cal, [h.joint for h in turned]))
+    replaced_only = "" if cal.settings.moved_markers else (
+        f" (a marker of their segment {1e3 * REPLACED_MIN:.0f} mm or more away: re-placed, not skin; without "
+        "--moved-markers only such are left out)")
     for tag, records, done in (("moved   ", cal.moved, "their positions there left out, the model keeps the moving "
-                                "trials' place"),
+                                "trials' place" + replaced_only),
                                ("moved?  ", cal.moved_kept, "kept in the fit, which then bends the geometry between "
                                 "the two places; --moved-markers leaves their positions there out")):
         for name, ms in _by_still_trial(cal, records):
