@@ -88,3 +88,17 @@ def test_bench_length_refuses_lengths_it_cannot_time(tmp_path):
                               cwd=tmp_path)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
+
+
+def test_bench_expert_refuses_what_it_cannot_run(tmp_path):
+    """bench_expert without an AddBiomechanics checkout, or with an unknown case: one line, exit 2, nothing run."""
+    import subprocess
+
+    script = str(ROOT / "scripts" / "bench_expert.py")
+    (tmp_path / "paper_data").mkdir()
+    for args, needle in ((["--addbiomechanics", str(tmp_path / "nowhere")], "no paper_data folder"),
+                         (["--addbiomechanics", str(tmp_path), "--cases", "Expert9"], "unknown case 'Expert9'")):
+        proc = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=120,
+                              cwd=tmp_path)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
