@@ -479,6 +479,19 @@ def test_write_c3d_refuses_more_frames_than_ezc3d_reads_back(tmp_path: Path) -> 
     assert read_c3d(path).n_frames == 65_535
 
 
+def test_read_trc_labels_one_tab_apart_and_a_times_column(tmp_path: Path) -> None:
+    """AddBiomechanics' stair-descent trial (server/engine/tests/data/stairdown) writes "Times" and its labels one tab
+    apart ("Frame#  Times  <tab> LFHD <tab> LBHD ..."), its rows 2 + 3 x NumMarkers wide: read as OpenSim's reader takes
+    labels (the non-empty ones in order, as many as NumMarkers), every value where it belongs."""
+    path = tmp_path / "stairs.trc"
+    path.write_text(TRC_HEADER.replace("Frame#\tTime\tA\t\t\tB", "Frame#\tTimes\t\tA\t\tB")
+                    .replace("\t\tX1", "\t\t\tX1").format(rate=100, frames=2, units="m")
+                    + "1\t0.01\t1\t2\t3\t4\t5\t6\n2\t0.02\t7\t8\t9\t10\t11\t12\n")
+    trial = read_trc(path)
+    assert trial.labels == ("A", "B") and trial.n_frames == 2
+    np.testing.assert_array_equal(trial.markers[1], [[7, 8, 9], [10, 11, 12]])
+
+
 @pytest.mark.parametrize(
     ("text", "match"),
     [
@@ -490,6 +503,9 @@ def test_write_c3d_refuses_more_frames_than_ezc3d_reads_back(tmp_path: Path) -> 
         (TRC_HEADER.format(rate=100, frames=0, units="mm"), "no frames"),
         ("Frame#\tTime\tA\n1\t0\t1\t2\t3\n", "TRC"),
         (TRC_HEADER.replace("PathFileType", "Hello").format(rate=100, frames=0, units="mm") + "1\t0\n", "PathFileType"),
+        # labels one tab apart with a third one the header does not count: out of step, not guessed
+        (TRC_HEADER.replace("A\t\t\tB", "A\tB\tC").format(rate=100, frames=1, units="mm") + "1\t0\t1\t2\t3\t4\t5\t6\n",
+         "out of step"),
     ],
 )
 def test_read_trc_malformed(tmp_path: Path, text: str, match: str) -> None:

@@ -117,17 +117,22 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
     num_frames = header_int("NumFrames")
 
     label_cells = lines[3].split("\t")
-    if len(label_cells) < 2 or label_cells[0].strip() != "Frame#" or label_cells[1].strip() != "Time":
+    # "Times" as some exporters write it (AddBiomechanics' test trials); OpenSim's reader wants "Time"
+    if len(label_cells) < 2 or label_cells[0].strip() != "Frame#" or label_cells[1].strip().lower() not in ("time",
+                                                                                                          "times"):
         raise fail(path, "TRC line 4 should start with Frame# and Time", redo)
     marker_cells = label_cells[2:]
     misplaced = [cell.strip() for i, cell in enumerate(marker_cells) if i % 3 and cell.strip()]
-    if misplaced:
+    named = [cell for cell in marker_cells if cell.strip()]
+    if misplaced and (num_markers is None or len(named) != num_markers):
         raise fail(
             path,
             f"TRC line 4 has marker labels out of step with the X/Y/Z columns (near {misplaced[0]!r})",
             redo,
         )
-    raw_labels = marker_cells[0::3]
+    # Labels one tab apart rather than three: taken in order, as OpenSim's reader takes them, when they are as many as
+    # the header's NumMarkers (each row's values are then checked against that count).
+    raw_labels = named if misplaced else marker_cells[0::3]
     while raw_labels and not raw_labels[-1].strip():
         raw_labels.pop()
     n_markers = len(raw_labels)
