@@ -330,6 +330,16 @@ def test_qualisys_head_and_jugular_spellings(human) -> None:  # noqa: ANN001
     assert mapping.unknown == ("TV8",)
 
 
+def test_human_body_model_spellings(human) -> None:  # noqa: ANN001
+    """Motek's Human Body Model (AddBiomechanics' initial_off_treadmill trial): LLEK / RLEK the knees' lateral
+    epicondyles, LLEE the elbow's, LLW / LMW the wrist's radial and ulnar sides; its anterior tibia and front thigh
+    markers (LATI, FLTHI) sit elsewhere than Plug-in Gait's TIB and THI and stay unknown."""
+    trial = make_trial(["LLEK", "RLEK", "LLEE", "RLEE", "LLW", "LMW", "RLW", "RMW", "LATI", "FLTHI"])
+    renamed, mapping = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("LKNE", "RKNE", "LELB", "RELB", "LWRA", "LWRB", "RWRA", "RWRB", "LATI", "FLTHI")
+    assert mapping.unknown == ("LATI", "FLTHI")
+
+
 def test_inspect_a_trial_against_a_model(human, tmp_path, capsys) -> None:  # noqa: ANN001
     """`calibrate inspect TRIAL --model MODEL [--markers MAP]`: each label's fate before a calibration, counted, and
     the model's markers the trial lacks; --markers without --model: one line, exit 2."""
