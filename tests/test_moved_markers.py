@@ -38,16 +38,20 @@ def _mates(model, params, name: str) -> np.ndarray:
                      for j, mk in enumerate(model.markers) if mk.segment == seg and j != k])
 
 
+def _shifted_static(human, truth, shifts: dict[str, np.ndarray]):
+    """A static of the subject `truth` with markers `shifts` (m, in their segments' axes) elsewhere."""
+    moved = truth.copy()
+    for name, shift in shifts.items():
+        k = human.marker_index(name)
+        moved.marker[k] += shift / truth.scale[human.segment_index(human.markers[k].segment)]
+    return simulate_static(human, moved, frames=300, noise_mm=1.0, seed=7)
+
+
 @pytest.fixture(scope="module")
 def session(human):
     squats = simulate_squats(human, frames=300, noise_mm=1.0, seed=7)
-    truth = squats.truth
-    moved = truth.copy()
-    for name, shift in SHIFTS.items():
-        k = human.marker_index(name)
-        moved.marker[k] += shift / truth.scale[human.segment_index(human.markers[k].segment)]
-    static = simulate_static(human, moved, frames=300, noise_mm=1.0, seed=7)
-    plain = simulate_static(human, truth, frames=300, noise_mm=1.0, seed=7)
+    static = _shifted_static(human, squats.truth, SHIFTS)
+    plain = simulate_static(human, squats.truth, frames=300, noise_mm=1.0, seed=7)
     return squats, static, plain
 
 
@@ -136,11 +140,7 @@ def test_a_re_placed_thigh_marker_is_left_out_of_the_static_by_default(human, se
     far = {"LTHI": np.array([0.0, 0.0, 0.100]), "LKNE": np.array([0.0, 0.0, 0.025]),
            "LSHO": np.array([0.030, 0.0, 0.0])}
     truth = squats.truth
-    moved = truth.copy()
-    for name, shift in far.items():
-        k = human.marker_index(name)
-        moved.marker[k] += shift / truth.scale[human.segment_index(human.markers[k].segment)]
-    static = simulate_static(human, moved, frames=300, noise_mm=1.0, seed=7)
+    static = _shifted_static(human, truth, far)
     cal = calibrate(human, [static.trial, squats.trial], Settings(outliers=0.0))
     assert {m.marker for m in cal.moved} == {"LTHI", "LKNE"}  # the femur's: re-placed, with its nearer mate
     thi = next(m for m in cal.moved if m.marker == "LTHI")
