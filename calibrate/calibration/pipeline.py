@@ -727,7 +727,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     weighted by it.  `tau_max`: the longest correlation time learnt on every frame (noise.tau_cap; a
     subsample's rows lie frames apart: its own).  `still`: which trials are still, where the markers that
     sit elsewhere in them than in the moving trials are looked for after the first subsample solve
-    (calibrate.calibration.moved; their positions there left out and the subsample solved again)."""
+    (calibrate.calibration.moved; their positions there left out and the subsample solved again: with
+    run.moved_markers off, only the re-placed ones, moved.replaced)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, COARSE_FRAMES, lengths)
     coarse_w = subsample_weight(coarse, spans, lengths)
