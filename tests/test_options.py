@@ -119,8 +119,8 @@ def test_parameter_changes_read_the_columns_the_names_give(human, human_kin):
 def test_an_unidentified_axis_far_beyond_its_prior_is_reported_unreliable(human, human_kin):
     """A hinge axis the trial does not identify (posterior SD as its prior-only SD) but that ended more than
     3 prior SDs (30 deg) from the base model's is reported unreliable, with how far and what to do; one
-    turned less far, or identified (posterior SD a tenth of the prior-only), is not.  The report's JSON
-    lists the unreliable ones."""
+    turned less far is not; one identified (posterior SD a tenth of the prior-only) as far is, in its own words.
+    The report's JSON lists the unreliable ones."""
     from calibrate.calibration.identifiability import FAR_FROM_PRIOR
 
     sim = simulate_squats(human, frames=6, noise_mm=1.0, seed=4)
@@ -143,8 +143,12 @@ def test_an_unidentified_axis_far_beyond_its_prior_is_reported_unreliable(human,
     assert "--hold-axes knee_r" in by["knee_r"].note
     assert by["elbow_r"].change == pytest.approx(20.0, abs=1e-6) and not by["elbow_r"].unreliable
     assert sum(c.unreliable for c in by.values()) == 1
+    # Identified (the posterior SD a tenth of the prior-only) and yet as far: no more to be trusted, said so.
     identified = {c.item: c for c in parameter_changes(problem, p, cov, 100.0 * cov) if c.group == "axis"}
-    assert identified["knee_r"].identified and not identified["knee_r"].unreliable
+    assert identified["knee_r"].identified and identified["knee_r"].unreliable
+    assert identified["knee_r"].note.startswith("the trial turns it (posterior SD 0.1 deg), yet 40 deg")
+    assert "--hold-axes knee_r" in identified["knee_r"].note
+    assert not identified["elbow_r"].unreliable
     # Beside the markerless talus, the advice names the pair to lock one of (gait2392's ankles without the IK setup
     # that locks its subtalar joints); locked, the subtalar is no longer named.
     k = problem.layout.axis(human.dof_index("ankle_r"))
@@ -316,3 +320,38 @@ def test_which_hinge_of_a_trading_pair_is_locked(human):
     assert "the fit carried their axes 56 deg from the base model's" in lock.text()
     assert trading_locks(human, traded, turns=turns, start=start, limit=d(60.0)) == ()
     assert trading_locks(human, traded, turns=turns, limit=d(30.0)) == ()  # no start: no reading of who is seen less
+
+
+def test_an_axis_turned_far_from_the_base_is_named_implausible(human):
+    """End to end, as for a centre: a base model whose right knee axis is tilted 40 deg (the simulated subject's is
+    within 5 deg of models/human.urdf's): the squats turn the axis back (identified, a posterior SD of a few
+    degrees), over 30 deg from the tilted base's, and the summary and the report call it unreliable, naming the hold."""
+    import tempfile
+    from pathlib import Path
+
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.calibration.report import calibration_report, summary_text
+    from calibrate.model.model import Parameters, load_model, write_model
+
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=3)
+    P = human.parameters()
+    d = human.dof_index("knee_r")
+    a = P.axis[d] / np.linalg.norm(P.axis[d])
+    side = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    axis = P.axis.copy()
+    axis[d] = np.cos(np.radians(40.0)) * a + np.sin(np.radians(40.0)) * side
+    with tempfile.TemporaryDirectory() as folder:
+        base = load_model(write_model(human, Path(folder) / "tilted.urdf", Parameters(P.scale, P.centre, axis,
+                                                                                     P.marker)))
+        cal = calibrate(base, sim.trial, Settings())
+    knee = next(c for c in cal.changes if c.group == "axis" and c.item == "knee_r")
+    assert knee.identified and knee.unreliable and knee.note.startswith("the trial turns it")
+    assert abs(knee.change - 40.0) < 8.0, knee.change  # back near the subject's, within 5 deg of the untilted base
+    assert np.nanmax(knee.std) < 5.0
+    lines = summary_text(cal).splitlines()
+    assert f"  implausible  axis[knee_r]: {knee.note}" in lines
+    row = next(line for line in lines if line.startswith("    knee_r ") and "deg" not in line and "+-" in line
+               and line.rstrip().endswith("unreliable)"))
+    assert "(turned by the trial, yet far from the base model's: unreliable)" in row
+    assert "axis[knee_r]" in calibration_report(cal)["unreliable"]

@@ -353,19 +353,33 @@ FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far f
 
 
 def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[str, ...] = ()) -> ParameterChange:
-    """`change` with its note corrected where it is a hinge axis the trial did not identify that yet lies
-    more than FAR_FROM_PRIOR prior SDs (Priors.axis) from the base model's: the prior did not hold it
+    """`change` with its note corrected where it is a hinge axis that lies more than FAR_FROM_PRIOR prior SDs
+    (Priors.axis) from the base model's.  One the trial did not identify: the prior did not hold it
     there, a valley of the fit (a trade with a neighbour the data do not separate) carried it, so the
     value is not to be trusted (gait2392's ankle axis next to the markerless talus: 54 deg, 5.4 prior SDs).
+    One the trial identified is no more to be trusted, as a joint centre the trial places that far is not.
     `neighbours`: the free coordinates it trades with across a markerless segment; locking the one of the pair
     that hardly moves is what finds the other (gait2392 with its IK setup's subtalar locked: its ankles within
     2-5 deg of OpenSim's IK; holding the axis instead turned the thigh 30 deg, docs/benchmarks.md).
     (A position's change includes the segment's scaling, which its prior does not count against it.)"""
     sd = math.degrees(priors.axis)
-    if change.group != "axis" or change.status is not Identified.NO or not sd > 0:
+    if change.group != "axis" or not sd > 0:
         return change
     k = change.change / sd
     if k <= FAR_FROM_PRIOR:
+        return change
+    if change.status is Identified.YES:
+        # The data turn it, and turn it where no anatomy does: skin that moves with the joint's turn (a thigh's
+        # markers rolling about the femur as the knee flexes) tilts an axis fitted to them with a small posterior SD
+        # (the OpenCap walk in AddBiomechanics' tests: both knees 31-41 deg from the base model's, SD 3.5-3.9 deg;
+        # fitted on its first half, its second half fits 9.18 mm with them, 6.97 with the knee axes held).
+        sd_now = float(np.nanmax(change.std))
+        note = (f"the trial turns it (posterior SD {sd_now:.1f} deg), yet {change.change:.0f} deg from the base "
+                f"model's ({k:.1f} prior SDs): few joints' axes lie so far from a generic model's, while skin that "
+                "moves with the joint's turn tilts an axis fitted to it with a small SD; not reliable unless the base "
+                f"model is that far from this subject (--hold-axes {change.item} keeps the base model's)")
+        return replace(change, unreliable=True, note=note)
+    if change.status is not Identified.NO:
         return change
     why = change.note.removesuffix(": held by the prior").removesuffix("; held by the prior")
     note = (f"{why}; yet {change.change:.0f} deg from the base model's ({k:.1f} prior SDs), so the prior did not hold "

@@ -535,11 +535,15 @@ def summary_text(cal) -> str:
         for c in axes:
             std = np.nanmax(c.std)
             flag = "" if c.identified else "  (not identified; unreliable)" if c.unreliable else "  (held by prior)"
+            if c.unreliable and c.identified:
+                flag = "  (turned by the trial, yet far from the base model's: unreliable)"
             lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
     for c in cal.changes:
         if c.group == "centre" and c.unreliable and (c.identified or _slide_only(c)):
             lines.append(f"  implausible  centre[{c.item}]: {c.note}{_moved_hint(cal, c)}; --hold-centres "
                          f"{c.item} holds it at the base model's")
+        if c.group == "axis" and c.unreliable and c.identified:
+            lines.append(f"  implausible  axis[{c.item}]: {c.note}{_moved_hint(cal, c)}")
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")
