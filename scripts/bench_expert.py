@@ -127,7 +127,9 @@ def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[flo
     return {"wall_s": wall, "markers": mk, "marker_names": list(subj.marker_names), "trial": cal.trials[-1],
             "times": np.asarray(move.times), "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)},
             "converged": bool(cal.converged), "moved": [f"{x.marker} {1e3 * x.distance:.0f} mm" for x in cal.moved],
-            "unreliable": [f"{c.group} {c.item} {c.change:.0f}" for c in cal.changes if c.unreliable]}
+            # (a position: its distance from the base model's at the subject's scale, which the flag judges)
+            "unreliable": [f"{c.group} {c.item} {c.change if c.group == 'axis' else c.beyond_scale:.0f}"
+                           for c in cal.changes if c.unreliable]}
 
 
 def bench(root: Path, name: str, work: Path, log) -> list[dict]:

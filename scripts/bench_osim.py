@@ -323,7 +323,9 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
             "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations],
             "locked": [f"{n} {np.degrees(v):g} deg" for n, v in settings.lock],
-            "unreliable": [f"{c.group} {c.item} {c.change:.0f} {'deg' if c.group == 'axis' else 'mm'}"
+            # (a position: its distance from the base model's at the subject's scale, which the flag judges)
+            "unreliable": [f"{c.group} {c.item} {c.change if c.group == 'axis' else c.beyond_scale:.0f} "
+                           f"{'deg' if c.group == 'axis' else 'mm'}"
                            for c in cal.changes if c.unreliable],
             "static_asymmetry": [f"{cal.trials[h.trial].source or 'static'}: {h.text()}" for h in cal.static_asymmetry],
             "moved": [f"{m.marker} {1e3 * m.distance:.0f} mm" for m in cal.moved]}

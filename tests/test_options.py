@@ -247,6 +247,15 @@ def test_a_centre_placed_far_from_the_base_is_named_implausible(human):
     assert (f"  implausible  centre[hip_l]: {hip.note}; --hold-centres hip_l holds it at the base model's"
             in summary_text(cal).splitlines())
     assert calibration_report(cal)["unreliable"] == ["centre[hip_l]"]
+    # Its distance from the base model's at the subject's scale (what its prior counts), beside the plain change:
+    # from the calibrated pelvis scale and the shifted base's centre, independently of the report.
+    s = cal.params.scale[human.segment_index("pelvis")]
+    beyond = 1000 * np.linalg.norm(s * cal.params.centre[j] - s * centre[j])  # (params: offsets at unit scale)
+    assert hip.beyond_scale == pytest.approx(beyond, rel=1e-9) and beyond > 60.0
+    row = next(line for line in summary_text(cal).splitlines() if line.startswith("    hip_l "))
+    assert row.split()[1:3] == [f"{hip.change:.1f}", f"{beyond:.1f}"], row
+    entry = next(e for e in calibration_report(cal)["parameters"] if e["name"] == "centre[hip_l]")
+    assert entry["beyond_scale"] == pytest.approx(beyond, abs=1e-5)
     # Not identified yet as far (gait2392's back with its IK setup: 120 mm, 6 prior SDs): its row in the centres'
     # table says unreliable, as the list of what the trial did not identify does, not "held by prior".
     from dataclasses import replace

@@ -289,13 +289,14 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             C, C0 = cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
             std = 1000 * np.sqrt(np.clip(np.diag(C), 0, None))
             status, note, ratio, open_dir = judge(C, C0)
+        scaled = seg_scale[model.segment_index(owner)] * base
         change = ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
-                                 note, ratio)
+                                 note, ratio, beyond_scale=1000 * float(np.linalg.norm(value - scaled)))
         if block.held:
             return change
         # Its prior pulls the offset from the base model's, at the subject's scale, towards zero (Priors).
         sd = problem.settings.priors.marker if group == "marker" else problem.settings.priors.centre
-        gap = value - seg_scale[model.segment_index(owner)] * base
+        gap = value - scaled
         off = float(np.linalg.norm(gap))
         # A marker the trial places but for some directions: how far its prior failed to hold it is read in those
         # directions (pig_walk's tibia wands sit 120-130 mm higher than the base model's, the lab's wand height, which

@@ -61,9 +61,13 @@ class ParameterChange:
     status: Identified  # whether the trial identified it (or the prior holds it, and how)
     note: str = ""  # why not identified, in words ('' when identified)
     prior_ratio: float = float("nan")  # worst-direction posterior std / prior-only std (0: data alone, 1: prior alone)
-    # Not identified, and yet further from the base model's than its prior allows: a trade the data do not separate
-    # carried it there (calibration.identifiability: a hinge axis beyond FAR_FROM_PRIOR prior SDs), not to be trusted.
+    # Further from the base model's than its prior allows (calibration.identifiability: beyond FAR_FROM_PRIOR prior
+    # SDs): not identified, a trade the data do not separate carried it there; identified, skin that moves with the
+    # joints can (a centre, an axis).  Not to be trusted either way.
     unreliable: bool = False
+    # A position's distance (mm) from the base model's at the subject's scale (its segment's scale times the base
+    # model's offset): the change its scaling does not explain, which its prior counts; NaN for axes and scales.
+    beyond_scale: float = float("nan")
 
     @property
     def name(self) -> str:

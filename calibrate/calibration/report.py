@@ -62,6 +62,8 @@ def calibration_report(cal: Calibration) -> dict:
             base, value = _list(c.base), _list(c.value)
         entry = {"name": c.name, "group": group, "unit": unit, "base": base, "value": value,
                  "change": round(c.change, 6), "std": _list(c.std), "identified": c.identified}
+        if group in ("centre", "marker"):
+            entry["beyond_scale"] = round(c.beyond_scale, 6)
         if c.unreliable:
             entry["unreliable"] = True
         if group == "centre":
@@ -516,8 +518,8 @@ def summary_text(cal) -> str:
         "  time (s)     " + "  ".join(f"{k} {v:.2f}" for k, v in cal.times.items())
         + f"  total {sum(cal.times.values()):.2f}",
         "",
-        "  joint centres: change from base model (mm) +- posterior std (mm, worst axis; the markers' scatter only: "
-        "skin artefact's bias adds to it)",
+        "  joint centres: change from base model, and from it at the subject's scale (mm; what the scale factors do "
+        "not explain) +- posterior std (mm, worst axis; the markers' scatter only: skin artefact's bias adds to it)",
     ]
     for c in cal.changes:
         if c.group == "centre":
@@ -528,7 +530,7 @@ def summary_text(cal) -> str:
                 flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
             if c.item in cal.settings.hold_centres:
                 flag = f"  (held: --hold-centres; {_held_against(cal, c.item)})"
-            lines.append(f"    {c.item:16s}{c.change:8.1f} +- {std:5.2f}{flag}")
+            lines.append(f"    {c.item:16s}{c.change:8.1f}{c.beyond_scale:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]
     if axes:
         lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg; the markers' scatter only)")
