@@ -295,7 +295,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         if block.held:
             return change
         # Its prior pulls the offset from the base model's, at the subject's scale, towards zero (Priors).
-        sd = problem.settings.priors.marker if group == "marker" else problem.settings.priors.centre
+        sd = problem.marker_sd()[i] if group == "marker" else problem.settings.priors.centre
         gap = value - scaled
         off = float(np.linalg.norm(gap))
         # A marker the trial places but for some directions: how far its prior failed to hold it is read in those

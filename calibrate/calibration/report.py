@@ -25,7 +25,7 @@ from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters
 from ..model.urdf import mass_factor, urdf_text
-from ..problem.priors import symmetry_pairs
+from ..problem.priors import placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
 from .html import longest_asymmetry, report_html
@@ -113,7 +113,8 @@ def calibration_report(cal: Calibration) -> dict:
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
                                 "width_mm": 1000 * st.priors.width,
                                 "joint_marker_mm": 1000 * st.priors.joint_marker,
-                                "held_centre_mm": 1000 * st.priors.held_centre},
+                                "held_centre_mm": 1000 * st.priors.held_centre,
+                                "placeholder_mm": 1000 * st.priors.placeholder},
                      "lateral_markers": [{"joint": j, "marker": mk, "distance_mm": 1000 * d}
                                          for j, mk, d in st.lateral_markers],
                      "learn_noise": st.learns_noise,
@@ -166,6 +167,7 @@ def calibration_report(cal: Calibration) -> dict:
         # markers at a joint centre (points the lab computed there, e.g. R_HJC): kept at their offsets from the
         # centres within settings.priors.joint_marker_mm, so that the trials' positions of them place the centres
         "joint_centre_markers": [m.to_json() for m in cal.joint_markers],
+        "placeholder_markers": _placeholders(cal),
         # how far the trials turn each hip, and whether that places its centre (calibrate.calibration.regression)
         "hip_motion": [h.to_json() for h in cal.hip_motion],
         # Plug-in Gait's knee axes (its femur bones' lateral axes, in trials that carry its bones) against the axis
@@ -407,6 +409,15 @@ def _held_against(cal, joint: str) -> str:
     return f"the base model's place in {parent}'s frame ({len(seen)} markers seen there)"
 
 
+def _placeholders(cal) -> list[str]:
+    """The names of the base model's placeholder markers (calibrate.problem.priors.placeholder_markers) the trials
+    show: markers the data alone place."""
+    unused = set(cal.unused_markers)
+    model = cal.model
+    return [model.markers[k].name for k in placeholder_markers(model, model.parameters())
+            if model.markers[k].name not in unused]
+
+
 def _moved_hint(cal, change) -> str:
     """For an unreliable joint centre, axis or marker: the kept moved markers (Calibration.moved_kept) on the
     segments it belongs to, which pull it (gait2392's back centre and its static's acromia), or ''."""
@@ -615,6 +626,10 @@ def summary_text(cal) -> str:
                      + ": points computed at joint centres (by the lab, or --hip-regression), each kept at its "
                      f"offset from the centre within {1e3 * cal.settings.priors.joint_marker:g} mm (they place the "
                      "centres)")
+    if held := _placeholders(cal):
+        lines.append(f"  placeholders {', '.join(held)}: the base model puts each at one place with other markers of "
+                     "its segment (a cluster left for OpenSim's marker placer): placed by the trials alone (prior SD "
+                     f"{1e3 * cal.settings.priors.placeholder:g} mm), they neither size nor turn their segments")
     tied = {m.joint for m in cal.joint_markers}
     loose = [h for h in cal.hip_motion if not h.places_centre and h.joint not in tied]
     if loose:

@@ -421,6 +421,13 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             print(f"  joint-centre markers (within {1000 * JOINT_MARKER_RADIUS:g} mm of a joint centre of their "
                   "segment: points computed at the centre, kept there; priors.joint_marker_mm):")
             print("    " + ", ".join(f"{m.markers[t.marker].name} ({m.joints[t.joint].name})" for t in ties))
+        from ..problem.priors import PLACEHOLDER_RADIUS, placeholder_markers
+
+        held = placeholder_markers(m, m.parameters())
+        if held:
+            print(f"  placeholder markers (within {1000 * PLACEHOLDER_RADIUS:g} mm of another marker of their segment: "
+                  "a cluster left for OpenSim's marker placer; placed by the trials alone, priors.placeholder_mm):")
+            print("    " + ", ".join(m.markers[k].name for k in held))
         from ..model.sides import side_mismatches
 
         sides = side_mismatches(m)

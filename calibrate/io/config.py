@@ -68,7 +68,7 @@ _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "ato
         "hold_centres", "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers",
         "far_joints", "hip_regression"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm",
-           "joint_marker_mm", "held_centre_mm"}
+           "joint_marker_mm", "held_centre_mm", "placeholder_mm"}
 
 
 def settings_from_dict(data: dict, where: str = "settings", base: Settings | None = None) -> Settings:
@@ -100,6 +100,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         width=num(pri, "width_mm", 1000 * s.priors.width) / 1000,
         joint_marker=num(pri, "joint_marker_mm", 1000 * s.priors.joint_marker) / 1000,
         held_centre=num(pri, "held_centre_mm", 1000 * s.priors.held_centre) / 1000,
+        placeholder=num(pri, "placeholder_mm", 1000 * s.priors.placeholder) / 1000,
     )
     free = data.get("free", list(s.free))
     if isinstance(free, str) or not isinstance(free, list) or not all(isinstance(x, str) for x in free):

@@ -84,6 +84,7 @@ class GaugeMixin:
         base = self.base.vector()
         out = p.copy()
         moves = []
+        marker_sd = self.marker_sd()
         for si, kind in self._gauges:
             s = out[L.scale(si)]
             pts, pts0, wts = [], [], []
@@ -93,7 +94,7 @@ class GaugeMixin:
                 sl = L.marker(k)
                 pts.append(s * out[sl])
                 pts0.append(s * base[sl])
-                wts.append(1 / pr.marker**2)
+                wts.append(1 / marker_sd[k] ** 2)
             for ji in np.flatnonzero(self.centre_segment == si):
                 sl = L.centre(ji)
                 pts.append(s * out[sl])
@@ -285,10 +286,12 @@ class GaugeMixin:
         axes = []  # (gauge, index in axis_dofs, weight)
         rows = []  # (gauge, turn about e_row_axis (0-2), or -1: about the axis of DoF row_omega)
         rigid_rows = []
+        marker_sd = self.marker_sd()
         for g, (si, kind) in enumerate(self._gauges):
             for k in np.flatnonzero((self.marker_segment == si) & ~self.unseen):  # (unseen: held, see _turn)
                 sl = L.marker(k)
-                positions.append((g, np.arange(sl.start, sl.stop), L.scale(si), L.cols("marker", k), 1 / pr.marker**2))
+                positions.append((g, np.arange(sl.start, sl.stop), L.scale(si), L.cols("marker", k),
+                                  1 / marker_sd[k] ** 2))
             for ji in np.flatnonzero(self.centre_segment == si):
                 sl = L.centre(ji)
                 positions.append((g, np.arange(sl.start, sl.stop), L.scale(si), L.cols("centre", ji), 1 / pr.centre**2))

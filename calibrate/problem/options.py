@@ -49,6 +49,11 @@ class Priors:
     # A held joint centre (ProblemOptions.hold_centres): SD of its offset from the centroid of its parent segment's
     # seen markers about the base model's (m, at the segment's scale).
     held_centre: float = 0.0001
+    # A placeholder marker (calibrate.problem.priors.placeholder_markers: the base model puts it at one place with
+    # other markers of its segment, as AddBiomechanics' and OpenCap's OpenSim models put each thigh and shank
+    # cluster, for OpenSim's marker placer to move): its place says nothing of the subject, so it is held this
+    # loosely (m; the data place it), and neither sizes its segment nor turns its frame.
+    placeholder: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -119,7 +124,7 @@ class ProblemOptions:
         _positive("noise", self.noise)
         _positive("loss_scale", self.loss_scale)
         _positive("memory_mb", self.memory_mb)
-        for name in ("marker", "centre", "axis", "scale", "held_centre"):
+        for name in ("marker", "centre", "axis", "scale", "held_centre", "placeholder"):
             v = getattr(self.priors, name)
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be a positive standard deviation, got {v!r}")

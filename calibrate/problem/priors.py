@@ -39,6 +39,24 @@ def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, i
 JOINT_MARKER_RADIUS = 0.005
 
 
+#: m, at the base model's scale: markers of one segment the base model puts this close together are placeholders
+#: (AddBiomechanics' and OpenCap's thigh clusters: five markers at one point of the femur, 0 mm apart); the nearest
+#: two distinct markers of models/human.urdf, gait2392 and Rajagopal2016 sit 10 mm or more apart.
+PLACEHOLDER_RADIUS = 0.001
+
+
+def placeholder_markers(model: Model, base: Parameters) -> tuple[int, ...]:
+    """The markers (indices, in order) the base model puts within PLACEHOLDER_RADIUS of another marker of their
+    segment: places to be filled by the data (OpenSim's marker placer moves them), not where the subject's are."""
+    out = []
+    for k, mk in enumerate(model.markers):
+        s = float(base.scale[model.segment_index(mk.segment)])
+        if any(j != k and mj.segment == mk.segment and s * float(np.linalg.norm(base.marker[j] - base.marker[k]))
+               <= PLACEHOLDER_RADIUS for j, mj in enumerate(model.markers)):
+            out.append(k)
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class JointMarker:
     """A joint-centre marker (joint_centre_markers): marker `marker` (index) at joint `joint`'s centre, on the
@@ -86,6 +104,20 @@ class PriorsMixin:
                       unit)
             self._prior_cache = cached
         return cached[1], cached[2], cached[3]
+
+    def placeholders(self) -> tuple[int, ...]:
+        """The base model's placeholder markers (placeholder_markers), kept while `base` is the same object."""
+        cached = self.__dict__.get("_placeholder_cache")
+        if cached is None or cached[0] is not self.base:
+            cached = (self.base, placeholder_markers(self.model, self.base))
+            self._placeholder_cache = cached
+        return cached[1]
+
+    def marker_sd(self) -> np.ndarray:
+        """(n_markers,) each marker's prior SD (m): Priors.marker, Priors.placeholder for a placeholder."""
+        sd = np.full(len(self.model.markers), self.settings.priors.marker)
+        sd[list(self.placeholders())] = self.settings.priors.placeholder
+        return sd
 
     def joint_markers(self) -> tuple[JointMarker, ...]:
         """The model's joint-centre markers (joint_centre_markers of the base model; none when
@@ -211,7 +243,7 @@ class PriorsMixin:
                 np.r_[np.broadcast_to(s / sd, idx.shape).ravel(), (diff / sd).ravel()]))
 
         if "marker" in free:
-            block("marker", self.marker_segment, st.priors.marker)
+            block("marker", self.marker_segment, self.marker_sd())
         held = self.held_centres()
         if "centre" in free:
             # A held centre whose parent shows too few markers to place it against them: held in the frame itself.
