@@ -1,5 +1,5 @@
 """Placeholder markers: a base model that puts several markers of one segment at one place (AddBiomechanics' and
-OpenCap's OpenSim models put each thigh and shank cluster at one point, for OpenSim's marker placer to move) says
+its Lai-Uhlrich 2022 model put each thigh and shank cluster at one point, for OpenSim's marker placer to move) says
 nothing of where the subject's are; held there by the marker prior, they dragged the segment's scale and frame."""
 
 from __future__ import annotations

@@ -372,7 +372,7 @@ def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[s
     if change.status is Identified.YES:
         # The data turn it, and turn it where no anatomy does: skin that moves with the joint's turn (a thigh's
         # markers rolling about the femur as the knee flexes) tilts an axis fitted to them with a small posterior SD
-        # (the OpenCap walk in AddBiomechanics' tests: both knees 31-41 deg from the base model's, SD 3.5-3.9 deg;
+        # (AddBiomechanics' opencap_test walk, before placeholder markers: both knees 31-41 deg, SD 3.5-3.9 deg;
         # fitted on its first half, its second half fits 9.18 mm with them, 6.97 with the knee axes held).
         sd_now = float(np.nanmax(change.std))
         note = (f"the trial turns it (posterior SD {sd_now:.1f} deg), yet {change.change:.0f} deg from the base "

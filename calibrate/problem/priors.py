@@ -40,7 +40,7 @@ JOINT_MARKER_RADIUS = 0.005
 
 
 #: m, at the base model's scale: markers of one segment the base model puts this close together are placeholders
-#: (AddBiomechanics' and OpenCap's thigh clusters: five markers at one point of the femur, 0 mm apart); the nearest
+#: (AddBiomechanics' models' thigh clusters: five markers at one point of the femur, 0 mm apart); the nearest
 #: two distinct markers of models/human.urdf, gait2392 and Rajagopal2016 sit 10 mm or more apart.
 PLACEHOLDER_RADIUS = 0.001
 
