@@ -50,9 +50,9 @@ class Priors:
     # seen markers about the base model's (m, at the segment's scale).
     held_centre: float = 0.0001
     # A placeholder marker (calibrate.problem.priors.placeholder_markers: the base model puts it at one place with
-    # other markers of its segment, as AddBiomechanics' OpenSim models (Lai-Uhlrich 2022 among them) put each thigh and shank
-    # cluster, for OpenSim's marker placer to move): its place says nothing of the subject, so it is held this
-    # loosely (m; the data place it), and neither sizes its segment nor turns its frame.
+    # other markers of its segment, as AddBiomechanics' OpenSim models (Lai-Uhlrich 2022 among them) put each thigh
+    # and shank cluster, for OpenSim's marker placer to move): its place says nothing of the subject, so it is held
+    # this loosely (m; the data place it), and neither sizes its segment nor turns its frame.
     placeholder: float = 0.25
 
 
