@@ -772,7 +772,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # Markers the still trials show elsewhere on their segment than the moving trials: their still
             # positions left out, and the subsample solved again from here (the moving trials' place kept).
             # A second look after that solve: with the worst gone, a slipped cluster's other markers stand out.
-            found = moved_markers(sub, state, sub_trial, still)
+            found = moved_markers(sub, state, sub_trial, still, moved)
             if not run.moved_markers:  # only the re-placed (REPLACED_MIN): skin-borne shifts wait for the option
                 found = replaced(found, moved)
             for m in found:
