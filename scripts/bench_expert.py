@@ -18,7 +18,7 @@ expert's, both over the frames of the expert's ``.mot`` and the markers both mod
 The data is not in ../shared (GPL-3 with the repository's own terms): give a checkout's root, e.g. one made by
 ``git clone --depth 1 https://github.com/keenon/AddBiomechanics``, with ``--addbiomechanics DIR``.
 
-    python scripts/bench_expert.py --addbiomechanics DIR [--cases Expert1,Expert2] [--json]
+    python scripts/bench_expert.py --addbiomechanics DIR [--cases Expert1,Expert2] [--all-trials] [--json]
 """
 
 from __future__ import annotations
@@ -132,11 +132,23 @@ def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[flo
                            for c in cal.changes if c.unreliable]}
 
 
-def bench(root: Path, name: str, work: Path, log) -> list[dict]:
+def trials_of(subject: Path, case: dict, every: bool) -> tuple[str, ...]:
+    """The case's trials, or (`every`) each trial in `subject` with the expert's .mot and a .trc, the static
+    excepted, sorted by name."""
+    if not every:
+        return tuple(case["trials"])
+    return tuple(sorted(p.stem for p in subject.glob("*.mot")
+                        if (subject / f"{p.stem}.trc").is_file() and p.stem != case["static"]))
+
+
+def bench(root: Path, name: str, work: Path, log, every: bool = False) -> list[dict]:
+    """The case's rows; `every`: each trial of the subject that has the expert's .mot (and a .trc), not the case's
+    chosen few."""
     case = CASES[name]
     subject = root / "paper_data" / name
     if not (subject / "generic.osim").is_file():
         raise SystemExit(f"{subject}: no generic.osim; give --addbiomechanics the root of an AddBiomechanics checkout")
+    case = {**case, "trials": trials_of(subject, case, every)}
     jobs = [{"osim": str(subject / "hand_scaled.osim"), "mot": str(subject / f"{t}.mot"),
              "out": str(work / f"{name}_{t}.npz")} for t in case["trials"]]
     log(f"{name}: the expert's model at the expert's IK (OpenSim, child process) ...")
@@ -197,6 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--addbiomechanics", type=Path, required=True, metavar="DIR",
                     help="root of an AddBiomechanics checkout (its paper_data/ExpertN folders)")
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated among {', '.join(CASES)}")
+    ap.add_argument("--all-trials", action="store_true",
+                    help="every trial with the expert's .mot (Expert1: 25, Expert2: 4), not each case's chosen few")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     args = ap.parse_args(argv)
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
@@ -216,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_expert_") as tmp:
         for c in cases:
-            rows += bench(args.addbiomechanics, c, Path(tmp), log)
+            rows += bench(args.addbiomechanics, c, Path(tmp), log, args.all_trials)
     result = {"rows": rows, "machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}",
               "date": datetime.datetime.now().isoformat(timespec="minutes"), "wall_s": time.perf_counter() - t0}
     if args.json:

@@ -102,3 +102,15 @@ def test_bench_expert_refuses_what_it_cannot_run(tmp_path):
                               cwd=tmp_path)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and needle in lines[0], lines
+
+
+def test_bench_expert_all_trials_takes_every_trial_with_the_experts_ik(tmp_path):
+    """--all-trials: each trial with both the expert's .mot and a .trc, the static left out (it is calibrated with
+    each), sorted; without it, the case's chosen few."""
+    import bench_expert as be  # (the scripts folder is on the path, above)
+
+    for name in ("walk2.mot", "walk2.trc", "jump.mot", "jump.trc", "static1.trc", "static1.mot", "squat.mot"):
+        (tmp_path / name).write_text("")
+    case = {"static": "static1", "trials": ("walk2",)}
+    assert be.trials_of(tmp_path, case, every=True) == ("jump", "walk2")
+    assert be.trials_of(tmp_path, case, every=False) == ("walk2",)
