@@ -26,6 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
+from calibrate.calibration.hosts import kinematic_hosts
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
     STILL_SAMPLE,
@@ -118,7 +119,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     Trial labels are first renamed to the model's: by `marker_map` (model label -> trial labels,
     calibrate.io.labels.load_marker_map) and, with `aliases`, the common spellings of the same
     landmarks (R.ASIS, RASIS -> RASI; calibrate.io.labels).  Labels the model still does not know are
-    placed on segments by rigidity and fitted like the model's markers (``Settings.new_markers``);
+    placed on segments by rigidity, or failing that by their places' spread on the base model's poses
+    (calibrate.calibration.hosts: a cluster on skin), and fitted like the model's markers (``Settings.new_markers``);
     those that fit no segment are left out and listed.
     `mass`: the subject's body mass (kg); the written model's segment masses (and inertias) are
     the base model's scaled to it, as OpenSim's Scale tool does (None: the base model's kept).
@@ -1030,6 +1032,10 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         cols[:, have] = t.select([labels[k] for k in have]).markers
         parts.append(cols)
     assoc = associate_to_model(model, Trial(labels, np.concatenate(parts), used[0].rate))
+    # Those rigidity leaves out, judged again on the model's own poses (calibrate.calibration.hosts): a cluster on
+    # skin, or a segment whose one known marker sits near a joint.
+    left = [lab for lab in unknown if assoc[lab].segment is None and any(lab in t.labels for t in used)]
+    hosts = kinematic_hosts(model, used, left) if left else {}
     out = []
     for lab in unknown:
         if len(used) < len(trials) and not any(lab in t.labels for t in used):
@@ -1037,8 +1043,11 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                               for i, t in enumerate(trials) if i not in moving)
             out.append(NewMarker(lab, None, None, f"seen only in still trials ({still}): no motion shows which "
                                                   "segment it rides on"))
+        elif lab in hosts and hosts[lab].segment is not None:
+            out.append(NewMarker(lab, hosts[lab].segment, None, hosts[lab].reason()))
         else:
-            out.append(NewMarker(lab, assoc[lab].segment, None, assoc[lab].reason))
+            why = assoc[lab].reason + (f"; {hosts[lab].reason()}" if lab in hosts else "")
+            out.append(NewMarker(lab, assoc[lab].segment, None, why))
     return out
 
 

@@ -470,7 +470,8 @@ def summary_text(cal) -> str:
                      "add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
-        f"rigidity), {len(cal.ignored_labels)} trial labels left out, {len(cal.outliers)} outliers rejected",
+        f"rigidity or the model's poses), {len(cal.ignored_labels)} trial labels left out, "
+        f"{len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "

@@ -42,7 +42,8 @@ class Settings:
     seed: bool = True  # start from MTB joint centres (else from the base model)
     compile: bool = True  # compile the per-frame function with the C compiler, if there is one
     memory_mb: float = 200.0  # MB of the frames' normal-equation blocks held at once; longer trials go chunk by chunk
-    new_markers: bool = True  # place trial markers the model does not know on segments (by rigidity) and fit them
+    new_markers: bool = True  # place trial markers the model does not know on segments (by rigidity, else the
+    # base model's poses: calibrate.calibration.hosts) and fit them
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
     geodesic: bool = True  # geodesic acceleration of the LM steps (follows curved valleys; calibrate.solve.lm)
     # Per-marker noise SD (m) where a marker is noisier or steadier than `noise`, e.g. wand markers

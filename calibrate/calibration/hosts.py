@@ -1,0 +1,131 @@
+"""The segment a trial marker the model does not know rides on, from the model's own poses.
+
+Seed 002's rigidity (calibrate.seed.association) places a new label on the segment whose known markers it keeps
+its distances to, within the trial's noise.  Real clusters defeat it: a thigh plate's markers keep their distances
+to each other to a fraction of a millimetre, which sets the threshold, while the skin under the plate moves them
+2-5 mm against the segment's anatomical markers (Camargo et al.'s 2021 level-ground walk, in AddBiomechanics' data:
+all twelve thigh and shank cluster markers and the four toe markers left out on human.urdf).  And a segment with one
+known marker near a joint (a lateral knee marker) cannot tell a shank marker from a thigh one by distances at all:
+both turn about the knee, near that marker.
+
+Here the model says where each segment is: every segment's pose from the known markers (frame-wise inverse
+kinematics of the base model on a few dozen frames of the moving trials), and each new label's position in each
+segment's frame over those frames.  On its own segment the label stays put up to the skin's motion and the
+poses' error; on any other, a joint's turn carries it through tens of centimetres.  The label goes to the segment
+where its place spreads least, if that spread is under HOST_SPREAD and at most HOST_RATIO of the next segment's."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..io.trial import Trial
+from ..model.model import Model
+
+HOST_FRAMES = 40  # about this many evenly spaced frames of the moving trials are posed (about 0.1 s a round)
+HOST_SPREAD = 0.020  # m: RMS spread of a label's place on its segment (skin, the few markers' poses) at most
+HOST_RATIO = 0.5  # ... and at most this share of its spread on the next-best segment
+HOST_ROUNDS = 3  # rounds: the labels placed join the known markers, the others judged again
+
+
+@dataclass(frozen=True)
+class Host:
+    """Where a new label's place spreads least: `segment` (None: no segment qualifies), its RMS spread there
+    and on the `runner_up` segment (m), and the label's median place in `segment`'s frame (m)."""
+
+    label: str
+    segment: str | None
+    best: str  # the segment where its place spreads least (`segment` when that qualifies)
+    spread: float
+    runner_up: str
+    runner_up_spread: float
+    place: np.ndarray
+
+    def reason(self) -> str:
+        """Why it was placed there, or (no segment) left out, in the words of the rigidity test's reasons."""
+        if self.segment:
+            return (f"on the model's poses its place on {self.segment} spreads {1e3 * self.spread:.1f} mm RMS "
+                    f"(on {self.runner_up}, the next: {1e3 * self.runner_up_spread:.0f} mm)")
+        return (f"on the model's poses its place spreads {1e3 * self.spread:.1f} mm RMS on {self.best} at best, "
+                f"{1e3 * self.runner_up_spread:.0f} on {self.runner_up} (a host: under "
+                f"{1e3 * HOST_SPREAD:.0f} mm and half the next)")
+
+
+def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
+                    frames: int = HOST_FRAMES, rounds: int = HOST_ROUNDS) -> dict[str, Host]:
+    """Each of `labels` (trial markers `model` does not know) -> its Host, judged over about `frames` evenly spaced
+    frames of `trials` (the moving ones) posed by the base model's known markers; labels no posed frame shows
+    are left out of the result.  Segments that carry no known marker the trials show are not candidates (their
+    poses rest on their neighbours alone).  Up to `rounds` times, the labels placed so far join the known markers
+    at their places and the others are judged again on the better poses (a thigh with one known marker, a lateral
+    knee's, is posed about its long axis by its first cluster marker found)."""
+    from ..model.model import add_markers
+
+    total = sum(t.n_frames for t in trials)
+    picked = []
+    for t in trials:
+        n = max(2, round(frames * t.n_frames / total))
+        idx = np.unique(np.linspace(0, t.n_frames - 1, min(n, t.n_frames)).astype(int))
+        picked.append(replace(t, markers=t.markers[idx], model_outputs={}, output_kinds={}, output_units={}))
+    out: dict[str, Host] = {}
+    posed = model
+    for _ in range(rounds):
+        todo = [lab for lab in labels if lab not in out or out[lab].segment is None]
+        found = _hosts(posed, picked, todo)
+        out.update(found)
+        placed = {lab: (h.segment, h.place) for lab, h in found.items() if h.segment is not None}
+        if not placed or all(h.segment is not None for h in out.values()):
+            break
+        posed = add_markers(posed, placed)
+    return out
+
+
+def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict[str, Host]:
+    """One round of kinematic_hosts on the frames `trials` (already picked)."""
+    import pinocchio as pin
+
+    from ..model.kinematics import build_kinematics
+    from ..solve.ik import inverse_kinematics
+
+    known = set(model.marker_names)
+    shown = {lab for t in trials for lab in t.labels if lab in known}
+    candidates = [s.name for s in model.segments if any(m in shown for m in s.markers)]
+    if not candidates or not labels:
+        return {}
+    kin = build_kinematics(model)
+    params = model.parameters()
+    data = model.pin.createData()
+    fids = [model.pin.getFrameId(s) for s in candidates]
+    local: dict[str, list[np.ndarray]] = {lab: [] for lab in labels}
+    for t in trials:
+        have = [lab for lab in labels if lab in t.labels]
+        if not have:
+            continue
+        fit = inverse_kinematics(kin, t, params)
+        m = fit.motion
+        X = t.select(have).markers  # (F, n, 3)
+        for f in range(m.n_frames):
+            if not np.isfinite(fit.marker_rms[f]):
+                continue
+            pin.framesForwardKinematics(model.pin, data, model.pin_configuration(m.root_translation[f],
+                                                                                 m.root_quaternion[f], m.angles[f]))
+            R = np.array([data.oMf[i].rotation for i in fids])  # (segments, 3, 3)
+            o = np.array([data.oMf[i].translation for i in fids])
+            for k, lab in enumerate(have):
+                if np.all(np.isfinite(X[f, k])):
+                    local[lab].append(np.einsum("sji,sj->si", R, X[f, k] - o))  # (segments, 3)
+    out = {}
+    for lab, rows in local.items():
+        if len(rows) < 3:
+            continue
+        P = np.array(rows)  # (frames, segments, 3)
+        mid = np.median(P, axis=0)
+        spread = np.sqrt(np.mean(np.sum((P - mid) ** 2, axis=2), axis=0))  # (segments,)
+        order = np.argsort(spread)
+        best, second = int(order[0]), int(order[1]) if len(order) > 1 else int(order[0])
+        ok = spread[best] <= HOST_SPREAD and (len(order) == 1 or spread[best] <= HOST_RATIO * spread[second])
+        out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
+                        candidates[second], float(spread[second]), mid[best])
+    return out
