@@ -28,6 +28,7 @@ HOST_FRAMES = 40  # about this many evenly spaced frames of the moving trials ar
 HOST_SPREAD = 0.020  # m: RMS spread of a label's place on its segment (skin, the few markers' poses) at most
 HOST_RATIO = 0.5  # ... and at most this share of its spread on the next-best segment
 HOST_ROUNDS = 3  # rounds: the labels placed join the known markers, the others judged again
+TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD over the poses) rides on its parent
 
 
 @dataclass(frozen=True)
@@ -57,10 +58,10 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
                     frames: int = HOST_FRAMES, rounds: int = HOST_ROUNDS) -> dict[str, Host]:
     """Each of `labels` (trial markers `model` does not know) -> its Host, judged over about `frames` evenly spaced
     frames of `trials` (the moving ones) posed by the base model's known markers; labels no posed frame shows
-    are left out of the result.  Segments that carry no known marker the trials show are not candidates (their
-    poses rest on their neighbours alone).  Up to `rounds` times, the labels placed so far join the known markers
-    at their places and the others are judged again on the better poses (a thigh with one known marker, a lateral
-    knee's, is posed about its long axis by its first cluster marker found)."""
+    are left out of the result.  Candidates: the segments that carry a known marker the trials show, and the
+    markerless ones whose joint turns in those poses (TURNING).  Up to `rounds` times, the labels placed so far join
+    the known markers at their places and the others are judged again on the better poses (a thigh with one known
+    marker, a lateral knee's, is posed about its long axis by its first cluster marker found)."""
     from ..model.model import add_markers
 
     total = sum(t.n_frames for t in trials)
@@ -91,19 +92,26 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict
 
     known = set(model.marker_names)
     shown = {lab for t in trials for lab in t.labels if lab in known}
-    candidates = [s.name for s in model.segments if any(m in shown for m in s.markers)]
-    if not candidates or not labels:
+    if not labels or not shown:
         return {}
     kin = build_kinematics(model)
     params = model.parameters()
+    fits = [(t, inverse_kinematics(kin, t, params)) for t in trials if any(lab in t.labels for lab in labels)]
+    if not fits:
+        return {}
+    # Candidates: every segment with a known marker the trials show, and every markerless one that turns against
+    # its parent in these poses (a forearm marker may ride on the ulna, where the radius's pronation carries it
+    # 1-2 mm further: the two then tie, and it is left out rather than put on the radius); a segment welded or
+    # locked to its parent (a patella, an OpenSim model's toes) rides on it and would only tie with it.
+    angles = np.concatenate([f.motion.angles for _, f in fits])
+    turning = {j.child for j in model.joints
+               if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
+    candidates = [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
     data = model.pin.createData()
     fids = [model.pin.getFrameId(s) for s in candidates]
     local: dict[str, list[np.ndarray]] = {lab: [] for lab in labels}
-    for t in trials:
+    for t, fit in fits:
         have = [lab for lab in labels if lab in t.labels]
-        if not have:
-            continue
-        fit = inverse_kinematics(kin, t, params)
         m = fit.motion
         X = t.select(have).markers  # (F, n, 3)
         for f in range(m.n_frames):
