@@ -72,7 +72,7 @@ from ..problem.priors import joint_centre_markers
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
-from ..seed.association import associate_to_model, exchanged_between, misplaced_labels
+from ..seed.association import associate_to_model, exchanged_between, misplaced_labels, split_reason
 from ..seed.rigidity import distance_variance
 from ..solve.ahead import run_ahead
 from ..solve.chunks import frame_bytes
@@ -1046,7 +1046,9 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         elif lab in hosts and hosts[lab].segment is not None:
             out.append(NewMarker(lab, hosts[lab].segment, None, hosts[lab].reason()))
         else:
-            why = assoc[lab].reason + (f"; {hosts[lab].reason()}" if lab in hosts else "")
+            # (judged on the poses too, where markerless segments that turn were candidates: the rigidity test's
+            # clause that they cannot receive markers no longer holds)
+            why = f"{split_reason(assoc[lab].reason)[0]}; {hosts[lab].reason()}" if lab in hosts else assoc[lab].reason
             out.append(NewMarker(lab, assoc[lab].segment, None, why))
     return out
 
