@@ -169,3 +169,41 @@ def test_marker_weights_as_an_ik_setup_gives_them(squats, tmp_path):
     assert ik_setup_weights(tmp_path / "a.xml") == {"A": 10.0, "B": 0.0}
     with pytest.raises(CalibrateError, match="weighs marker A 2, and a.xml 10"):
         ik_setup_weights([tmp_path / "a.xml", tmp_path / "b.xml"])
+
+
+def test_ik_with_a_lower_body_calibrations_report_holds_its_trunk_and_arms(squats, tmp_path, capsys):
+    """A lower-body marker set (the pelvis's and legs' markers only) leaves the trunk and arms to no marker:
+    calibrate locks their coordinates, ball joints' too, at 0.  `calibrate ik --report` held those (it refused a ball
+    joint's lock: "only a hinge's or universal joint's coordinate can be held"), the trunk and arms then at zero in
+    every frame and the legs' fit the calibration's; part of a ball held is still refused in one line."""
+    import json
+
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    model = load_model(HUMAN)
+    lower = {"pelvis", "femur_l", "tibia_l", "talus_l", "calcn_l", "femur_r", "tibia_r", "talus_r", "calcn_r"}
+    trial = read_trial(squats / "trial.c3d")
+    legs = [lab for lab in trial.labels if lab in model.marker_names
+            and model.markers[model.marker_index(lab)].segment in lower]
+    write_c3d(tmp_path / "legs.c3d", trial.select(legs))
+    cal = tmp_path / "cal"
+    cal.mkdir()
+    assert main([str(tmp_path / "legs.c3d"), str(HUMAN), "-o", str(cal / "subject.urdf"), "--outlier-sigmas", "0",
+                 "-q"]) in (0, 1)
+    locks = json.loads((cal / "legs_report.json").read_text())["settings"]["lock_deg"]
+    balls = [d for j in model.joints if j.kind == "ball" and j.child not in lower for d in j.dofs]
+    assert set(balls) <= set(locks)  # the trunk's, the neck's and the shoulders' three angles each
+    out = tmp_path / "ik"
+    out.mkdir()
+    assert main(["ik", str(tmp_path / "legs.c3d"), str(cal / "subject.urdf"), "--report",
+                 str(cal / "legs_report.json"), "-o", str(out), "-q"]) == 0
+    m, calibrated = read_motion_csv(out / "legs_motion.csv"), read_motion_csv(cal / "legs_motion.csv")
+    for d in balls:
+        assert np.abs(m.angles[:, m.dof_names.index(d)]).max() < 1e-9
+    leg_dofs = [m.dof_names.index(d) for j in model.joints if j.child in lower for d in j.dofs]
+    assert np.abs(m.angles[:, leg_dofs] - calibrated.angles[:, leg_dofs]).max() < 2e-3  # rad
+    code = main(["ik", str(tmp_path / "legs.c3d"), str(cal / "subject.urdf"), "-o", str(out), "--overwrite",
+                 "--lock", "lumbar_flexion", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "or all of a ball's at 0 (lumbar_" in err[0], err

@@ -60,13 +60,20 @@ def _locked_columns(kin: Kinematics, locked: Mapping[str, float]) -> tuple[np.nd
     if unknown:
         raise CalibrateError(f"locked coordinate {unknown[0]!r} is not one of {model.path.name}'s "
                              f"({', '.join(model.dof_names[:6])}, ...); check the name")
-    balls = {d for b in kin.balls for d in b.dofs}
+    ball_of = {d: b for b in kin.balls for d in b.dofs}
+    at = {model.dof_index(n): float(v) for n, v in locked.items()}
     cols, vals = [], []
     for name, value in locked.items():
         d = model.dof_index(name)
-        if d in balls:
-            raise CalibrateError(f"locked coordinate {name!r} belongs to a ball joint of {model.path.name}; "
-                                 "only a hinge's or universal joint's coordinate can be held")
+        if d in ball_of:
+            # A whole ball held at zero (calibrate locks so the joints into segments no marker places: a lower-body
+            # marker set's trunk and arms): its increments held at zero about an unturned reference.  Part of a ball,
+            # or a ball held turned, is not (its angles are increments about a reference that the solve moves).
+            dofs = ball_of[d].dofs
+            if not all(k in at and abs(at[k]) < 1e-12 for k in dofs):
+                raise CalibrateError(f"locked coordinate {name!r} belongs to a ball joint of {model.path.name}; only "
+                                     "a hinge's or universal joint's coordinate can be held, or all of a ball's at 0 "
+                                     f"({', '.join(model.dof_names[k] for k in dofs)})")
         cols.append(FrameLayout.angle(d))
         vals.append(float(value))
     return np.array(cols, dtype=int), np.array(vals)
@@ -305,7 +312,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     Each frame stops when the relative cost decrease falls below `tolerance` or the step
     below 1e-8 (m, rad), after at most `max_iterations` (200 for a frame started from scratch).
     `locked`: coordinates held at a value (rad or m) in every frame, as OpenSim's locked coordinates and
-    its IK's heavily weighted coordinate tasks hold them (a hinge's or universal joint's, not a ball's).
+    its IK's heavily weighted coordinate tasks hold them (a hinge's or universal joint's; all of a ball joint's at 0).
     `weights`: each marker's weight in the fit (an IK setup's marker tasks), `default_weight` for a marker it does
     not name; a weight of 0 leaves the marker out (its residuals NaN).  None: every marker alike.
     `progress(done, total)` is called every 100 frames.
