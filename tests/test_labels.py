@@ -368,3 +368,24 @@ def test_model_outputs_travel_with_the_relabelled_trial() -> None:
     renamed, _ = map_labels(trial, PIG)
     assert renamed.labels == ("RASI",) and list(renamed.model_outputs) == ["LFEO"]
     np.testing.assert_array_equal(renamed.model_outputs["LFEO"], np.ones((3, 3)))
+
+
+def test_an_alias_finds_the_models_own_spelling_of_the_landmark():
+    """A model without Plug-in Gait's labels (Rajagopal2016's L.Knee, L.Ankle, L.Heel beside LLMAL and LCAL):
+    a trial's spelling of a landmark maps to the model label that spells the same one (Camargo et al.'s
+    L_Knee_Lat -> L.Knee; before, only to a model's own LKNE), the most specific spelling where several do
+    (L.Ankle's 'ankle' before LLMAL's 'lmal'), the Plug-in Gait label first where the model has it; a medial
+    landmark stays unknown."""
+    from calibrate.io.labels import alias_for
+
+    rajagopal = ["L.ASIS", "LASI", "L.Knee", "L.MKnee", "LLFC", "L.Ankle", "L.MAnkle", "LLMAL", "L.Heel", "LCAL",
+                 "R.Knee", "C7"]
+    assert alias_for("L_Knee_Lat", rajagopal) == ("L.Knee", 1)
+    assert alias_for("R_Knee_Lat", rajagopal) == ("R.Knee", 1)
+    assert alias_for("L_Ankle_Lat", rajagopal) == ("L.Ankle", 1)
+    assert alias_for("L_Heel", rajagopal) == ("L.Heel", 1)
+    assert alias_for("L_ASIS", rajagopal) == ("LASI", 1)  # the Plug-in Gait label, which this model also has
+    assert alias_for("L_Knee_Med", rajagopal) is None and alias_for("L_Ankle_Med", rajagopal) is None
+    assert alias_for("RKNE", rajagopal) == ("R.Knee", 0)
+    assert alias_for("L_Knee_Lat", ["LKNE", "L.Knee"]) == ("LKNE", 1)
+    assert alias_for("L_Toe_Lat", rajagopal) is None

@@ -24,8 +24,11 @@ Aliases.  Labels are compared after normalisation: lower case, the separators ``
 ``-`` and spaces removed, camel case split (``RightKnee`` = ``Right Knee``).  A side is read from
 a first or last word ``R``/``L``/``Right``/``Left`` (``R.Knee``, ``knee_r``, ``RightKnee``), or from
 the first letter (``RKNEE``); OpenSim's midline prefix ``V.`` (``V.Sacral``) is dropped.  The rest
-is looked up below (most specific first).  An alias only maps to a label the model has: our
-Plug-in Gait model has no ``SACR``, so ``V.Sacral`` stays unknown there.
+is looked up below (most specific first).  An alias only maps to a label the model has: the Plug-in Gait
+label, else the model label that reads as the same one (Rajagopal2016's ``L.Knee`` for a trial's
+``L_Knee_Lat``: both read as ``LKNE``; the lowest-ranked spelling where several do, ``L.Ankle`` before
+``LLMAL``).  Our Plug-in Gait model has no ``SACR``, nor any label that reads so, so ``V.Sacral`` stays
+unknown there.
 
 ============  =====================================================================================
 model label   alias names, after the side (R or L) and normalisation
@@ -190,17 +193,13 @@ def _words(label: str) -> list[str]:
     return [word.lower() for part in _SEPARATORS.split(label) for word in _CAMEL.split(part) if word]
 
 
-def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None:
-    """The model label a trial label is a common spelling of, and its rank in the alias table (0 best).
-
-    None when the label is no known spelling of any of ``model_labels``.
-    """
-    model = set(model_labels)
+def _readings(label: str) -> list[tuple[str | None, str]]:
+    """The (side or None, name) readings of a label, in order of trust (the module docstring's rules)."""
     words = _words(label)
     if not words:
-        return None
+        return []
     joined = "".join(words)
-    readings: list[tuple[str | None, str]] = []  # (side, name) in order of trust
+    readings: list[tuple[str | None, str]] = []
     if len(words) > 1 and words[0] in _SIDE_WORDS:
         readings.append((_SIDE_WORDS[words[0]], "".join(words[1:])))
     if len(words) > 1 and words[-1] in _SIDE_WORDS:
@@ -213,15 +212,48 @@ def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None
     if len(words) > 1 and words[0] == "v":  # OpenSim's midline prefix: V.Sacral
         readings.append((None, "".join(words[1:])))
     readings.append((None, joined))
-    for side, name in readings:
+    return readings
+
+
+def _codes(label: str) -> list[tuple[str, int]]:
+    """The Plug-in Gait labels a label reads as (side + code, or a midline label) with their alias ranks, in the
+    order of its readings."""
+    out = []
+    for side, name in _readings(label):
         if side is not None and name in _SIDE_LOOKUP:
             code, rank = _SIDE_LOOKUP[name]
-            if side + code in model:
-                return side + code, rank
+            out.append((side + code, rank))
         if side is None and name in _MIDLINE_LOOKUP:
-            target, rank = _MIDLINE_LOOKUP[name]
-            if target in model:
-                return target, rank
+            out.append(_MIDLINE_LOOKUP[name])
+    return out
+
+
+def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None:
+    """The model label a trial label is a common spelling of, and its rank in the alias table (0 best).
+
+    The model's own Plug-in Gait label where it has one; else the model label that spells the same landmark
+    (Rajagopal2016's ``L.Knee`` for a trial's ``L_Knee_Lat``, both the lateral knee), the most specific spelling
+    where several do (``L.Ankle`` before ``LLMAL``).  None when the label is no known spelling of any of
+    ``model_labels``.
+    """
+    labels = list(model_labels)
+    model = set(labels)
+    codes = _codes(label)
+    for code, rank in codes:
+        if code in model:
+            return code, rank
+    if not codes:
+        return None
+    spelled: dict[str, tuple[int, int, str]] = {}  # Plug-in Gait label -> (its alias rank, model order, model label)
+    for k, m in enumerate(labels):
+        mine = _codes(m)
+        if mine and mine[0][0] not in spelled:
+            spelled[mine[0][0]] = (mine[0][1], k, m)
+        elif mine and (mine[0][1], k) < spelled[mine[0][0]][:2]:
+            spelled[mine[0][0]] = (mine[0][1], k, m)
+    for code, rank in codes:
+        if code in spelled:
+            return spelled[code][2], rank
     return None
 
 
