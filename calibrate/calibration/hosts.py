@@ -64,12 +64,7 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
     marker, a lateral knee's, is posed about its long axis by its first cluster marker found)."""
     from ..model.model import add_markers
 
-    total = sum(t.n_frames for t in trials)
-    picked = []
-    for t in trials:
-        n = max(2, round(frames * t.n_frames / total))
-        idx = np.unique(np.linspace(0, t.n_frames - 1, min(n, t.n_frames)).astype(int))
-        picked.append(replace(t, markers=t.markers[idx], model_outputs={}, output_kinds={}, output_units={}))
+    picked = _pick(trials, frames)
     out: dict[str, Host] = {}
     posed = model
     for _ in range(rounds):
@@ -81,6 +76,17 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
             break
         posed = add_markers(posed, placed)
     return out
+
+
+def _pick(trials: Sequence[Trial], frames: int) -> list[Trial]:
+    """About `frames` evenly spaced frames of `trials`, shared among them by their lengths."""
+    total = sum(t.n_frames for t in trials)
+    picked = []
+    for t in trials:
+        n = max(2, round(frames * t.n_frames / total))
+        idx = np.unique(np.linspace(0, t.n_frames - 1, min(n, t.n_frames)).astype(int))
+        picked.append(replace(t, markers=t.markers[idx], model_outputs={}, output_kinds={}, output_units={}))
+    return picked
 
 
 def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict[str, Host]:
@@ -137,3 +143,120 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
                         candidates[second], float(spread[second]), mid[best])
     return out
+
+
+# A cluster of new labels rigid with each other (CLUSTER_MIN or more: a rigid body's pose needs three) and with no
+# segment's known markers, near the place of a segment whose model markers the trials never show (a head band whose
+# labels the model spells otherwise: AddBiomechanics' initial_off_treadmill, LHEAD, RHEAD, FHEAD and THEAD against
+# human.urdf's LFHD, RFHD, LBHD and RBHD), rides on that segment: it then has markers, and its joint is fitted, not
+# locked.  Near: the cluster's centroid within CLUSTER_REACH of the segment's model markers' centroid (median over the
+# base model's poses, the unseen segment at its joint's zero) and at most CLUSTER_RATIO of the next such segment's.
+CLUSTER_MIN = 3
+CLUSTER_REACH = 0.15  # m: a head band over a head's forehead and back markers, the neck at zero (its 10-20 deg of tilt
+#                      carry a head 30-60 mm)
+CLUSTER_RATIO = 0.5
+
+
+@dataclass(frozen=True)
+class ClusterHost:
+    """A cluster of mutually rigid new labels and the unseen segment whose model markers it sits by: `segment`
+    (None: none near enough), the median distance between the centroids (m) and the next segment's."""
+
+    labels: tuple[str, ...]
+    segment: str | None
+    best: str
+    distance: float
+    runner_up: str
+    runner_up_distance: float
+    places: tuple[np.ndarray, ...]  # each label's median place in best's frame on the poses (m, the base model's)
+
+    def reason(self, label: str) -> str:
+        """Why `label` (one of `labels`) was placed there, or left out."""
+        others = ", ".join(lab for lab in self.labels if lab != label)
+        where = (f"the base model's markers of {self.best}, which the trials do not show, {1e3 * self.distance:.0f} mm "
+                 f"from its cluster on the model's poses"
+                 + (f" (of {self.runner_up}, the next: {1e3 * self.runner_up_distance:.0f} mm)"
+                    if np.isfinite(self.runner_up_distance) else ""))
+        if self.segment:
+            return f"rigid with {others}, and {where}"
+        return (f"rigid with {others}, none of them on a segment; {where}: a host is under "
+                f"{1e3 * CLUSTER_REACH:.0f} mm and half the next")
+
+
+def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], threshold: float,
+                  frames: int = HOST_FRAMES) -> dict[str, ClusterHost]:
+    """Each of `labels` (new labels no other test placed) in a cluster of CLUSTER_MIN or more that keep their
+    distances to each other within the rigidity `threshold` (m², calibrate.seed.association's, over every frame of
+    `trials`, the moving ones) -> its ClusterHost, judged on about `frames` frames posed by the base model's known
+    markers.  Candidates: the segments that carry model markers, none of which the trials show."""
+    import pinocchio as pin
+
+    from ..model.kinematics import build_kinematics
+    from ..seed.rigidity import distance_variance
+    from ..solve.ik import inverse_kinematics
+
+    shown = {lab for t in trials for lab in t.labels}
+    candidates = [s for s in model.segments if s.markers and not any(m in shown for m in s.markers)]
+    labels = [lab for lab in labels if all(lab in t.labels for t in trials)]
+    if not candidates or len(labels) < CLUSTER_MIN:
+        return {}
+    X = np.concatenate([t.select(labels).markers for t in trials])
+    groups = [g for g in _rigid_clusters(distance_variance(X), threshold) if len(g) >= CLUSTER_MIN]
+    if not groups:
+        return {}
+    picked = _pick(trials, frames)
+    kin, params = build_kinematics(model), model.parameters()
+    data = model.pin.createData()
+    frame_ids = [[model.pin.getFrameId(m) for m in s.markers] for s in candidates]
+    segment_ids = [model.pin.getFrameId(s.name) for s in candidates]
+    # Per group and posed frame: the distances (candidates,) and the group's places in each candidate's frame.
+    far: list[list[np.ndarray]] = [[] for _ in groups]
+    local: list[list[np.ndarray]] = [[] for _ in groups]
+    for t in picked:
+        fit = inverse_kinematics(kin, t, params)
+        m = fit.motion
+        Y = t.select(labels).markers
+        for f in range(m.n_frames):
+            if not np.isfinite(fit.marker_rms[f]):
+                continue
+            pin.framesForwardKinematics(model.pin, data, model.pin_configuration(m.root_translation[f],
+                                                                                 m.root_quaternion[f], m.angles[f]))
+            centres = np.array([np.mean([data.oMf[i].translation for i in ids], axis=0) for ids in frame_ids])
+            R = np.array([data.oMf[i].rotation for i in segment_ids])  # (candidates, 3, 3)
+            o = np.array([data.oMf[i].translation for i in segment_ids])
+            for g, members in enumerate(groups):
+                P = Y[f, list(members)]
+                if np.all(np.isfinite(P)):
+                    far[g].append(np.linalg.norm(centres - P.mean(axis=0), axis=1))
+                    local[g].append(np.einsum("cji,cmj->cmi", R, P[None] - o[:, None]))  # (candidates, members, 3)
+    out = {}
+    for members, rows, places in zip(groups, far, local, strict=True):
+        if len(rows) < 3:
+            continue
+        d = np.median(np.array(rows), axis=0)
+        order = np.argsort(d)
+        best = int(order[0])
+        second = int(order[1]) if len(order) > 1 else best
+        ok = d[best] <= CLUSTER_REACH and (len(order) == 1 or d[best] <= CLUSTER_RATIO * d[second])
+        names = tuple(labels[k] for k in members)
+        mid = np.median(np.array(places)[:, best], axis=0)  # (members, 3)
+        host = ClusterHost(names, candidates[best].name if ok else None, candidates[best].name, float(d[best]),
+                           candidates[second].name, float(d[second]) if len(order) > 1 else float("inf"),
+                           tuple(mid))
+        out.update({lab: host for lab in names})
+    return out
+
+
+def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
+    """Groups of labels every pair of which keeps its distance within `threshold` (D: distance variances, m²):
+    complete linkage, pairs taken from the steadiest, two groups merged when every pair across them is steady (the
+    paper's greedy keeps two pairs of one head band apart, each formed before the pair between them)."""
+    groups = [{k} for k in range(len(D))]
+    order = sorted((D[i, j], i, j) for i in range(len(D)) for j in range(i + 1, len(D)) if D[i, j] <= threshold)
+    for _, i, j in order:
+        a = next(g for g in groups if i in g)
+        b = next(g for g in groups if j in g)
+        if a is not b and all(D[x, y] <= threshold for x in a for y in b):
+            a |= b
+            groups.remove(b)
+    return [tuple(sorted(g)) for g in groups]

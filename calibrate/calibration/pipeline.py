@@ -26,7 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
-from calibrate.calibration.hosts import kinematic_hosts
+from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
     STILL_SAMPLE,
@@ -72,7 +72,7 @@ from ..problem.priors import joint_centre_markers
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
-from ..seed.association import associate_to_model, exchanged_between, misplaced_labels, split_reason
+from ..seed.association import associate_to_model, exchanged_between, margin_hosts, misplaced_labels, split_reason
 from ..seed.rigidity import distance_variance
 from ..solve.ahead import run_ahead
 from ..solve.chunks import frame_bytes
@@ -304,7 +304,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         motion = _trial_motion(model, trials)  # which trials are still (_still_lengths, moved and re-placed markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
-    subject = add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in new.items()}) if new else model
+    at = {m.label: m.position for m in placed if m.position is not None}  # (hosts.cluster_hosts)
+    subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
     from ..model.resolve import resolve
@@ -320,6 +321,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         settings = replace(settings, lock=settings.lock + tuple(
             (d, float(np.clip(0.0, subject.dofs[subject.dof_index(d)].lower, subject.dofs[subject.dof_index(d)].upper)))
             for d in res.lock))
+    # A segment the trials reach only through a cluster of new labels (hosts.cluster_hosts: a head band): the
+    # labels' places and its joint's centre would trade, so the centre keeps the base model's place.
+    banded = {m.segment for m in placed if m.position is not None and m.segment}
+    banded_joints = tuple(j.name for j in subject.joints if j.child in banded and j.name not in settings.hold_centres)
+    if banded_joints:
+        say(Progress("markers", f"{', '.join(banded_joints)}: centre held at the base model's (its segment carries "
+                                "only a cluster of new labels)"))
+        settings = replace(settings, hold_centres=settings.hold_centres + banded_joints)
     obs = np.concatenate([marker_columns(subject, t) for t in trials])
     spans = trial_spans(trials)
     for x in exchanged:  # the trial the base model says has them exchanged: their positions there left out
@@ -1031,11 +1040,21 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         have = [k for k, lab in enumerate(labels) if lab in t.labels]
         cols[:, have] = t.select([labels[k] for k in have]).markers
         parts.append(cols)
-    assoc = associate_to_model(model, Trial(labels, np.concatenate(parts), used[0].rate))
+    together = Trial(labels, np.concatenate(parts), used[0].rate)
+    assoc = associate_to_model(model, together)
     # Those rigidity leaves out, judged again on the model's own poses (calibrate.calibration.hosts): a cluster on
     # skin, or a segment whose one known marker sits near a joint.
     left = [lab for lab in unknown if assoc[lab].segment is None and any(lab in t.labels for t in used)]
     hosts = kinematic_hosts(model, used, left) if left else {}
+    # Those left still, by their distances' margins (association.margin_hosts): a segment whose own markers move
+    # against each other on skin more than the trial's rigidity threshold (a two-marker foot, a pelvis), which the
+    # poses cannot pin either (a foot posed by its heel and toe turns about the line between them).
+    rest = [lab for lab in left if lab not in hosts or hosts[lab].segment is None]
+    margins = margin_hosts(model, together, rest) if rest else {}
+    # And a rigid cluster of those still left, by a segment whose model markers the trials never show (a head band
+    # the model spells otherwise: calibrate.calibration.hosts.cluster_hosts).
+    rest = [lab for lab in rest if lab not in margins or margins[lab].segment is None]
+    clusters = cluster_hosts(model, used, rest, assoc.threshold) if rest else {}
     out = []
     for lab in unknown:
         if len(used) < len(trials) and not any(lab in t.labels for t in used):
@@ -1045,6 +1064,12 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                                                   "segment it rides on"))
         elif lab in hosts and hosts[lab].segment is not None:
             out.append(NewMarker(lab, hosts[lab].segment, None, hosts[lab].reason()))
+        elif lab in margins and margins[lab].segment is not None:
+            out.append(NewMarker(lab, margins[lab].segment, None, margins[lab].reason()))
+        elif lab in clusters and clusters[lab].segment is not None:
+            # (its place kept, from the poses: a segment with no other marker is resolved by where they are)
+            c = clusters[lab]
+            out.append(NewMarker(lab, c.segment, c.places[c.labels.index(lab)], c.reason(lab)))
         else:
             # (judged on the poses too, where markerless segments that turn were candidates: the rigidity test's
             # clause that they cannot receive markers no longer holds)

@@ -569,6 +569,82 @@ def _mm(x: float) -> str:
     return f"{1000.0 * x:.1f} mm"
 
 
+# A label the rigidity test leaves out still rides on a segment when its distances to that segment's markers vary
+# (worst pair's SD over the frames) no more than MARGIN_OWN times as much as theirs to each other, and MARGIN_RATIO
+# times less than to any other segment's.  The rigidity threshold is one figure for the whole trial, set by its most
+# rigid pairs (a plate's markers, 0.5-1 mm); on skin a segment's own markers move more than that against each other
+# (a treadmill walk's heel and toe 1.6 mm, pelvis 1.7, torso 3-5), so a marker beside them is "not rigid" with any.
+# Measured (2026-11-29): AddBiomechanics' initial_off_treadmill (SACR, LMT5, RMT5: 0.9-1.3 mm against their
+# segment's, 3.5-4.3x less than the next) and stairdown (the feet's lateral markers: 2.5-2.8 mm, 6x).  The ratio
+# keeps gait2392's elbow markers (its model has no arms) off the torso: 5.7 mm against the torso's, 2.4x less than
+# against the next segment's (stairdown's SACR and Pelvis3, 2.8-2.9x, stay out with them).
+MARGIN_OWN = 2.0
+MARGIN_RATIO = 3.0
+
+
+@dataclass(frozen=True)
+class MarginHost:
+    """Where a label's distances to a segment's markers vary least (`best`; SDs over the frames, worst pair, m):
+    `segment` is `best` when the margins hold (MARGIN_OWN, MARGIN_RATIO), else None."""
+
+    label: str
+    segment: str | None
+    best: str
+    spread: float  # against best's markers
+    own: float  # best's markers against each other
+    runner_up: str
+    runner_up_spread: float
+
+    def reason(self) -> str:
+        """Why it was placed there, in the words of the rigidity test's reasons."""
+        return (f"its distances to {self.best}'s markers vary by {_mm(self.spread)} std, theirs to each other by "
+                f"{_mm(self.own)}, to {self.runner_up}'s by {_mm(self.runner_up_spread)} "
+                f"({self.runner_up_spread / self.spread:.1f}x)")
+
+
+def margin_hosts(model: Model, trial: Trial, labels: Sequence[str]) -> dict[str, MarginHost]:
+    """Each of `labels` (trial markers `model` does not know) -> its MarginHost, from the distances' SDs over
+    `trial`'s frames.  A segment can host when the trial shows two or more of its model markers (suspects too: on
+    skin they are what the segment is); every segment with one counts as a runner-up.  Labels no segment's markers
+    are seen with long enough are left out of the result."""
+    X = np.asarray(trial.markers, dtype=float)
+    index = {lab: k for k, lab in enumerate(trial.labels)}
+    seen = np.isfinite(X).all(axis=2).any(axis=0)
+    members: dict[str, list[int]] = {}
+    for m in model.markers:
+        k = index.get(m.name)
+        if k is not None and seen[k]:
+            members.setdefault(m.segment, []).append(k)
+    want = [index[lab] for lab in labels if lab in index]
+    cols = sorted({k for ks in members.values() for k in ks} | set(want))
+    at = {k: i for i, k in enumerate(cols)}
+    sd = np.sqrt(distance_variance(X[:, cols]))
+    own = {}
+    for seg, ks in members.items():
+        pairs = [sd[at[a], at[b]] for i, a in enumerate(ks) for b in ks[i + 1:] if np.isfinite(sd[at[a], at[b]])]
+        if pairs:
+            own[seg] = max(pairs)
+    out = {}
+    for lab in labels:
+        if lab not in index:
+            continue
+        k = at[index[lab]]
+        rows = []
+        for seg, ks in members.items():
+            vals = [sd[k, at[m]] for m in ks if np.isfinite(sd[k, at[m]])]
+            if vals:
+                rows.append((max(vals), seg, len(vals)))
+        hosts = sorted(r for r in rows if r[2] >= 2 and r[1] in own)
+        if not hosts:
+            continue
+        spread, seg, _ = hosts[0]
+        runner = min(((v, s) for v, s, _ in rows if s != seg), default=(np.inf, ""))
+        ok = spread <= MARGIN_OWN * own[seg] and runner[0] >= MARGIN_RATIO * spread
+        out[lab] = MarginHost(lab, seg if ok else None, seg, float(spread), float(own[seg]), runner[1],
+                              float(runner[0]))
+    return out
+
+
 # A model marker is taken for another segment's when its distances to its own segment's other markers vary
 # MISPLACED_RATIO times more (SD over the frames) than to some other segment's, and by more than MISPLACED_FLOOR:
 # a label exchanged for the whole trial (a knee marker named as the ankle's) rides with the wrong segment in
