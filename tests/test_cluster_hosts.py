@@ -38,9 +38,9 @@ def _session():
 
 def test_a_head_band_goes_on_the_head_whose_model_markers_the_trial_does_not_show():
     """The relabelled head markers are rigid with each other and with no segment's known markers (the head's are
-    unseen); on the base model's poses, the neck at zero where the subject's turns, their centroid sits within
-    CLUSTER_REACH of the head's model markers (the one unseen segment); the floor triad is rigid too, but far from
-    it, and stays out."""
+    unseen); their centroid keeps the distances to the trunk's markers that the head's model markers' centroid has in
+    the base model (the one unseen segment), within CLUSTER_REACH, though the subject's neck turns; the floor triad is
+    rigid too, but placed nothing like the head, and stays out."""
     base = load_model(HUMAN)
     trial, _ = _session()
     assoc = associate_to_model(base, trial)

@@ -146,21 +146,25 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict
 
 
 # A cluster of new labels rigid with each other (CLUSTER_MIN or more: a rigid body's pose needs three) and with no
-# segment's known markers, near the place of a segment whose model markers the trials never show (a head band whose
-# labels the model spells otherwise: AddBiomechanics' initial_off_treadmill, LHEAD, RHEAD, FHEAD and THEAD against
+# segment's known markers, placed like a segment whose model markers the trials never show (a head band whose labels
+# the model spells otherwise: AddBiomechanics' initial_off_treadmill, LHEAD, RHEAD, FHEAD and THEAD against
 # human.urdf's LFHD, RFHD, LBHD and RBHD), rides on that segment: it then has markers, and its joint is fitted, not
-# locked.  Near: the cluster's centroid within CLUSTER_REACH of the segment's model markers' centroid (median over the
-# base model's poses, the unseen segment at its joint's zero) and at most CLUSTER_RATIO of the next such segment's.
+# locked.  Placed like it: the cluster's centroid keeps the distances to the shown markers of the nearest segment above
+# (three or more: a trunk's) that the segment's model markers' centroid has in the base model's neutral pose, at the
+# subject's size there, to CLUSTER_REACH RMS (median over frames), and at most CLUSTER_RATIO of the next candidate's.
+# Distances, not a pose: the trunk's rigid fit to the neutral model turns a head 150-250 mm away by its markers' skin
+# and the model's shoulders (measured on the treadmill: its head band 185-205 mm from the head's markers so, 116 by
+# distances; a simulated band 27 mm, Hamner's temples 175 mm from the nearest candidate, an ulna).
 CLUSTER_MIN = 3
-CLUSTER_REACH = 0.15  # m: a head band over a head's forehead and back markers, the neck at zero (its 10-20 deg of tilt
-#                      carry a head 30-60 mm)
+CLUSTER_REACH = 0.15  # m RMS: a head band above a head's forehead and back markers, the neck turned 10-20 deg
 CLUSTER_RATIO = 0.5
 
 
 @dataclass(frozen=True)
 class ClusterHost:
-    """A cluster of mutually rigid new labels and the unseen segment whose model markers it sits by: `segment`
-    (None: none near enough), the median distance between the centroids (m) and the next segment's."""
+    """A cluster of mutually rigid new labels and the unseen segment placed most like it: `segment` (None: none near
+    enough), how far its distances to the references differ from the segment's (m RMS, median over frames) and the
+    next segment's."""
 
     labels: tuple[str, ...]
     segment: str | None
@@ -173,9 +177,9 @@ class ClusterHost:
     def reason(self, label: str) -> str:
         """Why `label` (one of `labels`) was placed there, or left out."""
         others = ", ".join(lab for lab in self.labels if lab != label)
-        where = (f"the base model's markers of {self.best}, which the trials do not show, {1e3 * self.distance:.0f} mm "
-                 f"from its cluster on the model's poses"
-                 + (f" (of {self.runner_up}, the next: {1e3 * self.runner_up_distance:.0f} mm)"
+        where = (f"placed as the base model's markers of {self.best} (which the trials do not show) are: their "
+                 f"distances to the markers above differ by {1e3 * self.distance:.0f} mm RMS"
+                 + (f" ({self.runner_up}, the next: {1e3 * self.runner_up_distance:.0f} mm)"
                     if np.isfinite(self.runner_up_distance) else ""))
         if self.segment:
             return f"rigid with {others}, and {where}"
@@ -187,17 +191,26 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
                   frames: int = HOST_FRAMES) -> dict[str, ClusterHost]:
     """Each of `labels` (new labels no other test placed) in a cluster of CLUSTER_MIN or more that keep their
     distances to each other within the rigidity `threshold` (m², calibrate.seed.association's, over every frame of
-    `trials`, the moving ones) -> its ClusterHost, judged on about `frames` frames posed by the base model's known
-    markers.  Candidates: the segments that carry model markers, none of which the trials show."""
+    `trials`, the moving ones) -> its ClusterHost, judged on about `frames` frames.  Candidates: the segments that
+    carry model markers, none of which the trials show, and a segment above them that shows three or more known
+    markers (the references)."""
     import pinocchio as pin
 
-    from ..model.kinematics import build_kinematics
+    from ..seed.geometry import kabsch_batch
     from ..seed.rigidity import distance_variance
-    from ..solve.ik import inverse_kinematics
 
-    shown = {lab for t in trials for lab in t.labels}
-    candidates = [s for s in model.segments if s.markers and not any(m in shown for m in s.markers)]
+    shown = {lab for t in trials for lab in t.labels if lab in set(model.marker_names)}
+    parent = {j.child: j.parent for j in model.joints}
     labels = [lab for lab in labels if all(lab in t.labels for t in trials)]
+    candidates = []  # (segment, the shown markers of the nearest segment above with three or more)
+    for sg in model.segments:
+        if not sg.markers or any(m in shown for m in sg.markers):
+            continue
+        above = parent.get(sg.name)
+        while above is not None and sum(m in shown for m in model.segments[model.segment_index(above)].markers) < 3:
+            above = parent.get(above)
+        if above is not None:
+            candidates.append((sg, [m for m in model.segments[model.segment_index(above)].markers if m in shown]))
     if not candidates or len(labels) < CLUSTER_MIN:
         return {}
     X = np.concatenate([t.select(labels).markers for t in trials])
@@ -205,44 +218,53 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     if not groups:
         return {}
     picked = _pick(trials, frames)
-    kin, params = build_kinematics(model), model.parameters()
+    Y = np.concatenate([t.select(labels).markers for t in picked])  # (F, labels, 3)
+    far = np.full((len(groups), len(candidates)), np.inf)
+    places: list[list[np.ndarray]] = [[np.empty((0, 3))] * len(candidates) for _ in groups]
     data = model.pin.createData()
-    frame_ids = [[model.pin.getFrameId(m) for m in s.markers] for s in candidates]
-    segment_ids = [model.pin.getFrameId(s.name) for s in candidates]
-    # Per group and posed frame: the distances (candidates,) and the group's places in each candidate's frame.
-    far: list[list[np.ndarray]] = [[] for _ in groups]
-    local: list[list[np.ndarray]] = [[] for _ in groups]
-    for t in picked:
-        fit = inverse_kinematics(kin, t, params)
-        m = fit.motion
-        Y = t.select(labels).markers
-        for f in range(m.n_frames):
-            if not np.isfinite(fit.marker_rms[f]):
+    pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
+                                                                         np.zeros(model.n_dofs)))
+    for c, (sg, refs) in enumerate(candidates):
+        local = model.neutral_positions(refs)  # (R, 3) the references in the base model's neutral pose
+        world = np.concatenate([t.select(refs).markers for t in picked])  # (F, R, 3)
+        have = np.all(np.isfinite(world), axis=2)
+        turn, _ = kabsch_batch(local, np.where(have[..., None], world, 0.0), have.astype(float))
+        own = data.oMf[model.pin.getFrameId(sg.name)]
+        centre = model.neutral_positions(sg.markers).mean(axis=0)
+        modelled = np.linalg.norm(local - centre, axis=1)  # (R,) the candidate's distances to the references
+        # the subject's size there: its references' distances to each other against the base model's
+        pairs = [(a, b) for a in range(len(refs)) for b in range(a + 1, len(refs))]
+        size = np.nanmedian([np.nanmedian(np.linalg.norm(world[:, a] - world[:, b], axis=1))
+                             / np.linalg.norm(local[a] - local[b]) for a, b in pairs])
+        for g, members in enumerate(groups):
+            mid = Y[:, list(members)].mean(axis=1)  # (F, 3) the cluster's centroid
+            seen = np.linalg.norm(world - mid[:, None], axis=2)  # (F, R)
+            miss = np.sqrt(np.nanmean((seen - size * modelled) ** 2, axis=1))
+            if np.isfinite(miss).sum() < 3:
                 continue
-            pin.framesForwardKinematics(model.pin, data, model.pin_configuration(m.root_translation[f],
-                                                                                 m.root_quaternion[f], m.angles[f]))
-            centres = np.array([np.mean([data.oMf[i].translation for i in ids], axis=0) for ids in frame_ids])
-            R = np.array([data.oMf[i].rotation for i in segment_ids])  # (candidates, 3, 3)
-            o = np.array([data.oMf[i].translation for i in segment_ids])
-            for g, members in enumerate(groups):
-                P = Y[f, list(members)]
-                if np.all(np.isfinite(P)):
-                    far[g].append(np.linalg.norm(centres - P.mean(axis=0), axis=1))
-                    local[g].append(np.einsum("cji,cmj->cmi", R, P[None] - o[:, None]))  # (candidates, members, 3)
+            far[g, c] = float(np.nanmedian(miss))
+            # Where each label would sit: about the candidate's model markers as about the cluster's centroid, turned
+            # back by the references' rigid fit (the labels' places need only not all sit at the joint's centre: the
+            # start's poses place them again, calibrate.calibration.pipeline._place_new_markers).
+            rel = Y[:, list(members)] - mid[:, None]
+            ok = np.all(np.isfinite(rel), axis=(1, 2)) & np.all(np.isfinite(turn), axis=(1, 2))
+            if ok.any():
+                back = np.median(np.einsum("fji,fmj->fmi", turn[ok], rel[ok]), axis=0) / size  # (members, 3)
+                places[g][c] = (centre + back - own.translation) @ own.rotation
     out = {}
-    for members, rows, places in zip(groups, far, local, strict=True):
-        if len(rows) < 3:
+    for g, members in enumerate(groups):
+        d = far[g]
+        if not np.isfinite(d).any():
             continue
-        d = np.median(np.array(rows), axis=0)
         order = np.argsort(d)
         best = int(order[0])
         second = int(order[1]) if len(order) > 1 else best
         ok = d[best] <= CLUSTER_REACH and (len(order) == 1 or d[best] <= CLUSTER_RATIO * d[second])
         names = tuple(labels[k] for k in members)
-        mid = np.median(np.array(places)[:, best], axis=0)  # (members, 3)
-        host = ClusterHost(names, candidates[best].name if ok else None, candidates[best].name, float(d[best]),
-                           candidates[second].name, float(d[second]) if len(order) > 1 else float("inf"),
-                           tuple(mid))
+        at = places[g][best] if len(places[g][best]) == len(members) else np.zeros((len(members), 3))
+        host = ClusterHost(names, candidates[best][0].name if ok else None, candidates[best][0].name,
+                           float(d[best]), candidates[second][0].name,
+                           float(d[second]) if len(order) > 1 else float("inf"), tuple(at))
         out.update({lab: host for lab in names})
     return out
 
