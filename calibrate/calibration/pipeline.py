@@ -1050,7 +1050,9 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     # against each other on skin more than the trial's rigidity threshold (a two-marker foot, a pelvis), which the
     # poses cannot pin either (a foot posed by its heel and toe turns about the line between them).
     rest = [lab for lab in left if lab not in hosts or hosts[lab].segment is None]
-    margins = margin_hosts(model, together, rest) if rest else {}
+    placed = {lab: seg for lab in unknown
+              if (seg := hosts[lab].segment if lab in hosts else assoc[lab].segment) is not None}
+    margins = margin_hosts(model, together, rest, placed) if rest else {}
     # And a rigid cluster of those still left, by a segment whose model markers the trials never show (a head band
     # the model spells otherwise: calibrate.calibration.hosts.cluster_hosts).
     rest = [lab for lab in rest if lab not in margins or margins[lab].segment is None]

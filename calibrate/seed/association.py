@@ -26,7 +26,7 @@ Units: metres (variances in m²).
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -456,8 +456,10 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
     at least half of its segment's other known markers varies beyond the threshold is
     reported as 'suspect' (mislabelled, or loose) but not moved; suspects are not used to
     place unknown markers.  Every other label goes to the segment whose known markers it
-    is rigid with — all of them (complete linkage on D) and, for segments with ≥ 3 known
-    markers, the rigid fit of the segment plus the marker must stay within the noise —
+    is rigid with — all of them (complete linkage on D), two or more (a marker across a joint
+    keeps its distance to one marker beside that joint: stairdown's forearm markers to a
+    lateral elbow marker's) and, for segments with ≥ 3 known markers, the rigid fit of the
+    segment plus the marker must stay within the noise —
     the segment with the smallest worst-pair variance winning.  Otherwise the marker is
     left unassigned with the figure that ruled it out.  Segments without markers (the
     talus) cannot receive markers: nothing on them can be tested.
@@ -512,6 +514,7 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
             continue
         cands = []
         closest = (np.inf, "")
+        single = []  # segments it is rigid with by their one marker
         for seg, members in reference.items():
             ref = [m for m in members if np.isfinite(D[k, m])]  # those seen together with it long enough
             if not ref:
@@ -520,6 +523,9 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
             if worst < closest[0]:
                 closest = (worst, seg)
             if worst > threshold:
+                continue
+            if len(ref) < 2:  # a marker beside a joint keeps its distance to the segments on both sides of it
+                single.append((seg, labels[ref[0]]))
                 continue
             if len(ref) >= 3 and not scorer.admissible(tuple(sorted(ref + [k]))):
                 continue
@@ -531,7 +537,10 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
             out[k] = MarkerAssignment(labels[k], seg, "assigned", float(np.sqrt(worst)),
                                       f"rigid with every marker of {seg} (worst {_mm(np.sqrt(worst))} std){also}")
             continue
-        if np.isfinite(closest[0]):
+        if single:
+            why = (f"rigid only with the one marker of {', '.join(f'{s} ({m})' for s, m in single)} the trial shows "
+                   f"there, which a marker across a joint beside it stays rigid with too")
+        elif np.isfinite(closest[0]):
             why = (f"varies by {_mm(np.sqrt(closest[0]))} std or more against every segment "
                    f"(closest: {closest[1]}; rigid: ≤ {_mm(np.sqrt(threshold))})")
             if closest[0] <= threshold:
@@ -602,19 +611,21 @@ class MarginHost:
                 f"({self.runner_up_spread / self.spread:.1f}x)")
 
 
-def margin_hosts(model: Model, trial: Trial, labels: Sequence[str]) -> dict[str, MarginHost]:
+def margin_hosts(model: Model, trial: Trial, labels: Sequence[str],
+                 placed: Mapping[str, str] | None = None) -> dict[str, MarginHost]:
     """Each of `labels` (trial markers `model` does not know) -> its MarginHost, from the distances' SDs over
-    `trial`'s frames.  A segment can host when the trial shows two or more of its model markers (suspects too: on
-    skin they are what the segment is); every segment with one counts as a runner-up.  Labels no segment's markers
-    are seen with long enough are left out of the result."""
+    `trial`'s frames.  A segment can host when the trial shows two or more of its markers — the model's (suspects
+    too: on skin they are what the segment is) and the new labels already `placed` on it (label -> segment) —; every
+    segment with one counts as a runner-up.  Labels no segment's markers are seen with long enough are left out of
+    the result."""
     X = np.asarray(trial.markers, dtype=float)
     index = {lab: k for k, lab in enumerate(trial.labels)}
     seen = np.isfinite(X).all(axis=2).any(axis=0)
     members: dict[str, list[int]] = {}
-    for m in model.markers:
-        k = index.get(m.name)
+    for name, segment in [*((m.name, m.segment) for m in model.markers), *(placed or {}).items()]:
+        k = index.get(name)
         if k is not None and seen[k]:
-            members.setdefault(m.segment, []).append(k)
+            members.setdefault(segment, []).append(k)
     want = [index[lab] for lab in labels if lab in index]
     cols = sorted({k for ks in members.values() for k in ks} | set(want))
     at = {k: i for i, k in enumerate(cols)}
