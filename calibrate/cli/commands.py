@@ -484,8 +484,9 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         hows = [m.how for m in mapping]
         print(f"  labels against {model_path.name}'s {len(model.marker_names)} markers: "
               + ", ".join(f"{hows.count(h)} {h}" for h in ("exact", "map", "alias", "unknown") if h in hows)
-              + " (an unknown label is placed on a segment by rigidity, by its place on the model's poses, or by its "
-              "distances' margin to one segment's markers, when "
+              + " (an unknown label is placed on a segment by rigidity, by its place on the model's poses, by its "
+              "distances' margin to one segment's markers, or, in a rigid cluster, where a segment's unseen model "
+              "markers would be, when "
               "calibrating, if one carries it; "
                 "--markers map.toml names it)")
         if mapping.missing:
