@@ -1069,7 +1069,8 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         elif lab in margins and margins[lab].segment is not None:
             out.append(NewMarker(lab, margins[lab].segment, None, margins[lab].reason()))
         elif lab in clusters and clusters[lab].segment is not None:
-            # (its place kept, from the poses: a segment with no other marker is resolved by where they are)
+            # (its place kept, about the segment's model markers: a segment with no other marker is resolved by where
+            # its markers are, and the start places them again)
             c = clusters[lab]
             out.append(NewMarker(lab, c.segment, c.places[c.labels.index(lab)], c.reason(lab)))
         else:
