@@ -199,7 +199,8 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     from ..seed.geometry import kabsch_batch
     from ..seed.rigidity import distance_variance
 
-    shown = {lab for t in trials for lab in t.labels if lab in set(model.marker_names)}
+    known = set(model.marker_names)
+    shown = {lab for t in trials for lab in t.labels if lab in known}
     parent = {j.child: j.parent for j in model.joints}
     labels = [lab for lab in labels if all(lab in t.labels for t in trials)]
     candidates = []  # (segment, the shown markers of the nearest segment above with three or more)
@@ -207,10 +208,12 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
         if not sg.markers or any(m in shown for m in sg.markers):
             continue
         above = parent.get(sg.name)
-        while above is not None and sum(m in shown for m in model.segments[model.segment_index(above)].markers) < 3:
+        while above is not None:
+            refs = [m for m in model.segments[model.segment_index(above)].markers if m in shown]
+            if len(refs) >= 3:
+                candidates.append((sg, refs))
+                break
             above = parent.get(above)
-        if above is not None:
-            candidates.append((sg, [m for m in model.segments[model.segment_index(above)].markers if m in shown]))
     if not candidates or len(labels) < CLUSTER_MIN:
         return {}
     X = np.concatenate([t.select(labels).markers for t in trials])
@@ -221,16 +224,20 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     Y = np.concatenate([t.select(labels).markers for t in picked])  # (F, labels, 3)
     far = np.full((len(groups), len(candidates)), np.inf)
     places: list[list[np.ndarray]] = [[np.empty((0, 3))] * len(candidates) for _ in groups]
-    data = model.pin.createData()
+    data = model.pin.createData()  # the base model's neutral pose: root at the origin, every angle 0
     pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
                                                                          np.zeros(model.n_dofs)))
+
+    def neutral(names: Sequence[str]) -> np.ndarray:
+        return np.array([data.oMf[model.pin.getFrameId(n)].translation for n in names]).reshape(-1, 3)
+
     for c, (sg, refs) in enumerate(candidates):
-        local = model.neutral_positions(refs)  # (R, 3) the references in the base model's neutral pose
+        local = neutral(refs)  # (R, 3) the references in the neutral pose
         world = np.concatenate([t.select(refs).markers for t in picked])  # (F, R, 3)
         have = np.all(np.isfinite(world), axis=2)
         turn, _ = kabsch_batch(local, np.where(have[..., None], world, 0.0), have.astype(float))
         own = data.oMf[model.pin.getFrameId(sg.name)]
-        centre = model.neutral_positions(sg.markers).mean(axis=0)
+        centre = neutral(sg.markers).mean(axis=0)
         modelled = np.linalg.norm(local - centre, axis=1)  # (R,) the candidate's distances to the references
         # the subject's size there: its references' distances to each other against the base model's
         pairs = [(a, b) for a in range(len(refs)) for b in range(a + 1, len(refs))]
