@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from calibrate.calibration.pipeline import calibrate
+from calibrate.io.trial import Trial
 from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import load_model
 from calibrate.problem.settings import Settings
@@ -78,6 +79,13 @@ def test_from_a_worker_the_iterator_is_kept_as_it_is():
     assert out["it"] is gen
 
 
+def _two_trials(human, seed: int) -> list[Trial]:
+    """Two 90-frame trials of one simulated subject: the two halves of one squat trial (simulate_squats draws a
+    new subject for every seed, and two subjects calibrated as one take several times as long to settle)."""
+    one = simulate_squats(human, frames=180, noise_mm=1.0, seed=seed).trial
+    return [Trial(one.labels, one.markers[a:a + 90], one.rate, one.first_frame + a, None) for a in (0, 90)]
+
+
 @forks
 def test_calibration_is_the_same_with_its_work_run_ahead():
     """Two trials (every second trial's start poses in a child) and a stated noise no start fits (so both
@@ -85,7 +93,7 @@ def test_calibration_is_the_same_with_its_work_run_ahead():
     with Settings.ahead off, where everything runs in this process."""
     human = load_model(Path(__file__).resolve().parents[1] / "models" / "human.urdf")
     kin = build_kinematics(human)
-    trials = [simulate_squats(human, frames=90, noise_mm=1.0, seed=s).trial for s in (31, 32)]
+    trials = _two_trials(human, seed=31)
     ahead = calibrate(human, trials, Settings(noise=0.0005), kinematics=kin)
     here = calibrate(human, trials, Settings(noise=0.0005, ahead=False), kinematics=kin)
     race = [n for n in ahead.seed.notes if n.startswith("started from")]
@@ -119,8 +127,8 @@ def test_the_command_line_gives_the_same_bits_in_every_fresh_process(tmp_path):
 
     human_path = Path(__file__).resolve().parents[1] / "models" / "human.urdf"
     human = load_model(human_path)
-    for s in (41, 42):
-        write_c3d(tmp_path / f"t{s}.c3d", simulate_squats(human, frames=90, noise_mm=1.0, seed=s).trial)
+    for s, trial in zip((41, 42), _two_trials(human, seed=41), strict=True):
+        write_c3d(tmp_path / f"t{s}.c3d", trial)
     written = []
     for run in ("a", "b"):
         out = tmp_path / run

@@ -52,9 +52,20 @@ def _table(head: list[str], rows: list[list], numeric: set[int] | None = None) -
     return "".join(out) + "</table>"
 
 
-def _figure(fig, height: int = 420, top: int = 40) -> str:
-    fig.update_layout(height=height, margin={"l": 60, "r": 20, "t": top, "b": 50}, template="plotly_white")
-    return fig.to_html(full_html=False, include_plotlyjs=False, config={"displaylogo": False})
+def _title(text: str) -> dict:
+    return {"text": text}
+
+
+def _figure(fig: dict, template: dict, height: int = 420, top: int = 40) -> str:
+    """One figure's <div> and script.  `fig` is plotly's figure as plain data ({"data": [traces], "layout": {...}},
+    plotly.js's own schema), written without plotly's per-value validation: the report's figures carry every
+    frame's residual and angle, and validating them took most of the page's time (docs/benchmarks.md)."""
+    from plotly.io import to_html
+
+    layout = {"template": template, **fig.get("layout", {}), "height": height,
+              "margin": {"l": 60, "r": 20, "t": top, "b": 50}}
+    return to_html({"data": fig["data"], "layout": layout}, validate=False, full_html=False, include_plotlyjs=False,
+                   config={"displaylogo": False})
 
 
 def _notes(report: dict) -> str:
@@ -231,14 +242,15 @@ def _summary(report: dict) -> str:
     return "<h2 id=summary>Summary</h2>" + trials + _table(["", ""], rows)
 
 
-def _marker_figures(report: dict, go) -> str:
+def _marker_figures(report: dict, template: dict) -> str:
     per = report["markers"]["per_marker"]
     names = sorted(per, key=lambda n: -per[n]["rms_mm"])
-    bars = go.Figure(go.Bar(x=names, y=[per[n]["rms_mm"] for n in names], name="RMS",
-                            error_y={"type": "data", "symmetric": False, "array": [
-                                per[n]["max_mm"] - per[n]["rms_mm"] for n in names], "visible": True}))
-    bars.update_layout(title="marker RMS per marker (mm; whisker up to the largest)", yaxis_title="mm")
-    out = ["<h2 id=markers>Marker errors</h2>", _figure(bars, 380)]
+    bars = {"data": [{"type": "bar", "x": names, "y": [per[n]["rms_mm"] for n in names], "name": "RMS",
+                      "error_y": {"type": "data", "symmetric": False, "visible": True,
+                                  "array": [per[n]["max_mm"] - per[n]["rms_mm"] for n in names]}}],
+            "layout": {"title": _title("marker RMS per marker (mm; whisker up to the largest)"),
+                       "yaxis": {"title": _title("mm")}}}
+    out = ["<h2 id=markers>Marker errors</h2>", _figure(bars, template, 380)]
     series = report.get("series")
     if not series:
         return "".join(out) + "<p class=muted>(this report has no series: made by an older calibrate)</p>"
@@ -248,28 +260,51 @@ def _marker_figures(report: dict, go) -> str:
         markers = [n for n in names if n in ts["residual_mm"]]
         z = [ts["residual_mm"][n] for n in markers]
         block = ts["block"]
-        heat = go.Figure(go.Heatmap(x=ts["times_s"], y=markers, z=z, colorscale="Viridis",
-                                    colorbar={"title": "mm"}, hoverongaps=False,
-                                    hovertemplate="%{y} at %{x:.2f} s: %{z:.1f} mm<extra></extra>"))
+        heat = {"data": [{"type": "heatmap", "x": ts["times_s"], "y": markers, "z": z, "colorscale": "Viridis",
+                          "colorbar": {"title": _title("mm")}, "hoverongaps": False,
+                          "hovertemplate": "%{y} at %{x:.2f} s: %{z:.1f} mm<extra></extra>"}],
+                "layout": {"title": _title(f"{name}: residual per marker over time (mm"
+                                           + (f"; largest of each {block} frames" if block > 1 else "")
+                                           + "; red x: rejected positions)"),
+                           "xaxis": {"title": _title("time (s)")}, "yaxis": {"autorange": "reversed"}}}
         rej = [o for o in rejected if o["trial"] == i and o["marker"] in markers]
         if rej:
             t = [ts["times_s"][min(o["frame"] // block, len(ts["times_s"]) - 1)] for o in rej]
-            heat.add_trace(go.Scatter(x=t, y=[o["marker"] for o in rej], mode="markers", name="rejected",
-                                      marker={"symbol": "x", "color": "red", "size": 9},
-                                      text=[f"rejected: {o['error_mm']:.1f} mm" for o in rej]))
-        heat.update_layout(title=f"{name}: residual per marker over time (mm"
-                           + (f"; largest of each {block} frames" if block > 1 else "")
-                           + "; red x: rejected positions)", xaxis_title="time (s)",
-                           yaxis={"autorange": "reversed"})
-        curves = go.Figure([go.Scatter(x=ts["times_s"], y=ts["residual_mm"][n], name=n, mode="lines")
-                            for n in markers])
-        curves.update_layout(title=f"{name}: residual curves per marker (mm)", xaxis_title="time (s)",
-                             yaxis_title="mm")
-        out += [_figure(heat, max(300, 14 * len(markers) + 120)), _figure(curves, 380)]
+            heat["data"].append({"type": "scatter", "x": t, "y": [o["marker"] for o in rej], "mode": "markers",
+                                 "name": "rejected", "marker": {"symbol": "x", "color": "red", "size": 9},
+                                 "text": [f"rejected: {o['error_mm']:.1f} mm" for o in rej]})
+        curves = {"data": [{"type": "scatter", "x": ts["times_s"], "y": ts["residual_mm"][n], "name": n,
+                            "mode": "lines"} for n in markers],
+                  "layout": {"title": _title(f"{name}: residual curves per marker (mm)"),
+                             "xaxis": {"title": _title("time (s)")}, "yaxis": {"title": _title("mm")}}}
+        out += [_figure(heat, template, max(300, 14 * len(markers) + 120)), _figure(curves, template, 380)]
     return "".join(out)
 
 
-def _angle_figures(report: dict, go, subplots) -> str:
+def _grid(rows: int, cols: int, titles: list[str], vertical_spacing: float) -> tuple[dict, list[tuple[str, str]]]:
+    """A grid of rows x cols subplots as plotly's make_subplots lays it out (the same domains, its default
+    horizontal spacing 0.2 / cols, a title over each cell), as plain layout data: (layout, each cell's (x, y)
+    axis names, row by row)."""
+    hs = 0.2 / cols
+    width = (1.0 - hs * (cols - 1)) / cols
+    height = (1.0 - vertical_spacing * (rows - 1)) / rows
+    layout: dict = {"annotations": []}
+    axes = []
+    for k in range(rows * cols):
+        r, c = divmod(k, cols)
+        x0, y1 = c * (width + hs), 1.0 - r * (height + vertical_spacing)
+        n = "" if k == 0 else str(k + 1)
+        layout[f"xaxis{n}"] = {"domain": [x0, x0 + width], "anchor": f"y{n}"}
+        layout[f"yaxis{n}"] = {"domain": [y1 - height, y1], "anchor": f"x{n}"}
+        axes.append((f"x{n}", f"y{n}"))
+        if k < len(titles):
+            layout["annotations"].append({"text": titles[k], "x": x0 + 0.5 * width, "y": y1, "xref": "paper",
+                                          "yref": "paper", "xanchor": "center", "yanchor": "bottom",
+                                          "showarrow": False, "font": {"size": 16}})
+    return layout, axes
+
+
+def _angle_figures(report: dict, template: dict) -> str:
     series = report.get("series")
     if not series:
         return ""
@@ -282,24 +317,26 @@ def _angle_figures(report: dict, go, subplots) -> str:
             continue
         cols = 4
         rows = (len(dofs) + cols - 1) // cols
-        fig = subplots.make_subplots(rows=rows, cols=cols, subplot_titles=dofs, vertical_spacing=min(0.08, 0.5 / rows))
+        layout, axes = _grid(rows, cols, dofs, min(0.08, 0.5 / rows))
+        layout["title"] = _title(f"{tr['source'] or f'trial {i + 1}'}: joint angles (deg) over time (s)")
+        data = []
         for k, d in enumerate(dofs):
-            r, c = k // cols + 1, k % cols + 1
+            xa, ya = axes[k]
             y = ts["angles_deg"][d]
             lo, hi = limits.get(d, [None, None])
             if lo is not None and hi is not None:
-                fig.add_trace(go.Scatter(x=ts["times_s"] + ts["times_s"][::-1], y=[hi] * len(y) + [lo] * len(y),
-                                         fill="toself", fillcolor="rgba(100,150,255,0.18)",
-                                         line={"width": 1, "color": "rgba(60,100,200,0.6)", "dash": "dot"},
-                                         hoverinfo="skip", showlegend=False), row=r, col=c)
+                data.append({"type": "scatter", "x": ts["times_s"] + ts["times_s"][::-1],
+                             "y": [hi] * len(y) + [lo] * len(y), "fill": "toself",
+                             "fillcolor": "rgba(100,150,255,0.18)",
+                             "line": {"width": 1, "color": "rgba(60,100,200,0.6)", "dash": "dot"},
+                             "hoverinfo": "skip", "showlegend": False, "xaxis": xa, "yaxis": ya})
             span = [v for v in [*y, lo, hi] if v is not None]
             if span:  # the range's edges inside the plot
                 pad = 0.08 * (max(span) - min(span) or 1.0)
-                fig.update_yaxes(range=[min(span) - pad, max(span) + pad], row=r, col=c)
-            fig.add_trace(go.Scatter(x=ts["times_s"], y=y, mode="lines", name=d, showlegend=False,
-                                     line={"color": "#1f4e99"}), row=r, col=c)
-        fig.update_layout(title=f"{tr['source'] or f'trial {i + 1}'}: joint angles (deg) over time (s)")
-        out.append(_figure(fig, 190 * rows + 110, top=80))
+                layout["yaxis" + ya[1:]]["range"] = [min(span) - pad, max(span) + pad]
+            data.append({"type": "scatter", "x": ts["times_s"], "y": y, "mode": "lines", "name": d,
+                         "showlegend": False, "line": {"color": "#1f4e99"}, "xaxis": xa, "yaxis": ya})
+        out.append(_figure({"data": data, "layout": layout}, template, 190 * rows + 110, top=80))
     return "".join(out)
 
 
@@ -311,7 +348,7 @@ def _verdict(p: dict) -> str:
     return "yes" if p["identified"] else "no (prior)"
 
 
-def _parameters(report: dict, go) -> str:
+def _parameters(report: dict, template: dict) -> str:
     params = report["parameters"]
     rows = []
     for p in params:
@@ -328,19 +365,20 @@ def _parameters(report: dict, go) -> str:
         colour = {"yes": "#2a7a2a", "no (prior)": "#c08000", "no (unreliable)": "#b02020",
                   "yes (unreliable)": "#b02020"}
         verdicts = [_verdict(p) for p in sel]
-        fig = go.Figure(go.Bar(x=[p["name"] for p in sel], y=[p["change"] for p in sel],
-                               error_y={"type": "data", "array": [v or 0 for v in sd], "visible": True},
-                               marker_color=[colour[v] for v in verdicts],
-                               hovertext=[f"identified: {v}" for v in verdicts]))
-        fig.update_layout(title=f"{group}: change ({unit}) +- posterior SD (worst axis); green: identified, "
-                          "amber: held by its prior, red: unreliable", yaxis_title=unit)
-        out.append(_figure(fig, 360))
+        fig = {"data": [{"type": "bar", "x": [p["name"] for p in sel], "y": [p["change"] for p in sel],
+                         "error_y": {"type": "data", "array": [v or 0 for v in sd], "visible": True},
+                         "marker": {"color": [colour[v] for v in verdicts]},
+                         "hovertext": [f"identified: {v}" for v in verdicts]}],
+               "layout": {"title": _title(f"{group}: change ({unit}) +- posterior SD (worst axis); green: "
+                                          "identified, amber: held by its prior, red: unreliable"),
+                          "yaxis": {"title": _title(unit)}}}
+        out.append(_figure(fig, template, 360))
     out.append(_table(["parameter", "group", "unit", "base", "subject", "change", "posterior SD", "identified",
                        "note"], rows, {5, 6}))
     return "".join(out)
 
 
-def _segments(report: dict, go) -> str:
+def _segments(report: dict, template: dict) -> str:
     lengths = (report.get("series") or {}).get("segment_lengths") or {}
     if not lengths:
         return ""
@@ -360,20 +398,20 @@ def _segments(report: dict, go) -> str:
         left.append(a["subject_mm"])
         right.append(b["subject_mm"])
         lb.append(a["base_mm"])
-    fig = go.Figure([
-        go.Bar(x=xs + x, y=lb + base, name="base model", marker_color="#999"),
-        go.Bar(x=xs, y=left, name="subject left", marker_color="#1f77b4"),
-        go.Bar(x=xs, y=right, name="subject right", marker_color="#d62728"),
-        go.Bar(x=x, y=[lengths[n]["subject_mm"] for n in single], name="subject", marker_color="#2a7a2a")])
-    fig.update_layout(barmode="group", title="segment lengths (mm): base model vs subject, left and right side "
-                      "by side", yaxis_title="mm")
+    bars = ((xs + x, lb + base, "base model", "#999"), (xs, left, "subject left", "#1f77b4"),
+            (xs, right, "subject right", "#d62728"),
+            (x, [lengths[n]["subject_mm"] for n in single], "subject", "#2a7a2a"))
+    fig = {"data": [{"type": "bar", "x": bx, "y": by, "name": name, "marker": {"color": colour}}
+                    for bx, by, name, colour in bars],
+           "layout": {"barmode": "group", "yaxis": {"title": _title("mm")},
+                      "title": _title("segment lengths (mm): base model vs subject, left and right side by side")}}
     rows = []
     for p, a_mm, b_mm in zip(pairs, left, right, strict=True):
         rows.append([lengths[p + "_l"]["segment"][:-2], p, f"{lengths[p + '_l']['base_mm']:.1f}", f"{a_mm:.1f}",
                      f"{b_mm:.1f}", f"{100 * abs(a_mm - b_mm) / (0.5 * (a_mm + b_mm)):.1f}"])
     rows += [[lengths[n]["segment"], n, f"{lengths[n]['base_mm']:.1f}", f"{lengths[n]['subject_mm']:.1f}", "", ""]
              for n in single]
-    return ("<h2 id=segments>Segment lengths</h2>" + _figure(fig, 400)
+    return ("<h2 id=segments>Segment lengths</h2>" + _figure(fig, template, 400)
             + _table(["segment", "to joint", "base (mm)", "subject left / one (mm)", "subject right (mm)",
                       "left/right difference (%)"], rows, {2, 3, 4, 5}))
 
@@ -394,8 +432,7 @@ def report_html(report: Mapping, title: str | None = None) -> str:
     """The HTML report (one self-contained page, module docstring) of a report JSON's content."""
     try:
         import plotly
-        import plotly.graph_objects as go
-        from plotly import subplots
+        import plotly.io as pio
     except ImportError:  # pragma: no cover - plotly is a dependency
         raise CalibrateError("the HTML report needs plotly: pip install plotly") from None
     rep = dict(report)
@@ -404,12 +441,13 @@ def report_html(report: Mapping, title: str | None = None) -> str:
             raise CalibrateError(f"not a calibrate report: it has no '{key}' (give the _report.json a calibration "
                                  "wrote)")
     name = title or (rep["trials"][0]["source"] if rep["trials"] and rep["trials"][0]["source"] else "calibration")
+    template = pio.templates["plotly_white"].to_plotly_json()  # what plotly's figures carry, made once a page
     body = [f"<h1>calibrate report: {_e(name)}</h1>",
             "<p class=muted><a href=#notes>notes</a> · <a href=#summary>summary</a> · <a href=#markers>marker "
             "errors</a> · <a href=#angles>joint angles</a> · <a href=#parameters>parameters</a> · "
             "<a href=#segments>segment lengths</a></p>",
-            _notes(rep), _summary(rep), _marker_figures(rep, go), _angle_figures(rep, go, subplots),
-            _parameters(rep, go), _segments(rep, go)]
+            _notes(rep), _summary(rep), _marker_figures(rep, template), _angle_figures(rep, template),
+            _parameters(rep, template), _segments(rep, template)]
     js = plotly.offline.get_plotlyjs()
     # the figures' random element ids numbered instead: the same report gives the same page
     ids: dict[str, str] = {}
