@@ -366,7 +366,10 @@ def test_packed_rows_hold_the_dense_factorisation_and_its_products(human, human_
 
 def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):
     """A second Problem of the same model loads the compiled functions (no symbolic build) and
-    evaluates exactly what CasADi's virtual machine does; another structure gets its own build."""
+    evaluates exactly what CasADi's virtual machine does; another structure gets its own build (a marker
+    added is another structure: shown on a small model, whose C compiles in a fraction of human.urdf's time)."""
+    from tests.test_kinematics import GENERIC_URDF
+
     if shutil.which("gcc") is None and shutil.which("cc") is None:
         pytest.skip("no C compiler: the per-frame functions run in CasADi's virtual machine")
     monkeypatch.setenv("CALIBRATE_CACHE", str(tmp_path))
@@ -384,9 +387,14 @@ def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch
     vm = Problem(human, obs, Settings(compile=False))
     for a, b in zip(second._run("full", state), vm._run("full", state), strict=True):
         assert np.allclose(a, b, rtol=1e-12, atol=1e-14)
-    moved = add_markers(human, {"EXTRA": ("femur_r", np.array([0.0, 0.05, -0.2]))})
-    Problem(moved, np.concatenate([obs, np.full((3, 1, 3), np.nan)], axis=1), Settings())
-    assert len(list(tmp_path.glob("frame_*.so"))) == 2
+    (tmp_path / "generic.urdf").write_text(GENERIC_URDF)
+    small = load_model(tmp_path / "generic.urdf")
+    seen = np.random.default_rng(4).normal(size=(3, len(small.markers), 3))
+    assert Problem(small, seen, Settings()).compiled and len(list(tmp_path.glob("frame_*.so"))) == 2
+    moved = add_markers(small, {"EXTRA": ("arm", np.array([0.0, 0.05, -0.2]))})
+    assert Problem(moved, np.concatenate([seen, np.full((3, 1, 3), np.nan)], axis=1), Settings()).compiled
+    assert len(list(tmp_path.glob("frame_*.so"))) == 3
+    assert Problem(small, seen, Settings()).compiled and len(list(tmp_path.glob("frame_*.so"))) == 3
 
 
 def test_frames_evaluated_in_parts_equal_each_frame_on_its_own(human, human_kin):
