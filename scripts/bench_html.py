@@ -22,10 +22,9 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "scripts"))
+from bench_calibrate import machine  # shared with the other benches
 
-from bench_calibrate import machine  # noqa: E402  (shared with the other benches)
+ROOT = Path(__file__).resolve().parent.parent
 
 FIGURE = re.compile(r'Plotly\.newPlot\(\s*"(figure-\d+)",\s*(\[.*?\]),\s*(\{.*?\}),\s*\{"displaylogo"', re.S)
 
