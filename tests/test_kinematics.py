@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from calibrate.errors import CalibrateError
 from calibrate.model.kinematics import build_kinematics, cayley_np, retract_root
 from calibrate.model.model import load_model, write_model
 from calibrate.simulation.simulate import simulate_squats
@@ -134,6 +135,27 @@ def test_ik_recovers_true_motion_noise_free(human, human_kin):
     err = np.angle(np.exp(1j * (res.motion.angles - sim.motion.angles)))
     assert np.abs(err).max() < 1e-6
     np.testing.assert_allclose(res.motion.root_translation, sim.motion.root_translation, atol=1e-8)
+
+
+def test_ik_started_from_a_motion(human, human_kin):
+    """`start`: every frame from the given motion's pose.  From the true motion turned by up to 0.1 rad per
+    coordinate the noise-free fit is the truth again; from a fit of the same frames it stops at once; a motion of
+    other frames is refused."""
+    sim = simulate_squats(human, frames=40, noise_mm=0.0, seed=13)
+    rng = np.random.default_rng(0)
+    off = sim.motion
+    moved = type(off)(off.times, off.root_translation + rng.uniform(-0.02, 0.02, off.root_translation.shape),
+                      off.root_quaternion, off.angles + rng.uniform(-0.1, 0.1, off.angles.shape), off.dof_names)
+    res = inverse_kinematics(human_kin, sim.trial, sim.truth, start=moved)
+    assert res.rms < 1e-9
+    assert np.abs(np.angle(np.exp(1j * (res.motion.angles - sim.motion.angles)))).max() < 1e-6
+    again = inverse_kinematics(human_kin, sim.trial, sim.truth, start=res.motion)
+    assert again.iterations.max() <= 1
+    np.testing.assert_allclose(again.motion.angles, res.motion.angles, atol=1e-9)
+    short = type(off)(off.times[:10], off.root_translation[:10], off.root_quaternion[:10], off.angles[:10],
+                      off.dof_names)
+    with pytest.raises(CalibrateError, match="start motion has 10 frames"):
+        inverse_kinematics(human_kin, sim.trial, sim.truth, start=short)
 
 
 def test_ik_with_gaps_and_noise_reaches_the_noise_floor(human, human_kin):

@@ -305,7 +305,7 @@ class FrameSolver:
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
                        tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
                        locked: Mapping[str, float] | None = None, weights: Mapping[str, float] | None = None,
-                       default_weight: float = 1.0) -> IKResult:
+                       default_weight: float = 1.0, start: Motion | None = None) -> IKResult:
     """Solve every frame of `trial` for the model of `kin` with geometry `params`.
 
     Markers are matched by label; model markers absent from the trial are ignored.
@@ -315,10 +315,17 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     its IK's heavily weighted coordinate tasks hold them (a hinge's or universal joint's; all of a ball joint's at 0).
     `weights`: each marker's weight in the fit (an IK setup's marker tasks), `default_weight` for a marker it does
     not name; a weight of 0 leaves the marker out (its residuals NaN).  None: every marker alike.
+    `start`: a motion with the trial's frames (an earlier fit of the same frames, e.g. with one or two labels
+    changed); each frame then starts at its pose, not at the previous frame's, and no frame from scratch but one
+    whose fit stays far worse than the frames before it.
     `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
     obs = marker_columns(model, trial)
+    if start is not None and start.angles.shape != (obs.shape[0], model.nz - 6):
+        raise CalibrateError(f"the start motion has {start.angles.shape[0]} frames of {start.angles.shape[1]} "
+                             f"coordinates; the trial has {obs.shape[0]} frames and the model {model.nz - 6}: "
+                             "give a motion fitted to the same frames with the same model")
     weight = None
     if weights is not None:
         weight = np.array([float(weights.get(n, default_weight)) for n in model.marker_names])
@@ -343,14 +350,23 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     frame_rms: list[float] = []
     z, q = None, None
     z_prev = None
+    if start is not None:  # the start motion in the solver's form (root and balls as references)
+        Zs, Qs, Bs = kin.retract(FrameLayout.coordinates(start.root_translation, start.angles),
+                                 start.root_quaternion, None)
+        starts = kin.refs(Qs, Bs)
     for f in range(nf):
         seen = ~np.isnan(obs[f, :, 0])
         seen_idx = np.flatnonzero(seen)
-        if seen.sum() < 3:  # nothing to fit: carry the previous pose
+        if start is not None:
+            z, q, budget = held(Zs[f]), starts[f], max_iterations
+            if seen.sum() < 3:
+                Z[f], Q[f] = z, q
+                continue
+        elif seen.sum() < 3:  # nothing to fit: carry the previous pose
             if z is not None:
                 Z[f], Q[f] = z, q
             continue
-        if z is None:
+        elif z is None:
             # from scratch, also from the default pose as OpenSim's IK starts (the better): Rajagopal2016's humerus
             # otherwise turns 166 deg about its length on calibrate's subject, held there by every later frame
             z, q = solver.global_start(obs[f], seen, local=True, free=all_free, weight=weight, held=held)

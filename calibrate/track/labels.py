@@ -497,16 +497,17 @@ def _check(model: Model, trial: Trial, labelling: Labelling) -> tuple[float, dic
     return 2.0 * cal.summary.final_cost / max(coords, 1), moved
 
 
-def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]):
+def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str], start=None):
     """The base model, scaled by `scale`, fitted by inverse kinematics to `labels` on ``IK_FRAMES`` frames of
-    `trial` spread over it (calibrate.solve.ik.IKResult)."""
+    `trial` spread over it (calibrate.solve.ik.IKResult); `start`: an earlier such fit's motion to start every
+    frame from (labels that differ by a track or two: a third sooner than from scratch, the same labels chosen)."""
     from ..solve.ik import inverse_kinematics
 
     step = max(1, trial.n_frames // IK_FRAMES)
     params = model.parameters()
     params = type(params)(params.scale * scale, params.centre, params.axis, params.marker)
     sub = Trial(fitted_names(trial.labels, labels), trial.markers[::step], trial.rate / step, 0, None)
-    return inverse_kinematics(kin, sub, params, max_iterations=15)
+    return inverse_kinematics(kin, sub, params, max_iterations=15, start=start)
 
 
 def _ik_rms(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]) -> float:
@@ -582,7 +583,7 @@ def _repair(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str
         for change in [c for c in changes if unique.get(frozenset(c.items())) is c]:
             new = {k: v for k, v in labels.items() if k not in change and v not in change.values()}
             new.update(change)
-            res = _fit(model, kin, trial, scale, new)
+            res = _fit(model, kin, trial, scale, new, start=base.motion)  # one or two tracks changed
             e = _marker_errors(res, names, new)
             moved = list(change.values())
             if len(change) == 2 and all(k in labels for k in change):  # a swap: the whole fit must improve
