@@ -55,3 +55,24 @@ def test_one_frames_sd_is_what_one_frames_markers_fix(human, human_kin):
     solver = coordinate_spreads(human, angles, problem.linearize(fitted, with_parameters=False).A, Settings())
     wide = np.median([solver[d][1] / empirical[d] for d in hinges])
     assert wide == pytest.approx(np.sqrt(TAU / STILL_WEIGHT), rel=0.1)
+
+
+def test_a_trade_that_turned_the_axes_locks_the_joint_beyond_the_bare_segment(human):
+    """trading_locks' second rule (the pair's axes carried past the limit, neither joint still): the trials cannot
+    say which of the ankle and the subtalar turns, so the one beyond the markerless talus (the subtalar) is locked,
+    whichever one frame's markers fix less well.  Expert1's drop jump, right foot, at the start: ankle 0.86 deg per
+    frame, subtalar 0.83 (by that alone the ankle was locked, and the subtalar's axis turned 48 deg to do its
+    work).  Under the limit, nothing."""
+    from calibrate.calibration.identifiability import trading_locks
+
+    deg = np.radians
+    at_start = {"ankle_r": (deg(15.17), deg(0.86)), "subtalar_r": (deg(10.23), deg(0.83))}
+    solved = {"ankle_r": (deg(22.06), deg(0.54)), "subtalar_r": (deg(15.49), deg(0.65))}
+    turns = {"ankle_r": deg(31.9), "subtalar_r": deg(18.1)}
+    for start in (at_start, {**at_start, "subtalar_r": (deg(10.23), deg(0.9))}):
+        (lock,) = trading_locks(human, solved, None, (), turns, start, deg(20.0))
+        assert (lock.coordinate, lock.bare, lock.neighbours, lock.value) == ("subtalar_r", "talus_r", ("ankle_r",), 0.0)
+        assert (lock.per_frame, lock.neighbour_per_frame, lock.turned) == (start["subtalar_r"][1], (deg(0.86),),
+                                                                           turns["ankle_r"])
+        assert "the one beyond talus_r (of joints on one side of it, the less-seen) is held" in lock.text()
+    assert trading_locks(human, solved, None, (), turns, at_start, deg(40.0)) == ()

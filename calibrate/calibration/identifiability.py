@@ -102,9 +102,16 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
       every neighbour's coordinate there (`spreads`, coordinate_spreads at the solution); or
     - whose pair's axes the fit carried more than `limit` (rad) from the base model's (`turns`: each free hinge
       axis's angle from the base model's), the trade turning both joints through tens of degrees, while at the
-      start's geometry (`start`: coordinate_spreads there, before the trade) one frame's markers fixed it less
-      well than every neighbour (gait2392 without its IK setup: subtalar_angle_l 0.9 deg against the ankle's
-      0.5; the fit then turned its axis 56 deg and both angles through 43 deg SD).
+      start's geometry (`start`: coordinate_spreads there, before the trade) it is the joint beyond the segment
+      (the subtalar, not the ankle, as OpenSim's gait models lock it; the pronation, not the elbow), or, where
+      every neighbour is on the same side of it as it is, one frame's markers fixed it less well than every
+      neighbour (gait2392 without its IK setup: subtalar_angle_l 0.9 deg against the ankle's 0.5; the fit then
+      turned its axis 56 deg and both angles through 43 deg SD).  Here the trials do not say which of the two
+      turns, so the convention decides: neither one frame's fix (Expert1's drop jump fixes its right ankle to
+      0.86 deg and the subtalar to 0.83; the ankle was locked and the subtalar's axis turned 48 deg to do its
+      work), nor which one moved more for its fix (the same subject's sit-to-stand turns its ankles least), nor
+      the start's poses refitted with either locked and the pair's axes at the base model's (0.4 % apart, the
+      ankle's lock the cheaper on both) chose the ankle's primary role in a drop jump and in a sit-to-stand.
 
     Left free, both joints' turns, their axes and the foot's markers trade in every frame (pig_walk's two-marker
     feet: a static ankle at -35.6 deg against the other's -5.8, a toe marker 124 mm from its place); locked at 0
@@ -128,7 +135,10 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
         turned = max((turns or {}).get(n, 0.0) for n in (name, *neighbours))
         if turned > limit and start is not None and all(n in start for n in (name, *neighbours)):
             first = tuple(start[n][1] for n in neighbours)
-            if all(start[name][1] > o for o in first):
+            beyond = [model.joints[model.joint_index(model.dofs[model.dof_index(n)].joint)].parent == bare
+                      for n in neighbours]
+            if joint.parent == bare and not any(beyond) or (
+                    all(b == (joint.parent == bare) for b in beyond) and all(start[name][1] > o for o in first)):
                 out.append(TradingLock(name, value, bare, neighbours, spread, start[name][1], first, turned))
     return tuple(out)
 

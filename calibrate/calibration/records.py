@@ -155,8 +155,11 @@ class TradingLock:
                 "(--no-auto-hold leaves it free; --lock sets your own)")
         if self.turned:
             return (f"{head}, and the fit carried their axes {math.degrees(self.turned):.0f} deg from the base "
-                    f"model's (the trade, not the data); at the start's geometry one frame's markers fixed it to "
-                    f"{math.degrees(self.per_frame):.1f} deg ({fix}): {tail}")
+                    f"model's (the trade, not the data): the trials cannot say which of them turns, so the one "
+                    f"beyond {self.bare} (of joints on one side of it, the less-seen) is held, as OpenSim's gait "
+                    "models hold the subtalar, and the other found "
+                    f"(at the start's geometry one frame's markers fixed it to {math.degrees(self.per_frame):.1f} "
+                    f"deg, {fix}; --no-auto-hold leaves it free; --lock sets your own)")
         return (f"{head}; one frame's markers fix it only to {math.degrees(self.per_frame):.1f} deg ({fix}) and it "
                 f"moved no more than that (SD over frames {math.degrees(self.spread):.1f} deg), so the trials cannot "
                 f"separate the two: {tail}")
