@@ -135,10 +135,11 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
         turned = max((turns or {}).get(n, 0.0) for n in (name, *neighbours))
         if turned > limit and start is not None and all(n in start for n in (name, *neighbours)):
             first = tuple(start[n][1] for n in neighbours)
-            beyond = [model.joints[model.joint_index(model.dofs[model.dof_index(n)].joint)].parent == bare
+            outer = joint.parent == bare  # beyond the bare segment, as the subtalar beyond the talus
+            outers = [model.joints[model.joint_index(model.dofs[model.dof_index(n)].joint)].parent == bare
                       for n in neighbours]
-            if joint.parent == bare and not any(beyond) or (
-                    all(b == (joint.parent == bare) for b in beyond) and all(start[name][1] > o for o in first)):
+            if (outer and not any(outers)) or (all(o == outer for o in outers)
+                                                and all(start[name][1] > o for o in first)):
                 out.append(TradingLock(name, value, bare, neighbours, spread, start[name][1], first, turned))
     return tuple(out)
 
