@@ -13,7 +13,10 @@ expert's, both over the frames of the expert's ``.mot`` and the markers both mod
   at the expert's coordinates, calibrate's by Pinocchio at its own;
 - each hip, knee and ankle coordinate's RMS difference from the expert's IK (same model, same coordinates);
 - calibrate's wall time for the whole run (scaling, marker placement, every frame's pose), after an untimed
-  warm-up that compiles the model's per-frame C code once per machine, as bench_osim does.
+  warm-up that compiles the model's per-frame C code once per machine, as bench_osim does;
+- one subject, one model?  Each trial is calibrated with the same static, so the static's mean hip, knee and ankle
+  angles should come out the same from every calibration of the subject: their spread (SD, range) over the
+  subject's trials says how much of a coordinate's zero is the subject's and how much the trial's (``consistency``).
 
 The data is not in ../shared (GPL-3 with the repository's own terms): give a checkout's root, e.g. one made by
 ``git clone --depth 1 https://github.com/keenon/AddBiomechanics``, with ``--addbiomechanics DIR``.
@@ -117,6 +120,7 @@ def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[flo
     with tempfile.TemporaryDirectory() as tmp:
         subj = load_model(write_model(cal.model, Path(tmp) / "subject.urdf", cal.params))
     m = cal.motions[-1]
+    still = cal.motions[0] if static else None  # the static's mean angles: the same static in every run of a subject
     data = subj.pin.createData()
     ids = [subj.pin.getFrameId(name, pin.FrameType.BODY) for name in subj.marker_names]
     mk = np.zeros((m.n_frames, len(ids), 3))
@@ -126,6 +130,8 @@ def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[flo
         mk[f] = [data.oMf[i].translation for i in ids]
     return {"wall_s": wall, "markers": mk, "marker_names": list(subj.marker_names), "trial": cal.trials[-1],
             "times": np.asarray(move.times), "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)},
+            "static_angles": {} if still is None else {d: float(np.mean(still.angles[:, i]))
+                                                       for i, d in enumerate(still.dof_names)},
             "converged": bool(cal.converged), "moved": [f"{x.marker} {1e3 * x.distance:.0f} mm" for x in cal.moved],
             # (a position: its distance from the base model's at the subject's scale, which the flag judges)
             "unreliable": [f"{c.group} {c.item} {c.change if c.group == 'axis' else c.beyond_scale:.0f}"
@@ -170,21 +176,39 @@ def bench(root: Path, name: str, work: Path, log, every: bool = False) -> list[d
         use = [m for m in ex["names"] if m in tr.labels and m in ours["marker_names"]]
         ex_scores = marker_scores(ex["positions"][ok], ex["names"], sub, use)
         our_scores = marker_scores(ours["markers"][rows_ours], ours["marker_names"], sub, use)
-        angles = {}
+        angles, at_static = {}, {}
         for side in ("r", "l"):
             for c in COORDS:
                 coord = f"{c}_{side}"
                 if coord in ours["angles"] and coord in mot_cols:
                     d = np.degrees(ours["angles"][coord][rows_ours] - mot_q[ok, mot_cols.index(coord)])
                     angles[coord] = {"rms_deg": float(np.sqrt(np.mean(d**2))), "offset_deg": float(np.mean(d))}
+                if coord in ours["static_angles"]:
+                    at_static[coord] = float(np.degrees(ours["static_angles"][coord]))
         rows.append({"subject": name, "trial": trial, "static": case["static"], "frames": len(ok),
                      "markers": len(use), "expert": ex_scores, "calibrate": {**our_scores, "wall_s": ours["wall_s"]},
                      "ratio": our_scores["rms_mm"] / ex_scores["rms_mm"], "angles": angles,
-                     "converged": ours["converged"], "moved": ours["moved"], "unreliable": ours["unreliable"]})
+                     "converged": ours["converged"], "moved": ours["moved"], "unreliable": ours["unreliable"],
+                     "static_angles_deg": at_static})
     return rows
 
 
-def show(rows: list[dict]) -> str:
+def consistency(rows: list[dict]) -> dict:
+    """Per subject with a static and two or more trials: each hip, knee and ankle coordinate's mean in the static as
+    the subject's calibrations read it (each with another trial, the static the same), its SD and range over them."""
+    out: dict = {}
+    for name in dict.fromkeys(r["subject"] for r in rows):
+        mine = [r for r in rows if r["subject"] == name and r.get("static_angles_deg")]
+        if len(mine) < 2:
+            continue
+        coords = [c for c in mine[0]["static_angles_deg"] if all(c in r["static_angles_deg"] for r in mine)]
+        out[name] = {"static": mine[0]["static"], "calibrations": len(mine), "coordinates": {
+            c: {"sd_deg": float(np.std(v)), "min_deg": float(np.min(v)), "max_deg": float(np.max(v))}
+            for c in coords for v in [np.array([r["static_angles_deg"][c] for r in mine])]}}
+    return out
+
+
+def show(rows: list[dict], same: dict | None = None) -> str:
     out = []
     for r in rows:
         head = f"{r['static']} + {r['trial']}" if r["static"] else r["trial"]
@@ -201,6 +225,11 @@ def show(rows: list[dict]) -> str:
         worst = sorted(r["angles"].items(), key=lambda kv: -kv[1]["rms_deg"])
         out.append("  hip/knee/ankle vs the expert's IK (deg RMS, mean offset): " + ", ".join(
             f"{k} {v['rms_deg']:.1f} ({v['offset_deg']:+.1f})" for k, v in worst))
+    for name, c in (same or {}).items():
+        out.append(f"\n== {name}: the static {c['static']} as its {c['calibrations']} calibrations read it (each with "
+                   "another trial): mean angle's SD and range over them (deg)")
+        for k, v in sorted(c["coordinates"].items(), key=lambda kv: -kv[1]["sd_deg"]):
+            out.append(f"  {k:20s} SD {v['sd_deg']:5.1f}   {v['min_deg']:+6.1f} to {v['max_deg']:+6.1f}")
     return "\n".join(out)
 
 
@@ -231,12 +260,13 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench_expert_") as tmp:
         for c in cases:
             rows += bench(args.addbiomechanics, c, Path(tmp), log, args.all_trials)
-    result = {"rows": rows, "machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}",
+    result = {"rows": rows, "consistency": consistency(rows),
+              "machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}",
               "date": datetime.datetime.now().isoformat(timespec="minutes"), "wall_s": time.perf_counter() - t0}
     if args.json:
         print(json.dumps(result))
     else:
-        print(show(rows))
+        print(show(rows, result["consistency"]))
     return 0
 
 

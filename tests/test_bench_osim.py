@@ -114,3 +114,21 @@ def test_bench_expert_all_trials_takes_every_trial_with_the_experts_ik(tmp_path)
     case = {"static": "static1", "trials": ("walk2",)}
     assert be.trials_of(tmp_path, case, every=True) == ("jump", "walk2")
     assert be.trials_of(tmp_path, case, every=False) == ("walk2",)
+
+
+def test_bench_expert_consistency_spreads_the_statics_angles_over_a_subjects_calibrations():
+    """consistency: per subject with a static and two or more calibrations, each coordinate's static mean as they
+    read it, its SD and range over them (a subject without a static, or with one calibration, has none)."""
+    import bench_expert as be
+
+    reads = [1.0, 4.0, -2.5]
+    rows = [{"subject": "A", "static": "s1", "static_angles_deg": {"ankle_angle_r": v, "knee_angle_r": 2.0}}
+            for v in reads]
+    rows += [{"subject": "B", "static": None, "static_angles_deg": {}},
+             {"subject": "C", "static": "s", "static_angles_deg": {"ankle_angle_r": 9.0}}]
+    got = be.consistency(rows)
+    assert set(got) == {"A"} and got["A"]["calibrations"] == 3 and got["A"]["static"] == "s1"
+    ankle = got["A"]["coordinates"]["ankle_angle_r"]
+    assert ankle["sd_deg"] == pytest.approx(float(np.std(reads)))
+    assert (ankle["min_deg"], ankle["max_deg"]) == (-2.5, 4.0)
+    assert got["A"]["coordinates"]["knee_angle_r"]["sd_deg"] == 0.0
