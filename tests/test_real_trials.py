@@ -14,6 +14,7 @@ import pytest
 
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.records import ZeroNote
 from calibrate.errors import CalibrateError
 from calibrate.io.c3d import write_c3d
 from calibrate.io.motion import read_motion_csv
@@ -172,6 +173,18 @@ def test_neutral_static_trial_sets_the_zero_of_the_joint_angles(human):
     assert np.all(raw <= offset_free + 0.6), (raw, offset_free)  # the truth's static angles drift by 0.5 deg
     err0 = np.degrees(free.motions[1].angles - sim.motion.angles)[:, hinges]
     assert np.sqrt((err0**2).mean()) > 2 * np.sqrt((err**2).mean())  # the priors' frames: offsets of degrees
+    # Without the neutral trial the note names each pair of free hinges across a markerless segment (ankle and
+    # subtalar across the talus) and the still trial to take their zero from; with it, none.  The truth bears it out:
+    # the ankles' constant offsets are larger without.
+    zero = [n for n in free.coordinate_notes if isinstance(n, ZeroNote)]
+    assert {(n.coordinate, n.bare, n.neighbours, n.beyond, n.still) for n in zero} == {
+        (f"ankle_{s}", f"talus_{s}", (f"subtalar_{s}",), f"calcn_{s}", 1) for s in "lr"}
+    assert "--neutral 1 takes it from trial 1" in zero[0].text() and zero[0].text() in free.text()
+    assert not any(isinstance(n, ZeroNote) for n in cal.coordinate_notes)
+    ankles = [human.dof_index(f"ankle_{s}") for s in "lr"]
+    off_free = np.abs(np.degrees(free.motions[1].angles - sim.motion.angles)[:, ankles].mean(axis=0))
+    off_neutral = np.abs(np.degrees(cal.motions[1].angles - sim.motion.angles)[:, ankles].mean(axis=0))
+    assert off_free.max() > 2 * off_neutral.max(), (off_free, off_neutral)
     assert "neutral      segment frames turned" in cal.text() and cal.report()["neutral_trial"] == 0
     with pytest.raises(CalibrateError, match="neutral: 2 is not the index"):
         calibrate(human, [static.trial, sim.trial], neutral=2)

@@ -14,7 +14,16 @@ from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
 from ..problem.options import Priors, ProblemOptions
 from ..problem.problem import Problem
-from .records import STILL_RATIO, CoordinateNote, Identified, LimitNote, ParameterChange, StillNote, TradingLock
+from .records import (
+    STILL_RATIO,
+    CoordinateNote,
+    Identified,
+    LimitNote,
+    ParameterChange,
+    StillNote,
+    TradingLock,
+    ZeroNote,
+)
 
 LIMIT_NOTE_DEG = 5.0  # a coordinate this far beyond the base model's limits ...
 
@@ -141,6 +150,21 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
             if (outer and not any(outers)) or (all(o == outer for o in outers)
                                                 and all(start[name][1] > o for o in first)):
                 out.append(TradingLock(name, value, bare, neighbours, spread, start[name][1], first, turned))
+    return tuple(out)
+
+
+def zero_notes(model: Model, seen: Collection[str] | None, locked: Collection[str], still: int = 0
+               ) -> tuple[ZeroNote, ...]:
+    """A note per segment without seen markers between two free hinges (trading_joints: an ankle and a subtalar
+    across the talus; `seen`, `locked` as there), on the joint into it: the angles' zero there rests on the priors.
+    `still`: the first still trial, numbered from 1 (0: none), which --neutral would take the zero from."""
+    out = []
+    for name, (bare, neighbours) in trading_joints(model, seen, locked).items():
+        joint = model.joints[model.joint_index(name)]
+        free = [d for d in joint.dofs if d not in locked]
+        beyond = [j.child for j in model.joints if j.parent == bare and any(d in neighbours for d in j.dofs)]
+        if joint.child == bare and joint.kind == "hinge" and free and beyond:
+            out.append(ZeroNote(free[0], bare, neighbours, beyond[0], still))
     return tuple(out)
 
 

@@ -36,6 +36,7 @@ from calibrate.calibration.identifiability import (
     parameter_changes,
     still_of,
     trading_locks,
+    zero_notes,
 )
 from calibrate.calibration.moved import MovedMarker, moved_markers, replaced
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
@@ -630,6 +631,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # the better seen: no note tells the user to lock it too (pig_walk's left ankle, 60 deg through the walk).
     found = {n for lk in locks for n in lk.neighbours}
     notes = tuple(n for n in notes if not (isinstance(n, StillNote) and n.coordinate in found))
+    if in_neutral is None and motion is not None and len(trials) > 1:
+        # Beside a still trial with no neutral one, the zero of two free hinges across a markerless segment (the foot's,
+        # ankle and subtalar across the talus) is the priors' and the solve's, not the markers' (Expert1's static:
+        # its ankles 9 deg SD apart over 25 calibrations, each with another trial; --neutral: 2 deg); the note says
+        # so and names the still trial to take it from.
+        still_at = next((i + 1 for i, m in enumerate(motion) if m < STILL_MOTION), 0)
+        if still_at:
+            notes += zero_notes(subject, {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()},
+                                {n for n, _ in problem.settings.lock}, still_at)
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))

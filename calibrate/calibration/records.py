@@ -179,7 +179,30 @@ class LimitNote:
                 f"the joint hardly moved, hold it (--lock {self.coordinate}, or [lock_deg] in the config)")
 
 
-CoordinateNote = StillNote | LimitNote
+@dataclass(frozen=True)
+class ZeroNote:
+    """Two free hinges across a segment without markers the trials show (an ankle and a subtalar across the talus),
+    where no neutral trial sets their angles' zero (calibration.identifiability.zero_notes): the trials are fitted as
+    well wherever the foot's standing orientation is shared between the two, so the priors, and where the solve stops,
+    decide it (AddBiomechanics' Expert1, the same static with each of 25 trials: its ankle angles 9 deg SD apart)."""
+
+    coordinate: str  # DoF name: the joint into the bare segment (the ankle)
+    bare: str  # the segment without seen markers (the talus)
+    neighbours: tuple[str, ...]  # the other joints' coordinates there (the subtalar)
+    beyond: str  # the segment the neighbours turn (the calcaneus), whose orientation the two share
+    still: int = 0  # the first still trial, numbered from 1 as --neutral takes it; 0: none
+
+    def text(self) -> str:
+        pair = " and ".join((self.coordinate, *self.neighbours))
+        fix = (f"--neutral {self.still} takes it from trial {self.still}, the still one (its angles zero on average)"
+               if self.still else "a static trial with --neutral sets it")
+        return (f"{pair}: their angles' zero rests on the priors, not on the markers ({self.bare} between them carries "
+                f"none the trials show, and the trials fit as well however {self.beyond}'s orientation is shared "
+                f"between them; AddBiomechanics' Expert1: one static's ankle angles 9 deg SD apart over 25 "
+                f"calibrations): {fix}, or lock one of them (--lock NAME)")
+
+
+CoordinateNote = StillNote | LimitNote | ZeroNote
 
 
 @dataclass(frozen=True)
