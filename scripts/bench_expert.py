@@ -21,7 +21,12 @@ expert's, both over the frames of the expert's ``.mot`` and the markers both mod
 The data is not in ../shared (GPL-3 with the repository's own terms): give a checkout's root, e.g. one made by
 ``git clone --depth 1 https://github.com/keenon/AddBiomechanics``, with ``--addbiomechanics DIR``.
 
-    python scripts/bench_expert.py --addbiomechanics DIR [--cases Expert1,Expert2] [--all-trials] [--json]
+    python scripts/bench_expert.py --addbiomechanics DIR [--cases Expert1,Expert2] [--all-trials]
+                                   [--config FILE.toml] [--neutral] [--json]
+
+``--config``: calibrate's settings from a config file (calibrate's ``--config`` layout, e.g. ``[priors]
+marker_mm = 10``) over the defaults; ``--neutral``: the static is the neutral trial (its angles zero on average,
+calibrate's ``--neutral 1``).  Both are recorded in the JSON.
 """
 
 from __future__ import annotations
@@ -97,12 +102,15 @@ def expert_markers(jobs: list[dict], work: Path) -> list[dict]:
     return out
 
 
-def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[float, float]) -> dict:
+def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[float, float],
+                  config: Path | None = None, neutral: bool = False) -> dict:
     """calibrate from the subject's generic.osim on (its static and) the trial cut to `span` (s): the motion's
-    markers by Pinocchio, the joint angles and the wall time (the files read inside it)."""
+    markers by Pinocchio, the joint angles and the wall time (the files read inside it).  `config`: settings over
+    the defaults (calibrate.io.config); `neutral`: the static is the neutral trial (where there is one)."""
     import pinocchio as pin
 
     from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.config import load_settings
     from calibrate.io.osim_info import with_locked
     from calibrate.io.read import read_trial
     from calibrate.model.model import load_model, write_model
@@ -115,7 +123,8 @@ def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[flo
     keep = np.flatnonzero((move.times >= span[0] - 1e-6) & (move.times <= span[1] + 1e-6))
     move = move.frames(int(keep[0]), int(keep[-1]) + 1)
     trials = ([read_trial(subject / f"{static}.trc")] if static else []) + [move]
-    cal = calibrate(model, trials, with_locked(model, Settings()))
+    cal = calibrate(model, trials, with_locked(model, load_settings(config) if config else Settings()),
+                    neutral=0 if neutral and static else None)
     wall = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         subj = load_model(write_model(cal.model, Path(tmp) / "subject.urdf", cal.params))
@@ -147,7 +156,8 @@ def trials_of(subject: Path, case: dict, every: bool) -> tuple[str, ...]:
                         if (subject / f"{p.stem}.trc").is_file() and p.stem != case["static"]))
 
 
-def bench(root: Path, name: str, work: Path, log, every: bool = False) -> list[dict]:
+def bench(root: Path, name: str, work: Path, log, every: bool = False, config: Path | None = None,
+          neutral: bool = False) -> list[dict]:
     """The case's rows; `every`: each trial of the subject that has the expert's .mot (and a .trc), not the case's
     chosen few."""
     case = CASES[name]
@@ -165,8 +175,8 @@ def bench(root: Path, name: str, work: Path, log, every: bool = False) -> list[d
         span = (float(mot_t[0]), float(mot_t[-1]))
         log(f"{name} {trial}: warm-up, then calibrate on {'the static + ' if case['static'] else ''}{trial} "
             f"({span[0]:g} to {span[1]:g} s) ...")
-        run_calibrate(subject, case["static"], trial, (span[0], min(span[1], span[0] + 0.3)))
-        ours = run_calibrate(subject, case["static"], trial, span)
+        run_calibrate(subject, case["static"], trial, (span[0], min(span[1], span[0] + 0.3)), config, neutral)
+        ours = run_calibrate(subject, case["static"], trial, span, config, neutral)
         tr = ours["trial"]
         # The frames of the expert's .mot, in the trial as calibrate read and cut it.
         rows_ours = [int(np.argmin(np.abs(ours["times"] - t))) for t in ex["times"]]
@@ -240,6 +250,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated among {', '.join(CASES)}")
     ap.add_argument("--all-trials", action="store_true",
                     help="every trial with the expert's .mot (Expert1: 25, Expert2: 4), not each case's chosen few")
+    ap.add_argument("--config", type=Path, default=None, metavar="FILE",
+                    help="calibrate's settings from this config file (TOML, calibrate's --config layout)")
+    ap.add_argument("--neutral", action="store_true",
+                    help="the static is the neutral trial: its joint angles zero on average (calibrate's --neutral)")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     args = ap.parse_args(argv)
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
@@ -251,6 +265,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_expert: {args.addbiomechanics}: no paper_data folder; give the root of an AddBiomechanics "
               "checkout (git clone --depth 1 https://github.com/keenon/AddBiomechanics)", file=sys.stderr)
         return 2
+    if args.config is not None:  # read before anything runs: a bad file is refused in one line
+        from calibrate.errors import CalibrateError
+        from calibrate.io.config import load_settings
+
+        try:
+            load_settings(args.config)
+        except CalibrateError as e:
+            print(f"bench_expert: {e}", file=sys.stderr)
+            return 2
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
@@ -259,8 +282,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_expert_") as tmp:
         for c in cases:
-            rows += bench(args.addbiomechanics, c, Path(tmp), log, args.all_trials)
-    result = {"rows": rows, "consistency": consistency(rows),
+            rows += bench(args.addbiomechanics, c, Path(tmp), log, args.all_trials, args.config, args.neutral)
+    result = {"rows": rows, "consistency": consistency(rows), "config": str(args.config) if args.config else None,
+              "neutral": args.neutral,
               "machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}",
               "date": datetime.datetime.now().isoformat(timespec="minutes"), "wall_s": time.perf_counter() - t0}
     if args.json:

@@ -91,13 +91,18 @@ def test_bench_length_refuses_lengths_it_cannot_time(tmp_path):
 
 
 def test_bench_expert_refuses_what_it_cannot_run(tmp_path):
-    """bench_expert without an AddBiomechanics checkout, or with an unknown case: one line, exit 2, nothing run."""
+    """bench_expert without an AddBiomechanics checkout, with an unknown case or a config file calibrate does not
+    read: one line, exit 2, nothing run."""
     import subprocess
 
     script = str(ROOT / "scripts" / "bench_expert.py")
     (tmp_path / "paper_data").mkdir()
+    (tmp_path / "bad.toml").write_text("[priors]\nmarker_cm = 1\n")
     for args, needle in ((["--addbiomechanics", str(tmp_path / "nowhere")], "no paper_data folder"),
-                         (["--addbiomechanics", str(tmp_path), "--cases", "Expert9"], "unknown case 'Expert9'")):
+                         (["--addbiomechanics", str(tmp_path), "--cases", "Expert9"], "unknown case 'Expert9'"),
+                         (["--addbiomechanics", str(tmp_path), "--config", str(tmp_path / "bad.toml")], "marker_cm"),
+                         (["--addbiomechanics", str(tmp_path), "--config", str(tmp_path / "none.toml")],
+                          "no such config file")):
         proc = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=120,
                               cwd=tmp_path)
         lines = proc.stderr.strip().splitlines()
