@@ -205,7 +205,9 @@ def bench(root: Path, name: str, work: Path, log, every: bool = False, config: P
 
 def consistency(rows: list[dict]) -> dict:
     """Per subject with a static and two or more trials: each hip, knee and ankle coordinate's mean in the static as
-    the subject's calibrations read it (each with another trial, the static the same), its SD and range over them."""
+    the subject's calibrations read it (each with another trial, the static the same), its SD and range over them;
+    and the SD over the trials of its mean offset from the expert's IK (one expert model for all: a calibrated
+    subject's own zero would keep it; with --neutral, which zeroes the static, only this figure says anything)."""
     out: dict = {}
     for name in dict.fromkeys(r["subject"] for r in rows):
         mine = [r for r in rows if r["subject"] == name and r.get("static_angles_deg")]
@@ -213,7 +215,9 @@ def consistency(rows: list[dict]) -> dict:
             continue
         coords = [c for c in mine[0]["static_angles_deg"] if all(c in r["static_angles_deg"] for r in mine)]
         out[name] = {"static": mine[0]["static"], "calibrations": len(mine), "coordinates": {
-            c: {"sd_deg": float(np.std(v)), "min_deg": float(np.min(v)), "max_deg": float(np.max(v))}
+            c: {"sd_deg": float(np.std(v)), "min_deg": float(np.min(v)), "max_deg": float(np.max(v)),
+                "offset_sd_deg": float(np.std([r["angles"][c]["offset_deg"] for r in mine]))
+                if all(c in r.get("angles", {}) for r in mine) else None}
             for c in coords for v in [np.array([r["static_angles_deg"][c] for r in mine])]}}
     return out
 
@@ -237,9 +241,11 @@ def show(rows: list[dict], same: dict | None = None) -> str:
             f"{k} {v['rms_deg']:.1f} ({v['offset_deg']:+.1f})" for k, v in worst))
     for name, c in (same or {}).items():
         out.append(f"\n== {name}: the static {c['static']} as its {c['calibrations']} calibrations read it (each with "
-                   "another trial): mean angle's SD and range over them (deg)")
+                   "another trial): mean angle's SD and range over them; the SD over the trials of the mean "
+                   "offset from the expert's IK (deg)")
         for k, v in sorted(c["coordinates"].items(), key=lambda kv: -kv[1]["sd_deg"]):
-            out.append(f"  {k:20s} SD {v['sd_deg']:5.1f}   {v['min_deg']:+6.1f} to {v['max_deg']:+6.1f}")
+            off = f"   offset SD {v['offset_sd_deg']:5.1f}" if v.get("offset_sd_deg") is not None else ""
+            out.append(f"  {k:20s} SD {v['sd_deg']:5.1f}   {v['min_deg']:+6.1f} to {v['max_deg']:+6.1f}{off}")
     return "\n".join(out)
 
 

@@ -126,9 +126,10 @@ def test_bench_expert_consistency_spreads_the_statics_angles_over_a_subjects_cal
     read it, its SD and range over them (a subject without a static, or with one calibration, has none)."""
     import bench_expert as be
 
-    reads = [1.0, 4.0, -2.5]
-    rows = [{"subject": "A", "static": "s1", "static_angles_deg": {"ankle_angle_r": v, "knee_angle_r": 2.0}}
-            for v in reads]
+    reads, offsets = [1.0, 4.0, -2.5], [3.0, -1.0, 0.5]
+    rows = [{"subject": "A", "static": "s1", "static_angles_deg": {"ankle_angle_r": v, "knee_angle_r": 2.0},
+             "angles": {"ankle_angle_r": {"offset_deg": o, "rms_deg": abs(o)}}}
+            for v, o in zip(reads, offsets, strict=True)]
     rows += [{"subject": "B", "static": None, "static_angles_deg": {}},
              {"subject": "C", "static": "s", "static_angles_deg": {"ankle_angle_r": 9.0}}]
     got = be.consistency(rows)
@@ -136,4 +137,6 @@ def test_bench_expert_consistency_spreads_the_statics_angles_over_a_subjects_cal
     ankle = got["A"]["coordinates"]["ankle_angle_r"]
     assert ankle["sd_deg"] == pytest.approx(float(np.std(reads)))
     assert (ankle["min_deg"], ankle["max_deg"]) == (-2.5, 4.0)
+    assert ankle["offset_sd_deg"] == pytest.approx(float(np.std(offsets)))
     assert got["A"]["coordinates"]["knee_angle_r"]["sd_deg"] == 0.0
+    assert got["A"]["coordinates"]["knee_angle_r"]["offset_sd_deg"] is None  # no offsets given for it
