@@ -625,8 +625,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         missed = [n for n in pose_used if abs(ended[n] - pose_used[n]) > POSE_MISS]
         pose_unset += [f"{n} ({math.degrees(ended[n]):.1f} deg)" for n in missed]
         pose_used = {n: v for n, v in pose_used.items() if n not in missed}
+    seen_names = {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()}
     notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state, scatter), problem.settings,
-                             {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()})
+                             seen_names)
     # The neighbour of a hinge locked for trading (an ankle beside a locked subtalar) was judged with it and found
     # the better seen: no note tells the user to lock it too (pig_walk's left ankle, 60 deg through the walk).
     found = {n for lk in locks for n in lk.neighbours}
@@ -638,8 +639,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # so and names the still trial to take it from.
         still_at = next((i + 1 for i, m in enumerate(motion) if m < STILL_MOTION), 0)
         if still_at:
-            notes += zero_notes(subject, {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()},
-                                {n for n, _ in problem.settings.lock}, still_at)
+            notes += zero_notes(subject, seen_names, {n for n, _ in problem.settings.lock}, still_at)
     times["covariance"] = time.perf_counter() - t0
     if jumped.any():  # their distance from where the fitted model puts them
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
