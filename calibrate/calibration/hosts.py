@@ -94,7 +94,7 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict
     import pinocchio as pin
 
     from ..model.kinematics import build_kinematics
-    from ..solve.ik import inverse_kinematics
+    from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
 
     known = set(model.marker_names)
     shown = {lab for t in trials for lab in t.labels if lab in known}
@@ -102,7 +102,8 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict
         return {}
     kin = build_kinematics(model)
     params = model.parameters()
-    fits = [(t, inverse_kinematics(kin, t, params)) for t in trials if any(lab in t.labels for lab in labels)]
+    fits = [(t, inverse_kinematics(kin, t, params, tolerance=DECISION_TOLERANCE)) for t in trials
+            if any(lab in t.labels for lab in labels)]
     if not fits:
         return {}
     # Candidates: every segment with a known marker the trials show, and every markerless one that turns against

@@ -33,7 +33,16 @@ from .lm import marquardt_diagonal, minimise
 LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
 REINIT_RMS = 0.02  # m: a frame fitting worse than this (and 5x the running median) is restarted
 GLOBAL_KEEP = 4  # grid starts per joint that the global start solves (the best-fitting as they stand)
+# ... each this many steps, then the one that fits best on to GLOBAL_STEPS in all: on 165 frames of gait2392's,
+# Rajagopal's and pig_walk's walks (base models) every frame so ended at the minimum it reached with each start solved
+# GLOBAL_STEPS steps (costs within 1e-8), in 0.64-0.87 of the time (docs/benchmarks.md)
+GLOBAL_SCREEN = 3
+GLOBAL_STEPS = 12
 STEP_TOL = 1e-8  # a frame's fit stops when its step is shorter than this (relative to |z|)
+# A frame's fit for a decision (which labels a labelling gives its tracks, which segment a new label rides on) ends
+# at a relative cost decrease of 1e-5, not the default 1e-8: on gait2392's walk (base model, every 4th frame) in half
+# the steps, the model's markers within 1.5 mm of the converged fit's (median 0.04 mm; docs/benchmarks.md)
+DECISION_TOLERANCE = 1e-5
 TINY = 1e-300  # the absolute-decrease and gradient tests, off for a frame (its cost is in m², not χ²)
 
 
@@ -295,10 +304,12 @@ class FrameSolver:
             starts.sort(key=lambda s: s[0])
             best = None
             for _, zz in starts[:GLOBAL_KEEP]:
-                zz, qq, c, _ = self.solve(zz, q0, obs, fit_mk, free, 12)
+                zz, qq, c, _ = self.solve(zz, q0, obs, fit_mk, free, GLOBAL_SCREEN)
                 if best is None or c < best[2]:
                     best = (zz, qq, c)
             z, q = best[0], best[1]
+            if GLOBAL_STEPS > GLOBAL_SCREEN:
+                z, q, _, _ = self.solve(z, q, obs, fit_mk, free, GLOBAL_STEPS - GLOBAL_SCREEN)
         return z, q
 
 

@@ -49,7 +49,7 @@ from ..model.model import Model, Parameters
 from ..model.resolve import descendants
 from ..problem.problem import compiled_kinematics
 from ..seed.geometry import kabsch_batch
-from ..solve.ik import inverse_kinematics
+from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
 
 FRAMES = 40  # frames spread over the trial that the assignment and the inverse kinematics read
 TALL_SHARE = 0.1  # the first assignment reads the frames in which the tracks span the most height (standing)
@@ -224,7 +224,8 @@ def _typical_rms(kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Paramete
     sub = Trial(fitted_names(trial.labels, labels), Xs, trial.rate, 0, None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return float(np.nanmedian(inverse_kinematics(kin, sub, params, max_iterations=15).marker_rms))
+        fit = inverse_kinematics(kin, sub, params, max_iterations=15, tolerance=DECISION_TOLERANCE)
+        return float(np.nanmedian(fit.marker_rms))
 
 
 def _pair_swaps(model: Model, kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Parameters,
@@ -313,7 +314,7 @@ def _posed(kin: Kinematics, trial: Trial, Xs: np.ndarray, params: Parameters,
            labels: dict[str, str]) -> np.ndarray:
     """The model's markers (frames, markers, 3) posed by inverse kinematics to `labels`."""
     sub = Trial(fitted_names(trial.labels, labels), Xs, trial.rate, 0, None)
-    m = inverse_kinematics(kin, sub, params, max_iterations=15).motion
+    m = inverse_kinematics(kin, sub, params, max_iterations=15, tolerance=DECISION_TOLERANCE).motion
     return np.asarray(kin.batch(FrameLayout.coordinates(m.root_translation, m.angles), m.root_quaternion,
                                 params)[0])
 

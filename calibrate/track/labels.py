@@ -502,13 +502,13 @@ def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str], 
     """The base model, scaled by `scale`, fitted by inverse kinematics to `labels` on ``IK_FRAMES`` frames of
     `trial` spread over it (calibrate.solve.ik.IKResult); `start`: an earlier such fit's motion to start every
     frame from (labels that differ by a track or two: step 6 in 0.45-0.76x the time, the same labels chosen)."""
-    from ..solve.ik import inverse_kinematics
+    from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
 
     step = max(1, trial.n_frames // IK_FRAMES)
     params = model.parameters()
     params = type(params)(params.scale * scale, params.centre, params.axis, params.marker)
     sub = Trial(fitted_names(trial.labels, labels), trial.markers[::step], trial.rate / step, 0, None)
-    return inverse_kinematics(kin, sub, params, max_iterations=15, start=start)
+    return inverse_kinematics(kin, sub, params, max_iterations=15, tolerance=DECISION_TOLERANCE, start=start)
 
 
 def _ik_rms(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]) -> float:
