@@ -40,7 +40,8 @@ Two refinements for what real tracking gives (docs/tracking.md, "Labelling"):
   of every two-marker segment are tried exchanged; a marker fitted ``SUSPECT`` times worse than the median
   marker is tried swapped with the labelled markers of its own and the neighbouring segments, and moved
   to their free markers; a track still unlabelled is tried on the free markers next to labelled ones.
-  The change that helps most is kept, at most ``REPAIR_ROUNDS`` times.
+  The change that helps most is kept, at most ``REPAIR_ROUNDS`` times.  Each change is first fitted on every
+  ``REPAIR_SCREEN``-th of those frames, and on all of them only where it scores within ``REPAIR_MARGIN`` of helping.
 * 7. What step 6 cannot mend: the well-fitted markers are trusted and every other track is matched afresh
   by its distances to the trusted markers of the nearest segment up the tree (``_relabel_limbs``), kept
   only if it labels as many tracks and fits better.
@@ -121,6 +122,14 @@ SUSPECT = 2.0  # a marker the scaled base model fits this many times worse than 
 
 
 REPAIR_ROUNDS = 4  # changes step 6 may make, one per round
+
+
+# Step 6 fits each change first on every REPAIR_SCREEN-th of its IK_FRAMES frames (scored against the same frames of
+# the current labels' fit), and on all of them only where it scores above -REPAIR_MARGIN there: on bench_labelling's
+# simulated squats and gait (STA 3 mm) 111 of 778 changes went on, and in all 13 rounds where a change helped the one
+# that helped most on every frame was among them (docs/benchmarks.md)
+REPAIR_SCREEN = 4
+REPAIR_MARGIN = 0.002  # m
 
 
 JOIN_FACTOR = 1.5  # a union of two groups taken for the root may vary this much more than either group
@@ -498,16 +507,18 @@ def _check(model: Model, trial: Trial, labelling: Labelling) -> tuple[float, dic
     return 2.0 * cal.summary.final_cost / max(coords, 1), moved
 
 
-def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str], start: Motion | None = None):
+def _fit(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str], start: Motion | None = None,
+         every: int = 1):
     """The base model, scaled by `scale`, fitted by inverse kinematics to `labels` on ``IK_FRAMES`` frames of
     `trial` spread over it (calibrate.solve.ik.IKResult); `start`: an earlier such fit's motion to start every
-    frame from (labels that differ by a track or two: step 6 in 0.45-0.76x the time, the same labels chosen)."""
+    frame from (labels that differ by a track or two: step 6 in 0.45-0.76x the time, the same labels chosen);
+    `every`: only every `every`-th of those frames (`start` then holds those frames)."""
     from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
 
     step = max(1, trial.n_frames // IK_FRAMES)
     params = model.parameters()
     params = type(params)(params.scale * scale, params.centre, params.axis, params.marker)
-    sub = Trial(fitted_names(trial.labels, labels), trial.markers[::step], trial.rate / step, 0, None)
+    sub = Trial(fitted_names(trial.labels, labels), trial.markers[::step][::every], trial.rate / step / every, 0, None)
     return inverse_kinematics(kin, sub, params, max_iterations=15, tolerance=DECISION_TOLERANCE, start=start)
 
 
@@ -517,21 +528,40 @@ def _ik_rms(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str
     return _typical_rms(_fit(model, kin, trial, scale, labels))
 
 
-def _typical_rms(res) -> float:
-    """Median over the frames of the per-frame marker RMS (m): the few frames whose inverse kinematics
-    went astray from the base model's pose must not outweigh the rest."""
+def _typical_rms(res, frames: np.ndarray | slice = slice(None)) -> float:
+    """Median over the frames (`frames` of the fit) of the per-frame marker RMS (m): the few frames whose inverse
+    kinematics went astray from the base model's pose must not outweigh the rest."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return float(np.nanmedian(res.marker_rms))
+        return float(np.nanmedian(res.marker_rms[frames]))
 
 
-def _marker_errors(res, names: list[str], labels: dict[str, str]) -> dict[str, float]:
-    """Median 3-D distance (m) over the frames between each labelled model marker and the model's."""
+def _marker_errors(res, names: list[str], labels: dict[str, str],
+                   frames: np.ndarray | slice = slice(None)) -> dict[str, float]:
+    """Median 3-D distance (m) over the frames (`frames` of the fit) between each labelled model marker and the
+    model's."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        err = np.nanmedian(np.linalg.norm(res.residuals, axis=2), axis=0)
+        err = np.nanmedian(np.linalg.norm(res.residuals[frames], axis=2), axis=0)
     return {names[m]: float(err[m]) for m in range(len(names)) if names[m] in set(labels.values())
             and np.isfinite(err[m])}
+
+
+def _change_score(res, names: list[str], new: dict[str, str], change: dict[str, str], swap: bool, rms0: float,
+                  limit: float) -> float:
+    """How much a change of step 6 helps (m; > 0: it helps), from its fit `res` to the labels `new`: a swap (`swap`)
+    by how much it lowers the fit's typical RMS from `rms0`, a move or an addition by how far within `limit` the
+    marker it places fits."""
+    if swap:  # a swap: the whole fit must improve
+        return rms0 - _typical_rms(res)
+    e = _marker_errors(res, names, new)  # a move or an addition: the marker it places must fit like the others
+    return limit - max(e.get(v, np.inf) for v in change.values())
+
+
+def _motion_frames(motion: Motion, frames: np.ndarray) -> Motion:
+    """`motion` on `frames` only."""
+    return Motion(motion.times[frames], motion.root_translation[frames], motion.root_quaternion[frames],
+                  motion.angles[frames], motion.dof_names)
 
 
 def _repair(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str]) -> dict[str, str]:
@@ -580,17 +610,22 @@ def _repair(model: Model, kin, trial: Trial, scale: float, labels: dict[str, str
                     changes.append({t: b})
         best, best_score = None, 0.0
         rms0 = _typical_rms(base)
+        # the screen: every REPAIR_SCREEN-th frame of the fit, the current labels scored on the same frames
+        few = np.arange(0, base.motion.n_frames, REPAIR_SCREEN)
+        few_start = _motion_frames(base.motion, few)
+        few_err = _marker_errors(base, names, labels, few)
+        few_limit = SUSPECT * float(np.median(list(few_err.values())))
+        few_rms0 = _typical_rms(base, few)
         unique = {frozenset(c.items()): c for c in reversed(changes)}  # a swap found from either side: once
         for change in [c for c in changes if unique.get(frozenset(c.items())) is c]:
             new = {k: v for k, v in labels.items() if k not in change and v not in change.values()}
             new.update(change)
+            swap = len(change) == 2 and all(k in labels for k in change)
+            res = _fit(model, kin, trial, scale, new, start=few_start, every=REPAIR_SCREEN)
+            if _change_score(res, names, new, change, swap, few_rms0, few_limit) <= -REPAIR_MARGIN:
+                continue
             res = _fit(model, kin, trial, scale, new, start=base.motion)  # one or two tracks changed
-            e = _marker_errors(res, names, new)
-            moved = list(change.values())
-            if len(change) == 2 and all(k in labels for k in change):  # a swap: the whole fit must improve
-                score = rms0 - _typical_rms(res)
-            else:  # a move or an addition: the marker it places must fit like the others
-                score = limit - max(e.get(v, np.inf) for v in moved)
+            score = _change_score(res, names, new, change, swap, rms0, limit)
             if score > best_score:
                 best, best_score = new, score
         if best is None:
