@@ -5,6 +5,8 @@ and a calibration gives the same bits with its work run ahead as without."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -12,13 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import calibrate.calibration.start as start
 from calibrate.calibration.pipeline import calibrate
 from calibrate.io.trial import Trial
 from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import load_model
 from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
-from calibrate.solve.ahead import can_run_ahead, run_ahead
+from calibrate.solve.ahead import can_run_ahead, idle_core, run_ahead
 from calibrate.solve.assembly import WORKER_NAME, worker_thread
 
 forks = pytest.mark.skipif(not can_run_ahead(), reason="run_ahead forks only on Linux with two or more cores")
@@ -87,14 +90,19 @@ def _two_trials(human, seed: int) -> list[Trial]:
 
 
 @forks
-def test_calibration_is_the_same_with_its_work_run_ahead():
+def test_calibration_is_the_same_with_its_work_run_ahead(monkeypatch):
     """Two trials (every second trial's start poses in a child) and a stated noise no start fits (so both
-    candidates of the start's race are solved, the second in a child): the same start, the same bits as
-    with Settings.ahead off, where everything runs in this process."""
+    candidates of the start's race are solved, the second in a child, a core taken as idle whatever the other
+    tests running beside this one do): the same start, the same bits as with Settings.ahead off, where
+    everything runs in this process."""
     human = load_model(Path(__file__).resolve().parents[1] / "models" / "human.urdf")
     kin = build_kinematics(human)
     trials = _two_trials(human, seed=31)
+    raced = []
+    monkeypatch.setattr(start, "idle_core", lambda: True)
+    monkeypatch.setattr(start, "run_ahead", lambda values: raced.append(1) or run_ahead(values))
     ahead = calibrate(human, trials, Settings(noise=0.0005), kinematics=kin)
+    assert raced == [1]  # the race's second candidate was solved in a child
     here = calibrate(human, trials, Settings(noise=0.0005, ahead=False), kinematics=kin)
     race = [n for n in ahead.seed.notes if n.startswith("started from")]
     assert race == [n for n in here.seed.notes if n.startswith("started from")]
@@ -102,6 +110,22 @@ def test_calibration_is_the_same_with_its_work_run_ahead():
     np.testing.assert_array_equal(ahead.initial_residuals, here.initial_residuals)
     np.testing.assert_array_equal(ahead.params.vector(), here.params.vector())
 
+
+
+@pytest.mark.skipif(not Path("/proc/stat").exists(), reason="idle_core reads Linux's /proc/stat")
+def test_no_core_is_idle_while_every_core_runs_a_task():
+    """With a spinning process on every core this process may use, idle_core says no core is idle (the start's
+    race then solves its second candidate here, not on a guess in a child)."""
+    spin = "import time\nt = time.time()\nwhile time.time() - t < 5:\n    pass\n"
+    procs = [subprocess.Popen([sys.executable, "-c", spin]) for _ in os.sched_getaffinity(0)]
+    try:
+        time.sleep(0.5)
+        seen = [idle_core() for _ in range(5)]
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+    assert not any(seen), seen
 
 def test_ahead_is_a_setting_of_the_settings_file(tmp_path):
     from calibrate.io.config import load_settings

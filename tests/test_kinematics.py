@@ -220,6 +220,34 @@ def test_generic_tree_rpy_continuous_and_welded_segments(tmp_path):
     assert _max_fk_error(model, kin, p, other, rng, n=30) < 1e-12
 
 
+
+def test_kinematics_are_built_once_per_structure_and_are_each_models_own(tmp_path):
+    """build_kinematics makes the graphs once per model structure: a model differing only in what p holds (a
+    joint centre, a marker, a limit) shares them, and each Kinematics is its model's (its limits); one whose fixed
+    rotation inside a joint differs gets graphs of its own.  Each, built after the others in one process, agrees
+    with Pinocchio on its own URDF."""
+    def model_of(name: str, text: str):
+        (tmp_path / name).write_text(text)
+        return load_model(tmp_path / name)
+
+    base = model_of("base.urdf", GENERIC_URDF)
+    moved = model_of("moved.urdf", GENERIC_URDF.replace('xyz="0.05 0.02 -0.3" rpy="0.7 0 -0.4"',
+                                                        'xyz="0.09 -0.01 -0.25" rpy="0.7 0 -0.4"')
+                     .replace('<origin xyz="0.01 0 -0.08"/>', '<origin xyz="0.03 0.02 -0.06"/>')
+                     .replace('lower="-1" upper="1"', 'lower="-0.8" upper="0.9"'))
+    turned = model_of("turned.urdf", GENERIC_URDF.replace('rpy="0.1 0 0"/>', 'rpy="0.35 0 0"/>'))
+    kb, km, kt = (build_kinematics(m) for m in (base, moved, turned))
+    assert km.h is kb.h and km.h_ref_jz is kb.h_ref_jz  # the same structure: one set of graphs
+    assert kt.h is not kb.h  # the universal joint's fixed turn is part of the structure
+    assert km.model is moved and kb.model is base and kt.model is turned
+    assert moved.dofs[moved.dof_index("wrist_a")].upper == 0.9 and base.dofs[base.dof_index("wrist_a")].upper == 1
+    rng = np.random.default_rng(5)
+    for model, kin in ((turned, kt), (moved, km), (base, kb)):
+        assert _max_fk_error(model, kin, model.parameters(), model, rng, n=20) < 1e-12
+    # the turn moves the hand's marker: the shared graphs would have put it where the base model has it
+    z, quat = np.concatenate([np.zeros(6), [0.4, 0.3, 0.5, -0.6]]), np.array([0.0, 0.0, 0.0, 1.0])
+    assert np.abs(kt.markers(z, quat, turned.parameters()) - kb.markers(z, quat, base.parameters())).max() > 1e-3
+
 # ------------------------------------------------------------------ rotations in numpy, against scipy's Rotation
 def test_rotation_helpers_equal_scipy_rotation():
     # Written out so that no command imports scipy on its way (0.25 s); scipy's Rotation is the reference.

@@ -15,7 +15,7 @@ from ..model.model import Parameters
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import State
-from ..solve.ahead import run_ahead
+from ..solve.ahead import idle_core, run_ahead
 from ..solve.ik import FrameSolver
 from ..solve.lm import Run
 
@@ -150,7 +150,8 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
     below START_LEAD times every other's is taken (pig_walk: the base model's 1.03e5 against the
     seed's 1.54e5); otherwise each goes on, from where it stopped, to START_ITERATIONS in all.
     Every candidate after the first is solved on the other core meanwhile (calibrate.solve.ahead), unless
-    `ahead` is false.  `lengths`: what each trial counts as in frames (spread_frames).
+    `ahead` is false or no core is idle (calibrate.solve.ahead.idle_core: a guess would only take its time).
+    `lengths`: what each trial counts as in frames (spread_frames).
     `options`: the solver's (default SolverOptions()).  Returns the chosen geometry and a note naming each
     candidate's cost."""
     names = list(candidates)
@@ -182,8 +183,9 @@ def choose_start(problem: Problem, observed: np.ndarray, spans: Sequence[slice],
         return (f"started from {name}: solved on {coarse.size} frames it fits them to the stated noise "
                 f"(cost {costs[name]:.4g}), so " + ("no other start was tried" if first else "it was taken"))
 
-    # Every candidate after the first is solved ahead on the other core (calibrate.solve.ahead): the
+    # Every candidate after the first is solved ahead on the other core (calibrate.solve.ahead), if it is idle: the
     # same steps as here, in the same order of decisions; a candidate not needed is stopped.
+    ahead = ahead and idle_core()
     legs = {name: run_ahead(leg(name)) if k and ahead else leg(name) for k, name in enumerate(names)}
     costs: dict[str, float] = {}
     try:

@@ -38,9 +38,12 @@ Outputs: ``markers`` (3 × n_markers) and ``centres`` (3 × n_joints), lab frame
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import casadi as ca
@@ -532,13 +535,53 @@ def _pvec(p) -> np.ndarray:
     return p.vector() if isinstance(p, Parameters) else np.asarray(p, dtype=float).ravel()
 
 
+def kinematic_structure(model: Model, balls: tuple[BallJoint, ...]) -> str:
+    """A digest of everything build_kinematics' graphs are made of: the model's tree (each URDF joint's links,
+    owner, role, index and DoF), its fixed rotations and offsets, its sizes, and the SO(3) balls' DoFs and axes.
+    Two models with the same digest have the same functions of (z, refs, p); their parameter values, limits and
+    names of markers may differ."""
+    h = hashlib.sha256(repr((model.root, model.nz, len(model.segments), len(model.joints), model.n_dofs,
+                             len(model.markers), [s.name for s in model.segments])).encode())
+    h.update(repr([(b.name, b.dofs, np.asarray(b.axes, dtype=float).tolist()) for b in balls]).encode())
+    for u in model.urdf_joints:
+        h.update(repr((u.parent_link, u.child_link, u.owner, u.role, u.index, u.dof)).encode())
+        h.update(np.asarray(u.rotation, dtype=float).tobytes())
+        if u.role not in ("centre", "marker"):  # a fixed offset (the others read p)
+            h.update(np.asarray(u.xyz, dtype=float).tobytes())
+    return h.hexdigest()[:24]
+
+
+BUILT_KEPT = 8  # build_kinematics keeps the graphs of this many model structures (the latest used)
+_BUILT: OrderedDict[str, Kinematics] = OrderedDict()  # by kinematic_structure; a memo, never changed in place
+_BUILT_LOCK = threading.Lock()
+
+
 def build_kinematics(model: Model, euler: tuple[str, ...] = ()) -> Kinematics:
     """Build h(z, q_ref, p), the solver's form h_ref(z, refs, p) and their exact Jacobians for
     `model` (SX graphs, one frame).  `euler`: ball joints the solver keeps on their three angles
-    (those with a locked coordinate; see so3_balls)."""
+    (those with a locked coordinate; see so3_balls).  The graphs are made once per model structure
+    (kinematic_structure) and shared, CasADi functions being immutable: a simulation, its calibration and
+    the checks after it would build the same graphs three times (0.15-0.3 s each).  The Kinematics
+    returned is `model`'s own (its model, its balls' limits)."""
+    balls = so3_balls(model, tuple(euler))
+    key = kinematic_structure(model, balls)
+    with _BUILT_LOCK:
+        built = _BUILT.get(key)
+        if built is not None:
+            _BUILT.move_to_end(key)
+    if built is None:
+        built = _build(model, balls)
+        with _BUILT_LOCK:
+            _BUILT[key] = built
+            while len(_BUILT) > BUILT_KEPT:
+                _BUILT.popitem(last=False)
+    return replace(built, model=model, balls=balls, compiled=None)
+
+
+def _build(model: Model, balls: tuple[BallJoint, ...]) -> Kinematics:
+    """build_kinematics' graphs for `model` (uncached)."""
     nz = model.nz
     nj, nd, nm = len(model.joints), model.n_dofs, len(model.markers)
-    balls = so3_balls(model, tuple(euler))
     z = ca.SX.sym("z", nz)
     q_ref = ca.SX.sym("q_ref", 4)
     refs = ca.SX.sym("refs", 4 * (1 + len(balls)))

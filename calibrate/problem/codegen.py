@@ -14,7 +14,7 @@ import numpy as np
 
 from calibrate.problem.state import FrameGroup, State
 
-from ..model.kinematics import FrameEvaluator, Kinematics
+from ..model.kinematics import FrameEvaluator, Kinematics, kinematic_structure
 from ..model.model import Model
 from ..solve.assembly import c_compiler, cache_dir, group_layout, in_parallel, split_frames
 
@@ -39,18 +39,10 @@ def _structure_key(model: Model, kin: Kinematics) -> str | None:
     None without a C compiler (nothing to cache)."""
     if c_compiler() is None:
         return None
-    h = hashlib.sha256(f"{ca.__version__} -O1 {model.root} {model.nz} {len(model.markers)}".encode())
+    h = hashlib.sha256(f"{ca.__version__} -O1 {kinematic_structure(model, kin.balls)}".encode())
     for src in (Path(__file__), Path(__file__).parent.parent / "model" / "kinematics.py",
                 Path(__file__).parent.parent / "model" / "blocks.py"):
         h.update(src.read_bytes())
-    h.update(repr([s.name for s in model.segments]).encode())
-    h.update(repr([(b.name, b.axes.tolist()) for b in kin.balls]).encode())
-    for u in model.urdf_joints:
-        fixed_xyz = u.role not in ("centre", "marker")
-        h.update(repr((u.parent_link, u.child_link, u.owner, u.role, u.index, u.dof)).encode())
-        h.update(np.asarray(u.rotation, dtype=float).tobytes())
-        if fixed_xyz:
-            h.update(np.asarray(u.xyz, dtype=float).tobytes())
     return h.hexdigest()[:20]
 
 

@@ -86,8 +86,9 @@ class Settings:
     learn_noise: bool | None = None
     # Run the start's parts that hold the GIL (the second candidate of the start's race, every second
     # trial's start poses) in a forked process on the other core (Linux, two or more cores;
-    # calibrate.solve.ahead).  The results are the same bits either way; off, they run one after another
-    # here (e.g. where the cores are busy already, as in a batch's worker processes).
+    # calibrate.solve.ahead; the race's candidate, work on a guess, only when a core is idle at the time).  The
+    # results are the same bits either way; off, they run one after another here (e.g. where the cores are busy
+    # already, as in a batch's worker processes).
     ahead: bool = True
     # What a still trial (a static: one pose repeated, its errors with it) counts as, in frames in all, beside a
     # trial that moves (calibrate.calibration.pipeline._still_lengths); 0 (default): every frame once.  16 fitted

@@ -305,6 +305,11 @@ def jmv_multistart(X: np.ndarray, ga: list[np.ndarray], gb: list[np.ndarray], F:
     return best if best is not None else np.full((F, 3), np.nan)
 
 
+TRILATERATION_TOLERANCE = 1e-8  # each start's polish stops at this relative change of (ρa, ρb, ρc) or of its cost:
+# the starts only begin jmv_frames' iterations, and 1e-15 (to machine precision, 30-70 evaluations) and 1e-8 (16-42)
+# gave the same seeds to the last bit on simulated gait and squats and the same calibrations on the real recordings
+
+
 def trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_frames: int = 100) -> list[np.ndarray]:
     """Global starts for per-frame JMV: a joint keeps fixed distances (ρa, ρb, ρc) to three of the points
     around it, so on a grid of those three distances every frame's joint follows by trilateration (two
@@ -361,7 +366,8 @@ def trilateration_starts(X: np.ndarray, steps: int = 16, keep: int = 6, max_fram
         if any(np.max(np.abs(r0 - q)) <= 1.5 * span / steps for q in picked):
             continue
         picked.append(r0)
-        res = least_squares(residuals, r0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+        res = least_squares(residuals, r0, method="lm", xtol=TRILATERATION_TOLERANCE, ftol=TRILATERATION_TOLERANCE,
+                            gtol=1e-15, max_nfev=200)
         best.append((float(2 * res.cost), res.x))
         if len(picked) == keep or res.cost < 1e-24:
             break

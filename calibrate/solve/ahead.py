@@ -29,12 +29,28 @@ from .assembly import WORKER_NAME, WORKERS, worker_thread
 
 T = TypeVar("T")
 
-__all__ = ["can_run_ahead", "run_ahead"]
+__all__ = ["can_run_ahead", "idle_core", "run_ahead"]
 
 
 def can_run_ahead() -> bool:
     """Whether run_ahead forks here: Linux, two or more cores, and not within a worker or a child."""
     return sys.platform.startswith("linux") and hasattr(os, "fork") and WORKERS >= 2 and not worker_thread()
+
+
+def idle_core() -> bool:
+    """Whether a core is idle now, for work run ahead on a guess (the start race's second candidate, not needed
+    when the first fits at once): fewer tasks running on the machine, this one among them, than the cores this
+    process may use (Linux's /proc/stat procs_running).  When the other core is busy (two calibrations at once,
+    a test suite in two processes) the guess would only take its time; the answer is the same bits either way.
+    True where it cannot be read."""
+    try:
+        with open("/proc/stat", encoding="ascii") as stat:
+            for line in stat:
+                if line.startswith("procs_running"):
+                    return int(line.split()[1]) < len(os.sched_getaffinity(0))
+    except (OSError, ValueError, AttributeError):
+        pass
+    return True
 
 
 def run_ahead(values: Iterator[T]) -> Iterator[T]:
