@@ -137,6 +137,17 @@ def test_cli_truncated_c3d_one_line(tmp_path):
         assert len(r.stderr.strip().splitlines()) == 1 and f"cut{cut}.c3d" in r.stderr
 
 
+def test_python_m_calibrate_is_the_command_line(tmp_path):
+    """`python -m calibrate` runs the `calibrate` program: the output and exit codes of `python -m calibrate.cli`."""
+    assert main(["simulate", "--out", str(tmp_path), "--frames", "10"]) == 0
+    for argv, code in ((["inspect", str(tmp_path / "trial.c3d")], 0), (["inspect", str(tmp_path / "none.c3d")], 2)):
+        a, b = (subprocess.run([sys.executable, "-m", m, *argv], capture_output=True, text=True)
+                for m in ("calibrate", "calibrate.cli"))
+        assert a.returncode == b.returncode == code
+        assert a.stdout == b.stdout and a.stderr == b.stderr
+        assert (a.stdout if code == 0 else a.stderr).strip()
+
+
 def test_simulate_does_not_overwrite_unless_asked(tmp_path):
     out = tmp_path / "sim"
     assert main(["simulate", "--out", str(out), "--frames", "5", "--seed", "1"]) == 0

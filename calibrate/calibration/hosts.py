@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.model import Model
 
@@ -67,9 +68,10 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
     picked = _pick(trials, frames)
     out: dict[str, Host] = {}
     posed = model
+    poses: dict[int, Motion] = {}
     for _ in range(rounds):
         todo = [lab for lab in labels if lab not in out or out[lab].segment is None]
-        found = _hosts(posed, picked, todo)
+        found = _hosts(posed, picked, todo, poses)
         out.update(found)
         placed = {lab: (h.segment, h.place) for lab, h in found.items() if h.segment is not None}
         if not placed or all(h.segment is not None for h in out.values()):
@@ -89,8 +91,12 @@ def _pick(trials: Sequence[Trial], frames: int) -> list[Trial]:
     return picked
 
 
-def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict[str, Host]:
-    """One round of kinematic_hosts on the frames `trials` (already picked)."""
+def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
+           poses: dict[int, Motion] | None = None) -> dict[str, Host]:
+    """One round of kinematic_hosts on the frames `trials` (already picked).  `poses`: the last round's poses of
+    those trials (by index), where each frame's fit starts (a round only adds the labels placed to the known
+    markers: the poses move little, and from scratch each frame took 5-10 steps, on gait2392 half of the hosts'
+    time); the new ones are written there."""
     import pinocchio as pin
 
     from ..model.kinematics import build_kinematics
@@ -102,8 +108,13 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]) -> dict
         return {}
     kin = build_kinematics(model)
     params = model.parameters()
-    fits = [(t, inverse_kinematics(kin, t, params, tolerance=DECISION_TOLERANCE)) for t in trials
-            if any(lab in t.labels for lab in labels)]
+    poses = {} if poses is None else poses
+    fits = []
+    for i, t in enumerate(trials):
+        if any(lab in t.labels for lab in labels):
+            fit = inverse_kinematics(kin, t, params, tolerance=DECISION_TOLERANCE, start=poses.get(i))
+            poses[i] = fit.motion
+            fits.append((t, fit))
     if not fits:
         return {}
     # Candidates: every segment with a known marker the trials show, and every markerless one that turns against

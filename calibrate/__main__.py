@@ -1,0 +1,5 @@
+"""``python -m calibrate``: the command line, as the ``calibrate`` program (calibrate.cli)."""
+
+from .cli.main import run
+
+run()
