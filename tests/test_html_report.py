@@ -124,22 +124,75 @@ def test_segment_lengths_are_distances_between_joint_centres(run):
 
 def test_the_left_right_headline_leaves_short_segments_out(run):
     """The summary's and the HTML's left/right line name the largest relative length difference among segments at
-    least SHORT_SEGMENT_MM long on both sides, with its mm (a 5 mm difference of a 50 mm ulna read 10 %): recomputed
-    here from the report's symmetry rows; a short segment's larger share does not take the headline."""
-    from calibrate.calibration.html import SHORT_SEGMENT_MM, longest_asymmetry
+    least SHORT_SEGMENT_MM long on both sides, with its mm and the difference's posterior SD (a 5 mm difference of a
+    50 mm ulna read 10 %): recomputed here from the report's symmetry rows; a short segment's larger share does not
+    take the headline.  A larger difference the trials leave to the priors (its SD as the priors' alone) is said as
+    such after the measured one, and alone when none is measured."""
+    from calibrate.calibration.html import SHORT_SEGMENT_MM, asymmetry_clause, longest_asymmetry
     from calibrate.calibration.report import summary_text
 
     cal, rep = run["cal"], run["rep"]
     rows = rep["symmetry"]["segment_length"]
-    long = {k: v for k, v in rows.items() if min(v["left_mm"], v["right_mm"]) >= SHORT_SEGMENT_MM}
+    long = {k: v for k, v in rows.items() if min(v["left_mm"], v["right_mm"]) >= SHORT_SEGMENT_MM and v["measured"]}
     name = max(long, key=lambda k: abs(long[k]["left_mm"] - long[k]["right_mm"]) / np.mean(
         [long[k]["left_mm"], long[k]["right_mm"]]))
-    mm = abs(long[name]["left_mm"] - long[name]["right_mm"])
-    want = f"segment lengths differ by up to {100 * long[name]['difference']:.1f} % ({name}, {mm:.1f} mm)"
+    row = long[name]
+    mm = abs(row["left_mm"] - row["right_mm"])
+    assert row["difference_sd_mm"] <= 0.5 * row["priors_sd_mm"]
+    want = (f"segment lengths differ by up to {100 * row['difference']:.1f} % ({name}, {mm:.1f} "
+            f"+- {row['difference_sd_mm']:.1f} mm)")
     assert want in summary_text(cal) and want in report_html(rep)
     short = {**long, "ulna": {"left_mm": 50.5, "right_mm": 55.9, "difference": 0.101}}
     assert longest_asymmetry(short)[0] == name
     assert longest_asymmetry({"ulna": short["ulna"]})[0] == "ulna"  # nothing longer: the short one
+    foot = {"left_mm": 170.5, "right_mm": 194.7, "difference": 0.1323, "difference_sd_mm": 16.6,
+            "priors_sd_mm": 16.6, "measured": False}
+    assert asymmetry_clause({**long, "calcn": foot}) == (
+        want.removeprefix("segment lengths differ by up to ") + " where the trials measure them; 13.2 % (calcn, "
+        "24.2 +- 16.6 mm) where they leave them to the priors (SD 16.6 mm alone)")
+    alone = asymmetry_clause({"calcn": foot})
+    assert alone == "13.2 % (calcn, 24.2 +- 16.6 mm), lengths the trials leave to the priors"
+
+
+def test_the_length_differences_sds_follow_the_lengths_by_finite_differences(run):
+    """identifiability.length_differences against finite differences: each free parameter of the calibrated subject
+    stepped on its manifold (Problem.retract_parameters, the solve's own step: a scale step keeps its segment's
+    offsets at the subject's scale), the two sides' lengths recomputed from the unpacked parameters, and the SD of
+    their difference propagated through a random covariance; and the report's rows carry the pipeline's."""
+    from calibrate.calibration.identifiability import length_differences, segment_end
+    from calibrate.problem.priors import symmetry_pairs
+    from calibrate.problem.problem import Problem
+
+    cal, rep = run["cal"], run["rep"]
+    model = cal.model
+    problem = Problem(model, np.full((1, len(model.markers), 3), np.nan), cal.settings)
+    p = cal.params.vector()
+    n = problem.layout.n_free
+    R = np.random.default_rng(0).normal(size=(n, n))
+    cov, cov0 = R @ R.T * 1e-6, np.eye(n) * 1e-4
+    got = length_differences(problem, p, cov, cov0)
+    segments, _, _ = symmetry_pairs(model, model.parameters().centre)
+
+    def difference(q: np.ndarray, a: int, b: int) -> float:
+        P = model.unpack(q)
+        return float(np.subtract(*(np.linalg.norm(P.scale[s] * P.centre[segment_end(model, s)]) for s in (a, b))))
+
+    checked = 0
+    for a, b in segments:
+        if segment_end(model, a) is None:
+            continue
+        eps = 1e-6
+        g = np.array([(difference(problem.retract_parameters(p, eps * e), a, b)
+                       - difference(problem.retract_parameters(p, -eps * e), a, b)) / (2 * eps) for e in np.eye(n)])
+        sd, sd0 = got[model.segments[a].name[:-2]]
+        assert sd == pytest.approx(np.sqrt(g @ cov @ g), rel=1e-5)
+        assert sd0 == pytest.approx(np.sqrt(g @ cov0 @ g), rel=1e-5)
+        checked += 1
+    assert checked >= 4
+    for name, row in rep["symmetry"]["segment_length"].items():
+        sd, sd0 = cal.length_sd[name]
+        assert row["difference_sd_mm"] == pytest.approx(1000 * sd) and row["priors_sd_mm"] == pytest.approx(1000 * sd0)
+        assert row["measured"] == (sd <= 0.5 * sd0)
 
 
 def _plot_data(page: str) -> list[dict]:

@@ -232,11 +232,9 @@ def _summary(report: dict) -> str:
                          f"{j} {v['calibrated_mm']:.0f}/{v['measured_mm']:.0f}" + ("" if v["used"] else " (not used)")
                          for j, v in meas["lateral_mm"].items())])
     sym = report.get("symmetry", {})
-    worst = longest_asymmetry(sym.get("segment_length") or {})
-    if worst is not None:
-        name, row = worst
-        rows.append(["left/right", f"segment lengths differ by up to {100 * row['difference']:.1f} % ({name}, "
-                                   f"{abs(row['left_mm'] - row['right_mm']):.1f} mm)"
+    clause = asymmetry_clause(sym.get("segment_length") or {})
+    if clause:
+        rows.append(["left/right", f"segment lengths differ by up to {clause}"
                      + (f", mirrored centres by up to {sym['largest_centre_mirror_mm']:.1f} mm"
                         if sym.get("largest_centre_mirror_mm") is not None else "")])
     return "<h2 id=summary>Summary</h2>" + trials + _table(["", ""], rows)
@@ -426,6 +424,31 @@ def longest_asymmetry(lengths: dict) -> tuple[str, dict] | None:
     at least SHORT_SEGMENT_MM long on both sides (all of them where none is)."""
     long = {k: v for k, v in lengths.items() if min(v["left_mm"], v["right_mm"]) >= SHORT_SEGMENT_MM} or lengths
     return max(long.items(), key=lambda kv: kv[1]["difference"], default=None)
+
+
+def asymmetry_clause(lengths: dict) -> str:
+    """What the summary and the page say of symmetry_table's segment_length rows after "segment lengths differ by up
+    to": the largest relative difference (longest_asymmetry) among the segments whose difference the trials measure
+    (its posterior SD at most IDENTIFIED times the priors' alone), with its SD; and, where larger, the largest of those
+    they leave to the priors and the gauges, said as such (a foot's length ends at centres no marker places:
+    Expert1's feet 13 % apart, 24 +- 17 mm, the priors' SD alone 17).  Rows without SDs (a report before them) count
+    as measured.  Empty without rows."""
+    def said(item: tuple[str, dict]) -> str:
+        name, row = item
+        sd = row.get("difference_sd_mm")
+        return (f"{100 * row['difference']:.1f} % ({name}, {abs(row['left_mm'] - row['right_mm']):.1f}"
+                + ("" if sd is None else f" +- {sd:.1f}") + " mm)")
+
+    head = longest_asymmetry({k: v for k, v in lengths.items() if v.get("measured", True)})
+    worst = longest_asymmetry(lengths)
+    if worst is None:
+        return ""
+    if head is None:
+        return said(worst) + ", lengths the trials leave to the priors"
+    if worst[0] != head[0] and worst[1]["difference"] > head[1]["difference"]:
+        return (said(head) + " where the trials measure them; " + said(worst)
+                + f" where they leave them to the priors (SD {worst[1]['priors_sd_mm']:.1f} mm alone)")
+    return said(head)
 
 
 def report_html(report: Mapping, title: str | None = None) -> str:

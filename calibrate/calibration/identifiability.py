@@ -385,6 +385,49 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     return [_far_from_prior(c, problem.settings.priors, pairs.get(c.item, ())) for c in out]
 
 
+def segment_end(model: Model, segment: int) -> int | None:
+    """The joint whose centre ends segment `segment` (index) for its length: the first joint below it in the
+    model's order.  The segment runs from its own joint's centre, its frame's origin, to there.  None: a leaf."""
+    name = model.segments[segment].name
+    return next((j for j, jt in enumerate(model.joints) if jt.parent == name), None)
+
+
+def length_differences(problem: Problem, p: np.ndarray, cov: np.ndarray,
+                       prior_cov: np.ndarray) -> dict[str, tuple[float, float]]:
+    """Per left/right segment pair (its name without _l / _r): the posterior SD of the difference of the two
+    segments' lengths (segment_end) and the SD the priors alone would leave it, in m.  A length is the norm of its
+    end's centre at the subject's scale, which is that centre's free coordinates themselves
+    (ParameterLayout.tangent_map): it moves along their unit vector, and the two sides' correlation counts.  Where
+    the two SDs are alike the trials do not measure the difference, the priors and the gauges set it (a foot's
+    subtalar and mtp centres, which no marker places: Expert1's feet 13 % apart, 24 +- 17 mm).  A pair whose two
+    ends are both held (not free) is left out."""
+    from ..problem.priors import symmetry_pairs
+
+    model, L = problem.model, problem.layout
+    segments, _, _ = symmetry_pairs(model, model.parameters().centre)
+
+    def gradient(seg: int) -> np.ndarray | None:
+        j = segment_end(model, seg)
+        if j is None:
+            return None
+        g = np.zeros(cov.shape[0])
+        cols = L.cols("centre", j)
+        if cols.size:
+            q = p[L.scale(seg)] * p[L.centre(j)]
+            g[cols] = q / max(float(np.linalg.norm(q)), 1e-12)
+        return g
+
+    out = {}
+    for a, b in segments:
+        ga, gb = gradient(a), gradient(b)
+        if ga is None or gb is None or not (ga.any() or gb.any()):
+            continue
+        g = ga - gb
+        out[model.segments[a].name[:-2]] = (float(np.sqrt(max(g @ cov @ g, 0.0))),
+                                            float(np.sqrt(max(g @ prior_cov @ g, 0.0))))
+    return out
+
+
 FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far from the base model's is not "held"
 
 

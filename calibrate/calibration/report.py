@@ -28,7 +28,8 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
-from .html import longest_asymmetry, report_html
+from .html import asymmetry_clause, report_html
+from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified
@@ -296,7 +297,9 @@ def _trial_name(cal, k: int) -> str:
 
 def symmetry_table(cal) -> dict:
     """Left/right differences of the result: per segment pair the scale difference (fraction of their
-    mean) and the length difference of the segments that carry a joint centre below them (mm, %), per
+    mean) and the length difference of the segments that carry a joint centre below them (mm, %; with the
+    difference's posterior SD, the priors' alone and whether the trials measure it, where the calibration has
+    them: Calibration.length_sd), per
     joint pair the distance between the left centre and the mirrored right one (mm, at the subject's
     scale); the largest of each, and the symmetry prior's SDs."""
     model, p = cal.model, cal.params
@@ -307,13 +310,17 @@ def symmetry_table(cal) -> dict:
         scale[f"{model.segments[a].name[:-2]}"] = round(abs(sa - sb) / (0.5 * (sa + sb)), 6)
     length = {}
     for a, b in segs:
-        la = [float(np.linalg.norm(p.scale[a] * p.centre[j])) for j, jt in enumerate(model.joints)
-              if jt.parent == model.segments[a].name]
-        lb = [float(np.linalg.norm(p.scale[b] * p.centre[j])) for j, jt in enumerate(model.joints)
-              if jt.parent == model.segments[b].name]
-        if la and lb and la[0] > 0.05:
-            length[model.segments[a].name[:-2]] = {"left_mm": _mm(la[0]), "right_mm": _mm(lb[0]),
-                                                   "difference": round(abs(la[0] - lb[0]) / (0.5 * (la[0] + lb[0])), 6)}
+        ja, jb = segment_end(model, a), segment_end(model, b)
+        if ja is None or jb is None:
+            continue
+        la, lb = (float(np.linalg.norm(p.scale[s] * p.centre[j])) for s, j in ((a, ja), (b, jb)))
+        if la > 0.05:
+            name = model.segments[a].name[:-2]
+            row = length[name] = {"left_mm": _mm(la), "right_mm": _mm(lb),
+                                  "difference": round(abs(la - lb) / (0.5 * (la + lb)), 6)}
+            if name in cal.length_sd:  # the difference's posterior SD, the priors' alone, and whether it is measured
+                sd, sd0 = cal.length_sd[name]
+                row.update(difference_sd_mm=_mm(sd), priors_sd_mm=_mm(sd0), measured=bool(sd <= IDENTIFIED * sd0))
     centre = {}
     for a, b in joints:
         sa = p.scale[model.segment_index(model.joints[a].parent)]
@@ -374,12 +381,10 @@ def _noise_lines(cal) -> list[str]:
                    f"{v.min():.2f} ({names[lo]}) to {v.max():.2f} ({names[hi]})")
     sym = symmetry_table(cal)
     if sym["scale_difference"]:
-        worst_len = longest_asymmetry(sym["segment_length"])
         worst_c = max(sym["centre_mirror_mm"].items(), key=lambda kv: kv[1], default=None)
         st = cal.settings.priors
         out.append(f"  {'left/right':22s}{'':12s}  segment lengths differ by up to "
-                   + (f"{100 * worst_len[1]['difference']:.1f} % ({worst_len[0]}, "
-                      f"{abs(worst_len[1]['left_mm'] - worst_len[1]['right_mm']):.1f} mm)" if worst_len else "-")
+                   + (asymmetry_clause(sym["segment_length"]) or "-")
                    + (f", mirrored centres by up to {worst_c[1]:.1f} mm ({worst_c[0]})" if worst_c else "")
                    + (f" (symmetry prior SD {100 * st.symmetry_scale:g} %, {1000 * st.symmetry_centre:g} mm)"
                       if st.symmetry_scale or st.symmetry_centre else " (no symmetry prior)"))

@@ -234,6 +234,9 @@ class Calibration:
     # calibrate.calibration.plugin_gait.KneeAxisCheck per knee of each trial carrying Plug-in Gait's femur and tibia
     # bones: its knee axis against the axis its own tibia turns about, and the calibrated knee's
     knee_axes: tuple = ()
+    # Per left/right segment pair (name without _l / _r): the posterior SD of their lengths' difference and the SD
+    # the priors alone would leave it (m; calibrate.calibration.identifiability.length_differences)
+    length_sd: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def notes(self) -> tuple[str, ...]:
