@@ -128,7 +128,7 @@ def test_the_left_right_headline_leaves_short_segments_out(run):
     50 mm ulna read 10 %): recomputed here from the report's symmetry rows; a short segment's larger share does not
     take the headline.  A larger difference the trials leave to the priors (its SD as the priors' alone) is said as
     such after the measured one, and alone when none is measured."""
-    from calibrate.calibration.html import SHORT_SEGMENT_MM, asymmetry_clause, longest_asymmetry
+    from calibrate.calibration.html import SHORT_SEGMENT_MM, asymmetry_clause, longest_asymmetry, mirror_clause
     from calibrate.calibration.report import summary_text
 
     cal, rep = run["cal"], run["rep"]
@@ -148,18 +148,31 @@ def test_the_left_right_headline_leaves_short_segments_out(run):
     foot = {"left_mm": 170.5, "right_mm": 194.7, "difference": 0.1323, "difference_sd_mm": 16.6,
             "priors_sd_mm": 16.6, "measured": False}
     assert asymmetry_clause({**long, "calcn": foot}) == (
-        want.removeprefix("segment lengths differ by up to ") + " where the trials measure them; 13.2 % (calcn, "
-        "24.2 +- 16.6 mm) where they leave them to the priors (SD 16.6 mm alone)")
+        want.removeprefix("segment lengths differ by up to ") + " measured by the trials; 13.2 % (calcn, "
+        "24.2 +- 16.6 mm) left to the priors (SD 16.6 mm alone)")
     alone = asymmetry_clause({"calcn": foot})
-    assert alone == "13.2 % (calcn, 24.2 +- 16.6 mm), lengths the trials leave to the priors"
+    assert alone == "13.2 % (calcn, 24.2 +- 16.6 mm), left to the priors"
+    # The mirrored centres' clause: the largest the trials measure, with its SD, then a larger one left to the priors.
+    dist = {"hip": 20.6, "knee": 23.5, "wrist": 1.0}
+    sds = {"hip": {"sd_mm": 5.0, "priors_sd_mm": 14.0, "measured": True},
+           "knee": {"sd_mm": 9.8, "priors_sd_mm": 17.2, "measured": False}}
+    assert mirror_clause({"centre_mirror_mm": dist, "centre_mirror_sd": sds}) == (
+        "20.6 +- 5.0 mm (hip) measured by the trials, 23.5 +- 9.8 mm (knee) left to the priors (SD 17.2 mm alone)")
+    assert mirror_clause({"centre_mirror_mm": {"knee": 23.5}, "centre_mirror_sd": sds}) == (
+        "23.5 +- 9.8 mm (knee), left to the priors")
+    assert mirror_clause({"centre_mirror_mm": dist}) == "23.5 mm (knee)"  # a report without the SDs
+    sym = rep["symmetry"]
+    assert f"mirrored centres by up to {mirror_clause(sym)}" in summary_text(cal)
+    assert f"mirrored centres by up to {mirror_clause(sym)}" in report_html(rep)
 
 
-def test_the_length_differences_sds_follow_the_lengths_by_finite_differences(run):
-    """identifiability.length_differences against finite differences: each free parameter of the calibrated subject
-    stepped on its manifold (Problem.retract_parameters, the solve's own step: a scale step keeps its segment's
-    offsets at the subject's scale), the two sides' lengths recomputed from the unpacked parameters, and the SD of
-    their difference propagated through a random covariance; and the report's rows carry the pipeline's."""
-    from calibrate.calibration.identifiability import length_differences, segment_end
+def test_the_left_right_sds_follow_the_lengths_and_centres_by_finite_differences(run):
+    """identifiability.length_differences and mirror_differences against finite differences: each free parameter of
+    the calibrated subject stepped on its manifold (Problem.retract_parameters, the solve's own step: a scale step
+    keeps its segment's offsets at the subject's scale), the two sides' lengths (and the mirrored centres' distances)
+    recomputed from the unpacked parameters, and their SDs propagated through a random covariance; and the report's
+    rows carry the pipeline's."""
+    from calibrate.calibration.identifiability import length_differences, mirror_differences, segment_end
     from calibrate.problem.priors import symmetry_pairs
     from calibrate.problem.problem import Problem
 
@@ -193,6 +206,27 @@ def test_the_length_differences_sds_follow_the_lengths_by_finite_differences(run
         sd, sd0 = cal.length_sd[name]
         assert row["difference_sd_mm"] == pytest.approx(1000 * sd) and row["priors_sd_mm"] == pytest.approx(1000 * sd0)
         assert row["measured"] == (sd <= 0.5 * sd0)
+
+    # The mirrored centres' distances (the report's centre_mirror_mm) likewise.
+    _, joints, mirror = symmetry_pairs(model, model.parameters().centre)
+    got = mirror_differences(problem, p, cov, cov0)
+
+    def distance(q: np.ndarray, a: int, b: int) -> float:
+        P = model.unpack(q)
+        sa, sb = (P.scale[model.segment_index(model.joints[j].parent)] for j in (a, b))
+        return float(np.linalg.norm(sa * P.centre[a] - mirror * sb * P.centre[b]))
+
+    for a, b in joints:
+        eps = 1e-6
+        g = np.array([(distance(problem.retract_parameters(p, eps * e), a, b)
+                       - distance(problem.retract_parameters(p, -eps * e), a, b)) / (2 * eps) for e in np.eye(n)])
+        sd, sd0 = got[model.joints[a].name[:-2]]
+        assert sd == pytest.approx(np.sqrt(g @ cov @ g), rel=1e-5)
+        assert sd0 == pytest.approx(np.sqrt(g @ cov0 @ g), rel=1e-5)
+    assert len(got) >= 6
+    for name, row in rep["symmetry"]["centre_mirror_sd"].items():
+        sd, sd0 = cal.mirror_sd[name]
+        assert row["sd_mm"] == pytest.approx(1000 * sd) and row["measured"] == (sd <= 0.5 * sd0)
 
 
 def _plot_data(page: str) -> list[dict]:

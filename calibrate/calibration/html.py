@@ -235,8 +235,7 @@ def _summary(report: dict) -> str:
     clause = asymmetry_clause(sym.get("segment_length") or {})
     if clause:
         rows.append(["left/right", f"segment lengths differ by up to {clause}"
-                     + (f", mirrored centres by up to {sym['largest_centre_mirror_mm']:.1f} mm"
-                        if sym.get("largest_centre_mirror_mm") is not None else "")])
+                     + (f", mirrored centres by up to {mirror_clause(sym)}" if mirror_clause(sym) else "")])
     return "<h2 id=summary>Summary</h2>" + trials + _table(["", ""], rows)
 
 
@@ -444,10 +443,35 @@ def asymmetry_clause(lengths: dict) -> str:
     if worst is None:
         return ""
     if head is None:
-        return said(worst) + ", lengths the trials leave to the priors"
+        return said(worst) + ", left to the priors"
     if worst[0] != head[0] and worst[1]["difference"] > head[1]["difference"]:
-        return (said(head) + " where the trials measure them; " + said(worst)
-                + f" where they leave them to the priors (SD {worst[1]['priors_sd_mm']:.1f} mm alone)")
+        return (said(head) + " measured by the trials; " + said(worst)
+                + f" left to the priors (SD {worst[1]['priors_sd_mm']:.1f} mm alone)")
+    return said(head)
+
+
+def mirror_clause(sym: Mapping) -> str:
+    """What the summary and the page say of symmetry_table's mirrored centres after "mirrored centres by up to": the
+    largest distance between a left centre and its mirrored right partner among those the trials measure (the
+    distance's posterior SD at most IDENTIFIED times the priors' alone: centre_mirror_sd), with its SD; and, where
+    larger, the largest of those they leave to the priors, said as such (a forearm's radioulnar centres, which a walk
+    does not place).  A report without the SDs: the largest, as it stands.  Empty without pairs."""
+    dist, sds = sym.get("centre_mirror_mm") or {}, sym.get("centre_mirror_sd") or {}
+
+    def said(name: str) -> str:
+        sd = sds.get(name, {}).get("sd_mm")
+        return f"{dist[name]:.1f}" + ("" if sd is None else f" +- {sd:.1f}") + f" mm ({name})"
+
+    measured = [k for k in dist if sds.get(k, {}).get("measured", True)]
+    worst = max(dist, key=dist.get, default=None)
+    head = max(measured, key=dist.get, default=None)
+    if worst is None:
+        return ""
+    if head is None:
+        return said(worst) + ", left to the priors"
+    if worst != head and dist[worst] > dist[head]:
+        return (said(head) + " measured by the trials, " + said(worst)
+                + f" left to the priors (SD {sds[worst]['priors_sd_mm']:.1f} mm alone)")
     return said(head)
 
 

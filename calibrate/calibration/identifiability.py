@@ -422,10 +422,41 @@ def length_differences(problem: Problem, p: np.ndarray, cov: np.ndarray,
         ga, gb = gradient(a), gradient(b)
         if ga is None or gb is None or not (ga.any() or gb.any()):
             continue
-        g = ga - gb
-        out[model.segments[a].name[:-2]] = (float(np.sqrt(max(g @ cov @ g, 0.0))),
-                                            float(np.sqrt(max(g @ prior_cov @ g, 0.0))))
+        out[model.segments[a].name[:-2]] = _sds(ga - gb, cov, prior_cov)
     return out
+
+
+def mirror_differences(problem: Problem, p: np.ndarray, cov: np.ndarray,
+                       prior_cov: np.ndarray) -> dict[str, tuple[float, float]]:
+    """Per left/right joint pair (its name without _l / _r): the posterior SD of the distance between the left centre
+    and the mirrored right one, each at its parent's scale in its parent's frame (the report's centre_mirror_mm), and
+    the SD the priors alone would leave it, in m.  The centres' free coordinates are those scaled positions
+    (ParameterLayout.tangent_map), so the distance moves along its unit vector, mirrored for the right.  A pair whose
+    two centres are held is left out."""
+    from ..problem.priors import symmetry_pairs
+
+    model, L = problem.model, problem.layout
+    _, joints, mirror = symmetry_pairs(model, model.parameters().centre)
+    out = {}
+    for a, b in joints:
+        ca, cb = L.cols("centre", a), L.cols("centre", b)
+        if not (ca.size or cb.size):
+            continue
+        qa, qb = (p[L.scale(model.segment_index(model.joints[j].parent))] * p[L.centre(j)] for j in (a, b))
+        d = qa - mirror * qb
+        u = d / max(float(np.linalg.norm(d)), 1e-12)
+        g = np.zeros(cov.shape[0])
+        if ca.size:
+            g[ca] += u
+        if cb.size:
+            g[cb] -= mirror * u
+        out[model.joints[a].name[:-2]] = _sds(g, cov, prior_cov)
+    return out
+
+
+def _sds(g: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> tuple[float, float]:
+    """The SDs of a quantity of gradient `g` (over the free parameters) under `cov` and under `prior_cov`."""
+    return float(np.sqrt(max(g @ cov @ g, 0.0))), float(np.sqrt(max(g @ prior_cov @ g, 0.0)))
 
 
 FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far from the base model's is not "held"

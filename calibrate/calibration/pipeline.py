@@ -34,6 +34,7 @@ from calibrate.calibration.identifiability import (
     coordinate_spreads,
     even_frames,
     length_differences,
+    mirror_differences,
     parameter_changes,
     still_of,
     trading_locks,
@@ -619,6 +620,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     params = subject.unpack(state.p)
     changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
     length_sd = length_differences(problem, state.p, cov.matrix, cov.prior_only)
+    mirror_sd = mirror_differences(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)
     if pose_used:  # what the static holds at the end (a far arm's angles are fitted again after the turn): a named
         # angle more than POSE_MISS from its value is said, with where it ended, rather than claimed
@@ -665,7 +667,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        far_joints=tuple(far), still_only=_still_only(model, trials, motion),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),
-                       knee_axes=knee_axis_checks(subject, params, trials, motions), length_sd=length_sd)
+                       knee_axes=knee_axis_checks(subject, params, trials, motions), length_sd=length_sd,
+                       mirror_sd=mirror_sd)
 
 
 def _joint_markers(problem: Problem, params: Parameters, unused: Sequence[str]) -> tuple[JointCentreMarker, ...]:

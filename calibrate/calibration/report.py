@@ -28,7 +28,7 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
-from .html import asymmetry_clause, report_html
+from .html import asymmetry_clause, mirror_clause, report_html
 from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
@@ -299,9 +299,9 @@ def symmetry_table(cal) -> dict:
     """Left/right differences of the result: per segment pair the scale difference (fraction of their
     mean) and the length difference of the segments that carry a joint centre below them (mm, %; with the
     difference's posterior SD, the priors' alone and whether the trials measure it, where the calibration has
-    them: Calibration.length_sd), per
-    joint pair the distance between the left centre and the mirrored right one (mm, at the subject's
-    scale); the largest of each, and the symmetry prior's SDs."""
+    them: Calibration.length_sd), per joint pair the distance between the left centre and the mirrored right
+    one (mm, at the subject's scale; its SDs alike in centre_mirror_sd: Calibration.mirror_sd); the largest of
+    each, and the symmetry prior's SDs."""
     model, p = cal.model, cal.params
     segs, joints, mirror = symmetry_pairs(model, model.parameters().centre)
     scale = {}
@@ -326,9 +326,12 @@ def symmetry_table(cal) -> dict:
         sa = p.scale[model.segment_index(model.joints[a].parent)]
         sb = p.scale[model.segment_index(model.joints[b].parent)]
         centre[model.joints[a].name[:-2]] = _mm(float(np.linalg.norm(sa * p.centre[a] - mirror * sb * p.centre[b])))
+    centre_sd = {name: {"sd_mm": _mm(sd), "priors_sd_mm": _mm(sd0), "measured": bool(sd <= IDENTIFIED * sd0)}
+                 for name, (sd, sd0) in cal.mirror_sd.items() if name in centre}
     st = cal.settings.priors
     return {"prior": {"scale": st.symmetry_scale, "centre_mm": 1000 * st.symmetry_centre},
             "scale_difference": scale, "segment_length": length, "centre_mirror_mm": centre,
+            "centre_mirror_sd": centre_sd,
             "largest_scale_difference": max(scale.values(), default=None),
             "largest_length_difference": max((v["difference"] for v in length.values()), default=None),
             "largest_centre_mirror_mm": max(centre.values(), default=None)}
@@ -381,11 +384,11 @@ def _noise_lines(cal) -> list[str]:
                    f"{v.min():.2f} ({names[lo]}) to {v.max():.2f} ({names[hi]})")
     sym = symmetry_table(cal)
     if sym["scale_difference"]:
-        worst_c = max(sym["centre_mirror_mm"].items(), key=lambda kv: kv[1], default=None)
         st = cal.settings.priors
+        mirrored = mirror_clause(sym)
         out.append(f"  {'left/right':22s}{'':12s}  segment lengths differ by up to "
                    + (asymmetry_clause(sym["segment_length"]) or "-")
-                   + (f", mirrored centres by up to {worst_c[1]:.1f} mm ({worst_c[0]})" if worst_c else "")
+                   + (f", mirrored centres by up to {mirrored}" if mirrored else "")
                    + (f" (symmetry prior SD {100 * st.symmetry_scale:g} %, {1000 * st.symmetry_centre:g} mm)"
                       if st.symmetry_scale or st.symmetry_centre else " (no symmetry prior)"))
     return out

@@ -237,6 +237,9 @@ class Calibration:
     # Per left/right segment pair (name without _l / _r): the posterior SD of their lengths' difference and the SD
     # the priors alone would leave it (m; calibrate.calibration.identifiability.length_differences)
     length_sd: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # Per left/right joint pair: the same of the distance between the left centre and the mirrored right one
+    # (m; identifiability.mirror_differences)
+    mirror_sd: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def notes(self) -> tuple[str, ...]:
