@@ -183,47 +183,32 @@ def test_the_left_right_sds_follow_the_lengths_and_centres_by_finite_differences
     n = problem.layout.n_free
     R = np.random.default_rng(0).normal(size=(n, n))
     cov, cov0 = R @ R.T * 1e-6, np.eye(n) * 1e-4
-    got = length_differences(problem, p, cov, cov0)
-    segments, _, _ = symmetry_pairs(model, model.parameters().centre)
+    segments, joints, mirror = symmetry_pairs(model, model.parameters().centre)
 
-    def difference(q: np.ndarray, a: int, b: int) -> float:
-        P = model.unpack(q)
+    def length_difference(P, a: int, b: int) -> float:
         return float(np.subtract(*(np.linalg.norm(P.scale[s] * P.centre[segment_end(model, s)]) for s in (a, b))))
 
-    checked = 0
-    for a, b in segments:
-        if segment_end(model, a) is None:
-            continue
-        eps = 1e-6
-        g = np.array([(difference(problem.retract_parameters(p, eps * e), a, b)
-                       - difference(problem.retract_parameters(p, -eps * e), a, b)) / (2 * eps) for e in np.eye(n)])
-        sd, sd0 = got[model.segments[a].name[:-2]]
-        assert sd == pytest.approx(np.sqrt(g @ cov @ g), rel=1e-5)
-        assert sd0 == pytest.approx(np.sqrt(g @ cov0 @ g), rel=1e-5)
-        checked += 1
-    assert checked >= 4
+    def mirrored_distance(P, a: int, b: int) -> float:
+        sa, sb = (P.scale[model.segment_index(model.joints[j].parent)] for j in (a, b))
+        return float(np.linalg.norm(sa * P.centre[a] - mirror * sb * P.centre[b]))
+
+    eps = 1e-6
+    ended = [(a, b) for a, b in segments if segment_end(model, a) is not None]
+    for sds, pairs, names, quantity in (
+            (length_differences(problem, p, cov, cov0), ended, model.segments, length_difference),
+            (mirror_differences(problem, p, cov, cov0), joints, model.joints, mirrored_distance)):
+        assert len(sds) == len(pairs) >= 4
+        for a, b in pairs:
+            g = np.array([(quantity(model.unpack(problem.retract_parameters(p, eps * e)), a, b)
+                           - quantity(model.unpack(problem.retract_parameters(p, -eps * e)), a, b)) / (2 * eps)
+                          for e in np.eye(n)])
+            sd, sd0 = sds[names[a].name[:-2]]
+            assert sd == pytest.approx(np.sqrt(g @ cov @ g), rel=1e-5)
+            assert sd0 == pytest.approx(np.sqrt(g @ cov0 @ g), rel=1e-5)
     for name, row in rep["symmetry"]["segment_length"].items():
         sd, sd0 = cal.length_sd[name]
         assert row["difference_sd_mm"] == pytest.approx(1000 * sd) and row["priors_sd_mm"] == pytest.approx(1000 * sd0)
         assert row["measured"] == (sd <= 0.5 * sd0)
-
-    # The mirrored centres' distances (the report's centre_mirror_mm) likewise.
-    _, joints, mirror = symmetry_pairs(model, model.parameters().centre)
-    got = mirror_differences(problem, p, cov, cov0)
-
-    def distance(q: np.ndarray, a: int, b: int) -> float:
-        P = model.unpack(q)
-        sa, sb = (P.scale[model.segment_index(model.joints[j].parent)] for j in (a, b))
-        return float(np.linalg.norm(sa * P.centre[a] - mirror * sb * P.centre[b]))
-
-    for a, b in joints:
-        eps = 1e-6
-        g = np.array([(distance(problem.retract_parameters(p, eps * e), a, b)
-                       - distance(problem.retract_parameters(p, -eps * e), a, b)) / (2 * eps) for e in np.eye(n)])
-        sd, sd0 = got[model.joints[a].name[:-2]]
-        assert sd == pytest.approx(np.sqrt(g @ cov @ g), rel=1e-5)
-        assert sd0 == pytest.approx(np.sqrt(g @ cov0 @ g), rel=1e-5)
-    assert len(got) >= 6
     for name, row in rep["symmetry"]["centre_mirror_sd"].items():
         sd, sd0 = cal.mirror_sd[name]
         assert row["sd_mm"] == pytest.approx(1000 * sd) and row["measured"] == (sd <= 0.5 * sd0)
