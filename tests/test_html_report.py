@@ -152,6 +152,9 @@ def test_the_left_right_headline_leaves_short_segments_out(run):
         "24.2 +- 16.6 mm) left to the priors (SD 16.6 mm alone)")
     alone = asymmetry_clause({"calcn": foot})
     assert alone == "13.2 % (calcn, 24.2 +- 16.6 mm), left to the priors"
+    held = {"left_mm": 236.4, "right_mm": 236.4, "difference": 0.0}  # a pair held at the base model's: no SDs
+    assert asymmetry_clause({"calcn": foot, "radius": held}) == alone
+    assert asymmetry_clause({"radius": held}) == "0.0 % (radius, 0.0 mm)"  # a report without SDs: as it stands
     # The mirrored centres' clause: the largest the trials measure, with its SD, then a larger one left to the priors.
     dist = {"hip": 20.6, "knee": 23.5, "wrist": 1.0}
     sds = {"hip": {"sd_mm": 5.0, "priors_sd_mm": 14.0, "measured": True},
@@ -161,6 +164,8 @@ def test_the_left_right_headline_leaves_short_segments_out(run):
     assert mirror_clause({"centre_mirror_mm": {"knee": 23.5}, "centre_mirror_sd": sds}) == (
         "23.5 +- 9.8 mm (knee), left to the priors")
     assert mirror_clause({"centre_mirror_mm": dist}) == "23.5 mm (knee)"  # a report without the SDs
+    assert mirror_clause({"centre_mirror_mm": {**dist, "radioulnar": 40.0}, "centre_mirror_sd": sds}) == (
+        "20.6 +- 5.0 mm (hip) measured by the trials, 23.5 +- 9.8 mm (knee) left to the priors (SD 17.2 mm alone)")
     sym = rep["symmetry"]
     assert f"mirrored centres by up to {mirror_clause(sym)}" in summary_text(cal)
     assert f"mirrored centres by up to {mirror_clause(sym)}" in report_html(rep)

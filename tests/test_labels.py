@@ -340,6 +340,26 @@ def test_human_body_model_spellings(human) -> None:  # noqa: ANN001
     assert mapping.unknown == ("LATI", "FLTHI")
 
 
+def test_human_body_model_spellings_against_rajagopals_own() -> None:
+    """The same trial against the Rajagopal2016 copy in ../shared/data/real, which spells the lateral femoral condyle
+    LLFC, the lateral elbow LLEL and the styloids LFAradius / LFAulna: each Human Body Model label goes to the model's
+    own spelling of its landmark (before, LLEK and RLEK stayed unknown there, its femurs carried no marker the trial
+    showed, and the calibration's hips ended 200-300 mm from their priors); the medial condyle is no alias."""
+    from calibrate.model.model import load_model
+
+    path = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "rajagopal_walk" / "Rajagopal2016.osim"
+    if not path.exists():
+        pytest.skip("rajagopal_walk is not in ../shared/data/real")
+    names = load_model(path).marker_names
+    assert {"LLFC", "RLFC", "LLEL", "RLEL", "LFAradius", "LFAulna", "LMFC"} <= set(names)
+    trial = make_trial(["LLEK", "RLEK", "LLEE", "RLEE", "LLW", "LMW", "RLW", "RMW", "LATI", "FLTHI"])
+    renamed, mapping = map_labels(trial, names)
+    assert renamed.labels == ("LLFC", "RLFC", "LLEL", "RLEL", "LFAradius", "LFAulna", "RFAradius", "RFAulna", "LATI",
+                              "FLTHI")
+    assert mapping.unknown == ("LATI", "FLTHI")
+    assert alias_for("LMFC", names) is None  # the medial condyle: no spelling of the lateral knee
+
+
 def test_inspect_a_trial_against_a_model(human, tmp_path, capsys) -> None:  # noqa: ANN001
     """`calibrate inspect TRIAL --model MODEL [--markers MAP]`: each label's fate before a calibration, counted, and
     the model's markers the trial lacks; --markers without --model: one line, exit 2."""

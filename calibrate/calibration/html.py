@@ -430,14 +430,17 @@ def asymmetry_clause(lengths: dict) -> str:
     to": the largest relative difference (longest_asymmetry) among the segments whose difference the trials measure
     (its posterior SD at most IDENTIFIED times the priors' alone), with its SD; and, where larger, the largest of those
     they leave to the priors and the gauges, said as such (a foot's length ends at centres no marker places:
-    Expert1's feet 13 % apart, 24 +- 17 mm, the priors' SD alone 17).  Rows without SDs (a report before them) count
-    as measured.  Empty without rows."""
+    Expert1's feet 13 % apart, 24 +- 17 mm, the priors' SD alone 17).  A row without SDs beside rows with them is a
+    pair held at the base model's (hold_segments: its difference is the base model's, not the subject's) and is left
+    out; in a report without SDs (written before them) every row counts as measured.  Empty without rows."""
     def said(item: tuple[str, dict]) -> str:
         name, row = item
         sd = row.get("difference_sd_mm")
         return (f"{100 * row['difference']:.1f} % ({name}, {abs(row['left_mm'] - row['right_mm']):.1f}"
                 + ("" if sd is None else f" +- {sd:.1f}") + " mm)")
 
+    if any("difference_sd_mm" in v for v in lengths.values()):
+        lengths = {k: v for k, v in lengths.items() if "difference_sd_mm" in v}
     head = longest_asymmetry({k: v for k, v in lengths.items() if v.get("measured", True)})
     worst = longest_asymmetry(lengths)
     if worst is None:
@@ -455,8 +458,11 @@ def mirror_clause(sym: Mapping) -> str:
     largest distance between a left centre and its mirrored right partner among those the trials measure (the
     distance's posterior SD at most IDENTIFIED times the priors' alone: centre_mirror_sd), with its SD; and, where
     larger, the largest of those they leave to the priors, said as such (a forearm's radioulnar centres, which a walk
-    does not place).  A report without the SDs: the largest, as it stands.  Empty without pairs."""
+    does not place); a pair without SDs beside pairs with them is held at the base model's and left out.  A report
+    without the SDs: the largest, as it stands.  Empty without pairs."""
     dist, sds = sym.get("centre_mirror_mm") or {}, sym.get("centre_mirror_sd") or {}
+    if sds:
+        dist = {k: v for k, v in dist.items() if k in sds}
 
     def said(name: str) -> str:
         sd = sds.get(name, {}).get("sd_mm")

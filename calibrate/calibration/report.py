@@ -321,6 +321,8 @@ def symmetry_table(cal) -> dict:
             if name in cal.length_sd:  # the difference's posterior SD, the priors' alone, and whether it is measured
                 sd, sd0 = cal.length_sd[name]
                 row.update(difference_sd_mm=_mm(sd), priors_sd_mm=_mm(sd0), measured=bool(sd <= IDENTIFIED * sd0))
+            elif cal.length_sd:  # both ends held at the base model's (Settings.hold_segments): not the subject's
+                row["held"] = True
     centre = {}
     for a, b in joints:
         sa = p.scale[model.segment_index(model.joints[a].parent)]

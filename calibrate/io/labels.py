@@ -37,7 +37,8 @@ xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias
 xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips
 xTHI          thi, thigh, thighwand
 xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee, latepicondyle, lateralepicondyle,
-              fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek
+              fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
+              lfc, latfemcondyle, lateralfemoralcondyle
 xTIB          tib, tibia, shank, tibwand, shankwand
 xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
               malleoluslat, ankle, lm, fal, lmal, latmal
@@ -46,12 +47,12 @@ xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
 xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular
 xUPA          upa, upperarm, arm, humerus, bicep, biceps
 xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hle, lhe,
-              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee
+              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel
 xFRM          frm, forearm
 xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius,
-              rs, rsp, radialstyloidprocess, lw
+              rs, rsp, radialstyloidprocess, lw, faradius
 xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna,
-              us, usp, ulnarstyloidprocess, mw
+              us, usp, ulnarstyloidprocess, mw, faulna
 xFIN          fin, finger, mcp2, mc2, hand, hm2
 xFHD          fhd, fronthead, headfront, forehead, temple, hdf
 xBHD          bhd, backhead, headback, rearhead, headrear, hdb
@@ -72,8 +73,9 @@ AC, CAJ the acromio-clavicular joint (SHO); EL, HLE, LHE the lateral humeral epi
 RS, RSP and US, USP the radial and ulnar styloid (WRA, WRB); HM2 the second metacarpal head
 (FIN); IJ, SJN the jugular notch (CLAV); PX, SXS the xiphoid (STRN); CV7, TV10 the spinous
 processes; Motek's Human Body Model spells the knee's and the elbow's lateral epicondyles LEK and LEE, the
-wrist's lateral (radial) and medial (ulnar) sides LW and MW.  Medial landmarks (FME, MM, EM...) have no Plug-in
-Gait marker and stay unknown.
+wrist's lateral (radial) and medial (ulnar) sides LW and MW; the Rajagopal2016 copy in ../shared spells the
+lateral femoral condyle LFC, the lateral elbow LEL and the forearm's styloids FAradius and FAulna.  Medial landmarks
+(FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
 ``RASI``; ``R.Knee.Lat`` and ``R.Knee`` become ``RKNE`` (``R.Knee.Lat`` kept when both are there);
@@ -132,6 +134,7 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "KNE": (
         "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee", "latepicondyle", "lateralepicondyle",
         "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle", "femurlateralepicondyle", "lek",
+        "lfc", "latfemcondyle", "lateralfemoralcondyle",
     ),
     "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand"),
     "ANK": (
@@ -144,16 +147,16 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
     "ELB": (
         "elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow", "el", "hle", "lhe",
-        "lateralhumeralepicondyle", "humerallateralepicondyle", "humeruslateralepicondyle", "lee",
+        "lateralhumeralepicondyle", "humerallateralepicondyle", "humeruslateralepicondyle", "lee", "lel",
     ),
     "FRM": ("frm", "forearm"),
     "WRA": (
         "wra", "wrista", "wristlat", "wristlateral", "wristradial", "radialwrist", "radialstyloid", "radius",
-        "rs", "rsp", "radialstyloidprocess", "lw",
+        "rs", "rsp", "radialstyloidprocess", "lw", "faradius",
     ),
     "WRB": (
         "wrb", "wristb", "wristmed", "wristmedial", "wristulnar", "ulnarwrist", "ulnarstyloid", "ulna",
-        "us", "usp", "ulnarstyloidprocess", "mw",
+        "us", "usp", "ulnarstyloidprocess", "mw", "faulna",
     ),
     "FIN": ("fin", "finger", "mcp2", "mc2", "hand", "hm2"),
     "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple", "hdf"),
