@@ -15,7 +15,7 @@ from __future__ import annotations
 import html
 import json
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from ..errors import CalibrateError
@@ -232,10 +232,10 @@ def _summary(report: dict) -> str:
                          f"{j} {v['calibrated_mm']:.0f}/{v['measured_mm']:.0f}" + ("" if v["used"] else " (not used)")
                          for j, v in meas["lateral_mm"].items())])
     sym = report.get("symmetry", {})
-    clause = asymmetry_clause(sym.get("segment_length") or {})
+    clause, mirrored = asymmetry_clause(sym.get("segment_length") or {}), mirror_clause(sym)
     if clause:
         rows.append(["left/right", f"segment lengths differ by up to {clause}"
-                     + (f", mirrored centres by up to {mirror_clause(sym)}" if mirror_clause(sym) else "")])
+                     + (f", mirrored centres by up to {mirrored}" if mirrored else "")])
     return "<h2 id=summary>Summary</h2>" + trials + _table(["", ""], rows)
 
 
@@ -443,14 +443,8 @@ def asymmetry_clause(lengths: dict) -> str:
         lengths = {k: v for k, v in lengths.items() if "difference_sd_mm" in v}
     head = longest_asymmetry({k: v for k, v in lengths.items() if v.get("measured", True)})
     worst = longest_asymmetry(lengths)
-    if worst is None:
-        return ""
-    if head is None:
-        return said(worst) + ", left to the priors"
-    if worst[0] != head[0] and worst[1]["difference"] > head[1]["difference"]:
-        return (said(head) + " measured by the trials; " + said(worst)
-                + f" left to the priors (SD {worst[1]['priors_sd_mm']:.1f} mm alone)")
-    return said(head)
+    return _split_clause(head and head[0], worst and worst[0], lambda k: lengths[k]["difference"],
+                         lambda k: said((k, lengths[k])), lambda k: lengths[k]["priors_sd_mm"], "; ")
 
 
 def mirror_clause(sym: Mapping) -> str:
@@ -469,15 +463,22 @@ def mirror_clause(sym: Mapping) -> str:
         return f"{dist[name]:.1f}" + ("" if sd is None else f" +- {sd:.1f}") + f" mm ({name})"
 
     measured = [k for k in dist if sds.get(k, {}).get("measured", True)]
-    worst = max(dist, key=dist.get, default=None)
-    head = max(measured, key=dist.get, default=None)
+    return _split_clause(max(measured, key=dist.get, default=None), max(dist, key=dist.get, default=None), dist.get,
+                         said, lambda k: sds[k]["priors_sd_mm"], ", ")
+
+
+def _split_clause(head: str | None, worst: str | None, size: Callable[[str], float], said: Callable[[str], str],
+                  priors_sd: Callable[[str], float], sep: str) -> str:
+    """The clause of asymmetry_clause and mirror_clause: `head` (the largest the trials measure) said, and `worst`
+    (the largest of all, by `size`) after it as left to the priors where it is another and larger (`sep` between);
+    `worst` alone, so named, where none is measured; empty where there is none."""
     if worst is None:
         return ""
     if head is None:
         return said(worst) + ", left to the priors"
-    if worst != head and dist[worst] > dist[head]:
-        return (said(head) + " measured by the trials, " + said(worst)
-                + f" left to the priors (SD {sds[worst]['priors_sd_mm']:.1f} mm alone)")
+    if worst != head and size(worst) > size(head):
+        return (f"{said(head)} measured by the trials{sep}{said(worst)} left to the priors "
+                f"(SD {priors_sd(worst):.1f} mm alone)")
     return said(head)
 
 
