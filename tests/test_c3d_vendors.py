@@ -454,7 +454,8 @@ def test_prefix_removal_that_would_repeat_a_label_is_skipped(tmp_path: Path) -> 
 
 @pytest.mark.parametrize(
     ("units", "metres_per_unit"),
-    [("mm", 1e-3), ("MM", 1e-3), ("cm", 1e-2), ("m", 1.0), (" M ", 1.0), ("millimeters", 1e-3), ("metres", 1.0)],
+    [("mm", 1e-3), ("MM", 1e-3), ("cm", 1e-2), ("m", 1.0), (" M ", 1.0), ("millimeters", 1e-3), ("metres", 1.0),
+     ("mete", 1.0), ("Mill", 1e-3), ("cent", 1e-2)],  # cut to a 4-character parameter (c3d.org's sample15: 'mete')
 )
 def test_point_units(tmp_path: Path, units: str, metres_per_unit: float) -> None:
     xyz = np.array([[[12.5, -3.25, 7.0]]])
@@ -541,3 +542,44 @@ def test_only_modelled_outputs_is_refused(tmp_path: Path) -> None:
     with pytest.raises(TrialError, match="no marker trajectories") as excinfo:
         read_trial(path)
     assert_one_line(excinfo, path)
+
+
+@pytest.mark.parametrize("units", ["met", "mi", "meters per second"])
+def test_units_that_name_no_length_are_refused(tmp_path: Path, units: str) -> None:
+    """Only a name cut at 4 characters or more, and only to one unit, is read as that unit."""
+    path = tmp_path / "units.c3d"
+    path.write_bytes(c3d_bytes(np.ones((1, 1, 3)), np.zeros((1, 1)), ["RASI"], scale=-1.0, units=units))
+    with pytest.raises(TrialError, match="unknown length units") as excinfo:
+        read_trial(path)
+    assert_one_line(excinfo, path)
+
+
+@pytest.mark.parametrize("count", [1, 0])
+def test_parameter_blocks_counted_short_read_to_the_data_section(tmp_path: Path, count: int) -> None:
+    """The parameter section's own count of its blocks short of where the data start (c3d.org's sample15 says 3
+    of 5, PhaseSpace's 0): the parameters are read on to the data section, as ezc3d reads them."""
+    labels = [f"MARKER{k:02d}" for k in range(60)]  # a parameter section of two blocks
+    xyz = positions_mm(4, len(labels), seed=14)
+    data = bytearray(c3d_bytes(xyz, np.zeros((4, len(labels))), labels, scale=-1.0))
+    assert data[512 + 2] == 2 and data[16] == 4  # two parameter blocks, the data from block 4
+    data[512 + 2] = count
+    path = tmp_path / "short_count.c3d"
+    path.write_bytes(bytes(data))
+    trial = read_trial(path)
+    assert trial.labels == tuple(labels)
+    assert_positions(trial.markers, xyz / 1000.0)
+
+
+def test_a_parameter_of_no_group_is_left_out(tmp_path: Path) -> None:
+    """A parameter whose group the file never names (c3d.org's Vicon force-plate samples: IS_STATIC): read past."""
+    xyz = positions_mm(3, 2, seed=15)
+    data = bytearray(c3d_bytes(xyz, np.zeros((3, 2)), ["RASI", "LASI"], scale=-1.0,
+                               parameters=(("SEG", "IS_STATIC", 1),)))
+    at = bytes(data).find(bytes([3]) + struct.pack("b", -3) + b"SEG")  # the group record: its id -3
+    assert at > 0
+    data[at + 1 : at + 2] = struct.pack("b", -9)  # the group now 9: IS_STATIC (group 3) belongs to none
+    path = tmp_path / "orphan.c3d"
+    path.write_bytes(bytes(data))
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI")
+    assert_positions(trial.markers, xyz / 1000.0)

@@ -123,6 +123,24 @@ def test_a_static_arm_the_model_cannot_follow_no_longer_bends_the_shoulders(mode
     assert np.all(errors["left out"] < 0.6 * errors["kept"]) and errors["kept"].min() > 25.0, errors
 
 
+def test_locked_coordinates_beyond_a_far_joint_stay_locked(model, walk):
+    """The static's arm angles fitted afterwards leave the coordinates the run locks at their values: a forearm
+    rotation locked beyond a raised shoulder (BTKData's PiG_Calibration-FlatFoot-Hole: its auto-locked radioulnar_r
+    carried 14 deg off its lock, the lock's cost 6.6e10 in the summary)."""
+    static, _, _ = arms_out_static(model, walk, lift=0.04)
+    lock = {"radioulnar_l": 0.2, "radioulnar_r": 0.0}
+    cal = calibrate(model, [static, walk.trial], Settings(lock=tuple(lock.items())))
+    assert sorted(f.joint for f in cal.far_joints) == ["shoulder_l", "shoulder_r"]
+    for mo in cal.motions:
+        for name, value in lock.items():
+            np.testing.assert_allclose(mo.angles[:, mo.dof_names.index(name)], value, atol=1e-6, err_msg=name)
+    # The static's other arm angles are still fitted to its markers (its abduction, as in the test above).
+    ab = -cal.motions[0].angles[:, model.dof_index("shoulder_r_adduction")]
+    assert ABDUCTION - math.radians(2) < np.median(ab) < ABDUCTION + math.radians(12)
+    # The summary's final cost is the fit's: no lock residual of 1e5 per noise SD per radian in it.
+    assert cal.summary.final_cost < 2.0 * cal.summary.initial_cost
+
+
 def test_the_command_line_names_them_and_keep_far_joints_keeps_them(model, walk, tmp_path, capsys):
     """From C3D files: the summary's `far pose` line, the report's far_joints and the HTML name the shoulders;
     --keep-far-joints (and a config's far_joints = false) keep the static's arm markers."""

@@ -273,3 +273,45 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human):
     squats = simulate_squats(human, frames=200, noise_mm=1.0, seed=0)
     moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
     assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)
+
+
+def test_each_hip_is_measured_against_harrington_and_one_far_from_it_is_implausible(human, tmp_path):
+    """The report's distance of each hip from Harrington's regression is the median over the frames of the hip
+    centres read back through the written URDF and Pinocchio against Harrington's computed by hand; the widths are
+    the hips' and the ASIS markers' medians.  A hip the walk does not place, further than REGRESSION_FAR from
+    Harrington's or with the hips wider apart than HIP_WIDTH_FAR times the ASIS markers (BTKData's PiG walks: 46-93
+    mm, the hips outside the ASIS), is named on an
+    `implausible` line and in the HTML; the simulated walk's own hips are not."""
+    from dataclasses import replace
+
+    from calibrate.calibration.regression import HIP_WIDTH_FAR, REGRESSION_FAR
+
+    walk = simulate_gait(human, frames=120, noise_mm=1.0, seed=2)
+    cal = calibrate(human, [walk.trial], Settings(outliers=0.0))
+    right, left = _hips_from_urdf(cal, tmp_path / "walk.urdf")
+    want_r, want_l = _harrington_by_hand(walk.trial)
+    t = walk.trial
+    asis = np.median(np.linalg.norm(t.marker("RASI") - t.marker("LASI"), axis=1))
+    by_joint = {h.joint: h for h in cal.hip_motion}
+    for joint, got, want in (("hip_r", right, want_r), ("hip_l", left, want_l)):
+        h = by_joint[joint]
+        assert h.from_regression == pytest.approx(np.median(np.linalg.norm(got - want, axis=1)), abs=1e-6)
+        assert h.width == pytest.approx((np.median(np.linalg.norm(right - left, axis=1)), asis), abs=1e-6)
+        assert not h.implausible and h.from_regression < REGRESSION_FAR and h.width[0] < HIP_WIDTH_FAR * asis
+    assert "  implausible  hip_" not in summary_text(cal)
+    # The same hips had they ended 45 and 50 mm from Harrington's: named, with the widths; or only 20 mm from it
+    # but outside 0.9 times the ASIS width.
+    far = tuple(replace(h, from_regression=d) for h, d in zip(cal.hip_motion, (0.045, 0.050), strict=True))
+    text = summary_text(replace(cal, hip_motion=far))
+    w, a = far[0].width
+    assert (f"  implausible  hip_l 45 mm and hip_r 50 mm from Harrington's regression on the pelvis markers (its error "
+            f"on CT 12 +- 6 mm), the hips {1e3 * w:.0f} mm apart where the ASIS markers are {1e3 * a:.0f}") in text
+    report = calibration_report(replace(cal, hip_motion=far))
+    assert [h["implausible"] for h in report["hip_motion"]] == [True, True]
+    assert report["hip_motion"][0]["from_regression_mm"] == pytest.approx(45.0)
+    wide = tuple(replace(h, from_regression=0.020, width=(0.92 * a, a)) for h in cal.hip_motion)
+    assert all(h.implausible for h in wide)
+    assert "  implausible  hip_l 20 mm and hip_r 20 mm from Harrington's" in summary_text(replace(cal, hip_motion=wide))
+    assert not any(replace(h, width=(0.88 * a, a)).implausible for h in cal.hip_motion)
+    assert "mm from Harrington's regression on the pelvis markers" in report_html(report)
+    assert "mm from Harrington's regression" not in report_html(calibration_report(cal))

@@ -140,13 +140,14 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
 
 
 def refit_beyond(kin: Kinematics, state: State, observed: np.ndarray, far: Sequence[FarJoint],
-                 spans: Sequence[slice]) -> State:
+                 spans: Sequence[slice], locked: np.ndarray | None = None) -> State:
     """`state` with each far joint's still-trial frames' coordinates of that joint and every joint below it
     fitted to the markers beyond it (`observed`: the positions left out of the fit, (F, n_markers, 3)) at
     the geometry state.p, the rest of each frame's pose held: the still trial's arm angles as its markers
     show them, though those markers did not shape the geometry.  A still trial holds one pose: REFIT_FRAMES
     of its frames, evenly spread, are fitted (each from the last one's fit) and every other frame takes the
-    nearest one's angles beyond the joint."""
+    nearest one's angles beyond the joint.  `locked` (n_dofs,): coordinates the run holds (Settings.lock,
+    auto-locks), kept at their values (a ball joint with one of its angles locked is kept whole)."""
     solver = FrameSolver(kin, state.p, margin=LIMIT_MARGIN)  # the limits as the solve's
     Z, Q = state.Z.copy(), state.Q.copy()
     B = None if state.B is None else state.B.copy()
@@ -155,6 +156,16 @@ def refit_beyond(kin: Kinematics, state: State, observed: np.ndarray, far: Seque
     for fj in far:
         _, sub_dofs, sub_mk, *_ = solver.plan[names.index(fj.joint)]
         free = np.asarray(sub_dofs)
+        if locked is not None and locked.any():
+            # A locked forearm rotation beyond a raised shoulder stays locked (PiG_Calibration-FlatFoot-Hole's
+            # auto-locked radioulnar_r was carried 14 deg off its lock, the lock's cost 6.6e10).
+            held = set(np.flatnonzero(locked).tolist())
+            for ball in kin.balls:
+                if held & set(ball.dofs):
+                    held |= set(ball.dofs)
+            free = np.array([c for c in free if FrameLayout.dof(c) not in held], dtype=int)
+            if not free.size:
+                continue
         # the balls among the joints beyond: their reference quaternions travel with the angles
         balls = [b for b, ball in enumerate(kin.balls) if np.isin(FrameLayout.angle(np.asarray(ball.dofs)), free).any()]
         frames = np.arange(spans[fj.trial].start, spans[fj.trial].stop)

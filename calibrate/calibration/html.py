@@ -132,8 +132,10 @@ def _notes(report: dict) -> str:
         if not h.get("places_centre", True) and h.get("joint") not in tied:
             items.append(f"<li>{_e(h.get('joint'))}: the trials turn it through "
                          + ", ".join(f"{_e(d)} {v:.0f}" for d, v in h.get("range_deg", {}).items())
-                         + " deg, too little in two of its angles to place its centre (a walk's motion does not); "
-                         "<code>--hip-regression</code> places it by Harrington's regression</li>")
+                         + " deg, too little in two of its angles to place its centre (a walk's motion does not)"
+                         + (f"; it ended {h['from_regression_mm']:.0f} mm from Harrington's regression on the pelvis "
+                            "markers (its error 12 &plusmn; 6 mm): implausible" if h.get("implausible") else "")
+                         + "; <code>--hip-regression</code> places it by Harrington's regression</li>")
     for k in report.get("plugin_gait_knees", []):
         if k.get("misaligned"):
             items.append(f"<li>Plug-in Gait in {_e(k.get('trial'))}: its {_e(k.get('joint'))} axis is "

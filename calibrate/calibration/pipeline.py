@@ -580,7 +580,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
         # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before
         # a turn of the segment frames below reads them (a neutral static's arms).
-        state = refit_beyond(problem.kin, state, far_obs, far, spans)
+        state = refit_beyond(problem.kin, state, far_obs, far, spans, problem.locked)
     # Last (with the neutral trial's turn and the centres' slide below), where Settings.segment_frames says so
     # (by default for an OpenSim model): the segment frames turned to where their markers put them, the frames in
     # which the lab's model defines its joint angles (align_markers).  A change of gauge (the data fit stays), so
@@ -611,7 +611,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     slid = replace(state, p=problem.slide_centres(state.p))
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
-        slid = refit_beyond(problem.kin, slid, far_obs, far, spans)
+        slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked)
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid
     times["solve"] = time.perf_counter() - t0
@@ -651,6 +651,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
                             float(err[f, k])) for f, k in np.argwhere(jumped)] + rejected
     residuals = problem.marker_residuals(state)
+    # The hip centres on a few hundred frames of each trial, against Harrington's regression on its pelvis markers
+    # (HipMotion.from_regression: a walk's hips, which its motion does not place, ended outside the pelvis).
+    hip_frames = [even_frames(sl.stop - sl.start, HIP_FRAMES) for sl in spans]
+    hip_at = [(idx, problem.kin.batch(FrameLayout.coordinates(Z[sl][idx, FrameLayout.translation],
+                                                              FrameLayout.angles(Z[sl][idx])), Q[sl][idx], params)[1])
+              for idx, sl in zip(hip_frames, spans, strict=True)]
     motions = tuple(Motion(t.times.copy(), Z[sl, FrameLayout.translation].copy(), Q[sl].copy(),
                            FrameLayout.angles(Z[sl]).copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
@@ -666,7 +672,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=_still_only(model, trials, motion),
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
-                       joint_markers=_joint_markers(problem, params, unused), hip_motion=hip_motion(subject, motions),
+                       joint_markers=_joint_markers(problem, params, unused),
+                       hip_motion=hip_motion(subject, motions, hip_at, trials),
                        knee_axes=knee_axis_checks(subject, params, trials, motions), length_sd=length_sd,
                        mirror_sd=mirror_sd)
 
@@ -957,6 +964,9 @@ def _solve_frames(problem: Problem, state: State, solved: np.ndarray, solver: So
 
 LEVEL_GROWTH = 8  # each larger subsample of a long trial: this many times the frames of the last
 LEVEL_ROOM = 3  # ... taken while the trial has at least this many times its frames
+
+
+HIP_FRAMES = 300  # frames of each trial on which the hip centres are compared with Harrington's regression
 
 
 SPREAD_FRAMES = 50  # solved frames further apart than this (0.5 s at 100 Hz): every frame's pose refitted first

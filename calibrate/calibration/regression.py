@@ -62,18 +62,39 @@ def hip_joints(model: Model, pelvis: str | None = None) -> dict[str, Joint]:
     return hips
 
 
+#: Where the trials' motion does not place a hip, its centre further than REGRESSION_FAR from Harrington's regression
+#: (its error on CT 12 +- 6 mm; the simulator's subjects, their centres and markers drawn apart by up to 15 mm per
+#: coordinate, 9-29 mm), or the two hips further apart than HIP_WIDTH_FAR times the ASIS markers (Harrington's
+#: 0.66 times plus 15 mm; the simulator's 0.64-0.74) is implausible: BTKData's PiG walks ended their hips 46-93 mm
+#: from Harrington's and up to 1.25 times the ASIS width apart, outside the pelvis (docs/benchmarks.md).
+REGRESSION_FAR = 0.040
+HIP_WIDTH_FAR = 0.9
+
+
 @dataclass(frozen=True)
 class HipMotion:
     """How far the trials turn a hip: each of its three angles' range (5th to 95th percentile of its frames, the
     largest over the trials, rad).  Through less than FUNCTIONAL_RANGE in two of them the motion does not place the
-    centre (on real walks it ends 28-65 mm from the labs' and Harrington's: docs/benchmarks.md)."""
+    centre (on real walks it ends 28-65 mm from the labs' and Harrington's: docs/benchmarks.md).
+    `from_regression`: the calibrated centre's distance (m, median over the trials' frames) from Harrington's
+    regression on the trials' pelvis markers (NaN without them); `width`: the two hip centres' distance and the
+    ASIS markers' (m, medians), the same for both hips."""
 
     joint: str
     ranges: dict[str, float]
+    from_regression: float = math.nan
+    width: tuple[float, float] = (math.nan, math.nan)
 
     @property
     def places_centre(self) -> bool:
         return sorted(self.ranges.values())[-2] >= FUNCTIONAL_RANGE
+
+    @property
+    def implausible(self) -> bool:
+        """A centre the motion does not place, ended further than REGRESSION_FAR from Harrington's or the hips
+        further apart than HIP_WIDTH_FAR times the ASIS markers."""
+        return not self.places_centre and (self.from_regression > REGRESSION_FAR
+                                           or self.width[0] > HIP_WIDTH_FAR * self.width[1])
 
     def text(self) -> str:
         """e.g. 'hip_l through flexion 31, adduction 8, rotation 13 deg' (the DoF names without the joint's)."""
@@ -83,14 +104,23 @@ class HipMotion:
             for d, v in self.ranges.items()) + " deg"
 
     def to_json(self) -> dict:
-        return {"joint": self.joint, "range_deg": {k: math.degrees(v) for k, v in self.ranges.items()},
-                "places_centre": self.places_centre}
+        out = {"joint": self.joint, "range_deg": {k: math.degrees(v) for k, v in self.ranges.items()},
+               "places_centre": self.places_centre}
+        if math.isfinite(self.from_regression):
+            out.update(from_regression_mm=1e3 * self.from_regression, implausible=self.implausible,
+                       hip_width_mm=1e3 * self.width[0], asis_width_mm=1e3 * self.width[1])
+        return out
 
 
-def hip_motion(model: Model, motions: Sequence) -> tuple[HipMotion, ...]:
-    """HipMotion of each hip (hip_joints) over `motions` (calibrate.io.motion.Motion per trial, the model's DoFs)."""
+def hip_motion(model: Model, motions: Sequence, centres: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+               trials: Sequence[Trial] = ()) -> tuple[HipMotion, ...]:
+    """HipMotion of each hip (hip_joints) over `motions` (calibrate.io.motion.Motion per trial, the model's DoFs);
+    with `centres` (per trial: its frames' indices and the calibrated joint centres in the lab there, (n, n_joints,
+    3)) and `trials` (the model's labels), each hip centre's distance from Harrington's regression on those frames,
+    where the trials carry the pelvis landmarks."""
     out = []
     hips = hip_joints(model)
+    ref = _regression_reference(model, hips, centres, trials)
     for side in ("l", "r"):
         joint = hips.get(side)
         if joint is None:
@@ -102,8 +132,61 @@ def hip_motion(model: Model, motions: Sequence) -> tuple[HipMotion, ...]:
             if spans:
                 ranges[d] = max(spans)
         if len(ranges) == 3:
-            out.append(HipMotion(joint.name, ranges))
+            out.append(HipMotion(joint.name, ranges, *ref.get(side, (math.nan, (math.nan, math.nan)))))
     return tuple(out)
+
+
+def _landmarks(model: Model) -> dict[str, str]:
+    """The model's pelvis landmarks Harrington's regression reads: Plug-in Gait name -> the model's label."""
+    found: dict[str, str] = {}
+    for mk in model.markers:
+        hit = mk.name if mk.name in LANDMARKS else (alias_for(mk.name, LANDMARKS) or (None,))[0]
+        if hit is not None and hit not in found:
+            found[hit] = mk.name
+    return found
+
+
+def _harrington_of(trial: Trial, found: dict[str, str], frames: np.ndarray | slice = slice(None)
+                   ) -> tuple[np.ndarray, np.ndarray, dict[str, str]] | None:
+    """Harrington's right and left hip centres in each of `frames` of `trial` (NaN where a landmark is not seen) and
+    the landmarks read, or None when the trial lacks an ASIS or both PSIS and the sacral marker."""
+    have = {c: label for c, label in found.items() if label in trial.labels}
+    back = ("RPSI", "LPSI") if "RPSI" in have and "LPSI" in have else ("SACR",) if "SACR" in have else None
+    if "RASI" not in have or "LASI" not in have or back is None:
+        return None
+    at = {c: trial.markers[frames, trial.labels.index(have[c])] for c in ("RASI", "LASI", *back)}
+    mid = 0.5 * (at["RPSI"] + at["LPSI"]) if back != ("SACR",) else at["SACR"]
+    with np.errstate(invalid="ignore"):
+        right, left = harrington(at["RASI"], at["LASI"], mid)
+    return right, left, {c: have[c] for c in at}
+
+
+def _regression_reference(model: Model, hips: dict[str, Joint], centres: Sequence[tuple[np.ndarray, np.ndarray]],
+                          trials: Sequence[Trial]) -> dict[str, tuple[float, tuple[float, float]]]:
+    """Per side: the calibrated hip centre's median distance from Harrington's over every frame given, and the hip
+    centres' and ASIS markers' median widths there."""
+    if set(hips) != {"r", "l"} or not centres:
+        return {}
+    found = _landmarks(model)
+    k = {side: model.joint_index(hips[side].name) for side in "rl"}
+    gaps: dict[str, list[np.ndarray]] = {"r": [], "l": []}
+    widths, asis = [], []
+    for (frames, C), t in zip(centres, trials, strict=True):
+        h = _harrington_of(t, found, frames)
+        if h is None:
+            continue
+        right, left, _ = h
+        gaps["r"].append(np.linalg.norm(C[:, k["r"]] - right, axis=1))
+        gaps["l"].append(np.linalg.norm(C[:, k["l"]] - left, axis=1))
+        widths.append(np.linalg.norm(C[:, k["r"]] - C[:, k["l"]], axis=1))
+        asis.append(np.linalg.norm(t.markers[frames, t.labels.index(found["RASI"])]
+                                   - t.markers[frames, t.labels.index(found["LASI"])], axis=1))
+    if not widths:
+        return {}
+    with np.errstate(invalid="ignore"):
+        width = (float(np.nanmedian(np.concatenate(widths))), float(np.nanmedian(np.concatenate(asis))))
+        return {side: (float(np.nanmedian(np.concatenate(g))), width) for side, g in gaps.items()
+                if np.isfinite(np.concatenate(g)).any()}
 
 
 def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tuple[Trial, ...], dict[str, str]]:
@@ -111,11 +194,7 @@ def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tup
     with its Harrington position in every frame (NaN where a landmark is not seen); and the landmarks used
     (Plug-in Gait name -> the model's label).  The trials' labels must be the model's (calibrate maps them
     first).  One-line CalibrateError when the model lacks a hip or a landmark, or a trial lacks a landmark."""
-    found: dict[str, str] = {}
-    for mk in model.markers:
-        hit = mk.name if mk.name in LANDMARKS else (alias_for(mk.name, LANDMARKS) or (None,))[0]
-        if hit is not None and hit not in found:
-            found[hit] = mk.name
+    found = _landmarks(model)
     need = [c for c in ("RASI", "LASI") if c not in found]
     if not need and not ("RPSI" in found and "LPSI" in found or "SACR" in found):
         need = ["RPSI and LPSI, or SACR"]
@@ -134,20 +213,17 @@ def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tup
     used: dict[str, str] = {}
     out = []
     for t in trials:
-        have = {c: label for c, label in found.items() if label in t.labels}
-        back = ("RPSI", "LPSI") if "RPSI" in have and "LPSI" in have else ("SACR",) if "SACR" in have else None
-        if "RASI" not in have or "LASI" not in have or back is None:
+        h = _harrington_of(t, found)
+        if h is None:
+            have = {c for c, label in found.items() if label in t.labels}
             missing = [found[c] for c in ("RASI", "LASI") if c not in have]
-            if back is None:
+            if not ({"RPSI", "LPSI"} <= have or "SACR" in have):
                 pair = " and ".join(found[c] for c in ("RPSI", "LPSI") if c in found)
                 missing.append(" or ".join(x for x in (pair, found.get("SACR", "")) if x))
             raise CalibrateError(f"hip_regression: {t.source or 'a trial'} has no {', '.join(missing)} (the pelvis "
                                  "landmarks Harrington's regression needs); leave hip_regression off")
-        at = {c: t.markers[:, t.labels.index(have[c])] for c in ("RASI", "LASI", *back)}
-        used.update((c, have[c]) for c in at)
-        mid = 0.5 * (at["RPSI"] + at["LPSI"]) if back != ("SACR",) else at["SACR"]
-        with np.errstate(invalid="ignore"):
-            right, left = harrington(at["RASI"], at["LASI"], mid)
+        right, left, read = h
+        used.update(read)
         out.append(replace(t, labels=t.labels + VIRTUAL,
                            markers=np.concatenate([t.markers, right[:, None], left[:, None]], axis=1)))
     model = add_markers(model, {VIRTUAL[0]: (hips["r"].child, np.zeros(3)), VIRTUAL[1]: (hips["l"].child, np.zeros(3))})

@@ -649,6 +649,13 @@ def summary_text(cal) -> str:
                      "of its angles (a star arc); a walk's do not, and on real walks the centres end 28-65 mm from "
                      "the labs' (docs/benchmarks.md): --hip-regression places them by Harrington's regression from "
                      "the pelvis markers")
+    if far := [h for h in loose if h.implausible]:
+        width, asis = far[0].width
+        lines.append("  implausible  " + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
+                     + " from Harrington's regression on the pelvis markers (its error on CT 12 +- 6 mm), the hips "
+                     f"{1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} (Harrington's: "
+                     f"{1e3 * (0.66 * asis + 0.0146):.0f}): the trials' motion does not place them (hips above), the "
+                     "thigh markers' skin did; --hip-regression places them by the regression")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

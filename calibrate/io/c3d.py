@@ -57,8 +57,8 @@ def _c3d_float(raw: bytes, processor: int) -> float:
 def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
     """Walk the records of a C3D parameter section; map (GROUP, NAME) to (type, dimensions, raw data).
 
-    Raises _BadC3D when a record does not fit the section, names an unknown type, or
-    belongs to no group: ezc3d can crash the interpreter on such files.
+    Raises _BadC3D when a record does not fit the section or names an unknown type: ezc3d can crash the
+    interpreter on such files.  A parameter of no group is left out.
     """
     endian = ">" if processor == 86 else "<"
     end = len(section)
@@ -105,9 +105,10 @@ def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, st
         pos = following
     table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]] = {}
     for group_id, name, kind, dims, raw in records:
-        if group_id not in groups:
-            raise _BadC3D(f"parameter {name} belongs to no group")
-        table[(groups[group_id], name)] = (kind, dims, raw)
+        # A parameter of no group (c3d.org's Vicon force-plate samples: IS_STATIC) is no marker's: ezc3d files it
+        # under a nameless group and reads on.
+        if group_id in groups:
+            table[(groups[group_id], name)] = (kind, dims, raw)
     return table
 
 
@@ -197,6 +198,11 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
                 "C3D file is in the big-endian MIPS (SGI) format, whose data ezc3d cannot read",
                 "convert it to an Intel (PC) C3D file, e.g. by opening and saving it in Mokka, or export it as TRC",
             )
+        # The section runs to the data section where the header's count of its blocks is short or 0 (c3d.org's
+        # sample15 says 3 blocks where its parameters fill 5, PhaseSpace's says 0): ezc3d reads on to the last
+        # parameter's link as well.
+        data_block = struct.unpack("<H", header[16:18])[0]
+        n_blocks = max(n_blocks, data_block - header[0] if data_block > header[0] else 0)
         if n_blocks == 0 or param_start + 512 * n_blocks > size:
             raise bad("truncated inside its parameter section")
         fh.seek(param_start)

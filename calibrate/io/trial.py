@@ -33,8 +33,12 @@ in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte
   (SGI) files are refused with a clear message: ezc3d cannot read their data.  The
   header and POINT:SCALE must agree on float or integer storage, and POINT:SCALE must
   not be 0 (either would silently give wrong positions).
-- POINT:UNITS ``mm``, ``cm``, ``m`` (any case; also spelt out, ``millimeters``, ``metres``...),
-  mm when absent or blank; only the first entry counts when there is one per point.
+- POINT:UNITS ``mm``, ``cm``, ``m`` (any case; also spelt out, ``millimeters``, ``metres``..., or cut to four
+  characters or more, ``mete``, as c3d.org's sample15 stores it), mm when absent or blank; only the first entry
+  counts when there is one per point.
+- the parameter section read on to the data section where the header's count of its blocks falls short or is 0
+  (c3d.org's sample15, PhaseSpace), and a parameter of no group (c3d.org's Vicon force-plate samples) left out,
+  as ezc3d reads them: every c3d.org and BTKData sample with markers that ezc3d reads is read here.
 - gaps: a negative residual word (the C3D "invalid point", -1 as Vicon, Qualisys,
   Motion Analysis and OptiTrack write it), all three coordinates exactly 0, or a
   non-finite coordinate.  A residual of 0 is a valid point (interpolated or filtered).
@@ -123,7 +127,10 @@ def parse_units(units: object, path: str | os.PathLike[str] | None, todo: str, *
     """Metres per file unit for a units string such as ' MM '; when reading also 'millimeters' and the like."""
     key = str(units).strip().strip("\x00").strip().lower()
     if reading:
-        key = _UNIT_NAMES.get(key, key)
+        # A name cut to the parameter's width (c3d.org's sample15 stores 'mete' in a 4-character POINT:UNITS): the
+        # one unit whose spelt-out names it begins, at 4 characters or more.
+        cut = {unit for name, unit in _UNIT_NAMES.items() if len(key) >= 4 and name.startswith(key)}
+        key = _UNIT_NAMES.get(key, cut.pop() if len(cut) == 1 else key)
     if key not in UNITS_TO_METRES:
         raise fail(path, f"unknown length units {str(units).strip()!r} (expected mm, cm or m)", todo)
     return UNITS_TO_METRES[key]
