@@ -583,3 +583,22 @@ def test_a_parameter_of_no_group_is_left_out(tmp_path: Path) -> None:
     trial = read_trial(path)
     assert trial.labels == ("RASI", "LASI")
     assert_positions(trial.markers, xyz / 1000.0)
+
+
+@pytest.mark.parametrize(("scale", "processor"), [(-1.0, "intel"), (0.1, "intel"), (-1.0, "dec")])
+def test_analog_words_the_parameters_do_not_count_are_skipped(tmp_path: Path, scale: float, processor: str) -> None:
+    """BTS's files (c3d.org sample28): the header lays 6 analog words after every frame's points while ANALOG:USED
+    says 0, and ezc3d, stepping by the parameters, reads every frame but the first from the wrong place; the points
+    are read as the header lays them out."""
+    xyz = positions_mm(5, 3, seed=16)
+    data = bytearray(c3d_bytes(xyz, np.zeros((5, 3)), ["RASI", "LASI", "RPSI"], scale=scale, processor=processor,
+                               analog_channels=2, analog_per_frame=1))
+    at = bytes(data).find(bytes([4, 2]) + b"USED")  # ANALOG (group 2):USED, an int16 after link, type and 0 dims
+    assert at > 0 and data[at + 8] == 2 and data[at + 9] == 0
+    data[at + 10 : at + 12] = b"\x00\x00"
+    path = tmp_path / "bts.c3d"
+    path.write_bytes(bytes(data))
+    assert not np.allclose(ezc3d.c3d(str(path))["data"]["points"][:3, :, 1].T, xyz[1], atol=1.0)  # ezc3d's stride
+    trial = read_trial(path)
+    assert trial.n_frames == 5 and trial.labels == ("RASI", "LASI", "RPSI")
+    assert_positions(trial.markers, xyz / 1000.0)

@@ -162,6 +162,11 @@ class _C3DLayout:
 
     frames: int | None  # frames of a trial too long for the header; None: ezc3d's count is used as is
     first_frame: int | None  # 0-based first frame from TRIAL:ACTUAL_START_FIELD past the header's 65535, else None
+    #: The point data read here, not by ezc3d, as the header lays them out: (offset in bytes, points, frames, words
+    #: per frame, float storage, POINT:SCALE, processor), where the ANALOG parameters give another number of analog
+    #: words per frame than the header (BTS's files, c3d.org sample28: ANALOG:USED 0 beside 6 analog words a frame),
+    #: by which ezc3d would read every frame but the first from the wrong place; None: ezc3d's points are used.
+    own_points: tuple[int, int, int, int, bool, float, int] | None = None
 
 
 def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
@@ -272,7 +277,37 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
             redo,
         )
     first_frame = start_field - 1 if start_field and first == 0xFFFF else None  # past what the header holds
-    return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame)
+    own = None
+    if n_analog and frame_bytes and long_count is None:
+        # ezc3d takes the analog words of a frame from ANALOG:USED and ANALOG:RATE / POINT:RATE, the header from its
+        # own words 3 and 10; where they disagree ezc3d strides through the data by the parameters.
+        point_rate = _c3d_number(table, ("POINT", "RATE"), processor) or _c3d_float(header[20:24], processor)
+        analog_rate = _c3d_number(table, ("ANALOG", "RATE"), processor) or 0.0
+        used_analog = _c3d_integer(table, ("ANALOG", "USED"), processor) or 0
+        per_frame = int(round(analog_rate / point_rate)) if point_rate and analog_rate > 0 else 0
+        if used_analog * per_frame != n_analog:
+            scale = point_scale if point_scale is not None else _c3d_float(header[12:16], processor)
+            own = (data_start, n_points, n_frames, 4 * n_points + n_analog, is_float, scale, processor)
+    return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame, own_points=own)
+
+
+def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The point words of a C3D file read as its header lays them out: (4, points, frames) with coordinates in file
+    units (integer storage times POINT:SCALE), and the residual words (1, points, frames), negative where invalid."""
+    start, n_points, n_frames, words, is_float, scale, processor = layout
+    width = 4 if is_float else 2
+    raw = np.fromfile(path, dtype=np.uint8, count=n_frames * words * width, offset=start)
+    if is_float:
+        if processor == 85:  # DEC: the 16-bit halves swapped, the value 4 times the IEEE one
+            values = raw.view("<u2").reshape(-1, 2)[:, ::-1].copy().view("<f4").ravel() / 4.0
+        else:
+            values = raw.view("<f4").astype(np.float64)
+        block = values.reshape(n_frames, words)[:, : 4 * n_points].reshape(n_frames, n_points, 4)
+        xyz, residual = block[:, :, :3], block[:, :, 3]
+    else:
+        block = raw.view("<i2").reshape(n_frames, words)[:, : 4 * n_points].reshape(n_frames, n_points, 4)
+        xyz, residual = block[:, :, :3] * abs(scale), block[:, :, 3].astype(np.float64)
+    return xyz.transpose(2, 1, 0).astype(np.float64), residual.T[None].astype(np.float64)
 
 
 def _c3d_param(params: object, group: str, name: str) -> list | np.ndarray | None:
@@ -328,6 +363,8 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         header_rate = float(c3d["header"]["points"]["frame_rate"])
     except Exception as exc:  # noqa: BLE001 - ezc3d raises OSError, RuntimeError, ValueError, ... on bad files
         raise fail(path, f"not a readable C3D file (ezc3d: {one_line(exc) or type(exc).__name__})", redo) from None
+    if layout.own_points is not None:
+        points, residuals = _read_points(path, layout.own_points)
 
     if "POINT" not in params:
         raise fail(path, "C3D file has no POINT group, so no marker trajectories", redo)

@@ -38,7 +38,10 @@ in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte
   counts when there is one per point.
 - the parameter section read on to the data section where the header's count of its blocks falls short or is 0
   (c3d.org's sample15, PhaseSpace), and a parameter of no group (c3d.org's Vicon force-plate samples) left out,
-  as ezc3d reads them: every c3d.org and BTKData sample with markers that ezc3d reads is read here.
+  as ezc3d reads them: every c3d.org and BTKData sample with markers that ezc3d reads is read here.  Where the
+  ANALOG parameters count other analog words per frame than the header (BTS's files, c3d.org sample28: ANALOG:USED
+  0 beside 6 words a frame), ezc3d would step through the frames by the parameters, reading every frame but the
+  first from the wrong place: the points are then read here as the header lays them out.
 - gaps: a negative residual word (the C3D "invalid point", -1 as Vicon, Qualisys,
   Motion Analysis and OptiTrack write it), all three coordinates exactly 0, or a
   non-finite coordinate.  A residual of 0 is a valid point (interpolated or filtered).
