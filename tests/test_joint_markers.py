@@ -249,12 +249,22 @@ def test_joint_centre_markers_are_not_judged_as_labels(human):
     assert cal.misplaced == ()
 
 
-def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human):
+def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_path):
     """The simulator's treadmill walk turns the hips through 44 deg of flexion but 11-12 deg of adduction and
     rotation: each hip's reported ranges match the simulated motion's own (its 5th to 95th percentile), the
     summary names the hips and points to --hip-regression, and the report and HTML say it; with
     --hip-regression the hips are placed by their markers and the line goes.  The squats' hips (28-37 deg of
-    adduction or rotation besides flexion) are placed by motion: nothing said."""
+    adduction or rotation besides flexion) are placed by motion: nothing said.
+
+    Each hip's distance from Harrington's regression is the median over the frames of the hip centres read back
+    through the written URDF and Pinocchio against Harrington's computed by hand; the widths are the hips' and the
+    ASIS markers' medians.  A hip the walk does not place, further than REGRESSION_FAR from Harrington's or with the
+    hips wider apart than HIP_WIDTH_FAR times the ASIS markers (BTKData's Plug-in Gait walks: 46-93 mm, the hips
+    outside the ASIS), is named on an `implausible` line and in the HTML; the simulated walk's own hips are not."""
+    from dataclasses import replace
+
+    from calibrate.calibration.regression import HIP_WIDTH_FAR, REGRESSION_FAR
+
     walk = simulate_gait(human, frames=300, noise_mm=1.0, seed=2)
     cal = calibrate(human, [walk.trial], Settings(outliers=0.0))
     assert [h.joint for h in cal.hip_motion] == ["hip_l", "hip_r"]
@@ -268,26 +278,6 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human):
     report = calibration_report(cal)
     assert [h["places_centre"] for h in report["hip_motion"]] == [False, False]
     assert "hip_l: the trials turn it through" in report_html(report)
-    placed = calibrate(human, [walk.trial], Settings(outliers=0.0, hip_regression=True))
-    assert len(placed.hip_motion) == 2 and "  hips  " not in summary_text(placed)
-    squats = simulate_squats(human, frames=200, noise_mm=1.0, seed=0)
-    moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
-    assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)
-
-
-def test_each_hip_is_measured_against_harrington_and_one_far_from_it_is_implausible(human, tmp_path):
-    """The report's distance of each hip from Harrington's regression is the median over the frames of the hip
-    centres read back through the written URDF and Pinocchio against Harrington's computed by hand; the widths are
-    the hips' and the ASIS markers' medians.  A hip the walk does not place, further than REGRESSION_FAR from
-    Harrington's or with the hips wider apart than HIP_WIDTH_FAR times the ASIS markers (BTKData's PiG walks: 46-93
-    mm, the hips outside the ASIS), is named on an
-    `implausible` line and in the HTML; the simulated walk's own hips are not."""
-    from dataclasses import replace
-
-    from calibrate.calibration.regression import HIP_WIDTH_FAR, REGRESSION_FAR
-
-    walk = simulate_gait(human, frames=120, noise_mm=1.0, seed=2)
-    cal = calibrate(human, [walk.trial], Settings(outliers=0.0))
     right, left = _hips_from_urdf(cal, tmp_path / "walk.urdf")
     want_r, want_l = _harrington_by_hand(walk.trial)
     t = walk.trial
@@ -315,3 +305,9 @@ def test_each_hip_is_measured_against_harrington_and_one_far_from_it_is_implausi
     assert not any(replace(h, width=(0.88 * a, a)).implausible for h in cal.hip_motion)
     assert "mm from Harrington's regression on the pelvis markers" in report_html(report)
     assert "mm from Harrington's regression" not in report_html(calibration_report(cal))
+    placed = calibrate(human, [walk.trial], Settings(outliers=0.0, hip_regression=True))
+    assert len(placed.hip_motion) == 2 and "  hips  " not in summary_text(placed)
+    squats = simulate_squats(human, frames=200, noise_mm=1.0, seed=0)
+    moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
+    assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)
+
