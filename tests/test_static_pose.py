@@ -68,3 +68,28 @@ def test_a_static_trial_whose_left_ankle_is_turned_is_flagged(human):
     assert cal.report()["static_pose"]["advice"].startswith("the feet carry two markers each")
     held = replace(cal, settings=replace(cal.settings, lock=(("subtalar_l", 0.0), ("subtalar_r", 0.0))))
     assert "implausible  static2 (static): ankle_l" in held.text() and "--lock subtalar" not in held.text()
+
+
+def test_a_walk_with_its_trunk_and_arms_locked_is_no_static(human):
+    """A lower-body marker set locks the trunk and arms (20 of human.urdf's 32 coordinates held at 0 in every frame):
+    its walk, whose legs turn through tens of degrees, is no static trial (c3d.org's sample09 Plug-in Gait walk had
+    been called one, its knees "37 deg apart" flagged); a still trial with the same coordinates locked still is."""
+    from calibrate.io.motion import Motion
+
+    rng = np.random.default_rng(5)
+    frames = 200
+    legs = [d for d in human.dof_names if any(k in d for k in ("hip", "knee", "ankle", "subtalar"))]
+    held = [d for d in human.dof_names if d not in legs]
+    assert len(held) >= len(legs)  # the locked coordinates are the majority: their SD of 0 was the median
+    phase = np.linspace(0.0, 4 * np.pi, frames)
+    walk = np.zeros((frames, human.n_dofs))
+    still = np.zeros((frames, human.n_dofs))
+    for d in legs:
+        k = human.dof_index(d)
+        walk[:, k] = math.radians(20.0) * np.sin(phase + k)
+        still[:, k] = math.radians(0.5) * rng.standard_normal(frames)
+    root = np.zeros((frames, 3))
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1))
+    times = np.arange(frames) / 100.0
+    motions = [Motion(times, root, quat, a, human.dof_names) for a in (walk, still)]
+    assert static_trials(human, motions) == [1]

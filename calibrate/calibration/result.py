@@ -95,6 +95,7 @@ class Implausible:
 # 6.6 apart), radioulnar 4.3, knee 2.6, subtalar 0.4.
 STILL_TRIAL_DEG = 2.0
 STATIC_ASYMMETRY_DEG = 20.0
+HELD_SD = 1e-6  # rad: a coordinate whose SD over a trial's frames is under this is held (locked), not still
 
 
 @dataclass(frozen=True)
@@ -130,11 +131,20 @@ class StaticHinge:
 
 def static_trials(model: Model, motions: Sequence[Motion], neutral: int | None = None) -> list[int]:
     """The static trials among `motions`: the neutral one if given, else those whose joint angles barely
-    move (STILL_TRIAL_DEG)."""
+    move (STILL_TRIAL_DEG), the median taken over the coordinates that move at all: a coordinate held at one value
+    (locked: a lower-body marker set's trunk and arms, 20 of human.urdf's 32) is no sign of stillness (c3d.org's
+    Plug-in Gait walk sample09 was called static, its knees 37 deg apart flagged)."""
     if neutral is not None:
         return [neutral]
-    return [i for i, m in enumerate(motions) if m.n_frames and model.n_dofs
-            and math.degrees(float(np.median(np.std(m.angles, axis=0)))) < STILL_TRIAL_DEG]
+    out = []
+    for i, m in enumerate(motions):
+        if not (m.n_frames and model.n_dofs):
+            continue
+        sd = np.std(m.angles, axis=0)
+        free = sd[sd > HELD_SD]
+        if not free.size or math.degrees(float(np.median(free))) < STILL_TRIAL_DEG:
+            out.append(i)
+    return out
 
 
 def static_hinges(model: Model, motions: Sequence[Motion], neutral: int | None = None) -> list[StaticHinge]:
