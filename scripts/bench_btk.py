@@ -1,0 +1,158 @@
+"""Other labs' Plug-in Gait walks: the Biomechanical ToolKit's test data (BTKData), calibrated as a user would.
+
+BTKData (github.com/Biomechanical-ToolKit/BTKData, BSD licence) holds Vicon Plug-in Gait statics and walks from
+several subjects, and a functional hip trial, each file carrying Plug-in Gait's own joint centres (``LFEP`` / ``RFEP``
+hips by Davis' regression, ``LFEO`` knees, ``LTIO`` ankles).  Each subject is calibrated on models/human.urdf from
+the command line (``python -m calibrate.cli STATIC WALK human.urdf``, a child process, wall clock timed), by
+default and with ``--hip-regression``; from the files it writes (the subject URDF through Pinocchio, the motion
+CSVs) and its report:
+
+- the hips against Harrington's regression on the same frames' pelvis markers (the report's ``hip_motion``:
+  ``from_regression_mm``, ``hip_width_mm``, ``asis_width_mm``, ``implausible``);
+- every hip, knee and ankle centre against Plug-in Gait's own in the walk (median over its frames,
+  ``bench_real.pig_distances``);
+- marker RMS over every position (``bench_real.marker_fit``), converged, time.
+
+The data are not in ../shared: point ``--btkdata`` at a checkout (or the ``fetch`` tool's snapshot, whose files
+are read with ``git show``).  No targets: the figures are recorded in docs/benchmarks.md ("Other labs' Plug-in
+Gait walks").
+
+    python scripts/bench_btk.py --btkdata DIR [--json] [--only full,hole,ff3,func] [--no-regression]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_real as br  # noqa: E402  (the real-recordings bench's command line and read-back helpers)
+from bench_calibrate import machine  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = "Input/C3DSamples"
+#: Subject -> its trials in BTKData (static first; the last trial is the walk the centres are compared on).
+CASES: dict[str, tuple[str, ...]] = {
+    "full": ("PiG/PiG_Calibration-FlatFoot-Full.c3d", "PiG/PiG_Motion-FlatFoot-Full.c3d"),
+    "hole": ("PiG/PiG_Calibration-FlatFoot-Hole.c3d", "PiG/PiG_Motion-FlatFoot-Hole.c3d"),
+    "ff3": ("PiG/PiG_Calibration3_FF.c3d", "PiG/PiG_Motion3_FF.c3d"),
+    "func": ("others/FunctionalStatic.c3d", "others/FunctionalLHip.c3d", "others/FunctionalWalk.c3d"),
+}
+
+
+def fetch_trials(root: Path, names: tuple[str, ...], into: Path) -> list[Path]:
+    """The case's C3D files copied into `into`: from a checkout's work tree, or from a bare snapshot by git show."""
+    out = []
+    for name in names:
+        dst = into / Path(name).name
+        src = root / SAMPLES / name
+        if src.exists():
+            dst.write_bytes(src.read_bytes())
+        else:
+            git = root if (root / "HEAD").exists() else root / ".git"
+            blob = subprocess.run(["git", "--git-dir", str(git), "show", f"HEAD:{SAMPLES}/{name}"],
+                                  capture_output=True, check=True)
+            dst.write_bytes(blob.stdout)
+        out.append(dst)
+    return out
+
+
+def figures(run: dict) -> dict:
+    """What one run gives: fit, hips against Harrington's and Plug-in Gait's, time."""
+    if "error" in run:
+        return {"error": run["error"], "command": run["command"]}
+    rep = run["report"]
+    kin = br.UrdfKinematics(run["urdf"])
+    fit = br.marker_fit(kin, list(zip(run["trials"], run["motions"], strict=True)), rep)
+    hips = {h["joint"]: h for h in rep.get("hip_motion", [])}
+    pig = br.pig_distances(kin, run["motions"][-1], run["trials"][-1])
+    return {"command": run["command"], "rc": run["rc"], "wall_s": run["seconds"],
+            "converged": bool(rep["solver"]["converged"]), "marker_rms_mm": fit["rms_mm"],
+            "hips": {j: {"places_centre": h.get("places_centre"), "from_regression_mm": h.get("from_regression_mm"),
+                         "implausible": h.get("implausible")} for j, h in hips.items()},
+            "hip_width_mm": next((h.get("hip_width_mm") for h in hips.values()), None),
+            "asis_width_mm": next((h.get("asis_width_mm") for h in hips.values()), None),
+            "from_plugin_gait_mm": {j: v["median_mm"] for j, v in pig.items()
+                                    if j.split("_")[0] in ("hip", "knee", "ankle")}}
+
+
+def collect(a: argparse.Namespace, log) -> dict:
+    res: dict = {"cases": {}, "btkdata": str(a.btkdata)}
+    only = a.only.split(",") if a.only else list(CASES)
+    variants = [("default", [])] + ([] if a.no_regression else [("hip_regression", ["--hip-regression"])])
+    with tempfile.TemporaryDirectory(prefix="bench_btk_") as tmp:
+        tmp = Path(tmp)
+        log("warm-up: a 100-frame calibration (the model's C code, the bytecode)")
+        res["warmup"] = br.warm_up(tmp, a.cap, log)
+        for case in only:
+            d = tmp / case
+            d.mkdir()
+            trials = fetch_trials(a.btkdata, CASES[case], d)
+            res["cases"][case] = {"trials": [t.name for t in trials]}
+            for name, extra in variants:
+                log(f"{case}: calibrate {' '.join(t.name for t in trials)} {' '.join(extra)}")
+                run = br.calibrate_cli(trials, d / name, a.cap, extra)
+                res["cases"][case][name] = figures(run)
+    res["machine"] = machine()
+    res["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    return res
+
+
+def report(res: dict) -> None:
+    def mm(v) -> str:
+        return "—" if v is None else f"{v:.0f}"
+
+    print(f"BTKData's Plug-in Gait subjects on human.urdf ({res['date']}; {res['machine'].get('cpu', '')})")
+    print(f"{'case':6s} {'run':15s} {'RMS mm':>7s} {'hips from Harrington l/r':>25s} {'hips/ASIS mm':>14s} "
+          f"{'from PiG hip l/r':>17s} {'knee l/r':>9s} {'ankle l/r':>10s} {'time s':>7s}  flags")
+    for case, c in res["cases"].items():
+        for name in ("default", "hip_regression"):
+            f = c.get(name)
+            if f is None:
+                continue
+            if "error" in f:
+                print(f"{case:6s} {name:15s} {f['error']}")
+                continue
+            h, p = f["hips"], f["from_plugin_gait_mm"]
+            flags = ", ".join(j for j, v in h.items() if v.get("implausible")) or ""
+            reg = [mm(h.get(j, {}).get("from_regression_mm")) for j in ("hip_l", "hip_r")]
+            pig = {j: mm(p.get(j)) for j in ("hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r")}
+            print(f"{case:6s} {name:15s} {f['marker_rms_mm']:7.2f} {reg[0]:>12s} / {reg[1]:<10s} "
+                  f"{mm(f['hip_width_mm']):>6s} / {mm(f['asis_width_mm']):<5s} "
+                  f"{pig['hip_l']:>8s} / {pig['hip_r']:<6s} {pig['knee_l']:>4s} / {pig['knee_r']:<3s} "
+                  f"{pig['ankle_l']:>4s} / {pig['ankle_r']:<4s} {f['wall_s']:7.1f}  "
+                  + (f"implausible: {flags}" if flags else "") + ("" if f["converged"] else " NOT CONVERGED"))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--btkdata", type=Path, required=True,
+                    help="a BTKData checkout (or the fetch tool's snapshot: its .git folder)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
+    ap.add_argument("--only", default=None, help=f"comma-separated cases among {','.join(CASES)} (default all)")
+    ap.add_argument("--no-regression", action="store_true", help="leave out the --hip-regression runs")
+    ap.add_argument("--cap", type=float, default=600.0, help="time cap (s) of each command (default 600)")
+    a = ap.parse_args()
+    if a.only and (bad := set(a.only.split(",")) - set(CASES)):
+        ap.error(f"--only: unknown case {', '.join(sorted(bad))}; choose among {', '.join(CASES)}")
+    if not a.btkdata.exists():
+        ap.error(f"--btkdata: {a.btkdata} does not exist; give a BTKData checkout")
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))
+    t0 = time.perf_counter()
+    res = collect(a, lambda msg: print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", file=sys.stderr, flush=True))
+    res = json.loads(json.dumps(res, default=str))
+    if a.json:
+        print(json.dumps(res))
+    else:
+        report(res)
+
+
+if __name__ == "__main__":
+    main()
