@@ -24,19 +24,15 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
-import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_real as br  # noqa: E402  (the real-recordings bench's command line and read-back helpers)
 from bench_calibrate import machine  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = "Input/C3DSamples"
 #: Subject -> its trials in BTKData (static first; the last trial is the walk the centres are compared on).
 CASES: dict[str, tuple[str, ...]] = {
@@ -144,14 +140,7 @@ def main() -> None:
         ap.error(f"--only: unknown case {', '.join(sorted(bad))}; choose among {', '.join(CASES)}")
     if not a.btkdata.exists():
         ap.error(f"--btkdata: {a.btkdata} does not exist; give a BTKData checkout")
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))
-    t0 = time.perf_counter()
-    res = collect(a, lambda msg: print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", file=sys.stderr, flush=True))
-    res = json.loads(json.dumps(res, default=str))
-    if a.json:
-        print(json.dumps(res))
-    else:
-        report(res)
+    br.run_bench(a, collect, report)
 
 
 if __name__ == "__main__":

@@ -1202,6 +1202,12 @@ def main() -> None:
         report(json.loads(a.from_json.read_text()))
         return
     # the child processes run this worktree's calibrate
+    run_bench(a, collect, report)
+
+
+def run_bench(a: argparse.Namespace, collect, report) -> None:
+    """Run a bench's `collect(a, log)` with this worktree's calibrate in the child processes, a timed log on stderr,
+    and print its result: one JSON object with `a.json`, else `report(result)`."""
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH"))))
     t0 = time.perf_counter()
     res = collect(a, lambda msg: print(f"[{time.perf_counter() - t0:6.0f} s] {msg}", file=sys.stderr, flush=True))
