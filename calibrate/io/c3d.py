@@ -207,7 +207,8 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         # sample15 says 3 blocks where its parameters fill 5, PhaseSpace's says 0): ezc3d reads on to the last
         # parameter's link as well.
         data_block = struct.unpack("<H", header[16:18])[0]
-        n_blocks = max(n_blocks, data_block - header[0] if data_block > header[0] else 0)
+        if header[0] + n_blocks < data_block and param_start + 512 * (data_block - header[0]) <= size:
+            n_blocks = data_block - header[0]
         if n_blocks == 0 or param_start + 512 * n_blocks > size:
             raise bad("truncated inside its parameter section")
         fh.seek(param_start)
