@@ -46,8 +46,13 @@ def harrington(rasi: np.ndarray, lasi: np.ndarray, psis_mid: np.ndarray) -> tupl
     x = x / np.linalg.norm(x, axis=-1, keepdims=True)
     y = np.cross(z, x)
     mid = o + x * (-0.24 * pd - 0.0099) + y * (-0.30 * pw - 0.0109)
-    side = z * (0.33 * pw + 0.0073)
+    side = z * (0.5 * harrington_width(pw))
     return mid + side, mid - side
+
+
+def harrington_width(asis_width: np.ndarray | float) -> np.ndarray | float:
+    """The distance between Harrington's two hip centres (m) for an ASIS distance PW (m): 2 (0.33 PW + 7.3 mm)."""
+    return 0.66 * asis_width + 0.0146
 
 
 def hip_joints(model: Model, pelvis: str | None = None) -> dict[str, Joint]:

@@ -33,7 +33,7 @@ from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified
-from .regression import FUNCTIONAL_RANGE
+from .regression import FUNCTIONAL_RANGE, harrington_width
 from .series import report_series
 
 if TYPE_CHECKING:
@@ -654,7 +654,7 @@ def summary_text(cal) -> str:
         lines.append("  implausible  " + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
                      + " from Harrington's regression on the pelvis markers (its error on CT 12 +- 6 mm), the hips "
                      f"{1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} (Harrington's: "
-                     f"{1e3 * (0.66 * asis + 0.0146):.0f}): the trials' motion does not place them (hips above), the "
+                     f"{1e3 * harrington_width(asis):.0f}): the trials' motion does not place them (hips above), the "
                      "thigh markers' skin did; --hip-regression places them by the regression")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
