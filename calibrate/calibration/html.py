@@ -149,6 +149,9 @@ def _notes(report: dict) -> str:
     if report.get("held_axes"):
         items.append(f"<li>axes held at the base model's (the trials do not show these joints moving): "
                      f"{_e(', '.join(report['held_axes']))}</li>")
+    if report.get("on_axis_markers"):
+        items.append(f"<li>lateral markers kept on their held hinge axes (the epicondyle or malleolus the axis "
+                     f"passes through; no motion places the axis): {_e(', '.join(report['on_axis_markers']))}</li>")
     if (report.get("settings") or {}).get("hold_centres"):
         items.append(f"<li>centres held at the base model's offset from their parent segment's markers "
                      f"(--hold-centres): {_e(', '.join(report['settings']['hold_centres']))}</li>")

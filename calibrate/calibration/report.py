@@ -25,7 +25,7 @@ from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters
 from ..model.urdf import mass_factor, urdf_text
-from ..problem.priors import placeholder_markers, symmetry_pairs
+from ..problem.priors import on_axis_markers, placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
 from .html import asymmetry_clause, mirror_clause, report_html
@@ -113,6 +113,7 @@ def calibration_report(cal: Calibration) -> dict:
                                 "symmetry_scale": st.priors.symmetry_scale,
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
                                 "width_mm": 1000 * st.priors.width,
+                                "on_axis_mm": 1000 * st.priors.on_axis,
                                 "joint_marker_mm": 1000 * st.priors.joint_marker,
                                 "held_centre_mm": 1000 * st.priors.held_centre,
                                 "placeholder_mm": 1000 * st.priors.placeholder},
@@ -128,6 +129,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "far_joints": st.far_joints,
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
+        "on_axis_markers": on_axis_labels(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
                          "per_frame_deg": math.degrees(lk.per_frame),
@@ -407,6 +409,23 @@ def left_out_lines(left: list[tuple[str, str]]) -> list[str]:
 UNUSED_SHOWN = 12  # model markers the trials never show, named in the summary (all of them in the report)
 
 
+def on_axis_labels(cal: Calibration) -> list[str]:
+    """The lateral markers Priors.on_axis kept on their held hinge axes (the knee's, ankle's or elbow's axis not
+    calibrated, the marker seen): as the problem chose them (calibrate.problem.priors.on_axis_markers)."""
+    st, m = cal.settings, cal.model
+    if st.priors.on_axis <= 0 or not {"axis", "centre", "marker"} <= set(st.free):
+        return []
+    held_segments = set(st.hold_segments)
+    child = {d: j.child for j in m.joints for d in j.dofs}
+
+    def held(d: int) -> bool:
+        name = m.dofs[d].name
+        return name in st.hold_axes or child[name] in held_segments
+
+    unseen = set(cal.unused_markers)
+    return [m.markers[mi].name for _, mi in on_axis_markers(m, held) if m.markers[mi].name not in unseen]
+
+
 def _held_against(cal, joint: str) -> str:
     """What a held centre (Settings.hold_centres) keeps: its offset from its parent segment's markers, where three
     or more of them are seen (Problem.held_centres; the change shown is then the frame's against the base model's),
@@ -514,6 +533,10 @@ def summary_text(cal) -> str:
         *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
            + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]
           if cal.settings.hold_axes else []),
+        *([f"  on axis      {', '.join(on_axis)} drawn onto their held hinge axes (prior SD "
+           f"{1000 * cal.settings.priors.on_axis:.0f} mm: the epicondyle or malleolus the axis passes through; no "
+           "motion places the axis)"]
+          if (on_axis := on_axis_labels(cal)) else []),
         *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
                                          for j in cal.settings.hold_centres) + " (--hold-centres)"]
           if cal.settings.hold_centres else []),
@@ -583,7 +606,15 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.name}: {c.note}{hint}")
         if len(un) > 12:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
-    for note in cal.seed.notes:
+    seed_notes = list(cal.seed.notes)
+    if cal.still_only is not None:  # every joint's "no seed: record a trial that moves it" in one line
+        base = [n for n in seed_notes if n.endswith("; base model used")]
+        if len(base) > 2:
+            seed_notes = [n for n in seed_notes if n not in base]
+            joints = ", ".join(n.split(":")[0] for n in base)
+            lines.append(f"  seed: {len(base)} joint centres from the base model ({joints}): MTB's joint centres "
+                         "need joints that turn (the report's seed notes say each)")
+    for note in seed_notes:
         lines.append(f"  seed: {note}")
     for note in cal.notes[:4]:
         lines.append(f"  note: {note}")
@@ -654,8 +685,11 @@ def summary_text(cal) -> str:
         lines.append("  implausible  " + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
                      + " from Harrington's regression on the pelvis markers (its error on CT 12 +- 6 mm), the hips "
                      f"{1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} (Harrington's: "
-                     f"{1e3 * harrington_width(asis):.0f}): the trials' motion does not place them (hips above), the "
-                     "thigh markers' skin did; --hip-regression places them by the regression")
+                     f"{1e3 * harrington_width(asis):.0f}): "
+                     + ("nothing turns in a still trial, so only the priors of the centres and the pelvis and thigh "
+                        "markers placed them" if cal.still_only is not None else
+                        "the trials' motion does not place them (hips above), the thigh markers' skin did")
+                     + "; --hip-regression places them by the regression")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

@@ -41,6 +41,13 @@ class Priors:
     # from the lateral marker to the joint centre (m; 0: the measurements are not used).  A caliper reads
     # a knee to a few mm; the marker sits on skin over the epicondyle or malleolus.
     width: float = 0.005
+    # A hinge's lateral marker (Plug-in Gait's KNE, ANK, ELB on the segment the knee, ankle or elbow hangs from)
+    # where the hinge's axis is held (a static alone, a joint the trials do not show moving, Settings.hold_axes):
+    # SD of the marker's distance from the axis line through the centre (m, at the segment's scale; 0: off).  The
+    # marker sits over the epicondyle or malleolus, which the flexion axis passes through (Plug-in Gait puts it
+    # on the axis); with no motion to place the axis, the priors alone otherwise left the knee centres of real
+    # statics 13-80 mm off the line through KNE (docs/benchmarks.md, "A static alone").
+    on_axis: float = 0.010
     # A joint-centre marker (calibrate.problem.priors.joint_centre_markers: the base model puts it within
     # JOINT_MARKER_RADIUS of a joint centre of its segment, e.g. OpenSim's R_HJC at the femur's origin): a
     # point the lab computed at that centre, not skin.  SD of its offset from the centre about the base
@@ -132,7 +139,7 @@ class ProblemOptions:
             if not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 and math.isfinite(d)):
                 raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
                                  f"in metres, got {d!r}")
-        for name in ("symmetry_scale", "symmetry_centre", "width", "joint_marker"):
+        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "joint_marker"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

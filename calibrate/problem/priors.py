@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io.measurements import lateral_markers_of
 from ..model.model import Model, Parameters
 
 
@@ -30,6 +31,24 @@ def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, i
     else:
         mirror[1] = -1.0
     return seg, jnt, mirror
+
+
+#: The hinges whose Plug-in Gait lateral marker sits over the bone the flexion axis passes through (the femoral and
+#: humeral epicondyles, the lateral malleolus): Priors.on_axis keeps it on a held axis.
+ON_AXIS_JOINTS = ("knee", "ankle", "elbow")
+
+
+def on_axis_markers(model: Model, held: Callable[[int], bool]) -> list[tuple[int, int]]:
+    """(joint index, marker index) of each knee, ankle and elbow hinge of `model` (named as in models/human.urdf)
+    whose DoF index `held` says is not calibrated and whose Plug-in Gait lateral marker (LKNE, RANK, LELB, ...)
+    rides on the segment it hangs from: the markers Priors.on_axis keeps on their axis lines."""
+    joints = {j.name: i for i, j in enumerate(model.joints)}
+    out = []
+    for jname, mname in lateral_markers_of(model, ON_AXIS_JOINTS):
+        ji = joints[jname]
+        if held(model.dof_index(model.joints[ji].dofs[0])):
+            out.append((ji, model.marker_index(mname)))
+    return out
 
 
 #: m, at the base model's scale: a marker this close to a joint centre of its own segment is a point computed at
@@ -168,6 +187,18 @@ class PriorsMixin:
             out.append((ji, mi, d, float(dist), side))
         self._lateral_cache = (self.base, out)
         return out
+
+    def on_axis_terms(self) -> list[tuple[int, int, int]]:
+        """(joint, marker, DoF index) of each hinge whose axis is held (Settings.hold_axes, or by auto-hold: the
+        trials do not show it moving) and whose Plug-in Gait lateral marker rides on the segment it hangs from, seen
+        in the trials (Priors.on_axis); none when priors.on_axis is 0 or axes, centres and markers are not all free
+        (a lab that calibrates its markers alone keeps its model's geometry as it is)."""
+        st, m = self.settings, self.model
+        if st.priors.on_axis <= 0 or not {"axis", "centre", "marker"} <= set(st.free):
+            return []
+        calibrated = set(self.layout.axis_dofs)
+        pairs = on_axis_markers(m, lambda d: d not in calibrated)
+        return [(ji, mi, m.dof_index(m.joints[ji].dofs[0])) for ji, mi in pairs if not self._unseen[mi]]
 
     def lateral_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The measured joint widths' residuals (calibrated - measured lateral distance) / priors.width and
@@ -312,6 +343,24 @@ class PriorsMixin:
                 np.r_[k.ravel(), k[par].ravel(), k.ravel()],
                 np.r_[mk.ravel(), ce[par].ravel(), np.repeat(L.scale(seg), 3)],
                 np.r_[np.repeat(s.ravel() / sd, 3), np.repeat(-s[par].ravel() / sd, 3), ((x - x0) / sd).ravel()]))
+        # A held hinge's lateral marker on its axis line (Priors.on_axis): the part of its offset from the centre
+        # across the axis, at the segment's scale, pulled to zero (3 rows of rank 2; the axis is not free here).
+        on_axis = self.on_axis_terms()
+        if on_axis:
+            sd = st.priors.on_axis
+            for ji, mi, d in on_axis:
+                seg = self.centre_segment[ji]
+                a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(p, d)
+                P = np.eye(3) - np.outer(a, a)
+                mk, ce = L.marker(mi), L.centre(ji)
+                x = p[mk] - p[ce]
+                s = scale[seg]
+                k = np.repeat(np.arange(3), 3)
+                add(s * (P @ x) / sd, lambda P=P, mk=mk, ce=ce, x=x, s=s, seg=seg, k=k: (
+                    np.r_[k, k, np.arange(3)],
+                    np.r_[np.tile(np.arange(mk.start, mk.stop), 3), np.tile(np.arange(ce.start, ce.stop), 3),
+                          np.full(3, L.scale(seg))],
+                    np.r_[(s / sd) * P.ravel(), -(s / sd) * P.ravel(), (P @ x) / sd]))
         if not res:
             return np.zeros(0), None
         if not jacobian:
