@@ -226,6 +226,12 @@ def test_a_static_alone_is_named_still_only(human, session):
     seed_lines = [x for x in summary_text(cal).splitlines() if x.startswith("  seed: ")]
     assert len(base_notes) > 2 and seed_lines[0].startswith(f"  seed: {len(base_notes)} joint centres from the base")
     assert not any(x.endswith("; base model used") for x in seed_lines)
+    # Its hips, which nothing in a static places (this subject's right one 84 mm from Harrington's regression):
+    # the implausible line says the priors put them there, not the thigh's skin.
+    far = [h for h in cal.hip_motion if h.implausible]
+    assert far and all(h.from_regression > 0.040 for h in far)
+    line = next(x for x in summary_text(cal).splitlines() if x.startswith("  implausible  hip_"))
+    assert "nothing turns in a still trial, so only the priors" in line and "skin" not in line
     hinges6 = ["knee_l", "knee_r", "ankle_l", "ankle_r", "elbow_l", "elbow_r"]
     alone = calibrate(human, plain.trial, Settings(outliers=0.0, priors=replace(Priors(), on_axis=0.0)))
     assert calibration_report(alone)["on_axis_markers"] == []
