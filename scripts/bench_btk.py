@@ -96,15 +96,22 @@ def collect(a: argparse.Namespace, log) -> dict:
                 log(f"{case}: calibrate {' '.join(t.name for t in trials)} {' '.join(extra)}")
                 run = br.calibrate_cli(trials, d / name, a.cap, extra)
                 res["cases"][case][name] = figures(run)
+    return stamped(res)
+
+
+def stamped(res: dict) -> dict:
+    """`res` with the machine and the date (UTC) it was measured on."""
     res["machine"] = machine()
     res["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     return res
 
 
-def report(res: dict) -> None:
-    def mm(v) -> str:
-        return "—" if v is None else f"{v:.0f}"
+def mm(v: float | None) -> str:
+    """A distance in whole mm for the tables, a dash where there is none."""
+    return "—" if v is None else f"{v:.0f}"
 
+
+def report(res: dict) -> None:
     print(f"BTKData's Plug-in Gait subjects on human.urdf ({res['date']}; {res['machine'].get('cpu', '')})")
     print(f"{'case':6s} {'run':15s} {'RMS mm':>7s} {'hips from Harrington l/r':>25s} {'hips/ASIS mm':>14s} "
           f"{'from PiG hip l/r':>17s} {'knee l/r':>9s} {'ankle l/r':>10s} {'time s':>7s}  flags")

@@ -491,17 +491,22 @@ LATERAL = {"knee": ("KneeWidth", "KNE"), "ankle": ("AnkleWidth", "ANK"), "elbow"
 PIG_MARKER_RADIUS_MM = 7.0  # Vicon's 14 mm markers (the file states no MarkerDiameter)
 
 
-def axis_distance(k: UrdfKinematics, joint: str, marker: str) -> float:
-    """A marker's distance from a hinge joint's centre along its axis (m): the URDF through Pinocchio at the
-    neutral pose (any pose gives the same: both ride the joint's parent segment)."""
+def hinge_offset(k: UrdfKinematics, joint: str, marker: str) -> tuple[np.ndarray, np.ndarray]:
+    """A hinge joint's unit axis and a marker's offset from its centre (m), in the world at the neutral pose: the
+    URDF through Pinocchio (any pose gives the same along and across the axis: both ride the joint's parent)."""
     q = np.zeros((1, k.pinm.nq))
     q[0, 6] = 1.0  # identity root quaternion (x, y, z, w)
     for jid in range(2, k.pinm.njoints):
         if k.pinm.joints[jid].nq == 2:  # continuous: cos, sin
             q[0, k.pinm.joints[jid].idx_q] = 1.0
     P, _ = k.frames(q, [k.centre_joint[joint], marker])
-    a = k.hinge_axes(q, [joint])[0, 0]
-    return float(a @ (P[0, 1] - P[0, 0]))
+    return k.hinge_axes(q, [joint])[0, 0], P[0, 1] - P[0, 0]
+
+
+def axis_distance(k: UrdfKinematics, joint: str, marker: str) -> float:
+    """A marker's distance from a hinge joint's centre along its axis (m)."""
+    a, d = hinge_offset(k, joint, marker)
+    return float(a @ d)
 
 
 def lateral_pairs(kin: UrdfKinematics) -> list[tuple[str, str, str]]:

@@ -21,7 +21,6 @@ docs/benchmarks.md ("A static alone").
 from __future__ import annotations
 
 import argparse
-import datetime
 import sys
 import tempfile
 from pathlib import Path
@@ -30,8 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_real as br  # noqa: E402  (the real-recordings bench's command line and read-back helpers)
-from bench_btk import fetch_trials, figures  # noqa: E402
-from bench_calibrate import machine  # noqa: E402
+from bench_btk import fetch_trials, figures, mm, stamped  # noqa: E402
 
 STATICS = ("PiG/PiG_Calibration-FlatFoot-Full.c3d", "PiG/PiG_Calibration-FlatFoot-Hole.c3d",
            "PiG/PiG_Calibration2-NoOption.c3d", "PiG/PiG_Calibration3_FF.c3d", "PiG/PiG_Calibration3_FF_N18.c3d",
@@ -41,16 +39,8 @@ LATERAL = (("knee_l", "LKNE"), ("knee_r", "RKNE"), ("ankle_l", "LANK"), ("ankle_
 
 
 def across_axis_mm(kin: br.UrdfKinematics, joint: str, marker: str) -> float:
-    """A lateral marker's distance from its hinge's axis line through the centre (mm), at the neutral pose (both
-    ride the joint's parent segment, so any pose gives the same)."""
-    q = np.zeros((1, kin.pinm.nq))
-    q[0, 6] = 1.0  # identity root quaternion (x, y, z, w)
-    for jid in range(2, kin.pinm.njoints):
-        if kin.pinm.joints[jid].nq == 2:  # continuous: cos, sin
-            q[0, kin.pinm.joints[jid].idx_q] = 1.0
-    P, _ = kin.frames(q, [kin.centre_joint[joint], marker])
-    a = kin.hinge_axes(q, [joint])[0, 0]
-    d = P[0, 1] - P[0, 0]
+    """A lateral marker's distance from its hinge's axis line through the centre (mm)."""
+    a, d = br.hinge_offset(kin, joint, marker)
     return 1000 * float(np.linalg.norm(d - a * (a @ d)))
 
 
@@ -77,15 +67,10 @@ def collect(a: argparse.Namespace, log) -> dict:
                     f["across_axis_mm"] = {m: across_axis_mm(kin, j, m) for j, m in LATERAL}
                     f["on_axis_markers"] = run["report"].get("on_axis_markers", [])
                 res["statics"][name][variant] = f
-    res["machine"] = machine()
-    res["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-    return res
+    return stamped(res)
 
 
 def report(res: dict) -> None:
-    def mm(v) -> str:
-        return "—" if v is None else f"{v:.0f}"
-
     print(f"Plug-in Gait statics calibrated alone on human.urdf ({res['date']}; {res['machine'].get('cpu', '')})")
     print(f"{'static':30s} {'run':15s} {'KNE/ANK across axis l/r/l/r':>28s} {'from PiG: knee l/r':>19s} "
           f"{'ankle l/r':>10s} {'hip l/r':>9s} {'hips from Harrington':>21s} {'RMS mm':>7s}")
