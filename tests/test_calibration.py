@@ -1014,6 +1014,11 @@ def test_too_few_markers_or_frames(human):
     mk[2:] = np.nan
     with pytest.raises(CalibrateError, match="frames show 3 or more"):
         calibrate(human, Trial(sim.trial.labels, mk, 100.0))
+    # A one-frame static (BTKData's FlatFoot-One) alone: the frame count said, and what to give with it.
+    one = Trial(sim.trial.labels, np.array(sim.trial.markers)[:1], 100.0, source="static.c3d")
+    with pytest.raises(CalibrateError, match=r"static.c3d: 1 frame in all; calibrate needs at least 3: give a "
+                                             r"movement trial with it"):
+        calibrate(human, one)
 
 
 # ---------------------------------------------------------------------- CLI

@@ -343,6 +343,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if blind:  # nothing in the data reaches their geometry: held at the base model's (Settings.hold_segments)
         settings = replace(settings, hold_segments=tuple(sorted(set(settings.hold_segments) | set(blind))))
     n_good = int(np.sum(seen.sum(1) >= 3))
+    if n_good < MIN_FRAMES and obs.shape[0] < MIN_FRAMES:  # a one-frame static export, alone
+        raise CalibrateError(f"{where}: {obs.shape[0]} frame{'s' if obs.shape[0] != 1 else ''} in all; calibrate "
+                             f"needs at least {MIN_FRAMES}: give a movement trial with it (calibrate STATIC WALK "
+                             "MODEL) or export more frames of the static")
     if n_good < MIN_FRAMES:
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
