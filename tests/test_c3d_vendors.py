@@ -585,6 +585,21 @@ def test_a_parameter_of_no_group_is_left_out(tmp_path: Path) -> None:
     assert_positions(trial.markers, xyz / 1000.0)
 
 
+def test_points_without_a_point_group_are_refused_in_one_line(tmp_path: Path) -> None:
+    """A header that counts points beside a parameter section without a POINT group (PhaseSpace's c3d.org sample20:
+    40 points, 701 frames, no labels): said so, not "POINT:USED is 0"."""
+    xyz = positions_mm(3, 2, seed=16)
+    data = bytearray(c3d_bytes(xyz, np.zeros((3, 2)), ["RASI", "LASI"], scale=-1.0))
+    at = bytes(data).find(bytes([5]) + struct.pack("b", -1) + b"POINT")  # the group record: its id -1
+    assert at > 0
+    data[at + 2 : at + 7] = b"PXINT"  # the group renamed: no POINT group left
+    path = tmp_path / "phasespace.c3d"
+    path.write_bytes(bytes(data))
+    with pytest.raises(TrialError, match="header lists 2 points but its parameter section has no POINT group") as e:
+        read_trial(path)
+    assert_one_line(e, path)
+
+
 @pytest.mark.parametrize(("scale", "processor"), [(-1.0, "intel"), (0.1, "intel"), (-1.0, "dec")])
 def test_analog_words_the_parameters_do_not_count_are_skipped(tmp_path: Path, scale: float, processor: str) -> None:
     """BTS's files (c3d.org sample28): the header lays 6 analog words after every frame's points while ANALOG:USED

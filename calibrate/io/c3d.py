@@ -225,6 +225,10 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
     data_block = struct.unpack(endian + "H", header[16:18])[0]
     is_float = _c3d_float(header[12:16], processor) < 0
     used = _c3d_integer(table, ("POINT", "USED"), processor)
+    if used is None and n_points and not any(g == "POINT" for g, _ in table):
+        # PhaseSpace's sample (c3d.org sample20): 40 points in its header, no POINT group, so no labels
+        raise fail(path, f"C3D file's header lists {n_points} points but its parameter section has no POINT group "
+                         "(no labels, no scale)", "export it again with its parameters, or as a TRC file")
     if used is not None and used != n_points:
         raise bad(f"its header lists {n_points} points but POINT:USED says {used}")
     point_scale = _c3d_number(table, ("POINT", "SCALE"), processor)
