@@ -58,6 +58,14 @@ def session(human):
     return squats, static, plain
 
 
+@pytest.fixture(scope="module")
+def plain_with_squats(human, session):
+    """The static with every marker where the squats put it, calibrated with the squats (the default settings but
+    no outlier test): two tests read it."""
+    squats, _, plain = session
+    return calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0))
+
+
 def test_marker_places_are_where_each_frame_puts_the_marker_on_its_segment(human, human_kin, session):
     """At the truth, a noise-free static with one marker shifted: that marker's place is the shift in its
     segment's axes (metres, at the subject's scale) in every frame, every other marker's is zero."""
@@ -129,7 +137,9 @@ def test_the_moved_markers_are_named_left_out_of_the_static_and_placed_where_the
     same = calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0, moved_markers=True))
     assert same.moved == ()
     assert "moved_markers" in calibration_report(same) and calibration_report(same)["moved_markers"] == []
-    assert calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0)).moved_kept == ()
+
+def test_a_static_where_the_squats_put_every_marker_names_none_moved(plain_with_squats):
+    assert plain_with_squats.moved_kept == ()
 
 
 def test_a_re_placed_thigh_marker_is_left_out_of_the_static_by_default(human, session):
@@ -201,7 +211,7 @@ def test_the_command_line_leaves_them_out_with_moved_markers(human, session, tmp
 
 def test_a_static_alone_is_named_still_only(human, session):
     """A static calibrated alone: no joint turns, so the summary, the report and the HTML say that the joints stay
-    the base model's (scaled) and what to add; a static with a movement trial is not."""
+    the base model's (scaled) and what to add."""
     squats, _, plain = session
     cal = calibrate(human, plain.trial, Settings(outliers=0.0))
     assert cal.still_only is not None and cal.still_only < 0.005
@@ -237,7 +247,9 @@ def test_a_static_alone_is_named_still_only(human, session):
     assert calibration_report(alone)["on_axis_markers"] == []
     err = [np.mean([compare_to_truth(c, plain, floor=0.0).centre_error[j] for j in hinges6]) for c in (cal, alone)]
     assert err[0] < 0.75 * err[1], err
-    both = calibrate(human, [plain.trial, squats.trial], Settings(outliers=0.0))
+
+def test_a_static_with_a_movement_trial_is_not_still_only(plain_with_squats):
+    both = plain_with_squats
     assert both.still_only is None and "still only" not in summary_text(both)
     assert calibration_report(both)["still_only_mm"] is None
 

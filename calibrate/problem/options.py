@@ -46,7 +46,7 @@ class Priors:
     # SD of the marker's distance from the axis line through the centre (m, at the segment's scale; 0: off).  The
     # marker sits over the epicondyle or malleolus, which the flexion axis passes through (Plug-in Gait puts it
     # on the axis); with no motion to place the axis, the priors alone otherwise left the knee centres of real
-    # statics 13-80 mm off the line through KNE (docs/benchmarks.md, "A static alone").
+    # statics 11-80 mm off the line through KNE (docs/benchmarks.md, "A static alone").
     on_axis: float = 0.010
     # A joint-centre marker (calibrate.problem.priors.joint_centre_markers: the base model puts it within
     # JOINT_MARKER_RADIUS of a joint centre of its segment, e.g. OpenSim's R_HJC at the femur's origin): a
