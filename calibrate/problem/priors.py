@@ -193,12 +193,17 @@ class PriorsMixin:
         trials do not show it moving) and whose Plug-in Gait lateral marker rides on the segment it hangs from, seen
         in the trials (Priors.on_axis); none when priors.on_axis is 0 or axes, centres and markers are not all free
         (a lab that calibrates its markers alone keeps its model's geometry as it is)."""
+        cached = self.__dict__.get("_on_axis_cache")  # kept while the settings and the seen markers are the same
+        if cached is not None and cached[0] is self.settings and cached[1] is self._unseen:
+            return cached[2]
         st, m = self.settings, self.model
-        if st.priors.on_axis <= 0 or not {"axis", "centre", "marker"} <= set(st.free):
-            return []
-        calibrated = set(self.layout.axis_dofs)
-        pairs = on_axis_markers(m, lambda d: d not in calibrated)
-        return [(ji, mi, m.dof_index(m.joints[ji].dofs[0])) for ji, mi in pairs if not self._unseen[mi]]
+        out = []
+        if st.priors.on_axis > 0 and {"axis", "centre", "marker"} <= set(st.free):
+            calibrated = set(self.layout.axis_dofs)
+            pairs = on_axis_markers(m, lambda d: d not in calibrated)
+            out = [(ji, mi, m.dof_index(m.joints[ji].dofs[0])) for ji, mi in pairs if not self._unseen[mi]]
+        self._on_axis_cache = (self.settings, self._unseen, out)
+        return out
 
     def lateral_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The measured joint widths' residuals (calibrated - measured lateral distance) / priors.width and
