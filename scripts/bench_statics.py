@@ -2,9 +2,10 @@
 
 No joint turns in a static, so nothing places the joint centres and axes but the priors and the lab's
 measurements.  Each static is calibrated alone on models/human.urdf from the command line, three ways: by default
-(the lateral markers drawn onto their held hinge axes, ``Priors.on_axis``), with that prior off
-(``[priors] on_axis_mm = 0``: the priors alone, as before it), and with ``--hip-regression``.  From the files each
-run writes (the subject URDF through Pinocchio, the motion CSV) and its report:
+(the lateral markers drawn onto their held hinge axes, ``Priors.on_axis``; the hips', lumbar's and shoulders'
+centres held at the base model's offset from their segments' markers, ``Calibration.still_centres``), with that
+prior off (``[priors] on_axis_mm = 0``), and with ``--hip-regression``.  From the files each run writes (the
+subject URDF through Pinocchio, the motion CSV) and its report:
 
 - each knee's and ankle's lateral marker (KNE, ANK) across its hinge axis: its distance from the axis line through
   the centre (the base model's: 2 and 6 mm);

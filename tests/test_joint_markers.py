@@ -188,8 +188,8 @@ def _harrington_by_hand(trial) -> tuple[np.ndarray, np.ndarray]:
 
 def test_hip_regression_puts_the_hips_where_harrington_does(human, tmp_path):
     """A static alone: with hip_regression both hips end within 2 mm of Harrington's centres computed by hand
-    from the trial's pelvis markers (every frame), through the written URDF; without it they stay with the
-    simulated subject's own hips, more than 8 mm from them."""
+    from the trial's pelvis markers (every frame), through the written URDF; without it they keep the base
+    model's offset from the pelvis markers (a static alone: Calibration.still_centres), 8-10 mm from them."""
     truth = simulate_squats(human, frames=3, noise_mm=0.0, seed=7).truth
     static = simulate_static(human, truth, frames=40, noise_mm=1.0, seed=7).trial
     want = _harrington_by_hand(static)
@@ -201,8 +201,9 @@ def test_hip_regression_puts_the_hips_where_harrington_does(human, tmp_path):
                                                                        ("RHJC_harrington", "hip_r")]
     assert calibration_report(cal)["settings"]["hip_regression"] is True
     plain = calibrate(human, [static], Settings(outliers=0.0))
+    assert plain.still_centres[:2] == ("hip_l", "hip_r")
     got = _hips_from_urdf(plain, tmp_path / "plain.urdf")
-    assert min(np.linalg.norm(g - w, axis=1).min() for g, w in zip(got, want, strict=True)) > 0.008
+    assert min(np.linalg.norm(g - w, axis=1).min() for g, w in zip(got, want, strict=True)) > 0.005
 
 
 def test_hip_regression_needs_the_pelvis_landmarks(human, tmp_path):

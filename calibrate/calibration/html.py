@@ -112,7 +112,10 @@ def _notes(report: dict) -> str:
     if report.get("still_only_mm") is not None:
         items.append(f"<li class=bad>still only: no trial moves (markers on different segments keep their distances "
                      f"to {report['still_only_mm']:.1f} mm SD): no motion places the joint centres and axes, which "
-                     "stay near the base model's, scaled; add a movement trial to place them</li>")
+                     "stay near the base model's, scaled"
+                     + (f" (the centres of {_e(', '.join(report['still_centres']))} held at the base model's offset "
+                        "from their segments' markers)" if report.get("still_centres") else "")
+                     + "; add a movement trial to place them</li>")
     for m in report.get("moved_markers_kept", []):
         items.append(f"<li>moved marker? {_e(m.get('marker'))}: {_e(m.get('trial'))} (still) shows it "
                      f"{m.get('distance_mm', 0):.0f} mm elsewhere on {_e(m.get('segment'))} than the moving trials "
@@ -152,9 +155,10 @@ def _notes(report: dict) -> str:
     if report.get("on_axis_markers"):
         items.append(f"<li>lateral markers kept on their held hinge axes (the epicondyle or malleolus the axis "
                      f"passes through; no motion places the axis): {_e(', '.join(report['on_axis_markers']))}</li>")
-    if (report.get("settings") or {}).get("hold_centres"):
+    if given := [j for j in (report.get("settings") or {}).get("hold_centres", [])
+                 if j not in report.get("still_centres", [])]:
         items.append(f"<li>centres held at the base model's offset from their parent segment's markers "
-                     f"(--hold-centres): {_e(', '.join(report['settings']['hold_centres']))}</li>")
+                     f"(--hold-centres): {_e(', '.join(given))}</li>")
     for lk in report.get("auto_locked", []):
         items.append(f"<li>locked: {_e(lk.get('note', ''))}</li>")
     if report.get("not_neutral"):

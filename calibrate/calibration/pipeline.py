@@ -332,6 +332,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"{', '.join(banded_joints)}: centre held at the base model's (its segment carries "
                                 "only a cluster of new labels)"))
         settings = replace(settings, hold_centres=settings.hold_centres + banded_joints)
+    still_only = _still_only(model, trials, motion)
+    still_centres = _still_centres(subject, settings, trials) if run.auto_hold else ()
+    if still_centres:
+        say(Progress("markers", f"still trials: no motion places {', '.join(still_centres)}; their centres held "
+                                "at the base model's offset from their segments' markers"))
+        settings = replace(settings, hold_centres=settings.hold_centres + still_centres)
     obs = np.concatenate([marker_columns(subject, t) for t in trials])
     spans = trial_spans(trials)
     for x in exchanged:  # the trial the base model says has them exchanged: their positions there left out
@@ -674,7 +680,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, exchanged=exchanged, moved=tuple(moved),
                        moved_kept=tuple(kept),
-                       far_joints=tuple(far), still_only=_still_only(model, trials, motion),
+                       far_joints=tuple(far), still_only=still_only, still_centres=still_centres,
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused),
                        hip_motion=hip_motion(subject, motions, hip_at, trials),
@@ -1045,6 +1051,38 @@ def _still_only(model: Model, trials: Sequence[Trial], motion: Sequence[float] |
     if max(motion) >= STILL_MOTION or any(relative_motion(t, model, 100.0) > STILL_PAIR for t in trials):
         return None
     return max(motion)
+
+
+def _still_centres(model: Model, settings: Settings, trials: Sequence[Trial]) -> tuple[str, ...]:
+    """The ball joints whose centres the trials leave to the priors because none of them moves (statics alone:
+    every trial's markers on different segments keep their distances, relative_motion < STILL_MOTION) and no pair
+    of markers across the joint (one on its parent segment, one on its child) changes its distance by more than
+    STILL_PAIR (SD; BTKData's FlatFoot-Hole static turns its head, not its hips).  Only those with a segment below
+    the child that carries a joint of its own (hips, shoulders, lumbar: not the neck, whose head ends the chain),
+    not held already and without a joint-centre marker the trials show (--hip-regression's, a lab's R_HJC).
+    No joint turns, so each centre's 20 mm prior in its parent's frame trades with the markers around it and the
+    segment lengths below: real Plug-in Gait statics put the hips 41-61 mm from Harrington's regression, held at
+    the base model's offset from the pelvis markers 12-35 mm (docs/benchmarks.md, "A static alone")."""
+    if "centre" not in settings.free or any(relative_motion(t, model) >= STILL_MOTION for t in trials):
+        return ()
+    parents = {j.parent for j in model.joints}
+    labels = {lab for t in trials for lab in t.labels}
+    marked = {model.joints[t.joint].name for t in joint_centre_markers(model, model.parameters())
+              if model.markers[t.marker].name in labels}
+    candidates = [j for j in model.joints if j.kind == "ball" and j.child in parents
+                  and j.name not in settings.hold_centres and j.name not in marked]
+    seg = {mk.name: mk.segment for mk in model.markers}
+    moving: set[str] = set()
+    for t in trials:
+        labs = [lab for lab in t.labels if lab in seg]
+        sd = np.sqrt(distance_variance(t.select(labs).markers[:: max(1, t.n_frames // 200)], min_frames=3))
+        for j in candidates:
+            a = [i for i, lab in enumerate(labs) if seg[lab] == j.parent]
+            b = [i for i, lab in enumerate(labs) if seg[lab] == j.child]
+            across = sd[np.ix_(a, b)]
+            if np.any(across[np.isfinite(across)] > STILL_PAIR):
+                moving.add(j.name)
+    return tuple(j.name for j in candidates if j.name not in moving)
 
 
 def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:

@@ -163,6 +163,7 @@ def calibration_report(cal: Calibration) -> dict:
                                for m in cal.moved_kept],
         # every trial still (a static alone): the largest relative marker motion of the trials (mm), else null
         "still_only_mm": None if cal.still_only is None else 1e3 * cal.still_only,
+        "still_centres": list(cal.still_centres),
         # joints a still trial held where the moving trials never go (Settings.far_joints): its positions of the
         # markers beyond them left out of the fit, its angles there fitted to them afterwards
         "far_joints": [{**f.to_json(), "trial": cal.trials[f.trial].source or f"trial {f.trial + 1}"}
@@ -495,8 +496,9 @@ def summary_text(cal) -> str:
         lines.append(f"  still only   {'every trial is' if len(cal.trials) > 1 else 'the trial is'} still (markers on "
                      f"different segments keep their distances to {1e3 * cal.still_only:.1f} mm SD; a walk's move "
                      "20-55 mm): no joint turns, so no motion places the joint centres and axes; they stay near the "
-                     "base model's, scaled, where the priors of the centres and of the markers around them balance; "
-                     "add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
+                     "base model's, scaled, where the priors of the centres and of the markers around them balance"
+                     + (" (the ball joints' centres held, below)" if cal.still_centres else "")
+                     + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
         f"rigidity or the model's poses), {len(cal.ignored_labels)} trial labels left out, "
@@ -538,8 +540,14 @@ def summary_text(cal) -> str:
            "motion places the axis)"]
           if (on_axis := on_axis_labels(cal)) else []),
         *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
-                                         for j in cal.settings.hold_centres) + " (--hold-centres)"]
-          if cal.settings.hold_centres else []),
+                                         for j in given) + " (--hold-centres)"]
+          if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres]) else []),
+        *([f"  centres held {', '.join(cal.still_centres)}: the trials are still and do not turn these ball joints, "
+           "so no motion places their centres; each keeps the base model's offset from its parent segment's "
+           "markers, at the subject's scale (--no-auto-hold leaves them to their priors"
+           + ("; --hip-regression places the hips by Harrington's regression from the pelvis markers instead"
+              if any(j.lower().startswith("hip") for j in cal.still_centres) else "") + ")"]
+          if cal.still_centres else []),
         "",
         f"  {'':22s}{'start':>12s}{'final':>12s}",
         f"  {'marker RMS (mm)':22s}{1000 * marker_rms(cal.initial_residuals):12.3f}{1000 * cal.marker_rms:12.3f}"
@@ -574,7 +582,8 @@ def summary_text(cal) -> str:
             if c.unreliable and (c.identified or _slide_only(c)):
                 flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
             if c.item in cal.settings.hold_centres:
-                flag = f"  (held: --hold-centres; {_held_against(cal, c.item)})"
+                why = "still trials" if c.item in cal.still_centres else "--hold-centres"
+                flag = f"  (held: {why}; {_held_against(cal, c.item)})"
             lines.append(f"    {c.item:16s}{c.change:8.1f}{c.beyond_scale:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]
     if axes:
@@ -674,8 +683,8 @@ def summary_text(cal) -> str:
                      f"{1e3 * cal.settings.priors.placeholder:g} mm), they neither size nor turn their segments")
     tied = {m.joint for m in cal.joint_markers}
     loose = [h for h in cal.hip_motion if not h.places_centre and h.joint not in tied]
-    if loose:
-        lines.append("  hips         the trials turn " + " and ".join(h.text() for h in loose)
+    if said := [h for h in loose if h.joint not in cal.still_centres]:  # (held: the centres-held line says)
+        lines.append("  hips         the trials turn " + " and ".join(h.text() for h in said)
                      + f": a hip centre is placed by motion through {math.degrees(FUNCTIONAL_RANGE):.0f} deg in two "
                      "of its angles (a star arc); a walk's do not, and on real walks the centres end 28-65 mm from "
                      "the labs' (docs/benchmarks.md): --hip-regression places them by Harrington's regression from "
@@ -686,7 +695,10 @@ def summary_text(cal) -> str:
                      + " from Harrington's regression on the pelvis markers (its error on CT 12 +- 6 mm), the hips "
                      f"{1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} (Harrington's: "
                      f"{1e3 * harrington_width(asis):.0f}): "
-                     + ("nothing turns in a still trial, so only the priors of the centres and the pelvis and thigh "
+                     + ("nothing turns in a still trial, so the base model's offset from the pelvis markers placed "
+                        "them (--hip-regression, or a movement trial, places them better)"
+                        if set(cal.still_centres) >= {h.joint for h in far} else
+                        "nothing turns in a still trial, so only the priors of the centres and the pelvis and thigh "
                         "markers placed them" if cal.still_only is not None else
                         "the trials' motion does not place them (hips above), the thigh markers' skin did")
                      + "; --hip-regression places them by the regression")

@@ -229,6 +229,10 @@ class Calibration:
     # Every trial still (a static alone): no joint turned, so the joints stay the base model's, scaled; the median
     # SD of the distances between markers on different segments, m, of the trial that moved most (else None)
     still_only: float | None = None
+    # The ball joints whose centres calibrate held because the trials are still and do not turn them (statics alone;
+    # Settings.auto_hold, pipeline._still_centres): their offsets from their parent segments' markers kept at the
+    # base model's
+    still_centres: tuple[str, ...] = ()
     # calibrate.calibration.far_joints.FarJoint per joint that a still trial holds where the moving trials never go:
     # its markers beyond it left out there (Settings.far_joints)
     far_joints: tuple = ()

@@ -221,8 +221,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="place the hip centres by Harrington's regression from the pelvis markers (ASIS, PSIS or "
                          "sacrum), as gait labs do where no functional hip trial places them: a walk does not")
     ap.add_argument("--no-auto-hold", action="store_true",
-                    help="calibrate the axes of coordinates the trial does not show moving too (by default they "
-                         "are held at the base model's, and the summary says which)")
+                    help="calibrate the axes of coordinates the trial does not show moving too, and in a static "
+                         "alone the hips', shoulders' and lumbar joint's centres (by default they are held at the "
+                         "base model's, and the summary says which)")
     ap.add_argument("--segment-frames", choices=("markers", "priors"), default=None,
                     help="where the segment frames end, in which the joint angles are read: 'markers' (turned to "
                          "where each segment's markers put them, as the model defines them) or 'priors' (where the "

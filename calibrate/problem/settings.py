@@ -57,7 +57,10 @@ class Settings:
     hold_axes: tuple[str, ...] = ()
     # Hold, as above, the axis of every coordinate the trial does not show moving (calibrate decides
     # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
-    # axis, and left free the axis drifts far from the base model's by fitting noise.
+    # axis, and left free the axis drifts far from the base model's by fitting noise.  When every trial is still (a
+    # static alone), the centres of the ball joints with a chain below them (hips, shoulders, lumbar) that no pair of
+    # markers across them shows turning are held too, at the base model's offset from their parent segments' markers
+    # (as hold_centres; Calibration.still_centres).
     auto_hold: bool = True
     # Where the segment frames end, in which the joint angles are read (calibrate.calibration.gauge): "markers",
     # turned to where each segment's markers put them against the base model's (the frames a lab's model defines
