@@ -600,6 +600,25 @@ def test_points_without_a_point_group_are_refused_in_one_line(tmp_path: Path) ->
     assert_one_line(e, path)
 
 
+def test_point_frames_one_past_the_header_and_the_data_reads_what_they_hold(tmp_path: Path) -> None:
+    """POINT:FRAMES one more than the header's first..last and the data section hold (c3d.org's sample13: 515
+    against 514 and 514): the frames held are read, not "truncated"; a data section short of the header's count
+    is still truncated."""
+    xyz = positions_mm(10, 8, seed=17)
+    labels = [f"M{i}" for i in range(8)]
+    data = c3d_bytes(xyz, np.zeros((10, 8)), labels, scale=-1.0, frames=11)
+    start = (struct.unpack("<H", data[16:18])[0] - 1) * 512
+    path = tmp_path / "frames_one_past.c3d"
+    path.write_bytes(data[: start + 10 * 8 * 16])  # no padding past the last frame: 10 frames held, not 11
+    trial = read_trial(path)
+    assert trial.n_frames == 10
+    assert_positions(trial.markers, xyz / 1000.0)
+    path.write_bytes(data[: start + 9 * 8 * 16])
+    with pytest.raises(TrialError, match="truncated: it should hold 11 frames but holds only 9") as e:
+        read_trial(path)
+    assert_one_line(e, path)
+
+
 @pytest.mark.parametrize(("scale", "processor"), [(-1.0, "intel"), (0.1, "intel"), (-1.0, "dec")])
 def test_analog_words_the_parameters_do_not_count_are_skipped(tmp_path: Path, scale: float, processor: str) -> None:
     """BTS's files (c3d.org sample28): the header lays 6 analog words after every frame's points while ANALOG:USED

@@ -274,6 +274,10 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         n_frames = long_count
     elif n_frames is None or n_frames == 0xFFFF:  # no count, or a long trial counted elsewhere
         n_frames = last - first + 1 if first >= 1 and last >= first else 0
+    counted = last - first + 1 if 1 <= first <= last < 0xFFFF else None  # the header's own count
+    if (long_count is None and counted is not None and frame_bytes and n_frames > counted
+            and data_start + counted * frame_bytes <= size < data_start + n_frames * frame_bytes):
+        n_frames = counted  # POINT:FRAMES one past the header and the data (c3d.org's sample13: 515, 514 and 514)
     if frame_bytes and data_start + n_frames * frame_bytes > size:
         held = max(size - data_start, 0) // frame_bytes
         raise fail(
