@@ -230,7 +230,11 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if mass is None and measured is not None and measured.mass is not None:
         mass, mass_from = measured.mass, measured.source or "the trial's subject measurements"
     if not settings.lateral_markers and measured is not None:
-        settings = replace(settings, lateral_markers=lateral_markers(model, measured))
+        # In statics alone the elbows' too: no motion places the elbow either, and no walk's forearm pulls its contents
+        # (STILL_WIDTH_JOINTS).
+        still = all(relative_motion(t, model) < STILL_MOTION for t in trials)
+        settings = replace(settings, lateral_markers=lateral_markers(model, measured,
+                                                                     STILL_WIDTH_JOINTS if still else WIDTH_JOINTS))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
@@ -242,14 +246,19 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
 #: forearm's contents back, and the radioulnar centre, which walking's forearm barely places, then lands
 #: 70 mm from the base model's on pig_walk (docs/calibration.md, "Subject measurements").
 WIDTH_JOINTS = ("knee", "ankle")
+#: ... and where every trial is still (statics alone), the elbow's too: nothing turns the forearm, whose contents the
+#: walk's pulled, and on real Plug-in Gait statics the elbows then end 13-32 mm from Plug-in Gait's, not 27-46
+#: (docs/benchmarks.md, "A static alone: the ball centres held").
+STILL_WIDTH_JOINTS = ("knee", "ankle", "elbow")
 
 
-def lateral_markers(model: Model, measured: SubjectMeasurements) -> tuple[tuple[str, str, float], ...]:
+def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequence[str] = WIDTH_JOINTS
+                    ) -> tuple[tuple[str, str, float], ...]:
     """(joint, lateral marker, distance) for Settings.lateral_markers from a subject's measured widths: each
-    knee and ankle of `model` (hinges named knee_l, ankle_r, ... as in models/human.urdf) whose measured width
+    hinge of `joints` in `model` (named knee_l, ankle_r, ... as in models/human.urdf) whose measured width
     is known and whose parent segment carries the Plug-in Gait lateral marker (LKNE, RANK, ...), at half the
     width plus the marker's radius."""
-    return tuple((name, marker, d) for name, marker in lateral_markers_of(model, WIDTH_JOINTS)
+    return tuple((name, marker, d) for name, marker in lateral_markers_of(model, tuple(joints))
                  if (d := measured.lateral_distance(name)) is not None)
 
 
