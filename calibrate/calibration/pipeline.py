@@ -59,6 +59,7 @@ from calibrate.calibration.start import (
     subsample_weight,
     with_frames,
 )
+from calibrate.seed.joints import JointEstimates
 from calibrate.seed.seeding import MIN_FRAMES, Seed, jumped_samples, seed_parameters, size_from_markers
 
 from ..errors import CalibrateError
@@ -373,7 +374,16 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     size = size_from_markers(model, trials)
     _check_size(model, trials, size)
-    if run.seed:
+    if run.seed and still_only is not None:
+        # No joint turns: MTB's joint centres need a joint that turns (it found none on any real static, in up to
+        # 5 s of trilateration starts), so the base model scaled to the subject's size from marker distances, its
+        # markers where the static shows them, starts.
+        say(Progress("seed", "the subject's size from marker distances (no joint turns: no MTB joint centres)"))
+        seed = seed_parameters(model, trials[0], joints=JointEstimates((), (), 0.0), extra_markers=new, size=size)
+        which = "no trial turns a" if len(trials) > 1 else "the trial turns no"
+        seed = replace(seed, notes=(f"no joint-centre seed: {which} joint (MTB needs joints that turn); the base "
+                                    "model scaled to the marker distances used", *seed.notes))
+    elif run.seed:
         say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         # The trial whose markers on different segments move most relative to each other (a static trial's
         # barely do): the one the joint-centre seed can use.
@@ -428,7 +438,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if run.seed:
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments,
                                settings.hold_centres)
-        params0, choice = choose_start(problem, known_obs, spans, {"the MTB seed": params0, "the base model": base0},
+        seeded = "the MTB seed" if still_only is None else "the base model at the subject's size"
+        params0, choice = choose_start(problem, known_obs, spans, {seeded: params0, "the base model": base0},
                                        say, solver, ahead=run.ahead, lengths=lengths)
         seed = replace(seed, notes=(*seed.notes, choice))
     evaluator = problem.frame_evaluator(params0.vector())

@@ -615,15 +615,7 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.name}: {c.note}{hint}")
         if len(un) > 12:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
-    seed_notes = list(cal.seed.notes)
-    if cal.still_only is not None:  # every joint's "no seed: record a trial that moves it" in one line
-        base = [n for n in seed_notes if n.endswith("; base model used")]
-        if len(base) > 2:
-            seed_notes = [n for n in seed_notes if n not in base]
-            joints = ", ".join(n.split(":")[0] for n in base)
-            lines.append(f"  seed: {len(base)} joint centres from the base model ({joints}): MTB's joint centres "
-                         "need joints that turn (the report's seed notes say each)")
-    for note in seed_notes:
+    for note in cal.seed.notes:
         lines.append(f"  seed: {note}")
     for note in cal.notes[:4]:
         lines.append(f"  note: {note}")
