@@ -233,9 +233,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if not settings.lateral_markers and measured is not None:
         # In statics alone the elbows' too: no motion places the elbow either, and no walk's forearm pulls its contents
         # (STILL_WIDTH_JOINTS).
-        still = all(relative_motion(t, model) < STILL_MOTION for t in trials)
-        settings = replace(settings, lateral_markers=lateral_markers(model, measured,
-                                                                     STILL_WIDTH_JOINTS if still else WIDTH_JOINTS))
+        settings = replace(settings, lateral_markers=lateral_markers(
+            model, measured, STILL_WIDTH_JOINTS if _statics_alone(model, trials) else WIDTH_JOINTS))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
@@ -349,7 +348,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                 "only a cluster of new labels)"))
         settings = replace(settings, hold_centres=settings.hold_centres + banded_joints)
     still_only = _still_only(model, trials, motion)
-    still_centres = _still_centres(subject, settings, trials) if run.auto_hold else ()
+    still_centres = _still_centres(subject, settings, trials, motion) if run.auto_hold else ()
     if still_centres:
         say(Progress("markers", f"still trials: no motion places {', '.join(still_centres)}; their centres held "
                                 "at the base model's offset from their segments' markers"))
@@ -1080,7 +1079,17 @@ def _still_only(model: Model, trials: Sequence[Trial], motion: Sequence[float] |
     return max(motion)
 
 
-def _still_centres(model: Model, settings: Settings, trials: Sequence[Trial]) -> tuple[str, ...]:
+def _statics_alone(model: Model, trials: Sequence[Trial], motion: Sequence[float] | None = None) -> bool:
+    """Whether every trial is still: its markers on different segments keep their distances (relative_motion under
+    STILL_MOTION; one pair may move more, as a static's turned head: _still_only is stricter).  `motion`:
+    _trial_motion, if measured for more than one trial."""
+    if motion is None or len(trials) == 1:
+        motion = [relative_motion(t, model) for t in trials]
+    return max(motion) < STILL_MOTION
+
+
+def _still_centres(model: Model, settings: Settings, trials: Sequence[Trial],
+                   motion: Sequence[float] | None = None) -> tuple[str, ...]:
     """The ball joints whose centres the trials leave to the priors because none of them moves (statics alone:
     every trial's markers on different segments keep their distances, relative_motion < STILL_MOTION) and no pair
     of markers across the joint (one on its parent segment, one on its child) changes its distance by more than
@@ -1089,8 +1098,9 @@ def _still_centres(model: Model, settings: Settings, trials: Sequence[Trial]) ->
     not held already and without a joint-centre marker the trials show (--hip-regression's, a lab's R_HJC).
     No joint turns, so each centre's 20 mm prior in its parent's frame trades with the markers around it and the
     segment lengths below: real Plug-in Gait statics put the hips 41-61 mm from Harrington's regression, held at
-    the base model's offset from the pelvis markers 10-20 mm (docs/benchmarks.md, "A static alone")."""
-    if "centre" not in settings.free or any(relative_motion(t, model) >= STILL_MOTION for t in trials):
+    the base model's offset from the pelvis markers 10-20 mm (docs/benchmarks.md, "A static alone").  `motion`:
+    _trial_motion, if measured."""
+    if "centre" not in settings.free or not _statics_alone(model, trials, motion):
         return ()
     parents = {j.parent for j in model.joints}
     labels = {lab for t in trials for lab in t.labels}
