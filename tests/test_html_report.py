@@ -4,6 +4,7 @@ calibration (squats with spiked marker samples, so positions are rejected)."""
 
 from __future__ import annotations
 
+import html
 import importlib.util
 import io
 import json
@@ -317,6 +318,36 @@ def test_an_unreliable_parameter_is_marked_so_in_the_table_and_the_bars(run):
     bars = [t for t in _plot_data(page) if t.get("type") == "bar" and centre["name"] in t.get("x", [])]
     k = bars[0]["x"].index(centre["name"])
     assert bars[0]["marker"]["color"][k] == "#b02020" and bars[0]["hovertext"][k] == "identified: no (unreliable)"
+
+
+def test_the_seed_notes_of_a_seed_the_start_did_not_take_are_folded(run):
+    """The race takes the MTB seed on the simulated subject (Seed.taken, by the geometry the start began from; the
+    report's seed says so).  Where it takes the base model instead (pig_walk: 20 MTB seed notes), the summary and
+    the HTML fold what the seed could not place under one line; the report JSON keeps every note."""
+    from dataclasses import replace
+
+    from calibrate.calibration.report import calibration_report, summary_text
+
+    cal = run["cal"]
+    assert cal.seed.taken and run["rep"]["seed"]["taken"] is True
+    assert cal.seed.notes[-1].startswith("started from the MTB seed")
+    notes = ("seeded from walk.c3d (the trial with the most joint motion)",
+             *(f"knee_{s}: seeded axis more than 30 deg from the base model's; base model axis used" for s in "lr"),
+             "ankle_l: joint-centre seed too uncertain; base model used",
+             "started from the base model: of the MTB seed (cost 2e5), the base model (cost 1e5), its basin fits best")
+    other = replace(cal, seed=replace(cal.seed, notes=notes, taken=False))
+    lines = [x for x in summary_text(other).splitlines() if x.startswith("  seed: ")]
+    assert lines == ["  seed: " + notes[0],
+                     "  seed: 3 notes on the MTB seed, moot: the start did not take it (the report's seed notes)",
+                     "  seed: " + notes[-1]]
+    rep = calibration_report(other)
+    assert rep["seed"]["notes"] == list(notes) and rep["seed"]["taken"] is False
+    page = report_html(rep)
+    folded = page[page.index("what the MTB seed could not place (moot"):]
+    assert all(html.escape(n) in folded[:folded.index("</ul>")] for n in notes[1:-1])
+    assert html.escape(notes[-1]) in folded
+    taken = [x for x in summary_text(cal).splitlines() if x.startswith("  seed: ")]
+    assert taken == ["  seed: " + n for n in cal.seed.notes]
 
 
 def test_left_out_labels_are_among_the_notes_with_their_reasons(run):

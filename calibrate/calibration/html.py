@@ -172,7 +172,16 @@ def _notes(report: dict) -> str:
                      + (f"; not met: {_e(', '.join(unset))}" if unset else "") + "</li>")
     for n in report.get("notes", []):
         items.append(f"<li>{_e(n)}</li>")
-    for n in report.get("seed", {}).get("notes", []):
+    seed = report.get("seed", {})
+    notes = seed.get("notes", [])
+    if seed.get("taken", True) is False and len(notes) > 3:
+        # The start took the base model: the MTB seed's own notes, moot, folded under one item.
+        first = notes[:1] if notes[0].startswith("seeded from") else []
+        items.extend(f"<li>seed: {_e(n)}</li>" for n in first)
+        items.append("<li>seed: what the MTB seed could not place (moot: the start did not take it):<ul>"
+                     + "".join(f"<li>{_e(n)}</li>" for n in notes[len(first):-1]) + "</ul></li>")
+        notes = notes[-1:]
+    for n in notes:
         items.append(f"<li>seed: {_e(n)}</li>")
     far = report.get("unreliable", [])
     if far:
@@ -180,7 +189,9 @@ def _notes(report: dict) -> str:
                      f"whether or not these trials identify them (unreliable: a trade the data do not separate, or "
                      f"skin artefact; --hold-axes keeps an axis, --hold-centres a centre at the base model's): "
                      f"{_e(', '.join(far))}</li>")
-    un = report.get("unidentified", [])
+    # A held centre (settings.hold_centres: given, or a still trial's ball joint) is named where the holds are.
+    held = {f"centre[{j}]" for j in (report.get("settings") or {}).get("hold_centres", [])}
+    un = [name for name in report.get("unidentified", []) if name not in held]
     if un:
         items.append(f"<li>{len(un)} parameters not identified by these trials (held by their priors): "
                      f"{_e(', '.join(un))}</li>")

@@ -440,7 +440,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         seeded = "the MTB seed" if still_only is None else "the base model at the subject's size"
         params0, choice = choose_start(problem, known_obs, spans, {seeded: params0, "the base model": base0},
                                        say, solver, ahead=run.ahead, lengths=lengths)
-        seed = replace(seed, notes=(*seed.notes, choice))
+        seed = replace(seed, notes=(*seed.notes, choice), taken=params0 is not base0)
     evaluator = problem.frame_evaluator(params0.vector())
     # Each trial's first key frame also from a local solve from the default pose (the better fit taken): on
     # Rajagopal2016 the joint-by-joint search alone turned the walking left arm 154 deg from OpenSim's IK

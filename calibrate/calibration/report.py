@@ -32,7 +32,7 @@ from .html import asymmetry_clause, mirror_clause, report_html
 from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
-from .records import Identified
+from .records import Identified, StillNote
 from .regression import FUNCTIONAL_RANGE, harrington_width
 from .series import report_series
 
@@ -205,7 +205,7 @@ def calibration_report(cal: Calibration) -> dict:
                        "initial_cost": s.coarse.initial_cost, "final_cost": s.coarse.final_cost,
                        "cost_history": list(s.coarse.cost_history), "termination": s.coarse.termination},
                    "levels": [{"frames": f, "iterations": i} for f, i in s.levels]},
-        "seed": {"notes": list(cal.seed.notes),
+        "seed": {"notes": list(cal.seed.notes), "taken": cal.seed.taken,
                  "joints": {j.name: {"method": j.method, "ok": j.ok} for j in cal.seed.joints}
                  if cal.seed.joints is not None else {}},
         "parameters": params,
@@ -600,10 +600,20 @@ def summary_text(cal) -> str:
                          f"{c.item} holds it at the base model's")
         if c.group == "axis" and c.unreliable and c.identified:
             lines.append(f"  implausible  axis[{c.item}]: {c.note}{_moved_hint(cal, c)}")
-    un = [c for c in cal.changes if not c.identified and not _slide_only(c)]
+    # A held centre (Settings.hold_centres: given, or a still trial's ball joint) is named on its own line above.
+    held = set(cal.settings.hold_centres)
+    un = [c for c in cal.changes if not c.identified and not _slide_only(c)
+          and not (c.group == "centre" and c.item in held)]
     if any(_slide_only(c) for c in cal.changes):
         lines.append("  every hinge centre's place along its axis is held by its prior (no motion defines it)")
-    if un:
+    if un and cal.still_only is not None and not any(c.unreliable for c in un):
+        # Statics alone identify nothing a motion would (the still-only line says why): counted, not listed.
+        kinds = {"scale": ("scale", "scales"), "centre": ("centre", "centres"), "axis": ("axis", "axes"),
+                 "marker": ("marker position", "marker positions")}
+        counts = {g: sum(c.group == g for c in un) for g in kinds}
+        lines.append("  not identified by this trial (still: held by their priors): " + ", ".join(
+            f"{n} {kinds[g][n > 1]}" for g, n in counts.items() if n) + " (the report's unidentified names them)")
+    elif un:
         far = sum(c.unreliable for c in un)
         lines.append("  not identified by this trial (held by their priors" + (f"; {far} carried further than "
                      "their priors allow, unreliable" if far else "") + f"): {len(un)}")
@@ -615,13 +625,29 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.name}: {c.note}{hint}")
         if len(un) > 12:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
-    for note in cal.seed.notes:
+    seed_notes = cal.seed.notes
+    if not cal.seed.taken and len(seed_notes) > 3:
+        # The start took the base model: what the MTB seed could not place is moot (the report keeps each note).
+        first = seed_notes[:1] if seed_notes[0].startswith("seeded from") else ()
+        seed_notes = (*first, f"{len(seed_notes) - len(first) - 1} notes on the MTB seed, "
+                      "moot: the start did not take it (the report's seed notes)", seed_notes[-1])
+    for note in seed_notes:
         lines.append(f"  seed: {note}")
-    for note in cal.notes[:4]:
-        lines.append(f"  note: {note}")
-    if len(cal.notes) > 4:
-        more = ", ".join(n.coordinate for n in cal.coordinate_notes[4:])
-        lines.append(f"  ... and {len(cal.notes) - 4} more notes ({more}; see the report)")
+    notes = cal.coordinate_notes
+    if cal.still_only is not None:
+        # A still trial shows no coordinate turning (the still-only line): one line for them all.
+        still = [n for n in notes if isinstance(n, StillNote)]
+        notes = tuple(n for n in notes if not isinstance(n, StillNote))
+        if still:
+            held = "the hinges' axes are held at the base model's and " if any(n.axis_held for n in still) else ""
+            lines.append(f"  note: {len(still)} coordinates turn no more than one frame's markers fix them, as in "
+                         f"any still trial: {held}every angle's zero rests on the priors (each coordinate's note in "
+                         "the report)")
+    for note in notes[:4]:
+        lines.append(f"  note: {note.text()}")
+    if len(notes) > 4:
+        more = ", ".join(n.coordinate for n in notes[4:])
+        lines.append(f"  ... and {len(notes) - 4} more notes ({more}; see the report)")
     for i, mapping in enumerate(cal.label_maps):
         renamed = [m for m in mapping if m.how in ("map", "alias")]
         if renamed:

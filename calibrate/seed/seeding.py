@@ -47,6 +47,8 @@ class Seed:
     notes: tuple[str, ...]
     joints: JointEstimates | None
     seconds: float
+    # whether the calibration started from this geometry (calibration.start.choose_start may take the base model's)
+    taken: bool = True
 
 
 # ---------------------------------------------------------------------- seed
