@@ -15,10 +15,11 @@ import pytest
 from calibrate import calibrate
 from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import STILL_WIDTH_JOINTS, lateral_markers
-from calibrate.calibration.report import calibration_report
+from calibrate.calibration.report import calibration_report, measurements_table
 from calibrate.cli import main
 from calibrate.io.c3d import read_c3d, write_c3d
 from calibrate.io.measurements import DEFAULT_MARKER_DIAMETER, SubjectMeasurements, lateral_distance
+from calibrate.model.model import Parameters, add_markers
 from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats, simulate_static
 
@@ -133,6 +134,23 @@ def test_measured_widths_place_knee_and_ankle_centres_along_their_axes(measured_
         assert row["marker"] == mk and row["used"] and not row["flagged"]
         assert row["measured_mm"] == pytest.approx(1000 * truth[j])
         assert row["calibrated_mm"] == pytest.approx(1000 * lateral_distance(human, with_widths.params, base, j, mk))
+    # A subject with new markers (a trial's labels the base model lacks) lists them among the base model's, segment
+    # by segment: the table reads each marker's base place by name.  The same geometry with two new markers on the
+    # pelvis, before every lateral marker: the same distances, each on its lateral side (by index, the right knee
+    # and ankle read their base places from other markers and came out on the wrong side).
+    subject = add_markers(human, {"PELX": ("pelvis", np.array([0.05, 0.0, 0.02])),
+                                  "PELY": ("pelvis", np.array([0.0, 0.05, 0.02]))})
+    assert subject.marker_names[:len(human.marker_names)] != human.marker_names
+    p = with_widths.params
+    marker = np.array([p.marker[human.marker_index(n)] if n in human.marker_names else np.full(3, 0.03)
+                       for n in subject.marker_names])
+    moved = replace(with_widths, model=subject, base_model=human,
+                    params=Parameters(p.scale, p.centre, p.axis, marker))
+    table = measurements_table(moved)["lateral_mm"]
+    for j, mk in PAIRS:
+        assert table[j]["marker"] == mk
+        assert table[j]["calibrated_mm"] == pytest.approx(rep["lateral_mm"][j]["calibrated_mm"], abs=1e-9)
+        assert table[j]["calibrated_mm"] > 0 and not table[j]["flagged"]
     html = report_html(json.loads(json.dumps(calibration_report(with_widths), default=float)))
     assert "measured widths" in html and f"knee_l {rep['lateral_mm']['knee_l']['calibrated_mm']:.0f}/" in html
     # priors.width = 0: the measurements read but not used, the slide the priors' alone.

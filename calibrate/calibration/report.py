@@ -251,10 +251,16 @@ def measurements_table(cal) -> dict | None:
     if m is None and not used:
         return None
     model = cal.model
-    base = (cal.base_model or model).parameters()
-    if len(base.marker) != len(cal.params.marker):  # new markers: the base model's own come first
-        extra = cal.params.marker[len(base.marker):]
-        base = Parameters(base.scale, base.centre, base.axis, np.vstack([base.marker, extra]))
+    origin = cal.base_model or model
+    base = origin.parameters()
+    if origin is not model:
+        # New markers sit among the base model's on their segments (the subject's markers go segment by segment):
+        # each marker's base place by its name, a new one's its own calibrated place.  By index, the new markers on
+        # the pelvis shifted every lateral marker after them, and BTKData's FunctionalWalk read its knees and ankles
+        # 37-47 mm on the wrong side of their centres.
+        base = Parameters(base.scale, base.centre, base.axis, np.array(
+            [base.marker[origin.marker_index(name)] if name in origin.marker_names else cal.params.marker[k]
+             for k, name in enumerate(model.marker_names)]))
     lateral = {}
     for name, marker in lateral_markers_of(model):
         measured = used.get((name, marker), None if m is None else m.lateral_distance(name))
