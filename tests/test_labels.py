@@ -409,3 +409,16 @@ def test_an_alias_finds_the_models_own_spelling_of_the_landmark():
     assert alias_for("RKNE", rajagopal) == ("R.Knee", 0)
     assert alias_for("L_Knee_Lat", ["LKNE", "L.Knee"]) == ("LKNE", 1)
     assert alias_for("L_Toe_Lat", rajagopal) is None
+
+
+def test_a_qualisys_running_sets_spellings(human) -> None:  # noqa: ANN001
+    """pyomeca/pyorerun's Qualisys running trial (Running_0002.c3d) names its posterior iliac spines LBackAsis /
+    RBackAsis and its lateral knee, ankle, elbow and wrist LKneeLat, LAnkleLat, LElbowLat, LWristLat / LWristMed:
+    the Plug-in Gait markers on those points; its metatarsal and phalanx markers (LMT5, LMT1, LPHAL2) and clusters
+    (LThighUpperC) are no Plug-in Gait marker's landmark and stay unknown."""
+    labels = ["LBackAsis", "RBackAsis", "LASIS", "RKneeLat", "LAnkleLat", "RElbowLat", "LWristLat", "LWristMed",
+              "LAcromium", "LMT5", "LMT1", "LPHAL2", "LThighUpperC"]
+    renamed, mapping = map_labels(make_trial(labels), human.marker_names)
+    assert renamed.labels == ("LPSI", "RPSI", "LASI", "RKNE", "LANK", "RELB", "LWRA", "LWRB", "LSHO", "LMT5", "LMT1",
+                              "LPHAL2", "LThighUpperC")
+    assert mapping.unknown == ("LMT5", "LMT1", "LPHAL2", "LThighUpperC")

@@ -34,7 +34,7 @@ unknown there.
 model label   alias names, after the side (R or L) and normalisation
 ============  =====================================================================================
 xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias
-xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips
+xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis
 xTHI          thi, thigh, thighwand
 xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee, latepicondyle, lateralepicondyle,
               fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
@@ -129,7 +129,7 @@ HOWS = ("exact", "map", "alias", "unknown")
 #: names after the side and normalisation, most specific first.
 SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias"),
-    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips"),
+    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis"),
     "THI": ("thi", "thigh", "thighwand"),
     "KNE": (
         "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee", "latepicondyle", "lateralepicondyle",
