@@ -252,8 +252,10 @@ class BallJoint:
         near the gimbal lock (t2 → ±90°, where the two solutions meet and t1, t3 are individually
         ill-conditioned) it does not wander onto the other branch.  The angles are then unwrapped
         (no 2π jumps) and each is turned by whole turns so that its median lies nearest the middle
-        of its limits (or, given `previous` (3,), its first frame nearest that).  In exact gimbal
-        lock, where only t1 ± t3 is defined, t1 keeps the previous frame's value."""
+        of its limits (or, given `previous` (3,), its first frame nearest that); a frame more than
+        half a turn from that middle is then turned back within it (the only 2π jumps, beyond any
+        joint's range).  In exact gimbal lock, where only t1 ± t3 is defined, t1 keeps the previous
+        frame's value."""
         B = self.axes.T.copy()  # columns a1, a2, a3
         sign = np.array([1.0, 1.0, -1.0 if np.linalg.det(B) < 0 else 1.0])
         B[:, 2] *= sign[2]  # a left-handed axis order: R(-a3, -t3) = R(a3, t3)
@@ -299,12 +301,17 @@ class BallJoint:
             out[f, 0] = a
             out[f, 2] = plus[f] - a if t2[f] > 0 else plus[f] + a
         out = np.unwrap(out, axis=0)
+        mid = np.where(np.isfinite(lower) & np.isfinite(upper), 0.5 * (lower + upper), 0.0)
         if prev is not None:
             target, at = prev, out[0]
         else:
-            mid = np.where(np.isfinite(lower) & np.isfinite(upper), 0.5 * (lower + upper), 0.0)
             target, at = mid, np.median(out, axis=0)
         out += 2 * math.pi * np.round((target - at) / (2 * math.pi))
+        # Each angle within half a turn of its range's middle, frame by frame (the same rotation): unwrapped, the outer
+        # angles wound up whole turns where a trial passes near the gimbal lock again and again (a tennis serve's
+        # shoulders, kineticstoolkit's sample: -1104 to +1128 deg).  A human joint's range spans less than a turn, so
+        # a frame is only moved where it already lies beyond it.
+        out = mid + _wrap(out - mid)
         return out * sign
 
 
