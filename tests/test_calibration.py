@@ -1081,6 +1081,19 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
         assert r.stderr.startswith("calibrate: error: "), r.stderr
         assert r.stderr.strip().count("\n") == 0, r.stderr
     assert not (tmp_path / "x.urdf").exists() and not (tmp_path / "y.urdf").exists()
+    # A session's file with two subjects' markers (Vicon's A:RASI, B:RASI; B a metre aside): refused with one line
+    # naming both, nothing written; --subject B calibrates B's, every model marker seen.
+    two = Trial(tuple(f"A:{n}" for n in trial.labels) + tuple(f"B:{n}" for n in trial.labels),
+                np.concatenate([trial.markers, trial.markers + np.array([1.0, 0.0, 0.0])], axis=1), 100.0)
+    write_c3d(tmp_path / "two.c3d", two)
+    r = _cli(tmp_path / "two.c3d", human.path, "-o", tmp_path / "two.urdf", "-q")
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
+    assert "two.c3d: holds the markers of 2 subjects (A: 39 of the model's, B: 39 of the model's)" in r.stderr
+    assert not (tmp_path / "two.urdf").exists() and not (tmp_path / "two_report.json").exists()
+    r = _cli(tmp_path / "two.c3d", human.path, "-o", tmp_path / "b.urdf", "--subject", "B", "--frames", "10:60", "-q")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((tmp_path / "two_report.json").read_text())
+    assert rep["marker_set"]["unused_model_markers"] == [] and rep["marker_set"]["ignored_labels"] == ["EXTRA"]
 
 
 def test_worst_ratio_singular_prior_block():

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibrate.errors import CalibrateError
+from calibrate.errors import CalibrateError, TrialError
 from calibrate.io.c3d import write_c3d
 from calibrate.io.labels import LabelConflictWarning, alias_for, load_marker_map, map_labels
 from calibrate.io.read import read_trial
@@ -192,6 +192,38 @@ def test_prefixed_labels_match_after_the_prefix(human) -> None:  # noqa: ANN001
 def test_a_whole_label_beats_a_prefixed_one(human) -> None:  # noqa: ANN001
     _, mapping = map_labels(make_trial(["Sub02:RASI", "R.ASIS"]), human.marker_names)
     assert by_trial_label(mapping)["R.ASIS"][:2] == ("RASI", "alias")
+
+
+def test_a_file_of_two_subjects_is_refused_until_one_is_chosen(human) -> None:  # noqa: ANN001
+    """A session's file holding two subjects' markers (kineticstoolkit's tennis serve of Derrick and Viktor, each
+    39 Plug-in Gait labels behind its prefix): map_labels refuses it with one line naming both; of_subject keeps one
+    subject's labels (prefix removed) with the unprefixed ones, its model outputs too, the data unchanged."""
+    names = ["LASI", "RASI", "LPSI", "RPSI", "R.Knee.Lat"]
+    labels = [f"Derrick:{n}" for n in names] + [f"Viktor:{n}" for n in names] + ["*12"]
+    trial = make_trial(labels)
+    trial = Trial(labels=trial.labels, markers=trial.markers, rate=trial.rate, source="serve.c3d",
+                  model_outputs={"Viktor:LKneeAngles": np.ones((7, 3)), "Derrick:LKneeAngles": np.zeros((7, 3))},
+                  output_kinds={"Viktor:LKneeAngles": "angle", "Derrick:LKneeAngles": "angle"},
+                  output_units={"Viktor:LKneeAngles": "rad", "Derrick:LKneeAngles": "rad"})
+    with pytest.raises(CalibrateError, match=r"^serve\.c3d: holds the markers of 2 subjects \(Derrick: 5 of the "
+                                             r"model's, Viktor: 5 of the model's\); calibrate one at a time: "
+                                             r"--subject Derrick"):
+        map_labels(trial, human.marker_names)
+    viktor = trial.of_subject("Viktor")
+    assert viktor.labels == (*names, "*12")
+    np.testing.assert_array_equal(viktor.markers, trial.markers[:, [5, 6, 7, 8, 9, 10]])
+    assert list(viktor.model_outputs) == ["LKneeAngles"] and viktor.model_outputs["LKneeAngles"][0, 0] == 1.0
+    assert viktor.output_kinds == {"LKneeAngles": "angle"} and viktor.output_units == {"LKneeAngles": "rad"}
+    relabelled, _ = map_labels(viktor, human.marker_names)
+    assert relabelled.labels == ("LASI", "RASI", "LPSI", "RPSI", "RKNE", "*12")
+    with pytest.raises(TrialError, match=r"^serve\.c3d: no labels of subject 'Bob' \(its subjects: Derrick, "
+                                         r"Viktor\)"):
+        trial.of_subject("Bob")
+    plain = make_trial(names)
+    assert plain.of_subject("Viktor") is plain  # one subject, its prefix removed on reading
+    # A second prefix matching fewer than SUBJECT_MARKERS of the model's markers is no subject (a wand, a prop).
+    with pytest.warns(LabelConflictWarning, match="Derrick:LASI, Wand:LASI"):
+        map_labels(make_trial([f"Derrick:{n}" for n in names] + ["Wand:LASI", "Wand:Marker1"]), human.marker_names)
 
 
 # ---------------------------------------------------------------------------

@@ -249,6 +249,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     marker_map = load_marker_map(args.markers) if args.markers else None
     with progress as say:
         trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]
+        if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
+            trials = [t.of_subject(args.subject) for t in trials]
         from ..model.sides import side_mismatches
 
         sides = [x for x in side_mismatches(model) if any(x.marker in t.labels for t in trials)]

@@ -46,6 +46,8 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                    help="hold these coordinates at a value (default 0 deg) in every frame")
     p.add_argument("--whole-trials", action="store_true", help="every frame, not the IK setups' time ranges")
+    p.add_argument("--subject", default=None, metavar="NAME",
+                   help="of trials holding several subjects' markers (Vicon's NAME:RASI), fit NAME's")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary")
     return p
@@ -110,6 +112,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     if args.lock is not None:
         locked.update({name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()})
     trials = [read_trial(t) for t in trial_paths]
+    if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
+        trials = [t.of_subject(args.subject) for t in trials]
     lines: list[str] = []
     if args.ik_setup and not args.whole_trials:
         from ..io.osim_setup import cut_to_setups

@@ -181,6 +181,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="use frames A:B only (0-based, B excluded; a single trial only)")
     ap.add_argument("--markers", type=Path, default=None,
                     help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss")
+    ap.add_argument("--subject", default=None, metavar="NAME",
+                    help="of trials holding several subjects' markers (Vicon's NAME:RASI), calibrate NAME's")
     ap.add_argument("--no-aliases", action="store_true",
                     help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
     ap.add_argument("--no-new-markers", action="store_true",

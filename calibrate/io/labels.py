@@ -122,6 +122,10 @@ __all__ = [
     "map_labels",
 ]
 
+#: A subject prefix whose labels match this many of the model's markers or more is a subject of the trial
+#: (map_labels refuses a trial with two: which to calibrate is the user's choice, Trial.of_subject).
+SUBJECT_MARKERS = 3
+
 #: How a trial label was matched, best first.
 HOWS = ("exact", "map", "alias", "unknown")
 
@@ -447,7 +451,9 @@ def map_labels(
     ``marker_map``: model label -> trial labels (as :func:`load_marker_map` reads it); it takes
     precedence over the built-in aliases (``aliases=False`` turns those off).  Labels that match
     nothing are kept as they are.  Marker data, rate, first frame and source are unchanged.
-    Raises CalibrateError when the map names a model label the model does not have.
+    Raises CalibrateError when the map names a model label the model does not have, or when the
+    trial holds the markers of several subjects (prefixes ``Derrick:``, ``Viktor:``, each matching
+    SUBJECT_MARKERS of the model's or more): ``trial.of_subject(name)`` picks one.
     """
     if not isinstance(trial, Trial):
         raise TypeError(f"expected a Trial, got {type(trial).__name__}")
@@ -471,6 +477,7 @@ def map_labels(
 
     # Each trial label's best candidate: (model label, how, rank key, note)
     candidates: dict[int, tuple[str, str, tuple[int, int, int], str]] = {}
+    subjects: dict[str, int] = {}  # prefix -> model markers its labels match
     for index, label in enumerate(trial.labels):
         found = best(label)
         prefixed = 0
@@ -478,9 +485,18 @@ def map_labels(
         if found is None and (split := _split_prefix(label)) is not None:
             found = best(split[1])
             prefixed, note = 1, f"matched after the prefix {split[0]}:"
+            if found is not None:
+                subjects[split[0]] = subjects.get(split[0], 0) + 1
         if found is not None:
             target, how, priority = found
             candidates[index] = (target, how, (prefixed, _RANK[how], priority), note)
+    several = {k: n for k, n in subjects.items() if n >= SUBJECT_MARKERS}
+    if len(several) > 1:  # a session's file with each subject's markers (Vicon's Derrick:RASI, Viktor:RASI)
+        raise CalibrateError(
+            f"{trial.source or 'trial'}: holds the markers of {len(several)} subjects ("
+            + ", ".join(f"{k}: {n} of the model's" for k, n in several.items())
+            + f"); calibrate one at a time: --subject {next(iter(several))} on the command line, "
+            "trial.of_subject(NAME) in Python")
 
     by_target: dict[str, list[int]] = {}
     for index, (target, *_rest) in candidates.items():

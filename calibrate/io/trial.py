@@ -162,6 +162,16 @@ def strip_subject_prefix(labels: Iterable[str]) -> tuple[list[str], str | None]:
     return stripped, prefix
 
 
+def subject_prefixes(labels: Iterable[str]) -> dict[str, int]:
+    """Each subject prefix among `labels` (the text before the first ``:``, as Vicon Nexus writes
+    ``Derrick:RASI`` for each subject of a session) and how many labels carry it."""
+    out: dict[str, int] = {}
+    for label in labels:
+        if ":" in label and (prefix := label.split(":", 1)[0].strip()) and label.split(":", 1)[1].strip():
+            out[prefix] = out.get(prefix, 0) + 1
+    return out
+
+
 def unique_labels(raw: Iterable[str], numbers: Iterable[int] | None = None) -> tuple[str, ...]:
     """Strip labels, name empty ones ``unlabelled_<n>``, suffix duplicates ``_2``, ``_3``...
 
@@ -366,6 +376,35 @@ class Trial:
         wanted = (labels,) if isinstance(labels, str) else tuple(labels)
         idx = [self._index(label) for label in wanted]
         return replace(self, labels=wanted, markers=self.markers[:, idx, :])
+
+    def of_subject(self, name: str) -> Trial:
+        """The markers of subject `name` of a file holding several subjects (Vicon's ``Derrick:RASI``,
+        ``Viktor:RASI``): its labels with the prefix removed, beside the labels that carry none; its model
+        outputs likewise.  A trial without prefixed labels (one subject, its prefix removed on reading)
+        comes back as it is.  TrialError with one line when no label carries `name`."""
+        found = subject_prefixes(self.labels)
+        if not found:
+            return self
+        if name not in found:
+            raise TrialError(f"{origin(self.source)}: no labels of subject '{name}' (its subjects: "
+                             f"{', '.join(found)}); give one of those")
+
+        def own(label: str) -> str | None:
+            """The label's name for subject `name`, or None when it belongs to another subject."""
+            if ":" not in label:
+                return label
+            prefix, rest = label.split(":", 1)
+            return rest.strip() if prefix.strip() == name and rest.strip() else None
+
+        kept = [(i, n) for i, label in enumerate(self.labels) if (n := own(label)) is not None]
+        if len({n for _, n in kept}) != len(kept):
+            raise TrialError(f"{origin(self.source)}: subject '{name}' has a label that another marker also has "
+                             "without the prefix; rename one in the capture software")
+        outputs = {n: self.model_outputs[k] for k in self.model_outputs if (n := own(k)) is not None}
+        return replace(self, labels=tuple(n for _, n in kept), markers=self.markers[:, [i for i, _ in kept], :],
+                       model_outputs=outputs,
+                       output_kinds={n: self.output_kinds[k] for k in self.output_kinds if (n := own(k)) in outputs},
+                       output_units={n: self.output_units[k] for k in self.output_units if (n := own(k)) in outputs})
 
     def frames(self, start: int, stop: int) -> Trial:
         """Frames ``start`` to ``stop - 1`` of this trial (0-based, relative to this trial's first frame)."""
