@@ -414,6 +414,27 @@ def test_inspect_a_trial_against_a_model(human, tmp_path, capsys) -> None:  # no
     assert capsys.readouterr().err.count("\n") == 1
 
 
+def test_the_command_line_says_a_warning_in_one_line(human, tmp_path, capsys) -> None:  # noqa: ANN001
+    """A label conflict met on the command line (two prefixed labels tie for RASI) is one 'warning:' line, not
+    Python's file, line and source; numpy's warnings on a trial's gaps are not shown, its others are, in one line."""
+    import warnings
+
+    from calibrate.cli import main
+    from calibrate.cli.main import _show_warning
+    from calibrate.io.trc import write_trc
+
+    trc = tmp_path / "walk.trc"
+    write_trc(trc, make_trial(["Skeleton:RASI", "Other:RASI", "LASI"]))
+    assert main(["inspect", str(trc), "--model", str(human.path)]) == 0
+    err = capsys.readouterr().err
+    assert err == ("warning: trial labels Skeleton:RASI, Other:RASI all match RASI equally well; kept "
+                   "Skeleton:RASI, the first in the trial (a marker map can choose)\n")
+    _show_warning(RuntimeWarning("All-NaN slice encountered"), RuntimeWarning, "x.py", 1)
+    _show_warning(RuntimeWarning("overflow encountered in exp"), RuntimeWarning, "x.py", 1)
+    assert capsys.readouterr().err == "warning: RuntimeWarning: overflow encountered in exp\n"
+    assert warnings.showwarning is not _show_warning  # the command's own, restored after it
+
+
 def test_model_outputs_travel_with_the_relabelled_trial() -> None:
     trial = Trial(labels=("R.ASIS",), markers=np.zeros((3, 1, 3)), rate=100.0,
                   model_outputs={"LFEO": np.ones((3, 3))}, output_kinds={"LFEO": "point"}, output_units={"LFEO": "m"})

@@ -12,6 +12,7 @@ import argparse
 import atexit
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from calibrate.cli.args import (
@@ -307,10 +308,28 @@ def run() -> None:
     sys.exit(code)
 
 
+#: numpy's words for a reduction over no finite value (a marker gap through every frame of a window): the
+#: arithmetic on the trials' gaps, not a warning a user can act on.
+_GAP_ARITHMETIC = ("All-NaN slice", "Mean of empty slice", "Degrees of freedom <= 0", "invalid value encountered")
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+    """A warning as the command line says it, one line on stderr ('warning: ...'; calibrate's own, such as a
+    LabelConflictWarning, by their text alone), not Python's file, line number and source; numpy's on the gaps
+    of a trial (_GAP_ARITHMETIC) not at all."""
+    text = str(message)
+    if issubclass(category, RuntimeWarning) and text.startswith(_GAP_ARITHMETIC):
+        return
+    ours = str(getattr(category, "__module__", "")).startswith("calibrate")
+    print(f"warning: {text}" if ours else f"warning: {category.__name__}: {text}", file=sys.stderr)
+
+
 def _guard(command, args: argparse.Namespace) -> int:
-    """Run a command; one-line errors (exit 2) for bad input."""
+    """Run a command; one-line errors (exit 2) for bad input, one-line warnings (_show_warning)."""
     try:
-        return command(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return command(args)
     except CalibrateError as e:
         print(f"calibrate: error: {e}", file=sys.stderr)
         return 2
