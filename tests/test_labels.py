@@ -194,7 +194,7 @@ def test_a_whole_label_beats_a_prefixed_one(human) -> None:  # noqa: ANN001
     assert by_trial_label(mapping)["R.ASIS"][:2] == ("RASI", "alias")
 
 
-def test_a_file_of_two_subjects_is_refused_until_one_is_chosen(human) -> None:  # noqa: ANN001
+def test_a_file_of_two_subjects_is_refused_until_one_is_chosen(human, tmp_path, capsys) -> None:  # noqa: ANN001
     """A session's file holding two subjects' markers (kineticstoolkit's tennis serve of Derrick and Viktor, each
     39 Plug-in Gait labels behind its prefix): map_labels refuses it with one line naming both; of_subject keeps one
     subject's labels (prefix removed) with the unprefixed ones, its model outputs too, the data unchanged."""
@@ -221,6 +221,14 @@ def test_a_file_of_two_subjects_is_refused_until_one_is_chosen(human) -> None:  
         trial.of_subject("Bob")
     plain = make_trial(names)
     assert plain.of_subject("Viktor") is plain  # one subject, its prefix removed on reading
+    # calibrate inspect names the subjects.
+    from calibrate.cli import main
+    from calibrate.io.trc import write_trc
+
+    write_trc(tmp_path / "serve.trc", trial)
+    assert main(["inspect", str(tmp_path / "serve.trc")]) == 0
+    out = capsys.readouterr().out
+    assert "  subjects: Derrick (5 labels), Viktor (5 labels): calibrate one at a time (--subject NAME)" in out
     # A second prefix matching fewer than SUBJECT_MARKERS of the model's markers is no subject (a wand, a prop).
     with pytest.warns(LabelConflictWarning, match="Derrick:LASI, Wand:LASI"):
         map_labels(make_trial([f"Derrick:{n}" for n in names] + ["Wand:LASI", "Wand:Marker1"]), human.marker_names)

@@ -482,6 +482,13 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     print(f"  motion: its markers keep their distances to {1000 * moves:.1f} mm SD (median over marker pairs): "
           + ("still, a static trial" if moves < STILL_MOTION else
              "a movement trial (a static keeps them to 0.4-1.6 mm)"))
+    from ..io.labels import SUBJECT_MARKERS
+    from ..io.trial import subject_prefixes
+
+    subjects = {k: n for k, n in subject_prefixes(t.labels).items() if n >= SUBJECT_MARKERS}
+    if len(subjects) > 1:  # a session's file with each subject's markers (Vicon's Derrick:RASI, Viktor:RASI)
+        print("  subjects: " + ", ".join(f"{k} ({n} labels)" for k, n in subjects.items())
+              + ": calibrate one at a time (--subject NAME)")
     if became:
         hows = [m.how for m in mapping]
         print(f"  labels against {model_path.name}'s {len(model.marker_names)} markers: "
