@@ -15,6 +15,7 @@ import pytest
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.records import ZeroNote
+from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.errors import CalibrateError
 from calibrate.io.c3d import write_c3d
 from calibrate.io.motion import read_motion_csv
@@ -68,6 +69,10 @@ def test_unknown_markers_are_placed_fitted_and_written(human, subject, tmp_path)
         assert placed[label].segment == segment, placed[label]
     assert placed["LOOSE"].segment is None and "LOOSE" in cal.ignored_labels
     assert "varies" in placed["LOOSE"].reason
+    # Three new markers on femur_r start at one place, as the base model's placeholders do, but the base model puts
+    # none of them anywhere: each has its 'new marker' line, none is listed among the placeholders.
+    assert not set(CLUSTER) & set(calibration_report(cal)["placeholder_markers"])
+    assert "  placeholders " not in summary_text(cal)
     # Each new marker is fitted: where the calibrated model puts it, frame by frame, against the
     # noise-free truth (segment frames are a gauge, so positions are compared in the lab).
     est = _world(cal.model, cal.params, cal.motion)

@@ -449,9 +449,12 @@ def _placeholders(cal) -> list[str]:
     """The names of the base model's placeholder markers (calibrate.problem.priors.placeholder_markers) the trials
     show: markers the data alone place."""
     unused = set(cal.unused_markers)
+    # The new markers (the trials' labels the base model lacks) start at one place too; each has its own 'new marker'
+    # line, and the base model puts none of them anywhere.
+    new = {m.label for m in cal.new_markers}
     model = cal.model
     return [model.markers[k].name for k in placeholder_markers(model, model.parameters())
-            if model.markers[k].name not in unused]
+            if model.markers[k].name not in unused and model.markers[k].name not in new]
 
 
 def _moved_hint(cal, change) -> str:
