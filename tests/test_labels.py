@@ -483,3 +483,13 @@ def test_a_qualisys_running_sets_spellings(human) -> None:  # noqa: ANN001
     assert renamed.labels == ("LPSI", "RPSI", "LASI", "RKNE", "LANK", "RELB", "LWRA", "LWRB", "LSHO", "LMT5", "LMT1",
                               "LPHAL2", "LThighUpperC")
     assert mapping.unknown == ("LMT5", "LMT1", "LPHAL2", "LThighUpperC")
+
+
+def test_bts_shoulder_spelling(human) -> None:  # noqa: ANN001
+    """BTS's Davis-protocol files (ezc3d's BTS sample, c3d.org's sample28) cut 'shoulder' to 'r should' / 'l should':
+    the shoulder markers, so that with c7 the trunk has three; their other labels ('r bar 1', 'r knee 1', 'r mall',
+    'r met') have no reference for their exact places and stay unknown."""
+    labels = ["r should", "l should", "c7", "r asis", "r knee 1", "r mall", "r met"]
+    renamed, mapping = map_labels(make_trial(labels), human.marker_names)
+    assert renamed.labels == ("RSHO", "LSHO", "C7", "RASI", "r knee 1", "r mall", "r met")
+    assert mapping.unknown == ("r knee 1", "r mall", "r met")

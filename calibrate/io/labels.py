@@ -44,7 +44,7 @@ xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus,
               malleoluslat, ankle, lm, fal, lmal, latmal
 xHEE          hee, heel, calc, calcaneus, ca, fcc, cal
 xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
-xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular
+xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should
 xUPA          upa, upperarm, arm, humerus, bicep, biceps
 xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hle, lhe,
               lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel
@@ -147,7 +147,7 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     ),
     "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal"),
     "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip", "fm2", "sm", "mh2"),
-    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr", "ac", "caj", "acromioclavicular"),
+    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr", "ac", "caj", "acromioclavicular", "should"),
     "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
     "ELB": (
         "elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow", "el", "hle", "lhe",
