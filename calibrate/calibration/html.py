@@ -15,7 +15,7 @@ from __future__ import annotations
 import html
 import json
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from ..errors import CalibrateError
@@ -173,16 +173,12 @@ def _notes(report: dict) -> str:
     for n in report.get("notes", []):
         items.append(f"<li>{_e(n)}</li>")
     seed = report.get("seed", {})
-    notes = seed.get("notes", [])
-    if seed.get("taken", True) is False and len(notes) > 3:
-        # The start took the base model: the MTB seed's own notes, moot, folded under one item.
-        first = notes[:1] if notes[0].startswith("seeded from") else []
-        items.extend(f"<li>seed: {_e(n)}</li>" for n in first)
+    first, moot, last = seed_note_groups(seed.get("notes", []), seed.get("taken", True))
+    items.extend(f"<li>seed: {_e(n)}</li>" for n in first)
+    if moot:
         items.append("<li>seed: what the MTB seed could not place (moot: the start did not take it):<ul>"
-                     + "".join(f"<li>{_e(n)}</li>" for n in notes[len(first):-1]) + "</ul></li>")
-        notes = notes[-1:]
-    for n in notes:
-        items.append(f"<li>seed: {_e(n)}</li>")
+                     + "".join(f"<li>{_e(n)}</li>" for n in moot) + "</ul></li>")
+    items.extend(f"<li>seed: {_e(n)}</li>" for n in last)
     far = report.get("unreliable", [])
     if far:
         items.append(f"<li>{len(far)} parameters carried further from the base model's than their priors allow, "
@@ -500,6 +496,17 @@ def _split_clause(head: str | None, worst: str | None, size: Callable[[str], flo
         return (f"{said(head)} measured by the trials{sep}{said(worst)} left to the priors "
                 f"(SD {priors_sd(worst):.1f} mm alone)")
     return said(head)
+
+
+def seed_note_groups(notes: Sequence[str], taken: bool) -> tuple[list[str], list[str], list[str]]:
+    """The seed's notes as (shown before, moot, shown after): where the start did not take the MTB seed (Seed.taken)
+    and it has more than three notes, its own notes between the 'seeded from' one and the start's choice are moot
+    (the summary counts them, the HTML report folds them); otherwise every note is shown."""
+    notes = list(notes)
+    if taken or len(notes) <= 3:
+        return notes, [], []
+    first = notes[:1] if notes[0].startswith("seeded from") else []
+    return first, notes[len(first):-1], notes[-1:]
 
 
 def report_html(report: Mapping, title: str | None = None) -> str:

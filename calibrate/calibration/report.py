@@ -28,7 +28,7 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import on_axis_markers, placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
-from .html import asymmetry_clause, mirror_clause, report_html
+from .html import asymmetry_clause, mirror_clause, report_html, seed_note_groups
 from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
@@ -634,13 +634,10 @@ def summary_text(cal) -> str:
             lines.append(f"    {c.name}: {c.note}{hint}")
         if len(un) > 12:
             lines.append(f"    ... and {len(un) - 12} more (see the report)")
-    seed_notes = cal.seed.notes
-    if not cal.seed.taken and len(seed_notes) > 3:
-        # The start took the base model: what the MTB seed could not place is moot (the report keeps each note).
-        first = seed_notes[:1] if seed_notes[0].startswith("seeded from") else ()
-        seed_notes = (*first, f"{len(seed_notes) - len(first) - 1} notes on the MTB seed, "
-                      "moot: the start did not take it (the report's seed notes)", seed_notes[-1])
-    for note in seed_notes:
+    first, moot, last = seed_note_groups(cal.seed.notes, cal.seed.taken)  # the report keeps each note
+    if moot:
+        first.append(f"{len(moot)} notes on the MTB seed, moot: the start did not take it (the report's seed notes)")
+    for note in first + last:
         lines.append(f"  seed: {note}")
     notes = cal.coordinate_notes
     if cal.still_only is not None:
