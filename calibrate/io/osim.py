@@ -65,7 +65,10 @@ MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this ma
 # ---------------------------------------------------------------------- records
 LEFT_OUT = "left out"  # Approximation.kind of a tree on ground that is not the subject's (a platform, a ball)
 FLOATING = "floating base"  # Approximation.kind of a ground joint that is not six coordinates (a weld, a pin)
-NO_MARKER_EFFECT = (LEFT_OUT, FLOATING)  # kinds that move no marker of the subject: no effect or bound to state
+LUMPED = "lumped chain"  # Approximation.kind of a joint standing for a chain of joints coupled to its coordinates
+IN_CHAIN = "in a lumped chain"  # Approximation.kind of a coupled joint of that chain (welded; its turn lumped above)
+# kinds that move no marker of the subject: no effect or bound to state (IN_CHAIN's effect is its chain's line)
+NO_MARKER_EFFECT = (LEFT_OUT, FLOATING, IN_CHAIN)
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ class Approximation:
     """
 
     joint: str  # OpenSim joint name
-    kind: str  # 'hinge fit', 'welded (coupled)', 'frozen'
+    kind: str  # 'hinge fit', 'welded (coupled)', 'frozen', LUMPED, IN_CHAIN, LEFT_OUT, FLOATING
     coordinates: tuple[str, ...]  # the joint's OpenSim coordinates
     detail: str  # what was not expressible
     max_marker_mm: float
@@ -121,6 +124,14 @@ class OsimInfo:
     # else the identity): where the source model's muscle points and wrap objects go (calibrate.io.osim_forces)
     bodies: dict[str, Transform] = field(default_factory=dict)
     body_scale: dict[str, float] = field(default_factory=dict)  # each body's scale from the source's (written models)
+    # coordinate -> the URDF joint's angle per unit of OpenSim's coordinate: a lumped chain's whole turn (its
+    # coordinates only; absent means 1).  The URDF, the motion CSV, `defaults` and `locked` are in the URDF's angle;
+    # the .mot, the .osim export and OpenSim setups' values in OpenSim's coordinate.
+    ratios: dict[str, float] = field(default_factory=dict)
+
+    def ratio(self, coordinate: str) -> float:
+        """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
+        return self.ratios.get(coordinate, 1.0)
 
 
 # ---------------------------------------------------------------------- the import
@@ -131,6 +142,7 @@ class _Op:
     fixed: Transform | None = None
     coord: str | None = None
     axis: np.ndarray | None = None
+    ratio: float = 1.0  # the revolute's angle per unit of the coordinate (a lumped chain's whole turn)
 
 
 def _ops_transform(ops: list[_Op], values: Mapping[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -141,8 +153,13 @@ def _ops_transform(ops: list[_Op], values: Mapping[str, np.ndarray], n: int) -> 
             p = p + np.einsum("nij,j->ni", R, op.fixed[1])
             R = R @ op.fixed[0]
         else:
-            R = R @ axis_rotation(op.axis, values[op.coord])  # type: ignore[arg-type,index]
+            R = R @ axis_rotation(op.axis, op.ratio * np.asarray(values[op.coord]))  # type: ignore[arg-type,index]
     return R, p
+
+
+def _then(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Batched composition a · b of poses (R (n, 3, 3) or (3, 3), p (n, 3) or (3,))."""
+    return a[0] @ b[0], np.einsum("...ij,...j->...i", a[0], b[1]) + a[1]
 
 
 def _body_aligned(ops: list[_Op], child_offset: Transform) -> tuple[list[_Op], Transform]:
@@ -162,7 +179,7 @@ def _body_aligned(ops: list[_Op], child_offset: Transform) -> tuple[list[_Op], T
         if op.fixed is not None:
             out.append(_Op(fixed=(R.T @ op.fixed[0] @ R, R.T @ op.fixed[1])))
         else:
-            out.append(_Op(coord=op.coord, axis=R.T @ op.axis))  # type: ignore[operator]
+            out.append(_Op(coord=op.coord, axis=R.T @ op.axis, ratio=op.ratio))  # type: ignore[operator]
     return out, (np.eye(3), R.T @ tail[1])
 
 
@@ -263,9 +280,13 @@ class _Importer:
         return out
 
     # -------------------------------------------------------------- per joint
-    def joint_ops(self, j: OsimJoint) -> tuple[list[_Op], tuple[str, str] | None]:
-        """Ops of the imported joint and, if approximated, (kind, detail)."""
-        free = [c for c in j.coords if c.name not in self.r.couplers and not c.translational]
+    def free_rotations(self, j: OsimJoint) -> list[OsimCoordinate]:
+        """The joint's rotational coordinates that are not coupled to others."""
+        return [c for c in j.coords if c.name not in self.r.couplers and not c.translational]
+
+    def exactness(self, j: OsimJoint) -> tuple[bool, list[str]]:
+        """Whether the joint is a product of constant transforms and rotations of ±coordinate + constant (no
+        coupled coordinate), and what is not, one phrase per axis."""
         used: set[str] = set()
         exact = all(c.name not in self.r.couplers for c in j.coords)
         why: list[str] = []
@@ -279,6 +300,12 @@ class _Importer:
                 exact = False
                 why.append(f"rotation about {fmt_vec(np.round(ax.axis, 3))} is a {ax.func.kind} of {ax.coord}")
             used.add(ax.coord)
+        return exact, why
+
+    def joint_ops(self, j: OsimJoint) -> tuple[list[_Op], tuple[str, str] | None]:
+        """Ops of the imported joint and, if approximated, (kind, detail)."""
+        free = self.free_rotations(j)
+        exact, why = self.exactness(j)
         if exact:
             return self._exact_ops(j, {}), None
         if not free:
@@ -293,6 +320,170 @@ class _Importer:
         frozen = {c.name for c in j.coords if c.name in self.r.couplers or c.translational}
         return self._exact_ops(j, frozen, freeze_nonlinear=True), ("frozen", "; ".join(why) + "; those axes frozen at "
                                                                     "mid-range")
+
+    # -------------------------------------------------------------- lumped chains
+    def find_chains(self) -> dict[str, list[OsimJoint]]:
+        """Joints whose free rotations drive a chain of joints below them through CoordinateCouplerConstraints
+        (a lumbar spine whose vertebrae follow L5/S1's coordinates, Pose2Sim's and the lifting models): the
+        driving joint's name -> the coupled joints, top down.  The chain runs while the next joint's every
+        coordinate follows the driving joint's and the body it passes carries no marker, nor does any other
+        branch from it; it ends at a body with markers on it or below."""
+        chains: dict[str, list[OsimJoint]] = {}
+        for j in self.order:
+            free = {c.name for c in self.free_rotations(j)}
+            if not free or not self.exactness(j)[0]:
+                continue
+            chain: list[OsimJoint] = []
+            body = j.child
+            while True:
+                nxt = [k for k in self.children[body] if k.coords and all(
+                    c.name in self.r.couplers and self.r.couplers[c.name][0] in free for c in k.coords)]
+                others = [k for k in self.children[body] if k not in nxt]
+                passable = (len(nxt) == 1 and not any(b == body for b, _ in self.r.markers.values())
+                            and not any(self.has_markers_below(k.child) for k in others))
+                if not passable:
+                    break
+                chain.append(nxt[0])
+                body = nxt[0].child
+            if chain and self.has_markers_below(body):
+                chains[j.name] = chain
+        return chains
+
+    def _chain_pose(self, j: OsimJoint, chain: list[OsimJoint], values: Mapping[str, np.ndarray],
+                    n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The chain's last body in the driving joint's parent offset frame F, by OpenSim's kinematics, for n
+        sets of the driving joint's coordinates (`values`; its others at their reference, couplers followed)."""
+        vals = {c.name: np.full(n, self.ref_value(c.name)) for c in j.coords}
+        vals.update({k: np.broadcast_to(np.asarray(v, float), (n,)) for k, v in values.items()})
+        for k in chain:
+            for c in k.coords:
+                ind, f, s = self.r.couplers[c.name]
+                vals[c.name] = s * f(vals[ind])
+        X = _then(j.transform(vals, n), invert(j.child_offset))
+        for k in chain:
+            X = _then(_then(_then(X, k.parent_offset), k.transform(vals, n)), invert(k.child_offset))
+        return X
+
+    def _chain_rest(self, j: OsimJoint, chain: list[OsimJoint]) -> Transform:
+        """The chain's last body in the driving joint's M frame, each coupled joint welded at its reference
+        (as the import welds them)."""
+        X = invert(j.child_offset)
+        for k in chain:
+            ref = {c.name: np.array([self.ref_value(c.name)]) for c in k.coords}
+            R, p = k.transform(ref, 1)
+            X = compose(compose(compose(X, k.parent_offset), (R[0], p[0])), invert(k.child_offset))
+        return X
+
+    def _chain_grid(self, j: OsimJoint, total: int, part: float = 1.0) -> tuple[dict[str, np.ndarray], int]:
+        """The driving joint's free rotations on a joint grid of about `total` points over the middle `part` of
+        their ranges (corners included)."""
+        free = self.free_rotations(j)
+        k = max(3, int(round(total ** (1 / len(free)))))
+        spans = [c.span() for c in free]
+        grid = np.meshgrid(*[np.linspace(0.5 * (lo + hi) - 0.5 * part * (hi - lo),
+                                         0.5 * (lo + hi) + 0.5 * part * (hi - lo), k) for lo, hi in spans],
+                           indexing="ij")
+        return {c.name: g.ravel() for c, g in zip(free, grid, strict=True)}, grid[0].size
+
+    def _chain_sweeps(self, j: OsimJoint, k: int = 41) -> tuple[dict[str, np.ndarray], int]:
+        """Each free rotation of the driving joint over its range, the others at their reference."""
+        free = self.free_rotations(j)
+        vals = {c.name: np.concatenate([np.linspace(*c.span(), k) if d is c else np.full(k, self.ref_value(c.name))
+                                        for d in free]) for c in free}
+        return vals, k * len(free)
+
+    def lumped_fit(self, j: OsimJoint, chain: list[OsimJoint]) -> list[_Op]:
+        """Trans(centre) Rot(a1, g1 q1) Rot(a2, g2 q2) ... Y from F to the driving joint's M frame, fitted to
+        the chain's last body's points (and a 10 cm cross) over the coordinates' ranges, jointly: axes, centre,
+        Y and each coordinate's ratio g (the chain's whole turn per unit of the coordinate) free."""
+        end = chain[-1].child
+        XM = self._chain_rest(j, chain)  # end body -> M
+        pts_end = list(self.points_below(end).values()) + [s * e for e in np.eye(3) * 0.1 for s in (1, -1)]
+        pts = np.array([apply(XM, x) for x in pts_end])
+        # Fitted to each coordinate's sweep and a grid over the middle half of the ranges: where several
+        # coordinates are large at once, a chain of small turns is not one sequence of three (Euler's order
+        # matters), and no fixed joint fits the corners of the ranges well (measure_lumped reports them).
+        (sw, ns), (gr, ng) = self._chain_sweeps(j, 15), self._chain_grid(j, 64, 0.5)  # 0.2 s; 4x more: the same
+        vals, n = {c: np.concatenate([sw[c], gr[c]]) for c in sw}, ns + ng
+        R, p = self._chain_pose(j, chain, vals, n)
+        target = np.einsum("nij,kj->nki", R @ XM[0].T, pts) + (p - np.einsum("nij,j->ni", R @ XM[0].T, XM[1]))[:, None]
+        # The start: the driving joint's own axes, constant rotations pushed to the end (C Rot(a) = Rot(Ca) C),
+        # each ratio the chain's turn per unit of its coordinate at mid-range.
+        centre = np.zeros(3)
+        C = np.eye(3)
+        revs: list[tuple[str, np.ndarray]] = []
+        for op in self._exact_ops(j, set()):
+            if op.fixed is not None:
+                centre = centre + C @ op.fixed[1]
+                C = C @ op.fixed[0]
+            else:
+                revs.append((op.coord, C @ op.axis))  # type: ignore[arg-type,operator]
+        ref = {c: np.array([self.ref_value(c)]) for c, _ in revs}
+        prefix = np.eye(3)
+        x0: list[float] = []
+        for c, a in revs:
+            lo, hi = ({**ref, c: ref[c] + d} for d in (-1e-3, 1e-3))
+            w = Rotation.from_matrix(self._chain_pose(j, chain, hi, 1)[0][0]
+                                     @ self._chain_pose(j, chain, lo, 1)[0][0].T).as_rotvec() / 2e-3
+            g = float(np.linalg.norm(w)) * (1.0 if w @ (prefix @ a) >= 0 else -1.0)
+            x0 += [*a, g if abs(g) > 1e-3 else 1.0]
+            prefix = prefix @ axis_rotation(a, np.array(ref[c][0]))
+        Rr, pr = self._chain_pose(j, chain, ref, 1)
+        head = [_Op(fixed=(np.eye(3), centre))] + [_Op(coord=c, axis=np.array(x0[4 * i:4 * i + 3]),
+                                                       ratio=x0[4 * i + 3]) for i, (c, _) in enumerate(revs)]
+        Rh, ph = _ops_transform(head, ref, 1)
+        Y0 = compose(invert((Rh[0], ph[0])), compose((Rr[0], pr[0]), invert(XM)))
+        x0 += [*centre, *Rotation.from_matrix(Y0[0]).as_rotvec(), *Y0[1]]
+        m = len(revs)
+
+        def ops_of(x: np.ndarray) -> list[_Op]:
+            out = [_Op(fixed=(np.eye(3), x[4 * m:4 * m + 3]))]
+            for i, (c, _) in enumerate(revs):
+                a = x[4 * i:4 * i + 3]
+                out.append(_Op(coord=c, axis=a / np.linalg.norm(a), ratio=float(x[4 * i + 3])))
+            Y = (Rotation.from_rotvec(x[4 * m + 3:4 * m + 6]).as_matrix(), x[4 * m + 6:4 * m + 9])
+            return out + [_Op(fixed=Y)]
+
+        def residual(x: np.ndarray) -> np.ndarray:
+            Ra, pa = _ops_transform(ops_of(x), vals, n)
+            return (np.einsum("nij,kj->nki", Ra, pts) + pa[:, None, :] - target).ravel()
+
+        sol = least_squares(residual, np.array(x0), method="trf", xtol=1e-10, ftol=1e-10)
+        ops = ops_of(sol.x)
+        for op in ops:  # Rot(a, g q) = Rot(-a, -g q): every ratio positive
+            if op.coord is not None and op.ratio < 0:
+                op.axis, op.ratio = -op.axis, -op.ratio  # type: ignore[operator]
+        return ops
+
+    def measure_lumped(self, j: OsimJoint, chain: list[OsimJoint], ops: list[_Op]) -> Approximation:
+        """Largest marker effect of a lumped chain over its coordinates' ranges (jointly), and the bound."""
+        end = chain[-1].child
+        markers = {k: v for k, v in self.points_below(end).items() if not k.startswith("joint ")}
+        names = list(markers)
+        w = np.array(list(markers.values())).reshape(-1, 3)
+        rest = self._chain_rest(j, chain)
+
+        def errors(vals: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            R, p = self._chain_pose(j, chain, vals, n)
+            Ra, pa = _then(_ops_transform(ops, vals, n), rest)
+            return np.linalg.norm(np.einsum("nij,kj->nki", R - Ra, w) + (p - pa)[:, None, :], axis=2), R - Ra, p - pa
+
+        err, dR, dp = errors(*self._chain_grid(j, 4000))
+        worst, worst_marker = 0.0, ""
+        if w.size:
+            k = np.unravel_index(np.argmax(err), err.shape)
+            worst, worst_marker = float(err[k]), names[k[1]]
+        bound = float(np.max(np.linalg.norm(dR, ord=2, axis=(1, 2)) * self.reach(end, np.zeros(3))
+                             + np.linalg.norm(dp, axis=1)))
+        one = float(errors(*self._chain_sweeps(j))[0].max()) if w.size else 0.0
+        turns = ", ".join(f"{op.ratio:.3g} × {op.coord}" for op in ops if op.coord is not None)
+        detail = (f"{', '.join(k.name for k in chain)} follow its coordinates (CoordinateCouplerConstraint), "
+                  f"welded; one joint turns {end} by the chain's whole turn ({turns}) about a fitted centre: the "
+                  f"URDF's angles and the motion CSV's are that turn, the .mot's and the .osim export's OpenSim's "
+                  f"coordinates; one coordinate at a time up to {1000 * one:.1f} mm, the largest where several are "
+                  f"near their range's ends at once")
+        return Approximation(j.name, LUMPED, tuple(c.name for c in j.coords), detail, 1000 * worst, worst_marker,
+                             1000 * bound, tuple(names))
 
     def _exact_ops(self, j: OsimJoint, frozen: set[str], freeze_nonlinear: bool = False) -> list[_Op]:
         p = np.zeros(3)
@@ -498,10 +689,22 @@ class _Importer:
             joints.append(f'  <joint name="{name}" type="{kind}"{att}>\n    <parent link="{parent}"/>\n'
                           f'    <child link="{child}"/>\n    {origin(X)}{extra}\n  </joint>')
 
+        chains = self.find_chains()
+        head_of = {k.name: j for j, ks in chains.items() for k in ks}
+        ratios: dict[str, float] = {}
         for j in self.order:
-            ops, approx = self.joint_ops(j)
-            if approx is not None:
-                approximations.append(self.measure(j, ops, *approx))
+            if j.name in chains:
+                ops = self.lumped_fit(j, chains[j.name])
+                approximations.append(self.measure_lumped(j, chains[j.name], ops))
+                ratios.update({op.coord: op.ratio for op in ops if op.coord is not None})  # type: ignore[misc]
+            else:
+                ops, approx = self.joint_ops(j)
+                if j.name in head_of:
+                    approximations.append(Approximation(
+                        j.name, IN_CHAIN, tuple(c.name for c in j.coords), f"welded at its coordinates' mid-range; "
+                        f"{head_of[j.name]}'s lumped joint turns the chain", 0.0, "", 0.0, ()))
+                elif approx is not None:
+                    approximations.append(self.measure(j, ops, *approx))
             revs = [op for op in ops if op.coord is not None]
             tail = identity_transform()
             if revs:
@@ -522,8 +725,8 @@ class _Importer:
                 if not last:
                     links.append(f'  <link name="{child}"/>')
                 c = r.coords[op.coord]  # type: ignore[index]
-                lim = f'\n    <axis xyz="{fmt_vec(op.axis)}"/>\n    <limit lower="{fmt_float(c.lo)}" ' \
-                      f'upper="{fmt_float(c.hi)}" effort="0" velocity="0"/>'
+                lim = f'\n    <axis xyz="{fmt_vec(op.axis)}"/>\n    <limit lower="{fmt_float(op.ratio * c.lo)}" ' \
+                      f'upper="{fmt_float(op.ratio * c.hi)}" effort="0" velocity="0"/>'
                 add_joint(op.coord, "revolute", prev, child, pending, lim,  # type: ignore[arg-type]
                           anatomical=j.name if k == 1 else None)
                 dofs.append(op.coord)  # type: ignore[arg-type]
@@ -573,10 +776,10 @@ class _Importer:
                 f"calibrate fits the root segment's pose freely in every frame{held}, and the .osim export writes "
                 f"it as a CustomJoint '{rj.name}' of six coordinates (root_rz ... root_z)", 0.0, "", 0.0, ()))
             dropped.extend(c for c in gone if c not in dropped)
-        locked = {c.name: c.default for c in r.coords.values() if c.locked and c.name in dofs}
+        locked = {c.name: ratios.get(c.name, 1.0) * c.default for c in r.coords.values() if c.locked and c.name in dofs}
         # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
-        info = OsimInfo(str(r.path.resolve()), root, locked, {n: self.defaults[n] for n in dofs}, tuple(approximations),
-                        tuple(dropped), {b: seg_X[b] for b in r.bodies})
+        info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
+                        tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios)
         text = (f'<?xml version="1.0"?>\n<!-- imported by calibrate from {r.path.name} -->\n'
                 f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
                 + _info_xml(info) + "\n</robot>\n")
@@ -595,8 +798,10 @@ def _info_xml(info: OsimInfo) -> str:
             for name, axis in items:
                 ET.SubElement(r, tag, coordinate=name, axis=fmt_vec(axis))
     for name, v in info.defaults.items():
-        ET.SubElement(el, "coordinate", name=name, default=fmt_float(v),
-                      locked="true" if name in info.locked else "false")
+        c = ET.SubElement(el, "coordinate", name=name, default=fmt_float(v),
+                          locked="true" if name in info.locked else "false")
+        if name in info.ratios:
+            c.set("ratio", fmt_float(info.ratios[name]))
     for name in info.dropped:
         ET.SubElement(el, "dropped", coordinate=name)
     for name, (R, t) in info.bodies.items():
@@ -621,4 +826,5 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["FLOATING", "LEFT_OUT", "NO_MARKER_EFFECT", "Approximation", "OsimInfo", "RootInfo", "osim_to_urdf"]
+__all__ = ["FLOATING", "IN_CHAIN", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "Approximation", "OsimInfo", "RootInfo",
+           "osim_to_urdf"]

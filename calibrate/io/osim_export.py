@@ -48,7 +48,8 @@ placed exactly as calibrate.model.kinematics and :func:`calibrate.model.model.wr
 (scale × centre, scale × marker, scale × later chain origins, axis/|axis|, inertia × scale²).
 
 Motion (``.mot``, OpenSim Storage, ``inDegrees=yes``): ``time``, the root's Euler angles
-(degrees) and translation (m), every joint angle (degrees), one row per frame.
+(degrees) and translation (m), every joint angle (degrees; a lumped chain's coordinate in radians, as
+OpenSim writes a Coupled coordinate), one row per frame.
 
 Do not ``import opensim`` in a process that uses calibrate: the opensim 4.6 wheel bundles a
 libcasadi with the same soname as (but another ABI than) the casadi wheel calibrate needs, and
@@ -61,7 +62,7 @@ from __future__ import annotations
 import argparse
 import os
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -199,18 +200,25 @@ class _Builder:
             _text(f, "translation", fmt_vec(t))
             _text(f, "orientation", fmt_vec(_euler_xyz(R)))
         if kind == "CustomJoint":
-            j.append(_spatial_transform(coords))
+            j.append(_spatial_transform(coords, {n: self.ratio(n) for n, _, _ in coords}))
         self.joints.append(j)
+
+    def ratio(self, name: str) -> float:
+        """The URDF angle per unit of OpenSim's coordinate `name` (a lumped chain's whole turn; else 1)."""
+        return self.info.ratio(name) if self.info is not None else 1.0
 
     def coordinate(self, name: str, motion: str) -> ET.Element:
         c = ET.Element("Coordinate", name=name)
         info = self.info
-        _text(c, "default_value", fmt_float(info.defaults.get(name, 0.0)) if info is not None else "0")
+        g = self.ratio(name)
+        _text(c, "default_value", fmt_float(info.defaults.get(name, 0.0) / g) if info is not None else "0")
         if name in self.limits:
             lo, hi, cont = self.limits[name]
             clamped = not cont and np.isfinite(lo) and np.isfinite(hi)
             if not clamped:
                 lo, hi = -UNBOUNDED_ROTATION, UNBOUNDED_ROTATION
+            else:
+                lo, hi = lo / g, hi / g
         else:  # the root
             big = UNBOUNDED_ROTATION if motion == "rotation" else UNBOUNDED_TRANSLATION
             lo, hi, clamped = -big, big, False
@@ -330,8 +338,10 @@ def _text(parent: ET.Element, tag: str, text: str) -> ET.Element:
     return el
 
 
-def _spatial_transform(coords: Sequence[tuple[str, np.ndarray, str]]) -> ET.Element:
-    """The six TransformAxis of a CustomJoint: the coordinates' (identity functions), the rest constant 0."""
+def _spatial_transform(coords: Sequence[tuple[str, np.ndarray, str]],
+                       ratios: Mapping[str, float] | None = None) -> ET.Element:
+    """The six TransformAxis of a CustomJoint: the coordinates' (linear functions, slope 1 but a lumped chain's
+    ratio), the rest constant 0."""
     st = ET.Element("SpatialTransform")
     for motion in ("rotation", "translation"):
         used = [(n, a) for n, a, m in coords if m == motion]
@@ -342,7 +352,7 @@ def _spatial_transform(coords: Sequence[tuple[str, np.ndarray, str]]) -> ET.Elem
             _text(ta, "axis", fmt_vec(a))
             if cname:
                 f = ET.SubElement(ta, "LinearFunction", name="function")
-                _text(f, "coefficients", "1 0")
+                _text(f, "coefficients", f"{fmt_float((ratios or {}).get(cname, 1.0))} 0")
             else:
                 f = ET.SubElement(ta, "Constant", name="function")
                 _text(f, "value", "0")
@@ -453,15 +463,18 @@ def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) 
     from .osim_info import osim_info, root_coordinates
 
     info = osim_info(model)
+    angles = motion.angles[:, order]
+    if info is not None and info.ratios:  # a lumped chain's whole turn -> OpenSim's coordinate
+        angles = angles / np.array([info.ratio(d) for d in model.dof_names])
     if info is not None and info.root is not None:  # OpenSim's own ground-joint coordinates
         s = 1.0 if params is None else float(params.scale[0])
         root = root_coordinates(info, motion.root_translation, motion.root_quaternion / norms[:, None], s)
         names = [n for n, _ in info.root.rotations + info.root.translations]
-        values = np.hstack([motion.times[:, None], np.array([root[n] for n in names]).T, motion.angles[:, order]])
+        values = np.hstack([motion.times[:, None], np.array([root[n] for n in names]).T, angles])
         return ["time", *names, *model.dof_names], values
     euler = Rotation.from_quat(motion.root_quaternion / norms[:, None]).as_euler("ZYX")
     euler = np.unwrap(euler, axis=0)  # continuous angles; the same rotations
-    values = np.hstack([motion.times[:, None], euler, motion.root_translation, motion.angles[:, order]])
+    values = np.hstack([motion.times[:, None], euler, motion.root_translation, angles])
     return ["time", *ROOT_ROTATIONS, *ROOT_TRANSLATIONS, *model.dof_names], values
 
 
@@ -472,7 +485,10 @@ def mot_text(model: Model, motion: Motion, name: str = "motion", params: Paramet
     names, values = mot_columns(model, motion, params)
     info = osim_info(model)
     root_rot = set(ROOT_ROTATIONS) if info is None or info.root is None else {n for n, _ in info.root.rotations}
-    rotational = np.array([n in root_rot or n in model.dof_names for n in names])
+    # A lumped chain's coordinate turns its axis by a LinearFunction of slope ≠ 1: OpenSim calls it Coupled and
+    # reads (and writes) it in radians in a file in degrees.
+    rotational = np.array([n in root_rot or (n in model.dof_names and (info is None or info.ratio(n) == 1.0))
+                           for n in names])
     values = np.where(rotational, np.degrees(values), values)
     head = [name, "version=1", f"nRows={values.shape[0]}", f"nColumns={values.shape[1]}", "inDegrees=yes",
             "endheader", "\t".join(names)]

@@ -198,7 +198,7 @@ def _move_path(path: ET.Element, frames: dict[str, Transform], scale: dict[str, 
             raise _Skip(f"a path point is on '{body}', which is not a body of the subject")
         X, s = frames[body], scale[body]
         if pt.tag == "MovingPathPoint":
-            loc = _move_functions(pt, X, s, lengths.defaults)
+            loc = _move_functions(pt, X, s, lengths.coordinates)
         else:
             loc = xml_floats(pt.findtext("location", "0 0 0"))
             pt.find("location").text = fmt_vec(_moved(X, s, loc))  # type: ignore[union-attr]
@@ -206,7 +206,7 @@ def _move_path(path: ET.Element, frames: dict[str, Transform], scale: dict[str, 
         if pt.tag == "ConditionalPathPoint":
             c = _coordinate(pt, "socket_coordinate")
             lo, hi = xml_floats(pt.findtext("range", "0 0"))[:2]
-            active = bool(lo <= lengths.defaults.get(c, 0.0) <= hi)
+            active = bool(lo <= lengths.coordinates.get(c, 0.0) <= hi)
         if active:
             scales.append(s)
             before.append(lengths.before(body, apply(X, loc)))
@@ -257,7 +257,9 @@ class _PathLengths:
         from ..model.model import Model as _Model
         from .osim import osim_to_urdf
 
-        self.defaults = dict(info.defaults)
+        self.defaults = dict(info.defaults)  # the URDF's angles
+        # OpenSim's coordinates (a lumped chain's over its ratio): what path points' functions and ranges read
+        self.coordinates = {n: v / info.ratio(n) for n, v in info.defaults.items()}
         text, _ = osim_to_urdf(info.source, need_markers=False)
         # A model needs a marker (a source model whose markers come in a marker-set file has none): one at
         # the root's origin, for the kinematics only.

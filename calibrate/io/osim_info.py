@@ -48,7 +48,8 @@ def osim_info(model) -> OsimInfo | None:
     dropped = tuple(e.get("coordinate", "") for e in el.findall("dropped"))
     bodies = {e.get("name", ""): X(e) for e in el.findall("body")}
     body_scale = {e.get("name", ""): float(e.get("scale", "1")) for e in el.findall("body")}
-    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale)
+    ratios = {e.get("name", ""): float(e.get("ratio", "1")) for e in el.findall("coordinate") if e.get("ratio")}
+    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios)
 
 
 def with_locked(model, settings):

@@ -103,7 +103,8 @@ POSE_TASK_WEIGHT = 100.0  # a marker placer's coordinate task this heavy defines
 def _coordinate_values(path: Path, tool, model, root_ok: bool = False) -> tuple[list[tuple[str, float]], list[str]]:
     """(coordinate, value in rad or m) of every applied IKCoordinateTask under `tool` (an IK tool, or a Scale
     setup's MarkerPlacer), for `model`: ``default_value`` the model's default, ``manual_value`` the task's value (in
-    OpenSim's internal units, as its IK reads it).  ModelError with one line on a task on a coordinate the model
+    OpenSim's internal units, as its IK reads it; as the URDF's angle where a lumped chain turns by a ratio).
+    ModelError with one line on a task on a coordinate the model
     does not have, a value read from a file, or a value that is not finite.  `root_ok`: tasks on the ground joint's
     coordinates are returned apart (second list) instead (a static pose's: the root's frame is its markers')."""
     from .osim_info import osim_info
@@ -131,8 +132,8 @@ def _coordinate_values(path: Path, tool, model, root_ok: bool = False) -> tuple[
         if kind == "default_value":
             value = defaults.get(name, 0.0)
         elif kind == "manual_value":
-            try:
-                value = float(task.findtext("value") or 0.0)
+            try:  # in the URDF's angle (a lumped chain's whole turn: OpenSim's value times its ratio)
+                value = float(task.findtext("value") or 0.0) * (info.ratio(name) if info is not None else 1.0)
             except ValueError:
                 value = math.nan
         else:
