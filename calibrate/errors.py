@@ -18,6 +18,10 @@ class ModelError(CalibrateError):
     """A model (URDF) file that cannot be used: unreadable, or outside the model format."""
 
 
+class NoMarkersError(ModelError):
+    """An OpenSim model without markers on its bodies (its marker set comes in a MarkerSet file)."""
+
+
 class TrialError(CalibrateError):
     """A motion-capture trial (C3D/TRC) that cannot be read or written."""
 

@@ -217,3 +217,22 @@ def test_lumped_chain_said_and_setups_read_in_opensims_coordinate(tmp_path, caps
     setup.write_text(_ik_setup(_task("lum_bend", "manual_value", 0.02) + _task("neck_q", "manual_value", 0.3)))
     locks = dict(ik_setup_locks(setup, load_model(path)))
     assert locks == pytest.approx({"lum_bend": 0.02 * info.ratio("lum_bend"), "neck_q": 0.3})
+
+
+def test_inspect_an_osim_without_markers(tmp_path, capsys):
+    """A model whose markers come in a MarkerSet file (OpenSense's, SoccerKick's): `inspect` describes its joints
+    and approximations and says that calibrating needs the marker set; loading it to calibrate is still refused."""
+    import re
+
+    from calibrate.cli import main
+    from calibrate.errors import NoMarkersError
+
+    path = tmp_path / "bare.osim"
+    path.write_text(re.sub(r"<MarkerSet name=\"markerset\">.*</MarkerSet>", "", spine_osim()))
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "no markers" in out.splitlines()[0] and "--marker-set FILE.xml" in out
+    assert "v1_v2: welded (coupled)" in out  # no marker rides the chain: nothing to lump it for
+    assert "calibrate_default_pose_probe" not in out
+    with pytest.raises(NoMarkersError, match="no markers on its bodies"):
+        load_model(path)

@@ -404,14 +404,30 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         print("\n".join(describe_setup(path)))
         return 0
     if path.suffix.lower() in (".urdf", ".osim"):
+        from ..errors import NoMarkersError
         from ..model.model import load_model
 
-        m = load_model(path, getattr(args, "marker_set", None))
-        print(m.summary())
+        try:
+            m = load_model(path, getattr(args, "marker_set", None))
+            markerless = False
+        except NoMarkersError:  # an OpenSim model whose markers come in a MarkerSet file: its structure all the same
+            from ..io.osim import osim_to_urdf
+            from ..model.model import Model
+
+            text, info = osim_to_urdf(path, need_markers=False)
+            m = Model(path, text=text)
+            m.osim = info
+            markerless = True
+        print(m.summary() if not markerless else m.summary().replace(", 1 markers", ", no markers"))
+        if markerless:
+            print("  no markers on its bodies: give its marker set with --marker-set FILE.xml to calibrate with it")
         print(f"  {'joint':16s} {'kind':9s} {'parent -> child':28s} centre (m, parent frame)")
         for j in m.joints:
             c = " ".join(f"{x:+.4f}" for x in j.centre)
             print(f"  {j.name:16s} {j.kind:9s} {j.parent + ' -> ' + j.child:28s} {c}")
+        if markerless:
+            print_osim(m)
+            return 0
         print("  markers per segment:")
         for s in m.segments:
             if s.markers:

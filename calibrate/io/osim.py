@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation
 
 from calibrate.io.osim_read import OsimCoordinate, OsimJoint, OsimReader, axis_rotation, urdf_rpy
 
-from ..errors import ModelError, read_text_file
+from ..errors import ModelError, NoMarkersError, read_text_file
 from ..seed.geometry import Transform, apply, compose, identity_transform, invert
 from .text import fmt_float, fmt_vec
 
@@ -60,6 +60,7 @@ GRID = 401  # coordinate values over a range at which approximations are measure
 
 
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
+PROBE = "calibrate_default_pose_probe"  # the marker at the root's origin of a model read without its markers
 
 
 # ---------------------------------------------------------------------- records
@@ -664,8 +665,9 @@ class _Importer:
 
     # -------------------------------------------------------------- the URDF
     def build(self, need_markers: bool = True) -> tuple[str, OsimInfo]:
-        """The URDF text and its OsimInfo; `need_markers` False: a model without markers is read too (its
-        kinematics only, e.g. the source model's muscle lengths at export, calibrate.io.osim_forces)."""
+        """The URDF text and its OsimInfo; `need_markers` False: a model without markers is read too, with one
+        marker (PROBE) at the root segment's origin, for a calibrate model's sake (its kinematics only, e.g. the
+        source model's muscle lengths at export, calibrate.io.osim_forces; `calibrate inspect`)."""
         r = self.r
         self.defaults = self.default_values()
         seg_X: dict[str, Transform] = {self.root_joint.child: identity_transform()}  # body coords -> segment frame
@@ -759,8 +761,11 @@ class _Importer:
             links.append(f'  <link name="{name}"/>')
             add_joint(f"{name}_marker", "fixed", body, name, (np.eye(3), apply(seg_X[body], loc)))
         if need_markers and not [m for m in r.markers if m not in skipped]:
-            raise ModelError(f"{self.where}: the model has no markers on its bodies; give its marker set with "
-                             f"--marker-set FILE.xml (marker_set=...)")
+            raise NoMarkersError(f"{self.where}: the model has no markers on its bodies; give its marker set with "
+                                 f"--marker-set FILE.xml (marker_set=...)")
+        if not need_markers:
+            links.append(f'  <link name="{PROBE}"/>')
+            add_joint(f"{PROBE}_marker", "fixed", self.root_joint.child, PROBE, identity_transform())
         rj = self.root_joint
         root = None
         rots = [(ax.coord, ax.axis) for ax in rj.axes if ax.motion == "rotation" and ax.coord is not None]
@@ -826,5 +831,5 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["FLOATING", "IN_CHAIN", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "Approximation", "OsimInfo", "RootInfo",
-           "osim_to_urdf"]
+__all__ = ["FLOATING", "IN_CHAIN", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE", "Approximation", "OsimInfo",
+           "RootInfo", "osim_to_urdf"]

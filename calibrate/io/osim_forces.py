@@ -49,7 +49,6 @@ if TYPE_CHECKING:
 PATH_POINTS = ("PathPoint", "ConditionalPathPoint", "MovingPathPoint")
 WRAP_SIZES = ("radius", "length", "dimensions", "inner_radius", "outer_radius")  # lengths of a wrap object (m)
 SPLINES = ("SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction")
-PROBE = "calibrate_default_pose_probe"  # the marker the source model's kinematics are built with
 PATH_CHANGE = 1.25  # a path longer or shorter than this times its segments' scale is named in the export's note
 MUSCLE_LENGTHS = ("optimal_fiber_length", "tendon_slack_length")  # scaled with the path, as Muscle::postScale
 
@@ -260,12 +259,8 @@ class _PathLengths:
         self.defaults = dict(info.defaults)  # the URDF's angles
         # OpenSim's coordinates (a lumped chain's over its ratio): what path points' functions and ranges read
         self.coordinates = {n: v / info.ratio(n) for n, v in info.defaults.items()}
+        # (a source model whose markers come in a marker-set file has none: read with one at the root's origin)
         text, _ = osim_to_urdf(info.source, need_markers=False)
-        # A model needs a marker (a source model whose markers come in a marker-set file has none): one at
-        # the root's origin, for the kinematics only.
-        root = model.root
-        text = text.replace("</robot>", f'  <link name="{PROBE}"/>\n  <joint name="{PROBE}_marker" type="fixed">'
-                            f'<parent link="{root}"/><child link="{PROBE}"/><origin xyz="0 0 0"/></joint>\n</robot>')
         self._before = self._placements(_Model(Path(info.source), text=text), None)
         self._after = self._placements(model, p)
 
