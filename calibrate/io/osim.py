@@ -365,14 +365,18 @@ class _Importer:
             X = _then(_then(_then(X, k.parent_offset), k.transform(vals, n)), invert(k.child_offset))
         return X
 
+    def chain_weld(self, k: OsimJoint) -> Transform:
+        """A coupled joint of a lumped chain welded at its default pose (the couplers followed from the defaults):
+        at the model's default pose the chain's bodies then sit as OpenSim's do (its muscles' lengths there are
+        the source's), and the lumped joint turns them all with the chain's last body."""
+        R, p = k.transform({c.name: np.array([self.defaults[c.name]]) for c in k.coords}, 1)
+        return R[0], p[0]
+
     def _chain_rest(self, j: OsimJoint, chain: list[OsimJoint]) -> Transform:
-        """The chain's last body in the driving joint's M frame, each coupled joint welded at its reference
-        (as the import welds them)."""
+        """The chain's last body in the driving joint's M frame, each coupled joint welded (chain_weld)."""
         X = invert(j.child_offset)
         for k in chain:
-            ref = {c.name: np.array([self.ref_value(c.name)]) for c in k.coords}
-            R, p = k.transform(ref, 1)
-            X = compose(compose(compose(X, k.parent_offset), (R[0], p[0])), invert(k.child_offset))
+            X = compose(compose(compose(X, k.parent_offset), self.chain_weld(k)), invert(k.child_offset))
         return X
 
     def _chain_grid(self, j: OsimJoint, total: int, part: float = 1.0) -> tuple[dict[str, np.ndarray], int]:
@@ -699,13 +703,15 @@ class _Importer:
                 ops = self.lumped_fit(j, chains[j.name])
                 approximations.append(self.measure_lumped(j, chains[j.name], ops))
                 ratios.update({op.coord: op.ratio for op in ops if op.coord is not None})  # type: ignore[misc]
+            elif j.name in head_of:
+                ops = [_Op(fixed=self.chain_weld(j))]
+                vals = ", ".join(f"{c.name} = {self.defaults[c.name]:.4g}" for c in j.coords)
+                approximations.append(Approximation(
+                    j.name, IN_CHAIN, tuple(c.name for c in j.coords), f"welded at {vals} (its default pose); "
+                    f"{head_of[j.name]}'s lumped joint turns the chain", 0.0, "", 0.0, ()))
             else:
                 ops, approx = self.joint_ops(j)
-                if j.name in head_of:
-                    approximations.append(Approximation(
-                        j.name, IN_CHAIN, tuple(c.name for c in j.coords), f"welded at its coordinates' mid-range; "
-                        f"{head_of[j.name]}'s lumped joint turns the chain", 0.0, "", 0.0, ()))
-                elif approx is not None:
+                if approx is not None:
                     approximations.append(self.measure(j, ops, *approx))
             revs = [op for op in ops if op.coord is not None]
             tail = identity_transform()
