@@ -129,6 +129,8 @@ def test_lumped_chain_structure(tmp_path):
 
     again = osim_info(load_model(write_model(model, tmp_path / "s.urdf")))
     assert again.ratios == pytest.approx(info.ratios)
+    assert lumped.one_mm is not None and 0 < lumped.one_mm < lumped.max_marker_mm
+    assert next(a for a in again.approximations if a.kind == LUMPED).one_mm == pytest.approx(lumped.one_mm)
 
 
 @pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed (pip install -e '.[opensim]')")
@@ -144,8 +146,12 @@ def test_lumped_chain_against_opensim(tmp_path):
     rng = np.random.default_rng(5)
     poses, ours, welded = [], [], []
     share = np.array([1 / info.ratio(d) if d in info.ratios else 1.0 for d in model.dof_names])
-    for k in range(60):
+    for k in range(75):
         coords = {n: float(rng.uniform(lo, hi)) for n, lo, hi in DRIVER}
+        if k >= 60:  # one coordinate over its range, the others at mid-range (the import's one-coordinate figure)
+            coords = {n: 0.5 * (lo + hi) for n, lo, hi in DRIVER}
+            n, lo, hi = DRIVER[k % 3]
+            coords[n] = lo + (hi - lo) * (k - 60) / 14
         coords["neck_q"] = float(rng.uniform(-0.6, 0.6))
         t, quat = rng.normal(0, 0.5, 3), Rotation.random(random_state=k).as_quat()
         angles = np.array([info.ratio(d) * coords[d] for d in model.dof_names])  # the URDF's angle
@@ -181,6 +187,8 @@ def test_lumped_chain_against_opensim(tmp_path):
     chain = [m for m in model.marker_names if m.startswith(("chest", "head"))]
     worst = max(err(ours, m).max() for m in chain)
     assert worst <= lumped.bound_mm / 1000 + TOL
+    one = max(err(ours, m)[60:].max() for m in chain)
+    assert one <= 1.05 * lumped.one_mm / 1000 + 5e-4, (one, lumped.one_mm)
     mean_ours = np.mean([err(ours, m).mean() for m in chain])
     mean_welded = np.mean([err(welded, m).mean() for m in chain])
     assert mean_ours < 0.2 * mean_welded, (mean_ours, mean_welded)

@@ -233,8 +233,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         left = [a.joint for a in every if a.kind == LEFT_OUT]
         floating = [a.joint for a in every if a.kind == FLOATING]
         if every and not args.quiet:
-            said = [f"{len(approx)} joints approximated (" + ", ".join(f"{a.joint} {a.max_marker_mm:.1f} mm"
-                                                                       for a in approx) + ")"] if approx else []
+            said = [f"{len(approx)} joints approximated (" + ", ".join(
+                f"{a.joint} {a.max_marker_mm:.1f} mm" if a.one_mm is None else
+                f"{a.joint} {a.one_mm:.1f} mm one coordinate at a time, {a.max_marker_mm:.0f} at the ranges' ends "
+                f"together" for a in approx) + ")"] if approx else []
             said += [f"other trees on ground left out ({', '.join(left)})"] if left else []
             said += [f"its ground joint {floating[0]} made a floating base (the root's pose fitted in every frame)"
                      ] if floating else []

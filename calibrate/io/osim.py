@@ -91,6 +91,9 @@ class Approximation:
     marker: str  # the marker where max_marker_mm occurs ('' if none)
     bound_mm: float
     markers: tuple[str, ...]  # markers on the child body and below
+    # a joint of several coordinates (LUMPED): the largest marker effect with one coordinate over its range at a
+    # time (the others at their mid-range); max_marker_mm is over them jointly, ranges' ends together included
+    one_mm: float | None = None
 
     def text(self) -> str:
         if self.kind in NO_MARKER_EFFECT:
@@ -488,7 +491,7 @@ class _Importer:
                   f"coordinates; one coordinate at a time up to {1000 * one:.1f} mm, the largest where several are "
                   f"near their range's ends at once")
         return Approximation(j.name, LUMPED, tuple(c.name for c in j.coords), detail, 1000 * worst, worst_marker,
-                             1000 * bound, tuple(names))
+                             1000 * bound, tuple(names), 1000 * one)
 
     def _exact_ops(self, j: OsimJoint, frozen: set[str], freeze_nonlinear: bool = False) -> list[_Op]:
         p = np.zeros(3)
@@ -818,9 +821,11 @@ def _info_xml(info: OsimInfo) -> str:
     for name, (R, t) in info.bodies.items():
         ET.SubElement(el, "body", name=name, xyz=fmt_vec(t), rpy=fmt_vec(urdf_rpy(R)))
     for a in info.approximations:
-        ET.SubElement(el, "approximation", joint=a.joint, kind=a.kind, coordinates=" ".join(a.coordinates),
-                      detail=a.detail, max_marker_mm=fmt_float(a.max_marker_mm), marker=a.marker,
-                      bound_mm=fmt_float(a.bound_mm), markers=" ".join(a.markers))
+        e = ET.SubElement(el, "approximation", joint=a.joint, kind=a.kind, coordinates=" ".join(a.coordinates),
+                          detail=a.detail, max_marker_mm=fmt_float(a.max_marker_mm), marker=a.marker,
+                          bound_mm=fmt_float(a.bound_mm), markers=" ".join(a.markers))
+        if a.one_mm is not None:
+            e.set("one_mm", fmt_float(a.one_mm))
     ET.indent(el, space="  ", level=1)
     return "  " + ET.tostring(el, encoding="unicode")
 

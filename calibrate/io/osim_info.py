@@ -43,7 +43,8 @@ def osim_info(model) -> OsimInfo | None:
               if e.get("locked") == "true"}
     approx = tuple(Approximation(e.get("joint", ""), e.get("kind", ""), tuple(e.get("coordinates", "").split()),
                                  e.get("detail", ""), float(e.get("max_marker_mm", "0")), e.get("marker", ""),
-                                 float(e.get("bound_mm", "0")), tuple(e.get("markers", "").split()))
+                                 float(e.get("bound_mm", "0")), tuple(e.get("markers", "").split()),
+                                 float(e.get("one_mm")) if e.get("one_mm") else None)
                    for e in el.findall("approximation"))
     dropped = tuple(e.get("coordinate", "") for e in el.findall("dropped"))
     bodies = {e.get("name", ""): X(e) for e in el.findall("body")}
