@@ -100,11 +100,12 @@ json.dump(out, open(sys.argv[2], "w"))
 """
 
 
-def _run_worker(tmp: Path, jobs: list[dict]) -> list[dict]:
+def _run_worker(tmp: Path, jobs: list[dict], worker: str = _WORKER, timeout: float = 120) -> list[dict]:
+    """Run an OpenSim `worker` script in a child process on `jobs`; its JSON result."""
     spec, result = tmp / "jobs.json", tmp / "result.json"
     spec.write_text(json.dumps({"jobs": jobs}))
-    proc = subprocess.run([sys.executable, "-c", _WORKER, str(spec), str(result)], capture_output=True, text=True,
-                          timeout=120)
+    proc = subprocess.run([sys.executable, "-c", worker, str(spec), str(result)], capture_output=True, text=True,
+                          timeout=timeout)
     assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
     return json.loads(result.read_text())
 

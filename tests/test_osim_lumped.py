@@ -8,10 +8,6 @@ Before the lumped joint the chain's coupled joints were welded, so the trunk tur
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -19,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from calibrate.io.osim import IN_CHAIN, LUMPED
 from calibrate.io.osim_info import osim_info, root_coordinates
 from calibrate.model.model import load_model
+from tests.test_opensim_export import _run_worker
 from tests.test_osim_import import (
     _BODY,
     _EXPORT_WORKER,
@@ -98,15 +95,6 @@ def spine_osim() -> str:
             f"<MarkerSet name=\"markerset\"><objects>{markers}</objects></MarkerSet></Model></OpenSimDocument>\n")
 
 
-def _run(worker: str, jobs: list[dict], tmp) -> list:
-    spec, result = tmp / "jobs.json", tmp / "result.json"
-    spec.write_text(json.dumps({"jobs": jobs}))
-    proc = subprocess.run([sys.executable, "-c", worker, str(spec), str(result)], capture_output=True, text=True,
-                          timeout=300)
-    assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
-    return json.loads(result.read_text())
-
-
 def test_lumped_chain_structure(tmp_path):
     """One DoF per driving coordinate, turned by the chain's whole turn; the coupled joints welded and named."""
     path = tmp_path / "spine.osim"
@@ -175,9 +163,9 @@ def test_lumped_chain_against_opensim(tmp_path):
                     angles, subject.dof_names)
     export = {"osim": str(export_osim(subject, tmp_path / "s.osim")), "mot": str(write_mot(tmp_path / "s.mot",
                                                                                          subject, motion))}
-    theirs = _run(_WORKER, [{"osim": str(path), "marker_set": None, "poses": poses, "bodies": ["chest"]}],
-                  tmp_path)[0]
-    exported = _run(_EXPORT_WORKER, [export], tmp_path)[0]
+    theirs = _run_worker(tmp_path, [{"osim": str(path), "marker_set": None, "poses": poses, "bodies": ["chest"]}],
+                         _WORKER, 300)[0]
+    exported = _run_worker(tmp_path, [export], _EXPORT_WORKER, 300)[0]
 
     def err(refs: list[dict], m: str) -> np.ndarray:
         return np.array([np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs, refs, strict=True)])
