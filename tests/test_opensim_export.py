@@ -132,11 +132,16 @@ def _random_poses(model, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray
 
 
 def _coordinates(model, pose) -> dict[str, float]:
-    """OpenSim coordinate values of a pose: root Z-Y'-X'' angles, translations, joint angles."""
+    """OpenSim coordinate values of a pose: root Z-Y'-X'' angles, translations, joint angles (a URDF angle over its
+    coordinate's ratio where an imported OpenSim model has one: calibrate.io.osim.OsimInfo.ratios)."""
+    from calibrate.io.osim_info import osim_info
+
     t, quat, angles = pose
     rz, ry, rx = Rotation.from_quat(quat).as_euler("ZYX")
     out = {"root_rz": rz, "root_ry": ry, "root_rx": rx, "root_x": t[0], "root_y": t[1], "root_z": t[2]}
-    out.update(zip(model.dof_names, angles, strict=True))
+    info = osim_info(model)
+    out.update((d, a / (info.ratio(d) if info is not None else 1.0)) for d, a in zip(model.dof_names, angles,
+                                                                                      strict=True))
     return {k: float(v) for k, v in out.items()}
 
 

@@ -49,16 +49,20 @@ def _custom(name: str, parent: str, child: str, coords: tuple[str, str, str], fu
             + "</SpatialTransform></CustomJoint>")
 
 
-def spine_osim() -> str:
+def spine_osim(share: float = 1.0, christophy: bool = False) -> str:
     """pelvis -> v1 (the driving joint, three coordinates) -> v2 -> v3 -> chest (each coupled) -> head (a pin, exact);
-    an abdomen coupled beside the chain, without markers; vertebrae 3-4 cm apart, each tilted (a lordosis)."""
+    an abdomen coupled beside the chain, without markers; vertebrae 3-4 cm apart, each tilted (a lordosis).
+    `share`: the driving joint turns by this share of its coordinates (LinearFunction slope; Christophy's lumbar
+    spine: each joint a share of the whole turn); `christophy`: also a marker on a vertebra the chain passes (v2),
+    ribs welded to the chest with a marker, and the neck a CustomJoint turning by half its coordinate."""
     bodies = "".join(_BODY.format(name=n, mass=m) for n, m in
-                     [("pelvis", 10), ("v1", 1), ("v2", 1), ("v3", 1), ("chest", 20), ("head", 5), ("abdomen", 1)])
+                     [("pelvis", 10), ("v1", 1), ("v2", 1), ("v3", 1), ("chest", 20), ("head", 5), ("abdomen", 1)]
+                     + ([("ribs", 2)] if christophy else []))
     joints = [
         f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0 0.9 0', '0 0 0')}"
         + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
                   ('p_tz', -2, 2)) + "</FreeJoint>",
-        _custom("lumbar", "pelvis", "v1", tuple(n for n, _, _ in DRIVER), (_lin(), _lin(), _lin()),
+        _custom("lumbar", "pelvis", "v1", tuple(n for n, _, _ in DRIVER), (_lin(share), _lin(share), _lin(share)),
                 "-0.09 0.07 0", "0 0 0.15", _coords(*DRIVER)),
     ]
     parent = "v1"
@@ -68,8 +72,13 @@ def spine_osim() -> str:
         joints.append(_custom(f"{parent}_{child}", parent, child, names, (_lin(), _lin(), _lin()), offset,
                               f"0 0 {(-0.08, -0.1, 0.05)[k]}", _coords(*[(n, -99999, 99999) for n in names])))
         parent = child
-    joints.append(f"<PinJoint name=\"neck\">{_frames('chest', 'head', '0 0.45 0', '0 0 0')}"
-                  f"{_coords(('neck_q', -0.6, 0.6))}</PinJoint>")
+    if christophy:
+        joints.append(_custom("neck", "chest", "head", ("neck_q", "", ""), (_lin(0.5, 0.1), _c(), _c(0.2)), "0 0.45 0",
+                              "0 0 0", _coords(('neck_q', -0.6, 0.6))))
+        joints.append(f"<WeldJoint name=\"ribcage\">{_frames('chest', 'ribs', '0.02 0.2 0', '0.1 0 0')}</WeldJoint>")
+    else:
+        joints.append(f"<PinJoint name=\"neck\">{_frames('chest', 'head', '0 0.45 0', '0 0 0')}"
+                      f"{_coords(('neck_q', -0.6, 0.6))}</PinJoint>")
     abd = ("abd_flex", "abd_bend", "abd_rot")
     joints.append(_custom("abdominal", "pelvis", "abdomen", abd, (_lin(), _lin(), _lin()), "0.05 0.1 0", "0 0 0",
                           _coords(*[(n, -99999, 99999) for n in abd])))
@@ -84,6 +93,8 @@ def spine_osim() -> str:
                 f"</CoordinateCouplerConstraint>")
     places = {"pelvis": ["0.1 0 0.12", "0.1 0 -0.12", "-0.1 0.05 0"], "chest": ["0.1 0.35 0.15", "0.1 0.35 -0.15",
               "-0.08 0.4 0", "0.03 0.2 0.12"], "head": ["0.1 0.1 0", "0 0.2 0.07"]}
+    if christophy:
+        places.update({"v2": ["-0.06 0.01 0"], "ribs": ["0.12 0.05 0.1"]})
     markers = "".join(f"<Marker name=\"{b}{k}\"><socket_parent_frame>/bodyset/{b}</socket_parent_frame>"
                       f"<location>{x}</location><fixed>false</fixed></Marker>"
                       for b, xs in places.items() for k, x in enumerate(xs))
@@ -232,3 +243,43 @@ def test_inspect_an_osim_without_markers(tmp_path, capsys):
     assert "calibrate_default_pose_probe" not in out
     with pytest.raises(NoMarkersError, match="no markers on its bodies"):
         load_model(path)
+
+
+@pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed (pip install -e '.[opensim]')")
+def test_a_share_driven_chain_and_its_passengers_against_opensim(tmp_path):
+    """Christophy's lumbar spine: the driving joint turns by a share of its coordinates (LinearFunction slope 0.3),
+    the vertebrae follow; a marker on a vertebra the chain passes, ribs welded to the chest, a neck turning by half
+    its coordinate.  Against OpenSim at random poses: the neck exact with ratio 0.5 (the head exact relative to the
+    chest), the ribs exact relative to the chest, every marker of the chain within the reported bound, the vertebra's
+    among them.  (Before, the driving joint's rotations were frozen: no lumbar coordinate was a DoF.)"""
+    path = tmp_path / "christophy.osim"
+    path.write_text(spine_osim(share=0.3, christophy=True))
+    model = load_model(path)
+    info = osim_info(model)
+    kinds = {a.joint: a.kind for a in info.approximations}
+    assert kinds["lumbar"] == LUMPED and "neck" not in kinds and "ribcage" not in kinds
+    assert info.ratio("neck_q") == pytest.approx(0.5)
+    for (name, _, _), k in zip(DRIVER, range(3), strict=True):
+        assert info.ratio(name) == pytest.approx(0.3 + sum(sl[k] for sl in SLOPES.values()), rel=0.1)
+    lumped = next(a for a in info.approximations if a.kind == LUMPED)
+    assert {"v20", "ribs0", "head0", "chest0"} <= set(lumped.markers)
+    rng = np.random.default_rng(8)
+    poses, ours = [], []
+    for k in range(40):
+        coords = {n: float(rng.uniform(lo, hi)) for n, lo, hi in DRIVER}
+        coords["neck_q"] = float(rng.uniform(-0.6, 0.6))
+        t, quat = rng.normal(0, 0.5, 3), Rotation.random(random_state=100 + k).as_quat()
+        angles = np.array([info.ratio(d) * coords[d] for d in model.dof_names])
+        root = root_coordinates(info, t[None], quat[None])
+        poses.append({**coords, **{n: float(v[0]) for n, v in root.items()}})
+        ours.append(_pin_markers(model, t, quat, angles))
+    theirs = _run_worker(tmp_path, [{"osim": str(path), "marker_set": None, "poses": poses, "bodies": ["chest"]}],
+                         _WORKER, 300)[0]
+    err = {m: max(np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs, ours, strict=True))
+           for m in model.marker_names}
+    assert max(err[m] for m in ("pelvis0", "pelvis1", "pelvis2")) < TOL
+    assert all(err[m] <= lumped.bound_mm / 1000 + TOL for m in lumped.markers)
+    for riders in (("head0", "head1"), ("ribs0", "chest0", "chest1")):  # exact relative to the chest
+        a = np.array([_local(r["body chest"], r[m]) for r in ours for m in riders])
+        b = np.array([_local(o["body chest"], o[m]) for o in theirs for m in riders])
+        assert _kabsch_residual(a, b) < TOL, riders

@@ -67,6 +67,7 @@ PROBE = "calibrate_default_pose_probe"  # the marker at the root's origin of a m
 LEFT_OUT = "left out"  # Approximation.kind of a tree on ground that is not the subject's (a platform, a ball)
 FLOATING = "floating base"  # Approximation.kind of a ground joint that is not six coordinates (a weld, a pin)
 LUMPED = "lumped chain"  # Approximation.kind of a joint standing for a chain of joints coupled to its coordinates
+JOINT_FIT = "joint fit"  # Approximation.kind of a joint of several rotations by splines, fitted as one joint of ratios
 IN_CHAIN = "in a lumped chain"  # Approximation.kind of a coupled joint of that chain (welded; its turn lumped above)
 # kinds that move no marker of the subject: no effect or bound to state (IN_CHAIN's effect is its chain's line)
 NO_MARKER_EFFECT = (LEFT_OUT, FLOATING, IN_CHAIN)
@@ -84,7 +85,7 @@ class Approximation:
     """
 
     joint: str  # OpenSim joint name
-    kind: str  # 'hinge fit', 'welded (coupled)', 'frozen', LUMPED, IN_CHAIN, LEFT_OUT, FLOATING
+    kind: str  # 'hinge fit', 'welded (coupled)', 'frozen', LUMPED, JOINT_FIT, IN_CHAIN, LEFT_OUT, FLOATING
     coordinates: tuple[str, ...]  # the joint's OpenSim coordinates
     detail: str  # what was not expressible
     max_marker_mm: float
@@ -289,8 +290,8 @@ class _Importer:
         return [c for c in j.coords if c.name not in self.r.couplers and not c.translational]
 
     def exactness(self, j: OsimJoint) -> tuple[bool, list[str]]:
-        """Whether the joint is a product of constant transforms and rotations of ±coordinate + constant (no
-        coupled coordinate), and what is not, one phrase per axis."""
+        """Whether the joint is a product of constant transforms and rotations of a·coordinate + b, each coordinate
+        in one (no coupled coordinate; a ≠ ±1 is the coordinate's ratio), and what is not, one phrase per axis."""
         used: set[str] = set()
         exact = all(c.name not in self.r.couplers for c in j.coords)
         why: list[str] = []
@@ -300,7 +301,7 @@ class _Importer:
             if ax.motion == "translation":
                 exact = False
                 why.append(f"translation along {fmt_vec(np.round(ax.axis, 3))} is a {ax.func.kind} of {ax.coord}")
-            elif ax.func.linear is None or abs(abs(ax.func.linear[0]) - 1) > 1e-12 or ax.coord in used:
+            elif ax.func.linear is None or abs(ax.func.linear[0]) < 1e-12 or ax.coord in used:
                 exact = False
                 why.append(f"rotation about {fmt_vec(np.round(ax.axis, 3))} is a {ax.func.kind} of {ax.coord}")
             used.add(ax.coord)
@@ -326,47 +327,46 @@ class _Importer:
                                                                     "mid-range")
 
     # -------------------------------------------------------------- lumped chains
+    def lumpable(self, j: OsimJoint) -> bool:
+        """Whether a joint can be one joint of fitted axes, centre and ratios: each of its free rotations drives one
+        rotation axis of it (by any function), and none of its free coordinates translates."""
+        free = self.free_rotations(j)
+        if not free or any(c.translational and c.name not in self.r.couplers for c in j.coords):
+            return False
+        for c in free:
+            moving = [ax for ax in j.axes if ax.coord == c.name and ax.func.constant is None]
+            if len(moving) != 1 or moving[0].motion != "rotation":
+                return False
+        return True
+
     def find_chains(self) -> dict[str, list[OsimJoint]]:
-        """Joints whose free rotations drive a chain of joints below them through CoordinateCouplerConstraints
-        (a lumbar spine whose vertebrae follow L5/S1's coordinates, Pose2Sim's and the lifting models): the
-        driving joint's name -> the coupled joints, top down.  The chain runs while the next joint's every
-        coordinate follows the driving joint's and the body it passes carries no marker, nor does any other
-        branch from it; it ends at a body with markers on it or below."""
+        """Joints made one fitted joint: the driving joint's name -> the joints below it whose every coordinate
+        follows its own through CoordinateCouplerConstraints, top down (a lumbar spine whose vertebrae follow
+        L5/S1's coordinates: Pose2Sim's, Christophy's and the lifting models; a neck's, Mortensen's).  The chain
+        runs while exactly one joint below the body it has reached follows the driving joint and no other branch
+        from that body carries markers; it ends at a body with markers on it or below.  A joint of several
+        rotations that are not ±coordinate + constant (splines of its coordinates) is fitted alone (an empty
+        chain), where the import froze those rotations before."""
         chains: dict[str, list[OsimJoint]] = {}
         for j in self.order:
-            free = {c.name for c in self.free_rotations(j)}
-            if not free or not self.exactness(j)[0]:
+            if not self.lumpable(j):
                 continue
+            free = {c.name for c in self.free_rotations(j)}
             chain: list[OsimJoint] = []
             body = j.child
             while True:
                 nxt = [k for k in self.children[body] if k.coords and all(
                     c.name in self.r.couplers and self.r.couplers[c.name][0] in free for c in k.coords)]
                 others = [k for k in self.children[body] if k not in nxt]
-                passable = (len(nxt) == 1 and not any(b == body for b, _ in self.r.markers.values())
-                            and not any(self.has_markers_below(k.child) for k in others))
-                if not passable:
+                if len(nxt) != 1 or any(self.has_markers_below(k.child) for k in others):
                     break
                 chain.append(nxt[0])
                 body = nxt[0].child
             if chain and self.has_markers_below(body):
                 chains[j.name] = chain
+            elif len(free) >= 2 and not self.exactness(j)[0]:
+                chains[j.name] = []
         return chains
-
-    def _chain_pose(self, j: OsimJoint, chain: list[OsimJoint], values: Mapping[str, np.ndarray],
-                    n: int) -> tuple[np.ndarray, np.ndarray]:
-        """The chain's last body in the driving joint's parent offset frame F, by OpenSim's kinematics, for n
-        sets of the driving joint's coordinates (`values`; its others at their reference, couplers followed)."""
-        vals = {c.name: np.full(n, self.ref_value(c.name)) for c in j.coords}
-        vals.update({k: np.broadcast_to(np.asarray(v, float), (n,)) for k, v in values.items()})
-        for k in chain:
-            for c in k.coords:
-                ind, f, s = self.r.couplers[c.name]
-                vals[c.name] = s * f(vals[ind])
-        X = _then(j.transform(vals, n), invert(j.child_offset))
-        for k in chain:
-            X = _then(_then(_then(X, k.parent_offset), k.transform(vals, n)), invert(k.child_offset))
-        return X
 
     def chain_weld(self, k: OsimJoint) -> Transform:
         """A coupled joint of a lumped chain welded at its default pose (the couplers followed from the defaults):
@@ -375,12 +375,39 @@ class _Importer:
         R, p = k.transform({c.name: np.array([self.defaults[c.name]]) for c in k.coords}, 1)
         return R[0], p[0]
 
-    def _chain_rest(self, j: OsimJoint, chain: list[OsimJoint]) -> Transform:
-        """The chain's last body in the driving joint's M frame, each coupled joint welded (chain_weld)."""
+    def _chain_poses(self, j: OsimJoint, chain: list[OsimJoint], values: Mapping[str, np.ndarray],
+                     n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Each body of the chain (the driving joint's child, then each coupled joint's) in the driving joint's
+        parent offset frame F, by OpenSim's kinematics, for n sets of the driving joint's free rotations
+        (`values`; its other coordinates at their reference, the couplers followed)."""
+        vals = {c.name: np.full(n, self.ref_value(c.name)) for c in j.coords}
+        vals.update({k: np.broadcast_to(np.asarray(v, float), (n,)) for k, v in values.items()})
+        for k in chain:
+            for c in k.coords:
+                ind, f, s = self.r.couplers[c.name]
+                vals[c.name] = s * f(vals[ind])
+        X = _then(j.transform(vals, n), invert(j.child_offset))
+        out = [X]
+        for k in chain:
+            X = _then(_then(_then(X, k.parent_offset), k.transform(vals, n)), invert(k.child_offset))
+            out.append(X)
+        return out
+
+    def _chain_rests(self, j: OsimJoint, chain: list[OsimJoint]) -> list[Transform]:
+        """Each body of the chain in the driving joint's M frame, each coupled joint welded (chain_weld)."""
         X = invert(j.child_offset)
+        out = [X]
         for k in chain:
             X = compose(compose(compose(X, k.parent_offset), self.chain_weld(k)), invert(k.child_offset))
-        return X
+            out.append(X)
+        return out
+
+    def _chain_points(self, j: OsimJoint, chain: list[OsimJoint]) -> list[dict[str, np.ndarray]]:
+        """Per body of the chain, the points that ride on it in its frame: the markers of the bodies the chain
+        passes, and on its last body every marker and joint origin on it or below (points_below)."""
+        bodies = [j.child] + [k.child for k in chain]
+        out = [{m: loc for m, (b, loc) in self.r.markers.items() if b == body} for body in bodies[:-1]]
+        return out + [self.points_below(bodies[-1])]
 
     def _chain_grid(self, j: OsimJoint, total: int, part: float = 1.0) -> tuple[dict[str, np.ndarray], int]:
         """The driving joint's free rotations on a joint grid of about `total` points over the middle `part` of
@@ -400,27 +427,53 @@ class _Importer:
                                         for d in free]) for c in free}
         return vals, k * len(free)
 
+    def _lumped_start(self, j: OsimJoint) -> list[_Op]:
+        """The driving joint as fixed parts and one revolute (ratio 1) per free rotation along its axis, every
+        other function at its reference: where the fit starts."""
+        free = {c.name for c in self.free_rotations(j)}
+        p = np.zeros(3)
+        for ax in j.axes:
+            if ax.motion == "translation":
+                p = p + float(ax.func(np.array(self.ref_value(ax.coord) if ax.coord is not None else 0.0))) * ax.axis
+        ops = [_Op(fixed=(np.eye(3), p))]
+        used: set[str] = set()
+        for ax in j.axes:
+            if ax.motion != "rotation":
+                continue
+            if ax.coord in free and ax.coord not in used and ax.func.constant is None:
+                ops.append(_Op(coord=ax.coord, axis=ax.axis))
+                used.add(ax.coord)  # type: ignore[arg-type]
+            else:
+                x = self.ref_value(ax.coord) if ax.coord is not None else 0.0
+                ops.append(_Op(fixed=(axis_rotation(ax.axis, float(ax.func(np.array(x)))), np.zeros(3))))
+        return ops
+
     def lumped_fit(self, j: OsimJoint, chain: list[OsimJoint]) -> list[_Op]:
         """Trans(centre) Rot(a1, g1 q1) Rot(a2, g2 q2) ... Y from F to the driving joint's M frame, fitted to
-        the chain's last body's points (and a 10 cm cross) over the coordinates' ranges, jointly: axes, centre,
-        Y and each coordinate's ratio g (the chain's whole turn per unit of the coordinate) free."""
-        end = chain[-1].child
-        XM = self._chain_rest(j, chain)  # end body -> M
-        pts_end = list(self.points_below(end).values()) + [s * e for e in np.eye(3) * 0.1 for s in (1, -1)]
-        pts = np.array([apply(XM, x) for x in pts_end])
+        the points riding on the chain (_chain_points, and a 10 cm cross on its last body) over the coordinates'
+        ranges, jointly: axes, centre, Y and each coordinate's ratio g (the chain's whole turn per unit of the
+        coordinate) free."""
+        rests = self._chain_rests(j, chain)
+        points = self._chain_points(j, chain)
+        points[-1] = {**points[-1], **{f"cross {k}": x for k, x in
+                                        enumerate(s * e for e in np.eye(3) * 0.1 for s in (1, -1))}}
+        body_pts = [np.array(list(pts.values())).reshape(-1, 3) for pts in points]
+        pts = np.concatenate([np.array([apply(X, x) for x in b]).reshape(-1, 3) for X, b in zip(rests, body_pts,
+                                                                                                 strict=True)])
         # Fitted to each coordinate's sweep and a grid over the middle half of the ranges: where several
         # coordinates are large at once, a chain of small turns is not one sequence of three (Euler's order
         # matters), and no fixed joint fits the corners of the ranges well (measure_lumped reports them).
         (sw, ns), (gr, ng) = self._chain_sweeps(j, 15), self._chain_grid(j, 64, 0.5)  # 0.2 s; 4x more: the same
         vals, n = {c: np.concatenate([sw[c], gr[c]]) for c in sw}, ns + ng
-        R, p = self._chain_pose(j, chain, vals, n)
-        target = np.einsum("nij,kj->nki", R @ XM[0].T, pts) + (p - np.einsum("nij,j->ni", R @ XM[0].T, XM[1]))[:, None]
+        poses = self._chain_poses(j, chain, vals, n)
+        target = np.concatenate([np.einsum("nij,kj->nki", R, b) + p[:, None, :]
+                                 for (R, p), b in zip(poses, body_pts, strict=True)], axis=1)
         # The start: the driving joint's own axes, constant rotations pushed to the end (C Rot(a) = Rot(Ca) C),
         # each ratio the chain's turn per unit of its coordinate at mid-range.
         centre = np.zeros(3)
         C = np.eye(3)
         revs: list[tuple[str, np.ndarray]] = []
-        for op in self._exact_ops(j, set()):
+        for op in self._lumped_start(j):
             if op.fixed is not None:
                 centre = centre + C @ op.fixed[1]
                 C = C @ op.fixed[0]
@@ -431,16 +484,16 @@ class _Importer:
         x0: list[float] = []
         for c, a in revs:
             lo, hi = ({**ref, c: ref[c] + d} for d in (-1e-3, 1e-3))
-            w = Rotation.from_matrix(self._chain_pose(j, chain, hi, 1)[0][0]
-                                     @ self._chain_pose(j, chain, lo, 1)[0][0].T).as_rotvec() / 2e-3
+            w = Rotation.from_matrix(self._chain_poses(j, chain, hi, 1)[-1][0][0]
+                                     @ self._chain_poses(j, chain, lo, 1)[-1][0][0].T).as_rotvec() / 2e-3
             g = float(np.linalg.norm(w)) * (1.0 if w @ (prefix @ a) >= 0 else -1.0)
             x0 += [*a, g if abs(g) > 1e-3 else 1.0]
             prefix = prefix @ axis_rotation(a, np.array(ref[c][0]))
-        Rr, pr = self._chain_pose(j, chain, ref, 1)
+        Rr, pr = self._chain_poses(j, chain, ref, 1)[-1]
         head = [_Op(fixed=(np.eye(3), centre))] + [_Op(coord=c, axis=np.array(x0[4 * i:4 * i + 3]),
                                                        ratio=x0[4 * i + 3]) for i, (c, _) in enumerate(revs)]
         Rh, ph = _ops_transform(head, ref, 1)
-        Y0 = compose(invert((Rh[0], ph[0])), compose((Rr[0], pr[0]), invert(XM)))
+        Y0 = compose(invert((Rh[0], ph[0])), compose((Rr[0], pr[0]), invert(rests[-1])))
         x0 += [*centre, *Rotation.from_matrix(Y0[0]).as_rotvec(), *Y0[1]]
         m = len(revs)
 
@@ -464,34 +517,51 @@ class _Importer:
         return ops
 
     def measure_lumped(self, j: OsimJoint, chain: list[OsimJoint], ops: list[_Op]) -> Approximation:
-        """Largest marker effect of a lumped chain over its coordinates' ranges (jointly), and the bound."""
-        end = chain[-1].child
-        markers = {k: v for k, v in self.points_below(end).items() if not k.startswith("joint ")}
-        names = list(markers)
-        w = np.array(list(markers.values())).reshape(-1, 3)
-        rest = self._chain_rest(j, chain)
+        """Largest marker effect of a lumped chain (or a fitted joint) over its coordinates' ranges (jointly,
+        and one coordinate at a time), and the bound."""
+        rests = self._chain_rests(j, chain)
+        markers = [{k: v for k, v in pts.items() if not k.startswith("joint ")} for pts in self._chain_points(j, chain)]
+        names = [m for pts in markers for m in pts]
+        end = chain[-1].child if chain else j.child
 
-        def errors(vals: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            R, p = self._chain_pose(j, chain, vals, n)
-            Ra, pa = _then(_ops_transform(ops, vals, n), rest)
-            return np.linalg.norm(np.einsum("nij,kj->nki", R - Ra, w) + (p - pa)[:, None, :], axis=2), R - Ra, p - pa
+        def errors(vals: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
+            """(n, markers) distances and (n,) the any-pose bound of each sample."""
+            A = _ops_transform(ops, vals, n)
+            err, bound = [], np.zeros(n)
+            for i, ((R, p), X, pts) in enumerate(zip(self._chain_poses(j, chain, vals, n), rests, markers,
+                                                   strict=True)):
+                Ra, pa = _then(A, X)
+                w = np.array(list(pts.values())).reshape(-1, 3)
+                err.append(np.linalg.norm(np.einsum("nij,kj->nki", R - Ra, w) + (p - pa)[:, None, :], axis=2))
+                reach = self.reach(end, np.zeros(3)) if i == len(rests) - 1 else float(
+                    np.linalg.norm(w, axis=1).max(initial=0.0))
+                bound = np.maximum(bound, np.linalg.norm(R - Ra, ord=2, axis=(1, 2)) * reach
+                                   + np.linalg.norm(p - pa, axis=1))
+            return np.concatenate(err, axis=1), bound
 
-        err, dR, dp = errors(*self._chain_grid(j, 4000))
+        err, bound = errors(*self._chain_grid(j, 4000))
         worst, worst_marker = 0.0, ""
-        if w.size:
+        if names:
             k = np.unravel_index(np.argmax(err), err.shape)
             worst, worst_marker = float(err[k]), names[k[1]]
-        bound = float(np.max(np.linalg.norm(dR, ord=2, axis=(1, 2)) * self.reach(end, np.zeros(3))
-                             + np.linalg.norm(dp, axis=1)))
-        one = float(errors(*self._chain_sweeps(j))[0].max()) if w.size else 0.0
+        one = float(errors(*self._chain_sweeps(j))[0].max()) if names else 0.0
         turns = ", ".join(f"{op.ratio:.3g} × {op.coord}" for op in ops if op.coord is not None)
-        detail = (f"{', '.join(k.name for k in chain)} follow its coordinates (CoordinateCouplerConstraint), "
-                  f"welded; one joint turns {end} by the chain's whole turn ({turns}) about a fitted centre: the "
-                  f"URDF's angles and the motion CSV's are that turn, the .mot's and the .osim export's OpenSim's "
-                  f"coordinates; one coordinate at a time up to {1000 * one:.1f} mm, the largest where several are "
-                  f"near their range's ends at once")
-        return Approximation(j.name, LUMPED, tuple(c.name for c in j.coords), detail, 1000 * worst, worst_marker,
-                             1000 * bound, tuple(names), 1000 * one)
+        tail = (f"about a fitted centre: the URDF's angles and the motion CSV's are that turn, the .mot's and the "
+                f".osim export's OpenSim's coordinates; one coordinate at a time up to {1000 * one:.1f} mm, the "
+                f"largest where several are near their range's ends at once")
+        if chain:
+            kind = LUMPED
+            passed = [b for b, pts in zip([j.child] + [k.child for k in chain[:-1]], markers, strict=False) if pts]
+            carried = f" (the markers on {', '.join(passed)} carried with them)" if passed else ""
+            detail = (f"{', '.join(k.name for k in chain)} follow its coordinates (CoordinateCouplerConstraint), "
+                      f"welded at their default pose{carried}; one joint turns {end} by the chain's whole turn "
+                      f"({turns}) {tail}")
+        else:
+            kind = JOINT_FIT
+            detail = (f"{'; '.join(self.exactness(j)[1])}; one joint turning {end} by a fitted ratio of each "
+                      f"coordinate ({turns}) {tail}")
+        return Approximation(j.name, kind, tuple(c.name for c in j.coords), detail, 1000 * worst, worst_marker,
+                             1000 * float(bound.max()), tuple(names), 1000 * one)
 
     def _exact_ops(self, j: OsimJoint, frozen: set[str], freeze_nonlinear: bool = False) -> list[_Op]:
         p = np.zeros(3)
@@ -508,10 +578,11 @@ class _Importer:
                 continue
             lin = ax.func.linear
             moving = (ax.coord is not None and ax.func.constant is None and ax.coord not in frozen
-                      and ax.coord not in used and lin is not None and abs(abs(lin[0]) - 1) <= 1e-12)
-            if moving:
+                      and ax.coord not in used and lin is not None and abs(lin[0]) >= 1e-12)
+            if moving:  # a·q + b: a revolute of ratio |a| (the URDF's angle |a| q) after a constant turn b
                 ops.append(_Op(fixed=(axis_rotation(ax.axis, lin[1]), np.zeros(3))))  # type: ignore[index]
-                ops.append(_Op(coord=ax.coord, axis=np.sign(lin[0]) * ax.axis))  # type: ignore[index]
+                ops.append(_Op(coord=ax.coord, axis=np.sign(lin[0]) * ax.axis,  # type: ignore[index]
+                               ratio=abs(float(lin[0]))))  # type: ignore[index]
                 used.add(ax.coord)  # type: ignore[arg-type]
             else:
                 x = self.ref_value(ax.coord) if ax.coord is not None else 0.0
@@ -716,6 +787,8 @@ class _Importer:
                 ops, approx = self.joint_ops(j)
                 if approx is not None:
                     approximations.append(self.measure(j, ops, *approx))
+                # a rotation of a·coordinate + b (Christophy's spine: L5/S1 turns by a share of the lumbar coordinates)
+                ratios.update({op.coord: op.ratio for op in ops if op.coord is not None and op.ratio != 1.0})
             revs = [op for op in ops if op.coord is not None]
             tail = identity_transform()
             if revs:
@@ -842,5 +915,5 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["FLOATING", "IN_CHAIN", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE", "Approximation", "OsimInfo",
-           "RootInfo", "osim_to_urdf"]
+__all__ = ["FLOATING", "IN_CHAIN", "JOINT_FIT", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE", "Approximation",
+           "OsimInfo", "RootInfo", "osim_to_urdf"]
