@@ -522,6 +522,15 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
                                     for n, b in bad.items() if not b.partner)  # (the others: against their partner)
     assert {"RHEE", "RTOE"} <= set(bad["talus_r"].labels)  # the calcaneus below it carries them
     assert "implausible" in small.text() and small.report()["implausible"][0]["segment"] in bad
+    # the talus carries no marker: its scale only places the subtalar centre, and the summary says how far that went
+    moved = next(c.change for c in cal.changes if c.group == "centre" and c.item == "subtalar_r")
+    assert bad["talus_r"].centres == (("subtalar_r", pytest.approx(moved)),)
+    assert f"talus_r carries no marker: its scale only places the joint centres on it (subtalar_r {moved:.0f} mm" \
+        in small.text()
+    assert next(b for b in small.report()["implausible"] if b["segment"] == "talus_r")["no_markers"] is True
+    from calibrate.calibration.html import report_html
+
+    assert "talus_r carries no marker" in report_html(small.report())
     # ... a talus at 0.7 of its partner's, within 1.8x of the median: flagged against the other side
     m = float(np.median(np.delete(scale, [k, human.segment_index("talus_l")])))
     scale[human.segment_index("talus_l")], scale[k] = m, 0.7 * m

@@ -76,9 +76,10 @@ def _notes(report: dict) -> str:
     for b in report.get("implausible", []):
         partner = (f", {_e(b['partner'])} {b.get('partner_scale', 0):.2f} on the other side" if b.get("partner")
                    else "")
+        cause = f"{_e(b['note'])}; " if b.get("no_markers") else ""
         items.append(f"<li class=bad>implausible size: {_e(b.get('segment'))} scale {b.get('scale', 0):.2f} "
-                     f"({b.get('relative_to_median', 0):.2f} of the subject's median{partner}); check the labels "
-                     f"{_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
+                     f"({b.get('relative_to_median', 0):.2f} of the subject's median{partner}); {cause}check the "
+                     f"labels {_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
     for h in (report.get("static_pose") or {}).get("flagged", []):
         items.append(f"<li class=bad>implausible static pose in {_e(h.get('trial'))}: {_e(h.get('left'))} "
                      f"{h.get('left_deg', 0):.1f}° against {_e(h.get('right'))} {h.get('right_deg', 0):.1f}° "

@@ -666,8 +666,10 @@ def summary_text(cal) -> str:
     bad = cal.implausible
     if bad:
         median = float(np.median(cal.params.scale))
+        causes = "; ".join(b.cause() for b in bad if b.centres)
         lines.append("  implausible  " + ", ".join(b.text() for b in bad)
-                     + f" against the subject's median {median:.2f}: the markers do not fit the model there; "
+                     + f" against the subject's median {median:.2f}: the markers do not fit the model there"
+                     + (f" ({causes})" if causes else "") + "; "
                      f"check the labels of {', '.join(dict.fromkeys(x for b in bad for x in b.labels)) or '-'} "
                      "(a swap for the whole trial?)")
     turned = cal.static_asymmetry

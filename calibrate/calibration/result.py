@@ -68,6 +68,17 @@ class Implausible:
     labels: tuple[str, ...]  # its markers and its neighbouring segments' (the trial labels to check for a swap)
     partner: str = ""  # flagged against its left/right partner (IMPLAUSIBLE_ASYMMETRY): the partner's name ...
     partner_scale: float = math.nan  # ... and scale
+    # A segment without markers (Pose2Sim's sacrum, welded to the pelvis; a talus): its scale only places the joint
+    # centres on it, so the trials' pull on those centres sets it.  (joint, centre's change from the base model, mm)
+    centres: tuple[tuple[str, float], ...] = ()
+
+    def cause(self) -> str:
+        """What drove a segment without markers to its size (empty for a segment with markers)."""
+        if not self.centres:
+            return ""
+        moved = ", ".join(f"{j} {mm:.0f} mm" for j, mm in self.centres)
+        return (f"{self.segment} carries no marker: its scale only places the joint centres on it ({moved} from the "
+                f"base model's), where the trials pull them")
 
     def text(self) -> str:
         """'talus_r scale 0.63', with the partner when flagged against it."""
@@ -82,6 +93,8 @@ class Implausible:
                "check_labels": list(self.labels)}
         if self.partner:
             out.update(partner=self.partner, partner_scale=self.partner_scale)
+        if self.centres:
+            out.update(no_markers=True, centres_mm={j: mm for j, mm in self.centres}, note=self.cause())
         return out
 
 
@@ -312,11 +325,20 @@ class Calibration:
                 + [j.child for j in model.joints if j.parent == name]
             return tuple(dict.fromkeys(m for n in near if n in by_name for m in by_name[n].markers))
 
+        moved = {c.item: c.change for c in self.changes if c.group == "centre"}
+
+        def centres(sg) -> tuple[tuple[str, float], ...]:
+            """A segment without markers: the joints on it and their centres' changes (mm)."""
+            if sg.markers:
+                return ()
+            return tuple((j.name, float(moved.get(j.name, math.nan))) for j in model.joints if j.parent == sg.name
+                         and j.name in moved)
+
         out = []
         for sg, s in zip(model.segments, scale, strict=True):
             rel = float(s) / median
             if not 1.0 / IMPLAUSIBLE_SCALE <= rel <= IMPLAUSIBLE_SCALE:
-                out.append(Implausible(sg.name, float(s), rel, labels(sg.name)))
+                out.append(Implausible(sg.name, float(s), rel, labels(sg.name), centres=centres(sg)))
         flagged = {b.segment for b in out}
         for il, ir in symmetry_pairs(model, model.parameters().centre)[0]:
             left, right = model.segments[il].name, model.segments[ir].name
