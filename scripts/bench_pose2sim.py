@@ -1,0 +1,271 @@
+"""Pose2Sim's demo against OpenSim: video keypoints on Pose2Sim's full-body model, whose lumbar spine follows L5/S1's
+coordinates through CoordinateCouplerConstraints (calibrate.io.osim's lumped chain).
+
+From perfanalytics/pose2sim at a948c205 (a checkout or a git directory, e.g. a `fetch` snapshot): the static and
+balancing trials' filtered keypoints (`pose-3d/*_filt_butterworth.trc`), `Model_Pose2Sim_Halpe26.osim` and Pose2Sim's
+own Scale and IK setups, their file names pointed at these files.  In one run:
+
+1. the import against OpenSim itself: the model's markers at random poses (every coordinate uniform over its range
+   at once), OpenSim in a child process, against calibrate's kinematics (Pinocchio) with each coordinate times its
+   ratio;
+2. OpenSim's Scale (Pose2Sim's ModelScaler; its MarkerPlacer is off) and IK (its coordinate task holds
+   ``L5_S1_Flex_Ext`` at the default) in a child process (bench_osim's), and its mean per-frame marker RMS;
+3. calibrate (the command line, in this process) on the static + balancing trials with and without ``--ik-setup``:
+   marker RMS, and each coordinate's RMS difference from OpenSim's IK on the balancing trial in OpenSim's units (the
+   motion CSV's angle over the coordinate's ratio).
+
+    PYTHONPATH=. python scripts/bench_pose2sim.py --pose2sim DIR [--commit a948c205] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_osim  # noqa: E402  (OpenSim's IK child and its marker scores)
+
+COMMIT = "a948c205"
+SETUP = "Pose2Sim/OpenSim_Setup/"
+TRIALS = "Pose2Sim/S00_Demo_Session/S00_P00_SingleParticipant/"
+FILES = {"model.osim": SETUP + "Model_Pose2Sim_Halpe26.osim",
+         "scale_setup.xml": SETUP + "Scaling_Setup_Pose2Sim_Halpe26.xml",
+         "ik_setup.xml": SETUP + "IK_Setup_Pose2Sim_Halpe26.xml",
+         "static.trc": TRIALS + "S00_P00_T00_StaticTrial/pose-3d/S00_P00_T00_StaticTrial_0-12_filt_butterworth.trc",
+         "balancing.trc": TRIALS + "S00_P00_T01_BalancingTrial/pose-3d/"
+                                   "S00_P00_T01_BalancingTrial_0-100_filt_butterworth.trc"}
+COORDS = ("L5_S1_Flex_Ext", "L5_S1_Lat_Bending", "L5_S1_axial_rotation", "hip_flexion_r", "hip_flexion_l",
+          "hip_adduction_r", "hip_adduction_l", "knee_angle_r", "knee_angle_l", "ankle_angle_r", "ankle_angle_l")
+POSES = 100  # random poses for the import's check
+
+# Child: markers of a model at poses (coupled coordinates from their couplers), as tests/test_osim_import.py's.
+_MARKERS = r"""
+import json, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+job = json.load(open(sys.argv[1]))
+model = osim.Model(job["osim"])
+state = model.initSystem()
+cs = model.getCoordinateSet()
+couplers = []
+for i in range(model.getConstraintSet().getSize()):
+    c = osim.CoordinateCouplerConstraint.safeDownCast(model.getConstraintSet().get(i))
+    if c is not None:
+        couplers.append((c.getDependentCoordinateName(), c.getIndependentCoordinateNames().get(0), c.getFunction(),
+                         osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
+for i in range(cs.getSize()):
+    cs.get(i).setLocked(state, False)
+out = []
+for pose in job["poses"]:
+    for name, value in pose.items():
+        cs.get(name).setValue(state, value, False)
+    for dep, ind, f, s in couplers:
+        cs.get(dep).setValue(state, s * f.calcValue(osim.Vector(1, cs.get(ind).getValue(state))), False)
+    model.realizePosition(state)
+    ms = model.getMarkerSet()
+    out.append({ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
+                for i in range(ms.getSize())})
+json.dump(out, open(sys.argv[2], "w"))
+"""
+
+# Child: Pose2Sim's Scale setup (its MarkerPlacer off, so run() reports failure though the scaled model is written).
+_SCALE = r"""
+import os, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+os.chdir(sys.argv[1])
+osim.ScaleTool("scale_setup.xml").run()
+sys.exit(0 if os.path.exists("scaled.osim") else 1)
+"""
+
+
+def read_files(repo: Path, commit: str, work: Path) -> None:
+    """The demo's files into `work`, from a checkout (the commit checked out) or a git directory."""
+    for name, path in FILES.items():
+        if (repo / path).is_file():
+            (work / name).write_bytes((repo / path).read_bytes())
+            continue
+        git = repo if (repo / "HEAD").is_file() else repo / ".git"
+        proc = subprocess.run(["git", "--git-dir", str(git), "show", f"{commit}:{path}"], capture_output=True)
+        if proc.returncode != 0:
+            raise SystemExit(f"{repo}: no {path} at {commit} ({proc.stderr.decode().strip()[:200]}); give a "
+                             f"perfanalytics/pose2sim checkout or git directory that has commit {commit}")
+        (work / name).write_bytes(proc.stdout)
+
+
+def adapt_setups(work: Path) -> None:
+    """Point Pose2Sim's setups at the files in `work` (its demo's relative paths name its own folders)."""
+    scale = (work / "scale_setup.xml").read_text()
+    scale = re.sub(r"<model_file>[^<]*</model_file>", "<model_file>model.osim</model_file>", scale, count=1)
+    scale = re.sub(r"<marker_file>[^<]*</marker_file>", "<marker_file>static.trc</marker_file>", scale)
+    scale = re.sub(r"<output_model_file>[^<]*</output_model_file>", "<output_model_file>scaled.osim"
+                   "</output_model_file>", scale)
+    (work / "scale_setup.xml").write_text(scale)
+    ik = (work / "ik_setup.xml").read_text()
+    ik = re.sub(r"<model_file>[^<]*</model_file>", "<model_file>scaled.osim</model_file>", ik, count=1)
+    ik = re.sub(r"<marker_file>[^<]*</marker_file>", "<marker_file>balancing.trc</marker_file>", ik)
+    ik = re.sub(r"<output_motion_file>[^<]*</output_motion_file>", "<output_motion_file>ik.mot"
+                "</output_motion_file>", ik)
+    (work / "ik_setup.xml").write_text(ik)
+
+
+def import_check(work: Path, log) -> dict:
+    """Markers of the imported model (Pinocchio, each coordinate times its ratio) against OpenSim's at random
+    poses: per marker the mean and largest distance (mm), and the lumped chain's reported figures."""
+    import pinocchio as pin
+    from scipy.spatial.transform import Rotation
+
+    from calibrate.io.osim import LUMPED
+    from calibrate.io.osim_info import osim_info, root_coordinates
+    from calibrate.model.model import load_model
+
+    model = load_model(work / "model.osim")
+    info = osim_info(model)
+    import xml.etree.ElementTree as ET
+
+    ranges = {}
+    for c in ET.parse(work / "model.osim").getroot().iter("Coordinate"):
+        lo, hi = (float(v) for v in c.findtext("range", "0 0").split())
+        ranges[c.get("name")] = (max(lo, -np.pi), min(hi, np.pi))
+    rng = np.random.default_rng(1)
+    poses, ours = [], []
+    pm = model.pin
+    data = pm.createData()
+    for k in range(POSES):
+        coords = {d: float(rng.uniform(*ranges[d])) for d in model.dof_names}
+        t, quat = rng.normal(0, 0.5, 3), Rotation.random(random_state=k).as_quat()
+        angles = np.array([info.ratio(d) * coords[d] for d in model.dof_names])
+        root = root_coordinates(info, t[None], quat[None])
+        poses.append({**coords, **{n: float(v[0]) for n, v in root.items()}})
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(t, quat, angles))
+        ours.append({m: data.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names})
+    spec, result = work / "poses.json", work / "poses_out.json"
+    spec.write_text(json.dumps({"osim": str(work / "model.osim"), "poses": poses}))
+    log("import: OpenSim's markers at random poses (child process) ...")
+    proc = subprocess.run([sys.executable, "-c", _MARKERS, str(spec), str(result)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"OpenSim child failed:\n{proc.stderr[-2000:]}")
+    theirs = json.loads(result.read_text())
+    err = {m: np.array([np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs, ours, strict=True)])
+           for m in model.marker_names}
+    lumped = [a for a in info.approximations if a.kind == LUMPED]
+    return {"poses": POSES, "markers_mm": {m: {"mean": 1e3 * float(e.mean()), "max": 1e3 * float(e.max())}
+                                           for m, e in err.items()},
+            "lumped": [{"joint": a.joint, "ratios": {c: info.ratio(c) for c in a.coordinates},
+                        "max_marker_mm": a.max_marker_mm, "one_coordinate_mm": a.one_mm, "bound_mm": a.bound_mm,
+                        "markers": list(a.markers)} for a in lumped]}
+
+
+def run_calibrate(work: Path, ik_setup: bool, log) -> dict:
+    """The command line on the static + balancing trials; its marker RMS and the balancing trial's angles in
+    OpenSim's units."""
+    from calibrate.cli import main
+    from calibrate.io.motion import read_motion_csv
+    from calibrate.io.osim_info import osim_info
+    from calibrate.model.model import load_model
+
+    out = work / ("cal_ik" if ik_setup else "cal")
+    out.mkdir(exist_ok=True)
+    args = [str(work / "static.trc"), str(work / "balancing.trc"), str(work / "model.osim"), "-o",
+            str(out / "subject.urdf"), "--overwrite", "-q"] + (["--ik-setup", str(work / "ik_setup.xml")]
+                                                             if ik_setup else [])
+    log(f"calibrate{' --ik-setup' if ik_setup else ''} ...")
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):  # its summary and the files it wrote (the figures are below)
+        code = main(args)
+    wall = time.perf_counter() - t0
+    if code != 0:
+        raise RuntimeError(f"calibrate exited {code}")
+    report = json.loads((out / "static_report.json").read_text())
+    motion = read_motion_csv(out / "balancing_motion.csv")
+    info = osim_info(load_model(out / "subject.urdf"))
+    angles = {d: motion.angles[:, k] / info.ratio(d) for k, d in enumerate(motion.dof_names)}
+    return {"wall_s": wall, "marker_rms_mm": report["markers"]["rms_mm"],
+            "trials_rms_mm": {Path(t["source"]).stem: t["rms_mm"] for t in report["trials"]},
+            "times": motion.times, "angles": angles,
+            "implausible": [b["segment"] for b in report.get("implausible", [])]}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pose2sim", type=Path, required=False, help="a perfanalytics/pose2sim checkout or git directory")
+    ap.add_argument("--commit", default=COMMIT, help=f"the commit whose demo is read (default {COMMIT})")
+    ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    a = ap.parse_args()
+    if a.pose2sim is None:
+        ap.error("--pose2sim DIR is required (a perfanalytics/pose2sim checkout or git directory)")
+
+    def log(msg: str) -> None:
+        print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+    with tempfile.TemporaryDirectory(prefix="bench_pose2sim_") as tmp:
+        work = Path(tmp)
+        read_files(a.pose2sim, a.commit, work)
+        adapt_setups(work)
+        res: dict = {"commit": a.commit, "import": import_check(work, log)}
+        log("OpenSim's Scale (Pose2Sim's setup, child process) ...")
+        proc = subprocess.run([sys.executable, "-c", _SCALE, str(work)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"OpenSim's Scale wrote no scaled model:\n{proc.stderr[-2000:]}")
+        log("OpenSim's IK (Pose2Sim's setup, child process) ...")
+        osr = bench_osim.run_opensim({"dir": str(work), "scale": [], "ik": "ik_setup.xml"}, work)
+        from calibrate.io.trc import read_trc
+
+        trial = read_trc(work / "balancing.trc")
+        use = [m for m in osr["tracked"] if m in trial.labels]
+        res["opensim"] = {**bench_osim.marker_scores(osr["markers"], osr["marker_names"], trial, use),
+                          "ik_s": osr["ik_s"], "frames": len(osr["times"])}
+        for key, with_setup in (("calibrate", False), ("calibrate_ik_setup", True)):
+            cr = run_calibrate(work, with_setup, log)
+            diffs = {}
+            for c in COORDS:
+                if c in cr["angles"] and c in osr["coords"]:
+                    theirs = np.interp(cr["times"], osr["times"], osr["q"][:, osr["coords"].index(c)])
+                    d = np.degrees(cr["angles"][c] - theirs)
+                    diffs[c] = {"rms_deg": float(np.sqrt(np.mean(d**2))), "offset_free_deg": float(np.std(d))}
+            res[key] = {k: v for k, v in cr.items() if k not in ("times", "angles")} | {"vs_opensim_ik": diffs}
+    report(res)
+    if a.json is not None:
+        a.json.write_text(json.dumps(res, indent=1))
+    return 0
+
+
+def report(res: dict) -> None:
+    """The figures as tables on stdout."""
+    imp = res["import"]
+    print(f"Pose2Sim's demo (perfanalytics/pose2sim at {res['commit']})\n")
+    for lump in imp["lumped"]:
+        print(f"lumped chain {lump['joint']}: ratios " + ", ".join(f"{c} {g:.3g}" for c, g in lump["ratios"].items())
+              + f"; largest effect {lump['max_marker_mm']:.1f} mm, one coordinate at a time "
+              f"{lump['one_coordinate_mm']:.1f} mm, bound {lump['bound_mm']:.1f} mm")
+        ms = imp["markers_mm"]
+        rows = sorted(lump["markers"], key=lambda m: -ms[m]["mean"])
+        print(f"  against OpenSim at {imp['poses']} random poses: mean {min(ms[m]['mean'] for m in rows):.1f}-"
+              f"{max(ms[m]['mean'] for m in rows):.1f} mm, largest {min(ms[m]['max'] for m in rows):.1f}-"
+              f"{max(ms[m]['max'] for m in rows):.1f} mm")
+    o = res["opensim"]
+    print(f"\nOpenSim's Scale + IK (Pose2Sim's setups): mean per-frame marker RMS {o['rms_mm']:.2f} mm over "
+          f"{o['frames']} frames of the balancing trial, IK {o['ik_s']:.2f} s")
+    for key in ("calibrate", "calibrate_ik_setup"):
+        c = res[key]
+        trials = ", ".join(f"{k} {v:.2f}" for k, v in c["trials_rms_mm"].items())
+        print(f"{key}: marker RMS {c['marker_rms_mm']:.2f} mm ({trials}), {c['wall_s']:.1f} s; implausible: "
+              f"{', '.join(c['implausible']) or 'none'}")
+        print("  vs OpenSim's IK (deg RMS): " + ", ".join(f"{n} {v['rms_deg']:.1f}"
+                                                         for n, v in c["vs_opensim_ik"].items()))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
