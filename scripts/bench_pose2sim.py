@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_import  # noqa: E402  (the import against OpenSim at random poses)
 import bench_osim  # noqa: E402  (OpenSim's IK child and its marker scores)
 
 COMMIT = "a948c205"
@@ -46,38 +47,6 @@ FILES = {"model.osim": SETUP + "Model_Pose2Sim_Halpe26.osim",
                                    "S00_P00_T01_BalancingTrial_0-100_filt_butterworth.trc"}
 COORDS = ("L5_S1_Flex_Ext", "L5_S1_Lat_Bending", "L5_S1_axial_rotation", "hip_flexion_r", "hip_flexion_l",
           "hip_adduction_r", "hip_adduction_l", "knee_angle_r", "knee_angle_l", "ankle_angle_r", "ankle_angle_l")
-POSES = 100  # random poses for the import's check
-
-# Child: markers of a model at poses (coupled coordinates from their couplers), as tests/test_osim_import.py's.
-_MARKERS = r"""
-import json, sys
-import opensim as osim
-osim.Logger.removeFileSink()
-osim.Logger.setLevelString("error")
-job = json.load(open(sys.argv[1]))
-model = osim.Model(job["osim"])
-state = model.initSystem()
-cs = model.getCoordinateSet()
-couplers = []
-for i in range(model.getConstraintSet().getSize()):
-    c = osim.CoordinateCouplerConstraint.safeDownCast(model.getConstraintSet().get(i))
-    if c is not None:
-        couplers.append((c.getDependentCoordinateName(), c.getIndependentCoordinateNames().get(0), c.getFunction(),
-                         osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
-for i in range(cs.getSize()):
-    cs.get(i).setLocked(state, False)
-out = []
-for pose in job["poses"]:
-    for name, value in pose.items():
-        cs.get(name).setValue(state, value, False)
-    for dep, ind, f, s in couplers:
-        cs.get(dep).setValue(state, s * f.calcValue(osim.Vector(1, cs.get(ind).getValue(state))), False)
-    model.realizePosition(state)
-    ms = model.getMarkerSet()
-    out.append({ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
-                for i in range(ms.getSize())})
-json.dump(out, open(sys.argv[2], "w"))
-"""
 
 # Child: Pose2Sim's Scale setup (its MarkerPlacer off, so run() reports failure though the scaled model is written).
 _SCALE = r"""
@@ -119,53 +88,6 @@ def adapt_setups(work: Path) -> None:
     ik = re.sub(r"<output_motion_file>[^<]*</output_motion_file>", "<output_motion_file>ik.mot"
                 "</output_motion_file>", ik)
     (work / "ik_setup.xml").write_text(ik)
-
-
-def import_check(work: Path, log) -> dict:
-    """Markers of the imported model (Pinocchio, each coordinate times its ratio) against OpenSim's at random
-    poses: per marker the mean and largest distance (mm), and the lumped chain's reported figures."""
-    import pinocchio as pin
-    from scipy.spatial.transform import Rotation
-
-    from calibrate.io.osim import LUMPED
-    from calibrate.io.osim_info import osim_info, root_coordinates
-    from calibrate.model.model import load_model
-
-    model = load_model(work / "model.osim")
-    info = osim_info(model)
-    import xml.etree.ElementTree as ET
-
-    ranges = {}
-    for c in ET.parse(work / "model.osim").getroot().iter("Coordinate"):
-        lo, hi = (float(v) for v in c.findtext("range", "0 0").split())
-        ranges[c.get("name")] = (max(lo, -np.pi), min(hi, np.pi))
-    rng = np.random.default_rng(1)
-    poses, ours = [], []
-    pm = model.pin
-    data = pm.createData()
-    for k in range(POSES):
-        coords = {d: float(rng.uniform(*ranges[d])) for d in model.dof_names}
-        t, quat = rng.normal(0, 0.5, 3), Rotation.random(random_state=k).as_quat()
-        angles = np.array([info.ratio(d) * coords[d] for d in model.dof_names])
-        root = root_coordinates(info, t[None], quat[None])
-        poses.append({**coords, **{n: float(v[0]) for n, v in root.items()}})
-        pin.framesForwardKinematics(pm, data, model.pin_configuration(t, quat, angles))
-        ours.append({m: data.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names})
-    spec, result = work / "poses.json", work / "poses_out.json"
-    spec.write_text(json.dumps({"osim": str(work / "model.osim"), "poses": poses}))
-    log("import: OpenSim's markers at random poses (child process) ...")
-    proc = subprocess.run([sys.executable, "-c", _MARKERS, str(spec), str(result)], capture_output=True, text=True)
-    if proc.returncode != 0:
-        raise RuntimeError(f"OpenSim child failed:\n{proc.stderr[-2000:]}")
-    theirs = json.loads(result.read_text())
-    err = {m: np.array([np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs, ours, strict=True)])
-           for m in model.marker_names}
-    lumped = [a for a in info.approximations if a.kind == LUMPED]
-    return {"poses": POSES, "markers_mm": {m: {"mean": 1e3 * float(e.mean()), "max": 1e3 * float(e.max())}
-                                           for m, e in err.items()},
-            "lumped": [{"joint": a.joint, "ratios": {c: info.ratio(c) for c in a.coordinates},
-                        "max_marker_mm": a.max_marker_mm, "one_coordinate_mm": a.one_mm, "bound_mm": a.bound_mm,
-                        "markers": list(a.markers)} for a in lumped]}
 
 
 def run_calibrate(work: Path, ik_setup: bool, log) -> dict:
@@ -214,7 +136,7 @@ def main() -> int:
         work = Path(tmp)
         read_files(a.pose2sim, a.commit, work)
         adapt_setups(work)
-        res: dict = {"commit": a.commit, "import": import_check(work, log)}
+        res: dict = {"commit": a.commit, "import": bench_import.import_check(work / "model.osim", log)}
         log("OpenSim's Scale (Pose2Sim's setup, child process) ...")
         proc = subprocess.run([sys.executable, "-c", _SCALE, str(work)], capture_output=True, text=True)
         if proc.returncode != 0:
@@ -244,17 +166,8 @@ def main() -> int:
 
 def report(res: dict) -> None:
     """The figures as tables on stdout."""
-    imp = res["import"]
     print(f"Pose2Sim's demo (perfanalytics/pose2sim at {res['commit']})\n")
-    for lump in imp["lumped"]:
-        print(f"lumped chain {lump['joint']}: ratios " + ", ".join(f"{c} {g:.3g}" for c, g in lump["ratios"].items())
-              + f"; largest effect {lump['max_marker_mm']:.1f} mm, one coordinate at a time "
-              f"{lump['one_coordinate_mm']:.1f} mm, bound {lump['bound_mm']:.1f} mm")
-        ms = imp["markers_mm"]
-        rows = sorted(lump["markers"], key=lambda m: -ms[m]["mean"])
-        print(f"  against OpenSim at {imp['poses']} random poses: mean {min(ms[m]['mean'] for m in rows):.1f}-"
-              f"{max(ms[m]['mean'] for m in rows):.1f} mm, largest {min(ms[m]['max'] for m in rows):.1f}-"
-              f"{max(ms[m]['max'] for m in rows):.1f} mm")
+    bench_import.report(res["import"])
     o = res["opensim"]
     print(f"\nOpenSim's Scale + IK (Pose2Sim's setups): mean per-frame marker RMS {o['rms_mm']:.2f} mm over "
           f"{o['frames']} frames of the balancing trial, IK {o['ik_s']:.2f} s")
