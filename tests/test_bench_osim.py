@@ -140,3 +140,51 @@ def test_bench_expert_consistency_spreads_the_statics_angles_over_a_subjects_cal
     assert ankle["offset_sd_deg"] == pytest.approx(float(np.std(offsets)))
     assert got["A"]["coordinates"]["knee_angle_r"]["sd_deg"] == 0.0
     assert got["A"]["coordinates"]["knee_angle_r"]["offset_sd_deg"] is None  # no offsets given for it
+
+
+def test_bench_pose2sim_points_the_setups_at_its_files_and_refuses_a_repository_without_the_demo(tmp_path):
+    """Pose2Sim's setups name its demo's folders; bench_pose2sim rewrites the model, trial and output file names to
+    the files it extracted (ScaleTool and IK read them from the setup's folder), and a repository without the demo's
+    commit is refused with one line."""
+    import bench_pose2sim
+
+    (tmp_path / "scale_setup.xml").write_text(
+        "<ScaleTool><GenericModelMaker><model_file>Unassigned</model_file></GenericModelMaker>"
+        "<ModelScaler><marker_file>../Demo/a/pose-3d/static.trc</marker_file><output_model_file>Unassigned"
+        "</output_model_file></ModelScaler><MarkerPlacer><marker_file>../Demo/a/static.trc</marker_file>"
+        "<output_model_file>../Demo/x_scaled.osim</output_model_file></MarkerPlacer></ScaleTool>")
+    (tmp_path / "ik_setup.xml").write_text(
+        "<InverseKinematicsTool><model_file>../Demo/x_scaled.osim</model_file><marker_file>../Demo/b.trc"
+        "</marker_file><output_motion_file>../Demo/b.mot</output_motion_file></InverseKinematicsTool>")
+    bench_pose2sim.adapt_setups(tmp_path)
+    scale, ik = (tmp_path / "scale_setup.xml").read_text(), (tmp_path / "ik_setup.xml").read_text()
+    assert "<model_file>model.osim</model_file>" in scale and scale.count("<marker_file>static.trc</marker_file>") == 2
+    assert scale.count("<output_model_file>scaled.osim</output_model_file>") == 2 and "../Demo" not in scale
+    assert ("<model_file>scaled.osim</model_file>" in ik and "<marker_file>balancing.trc</marker_file>" in ik
+            and "<output_motion_file>ik.mot</output_motion_file>" in ik)
+    empty = tmp_path / "repo"
+    import subprocess
+
+    subprocess.run(["git", "init", "-q", str(empty)], check=True)
+    with pytest.raises(SystemExit, match="a948c205"):
+        bench_pose2sim.read_files(empty, "a948c205", tmp_path)
+
+
+def test_bench_import_against_opensim_on_the_hand_made_spine(tmp_path):
+    """bench_import's figures on the lumped spine of tests/test_osim_lumped.py: the markers above the chain exact,
+    the chain's within the bound the import reported (OpenSim in a child process)."""
+    import importlib.util
+
+    if importlib.util.find_spec("opensim") is None:
+        pytest.skip("opensim is not installed")
+    import bench_import
+    from tests.test_osim_lumped import spine_osim
+
+    path = tmp_path / "spine.osim"
+    path.write_text(spine_osim())
+    res = bench_import.import_check(path, lambda m: None, poses_n=12)
+    (lumped,) = [a for a in res["approximations"] if a["kind"] == "lumped chain"]
+    ms = res["markers_mm"]
+    assert max(ms[m]["max"] for m in ("pelvis0", "pelvis1", "pelvis2")) < 1e-3
+    assert max(ms[m]["max"] for m in lumped["markers"]) <= lumped["bound_mm"] + 1e-3
+    assert lumped["ratios"] and lumped["one_coordinate_mm"] < lumped["max_marker_mm"]
