@@ -178,6 +178,7 @@ def test_bench_import_against_opensim_on_the_hand_made_spine(tmp_path):
     if importlib.util.find_spec("opensim") is None:
         pytest.skip("opensim is not installed")
     import bench_import
+
     from tests.test_osim_lumped import spine_osim
 
     path = tmp_path / "spine.osim"
