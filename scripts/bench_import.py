@@ -19,36 +19,47 @@ import numpy as np
 
 POSES = 100  # random poses
 
-# Child: markers of a model at poses (coupled coordinates from their couplers), as tests/test_osim_import.py's.
-_MARKERS = r"""
+# Child: {"jobs": [{"osim", "marker_set", "poses": [{coordinate: value}], "bodies": [name]}]} -> per job, per pose:
+# marker -> xyz in ground, and "body NAME" -> its pose in ground (R row-major, p).  Coupled (dependent) coordinates
+# are set from their CoordinateCouplerConstraint's function.  (tests/test_osim_import.py's reference too.)
+MARKERS_WORKER = r"""
 import json, sys
 import opensim as osim
 osim.Logger.removeFileSink()
 osim.Logger.setLevelString("error")
-job = json.load(open(sys.argv[1]))
-model = osim.Model(job["osim"])
-if job.get("marker_set"):
-    model.updateMarkerSet(osim.MarkerSet(job["marker_set"]))
-state = model.initSystem()
-cs = model.getCoordinateSet()
-couplers = []
-for i in range(model.getConstraintSet().getSize()):
-    c = osim.CoordinateCouplerConstraint.safeDownCast(model.getConstraintSet().get(i))
-    if c is not None:
-        couplers.append((c.getDependentCoordinateName(), c.getIndependentCoordinateNames().get(0), c.getFunction(),
-                         osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
-for i in range(cs.getSize()):
-    cs.get(i).setLocked(state, False)
 out = []
-for pose in job["poses"]:
-    for name, value in pose.items():
-        cs.get(name).setValue(state, value, False)
-    for dep, ind, f, s in couplers:
-        cs.get(dep).setValue(state, s * f.calcValue(osim.Vector(1, cs.get(ind).getValue(state))), False)
-    model.realizePosition(state)
-    ms = model.getMarkerSet()
-    out.append({ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
-                for i in range(ms.getSize())})
+for job in json.load(open(sys.argv[1]))["jobs"]:
+    model = osim.Model(job["osim"])
+    if job.get("marker_set"):
+        model.updateMarkerSet(osim.MarkerSet(job["marker_set"]))
+    state = model.initSystem()
+    cs = model.getCoordinateSet()
+    couplers = []
+    for i in range(model.getConstraintSet().getSize()):
+        c = osim.CoordinateCouplerConstraint.safeDownCast(model.getConstraintSet().get(i))
+        if c is not None:
+            names = c.getIndependentCoordinateNames()
+            couplers.append((c.getDependentCoordinateName(), names.get(0), c.getFunction(),
+                             osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
+    for i in range(cs.getSize()):  # a locked coordinate keeps its value in setValue
+        cs.get(i).setLocked(state, False)
+    poses = []
+    for pose in job["poses"]:
+        for name, value in pose.items():
+            cs.get(name).setValue(state, value, False)
+        for dep, ind, f, s in couplers:
+            v = osim.Vector(1, cs.get(ind).getValue(state))
+            cs.get(dep).setValue(state, s * f.calcValue(v), False)
+        model.realizePosition(state)
+        ms = model.getMarkerSet()
+        res = {ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
+               for i in range(ms.getSize())}
+        for b in job["bodies"]:  # pose of a body in ground: R (row-major 9), p (3)
+            X = model.getBodySet().get(b).getTransformInGround(state)
+            R = X.R().asMat33()
+            res["body " + b] = [R.get(i, j) for i in range(3) for j in range(3)] + X.p().to_numpy().tolist()
+        poses.append(res)
+    out.append(poses)
 json.dump(out, open(sys.argv[2], "w"))
 """
 
@@ -86,14 +97,14 @@ def import_check(osim: Path, log, marker_set: Path | None = None, poses_n: int =
         ours.append({m: data.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names})
     with tempfile.TemporaryDirectory(prefix="bench_import_") as tmp:
         spec, result = Path(tmp) / "poses.json", Path(tmp) / "out.json"
-        spec.write_text(json.dumps({"osim": str(osim), "marker_set": str(marker_set) if marker_set else None,
-                                    "poses": poses}))
+        spec.write_text(json.dumps({"jobs": [{"osim": str(osim), "marker_set": str(marker_set) if marker_set else None,
+                                              "poses": poses, "bodies": []}]}))
         log(f"{osim.name}: OpenSim's markers at {poses_n} random poses (child process) ...")
-        proc = subprocess.run([sys.executable, "-c", _MARKERS, str(spec), str(result)], capture_output=True,
+        proc = subprocess.run([sys.executable, "-c", MARKERS_WORKER, str(spec), str(result)], capture_output=True,
                               text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"OpenSim child failed:\n{proc.stderr[-2000:]}")
-        theirs = json.loads(result.read_text())
+        theirs = json.loads(result.read_text())[0]
     err = {m: np.array([np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs, ours, strict=True)])
            for m in model.marker_names}
     return {"model": str(osim), "poses": poses_n, "dofs": model.n_dofs,

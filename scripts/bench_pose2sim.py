@@ -74,20 +74,21 @@ def read_files(repo: Path, commit: str, work: Path) -> None:
         (work / name).write_bytes(proc.stdout)
 
 
+SETUP_FILES = {"scale_setup.xml": {"model_file": "model.osim", "marker_file": "static.trc",
+                                   "output_model_file": "scaled.osim"},
+               "ik_setup.xml": {"model_file": "scaled.osim", "marker_file": "balancing.trc",
+                                "output_motion_file": "ik.mot"}}
+
+
 def adapt_setups(work: Path) -> None:
-    """Point Pose2Sim's setups at the files in `work` (its demo's relative paths name its own folders)."""
-    scale = (work / "scale_setup.xml").read_text()
-    scale = re.sub(r"<model_file>[^<]*</model_file>", "<model_file>model.osim</model_file>", scale, count=1)
-    scale = re.sub(r"<marker_file>[^<]*</marker_file>", "<marker_file>static.trc</marker_file>", scale)
-    scale = re.sub(r"<output_model_file>[^<]*</output_model_file>", "<output_model_file>scaled.osim"
-                   "</output_model_file>", scale)
-    (work / "scale_setup.xml").write_text(scale)
-    ik = (work / "ik_setup.xml").read_text()
-    ik = re.sub(r"<model_file>[^<]*</model_file>", "<model_file>scaled.osim</model_file>", ik, count=1)
-    ik = re.sub(r"<marker_file>[^<]*</marker_file>", "<marker_file>balancing.trc</marker_file>", ik)
-    ik = re.sub(r"<output_motion_file>[^<]*</output_motion_file>", "<output_motion_file>ik.mot"
-                "</output_motion_file>", ik)
-    (work / "ik_setup.xml").write_text(ik)
+    """Point Pose2Sim's setups at the files in `work` (its demo's relative paths name its own folders): every
+    <tag> of SETUP_FILES in each setup gets its file name (the generic model's <model_file>: the first only)."""
+    for setup, names in SETUP_FILES.items():
+        text = (work / setup).read_text()
+        for tag, name in names.items():
+            once = 1 if tag == "model_file" else 0
+            text = re.sub(rf"<{tag}>[^<]*</{tag}>", f"<{tag}>{name}</{tag}>", text, count=once)
+        (work / setup).write_text(text)
 
 
 def run_calibrate(work: Path, ik_setup: bool, log) -> dict:

@@ -34,48 +34,9 @@ RAJAGOPAL = REAL / "rajagopal_walk" / "Rajagopal2016.osim"
 TOL = 1e-6  # m
 N_POSES = 100
 
-# {"jobs": [{"osim", "marker_set", "poses": [{coordinate: value}]}]} -> per job, per pose: marker -> xyz in ground.
-# Coupled (dependent) coordinates are set from their CoordinateCouplerConstraint's function.
-_WORKER = r"""
-import json, sys
-import opensim as osim
-osim.Logger.removeFileSink()
-osim.Logger.setLevelString("error")
-out = []
-for job in json.load(open(sys.argv[1]))["jobs"]:
-    model = osim.Model(job["osim"])
-    if job.get("marker_set"):
-        model.updateMarkerSet(osim.MarkerSet(job["marker_set"]))
-    state = model.initSystem()
-    cs = model.getCoordinateSet()
-    couplers = []
-    for i in range(model.getConstraintSet().getSize()):
-        c = osim.CoordinateCouplerConstraint.safeDownCast(model.getConstraintSet().get(i))
-        if c is not None:
-            names = c.getIndependentCoordinateNames()
-            couplers.append((c.getDependentCoordinateName(), names.get(0), c.getFunction(),
-                             osim.PropertyHelper.getValueDouble(c.getPropertyByName("scale_factor"))))
-    for i in range(cs.getSize()):  # a locked coordinate keeps its value in setValue
-        cs.get(i).setLocked(state, False)
-    poses = []
-    for pose in job["poses"]:
-        for name, value in pose.items():
-            cs.get(name).setValue(state, value, False)
-        for dep, ind, f, s in couplers:
-            v = osim.Vector(1, cs.get(ind).getValue(state))
-            cs.get(dep).setValue(state, s * f.calcValue(v), False)
-        model.realizePosition(state)
-        ms = model.getMarkerSet()
-        res = {ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
-               for i in range(ms.getSize())}
-        for b in job["bodies"]:  # pose of a body in ground: R (row-major 9), p (3)
-            X = model.getBodySet().get(b).getTransformInGround(state)
-            R = X.R().asMat33()
-            res["body " + b] = [R.get(i, j) for i in range(3) for j in range(3)] + X.p().to_numpy().tolist()
-        poses.append(res)
-    out.append(poses)
-json.dump(out, open(sys.argv[2], "w"))
-"""
+# OpenSim's markers (and bodies) at poses, in a child process: scripts/bench_import.py's worker.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from bench_import import MARKERS_WORKER as _WORKER  # noqa: E402
 
 # A hand-made model: a FreeJoint root, Ball, Gimbal, Pin, Universal, Weld and CustomJoints with every function
 # type read (Constant, LinearFunction with slope -1 and an intercept, PolynomialFunction (linear: exact; quadratic),
