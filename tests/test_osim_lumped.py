@@ -118,6 +118,10 @@ def test_lumped_chain_structure(tmp_path):
     assert [d for d in model.dof_names if d.startswith(("lum", "v2_", "v3_", "chest_"))] == [n for n, _, _ in DRIVER]
     lumped = next(a for a in info.approximations if a.kind == LUMPED)
     assert set(lumped.markers) == {"chest0", "chest1", "chest2", "chest3", "head0", "head1"}
+    # its axes orthonormal as the driving joint's are: a ball the solver keeps on SO(3), without limits
+    from calibrate.model.kinematics import so3_balls
+
+    assert "lumbar" in {b.name for b in so3_balls(model)}
     # each ratio near the couplers' sum (the vertebrae's axes are tilted, so not equal to it)
     for (name, lo, hi), total in zip(DRIVER, RATIOS, strict=True):
         assert info.ratio(name) == pytest.approx(total, rel=0.1)

@@ -509,8 +509,24 @@ class _Importer:
             Ra, pa = _ops_transform(ops_of(x), vals, n)
             return (np.einsum("nij,kj->nki", Ra, pts) + pa[:, None, :] - target).ravel()
 
-        sol = least_squares(residual, np.array(x0), method="trf", xtol=1e-10, ftol=1e-10)
-        ops = ops_of(sol.x)
+        axes0 = np.array([a for _, a in revs])
+        if np.allclose(axes0 @ axes0.T, np.eye(m), atol=1e-9):
+            # Orthonormal axes (a ball's, a universal joint's) stay orthonormal: one turn of them all is fitted, so
+            # that the joint is still a ball the solver keeps on SO(3) (kinematics.so3_balls), with no limits.
+            x0a = np.array(x0)
+            rest = np.r_[[x0a[4 * i + 3] for i in range(m)], x0a[4 * m:]]
+
+            def full(y: np.ndarray) -> np.ndarray:
+                Rw = Rotation.from_rotvec(y[:3]).as_matrix()
+                axes = [Rw @ a for a in axes0]
+                return np.concatenate([np.r_[axes[i], y[3 + i]] for i in range(m)] + [y[3 + m:]])
+
+            sol = least_squares(lambda y: residual(full(y)), np.r_[np.zeros(3), rest], method="trf", xtol=1e-10,
+                                ftol=1e-10)
+            ops = ops_of(full(sol.x))
+        else:
+            sol = least_squares(residual, np.array(x0), method="trf", xtol=1e-10, ftol=1e-10)
+            ops = ops_of(sol.x)
         for op in ops:  # Rot(a, g q) = Rot(-a, -g q): every ratio positive
             if op.coord is not None and op.ratio < 0:
                 op.axis, op.ratio = -op.axis, -op.ratio  # type: ignore[operator]
