@@ -12,7 +12,11 @@ own Scale and IK setups, their file names pointed at these files.  In one run:
    ``L5_S1_Flex_Ext`` at the default) in a child process (bench_osim's), and its mean per-frame marker RMS;
 3. calibrate (the command line, in this process) on the static + balancing trials with and without ``--ik-setup``:
    marker RMS, and each coordinate's RMS difference from OpenSim's IK on the balancing trial in OpenSim's units (the
-   motion CSV's angle over the coordinate's ratio).
+   motion CSV's angle over the coordinate's ratio);
+4. the subject calibrate wrote (its defaults' subject.osim) held fixed, the balancing trial fitted again by
+   ``calibrate ik --ik-setup`` (the command line) and by OpenSim's IK tool from the same setup (child process): mean
+   per-frame marker RMS over the markers OpenSim's IK tracks, beside the calibration's own fit of that trial, and
+   each one's time.
 
     PYTHONPATH=. python scripts/bench_pose2sim.py --pose2sim DIR [--commit a948c205] [--json out.json]
 """
@@ -121,6 +125,44 @@ def run_calibrate(work: Path, ik_setup: bool, log) -> dict:
             "implausible": [b["segment"] for b in report.get("implausible", [])]}
 
 
+def ik_on_subject(work: Path, use: list[str], log) -> dict:
+    """calibrate's defaults subject (cal/subject.osim) held fixed: the balancing trial by ``calibrate ik`` and by
+    OpenSim's IK tool, both from Pose2Sim's IK setup; their marker scores over `use` and times."""
+    from calibrate.cli import main
+    from calibrate.io.motion import read_motion_csv
+    from calibrate.io.trc import read_trc
+    from calibrate.model.kinematics import FrameLayout, build_kinematics
+    from calibrate.model.model import load_model
+
+    sub = work / "ik_subject"  # the IK setup names the model scaled.osim and the trial balancing.trc
+    (sub / "out").mkdir(parents=True)
+    for src, dst in (("cal/subject.osim", "scaled.osim"), ("ik_setup.xml", "ik_setup.xml"),
+                     ("balancing.trc", "balancing.trc")):
+        (sub / dst).write_bytes((work / src).read_bytes())
+    log("calibrate ik on calibrate's subject ...")
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = main(["ik", str(sub / "balancing.trc"), str(sub / "scaled.osim"), "--ik-setup",
+                     str(sub / "ik_setup.xml"), "-o", str(sub / "out"), "-q"])
+    wall = time.perf_counter() - t0
+    if code != 0:
+        raise RuntimeError(f"calibrate ik exited {code}")
+    subject = load_model(sub / "scaled.osim")
+    motion = read_motion_csv(sub / "out" / "balancing_motion.csv")
+    ours, _ = build_kinematics(subject).batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
+                                              motion.root_quaternion, subject.parameters())
+    trial = read_trc(work / "balancing.trc")
+    log("OpenSim's IK on calibrate's subject (child process) ...")
+    osr = bench_osim.run_opensim({"dir": str(sub), "scale": [], "ik": "ik_setup.xml"}, work)
+    for name, frames in (("calibrate ik", motion.n_frames), ("OpenSim's IK", len(osr["times"]))):
+        if frames != trial.n_frames:
+            raise RuntimeError(f"{name} fitted {frames} frames of the balancing trial's {trial.n_frames}")
+    return {"calibrate_ik": {**bench_osim.marker_scores(np.asarray(ours), list(subject.marker_names), trial, use),
+                             "wall_s": wall},
+            "opensim_ik": {**bench_osim.marker_scores(osr["markers"], osr["marker_names"], trial, use),
+                           "ik_s": osr["ik_s"]}}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pose2sim", type=Path, required=False, help="a perfanalytics/pose2sim checkout or git directory")
@@ -159,6 +201,7 @@ def main() -> int:
                     d = np.degrees(cr["angles"][c] - theirs)
                     diffs[c] = {"rms_deg": float(np.sqrt(np.mean(d**2))), "offset_free_deg": float(np.std(d))}
             res[key] = {k: v for k, v in cr.items() if k not in ("times", "angles")} | {"vs_opensim_ik": diffs}
+        res["ik_on_subject"] = ik_on_subject(work, use, log)
     report(res)
     if a.json is not None:
         a.json.write_text(json.dumps(res, indent=1))
@@ -179,6 +222,12 @@ def report(res: dict) -> None:
               f"{', '.join(c['implausible']) or 'none'}")
         print("  vs OpenSim's IK (deg RMS): " + ", ".join(f"{n} {v['rms_deg']:.1f}"
                                                          for n, v in c["vs_opensim_ik"].items()))
+    k = res["ik_on_subject"]
+    own = res["calibrate"]["trials_rms_mm"].get("balancing", float("nan"))
+    print(f"\ncalibrate's subject held fixed, the balancing trial again (Pose2Sim's IK setup; the calibration's "
+          f"own fit {own:.2f} mm):")
+    for key, name, t in (("calibrate_ik", "calibrate ik", "wall_s"), ("opensim_ik", "OpenSim's IK", "ik_s")):
+        print(f"  {name:13s}  marker RMS {k[key]['rms_mm']:.2f} mm, max {k[key]['max_mm']:.1f} mm, {k[key][t]:.2f} s")
 
 
 if __name__ == "__main__":

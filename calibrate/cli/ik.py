@@ -58,7 +58,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
     from ..io.motion import write_motion_csv
     from ..io.outputs import check_targets
     from ..io.read import read_trial
-    from ..model.kinematics import build_kinematics
+    from ..model.kinematics import build_kinematics, locked_balls
     from ..model.model import load_model
     from ..problem.settings import Settings
     from ..solve.ik import inverse_kinematics
@@ -120,7 +120,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
 
         trials, lines = cut_to_setups(trials, None, args.ik_setup)
     lines = setup_lines + lines
-    kin = build_kinematics(model)
+    kin = build_kinematics(model, euler=locked_balls(model, locked))  # a ball with a held angle on its three angles
     params = model.parameters()
     results = []
     for path, trial in zip(trial_paths, trials, strict=True):

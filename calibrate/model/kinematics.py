@@ -330,6 +330,13 @@ def _outside(a: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     return np.where(finite, np.maximum(d - 0.5 * (hi - lo), 0.0), 0.0)
 
 
+def locked_balls(model: Model, locked) -> tuple[str, ...]:
+    """The ball joints with a coordinate among `locked` (names, or a mapping name -> value): the solver keeps them
+    on their three angles (build_kinematics' `euler`), so that a lock holds an angle, as an OpenSim IK setup's
+    coordinate task holds one of L5/S1's three."""
+    return tuple(j.name for j in model.joints if j.kind == "ball" and any(d in locked for d in j.dofs))
+
+
 def so3_balls(model: Model, euler: tuple[str, ...] = ()) -> tuple[BallJoint, ...]:
     """The model's ball joints that the solver keeps on SO(3): three revolutes with coincident
     origins, no fixed rotation between them, orthonormal axes; not those named in `euler`

@@ -47,7 +47,7 @@ from calibrate.problem.settings import Settings
 from calibrate.problem.state import Linearization, State
 
 from ..model.blocks import ParameterLayout
-from ..model.kinematics import Kinematics, build_kinematics
+from ..model.kinematics import Kinematics, build_kinematics, locked_balls
 from ..model.model import Model, Parameters
 from ..solve.assembly import ParameterLayout as ColumnLayout
 from ..solve.assembly import assemble, parameter_layout, parameter_pattern, y_pattern_of
@@ -140,11 +140,10 @@ class Problem(GaugeMixin, PriorsMixin, CodegenMixin):
         self._model = model
         self._settings = _problem_options(settings)
         # Ball joints with a locked coordinate stay on their three angles (the lock holds an angle).
-        locked_balls = tuple(j.name for j in model.joints if j.kind == "ball"
-                             and any(d in dict(self.settings.lock) for d in j.dofs))
-        self._kin = kinematics or build_kinematics(model, euler=locked_balls)
-        if any(b.name in locked_balls for b in self.kin.balls):
-            self._kin = build_kinematics(model, euler=locked_balls)
+        euler = locked_balls(model, dict(self.settings.lock))
+        self._kin = kinematics or build_kinematics(model, euler=euler)
+        if any(b.name in euler for b in self.kin.balls):
+            self._kin = build_kinematics(model, euler=euler)
         obs = np.asarray(observed, dtype=float)
         nm = len(model.markers)
         if obs.ndim != 3 or obs.shape[1:] != (nm, 3):

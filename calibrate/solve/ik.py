@@ -31,7 +31,15 @@ from ..seed.geometry import kabsch, marker_rms
 from .lm import marquardt_diagonal, minimise
 
 LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
-REINIT_RMS = 0.02  # m: a frame fitting worse than this (and 5x the running median) is restarted
+REINIT_RMS = 0.02  # m: a frame fitting worse than this (and RESTART_RATIO x the running median) is restarted
+# A frame fitting RESTART_RATIO times worse than the median of the 50 before it is fitted again from scratch
+# (FrameSolver.global_start), at most every RESTART_GAP frames while the restarts fail.  A track warm-started frame
+# to frame can drift into another basin slowly (Pose2Sim's right arm, straight at the trial's start, turned about its
+# length: marker RMS 14 -> 35 mm over 60 frames), which a 5x test never sees.  When the restart fits better, the
+# frames before it are fitted again backwards from it while they fit better so.
+RESTART_RATIO = 1.5
+RESTART_GAP = 10
+RESTART_GAIN = 0.9  # a restart fitting below this share of the tracked fit's cost found another basin
 GLOBAL_KEEP = 4  # grid starts per joint that the global start solves (the best-fitting as they stand)
 # ... each this many steps, then the one that fits best on to GLOBAL_STEPS in all: on 165 frames of gait2392's,
 # Rajagopal's and pig_walk's walks (base models) every frame so ended at the minimum it reached with each start solved
@@ -80,9 +88,10 @@ def _locked_columns(kin: Kinematics, locked: Mapping[str, float]) -> tuple[np.nd
             # or a ball held turned, is not (its angles are increments about a reference that the solve moves).
             dofs = ball_of[d].dofs
             if not all(k in at and abs(at[k]) < 1e-12 for k in dofs):
-                raise CalibrateError(f"locked coordinate {name!r} belongs to a ball joint of {model.path.name}; only "
-                                     "a hinge's or universal joint's coordinate can be held, or all of a ball's at 0 "
-                                     f"({', '.join(model.dof_names[k] for k in dofs)})")
+                raise CalibrateError(f"locked coordinate {name!r} belongs to a ball joint of {model.path.name} solved "
+                                     "on SO(3), where only all of its angles can be held, at 0 "
+                                     f"({', '.join(model.dof_names[k] for k in dofs)}); build the kinematics with "
+                                     "build_kinematics(model, euler=locked_balls(model, locked)) to hold one")
         cols.append(FrameLayout.angle(d))
         vals.append(float(value))
     return np.array(cols, dtype=int), np.array(vals)
@@ -202,6 +211,15 @@ class FrameSolver:
             slots = [ref_slot[c] for c in sub_dofs if c in ref_slot]
             self.plan.append((own, sorted(sub_dofs), sub_mk, child_mk, lims, slots))
         self.root_markers = [model.marker_index(m) for m in model.segments[0].markers]
+        # Each coordinate's start below a joint placed by a grid: zero, unless zero is in the outer quarters of
+        # the range (an elbow or knee straight at its limit), then the nearer quarter point.  A hinge started at
+        # its limit straight leaves the joints above it to point the limb, and a straight limb's turn about its
+        # length is then free: Pose2Sim's arm found raised and turned, its elbow held straight by the limit.
+        lo = np.array([max(d.lower, -np.pi) for d in model.dofs])
+        hi = np.array([min(d.upper, np.pi) for d in model.dofs])
+        self.rest = np.zeros(model.nz)
+        self.rest[FrameLayout.angle(0):] = np.clip(0.0, lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo))
+        self.rest[self.ball_cols] = 0.0
         self.lower = np.array([d.lower for d in model.dofs]) - margin
         self.upper = np.array([d.upper for d in model.dofs]) + margin
         self._columns: dict[tuple[int, ...] | None, tuple] = {}  # columns(), by the coordinates solved for
@@ -297,7 +315,7 @@ class FrameSolver:
             starts = []  # every grid point scored as it stands; the most promising few are solved
             for start in itertools.product(*[np.linspace(lo, hi, n_grid) for lo, hi in lims]):
                 zz = z.copy()
-                zz[sub_dofs] = 0.0
+                zz[sub_dofs] = self.rest[sub_dofs]
                 zz[own] = start
                 m, _ = self.evaluate(zz, q0)
                 starts.append((float(np.sum((m[rows] - target) ** 2)), zz))
@@ -311,6 +329,23 @@ class FrameSolver:
             if GLOBAL_STEPS > GLOBAL_SCREEN:
                 z, q, _, _ = self.solve(z, q, obs, fit_mk, free, GLOBAL_STEPS - GLOBAL_SCREEN)
         return z, q
+
+
+def _refit_backwards(solver: FrameSolver, obs: np.ndarray, f: int, z: np.ndarray, q: np.ndarray, Z: np.ndarray,
+                     Q: np.ndarray, costs: np.ndarray, iters: np.ndarray, frame_rms: list[float], free: np.ndarray,
+                     budget: int, tolerance: float, weight: np.ndarray | None) -> None:
+    """The frames before `f` fitted again, backwards, each warm-started from the frame after it (frame f's pose
+    (z, q) first), while the fit is better than the one they have; Z, Q, costs, iters and frame_rms (the fitted
+    frames' RMS, in order) updated in place."""
+    fitted = np.flatnonzero(np.isfinite(costs[:f]))  # frame_rms[i] is the RMS of frame fitted[i]
+    for i in range(fitted.size - 1, -1, -1):
+        g = fitted[i]
+        idx = np.flatnonzero(~np.isnan(obs[g, :, 0]))
+        z, q, cost, it = solver.solve(z, q, obs[g], idx, free, budget, tolerance, weight)
+        if not cost < costs[g]:
+            return
+        Z[g], Q[g], costs[g], iters[g] = z, q, cost, iters[g] + it
+        frame_rms[i] = float(np.sqrt(cost / idx.size))
 
 
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
@@ -329,6 +364,9 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     `start`: a motion with the trial's frames (an earlier fit of the same frames, e.g. with one or two labels
     changed); each frame then starts at its pose, not at the previous frame's, and no frame from scratch but one
     whose fit stays far worse than the frames before it.
+    A frame fitting RESTART_RATIO times worse than the median of the 50 fitted before it (and worse than
+    REINIT_RMS) is also fitted from scratch, and the better taken; when the restart finds another basin, the frames
+    before it are fitted again backwards from it while they fit better so.
     `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
@@ -359,8 +397,10 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     Q = np.tile(solver.identity, (nf, 1))  # refs (root, balls) per frame
     iters = np.zeros(nf, dtype=int)
     frame_rms: list[float] = []
+    costs = np.full(nf, np.nan)  # each fitted frame's cost (m²)
     z, q = None, None
     z_prev = None
+    next_try = 0  # the first frame a restart may be tried at
     if start is not None:  # the start motion in the solver's form (root and balls as references)
         Zs, Qs, Bs = kin.retract(FrameLayout.coordinates(start.root_translation, start.angles),
                                  start.root_quaternion, None)
@@ -393,14 +433,21 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
                 z_prev = z
         z, q, cost, it = solver.solve(z, q, obs[f], seen_idx, all_free, budget, tolerance, weight)
         rms = np.sqrt(cost / seen.sum())
-        if frame_rms and rms > REINIT_RMS and rms > 5 * np.median(frame_rms[-50:]):
+        if f >= next_try and frame_rms and rms > REINIT_RMS and rms > RESTART_RATIO * np.median(frame_rms[-50:]):
             z2, q2 = solver.global_start(obs[f], seen, local=True, free=all_free, weight=weight, held=held)
             z2, q2, cost2, it2 = solver.solve(held(z2), q2, obs[f], seen_idx, all_free, 200, tolerance, weight)
+            other_basin = cost2 < RESTART_GAIN * cost  # the frames before may have drifted with this one
             if cost2 < cost:
                 z, q, cost, it = z2, q2, cost2, it + it2
                 rms = np.sqrt(cost / seen.sum())
+            if other_basin:
+                z_prev = None
+                _refit_backwards(solver, obs, f, z, q, Z, Q, costs, iters, frame_rms, all_free, max_iterations,
+                                 tolerance, weight)
+            else:  # the same basin, or a worse one
+                next_try = f + RESTART_GAP
         frame_rms.append(rms)
-        Z[f], Q[f], iters[f] = z, q, it
+        Z[f], Q[f], iters[f], costs[f] = z, q, it, cost
         if progress is not None and (f + 1) % 100 == 0:
             progress(f + 1, nf)
     Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
