@@ -78,8 +78,9 @@ def bench(case: str, work: Path, log) -> dict:
     from calibrate.io.osim_info import with_locked
     from calibrate.io.osim_setup import ik_setup_range, ik_setup_weights, with_ik_setup
     from calibrate.io.read import read_trial
-    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.kinematics import build_kinematics, locked_balls
     from calibrate.model.model import load_model
+    from calibrate.problem.problem import LIMIT_MARGIN
     from calibrate.problem.settings import Settings
     from calibrate.solve.ik import inverse_kinematics, marker_columns
 
@@ -107,10 +108,11 @@ def bench(case: str, work: Path, log) -> dict:
     trial, _ = map_labels(trial, subject.marker_names, None, aliases=True)
     weights = ik_setup_weights(d / ik)
     locked = dict(with_ik_setup(subject, with_locked(subject, Settings()), d / ik).lock)
-    kin = build_kinematics(subject)
+    kin = build_kinematics(subject, euler=locked_balls(subject, locked))
     log(f"{case}: calibrate ik ...")
     t0 = time.perf_counter()
-    fit = inverse_kinematics(kin, trial, subject.parameters(), locked=locked, weights=weights, default_weight=0.0)
+    fit = inverse_kinematics(kin, trial, subject.parameters(), locked=locked, weights=weights, default_weight=0.0,
+                             margin=LIMIT_MARGIN)  # as `calibrate ik` fits
     ours_s = time.perf_counter() - t0
     log(f"{case}: OpenSim's IK on calibrate's subject (child process) ...")
     setup = plain_setup(d / ik, out / "ik_setup.xml")

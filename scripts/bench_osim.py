@@ -299,11 +299,13 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
     # The part of the run OpenSim's IK does: every walk frame's pose fitted to the subject model, frame by frame
     # from scratch, the locked coordinates held (calibrate.solve.ik.inverse_kinematics, as `calibrate ik` runs it;
     # its kinematics built inside the timing).
-    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.kinematics import build_kinematics, locked_balls
+    from calibrate.problem.problem import LIMIT_MARGIN
     from calibrate.solve.ik import inverse_kinematics
 
     t0 = time.perf_counter()
-    ik_fit = inverse_kinematics(build_kinematics(cal.model), walk, cal.params, locked=cal.locked)
+    ik_fit = inverse_kinematics(build_kinematics(cal.model, euler=locked_balls(cal.model, cal.locked)), walk,
+                                cal.params, locked=cal.locked, margin=LIMIT_MARGIN)
     ik_wall = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         subject = load_model(write_model(cal.model, Path(tmp) / "subject.urdf", cal.params))
@@ -400,7 +402,8 @@ def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float,
     poses fitted frame by frame (calibrate.solve.ik): the markers it predicts there, for the held-out row."""
     from calibrate.calibration.pipeline import calibrate
     from calibrate.io.osim_info import with_locked
-    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.kinematics import build_kinematics, locked_balls
+    from calibrate.problem.problem import LIMIT_MARGIN
     from calibrate.problem.settings import Settings
     from calibrate.solve.ik import inverse_kinematics, marker_columns
 
@@ -410,7 +413,8 @@ def run_heldout(spec: dict, frames: slice, outliers: float, still_weight: float,
     settings = with_setup(spec, model, with_locked(model, Settings(outliers=outliers, still_weight=still_weight,
                                                                    moved_markers=moved)), ik_setup)
     cal = calibrate(model, [static, first], settings, mass=spec["mass"], **static_pose_of(spec, model, static, first))
-    fit = inverse_kinematics(build_kinematics(cal.model), second, cal.params, locked=cal.locked)
+    fit = inverse_kinematics(build_kinematics(cal.model, euler=locked_balls(cal.model, cal.locked)), second,
+                             cal.params, locked=cal.locked, margin=LIMIT_MARGIN)  # as `calibrate ik` fits
     return {"markers": marker_columns(cal.model, second) + fit.residuals, "marker_names": list(cal.model.marker_names),
             "in_sample_rms_mm": 1000 * float(np.sqrt(np.nanmean(np.sum(cal.residuals[cal.trials[0].n_frames:] ** 2,
                                                                        axis=2)))),

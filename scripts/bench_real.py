@@ -556,8 +556,9 @@ def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) 
     from calibrate.calibration.report import report_locks
     from calibrate.io.motion import write_motion_csv
     from calibrate.io.read import read_trial
-    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.kinematics import build_kinematics, locked_balls
     from calibrate.model.model import load_model
+    from calibrate.problem.problem import LIMIT_MARGIN
     from calibrate.solve.ik import inverse_kinematics
 
     d = tmp / "held_out"
@@ -579,8 +580,9 @@ def held_out(static: Path, walk: Path, tmp: Path, cap: float, log, extra: list) 
     t0 = time.perf_counter()
     # the coordinates the calibration held (its report: locks and auto-locks), held here too, as `calibrate ik
     # --report` holds them
-    fit = inverse_kinematics(build_kinematics(subject), read_trial(second), subject.parameters(),
-                             locked=report_locks(rep))
+    locked = report_locks(rep)
+    fit = inverse_kinematics(build_kinematics(subject, euler=locked_balls(subject, locked)), read_trial(second),
+                             subject.parameters(), locked=locked, margin=LIMIT_MARGIN)
     ik_s = time.perf_counter() - t0
     motion = write_motion_csv(d / "walk_second_motion.csv", fit.motion)
     out_walk = marker_fit(kin, [(second, motion)], None)

@@ -82,6 +82,30 @@ def test_ik_holds_locked_coordinates_and_refuses_bad_input(squats, tmp_path, cap
     assert sorted(p.name for p in out.iterdir()) == before and (bad / "trial_motion.csv").read_text() == "keep me"
 
 
+def test_ik_fits_under_the_calibrations_limits(squats, tmp_path):
+    """The calibration's limits are the model's widened by LIMIT_MARGIN (15 deg), and `calibrate ik` fits under the
+    same: the true subject with its knee's upper limit set 10 deg below the squat's deepest knee angle still gives
+    back the noise-free true motion (an IK under the model's own limits holds that knee short of the markers)."""
+    import math
+    import re
+
+    from calibrate.problem.problem import LIMIT_MARGIN
+
+    truth = read_motion_csv(squats / "truth_motion.csv")
+    knee = truth.dof_names.index("knee_r")
+    deepest = float(truth.angles[:, knee].max())
+    assert math.radians(10.0) < LIMIT_MARGIN
+    text = (squats / "truth.urdf").read_text()
+    joint = re.search(r'<joint name="knee_r".*?</joint>', text, re.S).group(0)
+    narrowed = re.sub(r'upper="[^"]+"', f'upper="{deepest - math.radians(10.0)!r}"', joint)
+    (tmp_path / "narrow.urdf").write_text(text.replace(joint, narrowed))
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(tmp_path / "narrow.urdf"), "-o", str(out), "-q"]) == 0
+    got = read_motion_csv(out / "trial_motion.csv")
+    assert np.abs(got.angles[:, knee] - truth.angles[:, knee]).max() < 1e-5
+
+
 def test_ik_holds_one_angle_of_a_ball_joint(squats, tmp_path):
     """--lock on one of a ball joint's three angles (Pose2Sim's IK setup holds L5/S1's flexion): the ball is solved on
     its three angles, the held one at its value in every frame and the other two free; the noise-free fit is then

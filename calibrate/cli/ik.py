@@ -60,6 +60,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
     from ..io.read import read_trial
     from ..model.kinematics import build_kinematics, locked_balls
     from ..model.model import load_model
+    from ..problem.problem import LIMIT_MARGIN
     from ..problem.settings import Settings
     from ..solve.ik import inverse_kinematics
 
@@ -132,7 +133,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
                                  "give the subject calibrated from this lab's marker set"
                                  + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
-        fit = inverse_kinematics(kin, trial, params, locked=locked, weights=weights, default_weight=0.0)
+        fit = inverse_kinematics(kin, trial, params, locked=locked, weights=weights, default_weight=0.0,
+                                 margin=LIMIT_MARGIN)
         results.append((path, trial, fit, time.perf_counter() - start))
     for (path, _, fit, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)

@@ -31,14 +31,16 @@ from ..seed.geometry import kabsch, marker_rms
 from .lm import marquardt_diagonal, minimise
 
 LIMIT_WEIGHT = 1.0  # m per rad beyond a joint limit, in the per-frame fit
-REINIT_RMS = 0.02  # m: a frame fitting worse than this (and RESTART_RATIO x the running median) is restarted
+REINIT_RMS = 0.005  # m: a frame fitting worse than this (and RESTART_RATIO x the running median) is restarted
 # A frame fitting RESTART_RATIO times worse than the median of the 50 before it is fitted again from scratch
-# (FrameSolver.global_start), at most every RESTART_GAP frames while the restarts fail.  A track warm-started frame
-# to frame can drift into another basin slowly (Pose2Sim's right arm, straight at the trial's start, turned about its
-# length: marker RMS 14 -> 35 mm over 60 frames), which a 5x test never sees.  When the restart fits better, the
-# frames before it are fitted again backwards from it while they fit better so.
+# (FrameSolver.global_start), at most every RESTART_GAP frames while the restarts fail (then every 20, 40, ...).
+# A track warm-started frame to frame can drift into another basin slowly (Pose2Sim's right arm, straight at the
+# trial's start, turned about its length: marker RMS 13 -> 55 mm over 70 frames; BTKData's PiG_Motion-FlatFoot-Full,
+# the right arm turned at 12 mm where the calibration's own motion fits 4), which a 5x test over 20 mm never sees.
+# When the restart fits better, the frames before it are fitted again backwards from it while they fit better so.
 RESTART_RATIO = 1.5
 RESTART_GAP = 10
+RESTART_GAP_MAX = 160  # the wait doubles with each restart in a row that finds nothing better, up to this
 RESTART_GAIN = 0.9  # a restart fitting below this share of the tracked fit's cost found another basin
 GLOBAL_KEEP = 4  # grid starts per joint that the global start solves (the best-fitting as they stand)
 # ... each this many steps, then the one that fits best on to GLOBAL_STEPS in all: on 165 frames of gait2392's,
@@ -351,7 +353,7 @@ def _refit_backwards(solver: FrameSolver, obs: np.ndarray, f: int, z: np.ndarray
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
                        tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
                        locked: Mapping[str, float] | None = None, weights: Mapping[str, float] | None = None,
-                       default_weight: float = 1.0, start: Motion | None = None) -> IKResult:
+                       default_weight: float = 1.0, start: Motion | None = None, margin: float = 0.0) -> IKResult:
     """Solve every frame of `trial` for the model of `kin` with geometry `params`.
 
     Markers are matched by label; model markers absent from the trial are ignored.
@@ -367,6 +369,8 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     A frame fitting RESTART_RATIO times worse than the median of the 50 fitted before it (and worse than
     REINIT_RMS) is also fitted from scratch, and the better taken; when the restart finds another basin, the frames
     before it are fitted again backwards from it while they fit better so.
+    `margin` (rad): the joint limits this much wider than the model's (the calibration's
+    calibrate.problem.problem.LIMIT_MARGIN: a subject's other trials fitted under its calibration's limits).
     `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
@@ -384,7 +388,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         obs[:, weight <= 0] = np.nan  # weight 0: not fitted, as OpenSim's IK leaves such a marker out
     nf = obs.shape[0]
     p = params.vector()
-    solver = FrameSolver(kin, p)
+    solver = FrameSolver(kin, p, margin=margin)
     lock_cols, lock_vals = _locked_columns(kin, locked or {})
     all_free = np.setdiff1d(np.arange(model.nz), lock_cols)
 
@@ -400,7 +404,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     costs = np.full(nf, np.nan)  # each fitted frame's cost (m²)
     z, q = None, None
     z_prev = None
-    next_try = 0  # the first frame a restart may be tried at
+    next_try, gap = 0, RESTART_GAP  # the first frame a restart may be tried at; the wait after the next one fails
     if start is not None:  # the start motion in the solver's form (root and balls as references)
         Zs, Qs, Bs = kin.retract(FrameLayout.coordinates(start.root_translation, start.angles),
                                  start.root_quaternion, None)
@@ -441,11 +445,11 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
                 z, q, cost, it = z2, q2, cost2, it + it2
                 rms = np.sqrt(cost / seen.sum())
             if other_basin:
-                z_prev = None
+                z_prev, gap = None, RESTART_GAP
                 _refit_backwards(solver, obs, f, z, q, Z, Q, costs, iters, frame_rms, all_free, max_iterations,
                                  tolerance, weight)
-            else:  # the same basin, or a worse one
-                next_try = f + RESTART_GAP
+            else:  # the same basin, or a worse one: wait, the longer the more restarts fail in a row
+                next_try, gap = f + gap, min(2 * gap, RESTART_GAP_MAX)
         frame_rms.append(rms)
         Z[f], Q[f], iters[f], costs[f] = z, q, it, cost
         if progress is not None and (f + 1) % 100 == 0:
