@@ -48,6 +48,17 @@ def test_ik_on_the_true_subject_gives_the_true_motion(squats, tmp_path, capsys):
     assert np.abs(via_osim.angles - got.angles).max() < 1e-8 and (out2 / "trial_motion.mot").is_file()
 
 
+def _held_at_10_deg(squats: Path, out: Path, dof: str):
+    """`calibrate ik` on the squats' true subject with `dof` held at 10 deg (--lock), into the new folder `out`: its
+    motion, checked to hold it there in every frame."""
+    out.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--lock",
+                 f"{dof}=10", "-q"]) == 0
+    m = read_motion_csv(out / "trial_motion.csv")
+    assert np.allclose(m.angles[:, m.dof_names.index(dof)], np.radians(10.0), atol=1e-12)
+    return m
+
+
 def test_ik_holds_locked_coordinates_and_refuses_bad_input(squats, tmp_path, capsys):
     """--lock holds a coordinate at its value in every frame (the rest refitted around it); no trial, a trial that
     shares too few markers, a lock the subject lacks, an existing output without --overwrite: one line each,
@@ -55,11 +66,7 @@ def test_ik_holds_locked_coordinates_and_refuses_bad_input(squats, tmp_path, cap
     subject = load_model(squats / "truth.urdf")
     hinge = next(j.dofs[0] for j in subject.joints if j.kind == "hinge")
     out = tmp_path / "lock"
-    out.mkdir()
-    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--lock",
-                 f"{hinge}=10", "-q"]) == 0
-    m = read_motion_csv(out / "trial_motion.csv")
-    assert np.allclose(m.angles[:, m.dof_names.index(hinge)], np.radians(10.0), atol=1e-12)
+    _held_at_10_deg(squats, out, hinge)
     from calibrate.io.c3d import write_c3d
     from calibrate.io.read import read_trial
 
@@ -117,12 +124,7 @@ def test_ik_holds_one_angle_of_a_ball_joint(squats, tmp_path):
     subject = load_model(squats / "truth.urdf")
     ball = next(j for j in subject.joints if j.kind == "ball" and j.name == "lumbar")
     held, free = ball.dofs[0], ball.dofs[1:]
-    out = tmp_path / "ball"
-    out.mkdir()
-    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--lock",
-                 f"{held}=10", "-q"]) == 0
-    m = read_motion_csv(out / "trial_motion.csv")
-    assert np.allclose(m.angles[:, m.dof_names.index(held)], np.radians(10.0), atol=1e-12)
+    m = _held_at_10_deg(squats, tmp_path / "ball", held)
     assert all(np.ptp(m.angles[:, m.dof_names.index(d)]) > 1e-3 for d in free)
     kin = build_kinematics(subject)
     obs = marker_columns(subject, read_trial(squats / "trial.c3d"))
