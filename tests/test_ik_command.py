@@ -113,6 +113,39 @@ def test_ik_fits_under_the_calibrations_limits(squats, tmp_path):
     assert np.abs(got.angles[:, knee] - truth.angles[:, knee]).max() < 1e-5
 
 
+def test_a_static_only_calibrations_auto_locks_hold_on_its_static_alone(squats, tmp_path, capsys):
+    """Calibrated on a static alone, calibrate locks the subtalars (the static moves them no more than its markers
+    fix them).  `calibrate ik --report` holds them on that static, as the calibration did, and fits them on a trial
+    it did not fit (the squats), saying so in one note: held there, they put the wrists of BTKData's FlatFoot walk
+    55 mm off."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.simulation.simulate import simulate_static
+
+    truth_model = load_model(squats / "truth.urdf")
+    static = simulate_static(truth_model, truth_model.parameters(), frames=60, noise_mm=1.0, seed=3)
+    write_c3d(tmp_path / "static.c3d", static.trial)
+    cal = tmp_path / "cal"
+    cal.mkdir()
+    assert main([str(tmp_path / "static.c3d"), str(HUMAN), "-o", str(cal / "subject.urdf"), "-q"]) in (0, 1)
+    import json
+
+    report = json.loads((cal / "static_report.json").read_text())
+    assert report["still_only_mm"] is not None
+    auto = {x["coordinate"]: np.radians(x["value_deg"]) for x in report["auto_locked"]}
+    assert {"subtalar_l", "subtalar_r"} <= set(auto)
+    out = tmp_path / "ik"
+    out.mkdir()
+    capsys.readouterr()
+    assert main(["ik", str(squats / "trial.c3d"), str(tmp_path / "static.c3d"), str(cal / "subject.urdf"),
+                 "--report", str(cal / "static_report.json"), "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "the calibration held them because its static, its only trial" in err and "fitted in trial.c3d" in err
+    moving, still = read_motion_csv(out / "trial_motion.csv"), read_motion_csv(out / "static_motion.csv")
+    for name, value in auto.items():
+        assert np.allclose(still.angles[:, still.dof_names.index(name)], value, atol=1e-12), name
+        assert np.ptp(moving.angles[:, moving.dof_names.index(name)]) > 1e-3, name
+
+
 def test_ik_holds_one_angle_of_a_ball_joint(squats, tmp_path):
     """--lock on one of a ball joint's three angles (Pose2Sim's IK setup holds L5/S1's flexion): the ball is solved on
     its three angles, the held one at its value in every frame and the other two free; the noise-free fit is then

@@ -94,6 +94,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
         weights = ik_setup_weights(args.ik_setup)
         setup_lines = ik_setup_notes(args.ik_setup, model)
     locked = dict(settings.lock)
+    static_locks: dict[str, float] = {}  # a static-only calibration's auto-locks: held on its own trials alone
+    own: set[tuple[str, int]] = set()  # its trials (file name, frames)
     if args.report is not None:  # what the calibration held, as its motion holds it
         from ..calibration.html import read_report
         from ..calibration.report import report_locks
@@ -103,6 +105,13 @@ def cmd_ik(args: argparse.Namespace) -> int:
             raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
                                  "<trial>_report.json the calibration wrote")
         locked.update(report_locks(report))
+        if report.get("still_only_mm") is not None:
+            # Calibrated on a static alone: its auto-locks say only that the static moved those joints no more than
+            # its markers fix them (BTKData's PiG_Calibration-FlatFoot-Full: both forearms' pronation), which
+            # every static says; a walk fitted with them held put the wrists 55 mm off (17.35 mm RMS against 9.23)
+            static_locks = {x["coordinate"]: locked.pop(x["coordinate"]) for x in report.get("auto_locked") or []
+                            if x["coordinate"] in locked}
+            own = {(Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or [] if t.get("source")}
         if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
             sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
                   if isinstance(v, (int, float)) and v > 0}
@@ -111,7 +120,9 @@ def cmd_ik(args: argparse.Namespace) -> int:
                 mid = float(np.median(list(w.values())))
                 weights = {k: v / mid for k, v in w.items()}
     if args.lock is not None:
-        locked.update({name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()})
+        chosen = {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
+        locked.update(chosen)
+        static_locks = {k: v for k, v in static_locks.items() if k not in chosen}
     trials = [read_trial(t) for t in trial_paths]
     if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
         trials = [t.of_subject(args.subject) for t in trials]
@@ -121,10 +132,15 @@ def cmd_ik(args: argparse.Namespace) -> int:
 
         trials, lines = cut_to_setups(trials, None, args.ik_setup)
     lines = setup_lines + lines
-    kin = build_kinematics(model, euler=locked_balls(model, locked))  # a ball with a held angle on its three angles
     params = model.parameters()
     results = []
+    released: list[str] = []  # trials fitted without the static-only calibration's auto-locks, and with them
+    kept_on: list[str] = []
     for path, trial in zip(trial_paths, trials, strict=True):
+        held = {**locked, **static_locks} if (path.name, trial.n_frames) in own else locked
+        if static_locks:
+            (released if held is locked else kept_on).append(path.name)
+        kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
         trial, _ = map_labels(trial, model.marker_names, None, aliases=True)
         shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
         if len(shared) < 3:
@@ -133,7 +149,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
                                  "give the subject calibrated from this lab's marker set"
                                  + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
-        fit = inverse_kinematics(kin, trial, params, locked=locked, weights=weights, default_weight=0.0,
+        fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0,
                                  margin=LIMIT_MARGIN)
         results.append((path, trial, fit, time.perf_counter() - start))
     for (path, _, fit, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
@@ -142,11 +158,16 @@ def cmd_ik(args: argparse.Namespace) -> int:
             from ..io.osim_export import write_mot
 
             write_mot(folder / f"{path.stem}_motion.mot", model, fit.motion)
+    if released:
+        lines.append(f"{', '.join(sorted(static_locks))}: the calibration held them because its static, its only "
+                     "trial, moved them no more than its markers fix them; fitted in "
+                     f"{', '.join(released)}, which it did not fit (--lock holds them)")
     if not args.quiet:
         for line in lines:
             print("note: " + line, file=sys.stderr)
         print(f"calibrate ik: {subject_path} held fixed ({len(model.dof_names)} joint coordinates, "
-              f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'})")
+              f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'}"
+              + (f"; on {', '.join(kept_on)} also {', '.join(sorted(static_locks))}" if kept_on else "") + ")")
         for path, trial, fit, seconds in results:
             err = np.linalg.norm(fit.residuals, axis=2)
             seen = np.flatnonzero(np.isfinite(err).any(axis=0))  # the subject's markers this trial shows
