@@ -283,3 +283,28 @@ def test_the_real_plug_in_gait_trials_raise_no_label_to_check():
 
     for name in ("static.c3d", "walk.c3d"):
         assert misplaced_labels(_human(), [read_trial(PIG / name)]) == (), name
+
+
+def test_a_static_places_a_new_marker_on_the_nearest_of_the_segments_it_is_rigid_with(human):
+    """A static moves no segment against another, so a new marker is rigid with many segments to within the noise;
+    it goes on the nearest of them, not on the one whose distance variance the noise made the smallest (BTKData's
+    FunctionalStatic put the left shank's cluster marker on tibia_r, 150 mm off in the walk fitted after it).  Six
+    markers 3 cm off a marker of six segments, a 1 mm noise static of the simulated subject: each on its own
+    segment, on every one of three draws."""
+    from calibrate.model.model import add_markers
+    from calibrate.simulation.simulate import simulate_static
+
+    hosts = {"N1": ("tibia_l", "LTIB"), "N2": ("tibia_r", "RTIB"), "N3": ("femur_l", "LTHI"),
+             "N4": ("femur_r", "RTHI"), "N5": ("humerus_l", "LUPA"), "N6": ("radius_r", "RWRA")}
+    p = human.parameters()
+    extra = {name: (seg, p.marker[human.marker_index(ref)] + np.array([0.03, 0.0, 0.0]))
+             for name, (seg, ref) in hosts.items()}
+    marked = add_markers(human, extra)
+    truth = simulate_squats(human, frames=10, noise_mm=0.0, seed=1).truth
+    tp = marked.parameters()
+    tp.scale[:] = truth.scale
+    for seed in (1, 2, 3):
+        static = simulate_static(marked, tp, frames=100, noise_mm=1.0, seed=seed)
+        res = associate_to_model(human, static.trial)
+        for name, (seg, _) in hosts.items():
+            assert res[name].segment == seg and res[name].status == "assigned", (seed, name, res[name].reason)

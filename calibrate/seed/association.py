@@ -533,6 +533,14 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
         if cands:
             cands.sort()
             worst, seg = cands[0]
+            # Rigid with several segments alike, to within the noise (a static moves no segment against another): the
+            # nearest segment's, not the one whose variance the noise made the smallest (BTKData's FunctionalStatic
+            # put the left shank's cluster marker LT01 on tibia_r, 150 mm off in the walk after it)
+            tied = [seg_ for w, seg_ in cands if w - worst <= Z_TIE * 2.0 * sigma**2]
+            if len(tied) > 1:
+                seg = min(tied, key=lambda t: _median_distance(X, k, reference[t]))
+                worst = next(w for w, seg_ in cands if seg_ == seg)
+                cands = [(worst, seg)] + [c for c in cands if c[1] != seg]
             also = f"; also rigid with {', '.join(s for _, s in cands[1:])}" if len(cands) > 1 else ""
             out[k] = MarkerAssignment(labels[k], seg, "assigned", float(np.sqrt(worst)),
                                       f"rigid with every marker of {seg} (worst {_mm(np.sqrt(worst))} std){also}")
@@ -552,6 +560,12 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
         out[k] = MarkerAssignment(labels[k], None, "unassigned",
                                   float(np.sqrt(closest[0])) if np.isfinite(closest[0]) else np.nan, why)
     return ModelAssociation(tuple(out[k] for k in range(N)), float(threshold))
+
+
+def _median_distance(X: np.ndarray, k: int, members: Sequence[int]) -> float:
+    """The median over frames and `members` of marker k's distance to them (m; NaN-free frames only)."""
+    d = np.linalg.norm(X[:, list(members)] - X[:, k:k + 1], axis=2)
+    return float(np.nanmedian(d)) if np.isfinite(d).any() else np.inf
 
 
 UNMARKED = "segments without markers ({}) cannot receive markers"  # the last clause of a left-out marker's reason
