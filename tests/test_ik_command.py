@@ -144,6 +144,14 @@ def test_a_static_only_calibrations_auto_locks_hold_on_its_static_alone(squats, 
     for name, value in auto.items():
         assert np.allclose(still.angles[:, still.dof_names.index(name)], value, atol=1e-12), name
         assert np.ptp(moving.angles[:, moving.dof_names.index(name)]) > 1e-3, name
+    # The same rule from the report (report_locks) and from the Python result (Calibration.locked_elsewhere)
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.calibration.report import report_locks
+    from calibrate.io.read import read_trial
+
+    assert set(report_locks(report)) - set(report_locks(report, elsewhere=True)) == set(auto)
+    result = calibrate(load_model(HUMAN), read_trial(tmp_path / "static.c3d"))
+    assert result.still_only is not None and set(result.locked) - set(result.locked_elsewhere) == set(auto)
 
 
 def test_ik_holds_one_angle_of_a_ball_joint(squats, tmp_path):

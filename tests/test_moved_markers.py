@@ -353,3 +353,28 @@ def test_a_re_placed_marker_takes_its_segments_other_markers_with_it(human, sess
     F0 = static.trial.n_frames
     k = human.marker_index("LKNE")
     assert np.all(np.isnan(cal.residuals[:F0, k])) and not np.all(np.isnan(cal.residuals[F0:, k]))
+
+
+def test_a_static_that_turns_a_knee_a_few_degrees_holds_its_axis_all_the_same(human, human_kin):
+    """Statics alone: every hinge and universal axis held at the base model's (pipeline._still_axes), the knee's too
+    when the static turns it 6 deg, more than the still test of its coordinate lets pass (it would free the axis, as
+    it did Rajagopal's static's right knee, which its skin then tilted 34 deg; its walk fitted after it 25.0 -> 23.0 mm
+    RMS with the axes held).  On this simulator, without skin, the free axis ends 1.1 deg from the base model's (the
+    truth 1.6): holding it is the rule for skin, not the simulator's best (docs/benchmarks.md)."""
+    from calibrate.model.kinematics import FrameLayout
+
+    truth = simulate_squats(human, frames=10, noise_mm=0.0, seed=3).truth
+    st = simulate_static(human, truth, frames=150, noise_mm=0.0, seed=3)
+    m = st.motion
+    angles = m.angles.copy()
+    knee = list(m.dof_names).index("knee_r")
+    angles[:, knee] += np.radians(3.0) * (1.0 - np.cos(2.0 * np.pi * m.times / 1.5))
+    markers, _ = human_kin.batch(FrameLayout.coordinates(m.root_translation, angles), m.root_quaternion, truth)
+    markers = np.asarray(markers) + np.random.default_rng(0).normal(0.0, 0.001, np.shape(markers))
+    cal = calibrate(human, Trial(labels=human.marker_names, markers=markers, rate=100.0))
+    hinges = [d for j in human.joints if j.kind in ("hinge", "universal") for d in j.dofs]
+    assert cal.still_only is not None
+    assert set(hinges) <= set(cal.held_axes) | {lk.coordinate for lk in cal.auto_locked}
+    d = human.dof_index("knee_r")
+    assert np.allclose(cal.params.axis[d], human.parameters().axis[d], atol=1e-12)
+    assert "knee_r" in summary_text(cal).split("  axes held    ")[1].split("\n")[0]

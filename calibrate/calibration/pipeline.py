@@ -353,6 +353,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"still trials: no motion places {', '.join(still_centres)}; their centres held "
                                 "at the base model's offset from their segments' markers"))
         settings = replace(settings, hold_centres=settings.hold_centres + still_centres)
+    still_axes = _still_axes(subject, settings, trials, motion) if run.auto_hold else ()
+    as_given = settings.hold_axes  # the axes held for the run's own reasons are reported as found (held_axes)
+    if still_axes:
+        say(Progress("markers", f"still trials: no motion places the axes of {', '.join(still_axes)}; held at the "
+                                "base model's"))
+        settings = replace(settings, hold_axes=settings.hold_axes + still_axes)
     obs = np.concatenate([marker_columns(subject, t) for t in trials])
     spans = trial_spans(trials)
     for x in exchanged:  # the trial the base model says has them exchanged: their positions there left out
@@ -497,7 +503,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     problem, state, summary, scatter, solved, moved, locks = _solve(
         problem, start, spans, run, solver, say, lengths, cap, still, [t.source for t in trials],
         STILL_COARSE_FRAMES if still_only is not None else COARSE_FRAMES)
-    held = tuple(d for d in problem.settings.hold_axes if d not in settings.hold_axes)
+    held = tuple(d for d in problem.settings.hold_axes if d not in as_given)
     # As used: with the axes held and the hinges locked above.
     settings = replace(settings, hold_axes=problem.settings.hold_axes, lock=problem.settings.lock)
     rejected: list[Outlier] = []
@@ -1120,6 +1126,19 @@ def _still_centres(model: Model, settings: Settings, trials: Sequence[Trial],
             if np.any(across[np.isfinite(across)] > STILL_PAIR):
                 moving.add(j.name)
     return tuple(j.name for j in candidates if j.name not in moving)
+
+
+def _still_axes(model: Model, settings: Settings, trials: Sequence[Trial],
+                motion: Sequence[float] | None = None) -> tuple[str, ...]:
+    """The hinge and universal axes the trials leave to the priors because none of them moves (statics alone,
+    _statics_alone), not held already.  A static's few degrees of knee flexion, under its skin's sway, turned
+    Rajagopal's right knee axis 34 deg from the base model's (its walk then fitted with the shanks 40-70 mm off, 32
+    mm RMS against OpenSim's 22 after its Scale); the still test of each coordinate (auto_hold's, after the first
+    solve) had let it go, as it had turned more than one frame's markers fix it."""
+    if "axis" not in settings.free or not _statics_alone(model, trials, motion):
+        return ()
+    return tuple(d for j in model.joints if j.kind in ("hinge", "universal") for d in j.dofs
+                 if d not in settings.hold_axes)
 
 
 def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:

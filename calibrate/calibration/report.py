@@ -217,13 +217,17 @@ def calibration_report(cal: Calibration) -> dict:
     }
 
 
-def report_locks(report: dict) -> dict[str, float]:
+def report_locks(report: dict, elsewhere: bool = False) -> dict[str, float]:
     """The coordinates a calibration held in every frame (rad or m), from its report JSON (``calibration_report``):
-    its settings' ``lock_deg`` and its ``auto_locked`` hinges; Calibration.locked of the run that wrote it."""
+    its settings' ``lock_deg`` and its ``auto_locked`` hinges; Calibration.locked of the run that wrote it.
+    `elsewhere`: what a fit of other trials holds (Calibration.locked_elsewhere: after a static alone,
+    ``still_only_mm``, the settings' locks only)."""
     settings = report.get("settings") or {}
     locked = {k: math.radians(v) for k, v in (settings.get("lock_deg") or {}).items()}
-    locked.update({x["coordinate"]: math.radians(x["value_deg"]) for x in report.get("auto_locked") or []})
-    return locked
+    auto = {x["coordinate"]: math.radians(x["value_deg"]) for x in report.get("auto_locked") or []}
+    if elsewhere and report.get("still_only_mm") is not None:  # the settings carry the auto-locks too
+        return {k: v for k, v in locked.items() if k not in auto}
+    return {**locked, **auto}
 
 
 def _mass(cal) -> dict:

@@ -296,8 +296,19 @@ class Calibration:
     def locked(self) -> dict[str, float]:
         """Every coordinate held at one value in every frame (rad or m): the settings' (the model's locked ones,
         an IK setup's, --lock's, those of segments the markers cannot place) and the hinges calibrate locked itself
-        (``auto_locked``).  What a later fit of more trials with this subject holds (calibrate.solve.ik)."""
+        (``auto_locked``).  What a fit of its own trials again holds (calibrate.solve.ik); see ``locked_elsewhere``."""
         return {**dict(self.settings.lock), **{lk.coordinate: lk.value for lk in self.auto_locked}}
+
+    @property
+    def locked_elsewhere(self) -> dict[str, float]:
+        """What a fit of other trials with this subject holds: ``locked``, but after a calibration on a static alone
+        (``still_only``) the settings' locks only, since its auto-locks say no more than that the static moved those
+        joints no more than its markers fix them, as every static does (BTKData's FlatFoot walk fitted after its
+        static with both forearms' pronation held: the wrists 55 mm off)."""
+        if self.still_only is None:
+            return self.locked
+        auto = {lk.coordinate for lk in self.auto_locked}  # the settings carry them too
+        return {k: v for k, v in self.settings.lock if k not in auto}
 
     @property
     def marker_max(self) -> float:

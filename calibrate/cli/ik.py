@@ -104,13 +104,12 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if "settings" not in report:
             raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
                                  "<trial>_report.json the calibration wrote")
-        locked.update(report_locks(report))
-        if report.get("still_only_mm") is not None:
-            # Calibrated on a static alone: its auto-locks say only that the static moved those joints no more than
-            # its markers fix them (BTKData's PiG_Calibration-FlatFoot-Full: both forearms' pronation), which
-            # every static says; a walk fitted with them held put the wrists 55 mm off (17.35 mm RMS against 9.23)
-            static_locks = {x["coordinate"]: locked.pop(x["coordinate"]) for x in report.get("auto_locked") or []
-                            if x["coordinate"] in locked}
+        # After a static alone its auto-locks hold on that static only (report_locks' `elsewhere`; BTKData's
+        # FlatFoot walk fitted with its static's pronation locks held: the wrists 55 mm off, 17.35 mm against 9.23)
+        elsewhere = report_locks(report, elsewhere=True)
+        static_locks = {k: v for k, v in report_locks(report).items() if k not in elsewhere and k not in locked}
+        locked.update(elsewhere)
+        if static_locks:
             own = {(Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or [] if t.get("source")}
         if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
             sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
