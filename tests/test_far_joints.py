@@ -219,3 +219,23 @@ def test_frames_whose_markers_do_not_fix_a_coordinate_do_not_call_it_still(model
     # Every frame seen: the spread over every frame, as before.
     full = np.tile(np.eye(nz) / sigma**2, (F, 1, 1))
     assert {n for n, _, _ in still_coordinates(model, angles, full, Settings())} == set()
+
+
+def test_a_static_trunk_bent_far_is_kept_when_the_pelvis_shows_two_markers_on_a_line(model, walk):
+    """A static bent 60 deg at the lumbar joint (the walk never bends it): its trunk markers are left out while the
+    pelvis shows its four markers, and kept when it shows only LASI and RASI (both on one line): then only the trunk
+    turns the pelvis about that line (calibrate.model.resolve.root_turns_alone; Pose2Sim's two hip keypoints)."""
+    frames = 30
+    angles = np.zeros((frames, model.n_dofs))
+    angles[:, model.dof_index("lumbar_flexion")] = math.radians(60.0)
+    Z = np.concatenate([FrameLayout.coordinates(np.zeros((frames, 3)), angles),
+                        FrameLayout.coordinates(walk.motion.root_translation, walk.motion.angles)])
+    Q = np.concatenate([np.tile([0.0, 0.0, 0.0, 1.0], (frames, 1)), walk.motion.root_quaternion])
+    spans = [slice(0, frames), slice(frames, Z.shape[0])]
+    seen = np.ones((Z.shape[0], len(model.markers)), dtype=bool)
+    found = far_joints(model, Z, Q, spans, [True, False], seen)
+    assert [f.joint for f in found] == ["lumbar"]
+    assert "C7" in found[0].markers and "LPSI" not in found[0].markers
+    two = seen.copy()
+    two[:, [model.marker_index("LPSI"), model.marker_index("RPSI")]] = False
+    assert far_joints(model, Z, Q, spans, [True, False], two) == []

@@ -122,3 +122,35 @@ def test_left_out_markers_share_the_unmarked_segments_clause_once(human):
     assert left_out_lines(left[:1]) == [f"  left out LOOSE1: {left[0][1]}"]
     other = [("A", "x; " + clause.replace("talus_l, ", "")), ("B", "x; " + clause)]
     assert left_out_lines(other) == [f"  left out {a}: {r}" for a, r in other]
+
+
+def test_a_pelvis_with_two_markers_on_a_line_turns_with_the_trunk(human):
+    """LASI and RASI alone on the pelvis (a markerless pelvis's two hip keypoints): its tilt about their line trades
+    against the lumbar's flexion and the hips', so the lumbar's DoF about that line is held (as Pose2Sim's IK setup
+    holds L5_S1_Flex_Ext).  The DoF is the one whose axis, by Pinocchio at the neutral pose, runs along LASI-RASI."""
+    from calibrate.model.resolve import line_root_holds, root_turns_alone
+
+    two = [n for n in human.marker_names if n not in ("LPSI", "RPSI")]
+    held = line_root_holds(human, two)
+    assert [(u.segment, u.coordinates) for u in held] == [("pelvis", ("lumbar_flexion",))]
+    data = human.pin.createData()
+    pin.framesForwardKinematics(human.pin, data, pin.neutral(human.pin))
+    line = (data.oMf[human.pin.getFrameId("LASI")].translation - data.oMf[human.pin.getFrameId("RASI")].translation)
+    for d in ("lumbar_flexion", "lumbar_bending", "lumbar_rotation"):
+        axis = data.oMi[human.pin.getJointId(d)].rotation @ human.dofs[human.dof_index(d)].axis
+        assert (abs(axis @ line) / np.linalg.norm(line) > 0.9) == (d == "lumbar_flexion"), d
+    assert line_root_holds(human, human.marker_names) == ()  # four pelvis markers turn it themselves
+    assert line_root_holds(human, two, locked=["lumbar_flexion"]) == ()
+    assert root_turns_alone(human, human.marker_names) and not root_turns_alone(human, two)
+
+    sim = simulate_squats(human, frames=60, noise_mm=0.5, seed=6)
+    cal = calibrate(human, sim.trial.select(two), Settings(max_iterations=15))
+    assert dict(cal.settings.lock).get("lumbar_flexion") == 0.0
+    k = human.dof_index("lumbar_flexion")
+    assert np.abs(cal.motion.angles[:, k]).max() < 1e-3
+    assert [u.segment for u in cal.unresolved] == ["pelvis"]
+    # The trunk and the thighs are where the simulator put them: every marker fitted to the noise's order.
+    assert cal.marker_rms < 0.002
+    assert "pelvis: lumbar_flexion: its markers (LASI, RASI) lie on one line" in summary_text(cal)
+    off = calibrate(human, sim.trial.select(two), Settings(max_iterations=15, auto_hold=False))
+    assert "lumbar_flexion" not in dict(off.settings.lock)

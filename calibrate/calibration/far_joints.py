@@ -30,6 +30,7 @@ import numpy as np
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics
 from ..model.model import Model
+from ..model.resolve import root_group, root_turns_alone
 from ..problem.problem import LIMIT_MARGIN
 from ..problem.state import State
 from ..solve.ik import FrameSolver
@@ -94,8 +95,10 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
                seen: np.ndarray) -> list[FarJoint]:
     """The joints each still trial holds more than FAR_POSE from every frame of the moving trials, at poses
     (Z absolute coordinates, Q root quaternions: calibrate.calibration.start.absolute) of every frame of the
-    trials in `spans`; `seen` (frames, model markers).  A joint beyond one already far is not tested again.
-    Nothing when no trial is still or none moves."""
+    trials in `spans`; `seen` (frames, model markers).  A joint beyond one already far is not tested again, nor
+    a joint of the root whose own markers do not turn it (calibrate.model.resolve.root_turns_alone: a markerless
+    pelvis's two hip keypoints, its tilt placed by the trunk, line_root_holds).  Nothing when no trial is still or
+    none moves."""
     moving = [sl for sl, s in zip(spans, still, strict=True) if not s]
     if not moving or not any(still):
         return []
@@ -112,6 +115,8 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
     segment_markers: dict[str, list[int]] = {}
     for k, m in enumerate(model.markers):
         segment_markers.setdefault(m.segment, []).append(k)
+    root = root_group(model)
+    on_root = [k for k, m in enumerate(model.markers) if m.segment in root]
     out: list[FarJoint] = []
     for t, (sl, s) in enumerate(zip(spans, still, strict=True)):
         if not s:
@@ -134,6 +139,9 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
             mine = [i for i in idx if seen[sl, i].any()]
             if not mine or sum(bool(seen_moving[i]) for i in idx) < MIN_MARKERS:
                 continue
+            if j.parent in root and not root_turns_alone(model, [model.markers[i].name for i in on_root
+                                                                  if seen[sl, i].any()]):
+                continue  # the root's markers (two on a line) leave its turn to the segments beyond this joint
             done.update(segments)
             out.append(FarJoint(t, j.name, angle, tuple(model.markers[i].name for i in mine)))
     return out

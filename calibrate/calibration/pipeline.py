@@ -326,13 +326,21 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from ..model.resolve import resolve
+    from ..model.resolve import line_root_holds, resolve
 
     res = resolve(subject, [*shared, *new], locked=[d for d, _ in settings.lock])
     if not res.root_resolved:
         raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
                              f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
+    if run.auto_hold:
+        # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
+        # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.
+        visible = [lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()]
+        line = line_root_holds(subject, [lab for lab in [*shared, *new] if lab in set(visible)],
+                               locked=[*(d for d, _ in settings.lock), *res.lock])
+        if line:
+            res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
     if res.lock:
         say(Progress("markers", f"{len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
                                 f"{', '.join(res.lock)}"))

@@ -38,11 +38,15 @@ import pinocchio as pin
 
 from .model import Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "resolve", "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "line_root_holds", "resolve", "root_group", "root_turns_alone",
+           "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
 SHARE = 0.05  # a coordinate has a share in the null space when its component exceeds this (of a unit vector)
+ON_LINE = 0.015  # m: the root's markers lie on one line when none is further than this from it (line_root_holds)
+MIDLINE = 0.025  # m: a joint of the root lies on its midline when its centre is this near the markers' middle along it
+ALONG = np.cos(np.radians(25.0))  # a DoF turns about the markers' line when its axis is within 25 deg of it
 
 
 @dataclass(frozen=True)
@@ -197,3 +201,83 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
 def unresolved(model: Model, labels: Iterable[str], **kwargs) -> list[UnresolvedSegment]:
     """The segments of `model` whose pose the markers `labels` cannot fix (see :func:`resolve`)."""
     return list(resolve(model, labels, **kwargs).segments)
+
+
+def root_group(model: Model) -> set[str]:
+    """The root segment and the segments welded to it (0-DoF joints, followed down from the root)."""
+    rigid = {model.root}
+    for j in model.joints:  # parents first: a weld chain from the root is collected in one pass
+        if j.parent in rigid and not j.dofs:
+            rigid.add(j.child)
+    return rigid
+
+
+def _neutral(model: Model) -> pin.Data:
+    """Pinocchio's data at the model's neutral pose: the root at the origin, unturned (world = root frame)."""
+    data = model.pin.createData()
+    pin.framesForwardKinematics(model.pin, data, pin.neutral(model.pin))
+    return data
+
+
+def _marker_line(model: Model, names: Sequence[str], data: pin.Data) -> tuple[np.ndarray, np.ndarray] | None:
+    """(middle, unit direction) of the line the markers `names` lie on at the base model's neutral pose (`data`):
+    two or more, at least 2·ON_LINE apart, none further than ON_LINE from it; None otherwise."""
+    if len(names) < 2:
+        return None
+    at = np.array([data.oMf[model.pin.getFrameId(m)].translation for m in names])
+    middle = at.mean(axis=0)
+    _, s, vt = np.linalg.svd(at - middle)
+    u = vt[0]
+    off = (at - middle) - np.outer((at - middle) @ u, u)
+    return None if s[0] < 2 * ON_LINE or np.linalg.norm(off, axis=1).max() > ON_LINE else (middle, u)
+
+
+def root_turns_alone(model: Model, labels: Iterable[str]) -> bool:
+    """Whether the markers `labels` on the root and the segments welded to it fix its rotation by themselves:
+    three or more, not all on one line (_marker_line)."""
+    present = set(labels)
+    group = root_group(model)
+    names = [m.name for m in model.markers if m.segment in group and m.name in present]
+    return len(names) >= 3 and _marker_line(model, names, _neutral(model)) is None
+
+
+def line_root_holds(model: Model, labels: Iterable[str], *,
+                    locked: Iterable[str] = ()) -> tuple[UnresolvedSegment, ...]:
+    """The root's turn about the line its markers lie on, held by its midline joint's DoF about that line.
+
+    A markerless set puts two keypoints on the pelvis, both near the hip axis (Pose2Sim's ``RHip``, ``LHip``; its
+    ``Hip`` between them).  The pelvis's own markers then leave its tilt to the segments it carries: the thighs turn
+    about nearly the same line, and the trunk's ball turns against it, so every frame can tilt the pelvis and flex the
+    trunk and the hips the other way; with the lumbar centre free the fit does (Pose2Sim's demo: hip flexion -94 to
+    137 deg while balancing).  Pose2Sim's IK setup holds ``L5_S1_Flex_Ext`` for this reason; the same is done here:
+    the DoF about the line (axis within 25 deg of it) of each moving joint whose parent is the root or welded to it
+    and whose centre lies on the midline (within MIDLINE of the markers' middle along the line), not already
+    `locked`.  The root (with its welded segments) must show two or more of `labels`, all on one line
+    (_marker_line); nothing otherwise."""
+    present = set(labels)
+    held = set(locked)
+    rigid = root_group(model)
+    on_root = [m.name for m in model.markers if m.segment in rigid and m.name in present]
+    data = _neutral(model)
+    line = _marker_line(model, on_root, data)
+    if line is None:
+        return ()
+    middle, u = line
+    pm = model.pin
+    out: list[UnresolvedSegment] = []
+    for j in model.joints:
+        if j.parent not in rigid or not j.dofs:
+            continue
+        if abs(float((data.oMi[pm.getJointId(j.dofs[0])].translation - middle) @ u)) > MIDLINE:
+            continue  # a hip: on the line itself
+        for d in j.dofs:
+            if d in held:
+                continue
+            axis = data.oMi[pm.getJointId(d)].rotation @ model.dofs[model.dof_index(d)].axis
+            if abs(float(axis @ u)) >= ALONG:
+                why = (f"its markers ({', '.join(on_root)}) lie on one line, so its turn about that line is placed "
+                       f"only through the segments it carries, where {d} and the hips' turns trade it: {d} held (as "
+                       "Pose2Sim's IK setup holds its trunk's flexion), so the root turns with the segment beyond it")
+                out.append(UnresolvedSegment(model.root, (d,), why))
+                break
+    return tuple(out)
