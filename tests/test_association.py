@@ -308,3 +308,30 @@ def test_a_static_places_a_new_marker_on_the_nearest_of_the_segments_it_is_rigid
         res = associate_to_model(human, static.trial)
         for name, (seg, _) in hosts.items():
             assert res[name].segment == seg and res[name].status == "assigned", (seed, name, res[name].reason)
+
+
+def test_a_still_trial_is_not_judged_for_misplaced_labels():
+    """In a still trial every label keeps its distance to every segment's markers, so the rigidity test weighs only
+    their noise: a static whose torso markers jitter 8 mm (video keypoints) but T10 names T10 "riding with" a thigh.
+    The pipeline judges only the trials that move; the static's labels are not flagged, the walk's still are."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.problem.settings import Settings
+    from calibrate.simulation.simulate import simulate_gait, simulate_static
+
+    human = _human()
+    walk = simulate_gait(human, frames=60, noise_mm=0.3, seed=2)
+    static = simulate_static(human, walk.truth, frames=60, noise_mm=0.3, seed=2)
+    X = static.trial.markers.copy()
+    rng = np.random.default_rng(0)
+    for m in human.markers:
+        if m.segment == "torso" and m.name != "T10":
+            X[:, human.marker_index(m.name)] += rng.normal(0.0, 0.008, (X.shape[0], 3))
+    jittery = Trial(static.trial.labels, X, 100.0, 0, "static.c3d")
+    assert [m.label for m in misplaced_labels(human, [jittery])] == ["T10"]  # the test alone is fooled
+    swapped = list(walk.trial.labels)
+    a, b = swapped.index("LKNE"), swapped.index("LANK")
+    swapped[a], swapped[b] = swapped[b], swapped[a]
+    moving = Trial(tuple(swapped), walk.trial.markers, 100.0, 0, "walk.c3d")
+    cal = calibrate(human, [jittery, moving], Settings(max_iterations=5))
+    assert {i for i, _ in cal.misplaced} == {1}
+    assert {m.label for _, m in cal.misplaced} & {"LKNE", "LANK"}

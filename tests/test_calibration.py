@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 import shutil
 import subprocess
 import sys
@@ -15,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yourdfpy
+from conftest import HUMAN, ROOT
 
 from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
@@ -848,6 +850,33 @@ def test_a_trial_in_the_wrong_units_is_refused(human):
             with pytest.raises(CalibrateError, match=r"walk_mm.c3d: its markers put the subject at [0-9.e+-]+ "
                                                      r"times the size of human.urdf .* check the file's units"):
                 calibrate(human, trials)
+
+
+def test_trials_of_two_subjects_are_refused(human, tmp_path):
+    """A static of a subject 0.7 times the walk's size (one participant's static given with another's trial, as
+    Pose2Sim's two-person demo invites): refused with one line naming both trials and their sizes, whose ratio is
+    the one simulated; nothing written.  The walk's own subject's static passes the check."""
+    from calibrate.calibration.pipeline import _check_one_subject
+
+    walk = simulate_gait(human, frames=60, noise_mm=1.0, seed=5)
+    small = dataclasses.replace(walk.truth, scale=0.7 * walk.truth.scale)
+    static = simulate_static(human, small, frames=20, seed=5)
+    trials = [Trial(static.trial.labels, static.trial.markers, 100.0, 0, "child_static.c3d"),
+              Trial(walk.trial.labels, walk.trial.markers, 100.0, 0, "adult_walk.c3d")]
+    pattern = (r"adult_walk.c3d: its markers put the subject at ([0-9.]+) times the size of human.urdf, "
+               r"child_static.c3d's at ([0-9.]+) .*different subjects")
+    with pytest.raises(CalibrateError, match=pattern) as err:
+        calibrate(human, trials)
+    big, little = (float(x) for x in re.search(pattern, str(err.value)).groups())
+    assert little / big == pytest.approx(0.7, abs=0.03)
+    _check_one_subject(human, [simulate_static(human, walk.truth, frames=20, seed=5).trial, walk.trial])
+    for t in trials:
+        write_c3d(tmp_path / t.source, t)
+    out = subprocess.run([sys.executable, "-m", "calibrate.cli", str(tmp_path / "child_static.c3d"),
+                          str(tmp_path / "adult_walk.c3d"), str(HUMAN)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=300)
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and "different subjects" in out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adult_walk.c3d", "child_static.c3d"]
 
 
 def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_path):

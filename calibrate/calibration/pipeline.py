@@ -289,8 +289,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # no frame's outlier test sees it: each trial's labels are checked against the model's segments by rigidity.
     # A marker at a joint centre (R_HJC, --hip-regression's) rides with both of its joint's segments: not judged.
     centred = {model.markers[t.marker].name for t in joint_centre_markers(model, model.parameters())}
-    misplaced = tuple((i, m) for i, t in enumerate(trials) for m in misplaced_labels(model, [t], skip=centred)) \
-        if run.outliers > 0 else ()
+    # Judged on trials that move: in a still one every label keeps its distance to every segment's markers, and
+    # the test would weigh only their noise (Pose2Sim's crouching child: LShoulder "with the pelvis", 0.0 mm SD).
+    own_motion = [relative_motion(t, model) for t in trials] if run.outliers > 0 else []
+    misplaced = tuple((i, m) for i, t in enumerate(trials) if own_motion[i] >= STILL_MOTION
+                      for m in misplaced_labels(model, [t], skip=centred)) if run.outliers > 0 else ()
     for i, m in misplaced:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
     # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe), or alike in every
@@ -313,7 +316,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
     unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
     placed: list[NewMarker] = []
-    motion: list[float] | None = None  # each trial's relative marker motion (_trial_motion), measured once if needed
+    # each trial's relative marker motion (_trial_motion), measured once if needed
+    motion: list[float] | None = own_motion if own_motion and len(trials) > 1 else None
     if unknown and run.new_markers:
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         motion = _trial_motion(model, trials)
@@ -387,6 +391,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     size = size_from_markers(model, trials)
     _check_size(model, trials, size)
+    _check_one_subject(model, trials)
     if run.seed and still_only is not None:
         # No joint turns: MTB's joint centres need a joint that turns (it found none on any real static, in up to
         # 5 s of trilateration starts), so the base model scaled to the subject's size from marker distances, its
@@ -1064,6 +1069,30 @@ def _check_size(model: Model, trials: Sequence[Trial], size) -> None:
     raise CalibrateError(f"{t.source or 'the trial'}: its markers put the subject at {s.overall:.3g} times the size of "
                          f"{model.path.name} ({s.pairs} marker pairs of steady distance); check the file's units (mm "
                          "read as m makes it 1000 times too large; a C3D's POINT:UNITS, a TRC's Units) or its labels")
+
+
+MIXED_SIZE = 1.3  # trials whose markers put the subject at sizes this far apart (ratio) are of different subjects
+MIXED_PAIRS = 5  # ... each trial's size read from at least this many marker pairs
+
+
+def _check_one_subject(model: Model, trials: Sequence[Trial]) -> None:
+    """Refuse trials of different subjects: two trials whose steady marker distances put the subject at sizes
+    MIXED_SIZE times apart or more (size_from_markers on each alone, from MIXED_PAIRS pairs or more).  One subject's
+    trials at hand differ by 0.1-3.3 % (marker sets: gait2392, pig_walk, BTKData's four pairs, Pose2Sim's augmented
+    keypoints), by 22 % with video keypoints on three pairs (below MIXED_PAIRS: not judged); Pose2Sim's demo with one
+    participant's static and the other's trial, 47-56 %, where the fit ended at 91 mm RMS, flagging the sacrum."""
+    if len(trials) < 2:
+        return
+    own = [(t, s) for t in trials if (s := size_from_markers(model, [t])) is not None and s.pairs >= MIXED_PAIRS]
+    if len(own) < 2:
+        return
+    (small, a), (big, b) = min(own, key=lambda ts: ts[1].overall), max(own, key=lambda ts: ts[1].overall)
+    if b.overall < MIXED_SIZE * a.overall:
+        return
+    raise CalibrateError(f"{big.source or 'a trial'}: its markers put the subject at {b.overall:.2f} times the size of "
+                         f"{model.path.name}, {small.source or 'another trial'}'s at {a.overall:.2f} ({b.pairs} and "
+                         f"{a.pairs} marker pairs of steady distance): trials of different subjects (or units)? "
+                         "calibrate each subject's trials on their own")
 
 
 def relative_motion(trial: Trial, model: Model | None = None, percentile: float = 50.0) -> float:
