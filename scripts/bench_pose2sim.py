@@ -16,7 +16,11 @@ own Scale and IK setups, their file names pointed at these files.  In one run:
 4. the subject calibrate wrote (its defaults' subject.osim) held fixed, the balancing trial fitted again by
    ``calibrate ik --ik-setup`` (the command line) and by OpenSim's IK tool from the same setup (child process): mean
    per-frame marker RMS over the markers OpenSim's IK tracks, beside the calibration's own fit of that trial, and
-   each one's time.
+   each one's time;
+5. the two-person session (S00_P01): each participant's static with each person's part of the shared trial (the
+   trial's P1 is participant 2, the child, and its P2 participant 1), from the video keypoints and from Pose2Sim's
+   LSTM-augmented markers on its `Model_Pose2Sim_LSTM.osim`: the command line's exit and error line where it refuses
+   two subjects, else each trial's marker RMS, the implausible flags and the hips' and knees' flexion range.
 
     PYTHONPATH=. python scripts/bench_pose2sim.py --pose2sim DIR [--commit a948c205] [--json out.json]
 """
@@ -49,6 +53,18 @@ FILES = {"model.osim": SETUP + "Model_Pose2Sim_Halpe26.osim",
          "static.trc": TRIALS + "S00_P00_T00_StaticTrial/pose-3d/S00_P00_T00_StaticTrial_0-12_filt_butterworth.trc",
          "balancing.trc": TRIALS + "S00_P00_T01_BalancingTrial/pose-3d/"
                                    "S00_P00_T01_BalancingTrial_0-100_filt_butterworth.trc"}
+TWO = "Pose2Sim/S00_Demo_Session/S00_P01_MultiParticipants/"
+# The two-person session (item 5): each participant's static and each person's part of the shared trial, as video
+# keypoints (Halpe26) and as Pose2Sim's LSTM-augmented markers (its Model_Pose2Sim_LSTM.osim).
+for _kind, _suffix in (("halpe", ""), ("lstm", "_LSTM")):
+    FILES |= {f"{_kind}_static1.trc": TWO + "S00_P01_T00_StaticTrialParticipant1/pose-3d/"
+                                            f"S00_P01_T00_StaticTrialParticipant1_0-12_filt_butterworth{_suffix}.trc",
+              f"{_kind}_static2.trc": TWO + "S00_P01_T01_StaticTrialParticipant2/pose-3d/"
+                                            f"S00_P01_T01_StaticTrialParticipant2_0-12_filt_butterworth{_suffix}.trc",
+              **{f"{_kind}_trial_P{k}.trc": TWO + "S00_P01_T02_Participants1-2/pose-3d/"
+                                                  f"S00_P01_T02_Participants1-2_P{k}_0-100_filt_butterworth{_suffix}.trc"
+                 for k in (1, 2)}}
+FILES["model_lstm.osim"] = SETUP + "Model_Pose2Sim_LSTM.osim"
 COORDS = ("L5_S1_Flex_Ext", "L5_S1_Lat_Bending", "L5_S1_axial_rotation", "hip_flexion_r", "hip_flexion_l",
           "hip_adduction_r", "hip_adduction_l", "knee_angle_r", "knee_angle_l", "ankle_angle_r", "ankle_angle_l")
 
@@ -163,6 +179,46 @@ def ik_on_subject(work: Path, use: list[str], log) -> dict:
                            "ik_s": osr["ik_s"]}}
 
 
+def two_person(work: Path, log) -> list[dict]:
+    """Item 5: the command line on each participant's static with each person's part of the two-person trial, from
+    the keypoints (Halpe26) and from the LSTM-augmented markers: its exit code and error line where it refuses,
+    else each trial's marker RMS, the implausible flags, and the hips' and knees' flexion range in each trial."""
+    import csv
+
+    from calibrate.cli import main
+
+    rows = []
+    for kind, model in (("halpe", "model.osim"), ("lstm", "model_lstm.osim")):
+        for static in (1, 2):
+            for person in (1, 2):
+                out = work / f"two_{kind}_{static}_{person}"
+                out.mkdir()
+                args = [str(work / f"{kind}_static{static}.trc"), str(work / f"{kind}_trial_P{person}.trc"),
+                        str(work / model), "-o", str(out / "subject.urdf"), "-q"]
+                log(f"two-person session, {kind}: participant {static}'s static, trial person P{person} ...")
+                err = io.StringIO()
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+                    code = main(args)
+                row = {"markers": kind, "static": static, "trial_person": person, "rc": code,
+                       "error": next((ln for ln in err.getvalue().splitlines() if ln.startswith("calibrate: error")),
+                                     None)}
+                if code in (0, 1):
+                    report = json.loads(next(out.glob("*_report.json")).read_text())
+                    row["trials_rms_mm"] = {Path(t["source"]).stem: t["rms_mm"] for t in report["trials"]}
+                    row["implausible"] = [b.get("segment") or b.get("text", "")[:60]
+                                          for b in report.get("implausible", [])]
+                    ranges = {}
+                    for f in sorted(out.glob("*_motion.csv")):
+                        rows_ = [r for r in csv.reader(f.open()) if r and not r[0].startswith("#")]
+                        head, data = rows_[0], np.array(rows_[1:], dtype=float)
+                        ranges[f.stem.removesuffix("_motion")] = {
+                            c: [float(np.degrees(data[:, i].min())), float(np.degrees(data[:, i].max()))]
+                            for i, c in enumerate(head) if c.startswith(("hip_flexion", "knee_angle"))}
+                    row["flexion_deg"] = ranges
+                rows.append(row)
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pose2sim", type=Path, required=False, help="a perfanalytics/pose2sim checkout or git directory")
@@ -202,6 +258,7 @@ def main() -> int:
                     diffs[c] = {"rms_deg": float(np.sqrt(np.mean(d**2))), "offset_free_deg": float(np.std(d))}
             res[key] = {k: v for k, v in cr.items() if k not in ("times", "angles")} | {"vs_opensim_ik": diffs}
         res["ik_on_subject"] = ik_on_subject(work, use, log)
+        res["two_person"] = two_person(work, log)
     report(res)
     if a.json is not None:
         a.json.write_text(json.dumps(res, indent=1))
@@ -228,6 +285,17 @@ def report(res: dict) -> None:
           f"own fit {own:.2f} mm):")
     for key, name, t in (("calibrate_ik", "calibrate ik", "wall_s"), ("opensim_ik", "OpenSim's IK", "ik_s")):
         print(f"  {name:13s}  marker RMS {k[key]['rms_mm']:.2f} mm, max {k[key]['max_mm']:.1f} mm, {k[key][t]:.2f} s")
+    print("\nThe two-person session: each participant's static with each person's part of the shared trial")
+    for r in res.get("two_person", []):
+        head = f"  {r['markers']:5s} static {r['static']} + trial P{r['trial_person']}: "
+        if r["error"]:
+            print(head + f"exit {r['rc']}: {r['error'][:150]}")
+            continue
+        rms = ", ".join(f"{v:.2f}" for v in r["trials_rms_mm"].values())
+        flex = "; ".join(f"{', '.join(f'{c} {lo:.0f}..{hi:.0f}' for c, (lo, hi) in v.items())}"
+                         for v in r["flexion_deg"].values())
+        print(head + f"exit {r['rc']}, marker RMS {rms} mm (static, trial); implausible: "
+              f"{len(r['implausible'])}; flexion (static; trial) {flex}")
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import numpy as np
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics
 from ..model.model import Model
-from ..model.resolve import root_group, root_turns_alone
+from ..model.resolve import root_group
 from ..problem.problem import LIMIT_MARGIN
 from ..problem.state import State
 from ..solve.ik import FrameSolver
@@ -95,15 +95,19 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
                seen: np.ndarray) -> list[FarJoint]:
     """The joints each still trial holds more than FAR_POSE from every frame of the moving trials, at poses
     (Z absolute coordinates, Q root quaternions: calibrate.calibration.start.absolute) of every frame of the
-    trials in `spans`; `seen` (frames, model markers).  A joint beyond one already far is not tested again, nor
-    a joint of the root whose own markers do not turn it (calibrate.model.resolve.root_turns_alone: a markerless
-    pelvis's two hip keypoints, its tilt placed by the trunk, line_root_holds).  Nothing when no trial is still or
-    none moves."""
+    trials in `spans`; `seen` (frames, model markers).  A joint beyond one already far is not tested again, nor are
+    the joints of the root and the segments welded to it (the hips, the lumbar): the rule is for a limb's joint the
+    model cannot follow (a shoulder without its blade), while a static stands where a crouching trial never goes
+    and the models' hips and trunk follow any pose; leaving out the static's legs or trunk would leave it little
+    to fit (Pose2Sim's crouching child: hips 69-79 deg, L5/S1 115 deg away, the tibia then scaled 0.52) or nothing
+    to turn a two-keypoint pelvis (Pose2Sim's demo: its static's pelvis turned 150 deg).  Nothing when no trial is
+    still or none moves."""
     moving = [sl for sl, s in zip(spans, still, strict=True) if not s]
     if not moving or not any(still):
         return []
     # Model.joints lists parents first: a far joint's own descendants come after it and are not tested again.
-    joints = [j for j in model.joints if len(j.dofs) >= 2
+    root = root_group(model)
+    joints = [j for j in model.joints if len(j.dofs) >= 2 and j.parent not in root
               and model.pin.existFrame(j.parent) and model.pin.existFrame(j.child)]
     if not joints:
         return []
@@ -115,8 +119,6 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
     segment_markers: dict[str, list[int]] = {}
     for k, m in enumerate(model.markers):
         segment_markers.setdefault(m.segment, []).append(k)
-    root = root_group(model)
-    on_root = [k for k, m in enumerate(model.markers) if m.segment in root]
     out: list[FarJoint] = []
     for t, (sl, s) in enumerate(zip(spans, still, strict=True)):
         if not s:
@@ -139,9 +141,6 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
             mine = [i for i in idx if seen[sl, i].any()]
             if not mine or sum(bool(seen_moving[i]) for i in idx) < MIN_MARKERS:
                 continue
-            if j.parent in root and not root_turns_alone(model, [model.markers[i].name for i in on_root
-                                                                  if seen[sl, i].any()]):
-                continue  # the root's markers (two on a line) leave its turn to the segments beyond this joint
             done.update(segments)
             out.append(FarJoint(t, j.name, angle, tuple(model.markers[i].name for i in mine)))
     return out

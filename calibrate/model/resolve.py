@@ -38,8 +38,7 @@ import pinocchio as pin
 
 from .model import Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "line_root_holds", "resolve", "root_group", "root_turns_alone",
-           "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "line_root_holds", "resolve", "root_group", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -230,15 +229,6 @@ def _marker_line(model: Model, names: Sequence[str], data: pin.Data) -> tuple[np
     u = vt[0]
     off = (at - middle) - np.outer((at - middle) @ u, u)
     return None if s[0] < 2 * ON_LINE or np.linalg.norm(off, axis=1).max() > ON_LINE else (middle, u)
-
-
-def root_turns_alone(model: Model, labels: Iterable[str]) -> bool:
-    """Whether the markers `labels` on the root and the segments welded to it fix its rotation by themselves:
-    three or more, not all on one line (_marker_line)."""
-    present = set(labels)
-    group = root_group(model)
-    names = [m.name for m in model.markers if m.segment in group and m.name in present]
-    return len(names) >= 3 and _marker_line(model, names, _neutral(model)) is None
 
 
 def line_root_holds(model: Model, labels: Iterable[str], *,
