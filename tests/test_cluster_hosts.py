@@ -75,3 +75,26 @@ def test_the_calibration_fits_the_head_band_and_turns_the_neck():
         for b in names[i + 1:]:
             truth = np.linalg.norm(places[a] - places[b])
             assert abs(np.linalg.norm(fitted[a] - fitted[b]) - truth) < 0.003, (a, b, truth)
+
+
+def test_a_cluster_by_the_hip_is_not_put_on_an_unseen_hand():
+    """A rigid triad beside the left hip (following it, turning with nothing) while the trial shows none of the
+    left forearm's and hand's markers: a hanging hand's place in the neutral pose lies there, but a hand goes anywhere
+    three joints below the trunk, so only segments one joint below their references are candidates
+    (hosts.CLUSTER_JOINTS; before, the triad went on radius_l at 72 mm RMS).  The head band is still placed."""
+    base = load_model(HUMAN)
+    trial, _ = _session()
+    trial = trial.select([lab for lab in trial.labels if lab not in ("LFIN", "LWRA", "LWRB")])
+    las, ras = trial.markers[:, trial.labels.index("LASI")], trial.markers[:, trial.labels.index("RASI")]
+    side = (las - ras) / np.linalg.norm(las - ras, axis=1)[:, None]
+    tri = np.array([[0.0, 0.0, 0.0], [0.08, 0.0, 0.0], [0.0, 0.08, 0.0]])
+    at = las + 0.12 * side + np.array([0.0, 0.0, -0.1])
+    hip = at[:, None] + tri[None] + np.random.default_rng(0).normal(0.0, 0.0005, (trial.n_frames, 3, 3))
+    trial = replace(trial, labels=(*trial.labels, "H1", "H2", "H3"),
+                    markers=np.concatenate([trial.markers, hip], axis=1))
+    assoc = associate_to_model(base, trial)
+    labels = ["H1", "H2", "H3", *BAND.values()]
+    assert all(assoc[n].segment is None for n in labels)
+    hosts = cluster_hosts(base, [trial], labels, assoc.threshold)
+    assert all(hosts[n].segment is None and hosts[n].best not in ("radius_l", "hand_l") for n in ("H1", "H2", "H3"))
+    assert all(hosts[n].segment == "head" for n in BAND.values())

@@ -312,3 +312,25 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
     moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
     assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)
 
+
+
+def test_hip_regression_finds_opencaps_pelvis_landmarks(human, tmp_path):
+    """A model whose pelvis markers are spelled as OpenCap's marker augmenter spells them (r.ASIS_study, ...;
+    Pose2Sim's Model_Pose2Sim_LSTM.osim): the regression finds them by alias and puts the hips where Harrington's
+    paper, written out by hand, does."""
+    from calibrate.calibration.regression import regression_hips
+    from calibrate.model.model import Model
+
+    names = {"RASI": "r.ASIS_study", "LASI": "L.ASIS_study", "RPSI": "r.PSIS_study", "LPSI": "L.PSIS_study"}
+    text = human.path.read_text()
+    for old, new in names.items():
+        text = re.sub(rf'"{old}(_marker)?"', lambda m, new=new: f'"{new}{m.group(1) or ""}"', text)
+    spelled = Model(tmp_path / "opencap.urdf", text=text)
+    assert not set(names) & set(spelled.marker_names) and set(names.values()) <= set(spelled.marker_names)
+    static = simulate_static(human, human.parameters(), frames=5, noise_mm=0.0, seed=1).trial
+    trial = static.__class__(tuple(names.get(lab, lab) for lab in static.labels), static.markers, static.rate)
+    _, (out,), used = regression_hips(spelled, (trial,))
+    assert used == {"RASI": "r.ASIS_study", "LASI": "L.ASIS_study", "RPSI": "r.PSIS_study", "LPSI": "L.PSIS_study"}
+    right, left = _harrington_by_hand(static)
+    np.testing.assert_allclose(out.markers[:, out.labels.index("RHJC_harrington")], right, atol=1e-12)
+    np.testing.assert_allclose(out.markers[:, out.labels.index("LHJC_harrington")], left, atol=1e-12)

@@ -493,3 +493,22 @@ def test_bts_shoulder_spelling(human) -> None:  # noqa: ANN001
     renamed, mapping = map_labels(make_trial(labels), human.marker_names)
     assert renamed.labels == ("RSHO", "LSHO", "C7", "RASI", "r knee 1", "r mall", "r met")
     assert mapping.unknown == ("r knee 1", "r mall", "r met")
+
+
+def test_opencap_augmented_spellings(human) -> None:  # noqa: ANN001
+    """OpenCap's marker augmenter (Pose2Sim's LSTM files): its `_study` markers read as the landmark before the suffix,
+    its lateral elbow and wrist sides as ELB, WRA and WRB; medial landmarks, clusters and hip centres stay unknown.  A
+    file holding both a video keypoint and the augmented marker of one name (RKnee: the knee's centre; r_knee_study:
+    the lateral epicondyle) keeps the augmented one as the model's, without a tie."""
+    labels = ["r.ASIS_study", "L.PSIS_study", "r_knee_study", "L_ankle_study", "r_toe_study", "r_calc_study",
+              "C7_study", "r_shoulder_study", "L_lelbow_study", "r_lwrist_study", "r_mwrist_study", "r_mknee_study",
+              "RHJC_study", "r_thigh1_study"]
+    renamed, mapping = map_labels(make_trial(labels), human.marker_names)
+    assert renamed.labels == ("RASI", "LPSI", "RKNE", "LANK", "RTOE", "RHEE", "C7", "RSHO", "LELB", "RWRA", "RWRB",
+                              "r_mknee_study", "RHJC_study", "r_thigh1_study")
+    trial = make_trial(["RKnee", "r_knee_study", "RShoulder", "r_shoulder_study"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LabelConflictWarning)
+        renamed, mapping = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("RKnee", "RKNE", "RShoulder", "RSHO")
+    np.testing.assert_array_equal(renamed.marker("RKNE"), trial.marker("r_knee_study"))

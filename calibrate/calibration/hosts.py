@@ -170,6 +170,10 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
 CLUSTER_MIN = 3
 CLUSTER_REACH = 0.15  # m RMS: a head band above a head's forehead and back markers, the neck turned 10-20 deg
 CLUSTER_RATIO = 0.5
+# Candidates at most this many moving joints below their references: across one (a head on its neck) the distances
+# stay near the neutral pose's; a hand hangs by the hip in the neutral pose and goes anywhere (Pose2Sim's augmented
+# left hip and thigh markers, rigid in a balancing trial, had been put on hand_l, 29 mm RMS from a hanging hand's).
+CLUSTER_JOINTS = 1
 
 
 @dataclass(frozen=True)
@@ -214,17 +218,19 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     known = set(model.marker_names)
     shown = {lab for t in trials for lab in t.labels if lab in known}
     parent = {j.child: j.parent for j in model.joints}
+    moving = {j.child: bool(j.dofs) for j in model.joints}
     labels = [lab for lab in labels if all(lab in t.labels for t in trials)]
     candidates = []  # (segment, the shown markers of the nearest segment above with three or more)
     for sg in model.segments:
         if not sg.markers or any(m in shown for m in sg.markers):
             continue
-        above = parent.get(sg.name)
-        while above is not None:
+        above, turns = parent.get(sg.name), int(moving.get(sg.name, False))
+        while above is not None and turns <= CLUSTER_JOINTS:
             refs = [m for m in model.segments[model.segment_index(above)].markers if m in shown]
             if len(refs) >= 3:
                 candidates.append((sg, refs))
                 break
+            turns += int(moving.get(above, False))
             above = parent.get(above)
     if not candidates or len(labels) < CLUSTER_MIN:
         return {}

@@ -23,7 +23,9 @@ prefix ranks below every match of a whole label.
 Aliases.  Labels are compared after normalisation: lower case, the separators ``.``, ``_``,
 ``-`` and spaces removed, camel case split (``RightKnee`` = ``Right Knee``).  A side is read from
 a first or last word ``R``/``L``/``Right``/``Left`` (``R.Knee``, ``knee_r``, ``RightKnee``), or from
-the first letter (``RKNEE``); OpenSim's midline prefix ``V.`` (``V.Sacral``) is dropped.  The rest
+the first letter (``RKNEE``); OpenSim's midline prefix ``V.`` (``V.Sacral``) and the suffix ``_study`` of OpenCap's
+marker augmenter (``r.ASIS_study``, ``r_knee_study``, ``C7_study``; its ``r_lelbow``, ``r_lwrist`` and ``r_mwrist`` the
+lateral elbow and the radial and ulnar wrist) are dropped.  The rest
 is looked up below (most specific first).  An alias only maps to a label the model has: the Plug-in Gait
 label, else the model label that reads as the same one (Rajagopal2016's ``L.Knee`` for a trial's
 ``L_Knee_Lat``: both read as ``LKNE``; the lowest-ranked spelling where several do, ``L.Ankle`` before
@@ -47,12 +49,12 @@ xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
 xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should
 xUPA          upa, upperarm, arm, humerus, bicep, biceps
 xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hle, lhe,
-              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel
+              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel, lelbow
 xFRM          frm, forearm
 xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius,
-              rs, rsp, radialstyloidprocess, lw, faradius
+              rs, rsp, radialstyloidprocess, lw, faradius, lwrist
 xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna,
-              us, usp, ulnarstyloidprocess, mw, faulna
+              us, usp, ulnarstyloidprocess, mw, faulna, mwrist
 xFIN          fin, finger, mcp2, mc2, hand, hm2
 xFHD          fhd, fronthead, headfront, forehead, temple, hdf
 xBHD          bhd, backhead, headback, rearhead, headrear, hdb
@@ -151,16 +153,16 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
     "ELB": (
         "elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow", "el", "hle", "lhe",
-        "lateralhumeralepicondyle", "humerallateralepicondyle", "humeruslateralepicondyle", "lee", "lel",
+        "lateralhumeralepicondyle", "humerallateralepicondyle", "humeruslateralepicondyle", "lee", "lel", "lelbow",
     ),
     "FRM": ("frm", "forearm"),
     "WRA": (
         "wra", "wrista", "wristlat", "wristlateral", "wristradial", "radialwrist", "radialstyloid", "radius",
-        "rs", "rsp", "radialstyloidprocess", "lw", "faradius",
+        "rs", "rsp", "radialstyloidprocess", "lw", "faradius", "lwrist",
     ),
     "WRB": (
         "wrb", "wristb", "wristmed", "wristmedial", "wristulnar", "ulnarwrist", "ulnarstyloid", "ulna",
-        "us", "usp", "ulnarstyloidprocess", "mw", "faulna",
+        "us", "usp", "ulnarstyloidprocess", "mw", "faulna", "mwrist",
     ),
     "FIN": ("fin", "finger", "mcp2", "mc2", "hand", "hm2"),
     "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple", "hdf"),
@@ -203,6 +205,8 @@ def _words(label: str) -> list[str]:
 def _readings(label: str) -> list[tuple[str | None, str]]:
     """The (side or None, name) readings of a label, in order of trust (the module docstring's rules)."""
     words = _words(label)
+    if _augmented(label):  # OpenCap's marker augmenter: r.ASIS_study, r_knee_study, C7_study
+        words = words[:-1]
     if not words:
         return []
     joined = "".join(words)
@@ -220,6 +224,12 @@ def _readings(label: str) -> list[tuple[str | None, str]]:
         readings.append((None, "".join(words[1:])))
     readings.append((None, joined))
     return readings
+
+
+def _augmented(label: str) -> bool:
+    """Whether `label` is a marker of OpenCap's marker augmenter (``r_knee_study``)."""
+    words = _words(label)
+    return len(words) > 1 and words[-1] == "study"
 
 
 def _codes(label: str) -> list[tuple[str, int]]:
@@ -463,7 +473,7 @@ def map_labels(
     model_set = set(model)
     lookup = _check_marker_map(marker_map, model) if marker_map else {}
 
-    def best(label: str) -> tuple[str, str, int] | None:
+    def best(label: str) -> tuple[str, str, float] | None:
         """(model label, how, priority) of a whole label."""
         if label in model_set:
             return label, "exact", 0
@@ -472,11 +482,13 @@ def map_labels(
         if aliases:
             found = alias_for(label, model_set)
             if found is not None:
-                return found[0], "alias", found[1]
+                # OpenCap's augmented marker (r_knee_study: the lateral epicondyle, where RKNE sits) before a video
+                # keypoint of the same name (RKnee: the knee's centre as a pose estimator puts it), in one file.
+                return found[0], "alias", found[1] - (0.5 if _augmented(label) else 0.0)
         return None
 
     # Each trial label's best candidate: (model label, how, rank key, note)
-    candidates: dict[int, tuple[str, str, tuple[int, int, int], str]] = {}
+    candidates: dict[int, tuple[str, str, tuple[int, int, float], str]] = {}
     subjects: dict[str, int] = {}  # prefix -> model markers its labels match
     for index, label in enumerate(trial.labels):
         found = best(label)
