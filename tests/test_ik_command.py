@@ -313,3 +313,27 @@ def test_ik_with_a_lower_body_calibrations_report_holds_its_trunk_and_arms(squat
     with pytest.raises(CalibrateError, match=r"all of its angles can be held, at 0 \(lumbar_.*euler=locked_balls"):
         inverse_kinematics(build_kinematics(subject), read_trial(tmp_path / "legs.c3d"), subject.parameters(),
                            locked={"lumbar_flexion": 0.0})
+
+
+def test_an_opensim_subjects_urdf_holds_its_locked_coordinates(tmp_path):
+    """A subject.urdf written from an OpenSim base carries the .osim's locked coordinates (Rajagopal2016's subtalars,
+    mtps, wrists): `calibrate ik` on it holds them at their defaults, as on the subject's .osim (before, only the
+    .osim's were held: Pose2Sim's subject.urdf, its mtps free, folded a foot, 48 mm against 15.6)."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.osim_info import osim_info
+    from calibrate.model.model import write_model
+    from calibrate.simulation.simulate import simulate_static
+
+    osim = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "rajagopal_walk" / \
+        "Rajagopal2016.osim"
+    base = load_model(osim)
+    locked = osim_info(base).locked
+    assert {"mtp_angle_r", "subtalar_angle_l"} <= set(locked)
+    subject = write_model(base, tmp_path / "subject.urdf", base.parameters())
+    assert osim_info(load_model(subject)).locked == locked
+    sim = simulate_static(base, base.parameters(), frames=10, noise_mm=0.5, seed=3)
+    write_c3d(tmp_path / "static.c3d", sim.trial)
+    assert main(["ik", str(tmp_path / "static.c3d"), str(subject), "-o", str(tmp_path), "-q"]) == 0
+    m = read_motion_csv(tmp_path / "static_motion.csv")
+    for name, value in locked.items():
+        assert np.allclose(m.angles[:, m.dof_names.index(name)], value, atol=1e-12), name

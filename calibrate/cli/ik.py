@@ -79,11 +79,11 @@ def cmd_ik(args: argparse.Namespace) -> int:
                   exists_hint="pass --overwrite to replace it or choose another --out")
     t0 = time.perf_counter()
     model = load_model(subject_path)
-    settings = Settings()
-    if osim:  # the coordinates the OpenSim subject locks
-        from ..io.osim_info import with_locked
+    # The coordinates an OpenSim subject locks: its .osim's, or those its URDF carries from the OpenSim base (a
+    # subject.urdf calibrate wrote from Pose2Sim's model, its mtp joints free, had folded a foot: 48 mm against 15.6).
+    from ..io.osim_info import with_locked
 
-        settings = with_locked(model, settings)
+    settings = with_locked(model, Settings())
     weights = None
     setup_lines: list[str] = []
     if args.ik_setup:  # what its coordinate tasks hold, and its marker tasks' weights (a marker it has no task for:
