@@ -280,12 +280,23 @@ class FrameSolver:
         idx = np.flatnonzero(seen)
         every = np.arange(self.nz) if free is None else free
         held = held or (lambda z: z)
-        z, q, cost, _ = self.solve(held(z), q, obs, idx, every, 200, weight=weight)
-        zl, ql, cost_l, _ = self.solve(held(root[0]), root[1], obs, idx, every, 200, weight=weight)
-        return (zl, ql) if cost_l < cost else (z, q)
+        best = self.solve(held(z), q, obs, idx, every, 200, weight=weight)
+        roots = [root]
+        if sum(seen[k] for k in self.root_markers) < 3 and seen.sum() >= 3:
+            # The root placed by every marker (_root_start) or, as before, unturned at their mean: a squat's bent
+            # body turns the first; the better fit of the two's local solves is kept.
+            roots.append(self._root_start(obs, seen, whole=False))
+        for zr, qr in roots:
+            other = self.solve(held(zr), qr, obs, idx, every, 200, weight=weight)
+            if other[2] < best[2]:
+                best = other
+        return best[0], best[1]
 
-    def _root_start(self, obs, seen) -> tuple[np.ndarray, np.ndarray]:
-        """The default pose with the root placed on its markers (Kabsch), or at the markers' mean."""
+    def _root_start(self, obs, seen, whole: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """The default pose with the root placed on its markers (Kabsch); where fewer than three of them are seen
+        (a markerless pelvis's two hip keypoints), the default pose placed on every seen marker as one rigid body
+        (the body's heading and up, not the lab's axes: Pose2Sim's subject, started unturned, folded a foot to 106 deg
+        at the ankle and stayed so); with fewer than three seen in all, or not `whole`, unturned at their mean."""
         z = np.zeros(self.nz)
         q = self.identity.copy()
         root_seen = [k for k in self.root_markers if seen[k]]
@@ -295,6 +306,12 @@ class FrameSolver:
             q[:4] = matrix_quats(R0)
             z[FrameLayout.translation] = t0
             z, q, _, _ = self.solve(z, q, obs, root_seen, np.arange(FrameLayout.n_root), 50)
+        elif whole and seen.sum() >= 3:
+            every = np.flatnonzero(seen)
+            a = self.evaluate(z, q)[0].reshape(-1, 3)[every]
+            R0, t0 = kabsch(a, obs[every])
+            q[:4] = matrix_quats(R0)
+            z[FrameLayout.translation] = t0
         else:
             z[FrameLayout.translation] = np.nanmean(obs[seen], axis=0)
         return z, q
