@@ -183,9 +183,8 @@ def two_person(work: Path, log) -> list[dict]:
     """Item 5: the command line on each participant's static with each person's part of the two-person trial, from
     the keypoints (Halpe26) and from the LSTM-augmented markers: its exit code and error line where it refuses,
     else each trial's marker RMS, the implausible flags, and the hips' and knees' flexion range in each trial."""
-    import csv
-
     from calibrate.cli import main
+    from calibrate.io.motion import read_motion_csv
 
     rows = []
     for kind, model in (("halpe", "model.osim"), ("lstm", "model_lstm.osim")):
@@ -209,11 +208,11 @@ def two_person(work: Path, log) -> list[dict]:
                                           for b in report.get("implausible", [])]
                     ranges = {}
                     for f in sorted(out.glob("*_motion.csv")):
-                        rows_ = [r for r in csv.reader(f.open()) if r and not r[0].startswith("#")]
-                        head, data = rows_[0], np.array(rows_[1:], dtype=float)
+                        motion = read_motion_csv(f)
                         ranges[f.stem.removesuffix("_motion")] = {
-                            c: [float(np.degrees(data[:, i].min())), float(np.degrees(data[:, i].max()))]
-                            for i, c in enumerate(head) if c.startswith(("hip_flexion", "knee_angle"))}
+                            c: [float(np.degrees(motion.angles[:, i].min())),
+                                float(np.degrees(motion.angles[:, i].max()))]
+                            for i, c in enumerate(motion.dof_names) if c.startswith(("hip_flexion", "knee_angle"))}
                     row["flexion_deg"] = ranges
                 rows.append(row)
     return rows

@@ -340,8 +340,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
         # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.
-        visible = [lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()]
-        line = line_root_holds(subject, [lab for lab in [*shared, *new] if lab in set(visible)],
+        visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
+        line = line_root_holds(subject, [lab for lab in [*shared, *new] if lab in visible],
                                locked=[*(d for d, _ in settings.lock), *res.lock])
         if line:
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
