@@ -41,9 +41,10 @@ class GaugeMixin:
         blocking = set() if through_held else still
 
         def held_below(name: str) -> bool:
-            """A held or locked DoF (`carried`; or a held segment) down the hinge and universal chains below `name`."""
+            """A held or locked DoF (`carried`; or a held segment) down the hinge, universal and weld chains below
+            `name`."""
             return any(any(d in carried for d in j.dofs) or j.child in blocking or held_below(j.child)
-                       for j in m.joints if j.parent == name and j.kind in ("hinge", "universal"))
+                       for j in m.joints if j.parent == name and j.kind in ("hinge", "universal", "fixed"))
 
         for si, seg in enumerate(m.segments):
             if seg.name in still:  # (a held kid below a ball joint does not block: the ball's angles absorb the turn)
@@ -243,8 +244,8 @@ class GaugeMixin:
         """Express segment si's contents in its frame turned by G (and shifted by t): in place; each
         segment's whole turn composed into `net` where given (its frame R becomes R net[si]).
 
-        Below a hinge or universal joint the child's frame then turns too, by Oᵀ G O for the
-        joint's fixed origin rotation O, with the joint's axes turned back in their own frames
+        Below a hinge, universal or fixed joint (a weld) the child's frame then turns too, by Oᵀ G O
+        for the joint's fixed origin rotation O, with the joint's axes turned back in their own frames
         (R(Kᵀa, θ) = Kᵀ R(a, θ) K), so its angles are unchanged: the turn is carried down the
         tree until a ball joint, whose angles absorb it."""
         m, L = self.model, self.layout
@@ -260,7 +261,10 @@ class GaugeMixin:
             sl = L.centre(ji)
             out[sl] = G.T @ (out[sl] - shift)
             j = m.joints[ji]
-            if j.kind not in ("hinge", "universal") or not self._carries:
+            # A welded child turns with its parent as a hinge's does (OpenSim's sacrum on its pelvis): left behind,
+            # its contents moved with the turn and the re-solve after it could not repair the fit (Pose2Sim's
+            # crouching child 8.21 mm, 2.57 with the weld turned; docs/benchmarks.md, "A weld turned").
+            if j.kind not in ("hinge", "universal", "fixed") or not self._carries:
                 continue
             K = G
             chain = [self._urdf[n] for n in j.urdf_joints]
