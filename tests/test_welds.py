@@ -69,12 +69,14 @@ def welded(tmp_path_factory) -> Model:
     return welded_human(tmp_path_factory.mktemp("welds") / "welded.urdf")
 
 
-def test_a_frame_turn_is_carried_through_a_weld(welded):
+@pytest.mark.parametrize("free", [("scale", "centre", "axis", "marker"), ("scale", "centre", "marker")])
+def test_a_frame_turn_is_carried_through_a_weld(welded, free):
     """turn_frames with the pelvis's frame turned 25°: the sacrum welded to it turns with it, so every marker stays
     where it was to 1e-9 m (before, the sacrum's contents stayed in its old frame: the lumbar joint and every marker
-    above it moved, up to 0.31 m)."""
+    above it moved, up to 0.31 m).  Also with the hinge axes held (not free), where no turn is carried through a
+    hinge: a weld carries no axis, so the pelvis and its sacrum still turn as one."""
     sim = simulate_squats(welded, frames=12, noise_mm=1.0, seed=3)
-    problem = Problem(welded, marker_columns(welded, sim.trial), Settings(), build_kinematics(welded))
+    problem = Problem(welded, marker_columns(welded, sim.trial), Settings(free=free), build_kinematics(welded))
     m = sim.motion
     state = State(np.column_stack([m.root_translation, np.zeros((12, 3)), m.angles]) + 0.01,
                   m.root_quaternion.copy(), sim.truth.vector())

@@ -46,11 +46,18 @@ class GaugeMixin:
             return any(any(d in carried for d in j.dofs) or j.child in blocking or held_below(j.child)
                        for j in m.joints if j.parent == name and j.kind in ("hinge", "universal", "fixed"))
 
+        def welded_group(name: str) -> list[str]:
+            """`name` and the segments welded (fixed joints) below it, transitively."""
+            return [name] + [n for j in m.joints if j.parent == name and j.kind == "fixed"
+                             for n in welded_group(j.child)]
+
         for si, seg in enumerate(m.segments):
             if seg.name in still:  # (a held kid below a ball joint does not block: the ball's angles absorb the turn)
                 continue
-            has_mk = bool(np.any(self.marker_segment == si))
-            kids = [j for j in m.joints if j.parent == seg.name]
+            # The segment and those welded below it turn as one (_turn carries a turn through a weld).
+            group = welded_group(seg.name)
+            has_mk = bool(np.any(np.isin(self.marker_segment, [m.segment_index(n) for n in group])))
+            kids = [j for j in m.joints if j.parent in group]
             if (has_mk and "marker" not in free) or (kids and "centre" not in free):
                 continue
             if any(j.kind in ("hinge", "universal") and "axis" not in free for j in kids):
@@ -264,7 +271,7 @@ class GaugeMixin:
             # A welded child turns with its parent as a hinge's does (OpenSim's sacrum on its pelvis): left behind,
             # its contents moved with the turn and the re-solve after it could not repair the fit (Pose2Sim's
             # crouching child 8.21 mm, 2.57 with the weld turned; docs/benchmarks.md, "A weld turned").
-            if j.kind not in ("hinge", "universal", "fixed") or not self._carries:
+            if not (j.kind == "fixed" or (j.kind in ("hinge", "universal") and self._carries)):
                 continue
             K = G
             chain = [self._urdf[n] for n in j.urdf_joints]
