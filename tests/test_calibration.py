@@ -1200,3 +1200,40 @@ def test_the_first_solve_on_every_frame_pauses_and_goes_on_if_nothing_changes(hu
     assert cal.summary.final_cost == ref.summary.final_cost
     assert np.array_equal(cal.params.vector(), ref.params.vector())
     assert all(np.array_equal(a.angles, b.angles) for a, b in zip(cal.motions, ref.motions, strict=True))
+
+
+def test_keypoint_trials_of_two_subjects_are_refused(human):
+    """Video keypoints (Pose2Sim's Halpe26) sit near the joint centres, one per segment: their steady pairs run across
+    the joints (hip to knee, knee to ankle, elbow to wrist), whose distances a model's poses vary by a few per cent.
+    Keypoints 15 mm off the simulated subject's centres: on the seed's 1 % rule a walk shows fewer pairs than the check
+    needs (Pose2Sim's walks showed 3), so a child's static given with an adult's walk passed; on MIXED_MODEL_CV's 3 %
+    both show enough, the sizes' ratio reads the simulated 0.7, and the pair is refused.  The walk's own subject's
+    static passes."""
+    from calibrate.calibration.pipeline import MIXED_MODEL_CV, MIXED_PAIRS, _check_one_subject
+    from calibrate.seed.seeding import SIZE_MODEL_CV, size_from_markers
+
+    base = human.parameters()
+    names = [j.name for j in human.joints]
+    off = np.array([0.015, 0.0, 0.0])
+    keypoints = {}
+    for side in "lr":
+        for joint, on_child in (("hip", False), ("knee", True), ("ankle", True), ("shoulder", False),
+                                ("elbow", True), ("wrist", True)):
+            j = human.joints[names.index(f"{joint}_{side}")]
+            # on the child at its origin (the joint centre), or on the parent at the centre's place in its frame
+            where = off if on_child else base.centre[names.index(j.name)] + off
+            keypoints[f"K{joint}_{side}"] = (j.child if on_child else j.parent, where)
+    model = add_markers(human, keypoints)
+    walk = simulate_gait(model, frames=60, noise_mm=1.0, seed=5)
+    small = dataclasses.replace(walk.truth, scale=0.7 * walk.truth.scale)
+    labels = list(keypoints)
+    static = simulate_static(model, small, frames=20, seed=5).trial.select(labels)
+    adult = walk.trial.select(labels)
+    strict = size_from_markers(model, [adult], model_cv=SIZE_MODEL_CV)
+    assert strict is None or strict.pairs < MIXED_PAIRS
+    sizes = [size_from_markers(model, [t], model_cv=MIXED_MODEL_CV) for t in (static, adult)]
+    assert min(s.pairs for s in sizes) >= MIXED_PAIRS
+    assert sizes[0].overall / sizes[1].overall == pytest.approx(0.7, abs=0.05)
+    with pytest.raises(CalibrateError, match="different subjects"):
+        _check_one_subject(model, [static, adult])
+    _check_one_subject(model, [simulate_static(model, walk.truth, frames=20, seed=5).trial.select(labels), adult])

@@ -276,13 +276,15 @@ def limb_groups(model: Model) -> dict[str, list[int]]:
     return out
 
 
-def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> Size | None:
+def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
+                      model_cv: float = SIZE_MODEL_CV) -> Size | None:
     """The subject's size against the base model, from marker distances only (before any joint
     centre is known): every pair of model markers whose distance is the same in any pose of the base
     model (the same segment, or across a joint near its axis: knee to ankle markers) and steady over
     the trials' frames, compared with the base model's (median over frames / neutral pose); a limb's
     factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
-    overall factor the median of all.  None if no pair qualifies."""
+    overall factor the median of all.  `model_cv`: how much a pair's distance may vary over the base model's
+    poses (a fraction).  None if no pair qualifies."""
     import pinocchio as pin
 
     # The model's markers that some trial shows (a model may carry many more: Rajagopal2016.osim 131,
@@ -304,7 +306,7 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     P = np.array(poses)  # (poses, markers, 3)
     D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
     d0 = D[0]
-    model_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
+    pose_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
     # The trials' distances, on at most ~300 frames of each.
     parts = []
     for t in trials:
@@ -315,7 +317,7 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0) -> S
     X = np.concatenate(parts)
     # The trial's distances of the pairs the base model keeps steady (the medians over frames are most
     # of this function's time: only those pairs').
-    a, b = np.nonzero((model_cv < SIZE_MODEL_CV) & (d0 >= SIZE_MIN_DISTANCE) & np.triu(np.ones_like(d0, dtype=bool), 1))
+    a, b = np.nonzero((pose_cv < model_cv) & (d0 >= SIZE_MIN_DISTANCE) & np.triu(np.ones_like(d0, dtype=bool), 1))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         Dt = np.linalg.norm(X[:, a] - X[:, b], axis=2)
