@@ -1237,3 +1237,36 @@ def test_keypoint_trials_of_two_subjects_are_refused(human):
     with pytest.raises(CalibrateError, match="different subjects"):
         _check_one_subject(model, [static, adult])
     _check_one_subject(model, [simulate_static(model, walk.truth, frames=20, seed=5).trial.select(labels), adult])
+
+
+def test_segments_no_marker_reaches_are_held_at_the_subjects_size(human):
+    """A lower-body marker set on a short subject (1.4 m): the trunk, head and arms, which no marker reaches, are held
+    (Settings.hold_segments) at the subject's size as the calibration measured it (the median scale of the segments
+    the markers size), within 6 % of the simulated subject's, not at the base model's (their geometry and inertia
+    in the written model); the report says so.  Nothing on or below them reaches the fit: the marker fit and the
+    legs are those of the base model's size."""
+    sim = simulate_gait(human, frames=80, noise_mm=1.0, seed=2, height=1.4)
+    legs = {"pelvis", "femur_l", "tibia_l", "talus_l", "calcn_l", "femur_r", "tibia_r", "talus_r", "calcn_r"}
+    labels = [mk.name for mk in human.markers if mk.segment in legs]
+    trial = sim.trial.select(labels)
+    cal = calibrate(human, trial, Settings(outliers=0.0))
+    upper = [k for k, sg in enumerate(human.segments) if sg.name not in legs]
+    assert set(cal.settings.hold_segments) == {human.segments[k].name for k in upper}
+    truth = sim.truth.scale[upper]
+    assert np.median(truth) < 0.9  # a subject well below the base model's size
+    np.testing.assert_allclose(cal.params.scale[upper], truth, rtol=0.06)
+    note = next(c.note for c in cal.changes if c.group == "scale" and c.item == "torso")
+    assert "held at the base model's at the subject's size (scale" in note
+    # The same with the held segments at the base model's size (the code before): the same fit, the legs the same.
+    import calibrate.calibration.pipeline as pipeline
+
+    at_size = pipeline._blind_at_size
+    try:
+        pipeline._blind_at_size = lambda problem, state, blind: state
+        before = calibrate(human, trial, Settings(outliers=0.0))
+    finally:
+        pipeline._blind_at_size = at_size
+    np.testing.assert_allclose(before.params.scale[upper], 1.0)
+    assert cal.marker_rms == pytest.approx(before.marker_rms, rel=1e-6)
+    lower = [k for k in range(len(human.segments)) if k not in upper]
+    np.testing.assert_allclose(cal.params.scale[lower], before.params.scale[lower], rtol=1e-6)

@@ -302,7 +302,11 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             tied.setdefault(t.joint, []).append(model.markers[t.marker].name)
 
     def unseen(segment: str) -> str:
-        return f"no marker seen on or below {segment}: held at the base model's"
+        k = model.segment_index(segment)
+        sized = not math.isclose(float(seg_scale[k]), float(B.scale[k]), abs_tol=1e-12)
+        return f"no marker seen on or below {segment}: held at the base model's" + (
+            f" at the subject's size (scale {float(seg_scale[k]):.3g}: the median of the segments the markers size)"
+            if sized else "")
 
     def held(owner: str) -> tuple[Identified, str]:
         """Why a block that is not free is held (`owner`: the segment it belongs to)."""

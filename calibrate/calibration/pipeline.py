@@ -667,6 +667,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
         slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked)
+    slid = _blind_at_size(problem, slid, blind)
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid
     times["solve"] = time.perf_counter() - t0
@@ -786,6 +787,28 @@ def _hold_segments(model: Model, params: Parameters, segments: Sequence[str], ce
         if mk.segment in held:
             out.marker[k] = base.marker[k]
     return out
+
+
+BLIND_SIZED = 3  # segments the data size (free scale, a marker shown) before the unseen ones take their median
+
+
+def _blind_at_size(problem: Problem, state: State, blind: Collection[str]) -> State:
+    """`state` with each segment no data reach (`blind`: _segments_without_data, held at the base model's geometry)
+    scaled to the subject's size as the calibration measured it: the median scale of the segments whose scale is free
+    and that carry a marker the trials show.  Nothing on or below such a segment reaches the fit (and its held scale
+    has no prior), so only its geometry and inertia in the written model change: an unseen hand, head or upper body
+    the subject's size, not the base model's.  Unchanged where the scales are not free or fewer than BLIND_SIZED
+    segments are sized by the data (a pelvis and one thigh marker size those two, not the subject)."""
+    model, L = problem.model, problem.layout
+    shown = {model.markers[k].segment for k in np.flatnonzero(problem.seen.any(axis=0))}
+    sized = [i for i, sg in enumerate(model.segments) if sg.name in shown and not L.block("scale", i).held]
+    if not blind or len(sized) < BLIND_SIZED:
+        return state
+    p = state.p.copy()
+    at = float(np.median(p[L.scale(np.array(sized))]))
+    for name in blind:
+        p[L.scale(model.segment_index(name))] = at
+    return replace(state, p=p)
 
 
 def _segments_without_data(model: Model, seen: set[str]) -> list[str]:

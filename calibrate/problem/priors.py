@@ -291,13 +291,16 @@ class PriorsMixin:
             add((p[idx] - unit[idx]) / st.priors.axis, lambda: (
                 np.arange(idx.size), idx, np.full(idx.size, 1.0 / st.priors.axis)))
         if "scale" in free:
-            ns = len(m.segments)
-            add((scale - base[L.scales]) / st.priors.scale, lambda: (
-                np.arange(ns), np.arange(L.scales.start, L.scales.stop), np.full(ns, 1.0 / st.priors.scale)))
+            # The free scales only: a held one (a segment no data reach, held at the subject's size) is not estimated.
+            k = np.array([i for i in range(len(m.segments)) if not L.block("scale", i).held], dtype=int)
+            add((scale[k] - base[L.scales][k]) / st.priors.scale, lambda: (
+                np.arange(k.size), L.scales.start + k, np.full(k.size, 1.0 / st.priors.scale)))
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
         sd = st.priors.symmetry_scale
+        # (a pair both held has nothing to estimate: segments no data reach, each at its limb's size)
+        seg_pairs = [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)]
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
             k = np.arange(a.size)
@@ -305,6 +308,7 @@ class PriorsMixin:
                 np.r_[k, k], np.r_[L.scale(a), L.scale(b)],
                 np.r_[np.full(a.size, 1.0 / sd), np.full(a.size, -1.0 / sd)]))
         sd = st.priors.symmetry_centre
+        joint_pairs = [(a, b) for a, b in joint_pairs if not (L.block("centre", a).held and L.block("centre", b).held)]
         if "centre" in free and sd > 0 and joint_pairs:
             jl, jr = np.array(joint_pairs, dtype=int).T
             sa, sb = self.centre_segment[jl], self.centre_segment[jr]
