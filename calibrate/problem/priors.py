@@ -299,7 +299,7 @@ class PriorsMixin:
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
         sd = st.priors.symmetry_scale
-        # (a pair both held has nothing to estimate: segments no data reach, each at its limb's size)
+        # (a pair both held has nothing to estimate: segments no data reach, both at the subject's size)
         seg_pairs = [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)]
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
