@@ -335,3 +335,46 @@ def test_a_still_trial_is_not_judged_for_misplaced_labels():
     cal = calibrate(human, [jittery, moving], Settings(max_iterations=5))
     assert {i for i, _ in cal.misplaced} == {1}
     assert {m.label for _, m in cal.misplaced} & {"LKNE", "LANK"}
+
+
+def test_a_trial_whose_segments_jitter_as_much_as_they_move_is_not_judged():
+    """Augmented keypoints (Pose2Sim's LSTM static) move against each other on one segment nearly as much as across the
+    joints, and the rigidity test then weighs their jitter: here every segment's markers jitter 8 mm but the left
+    shank's, and LKNE rides with the shank: alone the test names LKNE, and the static moves more than a still
+    trial does (relative_motion past STILL_MOTION).  The pipeline judges a trial only where its markers on different
+    segments move MISPLACED_MOTION times as much as those on one segment: the static is not judged, a walk with LKNE
+    and LANK exchanged still is."""
+    from calibrate.calibration.pipeline import (
+        MISPLACED_MOTION,
+        STILL_MOTION,
+        calibrate,
+        relative_motion,
+        segment_jitter,
+    )
+    from calibrate.problem.settings import Settings
+    from calibrate.simulation.simulate import simulate_gait, simulate_static
+
+    human = _human()
+    walk = simulate_gait(human, frames=60, noise_mm=0.3, seed=2)
+    static = simulate_static(human, walk.truth, frames=60, noise_mm=0.3, seed=2)
+    X = static.trial.markers.copy()
+    rng = np.random.default_rng(0)
+    shank = [human.marker_index(m.name) for m in human.markers if m.segment == "tibia_l"]
+    for m in human.markers:
+        k = human.marker_index(m.name)
+        if m.segment != "tibia_l" and m.name != "LKNE":
+            X[:, k] += rng.normal(0.0, 0.008, (X.shape[0], 3))
+    X[:, human.marker_index("LKNE")] = X[:, human.marker_index("LKNE")] + (X[:, shank] - static.trial.markers[:, shank]
+                                                                           ).mean(axis=1)
+    jittery = Trial(static.trial.labels, X, 100.0, 0, "static.c3d")
+    assert "LKNE" in [m.label for m in misplaced_labels(human, [jittery])]  # the test alone is fooled
+    assert relative_motion(jittery, human) >= STILL_MOTION
+    assert relative_motion(jittery, human) < MISPLACED_MOTION * segment_jitter(jittery, human)
+    assert relative_motion(walk.trial, human) > MISPLACED_MOTION * segment_jitter(walk.trial, human)
+    swapped = list(walk.trial.labels)
+    a, b = swapped.index("LKNE"), swapped.index("LANK")
+    swapped[a], swapped[b] = swapped[b], swapped[a]
+    moving = Trial(tuple(swapped), walk.trial.markers, 100.0, 0, "walk.c3d")
+    cal = calibrate(human, [jittery, moving], Settings(max_iterations=5))
+    assert {i for i, _ in cal.misplaced} == {1}
+    assert {m.label for _, m in cal.misplaced} & {"LKNE", "LANK"}
