@@ -310,12 +310,25 @@ def test_a_static_places_a_new_marker_on_the_nearest_of_the_segments_it_is_rigid
             assert res[name].segment == seg and res[name].status == "assigned", (seed, name, res[name].reason)
 
 
+def _only_the_walk_judged(human, static: Trial, walk) -> None:
+    """Calibrated with `walk`'s trial with LKNE and LANK exchanged: only the walk's labels are named, the exchange
+    among them."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.problem.settings import Settings
+
+    swapped = list(walk.trial.labels)
+    a, b = swapped.index("LKNE"), swapped.index("LANK")
+    swapped[a], swapped[b] = swapped[b], swapped[a]
+    moving = Trial(tuple(swapped), walk.trial.markers, 100.0, 0, "walk.c3d")
+    cal = calibrate(human, [static, moving], Settings(max_iterations=5))
+    assert {i for i, _ in cal.misplaced} == {1}
+    assert {m.label for _, m in cal.misplaced} & {"LKNE", "LANK"}
+
+
 def test_a_still_trial_is_not_judged_for_misplaced_labels():
     """In a still trial every label keeps its distance to every segment's markers, so the rigidity test weighs only
     their noise: a static whose torso markers jitter 8 mm (video keypoints) but T10 names T10 "riding with" a thigh.
     The pipeline judges only the trials that move; the static's labels are not flagged, the walk's still are."""
-    from calibrate.calibration.pipeline import calibrate
-    from calibrate.problem.settings import Settings
     from calibrate.simulation.simulate import simulate_gait, simulate_static
 
     human = _human()
@@ -328,13 +341,7 @@ def test_a_still_trial_is_not_judged_for_misplaced_labels():
             X[:, human.marker_index(m.name)] += rng.normal(0.0, 0.008, (X.shape[0], 3))
     jittery = Trial(static.trial.labels, X, 100.0, 0, "static.c3d")
     assert [m.label for m in misplaced_labels(human, [jittery])] == ["T10"]  # the test alone is fooled
-    swapped = list(walk.trial.labels)
-    a, b = swapped.index("LKNE"), swapped.index("LANK")
-    swapped[a], swapped[b] = swapped[b], swapped[a]
-    moving = Trial(tuple(swapped), walk.trial.markers, 100.0, 0, "walk.c3d")
-    cal = calibrate(human, [jittery, moving], Settings(max_iterations=5))
-    assert {i for i, _ in cal.misplaced} == {1}
-    assert {m.label for _, m in cal.misplaced} & {"LKNE", "LANK"}
+    _only_the_walk_judged(human, jittery, walk)
 
 
 def test_a_trial_whose_segments_jitter_as_much_as_they_move_is_not_judged():
@@ -347,11 +354,9 @@ def test_a_trial_whose_segments_jitter_as_much_as_they_move_is_not_judged():
     from calibrate.calibration.pipeline import (
         MISPLACED_MOTION,
         STILL_MOTION,
-        calibrate,
         relative_motion,
         segment_jitter,
     )
-    from calibrate.problem.settings import Settings
     from calibrate.simulation.simulate import simulate_gait, simulate_static
 
     human = _human()
@@ -371,10 +376,4 @@ def test_a_trial_whose_segments_jitter_as_much_as_they_move_is_not_judged():
     assert relative_motion(jittery, human) >= STILL_MOTION
     assert relative_motion(jittery, human) < MISPLACED_MOTION * segment_jitter(jittery, human)
     assert relative_motion(walk.trial, human) > MISPLACED_MOTION * segment_jitter(walk.trial, human)
-    swapped = list(walk.trial.labels)
-    a, b = swapped.index("LKNE"), swapped.index("LANK")
-    swapped[a], swapped[b] = swapped[b], swapped[a]
-    moving = Trial(tuple(swapped), walk.trial.markers, 100.0, 0, "walk.c3d")
-    cal = calibrate(human, [jittery, moving], Settings(max_iterations=5))
-    assert {i for i, _ in cal.misplaced} == {1}
-    assert {m.label for _, m in cal.misplaced} & {"LKNE", "LANK"}
+    _only_the_walk_judged(human, jittery, walk)
