@@ -293,11 +293,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # the test would weigh only their noise (Pose2Sim's crouching child: LShoulder "with the pelvis", 0.0 mm SD).
     # Nor on one whose markers on one segment move against each other nearly as much as across the joints (Pose2Sim's
     # augmented static: 21 mm across, 9 within; five labels named "with" an arm or a shank).
-    own_motion = [relative_motion(t, model) for t in trials] if run.outliers > 0 else []
-    judged = [own_motion[i] >= STILL_MOTION and own_motion[i] >= MISPLACED_MOTION * segment_jitter(t, model)
-              for i, t in enumerate(trials)] if run.outliers > 0 else []
-    misplaced = tuple((i, m) for i, t in enumerate(trials) if judged[i]
-                      for m in misplaced_labels(model, [t], skip=centred)) if run.outliers > 0 else ()
+    own_motion = [relative_motion(t, model) for t in trials] if run.outliers > 0 else []  # (none: nothing judged)
+    misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(trials, own_motion, strict=False))
+                      if moves >= STILL_MOTION and moves >= MISPLACED_MOTION * segment_jitter(t, model)
+                      for m in misplaced_labels(model, [t], skip=centred))
     for i, m in misplaced:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
     # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe), or alike in every
@@ -1139,12 +1138,23 @@ def segment_jitter(trial: Trial, model: Model) -> float:
     """How much the trial's markers on one segment of `model` move against each other: the median over such pairs
     of their distance's SD (m; 0 with none).  Skin over a rigid bone: 1-3 mm on the marker sets at hand; video
     keypoints and their augmented markers 2-13 mm."""
-    seg = {m.name: m.segment for m in model.markers}
-    labs = [lab for lab in trial.labels if lab in seg]
-    D = distance_variance(trial.select(labs).markers[:: max(1, trial.n_frames // 200)], min_frames=3)
-    same = np.array([[seg[a] == seg[b] for b in labs] for a in labs], dtype=bool) & ~np.eye(len(labs), dtype=bool)
-    vals = np.sqrt(D[same & np.isfinite(D)]) if labs else np.zeros(0)
+    vals = _pair_spreads(trial, model, same=True)
     return float(np.median(vals)) if vals.size else 0.0
+
+
+def _pair_spreads(trial: Trial, model: Model | None, same: bool = False) -> np.ndarray:
+    """The SDs over (at most ~200 of) the trial's frames of its marker pairs' distances (m): pairs on two segments of
+    `model` (`same`: on one segment), or without a model every pair of labelled markers."""
+    seg = {m.name: m.segment for m in model.markers} if model is not None else None
+    labs = [lab for lab in trial.labels if (lab in seg if seg is not None else not UNLABELLED.fullmatch(lab))]
+    if not labs:
+        return np.zeros(0)
+    D = distance_variance(trial.select(labs).markers[:: max(1, trial.n_frames // 200)], min_frames=3)
+    apart = ~np.eye(len(labs), dtype=bool)
+    if seg is not None:
+        on_one = np.array([[seg[a] == seg[b] for b in labs] for a in labs], dtype=bool)
+        apart &= on_one if same else ~on_one
+    return np.sqrt(D[apart & np.isfinite(D)])
 
 
 def relative_motion(trial: Trial, model: Model | None = None, percentile: float = 50.0) -> float:
@@ -1153,13 +1163,7 @@ def relative_motion(trial: Trial, model: Model | None = None, percentile: float 
     walks' 15 mm and more).  Without a model, over every pair of labelled markers (the few on one segment barely
     move the median; the real recordings: statics 0.4-1.6 mm, walks 14-24 mm).  A trial under STILL_MOTION is
     still.  `percentile`: another percentile over the pairs than the median (100: the pair that moves most)."""
-    seg = {m.name: m.segment for m in model.markers} if model is not None else None
-    labs = [lab for lab in trial.labels if (lab in seg if seg is not None else not UNLABELLED.fullmatch(lab))]
-    X = trial.select(labs).markers[:: max(1, trial.n_frames // 200)]
-    D = distance_variance(X, min_frames=3)
-    other = (np.array([[seg[a] != seg[b] for b in labs] for a in labs]) if seg is not None
-             else ~np.eye(len(labs), dtype=bool))
-    vals = np.sqrt(D[other & np.isfinite(D)]) if labs else np.zeros(0)
+    vals = _pair_spreads(trial, model)
     return float(np.percentile(vals, percentile)) if vals.size else 0.0
 
 

@@ -149,6 +149,19 @@ class PriorsMixin:
             self._joint_marker_cache = cached
         return cached[1]
 
+    def _estimated(self, seg_pairs: list, joint_pairs: list) -> tuple[np.ndarray, list, list]:
+        """The segments whose scale is free, and the left/right segment and joint pairs of which one at least is
+        free (the priors on held blocks are constants), kept while the layout is the same object."""
+        cached = self.__dict__.get("_estimated_cache")
+        if cached is None or cached[0] is not self.layout:
+            L = self.layout
+            free = np.array([i for i in range(len(self.model.segments)) if not L.block("scale", i).held], dtype=int)
+            cached = (self.layout, free,
+                      [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)],
+                      [(a, b) for a, b in joint_pairs if not (L.block("centre", a).held and L.block("centre", b).held)])
+            self._estimated_cache = cached
+        return cached[1], cached[2], cached[3]
+
     def held_centres(self) -> list[tuple[int, list[int]]]:
         """(joint, its parent segment's seen markers) of each held centre (ProblemOptions.hold_centres) whose parent
         shows three or more markers, which place it; none when the centres are not free."""
@@ -290,17 +303,17 @@ class PriorsMixin:
             idx = L.axis_entries.ravel()
             add((p[idx] - unit[idx]) / st.priors.axis, lambda: (
                 np.arange(idx.size), idx, np.full(idx.size, 1.0 / st.priors.axis)))
+        free_scales, seg_pairs, joint_pairs = self._estimated(seg_pairs, joint_pairs)
         if "scale" in free:
             # The free scales only: a held one (a segment no data reach, held at the subject's size) is not estimated.
-            k = np.array([i for i in range(len(m.segments)) if not L.block("scale", i).held], dtype=int)
+            k = free_scales  # (a short name for the row's three uses)
             add((scale[k] - base[L.scales][k]) / st.priors.scale, lambda: (
                 np.arange(k.size), L.scales.start + k, np.full(k.size, 1.0 / st.priors.scale)))
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
         sd = st.priors.symmetry_scale
-        # (a pair both held has nothing to estimate: segments no data reach, both at the subject's size)
-        seg_pairs = [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)]
+        # (a pair both held has nothing to estimate: segments no data reach, both at the subject's size; _estimated)
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
             k = np.arange(a.size)
@@ -308,7 +321,6 @@ class PriorsMixin:
                 np.r_[k, k], np.r_[L.scale(a), L.scale(b)],
                 np.r_[np.full(a.size, 1.0 / sd), np.full(a.size, -1.0 / sd)]))
         sd = st.priors.symmetry_centre
-        joint_pairs = [(a, b) for a, b in joint_pairs if not (L.block("centre", a).held and L.block("centre", b).held)]
         if "centre" in free and sd > 0 and joint_pairs:
             jl, jr = np.array(joint_pairs, dtype=int).T
             sa, sb = self.centre_segment[jl], self.centre_segment[jr]
