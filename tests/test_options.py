@@ -329,6 +329,14 @@ def test_which_hinge_of_a_trading_pair_is_locked(human):
     assert "the fit carried their axes 56 deg from the base model's" in lock.text()
     assert trading_locks(human, traded, turns=turns, start=start, limit=d(60.0)) == ()
     assert trading_locks(human, traded, turns=turns, limit=d(30.0)) == ()  # no start: no reading of who is seen less
+    # The ankle still (the subtalar's axis turned 30 deg to do its turn; Pose2Sim's keypoint walk) and fixed less well
+    # by one frame: the pair's lock by the start's reading alone, never both (the foot welded to the shank).
+    shifted = {"ankle_l": (d(1.0), d(5.0)), "subtalar_l": (d(25.0), d(3.0))}
+    (lock,) = trading_locks(human, shifted, turns={"ankle_l": d(5.0), "subtalar_l": d(30.0)}, start=start,
+                            limit=d(20.0))
+    assert (lock.coordinate, lock.turned) == ("subtalar_l", d(30.0))
+    (lock,) = trading_locks(human, shifted)  # no trade beyond the limit: the still ankle, as before
+    assert lock.coordinate == "ankle_l"
 
 
 def test_an_axis_turned_far_from_the_base_is_named_implausible(human):

@@ -124,7 +124,8 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
 
     Left free, both joints' turns, their axes and the foot's markers trade in every frame (pig_walk's two-marker
     feet: a static ankle at -35.6 deg against the other's -5.8, a toe marker 124 mm from its place); locked at 0
-    (clipped to its range), as OpenSim's gait models lock the subtalar, the neighbour is found as any hinge.
+    (clipped to its range), as OpenSim's gait models lock the subtalar, the neighbour is found as any hinge.  Never
+    both hinges of a pair: one still by the first rule beside a neighbour locked by the second is left free.
     `seen`, `locked`: as for trading_joints."""
     trading = trading_joints(model, seen, locked)
     out = []
@@ -150,7 +151,12 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
             if (outer and not any(outers)) or (all(o == outer for o in outers)
                                                 and all(start[name][1] > o for o in first)):
                 out.append(TradingLock(name, value, bare, neighbours, spread, start[name][1], first, turned))
-    return tuple(out)
+    # Never both hinges of one pair: a hinge still beside a neighbour whose pair's axes the trade carried beyond the
+    # limit is still because the neighbour did its turn (Pose2Sim's keypoint walk: the ankle still, the subtalar's
+    # axis turned 30 deg to do its work); the pair's lock by the start's reading restarts the subsample from the start,
+    # where the still one turns again.  Both locked, the foot was welded to the shank.
+    by_turn = {n for lk in out if lk.turned for n in lk.neighbours}
+    return tuple(lk for lk in out if lk.turned or lk.coordinate not in by_turn)
 
 
 def zero_notes(model: Model, seen: Collection[str] | None, locked: Collection[str], still: int = 0
