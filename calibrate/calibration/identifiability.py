@@ -13,6 +13,7 @@ import numpy as np
 from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
 from ..problem.options import Priors, ProblemOptions
+from ..problem.priors import SIZED_SEGMENTS
 from ..problem.problem import Problem
 from .records import (
     STILL_RATIO,
@@ -374,6 +375,7 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     for k, mk in enumerate(model.markers):
         out.append(position("marker", k, mk.name, mk.segment,
                             partial(_judge_marker, bool(problem.seen[:, k].any()), mk.segment)))
+    at_size = problem.free_scales().size >= SIZED_SEGMENTS  # the scales' priors centre on the subject's size
     for si, sg in enumerate(model.segments):
         block = L.block("scale", si)
         if block.held:
@@ -386,7 +388,8 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             prior_sd = math.sqrt(max(float(prior_cov[c, c]), 0.0))
             ratio = float(std[0] / prior_sd) if prior_sd > 0 else float("nan")
             status = Identified.YES if ratio < IDENTIFIED else Identified.NO
-            note = "" if status.identified else "the trial barely sizes this segment: held by the prior"
+            note = "" if status.identified else "the trial barely sizes this segment: held by the prior" + (
+                " at the subject's size (the segments' mean scale)" if at_size else "")
         out.append(ParameterChange("scale", sg.name, np.array([1.0]), np.array([seg_scale[si]]),
                                    float(seg_scale[si] - 1.0), std, status, note, ratio))
     # Each coordinate beside a markerless segment: its neighbours' there, one of which to lock (_far_from_prior).

@@ -33,7 +33,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     marker_mm = 20.0
     centre_mm = 20.0
     axis_deg = 10.0
-    scale = 0.25
+    scale = 0.25            # SD of a segment's scale about the subject's size (the segments' mean scale)
+    size = 0.25             # SD of the subject's size about the base model's (0: each segment's scale about 1)
     symmetry_scale = 0.05   # SD of a left/right difference of segment scales (0: off)
     symmetry_centre_mm = 20.0  # SD of a left/right difference of mirrored joint centres (0: off)
     width_mm = 5.0          # SD of a measured knee/ankle width's lateral distance (0: measurements not used)
@@ -68,7 +69,7 @@ _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "ato
         "new_markers", "outlier_sigmas", "geodesic", "memory_mb", "priors", "marker_noise_mm", "lock_deg", "hold_axes",
         "hold_centres", "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers",
         "far_joints", "hip_regression"}
-_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "symmetry_scale", "symmetry_centre_mm", "width_mm",
+_PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "size", "symmetry_scale", "symmetry_centre_mm", "width_mm",
            "on_axis_mm", "joint_marker_mm", "held_centre_mm", "placeholder_mm"}
 
 
@@ -96,6 +97,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         centre=num(pri, "centre_mm", 1000 * s.priors.centre) / 1000,
         axis=math.radians(num(pri, "axis_deg", math.degrees(s.priors.axis))),
         scale=num(pri, "scale", s.priors.scale),
+        size=num(pri, "size", s.priors.size),
         symmetry_scale=num(pri, "symmetry_scale", s.priors.symmetry_scale),
         symmetry_centre=num(pri, "symmetry_centre_mm", 1000 * s.priors.symmetry_centre) / 1000,
         width=num(pri, "width_mm", 1000 * s.priors.width) / 1000,

@@ -29,7 +29,8 @@ class Priors:
     marker: float = 0.02  # m: how far a subject's marker may sit from the base model's place
     centre: float = 0.02  # m: same for a joint centre
     axis: float = math.radians(10.0)  # rad: tilt of a hinge axis
-    scale: float = 0.25  # fraction: segment scale factor about 1
+    scale: float = 0.25  # fraction: a segment's scale factor about the subject's size (the segments' mean scale)
+    size: float = 0.25  # fraction: the subject's size about the base model's (0: each segment's scale about 1)
     # Left/right symmetry (segments and joints named *_l / *_r; 0: off): SD of the difference between
     # a left segment's scale factor and its right partner's (fraction), and between a left joint centre
     # and its right partner's mirrored through the sagittal plane (m, at the subject's scale), each
@@ -139,7 +140,7 @@ class ProblemOptions:
             if not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 and math.isfinite(d)):
                 raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
                                  f"in metres, got {d!r}")
-        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "joint_marker"):
+        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "joint_marker", "size"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

@@ -3,6 +3,7 @@ symmetry, and the joint-limit residuals."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -56,6 +57,10 @@ def on_axis_markers(model: Model, held: Callable[[int], bool]) -> list[tuple[int
 #: models/human.urdf, gait2392 and Rajagopal).  Rajagopal's mid-epicondyle KneeJoint, 8 mm from its fitted knee
 #: hinge, is near a centre, not at it: tied as well, it turned the left ankle 4 deg further from OpenSim's IK.
 JOINT_MARKER_RADIUS = 0.005
+
+#: The free segment scales needed for their priors to centre on the subject's size (their mean scale; Priors.size);
+#: with fewer each is pulled towards the base model's.
+SIZED_SEGMENTS = 3
 
 
 #: m, at the base model's scale: markers of one segment the base model puts this close together are placeholders
@@ -149,18 +154,26 @@ class PriorsMixin:
             self._joint_marker_cache = cached
         return cached[1]
 
-    def _estimated(self, seg_pairs: list, joint_pairs: list) -> tuple[np.ndarray, list, list]:
-        """The segments whose scale is free, and the left/right segment and joint pairs of which one at least is
-        free (the priors on held blocks are constants), kept while the layout is the same object."""
+    def _estimated(self, seg_pairs: list, joint_pairs: list) -> tuple[list, list]:
+        """The left/right segment and joint pairs of which one at least is free (the priors on held blocks are
+        constants), kept while the layout is the same object."""
         cached = self.__dict__.get("_estimated_cache")
         if cached is None or cached[0] is not self.layout:
             L = self.layout
-            free = np.array([i for i in range(len(self.model.segments)) if not L.block("scale", i).held], dtype=int)
-            cached = (self.layout, free,
+            cached = (self.layout,
                       [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)],
                       [(a, b) for a, b in joint_pairs if not (L.block("centre", a).held and L.block("centre", b).held)])
             self._estimated_cache = cached
-        return cached[1], cached[2], cached[3]
+        return cached[1], cached[2]
+
+    def free_scales(self) -> np.ndarray:
+        """The segments whose scale is free (not held), kept while the layout is the same object."""
+        cached = self.__dict__.get("_free_scales_cache")
+        if cached is None or cached[0] is not self.layout:
+            cached = (self.layout, np.array([i for i in range(len(self.model.segments))
+                                             if not self.layout.block("scale", i).held], dtype=int))
+            self._free_scales_cache = cached
+        return cached[1]
 
     def held_centres(self) -> list[tuple[int, list[int]]]:
         """(joint, its parent segment's seen markers) of each held centre (ProblemOptions.hold_centres) whose parent
@@ -303,12 +316,29 @@ class PriorsMixin:
             idx = L.axis_entries.ravel()
             add((p[idx] - unit[idx]) / st.priors.axis, lambda: (
                 np.arange(idx.size), idx, np.full(idx.size, 1.0 / st.priors.axis)))
-        free_scales, seg_pairs, joint_pairs = self._estimated(seg_pairs, joint_pairs)
+        seg_pairs, joint_pairs = self._estimated(seg_pairs, joint_pairs)
         if "scale" in free:
             # The free scales only: a held one (a segment no data reach, held at the subject's size) is not estimated.
-            k = free_scales  # (a short name for the row's three uses)
-            add((scale[k] - base[L.scales][k]) / st.priors.scale, lambda: (
-                np.arange(k.size), L.scales.start + k, np.full(k.size, 1.0 / st.priors.scale)))
+            # Each segment's scale about the subject's size, its scales' mean relative to the base model's (SD
+            # Priors.scale), and that size about the base model's (Priors.size): the base model's proportions at the
+            # subject's size, so that a segment the trial barely sizes (a talus, an ulna, a hand with one marker)
+            # follows the subject's size, not an adult base model's.  A hierarchical prior, s_k = S (1 + e_k) with
+            # e_k ~ N(0, scale²) and S ~ N(1, size²), in whitened form: one row per segment, (s_k - b_k S̄) / scale,
+            # and one for the size, (S̄ - 1) / sqrt(scale² / n + size²), S̄ the mean of s_k / b_k (its estimate);
+            # with size 0 their squares add up to the independent priors' sum of ((s_k - b_k) / scale)².
+            sd, k = st.priors.scale, self.free_scales()
+            if k.size >= SIZED_SEGMENTS:
+                b_k = base[L.scales][k]
+                size = float(np.mean(scale[k] / b_k))
+                n, col = k.size, L.scales.start + k
+                tau = math.sqrt(sd ** 2 / n + st.priors.size ** 2)
+                add(np.r_[(scale[k] - b_k * size) / sd, (size - 1.0) / tau], lambda: (
+                    np.r_[np.arange(n), np.repeat(np.arange(n), n), np.full(n, n)],
+                    np.r_[col, np.tile(col, n), col],
+                    np.r_[np.full(n, 1.0 / sd), (-np.outer(b_k, 1.0 / b_k) / (n * sd)).ravel(), 1.0 / (n * b_k * tau)]))
+            else:  # too few for a mean: each about the base model's
+                add((scale[k] - base[L.scales][k]) / sd, lambda: (
+                    np.arange(k.size), L.scales.start + k, np.full(k.size, 1.0 / sd)))
         # Left/right symmetry (Priors.symmetry_scale, symmetry_centre): a left segment's scale against
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
