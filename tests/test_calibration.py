@@ -1286,6 +1286,9 @@ def test_a_segment_the_trial_barely_sizes_follows_the_subjects_size(human, human
     np.testing.assert_allclose(cal.params.scale[tali], sim.truth.scale[tali], atol=0.05)
     talus = next(c for c in cal.changes if c.group == "scale" and c.item == "talus_l")
     assert talus.note.endswith("held by the prior at the subject's size (the segments' mean scale)")
+    from calibrate.calibration.report import calibration_report
+
+    assert calibration_report(cal)["settings"]["priors"]["size"] == Priors().size == 0.25
     # The prior's rows on their own (every other parameter at the base model's and no symmetry prior: the other rows
     # are zero), against the hierarchical prior's cost written out: s_k = S (1 + e_k), e_k ~ N(0, scale²),
     # S ~ N(1, size²); with size 0, the independent priors' sum of ((s_k - 1) / scale)².

@@ -110,6 +110,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "loss_scale": st.loss_scale,
                      "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
                                 "axis_deg": math.degrees(st.priors.axis), "scale": st.priors.scale,
+                                "size": st.priors.size,
                                 "symmetry_scale": st.priors.symmetry_scale,
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
                                 "width_mm": 1000 * st.priors.width,
