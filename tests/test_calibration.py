@@ -1286,9 +1286,18 @@ def test_a_segment_the_trial_barely_sizes_follows_the_subjects_size(human, human
     np.testing.assert_allclose(cal.params.scale[tali], sim.truth.scale[tali], atol=0.05)
     talus = next(c for c in cal.changes if c.group == "scale" and c.item == "talus_l")
     assert talus.note.endswith("held by the prior at the subject's size (the segments' mean scale)")
-    from calibrate.calibration.report import calibration_report
+    from calibrate.calibration.report import calibration_report, summary_text
 
-    assert calibration_report(cal)["settings"]["priors"]["size"] == Priors().size == 0.25
+    report = calibration_report(cal)
+    assert report["settings"]["priors"]["size"] == Priors().size == 0.25
+    # The subject's size (the scales' mean, the priors' centre) in the report and the summary, each scale listed.
+    assert report["subject_size"] == pytest.approx(float(np.mean(cal.params.scale)), abs=1e-12)
+    assert abs(report["subject_size"] - float(np.mean(sim.truth.scale))) < 0.02
+    text = summary_text(cal)
+    assert f"the subject's size {report['subject_size']:.3f} (their mean" in text
+    row = next(line for line in text.splitlines() if "talus_l" in line and "+-" in line)
+    assert f"{'talus_l':14s}{cal.params.scale[tali[0]]:6.3f} +-" in row
+    assert re.search(r"talus_l\s+[\d.]+ \+-[\d.]+  \(prior\)", row), row  # held by the prior at the size
     # The prior's rows on their own (every other parameter at the base model's and no symmetry prior: the other rows
     # are zero), against the hierarchical prior's cost written out: s_k = S (1 + e_k), e_k ~ N(0, scale²),
     # S ~ N(1, size²); with size 0, the independent priors' sum of ((s_k - 1) / scale)².

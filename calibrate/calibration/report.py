@@ -210,6 +210,7 @@ def calibration_report(cal: Calibration) -> dict:
                  "joints": {j.name: {"method": j.method, "ok": j.ok} for j in cal.seed.joints}
                  if cal.seed.joints is not None else {}},
         "parameters": params,
+        "subject_size": subject_size(cal),
         "unidentified": [c.name for c in cal.changes if not c.identified],
         "unreliable": [c.name for c in cal.changes if c.unreliable],
         "notes": list(cal.notes),
@@ -386,6 +387,33 @@ def static_pose_table(cal) -> dict:
             "hinges": [row(h) for h in hinges],
             "flagged": [row(h) for h in hinges if h.flagged],
             "advice": _foot_hint(cal, [h.joint for h in hinges if h.flagged]).lstrip("; ")}
+
+
+def subject_size(cal) -> float | None:
+    """The subject's size against the base model's: the mean scale of the segments whose scale was estimated (the
+    centre of their scale priors, Priors.size); None when no scale was estimated."""
+    est = [float(c.value[0]) for c in cal.changes if c.group == "scale" and np.isfinite(c.std).all()]
+    return float(np.mean(est)) if est else None
+
+
+def _scale_lines(cal) -> list[str]:
+    """The segment scale factors, three to a line, with their posterior SDs: what OpenSim's Scale tool reports."""
+    scales = [c for c in cal.changes if c.group == "scale"]
+    size = subject_size(cal)
+    if not scales or size is None:
+        return []
+    cells = []
+    for c in scales:
+        if not np.isfinite(c.std).all():
+            cells.append(f"{c.item:14s}{c.value[0]:6.3f}  (held)     ")
+        else:
+            flag = "  (prior)" if not c.identified else "         "
+            cells.append(f"{c.item:14s}{c.value[0]:6.3f} +-{float(c.std[0]):5.3f}{flag}")
+    lines = [f"  segment scales (x the base model's) +- posterior std; the subject's size {size:.3f} (their mean; "
+             "(prior): held by the prior at that size; (held): no data reach it, at the sized segments' median)"]
+    for k in range(0, len(cells), 3):
+        lines.append("    " + "   ".join(cells[k:k + 3]).rstrip())
+    return lines
 
 
 def _noise_lines(cal) -> list[str]:
@@ -608,6 +636,7 @@ def summary_text(cal) -> str:
             if c.unreliable and c.identified:
                 flag = "  (turned by the trial, yet far from the base model's: unreliable)"
             lines.append(f"    {c.item:16s}{c.change:8.2f} +- {std:5.2f}{flag}")
+    lines += _scale_lines(cal)
     for c in cal.changes:
         if c.group == "centre" and c.unreliable and (c.identified or _slide_only(c)):
             lines.append(f"  implausible  centre[{c.item}]: {c.note}{_moved_hint(cal, c)}; --hold-centres "
