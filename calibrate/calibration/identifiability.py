@@ -375,7 +375,9 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     for k, mk in enumerate(model.markers):
         out.append(position("marker", k, mk.name, mk.segment,
                             partial(_judge_marker, bool(problem.seen[:, k].any()), mk.segment)))
-    at_size = problem.free_scales().size >= SIZED_SEGMENTS  # the scales' priors centre on the subject's size
+    free_scales = problem.free_scales()
+    at_size = free_scales.size >= SIZED_SEGMENTS  # the scales' priors centre on the subject's size
+    size_cols = np.array([int(L.block("scale", k).cols[0]) for k in free_scales], dtype=int)
     for si, sg in enumerate(model.segments):
         block = L.block("scale", si)
         if block.held:
@@ -384,9 +386,15 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         else:
             c = int(block.cols[0])
             std = np.array([math.sqrt(max(cov[c, c], 0.0))])
-            # The prior-only variance (a pseudo-inverse) can come out zero or a rounding below it: no ratio.
-            prior_sd = math.sqrt(max(float(prior_cov[c, c]), 0.0))
-            ratio = float(std[0] / prior_sd) if prior_sd > 0 else float("nan")
+            # Whether the trial sizes the segment: its scale against the subject's size (the free scales' mean), whose
+            # own prior (Priors.size) the data settle from every segment at once, posterior against prior-only.  The
+            # prior-only variance (a pseudo-inverse) can come out zero or a rounding below it: no ratio.
+            g = np.zeros(cov.shape[0])
+            g[c] = 1.0
+            if at_size:
+                g[size_cols] -= 1.0 / size_cols.size
+            post_sd, prior_sd = _sds(g, cov, prior_cov)
+            ratio = float(post_sd / prior_sd) if prior_sd > 0 else float("nan")
             status = Identified.YES if ratio < IDENTIFIED else Identified.NO
             note = "" if status.identified else "the trial barely sizes this segment: held by the prior" + (
                 " at the subject's size (the segments' mean scale)" if at_size else "")
