@@ -1312,6 +1312,11 @@ def test_a_segment_the_trial_barely_sizes_follows_the_subjects_size(human, human
         d = scale - 1.0
         assert float(r @ r) == pytest.approx(float(d @ np.linalg.solve(cov(size), d)), rel=1e-10)
     assert float(r @ r) == pytest.approx(float(np.sum((d / sd) ** 2)), rel=1e-10)
+    # Two free scales are too few for a mean: each is pulled towards the base model's, whatever Priors.size.
+    two = tuple(sg.name for sg in human.segments if sg.name not in ("femur_l", "femur_r"))
+    rows = [Problem(human, marker_columns(human, sim.trial), Settings(hold_segments=two, priors=Priors(size=size)),
+                    human_kin).prior(at, jacobian=False)[0] for size in (0.25, 0.0)]
+    np.testing.assert_array_equal(rows[0], rows[1])
     assert settings_from_dict({"priors": {"size": 0.1}}).priors.size == 0.1  # [priors] size in a settings file
     with pytest.raises(CalibrateError, match="size"):
         settings_from_dict({"priors": {"size": -0.1}})
