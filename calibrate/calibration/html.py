@@ -234,6 +234,8 @@ def _summary(report: dict) -> str:
                  + (f"; from {mass['from']})" if mass.get("from") not in (None, "given") else ")")
                  if mass.get("subject_kg") else f"{mass.get('base_kg')} kg, the base model's"],
         ["free parameters", ", ".join(report["settings"]["free"])],
+        *([["subject's size", f"{report['subject_size']:.3f} x the base model's (the mean segment scale, the scale "
+                              "priors' centre)"]] if report.get("subject_size") is not None else []),
         ["noise", "learnt per marker" if report["noise"]["learnt"] else f"{report['settings']['noise_mm']:g} mm"],
         ["time (s)", "  ".join(f"{k} {v:.2f}" for k, v in report["times_s"].items())
                      + f"  total {sum(report['times_s'].values()):.2f}"],
