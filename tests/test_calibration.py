@@ -1257,6 +1257,11 @@ def test_segments_no_marker_reaches_are_held_at_the_subjects_size(human):
     np.testing.assert_allclose(cal.params.scale[upper], truth, rtol=0.06)
     note = next(c.note for c in cal.changes if c.group == "scale" and c.item == "torso")
     assert "held at the base model's at the subject's size (scale" in note
+    from calibrate.calibration.report import summary_text
+
+    torso = f"{'torso':14s}{cal.params.scale[human.segment_index('torso')]:6.3f}  (held)"
+    held_row = next(line for line in summary_text(cal).splitlines() if torso in line)
+    assert len(held_row.split(torso)[0]) in {4, 4 + 40, 4 + 80}  # in the table's columns, as wide as a sized cell
     # The same with the held segments at the base model's size (the code before): the same fit, the legs the same.
     import calibrate.calibration.pipeline as pipeline
 

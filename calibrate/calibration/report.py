@@ -405,7 +405,7 @@ def _scale_lines(cal) -> list[str]:
     cells = []
     for c in scales:
         if not np.isfinite(c.std).all():
-            cells.append(f"{c.item:14s}{c.value[0]:6.3f}  (held)     ")
+            cells.append(f"{c.item:14s}{c.value[0]:6.3f}{'  (held)':17s}")  # as wide as a cell with its SD
         else:
             flag = "  (prior)" if not c.identified else "         "
             cells.append(f"{c.item:14s}{c.value[0]:6.3f} +-{float(c.std[0]):5.3f}{flag}")
