@@ -398,12 +398,11 @@ def subject_size(cal) -> float | None:
 
 def _scale_lines(cal) -> list[str]:
     """The segment scale factors, three to a line, with their posterior SDs: what OpenSim's Scale tool reports."""
-    scales = [c for c in cal.changes if c.group == "scale"]
     size = subject_size(cal)
-    if not scales or size is None:
+    if size is None:  # no scale estimated
         return []
     cells = []
-    for c in scales:
+    for c in (c for c in cal.changes if c.group == "scale"):
         if not np.isfinite(c.std).all():
             cells.append(f"{c.item:14s}{c.value[0]:6.3f}{'  (held)':17s}")  # as wide as a cell with its SD
         else:
