@@ -636,3 +636,35 @@ def test_analog_words_the_parameters_do_not_count_are_skipped(tmp_path: Path, sc
     trial = read_trial(path)
     assert trial.n_frames == 5 and trial.labels == ("RASI", "LASI", "RPSI")
     assert_positions(trial.markers, xyz / 1000.0)
+
+
+def test_descriptions_longer_than_ezc3d_reads_are_cut_for_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A parameter's or a group's description of 128-255 characters (a KINARM robot's EXPERIMENT:SESSION, 163; ezc3d
+    writes them too): ezc3d reads the length byte as signed and asked for 4 GB, three times, before it failed.  The
+    file is read through a copy with the descriptions cut, which is removed afterwards; the file is not changed."""
+    xyz = positions_mm(6, 3, seed=18)
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [120.0]
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = ["RASI", "LASI", "RPSI"]
+    points = np.ones((4, 3, 6))
+    points[:3] = xyz.transpose(2, 1, 0)
+    c3d["data"]["points"] = points
+    c3d.add_parameter("EXPERIMENT", "SESSION", [1, 2], description="s" * 163)
+    c3d.add_parameter("EXPERIMENT", "NOTES", "walk", description="n" * 255)
+    c3d.add_parameter("EXPERIMENT", "STUDY", "gait", description="d" * 127)
+    path = tmp_path / "kinarm.c3d"
+    c3d.write(str(path))
+    written = path.read_bytes()
+    for name, length in ((b"SESSION", 163), (b"NOTES", 255)):
+        at = written.find(name)
+        assert at > 0 and written.find(bytes([length]) + bytes([ord(name[:1].lower())]) * 3, at) > 0
+    copies = tmp_path / "tmp"
+    copies.mkdir()
+    monkeypatch.setattr("tempfile.tempdir", str(copies))
+    trial = read_c3d(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI")
+    assert trial.rate == 120.0
+    assert_positions(trial.markers, xyz / 1000.0)
+    assert list(copies.iterdir()) == []  # the copy removed
+    assert path.read_bytes() == written

@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import os
+import shutil
 import struct
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,17 +56,31 @@ def _c3d_float(raw: bytes, processor: int) -> float:
     return struct.unpack("<f", raw)[0]
 
 
-def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
-    """Walk the records of a C3D parameter section; map (GROUP, NAME) to (type, dimensions, raw data).
+@dataclass(frozen=True)
+class _Record:
+    """One group or parameter record of a C3D parameter section, by its byte offsets in the section."""
+
+    group_id: int  # negative: a group (its id negated); positive: a parameter of that group
+    name: str
+    kind: int  # a parameter's type (-1 char, 1 byte, 2 integer, 4 float); 0 for a group
+    dims: tuple[int, ...]
+    raw: bytes  # a parameter's data
+    start: int  # the record's first byte (its name's length)
+    link: int  # the offset to the next record as the file gives it, from the link's own first byte (0: the last)
+    body: int  # after the link: a parameter's type byte, a group's description length
+    end: int  # the description's length byte (after a parameter's data)
+
+
+def _c3d_records(section: bytes, processor: int) -> list[_Record]:
+    """Walk the records of a C3D parameter section, in order.
 
     Raises _BadC3D when a record does not fit the section or names an unknown type: ezc3d can crash the
-    interpreter on such files.  A parameter of no group is left out.
+    interpreter on such files.
     """
     endian = ">" if processor == 86 else "<"
     end = len(section)
     pos = 4
-    groups: dict[int, str] = {}
-    records: list[tuple[int, str, int, tuple[int, ...], bytes]] = []
+    records: list[_Record] = []
     while pos + 2 <= end:
         n_chars = struct.unpack("b", section[pos : pos + 1])[0]
         if n_chars == 0:
@@ -78,9 +94,9 @@ def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, st
             raise _BadC3D("a parameter name is not text")
         link = struct.unpack(endian + "h", section[name_end : name_end + 2])[0]
         body = name_end + 2
+        kind, dims, raw = 0, (), b""
         if group_id < 0:
             data_end = body
-            groups[-group_id] = name.strip().upper()
         else:
             if body + 2 > end:
                 raise _BadC3D(f"parameter {name} is cut short")
@@ -91,25 +107,51 @@ def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, st
             dims = tuple(section[body + 2 : body + 2 + n_dims])
             data_start = body + 2 + n_dims
             data_end = data_start + int(np.prod(dims, dtype=np.int64)) * abs(kind)
-            records.append((group_id, name.strip().upper(), kind, dims, section[data_start:data_end]))
+            raw = section[data_start:data_end]
         if data_end + 1 > end:
             raise _BadC3D(f"parameter {name} runs past the parameter section")
         record_end = data_end + 1 + section[data_end]  # after the description
         if record_end > end:
             raise _BadC3D(f"the description of {name} runs past the parameter section")
+        records.append(_Record(group_id, name.strip().upper(), kind, dims, raw, pos, link, body, data_end))
         if link == 0:
             break
         following = name_end + link
         if link < 0 or following < record_end or following > end:
             raise _BadC3D(f"the link after {name} does not lead to the next parameter")
         pos = following
-    table: dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]] = {}
-    for group_id, name, kind, dims, raw in records:
-        # A parameter of no group (c3d.org's Vicon force-plate samples: IS_STATIC) is no marker's: ezc3d files it
-        # under a nameless group and reads on.
-        if group_id in groups:
-            table[(groups[group_id], name)] = (kind, dims, raw)
-    return table
+    return records
+
+
+def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
+    """Map (GROUP, NAME) of a C3D parameter section's parameters to (type, dimensions, raw data) (_c3d_records).
+    A parameter of no group is left out."""
+    records = _c3d_records(section, processor)
+    groups = {-r.group_id: r.name for r in records if r.group_id < 0}
+    # A parameter of no group (c3d.org's Vicon force-plate samples: IS_STATIC) is no marker's: ezc3d files it
+    # under a nameless group and reads on.
+    return {(groups[r.group_id], r.name): (r.kind, r.dims, r.raw) for r in records
+            if r.group_id > 0 and r.group_id in groups}
+
+
+C3D_MAX_DESCRIPTION = 127  # characters of a description ezc3d reads: it takes the length byte as signed
+
+
+def _short_descriptions(section: bytes, processor: int) -> bytes | None:
+    """The parameter section with every group's and parameter's description cut to C3D_MAX_DESCRIPTION characters
+    and the links after them shortened to match (the section zero-padded to its length), or None if none is longer.
+    ezc3d reads a description's length byte as signed: one of 128-255 characters (a KINARM robot's
+    EXPERIMENT:SESSION, 163) became a request for 4 GB, three times, before it failed."""
+    records = _c3d_records(section, processor)
+    if all(section[r.end] <= C3D_MAX_DESCRIPTION for r in records):
+        return None
+    endian = ">" if processor == 86 else "<"
+    out = bytearray(section[:4])
+    for r in records:
+        n = min(section[r.end], C3D_MAX_DESCRIPTION)
+        rest = section[r.body : r.end] + bytes([n]) + section[r.end + 1 : r.end + 1 + n]
+        out += section[r.start : r.body - 2] + struct.pack(endian + "h", len(rest) + 2 if r.link else 0) + rest
+    return bytes(out.ljust(len(section), b"\x00"))
 
 
 _Table = dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]  # (group, name) -> (type, dims, bytes)
@@ -167,6 +209,9 @@ class _C3DLayout:
     #: words per frame than the header (BTS's files, c3d.org sample28: ANALOG:USED 0 beside 6 analog words a frame),
     #: by which ezc3d would read every frame but the first from the wrong place; None: ezc3d's points are used.
     own_points: tuple[int, int, int, int, bool, float, int] | None = None
+    #: (offset in bytes, bytes) of a parameter section to read in place of the file's (_short_descriptions); None: the
+    #: file is read as it is.
+    section: tuple[int, bytes] | None = None
 
 
 def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
@@ -217,6 +262,7 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         tail = fh.read(512)
     try:
         table = _c3d_parameter_section(section, processor)
+        shortened = _short_descriptions(section, processor)
     except _BadC3D as exc:
         raise bad(f"damaged parameter section: {exc}") from None
 
@@ -297,7 +343,8 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         if used_analog * per_frame != n_analog:
             scale = point_scale if point_scale is not None else _c3d_float(header[12:16], processor)
             own = (data_start, n_points, n_frames, 4 * n_points + n_analog, is_float, scale, processor)
-    return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame, own_points=own)
+    return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame, own_points=own,
+                      section=None if shortened is None else (param_start, shortened))
 
 
 def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -317,6 +364,22 @@ def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]
         block = raw.view("<i2").reshape(n_frames, words)[:, : 4 * n_points].reshape(n_frames, n_points, 4)
         xyz, residual = block[:, :, :3] * abs(scale), block[:, :, 3].astype(np.float64)
     return xyz.transpose(2, 1, 0).astype(np.float64), residual.T[None].astype(np.float64)
+
+
+def _ezc3d_read(path: Path, section: tuple[int, bytes] | None) -> ezc3d.c3d:
+    """ezc3d's reading of `path`; with `section` (offset, bytes), of a temporary copy with that parameter section in
+    place of the file's (its descriptions cut for ezc3d: _short_descriptions), removed once read."""
+    if section is None:
+        return ezc3d.c3d(str(path))
+    offset, data = section
+    with tempfile.TemporaryDirectory(prefix="calibrate-c3d-") as tmp:
+        copy = Path(tmp) / path.name
+        with open(path, "rb") as src, open(copy, "wb") as dst:
+            dst.write(src.read(offset))
+            dst.write(data)
+            src.seek(offset + len(data))
+            shutil.copyfileobj(src, dst)
+        return ezc3d.c3d(str(copy))
 
 
 def _c3d_param(params: object, group: str, name: str) -> list | np.ndarray | None:
@@ -364,7 +427,7 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     layout = _check_c3d_layout(path, size)
     redo = "export it again from your capture software"
     try:
-        c3d = ezc3d.c3d(str(path))
+        c3d = _ezc3d_read(path, layout.section)
         params = c3d["parameters"]
         points = np.asarray(c3d["data"]["points"], dtype=np.float64)
         residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)
