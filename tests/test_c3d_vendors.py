@@ -668,3 +668,22 @@ def test_descriptions_longer_than_ezc3d_reads_are_cut_for_it(tmp_path: Path, mon
     assert_positions(trial.markers, xyz / 1000.0)
     assert list(copies.iterdir()) == []  # the copy removed
     assert path.read_bytes() == written
+
+
+@pytest.mark.parametrize("spelling", [(b"OFFSET", b"Offset"), (b"ANALOG", b"Analog"), (b"POINT", b"point")],
+                         ids=["ANALOG:Offset", "Analog", "point"])
+def test_names_in_other_cases_are_read_as_capitals(tmp_path: Path, spelling: tuple[bytes, bytes]) -> None:
+    """A C3D's group and parameter names are read regardless of case; ezc3d looks them up by their exact spelling,
+    and crashed the interpreter on an `ANALOG:Offset` beside analog channels (it filled in an empty OFFSET).  Read
+    through a copy with the names in capitals."""
+    xyz = positions_mm(7, 3, seed=19)
+    data = c3d_bytes(xyz, np.zeros((7, 3)), ["RASI", "LASI", "RPSI"], scale=-1.0, analog_channels=2,
+                     analog_per_frame=2)
+    was, now = spelling
+    at = data.find(was, 512)
+    assert at > 0 and data[at - 2] == len(was)  # a record's name, after its length and id
+    path = tmp_path / "cases.c3d"
+    path.write_bytes(data[:at] + now + data[at + len(was) :])
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI") and trial.rate == 100.0
+    assert_positions(trial.markers, xyz / 1000.0)

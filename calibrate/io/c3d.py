@@ -135,22 +135,35 @@ def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, st
 
 
 C3D_MAX_DESCRIPTION = 127  # characters of a description ezc3d reads: it takes the length byte as signed
+EZC3D_GROUPS = ("POINT", "ANALOG", "FORCE_PLATFORM")  # the groups whose parameters ezc3d reads the data by, by name
 
 
-def _short_descriptions(section: bytes, processor: int) -> bytes | None:
-    """The parameter section with every group's and parameter's description cut to C3D_MAX_DESCRIPTION characters
-    and the links after them shortened to match (the section zero-padded to its length), or None if none is longer.
-    ezc3d reads a description's length byte as signed: one of 128-255 characters (a KINARM robot's
-    EXPERIMENT:SESSION, 163) became a request for 4 GB, three times, before it failed."""
+def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
+    """The parameter section as ezc3d can read it, or None if it can read it as it is: the names of EZC3D_GROUPS and
+    their parameters in capitals, every description cut to C3D_MAX_DESCRIPTION characters and the links after them
+    shortened to match (the section zero-padded to its length).
+    - ezc3d reads a description's length byte as signed: one of 128-255 characters (a KINARM robot's
+      EXPERIMENT:SESSION, 163) became a request for 4 GB, three times, before it failed.
+    - ezc3d looks its parameters up by their exact spelling, while a C3D's names are read regardless of case (the
+      reader here does): an `ANALOG:Offset` beside analog channels made it fill in an empty OFFSET and crash the
+      interpreter reading the analog data.  Only the groups it reads the data by: other groups' names are left as
+      written (Vicon's PROCESSING:Bodymass, which calibrate.io.measurements reads by that name)."""
     records = _c3d_records(section, processor)
-    if all(section[r.end] <= C3D_MAX_DESCRIPTION for r in records):
+    groups = {-r.group_id: r.name for r in records if r.group_id < 0}  # (read in capitals)
+
+    def name(r: _Record) -> bytes:
+        raw = section[r.start + 2 : r.body - 2]
+        return raw.upper() if groups.get(abs(r.group_id)) in EZC3D_GROUPS else raw
+
+    if all(section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2] for r in records):
         return None
     endian = ">" if processor == 86 else "<"
     out = bytearray(section[:4])
     for r in records:
         n = min(section[r.end], C3D_MAX_DESCRIPTION)
         rest = section[r.body : r.end] + bytes([n]) + section[r.end + 1 : r.end + 1 + n]
-        out += section[r.start : r.body - 2] + struct.pack(endian + "h", len(rest) + 2 if r.link else 0) + rest
+        out += section[r.start : r.start + 2] + name(r)
+        out += struct.pack(endian + "h", len(rest) + 2 if r.link else 0) + rest
     return bytes(out.ljust(len(section), b"\x00"))
 
 
@@ -209,8 +222,8 @@ class _C3DLayout:
     #: words per frame than the header (BTS's files, c3d.org sample28: ANALOG:USED 0 beside 6 analog words a frame),
     #: by which ezc3d would read every frame but the first from the wrong place; None: ezc3d's points are used.
     own_points: tuple[int, int, int, int, bool, float, int] | None = None
-    #: (offset in bytes, bytes) of a parameter section to read in place of the file's (_short_descriptions); None: the
-    #: file is read as it is.
+    #: (offset in bytes, bytes) of a parameter section for ezc3d to read in place of the file's (_section_for_ezc3d);
+    #: None: the file is read as it is.
     section: tuple[int, bytes] | None = None
 
 
@@ -262,7 +275,7 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         tail = fh.read(512)
     try:
         table = _c3d_parameter_section(section, processor)
-        shortened = _short_descriptions(section, processor)
+        for_ezc3d = _section_for_ezc3d(section, processor)
     except _BadC3D as exc:
         raise bad(f"damaged parameter section: {exc}") from None
 
@@ -344,7 +357,7 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
             scale = point_scale if point_scale is not None else _c3d_float(header[12:16], processor)
             own = (data_start, n_points, n_frames, 4 * n_points + n_analog, is_float, scale, processor)
     return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame, own_points=own,
-                      section=None if shortened is None else (param_start, shortened))
+                      section=None if for_ezc3d is None else (param_start, for_ezc3d))
 
 
 def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -368,7 +381,7 @@ def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]
 
 def _ezc3d_read(path: Path, section: tuple[int, bytes] | None) -> ezc3d.c3d:
     """ezc3d's reading of `path`; with `section` (offset, bytes), of a temporary copy with that parameter section in
-    place of the file's (its descriptions cut for ezc3d: _short_descriptions), removed once read."""
+    place of the file's (_section_for_ezc3d), removed once read."""
     if section is None:
         return ezc3d.c3d(str(path))
     offset, data = section
