@@ -387,6 +387,15 @@ def _bad(tmp_path: Path, text: str, name: str = "bad.osim") -> Path:
     (lambda t: t.replace("PiecewiseLinearFunction", "StepFunction"), "function type StepFunction is not read"),
     (lambda t: t.replace("<socket_parent_frame>/bodyset/cap</socket_parent_frame>",
                          "<socket_parent_frame>/bodyset/nobody</socket_parent_frame>"), "which handmade.osim does not"),
+    # a number field that holds no finite numbers, or too few: named, not a Python traceback (found by fuzzing)
+    (lambda t: t.replace("<range>-1.4 1.4</range>", "<range>1.4</range>", 1), "<range> is '1.4', not 2 finite"),
+    (lambda t: t.replace("<range>-1.4 1.4</range>", "<range>1e999 1.4</range>", 1), "<range> is '1e999 1.4'"),
+    (lambda t: t.replace("<translation>0.1 0.2 0.3</translation>", "<translation>0.1 x 0.3</translation>", 1),
+     "<translation> is '0.1 x 0.3', not finite numbers"),
+    (lambda t: t.replace("<axis>0 1 0</axis>", "<axis>false</axis>", 1), "<axis> is 'false'"),
+    (lambda t: t.replace("<mass>7</mass>", "<mass>seven</mass>", 1), "<mass> is 'seven', not a finite number"),
+    (lambda t: t.replace("<coefficients>-1 0.1</coefficients>", "<coefficients>-1 nan</coefficients>", 1),
+     "<coefficients> is '-1 nan'"),
 ])
 def test_bad_model_one_line_exit_2_nothing_written(tmp_path, capsys, mutate, needle):
     good = hand_made_osim()
@@ -413,6 +422,18 @@ def test_marker_set_unknown_body(tmp_path, capsys):
         load_model(osim, ms)
     assert main(["import-osim", str(osim), "--marker-set", str(ms), "-o", str(tmp_path / "o.urdf")]) == 2
     assert "femur" in capsys.readouterr().err and not (tmp_path / "o.urdf").exists()
+
+
+def test_marker_set_bad_number(tmp_path, capsys):
+    osim = _bad(tmp_path, hand_made_osim(), "m.osim")
+    ms = _bad(tmp_path, "<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects>"
+                        "<Marker name='X'><socket_parent_frame>/bodyset/cap</socket_parent_frame>"
+                        "<location>0 0,1 0</location></Marker></objects></MarkerSet></OpenSimDocument>", "ms.xml")
+    with pytest.raises(ModelError, match=r"ms.xml: <Marker name='X'>'s <location> is '0 0,1 0', not finite numbers; "
+                                         "fix the number in the marker set file"):
+        load_model(osim, ms)
+    assert main(["import-osim", str(osim), "--marker-set", str(ms), "-o", str(tmp_path / "o.urdf")]) == 2
+    assert capsys.readouterr().err.count("\n") == 1 and not (tmp_path / "o.urdf").exists()
 
 
 def test_marker_set_replaces_and_adds(tmp_path):

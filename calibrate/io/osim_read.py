@@ -104,6 +104,32 @@ def xml_floats(text: str | None) -> np.ndarray:
     return np.array([float(v) for v in (text or "").split()], dtype=float)
 
 
+class BadNumbers(ValueError):
+    """A number field of an OpenSim file that holds no finite numbers, or not as many as it should; the reader
+    (OsimReader) turns it into one line naming the file."""
+
+
+def el_numbers(el: ET.Element, tag: str, default: str, count: int | None = None) -> np.ndarray:
+    """The finite numbers of `el`'s <tag> (`default` where it has none), `count` of them if given; BadNumbers naming
+    the element otherwise (a number cut, 'nan', '1e999', a range of one value)."""
+    text = el.findtext(tag, default)
+    try:
+        values = np.array([float(v) for v in (text or "").split()], dtype=float)
+    except ValueError:
+        values = None
+    if values is None or not np.all(np.isfinite(values)) or (count is not None and values.size != count):
+        name = el.get("name")
+        owner = f"<{el.tag} name='{name}'>" if name else f"<{el.tag}>"
+        want = "a finite number" if count == 1 else f"{count} finite numbers" if count else "finite numbers"
+        raise BadNumbers(f"{owner}'s <{tag}> is {' '.join((text or '').split())[:40]!r}, not {want}")
+    return values
+
+
+def el_number(el: ET.Element, tag: str, default: str) -> float:
+    """The one finite number of `el`'s <tag> (el_numbers)."""
+    return float(el_numbers(el, tag, default, 1)[0])
+
+
 def simm_spline(x: np.ndarray, y: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """OpenSim's SimmSpline: a cubic spline whose end third derivatives match the divided differences
     of the first/last four points (two points: a line); continued along the end tangents outside."""
@@ -156,16 +182,16 @@ def simm_spline(x: np.ndarray, y: np.ndarray) -> Callable[[np.ndarray], np.ndarr
 def osim_function(el: ET.Element, where: str) -> OsimFunction:
     tag = el.tag
     if tag == "Constant":
-        v = float(el.findtext("value", "0"))
+        v = el_number(el, "value", "0")
         return OsimFunction(tag, lambda x: np.full(np.shape(x), v), linear=(0.0, v), constant=v)
     if tag == "LinearFunction":
-        co = xml_floats(el.findtext("coefficients", "1 0"))
+        co = el_numbers(el, "coefficients", "1 0")
         if co.size != 2:
             raise ModelError(f"{where}: LinearFunction needs 2 coefficients, has {co.size}; fix the model")
         a, b = float(co[0]), float(co[1])
         return OsimFunction(tag, lambda x: a * x + b, linear=(a, b), constant=b if a == 0 else None)
     if tag == "PolynomialFunction":  # coefficients from the highest order to the lowest
-        co = xml_floats(el.findtext("coefficients", "0"))
+        co = el_numbers(el, "coefficients", "0")
         if co.size == 0:
             raise ModelError(f"{where}: PolynomialFunction without coefficients; fix the model")
         nz = np.flatnonzero(co)
@@ -175,7 +201,7 @@ def osim_function(el: ET.Element, where: str) -> OsimFunction:
             return OsimFunction(tag, lambda x: a * x + b, linear=(a, b), constant=b if a == 0 else None)
         return OsimFunction(tag, lambda x: np.polyval(co, x))
     if tag in ("SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction"):
-        x, y = xml_floats(el.findtext("x")), xml_floats(el.findtext("y"))
+        x, y = el_numbers(el, "x", ""), el_numbers(el, "y", "")
         if x.size < 2 or x.size != y.size or np.any(np.diff(x) <= 0):
             raise ModelError(f"{where}: {tag} needs at least 2 points with increasing x; fix the model")
         if tag == "SimmSpline":
@@ -190,7 +216,7 @@ def osim_function(el: ET.Element, where: str) -> OsimFunction:
         cs = CubicSpline(x, y, bc_type="natural", extrapolate=True)
         return OsimFunction(tag, lambda v: cs(v))
     if tag == "MultiplierFunction":
-        s = float(el.findtext("scale", "1"))
+        s = el_number(el, "scale", "1")
         inner = inner_function(el, where)
         lin = None if inner.linear is None else (s * inner.linear[0], s * inner.linear[1])
         return OsimFunction(tag, lambda x: s * inner(x), linear=lin,
@@ -263,8 +289,8 @@ class OsimJoint:
 
 
 def frame_of(el: ET.Element, where: str) -> Transform:
-    t = xml_floats(el.findtext("translation", "0 0 0"))
-    o = xml_floats(el.findtext("orientation", "0 0 0"))
+    t = el_numbers(el, "translation", "0 0 0")
+    o = el_numbers(el, "orientation", "0 0 0")
     if t.size != 3 or o.size != 3:
         raise ModelError(f"{where}: frame '{el.get('name')}' needs 3 translation and 3 orientation values")
     R = np.eye(3) if not np.any(o) else Rotation.from_euler("XYZ", o).as_matrix()  # body-fixed x-y-z
@@ -299,12 +325,19 @@ class OsimReader:
         m = root.find("Model")
         assert m is not None
         self.name = m.get("name", path.stem)
+        try:
+            self._read(m, where)
+        except BadNumbers as e:
+            raise ModelError(f"{where}: {e}; fix the number in the model file") from None
+
+    def _read(self, m: ET.Element, where: str) -> None:
+        """The model's bodies, offset frames, joints, coordinates, couplers and markers from its <Model> `m`."""
         self.bodies: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
         for b in m.findall("BodySet/objects/Body"):
             name = b.get("name", "")
-            mass = float(b.findtext("mass", "0"))
-            com = xml_floats(b.findtext("mass_center", "0 0 0"))
-            iv = xml_floats(b.findtext("inertia", "0 0 0 0 0 0"))
+            mass = el_number(b, "mass", "0")
+            com = el_numbers(b, "mass_center", "0 0 0")
+            iv = el_numbers(b, "inertia", "0 0 0 0 0 0")
             if iv.size != 6 or com.size != 3:
                 raise ModelError(f"{where}: body '{name}' needs 3 mass_center and 6 inertia values; fix the model")
             inertia = np.array([[iv[0], iv[3], iv[4]], [iv[3], iv[1], iv[5]], [iv[4], iv[5], iv[2]]])
@@ -331,7 +364,7 @@ class OsimReader:
             if len(indep) != 1 or dep not in self.coords or indep[0] not in self.coords:
                 raise ModelError(f"{cw}: couples '{dep}' to {indep}, which are not one coordinate of the model; "
                                  f"fix its coordinate names")
-            self.couplers[dep] = (indep[0], inner_function(c, cw), float(c.findtext("scale_factor", "1")))
+            self.couplers[dep] = (indep[0], inner_function(c, cw), el_number(c, "scale_factor", "1"))
         self.markers: dict[str, tuple[str, np.ndarray]] = {}
         for mk in m.findall("MarkerSet/objects/Marker"):
             self._marker(mk, where)
@@ -366,9 +399,9 @@ class OsimReader:
             raise ModelError(f"{where}: has ground as its child; make ground the parent frame")
         coords: list[OsimCoordinate] = []
         for c in jel.findall("coordinates/Coordinate"):
-            rng = xml_floats(c.findtext("range", "-3.14159 3.14159"))
+            rng = el_numbers(c, "range", "-3.14159 3.14159", 2)
             co = OsimCoordinate(c.get("name", ""), name, float(rng[0]), float(rng[1]),
-                                float(c.findtext("default_value", "0")),
+                                el_number(c, "default_value", "0"),
                                 c.findtext("locked", "false").strip().lower() == "true")
             if co.name in self.coords:
                 raise ModelError(f"{where}: coordinate '{co.name}' is declared twice; rename one")
@@ -412,7 +445,7 @@ class OsimReader:
                     if ta is None:
                         continue
                     aw = f"{where}, {motion}{k}"
-                    a = xml_floats(ta.findtext("axis", "0 0 1"))
+                    a = el_numbers(ta, "axis", "0 0 1")
                     if a.size != 3 or np.linalg.norm(a) == 0:
                         raise ModelError(f"{aw}: axis must be 3 numbers, not all 0; fix the model")
                     names = (ta.findtext("coordinates") or "").split()
@@ -432,7 +465,7 @@ class OsimReader:
     def _marker(self, mk: ET.Element, where: str, source: str | None = None) -> None:
         name = mk.get("name", "")
         ref = mk.findtext("socket_parent_frame") or mk.findtext("body") or ""
-        loc = xml_floats(mk.findtext("location", "0 0 0"))
+        loc = el_numbers(mk, "location", "0 0 0")
         src = source or where
         body = body_name(ref)
         if loc.size != 3:
@@ -446,5 +479,8 @@ class OsimReader:
     def add_marker_set(self, path: Path) -> None:
         ms = xml_element(path, "MarkerSet", "an OpenSim MarkerSet file (.xml)", "an OpenSim MarkerSet file",
                          "give an OpenSim MarkerSet file (as the Scale tool reads)")
-        for mk in ms.findall("objects/Marker"):
-            self._marker(mk, str(path), source=str(path))
+        try:
+            for mk in ms.findall("objects/Marker"):
+                self._marker(mk, str(path), source=str(path))
+        except BadNumbers as e:
+            raise ModelError(f"{path}: {e}; fix the number in the marker set file") from None
