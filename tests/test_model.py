@@ -200,3 +200,41 @@ def test_parameter_vector_names_and_unpack(human):
     assert p.scale[0] == 1.0  # copies do not share memory
     with pytest.raises(ValueError, match="expected"):
         human.unpack(v[:-1])
+
+
+def _nth(text: str, old: str, new: str, after: str = "") -> str:
+    """`text` with the first `old` after `after` replaced by `new`."""
+    start = text.index(after) if after else 0
+    at = text.index(old, start)
+    return text[:at] + new + text[at + len(old):]
+
+
+@pytest.mark.parametrize("mutate, needle", [
+    # numbers as URDF parsers read them (C++: no '1_0', no nan, no inf)
+    (lambda t: _nth(t, '<axis xyz="0 0 1.0"', '<axis xyz="0 0 1.0_2"'),
+     "<axis xyz='0 0 1.0_2'> is not 3 finite numbers"),
+    (lambda t: _nth(t, '<mass value="', '<mass value="nan" x="'), "<mass value='nan'> is not a finite number"),
+    (lambda t: _nth(t, 'radius="', 'radius="1e999" r="', "<cylinder"), "<cylinder radius='1e999'>"),
+    (lambda t: _nth(t, 'rgba="', 'rgba="1 0 x 1" c="'), "<color rgba='1 0 x 1'> is not 4 finite numbers"),
+    # structure urdfdom refuses after printing its own complaints
+    (lambda t: _nth(t, 'type="fixed"', 'type="revolute"', '_marker"'), "has no <limit>"),
+    (lambda t: _nth(t, '<joint name="knee_r"', '<joint name="knee_l"'), "joint name 'knee_l' is used 2 times"),
+    (lambda t: _nth(t, '<child link="femur_r"/>', '<child link="femur_l"/>'), "expected one root link, found 2"),
+    (lambda t: _nth(t, '<parent link="pelvis"/>', '<parent link="hips"/>'), "has link 'hips', which the file"),
+    (lambda t: _nth(t, '<sphere radius="0.007"/>', ''), "a <visual> without a shape in its <geometry>"),
+    (lambda t: _nth(t, 'type="revolute"', 'type="prismatic"'), "is of type 'prismatic'"),
+])
+def test_a_broken_urdf_is_one_line_without_the_parsers_complaints(tmp_path, capfd, mutate, needle):
+    """A URDF the parsers would refuse or misread: one line naming the file and what to fix, before urdfdom prints
+    its complaints on the terminal (and Pinocchio then says only that the URDF is not valid) or Python's float() takes
+    a number C++ would not; found by fuzzing models/human.urdf."""
+    from calibrate.cli.main import main
+
+    bad = tmp_path / "bad.urdf"
+    bad.write_text(mutate(HUMAN.read_text()))
+    with pytest.raises(ModelError) as e:
+        load_model(bad)
+    assert needle in str(e.value) and str(bad) in str(e.value) and "\n" not in str(e.value)
+    assert main(["inspect", str(bad)]) == 2
+    err = capfd.readouterr().err
+    assert err.startswith("calibrate: error: ") and err.count("\n") == 1 and needle in err  # nothing from urdfdom

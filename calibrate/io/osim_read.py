@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import ModelError, read_text_file
 from ..seed.geometry import Transform, apply, compose, identity_transform
+from .text import finite_numbers
 
 JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
                "PlanarJoint", "SliderJoint")
@@ -113,16 +114,13 @@ def el_numbers(el: ET.Element, tag: str, default: str, count: int | None = None)
     """The finite numbers of `el`'s <tag> (`default` where it has none), `count` of them if given; BadNumbers naming
     the element otherwise (a number cut, 'nan', '1e999', a range of one value)."""
     text = el.findtext(tag, default)
-    try:
-        values = np.array([float(v) for v in (text or "").split()], dtype=float)
-    except ValueError:
-        values = None
-    if values is None or not np.all(np.isfinite(values)) or (count is not None and values.size != count):
+    values = finite_numbers(text)
+    if values is None or (count is not None and len(values) != count):
         name = el.get("name")
         owner = f"<{el.tag} name='{name}'>" if name else f"<{el.tag}>"
         want = "a finite number" if count == 1 else f"{count} finite numbers" if count else "finite numbers"
         raise BadNumbers(f"{owner}'s <{tag}> is {' '.join((text or '').split())[:40]!r}, not {want}")
-    return values
+    return np.array(values, dtype=float)
 
 
 def el_number(el: ET.Element, tag: str, default: str) -> float:

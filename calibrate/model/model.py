@@ -32,7 +32,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import ModelError, read_text_file
-from ..io.text import atomic_write_text, fmt_vec
+from ..io.text import atomic_write_text, finite_numbers, fmt_vec
 from .blocks import GROUPS, ParameterLayout
 from .urdf import urdf_text
 
@@ -127,6 +127,80 @@ class Parameters:
         return Parameters(*(np.array(getattr(self, b), dtype=float) for b in self.BLOCKS))
 
 
+#: The URDF's number attributes: (element path from a <link> or <joint>, attribute, how many numbers; 0: one if given).
+_URDF_NUMBERS = (("origin", "xyz", 3), ("origin", "rpy", 3), ("inertial/origin", "xyz", 3),
+                 ("inertial/origin", "rpy", 3), ("inertial/mass", "value", 1), ("axis", "xyz", 3),
+                 *(("inertial/inertia", a, 1) for a in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")),
+                 *(("limit", a, 0) for a in ("lower", "upper", "effort", "velocity")),
+                 *((f"{part}/{sub}", a, n) for part in ("visual", "collision")
+                   for sub, a, n in (("origin", "xyz", 3), ("origin", "rpy", 3), ("geometry/box", "size", 3),
+                                     ("geometry/cylinder", "radius", 1), ("geometry/cylinder", "length", 1),
+                                     ("geometry/sphere", "radius", 1), ("geometry/mesh", "scale", 3))))
+
+
+def _check_urdf(robot: ET.Element, where: str) -> None:
+    """One ModelError line for what the URDF parser would refuse or this module misread: a joint type calibrate does
+    not take, a joint without its parent or child link or naming a link the file lacks, a number attribute that is
+    not as many finite numbers as it should be.  (urdfdom prints its own complaints on the terminal and Pinocchio
+    then says only that the URDF is not valid; a mass it could not read passed on to a Python error.)"""
+    links = {el.get("name", "") for el in robot.findall("link")}
+    for tag in ("link", "joint"):
+        names = [el.get("name", "") for el in robot.findall(tag)]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ModelError(f"{where}: {tag} name '{twice[0]}' is used {names.count(twice[0])} times; rename all "
+                             f"but one")
+    children = {e.get("link") for e in robot.findall("joint/child")}
+    roots = sorted(links - children)
+    if len(roots) != 1:
+        raise ModelError(f"{where}: expected one root link, found {len(roots)} ({', '.join(roots[:5])}); every "
+                         f"other link needs a joint to its parent")
+    for el in robot.findall("joint"):
+        name = el.get("name", "")
+        kind = el.get("type", "")
+        if kind not in (*MOVING, "fixed"):
+            hint = " (the free-flyer is added at load time; remove it)" if kind == "floating" else ""
+            raise ModelError(f"{where}: joint '{name}' is of type '{kind}'; calibrate models use revolute, continuous "
+                             f"and fixed joints only{hint}")
+        for end in ("parent", "child"):
+            e = el.find(end)
+            link = e.get("link") if e is not None else None
+            if link not in links:
+                said = f"link '{link}', which the file does not have" if link else "no link"
+                raise ModelError(f"{where}: joint '{name}' has {said} as its {end}; name one of its links")
+        if kind == "revolute" and el.find("limit") is None:
+            raise ModelError(f"{where}: revolute joint '{name}' has no <limit>; give it one (lower, upper) or make "
+                             f"it continuous")
+    for el in robot.findall("link"):
+        for part in el.findall("inertial"):
+            for need in ("mass", "inertia"):
+                if part.find(need) is None:
+                    raise ModelError(f"{where}: link '{el.get('name', '')}': <inertial> has no <{need}>; give it "
+                                     f"one or remove the <inertial>")
+        for part in (*el.findall("visual"), *el.findall("collision")):
+            g = part.find("geometry")
+            if g is None or len(g) == 0:
+                raise ModelError(f"{where}: link '{el.get('name', '')}': a <{part.tag}> without a shape in its "
+                                 f"<geometry>; give it one (box, cylinder, sphere, mesh) or remove the <{part.tag}>")
+    for e in robot.iter("color"):
+        values = finite_numbers(e.get("rgba"))
+        if values is None or len(values) != 4:
+            raise ModelError(f"{where}: <color rgba='{e.get('rgba')}'> is not 4 finite numbers; fix the file or "
+                             f"regenerate it")
+    for el in (*robot.findall("link"), *robot.findall("joint")):
+        for sub, attr, count in _URDF_NUMBERS:
+            for e in el.findall(sub):
+                if e.get(attr) is None and count != 1:  # (an optional one: urdfdom's default)
+                    continue
+                text = e.get(attr, "")
+                values = finite_numbers(text)
+                if values is not None and len(values) == max(count, 1):
+                    continue
+                want = "a finite number" if count <= 1 else f"{count} finite numbers"
+                raise ModelError(f"{where}: {el.tag} '{el.get('name', '')}': <{sub.split('/')[-1]} {attr}="
+                                 f"'{text}'> is not {want}; fix the file or regenerate it")
+
+
 class Model:
     """A calibrate model loaded from a URDF file.
 
@@ -150,6 +224,7 @@ class Model:
             raise ModelError(f"{self.path}: top element is <{root_el.tag}>, expected <robot>; is this a URDF?")
         self._text = text
         self.name = root_el.get("name", self.path.stem)
+        _check_urdf(root_el, str(self.path))  # before urdfdom, which prints its complaints on the terminal
         try:
             self.pin = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
         except Exception as e:  # pinocchio raises plain RuntimeError/ValueError
@@ -172,14 +247,7 @@ class Model:
         joints_el = {el.get("name", ""): el for el in robot.findall("joint")}
         children: dict[str, list[str]] = {n: [] for n in links}
         parent_of: dict[str, str] = {}
-        for jn, el in joints_el.items():
-            jtype = el.get("type", "")
-            if jtype not in (*MOVING, "fixed"):
-                hint = " (the free-flyer is added at load time; remove it)" if jtype == "floating" else ""
-                raise ModelError(
-                    f"{where}: joint '{jn}' is of type '{jtype}'; calibrate models use revolute, "
-                    f"continuous and fixed joints only{hint}"
-                )
+        for jn, el in joints_el.items():  # (types and links checked: _check_urdf)
             p = el.find("parent").get("link")  # type: ignore[union-attr]
             c = el.find("child").get("link")  # type: ignore[union-attr]
             children[p].append(jn)
@@ -195,10 +263,7 @@ class Model:
         def child(jn: str) -> str:
             return joints_el[jn].find("child").get("link")  # type: ignore[union-attr]
 
-        roots = [n for n in links if n not in parent_of]
-        if len(roots) != 1:
-            raise ModelError(f"{where}: expected one root link, found {len(roots)} ({', '.join(roots[:5])})")
-        self.root = roots[0]
+        self.root = next(n for n in links if n not in parent_of)  # the one root (_check_urdf)
 
         def is_marker(link: str) -> bool:
             return (
