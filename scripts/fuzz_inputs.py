@@ -10,7 +10,9 @@ cap and a time limit).  Kinds:
 - trc: lines of gait2392's walk deleted, repeated, cut, a character or a field changed, the header's numbers changed;
 - osim, marker-set, ik-setup, scale-setup: an element of gait2392's files (Rajagopal2016.osim with --osim rajagopal)
   removed, emptied, renamed, duplicated, cut, or its number text garbled;
-- urdf: an attribute of models/human.urdf garbled or an element removed.
+- urdf: an attribute of models/human.urdf garbled or an element removed;
+- settings, marker-map: a line of docs/calibration.md's settings example (every setting) or of a marker map deleted,
+  repeated, its value or key garbled.
 
     python scripts/fuzz_inputs.py --kinds c3d,urdf --n 300 --seed 0 [--json out.json]
 
@@ -37,7 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
 GAIT = REAL / "gait2392"
-KINDS = ("c3d", "trc", "osim", "marker-set", "ik-setup", "scale-setup", "urdf")
+KINDS = ("c3d", "trc", "osim", "marker-set", "ik-setup", "scale-setup", "urdf", "settings", "marker-map")
 WORDS = ["", "x", "nan", "inf", "1e999", "-1", "0", "1 2", "true", "false", "1,5", "1_0", "-0", "Unassigned"]
 
 C3D_CHILD = r"""
@@ -148,6 +150,35 @@ def _trc_mutant(lines: list[str], rng: random.Random) -> str:
     return "".join(lines)
 
 
+def _toml_mutant(lines: list[str], rng: random.Random) -> str:
+    """The TOML `lines` with 1-2 lines deleted, repeated, or a value or key garbled."""
+    lines = list(lines)
+    for _ in range(rng.choice([1, 1, 2])):
+        i = rng.randrange(len(lines))
+        key, eq, value = lines[i].partition("=")
+        op = rng.randrange(5)
+        if op == 0:
+            del lines[i]
+        elif op == 1:
+            lines.insert(i, lines[i])
+        elif op == 2 and eq:
+            lines[i] = key + "= " + rng.choice(['"x"', "-1", "0", "1e999", "nan", "inf", "true", "[]", '["a", 1]', "{}",
+                                                '""', "[[1]]", "1.5", '"subtalar_l"']) + "\n"
+        elif op == 3 and eq:
+            lines[i] = rng.choice(["x", "lock", "priors", "noise", key.strip() + "2", '"a b"']) + " =" + value
+        else:
+            lines[i] = lines[i][: rng.randrange(len(lines[i]) + 1)] + "\n"
+    return "".join(lines)
+
+
+MARKER_MAP = """# model label = the trial's labels
+RASI = ["R.ASIS", "Sub01:RASI"]
+LASI = ["L.ASIS"]
+RPSI = "R.PSIS"
+LKNE = ["L.Knee", "L.Knee.Lat"]
+"""
+
+
 def _c3d_base() -> bytes:
     """A C3D written by calibrate (gait2392's static, 20 frames) with two analog channels' parameters added."""
     import ezc3d
@@ -192,6 +223,16 @@ def _reader(kind: str, osim: str) -> tuple[Callable[[Path], object], str, str]:
             ".xml"
     if kind == "urdf":
         return load_model, (ROOT / "models" / "human.urdf").read_text(), ".urdf"
+    if kind == "settings":
+        from calibrate.io.config import load_settings
+
+        docs = (ROOT / "docs" / "calibration.md").read_text()
+        example = next(b for b in re.findall(r"```toml\n(.*?)```", docs, flags=re.S) if "[marker_noise_mm]" in b)
+        return load_settings, example, ".toml"
+    if kind == "marker-map":
+        from calibrate.io.labels import load_marker_map
+
+        return load_marker_map, MARKER_MAP, ".toml"
     model = load_model(GAIT / "gait2392.osim", GAIT / "gait2392_Scale_MarkerSet.xml")
     trials = [read_trial(GAIT / "subject01_static.trc"), read_trial(GAIT / "subject01_walk1.trc")]
     if kind == "ik-setup":
@@ -261,8 +302,8 @@ def fuzz(kind: str, n: int, seed: int, keep: Path, osim: str) -> dict:
                 outcome = "TIMEOUT"
             noise = ""
         else:
-            text = _trc_mutant(lines, rng) if kind == "trc" else _urdf_mutant(src, rng) if kind == "urdf" \
-                else _element_mutant(src, rng)
+            text = (_trc_mutant(lines, rng) if kind == "trc" else _urdf_mutant(src, rng) if kind == "urdf"
+                    else _toml_mutant(lines, rng) if kind in ("settings", "marker-map") else _element_mutant(src, rng))
             path = where / f"{kind}-{seed}-{k}{suffix}"
             path.write_text(text, encoding="utf-8", errors="surrogateescape")
             outcome, noise = _read_quietly(read, path)
