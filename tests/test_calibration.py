@@ -852,6 +852,24 @@ def test_a_trial_in_the_wrong_units_is_refused(human):
                 calibrate(human, trials)
 
 
+def test_a_trial_whose_markers_sit_at_one_point_is_refused(human):
+    """Every model marker at one point in every frame (a placeholder, a failed export): no pair of markers at a steady
+    distance, so the units check had nothing to judge, and the calibration shrank the model to a point (median scale
+    0.24, RMS 0.004 mm).  Refused with one line naming the file; a body's markers pass the check."""
+    sim = simulate_squats(human, frames=30, noise_mm=1.0, seed=4)
+    X = sim.trial.markers
+    point = Trial(sim.trial.labels, np.broadcast_to(X[:, :1], X.shape).copy(), sim.trial.rate, 0, "placeholder.trc")
+    with pytest.raises(CalibrateError, match=r"placeholder.trc: its 39 markers of human.urdf sit within 0.0 mm of one "
+                                             r"point in every frame"):
+        calibrate(human, [point])
+    near = Trial(sim.trial.labels, point.markers + 0.001 * np.sign(X - X[:, :1]), sim.trial.rate, 0, "near.trc")
+    with pytest.raises(CalibrateError, match=r"near.trc: its markers put the subject at 0.00[0-9]+ times the size"):
+        calibrate(human, [near])  # 1 mm apart: steady pairs, the units check's
+    from calibrate.calibration.pipeline import _check_size
+
+    _check_size(human, [sim.trial], None)  # a body's markers, with no steady pair either: passed
+
+
 def test_trials_of_two_subjects_are_refused(human, tmp_path):
     """A static of a subject 0.7 times the walk's size (one participant's static given with another's trial, as
     Pose2Sim's two-person demo invites): refused with one line naming both trials and their sizes, whose ratio is

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections import Counter
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import fields, replace
@@ -1079,6 +1080,7 @@ def _still_lengths(trials: Sequence[Trial], motion: Sequence[float], weight: flo
 
 
 SIZE_RANGE = (0.3, 3.0)  # the subject's size against the base model's beyond which the units are wrong (mm read as m)
+COINCIDENT = 0.005  # m: a trial whose model markers all stay this close to their centroid holds no body's markers
 
 
 def _check_size(model: Model, trials: Sequence[Trial], size) -> None:
@@ -1087,7 +1089,22 @@ def _check_size(model: Model, trials: Sequence[Trial], size) -> None:
     and the calibration would converge to segments scaled to the bound.  The trial to blame is named by its own
     size where the trials differ."""
     lo, hi = SIZE_RANGE
-    if size is None or lo < size.overall < hi:
+    if size is None:
+        # No pair of markers at a steady distance: a trial whose markers all sit at one point (a placeholder, a
+        # failed export, every label filled with one value) has none, and would calibrate to a model shrunk to it.
+        for t in trials:
+            shown = [lab for lab in model.marker_names if lab in t.labels]
+            X = t.select(shown).markers if shown else np.zeros((0, 0, 3))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                spread = np.nanmax(np.linalg.norm(X - np.nanmean(X, axis=1, keepdims=True), axis=2), axis=1)
+            if len(shown) >= 2 and np.any(np.isfinite(spread)) and np.nanmax(spread) < COINCIDENT:
+                raise CalibrateError(
+                    f"{t.source or 'the trial'}: its {len(shown)} markers of {model.path.name} sit within "
+                    f"{1e3 * np.nanmax(spread):.1f} mm of one point in every frame, as no body's markers do; check "
+                    "that the file holds the recorded trajectories (not a placeholder or a failed export)")
+        return
+    if lo < size.overall < hi:
         return
     own = [(t, size_from_markers(model, [t])) for t in trials] if len(trials) > 1 else [(trials[0], size)]
     t, s = next(((t, s) for t, s in own if s is not None and not lo < s.overall < hi), own[0])
