@@ -96,13 +96,15 @@ def c3d_bytes(
     analog_per_frame: int = 0,
     parameters: tuple[tuple[str, str, object], ...] = (),
     parameter_start: bytes = b"\x01\x50",
+    offsets: object = None,
 ) -> bytes:
     """A C3D file: header block, parameter blocks, data blocks (C3D User Guide, chapters 2-4).
 
     ``xyz`` (frames, points, 3) in file units; ``word4`` (frames, points) the fourth word
     of each point (float storage: written as a float; integer: as a 16-bit integer;
     -1 is the invalid point).  Integer storage (``scale`` > 0) stores round(xyz / scale).
-    ``frames`` overrides POINT:FRAMES (an int is stored as a 16-bit word, a float as a float).
+    ``frames`` overrides POINT:FRAMES (an int is stored as a 16-bit word, a float as a float); ``offsets``
+    ANALOG:OFFSET (floats are stored as floats).
     """
     n_frames, n_points, _ = xyz.shape
     is_float = scale < 0
@@ -121,7 +123,7 @@ def c3d_bytes(
     if analog_channels:
         params.append(("ANALOG", "LABELS", [f"A{i + 1}" for i in range(analog_channels)]))
         params.append(("ANALOG", "SCALE", [1.0] * analog_channels))
-        params.append(("ANALOG", "OFFSET", [0] * analog_channels))
+        params.append(("ANALOG", "OFFSET", [0] * analog_channels if offsets is None else offsets))
         params.append(("ANALOG", "GEN_SCALE", 1.0))
         params.append(("ANALOG", "UNITS", ["V"] * analog_channels))
     params.extend(parameters)
@@ -686,4 +688,18 @@ def test_names_in_other_cases_are_read_as_capitals(tmp_path: Path, spelling: tup
     path.write_bytes(data[:at] + now + data[at + len(was) :])
     trial = read_trial(path)
     assert trial.labels == ("RASI", "LASI", "RPSI") and trial.rate == 100.0
+    assert_positions(trial.markers, xyz / 1000.0)
+
+
+@pytest.mark.parametrize("processor", ["intel", "dec"])
+def test_analog_offsets_stored_as_floats_are_read(tmp_path: Path, processor: str) -> None:
+    """ANALOG:OFFSET stored as floats (c3d.org's sample13, Dance.c3d and golfswing.c3d), which ezc3d refuses ("OFFSET
+    parameter is not an INT"): read through a copy with them as the standard's 16-bit integers."""
+    xyz = positions_mm(6, 3, seed=20)
+    data = c3d_bytes(xyz, np.zeros((6, 3)), ["RASI", "LASI", "RPSI"], scale=-1.0, processor=processor,
+                     analog_channels=2, analog_per_frame=1, offsets=[3.0, -2.0])
+    path = tmp_path / "float_offsets.c3d"
+    path.write_bytes(data)
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI")
     assert_positions(trial.markers, xyz / 1000.0)

@@ -147,21 +147,34 @@ def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
     - ezc3d looks its parameters up by their exact spelling, while a C3D's names are read regardless of case (the
       reader here does): an `ANALOG:Offset` beside analog channels made it fill in an empty OFFSET and crash the
       interpreter reading the analog data.  Only the groups it reads the data by: other groups' names are left as
-      written (Vicon's PROCESSING:Bodymass, which calibrate.io.measurements reads by that name)."""
+      written (Vicon's PROCESSING:Bodymass, which calibrate.io.measurements reads by that name).
+    - ezc3d refuses ANALOG:OFFSET stored as floats ("OFFSET parameter is not an INT": c3d.org's sample13, Dance.c3d
+      and golfswing.c3d); they are written as the 16-bit integers the standard says, rounded."""
     records = _c3d_records(section, processor)
     groups = {-r.group_id: r.name for r in records if r.group_id < 0}  # (read in capitals)
+    endian = ">" if processor == 86 else "<"
 
     def name(r: _Record) -> bytes:
         raw = section[r.start + 2 : r.body - 2]
         return raw.upper() if groups.get(abs(r.group_id)) in EZC3D_GROUPS else raw
 
-    if all(section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2] for r in records):
+    def float_offsets(r: _Record) -> bool:
+        return groups.get(r.group_id) == "ANALOG" and r.name.startswith("OFFSET") and r.kind == 4
+
+    def body(r: _Record) -> bytes:
+        if not float_offsets(r):
+            return section[r.body : r.end]
+        values = [_c3d_float(r.raw[k : k + 4], processor) for k in range(0, len(r.raw), 4)]
+        ints = np.clip(np.round(np.nan_to_num(values)), -32768, 32767).astype(endian + "i2").tobytes()
+        return struct.pack("b", 2) + section[r.body + 1 : r.body + 2 + len(r.dims)] + ints
+
+    if all(section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2]
+           and not float_offsets(r) for r in records):
         return None
-    endian = ">" if processor == 86 else "<"
     out = bytearray(section[:4])
     for r in records:
         n = min(section[r.end], C3D_MAX_DESCRIPTION)
-        rest = section[r.body : r.end] + bytes([n]) + section[r.end + 1 : r.end + 1 + n]
+        rest = body(r) + bytes([n]) + section[r.end + 1 : r.end + 1 + n]
         out += section[r.start : r.start + 2] + name(r)
         out += struct.pack(endian + "h", len(rest) + 2 if r.link else 0) + rest
     return bytes(out.ljust(len(section), b"\x00"))
