@@ -870,6 +870,31 @@ def test_a_trial_whose_markers_sit_at_one_point_is_refused(human):
     _check_size(human, [sim.trial], None)  # a body's markers, with no steady pair either: passed
 
 
+def test_a_mirror_image_trial_is_refused(human):
+    """A trial exported with left-handed axes or one axis negated: a human model fitted pig_walk so mirrored to 4.7 mm
+    RMS by turning its segments where no joint should (implausible centres 62-142 mm from the scaled base model, the
+    only sign).  Every marker quadruple whose handedness the model keeps in every pose turns the other way in it;
+    refused with one line naming the file.  The trial itself, and turned about any axis, keep every quadruple."""
+    from scipy.spatial.transform import Rotation
+
+    from calibrate.seed.seeding import handedness
+
+    sim = simulate_squats(human, frames=30, noise_mm=1.0, seed=4)
+    X = sim.trial.markers
+    R = Rotation.from_rotvec([0.3, -1.2, 2.0]).as_matrix()
+    turned = Trial(sim.trial.labels, X @ R.T, sim.trial.rate, 0, "turned.trc")
+    for axis in range(3):
+        M = X.copy()
+        M[..., axis] *= -1
+        mirrored = Trial(sim.trial.labels, M, sim.trial.rate, 0, "mirrored.trc")
+        hs = handedness(human, [sim.trial, turned, mirrored])
+        assert [h.turned for h in hs] == [0, 0, hs[2].quadruples] and hs[2].quadruples >= 20
+        assert not hs[0].mirrored and not hs[1].mirrored and hs[2].mirrored
+    with pytest.raises(CalibrateError, match=r"mirrored.trc: its markers are a mirror image of human.urdf's \(\d+ of "
+                                             r"\d+ marker quadruples .* negate one axis"):
+        calibrate(human, [sim.trial, mirrored])
+
+
 def test_trials_of_two_subjects_are_refused(human, tmp_path):
     """A static of a subject 0.7 times the walk's size (one participant's static given with another's trial, as
     Pose2Sim's two-person demo invites): refused with one line naming both trials and their sizes, whose ratio is

@@ -276,6 +276,92 @@ def limb_groups(model: Model) -> dict[str, list[int]]:
     return out
 
 
+def model_poses(model: Model, names: Sequence[str], n: int, seed: int = 0) -> np.ndarray:
+    """(n + 1, markers, 3): where the base model puts the markers `names` in its default pose and in `n` random poses
+    (every angle anywhere in its range, a range without limits as a whole turn), the root at the origin."""
+    import pinocchio as pin
+
+    pm = model.pin
+    data = pm.createData()
+    fid = [pm.getFrameId(name) for name in names]
+    rng = np.random.default_rng(seed)
+    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
+    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
+    poses = []
+    for i in range(n + 1):
+        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
+        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
+        poses.append(np.array([data.oMf[f].translation for f in fid]))
+    return np.array(poses)
+
+
+HANDED_QUADS = 20000  # marker quadruples drawn; those whose handedness every pose of the base model keeps are used ...
+HANDED_MIN_VOLUME = 0.05  # ... with a volume (signed, over their longest edge cubed) at least this in every pose ...
+HANDED_MIN = 20  # ... if at least this many, over at least HANDED_SEGMENTS segments (fewer: not judged; a trial's
+HANDED_SEGMENTS = 3  # labels exchanged in one cluster turn its few quadruples: Rajagopal's running arms)
+HANDED_SHARE = 0.9  # a trial is a mirror image when this share of them turn the other way in most of its frames
+
+
+@dataclass(frozen=True)
+class Handedness:
+    """How a trial's markers turn against the base model's: of `quadruples` marker quadruples whose handedness (the
+    sign of their tetrahedron's volume) every pose of the base model keeps, `turned` turn the other way in most of
+    the trial's frames.  A rotation keeps every one; a mirror image (left-handed axes, one axis negated) turns all."""
+
+    quadruples: int
+    turned: int
+    segments: int  # segments the quadruples' markers ride on
+
+    @property
+    def mirrored(self) -> bool:
+        return (self.quadruples >= HANDED_MIN and self.segments >= HANDED_SEGMENTS
+                and self.turned >= HANDED_SHARE * self.quadruples)
+
+
+def _volumes(P: np.ndarray) -> np.ndarray:
+    """Signed volume of each tetrahedron (..., 4, 3) over its longest edge cubed (scale-free)."""
+    a, b, c, d = (P[..., k, :] for k in range(4))
+    v = np.einsum("...i,...i", b - a, np.cross(c - a, d - a))
+    edges = [np.linalg.norm(x - y, axis=-1) for x, y in ((a, b), (a, c), (a, d), (b, c), (b, d), (c, d))]
+    return v / np.maximum(np.max(edges, axis=0), 1e-9) ** 3
+
+
+def handedness(model: Model, trials: Sequence[Trial], frames: int = 100, seed: int = 0) -> list[Handedness | None]:
+    """Each trial's handedness against the base model (Handedness), judged on about `frames` evenly spaced frames of
+    it, on quadruples of the markers the trials show drawn once for all; None for a trial that shows fewer than 4."""
+    names = [m.name for m in model.markers if any(m.name in t.labels for t in trials)]
+    if len(names) < 4:
+        return [None] * len(trials)
+    P = model_poses(model, names, SIZE_POSES, seed)
+    rng = np.random.default_rng(seed)
+    quads = rng.integers(0, len(names), (HANDED_QUADS, 4))
+    quads = quads[np.all(np.diff(np.sort(quads, axis=1), axis=1) > 0, axis=1)]  # four different markers
+    _, first = np.unique(np.sort(quads, axis=1), axis=0, return_index=True)  # each set of four once
+    quads = quads[np.sort(first)]
+    v = _volumes(P[0, quads])
+    quads, sign = quads[np.abs(v) >= HANDED_MIN_VOLUME], np.sign(v[np.abs(v) >= HANDED_MIN_VOLUME])
+    for k in range(1, P.shape[0], 8):  # a few poses at a time: most quadruples turn in the first few
+        keep = np.all(_volumes(P[k:k + 8, quads]) * sign >= HANDED_MIN_VOLUME, axis=0)
+        quads, sign = quads[keep], sign[keep]
+    segment = [model.markers[model.marker_index(n)].segment for n in names]
+    out: list[Handedness | None] = []
+    for t in trials:
+        X = np.full((t.n_frames, len(names), 3), np.nan)
+        have = [k for k, n in enumerate(names) if n in t.labels]
+        if len(have) < 4:
+            out.append(None)
+            continue
+        X[:, have] = t.select([names[k] for k in have]).markers
+        idx = np.unique(np.linspace(0, t.n_frames - 1, min(frames, t.n_frames)).astype(int))
+        w = _volumes(X[idx][:, quads])  # (frames, quadruples)
+        seen = np.isfinite(w).sum(axis=0)
+        used = seen > 0
+        turned = used & ((np.sign(w) == -sign).sum(axis=0) > seen / 2)
+        out.append(Handedness(int(used.sum()), int(turned.sum()),
+                              len({segment[k] for k in np.unique(quads[used])}) if used.any() else 0))
+    return out
+
+
 def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
                       model_cv: float = SIZE_MODEL_CV) -> Size | None:
     """The subject's size against the base model, from marker distances only (before any joint
@@ -285,25 +371,12 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
     factor is the median of the ratios of its pairs (a leg: thigh, shank and foot markers), the
     overall factor the median of all.  `model_cv`: how much a pair's distance may vary over the base model's
     poses (a fraction).  None if no pair qualifies."""
-    import pinocchio as pin
-
     # The model's markers that some trial shows (a model may carry many more: Rajagopal2016.osim 131,
     # its trials 64; the distances of the rest are all NaN and slow to take medians of).
     shown = {lab for t in trials for lab in t.labels}
     names = [m.name for m in model.markers if m.name in shown]
     seg = np.array([model.segment_index(m.segment) for m in model.markers if m.name in shown], dtype=int)
-    pm = model.pin
-    data = pm.createData()
-    fid = [pm.getFrameId(n) for n in names]
-    rng = np.random.default_rng(seed)
-    lo = np.array([d.lower if np.isfinite(d.lower) else -math.pi for d in model.dofs])
-    hi = np.array([d.upper if np.isfinite(d.upper) else math.pi for d in model.dofs])
-    poses = []
-    for i in range(SIZE_POSES + 1):
-        a = np.zeros(model.n_dofs) if i == 0 else rng.uniform(lo, hi)
-        pin.framesForwardKinematics(pm, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], a))
-        poses.append(np.array([data.oMf[f].translation for f in fid]))
-    P = np.array(poses)  # (poses, markers, 3)
+    P = model_poses(model, names, SIZE_POSES, seed)  # (poses, markers, 3)
     D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
     d0 = D[0]
     pose_cv = D.std(axis=0) / np.maximum(d0, 1e-9)
