@@ -109,8 +109,10 @@ def test_write_all_writes_every_file_or_none(tmp_path: Path):
         p.write_text("half")
         raise OSError("disk full")
 
-    with pytest.raises(OSError):
+    with pytest.raises(CalibrateError, match=r"an output could not be written \(disk full\); nothing was written or "
+                                             "changed") as e:
         write_all({a: lambda p: p.write_text("newer"), b: fail})
+    assert "\n" not in str(e.value)
     assert (a.read_text(), b.read_text()) == ("new a.txt", "new b.txt")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]  # no temporary left behind
 
@@ -147,3 +149,12 @@ def test_check_targets_refuses_before_any_work(tmp_path: Path):
         check_targets([a], overwrite=True, inputs={a: "that is the base model"})
     with pytest.raises(CalibrateError, match="does not exist; create it first"):
         check_targets([tmp_path / "no" / "b.txt"], overwrite=False)
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_check_targets_tries_the_folder_before_any_work():
+    """A folder os.access calls writable that takes no new file (/proc here; a read-only file system, or any folder
+    for root, alike): refused before the work in one line, not a FileNotFoundError after it."""
+    with pytest.raises(CalibrateError, match=r"/proc/subject.urdf: directory '/proc' takes no new file \(.+\); "
+                                             "choose another place"):
+        check_targets([Path("/proc/subject.urdf")], overwrite=False)

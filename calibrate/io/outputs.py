@@ -43,6 +43,11 @@ def check_targets(targets: Sequence[Path], overwrite: bool, *, inputs: Mapping[P
             raise CalibrateError(f"{path}: exists; {exists_hint}")
         if not os.access(path.parent, os.W_OK):
             raise CalibrateError(f"{path}: directory '{path.parent}' is not writable; choose another place")
+        try:  # a file made and removed there: a read-only file system or /proc passes os.access (for root too)
+            _staging_file(path).unlink()
+        except OSError as e:
+            raise CalibrateError(f"{path}: directory '{path.parent}' takes no new file ({e.strerror or e}); choose "
+                                 "another place") from None
 
 
 def write_all(writers: Mapping[Path, Writer], keep_names: bool = False) -> None:
@@ -66,6 +71,10 @@ def write_all(writers: Mapping[Path, Writer], keep_names: bool = False) -> None:
             if target.exists():
                 os.chmod(staged[target], stat.S_IMODE(target.stat().st_mode))
         place_all(staged)
+    except OSError as e:  # a disk that fills, a folder removed meanwhile: one line, nothing written
+        where = Path(e.filename).parent if e.filename else next(iter(writers), Path("."))
+        raise CalibrateError(f"{where}: an output could not be written ({e.strerror or e}); nothing was written or "
+                             "changed: free space or choose another place") from None
     finally:
         for tmp in staged.values():
             tmp.unlink(missing_ok=True)
