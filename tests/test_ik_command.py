@@ -232,6 +232,18 @@ def test_ik_with_the_calibrations_report_gives_its_own_motion(squats, tmp_path, 
                  str(squats / "truth_motion.csv"), "-o", str(out), "--overwrite", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "truth_motion.csv: not JSON (line 1" in err[0], err
+    # a report edited by hand or cut short (found by fuzzing): one line naming it, not a Python error
+    for bad, says in (({"lock_deg": {hinges[0]: "5"}}, f"{hinges[0]}'s lock is '5', not an angle in degrees"),
+                      ({"lock_deg": {hinges[0]: 1e999}}, "not an angle in degrees"),
+                      ({"lock_deg": {}, "auto_locked": ["ankle"]}, "TypeError")):
+        report.write_text(json.dumps({"parameters": {}, "trials": [],
+                                      "settings": {k: v for k, v in bad.items() if k == "lock_deg"},
+                                      "auto_locked": bad.get("auto_locked", [])}))
+        code = main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "--report", str(report), "-o",
+                     str(out), "--overwrite", "-q"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and "report.json: not readable as the report calibrate writes" in err[0]
+        assert says in err[0], err
 
 
 def test_marker_weights_as_an_ik_setup_gives_them(squats, tmp_path):

@@ -223,10 +223,17 @@ def report_locks(report: dict, elsewhere: bool = False) -> dict[str, float]:
     """The coordinates a calibration held in every frame (rad or m), from its report JSON (``calibration_report``):
     its settings' ``lock_deg`` and its ``auto_locked`` hinges; Calibration.locked of the run that wrote it.
     `elsewhere`: what a fit of other trials holds (Calibration.locked_elsewhere: after a static alone,
-    ``still_only_mm``, the settings' locks only)."""
+    ``still_only_mm``, the settings' locks only).  ValueError, TypeError or KeyError where the report is not as
+    calibrate writes it."""
     settings = report.get("settings") or {}
-    locked = {k: math.radians(v) for k, v in (settings.get("lock_deg") or {}).items()}
-    auto = {x["coordinate"]: math.radians(x["value_deg"]) for x in report.get("auto_locked") or []}
+
+    def angle(name: str, deg: object) -> float:
+        if isinstance(deg, bool) or not isinstance(deg, (int, float)) or not math.isfinite(deg):
+            raise ValueError(f"{name}'s lock is {deg!r}, not an angle in degrees")
+        return math.radians(deg)
+
+    locked = {k: angle(k, v) for k, v in (settings.get("lock_deg") or {}).items()}
+    auto = {x["coordinate"]: angle(x["coordinate"], x["value_deg"]) for x in report.get("auto_locked") or []}
     if elsewhere and report.get("still_only_mm") is not None:  # the settings carry the auto-locks too
         return {k: v for k, v in locked.items() if k not in auto}
     return {**locked, **auto}

@@ -13,6 +13,7 @@ fits worst.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -101,23 +102,29 @@ def cmd_ik(args: argparse.Namespace) -> int:
         from ..calibration.report import report_locks
 
         report = read_report(args.report)
-        if "settings" not in report:
+        if not isinstance(report, dict) or "settings" not in report:
             raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
                                  "<trial>_report.json the calibration wrote")
-        # After a static alone its auto-locks hold on that static only (report_locks' `elsewhere`; BTKData's
-        # FlatFoot walk fitted with its static's pronation locks held: the wrists 55 mm off, 17.35 mm against 9.23)
-        elsewhere = report_locks(report, elsewhere=True)
-        static_locks = {k: v for k, v in report_locks(report).items() if k not in elsewhere and k not in locked}
-        locked.update(elsewhere)
-        if static_locks:
-            own = {(Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or [] if t.get("source")}
-        if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
-            sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
-                  if isinstance(v, (int, float)) and v > 0}
-            if sd:
-                w = {k: 1.0 / v**2 for k, v in sd.items()}
-                mid = float(np.median(list(w.values())))
-                weights = {k: v / mid for k, v in w.items()}
+        try:  # a report edited by hand or cut short: one line, not a Python error
+            # After a static alone its auto-locks hold on that static only (report_locks' `elsewhere`; BTKData's
+            # FlatFoot walk fitted with its static's pronation locks held: the wrists 55 mm off, 17.35 mm against
+            # 9.23)
+            elsewhere = report_locks(report, elsewhere=True)
+            static_locks = {k: v for k, v in report_locks(report).items() if k not in elsewhere and k not in locked}
+            locked.update(elsewhere)
+            if static_locks:
+                own = {(Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or []
+                       if t.get("source")}
+            if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
+                sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
+                      if isinstance(v, (int, float)) and v > 0 and math.isfinite(v)}
+                if sd:
+                    w = {k: 1.0 / v**2 for k, v in sd.items()}
+                    mid = float(np.median(list(w.values())))
+                    weights = {k: v / mid for k, v in w.items()}
+        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as e:
+            raise CalibrateError(f"{args.report}: not readable as the report calibrate writes ({type(e).__name__}: "
+                                 f"{e}); give the <trial>_report.json the calibration wrote, unedited") from None
     if args.lock is not None:
         chosen = {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
         locked.update(chosen)
