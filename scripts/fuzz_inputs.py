@@ -12,7 +12,9 @@ cap and a time limit).  Kinds:
   removed, emptied, renamed, duplicated, cut, or its number text garbled;
 - urdf: an attribute of models/human.urdf garbled or an element removed;
 - settings, marker-map: a line of docs/calibration.md's settings example (every setting) or of a marker map deleted,
-  repeated, its value or key garbled.
+  repeated, its value or key garbled;
+- report: 1-2 entries of the report JSON of a calibration of pig_walk's walk deleted or set to another type, read
+  by `calibrate ik WALK SUBJECT --report REPORT` (exit 0 or 2 with one line).
 
     python scripts/fuzz_inputs.py --kinds c3d,urdf --n 300 --seed 0 [--json out.json]
 
@@ -39,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
 GAIT = REAL / "gait2392"
-KINDS = ("c3d", "trc", "osim", "marker-set", "ik-setup", "scale-setup", "urdf", "settings", "marker-map")
+KINDS = ("c3d", "trc", "osim", "marker-set", "ik-setup", "scale-setup", "urdf", "settings", "marker-map", "report")
 WORDS = ["", "x", "nan", "inf", "1e999", "-1", "0", "1 2", "true", "false", "1,5", "1_0", "-0", "Unassigned"]
 
 C3D_CHILD = r"""
@@ -179,6 +181,30 @@ LKNE = ["L.Knee", "L.Knee.Lat"]
 """
 
 
+def _json_mutant(src: str, rng: random.Random) -> str:
+    """The JSON `src` with 1-2 entries (anywhere in it, the first 3 of a list) deleted or set to another type."""
+    data = json.loads(src)
+
+    def paths(o: object, pre: tuple = ()) -> list[tuple]:
+        inner = o.items() if isinstance(o, dict) else enumerate(o[:3]) if isinstance(o, list) else []
+        return [p for k, v in inner for p in ((*pre, k), *paths(v, (*pre, k)))]
+
+    every = paths(data)
+    for _ in range(rng.choice([1, 2])):
+        *where, last = rng.choice(every)
+        try:
+            o = data
+            for k in where:
+                o = o[k]
+            if rng.random() < 0.4:
+                del o[last]
+            else:
+                o[last] = rng.choice([None, "x", -1, 1e308, [], {}, [1, "a"], True, "nan"])
+        except (KeyError, IndexError, TypeError):
+            pass
+    return json.dumps(data)
+
+
 def _c3d_base() -> bytes:
     """A C3D written by calibrate (gait2392's static, 20 frames) with two analog channels' parameters added."""
     import ezc3d
@@ -205,8 +231,8 @@ def _c3d_mutant(base: bytes, rng: random.Random) -> bytes:
     return bytes(data)
 
 
-def _reader(kind: str, osim: str) -> tuple[Callable[[Path], object], str, str]:
-    """(read a file of `kind`, the source text to damage, the copies' suffix)."""
+def _reader(kind: str, osim: str, scratch: Path) -> tuple[Callable[[Path], object], str, str]:
+    """(read a file of `kind`, the source text to damage, the copies' suffix); `scratch`: a folder for its files."""
     from calibrate.io import osim_setup as setup
     from calibrate.io.read import read_trial
     from calibrate.model.model import load_model
@@ -233,6 +259,30 @@ def _reader(kind: str, osim: str) -> tuple[Callable[[Path], object], str, str]:
         from calibrate.io.labels import load_marker_map
 
         return load_marker_map, MARKER_MAP, ".toml"
+    if kind == "report":
+        import contextlib
+        import io
+
+        from calibrate.cli.main import main as cli
+
+        work = scratch / "calibration"
+        work.mkdir()
+        walk = REAL / "pig_walk" / "walk.c3d"
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            cli([str(walk), str(ROOT / "models" / "human.urdf"), "-o", str(work / "subject.urdf"), "-q"])
+
+        def ik(p: Path) -> None:
+            err = io.StringIO()
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+                code = cli(["ik", str(walk), str(work / "subject.urdf"), "--report", str(p), "-o", str(work),
+                            "--overwrite", "-q"])
+            if code == 2 and err.getvalue().count("\n") == 1:
+                from calibrate.errors import CalibrateError
+
+                raise CalibrateError(err.getvalue().strip())
+            if code != 0:
+                raise RuntimeError(f"exit {code}: {err.getvalue()[:150]}")
+        return ik, (work / "walk_report.json").read_text(), ".json"
     model = load_model(GAIT / "gait2392.osim", GAIT / "gait2392_Scale_MarkerSet.xml")
     trials = [read_trial(GAIT / "subject01_static.trc"), read_trial(GAIT / "subject01_walk1.trc")]
     if kind == "ik-setup":
@@ -276,15 +326,20 @@ def _read_quietly(read: Callable[[Path], object], path: Path) -> tuple[str, str]
 def fuzz(kind: str, n: int, seed: int, keep: Path, osim: str) -> dict:
     """`n` damaged copies of `kind`'s file read; counts and the first copy of each finding."""
     rng = random.Random(seed)
+    keep.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="calibrate-fuzz-") as scratch:
+        return _fuzz(kind, n, rng, keep, osim, Path(scratch), seed)
+
+
+def _fuzz(kind: str, n: int, rng: random.Random, keep: Path, osim: str, where: Path, seed: int) -> dict:
+    """fuzz's work, its copies written in `where` (removed afterwards)."""
     counts: dict[str, int] = {}
     findings: dict[str, str] = {}
-    keep.mkdir(parents=True, exist_ok=True)
     if kind == "c3d":
         base = _c3d_base()
     else:
-        read, src, suffix = _reader(kind, osim)
+        read, src, suffix = _reader(kind, osim, where)
         # setups name their marker set and trials relative to themselves: the copies are written beside them
-        where = Path(tempfile.mkdtemp(prefix="fuzz-"))
         if kind in ("ik-setup", "scale-setup"):
             for f in GAIT.iterdir():
                 (where / f.name).write_bytes(f.read_bytes())
@@ -303,7 +358,8 @@ def fuzz(kind: str, n: int, seed: int, keep: Path, osim: str) -> dict:
             noise = ""
         else:
             text = (_trc_mutant(lines, rng) if kind == "trc" else _urdf_mutant(src, rng) if kind == "urdf"
-                    else _toml_mutant(lines, rng) if kind in ("settings", "marker-map") else _element_mutant(src, rng))
+                    else _toml_mutant(lines, rng) if kind in ("settings", "marker-map")
+                    else _json_mutant(src, rng) if kind == "report" else _element_mutant(src, rng))
             path = where / f"{kind}-{seed}-{k}{suffix}"
             path.write_text(text, encoding="utf-8", errors="surrogateescape")
             outcome, noise = _read_quietly(read, path)
@@ -320,7 +376,8 @@ def fuzz(kind: str, n: int, seed: int, keep: Path, osim: str) -> dict:
                 if path.parent != keep:
                     (keep / path.name).write_bytes(path.read_bytes())
                 print(f"  {kind}: {outcome}  ({keep / path.name})", flush=True)
-            path.unlink(missing_ok=True)
+            if path.parent != keep or key in findings and findings[key] != str(path):
+                path.unlink(missing_ok=True)
     return {"kind": kind, "copies": n, "seed": seed, "counts": counts, "findings": findings}
 
 

@@ -66,7 +66,10 @@ def _int16(values: np.ndarray, processor: str) -> bytes:
 
 
 def _parameter(value: object, processor: str) -> tuple[int, tuple[int, ...], bytes]:
-    """(type, dimensions, data) of a parameter value: str, list of str, int, float, or lists of them."""
+    """(type, dimensions, data) of a parameter value: str, list of str, int, float, or lists of them; bytes: one
+    character of no dimensions (a scalar)."""
+    if isinstance(value, bytes):
+        return -1, (), value
     if isinstance(value, str):
         raw = value.encode("latin-1")
         return -1, (len(raw),), raw
@@ -699,6 +702,19 @@ def test_analog_offsets_stored_as_floats_are_read(tmp_path: Path, processor: str
     data = c3d_bytes(xyz, np.zeros((6, 3)), ["RASI", "LASI", "RPSI"], scale=-1.0, processor=processor,
                      analog_channels=2, analog_per_frame=1, offsets=[3.0, -2.0])
     path = tmp_path / "float_offsets.c3d"
+    path.write_bytes(data)
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI")
+    assert_positions(trial.markers, xyz / 1000.0)
+
+
+def test_a_text_parameter_of_no_dimensions_is_read(tmp_path: Path) -> None:
+    """A character parameter with no dimensions (a scalar: one character), on which ezc3d crashed the interpreter
+    (found by fuzzing): read through a copy with one dimension of 1."""
+    xyz = positions_mm(5, 3, seed=21)
+    data = c3d_bytes(xyz, np.zeros((5, 3)), ["RASI", "LASI", "RPSI"], scale=-1.0, analog_channels=2,
+                     analog_per_frame=1, parameters=(("EXPERIMENT", "FLAG", b"Y"), ("ANALOG", "ZERO_DIM", b"V")))
+    path = tmp_path / "scalar_text.c3d"
     path.write_bytes(data)
     trial = read_trial(path)
     assert trial.labels == ("RASI", "LASI", "RPSI")

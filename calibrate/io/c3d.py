@@ -149,7 +149,9 @@ def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
       interpreter reading the analog data.  Only the groups it reads the data by: other groups' names are left as
       written (Vicon's PROCESSING:Bodymass, which calibrate.io.measurements reads by that name).
     - ezc3d refuses ANALOG:OFFSET stored as floats ("OFFSET parameter is not an INT": c3d.org's sample13, Dance.c3d
-      and golfswing.c3d); they are written as the 16-bit integers the standard says, rounded."""
+      and golfswing.c3d); they are written as the 16-bit integers the standard says, rounded.
+    - ezc3d crashes the interpreter on a text parameter of no dimensions (a scalar: one character, as the standard
+      reads it and the walk here does; found by fuzzing); it is written with one dimension of 1."""
     records = _c3d_records(section, processor)
     groups = {-r.group_id: r.name for r in records if r.group_id < 0}  # (read in capitals)
     endian = ">" if processor == 86 else "<"
@@ -161,7 +163,12 @@ def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
     def float_offsets(r: _Record) -> bool:
         return groups.get(r.group_id) == "ANALOG" and r.name.startswith("OFFSET") and r.kind == 4
 
+    def scalar_text(r: _Record) -> bool:
+        return r.kind == -1 and not r.dims
+
     def body(r: _Record) -> bytes:
+        if scalar_text(r):
+            return struct.pack("b", -1) + bytes([1, 1]) + r.raw
         if not float_offsets(r):
             return section[r.body : r.end]
         values = [_c3d_float(r.raw[k : k + 4], processor) for k in range(0, len(r.raw), 4)]
@@ -169,7 +176,7 @@ def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
         return struct.pack("b", 2) + section[r.body + 1 : r.body + 2 + len(r.dims)] + ints
 
     if all(section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2]
-           and not float_offsets(r) for r in records):
+           and not float_offsets(r) and not scalar_text(r) for r in records):
         return None
     out = bytearray(section[:4])
     for r in records:
