@@ -123,10 +123,9 @@ def _c3d_records(section: bytes, processor: int) -> list[_Record]:
     return records
 
 
-def _c3d_parameter_section(section: bytes, processor: int) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
-    """Map (GROUP, NAME) of a C3D parameter section's parameters to (type, dimensions, raw data) (_c3d_records).
+def _c3d_parameter_section(records: list[_Record]) -> dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]:
+    """Map (GROUP, NAME) of a C3D parameter section's parameters (its _c3d_records) to (type, dimensions, raw data).
     A parameter of no group is left out."""
-    records = _c3d_records(section, processor)
     groups = {-r.group_id: r.name for r in records if r.group_id < 0}
     # A parameter of no group (c3d.org's Vicon force-plate samples: IS_STATIC) is no marker's: ezc3d files it
     # under a nameless group and reads on.
@@ -138,10 +137,10 @@ C3D_MAX_DESCRIPTION = 127  # characters of a description ezc3d reads: it takes t
 EZC3D_GROUPS = ("POINT", "ANALOG", "FORCE_PLATFORM")  # the groups whose parameters ezc3d reads the data by, by name
 
 
-def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
-    """The parameter section as ezc3d can read it, or None if it can read it as it is: the names of EZC3D_GROUPS and
-    their parameters in capitals, every description cut to C3D_MAX_DESCRIPTION characters and the links after them
-    shortened to match (the section zero-padded to its length).
+def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int) -> bytes | None:
+    """The parameter section (its _c3d_records `records`) as ezc3d can read it, or None if it can read it as it is:
+    the names of EZC3D_GROUPS and their parameters in capitals, every description cut to C3D_MAX_DESCRIPTION
+    characters and the links after them shortened to match (the section zero-padded to its length).
     - ezc3d reads a description's length byte as signed: one of 128-255 characters (a KINARM robot's
       EXPERIMENT:SESSION, 163) became a request for 4 GB, three times, before it failed.
     - ezc3d looks its parameters up by their exact spelling, while a C3D's names are read regardless of case (the
@@ -152,7 +151,6 @@ def _section_for_ezc3d(section: bytes, processor: int) -> bytes | None:
       and golfswing.c3d); they are written as the 16-bit integers the standard says, rounded.
     - ezc3d crashes the interpreter on a text parameter of no dimensions (a scalar: one character, as the standard
       reads it and the walk here does; found by fuzzing); it is written with one dimension of 1."""
-    records = _c3d_records(section, processor)
     groups = {-r.group_id: r.name for r in records if r.group_id < 0}  # (read in capitals)
     endian = ">" if processor == 86 else "<"
 
@@ -294,8 +292,9 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         fh.seek(max(size - 512, 0))
         tail = fh.read(512)
     try:
-        table = _c3d_parameter_section(section, processor)
-        for_ezc3d = _section_for_ezc3d(section, processor)
+        records = _c3d_records(section, processor)
+        table = _c3d_parameter_section(records)
+        for_ezc3d = _section_for_ezc3d(section, records, processor)
     except _BadC3D as exc:
         raise bad(f"damaged parameter section: {exc}") from None
 

@@ -339,7 +339,8 @@ def handedness(model: Model, trials: Sequence[Trial], frames: int = 100, seed: i
     _, first = np.unique(np.sort(quads, axis=1), axis=0, return_index=True)  # each set of four once
     quads = quads[np.sort(first)]
     v = _volumes(P[0, quads])
-    quads, sign = quads[np.abs(v) >= HANDED_MIN_VOLUME], np.sign(v[np.abs(v) >= HANDED_MIN_VOLUME])
+    big = np.abs(v) >= HANDED_MIN_VOLUME
+    quads, sign = quads[big], np.sign(v[big])
     for k in range(1, P.shape[0], 8):  # a few poses at a time: most quadruples turn in the first few
         keep = np.all(_volumes(P[k:k + 8, quads]) * sign >= HANDED_MIN_VOLUME, axis=0)
         quads, sign = quads[keep], sign[keep]
