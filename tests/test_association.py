@@ -276,6 +276,31 @@ def test_a_label_exchanged_across_segments_for_the_whole_trial_is_named(sta_mm):
     assert misplaced_labels(human, [Trial(labels, trial.markers, trial.rate)]) == ()
 
 
+def test_a_ghost_spike_does_not_make_a_label_look_misplaced():
+    """One frame of a marker a metre off (a ghost: a wrong ray match), alone or at the edge of a gap (which no jump
+    bounds), set the SD of every distance of its marker: a correct label then rode "with another segment" and a
+    partner was named (a 400 mm spike in one of 150 frames read as 33 mm).  The samples that jump away and back or
+    break their segment's distances are now left out first (seeding.without_broken); a label exchanged for the whole
+    trial is still named with the spikes there.
+    (The simulator's truth: every label on its segment.)"""
+    human = _human()
+    trial = simulate_squats(human, frames=300, noise_mm=0.5, sta_mm=3.0, seed=2).trial
+    X = np.array(trial.markers)
+    k, j, h = (trial.labels.index(n) for n in ("RKNE", "LTHI", "RELB"))
+    X[100, k] += [1.0, 0.0, 0.0]  # a ghost in one frame
+    X[150, j] += [0.0, -0.8, 0.0]  # ... and one before a gap
+    X[151:160, j] = np.nan
+    X[40, h] += [0.0, 0.0, 2.0]
+    X[41, h] += [0.0, 0.0, 2.0]  # two frames running
+    spiked = Trial(trial.labels, X, trial.rate)
+    assert np.sqrt(distance_variance(X[::2, [k, trial.labels.index("RTHI")]]))[0, 1] > 0.05  # the plain SD: 50+ mm
+    assert misplaced_labels(human, [spiked]) == ()
+    labels = list(trial.labels)
+    labels[k], labels[trial.labels.index("RANK")] = "RANK", "RKNE"
+    found = {m.label for m in misplaced_labels(human, [Trial(labels, X, trial.rate)])}
+    assert "RKNE" in found
+
+
 def test_the_real_plug_in_gait_trials_raise_no_label_to_check():
     if not (PIG / "walk.c3d").exists():
         pytest.skip("pig_walk is not in ../shared/data/real")

@@ -278,6 +278,27 @@ def test_a_static_alone_is_named_still_only(human, session):
     assert "nothing turns in a still trial, so only the priors" in line and "skin" not in line
 
 
+def test_a_ghost_spike_in_a_static_leaves_it_still(human, session):
+    """One frame of a marker a metre off (a ghost), and one before a gap (no jump back bounds it), in a static:
+    judged on the raw samples, the pair that moves most read as a moving trial, so the static lost its `still only`
+    handling and the hips, lumbar and shoulders their held centres.  The samples that jump or break their segment's
+    distances are now left out of those judgments (as from the seed), and the static is calibrated as without them.
+    (The simulator's truth: nothing moves.)"""
+    _, _, plain = session
+    st = plain.trial
+    X = st.markers.copy()
+    k, j = st.labels.index("LKNE"), st.labels.index("RELB")
+    X[100, k] += [1.0, 0.0, 0.0]
+    X[200, j] += [0.0, 0.0, 0.8]
+    X[201:210, j] = np.nan
+    ghost = Trial(st.labels, X, st.rate)
+    assert relative_motion(ghost, human, 100.0) > 0.05  # the raw samples: one pair "moves" 50+ mm
+    cal = calibrate(human, ghost)
+    assert cal.still_only is not None and cal.still_only < 0.005
+    assert set(cal.still_centres) == {"hip_l", "hip_r", "lumbar", "shoulder_l", "shoulder_r"}
+    assert cal.misplaced == ()
+
+
 def test_a_static_that_turns_one_shoulder_holds_the_other_ball_centres(human, session):
     """The ball centres held in statics (Settings.auto_hold) are those no pair of markers across the joint shows
     turning: the static with its left arm swung +-40 deg about the shoulder marker holds the hips, lumbar and right

@@ -61,7 +61,15 @@ from calibrate.calibration.start import (
     with_frames,
 )
 from calibrate.seed.joints import JointEstimates
-from calibrate.seed.seeding import MIN_FRAMES, Seed, handedness, jumped_samples, seed_parameters, size_from_markers
+from calibrate.seed.seeding import (
+    MIN_FRAMES,
+    Seed,
+    handedness,
+    jumped_samples,
+    seed_parameters,
+    size_from_markers,
+    without_broken,
+)
 
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
@@ -294,10 +302,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # the test would weigh only their noise (Pose2Sim's crouching child: LShoulder "with the pelvis", 0.0 mm SD).
     # Nor on one whose markers on one segment move against each other nearly as much as across the joints (Pose2Sim's
     # augmented static: 21 mm across, 9 within; five labels named "with" an arm or a shank).
-    own_motion = [relative_motion(t, model) for t in trials] if run.outliers > 0 else []  # (none: nothing judged)
-    misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(trials, own_motion, strict=False))
+    # Judged without the samples that jump away and back or break their segment's distances (spikes, swapped
+    # labels; as the seed leaves them out): one frame of a ghost a metre off set the SD of every distance of its
+    # marker, so that a static read as moving (its still joints no longer held) and a correct label "moved with
+    # another segment" (docs/benchmarks.md, "Ghost spikes").
+    judged = tuple(without_broken(model, t)[0] for t in trials) if run.outliers > 0 else trials
+    own_motion = [relative_motion(t, model) for t in judged] if run.outliers > 0 else []  # (none: nothing judged)
+    misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(judged, own_motion, strict=False))
                       if moves >= STILL_MOTION and moves >= MISPLACED_MOTION * segment_jitter(t, model)
-                      for m in misplaced_labels(model, [t], skip=centred))
+                      for m in misplaced_labels(model, [t], skip=centred, clean=False))
     for i, m in misplaced:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
     # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe), or alike in every
@@ -324,10 +337,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     motion: list[float] | None = own_motion if own_motion and len(trials) > 1 else None
     if unknown and run.new_markers:
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
-        motion = _trial_motion(model, trials)
+        motion = _trial_motion(model, judged)
         placed = _assign_new_markers(model, trials, unknown, motion)
     if motion is None and len(trials) > 1:
-        motion = _trial_motion(model, trials)  # which trials are still (_still_lengths, moved and re-placed markers)
+        motion = _trial_motion(model, judged)  # which trials are still (_still_lengths, moved and re-placed markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     at = {m.label: m.position for m in placed if m.position is not None}  # (hosts.cluster_hosts)
@@ -363,13 +376,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"{', '.join(banded_joints)}: centre held at the base model's (its segment carries "
                                 "only a cluster of new labels)"))
         settings = replace(settings, hold_centres=settings.hold_centres + banded_joints)
-    still_only = _still_only(model, trials, motion)
-    still_centres = _still_centres(subject, settings, trials, motion) if run.auto_hold else ()
+    still_only = _still_only(model, judged, motion)
+    still_centres = _still_centres(subject, settings, judged, motion) if run.auto_hold else ()
     if still_centres:
         say(Progress("markers", f"still trials: no motion places {', '.join(still_centres)}; their centres held "
                                 "at the base model's offset from their segments' markers"))
         settings = replace(settings, hold_centres=settings.hold_centres + still_centres)
-    still_axes = _still_axes(subject, settings, trials, motion) if run.auto_hold else ()
+    still_axes = _still_axes(subject, settings, judged, motion) if run.auto_hold else ()
+    del judged  # the cleaned copies (a long trial's markers once more) are not needed past the judgments
     as_given = settings.hold_axes  # the axes held for the run's own reasons are reported as found (held_axes)
     if still_axes:
         say(Progress("markers", f"still trials: no motion places the axes of {', '.join(still_axes)}; held at the "
@@ -410,7 +424,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("seed", "the subject's size from marker distances, then joint centres (MTB)"))
         # The trial whose markers on different segments move most relative to each other (a static trial's
         # barely do): the one the joint-centre seed can use.
-        pick = int(np.argmax(motion if motion is not None else _trial_motion(model, trials)))
+        pick = int(np.argmax(motion)) if motion is not None else 0  # (measured for more than one trial)
         seed = seed_parameters(model, trials[pick], extra_markers=new, size=size,
                                progress=Countdown(say, "seed", "joint centres (MTB)"))
         if len(trials) > 1:

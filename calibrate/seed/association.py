@@ -48,7 +48,7 @@ from calibrate.seed.rigidity import (
 from ..io.trial import Trial
 from ..model.model import Model
 from .geometry import rigid_fit, sphere_fit
-from .seeding import MAD_SD
+from .seeding import MAD_SD, without_broken
 
 Z_ADMISSIBLE = 5.0  # standard errors of a group's residual allowed above the noise
 
@@ -708,7 +708,8 @@ class Misplaced:
 
 
 def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPLACED_RATIO,
-                     floor: float = MISPLACED_FLOOR, skip: Collection[str] = ()) -> tuple[Misplaced, ...]:
+                     floor: float = MISPLACED_FLOOR, skip: Collection[str] = (), clean: bool = True
+                     ) -> tuple[Misplaced, ...]:
     """The trials' labels of model markers that ride with another segment than the model's: a label exchanged
     for the whole trial, or put on the wrong marker.  Per label, the median SD over frames of its distances to
     its segment's other markers against the same to each other segment's; the worst taken first and left out
@@ -718,7 +719,12 @@ def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPL
     misplaced against the other), so the result is labels to check, not a correction; where exchanging two
     labels (a named one or its segment's partner, with a marker of another segment) leaves none misplaced,
     every entry carries those pairs (`exchanges`).  `skip`: labels not judged (a joint-centre marker rides with
-    both segments of its joint)."""
+    both segments of its joint).  `clean`: the samples that jump away and back or break their segment's distances
+    (seeding.without_broken: spikes, a ghost before a gap, swapped labels) left out first: one frame of a ghost a
+    metre off set the SD of every distance of its marker, and a correct label rode "with another segment"; False
+    where the trials are so cleaned already."""
+    if clean:
+        trials = [without_broken(model, t)[0] for t in trials]
     labels = [m.name for m in model.markers if m.name not in skip and any(m.name in t.labels for t in trials)]
     if not labels:
         return ()
