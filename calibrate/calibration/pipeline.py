@@ -447,14 +447,16 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     kin = kinematics if kinematics is not None and subject is model else build_kinematics(subject)
     # Swapped labels and spikes that jump away and back are left out before the start and the solve (as
     # from the seed): a few frames of a knee and an ankle label exchanged drag a leg into a wrong minimum
-    # before the solve's own outlier rejection can see them.  They are reported with the other outliers.
+    # before the solve's own outlier rejection can see them.  So are a marker's positions where it stays at one place
+    # in the lab while its segment moves (fallen off: seeding.fallen_samples).  They are reported with the other
+    # outliers.
     jumped = jumped_samples(subject, trials, Countdown(say, "build", "jumps (swapped labels, spikes) in every "
                                                                    "trajectory")) \
         if run.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
-        say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes); "
-                                "left out"))
+        say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes) or stay "
+                                "behind while their segment moves (a marker fallen off); left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
     problem = Problem(subject, obs, settings.problem, kin, progress=say,
                       base=_protocol_places(subject, subject.parameters(), protocol) if protocol else None)

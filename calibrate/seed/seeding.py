@@ -514,8 +514,9 @@ def nanmedian_first(a: np.ndarray) -> np.ndarray:
 
 def jumped_samples(model: Model, trials: Sequence[Trial],
                    progress: Callable[[float], None] | None = None) -> np.ndarray:
-    """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order,
-    stacked as the calibration stacks the trials; `progress(share of the frames done)`."""
+    """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order, and its
+    fallen_samples (a marker left behind at one place), stacked as the calibration stacks the trials;
+    `progress(share of the frames done)`."""
     parts = []
     total, before = max(1, sum(t.n_frames for t in trials)), 0  # frames, and those of the trials done
     for t in trials:
@@ -523,19 +524,75 @@ def jumped_samples(model: Model, trials: Sequence[Trial],
                               lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))
         before += t.n_frames
         index = {lab: i for i, lab in enumerate(t.labels)}
-        out = np.zeros((t.n_frames, len(model.markers)), dtype=bool)
+        out = fallen_samples(model, t)
         for k, name in enumerate(model.marker_names):
             if name in index:
-                out[:, k] = jumps[:, index[name]]
+                out[:, k] |= jumps[:, index[name]]
         parts.append(out)
     return np.concatenate(parts)
 
 
+FALLEN_BLOCK_S = 0.5  # s: fallen_samples judges a trial in blocks this long ...
+FALLEN_STILL = 0.010  # m ... where a marker stays within this of one place in the lab ...
+FALLEN_TURN = 0.030  # m ... while every other seen marker of its segment travels (its mean place in the block's two
+# halves) and changes its distance to it by more than this
+
+
+def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
+    """(n_frames, n_model_markers) True where a marker stays at one place in the lab while its segment moves: one
+    fallen off onto the floor, or stuck to an object.  In blocks of FALLEN_BLOCK_S seconds, a marker that keeps
+    within FALLEN_STILL of one place while each other marker of its segment seen there travels and changes its
+    distance to it by more than FALLEN_TURN is not on the segment: a rigid segment keeps those distances (a stance
+    foot or a squat's feet stand still with theirs), a marker left behind does not; in a still trial nothing travels
+    (a static's jittering keypoints change their distances, but their mean places stay).  A knee marker lying on
+    the floor from half-way through a walk otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS
+    3.0 -> 46.9 mm)."""
+    X = marker_columns(model, trial)
+    F, M, _ = X.shape
+    out = np.zeros((F, M), dtype=bool)
+    block = max(2, int(round(FALLEN_BLOCK_S * trial.rate)))
+    if F < block:
+        return out
+    seg = [mk.segment for mk in model.markers]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for a in range(0, F - block + 1, block):
+            b = F if a + 2 * block > F else a + block  # the last block takes the frames left over
+            x = X[a:b]
+            seen = np.all(np.isfinite(x), axis=(0, 2))  # seen in every frame of the block
+            spread = np.linalg.norm(np.nanmax(x, axis=0) - np.nanmin(x, axis=0), axis=1)  # (M,)
+            for k in np.flatnonzero(seen & (spread < FALLEN_STILL)):
+                mates = [m for m in range(M) if m != k and seg[m] == seg[k] and seen[m]]
+                if not mates:
+                    continue
+                d = np.linalg.norm(x[:, mates] - x[:, k:k + 1], axis=2)  # (frames, mates)
+                h = x.shape[0] // 2  # the mates' travel: their mean places in the block's halves (jitter averages out)
+                travel = np.linalg.norm(x[h:, mates].mean(axis=0) - x[:h, mates].mean(axis=0), axis=1)
+                if np.all(travel > FALLEN_TURN) and np.all(d.max(axis=0) - d.min(axis=0) > FALLEN_TURN):
+                    out[a:b, k] = True
+    # Each flagged stretch grown to the frames next to it where the marker is still at that place (the fall lies
+    # inside a block: its frames after the fall).
+    for k in np.flatnonzero(out.any(axis=0)):
+        run = out[:, k].copy()
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            at = np.median(X[a:b, k], axis=0)
+            near = np.linalg.norm(X[:, k] - at, axis=1) < FALLEN_STILL  # False where unseen
+            f = a - 1
+            while f >= 0 and near[f]:
+                out[f, k], f = True, f - 1
+            f = b
+            while f < F and near[f]:
+                out[f, k], f = True, f + 1
+    return out
+
+
 def without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
-    """`trial` with the samples broken_samples and jump_episodes flag set to gaps, and how many there were."""
+    """`trial` with the samples broken_samples, fallen_samples and jump_episodes flag set to gaps, and how many there
+    were."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
     bad = jump_episodes(trial)
-    rigid = broken_samples(model, trial)
+    rigid = broken_samples(model, trial) | fallen_samples(model, trial)
     for k, name in enumerate(model.marker_names):
         if name in index:
             bad[:, index[name]] |= rigid[:, k]
