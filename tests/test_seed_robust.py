@@ -15,6 +15,7 @@ from calibrate.calibration.evaluate import compare_to_truth
 from calibrate.calibration.pipeline import calibrate
 from calibrate.io.labels import map_labels
 from calibrate.io.read import read_trial
+from calibrate.io.trial import Trial
 from calibrate.seed.seeding import broken_samples, jump_episodes, seed_parameters
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
@@ -51,7 +52,7 @@ def test_swapped_torso_labels_are_flagged_and_nothing_else(human, squats):
 
 def test_simulated_swaps_and_spikes_are_caught(human):
     """The simulator's own corruptions (truth_corruptions) under 3 mm soft-tissue artefact, over six
-    subjects: jump_episodes catches nearly all (a spike next to a gap has no jump back), broken_samples
+    subjects: jump_episodes catches nearly all (a spike of under 100 mm next to a gap has no jump back), broken_samples
     many (not a spike along no pair, nor two markers of a two-marker segment swapped: every distance
     kept); few clean samples are lost."""
     caught = {"jump": 0, "rigid": 0}
@@ -110,6 +111,28 @@ def test_upper_arm_swap_is_a_jump_episode(human, squats):
     assert not jump_episodes(squats.trial).any()
 
 
+def test_a_ghost_at_a_gaps_edge_is_a_jump_episode(human, squats):
+    """A ghost 0.8 m off just before a gap, and one of two frames just after another: no jump back bounds either, so
+    the jump test left them in (the start race and the first solve then fitted them: a 2.5 m ghost before a gap moved
+    pig_walk's right knee centre 70 mm).  A jump of 100 mm or more with at most three seen frames between it and a
+    gap, and more on its other side, now marks those frames; a fast arm read at 50 Hz (steps of 50 mm, jumps of
+    30-50 from the steps around them) keeps its frames.  (The simulator's truth: which samples were damaged.)"""
+    t = squats.trial
+    X = t.markers.copy()
+    k, j = t.labels.index("LKNE"), t.labels.index("RWRA")
+    X[100, k] += [0.8, 0.0, 0.0]
+    X[101:110, k] = np.nan
+    X[200:205, j] = np.nan
+    X[205:207, j] += [0.0, 0.3, 0.0]
+    jumps = jump_episodes(Trial(t.labels, X, t.rate))
+    assert jumps[100, k] and jumps[205:207, j].all()
+    assert jumps.sum() == 3
+    X = t.markers.copy()
+    X[101:110, k] = np.nan  # the gaps alone
+    X[200:205, j] = np.nan
+    assert not jump_episodes(Trial(t.labels, X, t.rate)).any()
+
+
 @pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
 def test_real_walk_loses_no_samples(human):
     """A clean Vicon walk (pig_walk, 120 Hz): no jump episode and no broken segment distance."""
@@ -141,7 +164,6 @@ def test_a_marker_fallen_off_is_left_out_where_it_lies(human):
     to the thigh's other marker changes), so the calibration fits as on the trial without it; before, that one
     marker pulled the fit to 40+ mm RMS.  The squats' feet stand still too, with their markers: none of theirs is
     taken.  (The simulator's truth: which samples fell, and the clean trial's fit.)"""
-    from calibrate.io.trial import Trial
     from calibrate.seed.seeding import fallen_samples
 
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=3)
@@ -154,6 +176,15 @@ def test_a_marker_fallen_off_is_left_out_where_it_lies(human):
     assert flagged[:, human.marker_index("RKNE")].sum() >= 140 and not flagged[:150].any()
     assert flagged.sum() == flagged[:, human.marker_index("RKNE")].sum()  # nothing else (the still feet kept)
     assert not fallen_samples(human, t).any()
+    # a segment's only marker (the forearm's RFRM) stuck where it was at the start: judged against the elbow's and
+    # the wrist's markers, which travel away from it
+    Y = t.markers.copy()
+    j = t.labels.index("RFRM")
+    Y[:, j] = Y[0, j]
+    stuck = fallen_samples(human, Trial(t.labels, Y, t.rate))
+    moving = np.linalg.norm(t.markers[:, j] - t.markers[0, j], axis=1) > 0.05  # where the true RFRM is 50 mm away
+    assert stuck[:, human.marker_index("RFRM")][moving].mean() > 0.9
+    assert stuck.sum() == stuck[:, human.marker_index("RFRM")].sum()
     clean = calibrate(human, t)
     cal = calibrate(human, fell)
     assert sum(o.marker == "RKNE" and o.frame >= 150 for o in cal.outliers) >= 140
@@ -161,3 +192,25 @@ def test_a_marker_fallen_off_is_left_out_where_it_lies(human):
     # every joint centre as near the truth as the clean trial's calibration puts it, to 2 mm
     got, ref = compare_to_truth(cal, sim).centre_error, compare_to_truth(clean, sim).centre_error
     assert all(got[j] < ref[j] + 0.002 for j in ref), {j: (got[j], ref[j]) for j in ref if got[j] >= ref[j] + 0.002}
+
+
+def test_a_marker_dropped_in_a_static_is_left_out_of_it(human, squats):
+    """A static (nothing turns) whose RTHI drops 0.4 m a third of the way through and lies there: it moves alone
+    while its segment's and its neighbours' markers stay put, and the trial cannot say which of its places was the
+    thigh's, so all its positions in the static are left out (seeding.fallen_samples).  Before, the fit took both
+    places: pig_walk's static with a thigh marker dropped put the right knee centre 361 mm off.  The calibration now
+    ends where the undamaged static's does.  (The simulator's truth: which marker dropped.)"""
+    from calibrate.seed.seeding import fallen_samples
+    from calibrate.simulation.simulate import simulate_static
+
+    st = simulate_static(human, squats.truth, frames=240, noise_mm=1.0, seed=7).trial
+    X = st.markers.copy()
+    k = st.labels.index("RTHI")
+    X[80:, k] = X[80, k] + [0.1, -0.3, -0.25]
+    dropped = Trial(st.labels, X, st.rate)
+    flagged = fallen_samples(human, dropped)
+    assert flagged[:, human.marker_index("RTHI")].all() and flagged.sum() == st.n_frames
+    assert not fallen_samples(human, st).any()
+    clean, cal = calibrate(human, st), calibrate(human, dropped)
+    shift = np.linalg.norm(np.array(cal.params.centre) - np.array(clean.params.centre), axis=1)
+    assert shift.max() < 0.010, dict(zip([j.name for j in human.joints], np.round(1e3 * shift, 1), strict=True))

@@ -246,6 +246,10 @@ SEED_JUMP_UNDO = 0.5  # two jumps undo each other when their sum is shorter than
 SEED_EPISODE_S = 1.0  # s: a spike or swapped-label episode lasts at most this long
 
 
+SEED_GHOST_FRAMES = 3  # a jump with at most this many seen frames between it and a gap: a ghost at the gap's edge ...
+SEED_GHOST_MIN = 0.10  # m ... if the jump is this far from the steps around it (a fast arm read at 50 Hz jumps 50 mm)
+
+
 SEED_BROKEN_GROUP = 12  # a segment with more markers is not checked (2^n candidate sets)
 
 
@@ -496,9 +500,29 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
                 i += 2
             else:
                 i += 1
+        # A ghost at a gap's edge: a jump of SEED_GHOST_MIN or more with at most SEED_GHOST_FRAMES seen frames between
+        # it and a gap (or the trial's end) on one side and more on the other has no jump back; those few frames are the
+        # ghost.
+        for a in steps:
+            if out[a, k] or out[a + 1, k] or size[a] < SEED_GHOST_MIN:
+                continue
+            after = _seen_run(seen, a + 1, +1)  # seen frames from a+1 on, up to a gap or the trial's end
+            before = _seen_run(seen, a, -1)  # ... from a back
+            if after <= SEED_GHOST_FRAMES < before and not jump[a + 1:a + after].any():
+                out[a + 1:a + 1 + after, k] = True
+            elif before <= SEED_GHOST_FRAMES < after and not jump[a - before + 1:a].any():
+                out[a - before + 1:a + 1, k] = True
         if progress is not None:
             progress((k + 1) / X.shape[1])
     return out
+
+
+def _seen_run(seen: np.ndarray, f: int, way: int) -> int:
+    """How many frames from `f` on (`way` +1) or back (-1), `f` included, are seen in a row."""
+    n = 0
+    while 0 <= f < seen.size and seen[f]:
+        n, f = n + 1, f + way
+    return n
 
 
 def nanmedian_first(a: np.ndarray) -> np.ndarray:
@@ -534,19 +558,20 @@ def jumped_samples(model: Model, trials: Sequence[Trial],
 
 FALLEN_BLOCK_S = 0.5  # s: fallen_samples judges a trial in blocks this long ...
 FALLEN_STILL = 0.010  # m ... where a marker stays within this of one place in the lab ...
-FALLEN_TURN = 0.030  # m ... while every other seen marker of its segment travels (its mean place in the block's two
-# halves) and changes its distance to it by more than this
+FALLEN_TURN = 0.030  # m ... while most markers of its segment and of the segments next to it travel (their mean
+# places in the block's two halves) and change their distances to it by more than this
 
 
 def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     """(n_frames, n_model_markers) True where a marker stays at one place in the lab while its segment moves: one
     fallen off onto the floor, or stuck to an object.  In blocks of FALLEN_BLOCK_S seconds, a marker that keeps
-    within FALLEN_STILL of one place while each other marker of its segment seen there travels and changes its
-    distance to it by more than FALLEN_TURN is not on the segment: a rigid segment keeps those distances (a stance
-    foot or a squat's feet stand still with theirs), a marker left behind does not; in a still trial nothing travels
-    (a static's jittering keypoints change their distances, but their mean places stay).  A knee marker lying on
-    the floor from half-way through a walk otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS
-    3.0 -> 46.9 mm)."""
+    within FALLEN_STILL of one place while most markers of its segment and of the segments next to it (the nearest
+    with markers; two or more seen there) travel and change their distances to it by more than FALLEN_TURN is not
+    on the segment: a marker on a thigh or a forearm cannot stay put while the markers around it travel away from it
+    and back (pig_walk's RFRM frozen: the right elbow centre 687 mm off).  A stance foot or a squat's feet stand
+    still with the markers beside them; in a still trial nothing travels (a static's jittering keypoints change
+    their distances, but their mean places stay).  A knee marker lying on the floor from half-way through a walk
+    otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm)."""
     X = marker_columns(model, trial)
     F, M, _ = X.shape
     out = np.zeros((F, M), dtype=bool)
@@ -554,6 +579,7 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     if F < block:
         return out
     seg = [mk.segment for mk in model.markers]
+    near = _marked_neighbours(model)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for a in range(0, F - block + 1, block):
@@ -562,14 +588,40 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
             seen = np.all(np.isfinite(x), axis=(0, 2))  # seen in every frame of the block
             spread = np.linalg.norm(np.nanmax(x, axis=0) - np.nanmin(x, axis=0), axis=1)  # (M,)
             for k in np.flatnonzero(seen & (spread < FALLEN_STILL)):
-                mates = [m for m in range(M) if m != k and seg[m] == seg[k] and seen[m]]
-                if not mates:
+                around = {seg[k], *near.get(seg[k], ())}
+                refs = [m for m in range(M) if m != k and seen[m] and seg[m] in around]
+                if len(refs) < 2:
                     continue
-                d = np.linalg.norm(x[:, mates] - x[:, k:k + 1], axis=2)  # (frames, mates)
-                h = x.shape[0] // 2  # the mates' travel: their mean places in the block's halves (jitter averages out)
-                travel = np.linalg.norm(x[h:, mates].mean(axis=0) - x[:h, mates].mean(axis=0), axis=1)
-                if np.all(travel > FALLEN_TURN) and np.all(d.max(axis=0) - d.min(axis=0) > FALLEN_TURN):
+                d = np.linalg.norm(x[:, refs] - x[:, k:k + 1], axis=2)  # (frames, refs)
+                h = x.shape[0] // 2  # the refs' travel: their mean places in the block's halves (jitter averages out)
+                travel = np.linalg.norm(x[h:, refs].mean(axis=0) - x[:h, refs].mean(axis=0), axis=1)
+                if np.median(travel) > FALLEN_TURN and np.median(d.max(axis=0) - d.min(axis=0)) > FALLEN_TURN:
                     out[a:b, k] = True
+    # A marker that moves alone in a still trial (most markers, and every other marker of its segment, keep within
+    # FALLEN_TURN of one place, 5th to 95th percentile over the trial: a static's marker dropping to the floor) while
+    # it moves and its distance to most of its segment's and its neighbours' markers that stay put changes by more.
+    # Which of its places was the segment's the trial cannot say: all its positions in the trial are left out (a
+    # fallen thigh marker in pig_walk's static had put the right knee centre 361 mm off).
+    seen_all = np.all(np.isfinite(X), axis=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lo, hi = np.nanpercentile(X, 5, axis=0), np.nanpercentile(X, 95, axis=0)  # (M, 3)
+    moved = np.linalg.norm(hi - lo, axis=1)  # NaN for a marker never seen
+    still_trial = bool(np.any(np.isfinite(moved))) and float(np.nanmedian(moved)) < FALLEN_TURN  # most markers stay
+    for k in np.flatnonzero(moved > FALLEN_TURN) if still_trial else ():
+        seen_long = seen_all.sum(axis=0) >= block
+        if any(moved[m] > FALLEN_TURN for m in range(M) if m != k and seg[m] == seg[k] and seen_long[m]):
+            continue  # its segment moved with it
+        refs = [m for m in range(M) if m != k and (seg[m] == seg[k] or seg[m] in near.get(seg[k], ())) and seen_long[m]
+                and moved[m] <= FALLEN_TURN]  # its segment's and its neighbours' markers that stay put
+        if len(refs) < 2:
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            d = np.linalg.norm(X[:, refs] - X[:, k:k + 1], axis=2)  # (frames, refs), NaN where either is unseen
+            change = np.nanpercentile(d, 95, axis=0) - np.nanpercentile(d, 5, axis=0)
+        if np.median(change) > FALLEN_TURN:  # most of them: a marker moved alone (a rigid turn keeps the distances)
+            out[:, k] = seen_all[:, k]
     # Each flagged stretch grown to the frames next to it where the marker is still at that place (the fall lies
     # inside a block: its frames after the fall).
     for k in np.flatnonzero(out.any(axis=0)):
@@ -584,6 +636,30 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
             f = b
             while f < F and near[f]:
                 out[f, k], f = True, f + 1
+    return out
+
+
+def _marked_neighbours(model: Model) -> dict[str, set[str]]:
+    """Each segment's nearest segments with markers across its joints, through any without (a calcaneus's: the
+    tibia, past the markerless talus)."""
+    adjacent: dict[str, set[str]] = {}
+    for j in model.joints:
+        adjacent.setdefault(j.parent, set()).add(j.child)
+        adjacent.setdefault(j.child, set()).add(j.parent)
+    marked = {mk.segment for mk in model.markers}
+    out: dict[str, set[str]] = {}
+    for start in adjacent:
+        found, todo, done = set(), list(adjacent[start]), {start}
+        while todo:
+            sg = todo.pop()
+            if sg in done:
+                continue
+            done.add(sg)
+            if sg in marked:
+                found.add(sg)
+            else:
+                todo.extend(adjacent.get(sg, ()))
+        out[start] = found
     return out
 
 

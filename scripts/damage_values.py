@@ -1,0 +1,187 @@
+"""Damaged values, not bytes: a real trial's marker values damaged as labs' recordings are, each copy calibrated and
+compared with the undamaged trial's calibration (scripts/fuzz_inputs.py damages the files' bytes).
+
+Kinds of damage (`--kinds`; each copy one kind, its sizes and places drawn from `--seed`):
+
+- ghost: 1-6 runs of 1-3 frames of a marker 0.3-3 m off (a wrong ray match);
+- ghost-gap: one such frame just before a gap of 5-20 frames (no jump back bounds it);
+- fallen: a marker on the floor (7 mm up) from a frame in the trial's middle half to its end;
+- frozen: a marker at its first frame's place for the whole trial (stuck to something);
+- gaps: 1-4 stretches of 5-60 frames of a marker unseen;
+- swap: two markers' labels exchanged for 5-30 frames.
+
+What must hold for each copy: `calibrate` returns (no exception, no refusal: the damage leaves a trial worth
+calibrating); it names no label on a `check label` line that the undamaged trial's calibration does not; it says
+`still only` exactly where that one does; and every joint centre stays within `--tol-mm` or 3 of its posterior SDs
+(the larger) of that one's.
+
+    python scripts/damage_values.py [--trial walk|static] [--frames 300] [--n 30] [--seed 0] [--kinds ...] [--json F]
+
+Data: ../shared/data/real/pig_walk (Plug-in Gait, 120 Hz) on models/human.urdf, in process.  No timings: a check,
+not a benchmark."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import traceback
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
+KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap")
+
+
+def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+    """A damaged copy of the markers X (frames, markers, 3; m) and what was done, in words (marker indices)."""
+    X = X.copy()
+    F, M, _ = X.shape
+
+    def direction() -> np.ndarray:
+        v = rng.normal(size=3)
+        return v / np.linalg.norm(v)
+
+    if kind == "ghost":
+        done = []
+        for _ in range(int(rng.integers(1, 7))):
+            k, f, n, size = int(rng.integers(M)), int(rng.integers(F - 3)), int(rng.integers(1, 4)), rng.uniform(0.3, 3)
+            X[f:f + n, k] += size * direction()
+            done.append(f"marker {k} frames {f}-{f + n - 1} {size:.2f} m")
+        return X, "; ".join(done)
+    if kind == "ghost-gap":
+        k, f, n = int(rng.integers(M)), int(rng.integers(1, F - 25)), int(rng.integers(5, 21))
+        size = rng.uniform(0.3, 3)
+        X[f, k] += size * direction()
+        X[f + 1:f + 1 + n, k] = np.nan
+        return X, f"marker {k} frame {f} {size:.2f} m, then {n} frames unseen"
+    if kind == "fallen":
+        k, f = int(rng.integers(M)), int(rng.integers(F // 4, 3 * F // 4))
+        at = X[f, k].copy()
+        if not np.all(np.isfinite(at)):
+            return X, "none (unseen where it would fall)"
+        X[f:, k] = [at[0], at[1], 0.007]
+        return X, f"marker {k} on the floor from frame {f}"
+    if kind == "frozen":
+        k = int(rng.integers(M))
+        first = np.flatnonzero(np.all(np.isfinite(X[:, k]), axis=1))
+        if first.size == 0:
+            return X, "none (never seen)"
+        X[:, k] = X[first[0], k]
+        return X, f"marker {k} at frame {first[0]}'s place throughout"
+    if kind == "gaps":
+        done = []
+        for _ in range(int(rng.integers(1, 5))):
+            k, n = int(rng.integers(M)), int(rng.integers(5, 61))
+            f = int(rng.integers(F - n))
+            X[f:f + n, k] = np.nan
+            done.append(f"marker {k} frames {f}-{f + n - 1}")
+        return X, "; ".join(done)
+    if kind == "swap":
+        a, b = (int(v) for v in rng.choice(M, size=2, replace=False))
+        n = int(rng.integers(5, 31))
+        f = int(rng.integers(F - n))
+        X[f:f + n, [a, b]] = X[f:f + n, [b, a]]
+        return X, f"markers {a} and {b} exchanged in frames {f}-{f + n - 1}"
+    raise ValueError(f"unknown kind {kind}")
+
+
+def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_mm: float) -> dict:
+    from calibrate import calibrate, load_model, read_trial
+    from calibrate.errors import CalibrateError
+    from calibrate.io.trial import Trial
+
+    model = load_model(ROOT / "models" / "human.urdf")
+    raw = read_trial(PIG / f"{trial_name}.c3d")
+    trial = raw.select([lab for lab in raw.labels if lab in set(model.marker_names)])
+    trial = Trial(trial.labels, np.array(trial.markers[:frames]), trial.rate, 0, f"{trial_name}.c3d")
+
+    def summary(cal) -> dict:
+        sd = {c.item: float(np.linalg.norm(c.std)) for c in cal.changes if c.group == "centre"}  # mm
+        return {"centres": np.array(cal.params.centre), "labels": sorted({m.label for _, m in cal.misplaced}),
+                "still": cal.still_only is not None, "rms_mm": 1e3 * cal.marker_rms,
+                "sd_mm": np.array([sd.get(j.name, np.nan) for j in model.joints])}
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = summary(calibrate(model, trial))
+    print(f"{trial_name}: {trial.n_frames} frames, {len(trial.labels)} markers; undamaged: marker RMS "
+          f"{ref['rms_mm']:.2f} mm, labels to check {ref['labels'] or 'none'}, still only {ref['still']}", flush=True)
+    names = [j.name for j in model.joints]
+    rng = np.random.default_rng(seed)
+    rows, findings = [], []
+    for i in range(n):
+        kind = kinds[i % len(kinds)]
+        X, what = damage(np.array(trial.markers), kind, rng)
+        what = " ".join(w if not w.isdigit() else w for w in what.split())
+        for k in sorted(range(len(trial.labels)), key=lambda k: -k):  # marker indices as labels, in words
+            what = what.replace(f"marker {k} ", f"{trial.labels[k]} ").replace(f"markers {k} ", f"{trial.labels[k]} ")
+            what = what.replace(f"and {k} ", f"and {trial.labels[k]} ")
+        row = {"kind": kind, "damage": what}
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                got = summary(calibrate(model, Trial(trial.labels, X, trial.rate, 0, trial.source)))
+        except CalibrateError as e:
+            row["outcome"] = f"refused: {e}"
+        except Exception as e:  # noqa: BLE001 - any other exception is the finding
+            row["outcome"] = f"{type(e).__name__}: {e}"
+            row["traceback"] = traceback.format_exc(limit=4)
+        else:
+            # a centre's shift against the larger of the tolerance and 3 posterior SDs of the undamaged calibration:
+            # a centre its trial leaves to the priors (a forearm's) moves 20 mm with a few frames' gaps
+            allowed = np.fmax(tol_mm, 3.0 * ref["sd_mm"]) / 1e3
+            shift = np.linalg.norm(got["centres"] - ref["centres"], axis=1)
+            worst = int(np.argmax(shift / allowed))
+            row.update(rms_mm=round(got["rms_mm"], 2), centre_shift_mm=round(1e3 * float(shift[worst]), 1),
+                       worst_joint=names[worst], labels=got["labels"], still=got["still"])
+            bad = []
+            if shift[worst] > allowed[worst]:
+                bad.append(f"{names[worst]} moved {1e3 * shift[worst]:.1f} mm (3 SDs: {3 * ref['sd_mm'][worst]:.1f})")
+            if set(got["labels"]) - set(ref["labels"]):
+                bad.append(f"labels to check {sorted(set(got['labels']) - set(ref['labels']))}")
+            if got["still"] != ref["still"]:
+                bad.append(f"still only {got['still']}, undamaged {ref['still']}")
+            row["outcome"] = "; ".join(bad) if bad else "ok"
+        rows.append(row)
+        if row["outcome"] != "ok":
+            findings.append(row)
+        print(f"  {i:3d} {kind:9s} {row['outcome'][:90]:90s} | {what[:80]}", flush=True)
+    counts: dict[str, int] = {}
+    for r in rows:
+        key = f"{r['kind']}: {'ok' if r['outcome'] == 'ok' else 'finding'}"
+        counts[key] = counts.get(key, 0) + 1
+    return {"trial": trial_name, "frames": trial.n_frames, "seed": seed, "tol_mm": tol_mm, "undamaged_rms_mm":
+            round(ref["rms_mm"], 3), "counts": counts, "findings": findings, "copies": rows}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--trial", choices=("walk", "static"), default="walk", help="pig_walk's trial to damage")
+    ap.add_argument("--frames", type=int, default=300, help="its first N frames")
+    ap.add_argument("--n", type=int, default=30, help="damaged copies")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated, of {', '.join(KINDS)}")
+    ap.add_argument("--tol-mm", type=float, default=10.0, help="largest joint-centre shift that passes (mm)")
+    ap.add_argument("--json", type=Path, help="write the results here")
+    a = ap.parse_args()
+    kinds = [k for k in a.kinds.split(",") if k]
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        ap.error(f"unknown kind {unknown[0]}; use {', '.join(KINDS)}")
+    if not (PIG / f"{a.trial}.c3d").exists():
+        print(f"damage_values: {PIG / (a.trial + '.c3d')}: not found; the real trials live in ../shared/data/real",
+              file=sys.stderr)
+        return 2
+    out = run(a.trial, a.frames, a.n, a.seed, kinds, a.tol_mm)
+    print(", ".join(f"{v} {k}" for k, v in sorted(out["counts"].items())))
+    if a.json:
+        a.json.write_text(json.dumps(out, indent=1))
+    return 1 if out["findings"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
