@@ -559,19 +559,21 @@ def jumped_samples(model: Model, trials: Sequence[Trial],
 FALLEN_BLOCK_S = 0.5  # s: fallen_samples judges a trial in blocks this long ...
 FALLEN_STILL = 0.010  # m ... where a marker stays within this of one place in the lab ...
 FALLEN_TURN = 0.030  # m ... while most markers of its segment and of the segments next to it travel (their mean
-# places in the block's two halves) and change their distances to it by more than this
+# places in the block's two halves) and change their distances to it by more than this (every other one of its own)
+FALLEN_ALONE_S = 2.0  # s: a segment's only marker so judged is taken where it stays at least this long
 
 
 def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     """(n_frames, n_model_markers) True where a marker stays at one place in the lab while its segment moves: one
     fallen off onto the floor, or stuck to an object.  In blocks of FALLEN_BLOCK_S seconds, a marker that keeps
     within FALLEN_STILL of one place while most markers of its segment and of the segments next to it (the nearest
-    with markers; two or more seen there) travel and change their distances to it by more than FALLEN_TURN is not
-    on the segment: a marker on a thigh or a forearm cannot stay put while the markers around it travel away from it
-    and back (pig_walk's RFRM frozen: the right elbow centre 687 mm off).  A stance foot or a squat's feet stand
-    still with the markers beside them; in a still trial nothing travels (a static's jittering keypoints change
-    their distances, but their mean places stay).  A knee marker lying on the floor from half-way through a walk
-    otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm)."""
+    with markers; two or more seen there), and every other marker of its own, travel and change their distances to
+    it by more than FALLEN_TURN is not on the segment (a segment's only marker: where it stays FALLEN_ALONE_S or
+    more, longer than a stance): a marker on a thigh or a forearm cannot stay put while the markers around it travel
+    away from it and back (pig_walk's RFRM frozen: the right elbow centre 687 mm off).  A stance foot or a squat's
+    feet stand still with the markers beside them; in a still trial nothing travels (a static's jittering keypoints
+    change their distances, but their mean places stay).  A knee marker lying on the floor from half-way through a
+    walk otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm)."""
     X = marker_columns(model, trial)
     F, M, _ = X.shape
     out = np.zeros((F, M), dtype=bool)
@@ -580,6 +582,7 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
         return out
     seg = [mk.segment for mk in model.markers]
     near = _marked_neighbours(model)
+    alone = np.zeros((F, M), dtype=bool)  # flagged with no other marker of its segment seen
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for a in range(0, F - block + 1, block):
@@ -595,7 +598,13 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
                 d = np.linalg.norm(x[:, refs] - x[:, k:k + 1], axis=2)  # (frames, refs)
                 h = x.shape[0] // 2  # the refs' travel: their mean places in the block's halves (jitter averages out)
                 travel = np.linalg.norm(x[h:, refs].mean(axis=0) - x[:h, refs].mean(axis=0), axis=1)
-                if np.median(travel) > FALLEN_TURN and np.median(d.max(axis=0) - d.min(axis=0)) > FALLEN_TURN:
+                away = (travel > FALLEN_TURN) & (d.max(axis=0) - d.min(axis=0) > FALLEN_TURN)
+                if np.median(travel) <= FALLEN_TURN or np.median(d.max(axis=0) - d.min(axis=0)) <= FALLEN_TURN:
+                    continue
+                mates = [i for i, m in enumerate(refs) if seg[m] == seg[k]]
+                if not mates:  # judged by the segments next to it alone: a one-marker foot in stance looks so too
+                    alone[a:b, k] = True
+                elif away[mates].all():  # ... and by every other marker of its own segment
                     out[a:b, k] = True
     # A marker that moves alone in a still trial (most markers, and every other marker of its segment, keep within
     # FALLEN_TURN of one place, 5th to 95th percentile over the trial: a static's marker dropping to the floor) while
@@ -622,20 +631,36 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
             change = np.nanpercentile(d, 95, axis=0) - np.nanpercentile(d, 5, axis=0)
         if np.median(change) > FALLEN_TURN:  # most of them: a marker moved alone (a rigid turn keeps the distances)
             out[:, k] = seen_all[:, k]
-    # Each flagged stretch grown to the frames next to it where the marker is still at that place (the fall lies
-    # inside a block: its frames after the fall).
+    # A segment's only marker judged by its neighbours alone is taken where it stays FALLEN_ALONE_S or more (a foot
+    # with one marker stands still through a stance, under a second, while the shank's markers travel over it).
+    longest = int(round(FALLEN_ALONE_S * trial.rate))
+    for k in np.flatnonzero(alone.any(axis=0)):
+        for a, b in _runs(_grown(alone[:, k], X[:, k])):
+            if b - a >= longest:
+                out[a:b, k] = True
     for k in np.flatnonzero(out.any(axis=0)):
-        run = out[:, k].copy()
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], run.astype(np.int8), [0]])))
-        for a, b in zip(edges[::2], edges[1::2], strict=True):
-            at = np.median(X[a:b, k], axis=0)
-            near = np.linalg.norm(X[:, k] - at, axis=1) < FALLEN_STILL  # False where unseen
-            f = a - 1
-            while f >= 0 and near[f]:
-                out[f, k], f = True, f - 1
-            f = b
-            while f < F and near[f]:
-                out[f, k], f = True, f + 1
+        out[:, k] = _grown(out[:, k], X[:, k])
+    return out
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """The (start, stop) of each run of True in `mask`."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _grown(mask: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """`mask` (frames,) with each run grown to the frames next to it where the marker `x` (frames, 3) is still within
+    FALLEN_STILL of the run's place (a fall lies inside a block: its frames after the fall)."""
+    out = mask.copy()
+    for a, b in _runs(mask):
+        there = np.linalg.norm(x - np.median(x[a:b], axis=0), axis=1) < FALLEN_STILL  # False where unseen
+        f = a - 1
+        while f >= 0 and there[f]:
+            out[f], f = True, f - 1
+        f = b
+        while f < out.size and there[f]:
+            out[f], f = True, f + 1
     return out
 
 
