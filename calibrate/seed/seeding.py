@@ -506,8 +506,8 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
         for a in steps:
             if out[a, k] or out[a + 1, k] or size[a] < SEED_GHOST_MIN:
                 continue
-            after = _seen_run(seen, a + 1, +1)  # seen frames from a+1 on, up to a gap or the trial's end
-            before = _seen_run(seen, a, -1)  # ... from a back
+            after = _seen_run(seen, a + 1, +1, SEED_GHOST_FRAMES + 1)  # seen frames from a+1 on, up to a gap
+            before = _seen_run(seen, a, -1, SEED_GHOST_FRAMES + 1)  # ... from a back
             if after <= SEED_GHOST_FRAMES < before and not jump[a + 1:a + after].any():
                 out[a + 1:a + 1 + after, k] = True
             elif before <= SEED_GHOST_FRAMES < after and not jump[a - before + 1:a].any():
@@ -517,10 +517,11 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
     return out
 
 
-def _seen_run(seen: np.ndarray, f: int, way: int) -> int:
-    """How many frames from `f` on (`way` +1) or back (-1), `f` included, are seen in a row."""
+def _seen_run(seen: np.ndarray, f: int, way: int, most: int) -> int:
+    """How many frames from `f` on (`way` +1) or back (-1), `f` included, are seen in a row, counted up to `most`
+    (a longer run is not walked to its end: a trial without gaps would take its length for every jump)."""
     n = 0
-    while 0 <= f < seen.size and seen[f]:
+    while n < most and 0 <= f < seen.size and seen[f]:
         n, f = n + 1, f + way
     return n
 
