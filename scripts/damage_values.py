@@ -158,25 +158,30 @@ def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_m
             round(ref["rms_mm"], 3), "counts": counts, "findings": findings, "copies": rows}
 
 
+def _kinds(text: str) -> list[str]:
+    """--kinds' value: known kinds, comma-separated."""
+    kinds = [k for k in text.split(",") if k]
+    for k in kinds:
+        if k not in KINDS:
+            raise argparse.ArgumentTypeError(f"unknown kind {k}; use {', '.join(KINDS)}")
+    return kinds
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trial", choices=("walk", "static"), default="walk", help="pig_walk's trial to damage")
     ap.add_argument("--frames", type=int, default=300, help="its first N frames")
     ap.add_argument("--n", type=int, default=30, help="damaged copies")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated, of {', '.join(KINDS)}")
+    ap.add_argument("--kinds", type=_kinds, default=list(KINDS), help=f"comma-separated, of {', '.join(KINDS)}")
     ap.add_argument("--tol-mm", type=float, default=10.0, help="largest joint-centre shift that passes (mm)")
     ap.add_argument("--json", type=Path, help="write the results here")
     a = ap.parse_args()
-    kinds = [k for k in a.kinds.split(",") if k]
-    unknown = [k for k in kinds if k not in KINDS]
-    if unknown:
-        ap.error(f"unknown kind {unknown[0]}; use {', '.join(KINDS)}")
     if not (PIG / f"{a.trial}.c3d").exists():
         print(f"damage_values: {PIG / (a.trial + '.c3d')}: not found; the real trials live in ../shared/data/real",
               file=sys.stderr)
         return 2
-    out = run(a.trial, a.frames, a.n, a.seed, kinds, a.tol_mm)
+    out = run(a.trial, a.frames, a.n, a.seed, a.kinds, a.tol_mm)
     print(", ".join(f"{v} {k}" for k, v in sorted(out["counts"].items())))
     if a.json:
         a.json.write_text(json.dumps(out, indent=1))
