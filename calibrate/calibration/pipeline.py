@@ -65,6 +65,7 @@ from calibrate.seed.seeding import (
     MIN_FRAMES,
     Seed,
     handedness,
+    jump_episodes,
     jumped_samples,
     seed_parameters,
     size_from_markers,
@@ -306,7 +307,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # labels; as the seed leaves them out): one frame of a ghost a metre off set the SD of every distance of its
     # marker, so that a static read as moving (its still joints no longer held) and a correct label "moved with
     # another segment" (docs/benchmarks.md, "Ghost spikes").
-    judged = tuple(without_broken(model, t)[0] for t in trials) if run.outliers > 0 else trials
+    episodes = [jump_episodes(t, Countdown(say, "seed", "jumps (swapped labels, spikes) in every trajectory"))
+                for t in trials] if run.outliers > 0 else None  # found once: left out of the solve too (jumped)
+    judged = tuple(without_broken(model, t, e)[0] for t, e in zip(trials, episodes, strict=True)) \
+        if episodes is not None else trials
     own_motion = [relative_motion(t, model) for t in judged] if run.outliers > 0 else []  # (none: nothing judged)
     misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(judged, own_motion, strict=False))
                       if moves >= STILL_MOTION and moves >= MISPLACED_MOTION * segment_jitter(t, model)
@@ -450,9 +454,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # before the solve's own outlier rejection can see them.  So are a marker's positions where it stays at one place
     # in the lab while its segment moves (fallen off: seeding.fallen_samples).  They are reported with the other
     # outliers.
-    jumped = jumped_samples(subject, trials, Countdown(say, "build", "jumps (swapped labels, spikes) in every "
-                                                                   "trajectory")) \
-        if run.outliers > 0 else np.zeros(obs.shape[:2], dtype=bool)
+    jumped = jumped_samples(subject, trials, episodes=episodes) if episodes is not None \
+        else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
         say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes) or stay "

@@ -537,16 +537,17 @@ def nanmedian_first(a: np.ndarray) -> np.ndarray:
     return np.where(n > 0, 0.5 * (lo + hi), np.nan)
 
 
-def jumped_samples(model: Model, trials: Sequence[Trial],
-                   progress: Callable[[float], None] | None = None) -> np.ndarray:
+def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[float], None] | None = None,
+                   episodes: Sequence[np.ndarray] | None = None) -> np.ndarray:
     """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order, and its
     fallen_samples (a marker left behind at one place), stacked as the calibration stacks the trials;
-    `progress(share of the frames done)`."""
+    `progress(share of the frames done)`; `episodes`: each trial's jump_episodes, if found already."""
     parts = []
     total, before = max(1, sum(t.n_frames for t in trials)), 0  # frames, and those of the trials done
-    for t in trials:
-        jumps = jump_episodes(t, None if progress is None else
-                              lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))
+    for i, t in enumerate(trials):
+        jumps = episodes[i] if episodes is not None else jump_episodes(
+            t, None if progress is None else
+            lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))
         before += t.n_frames
         index = {lab: i for i, lab in enumerate(t.labels)}
         out = fallen_samples(model, t)
@@ -599,13 +600,13 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
                 d = np.linalg.norm(x[:, refs] - x[:, k:k + 1], axis=2)  # (frames, refs)
                 h = x.shape[0] // 2  # the refs' travel: their mean places in the block's halves (jitter averages out)
                 travel = np.linalg.norm(x[h:, refs].mean(axis=0) - x[:h, refs].mean(axis=0), axis=1)
-                away = (travel > FALLEN_TURN) & (d.max(axis=0) - d.min(axis=0) > FALLEN_TURN)
-                if np.median(travel) <= FALLEN_TURN or np.median(d.max(axis=0) - d.min(axis=0)) <= FALLEN_TURN:
+                change = d.max(axis=0) - d.min(axis=0)
+                if np.median(travel) <= FALLEN_TURN or np.median(change) <= FALLEN_TURN:
                     continue
                 mates = [i for i, m in enumerate(refs) if seg[m] == seg[k]]
                 if not mates:  # judged by the segments next to it alone: a one-marker foot in stance looks so too
                     alone[a:b, k] = True
-                elif away[mates].all():  # ... and by every other marker of its own segment
+                elif np.all((travel[mates] > FALLEN_TURN) & (change[mates] > FALLEN_TURN)):  # ... and all of its own
                     out[a:b, k] = True
     # A marker that moves alone in a still trial (most markers, and every other marker of its segment, keep within
     # FALLEN_TURN of one place, 5th to 95th percentile over the trial: a static's marker dropping to the floor) while
@@ -618,11 +619,12 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
         lo, hi = np.nanpercentile(X, 5, axis=0), np.nanpercentile(X, 95, axis=0)  # (M, 3)
     moved = np.linalg.norm(hi - lo, axis=1)  # NaN for a marker never seen
     still_trial = bool(np.any(np.isfinite(moved))) and float(np.nanmedian(moved)) < FALLEN_TURN  # most markers stay
+    seen_long = seen_all.sum(axis=0) >= block
     for k in np.flatnonzero(moved > FALLEN_TURN) if still_trial else ():
-        seen_long = seen_all.sum(axis=0) >= block
         if any(moved[m] > FALLEN_TURN for m in range(M) if m != k and seg[m] == seg[k] and seen_long[m]):
             continue  # its segment moved with it
-        refs = [m for m in range(M) if m != k and (seg[m] == seg[k] or seg[m] in near.get(seg[k], ())) and seen_long[m]
+        around = {seg[k], *near.get(seg[k], ())}
+        refs = [m for m in range(M) if m != k and seg[m] in around and seen_long[m]
                 and moved[m] <= FALLEN_TURN]  # its segment's and its neighbours' markers that stay put
         if len(refs) < 2:
             continue
@@ -689,11 +691,11 @@ def _marked_neighbours(model: Model) -> dict[str, set[str]]:
     return out
 
 
-def without_broken(model: Model, trial: Trial) -> tuple[Trial, int]:
+def without_broken(model: Model, trial: Trial, jumps: np.ndarray | None = None) -> tuple[Trial, int]:
     """`trial` with the samples broken_samples, fallen_samples and jump_episodes flag set to gaps, and how many there
-    were."""
+    were.  `jumps`: the trial's jump_episodes, if found already."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
-    bad = jump_episodes(trial)
+    bad = jump_episodes(trial) if jumps is None else jumps.copy()
     rigid = broken_samples(model, trial) | fallen_samples(model, trial)
     for k, name in enumerate(model.marker_names):
         if name in index:
