@@ -8,7 +8,8 @@ Kinds of damage (`--kinds`; each copy one kind, its sizes and places drawn from 
 - fallen: a marker on the floor (7 mm up) from a frame in the trial's middle half to its end;
 - frozen: a marker at its first frame's place for the whole trial (stuck to something);
 - gaps: 1-4 stretches of 5-60 frames of a marker unseen;
-- swap: two markers' labels exchanged for 5-30 frames.
+- swap: two markers' labels exchanged for 5-30 frames;
+- noisy: a marker given white noise of 3 mm to 1 m SD (log-uniform), throughout or in a stretch of 60-200 frames.
 
 What must hold for each copy: `calibrate` returns (no exception, no refusal: the damage leaves a trial worth
 calibrating); it names no label on a `check label` line that the undamaged trial's calibration does not; it says
@@ -33,7 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
-KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap")
+KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy")
 
 
 def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarray, str]:
@@ -86,6 +87,12 @@ def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarr
         f = int(rng.integers(F - n))
         X[f:f + n, [a, b]] = X[f:f + n, [b, a]]
         return X, f"markers {a} and {b} exchanged in frames {f}-{f + n - 1}"
+    if kind == "noisy":
+        k, sd = int(rng.integers(M)), float(np.exp(rng.uniform(np.log(0.003), np.log(1.0))))
+        f, n = (0, F) if rng.random() < 0.5 else (int(rng.integers(F - 60)), int(rng.integers(60, 201)))
+        n = min(n, F - f)
+        X[f:f + n, k] += rng.normal(scale=sd, size=(n, 3))
+        return X, f"marker {k} noise {1e3 * sd:.0f} mm SD in frames {f}-{f + n - 1}"
     raise ValueError(f"unknown kind {kind}")
 
 

@@ -870,6 +870,32 @@ def test_a_trial_whose_markers_sit_at_one_point_is_refused(human):
     _check_size(human, [sim.trial], None)  # a body's markers, with no steady pair either: passed
 
 
+def test_a_trial_at_a_wrong_frame_rate_is_refused(human, tmp_path):
+    """A trial whose stated frame rate is 10⁴ times its own (a damaged POINT:RATE) calibrated, before, with every test
+    in seconds wrong (pig_walk at 10⁶ Hz: 6.0 mm RMS against 3.0).  At that rate its markers move at km/s: refused
+    with one line naming the file and the rate, from the command line with exit 2 and nothing written.  The squats at
+    their own rate, and at 10 times it, pass (their median marker's 95th-percentile speed, independently: under 30
+    m/s)."""
+    from calibrate.calibration.pipeline import RATE_MAX_SPEED, _check_rate
+    from calibrate.cli import main
+    from calibrate.io.trc import write_trc
+
+    sim = simulate_squats(human, frames=60, noise_mm=1.0, seed=4)
+    t = sim.trial
+    fast = Trial(t.labels, t.markers, t.rate * 1e4, 0, "fast.trc")
+    with pytest.raises(CalibrateError, match=r"fast.trc: at the 1e\+06 frames per second it states, its markers move "
+                                             r"at [0-9.e+]+ m/s .* its frame rate is wrong"):
+        calibrate(human, [t, fast])
+    for rate in (t.rate, 10 * t.rate):
+        speed = np.linalg.norm(np.diff(t.markers, axis=0), axis=2) * rate
+        assert np.median(np.percentile(speed, 95, axis=0)) < RATE_MAX_SPEED
+        _check_rate(human, [Trial(t.labels, t.markers, rate)])
+    path = tmp_path / "fast.trc"
+    write_trc(path, fast)
+    assert main([str(path), str(human.path), "-q"]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fast.trc"]
+
+
 def test_a_mirror_image_trial_is_refused(human):
     """A trial exported with left-handed axes or one axis negated: a human model fitted pig_walk so mirrored to 4.7 mm
     RMS by turning its segments where no joint should (implausible centres 62-142 mm from the scaled base model, the

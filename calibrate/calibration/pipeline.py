@@ -64,8 +64,8 @@ from calibrate.seed.joints import JointEstimates
 from calibrate.seed.seeding import (
     MIN_FRAMES,
     Seed,
+    episodes,
     handedness,
-    jump_episodes,
     jumped_samples,
     seed_parameters,
     size_from_markers,
@@ -307,10 +307,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # labels; as the seed leaves them out): one frame of a ghost a metre off set the SD of every distance of its
     # marker, so that a static read as moving (its still joints no longer held) and a correct label "moved with
     # another segment" (docs/benchmarks.md, "Ghost spikes").
-    episodes = [jump_episodes(t, Countdown(say, "seed", "jumps (swapped labels, spikes) in every trajectory"))
-                for t in trials] if run.outliers > 0 else None  # found once: left out of the solve too (jumped)
-    judged = tuple(without_broken(model, t, e)[0] for t, e in zip(trials, episodes, strict=True)) \
-        if episodes is not None else trials
+    # So are the stretches where a marker jitters (seed.jitter: one marker given 100 mm of noise put a hip 240 mm off).
+    damage = [episodes(t, Countdown(say, "seed", "jumps (swapped labels, spikes) in every trajectory"))
+              for t in trials] if run.outliers > 0 else None  # found once: left out of the solve too (jumped)
+    damaged = [d[0] for d in damage] if damage is not None else None
+    judged = tuple(without_broken(model, t, e)[0] for t, e in zip(trials, damaged, strict=True)) \
+        if damaged is not None else trials
     own_motion = [relative_motion(t, model) for t in judged] if run.outliers > 0 else []  # (none: nothing judged)
     misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(judged, own_motion, strict=False))
                       if moves >= STILL_MOTION and moves >= MISPLACED_MOTION * segment_jitter(t, model)
@@ -346,6 +348,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if motion is None and len(trials) > 1:
         motion = _trial_motion(model, judged)  # which trials are still (_still_lengths, moved and re-placed markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
+    ours = {*known, *new}
+    jittery = tuple((i, x) for i, d in enumerate(damage or ()) for x in d[1] if x.label in ours)
+    for i, x in jittery:
+        say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {x.text()}"))
     ignored = tuple(lab for lab in labels if lab not in known and lab not in new)
     at = {m.label: m.position for m in placed if m.position is not None}  # (hosts.cluster_hosts)
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
@@ -413,6 +419,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
     size = size_from_markers(model, trials)
     _check_size(model, trials, size)
+    _check_rate(model, trials)
     _check_handedness(model, trials)
     _check_one_subject(model, trials)
     if run.seed and still_only is not None:
@@ -454,12 +461,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # before the solve's own outlier rejection can see them.  So are a marker's positions where it stays at one place
     # in the lab while its segment moves (fallen off: seeding.fallen_samples).  They are reported with the other
     # outliers.
-    jumped = jumped_samples(subject, trials, episodes=episodes) if episodes is not None \
+    jumped = jumped_samples(subject, trials, found=damaged) if damaged is not None \
         else np.zeros(obs.shape[:2], dtype=bool)
     raw = obs
     if jumped.any():
-        say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes) or stay "
-                                "behind while their segment moves (a marker fallen off); left out"))
+        say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes), jitter or "
+                                "stay behind while their segment moves (a marker fallen off); left out"))
         obs = np.where(jumped[..., None], np.nan, obs)
     problem = Problem(subject, obs, settings.problem, kin, progress=say,
                       base=_protocol_places(subject, subject.parameters(), protocol) if protocol else None)
@@ -748,7 +755,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        unresolved=res.segments,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
-                       noise_learnt=run.learn_noise, misplaced=misplaced, exchanged=exchanged, moved=tuple(moved),
+                       noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
+                       moved=tuple(moved),
                        moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=still_only, still_centres=still_centres,
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
@@ -1132,6 +1140,30 @@ def _check_size(model: Model, trials: Sequence[Trial], size) -> None:
     raise CalibrateError(f"{t.source or 'the trial'}: its markers put the subject at {s.overall:.3g} times the size of "
                          f"{model.path.name} ({s.pairs} marker pairs of steady distance); check the file's units (mm "
                          "read as m makes it 1000 times too large; a C3D's POINT:UNITS, a TRC's Units) or its labels")
+
+
+RATE_MAX_SPEED = 30.0  # m/s: the median marker's 95th-percentile speed beyond which a trial's frame rate is wrong
+
+
+def _check_rate(model: Model, trials: Sequence[Trial]) -> None:
+    """Refuse a trial whose markers would move faster than any body's at the frame rate it states: the median of its
+    model markers' 95th-percentile frame-to-frame speeds above RATE_MAX_SPEED.  On 90 real trials it is at most 5.7
+    m/s (a golf swing; a sprinter's whole body moves at 10); a walk read at 10⁶ Hz moves at 8 km/s, and its seed's 6 Hz
+    low-pass, its jump and block tests, its noise's correlation time (all in seconds) went wrong without a word
+    (pig_walk: 6.0 mm RMS against 3.0)."""
+    for t in trials:
+        shown = [lab for lab in model.marker_names if lab in t.labels]
+        if not shown or t.n_frames < 2:
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            speed = np.linalg.norm(np.diff(t.select(shown).markers, axis=0), axis=2) * t.rate
+            fast = float(np.nanmedian(np.nanpercentile(speed, 95, axis=0)))
+        if fast > RATE_MAX_SPEED:
+            raise CalibrateError(
+                f"{t.source or 'the trial'}: at the {t.rate:g} frames per second it states, its markers move at "
+                f"{fast:.3g} m/s (the median marker's 95th percentile; a sprinter's move at about 10): its frame rate "
+                "is wrong; correct it in the file (a C3D's POINT:RATE, a TRC's DataRate) and export it again")
 
 
 def _check_handedness(model: Model, trials: Sequence[Trial]) -> None:

@@ -230,6 +230,9 @@ class Calibration:
     # (trial index, calibrate.seed.association.Misplaced) per label whose marker rides with another segment than
     # the model's in that trial: labels to check (a label exchanged for the whole trial), reported, not changed
     misplaced: tuple = ()
+    # (trial index, calibrate.seed.jitter.Jittery) per marker that jitters (white noise from frame to frame) in
+    # stretches of that trial: its positions there left out of the fit
+    jittery: tuple = ()
     # calibrate.seed.association.Exchanged per pair of one segment's labels exchanged between two trials (a walk's
     # heel and toe; their positions left out of the trial the base model says has them exchanged) or, alike in
     # every trial, against the base model (reported, not changed): labels to check

@@ -323,6 +323,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"warning: labels to check (they move with another segment's markers than the model's; exchanged for "
               f"the whole trial?): {', '.join(check)}" + (f"; exchanges that fit: {', '.join(pairs)}" if pairs else "")
               + " (see 'check label' above)", file=sys.stderr)
+    if cal.jittery:
+        names = ", ".join(dict.fromkeys(x.label for _, x in cal.jittery))
+        print(f"warning: markers that jitter, left out where they do: {names} (see 'jitters' above)", file=sys.stderr)
     for x in cal.exchanged:
         pair = [Path(cal.trials[k].source).name if cal.trials[k].source else f"trial {k + 1}" for k in x.trials]
         names = " and ".join(pair)

@@ -16,6 +16,7 @@ from ..io.trial import Trial
 from ..model.model import Model, Parameters
 from ..seed.geometry import kabsch_batch
 from ..solve.ik import marker_columns
+from .jitter import Jittery, jittery_samples, nanmedian_first
 from .joints import JointEstimates, estimate_model_joints, lowpass, model_geometry
 
 MIN_FRAMES = 3  # fewer frames with markers than this: nothing to calibrate
@@ -517,6 +518,14 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
     return out
 
 
+def episodes(trial: Trial, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, tuple[Jittery, ...]]:
+    """(n_frames, n_markers) True where a marker's samples are damaged whatever the model: jump_episodes (spikes,
+    swapped labels, a ghost at a gap's edge) and jittery_samples (white noise), and the jittery markers.
+    `progress`: jump_episodes'."""
+    jitter, jittery = jittery_samples(trial)
+    return jump_episodes(trial, progress) | jitter, jittery
+
+
 def _seen_run(seen: np.ndarray, f: int, way: int, most: int) -> int:
     """How many frames from `f` on (`way` +1) or back (-1), `f` included, are seen in a row, counted up to `most`
     (a longer run is not walked to its end: a trial without gaps would take its length for every jump)."""
@@ -526,28 +535,17 @@ def _seen_run(seen: np.ndarray, f: int, way: int, most: int) -> int:
     return n
 
 
-def nanmedian_first(a: np.ndarray) -> np.ndarray:
-    """np.nanmedian(a, axis=0) for a short first axis (a few frames' steps) and a long rest: sorted once
-    (NaN last), the middle of each column's finite values taken, NaN where it has none; numpy's own
-    partitions with NaN handling column by column (several times slower on long trials)."""
-    srt = np.sort(a, axis=0)
-    n = np.sum(np.isfinite(a), axis=0)
-    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
-    hi = np.take_along_axis(srt, np.minimum(n // 2, a.shape[0] - 1)[None], axis=0)[0]
-    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
-
-
 def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[float], None] | None = None,
-                   episodes: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """(frames of all trials, n_model_markers): each trial's jump_episodes in the model's marker order, and its
+                   found: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """(frames of all trials, n_model_markers): each trial's episodes in the model's marker order, and its
     fallen_samples (a marker left behind at one place), stacked as the calibration stacks the trials;
-    `progress(share of the frames done)`; `episodes`: each trial's jump_episodes, if found already."""
+    `progress(share of the frames done)`; `found`: each trial's episodes, if found already."""
     parts = []
     total, before = max(1, sum(t.n_frames for t in trials)), 0  # frames, and those of the trials done
     for i, t in enumerate(trials):
-        jumps = episodes[i] if episodes is not None else jump_episodes(
+        jumps = found[i] if found is not None else episodes(
             t, None if progress is None else
-            lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))
+            lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))[0]
         before += t.n_frames
         index = {lab: i for i, lab in enumerate(t.labels)}
         out = fallen_samples(model, t)
@@ -692,10 +690,10 @@ def _marked_neighbours(model: Model) -> dict[str, set[str]]:
 
 
 def without_broken(model: Model, trial: Trial, jumps: np.ndarray | None = None) -> tuple[Trial, int]:
-    """`trial` with the samples broken_samples, fallen_samples and jump_episodes flag set to gaps, and how many there
-    were.  `jumps`: the trial's jump_episodes, if found already."""
+    """`trial` with the samples broken_samples, fallen_samples and episodes flag set to gaps, and how many there were.
+    `jumps`: the trial's episodes, if found already."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
-    bad = jump_episodes(trial) if jumps is None else jumps.copy()
+    bad = episodes(trial)[0] if jumps is None else jumps.copy()
     rigid = broken_samples(model, trial) | fallen_samples(model, trial)
     for k, name in enumerate(model.marker_names):
         if name in index:
