@@ -153,6 +153,29 @@ def test_a_one_marker_foot_in_stance_is_not_taken_for_a_fallen_marker(human):
     assert not fallen_samples(human, trial).any()
 
 
+@pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
+def test_a_hand_marker_or_a_late_tibia_marker_on_the_floor_is_taken(human):
+    """pig_walk's first 300 frames with one marker put on the floor where it was (7 mm up) from a frame on:
+    - LFIN, the left hand's only marker, from frame 83: 1.8 s on the floor, every wrist marker travelling away from it
+      and back (it had been taken only after 2 s, and the calibration put the left wrist 618 mm off);
+    - LTIB from frame 207: the 0.5 s blocks after the fall each held a stance, where LANK, its segment's other marker,
+      stands still (knee_l 101 mm off); windows a quarter of a block apart find the swing between.
+    Every fallen frame is taken, nothing else (scripts/damage_values.py's fallen kind found both)."""
+    from calibrate.seed.seeding import fallen_samples
+
+    trial, _ = map_labels(read_trial(REAL / "walk.c3d"), human.marker_names)
+    trial = trial.select([lab for lab in trial.labels if lab in set(human.marker_names)])
+    trial = Trial(trial.labels, np.array(trial.markers[:300]), trial.rate)
+    for label, f in (("LFIN", 83), ("LTIB", 207)):
+        X = trial.markers.copy()
+        k = trial.labels.index(label)
+        X[f:, k] = [X[f, k, 0], X[f, k, 1], 0.007]
+        out = fallen_samples(human, Trial(trial.labels, X, trial.rate))
+        kk = human.marker_index(label)
+        assert out[f:, kk].all() and not out[:f, kk].any(), (label, int(out[:, kk].sum()))
+        assert out.sum() == out[:, kk].sum()
+
+
 def test_jumps_are_left_out_of_the_solve_and_reported(human):
     """Eight frames of LELB and LUPA exchanged: the calibration leaves all 16 positions out before the
     start and reports them as outliers, each with its error at the fit close to the distance the swap

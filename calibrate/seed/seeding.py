@@ -556,54 +556,74 @@ def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[fl
     return np.concatenate(parts)
 
 
-FALLEN_BLOCK_S = 0.5  # s: fallen_samples judges a trial in blocks this long ...
+FALLEN_BLOCK_S = 0.5  # s: fallen_samples judges a trial in windows this long, a quarter of one apart ...
 FALLEN_STILL = 0.010  # m ... where a marker stays within this of one place in the lab ...
 FALLEN_TURN = 0.030  # m ... while most markers of its segment and of the segments next to it travel (their mean
-# places in the block's two halves) and change their distances to it by more than this (every other one of its own)
-FALLEN_ALONE_S = 2.0  # s: a segment's only marker so judged is taken where it stays at least this long
+# places in the window's two halves) and change their distances to it by more than this (every other one of its own;
+# a segment's only marker: every one of the segments next to it)
+FALLEN_ALONE_S = 1.0  # s: a segment's only marker so judged is taken where it stays at least this long
 
 
 def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     """(n_frames, n_model_markers) True where a marker stays at one place in the lab while its segment moves: one
-    fallen off onto the floor, or stuck to an object.  In blocks of FALLEN_BLOCK_S seconds, a marker that keeps
-    within FALLEN_STILL of one place while most markers of its segment and of the segments next to it (the nearest
-    with markers; two or more seen there), and every other marker of its own, travel and change their distances to
-    it by more than FALLEN_TURN is not on the segment (a segment's only marker: where it stays FALLEN_ALONE_S or
-    more, longer than a stance): a marker on a thigh or a forearm cannot stay put while the markers around it travel
-    away from it and back (pig_walk's RFRM frozen: the right elbow centre 687 mm off).  A stance foot or a squat's
-    feet stand still with the markers beside them; in a still trial nothing travels (a static's jittering keypoints
-    change their distances, but their mean places stay).  A knee marker lying on the floor from half-way through a
-    walk otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm)."""
+    fallen off onto the floor, or stuck to an object.  In windows of FALLEN_BLOCK_S seconds a quarter of one apart, a
+    marker that keeps within FALLEN_STILL of one place while most markers of its segment and of the segments next to
+    it (the nearest with markers; two or more seen there), and every other marker of its own, travel and change their
+    distances to it by more than FALLEN_TURN is not on the segment (a segment's only marker: where every marker next
+    to it does so, and it stays FALLEN_ALONE_S or more): a marker on a thigh or a forearm cannot stay put while the
+    markers around it travel away from it and back (pig_walk's RFRM frozen: the right elbow centre 687 mm off).  A
+    stance foot or a squat's feet stand still with the markers beside them (a one-marker foot's ankle marker barely
+    travels in a stance); in a still trial nothing travels (a static's jittering keypoints change their distances,
+    but their mean places stay).  A knee marker lying on the floor from half-way through a walk otherwise pulled the
+    left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm).  Windows overlap: a tibia marker fallen
+    late in a walk lies there through blocks that each hold a stance, where its segment's ankle marker stands still
+    (knee_l 101 mm off)."""
     X = marker_columns(model, trial)
     F, M, _ = X.shape
     out = np.zeros((F, M), dtype=bool)
-    block = max(2, int(round(FALLEN_BLOCK_S * trial.rate)))
-    if F < block:
+    step = max(1, int(round(FALLEN_BLOCK_S * trial.rate)) // 4)
+    width = 4 * step  # a window: four steps
+    if F < width:
         return out
     seg = [mk.segment for mk in model.markers]
     near = _marked_neighbours(model)
     alone = np.zeros((F, M), dtype=bool)  # flagged with no other marker of its segment seen
+    # Each window's spread of every marker (max - min over its frames; unseen in a frame: infinite), from the maxima
+    # and minima of its four steps; and a last window at the trial's end.
+    S = F // step
+    seen_x = np.isfinite(X)
+    top = np.where(seen_x, X, np.inf)[:S * step].reshape(S, step, M, 3).max(axis=1)
+    bottom = np.where(seen_x, X, -np.inf)[:S * step].reshape(S, step, M, 3).min(axis=1)
+    starts = [w * step for w in range(S - 3)]
+    spreads = [np.linalg.norm(np.max([top[w:S - 3 + w] for w in range(4)], axis=0)
+                              - np.min([bottom[w:S - 3 + w] for w in range(4)], axis=0), axis=2)]  # (S-3, M)
+    if starts[-1] + width < F:
+        x = X[F - width:]
+        starts.append(F - width)
+        spreads.append(np.where(seen_x[F - width:].all(axis=(0, 2)),
+                                np.linalg.norm(np.max(x, axis=0) - np.min(x, axis=0), axis=1), np.inf)[None])
+    spread = np.concatenate(spreads)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        for a in range(0, F - block + 1, block):
-            b = F if a + 2 * block > F else a + block  # the last block takes the frames left over
+        for w in np.flatnonzero((spread < FALLEN_STILL).any(axis=1)):
+            a, b = starts[w], starts[w] + width
             x = X[a:b]
-            seen = np.all(np.isfinite(x), axis=(0, 2))  # seen in every frame of the block
-            spread = np.linalg.norm(np.nanmax(x, axis=0) - np.nanmin(x, axis=0), axis=1)  # (M,)
-            for k in np.flatnonzero(seen & (spread < FALLEN_STILL)):
+            seen = np.all(seen_x[a:b], axis=(0, 2))  # seen in every frame of the window
+            for k in np.flatnonzero(spread[w] < FALLEN_STILL):
                 around = {seg[k], *near.get(seg[k], ())}
                 refs = [m for m in range(M) if m != k and seen[m] and seg[m] in around]
                 if len(refs) < 2:
                     continue
                 d = np.linalg.norm(x[:, refs] - x[:, k:k + 1], axis=2)  # (frames, refs)
-                h = x.shape[0] // 2  # the refs' travel: their mean places in the block's halves (jitter averages out)
+                h = x.shape[0] // 2  # the refs' travel: their mean places in the window's halves (jitter averages out)
                 travel = np.linalg.norm(x[h:, refs].mean(axis=0) - x[:h, refs].mean(axis=0), axis=1)
                 change = d.max(axis=0) - d.min(axis=0)
                 if np.median(travel) <= FALLEN_TURN or np.median(change) <= FALLEN_TURN:
                     continue
                 mates = [i for i, m in enumerate(refs) if seg[m] == seg[k]]
-                if not mates:  # judged by the segments next to it alone: a one-marker foot in stance looks so too
-                    alone[a:b, k] = True
+                if not mates:  # judged by the segments next to it alone: a one-marker foot in stance looks so to most
+                    if np.all((travel > FALLEN_TURN) & (change > FALLEN_TURN)):  # ... so every one of them
+                        alone[a:b, k] = True
                 elif np.all((travel[mates] > FALLEN_TURN) & (change[mates] > FALLEN_TURN)):  # ... and all of its own
                     out[a:b, k] = True
     # A marker that moves alone in a still trial (most markers, and every other marker of its segment, keep within
@@ -617,7 +637,7 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
         lo, hi = np.nanpercentile(X, 5, axis=0), np.nanpercentile(X, 95, axis=0)  # (M, 3)
     moved = np.linalg.norm(hi - lo, axis=1)  # NaN for a marker never seen
     still_trial = bool(np.any(np.isfinite(moved))) and float(np.nanmedian(moved)) < FALLEN_TURN  # most markers stay
-    seen_long = seen_all.sum(axis=0) >= block
+    seen_long = seen_all.sum(axis=0) >= width
     for k in np.flatnonzero(moved > FALLEN_TURN) if still_trial else ():
         if any(moved[m] > FALLEN_TURN for m in range(M) if m != k and seg[m] == seg[k] and seen_long[m]):
             continue  # its segment moved with it
