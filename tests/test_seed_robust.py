@@ -144,8 +144,9 @@ def test_real_walk_loses_no_samples(human):
 @pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
 def test_a_one_marker_foot_in_stance_is_not_taken_for_a_fallen_marker(human):
     """pig_walk's walk without LHEE: LTOE, its foot's only marker, stands still through each stance while the shank's
-    markers travel over it, as a fallen marker would; judged by the segments next to it alone, only a stay of 2 s or
-    more is taken (seeding.FALLEN_ALONE_S), and none of its 142 stance frames is left out."""
+    markers travel over it, as a fallen marker would; judged by the segments next to it alone, it is taken only where
+    every one of their markers travels away (LANK barely moves in a stance) for a stay of 1 s or more
+    (seeding.FALLEN_ALONE_S), and none of its 142 stance frames is left out."""
     from calibrate.seed.seeding import fallen_samples
 
     trial, _ = map_labels(read_trial(REAL / "walk.c3d"), human.marker_names)
