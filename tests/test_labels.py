@@ -485,14 +485,23 @@ def test_a_qualisys_running_sets_spellings(human) -> None:  # noqa: ANN001
     assert mapping.unknown == ("LMT5", "LMT1", "LPHAL2", "LThighUpperC")
 
 
-def test_bts_shoulder_spelling(human) -> None:  # noqa: ANN001
-    """BTS's Davis-protocol files (ezc3d's BTS sample, c3d.org's sample28) cut 'shoulder' to 'r should' / 'l should':
-    the shoulder markers, so that with c7 the trunk has three; their other labels ('r bar 1', 'r knee 1', 'r mall',
-    'r met') have no reference for their exact places and stay unknown."""
-    labels = ["r should", "l should", "c7", "r asis", "r knee 1", "r mall", "r met"]
+def test_bts_davis_spellings(human) -> None:  # noqa: ANN001
+    """BTS's Davis-protocol files (ezc3d's and kineticstoolkit's BTS sample, c3d.org's sample28) cut 'shoulder' to
+    'r should' / 'l should': the shoulder markers.  Davis et al. 1991 is the conventional gait model's marker set
+    (Vicon Clinical Manager's, whence Plug-in Gait's): 'r knee 1' the lateral femoral epicondyle (KNE), 'r mall' the
+    lateral malleolus (ANK), 'r bar 1' and 'r bar 2' the thigh and shank wands (THI, TIB).  Its 'r met' (the fifth
+    metatarsal head, not TOE's second) stays unknown.  Before, only C7, the shoulders, the ASIS and the heels were
+    read, and kineticstoolkit's BTS walk could not place its legs (18 segments unresolved)."""
+    labels = ["r should", "l should", "c7", "r asis", "r bar 1", "r knee 1", "r bar 2", "r mall", "r heel", "r met",
+              "l knee 1", "l mall"]
     renamed, mapping = map_labels(make_trial(labels), human.marker_names)
-    assert renamed.labels == ("RSHO", "LSHO", "C7", "RASI", "r knee 1", "r mall", "r met")
-    assert mapping.unknown == ("r knee 1", "r mall", "r met")
+    assert renamed.labels == ("RSHO", "LSHO", "C7", "RASI", "RTHI", "RKNE", "RTIB", "RANK", "RHEE", "r met", "LKNE",
+                              "LANK")
+    assert mapping.unknown == ("r met",)
+    # c3d.org's sample28 also holds BTS's computed joint centres, 'r knee' and 'r ankle' (62 and 47 mm from the
+    # epicondyle and the malleolus): the Davis spellings win, the centres stay unknown.
+    renamed, mapping = map_labels(make_trial(["r knee", "r ankle", "r knee 1", "r mall"]), human.marker_names)
+    assert renamed.labels == ("r knee", "r ankle", "RKNE", "RANK")
 
 
 def test_opencap_augmented_spellings(human) -> None:  # noqa: ANN001

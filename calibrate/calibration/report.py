@@ -427,10 +427,12 @@ def _scale_lines(cal) -> list[str]:
 def _noise_lines(cal) -> list[str]:
     """The noise line (learnt or given: median and range) and the left/right symmetry line."""
     out = []
-    if cal.noise:
-        v = 1000 * np.array(list(cal.noise.values()))
+    unused = set(cal.unused_markers)  # a marker no trial shows has only its segment's noise: not in the range
+    shown = {n: sd for n, sd in cal.noise.items() if n not in unused}
+    if shown:
+        v = 1000 * np.array(list(shown.values()))
         lo, hi = int(v.argmin()), int(v.argmax())
-        names = list(cal.noise)
+        names = list(shown)
         how = "learnt" if cal.noise_learnt else "given"
         out.append(f"  {'noise SD (mm)':22s}{how:>12s}  median {np.median(v):.2f}, "
                    f"{v.min():.2f} ({names[lo]}) to {v.max():.2f} ({names[hi]})")

@@ -37,13 +37,13 @@ model label   alias names, after the side (R or L) and normalisation
 ============  =====================================================================================
 xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias
 xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis
-xTHI          thi, thigh, thighwand
-xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee, latepicondyle, lateralepicondyle,
+xTHI          thi, thigh, thighwand, bar1
+xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee1, knee, latepicondyle, lateralepicondyle,
               fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
               lfc, latfemcondyle, lateralfemoralcondyle
-xTIB          tib, tibia, shank, tibwand, shankwand
+xTIB          tib, tibia, shank, tibwand, shankwand, bar2
 xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
-              malleoluslat, ankle, lm, fal, lmal, latmal
+              malleoluslat, mall, ankle, lm, fal, lmal, latmal
 xHEE          hee, heel, calc, calcaneus, ca, fcc, cal
 xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
 xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should
@@ -76,8 +76,12 @@ RS, RSP and US, USP the radial and ulnar styloid (WRA, WRB); HM2 the second meta
 (FIN); IJ, SJN the jugular notch (CLAV); PX, SXS the xiphoid (STRN); CV7, TV10 the spinous
 processes; Motek's Human Body Model spells the knee's and the elbow's lateral epicondyles LEK and LEE, the
 wrist's lateral (radial) and medial (ulnar) sides LW and MW; the Rajagopal2016 copy in ../shared spells the
-lateral femoral condyle LFC, the lateral elbow LEL and the forearm's styloids FAradius and FAulna.  Medial landmarks
-(FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
+lateral femoral condyle LFC, the lateral elbow LEL and the forearm's styloids FAradius and FAulna; BTS's Davis
+protocol (``r knee 1``, ``r mall``, ``r bar 1``, ``r bar 2``) the lateral femoral epicondyle and malleolus and its
+thigh and shank wands, where Plug-in Gait has its own (its ``r met``, the fifth metatarsal head, is not TOE's second),
+before a plain ``r knee`` or ``r ankle`` (c3d.org's sample28, a BTS file, holds both: those are its joint centres,
+62 and 47 mm from the epicondyle and the malleolus).
+Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
 ``RASI``; ``R.Knee.Lat`` and ``R.Knee`` become ``RKNE`` (``R.Knee.Lat`` kept when both are there);
@@ -136,16 +140,16 @@ HOWS = ("exact", "map", "alias", "unknown")
 SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias"),
     "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis"),
-    "THI": ("thi", "thigh", "thighwand"),
+    "THI": ("thi", "thigh", "thighwand", "bar1"),
     "KNE": (
-        "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee", "latepicondyle", "lateralepicondyle",
-        "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle", "femurlateralepicondyle", "lek",
-        "lfc", "latfemcondyle", "lateralfemoralcondyle",
+        "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee1", "knee", "latepicondyle",
+        "lateralepicondyle", "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle",
+        "femurlateralepicondyle", "lek", "lfc", "latfemcondyle", "lateralfemoralcondyle",
     ),
-    "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand"),
+    "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand", "bar2"),
     "ANK": (
         "ank", "anklelat", "anklelateral", "latankle", "lateralankle", "latmalleolus", "lateralmalleolus",
-        "malleoluslat", "ankle", "lm", "fal", "lmal", "latmal",
+        "malleoluslat", "mall", "ankle", "lm", "fal", "lmal", "latmal",
     ),
     "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal"),
     "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip", "fm2", "sm", "mh2"),
