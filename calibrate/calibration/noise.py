@@ -21,7 +21,8 @@ from .records import Countdown, Progress
 NOISE_FLOOR = 0.0005  # m: a learnt marker noise SD is never below this (sub-millimetre: a camera system's floor)
 
 
-NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it)
+NOISE_CAP = 0.015  # m: ... nor above this (beyond it a marker is mislabelled, not noisy: outliers catch it; a marker
+#   whose positions scatter as white noise is left out before, calibrate.seed.jitter)
 
 
 NOISE_MIN_FRAMES = 20  # a marker seen in fewer frames takes its segment's (or all markers') median learnt SD
