@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from calibrate.calibration.evaluate import compare_to_truth
+from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report
 from calibrate.io.labels import map_labels
@@ -72,7 +73,7 @@ def test_real_trials_do_not_jitter(human):
 def test_a_jittering_marker_is_left_out_and_named(human, squats, tmp_path):
     """LKNE given 100 mm of noise in frames 100-219 of the squats: the calibration leaves those positions out before
     the start, names LKNE (the summary, the report), names no label to check, and puts every joint centre as near the
-    simulator's truth as the undamaged trial's calibration does, to 3 mm."""
+    simulator's truth as the undamaged trial's calibration does, to 3 mm.  The HTML report says so too."""
     t = _noisy(squats.trial, "LKNE", 0.100, NOISY)
     clean, cal = calibrate(human, squats.trial), calibrate(human, t)
     assert [(i, x.label) for i, x in cal.jittery] == [(0, "LKNE")]
@@ -82,5 +83,6 @@ def test_a_jittering_marker_is_left_out_and_named(human, squats, tmp_path):
     report = json.loads(json.dumps(calibration_report(cal)))
     assert report["jittery_markers"][0]["label"] == "LKNE"
     assert 85 < report["jittery_markers"][0]["noise_sd_mm"] < 115
+    assert "jitters: LKNE" in report_html(report)
     got, ref = compare_to_truth(cal, squats).centre_error, compare_to_truth(clean, squats).centre_error
     assert all(got[j] < ref[j] + 0.003 for j in ref), {j: (got[j], ref[j]) for j in ref if got[j] >= ref[j] + 0.003}

@@ -99,6 +99,11 @@ def _notes(report: dict) -> str:
                      + ("; the labels kept, the base model's places of the two exchanged for the fit (the lab's "
                         "protocol)" if x.get("protocol") else "")
                      + "</li>")
+    for x in report.get("jittery_markers", []):
+        items.append(f"<li class=bad>jitters: {_e(x.get('label'))} ({_e(x.get('trial'))}) scatters "
+                     f"{x.get('noise_sd_mm', 0):.0f} mm SD from frame to frame (white noise; the trial's markers "
+                     f"{x.get('trial_median_mm', 0):.2g} mm): its positions in {x.get('frames_left_out', 0)} of the "
+                     f"{x.get('frames_seen', 0)} frames it is seen left out; check its reconstruction</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "
