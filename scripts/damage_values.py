@@ -9,6 +9,7 @@ Kinds of damage (`--kinds`; each copy one kind, its sizes and places drawn from 
 - frozen: a marker at its first frame's place for the whole trial (stuck to something);
 - gaps: 1-4 stretches of 5-60 frames of a marker unseen;
 - swap: two markers' labels exchanged for 5-30 frames;
+- longswap: two markers' labels exchanged for 0.5 s to half the trial (no jump back within a second);
 - noisy: a marker given white noise of 3 mm to 1 m SD (log-uniform), throughout or in a stretch of 60-200 frames.
 
 What must hold for each copy: `calibrate` returns (no exception, no refusal: the damage leaves a trial worth
@@ -34,7 +35,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
-KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy")
+KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy", "longswap")
 
 
 def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarray, str]:
@@ -85,6 +86,12 @@ def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarr
         a, b = (int(v) for v in rng.choice(M, size=2, replace=False))
         n = int(rng.integers(5, 31))
         f = int(rng.integers(F - n))
+        X[f:f + n, [a, b]] = X[f:f + n, [b, a]]
+        return X, f"markers {a} and {b} exchanged in frames {f}-{f + n - 1}"
+    if kind == "longswap":
+        a, b = (int(v) for v in rng.choice(M, size=2, replace=False))
+        n = int(rng.integers(60, F // 2 + 1))
+        f = int(rng.integers(F - n + 1))
         X[f:f + n, [a, b]] = X[f:f + n, [b, a]]
         return X, f"markers {a} and {b} exchanged in frames {f}-{f + n - 1}"
     if kind == "noisy":

@@ -479,6 +479,7 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
     longest = max(1, int(round(SEED_EPISODE_S * trial.rate)))
     W = SEED_JUMP_WINDOW
     pad = np.full((W, 3), np.nan)
+    loose: dict[int, list[tuple[int, np.ndarray]]] = {}  # step -> (marker, its jump) of the jumps no episode took
     for k in range(X.shape[1]):  # one marker at a time: memory stays 2W x the trajectory
         x = X[:, k]
         d = np.diff(x, axis=0)  # (F-1, 3): step into frame f+1; NaN across gaps
@@ -513,9 +514,38 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
                 out[a + 1:a + 1 + after, k] = True
             elif before <= SEED_GHOST_FRAMES < after and not jump[a - before + 1:a].any():
                 out[a - before + 1:a + 1, k] = True
+        for a in steps:
+            if not (out[a, k] or out[a + 1, k]):
+                loose.setdefault(int(a), []).append((k, s[a]))
         if progress is not None:
             progress((k + 1) / X.shape[1])
+    _exchanged_stretches(X, loose, out)
     return out
+
+
+def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndarray]]], out: np.ndarray) -> None:
+    """Two labels exchanged for longer than an episode (SEED_EPISODE_S), set in `out` (frames, markers): two markers
+    that jump at the same step by about each other's separation and in opposite ways have exchanged labels there (a
+    limb cannot do that).  Between two such exchanges of one pair, both seen throughout, the labels are exchanged.  A
+    pair's one exchange left over is not judged: which side holds the right labels the jumps cannot say (taking the
+    shorter side took 196 frames of a 50 Hz tennis serve's right arm, where its elbow, forearm and upper-arm markers
+    cross in a blur and are right before).  pig_walk with two labels exchanged for 0.5 s to half its 300 frames put a
+    centre 93-370 mm off in 7 of 16 copies (scripts/damage_values.py, longswap)."""
+    events: dict[tuple[int, int], list[int]] = {}
+    for a, jumps in loose.items():
+        for i, (k, sk) in enumerate(jumps):
+            for m, sm in jumps[i + 1:]:
+                big = max(float(np.linalg.norm(sk)), float(np.linalg.norm(sm)))
+                apart = X[a, m] - X[a, k]  # the separation the exchange crosses
+                if (np.linalg.norm(sk + sm) <= SEED_JUMP_UNDO * big
+                        and np.linalg.norm(sk - apart) <= SEED_JUMP_UNDO * big):
+                    events.setdefault((k, m), []).append(a)
+    for (k, m), steps in events.items():
+        seen = np.all(np.isfinite(X[:, [k, m]]), axis=(1, 2))
+        steps = sorted(steps)
+        while len(steps) >= 2 and seen[steps[0] + 1:steps[1] + 1].all():
+            out[steps[0] + 1:steps[1] + 1, [k, m]] = True
+            steps = steps[2:]
 
 
 def episodes(trial: Trial, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, tuple[Jittery, ...]]:
