@@ -114,10 +114,10 @@ def test_upper_arm_swap_is_a_jump_episode(human, squats):
 def test_labels_exchanged_for_longer_than_an_episode_are_found(human, squats):
     """RKNE and LELB exchanged for frames 60-199 of the squats (1.4 s, longer than an episode of SEED_EPISODE_S): at
     both ends the two jump by each other's separation in opposite ways, which no limb does, so the whole stretch is
-    taken for both (seeding._exchanged_stretches) and nothing else; one exchange with no second (the labels stay
-    exchanged to the trial's end) is not judged.  The calibration then puts every joint centre as near the
-    simulator's truth as on the undamaged trial, to 2 mm (before: scripts/damage_values.py's longswap copies of
-    pig_walk moved a centre 93-370 mm in 7 of 16)."""
+    taken for both (seeding._exchanged_stretches) and nothing else, also from the trial's fourth frame on; one
+    exchange with no second (the labels stay exchanged to the trial's end) is not judged.  The calibration then puts
+    every joint centre as near the simulator's truth as on the undamaged trial, to 2 mm (before:
+    scripts/damage_values.py's longswap copies of pig_walk moved a centre 93-370 mm in 7 of 16)."""
     frames = slice(60, 200)
     trial = _swapped(squats.trial, "RKNE", "LELB", frames)
     got = jump_episodes(trial)
@@ -125,6 +125,9 @@ def test_labels_exchanged_for_longer_than_an_episode_are_found(human, squats):
     assert got[frames, i].all() and got[frames, j].all()
     assert got.sum() == 2 * (frames.stop - frames.start)
     assert not jump_episodes(_swapped(squats.trial, "RKNE", "LELB", slice(200, 300))).any()
+    # from the trial's fourth frame: the three before are not a ghost at the trial's edge (the jump exchanges labels)
+    early = jump_episodes(_swapped(squats.trial, "RKNE", "LELB", slice(3, 150)))
+    assert early[3:150, [i, j]].all() and early.sum() == 2 * 147
     clean, cal = calibrate(human, squats.trial), calibrate(human, trial)
     got, ref = compare_to_truth(cal, squats).centre_error, compare_to_truth(clean, squats).centre_error
     assert all(got[j] < ref[j] + 0.002 for j in ref), {j: (got[j], ref[j]) for j in ref if got[j] >= ref[j] + 0.002}

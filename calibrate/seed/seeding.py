@@ -480,6 +480,7 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
     W = SEED_JUMP_WINDOW
     pad = np.full((W, 3), np.nan)
     loose: dict[int, list[tuple[int, np.ndarray]]] = {}  # step -> (marker, its jump) of the jumps no episode took
+    ghosts: list[tuple[int, int, slice]] = []  # (marker, step, frames) of each ghost at a gap's edge
     for k in range(X.shape[1]):  # one marker at a time: memory stays 2W x the trajectory
         x = X[:, k]
         d = np.diff(x, axis=0)  # (F-1, 3): step into frame f+1; NaN across gaps
@@ -504,33 +505,38 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
                 i += 1
         # A ghost at a gap's edge: a jump of SEED_GHOST_MIN or more with at most SEED_GHOST_FRAMES seen frames between
         # it and a gap (or the trial's end) on one side and more on the other has no jump back; those few frames are the
-        # ghost.
+        # ghost (taken after the exchanges below: a jump that exchanges two labels is not a ghost's).
         for a in steps:
-            if out[a, k] or out[a + 1, k] or size[a] < SEED_GHOST_MIN:
+            if out[a, k] or out[a + 1, k]:
+                continue
+            loose.setdefault(int(a), []).append((k, s[a]))
+            if size[a] < SEED_GHOST_MIN:
                 continue
             after = _seen_run(seen, a + 1, +1, SEED_GHOST_FRAMES + 1)  # seen frames from a+1 on, up to a gap
             before = _seen_run(seen, a, -1, SEED_GHOST_FRAMES + 1)  # ... from a back
             if after <= SEED_GHOST_FRAMES < before and not jump[a + 1:a + after].any():
-                out[a + 1:a + 1 + after, k] = True
+                ghosts.append((k, int(a), slice(a + 1, a + 1 + after)))
             elif before <= SEED_GHOST_FRAMES < after and not jump[a - before + 1:a].any():
-                out[a - before + 1:a + 1, k] = True
-        for a in steps:
-            if not (out[a, k] or out[a + 1, k]):
-                loose.setdefault(int(a), []).append((k, s[a]))
+                ghosts.append((k, int(a), slice(a - before + 1, a + 1)))
         if progress is not None:
             progress((k + 1) / X.shape[1])
-    _exchanged_stretches(X, loose, out)
+    exchanges = _exchanged_stretches(X, loose, out)
+    for k, a, frames in ghosts:
+        if (k, a) not in exchanges:
+            out[frames, k] = True
     return out
 
 
-def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndarray]]], out: np.ndarray) -> None:
+def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndarray]]],
+                         out: np.ndarray) -> set[tuple[int, int]]:
     """Two labels exchanged for longer than an episode (SEED_EPISODE_S), set in `out` (frames, markers): two markers
     that jump at the same step by about each other's separation and in opposite ways have exchanged labels there (a
     limb cannot do that).  Between two such exchanges of one pair, both seen throughout, the labels are exchanged.  A
     pair's one exchange left over is not judged: which side holds the right labels the jumps cannot say (taking the
     shorter side took 196 frames of a 50 Hz tennis serve's right arm, where its elbow, forearm and upper-arm markers
     cross in a blur and are right before).  pig_walk with two labels exchanged for 0.5 s to half its 300 frames put a
-    centre 93-370 mm off in 7 of 16 copies (scripts/damage_values.py, longswap)."""
+    centre 93-370 mm off in 7 of 16 copies (scripts/damage_values.py, longswap).  Returns every (marker, step) of an
+    exchange, taken or not."""
     events: dict[tuple[int, int], list[int]] = {}
     for a, jumps in loose.items():
         for i, (k, sk) in enumerate(jumps):
@@ -546,6 +552,8 @@ def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndar
         while len(steps) >= 2 and seen[steps[0] + 1:steps[1] + 1].all():
             out[steps[0] + 1:steps[1] + 1, [k, m]] = True
             steps = steps[2:]
+    return {(k, a) for (k, m), steps in events.items() for a in steps} | \
+        {(m, a) for (k, m), steps in events.items() for a in steps}
 
 
 def episodes(trial: Trial, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, tuple[Jittery, ...]]:
