@@ -3,9 +3,10 @@ to the wrong blob, a marker half hidden, a reconstruction gone bad), told from a
 
 A marker's fourth difference x[f-2] - 4 x[f-1] + 6 x[f] - 4 x[f+1] + x[f+2] is its motion's fourth derivative times
 dt⁴ (a few tenths of a millimetre for any real limb at 50 Hz or faster) plus its white noise times √70.  Measured
-on 47 real trials of the shared collection and Pose2Sim's video keypoints (2026-12-01): the noise SD so read is at
-most 0.9 mm for any marker over a whole trial, at most 2.7 mm in any half second (a 50 Hz tennis serve's forearm),
-and 4.6 mm median, 16 mm at worst, for unfiltered video keypoints whose markers all jitter alike.  A marker given
+on 90 real trials (the shared collection's C3D files, OpenSim's TRCs, Pose2Sim's video keypoints; 2026-12-01): the
+noise SD so read is at most 0.9 mm for any marker over a whole trial, at most 3.1 mm in any half second (c3d.org's
+sample01 at 50 Hz; a 50 Hz tennis serve's forearm 3.0), and 4.6 mm median, 16 mm at worst, for unfiltered video
+keypoints whose markers all jitter alike.  A marker given
 20 mm of noise in pig_walk's walk moved a joint centre 60 mm; 100 mm of noise on LKNE, the left hip 240 mm (its
 learnt noise stops at calibrate.calibration.noise.NOISE_CAP, and every sample pulled)."""
 
@@ -32,7 +33,7 @@ class Jittery:
     """A marker left out where it jitters."""
 
     label: str
-    sd: float  # m: its noise SD where left out (the median over those blocks)
+    sd: float  # m: its noise SD where left out (the median of its frames' jitter_sd there)
     reference: float  # m: the trial's markers' median noise SD, so read
     frames: int  # frames left out
     seen: int  # frames the trial shows it in
@@ -114,5 +115,3 @@ def nanmedian_first(a: np.ndarray) -> np.ndarray:
     lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
     hi = np.take_along_axis(srt, np.minimum(n // 2, a.shape[0] - 1)[None], axis=0)[0]
     return np.where(n > 0, 0.5 * (lo + hi), np.nan)
-
-
