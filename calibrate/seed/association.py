@@ -25,6 +25,7 @@ Units: metres (variances in m²).
 
 from __future__ import annotations
 
+import warnings
 from collections import Counter
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -48,6 +49,7 @@ from calibrate.seed.rigidity import (
 from ..io.trial import Trial
 from ..model.model import Model
 from .geometry import rigid_fit, sphere_fit
+from .jitter import jitter_sd
 from .seeding import MAD_SD, without_broken
 
 Z_ADMISSIBLE = 5.0  # standard errors of a group's residual allowed above the noise
@@ -729,13 +731,23 @@ def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPL
     if not labels:
         return ()
     segment = {m.name: m.segment for m in model.markers}
-    parts = []
+    parts, noise = [], []
     for t in trials:
         X = np.full((t.n_frames, len(labels), 3), np.nan)
         have = [k for k, n in enumerate(labels) if n in t.labels]
         X[:, have] = t.select([labels[k] for k in have]).markers
         parts.append(X[:: max(1, t.n_frames // MISPLACED_FRAMES)])
-    sd = np.sqrt(distance_variance(np.concatenate(parts)))
+        noise.append(jitter_sd(X))
+    # A marker's white noise (seed.jitter: what its fourth differences read) adds its variance to every distance of
+    # it; its excess over the markers' median is taken out, so that a noisy mate does not make a steady label look
+    # loose on its own segment (pig_walk's LUPA with 5 mm of noise: LELB, the humerus's other marker, "rode with the
+    # forearm", 5.8 mm SD against 1.9).  Only the excess: where every marker jitters alike (video keypoints), taking
+    # it all out leaves the variances' own sampling error, a few mm, to name a label at random.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        white = np.nan_to_num(np.nanmedian(np.concatenate(noise), axis=0))
+    white = np.sqrt(np.maximum(white**2 - float(np.median(white)) ** 2, 0.0))
+    sd = np.sqrt(np.maximum(distance_variance(np.concatenate(parts)) - white[:, None] ** 2 - white[None, :] ** 2, 0.0))
     seg = [segment[n] for n in labels]
     found = _misplaced(sd, labels, seg, ratio, floor)
     if not found:
@@ -761,8 +773,9 @@ def _misplaced(sd: np.ndarray, labels: list[str], seg: list[str], ratio: float, 
             if not others or not np.isfinite(s_own):
                 continue
             s_other, other = min(others)
-            if s_own > floor and s_other * ratio < s_own and (worst is None or s_own / s_other > worst[0]):
-                worst = (s_own / s_other, Misplaced(n, seg[k], other, s_own, s_other, tuple(labels[m] for m in own)), k)
+            against = s_own / max(s_other, 1e-12)  # (white noise taken out, a pair can read 0)
+            if s_own > floor and s_other * ratio < s_own and (worst is None or against > worst[0]):
+                worst = (against, Misplaced(n, seg[k], other, s_own, s_other, tuple(labels[m] for m in own)), k)
         if worst is None:
             return tuple(out)
         out.append(worst[1])
