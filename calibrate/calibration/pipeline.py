@@ -427,7 +427,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # 5 s of trilateration starts), so the base model scaled to the subject's size from marker distances, its
         # markers where the static shows them, starts.
         say(Progress("seed", "the subject's size from marker distances (no joint turns: no MTB joint centres)"))
-        seed = seed_parameters(model, trials[0], joints=JointEstimates((), (), 0.0), extra_markers=new, size=size)
+        seed = seed_parameters(model, trials[0], joints=JointEstimates((), (), 0.0), extra_markers=new, size=size,
+                               jumps=None if damaged is None else damaged[0])
         which = "no trial turns a" if len(trials) > 1 else "the trial turns no"
         seed = replace(seed, notes=(f"no joint-centre seed: {which} joint (MTB needs joints that turn); the base "
                                     "model scaled to the marker distances used", *seed.notes))
@@ -437,6 +438,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # barely do): the one the joint-centre seed can use.
         pick = int(np.argmax(motion)) if motion is not None else 0  # (measured for more than one trial)
         seed = seed_parameters(model, trials[pick], extra_markers=new, size=size,
+                               jumps=None if damaged is None else damaged[pick],
                                progress=Countdown(say, "seed", "joint centres (MTB)"))
         if len(trials) > 1:
             seed = Seed(seed.params, (f"seeded from {trials[pick].source or f'trial {pick + 1}'} (the trial with "

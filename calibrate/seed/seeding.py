@@ -55,7 +55,7 @@ class Seed:
 # ---------------------------------------------------------------------- seed
 def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = None,
                     extra_markers: Mapping[str, str] | None = None, size: Size | None = None,
-                    progress: Callable[[float], None] | None = None) -> Seed:
+                    progress: Callable[[float], None] | None = None, jumps: np.ndarray | None = None) -> Seed:
     """Scale factors, joint centres and hinge axes from MTB joint-centre trajectories.
 
     * scale of a segment: the median over frames of the distances between its estimated joint
@@ -72,12 +72,13 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
     `size` (size_from_markers): the subject's limb sizes from marker distances; a segment without
     estimated centres takes its limb's factor, and so does one whose centres give a factor further
     than SIZE_TOLERANCE from it (an MTB centre off by a few centimetres on a short segment).
-    `progress(share done)` after each of its steps (a long trial's take seconds).
+    `progress(share done)` after each of its steps (a long trial's take seconds).  `jumps`: the trial's episodes, if
+    found already (without_broken's).
     """
     t0 = time.perf_counter()
     notes: list[str] = []
     tick = progress or (lambda done: None)
-    trial, broken = without_broken(model, trial)
+    trial, broken = without_broken(model, trial, jumps)
     tick(0.5)
     if broken:
         notes.append(f"{broken} marker samples left out of the seed (swapped labels or spikes: jumps and back, or "
