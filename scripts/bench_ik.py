@@ -4,8 +4,9 @@ For each OpenSim pipeline of ../shared/data/real (gait2392, rajagopal_walk): cal
 subject from the generic .osim (``--scale-setup``, ``--ik-setup``: as a lab moving its pipeline would), writing
 subject.osim; then, with that subject held fixed, the walk's IK frames are fitted twice:
 
-* ``calibrate ik`` (calibrate.solve.ik.inverse_kinematics, in this process): the IK setup's marker weights, its held
-  coordinates and the subject's locked ones, its time range;
+* ``calibrate ik`` (calibrate.calibration.subject_ik.fit_trial, in this process: its checks for damaged positions,
+  then calibrate.solve.ik.inverse_kinematics): the IK setup's marker weights, its held coordinates and the subject's
+  locked ones, its time range;
 * OpenSim's InverseKinematicsTool from the lab's IK setup with the model replaced by subject.osim (a child process
   that imports OpenSim only), its model marker locations reported.
 
@@ -74,15 +75,14 @@ def plain_setup(src: Path, dst: Path) -> Path:
 
 
 def bench(case: str, work: Path, log) -> dict:
+    from calibrate.calibration.subject_ik import fit_trial
     from calibrate.io.labels import map_labels
     from calibrate.io.osim_info import with_locked
     from calibrate.io.osim_setup import ik_setup_range, ik_setup_weights, with_ik_setup
     from calibrate.io.read import read_trial
-    from calibrate.model.kinematics import build_kinematics, locked_balls
     from calibrate.model.model import load_model
-    from calibrate.problem.problem import LIMIT_MARGIN
     from calibrate.problem.settings import Settings
-    from calibrate.solve.ik import inverse_kinematics, marker_columns
+    from calibrate.solve.ik import marker_columns
 
     static, walk, osim, scale, ik, marker_set = CASES[case]
     d = bench_osim.REAL / ("gait2392" if case == "gait2392" else "rajagopal_walk")
@@ -108,12 +108,11 @@ def bench(case: str, work: Path, log) -> dict:
     trial, _ = map_labels(trial, subject.marker_names, None, aliases=True)
     weights = ik_setup_weights(d / ik)
     locked = dict(with_ik_setup(subject, with_locked(subject, Settings()), d / ik).lock)
-    kin = build_kinematics(subject, euler=locked_balls(subject, locked))
     log(f"{case}: calibrate ik ...")
     t0 = time.perf_counter()
-    fit = inverse_kinematics(kin, trial, subject.parameters(), locked=locked, weights=weights, default_weight=0.0,
-                             margin=LIMIT_MARGIN)  # as `calibrate ik` fits
+    got = fit_trial(subject, trial, subject.parameters(), locked, weights)  # as `calibrate ik` fits
     ours_s = time.perf_counter() - t0
+    fit = got.fit
     log(f"{case}: OpenSim's IK on calibrate's subject (child process) ...")
     setup = plain_setup(d / ik, out / "ik_setup.xml")
     proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--_child", str(setup),
@@ -156,7 +155,8 @@ def bench(case: str, work: Path, log) -> dict:
             "frames_calibrate_lower": int(np.sum(ours_w < theirs_w)),
             "ratio_median": float(np.median(ratio)), "ratio_max": float(ratio.max()),
             "rms_mm_calibrate": rms(err_ours), "rms_mm_opensim": rms(err_theirs),
-            "seconds_calibrate": ours_s, "seconds_opensim": theirs_s, "angles": angles}
+            "seconds_calibrate": ours_s, "seconds_opensim": theirs_s, "angles": angles,
+            "left_out_calibrate": got.left_out, "held_unplaced_calibrate": sorted(got.unplaced_held)}
 
 
 def report(res: dict) -> None:

@@ -17,7 +17,15 @@ calibrating); it names no label on a `check label` line that the undamaged trial
 `still only` exactly where that one does; and every joint centre stays within `--tol-mm` or 3 of its posterior SDs
 (the larger) of that one's.
 
-    python scripts/damage_values.py [--trial walk|static] [--frames 300] [--n 30] [--seed 0] [--kinds ...] [--json F]
+`--ik`: the damage goes to `calibrate ik` instead (a subject calibrated once, on pig_walk's static and the undamaged
+walk, by the command line; each damaged copy of the walk written as a C3D and fitted by `calibrate ik` with the
+calibration's report, as a lab fits its subject's other trials).  What must hold: `calibrate ik` returns, and every
+joint coordinate of every frame stays within `--tol-deg` of its angle in the undamaged walk's fit or in the fit of the
+same copy with the damaged positions unseen instead, which a perfect check would leave (a marker fewer moves a pose,
+and not by the check's doing: pig_walk's left ankle turns 50 deg on its toe marker alone).
+
+    python scripts/damage_values.py [--trial walk|static] [--frames 300] [--n 30] [--seed 0] [--kinds ...] [--ik
+        [--tol-deg 10]] [--json F]
 
 Data: ../shared/data/real/pig_walk (Plug-in Gait, 120 Hz) on models/human.urdf, in process.  No timings: a check,
 not a benchmark."""
@@ -172,6 +180,92 @@ def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_m
             round(ref["rms_mm"], 3), "counts": counts, "findings": findings, "copies": rows}
 
 
+def run_ik(frames: int, n: int, seed: int, kinds: list[str], tol_deg: float) -> dict:
+    """Each damaged copy of pig_walk's walk fitted by `calibrate ik` to the subject calibrated on the static and the
+    undamaged walk; its angles against the undamaged walk's fit, away from the damaged frames."""
+    import contextlib
+    import io
+    import tempfile
+
+    from calibrate import load_model, read_trial
+    from calibrate.cli.main import main as cli
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.motion import read_motion_csv
+    from calibrate.io.trial import Trial
+
+    tmp = Path(tempfile.mkdtemp(prefix="damage_ik_"))
+    raw = read_trial(PIG / "walk.c3d")
+    raw = raw.select([lab for lab in raw.labels if lab in set(load_model(ROOT / "models" / "human.urdf").marker_names)])
+    trial = Trial(raw.labels, np.array(raw.markers[:frames]), raw.rate, 0, "walk.c3d")
+    write_c3d(tmp / "walk.c3d", trial)
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()), \
+            warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if cli([str(PIG / "static.c3d"), str(tmp / "walk.c3d"), str(ROOT / "models" / "human.urdf"),
+                "-o", str(tmp / "subject"), "-q"]) not in (0, 1):
+            raise RuntimeError("the undamaged calibration failed")
+    subject, report = tmp / "subject.urdf", tmp / "static_report.json"  # (named after the first trial)
+    (tmp / "fits").mkdir()
+
+    def ik(path: Path) -> np.ndarray:
+        with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+            code = cli(["ik", str(path), str(subject), "--report", str(report), "-o", str(tmp / "fits"),
+                        "--overwrite", "-q"])
+        if code != 0:
+            raise RuntimeError(f"calibrate ik exit {code}")
+        return read_motion_csv(tmp / "fits" / f"{path.stem}_motion.csv").angles
+
+    undamaged = ik(tmp / "walk.c3d")
+    names = list(read_motion_csv(tmp / "fits" / "walk_motion.csv").dof_names)
+    print(f"walk: {trial.n_frames} frames, {len(trial.labels)} labels; subject calibrated on static + walk", flush=True)
+    rng = np.random.default_rng(seed)
+    rows, findings = [], []
+    for i in range(n):
+        kind = kinds[i % len(kinds)]
+        X, what = damage(np.array(trial.markers), kind, rng)
+        for k in sorted(range(len(trial.labels)), key=lambda k: -k):
+            what = what.replace(f"marker {k} ", f"{trial.labels[k]} ").replace(f"markers {k} ", f"{trial.labels[k]} ")
+            what = what.replace(f"and {k} ", f"and {trial.labels[k]} ")
+        row = {"kind": kind, "damage": what}
+        path = tmp / f"copy{i}.c3d"
+        write_c3d(path, Trial(trial.labels, X, trial.rate, 0, path.name))
+        # The same copy with the damaged positions unseen instead (what a perfect check would leave): the pose a
+        # marker fewer gives is not the check's doing (pig_walk's left foot, whose heel the subject fits 19 mm RMS,
+        # turns its ankle 50 deg on its toe marker alone)
+        touched = ~((X == trial.markers) | (np.isnan(X) & np.isnan(trial.markers))).all(axis=2)
+        if kind == "frozen":  # its first frame too: nothing tells when a marker stuck at its first place got stuck
+            touched[:, touched.any(axis=0)] = True
+        gapped = tmp / f"gapped{i}.c3d"
+        write_c3d(gapped, Trial(trial.labels, np.where(touched[..., None], np.nan, trial.markers), trial.rate, 0,
+                                gapped.name))
+        try:
+            ref = ik(gapped)
+            got = ik(path)
+        except Exception as e:  # noqa: BLE001 - any failure is the finding
+            row["outcome"] = f"{type(e).__name__}: {e}"
+        else:
+            # a frame's angle off both: the damage went into the pose (a check that leaves a position in keeps the
+            # undamaged pose where the damage is small: 8 mm of noise at a stretch's end)
+            diff = np.degrees(np.fmin(np.abs(got - ref), np.abs(got - undamaged)))
+            f, c = np.unravel_index(int(np.nanargmax(diff)), diff.shape)
+            over = int(np.sum(np.any(diff > tol_deg, axis=1)))
+            row.update(max_deg=round(float(diff[f, c]), 1), worst=names[c], frame=int(f), frames_over=over,
+                       from_undamaged_deg=round(float(np.degrees(np.nanmax(np.abs(got - undamaged)))), 1))
+            bad = [f"{names[c]} {diff[f, c]:.1f} deg off at frame {f}; {over} frames over {tol_deg:g}"] if over else []
+            row["outcome"] = "; ".join(bad) if bad else "ok"
+        rows.append(row)
+        if row["outcome"] != "ok":
+            findings.append(row)
+        print(f"  {i:3d} {kind:9s} {row['outcome'][:70]:70s} | from undamaged {row.get('from_undamaged_deg', '-')} "
+              f"deg | {what[:70]}", flush=True)
+    counts: dict[str, int] = {}
+    for r in rows:
+        key = f"{r['kind']}: {'ok' if r['outcome'] == 'ok' else 'finding'}"
+        counts[key] = counts.get(key, 0) + 1
+    return {"trial": "walk", "ik": True, "frames": trial.n_frames, "seed": seed, "tol_deg": tol_deg,
+            "counts": counts, "findings": findings, "copies": rows}
+
+
 def _kinds(text: str) -> list[str]:
     """--kinds' value: known kinds, comma-separated."""
     kinds = [k for k in text.split(",") if k]
@@ -189,13 +283,17 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--kinds", type=_kinds, default=list(KINDS), help=f"comma-separated, of {', '.join(KINDS)}")
     ap.add_argument("--tol-mm", type=float, default=10.0, help="largest joint-centre shift that passes (mm)")
+    ap.add_argument("--ik", action="store_true", help="damage the trials `calibrate ik` fits (the walk)")
+    ap.add_argument("--tol-deg", type=float, default=10.0,
+                    help="with --ik: the largest change of a joint angle that passes (deg)")
     ap.add_argument("--json", type=Path, help="write the results here")
     a = ap.parse_args()
     if not (PIG / f"{a.trial}.c3d").exists():
         print(f"damage_values: {PIG / (a.trial + '.c3d')}: not found; the real trials live in ../shared/data/real",
               file=sys.stderr)
         return 2
-    out = run(a.trial, a.frames, a.n, a.seed, a.kinds, a.tol_mm)
+    out = run_ik(a.frames, a.n, a.seed, a.kinds, a.tol_deg) if a.ik else \
+        run(a.trial, a.frames, a.n, a.seed, a.kinds, a.tol_mm)
     print(", ".join(f"{v} {k}" for k, v in sorted(out["counts"].items())))
     if a.json:
         a.json.write_text(json.dumps(out, indent=1))

@@ -4,6 +4,7 @@ subject against the URDF one."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +88,55 @@ def test_ik_holds_locked_coordinates_and_refuses_bad_input(squats, tmp_path, cap
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1 and needle in err[0], (argv, err)
     assert sorted(p.name for p in out.iterdir()) == before and (bad / "trial_motion.csv").read_text() == "keep me"
+
+
+def test_ik_leaves_out_damaged_positions(squats, tmp_path, capsys):
+    """A ghost 1 m off for three frames on a knee marker and a shank's and a forearm's labels exchanged for six frames:
+    `calibrate ik` leaves those positions out, as the calibration does before its start (seeding.jumped_samples),
+    and every frame's angles are the true motion's (the other markers, noise-free, still place every segment); the
+    summary counts them.  --keep-damaged fits them, as OpenSim's IK would: the pose is then far off (pig_walk's
+    walk: a heel's ghost turned the right shoulder 230 deg; scripts/damage_values.py --ik)."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    trial = read_trial(squats / "trial.c3d")
+    X = np.array(trial.markers)
+    X[20:23, trial.labels.index("LKNE")] += [0.6, -0.5, 0.6]
+    a, b = trial.labels.index("RTIB"), trial.labels.index("LWRA")
+    X[35:41, [a, b]] = X[35:41, [b, a]]
+    write_c3d(tmp_path / "damaged.c3d", replace(trial, markers=X))
+    truth = read_motion_csv(squats / "truth_motion.csv")
+    fits = {}
+    for flag in ((), ("--keep-damaged",)):
+        out = tmp_path / ("kept" if flag else "left")
+        out.mkdir()
+        assert main(["ik", str(tmp_path / "damaged.c3d"), str(squats / "truth.urdf"), "-o", str(out), *flag]) == 0
+        fits[bool(flag)] = (read_motion_csv(out / "damaged_motion.csv"), capsys.readouterr().out)
+    left, text = fits[False]
+    assert "15 marker positions left out" in text, text
+    assert np.abs(left.angles - truth.angles).max() < 1e-4
+    kept, text = fits[True]
+    assert "left out" not in text
+    assert np.degrees(np.abs(kept.angles - truth.angles).max()) > 10.0
+
+
+def test_ik_holds_what_a_trials_markers_do_not_place(squats, tmp_path, capsys):
+    """A trial without the left hand's only marker (LFIN) cannot place the hand: its wrist's coordinates are held at 0
+    and a note names them (model.resolve, as the calibration locks them), and the rest is the true motion."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    trial = read_trial(squats / "trial.c3d")
+    write_c3d(tmp_path / "nohand.c3d", trial.select([lab for lab in trial.labels if lab != "LFIN"]))
+    assert main(["ik", str(tmp_path / "nohand.c3d"), str(squats / "truth.urdf"), "-o", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "nohand.c3d: 1 segments its markers do not place (hand_l); wrist_l_flexion, wrist_l_deviation held at 0" \
+        in err, err
+    got, truth = read_motion_csv(tmp_path / "nohand_motion.csv"), read_motion_csv(squats / "truth_motion.csv")
+    wrist = [got.dof_names.index(d) for d in ("wrist_l_flexion", "wrist_l_deviation")]
+    assert np.all(got.angles[:, wrist] == 0.0)
+    rest = [i for i in range(len(got.dof_names)) if i not in wrist]
+    assert np.abs(got.angles[:, rest] - truth.angles[:, rest]).max() < 1e-5
 
 
 def test_ik_fits_under_the_calibrations_limits(squats, tmp_path):

@@ -47,6 +47,10 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                    help="hold these coordinates at a value (default 0 deg) in every frame")
     p.add_argument("--whole-trials", action="store_true", help="every frame, not the IK setups' time ranges")
+    p.add_argument("--keep-damaged", action="store_true",
+                   help="fit every marker position, as OpenSim's IK does (by default positions that jump away and "
+                        "back — spikes, swapped labels —, jitter, or stay behind while their segment moves — a marker "
+                        "fallen off — are left out, as the calibration leaves them out)")
     p.add_argument("--subject", default=None, metavar="NAME",
                    help="of trials holding several subjects' markers (Vicon's NAME:RASI), fit NAME's")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
@@ -55,15 +59,13 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_ik(args: argparse.Namespace) -> int:
+    from ..calibration.subject_ik import fit_trial
     from ..io.labels import map_labels
     from ..io.motion import write_motion_csv
     from ..io.outputs import check_targets
     from ..io.read import read_trial
-    from ..model.kinematics import build_kinematics, locked_balls
     from ..model.model import load_model
-    from ..problem.problem import LIMIT_MARGIN
     from ..problem.settings import Settings
-    from ..solve.ik import inverse_kinematics
 
     if len(args.inputs) < 2:
         raise CalibrateError("give one or more trials and then the calibrated subject: calibrate ik TRIAL ... SUBJECT")
@@ -146,7 +148,6 @@ def cmd_ik(args: argparse.Namespace) -> int:
         held = {**locked, **static_locks} if (path.name, trial.n_frames) in own else locked
         if static_locks:
             (released if held is locked else kept_on).append(path.name)
-        kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
         trial, _ = map_labels(trial, model.marker_names, None, aliases=True)
         shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
         if len(shared) < 3:
@@ -155,10 +156,13 @@ def cmd_ik(args: argparse.Namespace) -> int:
                                  "give the subject calibrated from this lab's marker set"
                                  + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
-        fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0,
-                                 margin=LIMIT_MARGIN)
-        results.append((path, trial, fit, time.perf_counter() - start))
-    for (path, _, fit, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
+        got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path))
+        lines += [f"{path.name}: {x.text()}" for x in got.jittery]
+        if got.unplaced_held:
+            lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
+                         f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
+        results.append((path, trial, got.fit, time.perf_counter() - start, got.left_out))
+    for (path, _, fit, _, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
         if osim:
             from ..io.osim_export import write_mot
@@ -174,13 +178,15 @@ def cmd_ik(args: argparse.Namespace) -> int:
         print(f"calibrate ik: {subject_path} held fixed ({len(model.dof_names)} joint coordinates, "
               f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'}"
               + (f"; on {', '.join(kept_on)} also {', '.join(sorted(static_locks))}" if kept_on else "") + ")")
-        for path, trial, fit, seconds in results:
+        for path, trial, fit, seconds, left in results:
             err = np.linalg.norm(fit.residuals, axis=2)
             seen = np.flatnonzero(np.isfinite(err).any(axis=0))  # the subject's markers this trial shows
             per_marker = np.sqrt(np.nanmean(err[:, seen] ** 2, axis=0))
             worst = [(model.marker_names[seen[k]], per_marker[k]) for k in np.argsort(-per_marker)[:3]]
             print(f"  {path.name}: {trial.n_frames} frames ({trial.times[0]:.4g} to {trial.times[-1]:.4g} s), "
                   f"marker RMS {1000 * fit.rms:.2f} mm, largest {1000 * np.nanmax(err):.1f} mm; worst markers "
-                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst) + f" mm; {seconds:.2f} s")
+                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst) + " mm"
+                  + (f"; {left} marker positions left out (jumps, jitter, a marker left behind)" if left else "")
+                  + f"; {seconds:.2f} s")
         print(f"  time {time.perf_counter() - t0:.2f} s; wrote " + ", ".join(str(o) for o in outputs))
     return 0
