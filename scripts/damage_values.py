@@ -10,6 +10,8 @@ Kinds of damage (`--kinds`; each copy one kind, its sizes and places drawn from 
 - gaps: 1-4 stretches of 5-60 frames of a marker unseen;
 - swap: two markers' labels exchanged for 5-30 frames;
 - longswap: two markers' labels exchanged for 0.5 s to half the trial (no jump back within a second);
+- endswap: two markers' labels exchanged from a frame in the trial's middle half to its end, or from its start to
+  such a frame (one exchange, no jump back);
 - noisy: a marker given white noise of 3 mm to 1 m SD (log-uniform), throughout or in a stretch of 60-200 frames.
 
 What must hold for each copy: `calibrate` returns (no exception, no refusal: the damage leaves a trial worth
@@ -43,7 +45,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
-KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy", "longswap")
+KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy", "longswap", "endswap")
 
 
 def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarray, str]:
@@ -102,6 +104,12 @@ def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarr
         f = int(rng.integers(F - n + 1))
         X[f:f + n, [a, b]] = X[f:f + n, [b, a]]
         return X, f"markers {a} and {b} exchanged in frames {f}-{f + n - 1}"
+    if kind == "endswap":
+        a, b = (int(v) for v in rng.choice(M, size=2, replace=False))
+        f = int(rng.integers(F // 4, 3 * F // 4))
+        f0, f1 = (f, F) if rng.random() < 0.5 else (0, f)
+        X[f0:f1, [a, b]] = X[f0:f1, [b, a]]
+        return X, f"markers {a} and {b} exchanged in frames {f0}-{f1 - 1}"
     if kind == "noisy":
         k, sd = int(rng.integers(M)), float(np.exp(rng.uniform(np.log(0.003), np.log(1.0))))
         f, n = (0, F) if rng.random() < 0.5 else (int(rng.integers(F - 60)), int(rng.integers(60, 201)))

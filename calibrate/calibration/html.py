@@ -99,6 +99,13 @@ def _notes(report: dict) -> str:
                      + ("; the labels kept, the base model's places of the two exchanged for the fit (the lab's "
                         "protocol)" if x.get("protocol") else "")
                      + "</li>")
+    for x in report.get("exchanged_back", []):
+        a, b = (x.get("labels") or ["?", "?"])[:2]
+        f0, f1 = (x.get("frames") or [0, 0])[:2]
+        items.append(f"<li class=bad>exchanged: {_e(a)} and {_e(b)} ({_e(x.get('trial'))}) exchanged in frames "
+                     f"{f0}-{f1} and not back (their distances fit the base model's "
+                     f"{x.get('misfit_exchanged_mm', 0):.0f} mm RMS exchanged, {x.get('misfit_as_labelled_mm', 0):.0f} "
+                     "as labelled): exchanged back there; check the labelling</li>")
     for x in report.get("jittery_markers", []):
         items.append(f"<li class=bad>jitters: {_e(x.get('label'))} ({_e(x.get('trial'))}) scatters "
                      f"{x.get('noise_sd_mm', 0):.0f} mm SD from frame to frame (white noise; the trial's markers "

@@ -63,8 +63,10 @@ from calibrate.calibration.start import (
 from calibrate.seed.joints import JointEstimates
 from calibrate.seed.seeding import (
     MIN_FRAMES,
+    ExchangedBack,
     Seed,
     episodes,
+    exchanged_back,
     handedness,
     jumped_samples,
     seed_parameters,
@@ -308,8 +310,18 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # marker, so that a static read as moving (its still joints no longer held) and a correct label "moved with
     # another segment" (docs/benchmarks.md, "Ghost spikes").
     # So are the stretches where a marker jitters (seed.jitter: one marker given 100 mm of noise put a hip 240 mm off).
-    damage = [episodes(t, Countdown(say, "seed", "jumps (swapped labels, spikes) in every trajectory"))
-              for t in trials] if run.outliers > 0 else None  # found once: left out of the solve too (jumped)
+    # Two labels exchanged once and not back (to a trial's end) are exchanged back on the side the base model's
+    # distances put the wrong way round (seeding.lone_exchanges): left out instead, a pelvis's LASI and RPSI over half
+    # a walk left the pelvis two markers and put the left hip 161 mm off.
+    backs: list[list[ExchangedBack]] = [[] for _ in trials]
+    damage = [episodes(t, Countdown(say, "seed", "jumps (swapped labels, spikes) in every trajectory"), model, back)
+              for t, back in zip(trials, backs, strict=True)] if run.outliers > 0 else None  # found once: left out of
+    # the solve too (jumped)
+    exchanged_back_ = tuple((i, x) for i, back in enumerate(backs) for x in back)
+    if exchanged_back_:
+        trials = tuple(exchanged_back(t, back) for t, back in zip(trials, backs, strict=True))
+        for i, x in exchanged_back_:
+            say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {x.text()}"))
     damaged = [d[0] for d in damage] if damage is not None else None
     judged = tuple(without_broken(model, t, e)[0] for t, e in zip(trials, damaged, strict=True)) \
         if damaged is not None else trials
@@ -758,6 +770,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
+                       exchanged_back=exchanged_back_,
                        moved=tuple(moved),
                        moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=still_only, still_centres=still_centres,

@@ -145,6 +145,8 @@ def calibration_report(cal: Calibration) -> dict:
                             "distance_sd_other_mm": 1e3 * m.sd_other} for i, m in cal.misplaced],
         # markers whose positions scatter as white noise from frame to frame (calibrate.seed.jitter): left out there
         "jittery_markers": [{"trial": cal.trials[i].source or f"trial {i + 1}", **x.to_json()} for i, x in cal.jittery],
+        "exchanged_back": [{"trial": cal.trials[i].source or f"trial {i + 1}", **x.to_json()}
+                           for i, x in cal.exchanged_back],
         # two labels of one segment exchanged between two trials, or against the base model in trials that have them
         # alike (calibrate.seed.association.exchanged_between)
         "exchanged_labels": [{"labels": list(x.labels), "segment": x.segment,
@@ -774,6 +776,8 @@ def summary_text(cal) -> str:
                      + "; --hip-regression places them by the regression")
     for i, x in cal.jittery:
         lines.append(f"  jitters      {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
+    for i, x in cal.exchanged_back:
+        lines.append(f"  exchanged    {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

@@ -233,6 +233,9 @@ class Calibration:
     # (trial index, calibrate.seed.jitter.Jittery) per marker that jitters (white noise from frame to frame) in
     # stretches of that trial: its positions there left out of the fit
     jittery: tuple = ()
+    # (trial index, calibrate.seed.seeding.ExchangedBack) per pair of labels exchanged once in that trial and not back,
+    # exchanged back on the frames the base model's distances put the wrong way round
+    exchanged_back: tuple = ()
     # calibrate.seed.association.Exchanged per pair of one segment's labels exchanged between two trials (a walk's
     # heel and toe; their positions left out of the trial the base model says has them exchanged) or, alike in
     # every trial, against the base model (reported, not changed): labels to check

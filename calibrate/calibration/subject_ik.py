@@ -2,7 +2,8 @@
 
 What the calibration does to a trial before it fits it, and what a frame-by-frame fit still needs: the positions that
 jump away and back (spikes, swapped labels), jitter, or stay behind while their segment moves (a marker fallen off)
-left out (seed.seeding.jumped_samples' checks); the coordinates of segments the trial's markers cannot place held at 0
+left out (seed.seeding.jumped_samples' checks), two labels exchanged once and not back exchanged back where the
+model's distances put them the wrong way round; the coordinates of segments the trial's markers cannot place held at 0
 (model.resolve); then calibrate.solve.ik.inverse_kinematics.  A frame-by-frame fit has no outlier test of its own:
 on pig_walk's walk one frame of a ghost 1.8 m off turned the right shoulder 230 deg, a marker fallen to the floor the
 left knee 19 deg for the rest of the walk (scripts/damage_values.py --ik).
@@ -22,7 +23,7 @@ from ..model.model import Model, Parameters
 from ..model.resolve import resolve
 from ..problem.problem import LIMIT_MARGIN
 from ..seed.jitter import Jittery
-from ..seed.seeding import episodes, without_broken
+from ..seed.seeding import ExchangedBack, episodes, exchanged_back, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
 
 
@@ -30,13 +31,14 @@ from ..solve.ik import IKResult, inverse_kinematics
 class TrialFit:
     """One trial fitted to a calibrated subject: the fit, the marker positions left out before it (how many), the
     markers that jitter (left out where they do), the coordinates held because the trial's markers do not place
-    their segments (name -> value, rad), and those segments."""
+    their segments (name -> value, rad), those segments, and the labels exchanged back (seeding.lone_exchanges)."""
 
     fit: IKResult
     left_out: int
     jittery: tuple[Jittery, ...]
     unplaced_held: dict[str, float]
     unplaced: tuple[str, ...]
+    exchanged_back: tuple[ExchangedBack, ...] = ()
 
 
 def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str, float],
@@ -48,9 +50,11 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     OpenSim's IK does.  `source` names the trial in errors.  Raises CalibrateError when its markers cannot place the
     model's root."""
     shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
-    left, jittery = 0, ()
+    left, jittery, back = 0, (), []
     if not keep_damaged:
-        jumps, found = episodes(trial)
+        back: list[ExchangedBack] = []
+        jumps, found = episodes(trial, model=model, back=back)
+        trial = exchanged_back(trial, back)
         trial, left = without_broken(model, trial, jumps, broken=False)
         jittery = tuple(x for x in found if x.label in shared)
     seen = [m for m in shared if np.isfinite(trial.markers[:, trial.labels.index(m)]).all(axis=1).any()]
@@ -65,4 +69,4 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
     fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN)
-    return TrialFit(fit, left, jittery, extra, res.names if extra else ())
+    return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back))

@@ -323,6 +323,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"warning: labels to check (they move with another segment's markers than the model's; exchanged for "
               f"the whole trial?): {', '.join(check)}" + (f"; exchanges that fit: {', '.join(pairs)}" if pairs else "")
               + " (see 'check label' above)", file=sys.stderr)
+    if cal.exchanged_back:
+        pairs = ", ".join(dict.fromkeys("/".join(x.labels) for _, x in cal.exchanged_back))
+        print(f"warning: labels exchanged and not back, exchanged back where the base model puts them the wrong way "
+              f"round: {pairs} (see 'exchanged' above); check the labelling", file=sys.stderr)
     if cal.jittery:
         names = ", ".join(dict.fromkeys(x.label for _, x in cal.jittery))
         print(f"warning: markers that jitter, left out where they do: {names} (see 'jitters' above)", file=sys.stderr)

@@ -157,7 +157,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
                                  + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
         got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path))
-        lines += [f"{path.name}: {x.text()}" for x in got.jittery]
+        lines += [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
         if got.unplaced_held:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
                          f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")

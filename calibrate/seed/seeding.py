@@ -464,14 +464,16 @@ def broken_samples(model: Model, trial: Trial) -> np.ndarray:
     return flagged
 
 
-def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None) -> np.ndarray:
+def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None,
+                  lone: list[tuple[int, int, int]] | None = None) -> np.ndarray:
     """(n_frames, n_markers) True where a marker trajectory sits between a jump and the jump that undoes
     it (a spike: one frame; a swapped label: until the labels swap back).  A jump is a frame-to-frame
     step further than SEED_JUMP_MIN (and SEED_JUMP_SDS robust SDs of the marker's own) from the median
     of the steps around it (SEED_JUMP_WINDOW frames each side: constant acceleration cancels); two
     jumps of one marker at most SEED_EPISODE_S apart, with no gap between, that undo each other (their
     sum shorter than SEED_JUMP_UNDO of the larger) bound an episode.  `progress(share of the markers
-    done)` after each marker (100 000 frames take about a second)."""
+    done)` after each marker (100 000 frames take about a second).  `lone`: gets the labels exchanged once
+    (_exchanged_stretches), which the jumps cannot judge."""
     X = np.asarray(trial.markers)
     F = X.shape[0]
     out = np.zeros(X.shape[:2], dtype=bool)
@@ -521,7 +523,7 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
                 ghosts.append((k, int(a), slice(a - before + 1, a + 1)))
         if progress is not None:
             progress((k + 1) / X.shape[1])
-    exchanges = _exchanged_stretches(X, loose, out)
+    exchanges = _exchanged_stretches(X, loose, out, lone)
     for k, a, frames in ghosts:
         if (k, a) not in exchanges:
             out[frames, k] = True
@@ -529,7 +531,7 @@ def jump_episodes(trial: Trial, progress: Callable[[float], None] | None = None)
 
 
 def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndarray]]],
-                         out: np.ndarray) -> set[tuple[int, int]]:
+                         out: np.ndarray, lone: list[tuple[int, int, int]] | None = None) -> set[tuple[int, int]]:
     """Two labels exchanged for longer than an episode (SEED_EPISODE_S), set in `out` (frames, markers): two markers
     that jump at the same step by about each other's separation and in opposite ways have exchanged labels there (a
     limb cannot do that).  Between two such exchanges of one pair, both seen throughout, the labels are exchanged.  A
@@ -537,7 +539,8 @@ def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndar
     shorter side took 196 frames of a 50 Hz tennis serve's right arm, where its elbow, forearm and upper-arm markers
     cross in a blur and are right before).  pig_walk with two labels exchanged for 0.5 s to half its 300 frames put a
     centre 93-370 mm off in 7 of 16 copies (scripts/damage_values.py, longswap).  Returns every (marker, step) of an
-    exchange, taken or not."""
+    exchange, taken or not; `lone` gets each pair's one exchange left over, (marker, marker, step), where the pair has
+    no other (lone_exchanges judges it against a model)."""
     events: dict[tuple[int, int], list[int]] = {}
     for a, jumps in loose.items():
         for i, (k, sk) in enumerate(jumps):
@@ -553,16 +556,145 @@ def _exchanged_stretches(X: np.ndarray, loose: dict[int, list[tuple[int, np.ndar
         while len(steps) >= 2 and seen[steps[0] + 1:steps[1] + 1].all():
             out[steps[0] + 1:steps[1] + 1, [k, m]] = True
             steps = steps[2:]
+        if lone is not None and len(steps) == 1 and len(events[(k, m)]) == 1:
+            lone.append((k, m, steps[0]))
     return {(k, a) for (k, m), steps in events.items() for a in steps} | \
         {(m, a) for (k, m), steps in events.items() for a in steps}
 
 
-def episodes(trial: Trial, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, tuple[Jittery, ...]]:
-    """(n_frames, n_markers) True where a marker's samples are damaged whatever the model: jump_episodes (spikes,
-    swapped labels, a ghost at a gap's edge) and jittery_samples (white noise), and the jittery markers.
-    `progress`: jump_episodes'."""
+def episodes(trial: Trial, progress: Callable[[float], None] | None = None, model: Model | None = None,
+             back: list[ExchangedBack] | None = None) -> tuple[np.ndarray, tuple[Jittery, ...]]:
+    """(n_frames, n_markers) True where a marker's samples are damaged: jump_episodes (spikes, swapped labels, a ghost
+    at a gap's edge) and jittery_samples (white noise), and the jittery markers.  With `model`, also the side of a
+    label exchange its markers' distances put against the model's (lone_exchanges); with `back` too, those are not
+    in the mask but added to `back`, for the caller to exchange them back (exchanged_back: the mask holds for the
+    trial so mended).  `progress`: jump_episodes'."""
     jitter, jittery = jittery_samples(trial)
-    return jump_episodes(trial, progress) | jitter, jittery
+    lone: list[tuple[int, int, int]] = []
+    out = jump_episodes(trial, progress, lone if model is not None else None) | jitter
+    if lone:
+        found = lone_exchanges(model, trial, lone, out)
+        if back is not None:
+            back.extend(found)
+        else:
+            for x in found:
+                out[x.start:x.stop, [trial.labels.index(lab) for lab in x.labels]] = True
+    return out, jittery
+
+
+@dataclass(frozen=True)
+class ExchangedBack:
+    """Two labels exchanged once in a trial and not back (to its end, or from its start), on the frames where the
+    model's distances say they are the wrong way round (lone_exchanges): exchanged back."""
+
+    labels: tuple[str, str]
+    start: int  # the first frame of the side exchanged
+    stop: int  # one past its last
+    labelled: float  # m: RMS misfit of that side's distances to the model's as labelled ...
+    exchanged: float  # ... and exchanged
+
+    def text(self) -> str:
+        a, b = self.labels
+        return (f"{a} and {b} exchanged in frames {self.start}-{self.stop - 1} and not back (their distances to their "
+                f"segments' markers fit the base model's {1e3 * self.exchanged:.0f} mm RMS exchanged, "
+                f"{1e3 * self.labelled:.0f} as labelled): exchanged back there")
+
+    def to_json(self) -> dict:
+        return {"labels": list(self.labels), "frames": [self.start, self.stop - 1],
+                "misfit_as_labelled_mm": 1e3 * self.labelled, "misfit_exchanged_mm": 1e3 * self.exchanged}
+
+
+def exchanged_back(trial: Trial, found: Sequence[ExchangedBack]) -> Trial:
+    """`trial` with each of `found`'s two labels' positions exchanged on its frames."""
+    if not found:
+        return trial
+    X = np.array(trial.markers)
+    for x in found:
+        i, j = (trial.labels.index(lab) for lab in x.labels)
+        X[x.start:x.stop, [i, j]] = X[x.start:x.stop, [j, i]]
+    return replace(trial, markers=X)
+
+
+LONE_MARGIN = 0.020  # m: a side of a lone exchange is taken where its distances fit the model's this much better ...
+LONE_RATIO = 1.5  # ... and this many times better exchanged (RMS over the markers near the two), the other side as
+# labelled likewise
+LONE_FRAMES = 60  # about this many evenly spaced frames of a side are read
+
+
+def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, int]],
+                   taken: np.ndarray) -> tuple[ExchangedBack, ...]:
+    """The side of each lone label exchange (markers k and m exchanged at step a, into frame a + 1, with no exchange
+    back: jump_episodes' `lone`) where the two labels are the wrong way round.  The jumps
+    cannot say which side that is; the model can: on each side, the two markers' median distances to the markers of
+    their segments (and of the segments next to them, where those keep steady) against the model's in its neutral
+    pose, at the trial's size.  A side is taken where exchanged they fit LONE_RATIO times and LONE_MARGIN better than
+    as labelled while the other side fits as labelled likewise; else neither (a tennis serve's arm markers crossing
+    in a blur jump so, and are right on both sides).  pig_walk with LHEE and LTOE, or RASI and LASI, exchanged from
+    a frame to its end put centres 80-103 mm off.  `taken`: samples already left out (not read)."""
+    F = taken.shape[0]
+    out: list[ExchangedBack] = []
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    names = [n for n in model.marker_names if n in index]
+    if len(names) < 4:
+        return ()
+    seg = {mk.name: mk.segment for mk in model.markers}
+    near = _marked_neighbours(model)
+    P = model.neutral_positions(names)
+    ref = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    at = {n: i for i, n in enumerate(names)}
+    X = np.where(taken[..., None], np.nan, np.asarray(trial.markers))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sub = X[::max(1, F // (4 * LONE_FRAMES)), [index[n] for n in names]]
+        D = np.nanmedian(np.linalg.norm(sub[:, :, None] - sub[:, None], axis=-1), axis=0)
+    same = np.equal.outer(np.array([seg[n] for n in names]), np.array([seg[n] for n in names]))
+    ok = same & ~np.eye(len(names), dtype=bool) & np.isfinite(D) & (ref > 0.02)
+    scale = float(np.median(D[ok] / ref[ok])) if ok.any() else 1.0
+    for k, m, a in lone:
+        lk, lm = trial.labels[k], trial.labels[m]
+        if lk not in at or lm not in at:
+            continue
+        around = {seg[lk], seg[lm]}
+        refs = [n for n in names if n not in (lk, lm) and seg[n] in around] or [
+            n for n in names if n not in (lk, lm) and seg[n] in near.get(seg[lk], set()) | near.get(seg[lm], set())]
+        if not refs:
+            continue
+        seen = np.all(np.isfinite(X[:, [k, m]]), axis=(1, 2))
+        fits = []
+        for frames in (np.arange(0, a + 1), np.arange(a + 1, F)):
+            frames = frames[seen[frames]]
+            if frames.size < 3:
+                fits.append(None)
+                continue
+            x = X[frames[::max(1, frames.size // LONE_FRAMES)]]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                dk = np.linalg.norm(x[:, [index[n] for n in refs]] - x[:, k:k + 1], axis=2)
+                dm = np.linalg.norm(x[:, [index[n] for n in refs]] - x[:, m:m + 1], axis=2)
+                med_k, med_m = np.nanmedian(dk, axis=0), np.nanmedian(dm, axis=0)
+                spread = np.fmax(np.nanmedian(np.abs(dk - med_k), axis=0), np.nanmedian(np.abs(dm - med_m), axis=0))
+            use = np.isfinite(med_k) & np.isfinite(med_m) & (
+                np.array([seg[n] in around for n in refs]) | (MAD_SD * spread <= LONE_STEADY))
+            if not use.any():
+                fits.append(None)
+                continue
+            mk = scale * ref[at[lk], [at[n] for n in refs]][use]
+            mm = scale * ref[at[lm], [at[n] for n in refs]][use]
+            labelled = float(np.sqrt(np.mean(np.r_[med_k[use] - mk, med_m[use] - mm] ** 2)))
+            exchanged = float(np.sqrt(np.mean(np.r_[med_k[use] - mm, med_m[use] - mk] ** 2)))
+            fits.append((labelled, exchanged, frames))
+        if fits[0] is None or fits[1] is None:
+            continue
+
+        def better(one: float, other: float) -> bool:
+            return one * LONE_RATIO <= other and one + LONE_MARGIN <= other
+
+        (l0, x0, f0), (l1, x1, f1) = fits
+        if better(l0, x0) and better(x1, l1):
+            out.append(ExchangedBack((lk, lm), int(a + 1), F, l1, x1))
+        elif better(x0, l0) and better(l1, x1):
+            out.append(ExchangedBack((lk, lm), 0, int(a + 1), l0, x0))
+    return tuple(out)
 
 
 def _seen_run(seen: np.ndarray, f: int, way: int, most: int) -> int:
@@ -584,7 +716,7 @@ def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[fl
     for i, t in enumerate(trials):
         jumps = found[i] if found is not None else episodes(
             t, None if progress is None else
-            lambda done, t=t, before=before: progress((before + done * t.n_frames) / total))[0]
+            lambda done, t=t, before=before: progress((before + done * t.n_frames) / total), model)[0]
         before += t.n_frames
         index = {lab: i for i, lab in enumerate(t.labels)}
         out = fallen_samples(model, _gapped(t, jumps))
@@ -594,6 +726,8 @@ def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[fl
         parts.append(out)
     return np.concatenate(parts)
 
+
+LONE_STEADY = 0.015  # m: a marker of a segment next to the two is read where its distances to them spread no more
 
 FALLEN_BLOCK_S = 0.5  # s: fallen_samples judges a trial in windows this long, a quarter of one apart ...
 FALLEN_STILL = 0.010  # m ... where a marker stays within this of one place in the lab ...
@@ -758,7 +892,7 @@ def without_broken(model: Model, trial: Trial, jumps: np.ndarray | None = None,
     `jumps`: the trial's episodes, if found already.  `broken` False: not broken_samples' (the samples the
     calibration leaves out before its start, jumped_samples', as `calibrate ik` leaves them out)."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
-    bad = episodes(trial)[0] if jumps is None else jumps.copy()
+    bad = episodes(trial, model=model)[0] if jumps is None else jumps.copy()
     cleaned = _gapped(trial, bad)
     rigid = fallen_samples(model, cleaned)
     if broken:
