@@ -120,6 +120,28 @@ def test_ik_leaves_out_damaged_positions(squats, tmp_path, capsys):
     assert np.degrees(np.abs(kept.angles - truth.angles).max()) > 10.0
 
 
+def test_ik_refuses_another_subjects_trial(squats, tmp_path, capsys):
+    """The squats' markers 20 % further apart (a larger subject's trial): its markers on each segment read 20 % from the
+    subject's (calibration.subject_ik.size_misfit), and `calibrate ik` refuses it in one line, exit 2, nothing
+    written (BTKData's FlatFoot subject had fitted another subject's walk at 82 mm RMS); --other-subject fits it."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    trial = read_trial(squats / "trial.c3d")
+    centre = np.nanmean(trial.markers, axis=(0, 1))
+    write_c3d(tmp_path / "larger.c3d", replace(trial, markers=centre + 1.2 * (trial.markers - centre)))
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main(["ik", str(tmp_path / "larger.c3d"), str(squats / "truth.urdf"), "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "its markers on each segment are 20 % nearer or further apart than " \
+        "truth.urdf's" in err[0], err
+    assert not any(out.iterdir())
+    assert main(["ik", str(tmp_path / "larger.c3d"), str(squats / "truth.urdf"), "-o", str(out), "-q",
+                 "--other-subject"]) == 0
+    assert (out / "larger_motion.csv").is_file()
+
+
 def test_ik_holds_what_a_trials_markers_do_not_place(squats, tmp_path, capsys):
     """A trial without the left hand's only marker (LFIN) cannot place the hand: its wrist's coordinates are held at 0
     and a note names them (model.resolve, as the calibration locks them), and the rest is the true motion."""

@@ -26,6 +26,37 @@ from ..seed.jitter import Jittery
 from ..seed.seeding import ExchangedBack, episodes, exchanged_back, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
 
+OTHER_SUBJECT = 0.10  # a trial whose same-segment marker distances differ from the subject's by more than this
+# (the median over the pairs, relative) is another subject's: refused
+SIZE_PAIRS = 10  # judged on this many same-segment marker pairs or more (each SIZE_PAIR_MIN or more apart in the
+# subject): a video keypoint set's few pairs do not keep their distances (Pose2Sim's demo static: 18 % over 6 pairs)
+SIZE_PAIR_MIN = 0.05  # m
+
+
+def size_misfit(model: Model, trial: Trial) -> tuple[float, int]:
+    """How far the trial's markers on each segment are from the subject's: the median over the pairs of one segment's
+    markers (SIZE_PAIR_MIN or more apart in the subject) of |trial distance / subject distance - 1|, the trial's
+    distance its median over about 100 frames; and how many pairs.  A segment's markers keep their distances in any
+    pose (skin aside), so the subject's own trials read 0.3-1.4 % (BTKData's Plug-in Gait sessions, pig_walk, OpenSim's
+    gait2392 and Rajagopal walks; Pose2Sim's augmented keypoints, 72 pairs, 0.9 % and 6.4 % on its static), another
+    subject's 11-30 %."""
+    names = [n for n in model.marker_names if n in trial.labels]
+    seg = {mk.name: mk.segment for mk in model.markers}
+    P = model.neutral_positions(names)  # the subject as its file has it (a segment's distances: any pose)
+    X = trial.select(names).markers[::max(1, trial.n_frames // 100)]
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if seg[names[i]] != seg[names[j]]:
+                continue
+            ref = float(np.linalg.norm(P[i] - P[j]))
+            if ref < SIZE_PAIR_MIN:
+                continue
+            d = np.linalg.norm(X[:, i] - X[:, j], axis=1)
+            if np.isfinite(d).any():
+                out.append(float(np.nanmedian(d)) / ref - 1.0)
+    return (float(np.median(np.abs(out))) if out else 0.0), len(out)
+
 
 @dataclass(frozen=True)
 class TrialFit:
@@ -39,17 +70,25 @@ class TrialFit:
     unplaced_held: dict[str, float]
     unplaced: tuple[str, ...]
     exchanged_back: tuple[ExchangedBack, ...] = ()
+    size_misfit: float | None = None  # size_misfit's figure (None: too few pairs to judge)
 
 
 def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str, float],
               weights: Mapping[str, float] | None = None, keep_damaged: bool = False,
-              source: str = "the trial") -> TrialFit:
+              source: str = "the trial", check_size: bool = True) -> TrialFit:
     """Fit every frame of `trial` (labels the model's: io.labels.map_labels) to `model` at `params`, holding `held`
     (coordinate -> rad or m), the markers weighed by `weights` (an IK setup's tasks; a marker without one is not
     fitted) or alike, under the calibration's limits (LIMIT_MARGIN).  `keep_damaged`: every position fitted, as
     OpenSim's IK does.  `source` names the trial in errors.  Raises CalibrateError when its markers cannot place the
-    model's root."""
+    model's root, or (`check_size`) when they are another subject's (size_misfit over OTHER_SUBJECT: BTKData's
+    FlatFoot subject fitted to another's walk at 82 mm RMS).  TrialFit.size_misfit: size_misfit's figure."""
     shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
+    misfit, pairs = size_misfit(model, trial)
+    if check_size and pairs >= SIZE_PAIRS and misfit > OTHER_SUBJECT:
+        raise CalibrateError(f"{source}: its markers on each segment are {100 * misfit:.0f} % nearer or further apart "
+                             f"than {model.path.name}'s (the median over {pairs} pairs; the subject's own trials read "
+                             "0.3-6 %): another subject's trial?  Calibrate its subject, or give --other-subject to "
+                             "fit it anyway")
     left, jittery, back = 0, (), []
     if not keep_damaged:
         back: list[ExchangedBack] = []
@@ -69,4 +108,5 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
     fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN)
-    return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back))
+    return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
+                    misfit if pairs >= SIZE_PAIRS else None)

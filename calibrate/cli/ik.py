@@ -51,6 +51,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                    help="fit every marker position, as OpenSim's IK does (by default positions that jump away and "
                         "back — spikes, swapped labels —, jitter, or stay behind while their segment moves — a marker "
                         "fallen off — are left out, as the calibration leaves them out)")
+    p.add_argument("--other-subject", action="store_true",
+                   help="fit a trial whose markers on each segment are more than 10 %% nearer or further apart than "
+                        "the subject's (by default refused: another subject's trial)")
     p.add_argument("--subject", default=None, metavar="NAME",
                    help="of trials holding several subjects' markers (Vicon's NAME:RASI), fit NAME's")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
@@ -156,7 +159,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
                                  "give the subject calibrated from this lab's marker set"
                                  + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
-        got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path))
+        got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path),
+                        check_size=not args.other_subject)
         lines += [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
         if got.unplaced_held:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
