@@ -99,6 +99,11 @@ def _notes(report: dict) -> str:
                      + ("; the labels kept, the base model's places of the two exchanged for the fit (the lab's "
                         "protocol)" if x.get("protocol") else "")
                      + "</li>")
+    for x in report.get("trials_apart", []):
+        a, b = (x.get("trials") or ["?", "?"])[:2]
+        items.append(f"<li class=bad>subjects? {_e(a)} and {_e(b)}: their markers on each segment keep distances "
+                     f"{100 * x.get('segment_distances_apart', 0):.0f} % apart (over {x.get('pairs', 0)} pairs; one "
+                     "subject's trials read 0.5-7 %): trials of two subjects?</li>")
     for x in report.get("exchanged_back", []):
         a, b = (x.get("labels") or ["?", "?"])[:2]
         f0, f1 = (x.get("frames") or [0, 0])[:2]

@@ -434,6 +434,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     _check_rate(model, trials)
     _check_handedness(model, trials)
     _check_one_subject(model, trials)
+    apart = trials_apart(model, trials)
+    for i, j, misfit, pairs in apart:
+        say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'} and {trials[j].source or f'trial {j + 1}'}: "
+                                f"their markers on each segment are {100 * misfit:.0f} % apart (median over {pairs} "
+                                "pairs): trials of two subjects?"))
     if run.seed and still_only is not None:
         # No joint turns: MTB's joint centres need a joint that turns (it found none on any real static, in up to
         # 5 s of trilateration starts), so the base model scaled to the subject's size from marker distances, its
@@ -770,7 +775,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
-                       exchanged_back=exchanged_back_,
+                       exchanged_back=exchanged_back_, trials_apart=apart,
                        moved=tuple(moved),
                        moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=still_only, still_centres=still_centres,
@@ -1223,6 +1228,47 @@ def _check_one_subject(model: Model, trials: Sequence[Trial]) -> None:
                          f"{model.path.name}, {small.source or 'another trial'}'s at {a.overall:.2f} ({b.pairs} and "
                          f"{a.pairs} marker pairs of steady distance): trials of different subjects (or units)? "
                          "calibrate each subject's trials on their own")
+
+
+APART = 0.10  # two trials whose markers on each segment keep distances this far apart (the median over the pairs of
+# |ratio - 1|) are named as two subjects' ...
+APART_PAIRS = 10  # ... from this many same-segment pairs or more (50 mm or more apart in the base model)
+
+
+def trials_apart(model: Model, trials: Sequence[Trial]) -> tuple[tuple[int, int, float, int], ...]:
+    """(i, j, misfit, pairs) for each two trials whose markers on one segment of `model` keep distances more than
+    APART apart: the median over the pairs (APART_PAIRS or more, each 50 mm or more apart in the base model) of
+    |one trial's median distance / the other's - 1|.  A segment's markers keep their distances in any pose, so one
+    subject's trials read 0.5-2.3 % with markers (BTKData's Plug-in Gait sessions, pig_walk, OpenSim's gait2392 and
+    Rajagopal), 6.5-6.9 % with Pose2Sim's augmented keypoints; two subjects' 11-30 % (BTKData's FlatFoot static with
+    another subject's walk: 16 %, under _check_one_subject's 30 %, and the fit put centres 89-163 mm from the scaled
+    base model without naming why).  Named, not refused."""
+    if len(trials) < 2:
+        return ()
+    names = [m.name for m in model.markers]
+    seg = np.array([m.segment for m in model.markers])
+    P = model.neutral_positions(names)
+    ref = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    same = np.equal.outer(seg, seg) & (ref >= 0.05) & np.triu(np.ones((len(names),) * 2, dtype=bool), 1)
+    meds = []
+    for t in trials:
+        index = {lab: i for i, lab in enumerate(t.labels)}
+        at = [index.get(n, -1) for n in names]
+        X = np.where(np.array(at)[None, :, None] >= 0, t.markers[::max(1, t.n_frames // 100)][:, np.maximum(at, 0)],
+                     np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            meds.append(np.nanmedian(np.linalg.norm(X[:, :, None] - X[:, None], axis=-1), axis=0))
+    out = []
+    for i in range(len(trials)):
+        for j in range(i + 1, len(trials)):
+            ok = same & np.isfinite(meds[i]) & np.isfinite(meds[j]) & (meds[j] > 0)
+            if ok.sum() < APART_PAIRS:
+                continue
+            misfit = float(np.median(np.abs(meds[i][ok] / meds[j][ok] - 1.0)))
+            if misfit > APART:
+                out.append((i, j, misfit, int(ok.sum())))
+    return tuple(out)
 
 
 MISPLACED_MOTION = 3.0  # a trial's labels are judged by rigidity (misplaced_labels) where its markers on different

@@ -147,6 +147,9 @@ def calibration_report(cal: Calibration) -> dict:
         "jittery_markers": [{"trial": cal.trials[i].source or f"trial {i + 1}", **x.to_json()} for i, x in cal.jittery],
         "exchanged_back": [{"trial": cal.trials[i].source or f"trial {i + 1}", **x.to_json()}
                            for i, x in cal.exchanged_back],
+        "trials_apart": [{"trials": [cal.trials[k].source or f"trial {k + 1}" for k in (i, j)],
+                          "segment_distances_apart": misfit, "pairs": pairs}
+                         for i, j, misfit, pairs in cal.trials_apart],
         # two labels of one segment exchanged between two trials, or against the base model in trials that have them
         # alike (calibrate.seed.association.exchanged_between)
         "exchanged_labels": [{"labels": list(x.labels), "segment": x.segment,
@@ -778,6 +781,11 @@ def summary_text(cal) -> str:
         lines.append(f"  jitters      {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
     for i, x in cal.exchanged_back:
         lines.append(f"  exchanged    {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
+    for i, j, misfit, pairs in cal.trials_apart:
+        lines.append(f"  subjects?    {cal.trials[i].source or f'trial {i + 1}'} and "
+                     f"{cal.trials[j].source or f'trial {j + 1}'}: their markers on each segment keep distances "
+                     f"{100 * misfit:.0f} % apart (the median over {pairs} pairs; one subject's trials read 0.5-7 %): "
+                     "trials of two subjects?  Calibrate each subject's trials on their own")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

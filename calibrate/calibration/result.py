@@ -236,6 +236,9 @@ class Calibration:
     # (trial index, calibrate.seed.seeding.ExchangedBack) per pair of labels exchanged once in that trial and not back,
     # exchanged back on the frames the base model's distances put the wrong way round
     exchanged_back: tuple = ()
+    # (i, j, misfit, pairs) per two trials whose markers on each segment keep distances over 10 % apart (pipeline.
+    # trials_apart: the median over `pairs` same-segment pairs of |ratio - 1|): two subjects' trials?
+    trials_apart: tuple = ()
     # calibrate.seed.association.Exchanged per pair of one segment's labels exchanged between two trials (a walk's
     # heel and toe; their positions left out of the trial the base model says has them exchanged) or, alike in
     # every trial, against the base model (reported, not changed): labels to check

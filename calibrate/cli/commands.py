@@ -323,6 +323,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"warning: labels to check (they move with another segment's markers than the model's; exchanged for "
               f"the whole trial?): {', '.join(check)}" + (f"; exchanges that fit: {', '.join(pairs)}" if pairs else "")
               + " (see 'check label' above)", file=sys.stderr)
+    if cal.trials_apart:
+        print("warning: trials whose markers on each segment keep distances over 10 % apart: two subjects' trials? "
+              "(see 'subjects?' above)", file=sys.stderr)
     if cal.exchanged_back:
         pairs = ", ".join(dict.fromkeys("/".join(x.labels) for _, x in cal.exchanged_back))
         print(f"warning: labels exchanged and not back, exchanged back where the base model puts them the wrong way "
