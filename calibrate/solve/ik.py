@@ -26,6 +26,7 @@ from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import IDENTITY, Kinematics, matrix_quats, retract_root
 from ..model.model import Model, Parameters
+from ..model.resolve import descendants
 from ..problem.options import SolverOptions
 from ..seed.geometry import kabsch, marker_rms
 from .lm import marquardt_diagonal, minimise
@@ -367,6 +368,38 @@ def _refit_backwards(solver: FrameSolver, obs: np.ndarray, f: int, z: np.ndarray
         frame_rms[i] = float(np.sqrt(cost / idx.size))
 
 
+def unseen_coordinates(model: Model, obs: np.ndarray) -> np.ndarray:
+    """(n_frames, n_dofs) True where no marker on a coordinate's child segment or below it is seen (obs NaN): that
+    coordinate moves no marker of the frame, and its fit keeps whatever it started from."""
+    below = descendants(model)
+    seg = np.array([mk.segment for mk in model.markers])
+    seen = np.isfinite(obs[..., 0])
+    out = np.zeros((obs.shape[0], model.n_dofs), dtype=bool)
+    for d, dof in enumerate(model.dofs):
+        child = model.joints[model.joint_index(dof.joint)].child
+        on = np.isin(seg, below[child])
+        out[:, d] = ~seen[:, on].any(axis=1) if on.any() else True
+    return out
+
+
+def _bridge_unseen(kin: Kinematics, obs: np.ndarray, Z: np.ndarray, held: np.ndarray) -> None:
+    """A coordinate's angles in frames where no marker below it is seen (unseen_coordinates: a hand's one marker
+    hidden), linear between the frames on either side that see one, or held at the nearest such frame at the trial's
+    edge; Z updated in place.  The fit leaves them where each frame started: the previous frame's at its last speed,
+    and in 0.6 s of a simulated walk's hand marker hidden the wrist flexed 81 deg off.  A ball solved on SO(3), whose
+    angles are increments about a reference, and the held coordinates are left as they are."""
+    model = kin.model
+    unseen = unseen_coordinates(model, obs)
+    on_ball = {d for b in kin.balls for d in b.dofs}
+    for d in range(model.n_dofs):
+        col = FrameLayout.angle(d)
+        if d in on_ball or col in held or not unseen[:, d].any() or unseen[:, d].all():
+            continue
+        seen = np.flatnonzero(~unseen[:, d])
+        gaps = np.flatnonzero(unseen[:, d])
+        Z[gaps, col] = np.interp(gaps, seen, Z[seen, col])
+
+
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
                        tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
                        locked: Mapping[str, float] | None = None, weights: Mapping[str, float] | None = None,
@@ -471,6 +504,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         Z[f], Q[f], iters[f], costs[f] = z, q, it, cost
         if progress is not None and (f + 1) % 100 == 0:
             progress(f + 1, nf)
+    _bridge_unseen(kin, obs, Z, lock_cols)
     Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
