@@ -368,13 +368,12 @@ def _refit_backwards(solver: FrameSolver, obs: np.ndarray, f: int, z: np.ndarray
         frame_rms[i] = float(np.sqrt(cost / idx.size))
 
 
-def unseen_coordinates(model: Model, obs: np.ndarray) -> np.ndarray:
-    """(n_frames, n_dofs) True where no marker on a coordinate's child segment or below it is seen (obs NaN): that
-    coordinate moves no marker of the frame, and its fit keeps whatever it started from."""
+def unseen_coordinates(model: Model, seen: np.ndarray) -> np.ndarray:
+    """(n_frames, n_dofs) True where no marker on a coordinate's child segment or below it is seen (`seen`: n_frames,
+    n_markers): that coordinate moves no marker of the frame, and its fit keeps whatever it started from."""
     below = descendants(model)
     seg = np.array([mk.segment for mk in model.markers])
-    seen = np.isfinite(obs[..., 0])
-    out = np.zeros((obs.shape[0], model.n_dofs), dtype=bool)
+    out = np.zeros((seen.shape[0], model.n_dofs), dtype=bool)
     for d, dof in enumerate(model.dofs):
         child = model.joints[model.joint_index(dof.joint)].child
         on = np.isin(seg, below[child])
@@ -382,14 +381,15 @@ def unseen_coordinates(model: Model, obs: np.ndarray) -> np.ndarray:
     return out
 
 
-def _bridge_unseen(kin: Kinematics, obs: np.ndarray, Z: np.ndarray, held: np.ndarray) -> None:
+def bridge_unseen(kin: Kinematics, seen: np.ndarray, Z: np.ndarray, held: np.ndarray = ()) -> None:
     """A coordinate's angles in frames where no marker below it is seen (unseen_coordinates: a hand's one marker
     hidden), linear between the frames on either side that see one, or held at the nearest such frame at the trial's
-    edge; Z updated in place.  The fit leaves them where each frame started: the previous frame's at its last speed,
+    edge; Z (n_frames, frame coordinates) updated in place; `seen` (n_frames, n_markers); `held`: columns of Z left
+    as they are.  The fit leaves them where each frame started: the previous frame's at its last speed,
     and in 0.6 s of a simulated walk's hand marker hidden the wrist flexed 81 deg off.  A ball solved on SO(3), whose
     angles are increments about a reference, and the held coordinates are left as they are."""
     model = kin.model
-    unseen = unseen_coordinates(model, obs)
+    unseen = unseen_coordinates(model, seen)
     on_ball = {d for b in kin.balls for d in b.dofs}
     for d in range(model.n_dofs):
         col = FrameLayout.angle(d)
@@ -504,7 +504,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         Z[f], Q[f], iters[f], costs[f] = z, q, it, cost
         if progress is not None and (f + 1) % 100 == 0:
             progress(f + 1, nf)
-    _bridge_unseen(kin, obs, Z, lock_cols)
+    bridge_unseen(kin, np.isfinite(obs[..., 0]), Z, lock_cols)
     Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
