@@ -624,13 +624,13 @@ LONE_FRAMES = 60  # about this many evenly spaced frames of a side are read
 def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, int]],
                    taken: np.ndarray) -> tuple[ExchangedBack, ...]:
     """The side of each lone label exchange (markers k and m exchanged at step a, into frame a + 1, with no exchange
-    back: jump_episodes' `lone`) where the two labels are the wrong way round.  The jumps
-    cannot say which side that is; the model can: on each side, the two markers' median distances to the markers of
-    their segments (and of the segments next to them, where those keep steady) against the model's in its neutral
-    pose, at the trial's size.  A side is taken where exchanged they fit LONE_RATIO times and LONE_MARGIN better than
-    as labelled while the other side fits as labelled likewise; else neither (a tennis serve's arm markers crossing
-    in a blur jump so, and are right on both sides).  pig_walk with LHEE and LTOE, or RASI and LASI, exchanged from
-    a frame to its end put centres 80-103 mm off.  `taken`: samples already left out (not read)."""
+    back: jump_episodes' `lone`) where the two labels are the wrong way round.  The jumps cannot say which side that
+    is; the model can: on each side, the two markers' median distances to the other markers of their segments (none
+    there: to the markers of the segments next to them that keep steady, LONE_STEADY) against the model's in its
+    neutral pose, at the trial's size.  A side is named where exchanged they fit LONE_RATIO times and LONE_MARGIN
+    better than as labelled while the other side fits as labelled likewise; else neither (a tennis serve's arm markers
+    crossing in a blur jump so, and are right on both sides).  pig_walk with LHEE and LTOE, or RASI and LASI,
+    exchanged from a frame to its end put centres 80-103 mm off.  `taken`: samples already left out (not read)."""
     F = taken.shape[0]
     out: list[ExchangedBack] = []
     index = {lab: i for i, lab in enumerate(trial.labels)}
