@@ -70,6 +70,7 @@ from calibrate.seed.seeding import (
     handedness,
     jumped_samples,
     seed_parameters,
+    segment_distances,
     size_from_markers,
     without_broken,
 )
@@ -1251,24 +1252,11 @@ def trials_apart(model: Model, trials: Sequence[Trial]) -> tuple[tuple[int, int,
     base model without naming why).  Named, not refused."""
     if len(trials) < 2:
         return ()
-    names = [m.name for m in model.markers]
-    seg = np.array([m.segment for m in model.markers])
-    P = model.neutral_positions(names)
-    ref = np.linalg.norm(P[:, None] - P[None], axis=-1)
-    same = np.equal.outer(seg, seg) & (ref >= 0.05) & np.triu(np.ones((len(names),) * 2, dtype=bool), 1)
-    meds = []
-    for t in trials:
-        index = {lab: i for i, lab in enumerate(t.labels)}
-        at = [index.get(n, -1) for n in names]
-        X = np.where(np.array(at)[None, :, None] >= 0, t.markers[::max(1, t.n_frames // 100)][:, np.maximum(at, 0)],
-                     np.nan)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            meds.append(np.nanmedian(np.linalg.norm(X[:, :, None] - X[:, None], axis=-1), axis=0))
+    meds = [segment_distances(model, t)[0] for t in trials]
     out = []
     for i in range(len(trials)):
         for j in range(i + 1, len(trials)):
-            ok = same & np.isfinite(meds[i]) & np.isfinite(meds[j]) & (meds[j] > 0)
+            ok = np.isfinite(meds[i]) & np.isfinite(meds[j]) & (meds[j] > 0)
             if ok.sum() < APART_PAIRS:
                 continue
             misfit = float(np.median(np.abs(meds[i][ok] / meds[j][ok] - 1.0)))

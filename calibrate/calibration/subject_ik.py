@@ -23,39 +23,26 @@ from ..model.model import Model, Parameters
 from ..model.resolve import resolve
 from ..problem.problem import LIMIT_MARGIN
 from ..seed.jitter import Jittery
-from ..seed.seeding import ExchangedBack, episodes, exchanged_back, without_broken
+from ..seed.seeding import ExchangedBack, episodes, exchanged_back, segment_distances, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
 
 OTHER_SUBJECT = 0.10  # a trial whose same-segment marker distances differ from the subject's by more than this
 # (the median over the pairs, relative) is another subject's: refused
-SIZE_PAIRS = 10  # judged on this many same-segment marker pairs or more (each SIZE_PAIR_MIN or more apart in the
+SIZE_PAIRS = 10  # judged on this many same-segment marker pairs or more (each SEGMENT_PAIR_MIN or more apart in the
 # subject): a video keypoint set's few pairs do not keep their distances (Pose2Sim's demo static: 18 % over 6 pairs)
-SIZE_PAIR_MIN = 0.05  # m
 
 
 def size_misfit(model: Model, trial: Trial) -> tuple[float, int]:
     """How far the trial's markers on each segment are from the subject's: the median over the pairs of one segment's
-    markers (SIZE_PAIR_MIN or more apart in the subject) of |trial distance / subject distance - 1|, the trial's
-    distance its median over about 100 frames; and how many pairs.  A segment's markers keep their distances in any
-    pose (skin aside), so the subject's own trials read 0.3-1.4 % (BTKData's Plug-in Gait sessions, pig_walk, OpenSim's
-    gait2392 and Rajagopal walks; Pose2Sim's augmented keypoints, 72 pairs, 0.9 % and 6.4 % on its static), another
-    subject's 11-30 %."""
-    names = [n for n in model.marker_names if n in trial.labels]
-    seg = {mk.name: mk.segment for mk in model.markers}
-    P = model.neutral_positions(names)  # the subject as its file has it (a segment's distances: any pose)
-    X = trial.select(names).markers[::max(1, trial.n_frames // 100)]
-    out = []
-    for i in range(len(names)):
-        for j in range(i + 1, len(names)):
-            if seg[names[i]] != seg[names[j]]:
-                continue
-            ref = float(np.linalg.norm(P[i] - P[j]))
-            if ref < SIZE_PAIR_MIN:
-                continue
-            d = np.linalg.norm(X[:, i] - X[:, j], axis=1)
-            if np.isfinite(d).any():
-                out.append(float(np.nanmedian(d)) / ref - 1.0)
-    return (float(np.median(np.abs(out))) if out else 0.0), len(out)
+    markers (seeding.segment_distances: 50 mm or more apart in the subject) of |trial distance / subject distance - 1|,
+    the trial's distance its median over about 100 frames; and how many pairs.  A segment's markers keep their
+    distances in any pose (skin aside), so the subject's own trials read 0.3-1.4 % (BTKData's Plug-in Gait sessions,
+    pig_walk, OpenSim's gait2392 and Rajagopal walks; Pose2Sim's augmented keypoints, 72 pairs, 0.9 % and 6.4 % on its
+    static), another subject's 11-30 %."""
+    D, ref = segment_distances(model, trial)  # the subject as its file has it
+    ok = np.isfinite(D)
+    out = D[ok] / ref[ok] - 1.0
+    return (float(np.median(np.abs(out))) if out.size else 0.0), int(out.size)
 
 
 @dataclass(frozen=True)

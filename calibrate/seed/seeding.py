@@ -615,6 +615,29 @@ def exchanged_back(trial: Trial, found: Sequence[ExchangedBack]) -> Trial:
     return replace(trial, markers=X)
 
 
+SEGMENT_PAIR_MIN = 0.05  # m: segment_distances reads the pairs of one segment's markers this far apart or more
+
+
+def segment_distances(model: Model, trial: Trial, frames: int = 100) -> tuple[np.ndarray, np.ndarray]:
+    """(n_model_markers, n_model_markers) each two model markers' median distance over about `frames` evenly spaced
+    frames of `trial`, for the pairs on one segment SEGMENT_PAIR_MIN or more apart in the model's neutral pose (upper
+    triangle; NaN elsewhere, and where the trial never shows both), and those pairs' distances in the model.  A
+    segment's markers keep their distances in any pose (skin aside): the trial's against the model's, or another
+    trial's, tell one subject's size and marker places from another's."""
+    names = model.marker_names
+    seg = np.array([mk.segment for mk in model.markers])
+    P = model.neutral_positions(names)
+    ref = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    pairs = np.equal.outer(seg, seg) & (ref >= SEGMENT_PAIR_MIN) & np.triu(np.ones((len(names),) * 2, dtype=bool), 1)
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    at = np.array([index.get(n, -1) for n in names])
+    X = np.where(at[None, :, None] >= 0, np.asarray(trial.markers)[::max(1, trial.n_frames // frames)][:, at], np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        D = np.nanmedian(np.linalg.norm(X[:, :, None] - X[:, None], axis=-1), axis=0)
+    return np.where(pairs, D, np.nan), np.where(pairs, ref, np.nan)
+
+
 LONE_MARGIN = 0.020  # m: a side of a lone exchange is taken where its distances fit the model's this much better ...
 LONE_RATIO = 1.5  # ... and this many times better exchanged (RMS over the markers near the two), the other side as
 # labelled likewise
