@@ -16,6 +16,7 @@ from calibrate.cli.args import lock_arg
 
 from ..calibration.records import Countdown, Progress
 from ..errors import CalibrateError
+from ..io.labels import UNLABELLED
 from ..io.outputs import check_targets
 from ..seed.geometry import marker_rms
 from .report import progress_for
@@ -305,10 +306,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
                           **opensim)
-    if cal.ignored_labels:
+    unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
+    named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
+    if named:
         why = "are not markers of" if not settings.new_markers else "ride on no segment of"
-        print(f"warning: {len(cal.ignored_labels)} trial labels {why} {model.path.name} and are ignored: "
-              f"{', '.join(cal.ignored_labels)}", file=sys.stderr)
+        print(f"warning: {len(named)} trial labels {why} {model.path.name} and are ignored: {', '.join(named)}",
+              file=sys.stderr)
+    if unlabelled:  # Vicon Nexus's '*115': trajectories nobody labelled, not markers the model lacks
+        print(f"warning: {len(unlabelled)} unlabelled trajector{'y' if len(unlabelled) == 1 else 'ies'} ignored ({', '.join(unlabelled[:4])}"
+              f"{', ...' if len(unlabelled) > 4 else ''}); label them in the capture software to use them",
+              file=sys.stderr)
     print(cal.text())
     print("")
     print("wrote " + "\n      ".join(str(p) for p in outputs))
