@@ -309,11 +309,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
     named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
     if named:
-        why = "are not markers of" if not settings.new_markers else "ride on no segment of"
-        print(f"warning: {len(named)} trial labels {why} {model.path.name} and are ignored: {', '.join(named)}",
-              file=sys.stderr)
+        one = len(named) == 1
+        why = ("is not a marker of" if one else "are not markers of") if not settings.new_markers else (
+            "rides on no segment of" if one else "ride on no segment of")
+        print(f"warning: {len(named)} trial label{'' if one else 's'} {why} {model.path.name} and "
+              f"{'is' if one else 'are'} ignored: {', '.join(named)}", file=sys.stderr)
     if unlabelled:  # Vicon Nexus's '*115': trajectories nobody labelled, not markers the model lacks
-        print(f"warning: {len(unlabelled)} unlabelled trajector{'y' if len(unlabelled) == 1 else 'ies'} ignored ({', '.join(unlabelled[:4])}"
+        many = "y" if len(unlabelled) == 1 else "ies"
+        print(f"warning: {len(unlabelled)} unlabelled trajector{many} ignored ({', '.join(unlabelled[:4])}"
               f"{', ...' if len(unlabelled) > 4 else ''}); label them in the capture software to use them",
               file=sys.stderr)
     print(cal.text())
