@@ -381,13 +381,62 @@ def test_dec_processor_float_and_integer(tmp_path: Path, scale: float, units: st
     assert_positions(trial.markers, want)
 
 
-def test_mips_processor_is_refused_in_one_line(tmp_path: Path) -> None:
-    xyz = positions_mm(3, 2, seed=8)
-    path = tmp_path / "sgi.c3d"
-    path.write_bytes(c3d_bytes(xyz, np.zeros((3, 2)), ["RASI", "LASI"], processor="mips"))
-    with pytest.raises(TrialError, match="MIPS") as excinfo:
-        read_trial(path)
-    assert_one_line(excinfo, path)
+@pytest.mark.parametrize("scale", [-1.0, 0.1])
+def test_mips_processor_float_and_integer(tmp_path: Path, scale: float) -> None:
+    """Big-endian MIPS (SGI) files, whose data ezc3d cannot read: read as the Intel file they convert to, the same
+    trial as the Intel file of the same data (c3d.org's SGI samples 01 and 02 read bit for bit as their PC twins)."""
+    n_frames, labels = 8, ["RASI", "LASI", "RKNE", "LKNE"]
+    xyz = positions_mm(n_frames, 4, seed=8)
+    if scale > 0:
+        xyz = np.round(xyz / scale) * scale
+    word4 = np.full((n_frames, 4), residual_word(0.5, cameras=0b0101, point_scale=scale))
+    word4[2, 1] = -1
+    xyz[2, 1] = 0.0
+    read = {}
+    for processor in ("mips", "intel"):
+        path = tmp_path / f"{processor}.c3d"
+        path.write_bytes(c3d_bytes(xyz, word4, labels, processor=processor, scale=scale, rate=120.0, first_frame=5,
+                                   analog_channels=2, analog_per_frame=2))
+        read[processor] = read_trial(path)
+    sgi = read["mips"]
+    want = xyz / 1000.0
+    want[2, 1] = np.nan
+    assert sgi.labels == tuple(labels) and sgi.rate == 120.0 and sgi.first_frame == 4
+    assert_positions(sgi.markers, want)
+    np.testing.assert_array_equal(sgi.markers, read["intel"].markers)
+
+
+def test_mips_link_in_intel_order_is_read(tmp_path: Path) -> None:
+    """c3d.org's SGI sample02 files carry one link in Intel order (POINT:LABELS's), which leads where its record
+    ends: read as it leads."""
+    xyz = positions_mm(5, 3, seed=9)
+    data = bytearray(c3d_bytes(xyz, np.zeros((5, 3)), ["RASI", "LASI", "RPSI"], processor="mips"))
+    at = bytes(data).find(bytes([4, 1]) + b"RATE")  # POINT:RATE: its link follows the name
+    assert at > 0 and struct.unpack(">h", data[at + 6 : at + 8])[0] > 0
+    data[at + 6 : at + 8] = data[at + 6 : at + 8][::-1]
+    path = tmp_path / "sgi_link.c3d"
+    path.write_bytes(bytes(data))
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI") and trial.rate == 100.0
+    assert_positions(trial.markers, xyz / 1000.0)
+
+
+@pytest.mark.parametrize("processor", ["intel", "mips"])
+def test_analog_offsets_that_do_not_cover_the_channels_leave_the_points_read(tmp_path: Path, processor: str) -> None:
+    """No ANALOG:OFFSET beside 3 channels (c3d.org's sample06 names it OFFSETS), on which ezc3d crashes the
+    interpreter: ezc3d reads a copy told of no analog channels, and the points are read as the header lays them out,
+    past each frame's analog words."""
+    xyz = positions_mm(6, 3, seed=10)
+    data = bytearray(c3d_bytes(xyz, np.zeros((6, 3)), ["RASI", "LASI", "RPSI"], scale=-1.0, processor=processor,
+                               analog_channels=3, analog_per_frame=2))
+    at = bytes(data).find(bytes([6, 2]) + b"OFFSET")  # ANALOG (group 2):OFFSET
+    assert at > 0
+    data[at + 2 : at + 8] = b"OFFSTS"
+    path = tmp_path / "no_offsets.c3d"
+    path.write_bytes(bytes(data))
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI")
+    assert_positions(trial.markers, xyz / 1000.0)
 
 
 # ---------------------------------------------------------------------------
@@ -523,7 +572,8 @@ def test_header_capped_without_a_count_reads_to_the_end_without_padding(tmp_path
 
 @pytest.mark.parametrize(
     ("header_scale", "point_scale", "match"),
-    [(-1.0, 0.1, "POINT:SCALE"), (0.1, -1.0, "POINT:SCALE"), (0.0, 0.0, "POINT:SCALE is 0")],
+    [(-1.0, 0.1, "POINT:SCALE"), (0.1, -1.0, "POINT:SCALE"), (0.0, 0.0, "POINT:SCALE is 0"),
+     (0.0551, 0.0215, "different scales")],  # c3d.org's sample06: integer coordinates 2.56 times apart
 )
 def test_inconsistent_storage_is_refused(tmp_path: Path, header_scale: float, point_scale: float, match: str) -> None:
     xyz = positions_mm(3, 2, seed=12)

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import io
+import math
 import os
 import shutil
 import struct
@@ -66,7 +68,7 @@ class _Record:
     dims: tuple[int, ...]
     raw: bytes  # a parameter's data
     start: int  # the record's first byte (its name's length)
-    link: int  # the offset to the next record as the file gives it, from the link's own first byte (0: the last)
+    link: int  # the offset to the next record from the link's own first byte, as it leads (0: the last)
     body: int  # after the link: a parameter's type byte, a group's description length
     end: int  # the description's length byte (after a parameter's data)
 
@@ -113,10 +115,15 @@ def _c3d_records(section: bytes, processor: int) -> list[_Record]:
         record_end = data_end + 1 + section[data_end]  # after the description
         if record_end > end:
             raise _BadC3D(f"the description of {name} runs past the parameter section")
+        following = name_end + link
+        if link != 0 and endian == ">" and (link < 0 or following < record_end or following > end):
+            # c3d.org's SGI samples (sample02) carry one link in Intel order, which leads where the record ends
+            swapped = struct.unpack("<h", section[name_end : name_end + 2])[0]
+            if record_end <= name_end + swapped <= end:
+                link, following = swapped, name_end + swapped
         records.append(_Record(group_id, name.strip().upper(), kind, dims, raw, pos, link, body, data_end))
         if link == 0:
             break
-        following = name_end + link
         if link < 0 or following < record_end or following > end:
             raise _BadC3D(f"the link after {name} does not lead to the next parameter")
         pos = following
@@ -137,7 +144,8 @@ C3D_MAX_DESCRIPTION = 127  # characters of a description ezc3d reads: it takes t
 EZC3D_GROUPS = ("POINT", "ANALOG", "FORCE_PLATFORM")  # the groups whose parameters ezc3d reads the data by, by name
 
 
-def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int) -> bytes | None:
+def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int, no_analog: bool = False
+                       ) -> bytes | None:
     """The parameter section (its _c3d_records `records`) as ezc3d can read it, or None if it can read it as it is:
     the names of EZC3D_GROUPS and their parameters in capitals, every description cut to C3D_MAX_DESCRIPTION
     characters and the links after them shortened to match (the section zero-padded to its length).
@@ -150,7 +158,10 @@ def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int) -
     - ezc3d refuses ANALOG:OFFSET stored as floats ("OFFSET parameter is not an INT": c3d.org's sample13, Dance.c3d
       and golfswing.c3d); they are written as the 16-bit integers the standard says, rounded.
     - ezc3d crashes the interpreter on a text parameter of no dimensions (a scalar: one character, as the standard
-      reads it and the walk here does; found by fuzzing); it is written with one dimension of 1."""
+      reads it and the walk here does; found by fuzzing); it is written with one dimension of 1.
+    - `no_analog`: ANALOG:USED written as 0, for a file whose ANALOG:SCALE or OFFSET does not cover its channels
+      (ezc3d crashes the interpreter on it: c3d.org's sample06, whose offsets are ANALOG:OFFSETS); its points are
+      then read here, by the header's layout (_C3DLayout.own_points)."""
     groups = {-r.group_id: r.name for r in records if r.group_id < 0}  # (read in capitals)
     endian = ">" if processor == 86 else "<"
 
@@ -164,9 +175,14 @@ def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int) -
     def scalar_text(r: _Record) -> bool:
         return r.kind == -1 and not r.dims
 
+    def analog_used(r: _Record) -> bool:
+        return no_analog and groups.get(r.group_id) == "ANALOG" and r.name == "USED"
+
     def body(r: _Record) -> bytes:
         if scalar_text(r):
             return struct.pack("b", -1) + bytes([1, 1]) + r.raw
+        if analog_used(r):
+            return section[r.body : r.body + 2 + len(r.dims)] + bytes(len(r.raw))
         if not float_offsets(r):
             return section[r.body : r.end]
         values = [_c3d_float(r.raw[k : k + 4], processor) for k in range(0, len(r.raw), 4)]
@@ -174,7 +190,7 @@ def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int) -
         return struct.pack("b", 2) + section[r.body + 1 : r.body + 2 + len(r.dims)] + ints
 
     if all(section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2]
-           and not float_offsets(r) and not scalar_text(r) for r in records):
+           and not float_offsets(r) and not scalar_text(r) and not analog_used(r) for r in records):
         return None
     out = bytearray(section[:4])
     for r in records:
@@ -183,6 +199,49 @@ def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int) -
         out += section[r.start : r.start + 2] + name(r)
         out += struct.pack(endian + "h", len(rest) + 2 if r.link else 0) + rest
     return bytes(out.ljust(len(section), b"\x00"))
+
+
+def _mips_as_intel(data: bytes) -> bytes:
+    """A big-endian MIPS (SGI, processor 86) C3D file's bytes as the Intel (84) file ezc3d reads: every 16-bit word
+    and float of the header, the parameter section and the data section in little-endian order, the processor byte
+    84.  Characters and bytes (labels, units, a parameter's dimensions, the event flags) stay as written.
+
+    The header: words 2-6 (counts, frames), 7-8 (POINT:SCALE, float), 9-10 (data block, analog words per frame),
+    11-12 (rate, float), 13-152 (reserved words, the event key and count), 153-188 (18 event times, floats); its
+    event labels and flags are bytes.  Each parameter record: its link word, and its data when it is 16-bit
+    integers or floats.  The data section: every word, 4 bytes (float storage, POINT:SCALE < 0) or 2 (integer), to
+    the end of the file.  Raises _BadC3D where the parameter section does not walk (_c3d_records; a link written in
+    Intel order, as in c3d.org's SGI samples, is read as it leads)."""
+    if len(data) < 512:
+        raise _BadC3D("shorter than a C3D header")
+    out = bytearray(data)
+
+    def swap(start: int, stop: int, width: int) -> None:
+        stop = start + (max(min(stop, len(data)) - start, 0) // width) * width
+        if stop <= start:  # nothing there (a data block past the file's end: the layout check says so)
+            return
+        out[start:stop] = np.frombuffer(data, dtype=f">u{width}", count=(stop - start) // width,
+                                        offset=start).astype(f"<u{width}").tobytes()
+
+    for start, stop, width in ((2, 12, 2), (12, 16, 4), (16, 20, 2), (20, 24, 4), (24, 304, 2), (304, 376, 4)):
+        swap(start, stop, width)
+    param_start = (data[0] - 1) * 512
+    data_block = struct.unpack(">H", data[16:18])[0]
+    if param_start + 4 > len(data):
+        raise _BadC3D("its parameter section is missing")
+    n_blocks = data[param_start + 2]
+    if data[0] + n_blocks < data_block:  # a count short or 0: the section runs to the data (_check_c3d_layout)
+        n_blocks = data_block - data[0]
+    section = data[param_start : param_start + 512 * n_blocks]
+    for r in _c3d_records(section, 86):
+        out[param_start + r.body - 2 : param_start + r.body] = struct.pack("<h", r.link)  # to the next record
+        if r.group_id > 0 and r.kind in (2, 4):
+            first = param_start + r.body + 2 + len(r.dims)
+            swap(first, first + len(r.raw), r.kind)
+    out[param_start + 3] = 84
+    if data_block >= 1:
+        swap((data_block - 1) * 512, len(data), 4 if struct.unpack(">f", data[12:16])[0] < 0 else 2)
+    return bytes(out)
 
 
 _Table = dict[tuple[str, str], tuple[int, tuple[int, ...], bytes]]  # (group, name) -> (type, dims, bytes)
@@ -243,6 +302,9 @@ class _C3DLayout:
     #: (offset in bytes, bytes) of a parameter section for ezc3d to read in place of the file's (_section_for_ezc3d);
     #: None: the file is read as it is.
     section: tuple[int, bytes] | None = None
+    #: The whole file as an Intel C3D, read in place of the file: a big-endian MIPS (SGI) file, whose data ezc3d
+    #: cannot read (_mips_as_intel); None: the file as it is.
+    intel: bytes | None = None
 
 
 def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
@@ -273,12 +335,14 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         n_blocks, processor = head[2], head[3]
         if processor not in (84, 85, 86):
             raise bad(f"unknown processor type {processor} in its parameter section")
-        if processor == 86:
-            raise fail(
-                path,
-                "C3D file is in the big-endian MIPS (SGI) format, whose data ezc3d cannot read",
-                "convert it to an Intel (PC) C3D file, e.g. by opening and saving it in Mokka, or export it as TRC",
-            )
+        intel = None
+        if processor == 86:  # big-endian (SGI): read as the Intel file it converts to, which ezc3d reads
+            fh.seek(0)
+            try:
+                intel = _mips_as_intel(fh.read())
+            except _BadC3D as exc:
+                raise bad(f"damaged parameter section: {exc}") from None
+            fh, header, processor = io.BytesIO(intel), intel[:512], 84
         # The section runs to the data section where the header's count of its blocks is short or 0 (c3d.org's
         # sample15 says 3 blocks where its parameters fill 5, PhaseSpace's says 0): ezc3d reads on to the last
         # parameter's link as well.
@@ -294,7 +358,6 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
     try:
         records = _c3d_records(section, processor)
         table = _c3d_parameter_section(records)
-        for_ezc3d = _section_for_ezc3d(section, records, processor)
     except _BadC3D as exc:
         raise bad(f"damaged parameter section: {exc}") from None
 
@@ -318,15 +381,22 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
                 f"its header says {'float' if is_float else 'integer'} storage but POINT:SCALE "
                 f"({point_scale:g}) says {'float' if point_scale < 0 else 'integer'}"
             )
+        header_scale = _c3d_float(header[12:16], processor)
+        if not is_float and not math.isclose(point_scale, header_scale, rel_tol=1e-6):
+            # Integers times the scale are the positions: c3d.org's sample06 (an adult's walk, 1.23 m/s at 114
+            # steps a minute by its header's 0.0551) would read 2.56 times smaller, a toddler's, by its 0.0215
+            raise fail(path, f"C3D file's header and POINT:SCALE give its integer coordinates different scales "
+                             f"({header_scale:g} and {point_scale:g}: positions {header_scale / point_scale:.3g} "
+                             "times apart)", "correct the wrong one (e.g. in Mokka) or export the trial again")
     analog_per_frame = struct.unpack(endian + "H", header[18:20])[0]
     n_channels = max(
         n_analog // analog_per_frame if analog_per_frame else 0,
         _c3d_integer(table, ("ANALOG", "USED"), processor) or 0,
     )
-    for name in ("SCALE", "OFFSET"):  # ezc3d crashes when these are shorter than the channel list
-        _, dims, _ = table.get(("ANALOG", name), (0, (0,), b""))
-        if n_channels and int(np.prod(dims, dtype=np.int64)) < n_channels:
-            raise bad(f"ANALOG:{name} does not cover its {n_channels} analog channels")
+    # ezc3d crashes when these are shorter than the channel list: its analog channels are then kept from it
+    uncovered = [name for name in ("SCALE", "OFFSET") if n_channels and int(np.prod(
+        table.get(("ANALOG", name), (0, (0,), b""))[1], dtype=np.int64)) < n_channels]
+    for_ezc3d = _section_for_ezc3d(section, records, processor, no_analog=bool(uncovered))
     if data_block == 0 or (data_block - 1) * 512 > size:
         raise bad("truncated before its data section")
 
@@ -365,7 +435,12 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
         )
     first_frame = start_field - 1 if start_field and first == 0xFFFF else None  # past what the header holds
     own = None
-    if n_analog and frame_bytes and long_count is None:
+    if uncovered and frame_bytes and long_count is not None:
+        raise bad(f"ANALOG:{uncovered[0]} does not cover its {n_channels} analog channels")
+    if uncovered and frame_bytes:  # ezc3d told of no analog channels: the points read here, as the header lays them out
+        scale = point_scale if point_scale is not None else _c3d_float(header[12:16], processor)
+        own = (data_start, n_points, n_frames, 4 * n_points + n_analog, is_float, scale, processor)
+    elif n_analog and frame_bytes and long_count is None:
         # ezc3d takes the analog words of a frame from ANALOG:USED and ANALOG:RATE / POINT:RATE, the header from its
         # own words 3 and 10; where they disagree ezc3d strides through the data by the parameters.
         point_rate = _c3d_number(table, ("POINT", "RATE"), processor) or _c3d_float(header[20:24], processor)
@@ -376,15 +451,20 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
             scale = point_scale if point_scale is not None else _c3d_float(header[12:16], processor)
             own = (data_start, n_points, n_frames, 4 * n_points + n_analog, is_float, scale, processor)
     return _C3DLayout(frames=long_count if frame_bytes else None, first_frame=first_frame, own_points=own,
-                      section=None if for_ezc3d is None else (param_start, for_ezc3d))
+                      section=None if for_ezc3d is None else (param_start, for_ezc3d), intel=intel)
 
 
-def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]) -> tuple[np.ndarray, np.ndarray]:
-    """The point words of a C3D file read as its header lays them out: (4, points, frames) with coordinates in file
-    units (integer storage times POINT:SCALE), and the residual words (1, points, frames), negative where invalid."""
+def _read_points(path: Path | bytes, layout: tuple[int, int, int, int, bool, float, int]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The point words of a C3D file (or its bytes) read as its header lays them out: (4, points, frames) with
+    coordinates in file units (integer storage times POINT:SCALE), and the residual words (1, points, frames),
+    negative where invalid."""
     start, n_points, n_frames, words, is_float, scale, processor = layout
     width = 4 if is_float else 2
-    raw = np.fromfile(path, dtype=np.uint8, count=n_frames * words * width, offset=start)
+    if isinstance(path, bytes):
+        raw = np.frombuffer(path, dtype=np.uint8, count=n_frames * words * width, offset=start)
+    else:
+        raw = np.fromfile(path, dtype=np.uint8, count=n_frames * words * width, offset=start)
     if is_float:
         if processor == 85:  # DEC: the 16-bit halves swapped, the value 4 times the IEEE one
             values = raw.view("<u2").reshape(-1, 2)[:, ::-1].copy().view("<f4").ravel() / 4.0
@@ -398,19 +478,23 @@ def _read_points(path: Path, layout: tuple[int, int, int, int, bool, float, int]
     return xyz.transpose(2, 1, 0).astype(np.float64), residual.T[None].astype(np.float64)
 
 
-def _ezc3d_read(path: Path, section: tuple[int, bytes] | None) -> ezc3d.c3d:
-    """ezc3d's reading of `path`; with `section` (offset, bytes), of a temporary copy with that parameter section in
-    place of the file's (_section_for_ezc3d), removed once read."""
-    if section is None:
+def _ezc3d_read(path: Path, section: tuple[int, bytes] | None, intel: bytes | None = None) -> ezc3d.c3d:
+    """ezc3d's reading of `path`, or of `intel` (the file's bytes as an Intel C3D) where given; with `section`
+    (offset, bytes), of a temporary copy with that parameter section in place of the file's (_section_for_ezc3d),
+    removed once read."""
+    if section is None and intel is None:
         return ezc3d.c3d(str(path))
-    offset, data = section
     with tempfile.TemporaryDirectory(prefix="calibrate-c3d-") as tmp:
         copy = Path(tmp) / path.name
-        with open(path, "rb") as src, open(copy, "wb") as dst:
-            dst.write(src.read(offset))
-            dst.write(data)
-            src.seek(offset + len(data))
-            shutil.copyfileobj(src, dst)
+        with (open(path, "rb") if intel is None else io.BytesIO(intel)) as src, open(copy, "wb") as dst:
+            if section is None:
+                shutil.copyfileobj(src, dst)
+            else:
+                offset, data = section
+                dst.write(src.read(offset))
+                dst.write(data)
+                src.seek(offset + len(data))
+                shutil.copyfileobj(src, dst)
         return ezc3d.c3d(str(copy))
 
 
@@ -459,7 +543,7 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     layout = _check_c3d_layout(path, size)
     redo = "export it again from your capture software"
     try:
-        c3d = _ezc3d_read(path, layout.section)
+        c3d = _ezc3d_read(path, layout.section, layout.intel)
         params = c3d["parameters"]
         points = np.asarray(c3d["data"]["points"], dtype=np.float64)
         residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)
@@ -468,7 +552,7 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
     except Exception as exc:  # noqa: BLE001 - ezc3d raises OSError, RuntimeError, ValueError, ... on bad files
         raise fail(path, f"not a readable C3D file (ezc3d: {one_line(exc) or type(exc).__name__})", redo) from None
     if layout.own_points is not None:
-        points, residuals = _read_points(path, layout.own_points)
+        points, residuals = _read_points(path if layout.intel is None else layout.intel, layout.own_points)
 
     if "POINT" not in params:
         raise fail(path, "C3D file has no POINT group, so no marker trajectories", redo)

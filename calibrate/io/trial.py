@@ -29,10 +29,11 @@ in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte
 
 - storage: float (POINT:SCALE < 0; its size only scales residuals, e.g. Vicon -0.01,
   Qualisys -0.076) or integer (POINT:SCALE > 0 multiplies every coordinate, e.g. 0.1 mm,
-  as older Motion Analysis files); Intel or DEC processor formats.  Big-endian MIPS
-  (SGI) files are refused with a clear message: ezc3d cannot read their data.  The
-  header and POINT:SCALE must agree on float or integer storage, and POINT:SCALE must
-  not be 0 (either would silently give wrong positions).
+  as older Motion Analysis files); Intel, DEC or big-endian MIPS (SGI) processor formats
+  (an SGI file, whose data ezc3d cannot read, is read as the Intel file it converts to: c3d.org's
+  SGI samples read bit for bit as their PC twins).  The header and POINT:SCALE must agree on
+  float or integer storage, on the scale itself in integer storage, and POINT:SCALE must not be
+  0 (any would silently give wrong positions: c3d.org's sample06 would read 2.56 times small).
 - POINT:UNITS ``mm``, ``cm``, ``m`` (any case; also spelt out, ``millimeters``, ``metres``..., or cut to four
   characters or more, ``mete``, as c3d.org's sample15 stores it), mm when absent or blank; only the first entry
   counts when there is one per point.
@@ -41,7 +42,9 @@ in tests/test_c3d_vendors.py, the files written there with ezc3d or byte by byte
   as ezc3d reads them: every c3d.org and BTKData sample with markers that ezc3d reads is read here.  Where the
   ANALOG parameters count other analog words per frame than the header (BTS's files, c3d.org sample28: ANALOG:USED
   0 beside 6 words a frame), ezc3d would step through the frames by the parameters, reading every frame but the
-  first from the wrong place: the points are then read here as the header lays them out.
+  first from the wrong place: the points are then read here as the header lays them out, as they are where
+  ANALOG:SCALE or OFFSET does not cover the channels (c3d.org's sample06 names them OFFSETS), on which ezc3d
+  crashes the interpreter: it reads a copy told of no analog channels.
 - gaps: a negative residual word (the C3D "invalid point", -1 as Vicon, Qualisys,
   Motion Analysis and OptiTrack write it), all three coordinates exactly 0, or a
   non-finite coordinate.  A residual of 0 is a valid point (interpolated or filtered).
