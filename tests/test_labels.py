@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -521,3 +522,55 @@ def test_opencap_augmented_spellings(human) -> None:  # noqa: ANN001
         renamed, mapping = map_labels(trial, human.marker_names)
     assert renamed.labels == ("RKnee", "RKNE", "RShoulder", "RSHO")
     np.testing.assert_array_equal(renamed.marker("RKNE"), trial.marker("r_knee_study"))
+
+
+# c3d.org's sample10 (TYPE-2.C3D, TYPE-4.C3D): the Helen Hayes set under one- and two-letter codes, each described.
+HELEN_HAYES_CODES = {"H": "Sacrum", "R": "Right ASIS", "B": "Left ASIS", "RF": "Right thigh wand", "RK": "Right knee",
+                     "RB": "Right shank", "RA": "Right lateral ankle", "RD": "Right great toe",
+                     "LF": "Left thigh wand", "LK": "Left knee", "LB": "Left shank", "LA": "Left lateral ankle"}
+
+
+def test_coded_labels_are_read_by_their_descriptions(human) -> None:  # noqa: ANN001
+    """A label its own name does not match is read by the file's description of it (c3d.org's sample10: 'RK',
+    "Right knee"), after every name: an exact label, a subject's prefixed one and the built-in aliases beat it; a
+    description naming nothing the model has (a sacrum, a great toe) leaves the code unknown; aliases=False reads no
+    description."""
+    trial = replace(make_trial(list(HELEN_HAYES_CODES)), descriptions=HELEN_HAYES_CODES)
+    renamed, mapping = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("H", "RASI", "LASI", "RTHI", "RKNE", "RTIB", "RANK", "RD", "LTHI", "LKNE", "LTIB", "LANK")
+    got = by_trial_label(mapping)
+    assert got["RK"] == ("RKNE", "description", "by its description 'Right knee'")
+    assert mapping.unknown == ("H", "RD")
+    # the same landmark by its name elsewhere in the file wins: RKNE exact, Sub:RASI after its prefix, L.Knee an alias
+    trial = replace(make_trial(["RK", "RKNE", "R", "Sub:RASI", "LK", "L.Knee"]),
+                    descriptions={"RK": "Right knee", "R": "Right ASIS", "LK": "Left knee"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LabelConflictWarning)
+        renamed, _ = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("RK", "RKNE", "R", "RASI", "LK", "LKNE")
+    assert map_labels(replace(make_trial(["RK"]), descriptions={"RK": "Right knee"}), human.marker_names,
+                      aliases=False)[0].labels == ("RK",)
+
+
+def test_descriptions_read_from_a_c3d(tmp_path: Path, human, capsys) -> None:  # noqa: ANN001
+    """POINT:DESCRIPTIONS read into Trial.descriptions where they are not the label again (ezc3d writes each label
+    as its own description); `calibrate inspect TRIAL --model` shows what each code became."""
+    import ezc3d
+
+    from calibrate.cli import main
+
+    labels = [*HELEN_HAYES_CODES, "RKNE"]
+    path = tmp_path / "codes.c3d"
+    write_c3d(path, make_trial(labels))
+    c3d = ezc3d.c3d(str(path))
+    c3d["parameters"]["POINT"]["DESCRIPTIONS"]["value"] = [*HELEN_HAYES_CODES.values(), "rkne "]
+    c3d.write(str(path))
+    trial = read_trial(path)
+    assert trial.labels == tuple(labels)
+    assert dict(trial.descriptions) == HELEN_HAYES_CODES  # "rkne " is RKNE again
+    assert main(["inspect", str(path), "--model", str(human.path)]) == 0
+    out = capsys.readouterr().out
+    lines = {ln.split()[0]: ln for ln in out.splitlines() if ln.startswith("  ") and "gaps" in ln}
+    assert lines["RA"].endswith("-> RANK (description); by its description 'Right lateral ankle'")
+    assert lines["RK"].endswith("unknown; conflict: RKNE kept RKNE")  # RKNE's own label wins
+    assert "1 exact, 9 description, 3 unknown" in out

@@ -704,7 +704,7 @@ def summary_text(cal) -> str:
         more = ", ".join(n.coordinate for n in notes[4:])
         lines.append(f"  ... and {len(notes) - 4} more notes ({more}; see the report)")
     for i, mapping in enumerate(cal.label_maps):
-        renamed = [m for m in mapping if m.how in ("map", "alias")]
+        renamed = [m for m in mapping if m.how in ("map", "alias", "description")]
         if renamed:
             where = f" in {cal.trials[i].source}" if len(cal.trials) > 1 else ""
             lines.append(f"  labels{where}: {len(renamed)} renamed to the model's ("

@@ -520,7 +520,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     print(f"  motion: its markers keep their distances to {1000 * moves:.1f} mm SD (median over marker pairs): "
           + ("still, a static trial" if moves < STILL_MOTION else
              "a movement trial (a static keeps them to 0.4-1.6 mm)"))
-    from ..io.labels import SUBJECT_MARKERS
+    from ..io.labels import HOWS, SUBJECT_MARKERS
     from ..io.trial import subject_prefixes
 
     subjects = {k: n for k, n in subject_prefixes(t.labels).items() if n >= SUBJECT_MARKERS}
@@ -530,7 +530,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if became:
         hows = [m.how for m in mapping]
         print(f"  labels against {model_path.name}'s {len(model.marker_names)} markers: "
-              + ", ".join(f"{hows.count(h)} {h}" for h in ("exact", "map", "alias", "unknown") if h in hows)
+              + ", ".join(f"{hows.count(h)} {h}" for h in HOWS if h in hows)
               + " (an unknown label is placed on a segment by rigidity, by its place on the model's poses, by its "
               "distances' margin to one segment's markers, or, in a rigid cluster, where a segment's unseen model "
               "markers would be, when "
@@ -608,7 +608,7 @@ def cmd_joints(args: argparse.Namespace) -> int:
     trial = read_trial(args.trial)
     marker_map = load_marker_map(args.markers) if args.markers else None
     trial, mapping = map_labels(trial, model.marker_names, marker_map, aliases=not args.no_aliases)
-    renamed = [m for m in mapping if m.how in ("map", "alias")]
+    renamed = [m for m in mapping if m.how in ("map", "alias", "description")]
     if renamed:
         print(f"labels {len(renamed)} renamed to the model's: "
               + ", ".join(f"{m.trial_label} -> {m.label}" for m in renamed[:8]) + (" ..." if len(renamed) > 8 else ""))

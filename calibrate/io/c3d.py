@@ -587,6 +587,13 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         k += 1
     raw_labels = (raw_labels + [""] * n_points)[:n_points]
 
+    raw_descriptions: list[str] = []
+    k = 1
+    while (value := _c3d_param(params, "POINT", "DESCRIPTIONS" if k == 1 else f"DESCRIPTIONS{k}")) is not None:
+        raw_descriptions.extend(_c3d_strings(value))
+        k += 1
+    raw_descriptions = (raw_descriptions + [""] * n_points)[:n_points]
+
     kinds = _c3d_output_kinds(params, raw_labels)
     keep = [i for i, label in enumerate(raw_labels) if i not in kinds]
     if not keep:
@@ -639,10 +646,13 @@ def read_c3d(path: str | os.PathLike[str], *, strip_prefix: bool = True) -> Tria
         model_outputs[label], output_kinds[label], output_units[label] = values, kind, si
     first_frame = layout.first_frame if layout.first_frame is not None else max(header_first, 0)
     measurements = measurements_from_c3d(params, f"{path.name} PROCESSING")
+    descriptions = {label: raw_descriptions[i] for i, label in zip(keep, labels, strict=True)
+                    if raw_descriptions[i] and raw_descriptions[i].replace(" ", "").lower()
+                    not in (label.replace(" ", "").lower(), raw_labels[i].replace(" ", "").lower())}
     del c3d, points, residuals  # ezc3d's copies, before the trial is made
     return Trial(labels=labels, markers=xyz, rate=rate, first_frame=first_frame, source=str(path),
                  model_outputs=model_outputs, output_kinds=output_kinds, output_units=output_units,
-                 measurements=measurements)
+                 measurements=measurements, descriptions=descriptions)
 
 
 def _c3d_output_kinds(params: dict, raw_labels: list[str]) -> dict[int, tuple[str, str]]:

@@ -133,7 +133,7 @@ __all__ = [
 SUBJECT_MARKERS = 3
 
 #: How a trial label was matched, best first.
-HOWS = ("exact", "map", "alias", "unknown")
+HOWS = ("exact", "map", "alias", "description", "unknown")
 
 #: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
 #: names after the side and normalisation, most specific first.
@@ -188,7 +188,7 @@ _SIDE_LOOKUP = {name: (code, rank) for code, names in SIDE_ALIASES.items() for r
 _MIDLINE_LOOKUP = {name: (label, rank) for label, names in MIDLINE_ALIASES.items() for rank, name in enumerate(names)}
 _SEPARATORS = re.compile(r"[\s._\-]+")
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
-_RANK = {"exact": 0, "map": 1, "alias": 2}
+_RANK = {"exact": 0, "map": 1, "alias": 2, "description": 3}
 
 
 class LabelConflictWarning(UserWarning):
@@ -436,7 +436,7 @@ class LabelMapping:
         ]
         lines = [line.rstrip() for line in lines]
         counts = {how: sum(m.how == how for m in self.matches) for how in HOWS}
-        lines.append(", ".join(f"{counts[how]} {how}" for how in HOWS))
+        lines.append(", ".join(f"{counts[how]} {how}" for how in HOWS if how != "description" or counts[how]))
         if self.missing:
             lines.append(f"model labels not in the trial ({len(self.missing)}): {', '.join(self.missing)}")
         return "\n".join(lines)
@@ -463,8 +463,10 @@ def map_labels(
     """Rename a trial's markers to model labels; return the relabelled trial and what each label became.
 
     ``marker_map``: model label -> trial labels (as :func:`load_marker_map` reads it); it takes
-    precedence over the built-in aliases (``aliases=False`` turns those off).  Labels that match
-    nothing are kept as they are.  Marker data, rate, first frame and source are unchanged.
+    precedence over the built-in aliases (``aliases=False`` turns those off).  A label that matches
+    nothing by its own name is read by the file's description of it (``Trial.descriptions``: ``RK``,
+    "Right knee"), after every name.  Labels that match nothing are kept as they are.  Marker data, rate, first
+    frame and source are unchanged.
     Raises CalibrateError when the map names a model label the model does not have, or when the
     trial holds the markers of several subjects (prefixes ``Derrick:``, ``Viktor:``, each matching
     SUBJECT_MARKERS of the model's or more): ``trial.of_subject(name)`` picks one.
@@ -503,6 +505,10 @@ def map_labels(
             prefixed, note = 1, f"matched after the prefix {split[0]}:"
             if found is not None:
                 subjects[split[0]] = subjects.get(split[0], 0) + 1
+        if found is None and aliases and (said := trial.descriptions.get(label)):
+            # a code the file describes (c3d.org's sample10: RK, "Right knee"), read as its description's alias
+            if (by := alias_for(said, model_set)) is not None:  # after any name, a subject's prefixed ones too
+                found, prefixed, note = (by[0], "description", by[1]), 2, f"by its description '{said}'"
         if found is not None:
             target, how, priority = found
             candidates[index] = (target, how, (prefixed, _RANK[how], priority), note)

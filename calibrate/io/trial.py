@@ -246,6 +246,11 @@ class Trial:
     #: ``first_frame / rate``: OpenSim's example running trial starts at frame 23, 0.23 s at 100 Hz); None:
     #: ``first_frame / rate``.  The lab's time ranges (an OpenSim setup's) and the motion's times count from it.
     start_time: float | None = None
+    #: label -> what the file says the marker is where its label is a code (a C3D's POINT:DESCRIPTIONS: c3d.org's
+    #: sample10 labels the Helen Hayes set ``R``, ``RK``, ``RA`` and describes them "Right ASIS", "Right knee",
+    #: "Right lateral ankle"); only descriptions other than the label itself (in any case and spacing).
+    #: :func:`calibrate.io.labels.map_labels` reads a label its own name does not match by it.
+    descriptions: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         where = origin(self.source)
@@ -407,7 +412,8 @@ class Trial:
         return replace(self, labels=tuple(n for _, n in kept), markers=self.markers[:, [i for i, _ in kept], :],
                        model_outputs=outputs,
                        output_kinds={n: self.output_kinds[k] for k in self.output_kinds if (n := own(k)) in outputs},
-                       output_units={n: self.output_units[k] for k in self.output_units if (n := own(k)) in outputs})
+                       output_units={n: self.output_units[k] for k in self.output_units if (n := own(k)) in outputs},
+                       descriptions={n: self.descriptions[k] for k in self.descriptions if (n := own(k)) is not None})
 
     def frames(self, start: int, stop: int) -> Trial:
         """Frames ``start`` to ``stop - 1`` of this trial (0-based, relative to this trial's first frame)."""
