@@ -235,6 +235,12 @@ def test_model_markers_the_trial_never_shows_neither_check_nor_place_others(huma
     res = associate_to_model(human, Trial(labels=(*labels, "X5"), markers=np.concatenate([markers, walk[:, None]], 1),
                                           rate=sim.trial.rate))
     assert res["X5"].status == "unassigned" and res["X5"].reason.startswith("varies by"), res["X5"].reason
+    # A trial label with no position at all (a marker set's label the session did not use: BTKData's FunctionalWalk
+    # lists its arms and medial markers, empty) says so, not 'never seen long enough together with any model marker'.
+    empty = np.full((FRAMES, 1, 3), np.nan)
+    res = associate_to_model(human, Trial(labels=(*labels, "LKNEin"), markers=np.concatenate([markers, empty], 1),
+                                          rate=sim.trial.rate))
+    assert res["LKNEin"].status == "unassigned" and res["LKNEin"].reason == "no position in any frame of the trial"
 
 
 def test_associate_to_model_reports_mislabelled_markers(human):

@@ -287,9 +287,9 @@ def test_no_aliases_and_no_new_markers(human, squat, tmp_path, capsys):
     i, k = human.marker_index("RTIB"), human.marker_index("RANK")
     shin = sim.clean_markers[:, i] + 0.4 * (sim.clean_markers[:, k] - sim.clean_markers[:, i])
     stray = shin + np.cumsum(np.random.default_rng(3).normal(0, 0.002, shin.shape), axis=0)
-    labels = tuple("R.ASIS" if lab == "RASI" else lab for lab in sim.trial.labels) + ("RSHIN", "*7")
-    trial = Trial(labels, np.concatenate([sim.trial.markers, shin[:, None], stray[:, None]], axis=1),
-                  sim.trial.rate)
+    labels = tuple("R.ASIS" if lab == "RASI" else lab for lab in sim.trial.labels) + ("RSHIN", "*7", "LKNEin")
+    trial = Trial(labels, np.concatenate([sim.trial.markers, shin[:, None], stray[:, None],
+                                          np.full_like(shin[:, None], np.nan)], axis=1), sim.trial.rate)
     write_c3d(tmp_path / "t.c3d", trial)
     # With the aliases on, R.ASIS is RASI (no calibration needed to see that).
     _, mapping = map_labels(trial, human.marker_names)
@@ -299,15 +299,21 @@ def test_no_aliases_and_no_new_markers(human, squat, tmp_path, capsys):
     assert code == 0, err
     rep = json.loads((tmp_path / "a.json").read_text())
     ms = rep["marker_set"]
-    assert sorted(ms["ignored_labels"]) == ["*7", "R.ASIS", "RSHIN"] and ms["new"] == []
+    assert sorted(ms["ignored_labels"]) == ["*7", "LKNEin", "R.ASIS", "RSHIN"] and ms["new"] == []
     assert ms["unused_model_markers"] == ["RASI"]
-    # Warned about: the two named labels as not the model's, the unlabelled trajectory (Vicon's '*7') as such.
+    # Warned about: the two named labels as not the model's, the unlabelled trajectory (Vicon's '*7') as such; the
+    # label with no position in any frame is not a warning (-q: not even a note).
     named = next(line for line in err.splitlines() if "trial labels are not markers of" in line)
-    assert "R.ASIS" in named and "RSHIN" in named and "*7" not in named
+    assert "R.ASIS" in named and "RSHIN" in named and "*7" not in named and "LKNEin" not in named
     assert "warning: 1 unlabelled trajectory ignored (*7); label them" in err
+    assert "LKNEin" not in err
     subject = load_model(tmp_path / "a.urdf")
     assert "RSHIN" not in subject.marker_names and "R.ASIS" not in subject.marker_names
     assert rep["settings"]["new_markers"] is False
+    # Without -q the empty label is a note of its own.
+    assert main([str(tmp_path / "t.c3d"), str(human.path), *map(str, outputs(tmp_path, "b")), "--no-aliases",
+                 "--no-new-markers"]) == 0
+    assert "note: 1 trial label with no position in any frame, ignored: LKNEin" in capsys.readouterr().err
 
 
 def test_no_auto_hold(human, human_kin, squat, tmp_path, capsys):

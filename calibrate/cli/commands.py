@@ -308,6 +308,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                           **opensim)
     unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
     named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
+    empty = [lab for lab in named if any(lab in t.labels for t in cal.trials)
+             and not any(np.isfinite(t.marker(lab)).any() for t in cal.trials if lab in t.labels)]
+    named = [lab for lab in named if lab not in empty]
+    if empty and not args.quiet:  # a marker set's labels the session did not use (BTKData's FunctionalWalk: arms)
+        print(f"note: {len(empty)} trial label{'' if len(empty) == 1 else 's'} with no position in any frame, "
+              f"ignored: {', '.join(empty)}", file=sys.stderr)
     if named:
         one = len(named) == 1
         why = ("is not a marker of" if one else "are not markers of") if not settings.new_markers else (

@@ -555,9 +555,11 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
                    f"(closest: {closest[1]}; rigid: ≤ {_mm(np.sqrt(threshold))})")
             if closest[0] <= threshold:
                 why = f"distances to {closest[1]} are steady but its rigid fit with them is not"
+        elif not seen[k]:  # a label of the lab's marker set this session did not use (Vicon exports them all)
+            why = "no position in any frame of the trial"
         else:
             why = "never seen long enough together with any model marker"
-        if empty:
+        if empty and seen[k]:
             why += "; " + UNMARKED.format(", ".join(empty))
         out[k] = MarkerAssignment(labels[k], None, "unassigned",
                                   float(np.sqrt(closest[0])) if np.isfinite(closest[0]) else np.nan, why)
