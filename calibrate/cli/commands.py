@@ -546,7 +546,9 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             print(f"  {model_path.name}'s markers the trial lacks ({len(mapping.missing)}): "
                   + ", ".join(mapping.missing))
     for lab, g in zip(t.labels, gaps, strict=True):
-        print(f"  {lab:16s} gaps {100 * g:5.1f} %" + (f"  {became[lab]}" if became else ""))
+        said = (f"  '{t.descriptions[lab]}'" if lab in t.descriptions and "by its description" not in
+                (became or {}).get(lab, "") else "")  # the file's own words for the marker
+        print(f"  {lab:16s} gaps {100 * g:5.1f} %" + (f"  {became[lab]}" if became else "") + said)
     from ..calibration.plugin_gait import plugin_gait_knees
 
     for check, *_ in plugin_gait_knees(t):  # the file's Plug-in Gait bones, checked against their own motion
