@@ -572,7 +572,7 @@ def test_descriptions_read_from_a_c3d(tmp_path: Path, human, capsys) -> None:  #
     out = capsys.readouterr().out
     lines = {ln.split()[0]: ln for ln in out.splitlines() if ln.startswith("  ") and "gaps" in ln}
     assert lines["RA"].endswith("-> RANK (description); by its description 'Right lateral ankle'")
-    assert lines["RK"].endswith("unknown; conflict: RKNE kept RKNE")  # RKNE's own label wins
+    assert lines["RK"].endswith("unknown; conflict: RKNE kept RKNE  'Right knee'")  # RKNE's own label wins
     assert "1 exact, 9 description, 3 unknown" in out
     assert lines["H"].endswith("unknown  'Sacrum'")  # the file's words beside a label they do not rename
     assert main(["inspect", str(path)]) == 0  # without a model: each label with the file's words for it
