@@ -188,7 +188,7 @@ _SIDE_LOOKUP = {name: (code, rank) for code, names in SIDE_ALIASES.items() for r
 _MIDLINE_LOOKUP = {name: (label, rank) for label, names in MIDLINE_ALIASES.items() for rank, name in enumerate(names)}
 _SEPARATORS = re.compile(r"[\s._\-]+")
 _CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
-_RANK = {"exact": 0, "map": 1, "alias": 2, "description": 3}
+_RANK = {"map": 0, "exact": 1, "alias": 2, "description": 3}
 
 
 class LabelConflictWarning(UserWarning):
@@ -364,13 +364,6 @@ def _check_marker_map(marker_map: Mapping[str, Sequence[str]], model: Sequence[s
             if not isinstance(label, str) or not label.strip():
                 raise _map_error(source, f"{key} lists {label!r}, not a trial label", "give labels as text")
             label = label.strip()
-            if label in model_set and label != key:
-                raise _map_error(
-                    source,
-                    f"{key} lists {label!r}, which is a model label itself (a trial label that is a model "
-                    "label always keeps it)",
-                    f"remove {label!r} from {key} or rename that marker in the trial",
-                )
             if label in lookup and lookup[label][0] != key:
                 raise _map_error(
                     source,
@@ -463,7 +456,9 @@ def map_labels(
     """Rename a trial's markers to model labels; return the relabelled trial and what each label became.
 
     ``marker_map``: model label -> trial labels (as :func:`load_marker_map` reads it); it takes
-    precedence over the built-in aliases (``aliases=False`` turns those off).  A label that matches
+    precedence over everything else, a trial label that is the model's own name too (that label is then
+    renamed with the first free suffix, ``RKNE_2``, and placed like any unknown label), and over the
+    built-in aliases (``aliases=False`` turns those off).  A label that matches
     nothing by its own name is read by the file's description of it (``Trial.descriptions``: ``RK``,
     "Right knee"), after every name.  Labels that match nothing are kept as they are.  Marker data, rate, first
     frame and source are unchanged.
@@ -481,10 +476,10 @@ def map_labels(
 
     def best(label: str) -> tuple[str, str, float] | None:
         """(model label, how, priority) of a whole label."""
+        if label in lookup:  # the user's word first, over a label that happens to be the model's (a BTS file's RKNE
+            return lookup[label][0], "map", lookup[label][1]  # is its computed knee centre; RKNE1 the epicondyle)
         if label in model_set:
             return label, "exact", 0
-        if label in lookup:
-            return lookup[label][0], "map", lookup[label][1]
         if aliases:
             found = alias_for(label, model_set)
             if found is not None:
@@ -550,6 +545,17 @@ def map_labels(
             messages.append(message)
             warnings.warn(message, LabelConflictWarning, stacklevel=2)
 
+    # A label the map displaced from the model's name it carries (the map gave RKNE to RKNE1) takes the first free
+    # suffix, as a file's repeated label does (RKNE_2), and is placed like any unknown label.
+    taken = set(labels)
+    for i, label in enumerate(labels):
+        if hows[i] == "unknown" and label in model_set:
+            n = 2
+            while f"{label}_{n}" in taken:
+                n += 1
+            labels[i] = f"{label}_{n}"
+            taken.add(labels[i])
+            notes[i] = f"{notes[i]}; renamed {labels[i]}"
     if len(set(labels)) != len(labels):  # cannot happen: unknown labels are never model labels
         raise CalibrateError(f"{trial.source or 'trial'}: relabelling made two markers the same; check the marker map")
     relabelled = replace(trial, labels=tuple(labels))
