@@ -446,3 +446,27 @@ def test_a_coordinate_no_seen_marker_moves_is_bridged_across_the_gap():
     line = got[99] + (got[160] - got[99]) * (np.arange(100, 160) - 99)[:, None] / 61
     assert np.allclose(got[100:160], line, atol=1e-12)
     assert np.degrees(np.abs(got[100:160] - sim.motion.angles[100:160][:, wrist]).max()) < 5.0
+
+
+def test_ik_takes_the_calibrations_marker_map(squats, tmp_path, capsys):
+    """--markers: the map the calibration renamed the labels by.  A BTS-like file labels the lateral knee marker RKNE1
+    and a computed point RKNE (here the ankle marker's path 100 mm up): with `RKNE = ["RKNE1"]` the fit is the
+    original trial's to the bit (the displaced RKNE unused); without it the computed point plays RKNE."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    trial = read_trial(squats / "trial.c3d")
+    fake = trial.marker("RANK") + np.array([0.0, 0.0, 0.1])
+    labels = tuple("RKNE1" if lab == "RKNE" else lab for lab in trial.labels) + ("RKNE",)
+    bts = replace(trial, labels=labels, markers=np.concatenate([trial.markers, fake[:, None]], axis=1))
+    write_c3d(tmp_path / "bts.c3d", bts)
+    (tmp_path / "map.toml").write_text('RKNE = ["RKNE1"]\n')
+    outs = {}
+    for name, trial_path, extra in (("plain", squats / "trial.c3d", []), ("mapped", tmp_path / "bts.c3d",
+                                    ["--markers", str(tmp_path / "map.toml")]), ("unmapped", tmp_path / "bts.c3d", [])):
+        out = tmp_path / name
+        out.mkdir()
+        assert main(["ik", str(trial_path), str(squats / "truth.urdf"), "-o", str(out), "-q", *extra]) == 0
+        outs[name] = read_motion_csv(next(out.glob("*_motion.csv")))
+    assert np.array_equal(outs["mapped"].angles, outs["plain"].angles)
+    assert np.abs(outs["unmapped"].angles - outs["plain"].angles).max() > np.radians(5)

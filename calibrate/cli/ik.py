@@ -56,6 +56,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                         "the subject's (by default refused: another subject's trial)")
     p.add_argument("--subject", default=None, metavar="NAME",
                    help="of trials holding several subjects' markers (Vicon's NAME:RASI), fit NAME's")
+    p.add_argument("--markers", type=Path, default=None, metavar="MAP.toml",
+                   help="the marker map the calibration renamed the labels by (model label = list of trial labels): "
+                        "the same labels then play the same markers")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary")
     return p
@@ -63,7 +66,7 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_ik(args: argparse.Namespace) -> int:
     from ..calibration.subject_ik import fit_trial
-    from ..io.labels import map_labels
+    from ..io.labels import load_marker_map, map_labels
     from ..io.motion import write_motion_csv
     from ..io.outputs import check_targets
     from ..io.read import read_trial
@@ -134,6 +137,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         chosen = {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
         locked.update(chosen)
         static_locks = {k: v for k, v in static_locks.items() if k not in chosen}
+    marker_map = load_marker_map(args.markers) if args.markers is not None else None
     trials = [read_trial(t) for t in trial_paths]
     if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
         trials = [t.of_subject(args.subject) for t in trials]
@@ -151,7 +155,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         held = {**locked, **static_locks} if (path.name, trial.n_frames) in own else locked
         if static_locks:
             (released if held is locked else kept_on).append(path.name)
-        trial, _ = map_labels(trial, model.marker_names, None, aliases=True)
+        trial, _ = map_labels(trial, model.marker_names, marker_map, aliases=True)
         shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
         if len(shared) < 3:
             tasks = " with a marker task of the IK setup" if weights is not None else ""
