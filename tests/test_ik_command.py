@@ -470,3 +470,18 @@ def test_ik_takes_the_calibrations_marker_map(squats, tmp_path, capsys):
         outs[name] = read_motion_csv(next(out.glob("*_motion.csv")))
     assert np.array_equal(outs["mapped"].angles, outs["plain"].angles)
     assert np.abs(outs["unmapped"].angles - outs["plain"].angles).max() > np.radians(5)
+    # A calibration with the map: its report's renaming is the map `calibrate ik --report` applies without --markers.
+    cal = tmp_path / "cal"
+    cal.mkdir()
+    assert main([str(tmp_path / "bts.c3d"), str(HUMAN), "--markers", str(tmp_path / "map.toml"), "-o", str(cal) + "/",
+                 "-q"]) == 0
+    capsys.readouterr()
+    for name, extra in (("by_report", []), ("by_both", ["--markers", str(tmp_path / "map.toml")])):
+        out = tmp_path / name
+        out.mkdir()
+        assert main(["ik", str(tmp_path / "bts.c3d"), str(cal / "bts.urdf"), "--report", str(cal / "bts_report.json"),
+                     "-o", str(out), *extra]) == 0
+        outs[name] = read_motion_csv(out / "bts_motion.csv")
+        err = capsys.readouterr().err
+        assert ("labels renamed as its calibration's marker map renamed them: RKNE1 -> RKNE" in err) == (not extra)
+    assert np.array_equal(outs["by_report"].angles, outs["by_both"].angles)

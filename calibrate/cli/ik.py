@@ -58,7 +58,8 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                    help="of trials holding several subjects' markers (Vicon's NAME:RASI), fit NAME's")
     p.add_argument("--markers", type=Path, default=None, metavar="MAP.toml",
                    help="the marker map the calibration renamed the labels by (model label = list of trial labels): "
-                        "the same labels then play the same markers")
+                        "the same labels then play the same markers (with --report and no --markers: the renaming "
+                        "by map its report lists)")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary")
     return p
@@ -105,6 +106,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
     locked = dict(settings.lock)
     static_locks: dict[str, float] = {}  # a static-only calibration's auto-locks: held on its own trials alone
     own: set[tuple[str, int]] = set()  # its trials (file name, frames)
+    report_map: dict[str, list[str]] = {}  # the calibration's marker map, as its report lists what it renamed
     if args.report is not None:  # what the calibration held, as its motion holds it
         from ..calibration.html import read_report
         from ..calibration.report import report_locks
@@ -123,6 +125,10 @@ def cmd_ik(args: argparse.Namespace) -> int:
             if static_locks:
                 own = {(Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or []
                        if t.get("source")}
+            for t in report.get("trials") or []:
+                for m in t.get("labels") or []:
+                    if m.get("how") == "map" and m["trial_label"] not in report_map.get(m["label"], []):
+                        report_map.setdefault(str(m["label"]), []).append(str(m["trial_label"]))
             if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
                 sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
                       if isinstance(v, (int, float)) and v > 0 and math.isfinite(v)}
@@ -137,7 +143,12 @@ def cmd_ik(args: argparse.Namespace) -> int:
         chosen = {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
         locked.update(chosen)
         static_locks = {k: v for k, v in static_locks.items() if k not in chosen}
-    marker_map = load_marker_map(args.markers) if args.markers is not None else None
+    marker_map = load_marker_map(args.markers) if args.markers is not None else report_map or None
+    if args.markers is None and report_map:  # the same labels play the same markers as in the calibration
+        lines_map = [f"{args.report.name}: labels renamed as its calibration's marker map renamed them: "
+                     + ", ".join(f"{' / '.join(v)} -> {k}" for k, v in report_map.items())]
+    else:
+        lines_map = []
     trials = [read_trial(t) for t in trial_paths]
     if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
         trials = [t.of_subject(args.subject) for t in trials]
@@ -146,7 +157,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         from ..io.osim_setup import cut_to_setups
 
         trials, lines = cut_to_setups(trials, None, args.ik_setup)
-    lines = setup_lines + lines
+    lines = setup_lines + lines_map + lines
     params = model.parameters()
     results = []
     released: list[str] = []  # trials fitted without the static-only calibration's auto-locks, and with them
