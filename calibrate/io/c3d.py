@@ -382,9 +382,10 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
                 f"({point_scale:g}) says {'float' if point_scale < 0 else 'integer'}"
             )
         header_scale = _c3d_float(header[12:16], processor)
-        if not is_float and not math.isclose(point_scale, header_scale, rel_tol=1e-6):
+        if not is_float and header_scale > 0 and not math.isclose(point_scale, header_scale, rel_tol=1e-6):
             # Integers times the scale are the positions: c3d.org's sample06 (an adult's walk, 1.23 m/s at 114
-            # steps a minute by its header's 0.0551) would read 2.56 times smaller, a toddler's, by its 0.0215
+            # steps a minute by its header's 0.0551) would read 2.56 times smaller, a toddler's, by its 0.0215.  A
+            # header scale of 0 gives no scale of its own (POINT:SCALE is read, as before).
             raise fail(path, f"C3D file's header and POINT:SCALE give its integer coordinates different scales "
                              f"({header_scale:g} and {point_scale:g}: positions {header_scale / point_scale:.3g} "
                              "times apart)", "correct the wrong one (e.g. in Mokka) or export the trial again")
