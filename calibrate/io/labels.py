@@ -132,7 +132,8 @@ __all__ = [
 #: (map_labels refuses a trial with two: which to calibrate is the user's choice, Trial.of_subject).
 SUBJECT_MARKERS = 3
 
-#: How a trial label was matched, best first.
+#: How a trial label was matched, in the order the mapping counts them (the marker map ranks first, then the label
+#: itself, the built-in aliases, the file's description of the label: _RANK).
 HOWS = ("exact", "map", "alias", "description", "unknown")
 
 #: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
@@ -455,13 +456,12 @@ def map_labels(
 ) -> tuple[Trial, LabelMapping]:
     """Rename a trial's markers to model labels; return the relabelled trial and what each label became.
 
-    ``marker_map``: model label -> trial labels (as :func:`load_marker_map` reads it); it takes
-    precedence over everything else, a trial label that is the model's own name too (that label is then
-    renamed with the first free suffix, ``RKNE_2``, and placed like any unknown label), and over the
-    built-in aliases (``aliases=False`` turns those off).  A label that matches
-    nothing by its own name is read by the file's description of it (``Trial.descriptions``: ``RK``,
-    "Right knee"), after every name.  Labels that match nothing are kept as they are.  Marker data, rate, first
-    frame and source are unchanged.
+    ``marker_map``: model label -> trial labels (as :func:`load_marker_map` reads it).  The user's word, it
+    takes precedence over everything: over a trial label that is the model's own name (that label is then
+    renamed with the first free suffix, ``RKNE_2``, and placed like any unknown label) and over the built-in
+    aliases (``aliases=False`` turns those off).  A label that matches nothing by its own name is read by the
+    file's description of it (``Trial.descriptions``: ``RK``, "Right knee"), after every name.  Labels that
+    match nothing are kept as they are.  Marker data, rate, first frame and source are unchanged.
     Raises CalibrateError when the map names a model label the model does not have, or when the
     trial holds the markers of several subjects (prefixes ``Derrick:``, ``Viktor:``, each matching
     SUBJECT_MARKERS of the model's or more): ``trial.of_subject(name)`` picks one.
