@@ -400,6 +400,18 @@ def bridge_unseen(kin: Kinematics, seen: np.ndarray, Z: np.ndarray, held: np.nda
         Z[gaps, col] = np.interp(gaps, seen, Z[seen, col])
 
 
+def _carried(solver: FrameSolver, z: np.ndarray, q: np.ndarray, obs: np.ndarray, seen_idx: np.ndarray,
+             weight: np.ndarray | None, tolerance: float) -> np.ndarray:
+    """A frame that shows one or two markers, too few to turn a segment: the pose `z` (references `q`) of the frame
+    beside it, its root translated onto the markers it shows (a least-squares shift; its turns and angles kept).
+    Before, such a frame kept the pose beside it where it stood, or the model's default pose at the lab's origin
+    before the first fitted frame (c3d.org's sample10 walk: 1.6 m off at its first frame, 84-192 mm at its last)."""
+    if seen_idx.size == 0:
+        return z
+    z, _, _, _ = solver.solve(z, q, obs, seen_idx, np.arange(FrameLayout.translation.stop), 20, tolerance, weight)
+    return z
+
+
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
                        tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
                        locked: Mapping[str, float] | None = None, weights: Mapping[str, float] | None = None,
@@ -467,8 +479,9 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
             if seen.sum() < 3:
                 Z[f], Q[f] = z, q
                 continue
-        elif seen.sum() < 3:  # nothing to fit: carry the previous pose
+        elif seen.sum() < 3:  # too few to turn anything: the previous pose carried, moved onto the markers it shows
             if z is not None:
+                z, z_prev = _carried(solver, z, q, obs[f], seen_idx, weight, tolerance), None
                 Z[f], Q[f] = z, q
             continue
         elif z is None:
@@ -504,6 +517,11 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
         Z[f], Q[f], iters[f], costs[f] = z, q, it, cost
         if progress is not None and (f + 1) % 100 == 0:
             progress(f + 1, nf)
+    fitted = np.flatnonzero(np.isfinite(costs))
+    if start is None and fitted.size and fitted[0] > 0:  # the frames before the first with three markers or more:
+        for f in range(fitted[0] - 1, -1, -1):  # the first fitted pose carried back, moved onto what each shows
+            seen_idx = np.flatnonzero(~np.isnan(obs[f, :, 0]))
+            Z[f], Q[f] = _carried(solver, Z[f + 1], Q[f + 1], obs[f], seen_idx, weight, tolerance), Q[f + 1]
     bridge_unseen(kin, np.isfinite(obs[..., 0]), Z, lock_cols)
     Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
     M, _ = kin.batch(Z, Q, p)
