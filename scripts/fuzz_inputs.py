@@ -8,6 +8,8 @@ cap and a time limit).  Kinds:
 - c3d: 1-3 random bytes of the header and parameter section of a C3D written by calibrate.io.c3d.write_c3d
   (gait2392's static, 20 frames) with two analog channels' parameters added;
 - trc: lines of gait2392's walk deleted, repeated, cut, a character or a field changed, the header's numbers changed;
+- qtm-tsv, motive-csv: the same damage to gait2392's walk written as Qualisys QTM's and OptiTrack Motive's exports
+  (tests/test_tables.py's writers, Motive's with a rigid body, marker constraints and an unlabelled marker);
 - osim, marker-set, ik-setup, scale-setup: an element of gait2392's files (Rajagopal2016.osim with --osim rajagopal)
   removed, emptied, renamed, duplicated, cut, or its number text garbled;
 - urdf: an attribute of models/human.urdf garbled or an element removed;
@@ -41,7 +43,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
 GAIT = REAL / "gait2392"
-KINDS = ("c3d", "trc", "osim", "marker-set", "ik-setup", "scale-setup", "urdf", "settings", "marker-map", "report")
+KINDS = ("c3d", "trc", "qtm-tsv", "motive-csv", "osim", "marker-set", "ik-setup", "scale-setup", "urdf", "settings",
+         "marker-map", "report")
 WORDS = ["", "x", "nan", "inf", "1e999", "-1", "0", "1 2", "true", "false", "1,5", "1_0", "-0", "Unassigned"]
 
 C3D_CHILD = r"""
@@ -122,8 +125,9 @@ def _urdf_mutant(src: str, rng: random.Random) -> str:
     return _apply(src, edits)
 
 
-def _trc_mutant(lines: list[str], rng: random.Random) -> str:
-    """The TRC `lines` with 1-3 lines deleted, repeated, cut, a character or field changed, or the header's numbers."""
+def _trc_mutant(lines: list[str], rng: random.Random, sep: str = "\t") -> str:
+    """The TRC `lines` with 1-3 lines deleted, repeated, cut, a character or field changed, or the header's numbers
+    (`sep`: the fields' separator)."""
     lines = list(lines)
     for _ in range(rng.choice([1, 1, 2, 3])):
         if not lines:
@@ -140,15 +144,15 @@ def _trc_mutant(lines: list[str], rng: random.Random) -> str:
         elif op == 3:
             lines[i] = lines[i][: rng.randrange(len(lines[i]) + 1)] + ("\n" if rng.random() < 0.5 else "")
         elif op == 4:
-            f = lines[i].split("\t")
+            f = lines[i].split(sep)
             f[rng.randrange(len(f))] = rng.choice(WORDS)
-            lines[i] = "\t".join(f)
+            lines[i] = sep.join(f)
         elif op == 5:
             lines = lines[: i + 1]
         elif len(lines) > 2:
-            f = lines[2].split("\t")
+            f = lines[2].split(sep)
             f[rng.randrange(len(f))] = rng.choice(["0", "-5", "100000", "x", "", "0.0", "m", "inches"])
-            lines[2] = "\t".join(f)
+            lines[2] = sep.join(f)
     return "".join(lines)
 
 
@@ -242,6 +246,14 @@ def _reader(kind: str, osim: str, scratch: Path) -> tuple[Callable[[Path], objec
     marker_set = None if osim == "rajagopal" else GAIT / "gait2392_Scale_MarkerSet.xml"
     if kind == "trc":
         return read_trial, (GAIT / "subject01_walk1.trc").read_text(), ".trc"
+    if kind in ("qtm-tsv", "motive-csv"):
+        sys.path.insert(0, str(ROOT / "tests"))
+        from test_tables import motive_text, qtm_text
+
+        walk = read_trial(GAIT / "subject01_walk1.trc")
+        if kind == "qtm-tsv":
+            return read_trial, qtm_text(walk), ".tsv"
+        return read_trial, motive_text(walk, unlabelled=walk.markers[:, 0] + 0.3), ".csv"
     if kind == "osim":
         return (lambda p: load_model(p, marker_set)), model_path.read_text(), ".osim"
     if kind == "marker-set":
@@ -357,7 +369,9 @@ def _fuzz(kind: str, n: int, rng: random.Random, keep: Path, osim: str, where: P
                 outcome = "TIMEOUT"
             noise = ""
         else:
-            text = (_trc_mutant(lines, rng) if kind == "trc" else _urdf_mutant(src, rng) if kind == "urdf"
+            text = (_trc_mutant(lines, rng) if kind in ("trc", "qtm-tsv")
+                    else _trc_mutant(lines, rng, ",") if kind == "motive-csv"
+                    else _urdf_mutant(src, rng) if kind == "urdf"
                     else _toml_mutant(lines, rng) if kind in ("settings", "marker-map")
                     else _json_mutant(src, rng) if kind == "report" else _element_mutant(src, rng))
             path = where / f"{kind}-{seed}-{k}{suffix}"

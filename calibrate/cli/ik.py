@@ -33,7 +33,7 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                     "tool gives them with the scaled model.  Writes <trial>_motion.csv (and .mot for an .osim "
                     "subject) beside each trial or in --out.  Nothing is written on an error.")
     p.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... SUBJECT",
-                   help="the trials (.c3d or .trc), then the calibrated subject (.urdf or .osim)")
+                   help="the trials (.c3d, .trc, .tsv or .csv), then the calibrated subject (.urdf or .osim)")
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="the folder for the motions (default: beside each trial)")
     p.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",

@@ -98,9 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
                                       "truth vs estimate: joint-centre and axis errors, marker RMS, time.")
     demo.add_argument("--out", type=Path, default=Path("calibrate-demo"), help="output directory")
     _add_sim_args(demo, 1000)
-    ins = sub.add_parser("inspect", help="describe a model (.urdf, .osim), a trial (.c3d/.trc) or an OpenSim Scale or "
-                                         "IK setup (.xml)")
-    ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d, .trc or OpenSim setup .xml file")
+    ins = sub.add_parser("inspect", help="describe a model (.urdf, .osim), a trial (.c3d/.trc, a Qualisys .tsv or "
+                                         "Motive .csv) or an OpenSim Scale or IK setup (.xml)")
+    ins.add_argument("file", type=Path, help="a .urdf, .osim, .c3d, .trc, .tsv, .csv or OpenSim setup .xml file")
     ins.add_argument("--marker-set", type=Path, default=None, metavar="XML",
                      help="with a .osim: an OpenSim MarkerSet file whose markers are added (as the Scale tool does)")
     ins.add_argument("--model", type=Path, default=None, metavar="MODEL",
@@ -113,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "markers alone (marker-trajectory bases, solvability propagation, JMV fallback; "
                                     "hinge axes by closed-form fit).  Prints a table per joint; --out writes the "
                                     "trajectories as CSV (m).")
-    jo.add_argument("trial", type=Path, help="trial (.c3d or .trc)")
+    jo.add_argument("trial", type=Path, help="trial (.c3d, .trc, Qualisys .tsv or Motive .csv)")
     jo.add_argument("model", type=Path, help="base model (.urdf): marker groups, joint tree, hinge priors")
     jo.add_argument("--out", type=Path, default=None, help="write the centre trajectories to this CSV")
     jo.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
@@ -159,13 +159,15 @@ COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim
 def build_calibrate_parser() -> argparse.ArgumentParser:
     ap = _top("calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
               "       calibrate {simulate,demo,inspect,joints,export-osim,import-osim,report,view} ...",
-              "Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc; e.g. a static "
+              "Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc, or Qualisys QTM's .tsv "
+              "or OptiTrack Motive's .csv export; e.g. a static "
               "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
               "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
               "subject URDF, a motion CSV per trial and a report JSON next to the first trial (or beside -o's "
               "URDF).  Other commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
     ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
-                    help="the trials (.c3d or .trc), then the base model (.urdf) to calibrate (never modified)")
+                    help="the trials (.c3d, .trc, .tsv or .csv), then the base model (.urdf) to calibrate "
+                         "(never modified)")
     ap.add_argument("-o", "--output", type=str, default=None,
                     help="subject URDF (default: the first TRIAL's name + .urdf); from an OpenSim base model, "
                          "NAME.osim names the subject .osim too (both written, side by side); a folder (results/): "

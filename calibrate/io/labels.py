@@ -110,7 +110,8 @@ from pathlib import Path
 from ..errors import CalibrateError
 from .trial import Trial
 
-UNLABELLED = re.compile(r"\*\d+")  # an unlabelled trajectory's label (Vicon Nexus: '*115')
+#: an unlabelled trajectory's label (Vicon Nexus: '*115'; OptiTrack Motive: 'Unlabeled 1000')
+UNLABELLED = re.compile(r"\*\d+|Unlabeled \d+")
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -521,7 +521,8 @@ def add_export_osim_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--motion", type=Path, default=None, metavar="CSV", help="a motion CSV of MODEL to write as .mot")
     p.add_argument("--mot", type=Path, default=None, metavar="MOT",
                    help="the .mot to write (default: CSV's name + .mot)")
-    p.add_argument("--trial", type=Path, default=None, metavar="TRIAL", help="a trial (.c3d/.trc) to write as .trc")
+    p.add_argument("--trial", type=Path, default=None, metavar="TRIAL",
+                   help="a trial (.c3d, .trc, .tsv or .csv) to write as .trc")
     p.add_argument("--trc", type=Path, default=None, metavar="TRC",
                    help="the .trc to write (default: TRIAL's name + .trc)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")

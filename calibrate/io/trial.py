@@ -456,7 +456,7 @@ def check_input_file(path: Path) -> int:
     if not path.exists():
         raise fail(path, "no such file", "check the path and file name")
     if path.is_dir():
-        raise fail(path, "is a directory, not a trial file", "give the path of a .c3d or .trc file")
+        raise fail(path, "is a directory, not a trial file", "give the path of a .c3d, .trc, .tsv or .csv file")
     try:
         size = path.stat().st_size
     except OSError as exc:
