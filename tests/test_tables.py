@@ -141,7 +141,7 @@ def _one_line(excinfo: pytest.ExceptionInfo, path: Path) -> str:
     return message
 
 
-@pytest.mark.parametrize("text, match", [
+QTM_BAD = [
     (lambda t: qtm_text(t, kind="2D"), r"holds QTM's 2D camera data \(DATA_INCLUDED 2D\), not 3D marker positions"),
     (lambda t: qtm_text(t, kind="6D"), "holds QTM's 6DOF rigid-body data"),
     (lambda t: qtm_text(t, header=False), "has no MARKER_NAMES line"),
@@ -150,15 +150,7 @@ def _one_line(excinfo: pytest.ExceptionInfo, path: Path) -> str:
     (lambda t: qtm_text(t).replace("\t150\n", "\tfast\n"), "FREQUENCY 'fast' is not a number"),
     (lambda t: re.sub(r"\n(8\t[^\t]*\t)[^\t]*", r"\n\1x1", qtm_text(t)), r"line 14, column 3: 'x1' is not a number"),
     (lambda t: "Time,RASI\n0,1\n", "not a Qualisys QTM TSV export"),
-])
-def test_qtm_tsv_bad_files(tmp_path: Path, text, match) -> None:  # noqa: ANN001
-    """Each bad form in one line naming the file, what is wrong and what to export instead."""
-    trial = make_trial()
-    path = tmp_path / "bad.tsv"
-    path.write_text(text(trial))
-    with pytest.raises(TrialError) as excinfo:
-        read_trial(path)
-    assert re.search(match, _one_line(excinfo, path)), str(excinfo.value)
+]
 
 
 def test_qtm_tsv_a_row_longer_than_the_markers(tmp_path: Path) -> None:
@@ -196,7 +188,7 @@ def test_motive_csv_without_a_timecode_column(tmp_path: Path) -> None:
     same_positions(read_motive_csv(path), trial.markers, 1e-8)
 
 
-@pytest.mark.parametrize("text, match", [
+MOTIVE_BAD = [
     (lambda t: motive_text(t, markers=False), r"has no marker positions \(it holds Bone Marker, Rigid Body columns"),
     (lambda t: motive_text(Trial(t.labels, t.markers * 1000, t.rate), units=None),  # millimetres, unsaid
      "gives no Length Units and the markers reach"),
@@ -211,10 +203,15 @@ def test_motive_csv_without_a_timecode_column(tmp_path: Path) -> None:
     (lambda t: "\n".join(motive_text(t).splitlines()[:7]) + "\n", "contains no frames"),
     (lambda t: "\n".join(motive_text(t).splitlines()[:-1]) + "\n",
      r"says Total Exported Frames 30 but the file has 29 rows of data \(truncated\?\)"),
-])
-def test_motive_csv_bad_files(tmp_path: Path, text, match) -> None:  # noqa: ANN001
+]
+
+
+@pytest.mark.parametrize("suffix, text, match", [(".tsv", *bad) for bad in QTM_BAD] +
+                         [(".csv", *bad) for bad in MOTIVE_BAD])
+def test_bad_exports(tmp_path: Path, suffix: str, text, match) -> None:  # noqa: ANN001
+    """Each bad form in one line naming the file, what is wrong and what to export instead."""
     trial = make_trial()
-    path = tmp_path / "bad.csv"
+    path = tmp_path / f"bad{suffix}"
     path.write_text(text(trial))
     with pytest.raises(TrialError) as excinfo:
         read_trial(path)

@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.io.trial import Trial, check_input_file, fail, file_labels, one_line, parse_units
+from calibrate.io.trc import text_lines
+from calibrate.io.trial import Trial, check_input_file, fail, file_labels, parse_units
 
 _QTM_REDO = "export the 3D data to TSV again from QTM (with 'Include TSV header' on), or export the trial to C3D"
 _MOTIVE_REDO = "export the take to CSV again from Motive (with the header and markers on), or export it to C3D"
@@ -78,15 +79,11 @@ def _with_encoding(path: Path, read: Callable[[str], Trial]) -> Trial:
 
 def _lines(path: Path, encoding: str) -> Iterator[tuple[int, str]]:
     """(0-based line number, text without its line end) of every line of `path`; binary content refused."""
-    try:
-        with open(path, encoding=encoding, newline=None) as fh:
-            for number, line in enumerate(fh):
-                if "\x00" in line:
-                    raise fail(path, "not a text file (it contains binary data)",
-                               "give the .tsv or .csv text export, or the trial's .c3d file")
-                yield number, line.rstrip("\n")
-    except OSError as exc:
-        raise fail(path, f"cannot be read ({one_line(exc.strerror or exc)})", "check the file permissions") from None
+    for number, line in text_lines(path, encoding):
+        if "\x00" in line:
+            raise fail(path, "not a text file (it contains binary data)",
+                       "give the .tsv or .csv text export, or the trial's .c3d file")
+        yield number, line
 
 
 def _number(cell: str) -> float:

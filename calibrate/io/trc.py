@@ -57,7 +57,7 @@ def read_trc(path: str | os.PathLike[str], *, strip_prefix: bool = True,
     raise AssertionError("latin-1 decodes any bytes")  # pragma: no cover
 
 
-def _lines(path: Path, encoding: str) -> Iterator[tuple[int, str]]:
+def text_lines(path: Path, encoding: str) -> Iterator[tuple[int, str]]:
     """(0-based line number, text without its line end) of every line of `path`."""
     try:
         with open(path, encoding=encoding, newline=None) as fh:
@@ -73,7 +73,7 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
     # Pass 1: the header's five lines, then how many data rows follow (blank lines skipped).
     lines: list[str] = []
     n_rows = n_lines = 0
-    for number, line in _lines(path, encoding):
+    for number, line in text_lines(path, encoding):
         if "\x00" in line:
             raise binary
         n_lines = number + 1 if line.strip() else n_lines
@@ -163,7 +163,7 @@ def _read_trc(path: Path, encoding: str, strip_prefix: bool, progress: Callable[
     first_number = np.nan
     first_time = None  # the Time column's first value (OpenSim's time ranges count from it)
     r = 0
-    for number, line in _lines(path, encoding):
+    for number, line in text_lines(path, encoding):
         if number < 5 or not line.strip():
             continue
         cells = [cell.strip() for cell in line.split("\t")]
