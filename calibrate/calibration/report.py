@@ -852,12 +852,13 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
-                  progress: Callable[[float], None] | None = None) -> dict[str, Path]:
+                  progress: Callable[[float], None] | None = None, c3d=None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
-    (calibrate.calibration.html) and, for OpenSim, the subject as an .osim model and the motions as
-    .mot files (whichever are given).
+    (calibrate.calibration.html), each trial as a C3D with calibrate's joint centres, model markers and joint
+    angles beside its markers (calibrate.calibration.c3d_result) and, for OpenSim, the subject as an .osim model
+    and the motions as .mot files (whichever are given).
 
-    `motion`, `mot`: one path per trial (a single path for a single trial).  Every destination is
+    `motion`, `mot`, `c3d`: one path per trial (a single path for a single trial).  Every destination is
     checked first (its folder exists; it is not the base model; it does not exist unless `overwrite`),
     then all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
     `cal.times` with the time of this writing (so far) and `extra_times`.  `progress(share done)`, by the
@@ -865,6 +866,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     """
     motions = _per_trial(cal, motion, "motion")
     mots = _per_trial(cal, mot, ".mot")
+    c3ds = _per_trial(cal, c3d, "C3D")
     targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report), ("html", html)) if v is not None}
     if html is not None and Path(html).suffix.lower() not in (".html", ".htm"):
         raise CalibrateError(f"{html}: the HTML report needs an .html name")
@@ -872,7 +874,15 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
     opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots))]
                if v is not None}
-    check_targets([*targets.values(), *opensim.values()], overwrite,
+    c3d_targets = [Path(v) for v in c3ds]
+    if c3d_targets:
+        from ..io.c3d import C3D_MAX_FRAMES
+
+        long = [t for t in cal.trials if t.n_frames > C3D_MAX_FRAMES]
+        if long:
+            raise CalibrateError(f"{long[0].source or 'a trial'}: {long[0].n_frames} frames are more than a C3D file "
+                                 f"holds ({C3D_MAX_FRAMES}); leave out the C3D output (--c3d)")
+    check_targets([*targets.values(), *opensim.values(), *c3d_targets], overwrite,
                   inputs={(cal.base_model or cal.model).path: "that is the base model; refusing to overwrite it "
                                                               "(choose another -o)"},
                   same="the URDF, motion and report outputs must all be different files")
@@ -886,6 +896,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             rep = calibration_report(timed)
             rep["outputs"] = {k: str(v) for k, v in targets.items() if not k.startswith("motion")}
             rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
+            if c3d_targets:
+                rep["outputs"]["c3d"] = [str(t) for t in c3d_targets]
             made.append(rep)
         return made[0]
 
@@ -919,8 +931,14 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         for i, m in enumerate(cal.motions[:len(mots)]):
             target = opensim[f"mot[{i}]"]
             writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))
+    if c3d_targets:
+        from ..io.c3d import write_c3d
+        from .c3d_result import calibrated_trials
+
+        for target, trial in zip(c3d_targets, calibrated_trials(cal), strict=False):
+            writers[target] = lambda path, trial=trial: write_c3d(path, trial)
     write_all(writers)
-    return {**targets, **opensim}
+    return {**targets, **opensim, **{f"c3d[{i}]": t for i, t in enumerate(c3d_targets)}}
 
 
 def _json_default(o):

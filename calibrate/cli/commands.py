@@ -190,7 +190,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["memory_mb"] = args.memory_mb
     if flags:
         settings = settings_from_dict(flags, "command line", settings)
-    outputs = [out_urdf, *out_motions, out_report, *([args.html] if args.html is not None else [])]
+    out_c3ds = [m.with_name(t.stem + "_calibrated.c3d") for m, t in zip(out_motions, trial_paths, strict=False)] \
+        if args.c3d else []
+    outputs = [out_urdf, *out_motions, out_report, *([args.html] if args.html is not None else []), *out_c3ds]
     if args.html is not None and args.html.suffix.lower() not in (".html", ".htm"):
         raise CalibrateError(f"{args.html}: the HTML report needs an .html name (--html report.html)")
     out_osim = out_urdf.with_suffix(".osim")
@@ -254,6 +256,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         trials = [read_trial(t, progress=Countdown(say, "read", f"reading {t.name}")) for t in trial_paths]
         if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
             trials = [t.of_subject(args.subject) for t in trials]
+        from ..io.c3d import C3D_MAX_FRAMES
+
+        long = [p for p, t in zip(trial_paths, trials, strict=True) if t.n_frames > C3D_MAX_FRAMES]
+        if args.c3d and long and args.frames is None:  # refused before the work, not after it
+            raise CalibrateError(f"{long[0]}: more frames than a C3D file holds ({C3D_MAX_FRAMES}); leave out --c3d "
+                                 "or cut the trial (--frames)")
         from ..model.sides import side_mismatches
 
         sides = [x for x in side_mismatches(model) if any(x.marker in t.labels for t in trials)]
@@ -305,7 +313,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
-                          **opensim)
+                          c3d=out_c3ds or None, **opensim)
     unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
     named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
     empty = [lab for lab in named if any(lab in t.labels for t in cal.trials)

@@ -180,6 +180,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                          "else beside the trial)")
     ap.add_argument("--html", type=Path, default=None, metavar="HTML",
                     help="also write the HTML report (one offline file; docs/report.md), e.g. report.html")
+    ap.add_argument("--c3d", action="store_true",
+                    help="also write each trial as TRIAL-name_calibrated.c3d beside its motion: its markers with "
+                         "calibrate's joint centres (<joint>_JC), model markers (<marker>_model) and joint angles "
+                         "(<joint>_angles, deg) as model outputs, for Mokka, Nexus or Visual3D")
     ap.add_argument("--frames", type=frames_arg, default=None,
                     help="use frames A:B only (0-based, B excluded; a single trial only)")
     ap.add_argument("--markers", type=Path, default=None,

@@ -30,16 +30,20 @@ from calibrate.io.trial import (
 )
 from calibrate.io.vicon import is_model_output, output_factor
 
-#: POINT parameters in which Vicon lists its model outputs, with the kind of quantity.
-_C3D_OUTPUT_GROUPS: dict[str, str] = {
-    "ANGLES": "angle",
-    "FORCES": "force",
-    "MOMENTS": "moment",
-    "POWERS": "power",
-    "SCALARS": "scalar",
-    "REACTIONS": "reaction",
-    "MODELED_MARKERS": "point",
+#: Each kind of model output: the POINT parameter in which Vicon lists its labels, the parameter naming its unit,
+#: and the unit write_c3d stores it in (Vicon's: angles in degrees, moments in N mm; points in the file's length
+#: unit).
+_C3D_KIND_GROUPS: dict[str, tuple[str, str, str]] = {
+    "angle": ("ANGLES", "ANGLE_UNITS", "deg"),
+    "force": ("FORCES", "FORCE_UNITS", "N"),
+    "moment": ("MOMENTS", "MOMENT_UNITS", "Nmm"),
+    "power": ("POWERS", "POWER_UNITS", "W"),
+    "scalar": ("SCALARS", "", ""),
+    "reaction": ("REACTIONS", "", ""),
+    "point": ("MODELED_MARKERS", "", ""),
 }
+#: POINT parameters in which Vicon lists its model outputs, with the kind of quantity.
+_C3D_OUTPUT_GROUPS: dict[str, str] = {group: kind for kind, (group, _, _) in _C3D_KIND_GROUPS.items()}
 
 
 C3D_MAX_FRAMES = 65535  # the C3D header stores frame numbers as 16-bit words: the longest trial written here
@@ -693,12 +697,19 @@ def _c3d_output_kinds(params: dict, raw_labels: list[str]) -> dict[int, tuple[st
     return out
 
 
-def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> None:
-    """Write a trial's marker trajectories to a C3D file (float data, POINT:UNITS ``units``).
 
-    Gaps are written as coordinates 0 with residual -1 (the C3D "invalid point").
-    At most 65535 frames: ezc3d does not read longer files back whole.
-    The file is written next to its target and then moved into place.
+
+def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> None:
+    """Write a trial's marker trajectories to a C3D file (float data, POINT:UNITS ``units``), and its model
+    outputs after them.
+
+    Gaps are written as coordinates 0 with residual -1 (the C3D "invalid point").  Each model output
+    (:attr:`Trial.model_outputs`) is a point listed in the POINT parameter of its kind, as Vicon Nexus lists
+    Plug-in Gait's (``MODELED_MARKERS`` for points, in ``units``; ``ANGLES`` in degrees, ``FORCES`` in N,
+    ``MOMENTS`` in N mm, ``POWERS`` in W, with their ``*_UNITS``; the rest as they are), so that
+    :func:`read_c3d` reads them back as model outputs, never as markers.  The markers' descriptions
+    (:attr:`Trial.descriptions`) go in POINT:DESCRIPTIONS.  At most 65535 frames: ezc3d does not read longer
+    files back whole.  The file is written next to its target and then moved into place.
     """
     path, key, scale = output_target(path, trial, units)
     if trial.n_frames > C3D_MAX_FRAMES:
@@ -715,21 +726,43 @@ def write_c3d(path: str | os.PathLike[str], trial: Trial, units: str = "mm") -> 
             f"({C3D_MAX_FRAMES})",
             "write a TRC file instead or start the trial at an earlier frame",
         )
-    xyz = trial.markers / scale  # (frames, markers, 3) in file units
-    gap = np.isnan(xyz).any(axis=2)  # (frames, markers)
-    points = np.zeros((4, trial.n_markers, trial.n_frames))
+    outputs = list(trial.model_outputs)
+    taken = set(trial.labels)
+    clash = [label for label in outputs if label in taken]
+    if clash:
+        raise fail(path, f"model output {clash[0]!r} has a marker's label", "rename one of them")
+    groups: dict[str, list[str]] = {}
+    columns = [trial.markers / scale]  # (frames, markers, 3) in file units, then each output in its group's unit
+    for label in outputs:
+        kind = trial.output_kinds.get(label, "point")
+        group, _, unit = _C3D_KIND_GROUPS.get(kind, ("MODELED_MARKERS", "", ""))
+        factor = scale if kind == "point" else output_factor(kind, unit)[0] if unit else 1.0
+        groups.setdefault(group, []).append(label)
+        columns.append(np.asarray(trial.model_outputs[label], dtype=float)[:, None, :] / factor)
+    xyz = np.concatenate(columns, axis=1)
+    n_points = xyz.shape[1]
+    gap = np.isnan(xyz).any(axis=2)  # (frames, points)
+    points = np.zeros((4, n_points, trial.n_frames))
     points[:3] = np.where(gap[:, :, None], 0.0, xyz).transpose(2, 1, 0)
     points[3] = 1.0
     residuals = np.where(gap.T, -1.0, 0.0)[None, :, :]
+    descriptions = [trial.descriptions.get(label, "") for label in trial.labels] + [""] * len(outputs)
 
     def write(staged: Path) -> None:  # the staged name ends in .c3d (ezc3d appends it to names without)
         c3d = ezc3d.c3d()
         c3d["parameters"]["POINT"]["RATE"]["value"] = [trial.rate]
-        c3d["parameters"]["POINT"]["LABELS"]["value"] = list(trial.labels)
+        c3d["parameters"]["POINT"]["LABELS"]["value"] = list(trial.labels) + outputs
         c3d["parameters"]["POINT"]["UNITS"]["value"] = [key]
+        if any(descriptions):
+            c3d["parameters"]["POINT"]["DESCRIPTIONS"]["value"] = descriptions
         c3d["header"]["points"]["first_frame"] = trial.first_frame  # 0-based; stored 1-based in the file
         c3d["data"]["points"] = points
         c3d["data"]["meta_points"] = {"residuals": residuals}
+        for group, unit_name, unit in _C3D_KIND_GROUPS.values():
+            if group in groups:
+                c3d.add_parameter("POINT", group, groups[group])
+                if unit_name:
+                    c3d.add_parameter("POINT", unit_name, [unit])
         if trial.measurements is not None:  # the session's subject measurements, where Nexus writes them
             for name, value in c3d_processing(trial.measurements).items():
                 c3d.add_parameter("PROCESSING", name, [float(value)])
