@@ -53,22 +53,16 @@ def test_model_outputs_of_every_kind_read_back(tmp_path: Path) -> None:
         write_c3d(tmp_path / "u.c3d", clash)
 
 
-def test_calibrated_c3d_against_pinocchio(human, tmp_path: Path, capsys) -> None:  # noqa: ANN001
-    """`calibrate TRIAL MODEL --c3d`: TRIAL_calibrated.c3d holds the trial's markers as recorded, every joint
-    centre and model marker where Pinocchio puts them for the written URDF and motion CSV (to float32 storage),
-    and each joint's angles as the CSV's coordinates (degrees in the file, radians read back)."""
-    sim = simulate_squats(human, frames=100, noise_mm=1.0, seed=5)
-    write_c3d(tmp_path / "squat.c3d", sim.trial)
-    assert main([str(tmp_path / "squat.c3d"), str(human.path), "--c3d", "-q"]) == 0, capsys.readouterr().err
-    report = json.loads((tmp_path / "squat_report.json").read_text())
-    assert report["outputs"]["c3d"] == [str(tmp_path / "squat_calibrated.c3d")]
-    out = read_c3d(tmp_path / "squat_calibrated.c3d")
-    assert out.labels == sim.trial.labels
-    np.testing.assert_allclose(out.markers, sim.trial.markers, atol=FLOAT32_M, equal_nan=True)
-    subject = load_model(tmp_path / "squat.urdf")
-    motion = read_motion_csv(tmp_path / "squat_motion.csv")
+def assert_as_pinocchio_puts_them(c3d: Path, urdf: Path, motion_csv: Path, trial: Trial) -> None:
+    """The C3D holds `trial`'s markers as recorded, every joint centre and model marker where Pinocchio puts them
+    for `urdf` driven by `motion_csv` (to float32 storage), each joint's angles as the CSV's coordinates."""
+    out = read_c3d(c3d)
+    assert out.labels == trial.labels
+    np.testing.assert_allclose(out.markers, trial.markers, atol=FLOAT32_M, equal_nan=True)
+    subject = load_model(urdf)
+    motion = read_motion_csv(motion_csv)
     assert motion.n_frames == out.n_frames
-    pm = pin.buildModelFromUrdf(str(tmp_path / "squat.urdf"), pin.JointModelFreeFlyer())
+    pm = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
     data = pm.createData()
     centres = {j.name: pm.getFrameId(j.urdf_joints[0]) for j in subject.joints}
     marks = {m: pm.getFrameId(m) for m in subject.marker_names}
@@ -87,8 +81,23 @@ def test_calibrated_c3d_against_pinocchio(human, tmp_path: Path, capsys) -> None
             want = np.column_stack([motion.angles[:, subject.dof_index(d)] for d in j.dofs])
             np.testing.assert_allclose(got, want, atol=1e-6)
             assert out.output_kinds[f"{j.name}_angles"] == "angle"
-    # its model outputs are not markers: calibrating the written file fits the same markers
-    assert set(read_c3d(tmp_path / "squat_calibrated.c3d").labels) == set(sim.trial.labels)
+
+
+def test_calibrated_c3d_against_pinocchio(human, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    """`calibrate TRIAL MODEL --c3d` writes TRIAL_calibrated.c3d (named in the report), and `calibrate ik TRIAL
+    SUBJECT --c3d` likewise: each as Pinocchio and the run's own motion CSV put the subject."""
+    sim = simulate_squats(human, frames=100, noise_mm=1.0, seed=5)
+    write_c3d(tmp_path / "squat.c3d", sim.trial)
+    assert main([str(tmp_path / "squat.c3d"), str(human.path), "--c3d", "-q"]) == 0, capsys.readouterr().err
+    report = json.loads((tmp_path / "squat_report.json").read_text())
+    assert report["outputs"]["c3d"] == [str(tmp_path / "squat_calibrated.c3d")]
+    assert_as_pinocchio_puts_them(tmp_path / "squat_calibrated.c3d", tmp_path / "squat.urdf",
+                                  tmp_path / "squat_motion.csv", sim.trial)
+    (tmp_path / "ik").mkdir()
+    assert main(["ik", str(tmp_path / "squat.c3d"), str(tmp_path / "squat.urdf"), "--out", str(tmp_path / "ik"),
+                 "--c3d", "-q"]) == 0, capsys.readouterr().err
+    assert_as_pinocchio_puts_them(tmp_path / "ik" / "squat_calibrated.c3d", tmp_path / "squat.urdf",
+                                  tmp_path / "ik" / "squat_motion.csv", sim.trial)
 
 
 def test_calibrated_c3d_refused_before_the_work_for_a_trial_past_its_frames(human, tmp_path: Path,

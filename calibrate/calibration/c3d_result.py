@@ -18,6 +18,8 @@ from ..model.blocks import FrameLayout
 from ..model.kinematics import build_kinematics
 
 if TYPE_CHECKING:
+    from ..io.motion import Motion
+    from ..model.model import Model, Parameters
     from .result import Calibration
 
 CENTRE_SUFFIX = "_JC"
@@ -29,34 +31,39 @@ def calibrated_trials(cal: Calibration) -> list[Trial]:
     """Each trial of `cal` with calibrate's joint centres, model markers and joint angles as model outputs
     (:attr:`Trial.model_outputs`, SI units: m and rad), in the calibration's frames; write them with
     :func:`calibrate.io.c3d.write_c3d`.  The trial's own model outputs (Plug-in Gait's) are not carried over."""
-    model, kin = cal.model, build_kinematics(cal.model)
+    kin = build_kinematics(cal.model)
+    return [with_model_outputs(cal.model, cal.params, trial, motion, kin)
+            for trial, motion in zip(cal.trials, cal.motions, strict=True)]
+
+
+def with_model_outputs(model: Model, params: Parameters, trial: Trial, motion: Motion, kin=None) -> Trial:
+    """`trial` (its markers labelled as `model`'s) with the subject (`model` at `params`) posed by `motion` beside
+    it, as :func:`calibrated_trials` gives each trial of a calibration (`calibrate ik`'s trials too); `kin`: the
+    model's kinematics, when already built."""
+    if motion.n_frames != trial.n_frames:
+        raise ValueError(f"{trial.source or 'trial'}: motion of {motion.n_frames} frames for a trial of "
+                         f"{trial.n_frames}")
+    kin = kin if kin is not None else build_kinematics(model)
     dof = {name: i for i, name in enumerate(model.dof_names)}
-    out = []
-    for trial, motion in zip(cal.trials, cal.motions, strict=True):
-        if motion.n_frames != trial.n_frames:
-            raise ValueError(f"{trial.source or 'trial'}: motion of {motion.n_frames} frames for a trial of "
-                             f"{trial.n_frames}")
-        markers, centres = kin.batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
-                                     motion.root_quaternion, cal.params)
-        outputs: dict[str, np.ndarray] = {}
-        kinds: dict[str, str] = {}
-        for k, joint in enumerate(model.joints):
-            outputs[joint.name + CENTRE_SUFFIX], kinds[joint.name + CENTRE_SUFFIX] = centres[:, k], "point"
-        for k, name in enumerate(model.marker_names):
-            outputs[name + MODEL_SUFFIX], kinds[name + MODEL_SUFFIX] = markers[:, k], "point"
-        for joint in model.joints:
-            for part in range(0, len(joint.dofs), 3):
-                values = np.zeros((motion.n_frames, 3))
-                for c, name in enumerate(joint.dofs[part:part + 3]):
-                    values[:, c] = motion.angles[:, dof[name]]
-                label = joint.name + ANGLES_SUFFIX + (str(part // 3 + 1) if part else "")
-                outputs[label], kinds[label] = values, "angle"
-        taken = set(trial.labels)
-        outputs = {(label if label not in taken else label + "_calibrate"): v for label, v in outputs.items()}
-        kinds = {(label if label not in taken else label + "_calibrate"): v for label, v in kinds.items()}
-        out.append(Trial(labels=trial.labels, markers=trial.markers, rate=trial.rate, first_frame=trial.first_frame,
-                         source=trial.source, model_outputs=outputs, output_kinds=kinds,
-                         output_units={label: "m" if kind == "point" else "rad" for label, kind in kinds.items()},
-                         measurements=trial.measurements, start_time=trial.start_time,
-                         descriptions=trial.descriptions))
-    return out
+    markers, centres = kin.batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
+                                 motion.root_quaternion, params)
+    outputs: dict[str, np.ndarray] = {}
+    kinds: dict[str, str] = {}
+    for k, joint in enumerate(model.joints):
+        outputs[joint.name + CENTRE_SUFFIX], kinds[joint.name + CENTRE_SUFFIX] = centres[:, k], "point"
+    for k, name in enumerate(model.marker_names):
+        outputs[name + MODEL_SUFFIX], kinds[name + MODEL_SUFFIX] = markers[:, k], "point"
+    for joint in model.joints:
+        for part in range(0, len(joint.dofs), 3):
+            values = np.zeros((motion.n_frames, 3))
+            for c, name in enumerate(joint.dofs[part:part + 3]):
+                values[:, c] = motion.angles[:, dof[name]]
+            label = joint.name + ANGLES_SUFFIX + (str(part // 3 + 1) if part else "")
+            outputs[label], kinds[label] = values, "angle"
+    taken = set(trial.labels)
+    outputs = {(label if label not in taken else label + "_calibrate"): v for label, v in outputs.items()}
+    kinds = {(label if label not in taken else label + "_calibrate"): v for label, v in kinds.items()}
+    return Trial(labels=trial.labels, markers=trial.markers, rate=trial.rate, first_frame=trial.first_frame,
+                 source=trial.source, model_outputs=outputs, output_kinds=kinds,
+                 output_units={label: "m" if kind == "point" else "rad" for label, kind in kinds.items()},
+                 measurements=trial.measurements, start_time=trial.start_time, descriptions=trial.descriptions)

@@ -60,6 +60,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                    help="the marker map the calibration renamed the labels by (model label = list of trial labels): "
                         "the same labels then play the same markers (with --report and no --markers: the renaming "
                         "by map its report lists)")
+    p.add_argument("--c3d", action="store_true",
+                   help="also write each trial as TRIAL-name_calibrated.c3d: its markers with the subject's joint "
+                        "centres, model markers and joint angles as model outputs (as calibrate --c3d)")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary")
     return p
@@ -83,7 +86,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     outputs = []
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
-        outputs += [folder / f"{t.stem}_motion.csv"] + ([folder / f"{t.stem}_motion.mot"] if osim else [])
+        outputs += [folder / f"{t.stem}_motion.csv"] + ([folder / f"{t.stem}_motion.mot"] if osim else []) + \
+            ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else [])
     check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
                   same="two trials with the same name would write the same motion; use --out or rename them",
                   exists_hint="pass --overwrite to replace it or choose another --out")
@@ -152,6 +156,11 @@ def cmd_ik(args: argparse.Namespace) -> int:
     trials = [read_trial(t) for t in trial_paths]
     if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
         trials = [t.of_subject(args.subject) for t in trials]
+    from ..io.c3d import C3D_MAX_FRAMES, write_c3d
+
+    long = [p for p, t in zip(trial_paths, trials, strict=True) if t.n_frames > C3D_MAX_FRAMES]
+    if args.c3d and long:
+        raise CalibrateError(f"{long[0]}: more frames than a C3D file holds ({C3D_MAX_FRAMES}); leave out --c3d")
     lines: list[str] = []
     if args.ik_setup and not args.whole_trials:
         from ..io.osim_setup import cut_to_setups
@@ -181,12 +190,16 @@ def cmd_ik(args: argparse.Namespace) -> int:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
                          f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
         results.append((path, trial, got.fit, time.perf_counter() - start, got.left_out))
-    for (path, _, fit, _, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
+    for (path, trial, fit, _, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
         if osim:
             from ..io.osim_export import write_mot
 
             write_mot(folder / f"{path.stem}_motion.mot", model, fit.motion)
+        if args.c3d:
+            from ..calibration.c3d_result import with_model_outputs
+
+            write_c3d(folder / f"{path.stem}_calibrated.c3d", with_model_outputs(model, params, trial, fit.motion))
     if released:
         lines.append(f"{', '.join(sorted(static_locks))}: the calibration held them because its static, its only "
                      "trial, moved them no more than its markers fix them; fitted in "
