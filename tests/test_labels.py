@@ -520,6 +520,21 @@ def test_bts_davis_spellings(human) -> None:  # noqa: ANN001
     assert renamed.labels == ("r knee", "r ankle", "RKNE", "RANK")
 
 
+def test_motive_and_qualisys_animation_set_spellings(human) -> None:  # noqa: ANN001
+    """OptiTrack Motive's baseline skeleton set (and Qualisys' sports set, which spells it alike) names the ASIS
+    WaistLFront / WaistRFront (Motive's documentation: on the anterior iliac spine), the lateral knee, ankle and
+    elbow LKneeOut, RAnkleOut, LElbowOut and the heel LHeelBack: the Plug-in Gait markers there (LThigh, a thigh
+    marker, was read as LTHI before) and BackTop C7 (on the spine right below the neck).  Its WaistLBack (10 cm above
+    the hip joint, not the posterior spine), LShin and HeadTop stay unknown; a side between words reads as the side
+    (knee_l_lat)."""
+    labels = ["WaistLFront", "WaistRFront", "WaistLBack", "LKneeOut", "RAnkleOut", "LElbowOut", "LHeelBack",
+              "RHeelBack", "LShin", "LThigh", "HeadTop", "BackTop", "knee_r_lat"]
+    renamed, mapping = map_labels(make_trial(labels), human.marker_names)
+    assert renamed.labels == ("LASI", "RASI", "WaistLBack", "LKNE", "RANK", "LELB", "LHEE", "RHEE", "LShin", "LTHI",
+                              "HeadTop", "C7", "RKNE")
+    assert mapping.unknown == ("WaistLBack", "LShin", "HeadTop")
+
+
 def test_opencap_augmented_spellings(human) -> None:  # noqa: ANN001
     """OpenCap's marker augmenter (Pose2Sim's LSTM files): its `_study` markers read as the landmark before the suffix,
     its lateral elbow and wrist sides as ELB, WRA and WRB; medial landmarks, clusters and hip centres stay unknown.  A

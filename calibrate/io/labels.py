@@ -20,36 +20,36 @@ label that still has one (several subjects, or a skeleton and rigid bodies in on
 file) is matched by its whole text first, then by its name after the prefix; a match after the
 prefix ranks below every match of a whole label.
 
-Aliases.  Labels are compared after normalisation: lower case, the separators ``.``, ``_``,
-``-`` and spaces removed, camel case split (``RightKnee`` = ``Right Knee``).  A side is read from
-a first or last word ``R``/``L``/``Right``/``Left`` (``R.Knee``, ``knee_r``, ``RightKnee``), or from
-the first letter (``RKNEE``); OpenSim's midline prefix ``V.`` (``V.Sacral``) and the suffix ``_study`` of OpenCap's
-marker augmenter (``r.ASIS_study``, ``r_knee_study``, ``C7_study``; its ``r_lelbow``, ``r_lwrist`` and ``r_mwrist`` the
-lateral elbow and the radial and ulnar wrist) are dropped.  The rest
-is looked up below (most specific first).  An alias only maps to a label the model has: the Plug-in Gait
-label, else the model label that reads as the same one (Rajagopal2016's ``L.Knee`` for a trial's
-``L_Knee_Lat``: both read as ``LKNE``; the lowest-ranked spelling where several do, ``L.Ankle`` before
-``LLMAL``).  Our Plug-in Gait model has no ``SACR``, nor any label that reads so, so ``V.Sacral`` stays
-unknown there.
+Aliases. Labels are compared after normalisation: lower case, the separators ``.``, ``_``, ``-`` and spaces removed,
+camel case split (``RightKnee`` = ``Right Knee``, ``LKneeOut`` = ``L Knee Out``). A side is read from a first or last
+word ``R``/``L``/``Right``/``Left`` (``R.Knee``, ``knee_r``, ``RightKnee``), from one between words (``knee_l_lat``;
+OptiTrack's and Qualisys' ``WaistLFront``), or from the first letter (``RKNEE``); OpenSim's midline prefix ``V.``
+(``V.Sacral``) and the suffix ``_study`` of OpenCap's marker augmenter (``r.ASIS_study``, ``r_knee_study``,
+``C7_study``; its ``r_lelbow``, ``r_lwrist`` and ``r_mwrist`` the lateral elbow and the radial and ulnar wrist) are
+dropped. The rest is looked up below (most specific first). An alias only maps to a label the model has: the Plug-in
+Gait label, else the model label that reads as the same one (Rajagopal2016's ``L.Knee`` for a trial's ``L_Knee_Lat``:
+both read as ``LKNE``; the lowest-ranked spelling where several do, ``L.Ankle`` before ``LLMAL``). Our Plug-in Gait
+model has no ``SACR``, nor any label that reads so, so ``V.Sacral`` stays unknown there.
 
 ============  =====================================================================================
 model label   alias names, after the side (R or L) and normalisation
 ============  =====================================================================================
-xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias
+xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias, waistfront
 xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis
 xTHI          thi, thigh, thighwand, bar1
 xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee1, knee, latepicondyle, lateralepicondyle,
               fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
-              lfc, latfemcondyle, lateralfemoralcondyle
+              lfc, latfemcondyle, lateralfemoralcondyle, kneeout
 xTIB          tib, tibia, shank, tibwand, shankwand, bar2
 xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
-              malleoluslat, mall, ankle, lm, fal, lmal, latmal
-xHEE          hee, heel, calc, calcaneus, ca, fcc, cal
+              malleoluslat, mall, ankle, lm, fal, lmal, latmal, ankleout
+xHEE          hee, heel, calc, calcaneus, ca, fcc, cal, heelback
 xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
 xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should
 xUPA          upa, upperarm, arm, humerus, bicep, biceps
 xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hle, lhe,
-              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel, lelbow
+              lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel, lelbow,
+              elbowout
 xFRM          frm, forearm
 xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius,
               rs, rsp, radialstyloidprocess, lw, faradius, lwrist
@@ -59,7 +59,7 @@ xFIN          fin, finger, mcp2, mc2, hand, hm2
 xFHD          fhd, fronthead, headfront, forehead, temple, hdf
 xBHD          bhd, backhead, headback, rearhead, headrear, hdb
 xBAK          bak, back, scapula, scap
-C7            c7, vertebrac7, cv7
+C7            c7, vertebrac7, cv7, backtop
 T10           t10, th10, vertebrat10, tv10
 CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn, snj
 STRN          strn, sternum, xiphoid, xiphoidprocess, px, sxs
@@ -81,6 +81,12 @@ protocol (``r knee 1``, ``r mall``, ``r bar 1``, ``r bar 2``) the lateral femora
 thigh and shank wands, where Plug-in Gait has its own (its ``r met``, the fifth metatarsal head, is not TOE's second),
 before a plain ``r knee`` or ``r ankle`` (c3d.org's sample28, a BTS file, holds both: those are its joint centres,
 62 and 47 mm from the epicondyle and the malleolus).
+OptiTrack Motive's and Qualisys' animation and sports marker sets spell the ASIS ``WaistLFront`` (Motive's
+documentation: on the anterior iliac spine) and the lateral knee, ankle and elbow and the heel ``LKneeOut``,
+``LAnkleOut``, ``LElbowOut``, ``LHeelBack``, and C7 ``BackTop`` (on the spine right below the neck; ``LThigh``
+reads as the thigh marker); their ``WaistLBack`` (10 cm
+above the hip joint, not the posterior spine), ``LShin`` and the rest stay unknown, placed on their segments like any
+new label.
 Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
@@ -140,26 +146,27 @@ HOWS = ("exact", "map", "alias", "description", "unknown")
 #: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
 #: names after the side and normalisation, most specific first.
 SIDE_ALIASES: dict[str, tuple[str, ...]] = {
-    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias"),
+    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias", "waistfront"),
     "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis"),
     "THI": ("thi", "thigh", "thighwand", "bar1"),
     "KNE": (
         "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee1", "knee", "latepicondyle",
         "lateralepicondyle", "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle",
-        "femurlateralepicondyle", "lek", "lfc", "latfemcondyle", "lateralfemoralcondyle",
+        "femurlateralepicondyle", "lek", "lfc", "latfemcondyle", "lateralfemoralcondyle", "kneeout",
     ),
     "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand", "bar2"),
     "ANK": (
         "ank", "anklelat", "anklelateral", "latankle", "lateralankle", "latmalleolus", "lateralmalleolus",
-        "malleoluslat", "mall", "ankle", "lm", "fal", "lmal", "latmal",
+        "malleoluslat", "mall", "ankle", "lm", "fal", "lmal", "latmal", "ankleout",
     ),
-    "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal"),
+    "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal", "heelback"),
     "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip", "fm2", "sm", "mh2"),
     "SHO": ("sho", "shoulder", "acromion", "acromium", "acr", "ac", "caj", "acromioclavicular", "should"),
     "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
     "ELB": (
         "elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow", "el", "hle", "lhe",
         "lateralhumeralepicondyle", "humerallateralepicondyle", "humeruslateralepicondyle", "lee", "lel", "lelbow",
+        "elbowout",
     ),
     "FRM": ("frm", "forearm"),
     "WRA": (
@@ -178,7 +185,7 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
 
 #: Midline Plug-in Gait markers, with alias names after normalisation, most specific first.
 MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
-    "C7": ("c7", "vertebrac7", "cv7"),
+    "C7": ("c7", "vertebrac7", "cv7", "backtop"),
     "T10": ("t10", "th10", "vertebrat10", "tv10"),
     "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch", "ij", "sjn", "snj"),
     "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess", "px", "sxs"),
@@ -189,7 +196,7 @@ _SIDE_WORDS = {"r": "R", "right": "R", "l": "L", "left": "L"}
 _SIDE_LOOKUP = {name: (code, rank) for code, names in SIDE_ALIASES.items() for rank, name in enumerate(names)}
 _MIDLINE_LOOKUP = {name: (label, rank) for label, names in MIDLINE_ALIASES.items() for rank, name in enumerate(names)}
 _SEPARATORS = re.compile(r"[\s._\-]+")
-_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")
+_CAMEL = re.compile(r"(?<=[a-z0-9])(?=[A-Z])|(?<=[A-Z])(?=[A-Z][a-z])")  # RightKnee, WaistLFront, LKneeOut
 _RANK = {"map": 0, "exact": 1, "alias": 2, "description": 3}
 
 
@@ -221,6 +228,10 @@ def _readings(label: str) -> list[tuple[str | None, str]]:
         readings.append((_SIDE_WORDS[words[0]], "".join(words[1:])))
     if len(words) > 1 and words[-1] in _SIDE_WORDS:
         readings.append((_SIDE_WORDS[words[-1]], "".join(words[:-1])))
+    middle = [k for k in range(1, len(words) - 1) if words[k] in _SIDE_WORDS]
+    if len(middle) == 1:  # the side between words: OptiTrack's and Qualisys' WaistLFront, knee_l_lat
+        k = middle[0]
+        readings.append((_SIDE_WORDS[words[k]], "".join(words[:k] + words[k + 1:])))
     for word in ("right", "left"):
         if joined.startswith(word) and len(joined) > len(word):
             readings.append((_SIDE_WORDS[word], joined[len(word) :]))
