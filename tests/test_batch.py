@@ -125,11 +125,17 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     (tmp_path / "lab.toml").write_text('[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
                                        'ik_setup = "Setup_IK.xml"\nscale_setup = "Setup_Scale.xml"\n')
     (subject,) = read_manifest(tmp_path / "lab.toml")
-    row = calibrate_subject(subject, tmp_path / "out")
+    row = calibrate_subject(subject, tmp_path / "out", c3d=True)
     assert row["status"] in ("ok", "not converged"), row
     folder = tmp_path / "out" / "S1"
     assert {p.name for p in folder.iterdir()} >= {"subject.urdf", "subject.osim", "trial_motion.csv",
-                                                  "trial_motion.mot", "report.json"}
+                                                  "trial_motion.mot", "trial_calibrated.c3d", "report.json"}
+    from calibrate.io.c3d import read_c3d
+    from calibrate.io.motion import read_motion_csv
+
+    calibrated = read_c3d(folder / "trial_calibrated.c3d")  # the frames the IK setup's range cut, as the motion's
+    assert calibrated.n_frames == read_motion_csv(folder / "trial_motion.csv").n_frames < 80
+    assert {"hip_r_JC", "knee_r_angles", "RASI_model"} <= set(calibrated.model_outputs)
     rep = json.loads((folder / "report.json").read_text())
     assert rep["mass"]["subject_kg"] == pytest.approx(61.5) and rep["mass"]["from"] == str(tmp_path / "Setup_Scale.xml")
     assert rep["settings"]["lock_deg"]["subtalar_r"] == pytest.approx(np.degrees(0.1))

@@ -1,4 +1,4 @@
-"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--overwrite]``: a lab's subjects
+"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--c3d] [--overwrite]``: a lab's subjects
 calibrated in parallel on Dask (calibrate.calibration.batch), a thin layer over run_batch."""
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ def add_batch_parser(sub) -> None:
                        help="worker processes of the local cluster (default 2, one thread each)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="an existing Dask cluster's scheduler (e.g. tcp://10.0.0.5:8786) instead")
+    bp.add_argument("--c3d", action="store_true",
+                    help="also each trial as <trial>_calibrated.c3d in its subject's folder (as calibrate --c3d)")
     bp.add_argument("--overwrite", action="store_true", help="calibrate again the subjects already done")
 
 
@@ -46,7 +48,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         print(f"  [{done}/{total}] {row['subject']}: {row['status']} ({what})", file=sys.stderr, flush=True)
 
     rows = run_batch(subjects, args.out, workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite,
-                     progress=progress)
+                     progress=progress, c3d=args.c3d)
     counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "not converged", "failed", "skipped")}
     print(f"{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n))
     print(f"wrote {args.out / 'summary.csv'}\n      {args.out / 'index.html'}")
