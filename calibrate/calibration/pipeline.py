@@ -1385,6 +1385,13 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     and set the rigidity threshold at the static's noise (gait2392: 0.2 mm, its walk's 1.1 mm; pig_walk's
     thigh marker then came out closer to the right femur than to the left).  `motion`: _trial_motion."""
     moving = [i for i, a in enumerate(motion) if a >= STILL_MOTION] if len(trials) > 1 else [0]
+    if _statics_alone(model, trials, motion if len(trials) > 1 else None):
+        # No trial moves: every marker keeps its distance to every other and every segment's pose is as still as the
+        # next one's, so neither rigidity nor the poses say where a label rides (kineticstoolkit's wheelchair-racing
+        # static had put its arm, forearm and glove markers on the femurs, its wheelchair's on the torso).
+        names = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}" for i, t in enumerate(trials))
+        return [NewMarker(lab, None, None, f"seen only in still trials ({names}): no motion shows which segment it "
+                                           "rides on") for lab in unknown]
     used = [trials[i] for i in (moving or range(len(trials)))]
     labels = (*model.marker_names, *unknown)
     parts = []
