@@ -74,3 +74,30 @@ def test_a_skin_moved_cluster_is_placed_by_the_models_poses_where_rigidity_leave
     for a, b in (("LSH1", "LSH2"), ("LSH1", "LSH3"), ("LSH2", "LSH3")):
         truth = np.linalg.norm(true_places[a] - true_places[b])
         assert abs(np.linalg.norm(P[a] - P[b]) - truth) < 0.003
+
+
+def test_a_static_alone_places_no_new_label():
+    """The same subject standing still (simulate_static), its shank cluster's labels unknown to the base model: no
+    trial moves, so neither rigidity nor the poses can tell the tibia from any other segment (they had put a BTS
+    static's hip centre on the tibia); every new label is left out, said so, and the subject has none of them.  With
+    the squats beside the static the cluster goes on tibia_l again, as above."""
+    from calibrate.simulation.simulate import simulate_static
+
+    base = load_model(HUMAN)
+    extra = "".join(
+        f'  <link name="{n}"><visual><geometry><sphere radius="0.007"/></geometry></visual></link>\n'
+        f'  <joint name="{n}_marker" type="fixed"><parent link="tibia_l"/><child link="{n}"/>'
+        f'<origin xyz="{x} {y} {z}" rpy="0 0 0"/></joint>\n' for n, (x, y, z) in CLUSTER.items())
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "clustered.urdf"
+        path.write_text(HUMAN.read_text().replace("</robot>", extra + "</robot>"))
+        truth = load_model(path)
+    squats = simulate_squats(truth, frames=200, noise_mm=1.0, seed=5)
+    static = simulate_static(truth, squats.truth, frames=120, noise_mm=1.0, seed=2).trial
+    cal = calibrate(base, static, Settings())
+    placed = {m.label: m for m in cal.new_markers}
+    for n in CLUSTER:
+        assert placed[n].segment is None and "seen only in still trials" in placed[n].reason, placed[n]
+        assert n in cal.ignored_labels and n not in cal.model.marker_names
+    both = calibrate(base, [static, squats.trial], Settings())
+    assert {m.label: m.segment for m in both.new_markers if m.label in CLUSTER} == dict.fromkeys(CLUSTER, "tibia_l")
