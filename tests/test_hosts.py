@@ -21,10 +21,8 @@ HUMAN = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 CLUSTER = {"LSH1": (0.03, 0.06, -0.12), "LSH2": (0.05, 0.03, -0.16), "LSH3": (0.01, 0.07, -0.19)}  # tibia_l, m
 
 
-def _session():
-    """Squats of a subject carrying a shank cluster the base model (models/human.urdf) does not know, the
-    cluster's markers moved by 4 mm of independent skin motion per frame and axis (the rest: 1 mm noise), and a
-    label that rides on nothing (a marker on the ground, moved by 4 mm per frame)."""
+def _clustered():
+    """models/human.urdf with the shank cluster CLUSTER on tibia_l: the subject the simulator draws from."""
     extra = "".join(
         f'  <link name="{n}"><visual><geometry><sphere radius="0.007"/></geometry></visual></link>\n'
         f'  <joint name="{n}_marker" type="fixed"><parent link="tibia_l"/><child link="{n}"/>'
@@ -32,7 +30,14 @@ def _session():
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "clustered.urdf"
         path.write_text(HUMAN.read_text().replace("</robot>", extra + "</robot>"))
-        truth = load_model(path)
+        return load_model(path)
+
+
+def _session():
+    """Squats of a subject carrying a shank cluster the base model (models/human.urdf) does not know, the
+    cluster's markers moved by 4 mm of independent skin motion per frame and axis (the rest: 1 mm noise), and a
+    label that rides on nothing (a marker on the ground, moved by 4 mm per frame)."""
+    truth = _clustered()
     sim = simulate_squats(truth, frames=200, noise_mm=1.0, seed=5)
     rng = np.random.default_rng(5)
     X = sim.trial.markers.copy()
@@ -84,14 +89,7 @@ def test_a_static_alone_places_no_new_label():
     from calibrate.simulation.simulate import simulate_static
 
     base = load_model(HUMAN)
-    extra = "".join(
-        f'  <link name="{n}"><visual><geometry><sphere radius="0.007"/></geometry></visual></link>\n'
-        f'  <joint name="{n}_marker" type="fixed"><parent link="tibia_l"/><child link="{n}"/>'
-        f'<origin xyz="{x} {y} {z}" rpy="0 0 0"/></joint>\n' for n, (x, y, z) in CLUSTER.items())
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "clustered.urdf"
-        path.write_text(HUMAN.read_text().replace("</robot>", extra + "</robot>"))
-        truth = load_model(path)
+    truth = _clustered()
     squats = simulate_squats(truth, frames=200, noise_mm=1.0, seed=5)
     static = simulate_static(truth, squats.truth, frames=120, noise_mm=1.0, seed=2).trial
     cal = calibrate(base, static, Settings())
