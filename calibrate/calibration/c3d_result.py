@@ -47,22 +47,18 @@ def with_model_outputs(model: Model, params: Parameters, trial: Trial, motion: M
     dof = {name: i for i, name in enumerate(model.dof_names)}
     markers, centres = kin.batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
                                  motion.root_quaternion, params)
-    outputs: dict[str, np.ndarray] = {}
-    kinds: dict[str, str] = {}
-    for k, joint in enumerate(model.joints):
-        outputs[joint.name + CENTRE_SUFFIX], kinds[joint.name + CENTRE_SUFFIX] = centres[:, k], "point"
-    for k, name in enumerate(model.marker_names):
-        outputs[name + MODEL_SUFFIX], kinds[name + MODEL_SUFFIX] = markers[:, k], "point"
+    entries = [(joint.name + CENTRE_SUFFIX, centres[:, k], "point") for k, joint in enumerate(model.joints)]
+    entries += [(name + MODEL_SUFFIX, markers[:, k], "point") for k, name in enumerate(model.marker_names)]
     for joint in model.joints:
         for part in range(0, len(joint.dofs), 3):
             values = np.zeros((motion.n_frames, 3))
             for c, name in enumerate(joint.dofs[part:part + 3]):
                 values[:, c] = motion.angles[:, dof[name]]
-            label = joint.name + ANGLES_SUFFIX + (str(part // 3 + 1) if part else "")
-            outputs[label], kinds[label] = values, "angle"
-    taken = set(trial.labels)
-    outputs = {(label if label not in taken else label + "_calibrate"): v for label, v in outputs.items()}
-    kinds = {(label if label not in taken else label + "_calibrate"): v for label, v in kinds.items()}
+            entries.append((joint.name + ANGLES_SUFFIX + (str(part // 3 + 1) if part else ""), values, "angle"))
+    taken = set(trial.labels)  # (a trial label of the same name keeps it: the output is suffixed)
+    entries = [(label + "_calibrate" if label in taken else label, values, kind) for label, values, kind in entries]
+    outputs = {label: values for label, values, _ in entries}
+    kinds = {label: kind for label, _, kind in entries}
     return Trial(labels=trial.labels, markers=trial.markers, rate=trial.rate, first_frame=trial.first_frame,
                  source=trial.source, model_outputs=outputs, output_kinds=kinds,
                  output_units={label: "m" if kind == "point" else "rad" for label, kind in kinds.items()},
