@@ -15,18 +15,19 @@ from calibrate.calibration.pipeline import calibrate
 from calibrate.model.model import load_model
 from calibrate.problem.settings import Settings
 from calibrate.seed.association import associate_to_model
-from calibrate.simulation import simulate_squats
+from calibrate.simulation import simulate_gait, simulate_squats
 
 HUMAN = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
 CLUSTER = {"LSH1": (0.03, 0.06, -0.12), "LSH2": (0.05, 0.03, -0.16), "LSH3": (0.01, 0.07, -0.19)}  # tibia_l, m
 
 
-def _clustered():
-    """models/human.urdf with the shank cluster CLUSTER on tibia_l: the subject the simulator draws from."""
+def _clustered(cluster: dict = CLUSTER, segment: str = "tibia_l"):
+    """models/human.urdf with the markers `cluster` (name -> place, m) on `segment` (by default the shank cluster
+    CLUSTER on tibia_l): the subject the simulator draws from."""
     extra = "".join(
         f'  <link name="{n}"><visual><geometry><sphere radius="0.007"/></geometry></visual></link>\n'
-        f'  <joint name="{n}_marker" type="fixed"><parent link="tibia_l"/><child link="{n}"/>'
-        f'<origin xyz="{x} {y} {z}" rpy="0 0 0"/></joint>\n' for n, (x, y, z) in CLUSTER.items())
+        f'  <joint name="{n}_marker" type="fixed"><parent link="{segment}"/><child link="{n}"/>'
+        f'<origin xyz="{x} {y} {z}" rpy="0 0 0"/></joint>\n' for n, (x, y, z) in cluster.items())
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "clustered.urdf"
         path.write_text(HUMAN.read_text().replace("</robot>", extra + "</robot>"))
@@ -99,3 +100,54 @@ def test_a_static_alone_places_no_new_label():
         assert n in cal.ignored_labels and n not in cal.model.marker_names
     both = calibrate(base, [static, squats.trial], Settings())
     assert {m.label: m.segment for m in both.new_markers if m.label in CLUSTER} == dict.fromkeys(CLUSTER, "tibia_l")
+
+
+def test_forearm_labels_past_an_unposed_elbow_are_left_out_not_put_on_the_humerus():
+    """Treadmill gait (the elbows hardly move) whose forearm, wrist and hand markers carry names the base model does not
+    know (a lab's own set), and two markers on the left upper arm that it has no counterpart for.  No known marker
+    moves the elbows, so on the base model's poses the forearm labels turn with the humeri and keep their distances to
+    the humeri's markers: the tests had put 8 of 8 on the humeri, which then carried the shoulder centres 70 and 104
+    mm from the truth's (elbows 53 and 59).  They sit where the base model's forearm and hand markers come over the
+    joints below the elbow, so they are left out, saying so; the upper-arm markers stay on humerus_l; the shoulder
+    centres end within 20 mm of the truth's (3 and 14 mm)."""
+    arm = {"LARM1": (0.03, 0.05, -0.10), "LARM2": (-0.03, 0.045, -0.20)}  # mid and distal upper arm, humerus_l
+    truth = _clustered(arm, "humerus_l")
+    sim = simulate_gait(truth, frames=300, noise_mm=1.0, seed=0)
+    renamed = {f"{s}{k}": f"{s}{v}" for s in "LR"
+               for k, v in (("FRM", "Forearm1"), ("WRA", "WristIn"), ("WRB", "WristOut"), ("FIN", "HandOut"))}
+    trial = replace(sim.trial, labels=tuple(renamed.get(lab, lab) for lab in sim.trial.labels))
+    base = load_model(HUMAN)
+    cal = calibrate(base, trial, Settings())
+    placed = {m.label: m for m in cal.new_markers}
+    assert {n: placed[n].segment for n in arm} == dict.fromkeys(arm, "humerus_l")
+    for old, new in renamed.items():
+        side = old[0].lower()
+        assert placed[new].segment is None, placed[new]
+        assert f"joints below humerus_{side}" in placed[new].reason, placed[new].reason
+        assert any(f"on {seg}_{side} " in placed[new].reason for seg in ("ulna", "radius", "hand")), placed[new].reason
+    for name in ("shoulder_l", "shoulder_r"):
+        k = [j.name for j in base.joints].index(name)
+        above = base.segment_index(base.joints[k].parent)
+        ours = cal.params.scale[above] * cal.params.centre[k]
+        true = sim.truth.scale[above] * sim.truth.centre[[j.name for j in truth.joints].index(name)]
+        assert np.linalg.norm(ours - true) < 0.020, (name, np.linalg.norm(ours - true))
+
+
+def test_past_joints_leaves_a_wrist_marker_on_the_ulna_and_takes_the_hand_and_heel_off():
+    """hosts.past_joints on simulated gait whose left wrist, hand, heel and toe markers carry unknown names, each
+    label given on the segment a test could put it on (the ulna, the tibia): the hand marker sits by the base model's
+    LFIN, past the wrist, and the heel by LHEE, past the ankle (across the markerless talus), so both are taken off;
+    the wrist markers lie along the radius's pronation axis seen from its centre, which leaves them where they are,
+    so they stay on the ulna."""
+    from calibrate.calibration.hosts import past_joints
+
+    sim = simulate_gait(load_model(HUMAN), frames=200, noise_mm=1.0, seed=0)
+    renamed = {"LWRA": "LWristIn", "LWRB": "LWristOut", "LFIN": "LHandOut", "LHEE": "LHeelBack", "LTOE": "LToeTip"}
+    trial = replace(sim.trial, labels=tuple(renamed.get(lab, lab) for lab in sim.trial.labels))
+    base = load_model(HUMAN)
+    placed = {"LWristIn": "ulna_l", "LWristOut": "ulna_l", "LHandOut": "ulna_l", "LHeelBack": "tibia_l"}
+    past = past_joints(base, [trial], placed)
+    assert set(past) == {"LHandOut", "LHeelBack"}, past
+    assert (past["LHandOut"].by, past["LHandOut"].segment) == ("LFIN", "hand_l")
+    assert past["LHeelBack"].segment == "calcn_l" and past["LHeelBack"].by in ("LHEE", "LTOE")
+    assert past["LHeelBack"].distance < past["LHeelBack"].own

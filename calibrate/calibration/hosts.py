@@ -91,21 +91,17 @@ def _pick(trials: Sequence[Trial], frames: int) -> list[Trial]:
     return picked
 
 
-def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
-           poses: dict[int, Motion] | None = None) -> dict[str, Host]:
-    """One round of kinematic_hosts on the frames `trials` (already picked).  `poses`: the last round's poses of
-    those trials (by index), where each frame's fit starts (a round only adds the labels placed to the known
-    markers: the poses move little, and from scratch each frame took 5-10 steps, on gait2392 half of the hosts'
-    time); the new ones are written there."""
-    import pinocchio as pin
-
+def _posed(model: Model, trials: Sequence[Trial], labels: Sequence[str],
+           poses: dict[int, Motion] | None = None) -> list[tuple[Trial, object]]:
+    """The base model's frame-wise fits (calibrate.solve.ik) to its known markers in those of `trials` (already
+    picked) that show any of `labels`, as (trial, fit).  `poses`: the last round's poses of those trials (by index),
+    where each frame's fit starts; the new ones are written there."""
     from ..model.kinematics import build_kinematics
     from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
 
     known = set(model.marker_names)
-    shown = {lab for t in trials for lab in t.labels if lab in known}
-    if not labels or not shown:
-        return {}
+    if not labels or not any(lab in known for t in trials for lab in t.labels):
+        return []
     kin = build_kinematics(model)
     params = model.parameters()
     poses = {} if poses is None else poses
@@ -115,18 +111,17 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
             fit = inverse_kinematics(kin, t, params, tolerance=DECISION_TOLERANCE, start=poses.get(i))
             poses[i] = fit.motion
             fits.append((t, fit))
-    if not fits:
-        return {}
-    # Candidates: every segment with a known marker the trials show, and every markerless one that turns against
-    # its parent in these poses (a forearm marker may ride on the ulna, where the radius's pronation carries it
-    # 1-2 mm further: the two then tie, and it is left out rather than put on the radius); a segment welded or
-    # locked to its parent (a patella, an OpenSim model's toes) rides on it and would only tie with it.
-    angles = np.concatenate([f.motion.angles for _, f in fits])
-    turning = {j.child for j in model.joints
-               if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
-    candidates = [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
+    return fits
+
+
+def _local_places(model: Model, fits: Sequence[tuple[Trial, object]], labels: Sequence[str],
+                  segments: Sequence[str]) -> dict[str, np.ndarray]:
+    """Each of `labels` -> its positions in each of `segments`' frames over the posed frames that show it
+    ((frames, segments, 3), m); labels seen in fewer than three posed frames are left out."""
+    import pinocchio as pin
+
     data = model.pin.createData()
-    fids = [model.pin.getFrameId(s) for s in candidates]
+    fids = [model.pin.getFrameId(s) for s in segments]
     local: dict[str, list[np.ndarray]] = {lab: [] for lab in labels}
     for t, fit in fits:
         have = [lab for lab in labels if lab in t.labels]
@@ -142,11 +137,30 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
             for k, lab in enumerate(have):
                 if np.all(np.isfinite(X[f, k])):
                     local[lab].append(np.einsum("sji,sj->si", R, X[f, k] - o))  # (segments, 3)
+    return {lab: np.array(rows) for lab, rows in local.items() if len(rows) >= 3}
+
+
+def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
+           poses: dict[int, Motion] | None = None) -> dict[str, Host]:
+    """One round of kinematic_hosts on the frames `trials` (already picked).  `poses`: the last round's poses of
+    those trials (by index), where each frame's fit starts (a round only adds the labels placed to the known
+    markers: the poses move little, and from scratch each frame took 5-10 steps, on gait2392 half of the hosts'
+    time); the new ones are written there."""
+    fits = _posed(model, trials, labels, poses)
+    if not fits:
+        return {}
+    known = set(model.marker_names)
+    shown = {lab for t in trials for lab in t.labels if lab in known}
+    # Candidates: every segment with a known marker the trials show, and every markerless one that turns against
+    # its parent in these poses (a forearm marker may ride on the ulna, where the radius's pronation carries it
+    # 1-2 mm further: the two then tie, and it is left out rather than put on the radius); a segment welded or
+    # locked to its parent (a patella, an OpenSim model's toes) rides on it and would only tie with it.
+    angles = np.concatenate([f.motion.angles for _, f in fits])
+    turning = {j.child for j in model.joints
+               if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
+    candidates = [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
     out = {}
-    for lab, rows in local.items():
-        if len(rows) < 3:
-            continue
-        P = np.array(rows)  # (frames, segments, 3)
+    for lab, P in _local_places(model, fits, labels, candidates).items():
         mid = np.median(P, axis=0)
         spread = np.sqrt(np.mean(np.sum((P - mid) ** 2, axis=2), axis=0))  # (segments,)
         order = np.argsort(spread)
@@ -154,6 +168,191 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
         ok = spread[best] <= HOST_SPREAD and (len(order) == 1 or spread[best] <= HOST_RATIO * spread[second])
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
                         candidates[second], float(spread[second]), mid[best])
+    return out
+
+
+# Joints with more rotations than this (a ball: a hip, a shoulder, a lumbar joint) open no unposed chain below a
+# segment: over their ranges the markers below sweep a volume, where a marker of the segment itself sits too (BTKData's
+# ADemo1: the sacral wand's markers had been judged past the lumbar and shoulder, by the forearm's marker)
+UNPOSED_DOFS = 2
+
+
+def _chains(model: Model) -> dict[str, list[str]]:
+    """Joint name -> the segments below it reached through joints of at most UNPOSED_DOFS rotations (it included)."""
+    kids: dict[str, list] = {sg.name: [] for sg in model.segments}
+    for j in model.joints:
+        kids[j.parent].append(j)
+
+    def down(joint) -> list[str]:
+        return [joint.child] + [d for k in kids[joint.child] if len(k.dofs) <= UNPOSED_DOFS for d in down(k)]
+
+    return {j.name: down(j) for j in model.joints}
+
+
+def unposed_below(model: Model, trials: Sequence[Trial]) -> dict[str, list[str]]:
+    """Segment -> the segments below it, across a hinge or two-axis joint (and others below that, UNPOSED_DOFS), that
+    carry model markers but that no marker the `trials` show poses (none on them or below them): a forearm whose
+    markers the trials spell otherwise."""
+    from ..model.resolve import descendants
+
+    shown = {lab for t in trials for lab in t.labels} & set(model.marker_names)
+    below = descendants(model)
+    chains = _chains(model)
+    marked = {s.name: list(s.markers) for s in model.segments}
+    out: dict[str, list[str]] = {}
+    for j in model.joints:
+        if 0 < len(j.dofs) <= UNPOSED_DOFS and not any(m in shown for d in below[j.child] for m in marked[d]):
+            out.setdefault(j.parent, []).extend(d for d in chains[j.name] if marked[d])
+    return {s: ds for s, ds in out.items() if ds}
+
+
+@dataclass(frozen=True)
+class PastJoint:
+    """A new label placed on `placed` that sits where the base model's `by`, a marker of `segment` below it across
+    joints no marker the trials show moves, can reach: there it turned with `placed` on the model's poses, so no
+    test could tell the two apart, and it is left out."""
+
+    label: str
+    placed: str
+    by: str
+    segment: str
+    distance: float  # m: from where `by` comes nearest over those joints' ranges
+    own: float  # m: from the nearest base-model marker of `placed`
+
+    def reason(self) -> str:
+        return (f"it sits {1e3 * self.distance:.0f} mm from where the base model's {self.by} on {self.segment} comes "
+                f"over the joints below {self.placed} (the nearest marker of {self.placed}: {1e3 * self.own:.0f} mm), "
+                f"and no marker the trials show moves those joints, so it turned with {self.placed} and no test "
+                "tells the two apart: name it as the model's marker it is (--markers map.toml)")
+
+
+REACH_POSES = 512  # random poses of the joints below a segment, over their ranges, where its unposed markers may be
+# ... up to this turn from the base model's pose: further, a flexed elbow folds the forearm's markers back onto the
+# upper arm's distal half, where a marker of the humerus would then seem to sit past the elbow
+REACH_TURN = np.pi / 2
+
+
+def _reach(model: Model, segment: str, below: Sequence[str], rng: np.random.Generator
+           ) -> list[tuple[np.ndarray, list[str], np.ndarray]]:
+    """For each joint from `segment` down to segments of `below` (under it, unposed; a markerless talus between): the
+    joint's centre in `segment`'s frame, the base model's markers below it, and their places in `segment`'s frame
+    over REACH_POSES random poses of the joints down to them, within their limits and REACH_TURN
+    ((poses, markers, 3), m)."""
+    import pinocchio as pin
+
+    chains = _chains(model)
+    data = model.pin.createData()
+    frame = model.pin.getFrameId(segment)
+    out = []
+    for joint in (j for j in model.joints if j.parent == segment and any(d in below for d in chains[j.name])):
+        chain = chains[joint.name]
+        dofs = [model.dof_index(d) for j in model.joints if j.child in chain for d in j.dofs]
+        names = [m for sg in chain for m in model.segments[model.segment_index(sg)].markers]
+        lo = np.array([model.dofs[i].lower for i in dofs])
+        hi = np.array([model.dofs[i].upper for i in dofs])
+        lo, hi = np.maximum(lo, -REACH_TURN), np.minimum(hi, REACH_TURN)
+        fids = [model.pin.getFrameId(m) for m in names]
+        at = np.empty((REACH_POSES, len(names), 3))
+        for k in range(REACH_POSES):
+            angles = np.zeros(model.n_dofs)
+            angles[dofs] = 0.0 if k == 0 else rng.uniform(lo, hi)
+            pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1], angles))
+            own = data.oMf[frame]
+            at[k] = [own.actInv(data.oMf[f]).translation for f in fids]
+        out.append((np.asarray(joint.centre, dtype=float), names, at))
+    return out
+
+
+def _about(axis: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """`points` (..., 3) as (along `axis`, distance from it): what stays when the segment turns about it."""
+    u = axis / np.linalg.norm(axis)
+    a = points @ u
+    return np.stack([a, np.linalg.norm(points - a[..., None] * u, axis=-1)], axis=-1)
+
+
+# A model marker whose direction from a joint's centre is nearer the joint's axis than across it lies along it: the
+# joint's turn carries it little (in human.urdf a radius's wrist markers about its pronation axis, 3-11 deg; a
+# forearm's, a hand's and a heel's markers about the elbow, wrist and ankle axes: 77-85 deg), so a label sitting by it
+# is no reason to leave out (OpenCap's and AddBiomechanics' wrist markers on ulnae whose radius no known marker poses)
+AXIAL = np.radians(45.0)
+
+
+def _joints_between(model: Model, top: str, bottom: str) -> list:
+    """The joints from segment `top` down to segment `bottom` (below it), top first."""
+    joint_of = {j.child: j for j in model.joints}
+    out = []
+    while bottom != top and bottom in joint_of:
+        out.append(joint_of[bottom])
+        bottom = joint_of[bottom].parent
+    return out[::-1]
+
+
+def _along_axes(model: Model, marker: str, joints: Sequence) -> bool:
+    """Whether the base model's `marker` lies along every axis of `joints` (above it), within AXIAL of each seen from
+    its centre, in the neutral pose: the base model's geometry, not the label's place on poses a segment with few
+    markers turns (OpenCap's wrist labels on an ulna posed by one marker: 19-33 deg from its pronation axis)."""
+    import pinocchio as pin
+
+    data = model.pin.createData()
+    pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
+                                                                         np.zeros(model.n_dofs)))
+    at = data.oMf[model.pin.getFrameId(marker)].translation
+    axes = model.parameters().axis
+    for j in joints:
+        for d in j.dofs:
+            joint = data.oMi[model.pin.getJointId(d)]
+            v, axis = at - joint.translation, joint.rotation @ axes[model.dof_index(d)]
+            if abs(v @ axis) < np.cos(AXIAL) * np.linalg.norm(v) * np.linalg.norm(axis):
+                return False
+    return True
+
+
+def past_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
+                frames: int = HOST_FRAMES) -> dict[str, PastJoint]:
+    """Of `placed` (new label -> segment, by any test), those whose median place on their segment, on about `frames`
+    frames of `trials` (the moving ones) posed by the base model's known markers, is nearer where a base-model marker
+    of a segment below it that no shown marker poses (unposed_below) can come, over the joints' ranges, than to any
+    of its own segment's.  Where no known marker moves an elbow, a wrist marker keeps its distances to the humerus's
+    markers and its place on the humerus as well as they do (pig_walk's forearm and hand labels renamed: all put on
+    the humeri, 9-19 mm RMS, which then carried the shoulder centres 91 and 117 mm from the scaled base model's);
+    the base model's markers say it rides past the elbow, unless the marker it sits by lies along the axes of every
+    joint down to it (AXIAL: a wrist marker on the ulna, above the radius's pronation).  A segment that shows fewer
+    than three markers is compared about the line to the joint below (along it and off it): its turn about that line
+    is what the unposed segment's markers would have fixed (pig_walk's humerus posed by its arm and elbow markers
+    alone had put a forearm marker 87 mm off the line, where the base model's has it 5 mm)."""
+    below = unposed_below(model, trials)
+    on = {lab: seg for lab, seg in placed.items() if seg in below}
+    if not on:
+        return {}
+    fits = _posed(model, _pick(trials, frames), list(on))
+    if not fits:
+        return {}
+    segments = sorted(set(on.values()))
+    rng = np.random.default_rng(0)
+    reach = {sg: _reach(model, sg, below[sg], rng) for sg in segments}
+    shown = {lab for t in trials for lab in t.labels}
+    offsets = model.parameters().marker  # each model marker's place on its segment (the base model's, as posed)
+    out = {}
+    for lab, P in _local_places(model, fits, list(on), segments).items():
+        sg = on[lab]
+        mid = np.median(P[:, segments.index(sg)], axis=0)
+        mine = model.segments[model.segment_index(sg)].markers
+        few = sum(m in shown for m in mine) < 3
+        own_at = np.array([offsets[model.marker_index(m)] for m in mine]).reshape(-1, 3)
+        for centre, names, at in reach[sg]:
+            if few:
+                d = np.linalg.norm(_about(centre, at) - _about(centre, mid), axis=2).min(axis=0)
+                own = np.linalg.norm(_about(centre, own_at) - _about(centre, mid), axis=1)
+            else:
+                d = np.linalg.norm(at - mid, axis=2).min(axis=0)  # (markers,) nearest over the poses
+                own = np.linalg.norm(own_at - mid, axis=1)
+            k = int(np.argmin(d))
+            near_own = float(own.min()) if len(own) else np.inf
+            by = names[k]
+            host = model.markers[model.marker_index(by)].segment
+            if (d[k] < near_own and (lab not in out or d[k] < out[lab].distance)
+                    and not _along_axes(model, by, _joints_between(model, sg, host))):
+                out[lab] = PastJoint(lab, sg, by, host, float(d[k]), near_own)
     return out
 
 

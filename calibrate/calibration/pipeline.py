@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
-from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts
+from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, past_joints
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
     STILL_SAMPLE,
@@ -1417,9 +1417,15 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     # the model spells otherwise: calibrate.calibration.hosts.cluster_hosts).
     rest = [lab for lab in rest if lab not in margins or margins[lab].segment is None]
     clusters = cluster_hosts(model, used, rest, assoc.threshold) if rest else {}
+    # Any of them placed on a segment's near side that sits by the base model's markers of a segment below it which
+    # no known marker moves (hosts.past_joints: a wrist marker on a humerus where the elbow has no known marker)
+    placed.update({lab: margins[lab].segment for lab in margins if margins[lab].segment is not None})
+    past = past_joints(model, used, placed) if placed else {}
     out = []
     for lab in unknown:
-        if len(used) < len(trials) and not any(lab in t.labels for t in used):
+        if lab in past:
+            out.append(NewMarker(lab, None, None, past[lab].reason()))
+        elif len(used) < len(trials) and not any(lab in t.labels for t in used):
             still = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}"
                               for i, t in enumerate(trials) if i not in moving)
             out.append(NewMarker(lab, None, None, f"seen only in still trials ({still}): no motion shows which "
