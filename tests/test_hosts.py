@@ -102,34 +102,44 @@ def test_a_static_alone_places_no_new_label():
     assert {m.label: m.segment for m in both.new_markers if m.label in CLUSTER} == dict.fromkeys(CLUSTER, "tibia_l")
 
 
-def test_forearm_labels_past_an_unposed_elbow_are_left_out_not_put_on_the_humerus():
+def test_forearm_labels_past_an_unposed_elbow_are_left_out_not_put_on_the_humerus(tmp_path, capsys):
     """Treadmill gait (the elbows hardly move) whose forearm, wrist and hand markers carry names the base model does not
-    know (a lab's own set), and two markers on the left upper arm that it has no counterpart for.  No known marker
-    moves the elbows, so on the base model's poses the forearm labels turn with the humeri and keep their distances to
-    the humeri's markers: the tests had put 8 of 8 on the humeri, which then carried the shoulder centres 70 and 104
-    mm from the truth's (elbows 53 and 59).  They sit where the base model's forearm and hand markers come over the
-    joints below the elbow, so they are left out, saying so; the upper-arm markers stay on humerus_l; the shoulder
-    centres end within 20 mm of the truth's (3 and 14 mm)."""
+    know (a lab's own set), and two markers on the left upper arm that it has no counterpart for, through the command
+    line.  No known marker moves the elbows, so on the base model's poses the forearm labels turn with the humeri and
+    keep their distances to the humeri's markers: the tests had put 8 of 8 on the humeri, which then carried the
+    shoulder centres 70 and 104 mm from the truth's (elbows 53 and 59).  They sit where the base model's forearm and
+    hand markers come over the joints below the elbow, so they are left out, each with the model marker it sits by
+    (the report's `sits_by`, the warning's hint at a marker map); the upper-arm markers stay on humerus_l; the written
+    subject's shoulder centres end within 20 mm of the truth's (3 and 14 mm)."""
+    import json
+
+    from calibrate.cli import main
+    from calibrate.io.c3d import write_c3d
+
     arm = {"LARM1": (0.03, 0.05, -0.10), "LARM2": (-0.03, 0.045, -0.20)}  # mid and distal upper arm, humerus_l
     truth = _clustered(arm, "humerus_l")
     sim = simulate_gait(truth, frames=300, noise_mm=1.0, seed=0)
     renamed = {f"{s}{k}": f"{s}{v}" for s in "LR"
                for k, v in (("FRM", "Forearm1"), ("WRA", "WristIn"), ("WRB", "WristOut"), ("FIN", "HandOut"))}
-    trial = replace(sim.trial, labels=tuple(renamed.get(lab, lab) for lab in sim.trial.labels))
-    base = load_model(HUMAN)
-    cal = calibrate(base, trial, Settings())
-    placed = {m.label: m for m in cal.new_markers}
-    assert {n: placed[n].segment for n in arm} == dict.fromkeys(arm, "humerus_l")
+    labels = tuple(renamed.get(lab, lab) for lab in sim.trial.labels)
+    write_c3d(tmp_path / "gait.c3d", replace(sim.trial, labels=labels))
+    assert main([str(tmp_path / "gait.c3d"), str(HUMAN), "-o", str(tmp_path / "subject.urdf"), "-q"]) == 0
+    warning = next(x for x in capsys.readouterr().err.splitlines() if x.startswith("warning: 8 trial labels"))
+    report = json.loads(next(tmp_path.glob("*_report.json")).read_text())["marker_set"]
+    assert {x["label"]: x["segment"] for x in report["new"]} == dict.fromkeys(arm, "humerus_l")
+    left = {x["label"]: x for x in report["left_out"]}
+    forearm = {side: {f"{side}{k}" for k in ("FRM", "WRA", "WRB", "FIN")} for side in "LR"}
     for old, new in renamed.items():
         side = old[0].lower()
-        assert placed[new].segment is None, placed[new]
-        assert f"joints below humerus_{side}" in placed[new].reason, placed[new].reason
-        assert any(f"on {seg}_{side} " in placed[new].reason for seg in ("ulna", "radius", "hand")), placed[new].reason
+        assert f"joints below humerus_{side}" in left[new]["reason"], left[new]
+        assert left[new]["sits_by"] and set(left[new]["sits_by"]) <= forearm[old[0]], left[new]
+        assert f"{new} near {' or '.join(left[new]['sits_by'])}" in warning and "--markers" in warning
+    base, subject = load_model(HUMAN), load_model(tmp_path / "subject.urdf")
     for name in ("shoulder_l", "shoulder_r"):
         k = [j.name for j in base.joints].index(name)
-        above = base.segment_index(base.joints[k].parent)
-        ours = cal.params.scale[above] * cal.params.centre[k]
-        true = sim.truth.scale[above] * sim.truth.centre[[j.name for j in truth.joints].index(name)]
+        ours = subject.parameters().centre[[j.name for j in subject.joints].index(name)]
+        true = sim.truth.scale[base.segment_index(base.joints[k].parent)] * sim.truth.centre[
+            [j.name for j in truth.joints].index(name)]
         assert np.linalg.norm(ours - true) < 0.020, (name, np.linalg.norm(ours - true))
 
 

@@ -218,14 +218,18 @@ class PastJoint:
     segment: str
     distance: float  # m: from where `by` comes nearest over those joints' ranges
     own: float  # m: from the nearest base-model marker of `placed`
+    near: tuple[str, ...] = ()  # `by` and the markers below that come within NEAR_TIE as near: which it may be
 
     def reason(self) -> str:
-        return (f"it sits {1e3 * self.distance:.0f} mm from where the base model's {self.by} on {self.segment} comes "
-                f"over the joints below {self.placed} (the nearest marker of {self.placed}: {1e3 * self.own:.0f} mm), "
+        tie = f" (or {', '.join(m for m in self.near if m != self.by)}, as near)" if len(self.near) > 1 else ""
+        return (f"it sits {1e3 * self.distance:.0f} mm from where the base model's {self.by}{tie} on {self.segment} "
+                f"comes over the joints below {self.placed} (the nearest marker of {self.placed}: "
+                f"{1e3 * self.own:.0f} mm), "
                 f"and no marker the trials show moves those joints, so it turned with {self.placed} and no test "
                 "tells the two apart: name it as the model's marker it is (--markers map.toml)")
 
 
+NEAR_TIE = 0.010  # m: markers below that come this much nearer at most tie with the nearest (a wrist's two markers)
 REACH_POSES = 512  # random poses of the joints below a segment, over their ranges, where its unposed markers may be
 # ... up to this turn from the base model's pose: further, a flexed elbow folds the forearm's markers back onto the
 # upper arm's distal half, where a marker of the humerus would then seem to sit past the elbow
@@ -352,7 +356,8 @@ def past_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
             host = model.markers[model.marker_index(by)].segment
             if (d[k] < near_own and (lab not in out or d[k] < out[lab].distance)
                     and not _along_axes(model, by, _joints_between(model, sg, host))):
-                out[lab] = PastJoint(lab, sg, by, host, float(d[k]), near_own)
+                near = tuple(names[i] for i in np.argsort(d) if d[i] <= d[k] + NEAR_TIE)
+                out[lab] = PastJoint(lab, sg, by, host, float(d[k]), near_own, near)
     return out
 
 

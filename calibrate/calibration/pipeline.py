@@ -1424,7 +1424,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     out = []
     for lab in unknown:
         if lab in past:
-            out.append(NewMarker(lab, None, None, past[lab].reason()))
+            out.append(NewMarker(lab, None, None, past[lab].reason(), sits_by=past[lab].near))
         elif len(used) < len(trials) and not any(lab in t.labels for t in used):
             still = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}"
                               for i, t in enumerate(trials) if i not in moving)

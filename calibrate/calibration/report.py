@@ -95,7 +95,8 @@ def calibration_report(cal: Calibration) -> dict:
             "used": [n for n in model.marker_names if n not in cal.unused_markers],
             "new": [{"label": m.label, "segment": m.segment, "position_mm": [_mm(v) for v in m.position],
                      "reason": m.reason} for m in cal.new_markers if m.segment is not None],
-            "left_out": [{"label": m.label, "reason": m.reason} for m in cal.new_markers if m.segment is None],
+            "left_out": [{"label": m.label, "reason": m.reason, "sits_by": list(m.sits_by)}
+                         for m in cal.new_markers if m.segment is None],
             "ignored_labels": list(cal.ignored_labels), "unused_model_markers": list(cal.unused_markers)},
         "outliers": {"count": len(cal.outliers), "per_marker": per_outlier,
                      "threshold_noise_sd": st.outliers,

@@ -31,6 +31,10 @@ class NewMarker:
     segment: str | None  # None: it rides on no segment (left out)
     position: np.ndarray | None  # (3,) m in the segment frame at the start (subject scale); None if left out
     reason: str  # why this segment (or why none)
+    # left out past a joint no known marker moves (hosts.past_joints): the base model's markers it sits by, nearest
+    # first (two when they tie: a wrist's), which the trials do not show under their own names (what a marker map
+    # might call it)
+    sits_by: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

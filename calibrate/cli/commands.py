@@ -326,8 +326,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         one = len(named) == 1
         why = ("is not a marker of" if one else "are not markers of") if not settings.new_markers else (
             "rides on no segment of" if one else "ride on no segment of")
+        by = {m.label: " or ".join(m.sits_by) for m in cal.new_markers if m.sits_by and m.label in named}
+        hint = (f"; {len(by)} of them sit where {model.path.name} has markers the trial does not show "
+                f"({', '.join(f'{lab} near {mk}' for lab, mk in by.items())}): if they are those markers, name "
+                "them so in a marker map (--markers map.toml)" if by else "")
         print(f"warning: {len(named)} trial label{'' if one else 's'} {why} {model.path.name} and "
-              f"{'is' if one else 'are'} ignored: {', '.join(named)}", file=sys.stderr)
+              f"{'is' if one else 'are'} ignored: {', '.join(named)}{hint}", file=sys.stderr)
     if unlabelled:  # Vicon Nexus's '*115': trajectories nobody labelled, not markers the model lacks
         many = "y" if len(unlabelled) == 1 else "ies"
         print(f"warning: {len(unlabelled)} unlabelled trajector{many} ignored ({', '.join(unlabelled[:4])}"
