@@ -1144,12 +1144,25 @@ def test_too_few_markers_or_frames(human):
 
 
 # ---------------------------------------------------------------------- CLI
+def _main(capsys, *args) -> tuple[int, str]:
+    """`calibrate ARGS` through the command line's main() in this process: (exit status, stderr); argparse's
+    errors exit by SystemExit."""
+    from calibrate.cli.main import main
+
+    capsys.readouterr()
+    try:
+        code = main([str(a) for a in args])
+    except SystemExit as e:
+        code = e.code
+    return code, capsys.readouterr().err
+
+
 def _cli(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "calibrate.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=cwd, timeout=600)
 
 
-def test_cli_calibrate_defaults_and_errors(human, tmp_path):
+def test_cli_calibrate_defaults_and_errors(human, tmp_path, capsys):
     sim = simulate_squats(human, frames=120, noise_mm=1.0, seed=10)
     # An extra label the model does not know and that rides on no segment (halfway between the
     # knees): warned about and ignored.
@@ -1197,20 +1210,22 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path):
         ([tmp_path / "s01.c3d", human.path, "-o", tmp_path / "w.urdf", "--config", tmp_path / "none.toml"],
          "no such config file"),
     ]
+    # In this process (the command line's main(); the refusal above ran as a program): each a fresh process cost
+    # about 2 s of imports.
     for args, msg in cases:
-        r = _cli(*args, "--motion", tmp_path / "m.csv", "--report", tmp_path / "r.json", "-q")
-        assert r.returncode == 2 and msg in r.stderr, (args, r.returncode, r.stderr)
-        assert r.stderr.startswith("calibrate: error: "), r.stderr
-        assert r.stderr.strip().count("\n") == 0, r.stderr
+        code, err = _main(capsys, *args, "--motion", tmp_path / "m.csv", "--report", tmp_path / "r.json", "-q")
+        assert code == 2 and msg in err, (args, code, err)
+        assert err.startswith("calibrate: error: "), err
+        assert err.strip().count("\n") == 0, err
     assert not (tmp_path / "x.urdf").exists() and not (tmp_path / "y.urdf").exists()
     # A session's file with two subjects' markers (Vicon's A:RASI, B:RASI; B a metre aside): refused with one line
     # naming both, nothing written; --subject B calibrates B's, every model marker seen.
     two = Trial(tuple(f"A:{n}" for n in trial.labels) + tuple(f"B:{n}" for n in trial.labels),
                 np.concatenate([trial.markers, trial.markers + np.array([1.0, 0.0, 0.0])], axis=1), 100.0)
     write_c3d(tmp_path / "two.c3d", two)
-    r = _cli(tmp_path / "two.c3d", human.path, "-o", tmp_path / "two.urdf", "-q")
-    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
-    assert "two.c3d: holds the markers of 2 subjects (A: 39 of the model's, B: 39 of the model's)" in r.stderr
+    code, err = _main(capsys, tmp_path / "two.c3d", human.path, "-o", tmp_path / "two.urdf", "-q")
+    assert code == 2 and err.strip().count("\n") == 0, err
+    assert "two.c3d: holds the markers of 2 subjects (A: 39 of the model's, B: 39 of the model's)" in err
     assert not (tmp_path / "two.urdf").exists() and not (tmp_path / "two_report.json").exists()
     r = _cli(tmp_path / "two.c3d", human.path, "-o", tmp_path / "b.urdf", "--subject", "B", "--frames", "10:60", "-q")
     assert r.returncode == 0, r.stderr
