@@ -7,6 +7,7 @@ anterior of the true centre, and the static trial records it there."""
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -312,6 +313,69 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
     moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
     assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)
 
+
+
+def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausible(human, tmp_path, monkeypatch,
+                                                                                 capsys):
+    """hip_regression "auto": a simulated walk's hips, not implausible (9-29 mm from Harrington's), keep the calibration
+    without the regression to the bit, and the report says "auto"; with REGRESSION_FAR set below their distance (as
+    BTKData's Plug-in Gait walks' 46-93 mm are beyond it) the trials are calibrated again with the regression: the
+    same bits as asking for it, the hips then nearer Harrington's computed by hand (read back through the URDF),
+    the summary and report saying why.  Where the regression cannot run the first calibration is kept and says
+    so.  The command line's --hip-regression-auto and a settings file ask for it; both flags at once are refused."""
+    from dataclasses import replace
+
+    import calibrate.calibration.regression as regression
+    from calibrate.cli.main import main
+
+    walk = simulate_gait(human, frames=100, noise_mm=1.0, seed=2).trial
+    plain, placed = (calibrate(human, [walk], Settings(outliers=0.0, hip_regression=h)) for h in (False, True))
+    auto = calibrate(human, [walk], Settings(outliers=0.0, hip_regression="auto"))
+    assert not any(h.implausible for h in plain.hip_motion) and auto.hip_regression_auto == ""
+    assert np.array_equal(auto.params.vector(), plain.params.vector())
+    assert calibration_report(auto)["settings"]["hip_regression"] == "auto"
+    near = min(h.from_regression for h in plain.hip_motion)
+    monkeypatch.setattr(regression, "REGRESSION_FAR", 0.5 * near)
+    said: list[str] = []
+    fired = calibrate(human, [walk], Settings(outliers=0.0, hip_regression="auto"),
+                      progress=lambda p: said.append(str(p)))
+    assert np.array_equal(fired.params.vector(), placed.params.vector())
+    far = " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in plain.hip_motion)
+    assert fired.hip_regression_auto.startswith(f"applied: without it {far} from Harrington's regression")
+    assert sum("calibrating again with it (hip_regression auto)" in x for x in said) == 1
+    assert f"  hips         Harrington's regression (hip_regression auto) applied: without it {far}" in fired.text()
+    report = calibration_report(fired)
+    assert report["hip_regression_auto"] == fired.hip_regression_auto and report["settings"]["hip_regression"] == "auto"
+    assert "unregressed" in fired.times
+    # Its hips nearer Harrington's than the calibration without the regression left them (read back through the URDF)
+    before = {h.joint: h.from_regression for h in plain.hip_motion}
+    for joint, got, want in zip(("hip_r", "hip_l"), _hips_from_urdf(fired, tmp_path / "auto.urdf"),
+                                _harrington_by_hand(walk), strict=True):
+        assert np.median(np.linalg.norm(got - want, axis=1)) < 0.6 * before[joint], (joint, before)
+    # Asked for by a settings file or the command line; anything else refused in one line.
+    assert settings_from_dict({"hip_regression": "auto"}, "lab.toml").hip_regression == "auto"
+    with pytest.raises(CalibrateError, match='lab.toml: hip_regression: must be true, false or "auto"'):
+        settings_from_dict({"hip_regression": "sometimes"}, "lab.toml")
+    with pytest.raises(ValueError, match="hip_regression"):
+        replace(Settings(), hip_regression=1)
+    from calibrate.io.c3d import write_c3d
+
+    write_c3d(tmp_path / "walk.c3d", walk)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path / "walk.c3d"), str(human.path), "--hip-regression", "--hip-regression-auto"])
+    assert e.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+    # A model that already carries the regression's marker name (a subject written by a calibration with it): the
+    # regression cannot run, so the first calibration is kept, and says why.
+    named = write_model(add_markers(human, {"RHJC_harrington": ("pelvis", np.zeros(3))}), tmp_path / "named.urdf")
+    assert main([str(tmp_path / "walk.c3d"), str(named), "-o", str(tmp_path / "s.urdf"), "--report",
+                 str(tmp_path / "s.json"), "-q", "--outlier-sigmas", "0", "--hip-regression-auto"]) == 0
+    out = capsys.readouterr().out
+    report = json.loads((tmp_path / "s.json").read_text())
+    assert report["settings"]["hip_regression"] == "auto"
+    assert report["hip_regression_auto"].startswith(f"not applied: {far} from Harrington's regression")
+    assert "already has a marker RHJC_harrington" in report["hip_regression_auto"]
+    assert "(hip_regression auto) not applied: " in out
 
 
 def test_hip_regression_finds_opencaps_pelvis_landmarks(human, tmp_path):

@@ -161,6 +161,10 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     for t in trials:
         if not isinstance(t, Trial):
             raise CalibrateError(f"expected Trial objects (calibrate.read_trial), got {type(t).__name__}")
+    if settings is not None and settings.hip_regression == "auto":
+        return _hips_auto(model, trials, settings, dict(marker_map=marker_map, aliases=aliases,
+                                                        kinematics=kinematics, mass=mass, neutral=neutral,
+                                                        pose=pose, progress=progress))
     # The linear algebra here is many small blocks plus one Schur complement: one BLAS thread is
     # faster than several (which also fight CasADi's two evaluation threads for the cores).
     label_maps: tuple = ()
@@ -1579,6 +1583,36 @@ def _clock(say: Callable[[str | Progress], None], problem: Problem, solver: Solv
     fit in the memory budget: its iterations take seconds); None (silent) on a shorter one."""
     fits = problem.F * frame_bytes(problem, True) <= problem.settings.memory_mb * 1e6
     return None if fits else IterationClock(say, label, solver.atol, solver.ftol)
+
+
+def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, given: dict) -> Calibration:
+    """Settings.hip_regression "auto": the calibration without Harrington's regression, and where it leaves a hip
+    implausible (HipMotion.implausible: the trials' motion does not place it, and it ended further than
+    REGRESSION_FAR from the regression or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers; BTKData's
+    Plug-in Gait walks: 46-93 mm, the hips outside the ASIS), the calibration again with it.  The result says which
+    (Calibration.hip_regression_auto); where the trials or the model lack the pelvis landmarks, the first is kept
+    and says why.  Costs a second calibration only where the check fires."""
+    say = _announcer(given["progress"])
+    first = calibrate(model, trials, replace(settings, hip_regression=False), **given)
+    tied = {m.joint for m in first.joint_markers}
+    far = [h for h in first.hip_motion if h.implausible and h.joint not in tied]
+    if not far:
+        return replace(first, settings=replace(first.settings, hip_regression="auto"))
+    width, asis = far[0].width
+    why = (" and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
+           + f" from Harrington's regression on the pelvis markers, the hips {1e3 * width:.0f} mm apart where the "
+           f"ASIS markers are {1e3 * asis:.0f}")
+    say(Progress("hips", f"{why} without the regression: calibrating again with it (hip_regression auto)"))
+    try:
+        second = calibrate(model, trials, replace(settings, hip_regression=True), **given)
+    except CalibrateError as e:
+        if not str(e).startswith("hip_regression:"):
+            raise
+        return replace(first, settings=replace(first.settings, hip_regression="auto"),
+                       hip_regression_auto=f"not applied: {why}, but {str(e).removeprefix('hip_regression: ')}")
+    return replace(second, settings=replace(second.settings, hip_regression="auto"),
+                   hip_regression_auto=f"applied: without it {why}",
+                   times={"unregressed": sum(first.times.values()), **second.times})
 
 
 def _announcer(progress: Callable[[Progress], None] | None) -> Callable[[str | Progress], None]:

@@ -183,6 +183,9 @@ def calibration_report(cal: Calibration) -> dict:
         "placeholder_markers": _placeholders(cal),
         # how far the trials turn each hip, and whether that places its centre (calibrate.calibration.regression)
         "hip_motion": [h.to_json() for h in cal.hip_motion],
+        # settings.hip_regression "auto": "applied: ..." (the hips the calibration without it left implausible, and
+        # so calibrated again with it), "not applied: ..." (the pelvis landmarks lacking), "" (nothing implausible)
+        "hip_regression_auto": cal.hip_regression_auto,
         # Plug-in Gait's knee axes (its femur bones' lateral axes, in trials that carry its bones) against the axis
         # its own tibia turns about in its femur, and the calibrated knees' (calibrate.calibration.plugin_gait)
         "plugin_gait_knees": [k.to_json() for k in cal.knee_axes],
@@ -778,6 +781,8 @@ def summary_text(cal) -> str:
                         "markers placed them" if cal.still_only is not None else
                         "the trials' motion does not place them (hips above), the thigh markers' skin did")
                      + "; --hip-regression places them by the regression")
+    if cal.hip_regression_auto:
+        lines.append(f"  hips         Harrington's regression (hip_regression auto) {cal.hip_regression_auto}")
     for i, x in cal.jittery:
         lines.append(f"  jitters      {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
     for i, x in cal.exchanged_back:

@@ -271,6 +271,10 @@ class Calibration:
     # calibrate.calibration.regression.HipMotion per hip: how far the trials turn it, and whether that places its
     # centre (two of its angles through 20 deg; a walk's do not)
     hip_motion: tuple = ()
+    # Settings.hip_regression "auto": what the calibration without the regression left ("" where it left no hip
+    # implausible, or the regression was not asked for so): "applied: ..." (calibrated again with it) or
+    # "not applied: ..." (the trials or model lack the pelvis landmarks it needs)
+    hip_regression_auto: str = ""
     # calibrate.calibration.plugin_gait.KneeAxisCheck per knee of each trial carrying Plug-in Gait's femur and tibia
     # bones: its knee axis against the axis its own tibia turns about, and the calibrated knee's
     knee_axes: tuple = ()

@@ -226,9 +226,15 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="keep a static trial's markers beyond a joint it holds where the moving trials never go "
                          "(by default left out: arms out in the static, at the sides in the walk; a shoulder "
                          "without its blade cannot be both; a model whose shoulder blade moves can)")
-    ap.add_argument("--hip-regression", action="store_true",
-                    help="place the hip centres by Harrington's regression from the pelvis markers (ASIS, PSIS or "
-                         "sacrum), as gait labs do where no functional hip trial places them: a walk does not")
+    hips = ap.add_mutually_exclusive_group()
+    hips.add_argument("--hip-regression", action="store_true",
+                      help="place the hip centres by Harrington's regression from the pelvis markers (ASIS, PSIS or "
+                           "sacrum), as gait labs do where no functional hip trial places them: a walk does not")
+    hips.add_argument("--hip-regression-auto", action="store_true",
+                      help="calibrate without the regression, and again with it where that leaves a hip implausible "
+                           "(over 40 mm from the regression, or the hips wider apart than 0.9 times the ASIS "
+                           "markers, where the trials' motion does not place them): a second calibration only there; "
+                           "the summary and report say which (settings file: hip_regression = \"auto\")")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too, and in a static "
                          "alone the hips', shoulders' and lumbar joint's centres (by default they are held at the "
