@@ -95,6 +95,36 @@ def test_csv_manifest_and_bad_manifests(tmp_path):
     assert np.isfinite(s.mass)
 
 
+def test_a_manifest_asks_for_the_hips_by_regression(tmp_path):
+    """hip_regression per subject (TOML true / false / "auto", a CSV column): read, passed to the calibration (a
+    trial without the PSIS markers fails that subject with the regression's one line, before any solve), and anything
+    else refused in one line naming the subject."""
+    from calibrate.calibration.batch import calibrate_subject
+    from calibrate.io.c3d import write_c3d
+    from calibrate.simulation.simulate import simulate_static
+
+    model = load_model(HUMAN)
+    static = simulate_static(model, model.parameters(), frames=5, noise_mm=0.0, seed=1).trial
+    write_c3d(tmp_path / "s.c3d", static.select([lab for lab in static.labels if lab not in ("RPSI", "LPSI")]))
+    (tmp_path / "m.toml").write_text("".join(f'[[subject]]\nid = "{sid}"\ntrials = ["s.c3d"]\nmodel = "{HUMAN}"\n'
+                                             + (f"hip_regression = {value}\n" if value else "")
+                                             for sid, value in (("A", '"auto"'), ("B", "true"), ("C", ""))))
+    a, b, c = read_manifest(tmp_path / "m.toml")
+    assert (a.hip_regression, b.hip_regression, c.hip_regression) == ("auto", True, False)
+    (tmp_path / "m.csv").write_text(f"subject,trials,model,hip_regression\nA,s.c3d,{HUMAN},auto\nB,s.c3d,{HUMAN},"
+                                    f"true\nC,s.c3d,{HUMAN},\n")
+    assert [x.hip_regression for x in read_manifest(tmp_path / "m.csv")] == ["auto", True, False]
+    row = calibrate_subject(b, tmp_path / "out")
+    assert row["status"] == "failed" and row["error"].startswith("hip_regression: ") and "RPSI and LPSI" in row["error"]
+    for name, text in (("x.toml", f'[[subject]]\nid = "A"\ntrials = ["s.c3d"]\nmodel = "{HUMAN}"\n'
+                                  'hip_regression = "sometimes"\n'),
+                       ("x.csv", f"subject,trials,model,hip_regression\nA,s.c3d,{HUMAN},sometimes\n")):
+        (tmp_path / name).write_text(text)
+        with pytest.raises(CalibrateError, match="hip_regression") as e:
+            read_manifest(tmp_path / name)
+        assert str(e.value).startswith(str(tmp_path / name)) and "\n" not in str(e.value) and "auto" in str(e.value)
+
+
 def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     """A subject on an OpenSim base model (models/human.urdf exported as .osim) with the lab's marker set, IK setup
     and Scale setup in the manifest: the Scale setup's mass and marker set are taken (the report names the file),

@@ -23,11 +23,12 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
                                                   #     one per trial)
     scale_setup = "S01/Setup_Scale.xml"           # ... as --scale-setup (mass and marker set, unless given)
     whole_trials = true                           # optional: as --whole-trials (not the setups' time ranges)
+    hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
 
     subject,trials,model,markers,mass # CSV: trials (and IK setups) separated by ';', markers and mass may be
                                       # empty; optional
     S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup,
-                                                            # whole_trials
+                                                            # whole_trials, hip_regression
 
 An OpenSim base model's subject is also written as subject.osim, its motions as <trial>_motion.mot.
 """
@@ -74,13 +75,19 @@ class Subject:
     ik_setup: tuple[Path, ...] = ()  # the lab's OpenSim IK setups (one per trial): what they hold locked (--ik-setup)
     scale_setup: Path | None = None  # the lab's OpenSim Scale setup: mass and marker set (--scale-setup)
     whole_trials: bool = False  # every frame, not the setups' time ranges (--whole-trials)
+    # the hips by Harrington's regression: True (--hip-regression), "auto" only where they end implausible without it
+    # (--hip-regression-auto; Settings.hip_regression)
+    hip_regression: bool | str = False
 
 
-def _flag(text: str, path: Path, subject: str) -> bool:
-    """A CSV manifest's true/false cell."""
+def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: bool = False) -> bool | str:
+    """A CSV manifest's true/false cell (`auto`: "auto" too)."""
     value = text.strip().lower()
+    if auto and value == "auto":
+        return "auto"
     if value not in ("true", "false", "1", "0", "yes", "no"):
-        raise CalibrateError(f"{path}: subject {subject}: whole_trials {text.strip()!r} must be true or false")
+        raise CalibrateError(f"{path}: subject {subject}: {key} {text.strip()!r} must be true or false"
+                             + (' or "auto"' if auto else ""))
     return value in ("true", "1", "yes")
 
 
@@ -112,7 +119,9 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
                  "mass": float(r["mass"]) if (r.get("mass") or "").strip() else None,
                  **{k: r[k] for k in OPENSIM_FILES if (r.get(k) or "").strip()},
                  **({"whole_trials": _flag(r["whole_trials"], path, r["subject"])}
-                    if (r.get("whole_trials") or "").strip() else {})} for r in reader]
+                    if (r.get("whole_trials") or "").strip() else {}),
+                 **({"hip_regression": _flag(r["hip_regression"], path, r["subject"], "hip_regression", auto=True)}
+                    if (r.get("hip_regression") or "").strip() else {})} for r in reader]
     else:
         raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
     base = path.parent
@@ -156,9 +165,13 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         whole = row.get("whole_trials", False)
         if not isinstance(whole, bool):
             raise CalibrateError(f"{where} ({sid}): 'whole_trials' must be true or false, got {whole!r}")
+        hips = row.get("hip_regression", False)
+        if not (isinstance(hips, bool) or hips == "auto"):
+            raise CalibrateError(f"{where} ({sid}): 'hip_regression' must be true, false or \"auto\", got {hips!r}")
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
-                                None if mass is None else float(mass), **opensim, whole_trials=whole))
+                                None if mass is None else float(mass), **opensim, whole_trials=whole,
+                                hip_regression=hips))
     return subjects
 
 
@@ -214,7 +227,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         model = _base_model(str(subject.model), _mtime(subject.model), None if marker_set is None else str(marker_set),
                             _mtime(marker_set))
         # The workers keep the cores busy already: nothing is run ahead in another process (Settings.ahead).
-        settings = Settings(ahead=False)
+        settings = Settings(ahead=False, hip_regression=subject.hip_regression)
         if subject.ik_setup:
             from ..io.osim_setup import with_ik_setup
 
