@@ -346,6 +346,9 @@ def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausibl
     assert f"  hips         Harrington's regression (hip_regression auto) applied: without it {far}" in fired.text()
     report = calibration_report(fired)
     assert report["hip_regression_auto"] == fired.hip_regression_auto and report["settings"]["hip_regression"] == "auto"
+    page = report_html(report)
+    assert f"<li>hips by Harrington's regression (hip_regression auto): applied: without it {far}" in page
+    assert "hip_regression auto" not in report_html(calibration_report(auto))
     assert "unregressed" in fired.times
     # Its hips nearer Harrington's than the calibration without the regression left them (read back through the URDF)
     before = {h.joint: h.from_regression for h in plain.hip_motion}

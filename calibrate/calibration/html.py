@@ -157,6 +157,9 @@ def _notes(report: dict) -> str:
                          + (f"; it ended {h['from_regression_mm']:.0f} mm from Harrington's regression on the pelvis "
                             "markers (its error 12 &plusmn; 6 mm): implausible" if h.get("implausible") else "")
                          + "; <code>--hip-regression</code> places it by Harrington's regression</li>")
+    if report.get("hip_regression_auto"):
+        items.append(f"<li>hips by Harrington's regression (hip_regression auto): {_e(report['hip_regression_auto'])}"
+                     "</li>")
     for k in report.get("plugin_gait_knees", []):
         if k.get("misaligned"):
             items.append(f"<li>Plug-in Gait in {_e(k.get('trial'))}: its {_e(k.get('joint'))} axis is "
