@@ -1590,8 +1590,9 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
     implausible (HipMotion.implausible: the trials' motion does not place it, and it ended further than
     REGRESSION_FAR from the regression or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers; BTKData's
     Plug-in Gait walks: 46-93 mm, the hips outside the ASIS), the calibration again with it.  The result says which
-    (Calibration.hip_regression_auto); where the trials or the model lack the pelvis landmarks, the first is kept
-    and says why.  Costs a second calibration only where the check fires."""
+    (Calibration.hip_regression_auto); where the regression cannot run (regression_hips refuses: the model already
+    carries its markers' names), the first is kept and says why.  Costs a second calibration only where the check
+    fires (the check itself reads the pelvis landmarks the regression needs)."""
     say = _announcer(given["progress"])
     first = calibrate(model, trials, replace(settings, hip_regression=False), **given)
     tied = {m.joint for m in first.joint_markers}

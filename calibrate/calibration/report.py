@@ -184,7 +184,7 @@ def calibration_report(cal: Calibration) -> dict:
         # how far the trials turn each hip, and whether that places its centre (calibrate.calibration.regression)
         "hip_motion": [h.to_json() for h in cal.hip_motion],
         # settings.hip_regression "auto": "applied: ..." (the hips the calibration without it left implausible, and
-        # so calibrated again with it), "not applied: ..." (the pelvis landmarks lacking), "" (nothing implausible)
+        # so calibrated again with it), "not applied: ..." (the regression could not run), "" (nothing implausible)
         "hip_regression_auto": cal.hip_regression_auto,
         # Plug-in Gait's knee axes (its femur bones' lateral axes, in trials that carry its bones) against the axis
         # its own tibia turns about in its femur, and the calibrated knees' (calibrate.calibration.plugin_gait)
