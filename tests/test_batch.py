@@ -110,10 +110,10 @@ def test_a_manifest_asks_for_the_hips_by_regression(tmp_path):
                                              + (f"hip_regression = {value}\n" if value else "")
                                              for sid, value in (("A", '"auto"'), ("B", "true"), ("C", ""))))
     a, b, c = read_manifest(tmp_path / "m.toml")
-    assert (a.hip_regression, b.hip_regression, c.hip_regression) == ("auto", True, False)
+    assert (a.hip_regression, b.hip_regression, c.hip_regression) == ("auto", True, None)
     (tmp_path / "m.csv").write_text(f"subject,trials,model,hip_regression\nA,s.c3d,{HUMAN},auto\nB,s.c3d,{HUMAN},"
                                     f"true\nC,s.c3d,{HUMAN},\n")
-    assert [x.hip_regression for x in read_manifest(tmp_path / "m.csv")] == ["auto", True, False]
+    assert [x.hip_regression for x in read_manifest(tmp_path / "m.csv")] == ["auto", True, None]
     row = calibrate_subject(b, tmp_path / "out")
     assert row["status"] == "failed" and row["error"].startswith("hip_regression: ") and "RPSI and LPSI" in row["error"]
     for name, text in (("x.toml", f'[[subject]]\nid = "A"\ntrials = ["s.c3d"]\nmodel = "{HUMAN}"\n'
@@ -123,6 +123,57 @@ def test_a_manifest_asks_for_the_hips_by_regression(tmp_path):
         with pytest.raises(CalibrateError, match="hip_regression") as e:
             read_manifest(tmp_path / name)
         assert str(e.value).startswith(str(tmp_path / name)) and "\n" not in str(e.value) and "auto" in str(e.value)
+
+
+def test_a_manifest_gives_each_subject_a_settings_file(tmp_path, monkeypatch):
+    """config: the manifest's (before the first [[subject]]) for every subject naming none, a subject's own over it,
+    a CSV column; the settings reach the calibration (the report's settings, read back), the manifest's
+    hip_regression over the file's, nothing run ahead whatever the file says; a bad settings file refused in one
+    line naming the subject, before any work."""
+    import calibrate.calibration.pipeline as pipeline
+    from calibrate.calibration.batch import calibrate_subject
+    from calibrate.io.c3d import write_c3d
+    from calibrate.simulation.simulate import simulate_static
+
+    model = load_model(HUMAN)
+    static = simulate_static(model, model.parameters(), frames=5, noise_mm=0.0, seed=1).trial
+    write_c3d(tmp_path / "s.c3d", static.select([lab for lab in static.labels if lab not in ("RPSI", "LPSI")]))
+    given = []  # the settings each calibration was given (the real calibration runs)
+    real = pipeline.calibrate
+    monkeypatch.setattr(pipeline, "calibrate", lambda *a, **k: given.append(a[2]) or real(*a, **k))
+    (tmp_path / "lab.toml").write_text("hip_regression = true\nahead = true\nmax_iterations = 7\n")
+    (tmp_path / "S2").mkdir()
+    (tmp_path / "S2" / "own.toml").write_text("noise_mm = 2.5\n[lock_deg]\nsubtalar_r = 3.0\n")
+    subject = f'[[subject]]\ntrials = ["s.c3d"]\nmodel = "{HUMAN}"\n'
+    (tmp_path / "m.toml").write_text('config = "lab.toml"\n' + subject + 'id = "A"\n' + subject
+                                     + 'id = "B"\nhip_regression = false\n' + subject
+                                     + 'id = "C"\nconfig = "S2/own.toml"\n')
+    a, b, c = read_manifest(tmp_path / "m.toml")
+    lab = tmp_path / "lab.toml"
+    assert (a.config, b.config, c.config) == (lab, lab, tmp_path / "S2" / "own.toml")
+    # A: the file's hip_regression, and this static has no PSIS: the regression's one line, before any solve.
+    row = calibrate_subject(a, tmp_path / "out")
+    assert row["status"] == "failed" and row["error"].startswith("hip_regression: ") and "RPSI and LPSI" in row["error"]
+    for sub, want in ((b, {"max_iterations": 7, "noise_mm": 1.0, "subtalar_r": 0.0}),
+                      (c, {"max_iterations": 100, "noise_mm": 2.5, "subtalar_r": 3.0})):
+        row = calibrate_subject(sub, tmp_path / "out")
+        assert row["status"] in ("ok", "not converged"), row["error"]
+        got = json.loads((tmp_path / "out" / sub.id / "report.json").read_text())["settings"]
+        assert got["max_iterations"] == want["max_iterations"] and got["noise_mm"] == pytest.approx(want["noise_mm"])
+        assert got["lock_deg"].get("subtalar_r", 0.0) == pytest.approx(want["subtalar_r"])  # a still trial locks some
+        assert got["hip_regression"] is False and given[-1].ahead is False
+    (tmp_path / "m.csv").write_text(f"subject,trials,model,config\nA,s.c3d,{HUMAN},S2/own.toml\nB,s.c3d,{HUMAN},\n")
+    assert [x.config for x in read_manifest(tmp_path / "m.csv")] == [tmp_path / "S2" / "own.toml", None]
+    (tmp_path / "bad.toml").write_text("noise = 2\n")  # not a key of a settings file
+    for name, text, what in (("x.toml", 'config = "bad.toml"\n' + subject + 'id = "A"\n', "noise"),
+                             ("y.toml", subject + 'id = "A"\nconfig = "none.toml"\n', "no such config file"),
+                             ("z.toml", 'config = 3\n' + subject + 'id = "A"\n', "'config' must name"),
+                             ("w.csv", f"subject,trials,model,config\nA,s.c3d,{HUMAN},bad.toml\n", "noise")):
+        (tmp_path / name).write_text(text)
+        with pytest.raises(CalibrateError, match=what) as e:
+            read_manifest(tmp_path / name)
+        assert str(e.value).startswith(str(tmp_path / name)) and "\n" not in str(e.value)
+        assert name == "z.toml" or "subject 1 (A)" in str(e.value)
 
 
 def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):

@@ -24,11 +24,15 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     scale_setup = "S01/Setup_Scale.xml"           # ... as --scale-setup (mass and marker set, unless given)
     whole_trials = true                           # optional: as --whole-trials (not the setups' time ranges)
     hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
+    config = "S01/settings.toml"                  # optional: the subject's settings file (calibrate --config)
+
+    config = "lab_settings.toml"      # TOML, before the first [[subject]]: the settings file of every subject
+                                      # that names none
 
     subject,trials,model,markers,mass # CSV: trials (and IK setups) separated by ';', markers and mass may be
                                       # empty; optional
     S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup,
-                                                            # whole_trials, hip_regression
+                                                            # whole_trials, hip_regression, config
 
 An OpenSim base model's subject is also written as subject.osim, its motions as <trial>_motion.mot.
 """
@@ -76,8 +80,9 @@ class Subject:
     scale_setup: Path | None = None  # the lab's OpenSim Scale setup: mass and marker set (--scale-setup)
     whole_trials: bool = False  # every frame, not the setups' time ranges (--whole-trials)
     # the hips by Harrington's regression: True (--hip-regression), "auto" only where they end implausible without it
-    # (--hip-regression-auto; Settings.hip_regression)
-    hip_regression: bool | str = False
+    # (--hip-regression-auto; Settings.hip_regression); None: the settings file's (off without one)
+    hip_regression: bool | str | None = None
+    config: Path | None = None  # the subject's settings file (calibrate --config; io.config.load_settings)
 
 
 def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: bool = False) -> bool | str:
@@ -102,9 +107,13 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         raise CalibrateError(f"{path}: cannot be read as text ({e}); give a .toml or .csv manifest") from None
     if path.suffix.lower() == ".toml":
         try:
-            rows = tomllib.loads(text).get("subject")
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
             raise CalibrateError(f"{path}: not valid TOML ({e})") from None
+        rows, config = data.get("subject"), data.get("config")
+        if config is not None and (not isinstance(config, str) or not config.strip()):
+            raise CalibrateError(f"{path}: 'config' must name a settings file (TOML, as calibrate --config), got "
+                                 f"{config!r}")
         if not isinstance(rows, list) or not rows:
             raise CalibrateError(f"{path}: no [[subject]] tables; add one per subject (see docs/batch.md)")
     elif path.suffix.lower() == ".csv":
@@ -121,11 +130,14 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
                  **({"whole_trials": _flag(r["whole_trials"], path, r["subject"])}
                     if (r.get("whole_trials") or "").strip() else {}),
                  **({"hip_regression": _flag(r["hip_regression"], path, r["subject"], "hip_regression", auto=True)}
-                    if (r.get("hip_regression") or "").strip() else {})} for r in reader]
+                    if (r.get("hip_regression") or "").strip() else {}),
+                 **({"config": r["config"]} if (r.get("config") or "").strip() else {})} for r in reader]
+        config = None
     else:
         raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
     base = path.parent
     subjects, seen = [], set()
+    loaded: dict[Path, str] = {}  # each settings file read once: its one-line error, or "" if it reads
     for k, row in enumerate(rows, start=1):
         where = f"{path}: subject {k}"
         if not isinstance(row, dict):
@@ -165,13 +177,29 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         whole = row.get("whole_trials", False)
         if not isinstance(whole, bool):
             raise CalibrateError(f"{where} ({sid}): 'whole_trials' must be true or false, got {whole!r}")
-        hips = row.get("hip_regression", False)
-        if not (isinstance(hips, bool) or hips == "auto"):
+        hips = row.get("hip_regression")
+        if not (hips is None or isinstance(hips, bool) or hips == "auto"):
             raise CalibrateError(f"{where} ({sid}): 'hip_regression' must be true, false or \"auto\", got {hips!r}")
+        own = row.get("config")
+        if own is not None and (not isinstance(own, str) or not own.strip()):
+            raise CalibrateError(f"{where} ({sid}): 'config' must name a settings file (TOML, as calibrate --config), "
+                                 f"got {own!r}")
+        settings = None if (own or config) is None else base / (own or config).strip()
+        if settings is not None and settings not in loaded:
+            # Read now, so that a bad settings file is refused before any subject's work, not in every task.
+            from ..io.config import load_settings
+
+            try:
+                load_settings(settings)
+                loaded[settings] = ""
+            except CalibrateError as e:
+                loaded[settings] = str(e)
+        if settings is not None and loaded[settings]:
+            raise CalibrateError(f"{where} ({sid}): {loaded[settings]}")
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
                                 None if mass is None else float(mass), **opensim, whole_trials=whole,
-                                hip_regression=hips))
+                                hip_regression=hips, config=settings))
     return subjects
 
 
@@ -212,6 +240,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         return {**row, "status": "skipped"}
     t0 = time.perf_counter()
     try:
+        from ..io.config import load_settings
         from ..io.labels import load_marker_map
         from ..io.read import read_trial
         from ..problem.settings import Settings
@@ -226,8 +255,10 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         mass = subject.mass if subject.mass is not None or setup is None else setup.mass
         model = _base_model(str(subject.model), _mtime(subject.model), None if marker_set is None else str(marker_set),
                             _mtime(marker_set))
-        # The workers keep the cores busy already: nothing is run ahead in another process (Settings.ahead).
-        settings = Settings(ahead=False, hip_regression=subject.hip_regression)
+        # The subject's settings file, the manifest's hip_regression over it; the workers keep the cores busy
+        # already: nothing is run ahead in another process (Settings.ahead, whatever the file says).
+        settings = replace(load_settings(subject.config) if subject.config is not None else Settings(), ahead=False,
+                           **({} if subject.hip_regression is None else {"hip_regression": subject.hip_regression}))
         if subject.ik_setup:
             from ..io.osim_setup import with_ik_setup
 

@@ -16,10 +16,10 @@ def add_batch_parser(sub) -> None:
     """The 'batch' command's parser."""
     bp = sub.add_parser("batch", help="calibrate a manifest of subjects in parallel on Dask",
                         description="Calibrate every subject of MANIFEST (TOML or CSV: id, trials, base model, "
-                                    "marker map, mass; docs/batch.md) on a Dask cluster: one folder of outputs per "
-                                    "subject in --out (subject.urdf, motion CSVs, report.json, report.html), "
-                                    "summary.csv and index.html across them.  Subjects already done are skipped "
-                                    "unless --overwrite; a failing subject is reported and the others go on.")
+                                    "marker map, mass, settings file; docs/batch.md) on a Dask cluster: one folder of "
+                                    "outputs per subject in --out (subject.urdf, motion CSVs, report.json, "
+                                    "report.html), summary.csv and index.html across them.  Subjects already done are "
+                                    "skipped unless --overwrite; a failing subject is reported and the others go on.")
     bp.add_argument("manifest", type=Path, metavar="MANIFEST", help="the subjects (.toml or .csv)")
     bp.add_argument("--out", type=Path, required=True, metavar="DIR", help="the folder of the outputs")
     where = bp.add_mutually_exclusive_group()
