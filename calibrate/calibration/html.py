@@ -170,9 +170,14 @@ def _notes(report: dict) -> str:
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")
-    if report.get("held_axes"):
+    narrow = report.get("narrow_axes_deg") or {}
+    if quiet := [n for n in report.get("held_axes") or [] if n not in narrow]:
         items.append(f"<li>axes held at the base model's (the trials do not show these joints moving): "
-                     f"{_e(', '.join(report['held_axes']))}</li>")
+                     f"{_e(', '.join(quiet))}</li>")
+    if narrow:
+        items.append("<li>axes held at the base model's (the moving trials turn these joints too little to place an "
+                     "axis against the skin's turn of the segments): "
+                     f"{_e(', '.join(f'{n} ({t:.0f} deg)' for n, t in narrow.items()))}</li>")
     if report.get("on_axis_markers"):
         items.append(f"<li>lateral markers kept on their held hinge axes (the epicondyle or malleolus the axis "
                      f"passes through; no motion places the axis): {_e(', '.join(report['on_axis_markers']))}</li>")

@@ -102,6 +102,14 @@ from .records import Countdown, IterationClock, JointCentreMarker, Progress, Sti
 MOVED_SAMPLE = 500  # frames of each trial the moved-marker test reads when it only names what it finds
 MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
+#: rad: a hinge (or universal) axis the fit carried beyond FAR_FROM_PRIOR prior SDs from the base model's, while the
+#: moving trials turn its joint through less than this (2nd to 98th percentile of the subsample's angles), is held at
+#: the base model's, as a still joint's (PipelineOptions.auto_hold).  Skin turns a segment against its bone by up to
+#: 4.4 deg in a walk (Benoit et al. 2006, bone pins at the knee): against a turn of 20 deg that alone tilts a fitted
+#: axis by up to atan(4.4 / 20) = 12 deg, and a turn that narrow does not place an axis 30 deg from the base model's.
+#: BTKData's FunctionalLHip (a left-hip trial; the right knee turned 7 deg) carried knee_r's axis 46 deg.
+NARROW_TURN = math.radians(20.0)
+NARROW_FAR = FAR_FROM_PRIOR  # prior SDs: "far" for NARROW_TURN, as for the report's unreliable axes
 
 
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
@@ -568,7 +576,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
     # Which trials are still: their moved markers looked for (with run.moved_markers off, only the re-placed left out)
     still = [m < STILL_MOTION for m in motion] if motion is not None and len(trials) > 1 else None
-    problem, state, summary, scatter, solved, moved, locks = _solve(
+    problem, state, summary, scatter, solved, moved, locks, narrow = _solve(
         problem, start, spans, run, solver, say, lengths, cap, still, [t.source for t in trials],
         STILL_COARSE_FRAMES if still_only is not None else COARSE_FRAMES)
     held = tuple(d for d in problem.settings.hold_axes if d not in as_given)
@@ -780,6 +788,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
+                       narrow_axes=tuple(narrow.items()),
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
                        unresolved=res.segments,
@@ -889,20 +898,21 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
            say: Callable[[str], None], lengths: Sequence[float] | None = None, tau_max: float | None = None,
            still: Sequence[bool] | None = None, sources: Sequence[str] = (), coarse_frames: int = COARSE_FRAMES
-           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker], tuple[TradingLock, ...]]:
-    """The global solve: the geometry's basin on about `coarse_frames` evenly spaced frames (spread over
-    the trials by their length; a long trial then through larger subsamples), then every frame's pose
-    fitted to that geometry and the noise learnt on every frame.  With `run.auto_hold`, the axes of the
-    coordinates that the subsample's solution shows still are held at the base model's and the
-    subsample solved again.  Returns the problem (with those axes held and the noise learnt), the
-    state, its summary, the markers' noise SDs, whether every frame was solved jointly (a short trial,
-    solved whole; otherwise the caller's solve on every frame follows) and the markers moved in a still
-    trial.  `lengths`: what each trial counts as in frames (_still_lengths), the subsamples spread and
-    weighted by it.  `tau_max`: the longest correlation time learnt on every frame (noise.tau_cap; a
-    subsample's rows lie frames apart: its own).  `still`: which trials are still, where the markers that
-    sit elsewhere in them than in the moving trials are looked for after the first subsample solve
-    (calibrate.calibration.moved; their positions there left out and the subsample solved again: with
-    run.moved_markers off, only the re-placed ones, moved.replaced)."""
+           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker], tuple[TradingLock, ...],
+                      dict[str, float]]:
+    """The global solve: the geometry's basin on about `coarse_frames` evenly spaced frames (spread over the trials by
+    their length; a long trial then through larger subsamples), then every frame's pose fitted to that geometry and
+    the noise learnt on every frame. With `run.auto_hold`, the axes of the coordinates that the subsample's solution
+    shows still, or turning through less than NARROW_TURN with their axis far from the base model's, are held at the
+    base model's and the subsample solved again. Returns the problem (with those axes held and the noise learnt),
+    the state, its summary, the markers' noise SDs, whether every frame was solved jointly (a short trial, solved
+    whole; otherwise the caller's solve on every frame follows), the markers moved in a still trial, the hinges
+    locked (trading_locks) and the axes held for their narrow turn (name -> turn, rad). `lengths`: what each trial
+    counts as in frames (_still_lengths), the subsamples spread and weighted by it. `tau_max`: the longest
+    correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its own). `still`:
+    which trials are still, where the markers that sit elsewhere in them than in the moving trials are looked for
+    after the first subsample solve (calibrate.calibration.moved; their positions there left out and the subsample
+    solved again: with run.moved_markers off, only the re-placed ones, moved.replaced)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, coarse_frames, lengths)
     coarse_w = subsample_weight(coarse, spans, lengths)
@@ -920,6 +930,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     names = [sources[i] if i < len(sources) and sources[i] else f"trial {i + 1}" for i in range(len(spans))]
     moved: list[MovedMarker] = []
     locks: tuple[TradingLock, ...] = ()
+    narrow: dict[str, float] = {}  # axes held because the moving trials turn them less than NARROW_TURN (rad)
     coarse_summary: SolverSummary | None = None
     for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
         sub = subsample(problem)
@@ -980,6 +991,19 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # shared, it is found (pig_walk's ankles turn 15-17 deg SD in the walk, one frame fixes them to 2.2-2.4).
             skip = {lk.coordinate for lk in new_locks}
             held = [name for name, _, _ in still_of(spreads) if name in axes and name not in skip]
+            # Axes carried beyond their prior where the moving trials turn the joint too little to place them against
+            # the skin's turn of the segments (NARROW_TURN).
+            rows = (np.arange(len(angles)) if still is None or all(still) else
+                    np.flatnonzero([not still[i] for i in sub_trial]))
+            far = NARROW_FAR * problem.settings.priors.axis if problem.settings.priors.axis > 0 else math.inf
+            for name in sorted(axes - set(held) - skip - {n for n, _ in problem.settings.lock}):
+                if turns.get(name, 0.0) <= far:
+                    continue
+                th = angles[rows, problem.model.dof_index(name)]
+                turn = float(np.percentile(th, 98) - np.percentile(th, 2))
+                if turn < NARROW_TURN:
+                    held.append(name)
+                    narrow[name] = turn
         else:
             new_locks = ()
         if not held and not found and not new_locks:
@@ -1010,8 +1034,13 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                 Z[:, FrameLayout.angle(d)] = lk.value
             state = replace(restart, p=p, Z=Z)
         if held:
-            say(f"solve: the trial does not show {', '.join(held)} moving: holding "
-                f"{'its axis' if len(held) == 1 else 'their axes'} at the base model's, solving again")
+            quiet = [n for n in held if n not in narrow]
+            turned = [f"{n} through {math.degrees(narrow[n]):.0f} deg" for n in held if n in narrow]
+            say("solve: " + "; ".join(
+                ([f"the trial does not show {', '.join(quiet)} moving"] if quiet else [])
+                + ([f"the moving trials turn {', '.join(turned)} only (under {math.degrees(NARROW_TURN):.0f}: "
+                    "the skin's turn of the segments would place the axis)"] if turned else []))
+                + f": holding {'its axis' if len(held) == 1 else 'their axes'} at the base model's, solving again")
             options = replace(problem.settings, hold_axes=problem.settings.hold_axes + tuple(held))
             problem = problem.with_settings(options, sigma=problem.sigma)
             # A held axis is the base model's (the estimate of a still joint's axis is noise).  The solve
@@ -1025,7 +1054,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             state = replace(state, p=p)
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary, scatter, True, moved, locks
+        return problem, state, coarse_summary, scatter, True, moved, locks, narrow
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -1063,7 +1092,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter, False, moved, locks
+    return problem, state, summary, scatter, False, moved, locks, narrow
 
 
 def _axis_turns(problem: Problem, p: np.ndarray, names: Collection[str]) -> dict[str, float]:

@@ -131,6 +131,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "auto_hold": st.auto_hold, "moved_markers": st.moved_markers, "far_joints": st.far_joints,
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
+        "narrow_axes_deg": {n: math.degrees(t) for n, t in cal.narrow_axes},
         "on_axis_markers": on_axis_labels(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
@@ -321,6 +322,17 @@ def _measurement_lines(cal) -> list[str]:
                        f"the measured width puts it {v['measured_mm']:.0f} mm lateral"
                        + ("" if v["used"] else " (the width was not used; docs/calibration.md, subject measurements)"))
     return out
+
+
+def _held_why(cal) -> list[str]:
+    """Why calibrate held the axes it held (the summary's `axes held` line): the joints the trial does not show
+    moving, and those the moving trials turn too little to place their axis against the skin (narrow_axes)."""
+    narrow = dict(cal.narrow_axes)
+    quiet = [n for n in cal.held_axes if n not in narrow]
+    return ([f"; the trial does not show {', '.join(quiet)} moving"] if quiet else []) + (
+        [f"; the moving trials turn {', '.join(f'{n} through {math.degrees(t):.0f} deg' for n, t in narrow.items())}"
+         " only: too little to place an axis against the skin's turn of the segments (up to 4.4 deg in a walk)"]
+        if narrow else [])
 
 
 def _trial_name(cal, k: int) -> str:
@@ -593,8 +605,7 @@ def summary_text(cal) -> str:
               f"there, the trials' angles would leave the joint's range (not the model's neutral pose; their zero "
               f"stays the model's)" if cal.not_neutral else "")]
           if cal.neutral is not None and cal.pose is None else []),
-        *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's"
-           + ("; the trial does not show " + ", ".join(cal.held_axes) + " moving)" if cal.held_axes else ")")]
+        *(["  axes held    " + ", ".join(cal.settings.hold_axes) + " (base model's" + "".join(_held_why(cal)) + ")"]
           if cal.settings.hold_axes else []),
         *([f"  on axis      {', '.join(on_axis)} drawn onto their held hinge axes (prior SD "
            f"{1000 * cal.settings.priors.on_axis:.0f} mm: the epicondyle or malleolus the axis passes through; no "

@@ -216,6 +216,9 @@ class Calibration:
     coordinate_notes: tuple[CoordinateNote, ...] = ()  # what the user should look at (e.g. coordinates driven
     # beyond their limits); `notes` is their text
     held_axes: tuple[str, ...] = ()  # DoFs whose axis calibrate held at the base model's (Settings.auto_hold)
+    # (DoF, its turn over the moving trials, rad) for those of held_axes held because the trials turn them too little
+    # to place their axis against the skin's turn of the segments (pipeline.NARROW_TURN), not because they are still
+    narrow_axes: tuple[tuple[str, float], ...] = ()
     auto_locked: tuple = ()  # records.TradingLock per hinge calibrate locked: its turn and a neighbour's not separated
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     # (joint, its mean angle there, rad) per hinge whose zero there would carry the trials past its limits: not turned

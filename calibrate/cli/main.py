@@ -236,7 +236,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                            "markers, where the trials' motion does not place them): a second calibration only there; "
                            "the summary and report say which (settings file: hip_regression = \"auto\")")
     ap.add_argument("--no-auto-hold", action="store_true",
-                    help="calibrate the axes of coordinates the trial does not show moving too, and in a static "
+                    help="calibrate the axes of coordinates the trial does not show moving too (and of those it "
+                         "turns through less than 20 deg where the fit carried the axis far), and in a static "
                          "alone the hips', shoulders' and lumbar joint's centres (by default they are held at the "
                          "base model's, and the summary says which)")
     ap.add_argument("--segment-frames", choices=("markers", "priors"), default=None,

@@ -57,7 +57,9 @@ class Settings:
     hold_axes: tuple[str, ...] = ()
     # Hold, as above, the axis of every coordinate the trial does not show moving (calibrate decides
     # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
-    # axis, and left free the axis drifts far from the base model's by fitting noise.  When every trial is still (a
+    # axis, and left free the axis drifts far from the base model's by fitting noise.  So is an axis the fit carried
+    # beyond 3 prior SDs where the trials turn its joint through less than 20 deg (skin's turn of the segments
+    # would place it: calibration.pipeline.NARROW_TURN).  When every trial is still (a
     # static alone), the centres of the ball joints with a chain below them (hips, shoulders, lumbar) that no pair of
     # markers across them shows turning are held too, at the base model's offset from their parent segments' markers
     # (as hold_centres; Calibration.still_centres).
