@@ -125,7 +125,7 @@ def test_a_manifest_asks_for_the_hips_by_regression(tmp_path):
         assert str(e.value).startswith(str(tmp_path / name)) and "\n" not in str(e.value) and "auto" in str(e.value)
 
 
-def test_a_manifest_gives_each_subject_a_settings_file(tmp_path, monkeypatch):
+def test_a_manifest_gives_each_subject_a_settings_file(tmp_path, monkeypatch, capsys):
     """config: the manifest's (before the first [[subject]]) for every subject naming none, a subject's own over it,
     a CSV column; the settings reach the calibration (the report's settings, read back), the manifest's
     hip_regression over the file's, nothing run ahead whatever the file says; a bad settings file refused in one
@@ -164,6 +164,10 @@ def test_a_manifest_gives_each_subject_a_settings_file(tmp_path, monkeypatch):
         assert got["hip_regression"] is False and given[-1].ahead is False
     (tmp_path / "m.csv").write_text(f"subject,trials,model,config\nA,s.c3d,{HUMAN},S2/own.toml\nB,s.c3d,{HUMAN},\n")
     assert [x.config for x in read_manifest(tmp_path / "m.csv")] == [tmp_path / "S2" / "own.toml", None]
+    # The command line's (--config): every subject naming none of its own, in place of the manifest's.
+    assert [x.config for x in read_manifest(tmp_path / "m.csv", lab)] == [tmp_path / "S2" / "own.toml", lab]
+    own = tmp_path / "S2" / "own.toml"
+    assert [x.config for x in read_manifest(tmp_path / "m.toml", own)] == [own, own, own]
     (tmp_path / "bad.toml").write_text("noise = 2\n")  # not a key of a settings file
     for name, text, what in (("x.toml", 'config = "bad.toml"\n' + subject + 'id = "A"\n', "noise"),
                              ("y.toml", subject + 'id = "A"\nconfig = "none.toml"\n', "no such config file"),
@@ -174,6 +178,16 @@ def test_a_manifest_gives_each_subject_a_settings_file(tmp_path, monkeypatch):
             read_manifest(tmp_path / name)
         assert str(e.value).startswith(str(tmp_path / name)) and "\n" not in str(e.value)
         assert name == "z.toml" or "subject 1 (A)" in str(e.value)
+    with pytest.raises(CalibrateError, match="noise") as e:  # the command line's, refused in its own line
+        read_manifest(tmp_path / "m.csv", tmp_path / "bad.toml")
+    assert str(e.value).startswith(str(tmp_path / "bad.toml"))
+    from calibrate.cli.main import main  # the command line in this process (its program-level refusal: above)
+
+    capsys.readouterr()
+    code = main(["batch", str(tmp_path / "m.csv"), "--out", str(tmp_path / "o"), "--config",
+                 str(tmp_path / "bad.toml")])
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.toml" in err and "noise" in err and not (tmp_path / "o").exists()
 
 
 def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):

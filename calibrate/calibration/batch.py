@@ -96,9 +96,15 @@ def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: 
     return value in ("true", "1", "yes")
 
 
-def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
-    """The subjects of a TOML or CSV manifest (module docstring); one-line CalibrateError if it is bad."""
+def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] | None = None) -> list[Subject]:
+    """The subjects of a TOML or CSV manifest (module docstring); one-line CalibrateError if it is bad.  `config`:
+    the settings file of every subject that names none of its own (calibrate batch --config), in place of the
+    manifest's top-level `config`."""
     path = Path(path)
+    if config is not None:
+        from ..io.config import load_settings
+
+        load_settings(config)  # refused in its own line before the manifest is read
     if not path.is_file():
         raise CalibrateError(f"{path}: no such manifest; give a .toml or .csv file (see docs/batch.md)")
     try:
@@ -110,10 +116,10 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
             raise CalibrateError(f"{path}: not valid TOML ({e})") from None
-        rows, config = data.get("subject"), data.get("config")
-        if config is not None and (not isinstance(config, str) or not config.strip()):
+        rows, top = data.get("subject"), data.get("config")
+        if top is not None and (not isinstance(top, str) or not top.strip()):
             raise CalibrateError(f"{path}: 'config' must name a settings file (TOML, as calibrate --config), got "
-                                 f"{config!r}")
+                                 f"{top!r}")
         if not isinstance(rows, list) or not rows:
             raise CalibrateError(f"{path}: no [[subject]] tables; add one per subject (see docs/batch.md)")
     elif path.suffix.lower() == ".csv":
@@ -132,7 +138,7 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
                  **({"hip_regression": _flag(r["hip_regression"], path, r["subject"], "hip_regression", auto=True)}
                     if (r.get("hip_regression") or "").strip() else {}),
                  **({"config": r["config"]} if (r.get("config") or "").strip() else {})} for r in reader]
-        config = None
+        top = None
     else:
         raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
     base = path.parent
@@ -184,7 +190,9 @@ def read_manifest(path: str | os.PathLike[str]) -> list[Subject]:
         if own is not None and (not isinstance(own, str) or not own.strip()):
             raise CalibrateError(f"{where} ({sid}): 'config' must name a settings file (TOML, as calibrate --config), "
                                  f"got {own!r}")
-        settings = None if (own or config) is None else base / (own or config).strip()
+        # The subject's own, else the command line's (`config`), else the manifest's.
+        settings = (base / own.strip() if own is not None else Path(config) if config is not None
+                    else None if top is None else base / top.strip())
         if settings is not None and settings not in loaded:
             # Read now, so that a bad settings file is refused before any subject's work, not in every task.
             from ..io.config import load_settings

@@ -1,5 +1,5 @@
-"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--c3d] [--overwrite]``: a lab's subjects
-calibrated in parallel on Dask (calibrate.calibration.batch), a thin layer over run_batch."""
+"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--config TOML] [--c3d] [--overwrite]``:
+a lab's subjects calibrated in parallel on Dask (calibrate.calibration.batch), a thin layer over run_batch."""
 
 from __future__ import annotations
 
@@ -30,6 +30,9 @@ def add_batch_parser(sub) -> None:
     bp.add_argument("--c3d", action="store_true",
                     help="also each trial as <trial>_calibrated.c3d in its subject's folder (as calibrate --c3d)")
     bp.add_argument("--overwrite", action="store_true", help="calibrate again the subjects already done")
+    bp.add_argument("--config", type=Path, default=None, metavar="TOML",
+                    help="the settings file (as calibrate --config) of every subject that names none of its own, "
+                         "in place of the manifest's config")
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
@@ -37,7 +40,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         from ..calibration.batch import read_manifest, run_batch
     except ImportError as e:  # dask is an extra
         raise CalibrateError(f"calibrate batch needs dask.distributed ({e}); pip install -e \".[batch]\"") from None
-    subjects = read_manifest(args.manifest)
+    subjects = read_manifest(args.manifest, args.config)
     if args.out.exists() and not args.out.is_dir():
         raise CalibrateError(f"{args.out}: exists and is not a folder; choose another --out")
 
