@@ -902,17 +902,17 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                       dict[str, float]]:
     """The global solve: the geometry's basin on about `coarse_frames` evenly spaced frames (spread over the trials by
     their length; a long trial then through larger subsamples), then every frame's pose fitted to that geometry and
-    the noise learnt on every frame. With `run.auto_hold`, the axes of the coordinates that the subsample's solution
-    shows still, or turning through less than NARROW_TURN with their axis far from the base model's, are held at the
-    base model's and the subsample solved again. Returns the problem (with those axes held and the noise learnt),
-    the state, its summary, the markers' noise SDs, whether every frame was solved jointly (a short trial, solved
-    whole; otherwise the caller's solve on every frame follows), the markers moved in a still trial, the hinges
-    locked (trading_locks) and the axes held for their narrow turn (name -> turn, rad). `lengths`: what each trial
-    counts as in frames (_still_lengths), the subsamples spread and weighted by it. `tau_max`: the longest
-    correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its own). `still`:
-    which trials are still, where the markers that sit elsewhere in them than in the moving trials are looked for
-    after the first subsample solve (calibrate.calibration.moved; their positions there left out and the subsample
-    solved again: with run.moved_markers off, only the re-placed ones, moved.replaced)."""
+    the noise learnt on every frame.  With `run.auto_hold`, the axes of the coordinates that the subsample's
+    solution shows still, or turning through less than NARROW_TURN with their axis far from the base model's, are
+    held at the base model's and the subsample solved again.  Returns the problem (with those axes held and the
+    noise learnt), the state, its summary, the markers' noise SDs, whether every frame was solved jointly (a short
+    trial, solved whole; otherwise the caller's solve on every frame follows), the markers moved in a still trial,
+    the hinges locked (trading_locks) and the axes held for their narrow turn (name -> turn, rad).  `lengths`: what
+    each trial counts as in frames (_still_lengths), the subsamples spread and weighted by it.  `tau_max`: the
+    longest correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its
+    own).  `still`: which trials are still, where the markers that sit elsewhere in them than in the moving trials
+    are looked for after the first subsample solve (calibrate.calibration.moved; their positions there left out and
+    the subsample solved again: with run.moved_markers off, only the re-placed ones, moved.replaced)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, coarse_frames, lengths)
     coarse_w = subsample_weight(coarse, spans, lengths)
