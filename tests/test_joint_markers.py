@@ -208,8 +208,9 @@ def test_hip_regression_puts_the_hips_where_harrington_does(human, tmp_path):
 
 
 def test_hip_regression_needs_the_pelvis_landmarks(human, tmp_path):
-    """A trial without the PSIS markers: one line naming them; with a sacral marker the model knows, that stands
-    in for their midpoint (gait2392's V.Sacral); the command line refuses with exit 2 and writes nothing."""
+    """A trial without the PSIS markers: one line naming them; with a sacral marker the model knows, or the trial's
+    own SACR where the model has none, that stands in for their midpoint (gait2392's V.Sacral); the command line
+    refuses with exit 2 and writes nothing."""
     from calibrate.calibration.regression import regression_hips
     from calibrate.cli import main
     from calibrate.io.c3d import write_c3d
@@ -225,11 +226,14 @@ def test_hip_regression_needs_the_pelvis_landmarks(human, tmp_path):
     sacral = 0.5 * (static.markers[:, rp] + static.markers[:, lp])
     trial = no_back.__class__(no_back.labels + ("SACR",), np.concatenate([no_back.markers, sacral[:, None]], axis=1),
                               no_back.rate)
-    _, (out,), used = regression_hips(with_sacr, (trial,))
-    assert used == {"RASI": "RASI", "LASI": "LASI", "SACR": "SACR"}
     right, left = _harrington_by_hand(static)  # the PSIS midpoint is where the sacral marker is
-    np.testing.assert_allclose(out.markers[:, out.labels.index("RHJC_harrington")], right, atol=1e-12)
-    np.testing.assert_allclose(out.markers[:, out.labels.index("LHJC_harrington")], left, atol=1e-12)
+    # The model's sacral marker; or, where the model has none (human.urdf: PSIS), the trial's SACR all the same (a
+    # lab's sacral marker new to the model: c3d.org's sample04).
+    for model in (with_sacr, human):
+        _, (out,), used = regression_hips(model, (trial,))
+        assert used == {"RASI": "RASI", "LASI": "LASI", "SACR": "SACR"}
+        np.testing.assert_allclose(out.markers[:, out.labels.index("RHJC_harrington")], right, atol=1e-12)
+        np.testing.assert_allclose(out.markers[:, out.labels.index("LHJC_harrington")], left, atol=1e-12)
     write_c3d(tmp_path / "static.c3d", no_back)
     code = main([str(tmp_path / "static.c3d"), str(human.path), "-o", str(tmp_path / "out" / "s.urdf"),
                  "--hip-regression"])
@@ -312,6 +316,22 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
     squats = simulate_squats(human, frames=200, noise_mm=1.0, seed=0)
     moved = calibrate(human, [squats.trial], Settings(outliers=0.0))
     assert all(h.places_centre for h in moved.hip_motion) and "  hips  " not in summary_text(moved)
+    assert not any(h.implausible for h in moved.hip_motion) and "  implausible  " not in summary_text(moved)
+    # Placed by the motion, yet further apart than the ASIS markers (HIP_OUTSIDE): outside the pelvis, implausible
+    # (c3d.org's sample04: 1.35 times); just inside them, not.
+    from calibrate.calibration.regression import HIP_OUTSIDE
+
+    out = tuple(replace(h, width=(1.05 * HIP_OUTSIDE * h.width[1], h.width[1])) for h in moved.hip_motion)
+    assert all(h.places_centre and h.outside and h.implausible for h in out)
+    assert not any(replace(h, width=(0.98 * HIP_OUTSIDE * h.width[1], h.width[1])).implausible
+                   for h in moved.hip_motion)
+    text = summary_text(replace(moved, hip_motion=out))
+    w, a = out[0].width
+    assert (f"  implausible  the hips {1e3 * w:.0f} mm apart where the ASIS markers are {1e3 * a:.0f}" in text
+            and "outside the pelvis, though the trials turn hip_l through" in text)
+    report = calibration_report(replace(moved, hip_motion=out))
+    assert [h["implausible"] for h in report["hip_motion"]] == [True, True]
+    assert report_html(report).count("outside the pelvis, though the trials turn it through") == 2
 
 
 

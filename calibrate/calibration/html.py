@@ -157,6 +157,12 @@ def _notes(report: dict) -> str:
                          + (f"; it ended {h['from_regression_mm']:.0f} mm from Harrington's regression on the pelvis "
                             "markers (its error 12 &plusmn; 6 mm): implausible" if h.get("implausible") else "")
                          + "; <code>--hip-regression</code> places it by Harrington's regression</li>")
+        elif h.get("implausible") and h.get("joint") not in tied:  # placed by the motion, yet outside the pelvis
+            items.append(f"<li class=bad>{_e(h.get('joint'))}: the hips {h['hip_width_mm']:.0f} mm apart where the "
+                         f"ASIS markers are {h['asis_width_mm']:.0f}: outside the pelvis, though the trials turn it "
+                         "through " + ", ".join(f"{_e(d)} {v:.0f}" for d, v in h.get("range_deg", {}).items())
+                         + f" deg; {h['from_regression_mm']:.0f} mm from Harrington's regression: implausible; "
+                         "<code>--hip-regression</code> places it by Harrington's regression</li>")
     if report.get("hip_regression_auto"):
         items.append(f"<li>hips by Harrington's regression (hip_regression auto): {_e(report['hip_regression_auto'])}"
                      "</li>")

@@ -1618,7 +1618,8 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
     """Settings.hip_regression "auto": the calibration without Harrington's regression, and where it leaves a hip
     implausible (HipMotion.implausible: the trials' motion does not place it, and it ended further than
     REGRESSION_FAR from the regression or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers; BTKData's
-    Plug-in Gait walks: 46-93 mm, the hips outside the ASIS), the calibration again with it.  The result says which
+    Plug-in Gait walks: 46-93 mm, the hips outside the ASIS; or, wherever, wider apart than the ASIS markers), the
+    calibration again with it.  The result says which
     (Calibration.hip_regression_auto); where the regression cannot run (regression_hips refuses: the model already
     carries its markers' names), the first is kept and says why.  Costs a second calibration only where the check
     fires (the check itself reads the pelvis landmarks the regression needs)."""

@@ -74,6 +74,11 @@ def hip_joints(model: Model, pelvis: str | None = None) -> dict[str, Joint]:
 #: from Harrington's and up to 1.25 times the ASIS width apart, outside the pelvis (docs/benchmarks.md).
 REGRESSION_FAR = 0.040
 HIP_WIDTH_FAR = 0.9
+#: ... and wherever the motion places them, two hips further apart than the ASIS markers themselves lie outside the
+#: pelvis, where no hip is (Harrington's width is 0.66 times the ASIS markers' plus 15 mm, 0.73 at 220 mm; the real
+#: walks whose motion placed the hips 0.79-0.95): c3d.org's sample04, a thigh whose markers do not fix its turn about
+#: its length (hip_r rotation over 122 deg), ended them 1.35 times the ASIS width apart, 75 mm from Harrington's.
+HIP_OUTSIDE = 1.0
 
 
 @dataclass(frozen=True)
@@ -97,9 +102,15 @@ class HipMotion:
     @property
     def implausible(self) -> bool:
         """A centre the motion does not place, ended further than REGRESSION_FAR from Harrington's or the hips
-        further apart than HIP_WIDTH_FAR times the ASIS markers."""
-        return not self.places_centre and (self.from_regression > REGRESSION_FAR
-                                           or self.width[0] > HIP_WIDTH_FAR * self.width[1])
+        further apart than HIP_WIDTH_FAR times the ASIS markers; or, placed by the motion or not, the hips further
+        apart than HIP_OUTSIDE times the ASIS markers (outside the pelvis)."""
+        return self.outside or not self.places_centre and (self.from_regression > REGRESSION_FAR
+                                                           or self.width[0] > HIP_WIDTH_FAR * self.width[1])
+
+    @property
+    def outside(self) -> bool:
+        """The two hips further apart than HIP_OUTSIDE times the ASIS markers: outside the pelvis."""
+        return bool(self.width[0] > HIP_OUTSIDE * self.width[1])
 
     def text(self) -> str:
         """e.g. 'hip_l through flexion 31, adduction 8, rotation 13 deg' (the DoF names without the joint's)."""
@@ -151,6 +162,14 @@ def _landmarks(model: Model) -> dict[str, str]:
     return found
 
 
+def _trials_sacrum(trials: Sequence[Trial]) -> str | None:
+    """The label of a sacral marker (Plug-in Gait's SACR or an alias of it) that every one of `trials` carries,
+    or None."""
+    common = set.intersection(*(set(t.labels) for t in trials)) if trials else set()
+    hits = sorted(lab for lab in common if lab == "SACR" or (alias_for(lab, ("SACR",)) or (None,))[0] == "SACR")
+    return hits[0] if hits else None
+
+
 def _harrington_of(trial: Trial, found: dict[str, str], frames: np.ndarray | slice = slice(None)
                    ) -> tuple[np.ndarray, np.ndarray, dict[str, str]] | None:
     """Harrington's right and left hip centres in each of `frames` of `trial` (NaN where a landmark is not seen) and
@@ -200,6 +219,10 @@ def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tup
     (Plug-in Gait name -> the model's label).  The trials' labels must be the model's (calibrate maps them
     first).  One-line CalibrateError when the model lacks a hip or a landmark, or a trial lacks a landmark."""
     found = _landmarks(model)
+    if "SACR" not in found and (sacrum := _trials_sacrum(trials)):
+        # A sacral marker every trial carries and the model does not (a lab's SACR beside a model with PSIS markers:
+        # c3d.org's sample04 has no PSIS) stands in for the PSIS midpoint, as a model's own would.
+        found["SACR"] = sacrum
     need = [c for c in ("RASI", "LASI") if c not in found]
     if not need and not ("RPSI" in found and "LPSI" in found or "SACR" in found):
         need = ["RPSI and LPSI, or SACR"]

@@ -115,7 +115,8 @@ class Settings:
     # trial places them: a walk does not (docs/benchmarks.md, "Hip centres from a walk").  Off by default;
     # "auto": calibrated without it first, and again with it where that leaves a hip implausible (further than
     # REGRESSION_FAR from the regression, or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers, where the
-    # trials' motion does not place them: calibrate.calibration.regression.HipMotion.implausible).
+    # trials' motion does not place them; wider apart than the ASIS markers, wherever:
+    # calibrate.calibration.regression.HipMotion.implausible).
     hip_regression: bool | str = False
 
     @property
