@@ -135,3 +135,25 @@ def test_inspect_checks_a_c3d_files_own_knee_axes(squats, tmp_path, capsys) -> N
             line = next(x for x in out.splitlines() if f"plug-in gait: its knee_{side} axis is" in x)
             got = float(line.split("axis is ")[1].split(" deg")[0])
             assert abs(got - turn) <= 2.5 and ("misaligned" in line) == misaligned, line
+
+
+def test_turn_axis_is_scipys_rotation_mean_and_principal_direction() -> None:
+    """turn_axis in numpy (scipy's import kept off a calibration's way) against the same steps in scipy's Rotation:
+    the relative rotations, their mean, each one's rotation vector from it, their principal direction and span."""
+    from scipy.spatial.transform import Rotation
+
+    from calibrate.calibration.plugin_gait import turn_axis
+
+    rng = np.random.default_rng(3)
+    parent = Rotation.random(150, random_state=4).as_matrix()
+    axis = np.array([0.2, 0.95, -0.25]) / np.linalg.norm([0.2, 0.95, -0.25])
+    turn = Rotation.from_rotvec(np.radians(55.0) * np.sin(np.linspace(0.0, 9.0, 150))[:, None] * axis)
+    child = np.einsum("fij,fjk->fik", parent, (turn * Rotation.from_rotvec(rng.normal(0, 0.03, (150, 3)))).as_matrix())
+    got, span = turn_axis(parent, child)
+    rel = Rotation.from_matrix(np.einsum("fji,fjk->fik", parent, child))
+    v = (rel * rel.mean().inv()).as_rotvec()
+    want = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)[2][0]
+    s = v @ want
+    assert abs(abs(got @ want) - 1.0) < 1e-12
+    assert span == pytest.approx(np.percentile(s, 95) - np.percentile(s, 5), abs=1e-9)
+    assert np.degrees(np.arccos(abs(got @ axis))) < 2.0  # and it is the hinge the child turns about

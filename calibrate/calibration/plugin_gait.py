@@ -96,12 +96,16 @@ def turn_axis(parent: np.ndarray, child: np.ndarray) -> tuple[np.ndarray, float]
     ((n, 3, 3) world rotations each, finite), and how far (5th to 95th percentile): the principal direction of the
     relative rotations taken from their mean, exact for a hinge and unchanged by a constant twist of the child's
     frame.  None for fewer than 10 frames."""
-    from scipy.spatial.transform import Rotation  # not on the way in: a trial without the bones never needs it
+    from ..model.kinematics import matrix_quats, quat_inverse, quat_multiply, quat_rotvecs
 
     if len(parent) < 10:
         return None
-    rel = Rotation.from_matrix(np.einsum("fji,fjk->fik", parent, child))
-    v = (rel * rel.mean().inv()).as_rotvec()
+    # In numpy, as scipy's Rotation computes them (its import took a quarter of a second of each such run): the
+    # relative rotations, their mean (the chordal L2 mean: the principal eigenvector of the quaternions' scatter, as
+    # Rotation.mean), and each one's rotation vector from it.
+    rel = matrix_quats(np.einsum("fji,fjk->fik", parent, child))
+    mean = np.linalg.eigh(rel.T @ rel)[1][:, -1]
+    v = quat_rotvecs(quat_multiply(rel, quat_inverse(mean)))
     _, _, vt = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)
     axis = vt[0]
     s = v @ axis
@@ -144,7 +148,7 @@ def knee_axis_checks(model: Model, params: Parameters, trials: Sequence[Trial],
                 out.append(check)
                 continue
             if lines is None:
-                from ..simulation.simulate import hinge_lines_world  # imports scipy: only when needed
+                from ..model.hinges import hinge_lines_world
 
                 lines = hinge_lines_world(model, params, motion)
             at, a = lines[joint]
