@@ -348,7 +348,7 @@ def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausibl
     import calibrate.calibration.regression as regression
     from calibrate.cli.main import main
 
-    walk = simulate_gait(human, frames=100, noise_mm=1.0, seed=2).trial
+    walk = simulate_gait(human, frames=60, noise_mm=1.0, seed=2).trial
     plain, placed = (calibrate(human, [walk], Settings(outliers=0.0, hip_regression=h)) for h in (False, True))
     auto = calibrate(human, [walk], Settings(outliers=0.0, hip_regression="auto"))
     assert not any(h.implausible for h in plain.hip_motion) and auto.hip_regression_auto == ""
