@@ -233,7 +233,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     hips.add_argument("--hip-regression-auto", action="store_true",
                       help="calibrate without the regression, and again with it where that leaves a hip implausible "
                            "(over 40 mm from the regression, or the hips wider apart than 0.9 times the ASIS "
-                           "markers, where the trials' motion does not place them): a second calibration only there; "
+                           "markers, where the trials' motion does not place them; wider apart than the ASIS markers, "
+                           "wherever): a second calibration only there; "
                            "the summary and report say which (settings file: hip_regression = \"auto\")")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (and of those it "
