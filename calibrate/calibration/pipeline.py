@@ -789,6 +789,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
                        narrow_axes=tuple(narrow.items()),
+                       axis_pairs=tuple((subject.dofs[d].name, subject.markers[k1].name, subject.markers[k2].name)
+                                        for _, k1, k2, d in problem.pair_terms()),
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
                        unresolved=res.segments,

@@ -116,6 +116,7 @@ def calibration_report(cal: Calibration) -> dict:
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
                                 "width_mm": 1000 * st.priors.width,
                                 "on_axis_mm": 1000 * st.priors.on_axis,
+                                "pair_axis_deg": math.degrees(st.priors.pair_axis),
                                 "joint_marker_mm": 1000 * st.priors.joint_marker,
                                 "held_centre_mm": 1000 * st.priors.held_centre,
                                 "placeholder_mm": 1000 * st.priors.placeholder},
@@ -133,6 +134,7 @@ def calibration_report(cal: Calibration) -> dict:
         "held_axes": list(cal.held_axes),
         "narrow_axes_deg": {n: math.degrees(t) for n, t in cal.narrow_axes},
         "on_axis_markers": on_axis_labels(cal),
+        "axis_pairs": axis_pair_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
                          "per_frame_deg": math.degrees(lk.per_frame),
@@ -497,6 +499,49 @@ def on_axis_labels(cal: Calibration) -> list[str]:
     return [m.markers[mi].name for _, mi in on_axis_markers(m, held) if m.markers[mi].name not in unseen]
 
 
+#: An axis this many pair_axis SDs from its marker pair's line is named in the summary (the motion carried it there).
+PAIR_FAR = 3.0
+
+
+def axis_pair_table(cal: Calibration) -> list[dict]:
+    """Each hinge whose axis was drawn along the line of two markers straddling it (Calibration.axis_pairs): the
+    calibrated axis's angle from that line (deg) and the centre's distance from the markers' midpoint along the
+    axis (mm, at the segment's scale), in the subject's geometry."""
+    m, p = cal.model, cal.params
+    out = []
+    for dof, m1, m2 in cal.axis_pairs:
+        d = m.dof_index(dof)
+        ji = m.joint_index(m.dofs[d].joint)
+        jt = m.joints[ji]
+        R = next(u.rotation for u in m.urdf_joints if u.name == jt.urdf_joints[0])
+        a = R @ (p.axis[d] / np.linalg.norm(p.axis[d]))
+        x1, x2 = p.marker[m.marker_index(m1)], p.marker[m.marker_index(m2)]
+        e = (x2 - x1) / np.linalg.norm(x2 - x1)
+        s = float(p.scale[m.segment_index(jt.parent)])
+        out.append({"coordinate": dof, "markers": [m1, m2],
+                    "angle_deg": math.degrees(math.acos(min(1.0, abs(float(a @ e))))),
+                    "centre_from_midpoint_mm": 1000 * s * float(a @ (p.centre[ji] - 0.5 * (x1 + x2)))})
+    return out
+
+
+def _pair_line(cal: Calibration) -> list[str]:
+    """The summary's line on the axes drawn along marker pairs, those the motion carried far from theirs named."""
+    rows = axis_pair_table(cal)
+    if not rows:
+        return []
+    sd = math.degrees(cal.settings.priors.pair_axis)
+    far = [r for r in rows if r["angle_deg"] > PAIR_FAR * sd]
+    text = "; ".join(f"{r['coordinate']} {r['angle_deg']:.1f} deg from {r['markers'][0]}-{r['markers'][1]}"
+                     for r in rows)
+    line = (f"  axis pairs   {text} (each axis drawn along the line of the two markers straddling its centre, prior "
+            f"SD {sd:g} deg; its centre slid to their midpoint along it)")
+    if far:
+        line += (f"; {', '.join(r['coordinate'] for r in far)} beyond {PAIR_FAR:g} SDs: the trials' motion turned "
+                 "the axis from the markers' line (skin moving over the segment, or a marker off its landmark); "
+                 "--hold-axes keeps the base model's")
+    return [line]
+
+
 def _held_against(cal, joint: str) -> str:
     """What a held centre (Settings.hold_centres) keeps: its offset from its parent segment's markers, where three
     or more of them are seen (Problem.held_centres; the change shown is then the frame's against the base model's),
@@ -611,6 +656,7 @@ def summary_text(cal) -> str:
            f"{1000 * cal.settings.priors.on_axis:.0f} mm: the epicondyle or malleolus the axis passes through; no "
            "motion places the axis)"]
           if (on_axis := on_axis_labels(cal)) else []),
+        *_pair_line(cal),
         *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
                                          for j in given) + " (--hold-centres)"]
           if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres]) else []),

@@ -219,6 +219,10 @@ class Calibration:
     # (DoF, its turn over the moving trials, rad) for those of held_axes held because the trials turn them too little
     # to place their axis against the skin's turn of the segments (pipeline.NARROW_TURN), not because they are still
     narrow_axes: tuple[tuple[str, float], ...] = ()
+    # (DoF, marker, marker) per hinge whose axis Priors.pair_axis drew along the line of two markers straddling its
+    # centre (the epicondyles, the malleoli; calibrate.problem.priors.straddling_pairs), its centre slid to their
+    # midpoint
+    axis_pairs: tuple[tuple[str, str, str], ...] = ()
     auto_locked: tuple = ()  # records.TradingLock per hinge calibrate locked: its turn and a neighbour's not separated
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     # (joint, its mean angle there, rad) per hinge whose zero there would carry the trials past its limits: not turned

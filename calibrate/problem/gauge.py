@@ -166,7 +166,8 @@ class GaugeMixin:
         the subtalar centres 36 mm).  The slides of all hinges are found together: the priors are linear in the free
         positions at fixed scales, so one least-squares solve over the slide lengths is exact.  Where the lab
         measured a joint's width (ProblemOptions.lateral_markers, priors.width), its lateral marker's distance
-        from the centre along the axis joins the priors: the one place the measurement fixes what no marker shows."""
+        from the centre along the axis joins the priors: the one place the measurement fixes what no marker shows;
+        so does a hinge's place between two markers straddling it (the epicondyles: pair_centre_residuals)."""
         m, L = self.model, self.layout
         cols = []
         for ji in self._slides:
@@ -193,7 +194,8 @@ class GaugeMixin:
         G = np.array(cols).T
         r, Jr = self.prior(p)
         rw, Jw = self.lateral_residuals(p)  # the lab's measured joint widths, where it gave them
-        r, Jr = np.concatenate([r, rw]), np.vstack([Jr, Jw])
+        rm, Jm = self.pair_centre_residuals(p)  # a straddled hinge's centre at its two markers' midpoint
+        r, Jr = np.concatenate([r, rw, rm]), np.vstack([Jr, Jw, Jm])
         M = Jr @ G
         t = np.linalg.lstsq(M, -r, rcond=None)[0]
         return self.retract_parameters(p, G @ t)

@@ -49,6 +49,12 @@ class Priors:
     # on the axis); with no motion to place the axis, the priors alone otherwise left the knee centres of real
     # statics 11-80 mm off the line through KNE (docs/benchmarks.md, "A static alone").
     on_axis: float = 0.010
+    # A hinge whose parent segment carries two markers straddling its centre along its axis (the femoral or humeral
+    # epicondyles, the malleoli; calibrate.problem.priors.straddling_pairs): SD of the angle between its axis and the
+    # line through the two (rad; 0: off).  The line is the lab's anatomical flexion axis (Grood & Suntay; the ISB's);
+    # the transepicondylar axis lies within a few degrees of the knee's flexion axis (Churchill et al. 1998), and
+    # palpated epicondyles are placed to 5-15 mm over a 90-100 mm width (Della Croce et al. 1999).
+    pair_axis: float = math.radians(5.0)
     # A joint-centre marker (calibrate.problem.priors.joint_centre_markers: the base model puts it within
     # JOINT_MARKER_RADIUS of a joint centre of its segment, e.g. OpenSim's R_HJC at the femur's origin): a
     # point the lab computed at that centre, not skin.  SD of its offset from the centre about the base
@@ -140,7 +146,7 @@ class ProblemOptions:
             if not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 and math.isfinite(d)):
                 raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
                                  f"in metres, got {d!r}")
-        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "joint_marker", "size"):
+        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "pair_axis", "joint_marker", "size"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

@@ -52,6 +52,55 @@ def on_axis_markers(model: Model, held: Callable[[int], bool]) -> list[tuple[int
     return out
 
 
+#: Two markers on a hinge's parent segment that straddle its centre along its axis are the lab's anatomical
+#: line for it (the femoral epicondyles about a knee, the humeral epicondyles about an elbow, the malleoli about an
+#: ankle: Grood & Suntay's and the ISB's flexion axes), recognised at the base geometry, names aside: PAIR_SPAN apart
+#: (m), their line within PAIR_ANGLE of the base model's axis, passing within PAIR_OFF of the centre (m), the centre
+#: between them (its projection PAIR_INNER to 1 - PAIR_INNER along the way from one to the other).  Priors.pair_axis
+#: pulls the calibrated axis along their line.
+PAIR_SPAN = (0.04, 0.16)
+PAIR_ANGLE = math.radians(35.0)
+PAIR_OFF = 0.03
+PAIR_INNER = 0.15
+
+
+def straddling_pairs(model: Model, base: np.ndarray, layout, rotations: list[np.ndarray], seen: np.ndarray,
+                     centre_segment: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """(joint, marker, marker, DoF) of each calibrated knee, ankle and elbow hinge (ON_AXIS_JOINTS in its joint's
+    or coordinate's name) whose parent carries two seen markers straddling its centre along its axis (PAIR_SPAN,
+    PAIR_ANGLE, PAIR_OFF, PAIR_INNER) in the base parameters `base`; of several pairs, the one whose line passes
+    nearest the centre.  `rotations`: each joint's URDF joint rotation (the hinge axis into its parent's frame);
+    `seen`: (n_markers,) whether a trial shows each marker."""
+    out = []
+    for d in layout.axis_dofs:
+        ji = model.joint_index(model.dofs[d].joint)
+        j = model.joints[ji]
+        if j.kind != "hinge" or not any(n in f"{j.name} {model.dofs[d].name}".lower() for n in ON_AXIS_JOINTS):
+            continue
+        s = float(base[layout.scale(centre_segment[ji])])
+        a = rotations[ji] @ layout.axis_direction(base, d)
+        c = s * base[layout.centre(ji)]
+        mks = [k for k, mk in enumerate(model.markers) if mk.segment == j.parent and seen[k]]
+        best = None
+        for i, k in enumerate(mks):
+            for m2 in mks[i + 1:]:
+                x1, x2 = s * base[layout.marker(k)], s * base[layout.marker(m2)]
+                v = x2 - x1
+                span = float(np.linalg.norm(v))
+                if not PAIR_SPAN[0] <= span <= PAIR_SPAN[1]:
+                    continue
+                e = v / span
+                if math.acos(min(1.0, abs(float(e @ a)))) > PAIR_ANGLE:
+                    continue
+                t = float((c - x1) @ e) / span
+                off = float(np.linalg.norm(c - x1 - t * span * e))
+                if PAIR_INNER <= t <= 1.0 - PAIR_INNER and off <= PAIR_OFF and (best is None or off < best[0]):
+                    best = (off, k, m2)
+        if best is not None:
+            out.append((ji, best[1], best[2], d))
+    return out
+
+
 #: m, at the base model's scale: a marker this close to a joint centre of its own segment is a point computed at
 #: that centre (OpenSim's R_HJC at the femur's origin: 0 mm), not skin (20 mm or more from every centre in
 #: models/human.urdf, gait2392 and Rajagopal).  Rajagopal's mid-epicondyle KneeJoint, 8 mm from its fitted knee
@@ -231,6 +280,23 @@ class PriorsMixin:
         self._on_axis_cache = (self.settings, self._unseen, out)
         return out
 
+    def pair_terms(self) -> list[tuple[int, int, int, int]]:
+        """(joint, marker, marker, DoF) of each calibrated hinge whose parent carries a seen pair of markers
+        straddling its centre along its axis (straddling_pairs, at the base geometry); none when priors.pair_axis
+        is 0 or the markers are not free.  Kept while the base, the settings and the seen markers are the same."""
+        cached = self.__dict__.get("_pair_cache")
+        key = (self.base, self.settings, self._unseen)
+        if cached is not None and all(a is b for a, b in zip(cached[0], key, strict=True)):
+            return cached[1]
+        out = []
+        if self.settings.priors.pair_axis > 0 and "marker" in self.settings.free and self.layout.axis_dofs:
+            m = self.model
+            rotations = [self._urdf[j.urdf_joints[0]].rotation if j.urdf_joints else np.eye(3) for j in m.joints]
+            out = straddling_pairs(m, self.base.vector(), self.layout, rotations, ~self._unseen,
+                                   self.centre_segment)
+        self._pair_cache = (key, out)
+        return out
+
     def lateral_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The measured joint widths' residuals (calibrated - measured lateral distance) / priors.width and
         their Jacobian (n, n_free) at `p`; none when priors.width is 0."""
@@ -254,6 +320,34 @@ class PriorsMixin:
             J[k, L.centre(ji)] -= side * s * a / sd
             J[k, L.scale(seg)] += side * float(a @ x) / sd
             J[k, L.axis(d)] += side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
+        return r, J @ self.tangent_map(p)
+
+    def pair_centre_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each straddled hinge's centre (pair_terms) along its axis from the midpoint of its two markers, at the
+        segment's scale, / priors.width, and the Jacobian (n, n_free) at `p`: where along the axis the joint sits,
+        which no motion shows (calibrate.problem.gauge.slide_centres), as a measured width fixes it from one
+        lateral marker; none when priors.width is 0."""
+        sd = self.settings.priors.width
+        terms = self.pair_terms() if sd > 0 else []
+        if not terms:
+            return np.zeros(0), np.zeros((0, self.n_free))
+        m, L = self.model, self.layout
+        r, J = np.zeros(len(terms)), np.zeros((len(terms), self.np_full))
+        for k, (ji, k1, k2, d) in enumerate(terms):
+            seg = self.centre_segment[ji]
+            s = p[L.scale(seg)]
+            R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
+            v = p[L.axis(d)]
+            nv = float(np.linalg.norm(v))
+            u = v / nv
+            a = R @ u
+            x = p[L.centre(ji)] - 0.5 * (p[L.marker(k1)] + p[L.marker(k2)])
+            r[k] = s * float(a @ x) / sd
+            J[k, L.centre(ji)] += s * a / sd
+            J[k, L.marker(k1)] -= 0.5 * s * a / sd
+            J[k, L.marker(k2)] -= 0.5 * s * a / sd
+            J[k, L.scale(seg)] += float(a @ x) / sd
+            J[k, L.axis(d)] += s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
         return r, J @ self.tangent_map(p)
 
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,
@@ -412,6 +506,29 @@ class PriorsMixin:
                     np.r_[np.tile(np.arange(mk.start, mk.stop), 3), np.tile(np.arange(ce.start, ce.stop), 3),
                           np.full(3, L.scale(seg))],
                     np.r_[(s / sd) * P.ravel(), -(s / sd) * P.ravel(), (P @ x) / sd]))
+        # A hinge's axis along the line of the two markers straddling its centre (Priors.pair_axis; pair_terms):
+        # (a x e) / sd, a the axis and e the pair's direction in the parent's frame (3 rows of rank 2, |a x e| the
+        # sine of the angle between them, either way round).
+        pairs = self.pair_terms()
+        if pairs:
+            sd = st.priors.pair_axis
+            for ji, k1, k2, d in pairs:
+                R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
+                v = p[L.axis(d)]
+                nv = float(np.linalg.norm(v))
+                u = v / nv
+                a = R @ u
+                x = p[L.marker(k2)] - p[L.marker(k1)]
+                nx = float(np.linalg.norm(x))
+                e = x / nx
+                dv = -_cross_matrix(e) @ R @ (np.eye(3) - np.outer(u, u)) / (nv * sd)
+                dx = _cross_matrix(a) @ (np.eye(3) - np.outer(e, e)) / (nx * sd)
+                k = np.repeat(np.arange(3), 3)
+                c3 = np.tile(np.arange(3), 3)
+                ax, m1, m2 = L.axis(d), L.marker(k1), L.marker(k2)
+                add(np.cross(a, e) / sd, lambda ax=ax, m1=m1, m2=m2, dv=dv, dx=dx, k=k, c3=c3: (
+                    np.r_[k, k, k], np.r_[ax.start + c3, m2.start + c3, m1.start + c3],
+                    np.r_[dv.ravel(), dx.ravel(), -dx.ravel()]))
         if not res:
             return np.zeros(0), None
         if not jacobian:
@@ -453,6 +570,11 @@ class PriorsMixin:
     def _limit_active(self, lim: np.ndarray) -> np.ndarray:
         """(F, n_dofs) where a limit residual has a Jacobian row: outside a limit, or locked."""
         return (lim != 0) | self.locked
+
+
+def _cross_matrix(v: np.ndarray) -> np.ndarray:
+    """[v]x: the matrix of the cross product v x ."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def _sparse_product(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, T: np.ndarray,
