@@ -11,6 +11,7 @@ import pinocchio as pin
 import pytest
 from conftest import prior_jacobian_by_differences
 
+from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.model.kinematics import build_kinematics
@@ -151,3 +152,39 @@ def test_a_tight_pair_prior_puts_the_knee_axes_on_the_epicondyle_line(paired, tm
         assert abs(float(_axis(opm, odata, f"knee_{s}") @ truth_axis)) > abs(float(_axis(pm, data, f"knee_{s}")
                                                                                @ truth_axis))
     assert "axis pairs   knee_" in summary_text(tight) and "axis pairs" not in summary_text(off)
+    page = report_html(calibration_report(tight))
+    assert "axes drawn along the line of the two markers" in page and f"{rep['knee_l']['angle_deg']:.1f} deg" in page
+
+
+def test_a_static_alone_shows_the_medial_markers_and_their_names_place_them(human, paired):
+    """A lab's medial knee markers on in the static only, their names unknown to the model (human.urdf): named as
+    medial markers (hosts.medial_host), they go on the femur each knee hangs from, where the static shows them (the
+    knee as wide as the simulator's subject's to 3 mm), and draw the knee axes along their pairs; a name that says
+    no medial marker, or no side, places nothing."""
+    from calibrate.calibration.hosts import medial_host
+    from calibrate.simulation.simulate import simulate_static
+
+    cases = {"r_mknee": "femur_r", "L.MKnee": "femur_l", "LKNM": "femur_l", "R_FME": "femur_r", "L_mankle": "tibia_l",
+             "RTAM": "tibia_r", "R_elbow_med": "humerus_r", "LMEL": "humerus_l", "LKNE": None, "mknee": None,
+             "RMED": None}
+    assert {n: (h[0] if (h := medial_host(human, n)) else None) for n in cases} == cases
+    squats = simulate_squats(paired, frames=60, noise_mm=1.0, seed=6)
+    static = simulate_static(paired, squats.truth, frames=40, noise_mm=1.0, seed=1)
+    renamed = {"LKNM": "L_mknee", "RKNM": "r_mknee"}
+    static_trial = replace(static.trial, labels=[renamed.get(n, n) for n in static.trial.labels])
+    moving = squats.trial.select([n for n in squats.trial.labels if n not in renamed])
+    cal = calibrate(human, [static_trial, moving], Settings())
+    placed = {m.label: m for m in cal.new_markers}
+    for name, lab in renamed.items():
+        side = lab[0].lower()
+        assert placed[lab].segment == f"femur_{side}" and "medial marker of knee_" in placed[lab].reason
+        # where the static shows it (its residuals there), the knee as wide as the simulated subject's
+        k, t = cal.model.marker_index(lab), paired.marker_index(name)
+        assert np.sqrt(np.nanmean(np.sum(cal.residuals[cal.trial_frames(0), k] ** 2, axis=-1))) < 0.003
+        seg, lateral = paired.segment_index(f"femur_{side}"), f"{side.upper()}KNE"
+        span = cal.params.scale[seg] * np.linalg.norm(cal.params.marker[k]
+                                                      - cal.params.marker[cal.model.marker_index(lateral)])
+        truth = squats.truth.scale[seg] * np.linalg.norm(squats.truth.marker[t]
+                                                         - squats.truth.marker[paired.marker_index(lateral)])
+        assert span == pytest.approx(truth, abs=0.003)
+    assert sorted(cal.axis_pairs) == [("knee_l", "LKNE", "L_mknee"), ("knee_r", "RKNE", "r_mknee")]

@@ -108,21 +108,21 @@ def test_unknown_markers_are_placed_fitted_and_written(human, subject, tmp_path)
 def test_new_markers_placed_by_the_moving_trial_not_the_static(human, subject):
     """Rigidity is judged on the trials that move: the cluster markers, seen in a long static trial and a short
     squat, go on their segments; a marker the static trial alone carries (a lab's calibration-only marker the
-    model does not know) is left out and says why: in a static trial every marker keeps its distance to every
-    other, so it would pass as rigid with any segment."""
+    model does not know, named as no medial marker: tests/test_axis_pairs.py places those) is left out and says why:
+    in a static trial every marker keeps its distance to every other, so it would pass as rigid with any segment."""
     sim = simulate_squats(subject, frames=240, noise_mm=1.0, seed=8)
     static = simulate_static(subject, sim.truth, frames=600, seed=9)
     rng = np.random.default_rng(1)
     i = static.trial.labels.index("LKNE")
     extra = static.clean_markers[:, i] + np.array([0.0, 0.1, 0.0]) + rng.normal(0, 1e-3, (600, 3))
     markers = np.concatenate([static.trial.markers, extra[:, None]], axis=1)
-    static_trial = Trial(static.trial.labels + ("LKNM",), markers, static.trial.rate, source="static.c3d")
+    static_trial = Trial(static.trial.labels + ("LPTR",), markers, static.trial.rate, source="static.c3d")
     cal = calibrate(human, [static_trial, sim.trial])
     placed = {m.label: m for m in cal.new_markers}
     for label, (segment, _) in CLUSTER.items():
         assert placed[label].segment == segment, placed[label]
-    assert placed["LKNM"].segment is None and "LKNM" in cal.ignored_labels
-    assert placed["LKNM"].reason.startswith("seen only in still trials (static.c3d)"), placed["LKNM"].reason
+    assert placed["LPTR"].segment is None and "LPTR" in cal.ignored_labels
+    assert placed["LPTR"].reason.startswith("seen only in still trials (static.c3d)"), placed["LPTR"].reason
 
 
 def _known_only(sim, human):

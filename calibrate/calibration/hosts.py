@@ -16,6 +16,7 @@ where its place spreads least, if that spread is under HOST_SPREAD and at most H
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -24,12 +25,44 @@ import numpy as np
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.model import Model
+from ..model.sides import named_side, unsided
 
 HOST_FRAMES = 40  # about this many evenly spaced frames of the moving trials are posed (about 0.1 s a round)
 HOST_SPREAD = 0.020  # m: RMS spread of a label's place on its segment (skin, the few markers' poses) at most
 HOST_RATIO = 0.5  # ... and at most this share of its spread on the next-best segment
 HOST_ROUNDS = 3  # rounds: the labels placed join the known markers, the others judged again
 TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD over the poses) rides on its parent
+
+
+# The medial markers a lab puts beside a lateral one, by the joint whose axis they straddle, as their names spell
+# them (the side token and separators removed, lower case): the femoral epicondyle, the medial malleolus, the humeral
+# epicondyle (Plug-in Gait's add-ons, CAST's FME / TAM / HME, OpenCap's, OpenSim's marker sets).  A static often
+# carries them alone (taken off for the walk), where no motion shows which segment they ride on; the name does:
+# the segment the joint hangs from.
+MEDIAL_NAMES = {
+    "knee": {"mkne", "mknee", "kneem", "knem", "knm", "kneemed", "medknee", "medkne", "kneemedial", "medialknee",
+             "fme", "mfc", "mfe"},
+    "ankle": {"mank", "mankle", "ankm", "anklem", "anklemed", "medankle", "ankmed", "anklemedial", "medialankle",
+              "mmal", "mma", "mm", "mmall", "tam", "medmal", "malmed"},
+    "elbow": {"melb", "melbow", "elbm", "elbowm", "elbowmed", "medelbow", "elbmed", "elbowmedial", "medialelbow",
+              "mel", "hme"},
+}
+
+
+def medial_host(model: Model, label: str) -> tuple[str, str] | None:
+    """(segment, joint) where a medial marker's name puts it (MEDIAL_NAMES): the segment the model's knee, ankle or
+    elbow hinge of the side the name says hangs from (the hinge's name has the joint's and its side's, as
+    models/human.urdf's knee_l, gait2392's knee_r, Rajagopal2016's walker_knee_r); None for any other name, no side,
+    or a model without that hinge."""
+    side = named_side(label)
+    body = re.sub(r"[._\- ]", "", unsided(label)).lower()
+    part = next((p for p, names in MEDIAL_NAMES.items() if body in names), None)
+    if side is None or part is None:
+        return None
+    for j in model.joints:
+        if j.kind == "hinge" and part in j.name.lower() and named_side(j.name) == side:
+            return j.parent, j.name
+    return None
 
 
 @dataclass(frozen=True)

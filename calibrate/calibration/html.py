@@ -187,6 +187,11 @@ def _notes(report: dict) -> str:
     if report.get("on_axis_markers"):
         items.append(f"<li>lateral markers kept on their held hinge axes (the epicondyle or malleolus the axis "
                      f"passes through; no motion places the axis): {_e(', '.join(report['on_axis_markers']))}</li>")
+    if pairs := report.get("axis_pairs"):
+        items.append("<li>axes drawn along the line of the two markers straddling each joint (the lab's anatomical "
+                     "axis; centres slid to their midpoint): "
+                     + _e("; ".join(f"{r['coordinate']} {r['angle_deg']:.1f} deg from {'-'.join(r['markers'])}"
+                                    for r in pairs)) + "</li>")
     if given := [j for j in (report.get("settings") or {}).get("hold_centres", [])
                  if j not in report.get("still_centres", [])]:
         items.append(f"<li>centres held at the base model's offset from their parent segment's markers "

@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
-from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, past_joints
+from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, medial_host, past_joints
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
     STILL_SAMPLE,
@@ -1425,8 +1425,8 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         # next one's, so neither rigidity nor the poses say where a label rides (kineticstoolkit's wheelchair-racing
         # static had put its arm, forearm and glove markers on the femurs, its wheelchair's on the torso).
         names = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}" for i, t in enumerate(trials))
-        return [NewMarker(lab, None, None, f"seen only in still trials ({names}): no motion shows which segment it "
-                                           "rides on") for lab in unknown]
+        return [_medial(model, lab) or NewMarker(lab, None, None, f"seen only in still trials ({names}): no motion "
+                                                                  "shows which segment it rides on") for lab in unknown]
     used = [trials[i] for i in (moving or range(len(trials)))]
     labels = (*model.marker_names, *unknown)
     parts = []
@@ -1460,6 +1460,8 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     for lab in unknown:
         if lab in past:
             out.append(NewMarker(lab, None, None, past[lab].reason(), sits_by=past[lab].near))
+        elif len(used) < len(trials) and not any(lab in t.labels for t in used) and (m := _medial(model, lab)):
+            out.append(m)
         elif len(used) < len(trials) and not any(lab in t.labels for t in used):
             still = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}"
                               for i, t in enumerate(trials) if i not in moving)
@@ -1480,6 +1482,16 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
             why = f"{split_reason(assoc[lab].reason)[0]}; {hosts[lab].reason()}" if lab in hosts else assoc[lab].reason
             out.append(NewMarker(lab, assoc[lab].segment, None, why))
     return out
+
+
+def _medial(model: Model, label: str) -> NewMarker | None:
+    """A label the still trials alone show, placed by its name where it is a medial marker's (hosts.medial_host:
+    r_mknee on the femur the right knee hangs from), or None."""
+    host = medial_host(model, label)
+    if host is None:
+        return None
+    return NewMarker(label, host[0], None, f"named as a medial marker of {host[1]} (its epicondyle or malleolus), seen "
+                                           "only in still trials: on the segment that joint hangs from")
 
 
 def _protocol_places(subject: Model, params: Parameters, pairs: Sequence[tuple[str, str]]) -> Parameters:

@@ -36,6 +36,11 @@ def named_side(label: str) -> str | None:
     return sides.pop() if len(sides) == 1 else None
 
 
+def unsided(label: str) -> str:
+    """The marker's name without the side its name says (named_side's token, at the start or the end)."""
+    return _TRAILING.sub("", _LEADING.sub("", label, count=1))
+
+
 @dataclass(frozen=True)
 class SideMismatch:
     """A model marker whose name says one side while the model puts it on the other."""
