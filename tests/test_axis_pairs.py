@@ -152,6 +152,16 @@ def test_a_tight_pair_prior_puts_the_knee_axes_on_the_epicondyle_line(paired, tm
         assert abs(float(_axis(opm, odata, f"knee_{s}") @ truth_axis)) > abs(float(_axis(pm, data, f"knee_{s}")
                                                                                @ truth_axis))
     assert "axis pairs   knee_" in summary_text(tight) and "axis pairs" not in summary_text(off)
+    # An axis beyond 3 SDs of its line is named, with its segment's markers a static shows elsewhere (MovedMarker,
+    # kept in the fit) where there are some: here every axis, read against a 0.01 deg SD.
+    from calibrate.calibration.moved import MovedMarker
+    strict = replace(tight, settings=replace(tight.settings, priors=Priors(pair_axis=math.radians(0.01))),
+                     moved_kept=(MovedMarker(0, "LTHI", "femur_l", 0.03, 5.0),
+                                 MovedMarker(0, "LSHO", "torso", 0.04, 6.0)))
+    line = next(x for x in summary_text(strict).splitlines() if x.startswith("  axis pairs"))
+    assert "knee_l, knee_r beyond 3 SDs" in line or "knee_r, knee_l beyond 3 SDs" in line
+    assert "LTHI sit elsewhere" in line and "LSHO" not in line
+    assert "beyond" not in next(x for x in summary_text(tight).splitlines() if x.startswith("  axis pairs"))
     page = report_html(calibration_report(tight))
     assert "axes drawn along the line of the two markers" in page and f"{rep['knee_l']['angle_deg']:.1f} deg" in page
 
