@@ -56,6 +56,7 @@ def medial_host(model: Model, label: str) -> tuple[str, str] | None:
     or a model without that hinge."""
     side = named_side(label)
     body = re.sub(r"[._\- ]", "", unsided(label)).lower()
+    body = body.removesuffix("study")  # OpenCap's augmented markers: r_mknee_study
     part = next((p for p, names in MEDIAL_NAMES.items() if body in names), None)
     if side is None or part is None:
         return None
