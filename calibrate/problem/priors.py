@@ -302,25 +302,7 @@ class PriorsMixin:
         their Jacobian (n, n_free) at `p`; none when priors.width is 0."""
         sd = self.settings.priors.width
         terms = self._lateral_terms() if sd > 0 else []
-        if not terms:
-            return np.zeros(0), np.zeros((0, self.n_free))
-        m, L = self.model, self.layout
-        r, J = np.zeros(len(terms)), np.zeros((len(terms), self.np_full))
-        for k, (ji, mi, d, dist, side) in enumerate(terms):
-            seg = self.centre_segment[ji]
-            s = p[L.scale(seg)]
-            R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
-            v = p[L.axis(d)]
-            nv = float(np.linalg.norm(v))
-            u = v / nv
-            a = R @ u
-            x = p[L.marker(mi)] - p[L.centre(ji)]
-            r[k] = (side * s * float(a @ x) - dist) / sd
-            J[k, L.marker(mi)] += side * s * a / sd
-            J[k, L.centre(ji)] -= side * s * a / sd
-            J[k, L.scale(seg)] += side * float(a @ x) / sd
-            J[k, L.axis(d)] += side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
-        return r, J @ self.tangent_map(p)
+        return self._along_axes(p, [(ji, d, {mi: 1.0}, side, dist) for ji, mi, d, dist, side in terms], sd)
 
     def pair_centre_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each straddled hinge's centre (pair_terms) along its axis from the midpoint of its two markers, at the
@@ -329,11 +311,18 @@ class PriorsMixin:
         lateral marker; none when priors.width is 0."""
         sd = self.settings.priors.width
         terms = self.pair_terms() if sd > 0 else []
-        if not terms:
+        return self._along_axes(p, [(ji, d, {k1: 0.5, k2: 0.5}, -1.0, 0.0) for ji, k1, k2, d in terms], sd)
+
+    def _along_axes(self, p: np.ndarray, rows: list[tuple[int, int, dict[int, float], float, float]],
+                    sd: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (side · s · a·(Σ w_k x_k − c) − target) / sd and their Jacobian (n, n_free) at `p`: a point on a
+        hinge's parent (its markers x_k weighted w_k, the weights summing to 1) along the hinge's axis a from its
+        centre c, at the segment's scale s, one row per (joint, DoF, weights, side, target)."""
+        if not rows:
             return np.zeros(0), np.zeros((0, self.n_free))
         m, L = self.model, self.layout
-        r, J = np.zeros(len(terms)), np.zeros((len(terms), self.np_full))
-        for k, (ji, k1, k2, d) in enumerate(terms):
+        r, J = np.zeros(len(rows)), np.zeros((len(rows), self.np_full))
+        for k, (ji, d, weights, side, target) in enumerate(rows):
             seg = self.centre_segment[ji]
             s = p[L.scale(seg)]
             R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
@@ -341,13 +330,13 @@ class PriorsMixin:
             nv = float(np.linalg.norm(v))
             u = v / nv
             a = R @ u
-            x = p[L.centre(ji)] - 0.5 * (p[L.marker(k1)] + p[L.marker(k2)])
-            r[k] = s * float(a @ x) / sd
-            J[k, L.centre(ji)] += s * a / sd
-            J[k, L.marker(k1)] -= 0.5 * s * a / sd
-            J[k, L.marker(k2)] -= 0.5 * s * a / sd
-            J[k, L.scale(seg)] += float(a @ x) / sd
-            J[k, L.axis(d)] += s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
+            x = sum(w * p[L.marker(mk)] for mk, w in weights.items()) - p[L.centre(ji)]
+            r[k] = (side * s * float(a @ x) - target) / sd
+            for mk, w in weights.items():
+                J[k, L.marker(mk)] += side * s * w * a / sd
+            J[k, L.centre(ji)] -= side * s * a / sd
+            J[k, L.scale(seg)] += side * float(a @ x) / sd
+            J[k, L.axis(d)] += side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
         return r, J @ self.tangent_map(p)
 
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,
