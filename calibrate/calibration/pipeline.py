@@ -1460,13 +1460,11 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     for lab in unknown:
         if lab in past:
             out.append(NewMarker(lab, None, None, past[lab].reason(), sits_by=past[lab].near))
-        elif len(used) < len(trials) and not any(lab in t.labels for t in used) and (m := _medial(model, lab)):
-            out.append(m)
         elif len(used) < len(trials) and not any(lab in t.labels for t in used):
             still = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}"
                               for i, t in enumerate(trials) if i not in moving)
-            out.append(NewMarker(lab, None, None, f"seen only in still trials ({still}): no motion shows which "
-                                                  "segment it rides on"))
+            out.append(_medial(model, lab) or NewMarker(lab, None, None, f"seen only in still trials ({still}): no "
+                                                                         "motion shows which segment it rides on"))
         elif lab in hosts and hosts[lab].segment is not None:
             out.append(NewMarker(lab, hosts[lab].segment, None, hosts[lab].reason()))
         elif lab in margins and margins[lab].segment is not None:

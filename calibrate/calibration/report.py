@@ -542,9 +542,9 @@ def _pair_line(cal: Calibration) -> list[str]:
         # Markers of those hinges' segments that a static shows elsewhere than the moving trials, kept in the fit: the
         # segment's frame then differs between the static, which places the pair, and the moving trials, which turn
         # the axis (Rajagopal's left thigh cluster 26-51 mm: its knee 18.5 deg from its epicondyles, 11.9 without).
-        parent = {r["coordinate"]: cal.model.joints[cal.model.joint_index(
-            cal.model.dofs[cal.model.dof_index(r["coordinate"])].joint)].parent for r in far}
-        kept = sorted({mv.marker for mv in cal.moved_kept if mv.segment in parent.values()})
+        m = cal.model
+        parents = {m.joints[m.joint_index(m.dofs[m.dof_index(r["coordinate"])].joint)].parent for r in far}
+        kept = sorted({mv.marker for mv in cal.moved_kept if mv.segment in parents})
         if kept:
             line += (f"; {', '.join(kept)} sit elsewhere on those segments in the still trials than in the moving "
                      "ones (the moved? line): --moved-markers leaves their still positions out")
