@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..io.labels import plug_in_gait_name
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.model import Model
@@ -47,6 +48,46 @@ MEDIAL_NAMES = {
     "elbow": {"melb", "melbow", "elbm", "elbowm", "elbowmed", "medelbow", "elbmed", "elbowmedial", "medialelbow",
               "mel", "hme"},
 }
+
+
+# Plug-in Gait's leg wand names (its labels without their side, as calibrate.io.labels' alias table reads a label:
+# LTHI, L_Thigh and RightThighWand alike) and the segment each rides on, and how models name those segments
+# (models/human.urdf, gait2392, Rajagopal2016: femur_r, tibia_l).  Where the model's poses cannot tell a label's
+# segment from its neighbour by the twice they ask (HOST_RATIO), the name decides between them: pig_walk's RTHI on
+# Rajagopal2016, 14.6 mm on femur_r against 28 on the pelvis (a walk turns the hip little).  Not the trunk's or the
+# arms' (docs/benchmarks.md, "Plug-in Gait names"): pig_walk's PSIS markers on gait2392 (whose pelvis has a V.Sacral
+# instead), put on the pelvis by their names, carried its lumbar centre 135-252 mm from the scaled base model's; its
+# LUPA on Rajagopal's humerus_l freed the forearm's pronation, which the walk then turned 60 deg, the elbow 59 deg.
+NAMED_SEGMENTS = {
+    "thigh": {"THI"},
+    "shank": {"TIB"},
+}
+SEGMENT_NAMES = {
+    "thigh": ("femur", "thigh"),
+    "shank": ("tibia", "shank"),
+}
+#: The named segment is taken unless another segment holds the label twice as still: the data decide only what
+#: they separate (HOST_RATIO), the name the rest.
+NAME_TIE = 1 / HOST_RATIO
+
+
+def named_kind(label: str) -> str | None:
+    """The leg segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
+    'shank' for RTIB), or None (another name, or one without its side)."""
+    code = plug_in_gait_name(label)
+    if code is None or code[0] not in "LR":
+        return None
+    return next((kind for kind, names in NAMED_SEGMENTS.items() if code[1:] in names), None)
+
+
+def named_segments(model: Model, label: str) -> tuple[str, ...]:
+    """The model's segments of the kind `label`'s name says (named_kind), on its side; () for none."""
+    kind = named_kind(label)
+    if kind is None:
+        return ()
+    side = "left" if plug_in_gait_name(label)[0] == "L" else "right"
+    return tuple(s.name for s in model.segments
+                 if any(n in s.name.lower() for n in SEGMENT_NAMES[kind]) and named_side(s.name) == side)
 
 
 def medial_host(model: Model, label: str) -> tuple[str, str] | None:
@@ -78,12 +119,14 @@ class Host:
     runner_up: str
     runner_up_spread: float
     place: np.ndarray
+    named: str = ""  # the segment kind its name says, where that decided between near ties (named_kind)
 
     def reason(self) -> str:
         """Why it was placed there, or (no segment) left out, in the words of the rigidity test's reasons."""
         if self.segment:
+            by = f"; its name says the {self.named}, which decides" if self.named else ""
             return (f"on the model's poses its place on {self.segment} spreads {1e3 * self.spread:.1f} mm RMS "
-                    f"(on {self.runner_up}, the next: {1e3 * self.runner_up_spread:.0f} mm)")
+                    f"(on {self.runner_up}, the next: {1e3 * self.runner_up_spread:.0f} mm){by}")
         return (f"on the model's poses its place spreads {1e3 * self.spread:.1f} mm RMS on {self.best} at best, "
                 f"{1e3 * self.runner_up_spread:.0f} on {self.runner_up} (a host: under "
                 f"{1e3 * HOST_SPREAD:.0f} mm and half the next)")
@@ -200,9 +243,27 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
         order = np.argsort(spread)
         best, second = int(order[0]), int(order[1]) if len(order) > 1 else int(order[0])
         ok = spread[best] <= HOST_SPREAD and (len(order) == 1 or spread[best] <= HOST_RATIO * spread[second])
+        by_name = not ok and _by_name(model, lab, candidates, spread)
+        if by_name:  # a near tie the name decides: the named segment, against the best of the others
+            best = next(k for k in order if candidates[k] in named_segments(model, lab))
+            second = next(k for k in order if k != best)
+            ok = True
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
-                        candidates[second], float(spread[second]), mid[best])
+                        candidates[second], float(spread[second]), mid[best], named_kind(lab) if by_name else "")
     return out
+
+
+def _by_name(model: Model, label: str, candidates: Sequence[str], spread: np.ndarray) -> bool:
+    """Whether `label`'s name decides its host where the spreads alone do not (NAMED_SEGMENTS): a segment of the
+    kind it names is a candidate, its place spreads there under HOST_SPREAD and at most NAME_TIE times the best, and
+    no other segment of that kind comes within 1 / HOST_RATIO of it."""
+    named = named_segments(model, label)
+    if not named or len(candidates) < 2:
+        return False
+    own = sorted(spread[k] for k, c in enumerate(candidates) if c in named)
+    if not own or len(own) > 1 and own[0] > HOST_RATIO * own[1]:
+        return False  # none, or two of its kind that tie: the name cannot decide between them
+    return own[0] <= HOST_SPREAD and own[0] <= NAME_TIE * float(np.min(spread))
 
 
 # Joints with more rotations than this (a ball: a hip, a shoulder, a lumbar joint) open no unposed chain below a

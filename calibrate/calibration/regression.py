@@ -162,12 +162,47 @@ def _landmarks(model: Model) -> dict[str, str]:
     return found
 
 
+def _pelvis_landmarks(model: Model, trials: Sequence[Trial]) -> dict[str, str]:
+    """The pelvis landmarks Harrington's regression reads in `trials`: the model's (_landmarks), and the trials' own
+    where the model lacks them."""
+    found = _landmarks(model)
+    if "SACR" not in found and (sacrum := _trials_sacrum(trials)):
+        # A sacral marker every trial carries and the model does not (a lab's SACR beside a model with PSIS markers:
+        # c3d.org's sample04 has no PSIS) stands in for the PSIS midpoint, as a model's own would.
+        found["SACR"] = sacrum
+    if not _carried(trials, found) and (psis := _trials_psis(trials)):
+        # The trials' own PSIS markers where they carry none of the model's back landmarks (Plug-in Gait's LPSI and
+        # RPSI on gait2392, whose pelvis has a V.Sacral): their midpoint is the sacrum the regression reads.
+        found.update(psis)
+        found.pop("SACR", None)
+    return found
+
+
 def _trials_sacrum(trials: Sequence[Trial]) -> str | None:
     """The label of a sacral marker (Plug-in Gait's SACR or an alias of it) that every one of `trials` carries,
     or None."""
     common = set.intersection(*(set(t.labels) for t in trials)) if trials else set()
     hits = sorted(lab for lab in common if lab == "SACR" or (alias_for(lab, ("SACR",)) or (None,))[0] == "SACR")
     return hits[0] if hits else None
+
+
+def _carried(trials: Sequence[Trial], found: dict[str, str]) -> bool:
+    """Whether every one of `trials` carries the back landmarks of `found` the regression reads (both PSIS, or the
+    sacrum)."""
+    return all({found.get("RPSI"), found.get("LPSI")} <= set(t.labels) or found.get("SACR") in t.labels
+               for t in trials)
+
+
+def _trials_psis(trials: Sequence[Trial]) -> dict[str, str]:
+    """{'RPSI': label, 'LPSI': label}: the PSIS markers (Plug-in Gait's names or an alias of them) every one of
+    `trials` carries, or {}."""
+    common = set.intersection(*(set(t.labels) for t in trials)) if trials else set()
+    out = {}
+    for code in ("RPSI", "LPSI"):
+        hits = sorted(lab for lab in common if lab == code or (alias_for(lab, (code,)) or (None,))[0] == code)
+        if hits:
+            out[code] = hits[0]
+    return out if len(out) == 2 else {}
 
 
 def _harrington_of(trial: Trial, found: dict[str, str], frames: np.ndarray | slice = slice(None)
@@ -191,7 +226,7 @@ def _regression_reference(model: Model, hips: dict[str, Joint], centres: Sequenc
     centres' and ASIS markers' median widths there."""
     if set(hips) != {"r", "l"} or not centres:
         return {}
-    found = _landmarks(model)
+    found = _pelvis_landmarks(model, trials)
     k = {side: model.joint_index(hips[side].name) for side in "rl"}
     gaps: dict[str, list[np.ndarray]] = {"r": [], "l": []}
     widths, asis = [], []
@@ -218,11 +253,7 @@ def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tup
     with its Harrington position in every frame (NaN where a landmark is not seen); and the landmarks used
     (Plug-in Gait name -> the model's label).  The trials' labels must be the model's (calibrate maps them
     first).  One-line CalibrateError when the model lacks a hip or a landmark, or a trial lacks a landmark."""
-    found = _landmarks(model)
-    if "SACR" not in found and (sacrum := _trials_sacrum(trials)):
-        # A sacral marker every trial carries and the model does not (a lab's SACR beside a model with PSIS markers:
-        # c3d.org's sample04 has no PSIS) stands in for the PSIS midpoint, as a model's own would.
-        found["SACR"] = sacrum
+    found = _pelvis_landmarks(model, trials)
     need = [c for c in ("RASI", "LASI") if c not in found]
     if not need and not ("RPSI" in found and "LPSI" in found or "SACR" in found):
         need = ["RPSI and LPSI, or SACR"]

@@ -262,6 +262,13 @@ def _codes(label: str) -> list[tuple[str, int]]:
     return out
 
 
+def plug_in_gait_name(label: str) -> str | None:
+    """The Plug-in Gait label a trial label is a common spelling of, by the alias table alone (LTHI for L_Thigh,
+    SACR for V.Sacral, LPSI for L.PSIS), whatever the model calls it; None for no known spelling."""
+    codes = _codes(label)
+    return codes[0][0] if codes else None
+
+
 def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None:
     """The model label a trial label is a common spelling of, and its rank in the alias table (0 best).
 
