@@ -166,7 +166,7 @@ def _pelvis_landmarks(model: Model, trials: Sequence[Trial]) -> dict[str, str]:
     """The pelvis landmarks Harrington's regression reads in `trials`: the model's (_landmarks), and the trials' own
     where the model lacks them."""
     found = _landmarks(model)
-    if "SACR" not in found and (sacrum := _trials_sacrum(trials)):
+    if "SACR" not in found and (sacrum := _trials_label(trials, "SACR")):
         # A sacral marker every trial carries and the model does not (a lab's SACR beside a model with PSIS markers:
         # c3d.org's sample04 has no PSIS) stands in for the PSIS midpoint, as a model's own would.
         found["SACR"] = sacrum
@@ -178,11 +178,11 @@ def _pelvis_landmarks(model: Model, trials: Sequence[Trial]) -> dict[str, str]:
     return found
 
 
-def _trials_sacrum(trials: Sequence[Trial]) -> str | None:
-    """The label of a sacral marker (Plug-in Gait's SACR or an alias of it) that every one of `trials` carries,
-    or None."""
+def _trials_label(trials: Sequence[Trial], code: str) -> str | None:
+    """The label of Plug-in Gait's landmark `code` (its name or an alias of it) that every one of `trials` carries, or
+    None."""
     common = set.intersection(*(set(t.labels) for t in trials)) if trials else set()
-    hits = sorted(lab for lab in common if lab == "SACR" or (alias_for(lab, ("SACR",)) or (None,))[0] == "SACR")
+    hits = sorted(lab for lab in common if lab == code or (alias_for(lab, (code,)) or (None,))[0] == code)
     return hits[0] if hits else None
 
 
@@ -196,12 +196,7 @@ def _carried(trials: Sequence[Trial], found: dict[str, str]) -> bool:
 def _trials_psis(trials: Sequence[Trial]) -> dict[str, str]:
     """{'RPSI': label, 'LPSI': label}: the PSIS markers (Plug-in Gait's names or an alias of them) every one of
     `trials` carries, or {}."""
-    common = set.intersection(*(set(t.labels) for t in trials)) if trials else set()
-    out = {}
-    for code in ("RPSI", "LPSI"):
-        hits = sorted(lab for lab in common if lab == code or (alias_for(lab, (code,)) or (None,))[0] == code)
-        if hits:
-            out[code] = hits[0]
+    out = {code: lab for code in ("RPSI", "LPSI") if (lab := _trials_label(trials, code)) is not None}
     return out if len(out) == 2 else {}
 
 
