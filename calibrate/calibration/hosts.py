@@ -71,21 +71,28 @@ SEGMENT_NAMES = {
 NAME_TIE = 1 / HOST_RATIO
 
 
-def named_kind(label: str) -> str | None:
-    """The leg segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
-    'shank' for RTIB), or None (another name, or one without its side)."""
+def _named(label: str) -> tuple[str, str] | None:
+    """(kind, side) of a Plug-in Gait wand's name (NAMED_SEGMENTS: ('thigh', 'left') for LTHI, L_Thigh), or None."""
     code = plug_in_gait_name(label)
     if code is None or code[0] not in "LR":
         return None
-    return next((kind for kind, names in NAMED_SEGMENTS.items() if code[1:] in names), None)
+    kind = next((kind for kind, names in NAMED_SEGMENTS.items() if code[1:] in names), None)
+    return None if kind is None else (kind, "left" if code[0] == "L" else "right")
+
+
+def named_kind(label: str) -> str | None:
+    """The leg segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
+    'shank' for RTIB), or None (another name, or one without its side)."""
+    named = _named(label)
+    return None if named is None else named[0]
 
 
 def named_segments(model: Model, label: str) -> tuple[str, ...]:
     """The model's segments of the kind `label`'s name says (named_kind), on its side; () for none."""
-    kind = named_kind(label)
-    if kind is None:
+    named = _named(label)
+    if named is None:
         return ()
-    side = "left" if plug_in_gait_name(label)[0] == "L" else "right"
+    kind, side = named
     return tuple(s.name for s in model.segments
                  if any(n in s.name.lower() for n in SEGMENT_NAMES[kind]) and named_side(s.name) == side)
 
@@ -243,27 +250,26 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
         order = np.argsort(spread)
         best, second = int(order[0]), int(order[1]) if len(order) > 1 else int(order[0])
         ok = spread[best] <= HOST_SPREAD and (len(order) == 1 or spread[best] <= HOST_RATIO * spread[second])
-        by_name = not ok and _by_name(model, lab, candidates, spread)
+        pick = None if ok else _named_host(model, lab, candidates, spread)
+        by_name = pick is not None
         if by_name:  # a near tie the name decides: the named segment, against the best of the others
-            best = next(k for k in order if candidates[k] in named_segments(model, lab))
-            second = next(k for k in order if k != best)
+            best, second = pick, next(k for k in order if k != pick)
             ok = True
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
                         candidates[second], float(spread[second]), mid[best], named_kind(lab) if by_name else "")
     return out
 
 
-def _by_name(model: Model, label: str, candidates: Sequence[str], spread: np.ndarray) -> bool:
-    """Whether `label`'s name decides its host where the spreads alone do not (NAMED_SEGMENTS): a segment of the
-    kind it names is a candidate, its place spreads there under HOST_SPREAD and at most NAME_TIE times the best, and
-    no other segment of that kind comes within 1 / HOST_RATIO of it."""
+def _named_host(model: Model, label: str, candidates: Sequence[str], spread: np.ndarray) -> int | None:
+    """The candidate `label`'s name decides for where the spreads alone do not (NAMED_SEGMENTS), or None: a segment of
+    the kind it names, its place spreading there under HOST_SPREAD and at most NAME_TIE times the best, and no other
+    segment of that kind within 1 / HOST_RATIO of it."""
     named = named_segments(model, label)
-    if not named or len(candidates) < 2:
-        return False
-    own = sorted(spread[k] for k, c in enumerate(candidates) if c in named)
-    if not own or len(own) > 1 and own[0] > HOST_RATIO * own[1]:
-        return False  # none, or two of its kind that tie: the name cannot decide between them
-    return own[0] <= HOST_SPREAD and own[0] <= NAME_TIE * float(np.min(spread))
+    own = sorted((spread[k], k) for k, c in enumerate(candidates) if c in named)
+    if len(candidates) < 2 or not own or len(own) > 1 and own[0][0] > HOST_RATIO * own[1][0]:
+        return None  # none, or two of its kind that tie: the name cannot decide between them
+    ok = own[0][0] <= HOST_SPREAD and own[0][0] <= NAME_TIE * float(np.min(spread))
+    return own[0][1] if ok else None
 
 
 # Joints with more rotations than this (a ball: a hip, a shoulder, a lumbar joint) open no unposed chain below a
