@@ -164,3 +164,9 @@ def test_unlabelled_trajectories_are_never_placed(human, tmp_path):
     assert "*115" in cal.ignored_labels and "*115" not in cal.model.marker_names
     assert [(m.label, m.segment) for m in cal.new_markers] == [("LKNE2", "femur_l")]
     assert "1 unlabelled trajectories ignored (*115)" in cal.text()
+    # ... and the summary's marker count keeps them apart from the labels left out (a Vicon file's 42 ghosts had read
+    # as 50 trial labels left out beside its 8 real ones), in the text and in the HTML report's summary
+    from calibrate.calibration.html import report_html
+
+    assert "0 trial labels left out and 1 unlabelled trajectories ignored, " in cal.text()
+    assert "0 trial labels left out and 1 unlabelled trajectories ignored, " in report_html(cal.report())

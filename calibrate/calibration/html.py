@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from ..errors import CalibrateError
+from ..io.labels import UNLABELLED
 from ..io.outputs import check_targets, put_text, write_all
 from ..seed.association import shared_clause
 
@@ -254,11 +255,14 @@ def _summary(report: dict) -> str:
                       f"{t['frames']} (counted as {t['counted_as_frames']:g})", f"{t['rate_hz']:g}", _num(t["rms_mm"]),
                       _num(t["max_mm"]), t["outliers"]] for t in report["trials"]], {1, 2, 3, 4, 5})
     mass = report.get("mass", {})
+    ignored = report["marker_set"]["ignored_labels"]
+    named = [lab for lab in ignored if not UNLABELLED.fullmatch(lab)]  # unlabelled trajectories counted apart
     rows = [
         ["model", f"{m['source']}: {m['segments']} segments, {m['joints']} joints, {m['dof']} coordinates per "
                   f"frame, {m['markers']} markers ({m['new_markers']} new)"],
-        ["markers", f"{len(report['marker_set']['used'])} used, {len(report['marker_set']['ignored_labels'])} "
-                    f"trial labels left out, {report['outliers']['count']} outliers rejected"],
+        ["markers", f"{len(report['marker_set']['used'])} used, {len(named)} trial labels left out"
+                    + (f" and {len(ignored) - len(named)} unlabelled trajectories ignored" if len(ignored) > len(named)
+                       else "") + f", {report['outliers']['count']} outliers rejected"],
         ["marker RMS (mm)", f"start {_num(mk['initial_rms_mm'], '{:.3f}')}, final {_num(mk['rms_mm'], '{:.3f}')}, "
                             f"largest {_num(mk['max_mm'])}"],
         ["cost", f"{s['initial_cost']:.4e} -> {s['final_cost']:.4e}"],

@@ -626,10 +626,14 @@ def summary_text(cal) -> str:
                      "base model's, scaled, where the priors of the centres and of the markers around them balance"
                      + (" (the ball joints' centres held, below)" if cal.still_centres else "")
                      + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
+    # Unlabelled trajectories (Vicon's '*115') are counted apart: a file's 42 ghosts read as 50 labels left out
+    # beside the 8 real ones (pig_walk on Rajagopal2016).
+    n_unlabelled = sum(1 for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab))
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
-        f"rigidity or the model's poses), {len(cal.ignored_labels)} trial labels left out, "
-        f"{len(cal.outliers)} outliers rejected",
+        f"rigidity or the model's poses), {len(cal.ignored_labels) - n_unlabelled} trial labels left out"
+        + (f" and {n_unlabelled} unlabelled trajectories ignored" if n_unlabelled else "")
+        + f", {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
