@@ -28,7 +28,7 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import on_axis_markers, placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
-from .html import asymmetry_clause, mirror_clause, report_html, seed_note_groups
+from .html import asymmetry_clause, left_out_clause, mirror_clause, report_html, seed_note_groups
 from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
@@ -626,14 +626,9 @@ def summary_text(cal) -> str:
                      "base model's, scaled, where the priors of the centres and of the markers around them balance"
                      + (" (the ball joints' centres held, below)" if cal.still_centres else "")
                      + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
-    # Unlabelled trajectories (Vicon's '*115') are counted apart: a file's 42 ghosts read as 50 labels left out
-    # beside the 8 real ones (pig_walk on Rajagopal2016).
-    n_unlabelled = sum(1 for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab))
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
-        f"rigidity or the model's poses), {len(cal.ignored_labels) - n_unlabelled} trial labels left out"
-        + (f" and {n_unlabelled} unlabelled trajectories ignored" if n_unlabelled else "")
-        + f", {len(cal.outliers)} outliers rejected",
+        f"rigidity or the model's poses), {left_out_clause(cal.ignored_labels)}, {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
