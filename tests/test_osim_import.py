@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -61,6 +62,13 @@ def _coords(*items: tuple[str, float, float]) -> str:
         f"<locked>false</locked></Coordinate>" for n, lo, hi in items) + "</coordinates>"
 
 
+def ground_free(child: str, translation: str = "0 0.9 0", orientation: str = "0 0 0", prefix: str = "p") -> str:
+    """A FreeJoint from ground to `child`, its six coordinates `prefix`_rx ... `prefix`_tz."""
+    return (f"<FreeJoint name=\"ground_{child}\">{_frames('ground', child, translation, orientation)}"
+            + _coords((f"{prefix}_rx", -3, 3), (f"{prefix}_ry", -1.4, 1.4), (f"{prefix}_rz", -3, 3),
+                      (f"{prefix}_tx", -2, 2), (f"{prefix}_ty", -2, 2), (f"{prefix}_tz", -2, 2)) + "</FreeJoint>")
+
+
 def _ta(name: str, axis: str, coord: str, func: str) -> str:
     return (f"<TransformAxis name=\"{name}\"><coordinates>{coord}</coordinates><axis>{axis}</axis>{func}"
             f"</TransformAxis>")
@@ -88,10 +96,7 @@ def hand_made_osim() -> str:
             "</PhysicalOffsetFrame></components></Body>")
     bodies = bodies.replace("</Body>", site, 8).replace(site, "</Body>", 7)  # the 8th body, cap, has a frame
     joints = [
-        f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0.1 0.2 0.3', '0.1 0 0.2')}"
-        + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
-                  ('p_tz', -2, 2)) +
-        "</FreeJoint>",
+        ground_free("pelvis", "0.1 0.2 0.3", "0.1 0 0.2"),
         "<BallJoint name=\"hip\">"
         + _frames('pelvis', 'thigh', '-0.05 -0.08 0.09', '0.2 -0.1 0.3', '0.01 0.02 -0.03', '0.1 0.2 0') +
         f"{_coords(('hip_x', -1, 1), ('hip_y', -1, 1), ('hip_z', -1, 1))}</BallJoint>",
@@ -382,6 +387,11 @@ def _bad(tmp_path: Path, text: str, name: str = "bad.osim") -> Path:
     (lambda t: "hello, not xml", "not valid XML"),
     (lambda t: "<?xml version='1.0'?><robot name='x'/>", "not an OpenSimDocument"),
     (lambda t: t.replace('Version="40000"', 'Version="20302"'), "OpenSim 3.x"),
+    # OpenSim 4.0's pre-release format: a joint's parent named by a connector (opensim-models' double_pendulum)
+    (lambda t: re.sub(r"<socket_parent_frame>([^<]*)</socket_parent_frame>",
+                      r'<connectors><Connector_PhysicalFrame_ name="parent_body"><connectee_name>\1</connectee_name>'
+                      r"</Connector_PhysicalFrame_></connectors>", t.replace('Version="40000"', 'Version="30501"'),
+                      count=1), "OpenSim 4.0 pre-release model (Version 30501"),
     (lambda t: t.replace("<PinJoint name=\"ankle\">", "<EllipsoidJoint name=\"ankle\">").replace(
         "</PinJoint>", "</EllipsoidJoint>"), "joint type EllipsoidJoint is not read"),
     (lambda t: t.replace("PiecewiseLinearFunction", "StepFunction"), "function type StepFunction is not read"),
@@ -656,9 +666,7 @@ def muscle_osim() -> str:
                 f"</range><clamped>true</clamped><locked>false</locked></Coordinate></coordinates>")
 
     joints = (
-        f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0 0.9 0', '0 0 0')}"
-        + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
-                  ('p_tz', -2, 2)) + "</FreeJoint>"
+        ground_free("pelvis") +
         f"<PinJoint name=\"hip\">{_frames('pelvis', 'thigh', '-0.07 -0.08 0.08', '0 0 0', '0.01 0.03 -0.02', '0 0 0')}"
         f"{coords('hip_q', -1.5, 1.5, 0.2)}</PinJoint>"
         f"<PinJoint name=\"knee\">{_frames('thigh', 'shank', '0 -0.4 0', '0 0 0', '0.005 0.01 0', '0 0 0')}"

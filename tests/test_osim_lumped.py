@@ -32,6 +32,7 @@ from tests.test_osim_import import (
     _pin_markers,
     _ta,
     _task,
+    ground_free,
 )
 
 # (coordinate, range) of the driving joint, and each coupled joint's slopes on them (flexion, bending, rotation)
@@ -59,9 +60,7 @@ def spine_osim(share: float = 1.0, christophy: bool = False) -> str:
                      [("pelvis", 10), ("v1", 1), ("v2", 1), ("v3", 1), ("chest", 20), ("head", 5), ("abdomen", 1)]
                      + ([("ribs", 2)] if christophy else []))
     joints = [
-        f"<FreeJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0 0.9 0', '0 0 0')}"
-        + _coords(('p_rx', -3, 3), ('p_ry', -1.4, 1.4), ('p_rz', -3, 3), ('p_tx', -2, 2), ('p_ty', -2, 2),
-                  ('p_tz', -2, 2)) + "</FreeJoint>",
+        ground_free("pelvis"),
         _custom("lumbar", "pelvis", "v1", tuple(n for n, _, _ in DRIVER), (_lin(share), _lin(share), _lin(share)),
                 "-0.09 0.07 0", "0 0 0.15", _coords(*DRIVER)),
     ]

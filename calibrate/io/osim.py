@@ -43,7 +43,7 @@ from __future__ import annotations
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +60,7 @@ GRID = 401  # coordinate values over a range at which approximations are measure
 
 
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
+TOGETHER_POSES = 500  # random poses where the approximations' joint effect is measured (Together)
 PROBE = "calibrate_default_pose_probe"  # the marker at the root's origin of a model read without its markers
 
 
@@ -105,6 +106,23 @@ class Approximation:
 
 
 @dataclass(frozen=True)
+class Together:
+    """The import's approximations together: each marker below two or more approximated joints, OpenSim's
+    kinematics against the imported model's at `poses` random poses (every coordinate uniform over its range, within
+    one turn; the couplers followed), in the root body's frame."""
+
+    max_marker_mm: float  # the largest displacement of such a marker
+    marker: str  # where it occurs
+    mean_mm: float  # the mean displacement over those markers and poses
+    poses: int
+
+    def text(self) -> str:
+        return (f"all approximations together ({self.poses} random poses, every coordinate within its range): "
+                f"largest marker effect {self.max_marker_mm:.2f} mm at {self.marker}, mean {self.mean_mm:.2f} mm "
+                f"over the markers below two or more of them")
+
+
+@dataclass(frozen=True)
 class RootInfo:
     """The OpenSim ground joint: its name, frames and six coordinates (for .osim/.mot export)."""
 
@@ -133,6 +151,10 @@ class OsimInfo:
     # coordinates only; absent means 1).  The URDF, the motion CSV, `defaults` and `locked` are in the URDF's angle;
     # the .mot, the .osim export and OpenSim setups' values in OpenSim's coordinate.
     ratios: dict[str, float] = field(default_factory=dict)
+    # where a marker lies below several approximated joints (MoBL-ARMS's hand: four welded shoulder-girdle joints and
+    # the shoulder's hinge fit), their per-joint figures do not add up to its effect: the effect of every
+    # approximation together, measured at random poses (Together); None where no marker is below two
+    together: Together | None = None
 
     def ratio(self, coordinate: str) -> float:
         """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
@@ -293,8 +315,12 @@ class _Importer:
         """Whether the joint is a product of constant transforms and rotations of a·coordinate + b, each coordinate
         in one (no coupled coordinate; a ≠ ±1 is the coordinate's ratio), and what is not, one phrase per axis."""
         used: set[str] = set()
-        exact = all(c.name not in self.r.couplers for c in j.coords)
-        why: list[str] = []
+        coupled = [c.name for c in j.coords if c.name in self.r.couplers]
+        exact = not coupled
+        # a coupled coordinate's axis follows another coordinate, which may be another joint's (MoBL-ARMS's
+        # shoulder1_r2 = -elv_angle): named, so that the detail never starts empty
+        why: list[str] = [f"{c} follows {self.r.couplers[c][0]} (CoordinateCouplerConstraint)" for c in coupled
+                          if self.r.couplers[c][0] not in {x.name for x in j.coords}]
         for ax in j.axes:
             if ax.coord is None or ax.func.constant is not None:
                 continue
@@ -722,8 +748,15 @@ class _Importer:
         inv = invert(j.child_offset)
         w = np.array([apply(inv, x) for x in markers.values()]).reshape(-1, 3)
         names = list(markers)
-        drivers = [c for c in j.coords if c.name not in self.r.couplers] or \
-            [self.r.coords[self.r.couplers[c.name][0]] for c in j.coords]
+        # The joint's free coordinates and those its coupled ones follow: a coupled coordinate of another joint's
+        # (MoBL-ARMS's shoulder1_r2 = -elv_angle, shoulder0's) turns this joint over that coordinate's range, which
+        # the approximation holds at its reference (measured with the free coordinate alone: 0 mm, not 700).
+        own = {c.name for c in j.coords}
+        drivers = [c for c in j.coords if c.name not in self.r.couplers]
+        for c in j.coords:
+            ind = self.r.couplers[c.name][0] if c.name in self.r.couplers else None
+            if ind is not None and ind not in own and all(d.name != ind for d in drivers):
+                drivers.append(self.r.coords[ind])
         worst, worst_marker, bound = 0.0, "", 0.0
         reach = self.reach(j.child, j.child_offset[1])
         samples = []
@@ -883,10 +916,59 @@ class _Importer:
         # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
         info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
                         tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios)
-        text = (f'<?xml version="1.0"?>\n<!-- imported by calibrate from {r.path.name} -->\n'
-                f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
+        body = f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
+        together = self.measure_together(body + "</robot>\n", info)
+        if together is not None:
+            info = replace(info, together=together)
+        text = (f'<?xml version="1.0"?>\n<!-- imported by calibrate from {r.path.name} -->\n' + body
                 + _info_xml(info) + "\n</robot>\n")
         return text, info
+
+    def measure_together(self, urdf: str, info: OsimInfo, poses: int = TOGETHER_POSES) -> Together | None:
+        """The approximations' joint effect on each marker below two or more of them (Together): OpenSim's
+        kinematics (the reader's joints, every coordinate at random, the couplers followed) against the imported
+        URDF's (Pinocchio, each coordinate times its ratio), both in the root body's frame."""
+        import pinocchio as pin
+
+        count: dict[str, int] = {}
+        for a in info.approximations:
+            if a.kind not in NO_MARKER_EFFECT:
+                for m in a.markers:
+                    count[m] = count.get(m, 0) + 1
+        stacked = sorted(m for m, k in count.items() if k >= 2 and m in self.r.markers)
+        if not stacked:
+            return None
+        r = self.r
+        rng = np.random.default_rng(0)
+        vals = {c.name: rng.uniform(*c.span(), poses) for c in r.coords.values() if c.name not in r.couplers}
+        for dep, (ind, f, s) in r.couplers.items():
+            if ind in vals:
+                vals[dep] = s * f(vals[ind])
+        ones = (np.broadcast_to(np.eye(3), (poses, 3, 3)), np.zeros((poses, 3)))
+        X: dict[str, tuple[np.ndarray, np.ndarray]] = {self.root_joint.child: ones}
+        for j in self.order:
+            X[j.child] = _then(_then(_then(X[j.parent], j.parent_offset), j.transform(vals, poses)),
+                               invert(j.child_offset))
+        exact = np.stack([np.einsum("nij,j->ni", X[r.markers[m][0]][0], r.markers[m][1]) + X[r.markers[m][0]][1]
+                          for m in stacked], axis=1)  # (poses, markers, 3)
+        pm = pin.buildModelFromXML(urdf)
+        data = pm.createData()
+        fids = [pm.getFrameId(m, pin.FrameType.BODY) for m in stacked]
+        ours = np.empty_like(exact)
+        for n in range(poses):
+            q = pin.neutral(pm)
+            for jid in range(1, pm.njoints):
+                name, jm = pm.names[jid], pm.joints[jid]
+                angle = info.ratio(name) * float(vals[name][n]) if name in vals else 0.0
+                if jm.nq == 1:
+                    q[jm.idx_q] = angle
+                else:  # an unbounded revolute: (cos, sin)
+                    q[jm.idx_q:jm.idx_q + 2] = np.cos(angle), np.sin(angle)
+            pin.framesForwardKinematics(pm, data, q)
+            ours[n] = [data.oMf[f].translation for f in fids]
+        err = np.linalg.norm(exact - ours, axis=2)
+        k = np.unravel_index(np.argmax(err), err.shape)
+        return Together(1000 * float(err[k]), stacked[k[1]], 1000 * float(err.mean()), poses)
 
 
 # ---------------------------------------------------------------------- the <opensim> element
@@ -915,6 +997,10 @@ def _info_xml(info: OsimInfo) -> str:
                           bound_mm=fmt_float(a.bound_mm), markers=" ".join(a.markers))
         if a.one_mm is not None:
             e.set("one_mm", fmt_float(a.one_mm))
+    if info.together is not None:
+        t = info.together
+        ET.SubElement(el, "together", max_marker_mm=fmt_float(t.max_marker_mm), marker=t.marker,
+                      mean_mm=fmt_float(t.mean_mm), poses=str(t.poses))
     ET.indent(el, space="  ", level=1)
     return "  " + ET.tostring(el, encoding="unicode")
 
@@ -932,4 +1018,4 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
 
 
 __all__ = ["FLOATING", "IN_CHAIN", "JOINT_FIT", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE", "Approximation",
-           "OsimInfo", "RootInfo", "osim_to_urdf"]
+           "OsimInfo", "RootInfo", "Together", "osim_to_urdf"]

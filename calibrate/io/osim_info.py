@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibrate.io.osim import Approximation, OsimInfo, RootInfo
+from calibrate.io.osim import Approximation, OsimInfo, RootInfo, Together
 from calibrate.io.osim_read import xml_floats
 
 from ..errors import ModelError
@@ -50,7 +50,11 @@ def osim_info(model) -> OsimInfo | None:
     bodies = {e.get("name", ""): X(e) for e in el.findall("body")}
     body_scale = {e.get("name", ""): float(e.get("scale", "1")) for e in el.findall("body")}
     ratios = {e.get("name", ""): float(e.get("ratio", "1")) for e in el.findall("coordinate") if e.get("ratio")}
-    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios)
+    t = el.find("together")
+    together = None if t is None else Together(float(t.get("max_marker_mm", "0")), t.get("marker", ""),
+                                               float(t.get("mean_mm", "0")), int(t.get("poses", "0")))
+    return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios,
+                    together)
 
 
 def with_locked(model, settings):
@@ -70,7 +74,8 @@ def approximation_table(info: OsimInfo) -> str:
     """One line per approximated joint (for `calibrate inspect MODEL.osim`)."""
     if not info.approximations:
         return "  every joint imported exactly"
-    return "\n".join("  " + a.text() for a in info.approximations)
+    lines = ["  " + a.text() for a in info.approximations]
+    return "\n".join(lines + (["  " + info.together.text()] if info.together is not None else []))
 
 
 def root_coordinates(info: OsimInfo, root_translation: np.ndarray, root_quaternion: np.ndarray,
