@@ -155,6 +155,9 @@ class OsimInfo:
     # the shoulder's hinge fit), their per-joint figures do not add up to its effect: the effect of every
     # approximation together, measured at random poses (Together); None where no marker is below two
     together: Together | None = None
+    # the coordinates (DoFs) whose range OpenSim enforces (<clamped>true</clamped>; OpenSim's default is false): the
+    # .osim export writes each as the source did (gait2392 clamps none of its 23, Rajagopal 37 of 39)
+    clamped: tuple[str, ...] = ()
 
     def ratio(self, coordinate: str) -> float:
         """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
@@ -915,7 +918,8 @@ class _Importer:
         locked = {c.name: ratios.get(c.name, 1.0) * c.default for c in r.coords.values() if c.locked and c.name in dofs}
         # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
         info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
-                        tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios)
+                        tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios,
+                        clamped=tuple(n for n in dofs if r.coords[n].clamped))
         body = f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
         together = self.measure_together(body + "</robot>\n", info)
         if together is not None:
@@ -984,7 +988,8 @@ def _info_xml(info: OsimInfo) -> str:
                 ET.SubElement(r, tag, coordinate=name, axis=fmt_vec(axis))
     for name, v in info.defaults.items():
         c = ET.SubElement(el, "coordinate", name=name, default=fmt_float(v),
-                          locked="true" if name in info.locked else "false")
+                          locked="true" if name in info.locked else "false",
+                          clamped="true" if name in info.clamped else "false")
         if name in info.ratios:
             c.set("ratio", fmt_float(info.ratios[name]))
     for name in info.dropped:

@@ -19,7 +19,8 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   back or front).
 * **anatomical joints** — one ``CustomJoint`` per joint, named like calibrate's joint (``hip_r``,
   ``knee_r``), one coordinate per moving URDF joint, named after it (the motion CSV's columns),
-  range = the URDF limits (clamped; continuous joints unbounded, unclamped).  A URDF chain is
+  range = the URDF limits (clamped as the source .osim clamps it, OsimInfo.clamped; a model of calibrate's own:
+  clamped; continuous joints unbounded, unclamped).  A URDF chain is
   ``O0 · Rot(a1, q1) · O1 · Rot(a2, q2) · O2 ...`` (O = origin xyz/rpy; the rotations about
   the unit axes in the joint frames).  When the origins between rotations have no translation
   (ball and universal joints; any rpy allowed) this equals
@@ -211,17 +212,22 @@ class _Builder:
         c = ET.Element("Coordinate", name=name)
         info = self.info
         g = self.ratio(name)
-        _text(c, "default_value", fmt_float(info.defaults.get(name, 0.0) / g) if info is not None else "0")
+        default = info.defaults.get(name, 0.0) / g if info is not None else 0.0
         if name in self.limits:
             lo, hi, cont = self.limits[name]
-            clamped = not cont and np.isfinite(lo) and np.isfinite(hi)
-            if not clamped:
+            bounded = not cont and np.isfinite(lo) and np.isfinite(hi)
+            # clamped as the source model (OsimInfo.clamped); a model of calibrate's own: wherever it has limits
+            clamped = bounded and (info is None or name in info.clamped)
+            if not bounded:
                 lo, hi = -UNBOUNDED_ROTATION, UNBOUNDED_ROTATION
             else:
                 lo, hi = lo / g, hi / g
         else:  # the root
             big = UNBOUNDED_ROTATION if motion == "rotation" else UNBOUNDED_TRANSLATION
             lo, hi, clamped = -big, big, False
+        if clamped:  # OpenSim refuses a clamped coordinate whose default lies outside its range
+            default = min(max(default, lo), hi)
+        _text(c, "default_value", fmt_float(default))
         _text(c, "range", f"{fmt_float(lo)} {fmt_float(hi)}")
         _text(c, "clamped", "true" if clamped else "false")
         _text(c, "locked", "true" if self.info is not None and name in self.info.locked else "false")

@@ -53,8 +53,10 @@ def osim_info(model) -> OsimInfo | None:
     t = el.find("together")
     together = None if t is None else Together(float(t.get("max_marker_mm", "0")), t.get("marker", ""),
                                                float(t.get("mean_mm", "0")), int(t.get("poses", "0")))
+    # (a URDF written before the flag was kept: every coordinate with a finite range clamped, as it was exported)
+    clamped = tuple(e.get("name", "") for e in el.findall("coordinate") if e.get("clamped", "true") == "true")
     return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios,
-                    together)
+                    together, clamped)
 
 
 def with_locked(model, settings):

@@ -245,6 +245,7 @@ class OsimCoordinate:
     default: float
     locked: bool
     translational: bool = False
+    clamped: bool = False  # OpenSim's default: the range limits the value only where <clamped> says so
 
     def span(self) -> tuple[float, float]:
         """The range, limited to one turn for rotations (couplers declare +-99999)."""
@@ -406,7 +407,8 @@ class OsimReader:
             rng = el_numbers(c, "range", "-3.14159 3.14159", 2)
             co = OsimCoordinate(c.get("name", ""), name, float(rng[0]), float(rng[1]),
                                 el_number(c, "default_value", "0"),
-                                c.findtext("locked", "false").strip().lower() == "true")
+                                c.findtext("locked", "false").strip().lower() == "true",
+                                clamped=c.findtext("clamped", "false").strip().lower() == "true")
             if co.name in self.coords:
                 raise ModelError(f"{where}: coordinate '{co.name}' is declared twice; rename one")
             self.coords[co.name] = co
