@@ -283,7 +283,7 @@ def test_the_approximations_together_against_opensim(tmp_path):
 
     import bench_import
 
-    from calibrate.io.osim_info import osim_info
+    from calibrate.io.osim_info import import_summary, osim_info
     from calibrate.model.model import load_model
     from tests.test_osim_import import hand_made_osim
 
@@ -292,8 +292,11 @@ def test_the_approximations_together_against_opensim(tmp_path):
     path = tmp_path / "handmade.osim"
     path.write_text(text.replace(patfem, patfem.replace("/bodyset/thigh", "/bodyset/shank").replace(
         "thigh_off", "shank_off")))
-    t = osim_info(load_model(path)).together
+    info = osim_info(load_model(path))
+    t = info.together
     assert t is not None and "patella" in t.marker and t.poses > 0
+    # the calibration's note says it beside each joint's figure
+    assert f"together up to {t.max_marker_mm:.0f} mm at {t.marker}, below several of them" in import_summary(info)
     res = bench_import.import_check(path, lambda m: None, poses_n=100)
     below = {}
     for a in res["approximations"]:

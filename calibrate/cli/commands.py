@@ -229,22 +229,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                             "alike (OpenSim's Scale would first scale each by its size)"
                             if mass is not None and not setup.preserve_mass else ""))
     if model_path.suffix.lower() == ".osim":  # the model's locked coordinates, unless --lock/--config set them
-        from ..io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT
-        from ..io.osim_info import osim_info, with_locked
+        from ..io.osim_info import import_summary, osim_info, with_locked
 
         settings = with_locked(model, settings)
-        every = osim_info(model).approximations  # type: ignore[union-attr]
-        approx = [a for a in every if a.kind not in NO_MARKER_EFFECT]
-        left = [a.joint for a in every if a.kind == LEFT_OUT]
-        floating = [a.joint for a in every if a.kind == FLOATING]
-        if every and not args.quiet:
-            said = [f"{len(approx)} joints approximated (" + ", ".join(
-                f"{a.joint} {a.max_marker_mm:.1f} mm" if a.one_mm is None else
-                f"{a.joint} {a.one_mm:.1f} mm one coordinate at a time, {a.max_marker_mm:.0f} at the ranges' ends "
-                f"together" for a in approx) + ")"] if approx else []
-            said += [f"other trees on ground left out ({', '.join(left)})"] if left else []
-            said += [f"its ground joint {floating[0]} made a floating base (the root's pose fitted in every frame)"
-                     ] if floating else []
+        said = import_summary(osim_info(model))  # type: ignore[arg-type]
+        if said and not args.quiet:
             progress_printer(f"note: {model_path.name}: {'; '.join(said)}; see 'calibrate inspect {model_path}'")
     if args.ik_setup is not None:  # the coordinates the lab's IK holds, unless --lock/--config set them
         from ..io.osim_setup import ik_setup_notes, with_ik_setup

@@ -72,6 +72,28 @@ def with_locked(model, settings):
     return replace(settings, lock=tuple(sorted(merged.items())))
 
 
+def import_summary(info: OsimInfo) -> list[str]:
+    """What a calibration's note says of an imported model, one clause each: the joints approximated (each joint's
+    largest marker effect), their effect together where markers lie below several, the other trees on ground left
+    out, a ground joint made a floating base."""
+    from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT
+
+    every = info.approximations
+    approx = [a for a in every if a.kind not in NO_MARKER_EFFECT]
+    left = [a.joint for a in every if a.kind == LEFT_OUT]
+    floating = [a.joint for a in every if a.kind == FLOATING]
+    said = [f"{len(approx)} joints approximated (" + ", ".join(
+        f"{a.joint} {a.max_marker_mm:.1f} mm" if a.one_mm is None else
+        f"{a.joint} {a.one_mm:.1f} mm one coordinate at a time, {a.max_marker_mm:.0f} at the ranges' ends "
+        f"together" for a in approx) + ")"] if approx else []
+    t = info.together
+    said += [f"together up to {t.max_marker_mm:.0f} mm at {t.marker}, below several of them"] if t is not None else []
+    said += [f"other trees on ground left out ({', '.join(left)})"] if left else []
+    said += [f"its ground joint {floating[0]} made a floating base (the root's pose fitted in every frame)"
+             ] if floating else []
+    return said
+
+
 def approximation_table(info: OsimInfo) -> str:
     """One line per approximated joint (for `calibrate inspect MODEL.osim`)."""
     if not info.approximations:
@@ -112,4 +134,4 @@ def root_coordinates(info: OsimInfo, root_translation: np.ndarray, root_quaterni
     return out
 
 
-__all__ = ["approximation_table", "osim_info", "root_coordinates", "with_locked"]
+__all__ = ["approximation_table", "import_summary", "osim_info", "root_coordinates", "with_locked"]
