@@ -753,7 +753,7 @@ class _Importer:
         names = list(markers)
         # The joint's free coordinates and those its coupled ones follow: a coupled coordinate of another joint's
         # (MoBL-ARMS's shoulder1_r2 = -elv_angle, shoulder0's) turns this joint over that coordinate's range, which
-        # the approximation holds at its reference (measured with the free coordinate alone: 0 mm, not 700).
+        # the approximation holds at its reference (measured with the free coordinate alone: 0 mm, not 182 at the hand).
         own = {c.name for c in j.coords}
         drivers = [c for c in j.coords if c.name not in self.r.couplers]
         for c in j.coords:
