@@ -222,3 +222,53 @@ def test_a_welded_or_pinned_root_floats_and_keeps_its_name(tmp_path, capsys):
     worst = max(np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs["poses"], ours, strict=True)
                 for m in model.marker_names)
     assert worst < TOL
+
+
+@pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed (pip install -e '.[opensim]')")
+def test_a_planar_root_keeps_its_coordinates_names_in_the_export(tmp_path):
+    """Gait10dof18musc's pelvis: a CustomJoint of pelvis_tilt (about ground z) and pelvis_tx, pelvis_ty.  calibrate's
+    root floats; the export's root turns about z, y', x'' and slides along the ground axes, so its z turn and x, y
+    slides are the source's coordinates and carry their names (the lab's RRA / CMC setups name them), the three
+    others calibrate's.  OpenSim reads the .mot by those names and puts every marker where Pinocchio does.  With the
+    source's frames turned, the names are not the export's and stay root_*."""
+    from calibrate.io.motion import Motion
+    from calibrate.io.osim_export import export_osim, write_mot
+    from tests.test_osim_import import _EXPORT_WORKER, _c, _coords, _frames, _lin, _ta
+
+    def planar(orientation: str) -> str:
+        return (f"<CustomJoint name=\"ground_pelvis\">{_frames('ground', 'pelvis', '0 0.9 0', orientation)}"
+                + _coords(("pelvis_tilt", -1.5, 1.5), ("pelvis_tx", -5, 5), ("pelvis_ty", -1, 2))
+                + "<SpatialTransform>" + _ta("rotation1", "0 0 1", "pelvis_tilt", _lin())
+                + _ta("rotation2", "0 1 0", "", _c()) + _ta("rotation3", "1 0 0", "", _c())
+                + _ta("translation1", "1 0 0", "pelvis_tx", _lin()) + _ta("translation2", "0 1 0", "pelvis_ty", _lin())
+                + _ta("translation3", "0 0 1", "", _c()) + "</SpatialTransform></CustomJoint>")
+
+    hand = hand_made_osim()
+    start = hand.index('<FreeJoint name="ground_pelvis">')
+    end = hand.index("</FreeJoint>") + len("</FreeJoint>")
+    turned = tmp_path / "turned.osim"
+    turned.write_text(hand[:start] + planar("0.1 0 0.2") + hand[end:])
+    assert osim_info(load_model(turned)).root_names == {}
+    path = tmp_path / "planar.osim"
+    path.write_text(hand[:start] + planar("0 0 0") + hand[end:])
+    model = load_model(path)
+    assert osim_info(model).root_names == {"root_rz": "pelvis_tilt", "root_x": "pelvis_tx", "root_y": "pelvis_ty"}
+    rng = np.random.default_rng(8)
+    n = 8
+    angles = np.array([[rng.uniform(max(d.lower, -np.pi), min(d.upper, np.pi)) for d in model.dofs] for _ in range(n)])
+    motion = Motion(np.arange(n) / 100, rng.normal(0, 0.5, (n, 3)), Rotation.random(n, random_state=2).as_quat(),
+                    angles, model.dof_names)
+    out = export_osim(model, tmp_path / "back.osim")
+    mot = write_mot(tmp_path / "back.mot", model, motion)
+    spec, result = tmp_path / "jobs.json", tmp_path / "result.json"
+    spec.write_text(json.dumps({"jobs": [{"osim": str(out), "mot": str(mot)}]}))
+    proc = subprocess.run([sys.executable, "-c", _EXPORT_WORKER, str(spec), str(result)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    res = json.loads(result.read_text())[0]
+    assert res["labels"][:6] == ["pelvis_tilt", "root_ry", "root_rx", "pelvis_tx", "pelvis_ty", "root_z"]
+    assert {"pelvis_tilt", "pelvis_tx", "pelvis_ty"} <= set(res["coordinates"])
+    worst = max(np.linalg.norm(np.array(o[m]) - _pin_markers(model, motion.root_translation[f],
+                                                             motion.root_quaternion[f], angles[f])[m])
+                for f, o in enumerate(res["frames"]) for m in model.marker_names)
+    assert worst < TOL

@@ -60,6 +60,8 @@ GRID = 401  # coordinate values over a range at which approximations are measure
 
 
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
+FLOATING_ROOT = ("root_rz", "root_ry", "root_rx", "root_x", "root_y", "root_z")  # the export's floating root's
+# coordinates (calibrate.io.osim_export.ROOT_ROTATIONS, ROOT_TRANSLATIONS), unless the source names some (root_names)
 TOGETHER_POSES = 500  # random poses where the approximations' joint effect is measured (Together)
 PROBE = "calibrate_default_pose_probe"  # the marker at the root's origin of a model read without its markers
 
@@ -158,6 +160,9 @@ class OsimInfo:
     # the coordinates (DoFs) whose range OpenSim enforces (<clamped>true</clamped>; OpenSim's default is false): the
     # .osim export writes each as the source did (gait2392 clamps none of its 23, Rajagopal 37 of 39)
     clamped: tuple[str, ...] = ()
+    # a floating root's coordinates the source names (FLOATING_ROOT -> the source's coordinate; _Importer.
+    # floating_root_names): the export and its .mot write them so
+    root_names: dict[str, str] = field(default_factory=dict)
 
     def ratio(self, coordinate: str) -> float:
         """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
@@ -910,16 +915,21 @@ class _Importer:
         else:  # a weld, a pin, a planar joint...: calibrate's root floats (the export writes it under this name)
             gone = tuple(c.name for c in rj.coords)
             held = f" ({', '.join(gone)} not a coordinate here)" if gone else ""
+            root_names = self.floating_root_names()
+            six = ", ".join(root_names.get(n, n) for n in FLOATING_ROOT)
             approximations.insert(0, Approximation(
                 rj.name, FLOATING, gone, f"its {rj.type} from ground to {rj.child} gives {len(gone)} of 6 coordinates; "
                 f"calibrate fits the root segment's pose freely in every frame{held}, and the .osim export writes "
-                f"it as a CustomJoint '{rj.name}' of six coordinates (root_rz ... root_z)", 0.0, "", 0.0, ()))
+                f"it as a CustomJoint '{rj.name}' of six coordinates ({six}"
+                + ("; the source's names where its axes are the export's" if root_names else "") + ")",
+                0.0, "", 0.0, ()))
             dropped.extend(c for c in gone if c not in dropped)
         locked = {c.name: ratios.get(c.name, 1.0) * c.default for c in r.coords.values() if c.locked and c.name in dofs}
         # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
         info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
                         tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios,
-                        clamped=tuple(n for n in dofs if r.coords[n].clamped))
+                        clamped=tuple(n for n in dofs if r.coords[n].clamped),
+                        root_names=self.floating_root_names() if root is None else {})
         body = f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
         together = self.measure_together(body + "</robot>\n", info)
         if together is not None:
@@ -927,6 +937,35 @@ class _Importer:
         text = (f'<?xml version="1.0"?>\n<!-- imported by calibrate from {r.path.name} -->\n' + body
                 + _info_xml(info) + "\n</robot>\n")
         return text, info
+
+    def floating_root_names(self) -> dict[str, str]:
+        """The source's names for the floating root's coordinates (FLOATING_ROOT -> its coordinate) where its ground
+        joint turns and slides the root as the export's root does: its frames unturned, each coordinate's function
+        the identity about or along a ground axis, no constant turn, the turns in the export's order (body-fixed z,
+        y', x'').  Gait10dof18musc's planar pelvis: root_rz, root_x, root_y become pelvis_tilt, pelvis_tx, pelvis_ty
+        (the lab's setups name them; the three out-of-plane coordinates keep calibrate's names)."""
+        rj = self.root_joint
+        if not all(np.allclose(X[0], np.eye(3), atol=1e-12) for X in (rj.parent_offset, rj.child_offset)):
+            return {}
+        names: dict[str, str] = {}
+        order = []
+        for ax in rj.axes:
+            if ax.func.constant is not None or ax.coord is None:
+                if ax.motion == "rotation" and abs(ax.func.constant or 0.0) > 1e-12:
+                    return {}  # a constant turn: the coordinates' meaning is not the export's
+                continue
+            k = int(np.argmax(np.abs(ax.axis)))
+            if ax.func.linear != (1.0, 0.0) or not np.allclose(ax.axis, np.eye(3)[k], atol=1e-12):
+                return {}
+            if ax.motion == "rotation":
+                names[("root_rx", "root_ry", "root_rz")[k]] = ax.coord
+                order.append(2 - k)  # z, y, x: 0, 1, 2
+            else:
+                names[("root_x", "root_y", "root_z")[k]] = ax.coord
+        every = [names.get(n, n) for n in FLOATING_ROOT]
+        if order != sorted(order) or len(set(every)) != len(every):
+            return {}
+        return names
 
     def measure_together(self, urdf: str, info: OsimInfo, poses: int = TOGETHER_POSES) -> Together | None:
         """The approximations' joint effect on each marker below two or more of them (Together): OpenSim's
@@ -994,6 +1033,8 @@ def _info_xml(info: OsimInfo) -> str:
             c.set("ratio", fmt_float(info.ratios[name]))
     for name in info.dropped:
         ET.SubElement(el, "dropped", coordinate=name)
+    for ours, theirs in info.root_names.items():
+        ET.SubElement(el, "root_name", coordinate=ours, source=theirs)
     for name, (R, t) in info.bodies.items():
         ET.SubElement(el, "body", name=name, xyz=fmt_vec(t), rpy=fmt_vec(urdf_rpy(R)))
     for a in info.approximations:
@@ -1022,5 +1063,5 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["FLOATING", "IN_CHAIN", "JOINT_FIT", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE", "Approximation",
-           "OsimInfo", "RootInfo", "Together", "osim_to_urdf"]
+__all__ = ["FLOATING", "FLOATING_ROOT", "IN_CHAIN", "JOINT_FIT", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE",
+           "Approximation", "OsimInfo", "RootInfo", "Together", "osim_to_urdf"]

@@ -79,6 +79,14 @@ from .text import atomic_write_text, fmt_float, fmt_vec
 
 ROOT_ROTATIONS = ("root_rz", "root_ry", "root_rx")  # body-fixed z, y', x'' (scipy "ZYX")
 ROOT_TRANSLATIONS = ("root_x", "root_y", "root_z")  # ground axes, as the motion CSV's columns
+
+
+def floating_root_names(info) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The floating root's rotation and translation coordinates as the export writes them: ROOT_ROTATIONS and
+    ROOT_TRANSLATIONS, those the source .osim names under its names (OsimInfo.root_names: a planar pelvis's
+    pelvis_tilt, pelvis_tx, pelvis_ty)."""
+    named = info.root_names if info is not None else {}
+    return tuple(named.get(n, n) for n in ROOT_ROTATIONS), tuple(named.get(n, n) for n in ROOT_TRANSLATIONS)
 GRAVITY = (0.0, 0.0, -9.80665)
 OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
 UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the root's angles (unclamped)
@@ -249,8 +257,9 @@ class _Builder:
             child = (root.child_offset[0], self.scale[model.root] * root.child_offset[1])
             self.joint("CustomJoint", root.joint, "ground", root.parent_offset, model.root, child, root_coords)
         else:
-            root_coords = [(n, ez[k], "rotation") for n, k in zip(ROOT_ROTATIONS, (2, 1, 0), strict=True)]
-            root_coords += [(n, ez[k], "translation") for k, n in enumerate(ROOT_TRANSLATIONS)]
+            rot_names, trans_names = floating_root_names(self.info)
+            root_coords = [(n, ez[k], "rotation") for n, k in zip(rot_names, (2, 1, 0), strict=True)]
+            root_coords += [(n, ez[k], "translation") for k, n in enumerate(trans_names)]
             self.joint("CustomJoint", self._root_name(), "ground", identity_transform(), model.root,
                        identity_transform(), root_coords)
         for j in model.joints:
@@ -392,7 +401,7 @@ def _check_names(model: Model) -> None:
 
     info = osim_info(model)
     root = info.root if info is not None else None
-    coords = set(ROOT_ROTATIONS + ROOT_TRANSLATIONS) if root is None else \
+    coords = set(sum(floating_root_names(info), ())) if root is None else \
         {n for n, _ in root.rotations + root.translations}
     clash = [d.name for d in model.dofs if d.name in coords]
     if clash:
@@ -481,7 +490,8 @@ def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) 
     euler = Rotation.from_quat(motion.root_quaternion / norms[:, None]).as_euler("ZYX")
     euler = np.unwrap(euler, axis=0)  # continuous angles; the same rotations
     values = np.hstack([motion.times[:, None], euler, motion.root_translation, angles])
-    return ["time", *ROOT_ROTATIONS, *ROOT_TRANSLATIONS, *model.dof_names], values
+    rot_names, trans_names = floating_root_names(info)
+    return ["time", *rot_names, *trans_names, *model.dof_names], values
 
 
 def mot_text(model: Model, motion: Motion, name: str = "motion", params: Parameters | None = None) -> str:
@@ -490,7 +500,8 @@ def mot_text(model: Model, motion: Motion, name: str = "motion", params: Paramet
 
     names, values = mot_columns(model, motion, params)
     info = osim_info(model)
-    root_rot = set(ROOT_ROTATIONS) if info is None or info.root is None else {n for n, _ in info.root.rotations}
+    root_rot = set(floating_root_names(info)[0]) if info is None or info.root is None else \
+        {n for n, _ in info.root.rotations}
     # A lumped chain's coordinate turns its axis by a LinearFunction of slope ≠ 1: OpenSim calls it Coupled and
     # reads (and writes) it in radians in a file in degrees.
     rotational = np.array([n in root_rot or (n in model.dof_names and (info is None or info.ratio(n) == 1.0))
@@ -591,4 +602,4 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
 
 
 __all__ = ["ROOT_ROTATIONS", "ROOT_TRANSLATIONS", "add_export_osim_parser", "cmd_export_osim", "export_osim",
-           "mot_columns", "mot_text", "osim_document", "osim_text", "write_mot"]
+           "floating_root_names", "mot_columns", "mot_text", "osim_document", "osim_text", "write_mot"]

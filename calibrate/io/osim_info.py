@@ -55,8 +55,9 @@ def osim_info(model) -> OsimInfo | None:
                                                float(t.get("mean_mm", "0")), int(t.get("poses", "0")))
     # (a URDF written before the flag was kept: every coordinate with a finite range clamped, as it was exported)
     clamped = tuple(e.get("name", "") for e in el.findall("coordinate") if e.get("clamped", "true") == "true")
+    root_names = {e.get("coordinate", ""): e.get("source", "") for e in el.findall("root_name")}
     return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios,
-                    together, clamped)
+                    together, clamped, root_names)
 
 
 def with_locked(model, settings):
