@@ -79,6 +79,11 @@ from .text import atomic_write_text, fmt_float, fmt_vec
 
 ROOT_ROTATIONS = ("root_rz", "root_ry", "root_rx")  # body-fixed z, y', x'' (scipy "ZYX")
 ROOT_TRANSLATIONS = ("root_x", "root_y", "root_z")  # ground axes, as the motion CSV's columns
+GRAVITY = (0.0, 0.0, -9.80665)
+OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
+UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the root's angles (unclamped)
+UNBOUNDED_TRANSLATION = 100.0  # m, range written for the root's translations (unclamped)
+_ZERO_OFFSET = 1e-12  # m: a chain origin translating less than this counts as none
 
 
 def floating_root_names(info) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -87,12 +92,6 @@ def floating_root_names(info) -> tuple[tuple[str, ...], tuple[str, ...]]:
     pelvis_tilt, pelvis_tx, pelvis_ty)."""
     named = info.root_names if info is not None else {}
     return tuple(named.get(n, n) for n in ROOT_ROTATIONS), tuple(named.get(n, n) for n in ROOT_TRANSLATIONS)
-GRAVITY = (0.0, 0.0, -9.80665)
-OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
-UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the root's angles (unclamped)
-UNBOUNDED_TRANSLATION = 100.0  # m, range written for the root's translations (unclamped)
-_ZERO_OFFSET = 1e-12  # m: a chain origin translating less than this counts as none
-
 
 
 # ---------------------------------------------------------------------- geometry
