@@ -61,7 +61,7 @@ GRID = 401  # coordinate values over a range at which approximations are measure
 
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
 FLOATING_ROOT = ("root_rz", "root_ry", "root_rx", "root_x", "root_y", "root_z")  # the export's floating root's
-# coordinates (calibrate.io.osim_export.ROOT_ROTATIONS, ROOT_TRANSLATIONS), unless the source names some (root_names)
+# coordinates (its ROOT_ROTATIONS, ROOT_TRANSLATIONS), unless the source names some (OsimInfo.root_names)
 TOGETHER_POSES = 500  # random poses where the approximations' joint effect is measured (Together)
 PROBE = "calibrate_default_pose_probe"  # the marker at the root's origin of a model read without its markers
 
@@ -161,7 +161,7 @@ class OsimInfo:
     # .osim export writes each as the source did (gait2392 clamps none of its 23, Rajagopal 37 of 39)
     clamped: tuple[str, ...] = ()
     # a floating root's coordinates the source names (FLOATING_ROOT -> the source's coordinate; _Importer.
-    # floating_root_names): the export and its .mot write them so
+    # source_root_names): the export and its .mot write them so
     root_names: dict[str, str] = field(default_factory=dict)
 
     def ratio(self, coordinate: str) -> float:
@@ -907,6 +907,7 @@ class _Importer:
             add_joint(f"{PROBE}_marker", "fixed", self.root_joint.child, PROBE, identity_transform())
         rj = self.root_joint
         root = None
+        root_names: dict[str, str] = {}  # a floating root's coordinates the source names
         rots = [(ax.coord, ax.axis) for ax in rj.axes if ax.motion == "rotation" and ax.coord is not None]
         trs = [(ax.coord, ax.axis) for ax in rj.axes if ax.motion == "translation" and ax.coord is not None]
         lin_ok = all(ax.func.linear == (1.0, 0.0) for ax in rj.axes if ax.coord is not None)
@@ -915,7 +916,7 @@ class _Importer:
         else:  # a weld, a pin, a planar joint...: calibrate's root floats (the export writes it under this name)
             gone = tuple(c.name for c in rj.coords)
             held = f" ({', '.join(gone)} not a coordinate here)" if gone else ""
-            root_names = self.floating_root_names()
+            root_names = self.source_root_names()
             six = ", ".join(root_names.get(n, n) for n in FLOATING_ROOT)
             approximations.insert(0, Approximation(
                 rj.name, FLOATING, gone, f"its {rj.type} from ground to {rj.child} gives {len(gone)} of 6 coordinates; "
@@ -929,7 +930,7 @@ class _Importer:
         info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
                         tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios,
                         clamped=tuple(n for n in dofs if r.coords[n].clamped),
-                        root_names=self.floating_root_names() if root is None else {})
+                        root_names=root_names)
         body = f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
         together = self.measure_together(body + "</robot>\n", info)
         if together is not None:
@@ -938,7 +939,7 @@ class _Importer:
                 + _info_xml(info) + "\n</robot>\n")
         return text, info
 
-    def floating_root_names(self) -> dict[str, str]:
+    def source_root_names(self) -> dict[str, str]:
         """The source's names for the floating root's coordinates (FLOATING_ROOT -> its coordinate) where its ground
         joint turns and slides the root as the export's root does: its frames unturned, each coordinate's function
         the identity about or along a ground axis, no constant turn, the turns in the export's order (body-fixed z,

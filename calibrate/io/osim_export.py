@@ -73,12 +73,13 @@ from ..errors import CalibrateError, ModelError
 from ..model.model import Model, Parameters, UrdfJoint
 from ..seed.geometry import Transform, compose, identity_transform, invert
 from .motion import Motion
+from .osim import FLOATING_ROOT
 from .osim_forces import NOTE_MARK, CarriedForces, carried_forces, forces_lines
 from .outputs import check_targets, write_all
 from .text import atomic_write_text, fmt_float, fmt_vec
 
-ROOT_ROTATIONS = ("root_rz", "root_ry", "root_rx")  # body-fixed z, y', x'' (scipy "ZYX")
-ROOT_TRANSLATIONS = ("root_x", "root_y", "root_z")  # ground axes, as the motion CSV's columns
+ROOT_ROTATIONS = FLOATING_ROOT[:3]  # body-fixed z, y', x'' (scipy "ZYX"): root_rz, root_ry, root_rx
+ROOT_TRANSLATIONS = FLOATING_ROOT[3:]  # ground axes, as the motion CSV's columns: root_x, root_y, root_z
 GRAVITY = (0.0, 0.0, -9.80665)
 OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
 UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the root's angles (unclamped)

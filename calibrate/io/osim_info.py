@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calibrate.io.osim import Approximation, OsimInfo, RootInfo, Together
+from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT, Approximation, OsimInfo, RootInfo, Together
 from calibrate.io.osim_read import xml_floats
 
 from ..errors import ModelError
@@ -77,8 +77,6 @@ def import_summary(info: OsimInfo) -> list[str]:
     """What a calibration's note says of an imported model, one clause each: the joints approximated (each joint's
     largest marker effect), their effect together where markers lie below several, the other trees on ground left
     out, a ground joint made a floating base."""
-    from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT
-
     every = info.approximations
     approx = [a for a in every if a.kind not in NO_MARKER_EFFECT]
     left = [a.joint for a in every if a.kind == LEFT_OUT]
