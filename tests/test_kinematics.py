@@ -362,6 +362,21 @@ def test_one_quaternion_retracts_to_the_same_bits_as_many():
     assert np.all(one[:, 3] >= 0)
 
 
+def test_one_frame_retracts_its_balls_to_the_same_bits_as_many(human_kin):
+    """Kinematics.retract_one (floats, once per frame's solve in frame-wise inverse kinematics) gives the bits of
+    retract_refs (numpy over frames) for the root and every SO(3) ball, over increments from 1e-8 to 3 rad."""
+    assert human_kin.balls  # the bundled model's balls (hips, shoulders, ...) are solved on SO(3)
+    rng = np.random.default_rng(12)
+    Z = rng.normal(size=(3000, human_kin.model.nz)) * 10 ** rng.uniform(-8, 0.5, size=(3000, 1))
+    refs = rng.normal(size=(3000, human_kin.n_refs // 4, 4))
+    refs = (refs / np.linalg.norm(refs, axis=2, keepdims=True)).reshape(3000, -1)
+    many_z, many_refs = human_kin.retract_refs(Z, refs)
+    one = [human_kin.retract_one(z, r) for z, r in zip(Z, refs, strict=True)]
+    assert np.array_equal(np.array([z for z, _ in one]), many_z)
+    assert np.array_equal(np.array([r for _, r in one]), many_refs)
+    assert np.all(many_refs.reshape(3000, -1, 4)[:, :, 3] >= 0)
+
+
 def test_compiled_kinematics_fit_as_the_virtual_machine_does(human, human_kin):
     """compiled_kinematics' per-frame evaluator (the model's compiled C code) gives CasADi's markers and
     Jacobian to rounding, and frame-wise inverse kinematics through it the same poses."""

@@ -122,6 +122,7 @@ class _FrameFit:
         self.scale = None if weight is None else np.repeat(np.sqrt(np.asarray(weight, float)[seen_mk]), 3)
         self.free = free = np.asarray(free)
         self.every = free.size == solver.nz and bool(np.all(free == np.arange(solver.nz)))  # J's rows only
+        self.pick = self.rows if self.every else np.ix_(self.rows, free)  # the Jacobian's entries fitted
         # The columns' roles (root rotation, balls, limited DoFs), made once per set of coordinates.
         self.rot, self.balls, self.dof_cols, self.lo, self.hi, self.col_of = solver.columns(free, self.every)
         self.last: tuple | None = None  # (x, residuals, Jacobian, beyond limits) at the last point costed
@@ -136,7 +137,7 @@ class _FrameFit:
         out = (th < self.lo) | (th > self.hi)
         # np.minimum(np.maximum(...)) is np.clip's arithmetic, without its wrapper's checks
         fit = m[self.rows] - self.target
-        J = J[self.rows] if self.every else J[np.ix_(self.rows, self.free)]
+        J = J[self.pick]
         if self.scale is not None:
             fit, J = fit * self.scale, J * self.scale[:, None]
         r = np.concatenate([fit, LIMIT_WEIGHT * (th - np.minimum(np.maximum(th, self.lo), self.hi))])
@@ -155,9 +156,10 @@ class _FrameFit:
 
     def step(self, x: tuple[np.ndarray, np.ndarray], lam: float) -> tuple[tuple, float, float] | None:
         A, g = self.A, self.g
-        D = marquardt_diagonal(A.diagonal(), float(A.max(initial=0.0)))
+        d = A.diagonal()
+        D = marquardt_diagonal(d, float(A.max(initial=0.0)))
         damped = A.copy()
-        damped.flat[::A.shape[0] + 1] += lam * D
+        np.fill_diagonal(damped, d + lam * D)
         try:
             step = -np.linalg.solve(damped, g)
         except np.linalg.LinAlgError:
@@ -260,8 +262,7 @@ class FrameSolver:
         options = SolverOptions(max_iterations=budget, ftol=tol, atol=TINY, xtol=STEP_TOL, gtol=TINY, geodesic=False)
         (z, q), summary = minimise(fit, (z, q), options)
         if fit.balls:  # the balls' increments folded once per solve: the next starts at full rank
-            zr, qr = self.kin.retract_refs(z, q)
-            z, q = zr[0], qr[0]
+            z, q = self.kin.retract_one(z, q)
         return z, q, summary.final_cost, summary.iterations
 
     def global_start(self, obs, seen, local: bool = False, free=None, weight=None, held=None):
