@@ -126,8 +126,10 @@ def main() -> None:
                  "true_model_iterations": float(fit_true.iterations.mean()),
                  "base_model_s": t_ik_base, "base_model_rms_mm": fit_base.rms * 1e3,
                  "base_model_iterations": float(fit_base.iterations.mean()),
+                 # (None without a C compiler: nothing compiled)
                  "true_model_compiled_s": t_ik_cc if kc.compiled is not None else None,
-                 "true_model_compiled_same_poses": bool(np.array_equal(fit_cc.motion.angles, fit_true.motion.angles))}
+                 "true_model_compiled_same_poses": bool(np.array_equal(fit_cc.motion.angles, fit_true.motion.angles))
+                 if kc.compiled is not None else None}
     res["machine"] = {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
                       "pinocchio": pin.__version__}
     if a.json:

@@ -364,7 +364,7 @@ def test_one_quaternion_retracts_to_the_same_bits_as_many():
 
 def test_one_frame_retracts_its_balls_to_the_same_bits_as_many(human_kin):
     """Kinematics.retract_one (floats, once per frame's solve in frame-wise inverse kinematics) gives the bits of
-    retract_refs (numpy over frames) for the root and every SO(3) ball, over increments from 1e-8 to 3 rad."""
+    retract_refs (numpy over frames) for the root and every SO(3) ball, over increments of 1e-8 to 3 rad in size."""
     assert human_kin.balls  # the bundled model's balls (hips, shoulders, ...) are solved on SO(3)
     rng = np.random.default_rng(12)
     Z = rng.normal(size=(3000, human_kin.model.nz)) * 10 ** rng.uniform(-8, 0.5, size=(3000, 1))

@@ -141,6 +141,14 @@ def _retract_one(q_ref: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return -q if q[3] < 0 else q
 
 
+def _quat_multiply_floats(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float, float]:
+    """quat_multiply of two quaternions given as floats, its arithmetic in its order (the same bits)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
 def quat_matrices(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (F, 3, 3) of quaternions (F, 4) (x, y, z, w), normalised inside."""
     q = np.asarray(q, dtype=float)
@@ -468,7 +476,7 @@ class Kinematics:
 
     def retract_one(self, z: np.ndarray, refs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """retract_refs of one frame's pose z (nz,) and refs (n_refs,), new arrays: the same operations in the
-        same order in floats (the same bits), about ten times sooner than numpy's calls on 4-vectors; frame-wise
+        same order in floats (the same bits), about three times sooner than numpy's calls on 4-vectors; frame-wise
         inverse kinematics folds its balls' increments once per frame's solve."""
         z = np.array(z, dtype=float)
         out = np.empty(self.n_refs)
@@ -480,18 +488,10 @@ class Kinematics:
         h = 0.5 * z[cols]
         s, c = np.sin(h).tolist(), np.cos(h).tolist()
         for i, axes in enumerate(self._ball_axes.tolist()):
-            si, ci = s[i], c[i]
-            ax0, ay0, az0 = (si[0] * a for a in axes[0])
-            ax, ay, az, aw = ax0, ay0, az0, ci[0]
-            for k in (1, 2):  # the proximal revolute's quaternion times the next's (quat_multiply's arithmetic)
-                bx, by, bz = (si[k] * a for a in axes[k])
-                bw = ci[k]
-                ax, ay, az, aw = (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                                  aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
-            bx, by, bz, bw = ax, ay, az, aw  # the ball's reference times its increment's rotation
-            ax, ay, az, aw = (float(v) for v in refs[4 + 4 * i:8 + 4 * i])
-            x, y, zq, w = (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                           aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+            q = (*(s[i][0] * a for a in axes[0]), c[i][0])  # the proximal revolute's quaternion, times the next's
+            for k in (1, 2):
+                q = _quat_multiply_floats(q, (*(s[i][k] * a for a in axes[k]), c[i][k]))
+            x, y, zq, w = _quat_multiply_floats(tuple(float(v) for v in refs[4 + 4 * i:8 + 4 * i]), q)
             n = math.sqrt(x * x + y * y + zq * zq + w * w)
             q = (x / n, y / n, zq / n, w / n)
             out[4 + 4 * i:8 + 4 * i] = q if q[3] >= 0 else (-q[0], -q[1], -q[2], -q[3])
