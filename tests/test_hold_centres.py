@@ -55,6 +55,24 @@ def test_prior_jacobian_with_held_centres_matches_finite_differences(human, huma
     rows = problem.prior(alone.vector(), jacobian=False)[0][plain.size:plain.size + 3]
     s = base.scale[human.segment_index("pelvis")]
     np.testing.assert_allclose(rows, [0.0, 0.0, s * 0.004 / Priors().held_centre], rtol=1e-9)
+    # The offset is held at the size of the markers' own layout, not at the pelvis's scale: the pelvis stretched
+    # with its markers and the centre kept where they are in the world (their offsets divided by the stretch) costs
+    # nothing, and so does the centre's offset grown with the markers' spread (OpenSim's Scale measures a segment by
+    # its markers' distances).  Held at the pelvis's scale, the stretch alone cost 0.3 of the offset (up to 114
+    # prior SDs here), and gait2392's walk with the back held stretched its pelvis to 1.33-1.41 against the hold.
+    lumbar, i = human.joint_index("lumbar"), human.segment_index("pelvis")
+    stretched = base.copy()
+    stretched.scale[i] *= 1.3
+    stretched.marker[pelvis] /= 1.3
+    stretched.centre[lumbar] /= 1.3
+    np.testing.assert_allclose(problem.prior(stretched.vector(), jacobian=False)[0][plain.size:plain.size + 3], 0.0,
+                               atol=1e-9)
+    spread = base.copy()
+    middle = base.marker[pelvis].mean(0)
+    spread.marker[pelvis] = middle + 1.1 * (base.marker[pelvis] - middle)
+    spread.centre[lumbar] = middle + 1.1 * (base.centre[lumbar] - middle)
+    np.testing.assert_allclose(problem.prior(spread.vector(), jacobian=False)[0][plain.size:plain.size + 3], 0.0,
+                               atol=1e-9)
 
 
 def _lumbar_against_pelvis_markers(model, params, path) -> np.ndarray:

@@ -61,7 +61,7 @@ class Priors:
     # model's (m; 0: an ordinary marker, held by `marker` alone).
     joint_marker: float = 0.001
     # A held joint centre (ProblemOptions.hold_centres): SD of its offset from the centroid of its parent segment's
-    # seen markers about the base model's (m, at the segment's scale).
+    # seen markers about the base model's (m; the base offset at the size of those markers' own layout).
     held_centre: float = 0.0001
     # A placeholder marker (calibrate.problem.priors.placeholder_markers: the base model puts it at one place with
     # other markers of its segment, as AddBiomechanics' OpenSim models (Lai-Uhlrich 2022 among them) put each thigh

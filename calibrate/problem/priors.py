@@ -445,7 +445,12 @@ class PriorsMixin:
                 np.stack([np.repeat(ka / sd, 3, 1), -mirror * kb / sd, p[il] / sd, -mirror * p[ir] / sd], 1)))
         # A held centre (ProblemOptions.hold_centres) keeps its base-model offset from the centroid of its parent
         # segment's seen markers (Priors.held_centre): where the markers put the segment, as OpenSim's marker placer
-        # puts its frame, the centre is the base model's; the data cannot tell a shift of the whole frame.
+        # puts its frame, the centre is the base model's; the data cannot tell a shift of the whole frame.  The
+        # offset is taken at the size of those markers' own layout, as OpenSim's Scale measures a segment by its
+        # markers' distances: kappa, their spread about their centroid against the base model's (least squares),
+        # makes the row s (x - kappa x0) / sd, in the world the markers' offsets (s p_i) alone, the same at any
+        # scale s of the segment.  At the segment's scale instead (s (x - x0)), that scale carried whatever pulled
+        # the centre: gait2392's walk with --hold-centres back stretched its pelvis to 1.33-1.41 (docs/benchmarks.md).
         if held:
             sd = st.priors.held_centre
             for ji, mks in held:
@@ -454,12 +459,19 @@ class PriorsMixin:
                 seg = self.centre_segment[ji]
                 x = p[ce] - p[mk].mean(axis=0)
                 x0 = base[ce] - base[mk].mean(axis=0)
+                b = base[mk] - base[mk].mean(axis=0)  # (n, 3) the base model's markers about their centroid
+                bb = float(np.sum(b * b))
+                kappa = float(np.sum((p[mk] - p[mk].mean(axis=0)) * b)) / bb
+                y = x - kappa * x0
                 s = scale[seg]
                 n, k = len(mks), np.arange(3)
-                add(s * (x - x0) / sd, lambda ce=ce, mk=mk, n=n, k=k, s=s, x=x, x0=x0, seg=seg: (
-                    np.r_[k, np.tile(k, n), k],
-                    np.r_[ce, mk.ravel(), np.full(3, L.scale(seg))],
-                    np.r_[np.full(3, s / sd), np.full(3 * n, -s / (n * sd)), (x - x0) / sd]))
+                # d y_k / d p_i,l = -(delta_kl / n + x0_k b_il / bb): the centroid's share and kappa's
+                add(s * y / sd, lambda ce=ce, mk=mk, n=n, k=k, s=s, y=y, x0=x0, seg=seg, b=b, bb=bb: (
+                    np.r_[k, np.repeat(k, 3 * n), k],
+                    np.r_[ce, np.tile(mk.ravel(), 3), np.full(3, L.scale(seg))],
+                    np.r_[np.full(3, s / sd),
+                          (-s / sd * (np.eye(3)[:, None, :] / n + x0[:, None, None] * b[None, :, :] / bb)).ravel(),
+                          y / sd]))
         # A joint-centre marker keeps its base-model offset from its centre (Priors.joint_marker): on the joint's
         # parent, marker minus centre in that frame; on its child, the marker's offset from the child's origin.
         ties = self.joint_markers()

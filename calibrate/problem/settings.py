@@ -75,8 +75,8 @@ class Settings:
     # left free only the priors' couplings (e.g. left/right symmetry) would move them.
     hold_segments: tuple[str, ...] = ()
     # Joints whose centre keeps the base model's place against the markers of the segment it is expressed in (its
-    # offset from their centroid, at the segment's scale; Priors.held_centre, 0.1 mm): a joint the trials barely
-    # turn (a walk's lumbar, 1-6 deg SD) places its centre by a lever of a few degrees, and skin moving with the
+    # offset from their centroid, at the size of their own layout; Priors.held_centre, 0.1 mm): a joint the trials
+    # barely turn (a walk's lumbar, 1-6 deg SD) places its centre by a lever of a few degrees, and skin moving with the
     # arms carries it tens of mm (Rajagopal2016's back: 77-100 mm from the scaled model).  Where that segment shows
     # fewer than three markers, the centre is held in the segment's frame.
     hold_centres: tuple[str, ...] = ()
