@@ -308,6 +308,9 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         if problem.seen[:, t.marker].any():
             tied.setdefault(t.joint, []).append(model.markers[t.marker].name)
 
+    # Centres held against their parent's markers (Settings.hold_centres; Problem.held_centres): joint -> how many.
+    held_against = {ji: len(mks) for ji, mks in problem.held_centres()}
+
     def unseen(segment: str) -> str:
         k = model.segment_index(segment)
         sized = not math.isclose(float(seg_scale[k]), float(B.scale[k]), abs_tol=1e-12)
@@ -335,6 +338,12 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
             C, C0 = cov[np.ix_(c, c)], prior_cov[np.ix_(c, c)]
             std = 1000 * np.sqrt(np.clip(np.diag(C), 0, None))
             status, note, ratio, open_dir = judge(C, C0)
+            if group == "centre" and i in held_against and status.identified:
+                # Its hold ties it to its parent's markers, which the trial fixes: placed by the hold, not by the
+                # trial's motion (a static's shoulders would otherwise read as identified).
+                status = Identified.NO
+                note = (f"held at the base model's offset from {owner}'s {held_against[i]} markers "
+                        "(hold_centres), not placed by the trial")
         scaled = seg_scale[model.segment_index(owner)] * base
         change = ParameterChange(group, name, base, value, 1000 * float(np.linalg.norm(value - base)), std, status,
                                  note, ratio, beyond_scale=1000 * float(np.linalg.norm(value - scaled)))
