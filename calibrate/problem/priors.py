@@ -457,11 +457,11 @@ class PriorsMixin:
                 ce = L.entries("centre", np.array([ji]))[0]
                 mk = L.entries("marker", np.array(mks))  # (n, 3)
                 seg = self.centre_segment[ji]
-                x = p[ce] - p[mk].mean(axis=0)
-                x0 = base[ce] - base[mk].mean(axis=0)
-                b = base[mk] - base[mk].mean(axis=0)  # (n, 3) the base model's markers about their centroid
+                mid, mid0 = p[mk].mean(axis=0), base[mk].mean(axis=0)
+                x, x0 = p[ce] - mid, base[ce] - mid0
+                b = base[mk] - mid0  # (n, 3) the base model's markers about their centroid
                 bb = float(np.sum(b * b))
-                kappa = float(np.sum((p[mk] - p[mk].mean(axis=0)) * b)) / bb
+                kappa = float(np.sum((p[mk] - mid) * b)) / bb
                 y = x - kappa * x0
                 s = scale[seg]
                 n, k = len(mks), np.arange(3)
