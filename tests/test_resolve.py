@@ -81,6 +81,16 @@ def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
     assert "hip_l_rotation" in report["unresolved"][0]["coordinates"]
     text = summary_text(cal)
     assert "18 segments the markers cannot place" in text and "femur_l: " in text
+    # A centre nothing estimates (no marker on or below its segment) has no posterior SD: the summary's row says why
+    # it is held, not '+- nan'; the report's std is null.
+    unseen = [c for c in cal.changes if c.group == "centre" and not np.isfinite(c.std).any()]
+    assert {c.item for c in unseen} >= {"knee_r", "elbow_r"}, [c.item for c in unseen]
+    rows = {line.split()[0]: line for line in text.splitlines() if line.startswith("    ") and len(line.split()) > 2}
+    for c in unseen:
+        assert "nan" not in rows[c.item] and rows[c.item].endswith(f"(held: {c.note.split(':')[0]})"), rows[c.item]
+        assert "no marker seen on or below" in rows[c.item], rows[c.item]
+        assert report["parameters"][[q["name"] for q in report["parameters"]].index(c.name)]["std"] == [None] * 3
+    assert "nan" not in text
 
 
 def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):

@@ -701,8 +701,11 @@ def summary_text(cal) -> str:
         "not explain) +- posterior std (mm, worst axis; the markers' scatter only: skin artefact's bias adds to it)",
     ]
     for c in cal.changes:
-        if c.group == "centre":
-            std = np.nanmax(c.std) if np.isfinite(c.std).any() else float("nan")
+        if c.group == "centre" and not np.isfinite(c.std).any():
+            # Not estimated (no marker seen on or below its segment, or its group not free): no posterior SD.
+            lines.append(f"    {c.item:16s}{c.change:8.1f}{c.beyond_scale:8.1f}{'':9s}  ({_not_estimated(c)})")
+        elif c.group == "centre":
+            std = np.nanmax(c.std)
             flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else
                                             "  (not identified; unreliable)" if c.unreliable else "  (held by prior)")
             if c.unreliable and (c.identified or _slide_only(c)):
@@ -715,6 +718,9 @@ def summary_text(cal) -> str:
     if axes:
         lines.append("  hinge axes: tilt from base model (deg) +- posterior std (deg; the markers' scatter only)")
         for c in axes:
+            if not np.isfinite(c.std).any():
+                lines.append(f"    {c.item:16s}{c.change:8.2f}{'':9s}  ({_not_estimated(c)})")
+                continue
             std = np.nanmax(c.std)
             flag = "" if c.identified else "  (not identified; unreliable)" if c.unreliable else "  (held by prior)"
             if c.unreliable and c.identified:
@@ -919,6 +925,14 @@ def summary_text(cal) -> str:
 def _slide_only(c) -> bool:
     """A hinge centre identified across its axis (only its slide along the axis is prior-held)."""
     return c.status is Identified.ACROSS_AXIS
+
+
+def _not_estimated(c) -> str:
+    """Why a quantity has no posterior SD, for the summary's tables: held where no marker reaches it (its note
+    up to its first colon, e.g. 'no marker seen on or below ulna_l'), or not free."""
+    if c.status is Identified.UNSEEN:
+        return "held: " + c.note.split(":")[0]
+    return "held: not free" if c.status is Identified.FIXED else c.note or "held"
 
 
 def _per_trial(cal: Calibration, paths, what: str) -> list:
