@@ -72,7 +72,10 @@ def test_unknown_markers_are_placed_fitted_and_written(human, subject, tmp_path)
     # Three new markers on femur_r start at one place, as the base model's placeholders do, but the base model puts
     # none of them anywhere: each has its 'new marker' line, none is listed among the placeholders.
     assert not set(CLUSTER) & set(calibration_report(cal)["placeholder_markers"])
-    assert "  placeholders " not in summary_text(cal)
+    text = summary_text(cal)
+    assert "  placeholders " not in text
+    n_new = sum(m.segment is not None for m in cal.new_markers)
+    assert f"model markers seen ({n_new} new, placed on segments" in text, text
     # Each new marker is fitted: where the calibrated model puts it, frame by frame, against the
     # noise-free truth (segment frames are a gauge, so positions are compared in the lab).
     est = _world(cal.model, cal.params, cal.motion)

@@ -91,6 +91,8 @@ def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
         assert "no marker seen on or below" in rows[c.item], rows[c.item]
         assert report["parameters"][[q["name"] for q in report["parameters"]].index(c.name)]["std"] == [None] * 3
     assert "nan" not in text
+    # No label the model does not know: the markers line counts no new ones ("0 new" said nothing).
+    assert not cal.new_markers and "model markers seen, " in text and " new, placed" not in text
 
 
 def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):

@@ -627,8 +627,9 @@ def summary_text(cal) -> str:
                      + (" (the ball joints' centres held, below)" if cal.still_centres else "")
                      + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
-        f"  markers      {used}/{len(model.markers)} model markers seen ({n_new} new, placed on segments by "
-        f"rigidity or the model's poses), {left_out_clause(cal.ignored_labels)}, {len(cal.outliers)} outliers rejected",
+        f"  markers      {used}/{len(model.markers)} model markers seen"
+        + (f" ({n_new} new, placed on segments by rigidity or the model's poses)" if n_new else "")
+        + f", {left_out_clause(cal.ignored_labels)}, {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",
         f"  unknowns     {F * model.nz} frame coordinates + geometric parameters "
