@@ -701,11 +701,11 @@ def summary_text(cal) -> str:
         "  joint centres: change from base model, and from it at the subject's scale (mm; what the scale factors do "
         "not explain) +- posterior std (mm, worst axis; the markers' scatter only: skin artefact's bias adds to it)",
     ]
-    for c in cal.changes:
-        if c.group == "centre" and not np.isfinite(c.std).any():
+    for c in (c for c in cal.changes if c.group == "centre"):
+        if not np.isfinite(c.std).any():
             # Not estimated (no marker seen on or below its segment, or its group not free): no posterior SD.
             lines.append(f"    {c.item:16s}{c.change:8.1f}{c.beyond_scale:8.1f}{'':9s}  ({_not_estimated(c)})")
-        elif c.group == "centre":
+        else:
             std = np.nanmax(c.std)
             flag = "" if c.identified else ("  (along the axis: prior)" if _slide_only(c) else
                                             "  (not identified; unreliable)" if c.unreliable else "  (held by prior)")
@@ -931,9 +931,7 @@ def _slide_only(c) -> bool:
 def _not_estimated(c) -> str:
     """Why a quantity has no posterior SD, for the summary's tables: held where no marker reaches it (its note
     up to its first colon, e.g. 'no marker seen on or below ulna_l'), or not free."""
-    if c.status is Identified.UNSEEN:
-        return "held: " + c.note.split(":")[0]
-    return "held: not free" if c.status is Identified.FIXED else c.note or "held"
+    return "held: " + c.note.split(":")[0] if c.status is Identified.UNSEEN else "held: not free"
 
 
 def _per_trial(cal: Calibration, paths, what: str) -> list:
