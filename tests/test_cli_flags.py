@@ -556,3 +556,23 @@ def test_output_piped_into_a_reader_that_stops_ends_quietly(tmp_path):
     proc.stdout.close()  # before the interpreter has even imported calibrate: every write finds no reader
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141 and "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+def test_the_calibration_help_names_every_command_and_both_model_formats(capsys):
+    """`calibrate TRIAL MODEL --help` lists every command the program's parser registers (read from that parser's
+    subcommands, not from a list kept beside it) and says MODEL may be an OpenSim .osim."""
+    import argparse
+
+    from calibrate.cli.main import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    with pytest.raises(SystemExit) as ended:
+        main(["trial.c3d", "model.urdf", "--help"])
+    assert ended.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    usage = text.split("Calibrate MODEL")[0]
+    listed = usage[usage.index("{") + 1:usage.index("}")].split(",")
+    others = text.split("Other commands:")[1].split("(see")[0].replace(",", " ").split()
+    assert len(sub.choices) >= 11
+    assert sorted(listed) == sorted(sub.choices) == sorted(others)
+    assert ".osim" in text.split("positional arguments:")[1].split("options:")[0]

@@ -123,7 +123,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CalibrateError("give one or more trials and then the base model: calibrate TRIAL [TRIAL ...] MODEL")
     *trial_paths, model_path = args.inputs
     if model_path.suffix.lower() in (".c3d", ".trc", ".tsv", ".csv"):
-        raise CalibrateError(f"{model_path}: the last argument must be the base model (.urdf), after the trials")
+        raise CalibrateError(f"{model_path}: the last argument must be the base model (.urdf or .osim), "
+                             "after the trials")
     if args.frames is not None and len(trial_paths) > 1:
         raise CalibrateError("--frames applies to a single trial; cut the trials first or give one trial")
     if args.motion is not None and len(trial_paths) > 1:

@@ -158,15 +158,16 @@ COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
     ap = _top("calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
-              "       calibrate {simulate,demo,inspect,joints,export-osim,import-osim,report,view} ...",
-              "Calibrate MODEL (a URDF) to the subject of one or more TRIALs (.c3d or .trc, or Qualisys QTM's .tsv "
+              f"       calibrate {{{','.join(COMMANDS)}}} ...",
+              "Calibrate MODEL (a URDF, or an OpenSim model .osim) to the subject of one or more TRIALs (.c3d or "
+              ".trc, or Qualisys QTM's .tsv "
               "or OptiTrack Motive's .csv export; e.g. a static "
               "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
               "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
               "subject URDF, a motion CSV per trial and a report JSON next to the first trial (or beside -o's "
-              "URDF).  Other commands: simulate, demo, inspect, joints, export-osim (see 'calibrate COMMAND --help').")
+              f"URDF).  Other commands: {', '.join(COMMANDS)} (see 'calibrate COMMAND --help').")
     ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
-                    help="the trials (.c3d, .trc, .tsv or .csv), then the base model (.urdf) to calibrate "
+                    help="the trials (.c3d, .trc, .tsv or .csv), then the base model (.urdf or .osim) to calibrate "
                          "(never modified)")
     ap.add_argument("-o", "--output", type=str, default=None,
                     help="subject URDF (default: the first TRIAL's name + .urdf); from an OpenSim base model, "
@@ -216,8 +217,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="keep these hinge/universal axes at the base model's (their angles stay free)")
     ap.add_argument("--hold-centres", default=None, metavar="JOINT,...",
                     help="keep each of these joints' centres at the base model's offset from the markers of the "
-                         "segment it is expressed in, at the subject's scale (a joint the trials barely turn, e.g. a "
-                         "walk's lumbar joint 'back', whose fitted centre the summary calls implausible)")
+                         "segment it is expressed in, at the size of those markers' layout (a joint the trials "
+                         "barely turn, e.g. a walk's lumbar joint 'back', whose fitted centre the summary calls "
+                         "implausible)")
     ap.add_argument("--moved-markers", action="store_true",
                     help="leave out a static trial's positions of markers it shows elsewhere on their segment than "
                          "the moving trials do (a slipped cluster, an acromion marker lifted with the arms); the "
