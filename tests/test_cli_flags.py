@@ -576,3 +576,17 @@ def test_the_calibration_help_names_every_command_and_both_model_formats(capsys)
     assert len(sub.choices) >= 11
     assert sorted(listed) == sorted(sub.choices) == sorted(others)
     assert ".osim" in text.split("positional arguments:")[1].split("options:")[0]
+
+
+def test_the_readme_describes_every_option_of_the_calibration():
+    """Every option `calibrate TRIAL MODEL` accepts (read from its parser) is named in the README's section on
+    calibrating a subject, where a user looks them up."""
+    from calibrate.cli.main import build_calibrate_parser
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = readme.split("## Calibrating a subject", 1)[1].split("\n## ", 1)[0]
+    options = [s for a in build_calibrate_parser()._actions for s in a.option_strings
+               if s.startswith("--") and s != "--help"]
+    assert len(options) >= 30
+    missing = [s for s in options if f"`{s}" not in section and f"{s} " not in section]
+    assert missing == [], missing
