@@ -158,3 +158,30 @@ def test_check_targets_tries_the_folder_before_any_work():
     with pytest.raises(CalibrateError, match=r"/proc/subject.urdf: directory '/proc' takes no new file \(.+\); "
                                              "choose another place"):
         check_targets([Path("/proc/subject.urdf")], overwrite=False)
+
+
+def test_a_hinge_centre_names_the_direction_across_its_axis_the_trial_left_open(human):
+    """A hinge centre the trial fixes in one direction across its axis and not in the other: its note names that
+    other direction (in the parent's frame), the one the posterior leaves near its prior (built so here)."""
+    from calibrate.calibration.identifiability import _judge_centre
+
+    P = human.parameters()
+    j = next(j for j in human.joints if j.name == "knee_r")
+    d = human.dof_index(j.dofs[0])
+    u = next(u for u in human.urdf_joints if u.name == j.urdf_joints[0])
+    a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
+    rng = np.random.default_rng(3)
+    w = np.cross(a, rng.normal(size=3))
+    w /= np.linalg.norm(w)  # the open direction, across the axis
+    fixed = np.cross(a, w)  # the one the trial fixes
+    C0 = 0.02 ** 2 * np.eye(3)
+    C = 0.02 ** 2 * (np.outer(a, a) + 0.9 ** 2 * np.outer(w, w) + 0.1 ** 2 * np.outer(fixed, fixed))
+    status, note, ratio, _ = _judge_centre(human, P, j, None, C, C0)
+    assert status is Identified.NO and ratio == pytest.approx(0.9, rel=1e-9)
+    named = np.array([float(x) for x in note.split("across the axis not identified along (")[1].split(")")[0]
+                      .split(",")])
+    assert abs(abs(named @ w) - 1.0) < 1e-2  # printed to two decimals
+    # Fixed in both directions across the axis: identified there, no direction named.
+    C = 0.02 ** 2 * (np.outer(a, a) + 0.1 ** 2 * (np.eye(3) - np.outer(a, a)))
+    status, note, _, _ = _judge_centre(human, P, j, None, C, C0)
+    assert status is Identified.ACROSS_AXIS and note.endswith("across the axis identified")

@@ -577,9 +577,10 @@ Judge = Callable[[np.ndarray, np.ndarray], tuple[Identified, str, float, np.ndar
 
 
 def _judge_centre(model: Model, P: Parameters, j: Joint, blind: str | None, C: np.ndarray,
-                  C0: np.ndarray) -> tuple[Identified, str, float]:
+                  C0: np.ndarray) -> tuple[Identified, str, float, None]:
     """Whether the trial identified joint `j`'s free centre, from its posterior and prior-only covariance
-    (m²) at `P`; `blind`: why a joint next to a segment without markers is never identified."""
+    (m²) at `P`; `blind`: why a joint next to a segment without markers is never identified.  (A Judge: a
+    centre is judged as a whole, no open directions.)"""
     if j.kind == "hinge":
         # Along its axis a hinge centre is a gauge: no motion moves the markers when it
         # slides there (the child's contents slide back), so the prior alone holds it.
@@ -587,12 +588,14 @@ def _judge_centre(model: Model, P: Parameters, j: Joint, blind: str | None, C: n
         u = next(u for u in model.urdf_joints if u.name == j.urdf_joints[0])
         a = u.rotation @ (P.axis[d] / np.linalg.norm(P.axis[d]))
         Qp = perpendicular_basis(a)
-        ratio, _ = worst_ratio(Qp.T @ C @ Qp, Qp.T @ C0 @ Qp)
+        ratio, v = worst_ratio(Qp.T @ C @ Qp, Qp.T @ C0 @ Qp)
         status = Identified.ACROSS_AXIS if ratio < IDENTIFIED else Identified.NO
         axis_txt = ", ".join(f"{x:+.2f}" for x in a)
+        # Across the axis, the direction the trial leaves most to the prior (in the parent's frame, as the axis).
+        across = ", ".join(f"{x:+.2f}" for x in Qp @ v)
         note = (f"along its axis ({axis_txt}) in the {j.parent} frame it is held by the prior (no motion "
-                f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else "not identified"
-                                                     " either: held by the prior"))
+                f"defines it); across the axis " + ("identified" if ratio < IDENTIFIED else
+                                                     f"not identified along ({across}) either: held by the prior"))
     else:
         ratio, v = worst_ratio(C, C0)
         status = Identified.YES if ratio < IDENTIFIED else Identified.NO
