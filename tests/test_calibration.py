@@ -6,11 +6,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pinocchio as pin
@@ -397,6 +399,45 @@ def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch
     assert Problem(moved, np.concatenate([seen, np.full((3, 1, 3), np.nan)], axis=1), Settings()).compiled
     assert len(list(tmp_path.glob("frame_*.so"))) == 3
     assert Problem(small, seen, Settings()).compiled and len(list(tmp_path.glob("frame_*.so"))) == 3
+
+
+_BUILD_CHILD = r"""
+import sys, time
+from pathlib import Path
+import numpy as np
+from calibrate.model.model import load_model
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+model, go = load_model(sys.argv[1]), Path(sys.argv[2])
+while not go.exists():
+    time.sleep(0.002)
+heard = []
+problem = Problem(model, np.zeros((3, len(model.markers), 3)), Settings(), progress=heard.append)
+print(int(problem.compiled), sum(h.startswith("build: compiling") for h in heard))
+"""
+
+
+def test_processes_sharing_the_cache_compile_a_structure_once(tmp_path):
+    """Two processes building the same new structure at the same moment (a batch's two workers on a lab's first
+    subjects), released together: one compiles it, the other waits for it and loads it; both run compiled."""
+    from tests.test_kinematics import GENERIC_URDF
+
+    if shutil.which("gcc") is None and shutil.which("cc") is None:
+        pytest.skip("no C compiler: the per-frame functions run in CasADi's virtual machine")
+    (tmp_path / "generic.urdf").write_text(GENERIC_URDF)
+    go = tmp_path / "go"
+    env = {**os.environ, "CALIBRATE_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(ROOT)}
+    children = [subprocess.Popen([sys.executable, "-c", _BUILD_CHILD, str(tmp_path / "generic.urdf"), str(go)],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                for _ in range(2)]
+    time.sleep(3.0)  # both have imported and wait at the line
+    go.touch()
+    outs = [c.communicate(timeout=300) for c in children]
+    assert all(c.returncode == 0 for c in children), [e[-2000:] for _, e in outs]
+    compiled, announced = zip(*[map(int, o.split()) for o, _ in outs], strict=True)
+    assert compiled == (1, 1)
+    assert sorted(announced) == [0, 1]  # one compile, announced once
+    assert len(list((tmp_path / "cache").glob("frame_*.so"))) == 1
 
 
 def test_frames_evaluated_in_parts_equal_each_frame_on_its_own(human, human_kin):

@@ -3,10 +3,12 @@ Jacobians, C-compiled and kept on disk by the model's structure, evaluated over 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import casadi as ca
@@ -101,15 +103,51 @@ def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]
         return None
 
 
+@contextlib.contextmanager
+def _compile_lock(key: str | None) -> Iterator[None]:
+    """Held while the structure `key` is built and compiled, so that processes sharing the cache (a batch's
+    workers, the test suite's) compile it once: the others wait, then load it.  No lock for None, nor where
+    the system has no advisory file locks (not POSIX): compiles may then run side by side, each kept whole."""
+    try:
+        import fcntl
+    except ImportError:
+        fcntl = None
+    if key is None or fcntl is None:
+        yield
+        return
+    try:
+        cache_dir().mkdir(parents=True, exist_ok=True)
+        fh = open(cache_dir() / f".frame_{key}.lock", "a")  # noqa: SIM115 (held across the yield)
+    except OSError:  # a cache that cannot be written: nothing to share, the compile fails and the VM is kept
+        yield
+        return
+    with fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 class CodegenMixin:
     """Problem's compiled functions (calibrate.problem.problem.Problem inherits it)."""
 
     # ------------------------------------------------------------------ CasADi
     def _build_functions(self) -> None:
+        key = _structure_key(self.model, self.kin) if self.settings.compile else None
+        cached = _load_compiled(key) if key else None
+        with _compile_lock(key if cached is None else None):
+            # Another process (a batch's or the tests' other worker) may have compiled this structure while
+            # this one waited for the lock: then it is loaded, not compiled a second time beside it.
+            if cached is None and key:
+                cached = _load_compiled(key)
+            self._build_or_load(cached, key)
+
+    def _build_or_load(self, cached: tuple | None, key: str | None) -> None:
+        """_build_functions' work: the compiled functions `cached` loaded, else built symbolically and compiled under
+        `key` (None: CasADi's virtual machine)."""
         m, kin = self.model, self.kin
         nz, nm = m.nz, len(m.markers)
-        key = _structure_key(m, kin) if self.settings.compile else None
-        cached = _load_compiled(key) if key else None
         self.compiled = cached is not None
         if cached is not None:  # a model of this structure was compiled before: no symbolic work
             (full, pose, resid), (zr, zc, pr, pc, shape) = cached
