@@ -159,9 +159,8 @@ COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim
 def build_calibrate_parser() -> argparse.ArgumentParser:
     ap = _top("calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
               f"       calibrate {{{','.join(COMMANDS)}}} ...",
-              "Calibrate MODEL (a URDF, or an OpenSim model .osim) to the subject of one or more TRIALs (.c3d or "
-              ".trc, or Qualisys QTM's .tsv "
-              "or OptiTrack Motive's .csv export; e.g. a static "
+              "Calibrate MODEL (a URDF, or an OpenSim model .osim) to the subject of one or more TRIALs "
+              "(.c3d or .trc, or Qualisys QTM's .tsv or OptiTrack Motive's .csv export; e.g. a static "
               "trial and movement trials): segment scales, joint centres, hinge axes and marker positions "
               "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
               "subject URDF, a motion CSV per trial and a report JSON next to the first trial (or beside -o's "

@@ -117,7 +117,7 @@ def _compile_lock(key: str | None) -> Iterator[None]:
         return
     try:
         cache_dir().mkdir(parents=True, exist_ok=True)
-        fh = open(cache_dir() / f".frame_{key}.lock", "a")  # noqa: SIM115 (held across the yield)
+        fh = open(cache_dir() / f".frame_{key}.lock", "a")  # held across the yield below
     except OSError:  # a cache that cannot be written: nothing to share, the compile fails and the VM is kept
         yield
         return
