@@ -171,13 +171,22 @@ def test_end_to_end_from_detections_to_a_subject(tmp_path, capsys):
     args = ["track", str(out / "cameras.toml"), str(out / "detections.npz"), MODEL, "-o", str(tmp_path / "s.urdf")]
     code = main(args)
     assert code in (0, 1)
+    # progress on stderr while it works (the labelling alone takes seconds): each labelling step as it starts,
+    # then the calibration's stages, in that order
+    progress = [line.split("] ", 1)[1] for line in capsys.readouterr().err.splitlines() if line.startswith("  [")]
+    stages = [line.split(":", 1)[0] for line in progress]
+    rep = json.loads((out / "detections_report.json").read_text())
+    assert progress[0] == (f"labels: {rep['tracker']['written_tracks']} tracks grouped into rigid segments by the "
+                           "variance of their distances (seed 002)")
+    assert any(x.startswith("labels: the scaled base model fitted to the tracks as well") for x in progress)
+    assert "seed" in stages and "solve" in stages and stages.index("seed") > max(
+        k for k, s in enumerate(stages) if s == "labels")
     tracked = read_c3d(out / "detections_tracks.c3d")
     names = load_model(MODEL).marker_names
     assert sorted(tracked.labels) == sorted(names)
     for i, label in enumerate(tracked.labels):  # each label on the track nearest that marker's truth
         err = np.linalg.norm(tracked.markers[:, i] - truth[:, names.index(label)], axis=1)
         assert np.nanmedian(err) < 3e-3, label
-    rep = json.loads((out / "detections_report.json").read_text())
     assert rep["tracker"]["tracks"] >= 39 and rep["tracker"]["assigned_share"] > 0.95
     # every track is written, joined into another (a break) or left out as too short
     assert 0 <= rep["tracker"]["written_tracks"] + rep["tracker"]["breaks_joined"] <= rep["tracker"]["tracks"]

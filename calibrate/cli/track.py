@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration.records import Countdown
 from ..errors import CalibrateError
 from ..io.outputs import check_targets, put_text, write_all
 
@@ -40,6 +41,8 @@ def add_track_parser(sub) -> None:
     tr.add_argument("--greedy", action="store_true",
                     help="the baseline: nearest prediction per camera and pairs of cameras greedily, no relaxation")
     tr.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    tr.add_argument("-q", "--quiet", action="store_true",
+                    help="no progress on stderr (the tracking's frames, the labelling's steps, the calibration's)")
 
 
 def cmd_track(args: argparse.Namespace) -> int:
@@ -71,7 +74,10 @@ def cmd_track(args: argparse.Namespace) -> int:
     if args.model is not None:
         return _track_subject(args, cams, det, out, urdf, motion, report)
     t0 = time.perf_counter()
-    tracks = Tracker(cams, TrackSettings(method="greedy" if args.greedy else "lagrangian")).run(det)
+    with _progress(args) as say:
+        count = Countdown(say, "track", f"tracking {det.n_frames} frames of {len(cams)} cameras")
+        tracks = Tracker(cams, TrackSettings(method="greedy" if args.greedy else "lagrangian")).run(
+            det, lambda k, n: count(k / n))
     seconds = time.perf_counter() - t0
     trial = tracks.trial(args.min_frames)
     fig = tracks.figures()
@@ -88,6 +94,15 @@ def cmd_track(args: argparse.Namespace) -> int:
           f"{100 * fig['optimal_frames']:.1f} % of frames proved optimal")
     print(f"wrote {out}\n      {report}")
     return 0
+
+
+def _progress(args: argparse.Namespace):
+    """The progress on stderr, as the calibrate command shows it (nothing with --quiet)."""
+    from ..problem.settings import Settings
+    from .commands import Timed
+    from .report import progress_for
+
+    return progress_for(args.quiet, Settings().max_iterations, Timed)
 
 
 def write_simulated_cameras(sim, out: Path, n_cameras: int, seed: int) -> dict[str, Path]:
@@ -122,8 +137,9 @@ def _track_subject(args, cams, det, c3d: Path, urdf: Path, motion: Path, report:
 
     model = load_model(args.model)
     t0 = time.perf_counter()
-    res = track_subject(cams, det, model, TrackSettings(method="greedy" if args.greedy else "lagrangian"),
-                        args.min_frames)
+    with _progress(args) as say:
+        res = track_subject(cams, det, model, TrackSettings(method="greedy" if args.greedy else "lagrangian"),
+                            args.min_frames, progress=say)
     seconds = time.perf_counter() - t0
     cal = res.calibration
     rep = res.report()

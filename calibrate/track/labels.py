@@ -66,11 +66,13 @@ from __future__ import annotations
 
 import itertools
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from ..calibration.records import Progress
 from ..errors import CalibrateError
 from ..io.motion import Motion
 from ..io.trial import Trial
@@ -267,9 +269,16 @@ def _shape(Dg: np.ndarray, Ds: np.ndarray, scale: float | None) -> tuple[float, 
     return float(errs.min()), perms, errs
 
 
-def label_tracks(model: Model, trial: Trial) -> Labelling:
-    """Labels of the base model for the unlabelled tracks of `trial` (module docstring)."""
+def label_tracks(model: Model, trial: Trial, progress: Callable[[Progress], None] | None = None) -> Labelling:
+    """Labels of the base model for the unlabelled tracks of `trial` (module docstring).  `progress`: told each
+    step as it starts (stage 'labels'; tens of seconds on a long trial, most of it fitting the base model)."""
+    def say(text: str, long: bool = False) -> None:
+        if progress is not None:
+            progress(Progress("labels", text, long=long))
+
     original = trial
+    say(f"{trial.n_markers} tracks grouped into rigid segments by the variance of their distances (seed 002)",
+        long=True)  # the labelling takes seconds to minutes: announced at once
     X = _despiked(trial.markers)
     assoc = associate(X)
     merged = _same_markers(X, [list(g) for g in assoc.groups], list(trial.labels))
@@ -299,6 +308,7 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
             cands = [(len(groups) - 1, *_shape(med_dist[-1], _distances(neutral[R_idx]), None))]
             cands = [c for c in cands if c[1] <= ROOT_MISFIT]
     if not cands:  # skin markers that do not group into rigid segments: the base model fitted instead
+        say(f"no group moves like the {root.name}'s markers: the scaled base model fitted to the tracks instead")
         fitted = _by_fitting(model, kin, trial, X, groups, merged)
         if 2 * len(fitted.labels) < trial.n_markers:
             raise CalibrateError(f"{model.path}: the tracks neither group into the model's rigid segments (no "
@@ -367,6 +377,8 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
             used.add(idx[j])
         segments[a] = segs[b].name
     # 4. near-ties settled by how well the scaled base model fits (inverse kinematics on a subsample)
+    say(f"{len(segments)} of {len(groups)} groups matched to {model.path.name}'s segments; near ties settled by "
+        "fitting the scaled base model")
     labels = _settle_ties(model, kin, trial, scale, labels, groups, segs, seg_idx, segments, cost, best_perm,
                           med_dist, neutral)
     # 4b. groups no single segment took: a chain of adjacent segments not yet taken that moves as one body
@@ -407,13 +419,19 @@ def label_tracks(model: Model, trial: Trial) -> Labelling:
             if C[r, c] < MAX_LEFTOVER:
                 labels[trial.labels[left[r]]] = names[free[c]]
     # 6. what the base model's fit still shows: a swapped pair, a track on a neighbour's marker, a track left out
+    say(f"{len(labels)} tracks labelled; the base model's fit checked for swapped pairs, a neighbour's markers and "
+        "tracks left out")
     labels = _repair(model, kin, trial, scale, labels)
     labels = _relabel_limbs(model, kin, X, trial, scale, labels, neutral, med, ref)
     # 8. a track still unlabelled that continues a labelled one (one marker lost and found again)
     grouped = Labelling(labels, [[trial.labels[i] for i in g] for g in groups], segments, scale,
                         merged | _continuations(model, X, trial.labels, labels), frozenset(model.marker_names))
     # 9. the base model fitted as well (step 2b), and the labelling whose calibration fits better kept
-    return better_labelling(model, original, grouped, _by_fitting(model, kin, trial, X, groups, merged))
+    say("the scaled base model fitted to the tracks as well (every heading): a second labelling")
+    fitted = _by_fitting(model, kin, trial, X, groups, merged)
+    if fitted.labels != grouped.labels:
+        say("the two labellings differ: each calibrated, the one the subject's fit supports kept")
+    return better_labelling(model, original, grouped, fitted)
 
 
 def _continuations(model: Model, X: np.ndarray, names: list[str], labels: dict[str, str]) -> dict[str, str]:

@@ -41,12 +41,18 @@ def track_subject(cameras: Sequence[Camera], detections: Detections, model: Mode
                   settings: TrackSettings | None = None, min_frames: int = 10, calibration_settings=None,
                   progress: Callable | None = None) -> TrackedSubject:
     """Track the markers (calibrate.track.tracker), label the tracks with `model`'s markers
-    (calibrate.track.labels) and calibrate `model` to them (calibrate.calibrate)."""
+    (calibrate.track.labels) and calibrate `model` to them (calibrate.calibrate).  `progress`: each stage's
+    messages (calibrate.calibration.records.Progress: 'track' with the frames done, 'labels' step by step, then
+    the calibration's), as the calibrate command prints them."""
     from ..calibration.pipeline import calibrate
+    from ..calibration.records import Countdown
 
-    tracks = Tracker(cameras, settings).run(detections)
+    count = None
+    if progress is not None:
+        count = Countdown(progress, "track", f"tracking {detections.n_frames} frames of {len(cameras)} cameras")
+    tracks = Tracker(cameras, settings).run(detections, None if count is None else lambda k, n: count(k / n))
     unlabelled = tracks.trial(min_frames)
-    labelling = label_tracks(model, unlabelled)
+    labelling = label_tracks(model, unlabelled, progress)
     trial = labelling.trial(unlabelled)
     cal = calibrate(model, trial, calibration_settings, aliases=False, progress=progress)
     return TrackedSubject(tracks, labelling, trial, cal)

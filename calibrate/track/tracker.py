@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -322,8 +322,9 @@ class Tracker:
 
     # ----------------------------------------------------------------------------- the loop
 
-    def run(self, det: Detections, progress=None) -> Tracks:
-        """Track every marker through the detections (module docstring)."""
+    def run(self, det: Detections, progress: Callable[[int, int], None] | None = None) -> Tracks:
+        """Track every marker through the detections (module docstring); `progress(frames done, frames)` every
+        200 frames."""
         st = self.settings
         M = len(self.cameras)
         if det.n_cameras != M:
