@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import itertools
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,14 +120,25 @@ def fit_labels(model: Model, kin: Kinematics, trial: Trial, X: np.ndarray | None
             best = FittedLabels(fitted.labels, scale, float(heading), fitted.cost), fitted.M
 
     # Every heading's first SCREEN_ROUNDS rounds; the SCREEN_KEEP that fit best then run to the end.
-    screened = [(h, _rounds(kin, trial, Xs, placed(standing, h), tall, params, names, stop=SCREEN_ROUNDS))
+    poses: dict[frozenset, np.ndarray] = {}
+
+    def posed(labels: dict[str, str]) -> np.ndarray:
+        """The model posed to `labels` (_posed), once per labelling: headings and rounds that reach the same
+        labels (a third of the fits on the real and simulated walks) pose it alike."""
+        key = frozenset(labels.items())
+        if key not in poses:
+            poses[key] = _posed(kin, trial, Xs, params, labels)
+            poses[key].setflags(write=False)
+        return poses[key]
+
+    screened = [(h, _rounds(trial, Xs, placed(standing, h), tall, names, posed, stop=SCREEN_ROUNDS))
                 for h in headings]
     for heading, fitted in sorted(screened, key=lambda x: x[1].cost)[:SCREEN_KEEP]:
-        keep(heading, _rounds(kin, trial, Xs, fitted.M, tall, params, names, resume=fitted))
+        keep(heading, _rounds(trial, Xs, fitted.M, tall, names, posed, resume=fitted))
     # A static trial holds the arms out from the body (Plug-in Gait's: abducted, elbows bent): at the best
     # heading the first assignment is tried again with the model's arms raised sideways.
     for layout in _arms_raised(model, kin, params, standing):
-        keep(best[0].heading, _rounds(kin, trial, Xs, placed(layout, best[0].heading), tall, params, names))
+        keep(best[0].heading, _rounds(trial, Xs, placed(layout, best[0].heading), tall, names, posed))
     # The heading chosen: its leftovers labelled, its segments' orderings and two-marker pairs checked
     fitted, M = best
     labels, cost = _leftovers(trial, Xs, M, names, fitted.labels, fitted.cost)
@@ -286,10 +298,12 @@ class _Rounds:
     settled: bool
 
 
-def _rounds(kin: Kinematics, trial: Trial, Xs: np.ndarray, M: np.ndarray, tall: np.ndarray, params: Parameters,
-            names: list[str], stop: int = ROUNDS, resume: _Rounds | None = None) -> _Rounds:
+def _rounds(trial: Trial, Xs: np.ndarray, M: np.ndarray, tall: np.ndarray, names: list[str],
+            posed: Callable[[dict[str, str]], np.ndarray], stop: int = ROUNDS,
+            resume: _Rounds | None = None) -> _Rounds:
     """Step 1 and 2 of the module docstring from the model's markers `M` (frames, markers, 3), rounds up to
-    `stop` (or until the labels settle); `resume`: go on from where an earlier call stopped."""
+    `stop` (or until the labels settle); `posed(labels)`: the model's markers posed to those labels (_posed);
+    `resume`: go on from where an earlier call stopped."""
     n = Xs.shape[1]
     labels: dict[str, str] = {} if resume is None else resume.labels
     cost = np.inf if resume is None else resume.cost
@@ -306,7 +320,7 @@ def _rounds(kin: Kinematics, trial: Trial, Xs: np.ndarray, M: np.ndarray, tall: 
         if new == labels and leave <= NEAR:
             return _Rounds(labels, cost, M, k, True)
         labels = new
-        M = _posed(kin, trial, Xs, params, labels)
+        M = posed(labels)
     return _Rounds(labels, cost, M, k, k >= ROUNDS)
 
 
