@@ -513,3 +513,19 @@ def test_frames_that_show_one_or_two_markers_keep_the_pose_beside_them_moved_ont
     assert np.nanmax(fit.marker_rms[odd]) < 1e-6  # one marker: fitted exactly by the shift
     off = np.linalg.norm(m.root_translation - sim.motion.root_translation, axis=1)
     assert off[:10].max() < 0.1 and off[110:].max() < 0.1, (off[:10].max(), off[110:].max())
+
+
+def test_fit_trial_tells_the_share_of_frames_fitted_every_100_frames(squats):
+    """A long trial takes `calibrate ik` a minute (4000 simulated walk frames: 25 s): fit_trial tells the share of
+    its frames fitted every 100 frames, which the command line shows with the time left."""
+    from calibrate.calibration.subject_ik import fit_trial
+    from calibrate.io.read import read_trial
+    from calibrate.io.trial import Trial
+
+    subject = load_model(squats / "truth.urdf")
+    t = read_trial(squats / "trial.c3d")
+    long = Trial(t.labels, np.concatenate([t.markers] * 4), t.rate, 0, None)  # 240 frames
+    seen: list[float] = []
+    got = fit_trial(subject, long, subject.parameters(), {}, progress=seen.append)
+    assert seen == [pytest.approx(100 / 240), pytest.approx(200 / 240)]
+    assert got.fit.motion.angles.shape[0] == 240

@@ -11,7 +11,7 @@ left knee 19 deg for the rest of the walk (scripts/damage_values.py --ik).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,13 +62,15 @@ class TrialFit:
 
 def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str, float],
               weights: Mapping[str, float] | None = None, keep_damaged: bool = False,
-              source: str = "the trial", check_size: bool = True) -> TrialFit:
+              source: str = "the trial", check_size: bool = True,
+              progress: Callable[[float], None] | None = None) -> TrialFit:
     """Fit every frame of `trial` (labels the model's: io.labels.map_labels) to `model` at `params`, holding `held`
     (coordinate -> rad or m), the markers weighed by `weights` (an IK setup's tasks; a marker without one is not
     fitted) or alike, under the calibration's limits (LIMIT_MARGIN).  `keep_damaged`: every position fitted, as
     OpenSim's IK does.  `source` names the trial in errors.  Raises CalibrateError when its markers cannot place the
     model's root, or (`check_size`) when they are another subject's (size_misfit over OTHER_SUBJECT: BTKData's
-    FlatFoot subject fitted to another's walk at 82 mm RMS).  TrialFit.size_misfit: size_misfit's figure."""
+    FlatFoot subject fitted to another's walk at 82 mm RMS).  TrialFit.size_misfit: size_misfit's figure.
+    `progress(share of the frames fitted)` every 100 frames (a long trial takes a minute)."""
     shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
     misfit, pairs = size_misfit(model, trial)
     if check_size and pairs >= SIZE_PAIRS and misfit > OTHER_SUBJECT:
@@ -94,6 +96,7 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
              for d in res.lock}
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
-    fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN)
+    fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
+                             progress=None if progress is None else lambda done, total: progress(done / total))
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
                     misfit if pairs >= SIZE_PAIRS else None)

@@ -64,11 +64,12 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                    help="also write each trial as TRIAL-name_calibrated.c3d: its markers with the subject's joint "
                         "centres, model markers and joint angles as model outputs (as calibrate --c3d)")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
-    p.add_argument("-q", "--quiet", action="store_true", help="no summary")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary")
     return p
 
 
 def cmd_ik(args: argparse.Namespace) -> int:
+    from ..calibration.records import Countdown
     from ..calibration.subject_ik import fit_trial
     from ..io.labels import load_marker_map, map_labels
     from ..io.motion import write_motion_csv
@@ -76,6 +77,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     from ..io.read import read_trial
     from ..model.model import load_model
     from ..problem.settings import Settings
+    from .commands import Timed
+    from .report import progress_for
 
     if len(args.inputs) < 2:
         raise CalibrateError("give one or more trials and then the calibrated subject: calibrate ik TRIAL ... SUBJECT")
@@ -183,8 +186,10 @@ def cmd_ik(args: argparse.Namespace) -> int:
                                  "give the subject calibrated from this lab's marker set"
                                  + (" and its IK setup" if weights is not None else ""))
         start = time.perf_counter()
-        got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path),
-                        check_size=not args.other_subject)
+        with progress_for(args.quiet, 1, Timed) as say:
+            got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path),
+                            check_size=not args.other_subject,
+                            progress=Countdown(say, "ik", f"fitting the {trial.n_frames} frames of {path.name}"))
         lines += [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
         if got.unplaced_held:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
