@@ -818,6 +818,138 @@ def test_export_carries_the_source_muscles_scaled_as_opensim_scales_them(tmp_pat
         assert worst < TOL, f"{path.name}: muscle lengths off by {worst:.3g} m"
 
 
+# {"jobs": [{"source", "exported", "root", "scales": {body: factor}}]} -> per job, for the source scaled by OpenSim's
+# own Model::scale (the same factor on every axis of a body) and for the exported subject: every attached geometry (not
+# the frames' axes) with its body, mesh file and four points of its own frame (its origin and 0.1 along each axis,
+# times its scale factors) in the root body's frame, in the default pose.
+_GEOMETRY_WORKER = r"""
+import json, sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("error")
+out = []
+for job in json.load(open(sys.argv[1]))["jobs"]:
+    res = {}
+    for key in ("source", "exported"):
+        model = osim.Model(job[key])
+        state = model.initSystem()
+        if key == "source":
+            scales = osim.ScaleSet()
+            for body, f in job["scales"].items():
+                sc = osim.Scale()
+                sc.setSegmentName(body)
+                sc.setScaleFactors(osim.Vec3(f, f, f))
+                sc.setApply(True)
+                scales.cloneAndAppend(sc)
+            model.scale(state, scales, True)
+            state = model.initSystem()
+        model.realizePosition(state)
+        root = model.getBodySet().get(job["root"]).getTransformInGround(state)
+        geometry = {}
+        for comp in model.getComponentsList():
+            g = osim.Geometry.safeDownCast(comp)
+            if g is None or g.getConcreteClassName() == "FrameGeometry":
+                continue
+            T, sf = g.getFrame().getTransformInGround(state), g.get_scale_factors()
+            points = []
+            for v in ((0, 0, 0), (0.1, 0, 0), (0, 0.1, 0), (0, 0, 0.1)):
+                w = T.shiftFrameStationToBase(osim.Vec3(*(sf.get(k) * v[k] for k in range(3))))
+                w = root.shiftBaseStationToFrame(w)
+                points.append([w.get(0), w.get(1), w.get(2)])
+            mesh = osim.Mesh.safeDownCast(comp)
+            geometry[g.getName()] = {"body": g.getFrame().findBaseFrame().getName(), "points": points,
+                                     "file": mesh.get_mesh_file() if mesh is not None else g.getConcreteClassName()}
+        res[key] = geometry
+    out.append(res)
+json.dump(out, open(sys.argv[2], "w"))
+"""
+
+
+def _geometry_osim() -> str:
+    """muscle_osim with bones: meshes (one with scale factors of its own), a brick without scale factors and a
+    cylinder on the bodies (the thigh's and shank's body frames translated from their segment frames), a mesh on
+    the ground, and a shape on another frame (not carried)."""
+    shapes = {"pelvis": "<Mesh name=\"pelvis_bone\"><socket_frame>..</socket_frame><scale_factors>1 1 1</scale_factors>"
+                        "<mesh_file>pelvis.vtp</mesh_file></Mesh>",
+              "thigh": "<Mesh name=\"thigh_bone\"><socket_frame>..</socket_frame><scale_factors>0.5 1 2</scale_factors>"
+                       "<mesh_file>femur.vtp</mesh_file></Mesh><Brick name=\"thigh_box\">"
+                       "<socket_frame>..</socket_frame><half_lengths>0.02 0.2 0.02</half_lengths></Brick>",
+              "shank": "<Cylinder name=\"shank_rod\"><socket_frame>..</socket_frame>"
+                       "<scale_factors>1 1 1</scale_factors><radius>0.03</radius>"
+                       "<half_height>0.2</half_height></Cylinder>"
+                       "<Sphere name=\"elsewhere\"><socket_frame>/ground</socket_frame><radius>0.05</radius></Sphere>"}
+    text = muscle_osim()
+    for body, shape in shapes.items():
+        text = text.replace(f"<Body name=\"{body}\">", f"<Body name=\"{body}\"><attached_geometry>{shape}"
+                                                       "</attached_geometry>", 1)
+    return text.replace("<Ground name=\"ground\"/>", "<Ground name=\"ground\"><attached_geometry><Mesh name=\"floor\">"
+                        "<socket_frame>..</socket_frame><mesh_file>floor.vtp</mesh_file></Mesh></attached_geometry>"
+                        "</Ground>", 1)
+
+
+@pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed")
+def test_export_carries_the_source_bones_scaled_as_opensim_scales_them(tmp_path):
+    """A subject whose segments are the source model's scaled (each by its own factor), exported as .osim, opens in
+    OpenSim with the source's bones: every mesh (and brick, cylinder) of its bodies, in OpenSim, where OpenSim's own
+    Model::scale puts the source's with the same factors (1e-6 m, in the root body's frame), the ground's kept, a
+    shape on another frame left out; the export says how many were carried.  Gait2392 and Rajagopal too, where the
+    files are: every shape carried with its mesh file, those not below an approximated joint (the knees, the
+    patellae) where OpenSim's scaling puts them to 1e-6 m."""
+    from calibrate.io.osim import FLOATING, LEFT_OUT
+    from calibrate.io.osim_export import export_osim, osim_document
+    from calibrate.io.osim_forces import forces_lines
+    from calibrate.model.model import Parameters, write_model
+
+    src = tmp_path / "bones.osim"
+    src.write_text(_geometry_osim())
+    sources = [(src, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
+        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
+    jobs, below = [], []
+    for k, (path, ms) in enumerate(sources):
+        model = load_model(path, ms)
+        p0 = model.parameters()
+        scale = 1 + np.random.default_rng(k).uniform(-0.15, 0.15, p0.scale.shape)
+        subject = load_model(write_model(model, tmp_path / f"g{k}.urdf", Parameters(scale, p0.centre, p0.axis,
+                                                                                    p0.marker)))
+        out = export_osim(subject, tmp_path / f"g{k}.osim")
+        jobs.append({"source": str(path), "exported": str(out), "root": model.root,
+                     "scales": {s.name: float(scale[i]) for i, s in enumerate(model.segments)}})
+        # the bodies below a joint the import approximates: placed as calibrate's kinematics place them
+        approximated = {a.joint for a in osim_info(model).approximations if a.kind not in (FLOATING, LEFT_OUT)}
+        seen = {j.child for j in model.joints if j.name in approximated}
+        while True:
+            more = {j.child for j in model.joints if j.parent in seen} - seen
+            if not more:
+                break
+            seen |= more
+        below.append(seen)
+        if k == 0:
+            lines = forces_lines(osim_document(subject)[1])
+            assert any(line.startswith("geometry: its bodies' 4 shapes carried (pelvis.vtp, femur.vtp, Brick and "
+                                       "1 more)") for line in lines), lines
+    spec, result = tmp_path / "jobs.json", tmp_path / "result.json"
+    spec.write_text(json.dumps({"jobs": jobs}))
+    proc = subprocess.run([sys.executable, "-c", _GEOMETRY_WORKER, str(spec), str(result)], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
+    for (path, _), res, out_below in zip(sources, json.loads(result.read_text()), below, strict=True):
+        ref, got = res["source"], res["exported"]
+        expected = set(ref) - ({"elsewhere"} if path == src else set())
+        assert set(got) == expected, (path.name, set(got) ^ expected)
+        exact = set()  # the bodies whose shapes were compared
+        for name in expected:
+            assert (got[name]["body"], got[name]["file"]) == (ref[name]["body"], ref[name]["file"]), name
+            if ref[name]["body"] in out_below or ref[name]["body"] == "ground":
+                continue
+            worst = np.abs(np.array(got[name]["points"]) - np.array(ref[name]["points"])).max()
+            assert worst < TOL, f"{path.name}: {name} on {ref[name]['body']} off by {worst:.3g} m"
+            exact.add(ref[name]["body"])
+        if path == src:
+            assert exact == {"pelvis", "thigh", "shank"} and not out_below
+        else:
+            assert {"pelvis", "femur_r", "femur_l", "torso"} <= exact, (path.name, exact)
+
+
 def test_export_without_its_source_model_says_so(tmp_path):
     """The source .osim moved away after the import: the subject is still exported, without forces, and the
     file and the export say why."""

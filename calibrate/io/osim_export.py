@@ -33,7 +33,9 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   bodies named after the connector links; so is a chain whose axes are linearly dependent.
   A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
 * **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
-* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); visuals are not exported.
+* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); the URDF's visuals are not exported.  A model
+  imported from OpenSim gets its source bodies' geometry back (the bone meshes, moved and scaled with their
+  segments as OpenSim's Scale tool scales them: calibrate.io.osim_forces.carried_geometry) and its ground's.
 * **forces** — for a model imported from OpenSim, the source model's muscles (path points moved and scaled
   with their segments, fibre and tendon slack lengths scaled with the path, as OpenSim's Scale tool does),
   the bodies' wrap objects, and the forces on coordinates the subject has: calibrate.io.osim_forces.
@@ -322,7 +324,7 @@ class _Builder:
         _text(m, "length_units", "meters")
         _text(m, "force_units", "N")
         _text(m, "gravity", fmt_vec((0.0, -9.80665, 0.0) if self.info is not None else GRAVITY))
-        ET.SubElement(m, "Ground", name="ground")
+        ground = ET.SubElement(m, "Ground", name="ground")
         self.carried = None
         if self.info is not None:  # the source model's muscles and other forces (calibrate.io.osim_forces)
             coordinates = {c.get("name", ""): f"/jointset/{j.get('name')}/{c.get('name')}"
@@ -332,6 +334,9 @@ class _Builder:
                 wraps = self.carried.wraps.get(b.get("name", ""))
                 if wraps is not None:
                     b.append(wraps)
+                b.extend(self.carried.geometry.get(b.get("name", ""), ()))
+            if self.carried.ground_geometry is not None:
+                ground.append(self.carried.ground_geometry)
         for set_name, tag, items in (("bodyset", "BodySet", self.bodies), ("jointset", "JointSet", self.joints)):
             objs = ET.SubElement(ET.SubElement(m, tag, name=set_name), "objects")
             objs.extend(items)

@@ -9,7 +9,8 @@ frame translates) and scaled by the segment's scale.  Each point goes where the 
 goes (calibrate.io.osim_export: scale × the point in the segment frame), so that with scales alone (no
 moved centre, axis or marker) the subject's muscle points are where OpenSim's Scale tool puts them with
 the same scale factor on every axis of each body.  Wrap objects move and scale the same way (their
-radii and lengths × scale).
+radii and lengths × scale), and so does each body's attached geometry, its bone meshes (their scale
+factors × scale: carried_geometry), so that the subject opens in OpenSim's GUI with its skeleton.
 
 Each muscle's optimal fibre length and tendon slack length are scaled, as OpenSim's Muscle::postScale
 does, by the ratio of its path length after calibration to before, in the model's default pose.  The
@@ -55,11 +56,15 @@ MUSCLE_LENGTHS = ("optimal_fiber_length", "tendon_slack_length")  # scaled with 
 
 @dataclass
 class CarriedForces:
-    """What the export adds from the source model: the ForceSet's kept forces, each body's WrapObjectSet,
-    and the forces left out (name and why), with a note when nothing could be read."""
+    """What the export adds from the source model: the ForceSet's kept forces, each body's WrapObjectSet and
+    attached geometry (its bone meshes), and the forces left out (name and why), with a note when nothing could be
+    read."""
 
     forces: list[ET.Element] = field(default_factory=list)
     wraps: dict[str, ET.Element] = field(default_factory=dict)
+    # body -> the elements that carry its bones' geometry (carried_geometry); the ground's geometry as in the source
+    geometry: dict[str, list[ET.Element]] = field(default_factory=dict)
+    ground_geometry: ET.Element | None = None
     left_out: list[str] = field(default_factory=list)  # 'name (reason)'
     note: str = ""  # why no force was carried at all ('' when the source was read)
     source: str = ""  # the source model's file name
@@ -100,6 +105,13 @@ def carried_forces(model: Model, p: Parameters, info: OsimInfo, coordinates: dic
         ws = body.find("WrapObjectSet")
         if name in scale and ws is not None and len(ws.findall("objects/*")):
             out.wraps[name] = _moved_wraps(copy.deepcopy(ws), frames[name], scale[name])
+        if name in scale:
+            carried = carried_geometry(body, frames[name], scale[name])
+            if carried:
+                out.geometry[name] = carried
+    ground = m.find("Ground/attached_geometry")
+    if ground is not None and len(ground):
+        out.ground_geometry = copy.deepcopy(ground)
     forces = m.findall("ForceSet/objects/*")
     out.source, out.total = src.name, len(forces)
     if not forces:
@@ -107,7 +119,8 @@ def carried_forces(model: Model, p: Parameters, info: OsimInfo, coordinates: dic
     try:
         lengths = _PathLengths(model, p, info)
     except ModelError as e:  # the source changed since it was imported
-        return CarriedForces(note=f"muscles and other forces not carried: {e}")
+        return CarriedForces(geometry=out.geometry, ground_geometry=out.ground_geometry,
+                             note=f"muscles and other forces not carried: {e}")
     for f in forces:
         name = f"{f.tag} {f.get('name', '')}"
         try:
@@ -157,6 +170,38 @@ def _moved_wraps(ws: ET.Element, X: Transform, s: float) -> ET.Element:
             if d is not None and d.text:
                 d.text = fmt_vec(s * xml_floats(d.text))
     return ws
+
+
+def carried_geometry(body: ET.Element, X: Transform, s: float) -> list[ET.Element]:
+    """A source body's attached geometry (its bone meshes, or bricks, cylinders...) for the exported subject's body,
+    moved and scaled as its wrap objects are: every geometry's scale_factors times the segment's scale `s`, as
+    OpenSim's Body::scale scales a body's attached geometry.  Where the segment frame is the source body's (`X` the
+    identity) the geometry is the body's own `attached_geometry`; else it hangs on a PhysicalOffsetFrame among the
+    body's components, at the source body's origin and orientation in the segment frame (`X`, its translation × `s`).
+    Only geometry on the body itself (socket_frame '..') is carried; none: []."""
+    src = body.find("attached_geometry")
+    kept = [g for g in (src if src is not None else []) if g.findtext("socket_frame", "..").strip() == ".."]
+    if not kept:
+        return []
+    geometry = ET.Element("attached_geometry")
+    for g in kept:
+        g = copy.deepcopy(g)
+        sf = g.find("scale_factors")
+        if sf is None:
+            sf = ET.SubElement(g, "scale_factors")
+            sf.text = "1 1 1"
+        sf.text = fmt_vec(s * xml_floats(sf.text))
+        geometry.append(g)
+    R, t = X
+    if np.array_equal(R, np.eye(3)) and not np.any(t):
+        return [geometry]
+    components = ET.Element("components")
+    frame = ET.SubElement(components, "PhysicalOffsetFrame", name=f"{body.get('name', '')}_geometry")
+    for tag, text in (("socket_parent", ".."), ("translation", fmt_vec(s * np.asarray(t, dtype=float))),
+                      ("orientation", fmt_vec(Rotation.from_matrix(R).as_euler("XYZ")))):
+        ET.SubElement(frame, tag).text = text
+    frame.append(geometry)
+    return [components]
 
 
 def _coordinate(el: ET.Element, tag: str) -> str:
@@ -297,13 +342,19 @@ def forces_lines(carried: CarriedForces | None) -> list[str]:
     """What the export did with the source model's forces, in a few lines for the user."""
     if carried is None:
         return []
+    shapes = [g for els in carried.geometry.values() for el in els for g in el.iter()
+              if g.find("scale_factors") is not None]
+    names = _few([g.findtext("mesh_file", g.tag) for g in shapes])
+    geometry = [f"geometry: its bodies' {len(shapes)} shapes carried ({names}), each scaled with its segment as "
+                "OpenSim's Scale tool scales it (OpenSim looks for the mesh files beside the model and in its Geometry "
+                "folders)"] if shapes else []
     if carried.note:
-        return [carried.note]
+        return [carried.note, *geometry]
     if not carried.total:
-        return [f"{carried.source} has no muscles or other forces to carry"]
+        return [f"{carried.source} has no muscles or other forces to carry", *geometry]
     lines = [f"forces: {len(carried.forces)} of {carried.source}'s {carried.total} carried; each muscle path moved "
              f"with its segments, its fibre and tendon slack lengths scaled with the path's length in the default "
-             f"pose (as OpenSim's Scale tool does)"]
+             f"pose (as OpenSim's Scale tool does)", *geometry]
     if carried.left_out:
         lines.append(f"forces left out: {'; '.join(carried.left_out)}")
     if carried.changed:
@@ -314,6 +365,12 @@ def forces_lines(carried: CarriedForces | None) -> list[str]:
                      f"{shown}{more}: a joint centre moved against the bones they attach to; check them before a "
                      f"muscle-driven simulation")
     return lines
+
+
+def _few(names: list[str], shown: int = 3) -> str:
+    """The first `shown` of `names` and how many more."""
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return ", ".join(n.strip() for n in names[:shown]) + more
 
 
 def forces_written(written: Path) -> list[str]:
