@@ -950,6 +950,64 @@ def test_export_carries_the_source_bones_scaled_as_opensim_scales_them(tmp_path)
             assert {"pelvis", "femur_r", "femur_l", "torso"} <= exact, (path.name, exact)
 
 
+def test_imported_model_draws_its_segments_in_a_urdf_viewer(tmp_path):
+    """An imported model, and a subject written from it, open in a URDF viewer (yourdfpy) with every segment drawn:
+    a rod from its origin that ends at one of its child joints (read back from the written URDF, scaled with the
+    segment), or for a leaf the box whose uniform density gives the segment's mass and inertia; a sphere on every
+    marker; and no warning on the way (the rods' and boxes' Euler angles kept off gimbal lock)."""
+    import warnings
+
+    import yourdfpy
+
+    from calibrate.io.osim import BOX_SIDES
+    from calibrate.model.model import Parameters, write_model
+
+    src = tmp_path / "muscled.osim"
+    src.write_text(muscle_osim())
+    cases = [(src, None, 3)] + ([(GAIT, GAIT_MARKERS, 12)] if GAIT.exists() else [])
+    for k, (path, ms, drawn) in enumerate(cases):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            model = load_model(path, ms)
+            p0 = model.parameters()
+            scale = 1 + np.random.default_rng(k).uniform(-0.15, 0.15, p0.scale.shape)
+            out = write_model(model, tmp_path / f"v{k}.urdf", Parameters(scale, p0.centre, p0.axis, p0.marker))
+        imported = tmp_path / f"i{k}.urdf"
+        imported.write_text(model.text)
+        boxes = 0
+        for urdf in (imported, out):
+            robot = yourdfpy.URDF.load(str(urdf), load_meshes=False).robot
+            links = {lk.name: lk for lk in robot.links}
+            segments = {sg.name for sg in model.segments}
+            assert all(len(links[m].visuals) == 1 and links[m].visuals[0].geometry.sphere is not None
+                       for m in model.marker_names)
+            assert sum(1 for n in segments if links[n].visuals) >= drawn
+            for name in segments:
+                joints = [j.origin[:3, 3] for j in robot.joints
+                          if j.parent == name and j.child not in model.marker_names]
+                for v in links[name].visuals:
+                    g = v.geometry
+                    if g.cylinder is not None:  # a rod: from the origin to a child joint
+                        assert np.allclose(v.origin[:3, 3], v.origin[:3, :3] @ [0, 0, g.cylinder.length / 2])
+                        end = 2 * v.origin[:3, 3]
+                        assert min(np.linalg.norm(end - o) for o in joints) < 1e-9, (urdf.name, name)
+                    else:  # a leaf's box: its inertia about its centre is the segment's
+                        assert g.box is not None and not joints, (urdf.name, name)
+                        inertial = links[name].inertial
+                        a, b, c = g.box.size
+                        I_box = v.origin[:3, :3] @ np.diag([b * b + c * c, a * a + c * c, a * a + b * b]) \
+                            @ v.origin[:3, :3].T * inertial.mass / 12
+                        R = inertial.origin[:3, :3]
+                        assert np.allclose(v.origin[:3, 3], inertial.origin[:3, 3], atol=1e-12)
+                        s_ = 1.0 if urdf == imported else scale[[sg.name for sg in model.segments].index(name)]
+                        if np.all((g.box.size > s_ * BOX_SIDES[0] + 1e-12) & (g.box.size < s_ * BOX_SIDES[1] - 1e-12)):
+                            assert np.allclose(I_box, R @ inertial.inertia @ R.T, atol=1e-9), (urdf.name, name)
+                            boxes += 1
+                        else:  # a plate drawn at the least thickness (gait2392's toes)
+                            assert np.isclose(g.box.size.min(), s_ * BOX_SIDES[0]), (urdf.name, name, g.box.size)
+        assert boxes >= (2 if path == GAIT else 0)
+
+
 def test_export_without_its_source_model_says_so(tmp_path):
     """The source .osim moved away after the import: the subject is still exported, without forces, and the
     file and the export say why."""

@@ -197,6 +197,69 @@ def _then(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) ->
     return a[0] @ b[0], np.einsum("...ij,...j->...i", a[0], b[1]) + a[1]
 
 
+# How an imported model is drawn in a URDF viewer (RViz, MeshCat, yourdfpy): OpenSim's bone meshes (.vtp) are not a
+# URDF format, so each segment is drawn as models/human.urdf is, by primitives: a rod from its origin to each child
+# joint, or where it has no child (a foot's toes, a hand, gait2392's torso with its head) the box of its inertia.
+MATERIALS = ('  <material name="segment"><color rgba="0.80 0.72 0.62 1"/></material>\n'
+             '  <material name="marker"><color rgba="0.95 0.95 0.20 1"/></material>')
+MARKER_VISUAL = '<visual><geometry><sphere radius="0.007"/></geometry><material name="marker"/></visual>'
+BONE_RADIUS = (0.08, 0.008, 0.035)  # a rod's radius: this share of its length, within these (m)
+BONE_MIN = 0.02  # m: a child joint nearer the segment origin than this draws no rod
+# m: an inertia box's sides within these (a plate's, gait2392's toes, drawn 1 cm thick; a light, spread-out body's box
+# would fill the scene)
+BOX_SIDES = (0.01, 0.8)
+
+
+def bone_visuals(ends: list[np.ndarray], mass: float, com: np.ndarray, inertia: np.ndarray) -> str:
+    """A segment's URDF <visual> elements: a cylinder from its frame's origin to each of `ends` (its child joints'
+    places in the segment frame), or, with none of them farther than BONE_MIN, the box of uniform density with the
+    segment's `mass` and `inertia` about its centre of mass `com` (the segment frame's axes), along its principal
+    axes; nothing for a massless leaf."""
+    out = []
+    for end in ends:
+        length = float(np.linalg.norm(end))
+        if length < BONE_MIN:
+            continue
+        radius = float(np.clip(BONE_RADIUS[0] * length, *BONE_RADIUS[1:]))
+        out.append(f'    <visual>\n      <origin xyz="{fmt_vec(end / 2)}" rpy="{fmt_vec(_rod_rpy(end))}"/>\n'
+                   f'      <geometry><cylinder radius="{fmt_float(radius)}" length="{fmt_float(length)}"/></geometry>\n'
+                   f'      <material name="segment"/>\n    </visual>\n')
+    if out or mass <= 0:
+        return "".join(out)
+    moments, axes = np.linalg.eigh((inertia + inertia.T) / 2)
+    sides = 6 * (moments.sum() - 2 * moments) / mass  # a box's I_xx = m (b² + c²) / 12 ...
+    if not np.all(np.isfinite(sides)) or np.any(sides < -1e-9 * np.abs(sides).max()) or not np.any(sides > 0):
+        return ""  # no box has that inertia
+    axes, size = _near_identity(axes, np.clip(np.sqrt(np.maximum(sides, 0.0)), *BOX_SIDES))
+    return (f'    <visual>\n      <origin xyz="{fmt_vec(com)}" rpy="{fmt_vec(urdf_rpy(axes))}"/>\n'
+            f'      <geometry><box size="{fmt_vec(size)}"/></geometry>\n      <material name="segment"/>\n'
+            '    </visual>\n')
+
+
+def _rod_rpy(v: np.ndarray) -> np.ndarray:
+    """URDF rpy turning the z axis (a cylinder's) along `v`, with pitch 0 (never the Euler angles' gimbal lock):
+    Rz(yaw) Rx(roll) ez = (sin yaw sin roll, -cos yaw sin roll, cos roll)."""
+    u = v / np.linalg.norm(v)
+    return np.array([np.arccos(np.clip(u[2], -1.0, 1.0)), 0.0, np.arctan2(u[0], -u[1])])
+
+
+def _near_identity(axes: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A box's principal axes (columns) and sizes, its axes renumbered and turned to lie nearest the segment frame's
+    (the same box): each frame axis takes the principal axis most along it, pointing its way, so that the rotation is
+    far from the Euler angles' gimbal lock."""
+    free, order = [0, 1, 2], [0, 0, 0]
+    taken: set[int] = set()
+    for _ in range(3):  # the largest remaining entry first
+        i, k = max(((i, k) for i in range(3) if i not in taken for k in free), key=lambda ik: abs(axes[ik]))
+        order[i] = k
+        taken.add(i)
+        free.remove(k)
+    A = axes[:, order] * np.sign(np.diagonal(axes[:, order]) + 1e-300)
+    if np.linalg.det(A) < 0:
+        A[:, int(np.argmin(np.abs(np.diagonal(A))))] *= -1
+    return A, sizes[order]
+
+
 def _body_aligned(ops: list[_Op], child_offset: Transform) -> tuple[list[_Op], Transform]:
     """The same chain with the segment frame parallel to the child body: the rotation Q of what follows the
     last revolute (with the child offset) moves in front of the first revolute, and everything between is
@@ -829,6 +892,7 @@ class _Importer:
         chains = self.find_chains()
         head_of = {k.name: j for j, ks in chains.items() for k in ks}
         ratios: dict[str, float] = {}
+        ends: dict[str, list[np.ndarray]] = {b: [] for b in r.bodies}  # each child joint's place in the segment frame
         for j in self.order:
             if j.name in chains:
                 ops = self.lumped_fit(j, chains[j.name])
@@ -868,6 +932,8 @@ class _Importer:
                 c = r.coords[op.coord]  # type: ignore[index]
                 lim = f'\n    <axis xyz="{fmt_vec(op.axis)}"/>\n    <limit lower="{fmt_float(op.ratio * c.lo)}" ' \
                       f'upper="{fmt_float(op.ratio * c.hi)}" effort="0" velocity="0"/>'
+                if k == 1:
+                    ends[j.parent].append(pending[1])
                 add_joint(op.coord, "revolute", prev, child, pending, lim,  # type: ignore[arg-type]
                           anatomical=j.name if k == 1 else None)
                 dofs.append(op.coord)  # type: ignore[arg-type]
@@ -875,12 +941,14 @@ class _Importer:
                 prev = child
             if not revs:
                 name = j.name if j.name not in r.coords else f"{j.name}_weld"
+                ends[j.parent].append(compose(pending, invert(j.child_offset))[1])
                 add_joint(name, "fixed", j.parent, j.child, compose(pending, invert(j.child_offset)),
                           anatomical=j.name)
                 seg_X[j.child] = identity_transform()
             else:
                 seg_X[j.child] = tail
-        # segments
+        # segments, drawn as bones (bone_visuals)
+        links.insert(0, MATERIALS)
         for body, (mass, com, inertia) in r.bodies.items():
             X = seg_X[body]
             c = apply(X, com)
@@ -890,14 +958,14 @@ class _Importer:
                 f'      <mass value="{fmt_float(max(mass, MIN_MASS))}"/>\n'
                 f'      <inertia ixx="{fmt_float(I[0, 0])}" ixy="{fmt_float(I[0, 1])}" ixz="{fmt_float(I[0, 2])}" '
                 f'iyy="{fmt_float(I[1, 1])}" iyz="{fmt_float(I[1, 2])}" izz="{fmt_float(I[2, 2])}"/>\n'
-                f'    </inertial>\n  </link>')
+                f'    </inertial>\n{bone_visuals(ends.get(body, []), mass, c, I)}  </link>')
         # markers
         skipped = []
         for name, (body, loc) in r.markers.items():
             if body == "ground":
                 skipped.append(name)
                 continue
-            links.append(f'  <link name="{name}"/>')
+            links.append(f'  <link name="{name}">\n    {MARKER_VISUAL}\n  </link>')
             add_joint(f"{name}_marker", "fixed", body, name, (np.eye(3), apply(seg_X[body], loc)))
         if need_markers and not [m for m in r.markers if m not in skipped]:
             raise NoMarkersError(f"{self.where}: the model has no markers on its bodies; give its marker set with "
