@@ -58,6 +58,24 @@ def markers(model, state):
     return {ms.get(i).getName(): ms.get(i).getLocationInGround(state).to_numpy().tolist()
             for i in range(ms.getSize())}
 
+def geometry(model, state):  # each drawn shape: its class, frame in ground (R, p), sizes, colour
+    model.realizePosition(state)
+    out = {}
+    for c in model.getComponentsList():
+        kind = c.getConcreteClassName()
+        if kind not in ("Sphere", "Brick", "Cylinder", "Mesh"):
+            continue
+        g = getattr(osim, kind).safeDownCast(c)
+        X = g.getFrame().getTransformInGround(state)
+        sizes = {"Sphere": lambda: [g.get_radius()], "Brick": lambda: g.get_half_lengths().to_numpy().tolist(),
+                 "Cylinder": lambda: [g.get_radius(), g.get_half_height()],
+                 "Mesh": lambda: [g.get_mesh_file()]}[kind]()
+        out[g.getName()] = {"kind": kind, "R": [[X.R().get(i, j) for j in range(3)] for i in range(3)],
+                            "p": X.p().to_numpy().tolist(), "sizes": sizes,
+                            "scale": g.get_scale_factors().to_numpy().tolist(),
+                            "color": g.get_Appearance().get_color().to_numpy().tolist()}
+    return out
+
 out = []
 for job in json.load(open(sys.argv[1]))["jobs"]:
     model = osim.Model(job["osim"])
@@ -80,6 +98,8 @@ for job in json.load(open(sys.argv[1]))["jobs"]:
         for name, value in pose.items():
             cs.get(name).setValue(state, value, False)
         res["poses"].append(markers(model, state))
+        if job.get("geometry"):
+            res.setdefault("geometry", []).append(geometry(model, state))
     if job.get("mot"):
         table = osim.TimeSeriesTable(job["mot"])
         storage = osim.Storage(job["mot"])
@@ -201,7 +221,8 @@ def roundtrip(tmp_path_factory):
         poses = _random_poses(model, n_poses, seed)
         cases[name] = {"model": model, "urdf": ref_urdf, "osim": osim, "poses": poses,
                        "ref": [_pin_markers(ref_urdf, *pose) for pose in poses],
-                       "job": {"osim": str(osim), "poses": [_coordinates(model, p) for p in poses]}}
+                       "job": {"osim": str(osim), "poses": [_coordinates(model, p) for p in poses],
+                               "geometry": True}}
 
     add("base", HUMAN, None, 6, 1)
     add("perturbed", HUMAN, _perturbed(human, 7), 6, 2)
@@ -280,6 +301,52 @@ def test_mass_properties_match(roundtrip, case):
         np.testing.assert_allclose(b["products"], [I[0, 1], I[0, 2], I[1, 2]], atol=1e-12)
     total = sum(b["mass"] for b in bodies.values())
     assert total == pytest.approx(75.0, rel=1e-9)
+
+
+def _pin_visuals(urdf: Path, segments: set[str], root_t, root_q, angles) -> dict[str, tuple]:
+    """The segments' visual shapes as Pinocchio reads them from a URDF (free-flyer root), placed at a pose:
+    name '<link>_<k>' -> (hpp-fcl shape, placement in the world, colour rgba)."""
+    pm, _, vm = pin.buildModelsFromUrdf(str(urdf), root_joint=pin.JointModelFreeFlyer())
+    d, vd = pm.createData(), pin.GeometryData(vm)
+    q = np.concatenate([np.asarray(root_t, float), np.asarray(root_q, float), *(np.atleast_1d(a) for a in angles)])
+    pin.forwardKinematics(pm, d, q)
+    pin.updateGeometryPlacements(pm, d, vm, vd)
+    return {g.name: (g.geometry, vd.oMg[i].copy(), np.array(g.meshColor)) for i, g in enumerate(vm.geometryObjects)
+            if pm.frames[g.parentFrame].name in segments}
+
+
+@needs_opensim
+@pytest.mark.parametrize("case", ["base", "perturbed", "variant"])
+def test_visuals_drawn_in_opensim_as_in_a_urdf_viewer(roundtrip, case):
+    """Each segment's URDF visual is an OpenSim shape of the same kind, size, place and colour as Pinocchio's
+    visual model (from the URDF calibrate writes) has it, at every random pose; a cylinder's axis is OpenSim's y."""
+    c = roundtrip[case]
+    segments = {sg.name for sg in c["model"].segments}
+    cylinders = spheres = bricks = 0
+    for pose, drawn in zip(c["poses"], c["osim_result"]["geometry"], strict=True):
+        ref = _pin_visuals(c["urdf"], segments, *pose)
+        assert len(ref) == 19 and set(drawn) == {"{}_visual_{}_geom".format(*n.rsplit("_", 1)) for n in ref}
+        for name, (shape, X, rgba) in ref.items():
+            seg, k = name.rsplit("_", 1)
+            o = drawn[f"{seg}_visual_{k}_geom"]
+            R, p = np.array(o["R"]), np.array(o["p"])
+            np.testing.assert_allclose(p, X.translation, atol=1e-12)
+            np.testing.assert_allclose(o["color"], rgba[:3], atol=1e-12)
+            kind = type(shape).__name__  # coal's (hpp-fcl's) shape classes
+            if kind == "Sphere":
+                assert o["kind"] == "Sphere" and o["sizes"][0] == pytest.approx(shape.radius, abs=1e-12)
+                spheres += 1
+            elif kind == "Box":
+                assert o["kind"] == "Brick"
+                np.testing.assert_allclose(R, X.rotation, atol=1e-12)
+                np.testing.assert_allclose(o["sizes"], shape.halfSide, atol=1e-12)
+                bricks += 1
+            else:
+                assert kind == "Cylinder" and o["kind"] == "Cylinder"
+                np.testing.assert_allclose(R[:, 1], X.rotation[:, 2], atol=1e-12)  # OpenSim's y = the URDF's z
+                np.testing.assert_allclose(o["sizes"], [shape.radius, shape.halfLength], atol=1e-12)
+                cylinders += 1
+    assert (cylinders, spheres, bricks) == (12 * len(c["poses"]), 3 * len(c["poses"]), 4 * len(c["poses"]))
 
 
 @needs_opensim

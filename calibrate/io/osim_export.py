@@ -33,9 +33,12 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   bodies named after the connector links; so is a chain whose axes are linearly dependent.
   A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
 * **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
-* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); the URDF's visuals are not exported.  A model
-  imported from OpenSim gets its source bodies' geometry back (the bone meshes, moved and scaled with their
-  segments as OpenSim's Scale tool scales them: calibrate.io.osim_forces.carried_geometry) and its ground's.
+* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf).
+* **visuals** — a model of calibrate's own: each segment's URDF visuals as OpenSim geometry (Sphere, Brick,
+  Cylinder, Mesh) on offset frames of its body, sizes × scale (``_Builder.visuals``), so that OpenSim's GUI draws
+  the subject as a URDF viewer does.  A model imported from OpenSim gets its source bodies' geometry back instead
+  (the bone meshes, moved and scaled with their segments as OpenSim's Scale tool scales them:
+  calibrate.io.osim_forces.carried_geometry) and its ground's.
 * **forces** — for a model imported from OpenSim, the source model's muscles (path points moved and scaled
   with their segments, fibre and tendon slack lengths scaled with the path, as OpenSim's Scale tool does),
   the bodies' wrap objects, and the forces on coordinates the subject has: calibrate.io.osim_forces.
@@ -152,6 +155,60 @@ def _urdf_inertials(model: Model) -> dict[str, tuple[float, np.ndarray, np.ndarr
 
 
 # ---------------------------------------------------------------------- the model
+def _urdf_visuals(model: Model) -> dict[str, list[tuple[str, Transform, dict[str, np.ndarray], np.ndarray | None]]]:
+    """segment -> its URDF visuals, base model: (shape tag, origin (R, xyz) in the segment frame, the shape's sizes
+    (sphere radius; cylinder or capsule radius and length; box size; mesh filename and scale), colour rgba or None).
+    Markers' and connectors' visuals are not read (OpenSim draws markers itself)."""
+    robot = ET.fromstring(model.text)
+    colours = {m.get("name"): m.find("color").get("rgba") for m in robot.findall("material")
+               if m.find("color") is not None}
+    segments = {sg.name for sg in model.segments}
+    out: dict[str, list] = {}
+    for link in robot.findall("link"):
+        if link.get("name") not in segments:
+            continue
+        for v in link.findall("visual"):
+            g = v.find("geometry")
+            shape = next(iter(g), None) if g is not None else None
+            if shape is None:
+                continue
+            o = v.find("origin")
+            xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
+            rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
+            R = Rotation.from_euler("xyz", rpy).as_matrix() if np.any(rpy) else np.eye(3)  # URDF: R = Rz Ry Rx
+            sizes = {k: shape.get(k, "") for k in ("radius", "length", "size", "filename", "scale")}
+            m = v.find("material")
+            rgba = None
+            if m is not None:
+                c = m.find("color")
+                text = c.get("rgba") if c is not None else colours.get(m.get("name"))
+                rgba = np.array([float(x) for x in text.split()]) if text else None
+            out.setdefault(link.get("name", ""), []).append((shape.tag, (R, xyz), sizes, rgba))
+    return out
+
+
+# OpenSim draws a Cylinder along its frame's y axis, URDF along z: the frame turned by Rx(90°) (y -> z)
+_Y_TO_Z = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+
+
+def _shape(components: ET.Element, name: str, s: float, rgba: np.ndarray | None, kind: str, R: np.ndarray,
+           at: np.ndarray, **props: str) -> None:
+    """One OpenSim geometry ``kind`` with ``props`` on a PhysicalOffsetFrame ``name`` of the body whose
+    ``components`` these are, at ``at`` (segment frame, unscaled; × ``s``) turned by ``R``; coloured by ``rgba``."""
+    frame = ET.SubElement(components, "PhysicalOffsetFrame", name=name)
+    _text(frame, "socket_parent", "..")
+    _text(frame, "translation", fmt_vec(s * at))
+    _text(frame, "orientation", fmt_vec(_euler_xyz(R)))
+    g = ET.SubElement(ET.SubElement(frame, "attached_geometry"), kind, name=f"{name}_geom")
+    _text(g, "socket_frame", "..")
+    for key, value in props.items():
+        _text(g, key, value)
+    if rgba is not None:
+        look = ET.SubElement(g, "Appearance")
+        _text(look, "opacity", fmt_float(float(rgba[3])))
+        _text(look, "color", fmt_vec(rgba[:3]))
+
+
 class _Builder:
     """Collects the bodies, joints and markers of the .osim document."""
 
@@ -251,6 +308,8 @@ class _Builder:
             s = self.scale[seg.name]
             mass, com, inertia = inertials.get(seg.name, (0.0, np.zeros(3), np.zeros((3, 3))))
             self.body(seg.name, mass, s * com, s * s * inertia)
+        if self.info is None:  # a model of calibrate's own: its primitives drawn in OpenSim (an .osim's: its meshes)
+            self.visuals()
         ez = np.eye(3)
         root = self.info.root if self.info is not None else None
         if root is not None:  # the original ground joint: name, frames, coordinates
@@ -266,6 +325,37 @@ class _Builder:
                        identity_transform(), root_coords)
         for j in model.joints:
             self.anatomical_joint(j.name, j.parent, j.child, [self.urdf[n] for n in j.urdf_joints])
+
+    def visuals(self) -> None:
+        """The segments' URDF visuals as OpenSim geometry, each on a PhysicalOffsetFrame among its body's components
+        at the visual's origin (× scale): sphere -> Sphere, box -> Brick, cylinder -> Cylinder (its axis, OpenSim's y,
+        turned onto the URDF's z), capsule -> a Cylinder and a Sphere at each end, mesh -> Mesh (its scale × the
+        segment's); sizes × the segment's scale, colours from the URDF materials."""
+        bodies = {b.get("name"): b for b in self.bodies}
+        for seg, visuals in _urdf_visuals(self.model).items():
+            s = self.scale[seg]
+            components = ET.SubElement(bodies[seg], "components")
+            for k, (tag, (R, xyz), sizes, rgba) in enumerate(visuals):
+                name = f"{seg}_visual_{k}"
+                if tag == "sphere":
+                    _shape(components, name, s, rgba, "Sphere", R, xyz, radius=fmt_float(s * float(sizes["radius"])))
+                elif tag == "box":
+                    half = s * np.array([float(x) for x in sizes["size"].split()]) / 2
+                    _shape(components, name, s, rgba, "Brick", R, xyz, half_lengths=fmt_vec(half))
+                elif tag in ("cylinder", "capsule"):
+                    radius, length = s * float(sizes["radius"]), float(sizes["length"])
+                    _shape(components, name, s, rgba, "Cylinder", R @ _Y_TO_Z, xyz, radius=fmt_float(radius),
+                           half_height=fmt_float(s * length / 2))
+                    if tag == "capsule":
+                        for end, sign in (("_top", 1.0), ("_bottom", -1.0)):
+                            _shape(components, name + end, s, rgba, "Sphere", R, xyz + sign * R[:, 2] * length / 2,
+                                   radius=fmt_float(radius))
+                elif tag == "mesh" and sizes["filename"]:
+                    scale = np.array([float(x) for x in sizes["scale"].split()]) if sizes["scale"] else np.ones(3)
+                    _shape(components, name, s, rgba, "Mesh", R, xyz, mesh_file=sizes["filename"],
+                           scale_factors=fmt_vec(s * scale))
+            if not len(components):
+                bodies[seg].remove(components)
 
     def _root_name(self) -> str:
         """The floating root's joint: the source model's ground joint's name (a weld or pin made a floating base,
