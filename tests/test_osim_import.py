@@ -725,31 +725,41 @@ def muscle_osim() -> str:
             f"<MarkerSet name=\"markerset\"><objects>{markers}</objects></MarkerSet></Model></OpenSimDocument>\n")
 
 
-# {"jobs": [{"source", "exported", "scales": {body: factor}}]} -> per job: per muscle of the source scaled by
-# OpenSim's own Model::scale (the same factor on every axis of a body) and of the exported subject: its length
-# in the default pose (wrapping included), optimal fibre and tendon slack length; and the forces' names.
-_MUSCLE_WORKER = r"""
+# The start of both workers below: each job's "source" model scaled by OpenSim's own Model::scale (job["scales"]:
+# the same factor on every axis of a body) and its "exported" subject, each loaded and posed in its default pose.
+_SCALED_PAIR = r"""
 import json, sys
 import opensim as osim
 osim.Logger.removeFileSink()
 osim.Logger.setLevelString("error")
+
+def loaded(job, key):
+    model = osim.Model(job[key])
+    state = model.initSystem()
+    if key == "source":
+        scales = osim.ScaleSet()
+        for body, f in job["scales"].items():
+            sc = osim.Scale()
+            sc.setSegmentName(body)
+            sc.setScaleFactors(osim.Vec3(f, f, f))
+            sc.setApply(True)
+            scales.cloneAndAppend(sc)
+        model.scale(state, scales, True)
+        state = model.initSystem()
+    model.realizePosition(state)
+    return model, state
+"""
+
+
+# {"jobs": [{"source", "exported", "scales": {body: factor}}]} -> per job: per muscle of the source scaled by
+# OpenSim's own Model::scale (the same factor on every axis of a body) and of the exported subject: its length
+# in the default pose (wrapping included), optimal fibre and tendon slack length; and the forces' names.
+_MUSCLE_WORKER = _SCALED_PAIR + r"""
 out = []
 for job in json.load(open(sys.argv[1]))["jobs"]:
     res = {}
     for key in ("source", "exported"):
-        model = osim.Model(job[key])
-        state = model.initSystem()
-        if key == "source":
-            scales = osim.ScaleSet()
-            for body, f in job["scales"].items():
-                sc = osim.Scale()
-                sc.setSegmentName(body)
-                sc.setScaleFactors(osim.Vec3(f, f, f))
-                sc.setApply(True)
-                scales.cloneAndAppend(sc)
-            model.scale(state, scales, True)
-            state = model.initSystem()
-        model.realizePosition(state)
+        model, state = loaded(job, key)
         muscles = model.getMuscles()
         res[key] = {muscles.get(i).getName(): [muscles.get(i).getLength(state), muscles.get(i).getOptimalFiberLength(),
                                                muscles.get(i).getTendonSlackLength()] for i in range(muscles.getSize())}
@@ -760,6 +770,29 @@ json.dump(out, open(sys.argv[2], "w"))
 """
 
 
+def _scaled_exports(tmp_path: Path, own: Path, prefix: str) -> list[tuple]:
+    """The hand-made model `own`, Gait2392 and Rajagopal (where the files are), each with its segments scaled by
+    random factors (seed: its place in the list) and exported as .osim: (source path, model, subject, the
+    exported path and the OpenSim worker's job for it: source, exported, scales) each."""
+    from calibrate.io.osim_export import export_osim
+    from calibrate.model.model import Parameters, write_model
+
+    sources = [(own, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
+        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
+    out = []
+    for k, (path, ms) in enumerate(sources):
+        model = load_model(path, ms)
+        p0 = model.parameters()
+        scale = 1 + np.random.default_rng(k).uniform(-0.15, 0.15, p0.scale.shape)
+        subject = load_model(write_model(model, tmp_path / f"{prefix}{k}.urdf",
+                                         Parameters(scale, p0.centre, p0.axis, p0.marker)))
+        exported = export_osim(subject, tmp_path / f"{prefix}{k}.osim")
+        job = {"source": str(path), "exported": str(exported),
+               "scales": {s.name: float(scale[i]) for i, s in enumerate(model.segments)}}
+        out.append((path, model, subject, exported, job))
+    return out
+
+
 @pytest.mark.skipif(not HAVE_OPENSIM, reason="opensim is not installed")
 def test_export_carries_the_source_muscles_scaled_as_opensim_scales_them(tmp_path):
     """A subject whose segments are the source model's scaled (each by its own factor), exported as .osim: its
@@ -768,25 +801,14 @@ def test_export_carries_the_source_muscles_scaled_as_opensim_scales_them(tmp_pat
     within 1 % over the wrap cylinder, whose path calibrate measures straight); a force on a body is left out and
     said so.  Gait2392 and Rajagopal too, where the files are: every muscle whose path does not cross the
     approximated knee has OpenSim's length to 1e-6 m."""
-    from calibrate.io.osim_export import export_osim, osim_document
+    from calibrate.io.osim_export import osim_document
     from calibrate.io.osim_forces import forces_lines, forces_written
-    from calibrate.model.model import Parameters, write_model
 
     src = tmp_path / "muscled.osim"
     src.write_text(muscle_osim())
-    sources = [(src, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
-        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
-    jobs = []
-    for k, (path, ms) in enumerate(sources):
-        model = load_model(path, ms)
-        p0 = model.parameters()
-        scale = 1 + np.random.default_rng(k).uniform(-0.15, 0.15, p0.scale.shape)
-        subject = load_model(write_model(model, tmp_path / f"m{k}.urdf", Parameters(scale, p0.centre, p0.axis,
-                                                                                    p0.marker)))
-        out = export_osim(subject, tmp_path / f"m{k}.osim")
-        jobs.append({"source": str(path), "exported": str(out),
-                     "scales": {s.name: float(scale[i]) for i, s in enumerate(model.segments)}})
-        if k == 0:
+    exports = _scaled_exports(tmp_path, src, "m")
+    jobs = [e[-1] for e in exports]
+    for _, _, subject, out, _ in exports[:1]:
             _, carried = osim_document(subject)
             assert [f.get("name") for f in carried.forces] == ["hipm", "kneem", "knee_act"]
             assert len(carried.left_out) == 1 and carried.left_out[0].startswith("PointActuator push (acts on a body")
@@ -800,7 +822,7 @@ def test_export_carries_the_source_muscles_scaled_as_opensim_scales_them(tmp_pat
     knee = ("bflh", "bfsh", "gaslat", "gasmed", "grac", "recfem", "sart", "semimem", "semiten", "tfl", "vasint",
             "vaslat", "vasmed", "bifemlh", "bifemsh", "lat_gas", "med_gas", "rect_fem", "sar", "vas_int", "vas_lat",
             "vas_med")
-    for (path, _), res in zip(sources, json.loads(result.read_text()), strict=True):
+    for (path, *_), res in zip(exports, json.loads(result.read_text()), strict=True):
         ref, got = res["source"], res["exported"]
         assert set(got) == set(ref), path.name
         if path == src:
@@ -822,28 +844,12 @@ def test_export_carries_the_source_muscles_scaled_as_opensim_scales_them(tmp_pat
 # own Model::scale (the same factor on every axis of a body) and for the exported subject: every attached geometry (not
 # the frames' axes) with its body, mesh file and four points of its own frame (its origin and 0.1 along each axis,
 # times its scale factors) in the root body's frame, in the default pose.
-_GEOMETRY_WORKER = r"""
-import json, sys
-import opensim as osim
-osim.Logger.removeFileSink()
-osim.Logger.setLevelString("error")
+_GEOMETRY_WORKER = _SCALED_PAIR + r"""
 out = []
 for job in json.load(open(sys.argv[1]))["jobs"]:
     res = {}
     for key in ("source", "exported"):
-        model = osim.Model(job[key])
-        state = model.initSystem()
-        if key == "source":
-            scales = osim.ScaleSet()
-            for body, f in job["scales"].items():
-                sc = osim.Scale()
-                sc.setSegmentName(body)
-                sc.setScaleFactors(osim.Vec3(f, f, f))
-                sc.setApply(True)
-                scales.cloneAndAppend(sc)
-            model.scale(state, scales, True)
-            state = model.initSystem()
-        model.realizePosition(state)
+        model, state = loaded(job, key)
         root = model.getBodySet().get(job["root"]).getTransformInGround(state)
         geometry = {}
         for comp in model.getComponentsList():
@@ -896,24 +902,15 @@ def test_export_carries_the_source_bones_scaled_as_opensim_scales_them(tmp_path)
     files are: every shape carried with its mesh file, those not below an approximated joint (the knees, the
     patellae) where OpenSim's scaling puts them to 1e-6 m."""
     from calibrate.io.osim import FLOATING, LEFT_OUT
-    from calibrate.io.osim_export import export_osim, osim_document
+    from calibrate.io.osim_export import osim_document
     from calibrate.io.osim_forces import forces_lines
-    from calibrate.model.model import Parameters, write_model
 
     src = tmp_path / "bones.osim"
     src.write_text(_geometry_osim())
-    sources = [(src, None)] + ([(GAIT, GAIT_MARKERS)] if GAIT.exists() else []) + \
-        ([(RAJAGOPAL, None)] if RAJAGOPAL.exists() else [])
+    exports = _scaled_exports(tmp_path, src, "g")
     jobs, below = [], []
-    for k, (path, ms) in enumerate(sources):
-        model = load_model(path, ms)
-        p0 = model.parameters()
-        scale = 1 + np.random.default_rng(k).uniform(-0.15, 0.15, p0.scale.shape)
-        subject = load_model(write_model(model, tmp_path / f"g{k}.urdf", Parameters(scale, p0.centre, p0.axis,
-                                                                                    p0.marker)))
-        out = export_osim(subject, tmp_path / f"g{k}.osim")
-        jobs.append({"source": str(path), "exported": str(out), "root": model.root,
-                     "scales": {s.name: float(scale[i]) for i, s in enumerate(model.segments)}})
+    for k, (_, model, subject, _, job) in enumerate(exports):
+        jobs.append({**job, "root": model.root})
         # the bodies below a joint the import approximates: placed as calibrate's kinematics place them
         approximated = {a.joint for a in osim_info(model).approximations if a.kind not in (FLOATING, LEFT_OUT)}
         seen = {j.child for j in model.joints if j.name in approximated}
@@ -932,7 +929,7 @@ def test_export_carries_the_source_bones_scaled_as_opensim_scales_them(tmp_path)
     proc = subprocess.run([sys.executable, "-c", _GEOMETRY_WORKER, str(spec), str(result)], capture_output=True,
                           text=True, timeout=300)
     assert proc.returncode == 0, f"OpenSim worker failed:\n{proc.stderr[-3000:]}"
-    for (path, _), res, out_below in zip(sources, json.loads(result.read_text()), below, strict=True):
+    for (path, *_), res, out_below in zip(exports, json.loads(result.read_text()), below, strict=True):
         ref, got = res["source"], res["exported"]
         expected = set(ref) - ({"elsewhere"} if path == src else set())
         assert set(got) == expected, (path.name, set(got) ^ expected)
