@@ -1,5 +1,5 @@
 """Command line: ``calibrate TRIAL [TRIAL ...] MODEL`` (calibrate a subject), ``calibrate simulate``,
-``calibrate demo``, ``calibrate inspect``, ``calibrate joints``, ``calibrate export-osim``,
+``calibrate demo``, ``calibrate inspect``, ``calibrate joints``, ``calibrate export-osim``, ``calibrate export-mjcf``,
 ``calibrate report`` (HTML report), ``calibrate view`` (3-D view).
 
 A thin layer over the Python API.  Bad input gives one line on stderr
@@ -126,9 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="do not rename common label spellings (R.ASIS, RASIS, ...) to the model's labels")
     jo.add_argument("--mode", choices=("framework", "jmv"), default="framework",
                     help="'framework' (default) or 'jmv': every joint by per-frame JMV only (slow baseline)")
+    from ..io.mjcf import add_export_mjcf_parser
     from ..io.osim_export import add_export_osim_parser
 
     add_export_osim_parser(sub)
+    add_export_mjcf_parser(sub)
     add_track_parser(sub)
     from calibrate.cli.ik import add_ik_parser
 
@@ -152,8 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "import-osim", "track", "report", "view",
-            "batch", "ik")
+COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "export-mjcf", "import-osim", "track", "report",
+            "view", "batch", "ik")
 
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
@@ -291,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         ap.print_help()
         return 2
+    from ..io.mjcf import cmd_export_mjcf
     from ..io.osim_export import cmd_export_osim
     from .batch import cmd_batch
     from .ik import cmd_ik
@@ -298,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
 
     commands = {"report": cmd_report, "view": cmd_view, "batch": cmd_batch,
                 "simulate": cmd_simulate, "demo": cmd_demo, "inspect": cmd_inspect, "joints": cmd_joints,
-                "export-osim": cmd_export_osim, "import-osim": cmd_import_osim, "track": cmd_track, "ik": cmd_ik}
+                "export-osim": cmd_export_osim, "export-mjcf": cmd_export_mjcf, "import-osim": cmd_import_osim,
+                "track": cmd_track, "ik": cmd_ik}
     return _guard(commands[args.command], args)
 
 
