@@ -944,13 +944,15 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
-                  progress: Callable[[float], None] | None = None, c3d=None) -> dict[str, Path]:
+                  progress: Callable[[float], None] | None = None, c3d=None, mjcf=None,
+                  qpos=None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
     (calibrate.calibration.html), each trial as a C3D with calibrate's joint centres, model markers and joint
-    angles beside its markers (calibrate.calibration.c3d_result) and, for OpenSim, the subject as an .osim model
-    and the motions as .mot files (whichever are given).
+    angles beside its markers (calibrate.calibration.c3d_result), for OpenSim the subject as an .osim model
+    and the motions as .mot files, and for MuJoCo the subject as an MJCF model and the motions as qpos CSVs
+    (calibrate.io.mjcf) (whichever are given).
 
-    `motion`, `mot`, `c3d`: one path per trial (a single path for a single trial).  Every destination is
+    `motion`, `mot`, `c3d`, `qpos`: one path per trial (a single path for a single trial).  Every destination is
     checked first (its folder exists; it is not the base model; it does not exist unless `overwrite`),
     then all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
     `cal.times` with the time of this writing (so far) and `extra_times`.  `progress(share done)`, by the
@@ -959,6 +961,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     motions = _per_trial(cal, motion, "motion")
     mots = _per_trial(cal, mot, ".mot")
     c3ds = _per_trial(cal, c3d, "C3D")
+    qposes = _per_trial(cal, qpos, "qpos")
     targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report), ("html", html)) if v is not None}
     if html is not None and Path(html).suffix.lower() not in (".html", ".htm"):
         raise CalibrateError(f"{html}: the HTML report needs an .html name")
@@ -966,6 +969,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
     opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots))]
                if v is not None}
+    mujoco = {k: Path(v) for k, v in [("mjcf", mjcf), *((f"qpos[{i}]", q) for i, q in enumerate(qposes))]
+              if v is not None}
     c3d_targets = [Path(v) for v in c3ds]
     if c3d_targets:
         from ..io.c3d import C3D_MAX_FRAMES
@@ -974,7 +979,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         if long:
             raise CalibrateError(f"{long[0].source or 'a trial'}: {long[0].n_frames} frames are more than a C3D file "
                                  f"holds ({C3D_MAX_FRAMES}); leave out the C3D output (--c3d)")
-    check_targets([*targets.values(), *opensim.values(), *c3d_targets], overwrite,
+    check_targets([*targets.values(), *opensim.values(), *mujoco.values(), *c3d_targets], overwrite,
                   inputs={(cal.base_model or cal.model).path: "that is the base model; refusing to overwrite it "
                                                               "(choose another -o)"},
                   same="the URDF, motion and report outputs must all be different files")
@@ -1001,7 +1006,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
 
     writers = {}
     # The subject's URDF document, made once: the URDF output and the OpenSim exports are of it.
-    text = urdf_text(cal.model, cal.params, cal.mass) if "urdf" in targets or opensim else ""
+    text = urdf_text(cal.model, cal.params, cal.mass) if "urdf" in targets or opensim or mujoco else ""
     if "urdf" in targets:
         writers[targets["urdf"]] = lambda path: put_text(path, text)
     before = np.cumsum([0, *(m.times.size for m in cal.motions[:len(keys)])])  # frames written before each motion
@@ -1023,6 +1028,14 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         for i, m in enumerate(cal.motions[:len(mots)]):
             target = opensim[f"mot[{i}]"]
             writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))
+    if mujoco:
+        from ..io.mjcf import mjcf_text, qpos_csv_text  # MuJoCo export: only for these outputs
+
+        subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text)
+        if "mjcf" in mujoco:
+            writers[mujoco["mjcf"]] = lambda path: put_text(path, mjcf_text(subject))
+        for i, m in enumerate(cal.motions[:len(qposes)]):
+            writers[mujoco[f"qpos[{i}]"]] = lambda path, m=m: put_text(path, qpos_csv_text(subject, m))
     if c3d_targets:
         from ..io.c3d import write_c3d
         from .c3d_result import calibrated_trials
@@ -1030,7 +1043,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         for target, trial in zip(c3d_targets, calibrated_trials(cal), strict=False):
             writers[target] = lambda path, trial=trial: write_c3d(path, trial)
     write_all(writers)
-    return {**targets, **opensim, **{f"c3d[{i}]": t for i, t in enumerate(c3d_targets)}}
+    return {**targets, **opensim, **mujoco, **{f"c3d[{i}]": t for i, t in enumerate(c3d_targets)}}
 
 
 def _json_default(o):

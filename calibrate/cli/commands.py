@@ -195,7 +195,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         settings = settings_from_dict(flags, "command line", settings)
     out_c3ds = [m.with_name(t.stem + "_calibrated.c3d") for m, t in zip(out_motions, trial_paths, strict=False)] \
         if args.c3d else []
-    outputs = [out_urdf, *out_motions, out_report, *([args.html] if args.html is not None else []), *out_c3ds]
+    out_mujoco = [out_urdf.with_name(out_urdf.stem + "_mujoco.xml"),
+                  *(m.with_name(m.stem + "_qpos.csv") for m in out_motions)] if args.mjcf else []
+    outputs = [out_urdf, *out_motions, out_report, *([args.html] if args.html is not None else []), *out_c3ds,
+               *out_mujoco]
     if args.html is not None and args.html.suffix.lower() not in (".html", ".htm"):
         raise CalibrateError(f"{args.html}: the HTML report needs an .html name (--html report.html)")
     out_osim = out_urdf.with_suffix(".osim")
@@ -305,7 +308,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
-                          c3d=out_c3ds or None, **opensim)
+                          c3d=out_c3ds or None, **opensim,
+                          **({"mjcf": out_mujoco[0], "qpos": out_mujoco[1:]} if out_mujoco else {}))
     unlabelled = [lab for lab in cal.ignored_labels if UNLABELLED.fullmatch(lab)]
     named = [lab for lab in cal.ignored_labels if not UNLABELLED.fullmatch(lab)]
     empty = [lab for lab in named if any(lab in t.labels for t in cal.trials)

@@ -186,6 +186,9 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                     help="also write each trial as TRIAL-name_calibrated.c3d beside its motion: its markers with "
                          "calibrate's joint centres (<joint>_JC), model markers (<marker>_model) and joint angles "
                          "(<joint>_angles, deg) as model outputs, for Mokka, Nexus or Visual3D")
+    ap.add_argument("--mjcf", action="store_true",
+                    help="also write the subject as a MuJoCo model (URDF-name_mujoco.xml beside it) and each motion "
+                         "as MuJoCo qpos rows (motion-name_qpos.csv beside it); docs/mujoco.md")
     ap.add_argument("--frames", type=frames_arg, default=None,
                     help="use frames A:B only (0-based, B excluded; a single trial only)")
     ap.add_argument("--markers", type=Path, default=None,
