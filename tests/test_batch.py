@@ -220,11 +220,15 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     (tmp_path / "lab.toml").write_text('[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
                                        'ik_setup = "Setup_IK.xml"\nscale_setup = "Setup_Scale.xml"\n')
     (subject,) = read_manifest(tmp_path / "lab.toml")
-    row = calibrate_subject(subject, tmp_path / "out", c3d=True)
+    row = calibrate_subject(subject, tmp_path / "out", c3d=True, mjcf=True)
     assert row["status"] in ("ok", "not converged"), row
     folder = tmp_path / "out" / "S1"
     assert {p.name for p in folder.iterdir()} >= {"subject.urdf", "subject.osim", "trial_motion.csv",
-                                                  "trial_motion.mot", "trial_calibrated.c3d", "report.json"}
+                                                  "trial_motion.mot", "trial_calibrated.c3d", "report.json",
+                                                  "subject_mujoco.xml", "trial_motion_qpos.csv"}
+    # human.osim came from a z-up URDF: its subject keeps the source's gravity, in OpenSim and in MuJoCo
+    for name in ("subject.osim", "subject_mujoco.xml"):
+        assert "0 0 -9.80665" in (folder / name).read_text(), name
     from calibrate.io.c3d import read_c3d
     from calibrate.io.motion import read_motion_csv
 

@@ -150,7 +150,7 @@ def test_mass_properties_and_ranges(cases, name):
     for d, value in locked.items():
         eq = mj.equality(f"{d}_locked")
         assert (eq.type[0], eq.obj1id[0]) == (mujoco.mjtEq.mjEQ_JOINT, mj.joint(d).id)
-        np.testing.assert_allclose(eq.data[:5], [value * info.ratio(d), 0, 0, 0, 0], atol=1e-12)
+        np.testing.assert_allclose(eq.data[:5], [value, 0, 0, 0, 0], atol=1e-12)  # URDF angles (OsimInfo.locked)
 
 
 @pytest.mark.parametrize("name", ["base", "perturbed", "variant", "gait2392"])
@@ -305,3 +305,20 @@ def test_calibrate_mjcf_writes_the_subject_and_its_motion_for_mujoco(human, tmp_
     err = capsys.readouterr().err
     assert "squat_motion_qpos.csv: exists" in err and err.count("\n") == 1, err
     assert qpos.read_text() == "mine\n" and not xml.exists() and not (tmp_path / "squat.urdf").exists()
+
+
+def test_a_model_from_opensim_keeps_its_source_gravity(tmp_path, human):
+    """Gravity comes from the source .osim, not from a guess: models/human.urdf exported as .osim (z up) and read
+    back keeps -z in the MJCF and in the .osim written again; gait2392 (y up) keeps -y."""
+    from calibrate.io.osim_export import export_osim, osim_text
+
+    zup = load_model(export_osim(human, tmp_path / "human.osim"))
+    want = {zup: (0.0, 0.0, -9.80665)}
+    if GAIT.exists():
+        want[load_model(GAIT / "gait2392.osim", GAIT / "gait2392_Scale_MarkerSet.xml")] = (0.0, -9.80665, 0.0)
+    for model, g in want.items():
+        assert tuple(osim_info(load_model(write_model(model, tmp_path / "m.urdf"))).gravity) == g  # kept in the URDF
+        np.testing.assert_array_equal(mujoco.MjModel.from_xml_path(str(export_mjcf(model, tmp_path / "m.xml")))
+                                      .opt.gravity, g)
+        again = re.search(r"<gravity>([^<]*)</gravity>", osim_text(model)).group(1)
+        assert tuple(float(v) for v in again.split()) == g

@@ -404,6 +404,8 @@ def _bad(tmp_path: Path, text: str, name: str = "bad.osim") -> Path:
      "<translation> is '0.1 x 0.3', not finite numbers"),
     (lambda t: t.replace("<axis>0 1 0</axis>", "<axis>false</axis>", 1), "<axis> is 'false'"),
     (lambda t: t.replace("<mass>7</mass>", "<mass>seven</mass>", 1), "<mass> is 'seven', not a finite number"),
+    (lambda t: re.sub(r"<gravity>[^<]*</gravity>", "<gravity>0 -9.8</gravity>", t, count=1),
+     "<gravity> is '0 -9.8', not 3 finite numbers"),
     (lambda t: t.replace("<mass>7</mass>", "<mass>7_0</mass>", 1), "<mass> is '7_0'"),  # Python's float() takes it
     (lambda t: t.replace("<coefficients>-1 0.1</coefficients>", "<coefficients>-1 nan</coefficients>", 1),
      "<coefficients> is '-1 nan'"),

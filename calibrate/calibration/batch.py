@@ -225,22 +225,27 @@ def _mtime(path: Path | None) -> float:
 
 
 def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, opensim: bool = False,
-                    c3d: bool = False) -> dict:
+                    c3d: bool = False, mjcf: bool = False) -> dict:
     """Write one subject's outputs into `folder`, all or none: subject.urdf, one <trial>_motion.csv per
     trial (`opensim`: also subject.osim and a <trial>_motion.mot each; `c3d`: a <trial>_calibrated.c3d each, as
-    calibrate --c3d writes it), the HTML report and, last, the report JSON (the subject's done-marker)."""
+    calibrate --c3d writes it; `mjcf`: subject_mujoco.xml and a <trial>_motion_qpos.csv each, as calibrate --mjcf
+    writes them), the HTML report and, last, the report JSON (the subject's done-marker)."""
     motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
     extra = {"osim": folder / "subject.osim", "mot": [m.with_suffix(".mot") for m in motions]} if opensim else {}
     if c3d:
         extra["c3d"] = [folder / f"{Path(t).stem}_calibrated.c3d" for t in trials]
+    if mjcf:
+        extra["mjcf"] = folder / "subject_mujoco.xml"
+        extra["qpos"] = [m.with_name(m.stem + "_qpos.csv") for m in motions]
     return cal.write(urdf=folder / "subject.urdf", motion=motions, report=folder / REPORT,
                      html=folder / "report.html", overwrite=overwrite, **extra)
 
 
 def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: bool = False,
-                      c3d: bool = False) -> dict:
+                      c3d: bool = False, mjcf: bool = False) -> dict:
     """Calibrate one subject into out/<id>/ (a task on a worker): its summary row (`c3d`: each trial also as
-    <trial>_calibrated.c3d).  Never raises: a failure is the row's status 'failed' with the error's one line."""
+    <trial>_calibrated.c3d; `mjcf`: the subject and its motions for MuJoCo).  Never raises: a failure is the row's
+    status 'failed' with the error's one line."""
     folder = Path(out) / subject.id
     row = {"subject": subject.id, "status": "", "marker_rms_mm": math.nan, "iterations": 0, "converged": False,
            "seconds": 0.0, "warnings": 0, "error": "", "folder": subject.id}
@@ -288,7 +293,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
             cal = replace(cal, mass_from=str(setup.path))
         folder.mkdir(parents=True, exist_ok=True)
         subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim",
-                        c3d=c3d)
+                        c3d=c3d, mjcf=mjcf)
         # What to look at in this subject: notes, parameters carried beyond their priors (unreliable), labels to
         # check, non-convergence.  Not the parameters a trial leaves to the priors: as many for every subject of one
         # protocol (24-50 on the real recordings), they hid the few that differ.
@@ -305,11 +310,12 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
 
 def run_batch(subjects: Sequence[Subject], out: str | os.PathLike[str], workers: int = 2,
               scheduler: str | None = None, overwrite: bool = False,
-              progress: Callable[[dict, int, int], None] | None = None, c3d: bool = False) -> list[dict]:
+              progress: Callable[[dict, int, int], None] | None = None, c3d: bool = False,
+              mjcf: bool = False) -> list[dict]:
     """Calibrate every subject on a Dask cluster (a LocalCluster of `workers` processes, one thread each,
     or the cluster at `scheduler`'s address); write out/summary.csv and out/index.html; the rows in the
     manifest's order.  `progress(row, done, total)` as each subject finishes; `c3d`: each trial also as
-    <trial>_calibrated.c3d in its subject's folder."""
+    <trial>_calibrated.c3d in its subject's folder; `mjcf`: subject_mujoco.xml and <trial>_motion_qpos.csv too."""
     from dask.distributed import Client, LocalCluster, as_completed
 
     out = Path(out)
@@ -320,7 +326,7 @@ def run_batch(subjects: Sequence[Subject], out: str | os.PathLike[str], workers:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
         client = Client(cluster)
     try:
-        futures = {client.submit(calibrate_subject, s, str(out), overwrite, c3d,
+        futures = {client.submit(calibrate_subject, s, str(out), overwrite, c3d, mjcf,
                                  key=f"calibrate-{s.id}-{time.time_ns()}", pure=False): s.id for s in subjects}
         rows: dict[str, dict] = {}
         for k, fut in enumerate(as_completed(futures), start=1):

@@ -1,5 +1,6 @@
-"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--config TOML] [--c3d] [--overwrite]``:
-a lab's subjects calibrated in parallel on Dask (calibrate.calibration.batch), a thin layer over run_batch."""
+"""``calibrate batch MANIFEST --out DIR [--workers N | --scheduler ADDRESS] [--config TOML] [--c3d] [--mjcf]
+[--overwrite]``: a lab's subjects calibrated in parallel on Dask (calibrate.calibration.batch), a thin layer over
+run_batch."""
 
 from __future__ import annotations
 
@@ -29,6 +30,9 @@ def add_batch_parser(sub) -> None:
                        help="an existing Dask cluster's scheduler (e.g. tcp://10.0.0.5:8786) instead")
     bp.add_argument("--c3d", action="store_true",
                     help="also each trial as <trial>_calibrated.c3d in its subject's folder (as calibrate --c3d)")
+    bp.add_argument("--mjcf", action="store_true",
+                    help="also subject_mujoco.xml and each trial's <trial>_motion_qpos.csv in its subject's folder "
+                         "(as calibrate --mjcf)")
     bp.add_argument("--overwrite", action="store_true", help="calibrate again the subjects already done")
     bp.add_argument("--config", type=Path, default=None, metavar="TOML",
                     help="the settings file (as calibrate --config) of every subject that names none of its own, "
@@ -51,7 +55,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         print(f"  [{done}/{total}] {row['subject']}: {row['status']} ({what})", file=sys.stderr, flush=True)
 
     rows = run_batch(subjects, args.out, workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite,
-                     progress=progress, c3d=args.c3d)
+                     progress=progress, c3d=args.c3d, mjcf=args.mjcf)
     counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "not converged", "failed", "skipped")}
     print(f"{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n))
     print(f"wrote {args.out / 'summary.csv'}\n      {args.out / 'index.html'}")

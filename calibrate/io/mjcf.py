@@ -16,8 +16,8 @@ from the Pinocchio model of the URDF calibrate writes (Pinocchio is the referenc
   them (``data.site_xpos``).
 * **visuals** — each segment's URDF visuals as ``geom`` elements (sphere, box, cylinder, capsule, mesh), visual
   only (``contype``/``conaffinity`` 0, ``group`` 1, no mass), colours from the URDF materials.
-* gravity along −z (models/human.urdf is z up), along −y for a model imported from OpenSim (y up); such a model's
-  locked coordinates held at their values by ``equality`` constraints (``<joint joint1=... polycoef=.../>``).
+* gravity along −z (models/human.urdf is z up); a model imported from OpenSim keeps its source's (y up); such a
+  model's locked coordinates held at their values by ``equality`` constraints (``<joint joint1=... polycoef=.../>``).
 
 A motion becomes ``qpos`` rows: the root's position, its quaternion in MuJoCo's order (w, x, y, z), then the hinge
 angles in the bodies' order, which is Pinocchio's (calibrate.model.Model.dofs).
@@ -117,8 +117,8 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
     root = ET.Element("mujoco", model=subject.path.stem)
     ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="false",
                   boundmass=fmt_float(BOUND_MASS), boundinertia=fmt_float(BOUND_INERTIA))
-    up_y = osim_info(model) is not None  # OpenSim: y up
-    ET.SubElement(root, "option", gravity="0 -9.80665 0" if up_y else "0 0 -9.80665")
+    info = osim_info(model)
+    ET.SubElement(root, "option", gravity=fmt_vec(info.gravity if info is not None else (0.0, 0.0, -9.80665)))
     assets = ET.SubElement(root, "asset")
     world = ET.SubElement(root, "worldbody")
     bodies: dict[int, ET.Element] = {0: world}
@@ -160,8 +160,7 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
                       size=fmt_float(MARKER_RADIUS), rgba="0.9 0.2 0.2 1")
     if not len(assets):
         root.remove(assets)
-    info = osim_info(model)
-    locked = {d: v * info.ratio(d) for d, v in info.locked.items() if d in set(model.dof_names)} if info else {}
+    locked = {d: v for d, v in info.locked.items() if d in set(model.dof_names)} if info else {}  # URDF angles
     if locked:  # OpenSim's locked coordinates held where the source holds them: joint1 = polycoef[0]
         equality = ET.SubElement(root, "equality")
         for d, value in locked.items():

@@ -163,6 +163,8 @@ class OsimInfo:
     # a floating root's coordinates the source names (FLOATING_ROOT -> the source's coordinate; _Importer.
     # source_root_names): the export and its .mot write them so
     root_names: dict[str, str] = field(default_factory=dict)
+    # the source's gravity (m/s^2, in ground): OpenSim's models are y up, a model calibrate exported from a URDF z up
+    gravity: tuple[float, float, float] = (0.0, -9.80665, 0.0)
 
     def ratio(self, coordinate: str) -> float:
         """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
@@ -998,7 +1000,7 @@ class _Importer:
         info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
                         tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios,
                         clamped=tuple(n for n in dofs if r.coords[n].clamped),
-                        root_names=root_names)
+                        root_names=root_names, gravity=r.gravity)
         body = f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
         together = self.measure_together(body + "</robot>\n", info)
         if together is not None:
@@ -1085,7 +1087,7 @@ class _Importer:
 
 # ---------------------------------------------------------------------- the <opensim> element
 def _info_xml(info: OsimInfo) -> str:
-    el = ET.Element("opensim", source=info.source)
+    el = ET.Element("opensim", source=info.source, gravity=fmt_vec(info.gravity))
     if info.root is not None:
         rt = info.root
         r = ET.SubElement(el, "root", joint=rt.joint)

@@ -33,7 +33,7 @@ How the URDF becomes an OpenSim model (OpenSim 4 format, ``Version 40000``):
   bodies named after the connector links; so is a chain whose axes are linearly dependent.
   A 0-DoF chain (a welded segment) becomes a ``WeldJoint``.
 * **markers** — ``Marker`` on its segment's body at the URDF offset (× scale).
-* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf).
+* gravity ``0 0 -9.80665`` (z up, as in models/human.urdf); a model imported from OpenSim keeps its source's.
 * **visuals** — a model of calibrate's own: each segment's URDF visuals as OpenSim geometry (Sphere, Brick,
   Cylinder, Mesh) on offset frames of its body, sizes × scale (``_Builder.visuals``), so that OpenSim's GUI draws
   the subject as a URDF viewer does.  A model imported from OpenSim gets its source bodies' geometry back instead
@@ -413,7 +413,7 @@ class _Builder:
         _text(m, "credits", f"exported by calibrate from {model.path.name}")
         _text(m, "length_units", "meters")
         _text(m, "force_units", "N")
-        _text(m, "gravity", fmt_vec((0.0, -9.80665, 0.0) if self.info is not None else GRAVITY))
+        _text(m, "gravity", fmt_vec(self.info.gravity if self.info is not None else GRAVITY))
         ground = ET.SubElement(m, "Ground", name="ground")
         self.carried = None
         if self.info is not None:  # the source model's muscles and other forces (calibrate.io.osim_forces)

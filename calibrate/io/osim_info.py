@@ -56,8 +56,9 @@ def osim_info(model) -> OsimInfo | None:
     # (a URDF written before the flag was kept: every coordinate with a finite range clamped, as it was exported)
     clamped = tuple(e.get("name", "") for e in el.findall("coordinate") if e.get("clamped", "true") == "true")
     root_names = {e.get("coordinate", ""): e.get("source", "") for e in el.findall("root_name")}
+    gravity = tuple(xml_floats(el.get("gravity"))) if el.get("gravity") else (0.0, -9.80665, 0.0)  # y up before
     return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios,
-                    together, clamped, root_names)
+                    together, clamped, root_names, gravity)  # type: ignore[arg-type]
 
 
 def with_locked(model, settings):

@@ -331,6 +331,8 @@ class OsimReader:
         assert m is not None
         self.name = m.get("name", path.stem)
         try:
+            # the ground's gravity: OpenSim's default (y up) where the model gives none
+            self.gravity = tuple(float(v) for v in el_numbers(m, "gravity", "0 -9.80665 0", 3))
             self._read(m, where)
         except BadNumbers as e:
             raise ModelError(f"{where}: {e}; fix the number in the model file") from None
