@@ -10,8 +10,8 @@ from the Pinocchio model of the URDF calibrate writes (Pinocchio is the referenc
 * **joints** — a ``hinge`` per revolute, named by the URDF joint (the motion CSV's columns), its axis in the body
   frame, its limits as ``range`` (none for a continuous joint).
 * **inertia** — each body's ``inertial`` (mass, centre of mass, full inertia about it: Pinocchio's, so a segment's
-  fixed links — its markers — are merged in); the massless connector bodies between one joint's rotations take
-  MuJoCo's ``boundmass``/``boundinertia`` (1 µg, 1e-12 kg m²), the whole model heavier by at most a few µg.
+  fixed links — its markers — are merged in); the massless connector bodies between one joint's rotations get a
+  point-like 1 µg (1e-12 kg m²) at their origin, as MuJoCo needs a moving body to have mass (CONNECTOR_MASS).
 * **markers** — ``site`` elements (7 mm spheres) on their segments, where MuJoCo's motion-capture tools expect
   them (``data.site_xpos``).
 * **visuals** — each segment's URDF visuals as ``geom`` elements (sphere, box, cylinder, capsule, mesh), visual
@@ -40,8 +40,10 @@ from .motion import Motion
 from .outputs import check_targets, write_all
 from .text import atomic_write_text, fmt_float, fmt_vec
 
-BOUND_MASS = 1e-9  # kg: MuJoCo's floor for a moving body's mass, given to the massless connector bodies
-BOUND_INERTIA = 1e-12  # kg m^2
+# A massless connector body (between one joint's rotations) as MuJoCo takes it: a moving body needs a mass and
+# inertia over mjMINVAL, so each gets this point-like one at its origin (the whole model a few µg heavier).
+CONNECTOR_MASS = 1e-9  # kg
+CONNECTOR_INERTIA = 1e-12  # kg m^2, each principal moment
 MARKER_RADIUS = 0.007  # m, as the URDF's marker spheres
 
 
@@ -115,8 +117,7 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
     link_of = {frames[f.parentFrame].name: f.name for f in frames
                if f.type == pin.FrameType.BODY and frames[f.parentFrame].type == pin.FrameType.JOINT}
     root = ET.Element("mujoco", model=subject.path.stem)
-    ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="false",
-                  boundmass=fmt_float(BOUND_MASS), boundinertia=fmt_float(BOUND_INERTIA))
+    ET.SubElement(root, "compiler", angle="radian", autolimits="true", inertiafromgeom="false")
     info = osim_info(model)
     ET.SubElement(root, "option", gravity=fmt_vec(info.gravity if info is not None else (0.0, 0.0, -9.80665)))
     assets = ET.SubElement(root, "asset")
@@ -132,6 +133,9 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
             I = inertia.inertia
             ET.SubElement(body, "inertial", pos=fmt_vec(inertia.lever), mass=fmt_float(inertia.mass),
                           fullinertia=fmt_vec((I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2])))
+        else:
+            ET.SubElement(body, "inertial", pos="0 0 0", mass=fmt_float(CONNECTOR_MASS),
+                          diaginertia=fmt_vec([CONNECTOR_INERTIA] * 3))
         if jm.shortname() == "JointModelFreeFlyer":
             ET.SubElement(body, "freejoint", name="root")
             continue
@@ -167,7 +171,7 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
             ET.SubElement(equality, "joint", name=f"{d}_locked", joint1=d, polycoef=fmt_vec((value, 0, 0, 0, 0)))
     ET.indent(root, "  ")
     note = (f"<!-- {subject.path.name} as a MuJoCo model, written by calibrate (calibrate.io.mjcf): one body per "
-            f"joint, markers as sites; connector bodies at boundmass {fmt_float(BOUND_MASS)} kg -->\n")
+            f"joint, markers as sites; massless connector bodies at {fmt_float(CONNECTOR_MASS)} kg -->\n")
     return note + ET.tostring(root, encoding="unicode") + "\n"
 
 
