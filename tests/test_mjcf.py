@@ -280,26 +280,18 @@ def test_bad_arguments_one_line_nothing_written(tmp_path, human):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["markers.xml", "other.csv", "subject.urdf"]
 
 
-def test_calibrate_mjcf_writes_the_subject_and_its_motion_for_mujoco(human, tmp_path, capsys):
-    """`calibrate TRIAL MODEL --mjcf`: beside the subject URDF its MJCF (TRIAL_mujoco.xml) and beside the motion CSV
-    its qpos rows (TRIAL_motion_qpos.csv), which put MuJoCo's sites where Pinocchio puts the subject URDF's markers
-    at the motion CSV's frames; refused before the work where one exists (no --overwrite)."""
-    from calibrate.cli.main import main
-    from calibrate.io.c3d import write_c3d
+def _sites_where_pinocchio_puts_the_markers(xml: Path, qpos: Path, urdf: Path, motion_csv: Path) -> None:
+    """Every seventh qpos row in MuJoCo puts each marker site where Pinocchio puts the URDF's markers at the motion
+    CSV's frame (both CSVs hold every digit)."""
     from calibrate.io.motion import read_motion_csv
 
-    sim = simulate_squats(human, frames=60, noise_mm=1.0, seed=5)
-    write_c3d(tmp_path / "squat.c3d", sim.trial)
-    assert main([str(tmp_path / "squat.c3d"), str(human.path), "--mjcf", "-q"]) == 0, capsys.readouterr().err
-    out = capsys.readouterr().out
-    xml, qpos = tmp_path / "squat_mujoco.xml", tmp_path / "squat_motion_qpos.csv"
-    assert str(xml) in out and str(qpos) in out
-    subject, motion = load_model(tmp_path / "squat.urdf"), read_motion_csv(tmp_path / "squat_motion.csv")
+    subject, motion = load_model(urdf), read_motion_csv(motion_csv)
     mj = mujoco.MjModel.from_xml_path(str(xml))
     md, pm = mujoco.MjData(mj), subject.pin
     pd = pm.createData()
     rows = np.loadtxt(qpos, delimiter=",", skiprows=1)
     assert rows.shape == (motion.n_frames, 1 + mj.nq)
+    np.testing.assert_allclose(rows[:, 0], motion.times, atol=1e-12)
     for f in range(0, motion.n_frames, 7):
         md.qpos[:] = rows[f, 1:]
         mujoco.mj_kinematics(mj, md)
@@ -307,7 +299,30 @@ def test_calibrate_mjcf_writes_the_subject_and_its_motion_for_mujoco(human, tmp_
                                                                       motion.root_quaternion[f], motion.angles[f]))
         for mk in subject.markers:
             ref = pd.oMf[pm.getFrameId(mk.name, pin.FrameType.BODY)].translation
-            assert np.linalg.norm(md.site(mk.name).xpos - ref) < TOL  # both CSVs hold every digit
+            assert np.linalg.norm(md.site(mk.name).xpos - ref) < TOL
+
+
+def test_calibrate_mjcf_writes_the_subject_and_its_motion_for_mujoco(human, tmp_path, capsys):
+    """`calibrate TRIAL MODEL --mjcf`: beside the subject URDF its MJCF (TRIAL_mujoco.xml) and beside the motion CSV
+    its qpos rows (TRIAL_motion_qpos.csv), which put MuJoCo's sites where Pinocchio puts the subject URDF's markers
+    at the motion CSV's frames; `calibrate ik ... --mjcf` likewise; refused before the work where one exists (no
+    --overwrite)."""
+    from calibrate.cli.main import main
+    from calibrate.io.c3d import write_c3d
+
+    sim = simulate_squats(human, frames=60, noise_mm=1.0, seed=5)
+    write_c3d(tmp_path / "squat.c3d", sim.trial)
+    assert main([str(tmp_path / "squat.c3d"), str(human.path), "--mjcf", "-q"]) == 0, capsys.readouterr().err
+    out = capsys.readouterr().out
+    xml, qpos = tmp_path / "squat_mujoco.xml", tmp_path / "squat_motion_qpos.csv"
+    assert str(xml) in out and str(qpos) in out
+    _sites_where_pinocchio_puts_the_markers(xml, qpos, tmp_path / "squat.urdf", tmp_path / "squat_motion.csv")
+    # calibrate ik on the subject: its motion's qpos rows for the same MJCF
+    (tmp_path / "ik").mkdir()
+    assert main(["ik", str(tmp_path / "squat.c3d"), str(tmp_path / "squat.urdf"), "--out", str(tmp_path / "ik"),
+                 "--mjcf", "-q"]) == 0, capsys.readouterr().err
+    _sites_where_pinocchio_puts_the_markers(xml, tmp_path / "ik" / "squat_motion_qpos.csv", tmp_path / "squat.urdf",
+                                            tmp_path / "ik" / "squat_motion.csv")
     for name in ("squat.urdf", "squat_motion.csv", "squat_report.json", "squat_mujoco.xml"):
         (tmp_path / name).unlink()
     qpos.write_text("mine\n")

@@ -63,6 +63,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--c3d", action="store_true",
                    help="also write each trial as TRIAL-name_calibrated.c3d: its markers with the subject's joint "
                         "centres, model markers and joint angles as model outputs (as calibrate --c3d)")
+    p.add_argument("--mjcf", action="store_true",
+                   help="also write each motion as MuJoCo qpos rows, TRIAL-name_motion_qpos.csv, for the subject's "
+                        "MuJoCo model (calibrate --mjcf or calibrate export-mjcf; docs/mujoco.md)")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary")
     return p
@@ -90,7 +93,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
         outputs += [folder / f"{t.stem}_motion.csv"] + ([folder / f"{t.stem}_motion.mot"] if osim else []) + \
-            ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else [])
+            ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
+            ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
     check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
                   same="two trials with the same name would write the same motion; use --out or rename them",
                   exists_hint="pass --overwrite to replace it or choose another --out")
@@ -205,6 +209,11 @@ def cmd_ik(args: argparse.Namespace) -> int:
             from ..calibration.c3d_result import with_model_outputs
 
             write_c3d(folder / f"{path.stem}_calibrated.c3d", with_model_outputs(model, params, trial, fit.motion))
+        if args.mjcf:
+            from ..io.mjcf import qpos_csv_text
+            from ..io.text import atomic_write_text
+
+            atomic_write_text(folder / f"{path.stem}_motion_qpos.csv", qpos_csv_text(model, fit.motion))
     if released:
         lines.append(f"{', '.join(sorted(static_locks))}: the calibration held them because its static, its only "
                      "trial, moved them no more than its markers fix them; fitted in "
