@@ -53,7 +53,8 @@ def _perturbed(model, seed: int) -> Parameters:
 
 def _variant(path: Path) -> Path:
     """models/human.urdf with a welded segment (radioulnar_l fixed, turned: radius_l rides on ulna_l's body), a
-    turned hinge origin (knee_r) and a turned inertial (femur_r: an inertia with products)."""
+    turned hinge origin (knee_r), a turned inertial (femur_r: an inertia with products) and a continuous joint
+    (radioulnar_r: no limits)."""
     t = HUMAN.read_text()
     i = t.index('<joint name="radioulnar_l"')
     j = t.index("</joint>", i)
@@ -65,6 +66,9 @@ def _variant(path: Path) -> Path:
     i = t.index('<joint name="knee_r"')
     j = t.index("</joint>", i)
     t = t[:i] + re.sub(r'rpy="[^"]*"', 'rpy="0.1 -0.2 0.3"', t[i:j], count=1) + t[j:]
+    i = t.index('<joint name="radioulnar_r"')
+    j = t.index("</joint>", i)
+    t = t[:i] + re.sub(r"\s*<limit[^>]*/>", "", t[i:j].replace('type="revolute"', 'type="continuous"')) + t[j:]
     path.write_text(t)
     return path
 
@@ -150,7 +154,12 @@ def test_mass_properties_and_ranges(cases, name):
         np.testing.assert_allclose(R @ np.diag(b.inertia) @ R.T, ref.inertia, atol=1e-12)
     assert mj.body_mass.sum() == pytest.approx(model.total_mass + connectors * CONNECTOR_MASS, rel=1e-12)
     for d in model.dofs:
-        assert tuple(mj.joint(d.name).range) == (pytest.approx(d.lower, abs=1e-12), pytest.approx(d.upper, abs=1e-12))
+        joint = mj.joint(d.name)
+        if np.isfinite(d.lower) and np.isfinite(d.upper):
+            assert joint.limited[0] and tuple(joint.range) == (pytest.approx(d.lower, abs=1e-12),
+                                                               pytest.approx(d.upper, abs=1e-12))
+        else:  # a continuous joint (the variant's radioulnar_r)
+            assert not joint.limited[0] and name == "variant" and d.name == "radioulnar_r"
     up = np.array([0, -9.80665, 0] if name == "gait2392" else [0, 0, -9.80665])
     np.testing.assert_array_equal(mj.opt.gravity, up)
     # an OpenSim model's locked coordinates (the test's gait2392: mtp_angle_r at 0.2 rad) held by joint equalities

@@ -35,7 +35,7 @@ import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError
-from ..model.model import Model, Parameters, urdf_text
+from ..model.model import Model, Parameters, _pin_axes, urdf_text
 from .motion import Motion
 from .outputs import check_targets, write_all
 from .text import atomic_write_text, fmt_float, fmt_vec
@@ -63,18 +63,10 @@ def _place(el: ET.Element, X: pin.SE3) -> None:
         el.set("quat", fmt_vec(_quat_wxyz(X.rotation)))
 
 
-def _axis(joint: pin.JointModel) -> tuple[np.ndarray, bool]:
-    """A revolute Pinocchio joint's axis in its frame and whether it is bounded (not a continuous joint)."""
+def _bounded(joint: pin.JointModel) -> bool:
+    """Whether a revolute Pinocchio joint has limits (a URDF continuous joint is Pinocchio's unbounded revolute)."""
     name = joint.shortname()
-    if name == "JointModelRevoluteUnaligned":
-        return np.asarray(joint.extract().axis, float), True
-    if name == "JointModelRevoluteUnboundedUnaligned":
-        return np.asarray(joint.extract().axis, float), False
-    for prefix, bounded in (("JointModelR", True), ("JointModelRUB", False)):
-        letter = name[len(prefix):]
-        if name.startswith(prefix) and letter in ("X", "Y", "Z"):
-            return np.eye(3)["XYZ".index(letter)], bounded
-    raise CalibrateError(f"joint '{name}': not a revolute joint; calibrate's MJCF export writes hinges only")
+    return "Unbounded" not in name and not name.startswith("JointModelRUB")
 
 
 def _visual_geoms(model: Model) -> dict[str, list[tuple[str, pin.SE3, dict[str, str], np.ndarray | None]]]:
@@ -113,6 +105,7 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
 
     subject = model if params is None and mass is None else Model(model.path, urdf_text(model, params, mass))
     pm = subject.pin
+    axes = _pin_axes(pm, str(subject.path))  # each revolute's axis in its joint frame, joints 2 ... (Pinocchio's)
     frames = pm.frames
     link_of = {frames[f.parentFrame].name: f.name for f in frames
                if f.type == pin.FrameType.BODY and frames[f.parentFrame].type == pin.FrameType.JOINT}
@@ -139,10 +132,9 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
         if jm.shortname() == "JointModelFreeFlyer":
             ET.SubElement(body, "freejoint", name="root")
             continue
-        axis, bounded = _axis(jm)
-        hinge = ET.SubElement(body, "joint", name=name, type="hinge", axis=fmt_vec(axis))
+        hinge = ET.SubElement(body, "joint", name=name, type="hinge", axis=fmt_vec(axes[j - 2]))
         lo, hi = pm.lowerPositionLimit[jm.idx_q], pm.upperPositionLimit[jm.idx_q]
-        if bounded and np.isfinite(lo) and np.isfinite(hi) and hi > lo:
+        if _bounded(jm) and np.isfinite(lo) and np.isfinite(hi) and hi > lo:
             hinge.set("range", fmt_vec((lo, hi)))
     visuals = _visual_geoms(subject)
     for seg in subject.segments:
