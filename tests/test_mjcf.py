@@ -280,7 +280,7 @@ def test_bad_arguments_one_line_nothing_written(tmp_path, human):
                        ({"output": tmp_path / "m.mjcf"}, "should end in .xml"),
                        ({"output": urdf.with_suffix(".xml"), "motion": other, "qpos": tmp_path / "q.txt"},
                         "should end in .csv"),
-                       ({"motion": other}, "no column for"),
+                       ({"motion": other}, "the motion has no angle of subject.urdf's joint"),
                        ({"output": tmp_path / "no" / "m.xml"}, "does not exist"),
                        ({"marker_set": ms}, "goes with an OpenSim model")]:
         with pytest.raises(CalibrateError) as exc:

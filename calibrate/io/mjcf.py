@@ -170,6 +170,10 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
 def mjcf_qpos(model: Model, motion: Motion) -> np.ndarray:
     """(n_frames, 7 + n_dofs) MuJoCo ``qpos`` of `motion` for the MJCF of `model`: the root's position (m), its
     quaternion (w, x, y, z), then the joint angles (rad) in the model's order (Pinocchio's, the MJCF bodies')."""
+    missing = [d for d in model.dof_names if d not in motion.dof_names]
+    if missing:
+        raise CalibrateError(f"the motion has no angle of {model.path.name}'s joint '{missing[0]}' ({len(missing)} "
+                             f"missing); is it a motion of this model?")
     index = [motion.dof_names.index(d) for d in model.dof_names]
     q = motion.root_quaternion
     return np.hstack([motion.root_translation, q[:, [3, 0, 1, 2]], motion.angles[:, index]])
@@ -248,11 +252,10 @@ def cmd_export_mjcf(args: argparse.Namespace) -> int:
     motion = None
     if args.motion is not None:
         motion = read_motion_csv(args.motion)
-        missing = [d for d in model.dof_names if d not in motion.dof_names]
-        if missing:
-            raise CalibrateError(f"{args.motion}: no column for {model_path.name}'s joint '{missing[0]}' "
-                                 f"({len(missing)} missing); is it a motion of this model?")
-        texts["qpos"] = qpos_csv_text(model, motion)
+        try:
+            texts["qpos"] = qpos_csv_text(model, motion)
+        except CalibrateError as e:
+            raise CalibrateError(f"{args.motion}: {e}") from None
     writers = {path: (lambda p, kind=kind: atomic_write_text(p, texts[kind])) for kind, path in targets.items()}
     try:
         write_all(writers)
