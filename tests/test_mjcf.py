@@ -16,6 +16,7 @@ import pinocchio as pin
 import pytest
 from conftest import HUMAN, ROOT
 from scipy.spatial.transform import Rotation
+from test_osim_import import hand_made_osim
 
 from calibrate.errors import CalibrateError
 from calibrate.io.mjcf import (
@@ -77,7 +78,10 @@ def _cases(tmp: Path) -> dict[str, tuple]:
     """name -> (model, the URDF calibrate writes for the subject, its MJCF as MuJoCo loads it)."""
     human = load_model(HUMAN)
     variant = load_model(_variant(tmp / "variant_base.urdf"))
-    out = {"base": (human, None), "perturbed": (human, _perturbed(human, 3)), "variant": (variant, None)}
+    (tmp / "handmade.osim").write_text(hand_made_osim())  # every OpenSim joint type and function calibrate reads
+    handmade = load_model(tmp / "handmade.osim")
+    out = {"base": (human, None), "perturbed": (human, _perturbed(human, 3)), "variant": (variant, None),
+           "handmade": (handmade, _perturbed(handmade, 5))}
     if GAIT.exists():  # another lab's model: y up, OpenSim's names, a knee hinge fit; mtp_angle_r locked at 0.2 rad
         text = (GAIT / "gait2392.osim").read_text()
         i = text.index('<Coordinate name="mtp_angle_r">')
@@ -104,7 +108,7 @@ def _random_q(model, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return rng.normal(0, 1, 3), Rotation.random(random_state=rng).as_quat(), angles
 
 
-@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "gait2392"])
+@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "handmade", "gait2392"])
 def test_marker_sites_where_pinocchio_puts_the_markers(cases, name):
     """At random poses, MuJoCo's marker sites sit where Pinocchio's reading of the written URDF puts the markers,
     the qpos being the motion's root position, quaternion (w, x, y, z) and angles (mjcf_qpos)."""
@@ -130,7 +134,7 @@ def test_marker_sites_where_pinocchio_puts_the_markers(cases, name):
     assert worst < TOL
 
 
-@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "gait2392"])
+@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "handmade", "gait2392"])
 def test_mass_properties_and_ranges(cases, name):
     """Each moving segment's mass, centre of mass and inertia in MuJoCo equal Pinocchio's (the connector bodies at
     export's point-like 1 µg at their origin); each hinge's range is the URDF's limits."""
@@ -160,7 +164,7 @@ def test_mass_properties_and_ranges(cases, name):
                                                                pytest.approx(d.upper, abs=1e-12))
         else:  # a continuous joint (the variant's radioulnar_r)
             assert not joint.limited[0] and name == "variant" and d.name == "radioulnar_r"
-    up = np.array([0, -9.80665, 0] if name == "gait2392" else [0, 0, -9.80665])
+    up = np.array([0, -9.80665, 0] if name in ("gait2392", "handmade") else [0, 0, -9.80665])  # OpenSim: y up
     np.testing.assert_array_equal(mj.opt.gravity, up)
     # an OpenSim model's locked coordinates (the test's gait2392: mtp_angle_r at 0.2 rad) held by joint equalities
     info = osim_info(model)
@@ -172,7 +176,7 @@ def test_mass_properties_and_ranges(cases, name):
         np.testing.assert_allclose(eq.data[:5], [value, 0, 0, 0, 0], atol=1e-12)  # URDF angles (OsimInfo.locked)
 
 
-@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "gait2392"])
+@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "handmade", "gait2392"])
 def test_visual_geoms_where_pinocchio_draws_them(cases, name):
     """Each segment's URDF visual is a MuJoCo geom of the same kind, size, place, axis and colour as in Pinocchio's
     visual model of the written URDF, at random poses; visual only (no contacts, no mass).  Gait2392's: the rods
@@ -358,7 +362,7 @@ def test_a_model_from_opensim_keeps_its_source_gravity(tmp_path, human):
         assert tuple(float(v) for v in again.split()) == g
 
 
-@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "gait2392"])
+@pytest.mark.parametrize("name", ["base", "perturbed", "variant", "handmade", "gait2392"])
 def test_joint_space_dynamics_match_pinocchio(cases, name):
     """MuJoCo's joint-space inertia over the hinges and their gravity torques equal Pinocchio's (CRBA, generalized
     gravity) at random poses: the inertias, centres of mass and the tree carry over to a simulation, not only the
