@@ -1018,11 +1018,11 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         writers[targets["report"]] = write_report
     if "html" in targets:
         writers[targets["html"]] = write_html
+    # The subject as the written URDF loads (named after it), for OpenSim's names and masses and MuJoCo's bodies.
+    subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text) if opensim or mujoco else None
     if opensim:
         from ..io.osim_export import mot_text, osim_text  # OpenSim export: only for these outputs
 
-        # The subject as the written URDF loads (named after it), for OpenSim's names and masses.
-        subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text)
         if "osim" in opensim:
             writers[opensim["osim"]] = lambda path: put_text(path, osim_text(subject))
         for i, m in enumerate(cal.motions[:len(mots)]):
@@ -1031,7 +1031,6 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     if mujoco:
         from ..io.mjcf import mjcf_text, qpos_csv_text  # MuJoCo export: only for these outputs
 
-        subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text)
         if "mjcf" in mujoco:
             writers[mujoco["mjcf"]] = lambda path: put_text(path, mjcf_text(subject))
         for i, m in enumerate(cal.motions[:len(qposes)]):
