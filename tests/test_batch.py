@@ -236,6 +236,9 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     assert calibrated.n_frames == read_motion_csv(folder / "trial_motion.csv").n_frames < 80
     assert {"hip_r_JC", "knee_r_angles", "RASI_model"} <= set(calibrated.model_outputs)
     rep = json.loads((folder / "report.json").read_text())
+    assert rep["outputs"]["osim"] == str(folder / "subject.osim")  # every output listed in the report
+    assert rep["outputs"]["mot"] == [str(folder / "trial_motion.mot")]
+    assert rep["outputs"]["mjcf"] == str(folder / "subject_mujoco.xml")
     assert rep["mass"]["subject_kg"] == pytest.approx(61.5) and rep["mass"]["from"] == str(tmp_path / "Setup_Scale.xml")
     assert rep["settings"]["lock_deg"]["subtalar_r"] == pytest.approx(np.degrees(0.1))
     assert "EXTRA" in load_model(folder / "subject.osim").marker_names

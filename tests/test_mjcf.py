@@ -329,6 +329,10 @@ def test_calibrate_mjcf_writes_the_subject_and_its_motion_for_mujoco(human, tmp_
     out = capsys.readouterr().out
     xml, qpos = tmp_path / "squat_mujoco.xml", tmp_path / "squat_motion_qpos.csv"
     assert str(xml) in out and str(qpos) in out
+    import json
+
+    report = json.loads((tmp_path / "squat_report.json").read_text())  # the report lists them with the rest
+    assert report["outputs"]["mjcf"] == str(xml) and report["outputs"]["qpos"] == [str(qpos)]
     _sites_where_pinocchio_puts_the_markers(xml, qpos, tmp_path / "squat.urdf", tmp_path / "squat_motion.csv")
     # calibrate ik on the subject: its motion's qpos rows for the same MJCF
     (tmp_path / "ik").mkdir()

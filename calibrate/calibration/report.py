@@ -995,6 +995,12 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
             if c3d_targets:
                 rep["outputs"]["c3d"] = [str(t) for t in c3d_targets]
+            for name, files in (("osim", opensim), ("mjcf", mujoco)):  # the subject for OpenSim, for MuJoCo
+                if name in files:
+                    rep["outputs"][name] = str(files[name])
+            for name, files in (("mot", opensim), ("qpos", mujoco)):  # their motions, one per trial
+                if any(k.startswith(f"{name}[") for k in files):
+                    rep["outputs"][name] = [str(v) for k, v in files.items() if k.startswith(f"{name}[")]
             made.append(rep)
         return made[0]
 
