@@ -35,7 +35,8 @@ import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError
-from ..model.model import Model, Parameters, _pin_axes, urdf_text
+from ..model.model import Model, Parameters, urdf_text
+from ..model.urdf import urdf_visuals
 from .motion import Motion
 from .outputs import check_targets, write_all
 from .text import atomic_write_text, fmt_float, fmt_vec
@@ -61,20 +62,6 @@ def _place(el: ET.Element, X: pin.SE3) -> None:
         el.set("pos", fmt_vec(X.translation))
     if not np.array_equal(X.rotation, np.eye(3)):
         el.set("quat", fmt_vec(_quat_wxyz(X.rotation)))
-
-
-def _bounded(joint: pin.JointModel) -> bool:
-    """Whether a revolute Pinocchio joint has limits (a URDF continuous joint is Pinocchio's unbounded revolute)."""
-    name = joint.shortname()
-    return "Unbounded" not in name and not name.startswith("JointModelRUB")
-
-
-def _visual_geoms(model: Model) -> dict[str, list[tuple[str, pin.SE3, dict[str, str], np.ndarray | None]]]:
-    """segment -> its URDF visuals: (shape tag, placement in the segment frame, the shape's attributes, rgba)."""
-    from .osim_export import _urdf_visuals
-
-    return {seg: [(tag, pin.SE3(R, xyz), sizes, rgba) for tag, (R, xyz), sizes, rgba in visuals]
-            for seg, visuals in _urdf_visuals(model).items()}
 
 
 def _geom(body: ET.Element, name: str, tag: str, X: pin.SE3, sizes: dict[str, str],
@@ -105,7 +92,6 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
 
     subject = model if params is None and mass is None else Model(model.path, urdf_text(model, params, mass))
     pm = subject.pin
-    axes = _pin_axes(pm, str(subject.path))  # each revolute's axis in its joint frame, joints 2 ... (Pinocchio's)
     frames = pm.frames
     link_of = {frames[f.parentFrame].name: f.name for f in frames
                if f.type == pin.FrameType.BODY and frames[f.parentFrame].type == pin.FrameType.JOINT}
@@ -132,14 +118,14 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
         if jm.shortname() == "JointModelFreeFlyer":
             ET.SubElement(body, "freejoint", name="root")
             continue
-        hinge = ET.SubElement(body, "joint", name=name, type="hinge", axis=fmt_vec(axes[j - 2]))
-        lo, hi = pm.lowerPositionLimit[jm.idx_q], pm.upperPositionLimit[jm.idx_q]
-        if _bounded(jm) and np.isfinite(lo) and np.isfinite(hi) and hi > lo:
-            hinge.set("range", fmt_vec((lo, hi)))
-    visuals = _visual_geoms(subject)
+        dof = subject.dofs[subject.dof_index(name)]  # axis in the joint frame; limits (none for a continuous joint)
+        hinge = ET.SubElement(body, "joint", name=name, type="hinge", axis=fmt_vec(dof.axis))
+        if np.isfinite(dof.lower) and np.isfinite(dof.upper) and dof.upper > dof.lower:
+            hinge.set("range", fmt_vec((dof.lower, dof.upper)))
+    visuals = urdf_visuals(subject)
     for seg in subject.segments:
         f = frames[pm.getFrameId(seg.name, pin.FrameType.BODY)]
-        for k, (tag, X, sizes, rgba) in enumerate(visuals.get(seg.name, [])):
+        for k, (tag, (R, xyz), sizes, rgba) in enumerate(visuals.get(seg.name, [])):
             name = f"{seg.name}_{k}"
             if tag == "mesh":
                 if not sizes["filename"]:
@@ -149,7 +135,7 @@ def mjcf_text(model: Model, params: Parameters | None = None, mass: float | None
                     mesh.set("scale", sizes["scale"])
             elif tag not in ("sphere", "box", "cylinder", "capsule"):
                 continue
-            _geom(bodies[f.parentJoint], name, tag, f.placement * X, sizes, rgba)
+            _geom(bodies[f.parentJoint], name, tag, f.placement * pin.SE3(R, xyz), sizes, rgba)
     for marker in subject.markers:
         f = frames[pm.getFrameId(marker.name, pin.FrameType.BODY)]
         ET.SubElement(bodies[f.parentJoint], "site", name=marker.name, pos=fmt_vec(f.placement.translation),

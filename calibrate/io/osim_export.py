@@ -76,6 +76,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError, ModelError
 from ..model.model import Model, Parameters, UrdfJoint
+from ..model.urdf import origin_of, urdf_visuals
 from ..seed.geometry import Transform, compose, identity_transform, invert
 from .motion import Motion
 from .osim import FLOATING_ROOT
@@ -142,51 +143,16 @@ def _urdf_inertials(model: Model) -> dict[str, tuple[float, np.ndarray, np.ndarr
             continue
         m = el.find("mass")
         mass = float(m.get("value", "0")) if m is not None else 0.0
-        o = el.find("origin")
-        xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
-        rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
+        R, xyz = origin_of(el)
         att = el.find("inertia")
         v = {k: float(att.get(k, "0")) if att is not None else 0.0 for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
         inertia = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
                             [v["ixz"], v["iyz"], v["izz"]]])
-        R = Rotation.from_euler("xyz", rpy).as_matrix() if np.any(rpy) else np.eye(3)  # URDF: R = Rz Ry Rx
         out[link.get("name", "")] = (mass, xyz, R @ inertia @ R.T)
     return out
 
 
 # ---------------------------------------------------------------------- the model
-def _urdf_visuals(model: Model) -> dict[str, list[tuple[str, Transform, dict[str, np.ndarray], np.ndarray | None]]]:
-    """segment -> its URDF visuals, base model: (shape tag, origin (R, xyz) in the segment frame, the shape's sizes
-    (sphere radius; cylinder or capsule radius and length; box size; mesh filename and scale), colour rgba or None).
-    Markers' and connectors' visuals are not read (OpenSim draws markers itself)."""
-    robot = ET.fromstring(model.text)
-    colours = {m.get("name"): m.find("color").get("rgba") for m in robot.findall("material")
-               if m.find("color") is not None}
-    segments = {sg.name for sg in model.segments}
-    out: dict[str, list] = {}
-    for link in robot.findall("link"):
-        if link.get("name") not in segments:
-            continue
-        for v in link.findall("visual"):
-            g = v.find("geometry")
-            shape = next(iter(g), None) if g is not None else None
-            if shape is None:
-                continue
-            o = v.find("origin")
-            xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
-            rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
-            R = Rotation.from_euler("xyz", rpy).as_matrix() if np.any(rpy) else np.eye(3)  # URDF: R = Rz Ry Rx
-            sizes = {k: shape.get(k, "") for k in ("radius", "length", "size", "filename", "scale")}
-            m = v.find("material")
-            rgba = None
-            if m is not None:
-                c = m.find("color")
-                text = c.get("rgba") if c is not None else colours.get(m.get("name"))
-                rgba = np.array([float(x) for x in text.split()]) if text else None
-            out.setdefault(link.get("name", ""), []).append((shape.tag, (R, xyz), sizes, rgba))
-    return out
-
-
 # OpenSim draws a Cylinder along its frame's y axis, URDF along z: the frame turned by Rx(90°) (y -> z)
 _Y_TO_Z = Rotation.from_euler("x", 90, degrees=True).as_matrix()
 
@@ -332,7 +298,7 @@ class _Builder:
         turned onto the URDF's z), capsule -> a Cylinder and a Sphere at each end, mesh -> Mesh (its scale × the
         segment's); sizes × the segment's scale, colours from the URDF materials."""
         bodies = {b.get("name"): b for b in self.bodies}
-        for seg, visuals in _urdf_visuals(self.model).items():
+        for seg, visuals in urdf_visuals(self.model).items():
             s = self.scale[seg]
             components = ET.SubElement(bodies[seg], "components")
             for k, (tag, (R, xyz), sizes, rgba) in enumerate(visuals):

@@ -9,6 +9,7 @@ import xml.etree.ElementTree as ET
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..errors import ModelError
 from ..io.text import fmt_float, fmt_vec
@@ -134,3 +135,41 @@ def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
         o = ET.Element("origin")
         joint.insert(0, o)
     o.set("xyz", fmt_vec(xyz))
+
+
+def origin_of(el: ET.Element) -> tuple[np.ndarray, np.ndarray]:
+    """(R, xyz) of a URDF element's <origin> (the identity where it has none): R = Rz(y) Ry(p) Rx(r)."""
+    o = el.find("origin")
+    xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
+    rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
+    return (Rotation.from_euler("xyz", rpy).as_matrix() if np.any(rpy) else np.eye(3)), xyz
+
+
+def urdf_visuals(model: Model) -> dict[str, list[tuple[str, tuple[np.ndarray, np.ndarray], dict[str, str],
+                                                       np.ndarray | None]]]:
+    """segment -> its URDF visuals, as `model`'s document has them: (shape tag, origin (R, xyz) in the segment frame,
+    the shape's attributes as written — sphere radius; cylinder or capsule radius and length; box size; mesh filename
+    and scale —, colour rgba or None).  Markers' and connectors' visuals are not read.  What the .osim and MJCF exports
+    draw the segments with (calibrate.io.osim_export, calibrate.io.mjcf)."""
+    robot = ET.fromstring(model.text)
+    colours = {m.get("name"): m.find("color").get("rgba") for m in robot.findall("material")
+               if m.find("color") is not None}
+    segments = {sg.name for sg in model.segments}
+    out: dict[str, list] = {}
+    for link in robot.findall("link"):
+        if link.get("name") not in segments:
+            continue
+        for v in link.findall("visual"):
+            g = v.find("geometry")
+            shape = next(iter(g), None) if g is not None else None
+            if shape is None:
+                continue
+            sizes = {k: shape.get(k, "") for k in ("radius", "length", "size", "filename", "scale")}
+            m = v.find("material")
+            rgba = None
+            if m is not None:
+                c = m.find("color")
+                text = c.get("rgba") if c is not None else colours.get(m.get("name"))
+                rgba = np.array([float(x) for x in text.split()]) if text else None
+            out.setdefault(link.get("name", ""), []).append((shape.tag, origin_of(v), sizes, rgba))
+    return out
