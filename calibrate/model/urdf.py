@@ -9,7 +9,6 @@ import xml.etree.ElementTree as ET
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import ModelError
 from ..io.text import fmt_float, fmt_vec
@@ -139,6 +138,8 @@ def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
 
 def origin_of(el: ET.Element) -> tuple[np.ndarray, np.ndarray]:
     """(R, xyz) of a URDF element's <origin> (the identity where it has none): R = Rz(y) Ry(p) Rx(r)."""
+    from scipy.spatial.transform import Rotation  # not at import: `import calibrate` loads no scipy
+
     o = el.find("origin")
     xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
     rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
