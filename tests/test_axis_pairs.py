@@ -198,3 +198,26 @@ def test_a_static_alone_shows_the_medial_markers_and_their_names_place_them(huma
                                                          - squats.truth.marker[paired.marker_index(lateral)])
         assert span == pytest.approx(truth, abs=0.003)
     assert sorted(cal.axis_pairs) == [("knee_l", "LKNE", "L_mknee"), ("knee_r", "RKNE", "r_mknee")]
+
+
+def test_the_priors_kept_pattern_gives_the_general_products_numbers(paired):
+    """The priors' Jacobian through the layout's tangent map, from what is kept between calls (the nonzeros' product
+    pattern, priors._Product, and the map's values alone, ParameterLayout.tangent_values), is the general product's
+    (T given as a matrix) bit for bit at two points (the second from the kept pattern), and its Gram matrix JᵀJ."""
+    sim = simulate_squats(paired, frames=3, noise_mm=1.0, seed=4)
+    problem, found = _pairs(paired, sim.trial)
+    assert len(found) == 2  # the pair rows, built for all pairs at once, are among them
+    L, rng = problem.layout, np.random.default_rng(5)
+    rows, cols = L.tangent_nonzeros()
+    for _ in range(2):
+        p = problem.retract_parameters(sim.truth.vector(), 0.03 * rng.normal(size=problem.n_free))
+        T = problem.tangent_map(p)
+        np.testing.assert_array_equal(L.tangent_values(p), T[rows, cols])
+        r, J = problem.prior(p)
+        r_general, J_general = problem.prior(p, T)
+        np.testing.assert_array_equal(r, r_general)
+        np.testing.assert_array_equal(J, J_general)
+        r_gram, J_gram, G = problem.prior_gram(p)
+        np.testing.assert_array_equal(r_gram, r)
+        np.testing.assert_array_equal(J_gram, J)
+        np.testing.assert_allclose(G, J.T @ J, rtol=1e-13, atol=1e-13 * np.abs(G).max())

@@ -348,6 +348,29 @@ class ParameterLayout:
             self._tangent_nonzeros = np.nonzero(self.tangent_pattern())
         return self._tangent_nonzeros
 
+    def tangent_values(self, p: np.ndarray) -> np.ndarray:
+        """tangent_map(p)'s entries at tangent_nonzeros(), in their order: the same numbers, written in the same
+        order, without the dense (n_full, n_free) matrix (the priors need only these, at every cost evaluation)."""
+        if getattr(self, "_tangent_slots", None) is None:
+            rows, cols = self.tangent_nonzeros()
+            slot = np.full((self.n_full, self.n_free), -1, dtype=int)
+            slot[rows, cols] = np.arange(rows.size)
+            pr, pc, _, scol = self._positions
+            ws = scol >= 0
+            self._tangent_slots = (slot[self.direct[:, 1], self.direct[:, 0]], slot[pr, pc], slot[pr[ws], scol[ws]],
+                                   ws, slot[self.axis_entries[:, :, None], self.axis_columns[:, None, :]])
+        direct, pos, pos_scale, ws, axes = self._tangent_slots
+        v = np.zeros(self.tangent_nonzeros()[0].size)
+        v[direct] = 1.0
+        rows, _, owner, _ = self._positions
+        if rows.size:
+            s = p[owner]
+            v[pos] = 1.0 / s
+            v[pos_scale] = -p[rows[ws]] / s[ws]
+        if self.axis_dofs:
+            v[axes] = perpendicular_bases(self.axis_directions(p))
+        return v
+
     def retract(self, p: np.ndarray, dp: np.ndarray) -> np.ndarray:
         """p moved by the free step dp, each block on its manifold: scales to s exp(ds / s) (s + ds to
         first order, and never zero or negative: a segment with no marker of its own, whose scale only

@@ -187,10 +187,30 @@ class PriorsMixin:
         return cached[1]
 
     def marker_sd(self) -> np.ndarray:
-        """(n_markers,) each marker's prior SD (m): Priors.marker, Priors.placeholder for a placeholder."""
-        sd = np.full(len(self.model.markers), self.settings.priors.marker)
-        sd[list(self.placeholders())] = self.settings.priors.placeholder
-        return sd
+        """(n_markers,) each marker's prior SD (m): Priors.marker, Priors.placeholder for a placeholder; kept
+        while the base and the settings are the same objects (read-only)."""
+        cached = self.__dict__.get("_marker_sd_cache")
+        if cached is None or cached[0] is not self.base or cached[1] is not self.settings:
+            sd = np.full(len(self.model.markers), self.settings.priors.marker)
+            sd[list(self.placeholders())] = self.settings.priors.placeholder
+            sd.flags.writeable = False
+            cached = (self.base, self.settings, sd)
+            self._marker_sd_cache = cached
+        return cached[2]
+
+    def _block_index(self, group: str, seg_of: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A 3-vector group's pull towards the base model (_prior_terms' block): its entries in p (count, 3),
+        and its Jacobian nonzeros' rows and columns (each entry's own, then its segment's scale), kept while the
+        layout and `seg_of` (each block's segment) are the same objects."""
+        cached = self.__dict__.setdefault("_block_index_cache", {}).get(group)
+        if cached is None or cached[0] is not self.layout or cached[1] is not seg_of:
+            L = self.layout
+            idx = L.entries(group)
+            rows = np.arange(idx.size)
+            cached = (L, seg_of, (idx, np.concatenate([rows, rows]),
+                                  np.concatenate([idx.ravel(), L.scale(np.repeat(seg_of, 3))])))
+            self._block_index_cache[group] = cached
+        return cached[2]
 
     def joint_markers(self) -> tuple[JointMarker, ...]:
         """The model's joint-centre markers (joint_centre_markers of the base model; none when
@@ -297,6 +317,24 @@ class PriorsMixin:
         self._pair_cache = (key, out)
         return out
 
+    def _pair_index(self, pairs: list[tuple[int, int, int, int]]) -> tuple[np.ndarray, ...]:
+        """For pair_terms' `pairs` (P of them): each hinge's URDF joint rotation (P, 3, 3), the entries in p of its
+        axis and of its two markers (P, 3 each), and the rows and columns of the pair rows' Jacobian nonzeros (the
+        axis's 9, the second marker's 9 and the first's 9 of each pair, row-major), kept while `pairs` is the same."""
+        cached = self.__dict__.get("_pair_index_cache")
+        if cached is not None and cached[0] is pairs:
+            return cached[1]
+        m, L = self.model, self.layout
+        ji, k1, k2, d = (np.array(c, dtype=int) for c in zip(*pairs, strict=True))
+        R = np.array([self._urdf[m.joints[j].urdf_joints[0]].rotation for j in ji], dtype=float).reshape(-1, 3, 3)
+        ax, m1, m2 = L.entries("axis", d), L.entries("marker", k1), L.entries("marker", k2)
+        k = 3 * np.arange(len(pairs))[:, None] + np.repeat(np.arange(3), 3)[None]  # (P, 9) each pair's rows
+        rows = np.concatenate([k, k, k], axis=1).ravel()
+        cols = np.concatenate([np.tile(c, (1, 3)) for c in (ax, m2, m1)], axis=1)
+        out = (R, ax, m1, m2, rows, cols.ravel())
+        self._pair_index_cache = (pairs, out)
+        return out
+
     def lateral_residuals(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The measured joint widths' residuals (calibrated - measured lateral distance) / priors.width and
         their Jacobian (n, n_free) at `p`; none when priors.width is 0."""
@@ -343,23 +381,25 @@ class PriorsMixin:
               jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Prior residuals and their Jacobian (n_prior, n_free) at full parameters `p`, through the
         free-parameter map `T` (default: tangent_map(p)); no Jacobian (None) if not `jacobian`."""
-        r, nonzeros = self._prior_terms(p, T, jacobian)
+        r, nonzeros, pattern = self._prior_terms(p, T, jacobian)
         if nonzeros is None:
             return r, (np.zeros((0, self.n_free)) if jacobian else None)
-        return r, _dense(*nonzeros, (r.size, self.n_free))
+        return r, pattern.dense(nonzeros[2], r.size, self.n_free)
 
     def prior_gram(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(r, Jr, JrᵀJr): prior's residuals and Jacobian at `p`, and the Jacobian's Gram matrix (the
         priors' share of the normal equations) from its nonzeros (sparse_gram), not a dense product."""
-        r, nonzeros = self._prior_terms(p, None, True)
+        r, nonzeros, pattern = self._prior_terms(p, None, True)
         if nonzeros is None:
             return r, np.zeros((0, self.n_free)), np.zeros((self.n_free, self.n_free))
-        return r, _dense(*nonzeros, (r.size, self.n_free)), sparse_gram(*nonzeros, self.n_free)
+        return r, pattern.dense(nonzeros[2], r.size, self.n_free), pattern.gram(nonzeros[2], self.n_free)
 
-    def _prior_terms(self, p: np.ndarray, T: np.ndarray | None,
-                     jacobian: bool) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+    def _prior_terms(self, p: np.ndarray, T: np.ndarray | None, jacobian: bool) -> tuple[
+            np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None, _Pattern | None]:
         """The prior residuals and (with `jacobian`) their Jacobian through T as nonzeros (rows in
-        order, columns, values; a position may repeat, its values then add up), None without rows."""
+        order, columns, values; a position may repeat, its values then add up), None without rows, and
+        those nonzeros' positions as a _Pattern (kept while they are the same: the priors' rows and columns
+        do not change with p)."""
         st, m, L = self.settings, self.model, self.layout
         free = set(st.free)
         base, (seg_pairs, joint_pairs, mirror), unit = self._prior_centres()
@@ -378,14 +418,12 @@ class PriorsMixin:
 
         def block(group: str, seg_of: np.ndarray, sigma: float | np.ndarray) -> None:
             """Each entry's pull towards the base model's, at its segment's scale; `sigma` one SD or one per block."""
-            idx = L.entries(group)  # (count, 3) full indices
+            idx, rows, cols = self._block_index(group, seg_of)  # idx (count, 3): full indices
             s = scale[seg_of][:, None]
             sd = np.broadcast_to(np.reshape(sigma, (-1, 1)), idx.shape)
             diff = p[idx] - base[idx]
-            rows = np.arange(idx.size)
             add((s * diff / sd).ravel(), lambda: (
-                np.r_[rows, rows], np.r_[idx.ravel(), L.scale(np.repeat(seg_of, 3))],
-                np.r_[np.broadcast_to(s / sd, idx.shape).ravel(), (diff / sd).ravel()]))
+                rows, cols, np.concatenate([np.broadcast_to(s / sd, idx.shape).ravel(), (diff / sd).ravel()])))
 
         if "marker" in free:
             block("marker", self.marker_segment, self.marker_sd())
@@ -415,10 +453,10 @@ class PriorsMixin:
                 size = float(np.mean(scale[k] / b_k))
                 n, col = k.size, L.scales.start + k
                 tau = math.sqrt(sd ** 2 / n + st.priors.size ** 2)
-                add(np.r_[(scale[k] - b_k * size) / sd, (size - 1.0) / tau], lambda: (
-                    np.r_[np.arange(n), np.repeat(np.arange(n), n), np.full(n, n)],
-                    np.r_[col, np.tile(col, n), col],
-                    np.r_[np.full(n, 1.0 / sd), (-np.outer(b_k, 1.0 / b_k) / (n * sd)).ravel(), 1.0 / (n * b_k * tau)]))
+                add(_cat((scale[k] - b_k * size) / sd, (size - 1.0) / tau), lambda: (
+                    _cat(np.arange(n), np.repeat(np.arange(n), n), np.full(n, n)),
+                    _cat(col, np.tile(col, n), col),
+                    _cat(np.full(n, 1.0 / sd), (-np.outer(b_k, 1.0 / b_k) / (n * sd)).ravel(), 1.0 / (n * b_k * tau))))
             else:  # too few for a mean: each about the base model's
                 add((scale[k] - base[L.scales][k]) / sd, lambda: (
                     np.arange(k.size), L.scales.start + k, np.full(k.size, 1.0 / sd)))
@@ -431,8 +469,8 @@ class PriorsMixin:
             a, b = np.array(seg_pairs).T
             k = np.arange(a.size)
             add(((scale[a] - scale[b]) - (base[L.scale(a)] - base[L.scale(b)])) / sd, lambda: (
-                np.r_[k, k], np.r_[L.scale(a), L.scale(b)],
-                np.r_[np.full(a.size, 1.0 / sd), np.full(a.size, -1.0 / sd)]))
+                _cat(k, k), _cat(L.scale(a), L.scale(b)),
+                _cat(np.full(a.size, 1.0 / sd), np.full(a.size, -1.0 / sd))))
         sd = st.priors.symmetry_centre
         if "centre" in free and sd > 0 and joint_pairs:
             jl, jr = np.array(joint_pairs, dtype=int).T
@@ -467,11 +505,11 @@ class PriorsMixin:
                 n, k = len(mks), np.arange(3)
                 # d y_k / d p_i,l = -(delta_kl / n + x0_k b_il / bb): the centroid's share and kappa's
                 add(s * y / sd, lambda ce=ce, mk=mk, n=n, k=k, s=s, y=y, x0=x0, seg=seg, b=b, bb=bb: (
-                    np.r_[k, np.repeat(k, 3 * n), k],
-                    np.r_[ce, np.tile(mk.ravel(), 3), np.full(3, L.scale(seg))],
-                    np.r_[np.full(3, s / sd),
+                    _cat(k, np.repeat(k, 3 * n), k),
+                    _cat(ce, np.tile(mk.ravel(), 3), np.full(3, L.scale(seg))),
+                    _cat(np.full(3, s / sd),
                           (-s / sd * (np.eye(3)[:, None, :] / n + x0[:, None, None] * b[None, :, :] / bb)).ravel(),
-                          y / sd]))
+                          y / sd)))
         # A joint-centre marker keeps its base-model offset from its centre (Priors.joint_marker): on the joint's
         # parent, marker minus centre in that frame; on its child, the marker's offset from the child's origin.
         ties = self.joint_markers()
@@ -486,9 +524,9 @@ class PriorsMixin:
             s = scale[seg][:, None]
             k = np.arange(mk.size).reshape(-1, 3)
             add((s * (x - x0) / sd).ravel(), lambda: (
-                np.r_[k.ravel(), k[par].ravel(), k.ravel()],
-                np.r_[mk.ravel(), ce[par].ravel(), np.repeat(L.scale(seg), 3)],
-                np.r_[np.repeat(s.ravel() / sd, 3), np.repeat(-s[par].ravel() / sd, 3), ((x - x0) / sd).ravel()]))
+                _cat(k.ravel(), k[par].ravel(), k.ravel()),
+                _cat(mk.ravel(), ce[par].ravel(), np.repeat(L.scale(seg), 3)),
+                _cat(np.repeat(s.ravel() / sd, 3), np.repeat(-s[par].ravel() / sd, 3), ((x - x0) / sd).ravel())))
         # A held hinge's lateral marker on its axis line (Priors.on_axis): the part of its offset from the centre
         # across the axis, at the segment's scale, pulled to zero (3 rows of rank 2; the axis is not free here).
         on_axis = self.on_axis_terms()
@@ -503,43 +541,46 @@ class PriorsMixin:
                 s = scale[seg]
                 k = np.repeat(np.arange(3), 3)
                 add(s * (P @ x) / sd, lambda P=P, mk=mk, ce=ce, x=x, s=s, seg=seg, k=k: (
-                    np.r_[k, k, np.arange(3)],
-                    np.r_[np.tile(np.arange(mk.start, mk.stop), 3), np.tile(np.arange(ce.start, ce.stop), 3),
-                          np.full(3, L.scale(seg))],
-                    np.r_[(s / sd) * P.ravel(), -(s / sd) * P.ravel(), (P @ x) / sd]))
+                    _cat(k, k, np.arange(3)),
+                    _cat(np.tile(np.arange(mk.start, mk.stop), 3), np.tile(np.arange(ce.start, ce.stop), 3),
+                          np.full(3, L.scale(seg))),
+                    _cat((s / sd) * P.ravel(), -(s / sd) * P.ravel(), (P @ x) / sd)))
         # A hinge's axis along the line of the two markers straddling its centre (Priors.pair_axis; pair_terms):
         # (a x e) / sd, a the axis and e the pair's direction in the parent's frame (3 rows of rank 2, |a x e| the
         # sine of the angle between them, either way round).
         pairs = self.pair_terms()
         if pairs:
+            # All pairs at once (Rajagopal's six hinges: a loop over them was a third of the priors' time).
             sd = st.priors.pair_axis
-            for ji, k1, k2, d in pairs:
-                R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
-                v = p[L.axis(d)]
-                nv = float(np.linalg.norm(v))
-                u = v / nv
-                a = R @ u
-                x = p[L.marker(k2)] - p[L.marker(k1)]
-                nx = float(np.linalg.norm(x))
-                e = x / nx
-                dv = -_cross_matrix(e) @ R @ (np.eye(3) - np.outer(u, u)) / (nv * sd)
-                dx = _cross_matrix(a) @ (np.eye(3) - np.outer(e, e)) / (nx * sd)
-                k = np.repeat(np.arange(3), 3)
-                c3 = np.tile(np.arange(3), 3)
-                ax, m1, m2 = L.axis(d), L.marker(k1), L.marker(k2)
-                add(np.cross(a, e) / sd, lambda ax=ax, m1=m1, m2=m2, dv=dv, dx=dx, k=k, c3=c3: (
-                    np.r_[k, k, k], np.r_[ax.start + c3, m2.start + c3, m1.start + c3],
-                    np.r_[dv.ravel(), dx.ravel(), -dx.ravel()]))
+            R, ax, m1, m2, rows, cols = self._pair_index(pairs)
+            v = p[ax]
+            nv = np.array([np.linalg.norm(w) for w in v])  # (as the loop over pairs took them, to the bit)
+            u = v / nv[:, None]
+            a = np.array([Ri @ ui for Ri, ui in zip(R, u, strict=True)])
+            x = p[m2] - p[m1]
+            nx = np.array([np.linalg.norm(w) for w in x])
+            e = x / nx[:, None]
+            eye = np.eye(3)
+            dv = -_cross_matrices(e) @ R @ (eye - u[:, :, None] * u[:, None, :]) / (nv * sd)[:, None, None]
+            dx = _cross_matrices(a) @ (eye - e[:, :, None] * e[:, None, :]) / (nx * sd)[:, None, None]
+            add((np.cross(a, e) / sd).ravel(), lambda: (
+                rows, cols, np.concatenate([dv.reshape(-1, 9), dx.reshape(-1, 9), -dx.reshape(-1, 9)], axis=1).ravel()))
         if not res:
-            return np.zeros(0), None
+            return np.zeros(0), None, None
         if not jacobian:
-            return np.concatenate(res), None
-        # T's nonzeros: where the layout's tangent map may be nonzero (a zero among them adds nothing).
-        nonzeros = L.tangent_nonzeros() if T is None else np.nonzero(T)
-        T = self.tangent_map(p) if T is None else T
+            return np.concatenate(res), None, None
         r = np.concatenate(res)
         rows, cols, vals = (np.concatenate(x) for x in zip(*trip, strict=True))
-        return r, _sparse_product(rows, cols, vals, T, nonzeros)
+        if T is not None:
+            nonzeros = _sparse_product(rows, cols, vals, T, np.nonzero(T))
+            return r, nonzeros, _Pattern(nonzeros[0], nonzeros[1])
+        # Through the layout's tangent map, at the entries where it may be nonzero (a zero among them adds
+        # nothing): which of J's nonzeros meets which of T's is the same at every p, so it is kept.
+        product = self.__dict__.get("_prior_product")
+        if product is None or not product.matches(rows, cols):
+            product = _Product(rows, cols, L.tangent_nonzeros(), L.n_full)
+            self._prior_product = product
+        return r, product.apply(vals, L.tangent_values(p)), product.pattern
 
     def limits(self, Z: np.ndarray) -> np.ndarray:
         """Joint-limit residuals (F, n_dofs): LIMIT_WEIGHT/σ × how far each angle lies outside its
@@ -573,6 +614,19 @@ class PriorsMixin:
         return (lim != 0) | self.locked
 
 
+def _cat(*parts: np.ndarray | float) -> np.ndarray:
+    """The 1-D arrays and scalars `parts` end to end (np.r_'s result for them, at a fraction of its time)."""
+    return np.concatenate([np.atleast_1d(x) for x in parts])
+
+
+def _cross_matrices(v: np.ndarray) -> np.ndarray:
+    """(n, 3, 3): [v]x of each row of `v` (n, 3)."""
+    out = np.zeros((v.shape[0], 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
+
+
 def _cross_matrix(v: np.ndarray) -> np.ndarray:
     """[v]x: the matrix of the cross product v x ."""
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
@@ -594,6 +648,53 @@ def _sparse_product(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, T: np.
     return np.repeat(rows, n), t_cols[at], np.repeat(vals, n) * T[t_rows[at], t_cols[at]]
 
 
+class _Product:
+    """_sparse_product's work for fixed J nonzero positions (rows, cols) and T nonzero positions `t_nonzeros`
+    (T with `n_rows` rows): the order it sorts J's nonzeros in and which of T's each meets, found once;
+    apply(vals, t_values) then gives _sparse_product's nonzeros, the same numbers, for J's values `vals` and
+    T's values at `t_nonzeros`."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, t_nonzeros: tuple[np.ndarray, np.ndarray], n_rows: int):
+        self.rows, self.cols = rows, cols
+        order = np.lexsort((cols, rows))
+        r, c = rows[order], cols[order]
+        t_rows, t_cols = t_nonzeros
+        counts = np.bincount(t_rows, minlength=n_rows)
+        first = np.cumsum(counts) - counts
+        n = counts[c]
+        self.order, self.n = order, n
+        self.at = np.repeat(first[c] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+        self.pattern = _Pattern(np.repeat(r, n), t_cols[self.at])
+
+    def matches(self, rows: np.ndarray, cols: np.ndarray) -> bool:
+        return rows.size == self.rows.size and np.array_equal(rows, self.rows) and np.array_equal(cols, self.cols)
+
+    def apply(self, vals: np.ndarray, t_values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.pattern.rows, self.pattern.cols, np.repeat(vals[self.order], self.n) * t_values[self.at]
+
+
+class _Pattern:
+    """Nonzero positions (rows in order, cols; a position may repeat) of a matrix, and what _dense and sparse_gram
+    find from them alone, made on first use: dense(vals, ...) and gram(vals, n) are _dense's and sparse_gram's
+    results for the values `vals` at these positions."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray):
+        self.rows, self.cols = rows, cols
+        self._gram: tuple[int, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def dense(self, vals: np.ndarray, n_rows: int, n: int) -> np.ndarray:
+        return _dense(self.rows, self.cols, vals, (n_rows, n))
+
+    def gram(self, vals: np.ndarray, n: int) -> np.ndarray:
+        if self._gram is None or self._gram[0] != n:
+            me, partner = _row_pairs(self.rows)
+            self._gram = (n, me, partner, self.cols[me] * n + self.cols[partner])
+        _, me, partner, flat = self._gram
+        out = np.zeros((n, n))
+        np.add.at(out.reshape(-1), flat, vals[me] * vals[partner])
+        return out
+
+
 def _dense(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """The matrix of `shape` with the nonzeros (rows, cols, vals), repeated positions summed in order
     (np.add.at: as np.bincount sums, at a hundredth of its time on an output of 10⁵ entries)."""
@@ -606,11 +707,18 @@ def sparse_gram(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int) ->
     """JᵀJ (n, n) of the matrix J with the nonzeros (rows in order, cols, vals; repeated positions add
     up) and n columns: the products of each row's nonzeros summed into place, not a dense product
     (Rajagopal's 542 prior rows × 287 parameters with 637 nonzeros)."""
-    counts = np.bincount(rows)
-    first = np.cumsum(counts) - counts
-    k = counts[rows]  # each nonzero pairs with every nonzero of its row
-    me = np.repeat(np.arange(rows.size), k)
-    partner = np.repeat(first[rows], k) + np.arange(me.size) - np.repeat(np.cumsum(k) - k, k)
+    me, partner = _row_pairs(rows)
     out = np.zeros((n, n))
     np.add.at(out.reshape(-1), cols[me] * n + cols[partner], vals[me] * vals[partner])
     return out
+
+
+def _row_pairs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair of nonzeros (indices) in one row, for the nonzeros' rows `rows` (in order): each nonzero
+    with every nonzero of its row, itself included, row by row."""
+    counts = np.bincount(rows)
+    first = np.cumsum(counts) - counts
+    k = counts[rows]
+    me = np.repeat(np.arange(rows.size), k)
+    partner = np.repeat(first[rows], k) + np.arange(me.size) - np.repeat(np.cumsum(k) - k, k)
+    return me, partner
