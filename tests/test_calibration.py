@@ -977,6 +977,38 @@ def test_trials_of_two_subjects_under_the_refusal_are_named(human):
     assert trials_apart(human, [simulate_static(human, walk.truth, frames=20, seed=5).trial, walk.trial]) == ()
 
 
+def test_segment_distances_are_each_pairs_median_over_the_frames_read(human):
+    """seeding.segment_distances: for each two markers of one segment 50 mm or more apart in the model, the median of
+    their distance over the frames it reads (every n_frames // 100-th), taken here pair by pair from the positions;
+    NaN for the other pairs, a marker the trial lacks, and one it never shows."""
+    from calibrate.seed.seeding import SEGMENT_PAIR_MIN, segment_distances
+
+    walk = simulate_gait(human, frames=230, noise_mm=1.0, seed=7).trial
+    X = walk.markers.copy()
+    X[:, walk.labels.index("LKNE")] = np.nan  # never seen
+    X[::3, walk.labels.index("RKNE")] = np.nan  # seen in two frames of three
+    gone = walk.labels.index("LASI")
+    trial = dataclasses.replace(walk, markers=np.delete(X, gone, axis=1),
+                                labels=walk.labels[:gone] + walk.labels[gone + 1:])
+    D, ref = segment_distances(human, trial)
+    P = human.neutral_positions(human.marker_names)
+    read = trial.markers[::trial.n_frames // 100]
+    count = 0
+    for a, ma in enumerate(human.markers):
+        for b, mb in enumerate(human.markers):
+            far = b > a and ma.segment == mb.segment and np.linalg.norm(P[a] - P[b]) >= SEGMENT_PAIR_MIN
+            if far and ma.name in trial.labels and mb.name in trial.labels:
+                d = np.linalg.norm(read[:, trial.labels.index(ma.name)] - read[:, trial.labels.index(mb.name)], axis=1)
+                d = d[np.isfinite(d)]
+                if d.size:
+                    count += 1
+                    assert D[a, b] == np.median(d), (ma.name, mb.name)
+                    continue
+            assert np.isnan(D[a, b]), (ma.name, mb.name)
+            assert np.isnan(ref[a, b]) != far
+    assert count >= 20
+
+
 def test_trials_of_two_subjects_are_refused(human, tmp_path):
     """A static of a subject 0.7 times the walk's size (one participant's static given with another's trial, as
     Pose2Sim's two-person demo invites): refused with one line naming both trials and their sizes, whose ratio is

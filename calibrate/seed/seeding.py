@@ -632,10 +632,13 @@ def segment_distances(model: Model, trial: Trial, frames: int = 100) -> tuple[np
     index = {lab: i for i, lab in enumerate(trial.labels)}
     at = np.array([index.get(n, -1) for n in names])
     X = np.where(at[None, :, None] >= 0, np.asarray(trial.markers)[::max(1, trial.n_frames // frames)][:, at], np.nan)
+    # The pairs read only (not every two markers: Rajagopal's 88 markers are 7 700 pairs, its segments' 200).
+    i, j = np.nonzero(pairs & (at[:, None] >= 0) & (at[None, :] >= 0))
+    D = np.full(pairs.shape, np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        D = np.nanmedian(np.linalg.norm(X[:, :, None] - X[:, None], axis=-1), axis=0)
-    return np.where(pairs, D, np.nan), np.where(pairs, ref, np.nan)
+        D[i, j] = np.nanmedian(np.linalg.norm(X[:, i] - X[:, j], axis=-1), axis=0)
+    return D, np.where(pairs, ref, np.nan)
 
 
 LONE_MARGIN = 0.020  # m: a side of a lone exchange is taken where its distances fit the model's this much better ...
