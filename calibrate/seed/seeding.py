@@ -632,7 +632,7 @@ def segment_distances(model: Model, trial: Trial, frames: int = 100) -> tuple[np
     index = {lab: i for i, lab in enumerate(trial.labels)}
     at = np.array([index.get(n, -1) for n in names])
     X = np.where(at[None, :, None] >= 0, np.asarray(trial.markers)[::max(1, trial.n_frames // frames)][:, at], np.nan)
-    # The pairs read only (not every two markers: Rajagopal's 88 markers are 7 700 pairs, its segments' 200).
+    # The pairs read only, not every two markers (Rajagopal's 88 are 7 700 pairs; its static keeps 132).
     i, j = np.nonzero(pairs & (at[:, None] >= 0) & (at[None, :] >= 0))
     D = np.full(pairs.shape, np.nan)
     with warnings.catch_warnings():
