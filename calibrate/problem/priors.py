@@ -627,25 +627,13 @@ def _cross_matrices(v: np.ndarray) -> np.ndarray:
     return out
 
 
-def _cross_matrix(v: np.ndarray) -> np.ndarray:
-    """[v]x: the matrix of the cross product v x ."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _sparse_product(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, T: np.ndarray,
                     t_nonzeros: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The nonzeros of J @ T (rows in order, columns, values; a position may repeat) for the matrix J
     given by its nonzeros (rows, cols, vals; repeated entries add up) and a T with few nonzeros per row
     (the tangent map: an identity but for each hinge axis's 3 × 2 block) at `t_nonzeros` (its rows in
     order, columns; a superset does too): every product of a nonzero of J with one of T's row."""
-    order = np.lexsort((cols, rows))  # each sum in one order, whatever order the triplets came in
-    rows, cols, vals = rows[order], cols[order], vals[order]
-    t_rows, t_cols = t_nonzeros
-    counts = np.bincount(t_rows, minlength=T.shape[0])
-    first = np.cumsum(counts) - counts  # where each row of T starts among its nonzeros
-    n = counts[cols]
-    at = np.repeat(first[cols] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))  # T's nonzeros, row by row
-    return np.repeat(rows, n), t_cols[at], np.repeat(vals, n) * T[t_rows[at], t_cols[at]]
+    return _Product(rows, cols, t_nonzeros, T.shape[0]).apply(vals, T[t_nonzeros])
 
 
 class _Product:
@@ -656,14 +644,14 @@ class _Product:
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, t_nonzeros: tuple[np.ndarray, np.ndarray], n_rows: int):
         self.rows, self.cols = rows, cols
-        order = np.lexsort((cols, rows))
+        order = np.lexsort((cols, rows))  # each sum in one order, whatever order the triplets came in
         r, c = rows[order], cols[order]
         t_rows, t_cols = t_nonzeros
         counts = np.bincount(t_rows, minlength=n_rows)
-        first = np.cumsum(counts) - counts
+        first = np.cumsum(counts) - counts  # where each row of T starts among its nonzeros
         n = counts[c]
         self.order, self.n = order, n
-        self.at = np.repeat(first[c] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+        self.at = np.repeat(first[c] - np.cumsum(n) + n, n) + np.arange(int(n.sum()))  # T's nonzeros, row by row
         self.pattern = _Pattern(np.repeat(r, n), t_cols[self.at])
 
     def matches(self, rows: np.ndarray, cols: np.ndarray) -> bool:
@@ -687,7 +675,13 @@ class _Pattern:
 
     def gram(self, vals: np.ndarray, n: int) -> np.ndarray:
         if self._gram is None or self._gram[0] != n:
-            me, partner = _row_pairs(self.rows)
+            # each nonzero with every nonzero of its row (itself included), row by row
+            rows = self.rows
+            counts = np.bincount(rows)
+            first = np.cumsum(counts) - counts
+            k = counts[rows]
+            me = np.repeat(np.arange(rows.size), k)
+            partner = np.repeat(first[rows], k) + np.arange(me.size) - np.repeat(np.cumsum(k) - k, k)
             self._gram = (n, me, partner, self.cols[me] * n + self.cols[partner])
         _, me, partner, flat = self._gram
         out = np.zeros((n, n))
@@ -707,18 +701,4 @@ def sparse_gram(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, n: int) ->
     """JᵀJ (n, n) of the matrix J with the nonzeros (rows in order, cols, vals; repeated positions add
     up) and n columns: the products of each row's nonzeros summed into place, not a dense product
     (Rajagopal's 542 prior rows × 287 parameters with 637 nonzeros)."""
-    me, partner = _row_pairs(rows)
-    out = np.zeros((n, n))
-    np.add.at(out.reshape(-1), cols[me] * n + cols[partner], vals[me] * vals[partner])
-    return out
-
-
-def _row_pairs(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair of nonzeros (indices) in one row, for the nonzeros' rows `rows` (in order): each nonzero
-    with every nonzero of its row, itself included, row by row."""
-    counts = np.bincount(rows)
-    first = np.cumsum(counts) - counts
-    k = counts[rows]
-    me = np.repeat(np.arange(rows.size), k)
-    partner = np.repeat(first[rows], k) + np.arange(me.size) - np.repeat(np.cumsum(k) - k, k)
-    return me, partner
+    return _Pattern(rows, cols).gram(vals, n)
