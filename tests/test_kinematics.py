@@ -339,8 +339,60 @@ def test_rotation_helpers_equal_scipy_rotation():
         slerp_quats(keys, k, keys[-1:] + 1)
 
 
+def test_euler_and_rotation_vector_helpers_equal_scipy_rotation():
+    # The OpenSim import and exports read and write Euler angles (OpenSim's body-fixed X-Y-Z, URDF's rpy, the
+    # ground joint's Z-Y-X) without scipy; its Rotation is the reference, at every sequence and at gimbal lock.
+    import warnings
+
+    from scipy.spatial.transform import Rotation
+
+    from calibrate.model.kinematics import (
+        euler_matrices,
+        euler_quats,
+        matrix_eulers,
+        matrix_rotvecs,
+        quat_eulers,
+        rotvec_matrices,
+    )
+
+    rng = np.random.default_rng(11)
+    turns = lambda a, b: np.abs(np.angle(np.exp(1j * (a - b)))).max()  # noqa: E731 - angles apart, mod 2 pi
+    sequences = [a + b + c for a in "xyz" for b in "xyz" for c in "xyz" if a != b != c]
+    assert len(sequences) == 12
+    for seq in sequences + [s.upper() for s in sequences]:
+        angles = rng.uniform(-np.pi, np.pi, (600, 3))
+        angles[:50, 1] = 0.0  # gimbal lock: the middle angle at an end of its range
+        angles[50:100, 1] = np.pi / 2 * rng.choice([-1.0, 1.0], 50) if seq[0] != seq[2] else np.pi
+        R = Rotation.from_euler(seq, angles)
+        np.testing.assert_allclose(euler_matrices(seq, angles), R.as_matrix(), rtol=0, atol=2e-15)
+        assert np.abs(np.abs(euler_quats(seq, angles) @ R.as_quat().T).diagonal() - 1).max() < 1e-15
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # scipy warns at gimbal lock; the helpers give its angles silently
+            want_q, want_m = R.as_euler(seq), Rotation.from_matrix(R.as_matrix()).as_euler(seq)
+        assert turns(quat_eulers(R.as_quat(), seq), want_q) < 1e-14, seq
+        assert turns(matrix_eulers(R.as_matrix(), seq), want_m) < 1e-14, seq
+        np.testing.assert_allclose(euler_matrices(seq, matrix_eulers(R.as_matrix(), seq)), R.as_matrix(), atol=1e-14)
+    for seq in ("x", "Y", "xy", "ZX"):
+        angles = rng.uniform(-3, 3, len(seq))
+        np.testing.assert_allclose(euler_matrices(seq, angles), Rotation.from_euler(seq, angles).as_matrix(),
+                                   rtol=0, atol=1e-15)
+    np.testing.assert_allclose(euler_matrices("x", 0.7), Rotation.from_euler("x", 0.7).as_matrix(), atol=1e-15)
+    v = rng.normal(size=(1000, 3)) * np.r_[1e-7, 1e-4, 1.0, 1.7][rng.integers(0, 4, 1000)][:, None]
+    np.testing.assert_allclose(rotvec_matrices(v), Rotation.from_rotvec(v).as_matrix(), rtol=0, atol=1e-15)
+    M = Rotation.from_rotvec(v).as_matrix()
+    np.testing.assert_allclose(matrix_rotvecs(M), Rotation.from_matrix(M).as_rotvec(), rtol=0, atol=1e-14)
+    for bad in ("xx", "xyzx", "xYz", "abc", ""):
+        with pytest.raises(ValueError, match="Euler sequence"):
+            euler_matrices(bad, np.zeros(len(bad)))
+    with pytest.raises(ValueError, match="takes 3 angles"):
+        euler_matrices("xyz", np.zeros(2))
+    with pytest.raises(ValueError, match="Euler sequence"):
+        matrix_eulers(np.eye(3), "xy")
+
+
 def test_importing_calibrate_imports_no_scipy():
-    # scipy stays a dependency (OpenSim import, tracking, tests) but no command pays for it on its way in.
+    # scipy stays a dependency (labelling, the simulator, tests) but no command pays for it on its way in (an
+    # OpenSim model's commands neither: tests/test_osim_import.py).
     import subprocess
     import sys
 

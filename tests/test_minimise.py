@@ -83,3 +83,27 @@ def test_kabsch_never_returns_a_reflection():
     b = a * np.array([1.0, 1.0, -1.0])  # the mirror image: the best orthogonal matrix is a reflection
     R, _, D = kabsch_rotation(a.T @ b)
     assert np.isclose(np.linalg.det(R), 1.0) and D[2] == -1.0
+
+
+def test_fit_least_squares_reaches_scipys_minimum_of_a_curve_fit():
+    # The OpenSim import's small fits (calibrate.io.osim: a hinge over a knee's range) run on it, not on scipy's
+    # least_squares: on a noisy exponential decay the two reach the same minimum, and it stops at its tolerances.
+    from scipy.optimize import least_squares
+
+    from calibrate.solve.lm import fit_least_squares
+
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 4.0, 80)
+    y = 2.5 * np.exp(-1.3 * t) + 0.4 * np.sin(3.0 * t + 0.2) + rng.normal(0.0, 0.02, t.size)
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        return x[0] * np.exp(-x[1] * t) + x[2] * np.sin(x[3] * t + x[4]) - y
+
+    x0 = np.array([1.0, 1.0, 0.3, 2.8, 0.0])
+    ours, summary = fit_least_squares(residual, x0, ftol=1e-14, xtol=1e-14)
+    theirs = least_squares(residual, x0, method="trf", xtol=1e-14, ftol=1e-14, gtol=1e-14).x
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-8)
+    assert summary.converged and summary.final_cost <= float(residual(theirs) @ residual(theirs)) * (1 + 1e-12)
+    assert abs(ours[1] - 1.3) < 0.05 and abs(ours[3] - 3.0) < 0.05  # the decay and the wave the data were made of
+    loose, loose_summary = fit_least_squares(residual, x0, ftol=1e-3, xtol=1e-14)
+    assert loose_summary.iterations < summary.iterations and "ftol" in loose_summary.termination

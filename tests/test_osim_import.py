@@ -644,6 +644,23 @@ def test_marker_set_needs_an_osim(tmp_path):
 
 
 @pytest.mark.skipif(not GAIT.exists(), reason="gait2392 is not in ../shared/data/real")
+def test_commands_on_an_opensim_model_import_no_scipy(tmp_path):
+    # Importing scipy (its optimize and Rotation) took every command on an .osim a quarter of a second of its
+    # start, more than calibrate ik's fit of a 121-frame walk: the import's fits, Euler angles and splines are
+    # numpy's (a NaturalCubicSpline, which no model here has, still takes scipy's).
+    code = (f"import sys; from calibrate.cli.main import main; o = r'{tmp_path}'; "
+            f"assert main(['import-osim', r'{GAIT}', '--marker-set', r'{GAIT_MARKERS}', '-o', o + '/g.urdf']) == 0; "
+            "assert main(['inspect', o + '/g.urdf']) == 0; "
+            "assert main(['export-osim', o + '/g.urdf', '-o', o + '/g.osim']) == 0; "
+            "assert main(['export-mjcf', o + '/g.urdf', '-o', o + '/g.xml']) == 0; "
+            "assert main(['inspect', o + '/g.osim']) == 0; "
+            "print(sorted(m for m in sys.modules if m.startswith('scipy')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]"
+    assert {"g.urdf", "g.osim", "g.xml"} <= {f.name for f in tmp_path.iterdir()}
+
+
+@pytest.mark.skipif(not GAIT.exists(), reason="gait2392 is not in ../shared/data/real")
 def test_hinge_fit_is_the_same_in_every_process():
     # The knee's fixed-hinge fit came out 1e-13 apart from process to process under MINPACK's Levenberg-
     # Marquardt (with the string-hash seed), and the calibration on it 1e-6 apart; the same model is the same

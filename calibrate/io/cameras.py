@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 import tomllib
-from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError
+from ..model.kinematics import rotvec_matrices
 from .outputs import put_text, write_all
 
 
@@ -170,7 +170,7 @@ def _camera(path: Path, i: int, entry) -> Camera:
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             raise CameraError(f"{path}: camera '{name}': 'R' is not a rotation matrix (orthonormal, det +1)")
     else:
-        R = Rotation.from_rotvec(_matrix(path, name, "rvec", entry["rvec"], (3,))).as_matrix()
+        R = rotvec_matrices(_matrix(path, name, "rvec", entry["rvec"], (3,)))
     t = _matrix(path, name, "t", entry["t"], (3,))
     size = _matrix(path, name, "size", entry["size"], (2,))
     if np.any(size < 1) or np.any(size != np.round(size)):

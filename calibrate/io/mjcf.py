@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError
+from ..model.kinematics import matrix_quats
 from ..model.model import Model, Parameters, urdf_text
 from ..model.urdf import urdf_visuals
 from .motion import Motion
@@ -52,7 +52,7 @@ def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     """MuJoCo's quaternion (w, x, y, z) of a rotation matrix; exactly (1, 0, 0, 0) for R = I."""
     if np.array_equal(R, np.eye(3)):
         return np.array([1.0, 0.0, 0.0, 0.0])
-    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    x, y, z, w = matrix_quats(R)
     return np.array([w, x, y, z])
 
 

@@ -47,13 +47,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from calibrate.io.osim_read import OsimCoordinate, OsimJoint, OsimReader, axis_rotation, urdf_rpy
 
 from ..errors import ModelError, NoMarkersError, read_text_file
+from ..model.kinematics import matrix_rotvecs, rotvec_matrices
 from ..seed.geometry import Transform, apply, compose, identity_transform, invert
+from ..solve.lm import fit_least_squares
 from .text import fmt_float, fmt_vec
 
 GRID = 401  # coordinate values over a range at which approximations are measured
@@ -583,8 +583,8 @@ class _Importer:
         x0: list[float] = []
         for c, a in revs:
             lo, hi = ({**ref, c: ref[c] + d} for d in (-1e-3, 1e-3))
-            w = Rotation.from_matrix(self._chain_poses(j, chain, hi, 1)[-1][0][0]
-                                     @ self._chain_poses(j, chain, lo, 1)[-1][0][0].T).as_rotvec() / 2e-3
+            w = matrix_rotvecs(self._chain_poses(j, chain, hi, 1)[-1][0][0]
+                               @ self._chain_poses(j, chain, lo, 1)[-1][0][0].T) / 2e-3
             g = float(np.linalg.norm(w)) * (1.0 if w @ (prefix @ a) >= 0 else -1.0)
             x0 += [*a, g if abs(g) > 1e-3 else 1.0]
             prefix = prefix @ axis_rotation(a, np.array(ref[c][0]))
@@ -593,7 +593,7 @@ class _Importer:
                                                        ratio=x0[4 * i + 3]) for i, (c, _) in enumerate(revs)]
         Rh, ph = _ops_transform(head, ref, 1)
         Y0 = compose(invert((Rh[0], ph[0])), compose((Rr[0], pr[0]), invert(rests[-1])))
-        x0 += [*centre, *Rotation.from_matrix(Y0[0]).as_rotvec(), *Y0[1]]
+        x0 += [*centre, *matrix_rotvecs(Y0[0]), *Y0[1]]
         m = len(revs)
 
         def ops_of(x: np.ndarray) -> list[_Op]:
@@ -601,7 +601,7 @@ class _Importer:
             for i, (c, _) in enumerate(revs):
                 a = x[4 * i:4 * i + 3]
                 out.append(_Op(coord=c, axis=a / np.linalg.norm(a), ratio=float(x[4 * i + 3])))
-            Y = (Rotation.from_rotvec(x[4 * m + 3:4 * m + 6]).as_matrix(), x[4 * m + 6:4 * m + 9])
+            Y = (rotvec_matrices(x[4 * m + 3:4 * m + 6]), x[4 * m + 6:4 * m + 9])
             return out + [_Op(fixed=Y)]
 
         def residual(x: np.ndarray) -> np.ndarray:
@@ -616,16 +616,14 @@ class _Importer:
             rest = np.r_[[x0a[4 * i + 3] for i in range(m)], x0a[4 * m:]]
 
             def full(y: np.ndarray) -> np.ndarray:
-                Rw = Rotation.from_rotvec(y[:3]).as_matrix()
+                Rw = rotvec_matrices(y[:3])
                 axes = [Rw @ a for a in axes0]
                 return np.concatenate([np.r_[axes[i], y[3 + i]] for i in range(m)] + [y[3 + m:]])
 
-            sol = least_squares(lambda y: residual(full(y)), np.r_[np.zeros(3), rest], method="trf", xtol=1e-10,
-                                ftol=1e-10)
-            ops = ops_of(full(sol.x))
+            y, _ = fit_least_squares(lambda y: residual(full(y)), np.r_[np.zeros(3), rest], ftol=1e-10, xtol=1e-10)
+            ops = ops_of(full(y))
         else:
-            sol = least_squares(residual, np.array(x0), method="trf", xtol=1e-10, ftol=1e-10)
-            ops = ops_of(sol.x)
+            ops = ops_of(fit_least_squares(residual, np.array(x0), ftol=1e-10, xtol=1e-10)[0])
         for op in ops:  # Rot(a, g q) = Rot(-a, -g q): every ratio positive
             if op.coord is not None and op.ratio < 0:
                 op.axis, op.ratio = -op.axis, -op.ratio  # type: ignore[operator]
@@ -714,7 +712,7 @@ class _Importer:
         target = np.einsum("nij,kj->nki", R, pts) + p[:, None, :]
         # initial guess: the screw axis between the range's ends
         Rr = R[-1] @ R[0].T
-        rv = Rotation.from_matrix(Rr).as_rotvec()
+        rv = matrix_rotvecs(Rr)
         if np.linalg.norm(rv) > 1e-6:
             a0 = rv / np.linalg.norm(rv) * np.sign(hi - lo)
         else:
@@ -723,23 +721,22 @@ class _Importer:
         c0 = np.linalg.lstsq(np.eye(3) - Rr, tr - (a0 @ tr) * a0, rcond=None)[0]
         mid = q.size // 2
         Ym = compose((axis_rotation(a0, -q[mid]), np.zeros(3)), compose((np.eye(3), -c0), (R[mid], p[mid])))
-        x0 = np.concatenate([a0, c0, Rotation.from_matrix(Ym[0]).as_rotvec(), Ym[1]])
+        x0 = np.concatenate([a0, c0, matrix_rotvecs(Ym[0]), Ym[1]])
 
         def model(x: np.ndarray) -> np.ndarray:
             a = x[:3] / np.linalg.norm(x[:3])
-            RY = Rotation.from_rotvec(x[6:9]).as_matrix()
+            RY = rotvec_matrices(x[6:9])
             Rq = axis_rotation(a, q)
             RR = Rq @ RY
             pp = np.einsum("nij,j->ni", Rq, x[9:12]) + x[3:6]
             return np.einsum("nij,kj->nki", RR, pts) + pp[:, None, :]
 
-        # Trust-region reflective, not MINPACK's Levenberg-Marquardt: that one's steps came out 1e-13 apart from
-        # process to process (tests/test_osim_import.py), and every calibration on the model 1e-6 apart.
-        sol = least_squares(lambda x: (model(x) - target).ravel(), x0, method="trf", xtol=1e-14, ftol=1e-14)
-        x = sol.x
+        # Deterministic: MINPACK's Levenberg-Marquardt (scipy's) came out 1e-13 apart from process to process
+        # (tests/test_osim_import.py), and every calibration on the model 1e-6 apart.
+        x, _ = fit_least_squares(lambda x: (model(x) - target).ravel(), x0, ftol=1e-14, xtol=1e-14)
         a = x[:3] / np.linalg.norm(x[:3])
         cen = x[3:6]
-        Y = (Rotation.from_rotvec(x[6:9]).as_matrix(), x[9:12].copy())
+        Y = (rotvec_matrices(x[6:9]), x[9:12].copy())
         # the centre: the point of the axis nearest the child frame's origin at mid-range
         shift = float(a @ (p[mid] - cen))
         cen = cen + shift * a

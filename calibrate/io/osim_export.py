@@ -72,9 +72,9 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import CalibrateError, ModelError
+from ..model.kinematics import euler_matrices, matrix_eulers, quat_eulers
 from ..model.model import Model, Parameters, UrdfJoint
 from ..model.urdf import origin_of, urdf_visuals
 from ..seed.geometry import Transform, compose, identity_transform, invert
@@ -109,7 +109,7 @@ def _euler_xyz(R: np.ndarray) -> np.ndarray:
     """OpenSim frame orientation: body-fixed x-y-z angles (R = Rx Ry Rz); exactly 0 for R = I."""
     if np.array_equal(R, np.eye(3)):
         return np.zeros(3)
-    return Rotation.from_matrix(R).as_euler("XYZ")
+    return matrix_eulers(R, "XYZ")
 
 
 def _completion(axes: list[np.ndarray]) -> list[np.ndarray]:
@@ -154,7 +154,7 @@ def _urdf_inertials(model: Model) -> dict[str, tuple[float, np.ndarray, np.ndarr
 
 # ---------------------------------------------------------------------- the model
 # OpenSim draws a Cylinder along its frame's y axis, URDF along z: the frame turned by Rx(90°) (y -> z)
-_Y_TO_Z = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+_Y_TO_Z = euler_matrices("x", np.pi / 2)
 
 
 def _shape(components: ET.Element, name: str, s: float, rgba: np.ndarray | None, kind: str, R: np.ndarray,
@@ -548,7 +548,7 @@ def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) 
         names = [n for n, _ in info.root.rotations + info.root.translations]
         values = np.hstack([motion.times[:, None], np.array([root[n] for n in names]).T, angles])
         return ["time", *names, *model.dof_names], values
-    euler = Rotation.from_quat(motion.root_quaternion / norms[:, None]).as_euler("ZYX")
+    euler = quat_eulers(motion.root_quaternion / norms[:, None], "ZYX")
     euler = np.unwrap(euler, axis=0)  # continuous angles; the same rotations
     values = np.hstack([motion.times[:, None], euler, motion.root_translation, angles])
     rot_names, trans_names = floating_root_names(info)

@@ -36,9 +36,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
 from ..errors import ModelError
+from ..model.kinematics import euler_matrices, matrix_eulers
 from ..seed.geometry import Transform, apply
 from .osim_read import body_name, osim_function, parse_xml, xml_floats
 from .text import fmt_float, fmt_vec
@@ -163,8 +163,8 @@ def _moved_wraps(ws: ET.Element, X: Transform, s: float) -> ET.Element:
             t.text = fmt_vec(_moved(X, s, xml_floats(t.text)))
         r = w.find("xyz_body_rotation")
         if r is not None and not np.array_equal(X[0], np.eye(3)):
-            R = Rotation.from_euler("XYZ", xml_floats(r.text)).as_matrix()
-            r.text = fmt_vec(Rotation.from_matrix(X[0] @ R).as_euler("XYZ"))
+            R = euler_matrices("XYZ", xml_floats(r.text))
+            r.text = fmt_vec(matrix_eulers(X[0] @ R, "XYZ"))
         for tag in WRAP_SIZES:
             d = w.find(tag)
             if d is not None and d.text:
@@ -198,7 +198,7 @@ def carried_geometry(body: ET.Element, X: Transform, s: float) -> list[ET.Elemen
     components = ET.Element("components")
     frame = ET.SubElement(components, "PhysicalOffsetFrame", name=f"{body.get('name', '')}_geometry")
     for tag, text in (("socket_parent", ".."), ("translation", fmt_vec(s * np.asarray(t, dtype=float))),
-                      ("orientation", fmt_vec(Rotation.from_matrix(R).as_euler("XYZ")))):
+                      ("orientation", fmt_vec(matrix_eulers(R, "XYZ")))):
         ET.SubElement(frame, tag).text = text
     frame.append(geometry)
     return [components]

@@ -7,12 +7,12 @@ import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT, Approximation, OsimInfo, RootInfo, Together
 from calibrate.io.osim_read import xml_floats
 
 from ..errors import ModelError
+from ..model.kinematics import euler_matrices, matrix_eulers, quat_matrices
 from ..seed.geometry import Transform
 
 
@@ -29,7 +29,7 @@ def osim_info(model) -> OsimInfo | None:
     def X(e: ET.Element | None) -> Transform:
         xyz = xml_floats(e.get("xyz", "0 0 0")) if e is not None else np.zeros(3)
         rpy = xml_floats(e.get("rpy", "0 0 0")) if e is not None else np.zeros(3)
-        R = np.eye(3) if not np.any(rpy) else Rotation.from_euler("xyz", rpy).as_matrix()
+        R = np.eye(3) if not np.any(rpy) else euler_matrices("xyz", rpy)
         return R, xyz
 
     root = None
@@ -120,12 +120,12 @@ def root_coordinates(info: OsimInfo, root_translation: np.ndarray, root_quaterni
         letters += "XYZ"[k]
         signs.append(math.copysign(1.0, a[k]))
     Rm, tm = rt.child_offset[0], rt.child_offset[1] * root_scale
-    RG = Rotation.from_quat(np.asarray(root_quaternion, float)).as_matrix()  # (n, 3, 3) root segment in lab
+    RG = quat_matrices(np.asarray(root_quaternion, float))  # (n, 3, 3) root segment in lab
     Rf, tf = rt.parent_offset
     # X_FM = X_GF^-1 X_GB X_BM
     R_fm = np.einsum("ij,njk,kl->nil", Rf.T, RG, Rm)
     p_fm = np.einsum("ij,nj->ni", Rf.T, np.einsum("nij,j->ni", RG, tm) + np.asarray(root_translation, float) - tf)
-    ang = Rotation.from_matrix(R_fm).as_euler(letters)  # intrinsic (body-fixed) sequence
+    ang = matrix_eulers(R_fm, letters)  # intrinsic (body-fixed) sequence
     ang = np.unwrap(ang * np.array(signs), axis=0)
     T = np.array([a for _, a in rt.translations]).T
     tr = np.linalg.solve(T, p_fm.T).T

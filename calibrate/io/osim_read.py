@@ -11,10 +11,9 @@ from pathlib import Path
 from xml.parsers import expat
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.spatial.transform import Rotation
 
 from ..errors import ModelError, read_text_file
+from ..model.kinematics import euler_matrices, matrix_eulers
 from ..seed.geometry import Transform, apply, compose, identity_transform
 from .text import finite_numbers
 
@@ -40,7 +39,7 @@ def urdf_rpy(R: np.ndarray) -> np.ndarray:
     """URDF rpy (R = Rz(y) Ry(p) Rx(r)); exactly 0 for I."""
     if np.allclose(R, np.eye(3), atol=1e-15, rtol=0):
         return np.zeros(3)
-    return Rotation.from_matrix(R).as_euler("xyz")
+    return matrix_eulers(R, "xyz")
 
 
 # ---------------------------------------------------------------------- functions
@@ -211,6 +210,8 @@ def osim_function(el: ET.Element, where: str) -> OsimFunction:
             return OsimFunction(tag, pl)
         if x.size == 2:
             return OsimFunction(tag, lambda v: y[0] + (v - x[0]) * (y[1] - y[0]) / (x[1] - x[0]))
+        from scipy.interpolate import CubicSpline  # here: no command on a model without one pays scipy's import
+
         cs = CubicSpline(x, y, bc_type="natural", extrapolate=True)
         return OsimFunction(tag, lambda v: cs(v))
     if tag == "MultiplierFunction":
@@ -292,7 +293,7 @@ def frame_of(el: ET.Element, where: str) -> Transform:
     o = el_numbers(el, "orientation", "0 0 0")
     if t.size != 3 or o.size != 3:
         raise ModelError(f"{where}: frame '{el.get('name')}' needs 3 translation and 3 orientation values")
-    R = np.eye(3) if not np.any(o) else Rotation.from_euler("XYZ", o).as_matrix()  # body-fixed x-y-z
+    R = np.eye(3) if not np.any(o) else euler_matrices("XYZ", o)  # body-fixed x-y-z
     return R, t
 
 

@@ -230,6 +230,96 @@ def slerp_quats(times: np.ndarray, q: np.ndarray, at: np.ndarray) -> np.ndarray:
     return quat_multiply(q[i], rotvec_quats(step[i] * alpha[:, None]))
 
 
+def rotvec_matrices(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3), as Rotation.from_rotvec(v).as_matrix()."""
+    return quat_matrices(rotvec_quats(v))
+
+
+def matrix_rotvecs(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) (angle in [0, π]) of rotation matrices (..., 3, 3), as
+    Rotation.from_matrix(R).as_rotvec()."""
+    return quat_rotvecs(matrix_quats(R))
+
+
+def _euler_sequence(seq: str, lengths: tuple[int, ...]) -> tuple[list[int], bool]:
+    """The axis indices (x 0, y 1, z 2) of an Euler sequence as scipy's Rotation reads it, and whether it is
+    intrinsic (upper case: each turn about the body's axes as turned so far) rather than extrinsic (lower case:
+    about the fixed axes)."""
+    intrinsic = len(seq) > 0 and set(seq) <= set("XYZ")
+    if len(seq) not in lengths or not (intrinsic or set(seq) <= set("xyz")) or any(
+            a == b for a, b in zip(seq, seq[1:], strict=False)):
+        raise ValueError(f"Euler sequence {seq!r}: expected {' or '.join(map(str, lengths))} of the letters x, y, z "
+                         "(fixed axes) or X, Y, Z (the body's), no axis twice in a row")
+    return ["xyz".index(c) for c in seq.lower()], intrinsic
+
+
+def euler_quats(seq: str, angles) -> np.ndarray:
+    """Unit quaternions (..., 4) (x, y, z, w) of Euler angles (..., len(seq)) in radians (a single angle for a
+    one-letter `seq`), as Rotation.from_euler(seq, angles).as_quat(): 'XYZ' is OpenSim's body-fixed
+    x-y-z (R = Rx Ry Rz), 'xyz' URDF's roll-pitch-yaw (R = Rz Ry Rx)."""
+    axes, intrinsic = _euler_sequence(seq, (1, 2, 3))
+    angles = np.asarray(angles, dtype=float)
+    if len(axes) == 1 and angles.ndim == 0:
+        angles = angles[None]
+    if angles.ndim == 0 or angles.shape[-1] != len(axes):
+        raise ValueError(f"Euler sequence {seq!r} takes {len(axes)} angles, got an array of shape {angles.shape}")
+    q = None
+    for k, axis in enumerate(axes):
+        e = np.zeros(angles.shape[:-1] + (4,))
+        e[..., 3] = np.cos(angles[..., k] / 2.0)
+        e[..., axis] = np.sin(angles[..., k] / 2.0)
+        q = e if q is None else quat_multiply(q, e) if intrinsic else quat_multiply(e, q)
+    return q
+
+
+def euler_matrices(seq: str, angles) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of Euler angles (euler_quats), as Rotation.from_euler(seq, angles).as_matrix()."""
+    return quat_matrices(euler_quats(seq, angles))
+
+
+def quat_eulers(q: np.ndarray, seq: str) -> np.ndarray:
+    """Euler angles (..., 3) in radians of quaternions (..., 4) (x, y, z, w) about a three-letter sequence
+    (euler_quats' letters), as Rotation.from_quat(q).as_euler(seq): the quaternion method of Bernardes &
+    Viollet (2022), scipy's.  The middle angle lies in [-π/2, π/2] (Tait-Bryan: x-y-z and the like) or [0, π]
+    (proper Euler: z-x-z ...), the outer ones in [-π, π); at gimbal lock (the middle angle within 1e-7 of its
+    end) the third is 0 and the first carries the whole turn (scipy warns there; this does not)."""
+    axes, intrinsic = _euler_sequence(seq, (3,))
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    i, j, k = axes if not intrinsic else axes[::-1]
+    symmetric = i == k
+    if symmetric:
+        k = 3 - i - j
+    sign = float((i - j) * (j - k) * (k - i) // 2)
+    if symmetric:
+        a, b, c, d = q[..., 3], q[..., i], q[..., j], q[..., k] * sign
+    else:
+        a, b = q[..., 3] - q[..., j], q[..., i] + q[..., k] * sign
+        c, d = q[..., j] + q[..., 3], q[..., k] * sign - q[..., i]
+    extrinsic = not intrinsic
+    half_sum, half_diff = np.arctan2(b, a), np.arctan2(d, c)
+    out = np.zeros(a.shape + (3,))
+    out[..., 1] = 2 * np.arctan2(np.hypot(c, d), np.hypot(a, b))
+    first, third = (0, 2) if extrinsic else (2, 0)
+    case1 = np.abs(out[..., 1]) <= 1e-7
+    case2 = np.abs(out[..., 1] - np.pi) <= 1e-7
+    case0 = ~(case1 | case2)
+    out[..., 0] = np.where(case1, 2 * half_sum, 2 * half_diff * (-1 if extrinsic else 1))
+    out[..., first] = np.where(case0, half_sum - half_diff, out[..., first])
+    a3 = np.where(case0, half_sum + half_diff, out[..., third])
+    if not symmetric:
+        a3 = a3 * sign
+        out[..., 1] = out[..., 1] - np.pi / 2
+    out[..., third] = a3
+    return (out + np.pi) % (2 * np.pi) - np.pi
+
+
+def matrix_eulers(R: np.ndarray, seq: str) -> np.ndarray:
+    """Euler angles (..., 3) of rotation matrices (..., 3, 3) (quat_eulers), as
+    Rotation.from_matrix(R).as_euler(seq)."""
+    return quat_eulers(matrix_quats(R), seq)
+
+
 @dataclass(frozen=True)
 class BallJoint:
     """A ball joint the solver keeps on SO(3): three revolutes about orthonormal axes with

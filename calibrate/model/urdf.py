@@ -138,12 +138,12 @@ def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
 
 def origin_of(el: ET.Element) -> tuple[np.ndarray, np.ndarray]:
     """(R, xyz) of a URDF element's <origin> (the identity where it has none): R = Rz(y) Ry(p) Rx(r)."""
-    from scipy.spatial.transform import Rotation  # not at import: `import calibrate` loads no scipy
+    from .kinematics import euler_matrices  # here: kinematics imports the model, which imports this module
 
     o = el.find("origin")
     xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
     rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])
-    return (Rotation.from_euler("xyz", rpy).as_matrix() if np.any(rpy) else np.eye(3)), xyz
+    return (euler_matrices("xyz", rpy) if np.any(rpy) else np.eye(3)), xyz
 
 
 def urdf_visuals(model: Model) -> dict[str, list[tuple[str, tuple[np.ndarray, np.ndarray], dict[str, str],

@@ -11,6 +11,7 @@ import numpy as np
 from calibrate.problem.state import FrameTurn
 
 from ..model.blocks import cross_rows, perpendicular_bases
+from ..model.kinematics import rotvec_matrices
 from ..seed.geometry import kabsch_rotation
 
 MARKER_FRAMES = 0.01  # a joint centre's weight, relative to its prior's, where the segment frames follow the markers
@@ -216,8 +217,6 @@ class GaugeMixin:
         their means in those frames (its mean rotation turned to the chain's at those angles).  The contents are
         turned as in align_frames; returns the new p and (segment, kind, G, 0) per segment; `net`, where given,
         gathers every segment's whole turn (as align_frames')."""
-        from scipy.spatial.transform import Rotation
-
         m, fl = self.model, self.layout.frame
         out = p.copy()
         moves = []
@@ -228,20 +227,19 @@ class GaugeMixin:
                 R = np.broadcast_to(np.eye(3), (Z.shape[0], 3, 3))
                 R0 = np.eye(3)
                 for u in (self._urdf[n] for n in j.urdf_joints):
-                    turn = np.eye(3) if u.dof < 0 else Rotation.from_rotvec(
-                        np.outer(Z[:, fl.angle(u.dof)], self.axis_direction(out, u.dof))).as_matrix()
+                    turn = np.eye(3) if u.dof < 0 else rotvec_matrices(
+                        np.outer(Z[:, fl.angle(u.dof)], self.axis_direction(out, u.dof)))
                     R = R @ u.rotation @ turn
                     R0 = R0 @ u.rotation
                     if u.dof >= 0 and targets is not None:  # the pose's angle, else this DoF's mean there
                         aim = targets.get(u.dof, float(np.mean(Z[:, fl.angle(u.dof)])))
-                        R0 = R0 @ Rotation.from_rotvec(aim * self.axis_direction(out, u.dof)).as_matrix()
+                        R0 = R0 @ rotvec_matrices(aim * self.axis_direction(out, u.dof))
                 mean = kabsch_rotation(R.sum(axis=0).T)[0]  # the chordal mean of the joint's rotations
                 G = mean.T @ R0
             elif kind == "axis":
                 d = m.dof_index(j.dofs[-1])
                 aim = (targets or {}).get(d, 0.0)
-                G = Rotation.from_rotvec(-(float(np.mean(Z[:, fl.angle(d)])) - aim)
-                                         * self.axis_direction(out, d)).as_matrix()
+                G = rotvec_matrices(-(float(np.mean(Z[:, fl.angle(d)])) - aim) * self.axis_direction(out, d))
             else:
                 continue
             self._turn(out, si, G, net=net)

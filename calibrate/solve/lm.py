@@ -53,8 +53,8 @@ from .schur import (
     retract,
 )
 
-__all__ = ["Covariance", "Run", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance", "iterate",
-           "levenberg_marquardt", "minimise"]
+__all__ = ["Covariance", "Run", "SolverOptions", "SolverSummary", "State", "StepProblem", "covariance",
+           "fit_least_squares", "iterate", "levenberg_marquardt", "minimise"]
 
 
 
@@ -235,6 +235,69 @@ def minimise(steps: StepProblem, x: Any, options: SolverOptions, max_iterations:
             next(loop)
         except StopIteration as done:
             return done.value
+
+
+class _DenseFit:
+    """min |r(x)|² over a vector x as a StepProblem, for the small fits of model import (a hinge over a
+    coordinate's range): the Jacobian by forward differences (steps of √eps · max(1, |x_k|), as scipy's
+    '2-point'), the step from the damped normal equations."""
+
+    def __init__(self, fun: Callable[[np.ndarray], np.ndarray]):
+        self.fun = fun
+        self.last: tuple[np.ndarray, np.ndarray] | None = None  # (x, r) at the last point costed
+        self.A = self.g = np.zeros(0)
+
+    def _residuals(self, x: np.ndarray) -> np.ndarray:
+        if self.last is not None and self.last[0] is x:
+            return self.last[1]
+        return np.asarray(self.fun(x), dtype=float).ravel()
+
+    def linearize(self, x: np.ndarray, lam: float = 0.0) -> float:
+        r = self._residuals(x)
+        h = FD_STEP * np.maximum(1.0, np.abs(x)) * np.where(x >= 0, 1.0, -1.0)
+        J = np.empty((r.size, x.size))
+        for k in range(x.size):
+            xk = x.copy()
+            xk[k] += h[k]
+            J[:, k] = (np.asarray(self.fun(xk), dtype=float).ravel() - r) / (xk[k] - x[k])
+        self.A, self.g = J.T @ J, J.T @ r
+        return float(r @ r)
+
+    def gradient_max(self) -> float:
+        return 2.0 * float(np.abs(self.g).max(initial=0.0))
+
+    def step(self, x: np.ndarray, lam: float) -> tuple[np.ndarray, float, float] | None:
+        d = self.A.diagonal()
+        damped = self.A + np.diag(lam * marquardt_diagonal(d, float(self.A.max(initial=0.0))))
+        try:
+            dx = -np.linalg.solve(damped, self.g)
+        except np.linalg.LinAlgError:
+            return None
+        predicted = -(2.0 * float(self.g @ dx) + float(dx @ self.A @ dx))
+        return x + dx, predicted, float(np.sqrt(dx @ dx))
+
+    def cost(self, x: np.ndarray) -> float:
+        r = np.asarray(self.fun(x), dtype=float).ravel()
+        self.last = (x, r)
+        return float(r @ r)
+
+    def norm(self, x: np.ndarray) -> float:
+        return float(np.sqrt(x @ x))
+
+
+FD_STEP = float(np.sqrt(np.finfo(float).eps))  # _DenseFit's forward-difference step, relative to max(1, |x_k|)
+_TINY = 1e-300  # a test that is off (SolverOptions wants a positive tolerance)
+
+
+def fit_least_squares(fun: Callable[[np.ndarray], np.ndarray], x0: np.ndarray, ftol: float, xtol: float,
+                      max_iterations: int = 400) -> tuple[np.ndarray, SolverSummary]:
+    """x minimising |fun(x)|² from x0 by Levenberg–Marquardt (minimise) with a forward-difference Jacobian,
+    until a step lowers the cost by less than the fraction `ftol` or is shorter than xtol · (|x| + xtol): the
+    small dense fits of an OpenSim model's import, without scipy's least_squares (whose import cost every
+    command on an .osim model a quarter of a second)."""
+    options = SolverOptions(max_iterations=max_iterations, ftol=ftol, atol=_TINY, xtol=xtol, gtol=_TINY,
+                            geodesic=False)
+    return minimise(_DenseFit(fun), np.asarray(x0, dtype=float), options)
 
 
 def iterate(steps: StepProblem, x: Any, options: SolverOptions, max_iterations: int | None = None,
