@@ -392,11 +392,12 @@ def test_euler_and_rotation_vector_helpers_equal_scipy_rotation():
 
 def test_importing_calibrate_imports_no_scipy():
     # scipy stays a dependency (labelling, the simulator, tests) but no command pays for it on its way in (an
-    # OpenSim model's commands neither: tests/test_osim_import.py).
+    # OpenSim model's commands neither: tests/test_osim_import.py; nor the demo's simulator).
     import subprocess
     import sys
 
-    code = "import sys, calibrate, calibrate.cli.main; print(sorted(m for m in sys.modules if m.startswith('scipy')))"
+    code = ("import sys, calibrate, calibrate.cli.main, calibrate.simulation.simulate; "  # the simulator: calibrate demo
+            "print(sorted(m for m in sys.modules if m.startswith('scipy')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..model.kinematics import euler_quats
 from ..model.model import Model
 
 SQUAT_PERIOD = 2.5  # s
@@ -102,7 +102,7 @@ def gait_root_orientation(times: np.ndarray, cycle: float, rng: np.random.Genera
     yaw = rng.uniform(-np.pi, np.pi) + np.radians(5) * np.sin(phase)
     pitch = np.radians(3) * np.sin(2 * phase)
     roll = np.radians(4) * np.sin(phase + 1.0)
-    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()
+    return euler_quats("ZYX", np.column_stack([yaw, pitch, roll]))
 
 
 def root_orientation(times: np.ndarray, squat: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -110,7 +110,7 @@ def root_orientation(times: np.ndarray, squat: np.ndarray, rng: np.random.Genera
     yaw = rng.uniform(-np.pi, np.pi) + np.radians(40) * np.sin(2 * np.pi * 0.07 * times)
     pitch = np.radians(15) * squat + np.radians(4) * np.sin(2 * np.pi * 0.31 * times)
     roll = np.radians(6) * np.sin(2 * np.pi * 0.23 * times + 1.0)
-    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()
+    return euler_quats("ZYX", np.column_stack([yaw, pitch, roll]))
 
 
 def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, reach: float = 0.35) -> np.ndarray:

@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calibrate.io.measurements import (
     DEFAULT_MARKER_DIAMETER,
@@ -67,7 +66,7 @@ from ..io.trc import write_trc
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.hinges import hinge_lines_world, joint_axes_world  # noqa: F401 - re-exported: the simulator's API
-from ..model.kinematics import build_kinematics
+from ..model.kinematics import build_kinematics, euler_quats
 from ..model.model import Model, Parameters, write_model
 
 HEIGHT_RANGE = (1.4, 2.2)  # m: statures the simulator accepts
@@ -312,8 +311,7 @@ def simulate_static(model: Model, truth: Parameters, frames: int = 200, rate: fl
     hi = np.array([d.upper for d in model.dofs])
     angles = np.clip(drift, lo, hi)
     yaw = rng.uniform(-np.pi, np.pi)
-    quat = Rotation.from_euler("ZYX", np.column_stack([np.full(frames, yaw), np.radians(1) * np.sin(times),
-                                                       np.zeros(frames)])).as_quat()
+    quat = euler_quats("ZYX", np.column_stack([np.full(frames, yaw), np.radians(1) * np.sin(times), np.zeros(frames)]))
     kin = build_kinematics(model)
     markers, centres = kin.batch(FrameLayout.coordinates(np.zeros((frames, 3)), angles), quat, truth)
     root = np.array([0.0, 0.0, 0.95]) * float(np.mean(truth.scale)) + 0.003 * np.column_stack(
