@@ -396,7 +396,7 @@ def test_importing_calibrate_imports_no_scipy():
     import subprocess
     import sys
 
-    code = ("import sys, calibrate, calibrate.cli.main, calibrate.simulation.simulate; "  # the simulator: calibrate demo
+    code = ("import sys, calibrate, calibrate.cli.main, calibrate.simulation.simulate; "  # the demo's simulator
             "print(sorted(m for m in sys.modules if m.startswith('scipy')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
