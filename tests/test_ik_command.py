@@ -529,3 +529,41 @@ def test_fit_trial_tells_the_share_of_frames_fitted_every_100_frames(squats):
     got = fit_trial(subject, long, subject.parameters(), {}, progress=seen.append)
     assert seen == [pytest.approx(100 / 240), pytest.approx(200 / 240)]
     assert got.fit.motion.angles.shape[0] == 240
+
+
+def test_fit_trial_runs_the_compiled_code_a_calibration_left_to_the_same_bits(squats, monkeypatch):
+    """Where a calibration left its subject's compiled per-frame code in the cache, `calibrate ik` evaluates with it
+    (about a quarter sooner a frame than CasADi's virtual machine: gait2392's and pig_walk's subjects) and gets the
+    virtual machine's motion bit for bit; it never compiles for one trial (compiled_kinematics(compile=False))."""
+    import calibrate.calibration.subject_ik as subject_ik
+    from calibrate.calibration.subject_ik import fit_trial
+    from calibrate.io.read import read_trial
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.problem.codegen import c_compiler, is_compiled
+    from calibrate.problem.problem import compiled_kinematics
+
+    if c_compiler() is None:
+        pytest.skip("no C compiler: every evaluation runs in CasADi's virtual machine")
+    subject = load_model(squats / "truth.urdf")
+    trial = read_trial(squats / "trial.c3d")
+    kin = build_kinematics(subject)
+    assert compiled_kinematics(kin).compiled is not None  # as the calibration of this subject compiles it
+    assert is_compiled(subject, kin) and compiled_kinematics(kin, compile=False).compiled is not None
+    used: list[bool] = []
+
+    def spy(k, compile=True):
+        out = compiled_kinematics(k, compile)
+        used.append(out.compiled is not None)
+        return out
+
+    monkeypatch.setattr(subject_ik, "compiled_kinematics", spy)
+    compiled = fit_trial(subject, trial, subject.parameters(), {})
+    monkeypatch.setattr(subject_ik, "compiled_kinematics", lambda k, compile=True: k)  # CasADi's virtual machine
+    vm = fit_trial(subject, trial, subject.parameters(), {})
+    assert used == [True]
+    for a, b in ((compiled.fit.motion.angles, vm.fit.motion.angles),
+                 (compiled.fit.motion.root_quaternion, vm.fit.motion.root_quaternion),
+                 (compiled.fit.motion.root_translation, vm.fit.motion.root_translation)):
+        assert np.array_equal(a, b)
+    truth = read_motion_csv(squats / "truth_motion.csv")
+    assert np.abs(compiled.fit.motion.angles - truth.angles).max() < 1e-4  # the true motion, noise-free

@@ -147,15 +147,16 @@ def far_joints(model: Model, Z: np.ndarray, Q: np.ndarray, spans: Sequence[slice
 
 
 def refit_beyond(kin: Kinematics, state: State, observed: np.ndarray, far: Sequence[FarJoint],
-                 spans: Sequence[slice], locked: np.ndarray | None = None) -> State:
+                 spans: Sequence[slice], locked: np.ndarray | None = None, evaluator=None) -> State:
     """`state` with each far joint's still-trial frames' coordinates of that joint and every joint below it
     fitted to the markers beyond it (`observed`: the positions left out of the fit, (F, n_markers, 3)) at
     the geometry state.p, the rest of each frame's pose held: the still trial's arm angles as its markers
     show them, though those markers did not shape the geometry.  A still trial holds one pose: REFIT_FRAMES
     of its frames, evenly spread, are fitted (each from the last one's fit) and every other frame takes the
     nearest one's angles beyond the joint.  `locked` (n_dofs,): coordinates the run holds (Settings.lock,
-    auto-locks), kept at their values (a ball joint with one of its angles locked is kept whole)."""
-    solver = FrameSolver(kin, state.p, margin=LIMIT_MARGIN)  # the limits as the solve's
+    auto-locks), kept at their values (a ball joint with one of its angles locked is kept whole).  `evaluator`: the
+    per-frame evaluator at state.p (the problem's compiled one, Problem.frame_evaluator), else kin's."""
+    solver = FrameSolver(kin, state.p, evaluator, margin=LIMIT_MARGIN)  # the limits as the solve's
     Z, Q = state.Z.copy(), state.Q.copy()
     B = None if state.B is None else state.B.copy()
     names = [j.name for j in kin.model.joints]

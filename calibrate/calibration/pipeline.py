@@ -698,7 +698,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
         # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before
         # a turn of the segment frames below reads them (a neutral static's arms).
-        state = refit_beyond(problem.kin, state, far_obs, far, spans, problem.locked)
+        state = refit_beyond(problem.kin, state, far_obs, far, spans, problem.locked, problem.frame_evaluator(state.p))
     # Last (with the neutral trial's turn and the centres' slide below), where Settings.segment_frames says so
     # (by default for an OpenSim model): the segment frames turned to where their markers put them, the frames in
     # which the lab's model defines its joint angles (align_markers).  A change of gauge (the data fit stays), so
@@ -729,7 +729,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     slid = replace(state, p=problem.slide_centres(state.p))
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
-        slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked)
+        slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked, problem.frame_evaluator(slid.p))
     slid = _blind_at_size(problem, slid, blind)
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid

@@ -21,7 +21,7 @@ from ..io.trial import Trial
 from ..model.kinematics import build_kinematics, locked_balls
 from ..model.model import Model, Parameters
 from ..model.resolve import resolve
-from ..problem.problem import LIMIT_MARGIN
+from ..problem.problem import LIMIT_MARGIN, compiled_kinematics
 from ..seed.jitter import Jittery
 from ..seed.seeding import ExchangedBack, episodes, exchanged_back, segment_distances, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
@@ -96,6 +96,7 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
              for d in res.lock}
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
+    kin = compiled_kinematics(kin, compile=False)  # the calibration's compiled code, where it left it in the cache
     fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
                              progress=None if progress is None else lambda done, total: progress(done / total))
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),

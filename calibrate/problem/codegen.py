@@ -61,6 +61,12 @@ def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
         return None
 
 
+def is_compiled(model: Model, kin: Kinematics) -> bool:
+    """Whether the per-frame functions of this model structure are compiled and in the cache."""
+    key = _structure_key(model, kin)
+    return key is not None and all((cache_dir() / f"frame_{key}.{ext}").exists() for ext in ("so", "npz"))
+
+
 def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]) -> list[ca.Function] | None:
     """Generate C for `funcs`, compile it, keep it (with the Jacobian `patterns` beside it) in the
     cache under `key`, and load it.

@@ -39,7 +39,7 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from calibrate.problem.codegen import CodegenMixin
+from calibrate.problem.codegen import CodegenMixin, is_compiled
 from calibrate.problem.gauge import GaugeMixin
 from calibrate.problem.options import ProblemOptions
 from calibrate.problem.priors import PriorsMixin
@@ -75,13 +75,15 @@ def _checked_weight(weight: np.ndarray, n: int) -> np.ndarray | None:
     return None if np.all(weight == 1.0) else weight
 
 
-def compiled_kinematics(kin: Kinematics) -> Kinematics:
+def compiled_kinematics(kin: Kinematics, compile: bool = True) -> Kinematics:
     """`kin` whose per-frame evaluator (Kinematics.frame_evaluator with reference=True, what frame-wise
     inverse kinematics calls at every step) runs the compiled per-frame function of its model's structure
     (calibrate.problem.codegen: compiled once per structure and kept on disk) instead of CasADi's virtual
     machine; `kin` itself without a C compiler.  For work that fits the same model to many trials or
-    labellings (calibrate.track: 100+ frame-wise fits), where one compile pays many times over."""
-    if kin.compiled is not None:
+    labellings (calibrate.track: 100+ frame-wise fits), where one compile pays many times over.  `compile`
+    false: only where that code is in the cache already (a subject's calibration left it there), as for one
+    trial's fit (calibrate ik), which a compile of seconds would not pay for."""
+    if kin.compiled is not None or not (compile or is_compiled(kin.model, kin)):
         return kin
     problem = Problem(kin.model, np.full((1, len(kin.model.markers), 3), np.nan), None, kin)
     return replace(kin, compiled=problem.frame_evaluator) if problem.compiled else kin
