@@ -7,8 +7,9 @@ import pinocchio as pin
 import pytest
 
 from calibrate.errors import CalibrateError
-from calibrate.model.kinematics import build_kinematics, cayley_np, retract_root
+from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import load_model, write_model
+from calibrate.model.rotations import cayley_np, retract_root
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.simulation.subject import perturb_parameters
 from calibrate.solve.ik import inverse_kinematics
@@ -307,7 +308,7 @@ def test_rotation_helpers_equal_scipy_rotation():
     # Written out so that no command imports scipy on its way (0.25 s); scipy's Rotation is the reference.
     from scipy.spatial.transform import Rotation, Slerp
 
-    from calibrate.model.kinematics import (
+    from calibrate.model.rotations import (
         matrix_quats,
         quat_inverse,
         quat_multiply,
@@ -346,7 +347,7 @@ def test_euler_and_rotation_vector_helpers_equal_scipy_rotation():
 
     from scipy.spatial.transform import Rotation
 
-    from calibrate.model.kinematics import (
+    from calibrate.model.rotations import (
         euler_matrices,
         euler_quats,
         matrix_eulers,

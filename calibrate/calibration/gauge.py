@@ -11,7 +11,7 @@ import numpy as np
 from calibrate.calibration.start import absolute, frames_of
 
 from ..model.blocks import FrameLayout
-from ..model.kinematics import matrix_quats, quat_matrices, quat_multiply, quat_rotvecs
+from ..model.rotations import matrix_quats, quat_matrices, quat_multiply, quat_rotvecs
 from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem

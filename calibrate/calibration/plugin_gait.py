@@ -96,7 +96,7 @@ def turn_axis(parent: np.ndarray, child: np.ndarray) -> tuple[np.ndarray, float]
     ((n, 3, 3) world rotations each, finite), and how far (5th to 95th percentile): the principal direction of the
     relative rotations taken from their mean, exact for a hinge and unchanged by a constant twist of the child's
     frame.  None for fewer than 10 frames."""
-    from ..model.kinematics import matrix_quats, quat_inverse, quat_multiply, quat_rotvecs
+    from ..model.rotations import matrix_quats, quat_inverse, quat_multiply, quat_rotvecs
 
     if len(parent) < 10:
         return None

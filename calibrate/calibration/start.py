@@ -10,8 +10,9 @@ from dataclasses import replace
 import numpy as np
 
 from ..model.blocks import FrameLayout
-from ..model.kinematics import IDENTITY, Kinematics, quat_inverse, quat_multiply, slerp_quats
+from ..model.kinematics import IDENTITY, Kinematics
 from ..model.model import Parameters
+from ..model.rotations import quat_inverse, quat_multiply, slerp_quats
 from ..problem.options import SolverOptions
 from ..problem.problem import Problem
 from ..problem.state import State

@@ -35,7 +35,7 @@ import numpy as np
 import tomllib
 
 from ..errors import CalibrateError
-from ..model.kinematics import rotvec_matrices
+from ..model.rotations import rotvec_matrices
 from .outputs import put_text, write_all
 
 

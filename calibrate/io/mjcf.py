@@ -34,8 +34,8 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import CalibrateError
-from ..model.kinematics import matrix_quats
 from ..model.model import Model, Parameters, urdf_text
+from ..model.rotations import matrix_quats
 from ..model.urdf import urdf_visuals
 from .motion import Motion
 from .outputs import check_targets, write_all

@@ -51,7 +51,7 @@ import numpy as np
 from calibrate.io.osim_read import OsimCoordinate, OsimJoint, OsimReader, axis_rotation, urdf_rpy
 
 from ..errors import ModelError, NoMarkersError, read_text_file
-from ..model.kinematics import matrix_rotvecs, rotvec_matrices
+from ..model.rotations import matrix_rotvecs, rotvec_matrices
 from ..seed.geometry import Transform, apply, compose, identity_transform, invert
 from ..solve.lm import fit_least_squares
 from .text import fmt_float, fmt_vec

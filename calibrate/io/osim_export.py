@@ -74,8 +74,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrateError, ModelError
-from ..model.kinematics import euler_matrices, matrix_eulers, quat_eulers
 from ..model.model import Model, Parameters, UrdfJoint
+from ..model.rotations import euler_matrices, matrix_eulers, quat_eulers
 from ..model.urdf import origin_of, urdf_visuals
 from ..seed.geometry import Transform, compose, identity_transform, invert
 from .motion import Motion

@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import ModelError
-from ..model.kinematics import euler_matrices, matrix_eulers
+from ..model.rotations import euler_matrices, matrix_eulers
 from ..seed.geometry import Transform, apply
 from .osim_read import body_name, osim_function, parse_xml, xml_floats
 from .text import fmt_float, fmt_vec

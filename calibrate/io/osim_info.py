@@ -12,7 +12,7 @@ from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT, Approximatio
 from calibrate.io.osim_read import xml_floats
 
 from ..errors import ModelError
-from ..model.kinematics import euler_matrices, matrix_eulers, quat_matrices
+from ..model.rotations import euler_matrices, matrix_eulers, quat_matrices
 from ..seed.geometry import Transform
 
 

@@ -13,7 +13,7 @@ from xml.parsers import expat
 import numpy as np
 
 from ..errors import ModelError, read_text_file
-from ..model.kinematics import euler_matrices, matrix_eulers
+from ..model.rotations import euler_matrices, matrix_eulers
 from ..seed.geometry import Transform, apply, compose, identity_transform
 from .text import finite_numbers
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..io.text import fmt_float, fmt_vec
+from .rotations import euler_matrices
 
 if TYPE_CHECKING:
     from .model import Model, Parameters
@@ -138,8 +139,6 @@ def _set_origin_xyz(joint: ET.Element, xyz: np.ndarray) -> None:
 
 def origin_of(el: ET.Element) -> tuple[np.ndarray, np.ndarray]:
     """(R, xyz) of a URDF element's <origin> (the identity where it has none): R = Rz(y) Ry(p) Rx(r)."""
-    from .kinematics import euler_matrices  # here: kinematics imports the model, which imports this module
-
     o = el.find("origin")
     xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
     rpy = np.array([float(x) for x in (o.get("rpy", "0 0 0") if o is not None else "0 0 0").split()])

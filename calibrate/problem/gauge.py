@@ -11,7 +11,7 @@ import numpy as np
 from calibrate.problem.state import FrameTurn
 
 from ..model.blocks import cross_rows, perpendicular_bases
-from ..model.kinematics import rotvec_matrices
+from ..model.rotations import rotvec_matrices
 from ..seed.geometry import kabsch_rotation
 
 MARKER_FRAMES = 0.01  # a joint centre's weight, relative to its prior's, where the segment frames follow the markers

@@ -7,8 +7,8 @@ import math
 
 import numpy as np
 
-from ..model.kinematics import euler_quats
 from ..model.model import Model
+from ..model.rotations import euler_quats
 
 SQUAT_PERIOD = 2.5  # s
 

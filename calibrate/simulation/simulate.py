@@ -66,8 +66,9 @@ from ..io.trc import write_trc
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.hinges import hinge_lines_world, joint_axes_world  # noqa: F401 - re-exported: the simulator's API
-from ..model.kinematics import build_kinematics, euler_quats
+from ..model.kinematics import build_kinematics
 from ..model.model import Model, Parameters, write_model
+from ..model.rotations import euler_quats
 
 HEIGHT_RANGE = (1.4, 2.2)  # m: statures the simulator accepts
 

@@ -24,9 +24,10 @@ from ..errors import CalibrateError
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
-from ..model.kinematics import IDENTITY, Kinematics, matrix_quats, retract_root
+from ..model.kinematics import IDENTITY, Kinematics
 from ..model.model import Model, Parameters
 from ..model.resolve import descendants
+from ..model.rotations import matrix_quats, retract_root
 from ..problem.options import SolverOptions
 from ..seed.geometry import kabsch, marker_rms
 from .lm import marquardt_diagonal, minimise
