@@ -13,7 +13,7 @@ back-substituted.  Time and memory grow linearly with the number of frames; the 
 (nz·F + n)² matrix is never formed.  D is Marquardt's diagonal scaling (diag of the
 normal matrix, floored), λ follows Nielsen's update on the gain ratio.  The root rotation
 and the hinge axes are updated on their manifolds (see Problem.retract_parameters and
-kinematics.retract_root).  Each step may carry a geodesic acceleration (Transtrum & Sethna 2012),
+rotations.retract_root).  Each step may carry a geodesic acceleration (Transtrum & Sethna 2012),
 which lets it bend along curved valleys of the cost (see _accelerate); the bent and the plain step
 are both evaluated, the lower taken, and the acceleration is dropped for the rest of a run where its
 bend does not pay (_BlockArrow._bent_or_not).
