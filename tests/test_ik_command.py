@@ -567,3 +567,25 @@ def test_fit_trial_runs_the_compiled_code_a_calibration_left_to_the_same_bits(sq
         assert np.array_equal(a, b)
     truth = read_motion_csv(squats / "truth_motion.csv")
     assert np.abs(compiled.fit.motion.angles - truth.angles).max() < 1e-4  # the true motion, noise-free
+
+
+def test_ik_compiles_the_subjects_code_for_long_trials_only(squats, tmp_path, monkeypatch):
+    """Trials of IK_COMPILE_FRAMES frames or more (together) are worth a compile of the subject's per-frame code where
+    its calibration did not leave it in the cache; shorter ones run in CasADi's virtual machine, compiling nothing.
+    The motion is the same bits either way."""
+    import calibrate.calibration.subject_ik as subject_ik
+    from calibrate.problem.codegen import c_compiler
+
+    if c_compiler() is None:
+        pytest.skip("no C compiler: every evaluation runs in CasADi's virtual machine")
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("CALIBRATE_CACHE", str(cache))
+    vm, cc = tmp_path / "vm", tmp_path / "cc"
+    vm.mkdir()
+    cc.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(vm), "-q"]) == 0
+    assert not list(cache.glob("frame_*.so"))  # 60 frames: not worth a compile
+    monkeypatch.setattr(subject_ik, "IK_COMPILE_FRAMES", 60)  # as if they were a long trial
+    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(cc), "-q"]) == 0
+    assert len(list(cache.glob("frame_*.so"))) == 1
+    assert (vm / "trial_motion.csv").read_bytes() == (cc / "trial_motion.csv").read_bytes()

@@ -60,17 +60,26 @@ class TrialFit:
     size_misfit: float | None = None  # size_misfit's figure (None: too few pairs to judge)
 
 
+#: `calibrate ik`'s trials together this many frames or more: the subject's per-frame code is compiled for them where
+#: its calibration did not leave it in the cache (CasADi's virtual machine otherwise).  pig_walk's subject (human.urdf)
+#: fits a frame 0.22 ms sooner compiled (6460 frames: 4.5 -> 3.1 s) for a 1.8 s compile, gait2392's 0.47 ms for 1.1 s;
+#: Rajagopal2016's subject compiles in 3.9 s: past 10 000 frames each pays (docs/benchmarks.md).
+IK_COMPILE_FRAMES = 10_000
+
+
 def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str, float],
               weights: Mapping[str, float] | None = None, keep_damaged: bool = False,
               source: str = "the trial", check_size: bool = True,
-              progress: Callable[[float], None] | None = None) -> TrialFit:
+              progress: Callable[[float], None] | None = None, compile: bool = False) -> TrialFit:
     """Fit every frame of `trial` (labels the model's: io.labels.map_labels) to `model` at `params`, holding `held`
     (coordinate -> rad or m), the markers weighed by `weights` (an IK setup's tasks; a marker without one is not
     fitted) or alike, under the calibration's limits (LIMIT_MARGIN).  `keep_damaged`: every position fitted, as
     OpenSim's IK does.  `source` names the trial in errors.  Raises CalibrateError when its markers cannot place the
     model's root, or (`check_size`) when they are another subject's (size_misfit over OTHER_SUBJECT: BTKData's
     FlatFoot subject fitted to another's walk at 82 mm RMS).  TrialFit.size_misfit: size_misfit's figure.
-    `progress(share of the frames fitted)` every 100 frames (a long trial takes a minute)."""
+    `progress(share of the frames fitted)` every 100 frames (a long trial takes a minute).  The frames are evaluated by
+    the subject's compiled per-frame code where its calibration left it in the cache, or (`compile`, for long trials:
+    IK_COMPILE_FRAMES) compiled here; by CasADi's virtual machine otherwise (the same bits either way)."""
     shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
     misfit, pairs = size_misfit(model, trial)
     if check_size and pairs >= SIZE_PAIRS and misfit > OTHER_SUBJECT:
@@ -96,7 +105,7 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
              for d in res.lock}
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
-    kin = compiled_kinematics(kin, compile=False)  # the calibration's compiled code, where it left it in the cache
+    kin = compiled_kinematics(kin, compile=compile)
     fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
                              progress=None if progress is None else lambda done, total: progress(done / total))
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),

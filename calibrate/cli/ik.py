@@ -73,7 +73,7 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_ik(args: argparse.Namespace) -> int:
     from ..calibration.records import Countdown
-    from ..calibration.subject_ik import fit_trial
+    from ..calibration.subject_ik import IK_COMPILE_FRAMES, fit_trial
     from ..io.labels import load_marker_map, map_labels
     from ..io.motion import write_motion_csv
     from ..io.outputs import check_targets
@@ -175,6 +175,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         trials, lines = cut_to_setups(trials, None, args.ik_setup)
     lines = setup_lines + lines_map + lines
     params = model.parameters()
+    frames = sum(t.n_frames for t in trials)  # long trials together pay for a compile (IK_COMPILE_FRAMES)
     results = []
     released: list[str] = []  # trials fitted without the static-only calibration's auto-locks, and with them
     kept_on: list[str] = []
@@ -192,7 +193,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         start = time.perf_counter()
         with progress_for(args.quiet, 1, Timed) as say:
             got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path),
-                            check_size=not args.other_subject,
+                            check_size=not args.other_subject, compile=frames >= IK_COMPILE_FRAMES,
                             progress=Countdown(say, "ik", f"fitting the {trial.n_frames} frames of {path.name}"))
         lines += [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
         if got.unplaced_held:
