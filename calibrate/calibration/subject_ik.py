@@ -63,7 +63,7 @@ class TrialFit:
 #: `calibrate ik`'s trials together this many frames or more: the subject's per-frame code is compiled for them where
 #: its calibration did not leave it in the cache (CasADi's virtual machine otherwise).  pig_walk's subject (human.urdf)
 #: fits a frame 0.22 ms sooner compiled (6460 frames: 4.5 -> 3.1 s) for a 1.8 s compile, gait2392's 0.47 ms for 1.1 s;
-#: Rajagopal2016's subject compiles in 3.9 s: past 10 000 frames each pays (docs/benchmarks.md).
+#: Rajagopal2016's subject compiles in 3.9 s: from about 10 000 frames the compile pays (docs/benchmarks.md).
 IK_COMPILE_FRAMES = 10_000
 
 
