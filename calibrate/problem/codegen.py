@@ -48,11 +48,18 @@ def _structure_key(model: Model, kin: Kinematics) -> str | None:
     return h.hexdigest()[:20]
 
 
+def _cached_files(key: str) -> tuple[Path, Path] | None:
+    """The compiled library and its Jacobian patterns cached under `key`, or None if either is missing."""
+    so, npz = cache_dir() / f"frame_{key}.so", cache_dir() / f"frame_{key}.npz"
+    return (so, npz) if so.exists() and npz.exists() else None
+
+
 def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
     """The compiled per-frame functions and their Jacobian patterns cached under `key`, or None."""
-    so, npz = cache_dir() / f"frame_{key}.so", cache_dir() / f"frame_{key}.npz"
-    if not (so.exists() and npz.exists()):
+    files = _cached_files(key)
+    if files is None:
         return None
+    so, npz = files
     try:
         with np.load(npz) as z:
             patterns = (z["zr"], z["zc"], z["pr"], z["pc"], z["shape"])
@@ -64,7 +71,7 @@ def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
 def is_compiled(model: Model, kin: Kinematics) -> bool:
     """Whether the per-frame functions of this model structure are compiled and in the cache."""
     key = _structure_key(model, kin)
-    return key is not None and all((cache_dir() / f"frame_{key}.{ext}").exists() for ext in ("so", "npz"))
+    return key is not None and _cached_files(key) is not None
 
 
 def _compile(funcs: list[ca.Function], key: str, patterns: dict[str, np.ndarray]) -> list[ca.Function] | None:
