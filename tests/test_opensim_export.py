@@ -40,7 +40,7 @@ needs_opensim = pytest.mark.skipif(
 # m.  OpenSim's markers differ from Pinocchio's by rounding only: 8.1e-16 m at worst over the four cases
 # (6 random poses of 3 models, a 30-frame .mot) on this machine; 1e-14 leaves ten times that for other
 # BLAS/compilers, while a modelling slip (an origin or axis off by 1e-9, a Euler convention) is far larger.
-# README.md states this figure.
+# docs/commands.md (calibrate export-osim) states this figure.
 TOL = 1e-14
 
 # The child process: {"jobs": [{"osim", "poses": [{coordinate: value (rad, m)}], "mot"}]} -> per job the
