@@ -589,3 +589,26 @@ def test_ik_compiles_the_subjects_code_for_long_trials_only(squats, tmp_path, mo
     assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(cc), "-q"]) == 0
     assert len(list(cache.glob("frame_*.so"))) == 1
     assert (vm / "trial_motion.csv").read_bytes() == (cc / "trial_motion.csv").read_bytes()
+
+
+def test_the_python_api_locks_an_opensim_models_locked_coordinates():
+    """`calibrate(load_model("m.osim"), trials)` with default settings locks the .osim's locked coordinates
+    (Rajagopal2016's subtalars, mtps, wrists) at their values, as the command line does (docs/opensim.md): each
+    in Calibration.locked and at its value in every frame of the motion, to the bit (the solve's stiff penalty
+    left the subtalars 8e-9 rad off)."""
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.osim_info import osim_info
+    from calibrate.problem.settings import Settings
+    from calibrate.simulation.simulate import simulate_static
+
+    osim = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "rajagopal_walk" / \
+        "Rajagopal2016.osim"
+    base = load_model(osim)
+    locked = osim_info(base).locked
+    assert {"mtp_angle_r", "subtalar_angle_l", "wrist_flex_r"} <= set(locked)
+    sim = simulate_static(base, base.parameters(), frames=10, noise_mm=0.5, seed=4)
+    cal = calibrate(base, sim.trial, Settings(max_iterations=3))
+    motion = cal.motions[0]
+    for name, value in locked.items():
+        assert cal.locked[name] == value, name
+        assert np.all(motion.angles[:, motion.dof_names.index(name)] == value), name
