@@ -1299,8 +1299,19 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path, capsys):
     assert rep["marker_set"]["ignored_labels"] == ["EXTRA"]
     assert rep["marker_set"]["left_out"][0]["label"] == "EXTRA"
     assert "CONVERGED" in r.stdout and "marker RMS" in r.stdout
-    # --mass: the subject URDF weighs the subject's mass (Pinocchio), the report says so.
+    # The versions the result went through, as the libraries themselves give them.
+    import casadi
+    import ezc3d
     import pinocchio as pin
+    import scipy
+
+    import calibrate
+
+    assert rep["software"] == {"calibrate": calibrate.__version__, "python": sys.version.split()[0],
+                               "casadi": casadi.__version__, "pinocchio": pin.__version__,
+                               "ezc3d": ezc3d.__version__, "yourdfpy": yourdfpy.__version__,
+                               "numpy": np.__version__, "scipy": scipy.__version__}
+    # --mass: the subject URDF weighs the subject's mass (Pinocchio), the report says so.
     pm = pin.buildModelFromUrdf(str(tmp_path / "s01.urdf"), pin.JointModelFreeFlyer())
     assert pin.computeTotalMass(pm) == pytest.approx(62.5, rel=1e-9)
     assert rep["mass"]["subject_kg"] == 62.5 and rep["mass"]["factor"] == pytest.approx(62.5 / human.total_mass)

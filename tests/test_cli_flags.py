@@ -590,3 +590,23 @@ def test_the_readme_describes_every_option_of_the_calibration():
     assert len(options) >= 30
     missing = [s for s in options if f"`{s}" not in section and f"{s} " not in section]
     assert missing == [], missing
+
+
+def test_version_prints_the_versions_a_result_depends_on(capsys):
+    """`calibrate --version`: one line, exit 0, calibrate's version and those of Python and the libraries, each as the
+    library itself reports it (what a lab records beside a result; the report JSON's "software" holds the same)."""
+    import sys
+
+    import casadi
+    import ezc3d
+    import scipy
+
+    import calibrate
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code in (0, None)
+    out = capsys.readouterr().out
+    assert out == (f"calibrate {calibrate.__version__} (Python {sys.version.split()[0]}; casadi {casadi.__version__}, "
+                   f"pinocchio {pin.__version__}, ezc3d {ezc3d.__version__}, yourdfpy {yourdfpy.__version__}, "
+                   f"numpy {np.__version__}, scipy {scipy.__version__})\n")

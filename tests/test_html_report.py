@@ -263,6 +263,8 @@ def test_html_report_has_its_tables_and_figures(run):
     assert f"{rep['trials'][0]['rms_mm']:.2f}" in page
     assert f"{rep['solver']['iterations']} ({rep['solver']['accepted_steps']} accepted)" in page
     assert f"{rep['subject_size']:.3f} x the base model" in page  # the subject's size, the scales' mean
+    sw = rep["software"]  # the versions the result went through, in the summary
+    assert f"{sw['calibrate']} (Python {sw['python']}; casadi {sw['casadi']}, pinocchio {sw['pinocchio']}," in page
     traces = _plot_data(page)
     kinds = [t.get("type") for t in traces]
     bars = [t for t in traces if t.get("type") == "bar"]

@@ -40,6 +40,13 @@ def _e(x) -> str:
     return html.escape(str(x))
 
 
+def _libraries(software: dict[str, str]) -> str:
+    """' (Python 3.11.7; casadi 3.8.2, ...)' from a report's "software" (calibrate.software), '' from an older
+    report without it."""
+    libs = [f"{k} {v}" for k, v in software.items() if k not in ("calibrate", "python")]
+    return f" (Python {software.get('python', '?')}; {', '.join(libs)})" if software else ""
+
+
 def _num(v, fmt: str = "{:.2f}") -> str:
     return "-" if v is None else fmt.format(v)
 
@@ -285,7 +292,7 @@ def _summary(report: dict) -> str:
         ["noise", "learnt per marker" if report["noise"]["learnt"] else f"{report['settings']['noise_mm']:g} mm"],
         ["time (s)", "  ".join(f"{k} {v:.2f}" for k, v in report["times_s"].items())
                      + f"  total {sum(report['times_s'].values()):.2f}"],
-        ["calibrate", report.get("calibrate_version", "")],
+        ["calibrate", report.get("calibrate_version", "") + _libraries(report.get("software") or {})],
     ]
     outs = report.get("outputs", {})
     if outs:

@@ -28,6 +28,7 @@ from ..model.urdf import mass_factor, urdf_text
 from ..problem.priors import on_axis_markers, placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
+from ..software import software_versions
 from .html import asymmetry_clause, left_out_clause, mirror_clause, report_html, seed_note_groups
 from .identifiability import IDENTIFIED, segment_end
 from .moved import REPLACED_MIN
@@ -90,6 +91,7 @@ def calibration_report(cal: Calibration) -> dict:
         per_outlier[o.marker] = per_outlier.get(o.marker, 0) + 1
     return {
         "calibrate_version": __version__,
+        "software": software_versions(),  # Python's and the libraries' versions too: what reproduces the result
         "trials": trials,
         "marker_set": {
             "used": [n for n in model.marker_names if n not in cal.unused_markers],

@@ -73,11 +73,27 @@ def _top(usage: str, description: str) -> _Parser:
     return _Parser(prog="calibrate", usage=usage, description=description)
 
 
+class _Version(argparse.Action):
+    """--version: calibrate's version and those of Python and the libraries it runs on (calibrate.software), looked
+    up only when asked."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs) -> None:  # noqa: ANN003
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:  # noqa: ANN001
+        from ..software import version_line
+
+        print(version_line())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = _top("calibrate TRIAL [TRIAL ...] MODEL [options]   (see 'calibrate TRIAL MODEL --help')\n"
               "       calibrate COMMAND ...",
               "Subject-specific human models from motion-capture trials.  'calibrate TRIAL [TRIAL ...] "
               "MODEL' calibrates MODEL to the subject of the trials; the commands below help around it.")
+    ap.add_argument("--version", action=_Version,
+                    help="print calibrate's version and those of Python and the libraries it runs on, and exit")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser, prog="calibrate")
     sim = sub.add_parser("simulate", help="write a synthetic squat, gait or overhead trial with its truth",
                          description="Simulate squats (or treadmill gait, --motion gait, or overhead arm arcs, "
