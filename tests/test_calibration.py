@@ -1311,6 +1311,13 @@ def test_cli_calibrate_defaults_and_errors(human, tmp_path, capsys):
                                "casadi": casadi.__version__, "pinocchio": pin.__version__,
                                "ezc3d": ezc3d.__version__, "yourdfpy": yourdfpy.__version__,
                                "numpy": np.__version__, "scipy": scipy.__version__}
+    # The subject URDF says first what it is (an XML comment ahead of the base model's), and still loads.
+    head = (tmp_path / "s01.urdf").read_text().split("\n")[1]
+    assert head == (f"<!-- The subject of s01.c3d, calibrated by calibrate {calibrate.__version__} from "
+                    f"{human.path.name}; its report: s01_report.json.  The comments after this one are the base "
+                    "model's. -->")
+    assert yourdfpy.URDF.load(str(tmp_path / "s01.urdf")).link_map.keys() == \
+        yourdfpy.URDF.load(str(human.path)).link_map.keys()
     # --mass: the subject URDF weighs the subject's mass (Pinocchio), the report says so.
     pm = pin.buildModelFromUrdf(str(tmp_path / "s01.urdf"), pin.JointModelFreeFlyer())
     assert pin.computeTotalMass(pm) == pytest.approx(62.5, rel=1e-9)

@@ -384,6 +384,12 @@ def test_cli_writes_osim_mot_trc(tmp_path, human, capsys):
     for name in ("s.osim", "s_motion.mot", "s.trc"):
         assert (tmp_path / name).is_file() and name in out
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no staging leftovers
+    import xml.etree.ElementTree as ET
+
+    import calibrate  # the model's credits: what wrote it, from what
+
+    credits = ET.parse(tmp_path / "s.osim").getroot().find("Model/credits").text
+    assert credits == f"exported by calibrate {calibrate.__version__} from s.urdf"
     trc = read_trc(tmp_path / "s.trc")
     assert trc.labels == sim.trial.labels and trc.n_frames == 12
     np.testing.assert_allclose(trc.markers, sim.trial.markers, atol=2e-6)  # C3D float32, TRC nm resolution

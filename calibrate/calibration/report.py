@@ -24,7 +24,7 @@ from ..io.measurements import lateral_distance, lateral_markers_of
 from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters
-from ..model.urdf import mass_factor, urdf_text
+from ..model.urdf import mass_factor, urdf_text, with_comment
 from ..problem.priors import on_axis_markers, placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
@@ -1015,6 +1015,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     writers = {}
     # The subject's URDF document, made once: the URDF output and the OpenSim exports are of it.
     text = urdf_text(cal.model, cal.params, cal.mass) if "urdf" in targets or opensim or mujoco else ""
+    if text:  # what the file is, ahead of the base model's own header comments
+        text = with_comment(text, provenance(cal, targets.get("report")))
     if "urdf" in targets:
         writers[targets["urdf"]] = lambda path: put_text(path, text)
     before = np.cumsum([0, *(m.times.size for m in cal.motions[:len(keys)])])  # frames written before each motion
@@ -1051,6 +1053,18 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             writers[target] = lambda path, trial=trial: write_c3d(path, trial)
     write_all(writers)
     return {**targets, **opensim, **mujoco, **{f"c3d[{i}]": t for i, t in enumerate(c3d_targets)}}
+
+
+def provenance(cal: Calibration, report: Path | None = None) -> str:
+    """A subject model file's first words on what it is: whose trials, calibrated by which calibrate from which base
+    model, and the report that says how ("The subject of static.c3d and walk.c3d, calibrated by calibrate 0.1.0 from
+    human.urdf; its report: static_report.json.  The comments after this one are the base model's.")."""
+    names = [Path(t.source).name if t.source else f"trial {i + 1}" for i, t in enumerate(cal.trials)]
+    trials = names[0] if len(names) == 1 else ", ".join(names[:-1]) + f" and {names[-1]}"
+    base = (cal.base_model or cal.model).path.name
+    how = f"; its report: {Path(report).name}" if report is not None else ""
+    return (f"The subject of {trials}, calibrated by calibrate {__version__} from {base}{how}.  The comments after "
+            "this one are the base model's.")
 
 
 def _json_default(o):

@@ -73,6 +73,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import __version__
 from ..errors import CalibrateError, ModelError
 from ..model.model import Model, Parameters, UrdfJoint
 from ..model.rotations import euler_matrices, matrix_eulers, quat_eulers
@@ -376,7 +377,7 @@ class _Builder:
         model = self.model
         doc = ET.Element("OpenSimDocument", Version="40000")
         m = ET.SubElement(doc, "Model", name=model.name)
-        _text(m, "credits", f"exported by calibrate from {model.path.name}")
+        _text(m, "credits", f"exported by calibrate {__version__} from {model.path.name}")
         _text(m, "length_units", "meters")
         _text(m, "force_units", "N")
         _text(m, "gravity", fmt_vec(self.info.gravity if self.info is not None else GRAVITY))

@@ -62,6 +62,16 @@ def urdf_text(model: Model, params: Parameters | None = None, mass: float | None
     return head + data + "\n"
 
 
+def with_comment(text: str, comment: str) -> str:
+    """The XML document `text` with `comment` (no '--' in it) as a comment right after its XML declaration, before
+    the comments it carries (a subject URDF's provenance ahead of its base model's header)."""
+    line = f"<!-- {comment.replace('--', '- -')} -->\n"
+    if text.startswith("<?xml"):
+        end = text.index("?>") + 2
+        return text[:end] + "\n" + line + text[end:].lstrip("\n")
+    return line + text
+
+
 def check_sizes(model: Model, p: Parameters) -> None:
     want = {"scale": (len(model.segments),), "centre": (len(model.joints), 3),
             "axis": (model.n_dofs, 3), "marker": (len(model.markers), 3)}
