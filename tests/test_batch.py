@@ -224,7 +224,8 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     assert row["status"] in ("ok", "not converged"), row
     folder = tmp_path / "out" / "S1"
     assert {p.name for p in folder.iterdir()} >= {"subject.urdf", "subject.osim", "trial_motion.csv",
-                                                  "trial_motion.mot", "trial_calibrated.c3d", "report.json",
+                                                  "trial_motion.mot", "trial_ik_marker_errors.sto",
+                                                  "trial_calibrated.c3d", "report.json",
                                                   "subject_mujoco.xml", "trial_motion_qpos.csv"}
     # human.osim came from a z-up URDF: its subject keeps the source's gravity, in OpenSim and in MuJoCo
     for name in ("subject.osim", "subject_mujoco.xml"):
@@ -238,6 +239,7 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
     rep = json.loads((folder / "report.json").read_text())
     assert rep["outputs"]["osim"] == str(folder / "subject.osim")  # every output listed in the report
     assert rep["outputs"]["mot"] == [str(folder / "trial_motion.mot")]
+    assert rep["outputs"]["errors"] == [str(folder / "trial_ik_marker_errors.sto")]
     assert rep["outputs"]["mjcf"] == str(folder / "subject_mujoco.xml")
     assert rep["mass"]["subject_kg"] == pytest.approx(61.5) and rep["mass"]["from"] == str(tmp_path / "Setup_Scale.xml")
     assert rep["settings"]["lock_deg"]["subtalar_r"] == pytest.approx(np.degrees(0.1))

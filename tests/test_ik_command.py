@@ -47,6 +47,11 @@ def test_ik_on_the_true_subject_gives_the_true_motion(squats, tmp_path, capsys):
     assert main(["ik", str(squats / "trial.c3d"), str(osim), "-o", str(out2), "-q"]) == 0
     via_osim = read_motion_csv(out2 / "trial_motion.csv")
     assert np.abs(via_osim.angles - got.angles).max() < 1e-8 and (out2 / "trial_motion.mot").is_file()
+    # beside it the marker errors as OpenSim's IK tool writes them: the true subject on its noise-free markers, ~0
+    sto = (out2 / "trial_ik_marker_errors.sto").read_text().splitlines()
+    assert sto[0] == "Model Marker Errors from IK" and sto[2] == "nRows=60"
+    errors = np.array([[float(v) for v in line.split("\t")] for line in sto[7:]])
+    assert np.allclose(errors[:, 0], truth.times, atol=1e-9) and np.all(errors[:, 3] < 1e-6)
 
 
 def _held_at_10_deg(squats: Path, out: Path, dof: str):

@@ -587,6 +587,7 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     """`calibrate TRIAL MODEL.osim --marker-set XML -o subject.osim` end to end on a trial made from the model's own
     markers (a walking-like sway of every coordinate): the subject URDF keeps the OpenSim facts, the motion CSV's
     columns are OpenSim's coordinate names, and it recovers the motion's marker positions."""
+    from calibrate.io.motion import read_motion_csv
     from calibrate.io.trc import write_trc
     from calibrate.io.trial import Trial
 
@@ -630,6 +631,22 @@ def test_cli_calibrates_from_osim(tmp_path, capsys):
     assert '<CustomJoint name="ground_pelvis">' in text and '<CustomJoint name="knee_r">' in text
     assert text.count("<Thelen2003Muscle ") == 92
     assert text == (tmp_path / "again.osim").read_text()  # written with the others = exported from the URDF
+    # the marker errors as OpenSim's IK tool writes them (_ik_marker_errors.sto): the subject URDF posed by the motion
+    # in Pinocchio against the trial's markers, each frame's sum of squares, RMS and largest error
+    sto = (tmp_path / "walk_ik_marker_errors.sto").read_text().splitlines()
+    assert sto[:7] == ["Model Marker Errors from IK", "version=1", f"nRows={n}", "nColumns=4", "inDegrees=no",
+                       "endheader", "time\ttotal_squared_error\tmarker_error_RMS\tmarker_error_max"]
+    errors = np.array([[float(v) for v in line.split("\t")] for line in sto[7:]])
+    motion = read_motion_csv(tmp_path / "walk_motion.csv")
+    used = [m for m in subject.marker_names if m not in report["marker_set"]["unused_model_markers"]]
+    for f in (0, 17, n - 1):
+        at = _pin_markers(subject, motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
+        d2 = np.array([np.sum((at[m] - markers[f, model.marker_names.index(m)]) ** 2) for m in used])
+        # (the URDF's text rounds the subject's offsets: the errors, ~1e-5 m on these noise-free markers, agree to
+        # 2e-10 m; another sum, weights or set of markers would change them by a tenth or more)
+        assert errors[f, 0] == pytest.approx(t[f], abs=1e-12) and errors[f, 1] == pytest.approx(d2.sum(), abs=1e-12)
+        assert errors[f, 2:] == pytest.approx([np.sqrt(d2.mean()), np.sqrt(d2.max())], abs=1e-9)
+        assert errors[f, 2] > 1e-6
 
 
 def test_marker_set_needs_an_osim(tmp_path):

@@ -227,11 +227,13 @@ def _mtime(path: Path | None) -> float:
 def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, opensim: bool = False,
                     c3d: bool = False, mjcf: bool = False) -> dict:
     """Write one subject's outputs into `folder`, all or none: subject.urdf, one <trial>_motion.csv per
-    trial (`opensim`: also subject.osim and a <trial>_motion.mot each; `c3d`: a <trial>_calibrated.c3d each, as
+    trial (`opensim`: also subject.osim, a <trial>_motion.mot and a <trial>_ik_marker_errors.sto each, as calibrate
+    writes them; `c3d`: a <trial>_calibrated.c3d each, as
     calibrate --c3d writes it; `mjcf`: subject_mujoco.xml and a <trial>_motion_qpos.csv each, as calibrate --mjcf
     writes them), the HTML report and, last, the report JSON (the subject's done-marker)."""
     motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
-    extra = {"osim": folder / "subject.osim", "mot": [m.with_suffix(".mot") for m in motions]} if opensim else {}
+    extra = {"osim": folder / "subject.osim", "mot": [m.with_suffix(".mot") for m in motions],
+             "errors": [folder / f"{Path(t).stem}_ik_marker_errors.sto" for t in trials]} if opensim else {}
     if c3d:
         extra["c3d"] = [folder / f"{Path(t).stem}_calibrated.c3d" for t in trials]
     if mjcf:

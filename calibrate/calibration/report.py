@@ -947,21 +947,23 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
                   progress: Callable[[float], None] | None = None, c3d=None, mjcf=None,
-                  qpos=None) -> dict[str, Path]:
+                  qpos=None, errors=None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
     (calibrate.calibration.html), each trial as a C3D with calibrate's joint centres, model markers and joint
     angles beside its markers (calibrate.calibration.c3d_result), for OpenSim the subject as an .osim model
     and the motions as .mot files, and for MuJoCo the subject as an MJCF model and the motions as qpos CSVs
-    (calibrate.io.mjcf) (whichever are given).
+    (calibrate.io.mjcf), and each trial's marker errors as OpenSim's IK tool reports them (`errors`: its
+    _ik_marker_errors.sto; calibrate.io.osim_export.ik_marker_errors) (whichever are given).
 
-    `motion`, `mot`, `c3d`, `qpos`: one path per trial (a single path for a single trial).  Every destination is
-    checked first (its folder exists; it is not the base model; it does not exist unless `overwrite`),
-    then all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
+    `motion`, `mot`, `c3d`, `qpos`, `errors`: one path per trial (a single path for a single trial).  Every
+    destination is checked first (its folder exists; it is not the base model; it does not exist unless
+    `overwrite`), then all are written at once or none (calibrate.io.outputs.write_all).  The report's times are
     `cal.times` with the time of this writing (so far) and `extra_times`.  `progress(share done)`, by the
     motion CSVs' frames (most of a long trial's writing).
     """
     motions = _per_trial(cal, motion, "motion")
     mots = _per_trial(cal, mot, ".mot")
+    stos = _per_trial(cal, errors, "marker errors")
     c3ds = _per_trial(cal, c3d, "C3D")
     qposes = _per_trial(cal, qpos, "qpos")
     targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report), ("html", html)) if v is not None}
@@ -969,7 +971,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         raise CalibrateError(f"{html}: the HTML report needs an .html name")
     keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
-    opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots))]
+    opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots)),
+                                        *((f"errors[{i}]", e) for i, e in enumerate(stos))]
                if v is not None}
     mujoco = {k: Path(v) for k, v in [("mjcf", mjcf), *((f"qpos[{i}]", q) for i, q in enumerate(qposes))]
               if v is not None}
@@ -1000,7 +1003,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             for name, files in (("osim", opensim), ("mjcf", mujoco)):  # the subject for OpenSim, for MuJoCo
                 if name in files:
                     rep["outputs"][name] = str(files[name])
-            for name, files in (("mot", opensim), ("qpos", mujoco)):  # their motions, one per trial
+            for name, files in (("mot", opensim), ("errors", opensim), ("qpos", mujoco)):  # one per trial
                 if any(k.startswith(f"{name}[") for k in files):
                     rep["outputs"][name] = [str(v) for k, v in files.items() if k.startswith(f"{name}[")]
             made.append(rep)
@@ -1031,13 +1034,17 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     # The subject as the written URDF loads (named after it), for OpenSim's names and masses and MuJoCo's bodies.
     subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text) if opensim or mujoco else None
     if opensim:
-        from ..io.osim_export import mot_text, osim_text  # OpenSim export: only for these outputs
+        from ..io.osim_export import ik_marker_errors, marker_errors_text, mot_text, osim_text  # OpenSim only
 
         if "osim" in opensim:
             writers[opensim["osim"]] = lambda path: put_text(path, osim_text(subject))
         for i, m in enumerate(cal.motions[:len(mots)]):
             target = opensim[f"mot[{i}]"]
             writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))
+        used = [n for n in cal.model.marker_names if n not in cal.unused_markers]
+        for i, (t, m) in enumerate(zip(cal.trials[:len(stos)], cal.motions, strict=False)):
+            writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m: put_text(
+                path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, used)))
     if mujoco:
         from ..io.mjcf import mjcf_text, qpos_csv_text  # MuJoCo export: only for these outputs
 

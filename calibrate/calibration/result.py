@@ -415,14 +415,16 @@ class Calibration:
 
     def write(self, urdf=None, motion=None, report=None, overwrite: bool = False,
               extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
-              progress: Callable[[float], None] | None = None, c3d=None, mjcf=None, qpos=None) -> dict:
+              progress: Callable[[float], None] | None = None, c3d=None, mjcf=None, qpos=None,
+              errors=None) -> dict:
         """Write the subject URDF, motion CSV(s), report JSON, the HTML report, each trial as a C3D with the
-        joint centres, model markers and angles (`c3d`, one path per trial), for OpenSim the subject .osim
-        and .mot motions, and for MuJoCo the subject's MJCF and qpos CSVs (`qpos`, one path per trial) (those
-        given), all or none; see report.write_outputs (`progress(share done)`)."""
+        joint centres, model markers and angles (`c3d`, one path per trial), for OpenSim the subject .osim,
+        .mot motions and each trial's marker errors as OpenSim's IK tool writes them (`errors`, one .sto per
+        trial), and for MuJoCo the subject's MJCF and qpos CSVs (`qpos`, one path per trial) (those given), all
+        or none; see report.write_outputs (`progress(share done)`)."""
         return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite,
                              extra_times=extra_times, osim=osim, mot=mot, html=html, progress=progress, c3d=c3d,
-                             mjcf=mjcf, qpos=qpos)
+                             mjcf=mjcf, qpos=qpos, errors=errors)
 
 
 rms = marker_rms  # the name tests and scripts import

@@ -203,8 +203,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise CalibrateError(f"{args.html}: the HTML report needs an .html name (--html report.html)")
     out_osim = out_urdf.with_suffix(".osim")
     out_mots = [m.with_suffix(".mot") for m in out_motions]
+    # Each trial's marker errors as OpenSim's IK tool reports them (<name>_ik_marker_errors.sto), beside its .mot.
+    out_errors = [m.with_name(t.stem + "_ik_marker_errors.sto") for m, t in zip(out_motions, trial_paths, strict=False)]
     if from_osim:
-        outputs += [out_osim, *out_mots]
+        outputs += [out_osim, *out_mots, *out_errors]
     # Check the destinations before any work, so a long run never ends in a refusal.
     check_targets(outputs, args.overwrite,
                   inputs={model_path: "that is the base model; refusing to overwrite it (choose another -o)"},
@@ -305,7 +307,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if setup is not None and args.mass is None and mass is not None:
             cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})
-        opensim = {"osim": out_osim, "mot": out_mots} if from_osim else {}
+        opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors} if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
                           c3d=out_c3ds or None, **opensim,

@@ -92,7 +92,8 @@ def cmd_ik(args: argparse.Namespace) -> int:
     outputs = []
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
-        outputs += [folder / f"{t.stem}_motion.csv"] + ([folder / f"{t.stem}_motion.mot"] if osim else []) + \
+        outputs += [folder / f"{t.stem}_motion.csv"] + \
+            ([folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto"] if osim else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
     check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
@@ -199,13 +200,18 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if got.unplaced_held:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
                          f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
-        results.append((path, trial, got.fit, time.perf_counter() - start, got.left_out))
-    for (path, trial, fit, _, _), folder in zip(results, [args.out or t.parent for t in trial_paths], strict=True):
+        results.append((path, trial, got.fit, time.perf_counter() - start, got.left_out, shared))
+    for (path, trial, fit, _, _, shared), folder in zip(results, [args.out or t.parent for t in trial_paths],
+                                                        strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
         if osim:
-            from ..io.osim_export import write_mot
+            from ..io.osim_export import ik_marker_errors, marker_errors_text, write_mot
+            from ..io.text import atomic_write_text
 
             write_mot(folder / f"{path.stem}_motion.mot", model, fit.motion)
+            # the marker errors as OpenSim's IK tool reports them: the markers it fitted (the IK setup's tasks)
+            atomic_write_text(folder / f"{path.stem}_ik_marker_errors.sto", marker_errors_text(
+                fit.motion.times, ik_marker_errors(model, params, trial, fit.motion, shared)))
         if args.c3d:
             from ..calibration.c3d_result import with_model_outputs
 
@@ -225,7 +231,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         print(f"calibrate ik: {subject_path} held fixed ({len(model.dof_names)} joint coordinates, "
               f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'}"
               + (f"; on {', '.join(kept_on)} also {', '.join(sorted(static_locks))}" if kept_on else "") + ")")
-        for path, trial, fit, seconds, left in results:
+        for path, trial, fit, seconds, left, _ in results:
             err = np.linalg.norm(fit.residuals, axis=2)
             seen = np.flatnonzero(np.isfinite(err).any(axis=0))  # the subject's markers this trial shows
             per_marker = np.sqrt(np.nanmean(err[:, seen] ** 2, axis=0))

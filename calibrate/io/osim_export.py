@@ -84,6 +84,7 @@ from .osim import FLOATING_ROOT
 from .osim_forces import NOTE_MARK, CarriedForces, carried_forces, forces_lines
 from .outputs import check_targets, write_all
 from .text import atomic_write_text, fmt_float, fmt_vec
+from .trial import Trial
 
 ROOT_ROTATIONS = FLOATING_ROOT[:3]  # body-fixed z, y', x'' (scipy "ZYX"): root_rz, root_ry, root_rx
 ROOT_TRANSLATIONS = FLOATING_ROOT[3:]  # ground axes, as the motion CSV's columns: root_x, root_y, root_z
@@ -572,6 +573,49 @@ def mot_text(model: Model, motion: Motion, name: str = "motion", params: Paramet
     head = [name, "version=1", f"nRows={values.shape[0]}", f"nColumns={values.shape[1]}", "inDegrees=yes",
             "endheader", "\t".join(names)]
     rows = ["\t".join(repr(float(x)) for x in row) for row in values]
+    return "\n".join(head + rows) + "\n"
+
+
+#: The columns of OpenSim's IK marker errors (InverseKinematicsTool's <name>_ik_marker_errors.sto), metres.
+MARKER_ERROR_COLUMNS = ("total_squared_error", "marker_error_RMS", "marker_error_max")
+
+
+def ik_marker_errors(model: Model, params: Parameters, trial: Trial, motion: Motion,
+                     markers: Sequence[str] | None = None) -> np.ndarray:
+    """(n_frames, 3) per frame of `trial` (its labels the model's): the total squared error (m²), the RMS error and
+    the largest error (m) of the recorded positions of `markers` (default: every marker of `model`) against the
+    model's markers at `params` posed by `motion`, as OpenSim's IK tool reports them (_ik_marker_errors.sto): the
+    sum over the markers the frame records, unweighted, and the root of its mean over them; NaN in a frame that
+    records none.  Every recorded position counts, those a fit left out as damaged too, as OpenSim's are."""
+    from ..model.blocks import FrameLayout
+    from ..model.kinematics import build_kinematics
+    from ..solve.ik import marker_columns
+
+    if motion.n_frames != trial.n_frames:
+        raise ValueError(f"{trial.source or 'trial'}: motion of {motion.n_frames} frames for a trial of "
+                         f"{trial.n_frames}")
+    posed = build_kinematics(model).batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
+                                          motion.root_quaternion, params)[0]
+    wanted = set(model.marker_names if markers is None else markers)
+    keep = [k for k, name in enumerate(model.marker_names) if name in wanted]
+    d2 = np.sum((posed[:, keep] - marker_columns(model, trial)[:, keep]) ** 2, axis=2)
+    seen = np.isfinite(d2)
+    count = seen.sum(axis=1)
+    total = np.where(seen, d2, 0.0).sum(axis=1)
+    out = np.full((trial.n_frames, 3), np.nan)
+    some = count > 0
+    out[some, 0] = total[some]
+    out[some, 1] = np.sqrt(total[some] / count[some])
+    out[some, 2] = np.sqrt(np.max(np.where(seen, d2, -np.inf), axis=1)[some])
+    return out
+
+
+def marker_errors_text(times: np.ndarray, errors: np.ndarray) -> str:
+    """The .sto document of OpenSim's IK marker errors (`errors`: ik_marker_errors' (n_frames, 3), m) at `times`
+    (s), as InverseKinematicsTool writes it."""
+    head = ["Model Marker Errors from IK", "version=1", f"nRows={len(times)}", f"nColumns={1 + errors.shape[1]}",
+            "inDegrees=no", "endheader", "\t".join(("time", *MARKER_ERROR_COLUMNS))]
+    rows = ["\t".join(repr(float(x)) for x in (t, *e)) for t, e in zip(times, errors, strict=True)]
     return "\n".join(head + rows) + "\n"
 
 
