@@ -1235,3 +1235,69 @@ def test_inspect_a_setup_says_what_calibrate_takes(tmp_path, capsys):
     assert main(["inspect", str(tmp_path / "ms.xml")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "calibrate inspect MODEL.osim --marker-set ms.xml" in err[0]
+
+
+_SCALE_AND_IK = r"""
+import os, sys
+import opensim as osim
+osim.Logger.removeFileSink()  # no opensim.log in the working directory
+osim.Logger.setLevelString("warn")
+folder, scale, ik = sys.argv[1:4]
+os.chdir(folder)
+before = set(os.listdir("."))
+assert osim.ScaleTool(scale).run() and osim.InverseKinematicsTool(ik).run()
+print("\n".join(sorted(set(os.listdir(".")) - before)))
+"""
+
+
+@pytest.mark.skipif(importlib.util.find_spec("opensim") is None or not GAIT.exists(),
+                    reason="needs the opensim package (pip install -e '.[opensim]') and ../shared/data/real/gait2392")
+def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
+    """gait2392's pipeline as the lab runs it: OpenSim's Scale and IK tools from subject01_Setup_Scale.xml and
+    subject01_Setup_IK.xml (a child process) write the subject, the static's and the walk's motions and the walk's
+    marker errors under names of their own; `calibrate ... --setup-names` writes its subject, motions and errors at
+    exactly those paths (what the lab's ID, SO and CMC setups read), and OpenSim loads them: the .mot's coordinates
+    are the model's."""
+    files = ("gait2392_Scale_MarkerSet.xml", "subject01_static.trc", "subject01_walk1.trc",
+             "subject01_Setup_Scale.xml", "subject01_Setup_IK.xml")
+    lab, ours = tmp_path / "opensim", tmp_path / "calibrate"
+    for d in (lab, ours):
+        d.mkdir()
+        for f in files:
+            (d / f).write_bytes((REAL / "gait2392" / f).read_bytes())
+    # the Scale setup's generic model is gait2392_simbody.osim (../shared/data/real/README.md)
+    (lab / "gait2392_simbody.osim").write_bytes(GAIT.read_bytes())
+    child = subprocess.run([sys.executable, "-c", _SCALE_AND_IK, str(lab), files[3], files[4]], capture_output=True,
+                           text=True, timeout=600)
+    assert child.returncode == 0, child.stderr[-2000:]
+    written = set(child.stdout.split())
+    assert {"subject01_simbody.osim", "subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto",
+            "subject01_static_output.mot"} <= written  # the lab's tools' names
+    (ours / "out").mkdir()
+    code = main([str(ours / files[1]), str(ours / files[2]), str(GAIT), "--marker-set", str(ours / files[0]),
+                 "--scale-setup", str(ours / files[3]), "--ik-setup", str(ours / files[4]), "--setup-names", "-o",
+                 str(ours / "out") + os.sep, "-q"])
+    assert code == 0, capsys.readouterr().err
+    mine = {p.name for p in ours.iterdir() if p.suffix in (".osim", ".mot", ".sto")}
+    assert mine == {"subject01_simbody.osim", "subject01_static_output.mot", "subject01_walk1_ik.mot",
+                    "subject01_ik_marker_errors.sto"} and mine <= written
+    assert not any(p.suffix in (".osim", ".mot") for p in (ours / "out").iterdir())  # the rest where -o says
+    check = subprocess.run([sys.executable, "-c", r"""
+import sys
+import opensim as osim
+osim.Logger.removeFileSink()
+osim.Logger.setLevelString("warn")
+model = osim.Model(sys.argv[1])
+cs = model.getCoordinateSet()
+names = {cs.get(i).getName() for i in range(cs.getSize())}
+table = osim.TimeSeriesTable(sys.argv[2])
+print(table.getNumRows(), int(set(table.getColumnLabels()) <= names))
+""", str(ours / "subject01_simbody.osim"), str(ours / "subject01_walk1_ik.mot")], capture_output=True, text=True,
+        timeout=600)
+    assert check.returncode == 0, check.stderr[-2000:]
+    assert check.stdout.splitlines()[-1].split() == ["121", "1"]  # the IK setup's frames, every column a coordinate
+    # without the setups' names to take, refused in one line
+    capsys.readouterr()
+    assert main([str(ours / files[1]), str(GAIT), "--setup-names", "-o", str(ours / "out") + os.sep]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--setup-names" in err and "--scale-setup" in err

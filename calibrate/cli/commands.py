@@ -205,6 +205,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     out_mots = [m.with_suffix(".mot") for m in out_motions]
     # Each trial's marker errors as OpenSim's IK tool reports them (<name>_ik_marker_errors.sto), beside its .mot.
     out_errors = [m.with_name(t.stem + "_ik_marker_errors.sto") for m, t in zip(out_motions, trial_paths, strict=False)]
+    if args.setup_names:
+        out_osim, out_mots, out_errors = _setup_names(args, from_osim, trial_paths, out_osim, out_mots, out_errors)
     if from_osim:
         outputs += [out_osim, *out_mots, *out_errors]
     # Check the destinations before any work, so a long run never ends in a refusal.
@@ -370,6 +372,35 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               "written and is flagged in the report", file=sys.stderr)
         return 1
     return 0
+
+
+def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mots: list[Path],
+                 errors: list[Path]) -> tuple[Path, list[Path], list[Path]]:
+    """--setup-names: the subject .osim, each trial's .mot and marker errors where the lab's Scale and IK setups have
+    OpenSim write them (calibrate.io.osim_setup.setup_outputs; a trial no setup names keeps calibrate's names)."""
+    from ..io.osim_setup import setup_outputs
+
+    if not from_osim:
+        raise CalibrateError("--setup-names names the OpenSim outputs of an OpenSim base model; give the lab's .osim")
+    if args.scale_setup is None and not args.ik_setup:
+        raise CalibrateError("--setup-names takes the names the lab's setups give; add --scale-setup and/or --ik-setup")
+    named = setup_outputs(args.scale_setup, args.ik_setup)
+    if named.model is not None:
+        if args.output is not None and Path(args.output).suffix.lower() == ".osim":
+            raise CalibrateError(f"{args.output}: -o names the subject .osim and so does {args.scale_setup.name} "
+                                 f"({named.model.name}, with --setup-names); give one of them")
+        osim = named.model
+    mots, errors = list(mots), list(errors)
+    for i, t in enumerate(trial_paths):
+        # a setup names a trial by its file name, else by its stem (the .c3d of a setup's .trc), as its time range
+        key = t.name if t.name in named.setups else next((k for k in named.setups if Path(k).stem == t.stem), None)
+        if key is None:
+            continue
+        if key in named.motions:
+            mots[i] = named.motions[key]
+        if key in named.errors:
+            errors[i] = named.errors[key]
+    return osim, mots, errors
 
 
 def write_timed(cal, **outputs):

@@ -291,6 +291,11 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                          "each trial's setup (docs/opensim.md)")
     ap.add_argument("--whole-trials", action="store_true",
                     help="use every frame of the trials, not the time ranges --scale-setup and --ik-setup name")
+    ap.add_argument("--setup-names", action="store_true",
+                    help="write the subject .osim, the motions (.mot) and the marker errors (.sto) under the names and "
+                         "in the folders the --scale-setup and --ik-setup files have OpenSim write them (each read "
+                         "against its setup's folder), where the lab's later setups (ID, Static Optimization, CMC) "
+                         "look for them")
     ap.add_argument("--overwrite", action="store_true", help="replace existing output files")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
     return ap

@@ -466,6 +466,63 @@ def cut_to_setups(trials: Sequence[Trial], scale: ScaleSetup | None,
                                       *(ik_setup_range(one) for one in _paths(ik))])
 
 
+@dataclass(frozen=True)
+class SetupOutputs:
+    """Where a lab's OpenSim Scale and IK setups have OpenSim write the subject and the motions, each path resolved
+    against its setup's folder as OpenSim resolves it: where ``--setup-names`` writes calibrate's, so that the lab's
+    later setups (ID, Static Optimization, CMC) find them unchanged."""
+
+    model: Path | None  # the subject .osim: the Scale setup's MarkerPlacer output_model_file (else its ModelScaler's)
+    motions: dict[str, Path]  # trial file name (as the setup names it) -> its .mot (MarkerPlacer's, IK setups')
+    errors: dict[str, Path]  # trial file name -> <IK tool's name>_ik_marker_errors.sto in its results_directory
+    setups: dict[str, Path]  # trial file name -> the setup naming its outputs
+
+
+def _output_name(element, tag: str) -> str | None:
+    """`element`'s <tag> text, None where it names nothing (empty, 'Unassigned')."""
+    text = (element.findtext(tag) or "").strip() if element is not None else ""
+    return None if not text or text == "Unassigned" else text.replace("\\", "/")
+
+
+def _against(setup: Path, name: str) -> Path:
+    """`name` read against the folder of `setup`, as OpenSim reads a setup's file names."""
+    return Path(name) if Path(name).is_absolute() else setup.parent / name
+
+
+def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path] | None) -> SetupOutputs:
+    """The output names of the Scale setup `scale` and the IK setups `ik` (one per trial): see SetupOutputs.  A step
+    not applied, or naming no trial file, names no motion; an IK setup's errors file only where it reports errors
+    (report_errors, true unless set false).  ModelError with one line on a file that is not such a setup."""
+    model, motions, errors, setups = None, {}, {}, {}
+    if scale is not None:
+        path = Path(scale)
+        tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+                     "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+        placer, scaler = tool.find("MarkerPlacer"), tool.find("ModelScaler")
+        for step in (scaler, placer):  # the marker placer's model last: the lab's final subject
+            if step is not None and _applied(step) and (name := _output_name(step, "output_model_file")):
+                model = _against(path, name)
+        trial = _output_name(placer, "marker_file")
+        if placer is not None and _applied(placer) and trial and (name := _output_name(placer, "output_motion_file")):
+            motions[Path(trial).name], setups[Path(trial).name] = _against(path, name), path
+    for one in _paths(ik):
+        path = Path(one)
+        tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                     "an OpenSim Inverse Kinematics setup file",
+                     "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+        trial = _output_name(tool, "marker_file")
+        if not trial:
+            continue
+        key = Path(trial).name
+        setups[key] = path
+        if name := _output_name(tool, "output_motion_file"):
+            motions[key] = _against(path, name)
+        if (tool.findtext("report_errors") or "true").strip().lower() != "false":
+            results = _against(path, _output_name(tool, "results_directory") or ".")
+            errors[key] = results / f"{tool.get('name') or path.stem}_ik_marker_errors.sto"
+    return SetupOutputs(model, motions, errors, setups)
+
+
 def describe_setup(path: str | Path) -> list[str]:
     """Lines saying what calibrate takes from the OpenSim Scale or IK setup file at `path` and what it leaves
     (``calibrate inspect FILE.xml``).  ModelError with one line on a file that is neither."""
