@@ -1296,6 +1296,12 @@ print(table.getNumRows(), int(set(table.getColumnLabels()) <= names))
         timeout=600)
     assert check.returncode == 0, check.stderr[-2000:]
     assert check.stdout.splitlines()[-1].split() == ["121", "1"]  # the IK setup's frames, every column a coordinate
+    # calibrate ik with the lab's IK setup writes its .mot and marker errors there too (replacing them: --overwrite)
+    before = {n: (ours / n).stat().st_mtime_ns for n in ("subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto")}
+    assert main(["ik", str(ours / files[2]), str(ours / "subject01_simbody.osim"), "--ik-setup", str(ours / files[4]),
+                 "--setup-names", "-o", str(ours / "out"), "--overwrite", "-q"]) == 0
+    assert all((ours / n).stat().st_mtime_ns > t for n, t in before.items())
+    assert (ours / "out" / "subject01_walk1_motion.csv").is_file()
     # without the setups' names to take, refused in one line
     capsys.readouterr()
     assert main([str(ours / files[1]), str(GAIT), "--setup-names", "-o", str(ours / "out") + os.sep]) == 2

@@ -390,17 +390,8 @@ def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mot
             raise CalibrateError(f"{args.output}: -o names the subject .osim and so does {args.scale_setup.name} "
                                  f"({named.model.name}, with --setup-names); give one of them")
         osim = named.model
-    mots, errors = list(mots), list(errors)
-    for i, t in enumerate(trial_paths):
-        # a setup names a trial by its file name, else by its stem (the .c3d of a setup's .trc), as its time range
-        key = t.name if t.name in named.setups else next((k for k in named.setups if Path(k).stem == t.stem), None)
-        if key is None:
-            continue
-        if key in named.motions:
-            mots[i] = named.motions[key]
-        if key in named.errors:
-            errors[i] = named.errors[key]
-    return osim, mots, errors
+    pairs = [named.outputs_of(t, m, e) for t, m, e in zip(trial_paths, mots, errors, strict=True)]
+    return osim, [m for m, _ in pairs], [e for _, e in pairs]
 
 
 def write_timed(cal, **outputs):

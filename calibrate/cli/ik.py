@@ -66,6 +66,10 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--mjcf", action="store_true",
                    help="also write each motion as MuJoCo qpos rows, TRIAL-name_motion_qpos.csv, for the subject's "
                         "MuJoCo model (calibrate --mjcf or calibrate export-mjcf; docs/mujoco.md)")
+    p.add_argument("--setup-names", action="store_true",
+                   help="with an .osim subject and --ik-setup: write each trial's .mot and marker errors (.sto) under "
+                        "the names and in the folders its IK setup has OpenSim write them (read against the setup's "
+                        "folder), where the lab's later setups look for them")
     p.add_argument("--overwrite", action="store_true", help="replace existing motion files")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress and no summary")
     return p
@@ -89,11 +93,22 @@ def cmd_ik(args: argparse.Namespace) -> int:
     osim = subject_path.suffix.lower() == ".osim"
     if args.out is not None and not args.out.is_dir():
         raise CalibrateError(f"{args.out}: no such folder; create it first or choose another --out")
-    outputs = []
+    named = None
+    if args.setup_names:  # the .mot and marker errors where the lab's IK setups have OpenSim write them
+        from ..io.osim_setup import setup_outputs
+
+        if not osim:
+            raise CalibrateError(f"{subject_path}: --setup-names names the OpenSim outputs (.mot, .sto) of an .osim "
+                                 "subject; give the subject .osim")
+        if not args.ik_setup:
+            raise CalibrateError("--setup-names takes the names the lab's IK setups give; add --ik-setup")
+        named = setup_outputs(None, args.ik_setup)
+    outputs, opensim_files = [], {}
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
-        outputs += [folder / f"{t.stem}_motion.csv"] + \
-            ([folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto"] if osim else []) + \
+        files = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
+        opensim_files[t] = files if named is None else named.outputs_of(t, *files)
+        outputs += [folder / f"{t.stem}_motion.csv"] + (list(opensim_files[t]) if osim else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
     check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
@@ -208,10 +223,11 @@ def cmd_ik(args: argparse.Namespace) -> int:
             from ..io.osim_export import ik_marker_errors, marker_errors_text, write_mot
             from ..io.text import atomic_write_text
 
-            write_mot(folder / f"{path.stem}_motion.mot", model, fit.motion)
+            mot, sto = opensim_files[path]
+            write_mot(mot, model, fit.motion)
             # the marker errors as OpenSim's IK tool reports them: the markers it fitted (the IK setup's tasks)
-            atomic_write_text(folder / f"{path.stem}_ik_marker_errors.sto", marker_errors_text(
-                fit.motion.times, ik_marker_errors(model, params, trial, fit.motion, shared)))
+            atomic_write_text(sto, marker_errors_text(fit.motion.times,
+                                                      ik_marker_errors(model, params, trial, fit.motion, shared)))
         if args.c3d:
             from ..calibration.c3d_result import with_model_outputs
 

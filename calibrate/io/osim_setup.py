@@ -477,6 +477,13 @@ class SetupOutputs:
     errors: dict[str, Path]  # trial file name -> <IK tool's name>_ik_marker_errors.sto in its results_directory
     setups: dict[str, Path]  # trial file name -> the setup naming its outputs
 
+    def outputs_of(self, trial: Path, mot: Path, errors: Path) -> tuple[Path, Path]:
+        """The .mot and marker-errors paths of the trial file `trial`: those its setup names, else `mot`, `errors`.
+        A setup names a trial by its file name, else by its stem (the .c3d of a setup's .trc), as its time range."""
+        key = trial.name if trial.name in self.setups else next(
+            (k for k in self.setups if Path(k).stem == trial.stem), None)
+        return (mot, errors) if key is None else (self.motions.get(key, mot), self.errors.get(key, errors))
+
 
 def _output_name(element, tag: str) -> str | None:
     """`element`'s <tag> text, None where it names nothing (empty, 'Unassigned')."""
