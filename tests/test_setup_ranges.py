@@ -320,8 +320,11 @@ def test_the_gait2392_scale_setup_poses_its_static(capsys):
     k, held, lines = setup_pose(d / "subject01_Setup_Scale.xml", model, [walk, static])
     assert k == 1 and held == dict(pose.values) and len(lines) == 1
     assert main(["inspect", str(d / "subject01_Setup_Scale.xml")]) == 0  # what it does not take, said
-    assert ("its manual scale factors (femur_r 1.14724, femur_l 1.14724, tibia_r 0.988523, tibia_l 0.988523)"
-            in capsys.readouterr().out)
+    out = capsys.readouterr().out
+    assert "its manual scale factors (femur_r 1.14724, femur_l 1.14724, tibia_r 0.988523, tibia_l 0.988523)" in out
+    # and where --setup-names writes what it names: its MarkerPlacer's model and static motion, beside the setup
+    assert (f"--setup-names writes the subject {d / 'subject01_simbody.osim'}, subject01_static.trc's motion "
+            f"{d / 'subject01_static_output.mot'}") in out
 
 
 def test_a_markerless_held_segment_does_not_stop_the_pose_above_it(tmp_path, capsys):

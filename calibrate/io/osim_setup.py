@@ -562,7 +562,7 @@ def describe_setup(path: str | Path) -> list[str]:
                              else "") + " (calibrate scales every segment and places every marker from the frames it "
                 "is given)"
                 + ("; preserve_mass_distribution false (calibrate scales every segment's mass alike)"
-                   if not setup.preserve_mass else "")]
+                   if not setup.preserve_mass else ""), *_named_lines(setup_outputs(path, None))]
     tool = root if root.tag == "InverseKinematicsTool" else root.find(".//InverseKinematicsTool")
     if tool is None:
         hint = (f"an OpenSim MarkerSet is read with its model: calibrate inspect MODEL.osim --marker-set {path.name}"
@@ -581,9 +581,17 @@ def describe_setup(path: str | Path) -> list[str]:
             f"  --ik-setup locks {len(held)} coordinates its tasks hold: " + (", ".join(held) or "none")
             + (f"; cuts {span.file} to {span.text()} (--whole-trials: every frame)" if span is not None else ""),
             f"  not used: its {len(markers)} applied marker tasks and their weights (calibrate learns each marker's "
-            "noise)"]
+            "noise)", *_named_lines(setup_outputs(None, path))]
 
 
-__all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "StaticPose", "TimeRange", "apply_time_ranges", "cut_to_setups",
-           "describe_setup", "ik_setup_locks", "ik_setup_notes", "ik_setup_range", "ik_setup_weights", "pose_trial",
-           "scale_setup", "setup_pose", "static_pose", "with_ik_setup"]
+def _named_lines(named: SetupOutputs) -> list[str]:
+    """describe_setup's line on where --setup-names writes what the setup names (none where it names nothing)."""
+    parts = ([f"the subject {named.model}"] if named.model is not None else []) + \
+        [f"{trial}'s motion {mot}" for trial, mot in named.motions.items()] + \
+        [f"its marker errors {sto}" for sto in named.errors.values()]
+    return [f"  --setup-names writes {', '.join(parts)}"] if parts else []
+
+
+__all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "SetupOutputs", "StaticPose", "TimeRange", "apply_time_ranges",
+           "cut_to_setups", "describe_setup", "ik_setup_locks", "ik_setup_notes", "ik_setup_range", "ik_setup_weights",
+           "pose_trial", "scale_setup", "setup_outputs", "setup_pose", "static_pose", "with_ik_setup"]
