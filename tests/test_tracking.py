@@ -191,6 +191,10 @@ def test_end_to_end_from_detections_to_a_subject(tmp_path, capsys):
     # every track is written, joined into another (a break) or left out as too short
     assert 0 <= rep["tracker"]["written_tracks"] + rep["tracker"]["breaks_joined"] <= rep["tracker"]["tracks"]
     assert (tmp_path / "s.urdf").exists() and (out / "detections_motion.csv").exists()
+    # the subject URDF says first what it is: the tracked trial's C3D it was calibrated from, and its report
+    assert (tmp_path / "s.urdf").read_text().split("\n")[1].startswith(
+        "<!-- The subject of detections_tracks.c3d, calibrated by calibrate ")
+    assert "its report: detections_report.json." in (tmp_path / "s.urdf").read_text().split("\n")[1]
     # again: refused (exit 2, one line), nothing overwritten
     before = (tmp_path / "s.urdf").stat().st_mtime_ns
     assert main(args) == 2

@@ -10,7 +10,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -1062,11 +1062,13 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     return {**targets, **opensim, **mujoco, **{f"c3d[{i}]": t for i, t in enumerate(c3d_targets)}}
 
 
-def provenance(cal: Calibration, report: Path | None = None) -> str:
+def provenance(cal: Calibration, report: Path | None = None, names: Sequence[str] | None = None) -> str:
     """A subject model file's first words on what it is: whose trials, calibrated by which calibrate from which base
     model, and the report that says how ("The subject of static.c3d and walk.c3d, calibrated by calibrate 0.1.0 from
-    human.urdf; its report: static_report.json.  The comments after this one are the base model's.")."""
-    names = [Path(t.source).name if t.source else f"trial {i + 1}" for i, t in enumerate(cal.trials)]
+    human.urdf; its report: static_report.json.  The comments after this one are the base model's.").  `names`: the
+    trials' names where their files do not say them (a tracked trial: the C3D written of it)."""
+    if names is None:
+        names = [Path(t.source).name if t.source else f"trial {i + 1}" for i, t in enumerate(cal.trials)]
     trials = names[0] if len(names) == 1 else ", ".join(names[:-1]) + f" and {names[-1]}"
     base = (cal.base_model or cal.model).path.name
     how = f"; its report: {Path(report).name}" if report is not None else ""

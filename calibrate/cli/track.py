@@ -128,10 +128,11 @@ def _json_default(x):
 
 
 def _track_subject(args, cams, det, c3d: Path, urdf: Path, motion: Path, report: Path) -> int:
+    from ..calibration.report import provenance
     from ..io.c3d import write_c3d
     from ..io.motion import motion_csv_text
     from ..model.model import load_model
-    from ..model.urdf import urdf_text
+    from ..model.urdf import urdf_text, with_comment
     from ..track.subject import track_subject
     from ..track.tracker import TrackSettings
 
@@ -145,8 +146,10 @@ def _track_subject(args, cams, det, c3d: Path, urdf: Path, motion: Path, report:
     rep = res.report()
     rep["tracker"]["seconds_total"] = seconds
     rep["outputs"] = {"c3d": str(c3d), "urdf": str(urdf), "motion": str(motion), "report": str(report)}
+    # the subject URDF's first words: the tracked trial (the C3D written beside it) it was calibrated from
+    named = provenance(cal, report, [c3d.name])
     write_all({c3d: lambda p: write_c3d(p, res.trial),
-               urdf: lambda p: put_text(p, urdf_text(cal.model, cal.params, cal.mass)),
+               urdf: lambda p: put_text(p, with_comment(urdf_text(cal.model, cal.params, cal.mass), named)),
                motion: lambda p: put_text(p, motion_csv_text(cal.motion)),
                report: lambda p: put_text(p, json.dumps(rep, indent=1, default=_json_default) + "\n")})
     fig = rep["tracker"]
