@@ -1254,10 +1254,11 @@ print("\n".join(sorted(set(os.listdir(".")) - before)))
                     reason="needs the opensim package (pip install -e '.[opensim]') and ../shared/data/real/gait2392")
 def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     """gait2392's pipeline as the lab runs it: OpenSim's Scale and IK tools from subject01_Setup_Scale.xml and
-    subject01_Setup_IK.xml (a child process) write the subject, the static's and the walk's motions and the walk's
-    marker errors under names of their own; `calibrate ... --setup-names` writes its subject, motions and errors at
-    exactly those paths (what the lab's ID, SO and CMC setups read), and OpenSim loads them: the .mot's coordinates
-    are the model's."""
+    subject01_Setup_IK.xml (a child process) write the subject, its marker set (the marker placer's output_marker_file,
+    set here), the static's and the walk's motions and the walk's marker errors under names of their own;
+    `calibrate ... --setup-names` writes its subject, marker set, motions and errors at exactly those paths (what the
+    lab's ID, SO and CMC setups read), and OpenSim loads them: the .mot's coordinates are the model's, the marker set
+    every marker; read back as --marker-set, the subject's markers again."""
     files = ("gait2392_Scale_MarkerSet.xml", "subject01_static.trc", "subject01_walk1.trc",
              "subject01_Setup_Scale.xml", "subject01_Setup_IK.xml")
     lab, ours = tmp_path / "opensim", tmp_path / "calibrate"
@@ -1265,6 +1266,11 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
         d.mkdir()
         for f in files:
             (d / f).write_bytes((REAL / "gait2392" / f).read_bytes())
+        # the marker placer's marker set file too (gait2392's setup leaves it Unassigned; Rajagopal's names one)
+        scale = (d / files[3]).read_text()
+        assert scale.count("<output_marker_file> Unassigned </output_marker_file>") == 1
+        (d / files[3]).write_text(scale.replace("<output_marker_file> Unassigned </output_marker_file>",
+                                                "<output_marker_file> subject01_markers.xml </output_marker_file>"))
     # the Scale setup's generic model is gait2392_simbody.osim (../shared/data/real/README.md)
     (lab / "gait2392_simbody.osim").write_bytes(GAIT.read_bytes())
     child = subprocess.run([sys.executable, "-c", _SCALE_AND_IK, str(lab), files[3], files[4]], capture_output=True,
@@ -1272,15 +1278,20 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     assert child.returncode == 0, child.stderr[-2000:]
     written = set(child.stdout.split())
     assert {"subject01_simbody.osim", "subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto",
-            "subject01_static_output.mot"} <= written  # the lab's tools' names
+            "subject01_static_output.mot", "subject01_markers.xml"} <= written  # the lab's tools' names
     (ours / "out").mkdir()
     code = main([str(ours / files[1]), str(ours / files[2]), str(GAIT), "--marker-set", str(ours / files[0]),
                  "--scale-setup", str(ours / files[3]), "--ik-setup", str(ours / files[4]), "--setup-names", "-o",
                  str(ours / "out") + os.sep, "-q"])
     assert code == 0, capsys.readouterr().err
-    mine = {p.name for p in ours.iterdir() if p.suffix in (".osim", ".mot", ".sto")}
+    mine = {p.name for p in ours.iterdir() if p.suffix in (".osim", ".mot", ".sto") or p.name.endswith("markers.xml")}
     assert mine == {"subject01_simbody.osim", "subject01_static_output.mot", "subject01_walk1_ik.mot",
-                    "subject01_ik_marker_errors.sto"} and mine <= written
+                    "subject01_ik_marker_errors.sto", "subject01_markers.xml"} and mine <= written
+    # the marker set file carries the subject's markers: the subject with it read as --marker-set is the same
+    subject = load_model(ours / "subject01_simbody.osim")
+    again = load_model(ours / "subject01_simbody.osim", ours / "subject01_markers.xml")
+    assert again.marker_names == subject.marker_names
+    assert np.array_equal(again.parameters().marker, subject.parameters().marker)
     assert not any(p.suffix in (".osim", ".mot") for p in (ours / "out").iterdir())  # the rest where -o says
     check = subprocess.run([sys.executable, "-c", r"""
 import sys
@@ -1291,11 +1302,12 @@ model = osim.Model(sys.argv[1])
 cs = model.getCoordinateSet()
 names = {cs.get(i).getName() for i in range(cs.getSize())}
 table = osim.TimeSeriesTable(sys.argv[2])
-print(table.getNumRows(), int(set(table.getColumnLabels()) <= names))
-""", str(ours / "subject01_simbody.osim"), str(ours / "subject01_walk1_ik.mot")], capture_output=True, text=True,
-        timeout=600)
+print(table.getNumRows(), int(set(table.getColumnLabels()) <= names), osim.MarkerSet(sys.argv[3]).getSize())
+""", str(ours / "subject01_simbody.osim"), str(ours / "subject01_walk1_ik.mot"), str(ours / "subject01_markers.xml")],
+        capture_output=True, text=True, timeout=600)
     assert check.returncode == 0, check.stderr[-2000:]
-    assert check.stdout.splitlines()[-1].split() == ["121", "1"]  # the IK setup's frames, every column a coordinate
+    # the IK setup's frames, every column a coordinate of the model; OpenSim reads the marker set, every marker
+    assert check.stdout.splitlines()[-1].split() == ["121", "1", str(len(subject.marker_names))]
     # calibrate ik with the lab's IK setup writes its .mot and marker errors there too (replacing them: --overwrite)
     before = {n: (ours / n).stat().st_mtime_ns for n in ("subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto")}
     assert main(["ik", str(ours / files[2]), str(ours / "subject01_simbody.osim"), "--ik-setup", str(ours / files[4]),

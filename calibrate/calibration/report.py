@@ -947,13 +947,15 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
                   progress: Callable[[float], None] | None = None, c3d=None, mjcf=None,
-                  qpos=None, errors=None) -> dict[str, Path]:
+                  qpos=None, errors=None, marker_set=None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
     (calibrate.calibration.html), each trial as a C3D with calibrate's joint centres, model markers and joint
     angles beside its markers (calibrate.calibration.c3d_result), for OpenSim the subject as an .osim model
     and the motions as .mot files, and for MuJoCo the subject as an MJCF model and the motions as qpos CSVs
-    (calibrate.io.mjcf), and each trial's marker errors as OpenSim's IK tool reports them (`errors`: its
-    _ik_marker_errors.sto; calibrate.io.osim_export.ik_marker_errors) (whichever are given).
+    (calibrate.io.mjcf), each trial's marker errors as OpenSim's IK tool reports them (`errors`: its
+    _ik_marker_errors.sto; calibrate.io.osim_export.ik_marker_errors) and the subject's markers as an OpenSim
+    MarkerSet file (`marker_set`, as the Scale tool's MarkerPlacer writes its output_marker_file) (whichever are
+    given).
 
     `motion`, `mot`, `c3d`, `qpos`, `errors`: one path per trial (a single path for a single trial).  Every
     destination is checked first (its folder exists; it is not the base model; it does not exist unless
@@ -971,7 +973,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         raise CalibrateError(f"{html}: the HTML report needs an .html name")
     keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
-    opensim = {k: Path(v) for k, v in [("osim", osim), *((f"mot[{i}]", m) for i, m in enumerate(mots)),
+    opensim = {k: Path(v) for k, v in [("osim", osim), ("marker_set", marker_set),
+                                        *((f"mot[{i}]", m) for i, m in enumerate(mots)),
                                         *((f"errors[{i}]", e) for i, e in enumerate(stos))]
                if v is not None}
     mujoco = {k: Path(v) for k, v in [("mjcf", mjcf), *((f"qpos[{i}]", q) for i, q in enumerate(qposes))]
@@ -1000,7 +1003,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
             if c3d_targets:
                 rep["outputs"]["c3d"] = [str(t) for t in c3d_targets]
-            for name, files in (("osim", opensim), ("mjcf", mujoco)):  # the subject for OpenSim, for MuJoCo
+            for name, files in (("osim", opensim), ("marker_set", opensim), ("mjcf", mujoco)):  # the subject's
                 if name in files:
                     rep["outputs"][name] = str(files[name])
             for name, files in (("mot", opensim), ("errors", opensim), ("qpos", mujoco)):  # one per trial
@@ -1034,10 +1037,19 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     # The subject as the written URDF loads (named after it), for OpenSim's names and masses and MuJoCo's bodies.
     subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text) if opensim or mujoco else None
     if opensim:
-        from ..io.osim_export import ik_marker_errors, marker_errors_text, mot_text, osim_text  # OpenSim only
+        from ..io.osim_export import ik_marker_errors, marker_errors_text, marker_set_text, mot_text, osim_text
+
+        osim_made: list[str] = []  # the subject's .osim document, made once for the model and its marker set
+
+        def subject_osim() -> str:
+            if not osim_made:
+                osim_made.append(osim_text(subject))
+            return osim_made[0]
 
         if "osim" in opensim:
-            writers[opensim["osim"]] = lambda path: put_text(path, osim_text(subject))
+            writers[opensim["osim"]] = lambda path: put_text(path, subject_osim())
+        if "marker_set" in opensim:
+            writers[opensim["marker_set"]] = lambda path: put_text(path, marker_set_text(subject_osim()))
         for i, m in enumerate(cal.motions[:len(mots)]):
             target = opensim[f"mot[{i}]"]
             writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))

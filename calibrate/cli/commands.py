@@ -205,10 +205,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     out_mots = [m.with_suffix(".mot") for m in out_motions]
     # Each trial's marker errors as OpenSim's IK tool reports them (<name>_ik_marker_errors.sto), beside its .mot.
     out_errors = [m.with_name(t.stem + "_ik_marker_errors.sto") for m, t in zip(out_motions, trial_paths, strict=False)]
+    out_markers = None  # the subject's markers as a MarkerSet file: where a Scale setup names one (--setup-names)
     if args.setup_names:
-        out_osim, out_mots, out_errors = _setup_names(args, from_osim, trial_paths, out_osim, out_mots, out_errors)
+        out_osim, out_markers, out_mots, out_errors = _setup_names(args, from_osim, trial_paths, out_osim, out_mots,
+                                                                   out_errors)
     if from_osim:
-        outputs += [out_osim, *out_mots, *out_errors]
+        outputs += [out_osim, *out_mots, *out_errors, *([out_markers] if out_markers is not None else [])]
     # Check the destinations before any work, so a long run never ends in a refusal.
     check_targets(outputs, args.overwrite,
                   inputs={model_path: "that is the base model; refusing to overwrite it (choose another -o)"},
@@ -309,7 +311,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if setup is not None and args.mass is None and mass is not None:
             cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})
-        opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors} if from_osim else {}
+        opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors, "marker_set": out_markers} \
+            if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
                           c3d=out_c3ds or None, **opensim,
@@ -375,9 +378,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mots: list[Path],
-                 errors: list[Path]) -> tuple[Path, list[Path], list[Path]]:
-    """--setup-names: the subject .osim, each trial's .mot and marker errors where the lab's Scale and IK setups have
-    OpenSim write them (calibrate.io.osim_setup.setup_outputs; a trial no setup names keeps calibrate's names)."""
+                 errors: list[Path]) -> tuple[Path, Path | None, list[Path], list[Path]]:
+    """--setup-names: the subject .osim, its marker set file (None where the Scale setup names none), each trial's .mot
+    and marker errors where the lab's Scale and IK setups have OpenSim write them (calibrate.io.osim_setup.
+    setup_outputs; a trial no setup names keeps calibrate's names)."""
     from ..io.osim_setup import setup_outputs
 
     if not from_osim:
@@ -391,7 +395,7 @@ def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mot
                                  f"({named.model.name}, with --setup-names); give one of them")
         osim = named.model
     pairs = [named.outputs_of(t, m, e) for t, m, e in zip(trial_paths, mots, errors, strict=True)]
-    return osim, [m for m, _ in pairs], [e for _, e in pairs]
+    return osim, named.markers, [m for m, _ in pairs], [e for _, e in pairs]
 
 
 def write_timed(cal, **outputs):

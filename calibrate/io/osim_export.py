@@ -477,6 +477,16 @@ def osim_text(model: Model, params: Parameters | None = None) -> str:
     return osim_document(model, params)[0]
 
 
+def marker_set_text(osim: str) -> str:
+    """The MarkerSet of the .osim document `osim` as an OpenSim MarkerSet file (what the Scale tool's MarkerPlacer
+    writes as its output_marker_file: each marker's body and location on it), which `--marker-set` and OpenSim read."""
+    markers = ET.fromstring(osim.split("\n", 1)[1] if osim.startswith("<?xml") else osim).find("Model/MarkerSet")
+    doc = ET.Element("OpenSimDocument", Version="40000")
+    doc.append(markers if markers is not None else ET.Element("MarkerSet", name="markerset"))
+    ET.indent(doc, space="\t")
+    return '<?xml version="1.0" encoding="UTF-8" ?>\n' + ET.tostring(doc, encoding="unicode") + "\n"
+
+
 def osim_document(model: Model, params: Parameters | None = None) -> tuple[str, CarriedForces | None]:
     """osim_text, and for a model imported from OpenSim what came of its source's forces (muscles carried and
     scaled, forces left out; calibrate.io.osim_forces), else None."""

@@ -473,6 +473,7 @@ class SetupOutputs:
     later setups (ID, Static Optimization, CMC) find them unchanged."""
 
     model: Path | None  # the subject .osim: the Scale setup's MarkerPlacer output_model_file (else its ModelScaler's)
+    markers: Path | None  # the subject's markers as a MarkerSet file: the MarkerPlacer's output_marker_file
     motions: dict[str, Path]  # trial file name (as the setup names it) -> its .mot (MarkerPlacer's, IK setups')
     errors: dict[str, Path]  # trial file name -> <IK tool's name>_ik_marker_errors.sto in its results_directory
     setups: dict[str, Path]  # trial file name -> the setup naming its outputs
@@ -500,7 +501,7 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
     """The output names of the Scale setup `scale` and the IK setups `ik` (one per trial): see SetupOutputs.  A step
     not applied, or naming no trial file, names no motion; an IK setup's errors file only where it reports errors
     (report_errors, true unless set false).  ModelError with one line on a file that is not such a setup."""
-    model, motions, errors, setups = None, {}, {}, {}
+    model, markers, motions, errors, setups = None, None, {}, {}, {}
     if scale is not None:
         path = Path(scale)
         tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
@@ -509,6 +510,8 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
         for step in (scaler, placer):  # the marker placer's model last: the lab's final subject
             if step is not None and _applied(step) and (name := _output_name(step, "output_model_file")):
                 model = _against(path, name)
+        if placer is not None and _applied(placer) and (name := _output_name(placer, "output_marker_file")):
+            markers = _against(path, name)
         trial = _output_name(placer, "marker_file")
         if placer is not None and _applied(placer) and trial and (name := _output_name(placer, "output_motion_file")):
             motions[Path(trial).name], setups[Path(trial).name] = _against(path, name), path
@@ -527,7 +530,7 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
         if (tool.findtext("report_errors") or "true").strip().lower() != "false":
             results = _against(path, _output_name(tool, "results_directory") or ".")
             errors[key] = results / f"{tool.get('name') or path.stem}_ik_marker_errors.sto"
-    return SetupOutputs(model, motions, errors, setups)
+    return SetupOutputs(model, markers, motions, errors, setups)
 
 
 def describe_setup(path: str | Path) -> list[str]:
@@ -587,6 +590,7 @@ def describe_setup(path: str | Path) -> list[str]:
 def _named_lines(named: SetupOutputs) -> list[str]:
     """describe_setup's line on where --setup-names writes what the setup names (none where it names nothing)."""
     parts = ([f"the subject {named.model}"] if named.model is not None else []) + \
+        ([f"its markers {named.markers}"] if named.markers is not None else []) + \
         [f"{trial}'s motion {mot}" for trial, mot in named.motions.items()] + \
         [f"its marker errors {sto}" for sto in named.errors.values()]
     return [f"  --setup-names writes {', '.join(parts)}"] if parts else []
