@@ -263,3 +263,56 @@ def test_an_opensim_lab_batch_takes_its_setups_and_writes_osim(tmp_path):
                                        'marker_set = "ms.xml"\n')
     with pytest.raises(CalibrateError, match="'marker_set' applies to an OpenSim base model"):
         read_manifest(tmp_path / "bad.toml")
+
+
+def test_a_manifest_subject_with_setup_names_writes_where_its_setups_say(tmp_path):
+    """``setup_names = true``: the subject .osim, its marker set, its motion and its marker errors go where the
+    subject's Scale and IK setups have OpenSim write them (the lab's later setups read them there), the rest into
+    out/<id>/; run again, the lab's files are refused (one line: the subject fails) unless overwritten; without a
+    setup to take the names from, the manifest is refused."""
+    from calibrate.calibration.batch import calibrate_subject
+    from calibrate.io.osim_export import export_osim
+
+    human = load_model(HUMAN)
+    export_osim(human, tmp_path / "human.osim")
+    write_simulation(simulate_squats(human, frames=60, noise_mm=1.0, seed=13), tmp_path / "S1")
+    lab = tmp_path / "S1" / "opensim"
+    (lab / "ik").mkdir(parents=True)
+    (lab / "Setup_Scale.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='S1'><mass>61.5</mass><MarkerPlacer>"
+        "<apply>true</apply><output_model_file>S1_scaled.osim</output_model_file><output_marker_file>"
+        "S1_markers.xml</output_marker_file></MarkerPlacer></ScaleTool></OpenSimDocument>")
+    (lab / "Setup_IK.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='squat'>"
+        "<results_directory>ik</results_directory><marker_file>../trial.trc</marker_file>"
+        "<output_motion_file>ik/squat_ik.mot</output_motion_file></InverseKinematicsTool></OpenSimDocument>")
+    (tmp_path / "lab.toml").write_text(
+        '[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
+        'ik_setup = "S1/opensim/Setup_IK.xml"\nscale_setup = "S1/opensim/Setup_Scale.xml"\nsetup_names = true\n')
+    (subject,) = read_manifest(tmp_path / "lab.toml")
+    assert subject.setup_names
+    row = calibrate_subject(subject, tmp_path / "out")
+    assert row["status"] in ("ok", "not converged"), row
+    named = {"S1_scaled.osim", "S1_markers.xml", "ik/squat_ik.mot", "ik/squat_ik_marker_errors.sto"}
+    assert {str(p.relative_to(lab)) for p in lab.rglob("*") if p.is_file() and not p.name.startswith("Setup")} == named
+    folder = tmp_path / "out" / "S1"
+    assert {"subject.urdf", "trial_motion.csv", "report.json"} <= {p.name for p in folder.iterdir()}
+    assert not any(p.suffix in (".osim", ".mot", ".sto") for p in folder.iterdir())
+    rep = json.loads((folder / "report.json").read_text())
+    assert rep["outputs"]["mot"] == [str(lab / "ik" / "squat_ik.mot")]
+    assert rep["outputs"]["marker_set"] == str(lab / "S1_markers.xml")
+    # the subject's markers, read back from the marker set onto its .osim, are the subject's
+    subject_osim = load_model(lab / "S1_scaled.osim")
+    again = load_model(lab / "S1_scaled.osim", lab / "S1_markers.xml")
+    assert np.array_equal(again.parameters().marker, subject_osim.parameters().marker)
+    (folder / "report.json").unlink()  # the subject to do again: the lab's files are there now
+    row = calibrate_subject(subject, tmp_path / "out")
+    assert row["status"] == "failed" and "exists; pass --overwrite" in row["error"] and "\n" not in row["error"]
+    assert calibrate_subject(subject, tmp_path / "out", overwrite=True)["status"] in ("ok", "not converged")
+    (tmp_path / "bad.toml").write_text('[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
+                                       'setup_names = true\n')
+    with pytest.raises(CalibrateError, match="'setup_names' takes the names the lab's setups give"):
+        read_manifest(tmp_path / "bad.toml")
+    (tmp_path / "lab.csv").write_text("subject,trials,model,ik_setup,setup_names\n"
+                                      "S1,S1/trial.c3d,human.osim,S1/opensim/Setup_IK.xml,yes\n")
+    assert read_manifest(tmp_path / "lab.csv")[0].setup_names

@@ -23,6 +23,8 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
                                                   #     one per trial)
     scale_setup = "S01/Setup_Scale.xml"           # ... as --scale-setup (mass and marker set, unless given)
     whole_trials = true                           # optional: as --whole-trials (not the setups' time ranges)
+    setup_names = true                            # optional: as --setup-names (the subject .osim, its motions and
+                                                  #     marker errors where the setups have OpenSim write them)
     hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
     config = "S01/settings.toml"                  # optional: the subject's settings file (calibrate --config)
 
@@ -32,7 +34,7 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     subject,trials,model,markers,mass # CSV: trials (and IK setups) separated by ';', markers and mass may be
                                       # empty; optional
     S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup,
-                                                            # whole_trials, hip_regression, config
+                                                            # whole_trials, setup_names, hip_regression, config
 
 An OpenSim base model's subject is also written as subject.osim, its motions as <trial>_motion.mot.
 """
@@ -79,6 +81,8 @@ class Subject:
     ik_setup: tuple[Path, ...] = ()  # the lab's OpenSim IK setups (one per trial): what they hold locked (--ik-setup)
     scale_setup: Path | None = None  # the lab's OpenSim Scale setup: mass and marker set (--scale-setup)
     whole_trials: bool = False  # every frame, not the setups' time ranges (--whole-trials)
+    # the subject .osim, its motions and marker errors where the setups have OpenSim write them (--setup-names)
+    setup_names: bool = False
     # the hips by Harrington's regression: True (--hip-regression), "auto" only where they end implausible without it
     # (--hip-regression-auto; Settings.hip_regression); None: the settings file's (off without one)
     hip_regression: bool | str | None = None
@@ -135,6 +139,8 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
                  **{k: r[k] for k in OPENSIM_FILES if (r.get(k) or "").strip()},
                  **({"whole_trials": _flag(r["whole_trials"], path, r["subject"])}
                     if (r.get("whole_trials") or "").strip() else {}),
+                 **({"setup_names": _flag(r["setup_names"], path, r["subject"], "setup_names")}
+                    if (r.get("setup_names") or "").strip() else {}),
                  **({"hip_regression": _flag(r["hip_regression"], path, r["subject"], "hip_regression", auto=True)}
                     if (r.get("hip_regression") or "").strip() else {}),
                  **({"config": r["config"]} if (r.get("config") or "").strip() else {})} for r in reader]
@@ -183,6 +189,12 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
         whole = row.get("whole_trials", False)
         if not isinstance(whole, bool):
             raise CalibrateError(f"{where} ({sid}): 'whole_trials' must be true or false, got {whole!r}")
+        named = row.get("setup_names", False)
+        if not isinstance(named, bool):
+            raise CalibrateError(f"{where} ({sid}): 'setup_names' must be true or false, got {named!r}")
+        if named and not ({"ik_setup", "scale_setup"} & set(opensim)):
+            raise CalibrateError(f"{where} ({sid}): 'setup_names' takes the names the lab's setups give; add its "
+                                 "ik_setup and/or scale_setup (an OpenSim base model's)")
         hips = row.get("hip_regression")
         if not (hips is None or isinstance(hips, bool) or hips == "auto"):
             raise CalibrateError(f"{where} ({sid}): 'hip_regression' must be true, false or \"auto\", got {hips!r}")
@@ -207,7 +219,7 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
                                 None if mass is None else float(mass), **opensim, whole_trials=whole,
-                                hip_regression=hips, config=settings))
+                                setup_names=named, hip_regression=hips, config=settings))
     return subjects
 
 
@@ -224,16 +236,42 @@ def _mtime(path: Path | None) -> float:
     return path.stat().st_mtime if path is not None and path.exists() else 0.0
 
 
+def _opensim_outputs(folder: Path, trials: Sequence[Path], named=None) -> dict:
+    """A subject's OpenSim outputs (cal.write's osim, mot, errors and marker_set): in its folder, else where the
+    setups name them (`named`: calibrate.io.osim_setup.setup_outputs)."""
+    mots = [folder / f"{Path(t).stem}_motion.mot" for t in trials]
+    errors = [folder / f"{Path(t).stem}_ik_marker_errors.sto" for t in trials]
+    if named is None:
+        return {"osim": folder / "subject.osim", "mot": mots, "errors": errors}
+    pairs = [named.outputs_of(Path(t), m, e) for t, m, e in zip(trials, mots, errors, strict=True)]
+    return {"osim": named.model or folder / "subject.osim", "mot": [m for m, _ in pairs],
+            "errors": [e for _, e in pairs], **({"marker_set": named.markers} if named.markers is not None else {})}
+
+
+def check_named(outputs: dict, folder: Path, replace_named: bool) -> None:
+    """Refuse (one line) the setup-named outputs outside the subject's `folder` that exist (unless `replace_named`:
+    the batch's --overwrite) or whose folder does not: the lab's files, checked before the subject's work."""
+    from ..io.outputs import check_targets
+
+    paths = [outputs["osim"], outputs.get("marker_set"), *outputs["mot"], *outputs["errors"]]
+    check_targets([p for p in paths if p is not None and not p.is_relative_to(folder)], replace_named,
+                  exists_hint="pass --overwrite to replace it (the lab's setup names it)")
+
+
 def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, opensim: bool = False,
-                    c3d: bool = False, mjcf: bool = False) -> dict:
+                    c3d: bool = False, mjcf: bool = False, named=None, replace_named: bool = False) -> dict:
     """Write one subject's outputs into `folder`, all or none: subject.urdf, one <trial>_motion.csv per
     trial (`opensim`: also subject.osim, a <trial>_motion.mot and a <trial>_ik_marker_errors.sto each, as calibrate
     writes them; `c3d`: a <trial>_calibrated.c3d each, as
     calibrate --c3d writes it; `mjcf`: subject_mujoco.xml and a <trial>_motion_qpos.csv each, as calibrate --mjcf
-    writes them), the HTML report and, last, the report JSON (the subject's done-marker)."""
+    writes them), the HTML report and, last, the report JSON (the subject's done-marker).  `named`: the setups'
+    output names (calibrate.io.osim_setup.setup_outputs; a subject's setup_names): the subject .osim, its marker set,
+    motions and marker errors where they name them, replaced there only with `replace_named` (they are the lab's
+    files, outside the batch's folder)."""
     motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
-    extra = {"osim": folder / "subject.osim", "mot": [m.with_suffix(".mot") for m in motions],
-             "errors": [folder / f"{Path(t).stem}_ik_marker_errors.sto" for t in trials]} if opensim else {}
+    extra = _opensim_outputs(folder, trials, named) if opensim else {}
+    if named is not None and opensim:
+        check_named(extra, folder, replace_named)
     if c3d:
         extra["c3d"] = [folder / f"{Path(t).stem}_calibrated.c3d" for t in trials]
     if mjcf:
@@ -255,6 +293,12 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         return {**row, "status": "skipped"}
     t0 = time.perf_counter()
     try:
+        named = None
+        if subject.setup_names:  # the OpenSim outputs where the subject's setups have OpenSim write them
+            from ..io.osim_setup import setup_outputs
+
+            named = setup_outputs(subject.scale_setup, subject.ik_setup)
+            check_named(_opensim_outputs(folder, subject.trials, named), folder, overwrite)
         from ..io.config import load_settings
         from ..io.labels import load_marker_map
         from ..io.read import read_trial
@@ -295,7 +339,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
             cal = replace(cal, mass_from=str(setup.path))
         folder.mkdir(parents=True, exist_ok=True)
         subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim",
-                        c3d=c3d, mjcf=mjcf)
+                        c3d=c3d, mjcf=mjcf, named=named, replace_named=overwrite)
         # What to look at in this subject: notes, parameters carried beyond their priors (unreliable), labels to
         # check, non-convergence.  Not the parameters a trial leaves to the priors: as many for every subject of one
         # protocol (24-50 on the real recordings), they hid the few that differ.
