@@ -1314,6 +1314,13 @@ print(table.getNumRows(), int(set(table.getColumnLabels()) <= names), osim.Marke
                  "--setup-names", "-o", str(ours / "out"), "--overwrite", "-q"]) == 0
     assert all((ours / n).stat().st_mtime_ns > t for n, t in before.items())
     assert (ours / "out" / "subject01_walk1_motion.csv").is_file()
+    # calibrate ik with the IK setup alone runs it as OpenSim's IK tool does: its model_file and marker_file, its
+    # outputs where it names them (the motion CSV beside its .mot): the same fit, the same .mot to the byte
+    mot = (ours / "subject01_walk1_ik.mot").read_text()
+    assert main(["ik", "--ik-setup", str(ours / files[4]), "--overwrite", "-q"]) == 0
+    assert (ours / "subject01_walk1_ik.mot").read_text() == mot
+    csv = (ours / "out" / "subject01_walk1_motion.csv").read_text()
+    assert (ours / "subject01_walk1_motion.csv").read_text() == csv
     # without the setups' names to take, refused in one line
     capsys.readouterr()
     assert main([str(ours / files[1]), str(GAIT), "--setup-names", "-o", str(ours / "out") + os.sep]) == 2

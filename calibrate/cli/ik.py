@@ -32,8 +32,10 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                     "subject.osim), held fixed: the joint angles of a subject's other trials, as OpenSim's IK "
                     "tool gives them with the scaled model.  Writes <trial>_motion.csv (and .mot for an .osim "
                     "subject) beside each trial or in --out.  Nothing is written on an error.")
-    p.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... SUBJECT",
-                   help="the trials (.c3d, .trc, .tsv or .csv), then the calibrated subject (.urdf or .osim)")
+    p.add_argument("inputs", type=Path, nargs="*", metavar="TRIAL ... SUBJECT",
+                   help="the trials (.c3d, .trc, .tsv or .csv), then the calibrated subject (.urdf or .osim); none "
+                        "with one --ik-setup: the trial and the model it names, its outputs where it names them, as "
+                        "OpenSim's IK tool runs it")
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="the folder for the motions (default: beside each trial)")
     p.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",
@@ -87,6 +89,19 @@ def cmd_ik(args: argparse.Namespace) -> int:
     from .commands import Timed
     from .report import progress_for
 
+    from_setup = not args.inputs  # the IK setup's own model and trial, as OpenSim's IK tool runs it
+    if from_setup:
+        from ..io.osim_setup import ik_setup_inputs
+
+        if len(args.ik_setup or ()) != 1:
+            raise CalibrateError("give one or more trials and then the calibrated subject (calibrate ik TRIAL ... "
+                                 "SUBJECT), or one --ik-setup whose model_file and marker_file name them")
+        subject, trial = ik_setup_inputs(args.ik_setup[0])
+        for name, got in (("model_file", subject), ("marker_file", trial)):
+            if got is None:
+                raise CalibrateError(f"{args.ik_setup[0]}: its {name} is Unassigned; name it in the setup, or give "
+                                     "the trials and the subject: calibrate ik TRIAL ... SUBJECT --ik-setup XML")
+        args.inputs, args.setup_names = [trial, subject], True
     if len(args.inputs) < 2:
         raise CalibrateError("give one or more trials and then the calibrated subject: calibrate ik TRIAL ... SUBJECT")
     *trial_paths, subject_path = args.inputs
@@ -103,11 +118,14 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if not args.ik_setup:
             raise CalibrateError("--setup-names takes the names the lab's IK setups give; add --ik-setup")
         named = setup_outputs(None, args.ik_setup)
-    outputs, opensim_files = [], {}
+    outputs, opensim_files, folders = [], {}, {}
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
         files = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
         opensim_files[t] = files if named is None else named.outputs_of(t, *files)
+        if from_setup and args.out is None:  # the motion CSV (and the rest) beside the .mot the setup names
+            folder = opensim_files[t][0].parent
+        folders[t] = folder
         outputs += [folder / f"{t.stem}_motion.csv"] + (list(opensim_files[t]) if osim else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
@@ -216,8 +234,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
                          f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
         results.append((path, trial, got.fit, time.perf_counter() - start, got.left_out, shared))
-    for (path, trial, fit, _, _, shared), folder in zip(results, [args.out or t.parent for t in trial_paths],
-                                                        strict=True):
+    for (path, trial, fit, _, _, shared), folder in zip(results, [folders[t] for t in trial_paths], strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
         if osim:
             from ..io.osim_export import ik_marker_errors, marker_errors_text, write_mot

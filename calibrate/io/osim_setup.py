@@ -497,6 +497,18 @@ def _against(setup: Path, name: str) -> Path:
     return Path(name) if Path(name).is_absolute() else setup.parent / name
 
 
+def ik_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
+    """The model and the trial the OpenSim IK setup at `path` names (model_file, marker_file), each read against the
+    setup's folder as OpenSim reads them; None for one it leaves Unassigned.  ModelError with one line on a file
+    that is not an IK setup."""
+    path = Path(path)
+    tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                 "an OpenSim Inverse Kinematics setup file",
+                 "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+    model, trial = _output_name(tool, "model_file"), _output_name(tool, "marker_file")
+    return (None if model is None else _against(path, model)), (None if trial is None else _against(path, trial))
+
+
 def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path] | None) -> SetupOutputs:
     """The output names of the Scale setup `scale` and the IK setups `ik` (one per trial): see SetupOutputs.  A step
     not applied, or naming no trial file, names no motion; an IK setup's errors file only where it reports errors
@@ -597,5 +609,6 @@ def _named_lines(named: SetupOutputs) -> list[str]:
 
 
 __all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "SetupOutputs", "StaticPose", "TimeRange", "apply_time_ranges",
-           "cut_to_setups", "describe_setup", "ik_setup_locks", "ik_setup_notes", "ik_setup_range", "ik_setup_weights",
-           "pose_trial", "scale_setup", "setup_outputs", "setup_pose", "static_pose", "with_ik_setup"]
+           "cut_to_setups", "describe_setup", "ik_setup_inputs", "ik_setup_locks", "ik_setup_notes",
+           "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup", "setup_outputs", "setup_pose",
+           "static_pose", "with_ik_setup"]
