@@ -6,8 +6,10 @@ markers (calibrate.solve.ik.inverse_kinematics: frame by frame, warm-started fro
 the coordinates an OpenSim subject locks, those the calibration held (``--report``: its report JSON, whose learnt
 noise also weighs the markers), those its IK setups hold (``--ik-setup``, repeatable; their marker tasks' weights
 weigh the markers, and each cuts its trial to its time range) and ``--lock``'s.  Writes ``<trial>_motion.csv``
-per trial (and ``<trial>_motion.mot`` for an OpenSim subject), prints each trial's marker RMS and the markers it
-fits worst.
+per trial (and for an OpenSim subject ``<trial>_motion.mot`` and the marker errors as OpenSim's IK tool reports
+them, ``<trial>_ik_marker_errors.sto``; with ``--setup-names`` where the IK setup names them), prints each trial's
+marker RMS and the markers it fits worst.  One ``--ik-setup`` alone runs that setup as OpenSim's IK tool does: its
+model_file, its marker_file, its output names.
 """
 
 from __future__ import annotations
@@ -30,8 +32,10 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
         "ik", help="every frame's pose of more trials with a calibrated subject held fixed (inverse kinematics)",
         description="Fit every frame of each TRIAL to SUBJECT, a subject calibrate wrote (subject.urdf or "
                     "subject.osim), held fixed: the joint angles of a subject's other trials, as OpenSim's IK "
-                    "tool gives them with the scaled model.  Writes <trial>_motion.csv (and .mot for an .osim "
-                    "subject) beside each trial or in --out.  Nothing is written on an error.")
+                    "tool gives them with the scaled model.  Writes <trial>_motion.csv (and .mot and the marker "
+                    "errors, _ik_marker_errors.sto, for an .osim subject) beside each trial or in --out.  "
+                    "'calibrate ik --ik-setup XML' alone runs the setup as OpenSim's IK tool does.  Nothing is "
+                    "written on an error.")
     p.add_argument("inputs", type=Path, nargs="*", metavar="TRIAL ... SUBJECT",
                    help="the trials (.c3d, .trc, .tsv or .csv), then the calibrated subject (.urdf or .osim); none "
                         "with one --ik-setup: the trial and the model it names, its outputs where it names them, as "
