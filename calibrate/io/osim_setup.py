@@ -27,6 +27,7 @@ pipeline: 61 of the static's 300 frames, 121 of the walk's 151).
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -493,8 +494,9 @@ def _output_name(element, tag: str) -> str | None:
 
 
 def _against(setup: Path, name: str) -> Path:
-    """`name` read against the folder of `setup`, as OpenSim reads a setup's file names."""
-    return Path(name) if Path(name).is_absolute() else setup.parent / name
+    """`name` read against the folder of `setup`, as OpenSim reads a setup's file names ('IK/../Scale/x.osim' said
+    'Scale/x.osim')."""
+    return Path(name) if Path(name).is_absolute() else Path(os.path.normpath(setup.parent / name))
 
 
 def ik_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
