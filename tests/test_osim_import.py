@@ -1258,7 +1258,8 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     set here), the static's and the walk's motions and the walk's marker errors under names of their own;
     `calibrate ... --setup-names` writes its subject, marker set, motions and errors at exactly those paths (what the
     lab's ID, SO and CMC setups read), and OpenSim loads them: the .mot's coordinates are the model's, the marker set
-    every marker; read back as --marker-set, the subject's markers again."""
+    every marker; read back as --marker-set, the subject's markers again.  The setups alone (no trial, no model:
+    those they name) give the same calibration; `calibrate ik --ik-setup` alone the same motion."""
     files = ("gait2392_Scale_MarkerSet.xml", "subject01_static.trc", "subject01_walk1.trc",
              "subject01_Setup_Scale.xml", "subject01_Setup_IK.xml")
     lab, ours = tmp_path / "opensim", tmp_path / "calibrate"
@@ -1321,6 +1322,18 @@ print(table.getNumRows(), int(set(table.getColumnLabels()) <= names), osim.Marke
     assert (ours / "subject01_walk1_ik.mot").read_text() == mot
     csv = (ours / "out" / "subject01_walk1_motion.csv").read_text()
     assert (ours / "subject01_walk1_motion.csv").read_text() == csv
+    # the setups alone, as OpenSim's Scale and IK tools run them: the generic model and the static the Scale setup
+    # names (gait2392_simbody.osim, as its setup calls gait2392.osim), the walk the IK setup names: the same calibration
+    drop = tmp_path / "dropin"
+    (drop / "out").mkdir(parents=True)
+    for f in files:
+        (drop / f).write_bytes((ours / f).read_bytes())
+    (drop / "gait2392_simbody.osim").write_bytes(GAIT.read_bytes())
+    assert main(["--scale-setup", str(drop / files[3]), "--ik-setup", str(drop / files[4]), "-o",
+                 str(drop / "out") + os.sep, "-q"]) == 0
+    assert {p.name for p in drop.iterdir() if p.suffix in (".osim", ".mot", ".sto")} >= mine - {"subject01_markers.xml"}
+    static = "subject01_static_motion.csv"
+    assert (drop / "out" / static).read_text() == (ours / "out" / static).read_text()
     # without the setups' names to take, refused in one line
     capsys.readouterr()
     assert main([str(ours / files[1]), str(GAIT), "--setup-names", "-o", str(ours / "out") + os.sep]) == 2

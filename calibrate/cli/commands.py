@@ -119,6 +119,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..model.model import load_model
     from ..problem.settings import Settings
 
+    if not args.inputs:
+        _inputs_from_setups(args)
     if len(args.inputs) < 2:
         raise CalibrateError("give one or more trials and then the base model: calibrate TRIAL [TRIAL ...] MODEL")
     *trial_paths, model_path = args.inputs
@@ -375,6 +377,27 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               "written and is flagged in the report", file=sys.stderr)
         return 1
     return 0
+
+
+def _inputs_from_setups(args) -> None:
+    """No trial or model given: those the lab's Scale setup (its generic model and static trial) and IK setups (each
+    its trial) name, as OpenSim's tools run them, their outputs where they name them (args.inputs, args.setup_names
+    set so)."""
+    from ..io.osim_setup import ik_setup_inputs, scale_setup_inputs
+
+    if args.scale_setup is None:
+        raise CalibrateError("give the trials and then the base model (calibrate TRIAL [TRIAL ...] MODEL), or the "
+                             "lab's --scale-setup (and --ik-setup) naming them")
+    model, static = scale_setup_inputs(args.scale_setup)
+    named = [(args.scale_setup, "GenericModelMaker's model_file", model),
+             (args.scale_setup, "marker placer's marker_file", static),
+             *((ik, "marker_file", ik_setup_inputs(ik)[1]) for ik in args.ik_setup or ())]
+    for setup, what, path in named:
+        if path is None:
+            raise CalibrateError(f"{setup}: its {what} is Unassigned; name it in the setup, or give the trials and "
+                                 "the model: calibrate TRIAL [TRIAL ...] MODEL --scale-setup XML")
+    trials = list(dict.fromkeys(path for _, _, path in named[1:]))
+    args.inputs, args.setup_names = [*trials, model], True
 
 
 def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mots: list[Path],

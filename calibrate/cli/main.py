@@ -183,9 +183,11 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
               "shared by all trials, with every frame's pose, in one least-squares problem.  Writes the "
               "subject URDF, a motion CSV per trial and a report JSON next to the first trial (or beside -o's "
               f"URDF).  Other commands: {', '.join(COMMANDS)} (see 'calibrate COMMAND --help').")
-    ap.add_argument("inputs", type=Path, nargs="+", metavar="TRIAL ... MODEL",
+    ap.add_argument("inputs", type=Path, nargs="*", metavar="TRIAL ... MODEL",
                     help="the trials (.c3d, .trc, .tsv or .csv), then the base model (.urdf or .osim) to calibrate "
-                         "(never modified)")
+                         "(never modified); none with --scale-setup: the generic model and static trial it names and "
+                         "the trial each --ik-setup names, the outputs where they name them (--setup-names), as "
+                         "OpenSim's Scale and IK tools run them")
     ap.add_argument("-o", "--output", type=str, default=None,
                     help="subject URDF (default: the first TRIAL's name + .urdf); from an OpenSim base model, "
                          "NAME.osim names the subject .osim too (both written, side by side); a folder (results/): "

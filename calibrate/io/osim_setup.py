@@ -499,6 +499,19 @@ def _against(setup: Path, name: str) -> Path:
     return Path(name) if Path(name).is_absolute() else Path(os.path.normpath(setup.parent / name))
 
 
+def scale_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
+    """The generic model and the static trial the OpenSim Scale setup at `path` names (GenericModelMaker's model_file;
+    the MarkerPlacer's marker_file, else the ModelScaler's), each read against the setup's folder as OpenSim reads
+    them; None for one it leaves Unassigned.  ModelError with one line on a file that is not a Scale setup."""
+    path = Path(path)
+    tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+                 "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+    model = _output_name(tool.find("GenericModelMaker"), "model_file")
+    static = next((name for step in ("MarkerPlacer", "ModelScaler") if (el := tool.find(step)) is not None
+                   and _applied(el) and (name := _output_name(el, "marker_file"))), None)
+    return (None if model is None else _against(path, model)), (None if static is None else _against(path, static))
+
+
 def ik_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
     """The model and the trial the OpenSim IK setup at `path` names (model_file, marker_file), each read against the
     setup's folder as OpenSim reads them; None for one it leaves Unassigned.  ModelError with one line on a file
@@ -612,5 +625,5 @@ def _named_lines(named: SetupOutputs) -> list[str]:
 
 __all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "SetupOutputs", "StaticPose", "TimeRange", "apply_time_ranges",
            "cut_to_setups", "describe_setup", "ik_setup_inputs", "ik_setup_locks", "ik_setup_notes",
-           "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup", "setup_outputs", "setup_pose",
-           "static_pose", "with_ik_setup"]
+           "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup", "scale_setup_inputs", "setup_outputs",
+           "setup_pose", "static_pose", "with_ik_setup"]
