@@ -176,6 +176,7 @@ COMMANDS = ("simulate", "demo", "inspect", "joints", "export-osim", "export-mjcf
 
 def build_calibrate_parser() -> argparse.ArgumentParser:
     ap = _top("calibrate TRIAL [TRIAL ...] MODEL [-o URDF] [--motion CSV] [--report JSON] [--markers TOML] ...\n"
+              "       calibrate --scale-setup XML [--ik-setup XML ...] [options]   (the lab's OpenSim setups alone)\n"
               f"       calibrate {{{','.join(COMMANDS)}}} ...",
               "Calibrate MODEL (a URDF, or an OpenSim model .osim) to the subject of one or more TRIALs "
               "(.c3d or .trc, or Qualisys QTM's .tsv or OptiTrack Motive's .csv export; e.g. a static "
