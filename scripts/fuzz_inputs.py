@@ -305,6 +305,7 @@ def _reader(kind: str, osim: str, scratch: Path) -> tuple[Callable[[Path], objec
             setup.ik_setup_range(p)
             setup.with_ik_setup(model, Settings(), p)
             setup.setup_outputs(None, p)
+            setup.ik_setup_inputs(p)
             setup.describe_setup(p)
         return ik, (GAIT / "subject01_Setup_IK.xml").read_text(), ".xml"
 
@@ -312,6 +313,7 @@ def _reader(kind: str, osim: str, scratch: Path) -> tuple[Callable[[Path], objec
         setup.scale_setup(p)
         setup.setup_pose(p, model, trials, ["subject01_static.trc", "subject01_walk1.trc"])
         setup.setup_outputs(p, None)
+        setup.scale_setup_inputs(p)
         setup.describe_setup(p)
     return scale, (GAIT / "subject01_Setup_Scale.xml").read_text(), ".xml"
 
