@@ -592,7 +592,9 @@ def describe_setup(path: str | Path) -> list[str]:
                              else "") + " (calibrate scales every segment and places every marker from the frames it "
                 "is given)"
                 + ("; preserve_mass_distribution false (calibrate scales every segment's mass alike)"
-                   if not setup.preserve_mass else ""), *_named_lines(setup_outputs(path, None))]
+                   if not setup.preserve_mass else ""), *_named_lines(setup_outputs(path, None)),
+                *_alone_line(f"calibrate --scale-setup {path.name} [--ik-setup ...]", "calibrates {model} to {trial}",
+                             *scale_setup_inputs(path))]
     tool = root if root.tag == "InverseKinematicsTool" else root.find(".//InverseKinematicsTool")
     if tool is None:
         hint = (f"an OpenSim MarkerSet is read with its model: calibrate inspect MODEL.osim --marker-set {path.name}"
@@ -611,7 +613,15 @@ def describe_setup(path: str | Path) -> list[str]:
             f"  --ik-setup locks {len(held)} coordinates its tasks hold: " + (", ".join(held) or "none")
             + (f"; cuts {span.file} to {span.text()} (--whole-trials: every frame)" if span is not None else ""),
             f"  not used: its {len(markers)} applied marker tasks and their weights (calibrate learns each marker's "
-            "noise)", *_named_lines(setup_outputs(None, path))]
+            "noise)", *_named_lines(setup_outputs(None, path)),
+            *_alone_line(f"calibrate ik --ik-setup {path.name}", "fits {trial} with {model}", *ik_setup_inputs(path))]
+
+
+def _alone_line(command: str, does: str, model: Path | None, trial: Path | None) -> list[str]:
+    """describe_setup's line on the setup run alone, as OpenSim's tool runs it (`does`: a phrase with {model} and
+    {trial}); none where it names no model or trial."""
+    return [f"  alone: '{command}' " + does.format(model=model, trial=trial) + ", as OpenSim's tool runs the setup"] \
+        if model is not None and trial is not None else []
 
 
 def _named_lines(named: SetupOutputs) -> list[str]:
