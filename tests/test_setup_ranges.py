@@ -325,6 +325,9 @@ def test_the_gait2392_scale_setup_poses_its_static(capsys):
     # and where --setup-names writes what it names: its MarkerPlacer's model and static motion, beside the setup
     assert (f"--setup-names writes the subject {d / 'subject01_simbody.osim'}, subject01_static.trc's motion "
             f"{d / 'subject01_static_output.mot'}") in out
+    # and what it does run alone: the generic model and the static it names
+    assert (f"alone: 'calibrate --scale-setup subject01_Setup_Scale.xml [--ik-setup ...]' calibrates "
+            f"{d / 'gait2392_simbody.osim'} to {d / 'subject01_static.trc'}") in out
 
 
 def test_a_markerless_held_segment_does_not_stop_the_pose_above_it(tmp_path, capsys):
