@@ -1285,6 +1285,15 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
                  "--scale-setup", str(ours / files[3]), "--ik-setup", str(ours / files[4]), "--setup-names", "-o",
                  str(ours / "out") + os.sep, "-q"])
     assert code == 0, capsys.readouterr().err
+    # the walk's marker errors count the markers OpenSim's counts, frame by frame: those its IK setup's marker tasks
+    # track (sum of squares over RMS squared; the frames OpenSim wrote from the same setup)
+    def counts(path: Path) -> np.ndarray:
+        lines = path.read_text().splitlines()
+        rows = np.array([[float(v) for v in line.split("\t")] for line in lines[lines.index("endheader") + 2:]])
+        return np.round(rows[:, 1] / rows[:, 2] ** 2)
+
+    sto = "subject01_ik_marker_errors.sto"
+    assert np.array_equal(counts(ours / sto), counts(lab / sto)) and counts(lab / sto).max() == 31
     mine = {p.name for p in ours.iterdir() if p.suffix in (".osim", ".mot", ".sto") or p.name.endswith("markers.xml")}
     assert mine == {"subject01_simbody.osim", "subject01_static_output.mot", "subject01_walk1_ik.mot",
                     "subject01_ik_marker_errors.sto", "subject01_markers.xml"} and mine <= written

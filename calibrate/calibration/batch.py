@@ -236,16 +236,21 @@ def _mtime(path: Path | None) -> float:
     return path.stat().st_mtime if path is not None and path.exists() else 0.0
 
 
-def _opensim_outputs(folder: Path, trials: Sequence[Path], named=None) -> dict:
-    """A subject's OpenSim outputs (cal.write's osim, mot, errors and marker_set): in its folder, else where the
-    setups name them (`named`: calibrate.io.osim_setup.setup_outputs)."""
+def _opensim_outputs(folder: Path, trials: Sequence[Path], setups=None, at_setups: bool = False) -> dict:
+    """A subject's OpenSim outputs (cal.write's osim, mot, errors, error_markers and marker_set): in its folder, else
+    (`at_setups`) where its setups name them (`setups`: calibrate.io.osim_setup.setup_outputs of the subject's
+    setups, whose IK setups' tracked markers the errors count, as OpenSim's IK counts them)."""
     mots = [folder / f"{Path(t).stem}_motion.mot" for t in trials]
     errors = [folder / f"{Path(t).stem}_ik_marker_errors.sto" for t in trials]
-    if named is None:
-        return {"osim": folder / "subject.osim", "mot": mots, "errors": errors}
-    pairs = [named.outputs_of(Path(t), m, e) for t, m, e in zip(trials, mots, errors, strict=True)]
-    return {"osim": named.model or folder / "subject.osim", "mot": [m for m, _ in pairs],
-            "errors": [e for _, e in pairs], **({"marker_set": named.markers} if named.markers is not None else {})}
+    out = {"osim": folder / "subject.osim", "mot": mots, "errors": errors}
+    if setups is None:
+        return out
+    out["error_markers"] = [setups.tracked_of(Path(t)) for t in trials]
+    if at_setups:
+        pairs = [setups.outputs_of(Path(t), m, e) for t, m, e in zip(trials, mots, errors, strict=True)]
+        out.update(osim=setups.model or out["osim"], mot=[m for m, _ in pairs], errors=[e for _, e in pairs],
+                   **({"marker_set": setups.markers} if setups.markers is not None else {}))
+    return out
 
 
 def check_named(outputs: dict, folder: Path, replace_named: bool) -> None:
@@ -259,18 +264,19 @@ def check_named(outputs: dict, folder: Path, replace_named: bool) -> None:
 
 
 def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, opensim: bool = False,
-                    c3d: bool = False, mjcf: bool = False, named=None, replace_named: bool = False) -> dict:
+                    c3d: bool = False, mjcf: bool = False, setups=None, at_setups: bool = False,
+                    replace_named: bool = False) -> dict:
     """Write one subject's outputs into `folder`, all or none: subject.urdf, one <trial>_motion.csv per
     trial (`opensim`: also subject.osim, a <trial>_motion.mot and a <trial>_ik_marker_errors.sto each, as calibrate
     writes them; `c3d`: a <trial>_calibrated.c3d each, as
     calibrate --c3d writes it; `mjcf`: subject_mujoco.xml and a <trial>_motion_qpos.csv each, as calibrate --mjcf
-    writes them), the HTML report and, last, the report JSON (the subject's done-marker).  `named`: the setups'
-    output names (calibrate.io.osim_setup.setup_outputs; a subject's setup_names): the subject .osim, its marker set,
-    motions and marker errors where they name them, replaced there only with `replace_named` (they are the lab's
-    files, outside the batch's folder)."""
+    writes them), the HTML report and, last, the report JSON (the subject's done-marker).  `setups`: the subject's
+    OpenSim setups (calibrate.io.osim_setup.setup_outputs): the marker errors count the markers its IK setups track;
+    `at_setups` (a subject's setup_names): the subject .osim, its marker set, motions and marker errors where they
+    name them, replaced there only with `replace_named` (they are the lab's files, outside the batch's folder)."""
     motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
-    extra = _opensim_outputs(folder, trials, named) if opensim else {}
-    if named is not None and opensim:
+    extra = _opensim_outputs(folder, trials, setups, at_setups) if opensim else {}
+    if at_setups and opensim:
         check_named(extra, folder, replace_named)
     if c3d:
         extra["c3d"] = [folder / f"{Path(t).stem}_calibrated.c3d" for t in trials]
@@ -293,12 +299,13 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         return {**row, "status": "skipped"}
     t0 = time.perf_counter()
     try:
-        named = None
-        if subject.setup_names:  # the OpenSim outputs where the subject's setups have OpenSim write them
+        setups = None
+        if subject.scale_setup is not None or subject.ik_setup:
             from ..io.osim_setup import setup_outputs
 
-            named = setup_outputs(subject.scale_setup, subject.ik_setup)
-            check_named(_opensim_outputs(folder, subject.trials, named), folder, overwrite)
+            setups = setup_outputs(subject.scale_setup, subject.ik_setup)
+        if subject.setup_names:  # the OpenSim outputs where the subject's setups have OpenSim write them
+            check_named(_opensim_outputs(folder, subject.trials, setups, True), folder, overwrite)
         from ..io.config import load_settings
         from ..io.labels import load_marker_map
         from ..io.read import read_trial
@@ -339,7 +346,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
             cal = replace(cal, mass_from=str(setup.path))
         folder.mkdir(parents=True, exist_ok=True)
         subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim",
-                        c3d=c3d, mjcf=mjcf, named=named, replace_named=overwrite)
+                        c3d=c3d, mjcf=mjcf, setups=setups, at_setups=subject.setup_names, replace_named=overwrite)
         # What to look at in this subject: notes, parameters carried beyond their priors (unreliable), labels to
         # check, non-convergence.  Not the parameters a trial leaves to the priors: as many for every subject of one
         # protocol (24-50 on the real recordings), they hid the few that differ.

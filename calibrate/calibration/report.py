@@ -947,7 +947,7 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
                   progress: Callable[[float], None] | None = None, c3d=None, mjcf=None,
-                  qpos=None, errors=None, marker_set=None) -> dict[str, Path]:
+                  qpos=None, errors=None, marker_set=None, error_markers=None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
     (calibrate.calibration.html), each trial as a C3D with calibrate's joint centres, model markers and joint
     angles beside its markers (calibrate.calibration.c3d_result), for OpenSim the subject as an .osim model
@@ -955,7 +955,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     (calibrate.io.mjcf), each trial's marker errors as OpenSim's IK tool reports them (`errors`: its
     _ik_marker_errors.sto; calibrate.io.osim_export.ik_marker_errors) and the subject's markers as an OpenSim
     MarkerSet file (`marker_set`, as the Scale tool's MarkerPlacer writes its output_marker_file) (whichever are
-    given).
+    given).  `error_markers`: per trial the markers its errors count (an IK setup's tracked markers, as OpenSim's
+    IK counts them: calibrate.io.osim_setup.SetupOutputs.tracked_of), or None for every marker the fit uses.
 
     `motion`, `mot`, `c3d`, `qpos`, `errors`: one path per trial (a single path for a single trial).  Every
     destination is checked first (its folder exists; it is not the base model; it does not exist unless
@@ -1054,9 +1055,14 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             target = opensim[f"mot[{i}]"]
             writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))
         used = [n for n in cal.model.marker_names if n not in cal.unused_markers]
-        for i, (t, m) in enumerate(zip(cal.trials[:len(stos)], cal.motions, strict=False)):
-            writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m: put_text(
-                path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, used)))
+        counted = list(error_markers) if error_markers is not None else [None] * len(stos)
+        if len(counted) != len(stos):
+            raise CalibrateError(f"{len(counted)} marker lists for {len(stos)} marker-errors outputs; give one per "
+                                 "trial (None: every marker the fit uses)")
+        for i, (t, m, own) in enumerate(zip(cal.trials[:len(stos)], cal.motions, counted, strict=False)):
+            mk = used if own is None else [n for n in used if n in set(own)]
+            writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
+                path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, mk)))
     if mujoco:
         from ..io.mjcf import mjcf_text, qpos_csv_text  # MuJoCo export: only for these outputs
 

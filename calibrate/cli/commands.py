@@ -313,8 +313,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if setup is not None and args.mass is None and mass is not None:
             cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})
-        opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors, "marker_set": out_markers} \
-            if from_osim else {}
+        opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors, "marker_set": out_markers,
+                   "error_markers": _tracked(args.ik_setup, trial_paths)} if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
                           c3d=out_c3ds or None, **opensim,
@@ -377,6 +377,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               "written and is flagged in the report", file=sys.stderr)
         return 1
     return 0
+
+
+def _tracked(ik_setup, trial_paths: list[Path]) -> list | None:
+    """Per trial the markers its IK setup tracks (its marker errors count those, as OpenSim's IK's do), or None."""
+    if not ik_setup:
+        return None
+    from ..io.osim_setup import setup_outputs
+
+    named = setup_outputs(None, ik_setup)
+    return [named.tracked_of(t) for t in trial_paths]
 
 
 def _inputs_from_setups(args) -> None:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ModelError, TrialError
@@ -478,13 +478,26 @@ class SetupOutputs:
     motions: dict[str, Path]  # trial file name (as the setup names it) -> its .mot (MarkerPlacer's, IK setups')
     errors: dict[str, Path]  # trial file name -> <IK tool's name>_ik_marker_errors.sto in its results_directory
     setups: dict[str, Path]  # trial file name -> the setup naming its outputs
+    # trial file name -> the markers its IK setup tracks (marker tasks applied, weight > 0): those OpenSim's IK fits
+    # and reports the errors of (a marker with no task is not fitted: gait2392's walk with its Sternum task removed
+    # counts 30 markers where it counted 31); absent for a setup without marker tasks
+    tracked: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+    def _key(self, trial: Path) -> str | None:
+        """The name a setup gives the trial file `trial`: its file name, else its stem (the .c3d of a setup's .trc),
+        as its time range names it; None where no setup names it."""
+        return trial.name if trial.name in self.setups else next(
+            (k for k in self.setups if Path(k).stem == trial.stem), None)
 
     def outputs_of(self, trial: Path, mot: Path, errors: Path) -> tuple[Path, Path]:
-        """The .mot and marker-errors paths of the trial file `trial`: those its setup names, else `mot`, `errors`.
-        A setup names a trial by its file name, else by its stem (the .c3d of a setup's .trc), as its time range."""
-        key = trial.name if trial.name in self.setups else next(
-            (k for k in self.setups if Path(k).stem == trial.stem), None)
+        """The .mot and marker-errors paths of the trial file `trial`: those its setup names, else `mot`, `errors`."""
+        key = self._key(trial)
         return (mot, errors) if key is None else (self.motions.get(key, mot), self.errors.get(key, errors))
+
+    def tracked_of(self, trial: Path) -> tuple[str, ...] | None:
+        """The markers the IK setup of the trial file `trial` tracks; None where no IK setup names it."""
+        key = self._key(trial)
+        return None if key is None else self.tracked.get(key)
 
 
 def _output_name(element, tag: str) -> str | None:
@@ -528,7 +541,7 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
     """The output names of the Scale setup `scale` and the IK setups `ik` (one per trial): see SetupOutputs.  A step
     not applied, or naming no trial file, names no motion; an IK setup's errors file only where it reports errors
     (report_errors, true unless set false).  ModelError with one line on a file that is not such a setup."""
-    model, markers, motions, errors, setups = None, None, {}, {}, {}
+    model, markers, motions, errors, setups, tracked = None, None, {}, {}, {}, {}
     if scale is not None:
         path = Path(scale)
         tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
@@ -554,10 +567,13 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
         setups[key] = path
         if name := _output_name(tool, "output_motion_file"):
             motions[key] = _against(path, name)
+        weights = ik_setup_weights(path)
+        if weights:  # a setup with marker tasks tracks those it applies (a marker with no task is not fitted)
+            tracked[key] = tuple(name for name, w in weights.items() if w > 0)
         if (tool.findtext("report_errors") or "true").strip().lower() != "false":
             results = _against(path, _output_name(tool, "results_directory") or ".")
             errors[key] = results / f"{tool.get('name') or path.stem}_ik_marker_errors.sto"
-    return SetupOutputs(model, markers, motions, errors, setups)
+    return SetupOutputs(model, markers, motions, errors, setups, tracked)
 
 
 def describe_setup(path: str | Path) -> list[str]:
