@@ -674,3 +674,26 @@ def test_ik_marker_errors_are_opensims_on_the_same_model(tmp_path):
     assert np.abs(a[:, 0] - b[:, 0]).max() < 0.5 / 60  # the same frames (OpenSim's times read from the file's)
     assert np.abs(a[:, 2] - b[:, 2]).max() < 2e-5 and 0.03 < b[:, 2].mean() < 0.06  # m: 45 mm RMS, the generic size
     assert np.abs(a[:, 3] - b[:, 3]).max() < 5e-4 and np.abs(a[:, 1] / b[:, 1] - 1).max() < 1e-3
+
+
+def test_ik_setups_alone_must_name_their_trial_and_one_model(tmp_path, capsys):
+    """`calibrate ik --ik-setup A.xml --ik-setup B.xml` with no trial or subject: each setup must name its trial and
+    the one model they share; otherwise one line each, exit 2, nothing written."""
+    def setup(name: str, model: str | None, trial: str | None) -> Path:
+        path = tmp_path / name
+        path.write_text("<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='x'>"
+                        + (f"<model_file>{model}</model_file>" if model else "<model_file>Unassigned</model_file>")
+                        + (f"<marker_file>{trial}</marker_file>" if trial else "")
+                        + "</InverseKinematicsTool></OpenSimDocument>")
+        return path
+
+    a, b = setup("a.xml", "s1.osim", "walk1.trc"), setup("b.xml", "s2.osim", "walk2.trc")
+    cases = [(["ik", "--ik-setup", str(a), "--ik-setup", str(b)], "their model_file names s1.osim and s2.osim"),
+             (["ik", "--ik-setup", str(setup("c.xml", None, "walk.trc"))], "its model_file is Unassigned"),
+             (["ik", "--ik-setup", str(setup("d.xml", "s1.osim", None))], "its marker_file is Unassigned"),
+             (["ik"], "or --ik-setup files whose model_file and marker_file name them")]
+    for argv, needle in cases:
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.xml", "b.xml", "c.xml", "d.xml"]

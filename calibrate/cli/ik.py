@@ -8,8 +8,8 @@ noise also weighs the markers), those its IK setups hold (``--ik-setup``, repeat
 weigh the markers, and each cuts its trial to its time range) and ``--lock``'s.  Writes ``<trial>_motion.csv``
 per trial (and for an OpenSim subject ``<trial>_motion.mot`` and the marker errors as OpenSim's IK tool reports
 them, ``<trial>_ik_marker_errors.sto``; with ``--setup-names`` where the IK setup names them), prints each trial's
-marker RMS and the markers it fits worst.  One ``--ik-setup`` alone runs that setup as OpenSim's IK tool does: its
-model_file, its marker_file, its output names.
+marker RMS and the markers it fits worst.  ``--ik-setup`` files alone run as OpenSim's IK tool runs them: the
+model_file they name (one for all), each one's marker_file and output names.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
                     "written on an error.")
     p.add_argument("inputs", type=Path, nargs="*", metavar="TRIAL ... SUBJECT",
                    help="the trials (.c3d, .trc, .tsv or .csv), then the calibrated subject (.urdf or .osim); none "
-                        "with one --ik-setup: the trial and the model it names, its outputs where it names them, as "
-                        "OpenSim's IK tool runs it")
+                        "with --ik-setup: the trial each names and the model they name, the outputs where they name "
+                        "them, as OpenSim's IK tool runs them")
     p.add_argument("-o", "--out", type=Path, default=None, metavar="DIR",
                    help="the folder for the motions (default: beside each trial)")
     p.add_argument("--ik-setup", type=Path, default=None, metavar="XML", action="append",
@@ -97,15 +97,21 @@ def cmd_ik(args: argparse.Namespace) -> int:
     if from_setup:
         from ..io.osim_setup import ik_setup_inputs
 
-        if len(args.ik_setup or ()) != 1:
+        if not args.ik_setup:
             raise CalibrateError("give one or more trials and then the calibrated subject (calibrate ik TRIAL ... "
-                                 "SUBJECT), or one --ik-setup whose model_file and marker_file name them")
-        subject, trial = ik_setup_inputs(args.ik_setup[0])
-        for name, got in (("model_file", subject), ("marker_file", trial)):
-            if got is None:
-                raise CalibrateError(f"{args.ik_setup[0]}: its {name} is Unassigned; name it in the setup, or give "
-                                     "the trials and the subject: calibrate ik TRIAL ... SUBJECT --ik-setup XML")
-        args.inputs, args.setup_names = [trial, subject], True
+                                 "SUBJECT), or --ik-setup files whose model_file and marker_file name them")
+        named = [(setup, *ik_setup_inputs(setup)) for setup in args.ik_setup]
+        for setup, subject, trial in named:
+            for name, got in (("model_file", subject), ("marker_file", trial)):
+                if got is None:
+                    raise CalibrateError(f"{setup}: its {name} is Unassigned; name it in the setup, or give the "
+                                         "trials and the subject: calibrate ik TRIAL ... SUBJECT --ik-setup XML")
+        models = list(dict.fromkeys(subject for _, subject, _ in named))
+        if len(models) > 1:
+            raise CalibrateError(f"{named[0][0]} and {next(s for s, m, _ in named if m != models[0])}: their "
+                                 f"model_file names {models[0].name} and {models[1].name}; run each subject's "
+                                 "setups apart")
+        args.inputs, args.setup_names = [*dict.fromkeys(trial for _, _, trial in named), models[0]], True
     if len(args.inputs) < 2:
         raise CalibrateError("give one or more trials and then the calibrated subject: calibrate ik TRIAL ... SUBJECT")
     *trial_paths, subject_path = args.inputs
