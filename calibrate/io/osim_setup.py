@@ -43,9 +43,7 @@ def ik_setup_locks(path: str | Path, model) -> tuple[tuple[str, float], ...]:
     ModelError with one line on a file that is not an IK setup, a task on a coordinate the model does not
     have, or a value read from a file."""
     path = Path(path)
-    tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
-                       "an OpenSim Inverse Kinematics setup file",
-                       "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+    tool = _ik_tool(path)
     return tuple(_coordinate_values(path, tool, model, root_ok=True)[0])
 
 
@@ -55,9 +53,7 @@ def ik_setup_notes(path: str | Path | Sequence[str | Path], model) -> list[str]:
     it leaves."""
     lines = []
     for one in _paths(path):
-        tool = _tool(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
-                     "an OpenSim Inverse Kinematics setup file",
-                     "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+        tool = _ik_tool(one)
         held, root = _coordinate_values(one, tool, model, root_ok=True)
         if root:
             lines.append(f"{one.name}: its tasks on {', '.join(root)} (the ground joint's) are not held: the root's "
@@ -172,8 +168,7 @@ def static_pose(path: str | Path, model) -> StaticPose | None:
     trial; StaticPose), or None where the MarkerPlacer is not applied, names no trial or holds no coordinate.
     ModelError with one line as for an IK setup's tasks (ik_setup_locks)."""
     path = Path(path)
-    tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
-                       "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+    tool = _scale_tool(path)
     placer = tool.find("MarkerPlacer")
     if placer is None or not _applied(placer):
         return None
@@ -239,9 +234,7 @@ def ik_setup_weights(path: str | Path | Sequence[str | Path]) -> dict[str, float
     weights: dict[str, float] = {}
     where: dict[str, Path] = {}
     for one in _paths(path):
-        tool = _tool(one, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
-                           "an OpenSim Inverse Kinematics setup file",
-                           "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+        tool = _ik_tool(one)
         for task in tool.iter("IKMarkerTask"):
             name = task.get("name", "")
             try:
@@ -279,6 +272,19 @@ def with_ik_setup(model, settings, path: str | Path | Sequence[str | Path]):
 def _tool(path: Path, tag: str, read_as: str, give: str, missing: str):
     """The <tag> element of the setup at `path` (xml_element), its task sets read in (_inline_task_sets)."""
     return _inline_task_sets(path, xml_element(path, tag, read_as, give, missing))
+
+
+def _ik_tool(path: Path):
+    """The <InverseKinematicsTool> of the IK setup at `path` (_tool; one line naming the file if it is not one)."""
+    return _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
+                 "an OpenSim Inverse Kinematics setup file",
+                 "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+
+
+def _scale_tool(path: Path):
+    """The <ScaleTool> of the Scale setup at `path` (_tool; one line naming the file if it is not one)."""
+    return _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
+                 "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
 
 
 def _inline_task_sets(path: Path, element):
@@ -365,8 +371,7 @@ def scale_setup(path: str | Path) -> ScaleSetup:
     is read against the setup's folder, as OpenSim's Scale tool reads it).  Raises ModelError with one line on a
     file that is not a Scale setup, a mass that is not a number, or a marker set file that is not there."""
     path = Path(path)
-    tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
-                       "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+    tool = _scale_tool(path)
     text = (tool.findtext("mass") or "").strip()
     mass = None
     if text:
@@ -395,9 +400,7 @@ def ik_setup_range(path: str | Path) -> TimeRange | None:
     """The trial file and time range the OpenSim IK setup at `path` fits (None: no file named, or the whole file).
     ModelError with one line on a file that is not an IK setup or a time range that is not two numbers."""
     path = Path(path)
-    tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
-                       "an OpenSim Inverse Kinematics setup file",
-                       "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+    tool = _ik_tool(path)
     return _time_range(path, "InverseKinematicsTool", tool)
 
 
@@ -517,8 +520,7 @@ def scale_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
     the MarkerPlacer's marker_file, else the ModelScaler's), each read against the setup's folder as OpenSim reads
     them; None for one it leaves Unassigned.  ModelError with one line on a file that is not a Scale setup."""
     path = Path(path)
-    tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
-                 "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+    tool = _scale_tool(path)
     model = _output_name(tool.find("GenericModelMaker"), "model_file")
     static = next((name for step in ("MarkerPlacer", "ModelScaler") if (el := tool.find(step)) is not None
                    and _applied(el) and (name := _output_name(el, "marker_file"))), None)
@@ -530,9 +532,7 @@ def ik_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
     setup's folder as OpenSim reads them; None for one it leaves Unassigned.  ModelError with one line on a file
     that is not an IK setup."""
     path = Path(path)
-    tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
-                 "an OpenSim Inverse Kinematics setup file",
-                 "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+    tool = _ik_tool(path)
     model, trial = _output_name(tool, "model_file"), _output_name(tool, "marker_file")
     return (None if model is None else _against(path, model)), (None if trial is None else _against(path, trial))
 
@@ -544,8 +544,7 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
     model, markers, motions, errors, setups, tracked = None, None, {}, {}, {}, {}
     if scale is not None:
         path = Path(scale)
-        tool = _tool(path, "ScaleTool", "an OpenSim Scale setup file (.xml)", "an OpenSim Scale setup file",
-                     "give the Scale setup file (e.g. subject01_Setup_Scale.xml), not an IK or other setup")
+        tool = _scale_tool(path)
         placer, scaler = tool.find("MarkerPlacer"), tool.find("ModelScaler")
         for step in (scaler, placer):  # the marker placer's model last: the lab's final subject
             if step is not None and _applied(step) and (name := _output_name(step, "output_model_file")):
@@ -557,9 +556,7 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
             motions[Path(trial).name], setups[Path(trial).name] = _against(path, name), path
     for one in _paths(ik):
         path = Path(one)
-        tool = _tool(path, "InverseKinematicsTool", "an OpenSim IK setup file (.xml)",
-                     "an OpenSim Inverse Kinematics setup file",
-                     "give the IK setup file (e.g. subject01_Setup_IK.xml), not a Scale or other setup")
+        tool = _ik_tool(path)
         trial = _output_name(tool, "marker_file")
         if not trial:
             continue
