@@ -316,3 +316,16 @@ def test_a_manifest_subject_with_setup_names_writes_where_its_setups_say(tmp_pat
     (tmp_path / "lab.csv").write_text("subject,trials,model,ik_setup,setup_names\n"
                                       "S1,S1/trial.c3d,human.osim,S1/opensim/Setup_IK.xml,yes\n")
     assert read_manifest(tmp_path / "lab.csv")[0].setup_names
+    # the setups alone, as OpenSim's tools take them: no trials, no model; those the setups name, setup_names true
+    scale = (lab / "Setup_Scale.xml").read_text()
+    (lab / "Setup_Scale.xml").write_text(scale.replace(
+        "<MarkerPlacer>", "<GenericModelMaker><model_file>../../human.osim</model_file></GenericModelMaker>"
+        "<MarkerPlacer><marker_file>../trial.trc</marker_file>"))
+    (tmp_path / "alone.toml").write_text('[[subject]]\nid = "S1"\nik_setup = "S1/opensim/Setup_IK.xml"\n'
+                                         'scale_setup = "S1/opensim/Setup_Scale.xml"\n')
+    (alone,) = read_manifest(tmp_path / "alone.toml")
+    assert alone.model == tmp_path / "human.osim" and alone.trials == (tmp_path / "S1" / "trial.trc",)
+    assert alone.setup_names and alone.ik_setup == subject.ik_setup and alone.scale_setup == subject.scale_setup
+    (lab / "Setup_Scale.xml").write_text(scale)  # no model_file: refused, one line naming what to give
+    with pytest.raises(CalibrateError, match="model_file is Unassigned; name it in the setup, or give the subject's"):
+        read_manifest(tmp_path / "alone.toml")

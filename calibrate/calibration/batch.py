@@ -25,6 +25,7 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     whole_trials = true                           # optional: as --whole-trials (not the setups' time ranges)
     setup_names = true                            # optional: as --setup-names (the subject .osim, its motions and
                                                   #     marker errors where the setups have OpenSim write them)
+    # trials and model may be left out where scale_setup is given: those the setups name, setup_names then true
     hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
     config = "S01/settings.toml"                  # optional: the subject's settings file (calibrate --config)
 
@@ -100,6 +101,27 @@ def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: 
     return value in ("true", "1", "yes")
 
 
+def _from_setups(base: Path, row: dict, where: str) -> dict:
+    """A subject given by its OpenSim setups alone (no trials, no model): the generic model and static trial its
+    Scale setup names and the trial each IK setup names, as OpenSim's tools run them, its outputs where they name them
+    (setup_names, unless the row says otherwise), as ``calibrate --scale-setup S.xml --ik-setup I.xml`` takes them."""
+    from ..io.osim_setup import ik_setup_inputs, scale_setup_inputs
+
+    scale, iks = row["scale_setup"], row.get("ik_setup") or []
+    iks = [v for v in iks.split(";") if v.strip()] if isinstance(iks, str) else iks
+    if not isinstance(scale, str) or not isinstance(iks, list) or not all(isinstance(v, str) for v in iks):
+        raise CalibrateError(f"{where}: 'scale_setup' and 'ik_setup' must name setup files")
+    model, static = scale_setup_inputs(base / scale.strip())
+    named = [(scale, "GenericModelMaker's model_file", model), (scale, "marker placer's marker_file", static),
+             *((ik, "marker_file", ik_setup_inputs(base / ik.strip())[1]) for ik in iks)]
+    for setup, what, got in named:
+        if got is None:
+            raise CalibrateError(f"{where}: {setup.strip()}'s {what} is Unassigned; name it in the setup, or give the "
+                                 "subject's 'trials' and 'model'")
+    return {"trials": [str(p) for p in dict.fromkeys(got for _, _, got in named[1:])], "model": str(model),
+            "setup_names": row.get("setup_names", True)}
+
+
 def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] | None = None) -> list[Subject]:
     """The subjects of a TOML or CSV manifest (module docstring); one-line CalibrateError if it is bad.  `config`:
     the settings file of every subject that names none of its own (calibrate batch --config), in place of the
@@ -160,6 +182,8 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
         if sid in seen:
             raise CalibrateError(f"{where}: id {sid!r} appears twice; give each subject its own id")
         seen.add(sid)
+        if row.get("trials") is None and row.get("model") is None and row.get("scale_setup") is not None:
+            row = {**row, **_from_setups(base, row, f"{where} ({sid})")}
         trials = row.get("trials")
         if isinstance(trials, str):
             trials = [trials]
