@@ -307,7 +307,7 @@ def test_a_manifest_subject_with_setup_names_writes_where_its_setups_say(tmp_pat
     assert np.array_equal(again.parameters().marker, subject_osim.parameters().marker)
     (folder / "report.json").unlink()  # the subject to do again: the lab's files are there now
     row = calibrate_subject(subject, tmp_path / "out")
-    assert row["status"] == "failed" and "exists; pass --overwrite" in row["error"] and "\n" not in row["error"]
+    assert row["status"] == "failed" and "exists; the lab's setup names it" in row["error"] and "\n" not in row["error"]
     assert calibrate_subject(subject, tmp_path / "out", overwrite=True)["status"] in ("ok", "not converged")
     (tmp_path / "bad.toml").write_text('[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
                                        'setup_names = true\n')

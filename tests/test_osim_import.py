@@ -1281,10 +1281,15 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     assert {"subject01_simbody.osim", "subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto",
             "subject01_static_output.mot", "subject01_markers.xml"} <= written  # the lab's tools' names
     (ours / "out").mkdir()
-    code = main([str(ours / files[1]), str(ours / files[2]), str(GAIT), "--marker-set", str(ours / files[0]),
-                 "--scale-setup", str(ours / files[3]), "--ik-setup", str(ours / files[4]), "--setup-names", "-o",
-                 str(ours / "out") + os.sep, "-q"])
-    assert code == 0, capsys.readouterr().err
+    argv = [str(ours / files[1]), str(ours / files[2]), str(GAIT), "--marker-set", str(ours / files[0]),
+            "--scale-setup", str(ours / files[3]), "--ik-setup", str(ours / files[4]), "--setup-names", "-o",
+            str(ours / "out") + os.sep, "-q"]
+    assert main(argv) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    # run again: the files the setups name are there (as an OpenSim run's would be): one line saying so, exit 2
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists; the lab's setup names it" in err and "--overwrite" in err, err
     # the walk's marker errors count the markers OpenSim's counts, frame by frame: those its IK setup's marker tasks
     # track (sum of squares over RMS squared; the frames OpenSim wrote from the same setup)
     def counts(path: Path) -> np.ndarray:

@@ -280,11 +280,12 @@ def _opensim_outputs(folder: Path, trials: Sequence[Path], setups=None, at_setup
 def check_named(outputs: dict, folder: Path, replace_named: bool) -> None:
     """Refuse (one line) the setup-named outputs outside the subject's `folder` that exist (unless `replace_named`:
     the batch's --overwrite) or whose folder does not: the lab's files, checked before the subject's work."""
+    from ..io.osim_setup import SETUP_NAMED_HINT
     from ..io.outputs import check_targets
 
     paths = [outputs["osim"], outputs.get("marker_set"), *outputs["mot"], *outputs["errors"]]
     check_targets([p for p in paths if p is not None and not p.is_relative_to(folder)], replace_named,
-                  exists_hint="pass --overwrite to replace it (the lab's setup names it)")
+                  exists_hint=SETUP_NAMED_HINT)
 
 
 def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, opensim: bool = False,

@@ -213,7 +213,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                                                    out_errors)
     if from_osim:
         outputs += [out_osim, *out_mots, *out_errors, *([out_markers] if out_markers is not None else [])]
-    # Check the destinations before any work, so a long run never ends in a refusal.
+    # Check the destinations before any work, so a long run never ends in a refusal: those the lab's setups name
+    # first (an OpenSim run's earlier outputs, most likely), then every one.
+    if args.setup_names and from_osim:
+        from ..io.osim_setup import SETUP_NAMED_HINT
+
+        check_targets([p for p in (out_osim, out_markers, *out_mots, *out_errors) if p is not None], args.overwrite,
+                      exists_hint=SETUP_NAMED_HINT)
     check_targets(outputs, args.overwrite,
                   inputs={model_path: "that is the base model; refusing to overwrite it (choose another -o)"},
                   same="two outputs would be the same file (two trials with the same name?); use -o/--report "

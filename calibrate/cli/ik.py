@@ -139,6 +139,10 @@ def cmd_ik(args: argparse.Namespace) -> int:
         outputs += [folder / f"{t.stem}_motion.csv"] + (list(opensim_files[t]) if osim else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
+    if named is not None and osim:  # those the lab's IK setups name first (an OpenSim run's earlier outputs?)
+        from ..io.osim_setup import SETUP_NAMED_HINT
+
+        check_targets([p for t in trial_paths for p in opensim_files[t]], args.overwrite, exists_hint=SETUP_NAMED_HINT)
     check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
                   same="two trials with the same name would write the same motion; use --out or rename them",
                   exists_hint="pass --overwrite to replace it or choose another --out")

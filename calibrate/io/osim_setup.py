@@ -470,6 +470,10 @@ def cut_to_setups(trials: Sequence[Trial], scale: ScaleSetup | None,
                                       *(ik_setup_range(one) for one in _paths(ik))])
 
 
+#: What to do about an output a lab's setup names (--setup-names) that is there already.
+SETUP_NAMED_HINT = "the lab's setup names it (an earlier OpenSim run's output?); pass --overwrite to replace it"
+
+
 @dataclass(frozen=True)
 class SetupOutputs:
     """Where a lab's OpenSim Scale and IK setups have OpenSim write the subject and the motions, each path resolved
@@ -646,7 +650,7 @@ def _named_lines(named: SetupOutputs) -> list[str]:
     return [f"  --setup-names writes {', '.join(parts)}"] if parts else []
 
 
-__all__ = ["POSE_TASK_WEIGHT", "ScaleSetup", "SetupOutputs", "StaticPose", "TimeRange", "apply_time_ranges",
-           "cut_to_setups", "describe_setup", "ik_setup_inputs", "ik_setup_locks", "ik_setup_notes",
-           "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup", "scale_setup_inputs", "setup_outputs",
-           "setup_pose", "static_pose", "with_ik_setup"]
+__all__ = ["POSE_TASK_WEIGHT", "SETUP_NAMED_HINT", "ScaleSetup", "SetupOutputs", "StaticPose", "TimeRange",
+           "apply_time_ranges", "cut_to_setups", "describe_setup", "ik_setup_inputs", "ik_setup_locks",
+           "ik_setup_notes", "ik_setup_range", "ik_setup_weights", "pose_trial", "scale_setup", "scale_setup_inputs",
+           "setup_outputs", "setup_pose", "static_pose", "with_ik_setup"]
