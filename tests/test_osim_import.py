@@ -1353,3 +1353,26 @@ print(table.getNumRows(), int(set(table.getColumnLabels()) <= names), osim.Marke
     assert main([str(ours / files[1]), str(GAIT), "--setup-names", "-o", str(ours / "out") + os.sep]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--setup-names" in err and "--scale-setup" in err
+
+
+def test_the_setups_alone_write_beside_the_subject_not_among_the_data(tmp_path, capsys):
+    """`calibrate --scale-setup Scale/Setup_Scale.xml` alone, a lab's folders (Scale/, data/): the generic model and
+    static trial the setup names (read against its folder), the subject .osim where it names it, and calibrate's own
+    outputs (URDF, motion CSV, report) beside that .osim: nothing written among the lab's data."""
+    from calibrate.io.osim_export import export_osim
+    from calibrate.simulation.simulate import simulate_squats, write_simulation
+
+    human = load_model(Path(__file__).resolve().parent.parent / "models" / "human.urdf")
+    export_osim(human, tmp_path / "human.osim")
+    write_simulation(simulate_squats(human, frames=60, noise_mm=1.0, seed=14), tmp_path / "data")
+    (tmp_path / "Scale").mkdir()
+    (tmp_path / "Scale" / "Setup_Scale.xml").write_text(
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='S1'><mass>70</mass>"
+        "<GenericModelMaker><model_file>../human.osim</model_file></GenericModelMaker><MarkerPlacer><apply>true</apply>"
+        "<marker_file>../data/trial.c3d</marker_file><output_model_file>S1.osim</output_model_file></MarkerPlacer>"
+        "</ScaleTool></OpenSimDocument>")
+    data = sorted(p.name for p in (tmp_path / "data").iterdir())
+    assert main(["--scale-setup", str(tmp_path / "Scale" / "Setup_Scale.xml"), "-q"]) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == data
+    assert {"S1.osim", "S1.urdf", "trial_motion.csv", "trial_report.json", "trial_motion.mot"} <= \
+        {p.name for p in (tmp_path / "Scale").iterdir()}

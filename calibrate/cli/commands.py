@@ -398,8 +398,9 @@ def _tracked(ik_setup, trial_paths: list[Path]) -> list | None:
 def _inputs_from_setups(args) -> None:
     """No trial or model given: those the lab's Scale setup (its generic model and static trial) and IK setups (each
     its trial) name, as OpenSim's tools run them, their outputs where they name them (args.inputs, args.setup_names
-    set so)."""
-    from ..io.osim_setup import ik_setup_inputs, scale_setup_inputs
+    set so); without -o, calibrate's own outputs (URDF, CSVs, report) beside the subject .osim the Scale setup
+    names, not among the lab's data."""
+    from ..io.osim_setup import ik_setup_inputs, scale_setup_inputs, setup_outputs
 
     if args.scale_setup is None:
         raise CalibrateError("give the trials and then the base model (calibrate TRIAL [TRIAL ...] MODEL), or the "
@@ -414,6 +415,9 @@ def _inputs_from_setups(args) -> None:
                                  "the model: calibrate TRIAL [TRIAL ...] MODEL --scale-setup XML")
     trials = list(dict.fromkeys(path for _, _, path in named[1:]))
     args.inputs, args.setup_names = [*trials, model], True
+    subject = setup_outputs(args.scale_setup, None).model
+    if args.output is None and subject is not None:
+        args.output = str(subject.with_suffix(".urdf"))
 
 
 def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mots: list[Path],
