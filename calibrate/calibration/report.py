@@ -1060,7 +1060,8 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             raise CalibrateError(f"{len(counted)} marker lists for {len(stos)} marker-errors outputs; give one per "
                                  "trial (None: every marker the fit uses)")
         for i, (t, m, own) in enumerate(zip(cal.trials[:len(stos)], cal.motions, counted, strict=False)):
-            mk = used if own is None else [n for n in used if n in set(own)]
+            keep = None if own is None else set(own)
+            mk = used if keep is None else [n for n in used if n in keep]
             writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
                 path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, mk)))
     if mujoco:

@@ -208,9 +208,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     # Each trial's marker errors as OpenSim's IK tool reports them (<name>_ik_marker_errors.sto), beside its .mot.
     out_errors = [m.with_name(t.stem + "_ik_marker_errors.sto") for m, t in zip(out_motions, trial_paths, strict=False)]
     out_markers = None  # the subject's markers as a MarkerSet file: where a Scale setup names one (--setup-names)
+    setups = None  # the lab's setups' output names and tracked markers, read once (calibrate.io.osim_setup)
+    if args.scale_setup is not None or args.ik_setup:
+        from ..io.osim_setup import setup_outputs
+
+        setups = setup_outputs(args.scale_setup, args.ik_setup)
     if args.setup_names:
-        out_osim, out_markers, out_mots, out_errors = _setup_names(args, from_osim, trial_paths, out_osim, out_mots,
-                                                                   out_errors)
+        out_osim, out_markers, out_mots, out_errors = _setup_names(args, from_osim, setups, trial_paths, out_osim,
+                                                                   out_mots, out_errors)
     if from_osim:
         outputs += [out_osim, *out_mots, *out_errors, *([out_markers] if out_markers is not None else [])]
     # Check the destinations before any work, so a long run never ends in a refusal: those the lab's setups name
@@ -320,7 +325,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})
         opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors, "marker_set": out_markers,
-                   "error_markers": _tracked(args.ik_setup, trial_paths)} if from_osim else {}
+                   # the errors count the markers each trial's IK setup tracks, as OpenSim's IK's do
+                   "error_markers": [setups.tracked_of(t) for t in trial_paths] if args.ik_setup else None} \
+            if from_osim else {}
         cal = write_timed(cal, urdf=out_urdf, motion=out_motions, report=out_report, overwrite=args.overwrite,
                           html=args.html, progress=Countdown(say, "write", "the motion, the subject and the report"),
                           c3d=out_c3ds or None, **opensim,
@@ -385,16 +392,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _tracked(ik_setup, trial_paths: list[Path]) -> list | None:
-    """Per trial the markers its IK setup tracks (its marker errors count those, as OpenSim's IK's do), or None."""
-    if not ik_setup:
-        return None
-    from ..io.osim_setup import setup_outputs
-
-    named = setup_outputs(None, ik_setup)
-    return [named.tracked_of(t) for t in trial_paths]
-
-
 def _inputs_from_setups(args) -> None:
     """No trial or model given: those the lab's Scale setup (its generic model and static trial) and IK setups (each
     its trial) name, as OpenSim's tools run them, their outputs where they name them (args.inputs, args.setup_names
@@ -420,18 +417,15 @@ def _inputs_from_setups(args) -> None:
         args.output = str(subject.with_suffix(".urdf"))
 
 
-def _setup_names(args, from_osim: bool, trial_paths: list[Path], osim: Path, mots: list[Path],
+def _setup_names(args, from_osim: bool, named, trial_paths: list[Path], osim: Path, mots: list[Path],
                  errors: list[Path]) -> tuple[Path, Path | None, list[Path], list[Path]]:
     """--setup-names: the subject .osim, its marker set file (None where the Scale setup names none), each trial's .mot
-    and marker errors where the lab's Scale and IK setups have OpenSim write them (calibrate.io.osim_setup.
-    setup_outputs; a trial no setup names keeps calibrate's names)."""
-    from ..io.osim_setup import setup_outputs
-
+    and marker errors where the lab's Scale and IK setups have OpenSim write them (`named`: their
+    calibrate.io.osim_setup.setup_outputs, None without setups; a trial no setup names keeps calibrate's names)."""
     if not from_osim:
         raise CalibrateError("--setup-names names the OpenSim outputs of an OpenSim base model; give the lab's .osim")
-    if args.scale_setup is None and not args.ik_setup:
+    if named is None:
         raise CalibrateError("--setup-names takes the names the lab's setups give; add --scale-setup and/or --ik-setup")
-    named = setup_outputs(args.scale_setup, args.ik_setup)
     if named.model is not None:
         if args.output is not None and Path(args.output).suffix.lower() == ".osim":
             raise CalibrateError(f"{args.output}: -o names the subject .osim and so does {args.scale_setup.name} "
