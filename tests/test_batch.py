@@ -7,6 +7,7 @@ import csv
 import json
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -279,12 +280,14 @@ def test_a_manifest_subject_with_setup_names_writes_where_its_setups_say(tmp_pat
     lab = tmp_path / "S1" / "opensim"
     (lab / "ik").mkdir(parents=True)
     (lab / "Setup_Scale.xml").write_text(
-        "<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='S1'><mass>61.5</mass><MarkerPlacer>"
+        "<?xml version='1.0'?><OpenSimDocument Version='40000'><ScaleTool name='S1'><mass>61.5</mass><ModelScaler>"
+        "<apply>true</apply><output_scale_file>S1_scales.xml</output_scale_file></ModelScaler><MarkerPlacer>"
         "<apply>true</apply><output_model_file>S1_scaled.osim</output_model_file><output_marker_file>"
         "S1_markers.xml</output_marker_file></MarkerPlacer></ScaleTool></OpenSimDocument>")
     (lab / "Setup_IK.xml").write_text(
         "<?xml version='1.0'?><OpenSimDocument Version='40000'><InverseKinematicsTool name='squat'>"
         "<results_directory>ik</results_directory><marker_file>../trial.trc</marker_file>"
+        "<report_marker_locations>true</report_marker_locations>"
         "<output_motion_file>ik/squat_ik.mot</output_motion_file></InverseKinematicsTool></OpenSimDocument>")
     (tmp_path / "lab.toml").write_text(
         '[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "human.osim"\n'
@@ -293,7 +296,8 @@ def test_a_manifest_subject_with_setup_names_writes_where_its_setups_say(tmp_pat
     assert subject.setup_names
     row = calibrate_subject(subject, tmp_path / "out")
     assert row["status"] in ("ok", "not converged"), row
-    named = {"S1_scaled.osim", "S1_markers.xml", "ik/squat_ik.mot", "ik/squat_ik_marker_errors.sto"}
+    named = {"S1_scaled.osim", "S1_markers.xml", "S1_scales.xml", "ik/squat_ik.mot", "ik/squat_ik_marker_errors.sto",
+             "ik/squat_ik_model_marker_locations.sto"}
     assert {str(p.relative_to(lab)) for p in lab.rglob("*") if p.is_file() and not p.name.startswith("Setup")} == named
     folder = tmp_path / "out" / "S1"
     assert {"subject.urdf", "trial_motion.csv", "report.json"} <= {p.name for p in folder.iterdir()}
@@ -301,6 +305,28 @@ def test_a_manifest_subject_with_setup_names_writes_where_its_setups_say(tmp_pat
     rep = json.loads((folder / "report.json").read_text())
     assert rep["outputs"]["mot"] == [str(lab / "ik" / "squat_ik.mot")]
     assert rep["outputs"]["marker_set"] == str(lab / "S1_markers.xml")
+    # the scale set: each body of the subject .osim at the segment scale the report gives it
+    scales = {p["name"][6:-1]: p["value"][0] for p in rep["parameters"] if p["group"] == "scale"}
+    written = {sc.findtext("segment"): [float(x) for x in sc.findtext("scales").split()]
+               for sc in ET.parse(lab / "S1_scales.xml").getroot().iter("Scale")}
+    assert scales and all(np.allclose(written[seg], s, atol=1e-8) for seg, s in scales.items())
+    # the model marker locations: the subject's markers posed by its motion, as Pinocchio puts them
+    import pinocchio as pin
+
+    from calibrate.io.motion import read_motion_csv
+
+    lines = (lab / "ik" / "squat_ik_model_marker_locations.sto").read_text().splitlines()
+    at = lines.index("endheader")
+    names = [c[:-3] for c in lines[at + 1].split("\t")[1::3]]
+    values = np.array([[float(v) for v in line.split("\t")] for line in lines[at + 2:]])
+    urdf, motion = load_model(folder / "subject.urdf"), read_motion_csv(folder / "trial_motion.csv")
+    assert len(names) == len(urdf.marker_names) and values.shape == (motion.n_frames, 1 + 3 * len(names))
+    data = urdf.pin.createData()
+    for f in (0, motion.n_frames // 2, motion.n_frames - 1):
+        pin.framesForwardKinematics(urdf.pin, data, urdf.pin_configuration(
+            motion.root_translation[f], motion.root_quaternion[f], motion.angles[f]))
+        got = [data.oMf[urdf.pin.getFrameId(n, pin.FrameType.BODY)].translation for n in names]
+        assert np.abs(np.ravel(got) - values[f, 1:]).max() < 1e-9
     # the subject's markers, read back from the marker set onto its .osim, are the subject's
     subject_osim = load_model(lab / "S1_scaled.osim")
     again = load_model(lab / "S1_scaled.osim", lab / "S1_markers.xml")

@@ -1255,11 +1255,13 @@ print("\n".join(sorted(set(os.listdir(".")) - before)))
 def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     """gait2392's pipeline as the lab runs it: OpenSim's Scale and IK tools from subject01_Setup_Scale.xml and
     subject01_Setup_IK.xml (a child process) write the subject, its marker set (the marker placer's output_marker_file,
-    set here), the static's and the walk's motions and the walk's marker errors under names of their own;
-    `calibrate ... --setup-names` writes its subject, marker set, motions and errors at exactly those paths (what the
-    lab's ID, SO and CMC setups read), and OpenSim loads them: the .mot's coordinates are the model's, the marker set
-    every marker; read back as --marker-set, the subject's markers again.  The setups alone (no trial, no model:
-    those they name) give the same calibration; `calibrate ik --ik-setup` alone the same motion."""
+    set here), its scale factors, the static's and the walk's motions, the walk's marker errors and its model marker
+    locations (report_marker_locations, set here) under names of their own; `calibrate ... --setup-names` writes
+    its own at exactly those paths (what the lab's ID, SO and CMC setups read), and OpenSim loads them: the .mot's
+    coordinates are the model's, the marker set every marker, the scale set an entry per frame, which applied to the
+    generic model scales its meshes as the subject's; the marker locations are OpenSim's columns, and OpenSim's own
+    markers at our motion; read back as --marker-set, the subject's markers again.  The setups alone (no trial, no
+    model: those they name) give the same calibration; `calibrate ik --ik-setup` alone the same motion."""
     files = ("gait2392_Scale_MarkerSet.xml", "subject01_static.trc", "subject01_walk1.trc",
              "subject01_Setup_Scale.xml", "subject01_Setup_IK.xml")
     lab, ours = tmp_path / "opensim", tmp_path / "calibrate"
@@ -1272,6 +1274,11 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
         assert scale.count("<output_marker_file> Unassigned </output_marker_file>") == 1
         (d / files[3]).write_text(scale.replace("<output_marker_file> Unassigned </output_marker_file>",
                                                 "<output_marker_file> subject01_markers.xml </output_marker_file>"))
+        # and the IK's model marker locations (OpenSim's default leaves them out)
+        ik = (d / files[4]).read_text()
+        assert ik.count("<report_errors>true</report_errors>") == 1 and "report_marker_locations" not in ik
+        (d / files[4]).write_text(ik.replace("<report_errors>true</report_errors>", "<report_errors>true"
+                                             "</report_errors><report_marker_locations>true</report_marker_locations>"))
     # the Scale setup's generic model is gait2392_simbody.osim (../shared/data/real/README.md)
     (lab / "gait2392_simbody.osim").write_bytes(GAIT.read_bytes())
     child = subprocess.run([sys.executable, "-c", _SCALE_AND_IK, str(lab), files[3], files[4]], capture_output=True,
@@ -1279,7 +1286,8 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     assert child.returncode == 0, child.stderr[-2000:]
     written = set(child.stdout.split())
     assert {"subject01_simbody.osim", "subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto",
-            "subject01_static_output.mot", "subject01_markers.xml"} <= written  # the lab's tools' names
+            "subject01_static_output.mot", "subject01_markers.xml", "subject01_ik_model_marker_locations.sto",
+            "subject01_scaleSet_applied.xml"} <= written  # the lab's tools' names
     (ours / "out").mkdir()
     argv = [str(ours / files[1]), str(ours / files[2]), str(GAIT), "--marker-set", str(ours / files[0]),
             "--scale-setup", str(ours / files[3]), "--ik-setup", str(ours / files[4]), "--setup-names", "-o",
@@ -1299,9 +1307,21 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
 
     sto = "subject01_ik_marker_errors.sto"
     assert np.array_equal(counts(ours / sto), counts(lab / sto)) and counts(lab / sto).max() == 31
-    mine = {p.name for p in ours.iterdir() if p.suffix in (".osim", ".mot", ".sto") or p.name.endswith("markers.xml")}
+    mine = {p.name for p in ours.iterdir() if p.suffix in (".osim", ".mot", ".sto")
+            or p.name.endswith(("markers.xml", "scaleSet_applied.xml"))}
     assert mine == {"subject01_simbody.osim", "subject01_static_output.mot", "subject01_walk1_ik.mot",
-                    "subject01_ik_marker_errors.sto", "subject01_markers.xml"} and mine <= written
+                    "subject01_ik_marker_errors.sto", "subject01_markers.xml", "subject01_scaleSet_applied.xml",
+                    "subject01_ik_model_marker_locations.sto"} and mine <= written
+    # the model marker locations: OpenSim's columns (the tracked markers, in the trial's order) and frames
+    def sto(path: Path) -> tuple[list[str], np.ndarray]:
+        lines = path.read_text().splitlines()
+        at = lines.index("endheader")
+        return lines[at + 1].split("\t"), np.array([[float(v) for v in line.split("\t")] for line in lines[at + 2:]])
+
+    locations = "subject01_ik_model_marker_locations.sto"
+    (cols, ours_at), (lab_cols, lab_at) = sto(ours / locations), sto(lab / locations)
+    # (the TRC prints its times to the millisecond; calibrate's are the frames' at the trial's rate)
+    assert cols == lab_cols and len(cols) == 1 + 3 * 31 and np.allclose(ours_at[:, 0], lab_at[:, 0], atol=5e-4)
     # the marker set file carries the subject's markers: the subject with it read as --marker-set is the same
     subject = load_model(ours / "subject01_simbody.osim")
     again = load_model(ours / "subject01_simbody.osim", ours / "subject01_markers.xml")
@@ -1309,25 +1329,72 @@ def test_setup_names_are_where_opensims_own_tools_write(tmp_path, capsys):
     assert np.array_equal(again.parameters().marker, subject.parameters().marker)
     assert not any(p.suffix in (".osim", ".mot") for p in (ours / "out").iterdir())  # the rest where -o says
     check = subprocess.run([sys.executable, "-c", r"""
-import sys
+import json, sys
 import opensim as osim
 osim.Logger.removeFileSink()
-osim.Logger.setLevelString("warn")
+osim.Logger.setLevelString("error")  # (not a warning for each mesh file, which the test has not copied)
 model = osim.Model(sys.argv[1])
 cs = model.getCoordinateSet()
 names = {cs.get(i).getName() for i in range(cs.getSize())}
 table = osim.TimeSeriesTable(sys.argv[2])
 print(table.getNumRows(), int(set(table.getColumnLabels()) <= names), osim.MarkerSet(sys.argv[3]).getSize())
-""", str(ours / "subject01_simbody.osim"), str(ours / "subject01_walk1_ik.mot"), str(ours / "subject01_markers.xml")],
-        capture_output=True, text=True, timeout=600)
+
+def meshes(m):  # (frame, mesh file) -> its scale factors, every frame's meshes
+    out = {}
+    for f in m.getFrameList():
+        for i in range(f.getPropertyByName("attached_geometry").size()):
+            mesh = osim.Mesh.safeDownCast(f.get_attached_geometry(i))
+            if mesh is not None:
+                out[mesh.get_mesh_file()] = mesh.get_scale_factors().to_numpy().tolist()
+    return out
+
+# the scale factors applied to the generic model by OpenSim: every bone mesh scaled as in the subject
+scales = osim.ScaleSet(sys.argv[4])
+generic = osim.Model(sys.argv[5])
+generic.scale(generic.initSystem(), scales, True, -1.0)
+print(json.dumps([scales.getSize(), meshes(generic), meshes(model)]))
+
+# the subject posed by the walk's .mot (degrees for the rotations): its markers where the tracked ones go in ours
+state = model.initSystem()
+names = [label[:-3] for label in osim.TimeSeriesTable(sys.argv[6]).getColumnLabels()[::3]]
+at = []
+for i in range(table.getNumRows()):
+    for name, v in zip(table.getColumnLabels(), table.getRowAtIndex(i).to_numpy()):
+        c = cs.get(name)
+        c.setValue(state, v * 3.141592653589793 / 180 if c.getMotionType() == 1 else v, False)
+    model.realizePosition(state)
+    at.append([x for n in names for x in model.getMarkerSet().get(n).getLocationInGround(state).to_numpy().tolist()])
+print(json.dumps(at))
+""", str(ours / "subject01_simbody.osim"), str(ours / "subject01_walk1_ik.mot"), str(ours / "subject01_markers.xml"),
+        str(ours / "subject01_scaleSet_applied.xml"), str(GAIT), str(ours / locations)], capture_output=True,
+        text=True, timeout=600)
     assert check.returncode == 0, check.stderr[-2000:]
     # the IK setup's frames, every column a coordinate of the model; OpenSim reads the marker set, every marker
-    assert check.stdout.splitlines()[-1].split() == ["121", "1", str(len(subject.marker_names))]
+    assert check.stdout.splitlines()[-3].split() == ["121", "1", str(len(subject.marker_names))]
+    # OpenSim's markers on the subject at our walk's coordinates are our model marker locations (to rounding)
+    assert np.abs(np.array(json.loads(check.stdout.splitlines()[-1])) - ours_at[:, 1:]).max() < 1e-9
+    # the scale set: OpenSim reads an entry per physical frame of the subject (ground, 12 bodies, 26 offset
+    # frames), and applied by OpenSim to the generic model it scales each of its 20 meshes as the subject's
+    size, scaled, own = json.loads(check.stdout.splitlines()[-2])
+    tree = ET.parse(ours / "subject01_simbody.osim").getroot()
+    assert size == 1 + len(list(tree.iter("Body"))) + len(list(tree.iter("PhysicalOffsetFrame"))) == 39
+    assert len(scaled) == len(own) == 20 and scaled.keys() == own.keys()
+    assert max(abs(a - b) for k in own for a, b in zip(scaled[k], own[k], strict=True)) < 1e-12
+    # the factors are the calibration's segment scales (its report's), which the report names the file of
+    report = json.loads((ours / "out" / "subject01_static_report.json").read_text())
+    factors = {sc.findtext("segment"): [float(x) for x in sc.findtext("scales").split()]
+               for sc in ET.parse(ours / "subject01_scaleSet_applied.xml").getroot().iter("Scale")}
+    segments = {p["name"][6:-1]: p["value"][0] for p in report["parameters"] if p["group"] == "scale"}
+    assert len(segments) == 12 and all(np.allclose(factors[k], v, atol=1e-8) for k, v in segments.items())
+    assert factors["ground"] == [1.0] * 3 and factors["femur_l_offset_knee_l"] == factors["femur_l"]
+    assert Path(report["outputs"]["scale_set"]) == ours / "subject01_scaleSet_applied.xml"
     # calibrate ik with the lab's IK setup writes its .mot and marker errors there too (replacing them: --overwrite)
-    before = {n: (ours / n).stat().st_mtime_ns for n in ("subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto")}
+    before = {n: (ours / n).stat().st_mtime_ns for n in ("subject01_walk1_ik.mot", "subject01_ik_marker_errors.sto",
+                                                         locations)}
     assert main(["ik", str(ours / files[2]), str(ours / "subject01_simbody.osim"), "--ik-setup", str(ours / files[4]),
                  "--setup-names", "-o", str(ours / "out"), "--overwrite", "-q"]) == 0
     assert all((ours / n).stat().st_mtime_ns > t for n, t in before.items())
+    assert sto(ours / locations)[0] == lab_cols  # the same markers (those the IK setup tracks) from calibrate ik
     assert (ours / "out" / "subject01_walk1_motion.csv").is_file()
     # calibrate ik with the IK setup alone runs it as OpenSim's IK tool does: its model_file and marker_file, its
     # outputs where it names them (the motion CSV beside its .mot): the same fit, the same .mot to the byte
@@ -1345,7 +1412,8 @@ print(table.getNumRows(), int(set(table.getColumnLabels()) <= names), osim.Marke
     (drop / "gait2392_simbody.osim").write_bytes(GAIT.read_bytes())
     assert main(["--scale-setup", str(drop / files[3]), "--ik-setup", str(drop / files[4]), "-o",
                  str(drop / "out") + os.sep, "-q"]) == 0
-    assert {p.name for p in drop.iterdir() if p.suffix in (".osim", ".mot", ".sto")} >= mine - {"subject01_markers.xml"}
+    assert {p.name for p in drop.iterdir() if p.suffix in (".osim", ".mot", ".sto") or p.name.endswith(
+        ("markers.xml", "scaleSet_applied.xml"))} >= mine
     static = "subject01_static_motion.csv"
     assert (drop / "out" / static).read_text() == (ours / "out" / static).read_text()
     # without the setups' names to take, refused in one line

@@ -322,9 +322,12 @@ def test_the_gait2392_scale_setup_poses_its_static(capsys):
     assert main(["inspect", str(d / "subject01_Setup_Scale.xml")]) == 0  # what it does not take, said
     out = capsys.readouterr().out
     assert "its manual scale factors (femur_r 1.14724, femur_l 1.14724, tibia_r 0.988523, tibia_l 0.988523)" in out
-    # and where --setup-names writes what it names: its MarkerPlacer's model and static motion, beside the setup
-    assert (f"--setup-names writes the subject {d / 'subject01_simbody.osim'}, subject01_static.trc's motion "
+    # and where --setup-names writes what it names: its MarkerPlacer's model, its ModelScaler's scale factors and the
+    # static motion, beside the setup; and what it leaves out: the ModelScaler's model
+    assert (f"--setup-names writes the subject {d / 'subject01_simbody.osim'}, its scale factors "
+            f"{d / 'subject01_scaleSet_applied.xml'}, subject01_static.trc's motion "
             f"{d / 'subject01_static_output.mot'}") in out
+    assert f"--setup-names leaves out the ModelScaler's {d / 'subject01_scaledOnly.osim'}" in out
     # and what it does run alone: the generic model and the static it names
     assert (f"alone: 'calibrate --scale-setup subject01_Setup_Scale.xml [--ik-setup ...]' calibrates "
             f"{d / 'gait2392_simbody.osim'} to {d / 'subject01_static.trc'}") in out

@@ -261,9 +261,9 @@ def _mtime(path: Path | None) -> float:
 
 
 def _opensim_outputs(folder: Path, trials: Sequence[Path], setups=None, at_setups: bool = False) -> dict:
-    """A subject's OpenSim outputs (cal.write's osim, mot, errors, error_markers and marker_set): in its folder, else
-    (`at_setups`) where its setups name them (`setups`: calibrate.io.osim_setup.setup_outputs of the subject's
-    setups, whose IK setups' tracked markers the errors count, as OpenSim's IK counts them)."""
+    """A subject's OpenSim outputs (cal.write's osim, mot, errors, error_markers, marker_set and scale_set): in its
+    folder, else (`at_setups`) where its setups name them (`setups`: calibrate.io.osim_setup.setup_outputs of the
+    subject's setups, whose IK setups' tracked markers the errors count, as OpenSim's IK counts them)."""
     mots = [folder / f"{Path(t).stem}_motion.mot" for t in trials]
     errors = [folder / f"{Path(t).stem}_ik_marker_errors.sto" for t in trials]
     out = {"osim": folder / "subject.osim", "mot": mots, "errors": errors}
@@ -273,7 +273,10 @@ def _opensim_outputs(folder: Path, trials: Sequence[Path], setups=None, at_setup
     if at_setups:
         pairs = [setups.outputs_of(Path(t), m, e) for t, m, e in zip(trials, mots, errors, strict=True)]
         out.update(osim=setups.model or out["osim"], mot=[m for m, _ in pairs], errors=[e for _, e in pairs],
-                   **({"marker_set": setups.markers} if setups.markers is not None else {}))
+                   **({"marker_set": setups.markers} if setups.markers is not None else {}),
+                   **({"scale_set": setups.scales} if setups.scales is not None else {}),
+                   **({"marker_locations": [setups.locations_of(Path(t)) for t in trials]} if setups.locations
+                      else {}))
     return out
 
 
@@ -283,7 +286,8 @@ def check_named(outputs: dict, folder: Path, replace_named: bool) -> None:
     from ..io.osim_setup import SETUP_NAMED_HINT
     from ..io.outputs import check_targets
 
-    paths = [outputs["osim"], outputs.get("marker_set"), *outputs["mot"], *outputs["errors"]]
+    paths = [outputs["osim"], outputs.get("marker_set"), outputs.get("scale_set"), *outputs["mot"], *outputs["errors"],
+             *outputs.get("marker_locations", ())]
     check_targets([p for p in paths if p is not None and not p.is_relative_to(folder)], replace_named,
                   exists_hint=SETUP_NAMED_HINT)
 
@@ -297,8 +301,9 @@ def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, 
     calibrate --c3d writes it; `mjcf`: subject_mujoco.xml and a <trial>_motion_qpos.csv each, as calibrate --mjcf
     writes them), the HTML report and, last, the report JSON (the subject's done-marker).  `setups`: the subject's
     OpenSim setups (calibrate.io.osim_setup.setup_outputs): the marker errors count the markers its IK setups track;
-    `at_setups` (a subject's setup_names): the subject .osim, its marker set, motions and marker errors where they
-    name them, replaced there only with `replace_named` (they are the lab's files, outside the batch's folder)."""
+    `at_setups` (a subject's setup_names): the subject .osim, its marker set and scale factors, motions, marker
+    errors and (where an IK setup asks) model marker locations where they name them, replaced there only with
+    `replace_named` (they are the lab's files, outside the batch's folder)."""
     motions = [folder / f"{Path(t).stem}_motion.csv" for t in trials]
     extra = _opensim_outputs(folder, trials, setups, at_setups) if opensim else {}
     if at_setups and opensim:

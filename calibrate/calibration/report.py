@@ -947,16 +947,22 @@ def _per_trial(cal: Calibration, paths, what: str) -> list:
 def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwrite: bool = False,
                   extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
                   progress: Callable[[float], None] | None = None, c3d=None, mjcf=None,
-                  qpos=None, errors=None, marker_set=None, error_markers=None) -> dict[str, Path]:
+                  qpos=None, errors=None, marker_set=None, error_markers=None, scale_set=None,
+                  marker_locations=None) -> dict[str, Path]:
     """Write the subject URDF, the motion CSV(s), the report JSON, the HTML report of it
     (calibrate.calibration.html), each trial as a C3D with calibrate's joint centres, model markers and joint
     angles beside its markers (calibrate.calibration.c3d_result), for OpenSim the subject as an .osim model
     and the motions as .mot files, and for MuJoCo the subject as an MJCF model and the motions as qpos CSVs
     (calibrate.io.mjcf), each trial's marker errors as OpenSim's IK tool reports them (`errors`: its
     _ik_marker_errors.sto; calibrate.io.osim_export.ik_marker_errors) and the subject's markers as an OpenSim
-    MarkerSet file (`marker_set`, as the Scale tool's MarkerPlacer writes its output_marker_file) (whichever are
-    given).  `error_markers`: per trial the markers its errors count (an IK setup's tracked markers, as OpenSim's
-    IK counts them: calibrate.io.osim_setup.SetupOutputs.tracked_of), or None for every marker the fit uses.
+    MarkerSet file (`marker_set`, as the Scale tool's MarkerPlacer writes its output_marker_file) and its segments'
+    scale factors as an OpenSim ScaleSet file (`scale_set`, as its ModelScaler writes its output_scale_file;
+    calibrate.io.osim_export.scale_set_text) (whichever are given), and where an IK setup asks OpenSim for them
+    (report_marker_locations), each trial's model marker locations (`marker_locations`: its
+    _ik_model_marker_locations.sto, or None for a trial without; calibrate.io.osim_export.ik_model_marker_locations).
+    `error_markers`: per trial the markers its errors and marker locations count (an IK setup's tracked markers, as
+    OpenSim's IK counts them: calibrate.io.osim_setup.SetupOutputs.tracked_of), or None for every marker the fit
+    uses.
 
     `motion`, `mot`, `c3d`, `qpos`, `errors`: one path per trial (a single path for a single trial).  Every
     destination is checked first (its folder exists; it is not the base model; it does not exist unless
@@ -967,6 +973,7 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     motions = _per_trial(cal, motion, "motion")
     mots = _per_trial(cal, mot, ".mot")
     stos = _per_trial(cal, errors, "marker errors")
+    locs = _per_trial(cal, marker_locations, "marker locations")
     c3ds = _per_trial(cal, c3d, "C3D")
     qposes = _per_trial(cal, qpos, "qpos")
     targets = {k: Path(v) for k, v in (("urdf", urdf), ("report", report), ("html", html)) if v is not None}
@@ -974,9 +981,10 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         raise CalibrateError(f"{html}: the HTML report needs an .html name")
     keys = ["motion"] if len(motions) == 1 else [f"motion[{i}]" for i in range(len(motions))]
     targets.update({k: Path(v) for k, v in zip(keys, motions, strict=True)})
-    opensim = {k: Path(v) for k, v in [("osim", osim), ("marker_set", marker_set),
+    opensim = {k: Path(v) for k, v in [("osim", osim), ("marker_set", marker_set), ("scale_set", scale_set),
                                         *((f"mot[{i}]", m) for i, m in enumerate(mots)),
-                                        *((f"errors[{i}]", e) for i, e in enumerate(stos))]
+                                        *((f"errors[{i}]", e) for i, e in enumerate(stos)),
+                                        *((f"locations[{i}]", x) for i, x in enumerate(locs))]
                if v is not None}
     mujoco = {k: Path(v) for k, v in [("mjcf", mjcf), *((f"qpos[{i}]", q) for i, q in enumerate(qposes))]
               if v is not None}
@@ -1004,10 +1012,12 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             rep["outputs"]["motion"] = [str(targets[k]) for k in keys] if motions else []
             if c3d_targets:
                 rep["outputs"]["c3d"] = [str(t) for t in c3d_targets]
-            for name, files in (("osim", opensim), ("marker_set", opensim), ("mjcf", mujoco)):  # the subject's
+            for name, files in (("osim", opensim), ("marker_set", opensim), ("scale_set", opensim),
+                                ("mjcf", mujoco)):  # the subject's
                 if name in files:
                     rep["outputs"][name] = str(files[name])
-            for name, files in (("mot", opensim), ("errors", opensim), ("qpos", mujoco)):  # one per trial
+            for name, files in (("mot", opensim), ("errors", opensim), ("locations", opensim),
+                                ("qpos", mujoco)):  # one per trial (where written)
                 if any(k.startswith(f"{name}[") for k in files):
                     rep["outputs"][name] = [str(v) for k, v in files.items() if k.startswith(f"{name}[")]
             made.append(rep)
@@ -1038,7 +1048,16 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
     # The subject as the written URDF loads (named after it), for OpenSim's names and masses and MuJoCo's bodies.
     subject = Model(Path(urdf) if urdf is not None else cal.model.path, text=text) if opensim or mujoco else None
     if opensim:
-        from ..io.osim_export import ik_marker_errors, marker_errors_text, marker_set_text, mot_text, osim_text
+        from ..io.osim_export import (
+            ik_marker_errors,
+            ik_model_marker_locations,
+            marker_errors_text,
+            marker_locations_text,
+            marker_set_text,
+            mot_text,
+            osim_text,
+            scale_set_text,
+        )
 
         osim_made: list[str] = []  # the subject's .osim document, made once for the model and its marker set
 
@@ -1051,19 +1070,27 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
             writers[opensim["osim"]] = lambda path: put_text(path, subject_osim())
         if "marker_set" in opensim:
             writers[opensim["marker_set"]] = lambda path: put_text(path, marker_set_text(subject_osim()))
+        if "scale_set" in opensim:  # each body at its segment's scale factor (the subject's own geometry is at 1)
+            scales = {sg.name: float(s) for sg, s in zip(cal.model.segments, cal.params.scale, strict=True)}
+            writers[opensim["scale_set"]] = lambda path: put_text(path, scale_set_text(subject_osim(), scales))
         for i, m in enumerate(cal.motions[:len(mots)]):
             target = opensim[f"mot[{i}]"]
             writers[target] = lambda path, m=m, name=target.stem: put_text(path, mot_text(subject, m, name))
         used = [n for n in cal.model.marker_names if n not in cal.unused_markers]
-        counted = list(error_markers) if error_markers is not None else [None] * len(stos)
-        if len(counted) != len(stos):
-            raise CalibrateError(f"{len(counted)} marker lists for {len(stos)} marker-errors outputs; give one per "
-                                 "trial (None: every marker the fit uses)")
+        counted = list(error_markers) if error_markers is not None else [None] * max(len(stos), len(locs))
+        if len(counted) != max(len(stos), len(locs)):
+            raise CalibrateError(f"{len(counted)} marker lists for {len(cal.trials)} trials' marker errors or "
+                                 "locations; give one per trial (None: every marker the fit uses)")
         for i, (t, m, own) in enumerate(zip(cal.trials[:len(stos)], cal.motions, counted, strict=False)):
             keep = None if own is None else set(own)
             mk = used if keep is None else [n for n in used if n in keep]
             writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
                 path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, mk)))
+        for i, (t, m, own) in enumerate(zip(cal.trials[:len(locs)], cal.motions, counted, strict=False)):
+            if f"locations[{i}]" in opensim:
+                mk = [n for n in used if own is None or n in set(own)]
+                writers[opensim[f"locations[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
+                    path, marker_locations_text(m.times, *ik_model_marker_locations(cal.model, cal.params, t, m, mk)))
     if mujoco:
         from ..io.mjcf import mjcf_text, qpos_csv_text  # MuJoCo export: only for these outputs
 

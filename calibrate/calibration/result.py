@@ -416,18 +416,19 @@ class Calibration:
     def write(self, urdf=None, motion=None, report=None, overwrite: bool = False,
               extra_times: dict[str, float] | None = None, osim=None, mot=None, html=None,
               progress: Callable[[float], None] | None = None, c3d=None, mjcf=None, qpos=None,
-              errors=None, marker_set=None, error_markers=None) -> dict:
+              errors=None, marker_set=None, error_markers=None, scale_set=None, marker_locations=None) -> dict:
         """Write the subject URDF, motion CSV(s), report JSON, the HTML report, each trial as a C3D with the
         joint centres, model markers and angles (`c3d`, one path per trial), for OpenSim the subject .osim,
         .mot motions, each trial's marker errors as OpenSim's IK tool writes them (`errors`, one .sto per
-        trial; `error_markers`: per trial the markers they count, None: every marker fitted) and its markers as a
-        MarkerSet file (`marker_set`), and for MuJoCo the subject's MJCF and qpos
-        CSVs (`qpos`, one path per trial) (those given), all or none; see report.write_outputs (`progress(share
-        done)`)."""
+        trial; `error_markers`: per trial the markers they count, None: every marker fitted), its markers as a
+        MarkerSet file (`marker_set`), its segments' scale factors as a ScaleSet file (`scale_set`) and each trial's
+        model marker locations as OpenSim's IK tool writes them (`marker_locations`, one .sto or None per trial),
+        and for MuJoCo the subject's MJCF and qpos CSVs (`qpos`, one path per trial) (those given), all or none; see
+        report.write_outputs (`progress(share done)`)."""
         return write_outputs(self, urdf=urdf, motion=motion, report=report, overwrite=overwrite,
                              extra_times=extra_times, osim=osim, mot=mot, html=html, progress=progress, c3d=c3d,
                              mjcf=mjcf, qpos=qpos, errors=errors, marker_set=marker_set,
-                             error_markers=error_markers)
+                             error_markers=error_markers, scale_set=scale_set, marker_locations=marker_locations)
 
 
 rms = marker_rms  # the name tests and scripts import

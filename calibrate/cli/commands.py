@@ -208,6 +208,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     # Each trial's marker errors as OpenSim's IK tool reports them (<name>_ik_marker_errors.sto), beside its .mot.
     out_errors = [m.with_name(t.stem + "_ik_marker_errors.sto") for m, t in zip(out_motions, trial_paths, strict=False)]
     out_markers = None  # the subject's markers as a MarkerSet file: where a Scale setup names one (--setup-names)
+    out_scales = None  # its segments' scale factors as a ScaleSet file: where a Scale setup names one (--setup-names)
+    out_locations: list[Path | None] = []  # model marker locations, where an IK setup asks for them (--setup-names)
     setups = None  # the lab's setups' output names and tracked markers, read once (calibrate.io.osim_setup)
     if args.scale_setup is not None or args.ik_setup:
         from ..io.osim_setup import setup_outputs
@@ -216,15 +218,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.setup_names:
         out_osim, out_markers, out_mots, out_errors = _setup_names(args, from_osim, setups, trial_paths, out_osim,
                                                                    out_mots, out_errors)
+        out_scales = setups.scales
+        out_locations = [setups.locations_of(t) for t in trial_paths] if setups.locations else []
     if from_osim:
-        outputs += [out_osim, *out_mots, *out_errors, *([out_markers] if out_markers is not None else [])]
+        outputs += [out_osim, *out_mots, *out_errors,
+                    *(p for p in (out_markers, out_scales, *out_locations) if p is not None)]
     # Check the destinations before any work, so a long run never ends in a refusal: those the lab's setups name
     # first (an OpenSim run's earlier outputs, most likely), then every one.
     if args.setup_names and from_osim:
         from ..io.osim_setup import SETUP_NAMED_HINT
 
-        check_targets([p for p in (out_osim, out_markers, *out_mots, *out_errors) if p is not None], args.overwrite,
-                      exists_hint=SETUP_NAMED_HINT)
+        check_targets([p for p in (out_osim, out_markers, out_scales, *out_mots, *out_errors, *out_locations)
+                       if p is not None], args.overwrite, exists_hint=SETUP_NAMED_HINT)
     check_targets(outputs, args.overwrite,
                   inputs={model_path: "that is the base model; refusing to overwrite it (choose another -o)"},
                   same="two outputs would be the same file (two trials with the same name?); use -o/--report "
@@ -325,6 +330,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             cal = replace(cal, mass_from=str(setup.path))  # the summary, the report and the HTML name the file
         cal = replace(cal, times={"load": load_s, **cal.times})
         opensim = {"osim": out_osim, "mot": out_mots, "errors": out_errors, "marker_set": out_markers,
+                   "scale_set": out_scales, "marker_locations": out_locations or None,
                    # the errors count the markers each trial's IK setup tracks, as OpenSim's IK's do
                    "error_markers": [setups.tracked_of(t) for t in trial_paths] if args.ik_setup else None} \
             if from_osim else {}

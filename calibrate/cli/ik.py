@@ -128,21 +128,25 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if not args.ik_setup:
             raise CalibrateError("--setup-names takes the names the lab's IK setups give; add --ik-setup")
         named = setup_outputs(None, args.ik_setup)
-    outputs, opensim_files, folders = [], {}, {}
+    outputs, opensim_files, folders, locations = [], {}, {}, {}
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
         files = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
         opensim_files[t] = files if named is None else named.outputs_of(t, *files)
+        # the model's marker locations where the IK setup asks OpenSim for them (report_marker_locations)
+        locations[t] = None if named is None or not osim else named.locations_of(t)
         if from_setup and args.out is None:  # the motion CSV (and the rest) beside the .mot the setup names
             folder = opensim_files[t][0].parent
         folders[t] = folder
         outputs += [folder / f"{t.stem}_motion.csv"] + (list(opensim_files[t]) if osim else []) + \
+            ([locations[t]] if locations[t] is not None else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
     if named is not None and osim:  # those the lab's IK setups name first (an OpenSim run's earlier outputs?)
         from ..io.osim_setup import SETUP_NAMED_HINT
 
-        check_targets([p for t in trial_paths for p in opensim_files[t]], args.overwrite, exists_hint=SETUP_NAMED_HINT)
+        check_targets([p for t in trial_paths for p in (*opensim_files[t], locations[t]) if p is not None],
+                      args.overwrite, exists_hint=SETUP_NAMED_HINT)
     check_targets(outputs, args.overwrite, inputs={subject_path: "that is the subject"},
                   same="two trials with the same name would write the same motion; use --out or rename them",
                   exists_hint="pass --overwrite to replace it or choose another --out")
@@ -251,7 +255,13 @@ def cmd_ik(args: argparse.Namespace) -> int:
     for (path, trial, fit, _, _, shared), folder in zip(results, [folders[t] for t in trial_paths], strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
         if osim:
-            from ..io.osim_export import ik_marker_errors, marker_errors_text, write_mot
+            from ..io.osim_export import (
+                ik_marker_errors,
+                ik_model_marker_locations,
+                marker_errors_text,
+                marker_locations_text,
+                write_mot,
+            )
             from ..io.text import atomic_write_text
 
             mot, sto = opensim_files[path]
@@ -259,6 +269,9 @@ def cmd_ik(args: argparse.Namespace) -> int:
             # the marker errors as OpenSim's IK tool reports them: the markers it fitted (the IK setup's tasks)
             atomic_write_text(sto, marker_errors_text(fit.motion.times,
                                                       ik_marker_errors(model, params, trial, fit.motion, shared)))
+            if locations[path] is not None:
+                atomic_write_text(locations[path], marker_locations_text(
+                    fit.motion.times, *ik_model_marker_locations(model, params, trial, fit.motion, shared)))
         if args.c3d:
             from ..calibration.c3d_result import with_model_outputs
 

@@ -487,6 +487,54 @@ def marker_set_text(osim: str) -> str:
     return '<?xml version="1.0" encoding="UTF-8" ?>\n' + ET.tostring(doc, encoding="unicode") + "\n"
 
 
+def scale_set_text(osim: str, scales: Mapping[str, float]) -> str:
+    """The scale factors of the .osim document `osim` as an OpenSim ScaleSet file (what the Scale tool's ModelScaler
+    writes as its output_scale_file): one uniform Scale per physical frame, as OpenSim lists them (ground, each body,
+    each offset frame at the scale of the body it is fixed to), `scales` giving each body's (a segment's scale
+    factor, × the base model's; ground and a body it lacks: 1).  OpenSim reads it (ScaleSet) and its Scale tool
+    applies it to the generic model (ModelScaler's manualScale): the bodies sized as calibrate sized the segments,
+    without calibrate's joint centres, axes and marker positions, which the subject .osim carries."""
+    root = ET.fromstring(osim.split("\n", 1)[1] if osim.startswith("<?xml") else osim).find("Model")
+    parent = {child: el for el in root.iter() for child in el}
+    ground = root.find("Ground")
+    frames: list[tuple[str, str]] = [] if ground is None else [(ground.get("name", "ground"), "")]
+    frames += [(b.get("name", ""), b.get("name", "")) for b in root.iter("Body")]
+
+    def body_of(frame: ET.Element) -> str:
+        """The body (or '' for ground) an offset frame is fixed to, through its parent socket."""
+        seen = 0
+        while frame.tag == "PhysicalOffsetFrame" and seen < 100:
+            socket, seen = (frame.findtext("socket_parent") or "").strip(), seen + 1
+            if socket.startswith(".."):  # relative: the component holding it (a body's own geometry frame)
+                holder = parent.get(frame)
+                while holder is not None and holder.tag not in ("Body", "Ground", "PhysicalOffsetFrame"):
+                    holder = parent.get(holder)
+                if holder is None:
+                    return ""
+                frame = holder
+                continue
+            name = socket.rstrip("/").rsplit("/", 1)[-1]
+            found = next((el for el in root.iter() if el.tag in ("Body", "PhysicalOffsetFrame", "Ground")
+                          and el.get("name") == name and el is not frame), None)
+            if found is None:
+                return ""
+            frame = found
+        return "" if frame.tag == "Ground" else frame.get("name", "")
+
+    frames += [(f.get("name", ""), body_of(f)) for f in root.iter("PhysicalOffsetFrame")]
+    doc = ET.Element("OpenSimDocument", Version="40000")
+    objects = ET.SubElement(ET.SubElement(doc, "ScaleSet", name="ScaleSet"), "objects")
+    for name, body in frames:
+        s = float(scales.get(body, 1.0)) if body else 1.0
+        scale = ET.SubElement(objects, "Scale")
+        _text(scale, "scales", fmt_vec(np.full(3, s)))
+        _text(scale, "segment", name)
+        _text(scale, "apply", "true")
+    ET.SubElement(doc.find("ScaleSet"), "groups")
+    ET.indent(doc, space="\t")
+    return '<?xml version="1.0" encoding="UTF-8" ?>\n' + ET.tostring(doc, encoding="unicode") + "\n"
+
+
 def osim_document(model: Model, params: Parameters | None = None) -> tuple[str, CarriedForces | None]:
     """osim_text, and for a model imported from OpenSim what came of its source's forces (muscles carried and
     scaled, forces left out; calibrate.io.osim_forces), else None."""
@@ -590,6 +638,40 @@ def mot_text(model: Model, motion: Motion, name: str = "motion", params: Paramet
 MARKER_ERROR_COLUMNS = ("total_squared_error", "marker_error_RMS", "marker_error_max")
 
 
+def _posed_markers(model: Model, params: Parameters, trial: Trial, motion: Motion) -> np.ndarray:
+    """(n_frames, n_markers, 3) the markers of `model` at `params` posed by `motion`, the motion of `trial` (m)."""
+    from ..model.blocks import FrameLayout
+    from ..model.kinematics import build_kinematics
+
+    if motion.n_frames != trial.n_frames:
+        raise ValueError(f"{trial.source or 'trial'}: motion of {motion.n_frames} frames for a trial of "
+                         f"{trial.n_frames}")
+    return build_kinematics(model).batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
+                                         motion.root_quaternion, params)[0]
+
+
+def ik_model_marker_locations(model: Model, params: Parameters, trial: Trial, motion: Motion,
+                              markers: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
+    """(names, (n_frames, n, 3)) where the model's markers are in every frame of `trial` (its labels the model's),
+    `model` at `params` posed by `motion`, as OpenSim's IK tool reports them (_ik_model_marker_locations.sto, where
+    the IK setup asks, report_marker_locations): the markers of `markers` (default: every marker of `model`) that
+    the trial labels, in the trial's column order, in the ground frame (m)."""
+    wanted = set(model.marker_names if markers is None else markers)
+    index = {name: k for k, name in enumerate(model.marker_names)}
+    names = [lab for lab in trial.labels if lab in index and lab in wanted]
+    return names, _posed_markers(model, params, trial, motion)[:, [index[n] for n in names]]
+
+
+def marker_locations_text(times: np.ndarray, names: Sequence[str], positions: np.ndarray) -> str:
+    """The .sto document of OpenSim's IK model marker locations (`names`, `positions` (n_frames, n, 3), m: those of
+    ik_model_marker_locations) at `times` (s), as InverseKinematicsTool writes it: a column per marker and axis,
+    <marker>_tx, _ty, _tz."""
+    head = ["Model Marker Locations from IK", "version=1", f"nRows={len(times)}", f"nColumns={1 + 3 * len(names)}",
+            "inDegrees=no", "endheader", "\t".join(("time", *(f"{n}_{a}" for n in names for a in ("tx", "ty", "tz"))))]
+    rows = ["\t".join(repr(float(x)) for x in (t, *np.ravel(p))) for t, p in zip(times, positions, strict=True)]
+    return "\n".join(head + rows) + "\n"
+
+
 def ik_marker_errors(model: Model, params: Parameters, trial: Trial, motion: Motion,
                      markers: Sequence[str] | None = None) -> np.ndarray:
     """(n_frames, 3) per frame of `trial` (its labels the model's): the total squared error (m²), the RMS error and
@@ -597,15 +679,9 @@ def ik_marker_errors(model: Model, params: Parameters, trial: Trial, motion: Mot
     model's markers at `params` posed by `motion`, as OpenSim's IK tool reports them (_ik_marker_errors.sto): the
     sum over the markers the frame records, unweighted, and the root of its mean over them; NaN in a frame that
     records none.  Every recorded position counts, those a fit left out as damaged too, as OpenSim's are."""
-    from ..model.blocks import FrameLayout
-    from ..model.kinematics import build_kinematics
     from ..solve.ik import marker_columns
 
-    if motion.n_frames != trial.n_frames:
-        raise ValueError(f"{trial.source or 'trial'}: motion of {motion.n_frames} frames for a trial of "
-                         f"{trial.n_frames}")
-    posed = build_kinematics(model).batch(FrameLayout.coordinates(motion.root_translation, motion.angles),
-                                          motion.root_quaternion, params)[0]
+    posed = _posed_markers(model, params, trial, motion)
     wanted = set(model.marker_names if markers is None else markers)
     keep = [k for k, name in enumerate(model.marker_names) if name in wanted]
     d2 = np.sum((posed[:, keep] - marker_columns(model, trial)[:, keep]) ** 2, axis=2)

@@ -489,6 +489,10 @@ class SetupOutputs:
     # and reports the errors of (a marker with no task is not fitted: gait2392's walk with its Sternum task removed
     # counts 30 markers where it counted 31); absent for a setup without marker tasks
     tracked: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    scales: Path | None = None  # the segments' scale factors as a ScaleSet file: the ModelScaler's output_scale_file
+    # trial file name -> <IK tool's name>_ik_model_marker_locations.sto in its results_directory, where the IK setup
+    # asks for the model's marker locations (report_marker_locations true; OpenSim's default is false)
+    locations: dict[str, Path] = field(default_factory=dict)
 
     def _key(self, trial: Path) -> str | None:
         """The name a setup gives the trial file `trial`: its file name, else its stem (the .c3d of a setup's .trc),
@@ -500,6 +504,12 @@ class SetupOutputs:
         """The .mot and marker-errors paths of the trial file `trial`: those its setup names, else `mot`, `errors`."""
         key = self._key(trial)
         return (mot, errors) if key is None else (self.motions.get(key, mot), self.errors.get(key, errors))
+
+    def locations_of(self, trial: Path) -> Path | None:
+        """Where the IK setup of the trial file `trial` has OpenSim write the model's marker locations; None where no
+        setup names the trial or its setup does not ask for them."""
+        key = self._key(trial)
+        return None if key is None else self.locations.get(key)
 
     def tracked_of(self, trial: Path) -> tuple[str, ...] | None:
         """The markers the IK setup of the trial file `trial` tracks; None where no IK setup names it."""
@@ -544,8 +554,9 @@ def ik_setup_inputs(path: str | Path) -> tuple[Path | None, Path | None]:
 def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path] | None) -> SetupOutputs:
     """The output names of the Scale setup `scale` and the IK setups `ik` (one per trial): see SetupOutputs.  A step
     not applied, or naming no trial file, names no motion; an IK setup's errors file only where it reports errors
-    (report_errors, true unless set false).  ModelError with one line on a file that is not such a setup."""
-    model, markers, motions, errors, setups, tracked = None, None, {}, {}, {}, {}
+    (report_errors, true unless set false), its model marker locations only where it reports them
+    (report_marker_locations, false unless set true).  ModelError with one line on a file that is not such a setup."""
+    model, markers, scales, motions, errors, setups, tracked, locations = None, None, None, {}, {}, {}, {}, {}
     if scale is not None:
         path = Path(scale)
         tool = _scale_tool(path)
@@ -555,6 +566,8 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
                 model = _against(path, name)
         if placer is not None and _applied(placer) and (name := _output_name(placer, "output_marker_file")):
             markers = _against(path, name)
+        if scaler is not None and _applied(scaler) and (name := _output_name(scaler, "output_scale_file")):
+            scales = _against(path, name)
         trial = _output_name(placer, "marker_file")
         if placer is not None and _applied(placer) and trial and (name := _output_name(placer, "output_motion_file")):
             motions[Path(trial).name], setups[Path(trial).name] = _against(path, name), path
@@ -571,10 +584,12 @@ def setup_outputs(scale: str | Path | None, ik: str | Path | Sequence[str | Path
         weights = ik_setup_weights(path)
         if weights:  # a setup with marker tasks tracks those it applies (a marker with no task is not fitted)
             tracked[key] = tuple(name for name, w in weights.items() if w > 0)
+        results = _against(path, _output_name(tool, "results_directory") or ".")
         if (tool.findtext("report_errors") or "true").strip().lower() != "false":
-            results = _against(path, _output_name(tool, "results_directory") or ".")
             errors[key] = results / f"{tool.get('name') or path.stem}_ik_marker_errors.sto"
-    return SetupOutputs(model, markers, motions, errors, setups, tracked)
+        if (tool.findtext("report_marker_locations") or "false").strip().lower() == "true":
+            locations[key] = results / f"{tool.get('name') or path.stem}_ik_model_marker_locations.sto"
+    return SetupOutputs(model, markers, motions, errors, setups, tracked, scales, locations)
 
 
 def describe_setup(path: str | Path) -> list[str]:
@@ -610,6 +625,7 @@ def describe_setup(path: str | Path) -> list[str]:
                 "is given)"
                 + ("; preserve_mass_distribution false (calibrate scales every segment's mass alike)"
                    if not setup.preserve_mass else ""), *_named_lines(setup_outputs(path, None)),
+                *_scaled_only_line(path, tool),
                 *_alone_line(f"calibrate --scale-setup {path.name} [--ik-setup ...]", "calibrates {model} to {trial}",
                              *scale_setup_inputs(path))]
     tool = root if root.tag == "InverseKinematicsTool" else root.find(".//InverseKinematicsTool")
@@ -641,12 +657,26 @@ def _alone_line(command: str, does: str, model: Path | None, trial: Path | None)
         if model is not None and trial is not None else []
 
 
+def _scaled_only_line(path: Path, tool) -> list[str]:
+    """describe_setup's line on the ModelScaler's model before marker placement, which calibrate does not write
+    where the MarkerPlacer names the subject (calibrate scales the segments and places the markers in one solve)."""
+    scaler, placer = tool.find("ModelScaler"), tool.find("MarkerPlacer")
+    if scaler is None or placer is None or not (_applied(scaler) and _applied(placer)):
+        return []
+    only, placed = _output_name(scaler, "output_model_file"), _output_name(placer, "output_model_file")
+    return [f"  --setup-names leaves out the ModelScaler's {_against(path, only)} (the model scaled before its "
+            "markers are placed: calibrate scales the segments and places the markers in one solve, and writes the "
+            "subject once)"] if only and placed else []
+
+
 def _named_lines(named: SetupOutputs) -> list[str]:
     """describe_setup's line on where --setup-names writes what the setup names (none where it names nothing)."""
     parts = ([f"the subject {named.model}"] if named.model is not None else []) + \
         ([f"its markers {named.markers}"] if named.markers is not None else []) + \
+        ([f"its scale factors {named.scales}"] if named.scales is not None else []) + \
         [f"{trial}'s motion {mot}" for trial, mot in named.motions.items()] + \
-        [f"its marker errors {sto}" for sto in named.errors.values()]
+        [f"its marker errors {sto}" for sto in named.errors.values()] + \
+        [f"its model marker locations {sto}" for sto in named.locations.values()]
     return [f"  --setup-names writes {', '.join(parts)}"] if parts else []
 
 
