@@ -401,6 +401,46 @@ def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausibl
     assert "(hip_regression auto) not applied: " in out
 
 
+def test_hip_regression_auto_keeps_the_trials_hips_where_the_regression_costs_the_fit(human, tmp_path, monkeypatch):
+    """hip_regression "auto" on a subject whose hips lie 64 mm from where the base model puts them (back and down:
+    far from Harrington's regression on the pelvis markers, inside the pelvis): the walk places them against the
+    regression, which then fits the markers more than HIP_AUTO_COST times worse, so the calibration without it is
+    kept (the same bits), its hips nearer the subject's true ones than the regression's, and the summary says why;
+    with HIP_AUTO_COST above that cost the regression's calibration is taken instead (the same bits as asking for
+    it)."""
+    from dataclasses import replace
+
+    import calibrate.calibration.regression as regression
+
+    p = human.parameters()
+    centre = np.array(p.centre, dtype=float)
+    for joint in ("hip_l", "hip_r"):
+        centre[human.joint_index(joint)] += (-0.05, 0.0, -0.04)
+    moved = load_model(write_model(human, tmp_path / "moved.urdf", replace(p, centre=centre)))
+    sim = simulate_gait(moved, frames=60, noise_mm=1.0, seed=2)
+    plain, placed, auto = (calibrate(human, [sim.trial], Settings(outliers=0.0, hip_regression=h))
+                           for h in (False, True, "auto"))
+    assert any(h.implausible for h in plain.hip_motion) and not any(h.outside for h in plain.hip_motion)
+    cost = placed.marker_rms / plain.marker_rms
+    assert cost > regression.HIP_AUTO_COST  # 2.45 here: the markers place the hips, far from the regression
+    assert np.array_equal(auto.params.vector(), plain.params.vector())
+    assert auto.hip_regression_auto.startswith("not applied: ") and auto.hip_regression_auto.endswith(
+        f"but with it the markers fit {cost:.2f} times worse (RMS {1e3 * plain.marker_rms:.2f} -> "
+        f"{1e3 * placed.marker_rms:.2f} mm, over {regression.HIP_AUTO_COST:g} times): the trials' own hips kept")
+    assert f"(hip_regression auto) {auto.hip_regression_auto}" in auto.text() and "regressed" in auto.times
+    truth = [sim.clean_centres[:, human.joint_index(j)] for j in ("hip_r", "hip_l")]
+    for kept, regressed, true in zip(_hips_from_urdf(auto, tmp_path / "a.urdf"),
+                                     _hips_from_urdf(placed, tmp_path / "p.urdf"), truth, strict=True):
+        assert np.median(np.linalg.norm(kept - true, axis=1)) < 0.5 * np.median(np.linalg.norm(regressed - true,
+                                                                                               axis=1))
+    # The guard above the cost: the regression's calibration, as asked for.
+    monkeypatch.setattr(regression, "HIP_AUTO_COST", 1.1 * cost)
+    again = calibrate(human, [sim.trial], Settings(outliers=0.0, hip_regression="auto"))
+    assert np.array_equal(again.params.vector(), placed.params.vector())
+    assert again.hip_regression_auto.startswith("applied: without it ") and again.hip_regression_auto.endswith(
+        f"(marker RMS {1e3 * plain.marker_rms:.2f} mm without it, {1e3 * placed.marker_rms:.2f} with it)")
+
+
 def test_hip_regression_finds_opencaps_pelvis_landmarks(human, tmp_path):
     """A model whose pelvis markers are spelled as OpenCap's marker augmenter spells them (r.ASIS_study, ...;
     Pose2Sim's Model_Pose2Sim_LSTM.osim): the regression finds them by alias and puts the hips where Harrington's

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from calibrate.calibration import regression
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, medial_host, past_joints
@@ -1638,8 +1639,10 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
     Plug-in Gait walks: 46-93 mm, the hips outside the ASIS; or, wherever, wider apart than the ASIS markers), the
     calibration again with it.  The result says which
     (Calibration.hip_regression_auto); where the regression cannot run (regression_hips refuses: the model already
-    carries its markers' names), the first is kept and says why.  Costs a second calibration only where the check
-    fires (the check itself reads the pelvis landmarks the regression needs)."""
+    carries its markers' names), or where it makes the markers fit more than HIP_AUTO_COST times worse (RMS) and the
+    hips without it lie inside the pelvis (the markers place them against it: AddBiomechanics' treadmill walk, OpenCap's
+    squats), the first is kept and says why.  Costs a second calibration only where the check fires (the check itself
+    reads the pelvis landmarks the regression needs)."""
     say = _announcer(given["progress"])
     first = calibrate(model, trials, replace(settings, hip_regression=False), **given)
     tied = {m.joint for m in first.joint_markers}
@@ -1658,8 +1661,17 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
             raise
         return replace(first, settings=replace(first.settings, hip_regression="auto"),
                        hip_regression_auto=f"not applied: {why}, but {str(e).removeprefix('hip_regression: ')}")
+    cost = second.marker_rms / first.marker_rms
+    if cost > regression.HIP_AUTO_COST and not any(h.outside for h in far):
+        # The markers place the hips against the regression, and they lie inside the pelvis: the trials' own kept.
+        return replace(first, settings=replace(first.settings, hip_regression="auto"),
+                       hip_regression_auto=f"not applied: {why}, but with it the markers fit {cost:.2f} times worse "
+                       f"(RMS {1e3 * first.marker_rms:.2f} -> {1e3 * second.marker_rms:.2f} mm, over "
+                       f"{regression.HIP_AUTO_COST:g} times): the trials' own hips kept",
+                       times={**first.times, "regressed": sum(second.times.values())})
     return replace(second, settings=replace(second.settings, hip_regression="auto"),
-                   hip_regression_auto=f"applied: without it {why}",
+                   hip_regression_auto=f"applied: without it {why} (marker RMS {1e3 * first.marker_rms:.2f} mm "
+                   f"without it, {1e3 * second.marker_rms:.2f} with it)",
                    times={"unregressed": sum(first.times.values()), **second.times})
 
 

@@ -79,6 +79,13 @@ HIP_WIDTH_FAR = 0.9
 #: walks whose motion placed the hips 0.79-0.95): c3d.org's sample04, a thigh whose markers do not fix its turn about
 #: its length (hip_r rotation over 122 deg), ended them 1.35 times the ASIS width apart, 75 mm from Harrington's.
 HIP_OUTSIDE = 1.0
+#: hip_regression "auto" keeps the calibration with the regression only where its marker RMS is within HIP_AUTO_COST
+#: times the one without, unless the hips without it lie outside the pelvis (HIP_OUTSIDE: no hip is there, whatever
+#: the fit).  Imposed where the markers place the hips against it, the regression costs the fit: on the eleven real
+#: runs where it fired the RMS rose by at most 1.17 times where it did no harm (Expert1's walk, its hips then 11-15 mm
+#: from the lab's own hip centres instead of 26-27), and by 1.35 and 2.03 times where it did (AddBiomechanics'
+#: treadmill walk, its knee and ankle axes then turned 43-58 deg; OpenCap's squats), docs/benchmarks.md.
+HIP_AUTO_COST = 1.25
 
 
 @dataclass(frozen=True)

@@ -280,7 +280,8 @@ class Calibration:
     hip_motion: tuple = ()
     # Settings.hip_regression "auto": what the calibration without the regression left ("" where it left no hip
     # implausible, or the regression was not asked for so): "applied: ..." (calibrated again with it) or
-    # "not applied: ..." (the regression could not run: calibrate.calibration.regression.regression_hips' reason)
+    # "not applied: ..." (the regression could not run: calibrate.calibration.regression.regression_hips' reason; or
+    # it fitted the markers over regression.HIP_AUTO_COST times worse with the hips inside the pelvis)
     hip_regression_auto: str = ""
     # calibrate.calibration.plugin_gait.KneeAxisCheck per knee of each trial carrying Plug-in Gait's femur and tibia
     # bones: its knee axis against the axis its own tibia turns about, and the calibrated knee's

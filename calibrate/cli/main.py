@@ -259,7 +259,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                       help="calibrate without the regression, and again with it where that leaves a hip implausible "
                            "(over 40 mm from the regression, or the hips wider apart than 0.9 times the ASIS "
                            "markers, where the trials' motion does not place them; wider apart than the ASIS markers, "
-                           "wherever): a second calibration only there; "
+                           "wherever): a second calibration only there, kept unless it fits the markers over 1.25 "
+                           "times worse with the hips inside the pelvis; "
                            "the summary and report say which (settings file: hip_regression = \"auto\")")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (and of those it "
