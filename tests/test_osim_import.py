@@ -1237,6 +1237,36 @@ def test_inspect_a_setup_says_what_calibrate_takes(tmp_path, capsys):
     assert len(err) == 1 and "calibrate inspect MODEL.osim --marker-set ms.xml" in err[0]
 
 
+@pytest.mark.skipif(not (REAL / "rajagopal_walk").exists(), reason="needs ../shared/data/real/rajagopal_walk")
+def test_inspect_names_the_marker_sets_fixed_markers(tmp_path, capsys):
+    """OpenSim's `<fixed>` flags (its marker placer keeps those markers where the model puts them; calibrate places
+    every marker alike): `calibrate inspect MODEL.osim --marker-set FILE.xml` counts and names them, the marker set's
+    flag replacing the model's for a marker of the same name, as its markers do; a marker set without any fixed
+    (gait2392's) says nothing."""
+    from calibrate.io.osim_info import fixed_flags
+
+    raj = REAL / "rajagopal_walk"
+    ms = ET.parse(raj / "markerset_walk_preScale.xml").getroot()
+    want = [m.get("name") for m in ms.iter("Marker") if (m.findtext("fixed") or "").strip() == "true"]
+    ms_file = raj / "markerset_walk_preScale.xml"
+    assert main(["inspect", str(raj / "Rajagopal2016.osim"), "--marker-set", str(ms_file)]) == 0
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("  fixed markers:"))
+    assert line.startswith(f"  fixed markers: {len(want)} of its ") and len(want) == 37
+    assert set(out.splitlines()[out.splitlines().index(line) + 1].strip().split(", ")) == set(want)
+    # the marker set's flag over the model's: R.ASIS fixed in the set, unfixed in a copy of it
+    loose = tmp_path / "loose.xml"
+    text = (raj / "markerset_walk_preScale.xml").read_text()
+    at = text.index('<Marker name="R.ASIS">')
+    end = text.index("</Marker>", at)
+    assert "<fixed>true</fixed>" in text[at:end]
+    loose.write_text(text[:at] + text[at:end].replace("<fixed>true</fixed>", "<fixed>false</fixed>") + text[end:])
+    assert fixed_flags(raj / "Rajagopal2016.osim", raj / "markerset_walk_preScale.xml")["R.ASIS"]
+    assert not fixed_flags(raj / "Rajagopal2016.osim", loose)["R.ASIS"]
+    assert main(["inspect", str(GAIT), "--marker-set", str(GAIT_MARKERS)]) == 0
+    assert "fixed markers" not in capsys.readouterr().out
+
+
 _SCALE_AND_IK = r"""
 import os, sys
 import opensim as osim

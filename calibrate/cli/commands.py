@@ -553,6 +553,17 @@ def cmd_inspect(args: argparse.Namespace) -> int:
             print(f"  placeholder markers (within {1000 * PLACEHOLDER_RADIUS:g} mm of another marker of their segment: "
                   "a cluster left for OpenSim's marker placer; placed by the trials alone, priors.placeholder_mm):")
             print("    " + ", ".join(m.markers[k].name for k in held))
+        if path.suffix.lower() == ".osim":  # OpenSim's <fixed> flags: what its marker placer keeps, calibrate does not
+            from ..io.osim_info import fixed_flags
+
+            flags = fixed_flags(path, getattr(args, "marker_set", None))
+            fixed = [n for n in m.marker_names if flags.get(n)]
+            if fixed:
+                print(f"  fixed markers: {len(fixed)} of its {len(m.marker_names)} are <fixed> (OpenSim's marker "
+                      "placer leaves those where the model puts them and moves the others to the static): calibrate "
+                      "places every marker from the trials alike, each pulled towards the model's place by "
+                      "priors.marker_mm")
+                print("    " + ", ".join(fixed))
         from ..model.sides import side_mismatches
 
         sides = side_mismatches(m)

@@ -4,7 +4,9 @@ approximations and root coordinates, read back from the URDF's <osim> element.""
 from __future__ import annotations
 
 import math
+import os
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 
@@ -134,4 +136,22 @@ def root_coordinates(info: OsimInfo, root_translation: np.ndarray, root_quaterni
     return out
 
 
-__all__ = ["approximation_table", "import_summary", "osim_info", "root_coordinates", "with_locked"]
+def fixed_flags(osim: str | os.PathLike[str], marker_set: str | os.PathLike[str] | None = None) -> dict[str, bool]:
+    """Each marker's OpenSim `<fixed>` flag (false where unset, OpenSim's default): the .osim's own markers, then the
+    MarkerSet file's, which replace those of the same name as the Scale tool's do.  OpenSim's marker placer moves the
+    markers not fixed to where the static shows them and leaves the fixed ones where the model puts them; calibrate
+    places every marker from the trials alike (its marker prior), which `calibrate inspect` says."""
+    from calibrate.io.osim_read import xml_root
+
+    out: dict[str, bool] = {}
+    for path, what in ((osim, "an OpenSim model (.osim)"), (marker_set, "an OpenSim MarkerSet file (.xml)")):
+        if path is None:
+            continue
+        root = xml_root(Path(path), what, what)
+        for mk in root.iter("Marker"):
+            if mk.get("name"):
+                out[mk.get("name")] = (mk.findtext("fixed") or "").strip().lower() == "true"
+    return out
+
+
+__all__ = ["approximation_table", "fixed_flags", "import_summary", "osim_info", "root_coordinates", "with_locked"]
