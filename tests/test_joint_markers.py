@@ -428,6 +428,10 @@ def test_hip_regression_auto_keeps_the_trials_hips_where_the_regression_costs_th
         f"but with it the markers fit {cost:.2f} times worse (RMS {1e3 * plain.marker_rms:.2f} -> "
         f"{1e3 * placed.marker_rms:.2f} mm, over {regression.HIP_AUTO_COST:g} times): the trials' own hips kept")
     assert f"(hip_regression auto) {auto.hip_regression_auto}" in auto.text() and "regressed" in auto.times
+    implausible = next(x for x in auto.text().splitlines() if x.startswith("  implausible  hip"))
+    assert implausible.endswith("; the regression, tried, fits the markers worse (hips below)")
+    assert next(x for x in plain.text().splitlines() if x.startswith("  implausible  hip")).endswith(
+        "; --hip-regression places them by the regression")
     truth = [sim.clean_centres[:, human.joint_index(j)] for j in ("hip_r", "hip_l")]
     for kept, regressed, true in zip(_hips_from_urdf(auto, tmp_path / "a.urdf"),
                                      _hips_from_urdf(placed, tmp_path / "p.urdf"), truth, strict=True):

@@ -854,7 +854,8 @@ def summary_text(cal) -> str:
                         "nothing turns in a still trial, so only the priors of the centres and the pelvis and thigh "
                         "markers placed them" if cal.still_only is not None else
                         "the trials' motion does not place them (hips above), the thigh markers' skin did")
-                     + "; --hip-regression places them by the regression")
+                     + ("; the regression, tried, fits the markers worse (hips below)" if "times worse" in
+                        cal.hip_regression_auto else "; --hip-regression places them by the regression"))
     if wide := [h for h in cal.hip_motion if h.places_centre and h.outside and h.joint not in tied]:
         width, asis = wide[0].width
         lines.append(f"  implausible  the hips {1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} "
