@@ -1082,14 +1082,13 @@ def write_outputs(cal: Calibration, urdf=None, motion=None, report=None, overwri
         if len(counted) != max(len(stos), len(locs)):
             raise CalibrateError(f"{len(counted)} marker lists for {len(cal.trials)} trials' marker errors or "
                                  "locations; give one per trial (None: every marker the fit uses)")
-        for i, (t, m, own) in enumerate(zip(cal.trials[:len(stos)], cal.motions, counted, strict=False)):
+        for i, (t, m, own) in enumerate(zip(cal.trials, cal.motions, counted, strict=False)):
             keep = None if own is None else set(own)
-            mk = used if keep is None else [n for n in used if n in keep]
-            writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
-                path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, mk)))
-        for i, (t, m, own) in enumerate(zip(cal.trials[:len(locs)], cal.motions, counted, strict=False)):
+            mk = used if keep is None else [n for n in used if n in keep]  # the markers each trial's files count
+            if f"errors[{i}]" in opensim:
+                writers[opensim[f"errors[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
+                    path, marker_errors_text(m.times, ik_marker_errors(cal.model, cal.params, t, m, mk)))
             if f"locations[{i}]" in opensim:
-                mk = [n for n in used if own is None or n in set(own)]
                 writers[opensim[f"locations[{i}]"]] = lambda path, t=t, m=m, mk=mk: put_text(
                     path, marker_locations_text(m.times, *ik_model_marker_locations(cal.model, cal.params, t, m, mk)))
     if mujoco:

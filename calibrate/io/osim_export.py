@@ -496,30 +496,25 @@ def scale_set_text(osim: str, scales: Mapping[str, float]) -> str:
     without calibrate's joint centres, axes and marker positions, which the subject .osim carries."""
     root = ET.fromstring(osim.split("\n", 1)[1] if osim.startswith("<?xml") else osim).find("Model")
     parent = {child: el for el in root.iter() for child in el}
+    named = {el.get("name"): el for el in root.iter() if el.tag in ("Body", "PhysicalOffsetFrame", "Ground")}
     ground = root.find("Ground")
     frames: list[tuple[str, str]] = [] if ground is None else [(ground.get("name", "ground"), "")]
     frames += [(b.get("name", ""), b.get("name", "")) for b in root.iter("Body")]
 
-    def body_of(frame: ET.Element) -> str:
-        """The body (or '' for ground) an offset frame is fixed to, through its parent socket."""
-        seen = 0
-        while frame.tag == "PhysicalOffsetFrame" and seen < 100:
-            socket, seen = (frame.findtext("socket_parent") or "").strip(), seen + 1
-            if socket.startswith(".."):  # relative: the component holding it (a body's own geometry frame)
-                holder = parent.get(frame)
-                while holder is not None and holder.tag not in ("Body", "Ground", "PhysicalOffsetFrame"):
-                    holder = parent.get(holder)
-                if holder is None:
-                    return ""
-                frame = holder
-                continue
-            name = socket.rstrip("/").rsplit("/", 1)[-1]
-            found = next((el for el in root.iter() if el.tag in ("Body", "PhysicalOffsetFrame", "Ground")
-                          and el.get("name") == name and el is not frame), None)
-            if found is None:
-                return ""
-            frame = found
-        return "" if frame.tag == "Ground" else frame.get("name", "")
+    def body_of(frame: ET.Element | None) -> str:
+        """The body (or '' for ground) an offset frame is fixed to: through its parent socket, or ('..') the
+        component holding it (a body's own geometry frame)."""
+        for _ in range(len(named) + 1):  # (a chain of offset frames is at most that long)
+            if frame is None or frame.tag != "PhysicalOffsetFrame":
+                break
+            socket = (frame.findtext("socket_parent") or "").strip()
+            if socket.startswith(".."):
+                frame = parent.get(frame)
+                while frame is not None and frame.tag not in ("Body", "Ground", "PhysicalOffsetFrame"):
+                    frame = parent.get(frame)
+            else:
+                frame = named.get(socket.rstrip("/").rsplit("/", 1)[-1])
+        return frame.get("name", "") if frame is not None and frame.tag == "Body" else ""
 
     frames += [(f.get("name", ""), body_of(f)) for f in root.iter("PhysicalOffsetFrame")]
     doc = ET.Element("OpenSimDocument", Version="40000")
