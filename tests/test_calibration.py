@@ -1200,6 +1200,73 @@ def test_an_axis_carried_far_where_its_joint_turns_little_is_held(human, human_k
     assert "turn these joints too little to place an axis" in (tmp_path / "s.html").read_text()
 
 
+def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_kin, monkeypatch, tmp_path):
+    """A ball joint's centre the fit carries beyond its prior where the moving trials turn the joint through less
+    than NARROW_TURN in every angle is held at the base model's offset from its parent's markers
+    (pipeline._narrow_centres: Rajagopal's run's back).  The squats' lumbar joint turned at an eighth of its motion:
+    on clean simulated markers the fit keeps its centre near the truth, within the prior, so it is left free.  With
+    NARROW_CENTRE_FAR at 0 (any shift counts as far) every ball joint the simulator turns through less than
+    NARROW_TURN in each angle has its centre held, where the hold puts it (the base model's offset from the parent's
+    markers' centroid, at their layout's size), and named with its turn; the wide ones stay free."""
+    import calibrate.calibration.pipeline as pipeline
+
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=2)
+    m = sim.motion
+    ang = m.angles.copy()
+    for d in ("lumbar_flexion", "lumbar_bending", "lumbar_rotation"):
+        k = human.dof_index(d)
+        ang[:, k] = np.mean(ang[:, k]) + 0.125 * (ang[:, k] - np.mean(ang[:, k]))
+    F = ang.shape[0]
+    M, _ = human_kin.batch(np.column_stack([m.root_translation, np.zeros((F, 3)), ang]), m.root_quaternion, sim.truth)
+    trial = Trial(human.marker_names, M + np.random.default_rng(3).normal(scale=0.001, size=M.shape), sim.trial.rate)
+    span = {j.name: max(np.ptp(np.percentile(ang[:, human.dof_index(d)], [2, 98])) for d in j.dofs)
+            for j in human.joints if j.dofs}
+    assert np.radians(3.0) < span["lumbar"] < pipeline.NARROW_TURN < span["hip_l"]
+    cal = calibrate(human, trial, Settings(), kinematics=human_kin)
+    assert cal.narrow_centres == () and "lumbar" not in cal.settings.hold_centres
+    monkeypatch.setattr(pipeline, "NARROW_CENTRE_FAR", 0.0)
+    held = calibrate(human, trial, Settings(), kinematics=human_kin)
+    narrow = dict(held.narrow_centres)
+    assert "lumbar" in narrow and narrow["lumbar"] == pytest.approx(span["lumbar"], abs=np.radians(1.5))
+    locked = {n for n, _ in held.settings.lock}
+    for j in human.joints:
+        if j.kind != "ball":  # a hinge's centre along its axis is the prior's anyway: not judged
+            assert j.name not in narrow and j.name not in held.settings.hold_centres, j.name
+            continue
+        if locked & set(j.dofs) or abs(span[j.name] - pipeline.NARROW_TURN) < np.radians(1.0):
+            continue
+        assert (j.name in narrow) == (span[j.name] < pipeline.NARROW_TURN), (j.name, np.degrees(span[j.name]))
+        assert (j.name in held.settings.hold_centres) == (j.name in narrow), j.name
+    # Where the hold puts a centre: its offset from the centroid of the parent's seen markers is the base model's at
+    # the size of their layout (kappa: their spread about the centroid against the base model's), to the hold's SD;
+    # with fewer than three markers on the parent, its place in the parent's frame is the base model's.
+    P, B = held.params, human.parameters()
+    for name in narrow:
+        ji = human.joint_index(name)
+        parent = human.joints[ji].parent
+        mks = [k for k, mk in enumerate(human.markers) if mk.segment == parent]
+        target = B.centre[ji]
+        if len(mks) >= 3:
+            mid, mid0 = P.marker[mks].mean(axis=0), B.marker[mks].mean(axis=0)
+            b = B.marker[mks] - mid0
+            target = mid + np.sum((P.marker[mks] - mid) * b) / np.sum(b * b) * (B.centre[ji] - mid0)
+        s = P.scale[human.segment_index(parent)]
+        off = s * np.linalg.norm(P.centre[ji] - target)
+        assert off < 1e-3, (name, off)
+        if name == "lumbar":  # left free, the fit places it elsewhere
+            assert s * np.linalg.norm(cal.params.centre[ji] - target) > 2 * off, (name, off)
+    line = next(ln for ln in held.text().splitlines() if ln.startswith("  centres held") and "too little" in ln)
+    assert f"lumbar through {np.degrees(narrow['lumbar']):.0f} deg" in line
+    assert any(ln.strip().startswith("lumbar") and "(held: narrow turn" in ln for ln in held.text().splitlines())
+    rep = held.report()
+    assert rep["narrow_centres_deg"]["lumbar"] == pytest.approx(np.degrees(narrow["lumbar"]))
+    assert set(rep["narrow_centres_deg"]) <= set(rep["settings"]["hold_centres"])
+    held.write(urdf=tmp_path / "s.urdf", report=tmp_path / "s.json", html=tmp_path / "s.html")
+    assert json.loads((tmp_path / "s.json").read_text())["narrow_centres_deg"] == pytest.approx(
+        rep["narrow_centres_deg"])
+    assert "turning their joints too little to place a centre" in (tmp_path / "s.html").read_text()
+
+
 def test_limit_notes_name_coordinates_driven_past_their_limits(human):
     from calibrate.calibration.identifiability import limit_notes
 

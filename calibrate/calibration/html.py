@@ -200,10 +200,15 @@ def _notes(report: dict) -> str:
                      "axis; centres slid to their midpoint): "
                      + _e("; ".join(f"{r['coordinate']} {r['angle_deg']:.1f} deg from {'-'.join(r['markers'])}"
                                     for r in pairs)) + "</li>")
+    narrow_c = report.get("narrow_centres_deg") or {}
     if given := [j for j in (report.get("settings") or {}).get("hold_centres", [])
-                 if j not in report.get("still_centres", [])]:
+                 if j not in report.get("still_centres", []) and j not in narrow_c]:
         items.append(f"<li>centres held at the base model's offset from their parent segment's markers "
                      f"(--hold-centres): {_e(', '.join(given))}</li>")
+    if narrow_c:
+        items.append("<li>centres held at the base model's offset from their parent segment's markers, the moving "
+                     "trials turning their joints too little to place a centre against the skin: "
+                     f"{_e(', '.join(f'{n} ({t:.0f} deg)' for n, t in narrow_c.items()))}</li>")
     for lk in report.get("auto_locked", []):
         items.append(f"<li>locked: {_e(lk.get('note', ''))}</li>")
     if report.get("not_neutral"):

@@ -490,6 +490,14 @@ def _sds(g: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> tuple[float, 
 
 
 FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far from the base model's is not "held"
+#: rad: a hinge (or universal) axis the fit carried beyond FAR_FROM_PRIOR prior SDs from the base model's, while the
+#: moving trials turn its joint through less than this (2nd to 98th percentile of the subsample's angles), is held at
+#: the base model's, as a still joint's (PipelineOptions.auto_hold); a joint centre so carried, where every angle of
+#: its joint turns less than this, too (pipeline._narrow_centres).  Skin turns a segment against its bone by up to
+#: 4.4 deg in a walk (Benoit et al. 2006, bone pins at the knee): against a turn of 20 deg that alone tilts a fitted
+#: axis by up to atan(4.4 / 20) = 12 deg, and a turn that narrow does not place an axis 30 deg from the base model's.
+#: BTKData's FunctionalLHip (a left-hip trial; the right knee turned 7 deg) carried knee_r's axis 46 deg.
+NARROW_TURN = math.radians(20.0)
 
 
 def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[str, ...] = ()) -> ParameterChange:

@@ -31,6 +31,7 @@ from calibrate.calibration.gauge import align_gauge, align_markers, align_neutra
 from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, medial_host, past_joints
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
+    NARROW_TURN,
     STILL_SAMPLE,
     coordinate_notes,
     coordinate_spreads,
@@ -103,14 +104,11 @@ from .records import Countdown, IterationClock, JointCentreMarker, Progress, Sti
 MOVED_SAMPLE = 500  # frames of each trial the moved-marker test reads when it only names what it finds
 MOVED_PASSES = 2  # looks for markers moved in a still trial (calibrate.calibration.moved), each then a subsample solve
 HOLD_ROUNDS = 2  # rounds of holding still coordinates' axes (PipelineOptions.auto_hold), each a new subsample solve
-#: rad: a hinge (or universal) axis the fit carried beyond FAR_FROM_PRIOR prior SDs from the base model's, while the
-#: moving trials turn its joint through less than this (2nd to 98th percentile of the subsample's angles), is held at
-#: the base model's, as a still joint's (PipelineOptions.auto_hold).  Skin turns a segment against its bone by up to
-#: 4.4 deg in a walk (Benoit et al. 2006, bone pins at the knee): against a turn of 20 deg that alone tilts a fitted
-#: axis by up to atan(4.4 / 20) = 12 deg, and a turn that narrow does not place an axis 30 deg from the base model's.
-#: BTKData's FunctionalLHip (a left-hip trial; the right knee turned 7 deg) carried knee_r's axis 46 deg.
-NARROW_TURN = math.radians(20.0)
 NARROW_FAR = FAR_FROM_PRIOR  # prior SDs: "far" for NARROW_TURN, as for the report's unreliable axes
+# Prior SDs: "far" for a centre's NARROW_TURN (_narrow_centres): as for the report's unreliable centres.  At 2 SDs
+# pig_walk's lumbar centre (55 mm from the base model's at the subject's scale, not flagged) was held, and its marker
+# RMS rose from 8.55 to 10.31 mm (docs/benchmarks.md).
+NARROW_CENTRE_FAR = FAR_FROM_PRIOR
 
 
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
@@ -577,12 +575,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
     # Which trials are still: their moved markers looked for (with run.moved_markers off, only the re-placed left out)
     still = [m < STILL_MOTION for m in motion] if motion is not None and len(trials) > 1 else None
-    problem, state, summary, scatter, solved, moved, locks, narrow = _solve(
+    problem, state, summary, scatter, solved, moved, locks, narrow, narrow_centres = _solve(
         problem, start, spans, run, solver, say, lengths, cap, still, [t.source for t in trials],
         STILL_COARSE_FRAMES if still_only is not None else COARSE_FRAMES)
     held = tuple(d for d in problem.settings.hold_axes if d not in as_given)
     # As used: with the axes held and the hinges locked above.
-    settings = replace(settings, hold_axes=problem.settings.hold_axes, lock=problem.settings.lock)
+    settings = replace(settings, hold_axes=problem.settings.hold_axes, lock=problem.settings.lock,
+                       hold_centres=problem.settings.hold_centres)
     rejected: list[Outlier] = []
     hit = np.zeros(problem.F, dtype=bool)  # frames with a rejected marker position
     fixed = fixed_noise(problem, run)
@@ -794,7 +793,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
-                       narrow_axes=tuple(narrow.items()),
+                       narrow_axes=tuple(narrow.items()), narrow_centres=tuple(narrow_centres.items()),
                        axis_pairs=tuple((subject.dofs[d].name, subject.markers[k1].name, subject.markers[k2].name)
                                         for _, k1, k2, d in problem.pair_terms()),
                        not_neutral=tuple(not_neutral),
@@ -869,6 +868,42 @@ def _hold_segments(model: Model, params: Parameters, segments: Sequence[str], ce
     return out
 
 
+def _hold_centres(problem: Problem, state: State, narrow: Mapping[str, tuple[float, float]],
+                  say: Callable[[str | Progress], None]) -> tuple[Problem, State]:
+    """The problem with the centres of `narrow` (_narrow_centres) held (Settings.hold_centres, the noise SDs kept) and
+    the state with them where the hold puts them (_held_centre_places): the solve goes on from there."""
+    say(Progress("solve", "the moving trials turn " + ", ".join(
+        f"{n} through {math.degrees(t):.0f} deg (its centre carried {1000 * d:.0f} mm from the base model's at the "
+        f"subject's scale)" for n, (t, d) in narrow.items())
+        + f" only (under {math.degrees(NARROW_TURN):.0f} in every angle: the skin's turn of the segments would place "
+        f"the centre): holding {'its centre' if len(narrow) == 1 else 'their centres'} at the base model's offset from "
+        "the markers, solving again"))
+    problem = problem.with_settings(replace(problem.settings, hold_centres=problem.settings.hold_centres
+                                            + tuple(narrow)), sigma=problem.sigma)
+    return problem, replace(state, p=_held_centre_places(problem, state.p, tuple(narrow)))
+
+
+def _held_centre_places(problem: Problem, p: np.ndarray, names: Sequence[str]) -> np.ndarray:
+    """`p` with the centres of the joints `names` (held: the problem's hold_centres) where their hold puts them: the
+    base model's offset from the centroid of the parent segment's seen markers, at the size of their layout (the
+    held-centre prior's row at zero, Priors), or, with fewer than three such markers, the base model's place in the
+    parent's frame."""
+    out, L, base = p.copy(), problem.layout, problem.base.vector()
+    markers = dict(problem.held_centres())
+    for name in names:
+        ji = problem.model.joint_index(name)
+        ce = L.entries("centre", np.array([ji]))[0]
+        if ji not in markers:
+            out[ce] = base[ce]
+            continue
+        mk = L.entries("marker", np.array(markers[ji]))
+        mid, mid0 = p[mk].mean(axis=0), base[mk].mean(axis=0)
+        b = base[mk] - mid0
+        kappa = float(np.sum((p[mk] - mid) * b)) / float(np.sum(b * b))
+        out[ce] = mid + kappa * (base[ce] - mid0)
+    return out
+
+
 BLIND_SIZED = 3  # segments the data size (free scale, a marker shown) before the unseen ones take their median
 
 
@@ -939,6 +974,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     moved: list[MovedMarker] = []
     locks: tuple[TradingLock, ...] = ()
     narrow: dict[str, float] = {}  # axes held because the moving trials turn them less than NARROW_TURN (rad)
+    narrow_centres: dict[str, float] = {}  # centres held so (joint -> its largest angle's turn, rad)
     coarse_summary: SolverSummary | None = None
     for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
         sub = subsample(problem)
@@ -1012,9 +1048,15 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                 if turn < NARROW_TURN:
                     held.append(name)
                     narrow[name] = turn
+            # Centres carried beyond their prior where the moving trials turn the joint too little, in every angle of
+            # it, to place a centre of rotation against the skin (_narrow_centres).  Judged here, on the round's
+            # solution with the noise learnt: on the first solution, before it, the centres had not settled, and
+            # pig_walk's lumbar and neck, the OpenCap squats' ankle_r and subtalar_l were held, their marker RMS
+            # 7.18 -> 8.17 and 4.11 -> 4.59 mm (docs/benchmarks.md).
+            new_centres = _narrow_centres(problem, state.p, angles[rows], skip)
         else:
-            new_locks = ()
-        if not held and not found and not new_locks:
+            new_locks, new_centres = (), {}
+        if not held and not found and not new_locks and not new_centres:
             break
         if new_locks:
             for lk in new_locks:
@@ -1060,9 +1102,12 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                 k = problem.layout.axis(problem.model.dof_index(name))
                 p[k] = base[k]
             state = replace(state, p=p)
+        if new_centres:
+            problem, state = _hold_centres(problem, state, new_centres, say)
+            narrow_centres.update({n: t for n, (t, _) in new_centres.items()})
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary, scatter, True, moved, locks, narrow
+        return problem, state, coarse_summary, scatter, True, moved, locks, narrow, narrow_centres
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -1100,7 +1145,41 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter, False, moved, locks, narrow
+    return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres
+
+
+def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = ()
+                    ) -> dict[str, tuple[float, float]]:
+    """The ball joints' centres to hold for the narrow turn of their joint: carried by the fit (`p`) beyond
+    NARROW_CENTRE_FAR prior SDs from the base model's at the subject's scale, while the moving trials turn each angle
+    of the joint through less than NARROW_TURN (2nd to 98th percentile of `angles`: rows the moving trials' frames,
+    columns every DoF's absolute angle).  A centre of rotation is placed by the arcs its child's markers sweep about
+    it; skin turns a segment against its bone by up to 4.4 deg in a walk, and arcs of a few degrees leave the centre
+    in a flat valley the skin's shifts decide: Rajagopal's run turns its lumbar joint 9-16 deg and carried the back's
+    centre 117 mm from the base model's, an AddBiomechanics walk's lumbar 64 mm (docs/benchmarks.md).  Not the joints
+    whose DoFs are locked or in `skip` (a hinge locked for a trade), nor those a joint-centre marker the trials show
+    places (a lab's hip centre), nor those held already.  Joint -> (its largest angle's turn, rad; the centre's
+    distance from the base model's at the subject's scale, m)."""
+    st = problem.settings
+    if "centre" not in st.free or not st.priors.centre > 0:
+        return {}
+    model = problem.model
+    P, B = model.unpack(p), problem.base
+    locked = {n for n, _ in st.lock} | set(skip)
+    marked = {t.joint for t in problem.joint_markers() if problem.seen[:, t.marker].any()}
+    far = NARROW_CENTRE_FAR * st.priors.centre
+    if angles.shape[0] < 3:
+        return {}
+    out: dict[str, tuple[float, float]] = {}
+    for ji, j in enumerate(model.joints):
+        if j.kind != "ball" or j.name in st.hold_centres or ji in marked or any(d in locked for d in j.dofs):
+            continue
+        gap = float(P.scale[model.segment_index(j.parent)]) * float(np.linalg.norm(P.centre[ji] - B.centre[ji]))
+        a = angles[:, [model.dof_index(d) for d in j.dofs]]
+        turn = float(np.max(np.percentile(a, 98, axis=0) - np.percentile(a, 2, axis=0)))
+        if gap > far and turn < NARROW_TURN:
+            out[j.name] = (turn, gap)
+    return out
 
 
 def _axis_turns(problem: Problem, p: np.ndarray, names: Collection[str]) -> dict[str, float]:

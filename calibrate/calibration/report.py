@@ -30,7 +30,7 @@ from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
 from ..software import software_versions
 from .html import asymmetry_clause, left_out_clause, mirror_clause, report_html, seed_note_groups
-from .identifiability import IDENTIFIED, segment_end
+from .identifiability import IDENTIFIED, NARROW_TURN, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified, StillNote
@@ -135,6 +135,7 @@ def calibration_report(cal: Calibration) -> dict:
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "narrow_axes_deg": {n: math.degrees(t) for n, t in cal.narrow_axes},
+        "narrow_centres_deg": {n: math.degrees(t) for n, t in cal.narrow_centres},
         "on_axis_markers": on_axis_labels(cal),
         "axis_pairs": axis_pair_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
@@ -670,7 +671,15 @@ def summary_text(cal) -> str:
         *_pair_line(cal),
         *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
                                          for j in given) + " (--hold-centres)"]
-          if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres]) else []),
+          if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres
+                             and j not in dict(cal.narrow_centres)]) else []),
+        *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)" for j in narrow_c)
+           + ": the moving trials turn " + ", ".join(f"{j} through {math.degrees(t):.0f} deg" for j, t in
+                                                     narrow_c.items())
+           + f" at most in any angle (under {math.degrees(NARROW_TURN):.0f} deg: too little to place a centre of "
+           "rotation against the skin's turn of the segments), and the fit had carried "
+           + ("it" if len(narrow_c) == 1 else "each") + " beyond its prior (--no-auto-hold leaves it there)"]
+          if (narrow_c := dict(cal.narrow_centres)) else []),
         *([f"  centres held {', '.join(cal.still_centres)}: the trials are still and do not turn these ball joints, "
            "so no motion places their centres; each keeps the base model's offset from its parent segment's "
            "markers, at the subject's scale (--no-auto-hold leaves them to their priors"
@@ -714,7 +723,8 @@ def summary_text(cal) -> str:
             if c.unreliable and (c.identified or _slide_only(c)):
                 flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
             if c.item in cal.settings.hold_centres:
-                why = "still trials" if c.item in cal.still_centres else "--hold-centres"
+                why = ("still trials" if c.item in cal.still_centres else "narrow turn" if c.item in
+                       dict(cal.narrow_centres) else "--hold-centres")
                 flag = f"  (held: {why}; {_held_against(cal, c.item)})"
             lines.append(f"    {c.item:16s}{c.change:8.1f}{c.beyond_scale:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]
