@@ -68,6 +68,12 @@ def test_the_calibration_fits_the_head_band_and_turns_the_neck():
     assert all(placed[n] is None for n in FLOOR), placed
     assert not cal.unresolved and not any(d.startswith("neck") for d in cal.locked), (cal.unresolved, cal.locked)
     assert "neck" in cal.settings.hold_centres  # the band's places and the neck's centre would trade: centre held
+    # ... and said so, not as the user's --hold-centres
+    assert cal.cluster_centres == ("neck",) and cal.report()["cluster_centres"] == ["neck"]
+    text = cal.text().splitlines()
+    line = next(ln for ln in text if ln.startswith("  centres held") and "neck" in ln)
+    assert "only a cluster of new labels" in line and "--hold-centres" not in line, line
+    assert any(ln.strip().startswith("neck") and "(held: a cluster of new labels below" in ln for ln in text)
     s = cal.params.scale[base.segment_index("head")]
     fitted = {n: s * cal.params.marker[cal.model.marker_index(n)] for n in places}
     names = list(places)

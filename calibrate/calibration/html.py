@@ -202,9 +202,13 @@ def _notes(report: dict) -> str:
                                     for r in pairs)) + "</li>")
     narrow_c = report.get("narrow_centres_deg") or {}
     if given := [j for j in (report.get("settings") or {}).get("hold_centres", [])
-                 if j not in report.get("still_centres", []) and j not in narrow_c]:
+                 if j not in report.get("still_centres", []) and j not in narrow_c
+                 and j not in report.get("cluster_centres", [])]:
         items.append(f"<li>centres held at the base model's offset from their parent segment's markers "
                      f"(--hold-centres): {_e(', '.join(given))}</li>")
+    if cluster := report.get("cluster_centres"):
+        items.append("<li>centres held at the base model's place, the segment below carrying only a cluster of new "
+                     f"labels: {_e(', '.join(cluster))}</li>")
     if narrow_c:
         items.append("<li>centres held at the base model's offset from their parent segment's markers, the moving "
                      "trials turning their joints too little to place a centre against the skin: "

@@ -806,6 +806,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        moved=tuple(moved),
                        moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=still_only, still_centres=still_centres,
+                       cluster_centres=banded_joints,
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused),
                        hip_motion=hip_motion(subject, motions, hip_at, trials),

@@ -136,6 +136,7 @@ def calibration_report(cal: Calibration) -> dict:
         "held_axes": list(cal.held_axes),
         "narrow_axes_deg": {n: math.degrees(t) for n, t in cal.narrow_axes},
         "narrow_centres_deg": {n: math.degrees(t) for n, t in cal.narrow_centres},
+        "cluster_centres": list(cal.cluster_centres),
         "on_axis_markers": on_axis_labels(cal),
         "axis_pairs": axis_pair_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
@@ -672,7 +673,11 @@ def summary_text(cal) -> str:
         *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
                                          for j in given) + " (--hold-centres)"]
           if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres
-                             and j not in dict(cal.narrow_centres)]) else []),
+                             and j not in dict(cal.narrow_centres) and j not in cal.cluster_centres]) else []),
+        *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)" for j in
+                                         cal.cluster_centres)
+           + ": the segment below carries only a cluster of new labels (a head band), whose places and the centre "
+           "would trade"] if cal.cluster_centres else []),
         *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)" for j in narrow_c)
            + ": the moving trials turn " + ", ".join(f"{j} through {math.degrees(t):.0f} deg" for j, t in
                                                      narrow_c.items())
@@ -724,7 +729,8 @@ def summary_text(cal) -> str:
                 flag += "  (placed by the trial, yet far from the scaled base model's: unreliable)"
             if c.item in cal.settings.hold_centres:
                 why = ("still trials" if c.item in cal.still_centres else "narrow turn" if c.item in
-                       dict(cal.narrow_centres) else "--hold-centres")
+                       dict(cal.narrow_centres) else "a cluster of new labels below" if c.item in cal.cluster_centres
+                       else "--hold-centres")
                 flag = f"  (held: {why}; {_held_against(cal, c.item)})"
             lines.append(f"    {c.item:16s}{c.change:8.1f}{c.beyond_scale:8.1f} +- {std:5.2f}{flag}")
     axes = [c for c in cal.changes if c.group == "axis"]

@@ -270,6 +270,9 @@ class Calibration:
     # Settings.auto_hold, pipeline._still_centres): their offsets from their parent segments' markers kept at the
     # base model's
     still_centres: tuple[str, ...] = ()
+    # The joints whose centres calibrate held because their child segment carries only a cluster of new labels (a head
+    # band: the labels' places and the centre would trade; hosts.cluster_hosts)
+    cluster_centres: tuple[str, ...] = ()
     # calibrate.calibration.far_joints.FarJoint per joint that a still trial holds where the moving trials never go:
     # its markers beyond it left out there (Settings.far_joints)
     far_joints: tuple = ()
