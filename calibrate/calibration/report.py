@@ -707,7 +707,8 @@ def summary_text(cal) -> str:
         *(["  then         " + ", ".join(f"{f} frames: {i} iterations" for f, i in s.levels)
            + " (larger evenly spaced subsamples of this long trial)"] if s.levels else []),
         *([f"  rounds       {(s.coarse or s).rounds} solves of the {'subsample' if s.coarse else 'trial'}: solved "
-           f"again after holding the axes of joints it does not show moving (the figures above: the last)"]
+           "again after holding what it does not place (axes, centres, hinges locked) or leaving out moved markers "
+           "(the figures above: the last)"]
           if (s.coarse or s).rounds > 1 else []),
         f"  iterations   {s.iterations} ({s.accepted} accepted){' on all frames' if s.coarse is not None else ''}",
         f"  termination  {'CONVERGED' if s.converged else 'NOT CONVERGED'}: {s.termination}",

@@ -75,7 +75,8 @@ class SolverSummary:
     evaluate_seconds: float = 0.0
     coarse: SolverSummary | None = None  # the solve on a subsample of frames that preceded this one
     coarse_frames: int = 0  # frames of that subsample
-    rounds: int = 1  # solves of the subsample (or short trial): more when axes were held and it was solved again
+    rounds: int = 1  # solves of the subsample (or short trial): more when axes or centres were held, hinges locked
+    # or moved markers left out, and it was solved again
     levels: list[tuple[int, int]] = field(default_factory=list)  # larger subsamples solved next: (frames, iterations)
     bent: int = 0  # steps whose bent point (geodesic acceleration) was chosen over the plain one, accepted or not
     # The iteration of this run after which the acceleration was dropped (its bend did not pay); 0: never.  A
