@@ -1267,6 +1267,37 @@ def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_
     assert "turning their joints too little to place a centre" in (tmp_path / "s.html").read_text()
 
 
+def test_a_centre_far_is_read_in_the_frames_its_markers_put(human, human_kin, monkeypatch):
+    """With the segment frames turned to their markers at the end (Settings.segment_frames "markers", an OpenSim
+    model's default), _narrow_centres reads a centre's distance from the base model's as the report will: the same
+    whatever turn of its parent's frame the solve carries (the pelvis's contents turned 30 deg: its markers and the
+    centres on it, the same geometry in another gauge), where in the solver's own frame it changes with the turn
+    (gait2392's pelvis stood 15 deg from its markers', its back's centre 52 against 72 mm)."""
+    import calibrate.calibration.pipeline as pipeline
+    from calibrate.model.rotations import rotvec_matrices
+
+    monkeypatch.setattr(pipeline, "NARROW_CENTRE_FAR", 0.0)  # every distance reported
+    sim = simulate_squats(human, frames=20, noise_mm=0.0, seed=4)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    P = human.parameters()
+    lumbar = human.joint_index("lumbar")
+    P.centre[lumbar] = P.centre[lumbar] + np.array([0.0, 0.03, 0.07])  # the fit's shift: 76 mm
+    G = rotvec_matrices(np.radians(30.0) * np.array([0.0, 0.6, 0.8]))
+    T = P.copy()
+    pelvis = [k for k, mk in enumerate(human.markers) if mk.segment == "pelvis"]
+    on = [i for i, j in enumerate(human.joints) if j.parent == "pelvis"]
+    T.marker[pelvis] = T.marker[pelvis] @ G.T
+    T.centre[on] = T.centre[on] @ G.T
+    still = np.zeros((10, len(human.dof_names)))
+    read = {f: pipeline._narrow_centres(problem, Q.vector(), still, marker_frames=f)["lumbar"][1]
+            for f, Q in ((True, P), (False, P))}
+    turned = {f: pipeline._narrow_centres(problem, T.vector(), still, marker_frames=f)["lumbar"][1]
+              for f in (True, False)}
+    assert read[False] == pytest.approx(np.linalg.norm([0.0, 0.03, 0.07]), abs=1e-9)
+    assert turned[True] == pytest.approx(read[True], abs=1e-4)
+    assert abs(turned[False] - read[False]) > 0.01
+
+
 def test_limit_notes_name_coordinates_driven_past_their_limits(human):
     from calibrate.calibration.identifiability import limit_notes
 

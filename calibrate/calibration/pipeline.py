@@ -86,6 +86,7 @@ from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics, build_kinematics
 from ..model.model import Model, Parameters, add_markers
 from ..model.urdf import mass_factor
+from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
 from ..problem.priors import joint_centre_markers
 from ..problem.problem import Problem
@@ -1054,7 +1055,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # solution with the noise learnt: on the first solution, before it, the centres had not settled, and
             # pig_walk's lumbar and neck, the OpenCap squats' ankle_r and subtalar_l were held, their marker RMS
             # 7.18 -> 8.17 and 4.11 -> 4.59 mm (docs/benchmarks.md).
-            new_centres = _narrow_centres(problem, state.p, angles[rows], skip)
+            new_centres = _narrow_centres(problem, state.p, angles[rows], skip, run.segment_frames == "markers")
         else:
             new_locks, new_centres = (), {}
         if not held and not found and not new_locks and not new_centres:
@@ -1149,8 +1150,8 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres
 
 
-def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = ()
-                    ) -> dict[str, tuple[float, float]]:
+def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = (),
+                    marker_frames: bool = False) -> dict[str, tuple[float, float]]:
     """The ball joints' centres to hold for the narrow turn of their joint: carried by the fit (`p`) beyond
     NARROW_CENTRE_FAR prior SDs from the base model's at the subject's scale, while the moving trials turn each angle
     of the joint through less than NARROW_TURN (2nd to 98th percentile of `angles`: rows the moving trials' frames,
@@ -1159,13 +1160,16 @@ def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: C
     in a flat valley the skin's shifts decide: Rajagopal's run turns its lumbar joint 9-16 deg and carried the back's
     centre 117 mm from the base model's, an AddBiomechanics walk's lumbar 64 mm (docs/benchmarks.md).  Not the joints
     whose DoFs are locked or in `skip` (a hinge locked for a trade), nor those a joint-centre marker the trials show
-    places (a lab's hip centre), nor those held already.  Joint -> (its largest angle's turn, rad; the centre's
-    distance from the base model's at the subject's scale, m)."""
+    places (a lab's hip centre), nor those held already.  `marker_frames`: the distance is read, as the report will
+    read it, with the segment frames turned to where their markers put them (Settings.segment_frames "markers",
+    calibrate.problem.gauge.align_frames): in the solver's own frames gait2392's pelvis stood 15 deg from its
+    markers' and its back's centre 52 mm from the base model's, in its markers' 72 mm.  Joint -> (its largest
+    angle's turn, rad; the centre's distance from the base model's at the subject's scale, m)."""
     st = problem.settings
     if "centre" not in st.free or not st.priors.centre > 0:
         return {}
     model = problem.model
-    P, B = model.unpack(p), problem.base
+    P, B = model.unpack(problem.align_frames(p, MARKER_FRAMES)[0] if marker_frames else p), problem.base
     locked = {n for n, _ in st.lock} | set(skip)
     marked = {t.joint for t in problem.joint_markers() if problem.seen[:, t.marker].any()}
     far = NARROW_CENTRE_FAR * st.priors.centre
