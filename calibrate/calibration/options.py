@@ -14,7 +14,7 @@ class PipelineOptions:
     seed: bool = True  # start from MTB joint centres (else from the base model)
     new_markers: bool = True  # place trial markers the model does not know on segments and fit them
     outliers: float = 6.0  # reject a marker in a frame whose error exceeds this many noise SDs (0: keep all)
-    auto_hold: bool = True  # hold the axes of the coordinates the trial does not show moving
+    auto_hold: bool = True  # hold the axes of the coordinates the trial does not show moving (Settings.auto_hold)
     segment_frames: str | None = None  # "markers" | "priors" | None: the model's (Settings.segment_frames)
     learn_noise: bool = True  # learn each marker's noise SD from the residuals (Settings.learns_noise: decided)
     ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)

@@ -264,9 +264,10 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
                            "the summary and report say which (settings file: hip_regression = \"auto\")")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (and of those it "
-                         "turns through less than 20 deg where the fit carried the axis far), and in a static "
-                         "alone the hips', shoulders' and lumbar joint's centres (by default they are held at the "
-                         "base model's, and the summary says which)")
+                         "turns through less than 20 deg where the fit carried the axis far), the centres of ball "
+                         "joints it turns through less than 20 deg where the fit carried the centre far, and in a "
+                         "static alone the hips', shoulders' and lumbar joint's centres (by default they are held at "
+                         "the base model's, and the summary says which)")
     ap.add_argument("--segment-frames", choices=("markers", "priors"), default=None,
                     help="where the segment frames end, in which the joint angles are read: 'markers' (turned to "
                          "where each segment's markers put them, as the model defines them) or 'priors' (where the "

@@ -59,10 +59,11 @@ class Settings:
     # after the solve on the subsample, and says so): a joint that hardly moves cannot place its
     # axis, and left free the axis drifts far from the base model's by fitting noise.  So is an axis the fit carried
     # beyond 3 prior SDs where the trials turn its joint through less than 20 deg (skin's turn of the segments
-    # would place it: calibration.pipeline.NARROW_TURN).  When every trial is still (a
-    # static alone), the centres of the ball joints with a chain below them (hips, shoulders, lumbar) that no pair of
-    # markers across them shows turning are held too, at the base model's offset from their parent segments' markers
-    # (as hold_centres; Calibration.still_centres).
+    # would place it: calibration.identifiability.NARROW_TURN), and a ball joint's centre carried beyond 3 prior SDs
+    # where the trials turn every angle of it less than 20 deg (Calibration.narrow_centres).  When every trial is
+    # still (a static alone), the centres of the ball joints with a chain below them (hips, shoulders, lumbar) that no
+    # pair of markers across them shows turning are held too, at the base model's offset from their parent segments'
+    # markers (as hold_centres; Calibration.still_centres).
     auto_hold: bool = True
     # Where the segment frames end, in which the joint angles are read (calibrate.calibration.gauge): "markers",
     # turned to where each segment's markers put them against the base model's (the frames a lab's model defines
