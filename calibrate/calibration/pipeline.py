@@ -1053,8 +1053,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # Centres carried beyond their prior where the moving trials turn the joint too little, in every angle of
             # it, to place a centre of rotation against the skin (_narrow_centres).  Judged here, on the round's
             # solution with the noise learnt: on the first solution, before it, the centres had not settled, and
-            # pig_walk's lumbar and neck, the OpenCap squats' ankle_r and subtalar_l were held, their marker RMS
-            # 7.18 -> 8.17 and 4.11 -> 4.59 mm (docs/benchmarks.md).
+            # pig_walk's lumbar and neck were held, its marker RMS 7.18 -> 8.17 mm (docs/benchmarks.md).
             new_centres = _narrow_centres(problem, state.p, angles[rows], skip, run.segment_frames == "markers")
         else:
             new_locks, new_centres = (), {}
@@ -1166,15 +1165,13 @@ def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: C
     markers' and its back's centre 52 mm from the base model's, in its markers' 72 mm.  Joint -> (its largest
     angle's turn, rad; the centre's distance from the base model's at the subject's scale, m)."""
     st = problem.settings
-    if "centre" not in st.free or not st.priors.centre > 0:
+    if "centre" not in st.free or not st.priors.centre > 0 or angles.shape[0] < 3:
         return {}
     model = problem.model
     P, B = model.unpack(problem.align_frames(p, MARKER_FRAMES)[0] if marker_frames else p), problem.base
     locked = {n for n, _ in st.lock} | set(skip)
     marked = {t.joint for t in problem.joint_markers() if problem.seen[:, t.marker].any()}
     far = NARROW_CENTRE_FAR * st.priors.centre
-    if angles.shape[0] < 3:
-        return {}
     out: dict[str, tuple[float, float]] = {}
     for ji, j in enumerate(model.joints):
         if j.kind != "ball" or j.name in st.hold_centres or ji in marked or any(d in locked for d in j.dofs):
