@@ -207,8 +207,8 @@ def _notes(report: dict) -> str:
         items.append(f"<li>centres held at the base model's offset from their parent segment's markers "
                      f"(--hold-centres): {_e(', '.join(given))}</li>")
     if cluster := report.get("cluster_centres"):
-        items.append("<li>centres held at the base model's place, the segment below carrying only a cluster of new "
-                     f"labels: {_e(', '.join(cluster))}</li>")
+        items.append("<li>centres held at the base model's offset from their parent segment's markers, the segment "
+                     f"below carrying only a cluster of new labels: {_e(', '.join(cluster))}</li>")
     if narrow_c:
         items.append("<li>centres held at the base model's offset from their parent segment's markers, the moving "
                      "trials turning their joints too little to place a centre against the skin: "
