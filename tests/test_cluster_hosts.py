@@ -56,7 +56,7 @@ def test_a_head_band_goes_on_the_head_whose_model_markers_the_trial_does_not_sho
         assert hosts[n].segment is None and hosts[n].distance > CLUSTER_REACH, hosts[n]
 
 
-def test_the_calibration_fits_the_head_band_and_turns_the_neck():
+def test_the_calibration_fits_the_head_band_and_turns_the_neck(tmp_path):
     """calibrate puts the band on the head, the head no longer unresolved (its neck turns, its centre held at the
     base model's), and fits the band's markers where the simulator put the head's: their distances to each other
     within 3 mm of the subject's."""
@@ -74,6 +74,8 @@ def test_the_calibration_fits_the_head_band_and_turns_the_neck():
     line = next(ln for ln in text if ln.startswith("  centres held") and "neck" in ln)
     assert "only a cluster of new labels" in line and "--hold-centres" not in line, line
     assert any(ln.strip().startswith("neck") and "(held: a cluster of new labels below" in ln for ln in text)
+    cal.write(report=tmp_path / "s.json", html=tmp_path / "s.html")
+    assert "carrying only a cluster of new labels: neck</li>" in (tmp_path / "s.html").read_text()
     s = cal.params.scale[base.segment_index("head")]
     fitted = {n: s * cal.params.marker[cal.model.marker_index(n)] for n in places}
     names = list(places)
