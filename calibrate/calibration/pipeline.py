@@ -88,7 +88,7 @@ from ..model.model import Model, Parameters, add_markers
 from ..model.urdf import mass_factor
 from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
-from ..problem.priors import joint_centre_markers
+from ..problem.priors import held_layout, joint_centre_markers
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
@@ -898,11 +898,8 @@ def _held_centre_places(problem: Problem, p: np.ndarray, names: Sequence[str]) -
         if ji not in markers:
             out[ce] = base[ce]
             continue
-        mk = L.entries("marker", np.array(markers[ji]))
-        mid, mid0 = p[mk].mean(axis=0), base[mk].mean(axis=0)
-        b = base[mk] - mid0
-        kappa = float(np.sum((p[mk] - mid) * b)) / float(np.sum(b * b))
-        out[ce] = mid + kappa * (base[ce] - mid0)
+        mid, x0, _, _, kappa = held_layout(p, base, ce, L.entries("marker", np.array(markers[ji])))
+        out[ce] = mid + kappa * x0
     return out
 
 

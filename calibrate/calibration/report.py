@@ -555,6 +555,11 @@ def _pair_line(cal: Calibration) -> list[str]:
     return [line]
 
 
+def _held_list(cal, joints) -> str:
+    """'lumbar (the base model's offset from pelvis's 5 markers, at the subject's scale); ...' for held centres."""
+    return "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)" for j in joints)
+
+
 def _held_against(cal, joint: str) -> str:
     """What a held centre (Settings.hold_centres) keeps: its offset from its parent segment's markers, where three
     or more of them are seen (Problem.held_centres; the change shown is then the frame's against the base model's),
@@ -670,17 +675,13 @@ def summary_text(cal) -> str:
            "motion places the axis)"]
           if (on_axis := on_axis_labels(cal)) else []),
         *_pair_line(cal),
-        *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)"
-                                         for j in given) + " (--hold-centres)"]
+        *(["  centres held " + _held_list(cal, given) + " (--hold-centres)"]
           if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres
                              and j not in dict(cal.narrow_centres) and j not in cal.cluster_centres]) else []),
-        *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)" for j in
-                                         cal.cluster_centres)
-           + ": the segment below carries only a cluster of new labels (a head band), whose places and the centre "
-           "would trade"] if cal.cluster_centres else []),
-        *(["  centres held " + "; ".join(f"{j} ({_held_against(cal, j)}, at the subject's scale)" for j in narrow_c)
-           + ": the moving trials turn " + ", ".join(f"{j} through {math.degrees(t):.0f} deg" for j, t in
-                                                     narrow_c.items())
+        *(["  centres held " + _held_list(cal, cal.cluster_centres) + ": the segment below carries only a cluster "
+           "of new labels (a head band), whose places and the centre would trade"] if cal.cluster_centres else []),
+        *(["  centres held " + _held_list(cal, narrow_c) + ": the moving trials turn "
+           + ", ".join(f"{j} through {math.degrees(t):.0f} deg" for j, t in narrow_c.items())
            + f" at most in any angle (under {math.degrees(NARROW_TURN):.0f} deg: too little to place a centre of "
            "rotation against the skin's turn of the segments), and the fit had carried "
            + ("it" if len(narrow_c) == 1 else "each") + " beyond its prior (--no-auto-hold leaves it there)"]

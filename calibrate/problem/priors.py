@@ -159,6 +159,18 @@ def joint_centre_markers(model: Model, base: Parameters) -> tuple[JointMarker, .
     return tuple(out)
 
 
+def held_layout(p: np.ndarray, base: np.ndarray, ce: np.ndarray, mk: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """What a held centre (ProblemOptions.hold_centres; entries `ce` of p) keeps against its parent's seen markers
+    (entries `mk`, (n, 3)): their centroid in `p`, the base model's offset x0 of the centre from theirs, the base
+    model's markers about their centroid b and sum(b * b), and kappa, the size of the markers' layout in `p` against
+    the base model's (least squares).  The hold puts the centre at centroid + kappa * x0."""
+    mid, mid0 = p[mk].mean(axis=0), base[mk].mean(axis=0)
+    b = base[mk] - mid0
+    bb = float(np.sum(b * b))
+    return mid, base[ce] - mid0, b, bb, float(np.sum((p[mk] - mid) * b)) / bb
+
+
 class PriorsMixin:
     """Problem's priors and limits (calibrate.problem.problem.Problem inherits it)."""
 
@@ -495,12 +507,8 @@ class PriorsMixin:
                 ce = L.entries("centre", np.array([ji]))[0]
                 mk = L.entries("marker", np.array(mks))  # (n, 3)
                 seg = self.centre_segment[ji]
-                mid, mid0 = p[mk].mean(axis=0), base[mk].mean(axis=0)
-                x, x0 = p[ce] - mid, base[ce] - mid0
-                b = base[mk] - mid0  # (n, 3) the base model's markers about their centroid
-                bb = float(np.sum(b * b))
-                kappa = float(np.sum((p[mk] - mid) * b)) / bb
-                y = x - kappa * x0
+                mid, x0, b, bb, kappa = held_layout(p, base, ce, mk)
+                y = p[ce] - mid - kappa * x0
                 s = scale[seg]
                 n, k = len(mks), np.arange(3)
                 # d y_k / d p_i,l = -(delta_kl / n + x0_k b_il / bb): the centroid's share and kappa's
