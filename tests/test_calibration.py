@@ -1601,7 +1601,7 @@ def test_segments_no_marker_reaches_are_held_at_the_subjects_size(human):
 
     at_size = pipeline._blind_at_size
     try:
-        pipeline._blind_at_size = lambda problem, state, blind: state
+        pipeline._blind_at_size = lambda problem, state, blind, carried=None: state
         before = calibrate(human, trial, Settings(outliers=0.0))
     finally:
         pipeline._blind_at_size = at_size

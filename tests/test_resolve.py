@@ -165,3 +165,90 @@ def test_a_pelvis_with_two_markers_on_a_line_turns_with_the_trunk(human):
     assert "pelvis: lumbar_flexion: its markers (LASI, RASI) lie on one line" in summary_text(cal)
     off = calibrate(human, sim.trial.select(two), Settings(max_iterations=15, auto_hold=False))
     assert "lumbar_flexion" not in dict(off.settings.lock)
+
+
+UPPER = ("torso", "head", "humerus_l", "ulna_l", "radius_l", "hand_l", "humerus_r", "ulna_r", "radius_r", "hand_r")
+
+
+def test_a_markerless_root_rides_with_the_one_branch_the_markers_place(human):
+    """No marker on the pelvis and every one on the trunk and above (an upper-body trial), or on one leg: the pelvis
+    rides with that branch's top, the DoFs between them held; markers on two branches and none on the root: None."""
+    from calibrate.model.resolve import carried_root
+
+    upper = [m for s in UPPER for m in human.segments[human.segment_index(s)].markers]
+    lumbar = ("lumbar_flexion", "lumbar_bending", "lumbar_rotation")
+    got = carried_root(human, upper)
+    assert got is not None and got.segment == "pelvis" and got.coordinates == lumbar
+    assert not resolve(human, upper).root_resolved and resolve(human, upper, locked=lumbar).root_resolved
+    leg = [m for s in ("femur_l", "tibia_l", "calcn_l") for m in human.segments[human.segment_index(s)].markers]
+    assert carried_root(human, leg).coordinates == ("hip_l_flexion", "hip_l_adduction", "hip_l_rotation")
+    assert carried_root(human, ["LKNE", "RKNE", "LANK", "RANK", "C7"]) is None  # two branches
+    assert carried_root(human, [*upper, "LASI"]) is None  # a marker on the root: not this rule's
+    assert carried_root(human, ["C7", *human.segments[human.segment_index("head")].markers]) is None  # torso: 1 marker
+    assert carried_root(human, upper, locked=lumbar) is None  # nothing left to hold
+
+
+def test_an_upper_body_trial_calibrates_its_arms_as_the_whole_marker_set_does(human):
+    """The simulator's overhead arm arcs with only the trunk's, head's and arms' markers: calibrated with the pelvis
+    riding on the trunk (lumbar held at 0, the pelvis's and legs' geometry the base model's at the subject's size),
+    every shoulder, elbow, wrist and neck centre as near the simulator's truth, frame by frame, as the calibration from
+    every marker puts it; and `calibrate ik` fits the trial to a subject the same way."""
+    from calibrate.calibration.subject_ik import fit_trial
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.simulation.simulate import simulate_overhead
+
+    sim = simulate_overhead(human, frames=200, seed=3, measured=True)  # (the knee, ankle and elbow widths written)
+    upper = [m for s in UPPER for m in human.segments[human.segment_index(s)].markers]
+    kin = build_kinematics(human)
+    joints = ("neck", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r", "wrist_l", "wrist_r")
+    err, rms = {}, {}
+    for name, trial in (("all", sim.trial), ("upper", sim.trial.select(upper))):
+        cal = calibrate(human, trial, Settings())
+        rms[name] = cal.marker_rms
+        mo = cal.motion
+        Z = np.column_stack([mo.root_translation, np.zeros((mo.n_frames, 3)), mo.angles])
+        _, C = kin.batch(Z, mo.root_quaternion, cal.params)
+        err[name] = {j: float(np.linalg.norm(C[:, human.joint_index(j)] - sim.clean_centres[:, human.joint_index(j)],
+                                             axis=1).mean()) for j in joints}
+    for j in joints:
+        assert err["upper"][j] <= err["all"][j] + 1e-3, (j, err)
+    assert max(err["upper"][j] for j in ("neck", "shoulder_l", "shoulder_r")) < 0.003, err
+    assert cal.unresolved[0].segment == "pelvis" and "rides with torso" in cal.unresolved[0].reason
+    lumbar = [human.dof_index(d) for d in ("lumbar_flexion", "lumbar_bending", "lumbar_rotation")]
+    assert np.abs(cal.motion.angles[:, lumbar]).max() < 1e-6
+    # The pelvis sized with the legs after the fit, every frame's root moved so the trunk stays: the fit unchanged.
+    assert rms["upper"] < rms["all"] + 2e-5, rms
+    # The pelvis's geometry: the base model's, at the size of the legs (no data reach either).
+    base, pelvis = human.parameters(), human.segment_index("pelvis")
+    assert cal.params.scale[pelvis] == pytest.approx(cal.params.scale[human.segment_index("femur_l")], abs=1e-12)
+    for j in ("hip_l", "hip_r", "lumbar"):
+        k = human.joint_index(j)
+        assert np.allclose(cal.params.centre[k], base.centre[k], atol=1e-9), j
+    text = summary_text(cal)
+    assert "pelvis rides with torso" in text and "no marker seen on pelvis, which rides with torso" in text
+    assert "  hips " not in text  # no motion of a locked hip to judge
+    # The measured widths: only the elbows' lateral markers are shown, so only they are compared (not LKNE, unseen).
+    from calibrate.calibration.report import measurements_table
+
+    assert set(measurements_table(cal)["lateral_mm"]) == {"elbow_l", "elbow_r"}
+    fit = fit_trial(human, sim.trial.select(upper), cal.params, {}, source="upper")
+    assert fit.unplaced[0] == "pelvis" and set(fit.unplaced_held) >= {"lumbar_flexion", "hip_l_flexion"}
+    assert fit.fit.rms < 0.0016
+
+
+def test_a_one_leg_trial_sizes_the_leg_it_shows_not_its_unseen_partner(human):
+    """Only the left leg marked, a 1.5 m subject: the pelvis rides with the left thigh (its hip held), and the left
+    leg's scales and knee are the subject's.  The left/right symmetry prior leaves a pair alone where one side is a
+    segment no data reach (held at the base model's while the fit runs): before, it pulled femur_l to 0.99 against
+    the truth's 0.82, the knee 55 mm from the truth."""
+    sim = simulate_squats(human, frames=300, seed=7, height=1.5)
+    leg = [m for s in ("femur_l", "tibia_l", "calcn_l") for m in human.segments[human.segment_index(s)].markers]
+    cal = calibrate(human, sim.trial.select(leg), Settings())
+    assert cal.unresolved[0].coordinates == ("hip_l_flexion", "hip_l_adduction", "hip_l_rotation")
+    for s in ("femur_l", "tibia_l"):
+        i = human.segment_index(s)
+        assert cal.params.scale[i] == pytest.approx(sim.truth.scale[i], rel=0.04), s
+    k = human.joint_index("knee_l")
+    femur = human.segment_index("femur_l")
+    knee = cal.params.scale[femur] * cal.params.centre[k] - sim.truth.scale[femur] * sim.truth.centre[k]
+    assert np.linalg.norm(knee) < 0.02

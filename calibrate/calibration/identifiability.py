@@ -12,6 +12,7 @@ import numpy as np
 
 from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
+from ..model.resolve import descendants
 from ..problem.options import Priors, ProblemOptions
 from ..problem.priors import SIZED_SEGMENTS
 from ..problem.problem import Problem
@@ -311,10 +312,18 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
     # Centres held against their parent's markers (Settings.hold_centres; Problem.held_centres): joint -> how many.
     held_against = {ji: len(mks) for ji, mks in problem.held_centres()}
 
+    shown = {model.markers[k].segment for k in np.flatnonzero(problem.seen.any(axis=0))}
+    below = descendants(model)
+
     def unseen(segment: str) -> str:
         k = model.segment_index(segment)
         sized = not math.isclose(float(seg_scale[k]), float(B.scale[k]), abs_tol=1e-12)
-        return f"no marker seen on or below {segment}: held at the base model's" + (
+        # A markerless root riding with the marked part below it (resolve.carried_root), and what carries it there
+        carrier = None if segment in shown else next(
+            (j.child for j in model.joints if j.parent == segment and shown & set(below[j.child])), None)
+        where = (f"no marker seen on {segment}, which rides with {carrier}" if carrier else
+                 f"no marker seen on or below {segment}")
+        return f"{where}: held at the base model's" + (
             f" at the subject's size (scale {float(seg_scale[k]):.3g}: the median of the segments the markers size)"
             if sized else "")
 

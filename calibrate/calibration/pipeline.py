@@ -382,17 +382,25 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from ..model.resolve import line_root_holds, resolve
+    from ..model.resolve import carried_root, line_root_holds, resolve
 
     res = resolve(subject, [*shared, *new], locked=[d for d, _ in settings.lock])
+    visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
+    carried = None
     if not res.root_resolved:
-        raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
-                             f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
-                             f"(--markers map.toml) or use a model with this marker set")
+        # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root
+        # rides with that branch's top, the DoFs between them held (carried_root); reported as the unresolved are.
+        carried = carried_root(subject, [lab for lab in [*shared, *new] if lab in visible],
+                               locked=[d for d, _ in settings.lock])
+        if carried is None:
+            raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
+                                 f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
+                                 f"(--markers map.toml) or use a model with this marker set")
+        res = resolve(subject, [*shared, *new], locked=[*(d for d, _ in settings.lock), *carried.coordinates])
+        res = replace(res, segments=(carried, *res.segments), lock=carried.coordinates + res.lock)
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
         # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.
-        visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
         line = line_root_holds(subject, [lab for lab in [*shared, *new] if lab in visible],
                                locked=[*(d for d, _ in settings.lock), *res.lock])
         if line:
@@ -432,6 +440,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     seen = np.all(np.isfinite(obs), axis=2)
     unused = tuple(n for k, n in enumerate(subject.marker_names) if not seen[:, k].any() and n in known)
     blind = _segments_without_data(subject, {n for k, n in enumerate(subject.marker_names) if seen[:, k].any()})
+    if carried is not None:  # the segments that carry the marked part: their geometry trades with the root's pose
+        blind += [j.parent for j in subject.joints if set(j.dofs) & set(carried.coordinates) and j.parent not in blind]
     if blind:  # nothing in the data reaches their geometry: held at the base model's (Settings.hold_segments)
         settings = replace(settings, hold_segments=tuple(sorted(set(settings.hold_segments) | set(blind))))
     n_good = int(np.sum(seen.sum(1) >= 3))
@@ -731,7 +741,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
         slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked, problem.frame_evaluator(slid.p))
-    slid = _blind_at_size(problem, slid, blind)
+    slid = _blind_at_size(problem, slid, blind, None if carried is None else next(
+        j.name for j in subject.joints if carried.coordinates[-1] in j.dofs))
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid
     times["solve"] = time.perf_counter() - t0
@@ -810,7 +821,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        cluster_centres=banded_joints,
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused),
-                       hip_motion=hip_motion(subject, motions, hip_at, trials),
+                       hip_motion=tuple(h for h in hip_motion(subject, motions, hip_at, trials)  # (a hip the
+                                        # markers cannot turn: no motion to judge)
+                                        if not set(subject.joints[subject.joint_index(h.joint)].dofs)
+                                        <= {n for n, _ in problem.settings.lock}),
                        knee_axes=knee_axis_checks(subject, params, trials, motions), length_sd=length_sd,
                        mirror_sd=mirror_sd)
 
@@ -906,13 +920,15 @@ def _held_centre_places(problem: Problem, p: np.ndarray, names: Sequence[str]) -
 BLIND_SIZED = 3  # segments the data size (free scale, a marker shown) before the unseen ones take their median
 
 
-def _blind_at_size(problem: Problem, state: State, blind: Collection[str]) -> State:
+def _blind_at_size(problem: Problem, state: State, blind: Collection[str], carried: str | None = None) -> State:
     """`state` with each segment no data reach (`blind`: _segments_without_data, held at the base model's geometry)
     scaled to the subject's size as the calibration measured it: the median scale of the segments whose scale is free
     and that carry a marker the trials show.  Nothing on or below such a segment reaches the fit (and its held scale
     has no prior), so only its geometry and inertia in the written model change: an unseen hand, head or upper body
     the subject's size, not the base model's.  Unchanged where the scales are not free or fewer than BLIND_SIZED
-    segments are sized by the data (a pelvis and one thigh marker size those two, not the subject)."""
+    segments are sized by the data (a pelvis and one thigh marker size those two, not the subject).  `carried`: the
+    joint into the marked part a markerless root rides with (carried_root), whose carriers are among `blind`: every
+    frame's root moved so that its centre, and the marked part with it, stays where the fit put it."""
     model, L = problem.model, problem.layout
     shown = {model.markers[k].segment for k in np.flatnonzero(problem.seen.any(axis=0))}
     sized = [i for i, sg in enumerate(model.segments) if sg.name in shown and not L.block("scale", i).held]
@@ -922,7 +938,14 @@ def _blind_at_size(problem: Problem, state: State, blind: Collection[str]) -> St
     at = float(np.median(p[L.scale(np.array(sized))]))
     for name in blind:
         p[L.scale(model.segment_index(name))] = at
-    return replace(state, p=p)
+    if carried is None:
+        return replace(state, p=p)
+    Z, Q = problem.kin.absolute(state.Z, state.Q, state.B)
+    k = model.joint_index(carried)
+    moved = problem.kin.batch(Z, Q, p)[1][:, k] - problem.kin.batch(Z, Q, state.p)[1][:, k]
+    Z = state.Z.copy()
+    Z[:, FrameLayout.translation] -= moved
+    return replace(state, Z=Z, p=p)
 
 
 def _segments_without_data(model: Model, seen: set[str]) -> list[str]:

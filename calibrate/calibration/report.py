@@ -295,7 +295,7 @@ def measurements_table(cal) -> dict | None:
     lateral = {}
     for name, marker in lateral_markers_of(model):
         measured = used.get((name, marker), None if m is None else m.lateral_distance(name))
-        if measured is None:
+        if measured is None or marker in cal.unused_markers:  # (a marker no trial shows: an upper-body trial's knees)
             continue
         calibrated = lateral_distance(model, cal.params, base, name, marker)
         lateral[name] = {"marker": marker, "measured_mm": 1000 * measured, "calibrated_mm": 1000 * calibrated,

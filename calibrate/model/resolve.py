@@ -38,7 +38,7 @@ import pinocchio as pin
 
 from .model import Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "line_root_holds", "resolve", "root_group", "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "line_root_holds", "resolve", "root_group", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -200,6 +200,43 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
 def unresolved(model: Model, labels: Iterable[str], **kwargs) -> list[UnresolvedSegment]:
     """The segments of `model` whose pose the markers `labels` cannot fix (see :func:`resolve`)."""
     return list(resolve(model, labels, **kwargs).segments)
+
+
+def carried_root(model: Model, labels: Iterable[str], *,
+                 locked: Iterable[str] = ()) -> UnresolvedSegment | None:
+    """The root carried by the one segment below it that the markers place, where they show none on it.
+
+    An upper-body trial (the trunk, head and arms marked, nothing on the pelvis or the legs) or a one-leg trial
+    shows no marker on the root, so the root's six coordinates and the joints between it and the marked part trade
+    exactly: any pose of the marked part is reached by many.  Holding those joints' DoFs at 0 loses nothing the
+    markers say (every marker rides on the marked part, whose pose the root's six coordinates then reach alone) and
+    makes the root ride with that part, as the base model joins them.  The marked part's top is the deepest segment
+    that has every segment carrying one of `labels` on it or below it; it must not be the root (or a segment welded
+    to it), and holding the DoFs on its path (those not already `locked`) must let the markers place the root.
+    Returns the root's UnresolvedSegment naming those DoFs, or None where this does not hold (markers on two of the
+    root's branches with none on the root: the trial's labels are not this model's)."""
+    present = set(labels) & set(model.marker_names)
+    marked = {mk.segment for mk in model.markers if mk.name in present}
+    if not marked:
+        return None
+    below = descendants(model)
+    rigid = root_group(model)
+    top = model.root
+    for s in model.segments:  # tree order: the last that holds every marked segment is the deepest
+        if marked <= set(below[s.name]):
+            top = s.name
+    if top in rigid:
+        return None
+    held = set(locked)
+    path = [model.dof_names[d] for d in _path_dofs(model)[top]]
+    hold = tuple(d for d in path if d not in held)
+    if not hold or not resolve(model, present, locked=[*held, *hold]).root_resolved:
+        return None
+    joints = [j.name for j in model.joints if any(d in hold for d in j.dofs)]
+    why = (f"no marker the trials show rides on {model.root} or on any segment but {top} and those below it: "
+           f"{model.root} rides with {top}, {', '.join(hold)} held at 0 (the base model's "
+           f"{', '.join(joints)} between them; the root's pose in the motion is {top}'s carried back through it)")
+    return UnresolvedSegment(model.root, hold, why)
 
 
 def root_group(model: Model) -> set[str]:

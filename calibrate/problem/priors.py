@@ -237,13 +237,19 @@ class PriorsMixin:
 
     def _estimated(self, seg_pairs: list, joint_pairs: list) -> tuple[list, list]:
         """The left/right segment and joint pairs of which one at least is free (the priors on held blocks are
-        constants), kept while the layout is the same object."""
+        constants) and neither side a segment no data reach (Settings.hold_segments; a centre's parent segment: held
+        at the base model's while the fit runs, such a side would pull the other to the base model's size), kept while
+        the layout is the same object."""
         cached = self.__dict__.get("_estimated_cache")
         if cached is None or cached[0] is not self.layout:
             L = self.layout
+            blind = {self.model.segment_index(s) for s in self.settings.hold_segments}
+            cs = self.centre_segment
             cached = (self.layout,
-                      [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)],
-                      [(a, b) for a, b in joint_pairs if not (L.block("centre", a).held and L.block("centre", b).held)])
+                      [(a, b) for a, b in seg_pairs if not (L.block("scale", a).held and L.block("scale", b).held)
+                       and not {a, b} & blind],
+                      [(a, b) for a, b in joint_pairs if not (L.block("centre", a).held and L.block("centre", b).held)
+                       and not {int(cs[a]), int(cs[b])} & blind])
             self._estimated_cache = cached
         return cached[1], cached[2]
 
@@ -476,7 +482,7 @@ class PriorsMixin:
         # its right partner's, a left joint centre (at its parent's scale) against its right partner's
         # mirrored through the sagittal plane, both relative to the base model's own asymmetry.
         sd = st.priors.symmetry_scale
-        # (a pair both held has nothing to estimate: segments no data reach, both at the subject's size; _estimated)
+        # (a pair both held has nothing to estimate, one no data reach nothing to compare with: _estimated)
         if "scale" in free and sd > 0 and seg_pairs:
             a, b = np.array(seg_pairs).T
             k = np.arange(a.size)
