@@ -227,6 +227,10 @@ def test_an_upper_body_trial_calibrates_its_arms_as_the_whole_marker_set_does(hu
     text = summary_text(cal)
     assert "pelvis rides with torso" in text and "no marker seen on pelvis, which rides with torso" in text
     assert "  hips " not in text  # no motion of a locked hip to judge
+    # The joints into or out of the unplaced segments have no seed: one line names them all (the report keeps each).
+    seeds = [line for line in text.splitlines() if line.startswith("  seed: ") and "no joint-centre seed" in line]
+    assert len(seeds) == 1 and all(j in seeds[0] for j in ("hip_l", "knee_r", "subtalar_l", "lumbar")), seeds
+    assert sum(n.startswith("knee_l: no joint-centre seed") for n in cal.seed.notes) == 1
     # The measured widths: only the elbows' lateral markers are shown, so only they are compared (not LKNE, unseen).
     from calibrate.calibration.report import measurements_table
 

@@ -782,8 +782,16 @@ def summary_text(cal) -> str:
     first, moot, last = seed_note_groups(cal.seed.notes, cal.seed.taken)  # the report keeps each note
     if moot:
         first.append(f"{len(moot)} notes on the MTB seed, moot: the start did not take it (the report's seed notes)")
+    # A joint into a segment the markers cannot place has no seed, and the unresolved line says why: one line for them
+    unplaced = {u.segment for u in cal.unresolved}
+    into = {j.name for j in cal.model.joints if j.child in unplaced or j.parent in unplaced}
+    blind = [n for n in first + last if n.split(":", 1)[0] in into and "no joint-centre seed (no marker" in n]
     for note in first + last:
-        lines.append(f"  seed: {note}")
+        if len(blind) < 2 or note not in blind:
+            lines.append(f"  seed: {note}")
+        elif note == blind[0]:
+            lines.append(f"  seed: no joint-centre seed for {', '.join(n.split(':', 1)[0] for n in blind)} (into "
+                         "or out of segments the markers cannot place: unresolved below); base model used")
     notes = cal.coordinate_notes
     if cal.still_only is not None:
         # A still trial shows no coordinate turning (the still-only line): one line for them all.
