@@ -256,3 +256,30 @@ def test_a_one_leg_trial_sizes_the_leg_it_shows_not_its_unseen_partner(human):
     femur = human.segment_index("femur_l")
     knee = cal.params.scale[femur] * cal.params.centre[k] - sim.truth.scale[femur] * sim.truth.centre[k]
     assert np.linalg.norm(knee) < 0.02
+
+
+def test_a_trial_that_does_not_place_what_the_others_place_is_named(human):
+    """A static with every marker and an arm trial with the trunk's, head's and arms' only: the calibration places
+    every segment (the static's markers), but the arm trial's frames do not place the pelvis and the legs, which the
+    summary, the report and the HTML report name with the coordinates that rest on the priors there (resolve on that
+    trial's markers alone: its root carried by the trunk, the lumbar's three DoFs among them)."""
+    from calibrate.calibration.html import report_html
+    from calibrate.simulation.simulate import simulate_overhead, simulate_static
+
+    sim = simulate_overhead(human, frames=150, seed=3)
+    static = simulate_static(human, sim.truth, frames=50)
+    upper = [m for s in UPPER for m in human.segments[human.segment_index(s)].markers]
+    cal = calibrate(human, [static.trial, sim.trial.select(upper)], Settings(max_iterations=20))
+    assert cal.unresolved == ()
+    assert [i for i, _ in cal.unplaced_in_trial] == [1]
+    segments = [u.segment for u in cal.unplaced_in_trial[0][1]]
+    assert segments[0] == "pelvis" and {"femur_l", "calcn_r"} <= set(segments) and "torso" not in segments
+    assert set(cal.unplaced_in_trial[0][1][0].coordinates) >= {"lumbar_flexion", "lumbar_bending", "lumbar_rotation"}
+    text = summary_text(cal)
+    assert any(line.startswith("  unplaced     trial 2: its markers do not place pelvis, femur_l")
+               for line in text.splitlines()), text
+    report = calibration_report(cal)
+    assert report["unplaced_in_trial"][0]["trial"] == 1
+    assert "its markers do not place pelvis" in report_html(report)
+    alone = calibrate(human, static.trial, Settings(max_iterations=5))
+    assert alone.unplaced_in_trial == () and "  unplaced " not in summary_text(alone)

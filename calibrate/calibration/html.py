@@ -181,6 +181,13 @@ def _notes(report: dict) -> str:
                          + (f" (calibrate's: {k['our_axis_deg']:.0f} deg)" if k.get("our_axis_deg") is not None else "")
                          + ": its femur frame is turned about the thigh (a thigh wand or KAD off the plane the "
                          "knee flexes in), which mixes its knee flexion into varus-valgus</li>")
+    for t in report.get("unplaced_in_trial", []):
+        k = t.get("trial", 0)
+        name = (report.get("trials") or [{}] * (k + 1))[k].get("source") or f"trial {k + 1}"
+        segs = ", ".join(u.get("segment", "") for u in t.get("segments", []))
+        items.append(f"<li>{_e(name)}: its markers do not place {_e(segs)}, which the other trials place: its "
+                     "frames' coordinates there rest on the priors and the neighbouring frames, not on its "
+                     "markers</li>")
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

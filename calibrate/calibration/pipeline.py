@@ -405,6 +405,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                locked=[*(d for d, _ in settings.lock), *res.lock])
         if line:
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
+    # A trial that shows fewer markers than the others may not place segments they place (a static with the arms, a
+    # walk without): its frames' coordinates there rest on the priors and the neighbouring frames, not on its markers.
+    by_trial = tuple((i, u) for i, u in ((i, _trial_unplaced(subject, t, [*shared, *new], res, settings))
+                                         for i, t in enumerate(trials)) if u) if len(trials) > 1 else ()
+    for i, u in by_trial:
+        say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: its markers do not place "
+                                f"{', '.join(x.segment for x in u)}, which the other trials place"))
     if res.lock:
         say(Progress("markers", f"{len(res.segments)} segments unresolved ({', '.join(res.names)}); locking "
                                 f"{', '.join(res.lock)}"))
@@ -810,7 +817,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                         for _, k1, k2, d in problem.pair_terms()),
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
-                       unresolved=res.segments,
+                       unresolved=res.segments, unplaced_in_trial=by_trial,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
@@ -946,6 +953,23 @@ def _blind_at_size(problem: Problem, state: State, blind: Collection[str], carri
     Z = state.Z.copy()
     Z[:, FrameLayout.translation] -= moved
     return replace(state, Z=Z, p=p)
+
+
+def _trial_unplaced(model: Model, trial: Trial, labels: Sequence[str], res, settings: Settings) -> tuple:
+    """The segments (resolve.UnresolvedSegment) that `trial`'s markers among `labels` cannot place where the
+    calibration's markers (`res`, every trial's) place them, under the calibration's locks (`settings.lock`)."""
+    from ..model.resolve import carried_root, resolve
+
+    shown = [lab for lab in labels if lab in {x for k, x in enumerate(trial.labels)
+                                              if np.isfinite(trial.markers[:, k]).all(1).any()}]
+    locked = [d for d, _ in settings.lock]
+    here = resolve(model, shown, locked=locked)
+    if here.root_resolved and not here.segments:
+        return ()
+    carried = None if here.root_resolved else carried_root(model, shown, locked=locked)
+    known = set(res.names)
+    return tuple(replace(u, coordinates=u.coordinates + carried.coordinates) if carried is not None and
+                 u.segment == model.root else u for u in here.segments if u.segment not in known)
 
 
 def _segments_without_data(model: Model, seen: set[str]) -> list[str]:

@@ -145,6 +145,7 @@ def calibration_report(cal: Calibration) -> dict:
                          "neighbour_per_frame_deg": [math.degrees(v) for v in lk.neighbour_per_frame],
                          "turned_deg": math.degrees(lk.turned), "note": lk.text()} for lk in cal.auto_locked],
         "unresolved": [u.to_json() for u in cal.unresolved],
+        "unplaced_in_trial": [{"trial": i, "segments": [u.to_json() for u in us]} for i, us in cal.unplaced_in_trial],
         "implausible": [b.to_json() for b in cal.implausible],
         "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
                             "moves_with": m.rides_with, "segment_labels": list(m.partners),
@@ -919,6 +920,14 @@ def summary_text(cal) -> str:
             lines.append(f"    {u.segment}: {', '.join(u.coordinates) or '-'}: {u.reason}")
         if len(unresolved) > 8:
             lines.append(f"    ... and {len(unresolved) - 8} more (see the report)")
+    for i, us in cal.unplaced_in_trial:
+        coords = list(dict.fromkeys(c for u in us for c in u.coordinates))
+        segs = ", ".join(u.segment for u in us)
+        lines.append(f"  unplaced     {_trial_name(cal, i)}: its markers do not place {segs}, which the other "
+                     f"trials place: its frames' {', '.join(coords[:6])}"
+                     + (f" and {len(coords) - 6} more" if len(coords) > 6 else "")
+                     + " rest on the priors and the neighbouring frames there, not on its markers (read them "
+                     "with care)")
     outputs = set().union(*(t.model_outputs for t in cal.trials))
     if outputs:
         lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
