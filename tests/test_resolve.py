@@ -186,6 +186,16 @@ def test_a_markerless_root_rides_with_the_one_branch_the_markers_place(human):
     assert carried_root(human, [*upper, "LASI"]) is None  # a marker on the root: not this rule's
     assert carried_root(human, ["C7", *human.segments[human.segment_index("head")].markers]) is None  # torso: 1 marker
     assert carried_root(human, upper, locked=lumbar) is None  # nothing left to hold
+    # The shoulders and elbows alone place the trunk by the rank test, through the arms' turns, but loosely (the
+    # root's columns, the other coordinates' share taken out, by Pinocchio's frame Jacobians): not carried.
+    from calibrate.model.resolve import CARRY_FIRM, root_firmness
+
+    loose = ["LSHO", "RSHO", "LELB", "RELB"]
+    assert resolve(human, loose, locked=lumbar).root_resolved
+    assert root_firmness(human, loose, locked=lumbar) < CARRY_FIRM <= root_firmness(human, ["C7", "CLAV", "STRN"],
+                                                                                     locked=lumbar)
+    assert carried_root(human, loose) is None and carried_root(human, ["C7", "CLAV", "STRN"]) is not None
+    assert root_firmness(human, upper, locked=lumbar) > 0.2 and root_firmness(human, human.marker_names) > 0.15
 
 
 def test_an_upper_body_trial_calibrates_its_arms_as_the_whole_marker_set_does(human):

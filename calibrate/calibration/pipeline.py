@@ -390,7 +390,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if not res.root_resolved:
         # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root
         # rides with that branch's top, the DoFs between them held (carried_root); reported as the unresolved are.
-        carried = carried_root(subject, [lab for lab in [*shared, *new] if lab in visible],
+        # (new labels only with a place: the others sit at their segment's origin until the fit places them)
+        carried = carried_root(subject, [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible],
                                locked=[d for d, _ in settings.lock])
         if carried is None:
             raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "

@@ -38,7 +38,8 @@ import pinocchio as pin
 
 from .model import Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "line_root_holds", "resolve", "root_group", "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "line_root_holds", "resolve", "root_firmness",
+           "root_group", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -46,6 +47,11 @@ SHARE = 0.05  # a coordinate has a share in the null space when its component ex
 ON_LINE = 0.015  # m: the root's markers lie on one line when none is further than this from it (line_root_holds)
 MIDLINE = 0.025  # m: a joint of the root lies on its midline when its centre is this near the markers' middle along it
 ALONG = np.cos(np.radians(25.0))  # a DoF turns about the markers' line when its axis is within 25 deg of it
+# m per rad (or per m): how firmly a marked branch must place a markerless root it carries (carried_root): as a
+# segment's own three markers do (C7, CLAV and STRN place human.urdf's trunk at 0.058; a pelvis's four markers
+# 0.18-0.20; Plug-in Gait's upper-body set through the held lumbar 0.29, one leg's through the held hip 0.11), not
+# through the turn of the joints beyond it (Rajagopal2016's acromia and elbows alone, both epicondyles: 0.021)
+CARRY_FIRM = 0.04
 
 
 @dataclass(frozen=True)
@@ -230,13 +236,38 @@ def carried_root(model: Model, labels: Iterable[str], *,
     held = set(locked)
     path = [model.dof_names[d] for d in _path_dofs(model)[top]]
     hold = tuple(d for d in path if d not in held)
-    if not hold or not resolve(model, present, locked=[*held, *hold]).root_resolved:
+    if not hold or not resolve(model, present, locked=[*held, *hold]).root_resolved \
+            or root_firmness(model, present, locked=[*held, *hold]) < CARRY_FIRM:
         return None
     joints = [j.name for j in model.joints if any(d in hold for d in j.dofs)]
     why = (f"no marker the trials show rides on {model.root} or on any segment but {top} and those below it: "
            f"{model.root} rides with {top}, {', '.join(hold)} held at 0 (the base model's "
            f"{', '.join(joints)} between them; the root's pose in the motion is {top}'s carried back through it)")
     return UnresolvedSegment(model.root, hold, why)
+
+
+def root_firmness(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), poses: int = 4,
+                  seed: int = 0) -> float:
+    """How firmly the markers `labels` place the root (m of marker motion per rad, or per m): the smallest singular
+    value of the root's six Jacobian columns once every other free coordinate (not `locked`) has absorbed what it can
+    (the columns projected off those coordinates' range), the median over `poses` random poses."""
+    present = set(labels)
+    markers = tuple(m for m in model.marker_names if m in present)
+    if not markers:
+        return 0.0
+    F = model.layout.frame
+    held = {model.dof_index(d) for d in locked}
+    others = [F.angle(d) for d in range(model.n_dofs) if d not in held]
+    out = []
+    for angles in _poses(model, poses, np.random.default_rng(seed)):
+        J, _ = _jacobians(model, markers, angles)
+        root, rest = J[:, F.root.cols], J[:, others]
+        if rest.shape[1]:
+            u, s, _ = np.linalg.svd(rest, full_matrices=False)
+            u = u[:, s > TOL]
+            root = root - u @ (u.T @ root)
+        out.append(float(np.linalg.svd(root, compute_uv=False).min()))
+    return float(np.median(out))
 
 
 def root_group(model: Model) -> set[str]:
