@@ -927,7 +927,7 @@ def summary_text(cal) -> str:
                      f"trials place: its frames' {', '.join(coords[:6])}"
                      + (f" and {len(coords) - 6} more" if len(coords) > 6 else "")
                      + " rest on the priors and the neighbouring frames there, not on its markers (read them "
-                     "with care)")
+                     "with care; `calibrate ik` on that trial with the calibrated subject holds them)")
     outputs = set().union(*(t.model_outputs for t in cal.trials))
     if outputs:
         lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
