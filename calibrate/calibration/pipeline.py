@@ -382,23 +382,18 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from ..model.resolve import carried_root, line_root_holds, resolve
+    from ..model.resolve import line_root_holds, resolve_carrying
 
-    res = resolve(subject, [*shared, *new], locked=[d for d, _ in settings.lock])
     visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
-    carried = None
+    # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root rides with
+    # that branch's top, the DoFs between them held (resolve.carried_root); reported as the unresolved are.  (Judged
+    # on the new labels with a place only: the others sit at their segment's origin until the fit places them.)
+    res, carried = resolve_carrying(subject, [*shared, *new], locked=[d for d, _ in settings.lock], carry=[
+        lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible])
     if not res.root_resolved:
-        # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root
-        # rides with that branch's top, the DoFs between them held (carried_root); reported as the unresolved are.
-        # (new labels only with a place: the others sit at their segment's origin until the fit places them)
-        carried = carried_root(subject, [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible],
-                               locked=[d for d, _ in settings.lock])
-        if carried is None:
-            raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
-                                 f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
-                                 f"(--markers map.toml) or use a model with this marker set")
-        res = resolve(subject, [*shared, *new], locked=[*(d for d, _ in settings.lock), *carried.coordinates])
-        res = replace(res, segments=(carried, *res.segments), lock=carried.coordinates + res.lock)
+        raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
+                             f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
+                             f"(--markers map.toml) or use a model with this marker set")
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
         # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.
@@ -959,18 +954,15 @@ def _blind_at_size(problem: Problem, state: State, blind: Collection[str], carri
 def _trial_unplaced(model: Model, trial: Trial, labels: Sequence[str], res, settings: Settings) -> tuple:
     """The segments (resolve.UnresolvedSegment) that `trial`'s markers among `labels` cannot place where the
     calibration's markers (`res`, every trial's) place them, under the calibration's locks (`settings.lock`)."""
-    from ..model.resolve import carried_root, resolve
+    from ..model.resolve import resolve_carrying
 
     shown = [lab for lab in labels if lab in {x for k, x in enumerate(trial.labels)
                                               if np.isfinite(trial.markers[:, k]).all(1).any()}]
-    locked = [d for d, _ in settings.lock]
-    here = resolve(model, shown, locked=locked)
-    if here.root_resolved and not here.segments:
-        return ()
-    carried = None if here.root_resolved else carried_root(model, shown, locked=locked)
+    here, carried = resolve_carrying(model, shown, locked=[d for d, _ in settings.lock])
     known = set(res.names)
-    return tuple(replace(u, coordinates=u.coordinates + carried.coordinates) if carried is not None and
-                 u.segment == model.root else u for u in here.segments if u.segment not in known)
+    # (a carried root: its own pose there rests on the priors too, the calibration not holding those DoFs)
+    return tuple(replace(u, coordinates=("root", *u.coordinates)) if u is carried else u
+                 for u in here.segments if u.segment not in known)
 
 
 def _segments_without_data(model: Model, seen: set[str]) -> list[str]:

@@ -12,7 +12,7 @@ left knee 19 deg for the rest of the walk (scripts/damage_values.py --ik).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,7 +20,7 @@ from ..errors import CalibrateError
 from ..io.trial import Trial
 from ..model.kinematics import build_kinematics, locked_balls
 from ..model.model import Model, Parameters
-from ..model.resolve import carried_root, resolve
+from ..model.resolve import resolve_carrying
 from ..problem.problem import LIMIT_MARGIN, compiled_kinematics
 from ..seed.jitter import Jittery
 from ..seed.seeding import ExchangedBack, episodes, exchanged_back, segment_distances, without_broken
@@ -96,11 +96,8 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
         jittery = tuple(x for x in found if x.label in shared)
     seen = [m for m in shared if np.isfinite(trial.markers[:, trial.labels.index(m)]).all(axis=1).any()]
     # (a name the model lacks: inverse_kinematics' one line says so)
-    res = resolve(model, seen, locked=[d for d in held if d in model.dof_names])
-    carried = None if res.root_resolved else carried_root(model, seen, locked=[d for d in held if d in model.dof_names])
-    if carried is not None:  # an upper-body or one-leg trial: the root rides with the marked part (as calibrating)
-        res = resolve(model, seen, locked=[*(d for d in held if d in model.dof_names), *carried.coordinates])
-        res = replace(res, segments=(carried, *res.segments), lock=carried.coordinates + res.lock)
+    # (an upper-body or one-leg trial: the root rides with the marked part, as calibrating: resolve.carried_root)
+    res, _ = resolve_carrying(model, seen, locked=[d for d in held if d in model.dof_names])
     if not res.root_resolved:
         raise CalibrateError(f"{source}: its {len(seen)} markers of {model.path.name} cannot place the {model.root} "
                              f"(unresolved: {', '.join(res.names)}); give the subject calibrated from this lab's "

@@ -31,15 +31,15 @@ kept and the thigh's axial rotation is locked.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
 
 from .model import Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "line_root_holds", "resolve", "root_firmness",
-           "root_group", "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "line_root_holds", "resolve", "resolve_carrying",
+           "root_firmness", "root_group", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -244,6 +244,23 @@ def carried_root(model: Model, labels: Iterable[str], *,
            f"{model.root} rides with {top}, {', '.join(hold)} held at 0 (the base model's "
            f"{', '.join(joints)} between them; the root's pose in the motion is {top}'s carried back through it)")
     return UnresolvedSegment(model.root, hold, why)
+
+
+def resolve_carrying(model: Model, labels: Sequence[str], *, locked: Iterable[str] = (),
+                     carry: Sequence[str] | None = None) -> tuple[Resolution, UnresolvedSegment | None]:
+    """resolve() of `labels`, and where it cannot place the root, carried_root() of `carry` (default `labels`: the
+    markers whose places are known) and the resolution with its DoFs held, the root's UnresolvedSegment first and
+    those DoFs first among the locks.  Returns (resolution, the carried root or None); the resolution's
+    root_resolved is False where the root is neither placed nor carried."""
+    held = list(locked)
+    res = resolve(model, labels, locked=held)
+    if res.root_resolved:
+        return res, None
+    carried = carried_root(model, labels if carry is None else carry, locked=held)
+    if carried is None:
+        return res, None
+    res = resolve(model, labels, locked=[*held, *carried.coordinates])
+    return replace(res, segments=(carried, *res.segments), lock=carried.coordinates + res.lock), carried
 
 
 def root_firmness(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), poses: int = 4,
