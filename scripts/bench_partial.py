@@ -5,9 +5,9 @@ then holds the joints between the pelvis and the marked part and lets the pelvis
 (calibrate.model.resolve.carried_root).  Measured against the same trials calibrated from every marker, in the same
 run:
 
-1. The simulator's overhead arm arcs (models/human.urdf, `--frames`, 1 mm noise, seed 3): each neck, shoulder,
-   elbow and wrist centre's mean distance from the simulator's truth over the frames, from all 39 markers and from
-   the 23 of the trunk, head and arms; marker RMS and wall time.
+1. The simulator's overhead arm arcs (models/human.urdf, and Rajagopal2016.osim from ../shared/data/real; `--frames`,
+   1 mm noise, seed 3): each arm joint's (and the neck's) centre's mean distance from the simulator's truth over the
+   frames, from every marker and from those of the trunk, head and arms; marker RMS and wall time.
 2. pig_walk (../shared/data/real/pig_walk, static + walk, Plug-in Gait labels) with its pelvis and leg markers
    removed, and with all but the left leg's removed: marker RMS over the markers kept (from every marker: over the
    same markers), wall time, and each centre's median distance over the walk from Plug-in Gait's own (the segment
@@ -31,6 +31,7 @@ from bench_calibrate import machine  # shared with the other benches
 
 ROOT = Path(__file__).resolve().parent.parent
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
+RAJAGOPAL = ROOT.parent / "shared" / "data" / "real" / "rajagopal_walk" / "Rajagopal2016.osim"
 UPPER = ("torso", "head", "humerus_l", "ulna_l", "radius_l", "hand_l", "humerus_r", "ulna_r", "radius_r", "hand_r")
 LEG = ("femur_l", "tibia_l", "talus_l", "calcn_l")
 PIG_CENTRES = {"shoulder_l": "LCLO", "shoulder_r": "RCLO", "elbow_l": "LHUO", "elbow_r": "RHUO", "wrist_l": "LRAO",
@@ -61,19 +62,21 @@ def _timed(model, trials, settings):
     return cal, round(time.perf_counter() - t0, 2)
 
 
-def simulated(frames: int) -> dict:
+def simulated(frames: int, path: Path = ROOT / "models" / "human.urdf") -> dict:
+    """The overhead arm arcs on the model at `path`, from every marker and from the trunk's and arms' (and head's)."""
     from calibrate import Settings
     from calibrate.model.kinematics import build_kinematics
     from calibrate.model.model import load_model
     from calibrate.simulation.simulate import simulate_overhead
 
-    human = load_model(ROOT / "models" / "human.urdf")
+    human = load_model(path)
     kin = build_kinematics(human)
     sim = simulate_overhead(human, frames=frames, seed=3)
-    joints = ("neck", "shoulder_l", "shoulder_r", "elbow_l", "elbow_r", "wrist_l", "wrist_r")
+    upper = [s for s in UPPER if s in {sg.name for sg in human.segments}]
+    joints = [j.name for j in human.joints if j.child in upper and j.dofs and j.child != "torso"]
     _timed(human, sim.trial, Settings())  # warm-up (imports, CasADi's first builds)
-    out = {"frames": frames}
-    for name, trial in (("all", sim.trial), ("upper", sim.trial.select(_markers(human, UPPER)))):
+    out = {"model": path.name, "frames": frames}
+    for name, trial in (("all", sim.trial), ("upper", sim.trial.select(_markers(human, upper)))):
         cal, wall = _timed(human, trial, Settings())
         C = _centres(kin, cal, 0)
         out[name] = {"markers": len(trial.labels), "wall_s": wall, "marker_rms_mm": round(1e3 * cal.marker_rms, 2),
@@ -118,16 +121,21 @@ def main() -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
     a = ap.parse_args()
     res = {"date": datetime.datetime.now().isoformat(timespec="minutes"), "machine": machine(),
-           "simulated": simulated(a.frames), "pig_walk": pig_walk() if PIG.is_dir() else None}
+           "simulated": simulated(a.frames),
+           "simulated_osim": simulated(a.frames, RAJAGOPAL) if RAJAGOPAL.is_file() else None,
+           "pig_walk": pig_walk() if PIG.is_dir() else None}
     if a.json:
         print(json.dumps(res))
         return 0
-    s = res["simulated"]
-    print(f"simulated overhead arcs, {s['frames']} frames: centre error from the truth (mm), marker RMS, wall time")
-    for name in ("all", "upper"):
-        r = s[name]
-        print(f"  {name:6s} {r['markers']:2d} markers  {r['marker_rms_mm']:.2f} mm  {r['wall_s']:.2f} s  "
-              + "  ".join(f"{j} {v:.1f}" for j, v in r["centre_error_mm"].items()))
+    for s in (res["simulated"], res["simulated_osim"]):
+        if s is None:
+            continue
+        print(f"simulated overhead arcs on {s['model']}, {s['frames']} frames: centre error from the truth (mm), "
+              "marker RMS, wall time")
+        for name in ("all", "upper"):
+            r = s[name]
+            print(f"  {name:6s} {r['markers']:2d} markers  {r['marker_rms_mm']:.2f} mm  {r['wall_s']:.2f} s  "
+                  + "  ".join(f"{j} {v:.1f}" for j, v in r["centre_error_mm"].items()))
     p = res["pig_walk"]
     if p is None:
         print(f"pig_walk: {PIG} not found")
