@@ -98,7 +98,8 @@ def test_five_shared_labels_calibrate_with_the_unseen_coordinates_locked(human):
 def test_no_pelvis_markers_is_refused_naming_the_segments(human, tmp_path):
     sim = simulate_squats(human, frames=20, noise_mm=0.5, seed=5)
     trial = sim.trial.select(["LKNE", "RKNE", "LANK", "RANK", "C7"])
-    with pytest.raises(CalibrateError, match="cannot place the pelvis.*unresolved: pelvis, femur_l"):
+    with pytest.raises(CalibrateError, match="cannot place the pelvis.*unresolved: pelvis, femur_l.*more than one "
+                                              "branch of the model and none on the root"):
         calibrate(human, trial)
     path = tmp_path / "five.c3d"
     write_c3d(path, trial)
@@ -196,6 +197,12 @@ def test_a_markerless_root_rides_with_the_one_branch_the_markers_place(human):
                                                                                      locked=lumbar)
     assert carried_root(human, loose) is None and carried_root(human, ["C7", "CLAV", "STRN"]) is not None
     assert root_firmness(human, upper, locked=lumbar) > 0.2 and root_firmness(human, human.marker_names) > 0.15
+    # The refusal says why: the branch too loose (with its figure), or markers on two branches.
+    from calibrate.model.resolve import carry_refusal
+
+    why = carry_refusal(human, loose)
+    assert f"({root_firmness(human, loose, locked=lumbar):.3f} m of marker motion per rad" in why and "torso" in why
+    assert "more than one branch" in carry_refusal(human, ["LKNE", "RKNE", "LANK", "RANK", "C7"])
 
 
 def test_an_upper_body_trial_calibrates_its_arms_as_the_whole_marker_set_does(human):

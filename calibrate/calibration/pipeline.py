@@ -382,7 +382,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from ..model.resolve import line_root_holds, resolve_carrying
+    from ..model.resolve import carry_refusal, line_root_holds, resolve_carrying
 
     visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
     # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root rides with
@@ -391,8 +391,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     res, carried = resolve_carrying(subject, [*shared, *new], locked=[d for d, _ in settings.lock], carry=[
         lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible])
     if not res.root_resolved:
+        why = carry_refusal(subject, [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible],
+                            locked=[d for d, _ in settings.lock])
         raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
-                             f"{model.root} (unresolved: {', '.join(res.names)}); rename the trial labels "
+                             f"{model.root} (unresolved: {', '.join(res.names)}){why}; rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the

@@ -38,8 +38,8 @@ import pinocchio as pin
 
 from .model import Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "line_root_holds", "resolve", "resolve_carrying",
-           "root_firmness", "root_group", "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "carry_refusal", "line_root_holds", "resolve",
+           "resolve_carrying", "root_firmness", "root_group", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -244,6 +244,28 @@ def carried_root(model: Model, labels: Iterable[str], *,
            f"{model.root} rides with {top}, {', '.join(hold)} held at 0 (the base model's "
            f"{', '.join(joints)} between them; the root's pose in the motion is {top}'s carried back through it)")
     return UnresolvedSegment(model.root, hold, why)
+
+
+def carry_refusal(model: Model, labels: Iterable[str], *, locked: Iterable[str] = ()) -> str:
+    """Why the markers `labels` do not carry a markerless root (carried_root returned None), as a clause for the
+    refusal's line: their branch, and how loosely it places the root where that is why; '' otherwise."""
+    present = set(labels) & set(model.marker_names)
+    marked = {mk.segment for mk in model.markers if mk.name in present}
+    if not marked or marked & root_group(model):
+        return ""
+    below = descendants(model)
+    top = model.root
+    for s in model.segments:
+        if marked <= set(below[s.name]):
+            top = s.name
+    if top in root_group(model):
+        return "; its markers ride on more than one branch of the model and none on the root"
+    held = set(locked)
+    hold = [model.dof_names[d] for d in _path_dofs(model)[top] if model.dof_names[d] not in held]
+    firm = root_firmness(model, present, locked=[*held, *hold]) if hold else 0.0
+    return (f"; its markers all ride on {top} and below it, but place {top}'s pose only loosely ({firm:.3f} m of "
+            f"marker motion per rad, under {CARRY_FIRM:g}; three markers on {top} itself give about 0.06): add "
+            f"markers on {top}")
 
 
 def resolve_carrying(model: Model, labels: Sequence[str], *, locked: Iterable[str] = (),
