@@ -222,16 +222,8 @@ def carried_root(model: Model, labels: Iterable[str], *,
     Returns the root's UnresolvedSegment naming those DoFs, or None where this does not hold (markers on two of the
     root's branches with none on the root: the trial's labels are not this model's)."""
     present = set(labels) & set(model.marker_names)
-    marked = {mk.segment for mk in model.markers if mk.name in present}
-    if not marked:
-        return None
-    below = descendants(model)
-    rigid = root_group(model)
-    top = model.root
-    for s in model.segments:  # tree order: the last that holds every marked segment is the deepest
-        if marked <= set(below[s.name]):
-            top = s.name
-    if top in rigid:
+    top = _marked_top(model, present)
+    if top is None or top in root_group(model):
         return None
     held = set(locked)
     path = [model.dof_names[d] for d in _path_dofs(model)[top]]
@@ -246,18 +238,27 @@ def carried_root(model: Model, labels: Iterable[str], *,
     return UnresolvedSegment(model.root, hold, why)
 
 
+def _marked_top(model: Model, present: set[str]) -> str | None:
+    """The deepest segment with every segment that carries one of the markers `present` on it or below it (None:
+    no such marker)."""
+    marked = {mk.segment for mk in model.markers if mk.name in present}
+    if not marked:
+        return None
+    below = descendants(model)
+    top = model.root
+    for s in model.segments:  # tree order: the last that holds every marked segment is the deepest
+        if marked <= set(below[s.name]):
+            top = s.name
+    return top
+
+
 def carry_refusal(model: Model, labels: Iterable[str], *, locked: Iterable[str] = ()) -> str:
     """Why the markers `labels` do not carry a markerless root (carried_root returned None), as a clause for the
     refusal's line: their branch, and how loosely it places the root where that is why; '' otherwise."""
     present = set(labels) & set(model.marker_names)
-    marked = {mk.segment for mk in model.markers if mk.name in present}
-    if not marked or marked & root_group(model):
+    top = _marked_top(model, present)
+    if top is None or {mk.segment for mk in model.markers if mk.name in present} & root_group(model):
         return ""
-    below = descendants(model)
-    top = model.root
-    for s in model.segments:
-        if marked <= set(below[s.name]):
-            top = s.name
     if top in root_group(model):
         return "; its markers ride on more than one branch of the model and none on the root"
     held = set(locked)
