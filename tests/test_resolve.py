@@ -294,9 +294,24 @@ def test_a_trial_that_does_not_place_what_the_others_place_is_named(human):
     assert set(cal.unplaced_in_trial[0][1][0].coordinates) >= {"lumbar_flexion", "lumbar_bending", "lumbar_rotation"}
     text = summary_text(cal)
     assert any(line.startswith("  unplaced     trial 2: its markers do not place pelvis, femur_l")
-               for line in text.splitlines()), text
+               and "are held at 0 and its pelvis rides with" in line for line in text.splitlines()), text
     report = calibration_report(cal)
-    assert report["unplaced_in_trial"][0]["trial"] == 1
+    assert report["unplaced_in_trial"][0]["trial"] == 1 and report["unplaced_in_trial"][0]["held"]
     assert "its markers do not place pelvis" in report_html(report)
+    # In the arm trial's motion those coordinates are held at 0, the pelvis carried so that every marker the trial
+    # shows stays where the solve put it: the motion's markers (the kinematics at the calibrated geometry) against
+    # the trial's positions plus the calibration's residuals, to a micrometre.
+    assert cal.unplaced_held == (1,)
+    mo = cal.motions[1]
+    held = [human.dof_index(d) for d in ("lumbar_flexion", "lumbar_bending", "lumbar_rotation", "hip_l_flexion")]
+    assert np.abs(mo.angles[:, held]).max() == 0.0
+    from calibrate.model.kinematics import build_kinematics
+
+    Z = np.column_stack([mo.root_translation, np.zeros((mo.n_frames, 3)), mo.angles])
+    M = build_kinematics(human).batch(Z, mo.root_quaternion, cal.params)[0]
+    ks = [human.marker_index(m) for m in upper]
+    shown = cal.trials[1].markers[:, [cal.trials[1].labels.index(m) for m in upper]]
+    fitted = shown + cal.residuals[static.trial.n_frames:][:, ks]
+    assert np.nanmax(np.abs(M[:, ks] - fitted)) < 1e-6
     alone = calibrate(human, static.trial, Settings(max_iterations=5))
     assert alone.unplaced_in_trial == () and "  unplaced " not in summary_text(alone)

@@ -185,9 +185,10 @@ def _notes(report: dict) -> str:
         k = t.get("trial", 0)
         name = (report.get("trials") or [{}] * (k + 1))[k].get("source") or f"trial {k + 1}"
         segs = ", ".join(u.get("segment", "") for u in t.get("segments", []))
-        items.append(f"<li>{_e(name)}: its markers do not place {_e(segs)}, which the other trials place: its "
-                     "frames' coordinates there rest on the priors and the neighbouring frames, not on its "
-                     "markers</li>")
+        items.append(f"<li>{_e(name)}: its markers do not place {_e(segs)}, which the other trials place: "
+                     + ("in its motion their coordinates are held at 0, as <code>calibrate ik</code> holds them</li>"
+                        if t.get("held") else "its frames' coordinates there rest on the priors and the neighbouring "
+                        "frames, not on its markers</li>"))
     for u in report.get("unresolved", []):
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")

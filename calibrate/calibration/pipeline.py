@@ -804,6 +804,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # subtalars: 6e-9 and 1.6e-9 rad, 1e-7 deg in the .mot); set, the markers move by under a nanometre there.
     for name, value in problem.settings.lock:
         Zm[:, FrameLayout.angle(subject.dof_index(name))] = value
+    # A trial that does not place segments the others place: their coordinates held there, as `calibrate ik` holds
+    # them (its root, where carried, moved so the marked branch stays where the fit put it).
+    held_in = tuple(i for i, us in by_trial if _hold_unplaced(problem.kin, params, Zm[spans[i]], Q[spans[i]], us))
     motions = tuple(Motion(t.times.copy(), Zm[sl, FrameLayout.translation].copy(), Q[sl].copy(),
                            FrameLayout.angles(Zm[sl]).copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
@@ -815,7 +818,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                         for _, k1, k2, d in problem.pair_terms()),
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
-                       unresolved=res.segments, unplaced_in_trial=by_trial,
+                       unresolved=res.segments, unplaced_in_trial=by_trial, unplaced_held=held_in,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
@@ -965,6 +968,46 @@ def _trial_unplaced(model: Model, trial: Trial, labels: Sequence[str], res, sett
     # (a carried root: its own pose there rests on the priors too, the calibration not holding those DoFs)
     return tuple(replace(u, coordinates=("root", *u.coordinates)) if u is carried else u
                  for u in here.segments if u.segment not in known)
+
+
+def _hold_unplaced(kin: Kinematics, params: Parameters, Z: np.ndarray, Q: np.ndarray, unplaced: Sequence) -> bool:
+    """One trial's poses (Z absolute (n, nz), Q (n, 4), both changed in place) with the coordinates of the segments it
+    does not place (`unplaced`: _trial_unplaced's) at their held value, 0 clipped to the limits.  Where its root is
+    carried (a first entry naming 'root' and the DoFs to the marked branch), each frame's root is moved so that the
+    branch (its markers and joint centres, by the kinematics at `params`) stays where it was: the rigid fit of the
+    branch's points at the held pose onto them (exact: only the root and the held DoFs change).  Returns False, and
+    changes nothing, where the trial's root is unplaced but not carried."""
+    model = kin.model
+    root = next((u for u in unplaced if u.segment == model.root), None)
+    carried = root is not None and "root" in root.coordinates and len(root.coordinates) > 1
+    if root is not None and not carried:
+        return False
+    names = list(dict.fromkeys(c for u in unplaced for c in u.coordinates if c != "root"))
+    cols = [FrameLayout.angle(model.dof_index(n)) for n in names]
+    value = [float(np.clip(0.0, model.dofs[model.dof_index(n)].lower, model.dofs[model.dof_index(n)].upper))
+             for n in names]
+    if not carried:
+        Z[:, cols] = value
+        return True
+    from ..model.resolve import descendants
+    from ..model.rotations import matrix_quats
+    from ..seed.geometry import kabsch_rotation
+
+    top = next(j.child for j in model.joints if root.coordinates[-1] in j.dofs)
+    branch = set(descendants(model)[top])
+    mk = [k for k, m in enumerate(model.markers) if m.segment in branch]
+    jc = [k for k, j in enumerate(model.joints) if j.child in branch]
+    M, C = kin.batch(Z, Q, params)
+    before = np.concatenate([M[:, mk], C[:, jc]], axis=1)
+    Z[:, cols] = value
+    Z[:, FrameLayout.translation] = 0.0
+    M, C = kin.batch(Z, np.tile([0.0, 0.0, 0.0, 1.0], (len(Z), 1)), params)
+    at = np.concatenate([M[:, mk], C[:, jc]], axis=1)  # the branch with the root at the origin, unturned
+    ca, cb = at.mean(axis=1), before.mean(axis=1)
+    R = kabsch_rotation(np.einsum("fpi,fpj->fij", at - ca[:, None], before - cb[:, None]))[0]
+    Z[:, FrameLayout.translation] = cb - np.einsum("fij,fj->fi", R, ca)
+    Q[:] = matrix_quats(R)
+    return True
 
 
 def _segments_without_data(model: Model, seen: set[str]) -> list[str]:

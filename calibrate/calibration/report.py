@@ -145,7 +145,8 @@ def calibration_report(cal: Calibration) -> dict:
                          "neighbour_per_frame_deg": [math.degrees(v) for v in lk.neighbour_per_frame],
                          "turned_deg": math.degrees(lk.turned), "note": lk.text()} for lk in cal.auto_locked],
         "unresolved": [u.to_json() for u in cal.unresolved],
-        "unplaced_in_trial": [{"trial": i, "segments": [u.to_json() for u in us]} for i, us in cal.unplaced_in_trial],
+        "unplaced_in_trial": [{"trial": i, "segments": [u.to_json() for u in us], "held": i in cal.unplaced_held}
+                              for i, us in cal.unplaced_in_trial],
         "implausible": [b.to_json() for b in cal.implausible],
         "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
                             "moves_with": m.rides_with, "segment_labels": list(m.partners),
@@ -923,11 +924,18 @@ def summary_text(cal) -> str:
     for i, us in cal.unplaced_in_trial:
         coords = list(dict.fromkeys(c for u in us for c in u.coordinates))
         segs = ", ".join(u.segment for u in us)
-        lines.append(f"  unplaced     {_trial_name(cal, i)}: its markers do not place {segs}, which the other "
-                     f"trials place: its frames' {', '.join(coords[:6])}"
-                     + (f" and {len(coords) - 6} more" if len(coords) > 6 else "")
-                     + " rest on the priors and the neighbouring frames there, not on its markers (read them "
-                     "with care; `calibrate ik` on that trial with the calibrated subject holds them)")
+        what = ", ".join(coords[:6]) + (f" and {len(coords) - 6} more" if len(coords) > 6 else "")
+        if i in cal.unplaced_held:
+            dofs = [c for c in coords if c != "root"]
+            lines.append(f"  unplaced     {_trial_name(cal, i)}: its markers do not place {segs}, which the other "
+                         f"trials place: in its motion {', '.join(dofs[:6])}"
+                         + (f" and {len(dofs) - 6} more" if len(dofs) > 6 else "") + " are held at 0"
+                         + (f" and its {cal.model.root} rides with the segments its markers place"
+                            if "root" in coords else "") + " (as `calibrate ik` holds them)")
+        else:
+            lines.append(f"  unplaced     {_trial_name(cal, i)}: its markers do not place {segs}, which the other "
+                         f"trials place: its frames' {what} rest on the priors and the neighbouring frames there, "
+                         "not on its markers (read them with care)")
     outputs = set().union(*(t.model_outputs for t in cal.trials))
     if outputs:
         lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")

@@ -241,6 +241,7 @@ class Calibration:
     # (trial index, UnresolvedSegments) of each trial whose own markers do not place segments the others place: its
     # frames' coordinates there rest on the priors and the neighbouring frames, not on its markers
     unplaced_in_trial: tuple = ()
+    unplaced_held: tuple[int, ...] = ()  # those trials whose motion holds those coordinates (as calibrate ik does)
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
     noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by
