@@ -305,6 +305,7 @@ def test_a_trial_that_does_not_place_what_the_others_place_is_named(human):
     mo = cal.motions[1]
     held = [human.dof_index(d) for d in ("lumbar_flexion", "lumbar_bending", "lumbar_rotation", "hip_l_flexion")]
     assert np.abs(mo.angles[:, held]).max() == 0.0
+    assert (np.sum(mo.root_quaternion[1:] * mo.root_quaternion[:-1], axis=1) > 0).all()  # no sign flips
     from calibrate.model.kinematics import build_kinematics
 
     Z = np.column_stack([mo.root_translation, np.zeros((mo.n_frames, 3)), mo.angles])

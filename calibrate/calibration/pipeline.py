@@ -1006,7 +1006,9 @@ def _hold_unplaced(kin: Kinematics, params: Parameters, Z: np.ndarray, Q: np.nda
     ca, cb = at.mean(axis=1), before.mean(axis=1)
     R = kabsch_rotation(np.einsum("fpi,fpj->fij", at - ca[:, None], before - cb[:, None]))[0]
     Z[:, FrameLayout.translation] = cb - np.einsum("fij,fj->fi", R, ca)
-    Q[:] = matrix_quats(R)
+    q = matrix_quats(R)
+    q *= np.where(np.sum(q * Q, axis=1) < 0, -1.0, 1.0)[:, None]  # each on the side of the quaternion it replaces
+    Q[:] = q
     return True
 
 
