@@ -382,17 +382,16 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from ..model.resolve import carry_refusal, line_root_holds, resolve_carrying
+    from ..model.resolve import carried_joint, carry_refusal, line_root_holds, resolve_carrying
 
     visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
     # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root rides with
     # that branch's top, the DoFs between them held (resolve.carried_root); reported as the unresolved are.  (Judged
     # on the new labels with a place only: the others sit at their segment's origin until the fit places them.)
-    res, carried = resolve_carrying(subject, [*shared, *new], locked=[d for d, _ in settings.lock], carry=[
-        lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible])
+    placed_shown = [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible]
+    res, carried = resolve_carrying(subject, [*shared, *new], locked=[d for d, _ in settings.lock], carry=placed_shown)
     if not res.root_resolved:
-        why = carry_refusal(subject, [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible],
-                            locked=[d for d, _ in settings.lock])
+        why = carry_refusal(subject, placed_shown, locked=[d for d, _ in settings.lock])
         raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
                              f"{model.root} (unresolved: {', '.join(res.names)}){why}; rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
@@ -405,7 +404,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
     # A trial that shows fewer markers than the others may not place segments they place (a static with the arms, a
     # walk without): its frames' coordinates there rest on the priors and the neighbouring frames, not on its markers.
-    by_trial = tuple((i, u) for i, u in ((i, _trial_unplaced(subject, t, [*shared, *new], res, settings))
+    by_trial = tuple((i, u) for i, u in ((i, _trial_unplaced(subject, t, [*shared, *new], visible, res, settings))
                                          for i, t in enumerate(trials)) if u) if len(trials) > 1 else ()
     for i, u in by_trial:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: its markers do not place "
@@ -746,8 +745,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
         slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked, problem.frame_evaluator(slid.p))
-    slid = _blind_at_size(problem, slid, blind, None if carried is None else next(
-        j.name for j in subject.joints if carried.coordinates[-1] in j.dofs))
+    slid = _blind_at_size(problem, slid, blind, None if carried is None else carried_joint(subject, carried).name)
     summary = replace(summary, final_cost=problem.cost(slid))
     state = slid
     times["solve"] = time.perf_counter() - t0
@@ -956,13 +954,17 @@ def _blind_at_size(problem: Problem, state: State, blind: Collection[str], carri
     return replace(state, Z=Z, p=p)
 
 
-def _trial_unplaced(model: Model, trial: Trial, labels: Sequence[str], res, settings: Settings) -> tuple:
+def _trial_unplaced(model: Model, trial: Trial, labels: Sequence[str], visible: Collection[str], res,
+                    settings: Settings) -> tuple:
     """The segments (resolve.UnresolvedSegment) that `trial`'s markers among `labels` cannot place where the
-    calibration's markers (`res`, every trial's) place them, under the calibration's locks (`settings.lock`)."""
+    calibration's markers (`res`, every trial's; `visible`: the labels any trial shows) place them, under the
+    calibration's locks (`settings.lock`).  None where the trial shows every label the calibration sees."""
     from ..model.resolve import resolve_carrying
 
-    shown = [lab for lab in labels if lab in {x for k, x in enumerate(trial.labels)
-                                              if np.isfinite(trial.markers[:, k]).all(1).any()}]
+    here = {x for k, x in enumerate(trial.labels) if np.isfinite(trial.markers[:, k]).all(1).any()}
+    shown = [lab for lab in labels if lab in here]
+    if len(shown) == sum(lab in visible for lab in labels):
+        return ()
     here, carried = resolve_carrying(model, shown, locked=[d for d, _ in settings.lock])
     known = set(res.names)
     # (a carried root: its own pose there rests on the priors too, the calibration not holding those DoFs)
@@ -989,12 +991,11 @@ def _hold_unplaced(kin: Kinematics, params: Parameters, Z: np.ndarray, Q: np.nda
     if not carried:
         Z[:, cols] = value
         return True
-    from ..model.resolve import descendants
+    from ..model.resolve import carried_joint, descendants
     from ..model.rotations import matrix_quats
     from ..seed.geometry import kabsch_rotation
 
-    top = next(j.child for j in model.joints if root.coordinates[-1] in j.dofs)
-    branch = set(descendants(model)[top])
+    branch = set(descendants(model)[carried_joint(model, root).child])
     mk = [k for k, m in enumerate(model.markers) if m.segment in branch]
     jc = [k for k, j in enumerate(model.joints) if j.child in branch]
     M, C = kin.batch(Z, Q, params)

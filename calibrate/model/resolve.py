@@ -36,10 +36,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pinocchio as pin
 
-from .model import Model
+from .model import Joint, Model
 
-__all__ = ["Resolution", "UnresolvedSegment", "carried_root", "carry_refusal", "line_root_holds", "resolve",
-           "resolve_carrying", "root_firmness", "root_group", "unresolved"]
+__all__ = ["Resolution", "UnresolvedSegment", "carried_joint", "carried_root", "carry_refusal", "line_root_holds",
+           "resolve", "resolve_carrying", "root_firmness", "root_group", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -236,6 +236,11 @@ def carried_root(model: Model, labels: Iterable[str], *,
            f"{model.root} rides with {top}, {', '.join(hold)} held at 0 (the base model's "
            f"{', '.join(joints)} between them; the root's pose in the motion is {top}'s carried back through it)")
     return UnresolvedSegment(model.root, hold, why)
+
+
+def carried_joint(model: Model, carried: UnresolvedSegment) -> Joint:
+    """The joint into the marked branch a carried root rides with (carried_root's entry: the last DoF it holds)."""
+    return next(j for j in model.joints if carried.coordinates[-1] in j.dofs)
 
 
 def _marked_top(model: Model, present: set[str]) -> str | None:
