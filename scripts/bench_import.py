@@ -111,7 +111,7 @@ def import_check(osim: Path, log, marker_set: Path | None = None, poses_n: int =
         if bodies:
             X = np.array(o["body " + model.root])
             t, quat = X[9:], Rotation.from_matrix(X[:9].reshape(3, 3)).as_quat()
-        angles = np.array([info.ratio(d) * coords[d] for d in model.dof_names])  # the URDF's angles
+        angles = np.array([info.urdf_angle(d, coords) for d in model.dof_names])  # the URDF's angles
         pin.framesForwardKinematics(pm, data, model.pin_configuration(t, quat, angles))
         ours.append({m: data.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation.copy() for m in model.marker_names})
     err = {m: np.array([np.linalg.norm(np.array(o[m]) - r[m]) for o, r in zip(theirs, ours, strict=True)])

@@ -45,6 +45,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -72,8 +73,12 @@ FLOATING = "floating base"  # Approximation.kind of a ground joint that is not s
 LUMPED = "lumped chain"  # Approximation.kind of a joint standing for a chain of joints coupled to its coordinates
 JOINT_FIT = "joint fit"  # Approximation.kind of a joint of several rotations by splines, fitted as one joint of ratios
 IN_CHAIN = "in a lumped chain"  # Approximation.kind of a coupled joint of that chain (welded; its turn lumped above)
-# kinds that move no marker of the subject: no effect or bound to state (IN_CHAIN's effect is its chain's line)
-NO_MARKER_EFFECT = (LEFT_OUT, FLOATING, IN_CHAIN)
+# Approximation.kind of a joint whose rotation coupled to another joint's coordinate turns about the next joint's axis:
+# moved there exactly, that joint's URDF angle its own coordinate plus the coupled turn (MoBL-ARMS's shoulder1_r2)
+FOLDED = "folded"
+# kinds that move no marker of the subject: no effect or bound to state (IN_CHAIN's effect is its chain's line; FOLDED
+# is exact)
+NO_MARKER_EFFECT = (LEFT_OUT, FLOATING, IN_CHAIN, FOLDED)
 
 
 @dataclass(frozen=True)
@@ -166,9 +171,39 @@ class OsimInfo:
     # the source's gravity (m/s^2, in ground): OpenSim's models are y up, a model calibrate exported from a URDF z up
     gravity: tuple[float, float, float] = (0.0, -9.80665, 0.0)
 
+    # coordinate -> its fold (a joint's coupled turn moved onto this coordinate's revolute, FOLDED): the URDF angle is
+    # ratio · coordinate + mix · independent, OpenSim's coordinates on both sides
+    mixes: dict[str, Mix] = field(default_factory=dict)
+
     def ratio(self, coordinate: str) -> float:
         """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
         return self.ratios.get(coordinate, 1.0)
+
+    def urdf_angle(self, name: str, values: Mapping[str, Any]) -> Any:
+        """The URDF joint `name`'s angle at OpenSim's coordinate `values` (name -> value or array)."""
+        v = self.ratio(name) * np.asarray(values[name], dtype=float)
+        mix = self.mixes.get(name)
+        return v if mix is None else v + mix.mix * np.asarray(values[mix.independent], dtype=float)
+
+    def coordinates(self, angles: Mapping[str, Any]) -> dict[str, Any]:
+        """OpenSim's coordinates at the URDF joints' `angles` (name -> value or array; the inverse of urdf_angle)."""
+        out = {n: np.asarray(a, dtype=float) / self.ratio(n) for n, a in angles.items()}
+        for n, mix in self.mixes.items():
+            if n in out and mix.independent in out:
+                out[n] = out[n] - mix.mix * out[mix.independent] / self.ratio(n)
+        return out
+
+
+@dataclass(frozen=True)
+class Mix:
+    """A URDF joint whose angle is ratio · its coordinate + mix · independent (OsimInfo.mixes; a _Fold), and what the
+    .osim export needs to write the coupled turn back: the coupled coordinate and the coordinate's own range."""
+
+    independent: str
+    mix: float
+    dependent: str
+    lo: float
+    hi: float
 
 
 # ---------------------------------------------------------------------- the import
@@ -180,6 +215,32 @@ class _Op:
     coord: str | None = None
     axis: np.ndarray | None = None
     ratio: float = 1.0  # the revolute's angle per unit of the coordinate (a lumped chain's whole turn)
+
+
+def _line_over(f: Any, span: tuple[float, float]) -> tuple[float, float] | None:
+    """(slope, intercept) where the function is a straight line over `span` (MoBL-ARMS's couplers: SimmSplines of
+    two points), else None."""
+    x = np.linspace(span[0], span[1], 13)
+    y = np.asarray(f(x), dtype=float)
+    a, b = np.polyfit(x, y, 1)
+    return (float(a), float(b)) if np.max(np.abs(a * x + b - y)) <= 1e-10 * max(1.0, float(np.max(np.abs(y)))) else None
+
+
+@dataclass(frozen=True)
+class _Fold:
+    """A rotation of joint `joint` by `dependent` = slope · `independent` + constant (a CoordinateCouplerConstraint
+    on another joint's coordinate), about an axis that only constant turns separate from the first moving axis of
+    the one joint below it (`child`, turning by `coordinate`): Rot(a, x) T Rot(b, q) = T Rot(b, q ± x), so the coupled
+    turn rides on that revolute exactly, whose URDF angle is then ratio · q + `mix` · independent."""
+
+    joint: str
+    child: str
+    dependent: str
+    independent: str
+    coordinate: str
+    constant: float  # the coupled turn at independent = 0 (kept in `joint`, about its own axis)
+    slope: float  # the coupled turn per unit of independent, about `joint`'s axis
+    mix: float  # the URDF angle of `coordinate` per unit of independent (slope, signed against the revolute's axis)
 
 
 def _ops_transform(ops: list[_Op], values: Mapping[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -424,6 +485,83 @@ class _Importer:
         frozen = {c.name for c in j.coords if c.name in self.r.couplers or c.translational}
         return self._exact_ops(j, frozen, freeze_nonlinear=True), ("frozen", "; ".join(why) + "; those axes frozen at "
                                                                     "mid-range")
+
+    # -------------------------------------------------------------- folds
+    def find_folds(self, skip: set[str]) -> dict[str, _Fold]:
+        """The joint below -> its fold (_Fold), for each joint (not in `skip`) of free linear rotations and one rotation
+        by a coordinate coupled linearly to another joint's free coordinate, where only constant turns separate that
+        rotation from the first moving axis of the single joint below it, about the same line: MoBL-ARMS's shoulder1
+        turns by shoulder_elv and by shoulder1_r2 = -elv_angle about the axis shoulder2 then turns by shoulder_rot.
+        The child body must carry no markers, and the coordinate below be free where the coupled one is (a locked
+        coordinate's URDF angle is one value in every frame)."""
+        r = self.r
+        joint_of = {c.name: j for j in self.order for c in j.coords}
+        out: dict[str, _Fold] = {}
+        for j in self.order:
+            coupled = [c for c in j.coords if c.name in r.couplers]
+            if j.name in skip or len(coupled) != 1 or any(c.translational for c in j.coords):
+                continue
+            dep = coupled[0].name
+            ind, f, s = r.couplers[dep]
+            home = joint_of.get(ind)
+            line = f.linear if f.linear is not None or ind not in r.coords else _line_over(f, r.coords[ind].span())
+            if (line is None or home is None or home is j or ind in r.couplers or home.name in skip
+                    or not self.exactness(home)[0] or r.coords[ind].translational):
+                continue
+            rots = [ax for ax in j.axes if ax.motion == "rotation"]
+            at = [i for i, ax in enumerate(rots) if ax.coord == dep]
+            if len(at) != 1 or rots[at[0]].func.linear is None or any(
+                    ax.coord is not None and ax.func.constant is None for ax in rots[at[0] + 1:]):
+                continue
+            if any(ax.motion == "translation" and ax.coord is not None and ax.func.constant is None for ax in j.axes):
+                continue
+            others = [ax for ax in rots if ax.coord not in (None, dep) and ax.func.constant is None]
+            if any(ax.func.linear is None or ax.coord in r.couplers for ax in others) or len(
+                    {ax.coord for ax in others}) != len(others):
+                continue
+            kids = self.children[j.child]
+            if len(kids) != 1 or any(b == j.child for b, _ in r.markers.values()):
+                continue
+            k = kids[0]
+            if k.name in skip or not self.exactness(k)[0] or any(
+                    c.translational and c.name not in r.couplers for c in k.coords):
+                continue
+            # T: what lies between the coupled rotation and k's first moving one (all constant)
+            T = identity_transform()
+            for ax in rots[at[0] + 1:]:
+                x = self.ref_value(ax.coord) if ax.coord is not None else 0.0
+                T = compose(T, (axis_rotation(ax.axis, float(ax.func(np.array(x)))), np.zeros(3)))
+            T = compose(compose(T, invert(j.child_offset)), k.parent_offset)
+            pk = np.zeros(3)
+            for ax in k.axes:
+                if ax.motion == "translation":
+                    pk = pk + float(ax.func(np.array(self.ref_value(ax.coord) if ax.coord else 0.0))) * ax.axis
+            T = compose(T, (np.eye(3), pk))
+            first = None
+            for ax in k.axes:
+                if ax.motion != "rotation":
+                    continue
+                if ax.coord is not None and ax.func.constant is None:
+                    first = ax
+                    break
+                T = compose(T, (axis_rotation(ax.axis, float(ax.func(np.array(0.0)))), np.zeros(3)))
+            if first is None or first.func.linear is None or np.linalg.norm(T[1]) > 1e-9:
+                continue
+            q = r.coords[first.coord]  # type: ignore[index]
+            if q.locked and not r.coords[ind].locked:
+                continue
+            there = T[0].T @ rots[at[0]].axis  # the coupled axis in k's frame, before its first moving rotation
+            along = float(there @ first.axis)
+            if abs(abs(along) - 1.0) > 1e-9:
+                continue
+            a1, b1 = rots[at[0]].func.linear
+            kf, bf = line
+            slope, constant = a1 * s * kf, a1 * s * bf + b1
+            constant = 0.0 if abs(constant) < 1e-12 else constant
+            # k's revolute turns about sign(its slope) · its axis (_exact_ops)
+            sign = np.sign(along) * np.sign(first.func.linear[0])
+            out[k.name] = _Fold(j.name, k.name, dep, ind, q.name, constant, slope, float(sign * slope))
+        return out
 
     # -------------------------------------------------------------- lumped chains
     def lumpable(self, j: OsimJoint) -> bool:
@@ -676,7 +814,10 @@ class _Importer:
         return Approximation(j.name, kind, tuple(c.name for c in j.coords), detail, 1000 * worst, worst_marker,
                              1000 * float(bound.max()), tuple(names), 1000 * one)
 
-    def _exact_ops(self, j: OsimJoint, frozen: set[str], freeze_nonlinear: bool = False) -> list[_Op]:
+    def _exact_ops(self, j: OsimJoint, frozen: set[str], freeze_nonlinear: bool = False,
+                   folded: Mapping[str, float] | None = None) -> list[_Op]:
+        """The joint as fixed parts and revolutes (a·q + b: a constant turn b, then a revolute of ratio |a|);
+        `folded`: coupled coordinates whose turn rides on the joint below (_Fold) -> the constant turn kept here."""
         p = np.zeros(3)
         ops: list[_Op] = []
         used: set[str] = set()
@@ -688,6 +829,9 @@ class _Importer:
         ops.append(_Op(fixed=(np.eye(3), p)))
         for ax in j.axes:
             if ax.motion != "rotation":
+                continue
+            if folded is not None and ax.coord in folded:
+                ops.append(_Op(fixed=(axis_rotation(ax.axis, folded[ax.coord]), np.zeros(3))))
                 continue
             lin = ax.func.linear
             moving = (ax.coord is not None and ax.func.constant is None and ax.coord not in frozen
@@ -890,6 +1034,9 @@ class _Importer:
 
         chains = self.find_chains()
         head_of = {k.name: j for j, ks in chains.items() for k in ks}
+        folds = self.find_folds(set(chains) | set(head_of))
+        folded_from = {f.joint: f for f in folds.values()}
+        mixes: dict[str, Mix] = {}
         ratios: dict[str, float] = {}
         ends: dict[str, list[np.ndarray]] = {b: [] for b in r.bodies}  # each child joint's place in the segment frame
         for j in self.order:
@@ -903,6 +1050,17 @@ class _Importer:
                 approximations.append(Approximation(
                     j.name, IN_CHAIN, tuple(c.name for c in j.coords), f"welded at {vals} (its default pose); "
                     f"{head_of[j.name]}'s lumped joint turns the chain", 0.0, "", 0.0, ()))
+            elif j.name in folded_from:
+                f = folded_from[j.name]
+                ops = self._exact_ops(j, set(), folded={f.dependent: f.constant})
+                approximations.append(Approximation(
+                    j.name, FOLDED, tuple(c.name for c in j.coords),
+                    f"{f.dependent} (= {f.slope:.4g} × {f.independent}"
+                    + (f" {'+' if f.constant >= 0 else '-'} {abs(f.constant):.4g}" if f.constant else "")
+                    + f") turns about the axis {f.child}'s {f.coordinate} turns about next: moved there, exactly; "
+                    f"the URDF's {f.coordinate} and the motion CSV's are {f.coordinate} "
+                    f"{'+' if f.mix >= 0 else '-'} {abs(f.mix):.4g} × {f.independent}, the .mot's and the .osim "
+                    f"export's OpenSim's coordinates", 0.0, "", 0.0, ()))
             else:
                 ops, approx = self.joint_ops(j)
                 if approx is not None:
@@ -929,8 +1087,15 @@ class _Importer:
                 if not last:
                     links.append(f'  <link name="{child}"/>')
                 c = r.coords[op.coord]  # type: ignore[index]
-                lim = f'\n    <axis xyz="{fmt_vec(op.axis)}"/>\n    <limit lower="{fmt_float(op.ratio * c.lo)}" ' \
-                      f'upper="{fmt_float(op.ratio * c.hi)}" effort="0" velocity="0"/>'
+                lo, hi = op.ratio * c.lo, op.ratio * c.hi
+                fold = folds.get(j.name)
+                if fold is not None and fold.coordinate == op.coord:  # the angle carries the coupled turn too
+                    ind = r.coords[fold.independent]
+                    lo, hi = lo + min(fold.mix * ind.lo, fold.mix * ind.hi), hi + max(fold.mix * ind.lo,
+                                                                                     fold.mix * ind.hi)
+                    mixes[op.coord] = Mix(fold.independent, fold.mix, fold.dependent, c.lo, c.hi)  # type: ignore[index]
+                lim = f'\n    <axis xyz="{fmt_vec(op.axis)}"/>\n    <limit lower="{fmt_float(lo)}" ' \
+                      f'upper="{fmt_float(hi)}" effort="0" velocity="0"/>'
                 if k == 1:
                     ends[j.parent].append(pending[1])
                 add_joint(op.coord, "revolute", prev, child, pending, lim,  # type: ignore[arg-type]
@@ -992,12 +1157,15 @@ class _Importer:
                 + ("; the source's names where its axes are the export's" if root_names else "") + ")",
                 0.0, "", 0.0, ()))
             dropped.extend(c for c in gone if c not in dropped)
-        locked = {c.name: ratios.get(c.name, 1.0) * c.default for c in r.coords.values() if c.locked and c.name in dofs}
         # the source's absolute path: the export reads its muscles from it, from wherever it runs (osim_forces)
-        info = OsimInfo(str(r.path.resolve()), root, locked, {n: ratios.get(n, 1.0) * self.defaults[n] for n in dofs},
-                        tuple(approximations), tuple(dropped), {b: seg_X[b] for b in r.bodies}, ratios=ratios,
-                        clamped=tuple(n for n in dofs if r.coords[n].clamped),
-                        root_names=root_names, gravity=r.gravity)
+        info = OsimInfo(str(r.path.resolve()), root, {}, {}, tuple(approximations), tuple(dropped),
+                        {b: seg_X[b] for b in r.bodies}, ratios=ratios, clamped=tuple(n for n in dofs if
+                                                                                     r.coords[n].clamped),
+                        root_names=root_names, gravity=r.gravity, mixes=mixes)
+        own = {c.name: c.default for c in r.coords.values()}
+        info = replace(info, locked={c.name: float(info.urdf_angle(c.name, own)) for c in r.coords.values()
+                                     if c.locked and c.name in dofs},
+                       defaults={n: float(info.urdf_angle(n, self.defaults)) for n in dofs})
         body = f'<robot name="{r.name}">\n' + "\n".join(links) + "\n" + "\n".join(joints) + "\n"
         together = self.measure_together(body + "</robot>\n", info)
         if together is not None:
@@ -1070,7 +1238,7 @@ class _Importer:
             q = pin.neutral(pm)
             for jid in range(1, pm.njoints):
                 name, jm = pm.names[jid], pm.joints[jid]
-                angle = info.ratio(name) * float(vals[name][n]) if name in vals else 0.0
+                angle = float(info.urdf_angle(name, {k: v[n] for k, v in vals.items()})) if name in vals else 0.0
                 if jm.nq == 1:
                     q[jm.idx_q] = angle
                 else:  # an unbounded revolute: (cos, sin)
@@ -1099,6 +1267,12 @@ def _info_xml(info: OsimInfo) -> str:
                           clamped="true" if name in info.clamped else "false")
         if name in info.ratios:
             c.set("ratio", fmt_float(info.ratios[name]))
+        mix = info.mixes.get(name)
+        if mix is not None:
+            c.set("plus", mix.independent)
+            c.set("times", fmt_float(mix.mix))
+            c.set("coupled", mix.dependent)
+            c.set("range", f"{fmt_float(mix.lo)} {fmt_float(mix.hi)}")
     for name in info.dropped:
         ET.SubElement(el, "dropped", coordinate=name)
     for ours, theirs in info.root_names.items():
@@ -1131,5 +1305,5 @@ def osim_to_urdf(path: str | os.PathLike[str], marker_set: str | os.PathLike[str
     return _Importer(reader).build(need_markers)
 
 
-__all__ = ["FLOATING", "FLOATING_ROOT", "IN_CHAIN", "JOINT_FIT", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT", "PROBE",
-           "Approximation", "OsimInfo", "RootInfo", "Together", "osim_to_urdf"]
+__all__ = ["FLOATING", "FLOATING_ROOT", "FOLDED", "IN_CHAIN", "JOINT_FIT", "LEFT_OUT", "LUMPED", "NO_MARKER_EFFECT",
+           "PROBE", "Approximation", "Mix", "OsimInfo", "RootInfo", "Together", "osim_to_urdf"]

@@ -185,6 +185,7 @@ class _Builder:
         self.p = p
         self.bodies: list[ET.Element] = []
         self.joints: list[ET.Element] = []
+        self.couplers: list[ET.Element] = []  # CoordinateCouplerConstraints of folded turns (anatomical_joint)
         self.scale = {s.name: float(p.scale[i]) for i, s in enumerate(model.segments)}
         self.urdf = {u.name: u for u in model.urdf_joints}
         self.limits = {d.name: (d.lower, d.upper, d.continuous) for d in model.dofs}
@@ -248,6 +249,18 @@ class _Builder:
         info = self.info
         g = self.ratio(name)
         default = info.defaults.get(name, 0.0) / g if info is not None else 0.0
+        mix = info.mixes.get(name) if info is not None else None
+        dependent = next((m for m in info.mixes.values() if m.dependent == name), None) if info is not None else None
+        if mix is not None:  # a fold's coordinate: OpenSim's range and default, not its URDF angle's
+            default = float(info.coordinates(info.defaults)[name])  # type: ignore[union-attr]
+            c = ET.Element("Coordinate", name=name)
+            _text(c, "default_value", fmt_float(default))
+            _text(c, "range", f"{fmt_float(mix.lo)} {fmt_float(mix.hi)}")
+            _text(c, "clamped", "true" if name in info.clamped else "false")  # type: ignore[union-attr]
+            _text(c, "locked", "true" if name in info.locked else "false")  # type: ignore[union-attr]
+            return c
+        if dependent is not None:  # its coupled turn, followed by OpenSim through the constraint
+            default = dependent.mix * float(info.coordinates(info.defaults).get(dependent.independent, 0.0))  # type: ignore[union-attr]
         if name in self.limits:
             lo, hi, cont = self.limits[name]
             bounded = not cont and np.isfinite(lo) and np.isfinite(hi)
@@ -346,6 +359,18 @@ class _Builder:
             if u.dof >= 0:
                 rotations.append((u, self.axis(u)))
                 offsets.append(identity_transform())
+        mix = self.info.mixes.get(rotations[0][0].name) if self.info is not None and rotations else None
+        if mix is not None:
+            # A fold (calibrate.io.osim.FOLDED): the first angle is OpenSim's coordinate plus the coupled turn
+            # mix · independent.  The coupled turn, about the same axis, goes on a joint of its own before this one
+            # (OpenSim refuses two collinear axes in one CustomJoint), through a massless body, its coordinate the
+            # source's coupled one under a CoordinateCouplerConstraint; the joint's own angle is the coordinate's.
+            body = f"{child}_{mix.dependent}"
+            self.body(body, 0.0, np.zeros(3), np.zeros((3, 3)))
+            self.joint("CustomJoint", f"{name}_{mix.dependent}", parent, offsets[0], body, identity_transform(),
+                       [(mix.dependent, rotations[0][1], "rotation")])
+            self.couplers.append(_coupler(mix.dependent, mix.independent, mix.mix))
+            parent, offsets[0] = body, identity_transform()
         if not rotations:
             self.joint("WeldJoint", name, parent, offsets[0], child, identity_transform())
             return
@@ -398,6 +423,8 @@ class _Builder:
         for set_name, tag, items in (("bodyset", "BodySet", self.bodies), ("jointset", "JointSet", self.joints)):
             objs = ET.SubElement(ET.SubElement(m, tag, name=set_name), "objects")
             objs.extend(items)
+        if self.couplers:
+            ET.SubElement(ET.SubElement(m, "ConstraintSet", name="constraintset"), "objects").extend(self.couplers)
         if self.carried is not None and self.carried.forces:
             ET.SubElement(ET.SubElement(m, "ForceSet", name="forceset"), "objects").extend(self.carried.forces)
         objs = ET.SubElement(ET.SubElement(m, "MarkerSet", name="markerset"), "objects")
@@ -414,6 +441,18 @@ def _text(parent: ET.Element, tag: str, text: str) -> ET.Element:
     el = ET.SubElement(parent, tag)
     el.text = text
     return el
+
+
+def _coupler(dependent: str, independent: str, slope: float) -> ET.Element:
+    """OpenSim's CoordinateCouplerConstraint dependent = slope · independent."""
+    c = ET.Element("CoordinateCouplerConstraint", name=f"{dependent}_con")
+    _text(c, "isEnforced", "true")
+    f = ET.SubElement(ET.SubElement(c, "coupled_coordinates_function"), "LinearFunction")
+    _text(f, "coefficients", f"{fmt_float(slope)} 0")
+    _text(c, "independent_coordinate_names", independent)
+    _text(c, "dependent_coordinate_name", dependent)
+    _text(c, "scale_factor", "1")
+    return c
 
 
 def _spatial_transform(coords: Sequence[tuple[str, np.ndarray, str]],
@@ -595,19 +634,25 @@ def mot_columns(model: Model, motion: Motion, params: Parameters | None = None) 
 
     info = osim_info(model)
     angles = motion.angles[:, order]
-    if info is not None and info.ratios:  # a lumped chain's whole turn -> OpenSim's coordinate
-        angles = angles / np.array([info.ratio(d) for d in model.dof_names])
+    extra: list[str] = []
+    if info is not None and (info.ratios or info.mixes):  # a lumped chain's whole turn, a fold -> OpenSim's coordinate
+        coords = info.coordinates({d: angles[:, k] for k, d in enumerate(model.dof_names)})
+        # a fold's coupled coordinate too, as OpenSim's IK writes every coordinate (tools that set a .mot's values
+        # without assembling the constraints then turn it as OpenSim would)
+        extra = [m.dependent for m in info.mixes.values() if m.independent in coords]
+        coords.update({m.dependent: m.mix * coords[m.independent] for m in info.mixes.values() if m.dependent in extra})
+        angles = np.stack([coords[d] for d in [*model.dof_names, *extra]], axis=1) if coords else angles
     if info is not None and info.root is not None:  # OpenSim's own ground-joint coordinates
         s = 1.0 if params is None else float(params.scale[0])
         root = root_coordinates(info, motion.root_translation, motion.root_quaternion / norms[:, None], s)
         names = [n for n, _ in info.root.rotations + info.root.translations]
         values = np.hstack([motion.times[:, None], np.array([root[n] for n in names]).T, angles])
-        return ["time", *names, *model.dof_names], values
+        return ["time", *names, *model.dof_names, *extra], values
     euler = quat_eulers(motion.root_quaternion / norms[:, None], "ZYX")
     euler = np.unwrap(euler, axis=0)  # continuous angles; the same rotations
     values = np.hstack([motion.times[:, None], euler, motion.root_translation, angles])
     rot_names, trans_names = floating_root_names(info)
-    return ["time", *rot_names, *trans_names, *model.dof_names], values
+    return ["time", *rot_names, *trans_names, *model.dof_names, *extra], values
 
 
 def mot_text(model: Model, motion: Motion, name: str = "motion", params: Parameters | None = None) -> str:
@@ -620,7 +665,9 @@ def mot_text(model: Model, motion: Motion, name: str = "motion", params: Paramet
         {n for n, _ in info.root.rotations}
     # A lumped chain's coordinate turns its axis by a LinearFunction of slope ≠ 1: OpenSim calls it Coupled and
     # reads (and writes) it in radians in a file in degrees.
-    rotational = np.array([n in root_rot or (n in model.dof_names and (info is None or info.ratio(n) == 1.0))
+    dependents = {m.dependent for m in info.mixes.values()} if info is not None else set()
+    rotational = np.array([n in root_rot or n in dependents or (n in model.dof_names and (info is None or
+                                                                                        info.ratio(n) == 1.0))
                            for n in names])
     values = np.where(rotational, np.degrees(values), values)
     head = [name, "version=1", f"nRows={values.shape[0]}", f"nColumns={values.shape[1]}", "inDegrees=yes",
@@ -777,8 +824,9 @@ def cmd_export_osim(args: argparse.Namespace) -> int:
         raise CalibrateError(f"{targets['osim'].parent}: cannot write ({e.strerror}); choose a writable place") \
             from None
     print(f"{model.summary()}")
-    print(f"wrote {targets['osim']}  ({len(model.segments)} bodies, {len(model.joints) + 1} joints, "
-          f"{len(model.markers)} markers)")
+    doc = ET.fromstring(osim.split("\n", 1)[1])  # (bodies and joints as written: connectors, folds included)
+    n_bodies, n_joints = (len(doc.findall(f"./Model/{tag}/objects/*")) for tag in ("BodySet", "JointSet"))
+    print(f"wrote {targets['osim']}  ({n_bodies} bodies, {n_joints} joints, {len(model.markers)} markers)")
     for line in forces_lines(carried):
         print(f"      {line}")
     if "mot" in targets:

@@ -303,7 +303,7 @@ class _PathLengths:
 
         self.defaults = dict(info.defaults)  # the URDF's angles
         # OpenSim's coordinates (a lumped chain's over its ratio): what path points' functions and ranges read
-        self.coordinates = {n: v / info.ratio(n) for n, v in info.defaults.items()}
+        self.coordinates = {n: float(v) for n, v in info.coordinates(info.defaults).items()}
         # (a source model whose markers come in a marker-set file has none: read with one at the root's origin)
         text, _ = osim_to_urdf(info.source, need_markers=False)
         self._before = self._placements(_Model(Path(info.source), text=text), None)

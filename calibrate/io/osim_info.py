@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT, Approximation, OsimInfo, RootInfo, Together
+from calibrate.io.osim import FLOATING, LEFT_OUT, NO_MARKER_EFFECT, Approximation, Mix, OsimInfo, RootInfo, Together
 from calibrate.io.osim_read import xml_floats
 
 from ..errors import ModelError
@@ -52,6 +52,9 @@ def osim_info(model) -> OsimInfo | None:
     bodies = {e.get("name", ""): X(e) for e in el.findall("body")}
     body_scale = {e.get("name", ""): float(e.get("scale", "1")) for e in el.findall("body")}
     ratios = {e.get("name", ""): float(e.get("ratio", "1")) for e in el.findall("coordinate") if e.get("ratio")}
+    mixes = {e.get("name", ""): Mix(e.get("plus", ""), float(e.get("times", "0")), e.get("coupled", ""),
+                                    *xml_floats(e.get("range", "0 0"))) for e in el.findall("coordinate")
+             if e.get("plus")}
     t = el.find("together")
     together = None if t is None else Together(float(t.get("max_marker_mm", "0")), t.get("marker", ""),
                                                float(t.get("mean_mm", "0")), int(t.get("poses", "0")))
@@ -60,7 +63,7 @@ def osim_info(model) -> OsimInfo | None:
     root_names = {e.get("coordinate", ""): e.get("source", "") for e in el.findall("root_name")}
     gravity = tuple(xml_floats(el.get("gravity"))) if el.get("gravity") else (0.0, -9.80665, 0.0)  # y up before
     return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios,
-                    together, clamped, root_names, gravity)  # type: ignore[arg-type]
+                    together, clamped, root_names, gravity, mixes)  # type: ignore[arg-type]
 
 
 def with_locked(model, settings):

@@ -125,12 +125,19 @@ def _coordinate_values(path: Path, tool, model, root_ok: bool = False) -> tuple[
             raise ModelError(f"{path}: coordinate task '{name}' names " + (
                 "a coordinate the import made a function of another (coupled) or froze; remove the task"
                 if dropped else f"no coordinate of {model.path.name}; is the setup for this model?"))
+        mix = info.mixes.get(name) if info is not None else None
+        if mix is not None and mix.independent not in info.locked:  # type: ignore[union-attr]
+            raise ModelError(f"{path}: coordinate task '{name}' holds a coordinate whose joint the import also turns "
+                             f"by {mix.independent} (the coupled {mix.dependent} folded onto it), which moves freely "
+                             f"here; remove the task, or lock {mix.independent} in the model too")
         kind = (task.findtext("value_type") or "default_value").strip()
         if kind == "default_value":
             value = defaults.get(name, 0.0)
         elif kind == "manual_value":
             try:  # in the URDF's angle (a lumped chain's whole turn: OpenSim's value times its ratio)
                 value = float(task.findtext("value") or 0.0) * (info.ratio(name) if info is not None else 1.0)
+                if mix is not None:  # the folded turn at the locked value of its coordinate (OsimInfo.urdf_angle)
+                    value += mix.mix * info.locked[mix.independent] / info.ratio(mix.independent)  # type: ignore
             except ValueError:
                 value = math.nan
         else:
