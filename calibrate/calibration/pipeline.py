@@ -192,9 +192,9 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     given = settings.lock  # the user's locks (Settings.lock, --lock, an IK setup's tasks), checked against the ranges
     opensim = "<opensim" in model.text
     if opensim:
-        from ..io.osim_info import with_locked
+        from ..io.osim_info import with_gimbals, with_locked
 
-        settings = with_locked(model, settings)
+        settings = with_gimbals(model, with_locked(model, settings))
     if settings.segment_frames is None:
         settings = replace(settings, segment_frames="markers" if opensim else "priors")
     known = set(model.marker_names).union(*(t.labels for t in trials))

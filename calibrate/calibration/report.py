@@ -335,12 +335,15 @@ def _measurement_lines(cal) -> list[str]:
 def _held_why(cal) -> list[str]:
     """Why calibrate held the axes it held (the summary's `axes held` line): the joints the trial does not show
     moving, and those the moving trials turn too little to place their axis against the skin (narrow_axes)."""
+    from ..io.osim_info import gimbal_text, osim_info
+
     narrow = dict(cal.narrow_axes)
     quiet = [n for n in cal.held_axes if n not in narrow]
+    gimbal = gimbal_text(osim_info(cal.model), cal.settings.hold_axes) if "<opensim" in cal.model.text else ""
     return ([f"; the trial does not show {', '.join(quiet)} moving"] if quiet else []) + (
         [f"; the moving trials turn {', '.join(f'{n} through {math.degrees(t):.0f} deg' for n, t in narrow.items())}"
          " only: too little to place an axis against the skin's turn of the segments (up to 4.4 deg in a walk)"]
-        if narrow else [])
+        if narrow else []) + ([f"; {gimbal} (--no-auto-hold frees them)"] if gimbal else [])
 
 
 def _trial_name(cal, k: int) -> str:

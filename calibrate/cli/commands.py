@@ -650,7 +650,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def print_osim(model) -> None:
     """What an OpenSim import approximated, locked and dropped (nothing for a model not from a .osim)."""
-    from ..io.osim_info import approximation_table, osim_info
+    from ..io.osim_info import approximation_table, gimbal_text, osim_info
 
     info = osim_info(model)
     if info is None:
@@ -661,6 +661,8 @@ def print_osim(model) -> None:
         print(f"  locked coordinates (held in every frame): {', '.join(info.locked)}")
     if info.dropped:
         print(f"  coordinates that are not degrees of freedom here: {', '.join(info.dropped)}")
+    for coords, _ in info.gimbals:
+        print(f"  gimbal: {gimbal_text(info, coords)}; a calibration holds their axes (--no-auto-hold frees them)")
 
 
 def cmd_import_osim(args: argparse.Namespace) -> int:

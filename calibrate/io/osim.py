@@ -63,6 +63,7 @@ GRID = 401  # coordinate values over a range at which approximations are measure
 MIN_MASS = 1e-6  # kg: a massless OpenSim body is kept as a segment with this mass
 FLOATING_ROOT = ("root_rz", "root_ry", "root_rx", "root_x", "root_y", "root_z")  # the export's floating root's
 # coordinates (its ROOT_ROTATIONS, ROOT_TRANSLATIONS), unless the source names some (OsimInfo.root_names)
+GIMBAL_MASS = 1e-3  # kg: a body between two hinges about one point lighter than this is a phantom (find_gimbals)
 TOGETHER_POSES = 500  # random poses where the approximations' joint effect is measured (Together)
 PROBE = "calibrate_default_pose_probe"  # the marker at the root's origin of a model read without its markers
 
@@ -174,6 +175,10 @@ class OsimInfo:
     # coordinate -> its fold (a joint's coupled turn moved onto this coordinate's revolute, FOLDED): the URDF angle is
     # ratio · coordinate + mix · independent, OpenSim's coordinates on both sides
     mixes: dict[str, Mix] = field(default_factory=dict)
+    # hinges the source chains about one centre through light bodies without markers (MoBL-ARMS's shoulder0, 1, 2
+    # through humphant and humphant1): an angle convention for one ball, their axes no subject's to calibrate
+    # (_Importer.find_gimbals; with_gimbals holds them): (coordinates, the bodies between) per chain
+    gimbals: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = ()
 
     def ratio(self, coordinate: str) -> float:
         """The URDF angle per unit of OpenSim's `coordinate` (1 but in a lumped chain)."""
@@ -562,6 +567,48 @@ class _Importer:
             sign = np.sign(along) * np.sign(first.func.linear[0])
             out[k.name] = _Fold(j.name, k.name, dep, ind, q.name, constant, slope, float(sign * slope))
         return out
+
+    # -------------------------------------------------------------- gimbals
+    def find_gimbals(self, ops_of: Mapping[str, list[_Op]]) -> tuple[tuple[tuple[str, ...], tuple[str, ...]], ...]:
+        """Chains of joints that turn about one point through bodies lighter than GIMBAL_MASS without markers, each
+        body between with that one joint below it: (their coordinates, the bodies between) per chain of two or
+        more.  Every translation from the chain's first revolute to its last is zero, so the chain is one ball
+        written as a sequence of hinges (MoBL-ARMS's shoulder: elv_angle, shoulder_elv, shoulder_rot through
+        humphant and humphant1).  `ops_of`: each joint's ops as the import built them."""
+        r = self.r
+        marked = {b for b, _ in r.markers.values()}
+
+        def inner(ops: list[_Op], first: bool) -> bool:
+            """No translation between the revolutes of `ops` (from its first revolute on, or up to its last)."""
+            at = [i for i, op in enumerate(ops) if op.coord is not None]
+            part = (ops[at[0]:] if first else ops[at[0]:at[-1]]) if at else []
+            return bool(at) and all(op.fixed is None or np.linalg.norm(op.fixed[1]) < 1e-9 for op in part)
+
+        def light(body: str) -> bool:
+            return (body not in marked and r.bodies[body][0] < GIMBAL_MASS and len(self.children[body]) == 1)
+
+        out = []
+        seen: set[str] = set()
+        for j in self.order:
+            if j.name in seen or j.name not in ops_of or not inner(ops_of[j.name], True):
+                continue
+            chain, bodies = [j], []
+            while light(chain[-1].child) and inner(ops_of[chain[-1].name], True):
+                k = self.children[chain[-1].child][0]
+                gap = compose(invert(chain[-1].child_offset), k.parent_offset)
+                ops_k = ops_of.get(k.name, [])
+                head = [i for i, op in enumerate(ops_k) if op.coord is not None]
+                if (not head or np.linalg.norm(gap[1]) > 1e-9 or not inner(ops_k, False)
+                        or any(op.fixed is not None and np.linalg.norm(op.fixed[1]) > 1e-9
+                               for op in ops_k[:head[0]])):
+                    break
+                bodies.append(chain[-1].child)
+                chain.append(k)
+            if len(chain) >= 2:
+                seen.update(k.name for k in chain)
+                coords = tuple(op.coord for k in chain for op in ops_of[k.name] if op.coord is not None)
+                out.append((coords, tuple(bodies)))  # type: ignore[arg-type]
+        return tuple(out)
 
     # -------------------------------------------------------------- lumped chains
     def lumpable(self, j: OsimJoint) -> bool:
@@ -1037,6 +1084,7 @@ class _Importer:
         folds = self.find_folds(set(chains) | set(head_of))
         folded_from = {f.joint: f for f in folds.values()}
         mixes: dict[str, Mix] = {}
+        ops_of: dict[str, list[_Op]] = {}  # each joint's ops as built (find_gimbals reads them)
         ratios: dict[str, float] = {}
         ends: dict[str, list[np.ndarray]] = {b: [] for b in r.bodies}  # each child joint's place in the segment frame
         for j in self.order:
@@ -1068,6 +1116,7 @@ class _Importer:
                 # a rotation of a·coordinate + b (Christophy's spine: L5/S1 turns by a share of the lumbar coordinates)
                 ratios.update({op.coord: op.ratio for op in ops if op.coord is not None and op.ratio != 1.0})
             revs = [op for op in ops if op.coord is not None]
+            ops_of[j.name] = list(ops)
             tail = identity_transform()
             if revs:
                 ops, tail = _body_aligned(ops, j.child_offset)
@@ -1161,7 +1210,8 @@ class _Importer:
         info = OsimInfo(str(r.path.resolve()), root, {}, {}, tuple(approximations), tuple(dropped),
                         {b: seg_X[b] for b in r.bodies}, ratios=ratios, clamped=tuple(n for n in dofs if
                                                                                      r.coords[n].clamped),
-                        root_names=root_names, gravity=r.gravity, mixes=mixes)
+                        root_names=root_names, gravity=r.gravity, mixes=mixes,
+                        gimbals=self.find_gimbals(ops_of))
         own = {c.name: c.default for c in r.coords.values()}
         info = replace(info, locked={c.name: float(info.urdf_angle(c.name, own)) for c in r.coords.values()
                                      if c.locked and c.name in dofs},
@@ -1275,6 +1325,8 @@ def _info_xml(info: OsimInfo) -> str:
             c.set("range", f"{fmt_float(mix.lo)} {fmt_float(mix.hi)}")
     for name in info.dropped:
         ET.SubElement(el, "dropped", coordinate=name)
+    for coords, bodies in info.gimbals:
+        ET.SubElement(el, "gimbal", coordinates=" ".join(coords), bodies=" ".join(bodies))
     for ours, theirs in info.root_names.items():
         ET.SubElement(el, "root_name", coordinate=ours, source=theirs)
     for name, (R, t) in info.bodies.items():

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +56,8 @@ def osim_info(model) -> OsimInfo | None:
     mixes = {e.get("name", ""): Mix(e.get("plus", ""), float(e.get("times", "0")), e.get("coupled", ""),
                                     *xml_floats(e.get("range", "0 0"))) for e in el.findall("coordinate")
              if e.get("plus")}
+    gimbals = tuple((tuple(e.get("coordinates", "").split()), tuple(e.get("bodies", "").split()))
+                    for e in el.findall("gimbal"))
     t = el.find("together")
     together = None if t is None else Together(float(t.get("max_marker_mm", "0")), t.get("marker", ""),
                                                float(t.get("mean_mm", "0")), int(t.get("poses", "0")))
@@ -63,7 +66,7 @@ def osim_info(model) -> OsimInfo | None:
     root_names = {e.get("coordinate", ""): e.get("source", "") for e in el.findall("root_name")}
     gravity = tuple(xml_floats(el.get("gravity"))) if el.get("gravity") else (0.0, -9.80665, 0.0)  # y up before
     return OsimInfo(el.get("source", ""), root, locked, defaults, approx, dropped, bodies, body_scale, ratios,
-                    together, clamped, root_names, gravity, mixes)  # type: ignore[arg-type]
+                    together, clamped, root_names, gravity, mixes, gimbals)  # type: ignore[arg-type]
 
 
 def with_locked(model, settings):
@@ -77,6 +80,31 @@ def with_locked(model, settings):
     have = dict(settings.lock)
     merged = {**{k: v for k, v in info.locked.items() if k in set(model.dof_names)}, **have}
     return replace(settings, lock=tuple(sorted(merged.items())))
+
+
+def with_gimbals(model, settings):
+    """`settings` with the axes of the model's gimbals (OsimInfo.gimbals: hinges the source chains about one centre
+    through light bodies without markers, an angle convention for one ball) held at the model's (Settings.hold_axes),
+    where the settings hold axes automatically and free them at all.  Left free, MoBL-ARMS's three shoulder hinges
+    trade their axes through the two markerless bodies: a simulated arm's elv_angle axis turned 81 deg, the shoulder
+    angles 50-73 deg RMS from the truth; held, 3.6-13.5 deg (docs/benchmarks.md)."""
+    from dataclasses import replace
+
+    info = osim_info(model)
+    if info is None or not info.gimbals or not settings.auto_hold or "axis" not in settings.free:
+        return settings
+    locked = {n for n, _ in settings.lock}
+    add = tuple(c for coords, _ in info.gimbals for c in coords
+                if c in set(model.dof_names) and c not in locked and c not in settings.hold_axes)
+    return replace(settings, hold_axes=settings.hold_axes + add) if add else settings
+
+
+def gimbal_text(info: OsimInfo | None, held: Collection[str]) -> str:
+    """Why the gimbals' axes among `held` are held (the summary's `axes held` line), or ''."""
+    parts = [f"{', '.join(c for c in coords if c in held)} turn about one centre through {', '.join(bodies)} (light, "
+             "no markers): one ball in the source's angle convention, not axes to calibrate"
+             for coords, bodies in (info.gimbals if info is not None else ()) if any(c in held for c in coords)]
+    return "; ".join(parts)
 
 
 def import_summary(info: OsimInfo) -> list[str]:
@@ -157,4 +185,5 @@ def fixed_flags(osim: str | os.PathLike[str], marker_set: str | os.PathLike[str]
     return out
 
 
-__all__ = ["approximation_table", "fixed_flags", "import_summary", "osim_info", "root_coordinates", "with_locked"]
+__all__ = ["approximation_table", "fixed_flags", "gimbal_text", "import_summary", "osim_info", "root_coordinates",
+           "with_gimbals", "with_locked"]
