@@ -231,3 +231,27 @@ def test_inspect_says_whether_a_trial_keeps_still(tmp_path, capsys):
         sd = np.std(d, axis=0, ddof=1)[np.triu_indices(X.shape[1], 1)]
         assert float(re.search(r"to ([0-9.]+) mm SD", line).group(1)) == pytest.approx(1000 * np.median(sd), abs=0.06)
         assert word in line, line
+
+
+def test_an_opensim_models_coordinates_take_the_motions_by_their_names():
+    """An imported OpenSim model's coordinates take the squats' and the walk's motions by OpenSim's names
+    (motions.OPENSIM_MOTIONS): Rajagopal2016's knees flex through a squat (they had a generic +-20 deg sinusoid while
+    its hips flexed 100 deg), gait2392's knee_angle, negative in flexion (range -120 to 10 deg), flexes negative, and
+    lumbar_extension (the trunk's extension) leans the trunk forward, negative."""
+    from pathlib import Path
+
+    real = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+    raj = real / "rajagopal_walk" / "Rajagopal2016.osim"
+    g2392 = real / "gait2392" / "gait2392.osim"
+    if not raj.is_file() or not g2392.is_file():
+        pytest.skip("../shared/data/real is not here")
+    for path, marker_set in ((raj, None), (g2392, g2392.with_name("gait2392_Scale_MarkerSet.xml"))):
+        model = load_model(path, marker_set)
+        squats = simulate_squats(model, frames=400, seed=1).motion.angles
+        walk = simulate_gait(model, frames=240, seed=1).motion.angles
+        knee, trunk = model.dof_index("knee_angle_r"), model.dof_index("lumbar_extension")
+        flex = -1.0 if path == g2392 else 1.0  # the knee's flexion, as the model's range puts it
+        assert np.degrees(np.max(flex * squats[:, knee])) > 90 and np.degrees(np.min(flex * squats[:, knee])) < 20
+        assert np.degrees(np.ptp(walk[:, knee])) > 45
+        assert np.degrees(np.max(squats[:, trunk])) < 1 and np.degrees(np.min(squats[:, trunk])) < -20
+        assert np.degrees(np.ptp(squats[:, model.dof_index("ankle_angle_r")])) > 25

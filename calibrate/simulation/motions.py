@@ -58,16 +58,16 @@ def squat_angles(model: Model, times: np.ndarray, rng: np.random.Generator) -> n
     }
     out = np.zeros((times.size, model.n_dofs))
     for i, d in enumerate(model.dofs):
-        key = generic_dof_name(d.name)
+        key, sign = dof_motion(d)
         off, sq, own = table.get(key, (0, 0, 20))
         freq = rng.uniform(0.13, 0.55)  # Hz; distinct per DoF
         phase = rng.uniform(0, 2 * np.pi)
         th = deg(off) + deg(sq) * s + deg(own) * np.sin(2 * np.pi * freq * times + phase)
-        lo, hi = d.lower, d.upper
+        lo, hi = _flipped(d, sign)
         if np.isfinite(lo) and np.isfinite(hi):
             margin = 0.02 * (hi - lo)
             th = np.clip(th, lo + margin, hi - margin)
-        out[:, i] = th
+        out[:, i] = sign * th
     return out
 
 
@@ -77,6 +77,38 @@ def generic_dof_name(name: str) -> str:
     return "_".join(parts)
 
 
+# OpenSim's coordinate names (gait2392, Rajagopal2016, Hamner, MoBL-ARMS; side removed) -> the motion of the tables
+# above they take; a leading "-": the coordinate turns the other way (lumbar_extension is the trunk's extension).
+# Without them an imported model's knees and elbows took a generic ±20 deg sinusoid: its squats flexed the hips 100
+# deg with the knees nearly straight.
+OPENSIM_MOTIONS = {
+    "knee_angle": "knee", "ankle_angle": "ankle", "subtalar_angle": "subtalar", "lumbar_extension": "-lumbar_flexion",
+    "arm_flex": "shoulder_flexion", "arm_add": "shoulder_adduction", "arm_rot": "shoulder_rotation",
+    "elbow_flex": "elbow", "elbow_flexion": "elbow", "pro_sup": "radioulnar", "wrist_flex": "wrist_flexion",
+    "wrist_dev": "wrist_deviation", "shoulder_elv": "shoulder_flexion", "shoulder_rot": "shoulder_rotation",
+}
+
+
+def dof_motion(d) -> tuple[str, float]:
+    """The tables' motion a DoF takes and its sign: its generic name (generic_dof_name), or an OpenSim coordinate's
+    (OPENSIM_MOTIONS), turned the other way where the coordinate's range says its joint flexes negative (gait2392's
+    knee_angle, -120 to 10 deg)."""
+    key = generic_dof_name(d.name)
+    mapped = OPENSIM_MOTIONS.get(key)
+    if mapped is None:
+        return key, 1.0
+    sign = -1.0 if mapped.startswith("-") else 1.0
+    mapped = mapped.lstrip("-")
+    if mapped in ("knee", "elbow") and np.isfinite(d.lower) and d.upper < 0.35 and d.lower < -1.0:
+        sign = -sign
+    return mapped, sign
+
+
+def _flipped(d, sign: float) -> tuple[float, float]:
+    """The DoF's limits as the motion turns (negated and swapped for sign -1)."""
+    return (d.lower, d.upper) if sign > 0 else (-d.upper, -d.lower)
+
+
 def gait_angles(model: Model, times: np.ndarray, cycle: float, rng: np.random.Generator) -> np.ndarray:
     """Joint angles (n_frames, n_dofs) of treadmill walking with stride time `cycle` (s): GAIT_TABLE's
     ranges, the left side half a cycle after the right, within limits."""
@@ -84,14 +116,15 @@ def gait_angles(model: Model, times: np.ndarray, cycle: float, rng: np.random.Ge
     phase = 2 * np.pi * times / cycle
     out = np.zeros((times.size, model.n_dofs))
     for i, d in enumerate(model.dofs):
-        off, a1, a2, own = GAIT_TABLE.get(generic_dof_name(d.name), (0, 2, 0, 0.5))
+        key, sign = dof_motion(d)
+        off, a1, a2, own = GAIT_TABLE.get(key, (0, 2, 0, 0.5))
         ph = phase + (np.pi if "_l_" in f"_{d.name}_" else 0.0)  # the left side half a stride later
         th = (deg(off) + deg(a1) * np.sin(ph) + deg(a2) * np.sin(2 * ph + 0.5)
               + deg(own) * np.sin(2 * np.pi * rng.uniform(0.2, 0.5) * times + rng.uniform(0, 2 * np.pi)))
-        lo, hi = d.lower, d.upper
+        lo, hi = _flipped(d, sign)
         if np.isfinite(lo) and np.isfinite(hi):
             th = np.clip(th, lo + 0.02 * (hi - lo), hi - 0.02 * (hi - lo))
-        out[:, i] = th
+        out[:, i] = sign * th
     return out
 
 
@@ -124,9 +157,9 @@ def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, r
     out = np.zeros((times.size, model.n_dofs))
     arcs = {side: arm_arcs(times, rng, delay) for side, delay in (("r", 0.0), ("l", 0.5 * OVERHEAD_ARC[0]))}
     for i, d in enumerate(model.dofs):
-        key = generic_dof_name(d.name)
+        key, sign = dof_motion(d)
         own = np.sin(2 * np.pi * rng.uniform(0.13, 0.55) * times + rng.uniform(0, 2 * np.pi))
-        lo, hi = d.lower, d.upper
+        lo, hi = _flipped(d, sign)
         if not (np.isfinite(lo) and np.isfinite(hi)):
             lo, hi = -np.pi, np.pi
         margin = 0.02 * (hi - lo)
@@ -142,14 +175,14 @@ def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, r
             else:  # the humerus turns out and in about its long axis during each arc
                 th = (deg(15) * own * rest + deg(60) * np.sin(2 * np.pi * u_s) * np.sin(np.pi * u_s)
                       - deg(80) * np.sin(2 * np.pi * u_t) * np.sin(np.pi * u_t))
-            out[:, i] = np.clip(th, lo, hi)
+            out[:, i] = sign * np.clip(th, lo, hi)
             continue
         span = reach * (hi - lo)
         below = REACH_START.get(key, 0.5)
         start = min(max(-below * span, lo), hi - span)  # the swept interval [start, start + span]
         o = 0.5 + 0.5 * own
         w = 0.75 * squat + 0.25 * o if key in SQUAT_COUPLED else o
-        out[:, i] = start + span * w
+        out[:, i] = sign * (start + span * w)
     return out
 
 
