@@ -255,3 +255,25 @@ def test_an_opensim_models_coordinates_take_the_motions_by_their_names():
         assert np.degrees(np.ptp(walk[:, knee])) > 45
         assert np.degrees(np.max(squats[:, trunk])) < 1 and np.degrees(np.min(squats[:, trunk])) < -20
         assert np.degrees(np.ptp(squats[:, model.dof_index("ankle_angle_r")])) > 25
+
+
+def test_simulate_an_osim_with_its_marker_set(tmp_path, capsys):
+    """`calibrate simulate --model MODEL.osim --marker-set XML` simulates the OpenSim model with the marker set's
+    markers (gait2392.osim has none of its own); --marker-set without an .osim is one line, exit 2, nothing written."""
+    from pathlib import Path
+
+    g = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "gait2392"
+    if not (g / "gait2392.osim").is_file():
+        pytest.skip("../shared/data/real is not here")
+    out = tmp_path / "s"
+    assert main(["simulate", "--out", str(out), "--model", str(g / "gait2392.osim"), "--marker-set",
+                 str(g / "gait2392_Scale_MarkerSet.xml"), "--frames", "30", "--seed", "1"]) == 0
+    trial = read_c3d(out / "trial.c3d")
+    assert {"R.ASIS", "R.Heel", "R.Knee.Lat"} <= set(trial.labels)
+    assert {"hip_flexion_r", "knee_angle_r", "lumbar_extension"} <= set(read_motion_csv(out / "truth_motion.csv")
+                                                                        .dof_names)
+    capsys.readouterr()
+    bad = tmp_path / "b"
+    assert main(["simulate", "--out", str(bad), "--marker-set", str(g / "gait2392_Scale_MarkerSet.xml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--marker-set adds markers to an OpenSim model" in err[0] and not bad.exists()

@@ -48,7 +48,10 @@ def run_simulation(args: argparse.Namespace):
     from ..model.model import load_model
     from ..simulation.simulate import MOTIONS, simulate_realistic, write_simulation
 
-    model = load_model(args.model or default_model())
+    if args.marker_set is not None and (args.model is None or args.model.suffix.lower() != ".osim"):
+        raise CalibrateError(f"{args.marker_set}: --marker-set adds markers to an OpenSim model; give the .osim with "
+                             "--model")
+    model = load_model(args.model or default_model(), args.marker_set)
     if args.out.exists() and not args.out.is_dir():
         raise CalibrateError(f"{args.out}: exists and is not a directory; choose another --out")
     if not getattr(args, "overwrite", True):

@@ -58,7 +58,11 @@ def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
                    help="as a lab records it: overhead arm arcs with every joint through ~70 %% of its range, "
                         "--sta-mm 3, a random stature of 1.5-2.0 m, --gap-fraction 0.05, --swaps 3, --spikes 5, "
                         "1 mm noise; the flags above override")
-    p.add_argument("--model", type=Path, default=None, help="base model URDF (default: models/human.urdf)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="base model, a URDF or an OpenSim .osim (default: models/human.urdf)")
+    p.add_argument("--marker-set", type=Path, default=None, metavar="XML",
+                   help="an OpenSim MarkerSet file's markers added to an .osim --model (replacing those of the same "
+                        "name), as calibrate's --marker-set")
 
 
 class _Parser(argparse.ArgumentParser):
