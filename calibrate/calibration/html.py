@@ -164,6 +164,10 @@ def _notes(report: dict) -> str:
                          + " deg, too little in two of its angles to place its centre (a walk's motion does not)"
                          + (f"; it ended {h['from_regression_mm']:.0f} mm from Harrington's regression on the pelvis "
                             "markers (its error 12 &plusmn; 6 mm): implausible" if h.get("implausible") else "")
+                         + (f"; {h['from_regression_mm']:.0f} mm from Harrington's regression, but "
+                            f"{h['from_model_mm']:.0f} mm from where the base model puts its own hips on these markers "
+                            f"({h['model_offset_mm']:.0f} mm from Harrington's on its own): its convention"
+                            if h.get("as_model") and h.get("from_regression_mm", 0) > 40 else "")
                          + "; <code>--hip-regression</code> places it by Harrington's regression</li>")
         elif h.get("implausible") and h.get("joint") not in tied:  # placed by the motion, yet outside the pelvis
             items.append(f"<li class=bad>{_e(h.get('joint'))}: the hips {h['hip_width_mm']:.0f} mm apart where the "

@@ -827,7 +827,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        cluster_centres=banded_joints,
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),
                        joint_markers=_joint_markers(problem, params, unused),
-                       hip_motion=tuple(h for h in hip_motion(subject, motions, hip_at, trials)  # (a hip the
+                       hip_motion=tuple(h for h in hip_motion(subject, motions, hip_at, trials, model)  # (a hip the
                                         # markers cannot turn: no motion to judge)
                                         if not set(subject.joints[subject.joint_index(h.joint)].dofs)
                                         <= {n for n, _ in problem.settings.lock}),

@@ -36,6 +36,15 @@ def harrington(rasi: np.ndarray, lasi: np.ndarray, psis_mid: np.ndarray) -> tupl
     Harrington et al. (2007): in the pelvis frame at mid-ASIS (z to the right ASIS, x anterior towards it
     from the PSIS midpoint, y up), x = −0.24 PD − 9.9 mm, y = −0.30 PW − 10.9 mm, z = ±(0.33 PW + 7.3 mm),
     PW the ASIS distance and PD the mid-ASIS to mid-PSIS distance."""
+    o, x, y, z, pw, pd = _pelvis_frame(rasi, lasi, psis_mid)
+    mid = o + x * (-0.24 * pd - 0.0099) + y * (-0.30 * pw - 0.0109)
+    side = z * (0.5 * harrington_width(pw))
+    return mid + side, mid - side
+
+
+def _pelvis_frame(rasi: np.ndarray, lasi: np.ndarray, psis_mid: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Harrington's pelvis frame: origin mid-ASIS, unit axes x (anterior), y (up), z (to the right ASIS), each (n, 3),
+    and PW, PD (n, 1): the ASIS distance and the mid-ASIS to mid-PSIS distance."""
     o = 0.5 * (rasi + lasi)
     z = rasi - lasi
     pw = np.linalg.norm(z, axis=-1, keepdims=True)
@@ -45,9 +54,43 @@ def harrington(rasi: np.ndarray, lasi: np.ndarray, psis_mid: np.ndarray) -> tupl
     x = x - z * np.sum(x * z, axis=-1, keepdims=True)
     x = x / np.linalg.norm(x, axis=-1, keepdims=True)
     y = np.cross(z, x)
-    mid = o + x * (-0.24 * pd - 0.0099) + y * (-0.30 * pw - 0.0109)
-    side = z * (0.5 * harrington_width(pw))
-    return mid + side, mid - side
+    return o, x, y, z, pw, pd
+
+
+def model_offsets(model: Model) -> dict[str, tuple[np.ndarray, float]]:
+    """Where the base model itself puts each hip from Harrington's regression on its own pelvis markers, in its
+    default pose: side -> ((dx / PD, dy / PW, dz / PW) in Harrington's pelvis frame (_pelvis_frame), so that on a
+    subject's pelvis Harrington's point plus that offset, at the subject's PW and PD, is where the base model's
+    convention puts the hip; the offset's length on the base model, m).  {} where the model lacks a hip or a
+    landmark.  gait2392's hips lie 36 mm from Harrington's on its own markers (with its scale marker set; its
+    V.Sacral read as the PSIS midpoint), Rajagopal2016's 22 mm, models/human.urdf's 7.5 mm."""
+    import pinocchio as pin
+
+    hips = hip_joints(model)
+    found = _landmarks(model)
+    back = ("RPSI", "LPSI") if {"RPSI", "LPSI"} <= set(found) else ("SACR",) if "SACR" in found else None
+    if set(hips) != {"r", "l"} or not {"RASI", "LASI"} <= set(found) or back is None:
+        return {}
+    pm = model.pin
+    data = pm.createData()
+    pin.framesForwardKinematics(pm, data, pin.neutral(pm))
+
+    def at(label: str) -> np.ndarray:
+        return data.oMf[pm.getFrameId(label, pin.FrameType.BODY)].translation.copy()
+
+    mid = 0.5 * (at(found["RPSI"]) + at(found["LPSI"])) if back != ("SACR",) else at(found["SACR"])
+    o, x, y, z, pw, pd = (v[0] for v in _pelvis_frame(at(found["RASI"])[None], at(found["LASI"])[None], mid[None]))
+    right, left = (v[0] for v in harrington(at(found["RASI"])[None], at(found["LASI"])[None], mid[None]))
+    out = {}
+    for side, h in (("r", right), ("l", left)):
+        joint = model.joints[model.joint_index(hips[side].name)]
+        first = next(u for u in model.urdf_joints if u.name in joint.urdf_joints)
+        hip = data.oMi[pm.getJointId(first.name)].translation if pm.existJointName(first.name) else None
+        if hip is None:
+            return {}
+        d = hip - h
+        out[side] = (np.array([d @ x / pd[0], d @ y / pw[0], d @ z / pw[0]]), float(np.linalg.norm(d)))
+    return out
 
 
 def harrington_width(asis_width: np.ndarray | float) -> np.ndarray | float:
@@ -74,6 +117,11 @@ def hip_joints(model: Model, pelvis: str | None = None) -> dict[str, Joint]:
 #: from Harrington's and up to 1.25 times the ASIS width apart, outside the pelvis (docs/benchmarks.md).
 REGRESSION_FAR = 0.040
 HIP_WIDTH_FAR = 0.9
+#: A base model whose own hips lie further than MODEL_OFFSET from Harrington's regression on its own pelvis markers
+#: (beyond the regression's error on CT, 12 +- 6 mm) has a convention of its own: a hip within REGRESSION_FAR of
+#: where that convention puts it on the trials' markers is where the lab's model puts hips, not implausible
+#: (HipMotion.as_model)
+MODEL_OFFSET = 0.015
 #: ... and wherever the motion places them, two hips further apart than the ASIS markers themselves lie outside the
 #: pelvis, where no hip is (Harrington's width is 0.66 times the ASIS markers' plus 15 mm, 0.73 at 220 mm; the real
 #: walks whose motion placed the hips 0.79-0.95): c3d.org's sample04, a thigh whose markers do not fix its turn about
@@ -101,6 +149,19 @@ class HipMotion:
     ranges: dict[str, float]
     from_regression: float = math.nan
     width: tuple[float, float] = (math.nan, math.nan)
+    # the calibrated centre's distance (m, median) from where the base model's own convention puts the hip on the
+    # trials' pelvis markers (Harrington's point plus the base model's offset from it, model_offsets), and that
+    # offset's length on the base model (m): gait2392 places its hips 36 mm from Harrington's on its own markers
+    from_model: float = math.nan
+    model_offset: float = math.nan
+
+    @property
+    def as_model(self) -> bool:
+        """Far from Harrington's only as far as the base model's own hips are (its offset more than MODEL_OFFSET, the
+        centre within REGRESSION_FAR of the base model's convention): the lab's model, not the calibration, puts it
+        there (a simulated gait2392 walk's hips 44-47 mm from Harrington's, 18-21 mm from the base model's convention,
+        7-9 mm from the truth)."""
+        return bool(self.model_offset > MODEL_OFFSET and self.from_model <= REGRESSION_FAR)
 
     @property
     def places_centre(self) -> bool:
@@ -111,8 +172,8 @@ class HipMotion:
         """A centre the motion does not place, ended further than REGRESSION_FAR from Harrington's or the hips
         further apart than HIP_WIDTH_FAR times the ASIS markers; or, placed by the motion or not, the hips further
         apart than HIP_OUTSIDE times the ASIS markers (outside the pelvis)."""
-        return self.outside or not self.places_centre and (self.from_regression > REGRESSION_FAR
-                                                           or self.width[0] > HIP_WIDTH_FAR * self.width[1])
+        return self.outside or not self.places_centre and not self.as_model and (
+            self.from_regression > REGRESSION_FAR or self.width[0] > HIP_WIDTH_FAR * self.width[1])
 
     @property
     def outside(self) -> bool:
@@ -132,18 +193,23 @@ class HipMotion:
         if math.isfinite(self.from_regression):
             out.update(from_regression_mm=1e3 * self.from_regression, implausible=self.implausible,
                        hip_width_mm=1e3 * self.width[0], asis_width_mm=1e3 * self.width[1])
+        if math.isfinite(self.from_model):
+            out.update(from_model_mm=1e3 * self.from_model, model_offset_mm=1e3 * self.model_offset,
+                       as_model=self.as_model)
         return out
 
 
 def hip_motion(model: Model, motions: Sequence, centres: Sequence[tuple[np.ndarray, np.ndarray]] = (),
-               trials: Sequence[Trial] = ()) -> tuple[HipMotion, ...]:
+               trials: Sequence[Trial] = (), base: Model | None = None) -> tuple[HipMotion, ...]:
     """HipMotion of each hip (hip_joints) over `motions` (calibrate.io.motion.Motion per trial, the model's DoFs);
     with `centres` (per trial: its frames' indices and the calibrated joint centres in the lab there, (n, n_joints,
     3)) and `trials` (the model's labels), each hip centre's distance from Harrington's regression on those frames,
-    where the trials carry the pelvis landmarks."""
+    where the trials carry the pelvis landmarks; with `base` (the base model) also its distance from where the base
+    model's own convention puts it there (model_offsets)."""
     out = []
     hips = hip_joints(model)
-    ref = _regression_reference(model, hips, centres, trials)
+    offsets = model_offsets(base) if base is not None else {}
+    ref = _regression_reference(model, hips, centres, trials, offsets)
     for side in ("l", "r"):
         joint = hips.get(side)
         if joint is None:
@@ -155,7 +221,8 @@ def hip_motion(model: Model, motions: Sequence, centres: Sequence[tuple[np.ndarr
             if spans:
                 ranges[d] = max(spans)
         if len(ranges) == 3:
-            out.append(HipMotion(joint.name, ranges, *ref.get(side, (math.nan, (math.nan, math.nan)))))
+            out.append(HipMotion(joint.name, ranges, *ref.get(side, (math.nan, (math.nan, math.nan), math.nan,
+                                                                     math.nan))))
     return tuple(out)
 
 
@@ -223,22 +290,33 @@ def _harrington_of(trial: Trial, found: dict[str, str], frames: np.ndarray | sli
 
 
 def _regression_reference(model: Model, hips: dict[str, Joint], centres: Sequence[tuple[np.ndarray, np.ndarray]],
-                          trials: Sequence[Trial]) -> dict[str, tuple[float, tuple[float, float]]]:
-    """Per side: the calibrated hip centre's median distance from Harrington's over every frame given, and the hip
-    centres' and ASIS markers' median widths there."""
+                          trials: Sequence[Trial], offsets: dict[str, tuple[np.ndarray, float]] | None = None
+                          ) -> dict[str, tuple[float, tuple[float, float], float, float]]:
+    """Per side: the calibrated hip centre's median distance from Harrington's over every frame given, the hip
+    centres' and ASIS markers' median widths there, and with `offsets` (model_offsets) its median distance from the
+    base model's convention and that offset's length on the base model (NaN without)."""
     if set(hips) != {"r", "l"} or not centres:
         return {}
     found = _pelvis_landmarks(model, trials)
     k = {side: model.joint_index(hips[side].name) for side in "rl"}
     gaps: dict[str, list[np.ndarray]] = {"r": [], "l": []}
+    conv: dict[str, list[np.ndarray]] = {"r": [], "l": []}
     widths, asis = [], []
     for (frames, C), t in zip(centres, trials, strict=True):
         h = _harrington_of(t, found, frames)
         if h is None:
             continue
-        right, left, _ = h
-        gaps["r"].append(np.linalg.norm(C[:, k["r"]] - right, axis=1))
-        gaps["l"].append(np.linalg.norm(C[:, k["l"]] - left, axis=1))
+        right, left, used = h
+        for side, point in (("r", right), ("l", left)):
+            gaps[side].append(np.linalg.norm(C[:, k[side]] - point, axis=1))
+            if offsets:
+                at = {c: t.markers[frames, t.labels.index(label)] for c, label in used.items()}
+                mid = 0.5 * (at["RPSI"] + at["LPSI"]) if "RPSI" in at else at["SACR"]
+                with np.errstate(invalid="ignore"):
+                    _, x, y, z, pw, pd = _pelvis_frame(at["RASI"], at["LASI"], mid)
+                dx, dy, dz = offsets[side][0]
+                conv[side].append(np.linalg.norm(C[:, k[side]] - (point + x * dx * pd + y * dy * pw + z * dz * pw),
+                                                 axis=1))
         widths.append(np.linalg.norm(C[:, k["r"]] - C[:, k["l"]], axis=1))
         asis.append(np.linalg.norm(t.markers[frames, t.labels.index(found["RASI"])]
                                    - t.markers[frames, t.labels.index(found["LASI"])], axis=1))
@@ -246,8 +324,15 @@ def _regression_reference(model: Model, hips: dict[str, Joint], centres: Sequenc
         return {}
     with np.errstate(invalid="ignore"):
         width = (float(np.nanmedian(np.concatenate(widths))), float(np.nanmedian(np.concatenate(asis))))
-        return {side: (float(np.nanmedian(np.concatenate(g))), width) for side, g in gaps.items()
-                if np.isfinite(np.concatenate(g)).any()}
+        out = {}
+        for side, g in gaps.items():
+            if not np.isfinite(np.concatenate(g)).any():
+                continue
+            c = np.concatenate(conv[side]) if conv[side] else np.array([np.nan])
+            own = offsets[side][1] if offsets else math.nan
+            out[side] = (float(np.nanmedian(np.concatenate(g))), width,
+                         float(np.nanmedian(c)) if np.isfinite(c).any() else math.nan, own)
+        return out
 
 
 def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tuple[Trial, ...], dict[str, str]]:

@@ -34,7 +34,7 @@ from .identifiability import IDENTIFIED, NARROW_TURN, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified, StillNote
-from .regression import FUNCTIONAL_RANGE, harrington_width
+from .regression import FUNCTIONAL_RANGE, REGRESSION_FAR, harrington_width
 from .series import report_series
 
 if TYPE_CHECKING:
@@ -873,6 +873,13 @@ def summary_text(cal) -> str:
                      "of its angles (a star arc); a walk's do not, and on real walks the centres end 28-65 mm from "
                      "the labs' (docs/benchmarks.md): --hip-regression places them by Harrington's regression from "
                      "the pelvis markers")
+    if conv := [h for h in loose if h.as_model and h.from_regression > REGRESSION_FAR]:
+        lines.append("  hips         " + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in conv)
+                     + " from Harrington's regression on the pelvis markers, but "
+                     + " and ".join(f"{1e3 * h.from_model:.0f}" for h in conv)
+                     + f" mm from where {cal.base_model.path.name if cal.base_model is not None else 'the base model'} "
+                     f"puts its own hips on them ({1e3 * conv[0].model_offset:.0f} mm from Harrington's on its own "
+                     "markers): its convention, not flagged")
     if far := [h for h in loose if h.implausible]:
         width, asis = far[0].width
         lines.append("  implausible  " + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
