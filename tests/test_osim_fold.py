@@ -220,6 +220,12 @@ def test_hinges_about_one_centre_through_light_markerless_bodies_are_a_gimbal_wh
     cal = calibrate(model, trial)
     assert set(RANGES) <= set(cal.settings.hold_axes)
     assert "turn about one centre through upper, mid" in cal.text()
+    from calibrate.calibration.html import report_html
+    from calibrate.calibration.report import calibration_report
+
+    report = calibration_report(cal)
+    assert report["gimbal_axes"] == [{"coordinates": list(RANGES), "bodies": ["upper", "mid"]}]
+    assert "turn about one centre through upper, mid (light, no markers)" in report_html(report)
     assert cal.marker_rms < 0.0015
     motion = cal.motions[0]
     theirs = info.coordinates({d: motion.angles[:, k] for k, d in enumerate(motion.dof_names)})

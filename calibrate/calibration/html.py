@@ -204,6 +204,10 @@ def _notes(report: dict) -> str:
         items.append("<li>axes held at the base model's (the moving trials turn these joints too little to place an "
                      "axis against the skin's turn of the segments): "
                      f"{_e(', '.join(f'{n} ({t:.0f} deg)' for n, t in narrow.items()))}</li>")
+    for g in report.get("gimbal_axes") or []:
+        items.append(f"<li>axes held at the model's: {_e(', '.join(g.get('coordinates', [])))} turn about one "
+                     f"centre through {_e(', '.join(g.get('bodies', [])))} (light, no markers): one ball in the "
+                     "source's angle convention, not axes to calibrate</li>")
     if report.get("on_axis_markers"):
         items.append(f"<li>lateral markers kept on their held hinge axes (the epicondyle or malleolus the axis "
                      f"passes through; no motion places the axis): {_e(', '.join(report['on_axis_markers']))}</li>")

@@ -135,6 +135,9 @@ def calibration_report(cal: Calibration) -> dict:
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "narrow_axes_deg": {n: math.degrees(t) for n, t in cal.narrow_axes},
+        # an OpenSim model's gimbals (calibrate.io.osim_info.with_gimbals): hinges about one centre through phantom
+        # bodies, one ball in the source's angle convention, their axes held
+        "gimbal_axes": _gimbal_axes(cal),
         "narrow_centres_deg": {n: math.degrees(t) for n, t in cal.narrow_centres},
         "cluster_centres": list(cal.cluster_centres),
         "on_axis_markers": on_axis_labels(cal),
@@ -330,6 +333,18 @@ def _measurement_lines(cal) -> list[str]:
                        f"the measured width puts it {v['measured_mm']:.0f} mm lateral"
                        + ("" if v["used"] else " (the width was not used; docs/calibration.md, subject measurements)"))
     return out
+
+
+def _gimbal_axes(cal) -> list[dict]:
+    """The gimbals whose axes the calibration held: their coordinates (held) and the phantom bodies between."""
+    if "<opensim" not in cal.model.text:
+        return []
+    from ..io.osim_info import osim_info
+
+    info = osim_info(cal.model)
+    held = set(cal.settings.hold_axes)
+    return [{"coordinates": [c for c in coords if c in held], "bodies": list(bodies)}
+            for coords, bodies in (info.gimbals if info is not None else ()) if held & set(coords)]
 
 
 def _held_why(cal) -> list[str]:
