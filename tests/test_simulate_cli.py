@@ -237,7 +237,8 @@ def test_an_opensim_models_coordinates_take_the_motions_by_their_names():
     """An imported OpenSim model's coordinates take the squats' and the walk's motions by OpenSim's names
     (motions.OPENSIM_MOTIONS): Rajagopal2016's knees flex through a squat (they had a generic +-20 deg sinusoid while
     its hips flexed 100 deg), gait2392's knee_angle, negative in flexion (range -120 to 10 deg), flexes negative, and
-    lumbar_extension (the trunk's extension) leans the trunk forward, negative."""
+    lumbar_extension (the trunk's extension) leans the trunk forward, negative; the coordinates the model locks
+    (Rajagopal's subtalars and mtps) stay at their locked values."""
     from pathlib import Path
 
     real = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
@@ -255,6 +256,14 @@ def test_an_opensim_models_coordinates_take_the_motions_by_their_names():
         assert np.degrees(np.ptp(walk[:, knee])) > 45
         assert np.degrees(np.max(squats[:, trunk])) < 1 and np.degrees(np.min(squats[:, trunk])) < -20
         assert np.degrees(np.ptp(squats[:, model.dof_index("ankle_angle_r")])) > 25
+        if path == raj:  # its subtalar and mtp joints locked in the model: held there, not driven
+            from calibrate.io.osim_info import osim_info
+
+            locked = osim_info(model).locked
+            assert {"subtalar_angle_r", "mtp_angle_l"} <= set(locked)
+            for name, value in locked.items():
+                for a in (squats, walk):
+                    np.testing.assert_array_equal(a[:, model.dof_index(name)], value)
 
 
 def test_simulate_an_osim_with_its_marker_set(tmp_path, capsys):
