@@ -286,3 +286,32 @@ def test_simulate_an_osim_with_its_marker_set(tmp_path, capsys):
     assert main(["simulate", "--out", str(bad), "--marker-set", str(g / "gait2392_Scale_MarkerSet.xml")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--marker-set adds markers to an OpenSim model" in err[0] and not bad.exists()
+
+
+def test_a_stature_for_a_model_without_a_neck_by_its_legs(human, tmp_path):
+    """A model that is not calibrate.model.human-style (an OpenSim model: no neck joint, no head segment, y up) takes
+    a stature by its legs: the hips' height above the ankles over Drillis and Contini's 0.491 of the stature.  On
+    models/human.urdf the rule gives its generator's 1.75 m within 5 mm; Rajagopal2016 simulated at --height 1.6 has
+    that stature; a model without legs is refused in one line."""
+    from pathlib import Path
+
+    from calibrate.errors import ModelError
+    from calibrate.simulation.subject import _leg_stature, stature
+
+    assert abs(_leg_stature(human, human.parameters()) - 1.75) < 0.005
+    assert abs(stature(human, human.parameters()) - 1.75) < 1e-6
+    raj = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "rajagopal_walk" / "Rajagopal2016.osim"
+    if not raj.is_file():
+        pytest.skip("../shared/data/real is not here")
+    model = load_model(raj)
+    sim = simulate_squats(model, frames=20, seed=1, height=1.6)
+    assert abs(stature(model, sim.truth) - 1.6) < 1e-9
+    from tests.test_osim_fold import shoulder_osim
+
+    path = tmp_path / "arm.osim"
+    path.write_text(shoulder_osim())
+    arm = load_model(path)
+    with pytest.raises(ModelError, match="two hips and two ankles"):
+        stature(arm, arm.parameters())
+    assert main(["simulate", "--out", str(tmp_path / "a"), "--model", str(path), "--height", "1.7"]) == 2
+    assert not (tmp_path / "a").exists()

@@ -71,13 +71,13 @@ def stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> 
     height of the neck joint centre above the mean of the ankle centres, plus the sole-to-ankle and
     neck-to-vertex heights of calibrate.model.human's proportions (0.07 and 0.25 of the neck-to-ankle
     1.43 of its 1.75 m reference) sized to the base model and multiplied by the scales of the feet
-    (calcn) and the head.  The base model itself: its generator's height (1.75 m for models/human.urdf)."""
+    (calcn) and the head.  The base model itself: its generator's height (1.75 m for models/human.urdf).  Any other
+    model (an OpenSim model's): by its legs' length (_leg_stature)."""
     names = [j.name for j in model.joints]
     segs = [s.name for s in model.segments]
     need_j, need_s = ("neck", "ankle_r", "ankle_l"), ("head", "calcn_r", "calcn_l")
     if not all(n in names for n in need_j) or not all(n in segs for n in need_s):
-        raise ModelError(f"{model.path}: a stature needs joints {', '.join(need_j)} and segments "
-                         f"{', '.join(need_s)} (a calibrate.model.human model); leave the height out")
+        return _leg_stature(model, params, kin)
     kin = kin or build_kinematics(model)
 
     def neck_above_ankles(p: Parameters) -> float:
@@ -90,3 +90,24 @@ def stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> 
     foot = 0.5 * (params.scale[segs.index("calcn_r")] + params.scale[segs.index("calcn_l")])
     head = params.scale[segs.index("head")]
     return neck_above_ankles(params) + k0 * (ankle * foot + (vertex - neck) * head)
+
+
+#: Hip joint centre and ankle heights as fractions of the stature (Drillis & Contini's segment proportions, as
+#: tabulated by Winter, Biomechanics and Motor Control of Human Movement: the greater trochanter 0.530 H, the ankle
+#: 0.039 H): models/human.urdf's legs give 1.752 m by it against its 1.75, Rajagopal2016's 1.64 m.
+LEG_FRACTION = 0.530 - 0.039
+
+
+def _leg_stature(model: Model, params: Parameters, kin: Kinematics | None = None) -> float:
+    """The stature (m) of a model that is not calibrate.model.human-style (an OpenSim model's: no neck joint or head
+    segment; y up): the distance from the mean of its ankle centres to the mean of its hip centres in the neutral pose,
+    over LEG_FRACTION."""
+    names = [j.name for j in model.joints]
+    hips = [i for i, n in enumerate(names) if n.lower().startswith("hip") and n.lower()[-2:] in ("_r", "_l")]
+    ankles = [i for i, n in enumerate(names) if n.lower().startswith("ankle") and n.lower()[-2:] in ("_r", "_l")]
+    if len(hips) != 2 or len(ankles) != 2:
+        raise ModelError(f"{model.path}: a stature needs two hips and two ankles (joints named hip_r / hip_l and "
+                         "ankle_r / ankle_l), or a calibrate.model.human model; leave the height out")
+    kin = kin or build_kinematics(model)
+    _, c = kin.batch(np.zeros((1, model.nz)), np.array([[0.0, 0.0, 0.0, 1.0]]), params)
+    return float(np.linalg.norm(c[0, hips].mean(axis=0) - c[0, ankles].mean(axis=0))) / LEG_FRACTION
