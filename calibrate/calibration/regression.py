@@ -307,13 +307,14 @@ def _regression_reference(model: Model, hips: dict[str, Joint], centres: Sequenc
         if h is None:
             continue
         right, left, used = h
+        if offsets:  # the trial's pelvis frame, once for both sides
+            at = {c: t.markers[frames, t.labels.index(label)] for c, label in used.items()}
+            mid = 0.5 * (at["RPSI"] + at["LPSI"]) if "RPSI" in at else at["SACR"]
+            with np.errstate(invalid="ignore"):
+                _, x, y, z, pw, pd = _pelvis_frame(at["RASI"], at["LASI"], mid)
         for side, point in (("r", right), ("l", left)):
             gaps[side].append(np.linalg.norm(C[:, k[side]] - point, axis=1))
             if offsets:
-                at = {c: t.markers[frames, t.labels.index(label)] for c, label in used.items()}
-                mid = 0.5 * (at["RPSI"] + at["LPSI"]) if "RPSI" in at else at["SACR"]
-                with np.errstate(invalid="ignore"):
-                    _, x, y, z, pw, pd = _pelvis_frame(at["RASI"], at["LASI"], mid)
                 dx, dy, dz = offsets[side][0]
                 conv[side].append(np.linalg.norm(C[:, k[side]] - (point + x * dx * pd + y * dy * pw + z * dz * pw),
                                                  axis=1))
