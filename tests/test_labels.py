@@ -535,6 +535,21 @@ def test_motive_and_qualisys_animation_set_spellings(human) -> None:  # noqa: AN
     assert mapping.unknown == ("WaistLBack", "LShin", "HeadTop")
 
 
+def test_cmu_waist_spellings(human) -> None:  # noqa: ANN001
+    """The CMU motion-capture database's set (Vicon's animation set; mocap.cs.cmu.edu, 2605 trials) names the pelvis
+    markers front and back waist: LFWT / RFWT / LBWT / RBWT.  On CMU's 01_01 they sit 239 mm apart in front, 100 mm
+    behind and 217-223 mm front to back, the ASIS' and PSIS' figures (a Plug-in Gait calibration of BTKData: 245, 105,
+    216-217 mm); read as them, the pelvis is marked (it was not: no hip could be placed).  Its shin, fifth metatarsal
+    and back markers (LSHN, LMT5, RBAC) stay unknown, placed on their segments like any new label; OptiTrack's
+    WaistLBack (10 cm above the hip, not the spine) too."""
+    labels = ["LFWT", "RFWT", "LBWT", "RBWT", "LFrontWaist", "LSHN", "LMT5", "RBAC", "WaistLBack"]
+    renamed, mapping = map_labels(make_trial(labels), human.marker_names)
+    assert renamed.labels[:4] == ("LASI", "RASI", "LPSI", "RPSI")
+    assert mapping.unknown == ("LFrontWaist", "LSHN", "LMT5", "RBAC", "WaistLBack")  # LFrontWaist: LASI taken
+    renamed, _ = map_labels(make_trial(["LFrontWaist", "RBackWaist"]), human.marker_names)
+    assert renamed.labels == ("LASI", "RPSI")
+
+
 def test_opencap_augmented_spellings(human) -> None:  # noqa: ANN001
     """OpenCap's marker augmenter (Pose2Sim's LSTM files): its `_study` markers read as the landmark before the suffix,
     its lateral elbow and wrist sides as ELB, WRA and WRB; medial landmarks, clusters and hip centres stay unknown.  A

@@ -34,8 +34,8 @@ model has no ``SACR``, nor any label that reads so, so ``V.Sacral`` stays unknow
 ============  =====================================================================================
 model label   alias names, after the side (R or L) and normalisation
 ============  =====================================================================================
-xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias, waistfront
-xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis
+xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias, waistfront, fwt, frontwaist
+xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis, bwt, backwaist
 xTHI          thi, thigh, thighwand, bar1
 xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee1, knee, latepicondyle, lateralepicondyle,
               fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
@@ -86,7 +86,9 @@ documentation: on the anterior iliac spine) and the lateral knee, ankle and elbo
 ``LAnkleOut``, ``LElbowOut``, ``LHeelBack``, and C7 ``BackTop`` (on the spine right below the neck; ``LThigh``
 reads as the thigh marker); their ``WaistLBack`` (10 cm
 above the hip joint, not the posterior spine), ``LShin`` and the rest stay unknown, placed on their segments like any
-new label.
+new label.  The CMU motion-capture database (Vicon's animation set) spells the ASIS and PSIS front and back
+waist, ``LFWT`` and ``LBWT`` (on its subject 01 239 and 100 mm apart, 220 mm front to back: the iliac spines'
+figures); its ``LSHN``, ``LMT5`` and ``RBAC`` stay unknown.
 Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
@@ -146,8 +148,8 @@ HOWS = ("exact", "map", "alias", "description", "unknown")
 #: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
 #: names after the side and normalisation, most specific first.
 SIDE_ALIASES: dict[str, tuple[str, ...]] = {
-    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias", "waistfront"),
-    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis"),
+    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias", "waistfront", "fwt", "frontwaist"),
+    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis", "bwt", "backwaist"),
     "THI": ("thi", "thigh", "thighwand", "bar1"),
     "KNE": (
         "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee1", "knee", "latepicondyle",
