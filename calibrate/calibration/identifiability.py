@@ -10,6 +10,7 @@ from functools import partial
 
 import numpy as np
 
+from ..io.labels import alias_for
 from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
 from ..model.resolve import descendants
@@ -372,7 +373,13 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
                         f"model's at the subject's scale: where the marker puts it)")
                 return replace(change, note=note)
             return change
-        return _position_far_from_prior(change, off, sd, along)
+        judged = _position_far_from_prior(change, off, sd, along)
+        acromion = _acromion_on_parent(model, B, i) if group == "centre" and judged.unreliable else None
+        if acromion is not None:
+            judged = replace(judged, note=judged.note + (
+                f"; {acromion} rides on {owner} in this model while the shoulder blade lifts it with the arm: a model "
+                "with a shoulder girdle carries it on a clavicle (models/human_girdle.urdf, docs/model-format.md)"))
+        return judged
 
     for ji, j in enumerate(model.joints):
         judge = partial(_judge_centre, model, P, j, blind.get(j.name))
@@ -547,6 +554,25 @@ def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[s
                  f"axis is found; ")
     note += f"--hold-axes {change.item} keeps the base model's)"
     return replace(change, unreliable=True, note=note)
+
+
+ACROMION_REACH = 0.08  # m: an acromion marker this near a shoulder's centre on the segment the shoulder hangs from
+
+
+def _acromion_on_parent(model: Model, base: Parameters, ji: int) -> str | None:
+    """The acromion marker (Plug-in Gait's xSHO, or a label that reads as it) riding on the segment ball joint `ji`
+    hangs from, within ACROMION_REACH of its centre in the base model: a shoulder without a girdle, whose acromion
+    the shoulder blade carries up with the arm (models/human.urdf's; treadmill and overhead trials place such a
+    shoulder 60-110 mm from the base model's, docs/benchmarks.md)."""
+    j = model.joints[ji]
+    if j.kind != "ball":
+        return None
+    for k, m in enumerate(model.markers):
+        if m.segment != j.parent or np.linalg.norm(base.marker[k] - base.centre[ji]) > ACROMION_REACH:
+            continue
+        if m.name in ("RSHO", "LSHO") or alias_for(m.name, ("RSHO", "LSHO")) is not None:
+            return m.name
+    return None
 
 
 def _position_far_from_prior(change: ParameterChange, off: float, sd: float,

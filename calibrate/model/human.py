@@ -29,6 +29,9 @@ from ..io.text import fmt_float, fmt_vec
 
 REFERENCE_HEIGHT = 1.75  # m; the landmark table below is for this stature
 
+GIRDLE_MASS = 0.005  # of the body's mass, each clavicle segment of build_human_urdf(girdle=True): an assumption (the
+# clavicle, the shoulder blade and some of the muscle that moves with them); de Leva has no girdle segment
+
 
 @dataclass(frozen=True)
 class DeLeva:
@@ -67,6 +70,7 @@ RIGHT_LANDMARKS = {
     "heel": (-0.085, -0.090, 0.030),
     "toe_tip": (0.175, -0.090, 0.030),
     "shoulder": (-0.010, -0.170, 1.410),
+    "sternoclavicular": (0.040, -0.025, 1.425),  # girdle=True only: behind and beside the jugular notch
     "elbow": (-0.010, -0.170, 1.127),
     "radial_head": (-0.010, -0.185, 1.117),
     "ulnar_head": (-0.025, -0.160, 0.860),
@@ -155,12 +159,17 @@ class _Joint:
     dofs: list[tuple[str, tuple[float, float, float], float, float]]  # (suffix, axis, lo, hi)
 
 
-def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name: str = "human") -> str:
+def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name: str = "human",
+                     girdle: bool = False) -> str:
     """Return the URDF text of a full-body model for a subject of `height` (m) and `mass` (kg).
 
     38 degrees of freedom with the free-flyer the loader adds to the pelvis; Plug-in Gait
-    markers as fixed leaf links.  Raises ValueError for heights outside 0.5-2.5 m or
-    masses outside 5-300 kg.
+    markers as fixed leaf links.  `girdle`: a shoulder girdle on each side (models/human_girdle.urdf,
+    42 DoF): a clavicle segment from a sternoclavicular universal joint on the torso (protraction about
+    the vertical, then elevation about the clavicle's anterior axis, ISB's order) carrying the shoulder's
+    ball at its lateral end and the acromion marker (xSHO), which rides with the shoulder blade when the
+    arm rises instead of on the thorax.  Its mass (GIRDLE_MASS of the body's each) is taken from the
+    torso's.  Raises ValueError for heights outside 0.5-2.5 m or masses outside 5-300 kg.
     """
     if not (0.5 <= height <= 2.5):
         raise ValueError(f"height must be 0.5-2.5 m, got {height}")
@@ -224,6 +233,18 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
     segs[-1].visual = f'<sphere radius="{fmt_float(0.10 * k)}"/>'
     segs[-1].visual_at = pts["neck"] + k * np.array([0.03, 0.0, 0.13])
 
+    if girdle:  # each clavicle's mass out of the torso's (its inertia in proportion): the body's total kept
+        torso = segs[1]
+        m_g = GIRDLE_MASS * mass
+        torso.inertia = torso.inertia * (torso.mass - 2 * m_g) / torso.mass
+        torso.mass -= 2 * m_g
+        for s in ("r", "l"):
+            sc, gh = pts[f"sternoclavicular_{s}"], pts[f"shoulder_{s}"]
+            length = float(np.linalg.norm(gh - sc))
+            segs.append(_Seg(f"clavicle_{s}", sc, m_g, 0.5 * (sc + gh),
+                             m_g * np.array([0.3, 0.1, 0.3]) ** 2 * length**2,  # a rod along y
+                             f'<box size="{fmt_vec((0.03 * k, length, 0.03 * k))}"/>', 0.5 * (sc + gh)))
+
     for s in ("r", "l"):
         g = {n: pts[f"{n}_{s}"] for n in RIGHT_LANDMARKS}
         long_segment(f"humerus_{s}", "upper_arm", g["shoulder"], g["elbow"], g["shoulder"], radius=0.04)
@@ -263,7 +284,13 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
             _Joint(f"knee_{s}", f"femur_{s}", f"tibia_{s}", [("", mir(_AXES_R["knee"]), d(-5), d(150))]),
             _Joint(f"ankle_{s}", f"tibia_{s}", f"talus_{s}", [("", mir(_AXES_R["ankle"]), d(-45), d(30))]),
             _Joint(f"subtalar_{s}", f"talus_{s}", f"calcn_{s}", [("", mir(_AXES_R["subtalar"]), d(-30), d(30))]),
-            _Joint(f"shoulder_{s}", "torso", f"humerus_{s}", [
+        ]
+        if girdle:
+            joints.append(_Joint(f"sc_{s}", "torso", f"clavicle_{s}", [
+                ("protraction", z, d(-30), d(30)),
+                ("elevation", mir((-1.0, 0.0, 0.0)), d(-10), d(45))]))
+        joints += [
+            _Joint(f"shoulder_{s}", f"clavicle_{s}" if girdle else "torso", f"humerus_{s}", [
                 ("flexion", (0.0, -1.0, 0.0), d(-60), d(180)),
                 ("adduction", x, d(-180), d(40)),
                 ("rotation", z, d(-90), d(90))]),
@@ -281,13 +308,16 @@ def build_human_urdf(height: float = REFERENCE_HEIGHT, mass: float = 75.0, name:
     for label, (seg, p) in _MARKERS_R.items():
         if label == "RBAK":  # Plug-in Gait's asymmetry marker: right side only
             markers.append((label, seg, P(p)))
+        elif label == "RSHO" and girdle:
+            markers.append((label, "clavicle_r", P(p)))
+            markers.append(("L" + label[1:], "clavicle_l", P(_mirror_point(p))))
         elif seg in ("pelvis", "torso", "head"):
             markers.append((label, seg, P(p)))
             markers.append(("L" + label[1:], seg, P(_mirror_point(p))))
         else:
             markers.append((label, f"{seg}_r", P(p)))
             markers.append(("L" + label[1:], f"{seg}_l", P(_mirror_point(p))))
-    order = {"pelvis": 0, "torso": 1, "head": 2}
+    order = {"pelvis": 0, "torso": 1, "head": 2, "clavicle_l": 3, "clavicle_r": 3}
     markers.sort(key=lambda m: (order.get(m[1], 3), m[1], m[0]))
 
     out: list[str] = [

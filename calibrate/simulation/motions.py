@@ -25,7 +25,7 @@ GAIT_TABLE = {
     "neck_flexion": (0, 1, 0, 1), "neck_bending": (0, 1, 0, 0.5), "neck_rotation": (0, 2, 0, 1),
     "shoulder_flexion": (5, 15, 0, 1), "shoulder_adduction": (-10, 3, 0, 0.5), "shoulder_rotation": (0, 3, 0, 0.5),
     "elbow": (30, 10, 0, 1), "radioulnar": (0, 2, 0, 0.5), "wrist_flexion": (0, 3, 0, 0.5),
-    "wrist_deviation": (0, 2, 0, 0.5),
+    "wrist_deviation": (0, 2, 0, 0.5), "sc_protraction": (0, 2, 0, 1), "sc_elevation": (3, 1, 0, 1),
 }
 
 
@@ -43,6 +43,12 @@ REACH_START = {"hip_flexion": 0.15, "knee": 0.03, "ankle": 0.4, "lumbar_flexion"
 SQUAT_COUPLED = ("hip_flexion", "knee", "ankle", "lumbar_flexion")
 
 
+# A girdle's clavicle elevation per unit of the arm's elevation in simulate_overhead (models/human_girdle.urdf):
+# the clavicle rises some 30 deg as the arm reaches overhead (the scapulohumeral rhythm's share of the
+# sternoclavicular joint; Inman 1944, and after him most shoulder models).
+GIRDLE_RHYTHM = 0.2
+
+
 def squat_angles(model: Model, times: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Joint angles (n_frames, n_dofs): squats plus a distinct slow sinusoid per DoF, within limits."""
     deg = math.radians
@@ -55,6 +61,7 @@ def squat_angles(model: Model, times: np.ndarray, rng: np.random.Generator) -> n
         "neck_flexion": (0, 0, 25), "neck_bending": (0, 0, 20), "neck_rotation": (0, 0, 35),
         "shoulder_flexion": (60, 0, 60), "shoulder_adduction": (-40, 0, 30), "shoulder_rotation": (0, 0, 40),
         "elbow": (60, 0, 50), "radioulnar": (0, 0, 50), "wrist_flexion": (0, 0, 35), "wrist_deviation": (5, 0, 15),
+        "sc_protraction": (0, 0, 12), "sc_elevation": (10, 0, 10),
     }
     out = np.zeros((times.size, model.n_dofs))
     for i, d in enumerate(model.dofs):
@@ -191,6 +198,14 @@ def overhead_angles(model: Model, times: np.ndarray, rng: np.random.Generator, r
             else:  # the humerus turns out and in about its long axis during each arc
                 th = (deg(15) * own * rest + deg(60) * np.sin(2 * np.pi * u_s) * np.sin(np.pi * u_s)
                       - deg(80) * np.sin(2 * np.pi * u_t) * np.sin(np.pi * u_t))
+            out[:, i] = sign * np.clip(th, lo, hi)
+            continue
+        if key in ("sc_elevation", "sc_protraction"):  # a girdle's clavicle rises with the arm (GIRDLE_RHYTHM)
+            serve, throw, _, _, peak = arcs[side]
+            if key == "sc_elevation":
+                th = deg(5) + deg(3) * own + GIRDLE_RHYTHM * (serve + throw) * np.radians(peak)
+            else:  # forward in a serve, back in a throw
+                th = deg(4) * own + deg(12) * (serve - throw)
             out[:, i] = sign * np.clip(th, lo, hi)
             continue
         span = reach * (hi - lo)
