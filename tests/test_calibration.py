@@ -1201,13 +1201,13 @@ def test_an_axis_carried_far_where_its_joint_turns_little_is_held(human, human_k
 
 
 def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_kin, monkeypatch, tmp_path):
-    """A ball joint's centre the fit carries beyond its prior where the moving trials turn the joint through less
-    than NARROW_TURN in every angle is held at the base model's offset from its parent's markers
+    """A ball (or universal) joint's centre the fit carries beyond its prior where the moving trials turn the joint
+    through less than NARROW_TURN in every angle is held at the base model's offset from its parent's markers
     (pipeline._narrow_centres: Rajagopal's run's back).  The squats' lumbar joint turned at an eighth of its motion:
     on clean simulated markers the fit keeps its centre near the truth, within the prior, so it is left free.  With
-    NARROW_CENTRE_FAR at 0 (any shift counts as far) every ball joint the simulator turns through less than
-    NARROW_TURN in each angle has its centre held, where the hold puts it (the base model's offset from the parent's
-    markers' centroid, at their layout's size), and named with its turn; the wide ones stay free."""
+    NARROW_CENTRE_FAR at 0 (any shift counts as far) every ball or universal joint (the wrists) the simulator turns
+    through less than NARROW_TURN in each angle has its centre held, where the hold puts it (the base model's offset
+    from the parent's markers' centroid, at their layout's size), and named with its turn; the wide ones stay free."""
     import calibrate.calibration.pipeline as pipeline
 
     sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=2)
@@ -1230,7 +1230,7 @@ def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_
     assert "lumbar" in narrow and narrow["lumbar"] == pytest.approx(span["lumbar"], abs=np.radians(1.5))
     locked = {n for n, _ in held.settings.lock}
     for j in human.joints:
-        if j.kind != "ball":  # a hinge's centre along its axis is the prior's anyway: not judged
+        if j.kind not in ("ball", "universal"):  # a hinge's centre along its axis is the prior's anyway: not judged
             assert j.name not in narrow and j.name not in held.settings.hold_centres, j.name
             continue
         if locked & set(j.dofs) or abs(span[j.name] - pipeline.NARROW_TURN) < np.radians(1.0):

@@ -1236,19 +1236,19 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
 
 def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = (),
                     marker_frames: bool = False) -> dict[str, tuple[float, float]]:
-    """The ball joints' centres to hold for the narrow turn of their joint: carried by the fit (`p`) beyond
-    NARROW_CENTRE_FAR prior SDs from the base model's at the subject's scale, while the moving trials turn each angle
-    of the joint through less than NARROW_TURN (2nd to 98th percentile of `angles`: rows the moving trials' frames,
-    columns every DoF's absolute angle).  A centre of rotation is placed by the arcs its child's markers sweep about
-    it; skin turns a segment against its bone by up to 4.4 deg in a walk, and arcs of a few degrees leave the centre
-    in a flat valley the skin's shifts decide: Rajagopal's run turns its lumbar joint 9-16 deg and carried the back's
-    centre 117 mm from the base model's, an AddBiomechanics walk's lumbar 64 mm (docs/benchmarks.md).  Not the joints
-    whose DoFs are locked or in `skip` (a hinge locked for a trade), nor those a joint-centre marker the trials show
-    places (a lab's hip centre), nor those held already.  `marker_frames`: the distance is read, as the report will
-    read it, with the segment frames turned to where their markers put them (Settings.segment_frames "markers",
-    calibrate.problem.gauge.align_frames): in the solver's own frames gait2392's pelvis stood 15 deg from its
-    markers' and its back's centre 52 mm from the base model's, in its markers' 72 mm.  Joint -> (its largest
-    angle's turn, rad; the centre's distance from the base model's at the subject's scale, m)."""
+    """The ball (and universal) joints' centres to hold for the narrow turn of their joint: carried by the fit (`p`)
+    beyond NARROW_CENTRE_FAR prior SDs from the base model's at the subject's scale, while the moving trials turn
+    each angle of the joint through less than NARROW_TURN (2nd to 98th percentile of `angles`: rows the moving
+    trials' frames, columns every DoF's absolute angle).  A centre of rotation is placed by the arcs its child's
+    markers sweep about it; skin turns a segment against its bone by up to 4.4 deg in a walk, and arcs of a few
+    degrees leave the centre in a flat valley the skin's shifts decide: Rajagopal's run turns its lumbar joint 9-16
+    deg and carried the back's centre 117 mm from the base model's, an AddBiomechanics walk's lumbar 64 mm
+    (docs/benchmarks.md).  Not the joints whose DoFs are locked or in `skip` (a hinge locked for a trade), nor those
+    a joint-centre marker the trials show places (a lab's hip centre), nor those held already.  `marker_frames`: the
+    distance is read, as the report will read it, with the segment frames turned to where their markers put them
+    (Settings.segment_frames "markers", calibrate.problem.gauge.align_frames): in the solver's own frames gait2392's
+    pelvis stood 15 deg from its markers' and its back's centre 52 mm from the base model's, in its markers' 72 mm.
+    Joint -> (its largest angle's turn, rad; the centre's distance from the base model's at the subject's scale, m)."""
     st = problem.settings
     if "centre" not in st.free or not st.priors.centre > 0 or angles.shape[0] < 3:
         return {}
@@ -1259,7 +1259,8 @@ def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: C
     far = NARROW_CENTRE_FAR * st.priors.centre
     out: dict[str, tuple[float, float]] = {}
     for ji, j in enumerate(model.joints):
-        if j.kind != "ball" or j.name in st.hold_centres or ji in marked or any(d in locked for d in j.dofs):
+        if j.kind not in ("ball", "universal") or j.name in st.hold_centres or ji in marked or any(
+                d in locked for d in j.dofs):
             continue
         gap = float(P.scale[model.segment_index(j.parent)]) * float(np.linalg.norm(P.centre[ji] - B.centre[ji]))
         a = angles[:, [model.dof_index(d) for d in j.dofs]]
