@@ -227,6 +227,8 @@ def roundtrip(tmp_path_factory):
     add("base", HUMAN, None, 6, 1)
     add("perturbed", HUMAN, _perturbed(human, 7), 6, 2)
     add("variant", _variant_urdf(tmp / "variant.urdf"), None, 6, 3)
+    girdle = HUMAN.with_name("human_girdle.urdf")  # the clavicles' universal joints, the acromions on them
+    add("girdle", girdle, _perturbed(load_model(girdle), 9), 6, 4)
     # A squat trial's true motion as .mot, with the true subject's model.
     sim = simulate_squats(human, frames=30, seed=5)
     truth_osim = export_osim(human, tmp / "truth.osim", sim.truth)
@@ -249,7 +251,7 @@ def _worst(osim_markers: list[dict], ref: list[dict]) -> float:
 
 
 @needs_opensim
-@pytest.mark.parametrize("case", ["base", "perturbed", "variant"])
+@pytest.mark.parametrize("case", ["base", "perturbed", "variant", "girdle"])
 def test_markers_match_pinocchio(roundtrip, case):
     c = roundtrip[case]
     r = c["osim_result"]
@@ -286,7 +288,7 @@ def _pin_inertias(urdf: Path) -> dict[str, pin.Inertia]:
 
 
 @needs_opensim
-@pytest.mark.parametrize("case", ["base", "perturbed", "variant"])
+@pytest.mark.parametrize("case", ["base", "perturbed", "variant", "girdle"])
 def test_mass_properties_match(roundtrip, case):
     c = roundtrip[case]
     bodies = c["osim_result"]["bodies"]
