@@ -563,7 +563,7 @@ def _acromion_on_parent(model: Model, base: Parameters, ji: int) -> str | None:
     """The acromion marker (Plug-in Gait's xSHO, or a label that reads as it) riding on the segment ball joint `ji`
     hangs from, within ACROMION_REACH of its centre in the base model: a shoulder without a girdle, whose acromion
     the shoulder blade carries up with the arm (models/human.urdf's; treadmill and overhead trials place such a
-    shoulder 60-110 mm from the base model's, docs/benchmarks.md)."""
+    shoulder 60-115 mm from the base model's, docs/benchmarks.md)."""
     j = model.joints[ji]
     if j.kind != "ball":
         return None
