@@ -381,7 +381,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         # check, non-convergence.  Not the parameters a trial leaves to the priors: as many for every subject of one
         # protocol (24-50 on the real recordings), they hid the few that differ.
         warnings = (len(cal.notes) + sum(c.unreliable for c in cal.changes) + len(cal.misplaced) + len(cal.jittery)
-                    + len(cal.exchanged_back) + len(cal.trials_apart) + len(cal.exchanged)
+                    + len(cal.exchanged_back) + len(cal.trials_apart) + len(cal.exchanged) + len(cal.relabelled)
                     + (0 if cal.converged else 1))
         return {**row, "status": "ok" if cal.converged else "not converged", "marker_rms_mm": 1000 * cal.marker_rms,
                 "iterations": cal.summary.iterations, "converged": bool(cal.converged),

@@ -119,6 +119,12 @@ def _notes(report: dict) -> str:
                      f"{f0}-{f1} and not back (their distances fit the base model's "
                      f"{x.get('misfit_exchanged_mm', 0):.0f} mm RMS exchanged, {x.get('misfit_as_labelled_mm', 0):.0f} "
                      "as labelled): exchanged back there; check the labelling</li>")
+    for x in report.get("relabelled", []):
+        read = zip(x.get("labels", []), x.get("read_as", []), strict=False)
+        pairs = ", ".join(f"{_e(a)} as {_e(b)}" for a, b in read)
+        items.append(f"<li class=bad>relabelled: {_e(x.get('trial'))} (still) names the markers of "
+                     f"{_e(x.get('segment'))} otherwise than the moving trials: read {pairs} (a symmetric cluster "
+                     "labelled the other way round); check the labelling</li>")
     for x in report.get("jittery_markers", []):
         items.append(f"<li class=bad>jitters: {_e(x.get('label'))} ({_e(x.get('trial'))}) scatters "
                      f"{x.get('noise_sd_mm', 0):.0f} mm SD from frame to frame (white noise; the trial's markers "

@@ -15,7 +15,14 @@ MOVED_SIGMAS of their spread away from it (Mahalanobis): the moving trials never
 still trial's positions of a moved marker are then left out of the fit (with one pose, a place of its
 own would fit them exactly and tell nothing else); the model keeps the moving trials' place.  With
 Settings.moved_markers off, the test runs once at the solution and its finds are only named
-(Calibration.moved_kept), except for markers re-placed, REPLACED_MIN or more away, which are left out all the same."""
+(Calibration.moved_kept), except for markers re-placed, REPLACED_MIN or more away, which are left out all the same.
+
+A cluster's labels exchanged between the still trial and the moving ones (exchanged_clusters) are a move of
+another kind, found before the solve: a near-symmetric plate's markers keep every distance when its labels are
+mirrored (AddBiomechanics' Expert1: the left thigh plate's 1-3 and 2-4 exchanged between the static and the
+walk, each pair's distances within 3 mm), but on the segment each label of the still trial sits where the
+moving trials put another.  Those are read exchanged back in the still trial (relabel_columns), so that its
+positions still place the cluster."""
 
 from __future__ import annotations
 
@@ -23,6 +30,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from ..problem.problem import Problem
 from ..problem.state import State
@@ -37,6 +45,13 @@ REPLACED_MIN = 0.080
 MOVED_SIGMAS = 3.0  # Mahalanobis distance from the moving trials' places (chi2, 3 dof: outside 97 % of them)
 MIN_STILL_FRAMES = 3  # frames of the still trial that show the marker, at least
 MIN_MOVING_FRAMES = 12  # frames of the moving trials that show it (their spread is measured on them)
+# A cluster's labels read exchanged in a still trial (exchanged_clusters) where each exchanged label's place there
+# lies at least EXCHANGE_OWN from its own place in the moving trials (a plate's markers stand 60-180 mm apart; skin and
+# the start's poses move a place 5-36 mm) and, taken together, the places they are read as lie at most EXCHANGE_GAIN
+# times as far (Expert1's static on models/human.urdf: 215 mm -> 44; on the girdle's start, a poorer pose of the
+# left leg: 434 -> 183).
+EXCHANGE_OWN = REPLACED_MIN / 2
+EXCHANGE_GAIN = 0.5
 _DELTA = 1e-3  # step in the offset entries of p: the marker is linear in them (exact differences)
 _FLOOR = 5e-4  # m: added to the moving trials' SD on each axis (their spread can be tiny: a rigid cluster)
 
@@ -132,3 +147,79 @@ def moved_markers(problem: Problem, state: State, trial_of: np.ndarray, still: S
             far.setdefault((m.trial, m.segment), m.marker)
     out += [replace(m, beside=far[m.trial, m.segment]) for m in rest if (m.trial, m.segment) in far]
     return sorted(out, key=lambda m: -m.distance)
+
+
+@dataclass(frozen=True)
+class ExchangedCluster:
+    """Labels of one segment's markers that still trial `trial` names otherwise than the moving trials: its
+    `labels[i]` sits where the moving trials put `read_as[i]` (the places compared in the segment's frame, at
+    the start's poses, which the segment's other markers fix)."""
+
+    trial: int
+    segment: str
+    labels: tuple[str, ...]
+    read_as: tuple[str, ...]
+    own: tuple[float, ...]  # m: each label's place in the still trial from its own in the moving trials
+    exchanged: tuple[float, ...]  # m: ... from the place of the label it is read as
+
+    def text(self, source: str) -> str:
+        pairs = ", ".join(f"{a} as {b}" for a, b in zip(self.labels, self.read_as, strict=True))
+        return (f"{source} (still) names the markers of {self.segment} otherwise than the moving trials: read "
+                f"{pairs} (their places there {', '.join(f'{1e3 * d:.0f}' for d in self.own)} mm from their "
+                f"labels' in the moving trials, {', '.join(f'{1e3 * d:.0f}' for d in self.exchanged)} from the "
+                "labels read; a symmetric cluster labelled the other way round)")
+
+    def to_json(self) -> dict:
+        return {"trial": self.trial, "segment": self.segment, "labels": list(self.labels),
+                "read_as": list(self.read_as), "own_mm": [1e3 * d for d in self.own],
+                "exchanged_mm": [1e3 * d for d in self.exchanged]}
+
+
+def exchanged_clusters(places: np.ndarray, trial_of: np.ndarray, still: Sequence[bool], names: Sequence[str],
+                       segments: Sequence[str]) -> list[ExchangedCluster]:
+    """The labels each still trial names otherwise than the moving trials (module docstring): `places` (F, n, 3)
+    where each of `trial_of`'s frames puts markers `names` (riding on `segments`) in their segment's frame (m;
+    NaN: not seen), from poses their positions did not set.  Per still trial and segment, the still trial's median
+    places are matched to the moving trials' (least total distance); a match other than the labels' own is kept
+    where EXCHANGE_OWN and EXCHANGE_GAIN hold."""
+    still_arr = np.asarray(still, dtype=bool)
+    if not still_arr.any() or still_arr.all():
+        return []
+    moving = ~still_arr[trial_of]
+    out = []
+    for t in np.flatnonzero(still_arr):
+        at: dict[str, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        for k in range(len(names)):
+            st, mv = places[trial_of == t, k], places[moving, k]
+            st, mv = st[np.all(np.isfinite(st), axis=1)], mv[np.all(np.isfinite(mv), axis=1)]
+            if len(st) >= MIN_STILL_FRAMES and len(mv) >= MIN_MOVING_FRAMES:
+                at.setdefault(segments[k], []).append((k, np.median(st, axis=0), np.median(mv, axis=0)))
+        for segment, items in at.items():
+            if len(items) < 2:
+                continue
+            C = np.linalg.norm(np.array([x[1] for x in items])[:, None] - np.array([x[2] for x in items])[None],
+                               axis=2)
+            rows, cols = linear_sum_assignment(C)
+            moved_ = [(i, j) for i, j in zip(rows, cols, strict=True) if i != j]
+            if not moved_:
+                continue
+            own = np.array([C[i, i] for i, _ in moved_])
+            other = np.array([C[i, j] for i, j in moved_])
+            if own.min() >= EXCHANGE_OWN and other.sum() <= EXCHANGE_GAIN * own.sum():
+                out.append(ExchangedCluster(int(t), segment, tuple(names[items[i][0]] for i, _ in moved_),
+                                            tuple(names[items[j][0]] for _, j in moved_),
+                                            tuple(float(d) for d in own), tuple(float(d) for d in other)))
+    return out
+
+
+def relabel_columns(observed: np.ndarray, spans: Sequence[slice], found: Sequence[ExchangedCluster],
+                    names: Sequence[str]) -> np.ndarray:
+    """`observed` (F, n_markers, 3; columns `names`) with each exchange of `found` undone in its trial's frames
+    (`spans`): the column of a label read as another takes that label's place."""
+    out = observed.copy()
+    for x in found:
+        sl = spans[x.trial]
+        src = [names.index(a) for a in x.labels]
+        dst = [names.index(b) for b in x.read_as]
+        out[sl, dst] = observed[sl][:, src]
+    return out

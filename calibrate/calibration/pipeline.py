@@ -43,7 +43,14 @@ from calibrate.calibration.identifiability import (
     trading_locks,
     zero_notes,
 )
-from calibrate.calibration.moved import MovedMarker, moved_markers, replaced
+from calibrate.calibration.moved import (
+    ExchangedCluster,
+    MovedMarker,
+    exchanged_clusters,
+    moved_markers,
+    relabel_columns,
+    replaced,
+)
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.plugin_gait import knee_axis_checks
 from calibrate.calibration.regression import hip_motion, regression_hips
@@ -560,6 +567,18 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     finally:
         theirs.close()  # a child still running (this process failed first) stopped at once
     start = stack_states([mine[k] for k in range(len(trials))])
+    relabelled: list[ExchangedCluster] = []
+    if new and motion is not None and len(trials) > 1 and run.outliers > 0:
+        # A cluster's labels exchanged in a still trial against the moving ones (a symmetric plate labelled the other
+        # way round): read back there, before the places and the fit are taken from them.
+        relabelled = _exchanged_new(subject, problem.kin, start, obs, params0, placed, spans,
+                                    [m < STILL_MOTION for m in motion])
+        for x in relabelled:
+            say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}")))
+        if relabelled:
+            names_ = list(subject.marker_names)
+            obs, raw = (relabel_columns(a, spans, relabelled, names_) for a in (obs, raw))
+            problem = problem.with_observed(relabel_columns(problem.observed, spans, relabelled, names_))
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
         problem = problem.with_base(base)
@@ -821,7 +840,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
                        exchanged_back=exchanged_back_, trials_apart=apart,
-                       moved=tuple(moved),
+                       moved=tuple(moved), relabelled=tuple(relabelled),
                        moved_kept=tuple(kept),
                        far_joints=tuple(far), still_only=still_only, still_centres=still_centres,
                        cluster_centres=banded_joints,
@@ -1703,11 +1722,10 @@ def _on_model(subject: Model, model: Model, params: Parameters) -> Parameters:
     return Parameters(params.scale.copy(), params.centre.copy(), params.axis.copy(), marker)
 
 
-def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
-                       placed: list[NewMarker]) -> tuple[Parameters, Parameters, list[NewMarker]]:
-    """Each new marker's position on its segment from the start poses (seed 002's closed form: the
-    median over frames of the marker in the segment's frame); these positions are also the centre
-    of its prior.  Returns the start parameters, the prior's base parameters and the placements."""
+def _new_places(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
+                placed: list[NewMarker]) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray]:
+    """Where the start poses put each placed new marker on its segment: (its index in the model, the frames read,
+    local (frames, new, 3): the marker in its segment's frame, m, NaN where not seen; its segment's scale)."""
     new = [k for k, n in enumerate(subject.marker_names) if n in {m.label for m in placed if m.segment}]
     seen = np.all(np.isfinite(obs[:, new]), axis=2)
     # Up to about 100 frames per marker, wherever in the trials it is seen (some are seen briefly).
@@ -1726,6 +1744,25 @@ def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.nd
         axes.append(M[:, new] - origin[:, new])  # (frames, new, 3): the segment's axis c in the lab
     R = np.stack(axes, axis=3)  # (frames, new, 3 lab, 3 segment)
     local = np.einsum("fnij,fni->fnj", R, obs[frames][:, new] - origin[:, new])
+    return new, frames, local, s
+
+
+def _exchanged_new(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
+                   placed: list[NewMarker], spans: Sequence[slice], still: Sequence[bool]) -> list[ExchangedCluster]:
+    """New markers whose labels a still trial exchanges against the moving trials (moved.exchanged_clusters), by
+    their places at the start poses, which the other markers set."""
+    new, frames, local, _ = _new_places(subject, kin, start, obs, params, placed)
+    trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
+    return exchanged_clusters(local, trial_of[frames], still, [subject.marker_names[k] for k in new],
+                              [subject.markers[k].segment for k in new])
+
+
+def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
+                       placed: list[NewMarker]) -> tuple[Parameters, Parameters, list[NewMarker]]:
+    """Each new marker's position on its segment from the start poses (seed 002's closed form: the
+    median over frames of the marker in the segment's frame); these positions are also the centre
+    of its prior.  Returns the start parameters, the prior's base parameters and the placements."""
+    new, frames, local, s = _new_places(subject, kin, start, obs, params, placed)
     out = params.copy()
     base = subject.parameters()
     by_label = {m.label: m for m in placed}

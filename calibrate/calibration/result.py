@@ -267,6 +267,9 @@ class Calibration:
     moved: tuple = ()
     # The same test's finds where Settings.moved_markers is off: named, their positions kept in the fit
     moved_kept: tuple = ()
+    # calibrate.calibration.moved.ExchangedCluster per segment whose new markers a still trial names otherwise than
+    # the moving trials (a symmetric cluster labelled the other way round): read exchanged back in that trial
+    relabelled: tuple = ()
     # Every trial still (a static alone): no joint turned, so the joints stay the base model's, scaled; the median
     # SD of the distances between markers on different segments, m, of the trial that moved most (else None)
     still_only: float | None = None

@@ -385,6 +385,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         pairs = ", ".join(dict.fromkeys("/".join(x.labels) for _, x in cal.exchanged_back))
         print(f"warning: labels exchanged and not back, exchanged back where the base model puts them the wrong way "
               f"round: {pairs} (see 'exchanged' above); check the labelling", file=sys.stderr)
+    if cal.relabelled:
+        pairs = ", ".join(f"{a} as {b}" for x in cal.relabelled for a, b in zip(x.labels, x.read_as, strict=True))
+        print(f"warning: a still trial's cluster labels read as the moving trials name them: {pairs} (see "
+              "'relabelled' above); check the labelling", file=sys.stderr)
     if cal.jittery:
         names = ", ".join(dict.fromkeys(x.label for _, x in cal.jittery))
         print(f"warning: markers that jitter, left out where they do: {names} (see 'jitters' above)", file=sys.stderr)
