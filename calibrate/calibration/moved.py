@@ -28,12 +28,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from itertools import permutations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from ..problem.problem import Problem
+from ..model.blocks import FrameLayout
+from ..model.kinematics import Kinematics
+from ..model.model import Parameters
+from ..problem.problem import LIMIT_MARGIN, Problem
 from ..problem.state import State
+from ..solve.ik import FrameSolver
 
 MOVED_MIN = 0.010  # m: a slipped cluster or a marker put back moves a centimetre or more (skin over bone, less)
 # m: a marker this far elsewhere in a still trial was re-placed (or its cluster's labels exchanged), not carried by
@@ -52,6 +56,7 @@ MIN_MOVING_FRAMES = 12  # frames of the moving trials that show it (their spread
 # left leg: 434 -> 183).
 EXCHANGE_OWN = REPLACED_MIN / 2
 EXCHANGE_GAIN = 0.5
+EXCHANGE_MOST = 7  # labels of one segment at most that the match permutes (7! orders); more: none judged
 _DELTA = 1e-3  # step in the offset entries of p: the marker is linear in them (exact differences)
 _FLOOR = 5e-4  # m: added to the moving trials' SD on each axis (their spread can be tiny: a rigid cluster)
 
@@ -175,40 +180,133 @@ class ExchangedCluster:
                 "exchanged_mm": [1e3 * d for d in self.exchanged]}
 
 
+def _exchange(trial: int, segment: str, names: Sequence[str], still: np.ndarray, moving: np.ndarray,
+              near: float = np.inf) -> ExchangedCluster | None:
+    """The labels `names` of one segment's markers that still trial `trial` names otherwise than the moving trials:
+    its places `still` (n, 3, m) matched to theirs `moving` (least total distance); a match other than the labels'
+    own, kept where EXCHANGE_OWN and EXCHANGE_GAIN hold and the places read lie `near` or nearer on average; else
+    None."""
+    C = np.linalg.norm(still[:, None] - moving[None], axis=2)
+    # Only labels EXCHANGE_OWN or more from their own place can be read as another (the rule below), and the one each is
+    # read as is such a label too: the least total distance over their orders (numpy: scipy's assignment would add its
+    # import, 0.4 s, to every run).
+    far = np.flatnonzero(np.diag(C) >= EXCHANGE_OWN)
+    if not 2 <= far.size <= EXCHANGE_MOST:
+        return None
+    orders = np.array(list(permutations(range(far.size))))
+    best = orders[C[far[:, None], far[orders].T].sum(axis=0).argmin()]
+    pairs = [(int(far[i]), int(far[j])) for i, j in enumerate(best) if i != j]
+    if not pairs:
+        return None
+    own = np.array([C[i, i] for i, _ in pairs])
+    other = np.array([C[i, j] for i, j in pairs])
+    if own.min() < EXCHANGE_OWN or other.sum() > EXCHANGE_GAIN * own.sum() or other.mean() > near:
+        return None
+    return ExchangedCluster(trial, segment, tuple(names[i] for i, _ in pairs), tuple(names[j] for _, j in pairs),
+                            tuple(float(d) for d in own), tuple(float(d) for d in other))
+
+
 def exchanged_clusters(places: np.ndarray, trial_of: np.ndarray, still: Sequence[bool], names: Sequence[str],
                        segments: Sequence[str]) -> list[ExchangedCluster]:
     """The labels each still trial names otherwise than the moving trials (module docstring): `places` (F, n, 3)
     where each of `trial_of`'s frames puts markers `names` (riding on `segments`) in their segment's frame (m;
     NaN: not seen), from poses their positions did not set.  Per still trial and segment, the still trial's median
-    places are matched to the moving trials' (least total distance); a match other than the labels' own is kept
-    where EXCHANGE_OWN and EXCHANGE_GAIN hold."""
+    places are matched to the moving trials' (_exchange)."""
     still_arr = np.asarray(still, dtype=bool)
     if not still_arr.any() or still_arr.all():
         return []
     moving = ~still_arr[trial_of]
     out = []
     for t in np.flatnonzero(still_arr):
-        at: dict[str, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+        at: dict[str, list[tuple[str, np.ndarray, np.ndarray]]] = {}
         for k in range(len(names)):
             st, mv = places[trial_of == t, k], places[moving, k]
             st, mv = st[np.all(np.isfinite(st), axis=1)], mv[np.all(np.isfinite(mv), axis=1)]
             if len(st) >= MIN_STILL_FRAMES and len(mv) >= MIN_MOVING_FRAMES:
-                at.setdefault(segments[k], []).append((k, np.median(st, axis=0), np.median(mv, axis=0)))
+                at.setdefault(segments[k], []).append((names[k], np.median(st, axis=0), np.median(mv, axis=0)))
         for segment, items in at.items():
-            if len(items) < 2:
+            x = _exchange(int(t), segment, [n for n, _, _ in items], np.array([a for _, a, _ in items]),
+                          np.array([b for _, _, b in items]))
+            if x is not None:
+                out.append(x)
+    return out
+
+
+def segment_axes(kin: Kinematics, Z: np.ndarray, Q: np.ndarray, params: Parameters,
+                 markers: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's frame of the segment that each of `markers` (model indices) rides on, at URDF coordinates Z, Q
+    (absolute) and geometry `params`: its origin (F, n, 3) and axes R (F, n, 3 lab, 3 segment), lab frame, m."""
+    idx = list(markers)
+    model = kin.model
+    s = np.array([params.scale[model.segment_index(model.markers[k].segment)] for k in idx])
+    p = params.copy()
+    p.marker[idx] = 0.0
+    origin = kin.batch(Z, Q, p)[0][:, idx]
+    axes = []
+    for c in range(3):
+        p.marker[idx] = 0.0
+        p.marker[idx, c] = 1.0 / s
+        axes.append(kin.batch(Z, Q, p)[0][:, idx] - origin)  # the segment's axis c in the lab
+    return origin, np.stack(axes, axis=3)
+
+
+def exchanged_after_solve(problem: Problem, state: State, trial_of: np.ndarray,
+                          still: Sequence[bool]) -> list[ExchangedCluster]:
+    """The labels of the model's own markers that a still trial names otherwise than the moving trials (they set the
+    start's poses, so they are not judged before the fit), at the first subsample solution.  Fitted as labelled, the
+    still trial bends its pose of the segment towards them (a simulated static turned its hip 179 deg to meet a
+    mirrored thigh plate, each label then 14-24 mm from its own place), so its middle frame is posed again from
+    scratch without the segment's markers (FrameSolver.global_start: the joints above and below carry the segment,
+    the geometry held) and their places read there; the moving trials' places are their median over the solution's
+    frames (marker_places).  Only segments with a marker MOVED_MIN or more from its own place are posed so, and the
+    places read must lie within EXCHANGE_OWN on average (a bent static misplaces every segment below: that
+    simulated static's heel and toe matched each other's places at 120-142 mm).  Expert1 on its generic.osim:
+    L_thigh1-4 97-135 mm from their own places, 16-25 from those read.  Where the cluster has bent the geometry too
+    (models/human_girdle.urdf on Expert1, the knee's axis 84 deg off) nothing is found: what the start's places
+    (exchanged_clusters) do not read back, the moved-marker test still sees."""
+    still_arr = np.asarray(still, dtype=bool)
+    if not still_arr.any() or still_arr.all():
+        return []
+    model, kin = problem.model, problem.kin
+    params = model.unpack(state.p)
+    fitted = np.array([params.scale[model.segment_index(m.segment)] * params.marker[k]
+                       for k, m in enumerate(model.markers)])
+    places = marker_places(problem, state) + fitted[None]
+    moving = ~still_arr[trial_of]
+    seen = problem.seen
+    # Every coordinate but the locked ones (a ball with a locked angle: whole), as the solve holds them.
+    held = set(np.flatnonzero(problem.locked).tolist())
+    for ball in kin.balls:
+        if held & set(ball.dofs):
+            held |= set(ball.dofs)
+    free = np.array([c for c in range(model.nz) if c < FrameLayout.angle(0) or FrameLayout.dof(c) not in held])
+    locked_cols = np.isin(np.arange(model.nz), free, invert=True)
+    solver = None
+    out = []
+    for t in np.flatnonzero(still_arr):
+        rows = np.flatnonzero(trial_of == t)
+        f = int(rows[len(rows) // 2])
+        for segment in dict.fromkeys(m.segment for m in model.markers):
+            ks = [k for k, m in enumerate(model.markers) if m.segment == segment and seen[f, k]
+                  and np.isfinite(places[moving, k, 0]).sum() >= MIN_MOVING_FRAMES]
+            if len(ks) < 2:
                 continue
-            C = np.linalg.norm(np.array([x[1] for x in items])[:, None] - np.array([x[2] for x in items])[None],
-                               axis=2)
-            rows, cols = linear_sum_assignment(C)
-            moved_ = [(i, j) for i, j in zip(rows, cols, strict=True) if i != j]
-            if not moved_:
+            mean = np.array([np.nanmedian(places[moving, k], axis=0) for k in ks])
+            if np.linalg.norm(places[f, ks] - mean, axis=1).max() < MOVED_MIN:
                 continue
-            own = np.array([C[i, i] for i, _ in moved_])
-            other = np.array([C[i, j] for i, j in moved_])
-            if own.min() >= EXCHANGE_OWN and other.sum() <= EXCHANGE_GAIN * own.sum():
-                out.append(ExchangedCluster(int(t), segment, tuple(names[items[i][0]] for i, _ in moved_),
-                                            tuple(names[items[j][0]] for _, j in moved_),
-                                            tuple(float(d) for d in own), tuple(float(d) for d in other)))
+            others = seen[f] & np.array([m.segment != segment for m in model.markers])
+            solver = solver or FrameSolver(kin, state.p, problem.frame_evaluator(state.p), margin=LIMIT_MARGIN)
+            # From scratch (the default pose and joint by joint, the better fit), not from the solution's pose: a
+            # simulated static bent by a mirrored thigh plate had turned its hip 179 deg, a basin the segments
+            # below then keep.
+            z, q = solver.global_start(problem.observed[f], others, local=True, free=free,
+                                       held=lambda z, f=f: np.where(locked_cols, state.Z[f], z))
+            Zf, Qf = kin.absolute(z[None], q[None, :4], None if state.B is None else q[None, 4:].reshape(1, -1, 4))
+            origin, R = segment_axes(kin, Zf, Qf, params, ks)
+            local = np.einsum("nij,ni->nj", R[0], problem.observed[f, ks] - origin[0])
+            x = _exchange(int(t), segment, [model.marker_names[k] for k in ks], local, mean, near=EXCHANGE_OWN)
+            if x is not None:
+                out.append(x)
     return out
 
 

@@ -46,6 +46,7 @@ from calibrate.calibration.identifiability import (
 from calibrate.calibration.moved import (
     ExchangedCluster,
     MovedMarker,
+    exchanged_after_solve,
     exchanged_clusters,
     moved_markers,
     relabel_columns,
@@ -609,9 +610,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
     # Which trials are still: their moved markers looked for (with run.moved_markers off, only the re-placed left out)
     still = [m < STILL_MOTION for m in motion] if motion is not None and len(trials) > 1 else None
-    problem, state, summary, scatter, solved, moved, locks, narrow, narrow_centres = _solve(
+    problem, state, summary, scatter, solved, moved, locks, narrow, narrow_centres, after = _solve(
         problem, start, spans, run, solver, say, lengths, cap, still, [t.source for t in trials],
-        STILL_COARSE_FRAMES if still_only is not None else COARSE_FRAMES)
+        STILL_COARSE_FRAMES if still_only is not None else COARSE_FRAMES, relabel=run.outliers > 0)
+    relabelled += after
+    if after:  # the positions kept aside read as the fit's
+        raw = relabel_columns(raw, spans, after, list(subject.marker_names))
+        far_obs = None if far_obs is None else relabel_columns(far_obs, spans, after, list(subject.marker_names))
     held = tuple(d for d in problem.settings.hold_axes if d not in as_given)
     # As used: with the axes held and the hinges locked above.
     settings = replace(settings, hold_axes=problem.settings.hold_axes, lock=problem.settings.lock,
@@ -1046,9 +1051,10 @@ def _segments_without_data(model: Model, seen: set[str]) -> list[str]:
 
 def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOptions, solver: SolverOptions,
            say: Callable[[str], None], lengths: Sequence[float] | None = None, tau_max: float | None = None,
-           still: Sequence[bool] | None = None, sources: Sequence[str] = (), coarse_frames: int = COARSE_FRAMES
-           ) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker], tuple[TradingLock, ...],
-                      dict[str, float]]:
+           still: Sequence[bool] | None = None, sources: Sequence[str] = (), coarse_frames: int = COARSE_FRAMES,
+           relabel: bool = False) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker],
+                                           tuple[TradingLock, ...], dict[str, float], dict[str, float],
+                                           list[ExchangedCluster]]:
     """The global solve: the geometry's basin on about `coarse_frames` evenly spaced frames (spread over the trials by
     their length; a long trial then through larger subsamples), then every frame's pose fitted to that geometry and
     the noise learnt on every frame.  With `run.auto_hold`, the axes of the coordinates that the subsample's
@@ -1061,7 +1067,9 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     longest correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its
     own).  `still`: which trials are still, where the markers that sit elsewhere in them than in the moving trials
     are looked for after the first subsample solve (calibrate.calibration.moved; their positions there left out and
-    the subsample solved again: with run.moved_markers off, only the re-placed ones, moved.replaced)."""
+    the subsample solved again: with run.moved_markers off, only the re-placed ones, moved.replaced); with `relabel`,
+    before that the labels a still trial exchanges against the moving trials (moved.exchanged_after_solve: read back,
+    returned last)."""
     seen = problem.seen
     coarse = spread_frames(seen, spans, coarse_frames, lengths)
     coarse_w = subsample_weight(coarse, spans, lengths)
@@ -1082,7 +1090,9 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     narrow: dict[str, float] = {}  # axes held because the moving trials turn them less than NARROW_TURN (rad)
     narrow_centres: dict[str, float] = {}  # centres held so (joint -> its largest angle's turn, rad)
     coarse_summary: SolverSummary | None = None
-    for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 1):
+    looks = 0  # looks for moved markers so far (MOVED_PASSES)
+    relabelled: list[ExchangedCluster] = []  # labels read back after the first solve (exchanged_after_solve)
+    for round_ in range(max(HOLD_ROUNDS, MOVED_PASSES) + 2):  # + 1: the round after labels read back
         sub = subsample(problem)
         # On a subsample the polish after the gauge alignment is left to the run on every frame.  A round after
         # the first (axes held, moved markers left out) adds its iterations to the first's.
@@ -1103,10 +1113,24 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             state, again = _solve_geometry(sub, state, solver, say, polish=sub is problem)
             coarse_summary = _merge(coarse_summary, again)
         found = []
-        if round_ < MOVED_PASSES and still is not None:
+        exchanged = []
+        if round_ == 0 and still is not None and relabel:
+            # A still trial's labels of the model's own markers exchanged against the moving trials' (a cluster
+            # labelled the other way round): read back, and the subsample solved again before the moved markers
+            # are looked for (at this solution they would read as moved).
+            exchanged = exchanged_after_solve(sub, state, sub_trial, still)
+            for x in exchanged:
+                say(Progress("markers", x.text(names[x.trial])))
+            if exchanged:
+                problem = problem.with_observed(relabel_columns(problem.observed, spans, exchanged,
+                                                                list(problem.model.marker_names)))
+                sub = subsample(problem)
+                relabelled += exchanged
+        if looks < MOVED_PASSES and still is not None and not exchanged:
             # Markers the still trials show elsewhere on their segment than the moving trials: their still
             # positions left out, and the subsample solved again from here (the moving trials' place kept).
             # A second look after that solve: with the worst gone, a slipped cluster's other markers stand out.
+            looks += 1
             found = moved_markers(sub, state, sub_trial, still, moved)
             if not run.moved_markers:  # only the re-placed (REPLACED_MIN): skin-borne shifts wait for the option
                 found = replaced(found, moved)
@@ -1161,7 +1185,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             new_centres = _narrow_centres(problem, state.p, angles[rows], skip, run.segment_frames == "markers")
         else:
             new_locks, new_centres = (), {}
-        if not held and not found and not new_locks and not new_centres:
+        if not held and not found and not exchanged and not new_locks and not new_centres:
             break
         if new_locks:
             for lk in new_locks:
@@ -1212,7 +1236,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             narrow_centres.update({n: t for n, (t, _) in new_centres.items()})
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return problem, state, coarse_summary, scatter, True, moved, locks, narrow, narrow_centres
+        return problem, state, coarse_summary, scatter, True, moved, locks, narrow, narrow_centres, relabelled
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -1250,7 +1274,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres
+    return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres, relabelled
 
 
 def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = (),
