@@ -145,7 +145,7 @@ def test_a_static_where_the_squats_put_every_marker_names_none_moved(plain_with_
 
 def test_a_re_placed_thigh_marker_is_left_out_of_the_static_by_default(human, session):
     """A marker 100 mm elsewhere in the static than in the squats (AddBiomechanics' Expert1: its left thigh cluster
-    75-145 mm, put back elsewhere after the static): no skin carries it so far, so without --moved-markers its
+    75-145 mm, its labels exchanged after the static): no skin carries it so far, so without --moved-markers its
     static positions are left out all the same, with those of its segment's other moved markers; the 30 mm shoulder
     marker (skin-borne, as the real acromia's 46-63 mm) is kept and named as before."""
     from calibrate.calibration.moved import REPLACED_MIN

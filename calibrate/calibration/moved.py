@@ -42,7 +42,8 @@ from ..solve.ik import FrameSolver
 MOVED_MIN = 0.010  # m: a slipped cluster or a marker put back moves a centimetre or more (skin over bone, less)
 # m: a marker this far elsewhere in a still trial was re-placed (or its cluster's labels exchanged), not carried by
 # skin: the real recordings' skin-borne shifts reach 46-63 mm (acromia lifted by the static's arms, a cluster slid down
-# its strap), AddBiomechanics' Expert1 static shows its left thigh cluster 75-145 mm from the walk's places.  Without
+# its strap), AddBiomechanics' Expert1 static shows its left thigh cluster 75-145 mm from the walk's places (its labels
+# exchanged: read back first where the match finds them, exchanged_clusters; walking3's L_thigh1 is not).  Without
 # Settings.moved_markers the still trial's positions of such a marker, and of its segment's other markers, are left
 # out all the same (moved_markers, replaced()).
 REPLACED_MIN = 0.080
