@@ -51,6 +51,7 @@ from calibrate.calibration.moved import (
     moved_markers,
     relabel_columns,
     replaced,
+    segment_axes,
 )
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.plugin_gait import knee_axis_checks
@@ -1756,18 +1757,9 @@ def _new_places(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, 
     frames = np.unique(np.concatenate([np.flatnonzero(seen[:, i])[:: max(1, int(seen[:, i].sum()) // 100)]
                                        for i in range(len(new))]))
     Z, Q = absolute(kin, frames_of(start, frames))
-    p = params.copy()
-    s = np.array([p.scale[subject.segment_index(subject.markers[k].segment)] for k in new])
-    p.marker[new] = 0.0
-    origin, _ = kin.batch(Z, Q, p)
-    axes = []
-    for c in range(3):
-        p.marker[new] = 0.0
-        p.marker[new, c] = 1.0 / s
-        M, _ = kin.batch(Z, Q, p)
-        axes.append(M[:, new] - origin[:, new])  # (frames, new, 3): the segment's axis c in the lab
-    R = np.stack(axes, axis=3)  # (frames, new, 3 lab, 3 segment)
-    local = np.einsum("fnij,fni->fnj", R, obs[frames][:, new] - origin[:, new])
+    s = np.array([params.scale[subject.segment_index(subject.markers[k].segment)] for k in new])
+    origin, R = segment_axes(kin, Z, Q, params, new)
+    local = np.einsum("fnij,fni->fnj", R, obs[frames][:, new] - origin)
     return new, frames, local, s
 
 
