@@ -142,6 +142,8 @@ def run_calibrate(subject: Path, static: str | None, trial: str, span: tuple[flo
             "static_angles": {} if still is None else {d: float(np.mean(still.angles[:, i]))
                                                        for i, d in enumerate(still.dof_names)},
             "converged": bool(cal.converged), "moved": [f"{x.marker} {1e3 * x.distance:.0f} mm" for x in cal.moved],
+            # the static's cluster labels read as the trial names them (calibrate.calibration.moved.exchanged_clusters)
+            "relabelled": [f"{a} as {b}" for x in cal.relabelled for a, b in zip(x.labels, x.read_as, strict=True)],
             # (a position: its distance from the base model's at the subject's scale, which the flag judges)
             "unreliable": [f"{c.group} {c.item} {c.change if c.group == 'axis' else c.beyond_scale:.0f}"
                            for c in cal.changes if c.unreliable]}
@@ -198,7 +200,8 @@ def bench(root: Path, name: str, work: Path, log, every: bool = False, config: P
         rows.append({"subject": name, "trial": trial, "static": case["static"], "frames": len(ok),
                      "markers": len(use), "expert": ex_scores, "calibrate": {**our_scores, "wall_s": ours["wall_s"]},
                      "ratio": our_scores["rms_mm"] / ex_scores["rms_mm"], "angles": angles,
-                     "converged": ours["converged"], "moved": ours["moved"], "unreliable": ours["unreliable"],
+                     "converged": ours["converged"], "moved": ours["moved"], "relabelled": ours["relabelled"],
+                     "unreliable": ours["unreliable"],
                      "static_angles_deg": at_static})
     return rows
 
@@ -234,6 +237,8 @@ def show(rows: list[dict], same: dict | None = None) -> str:
                    f"{r['calibrate']['wall_s']:8.2f}   (RMS / expert's: {r['ratio']:.2f})")
         if r["moved"]:
             out.append(f"  calibrate left out the static's positions of: {', '.join(r['moved'])}")
+        if r["relabelled"]:
+            out.append(f"  calibrate read the static's labels as the trial's: {', '.join(r['relabelled'])}")
         if r["unreliable"]:
             out.append(f"  calibrate's unreliable: {', '.join(r['unreliable'])}")
         worst = sorted(r["angles"].items(), key=lambda kv: -kv[1]["rms_deg"])
