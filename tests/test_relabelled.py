@@ -144,7 +144,7 @@ def test_the_command_line_warns_and_reports_it(session, tmp_path, capsys):
     out, err = capsys.readouterr()
     assert code == 0, err
     assert "  relabelled   " in out and f"{tmp_path / 'static.c3d'} (still) names the markers of femur_l" in out
-    warning = [ln for ln in err.splitlines() if "cluster labels read as the moving trials name them" in ln]
+    warning = [ln for ln in err.splitlines() if "cluster labels a trial names otherwise than the others" in ln]
     assert len(warning) == 1 and all(f"{a} as {b}" in warning[0] for a, b in MIRRORED.items())
     rep = json.loads((tmp_path / "report.json").read_text())
     (entry,) = rep["relabelled"]
@@ -178,3 +178,29 @@ def test_a_models_own_cluster_markers_are_read_back_after_the_first_solve():
         assert np.median(np.linalg.norm(cal.residuals[:F0, k], axis=1)) < 0.003
         true_place = squats.truth.scale[seg] * squats.truth.marker[truth.marker_index(n)]
         assert np.linalg.norm(cal.params.scale[seg] * cal.params.marker[k] - true_place) < 0.01
+
+
+def test_two_moving_trials_that_name_the_plate_otherwise_are_read_as_one(session):
+    """The squats cut in two moving trials, the second naming the plate mirrored (Expert1's walkingTO1 against its
+    walking1): pooled, each label's place would jump between the trials.  Each trial's labels are hosted alone
+    (hosts.trial_exchanges), the second's read as the first names them (the reference: of two that disagree, the
+    first), and the plate is placed in the shape the subject carries it and fitted in both to the noise."""
+    base, squats, _, _, true_places = session
+    half = squats.trial.n_frames // 2
+    first = replace(squats.trial.frames(0, half), source="first.c3d")
+    second = squats.trial.frames(half, squats.trial.n_frames)
+    second = replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+    cal = calibrate(base, [first, second], Settings())
+    (x,) = cal.relabelled
+    assert (x.trial, x.reference, x.segment) == (1, 0, "femur_l")
+    assert dict(zip(x.labels, x.read_as, strict=True)) == MIRRORED
+    assert cal.trials[1].labels == first.labels  # the second trial's labels as the first names them
+    seg = cal.model.segment_index("femur_l")
+    placed = {n: cal.params.scale[seg] * cal.params.marker[cal.model.marker_index(n)] for n in PLATE}
+    for a in PLATE:  # the plate's shape as the subject carries it: its distances within 2 mm of the truth's
+        for b in PLATE:
+            assert abs(np.linalg.norm(placed[a] - placed[b]) - np.linalg.norm(true_places[a] - true_places[b])) < 0.002
+    assert np.median(np.linalg.norm(cal.residuals[:, cal.model.marker_index("TH1")], axis=1)) < 0.003
+    line = next(ln for ln in summary_text(cal).splitlines() if ln.startswith("  relabelled   "))
+    assert "second.c3d names the markers of femur_l otherwise than first.c3d: read TH" in line
+    assert calibration_report(cal)["relabelled"][0]["reference"] == "first.c3d"

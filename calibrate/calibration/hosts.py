@@ -612,3 +612,37 @@ def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
             a |= b
             groups.remove(b)
     return [tuple(sorted(g)) for g in groups]
+
+
+def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int],
+                    labels: Sequence[str]) -> list:
+    """New labels (`labels`, markers `model` does not know) that moving trials name otherwise than each other: each
+    of the `moving` trials' labels hosted alone (kinematic_hosts on its own frames), and on each segment the labels
+    every one of them puts there matched trial against trial by their places (calibrate.calibration.moved.
+    exchange_of).  The reference is the trial that agrees with the most others (the first of a tie); each other
+    trial whose labels read otherwise than the reference's is returned (moved.ExchangedCluster, its `reference`
+    set).  Expert1's static1 with walking1 and walkingTO1: the two walks name the right thigh plate's r_thigh3 and
+    r_thigh5 otherwise, and pooled, the host rule had found each label's place spread 34-70 mm and left out the
+    plates' markers."""
+    from .moved import exchange_of
+
+    if len(moving) < 2:
+        return []
+    hosted = {t: kinematic_hosts(model, [trials[t]], [lab for lab in labels if lab in trials[t].labels])
+              for t in moving}
+    out = []
+    # A label counts on the segment where its place spreads least, within twice HOST_SPREAD: one walk alone poses a
+    # thigh less surely than the trials together (walkingTO1's L_thigh1-3: 20-32 mm, the host rule's 20 mm exceeded).
+    on = {t: {lab: h.best for lab, h in hs.items() if h.spread <= 2 * HOST_SPREAD} for t, hs in hosted.items()}
+    for segment in sorted({s for o in on.values() for s in o.values()}):
+        common = [lab for lab in labels if all(o.get(lab) == segment for o in on.values())]
+        if len(common) < 2:
+            continue
+        places = {t: np.array([hosted[t][lab].place for lab in common]) for t in moving}
+        agree = {t: sum(exchange_of(t, segment, common, places[t], places[u]) is None for u in moving if u != t)
+                 for t in moving}
+        ref = max(moving, key=lambda t: (agree[t], -t))
+        for t in moving:
+            if t != ref and (x := exchange_of(t, segment, common, places[t], places[ref])) is not None:
+                out.append(replace(x, reference=ref))
+    return out

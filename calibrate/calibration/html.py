@@ -122,9 +122,10 @@ def _notes(report: dict) -> str:
     for x in report.get("relabelled", []):
         read = zip(x.get("labels", []), x.get("read_as", []), strict=False)
         pairs = ", ".join(f"{_e(a)} as {_e(b)}" for a, b in read)
-        items.append(f"<li class=bad>relabelled: {_e(x.get('trial'))} (still) names the markers of "
-                     f"{_e(x.get('segment'))} otherwise than the moving trials: read {pairs} (a symmetric cluster "
-                     "labelled the other way round); check the labelling</li>")
+        than = _e(x["reference"]) if x.get("reference") else "the moving trials"
+        items.append(f"<li class=bad>relabelled: {_e(x.get('trial'))}{'' if x.get('reference') else ' (still)'} "
+                     f"names the markers of {_e(x.get('segment'))} otherwise than {than}: read {pairs} (a symmetric "
+                     "cluster labelled the other way round); check the labelling</li>")
     for x in report.get("jittery_markers", []):
         items.append(f"<li class=bad>jitters: {_e(x.get('label'))} ({_e(x.get('trial'))}) scatters "
                      f"{x.get('noise_sd_mm', 0):.0f} mm SD from frame to frame (white noise; the trial's markers "

@@ -157,31 +157,36 @@ def moved_markers(problem: Problem, state: State, trial_of: np.ndarray, still: S
 
 @dataclass(frozen=True)
 class ExchangedCluster:
-    """Labels of one segment's markers that still trial `trial` names otherwise than the moving trials: its
-    `labels[i]` sits where the moving trials put `read_as[i]` (the places compared in the segment's frame, at
-    the start's poses, which the segment's other markers fix)."""
+    """Labels of one segment's markers that trial `trial` names otherwise than the others: its `labels[i]` sits
+    where they put `read_as[i]` (the places compared in the segment's frame, on poses the segment's other markers
+    fix).  `reference`: the moving trial whose names it is read by (calibrate.calibration.hosts.trial_exchanges:
+    moving trials that disagree), or -1: `trial` is still, read by the moving trials'."""
 
     trial: int
     segment: str
     labels: tuple[str, ...]
     read_as: tuple[str, ...]
-    own: tuple[float, ...]  # m: each label's place in the still trial from its own in the moving trials
+    own: tuple[float, ...]  # m: each label's place in the trial from its own in the others
     exchanged: tuple[float, ...]  # m: ... from the place of the label it is read as
+    reference: int = -1
 
-    def text(self, source: str) -> str:
+    def text(self, source: str, reference: str = "the moving trials") -> str:
+        """The summary's words; `reference`: the name of the trial `reference` indexes, where it is one."""
         pairs = ", ".join(f"{a} as {b}" for a, b in zip(self.labels, self.read_as, strict=True))
-        return (f"{source} (still) names the markers of {self.segment} otherwise than the moving trials: read "
+        still = " (still)" if self.reference < 0 else ""
+        return (f"{source}{still} names the markers of {self.segment} otherwise than {reference}: read "
                 f"{pairs} (their places there {', '.join(f'{1e3 * d:.0f}' for d in self.own)} mm from their "
-                f"labels' in the moving trials, {', '.join(f'{1e3 * d:.0f}' for d in self.exchanged)} from the "
+                f"labels' in {reference}, {', '.join(f'{1e3 * d:.0f}' for d in self.exchanged)} from the "
                 "labels read; a symmetric cluster labelled the other way round)")
 
     def to_json(self) -> dict:
-        return {"trial": self.trial, "segment": self.segment, "labels": list(self.labels),
-                "read_as": list(self.read_as), "own_mm": [1e3 * d for d in self.own],
-                "exchanged_mm": [1e3 * d for d in self.exchanged]}
+        out = {"trial": self.trial, "segment": self.segment, "labels": list(self.labels),
+               "read_as": list(self.read_as), "own_mm": [1e3 * d for d in self.own],
+               "exchanged_mm": [1e3 * d for d in self.exchanged]}
+        return out if self.reference < 0 else {**out, "reference": self.reference}
 
 
-def _exchange(trial: int, segment: str, names: Sequence[str], still: np.ndarray, moving: np.ndarray,
+def exchange_of(trial: int, segment: str, names: Sequence[str], still: np.ndarray, moving: np.ndarray,
               near: float = np.inf) -> ExchangedCluster | None:
     """The labels `names` of one segment's markers that still trial `trial` names otherwise than the moving trials:
     its places `still` (n, 3, m) matched to theirs `moving` (least total distance); a match other than the labels'
@@ -212,7 +217,7 @@ def exchanged_clusters(places: np.ndarray, trial_of: np.ndarray, still: Sequence
     """The labels each still trial names otherwise than the moving trials (module docstring): `places` (F, n, 3)
     where each of `trial_of`'s frames puts markers `names` (riding on `segments`) in their segment's frame (m;
     NaN: not seen), from poses their positions did not set.  Per still trial and segment, the still trial's median
-    places are matched to the moving trials' (_exchange)."""
+    places are matched to the moving trials' (exchange_of)."""
     still_arr = np.asarray(still, dtype=bool)
     if not still_arr.any() or still_arr.all():
         return []
@@ -226,7 +231,7 @@ def exchanged_clusters(places: np.ndarray, trial_of: np.ndarray, still: Sequence
             if len(st) >= MIN_STILL_FRAMES and len(mv) >= MIN_MOVING_FRAMES:
                 at.setdefault(segments[k], []).append((names[k], np.median(st, axis=0), np.median(mv, axis=0)))
         for segment, items in at.items():
-            x = _exchange(int(t), segment, [n for n, _, _ in items], np.array([a for _, a, _ in items]),
+            x = exchange_of(int(t), segment, [n for n, _, _ in items], np.array([a for _, a, _ in items]),
                           np.array([b for _, _, b in items]))
             if x is not None:
                 out.append(x)
@@ -305,7 +310,7 @@ def exchanged_after_solve(problem: Problem, state: State, trial_of: np.ndarray,
             Zf, Qf = kin.absolute(z[None], q[None, :4], None if state.B is None else q[None, 4:].reshape(1, -1, 4))
             origin, R = segment_axes(kin, Zf, Qf, params, ks)
             local = np.einsum("nij,ni->nj", R[0], problem.observed[f, ks] - origin[0])
-            x = _exchange(int(t), segment, [model.marker_names[k] for k in ks], local, mean, near=EXCHANGE_OWN)
+            x = exchange_of(int(t), segment, [model.marker_names[k] for k in ks], local, mean, near=EXCHANGE_OWN)
             if x is not None:
                 out.append(x)
     return out

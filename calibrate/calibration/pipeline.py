@@ -28,7 +28,7 @@ from threadpoolctl import threadpool_limits
 from calibrate.calibration import regression
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
-from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, medial_host, past_joints
+from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, medial_host, past_joints, trial_exchanges
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
     NARROW_TURN,
@@ -319,6 +319,22 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
                              f"(--markers map.toml) or use a model with this marker set")
     t0 = time.perf_counter()
+    # Moving trials that name a cluster's new labels otherwise than each other (a symmetric plate labelled the other way
+    # round in some of them): read as the trial that agrees with the most others names them, before anything reads
+    # the labels (hosts.trial_exchanges; pooled, the places of such labels spread over the trials and the host rule
+    # left them out).
+    early: list[ExchangedCluster] = []
+    unknown0 = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
+    if run.outliers > 0 and run.new_markers and unknown0 and len(trials) > 1:
+        moving0 = [i for i, t in enumerate(trials) if relative_motion(t, model) >= STILL_MOTION]
+        early = trial_exchanges(model, trials, moving0, unknown0) if len(moving0) > 1 else []
+        for x in early:
+            say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}",
+                                           trials[x.reference].source or f"trial {x.reference + 1}")))
+        for i in sorted({x.trial for x in early}):
+            read = {a: b for x in early if x.trial == i for a, b in zip(x.labels, x.read_as, strict=True)}
+            trials = (*trials[:i], replace(trials[i], labels=tuple(read.get(lab, lab) for lab in trials[i].labels)),
+                      *trials[i + 1:])
     # A label exchanged for a whole trial (a knee marker named as the ankle's) bends the geometry to fit it, and
     # no frame's outlier test sees it: each trial's labels are checked against the model's segments by rigidity.
     # A marker at a joint centre (R_HJC, --hip-regression's) rides with both of its joint's segments: not judged.
@@ -569,18 +585,19 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     finally:
         theirs.close()  # a child still running (this process failed first) stopped at once
     start = stack_states([mine[k] for k in range(len(trials))])
-    relabelled: list[ExchangedCluster] = []
+    relabelled: list[ExchangedCluster] = list(early)
     if new and motion is not None and len(trials) > 1 and run.outliers > 0:
         # A cluster's labels exchanged in a still trial against the moving ones (a symmetric plate labelled the other
         # way round): read back there, before the places and the fit are taken from them.
-        relabelled = _exchanged_new(subject, problem.kin, start, obs, params0, placed, spans,
-                                    [m < STILL_MOTION for m in motion])
-        for x in relabelled:
+        found = _exchanged_new(subject, problem.kin, start, obs, params0, placed, spans,
+                               [m < STILL_MOTION for m in motion])
+        for x in found:
             say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}")))
-        if relabelled:
+        if found:
             names_ = list(subject.marker_names)
-            obs, raw = (relabel_columns(a, spans, relabelled, names_) for a in (obs, raw))
-            problem = problem.with_observed(relabel_columns(problem.observed, spans, relabelled, names_))
+            obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
+            problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
+            relabelled += found
     if new:
         params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
         problem = problem.with_base(base)

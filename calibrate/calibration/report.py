@@ -181,7 +181,9 @@ def calibration_report(cal: Calibration) -> dict:
                           for m in cal.moved],
         # a still trial's cluster labels read as the moving trials name them (calibrate.calibration.moved.
         # exchanged_clusters): each label's data there taken as the label it is read as
-        "relabelled": [{**x.to_json(), "trial": _trial_name(cal, x.trial)} for x in cal.relabelled],
+        "relabelled": [{**x.to_json(), "trial": _trial_name(cal, x.trial),
+                        **({"reference": _trial_name(cal, x.reference)} if x.reference >= 0 else {})}
+                       for x in cal.relabelled],
         # the same, found with the option off: their positions kept in the fit (--moved-markers leaves them out)
         "moved_markers_kept": [{**m.to_json(), "trial": cal.trials[m.trial].source or f"trial {m.trial + 1}"}
                                for m in cal.moved_kept],
@@ -927,7 +929,8 @@ def summary_text(cal) -> str:
     for i, x in cal.exchanged_back:
         lines.append(f"  exchanged    {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
     for x in cal.relabelled:
-        lines.append(f"  relabelled   {x.text(_trial_name(cal, x.trial))}; check the labelling")
+        ref = (_trial_name(cal, x.reference),) if x.reference >= 0 else ()
+        lines.append(f"  relabelled   {x.text(_trial_name(cal, x.trial), *ref)}; check the labelling")
     for i, j, misfit, pairs in cal.trials_apart:
         lines.append(f"  subjects?    {cal.trials[i].source or f'trial {i + 1}'} and "
                      f"{cal.trials[j].source or f'trial {j + 1}'}: their markers on each segment keep distances "

@@ -387,7 +387,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               f"round: {pairs} (see 'exchanged' above); check the labelling", file=sys.stderr)
     if cal.relabelled:
         pairs = ", ".join(f"{a} as {b}" for x in cal.relabelled for a, b in zip(x.labels, x.read_as, strict=True))
-        print(f"warning: a still trial's cluster labels read as the moving trials name them: {pairs} (see "
+        print(f"warning: cluster labels a trial names otherwise than the others, read as they name them: {pairs} (see "
               "'relabelled' above); check the labelling", file=sys.stderr)
     if cal.jittery:
         names = ", ".join(dict.fromkeys(x.label for _, x in cal.jittery))
