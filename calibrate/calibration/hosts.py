@@ -628,7 +628,9 @@ def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int]
 
     if len(moving) < 2:
         return []
-    hosted = {t: kinematic_hosts(model, [trials[t]], [lab for lab in labels if lab in trials[t].labels])
+    # One round (the known markers' poses): the places to match need no more, and the rounds tripled the time (Expert1's
+    # static1 + walking1 + walkingTO1: 1.32 s, one round 0.50, the same labels read).
+    hosted = {t: kinematic_hosts(model, [trials[t]], [lab for lab in labels if lab in trials[t].labels], rounds=1)
               for t in moving}
     out = []
     # A label counts on the segment where its place spreads least, within twice HOST_SPREAD: one walk alone poses a
