@@ -331,10 +331,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         for x in early:
             say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}",
                                            trials[x.reference].source or f"trial {x.reference + 1}")))
-        for i in sorted({x.trial for x in early}):
-            read = {a: b for x in early if x.trial == i for a, b in zip(x.labels, x.read_as, strict=True)}
-            trials = (*trials[:i], replace(trials[i], labels=tuple(read.get(lab, lab) for lab in trials[i].labels)),
-                      *trials[i + 1:])
+        read = {i: {a: b for x in early if x.trial == i for a, b in zip(x.labels, x.read_as, strict=True)}
+                for i in {x.trial for x in early}}
+        trials = tuple(replace(t, labels=tuple(read[i].get(lab, lab) for lab in t.labels)) if i in read else t
+                       for i, t in enumerate(trials))
     # A label exchanged for a whole trial (a knee marker named as the ankle's) bends the geometry to fit it, and
     # no frame's outlier test sees it: each trial's labels are checked against the model's segments by rigidity.
     # A marker at a joint centre (R_HJC, --hip-regression's) rides with both of its joint's segments: not judged.
@@ -586,20 +586,26 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         theirs.close()  # a child still running (this process failed first) stopped at once
     start = stack_states([mine[k] for k in range(len(trials))])
     relabelled: list[ExchangedCluster] = list(early)
-    if new and motion is not None and len(trials) > 1 and run.outliers > 0:
-        # A cluster's labels exchanged in a still trial against the moving ones (a symmetric plate labelled the other
-        # way round): read back there, before the places and the fit are taken from them.
-        found = _exchanged_new(subject, problem.kin, start, obs, params0, placed, spans,
-                               [m < STILL_MOTION for m in motion])
-        for x in found:
-            say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}")))
-        if found:
-            names_ = list(subject.marker_names)
-            obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
-            problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
-            relabelled += found
     if new:
-        params0, base, placed = _place_new_markers(subject, problem.kin, start, obs, params0, placed)
+        places = _new_places(subject, problem.kin, start, obs, params0, placed)
+        if motion is not None and len(trials) > 1 and run.outliers > 0:
+            # A cluster's labels exchanged in a still trial against the moving ones (a symmetric plate labelled the
+            # other way round), by their places at the start's poses, which the other markers set: read back there,
+            # before the places and the fit are taken from them (moved.exchanged_clusters).
+            idx, frames, local, _ = places
+            trial_of0 = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
+            found = exchanged_clusters(local, trial_of0[frames], [m < STILL_MOTION for m in motion],
+                                       [subject.marker_names[k] for k in idx],
+                                       [subject.markers[k].segment for k in idx])
+            for x in found:
+                say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}")))
+            if found:
+                names_ = list(subject.marker_names)
+                obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
+                problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
+                relabelled += found
+                places = _new_places(subject, problem.kin, start, obs, params0, placed)
+        params0, base, placed = _place_new_markers(subject, places, params0, placed)
         problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
     far: list[FarJoint] = []
@@ -1780,22 +1786,12 @@ def _new_places(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, 
     return new, frames, local, s
 
 
-def _exchanged_new(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
-                   placed: list[NewMarker], spans: Sequence[slice], still: Sequence[bool]) -> list[ExchangedCluster]:
-    """New markers whose labels a still trial exchanges against the moving trials (moved.exchanged_clusters), by
-    their places at the start poses, which the other markers set."""
-    new, frames, local, _ = _new_places(subject, kin, start, obs, params, placed)
-    trial_of = np.concatenate([np.full(sl.stop - sl.start, i) for i, sl in enumerate(spans)])
-    return exchanged_clusters(local, trial_of[frames], still, [subject.marker_names[k] for k in new],
-                              [subject.markers[k].segment for k in new])
-
-
-def _place_new_markers(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, params: Parameters,
-                       placed: list[NewMarker]) -> tuple[Parameters, Parameters, list[NewMarker]]:
-    """Each new marker's position on its segment from the start poses (seed 002's closed form: the
-    median over frames of the marker in the segment's frame); these positions are also the centre
-    of its prior.  Returns the start parameters, the prior's base parameters and the placements."""
-    new, frames, local, s = _new_places(subject, kin, start, obs, params, placed)
+def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.ndarray, np.ndarray],
+                       params: Parameters, placed: list[NewMarker]) -> tuple[Parameters, Parameters, list[NewMarker]]:
+    """Each new marker's position on its segment from the start poses (`places`: _new_places; seed 002's closed
+    form: the median over frames of the marker in the segment's frame); these positions are also the centre of its
+    prior.  Returns the start parameters, the prior's base parameters and the placements."""
+    new, frames, local, s = places
     out = params.copy()
     base = subject.parameters()
     by_label = {m.label: m for m in placed}
