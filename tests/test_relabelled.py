@@ -204,3 +204,30 @@ def test_two_moving_trials_that_name_the_plate_otherwise_are_read_as_one(session
     line = next(ln for ln in summary_text(cal).splitlines() if ln.startswith("  relabelled   "))
     assert "second.c3d names the markers of femur_l otherwise than first.c3d: read TH" in line
     assert calibration_report(cal)["relabelled"][0]["reference"] == "first.c3d"
+
+
+def test_a_models_placeholder_plate_named_otherwise_by_the_trials_is_read_as_one(session):
+    """The plate as the base model's own markers, all four at one point (placeholders, as Expert1's generic.osim carries
+    its thigh plates for OpenSim's marker placer to fill): trials that name it otherwise are found before the fit,
+    each hosting the placeholders as new labels on the model posed without them (hosts.trial_exchanges).  The squats
+    cut in two moving trials, the second naming the plate mirrored, and the static mirrored too: both read as the
+    first moving trial names them (on Expert1's generic.osim, walking1 with DJ1 had fitted walking1 to 27.7 mm), the
+    plate placed in the subject's shape and every trial fitted to the noise."""
+    _, squats, static, mirrored, true_places = session
+    base = _plated({n: (-0.02, 0.078, -0.18) for n in PLATE})
+    half = squats.trial.n_frames // 2
+    first = replace(squats.trial.frames(0, half), source="first.c3d")
+    second = squats.trial.frames(half, squats.trial.n_frames)
+    second = replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+    cal = calibrate(base, [replace(mirrored, source="static.c3d"), first, second], Settings())
+    read = {(x.trial, x.reference, x.segment): dict(zip(x.labels, x.read_as, strict=True)) for x in cal.relabelled}
+    assert read == {(2, 1, "femur_l"): MIRRORED, (0, 1, "femur_l"): MIRRORED}
+    assert cal.trials[0].labels == static.trial.labels and cal.trials[2].labels == first.labels
+    assert not cal.moved
+    seg = cal.model.segment_index("femur_l")
+    placed = {n: cal.params.scale[seg] * cal.params.marker[cal.model.marker_index(n)] for n in PLATE}
+    for a in PLATE:
+        for b in PLATE:
+            assert abs(np.linalg.norm(placed[a] - placed[b]) - np.linalg.norm(true_places[a] - true_places[b])) < 0.002
+    for n in PLATE:
+        assert np.median(np.linalg.norm(cal.residuals[:, cal.model.marker_index(n)], axis=1)) < 0.003

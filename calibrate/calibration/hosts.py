@@ -32,6 +32,7 @@ HOST_FRAMES = 40  # about this many evenly spaced frames of the moving trials ar
 HOST_SPREAD = 0.020  # m: RMS spread of a label's place on its segment (skin, the few markers' poses) at most
 HOST_RATIO = 0.5  # ... and at most this share of its spread on the next-best segment
 HOST_ROUNDS = 3  # rounds: the labels placed join the known markers, the others judged again
+PLACEHOLDER_TAG = "placeholder:"  # a placeholder marker's label while trial_exchanges hosts it as new
 TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD over the poses) rides on its parent
 
 
@@ -615,36 +616,70 @@ def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
 
 
 def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int],
-                    labels: Sequence[str]) -> list:
-    """New labels (`labels`, markers `model` does not know) that moving trials name otherwise than each other: each
-    of the `moving` trials' labels hosted alone (kinematic_hosts on its own frames), and on each segment the labels
-    every one of them puts there matched trial against trial by their places (calibrate.calibration.moved.
-    exchange_of).  The reference is the trial that agrees with the most others (the first of a tie); each other
-    trial whose labels read otherwise than the reference's is returned (moved.ExchangedCluster, its `reference`
-    set).  Expert1's static1 with walking1 and walkingTO1: the two walks name the right thigh plate's r_thigh3 and
-    r_thigh5 otherwise, and pooled, the host rule had found each label's place spread 34-70 mm and left out the
-    plates' markers."""
+                    labels: Sequence[str], still: Sequence[int] = ()) -> list:
+    """Cluster labels that trials name otherwise than each other: the new labels `labels` (markers `model` does not
+    know) and the model's own placeholder markers (calibrate.problem.priors.placeholder_markers: a lab's OpenSim
+    marker set with each cluster at one point, for the marker placer to fill).  Each trial's labels are hosted alone
+    (kinematic_hosts on its own frames; the placeholders as new labels, the model posed without them), and on each
+    segment the labels every one of the `moving` trials puts there are matched trial against trial by their places
+    (calibrate.calibration.moved.exchange_of).  The reference is the moving trial that agrees with the most others
+    (the first of a tie); each other moving trial whose labels read otherwise than the reference's is returned
+    (moved.ExchangedCluster, its `reference` set), and so is each `still` trial whose placeholders do (a still trial's
+    new labels are matched after the start's poses: moved.exchanged_clusters).  Expert1's static1 with walking1 and
+    walkingTO1: the two walks name the right thigh plate's r_thigh3 and r_thigh5 otherwise, and pooled, the host
+    rule had found each label's place spread 34-70 mm and left out the plates' markers; on the expert's
+    generic.osim, whose plates are placeholders, walking1 with DJ1 fitted walking1 to 27.7 mm."""
+    from ..problem.priors import placeholder_markers
     from .moved import exchange_of
 
-    if len(moving) < 2:
+    # The placeholders under a name the model does not know (so that they neither pose it nor keep their one point).
+    held = [model.markers[k].name for k in placeholder_markers(model, model.parameters())]
+    tag = {lab: PLACEHOLDER_TAG + lab for lab in held}
+    back = {v: k for k, v in tag.items()}
+    asked = [*labels, *tag.values()]
+    still = [t for t in still if any(lab in trials[t].labels for lab in held)]
+    if not moving or len(moving) + len(still) < 2 or not asked:
         return []
+    seen = {t: replace(trials[t], labels=tuple(tag.get(lab, lab) for lab in trials[t].labels))
+            for t in [*moving, *still]}
     # One round (the known markers' poses): the places to match need no more, and the rounds tripled the time (Expert1's
     # static1 + walking1 + walkingTO1: 1.32 s, one round 0.50, the same labels read).
-    hosted = {t: kinematic_hosts(model, [trials[t]], [lab for lab in labels if lab in trials[t].labels], rounds=1)
+    hosted = {t: kinematic_hosts(model, [seen[t]], [lab for lab in asked if lab in seen[t].labels], rounds=1)
               for t in moving}
+    # A still trial's labels are rigid with every segment (no best host): each placeholder's place on its own segment.
+    segment_of = {tag[mk.name]: mk.segment for mk in model.markers if mk.name in tag}
+    fixed = {t: _segment_places(model, seen[t], {lab: segment_of[lab] for lab in tag.values() if lab in seen[t].labels})
+             for t in still}
     out = []
     # A label counts on the segment where its place spreads least, within twice HOST_SPREAD: one walk alone poses a
     # thigh less surely than the trials together (walkingTO1's L_thigh1-3: 20-32 mm, the host rule's 20 mm exceeded).
     on = {t: {lab: h.best for lab, h in hs.items() if h.spread <= 2 * HOST_SPREAD} for t, hs in hosted.items()}
-    for segment in sorted({s for o in on.values() for s in o.values()}):
-        common = [lab for lab in labels if all(o.get(lab) == segment for o in on.values())]
+    for segment in sorted({s for t in moving for s in on[t].values()}):
+        common = [lab for lab in asked if all(on[t].get(lab) == segment for t in moving)]
         if len(common) < 2:
             continue
         places = {t: np.array([hosted[t][lab].place for lab in common]) for t in moving}
         agree = {t: sum(exchange_of(t, segment, common, places[t], places[u]) is None for u in moving if u != t)
                  for t in moving}
         ref = max(moving, key=lambda t: (agree[t], -t))
-        for t in moving:
-            if t != ref and (x := exchange_of(t, segment, common, places[t], places[ref])) is not None:
-                out.append(replace(x, reference=ref))
+        found = [exchange_of(t, segment, common, places[t], places[ref]) for t in moving if t != ref]
+        for t in still:
+            mine = [k for k, lab in enumerate(common) if lab in fixed[t] and segment_of[lab] == segment]
+            if len(mine) >= 2:
+                found.append(exchange_of(t, segment, [common[k] for k in mine],
+                                         np.array([fixed[t][common[k]] for k in mine]), places[ref][mine]))
+        out += [replace(x, reference=ref, labels=tuple(back.get(lab, lab) for lab in x.labels),
+                        read_as=tuple(back.get(lab, lab) for lab in x.read_as)) for x in found if x is not None]
     return out
+
+
+def _segment_places(model: Model, trial: Trial, segment_of: dict[str, str]) -> dict[str, np.ndarray]:
+    """Each label of `segment_of` -> its median place (m) in its segment's frame over about HOST_FRAMES frames of
+    `trial`, the model posed by its known markers (as kinematic_hosts poses it); labels seen in too few frames are
+    left out."""
+    fits = _posed(model, _pick([trial], HOST_FRAMES), list(segment_of))
+    if not fits:
+        return {}
+    segments = sorted(set(segment_of.values()))
+    local = _local_places(model, fits, list(segment_of), segments)
+    return {lab: np.median(P[:, segments.index(segment_of[lab])], axis=0) for lab, P in local.items()}
