@@ -150,7 +150,7 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
     marker, a lateral knee's, is posed about its long axis by its first cluster marker found)."""
     from ..model.model import add_markers
 
-    picked = _pick(trials, frames)
+    picked = pick_frames(trials, frames)
     out: dict[str, Host] = {}
     posed = model
     poses: dict[int, Motion] = {}
@@ -165,7 +165,7 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
     return out
 
 
-def _pick(trials: Sequence[Trial], frames: int) -> list[Trial]:
+def pick_frames(trials: Sequence[Trial], frames: int) -> list[Trial]:
     """About `frames` evenly spaced frames of `trials`, shared among them by their lengths."""
     total = sum(t.n_frames for t in trials)
     picked = []
@@ -199,7 +199,7 @@ def _posed(model: Model, trials: Sequence[Trial], labels: Sequence[str],
     return fits
 
 
-def _local_places(model: Model, fits: Sequence[tuple[Trial, object]], labels: Sequence[str],
+def local_places(model: Model, fits: Sequence[tuple[Trial, object]], labels: Sequence[str],
                   segments: Sequence[str]) -> dict[str, np.ndarray]:
     """Each of `labels` -> its positions in each of `segments`' frames over the posed frames that show it
     ((frames, segments, 3), m); labels seen in fewer than three posed frames are left out."""
@@ -245,7 +245,7 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
                if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
     candidates = [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
     out = {}
-    for lab, P in _local_places(model, fits, labels, candidates).items():
+    for lab, P in local_places(model, fits, labels, candidates).items():
         mid = np.median(P, axis=0)
         spread = np.sqrt(np.mean(np.sum((P - mid) ** 2, axis=2), axis=0))  # (segments,)
         order = np.argsort(spread)
@@ -430,7 +430,7 @@ def past_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
     on = {lab: seg for lab, seg in placed.items() if seg in below}
     if not on:
         return {}
-    fits = _posed(model, _pick(trials, frames), list(on))
+    fits = _posed(model, pick_frames(trials, frames), list(on))
     if not fits:
         return {}
     segments = sorted(set(on.values()))
@@ -439,7 +439,7 @@ def past_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
     shown = {lab for t in trials for lab in t.labels}
     offsets = model.parameters().marker  # each model marker's place on its segment (the base model's, as posed)
     out = {}
-    for lab, P in _local_places(model, fits, list(on), segments).items():
+    for lab, P in local_places(model, fits, list(on), segments).items():
         sg = on[lab]
         mid = np.median(P[:, segments.index(sg)], axis=0)
         mine = model.segments[model.segment_index(sg)].markers
@@ -544,7 +544,7 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     groups = [g for g in _rigid_clusters(distance_variance(X), threshold) if len(g) >= CLUSTER_MIN]
     if not groups:
         return {}
-    picked = _pick(trials, frames)
+    picked = pick_frames(trials, frames)
     Y = np.concatenate([t.select(labels).markers for t in picked])  # (F, labels, 3)
     far = np.full((len(groups), len(candidates)), np.inf)
     places: list[list[np.ndarray]] = [[np.empty((0, 3))] * len(candidates) for _ in groups]
@@ -677,9 +677,9 @@ def _segment_places(model: Model, trial: Trial, segment_of: dict[str, str]) -> d
     """Each label of `segment_of` -> its median place (m) in its segment's frame over about HOST_FRAMES frames of
     `trial`, the model posed by its known markers (as kinematic_hosts poses it); labels seen in too few frames are
     left out."""
-    fits = _posed(model, _pick([trial], HOST_FRAMES), list(segment_of))
+    fits = _posed(model, pick_frames([trial], HOST_FRAMES), list(segment_of))
     if not fits:
         return {}
     segments = sorted(set(segment_of.values()))
-    local = _local_places(model, fits, list(segment_of), segments)
+    local = local_places(model, fits, list(segment_of), segments)
     return {lab: np.median(P[:, segments.index(segment_of[lab])], axis=0) for lab, P in local.items()}

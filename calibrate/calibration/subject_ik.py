@@ -12,7 +12,7 @@ left knee 19 deg for the rest of the walk (scripts/damage_values.py --ik).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -25,9 +25,13 @@ from ..problem.problem import LIMIT_MARGIN, compiled_kinematics
 from ..seed.jitter import Jittery
 from ..seed.seeding import ExchangedBack, episodes, exchanged_back, segment_distances, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
+from .hosts import HOST_FRAMES, local_places, pick_frames
+from .moved import EXCHANGE_OWN, ExchangedCluster, exchange_of
 
 OTHER_SUBJECT = 0.10  # a trial whose same-segment marker distances differ from the subject's by more than this
 # (the median over the pairs, relative) is another subject's: refused
+RELABEL_SUSPECT = 0.025  # m: a segment's markers are read for labels named otherwise than the subject names them where
+# two or more of them fit worse than this (median over the frames; a subject's own trials fit a cluster marker to 3-12)
 SIZE_PAIRS = 10  # judged on this many same-segment marker pairs or more (each SEGMENT_PAIR_MIN or more apart in the
 # subject): a video keypoint set's few pairs do not keep their distances (Pose2Sim's demo static: 18 % over 6 pairs)
 
@@ -58,6 +62,7 @@ class TrialFit:
     unplaced: tuple[str, ...]
     exchanged_back: tuple[ExchangedBack, ...] = ()
     size_misfit: float | None = None  # size_misfit's figure (None: too few pairs to judge)
+    relabelled: tuple[ExchangedCluster, ...] = ()  # clusters the trial names otherwise than the subject, read back
 
 
 #: `calibrate ik`'s trials together this many frames or more: the subject's per-frame code is compiled for them where
@@ -107,7 +112,52 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
     kin = compiled_kinematics(kin, compile=compile)
-    fit = inverse_kinematics(kin, trial, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
-                             progress=None if progress is None else lambda done, total: progress(done / total))
+    def fitted(t: Trial) -> IKResult:
+        return inverse_kinematics(kin, t, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
+                                  progress=None if progress is None else lambda done, total: progress(done / total))
+
+    fit = fitted(trial)
+    found = () if keep_damaged else exchanged_in_trial(model, trial, params, fit, kin, held, weights)
+    if found:  # read as the subject names them, and fitted again
+        read = {a: b for x in found for a, b in zip(x.labels, x.read_as, strict=True)}
+        fit = fitted(replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels)))
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
-                    misfit if pairs >= SIZE_PAIRS else None)
+                    misfit if pairs >= SIZE_PAIRS else None, tuple(found))
+
+
+def exchanged_in_trial(model: Model, trial: Trial, params: Parameters, fit: IKResult, kin, held: Mapping[str, float],
+                       weights: Mapping[str, float] | None = None) -> list[ExchangedCluster]:
+    """The clusters `trial` names otherwise than the subject `model` (a symmetric thigh plate labelled the other way
+    round: every distance kept), read on its fit `fit`: on each segment where two or more markers fit worse than
+    RELABEL_SUSPECT, about HOST_FRAMES frames are posed again without them (the segment carried by its other markers
+    and the joints above and below) and each label's place on the segment matched to the subject's places
+    (moved.exchange_of, the places read within EXCHANGE_OWN on average).  Expert1's trials on a subject calibrated
+    from static1 + walking1: DJ1, walkingTO1 and walking2 name the left plate mirrored, fitted as labelled at 33-36 mm
+    RMS (the plate's markers 110-120 mm)."""
+    import pinocchio as pin
+
+    err = np.linalg.norm(fit.residuals, axis=2)
+    with np.errstate(all="ignore"):
+        typical = np.nanmedian(np.where(np.isfinite(err).any(axis=0), err, 0.0), axis=0)
+    picked = None
+    out = []
+    for segment in dict.fromkeys(m.segment for m in model.markers):
+        names = [m.name for k, m in enumerate(model.markers) if m.segment == segment and m.name in trial.labels
+                 and np.isfinite(err[:, k]).any() and (weights is None or weights.get(m.name, 0) > 0)]
+        suspects = [n for n in names if typical[model.marker_index(n)] >= RELABEL_SUSPECT]
+        if len(suspects) < 2:
+            continue
+        picked = picked or pick_frames([trial], HOST_FRAMES)[0]
+        posed = inverse_kinematics(kin, picked.select([lab for lab in picked.labels if lab not in suspects]), params,
+                                   locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN)
+        local = local_places(model, [(picked, posed)], names, [segment])
+        names = [n for n in names if n in local]
+        if len(names) < 2:
+            continue
+        seg = model.pin.frames[model.pin.getFrameId(segment)].placement
+        own = np.array([(seg.inverse() * model.pin.frames[model.pin.getFrameId(n, pin.FrameType.BODY)].placement)
+                        .translation for n in names])
+        read = np.array([np.median(local[n][:, 0], axis=0) for n in names])
+        if (x := exchange_of(0, segment, names, read, own, near=EXCHANGE_OWN)) is not None:
+            out.append(replace(x, reference=0))  # read by the subject's names (a moving trial's reading, not a still's)
+    return out

@@ -248,6 +248,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
                             check_size=not args.other_subject, compile=frames >= IK_COMPILE_FRAMES,
                             progress=Countdown(say, "ik", f"fitting the {trial.n_frames} frames of {path.name}"))
         lines += [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
+        lines += [x.text(path.name, subject_path.name) + "; check the labelling" for x in got.relabelled]
         if got.unplaced_held:
             lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
                          f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
