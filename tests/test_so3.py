@@ -188,3 +188,22 @@ def test_overhead_trial_calibrates_as_squats_do(human, human_kin):
     for side in ("l", "r"):
         for dof in ("flexion", "adduction", "rotation"):
             assert cmp.angle_rms_per_dof_deg[f"shoulder_{side}_{dof}"] < 15.0
+
+
+def test_a_ball_whose_limits_do_not_decide_takes_the_branch_nearer_its_ranges_middle():
+    """Each rotation has two angle triplets, (t1, t2, t3) and (t1 + pi, pi - t2, t3 + pi).  A shoulder of +-180 deg
+    (Expert1's generic.osim) keeps both inside its limits, and the two branches' smoothness costs are equal but for
+    rounding, which had chosen between them: `calibrate ik` reported one walk's arm at -160, -175, -170 deg and
+    another's same poses at -13, -17, 11.  Now the branch nearer the range's middle is taken, on every one of 200
+    random short motions within 1.1 rad of it (the angles given back to 1e-9 rad; before, 90 came back on the other
+    branch)."""
+    from calibrate.model.kinematics import BallJoint
+    from calibrate.model.rotations import quat_matrices
+
+    joint = BallJoint("shoulder", (0, 1, 2), np.eye(3), np.full(3, -np.pi), np.full(3, np.pi))
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        centre = rng.uniform(-1.1, 1.1, 3)  # the branch nearer the middle: the other lies >= 1.9 rad off in each angle
+        angles = centre + np.cumsum(rng.normal(0.0, 0.01, (40, 3)), axis=0)
+        out = joint.angles(quat_matrices(joint.quaternion(angles)))
+        assert np.abs(out - angles).max() < 1e-9, (angles[0], out[0])

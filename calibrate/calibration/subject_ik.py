@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import CalibrateError
+from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.kinematics import build_kinematics, locked_balls
 from ..model.model import Model, Parameters
@@ -112,15 +113,16 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     held = {**held, **extra}
     kin = build_kinematics(model, euler=locked_balls(model, held))  # a ball with a held angle on its three angles
     kin = compiled_kinematics(kin, compile=compile)
-    def fitted(t: Trial) -> IKResult:
+    def fitted(t: Trial, start: Motion | None = None) -> IKResult:
         return inverse_kinematics(kin, t, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
+                                  start=start,
                                   progress=None if progress is None else lambda done, total: progress(done / total))
 
     fit = fitted(trial)
     found = () if keep_damaged else exchanged_in_trial(model, trial, params, fit, kin, held, weights)
     if found:  # read as the subject names them, and fitted again
         read = {a: b for x in found for a, b in zip(x.labels, x.read_as, strict=True)}
-        fit = fitted(replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels)))
+        fit = fitted(replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels)), fit.motion)
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
                     misfit if pairs >= SIZE_PAIRS else None, tuple(found))
 

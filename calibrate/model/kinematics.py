@@ -54,6 +54,7 @@ from .model import Model, Parameters
 from .rotations import _quat_multiply_floats, _retract_one, quat_matrices, quat_multiply, retract_root
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])  # unit quaternion (x, y, z, w) of no rotation
+BRANCH_TIE = 1e-6  # rad^-2: the weight of a ball's angles' distance from their range's middle in its branch choice
 SINGULAR_COS = 1e-9  # |cos(middle angle)| below which a ball joint's outer angles share one sum (gimbal lock)
 
 
@@ -138,6 +139,12 @@ class BallJoint:
         cand = np.stack([np.column_stack([t1, t2, t3]), np.column_stack([t1 + math.pi, math.pi - t2, t3 + math.pi])])
         cand = _wrap(cand)
         node = np.sum(_outside(cand, lower, upper) ** 2, axis=2)  # (2, F)
+        # Where the limits do not decide (a shoulder of ±180 deg: both branches inside), the branch nearer the range's
+        # middle, by a cost too small to outweigh a step: the two branches' step costs are equal but for rounding,
+        # which had chosen between them (Expert1's shoulders: arm_flex, arm_add, arm_rot of -160, -175, -170 deg in
+        # one `calibrate ik` fit, -13, -17, 11 in another of the same poses).
+        centre = np.where(np.isfinite(lower) & np.isfinite(upper), 0.5 * (lower + upper), 0.0)
+        node += BRANCH_TIE * np.sum(_wrap(cand - centre) ** 2, axis=2)
         prev = None if previous is None else _wrap(np.asarray(previous, dtype=float) * sign)
         # Viterbi over the first and the non-singular frames (2 states: the branch; a singular frame
         # keeps the branch of the frame before it).  The steps' costs are formed at once; the loop over
