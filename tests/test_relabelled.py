@@ -258,3 +258,23 @@ def test_calibrate_ik_reads_a_plate_the_trial_names_otherwise_than_the_subject(s
     assert main(["ik", str(path), str(tmp_path / "subject.urdf"), "-o", str(tmp_path)]) == 0
     err = capsys.readouterr().err
     assert "mirrored.c3d names the markers of femur_l otherwise than subject.urdf: read TH" in err
+
+
+def test_two_moving_trials_that_name_a_models_own_plate_otherwise_are_read_as_one(session):
+    """The plate as the base model's own markers at their places (a lab's marker set after OpenSim's Scale, as the
+    expert's hand_scaled.osim carries Expert1's plates): the squats cut in two moving trials, the second naming it
+    mirrored.  Each trial posed by the base model, the plate's markers fit the second trial 25 mm or more worse than the
+    first, so both are posed again without them and the places read matched trial against trial
+    (hosts.trial_exchanges); the second is read as the first names them and both fit to the noise."""
+    _, squats, _, _, _ = session
+    base = _plated()
+    half = squats.trial.n_frames // 2
+    first = replace(squats.trial.frames(0, half), source="first.c3d")
+    second = squats.trial.frames(half, squats.trial.n_frames)
+    second = replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+    cal = calibrate(base, [first, second], Settings())
+    (x,) = cal.relabelled
+    assert (x.trial, x.reference, x.segment) == (1, 0, "femur_l")
+    assert dict(zip(x.labels, x.read_as, strict=True)) == MIRRORED
+    for n in PLATE:
+        assert np.median(np.linalg.norm(cal.residuals[:, cal.model.marker_index(n)], axis=1)) < 0.003

@@ -639,7 +639,7 @@ def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int]
     asked = [*labels, *tag.values()]
     still = [t for t in still if any(lab in trials[t].labels for lab in held)]
     if not moving or len(moving) + len(still) < 2 or not asked:
-        return []
+        return _own_exchanges(model, trials, moving, set(held))
     seen = {t: replace(trials[t], labels=tuple(tag.get(lab, lab) for lab in trials[t].labels))
             for t in [*moving, *still]}
     # One round (the known markers' poses): the places to match need no more, and the rounds tripled the time (Expert1's
@@ -670,6 +670,58 @@ def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int]
                                          np.array([fixed[t][common[k]] for k in mine]), places[ref][mine]))
         out += [replace(x, reference=ref, labels=tuple(back.get(lab, lab) for lab in x.labels),
                         read_as=tuple(back.get(lab, lab) for lab in x.read_as)) for x in found if x is not None]
+    return out + _own_exchanges(model, trials, moving, set(held))
+
+
+def _own_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int], skip: set[str]) -> list:
+    """The model's own markers (but `skip`: the placeholders, matched as new labels) that moving trials name otherwise
+    than each other: each trial's frames (about HOST_FRAMES) posed by the base model; on each segment where two or
+    more markers fit one trial worse than another by moved.SUSPECT or more (median), every trial posed again without
+    those (from its first poses), its labels' places on the segment read and matched trial against trial as
+    trial_exchanges matches new labels (the reference: the trial agreeing with the most others, the first of a
+    tie).  Expert1 on the expert's hand_scaled.osim (its plates placed where the static puts them): walking1 + DJ1 had
+    fitted walking1 to 27.8 mm."""
+    from ..model.kinematics import build_kinematics
+    from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
+    from .moved import SUSPECT, exchange_of
+
+    if len(moving) < 2:
+        return []
+    kin, params = build_kinematics(model), model.parameters()
+    picked = {t: pick_frames([trials[t]], HOST_FRAMES)[0] for t in moving}
+    fits = {t: inverse_kinematics(kin, picked[t], params, tolerance=DECISION_TOLERANCE) for t in moving}
+    # A segment is read where two or more of its markers fit one trial worse than another by SUSPECT or more (median
+    # over the frames): a base model not yet scaled misfits every trial alike (the expert's generic.osim: 12 segments
+    # over SUSPECT in both of two walks, 3.3 s to pose them all again).
+    typical = {}
+    for t in moving:
+        err = np.linalg.norm(fits[t].residuals, axis=2)
+        typical[t] = np.where(np.isfinite(err).sum(axis=0) >= 3,
+                              np.median(np.where(np.isfinite(err), err, 0.0), axis=0), np.nan)
+    T = np.array([typical[t] for t in moving])
+    apart = np.where(np.isnan(T), -np.inf, T).max(axis=0) - np.where(np.isnan(T), np.inf, T).min(axis=0)
+    suspects: dict[str, set[str]] = {}
+    for k, mk in enumerate(model.markers):
+        if mk.name not in skip and apart[k] >= SUSPECT:
+            suspects.setdefault(mk.segment, set()).add(mk.name)
+    suspects = {seg: names for seg, names in suspects.items() if len(names) >= 2}
+    out = []
+    for segment, bad_names in suspects.items():
+        places = {}
+        for t in moving:
+            posed = inverse_kinematics(kin, picked[t].select([lab for lab in picked[t].labels if lab not in bad_names]),
+                                       params, tolerance=DECISION_TOLERANCE, start=fits[t].motion)
+            local = local_places(model, [(picked[t], posed)], sorted(bad_names), [segment])
+            places[t] = {lab: np.median(P[:, 0], axis=0) for lab, P in local.items()}
+        common = [lab for lab in sorted(bad_names) if all(lab in places[t] for t in moving)]
+        if len(common) < 2:
+            continue
+        at = {t: np.array([places[t][lab] for lab in common]) for t in moving}
+        agree = {t: sum(exchange_of(t, segment, common, at[t], at[u]) is None for u in moving if u != t)
+                 for t in moving}
+        ref = max(moving, key=lambda t: (agree[t], -t))
+        out += [replace(x, reference=ref) for t in moving if t != ref
+                and (x := exchange_of(t, segment, common, at[t], at[ref])) is not None]
     return out
 
 

@@ -55,6 +55,8 @@ MIN_MOVING_FRAMES = 12  # frames of the moving trials that show it (their spread
 # the start's poses move a place 5-36 mm) and, taken together, the places they are read as lie at most EXCHANGE_GAIN
 # times as far (Expert1's static on models/human.urdf: 215 mm -> 44; on the girdle's start, a poorer pose of the
 # left leg: 434 -> 183).
+SUSPECT = 0.025  # m: a segment's markers are read for labels named otherwise where two or more of them fit worse than
+# this in a trial (median over its frames; a subject's own trials fit a cluster marker to 3-12 mm)
 EXCHANGE_OWN = REPLACED_MIN / 2
 EXCHANGE_GAIN = 0.5
 EXCHANGE_MOST = 7  # labels of one segment at most that the match permutes (7! orders); more: none judged

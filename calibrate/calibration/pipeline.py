@@ -97,7 +97,7 @@ from ..model.model import Model, Parameters, add_markers
 from ..model.urdf import mass_factor
 from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
-from ..problem.priors import held_layout, joint_centre_markers, placeholder_markers
+from ..problem.priors import held_layout, joint_centre_markers
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
@@ -324,10 +324,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # the labels (hosts.trial_exchanges; pooled, the places of such labels spread over the trials and the host rule
     # left them out).
     early: list[ExchangedCluster] = []
-    # The model's own placeholder markers (a lab's OpenSim marker set with each cluster at one point) likewise.
+    # The model's own markers likewise (a lab's OpenSim marker set: its placeholder clusters as new labels).
     unknown0 = ([lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
                 if run.new_markers else [])
-    if len(trials) > 1 and run.outliers > 0 and (unknown0 or placeholder_markers(model, model.parameters())):
+    if len(trials) > 1 and run.outliers > 0:
         moving0 = [i for i, t in enumerate(trials) if relative_motion(t, model) >= STILL_MOTION]
         early = trial_exchanges(model, trials, moving0, unknown0,
                                 [i for i in range(len(trials)) if i not in moving0])

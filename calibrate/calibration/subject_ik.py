@@ -27,12 +27,10 @@ from ..seed.jitter import Jittery
 from ..seed.seeding import ExchangedBack, episodes, exchanged_back, segment_distances, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
 from .hosts import HOST_FRAMES, local_places, pick_frames
-from .moved import EXCHANGE_OWN, ExchangedCluster, exchange_of
+from .moved import EXCHANGE_OWN, SUSPECT, ExchangedCluster, exchange_of
 
 OTHER_SUBJECT = 0.10  # a trial whose same-segment marker distances differ from the subject's by more than this
 # (the median over the pairs, relative) is another subject's: refused
-RELABEL_SUSPECT = 0.025  # m: a segment's markers are read for labels named otherwise than the subject names them where
-# two or more of them fit worse than this (median over the frames; a subject's own trials fit a cluster marker to 3-12)
 SIZE_PAIRS = 10  # judged on this many same-segment marker pairs or more (each SEGMENT_PAIR_MIN or more apart in the
 # subject): a video keypoint set's few pairs do not keep their distances (Pose2Sim's demo static: 18 % over 6 pairs)
 
@@ -131,7 +129,7 @@ def exchanged_in_trial(model: Model, trial: Trial, params: Parameters, fit: IKRe
                        weights: Mapping[str, float] | None = None) -> list[ExchangedCluster]:
     """The clusters `trial` names otherwise than the subject `model` (a symmetric thigh plate labelled the other way
     round: every distance kept), read on its fit `fit`: on each segment where two or more markers fit worse than
-    RELABEL_SUSPECT, about HOST_FRAMES frames are posed again without them (the segment carried by its other markers
+    SUSPECT, about HOST_FRAMES frames are posed again without them (the segment carried by its other markers
     and the joints above and below) and each label's place on the segment matched to the subject's places
     (moved.exchange_of, the places read within EXCHANGE_OWN on average).  Expert1's trials on a subject calibrated
     from static1 + walking1: DJ1, walkingTO1 and walking2 name the left plate mirrored, fitted as labelled at 33-36 mm
@@ -146,7 +144,7 @@ def exchanged_in_trial(model: Model, trial: Trial, params: Parameters, fit: IKRe
     for segment in dict.fromkeys(m.segment for m in model.markers):
         names = [m.name for k, m in enumerate(model.markers) if m.segment == segment and m.name in trial.labels
                  and np.isfinite(err[:, k]).any() and (weights is None or weights.get(m.name, 0) > 0)]
-        suspects = [n for n in names if typical[model.marker_index(n)] >= RELABEL_SUSPECT]
+        suspects = [n for n in names if typical[model.marker_index(n)] >= SUSPECT]
         if len(suspects) < 2:
             continue
         picked = picked or pick_frames([trial], HOST_FRAMES)[0]
