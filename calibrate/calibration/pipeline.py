@@ -328,6 +328,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     unknown0 = ([lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
                 if run.new_markers else [])
     if len(trials) > 1 and run.outliers > 0:
+        # A mirror image of the model is refused first: read against the others, its segments' labels would be
+        # "exchanged" (a mirrored simulated squat's with its own original: both thighs' markers read back).
+        _check_handedness(model, trials)
         moving0 = [i for i, t in enumerate(trials) if relative_motion(t, model) >= STILL_MOTION]
         early = trial_exchanges(model, trials, moving0, unknown0,
                                 [i for i in range(len(trials)) if i not in moving0])
