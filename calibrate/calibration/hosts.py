@@ -625,7 +625,8 @@ def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int]
     (calibrate.calibration.moved.exchange_of).  The reference is the moving trial that agrees with the most others
     (the first of a tie); each other moving trial whose labels read otherwise than the reference's is returned
     (moved.ExchangedCluster, its `reference` set), and so is each `still` trial whose placeholders do (a still trial's
-    new labels are matched after the start's poses: moved.exchanged_clusters).  Expert1's static1 with walking1 and
+    new labels are matched after the start's poses: moved.exchanged_clusters); the model's other own markers are
+    matched among the moving trials by _own_exchanges.  Expert1's static1 with walking1 and
     walkingTO1: the two walks name the right thigh plate's r_thigh3 and r_thigh5 otherwise, and pooled, the host
     rule had found each label's place spread 34-70 mm and left out the plates' markers; on the expert's
     generic.osim, whose plates are placeholders, walking1 with DJ1 fitted walking1 to 27.7 mm."""
