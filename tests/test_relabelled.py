@@ -49,6 +49,14 @@ def _plated(markers: dict | None = None):
         return load_model(path)
 
 
+def _halves(squats):
+    """The squats cut in two moving trials, first.c3d and second.c3d, the second naming the plate mirrored."""
+    half = squats.trial.n_frames // 2
+    first = replace(squats.trial.frames(0, half), source="first.c3d")
+    second = squats.trial.frames(half, squats.trial.n_frames)
+    return first, replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+
+
 @pytest.fixture(scope="module")
 def session():
     """Squats of the plated subject, its static with the plate's labels mirrored, and models/human.urdf."""
@@ -187,10 +195,7 @@ def test_two_moving_trials_that_name_the_plate_otherwise_are_read_as_one(session
     (hosts.trial_exchanges), the second's read as the first names them (the reference: of two that disagree, the
     first), and the plate is placed in the shape the subject carries it and fitted in both to the noise."""
     base, squats, _, _, true_places = session
-    half = squats.trial.n_frames // 2
-    first = replace(squats.trial.frames(0, half), source="first.c3d")
-    second = squats.trial.frames(half, squats.trial.n_frames)
-    second = replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+    first, second = _halves(squats)
     cal = calibrate(base, [first, second], Settings())
     (x,) = cal.relabelled
     assert (x.trial, x.reference, x.segment) == (1, 0, "femur_l")
@@ -216,10 +221,7 @@ def test_a_models_placeholder_plate_named_otherwise_by_the_trials_is_read_as_one
     plate placed in the subject's shape and every trial fitted to the noise."""
     _, squats, static, mirrored, true_places = session
     base = _plated({n: (-0.02, 0.078, -0.18) for n in PLATE})
-    half = squats.trial.n_frames // 2
-    first = replace(squats.trial.frames(0, half), source="first.c3d")
-    second = squats.trial.frames(half, squats.trial.n_frames)
-    second = replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+    first, second = _halves(squats)
     cal = calibrate(base, [replace(mirrored, source="static.c3d"), first, second], Settings())
     read = {(x.trial, x.reference, x.segment): dict(zip(x.labels, x.read_as, strict=True)) for x in cal.relabelled}
     assert read == {(2, 1, "femur_l"): MIRRORED, (0, 1, "femur_l"): MIRRORED}
@@ -268,10 +270,7 @@ def test_two_moving_trials_that_name_a_models_own_plate_otherwise_are_read_as_on
     (hosts.trial_exchanges); the second is read as the first names them and both fit to the noise."""
     _, squats, _, _, _ = session
     base = _plated()
-    half = squats.trial.n_frames // 2
-    first = replace(squats.trial.frames(0, half), source="first.c3d")
-    second = squats.trial.frames(half, squats.trial.n_frames)
-    second = replace(second, labels=tuple(MIRRORED.get(n, n) for n in second.labels), source="second.c3d")
+    first, second = _halves(squats)
     cal = calibrate(base, [first, second], Settings())
     (x,) = cal.relabelled
     assert (x.trial, x.reference, x.segment) == (1, 0, "femur_l")
