@@ -327,9 +327,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # The model's own markers likewise (a lab's OpenSim marker set: its placeholder clusters as new labels).
     unknown0 = ([lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
                 if run.new_markers else [])
-    if len(trials) > 1 and run.outliers > 0:
-        # A mirror image of the model is refused first: read against the others, its segments' labels would be
-        # "exchanged" (a mirrored simulated squat's with its own original: both thighs' markers read back).
+    matched = len(trials) > 1 and run.outliers > 0  # the trials' labels matched against each other
+    if matched:
+        # A mirror image of the model is refused first (not again below): read against the others, its segments'
+        # labels would be "exchanged" (a mirrored simulated squat's with its own original: both thighs' markers read
+        # back).
         _check_handedness(model, trials)
         moving0 = [i for i, t in enumerate(trials) if relative_motion(t, model) >= STILL_MOTION]
         early = trial_exchanges(model, trials, moving0, unknown0,
@@ -490,7 +492,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     size = size_from_markers(model, trials)
     _check_size(model, trials, size)
     _check_rate(model, trials)
-    _check_handedness(model, trials)
+    if not matched:
+        _check_handedness(model, trials)
     _check_one_subject(model, trials)
     apart = trials_apart(model, trials)
     for i, j, misfit, pairs in apart:
