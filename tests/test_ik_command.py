@@ -54,6 +54,65 @@ def test_ik_on_the_true_subject_gives_the_true_motion(squats, tmp_path, capsys):
     assert np.allclose(errors[:, 0], truth.times, atol=1e-9) and np.all(errors[:, 3] < 1e-6)
 
 
+def test_ik_report_holds_the_fit_as_pinocchio_reads_it_back(squats, tmp_path, capsys):
+    """<trial>_ik_report.json (subject_ik.trial_report): each marker's RMS, largest error and frames seen equal those of
+    the written motion posed by Pinocchio on the subject against the trial's markers (1e-6 mm: the report's rounding);
+    the held coordinate in degrees, the markers fitted and the label not fitted, the positions left out (as the
+    summary counts them) and the files written as they are on disk."""
+    import json
+
+    import pinocchio as pin
+
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    subject = load_model(squats / "truth.urdf")
+    trial = read_trial(squats / "trial.c3d")
+    rng = np.random.default_rng(5)
+    markers = trial.markers + rng.normal(0.0, 0.002, trial.markers.shape)  # 2 mm noise
+    markers[10:25, 3] = np.nan  # a gap in one marker
+    markers[30, 5] += [0.0, 0.0, 0.9]  # a spike, left out before the fit
+    extra = np.zeros((trial.n_frames, 1, 3))  # a label the subject has no marker for
+    noisy = replace(trial, markers=np.concatenate([markers, extra], axis=1), labels=(*trial.labels, "EXTRA"))
+    write_c3d(tmp_path / "noisy.c3d", noisy)
+    hinge = next(j.dofs[0] for j in subject.joints if j.kind == "hinge")
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["ik", str(tmp_path / "noisy.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--lock",
+                 f"{hinge}=10"]) == 0
+    text = capsys.readouterr().out
+    report = json.loads((out / "noisy_ik_report.json").read_text())
+    assert report["outputs"] == [str(out / "noisy_motion.csv"), str(out / "noisy_ik_report.json")]
+    assert sorted(p.name for p in out.iterdir()) == ["noisy_ik_report.json", "noisy_motion.csv"]
+    assert report["held_deg"] == {hinge: pytest.approx(10.0, abs=1e-9)}
+    assert report["markers_fitted"] == [m for m in subject.marker_names if m in trial.labels]
+    assert report["labels_not_fitted"] == ["EXTRA"] and report["trial"]["frames"] == trial.n_frames
+    left = report["positions_left_out"]
+    assert left >= 1 and f"; {left} marker positions left out" in text
+    motion = read_motion_csv(out / "noisy_motion.csv")
+    kept = read_trial(tmp_path / "noisy.c3d")
+    pm = subject.pin
+    d = pm.createData()
+    err = np.full((trial.n_frames, len(subject.marker_names)), np.nan)
+    for f in range(trial.n_frames):
+        pin.framesForwardKinematics(pm, d, subject.pin_configuration(motion.root_translation[f],
+                                                                      motion.root_quaternion[f], motion.angles[f]))
+        for k, m in enumerate(subject.marker_names):
+            at = d.oMf[pm.getFrameId(m, pin.FrameType.BODY)].translation
+            err[f, k] = np.linalg.norm(at - kept.markers[f, kept.labels.index(m)])
+    err[30, subject.marker_names.index(trial.labels[5])] = np.nan  # the spike: not fitted, not counted
+    per = report["markers"]["per_marker"]
+    assert set(per) == set(report["markers_fitted"])
+    for k, m in enumerate(subject.marker_names):
+        e = err[np.isfinite(err[:, k]), k]
+        assert per[m]["frames"] == e.size, m
+        assert per[m]["rms_mm"] == pytest.approx(1e3 * np.sqrt(np.mean(e**2)), abs=2e-6), m
+        assert per[m]["max_mm"] == pytest.approx(1e3 * e.max(), abs=2e-6), m
+    assert per[trial.labels[3]]["frames"] == trial.n_frames - 15
+    assert report["markers"]["rms_mm"] == pytest.approx(1e3 * np.sqrt(np.nanmean(err**2)), abs=2e-6)
+    assert report["markers"]["rms_mm"] > 1.0  # the noise and the held hinge: errors the check can see
+
+
 def _held_at_10_deg(squats: Path, out: Path, dof: str):
     """`calibrate ik` on the squats' true subject with `dof` held at 10 deg (--lock), into the new folder `out`: its
     motion, checked to hold it there in every frame."""

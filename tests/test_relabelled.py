@@ -260,6 +260,12 @@ def test_calibrate_ik_reads_a_plate_the_trial_names_otherwise_than_the_subject(s
     assert main(["ik", str(path), str(tmp_path / "subject.urdf"), "-o", str(tmp_path)]) == 0
     err = capsys.readouterr().err
     assert "mirrored.c3d names the markers of femur_l otherwise than subject.urdf: read TH" in err
+    # the trial's report says the same for a lab's batch: what was read as what, and the note
+    report = json.loads((tmp_path / "mirrored_ik_report.json").read_text())
+    (got,) = report["relabelled"]
+    assert got["segment"] == "femur_l" and dict(zip(got["labels"], got["read_as"], strict=True)) == MIRRORED
+    assert [n for n in report["notes"] if "otherwise than subject.urdf" in n] == [
+        line[len("note: "):] for line in err.splitlines() if "otherwise than subject.urdf" in line]
 
 
 def test_two_moving_trials_that_name_a_models_own_plate_otherwise_are_read_as_one(session):

@@ -11,7 +11,7 @@ left knee 19 deg for the rest of the walk (scripts/damage_values.py --ik).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -123,6 +123,58 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
         fit = fitted(replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels)), fit.motion)
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
                     misfit if pairs >= SIZE_PAIRS else None, tuple(found))
+
+
+def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, float], fitted: Sequence[str],
+                 subject: str, seconds: float, notes: Sequence[str] = (),
+                 weights: Mapping[str, float] | None = None) -> dict:
+    """One trial's ``calibrate ik`` fit as plain JSON-ready data (mm, degrees, seconds at the edges): the trial (its
+    frames, rate and times), the subject held fixed and the coordinates held (`held`, rad; the segments the trial's
+    markers do not place among them), the markers fitted (`fitted`, and each one's weight where an IK setup or the
+    calibration's noise weighs them), the fit (marker RMS and largest error overall and per marker, frames seen), what
+    was left out or read back before the fit (positions, jittery markers, labels exchanged once and back, clusters
+    named otherwise than the subject) and the notes printed.  What a lab's batch of trials is checked by without
+    reading stderr."""
+    from .. import __version__
+    from ..seed.geometry import marker_rms
+    from ..software import software_versions
+
+    fit = got.fit
+    err = np.linalg.norm(fit.residuals, axis=2)
+    seen = np.isfinite(err).sum(axis=0)
+    rms = marker_rms(fit.residuals, axis=0)
+    worst = np.nanmax(np.where(seen[None] > 0, err, 0.0), axis=0)
+    mm = lambda x: round(1e3 * float(x), 6)  # noqa: E731
+    per = {n: {"rms_mm": mm(rms[k]), "max_mm": mm(worst[k]), "frames": int(seen[k])}
+           for k, n in enumerate(model.marker_names) if seen[k]}
+    shown = np.isfinite(fit.marker_rms)
+    return {
+        "calibrate_version": __version__,
+        "software": software_versions(),
+        "subject": subject,
+        "trial": {"source": trial.source, "frames": trial.n_frames, "rate_hz": trial.rate,
+                  "first_frame": trial.first_frame,
+                  "times_s": [round(float(trial.times[0]), 6), round(float(trial.times[-1]), 6)] if trial.n_frames
+                  else None},
+        "held_deg": {k: round(float(np.degrees(v)), 9) for k, v in held.items()},
+        "unplaced_segments": list(got.unplaced),
+        "markers_fitted": list(fitted),
+        "weights": None if weights is None else {k: float(weights[k]) for k in fitted if k in weights},
+        "labels_not_fitted": [lab for lab in trial.labels if lab not in fitted],
+        "markers": {"rms_mm": mm(fit.rms) if np.isfinite(err).any() else None,
+                    "max_mm": mm(np.nanmax(err)) if np.isfinite(err).any() else None,
+                    "frames_fitted": int(shown.sum()),
+                    "per_marker": per},
+        "iterations": {"total": int(fit.iterations.sum()), "max_per_frame": int(fit.iterations.max(initial=0))},
+        "positions_left_out": got.left_out,
+        "jittery_markers": [x.to_json() for x in got.jittery],
+        "exchanged_back": [x.to_json() for x in got.exchanged_back],
+        "relabelled": [{k: v for k, v in x.to_json().items() if k not in ("trial", "reference")}
+                       for x in got.relabelled],
+        "size_misfit": None if got.size_misfit is None else round(got.size_misfit, 6),
+        "seconds": round(seconds, 6),
+        "notes": list(notes),
+    }
 
 
 def exchanged_in_trial(model: Model, trial: Trial, params: Parameters, fit: IKResult, kin, held: Mapping[str, float],

@@ -6,15 +6,17 @@ markers (calibrate.solve.ik.inverse_kinematics: frame by frame, warm-started fro
 the coordinates an OpenSim subject locks, those the calibration held (``--report``: its report JSON, whose learnt
 noise also weighs the markers), those its IK setups hold (``--ik-setup``, repeatable; their marker tasks' weights
 weigh the markers, and each cuts its trial to its time range) and ``--lock``'s.  Writes ``<trial>_motion.csv``
-per trial (and for an OpenSim subject ``<trial>_motion.mot`` and the marker errors as OpenSim's IK tool reports
-them, ``<trial>_ik_marker_errors.sto``; with ``--setup-names`` where the IK setup names them), prints each trial's
-marker RMS and the markers it fits worst.  ``--ik-setup`` files alone run as OpenSim's IK tool runs them: the
-model_file they name (one for all), each one's marker_file and output names.
+and ``<trial>_ik_report.json`` per trial (the fit per marker, what was left out or read back, the notes:
+subject_ik.trial_report; and for an OpenSim subject ``<trial>_motion.mot`` and the marker errors as OpenSim's IK
+tool reports them, ``<trial>_ik_marker_errors.sto``; with ``--setup-names`` where the IK setup names them), prints
+each trial's marker RMS and the markers it fits worst.  ``--ik-setup`` files alone run as OpenSim's IK tool runs
+them: the model_file they name (one for all), each one's marker_file and output names.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
@@ -32,8 +34,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
         "ik", help="every frame's pose of more trials with a calibrated subject held fixed (inverse kinematics)",
         description="Fit every frame of each TRIAL to SUBJECT, a subject calibrate wrote (subject.urdf or "
                     "subject.osim), held fixed: the joint angles of a subject's other trials, as OpenSim's IK "
-                    "tool gives them with the scaled model.  Writes <trial>_motion.csv (and .mot and the marker "
-                    "errors, _ik_marker_errors.sto, for an .osim subject) beside each trial or in --out.  "
+                    "tool gives them with the scaled model.  Writes <trial>_motion.csv and "
+                    "<trial>_ik_report.json (the fit per marker, what was left out or read back) (and .mot and "
+                    "the marker errors, _ik_marker_errors.sto, for an .osim subject) beside each trial or in --out.  "
                     "'calibrate ik --ik-setup XML' alone runs the setup as OpenSim's IK tool does.  Nothing is "
                     "written on an error.")
     p.add_argument("inputs", type=Path, nargs="*", metavar="TRIAL ... SUBJECT",
@@ -83,11 +86,12 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_ik(args: argparse.Namespace) -> int:
     from ..calibration.records import Countdown
-    from ..calibration.subject_ik import IK_COMPILE_FRAMES, fit_trial
+    from ..calibration.subject_ik import IK_COMPILE_FRAMES, fit_trial, trial_report
     from ..io.labels import load_marker_map, map_labels
     from ..io.motion import write_motion_csv
     from ..io.outputs import check_targets
     from ..io.read import read_trial
+    from ..io.text import atomic_write_text
     from ..model.model import load_model
     from ..problem.settings import Settings
     from .commands import Timed
@@ -129,6 +133,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
             raise CalibrateError("--setup-names takes the names the lab's IK setups give; add --ik-setup")
         named = setup_outputs(None, args.ik_setup)
     outputs, opensim_files, folders, locations = [], {}, {}, {}
+    written: dict[Path, list[Path]] = {}  # each trial's outputs
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
         files = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
@@ -138,10 +143,12 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if from_setup and args.out is None:  # the motion CSV (and the rest) beside the .mot the setup names
             folder = opensim_files[t][0].parent
         folders[t] = folder
-        outputs += [folder / f"{t.stem}_motion.csv"] + (list(opensim_files[t]) if osim else []) + \
+        written[t] = [folder / f"{t.stem}_motion.csv", folder / f"{t.stem}_ik_report.json"] + \
+            (list(opensim_files[t]) if osim else []) + \
             ([locations[t]] if locations[t] is not None else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
+        outputs += written[t]
     if named is not None and osim:  # those the lab's IK setups name first (an OpenSim run's earlier outputs?)
         from ..io.osim_setup import SETUP_NAMED_HINT
 
@@ -247,14 +254,28 @@ def cmd_ik(args: argparse.Namespace) -> int:
             got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path),
                             check_size=not args.other_subject, compile=frames >= IK_COMPILE_FRAMES,
                             progress=Countdown(say, "ik", f"fitting the {trial.n_frames} frames of {path.name}"))
-        lines += [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
-        lines += [x.text(path.name, subject_path.name) + "; check the labelling" for x in got.relabelled]
+        own_lines = [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
+        own_lines += [x.text(path.name, subject_path.name) + "; check the labelling" for x in got.relabelled]
         if got.unplaced_held:
-            lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
-                         f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
-        results.append((path, trial, got.fit, time.perf_counter() - start, got.left_out, shared))
-    for (path, trial, fit, _, _, shared), folder in zip(results, [folders[t] for t in trial_paths], strict=True):
+            own_lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
+                             f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
+        lines += own_lines
+        seconds = time.perf_counter() - start
+        report = trial_report(model, trial, got, {**held, **got.unplaced_held}, shared, str(subject_path), seconds,
+                              [*setup_lines, *lines_map, *own_lines], weights)
+        report["outputs"] = [str(o) for o in written[path]]
+        results.append((path, trial, got.fit, seconds, got.left_out, shared, report))
+    if released:
+        lines.append(f"{', '.join(sorted(static_locks))}: the calibration held them because its static, its only "
+                     "trial, moved them no more than its markers fix them; fitted in "
+                     f"{', '.join(released)}, which it did not fit (--lock holds them)")
+        for path, *_, report in results:
+            if path.name in released:
+                report["notes"].append(lines[-1])
+    for (path, trial, fit, _, _, shared, report), folder in zip(results, [folders[t] for t in trial_paths],
+                                                                strict=True):
         write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
+        atomic_write_text(folder / f"{path.stem}_ik_report.json", json.dumps(report, indent=1, allow_nan=False) + "\n")
         if osim:
             from ..io.osim_export import (
                 ik_marker_errors,
@@ -263,7 +284,6 @@ def cmd_ik(args: argparse.Namespace) -> int:
                 marker_locations_text,
                 write_mot,
             )
-            from ..io.text import atomic_write_text
 
             mot, sto = opensim_files[path]
             write_mot(mot, model, fit.motion)
@@ -279,20 +299,15 @@ def cmd_ik(args: argparse.Namespace) -> int:
             write_c3d(folder / f"{path.stem}_calibrated.c3d", with_model_outputs(model, params, trial, fit.motion))
         if args.mjcf:
             from ..io.mjcf import qpos_csv_text
-            from ..io.text import atomic_write_text
 
             atomic_write_text(folder / f"{path.stem}_motion_qpos.csv", qpos_csv_text(model, fit.motion))
-    if released:
-        lines.append(f"{', '.join(sorted(static_locks))}: the calibration held them because its static, its only "
-                     "trial, moved them no more than its markers fix them; fitted in "
-                     f"{', '.join(released)}, which it did not fit (--lock holds them)")
     if not args.quiet:
         for line in lines:
             print("note: " + line, file=sys.stderr)
         print(f"calibrate ik: {subject_path} held fixed ({len(model.dof_names)} joint coordinates, "
               f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'}"
               + (f"; on {', '.join(kept_on)} also {', '.join(sorted(static_locks))}" if kept_on else "") + ")")
-        for path, trial, fit, seconds, left, _ in results:
+        for path, trial, fit, seconds, left, _, _ in results:
             err = np.linalg.norm(fit.residuals, axis=2)
             seen = np.flatnonzero(np.isfinite(err).any(axis=0))  # the subject's markers this trial shows
             per_marker = np.sqrt(np.nanmean(err[:, seen] ** 2, axis=0))
