@@ -58,9 +58,13 @@ def test_batch_on_a_local_cluster_isolates_a_broken_subject_and_resumes(lab):
         assert row["warnings"] == (len(rep["notes"]) + len(rep["unreliable"]) + len(rep["suspect_labels"])
                                    + len(rep["exchanged_labels"]) + (0 if rep["solver"]["converged"] else 1))
         assert read_trial(lab / sid / "trial.c3d").n_frames == 80
+        # Its implausible results: the report's, named (the summary's implausible lines)
+        assert row["implausible"] == rep["implausible_flags"]
     with open(out / "summary.csv") as f:
         table = list(csv.DictReader(f))
     assert [r["subject"] for r in table] == ["S1", "S2", "S3"] and table[2]["status"] == "failed"
+    for r, got in zip(rows, table, strict=True):
+        assert got["implausible"] == " | ".join(r["implausible"])
     index = (out / "index.html").read_text()
     assert 'href="S1/report.html"' in index and 'href="S2/report.json"' in index and "S3" in index
     # Resume: the done subjects are skipped (their outputs untouched), the failed one tried again.

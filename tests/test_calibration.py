@@ -565,6 +565,7 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
                                     for n, b in bad.items() if not b.partner)  # (the others: against their partner)
     assert {"RHEE", "RTOE"} <= set(bad["talus_r"].labels)  # the calcaneus below it carries them
     assert "implausible" in small.text() and small.report()["implausible"][0]["segment"] in bad
+    assert any("talus_r scale" in f for f in small.report()["implausible_flags"])  # the summary's line, in the JSON
     # the talus carries no marker: its scale only places the subtalar centre, and the summary says how far that went
     moved = next(c.change for c in cal.changes if c.group == "centre" and c.item == "subtalar_r")
     assert bad["talus_r"].centres == (("subtalar_r", pytest.approx(moved)),)
@@ -589,6 +590,7 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
     right = calibrate(human, Trial(list(sim.trial.labels), sim.trial.markers[::4], sim.trial.rate / 4, 0, None),
                       Settings(outliers=0))
     assert right.implausible == [] and right.marker_rms < 0.002
+    assert right.report()["implausible_flags"] == []
 
 
 def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):

@@ -305,6 +305,10 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
     report = calibration_report(replace(cal, hip_motion=far))
     assert [h["implausible"] for h in report["hip_motion"]] == [True, True]
     assert report["hip_motion"][0]["from_regression_mm"] == pytest.approx(45.0)
+    # the report's implausible_flags carry it (a batch's `implausible` column); the hips as calibrated, none
+    (flag,) = [f for f in report["implausible_flags"] if f.startswith("hip_")]
+    assert flag.startswith("hip_l 45 mm and hip_r 50 mm from Harrington's regression") and flag in text
+    assert not any(f.startswith("hip_") for f in calibration_report(cal)["implausible_flags"])
     wide = tuple(replace(h, from_regression=0.020, width=(0.92 * a, a)) for h in cal.hip_motion)
     assert all(h.implausible for h in wide)
     assert "  implausible  hip_l 20 mm and hip_r 20 mm from Harrington's" in summary_text(replace(cal, hip_motion=wide))

@@ -64,7 +64,7 @@ else:  # pragma: no cover
 
 REPORT = "report.json"  # each subject's report: written last of its outputs, with them; marks it done
 SUMMARY_COLUMNS = ("subject", "status", "marker_rms_mm", "iterations", "converged", "seconds", "warnings",
-                   "error", "folder")
+                   "implausible", "error", "folder")
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 OPENSIM_FILES = ("marker_set", "ik_setup", "scale_setup")  # a subject's OpenSim files (an .osim model only)
 
@@ -324,7 +324,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
     status 'failed' with the error's one line."""
     folder = Path(out) / subject.id
     row = {"subject": subject.id, "status": "", "marker_rms_mm": math.nan, "iterations": 0, "converged": False,
-           "seconds": 0.0, "warnings": 0, "error": "", "folder": subject.id}
+           "seconds": 0.0, "warnings": 0, "implausible": [], "error": "", "folder": subject.id}
     if (folder / REPORT).exists() and not overwrite:
         return {**row, "status": "skipped"}
     t0 = time.perf_counter()
@@ -341,6 +341,7 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         from ..io.read import read_trial
         from ..problem.settings import Settings
         from .pipeline import calibrate
+        from .report import implausible_flags
 
         setup = None
         if subject.scale_setup is not None:  # the lab's Scale setup: the subject's mass and its marker set
@@ -383,9 +384,12 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         warnings = (len(cal.notes) + sum(c.unreliable for c in cal.changes) + len(cal.misplaced) + len(cal.jittery)
                     + len(cal.exchanged_back) + len(cal.trials_apart) + len(cal.exchanged) + len(cal.relabelled)
                     + (0 if cal.converged else 1))
+        # What anatomy or the subject's measurements contradict (the summary's implausible lines): named, not
+        # counted, so a lab sorts its subjects by what to look at first
+        flagged = implausible_flags(cal)
         return {**row, "status": "ok" if cal.converged else "not converged", "marker_rms_mm": 1000 * cal.marker_rms,
                 "iterations": cal.summary.iterations, "converged": bool(cal.converged),
-                "seconds": time.perf_counter() - t0, "warnings": warnings}
+                "seconds": time.perf_counter() - t0, "warnings": warnings, "implausible": flagged}
     except Exception as e:  # noqa: BLE001 - one subject's failure, whatever it is, is reported, not raised
         line = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         return {**row, "status": "failed", "seconds": time.perf_counter() - t0, "error": line}
@@ -418,7 +422,8 @@ def run_batch(subjects: Sequence[Subject], out: str | os.PathLike[str], workers:
                 row = fut.result()
             except Exception as e:  # noqa: BLE001 - a worker lost: the subject is reported, the others go on
                 row = {"subject": sid, "status": "failed", "marker_rms_mm": math.nan, "iterations": 0,
-                       "converged": False, "seconds": 0.0, "warnings": 0, "error": f"worker failed: {e}",
+                       "converged": False, "seconds": 0.0, "warnings": 0, "implausible": [],
+                       "error": f"worker failed: {e}",
                        "folder": sid}
             rows[sid] = row
             if progress is not None:
@@ -441,7 +446,8 @@ def write_summary(rows: Sequence[dict], out: Path) -> None:
     w = csv.DictWriter(buf, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: (f"{r[k]:.3f}" if isinstance(r[k], float) else r[k]) for k in SUMMARY_COLUMNS})
+        w.writerow({k: (f"{r[k]:.3f}" if isinstance(r[k], float) else " | ".join(r[k]) if isinstance(r[k], list)
+                        else r[k]) for k in SUMMARY_COLUMNS})
     write_all({out / "summary.csv": lambda p: put_text(p, buf.getvalue()),
                out / "index.html": lambda p: put_text(p, index_html(rows, out))})
 
@@ -461,7 +467,9 @@ def index_html(rows: Sequence[dict], out: Path) -> str:
         cls = {"failed": "bad", "not converged": "bad"}.get(r["status"], "")
         body.append(f'<tr><td>{sid}</td><td class="{cls}">{html.escape(r["status"])}</td><td class="n">{rms}</td>'
                     f'<td class="n">{r["iterations"] or ""}</td><td class="n">{r["seconds"]:.1f}</td>'
-                    f'<td class="n">{r["warnings"] or ""}</td><td>{" ".join(links)}</td>'
+                    f'<td class="n">{r["warnings"] or ""}</td>'
+                    f'<td class="bad">{"<br>".join(html.escape(x) for x in r["implausible"])}</td>'
+                    f'<td>{" ".join(links)}</td>'
                     f'<td>{html.escape(r["error"])}</td></tr>')
     return ("<!doctype html><html><head><meta charset='utf-8'><title>calibrate batch</title><style>"
             "body{font-family:system-ui,sans-serif;margin:1.5em}table{border-collapse:collapse}"
@@ -469,5 +477,5 @@ def index_html(rows: Sequence[dict], out: Path) -> str:
             ".bad{color:#b00020}</style></head><body><h1>calibrate batch</h1>"
             f"<p>{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + "</p>"
             "<table><tr><th>subject</th><th>status</th><th>marker RMS (mm)</th><th>iterations</th>"
-            "<th>time (s)</th><th>warnings</th><th>outputs</th><th>error</th></tr>"
+            "<th>time (s)</th><th>warnings</th><th>implausible</th><th>outputs</th><th>error</th></tr>"
             + "".join(body) + "</table></body></html>\n")

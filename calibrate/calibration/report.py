@@ -241,10 +241,25 @@ def calibration_report(cal: Calibration) -> dict:
         "subject_size": subject_size(cal),
         "unidentified": [c.name for c in cal.changes if not c.identified],
         "unreliable": [c.name for c in cal.changes if c.unreliable],
+        # every result the summary calls implausible (a scale, a centre, an axis, the hips, a static's left against
+        # right, a lateral marker against a measured width), as its `implausible` lines say it
+        "implausible_flags": implausible_flags(cal),
         "notes": list(cal.notes),
         "times_s": {k: round(v, 6) for k, v in cal.times.items()},
         "series": report_series(cal),
     }
+
+
+IMPLAUSIBLE = "  implausible  "  # how the summary starts a line that calls a result implausible
+
+
+def implausible_flags(cal: Calibration) -> list[str]:
+    """The summary's `implausible` lines (summary_text), each without its tag: every result the calibration found
+    against anatomy or the subject's measurements (a segment's scale, a centre or axis carried far by a trade the
+    data do not separate, hips outside the pelvis or far from Harrington's regression, a static's left against its
+    right, a lateral marker against a measured width) -- what a lab's batch of subjects is sorted by
+    (calibrate.calibration.batch's `implausible` column)."""
+    return [line[len(IMPLAUSIBLE):] for line in summary_text(cal).splitlines() if line.startswith(IMPLAUSIBLE)]
 
 
 def report_locks(report: dict, elsewhere: bool = False) -> dict[str, float]:
@@ -334,7 +349,7 @@ def _measurement_lines(cal) -> list[str]:
                    + ", ".join(pairs))
     for j, v in lat.items():
         if v["flagged"]:
-            out.append(f"  implausible  {j}: {v['marker']} {v['calibrated_mm']:.0f} mm from the centre along the axis, "
+            out.append(f"{IMPLAUSIBLE}{j}: {v['marker']} {v['calibrated_mm']:.0f} mm from the centre along the axis, "
                        f"the measured width puts it {v['measured_mm']:.0f} mm lateral"
                        + ("" if v["used"] else " (the width was not used; docs/calibration.md, subject measurements)"))
     return out
@@ -775,10 +790,10 @@ def summary_text(cal) -> str:
     lines += _scale_lines(cal)
     for c in cal.changes:
         if c.group == "centre" and c.unreliable and (c.identified or _slide_only(c)):
-            lines.append(f"  implausible  centre[{c.item}]: {c.note}{_moved_hint(cal, c)}; --hold-centres "
+            lines.append(f"{IMPLAUSIBLE}centre[{c.item}]: {c.note}{_moved_hint(cal, c)}; --hold-centres "
                          f"{c.item} holds it at the base model's")
         if c.group == "axis" and c.unreliable and c.identified:
-            lines.append(f"  implausible  axis[{c.item}]: {c.note}{_moved_hint(cal, c)}")
+            lines.append(f"{IMPLAUSIBLE}axis[{c.item}]: {c.note}{_moved_hint(cal, c)}")
     # A held centre (Settings.hold_centres: given, or a still trial's ball joint) is named on its own line above.
     held = set(cal.settings.hold_centres)
     un = [c for c in cal.changes if not c.identified and not _slide_only(c)
@@ -845,14 +860,14 @@ def summary_text(cal) -> str:
     if bad:
         median = float(np.median(cal.params.scale))
         causes = "; ".join(b.cause() for b in bad if b.centres)
-        lines.append("  implausible  " + ", ".join(b.text() for b in bad)
+        lines.append(IMPLAUSIBLE + ", ".join(b.text() for b in bad)
                      + f" against the subject's median {median:.2f}: the markers do not fit the model there"
                      + (f" ({causes})" if causes else "") + "; "
                      f"check the labels of {', '.join(dict.fromkeys(x for b in bad for x in b.labels)) or '-'} "
                      "(a swap for the whole trial?)")
     turned = cal.static_asymmetry
     if turned:
-        lines.append("  implausible  " + "; ".join(f"{cal.trials[h.trial].source or f'trial {h.trial + 1}'} (static): "
+        lines.append(IMPLAUSIBLE + "; ".join(f"{cal.trials[h.trial].source or f'trial {h.trial + 1}'} (static): "
                                                    f"{h.text()}" for h in turned)
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
                      "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
@@ -902,7 +917,7 @@ def summary_text(cal) -> str:
                      "markers): its convention, not flagged")
     if far := [h for h in loose if h.implausible]:
         width, asis = far[0].width
-        lines.append("  implausible  " + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
+        lines.append(IMPLAUSIBLE + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
                      + " from Harrington's regression on the pelvis markers (its error on CT 12 +- 6 mm), the hips "
                      f"{1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} (Harrington's: "
                      f"{1e3 * harrington_width(asis):.0f}): "
@@ -916,7 +931,7 @@ def summary_text(cal) -> str:
                         cal.hip_regression_auto else "; --hip-regression places them by the regression"))
     if wide := [h for h in cal.hip_motion if h.places_centre and h.outside and h.joint not in tied]:
         width, asis = wide[0].width
-        lines.append(f"  implausible  the hips {1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} "
+        lines.append(f"{IMPLAUSIBLE}the hips {1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} "
                      f"(Harrington's: {1e3 * harrington_width(asis):.0f}): outside the pelvis, though the trials turn "
                      + " and ".join(h.text() for h in wide) + ", enough to place a centre: the thighs' skin, or a "
                      "thigh turned about its length by markers that do not fix that turn, moved them ("

@@ -51,7 +51,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     def progress(row: dict, done: int, total: int) -> None:
         what = row["error"] if row["status"] == "failed" else (
             "already done" if row["status"] == "skipped" else
-            f"marker RMS {row['marker_rms_mm']:.2f} mm, {row['iterations']} iterations, {row['seconds']:.1f} s")
+            f"marker RMS {row['marker_rms_mm']:.2f} mm, {row['iterations']} iterations, {row['seconds']:.1f} s"
+            + (f"; {len(row['implausible'])} implausible (summary.csv)" if row.get("implausible") else ""))
         print(f"  [{done}/{total}] {row['subject']}: {row['status']} ({what})", file=sys.stderr, flush=True)
 
     rows = run_batch(subjects, args.out, workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite,
