@@ -449,6 +449,35 @@ def test_marker_set_bad_number(tmp_path, capsys):
     assert capsys.readouterr().err.count("\n") == 1 and not (tmp_path / "o.urdf").exists()
 
 
+def test_labels_an_osim_model_leaves_out_point_to_its_marker_set(tmp_path, capsys):
+    """A trial label that rides on no segment of an OpenSim base model given without --marker-set: the warning names
+    the lab's MarkerSet file as the way to place such labels (gait2392's walk on Rajagopal2016.osim left its 17
+    thigh, shank and sacrum labels out, the hips 351 mm apart); with a marker set given, it does not."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.osim_export import export_osim
+    from calibrate.io.trial import Trial
+    from calibrate.simulation.simulate import simulate_squats
+
+    human = load_model(Path(__file__).resolve().parent.parent / "models" / "human.urdf")
+    sim = simulate_squats(human, frames=80, noise_mm=1.0, seed=4)
+    # a random walk of its own beside the pelvis: on no segment
+    walk = np.cumsum(np.random.default_rng(0).normal(0.0, 0.01, (sim.trial.n_frames, 3)), axis=0)
+    loose = sim.clean_markers[:, sim.trial.labels.index("RASI")] + [0.0, 0.3, 0.0] + walk
+    write_c3d(tmp_path / "squat.c3d", Trial(sim.trial.labels + ("LOOSE",),
+                                            np.concatenate([sim.trial.markers, loose[:, None]], axis=1),
+                                            sim.trial.rate))
+    osim = export_osim(human, tmp_path / "human.osim")
+    ms = _bad(tmp_path, "<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects>"
+                        "<Marker name='UNSEEN'><socket_parent_frame>/bodyset/pelvis</socket_parent_frame>"
+                        "<location>0 0.1 0</location></Marker></objects></MarkerSet></OpenSimDocument>", "ms.xml")
+    for k, extra in enumerate(([], ["--marker-set", str(ms)])):
+        (tmp_path / f"o{k}").mkdir()
+        assert main([str(tmp_path / "squat.c3d"), str(osim), "-o", str(tmp_path / f"o{k}"), *extra]) == 0
+        (line,) = [x for x in capsys.readouterr().err.splitlines() if "LOOSE" in x]
+        assert line.startswith("warning: 1 trial label rides on no segment of human.osim and is ignored: LOOSE")
+        assert ("--marker-set FILE.xml" in line) == (not extra), line
+
+
 def test_marker_set_replaces_and_adds(tmp_path):
     osim = _bad(tmp_path, hand_made_osim(), "m.osim")
     ms = _bad(tmp_path, "<?xml version='1.0'?><OpenSimDocument Version='40000'><MarkerSet><objects>"
