@@ -309,6 +309,26 @@ def test_a_label_to_check_is_among_the_notes(run):
     assert "check label" not in report_html(run["rep"])  # the calibration's own labels raised none
 
 
+def test_implausible_hips_and_centres_are_marked_bad_among_the_notes(run):
+    """What the summary calls implausible reads so in the HTML report's notes: a hip the trials do not place that
+    ended far from Harrington's regression (pig_walk, OpenCap's and Expert1's walks: a plain note before), and a
+    centre or axis a trade carried far (`implausible_flags`' centre[...] / axis[...]: no note before)."""
+    hips = [dict(joint="hip_l", range_deg={"hip_l_flexion": 43.0}, places_centre=False, from_regression_mm=65.0,
+                 implausible=True, hip_width_mm=250.0, asis_width_mm=240.0, from_model_mm=60.0, model_offset_mm=7.5,
+                 as_model=False),
+            dict(joint="hip_r", range_deg={"hip_r_flexion": 43.0}, places_centre=False, from_regression_mm=9.0,
+                 implausible=False, hip_width_mm=250.0, asis_width_mm=240.0, from_model_mm=8.0, model_offset_mm=7.5,
+                 as_model=False)]
+    flag = "centre[hip_l]: the trial places it (posterior SD 3 mm), yet 64 mm from where its prior puts it"
+    page = report_html(dict(run["rep"], hip_motion=hips, implausible_flags=[flag]))
+    notes = page[page.index("id=notes>"):page.index("id=summary>")]
+    bad = re.findall(r"<li class=bad>(.*?)</li>", notes, re.S)
+    assert any(b.startswith("hip_l: the trials turn it through") and "65 mm from Harrington" in b for b in bad)
+    assert not any(b.startswith("hip_r") for b in bad) and "<li>hip_r: the trials turn it through" in notes
+    assert f"implausible {flag}" in bad
+    assert "implausible centre[" not in report_html(dict(run["rep"], implausible_flags=[]))
+
+
 def test_an_unreliable_parameter_is_marked_so_in_the_table_and_the_bars(run):
     """A parameter the report calls unreliable (far beyond its prior, identified or not) reads so in the
     parameters table and its bar is red, not "held by prior" (gait2392's back centre with its IK setup)."""

@@ -95,6 +95,9 @@ def _notes(report: dict) -> str:
                      "segment frames sit turned where its markers leave them to the priors"
                      + (f"; {_e(report['static_pose']['advice'])}" if report["static_pose"].get("advice") else "")
                      + "</li>")
+    for f in report.get("implausible_flags", []):  # a centre or axis a trade carried far (the rest: below)
+        if f.startswith(("centre[", "axis[")):
+            items.append(f"<li class=bad>implausible {_e(f)}</li>")
     for j, v in ((report.get("measurements") or {}).get("lateral_mm") or {}).items():
         if v.get("flagged"):
             items.append(f"<li class=bad>implausible {_e(j)} centre: {_e(v.get('marker'))} "
@@ -166,7 +169,8 @@ def _notes(report: dict) -> str:
     tied = {m.get("joint") for m in report.get("joint_centre_markers", [])}
     for h in report.get("hip_motion", []):
         if not h.get("places_centre", True) and h.get("joint") not in tied:
-            items.append(f"<li>{_e(h.get('joint'))}: the trials turn it through "
+            items.append(f"<li{' class=bad' if h.get('implausible') else ''}>{_e(h.get('joint'))}: the trials turn it "
+                         "through "
                          + ", ".join(f"{_e(d)} {v:.0f}" for d, v in h.get("range_deg", {}).items())
                          + " deg, too little in two of its angles to place its centre (a walk's motion does not)"
                          + (f"; it ended {h['from_regression_mm']:.0f} mm from Harrington's regression on the pelvis "
