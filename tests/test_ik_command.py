@@ -113,6 +113,39 @@ def test_ik_report_holds_the_fit_as_pinocchio_reads_it_back(squats, tmp_path, ca
     assert report["markers"]["rms_mm"] > 1.0  # the noise and the held hinge: errors the check can see
 
 
+def test_ik_notes_a_coordinate_beyond_the_subjects_limits(squats, tmp_path, capsys):
+    """The squats' true subject with knee_r's upper limit cut to 25 deg: the fit (under the limits widened by 15 deg,
+    as the calibration's) leaves the knee beyond them in the frames where the true knee bends past 30 deg, and
+    `calibrate ik` notes it (identifiability.limit_records, as the calibration notes it): the share of frames is the
+    truth's, in the note and in the report.  The subject as calibrated: no note."""
+    import json
+    import re
+
+    truth = read_motion_csv(squats / "truth_motion.csv")
+    text = (squats / "truth.urdf").read_text()
+    start = text.index('<joint name="knee_r"')
+    limit = re.compile(r'upper="[^"]*"')
+    cut = text[:start] + limit.sub(f'upper="{float(np.radians(25.0))!r}"', text[start:], count=1)
+    (tmp_path / "cut.urdf").write_text(cut)
+    assert load_model(tmp_path / "cut.urdf").dofs[truth.dof_names.index("knee_r")].upper == pytest.approx(
+        np.radians(25.0))
+    knee = np.degrees(truth.angles[:, truth.dof_names.index("knee_r")])
+    share = float(np.mean(knee > 30.0))
+    assert 0.05 < share < 0.95  # the squats bend it past there, not always
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["ik", str(squats / "trial.c3d"), str(tmp_path / "cut.urdf"), "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"note: trial.c3d: knee_r beyond cut.urdf's joint limits in {100 * share:.0f} % of its frames" in err, err
+    (got,) = json.loads((out / "trial_ik_report.json").read_text())["beyond_limits"]
+    assert got["coordinate"] == "knee_r" and got["fraction"] == pytest.approx(share, abs=1.5 / len(knee))
+    # held at the widened limit, which the fit's soft limit residual (solve.ik.LIMIT_WEIGHT) lets it pass a little
+    assert got["worst_deg"] == pytest.approx(min(knee.max(), 40.0) - 25.0, abs=1.0)
+    assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(out), "--overwrite"]) == 0
+    assert "joint limits" not in capsys.readouterr().err
+    assert json.loads((out / "trial_ik_report.json").read_text())["beyond_limits"] == []
+
+
 def _held_at_10_deg(squats: Path, out: Path, dof: str):
     """`calibrate ik` on the squats' true subject with `dof` held at 10 deg (--lock), into the new folder `out`: its
     motion, checked to hold it there in every frame."""

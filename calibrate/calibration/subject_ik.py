@@ -23,11 +23,14 @@ from ..model.kinematics import build_kinematics, locked_balls
 from ..model.model import Model, Parameters
 from ..model.resolve import resolve_carrying
 from ..problem.problem import LIMIT_MARGIN, compiled_kinematics
+from ..problem.settings import Settings
 from ..seed.jitter import Jittery
 from ..seed.seeding import ExchangedBack, episodes, exchanged_back, segment_distances, without_broken
 from ..solve.ik import IKResult, inverse_kinematics
 from .hosts import HOST_FRAMES, local_places, pick_frames
+from .identifiability import limit_records
 from .moved import EXCHANGE_OWN, SUSPECT, ExchangedCluster, exchange_of
+from .records import LimitNote
 
 OTHER_SUBJECT = 0.10  # a trial whose same-segment marker distances differ from the subject's by more than this
 # (the median over the pairs, relative) is another subject's: refused
@@ -62,6 +65,16 @@ class TrialFit:
     exchanged_back: tuple[ExchangedBack, ...] = ()
     size_misfit: float | None = None  # size_misfit's figure (None: too few pairs to judge)
     relabelled: tuple[ExchangedCluster, ...] = ()  # clusters the trial names otherwise than the subject, read back
+    # coordinates the fit drove beyond the subject's joint limits (identifiability.limit_records, as the calibration
+    # notes them): a joint the markers do not resolve, or one the subject moved past the model's range
+    beyond_limits: tuple[LimitNote, ...] = ()
+
+    def limit_lines(self, source: str, subject: str) -> list[str]:
+        """beyond_limits as `calibrate ik` notes them, naming the trial `source` and the `subject`."""
+        return [f"{source}: {x.coordinate} beyond {subject}'s joint limits in {100 * x.fraction:.0f} % of its frames "
+                f"(by up to {np.degrees(x.worst):.0f} deg; the fit allows {np.degrees(LIMIT_MARGIN):.0f} past them, "
+                "as the calibration's does): a joint its markers do not resolve, or moved past the model's range "
+                f"(--lock {x.coordinate} holds it)" for x in self.beyond_limits]
 
 
 #: `calibrate ik`'s trials together this many frames or more: the subject's per-frame code is compiled for them where
@@ -121,8 +134,9 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     if found:  # read as the subject names them, and fitted again
         read = {a: b for x in found for a, b in zip(x.labels, x.read_as, strict=True)}
         fit = fitted(replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels)), fit.motion)
+    beyond = limit_records(model, fit.motion.angles, Settings(lock=dict(held)))
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
-                    misfit if pairs >= SIZE_PAIRS else None, tuple(found))
+                    misfit if pairs >= SIZE_PAIRS else None, tuple(found), beyond)
 
 
 def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, float], fitted: Sequence[str],
@@ -171,6 +185,8 @@ def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, f
         "exchanged_back": [x.to_json() for x in got.exchanged_back],
         "relabelled": [{k: v for k, v in x.to_json().items() if k not in ("trial", "reference")}
                        for x in got.relabelled],
+        "beyond_limits": [{"coordinate": x.coordinate, "fraction": round(x.fraction, 6),
+                           "worst_deg": round(float(np.degrees(x.worst)), 6)} for x in got.beyond_limits],
         "size_misfit": None if got.size_misfit is None else round(got.size_misfit, 6),
         "seconds": round(seconds, 6),
         "notes": list(notes),

@@ -256,6 +256,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
                             progress=Countdown(say, "ik", f"fitting the {trial.n_frames} frames of {path.name}"))
         own_lines = [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
         own_lines += [x.text(path.name, subject_path.name) + "; check the labelling" for x in got.relabelled]
+        own_lines += got.limit_lines(path.name, subject_path.name)
         if got.unplaced_held:
             own_lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
                              f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
