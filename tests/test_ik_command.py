@@ -239,6 +239,57 @@ def test_ik_refuses_another_subjects_trial(squats, tmp_path, capsys):
     assert (out / "larger_motion.csv").is_file()
 
 
+def test_ik_fits_the_later_trials_on_the_other_core_to_the_same_bits(squats, tmp_path, capsys):
+    """Trials of 500 frames or more in all: the later ones (about half the frames) are fitted in a forked child on
+    the other core (calibrate.solve.ahead.run_ahead) while the first are fitted here.  Each motion equals, to the
+    byte, that trial's fit alone; a trial the child refuses (another subject's: size_misfit) fails the command in
+    its one line, exit 2, nothing written."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+    from calibrate.solve.ahead import ahead_split, can_run_ahead
+
+    trial = read_trial(squats / "trial.c3d")  # 60 frames: ten copies, each a little moved, 600 frames
+    rng = np.random.default_rng(7)
+    names = []
+    for k in range(10):
+        write_c3d(tmp_path / f"t{k}.c3d", replace(trial, markers=trial.markers + rng.normal(0, 0.001, (1, 1, 3))))
+        names.append(str(tmp_path / f"t{k}.c3d"))
+    split = ahead_split([60] * 10)
+    assert split == (5 if can_run_ahead() else 10)
+    together, alone = tmp_path / "together", tmp_path / "alone"
+    together.mkdir()
+    alone.mkdir()
+    assert main(["ik", *names, str(squats / "truth.urdf"), "-o", str(together), "-q"]) == 0
+    for name in (names[0], names[-1]):  # one fitted here, one in the child
+        assert main(["ik", name, str(squats / "truth.urdf"), "-o", str(alone), "-q"]) == 0
+        stem = Path(name).stem
+        assert (together / f"{stem}_motion.csv").read_bytes() == (alone / f"{stem}_motion.csv").read_bytes()
+    # the last trial another subject's (its markers 20 % further apart): refused where the child fits it
+    centre = np.nanmean(trial.markers, axis=(0, 1))
+    write_c3d(tmp_path / "t9.c3d", replace(trial, markers=centre + 1.2 * (trial.markers - centre)))
+    out = tmp_path / "out"
+    out.mkdir()
+    capsys.readouterr()
+    assert main(["ik", *names, str(squats / "truth.urdf"), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"calibrate: error: {tmp_path / 't9.c3d'}: its markers on each "
+                                               "segment are 20 % nearer"), err
+    assert not any(out.iterdir())
+
+
+def test_ahead_split_halves_the_work():
+    """ahead_split: the cut that leaves the caller the first jobs, about half the work (the child the rest); none
+    for one job or less than AHEAD_LEAST in all."""
+    from calibrate.solve.ahead import AHEAD_LEAST, ahead_split, can_run_ahead
+
+    if not can_run_ahead():
+        pytest.skip("run_ahead does not fork here")
+    assert ahead_split([200, 200, 200, 200]) == 2
+    assert ahead_split([1000, 10, 10]) == 1 and ahead_split([10, 10, 1000]) == 2
+    assert ahead_split([300, 200, 100, 400]) == 2  # 500 / 500
+    assert ahead_split([5000]) == 1 and ahead_split([0.4 * AHEAD_LEAST, 0.4 * AHEAD_LEAST]) == 2
+
+
 def test_ik_holds_what_a_trials_markers_do_not_place(squats, tmp_path, capsys):
     """A trial without the left hand's only marker (LFIN) cannot place the hand: its wrist's coordinates are held at 0
     and a note names them (model.resolve, as the calibration locks them), and the rest is the true motion."""

@@ -22,14 +22,20 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import BinaryIO, TypeVar
+
+import numpy as np
 
 from .assembly import WORKER_NAME, WORKERS, worker_thread
 
 T = TypeVar("T")
 
-__all__ = ["can_run_ahead", "idle_core", "run_ahead"]
+__all__ = ["ahead_split", "can_run_ahead", "idle_core", "iter_after", "run_ahead"]
+
+#: Jobs of less work than this in all (frames, for `calibrate ik`'s trials) are not split: the fork and the
+#: second process's own kinematics would take what the other core saves.
+AHEAD_LEAST = 500.0
 
 
 def can_run_ahead() -> bool:
@@ -51,6 +57,29 @@ def idle_core() -> bool:
     except (OSError, ValueError, AttributeError):
         pass
     return True
+
+
+def ahead_split(work: Sequence[float], least: float = AHEAD_LEAST) -> int:
+    """Where to cut jobs of sizes `work` (in their order) so that the caller does the first part and a child run
+    ahead (run_ahead) the rest, the two about equal: the index of the first job run ahead, or len(work) where none
+    is (one job, less than `least` in all, or run_ahead cannot fork here)."""
+    n = len(work)
+    total = float(sum(work))
+    if n < 2 or total < least or not can_run_ahead():
+        return n
+    done = 0.0
+    best, gap = 1, np.inf
+    for k in range(1, n):  # the caller's part: jobs [0, k)
+        done += float(work[k - 1])
+        if abs(2.0 * done - total) < gap:
+            best, gap = k, abs(2.0 * done - total)
+    return best
+
+
+def iter_after(make: Callable[[], Sequence[T]]) -> Iterator[T]:
+    """The values `make()` returns, each yielded once all are made: run ahead (run_ahead), the child then does all
+    its work before it sends the first, which it cannot do before the caller reads it (a pipe holds 64 kB)."""
+    yield from make()
 
 
 def run_ahead(values: Iterator[T]) -> Iterator[T]:
