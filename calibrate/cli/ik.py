@@ -85,7 +85,7 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_ik(args: argparse.Namespace) -> int:
-    from ..calibration.records import Countdown
+    from ..calibration.records import Countdown, Progress
     from ..calibration.subject_ik import IK_COMPILE_FRAMES, TrialFit, fit_trial, trial_report
     from ..io.labels import load_marker_map, map_labels
     from ..io.motion import write_motion_csv
@@ -274,6 +274,10 @@ def cmd_ik(args: argparse.Namespace) -> int:
                     what = f"fitting the {trial.n_frames} frames of {path.name}"
                     got, seconds = fitted(k, Countdown(say, "ik", what))
             else:
+                if k == split:
+                    with progress_for(args.quiet, 1, Timed) as say:
+                        rest = ", ".join(p.name for p, *_ in jobs[split:])
+                        say(Progress("ik", f"{rest}: fitted on the other core meanwhile", long=True))
                 got, seconds = next(behind)
             own_lines = [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
             own_lines += [x.text(path.name, subject_path.name) + "; check the labelling" for x in got.relabelled]
