@@ -432,8 +432,17 @@ def test_ik_with_the_calibrations_report_gives_its_own_motion(squats, tmp_path, 
                  "-q"]) in (0, 1)
     out = tmp_path / "ik"
     out.mkdir()
+    # without --report: the subject names its report (its first comment) and the report is beside it, so a note
+    # says what --report would do; nothing is taken from it
+    capsys.readouterr()
+    assert main(["ik", str(squats / "trial.c3d"), str(cal_dir / "subject.urdf"), "-o", str(out)]) == 0
+    named = [x for x in capsys.readouterr().err.splitlines() if "names its calibration's report" in x]
+    assert named == [f"note: subject.urdf names its calibration's report, trial_report.json, beside it: --report "
+                     f"{cal_dir / 'trial_report.json'} holds what the calibration held and weighs the markers as it "
+                     "weighed them, as the calibration's own motion was fitted"]
     assert main(["ik", str(squats / "trial.c3d"), str(cal_dir / "subject.urdf"), "--report",
-                 str(cal_dir / "trial_report.json"), "-o", str(out), "-q"]) == 0
+                 str(cal_dir / "trial_report.json"), "-o", str(out), "--overwrite"]) == 0
+    assert "names its calibration's report" not in capsys.readouterr().err
     m, calibrated = read_motion_csv(out / "trial_motion.csv"), read_motion_csv(cal_dir / "trial_motion.csv")
     assert np.abs(m.angles - calibrated.angles).max() < 1e-3  # rad, every coordinate of every frame
     assert np.abs(m.root_translation - calibrated.root_translation).max() < 1e-5  # m

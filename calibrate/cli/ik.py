@@ -84,6 +84,18 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def _named_report(text: str, subject: Path) -> Path | None:
+    """The report a subject URDF's first comment names (calibration.report.provenance: "...; its report:
+    NAME.json."), where that file is beside the subject; else None."""
+    import re
+
+    found = re.search(r"its report: ([^<>\n]+?\.json)\.  ", text[:2000])
+    if found is None:
+        return None
+    path = subject.parent / Path(found.group(1)).name
+    return path if path.is_file() else None
+
+
 def cmd_ik(args: argparse.Namespace) -> int:
     from ..calibration.records import Countdown, Progress
     from ..calibration.subject_ik import IK_COMPILE_FRAMES, TrialFit, fit_trial, trial_report
@@ -210,6 +222,12 @@ def cmd_ik(args: argparse.Namespace) -> int:
         except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as e:
             raise CalibrateError(f"{args.report}: not readable as the report calibrate writes ({type(e).__name__}: "
                                  f"{e}); give the <trial>_report.json the calibration wrote, unedited") from None
+    elif not osim and (named_report := _named_report(model.text, subject_path)) is not None:
+        # the subject names its calibration's report (its first comment) and the report is beside it: said, not
+        # taken (an explicit --report is what holds and weighs), so the user sees why its motions may differ
+        setup_lines.append(f"{subject_path.name} names its calibration's report, {named_report.name}, beside it: "
+                           f"--report {named_report} holds what the calibration held and weighs the markers as it "
+                           "weighed them, as the calibration's own motion was fitted")
     if args.lock is not None:
         chosen = {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
         locked.update(chosen)
