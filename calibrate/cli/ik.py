@@ -35,8 +35,8 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
         description="Fit every frame of each TRIAL to SUBJECT, a subject calibrate wrote (subject.urdf or "
                     "subject.osim), held fixed: the joint angles of a subject's other trials, as OpenSim's IK "
                     "tool gives them with the scaled model.  Writes <trial>_motion.csv and "
-                    "<trial>_ik_report.json (the fit per marker, what was left out or read back) (and .mot and "
-                    "the marker errors, _ik_marker_errors.sto, for an .osim subject) beside each trial or in --out.  "
+                    "<trial>_ik_report.json (the fit per marker, what was left out or read back; for an .osim "
+                    "subject also .mot and the marker errors, _ik_marker_errors.sto) beside each trial or in --out.  "
                     "'calibrate ik --ik-setup XML' alone runs the setup as OpenSim's IK tool does.  Nothing is "
                     "written on an error.")
     p.add_argument("inputs", type=Path, nargs="*", metavar="TRIAL ... SUBJECT",
