@@ -280,7 +280,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         return got, time.perf_counter() - start
 
     # The later trials fitted in a forked child on the other core meanwhile (calibrate.solve.ahead: the same bits;
-    # Expert1's 24 trials 20.9 -> 11 s): the trials split where their frames are about halved, the child's all fitted
+    # Expert1's 24 trials 20.9 -> 14.9 s): the trials split where their frames are about halved, the child's all fitted
     # before the first is sent (a fit waiting on the pipe would hold the next one back).
     split = ahead_split([t.n_frames for _, t, _, _ in jobs])
     behind = run_ahead(iter_after(lambda: [fitted(k) for k in range(split, len(jobs))])) \
