@@ -11,8 +11,11 @@ left knee 19 deg for the rest of the walk (scripts/damage_values.py --ik).
 
 from __future__ import annotations
 
+import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -75,6 +78,54 @@ class TrialFit:
                 f"(by up to {np.degrees(x.worst):.0f} deg; the fit allows {np.degrees(LIMIT_MARGIN):.0f} past them, "
                 "as the calibration's does): a joint its markers do not resolve, or moved past the model's range "
                 f"(--lock {x.coordinate} holds it)" for x in self.beyond_limits]
+
+
+@dataclass(frozen=True)
+class ReportHolds:
+    """What a calibration's report JSON says `calibrate ik` should hold and weigh so that the subject's other trials
+    are fitted as its own motion was (report_holds)."""
+
+    locked: dict[str, float]  # coordinate -> rad: held in every trial (its locks; auto-locks but a static's alone)
+    static_locks: dict[str, float]  # a static-only calibration's auto-locks: held on its own trials alone
+    own: frozenset[tuple[str, int]]  # those trials (file name, frames), where static_locks is not empty
+    marker_map: dict[str, tuple[str, ...]]  # model label -> the trial labels its marker map renamed
+    weights: dict[str, float] | None  # marker -> weight, 1 / its learnt noise SD² (median 1); None: not learnt
+
+
+def report_holds(path: str | os.PathLike[str]) -> ReportHolds:
+    """The report JSON at `path` (what `calibrate` wrote as <trial>_report.json) read for `calibrate ik`: the
+    coordinates its calibration held (report.report_locks; after a static alone its auto-locks hold on that static
+    only: BTKData's FlatFoot walk fitted with its static's pronation locks held had its wrists 55 mm off, 17.35 mm
+    against 9.23), the labels its marker map renamed, and the markers' weights from its learnt noise.  A file that
+    is not such a report, or one edited so that it does not read: CalibrateError, one line."""
+    from .html import read_report
+    from .report import report_locks
+
+    report = read_report(Path(path))
+    if not isinstance(report, dict) or "settings" not in report:
+        raise CalibrateError(f"{path}: not a calibrate report (no 'settings'); give the <trial>_report.json the "
+                             "calibration wrote")
+    try:  # a report edited by hand or cut short: one line, not a Python error
+        elsewhere = report_locks(report, elsewhere=True)
+        static_locks = {k: v for k, v in report_locks(report).items() if k not in elsewhere}
+        own = frozenset((Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or []
+                        if t.get("source")) if static_locks else frozenset()
+        renamed: dict[str, list[str]] = {}
+        for t in report.get("trials") or []:
+            for m in t.get("labels") or []:
+                if m.get("how") == "map" and m["trial_label"] not in renamed.get(m["label"], []):
+                    renamed.setdefault(str(m["label"]), []).append(str(m["trial_label"]))
+        sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
+              if isinstance(v, (int, float)) and v > 0 and math.isfinite(v)}
+        weights = None
+        if sd:
+            w = {k: 1.0 / v**2 for k, v in sd.items()}
+            mid = float(np.median(list(w.values())))
+            weights = {k: v / mid for k, v in w.items()}
+    except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as e:
+        raise CalibrateError(f"{path}: not readable as the report calibrate writes ({type(e).__name__}: {e}); give the "
+                             "<trial>_report.json the calibration wrote, unedited") from None
+    return ReportHolds(elsewhere, static_locks, own, {k: tuple(v) for k, v in renamed.items()}, weights)
 
 
 #: `calibrate ik`'s trials together this many frames or more: the subject's per-frame code is compiled for them where

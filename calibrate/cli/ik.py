@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -191,37 +190,14 @@ def cmd_ik(args: argparse.Namespace) -> int:
     own: set[tuple[str, int]] = set()  # its trials (file name, frames)
     report_map: dict[str, list[str]] = {}  # the calibration's marker map, as its report lists what it renamed
     if args.report is not None:  # what the calibration held, as its motion holds it
-        from ..calibration.html import read_report
-        from ..calibration.report import report_locks
+        from ..calibration.subject_ik import report_holds
 
-        report = read_report(args.report)
-        if not isinstance(report, dict) or "settings" not in report:
-            raise CalibrateError(f"{args.report}: not a calibrate report (no 'settings'); give the "
-                                 "<trial>_report.json the calibration wrote")
-        try:  # a report edited by hand or cut short: one line, not a Python error
-            # After a static alone its auto-locks hold on that static only (report_locks' `elsewhere`; BTKData's
-            # FlatFoot walk fitted with its static's pronation locks held: the wrists 55 mm off, 17.35 mm against
-            # 9.23)
-            elsewhere = report_locks(report, elsewhere=True)
-            static_locks = {k: v for k, v in report_locks(report).items() if k not in elsewhere and k not in locked}
-            locked.update(elsewhere)
-            if static_locks:
-                own = {(Path(t["source"]).name, int(t["frames"])) for t in report.get("trials") or []
-                       if t.get("source")}
-            for t in report.get("trials") or []:
-                for m in t.get("labels") or []:
-                    if m.get("how") == "map" and m["trial_label"] not in report_map.get(m["label"], []):
-                        report_map.setdefault(str(m["label"]), []).append(str(m["trial_label"]))
-            if weights is None:  # the markers weighed as the calibration weighed them (1 / its learnt SD², median 1)
-                sd = {k: v for k, v in ((report.get("noise") or {}).get("weight_sd_mm") or {}).items()
-                      if isinstance(v, (int, float)) and v > 0 and math.isfinite(v)}
-                if sd:
-                    w = {k: 1.0 / v**2 for k, v in sd.items()}
-                    mid = float(np.median(list(w.values())))
-                    weights = {k: v / mid for k, v in w.items()}
-        except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as e:
-            raise CalibrateError(f"{args.report}: not readable as the report calibrate writes ({type(e).__name__}: "
-                                 f"{e}); give the <trial>_report.json the calibration wrote, unedited") from None
+        holds = report_holds(args.report)
+        static_locks = {k: v for k, v in holds.static_locks.items() if k not in locked}
+        locked.update(holds.locked)
+        own, report_map = set(holds.own), {k: list(v) for k, v in holds.marker_map.items()}
+        if weights is None:  # (an --ik-setup's weights win)
+            weights = holds.weights
     elif not osim and (named_report := _named_report(model.text, subject_path)) is not None:
         # the subject names its calibration's report (its first comment) and the report is beside it: said, not
         # taken (an explicit --report is what holds and weighs), so the user sees why its motions may differ
