@@ -457,6 +457,17 @@ def test_ik_with_the_calibrations_report_gives_its_own_motion(squats, tmp_path, 
     m = read_motion_csv(out / "trial_motion.csv")
     assert np.allclose(m.angles[:, m.dof_names.index(hinges[0])], np.radians(5.0), atol=1e-12)
     assert np.allclose(m.angles[:, m.dof_names.index(hinges[1])], np.radians(-2.0), atol=1e-12)
+    # the same from Python (subject_ik.report_holds): the locks in rad; weights only from a learnt noise, median 1
+    from calibrate.calibration.subject_ik import report_holds
+
+    holds = report_holds(report)
+    assert holds.locked == pytest.approx({hinges[0]: np.radians(5.0), hinges[1]: np.radians(-2.0)})
+    assert holds.weights is None and holds.static_locks == {} and holds.own == frozenset()
+    learnt = report_holds(cal_dir / "trial_report.json")
+    sd = json.loads((cal_dir / "trial_report.json").read_text())["noise"]["weight_sd_mm"]
+    assert set(learnt.weights) == set(sd) and np.median(list(learnt.weights.values())) == pytest.approx(1.0)
+    a, b = sorted(sd, key=sd.get)[:2]
+    assert learnt.weights[a] / learnt.weights[b] == pytest.approx((sd[b] / sd[a]) ** 2)
     code = main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "--report",
                  str(squats / "truth_motion.csv"), "-o", str(out), "--overwrite", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
