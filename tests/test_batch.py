@@ -71,6 +71,14 @@ def test_batch_on_a_local_cluster_isolates_a_broken_subject_and_resumes(lab):
     mtime = (out / "S1" / "report.json").stat().st_mtime_ns
     again = run_batch(read_manifest(lab / "lab.toml"), out, workers=2)
     assert [r["status"] for r in again] == ["skipped", "skipped", "failed"]
+    # ... their figures read back from their reports: the resumed batch's summary keeps them
+    for first, later in zip(rows[:2], again[:2], strict=True):
+        assert later["marker_rms_mm"] == pytest.approx(first["marker_rms_mm"], abs=1e-5)
+        assert [later[k] for k in ("iterations", "converged", "warnings", "implausible")] == \
+            [first[k] for k in ("iterations", "converged", "warnings", "implausible")]
+    with open(out / "summary.csv") as f:
+        kept = list(csv.DictReader(f))
+    assert [r["marker_rms_mm"] for r in kept[:2]] == [r["marker_rms_mm"] for r in table[:2]]
     assert (out / "S1" / "report.json").stat().st_mtime_ns == mtime
     # --overwrite (the command line): calibrated again.
     run = subprocess.run([sys.executable, "-m", "calibrate.cli", "batch", str(lab / "lab.toml"), "--out", str(out),

@@ -46,6 +46,7 @@ import csv
 import functools
 import html
 import io
+import json
 import math
 import os
 import re
@@ -317,6 +318,22 @@ def subject_outputs(cal, folder: Path, trials: Sequence[Path], overwrite: bool, 
                      html=folder / "report.html", overwrite=overwrite, **extra)
 
 
+def report_row(report: dict) -> dict:
+    """A subject's summary figures from its report JSON (calibration.report.calibration_report): marker RMS (mm),
+    iterations, convergence, its warnings — what to look at: notes, parameters carried beyond their priors
+    (unreliable), labels to check, label exchanges, non-convergence; not the parameters a trial leaves to the priors,
+    as many for every subject of one protocol (24-50 on the real recordings), which hid the few that differ — and
+    its implausible results (the summary's implausible lines, named, so a lab sorts its subjects by what to look at
+    first)."""
+    converged = bool(report["solver"]["converged"])
+    warnings = (len(report["notes"]) + len(report["unreliable"]) + len(report["suspect_labels"])
+                + len(report["jittery_markers"]) + len(report["exchanged_back"]) + len(report["trials_apart"])
+                + len(report["exchanged_labels"]) + len(report["relabelled"]) + (0 if converged else 1))
+    return {"marker_rms_mm": float(report["markers"]["rms_mm"]), "iterations": int(report["solver"]["iterations"]),
+            "converged": converged, "warnings": warnings,
+            "implausible": list(report.get("implausible_flags") or [])}
+
+
 def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: bool = False,
                       c3d: bool = False, mjcf: bool = False) -> dict:
     """Calibrate one subject into out/<id>/ (a task on a worker): its summary row (`c3d`: each trial also as
@@ -325,8 +342,14 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
     folder = Path(out) / subject.id
     row = {"subject": subject.id, "status": "", "marker_rms_mm": math.nan, "iterations": 0, "converged": False,
            "seconds": 0.0, "warnings": 0, "implausible": [], "error": "", "folder": subject.id}
-    if (folder / REPORT).exists() and not overwrite:
-        return {**row, "status": "skipped"}
+    if (folder / REPORT).exists() and not overwrite:  # done before: its figures from its report (a resumed
+        # batch's summary keeps them)
+        try:
+            report = json.loads((folder / REPORT).read_text(encoding="utf-8"))
+            done = {**report_row(report), "seconds": float(sum((report.get("times_s") or {}).values()))}
+        except (OSError, ValueError, TypeError, KeyError, AttributeError):
+            done = {}  # a report that does not read: skipped all the same, its figures blank
+        return {**row, **done, "status": "skipped"}
     t0 = time.perf_counter()
     try:
         setups = None
@@ -341,7 +364,6 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         from ..io.read import read_trial
         from ..problem.settings import Settings
         from .pipeline import calibrate
-        from .report import implausible_flags
 
         setup = None
         if subject.scale_setup is not None:  # the lab's Scale setup: the subject's mass and its marker set
@@ -378,18 +400,9 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         folder.mkdir(parents=True, exist_ok=True)
         subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim",
                         c3d=c3d, mjcf=mjcf, setups=setups, at_setups=subject.setup_names, replace_named=overwrite)
-        # What to look at in this subject: notes, parameters carried beyond their priors (unreliable), labels to
-        # check, non-convergence.  Not the parameters a trial leaves to the priors: as many for every subject of one
-        # protocol (24-50 on the real recordings), they hid the few that differ.
-        warnings = (len(cal.notes) + sum(c.unreliable for c in cal.changes) + len(cal.misplaced) + len(cal.jittery)
-                    + len(cal.exchanged_back) + len(cal.trials_apart) + len(cal.exchanged) + len(cal.relabelled)
-                    + (0 if cal.converged else 1))
-        # What anatomy or the subject's measurements contradict (the summary's implausible lines): named, not
-        # counted, so a lab sorts its subjects by what to look at first
-        flagged = implausible_flags(cal)
-        return {**row, "status": "ok" if cal.converged else "not converged", "marker_rms_mm": 1000 * cal.marker_rms,
-                "iterations": cal.summary.iterations, "converged": bool(cal.converged),
-                "seconds": time.perf_counter() - t0, "warnings": warnings, "implausible": flagged}
+        done = report_row(json.loads((folder / REPORT).read_text(encoding="utf-8")))  # as written
+        return {**row, **done, "status": "ok" if cal.converged else "not converged",
+                "seconds": time.perf_counter() - t0}
     except Exception as e:  # noqa: BLE001 - one subject's failure, whatever it is, is reported, not raised
         line = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         return {**row, "status": "failed", "seconds": time.perf_counter() - t0, "error": line}
