@@ -496,6 +496,22 @@ def test_rerun_recording_read_back(run, tmp_path):
     assert main(["view", str(run["report"]), "--rrd", str(out)]) == 2  # exists: refused
 
 
+def test_countdown_times_what_is_left_from_the_first_share_told(monkeypatch):
+    """Countdown's time left runs at the rate since the first share was told, not since it was made (the step's
+    set-up before its first frame: `calibrate ik` said "about 16 s left" of a 2 s trial); nothing in its first
+    second, nothing at 0 or 1."""
+    from calibrate.calibration import records
+
+    clock = iter([0.0, 0.9, 1.1, 1.5, 2.5])  # made; the first share; then shares told
+    monkeypatch.setattr(records.time, "perf_counter", lambda: next(clock))
+    said = []
+    count = records.Countdown(said.append, "ik", "fitting", every=0.1)
+    count(0.05)  # at 0.9 s: the first share, within the first second
+    count(0.25)  # at 1.1 s: 0.2 of the work in 0.2 s, 0.75 left
+    count(1.0)  # at 1.5 s: done, nothing said
+    assert [str(m) for m in said] == ["ik: fitting 25 % (about 1 s left)"]
+
+
 def test_progress_bars_on_a_terminal_plain_lines_otherwise():
     from calibrate.cli.commands import Timed
     from calibrate.cli.report import Bars, progress_for
