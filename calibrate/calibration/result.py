@@ -17,7 +17,7 @@ from ..io.trial import Trial
 from ..model.model import Model, Parameters
 from ..problem.priors import symmetry_pairs
 from ..problem.settings import Settings
-from ..seed.geometry import marker_max, marker_rms
+from ..seed.geometry import marker_max, marker_rms, per_marker
 from ..solve.lm import SolverSummary
 from .records import CoordinateNote, JointCentreMarker, ParameterChange
 from .report import calibration_report, summary_text, write_outputs
@@ -414,11 +414,7 @@ class Calibration:
 
     def per_marker(self) -> dict[str, tuple[float, float, int]]:
         """Marker name -> (RMS m, max m, frames seen)."""
-        seen = np.isfinite(self.residuals[..., 0]).sum(axis=0)
-        rms = marker_rms(self.residuals, axis=0)
-        worst = np.nanmax(np.where(seen[None] > 0, np.linalg.norm(self.residuals, axis=2), 0.0), axis=0)
-        return {name: (float(rms[k]), float(worst[k]), int(seen[k]))
-                for k, name in enumerate(self.model.marker_names) if seen[k]}
+        return per_marker(self.residuals, self.model.marker_names)
 
     def report(self) -> dict:
         """The report as plain JSON-ready data (mm, degrees, seconds at the edges)."""

@@ -201,17 +201,14 @@ def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, f
     named otherwise than the subject) and the notes printed.  What a lab's batch of trials is checked by without
     reading stderr."""
     from .. import __version__
-    from ..seed.geometry import marker_rms
+    from ..seed.geometry import per_marker
     from ..software import software_versions
 
     fit = got.fit
     err = np.linalg.norm(fit.residuals, axis=2)
-    seen = np.isfinite(err).sum(axis=0)
-    rms = marker_rms(fit.residuals, axis=0)
-    worst = np.nanmax(np.where(seen[None] > 0, err, 0.0), axis=0)
     mm = lambda x: round(1e3 * float(x), 6)  # noqa: E731
-    per = {n: {"rms_mm": mm(rms[k]), "max_mm": mm(worst[k]), "frames": int(seen[k])}
-           for k, n in enumerate(model.marker_names) if seen[k]}
+    per = {n: {"rms_mm": mm(r), "max_mm": mm(w), "frames": f}
+           for n, (r, w, f) in per_marker(fit.residuals, model.marker_names).items()}
     shown = np.isfinite(fit.marker_rms)
     return {
         "calibrate_version": __version__,

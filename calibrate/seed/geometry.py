@@ -18,6 +18,7 @@ treats NaN as a gap: a sample that is NaN is left out of that frame's fit.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -242,6 +243,15 @@ def marker_rms(residuals: np.ndarray, axis: int | None = None) -> float | np.nda
         warnings.simplefilter("ignore", RuntimeWarning)
         rms = np.sqrt(np.nanmean(np.sum(residuals**2, axis=-1), axis=axis))
     return float(rms) if axis is None else rms
+
+
+def per_marker(residuals: np.ndarray, names: Sequence[str]) -> dict[str, tuple[float, float, int]]:
+    """Each seen marker of residuals (F, M, 3) (m; NaN where not seen), named by `names` -> (its RMS 3-D error m,
+    its largest m, the frames it is seen in): a calibration's and a `calibrate ik` fit's per-marker table."""
+    seen = np.isfinite(residuals[..., 0]).sum(axis=0)
+    rms = marker_rms(residuals, axis=0)
+    worst = np.nanmax(np.where(seen[None] > 0, np.linalg.norm(residuals, axis=2), 0.0), axis=0)
+    return {name: (float(rms[k]), float(worst[k]), int(seen[k])) for k, name in enumerate(names) if seen[k]}
 
 
 def marker_max(residuals: np.ndarray) -> float:
