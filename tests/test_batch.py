@@ -96,7 +96,12 @@ def test_csv_manifest_and_bad_manifests(tmp_path):
            "y.toml": "[[subject]]\nid = \"A\"\ntrials = [\"a.c3d\"]\nmodel = \"m.urdf\"\n[[subject]]\nid = \"A\"\n"
                      "trials = [\"b.c3d\"]\nmodel = \"m.urdf\"\n",  # the same id twice
            "z.csv": "name,trials\nA,a.c3d\n",  # no subject/model columns
-           "w.txt": "anything"}
+           "w.txt": "anything",
+           # an ik trial that is a calibration trial too, two of one name, one that is not a file name
+           "v.toml": "[[subject]]\nid = \"A\"\ntrials = [\"a.c3d\"]\nmodel = \"m.urdf\"\nik_trials = [\"a.c3d\"]\n",
+           "u.toml": "[[subject]]\nid = \"A\"\ntrials = [\"a.c3d\"]\nmodel = \"m.urdf\"\n"
+                     "ik_trials = [\"S1/w.c3d\", \"S2/w.trc\"]\n",
+           "t.toml": "[[subject]]\nid = \"A\"\ntrials = [\"a.c3d\"]\nmodel = \"m.urdf\"\nik_trials = [3]\n"}
     for name, text in bad.items():
         (tmp_path / name).write_text(text)
         with pytest.raises(CalibrateError) as e:
@@ -106,6 +111,59 @@ def test_csv_manifest_and_bad_manifests(tmp_path):
                           str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "trials" in run.stderr and not (tmp_path / "o").exists()
     assert np.isfinite(s.mass)
+    (tmp_path / "i.csv").write_text(f"subject,trials,model,ik_trials\nA,a.c3d,{HUMAN},w1.c3d;w2.trc\n")
+    assert [t.name for t in read_manifest(tmp_path / "i.csv")[0].ik_trials] == ["w1.c3d", "w2.trc"]
+
+
+def test_a_subjects_ik_trials_are_fitted_to_it_as_calibrate_ik_fits_them(tmp_path):
+    """A manifest's ik_trials: each fitted to the subject the batch calibrated, held fixed, to the byte as `calibrate
+    ik TRIAL subject.urdf --report report.json` fits it, near the simulator's true walk; the summary counts them and
+    takes their worst marker RMS from their reports; a broken one is its own line in the error column (the others
+    written, exit 1); resumed, the done ones are kept and the one mended is fitted."""
+    from calibrate.io.motion import read_motion_csv
+    from calibrate.simulation.simulate import simulate_gait
+
+    model = load_model(HUMAN)
+    write_simulation(simulate_squats(model, frames=80, noise_mm=1.0, seed=10), tmp_path / "S1")
+    write_simulation(simulate_gait(model, frames=60, noise_mm=1.0, seed=10), tmp_path / "walk")  # the same subject
+    (tmp_path / "S1" / "walk.c3d").write_bytes((tmp_path / "walk" / "trial.c3d").read_bytes())
+    (tmp_path / "S1" / "late.c3d").write_bytes(b"not a c3d file")
+    (tmp_path / "lab.toml").write_text(f'[[subject]]\nid = "S1"\ntrials = ["S1/trial.c3d"]\nmodel = "{HUMAN}"\n'
+                                       'ik_trials = ["S1/walk.c3d", "S1/late.c3d"]\n')
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, "-m", "calibrate.cli", "batch", str(tmp_path / "lab.toml"), "--out",
+                          str(out)], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 1, run.stderr  # the calibration is done, one ik trial failed
+    assert "1 ik trials, worst marker RMS" in run.stderr and "late.c3d: not a readable C3D file" in run.stderr
+    with open(out / "summary.csv") as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["status"] in ("ok", "not converged") and row["ik_trials"] == "1"
+    assert row["error"].startswith(str(tmp_path / "S1" / "late.c3d")) and "not a readable C3D" in row["error"]
+    folder = out / "S1"
+    rep = json.loads((folder / "walk_ik_report.json").read_text())
+    assert float(row["ik_marker_rms_mm"]) == pytest.approx(rep["markers"]["rms_mm"], abs=1e-3)
+    assert rep["outputs"] == [str(folder / "walk_motion.csv"), str(folder / "walk_ik_report.json")]
+    assert not (folder / "late_motion.csv").exists() and not (folder / "late_ik_report.json").exists()
+    ik = tmp_path / "ik"
+    ik.mkdir()
+    cli = subprocess.run([sys.executable, "-m", "calibrate.cli", "ik", str(tmp_path / "S1" / "walk.c3d"),
+                          str(folder / "subject.urdf"), "--report", str(folder / "report.json"), "-o", str(ik), "-q"],
+                         capture_output=True, text=True, timeout=300)
+    assert cli.returncode == 0, cli.stderr
+    assert (ik / "walk_motion.csv").read_bytes() == (folder / "walk_motion.csv").read_bytes()
+    got, truth = read_motion_csv(folder / "walk_motion.csv"), read_motion_csv(tmp_path / "walk" / "truth_motion.csv")
+    for dof in ("knee_l", "knee_r", "hip_l_flexion", "hip_r_flexion"):
+        k = got.dof_names.index(dof)
+        assert np.degrees(np.sqrt(np.mean((got.angles[:, k] - truth.angles[:, k]) ** 2))) < 3.0, dof
+    # Resumed once late.c3d is mended: the subject and walk.c3d kept as they were, late.c3d fitted.
+    (tmp_path / "S1" / "late.c3d").write_bytes((tmp_path / "walk" / "trial.c3d").read_bytes())
+    kept = {p: (folder / p).stat().st_mtime_ns for p in ("report.json", "walk_motion.csv", "walk_ik_report.json")}
+    (again,) = run_batch(read_manifest(tmp_path / "lab.toml"), out, workers=2)
+    assert again["status"] == "skipped" and again["ik_trials"] == 2 and again["error"] == ""
+    assert {p: (folder / p).stat().st_mtime_ns for p in kept} == kept
+    assert (folder / "late_motion.csv").read_bytes() == (folder / "walk_motion.csv").read_bytes()
+    assert again["ik_marker_rms_mm"] == pytest.approx(rep["markers"]["rms_mm"], abs=1e-6)
+    assert "<th>ik trials (marker RMS)</th>" in (out / "index.html").read_text()
 
 
 def test_a_manifest_asks_for_the_hips_by_regression(tmp_path):

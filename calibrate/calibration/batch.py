@@ -28,6 +28,9 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     # trials and model may be left out where scale_setup is given: those the setups name, setup_names then true
     hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
     config = "S01/settings.toml"                  # optional: the subject's settings file (calibrate --config)
+    ik_trials = ["S01/walk2.c3d", "S01/run1.c3d"] # optional: more trials fitted to the calibrated subject held
+                                                  #     fixed, as calibrate ik --report does (<trial>_motion.csv,
+                                                  #     <trial>_ik_report.json; .mot and .sto for an .osim model)
 
     config = "lab_settings.toml"      # TOML, before the first [[subject]]: the settings file of every subject
                                       # that names none
@@ -35,7 +38,8 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     subject,trials,model,markers,mass # CSV: trials (and IK setups) separated by ';', markers and mass may be
                                       # empty; optional
     S01,S01/static.c3d;S01/walk.c3d,models/human.urdf,,68   # columns marker_set, ik_setup, scale_setup,
-                                                            # whole_trials, setup_names, hip_regression, config
+                                                            # whole_trials, setup_names, hip_regression, config,
+                                                            # ik_trials
 
 An OpenSim base model's subject is also written as subject.osim, its motions as <trial>_motion.mot.
 """
@@ -65,7 +69,8 @@ else:  # pragma: no cover
 
 REPORT = "report.json"  # each subject's report: written last of its outputs, with them; marks it done
 SUMMARY_COLUMNS = ("subject", "status", "marker_rms_mm", "iterations", "converged", "seconds", "warnings",
-                   "implausible", "error", "folder")
+                   "implausible", "ik_trials", "ik_marker_rms_mm", "error", "folder")
+IK_REPORT = "_ik_report.json"  # <trial>_ik_report.json: an ik trial's report, written last; it marks the trial done
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 OPENSIM_FILES = ("marker_set", "ik_setup", "scale_setup")  # a subject's OpenSim files (an .osim model only)
 
@@ -89,6 +94,8 @@ class Subject:
     # (--hip-regression-auto; Settings.hip_regression); None: the settings file's (off without one)
     hip_regression: bool | str | None = None
     config: Path | None = None  # the subject's settings file (calibrate --config; io.config.load_settings)
+    # more trials fitted to the calibrated subject held fixed (calibrate ik --report: calibration.ik_trials)
+    ik_trials: tuple[Path, ...] = ()
 
 
 def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: bool = False) -> bool | str:
@@ -166,7 +173,9 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
                     if (r.get("setup_names") or "").strip() else {}),
                  **({"hip_regression": _flag(r["hip_regression"], path, r["subject"], "hip_regression", auto=True)}
                     if (r.get("hip_regression") or "").strip() else {}),
-                 **({"config": r["config"]} if (r.get("config") or "").strip() else {})} for r in reader]
+                 **({"config": r["config"]} if (r.get("config") or "").strip() else {}),
+                 **({"ik_trials": [t for t in r["ik_trials"].split(";") if t.strip()]}
+                    if (r.get("ik_trials") or "").strip() else {})} for r in reader]
         top = None
     else:
         raise CalibrateError(f"{path}: a manifest is a .toml or .csv file, not {path.suffix or 'one without suffix'}")
@@ -241,10 +250,25 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
                 loaded[settings] = str(e)
         if settings is not None and loaded[settings]:
             raise CalibrateError(f"{where} ({sid}): {loaded[settings]}")
+        more = row.get("ik_trials") or []
+        more = [more] if isinstance(more, str) else more
+        if not isinstance(more, list) or not all(isinstance(t, str) and t.strip() for t in more):
+            raise CalibrateError(f"{where} ({sid}): 'ik_trials' must list trial files (fitted to the calibrated "
+                                 f"subject), got {row.get('ik_trials')!r}")
+        stems = {Path(t.strip()).stem: t.strip() for t in trials}  # each trial's outputs are named by its stem
+        for t in more:
+            stem = Path(t.strip()).stem
+            if stem in stems:
+                what = ("is a calibration trial too (its motion is the calibration's)" if t.strip() == stems[stem]
+                        else f"and {stems[stem]} have one name ({stem}_motion.csv)")
+                raise CalibrateError(f"{where} ({sid}): ik_trials' {t.strip()} {what}; list each trial once, under "
+                                     "a name of its own")
+            stems[stem] = t.strip()
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
                                 None if mass is None else float(mass), **opensim, whole_trials=whole,
-                                setup_names=named, hip_regression=hips, config=settings))
+                                setup_names=named, hip_regression=hips, config=settings,
+                                ik_trials=tuple(base / t.strip() for t in more)))
     return subjects
 
 
@@ -334,22 +358,96 @@ def report_row(report: dict) -> dict:
             "implausible": list(report.get("implausible_flags") or [])}
 
 
+def blank_row(sid: str) -> dict:
+    """A subject's summary row before anything is known of it."""
+    return {"subject": sid, "status": "", "marker_rms_mm": math.nan, "iterations": 0, "converged": False,
+            "seconds": 0.0, "warnings": 0, "implausible": [], "ik_trials": 0, "ik_marker_rms_mm": math.nan,
+            "error": "", "folder": sid}
+
+
+def _line(e: BaseException) -> str:
+    """An exception's first line (its type where it says nothing)."""
+    return str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+
+
+def _with_ik(row: dict, ik: dict) -> dict:
+    """A subject's row with its ik trials' figures, their errors after its own."""
+    errors = [row["error"], *ik["errors"]] if row["error"] else ik["errors"]
+    return {**row, "ik_trials": ik["fitted"], "ik_marker_rms_mm": ik["worst_mm"], "error": " | ".join(errors)}
+
+
+def subject_model_file(subject: Subject, folder: Path) -> Path:
+    """The calibrated subject a batch wrote for `subject` into `folder`: subject.urdf, or for an OpenSim base model
+    its subject.osim (where its setups name it with setup_names)."""
+    if subject.model.suffix.lower() != ".osim":
+        return folder / "subject.urdf"
+    setups = None
+    if subject.scale_setup is not None or subject.ik_setup:
+        from ..io.osim_setup import setup_outputs
+
+        setups = setup_outputs(subject.scale_setup, subject.ik_setup)
+    return _opensim_outputs(folder, subject.trials, setups, subject.setup_names)["osim"]
+
+
+def fit_ik_trials(subject: Subject, folder: Path, refit: bool = False, c3d: bool = False, mjcf: bool = False) -> dict:
+    """Fit `subject`'s ik_trials to the subject calibrated into `folder`, held fixed, as ``calibrate ik TRIALS SUBJECT
+    --report report.json [--markers MAP]`` fits them (calibration.ik_trials; the same bytes): <trial>_motion.csv and,
+    last, <trial>_ik_report.json each (an OpenSim subject's <trial>_motion.mot and <trial>_ik_marker_errors.sto;
+    `c3d`, `mjcf` as the calibration's trials).  A trial whose ik report exists is done and read back, unless
+    `refit` (the subject was calibrated again).  Never raises: each trial's failure is one line, the others go on.
+    Returns {"fitted": trials done, "worst_mm": the largest of their marker RMS (NaN: none), "errors": lines}."""
+    from .ik_trials import IKFiles, fit_planned, plan_trials, write_fitted
+
+    out = {"fitted": 0, "worst_mm": math.nan, "errors": []}
+    if not subject.ik_trials:
+        return out
+    rms: list[float] = []
+    model = None
+    for path in subject.ik_trials:
+        report = folder / f"{path.stem}{IK_REPORT}"
+        try:
+            if report.exists() and not refit:
+                rms.append(float(json.loads(report.read_text(encoding="utf-8"))["markers"]["rms_mm"]))
+                out["fitted"] += 1
+                continue
+            if model is None:
+                from ..model.model import load_model
+
+                model = load_model(subject_model_file(subject, folder))
+            plan = plan_trials(model, [path], report=folder / REPORT, markers=subject.markers)
+            one = fit_planned(plan, ahead=False)[0]  # (the batch's workers keep the cores busy)
+            osim = plan.osim
+            write_fitted(plan, one, IKFiles(
+                folder / f"{path.stem}_motion.csv", report,
+                folder / f"{path.stem}_motion.mot" if osim else None,
+                folder / f"{path.stem}_ik_marker_errors.sto" if osim else None, None,
+                folder / f"{path.stem}_calibrated.c3d" if c3d else None,
+                folder / f"{path.stem}_motion_qpos.csv" if mjcf else None))
+            rms.append(float(one.report["markers"]["rms_mm"]))
+            out["fitted"] += 1
+        except Exception as e:  # noqa: BLE001 - one trial's failure is reported, the others go on
+            line = _line(e)
+            out["errors"].append(line if path.name in line else f"{path.name}: {line}")
+    if rms:
+        out["worst_mm"] = max(rms)
+    return out
+
+
 def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: bool = False,
                       c3d: bool = False, mjcf: bool = False) -> dict:
     """Calibrate one subject into out/<id>/ (a task on a worker): its summary row (`c3d`: each trial also as
     <trial>_calibrated.c3d; `mjcf`: the subject and its motions for MuJoCo).  Never raises: a failure is the row's
     status 'failed' with the error's one line."""
     folder = Path(out) / subject.id
-    row = {"subject": subject.id, "status": "", "marker_rms_mm": math.nan, "iterations": 0, "converged": False,
-           "seconds": 0.0, "warnings": 0, "implausible": [], "error": "", "folder": subject.id}
+    row = blank_row(subject.id)
     if (folder / REPORT).exists() and not overwrite:  # done before: its figures from its report (a resumed
-        # batch's summary keeps them)
+        # batch's summary keeps them); its ik trials not fitted yet fitted now
         try:
             report = json.loads((folder / REPORT).read_text(encoding="utf-8"))
             done = {**report_row(report), "seconds": float(sum((report.get("times_s") or {}).values()))}
         except (OSError, ValueError, TypeError, KeyError, AttributeError):
             done = {}  # a report that does not read: skipped all the same, its figures blank
-        return {**row, **done, "status": "skipped"}
+        return _with_ik({**row, **done, "status": "skipped"}, fit_ik_trials(subject, folder, c3d=c3d, mjcf=mjcf))
     t0 = time.perf_counter()
     try:
         setups = None
@@ -401,11 +499,12 @@ def calibrate_subject(subject: Subject, out: str | os.PathLike[str], overwrite: 
         subject_outputs(cal, folder, subject.trials, overwrite=True, opensim=subject.model.suffix.lower() == ".osim",
                         c3d=c3d, mjcf=mjcf, setups=setups, at_setups=subject.setup_names, replace_named=overwrite)
         done = report_row(json.loads((folder / REPORT).read_text(encoding="utf-8")))  # as written
-        return {**row, **done, "status": "ok" if cal.converged else "not converged",
-                "seconds": time.perf_counter() - t0}
+        row = {**row, **done, "status": "ok" if cal.converged else "not converged",
+               "seconds": time.perf_counter() - t0}
     except Exception as e:  # noqa: BLE001 - one subject's failure, whatever it is, is reported, not raised
-        line = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        return {**row, "status": "failed", "seconds": time.perf_counter() - t0, "error": line}
+        return {**row, "status": "failed", "seconds": time.perf_counter() - t0, "error": _line(e)}
+    # its ik trials fitted again, whatever they were fitted to before (the subject is new)
+    return _with_ik(row, fit_ik_trials(subject, folder, refit=True, c3d=c3d, mjcf=mjcf))
 
 
 def run_batch(subjects: Sequence[Subject], out: str | os.PathLike[str], workers: int = 2,
@@ -434,10 +533,7 @@ def run_batch(subjects: Sequence[Subject], out: str | os.PathLike[str], workers:
             try:
                 row = fut.result()
             except Exception as e:  # noqa: BLE001 - a worker lost: the subject is reported, the others go on
-                row = {"subject": sid, "status": "failed", "marker_rms_mm": math.nan, "iterations": 0,
-                       "converged": False, "seconds": 0.0, "warnings": 0, "implausible": [],
-                       "error": f"worker failed: {e}",
-                       "folder": sid}
+                row = {**blank_row(sid), "status": "failed", "error": f"worker failed: {e}"}
             rows[sid] = row
             if progress is not None:
                 progress(row, k, len(subjects))
@@ -477,11 +573,14 @@ def index_html(rows: Sequence[dict], out: Path) -> str:
         if (out / r["folder"] / REPORT).exists():
             links.append(f'<a href="{sid}/{REPORT}">JSON</a>')
         rms = "" if not math.isfinite(r["marker_rms_mm"]) else f"{r['marker_rms_mm']:.2f}"
+        ik = "" if not r["ik_trials"] else (f"{r['ik_trials']}" + (f" (worst {r['ik_marker_rms_mm']:.2f} mm)"
+                                                                   if math.isfinite(r["ik_marker_rms_mm"]) else ""))
         cls = {"failed": "bad", "not converged": "bad"}.get(r["status"], "")
         body.append(f'<tr><td>{sid}</td><td class="{cls}">{html.escape(r["status"])}</td><td class="n">{rms}</td>'
                     f'<td class="n">{r["iterations"] or ""}</td><td class="n">{r["seconds"]:.1f}</td>'
                     f'<td class="n">{r["warnings"] or ""}</td>'
                     f'<td class="bad">{"<br>".join(html.escape(x) for x in r["implausible"])}</td>'
+                    f'<td class="n">{ik}</td>'
                     f'<td>{" ".join(links)}</td>'
                     f'<td>{html.escape(r["error"])}</td></tr>')
     return ("<!doctype html><html><head><meta charset='utf-8'><title>calibrate batch</title><style>"
@@ -490,5 +589,6 @@ def index_html(rows: Sequence[dict], out: Path) -> str:
             ".bad{color:#b00020}</style></head><body><h1>calibrate batch</h1>"
             f"<p>{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + "</p>"
             "<table><tr><th>subject</th><th>status</th><th>marker RMS (mm)</th><th>iterations</th>"
-            "<th>time (s)</th><th>warnings</th><th>implausible</th><th>outputs</th><th>error</th></tr>"
+            "<th>time (s)</th><th>warnings</th><th>implausible</th><th>ik trials (marker RMS)</th><th>outputs</th>"
+            "<th>error</th></tr>"
             + "".join(body) + "</table></body></html>\n")

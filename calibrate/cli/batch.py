@@ -17,9 +17,10 @@ def add_batch_parser(sub) -> None:
     """The 'batch' command's parser."""
     bp = sub.add_parser("batch", help="calibrate a manifest of subjects in parallel on Dask",
                         description="Calibrate every subject of MANIFEST (TOML or CSV: id, trials, base model, "
-                                    "marker map, mass, settings file; docs/batch.md) on a Dask cluster: one folder of "
-                                    "outputs per subject in --out (subject.urdf, motion CSVs, report.json, "
-                                    "report.html), summary.csv and index.html across them.  Subjects already done are "
+                                    "marker map, mass, settings file, ik trials; docs/batch.md) on a Dask cluster: one "
+                                    "folder of outputs per subject in --out (subject.urdf, motion CSVs, report.json, "
+                                    "report.html; each ik trial fitted to the calibrated subject as calibrate ik "
+                                    "does), summary.csv and index.html across them.  Subjects already done are "
                                     "skipped unless --overwrite; a failing subject is reported and the others go on.")
     bp.add_argument("manifest", type=Path, metavar="MANIFEST", help="the subjects (.toml or .csv)")
     bp.add_argument("--out", type=Path, required=True, metavar="DIR", help="the folder of the outputs")
@@ -53,6 +54,10 @@ def cmd_batch(args: argparse.Namespace) -> int:
             "already done" if row["status"] == "skipped" else
             f"marker RMS {row['marker_rms_mm']:.2f} mm, {row['iterations']} iterations, {row['seconds']:.1f} s"
             + (f"; {len(row['implausible'])} implausible (summary.csv)" if row.get("implausible") else ""))
+        if row.get("ik_trials"):
+            what += (f"; {row['ik_trials']} ik trials, worst marker RMS {row['ik_marker_rms_mm']:.2f} mm")
+        if row["status"] != "failed" and row["error"]:  # an ik trial that failed
+            what += f"; {row['error']}"
         print(f"  [{done}/{total}] {row['subject']}: {row['status']} ({what})", file=sys.stderr, flush=True)
 
     rows = run_batch(subjects, args.out, workers=args.workers, scheduler=args.scheduler, overwrite=args.overwrite,
@@ -60,4 +65,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "not converged", "failed", "skipped")}
     print(f"{len(rows)} subjects: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n))
     print(f"wrote {args.out / 'summary.csv'}\n      {args.out / 'index.html'}")
-    return 1 if counts["failed"] or counts["not converged"] else 0
+    ik_failed = sum(bool(r["error"]) and r["status"] != "failed" for r in rows)
+    if ik_failed:
+        print(f"{ik_failed} subjects with ik trials that failed (summary.csv's error)")
+    return 1 if counts["failed"] or counts["not converged"] or ik_failed else 0

@@ -16,7 +16,6 @@ them: the model_file they name (one for all), each one's marker_file and output 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -83,29 +82,10 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _named_report(text: str, subject: Path) -> Path | None:
-    """The report a subject URDF's first comment names (calibration.report.provenance: "...; its report:
-    NAME.json."), where that file is beside the subject; else None."""
-    import re
-
-    found = re.search(r"its report: ([^<>\n]+?\.json)\.  ", text[:2000])
-    if found is None:
-        return None
-    path = subject.parent / Path(found.group(1)).name
-    return path if path.is_file() else None
-
-
 def cmd_ik(args: argparse.Namespace) -> int:
-    from ..calibration.records import Countdown, Progress
-    from ..calibration.subject_ik import IK_COMPILE_FRAMES, TrialFit, fit_trial, trial_report
-    from ..io.labels import load_marker_map, map_labels
-    from ..io.motion import write_motion_csv
+    from ..calibration.ik_trials import IKFiles, fit_planned, plan_trials, worst_markers, write_fitted
+    from ..io.c3d import C3D_MAX_FRAMES
     from ..io.outputs import check_targets
-    from ..io.read import read_trial
-    from ..io.text import atomic_write_text
-    from ..model.model import load_model
-    from ..problem.settings import Settings
-    from ..solve.ahead import ahead_split, iter_after, run_ahead
     from .commands import Timed
     from .report import progress_for
 
@@ -145,7 +125,6 @@ def cmd_ik(args: argparse.Namespace) -> int:
             raise CalibrateError("--setup-names takes the names the lab's IK setups give; add --ik-setup")
         named = setup_outputs(None, args.ik_setup)
     outputs, opensim_files, folders, locations = [], {}, {}, {}
-    written: dict[Path, list[Path]] = {}  # each trial's outputs
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
         files = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
@@ -155,12 +134,11 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if from_setup and args.out is None:  # the motion CSV (and the rest) beside the .mot the setup names
             folder = opensim_files[t][0].parent
         folders[t] = folder
-        written[t] = [folder / f"{t.stem}_motion.csv", folder / f"{t.stem}_ik_report.json"] + \
+        outputs += [folder / f"{t.stem}_motion.csv", folder / f"{t.stem}_ik_report.json"] + \
             (list(opensim_files[t]) if osim else []) + \
             ([locations[t]] if locations[t] is not None else []) + \
             ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
             ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
-        outputs += written[t]
     if named is not None and osim:  # those the lab's IK setups name first (an OpenSim run's earlier outputs?)
         from ..io.osim_setup import SETUP_NAMED_HINT
 
@@ -170,174 +148,40 @@ def cmd_ik(args: argparse.Namespace) -> int:
                   same="two trials with the same name would write the same motion; use --out or rename them",
                   exists_hint="pass --overwrite to replace it or choose another --out")
     t0 = time.perf_counter()
-    model = load_model(subject_path)
-    # The coordinates an OpenSim subject locks: its .osim's, or those its URDF carries from the OpenSim base (a
-    # subject.urdf calibrate wrote from Pose2Sim's model, its mtp joints free, had folded a foot: 48 mm against 15.6).
-    from ..io.osim_info import with_locked
-
-    settings = with_locked(model, Settings())
-    weights = None
-    setup_lines: list[str] = []
-    if args.ik_setup:  # what its coordinate tasks hold, and its marker tasks' weights (a marker it has no task for:
-        # not fitted, as the setup's IK tracks only its tasks)
-        from ..io.osim_setup import ik_setup_notes, ik_setup_weights, with_ik_setup
-
-        settings = with_ik_setup(model, settings, args.ik_setup)
-        weights = ik_setup_weights(args.ik_setup)
-        setup_lines = ik_setup_notes(args.ik_setup, model)
-    locked = dict(settings.lock)
-    static_locks: dict[str, float] = {}  # a static-only calibration's auto-locks: held on its own trials alone
-    own: set[tuple[str, int]] = set()  # its trials (file name, frames)
-    report_map: dict[str, list[str]] = {}  # the calibration's marker map, as its report lists what it renamed
-    if args.report is not None:  # what the calibration held, as its motion holds it
-        from ..calibration.subject_ik import report_holds
-
-        holds = report_holds(args.report)
-        static_locks = {k: v for k, v in holds.static_locks.items() if k not in locked}
-        locked.update(holds.locked)
-        own, report_map = set(holds.own), {k: list(v) for k, v in holds.marker_map.items()}
-        if weights is None:  # (an --ik-setup's weights win)
-            weights = holds.weights
-    elif not osim and (named_report := _named_report(model.text, subject_path)) is not None:
-        # the subject names its calibration's report (its first comment) and the report is beside it: said, not
-        # taken (an explicit --report is what holds and weighs), so the user sees why its motions may differ
-        setup_lines.append(f"{subject_path.name} names its calibration's report, {named_report.name}, beside it: "
-                           f"--report {named_report} holds what the calibration held and weighs the markers as it "
-                           "weighed them, as the calibration's own motion was fitted")
-    if args.lock is not None:
-        chosen = {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
-        locked.update(chosen)
-        static_locks = {k: v for k, v in static_locks.items() if k not in chosen}
-    marker_map = load_marker_map(args.markers) if args.markers is not None else report_map or None
-    if args.markers is None and report_map:  # the same labels play the same markers as in the calibration
-        lines_map = [f"{args.report.name}: labels renamed as its calibration's marker map renamed them: "
-                     + ", ".join(f"{' / '.join(v)} -> {k}" for k, v in report_map.items())]
-    else:
-        lines_map = []
-    trials = [read_trial(t) for t in trial_paths]
-    if args.subject is not None:  # one subject of a session's files (Vicon's Derrick:RASI, Viktor:RASI)
-        trials = [t.of_subject(args.subject) for t in trials]
-    from ..io.c3d import C3D_MAX_FRAMES, write_c3d
-
-    long = [p for p, t in zip(trial_paths, trials, strict=True) if t.n_frames > C3D_MAX_FRAMES]
+    lock = None if args.lock is None else {name: float(np.radians(deg)) for name, deg in lock_arg(args.lock).items()}
+    plan = plan_trials(subject_path, trial_paths, report=args.report, ik_setups=args.ik_setup or (), lock=lock,
+                       markers=args.markers, subject_name=args.subject, whole_trials=args.whole_trials)
+    long = [j.path for j in plan.jobs if j.trial.n_frames > C3D_MAX_FRAMES]
     if args.c3d and long:
         raise CalibrateError(f"{long[0]}: more frames than a C3D file holds ({C3D_MAX_FRAMES}); leave out --c3d")
-    lines: list[str] = []
-    if args.ik_setup and not args.whole_trials:
-        from ..io.osim_setup import cut_to_setups
-
-        trials, lines = cut_to_setups(trials, None, args.ik_setup)
-    lines = setup_lines + lines_map + lines
-    params = model.parameters()
-    frames = sum(t.n_frames for t in trials)  # long trials together pay for a compile (IK_COMPILE_FRAMES)
-    results = []
-    released: list[str] = []  # trials fitted without the static-only calibration's auto-locks, and with them
-    kept_on: list[str] = []
-    jobs = []  # (path, the trial in the subject's labels, what it holds, the markers it fits)
-    for path, trial in zip(trial_paths, trials, strict=True):
-        held = {**locked, **static_locks} if (path.name, trial.n_frames) in own else locked
-        if static_locks:
-            (released if held is locked else kept_on).append(path.name)
-        trial, _ = map_labels(trial, model.marker_names, marker_map, aliases=True)
-        shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
-        if len(shared) < 3:
-            tasks = " with a marker task of the IK setup" if weights is not None else ""
-            raise CalibrateError(f"{path}: only {len(shared)} of its labels are markers of {subject_path.name}{tasks}; "
-                                 "give the subject calibrated from this lab's marker set"
-                                 + (" and its IK setup" if weights is not None else ""))
-        jobs.append((path, trial, held, shared))
-
-    def fitted(k: int, progress=None) -> tuple[TrialFit, float]:
-        """Job k's fit and its seconds."""
-        path, trial, held, _ = jobs[k]
-        start = time.perf_counter()
-        got = fit_trial(model, trial, params, held, weights, keep_damaged=args.keep_damaged, source=str(path),
-                        check_size=not args.other_subject, compile=frames >= IK_COMPILE_FRAMES, progress=progress)
-        return got, time.perf_counter() - start
-
-    # The later trials fitted in a forked child on the other core meanwhile (calibrate.solve.ahead: the same bits;
-    # Expert1's 24 trials 20.9 -> 14.9 s): the trials split where their frames are about halved, the child's all fitted
-    # before the first is sent (a fit waiting on the pipe would hold the next one back).
-    split = ahead_split([t.n_frames for _, t, _, _ in jobs])
-    behind = run_ahead(iter_after(lambda: [fitted(k) for k in range(split, len(jobs))])) \
-        if split < len(jobs) else None
-    try:
-        for k, (path, trial, held, shared) in enumerate(jobs):
-            if k < split:
-                with progress_for(args.quiet, 1, Timed) as say:
-                    what = f"fitting the {trial.n_frames} frames of {path.name}"
-                    got, seconds = fitted(k, Countdown(say, "ik", what))
-            else:
-                if k == split:
-                    with progress_for(args.quiet, 1, Timed) as say:
-                        rest = ", ".join(p.name for p, *_ in jobs[split:])
-                        say(Progress("ik", f"{rest}: fitted on the other core meanwhile", long=True))
-                got, seconds = next(behind)
-            own_lines = [f"{path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
-            own_lines += [x.text(path.name, subject_path.name) + "; check the labelling" for x in got.relabelled]
-            own_lines += got.limit_lines(path.name, subject_path.name)
-            if got.unplaced_held:
-                own_lines.append(f"{path.name}: {len(got.unplaced)} segments its markers do not place "
-                                 f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")
-            lines += own_lines
-            report = trial_report(model, trial, got, {**held, **got.unplaced_held}, shared, str(subject_path),
-                                  seconds, [*setup_lines, *lines_map, *own_lines], weights)
-            report["outputs"] = [str(o) for o in written[path]]
-            results.append((path, trial, got.fit, seconds, got.left_out, shared, report))
-    finally:
-        if behind is not None:
-            behind.close()
-    if released:
-        lines.append(f"{', '.join(sorted(static_locks))}: the calibration held them because its static, its only "
-                     "trial, moved them no more than its markers fix them; fitted in "
-                     f"{', '.join(released)}, which it did not fit (--lock holds them)")
-        for path, *_, report in results:
-            if path.name in released:
-                report["notes"].append(lines[-1])
-    for (path, trial, fit, _, _, shared, report), folder in zip(results, [folders[t] for t in trial_paths],
-                                                                strict=True):
-        write_motion_csv(folder / f"{path.stem}_motion.csv", fit.motion)
-        atomic_write_text(folder / f"{path.stem}_ik_report.json", json.dumps(report, indent=1, allow_nan=False) + "\n")
-        if osim:
-            from ..io.osim_export import (
-                ik_marker_errors,
-                ik_model_marker_locations,
-                marker_errors_text,
-                marker_locations_text,
-                write_mot,
-            )
-
-            mot, sto = opensim_files[path]
-            write_mot(mot, model, fit.motion)
-            # the marker errors as OpenSim's IK tool reports them: the markers it fitted (the IK setup's tasks)
-            atomic_write_text(sto, marker_errors_text(fit.motion.times,
-                                                      ik_marker_errors(model, params, trial, fit.motion, shared)))
-            if locations[path] is not None:
-                atomic_write_text(locations[path], marker_locations_text(
-                    fit.motion.times, *ik_model_marker_locations(model, params, trial, fit.motion, shared)))
-        if args.c3d:
-            from ..calibration.c3d_result import with_model_outputs
-
-            write_c3d(folder / f"{path.stem}_calibrated.c3d", with_model_outputs(model, params, trial, fit.motion))
-        if args.mjcf:
-            from ..io.mjcf import qpos_csv_text
-
-            atomic_write_text(folder / f"{path.stem}_motion_qpos.csv", qpos_csv_text(model, fit.motion))
+    with progress_for(args.quiet, 1, Timed) as say:
+        done = fit_planned(plan, keep_damaged=args.keep_damaged, check_size=not args.other_subject, say=say)
+    for one in done:
+        path = one.job.path
+        folder = folders[path]
+        mot, sto = opensim_files[path] if osim else (None, None)
+        write_fitted(plan, one, IKFiles(folder / f"{path.stem}_motion.csv", folder / f"{path.stem}_ik_report.json",
+                                        mot, sto, locations[path],
+                                        folder / f"{path.stem}_calibrated.c3d" if args.c3d else None,
+                                        folder / f"{path.stem}_motion_qpos.csv" if args.mjcf else None))
     if not args.quiet:
+        lines = [*plan.notes, *(line for one in done for line in one.notes)]
+        if (release := plan.release_note()) is not None:
+            lines.append(release)
         for line in lines:
             print("note: " + line, file=sys.stderr)
-        print(f"calibrate ik: {subject_path} held fixed ({len(model.dof_names)} joint coordinates, "
-              f"{len(locked)} locked: {', '.join(sorted(locked)) or 'none'}"
-              + (f"; on {', '.join(kept_on)} also {', '.join(sorted(static_locks))}" if kept_on else "") + ")")
-        for path, trial, fit, seconds, left, _, _ in results:
+        print(f"calibrate ik: {subject_path} held fixed ({len(plan.model.dof_names)} joint coordinates, "
+              f"{len(plan.locked)} locked: {', '.join(sorted(plan.locked)) or 'none'}"
+              + (f"; on {', '.join(plan.kept_on)} also {', '.join(sorted(plan.static_locks))}" if plan.kept_on
+                 else "") + ")")
+        for one in done:
+            fit, trial = one.got.fit, one.job.trial
             err = np.linalg.norm(fit.residuals, axis=2)
-            seen = np.flatnonzero(np.isfinite(err).any(axis=0))  # the subject's markers this trial shows
-            per_marker = np.sqrt(np.nanmean(err[:, seen] ** 2, axis=0))
-            worst = [(model.marker_names[seen[k]], per_marker[k]) for k in np.argsort(-per_marker)[:3]]
-            print(f"  {path.name}: {trial.n_frames} frames ({trial.times[0]:.4g} to {trial.times[-1]:.4g} s), "
+            left = one.got.left_out
+            print(f"  {one.job.path.name}: {trial.n_frames} frames ({trial.times[0]:.4g} to {trial.times[-1]:.4g} s), "
                   f"marker RMS {1000 * fit.rms:.2f} mm, largest {1000 * np.nanmax(err):.1f} mm; worst markers "
-                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst) + " mm"
+                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst_markers(plan.model, one)) + " mm"
                   + (f"; {left} marker positions left out (jumps, jitter, a marker left behind)" if left else "")
-                  + f"; {seconds:.2f} s")
+                  + f"; {one.seconds:.2f} s")
         print(f"  time {time.perf_counter() - t0:.2f} s; wrote " + ", ".join(str(o) for o in outputs))
     return 0
