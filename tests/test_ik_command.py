@@ -113,6 +113,55 @@ def test_ik_report_holds_the_fit_as_pinocchio_reads_it_back(squats, tmp_path, ca
     assert report["markers"]["rms_mm"] > 1.0  # the noise and the held hinge: errors the check can see
 
 
+def test_a_trial_whose_markers_scatter_beyond_the_learnt_noise_is_fitted_with_them_alike(squats, tmp_path, capsys):
+    """--report's learnt noise weighs a trial's markers only where it holds for the trial: two markers that drift
+    30 mm about their segment (a shoulder marker on the shoulder blade in a squat after a walk's calibration) scatter
+    beyond LEARNT_NOISE_HOLDS times the SD learnt for them, so the trial is fitted with its markers weighed alike —
+    the motion is fit_trial's with those weights, from Python — and a note and the report (learnt_noise_beyond, its
+    weights) say so; the same trial undamaged keeps the learnt weights, no note."""
+    import json
+
+    from calibrate.calibration.subject_ik import LEARNT_NOISE_HOLDS, fit_trial, report_holds
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    subject = load_model(squats / "truth.urdf")
+    trial = read_trial(squats / "trial.c3d")
+    names = [m for m in subject.marker_names if m in trial.labels]
+    a, b = names[4], names[len(names) // 2]
+    sd_mm = {m: (0.5 if m in (a, b) else 3.0 if k % 3 == 0 else 1.0) for k, m in enumerate(names)}
+    report = tmp_path / "cal_report.json"  # a calibration's report: nothing held, its learnt noise unequal
+    report.write_text(json.dumps({"parameters": {}, "trials": [], "settings": {},
+                                  "noise": {"weight_sd_mm": sd_mm}}))
+    drift = 0.03 * np.sin(2 * np.pi * trial.times / 1.7)
+    markers = trial.markers.copy()
+    for m in (a, b):
+        markers[:, trial.labels.index(m), 0] += drift
+    write_c3d(tmp_path / "drift.c3d", replace(trial, markers=markers))
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["ik", str(tmp_path / "drift.c3d"), str(squats / "trial.c3d"), str(squats / "truth.urdf"),
+                 "--report", str(report), "-o", str(out)]) == 0
+    notes = [x for x in capsys.readouterr().err.splitlines() if "noise the calibration learnt" in x]
+    assert len(notes) == 1 and notes[0].startswith("note: drift.c3d: ") and "weighed alike" in notes[0], notes
+    got = json.loads((out / "drift_ik_report.json").read_text())
+    beyond = got["learnt_noise_beyond"]
+    assert list(beyond)[:2] in ([a, b], [b, a]) and min(beyond.values()) > LEARNT_NOISE_HOLDS
+    assert got["weights"] == {m: 1.0 for m in names}
+    h = report_holds(report)
+    assert h.noise_sd == pytest.approx({m: 1e-3 * v for m, v in sd_mm.items()})
+    alike = fit_trial(subject, read_trial(tmp_path / "drift.c3d"), subject.parameters(), {}, {m: 1.0 for m in names})
+    motion = read_motion_csv(out / "drift_motion.csv")
+    assert np.abs(motion.angles - alike.fit.motion.angles).max() < 1e-4
+    # The undamaged trial: the learnt weights hold (no marker beyond), the report keeps them
+    own = json.loads((out / "trial_ik_report.json").read_text())
+    assert own["learnt_noise_beyond"] == {}
+    ratio = (sd_mm[names[0]] / sd_mm[names[1]]) ** 2
+    assert own["weights"][names[1]] / own["weights"][names[0]] == pytest.approx(ratio)
+    learnt = fit_trial(subject, trial, subject.parameters(), {}, h.weights, noise_sd=h.noise_sd)
+    assert not learnt.weighed_alike and learnt.noise_beyond == {}
+
+
 def test_ik_notes_a_coordinate_beyond_the_subjects_limits(squats, tmp_path, capsys):
     """The squats' true subject with knee_r's upper limit cut to 25 deg: the fit (under the limits widened by 15 deg,
     as the calibration's) leaves the knee beyond them in the frames where the true knee bends past 30 deg, and

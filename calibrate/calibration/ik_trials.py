@@ -54,6 +54,9 @@ class IKPlan:
     cut_notes: tuple[str, ...]  # the trials cut to their IK setups' spans
     released: tuple[str, ...] = ()  # trials fitted without static_locks (not the calibration's own)
     kept_on: tuple[str, ...] = ()  # trials fitted with them (the calibration's own)
+    # the learnt SDs (m) the weights come from, where they are the calibration's: a trial whose markers scatter beyond
+    # them is fitted with its markers weighed alike (subject_ik.fit_trial's noise_sd)
+    noise_sd: dict[str, float] | None = None
 
     @property
     def osim(self) -> bool:
@@ -134,13 +137,14 @@ def plan_trials(subject: str | os.PathLike[str] | Model, trial_paths: Sequence[s
     static_locks: dict[str, float] = {}
     own: frozenset[tuple[str, int]] = frozenset()  # the static-only calibration's trials (file name, frames)
     report_map: dict[str, list[str]] = {}
+    noise_sd = None
     if report is not None:  # what the calibration held, as its motion holds it
         holds = report_holds(report)
         static_locks = {k: v for k, v in holds.static_locks.items() if k not in locked}
         locked.update(holds.locked)
         own, report_map = holds.own, {k: list(v) for k, v in holds.marker_map.items()}
         if weights is None:  # (an IK setup's weights win)
-            weights = holds.weights
+            weights, noise_sd = holds.weights, holds.noise_sd
     elif not osim and (named := named_report(model.text, path)) is not None:
         # the subject names its calibration's report (its first comment) and the report is beside it: said, not
         # taken (an explicit report is what holds and weighs), so the user sees why its motions may differ
@@ -179,7 +183,7 @@ def plan_trials(subject: str | os.PathLike[str] | Model, trial_paths: Sequence[s
                                  + (" and its IK setup" if tasks else ""))
         jobs.append(IKJob(p, trial, held, fitted))
     return IKPlan(path, model, model.parameters(), locked, static_locks, weights, tuple(jobs), tuple(setup_notes),
-                  tuple(map_notes), tuple(cut_notes), tuple(released), tuple(kept_on))
+                  tuple(map_notes), tuple(cut_notes), tuple(released), tuple(kept_on), noise_sd)
 
 
 def fit_planned(plan: IKPlan, *, keep_damaged: bool = False, check_size: bool = True, ahead: bool = True,
@@ -200,7 +204,7 @@ def fit_planned(plan: IKPlan, *, keep_damaged: bool = False, check_size: bool = 
         start = time.perf_counter()
         got = fit_trial(plan.model, job.trial, plan.params, job.held, plan.weights, keep_damaged=keep_damaged,
                         source=str(job.path), check_size=check_size, compile=compile,
-                        progress=progress)
+                        progress=progress, noise_sd=plan.noise_sd)
         return got, time.perf_counter() - start
 
     # The child's trials all fitted before the first is sent (a fit waiting on the pipe would hold the next back).
@@ -222,6 +226,7 @@ def fit_planned(plan: IKPlan, *, keep_damaged: bool = False, check_size: bool = 
             own = [f"{job.path.name}: {x.text()}" for x in (*got.exchanged_back, *got.jittery)]
             own += [x.text(job.path.name, name) + "; check the labelling" for x in got.relabelled]
             own += got.limit_lines(job.path.name, name)
+            own += got.noise_lines(job.path.name)
             if got.unplaced_held:
                 own.append(f"{job.path.name}: {len(got.unplaced)} segments its markers do not place "
                            f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,11 @@ from .records import LimitNote
 
 OTHER_SUBJECT = 0.10  # a trial whose same-segment marker distances differ from the subject's by more than this
 # (the median over the pairs, relative) is another subject's: refused
+LEARNT_NOISE_HOLDS = 2.0  # a calibration's learnt noise weighs a trial's markers unless one of them scatters about
+# its fit over this many times the SD learnt for it (the markers weighed alike instead): Expert1's subject calibrated
+# from static1 + walking1 shows at most 1.9 (1.5 on models/human.urdf) on its 12 other walks, 2.3-8.4 on its jumps,
+# sit-to-stands and squats, whose shoulder and arm markers ride the shoulder blade as the walk's did not
+# (docs/benchmarks.md "Learnt noise on other motions")
 SIZE_PAIRS = 10  # judged on this many same-segment marker pairs or more (each SEGMENT_PAIR_MIN or more apart in the
 # subject): a video keypoint set's few pairs do not keep their distances (Pose2Sim's demo static: 18 % over 6 pairs)
 
@@ -71,6 +76,24 @@ class TrialFit:
     # coordinates the fit drove beyond the subject's joint limits (identifiability.limit_records, as the calibration
     # notes them): a joint the markers do not resolve, or one the subject moved past the model's range
     beyond_limits: tuple[LimitNote, ...] = ()
+    # the markers that scatter about the fit beyond LEARNT_NOISE_HOLDS times the SD the calibration learnt for them
+    # (name -> that ratio, largest first): the markers were then weighed alike (learnt_noise_scatter)
+    noise_beyond: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def weighed_alike(self) -> bool:
+        """Whether the learnt noise did not hold for this trial and its markers were weighed alike."""
+        return bool(self.noise_beyond)
+
+    def noise_lines(self, source: str) -> list[str]:
+        """noise_beyond as `calibrate ik` notes it."""
+        if not self.noise_beyond:
+            return []
+        worst = list(self.noise_beyond.items())
+        return [f"{source}: {len(worst)} markers scatter about its fit beyond twice the noise the calibration learnt "
+                "for them (" + ", ".join(f"{m} {r:.1f}" for m, r in worst[:4]) + (", ..." if len(worst) > 4 else "")
+                + " times): another motion than the calibration's, whose learnt weights do not hold for it; its "
+                "markers weighed alike"]
 
     def limit_lines(self, source: str, subject: str) -> list[str]:
         """beyond_limits as `calibrate ik` notes them, naming the trial `source` and the `subject`."""
@@ -90,6 +113,7 @@ class ReportHolds:
     own: frozenset[tuple[str, int]]  # those trials (file name, frames), where static_locks is not empty
     marker_map: dict[str, tuple[str, ...]]  # model label -> the trial labels its marker map renamed
     weights: dict[str, float] | None  # marker -> weight, 1 / its learnt noise SD² (median 1); None: not learnt
+    noise_sd: dict[str, float] | None = None  # marker -> the learnt SD the weight comes from (m); None: not learnt
 
 
 def report_holds(path: str | os.PathLike[str]) -> ReportHolds:
@@ -125,7 +149,8 @@ def report_holds(path: str | os.PathLike[str]) -> ReportHolds:
     except (TypeError, ValueError, KeyError, AttributeError, ArithmeticError) as e:
         raise CalibrateError(f"{path}: not readable as the report calibrate writes ({type(e).__name__}: {e}); give the "
                              "<trial>_report.json the calibration wrote, unedited") from None
-    return ReportHolds(elsewhere, static_locks, own, {k: tuple(v) for k, v in renamed.items()}, weights)
+    return ReportHolds(elsewhere, static_locks, own, {k: tuple(v) for k, v in renamed.items()}, weights,
+                       {k: 1e-3 * float(v) for k, v in sd.items()} if sd else None)
 
 
 #: `calibrate ik`'s trials together this many frames or more: the subject's per-frame code is compiled for them where
@@ -138,7 +163,8 @@ IK_COMPILE_FRAMES = 10_000
 def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str, float],
               weights: Mapping[str, float] | None = None, keep_damaged: bool = False,
               source: str = "the trial", check_size: bool = True,
-              progress: Callable[[float], None] | None = None, compile: bool = False) -> TrialFit:
+              progress: Callable[[float], None] | None = None, compile: bool = False,
+              noise_sd: Mapping[str, float] | None = None) -> TrialFit:
     """Fit every frame of `trial` (labels the model's: io.labels.map_labels) to `model` at `params`, holding `held`
     (coordinate -> rad or m), the markers weighed by `weights` (an IK setup's tasks; a marker without one is not
     fitted) or alike, under the calibration's limits (LIMIT_MARGIN).  `keep_damaged`: every position fitted, as
@@ -147,7 +173,10 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     FlatFoot subject fitted to another's walk at 82 mm RMS).  TrialFit.size_misfit: size_misfit's figure.
     `progress(share of the frames fitted)` every 100 frames (a long trial takes a minute).  The frames are evaluated by
     the subject's compiled per-frame code where its calibration left it in the cache, or (`compile`, for long trials:
-    IK_COMPILE_FRAMES) compiled here; by CasADi's virtual machine otherwise (the same bits either way)."""
+    IK_COMPILE_FRAMES) compiled here; by CasADi's virtual machine otherwise (the same bits either way).  `noise_sd`:
+    the SDs `weights` were made from (a calibration's learnt noise, m): where a marker scatters about the fit beyond
+    LEARNT_NOISE_HOLDS times its SD, the markers are weighed alike and the trial fitted again
+    (TrialFit.noise_beyond)."""
     shared = [m for m in model.marker_names if m in trial.labels and (weights is None or weights.get(m, 0) > 0)]
     misfit, pairs = size_misfit(model, trial)
     if check_size and pairs >= SIZE_PAIRS and misfit > OTHER_SUBJECT:
@@ -184,10 +213,33 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     found = () if keep_damaged else exchanged_in_trial(model, trial, params, fit, kin, held, weights)
     if found:  # read as the subject names them, and fitted again
         read = {a: b for x in found for a, b in zip(x.labels, x.read_as, strict=True)}
-        fit = fitted(replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels)), fit.motion)
+        trial = replace(trial, labels=tuple(read.get(lab, lab) for lab in trial.labels))
+        fit = fitted(trial, fit.motion)
+    beyond_noise = learnt_noise_scatter(model, fit, noise_sd) if noise_sd and weights else {}
+    if beyond_noise:  # another motion than the calibration's: its markers weighed alike, fitted again from there
+        weights = {m: 1.0 for m, w in weights.items() if w > 0}
+        fit = fitted(trial, fit.motion)
     beyond = limit_records(model, fit.motion.angles, Settings(lock=dict(held)))
     return TrialFit(fit, left, jittery, extra, res.names if extra else (), tuple(back),
-                    misfit if pairs >= SIZE_PAIRS else None, tuple(found), beyond)
+                    misfit if pairs >= SIZE_PAIRS else None, tuple(found), beyond, beyond_noise)
+
+
+def learnt_noise_scatter(model: Model, fit: IKResult, noise_sd: Mapping[str, float],
+                         holds: float = LEARNT_NOISE_HOLDS) -> dict[str, float]:
+    """The markers whose scatter about `fit` — the RMS of their residuals per coordinate over the frames they are
+    seen in, 10 or more — exceeds `holds` times the SD `noise_sd` gives them (name -> that ratio, largest first);
+    empty where none does."""
+    sq = np.sum(np.asarray(fit.residuals) ** 2, axis=2)
+    seen = np.isfinite(sq)
+    out = {}
+    for k, name in enumerate(model.marker_names):
+        sd = noise_sd.get(name)
+        if sd is None or not sd > 0 or seen[:, k].sum() < 10:
+            continue
+        ratio = float(np.sqrt(np.mean(sq[seen[:, k], k]) / 3.0) / sd)
+        if ratio > holds:
+            out[name] = ratio
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
 def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, float], fitted: Sequence[str],
@@ -205,6 +257,8 @@ def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, f
     from ..software import software_versions
 
     fit = got.fit
+    if got.weighed_alike and weights is not None:  # the weights the fit used
+        weights = {k: 1.0 for k, w in weights.items() if w > 0}
     err = np.linalg.norm(fit.residuals, axis=2)
     mm = lambda x: round(1e3 * float(x), 6)  # noqa: E731
     per = {n: {"rms_mm": mm(r), "max_mm": mm(w), "frames": f}
@@ -236,6 +290,8 @@ def trial_report(model: Model, trial: Trial, got: TrialFit, held: Mapping[str, f
         "beyond_limits": [{"coordinate": x.coordinate, "fraction": round(x.fraction, 6),
                            "worst_deg": round(float(np.degrees(x.worst)), 6)} for x in got.beyond_limits],
         "size_misfit": None if got.size_misfit is None else round(got.size_misfit, 6),
+        # the markers that scattered beyond the calibration's learnt noise (ratio to it): the markers weighed alike
+        "learnt_noise_beyond": {k: round(v, 6) for k, v in got.noise_beyond.items()},
         "seconds": round(seconds, 6),
         "notes": list(notes),
     }
