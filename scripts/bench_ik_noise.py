@@ -5,8 +5,12 @@ AddBiomechanics' Expert1 folder has them), each hip, knee and ankle angle's RMS 
 removed: the two models' zeros differ), over the frames both cover.
 
     python scripts/bench_ik_noise.py SUBJECT REPORT TRIAL [TRIAL ...] [--json]
+    python scripts/bench_ik_noise.py --simulated [--seeds 1 2 3] [--json]
 
-SUBJECT and REPORT are what `calibrate` wrote (subject.osim or subject.urdf and its report JSON).
+SUBJECT and REPORT are what `calibrate` wrote (subject.osim or subject.urdf and its report JSON).  --simulated: a
+subject of models/human.urdf calibrated from 400 simulated squat frames with 5 mm soft-tissue artefact, its gait and
+overhead trials (300 frames, the same subject and artefact) fitted both ways, each hip, knee and ankle angle's RMS
+error from the simulator's truth.
 """
 
 from __future__ import annotations
@@ -45,13 +49,64 @@ def angle_rms(motion, ref: tuple[list[str], np.ndarray]) -> dict[str, float]:
     return out
 
 
+def simulated(seeds: list[int]) -> list[dict]:
+    """The simulator's subjects (module docstring): per seed and motion, the learnt weights' and the checked fit's
+    hip, knee and ankle RMS error from the truth (deg), and whether the check fired."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from calibrate.io.motion import read_motion_csv
+    from calibrate.model.model import load_model
+    from calibrate.simulation.simulate import simulate_gait, simulate_overhead, simulate_squats, write_simulation
+
+    human = Path(__file__).resolve().parent.parent / "models" / "human.urdf"
+    model = load_model(human)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            d = Path(tmp) / f"s{seed}"
+            write_simulation(simulate_squats(model, frames=400, noise_mm=1.0, seed=seed, sta_mm=5.0), d / "cal")
+            for kind, make in (("gait", simulate_gait), ("overhead", simulate_overhead)):
+                write_simulation(make(model, frames=300, noise_mm=1.0, seed=seed, sta_mm=5.0), d / kind)
+            subprocess.run([sys.executable, "-m", "calibrate.cli", str(d / "cal" / "trial.c3d"), str(human), "-o",
+                            str(d / "subject.urdf"), "-q"], check=False, capture_output=True)
+            for kind in ("gait", "overhead"):
+                plan = plan_trials(d / "subject.urdf", [d / kind / "trial.c3d"], report=d / "trial_report.json")
+                truth = read_motion_csv(d / kind / "truth_motion.csv")
+                row = {"seed": seed, "motion": kind}
+                for label, p in (("learnt", replace(plan, noise_sd=None)), ("checked", plan),
+                                 ("alike", replace(plan, noise_sd=None, weights={k: 1.0 for k in plan.weights}))):
+                    one = fit_planned(p, ahead=False)[0]
+                    a = one.got.fit.motion
+                    idx = [k for k, n in enumerate(a.dof_names) if n.split("_")[0] in ("hip", "knee", "ankle")]
+                    row[f"{label}_deg"] = float(np.degrees(np.sqrt(np.mean((a.angles[:, idx]
+                                                                            - truth.angles[:, idx]) ** 2))))
+                    if label == "checked":
+                        row["fired"] = one.got.weighed_alike
+                rows.append(row)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("subject", type=Path)
-    ap.add_argument("report", type=Path)
-    ap.add_argument("trials", type=Path, nargs="+")
+    ap.add_argument("subject", type=Path, nargs="?")
+    ap.add_argument("report", type=Path, nargs="?")
+    ap.add_argument("trials", type=Path, nargs="*")
+    ap.add_argument("--simulated", action="store_true", help="the simulator's subjects instead (module docstring)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--json", action="store_true", help="machine-readable output")
     args = ap.parse_args()
+    if args.simulated:
+        rows = simulated(args.seeds)
+        if args.json:
+            print(json.dumps(rows, indent=1))
+        for r in [] if args.json else rows:
+            print(f"seed {r['seed']} {r['motion']:8s}: check fired {r['fired']}; hip/knee/ankle RMS from the truth: "
+                  f"learnt {r['learnt_deg']:.2f}, checked {r['checked_deg']:.2f}, alike {r['alike_deg']:.2f} deg")
+        return
+    if args.subject is None or args.report is None or not args.trials:
+        ap.error("give SUBJECT REPORT TRIAL ..., or --simulated")
     plan = plan_trials(args.subject, args.trials, report=args.report)
     if plan.noise_sd is None:
         raise SystemExit(f"{args.report}: learnt no noise; nothing to compare")
