@@ -399,3 +399,44 @@ def test_a_static_that_turns_a_knee_a_few_degrees_holds_its_axis_all_the_same(hu
     d = human.dof_index("knee_r")
     assert np.allclose(cal.params.axis[d], human.parameters().axis[d], atol=1e-12)
     assert "knee_r" in summary_text(cal).split("  axes held    ")[1].split("\n")[0]
+
+
+def test_two_moving_trials_that_put_markers_apart_are_named(human, session, tmp_path):
+    """Two moving trials of one subject, the walk's C7 and right thigh marker put back 45 and 40 mm from where the
+    squats have them (a marker re-applied between trials; skin sliding with a squat's trunk): places_apart names
+    exactly those two, their gap near the shift (the walk's own places against the squats', wherever the fit's
+    compromise put the marker), in the summary, the report JSON and the HTML; with every marker where the squats put
+    it, nothing is named."""
+    from calibrate.calibration.moved import APART_PLACE
+    from calibrate.model.model import load_model, write_model
+    from calibrate.simulation.simulate import simulate_gait
+
+    squats = session[0]
+    shifts = {"C7": np.array([0.0, 0.0, 0.045]), "RTHI": np.array([0.040, 0.0, 0.0])}  # m, in the segment's axes
+    base = human.parameters()
+    for name, shift in shifts.items():
+        k = human.marker_index(name)
+        base.marker[k] += shift / squats.truth.scale[human.segment_index(human.markers[k].segment)]
+    write_model(human, tmp_path / "shifted.urdf", base)
+    walk = simulate_gait(load_model(tmp_path / "shifted.urdf"), frames=200, noise_mm=1.0, seed=7)
+    moved = [human.marker_index(n) for n in shifts]
+    others = [k for k in range(len(human.marker_names)) if k not in moved]
+    assert np.allclose(walk.truth.marker[others], squats.truth.marker[others])  # the same subject
+    assert np.allclose(walk.truth.scale, squats.truth.scale)
+    cal = calibrate(human, [squats.trial, walk.trial], Settings(outliers=0.0))
+    (apart,) = cal.places_apart
+    assert apart.trials == (0, 1) and {m for m, _, _ in apart.markers} == set(shifts), apart
+    for name, segment, gap in apart.markers:
+        assert segment == human.markers[human.marker_index(name)].segment
+        assert 0.75 * np.linalg.norm(shifts[name]) < gap < 1.1 * np.linalg.norm(shifts[name]), (name, gap)
+    text = summary_text(cal)
+    assert "places apart" in text and "C7 " in text and "calibrate ik" in text
+    report = calibration_report(cal)
+    got = report["places_apart"]
+    assert [x["marker"] for x in got[0]["markers"]] == [m for m, _, _ in apart.markers]
+    assert got[0]["markers"][0]["apart_mm"] == pytest.approx(1e3 * apart.markers[0][2], abs=1e-3)
+    assert "places apart:" in report_html(report)
+    plain = simulate_gait(human, frames=200, noise_mm=1.0, seed=7)
+    together = calibrate(human, [squats.trial, plain.trial], Settings(outliers=0.0))
+    assert together.places_apart == ()
+    assert all(gap >= APART_PLACE for _, _, gap in apart.markers)

@@ -352,6 +352,7 @@ def report_row(report: dict) -> dict:
     converged = bool(report["solver"]["converged"])
     warnings = (len(report["notes"]) + len(report["unreliable"]) + len(report["suspect_labels"])
                 + len(report["jittery_markers"]) + len(report["exchanged_back"]) + len(report["trials_apart"])
+                + len(report.get("places_apart") or [])
                 + len(report["exchanged_labels"]) + len(report["relabelled"]) + (0 if converged else 1))
     return {"marker_rms_mm": float(report["markers"]["rms_mm"]), "iterations": int(report["solver"]["iterations"]),
             "converged": converged, "warnings": warnings,

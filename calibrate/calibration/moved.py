@@ -157,6 +157,64 @@ def moved_markers(problem: Problem, state: State, trial_of: np.ndarray, still: S
     return sorted(out, key=lambda m: -m.distance)
 
 
+APART_PLACE = 0.025  # m: two moving trials put a marker this far apart on its segment (their mean places):
+# AddBiomechanics' Expert1's walks (plain, toe-in, toe-out, trunk-sway) put none over 16 mm apart; its squats,
+# sit-to-stand and jump put C7 and the acromia 29-48 mm from its walk's places (the trunk flexing, the shoulder blades
+# lifted with the arms)
+
+
+#: What PlacesApart means, and what to do (said once after them).
+PLACES_APART_ADVICE = ("skin that slides over the bone in one motion and not the other, or a marker put back between "
+                       "them: one place per marker cannot fit both, and the geometry bends between them; calibrate "
+                       "from the static and the trials of one kind of motion, and fit the others to that subject with "
+                       "calibrate ik (calibrate batch: ik_trials)")
+
+
+@dataclass(frozen=True)
+class PlacesApart:
+    """Two moving trials that put markers APART_PLACE or more apart on their segments: `markers` (name, segment,
+    distance between the two trials' mean places in m), largest first."""
+
+    trials: tuple[int, int]
+    markers: tuple[tuple[str, str, float], ...]
+
+    def text(self, first: str, second: str) -> str:
+        """The summary's words, naming the two trials."""
+        return (f"{first} and {second} put " + ", ".join(f"{m} {1e3 * d:.0f}" for m, _, d in self.markers)
+                + " mm apart on their segments")
+
+    def to_json(self, sources: Sequence[str]) -> dict:
+        return {"trials": [sources[t] for t in self.trials],
+                "markers": [{"marker": m, "segment": s, "apart_mm": round(1e3 * d, 3)} for m, s, d in self.markers]}
+
+
+def places_apart(problem: Problem, state: State, trial_of: np.ndarray, moving: Sequence[bool]) -> list[PlacesApart]:
+    """Each two moving trials (`moving`: per trial; `trial_of` (F,): each frame's trial) whose mean places of a marker
+    on its segment (marker_places, over MIN_MOVING_FRAMES frames or more of each) lie APART_PLACE or more apart: the
+    place where each trial would put the marker, wherever the fit put it, so the compromise it took does not hide
+    the gap."""
+    trials = np.flatnonzero(np.asarray(moving, dtype=bool))
+    if trials.size < 2:
+        return []
+    places = marker_places(problem, state)
+    names = problem.model.marker_names
+    mean = np.full((trials.size, len(names), 3), np.nan)
+    for i, t in enumerate(trials):
+        at = places[trial_of == t]
+        ok = np.all(np.isfinite(at), axis=2)
+        for k in np.flatnonzero(ok.sum(axis=0) >= MIN_MOVING_FRAMES):
+            mean[i, k] = at[ok[:, k], k].mean(axis=0)
+    segment = [m.segment for m in problem.model.markers]
+    out = []
+    for i in range(trials.size):
+        for j in range(i + 1, trials.size):
+            gap = np.linalg.norm(mean[i] - mean[j], axis=1)
+            far = [(names[k], segment[k], float(gap[k])) for k in np.flatnonzero(gap >= APART_PLACE)]
+            if far:
+                out.append(PlacesApart((int(trials[i]), int(trials[j])), tuple(sorted(far, key=lambda x: -x[2]))))
+    return out
+
+
 @dataclass(frozen=True)
 class ExchangedCluster:
     """Labels of one segment's markers that trial `trial` names otherwise than the others: its `labels[i]` sits

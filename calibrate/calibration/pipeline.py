@@ -46,9 +46,11 @@ from calibrate.calibration.identifiability import (
 from calibrate.calibration.moved import (
     ExchangedCluster,
     MovedMarker,
+    PlacesApart,
     exchanged_after_solve,
     exchanged_clusters,
     moved_markers,
+    places_apart,
     relabel_columns,
     replaced,
     segment_axes,
@@ -766,6 +768,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         idx = np.concatenate([sl.start + even_frames(sl.stop - sl.start, MOVED_SAMPLE) for sl in spans])
         kept = moved_markers(problem.subset(idx), frames_of(state, idx), trial_of[idx],
                              [m < STILL_MOTION for m in motion])
+    apart_places: list[PlacesApart] = []
+    if motion is not None and sum(m >= STILL_MOTION for m in motion) >= 2:
+        # Moving trials that put markers far apart on their segments (a squat's trunk and shoulder-blade markers
+        # against a walk's): named, with what to do; the geometry took a compromise between them.
+        idx = np.concatenate([sl.start + even_frames(sl.stop - sl.start, MOVED_SAMPLE) for sl in spans])
+        apart_places = places_apart(problem.subset(idx), frames_of(state, idx), trial_of[idx],
+                                    [m >= STILL_MOTION for m in motion])
     if far_obs is not None:
         # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
         # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before
@@ -879,7 +888,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,
                        exchanged_back=exchanged_back_, trials_apart=apart,
                        moved=tuple(moved), relabelled=tuple(relabelled),
-                       moved_kept=tuple(kept),
+                       moved_kept=tuple(kept), places_apart=tuple(apart_places),
                        far_joints=tuple(far), still_only=still_only, still_centres=still_centres,
                        cluster_centres=banded_joints,
                        trial_weights=() if lengths is None else tuple(float(n) for n in lengths),

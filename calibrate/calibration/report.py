@@ -163,6 +163,8 @@ def calibration_report(cal: Calibration) -> dict:
         "trials_apart": [{"trials": [cal.trials[k].source or f"trial {k + 1}" for k in (i, j)],
                           "segment_distances_apart": misfit, "pairs": pairs}
                          for i, j, misfit, pairs in cal.trials_apart],
+        # two moving trials that put markers far apart on their segments (moved.places_apart): the pairs, the markers
+        "places_apart": [x.to_json([_trial_name(cal, k) for k in range(len(cal.trials))]) for x in cal.places_apart],
         # two labels of one segment exchanged between two trials, or against the base model in trials that have them
         # alike (calibrate.seed.association.exchanged_between)
         "exchanged_labels": [{"labels": list(x.labels), "segment": x.segment,
@@ -951,6 +953,12 @@ def summary_text(cal) -> str:
                      f"{cal.trials[j].source or f'trial {j + 1}'}: their markers on each segment keep distances "
                      f"{100 * misfit:.0f} % apart (the median over {pairs} pairs; one subject's trials read 0.5-7 %): "
                      "trials of two subjects?  Calibrate each subject's trials on their own")
+    for x in cal.places_apart:
+        lines.append(f"  places apart {x.text(*(_trial_name(cal, k) for k in x.trials))}")
+    if cal.places_apart:
+        from .moved import PLACES_APART_ADVICE
+
+        lines.append(f"               ({PLACES_APART_ADVICE})")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

@@ -258,6 +258,9 @@ class Calibration:
     # (i, j, misfit, pairs) per two trials whose markers on each segment keep distances over 10 % apart (pipeline.
     # trials_apart: the median over `pairs` same-segment pairs of |ratio - 1|): two subjects' trials?
     trials_apart: tuple = ()
+    # two moving trials that put markers far apart on their segments (calibrate.calibration.moved.places_apart:
+    # PlacesApart): one place per marker cannot fit both
+    places_apart: tuple = ()
     # calibrate.seed.association.Exchanged per pair of one segment's labels exchanged between two trials (a walk's
     # heel and toe; their positions left out of the trial the base model says has them exchanged) or, alike in
     # every trial, against the base model (reported, not changed): labels to check
