@@ -426,6 +426,10 @@ def test_two_moving_trials_that_put_markers_apart_are_named(human, session, tmp_
     cal = calibrate(human, [squats.trial, walk.trial], Settings(outliers=0.0))
     (apart,) = cal.places_apart
     assert apart.trials == (0, 1) and {m for m, _, _ in apart.markers} == set(shifts), apart
+    assert apart.acromia == ()  # (C7 and a thigh marker: no shoulder girdle to suggest)
+    from calibrate.calibration.moved import _acromia
+
+    assert _acromia(human, ["C7", "RSHO", "LSHO", "RTHI"]) == ("RSHO", "LSHO")
     for name, segment, gap in apart.markers:
         assert segment == human.markers[human.marker_index(name)].segment
         assert 0.75 * np.linalg.norm(shifts[name]) < gap < 1.1 * np.linalg.norm(shifts[name]), (name, gap)

@@ -115,13 +115,14 @@ def _notes(report: dict) -> str:
         items.append(f"<li class=bad>subjects? {_e(a)} and {_e(b)}: their markers on each segment keep distances "
                      f"{100 * x.get('segment_distances_apart', 0):.0f} % apart (over {x.get('pairs', 0)} pairs; one "
                      "subject's trials read 0.5-7 %): trials of two subjects?</li>")
-    from .moved import PLACES_APART_ADVICE
+    from .moved import PLACES_APART_ADVICE, girdle_advice
 
     for x in report.get("places_apart", []):
         a, b = (x.get("trials") or ["?", "?"])[:2]
         far = ", ".join(f"{_e(m.get('marker'))} {m.get('apart_mm', 0):.0f}" for m in x.get("markers") or [])
+        girdle = girdle_advice(x["acromia"]) if x.get("acromia") else ""
         items.append(f"<li class=bad>places apart: {_e(a)} and {_e(b)} put {far} mm apart on their segments: "
-                     f"{_e(PLACES_APART_ADVICE)}</li>")
+                     f"{_e(PLACES_APART_ADVICE)}" + (f"; {_e(girdle)}" if girdle else "") + "</li>")
     for x in report.get("exchanged_back", []):
         a, b = (x.get("labels") or ["?", "?"])[:2]
         f0, f1 = (x.get("frames") or [0, 0])[:2]

@@ -956,9 +956,11 @@ def summary_text(cal) -> str:
     for x in cal.places_apart:
         lines.append(f"  places apart {x.text(*(_trial_name(cal, k) for k in x.trials))}")
     if cal.places_apart:
-        from .moved import PLACES_APART_ADVICE
+        from .moved import PLACES_APART_ADVICE, girdle_advice
 
-        lines.append(f"               ({PLACES_APART_ADVICE})")
+        acromia = sorted({a for x in cal.places_apart for a in x.acromia})
+        lines.append(f"               ({PLACES_APART_ADVICE}" + (f"; {girdle_advice(acromia)}" if acromia else "")
+                     + ")")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")
