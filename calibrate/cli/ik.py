@@ -50,7 +50,9 @@ def add_ik_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--report", type=Path, default=None, metavar="JSON",
                    help="the report of the calibration that wrote SUBJECT: hold what it held (its locked and "
                         "auto-locked coordinates) and weigh the markers as it weighed them (its learnt noise; an "
-                        "--ik-setup's weights win), as its own motion does")
+                        "--ik-setup's weights win), as its own motion does; a trial whose markers scatter beyond "
+                        "twice that noise (another motion than the calibration's) is fitted with them weighed alike, "
+                        "and a note says so")
     p.add_argument("--lock", default=None, metavar="DOF[=DEG],...",
                    help="hold these coordinates at a value (default 0 deg) in every frame")
     p.add_argument("--whole-trials", action="store_true", help="every frame, not the IK setups' time ranges")
