@@ -113,6 +113,17 @@ def test_csv_manifest_and_bad_manifests(tmp_path):
     assert np.isfinite(s.mass)
     (tmp_path / "i.csv").write_text(f"subject,trials,model,ik_trials\nA,a.c3d,{HUMAN},w1.c3d;w2.trc\n")
     assert [t.name for t in read_manifest(tmp_path / "i.csv")[0].ik_trials] == ["w1.c3d", "w2.trc"]
+    # a pattern: every file it matches but the calibration trials, in name order (named and matched: once)
+    (tmp_path / "S").mkdir()
+    for name in ("static.c3d", "walk.c3d", "run2.c3d", "jump.c3d", "notes.txt"):
+        (tmp_path / "S" / name).write_text("x")
+    (tmp_path / "g.toml").write_text('[[subject]]\nid = "A"\ntrials = ["S/static.c3d", "S/walk.c3d"]\n'
+                                     f'model = "{HUMAN}"\nik_trials = ["S/*.c3d", "S/jump.c3d"]\n')
+    assert [t.name for t in read_manifest(tmp_path / "g.toml")[0].ik_trials] == ["jump.c3d", "run2.c3d"]
+    (tmp_path / "n.toml").write_text('[[subject]]\nid = "A"\ntrials = ["S/static.c3d"]\n'
+                                     f'model = "{HUMAN}"\nik_trials = ["S/*.trc"]\n')
+    with pytest.raises(CalibrateError, match=r"ik_trials' pattern S/\*\.trc matches no file"):
+        read_manifest(tmp_path / "n.toml")
 
 
 def test_a_subjects_ik_trials_are_fitted_to_it_as_calibrate_ik_fits_them(tmp_path):

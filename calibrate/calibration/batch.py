@@ -28,9 +28,10 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     # trials and model may be left out where scale_setup is given: those the setups name, setup_names then true
     hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
     config = "S01/settings.toml"                  # optional: the subject's settings file (calibrate --config)
-    ik_trials = ["S01/walk2.c3d", "S01/run1.c3d"] # optional: more trials fitted to the calibrated subject held
+    ik_trials = ["S01/walk2.c3d", "S01/*.trc"]    # optional: more trials fitted to the calibrated subject held
                                                   #     fixed, as calibrate ik --report does (<trial>_motion.csv,
-                                                  #     <trial>_ik_report.json; .mot and .sto for an .osim model)
+                                                  #     <trial>_ik_report.json; .mot and .sto for an .osim model); a
+                                                  #     pattern: every file it matches but the calibration trials
 
     config = "lab_settings.toml"      # TOML, before the first [[subject]]: the settings file of every subject
                                       # that names none
@@ -255,21 +256,42 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
         if not isinstance(more, list) or not all(isinstance(t, str) and t.strip() for t in more):
             raise CalibrateError(f"{where} ({sid}): 'ik_trials' must list trial files (fitted to the calibrated "
                                  f"subject), got {row.get('ik_trials')!r}")
-        stems = {Path(t.strip()).stem: t.strip() for t in trials}  # each trial's outputs are named by its stem
-        for t in more:
-            stem = Path(t.strip()).stem
-            if stem in stems:
-                what = ("is a calibration trial too (its motion is the calibration's)" if t.strip() == stems[stem]
-                        else f"and {stems[stem]} have one name ({stem}_motion.csv)")
-                raise CalibrateError(f"{where} ({sid}): ik_trials' {t.strip()} {what}; list each trial once, under "
-                                     "a name of its own")
-            stems[stem] = t.strip()
+        listed = _ik_trials(base, [t.strip() for t in trials], [t.strip() for t in more], f"{where} ({sid})")
         subjects.append(Subject(sid, tuple(base / t.strip() for t in trials), base / row["model"].strip(),
                                 None if not markers else base / str(markers).strip(),
                                 None if mass is None else float(mass), **opensim, whole_trials=whole,
                                 setup_names=named, hip_regression=hips, config=settings,
-                                ik_trials=tuple(base / t.strip() for t in more)))
+                                ik_trials=tuple(listed)))
     return subjects
+
+
+def _ik_trials(base: Path, trials: Sequence[str], listed: Sequence[str], where: str) -> list[Path]:
+    """A subject's ik_trials as files: each entry a file, or a glob pattern (``S01/*.c3d``: every file it matches but
+    the subject's calibration trials, in name order); refused (one line) where a pattern matches no file, a file named
+    is a calibration trial too, or two share a name (each trial's outputs are named by its stem)."""
+    import glob
+
+    own = {(base / t).resolve(): t for t in trials}
+    out: list[Path] = []
+    for entry in listed:
+        if glob.has_magic(entry):
+            found = sorted(Path(f) for f in glob.glob(str(base / entry)) if Path(f).is_file())
+            if not found:
+                raise CalibrateError(f"{where}: ik_trials' pattern {entry} matches no file; check it against the "
+                                     f"manifest's folder, {base}")
+            out += [f for f in found if f.resolve() not in own]
+        else:
+            out.append(base / entry)
+    out = list({f.resolve(): f for f in out}.values())  # a file both named and matched: once
+    stems = {Path(t).stem: t for t in trials}
+    for f in out:
+        if f.stem in stems:
+            what = ("is a calibration trial too (its motion is the calibration's)" if f.resolve() in own
+                    else f"and {stems[f.stem]} have one name ({f.stem}_motion.csv)")
+            raise CalibrateError(f"{where}: ik_trials' {f.relative_to(base) if f.is_relative_to(base) else f} {what}; "
+                                 "list each trial once, under a name of its own")
+        stems[f.stem] = str(f)
+    return out
 
 
 @functools.lru_cache(maxsize=8)
