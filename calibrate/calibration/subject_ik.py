@@ -90,10 +90,10 @@ class TrialFit:
         if not self.noise_beyond:
             return []
         worst = list(self.noise_beyond.items())
-        return [f"{source}: {len(worst)} markers scatter about its fit beyond twice the noise the calibration learnt "
-                "for them (" + ", ".join(f"{m} {r:.1f}" for m, r in worst[:4]) + (", ..." if len(worst) > 4 else "")
-                + " times): another motion than the calibration's, whose learnt weights do not hold for it; its "
-                "markers weighed alike"]
+        named = ", ".join(f"{m} {r:.1f}" for m, r in worst[:4]) + (", ..." if len(worst) > 4 else "")
+        return [f"{source}: {len(worst)} markers scatter about its fit beyond {LEARNT_NOISE_HOLDS:g} times the noise "
+                f"the calibration learnt for them ({named} times): another motion than the calibration's, whose "
+                "learnt weights do not hold for it; its markers weighed alike"]
 
     def limit_lines(self, source: str, subject: str) -> list[str]:
         """beyond_limits as `calibrate ik` notes them, naming the trial `source` and the `subject`."""
