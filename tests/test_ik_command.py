@@ -142,8 +142,11 @@ def test_a_trial_whose_markers_scatter_beyond_the_learnt_noise_is_fitted_with_th
     out.mkdir()
     assert main(["ik", str(tmp_path / "drift.c3d"), str(squats / "trial.c3d"), str(squats / "truth.urdf"),
                  "--report", str(report), "-o", str(out)]) == 0
-    notes = [x for x in capsys.readouterr().err.splitlines() if "noise the calibration learnt" in x]
+    printed = capsys.readouterr()
+    notes = [x for x in printed.err.splitlines() if "noise the calibration learnt" in x]
     assert len(notes) == 1 and notes[0].startswith("note: drift.c3d: ") and "weighed alike" in notes[0], notes
+    lines = {x.split(":")[0].strip(): x for x in printed.out.splitlines() if x.startswith("  ") and ".c3d:" in x}
+    assert "markers weighed alike" in lines["drift.c3d"] and "weighed alike" not in lines["trial.c3d"], lines
     got = json.loads((out / "drift_ik_report.json").read_text())
     beyond = got["learnt_noise_beyond"]
     assert list(beyond)[:2] in ([a, b], [b, a]) and min(beyond.values()) > LEARNT_NOISE_HOLDS

@@ -184,6 +184,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
                   f"marker RMS {1000 * fit.rms:.2f} mm, largest {1000 * np.nanmax(err):.1f} mm; worst markers "
                   + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst_markers(plan.model, one)) + " mm"
                   + (f"; {left} marker positions left out (jumps, jitter, a marker left behind)" if left else "")
+                  + ("; markers weighed alike (beyond the learnt noise)" if one.got.weighed_alike else "")
                   + f"; {one.seconds:.2f} s")
         print(f"  time {time.perf_counter() - t0:.2f} s; wrote " + ", ".join(str(o) for o in outputs))
     return 0
