@@ -16,8 +16,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import CalibrateError
 from ..io.trial import Trial
 from ..model.model import Model, Parameters
@@ -300,9 +298,7 @@ def write_fitted(plan: IKPlan, one: FittedTrial, files: IKFiles) -> None:
     atomic_write_text(files.report, json.dumps(report, indent=1, allow_nan=False) + "\n")
 
 
-def worst_markers(model: Model, one: FittedTrial, n: int = 3) -> list[tuple[str, float]]:
-    """The `n` markers the trial fits worst (name, RMS in m), among the subject's markers it shows."""
-    err = np.linalg.norm(one.got.fit.residuals, axis=2)
-    seen = np.flatnonzero(np.isfinite(err).any(axis=0))
-    per_marker = np.sqrt(np.nanmean(err[:, seen] ** 2, axis=0))
-    return [(model.marker_names[seen[k]], float(per_marker[k])) for k in np.argsort(-per_marker)[:n]]
+def worst_markers(one: FittedTrial, n: int = 3) -> list[tuple[str, float]]:
+    """The `n` markers the trial fits worst (name, RMS in m), from its report's per-marker table."""
+    per = one.report["markers"]["per_marker"]
+    return [(m, 1e-3 * per[m]["rms_mm"]) for m in sorted(per, key=lambda m: -per[m]["rms_mm"])[:n]]

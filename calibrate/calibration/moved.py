@@ -117,18 +117,18 @@ def marker_places(problem: Problem, state: State) -> np.ndarray:
 
 
 def moved_markers(problem: Problem, state: State, trial_of: np.ndarray, still: Sequence[bool],
-                  before: Sequence[MovedMarker] = ()) -> list[MovedMarker]:
+                  before: Sequence[MovedMarker] = (), places: np.ndarray | None = None) -> list[MovedMarker]:
     """The markers moved in each still trial (module docstring), worst first: `trial_of` (F,) the trial of
     each frame of `problem`, `still` which trials are still.  On a segment one of them (or of `before`, an
     earlier look's) left by REPLACED_MIN or more in a still trial, every other marker that trial shows there
     comes too (`beside`): a cluster put back elsewhere moved as a whole, and the pose the still trial's fit gives
     its segment, bent by the cluster, hides part of its nearer markers' move (AddBiomechanics' Expert1 walking3:
     L_thigh3 moved with its cluster, 36 mm off in the static and 44-85 mm in the walk, kept; left out, the walk
-    fits 5.8 mm, not 11.8)."""
+    fits 5.8 mm, not 11.8).  `places`: marker_places at `state`, where the caller has them."""
     still_arr = np.asarray(still, dtype=bool)
     if not still_arr.any() or still_arr.all():
         return []
-    places = marker_places(problem, state)
+    places = marker_places(problem, state) if places is None else places
     moving = ~still_arr[trial_of]
     seg_of = {m.name: m.segment for m in problem.model.markers}
     out, rest = [], []
@@ -211,15 +211,16 @@ def _acromia(model, names: Sequence[str]) -> tuple[str, ...]:
                  and (n in ("RSHO", "LSHO") or alias_for(n, ("RSHO", "LSHO")) is not None))
 
 
-def places_apart(problem: Problem, state: State, trial_of: np.ndarray, moving: Sequence[bool]) -> list[PlacesApart]:
+def places_apart(problem: Problem, state: State, trial_of: np.ndarray, moving: Sequence[bool],
+                 places: np.ndarray | None = None) -> list[PlacesApart]:
     """Each two moving trials (`moving`: per trial; `trial_of` (F,): each frame's trial) whose mean places of a marker
     on its segment (marker_places, over MIN_MOVING_FRAMES frames or more of each) lie APART_PLACE or more apart: the
     place where each trial would put the marker, wherever the fit put it, so the compromise it took does not hide
-    the gap."""
+    the gap.  `places`: marker_places at `state`, where the caller has them."""
     trials = np.flatnonzero(np.asarray(moving, dtype=bool))
     if trials.size < 2:
         return []
-    places = marker_places(problem, state)
+    places = marker_places(problem, state) if places is None else places
     names = problem.model.marker_names
     mean = np.full((trials.size, len(names), 3), np.nan)
     for i, t in enumerate(trials):

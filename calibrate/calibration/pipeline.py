@@ -49,6 +49,7 @@ from calibrate.calibration.moved import (
     PlacesApart,
     exchanged_after_solve,
     exchanged_clusters,
+    marker_places,
     moved_markers,
     places_apart,
     relabel_columns,
@@ -759,22 +760,26 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         state, again = paused.finish()
         summary = _merge(summary, again)
     kept: list[MovedMarker] = []
-    if not run.moved_markers and motion is not None and len(trials) > 1:
-        # Markers a still trial shows elsewhere on their segment than the moving trials, looked for but kept
-        # (Settings.moved_markers off): named, so that the user sees what pulls the geometry (gait2392's static
-        # acromia, 53-63 mm, and its back centre 120 mm from the base model's) and the option that leaves them out.
-        # On at most MOVED_SAMPLE evenly spaced frames of each trial: its places' mean and spread need no more, and
-        # a long trial's every frame would hold (F, markers, 3, 3) arrays at once.
-        idx = np.concatenate([sl.start + even_frames(sl.stop - sl.start, MOVED_SAMPLE) for sl in spans])
-        kept = moved_markers(problem.subset(idx), frames_of(state, idx), trial_of[idx],
-                             [m < STILL_MOTION for m in motion])
     apart_places: list[PlacesApart] = []
-    if motion is not None and sum(m >= STILL_MOTION for m in motion) >= 2:
-        # Moving trials that put markers far apart on their segments (a squat's trunk and shoulder-blade markers
-        # against a walk's): named, with what to do; the geometry took a compromise between them.
+    look_moved = not run.moved_markers and motion is not None and len(trials) > 1
+    look_apart = motion is not None and sum(m >= STILL_MOTION for m in motion) >= 2
+    if look_moved or look_apart:
+        # Where each frame puts each marker on its segment, on at most MOVED_SAMPLE evenly spaced frames of each
+        # trial (its places' mean and spread need no more, and a long trial's every frame would hold (F, markers, 3,
+        # 3) arrays at once), read once for both looks below.
         idx = np.concatenate([sl.start + even_frames(sl.stop - sl.start, MOVED_SAMPLE) for sl in spans])
-        apart_places = places_apart(problem.subset(idx), frames_of(state, idx), trial_of[idx],
-                                    [m >= STILL_MOTION for m in motion])
+        sample, at = problem.subset(idx), frames_of(state, idx)
+        places = marker_places(sample, at)
+        if look_moved:
+            # Markers a still trial shows elsewhere on their segment than the moving trials, looked for but kept
+            # (Settings.moved_markers off): named, so that the user sees what pulls the geometry (gait2392's static
+            # acromia, 53-63 mm, and its back centre 120 mm from the base model's) and the option that leaves them
+            # out.
+            kept = moved_markers(sample, at, trial_of[idx], [m < STILL_MOTION for m in motion], places=places)
+        if look_apart:
+            # Moving trials that put markers far apart on their segments (a squat's trunk and shoulder-blade markers
+            # against a walk's): named, with what to do; the geometry took a compromise between them.
+            apart_places = places_apart(sample, at, trial_of[idx], [m >= STILL_MOTION for m in motion], places=places)
     if far_obs is not None:
         # The still trials' angles beyond their far joints as their own markers show them at this geometry (the
         # markers left out of the fit reach no other coordinate: the cost keeps, but for joint limits), before

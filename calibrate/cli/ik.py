@@ -126,21 +126,20 @@ def cmd_ik(args: argparse.Namespace) -> int:
         if not args.ik_setup:
             raise CalibrateError("--setup-names takes the names the lab's IK setups give; add --ik-setup")
         named = setup_outputs(None, args.ik_setup)
-    outputs, opensim_files, folders, locations = [], {}, {}, {}
+    outputs, opensim_files, locations, files = [], {}, {}, {}
     for t in trial_paths:
         folder = args.out if args.out is not None else t.parent
-        files = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
-        opensim_files[t] = files if named is None else named.outputs_of(t, *files)
+        beside = (folder / f"{t.stem}_motion.mot", folder / f"{t.stem}_ik_marker_errors.sto")
+        opensim_files[t] = beside if named is None else named.outputs_of(t, *beside)
         # the model's marker locations where the IK setup asks OpenSim for them (report_marker_locations)
         locations[t] = None if named is None or not osim else named.locations_of(t)
         if from_setup and args.out is None:  # the motion CSV (and the rest) beside the .mot the setup names
             folder = opensim_files[t][0].parent
-        folders[t] = folder
-        outputs += [folder / f"{t.stem}_motion.csv", folder / f"{t.stem}_ik_report.json"] + \
-            (list(opensim_files[t]) if osim else []) + \
-            ([locations[t]] if locations[t] is not None else []) + \
-            ([folder / f"{t.stem}_calibrated.c3d"] if args.c3d else []) + \
-            ([folder / f"{t.stem}_motion_qpos.csv"] if args.mjcf else [])
+        mot, sto = opensim_files[t] if osim else (None, None)
+        files[t] = IKFiles(folder / f"{t.stem}_motion.csv", folder / f"{t.stem}_ik_report.json", mot, sto,
+                           locations[t], folder / f"{t.stem}_calibrated.c3d" if args.c3d else None,
+                           folder / f"{t.stem}_motion_qpos.csv" if args.mjcf else None)
+        outputs += files[t].paths()
     if named is not None and osim:  # those the lab's IK setups name first (an OpenSim run's earlier outputs?)
         from ..io.osim_setup import SETUP_NAMED_HINT
 
@@ -159,13 +158,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
     with progress_for(args.quiet, 1, Timed) as say:
         done = fit_planned(plan, keep_damaged=args.keep_damaged, check_size=not args.other_subject, say=say)
     for one in done:
-        path = one.job.path
-        folder = folders[path]
-        mot, sto = opensim_files[path] if osim else (None, None)
-        write_fitted(plan, one, IKFiles(folder / f"{path.stem}_motion.csv", folder / f"{path.stem}_ik_report.json",
-                                        mot, sto, locations[path],
-                                        folder / f"{path.stem}_calibrated.c3d" if args.c3d else None,
-                                        folder / f"{path.stem}_motion_qpos.csv" if args.mjcf else None))
+        write_fitted(plan, one, files[one.job.path])
     if not args.quiet:
         lines = [*plan.notes, *(line for one in done for line in one.notes)]
         if (release := plan.release_note()) is not None:
@@ -182,7 +175,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
             left = one.got.left_out
             print(f"  {one.job.path.name}: {trial.n_frames} frames ({trial.times[0]:.4g} to {trial.times[-1]:.4g} s), "
                   f"marker RMS {1000 * fit.rms:.2f} mm, largest {1000 * np.nanmax(err):.1f} mm; worst markers "
-                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst_markers(plan.model, one)) + " mm"
+                  + ", ".join(f"{n} {1000 * v:.1f}" for n, v in worst_markers(one)) + " mm"
                   + (f"; {left} marker positions left out (jumps, jitter, a marker left behind)" if left else "")
                   + ("; markers weighed alike (beyond the learnt noise)" if one.got.weighed_alike else "")
                   + f"; {one.seconds:.2f} s")
