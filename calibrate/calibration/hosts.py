@@ -98,15 +98,46 @@ def named_segments(model: Model, label: str) -> tuple[str, ...]:
                  if any(n in s.name.lower() for n in SEGMENT_NAMES[kind]) and named_side(s.name) == side)
 
 
+# The names a lab gives a joint's centre (a point its software computed and wrote as a marker: Expert1's and OpenCap's
+# R_HJC and R_HJC_reg), by the joint, as they spell them without the side token and separators, lower case.  Such a
+# point is fixed in both segments of its joint and in no other; the model's poses, which fit a base model of another
+# size, can leave it stiller on a third (Expert1's L_HJC on the torso, 20 mm, against the pelvis's 44).
+CENTRE_NAMES = {
+    "hip": {"hjc", "hipjc", "hipjointcentre", "hipjointcenter", "hipcentre", "hipcenter", "hjcreg"},
+    "knee": {"kjc", "kneejc", "kneejointcentre", "kneejointcenter", "kneecentre", "kneecenter"},
+    "ankle": {"ajc", "anklejc", "anklejointcentre", "anklejointcenter", "anklecentre", "anklecenter"},
+    "shoulder": {"sjc", "shoulderjc", "shoulderjointcentre", "shoulderjointcenter", "shouldercentre",
+                 "shouldercenter", "gh", "ghjc"},
+    "elbow": {"ejc", "elbowjc", "elbowjointcentre", "elbowjointcenter", "elbowcentre", "elbowcenter"},
+    "wrist": {"wjc", "wristjc", "wristjointcentre", "wristjointcenter", "wristcentre", "wristcenter"},
+}
+
+
+def _name_body(label: str) -> str:
+    """A label's name without its side token and separators, lower case, OpenCap's `study` suffix dropped."""
+    return re.sub(r"[._\- ]", "", unsided(label)).lower().removesuffix("study")
+
+
+def centre_segments(model: Model, label: str) -> tuple[str, str] | None:
+    """(parent, child) of the joint whose centre `label`'s name says it marks (CENTRE_NAMES: R_HJC on the right hip),
+    on the name's side; None for any other name, no side, or a model without that joint."""
+    side = named_side(label)
+    part = next((p for p, names in CENTRE_NAMES.items() if _name_body(label) in names), None)
+    if side is None or part is None:
+        return None
+    for j in model.joints:
+        if part in j.name.lower() and named_side(j.name) == side:
+            return j.parent, j.child
+    return None
+
+
 def medial_host(model: Model, label: str) -> tuple[str, str] | None:
     """(segment, joint) where a medial marker's name puts it (MEDIAL_NAMES): the segment the model's knee, ankle or
     elbow hinge of the side the name says hangs from (the hinge's name has the joint's and its side's, as
     models/human.urdf's knee_l, gait2392's knee_r, Rajagopal2016's walker_knee_r); None for any other name, no side,
     or a model without that hinge."""
     side = named_side(label)
-    body = re.sub(r"[._\- ]", "", unsided(label)).lower()
-    body = body.removesuffix("study")  # OpenCap's augmented markers: r_mknee_study
-    part = next((p for p, names in MEDIAL_NAMES.items() if body in names), None)
+    part = next((p for p, names in MEDIAL_NAMES.items() if _name_body(label) in names), None)
     if side is None or part is None:
         return None
     for j in model.joints:
@@ -248,7 +279,12 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
     for lab, P in local_places(model, fits, labels, candidates).items():
         mid = np.median(P, axis=0)
         spread = np.sqrt(np.mean(np.sum((P - mid) ** 2, axis=2), axis=0))  # (segments,)
-        order = np.argsort(spread)
+        joint = centre_segments(model, lab)
+        if joint is not None:  # a joint's centre, as its name says: on one of that joint's segments or none
+            spread = np.where(np.isin(candidates, joint), spread, np.inf)
+            if not np.isfinite(spread).any():
+                continue
+        order = [k for k in np.argsort(spread) if np.isfinite(spread[k])]
         best, second = int(order[0]), int(order[1]) if len(order) > 1 else int(order[0])
         ok = spread[best] <= HOST_SPREAD and (len(order) == 1 or spread[best] <= HOST_RATIO * spread[second])
         pick = None if ok else _named_host(model, lab, candidates, spread)

@@ -28,7 +28,14 @@ from threadpoolctl import threadpool_limits
 from calibrate.calibration import regression
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
-from calibrate.calibration.hosts import cluster_hosts, kinematic_hosts, medial_host, past_joints, trial_exchanges
+from calibrate.calibration.hosts import (
+    centre_segments,
+    cluster_hosts,
+    kinematic_hosts,
+    medial_host,
+    past_joints,
+    trial_exchanges,
+)
 from calibrate.calibration.identifiability import (
     FAR_FROM_PRIOR,
     NARROW_TURN,
@@ -100,7 +107,7 @@ from ..model.model import Model, Parameters, add_markers
 from ..model.urdf import mass_factor
 from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
-from ..problem.priors import held_layout, joint_centre_markers
+from ..problem.priors import held_layout, joint_centre_markers, straddle
 from ..problem.problem import Problem
 from ..problem.settings import Settings
 from ..problem.state import State
@@ -1688,8 +1695,9 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         # next one's, so neither rigidity nor the poses say where a label rides (kineticstoolkit's wheelchair-racing
         # static had put its arm, forearm and glove markers on the femurs, its wheelchair's on the torso).
         names = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}" for i, t in enumerate(trials))
-        return [_medial(model, lab) or NewMarker(lab, None, None, f"seen only in still trials ({names}): no motion "
-                                                                  "shows which segment it rides on") for lab in unknown]
+        return [_medial(model, lab, "seen only in still trials")
+                or NewMarker(lab, None, None, f"seen only in still trials ({names}): no motion shows which segment "
+                                              "it rides on") for lab in unknown]
     used = [trials[i] for i in (moving or range(len(trials)))]
     labels = (*model.marker_names, *unknown)
     parts = []
@@ -1702,14 +1710,20 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     assoc = associate_to_model(model, together)
     # Those rigidity leaves out, judged again on the model's own poses (calibrate.calibration.hosts): a cluster on
     # skin, or a segment whose one known marker sits near a joint.
-    left = [lab for lab in unknown if assoc[lab].segment is None and any(lab in t.labels for t in used)]
+    # A medial epicondyle or malleolus marker lies on its hinge's axis: it keeps its distances to the markers on both
+    # sides of the hinge however the joint turns, and its place in either segment's frame as well, so neither rigidity
+    # nor the poses tell the segment above from the one below (OpenCap's walk: R_elbow_med on the radius by its wrist
+    # markers, 11 mm against the humerus's 28; Expert1's left on neither).  Its name decides, as in a still trial.
+    medial = {lab for lab in unknown if medial_host(model, lab) is not None}
+    left = [lab for lab in unknown if assoc[lab].segment is None and lab not in medial
+            and any(lab in t.labels for t in used)]
     hosts = kinematic_hosts(model, used, left) if left else {}
     # Those left still, by their distances' margins (association.margin_hosts): a segment whose own markers move
     # against each other on skin more than the trial's rigidity threshold (a two-marker foot, a pelvis), which the
     # poses cannot pin either (a foot posed by its heel and toe turns about the line between them).
     rest = [lab for lab in left if lab not in hosts or hosts[lab].segment is None]
     placed = {lab: seg for lab in unknown
-              if (seg := hosts[lab].segment if lab in hosts else assoc[lab].segment) is not None}
+              if lab not in medial and (seg := hosts[lab].segment if lab in hosts else assoc[lab].segment) is not None}
     margins = margin_hosts(model, together, rest, placed) if rest else {}
     # And a rigid cluster of those still left, by a segment whose model markers the trials never show (a head band
     # the model spells otherwise: calibrate.calibration.hosts.cluster_hosts).
@@ -1721,13 +1735,17 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     past = past_joints(model, used, placed) if placed else {}
     out = []
     for lab in unknown:
-        if lab in past:
+        if lab in medial:
+            shown = any(lab in t.labels for t in used)
+            out.append(_medial(model, lab, "on its hinge's axis, where neither its distances nor its places tell the "
+                                           "segments apart" if shown else "seen only in still trials"))
+        elif lab in past:
             out.append(NewMarker(lab, None, None, past[lab].reason(), sits_by=past[lab].near))
         elif len(used) < len(trials) and not any(lab in t.labels for t in used):
             still = ", ".join(Path(t.source).name if t.source else f"trial {i + 1}"
                               for i, t in enumerate(trials) if i not in moving)
-            out.append(_medial(model, lab) or NewMarker(lab, None, None, f"seen only in still trials ({still}): no "
-                                                                         "motion shows which segment it rides on"))
+            out.append(NewMarker(lab, None, None, f"seen only in still trials ({still}): no motion shows which "
+                                                  "segment it rides on"))
         elif lab in hosts and hosts[lab].segment is not None:
             out.append(NewMarker(lab, hosts[lab].segment, None, hosts[lab].reason()))
         elif lab in margins and margins[lab].segment is not None:
@@ -1742,17 +1760,28 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
             # clause that they cannot receive markers no longer holds)
             why = f"{split_reason(assoc[lab].reason)[0]}; {hosts[lab].reason()}" if lab in hosts else assoc[lab].reason
             out.append(NewMarker(lab, assoc[lab].segment, None, why))
-    return out
+    return [_off_its_joint(model, m) for m in out]
 
 
-def _medial(model: Model, label: str) -> NewMarker | None:
-    """A label the still trials alone show, placed by its name where it is a medial marker's (hosts.medial_host:
-    r_mknee on the femur the right knee hangs from), or None."""
+def _off_its_joint(model: Model, marker: NewMarker) -> NewMarker:
+    """`marker` left out where its name says a joint's centre (hosts.centre_segments: R_HJC) and a test put it on
+    neither of that joint's segments (a walk's trunk turns little over the pelvis: Expert1's L_HJC by its distances
+    rode as well with C7 and the acromion as with the pelvis markers)."""
+    joint = centre_segments(model, marker.label) if marker.segment is not None else None
+    if joint is None or marker.segment in joint:
+        return marker
+    return NewMarker(marker.label, None, None, f"named as the centre of the joint between {joint[0]} and {joint[1]}, "
+                                               f"yet placed on {marker.segment} ({marker.reason}): on neither")
+
+
+def _medial(model: Model, label: str, why: str) -> NewMarker | None:
+    """A label placed by its name where it is a medial marker's (hosts.medial_host: r_mknee on the femur the right
+    knee hangs from), or None; `why` the name decides (a still trial's alone, or its place on the axis)."""
     host = medial_host(model, label)
     if host is None:
         return None
-    return NewMarker(label, host[0], None, f"named as a medial marker of {host[1]} (its epicondyle or malleolus), seen "
-                                           "only in still trials: on the segment that joint hangs from")
+    return NewMarker(label, host[0], None, f"named as a medial marker of {host[1]} (its epicondyle or malleolus), "
+                                           f"{why}: on the segment that joint hangs from", hinge=host[1])
 
 
 def _protocol_places(subject: Model, params: Parameters, pairs: Sequence[tuple[str, str]]) -> Parameters:
@@ -1822,12 +1851,45 @@ def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.n
         use = np.isfinite(local[:, i, 0])
         name = subject.marker_names[k]
         offset = np.median(local[use, i], axis=0) / s[i]
+        m = by_label[name]
+        across = _across_hinge(subject, out, m.hinge, offset) if m.hinge else None
+        reason = m.reason
+        if across is not None:
+            offset, lateral, off = across
+            reason += (f"; placed across {m.hinge}'s axis from {lateral}, where the start's poses put it "
+                       f"{1e3 * off * s[i]:.0f} mm from there, off the line of the two")
         out.marker[k] = offset
         base.marker[k] = offset
-        m = by_label[name]
-        by_label[name] = NewMarker(name, m.segment, s[i] * offset, m.reason)
+        by_label[name] = replace(m, position=s[i] * offset, reason=reason)
     result = [by_label[m.label] for m in placed]
     return out, base, result
+
+
+def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndarray
+                  ) -> tuple[np.ndarray, str, float] | None:
+    """A hinge's medial marker's place on the segment it hangs from (`place`, unscaled, as the start's poses put it)
+    where that place and the hinge's Plug-in Gait lateral marker do not straddle its centre along its axis
+    (priors.straddle): the lateral marker's place mirrored across the plane through the centre normal to the axis,
+    the lateral marker's name, and how far the mirrored place is from `place` (unscaled); None where they straddle
+    already, the model has no lateral marker there, or the mirror would not straddle either.  A humerus posed by
+    two lateral markers turns freely about their line: the start can leave the medial epicondyle 90 mm behind it
+    (AddBiomechanics' Expert1 on models/human.urdf), where the name says it is across the elbow from the lateral."""
+    lateral = dict(lateral_markers_of(subject)).get(hinge)
+    if lateral is None:
+        return None
+    ji = subject.joint_index(hinge)
+    joint = subject.joints[ji]
+    rotation = next(u.rotation for u in subject.urdf_joints if u.name == joint.urdf_joints[0])
+    d = subject.dof_index(joint.dofs[0])
+    axis = rotation @ (params.axis[d] / np.linalg.norm(params.axis[d]))
+    c, x = params.centre[ji], params.marker[subject.marker_index(lateral)]
+    scale = float(params.scale[subject.segment_index(joint.parent)])
+    if straddle(scale * c, axis, scale * x, scale * place) is not None:
+        return None
+    mirrored = x - 2.0 * float((x - c) @ axis) * axis
+    if straddle(scale * c, axis, scale * x, scale * mirrored) is None:
+        return None
+    return mirrored, lateral, float(np.linalg.norm(mirrored - place))
 
 
 def _solve_geometry(problem: Problem, state: State, options: SolverOptions,

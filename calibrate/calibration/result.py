@@ -35,6 +35,10 @@ class NewMarker:
     # first (two when they tie: a wrist's), which the trials do not show under their own names (what a marker map
     # might call it)
     sits_by: tuple[str, ...] = ()
+    # the hinge whose medial marker its name says (hosts.medial_host), where it rides on the segment that hinge hangs
+    # from: its place there starts across the hinge's axis from the lateral marker where the poses put it elsewhere
+    # (pipeline._place_new_markers)
+    hinge: str = ""
 
 
 @dataclass(frozen=True)

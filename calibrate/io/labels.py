@@ -52,9 +52,9 @@ xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hl
               elbowout
 xFRM          frm, forearm
 xWRA          wra, wrista, wristlat, wristlateral, wristradial, radialwrist, radialstyloid, radius,
-              rs, rsp, radialstyloidprocess, lw, faradius, lwrist
+              rs, rsp, radialstyloidprocess, lw, faradius, lwrist, wristradius
 xWRB          wrb, wristb, wristmed, wristmedial, wristulnar, ulnarwrist, ulnarstyloid, ulna,
-              us, usp, ulnarstyloidprocess, mw, faulna, mwrist
+              us, usp, ulnarstyloidprocess, mw, faulna, mwrist, wristulna
 xFIN          fin, finger, mcp2, mc2, hand, hm2
 xFHD          fhd, fronthead, headfront, forehead, temple, hdf
 xBHD          bhd, backhead, headback, rearhead, headrear, hdb
@@ -76,7 +76,8 @@ RS, RSP and US, USP the radial and ulnar styloid (WRA, WRB); HM2 the second meta
 (FIN); IJ, SJN the jugular notch (CLAV); PX, SXS the xiphoid (STRN); CV7, TV10 the spinous
 processes; Motek's Human Body Model spells the knee's and the elbow's lateral epicondyles LEK and LEE, the
 wrist's lateral (radial) and medial (ulnar) sides LW and MW; the Rajagopal2016 copy in ../shared spells the
-lateral femoral condyle LFC, the lateral elbow LEL and the forearm's styloids FAradius and FAulna; BTS's Davis
+lateral femoral condyle LFC, the lateral elbow LEL and the forearm's styloids FAradius and FAulna, and
+AddBiomechanics' Expert1 trials the styloids R_wrist_radius and R_wrist_ulna; BTS's Davis
 protocol (``r knee 1``, ``r mall``, ``r bar 1``, ``r bar 2``) the lateral femoral epicondyle and malleolus and its
 thigh and shank wands, where Plug-in Gait has its own (its ``r met``, the fifth metatarsal head, is not TOE's second),
 before a plain ``r knee`` or ``r ankle`` (c3d.org's sample28, a BTS file, holds both: those are its joint centres,
@@ -173,11 +174,11 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "FRM": ("frm", "forearm"),
     "WRA": (
         "wra", "wrista", "wristlat", "wristlateral", "wristradial", "radialwrist", "radialstyloid", "radius",
-        "rs", "rsp", "radialstyloidprocess", "lw", "faradius", "lwrist",
+        "rs", "rsp", "radialstyloidprocess", "lw", "faradius", "lwrist", "wristradius",
     ),
     "WRB": (
         "wrb", "wristb", "wristmed", "wristmedial", "wristulnar", "ulnarwrist", "ulnarstyloid", "ulna",
-        "us", "usp", "ulnarstyloidprocess", "mw", "faulna", "mwrist",
+        "us", "usp", "ulnarstyloidprocess", "mw", "faulna", "mwrist", "wristulna",
     ),
     "FIN": ("fin", "finger", "mcp2", "mc2", "hand", "hm2"),
     "FHD": ("fhd", "fronthead", "headfront", "forehead", "temple", "hdf"),

@@ -64,6 +64,22 @@ PAIR_OFF = 0.03
 PAIR_INNER = 0.15
 
 
+def straddle(centre: np.ndarray, axis: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> float | None:
+    """How far (m) the line through markers `x1` and `x2` passes from a hinge's `centre`, where the two straddle it
+    along its unit `axis` (PAIR_SPAN, PAIR_ANGLE, PAIR_OFF, PAIR_INNER; all in one segment's frame, at its scale);
+    None where they do not."""
+    v = x2 - x1
+    span = float(np.linalg.norm(v))
+    if not PAIR_SPAN[0] <= span <= PAIR_SPAN[1]:
+        return None
+    e = v / span
+    if math.acos(min(1.0, abs(float(e @ axis)))) > PAIR_ANGLE:
+        return None
+    t = float((centre - x1) @ e) / span
+    off = float(np.linalg.norm(centre - x1 - t * span * e))
+    return off if PAIR_INNER <= t <= 1.0 - PAIR_INNER and off <= PAIR_OFF else None
+
+
 def straddling_pairs(model: Model, base: np.ndarray, layout, rotations: list[np.ndarray], seen: np.ndarray,
                      centre_segment: np.ndarray) -> list[tuple[int, int, int, int]]:
     """(joint, marker, marker, DoF) of each calibrated knee, ankle and elbow hinge (ON_AXIS_JOINTS in its joint's
@@ -84,17 +100,8 @@ def straddling_pairs(model: Model, base: np.ndarray, layout, rotations: list[np.
         best = None
         for i, k in enumerate(mks):
             for m2 in mks[i + 1:]:
-                x1, x2 = s * base[layout.marker(k)], s * base[layout.marker(m2)]
-                v = x2 - x1
-                span = float(np.linalg.norm(v))
-                if not PAIR_SPAN[0] <= span <= PAIR_SPAN[1]:
-                    continue
-                e = v / span
-                if math.acos(min(1.0, abs(float(e @ a)))) > PAIR_ANGLE:
-                    continue
-                t = float((c - x1) @ e) / span
-                off = float(np.linalg.norm(c - x1 - t * span * e))
-                if PAIR_INNER <= t <= 1.0 - PAIR_INNER and off <= PAIR_OFF and (best is None or off < best[0]):
+                off = straddle(c, a, s * base[layout.marker(k)], s * base[layout.marker(m2)])
+                if off is not None and (best is None or off < best[0]):
                     best = (off, k, m2)
         if best is not None:
             out.append((ji, best[1], best[2], d))
