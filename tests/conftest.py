@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from calibrate.model.kinematics import build_kinematics
-from calibrate.model.model import load_model
+from calibrate.model.model import add_markers, load_model
 
 ROOT = Path(__file__).resolve().parent.parent
 HUMAN = ROOT / "models" / "human.urdf"
@@ -46,3 +47,19 @@ def prior_jacobian_by_differences(problem, p: np.ndarray, h: float = 1e-6) -> np
         fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
                     - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
     return fd
+
+
+def with_medial_markers(model, joint: str, lateral: str, name: str, beyond: float):
+    """`model` with a medial marker `name` on each side's `joint` hinge (L / R + name): the lateral marker (L / R +
+    `lateral`) reflected through the plane across the hinge's axis at its centre, then `beyond` (m) further out."""
+    p = model.parameters()
+    new = {}
+    for side in "LR":
+        j = model.joints[model.joint_index(f"{joint}_{side.lower()}")]
+        R = next(u.rotation for u in model.urdf_joints if u.name == j.urdf_joints[0])
+        a = R @ p.axis[model.dof_index(j.dofs[0])]
+        at = p.marker[model.marker_index(f"{side}{lateral}")]
+        c = p.centre[model.joint_index(j.name)]
+        out = float(a @ (at - c))
+        new[f"{side}{name}"] = (j.parent, at - (2 * out + math.copysign(beyond, out)) * a)
+    return add_markers(model, new)

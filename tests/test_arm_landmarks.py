@@ -4,17 +4,16 @@ trial (on the hinge's axis neither rigidity nor the poses tell the two segments 
 axis from the lateral marker where the start's poses leave it elsewhere, and a lab's joint-centre label (R_HJC) kept
 on its joint's segments.  Trials from the simulator, renamed as AddBiomechanics' and OpenCap's labs name them."""
 
-import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import with_medial_markers
 
 from calibrate.calibration.hosts import centre_segments, kinematic_hosts, medial_host
 from calibrate.calibration.pipeline import _across_hinge, _off_its_joint, calibrate
 from calibrate.calibration.result import NewMarker
 from calibrate.io.labels import map_labels
-from calibrate.model.model import add_markers
 from calibrate.problem.priors import straddle
 from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_gait, simulate_static
@@ -68,17 +67,7 @@ def test_a_hip_centre_label_rides_on_the_pelvis_or_the_femur(human):
 def elbows(human):
     """human.urdf with a medial elbow marker on each humerus: the lateral one (LELB, RELB) reflected through the plane
     across the elbow axis at its centre, then 5 mm further out (a 76 mm elbow)."""
-    p = human.parameters()
-    new = {}
-    for side in "LR":
-        joint = human.joints[human.joint_index(f"elbow_{side.lower()}")]
-        R = next(u.rotation for u in human.urdf_joints if u.name == joint.urdf_joints[0])
-        a = R @ p.axis[human.dof_index(joint.dofs[0])]
-        lateral = p.marker[human.marker_index(f"{side}ELB")]
-        c = p.centre[human.joint_index(joint.name)]
-        out = float(a @ (lateral - c))
-        new[f"{side}MEL"] = (joint.parent, lateral - (2 * out + math.copysign(0.005, out)) * a)
-    return add_markers(human, new)
+    return with_medial_markers(human, "elbow", "ELB", "MEL", 0.005)
 
 
 def test_a_medial_place_off_the_axis_starts_across_it(human, elbows):

@@ -9,13 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 import pytest
-from conftest import prior_jacobian_by_differences
+from conftest import prior_jacobian_by_differences, with_medial_markers
 
 from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.model.kinematics import build_kinematics
-from calibrate.model.model import add_markers, write_model
+from calibrate.model.model import write_model
 from calibrate.problem.options import Priors
 from calibrate.problem.problem import Problem
 from calibrate.problem.settings import Settings
@@ -28,17 +28,7 @@ def paired(human):
     """human.urdf with a medial knee marker on each femur: the lateral one (LKNE, RKNE) reflected through the plane
     across the knee axis at its centre, then 10 mm further out (a 124 mm knee whose centre lies 5 mm from the
     markers' midpoint towards the lateral one)."""
-    p = human.parameters()
-    new = {}
-    for side in "LR":
-        joint = human.joints[human.joint_index(f"knee_{side.lower()}")]
-        R = next(u.rotation for u in human.urdf_joints if u.name == joint.urdf_joints[0])
-        a = R @ p.axis[human.dof_index(joint.dofs[0])]
-        lateral = p.marker[human.marker_index(f"{side}KNE")]
-        c = p.centre[human.joint_index(joint.name)]
-        out = float(a @ (lateral - c))
-        new[f"{side}KNM"] = (joint.parent, lateral - (2 * out + math.copysign(0.010, out)) * a)
-    return add_markers(human, new)
+    return with_medial_markers(human, "knee", "KNE", "KNM", 0.010)
 
 
 def _pairs(model, trial, **priors):
