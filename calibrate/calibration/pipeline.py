@@ -103,7 +103,7 @@ from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import Kinematics, build_kinematics
-from ..model.model import Model, Parameters, add_markers
+from ..model.model import Model, Parameters, add_markers, hinge_axis
 from ..model.urdf import mass_factor
 from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
@@ -1879,9 +1879,7 @@ def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndar
         return None
     ji = subject.joint_index(hinge)
     joint = subject.joints[ji]
-    rotation = next(u.rotation for u in subject.urdf_joints if u.name == joint.urdf_joints[0])
-    d = subject.dof_index(joint.dofs[0])
-    axis = rotation @ (params.axis[d] / np.linalg.norm(params.axis[d]))
+    axis = hinge_axis(subject, params, subject.dof_index(joint.dofs[0]))
     c, x = params.centre[ji], params.marker[subject.marker_index(lateral)]
     scale = float(params.scale[subject.segment_index(joint.parent)])
     if straddle(scale * c, axis, scale * x, scale * place) is not None:

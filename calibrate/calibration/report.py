@@ -23,7 +23,7 @@ from ..io.labels import UNLABELLED
 from ..io.measurements import lateral_distance, lateral_markers_of
 from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
-from ..model.model import Model, Parameters
+from ..model.model import Model, Parameters, hinge_axis
 from ..model.urdf import mass_factor, urdf_text, with_comment
 from ..problem.priors import on_axis_markers, placeholder_markers, symmetry_pairs
 from ..seed.association import shared_clause
@@ -559,8 +559,7 @@ def axis_pair_table(cal: Calibration) -> list[dict]:
         d = m.dof_index(dof)
         ji = m.joint_index(m.dofs[d].joint)
         jt = m.joints[ji]
-        R = next(u.rotation for u in m.urdf_joints if u.name == jt.urdf_joints[0])
-        a = R @ (p.axis[d] / np.linalg.norm(p.axis[d]))
+        a = hinge_axis(m, p, d)
         x1, x2 = p.marker[m.marker_index(m1)], p.marker[m.marker_index(m2)]
         e = (x2 - x1) / np.linalg.norm(x2 - x1)
         s = float(p.scale[m.segment_index(jt.parent)])

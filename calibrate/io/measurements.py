@@ -151,12 +151,13 @@ def lateral_distance(model: Model, params: Parameters, base: Parameters, joint: 
     width fixes: calibrate.io.measurements)."""
     ji = next(i for i, j in enumerate(model.joints) if j.name == joint)
     mi = model.marker_names.index(marker)
+    from calibrate.model.model import hinge_axis
+
     jt = model.joints[ji]
-    rotation = next(u.rotation for u in model.urdf_joints if u.name == jt.urdf_joints[0])
     d = model.dof_index(jt.dofs[0])
 
     def along(p) -> float:
-        a = rotation @ (p.axis[d] / np.linalg.norm(p.axis[d]))
+        a = hinge_axis(model, p, d)
         return float(a @ (p.marker[mi] - p.centre[ji])) * float(p.scale[model.segment_index(jt.parent)])
 
     side = 1.0 if along(base) >= 0 else -1.0

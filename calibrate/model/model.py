@@ -554,6 +554,14 @@ def add_markers(model: Model, markers: Mapping[str, tuple[str, np.ndarray]]) -> 
     return Model(model.path, text=head + ET.tostring(robot, encoding="unicode") + "\n")
 
 
+def hinge_axis(model: Model, params: Parameters, dof: int) -> np.ndarray:
+    """Hinge DoF `dof`'s unit axis in its parent segment's frame in geometry `params` (the URDF joint's rotation
+    applied to the calibrated axis): where a hinge's lateral and medial markers are measured along it."""
+    joint = model.joints[model.joint_index(model.dofs[dof].joint)]
+    rotation = next(u.rotation for u in model.urdf_joints if u.name == joint.urdf_joints[0])
+    return rotation @ (params.axis[dof] / np.linalg.norm(params.axis[dof]))
+
+
 def _joint_name(chain: list[str]) -> str:
     """Anatomical joint name: the URDF joint's name, or the chain's common prefix ('hip_r')."""
     if len(chain) == 1:
@@ -582,6 +590,6 @@ def _pin_axes(pm: pin.Model, where: str) -> list[np.ndarray]:
 
 
 
-__all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "add_markers", "load_model",
-           "write_model"]
+__all__ = ["Dof", "Joint", "Marker", "Model", "Parameters", "Segment", "UrdfJoint", "add_markers", "hinge_axis",
+           "load_model", "write_model"]
 
