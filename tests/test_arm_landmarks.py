@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import with_medial_markers
 
-from calibrate.calibration.hosts import centre_segments, kinematic_hosts, medial_host
+from calibrate.calibration.hosts import centre_labels, centre_segments, kinematic_hosts, medial_host
 from calibrate.calibration.pipeline import _across_hinge, _off_its_joint, calibrate
 from calibrate.calibration.result import NewMarker
 from calibrate.io.labels import map_labels
@@ -49,6 +49,16 @@ def test_a_joint_centre_label_names_its_joints_two_segments(human):
     assert out.segment is None and "named as the centre of the joint between pelvis and femur_l" in out.reason
     pelvis = replace(torso, segment="pelvis")
     assert _off_its_joint(human, pelvis) is pelvis
+
+
+def test_the_plainest_label_of_each_centre_is_the_one_tied(human):
+    """centre_labels: per joint one label the model lacks, the plainest of those naming its centre (R_HJC before its
+    regression's R_HJC_reg); none for a joint skipped (the hips under --hip-regression) or a label the model has."""
+    got = centre_labels(human, ["RASI", "R_HJC_reg", "R_HJC", "L_HJC_reg", "L.Knee.JC", "R_elbow_med", "R_HJC"])
+    assert {lab: j.name for lab, j in got.items()} == {"R_HJC": "hip_r", "L_HJC_reg": "hip_l", "L.Knee.JC": "knee_l"}
+    assert got["R_HJC"].child == "femur_r"
+    assert set(centre_labels(human, ["R_HJC", "L_HJC"], skip=("hip_r",))) == {"L_HJC"}
+    assert centre_labels(human, ["RASI", "LKNE"]) == {}
 
 
 def test_a_hip_centre_label_rides_on_the_pelvis_or_the_femur(human):
@@ -90,6 +100,17 @@ def test_a_medial_place_off_the_axis_starts_across_it(human, elbows):
     true_place = elbows.parameters().marker[elbows.marker_index("RMEL")]
     assert _across_hinge(human, p, "elbow_r", true_place) is None
     assert _across_hinge(human, p, "radioulnar_r", behind) is None
+    # a lateral marker the start put 40 mm off the axis's line (past PAIR_OFF): its mirror would pass as far from the
+    # centre, so the medial place starts on the axis, across the centre from it, and the two straddle the centre
+    off = np.cross(a, [0.0, 0.0, 1.0])
+    off /= np.linalg.norm(off)
+    far = c + float(a @ (lateral - c)) * a + 0.040 * off
+    q = replace(p, marker=p.marker.copy())
+    q.marker[human.marker_index("RELB")] = far
+    assert straddle(c, a, far, far - 2.0 * float(a @ (far - c)) * a) is None
+    on_axis, _, _ = _across_hinge(human, q, "elbow_r", behind)
+    assert np.allclose(on_axis, c - float(a @ (far - c)) * a, atol=1e-12)
+    assert straddle(c, a, far, on_axis) is not None
 
 
 def test_medial_elbow_markers_in_a_moving_trial_go_on_the_humerus_by_name(human, elbows):

@@ -116,6 +116,32 @@ def test_a_static_places_the_hip_where_its_joint_centre_marker_is(human, tmp_pat
     assert np.linalg.norm(_hips_from_urdf(loose, tmp_path / "loose.urdf")[0] - rhjc, axis=1).min() > 0.015
 
 
+def test_a_trials_joint_centre_label_the_model_lacks_is_tied_to_its_centre(human, tmp_path):
+    """A lab's hip centre written into the trial (R_HJC, 20 mm anterior of the true centre, beside its regression's
+    R_HJC_reg 30 mm from it, as Expert1's and OpenCap's trials carry both) where the base model has no such marker:
+    the plainer name is added at the hip's centre and tied, so the hip goes to it as to a base model's RHJC (to the
+    marker's 1 mm noise); the other stays an unknown label.  With joint_marker 0 neither is tied."""
+    lab_model = add_markers(human, {"R_HJC": ("femur_r", np.zeros(3)), "R_HJC_reg": ("femur_r", np.zeros(3))})
+    truth = simulate_squats(lab_model, frames=3, noise_mm=0.0, seed=7).truth
+    lab = truth.copy()
+    s = truth.scale[lab_model.segment_index("femur_r")]
+    lab.marker[lab_model.marker_index("R_HJC")] = LAB_OFFSET / s
+    lab.marker[lab_model.marker_index("R_HJC_reg")] = (LAB_OFFSET + [0.0, 0.030, 0.0]) / s
+    static = simulate_static(lab_model, lab, frames=60, noise_mm=1.0, seed=7).trial
+    rhjc = static.markers[:, static.labels.index("R_HJC")]
+    assert "R_HJC" not in human.marker_names
+
+    cal = calibrate(human, [static], Settings(outliers=0.0))
+    assert [(m.marker, m.joint) for m in cal.joint_markers] == [("R_HJC", "hip_r")]
+    gap = np.linalg.norm(_hips_from_urdf(cal, tmp_path / "tied.urdf")[0] - rhjc, axis=1)
+    assert np.median(gap) < 0.002 and gap.max() < 0.004
+    assert [m.label for m in cal.new_markers] == ["R_HJC_reg"]
+    assert "joint marker R_HJC at hip_r" in summary_text(cal)
+
+    loose = calibrate(human, [static], Settings(outliers=0.0, priors=Priors(joint_marker=0.0)))
+    assert loose.joint_markers == () and {m.label for m in loose.new_markers} == {"R_HJC", "R_HJC_reg"}
+
+
 def test_a_centre_its_joint_centre_marker_places_far_from_the_base_model_is_not_called_unreliable(human):
     """The lab's RHJC 100 mm from the base model's hip (its regression, or --hip-regression's Harrington, disagrees
     with the generic model that much: gait2392's hips and Harrington's are 34-38 mm apart): the hip goes where the

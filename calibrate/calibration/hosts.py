@@ -25,7 +25,7 @@ import numpy as np
 from ..io.labels import plug_in_gait_name
 from ..io.motion import Motion
 from ..io.trial import Trial
-from ..model.model import Model
+from ..model.model import Joint, Model
 from ..model.sides import named_side, unsided
 
 HOST_FRAMES = 40  # about this many evenly spaced frames of the moving trials are posed (about 0.1 s a round)
@@ -118,17 +118,34 @@ def _name_body(label: str) -> str:
     return re.sub(r"[._\- ]", "", unsided(label)).lower().removesuffix("study")
 
 
-def centre_segments(model: Model, label: str) -> tuple[str, str] | None:
-    """(parent, child) of the joint whose centre `label`'s name says it marks (CENTRE_NAMES: R_HJC on the right hip),
-    on the name's side; None for any other name, no side, or a model without that joint."""
+def centre_joint(model: Model, label: str) -> Joint | None:
+    """The joint whose centre `label`'s name says it marks (CENTRE_NAMES: R_HJC, the right hip), on the name's side;
+    None for any other name, no side, or a model without that joint."""
     side = named_side(label)
     part = next((p for p, names in CENTRE_NAMES.items() if _name_body(label) in names), None)
     if side is None or part is None:
         return None
-    for j in model.joints:
-        if part in j.name.lower() and named_side(j.name) == side:
-            return j.parent, j.child
-    return None
+    return next((j for j in model.joints if part in j.name.lower() and named_side(j.name) == side), None)
+
+
+def centre_segments(model: Model, label: str) -> tuple[str, str] | None:
+    """(parent, child) of the joint whose centre `label`'s name says it marks (centre_joint), or None."""
+    joint = centre_joint(model, label)
+    return None if joint is None else (joint.parent, joint.child)
+
+
+def centre_labels(model: Model, labels: Sequence[str], skip: Sequence[str] = ()) -> dict[str, Joint]:
+    """The trial `labels` `model` lacks that name a joint's centre (centre_joint) -> that joint, one per joint and none
+    for the joints in `skip`: where a lab wrote several points for one centre (Expert1's and OpenCap's R_HJC and
+    R_HJC_reg, 13-45 mm apart), the plainest name (the shortest without its side and separators), its chosen one;
+    the others stay unknown labels."""
+    known = set(model.marker_names)
+    by_joint: dict[str, list[tuple[int, str, Joint]]] = {}
+    for lab in dict.fromkeys(labels):
+        joint = centre_joint(model, lab) if lab not in known else None
+        if joint is not None and joint.name not in skip:
+            by_joint.setdefault(joint.name, []).append((len(_name_body(lab)), lab, joint))
+    return {min(found)[1]: min(found)[2] for found in by_joint.values()}
 
 
 def medial_host(model: Model, label: str) -> tuple[str, str] | None:

@@ -29,6 +29,7 @@ from calibrate.calibration import regression
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.hosts import (
+    centre_labels,
     centre_segments,
     cluster_hosts,
     kinematic_hosts,
@@ -65,7 +66,7 @@ from calibrate.calibration.moved import (
 )
 from calibrate.calibration.noise import find_outliers, fixed_noise, leverage, relearn, tau_cap
 from calibrate.calibration.plugin_gait import knee_axis_checks
-from calibrate.calibration.regression import hip_motion, regression_hips
+from calibrate.calibration.regression import hip_joints, hip_motion, regression_hips
 from calibrate.calibration.result import Calibration, NewMarker, Outlier, trial_spans
 from calibrate.calibration.start import (
     COARSE_FRAMES,
@@ -205,6 +206,17 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if settings.pipeline.hip_regression:  # a virtual marker at each hip, where Harrington's regression puts it
         model, trials, _ = regression_hips(model, trials)
         kinematics = None  # built for the model without them
+    # A lab's joint centres written as markers (R_HJC: its software's hip centre) the model lacks: each a marker at
+    # its joint's centre (the child segment's origin), which the joint-centre tie keeps there, so that the lab's
+    # point places the centre as a base model carrying it does (Rajagopal's) -- not a skin marker placed by the
+    # hosts' tests, 20 mm free.  The hips' not where the regression's points place them.
+    if settings.pipeline.new_markers and settings.priors.joint_marker > 0 and "marker" in settings.free:
+        skip = [j.name for j in hip_joints(model).values()] if settings.pipeline.hip_regression else ()
+        if tied := centre_labels(model, [lab for t in trials for lab in t.labels], skip):
+            model = add_markers(model, {lab: (j.child, np.zeros(3)) for lab, j in tied.items()})
+            kinematics = None
+            _announcer(progress)(Progress("markers", "a lab's joint centres: " + ", ".join(
+                f"{lab} at {j.name}" for lab, j in tied.items()) + ", each tied to its joint's centre (by its name)"))
     # A model imported from OpenSim locks its locked coordinates (calibrate.io.osim), unless settings lock them,
     # and its segment frames end where its markers put them (Settings.segment_frames), unless settings say
     # otherwise; the OpenSim readers (50 ms of imports) are loaded only for such a model.
@@ -1869,9 +1881,12 @@ def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndar
                   ) -> tuple[np.ndarray, str, float] | None:
     """A hinge's medial marker's place on the segment it hangs from (`place`, unscaled, as the start's poses put it)
     where that place and the hinge's Plug-in Gait lateral marker do not straddle its centre along its axis
-    (priors.straddle): the lateral marker's place mirrored across the plane through the centre normal to the axis,
-    the lateral marker's name, and how far the mirrored place is from `place` (unscaled); None where they straddle
-    already, the model has no lateral marker there, or the mirror would not straddle either.  A humerus posed by
+    (priors.straddle): the lateral marker's place mirrored across the plane through the centre normal to the axis (or,
+    where the start leaves the lateral marker so far off the axis's line that its mirror would pass as far from the
+    centre, the point on that line as far across the centre: Expert1's RELB on models/human_girdle.urdf, the medial
+    one 144 mm from the mirror, kept there, ended 75 mm from its prior), the lateral marker's name, and how far the
+    new place is from `place` (unscaled); None where they straddle already, the model has no lateral marker there,
+    or neither would straddle.  A humerus posed by
     two lateral markers turns freely about their line: the start can leave the medial epicondyle 90 mm behind it
     (AddBiomechanics' Expert1 on models/human.urdf), where the name says it is across the elbow from the lateral."""
     lateral = dict(lateral_markers_of(subject)).get(hinge)
@@ -1884,10 +1899,11 @@ def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndar
     scale = float(params.scale[subject.segment_index(joint.parent)])
     if straddle(scale * c, axis, scale * x, scale * place) is not None:
         return None
-    mirrored = x - 2.0 * float((x - c) @ axis) * axis
-    if straddle(scale * c, axis, scale * x, scale * mirrored) is None:
-        return None
-    return mirrored, lateral, float(np.linalg.norm(mirrored - place))
+    along = float((x - c) @ axis)
+    for mirrored in (x - 2.0 * along * axis, c - along * axis):
+        if straddle(scale * c, axis, scale * x, scale * mirrored) is not None:
+            return mirrored, lateral, float(np.linalg.norm(mirrored - place))
+    return None
 
 
 def _solve_geometry(problem: Problem, state: State, options: SolverOptions,
