@@ -438,6 +438,25 @@ def test_inspect_a_trial_against_a_model(human, tmp_path, capsys) -> None:  # no
     assert capsys.readouterr().err.count("\n") == 1
 
 
+def test_inspect_says_what_a_labels_name_places(human, tmp_path, capsys) -> None:  # noqa: ANN001
+    """`calibrate inspect TRIAL --model MODEL`: a lab's hip centre (R_HJC) is added at the hip's centre and tied, its
+    regression's second point (R_HJC_reg) stays unknown beside it, a medial epicondyle goes on its hinge's parent; a
+    label no name places stays plainly unknown."""
+    from calibrate.cli import main
+    from calibrate.io.trc import write_trc
+
+    trc = tmp_path / "walk.trc"
+    write_trc(trc, make_trial(["RASI", "R_HJC", "R_HJC_reg", "L_elbow_med", "TV8"]))
+    assert main(["inspect", str(trc), "--model", str(human.path)]) == 0
+    out = capsys.readouterr().out
+    assert "4 unknown (2 of them read by their names" in out
+    lines = {ln.split()[0]: ln for ln in out.splitlines() if ln.startswith("  ") and "gaps" in ln}
+    assert lines["R_HJC"].endswith("-> hip_r's centre (by its name: added there, a joint-centre marker)")
+    assert "names hip_r's centre as R_HJC does" in lines["R_HJC_reg"] and "pelvis or femur_r" in lines["R_HJC_reg"]
+    assert lines["L_elbow_med"].endswith("elbow_l's medial marker by its name: on humerus_l")
+    assert lines["TV8"].endswith("unknown")
+
+
 def test_the_command_line_says_a_warning_in_one_line(human, tmp_path, capsys) -> None:  # noqa: ANN001
     """A label conflict met on the command line (two prefixed labels tie for RASI) is one 'warning:' line, not
     Python's file, line and source; numpy's warnings on a trial's gaps are not shown, its others are, in one line."""

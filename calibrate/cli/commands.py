@@ -453,6 +453,26 @@ def _setup_names(args, from_osim: bool, named, trial_paths: list[Path], osim: Pa
     return osim, named.markers, [m for m, _ in pairs], [e for _, e in pairs]
 
 
+def _by_name(model, unknown: list[str]) -> dict[str, str]:
+    """What calibrate makes of the unknown labels its names place (calibrate.calibration.hosts): a lab's joint centre
+    added at its joint's centre and tied there (centre_labels: one per joint; the other points for that centre stay
+    unknown, on its joint's segments), a medial marker on the segment its hinge hangs from -- as `inspect` says."""
+    from ..calibration.hosts import centre_joint, centre_labels, medial_host
+
+    tied = centre_labels(model, unknown)
+    out = {lab: f"-> {j.name}'s centre (by its name: added there, a joint-centre marker)" for lab, j in tied.items()}
+    for lab in unknown:
+        if lab in tied:
+            continue
+        if (joint := centre_joint(model, lab)) is not None:
+            first = next(k for k, j in tied.items() if j.name == joint.name)
+            out[lab] = (f"unknown; names {joint.name}'s centre as {first} does, which is tied: placed on "
+                        f"{joint.parent} or {joint.child} like any label")
+        elif (medial := medial_host(model, lab)) is not None:
+            out[lab] = f"unknown; {medial[1]}'s medial marker by its name: on {medial[0]}"
+    return out
+
+
 def write_timed(cal, **outputs):
     """cal.write(**outputs); returns cal with the time that took as times['write'] (what the summary shows)."""
     t0 = time.perf_counter()
@@ -614,6 +634,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         _, mapping = map_labels(t, model.marker_names, load_marker_map(args.markers) if args.markers else None)
         became = {m.trial_label: (f"-> {m.label} ({m.how})" if m.how != "unknown" else "unknown")
                   + (f"; {m.note}" if m.note else "") for m in mapping}
+        became.update(_by_name(model, [m.trial_label for m in mapping if m.how == "unknown"]))
     print(f"{path}: {t.n_frames} frames at {t.rate:g} Hz ({t.n_frames / t.rate:.2f} s), {t.n_markers} markers, "
           f"first frame {t.first_frame} (0-based)" + (f", times {t.times[0]:g} to {t.times[-1]:g} s (a setup's "
                                                       "time_range counts in these)" if t.n_frames else ""))
@@ -637,8 +658,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
               + ": calibrate one at a time (--subject NAME)")
     if became:
         hows = [m.how for m in mapping]
+        named = sum(1 for m in mapping if m.how == "unknown" and m.trial_label in became
+                    and "by its name" in became[m.trial_label])
         print(f"  labels against {model_path.name}'s {len(model.marker_names)} markers: "
               + ", ".join(f"{hows.count(h)} {h}" for h in HOWS if h in hows)
+              + (f" ({named} of them read by their names: a joint's centre, a medial marker)" if named else "")
               + " (an unknown label is placed on a segment by rigidity, by its place on the model's poses, by its "
               "distances' margin to one segment's markers, or, in a rigid cluster, where a segment's unseen model "
               "markers would be, when "
