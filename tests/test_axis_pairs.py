@@ -166,7 +166,9 @@ def test_a_static_alone_shows_the_medial_markers_and_their_names_place_them(huma
 
     cases = {"r_mknee": "femur_r", "L.MKnee": "femur_l", "LKNM": "femur_l", "R_FME": "femur_r", "L_mankle": "tibia_l",
              "RTAM": "tibia_r", "R_elbow_med": "humerus_r", "LMEL": "humerus_l", "LKNE": None, "mknee": None,
-             "RMED": None, "r_mknee_study": "femur_r", "L_mankle_study": "tibia_l"}
+             "RMED": None, "r_mknee_study": "femur_r", "L_mankle_study": "tibia_l",
+             # the medial twins of the lateral spellings the aliases read (a treadmill lab's LMEE beside its LLEE)
+             "LMEE": "humerus_l", "RMEK": "femur_r", "L_MedialMalleolus": "tibia_l", "LLEE": None, "RLEK": None}
     assert {n: (h[0] if (h := medial_host(human, n)) else None) for n in cases} == cases
     squats = simulate_squats(paired, frames=60, noise_mm=1.0, seed=6)
     static = simulate_static(paired, squats.truth, frames=40, noise_mm=1.0, seed=1)
