@@ -95,6 +95,8 @@ def test_opensim_example_labels(human) -> None:  # noqa: ANN001
         ("LeftKneeLateral", "LKNE"), ("L.Ankle", "LANK"), ("LHEEL", "LHEE"), ("R.MT2", "RTOE"), ("RToe", "RTOE"),
         ("Clavicle", "CLAV"), ("c7", "C7"), ("Th10", "T10"), ("R.Scapula", "RBAK"), ("L.Head.Front", "LFHD"),
         ("R_Back_Head", "RBHD"), ("L.Finger", "LFIN"), ("R.UpperArm", "RUPA"), ("Elbow_L", "LELB"),
+        # the Dorn sprinter set (AddBiomechanics' Expert2): lateral epicondyle, acromion, manubrium
+        ("LLEPI", "LKNE"), ("RSH", "RSHO"), ("MAN", "CLAV"),
     ],
 )
 def test_common_spellings(human, spelling: str, want: str) -> None:  # noqa: ANN001
@@ -102,7 +104,8 @@ def test_common_spellings(human, spelling: str, want: str) -> None:  # noqa: ANN
     assert by_trial_label(mapping)[spelling][:2] == (want, "alias")
 
 
-@pytest.mark.parametrize("label", ["LatKnee", "Lateral", "Radius", "Back", "*12", "RHJC", "Unlabeled 1001", "R"])
+@pytest.mark.parametrize("label", ["LatKnee", "Lateral", "Radius", "Back", "*12", "RHJC", "Unlabeled 1001", "R",
+                                   "LMEPI", "r_sh2", "MANX"])
 def test_no_false_aliases(human, label: str) -> None:  # noqa: ANN001
     assert alias_for(label, human.marker_names) is None
 

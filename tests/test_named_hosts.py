@@ -1,7 +1,7 @@
-"""A new label's Plug-in Gait leg-wand name (hosts.NAMED_SEGMENTS) decides its segment where the model's poses leave
-two segments near a tie; and Harrington's regression reads a trial's PSIS markers where the model marks its pelvis
-otherwise (gait2392's V.Sacral).  Real trials: pig_walk (Vicon Plug-in Gait) on OpenSim's Rajagopal2016 and gait2392
-models, from ../shared/data/real (skipped where absent)."""
+"""A new label's Plug-in Gait leg-wand or sacral name (hosts.NAMED_SEGMENTS, NAMED_MIDLINE) decides its segment where
+the model's poses leave two segments near a tie; and Harrington's regression reads a trial's PSIS markers where the
+model marks its pelvis otherwise (gait2392's V.Sacral).  Real trials: pig_walk (Vicon Plug-in Gait) on OpenSim's
+Rajagopal2016 and gait2392 models, from ../shared/data/real (skipped where absent)."""
 
 import re
 from pathlib import Path
@@ -25,10 +25,13 @@ def test_plug_in_gait_leg_wand_names_say_their_segments(human):
     none for the trunk's or the arms' names, other names, or a wand's name without its side."""
     assert [named_kind(x) for x in ("LTHI", "RTIB", "L_Thigh", "RightThighWand", "R.Shank")] \
         == ["thigh", "shank", "thigh", "thigh", "shank"]
-    assert [named_kind(x) for x in ("RPSI", "SACR", "C7", "LFHD", "LUPA", "RWRA", "LKNE", "R_HJC", "RTHI2", "THI")] \
-        == [None] * 10
+    assert [named_kind(x) for x in ("RPSI", "C7", "LFHD", "LUPA", "RWRA", "LKNE", "R_HJC", "RTHI2", "THI")] \
+        == [None] * 9
     assert named_segments(human, "LTHI") == ("femur_l",) and named_segments(human, "RightThighWand") == ("femur_r",)
     assert named_segments(human, "R.Shank") == ("tibia_r",) and named_segments(human, "RPSI") == ()
+    # the sacral marker, on the midline: the pelvis (NAMED_MIDLINE), however spelled
+    assert [named_kind(x) for x in ("SACR", "V.Sacral", "Sacrum")] == ["pelvis"] * 3
+    assert named_segments(human, "SACR") == ("pelvis",)
 
 
 def _hosts(model, *paths):

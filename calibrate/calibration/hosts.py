@@ -45,7 +45,7 @@ TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD ove
 MEDIAL_NAMES = {
     "knee": {"mkne", "mknee", "kneem", "knem", "knm", "kneemed", "medknee", "medkne", "kneemedial", "medialknee",
              "fme", "mfc", "mfe", "mek", "medfemepicondyle", "medialfemoralepicondyle", "femurmedialepicondyle",
-             "medfemcondyle", "medialfemoralcondyle", "kneein"},
+             "medfemcondyle", "medialfemoralcondyle", "kneein", "mepi", "medepi"},
     "ankle": {"mank", "mankle", "ankm", "anklem", "anklemed", "medankle", "ankmed", "anklemedial", "medialankle",
               "mmal", "mma", "mm", "mmall", "tam", "medmal", "malmed", "medmalleolus", "medialmalleolus",
               "malleolusmed", "anklein"},
@@ -70,15 +70,23 @@ NAMED_SEGMENTS = {
 SEGMENT_NAMES = {
     "thigh": ("femur", "thigh"),
     "shank": ("tibia", "shank"),
+    "pelvis": ("pelvis",),
 }
+#: Midline Plug-in Gait markers the name decides for likewise (no side): the sacral marker on the pelvis, where a
+#: walk or a run turns the trunk little over it (AddBiomechanics' Expert2: SACR 10.6 mm on the pelvis against the
+#: torso's 20, its pelvis's only marker behind the ASIS).
+NAMED_MIDLINE = {"SACR": "pelvis"}
 #: The named segment is taken unless another segment holds the label twice as still: the data decide only what
 #: they separate (HOST_RATIO), the name the rest.
 NAME_TIE = 1 / HOST_RATIO
 
 
-def _named(label: str) -> tuple[str, str] | None:
-    """(kind, side) of a Plug-in Gait wand's name (NAMED_SEGMENTS: ('thigh', 'left') for LTHI, L_Thigh), or None."""
+def _named(label: str) -> tuple[str, str | None] | None:
+    """(kind, side) of a Plug-in Gait wand's name (NAMED_SEGMENTS: ('thigh', 'left') for LTHI, L_Thigh), or of a
+    midline marker's (NAMED_MIDLINE: ('pelvis', None) for SACR, V.Sacral), or None."""
     code = plug_in_gait_name(label)
+    if code in NAMED_MIDLINE:
+        return NAMED_MIDLINE[code], None
     if code is None or code[0] not in "LR":
         return None
     kind = next((kind for kind, names in NAMED_SEGMENTS.items() if code[1:] in names), None)
@@ -86,8 +94,9 @@ def _named(label: str) -> tuple[str, str] | None:
 
 
 def named_kind(label: str) -> str | None:
-    """The leg segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
-    'shank' for RTIB), or None (another name, or one without its side)."""
+    """The segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
+    'shank' for RTIB; NAMED_MIDLINE: 'pelvis' for SACR, V.Sacral), or None (another name, or a wand's without its
+    side)."""
     named = _named(label)
     return None if named is None else named[0]
 

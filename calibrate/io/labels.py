@@ -39,13 +39,13 @@ xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, ba
 xTHI          thi, thigh, thighwand, bar1
 xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee1, knee, latepicondyle, lateralepicondyle,
               fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
-              lfc, latfemcondyle, lateralfemoralcondyle, kneeout
+              lfc, latfemcondyle, lateralfemoralcondyle, kneeout, lepi, latepi
 xTIB          tib, tibia, shank, tibwand, shankwand, bar2
 xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
               malleoluslat, mall, ankle, lm, fal, lmal, latmal, ankleout
 xHEE          hee, heel, calc, calcaneus, ca, fcc, cal, heelback
 xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
-xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should
+xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should, sh
 xUPA          upa, upperarm, arm, humerus, bicep, biceps
 xELB          elb, elbowlat, elbowlateral, latelbow, lateralelbow, elbow, el, hle, lhe,
               lateralhumeralepicondyle, humerallateralepicondyle, humeruslateralepicondyle, lee, lel, lelbow,
@@ -61,7 +61,8 @@ xBHD          bhd, backhead, headback, rearhead, headrear, hdb
 xBAK          bak, back, scapula, scap
 C7            c7, vertebrac7, cv7, backtop
 T10           t10, th10, vertebrat10, tv10
-CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn, snj
+CLAV          clav, clavicle, jugularnotch, jugular, sternalnotch, suprasternalnotch, ij, sjn, snj, manubrium,
+              man
 STRN          strn, sternum, xiphoid, xiphoidprocess, px, sxs
 SACR          sacr, sacrum, sacral
 ============  =====================================================================================
@@ -155,7 +156,8 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     "KNE": (
         "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee1", "knee", "latepicondyle",
         "lateralepicondyle", "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle",
-        "femurlateralepicondyle", "lek", "lfc", "latfemcondyle", "lateralfemoralcondyle", "kneeout",
+        "femurlateralepicondyle", "lek", "lfc", "latfemcondyle", "lateralfemoralcondyle", "kneeout", "lepi",
+        "latepi",
     ),
     "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand", "bar2"),
     "ANK": (
@@ -164,7 +166,7 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
     ),
     "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal", "heelback"),
     "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip", "fm2", "sm", "mh2"),
-    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr", "ac", "caj", "acromioclavicular", "should"),
+    "SHO": ("sho", "shoulder", "acromion", "acromium", "acr", "ac", "caj", "acromioclavicular", "should", "sh"),
     "UPA": ("upa", "upperarm", "arm", "humerus", "bicep", "biceps"),
     "ELB": (
         "elb", "elbowlat", "elbowlateral", "latelbow", "lateralelbow", "elbow", "el", "hle", "lhe",
@@ -190,7 +192,8 @@ SIDE_ALIASES: dict[str, tuple[str, ...]] = {
 MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
     "C7": ("c7", "vertebrac7", "cv7", "backtop"),
     "T10": ("t10", "th10", "vertebrat10", "tv10"),
-    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch", "ij", "sjn", "snj"),
+    "CLAV": ("clav", "clavicle", "jugularnotch", "jugular", "sternalnotch", "suprasternalnotch", "ij", "sjn", "snj",
+             "manubrium", "man"),
     "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess", "px", "sxs"),
     "SACR": ("sacr", "sacrum", "sacral"),
 }
