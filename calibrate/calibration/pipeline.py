@@ -209,7 +209,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     # A lab's joint centres written as markers (R_HJC: its software's hip centre) the model lacks: each a marker at
     # its joint's centre (the child segment's origin), which the joint-centre tie keeps there, so that the lab's
     # point places the centre as a base model carrying it does (Rajagopal's) -- not a skin marker placed by the
-    # hosts' tests, 20 mm free.  The hips' not where the regression's points place them.
+    # hosts' tests, 20 mm free.  Not the hips' under --hip-regression, whose points place them.
     if settings.pipeline.new_markers and settings.priors.joint_marker > 0 and "marker" in settings.free:
         skip = [j.name for j in hip_joints(model).values()] if settings.pipeline.hip_regression else ()
         if tied := centre_labels(model, [lab for t in trials for lab in t.labels], skip):
@@ -1886,9 +1886,9 @@ def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndar
     centre, the point on that line as far across the centre: Expert1's RELB on models/human_girdle.urdf, the medial
     one 144 mm from the mirror, kept there, ended 75 mm from its prior), the lateral marker's name, and how far the
     new place is from `place` (unscaled); None where they straddle already, the model has no lateral marker there,
-    or neither would straddle.  A humerus posed by
-    two lateral markers turns freely about their line: the start can leave the medial epicondyle 90 mm behind it
-    (AddBiomechanics' Expert1 on models/human.urdf), where the name says it is across the elbow from the lateral."""
+    or neither would straddle.  A humerus posed by two lateral markers turns freely about their line: the start can
+    leave the medial epicondyle 90 mm behind it (AddBiomechanics' Expert1 on models/human.urdf), where the name says
+    it is across the elbow from the lateral."""
     lateral = dict(lateral_markers_of(subject)).get(hinge)
     if lateral is None:
         return None
