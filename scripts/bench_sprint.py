@@ -15,7 +15,6 @@ DIR: AddBiomechanics' ``paper_data/Expert2`` (github.com/keenon/AddBiomechanics:
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import subprocess
 import sys
@@ -25,6 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.io.motion import Motion, read_motion_csv
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_calibrate import machine  # noqa: E402
+from bench_osim import read_mot  # noqa: E402  (an OpenSim .mot: times, columns, values in rad)
+
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = ("run0350cms", "run0500cms", "run0700cms", "run0900cms")
 #: our coordinate -> the expert's (models/human.urdf against the sprinter model's OpenSim names)
@@ -32,32 +37,16 @@ PAIRS = {"hip_r_flexion": "hip_flexion_r", "hip_l_flexion": "hip_flexion_l", "kn
          "knee_l": "knee_angle_l", "ankle_r": "ankle_angle_r", "ankle_l": "ankle_angle_l"}
 
 
-def read_mot(path: Path) -> dict[str, np.ndarray]:
-    """An OpenSim .mot: column -> values (angles in degrees)."""
-    lines = path.read_text().splitlines()
-    k = next(i for i, line in enumerate(lines) if line.strip() == "endheader")
-    head = lines[k + 1].split("\t")
-    rows = np.array([[float(x) for x in line.split("\t")] for line in lines[k + 2:] if line.strip()])
-    scale = 1.0 if any("inDegrees=yes" in line for line in lines[:k]) else float(np.degrees(1.0))
-    return {h: rows[:, i] * (1.0 if h == "time" else scale) for i, h in enumerate(head)}
-
-
-def read_motion(path: Path) -> dict[str, np.ndarray]:
-    """calibrate's motion CSV: column -> values (angles in radians)."""
-    rows = list(csv.reader(x for x in open(path) if not x.startswith("#")))
-    a = np.array(rows[1:], float)
-    return {h: a[:, i] for i, h in enumerate(rows[0])}
-
-
-def against_expert(ours: dict[str, np.ndarray], expert: dict[str, np.ndarray]) -> dict[str, float]:
-    """Each PAIRS angle's SD (deg) of its difference from the expert's, on our frames, offset and sign aside."""
+def against_expert(ours: Motion, expert: Path) -> dict[str, float]:
+    """Each PAIRS angle's SD (deg) of its difference from the expert's .mot, on our frames, offset and sign aside."""
+    times, cols, vals = read_mot(str(expert))  # (rad)
     out = {}
     for a, b in PAIRS.items():
-        if a not in ours or b not in expert:
+        if a not in ours.dof_names or b not in cols:
             continue
-        x = np.degrees(ours[a])
-        y = np.interp(ours["time"], expert["time"], expert[b])
-        out[a] = float(min(np.std(x - y), np.std(x + y)))
+        x = ours.angles[:, ours.dof_names.index(a)]
+        y = np.interp(ours.times, times, vals[:, cols.index(b)])
+        out[a] = float(np.degrees(min(np.std(x - y), np.std(x + y))))
     return out
 
 
@@ -75,8 +64,8 @@ def run_one(trc: Path, model: Path, out: Path) -> dict:
     return {"seconds": wall, "marker_rms_mm": rep["markers"]["rms_mm"], "used": len(ms["used"]), "new": len(ms["new"]),
             "left_out": ms["left_out"], "implausible": rep["implausible_flags"],
             "hip_width_mm": hips.get("hip_width_mm"), "asis_width_mm": hips.get("asis_width_mm"),
-            "vs_expert_sd_deg": against_expert(read_motion(out / f"{trc.stem}_motion.csv"),
-                                               read_mot(trc.with_suffix(".mot")))}
+            "vs_expert_sd_deg": against_expert(read_motion_csv(out / f"{trc.stem}_motion.csv"),
+                                               trc.with_suffix(".mot"))}
 
 
 def main() -> int:
@@ -90,7 +79,7 @@ def main() -> int:
     if missing:
         print(f"bench_sprint: {args.expert2}: no {missing[0]}.trc / .mot (give AddBiomechanics' paper_data/Expert2)")
         return 2
-    res = {"model": str(args.model), "runs": {}}
+    res = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"), "model": str(args.model), "runs": {}}
     with tempfile.TemporaryDirectory() as tmp:
         base = args.keep or Path(tmp)
         for r in RUNS:

@@ -158,7 +158,7 @@ def centre_labels(model: Model, labels: Sequence[str], skip: Sequence[str] = ())
         joint = centre_joint(model, lab) if lab not in known else None
         if joint is not None and joint.name not in skip:
             by_joint.setdefault(joint.name, []).append((len(_name_body(lab)), lab, joint))
-    return {min(found)[1]: min(found)[2] for found in by_joint.values()}
+    return {lab: joint for _, lab, joint in map(min, by_joint.values())}
 
 
 def medial_host(model: Model, label: str) -> tuple[str, str] | None:
