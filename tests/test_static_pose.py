@@ -70,6 +70,28 @@ def test_a_static_trial_whose_left_ankle_is_turned_is_flagged(human):
     assert "implausible  static2 (static): ankle_l" in held.text() and "--lock subtalar" not in held.text()
 
 
+def test_a_pair_held_on_one_side_only_names_both_for_hold_axes(human):
+    """A flagged static pair whose axis is held on one side only (Expert1's forearms: radioulnar_l held for its narrow
+    turn, radioulnar_r free, 113 deg apart) gets the line's hint to hold both; held alike, no hint."""
+    from calibrate.problem.settings import Settings
+
+    kin = build_kinematics(human)
+    sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=31)
+    pose = {"elbow_l": 30.0, "elbow_r": 30.0}
+    static = _static(human, kin, sim, {**pose, "radioulnar_l": 60.0}, seed=3)  # the left forearm turned 60 deg
+    cal = calibrate(human, [sim.trial, static], Settings(hold_axes=("radioulnar_l",)), kinematics=kin)
+    flagged = {h.joint: h for h in cal.static_asymmetry}
+    # (the forearm's frames are placed by their markers' priors: the turn reads some 10 deg short of the truth's 60)
+    assert "radioulnar" in flagged and math.degrees(flagged["radioulnar"].difference) == pytest.approx(60.0, abs=15.0)
+    hint = "radioulnar_l's axis held, radioulnar_r's free: held on one side only"
+    assert hint in cal.text() and "--hold-axes radioulnar_l,radioulnar_r holds both" in cal.text()
+    assert hint in cal.report()["static_pose"]["advice"]
+    both = replace(cal, settings=replace(cal.settings, hold_axes=("radioulnar_l", "radioulnar_r")))
+    assert "implausible  static3 (static): radioulnar_l" in both.text() and "held on one side only" not in both.text()
+    locked = replace(cal, settings=replace(cal.settings, hold_axes=(), lock=(("radioulnar_r", 0.0),)))
+    assert "radioulnar_r locked, radioulnar_l's axis free" in locked.text()
+
+
 def test_a_walk_with_its_trunk_and_arms_locked_is_no_static(human):
     """A lower-body marker set locks the trunk and arms (20 of human.urdf's 32 coordinates held at 0 in every frame):
     its walk, whose legs turn through tens of degrees, is no static trial (c3d.org's sample09 Plug-in Gait walk had

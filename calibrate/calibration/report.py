@@ -450,6 +450,27 @@ def _foot_hint(cal, joints: list[str]) -> str:
             f"{','.join(free)} holds them at 0, as OpenSim's gait models do")
 
 
+def _one_side_hint(cal, turned) -> str:
+    """What to do when a flagged static pair's axis was held (or its angle locked) on one side only: the two sides'
+    segment frames are then placed unalike.  Expert1's static forearms on models/human.urdf (radioulnar_l's axis held
+    for its narrow turn, radioulnar_r's free) sat 113 deg apart, 25 with both held from the first solve; gait2392's
+    (radioulnar_r locked, radioulnar_l free) 105 apart, within 20 with both held (docs/benchmarks.md, "A forearm's
+    pronation decided by its markers' priors alone")."""
+    held = set(cal.settings.hold_axes) | {n for n, _ in cal.settings.lock}
+    # (a foot's pair: _foot_hint's lock, as OpenSim's gait models hold the subtalar)
+    pairs = [(h.left, h.right) for h in turned
+             if h.joint not in ("ankle", "subtalar") and (h.left in held) != (h.right in held)]
+    if not pairs:
+        return ""
+    parts = []
+    for a, b in pairs:
+        one, other = (a, b) if a in held else (b, a)
+        parts.append(f"{one}'s axis held, {other}'s free" if one in cal.settings.hold_axes
+                     else f"{one} locked, {other}'s axis free")
+    return (f"; {', '.join(parts)}: held on one side only, the two sides' frames are placed unalike; --hold-axes "
+            f"{','.join(x for pair in pairs for x in pair)} holds both at the base model's from the first solve")
+
+
 def static_pose_table(cal) -> dict:
     """Left/right hinge angles in the static trials (calibrate.calibration.result.static_hinges; degrees)
     and the pairs further apart than STATIC_ASYMMETRY_DEG (Calibration.static_asymmetry)."""
@@ -464,7 +485,8 @@ def static_pose_table(cal) -> dict:
                                                                                        cal.neutral)],
             "hinges": [row(h) for h in hinges],
             "flagged": [row(h) for h in hinges if h.flagged],
-            "advice": _foot_hint(cal, [h.joint for h in hinges if h.flagged]).lstrip("; ")}
+            "advice": (_foot_hint(cal, [h.joint for h in hinges if h.flagged])
+                       + _one_side_hint(cal, [h for h in hinges if h.flagged])).lstrip("; ")}
 
 
 def subject_size(cal) -> float | None:
@@ -872,7 +894,7 @@ def summary_text(cal) -> str:
                                                    f"{h.text()}" for h in turned)
                      + ": unless the subject stood asymmetrically there, one side's segment frames sit turned where "
                      "its markers leave them to the priors, and that joint's angles carry the difference as an offset"
-                     + _foot_hint(cal, [h.joint for h in turned]))
+                     + _foot_hint(cal, [h.joint for h in turned]) + _one_side_hint(cal, turned))
     replaced_only = "" if cal.settings.moved_markers else (
         f" (a marker of their segment {1e3 * REPLACED_MIN:.0f} mm or more away: re-placed, not skin; without "
         "--moved-markers only such are left out)")
