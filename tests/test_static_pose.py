@@ -86,6 +86,10 @@ def test_a_pair_held_on_one_side_only_names_both_for_hold_axes(human):
     hint = "radioulnar_l's axis held, radioulnar_r's free: held on one side only"
     assert hint in cal.text() and "--hold-axes radioulnar_l,radioulnar_r holds both" in cal.text()
     assert hint in cal.report()["static_pose"]["advice"]
+    from calibrate.calibration.html import report_html
+
+    page = report_html(cal.report())  # the advice once, after the flagged pairs
+    assert page.count("held on one side only") == 1 and "implausible static poses: radioulnar_l" in page
     both = replace(cal, settings=replace(cal.settings, hold_axes=("radioulnar_l", "radioulnar_r")))
     assert "implausible  static3 (static): radioulnar_l" in both.text() and "held on one side only" not in both.text()
     locked = replace(cal, settings=replace(cal.settings, hold_axes=(), lock=(("radioulnar_r", 0.0),)))

@@ -88,13 +88,14 @@ def _notes(report: dict) -> str:
         items.append(f"<li class=bad>implausible size: {_e(b.get('segment'))} scale {b.get('scale', 0):.2f} "
                      f"({b.get('relative_to_median', 0):.2f} of the subject's median{partner}); {cause}check the "
                      f"labels {_e(', '.join(b.get('check_labels', [])) or '-')}</li>")
-    for h in (report.get("static_pose") or {}).get("flagged", []):
+    static_pose = report.get("static_pose") or {}
+    for h in static_pose.get("flagged", []):
         items.append(f"<li class=bad>implausible static pose in {_e(h.get('trial'))}: {_e(h.get('left'))} "
                      f"{h.get('left_deg', 0):.1f}° against {_e(h.get('right'))} {h.get('right_deg', 0):.1f}° "
                      f"({h.get('difference_deg', 0):.1f}° apart): unless the subject stood asymmetrically, one side's "
-                     "segment frames sit turned where its markers leave them to the priors"
-                     + (f"; {_e(report['static_pose']['advice'])}" if report["static_pose"].get("advice") else "")
-                     + "</li>")
+                     "segment frames sit turned where its markers leave them to the priors</li>")
+    if static_pose.get("flagged") and static_pose.get("advice"):  # once, after the pairs it is about
+        items.append(f"<li class=bad>implausible static poses: {_e(static_pose['advice'])}</li>")
     for f in report.get("implausible_flags", []):  # a centre or axis a trade carried far (the rest: below)
         if f.startswith(("centre[", "axis[")):
             items.append(f"<li class=bad>implausible {_e(f)}</li>")
