@@ -666,6 +666,244 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     return out
 
 
+JOINT_FIT = 0.012  # m RMS: a cluster's markers about a joint of a posed segment (the skin over a thigh: 2-6 mm)
+JOINT_TURN = np.radians(20.0)  # ... turning through at least this against it (less: any point nearby fits as well)
+JOINT_RATIO = 0.6  # ... and fitting at most this share of the best fit for another host (gait2392 on Rajagopal2016:
+# a shank plate 9.4 mm RMS off the knee's axis, the talus below the subtalar's 17.9)
+JOINT_NEAR = 0.10  # m: ... about a centre (or axis) this near the base model's joint, where the posed segment's
+# model markers say where that is (a walk's hips end 28-65 mm from the labs')
+JOINT_SKIN = 0.010  # m: ... and keeps its distances to the markers its host shows within this SD
+JOINT_RIGID = 0.003  # m: the cluster's distances vary by at most this SD (a plate on the skin: gait2392's 1-2 mm)
+JOINT_FRAMES = 400  # about this many evenly spaced frames of the moving trials judge it
+
+
+@dataclass(frozen=True)
+class JointHost:
+    """A cluster of mutually rigid new labels that turns about a point (or an axis) of a posed segment, `against`,
+    and the segment it rides on, a joint away from there and not posed (`segment`; None: another host fits nearly
+    as well).  `fit`: the RMS of the markers' distances to the fitted centre (or axis) about their mean (m); `turn`:
+    how far the cluster turns against `against` (rad, _turn); `candidates`: the hosts that fit within JOINT_FIT;
+    `runner_up`, `runner_up_fit`: the best-fitting other host and its fit (m; inf: none)."""
+
+    labels: tuple[str, ...]
+    segment: str | None
+    against: str
+    fit: float
+    turn: float
+    candidates: tuple[str, ...]
+    runner_up: str = ""
+    runner_up_fit: float = float("inf")
+    still: str = ""  # a segment beyond `segment`'s joint whose markers the cluster keeps as rigidly as its own
+
+    def reason(self, label: str) -> str:
+        """Why `label` (one of `labels`) was placed there, or left out."""
+        others = ", ".join(lab for lab in self.labels if lab != label)
+        about = (f"rigid with {others}, the cluster turns {np.degrees(self.turn):.0f} deg about a joint of "
+                 f"{self.against} (its markers {1e3 * self.fit:.1f} mm RMS off a fixed centre or axis there"
+                 + (f"; on {self.runner_up}, the next, {1e3 * self.runner_up_fit:.1f}" if self.runner_up else "") + ")")
+        if self.segment:
+            return f"{about}: on {self.segment}, the segment beyond that joint its own markers do not pose"
+        if self.still:
+            return (f"{about}, on {self.candidates[0] if len(self.candidates) == 1 else ' or '.join(self.candidates)}"
+                    f" or past it: {self.still}'s markers keep their distances to it as rigidly as its own (the joints "
+                    "between barely turn in the trials)")
+        return f"{about}, but {' or '.join(self.candidates)} could carry it: the next fits nearly as well"
+
+
+def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], placed: dict[str, str],
+                frames: int = JOINT_FRAMES, rounds: int = HOST_ROUNDS) -> dict[str, JointHost]:
+    """Each of `labels` (new labels no other test placed) in a rigid cluster of CLUSTER_MIN or more (their distances
+    over the moving `trials` varying by JOINT_RIGID SD at most) that turns about a joint of a posed segment -> its
+    JointHost, judged on about `frames` evenly spaced frames.
+
+    A lab's thigh and shank plates on a model whose thigh and shank markers the walk does not show (gait2392's
+    protocol: the knee and ankle markers in the static alone): no known marker poses the femur or tibia, so neither
+    the model's poses (kinematic_hosts) nor the distances to known markers (rigidity) place the plates.  Their own
+    motion does (seed 002: closed-form centres and axes of rotation): against the pelvis, posed by its markers, the
+    thigh plate turns about one point, the hip's centre (gait2392: 2 mm RMS), while a shank plate, carried by the knee
+    as well, does not (15-31 mm).  A posed segment is one the trials show three or more markers on (the model's, and
+    new labels `placed` there, label -> segment).  Its candidate hosts: the segments a joint from it that carry model
+    markers (through those that carry none, a talus), are not posed, lie on the side the labels name, and whose
+    markers the trials show keep their distances to the cluster within JOINT_SKIN SD (OpenCap's walk: its left shank
+    plate turns 86 deg about femur_l's knee, and tibia_l shows its ankle marker).  The cluster's markers in the posed
+    segment's frame are fitted about a fixed axis where one hinge lies between (calibrate.seed.geometry.sphere_fit),
+    else about a fixed centre: a talus below its subtalar hinge turns about an axis, while a shank plate, turned by
+    the ankle too, misses one by 17 mm.  The best fit within JOINT_FIT over a turn of JOINT_TURN or more places the
+    cluster, if it is within JOINT_RATIO of the best fit for another host.  Where three or more of the posed
+    segment's model markers place the base model's joints in its frame, the fit's axis (a centre's least-determined
+    line) must pass within JOINT_NEAR of one of those between (Expert2's sacral plate turns about the lumbar, which
+    the torso's neck had stood for).  Not where a segment within two joints beyond the host shows markers the
+    cluster keeps its distances to within JOINT_RIGID (the joints between barely turn: an arm in a walk).  Up to
+    `rounds` rounds: a segment so placed poses the next clusters (a shank plate about the knee, against the thigh
+    plate)."""
+    import pinocchio as pin
+
+    from ..seed.geometry import rigid_fit, similarity_fit, sphere_fit
+    from ..seed.rigidity import distance_variance
+
+    labels = [lab for lab in labels if all(lab in t.labels for t in trials)]
+    if len(labels) < CLUSTER_MIN:
+        return {}
+    picked = pick_frames(trials, frames)
+    X = np.concatenate([t.select(labels).markers for t in trials])
+    groups = [tuple(labels[k] for k in g) for g in _rigid_clusters(distance_variance(X), JOINT_RIGID ** 2)
+              if len(g) >= CLUSTER_MIN]
+    if not groups:
+        return {}
+    known = set(model.marker_names)
+    shown = {lab for t in picked for lab in t.labels if lab in known and np.isfinite(t.marker(lab)).all(1).any()}
+    on: dict[str, list[str]] = {sg.name: [m for m in sg.markers if m in shown] for sg in model.segments}
+    for lab, seg in placed.items():
+        if seg in on and all(lab in t.labels for t in picked):
+            on[seg].append(lab)
+    near: dict[str, list[tuple[str, int, str]]] = {sg.name: [] for sg in model.segments}  # neighbour, DoFs, joint
+    for j in model.joints:
+        near[j.parent].append((j.child, len(j.dofs), j.name))
+        near[j.child].append((j.parent, len(j.dofs), j.name))
+    data = model.pin.createData()  # the base model's neutral pose: root at the origin, every angle 0
+    pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
+                                                                         np.zeros(model.n_dofs)))
+
+    def neutral(names: Sequence[str]) -> np.ndarray:
+        return np.array([data.oMf[model.pin.getFrameId(n)].translation for n in names]).reshape(-1, 3)
+
+    carries = {sg.name: bool(sg.markers) for sg in model.segments}
+
+    def world(names: Sequence[str]) -> np.ndarray:
+        return np.concatenate([t.select(list(names)).markers for t in picked])
+
+    def beyond(seg: str) -> list[tuple[str, int, tuple[str, ...]]]:
+        """The segments a joint from `seg` that carry model markers, through those that carry none (a talus), each
+        with the degrees of freedom between (1: a hinge, fitted about an axis; more: about a centre) and the joints
+        between."""
+        out, todo, seen = [], [(seg, 0, ())], {seg}
+        while todo:
+            at, dofs, path = todo.pop()
+            for n, d, j in near[at]:
+                if n not in seen:
+                    seen.add(n)
+                    if carries[n]:
+                        out.append((n, dofs + d, (*path, j)))
+                    else:  # a segment with no model marker (a talus): passed through; at an end (a patella), none
+                        todo.append((n, dofs + d, (*path, j)))
+        return out
+
+    def joint_centres(seg: str, frame) -> dict[str, np.ndarray] | None:
+        """Every joint centre of the base model (its child segment's origin) in `frame` (the posed segment `seg`'s,
+        rigid_fit of its shown markers), by a similarity fit of the base model's neutral pose to the model markers
+        among them; None where fewer than three non-collinear model markers pose it (new labels have no place in
+        the base model)."""
+        names = on[seg]
+        mine = [k for k, n in enumerate(names) if n in known]
+        if len(mine) < 3:
+            return None
+        src = neutral([names[k] for k in mine])
+        if np.linalg.svd(src - src.mean(0), compute_uv=False)[1] < 0.01:
+            return None
+        scale, R, t = similarity_fit(src, frame.local[mine])
+        return {j.name: scale * R @ neutral([j.child])[0] + t for j in model.joints}
+
+    def still_below(host: str, against: str, g: Sequence[str]) -> str | None:
+        """A segment within two joints of `host`, away from `against`, whose shown markers the cluster keeps its
+        distances to as rigidly as to each other (JOINT_RIGID): the joints between barely turn, and the cluster may
+        ride on either side of them (pig_walk's arm in a walk, its upper-arm, forearm and hand markers within
+        1-2.5 mm of each other); None where there is none."""
+        todo, seen = [(host, 0)], {host, against}
+        while todo:
+            at, depth = todo.pop()
+            for n, _, _ in near[at]:
+                if n in seen or depth >= 2:
+                    continue
+                seen.add(n)
+                if on[n] and _keeps(world(on[n]), world(g), JOINT_RIGID):
+                    return n
+                todo.append((n, depth + 1))
+        return None
+
+    out: dict[str, JointHost] = {}
+    for _ in range(rounds):
+        posed = {seg: rigid_fit(world(names)) for seg, names in on.items() if len(names) >= 3}
+        placed_now = False
+        for g in groups:
+            if g[0] in out and out[g[0]].segment is not None:
+                continue
+            sides = {named_side(lab) for lab in g}
+            side = sides.pop() if len(sides) == 1 else None
+            pairs = []  # (fit, turn, posed segment, candidate host): fitted about an axis across a hinge, else a centre
+            for seg, frame in posed.items():
+                rel = frame.to_local(world(g))  # (F, P, 3) the cluster in the posed segment's frame
+                rel = rel[np.all(np.isfinite(rel), axis=(1, 2))]
+                cands = [(s, d, js) for s, d, js in beyond(seg) if s not in posed and named_side(s) in (None, side)
+                         and _keeps(world(on[s]), world(g))]
+                if len(rel) < 10 or not cands:
+                    continue
+                try:
+                    ball, hinge = sphere_fit(rel), sphere_fit(rel, hinge=True)
+                except (ValueError, np.linalg.LinAlgError):
+                    continue
+                turn = _turn(rigid_fit(rel).R)
+                centres = joint_centres(seg, frame)
+                for s, d, js in cands:
+                    fit = hinge if d == 1 else ball
+                    # The fitted axis (a centre's least-determined line: a swing about one axis, as a walk's hip
+                    # or arm, leaves the centre free along it) passes near one of the joints between, where the posed
+                    # segment's model markers put the base model's (a sacral plate turns about the lumbar, not the
+                    # trunk's neck: Expert2's run had put one on the head at 5.7 mm RMS about the torso).
+                    if centres is not None and min(_off(centres[j], fit) for j in js) > JOINT_NEAR:
+                        continue
+                    pairs.append((fit.rms, turn, seg, s))
+            # The best pair, against the best that names another host: a segment a joint away hosts it only where the
+            # cluster turns about that joint as the joint turns (a talus below its subtalar hinge, the shank plate
+            # turning with the ankle too: 16.8 mm RMS off an axis, 2.3 off a centre), and better than about any other.
+            good = [x for x in pairs if x[0] <= JOINT_FIT and x[1] >= JOINT_TURN]
+            if not good:
+                continue  # no joint of a posed segment carries it: not this test's to judge
+            fit, turn, seg, host = min(good, key=lambda x: x[0])
+            rival = min(((f, h) for f, _, _, h in pairs if h != host), default=(np.inf, ""))
+            still = still_below(host, seg, g)
+            ok = fit <= JOINT_RATIO * rival[0] and still is None
+            found = JointHost(g, host if ok else None, seg, float(fit), float(turn),
+                              tuple(sorted({h for *_, h in good})), rival[1], float(rival[0]), still or "")
+            out.update({lab: found for lab in g})
+            if ok:
+                on[host] = list(g)
+                placed_now = True
+        if not placed_now:
+            break
+    return out
+
+
+def _off(point: np.ndarray, fit) -> float:
+    """How far `point` lies from a sphere fit's axis: the line through its centre along its least-determined direction
+    (a hinge's axis) (m)."""
+    d = point - fit.centre
+    return float(np.linalg.norm(d - (d @ fit.axis) * fit.axis))
+
+
+def _keeps(a: np.ndarray, b: np.ndarray, within: float = JOINT_SKIN) -> bool:
+    """Whether every marker of `a` (F, A, 3) keeps its distance to every marker of `b` (F, B, 3) within `within` SD
+    over the frames that show both (True where `a` has none): a segment's own markers and a cluster on it, the skin
+    between them moving (OpenCap's shank plate against its ankle marker: 3-5 mm)."""
+    if a.shape[1] == 0:
+        return True
+    d = np.linalg.norm(a[:, :, None] - b[:, None], axis=3)  # (F, A, B)
+    with np.errstate(invalid="ignore"):
+        sd = np.nanstd(d, axis=0)
+    return bool(np.all(np.nan_to_num(sd, nan=np.inf) <= within))
+
+
+def _turn(R: np.ndarray) -> float:
+    """How far rotations R (F, 3, 3) turn: twice the 95th percentile of their angles from their mean orientation
+    (rad; a swing of +-30 deg about the mean: 60 deg)."""
+    M = np.nanmean(R, axis=0)
+    U, _, Vt = np.linalg.svd(M)
+    mean = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    rel = np.einsum("ji,fjk->fik", mean, R)  # mean^T R_f
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.arccos(cos)
+    return float(2.0 * np.percentile(ang, 95)) if ang.size else 0.0
+
+
 def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
     """Groups of labels every pair of which keeps its distance within `threshold` (D: distance variances, m²):
     complete linkage, pairs taken from the steadiest, two groups merged when every pair across them is steady (the

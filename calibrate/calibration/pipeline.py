@@ -32,6 +32,7 @@ from calibrate.calibration.hosts import (
     centre_labels,
     centre_segments,
     cluster_hosts,
+    joint_hosts,
     kinematic_hosts,
     medial_host,
     past_joints,
@@ -1745,6 +1746,18 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     # no known marker moves (hosts.past_joints: a wrist marker on a humerus where the elbow has no known marker)
     placed.update({lab: margins[lab].segment for lab in margins if margins[lab].segment is not None})
     past = past_joints(model, used, placed) if placed else {}
+    # And a rigid cluster still left that turns about a joint of a posed segment, on the segment beyond that joint the
+    # markers do not pose (hosts.joint_hosts: gait2392's thigh and shank plates, its knee and ankle markers in the
+    # static alone).  Judged by past_joints too: an arm whose elbow a walk barely turns keeps its upper-arm, forearm
+    # and hand markers within 1-2.5 mm of each other and turns about the shoulder as one (pig_walk on Rajagopal2016,
+    # LUPA, LFRM and LFIN on humerus_l): those past the joints below no known marker moves sit by the base model's
+    # markers there.
+    rest = [lab for lab in rest if lab not in clusters or clusters[lab].segment is None]
+    joints = joint_hosts(model, used, rest, {**{lab: seg for lab, seg in placed.items() if lab not in past},
+                                             **{lab: c.segment for lab, c in clusters.items() if c.segment}}
+                         ) if rest else {}
+    by_turn = {lab: h.segment for lab, h in joints.items() if h.segment is not None}
+    past.update(past_joints(model, used, by_turn) if by_turn else {})
     out = []
     for lab in unknown:
         if lab in medial:
@@ -1767,10 +1780,14 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
             # its markers are, and the start places them again)
             c = clusters[lab]
             out.append(NewMarker(lab, c.segment, c.places[c.labels.index(lab)], c.reason(lab)))
+        elif lab in joints and joints[lab].segment is not None:
+            out.append(NewMarker(lab, joints[lab].segment, None, joints[lab].reason(lab)))
         else:
             # (judged on the poses too, where markerless segments that turn were candidates: the rigidity test's
             # clause that they cannot receive markers no longer holds)
             why = f"{split_reason(assoc[lab].reason)[0]}; {hosts[lab].reason()}" if lab in hosts else assoc[lab].reason
+            if lab in joints:
+                why += f"; {joints[lab].reason(lab)}"
             out.append(NewMarker(lab, assoc[lab].segment, None, why))
     return [_off_its_joint(model, m) for m in out]
 

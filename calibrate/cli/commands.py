@@ -358,8 +358,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 f"({', '.join(f'{lab} near {mk}' for lab, mk in by.items())}): if they are those markers, name "
                 "them so in a marker map (--markers map.toml)" if by else "")
         if from_osim and marker_set is None and len(named) > len(by):
-            # (gait2392's walk on Rajagopal2016.osim: its thigh and shank clusters, 17 labels, left out and the hips
-            # 351 mm apart; with gait2392's marker set, none left out)
+            # (gait2392's walk on Rajagopal2016.osim: its midfoot, biceps and head labels left out, its trunk fitted
+            # in another basin; with gait2392's marker set, none left out)
             hint += ("; an OpenSim marker set that places them on the model's bodies (the lab's MarkerSet file, as "
                      "its Scale setup names it: --marker-set FILE.xml) fits them")
         print(f"warning: {len(named)} trial label{'' if one else 's'} {why} {model.path.name} and "
