@@ -97,8 +97,9 @@ def test_a_plate_that_does_not_turn_about_a_joint_is_not_placed():
 def test_a_plate_must_turn_about_where_the_model_has_the_joint(monkeypatch):
     """A sacral plate (on the pelvis, 2 mm of skin motion) in simulated squats without the head's markers: against
     the torso it turns about the lumbar, 2.6 mm RMS off a centre over a 51 deg turn, and the head is the one segment a
-    joint from the torso the markers do not pose.  The torso's model markers put the base model's neck far from that
-    centre's axis (over JOINT_NEAR), so the plate is not put on the head; with the check off, it was."""
+    joint from the torso the markers do not pose.  It turns with the pelvis (under JOINT_STILL), which says so; and
+    were it not judged by that, the torso's model markers put the base model's neck far from the centre it turns
+    about (over JOINT_NEAR), so it is still not put on the head; with both checks off, it was."""
     import calibrate.calibration.hosts as hosts
     from calibrate.simulation import simulate_squats
 
@@ -117,6 +118,9 @@ def test_a_plate_must_turn_about_where_the_model_has_the_joint(monkeypatch):
     trial = replace(sim.trial, markers=X)
     trial = trial.select([lab for lab in trial.labels if lab not in ("LFHD", "RFHD", "LBHD", "RBHD")])
     base = load_model(HUMAN)
+    h = joint_hosts(base, [trial], list(plate), {})["SP1"]
+    assert h.segment is None and h.against == "pelvis" and "moves with that segment" in h.reason("SP1"), h
+    monkeypatch.setattr(hosts, "JOINT_STILL", 0.0)
     assert "SP1" not in joint_hosts(base, [trial], list(plate), {})
     monkeypatch.setattr(hosts, "JOINT_NEAR", np.inf)
     h = joint_hosts(base, [trial], list(plate), {})["SP1"]
@@ -169,3 +173,19 @@ def test_an_arm_whose_elbow_a_walk_barely_turns_is_not_put_on_the_humerus():
     for lab in ("LUPA", "LFRM", "LFIN"):
         assert placed[lab].segment is None, placed[lab]
         assert "radius_l's markers keep their distances to it as rigidly as its own" in placed[lab].reason
+
+
+def test_a_cluster_on_a_line_is_judged_without_failing():
+    """Three labels on one line (a wand's), rigid, carried beside the right thigh plate: no frame's rotation is defined
+    for them, so no turn is read against any segment (kineticstoolkit's many_analogs.c3d had raised "SVD did not
+    converge" there); they are left unplaced, and the plates still go where they turn."""
+    sim, trial = _walk()
+    base = load_model(HUMAN)
+    mid = np.mean([trial.marker(n) for n in PLATES["femur_r"]], axis=0)  # (F, 3) carried, not turned, 0.3 m aside
+    line = mid[:, None] + np.array([0.0, -0.3, 0.0]) + np.array([0.0, 0.0, 0.05]) * np.arange(3)[None, :, None]
+    names = ("R.Wand.A", "R.Wand.B", "R.Wand.C")
+    trial = replace(trial, labels=(*trial.labels, *names), markers=np.concatenate([trial.markers, line], axis=1))
+    labels = [n for plate in PLATES.values() for n in plate] + list(names)
+    hosts = joint_hosts(base, [trial], labels, {"V.Sacral": "pelvis"})
+    assert all(n not in hosts or hosts[n].segment is None for n in names), {n: hosts.get(n) for n in names}
+    assert hosts["R.Thigh.Upper"].segment == "femur_r" and hosts["R.Shank.Upper"].segment == "tibia_r"

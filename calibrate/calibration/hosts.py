@@ -668,10 +668,14 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
 
 JOINT_FIT = 0.012  # m RMS: a cluster's markers about a joint of a posed segment (the skin over a thigh: 2-6 mm)
 JOINT_TURN = np.radians(20.0)  # ... turning through at least this against it (less: any point nearby fits as well)
+JOINT_STILL = np.radians(15.0)  # ... and not less than this against any posed segment (it rides with that one:
+# BTKData's functional hip trial, a thigh cluster against its femur's wand and knee markers, 11 deg; a simulated walk's
+# shank turns 19 deg against the head)
 JOINT_RATIO = 0.6  # ... and fitting at most this share of the best fit for another host (gait2392 on Rajagopal2016:
 # a shank plate 9.4 mm RMS off the knee's axis, the talus below the subtalar's 17.9)
 JOINT_NEAR = 0.10  # m: ... about a centre (or axis) this near the base model's joint, where the posed segment's
 # model markers say where that is (a walk's hips end 28-65 mm from the labs')
+JOINT_ROUND = 0.1  # a centre fit's smallest over middle eigenvalue from which it is placed in every direction
 JOINT_SKIN = 0.010  # m: ... and keeps its distances to the markers its host shows within this SD
 JOINT_RIGID = 0.003  # m: the cluster's distances vary by at most this SD (a plate on the skin: gait2392's 1-2 mm)
 JOINT_FRAMES = 400  # about this many evenly spaced frames of the moving trials judge it
@@ -682,7 +686,8 @@ class JointHost:
     """A cluster of mutually rigid new labels that turns about a point (or an axis) of a posed segment, `against`,
     and the segment it rides on, a joint away from there and not posed (`segment`; None: another host fits nearly
     as well).  `fit`: the RMS of the markers' distances to the fitted centre (or axis) about their mean (m); `turn`:
-    how far the cluster turns against `against` (rad, _turn); `candidates`: the hosts that fit within JOINT_FIT;
+    how far the cluster turns against `against` (rad, _turn; NaN fit: under JOINT_STILL, it moves with that posed
+    segment); `candidates`: the hosts that fit within JOINT_FIT;
     `runner_up`, `runner_up_fit`: the best-fitting other host and its fit (m; inf: none)."""
 
     labels: tuple[str, ...]
@@ -698,6 +703,10 @@ class JointHost:
     def reason(self, label: str) -> str:
         """Why `label` (one of `labels`) was placed there, or left out."""
         others = ", ".join(lab for lab in self.labels if lab != label)
+        if not np.isfinite(self.fit):  # it turns with `against` (JOINT_STILL): on its skin, not about a joint of it
+            return (f"rigid with {others}, the cluster turns only {np.degrees(self.turn):.0f} deg against "
+                    f"{self.against}, whose markers the other tests did not find it rigid enough with: it moves with "
+                    "that segment, not about a joint of it")
         about = (f"rigid with {others}, the cluster turns {np.degrees(self.turn):.0f} deg about a joint of "
                  f"{self.against} (its markers {1e3 * self.fit:.1f} mm RMS off a fixed centre or axis there"
                  + (f"; on {self.runner_up}, the next, {1e3 * self.runner_up_fit:.1f}" if self.runner_up else "") + ")")
@@ -733,9 +742,11 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
     segment's model markers place the base model's joints in its frame, the fit's axis (a centre's least-determined
     line) must pass within JOINT_NEAR of one of those between (Expert2's sacral plate turns about the lumbar, which
     the torso's neck had stood for).  Not where a segment within two joints beyond the host shows markers the
-    cluster keeps its distances to within JOINT_RIGID (the joints between barely turn: an arm in a walk).  Up to
-    `rounds` rounds: a segment so placed poses the next clusters (a shank plate about the knee, against the thigh
-    plate)."""
+    cluster keeps its distances to within JOINT_RIGID (the joints between barely turn: an arm in a walk), nor where it
+    turns less than JOINT_STILL against a posed segment (it moves with that one, on skin that defeated the other
+    tests: BTKData's functional hip trial, its left thigh cluster beside the femur's own markers, had gone on an
+    unposed trunk about the left hip).  Up to `rounds` rounds: a segment so placed poses the next clusters (a shank
+    plate about the knee, against the thigh plate)."""
     import pinocchio as pin
 
     from ..seed.geometry import rigid_fit, similarity_fit, sphere_fit
@@ -830,31 +841,40 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
             sides = {named_side(lab) for lab in g}
             side = sides.pop() if len(sides) == 1 else None
             pairs = []  # (fit, turn, posed segment, candidate host): fitted about an axis across a hinge, else a centre
+            turns = {}  # posed segment -> the cluster's turn against it
             for seg, frame in posed.items():
                 rel = frame.to_local(world(g))  # (F, P, 3) the cluster in the posed segment's frame
                 rel = rel[np.all(np.isfinite(rel), axis=(1, 2))]
+                if len(rel) < 10:
+                    continue
+                turn = _turn(rigid_fit(rel).R)
+                if not np.isfinite(turn):
+                    continue
+                turns[seg] = turn
                 cands = [(s, d, js) for s, d, js in beyond(seg) if s not in posed and named_side(s) in (None, side)
                          and _keeps(world(on[s]), world(g))]
-                if len(rel) < 10 or not cands:
+                if not cands:
                     continue
                 try:
                     ball, hinge = sphere_fit(rel), sphere_fit(rel, hinge=True)
                 except (ValueError, np.linalg.LinAlgError):
                     continue
-                turn = _turn(rigid_fit(rel).R)
                 centres = joint_centres(seg, frame)
                 for s, d, js in cands:
                     fit = hinge if d == 1 else ball
-                    # The fitted axis (a centre's least-determined line: a swing about one axis, as a walk's hip
-                    # or arm, leaves the centre free along it) passes near one of the joints between, where the posed
-                    # segment's model markers put the base model's (a sacral plate turns about the lumbar, not the
-                    # trunk's neck: Expert2's run had put one on the head at 5.7 mm RMS about the torso).
+                    # The fitted axis or centre (_off) passes near one of the joints between, where the posed segment's
+                    # model markers put the base model's (a sacral plate turns about the lumbar, not the trunk's neck:
+                    # Expert2's run had put one on the head at 5.7 mm RMS about the torso).
                     if centres is not None and min(_off(centres[j], fit) for j in js) > JOINT_NEAR:
                         continue
                     pairs.append((fit.rms, turn, seg, s))
             # The best pair, against the best that names another host: a segment a joint away hosts it only where the
             # cluster turns about that joint as the joint turns (a talus below its subtalar hinge, the shank plate
             # turning with the ankle too: 16.8 mm RMS off an axis, 2.3 off a centre), and better than about any other.
+            with_ = min(turns, key=turns.get) if turns else ""
+            if with_ and turns[with_] < JOINT_STILL:  # it moves with a posed segment, on its skin: not one beyond it
+                out.update({lab: JointHost(g, None, with_, float("nan"), turns[with_], ()) for lab in g})
+                continue
             good = [x for x in pairs if x[0] <= JOINT_FIT and x[1] >= JOINT_TURN]
             if not good:
                 continue  # no joint of a posed segment carries it: not this test's to judge
@@ -874,10 +894,11 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
 
 
 def _off(point: np.ndarray, fit) -> float:
-    """How far `point` lies from a sphere fit's axis: the line through its centre along its least-determined direction
-    (a hinge's axis) (m)."""
+    """How far `point` lies from a sphere fit's axis, the line through its centre along its least-determined direction
+    (a hinge's axis; a swing about one axis leaves a centre free along it), or from its centre where every direction
+    is determined (hinge_ratio at least JOINT_ROUND: a functional hip trial's star arc) (m)."""
     d = point - fit.centre
-    return float(np.linalg.norm(d - (d @ fit.axis) * fit.axis))
+    return float(np.linalg.norm(d if fit.hinge_ratio >= JOINT_ROUND else d - (d @ fit.axis) * fit.axis))
 
 
 def _keeps(a: np.ndarray, b: np.ndarray, within: float = JOINT_SKIN) -> bool:
@@ -894,14 +915,16 @@ def _keeps(a: np.ndarray, b: np.ndarray, within: float = JOINT_SKIN) -> bool:
 
 def _turn(R: np.ndarray) -> float:
     """How far rotations R (F, 3, 3) turn: twice the 95th percentile of their angles from their mean orientation
-    (rad; a swing of +-30 deg about the mean: 60 deg)."""
-    M = np.nanmean(R, axis=0)
-    U, _, Vt = np.linalg.svd(M)
+    (rad; a swing of +-30 deg about the mean: 60 deg); NaN where no frame's rotation is defined (markers on a
+    line)."""
+    R = R[np.all(np.isfinite(R), axis=(1, 2))]
+    if not len(R):
+        return float("nan")
+    U, _, Vt = np.linalg.svd(R.mean(axis=0))
     mean = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     rel = np.einsum("ji,fjk->fik", mean, R)  # mean^T R_f
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    ang = np.arccos(cos)
-    return float(2.0 * np.percentile(ang, 95)) if ang.size else 0.0
+    ang = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    return float(2.0 * np.percentile(ang, 95))
 
 
 def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
