@@ -5,7 +5,6 @@ models/human.urdf the twelve were left out and the hips came out 59 mm apart).""
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,7 +13,7 @@ import pytest
 
 from calibrate.calibration.hosts import JOINT_FIT, JOINT_TURN, joint_hosts
 from calibrate.calibration.pipeline import calibrate
-from calibrate.model.model import load_model
+from calibrate.model.model import add_markers, load_model
 from calibrate.problem.settings import Settings
 from calibrate.simulation import simulate_gait
 
@@ -30,15 +29,8 @@ HIDDEN = ("RTHI", "RKNE", "RTIB", "RANK")  # the model's own markers on those se
 
 def _plated():
     """models/human.urdf with the two plates on its right femur and tibia: the subject the simulator draws from."""
-    extra = "".join(
-        f'  <link name="{n}"><visual><geometry><sphere radius="0.007"/></geometry></visual></link>\n'
-        f'  <joint name="{n}_marker" type="fixed"><parent link="{seg}"/><child link="{n}"/>'
-        f'<origin xyz="{x} {y} {z}" rpy="0 0 0"/></joint>\n'
-        for seg, plate in PLATES.items() for n, (x, y, z) in plate.items())
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "plated.urdf"
-        path.write_text(HUMAN.read_text().replace("</robot>", extra + "</robot>"))
-        return load_model(path)
+    return add_markers(load_model(HUMAN), {n: (seg, np.array(xyz)) for seg, plate in PLATES.items()
+                                           for n, xyz in plate.items()})
 
 
 def _walk(seed: int = 4):
@@ -104,14 +96,7 @@ def test_a_plate_must_turn_about_where_the_model_has_the_joint(monkeypatch):
     from calibrate.simulation import simulate_squats
 
     plate = {"SP1": (-0.17, 0.03, 0.05), "SP2": (-0.17, -0.03, 0.05), "SP3": (-0.16, 0.0, 0.0)}
-    extra = "".join(
-        f'  <link name="{n}"><visual><geometry><sphere radius="0.007"/></geometry></visual></link>\n'
-        f'  <joint name="{n}_marker" type="fixed"><parent link="pelvis"/><child link="{n}"/>'
-        f'<origin xyz="{x} {y} {z}" rpy="0 0 0"/></joint>\n' for n, (x, y, z) in plate.items())
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "sacral.urdf"
-        path.write_text(HUMAN.read_text().replace("</robot>", extra + "</robot>"))
-        truth = load_model(path)
+    truth = add_markers(load_model(HUMAN), {n: ("pelvis", np.array(xyz)) for n, xyz in plate.items()})
     sim = simulate_squats(truth, frames=300, noise_mm=1.0, seed=2)
     X = sim.trial.markers.copy()
     X[:, [sim.trial.labels.index(n) for n in plate]] += np.random.default_rng(2).normal(0, 0.002, (X.shape[0], 1, 3))
@@ -189,3 +174,4 @@ def test_a_cluster_on_a_line_is_judged_without_failing():
     hosts = joint_hosts(base, [trial], labels, {"V.Sacral": "pelvis"})
     assert all(n not in hosts or hosts[n].segment is None for n in names), {n: hosts.get(n) for n in names}
     assert hosts["R.Thigh.Upper"].segment == "femur_r" and hosts["R.Shank.Upper"].segment == "tibia_r"
+

@@ -316,3 +316,29 @@ def test_a_trial_that_does_not_place_what_the_others_place_is_named(human):
     assert np.nanmax(np.abs(M[:, ks] - fitted)) < 1e-6
     alone = calibrate(human, static.trial, Settings(max_iterations=5))
     assert alone.unplaced_in_trial == () and "  unplaced " not in summary_text(alone)
+
+
+def test_the_trials_say_whether_the_roots_markers_lie_on_a_line():
+    """pipeline._off_line: a sacral marker 0.15 m behind the ASIS line is off it, a keypoint between two hip
+    keypoints is on it (Pose2Sim's Hip between RHip and LHip), in the trials' own frames (a new label without a
+    place sits at the root's origin, which an OpenSim pelvis has on its ASIS line)."""
+    from calibrate.calibration.pipeline import _off_line
+    from calibrate.io.trial import Trial
+
+    rng = np.random.default_rng(0)
+    F = 100
+    turn = rng.normal(0.0, 0.3, (F, 3))
+    asis = np.array([[0.0, 0.12, 0.0], [0.0, -0.12, 0.0]])
+    sacral = np.array([[-0.15, 0.0, 0.02]])
+    middle = np.array([[0.0, 0.0, 0.0]])
+
+    def trial(points: np.ndarray, labels: tuple[str, ...]) -> Trial:
+        from scipy.spatial.transform import Rotation
+
+        R = Rotation.from_rotvec(turn).as_matrix()  # (F, 3, 3): the pelvis turning about
+        X = np.einsum("fij,pj->fpi", R, points) + rng.normal(0.0, 0.001, (F, len(points), 3))
+        return Trial(labels, X, 100.0)
+
+    assert _off_line([trial(np.vstack([asis, sacral]), ("LASI", "RASI", "V.Sacral"))], ["LASI", "RASI", "V.Sacral"])
+    assert not _off_line([trial(np.vstack([asis, middle]), ("LHip", "RHip", "Hip"))], ["LHip", "RHip", "Hip"])
+    assert not _off_line([trial(asis, ("LASI", "RASI"))], ["LASI", "RASI"])  # two always make a line

@@ -438,7 +438,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     subject = add_markers(model, {lab: (seg, at.get(lab, np.zeros(3))) for lab, seg in new.items()}) if new else model
     # Segments the markers cannot place (calibrate.model.resolve): refuse without a root pose, else lock
     # the coordinates the markers do not see (their segments ride on their parents).
-    from ..model.resolve import carried_joint, carry_refusal, line_root_holds, resolve_carrying
+    from ..model.resolve import carried_joint, carry_refusal, line_root_holds, resolve_carrying, root_group
 
     visible = {lab for t in trials for i, lab in enumerate(t.labels) if np.isfinite(t.markers[:, i]).all(1).any()}
     # No marker on the root and every one on one of its branches (an upper-body or one-leg trial): the root rides with
@@ -453,9 +453,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"(--markers map.toml) or use a model with this marker set")
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
-        # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.
-        line = line_root_holds(subject, [lab for lab in [*shared, *new] if lab in visible],
-                               locked=[*(d for d, _ in settings.lock), *res.lock])
+        # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.  A new
+        # label without a place sits at its segment's origin until the start places it, and an OpenSim pelvis's origin
+        # lies between its ASIS markers: where the root carries one, the trials say whether its markers are on a line
+        # (gait2392's V.Sacral on Rajagopal2016: its lumbar held, the pelvis tilted 56 deg, the trunk scaled 0.2).
+        on_root = [lab for lab in [*shared, *new] if lab in visible]
+        unplaced = [lab for lab in new if lab not in at and new[lab] in root_group(subject)]
+        line = () if unplaced and _off_line(trials, [lab for lab in on_root if subject.markers[
+            subject.marker_index(lab)].segment in root_group(subject)]) else line_root_holds(
+            subject, on_root, locked=[*(d for d, _ in settings.lock), *res.lock])
         if line:
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
     # A trial that shows fewer markers than the others may not place segments they place (a static with the arms, a
@@ -1790,6 +1796,27 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                 why += f"; {joints[lab].reason(lab)}"
             out.append(NewMarker(lab, assoc[lab].segment, None, why))
     return [_off_its_joint(model, m) for m in out]
+
+
+def _off_line(trials: Sequence[Trial], labels: Sequence[str], frames: int = 50) -> bool:
+    """Whether the trials show `labels` (the root's markers) off one line: in the frames that show all of them (about
+    `frames`, evenly spaced over the trials), the median of the largest distance of any from their best line exceeds
+    resolve.ON_LINE."""
+    from ..model.resolve import ON_LINE
+
+    if len(labels) < 3:
+        return False
+    offs = []
+    for t in trials:
+        if not all(lab in t.labels for lab in labels):
+            continue
+        X = t.select(list(labels)).markers
+        X = X[np.all(np.isfinite(X), axis=(1, 2))]
+        for pts in X[:: max(1, len(X) // frames)]:
+            d = pts - pts.mean(axis=0)
+            u = np.linalg.svd(d)[2][0]
+            offs.append(float(np.linalg.norm(d - np.outer(d @ u, u), axis=1).max()))
+    return bool(offs) and float(np.median(offs)) > ON_LINE
 
 
 def _off_its_joint(model: Model, marker: NewMarker) -> NewMarker:
