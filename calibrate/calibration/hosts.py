@@ -740,13 +740,13 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
     the ankle too, misses one by 17 mm.  The best fit within JOINT_FIT over a turn of JOINT_TURN or more places the
     cluster, if it is within JOINT_RATIO of the best fit for another host.  Where three or more of the posed
     segment's model markers place the base model's joints in its frame, the fit's axis (a centre's least-determined
-    line) must pass within JOINT_NEAR of one of those between (Expert2's sacral plate turns about the lumbar, which
-    the torso's neck had stood for).  Not where a segment within two joints beyond the host shows markers the
-    cluster keeps its distances to within JOINT_RIGID (the joints between barely turn: an arm in a walk), nor where it
-    turns less than JOINT_STILL against a posed segment (it moves with that one, on skin that defeated the other
-    tests: BTKData's functional hip trial, its left thigh cluster beside the femur's own markers, had gone on an
-    unposed trunk about the left hip).  Up to `rounds` rounds: a segment so placed poses the next clusters (a shank
-    plate about the knee, against the thigh plate)."""
+    line; the centre itself where JOINT_ROUND says every direction is placed, _off) must pass within JOINT_NEAR of one
+    of those between (Expert2's sacral plate turns about the lumbar, which the torso's neck had stood for).  Not where
+    a segment within two joints beyond the host shows markers the cluster keeps its distances to within JOINT_RIGID
+    (the joints between barely turn: an arm in a walk), nor where it turns less than JOINT_STILL against a posed
+    segment (it moves with that one, on skin that defeated the other tests: BTKData's functional hip trial, its left
+    thigh cluster beside the femur's own markers, had gone on an unposed trunk about the left hip).  Up to `rounds`
+    rounds: a segment so placed poses the next clusters (a shank plate about the knee, against the thigh plate)."""
     import pinocchio as pin
 
     from ..seed.geometry import rigid_fit, similarity_fit, sphere_fit
