@@ -582,8 +582,6 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     `trials`, the moving ones) -> its ClusterHost, judged on about `frames` frames.  Candidates: the segments that
     carry model markers, none of which the trials show, and a segment above them that shows three or more known
     markers (the references)."""
-    import pinocchio as pin
-
     from ..seed.geometry import kabsch_batch
     from ..seed.rigidity import distance_variance
 
@@ -614,12 +612,7 @@ def cluster_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], 
     Y = np.concatenate([t.select(labels).markers for t in picked])  # (F, labels, 3)
     far = np.full((len(groups), len(candidates)), np.inf)
     places: list[list[np.ndarray]] = [[np.empty((0, 3))] * len(candidates) for _ in groups]
-    data = model.pin.createData()  # the base model's neutral pose: root at the origin, every angle 0
-    pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
-                                                                         np.zeros(model.n_dofs)))
-
-    def neutral(names: Sequence[str]) -> np.ndarray:
-        return np.array([data.oMf[model.pin.getFrameId(n)].translation for n in names]).reshape(-1, 3)
+    data, neutral = _neutral(model)
 
     for c, (sg, refs) in enumerate(candidates):
         local = neutral(refs)  # (R, 3) the references in the neutral pose
@@ -747,8 +740,6 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
     segment (it moves with that one, on skin that defeated the other tests: BTKData's functional hip trial, its left
     thigh cluster beside the femur's own markers, had gone on an unposed trunk about the left hip).  Up to `rounds`
     rounds: a segment so placed poses the next clusters (a shank plate about the knee, against the thigh plate)."""
-    import pinocchio as pin
-
     from ..seed.geometry import rigid_fit, similarity_fit, sphere_fit
     from ..seed.rigidity import distance_variance
 
@@ -771,12 +762,7 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
     for j in model.joints:
         near[j.parent].append((j.child, len(j.dofs), j.name))
         near[j.child].append((j.parent, len(j.dofs), j.name))
-    data = model.pin.createData()  # the base model's neutral pose: root at the origin, every angle 0
-    pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
-                                                                         np.zeros(model.n_dofs)))
-
-    def neutral(names: Sequence[str]) -> np.ndarray:
-        return np.array([data.oMf[model.pin.getFrameId(n)].translation for n in names]).reshape(-1, 3)
+    _, neutral = _neutral(model)
 
     carries = {sg.name: bool(sg.markers) for sg in model.segments}
 
@@ -840,10 +826,11 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
                 continue
             sides = {named_side(lab) for lab in g}
             side = sides.pop() if len(sides) == 1 else None
+            traj = world(g)  # (F, P, 3) the cluster's trajectories over the picked frames
             pairs = []  # (fit, turn, posed segment, candidate host): fitted about an axis across a hinge, else a centre
             turns = {}  # posed segment -> the cluster's turn against it
             for seg, frame in posed.items():
-                rel = frame.to_local(world(g))  # (F, P, 3) the cluster in the posed segment's frame
+                rel = frame.to_local(traj)  # (F, P, 3) the cluster in the posed segment's frame
                 rel = rel[np.all(np.isfinite(rel), axis=(1, 2))]
                 if len(rel) < 10:
                     continue
@@ -852,7 +839,7 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
                     continue
                 turns[seg] = turn
                 cands = [(s, d, js) for s, d, js in beyond(seg) if s not in posed and named_side(s) in (None, side)
-                         and _keeps(world(on[s]), world(g))]
+                         and _keeps(world(on[s]), traj)]
                 if not cands:
                     continue
                 try:
@@ -891,6 +878,21 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
         if not placed_now:
             break
     return out
+
+
+def _neutral(model: Model):
+    """Pinocchio's data at the base model's neutral pose (the root at the origin, every angle 0), and a function giving
+    the places there of named frames ((n, 3), m)."""
+    import pinocchio as pin
+
+    data = model.pin.createData()
+    pin.framesForwardKinematics(model.pin, data, model.pin_configuration(np.zeros(3), [0, 0, 0, 1],
+                                                                         np.zeros(model.n_dofs)))
+
+    def at(names: Sequence[str]) -> np.ndarray:
+        return np.array([data.oMf[model.pin.getFrameId(n)].translation for n in names]).reshape(-1, 3)
+
+    return data, at
 
 
 def _off(point: np.ndarray, fit) -> float:

@@ -457,11 +457,12 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # label without a place sits at its segment's origin until the start places it, and an OpenSim pelvis's origin
         # lies between its ASIS markers: where the root carries one, the trials say whether its markers are on a line
         # (gait2392's V.Sacral on Rajagopal2016: its lumbar held, the pelvis tilted 56 deg, the trunk scaled 0.2).
-        on_root = [lab for lab in [*shared, *new] if lab in visible]
-        unplaced = [lab for lab in new if lab not in at and new[lab] in root_group(subject)]
-        line = () if unplaced and _off_line(trials, [lab for lab in on_root if subject.markers[
-            subject.marker_index(lab)].segment in root_group(subject)]) else line_root_holds(
-            subject, on_root, locked=[*(d for d, _ in settings.lock), *res.lock])
+        shown = [lab for lab in [*shared, *new] if lab in visible]
+        root = root_group(subject)
+        on_root = [lab for lab in shown if subject.markers[subject.marker_index(lab)].segment in root]
+        unplaced = any(lab not in at and new[lab] in root for lab in new)
+        line = () if unplaced and _off_line(trials, on_root) else line_root_holds(
+            subject, shown, locked=[*(d for d, _ in settings.lock), *res.lock])
         if line:
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
     # A trial that shows fewer markers than the others may not place segments they place (a static with the arms, a
