@@ -99,7 +99,7 @@ from calibrate.seed.seeding import (
 )
 
 from ..errors import CalibrateError
-from ..io.labels import UNLABELLED
+from ..io.labels import UNLABELLED, plug_in_gait_name
 from ..io.measurements import SubjectMeasurements, first_measurements, lateral_markers_of
 from ..io.motion import Motion
 from ..io.trial import Trial
@@ -594,6 +594,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     say(Progress("start", "frame-wise inverse kinematics"))
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
+    # Where the model's spine markers put a new sacral marker (_sacral_places): its prior's centre if the start's poses
+    # put it far from there (_place_new_markers).
+    sacral = _sacral_places(subject, params0, placed, known_obs) if new else {}
     if run.seed:
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments,
                                settings.hold_centres)
@@ -644,7 +647,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
                 relabelled += found
                 places = _new_places(subject, problem.kin, start, obs, params0, placed)
-        params0, base, placed = _place_new_markers(subject, places, params0, placed)
+        params0, base, placed = _place_new_markers(subject, places, params0, placed, sacral)
         problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
     far: list[FarJoint] = []
@@ -1896,10 +1899,13 @@ def _new_places(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, 
 
 
 def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.ndarray, np.ndarray],
-                       params: Parameters, placed: list[NewMarker]) -> tuple[Parameters, Parameters, list[NewMarker]]:
+                       params: Parameters, placed: list[NewMarker], fixed: Mapping[int, tuple[np.ndarray, str]] = {}
+                       ) -> tuple[Parameters, Parameters, list[NewMarker]]:
     """Each new marker's position on its segment from the start poses (`places`: _new_places; seed 002's closed
     form: the median over frames of the marker in the segment's frame); these positions are also the centre of its
-    prior.  Returns the start parameters, the prior's base parameters and the placements."""
+    prior, but where `fixed` (marker index -> (unscaled offset, why): _sacral_places) puts a marker more than
+    SACRAL_APART from it: there the prior is centred on `fixed`'s place.  Returns the start parameters, the prior's
+    base parameters and the placements."""
     new, frames, local, s = places
     out = params.copy()
     base = subject.parameters()
@@ -1909,17 +1915,55 @@ def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.n
         name = subject.marker_names[k]
         offset = np.median(local[use, i], axis=0) / s[i]
         m = by_label[name]
-        across = _across_hinge(subject, out, m.hinge, offset) if m.hinge else None
+        across = _across_hinge(subject, out, m.hinge, offset) if m.hinge and k not in fixed else None
         reason = m.reason
         if across is not None:
             offset, lateral, off = across
             reason += (f"; placed across {m.hinge}'s axis from {lateral}, where the start's poses put it "
                        f"{1e3 * off * s[i]:.0f} mm from there, off the line of the two")
+        prior = offset
+        if k in fixed and (apart := s[i] * float(np.linalg.norm(fixed[k][0] - offset))) > SACRAL_APART:
+            prior, why = fixed[k]
+            reason += f"; {why} (the start's poses put it {1e3 * apart:.0f} mm from there)"
         out.marker[k] = offset
-        base.marker[k] = offset
+        base.marker[k] = prior
         by_label[name] = replace(m, position=s[i] * offset, reason=reason)
     result = [by_label[m.label] for m in placed]
     return out, base, result
+
+
+#: m: a new sacral marker the start's poses put this far from the midpoint of the model's spine markers (two prior SDs
+#: of a marker's place) has its prior centred there (_sacral_places).  gait2392's trials: 23 mm on models/human.urdf,
+#: 61 mm on Rajagopal2016.osim (its pelvis then 1 deg from the lab's IK in tilt, 18 deg without).
+SACRAL_APART = 0.040
+
+
+def _sacral_places(subject: Model, params: Parameters, placed: Sequence[NewMarker], observed: np.ndarray
+                   ) -> dict[int, tuple[np.ndarray, str]]:
+    """Where the model's posterior superior iliac spine markers put a new sacral marker (Plug-in Gait's SACR:
+    V.Sacral, S2): midway between them, as Plug-in Gait defines it, on a segment that carries both and of whose known
+    markers the trials show fewer than three (unscaled offsets, by marker index, with the reason; `observed`: the known
+    markers' positions, (frames, markers, 3)).  A pelvis posed by its two ASIS markers turns freely about their line in
+    the start's poses, which may then put the sacral marker anywhere on a circle about it: gait2392's static and walk
+    on Rajagopal2016.osim placed its V.Sacral 140 mm RMS apart over the start's frames, and the median's place held the
+    pelvis tilted 50 deg back, the hips flexed to match."""
+    out: dict[int, tuple[np.ndarray, str]] = {}
+    seen = np.all(np.isfinite(observed), axis=2).any(axis=0)
+    for m in placed:
+        if m.segment is None or plug_in_gait_name(m.label) != "SACR":
+            continue
+        mine = [k for k, mk in enumerate(subject.markers) if mk.segment == m.segment]
+        spines = {plug_in_gait_name(subject.marker_names[k]): k for k in mine
+                  if plug_in_gait_name(subject.marker_names[k]) in ("RPSI", "LPSI")}
+        if len(spines) < 2 or sum(bool(seen[k]) for k in mine) >= 3:
+            continue
+        a, b = (spines[n] for n in ("RPSI", "LPSI"))
+        out[subject.marker_index(m.label)] = (
+            0.5 * (params.marker[a] + params.marker[b]),
+            f"its prior centred midway between the model's {subject.marker_names[a]} and {subject.marker_names[b]} "
+            f"(Plug-in Gait's sacral marker): the trials show fewer than three of {m.segment}'s other markers, about "
+            "which the start's poses may turn it freely")
+    return out
 
 
 def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndarray

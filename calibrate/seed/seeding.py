@@ -422,6 +422,15 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
         if inside.sum() >= 1:
             factors[name] = weighted_median(ratio[inside], wt[inside])
             scale[segs] = factors[name]
+            # A segment of the limb that none of its pairs reach, but a pair across the limb's joint does, takes that
+            # pair's ratio, not the far segments': Rajagopal2016's shank (its femur counted as trunk, the patella its
+            # second branch) with one marker, the lateral malleolus, had taken the foot's alone, a toe marker at the
+            # tip against the model's at the metatarsal heads (x1.26; knee to ankle x1.18), and the long shank
+            # tilted the pelvis 65 deg in gait2392's static.
+            for si in segs:
+                mine = (seg[a] == si) | (seg[b] == si)
+                if not (mine & inside).any() and mine.any():
+                    scale[si] = weighted_median(ratio[mine], wt[mine])
     return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
 
 
