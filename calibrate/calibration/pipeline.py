@@ -594,9 +594,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     say(Progress("start", "frame-wise inverse kinematics"))
     is_new = np.array([n in new for n in subject.marker_names])
     known_obs = np.where(is_new[None, :, None], np.nan, obs)  # new markers have no place yet: poses from the others
-    # Where the model's spine markers put a new sacral marker (_sacral_places): its prior's centre if the start's poses
-    # put it far from there (_place_new_markers).
-    sacral = _sacral_places(subject, params0, placed, known_obs) if new else {}
     if run.seed:
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments,
                                settings.hold_centres)
@@ -628,8 +625,23 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         theirs.close()  # a child still running (this process failed first) stopped at once
     start = stack_states([mine[k] for k in range(len(trials))])
     relabelled: list[ExchangedCluster] = list(early)
+    sacral: dict[int, tuple[np.ndarray, str]] = {}
     if new:
         places = _new_places(subject, problem.kin, start, obs, params0, placed)
+        sacral = _far_sacral(places, _sacral_places(subject, params0, placed, known_obs))
+        if sacral:
+            # The start's poses turned the pelvis about its ASIS line (_sacral_places): posed again with the sacral
+            # marker where the model's spine markers put it, as a known marker, and the new markers placed from there.
+            say(Progress("start", "frame-wise inverse kinematics again, the sacral marker between the model's "
+                                  "posterior iliac spines"))
+            params0 = params0.copy()
+            for k, (offset, _) in sacral.items():
+                params0.marker[k] = offset
+            is_new[list(sacral)] = False
+            known_obs = np.where(is_new[None, :, None], np.nan, obs)
+            evaluator = problem.frame_evaluator(params0.vector())
+            start = stack_states([trial_start(k) for k in range(len(trials))])
+            places = _new_places(subject, problem.kin, start, obs, params0, placed)
         if motion is not None and len(trials) > 1 and run.outliers > 0:
             # A cluster's labels exchanged in a still trial against the moving ones (a symmetric plate labelled the
             # other way round), by their places at the start's poses, which the other markers set: read back there,
@@ -1902,10 +1914,9 @@ def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.n
                        params: Parameters, placed: list[NewMarker], fixed: Mapping[int, tuple[np.ndarray, str]] = {}
                        ) -> tuple[Parameters, Parameters, list[NewMarker]]:
     """Each new marker's position on its segment from the start poses (`places`: _new_places; seed 002's closed
-    form: the median over frames of the marker in the segment's frame); these positions are also the centre of its
-    prior, but where `fixed` (marker index -> (unscaled offset, why): _sacral_places) puts a marker more than
-    SACRAL_APART from it: there the prior is centred on `fixed`'s place.  Returns the start parameters, the prior's
-    base parameters and the placements."""
+    form: the median over frames of the marker in the segment's frame), or where `fixed` puts it (marker index ->
+    (unscaled offset, why): _far_sacral); these positions are also the centre of its prior.  Returns the start
+    parameters, the prior's base parameters and the placements."""
     new, frames, local, s = places
     out = params.copy()
     base = subject.parameters()
@@ -1921,21 +1932,37 @@ def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.n
             offset, lateral, off = across
             reason += (f"; placed across {m.hinge}'s axis from {lateral}, where the start's poses put it "
                        f"{1e3 * off * s[i]:.0f} mm from there, off the line of the two")
-        prior = offset
-        if k in fixed and (apart := s[i] * float(np.linalg.norm(fixed[k][0] - offset))) > SACRAL_APART:
-            prior, why = fixed[k]
-            reason += f"; {why} (the start's poses put it {1e3 * apart:.0f} mm from there)"
+        if k in fixed:
+            offset, why = fixed[k]
+            reason += f"; {why}"
         out.marker[k] = offset
-        base.marker[k] = prior
+        base.marker[k] = offset
         by_label[name] = replace(m, position=s[i] * offset, reason=reason)
     result = [by_label[m.label] for m in placed]
     return out, base, result
 
 
 #: m: a new sacral marker the start's poses put this far from the midpoint of the model's spine markers (two prior SDs
-#: of a marker's place) has its prior centred there (_sacral_places).  gait2392's trials: 23 mm on models/human.urdf,
-#: 61 mm on Rajagopal2016.osim (its pelvis then 1 deg from the lab's IK in tilt, 18 deg without).
+#: of a marker's place) is placed there and the start posed again (_far_sacral).  gait2392's trials: 23 mm on
+#: models/human.urdf, 61 mm on Rajagopal2016.osim (its pelvis then 1 deg from the lab's IK in tilt, 18 deg without).
 SACRAL_APART = 0.040
+
+
+def _far_sacral(places: tuple[list[int], np.ndarray, np.ndarray, np.ndarray],
+                sacral: Mapping[int, tuple[np.ndarray, str]]) -> dict[int, tuple[np.ndarray, str]]:
+    """Those of `sacral` (_sacral_places) the start's poses (`places`: _new_places) put more than SACRAL_APART from
+    their place there (median over the frames, at the segment's scale), the distance added to the reason."""
+    new, _, local, s = places
+    out = {}
+    for i, k in enumerate(new):
+        if k in sacral:
+            use = np.isfinite(local[:, i, 0])
+            offset, why = sacral[k]
+            apart = float(np.linalg.norm(np.median(local[use, i], axis=0) - s[i] * offset))
+            if apart > SACRAL_APART:
+                out[k] = (offset, f"{why} (the start's poses, which it then joined, had put it {1e3 * apart:.0f} mm "
+                                  "from there)")
+    return out
 
 
 def _sacral_places(subject: Model, params: Parameters, placed: Sequence[NewMarker], observed: np.ndarray
@@ -1960,7 +1987,7 @@ def _sacral_places(subject: Model, params: Parameters, placed: Sequence[NewMarke
         a, b = (spines[n] for n in ("RPSI", "LPSI"))
         out[subject.marker_index(m.label)] = (
             0.5 * (params.marker[a] + params.marker[b]),
-            f"its prior centred midway between the model's {subject.marker_names[a]} and {subject.marker_names[b]} "
+            f"placed midway between the model's {subject.marker_names[a]} and {subject.marker_names[b]} "
             f"(Plug-in Gait's sacral marker): the trials show fewer than three of {m.segment}'s other markers, about "
             "which the start's poses may turn it freely")
     return out
