@@ -1911,13 +1911,15 @@ def _new_places(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, 
 
 
 def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.ndarray, np.ndarray],
-                       params: Parameters, placed: list[NewMarker], fixed: Mapping[int, tuple[np.ndarray, str]] = {}
+                       params: Parameters, placed: list[NewMarker],
+                       fixed: Mapping[int, tuple[np.ndarray, str]] | None = None
                        ) -> tuple[Parameters, Parameters, list[NewMarker]]:
     """Each new marker's position on its segment from the start poses (`places`: _new_places; seed 002's closed
     form: the median over frames of the marker in the segment's frame), or where `fixed` puts it (marker index ->
     (unscaled offset, why): _far_sacral); these positions are also the centre of its prior.  Returns the start
     parameters, the prior's base parameters and the placements."""
     new, frames, local, s = places
+    fixed = fixed or {}
     out = params.copy()
     base = subject.parameters()
     by_label = {m.label: m for m in placed}
