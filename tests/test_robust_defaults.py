@@ -257,7 +257,9 @@ def test_spikes_and_swaps_rejected_skin_motion_kept(human):
 
 
 # ---------------------------------------------------------------------- size
-@pytest.mark.parametrize("k", [0.86, 1.14])  # a 1.5 m and a 2.0 m subject of a 1.75 m base model
+# a 1.5 m and a 2.0 m subject of a 1.75 m base model, and a 1.0 m child (its seeded scales were clipped at 0.7 of the
+# base model's: 23 % too large)
+@pytest.mark.parametrize("k", [0.86, 1.14, 0.57])
 def test_start_fits_the_subjects_size(human, human_kin, k):
     sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=2)
     t = sim.truth
@@ -282,7 +284,9 @@ def test_start_fits_the_subjects_size(human, human_kin, k):
     seed = seed_parameters(human, trial, size=size)
     carried = [i for i, s in enumerate(human.segments) if s.markers]
     err = seed.params.scale[carried] / k - 1
-    assert np.median(np.abs(err)) < 0.03 and np.abs(err).max() < 0.12
+    # (the child's joint centres from the markers alone are placed to the same millimetres on segments 0.57 times as
+    # long: its seeded scales' median error 4.3 %, the adults' 1-3 %; clipped at 0.7 they had been 23 % off)
+    assert np.median(np.abs(err)) < (0.03 if k > 0.7 else 0.05) and np.abs(err).max() < 0.12
     obs = marker_columns(human, trial)
     st = start_poses(human_kin, obs, seed.params)  # with the balls' reference rotations (State.B)
     assert rms(Problem(human, obs, Settings(), human_kin).marker_residuals(st)) < 0.015

@@ -232,7 +232,7 @@ def test_realistic_combination_and_cli(human, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, needle", [
-    (["--height", "2.5"], "1.4-2.2"),
+    (["--height", "2.5"], "0.9-2.2"),
     (["--height", "tall"], "stature in metres"),
     (["--sta-mm", "-1"], "zero or positive"),
     (["--swaps", "-2"], "zero or positive"),

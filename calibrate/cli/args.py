@@ -65,7 +65,10 @@ def count_arg(text: str) -> int:
 
 
 def height_arg(text: str) -> float:
-    return _number(text, float, lambda v: 1.4 <= v <= 2.2, "a stature of 1.4-2.2 m", "a stature in metres")
+    from ..simulation.simulate import HEIGHT_RANGE
+
+    lo, hi = HEIGHT_RANGE
+    return _number(text, float, lambda v: lo <= v <= hi, f"a stature of {lo:g}-{hi:g} m", "a stature in metres")
 
 
 def fraction_arg(text: str) -> float:

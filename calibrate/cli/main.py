@@ -48,7 +48,7 @@ def _add_sim_args(p: argparse.ArgumentParser, frames: int) -> None:
                    help="soft-tissue artefact: skin markers move relative to their bones with the joint angles, "
                         "X mm at the shank, 2X at the thigh, by segment (docs/simulation.md); default 0")
     p.add_argument("--height", type=height_arg, default=None, metavar="M",
-                   help="the subject's stature in m (1.4-2.2), segment proportions varied by +-4 %%")
+                   help="the subject's stature in m (0.9-2.2), segment proportions varied by +-4 %%")
     p.add_argument("--swaps", type=count_arg, default=None, metavar="N",
                    help="N episodes of 3-10 frames with two neighbouring markers' labels exchanged")
     p.add_argument("--spikes", type=count_arg, default=None, metavar="N",

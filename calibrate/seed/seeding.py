@@ -141,7 +141,7 @@ def seed_parameters(model: Model, trial: Trial, joints: JointEstimates | None = 
                              f"{100 * SIZE_TOLERANCE:.0f} % from its limb's {size.scale[si]:.2f} (marker distances); "
                              f"the limb's used")
                 scale[si] = size.scale[si]
-    scale = np.clip(scale, 0.7, 1.4)
+    scale = segment_range(scale, overall if size is None else size.overall)
     centre = base.centre.copy()
     axis = base.axis.copy()
     marker = base.marker.copy()
@@ -256,6 +256,20 @@ SEED_BROKEN_GROUP = 12  # a segment with more markers is not checked (2^n candid
 
 
 SIZE_TOLERANCE = 0.15  # a seeded segment scale further than this fraction from its limb's is replaced by the limb's
+# A seeded segment's scale against the subject's overall size (the median of the marker pairs' or the joint centres'
+# ratios): outside this band it is clipped to it (a wand or an MTB centre misread on a short segment).  Relative to
+# the subject, not to the base model: the band was 0.7-1.4 of the base model's, and a 1.05 m child on a 1.75 m model
+# (0.60, which the marker pairs measure to 0.59-0.60) was started at 0.70 throughout, its arms posed in the start's
+# frame-wise fits 17 % too long: one simulated walk of eight ended with a humerus spun half a turn about its length
+# (docs/benchmarks.md).  The subject's size itself is checked elsewhere (pipeline.SIZE_RANGE: the units).
+SEGMENT_RANGE = (0.7, 1.4)
+
+
+def segment_range(scale: np.ndarray, overall: float) -> np.ndarray:
+    """Segment scales clipped to SEGMENT_RANGE times the subject's overall size `overall` (the band about 1 where
+    `overall` is not a positive finite number)."""
+    ref = overall if math.isfinite(overall) and overall > 0 else 1.0
+    return np.clip(scale, SEGMENT_RANGE[0] * ref, SEGMENT_RANGE[1] * ref)
 
 
 def limb_groups(model: Model) -> dict[str, list[int]]:
@@ -431,7 +445,7 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
                 mine = (seg[a] == si) | (seg[b] == si)
                 if not (mine & inside).any() and mine.any():
                     scale[si] = weighted_median(ratio[mine], wt[mine])
-    return Size(np.clip(scale, 0.7, 1.4), factors, overall, int(a.size))
+    return Size(segment_range(scale, overall), factors, overall, int(a.size))
 
 
 def broken_samples(model: Model, trial: Trial) -> np.ndarray:

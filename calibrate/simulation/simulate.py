@@ -70,7 +70,10 @@ from ..model.kinematics import build_kinematics
 from ..model.model import Model, Parameters, write_model
 from ..model.rotations import euler_quats
 
-HEIGHT_RANGE = (1.4, 2.2)  # m: statures the simulator accepts
+# m: statures the simulator accepts: a child's (0.9 m, some four years old) to a tall adult's, the base model's segments
+# scaled to it (a child's head and trunk are larger against its legs than an adult's: the proportions vary by +-4 %
+# only, docs/simulation.md)
+HEIGHT_RANGE = (0.9, 2.2)
 
 
 REALISTIC_HEIGHTS = (1.5, 2.0)  # m: simulate_realistic draws the stature from this range
@@ -142,7 +145,7 @@ def simulate_squats(model: Model, frames: int = 1000, rate: float = 100.0, noise
     """Simulate a squat trial of a random subject derived from `model` (see module docstring).
 
     Keywords (all off by default): `sta_mm` soft-tissue artefact level (mm), `height` the subject's
-    stature (m, 1.4-2.2), `gap_fraction` of marker samples in gaps, `swaps` swapped-label episodes,
+    stature (m, 0.9-2.2), `gap_fraction` of marker samples in gaps, `swaps` swapped-label episodes,
     `spikes` single-frame gross errors, `measured` the lab's caliper measurements written with the trial
     (lab_measurements)."""
     lab = Lab(sta_mm, height, gap_fraction, swaps, spikes, measured)
