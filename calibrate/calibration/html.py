@@ -99,12 +99,19 @@ def _notes(report: dict) -> str:
     for f in report.get("implausible_flags", []):  # a centre or axis a trade carried far (the rest: below)
         if f.startswith(("centre[", "axis[")):
             items.append(f"<li class=bad>implausible {_e(f)}</li>")
+    measured_flags = set()
     for j, v in ((report.get("measurements") or {}).get("lateral_mm") or {}).items():
         if v.get("flagged"):
+            measured_flags.add(j)
             items.append(f"<li class=bad>implausible {_e(j)} centre: {_e(v.get('marker'))} "
                          f"{v.get('calibrated_mm', 0):.0f} mm from it along the axis, the measured width puts it "
                          f"{v.get('measured_mm', 0):.0f} mm lateral"
                          + ("" if v.get("used") else " (the width was not used)") + "</li>")
+    for j, v in (report.get("lateral_sides") or {}).items():
+        if v.get("medial") and j not in measured_flags:
+            items.append(f"<li class=bad>implausible {_e(j)} centre: its lateral marker {_e(v.get('marker'))} ends "
+                         f"{-v.get('lateral_mm', 0):.0f} mm medial of it along the axis (the centre and the marker "
+                         "traded along the axis, or the label names another point)</li>")
     for x in report.get("exchanged_labels", []):
         items.append(f"<li class=bad>check labels: {_e(x.get('note'))}"
                      + (f"; their positions in {_e(x['odd_trial'])} left out of the fit" if x.get("odd_trial") else "")

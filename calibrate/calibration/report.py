@@ -109,6 +109,7 @@ def calibration_report(cal: Calibration) -> dict:
                   "new_markers": sum(1 for m in cal.new_markers if m.segment is not None)},
         "mass": _mass(cal),
         "measurements": measurements_table(cal),
+        "lateral_sides": lateral_sides(cal),
         "settings": {"free": list(st.free), "noise_mm": 1000 * st.noise, "loss": st.loss,
                      "loss_scale": st.loss_scale,
                      "priors": {"marker_mm": 1000 * st.priors.marker, "centre_mm": 1000 * st.priors.centre,
@@ -299,15 +300,8 @@ def _mass(cal) -> dict:
 MEASURED_TOLERANCE = 0.020
 
 
-def measurements_table(cal) -> dict | None:
-    """The trials' subject measurements (calibrate.io.measurements) and, for each knee, ankle and elbow with its
-    lateral marker, that marker's distance from the calibrated centre along the hinge axis against the
-    measured one (half the width plus the marker's radius), and whether the measurement placed the centre
-    (Settings.lateral_markers)."""
-    m = cal.measurements
-    used = {(j, mk): d for j, mk, d in cal.settings.lateral_markers}
-    if m is None and not used:
-        return None
+def _base_on_subject(cal) -> Parameters:
+    """The base model's geometry on the subject model's markers (what a lateral marker's side is counted against)."""
     model = cal.model
     origin = cal.base_model or model
     base = origin.parameters()
@@ -319,6 +313,48 @@ def measurements_table(cal) -> dict | None:
         base = Parameters(base.scale, base.centre, base.axis, np.array(
             [base.marker[origin.marker_index(name)] if name in origin.marker_names else cal.params.marker[k]
              for k, name in enumerate(model.marker_names)]))
+    return base
+
+
+def lateral_sides(cal) -> dict[str, dict]:
+    """Each knee, ankle and elbow with its Plug-in Gait lateral marker (KNE, ANK, ELB) that the trials show: the
+    marker's distance from the calibrated centre along the hinge axis, counted towards the side the base model has
+    it on (mm), and whether it ended on the other side (`medial`).  A marker on the lateral epicondyle or
+    malleolus sits half the joint's width and its own radius lateral of the centre, some 20 mm or more on any
+    subject: one medial of it is a centre and marker that traded along the axis, which no motion places, or a
+    label that names another point (the report's `lateral_sides`; the summary's `implausible` line)."""
+    model = cal.model
+    base = _base_on_subject(cal)
+    out = {}
+    for name, marker in lateral_markers_of(model):
+        if marker in cal.unused_markers:
+            continue
+        d = lateral_distance(model, cal.params, base, name, marker)
+        out[name] = {"marker": marker, "lateral_mm": 1000 * d, "medial": d < LATERAL_SIDE}
+    return out
+
+
+# A lateral marker (Plug-in Gait's KNE, ANK, ELB) whose distance from its hinge centre along the axis, counted towards
+# the lateral side, ends below this (m) is flagged: it lies medial of the centre.  Measured (2026-12-05) on the 13 real
+# runs on models/human.urdf and its girdle: 72 of 76 lateral markers 3-75 mm lateral; Rajagopal's walk's LELB 35 mm
+# medial of the elbow (its static's arms left out: centre and marker traded along the axis), and the OpenCap test
+# set's L_ankle 5-12 mm medial on its three trials (19 mm from the tibia's axis: not the lateral malleolus that its
+# name, read as LANK, says).  Those at 3-14 mm (pig_walk's RELB, stairdown's ankles) are not anatomy either, but
+# unflagged: the line is for a marker on the wrong side.
+LATERAL_SIDE = 0.0
+
+
+def measurements_table(cal) -> dict | None:
+    """The trials' subject measurements (calibrate.io.measurements) and, for each knee, ankle and elbow with its
+    lateral marker, that marker's distance from the calibrated centre along the hinge axis against the
+    measured one (half the width plus the marker's radius), and whether the measurement placed the centre
+    (Settings.lateral_markers)."""
+    m = cal.measurements
+    used = {(j, mk): d for j, mk, d in cal.settings.lateral_markers}
+    if m is None and not used:
+        return None
+    model = cal.model
+    base = _base_on_subject(cal)
     lateral = {}
     for name, marker in lateral_markers_of(model):
         measured = used.get((name, marker), None if m is None else m.lateral_distance(name))
@@ -355,6 +391,25 @@ def _measurement_lines(cal) -> list[str]:
                        f"the measured width puts it {v['measured_mm']:.0f} mm lateral"
                        + ("" if v["used"] else " (the width was not used; docs/calibration.md, subject measurements)"))
     return out
+
+
+def _lateral_side_lines(cal) -> list[str]:
+    """The summary's `implausible` lines of lateral markers ended medial of their hinge centre (lateral_sides), but
+    for a joint the measured width flags already."""
+    t = measurements_table(cal)
+    measured = {j for j, v in (t or {}).get("lateral_mm", {}).items() if v["flagged"]}
+    # The trials' own labels that became the marker (an alias: Rajagopal's L.Elbow read as LELB)
+    given: dict[str, list[str]] = {}
+    for labels in cal.label_maps:
+        for trial_label, label in (labels.renamed.items() if labels is not None else ()):
+            if trial_label != label and trial_label not in given.setdefault(label, []):
+                given[label].append(trial_label)
+    return [f"{IMPLAUSIBLE}{j}: {v['marker']}"
+            + (f" (the trials' {', '.join(given[v['marker']])})" if given.get(v["marker"]) else "")
+            + f" ends {-v['lateral_mm']:.0f} mm medial of the centre along the axis, where a lateral epicondyle's or "
+            "malleolus's marker sits lateral of it: the centre and the marker traded along the axis, which no motion "
+            "places, or the label names another point (check it; --markers map.toml maps it)"
+            for j, v in lateral_sides(cal).items() if v["medial"] and j not in measured]
 
 
 def _gimbal_axes(cal) -> list[dict]:
@@ -711,6 +766,7 @@ def summary_text(cal) -> str:
                               if cal.mass is not None else
                               f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
         *_measurement_lines(cal),
+        *_lateral_side_lines(cal),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
         *["  auto-locked  " + lk.text() for lk in cal.auto_locked],

@@ -1,0 +1,51 @@
+"""A Plug-in Gait lateral marker (KNE, ANK, ELB) against its hinge centre: the report's `lateral_sides` and the
+summary's `implausible` line for one that ends medial of the centre (calibrate.calibration.report.lateral_sides)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from calibrate.calibration.pipeline import calibrate
+from calibrate.calibration.report import calibration_report, implausible_flags, lateral_sides
+from calibrate.io.trial import Trial
+from calibrate.model.hinges import hinge_lines_world
+from calibrate.simulation.simulate import simulate_squats
+
+
+def test_lateral_distances_against_pinocchio(human):
+    """The true subject's lateral distances as lateral_sides reads them equal the markers' distances from the hinge
+    centres along the axes in the world, by Pinocchio's kinematics of the written model, in every frame."""
+    sim = simulate_squats(human, frames=20, noise_mm=0.0, seed=4)
+    sides = lateral_sides(SimpleNamespace(model=human, base_model=None, params=sim.truth, unused_markers=()))
+    assert set(sides) == {f"{j}_{s}" for j in ("knee", "ankle", "elbow") for s in "lr"}
+    lines = hinge_lines_world(human, sim.truth, sim.motion)
+    for joint, v in sides.items():
+        centre, axis = lines[joint]
+        marker = sim.clean_markers[:, human.marker_index(v["marker"])]
+        along = np.abs(np.einsum("fi,fi->f", marker - centre, axis))  # the truth's markers are lateral
+        np.testing.assert_allclose(v["lateral_mm"], 1000 * along, atol=1e-6)
+        assert not v["medial"] and v["lateral_mm"] > 15.0
+
+
+def test_a_lateral_marker_across_its_joint_is_flagged(human):
+    """LKNE's positions mirrored across the knee (through the true centre, normal to the true axis: the medial
+    epicondyle labelled as the lateral one) end medial of the calibrated knee centre and are flagged; the trial as
+    simulated flags no joint."""
+    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=2)
+    clean = calibrate(human, sim.trial)
+    assert not any(v["medial"] for v in lateral_sides(clean).values())
+    assert not any("medial of the centre" in f for f in implausible_flags(clean))
+
+    centre, axis = hinge_lines_world(human, sim.truth, sim.motion)["knee_l"]
+    k = sim.trial.labels.index("LKNE")
+    X = sim.trial.markers.copy()
+    X[:, k] -= 2.0 * np.einsum("fi,fi->f", X[:, k] - centre, axis)[:, None] * axis
+    cal = calibrate(human, Trial(sim.trial.labels, X, sim.trial.rate, 0, None))
+    sides = lateral_sides(cal)
+    assert sides["knee_l"]["medial"] and sides["knee_l"]["lateral_mm"] < -25.0
+    assert not any(v["medial"] for j, v in sides.items() if j != "knee_l")
+    flags = [f for f in implausible_flags(cal) if "medial of the centre" in f]
+    assert len(flags) == 1 and flags[0].startswith("knee_l: LKNE ends")
+    assert calibration_report(cal)["lateral_sides"]["knee_l"] == sides["knee_l"]
