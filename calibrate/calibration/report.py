@@ -338,9 +338,10 @@ def lateral_sides(cal) -> dict[str, dict]:
 # the lateral side, ends below this (m) is flagged: it lies medial of the centre.  Measured (2026-12-05) on the 13 real
 # runs on models/human.urdf and its girdle: 72 of 76 lateral markers 3-75 mm lateral; Rajagopal's walk's LELB 35 mm
 # medial of the elbow (its static's arms left out: centre and marker traded along the axis), and the OpenCap test
-# set's L_ankle 5-12 mm medial on its three trials (19 mm from the tibia's axis: not the lateral malleolus that its
-# name, read as LANK, says).  Those at 3-14 mm (pig_walk's RELB, stairdown's ankles) are not anatomy either, but
-# unflagged: the line is for a marker on the wrong side.
+# set's L_ankle 5-12 mm medial on its three trials (19 mm from the tibia's axis, where a lateral malleolus sits 35-45
+# mm: the shank's frame and the marker traded, or the label, read as LANK, names another point).  Those at 3-14 mm
+# (pig_walk's RELB, stairdown's ankles) are not anatomy either, but unflagged: the line is for a marker on the wrong
+# side.
 LATERAL_SIDE = 0.0
 
 
