@@ -31,21 +31,25 @@ def test_lateral_distances_against_pinocchio(human):
 
 def test_a_lateral_marker_across_its_joint_is_flagged(human):
     """LKNE's positions mirrored across the knee (through the true centre, normal to the true axis: the medial
-    epicondyle labelled as the lateral one) end medial of the calibrated knee centre and are flagged; the trial as
+    epicondyle labelled as the lateral one), and LANK's across the ankle, each end medial of the calibrated centre and
+    are flagged, the ankle's line naming the subtalar it trades with across the markerless talus; the trial as
     simulated flags no joint."""
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=2)
     clean = calibrate(human, sim.trial)
     assert not any(v["medial"] for v in lateral_sides(clean).values())
     assert not any("medial of the centre" in f for f in implausible_flags(clean))
 
-    centre, axis = hinge_lines_world(human, sim.truth, sim.motion)["knee_l"]
-    k = sim.trial.labels.index("LKNE")
-    X = sim.trial.markers.copy()
-    X[:, k] -= 2.0 * np.einsum("fi,fi->f", X[:, k] - centre, axis)[:, None] * axis
-    cal = calibrate(human, Trial(sim.trial.labels, X, sim.trial.rate, 0, None))
-    sides = lateral_sides(cal)
-    assert sides["knee_l"]["medial"] and sides["knee_l"]["lateral_mm"] < -25.0
-    assert not any(v["medial"] for j, v in sides.items() if j != "knee_l")
-    flags = [f for f in implausible_flags(cal) if "medial of the centre" in f]
-    assert len(flags) == 1 and flags[0].startswith("knee_l: LKNE ends")
-    assert calibration_report(cal)["lateral_sides"]["knee_l"] == sides["knee_l"]
+    lines = hinge_lines_world(human, sim.truth, sim.motion)
+    for joint, marker in (("knee_l", "LKNE"), ("ankle_l", "LANK")):
+        centre, axis = lines[joint]
+        k = sim.trial.labels.index(marker)
+        X = sim.trial.markers.copy()
+        X[:, k] -= 2.0 * np.einsum("fi,fi->f", X[:, k] - centre, axis)[:, None] * axis
+        cal = calibrate(human, Trial(sim.trial.labels, X, sim.trial.rate, 0, None))
+        sides = lateral_sides(cal)
+        assert sides[joint]["medial"] and sides[joint]["lateral_mm"] < -10.0, sides[joint]
+        assert not any(v["medial"] for j, v in sides.items() if j != joint)
+        flags = [f for f in implausible_flags(cal) if "medial of the centre" in f]
+        assert len(flags) == 1 and flags[0].startswith(f"{joint}: {marker} ends")
+        assert ("--lock subtalar_l" in flags[0]) == (joint == "ankle_l")  # the talus carries no marker
+        assert calibration_report(cal)["lateral_sides"][joint] == sides[joint]

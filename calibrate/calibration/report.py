@@ -409,8 +409,27 @@ def _lateral_side_lines(cal) -> list[str]:
             + (f" (the trials' {', '.join(given[v['marker']])})" if given.get(v["marker"]) else "")
             + f" ends {-v['lateral_mm']:.0f} mm medial of the centre along the axis, where a lateral epicondyle's or "
             "malleolus's marker sits lateral of it: the centre and the marker traded along the axis, which no motion "
-            "places, or the label names another point (check it; --markers map.toml maps it)"
+            "places, or the label names another point (check it; --markers map.toml maps it)" + _across_bare(cal, j)
             for j, v in lateral_sides(cal).items() if v["medial"] and j not in measured]
+
+
+def _across_bare(cal, joint: str) -> str:
+    """The lateral-side line's clause for a hinge whose child carries no marker the trials show and turns on through a
+    free hinge of its own (the ankle and the subtalar across the talus): the two trade, and the neighbour held places
+    the first.  On the OpenCap test set's walk, drop jump and walk on the girdle model the ankles' lateral markers
+    ended 5-12 mm medial of their centres; with --lock subtalar_l,subtalar_r 36-42 mm lateral, the marker fit 0.4-1.4
+    mm worse (the subtalar's own turn is then the ankle's or the markers')."""
+    model = cal.model
+    jt = model.joints[model.joint_index(joint)]
+    if any(m.segment == jt.child and m.name not in cal.unused_markers for m in model.markers):
+        return ""
+    held = cal.locked
+    beyond = [k for k in model.joints if k.parent == jt.child and k.kind == "hinge" and k.dofs[0] not in held]
+    if not beyond:
+        return ""
+    names = ", ".join(k.dofs[0] for k in beyond)
+    return (f"; {joint} and {', '.join(k.name for k in beyond)} trade across {jt.child}, which carries no marker the "
+            f"trials show: --lock {names} holds the one, at some cost to the fit where it turned")
 
 
 def _gimbal_axes(cal) -> list[dict]:
