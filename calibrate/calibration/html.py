@@ -224,19 +224,13 @@ def _notes(report: dict) -> str:
         items.append(f"<li>unresolved segment {_e(u.get('segment'))} (its coordinates locked: "
                      f"{_e(', '.join(u.get('coordinates', [])) or '-')}): {_e(u.get('reason', ''))}</li>")
     narrow = report.get("narrow_axes_deg") or {}
-    inside = report.get("inside_axes") or {}
-    if quiet := [n for n in report.get("held_axes") or [] if n not in narrow and n not in inside]:
+    if quiet := [n for n in report.get("held_axes") or [] if n not in narrow]:
         items.append(f"<li>axes held at the base model's (the trials do not show these joints moving): "
                      f"{_e(', '.join(quiet))}</li>")
     if narrow:
         items.append("<li>axes held at the base model's (the moving trials turn these joints too little to place an "
                      "axis against the skin's turn of the segments): "
                      f"{_e(', '.join(f'{n} ({t:.0f} deg)' for n, t in narrow.items()))}</li>")
-    if inside:
-        ends = {v.get("joint"): v.get("lateral_mm", 0.0) for v in inside.values()}
-        items.append("<li>axes held at the base model's (a lateral marker ended medial of its hinge's centre, the "
-                     "hinge and its neighbour across a segment without seen markers trading their axes: "
-                     f"{_e(', '.join(f'{j} {-d:.0f} mm' for j, d in ends.items()))}): {_e(', '.join(inside))}</li>")
     for g in report.get("gimbal_axes") or []:
         items.append(f"<li>axes held at the model's: {_e(', '.join(g.get('coordinates', [])))} turn about one "
                      f"centre through {_e(', '.join(g.get('bodies', [])))} (light, no markers): one ball in the "

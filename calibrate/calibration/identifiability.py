@@ -11,7 +11,6 @@ from functools import partial
 import numpy as np
 
 from ..io.labels import alias_for
-from ..io.measurements import LATERAL_SIDE, lateral_distance, lateral_markers_of
 from ..model.blocks import FrameLayout, perpendicular_basis
 from ..model.model import Joint, Model, Parameters
 from ..model.resolve import descendants
@@ -161,52 +160,6 @@ def trading_locks(model: Model, spreads: dict[str, tuple[float, float]], seen: C
     # where the still one turns again.  Both locked, the foot was welded to the shank.
     by_turn = {n for lk in out if lk.turned for n in lk.neighbours}
     return tuple(lk for lk in out if lk.turned or lk.coordinate not in by_turn)
-
-
-# A lateral marker held to decide inside_axes only this far (m) medial of its centre: a round's solution on the way can
-# read one just inside (Expert1's static + walk on the girdle model: RANK 1 mm medial after the first round, 36 mm
-# lateral at the end), where the OpenCap test set's ankles read 57-61 mm medial (docs/benchmarks.md).
-INSIDE_MARGIN = 0.010
-
-
-def inside_axes(problem: Problem, p: np.ndarray, seen: Collection[str], locked: Collection[str],
-                 axes: Collection[str]) -> dict[str, tuple[str, float]]:
-    """The hinge axes to hold at the base model's because a lateral marker (Plug-in Gait's ANK, KNE, ELB) ended medial
-    of its hinge's centre (report.lateral_sides; by more than INSIDE_MARGIN) in geometry `p`, where that hinge trades
-    across the segment below it, which carries no seen marker, with a free hinge beyond (trading_joints, `seen` and
-    `locked` as there: the ankle and the subtalar across the talus): both joints' axes (those of `axes`, the free
-    ones), on both sides where they trade alike.  No turn of the pair places the centre along the axis, and with
-    both axes free the trade carries it past the malleolus: the OpenCap test set's walk read its LANK 61 mm medial
-    after the first round and ended 12 mm medial, its axes held 21 mm lateral (docs/benchmarks.md).
-    DoF -> (the joint whose marker ended medial, its lateral distance, m)."""
-    model = problem.model
-    trading = trading_joints(model, seen, locked)
-    params, base = model.unpack(p), problem.base
-    out: dict[str, tuple[str, float]] = {}
-    for joint, marker in lateral_markers_of(model):
-        if marker not in seen or joint not in trading:
-            continue
-        if trading[joint][0] != model.joints[model.joint_index(joint)].child:
-            continue  # the bare segment above the hinge, not below it
-        d = lateral_distance(model, params, base, joint, marker)
-        if d >= LATERAL_SIDE - INSIDE_MARGIN:
-            continue
-        for side in ("_l", "_r"):
-            other = joint[:-2] + side
-            if other not in trading or trading[other][0] != model.joints[model.joint_index(other)].child:
-                continue
-            for dof in (*model.joints[model.joint_index(other)].dofs, *trading[other][1]):
-                if dof in axes and dof not in locked:
-                    out.setdefault(dof, (joint, d))
-    return out
-
-
-def inside_text(model: Model, inside: dict[str, tuple[str, float]]) -> str:
-    """Why the axes of `inside` (inside_axes: DoF -> (joint, lateral distance, m)) were held, in words."""
-    markers = dict(lateral_markers_of(model))
-    ends = [f"{markers[j]} ended {-1000 * d:.0f} mm medial of {j}'s centre" for j, d in dict(inside.values()).items()]
-    return (f"{', '.join(ends)}, where a lateral malleolus's or epicondyle's marker sits lateral of it: the hinge and "
-            f"its neighbour across the segment without seen markers traded their axes ({', '.join(inside)})")
 
 
 def zero_notes(model: Model, seen: Collection[str] | None, locked: Collection[str], still: int = 0

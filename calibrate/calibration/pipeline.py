@@ -45,8 +45,6 @@ from calibrate.calibration.identifiability import (
     coordinate_notes,
     coordinate_spreads,
     even_frames,
-    inside_axes,
-    inside_text,
     length_differences,
     mirror_differences,
     parameter_changes,
@@ -690,7 +688,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     cap = tau_cap(np.array([t.rate for t in trials]), np.array([t.n_frames for t in trials]))
     # Which trials are still: their moved markers looked for (with run.moved_markers off, only the re-placed left out)
     still = [m < STILL_MOTION for m in motion] if motion is not None and len(trials) > 1 else None
-    problem, state, summary, scatter, solved, moved, locks, narrow, narrow_centres, inside, after = _solve(
+    problem, state, summary, scatter, solved, moved, locks, narrow, narrow_centres, after = _solve(
         problem, start, spans, run, solver, say, lengths, cap, still, [t.source for t in trials],
         STILL_COARSE_FRAMES if still_only is not None else COARSE_FRAMES, relabel=run.outliers > 0)
     relabelled += after
@@ -927,7 +925,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        times, ignored, unused, problem.compiled, base_model=model, new_markers=tuple(placed),
                        outliers=tuple(rejected), coordinate_notes=notes, held_axes=held, auto_locked=locks,
                        narrow_axes=tuple(narrow.items()), narrow_centres=tuple(narrow_centres.items()),
-                       inside_axes=tuple((n, j, d) for n, (j, d) in inside.items()),
                        axis_pairs=tuple((subject.dofs[d].name, subject.markers[k1].name, subject.markers[k2].name)
                                         for _, k1, k2, d in problem.pair_terms()),
                        not_neutral=tuple(not_neutral),
@@ -1146,7 +1143,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
            still: Sequence[bool] | None = None, sources: Sequence[str] = (), coarse_frames: int = COARSE_FRAMES,
            relabel: bool = False) -> tuple[Problem, State, SolverSummary, np.ndarray, bool, list[MovedMarker],
                                            tuple[TradingLock, ...], dict[str, float], dict[str, float],
-                                           dict[str, tuple[str, float]], list[ExchangedCluster]]:
+                                           list[ExchangedCluster]]:
     """The global solve: the geometry's basin on about `coarse_frames` evenly spaced frames (spread over the trials by
     their length; a long trial then through larger subsamples), then every frame's pose fitted to that geometry and
     the noise learnt on every frame.  With `run.auto_hold`, the axes of the coordinates that the subsample's
@@ -1154,8 +1151,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     held at the base model's and the subsample solved again.  Returns the problem (with those axes held and the
     noise learnt), the state, its summary, the markers' noise SDs, whether every frame was solved jointly (a short
     trial, solved whole; otherwise the caller's solve on every frame follows), the markers moved in a still trial,
-    the hinges locked (trading_locks), the axes held for their narrow turn (name -> turn, rad), the centres held so,
-    and the axes held for a lateral marker ended medial of its centre (_inside_axes).  `lengths`: what
+    the hinges locked (trading_locks) and the axes held for their narrow turn (name -> turn, rad).  `lengths`: what
     each trial counts as in frames (_still_lengths), the subsamples spread and weighted by it.  `tau_max`: the
     longest correlation time learnt on every frame (noise.tau_cap; a subsample's rows lie frames apart: its
     own).  `still`: which trials are still, where the markers that sit elsewhere in them than in the moving trials
@@ -1182,7 +1178,6 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     locks: tuple[TradingLock, ...] = ()
     narrow: dict[str, float] = {}  # axes held because the moving trials turn them less than NARROW_TURN (rad)
     narrow_centres: dict[str, float] = {}  # centres held so (joint -> its largest angle's turn, rad)
-    inside: dict[str, tuple[str, float]] = {}  # axes held for a lateral marker medial of its centre (_inside_axes)
     coarse_summary: SolverSummary | None = None
     looks = 0  # looks for moved markers so far (MOVED_PASSES)
     relabelled: list[ExchangedCluster] = []  # labels read back after the first solve (exchanged_after_solve)
@@ -1277,11 +1272,6 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             # solution with the noise learnt: on the first solution, before it, the centres had not settled, and
             # pig_walk's lumbar and neck were held, its marker RMS 7.18 -> 8.17 mm (docs/benchmarks.md).
             new_centres = _narrow_centres(problem, state.p, angles[rows], skip, run.segment_frames == "markers")
-            locked_now = {n for n, _ in problem.settings.lock} | skip
-            for name, why in inside_axes(problem, state.p, seen_names, locked_now, axes).items():
-                if name not in held and name not in problem.settings.hold_axes:
-                    held.append(name)
-                    inside[name] = why
         else:
             new_locks, new_centres = (), {}
         if not held and not found and not exchanged and not new_locks and not new_centres:
@@ -1312,14 +1302,12 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
                 Z[:, FrameLayout.angle(d)] = lk.value
             state = replace(restart, p=p, Z=Z)
         if held:
-            quiet = [n for n in held if n not in narrow and n not in inside]
+            quiet = [n for n in held if n not in narrow]
             turned = [f"{n} through {math.degrees(narrow[n]):.0f} deg" for n in held if n in narrow]
             say("solve: " + "; ".join(
                 ([f"the trial does not show {', '.join(quiet)} moving"] if quiet else [])
                 + ([f"the moving trials turn {', '.join(turned)} only (under {math.degrees(NARROW_TURN):.0f}: "
-                    "the skin's turn of the segments would place the axis)"] if turned else [])
-                + [inside_text(problem.model, {n: v for n, v in inside.items() if n in held})] * any(
-                    n in inside for n in held))
+                    "the skin's turn of the segments would place the axis)"] if turned else []))
                 + f": holding {'its axis' if len(held) == 1 else 'their axes'} at the base model's, solving again")
             options = replace(problem.settings, hold_axes=problem.settings.hold_axes + tuple(held))
             problem = problem.with_settings(options, sigma=problem.sigma)
@@ -1337,8 +1325,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             narrow_centres.update({n: t for n, (t, _) in new_centres.items()})
     coarse_summary.rounds = round_ + 1
     if sub is problem:
-        return (problem, state, coarse_summary, scatter, True, moved, locks, narrow, narrow_centres, inside,
-                relabelled)
+        return problem, state, coarse_summary, scatter, True, moved, locks, narrow, narrow_centres, relabelled
     # The geometry's basin is found on the subsample; every frame then joins for the last steps.  A long
     # trial passes through larger subsamples first (LEVEL_GROWTH times the last, while the trial is
     # LEVEL_ROOM times longer still): where a flat valley of the geometry lets the optimum of 120 frames
@@ -1376,7 +1363,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     summary.coarse = coarse_summary
     summary.coarse_frames = int(coarse.size)
     summary.levels = levels
-    return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres, inside, relabelled
+    return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres, relabelled
 
 
 def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = (),

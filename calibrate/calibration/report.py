@@ -20,7 +20,7 @@ import numpy as np
 from .. import __version__
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
-from ..io.measurements import LATERAL_SIDE, lateral_distance, lateral_markers_of
+from ..io.measurements import lateral_distance, lateral_markers_of
 from ..io.motion import motion_csv_text
 from ..io.outputs import check_targets, put_text, write_all
 from ..model.model import Model, Parameters, hinge_axis
@@ -30,7 +30,7 @@ from ..seed.association import shared_clause
 from ..seed.geometry import marker_rms
 from ..software import software_versions
 from .html import asymmetry_clause, left_out_clause, mirror_clause, report_html, seed_note_groups
-from .identifiability import IDENTIFIED, NARROW_TURN, inside_text, segment_end
+from .identifiability import IDENTIFIED, NARROW_TURN, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified, StillNote
@@ -136,7 +136,6 @@ def calibration_report(cal: Calibration) -> dict:
                      "hip_regression": st.hip_regression, "compiled": cal.compiled},
         "held_axes": list(cal.held_axes),
         "narrow_axes_deg": {n: math.degrees(t) for n, t in cal.narrow_axes},
-        "inside_axes": {n: {"joint": j, "lateral_mm": 1000 * d} for n, j, d in cal.inside_axes},
         # an OpenSim model's gimbals (calibrate.io.osim_info.with_gimbals): hinges about one centre through phantom
         # bodies, one ball in the source's angle convention, their axes held
         "gimbal_axes": _gimbal_axes(cal),
@@ -335,6 +334,17 @@ def lateral_sides(cal) -> dict[str, dict]:
     return out
 
 
+# A lateral marker (Plug-in Gait's KNE, ANK, ELB) whose distance from its hinge centre along the axis, counted towards
+# the lateral side, ends below this (m) is flagged: it lies medial of the centre.  Measured (2026-12-05) on the 13 real
+# runs on models/human.urdf and its girdle: 72 of 76 lateral markers 3-75 mm lateral; Rajagopal's walk's LELB 35 mm
+# medial of the elbow (its static's arms left out: centre and marker traded along the axis), and the OpenCap test
+# set's L_ankle 5-12 mm medial on its three trials (19 mm from the tibia's axis, where a lateral malleolus sits 35-45
+# mm: the shank's frame and the marker traded, or the label, read as LANK, names another point).  Those at 3-14 mm
+# (pig_walk's RELB, stairdown's ankles) are not anatomy either, but unflagged: the line is for a marker on the wrong
+# side.
+LATERAL_SIDE = 0.0
+
+
 def measurements_table(cal) -> dict | None:
     """The trials' subject measurements (calibrate.io.measurements) and, for each knee, ankle and elbow with its
     lateral marker, that marker's distance from the calibrated centre along the hinge axis against the
@@ -407,9 +417,8 @@ def _across_bare(cal, joint: str) -> str:
     """The lateral-side line's clause for a hinge whose child carries no marker the trials show and turns on through a
     free hinge of its own (the ankle and the subtalar across the talus): the two trade, and the neighbour held places
     the first.  On the OpenCap test set's walk, drop jump and walk on the girdle model the ankles' lateral markers
-    ended 5-12 mm medial of their centres (before identifiability.inside_axes held the pair's axes there); with --lock
-    subtalar_l,subtalar_r 36-42 mm lateral, the marker fit 0.4-1.4 mm worse (the subtalar's own turn is then the
-    ankle's or the markers')."""
+    ended 5-12 mm medial of their centres; with --lock subtalar_l,subtalar_r 36-42 mm lateral, the marker fit 0.4-1.4
+    mm worse (the subtalar's own turn is then the ankle's or the markers')."""
     model = cal.model
     jt = model.joints[model.joint_index(joint)]
     if any(m.segment == jt.child and m.name not in cal.unused_markers for m in model.markers):
@@ -441,11 +450,9 @@ def _held_why(cal) -> list[str]:
     from ..io.osim_info import gimbal_text, osim_info
 
     narrow = dict(cal.narrow_axes)
-    inside = {n: (j, d) for n, j, d in cal.inside_axes}
-    quiet = [n for n in cal.held_axes if n not in narrow and n not in inside]
+    quiet = [n for n in cal.held_axes if n not in narrow]
     gimbal = gimbal_text(osim_info(cal.model), cal.settings.hold_axes) if "<opensim" in cal.model.text else ""
     return ([f"; the trial does not show {', '.join(quiet)} moving"] if quiet else []) + (
-        [f"; {inside_text(cal.model, inside)}"] if inside else []) + (
         [f"; the moving trials turn {', '.join(f'{n} through {math.degrees(t):.0f} deg' for n, t in narrow.items())}"
          " only: too little to place an axis against the skin's turn of the segments (up to 4.4 deg in a walk)"]
         if narrow else []) + ([f"; {gimbal} (--no-auto-hold frees them)"] if gimbal else [])

@@ -223,9 +223,6 @@ class Calibration:
     # (DoF, its turn over the moving trials, rad) for those of held_axes held because the trials turn them too little
     # to place their axis against the skin's turn of the segments (pipeline.NARROW_TURN), not because they are still
     narrow_axes: tuple[tuple[str, float], ...] = ()
-    # (DoF, the joint, its lateral marker's distance from the centre, m) of those of held_axes held because that
-    # marker had ended medial of the centre beside a segment without seen markers (identifiability.inside_axes)
-    inside_axes: tuple[tuple[str, str, float], ...] = ()
     # (joint, its largest angle's turn over the moving trials, rad) of the centres calibrate held (Settings.hold_centres
     # as used) because the fit carried them far from the base model's where the trials turn the joint too little to
     # place a centre against the skin's turn of the segments (pipeline._narrow_centres)

@@ -145,17 +145,6 @@ def first_measurements(trials) -> SubjectMeasurements | None:
     return None
 
 
-# A lateral marker (Plug-in Gait's KNE, ANK, ELB) whose distance from its hinge centre along the axis, counted towards
-# the lateral side, ends below this (m) is flagged: it lies medial of the centre.  Measured (2026-12-05) on the 13 real
-# runs on models/human.urdf and its girdle: 72 of 76 lateral markers 3-75 mm lateral; Rajagopal's walk's LELB 35 mm
-# medial of the elbow (its static's arms left out: centre and marker traded along the axis), and the OpenCap test
-# set's L_ankle 5-12 mm medial on its three trials (the ankle's and subtalar's axes traded across the bare talus;
-# since calibration.identifiability.inside_axes holds them there, 20-27 mm lateral).  Those at 3-14 mm
-# (pig_walk's RELB, stairdown's ankles) are not anatomy either, but unflagged: the line is for a marker on the wrong
-# side.
-LATERAL_SIDE = 0.0
-
-
 def lateral_distance(model: Model, params: Parameters, base: Parameters, joint: str, marker: str) -> float:
     """A hinge joint's lateral marker's distance from the joint centre along the hinge axis (m) in geometry
     `params`, counted towards the side where the base geometry `base` has the marker (what a measured joint
