@@ -365,6 +365,48 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
 
 
 
+def test_hips_outside_the_pelvis_are_calibrated_again_by_the_regression_by_default(human, monkeypatch, capsys,
+                                                                                    tmp_path):
+    """The default, hip_regression "outside": a simulated walk's hips, inside the pelvis, keep the calibration without
+    the regression to the bit (the report says "outside"); with HIP_OUTSIDE set below their width over the ASIS
+    markers' (as BTKData's Plug-in Gait walks and Camargo's walk end 1.2 times the ASIS width apart) the trials are
+    calibrated again with the regression, the same bits as asking for it, and the summary says why; a hip only far
+    from Harrington's (REGRESSION_FAR, "auto"'s test) does not fire it.  --no-hip-regression and hip_regression =
+    false never calibrate again."""
+    import calibrate.calibration.regression as regression
+    from calibrate.cli.main import main
+
+    assert Settings().hip_regression == "outside"
+    walk = simulate_gait(human, frames=60, noise_mm=1.0, seed=2).trial
+    plain, placed = (calibrate(human, [walk], Settings(outliers=0.0, hip_regression=h)) for h in (False, True))
+    default = calibrate(human, [walk], Settings(outliers=0.0))
+    assert not any(h.outside for h in plain.hip_motion) and default.hip_regression_auto == ""
+    assert np.array_equal(default.params.vector(), plain.params.vector())
+    assert calibration_report(default)["settings"]["hip_regression"] == "outside"
+    monkeypatch.setattr(regression, "REGRESSION_FAR", 0.5 * min(h.from_regression for h in plain.hip_motion))
+    assert np.array_equal(calibrate(human, [walk], Settings(outliers=0.0)).params.vector(), plain.params.vector())
+    width, asis = plain.hip_motion[0].width
+    monkeypatch.setattr(regression, "HIP_OUTSIDE", 0.9 * width / asis)
+    fired = calibrate(human, [walk], Settings(outliers=0.0))
+    assert np.array_equal(fired.params.vector(), placed.params.vector())
+    assert fired.hip_regression_auto.startswith("applied: without it ")
+    assert "  hips         Harrington's regression (hip_regression outside) applied: without it " in fired.text()
+    assert calibration_report(fired)["settings"]["hip_regression"] == "outside"
+    off = calibrate(human, [walk], Settings(outliers=0.0, hip_regression=False))
+    assert off.hip_regression_auto == "" and np.array_equal(off.params.vector(), plain.params.vector())
+    assert settings_from_dict({"hip_regression": "outside"}, "lab.toml").hip_regression == "outside"
+    assert settings_from_dict({"hip_regression": False}, "lab.toml").hip_regression is False
+    from calibrate.io.c3d import write_c3d
+
+    write_c3d(tmp_path / "walk.c3d", walk)
+    (tmp_path / "off").mkdir()
+    assert main([str(tmp_path / "walk.c3d"), str(human.path), "--no-hip-regression", "--outlier-sigmas", "0",
+                 "-o", str(tmp_path / "off" / "s")]) == 0
+    assert "hip_regression" not in capsys.readouterr().out
+    report = json.loads(next((tmp_path / "off").glob("*report.json")).read_text())
+    assert report["settings"]["hip_regression"] is False and report["hip_regression_auto"] == ""
+
+
 def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausible(human, tmp_path, monkeypatch,
                                                                                  capsys):
     """hip_regression "auto": a simulated walk's hips, not implausible (9-29 mm from Harrington's), keep the calibration
@@ -407,7 +449,7 @@ def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausibl
         assert np.median(np.linalg.norm(got - want, axis=1)) < 0.6 * before[joint], (joint, before)
     # Asked for by a settings file or the command line; anything else refused in one line.
     assert settings_from_dict({"hip_regression": "auto"}, "lab.toml").hip_regression == "auto"
-    with pytest.raises(CalibrateError, match='lab.toml: hip_regression: must be true, false or "auto"'):
+    with pytest.raises(CalibrateError, match='lab.toml: hip_regression: must be true, false, "auto" or "outside"'):
         settings_from_dict({"hip_regression": "sometimes"}, "lab.toml")
     with pytest.raises(ValueError, match="hip_regression"):
         replace(Settings(), hip_regression=1)

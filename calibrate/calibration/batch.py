@@ -26,7 +26,8 @@ Manifest (TOML or CSV; paths relative to the manifest's folder):
     setup_names = true                            # optional: as --setup-names (the subject .osim, its motions and
                                                   #     marker errors where the setups have OpenSim write them)
     # trials and model may be left out where scale_setup is given: those the setups name, setup_names then true
-    hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto)
+    hip_regression = "auto"                       # optional: true (--hip-regression), "auto" (--hip-regression-auto),
+                                                  #     "outside" (the default), false (--no-hip-regression)
     config = "S01/settings.toml"                  # optional: the subject's settings file (calibrate --config)
     ik_trials = ["S01/walk2.c3d", "S01/*.trc"]    # optional: more trials fitted to the calibrated subject held
                                                   #     fixed, as calibrate ik --report does (<trial>_motion.csv,
@@ -62,6 +63,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import CalibrateError
+from .options import HIP_MODES
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -92,7 +94,8 @@ class Subject:
     # the subject .osim, its motions and marker errors where the setups have OpenSim write them (--setup-names)
     setup_names: bool = False
     # the hips by Harrington's regression: True (--hip-regression), "auto" only where they end implausible without it
-    # (--hip-regression-auto; Settings.hip_regression); None: the settings file's (off without one)
+    # (--hip-regression-auto; Settings.hip_regression), "outside" only where they end outside the pelvis, False never
+    # (--no-hip-regression); None: the settings file's ("outside" without one)
     hip_regression: bool | str | None = None
     config: Path | None = None  # the subject's settings file (calibrate --config; io.config.load_settings)
     # more trials fitted to the calibrated subject held fixed (calibrate ik --report: calibration.ik_trials)
@@ -102,11 +105,11 @@ class Subject:
 def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: bool = False) -> bool | str:
     """A CSV manifest's true/false cell (`auto`: "auto" too)."""
     value = text.strip().lower()
-    if auto and value == "auto":
-        return "auto"
+    if auto and value in HIP_MODES:
+        return value
     if value not in ("true", "false", "1", "0", "yes", "no"):
         raise CalibrateError(f"{path}: subject {subject}: {key} {text.strip()!r} must be true or false"
-                             + (' or "auto"' if auto else ""))
+                             + (', "auto" or "outside"' if auto else ""))
     return value in ("true", "1", "yes")
 
 
@@ -231,8 +234,9 @@ def read_manifest(path: str | os.PathLike[str], config: str | os.PathLike[str] |
             raise CalibrateError(f"{where} ({sid}): 'setup_names' takes the names the lab's setups give; add its "
                                  "ik_setup and/or scale_setup (an OpenSim base model's)")
         hips = row.get("hip_regression")
-        if not (hips is None or isinstance(hips, bool) or hips == "auto"):
-            raise CalibrateError(f"{where} ({sid}): 'hip_regression' must be true, false or \"auto\", got {hips!r}")
+        if not (hips is None or isinstance(hips, bool) or hips in HIP_MODES):
+            raise CalibrateError(f"{where} ({sid}): 'hip_regression' must be true, false, \"auto\" or \"outside\", "
+                                 f"got {hips!r}")
         own = row.get("config")
         if own is not None and (not isinstance(own, str) or not own.strip()):
             raise CalibrateError(f"{where} ({sid}): 'config' must name a settings file (TOML, as calibrate --config), "

@@ -203,7 +203,9 @@ def _notes(report: dict) -> str:
                          + f" deg; {h['from_regression_mm']:.0f} mm from Harrington's regression: implausible; "
                          "<code>--hip-regression</code> places it by Harrington's regression</li>")
     if report.get("hip_regression_auto"):
-        items.append(f"<li>hips by Harrington's regression (hip_regression auto): {_e(report['hip_regression_auto'])}"
+        mode = (report.get("settings") or {}).get("hip_regression", "auto")
+        items.append(f"<li>hips by Harrington's regression (hip_regression {_e(mode)}): "
+                     f"{_e(report['hip_regression_auto'])}"
                      "</li>")
     for k in report.get("plugin_gait_knees", []):
         if k.get("misaligned"):

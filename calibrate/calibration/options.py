@@ -6,6 +6,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+#: Settings.hip_regression's modes besides true and false: "auto" (where a hip ends implausible) and "outside" (where
+#: the hips end outside the pelvis, the default); calibrate.calibration.pipeline._hips_auto.
+HIP_MODES = ("auto", "outside")
+
 
 @dataclass(frozen=True)
 class PipelineOptions:
@@ -20,7 +24,8 @@ class PipelineOptions:
     ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)
     still_weight: float = 0.0  # frames a still trial counts as in all beside a moving one (0: every frame once)
     moved_markers: bool = False  # a still trial's positions of markers the moving trials put elsewhere: left out
-    hip_regression: bool | str = False  # hip centres by Harrington's regression ("auto": where they end implausible)
+    # hip centres by Harrington's regression ("auto": where they end implausible; "outside": outside the pelvis)
+    hip_regression: bool | str = "outside"
     far_joints: bool = True  # a still trial's markers beyond a joint it holds where no moving trial goes: left out
 
     def __post_init__(self) -> None:
@@ -35,8 +40,9 @@ class PipelineOptions:
             raise ValueError(f"moved_markers: must be true or false, got {self.moved_markers!r}")
         if not isinstance(self.far_joints, bool):
             raise ValueError(f"far_joints: must be true or false, got {self.far_joints!r}")
-        if not (isinstance(self.hip_regression, bool) or self.hip_regression == "auto"):
-            raise ValueError(f"hip_regression: must be true, false or \"auto\", got {self.hip_regression!r}")
+        if not (isinstance(self.hip_regression, bool) or self.hip_regression in HIP_MODES):
+            raise ValueError(f"hip_regression: must be true, false, \"auto\" or \"outside\", got "
+                             f"{self.hip_regression!r}")
         if not isinstance(self.learn_noise, bool):
             raise ValueError(f"learn_noise: must be true or false, got {self.learn_noise!r}")
         if not (isinstance(self.outliers, (int, float)) and self.outliers >= 0 and math.isfinite(self.outliers)):

@@ -120,7 +120,7 @@ from ..solve.chunks import frame_bytes
 from ..solve.ik import bridge_unseen, marker_columns
 from ..solve.lm import Run, SolverSummary, covariance, levenberg_marquardt
 from ..solve.memory import no_huge_pages
-from .options import PipelineOptions
+from .options import HIP_MODES, PipelineOptions
 from .records import Countdown, IterationClock, JointCentreMarker, Progress, StillNote, TradingLock
 
 MOVED_SAMPLE = 500  # frames of each trial the moved-marker test reads when it only names what it finds
@@ -190,7 +190,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     for t in trials:
         if not isinstance(t, Trial):
             raise CalibrateError(f"expected Trial objects (calibrate.read_trial), got {type(t).__name__}")
-    if settings is not None and settings.hip_regression == "auto":
+    settings = settings or Settings()
+    if settings.hip_regression in HIP_MODES:
         return _hips_auto(model, trials, settings, dict(marker_map=marker_map, aliases=aliases,
                                                         kinematics=kinematics, mass=mass, neutral=neutral,
                                                         pose=pose, progress=progress))
@@ -2083,43 +2084,46 @@ def _clock(say: Callable[[str | Progress], None], problem: Problem, solver: Solv
 
 
 def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, given: dict) -> Calibration:
-    """Settings.hip_regression "auto": the calibration without Harrington's regression, and where it leaves a hip
-    implausible (HipMotion.implausible: the trials' motion does not place it, and it ended further than
-    REGRESSION_FAR from the regression or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers; BTKData's
-    Plug-in Gait walks: 46-93 mm, the hips outside the ASIS; or, wherever, wider apart than the ASIS markers), the
-    calibration again with it.  The result says which
+    """Settings.hip_regression "auto" or "outside" (the default): the calibration without Harrington's regression,
+    and where it leaves the hips so, the calibration again with it.  "auto": a hip implausible (HipMotion.implausible:
+    the trials' motion does not place it, and it ended further than REGRESSION_FAR from the regression or the hips
+    wider apart than HIP_WIDTH_FAR times the ASIS markers; BTKData's Plug-in Gait walks: 46-93 mm, the hips outside
+    the ASIS; or, wherever, wider apart than the ASIS markers).  "outside": only the last, the hips wider apart than
+    the ASIS markers (HipMotion.outside), where no hip is, whatever the markers say: BTKData's Plug-in Gait walks and
+    Camargo's level-ground walk ended so (docs/benchmarks.md).  The result says which
     (Calibration.hip_regression_auto); where the regression cannot run (regression_hips refuses: the model already
-    carries its markers' names), or where it makes the markers fit more than HIP_AUTO_COST times worse (RMS) and the
-    hips without it lie inside the pelvis (the markers place them against it: AddBiomechanics' treadmill walk, OpenCap's
-    squats), the first is kept and says why.  Costs a second calibration only where the check fires (the check itself
-    reads the pelvis landmarks the regression needs)."""
+    carries its markers' names, or the pelvis markers are missing), or ("auto") where it makes the markers fit more
+    than HIP_AUTO_COST times worse (RMS) and the hips without it lie inside the pelvis (the markers place them against
+    it: AddBiomechanics' treadmill walk, OpenCap's squats), the first is kept and says why.  Costs a second
+    calibration only where the check fires (the check itself reads the pelvis landmarks the regression needs)."""
+    mode = settings.hip_regression
     say = _announcer(given["progress"])
     first = calibrate(model, trials, replace(settings, hip_regression=False), **given)
     tied = {m.joint for m in first.joint_markers}
-    far = [h for h in first.hip_motion if h.implausible and h.joint not in tied]
+    far = [h for h in first.hip_motion if (h.implausible if mode == "auto" else h.outside) and h.joint not in tied]
     if not far:
-        return replace(first, settings=replace(first.settings, hip_regression="auto"))
+        return replace(first, settings=replace(first.settings, hip_regression=mode))
     width, asis = far[0].width
     why = (" and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in far)
            + f" from Harrington's regression on the pelvis markers, the hips {1e3 * width:.0f} mm apart where the "
            f"ASIS markers are {1e3 * asis:.0f}")
-    say(Progress("hips", f"{why} without the regression: calibrating again with it (hip_regression auto)"))
+    say(Progress("hips", f"{why} without the regression: calibrating again with it (hip_regression {mode})"))
     try:
         second = calibrate(model, trials, replace(settings, hip_regression=True), **given)
     except CalibrateError as e:
         if not str(e).startswith("hip_regression:"):
             raise
-        return replace(first, settings=replace(first.settings, hip_regression="auto"),
+        return replace(first, settings=replace(first.settings, hip_regression=mode),
                        hip_regression_auto=f"not applied: {why}, but {str(e).removeprefix('hip_regression: ')}")
     cost = second.marker_rms / first.marker_rms
     if cost > regression.HIP_AUTO_COST and not any(h.outside for h in far):
         # The markers place the hips against the regression, and they lie inside the pelvis: the trials' own kept.
-        return replace(first, settings=replace(first.settings, hip_regression="auto"),
+        return replace(first, settings=replace(first.settings, hip_regression=mode),
                        hip_regression_auto=f"not applied: {why}, but with it the markers fit {cost:.2f} times worse "
                        f"(RMS {1e3 * first.marker_rms:.2f} -> {1e3 * second.marker_rms:.2f} mm, over "
                        f"{regression.HIP_AUTO_COST:g} times): the trials' own hips kept",
                        times={**first.times, "regressed": sum(second.times.values())})
-    return replace(second, settings=replace(second.settings, hip_regression="auto"),
+    return replace(second, settings=replace(second.settings, hip_regression=mode),
                    hip_regression_auto=f"applied: without it {why} (marker RMS {1e3 * first.marker_rms:.2f} mm "
                    f"without it, {1e3 * second.marker_rms:.2f} with it)",
                    times={"unregressed": sum(first.times.values()), **second.times})

@@ -1037,7 +1037,8 @@ def summary_text(cal) -> str:
                      + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in wide)
                      + " from Harrington's regression); --hip-regression places them by the regression")
     if cal.hip_regression_auto:
-        lines.append(f"  hips         Harrington's regression (hip_regression auto) {cal.hip_regression_auto}")
+        lines.append(f"  hips         Harrington's regression (hip_regression {cal.settings.hip_regression}) "
+                     f"{cal.hip_regression_auto}")
     for i, x in cal.jittery:
         lines.append(f"  jitters      {cal.trials[i].source or f'trial {i + 1}'}: {x.text()}")
     for i, x in cal.exchanged_back:

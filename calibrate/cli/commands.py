@@ -192,6 +192,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         flags["hip_regression"] = True
     if args.hip_regression_auto:
         flags["hip_regression"] = "auto"
+    if args.no_hip_regression:
+        flags["hip_regression"] = False
     if args.segment_frames is not None:
         flags["segment_frames"] = args.segment_frames
     if args.memory_mb is not None:

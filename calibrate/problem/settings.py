@@ -113,12 +113,13 @@ class Settings:
     far_joints: bool = True
     # Place the hip centres by Harrington's regression from the pelvis markers (calibrate.calibration.regression:
     # a virtual marker at each hip, kept there as a joint-centre marker), as gait labs do where no functional
-    # trial places them: a walk does not (docs/benchmarks.md, "Hip centres from a walk").  Off by default;
-    # "auto": calibrated without it first, and again with it where that leaves a hip implausible (further than
-    # REGRESSION_FAR from the regression, or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers, where the
-    # trials' motion does not place them; wider apart than the ASIS markers, wherever:
-    # calibrate.calibration.regression.HipMotion.implausible).
-    hip_regression: bool | str = False
+    # trial places them: a walk does not (docs/benchmarks.md, "Hip centres from a walk").  "auto": calibrated without
+    # it first, and again with it where that leaves a hip implausible (further than REGRESSION_FAR from the
+    # regression, or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers, where the trials' motion does
+    # not place them; wider apart than the ASIS markers, wherever: calibrate.calibration.regression.HipMotion
+    # .implausible).  "outside" (the default): the same, only where the hips end wider apart than the ASIS markers
+    # (HipMotion.outside: outside the pelvis, where no hip is).  False: never.
+    hip_regression: bool | str = "outside"
 
     @property
     def problem(self) -> ProblemOptions:
