@@ -236,14 +236,15 @@ def test_a_manifest_gives_each_subject_a_settings_file(tmp_path, monkeypatch, ca
     # A: the file's hip_regression, and this static has no PSIS: the regression's one line, before any solve.
     row = calibrate_subject(a, tmp_path / "out")
     assert row["status"] == "failed" and row["error"].startswith("hip_regression: ") and "RPSI and LPSI" in row["error"]
-    for sub, want in ((b, {"max_iterations": 7, "noise_mm": 1.0, "subtalar_r": 0.0}),
-                      (c, {"max_iterations": 100, "noise_mm": 2.5, "subtalar_r": 3.0})):
+    for sub, want in ((b, {"max_iterations": 7, "noise_mm": 1.0, "subtalar_r": 0.0, "hip_regression": False}),
+                      (c, {"max_iterations": 100, "noise_mm": 2.5, "subtalar_r": 3.0, "hip_regression": "outside"})):
         row = calibrate_subject(sub, tmp_path / "out")
         assert row["status"] in ("ok", "not converged"), row["error"]
         got = json.loads((tmp_path / "out" / sub.id / "report.json").read_text())["settings"]
         assert got["max_iterations"] == want["max_iterations"] and got["noise_mm"] == pytest.approx(want["noise_mm"])
         assert got["lock_deg"].get("subtalar_r", 0.0) == pytest.approx(want["subtalar_r"])  # a still trial locks some
-        assert got["hip_regression"] is False and given[-1].ahead is False
+        # B: the manifest's false over the file's true; C: its own file's, which says nothing (the default)
+        assert got["hip_regression"] == want["hip_regression"] and given[-1].ahead is False
     (tmp_path / "m.csv").write_text(f"subject,trials,model,config\nA,s.c3d,{HUMAN},S2/own.toml\nB,s.c3d,{HUMAN},\n")
     assert [x.config for x in read_manifest(tmp_path / "m.csv")] == [tmp_path / "S2" / "own.toml", None]
     # The command line's (--config): every subject naming none of its own, in place of the manifest's.
