@@ -103,7 +103,7 @@ class Subject:
 
 
 def _flag(text: str, path: Path, subject: str, key: str = "whole_trials", auto: bool = False) -> bool | str:
-    """A CSV manifest's true/false cell (`auto`: "auto" too)."""
+    """A CSV manifest's true/false cell (`auto`: the hip_regression modes "auto" and "outside" too)."""
     value = text.strip().lower()
     if auto and value in HIP_MODES:
         return value
