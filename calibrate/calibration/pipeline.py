@@ -204,7 +204,6 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         mapped = [map_labels(t, model.marker_names, marker_map, aliases=aliases) for t in trials]
         trials = tuple(t for t, _ in mapped)
         label_maps = tuple(m for _, m in mapped)
-    settings = settings or Settings()
     if settings.pipeline.hip_regression:  # a virtual marker at each hip, where Harrington's regression puts it
         model, trials, _ = regression_hips(model, trials)
         kinematics = None  # built for the model without them
