@@ -426,6 +426,26 @@ def test_mips_link_in_intel_order_is_read(tmp_path: Path) -> None:
     assert_positions(trial.markers, xyz / 1000.0)
 
 
+def test_a_description_length_byte_left_out_is_read_as_no_description(tmp_path: Path) -> None:
+    """OptiTrack Arena's mocap36.c3d (BTKData) leaves out POINT:LABELS's description length byte, its link leading
+    to where the byte belongs (where BTK reads on): read as no description, through a copy that ezc3d reads."""
+    xyz = positions_mm(6, 3, seed=22)
+    data = bytearray(c3d_bytes(xyz, np.zeros((6, 3)), ["RASI", "LASI", "RPSI"], scale=-1.0))
+    at = bytes(data).find(bytes([6, 1]) + b"LABELS")  # POINT (group 1):LABELS
+    assert at > 0
+    link = struct.unpack("<h", data[at + 8 : at + 10])[0]
+    described = at + 8 + link - 1  # the description's length byte: the record's last (0, no description)
+    assert data[described] == 0 and data[described + 1] > 0  # the next record's name length follows it
+    data[at + 8 : at + 10] = struct.pack("<h", link - 1)
+    del data[described]
+    data.insert(512 * (1 + data[512 + 2]) - 1, 0)  # the parameter section's padding keeps the data in place
+    path = tmp_path / "arena.c3d"
+    path.write_bytes(bytes(data))
+    trial = read_trial(path)
+    assert trial.labels == ("RASI", "LASI", "RPSI") and trial.rate == 100.0
+    assert_positions(trial.markers, xyz / 1000.0)
+
+
 @pytest.mark.parametrize("processor", ["intel", "mips"])
 def test_analog_offsets_that_do_not_cover_the_channels_leave_the_points_read(tmp_path: Path, processor: str) -> None:
     """No ANALOG:OFFSET beside 3 channels (c3d.org's sample06 names it OFFSETS), on which ezc3d crashes the

@@ -75,6 +75,7 @@ class _Record:
     link: int  # the offset to the next record from the link's own first byte, as it leads (0: the last)
     body: int  # after the link: a parameter's type byte, a group's description length
     end: int  # the description's length byte (after a parameter's data)
+    described: bool = True  # False: the writer left the description's length byte out (the link leads to `end`)
 
 
 def _c3d_records(section: bytes, processor: int) -> list[_Record]:
@@ -114,18 +115,21 @@ def _c3d_records(section: bytes, processor: int) -> list[_Record]:
             data_start = body + 2 + n_dims
             data_end = data_start + int(np.prod(dims, dtype=np.int64)) * abs(kind)
             raw = section[data_start:data_end]
-        if data_end + 1 > end:
+        following = name_end + link
+        # A link that leads to where the description's length byte belongs: the writer left the byte out
+        # (OptiTrack Arena's mocap36.c3d, after POINT:LABELS; BTK reads on by the link), read as no description.
+        described = not (link > 0 and following == data_end)
+        if described and data_end + 1 > end:
             raise _BadC3D(f"parameter {name} runs past the parameter section")
-        record_end = data_end + 1 + section[data_end]  # after the description
+        record_end = data_end + 1 + section[data_end] if described else data_end  # after the description
         if record_end > end:
             raise _BadC3D(f"the description of {name} runs past the parameter section")
-        following = name_end + link
         if link != 0 and endian == ">" and (link < 0 or following < record_end or following > end):
             # c3d.org's SGI samples (sample02) carry one link in Intel order, which leads where the record ends
             swapped = struct.unpack("<h", section[name_end : name_end + 2])[0]
             if record_end <= name_end + swapped <= end:
                 link, following = swapped, name_end + swapped
-        records.append(_Record(group_id, name.strip().upper(), kind, dims, raw, pos, link, body, data_end))
+        records.append(_Record(group_id, name.strip().upper(), kind, dims, raw, pos, link, body, data_end, described))
         if link == 0:
             break
         if link < 0 or following < record_end or following > end:
@@ -163,6 +167,7 @@ def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int, n
       and golfswing.c3d); they are written as the 16-bit integers the standard says, rounded.
     - ezc3d crashes the interpreter on a text parameter of no dimensions (a scalar: one character, as the standard
       reads it and the walk here does; found by fuzzing); it is written with one dimension of 1.
+    - A description whose length byte the writer left out (`_Record.described`) is written with a length of 0.
     - `no_analog`: ANALOG:USED written as 0, for a file whose ANALOG:SCALE or OFFSET does not cover its channels
       (ezc3d crashes the interpreter on it: c3d.org's sample06, whose offsets are ANALOG:OFFSETS); its points are
       then read here, by the header's layout (_C3DLayout.own_points)."""
@@ -193,15 +198,17 @@ def _section_for_ezc3d(section: bytes, records: list[_Record], processor: int, n
         ints = np.clip(np.round(np.nan_to_num(values)), -32768, 32767).astype(endian + "i2").tobytes()
         return struct.pack("b", 2) + section[r.body + 1 : r.body + 2 + len(r.dims)] + ints
 
-    if all(section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2]
+    if all(r.described and section[r.end] <= C3D_MAX_DESCRIPTION and name(r) == section[r.start + 2 : r.body - 2]
            and not float_offsets(r) and not scalar_text(r) and not analog_used(r) for r in records):
         return None
     out = bytearray(section[:4])
     for r in records:
-        n = min(section[r.end], C3D_MAX_DESCRIPTION)
+        n = min(section[r.end], C3D_MAX_DESCRIPTION) if r.described else 0
         rest = body(r) + bytes([n]) + section[r.end + 1 : r.end + 1 + n]
         out += section[r.start : r.start + 2] + name(r)
         out += struct.pack(endian + "h", len(rest) + 2 if r.link else 0) + rest
+    if len(out) > len(section):  # descriptions' length bytes put back where the blocks have no room for them
+        raise _BadC3D("its descriptions' length bytes are missing and its blocks have no room for them")
     return bytes(out.ljust(len(section), b"\x00"))
 
 
@@ -401,7 +408,10 @@ def _check_c3d_layout(path: Path, size: int) -> _C3DLayout:
     # ezc3d crashes when these are shorter than the channel list: its analog channels are then kept from it
     uncovered = [name for name in ("SCALE", "OFFSET") if n_channels and int(np.prod(
         table.get(("ANALOG", name), (0, (0,), b""))[1], dtype=np.int64)) < n_channels]
-    for_ezc3d = _section_for_ezc3d(section, records, processor, no_analog=bool(uncovered))
+    try:
+        for_ezc3d = _section_for_ezc3d(section, records, processor, no_analog=bool(uncovered))
+    except _BadC3D as exc:
+        raise bad(f"damaged parameter section: {exc}") from None
     if data_block == 0 or (data_block - 1) * 512 > size:
         raise bad("truncated before its data section")
 
