@@ -81,10 +81,11 @@ NAMED_MIDLINE = {"SACR": "pelvis"}
 NAME_TIE = 1 / HOST_RATIO
 
 
-def _named(label: str) -> tuple[str, str | None] | None:
+def _named(label: str, description: str | None = None) -> tuple[str, str | None] | None:
     """(kind, side) of a Plug-in Gait wand's name (NAMED_SEGMENTS: ('thigh', 'left') for LTHI, L_Thigh), or of a
-    midline marker's (NAMED_MIDLINE: ('pelvis', None) for SACR, V.Sacral), or None."""
-    code = plug_in_gait_name(label)
+    midline marker's (NAMED_MIDLINE: ('pelvis', None) for SACR, V.Sacral), or None.  A label no alias reads is read
+    by the trial's `description` of it (c3d.org's sample10: VSAC, "V.Sacral")."""
+    code = plug_in_gait_name(label) or (plug_in_gait_name(description) if description else None)
     if code in NAMED_MIDLINE:
         return NAMED_MIDLINE[code], None
     if code is None or code[0] not in "LR":
@@ -93,17 +94,18 @@ def _named(label: str) -> tuple[str, str | None] | None:
     return None if kind is None else (kind, "left" if code[0] == "L" else "right")
 
 
-def named_kind(label: str) -> str | None:
+def named_kind(label: str, description: str | None = None) -> str | None:
     """The segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
     'shank' for RTIB; NAMED_MIDLINE: 'pelvis' for SACR, V.Sacral), or None (another name, or a wand's without its
-    side)."""
-    named = _named(label)
+    side); by the trial's `description` of the label where its name says nothing."""
+    named = _named(label, description)
     return None if named is None else named[0]
 
 
-def named_segments(model: Model, label: str) -> tuple[str, ...]:
-    """The model's segments of the kind `label`'s name says (named_kind), on its side; () for none."""
-    named = _named(label)
+def named_segments(model: Model, label: str, description: str | None = None) -> tuple[str, ...]:
+    """The model's segments of the kind `label`'s name (or its `description`) says (named_kind), on its side; () for
+    none."""
+    named = _named(label, description)
     if named is None:
         return ()
     kind, side = named
@@ -306,6 +308,7 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
                if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
     candidates = [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
     out = {}
+    described = {lab: said for t in trials for lab, said in t.descriptions.items()}
     for lab, P in local_places(model, fits, labels, candidates).items():
         mid = np.median(P, axis=0)
         spread = np.sqrt(np.mean(np.sum((P - mid) ** 2, axis=2), axis=0))  # (segments,)
@@ -317,21 +320,23 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
         order = [k for k in np.argsort(spread) if np.isfinite(spread[k])]
         best, second = int(order[0]), int(order[1]) if len(order) > 1 else int(order[0])
         ok = spread[best] <= HOST_SPREAD and (len(order) == 1 or spread[best] <= HOST_RATIO * spread[second])
-        pick = None if ok else _named_host(model, lab, candidates, spread)
+        pick = None if ok else _named_host(model, lab, candidates, spread, described.get(lab))
         by_name = pick is not None
         if by_name:  # a near tie the name decides: the named segment, against the best of the others
             best, second = pick, next(k for k in order if k != pick)
             ok = True
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
-                        candidates[second], float(spread[second]), mid[best], named_kind(lab) if by_name else "")
+                        candidates[second], float(spread[second]), mid[best],
+                        named_kind(lab, described.get(lab)) if by_name else "")
     return out
 
 
-def _named_host(model: Model, label: str, candidates: Sequence[str], spread: np.ndarray) -> int | None:
-    """The candidate `label`'s name decides for where the spreads alone do not (NAMED_SEGMENTS), or None: a segment of
-    the kind it names, its place spreading there under HOST_SPREAD and at most NAME_TIE times the best, and no other
-    segment of that kind within 1 / HOST_RATIO of it."""
-    named = named_segments(model, label)
+def _named_host(model: Model, label: str, candidates: Sequence[str], spread: np.ndarray,
+                description: str | None = None) -> int | None:
+    """The candidate `label`'s name (or the trial's `description` of it) decides for where the spreads alone do not
+    (NAMED_SEGMENTS), or None: a segment of the kind it names, its place spreading there under HOST_SPREAD and at most
+    NAME_TIE times the best, and no other segment of that kind within 1 / HOST_RATIO of it."""
+    named = named_segments(model, label, description)
     own = sorted((spread[k], k) for k, c in enumerate(candidates) if c in named)
     if len(candidates) < 2 or not own or len(own) > 1 and own[0][0] > HOST_RATIO * own[1][0]:
         return None  # none, or two of its kind that tie: the name cannot decide between them

@@ -628,7 +628,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     sacral: dict[int, tuple[np.ndarray, str]] = {}
     if new:
         places = _new_places(subject, problem.kin, start, obs, params0, placed)
-        sacral = _far_sacral(places, _sacral_places(subject, params0, placed, known_obs))
+        described = {label: said for t in trials for label, said in t.descriptions.items()}
+        sacral = _far_sacral(places, _sacral_places(subject, params0, placed, known_obs, described, obs))
         if sacral:
             # The start's poses turned the pelvis about its ASIS line (_sacral_places): posed again with the sacral
             # marker where the model's spine markers put it, as a known marker, and the new markers placed from there.
@@ -1967,19 +1968,28 @@ def _far_sacral(places: tuple[list[int], np.ndarray, np.ndarray, np.ndarray],
     return out
 
 
-def _sacral_places(subject: Model, params: Parameters, placed: Sequence[NewMarker], observed: np.ndarray
+def _sacral_places(subject: Model, params: Parameters, placed: Sequence[NewMarker], observed: np.ndarray,
+                   described: Mapping[str, str] | None = None, measured: np.ndarray | None = None
                    ) -> dict[int, tuple[np.ndarray, str]]:
     """Where the model's posterior superior iliac spine markers put a new sacral marker (Plug-in Gait's SACR:
     V.Sacral, S2): midway between them, as Plug-in Gait defines it, on a segment that carries both and of whose known
     markers the trials show fewer than three (unscaled offsets, by marker index, with the reason; `observed`: the known
-    markers' positions, (frames, markers, 3)).  A pelvis posed by its two ASIS markers turns freely about their line in
+    markers' positions, (frames, markers, 3)).  With `measured` (every marker's positions, the new ones' too) and an
+    ASIS pair on the model, at the trials' own distance from the ASIS markers' midpoint, in the direction of the
+    spines' midpoint: c3d.org's sample10 has its VSAC 265 mm behind the ASIS markers' midpoint where the model's
+    spines would put it 166 mm (on Rajagopal2016.osim at the width's scale), which the pelvis's scale had taken up
+    (x1.22 against the limbs' 0.93).  A pelvis posed by its two ASIS markers turns freely about their line in
     the start's poses, which may then put the sacral marker anywhere on a circle about it: gait2392's static and walk
     on Rajagopal2016.osim placed its V.Sacral 140 mm RMS apart over the start's frames, and the median's place held the
-    pelvis tilted 50 deg back, the hips flexed to match."""
+    pelvis tilted 50 deg back, the hips flexed to match.  A label is read by its name, else by the trials' description
+    of it (`described`: c3d.org's sample10 calls V.Sacral VSAC, which on Rajagopal2016.osim had left the pelvis
+    tilted the same way, the hips 130-140 mm from the scaled model's)."""
     out: dict[int, tuple[np.ndarray, str]] = {}
     seen = np.all(np.isfinite(observed), axis=2).any(axis=0)
+    described = described or {}
     for m in placed:
-        if m.segment is None or plug_in_gait_name(m.label) != "SACR":
+        if m.segment is None or "SACR" not in (plug_in_gait_name(m.label),
+                                                plug_in_gait_name(described.get(m.label, ""))):
             continue
         mine = [k for k, mk in enumerate(subject.markers) if mk.segment == m.segment]
         spines = {plug_in_gait_name(subject.marker_names[k]): k for k in mine
@@ -1987,12 +1997,39 @@ def _sacral_places(subject: Model, params: Parameters, placed: Sequence[NewMarke
         if len(spines) < 2 or sum(bool(seen[k]) for k in mine) >= 3:
             continue
         a, b = (spines[n] for n in ("RPSI", "LPSI"))
-        out[subject.marker_index(m.label)] = (
-            0.5 * (params.marker[a] + params.marker[b]),
-            f"placed midway between the model's {subject.marker_names[a]} and {subject.marker_names[b]} "
-            f"(Plug-in Gait's sacral marker): the trials show fewer than three of {m.segment}'s other markers, about "
-            "which the start's poses may turn it freely")
+        k = subject.marker_index(m.label)
+        place = 0.5 * (params.marker[a] + params.marker[b])
+        how = "midway between"
+        depth = _sacral_depth(subject, mine, k, measured) if measured is not None else None
+        if depth is not None:
+            # at the trials' distance from the ASIS markers' midpoint, toward the model's spines' midpoint
+            distance, (r, l) = depth
+            front = 0.5 * (params.marker[r] + params.marker[l])
+            towards = (place - front) / np.linalg.norm(place - front)
+            place = front + towards * distance / float(params.scale[subject.segment_index(m.segment)])
+            how = (f"{1e3 * distance:.0f} mm behind the ASIS markers' midpoint (as the trials put it), toward midway "
+                   "between")
+        out[k] = (place, f"placed {how} the model's {subject.marker_names[a]} and {subject.marker_names[b]} "
+                         f"(Plug-in Gait's sacral marker): the trials show fewer than three of {m.segment}'s other "
+                         "markers, about which the start's poses may turn it freely")
     return out
+
+
+def _sacral_depth(subject: Model, mine: Sequence[int], sacral: int, measured: np.ndarray
+                  ) -> tuple[float, tuple[int, int]] | None:
+    """The trials' median distance (m) from the midpoint of the ASIS markers of `mine` (the segment's markers) to the
+    sacral marker, and those markers' indices (right, left); None where the model has no ASIS pair or the trials show
+    no frame with all three."""
+    asis = {plug_in_gait_name(subject.marker_names[k]): k for k in mine
+            if plug_in_gait_name(subject.marker_names[k]) in ("RASI", "LASI")}
+    if len(asis) < 2:
+        return None
+    r, l = asis["RASI"], asis["LASI"]
+    d = np.linalg.norm(measured[:, sacral] - 0.5 * (measured[:, r] + measured[:, l]), axis=1)
+    d = d[np.isfinite(d)]
+    if len(d) == 0:
+        return None
+    return float(np.median(d)), (r, l)
 
 
 def _across_hinge(subject: Model, params: Parameters, hinge: str, place: np.ndarray
