@@ -117,7 +117,7 @@ from ..seed.association import associate_to_model, exchanged_between, margin_hos
 from ..seed.rigidity import distance_variance
 from ..solve.ahead import run_ahead
 from ..solve.chunks import frame_bytes
-from ..solve.ik import bridge_unseen, marker_columns
+from ..solve.ik import bridge_unplaced, bridge_unseen, marker_columns
 from ..solve.lm import Run, SolverSummary, covariance, levenberg_marquardt
 from ..solve.memory import no_huge_pages
 from .options import HIP_MODES, PipelineOptions
@@ -911,6 +911,23 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     Zm = Z.copy()
     for sl in spans:
         bridge_unseen(problem.kin, problem.seen[sl], Zm[sl])
+    # Frames whose markers do not place the pelvis (the subject walking into or out of the capture volume), or a
+    # segment (a thigh showing its knee marker alone): any pose that puts their few markers in place fitted them;
+    # those coordinates are bridged from the frames either side that place them (held at a trial's edge), and the
+    # report lists the frames.
+    from ..model.resolve import unplaced_frames
+
+    Qm = Q.copy()
+    locked_names = [n for n, _ in problem.settings.lock]
+    unplaced_frames_ = []
+    for sl in spans:
+        if (problem.seen[sl] == problem.seen[sl.start]).all():  # every frame alike: nothing to bridge from
+            unplaced_frames_.append(())
+            continue
+        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
+        bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
+        unplaced_frames_.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
+    unplaced_frames_ = tuple(unplaced_frames_)
     # A locked coordinate at its value in every frame, to the bit (as `calibrate ik` writes it): the solve holds it
     # by a stiff penalty (LOCK_WEIGHT), which leaves it a few 1e-9 rad off (gait2392's and Rajagopal2016's locked
     # subtalars: 6e-9 and 1.6e-9 rad, 1e-7 deg in the .mot); set, the markers move by under a nanometre there.
@@ -919,7 +936,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # A trial that does not place segments the others place: their coordinates held there, as `calibrate ik` holds
     # them (its root, where carried, moved so the marked branch stays where the fit put it).
     held_in = tuple(i for i, us in by_trial if _hold_unplaced(problem.kin, params, Zm[spans[i]], Q[spans[i]], us))
-    motions = tuple(Motion(t.times.copy(), Zm[sl, FrameLayout.translation].copy(), Q[sl].copy(),
+    motions = tuple(Motion(t.times.copy(), Zm[sl, FrameLayout.translation].copy(), Qm[sl].copy(),
                            FrameLayout.angles(Zm[sl]).copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))
     return Calibration(subject, trials, settings, params, motions, residuals, initial, summary, seed, changes,
@@ -931,6 +948,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
                        unresolved=res.segments, unplaced_in_trial=by_trial, unplaced_held=held_in,
+                       unplaced_frames=unplaced_frames_,
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,

@@ -151,6 +151,9 @@ def calibration_report(cal: Calibration) -> dict:
         "unresolved": [u.to_json() for u in cal.unresolved],
         "unplaced_in_trial": [{"trial": i, "segments": [u.to_json() for u in us], "held": i in cal.unplaced_held}
                               for i, us in cal.unplaced_in_trial],
+        # frames (0-based, in the trial) whose markers do not place the root: their poses bridged
+        "unplaced_frames": [{"trial": i, "frames": list(fs), "runs": [list(r) for r in frame_runs(fs)]}
+                            for i, fs in enumerate(cal.unplaced_frames) if fs],
         "implausible": [b.to_json() for b in cal.implausible],
         "suspect_labels": [{"trial": cal.trials[i].source or f"trial {i + 1}", "label": m.label, "segment": m.segment,
                             "moves_with": m.rides_with, "segment_labels": list(m.partners),
@@ -456,6 +459,23 @@ def _held_why(cal) -> list[str]:
         [f"; the moving trials turn {', '.join(f'{n} through {math.degrees(t):.0f} deg' for n, t in narrow.items())}"
          " only: too little to place an axis against the skin's turn of the segments (up to 4.4 deg in a walk)"]
         if narrow else []) + ([f"; {gimbal} (--no-auto-hold frees them)"] if gimbal else [])
+
+
+def frame_runs(frames) -> list[tuple[int, int]]:
+    """Consecutive runs (first, last) of sorted frame indices."""
+    runs: list[tuple[int, int]] = []
+    for f in frames:
+        if runs and f == runs[-1][1] + 1:
+            runs[-1] = (runs[-1][0], f)
+        else:
+            runs.append((f, f))
+    return runs
+
+
+def _runs_text(frames) -> str:
+    runs = frame_runs(frames)
+    text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:6])
+    return text + (f" and {len(runs) - 6} more runs" if len(runs) > 6 else "")
 
 
 def _trial_name(cal, k: int) -> str:
@@ -1077,6 +1097,12 @@ def summary_text(cal) -> str:
             lines.append(f"    {u.segment}: {', '.join(u.coordinates) or '-'}: {u.reason}")
         if len(unresolved) > 8:
             lines.append(f"    ... and {len(unresolved) - 8} more (see the report)")
+    for i, fs in enumerate(cal.unplaced_frames):
+        if fs:
+            lines.append(f"  unplaced     {_trial_name(cal, i)}: frames {_runs_text(fs)} ({len(fs)} of "
+                         f"{cal.trials[i].n_frames}, from 0) show too few markers to place {cal.model.root}: their "
+                         "poses are bridged from the frames either side that place it (held at the trial's edges), "
+                         "not fitted")
     for i, us in cal.unplaced_in_trial:
         coords = list(dict.fromkeys(c for u in us for c in u.coordinates))
         segs = ", ".join(u.segment for u in us)

@@ -246,6 +246,9 @@ class Calibration:
     # frames' coordinates there rest on the priors and the neighbouring frames, not on its markers
     unplaced_in_trial: tuple = ()
     unplaced_held: tuple[int, ...] = ()  # those trials whose motion holds those coordinates (as calibrate ik does)
+    # per trial, the frames (indices in the trial) whose markers do not place the root (resolve.unplaced_frames): their
+    # poses in the motion are bridged from the placed frames either side, held at the trial's edges
+    unplaced_frames: tuple[tuple[int, ...], ...] = ()
     noise: dict[str, float] = field(default_factory=dict)  # marker -> noise SD used (m): learnt or the user's
     noise_learnt: bool = False  # whether `noise` was learnt from the residuals (Settings.learn_noise)
     noise_weight: dict[str, float] = field(default_factory=dict)  # marker -> SD its residuals were weighted by

@@ -39,7 +39,7 @@ import pinocchio as pin
 from .model import Joint, Model
 
 __all__ = ["Resolution", "UnresolvedSegment", "carried_joint", "carried_root", "carry_refusal", "line_root_holds",
-           "resolve", "resolve_carrying", "root_firmness", "root_group", "unresolved"]
+           "resolve", "resolve_carrying", "root_firmness", "root_group", "unplaced_frames", "unresolved"]
 
 TOL = 5e-3  # m per rad (or per m of root translation): singular values below this count as zero
 MOVES = 0.1  # a segment moves along the null space when its twist there exceeds this (rad, or m, per unit motion)
@@ -201,6 +201,46 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
         elif c not in F.root.cols:
             lock.append(names[c])
     return Resolution(tuple(segments), model.root not in unresolved_set, tuple(lock), markers)
+
+
+def unplaced_frames(model: Model, seen: np.ndarray, *, locked: Iterable[str] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, what its seen markers do not place (:func:`resolve` of the markers that frame shows, the coordinates
+    `locked` held): (n_frames,) True where some motion of the root moves none of them, and (n_frames, n_dofs) True
+    for each coordinate to blame for a segment they leave unplaced (every coordinate where the root is); `seen`
+    (n_frames, n_markers) over the model's markers.  A trial that begins or ends with the subject outside the capture
+    volume (c3d.org's sample09 walk: its last 56 frames show the right leg's markers, then none) has such frames, whose
+    fit is any pose that puts those few markers in place (its pelvis 0.2 m above the floor, a hip flexed 78 deg), and
+    a thigh that shows only its knee marker turns freely about the hip-knee line (the same walk's first frames: the
+    left hip rotated 88-123 deg).  In a trial whose frames place the root firmly (:func:`root_firmness`, median over
+    the frames at least CARRY_FIRM), a frame that places it less firmly than CARRY_FIRM counts as not placing it: the
+    same walk on Rajagopal2016.osim, its frame before the last 58 (the sacral marker, the knees, a malleolus, the toes
+    and a heel: 0.034 m/rad, against 0.15 with every marker), had its hips rotated -60 and +53 deg.  One test per
+    pattern of seen markers."""
+    seen = np.asarray(seen, dtype=bool)
+    n_frames = seen.shape[0]
+    if n_frames == 0:
+        return np.zeros(0, dtype=bool), np.zeros((0, model.n_dofs), dtype=bool)
+    names = np.array(model.marker_names)
+    locked = tuple(locked)
+    patterns, inverse = np.unique(seen, axis=0, return_inverse=True)
+    inverse = np.ravel(inverse)
+    root = np.ones(len(patterns), dtype=bool)
+    dofs = np.ones((len(patterns), model.n_dofs), dtype=bool)
+    firm = np.zeros(len(patterns))
+    for i, p in enumerate(patterns):
+        if p.sum() < 3:
+            continue
+        r = resolve(model, names[p], locked=locked)
+        if r.root_resolved:
+            root[i] = False
+            blamed = {c for u in r.segments for c in u.coordinates}
+            dofs[i] = [d in blamed for d in model.dof_names]
+            firm[i] = root_firmness(model, names[p], locked=locked)
+    if np.median(firm[inverse]) >= CARRY_FIRM:
+        weak = ~root & (firm < CARRY_FIRM)
+        root[weak] = True
+        dofs[weak] = True
+    return root[inverse], dofs[inverse]
 
 
 def unresolved(model: Model, labels: Iterable[str], **kwargs) -> list[UnresolvedSegment]:

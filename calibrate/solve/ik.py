@@ -402,6 +402,32 @@ def bridge_unseen(kin: Kinematics, seen: np.ndarray, Z: np.ndarray, held: np.nda
         Z[gaps, col] = np.interp(gaps, seen, Z[seen, col])
 
 
+def bridge_unplaced(root: np.ndarray, dofs: np.ndarray, Z: np.ndarray, Q: np.ndarray) -> None:
+    """The frames' coordinates their markers do not place (calibrate.model.resolve.unplaced_frames: `root` (n_frames,)
+    where they do not place the root, `dofs` (n_frames, n_dofs) the coordinates to blame for a segment they leave
+    unplaced) linear between the frames on either side that place them, held at the nearest at the trial's edges:
+    where the root is not placed, every coordinate and the root's quaternion (normalised); Z (n_frames, frame
+    coordinates, a ball's angles absolute) and Q (n_frames, 4) updated in place.  A coordinate no frame places is
+    left as it is."""
+    root = np.asarray(root, dtype=bool)
+    if root.any() and not root.all():
+        good, bad = np.flatnonzero(~root), np.flatnonzero(root)
+        for c in range(FrameLayout.n_root):
+            Z[bad, c] = np.interp(bad, good, Z[good, c])
+        q = Q[good].copy()
+        for k in range(1, len(q)):  # one hemisphere along the placed frames: neighbours interpolate the short way
+            if q[k] @ q[k - 1] < 0:
+                q[k] = -q[k]
+        between = np.stack([np.interp(bad, good, q[:, i]) for i in range(4)], axis=1)
+        Q[bad] = between / np.linalg.norm(between, axis=1, keepdims=True)
+    for d in range(dofs.shape[1]):
+        off = dofs[:, d] | root
+        if off.any() and not off.all():
+            col = FrameLayout.angle(d)
+            good, bad = np.flatnonzero(~off), np.flatnonzero(off)
+            Z[bad, col] = np.interp(bad, good, Z[good, col])
+
+
 def _carried(solver: FrameSolver, z: np.ndarray, q: np.ndarray, obs: np.ndarray, seen_idx: np.ndarray,
              weight: np.ndarray | None, tolerance: float) -> np.ndarray:
     """A frame that shows one or two markers, too few to turn a segment: the pose `z` (references `q`) of the frame
