@@ -10,6 +10,7 @@ import numpy as np
 from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
+from calibrate.calibration.subject_ik import fit_trial
 from calibrate.io.trial import Trial
 from calibrate.model.resolve import CARRY_FIRM, resolve, root_firmness, unplaced_frames
 from calibrate.problem.settings import Settings
@@ -83,3 +84,10 @@ def test_frames_that_show_a_leg_alone_are_bridged_not_fitted(human):
     whole = calibrate(human, sim.trial, Settings(max_iterations=30))
     assert whole.unplaced_frames == ((),) and "frames" not in "".join(
         line for line in summary_text(whole).splitlines() if line.startswith("  unplaced"))
+    # `calibrate ik` on the damaged walk with that subject: the same frames listed, bridged and held the same way
+    fit = fit_trial(whole.model, trial, whole.params, {}).fit
+    assert fit.unplaced_frames == cal.unplaced_frames[0]
+    ik = fit.motion
+    np.testing.assert_array_equal(ik.angles[end], np.broadcast_to(ik.angles[99], ik.angles[end].shape))
+    off = np.degrees(np.abs(ik.angles[np.ix_(gap, hips)] - sim.motion.angles[np.ix_(gap, hips)]))
+    assert off.max() < 8.0, off.max()

@@ -21,6 +21,7 @@ from ..io.trial import Trial
 from ..model.model import Model, Parameters
 from . import subject_ik
 from .records import Countdown, Progress
+from .report import runs_text
 from .subject_ik import TrialFit, fit_trial, report_holds, trial_report
 
 
@@ -225,6 +226,11 @@ def fit_planned(plan: IKPlan, *, keep_damaged: bool = False, check_size: bool = 
             own += [x.text(job.path.name, name) + "; check the labelling" for x in got.relabelled]
             own += got.limit_lines(job.path.name, name)
             own += got.noise_lines(job.path.name)
+            if got.fit.unplaced_frames:
+                fs = got.fit.unplaced_frames
+                own.append(f"{job.path.name}: frames {runs_text(fs)} ({len(fs)} of {job.trial.n_frames}, from 0) show "
+                           f"too few markers to place {plan.model.root}: their poses are bridged from the frames "
+                           "either side that place it (held at the trial's edges), not fitted")
             if got.unplaced_held:
                 own.append(f"{job.path.name}: {len(got.unplaced)} segments its markers do not place "
                            f"({', '.join(got.unplaced)}); {', '.join(got.unplaced_held)} held at 0")

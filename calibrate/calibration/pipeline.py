@@ -877,9 +877,34 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         missed = [n for n in pose_used if abs(ended[n] - pose_used[n]) > POSE_MISS]
         pose_unset += [f"{n} ({math.degrees(ended[n]):.1f} deg)" for n in missed]
         pose_used = {n: v for n, v in pose_used.items() if n not in missed}
+    # A coordinate no seen marker moves in a frame (a hand's one marker hidden) kept its start there; the motions
+    # bridge it linearly between the frames either side that see one (solve.ik.bridge_unseen: a simulated walk's
+    # wrists had ended 5-12 deg off in 0.6-1.8 s gaps, 3-5 bridged).
+    Zm = Z.copy()
+    for sl in spans:
+        bridge_unseen(problem.kin, problem.seen[sl], Zm[sl])
+    # Frames whose markers do not place the pelvis (the subject walking into or out of the capture volume), or a
+    # segment (a thigh showing its knee marker alone): any pose that puts their few markers in place fitted them;
+    # those coordinates are bridged from the frames either side that place them (held at a trial's edge), and the
+    # report lists the frames.
+    from ..model.resolve import unplaced_frames
+
+    Qm = Q.copy()
+    locked_names = [n for n, _ in problem.settings.lock]
+    unplaced_frames_ = []
+    partial = {i for i, _ in by_trial}  # a trial that places less than the others: held below (_hold_unplaced)
+    for i, sl in enumerate(spans):
+        if i in partial or (problem.seen[sl] == problem.seen[sl.start]).all():  # every frame alike: nothing to
+            unplaced_frames_.append(())  # bridge from
+            continue
+        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
+        bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
+        unplaced_frames_.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
+    unplaced_frames_ = tuple(unplaced_frames_)
     seen_names = {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()}
-    notes = coordinate_notes(subject, FrameLayout.angles(Z), _sampled_blocks(problem, state, scatter), problem.settings,
-                             seen_names)
+    # (read on the motions as written: a frame's fit that its markers do not place is no joint's turn)
+    notes = coordinate_notes(subject, FrameLayout.angles(Zm), _sampled_blocks(problem, state, scatter),
+                             problem.settings, seen_names)
     # The neighbour of a hinge locked for trading (an ankle beside a locked subtalar) was judged with it and found
     # the better seen: no note tells the user to lock it too (pig_walk's left ankle, 60 deg through the walk).
     found = {n for lk in locks for n in lk.neighbours}
@@ -905,29 +930,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     hip_at = [(idx, problem.kin.batch(FrameLayout.coordinates(Z[sl][idx, FrameLayout.translation],
                                                               FrameLayout.angles(Z[sl][idx])), Q[sl][idx], params)[1])
               for idx, sl in zip(hip_frames, spans, strict=True)]
-    # A coordinate no seen marker moves in a frame (a hand's one marker hidden) kept its start there; the motions
-    # bridge it linearly between the frames either side that see one (solve.ik.bridge_unseen: a simulated walk's
-    # wrists had ended 5-12 deg off in 0.6-1.8 s gaps, 3-5 bridged).
-    Zm = Z.copy()
-    for sl in spans:
-        bridge_unseen(problem.kin, problem.seen[sl], Zm[sl])
-    # Frames whose markers do not place the pelvis (the subject walking into or out of the capture volume), or a
-    # segment (a thigh showing its knee marker alone): any pose that puts their few markers in place fitted them;
-    # those coordinates are bridged from the frames either side that place them (held at a trial's edge), and the
-    # report lists the frames.
-    from ..model.resolve import unplaced_frames
-
-    Qm = Q.copy()
-    locked_names = [n for n, _ in problem.settings.lock]
-    unplaced_frames_ = []
-    for sl in spans:
-        if (problem.seen[sl] == problem.seen[sl.start]).all():  # every frame alike: nothing to bridge from
-            unplaced_frames_.append(())
-            continue
-        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
-        bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
-        unplaced_frames_.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
-    unplaced_frames_ = tuple(unplaced_frames_)
     # A locked coordinate at its value in every frame, to the bit (as `calibrate ik` writes it): the solve holds it
     # by a stiff penalty (LOCK_WEIGHT), which leaves it a few 1e-9 rad off (gait2392's and Rajagopal2016's locked
     # subtalars: 6e-9 and 1.6e-9 rad, 1e-7 deg in the .mot); set, the markers move by under a nanometre there.
@@ -935,7 +937,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         Zm[:, FrameLayout.angle(subject.dof_index(name))] = value
     # A trial that does not place segments the others place: their coordinates held there, as `calibrate ik` holds
     # them (its root, where carried, moved so the marked branch stays where the fit put it).
-    held_in = tuple(i for i, us in by_trial if _hold_unplaced(problem.kin, params, Zm[spans[i]], Q[spans[i]], us))
+    held_in = tuple(i for i, us in by_trial if _hold_unplaced(problem.kin, params, Zm[spans[i]], Qm[spans[i]], us))
     motions = tuple(Motion(t.times.copy(), Zm[sl, FrameLayout.translation].copy(), Qm[sl].copy(),
                            FrameLayout.angles(Zm[sl]).copy(),
                            subject.dof_names) for t, sl in zip(trials, spans, strict=True))

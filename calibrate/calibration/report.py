@@ -472,7 +472,8 @@ def frame_runs(frames) -> list[tuple[int, int]]:
     return runs
 
 
-def _runs_text(frames) -> str:
+def runs_text(frames) -> str:
+    """Sorted frame indices as runs: '0-4, 222-280' (the first six runs, then how many more)."""
     runs = frame_runs(frames)
     text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:6])
     return text + (f" and {len(runs) - 6} more runs" if len(runs) > 6 else "")
@@ -1099,7 +1100,7 @@ def summary_text(cal) -> str:
             lines.append(f"    ... and {len(unresolved) - 8} more (see the report)")
     for i, fs in enumerate(cal.unplaced_frames):
         if fs:
-            lines.append(f"  unplaced     {_trial_name(cal, i)}: frames {_runs_text(fs)} ({len(fs)} of "
+            lines.append(f"  unplaced     {_trial_name(cal, i)}: frames {runs_text(fs)} ({len(fs)} of "
                          f"{cal.trials[i].n_frames}, from 0) show too few markers to place {cal.model.root}: their "
                          "poses are bridged from the frames either side that place it (held at the trial's edges), "
                          "not fitted")

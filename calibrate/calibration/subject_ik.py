@@ -206,7 +206,7 @@ def fit_trial(model: Model, trial: Trial, params: Parameters, held: Mapping[str,
     kin = compiled_kinematics(kin, compile=compile)
     def fitted(t: Trial, start: Motion | None = None) -> IKResult:
         return inverse_kinematics(kin, t, params, locked=held, weights=weights, default_weight=0.0, margin=LIMIT_MARGIN,
-                                  start=start,
+                                  start=start, bridge=True,
                                   progress=None if progress is None else lambda done, total: progress(done / total))
 
     fit = fitted(trial)

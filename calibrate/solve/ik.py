@@ -66,6 +66,8 @@ class IKResult:
     marker_rms: np.ndarray  # (n_frames,) RMS 3-D marker error per frame (m); NaN if too few markers
     residuals: np.ndarray  # (n_frames, n_markers, 3) model minus trial (m); NaN where not seen
     iterations: np.ndarray  # (n_frames,) LM iterations used
+    # frames whose markers do not place the root, their poses bridged (inverse_kinematics' `bridge`)
+    unplaced_frames: tuple[int, ...] = ()
 
     @property
     def rms(self) -> float:
@@ -443,7 +445,8 @@ def _carried(solver: FrameSolver, z: np.ndarray, q: np.ndarray, obs: np.ndarray,
 def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_iterations: int = 30,
                        tolerance: float = 1e-8, progress: Callable[[int, int], None] | None = None,
                        locked: Mapping[str, float] | None = None, weights: Mapping[str, float] | None = None,
-                       default_weight: float = 1.0, start: Motion | None = None, margin: float = 0.0) -> IKResult:
+                       default_weight: float = 1.0, start: Motion | None = None, margin: float = 0.0,
+                       bridge: bool = False) -> IKResult:
     """Solve every frame of `trial` for the model of `kin` with geometry `params`.
 
     Markers are matched by label; model markers absent from the trial are ignored.
@@ -461,6 +464,9 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     before it are fitted again backwards from it while they fit better so.
     `margin` (rad): the joint limits this much wider than the model's (the calibration's
     calibrate.problem.problem.LIMIT_MARGIN: a subject's other trials fitted under its calibration's limits).
+    `bridge`: the frames whose markers do not place the root, or a segment (calibrate.model.resolve.unplaced_frames),
+    bridged from the frames either side that do (bridge_unplaced; `IKResult.unplaced_frames` lists the first kind),
+    their residuals then the bridged pose's.
     `progress(done, total)` is called every 100 frames.
     """
     model = kin.model
@@ -552,9 +558,17 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
             Z[f], Q[f] = _carried(solver, Z[f + 1], Q[f + 1], obs[f], seen_idx, weight, tolerance), Q[f + 1]
     bridge_unseen(kin, np.isfinite(obs[..., 0]), Z, lock_cols)
     Z, Q = kin.absolute(Z, Q[:, :4], Q[:, 4:].reshape(nf, -1, 4))
+    unplaced: tuple[int, ...] = ()
+    seen_all = np.isfinite(obs[..., 0])
+    if bridge and nf and not (seen_all == seen_all[0]).all():
+        from ..model.resolve import unplaced_frames
+
+        root_off, dofs_off = unplaced_frames(model, seen_all, locked=list(locked or {}))
+        bridge_unplaced(root_off, dofs_off, Z, Q)
+        unplaced = tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ()
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
     rms_f = marker_rms(res, axis=1)  # NaN in frames with no marker, on purpose
     motion = Motion(trial.times.copy(), Z[:, FrameLayout.translation].copy(), Q, FrameLayout.angles(Z).copy(),
                     model.dof_names)
-    return IKResult(motion, rms_f, res, iters)
+    return IKResult(motion, rms_f, res, iters, unplaced)
