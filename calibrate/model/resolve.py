@@ -140,30 +140,44 @@ def _full_rank(J: np.ndarray, tol: float) -> bool:
     return bool(np.linalg.svd(J, compute_uv=False).min() > tol)
 
 
+def _every_marker_at(model: Model, poses: int = 4, seed: int = 0) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
+    """_jacobians of every model marker (model order) at the `poses` random poses resolve and root_firmness draw with
+    `seed`: a subset of markers takes its rows (_rows), not a new evaluation."""
+    return [_jacobians(model, model.marker_names, a) for a in _poses(model, poses, np.random.default_rng(seed))]
+
+
+def _rows(model: Model, markers: Sequence[str], at: list[tuple[np.ndarray, dict[str, np.ndarray]]]
+          ) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
+    """The Jacobian rows of `markers` (in model order) from _every_marker_at's `at`."""
+    idx = np.array([3 * model.marker_index(m) + k for m in markers for k in range(3)], dtype=int)
+    return [(J[idx], twists) for J, twists in at]
+
+
 def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), poses: int = 4, seed: int = 0,
-            tol: float = TOL) -> Resolution:
+            tol: float = TOL, _at: list | None = None, _lock: bool = True) -> Resolution:
     """Which segments of `model` the markers `labels` (trial labels; those the model lacks are
     ignored) cannot place, with the coordinates `locked` held; and a set of coordinates to lock.
 
     See the module docstring for the method.  Raises nothing for an empty marker set: then every
-    segment, the root included, is unresolved.
+    segment, the root included, is unresolved.  (`_at`: _every_marker_at's Jacobians at the same poses; `_lock`
+    False: no coordinates to lock looked for.)
     """
     present = set(labels)
     markers = tuple(m for m in model.marker_names if m in present)
+    at = _rows(model, markers, _at) if _at is not None else [
+        _jacobians(model, markers, a) for a in _poses(model, poses, np.random.default_rng(seed))]
     held = {model.dof_index(d) for d in locked}
     # Coordinates as a frame's (FrameLayout: the root's 6, then one per DoF), as Pinocchio's velocity.
     F = model.layout.frame
     free = [*F.root.cols.tolist(), *(F.angle(d) for d in range(model.n_dofs) if d not in held)]
     names = ["root"] * F.n_root + list(model.dof_names)
-    rng = np.random.default_rng(seed)
     below = descendants(model)
     path = _path_dofs(model)
 
     moves: dict[str, list[bool]] = {s.name: [] for s in model.segments}
     share: list[np.ndarray] = []
     Js: list[np.ndarray] = []
-    for angles in _poses(model, poses, rng):
-        J, twists = _jacobians(model, markers, angles)
+    for J, twists in at:
         J = J[:, free]
         Js.append(J)
         N = _null_space(J, tol)
@@ -193,7 +207,7 @@ def resolve(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), 
     # Coordinates to lock: keep each (root first, then the DoFs in tree order) if it adds to the rank.
     kept: list[int] = []
     lock: list[str] = []
-    for k, c in enumerate(free):
+    for k, c in enumerate(free if _lock else ()):
         trial_cols = [*kept, k]
         ok = [_full_rank(J[:, trial_cols], tol) for J in Js]
         if sum(ok) * 2 > len(ok):
@@ -227,15 +241,16 @@ def unplaced_frames(model: Model, seen: np.ndarray, *, locked: Iterable[str] = (
     root = np.ones(len(patterns), dtype=bool)
     dofs = np.ones((len(patterns), model.n_dofs), dtype=bool)
     firm = np.zeros(len(patterns))
+    at = _every_marker_at(model)
     for i, p in enumerate(patterns):
         if p.sum() < 3:
             continue
-        r = resolve(model, names[p], locked=locked)
+        r = resolve(model, names[p], locked=locked, _at=at, _lock=False)
         if r.root_resolved:
             root[i] = False
             blamed = {c for u in r.segments for c in u.coordinates}
             dofs[i] = [d in blamed for d in model.dof_names]
-            firm[i] = root_firmness(model, names[p], locked=locked)
+            firm[i] = root_firmness(model, names[p], locked=locked, _at=at)
     if np.median(firm[inverse]) >= CARRY_FIRM:
         weak = ~root & (firm < CARRY_FIRM)
         root[weak] = True
@@ -332,10 +347,11 @@ def resolve_carrying(model: Model, labels: Sequence[str], *, locked: Iterable[st
 
 
 def root_firmness(model: Model, labels: Iterable[str], *, locked: Iterable[str] = (), poses: int = 4,
-                  seed: int = 0) -> float:
+                  seed: int = 0, _at: list | None = None) -> float:
     """How firmly the markers `labels` place the root (m of marker motion per rad, or per m): the smallest singular
     value of the root's six Jacobian columns once every other free coordinate (not `locked`) has absorbed what it can
-    (the columns projected off those coordinates' range), the median over `poses` random poses."""
+    (the columns projected off those coordinates' range), the median over `poses` random poses (`_at`:
+    _every_marker_at's Jacobians at the same poses)."""
     present = set(labels)
     markers = tuple(m for m in model.marker_names if m in present)
     if not markers:
@@ -344,8 +360,9 @@ def root_firmness(model: Model, labels: Iterable[str], *, locked: Iterable[str] 
     held = {model.dof_index(d) for d in locked}
     others = [F.angle(d) for d in range(model.n_dofs) if d not in held]
     out = []
-    for angles in _poses(model, poses, np.random.default_rng(seed)):
-        J, _ = _jacobians(model, markers, angles)
+    at = _rows(model, markers, _at) if _at is not None else [
+        _jacobians(model, markers, a) for a in _poses(model, poses, np.random.default_rng(seed))]
+    for J, _ in at:
         root, rest = J[:, F.root.cols], J[:, others]
         if rest.shape[1]:
             u, s, _ = np.linalg.svd(rest, full_matrices=False)
