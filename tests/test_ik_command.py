@@ -912,3 +912,25 @@ def test_ik_setups_alone_must_name_their_trial_and_one_model(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and needle in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.xml", "b.xml", "c.xml", "d.xml"]
+
+
+def test_ik_bridges_the_frames_whose_markers_do_not_place_the_pelvis(squats, tmp_path, capsys):
+    """The squats' last 10 frames showing the right leg's markers alone (the subject leaving the volume): the command
+    line's note names them, the motion holds frame 49's pose there, and the report's notes carry the line."""
+    import json
+
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.read import read_trial
+
+    trial = read_trial(squats / "trial.c3d")
+    X = trial.markers.copy()
+    X[50:, [k for k, lab in enumerate(trial.labels) if lab not in ("RKNE", "RTIB", "RANK", "RHEE", "RTOE")]] = np.nan
+    write_c3d(tmp_path / "leaving.c3d", replace(trial, markers=X))
+    assert main(["ik", str(tmp_path / "leaving.c3d"), str(squats / "truth.urdf"), "-o", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    line = "leaving.c3d: frames 50-59 (10 of 60, from 0) show too few markers to place pelvis: their poses are bridged"
+    assert line in err, err
+    got = read_motion_csv(tmp_path / "leaving_motion.csv")
+    np.testing.assert_array_equal(got.angles[50:], np.broadcast_to(got.angles[49], got.angles[50:].shape))
+    report = json.loads(next(tmp_path.glob("leaving*report*.json")).read_text())
+    assert any(line in n for n in report["notes"]), report["notes"]
