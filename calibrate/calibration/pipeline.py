@@ -891,16 +891,16 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
 
     Qm = Q.copy()
     locked_names = [n for n, _ in problem.settings.lock]
-    unplaced_frames_ = []
+    bridged: list[tuple[int, ...]] = []  # per trial, the frames that do not place the root
     partial = {i for i, _ in by_trial}  # a trial that places less than the others: held below (_hold_unplaced)
     for i, sl in enumerate(spans):
-        if i in partial or (problem.seen[sl] == problem.seen[sl.start]).all():  # every frame alike: nothing to
-            unplaced_frames_.append(())  # bridge from
+        # (a trial whose frames all show the same markers has no frame to bridge from)
+        if i in partial or (problem.seen[sl] == problem.seen[sl.start]).all():
+            bridged.append(())
             continue
         root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
         bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
-        unplaced_frames_.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
-    unplaced_frames_ = tuple(unplaced_frames_)
+        bridged.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
     seen_names = {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()}
     # (read on the motions as written: a frame's fit that its markers do not place is no joint's turn)
     notes = coordinate_notes(subject, FrameLayout.angles(Zm), _sampled_blocks(problem, state, scatter),
@@ -950,7 +950,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
                        unresolved=res.segments, unplaced_in_trial=by_trial, unplaced_held=held_in,
-                       unplaced_frames=unplaced_frames_,
+                       unplaced_frames=tuple(bridged),
                        noise={n: float(v) for n, v in zip(subject.marker_names, scatter, strict=True)},
                        noise_weight={n: float(v) for n, v in zip(subject.marker_names, problem.sigma, strict=True)},
                        noise_learnt=run.learn_noise, misplaced=misplaced, jittery=jittery, exchanged=exchanged,

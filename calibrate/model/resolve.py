@@ -227,7 +227,7 @@ def unplaced_frames(model: Model, seen: np.ndarray, *, locked: Iterable[str] = (
     a thigh that shows only its knee marker turns freely about the hip-knee line (the same walk's first frames: the
     left hip rotated 88-123 deg).  In a trial whose frames place the root firmly (:func:`root_firmness`, median over
     the frames at least CARRY_FIRM), a frame that places it less firmly than CARRY_FIRM counts as not placing it: the
-    same walk on Rajagopal2016.osim, its frame before the last 58 (the sacral marker, the knees, a malleolus, the toes
+    same walk on Rajagopal2016.osim, its frame 222 (the sacral marker, the knees, a malleolus, the toes
     and a heel: 0.034 m/rad, against 0.15 with every marker), had its hips rotated -60 and +53 deg.  One test per
     pattern of seen markers."""
     seen = np.asarray(seen, dtype=bool)
