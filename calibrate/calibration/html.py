@@ -214,10 +214,12 @@ def _notes(report: dict) -> str:
                          + (f" (calibrate's: {k['our_axis_deg']:.0f} deg)" if k.get("our_axis_deg") is not None else "")
                          + ": its femur frame is turned about the thigh (a thigh wand or KAD off the plane the "
                          "knee flexes in), which mixes its knee flexion into varus-valgus</li>")
+    from .report import runs_text
+
     for t in report.get("unplaced_frames", []):
         k = t.get("trial", 0)
         name = (report.get("trials") or [{}] * (k + 1))[k].get("source") or f"trial {k + 1}"
-        runs = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in t.get("runs", [])[:6])
+        runs = runs_text(runs=t.get("runs", []))
         items.append(f"<li>{_e(name)}: frames {_e(runs)} ({len(t.get('frames', []))} frames) show too few markers to "
                      "place the root: their poses are bridged from the frames either side, not fitted</li>")
     for t in report.get("unplaced_in_trial", []):

@@ -472,9 +472,10 @@ def frame_runs(frames) -> list[tuple[int, int]]:
     return runs
 
 
-def runs_text(frames) -> str:
-    """Sorted frame indices as runs: '0-4, 222-280' (the first six runs, then how many more)."""
-    runs = frame_runs(frames)
+def runs_text(frames=(), runs=None) -> str:
+    """Sorted frame indices (or their `runs`, frame_runs') as text: '0-4, 222-280' (the first six runs, then how many
+    more)."""
+    runs = frame_runs(frames) if runs is None else runs
     text = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:6])
     return text + (f" and {len(runs) - 6} more runs" if len(runs) > 6 else "")
 

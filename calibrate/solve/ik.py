@@ -26,7 +26,7 @@ from ..io.trial import Trial
 from ..model.blocks import FrameLayout
 from ..model.kinematics import IDENTITY, Kinematics
 from ..model.model import Model, Parameters
-from ..model.resolve import descendants
+from ..model.resolve import descendants, unplaced_frames
 from ..model.rotations import matrix_quats, retract_root
 from ..problem.options import SolverOptions
 from ..seed.geometry import kabsch, marker_rms
@@ -561,8 +561,6 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     unplaced: tuple[int, ...] = ()
     seen_all = np.isfinite(obs[..., 0])
     if bridge and nf and not (seen_all == seen_all[0]).all():
-        from ..model.resolve import unplaced_frames
-
         root_off, dofs_off = unplaced_frames(model, seen_all, locked=list(locked or {}))
         bridge_unplaced(root_off, dofs_off, Z, Q)
         unplaced = tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ()
