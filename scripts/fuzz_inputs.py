@@ -182,6 +182,9 @@ RASI = ["R.ASIS", "Sub01:RASI"]
 LASI = ["L.ASIS"]
 RPSI = "R.PSIS"
 LKNE = ["L.Knee", "L.Knee.Lat"]
+[segments]
+femur_l = ["L.Post.Fem.", "L.Ant.Fem."]
+tibia_l = "L.Ant.Tib."
 """
 
 

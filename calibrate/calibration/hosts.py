@@ -297,16 +297,7 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
     fits = _posed(model, trials, labels, poses)
     if not fits:
         return {}
-    known = set(model.marker_names)
-    shown = {lab for t in trials for lab in t.labels if lab in known}
-    # Candidates: every segment with a known marker the trials show, and every markerless one that turns against
-    # its parent in these poses (a forearm marker may ride on the ulna, where the radius's pronation carries it
-    # 1-2 mm further: the two then tie, and it is left out rather than put on the radius); a segment welded or
-    # locked to its parent (a patella, an OpenSim model's toes) rides on it and would only tie with it.
-    angles = np.concatenate([f.motion.angles for _, f in fits])
-    turning = {j.child for j in model.joints
-               if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
-    candidates = [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
+    candidates = _candidates(model, trials, fits)
     out = {}
     described = {lab: said for t in trials for lab, said in t.descriptions.items()}
     for lab, P in local_places(model, fits, labels, candidates).items():
@@ -328,6 +319,37 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
                         candidates[second], float(spread[second]), mid[best],
                         named_kind(lab, described.get(lab)) if by_name else "")
+    return out
+
+
+def _candidates(model: Model, trials: Sequence[Trial], fits: Sequence[tuple[Trial, object]]) -> list[str]:
+    """The segments a new label may ride on, on the posed frames `fits` (_posed) of `trials`: every segment with a known
+    marker the trials show, and every markerless one that turns against its parent in these poses (a forearm marker
+    may ride on the ulna, where the radius's pronation carries it 1-2 mm further: the two then tie, and it is left out
+    rather than put on the radius); a segment welded or locked to its parent (a patella, an OpenSim model's toes)
+    rides on it and would only tie with it."""
+    known = set(model.marker_names)
+    shown = {lab for t in trials for lab in t.labels if lab in known}
+    angles = np.concatenate([f.motion.angles for _, f in fits])
+    turning = {j.child for j in model.joints
+               if any(np.nanstd(angles[:, model.dof_index(d)]) >= TURNING for d in j.dofs)}
+    return [s.name for s in model.segments if any(m in shown for m in s.markers) or s.name in turning]
+
+
+def place_spreads(model: Model, trials: Sequence[Trial], labels: Sequence[str], segments: Sequence[str] = (),
+                  frames: int = HOST_FRAMES) -> dict[str, dict[str, float]]:
+    """Each of `labels` -> segment -> the RMS spread (m) of its place in that segment's frame over about `frames` evenly
+    spaced frames of `trials` posed by the base model's known markers (kinematic_hosts' measure), on the candidate
+    segments and `segments`; labels seen in fewer than three posed frames are left out."""
+    picked = pick_frames(trials, frames)
+    fits = _posed(model, picked, labels)
+    if not fits:
+        return {}
+    names = list(dict.fromkeys([*_candidates(model, picked, fits), *segments]))
+    out = {}
+    for lab, P in local_places(model, fits, labels, names).items():
+        spread = np.sqrt(np.mean(np.sum((P - np.median(P, axis=0)) ** 2, axis=2), axis=0))
+        out[lab] = dict(zip(names, map(float, spread), strict=True))
     return out
 
 

@@ -150,6 +150,10 @@ def _notes(report: dict) -> str:
                      f"{x.get('noise_sd_mm', 0):.0f} mm SD from frame to frame (white noise; the trial's markers "
                      f"{x.get('trial_median_mm', 0):.2g} mm): its positions in {x.get('frames_left_out', 0)} of the "
                      f"{x.get('frames_seen', 0)} frames it is seen left out; check its reconstruction</li>")
+    for m in report.get("marker_set", {}).get("new", []):
+        if m.get("check"):
+            items.append(f"<li class=bad>check label {_e(m.get('label'))}: the marker map's [segments] puts it on "
+                         f"{_e(m.get('segment'))}, yet {_e(m.get('check'))}</li>")
     for m in report.get("suspect_labels", []):
         items.append(f"<li class=bad>check label {_e(m.get('label'))} ({_e(m.get('trial'))}): it moves with "
                      f"{_e(m.get('moves_with'))}'s markers (distances steady to "

@@ -198,6 +198,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     # The linear algebra here is many small blocks plus one Schur complement: one BLAS thread is
     # faster than several (which also fight CasADi's two evaluation threads for the cores).
     label_maps: tuple = ()
+    declared = _declared(model, marker_map)
     if marker_map or aliases:
         from ..io.labels import map_labels
 
@@ -293,7 +294,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         settings = replace(settings, lateral_markers=lateral_markers(
             model, measured, STILL_WIDTH_JOINTS if _statics_alone(model, trials) else WIDTH_JOINTS))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
-        cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose)
+        cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose, declared)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
                    mass_from=mass_from, measurements=measured)
 
@@ -327,8 +328,9 @@ def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequenc
 
 def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kinematics: Kinematics | None,
                progress: Callable[[Progress], None] | None, neutral: int | None = None,
-               pose: Mapping[str, float] | None = None) -> Calibration:
+               pose: Mapping[str, float] | None = None, declared: Mapping[str, str] | None = None) -> Calibration:
     say = _announcer(progress)
+    declared = declared or {}
     run, solver = settings.pipeline, settings.solver  # the pipeline's and the solver's options (never changed here)
     times: dict[str, float] = {}
     where = ", ".join(t.source or "trial" for t in trials)
@@ -418,14 +420,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                         "; check the labels")))
     # Unlabelled trajectories (Vicon's '*115'): ghosts, reflections or markers the operator left
     # unnamed; nothing says which landmark they are, so they are never placed as new markers.
-    unknown = [lab for lab in labels if lab not in known and not UNLABELLED.fullmatch(lab)]
+    unknown = [lab for lab in labels if lab not in known and (not UNLABELLED.fullmatch(lab) or lab in declared)]
     placed: list[NewMarker] = []
     # each trial's relative marker motion (_trial_motion), measured once if needed
     motion: list[float] | None = own_motion if own_motion and len(trials) > 1 else None
     if unknown and run.new_markers:
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
         motion = _trial_motion(model, judged)
-        placed = _assign_new_markers(model, trials, unknown, motion)
+        placed = _assign_new_markers(model, trials, unknown, motion, declared)
     if motion is None and len(trials) > 1:
         motion = _trial_motion(model, judged)  # which trials are still (_still_lengths, moved and re-placed markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
@@ -1737,14 +1739,61 @@ def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
     return [relative_motion(t, model) for t in trials] if len(trials) > 1 else [0.0]
 
 
+def _declared(model: Model, marker_map: Mapping | None) -> dict[str, str]:
+    """The marker map's new labels by segment (calibrate.io.labels.declared_segments: its ``[segments]`` table), each
+    segment checked against `model` (CalibrateError, one line)."""
+    from ..io.labels import declared_segments
+
+    declared = declared_segments(marker_map)
+    segments = [s.name for s in model.segments]
+    if bad := [seg for seg in declared.values() if seg not in segments]:
+        raise CalibrateError(f"{getattr(marker_map, 'source', None) or 'marker map'}: [segments] names "
+                             f"'{bad[0]}', which is not a segment of {model.path.name}; use one of "
+                             f"{', '.join(segments[:8])}, ... (see calibrate inspect)")
+    return declared
+
+
+def _declared_doubts(model: Model, trials: Sequence[Trial], declared: Mapping[str, str],
+                     motion: Sequence[float]) -> dict[str, str]:
+    """Label -> why to check it, for each label of the marker map's ``[segments]`` whose place, on the base model's
+    poses of the trials that move, spreads more than 1 / HOST_RATIO times as much on the declared segment as on
+    another (hosts.place_spreads, kinematic_hosts' measure); none where no trial moves (nothing can tell)."""
+    from .hosts import HOST_RATIO, place_spreads
+
+    moving = [t for t, a in zip(trials, motion, strict=True) if a >= STILL_MOTION] if len(trials) > 1 else \
+        [t for t in trials if relative_motion(t, model) >= STILL_MOTION]
+    shown = [lab for lab in declared if any(lab in t.labels for t in moving)]
+    if not shown:
+        return {}
+    out = {}
+    for lab, spread in place_spreads(model, moving, shown, sorted(set(declared.values()))).items():
+        best = min(spread, key=spread.get)
+        own = spread[declared[lab]]
+        if best != declared[lab] and spread[best] < HOST_RATIO * own:
+            out[lab] = (f"on the base model's poses its place spreads {1e3 * spread[best]:.1f} mm RMS on {best}, "
+                        f"{1e3 * own:.1f} on {declared[lab]}: does it ride on {best}?")
+    return out
+
+
 def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str],
-                        motion: Sequence[float]) -> list[NewMarker]:
+                        motion: Sequence[float], declared: Mapping[str, str] | None = None) -> list[NewMarker]:
     """Segments for the trial markers the model does not know (seed 002's rigidity, against the
     model's known markers: calibrate.seed.association.associate_to_model over the trials' frames).
     Rigidity is judged on the trials that move (STILL_MOTION), if any: in a static trial every marker
     keeps its distance to every other, so its frames would pass any marker as rigid with any segment
     and set the rigidity threshold at the static's noise (gait2392: 0.2 mm, its walk's 1.1 mm; pig_walk's
-    thigh marker then came out closer to the right femur than to the left).  `motion`: _trial_motion."""
+    thigh marker then came out closer to the right femur than to the left).  `motion`: _trial_motion.
+    `declared`: label -> segment, the marker map's ``[segments]``: the user's word, taken without the tests (in a
+    static alone too, where no test can tell)."""
+    declared = {lab: seg for lab, seg in (declared or {}).items() if lab in unknown}
+    if declared:
+        # The others judged as without the map (with the declared among them: the rigidity test's threshold is set by
+        # the trial's most rigid pairs, new labels' too, and PlugInC3D's sacral marker, at that threshold, had gone out
+        # when its thigh wands were declared): declaring a label changes that label only.
+        by = {m.label: m for m in _assign_new_markers(model, trials, unknown, motion)}
+        doubts = _declared_doubts(model, trials, declared, motion)
+        return [NewMarker(lab, declared[lab], None, f"the marker map's [segments] puts it on {declared[lab]}",
+                          check=doubts.get(lab, "")) if lab in declared else by[lab] for lab in unknown]
     moving = [i for i, a in enumerate(motion) if a >= STILL_MOTION] if len(trials) > 1 else [0]
     if _statics_alone(model, trials, motion if len(trials) > 1 else None):
         # No trial moves: every marker keeps its distance to every other and every segment's pose is as still as the
@@ -1924,8 +1973,10 @@ def _new_places(subject: Model, kin: Kinematics, start: State, obs: np.ndarray, 
     # Up to about 100 frames per marker, wherever in the trials it is seen (some are seen briefly).
     frames = np.unique(np.concatenate([np.flatnonzero(seen[:, i])[:: max(1, int(seen[:, i].sum()) // 100)]
                                        for i in range(len(new))]))
-    Z, Q = absolute(kin, frames_of(start, frames))
     s = np.array([params.scale[subject.segment_index(subject.markers[k].segment)] for k in new])
+    if not frames.size:  # every position of them left out (jumps, jitter): nothing places them
+        return new, frames, np.full((0, len(new), 3), np.nan), s
+    Z, Q = absolute(kin, frames_of(start, frames))
     origin, R = segment_axes(kin, Z, Q, params, new)
     local = np.einsum("fnij,fni->fnj", R, obs[frames][:, new] - origin)
     return new, frames, local, s
@@ -1947,7 +1998,8 @@ def _place_new_markers(subject: Model, places: tuple[list[int], np.ndarray, np.n
     for i, k in enumerate(new):
         use = np.isfinite(local[:, i, 0])
         name = subject.marker_names[k]
-        offset = np.median(local[use, i], axis=0) / s[i]
+        # (none seen: every position of it left out as jumps or jitter; the segment's origin, which no residual reads)
+        offset = np.median(local[use, i], axis=0) / s[i] if use.any() else np.zeros(3)
         m = by_label[name]
         across = _across_hinge(subject, out, m.hinge, offset) if m.hinge and k not in fixed else None
         reason = m.reason
@@ -1978,8 +2030,7 @@ def _far_sacral(places: tuple[list[int], np.ndarray, np.ndarray, np.ndarray],
     new, _, local, s = places
     out = {}
     for i, k in enumerate(new):
-        if k in sacral:
-            use = np.isfinite(local[:, i, 0])
+        if k in sacral and (use := np.isfinite(local[:, i, 0])).any():
             offset, why = sacral[k]
             apart = float(np.linalg.norm(np.median(local[use, i], axis=0) - s[i] * offset))
             if apart > SACRAL_APART:

@@ -96,7 +96,8 @@ def calibration_report(cal: Calibration) -> dict:
         "marker_set": {
             "used": [n for n in model.marker_names if n not in cal.unused_markers],
             "new": [{"label": m.label, "segment": m.segment, "position_mm": [_mm(v) for v in m.position],
-                     "reason": m.reason} for m in cal.new_markers if m.segment is not None],
+                     "reason": m.reason, **({"check": m.check} if m.check else {})}
+                    for m in cal.new_markers if m.segment is not None],
             "left_out": [{"label": m.label, "reason": m.reason, "sits_by": list(m.sits_by)}
                          for m in cal.new_markers if m.segment is None],
             "ignored_labels": list(cal.ignored_labels), "unused_model_markers": list(cal.unused_markers)},
@@ -1081,6 +1082,9 @@ def summary_text(cal) -> str:
         acromia = sorted({a for x in cal.places_apart for a in x.acromia})
         lines.append(f"               ({PLACES_APART_ADVICE}" + (f"; {girdle_advice(acromia)}" if acromia else "")
                      + ")")
+    for m in cal.new_markers:
+        if m.check:
+            lines.append(f"  check label  {m.label}: the marker map's [segments] puts it on {m.segment}, yet {m.check}")
     for i, m in cal.misplaced:
         lines.append(f"  check label  {cal.trials[i].source or f'trial {i + 1}'}: {m.text()} (exchanged for the whole "
                      "trial? each label of an exchanged pair can look misplaced; nothing was changed)")

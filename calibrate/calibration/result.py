@@ -39,6 +39,9 @@ class NewMarker:
     # from: its place there starts across the hinge's axis from the lateral marker where the poses put it elsewhere
     # (pipeline._place_new_markers)
     hinge: str = ""
+    # placed on the segment the marker map's [segments] names, where the base model's poses put it on another: why to
+    # check it (pipeline._declared_doubts; the summary's `check label` line)
+    check: str = ""
 
 
 @dataclass(frozen=True)

@@ -215,7 +215,8 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     ap.add_argument("--frames", type=frames_arg, default=None,
                     help="use frames A:B only (0-based, B excluded; a single trial only)")
     ap.add_argument("--markers", type=Path, default=None,
-                    help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss")
+                    help="marker map (TOML: model label = [trial labels]) for labels the built-in aliases miss; its "
+                         "[segments] table (segment = [trial labels]) puts labels the model lacks on those segments")
     ap.add_argument("--subject", default=None, metavar="NAME",
                     help="of trials holding several subjects' markers (Vicon's NAME:RASI), calibrate NAME's")
     ap.add_argument("--no-aliases", action="store_true",

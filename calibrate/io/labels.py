@@ -211,9 +211,53 @@ class LabelConflictWarning(UserWarning):
 
 
 class MarkerMap(dict[str, list[str]]):
-    """A marker map: model label -> trial labels in order of preference; ``source`` names its file."""
+    """A marker map: model label -> trial labels in order of preference; ``source`` names its file;
+    ``segments``: segment -> the trial labels the model does not have that ride on it (the file's
+    ``[segments]`` table: a lab's cluster or wand markers, placed there without the hosts' tests)."""
 
     source: str | None = None
+    segments: dict[str, list[str]]
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.segments = {}
+
+
+#: The marker map's table of new labels by segment (``[segments]`` in the TOML file; the same key in a mapping).
+SEGMENTS = "segments"
+
+
+def declared_segments(marker_map: Mapping | None) -> dict[str, str]:
+    """Trial label -> segment, as `marker_map`'s ``[segments]`` table declares them (a MarkerMap's ``segments``, or a
+    mapping's ``"segments"`` entry: segment -> labels); {} where it declares none.  Checked as load_marker_map checks
+    the file's table (CalibrateError, one line); the segments are checked against the model by calibrate()."""
+    if marker_map is None:
+        return {}
+    table = getattr(marker_map, "segments", None)
+    if table is None:
+        table = marker_map.get(SEGMENTS) if isinstance(marker_map.get(SEGMENTS), Mapping) else {}
+    return _segment_table(table, getattr(marker_map, "source", None))
+
+
+def _segment_table(table: Mapping, where: str | None) -> dict[str, str]:
+    """Trial label -> segment from a ``[segments]`` table (segment -> trial labels, or one label)."""
+    out: dict[str, str] = {}
+    for segment, value in table.items():
+        example = f'write it as {segment} = ["LTH1", "LTH2"] (segment = list of trial labels)'
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise _map_error(where, f"[segments] {segment} = {value!r} is not a list of trial labels", example)
+        labels = [v.strip() for v in value]
+        if not labels or not all(labels):
+            raise _map_error(where, f"[segments] {segment} lists no trial label or an empty one",
+                             "list the labels of the markers that ride on it")
+        for label in labels:
+            if out.get(label, segment) != segment:
+                raise _map_error(where, f"[segments]: trial label {label!r} is listed under both {out[label]} and "
+                                        f"{segment}", "list it under the one segment it rides on")
+            out[label] = str(segment)
+    return out
 
 
 def _words(label: str) -> list[str]:
@@ -342,6 +386,10 @@ def load_marker_map(path: str | os.PathLike[str]) -> MarkerMap:
     marker_map = MarkerMap()
     marker_map.source = where
     owner: dict[str, str] = {}
+    segments = table.pop(SEGMENTS, None)
+    if segments is not None and not isinstance(segments, dict):
+        raise _map_error(where, f"{SEGMENTS} = {segments!r} is not a table",
+                         'write it as a table: [segments] then femur_l = ["LTH1", "LTH2"], after the model labels')
     for key, value in table.items():
         example = f'write it as {key} = ["R.ASIS", "RASIS"] (model label = list of trial labels)'
         if isinstance(value, str):
@@ -368,6 +416,13 @@ def load_marker_map(path: str | os.PathLike[str]) -> MarkerMap:
                 unique.append(label)
             owner[label] = key
         marker_map[key] = unique
+    declared = _segment_table(segments or {}, where)
+    for label, segment in declared.items():
+        if label in owner:
+            raise _map_error(where, f"trial label {label!r} is listed under model label {owner[label]} and under "
+                                    f"[segments] {segment}", "a label is either the model's marker or a new one: list "
+                                                             "it once")
+        marker_map.segments.setdefault(segment, []).append(label)
     return marker_map
 
 
@@ -377,6 +432,8 @@ def _check_marker_map(marker_map: Mapping[str, Sequence[str]], model: Sequence[s
     model_set = set(model)
     lookup: dict[str, tuple[str, int]] = {}
     for key, labels in marker_map.items():
+        if key == SEGMENTS and isinstance(labels, Mapping) and key not in model_set:
+            continue  # the new labels' segments (declared_segments)
         if key not in model_set:
             shown = ", ".join(model[:12]) + (f" and {len(model) - 12} more" if len(model) > 12 else "")
             raise _map_error(
@@ -498,6 +555,11 @@ def map_labels(
     model = [str(label) for label in model_labels]
     model_set = set(model)
     lookup = _check_marker_map(marker_map, model) if marker_map else {}
+    declared = declared_segments(marker_map)  # new labels by the user's word: kept as they are
+    if clash := [lab for lab in declared if lab in model_set]:
+        raise _map_error(getattr(marker_map, "source", None),
+                         f"[segments] {declared[clash[0]]} lists {clash[0]!r}, which is a marker of the model",
+                         "[segments] is for labels the model does not have: remove it there")
 
     def best(label: str) -> tuple[str, str, float] | None:
         """(model label, how, priority) of a whole label."""
@@ -517,6 +579,8 @@ def map_labels(
     candidates: dict[int, tuple[str, str, tuple[int, int, float], str]] = {}
     subjects: dict[str, int] = {}  # prefix -> model markers its labels match
     for index, label in enumerate(trial.labels):
+        if label in declared:  # a new label on the segment the map's [segments] names: not read as another
+            continue
         found = best(label)
         prefixed = 0
         note = ""
@@ -546,7 +610,7 @@ def map_labels(
 
     labels = list(trial.labels)
     hows = ["unknown"] * len(labels)
-    notes = [""] * len(labels)
+    notes = [f"on {declared[lab]} ([segments])" if lab in declared else "" for lab in labels]
     messages: list[str] = []
     for target, indices in by_target.items():
         indices.sort(key=lambda i: (candidates[i][2], i))

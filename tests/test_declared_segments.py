@@ -1,0 +1,150 @@
+"""The marker map's ``[segments]`` table: new labels put on the segment the lab names, without the hosts' tests
+(calibrate.io.labels.declared_segments, pipeline._declared, _declared_doubts).  Simulated subjects carrying a shank
+cluster the base model does not know (tests/test_hosts.py's); truth from the simulator."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter1d
+from test_hosts import CLUSTER, _clustered
+
+from calibrate.calibration.pipeline import _assign_new_markers, calibrate
+from calibrate.calibration.report import summary_text
+from calibrate.cli import main
+from calibrate.errors import CalibrateError
+from calibrate.io.c3d import write_c3d
+from calibrate.io.labels import declared_segments, load_marker_map, map_labels
+from calibrate.problem.settings import Settings
+from calibrate.simulation import simulate_squats
+from calibrate.simulation.simulate import simulate_static
+
+SHANK = {"segments": {"tibia_l": list(CLUSTER)}}
+
+
+def _map(tmp_path, text: str):
+    path = tmp_path / "map.toml"
+    path.write_text(text)
+    return path
+
+
+def test_the_segments_table_is_read_and_checked(tmp_path, human):
+    """After the model labels, `[segments]` lists new labels by segment; a mapping's "segments" entry reads the same.
+    Each mistake is refused in one line naming the file, the label or segment, and what to do."""
+    m = load_marker_map(_map(tmp_path, 'RASI = ["R.ASIS"]\n[segments]\nfemur_l = ["LTH1", "LTH2"]\ntibia_l = "LSH1"\n'))
+    assert dict(m) == {"RASI": ["R.ASIS"]} and m.segments == {"femur_l": ["LTH1", "LTH2"], "tibia_l": ["LSH1"]}
+    assert declared_segments(m) == {"LTH1": "femur_l", "LTH2": "femur_l", "LSH1": "tibia_l"}
+    assert declared_segments({"RASI": ["R.ASIS"], "segments": {"femur_l": ["LTH1"]}}) == {"LTH1": "femur_l"}
+    assert declared_segments({"RASI": ["R.ASIS"]}) == {} and declared_segments(None) == {}
+    bad = {
+        '[segments]\nfemur_l = ["LTH1"]\ntibia_l = ["LTH1"]\n': "listed under both femur_l and tibia_l",
+        'RASI = ["LTH1"]\n[segments]\nfemur_l = ["LTH1"]\n': "under model label RASI and under [segments] femur_l",
+        'segments = "femur_l"\n': "is not a table",
+        '[segments]\nfemur_l = [1, 2]\n': "is not a list of trial labels",
+        '[segments]\nfemur_l = []\n': "lists no trial label",
+    }
+    for text, what in bad.items():
+        with pytest.raises(CalibrateError) as e:
+            load_marker_map(_map(tmp_path, text))
+        assert what in str(e.value) and "map.toml" in str(e.value) and "\n" not in str(e.value), str(e.value)
+    # A declared label is kept as it is (L_Thigh is an alias of LTHI), and one that is the model's own is refused.
+    trial = simulate_squats(human, frames=5, seed=0).trial
+    trial = replace(trial, labels=tuple("L_Thigh" if lab == "LTHI" else lab for lab in trial.labels))
+    relabelled, mapping = map_labels(trial, human.marker_names, {"segments": {"femur_l": ["L_Thigh"]}})
+    assert "L_Thigh" in relabelled.labels and "LTHI" not in relabelled.labels
+    assert mapping.renamed["L_Thigh"] == "L_Thigh" and "on femur_l ([segments])" in \
+        next(m.note for m in mapping if m.trial_label == "L_Thigh")
+    assert map_labels(trial, human.marker_names)[0].labels.count("LTHI") == 1  # (the alias, undeclared)
+    with pytest.raises(CalibrateError, match="lists 'LKNE', which is a marker of the model"):
+        map_labels(trial, human.marker_names, {"segments": {"femur_l": ["LKNE"]}})
+
+
+def test_a_static_alone_places_the_declared_cluster(human):
+    """Standing still, no test can tell which segment a new label rides on, and the shank cluster is left out
+    (test_hosts.test_a_static_alone_places_no_new_label); declared on tibia_l it is placed and fitted there, its
+    markers' distances to each other within 3 mm of the simulated subject's.  A segment the model lacks is refused."""
+    truth = _clustered()
+    squats = simulate_squats(truth, frames=200, noise_mm=1.0, seed=5)
+    static = simulate_static(truth, squats.truth, frames=120, noise_mm=1.0, seed=2).trial
+    cal = calibrate(human, static, Settings(), marker_map=SHANK)
+    placed = {m.label: m for m in cal.new_markers}
+    assert all(placed[n].segment == "tibia_l" and "[segments]" in placed[n].reason for n in CLUSTER)
+    assert not cal.ignored_labels and all(n in cal.model.marker_names for n in CLUSTER)
+    s = cal.params.scale[human.segment_index("tibia_l")]
+    got = {n: s * cal.params.marker[cal.model.marker_index(n)] for n in CLUSTER}
+    s0 = squats.truth.scale[truth.segment_index("tibia_l")]
+    want = {n: s0 * squats.truth.marker[truth.marker_index(n)] for n in CLUSTER}
+    for a, b in (("LSH1", "LSH2"), ("LSH1", "LSH3"), ("LSH2", "LSH3")):
+        assert abs(np.linalg.norm(got[a] - got[b]) - np.linalg.norm(want[a] - want[b])) < 0.003
+    with pytest.raises(CalibrateError, match="names 'shin_l', which is not a segment of human.urdf"):
+        calibrate(human, static, Settings(), marker_map={"segments": {"shin_l": list(CLUSTER)}})
+
+
+def _skin_moved():
+    """Squats of the clustered subject, the cluster's markers moved by 15 mm (SD per axis) of smooth skin motion
+    (white noise filtered over 0.1 s): more than the hosts' tests take (spread over 20 mm RMS on the tibia)."""
+    truth = _clustered()
+    sim = simulate_squats(truth, frames=200, noise_mm=1.0, seed=5)
+    k = [sim.trial.labels.index(n) for n in CLUSTER]
+    w = gaussian_filter1d(np.random.default_rng(5).normal(0.0, 1.0, (sim.trial.n_frames, len(k), 3)), 10, axis=0)
+    X = sim.trial.markers.copy()
+    X[:, k] += 0.015 * w / w.std()
+    return replace(sim.trial, markers=X)
+
+
+def test_declared_labels_on_skin_are_placed_and_a_wrong_segment_is_questioned(human, tmp_path, capsys):
+    """Skin moves the cluster past what the tests take: left out by default, placed on tibia_l when declared there,
+    with no question; declared on femur_l, each gets a `check label` line naming tibia_l (its place spreads there
+    less than half as much as on the femur on the base model's poses), in the summary, the report and the HTML."""
+    trial = _skin_moved()
+    assert all(m.segment is None for m in _assign_new_markers(human, [trial], list(CLUSTER), [0.0]))
+    right = calibrate(human, trial, Settings(), marker_map=SHANK)
+    assert all(m.segment == "tibia_l" and not m.check for m in right.new_markers if m.label in CLUSTER)
+    assert "check label" not in summary_text(right)
+
+    write_c3d(tmp_path / "t.c3d", trial)
+    (tmp_path / "map.toml").write_text('[segments]\nfemur_l = ["LSH1", "LSH2", "LSH3"]\n')
+    code = main([str(tmp_path / "t.c3d"), str(human.path), "-o", str(tmp_path / "s.urdf"), "--markers",
+                 str(tmp_path / "map.toml"), "--report", str(tmp_path / "s.json"), "--html", str(tmp_path / "s.html"),
+                 "-q"])
+    out = capsys.readouterr().out
+    assert code == 0
+    checks = [line for line in out.splitlines() if line.startswith("  check label  LSH")]
+    assert len(checks) == 3 and all("puts it on femur_l, yet" in c and "does it ride on tibia_l?" in c for c in checks)
+    report = json.loads((tmp_path / "s.json").read_text())
+    new = {m["label"]: m for m in report["marker_set"]["new"]}
+    assert all(new[n]["segment"] == "femur_l" and "tibia_l" in new[n]["check"] for n in CLUSTER)
+    assert (tmp_path / "s.html").read_text().count("check label LSH") == 3
+    # The spread figures it quotes: tibia_l's under half femur_l's.
+    for c in checks:
+        tib, fem = (float(x) for x in c.split("spreads ")[1].split(" on femur_l")[0].replace(" mm RMS on tibia_l,", "")
+                    .split())
+        assert tib < 0.5 * fem
+
+
+def test_a_bad_segment_on_the_command_line_is_one_line_and_exit_2(human, tmp_path, capsys):
+    trial = simulate_squats(human, frames=40, seed=1).trial
+    write_c3d(tmp_path / "t.c3d", trial)
+    (tmp_path / "map.toml").write_text('[segments]\nshank_l = ["LSH1"]\n')
+    code = main([str(tmp_path / "t.c3d"), str(human.path), "-o", str(tmp_path / "s.urdf"), "--markers",
+                 str(tmp_path / "map.toml"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "map.toml: [segments] names 'shank_l'" in err[0], err
+    assert not (tmp_path / "s.urdf").exists()
+
+
+def test_declaring_a_label_changes_that_label_only(human):
+    """The rest are judged as without the map (the rigidity threshold is set by every label's pairs, the declared
+    ones' too): test_hosts' session, its cluster placed on tibia_l by the model's poses and its floor marker left
+    out; the floor marker declared on the pelvis changes nothing else, to the reasons' figures."""
+    from test_hosts import _session
+
+    trial, _ = _session()
+    labels = [*CLUSTER, "FLOOR"]
+    plain = {m.label: m for m in _assign_new_markers(human, [trial], labels, [0.0])}
+    said = {m.label: m for m in _assign_new_markers(human, [trial], labels, [0.0], {"FLOOR": "pelvis"})}
+    assert plain["FLOOR"].segment is None and said["FLOOR"].segment == "pelvis"
+    assert all(said[n] == plain[n] and plain[n].segment == "tibia_l" for n in CLUSTER)
