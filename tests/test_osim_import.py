@@ -476,6 +476,7 @@ def test_labels_an_osim_model_leaves_out_point_to_its_marker_set(tmp_path, capsy
         (line,) = [x for x in capsys.readouterr().err.splitlines() if "LOOSE" in x]
         assert line.startswith("warning: 1 trial label rides on no segment of human.osim and is ignored: LOOSE")
         assert ("--marker-set FILE.xml" in line) == (not extra), line
+        assert "the marker map's [segments] table" in line  # (a label one knows the segment of)
 
 
 def test_marker_set_replaces_and_adds(tmp_path):

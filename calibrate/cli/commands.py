@@ -364,6 +364,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             # in another basin; with gait2392's marker set, none left out)
             hint += ("; an OpenSim marker set that places them on the model's bodies (the lab's MarkerSet file, as "
                      "its Scale setup names it: --marker-set FILE.xml) fits them")
+        if settings.new_markers and len(named) > len(by):
+            hint += ("; a label you know the segment of goes there by the marker map's [segments] table (femur_l = "
+                     "[\"LABEL\"], --markers map.toml)")
         print(f"warning: {len(named)} trial label{'' if one else 's'} {why} {model.path.name} and "
               f"{'is' if one else 'are'} ignored: {', '.join(named)}{hint}", file=sys.stderr)
     if unlabelled:  # Vicon Nexus's '*115': trajectories nobody labelled, not markers the model lacks
