@@ -292,7 +292,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         # In statics alone the elbows' too: no motion places the elbow either, and no walk's forearm pulls its contents
         # (STILL_WIDTH_JOINTS).
         settings = replace(settings, lateral_markers=lateral_markers(
-            model, measured, STILL_WIDTH_JOINTS if _statics_alone(model, trials) else WIDTH_JOINTS))
+            model, measured, STILL_WIDTH_JOINTS if _statics_alone(_members(model, declared), trials) else WIDTH_JOINTS))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose, declared)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
@@ -343,6 +343,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         raise CalibrateError(f"{where}: only {len(shared)} of its labels match markers of {model.path.name} "
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
                              f"(--markers map.toml) or use a model with this marker set")
+    # Trials of clusters alone beside one with the model's landmarks (a CAST protocol's static and walks): posed, once
+    # the trials with the model's markers have placed the clusters, by the clusters (_bare_trials).
+    bare = _bare_trials(model, trials, declared)
+    members = _members(model, declared)  # which segment each label rides on, the declared ones' too (their motion)
     t0 = time.perf_counter()
     # Moving trials that name a cluster's new labels otherwise than each other (a symmetric plate labelled the other way
     # round in some of them): read as the trial that agrees with the most others names them, before anything reads
@@ -358,7 +362,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # labels would be "exchanged" (a mirrored simulated squat's with its own original: both thighs' markers read
         # back).
         _check_handedness(model, trials)
-        moving0 = [i for i, t in enumerate(trials) if relative_motion(t, model) >= STILL_MOTION]
+        moving0 = [i for i, t in enumerate(trials) if relative_motion(t, members) >= STILL_MOTION]
         early = trial_exchanges(model, trials, moving0, unknown0,
                                 [i for i in range(len(trials)) if i not in moving0])
         for x in early:
@@ -396,7 +400,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     damaged = [d[0] for d in damage] if damage is not None else None
     judged = tuple(without_broken(model, t, e)[0] for t, e in zip(trials, damaged, strict=True)) \
         if damaged is not None else trials
-    own_motion = [relative_motion(t, model) for t in judged] if run.outliers > 0 else []  # (none: nothing judged)
+    own_motion = [relative_motion(t, members) for t in judged] if run.outliers > 0 else []  # (none: nothing judged)
     misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(judged, own_motion, strict=False))
                       if moves >= STILL_MOTION and moves >= MISPLACED_MOTION * segment_jitter(t, model)
                       for m in misplaced_labels(model, [t], skip=centred, clean=False))
@@ -426,10 +430,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     motion: list[float] | None = own_motion if own_motion and len(trials) > 1 else None
     if unknown and run.new_markers:
         say(Progress("markers", f"placing {len(unknown)} trial markers the model does not know"))
-        motion = _trial_motion(model, judged)
-        placed = _assign_new_markers(model, trials, unknown, motion, declared)
+        motion = _trial_motion(members, judged)
+        placed = _assign_new_markers(model, trials, unknown, motion, declared, bare)
     if motion is None and len(trials) > 1:
-        motion = _trial_motion(model, judged)  # which trials are still (_still_lengths, moved and re-placed markers)
+        motion = _trial_motion(members, judged)  # which trials are still (_still_lengths, moved and re-placed markers)
     new = {m.label: m.segment for m in placed if m.segment is not None}
     ours = {*known, *new}
     jittery = tuple((i, x) for i, d in enumerate(damage or ()) for x in d[1] if x.label in ours)
@@ -469,8 +473,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
     # A trial that shows fewer markers than the others may not place segments they place (a static with the arms, a
     # walk without): its frames' coordinates there rest on the priors and the neighbouring frames, not on its markers.
+    # (A trial of new markers alone is judged once they are placed: at their segments' origins they place nothing.)
     by_trial = tuple((i, u) for i, u in ((i, _trial_unplaced(subject, t, [*shared, *new], visible, res, settings))
-                                         for i, t in enumerate(trials)) if u) if len(trials) > 1 else ()
+                                         for i, t in enumerate(trials) if i not in bare) if u) \
+        if len(trials) > 1 else ()
     for i, u in by_trial:
         say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: its markers do not place "
                                 f"{', '.join(x.segment for x in u)}, which the other trials place"))
@@ -488,7 +494,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         say(Progress("markers", f"{', '.join(banded_joints)}: centre held at the base model's (its segment carries "
                                 "only a cluster of new labels)"))
         settings = replace(settings, hold_centres=settings.hold_centres + banded_joints)
-    still_only = _still_only(model, judged, motion)
+    still_only = _still_only(members, judged, motion)
     still_centres = _still_centres(subject, settings, judged, motion) if run.auto_hold else ()
     if still_centres:
         say(Progress("markers", f"still trials: no motion places {', '.join(still_centres)}; their centres held "
@@ -600,8 +606,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         base0 = _hold_segments(subject, _on_model(subject, model, model.parameters()), settings.hold_segments,
                                settings.hold_centres)
         seeded = "the MTB seed" if still_only is None else "the base model at the subject's size"
-        params0, choice = choose_start(problem, known_obs, spans, {seeded: params0, "the base model": base0},
-                                       say, solver, ahead=run.ahead, lengths=lengths)
+        posable = [k for k in range(len(trials)) if k not in bare]  # (a bare trial's frames show nothing known yet)
+        params0, choice = choose_start(problem, known_obs, [spans[k] for k in posable],
+                                       {seeded: params0, "the base model": base0}, say, solver, ahead=run.ahead,
+                                       lengths=None if lengths is None else [lengths[k] for k in posable])
         seed = replace(seed, notes=(*seed.notes, choice), taken=params0 is not base0)
     evaluator = problem.frame_evaluator(params0.vector())
     # Each trial's first key frame also from a local solve from the default pose (the better fit taken): on
@@ -618,18 +626,23 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
 
     # Every second trial's poses are found ahead on the other core (calibrate.solve.ahead; no progress from
     # there), the others here: the same poses, 0.1 s sooner on pig_walk.
-    theirs = (trial_start(k) for k in range(1, len(trials), 2))
-    theirs = run_ahead(theirs) if run.ahead and len(trials) > 1 else theirs
+    odd = [k for k in range(1, len(trials), 2) if k not in bare]
+    theirs = (trial_start(k) for k in odd)
+    theirs = run_ahead(theirs) if run.ahead and len(odd) > 0 else theirs
     try:
-        mine = {k: trial_start(k, progress=True) for k in range(0, len(trials), 2)}
-        mine.update(zip(range(1, len(trials), 2), theirs, strict=True))
+        mine = {k: trial_start(k, progress=True) for k in range(0, len(trials), 2) if k not in bare}
+        mine.update(zip(odd, theirs, strict=True))
     finally:
         theirs.close()  # a child still running (this process failed first) stopped at once
+    if bare:  # their frames hold a posed trial's first pose until the new markers are placed (below)
+        first = mine[min(mine)]
+        mine.update({k: frames_of(first, np.zeros(spans[k].stop - spans[k].start, dtype=int)) for k in bare})
     start = stack_states([mine[k] for k in range(len(trials))])
     relabelled: list[ExchangedCluster] = list(early)
     sacral: dict[int, tuple[np.ndarray, str]] = {}
     if new:
-        places = _new_places(subject, problem.kin, start, obs, params0, placed)
+        posed_obs = _without_trials(obs, spans, bare)  # the new markers' places read where the model's markers posed
+        places = _new_places(subject, problem.kin, start, posed_obs, params0, placed)
         described = {label: said for t in trials for label, said in t.descriptions.items()}
         sacral = _far_sacral(places, _sacral_places(subject, params0, placed, known_obs, described, obs))
         if sacral:
@@ -643,8 +656,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             is_new[list(sacral)] = False
             known_obs = np.where(is_new[None, :, None], np.nan, obs)
             evaluator = problem.frame_evaluator(params0.vector())
-            start = stack_states([trial_start(k) for k in range(len(trials))])
-            places = _new_places(subject, problem.kin, start, obs, params0, placed)
+            start = stack_states([trial_start(k) if k not in bare else frames_of(start, spans[k])
+                                  for k in range(len(trials))])
+            places = _new_places(subject, problem.kin, start, posed_obs, params0, placed)
         if motion is not None and len(trials) > 1 and run.outliers > 0:
             # A cluster's labels exchanged in a still trial against the moving ones (a symmetric plate labelled the
             # other way round), by their places at the start's poses, which the other markers set: read back there,
@@ -661,16 +675,33 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
                 problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
                 relabelled += found
-                places = _new_places(subject, problem.kin, start, obs, params0, placed)
+                posed_obs = _without_trials(obs, spans, bare)
+                places = _new_places(subject, problem.kin, start, posed_obs, params0, placed)
         params0, base, placed = _place_new_markers(subject, places, params0, placed, sacral)
         problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
+        if bare:
+            # The trials of clusters alone posed by their clusters, placed now (frame-wise IK at the start geometry)
+            say(Progress("start", f"frame-wise inverse kinematics of {len(bare)} trial(s) of new markers alone, "
+                                  "placed from the others"))
+            evaluator = problem.frame_evaluator(params0.vector())
+            parts = {k: start_poses(problem.kin, obs[spans[k]], params0, key_stride(trials[k].rate),
+                                    evaluator=evaluator, local=True) for k in bare}
+            start = replace(stack_states([parts[k] if k in parts else frames_of(start, spans[k])
+                                          for k in range(len(trials))]), p=params0.vector())
+            at_places = add_markers(model, {m.label: (m.segment, m.position) for m in placed if m.segment})
+            late = tuple((i, u) for i in bare
+                         if (u := _trial_unplaced(at_places, trials[i], [*shared, *new], visible, res, settings)))
+            for i, u in late:
+                say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: its markers do not place "
+                                        f"{', '.join(x.segment for x in u)}, which the other trials place"))
+            by_trial = tuple(sorted(by_trial + late, key=lambda iu: iu[0]))
     far: list[FarJoint] = []
     far_obs = None  # the still trials' positions left out beyond their far joints
     if run.far_joints and len(trials) > 1:
         # A still trial holding a joint where the moving trials never go (arms out in the static, at the
         # sides in the walk): its markers beyond it left out (calibrate.calibration.far_joints).
-        motion = motion if motion is not None else _trial_motion(model, trials)
+        motion = motion if motion is not None else _trial_motion(members, trials)
         Zs, Qs = absolute(problem.kin, start, spans)
         far = far_joints(subject, Zs, Qs, spans, [m < STILL_MOTION for m in motion], problem.seen)
         if far:
@@ -1739,6 +1770,52 @@ def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
     return [relative_motion(t, model) for t in trials] if len(trials) > 1 else [0.0]
 
 
+def _without_trials(obs: np.ndarray, spans: Sequence[slice], trials: Sequence[int]) -> np.ndarray:
+    """`obs` (frames, markers, 3) with the frames of `trials` (indices into `spans`) unseen (NaN)."""
+    if not trials:
+        return obs
+    out = obs.copy()
+    for k in trials:
+        out[spans[k]] = np.nan
+    return out
+
+
+def _members(model: Model, declared: Mapping[str, str]) -> Model:
+    """`model` with the declared labels (the marker map's [segments]) as markers of their segments, at the segments'
+    origins: for what reads only which segment a label rides on (relative_motion), never for a place."""
+    return add_markers(model, {lab: (seg, np.zeros(3)) for lab, seg in declared.items()
+                               if lab not in model.marker_names}) if declared else model
+
+
+def _bare_trials(model: Model, trials: Sequence[Trial], declared: Mapping[str, str]) -> list[int]:
+    """The trials that show none of `model`'s markers in any frame, each showing three or more labels the marker map's
+    [segments] declares (a CAST protocol's walk, its clusters alone); CalibrateError (one line) for one that does not,
+    or where every trial is so."""
+    known = set(model.marker_names)
+
+    def shown(t: Trial, lab: str) -> bool:
+        return lab in t.labels and bool(np.isfinite(t.marker(lab)).any())
+
+    bare = [i for i, t in enumerate(trials) if not any(shown(t, lab) for lab in t.labels if lab in known)]
+    for i in bare:
+        t = trials[i]
+        mine = [lab for lab in t.labels if not UNLABELLED.fullmatch(lab)]
+        # (its labels' places are read where the other trials show them with the model's markers)
+        said = [lab for lab in mine if lab in declared and shown(t, lab)
+                and any(shown(u, lab) for k, u in enumerate(trials) if k not in bare)]
+        if len(said) < 3 or len(bare) == len(trials):
+            why = ("and neither does any other trial" if len(bare) == len(trials) else
+                   f"and {len(said)} of its labels are both under the marker map's [segments] and shown by a trial "
+                   "that shows the model's markers (3 or more pose it)")
+            raise CalibrateError(
+                f"{t.source or 'a trial'}: shows none of {model.path.name}'s markers in any frame (its labels: "
+                f"{', '.join(mine[:4])}{', ...' if len(mine) > 4 else ''}) {why}; list its clusters' labels under "
+                f"their segments in the marker map's [segments] (--markers map.toml) beside a trial that shows the "
+                f"model's markers and the clusters (a static), or pose it on a calibrated subject: calibrate ik TRIAL "
+                f"SUBJECT.urdf")
+    return bare
+
+
 def _declared(model: Model, marker_map: Mapping | None) -> dict[str, str]:
     """The marker map's new labels by segment (calibrate.io.labels.declared_segments: its ``[segments]`` table), each
     segment checked against `model` (CalibrateError, one line)."""
@@ -1776,7 +1853,8 @@ def _declared_doubts(model: Model, trials: Sequence[Trial], declared: Mapping[st
 
 
 def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str],
-                        motion: Sequence[float], declared: Mapping[str, str] | None = None) -> list[NewMarker]:
+                        motion: Sequence[float], declared: Mapping[str, str] | None = None,
+                        bare: Sequence[int] = ()) -> list[NewMarker]:
     """Segments for the trial markers the model does not know (seed 002's rigidity, against the
     model's known markers: calibrate.seed.association.associate_to_model over the trials' frames).
     Rigidity is judged on the trials that move (STILL_MOTION), if any: in a static trial every marker
@@ -1786,6 +1864,14 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     `declared`: label -> segment, the marker map's ``[segments]``: the user's word, taken without the tests (in a
     static alone too, where no test can tell)."""
     declared = {lab: seg for lab, seg in (declared or {}).items() if lab in unknown}
+    if bare:  # (the tests pose the trials by the model's markers: those that show none are judged without them)
+        keep = [i for i in range(len(trials)) if i not in bare]
+        shown = {lab for i in keep for lab in trials[i].labels}
+        found = {m.label: m for m in _assign_new_markers(
+            model, [trials[i] for i in keep], [lab for lab in unknown if lab in shown], [motion[i] for i in keep],
+            declared)}
+        return [found.get(lab) or NewMarker(lab, None, None, "seen only in trials that show none of the model's "
+                                                            "markers, where nothing poses it") for lab in unknown]
     if declared:
         # The others judged as without the map (with the declared among them: the rigidity test's threshold is set by
         # the trial's most rigid pairs, new labels' too, and PlugInC3D's sacral marker, at that threshold, had gone out

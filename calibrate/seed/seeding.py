@@ -396,6 +396,8 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
     # its trials 64; the distances of the rest are all NaN and slow to take medians of).
     shown = {lab for t in trials for lab in t.labels}
     names = [m.name for m in model.markers if m.name in shown]
+    if len(names) < 2:  # (a trial of clusters the model lacks, beside a static with its landmarks: no pair)
+        return None
     seg = np.array([model.segment_index(m.segment) for m in model.markers if m.name in shown], dtype=int)
     P = model_poses(model, names, SIZE_POSES, seed)  # (poses, markers, 3)
     D = np.linalg.norm(P[:, :, None] - P[:, None, :], axis=3)
