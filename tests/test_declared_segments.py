@@ -14,6 +14,7 @@ from scipy.ndimage import gaussian_filter1d
 from test_hosts import CLUSTER, _clustered
 
 from calibrate.calibration.pipeline import _assign_new_markers, calibrate
+from calibrate.calibration.regression import harrington
 from calibrate.calibration.report import summary_text
 from calibrate.cli import main
 from calibrate.errors import CalibrateError
@@ -151,9 +152,11 @@ def test_declaring_a_label_changes_that_label_only(human):
     assert all(said[n] == plain[n] and plain[n].segment == "tibia_l" for n in CLUSTER)
 
 
-def _cast_subject(tmp_path):
+def _cast_subject(tmp_path, plate: bool = False):
     """models/human.urdf with a cluster of three or four markers on the pelvis, each femur, tibia and calcaneus (a
-    CAST protocol's technical clusters): the subject the simulator draws from, and segment -> its cluster's labels."""
+    CAST protocol's technical clusters): the subject the simulator draws from, and segment -> its cluster's labels.
+    `plate`: the left thigh's a rectangular plate (LTH1..4 at its corners in turn, 80 x 120 mm, 50 mm off the
+    thigh), which a turn of 180 deg about its normal maps onto itself."""
     from calibrate.model.model import load_model
 
     rng = np.random.default_rng(1)
@@ -162,9 +165,12 @@ def _cast_subject(tmp_path):
           "tibia_r": ("RSK", (0.0, -0.2, 0.06)), "calcn_l": ("LFT", (0.12, 0.05, 0.0)),
           "calcn_r": ("RFT", (0.12, 0.05, 0.0))}
     extra, segments = "", {}
+    corners = [(-0.04, -0.06), (0.04, -0.06), (0.04, 0.06), (-0.04, 0.06)]
     for seg, (prefix, centre) in at.items():
         for i in range(3 if seg.startswith("calcn") else 4):
             x = np.array(centre) + rng.uniform(-0.04, 0.04, 3)
+            if plate and seg == "femur_l":
+                x = np.array([corners[i][0], -0.2 + corners[i][1], -0.12])
             name = f"{prefix}{i + 1}"
             segments.setdefault(seg, []).append(name)
             extra += (f'<link name="{name}"/><joint name="{name}_marker" type="fixed"><parent link="{seg}"/>'
@@ -212,6 +218,15 @@ def test_a_cast_session_calibrates_its_trials_of_clusters_alone(human, tmp_path)
     sd = np.degrees(np.std(cal.motions[1].angles[:, dofs] - sim.motion.angles[:, dofs], axis=0))
     assert sd.max() < 3.0, dict(zip([human.dof_names[k] for k in dofs], sd.round(1), strict=True))
 
+    # --hip-regression: Harrington's hips from the static's pelvis landmarks (the squats show none: their virtual
+    # markers unseen there, not refused before the fit), which then draw the hip centres from where the squats put them.
+    reg = calibrate(human, [static, only], Settings(hip_regression=True), marker_map={"segments": segments})
+    rasi, lasi, rpsi, lpsi = (static.marker(x) for x in ("RASI", "LASI", "RPSI", "LPSI"))
+    want_reg = np.median(np.stack(harrington(rasi, lasi, 0.5 * (rpsi + lpsi)), axis=1), axis=0)
+    before, after = (np.linalg.norm(np.median(_world_centres(c.model, c.params, c.motions[0], ("hip_r", "hip_l")),
+                                              axis=0) - want_reg, axis=1) for c in (cal, reg))
+    assert np.all(after < before - 0.002), (after, before)  # (the squats place the hips: they move a little)
+
     alone = calibrate(human, static, Settings(), marker_map={"segments": segments})
     posed = inverse_kinematics(build_kinematics(alone.model), only, alone.params).motion
     off2 = np.median(np.linalg.norm(_world_centres(alone.model, alone.params, posed, legs) - want, axis=2), axis=0)
@@ -234,3 +249,26 @@ def test_a_trial_of_clusters_alone_needs_them_declared_and_shown_beside_the_mode
             calibrate(human, trials, Settings(), marker_map=given)
         assert str(e.value).startswith("squats.c3d: shows none of human.urdf's markers in any frame"), str(e.value)
         assert "[segments]" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone_name_it(human, tmp_path):
+    """The static names the left thigh's plate turned 180 deg (AddBiomechanics' Expert1 does): its distances are the
+    same either way, the plate's places read from the static pose the squats' femur turned, and nothing later reads
+    the labels again (the squats' places come from the poses they set; the checks after the solve had left the
+    static's plate out as moved instead).  Of the relabellings that keep the plate's distances, the one that poses the
+    squats best is taken: said and listed as the other exchanges are (`relabelled`), and the hips end within 3 mm of
+    the truth."""
+    truth, segments = _cast_subject(tmp_path, plate=True)
+    sim = simulate_squats(truth, frames=150, noise_mm=1.0, seed=3)
+    static = simulate_static(truth, sim.truth, frames=60, noise_mm=1.0, seed=4).trial
+    turn = {"LTH1": "LTH3", "LTH3": "LTH1", "LTH2": "LTH4", "LTH4": "LTH2"}
+    swapped = replace(static, labels=tuple(turn.get(x, x) for x in static.labels), source="static.c3d")
+    only = sim.trial.select([lab for labs in segments.values() for lab in labs])
+    cal = calibrate(human, [swapped, only], Settings(), marker_map={"segments": segments})
+    (x,) = [x for x in cal.relabelled if x.trial == 0]
+    assert (x.segment, dict(zip(x.labels, x.read_as, strict=True))) == ("femur_l", turn)
+    assert min(x.own) > 3 * max(x.exchanged)
+    want = sim.clean_centres[:, [[j.name for j in truth.joints].index(n) for n in ("hip_l", "hip_r")]]
+    off = np.median(np.linalg.norm(_world_centres(cal.model, cal.params, cal.motions[1], ("hip_l", "hip_r")) - want,
+                                   axis=2), axis=0)
+    assert np.all(off < 0.003), off

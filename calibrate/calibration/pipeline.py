@@ -677,6 +677,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 relabelled += found
                 posed_obs = _without_trials(obs, spans, bare)
                 places = _new_places(subject, problem.kin, start, posed_obs, params0, placed)
+        unplaced_params, unplaced_new = params0, placed
         params0, base, placed = _place_new_markers(subject, places, params0, placed, sacral)
         problem = problem.with_base(base)
         start = replace(start, p=params0.vector())
@@ -684,11 +685,23 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             # The trials of clusters alone posed by their clusters, placed now (frame-wise IK at the start geometry)
             say(Progress("start", f"frame-wise inverse kinematics of {len(bare)} trial(s) of new markers alone, "
                                   "placed from the others"))
-            evaluator = problem.frame_evaluator(params0.vector())
-            parts = {k: start_poses(problem.kin, obs[spans[k]], params0, key_stride(trials[k].rate),
-                                    evaluator=evaluator, local=True) for k in bare}
-            start = replace(stack_states([parts[k] if k in parts else frames_of(start, spans[k])
-                                          for k in range(len(trials))]), p=params0.vector())
+            start = _pose_bare(problem, start, obs, spans, bare, trials, params0)
+            # A cluster the other trials name otherwise (a symmetric plate labelled the other way round in the static:
+            # AddBiomechanics' Expert1), by which labelling poses the trials of clusters alone best (_bare_exchanges)
+            found = _bare_exchanges(subject, problem, start, obs, spans, bare, trials, params0, placed)
+            for x in found:
+                say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}",
+                                               "the trials of its clusters alone")))
+            if found:
+                names_ = list(subject.marker_names)
+                obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
+                problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
+                relabelled += found
+                places = _new_places(subject, problem.kin, start, _without_trials(obs, spans, bare), unplaced_params,
+                                     unplaced_new)
+                params0, base, placed = _place_new_markers(subject, places, unplaced_params, unplaced_new, sacral)
+                problem = problem.with_base(base)
+                start = _pose_bare(problem, replace(start, p=params0.vector()), obs, spans, bare, trials, params0)
             at_places = add_markers(model, {m.label: (m.segment, m.position) for m in placed if m.segment})
             late = tuple((i, u) for i in bare
                          if (u := _trial_unplaced(at_places, trials[i], [*shared, *new], visible, res, settings)))
@@ -1768,6 +1781,102 @@ def _still_axes(model: Model, settings: Settings, trials: Sequence[Trial],
 def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
     """relative_motion of every trial (one trial: not measured, nothing to compare it with)."""
     return [relative_motion(t, model) for t in trials] if len(trials) > 1 else [0.0]
+
+
+def _pose_bare(problem: Problem, start: State, obs: np.ndarray, spans: Sequence[slice], bare: Sequence[int],
+               trials: Sequence[Trial], params: Parameters) -> State:
+    """`start` with the frames of the trials `bare` (their new markers alone) posed by them at `params` (frame-wise IK,
+    as the start poses the others), its geometry `params`."""
+    evaluator = problem.frame_evaluator(params.vector())
+    parts = {k: start_poses(problem.kin, obs[spans[k]], params, key_stride(trials[k].rate), evaluator=evaluator,
+                            local=True) for k in bare}
+    return replace(stack_states([parts[k] if k in parts else frames_of(start, spans[k]) for k in range(len(spans))]),
+                   p=params.vector())
+
+
+#: m: a relabelling of a cluster between the trials that show the model's markers and the trials of clusters alone is
+#: a candidate where it keeps every distance between the cluster's markers (medians over each side's frames) within
+#: this of the other side's: a symmetric plate's turns, an asymmetric cluster's true relabelling (skin moves a cluster's
+#: markers against each other by a few mm).
+BARE_MATCH = 0.010
+#: A candidate relabelling is taken where posing the trials of clusters alone with it fits them (the median over their
+#: frames of each frame's marker RMS) at most this times as well as with the labels as they are.
+BARE_GAIN = 0.5
+
+
+def _bare_exchanges(subject: Model, problem: Problem, start: State, obs: np.ndarray, spans: Sequence[slice],
+                    bare: Sequence[int], trials: Sequence[Trial], params: Parameters,
+                    placed: Sequence[NewMarker]) -> list[ExchangedCluster]:
+    """The clusters that the trials showing the model's markers name otherwise than the trials of clusters alone
+    (`bare`; `start` poses them at `params`, the clusters' places read from the others).  Their markers' distances to
+    each other cannot tell a symmetric plate turned about its symmetry (Expert1's static names its left thigh plate
+    turned 180 deg from its walk), and the clusters' places and the bare trials' poses agree with either labelling;
+    but the segment posed by a turned plate breaks the chain its neighbours' clusters pose.  So each relabelling that
+    keeps the distances (BARE_MATCH; 3 to 6 markers on one segment, shown on both sides) is tried: the bare trials
+    posed again with the places exchanged, and the one that fits them best taken where it fits BARE_GAIN times better
+    than the labels as they are.  One ExchangedCluster per trial with the model's markers that shows them, read as the
+    bare trials name them."""
+    from itertools import permutations
+
+    names = list(subject.marker_names)
+    posed = [k for k in range(len(spans)) if k not in bare]
+    rows_b = np.concatenate([np.arange(spans[k].start, spans[k].stop) for k in bare])
+    rows_p = np.concatenate([np.arange(spans[k].start, spans[k].stop) for k in posed])
+    new = {m.label for m in placed if m.segment}
+
+    def seen_in(rows: np.ndarray, k: int) -> bool:
+        return bool(np.isfinite(obs[rows, k]).all(axis=1).any())
+
+    groups: dict[str, list[int]] = {}
+    for k, m in enumerate(subject.markers):
+        if m.name in new and seen_in(rows_b, k) and seen_in(rows_p, k):
+            groups.setdefault(m.segment, []).append(k)
+
+    def distances(rows: np.ndarray, idx: list[int]) -> np.ndarray:
+        X = obs[rows][:, idx]
+        return np.nanmedian(np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3), axis=0)
+
+    def fit(p: Parameters) -> tuple[float, State]:
+        st = _pose_bare(problem, start, obs, spans, bare, trials, p)
+        r = problem.marker_residuals(st)[rows_b]
+        per = np.sqrt(np.nanmean(np.sum(r**2, axis=2), axis=1))
+        return float(np.nanmedian(per)), st
+
+    found = []
+    base = None
+    for segment, idx in groups.items():
+        if not 3 <= len(idx) <= 6:
+            continue
+        Dp, Db = distances(rows_p, idx), distances(rows_b, idx)
+        ident = tuple(range(len(idx)))
+        cands = [sg for sg in permutations(ident) if sg != ident
+                 and np.nanmax(np.abs(Dp - Db[np.ix_(sg, sg)])) < BARE_MATCH]
+        if not cands:
+            continue
+        base = fit(params)[0] if base is None else base
+        tried = {}
+        for sg in cands:
+            p = params.copy()
+            for i, j in enumerate(sg):  # the others' label idx[i] is the bare trials' idx[sg[i]]
+                p.marker[idx[j]] = params.marker[idx[i]]
+            tried[sg] = (*fit(p), p)
+        sg = min(tried, key=lambda x: tried[x][0])
+        cost, st, p = tried[sg]
+        if cost > BARE_GAIN * base:
+            continue
+        # Each label's place where the others show it against its place in the bare trials so posed (m)
+        _, _, local, _ = _new_places(subject, problem.kin, st, _without_trials(obs, spans, posed), p, placed)
+        at = {k: np.nanmedian(local[:, i], axis=0) for i, k in enumerate(k for k in range(len(names)) if names[k]
+                                                                           in new)}
+        scale = params.scale[subject.segment_index(segment)]
+        moved = [i for i in ident if sg[i] != i]
+        own = tuple(float(np.linalg.norm(scale * params.marker[idx[i]] - at[idx[i]])) for i in moved)
+        other = tuple(float(np.linalg.norm(scale * params.marker[idx[i]] - at[idx[sg[i]]])) for i in moved)
+        for k in posed:
+            if any(names[idx[i]] in trials[k].labels for i in moved):
+                found.append(ExchangedCluster(k, segment, tuple(names[idx[i]] for i in moved),
+                                              tuple(names[idx[sg[i]]] for i in moved), own, other))
+    return found
 
 
 def _without_trials(obs: np.ndarray, spans: Sequence[slice], trials: Sequence[int]) -> np.ndarray:

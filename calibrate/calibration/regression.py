@@ -338,9 +338,10 @@ def _regression_reference(model: Model, hips: dict[str, Joint], centres: Sequenc
 
 def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tuple[Trial, ...], dict[str, str]]:
     """The model with a virtual marker at each hip centre (on the thigh's origin, where the hip is) and the trials
-    with its Harrington position in every frame (NaN where a landmark is not seen); and the landmarks used
-    (Plug-in Gait name -> the model's label).  The trials' labels must be the model's (calibrate maps them
-    first).  One-line CalibrateError when the model lacks a hip or a landmark, or a trial lacks a landmark."""
+    with its Harrington position in every frame (NaN where a landmark is not seen; unseen in a trial that shows none
+    of the model's markers, beside one that shows the landmarks); and the landmarks used (Plug-in Gait name -> the
+    model's label).  The trials' labels must be the model's (calibrate maps them first).  One-line CalibrateError
+    when the model lacks a hip or a landmark, or a trial lacks a landmark."""
     found = _pelvis_landmarks(model, trials)
     need = [c for c in ("RASI", "LASI") if c not in found]
     if not need and not ("RPSI" in found and "LPSI" in found or "SACR" in found):
@@ -359,8 +360,16 @@ def regression_hips(model: Model, trials: tuple[Trial, ...]) -> tuple[Model, tup
             raise CalibrateError(f"hip_regression: {model.path.name} already has a marker {name}; rename it")
     used: dict[str, str] = {}
     out = []
-    for t in trials:
-        h = _harrington_of(t, found)
+    known = set(model.marker_names)
+    regressed = [_harrington_of(t, found) for t in trials]
+    for t, h in zip(trials, regressed, strict=True):
+        if h is None and any(r is not None for r in regressed) and not any(
+                lab in known and np.isfinite(t.marker(lab)).any() for lab in t.labels):
+            # A trial of clusters alone (a CAST protocol's walk beside its static): the virtual markers unseen there,
+            # the hips placed by the trials with the landmarks.
+            blank = np.full((t.n_frames, 1, 3), np.nan)
+            out.append(replace(t, labels=t.labels + VIRTUAL, markers=np.concatenate([t.markers, blank, blank], axis=1)))
+            continue
         if h is None:
             have = {c for c, label in found.items() if label in t.labels}
             missing = [found[c] for c in ("RASI", "LASI") if c not in have]
