@@ -136,6 +136,11 @@ def test_a_bad_segment_on_the_command_line_is_one_line_and_exit_2(human, tmp_pat
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "map.toml: [segments] names 'shank_l'" in err[0], err
     assert not (tmp_path / "s.urdf").exists()
+    # calibrate inspect, which shows what the labels become, says so too
+    code = main(["inspect", str(tmp_path / "t.c3d"), "--model", str(human.path), "--markers",
+                 str(tmp_path / "map.toml")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "[segments] names 'shank_l', which is not a segment of human.urdf" in err[0]
 
 
 def test_declaring_a_label_changes_that_label_only(human):

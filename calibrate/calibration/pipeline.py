@@ -99,7 +99,7 @@ from calibrate.seed.seeding import (
 )
 
 from ..errors import CalibrateError
-from ..io.labels import UNLABELLED, plug_in_gait_name
+from ..io.labels import UNLABELLED, declared_segments, plug_in_gait_name
 from ..io.measurements import SubjectMeasurements, first_measurements, lateral_markers_of
 from ..io.motion import Motion
 from ..io.trial import Trial
@@ -198,7 +198,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     # The linear algebra here is many small blocks plus one Schur complement: one BLAS thread is
     # faster than several (which also fight CasADi's two evaluation threads for the cores).
     label_maps: tuple = ()
-    declared = _declared(model, marker_map)
+    declared = declared_segments(marker_map, model)  # the marker map's new labels by segment ([segments])
     if marker_map or aliases:
         from ..io.labels import map_labels
 
@@ -1923,20 +1923,6 @@ def _bare_trials(model: Model, trials: Sequence[Trial], declared: Mapping[str, s
                 f"model's markers and the clusters (a static), or pose it on a calibrated subject: calibrate ik TRIAL "
                 f"SUBJECT.urdf")
     return bare
-
-
-def _declared(model: Model, marker_map: Mapping | None) -> dict[str, str]:
-    """The marker map's new labels by segment (calibrate.io.labels.declared_segments: its ``[segments]`` table), each
-    segment checked against `model` (CalibrateError, one line)."""
-    from ..io.labels import declared_segments
-
-    declared = declared_segments(marker_map)
-    segments = [s.name for s in model.segments]
-    if bad := [seg for seg in declared.values() if seg not in segments]:
-        raise CalibrateError(f"{getattr(marker_map, 'source', None) or 'marker map'}: [segments] names "
-                             f"'{bad[0]}', which is not a segment of {model.path.name}; use one of "
-                             f"{', '.join(segments[:8])}, ... (see calibrate inspect)")
-    return declared
 
 
 def _declared_doubts(model: Model, trials: Sequence[Trial], declared: Mapping[str, str],

@@ -632,11 +632,13 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
     became: dict[str, str] = {}
     if model_path is not None:
-        from ..io.labels import load_marker_map, map_labels
+        from ..io.labels import declared_segments, load_marker_map, map_labels
         from ..model.model import load_model
 
         model = load_model(model_path, getattr(args, "marker_set", None))
-        _, mapping = map_labels(t, model.marker_names, load_marker_map(args.markers) if args.markers else None)
+        given = load_marker_map(args.markers) if args.markers else None
+        declared_segments(given, model)  # (a segment the model lacks: refused as calibrate refuses it)
+        _, mapping = map_labels(t, model.marker_names, given)
         became = {m.trial_label: (f"-> {m.label} ({m.how})" if m.how != "unknown" else "unknown")
                   + (f"; {m.note}" if m.note else "") for m in mapping}
         became.update(_by_name(model, [m.trial_label for m in mapping if m.how == "unknown"]))

@@ -227,16 +227,24 @@ class MarkerMap(dict[str, list[str]]):
 SEGMENTS = "segments"
 
 
-def declared_segments(marker_map: Mapping | None) -> dict[str, str]:
+def declared_segments(marker_map: Mapping | None, model=None) -> dict[str, str]:
     """Trial label -> segment, as `marker_map`'s ``[segments]`` table declares them (a MarkerMap's ``segments``, or a
     mapping's ``"segments"`` entry: segment -> labels); {} where it declares none.  Checked as load_marker_map checks
-    the file's table (CalibrateError, one line); the segments are checked against the model by calibrate()."""
+    the file's table, and each segment against `model`'s (calibrate.model.Model), where given (CalibrateError, one
+    line)."""
     if marker_map is None:
         return {}
     table = getattr(marker_map, "segments", None)
     if table is None:
         table = marker_map.get(SEGMENTS) if isinstance(marker_map.get(SEGMENTS), Mapping) else {}
-    return _segment_table(table, getattr(marker_map, "source", None))
+    source = getattr(marker_map, "source", None)
+    declared = _segment_table(table, source)
+    if model is not None:
+        segments = [s.name for s in model.segments]
+        if bad := [seg for seg in declared.values() if seg not in segments]:
+            raise _map_error(source, f"[segments] names '{bad[0]}', which is not a segment of {model.path.name}",
+                             f"use one of {', '.join(segments[:8])}, ... (see calibrate inspect)")
+    return declared
 
 
 def _segment_table(table: Mapping, where: str | None) -> dict[str, str]:
