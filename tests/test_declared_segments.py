@@ -111,7 +111,7 @@ def test_declared_labels_on_skin_are_placed_and_a_wrong_segment_is_questioned(hu
     (tmp_path / "map.toml").write_text('[segments]\nfemur_l = ["LSH1", "LSH2", "LSH3"]\n')
     code = main([str(tmp_path / "t.c3d"), str(human.path), "-o", str(tmp_path / "s.urdf"), "--markers",
                  str(tmp_path / "map.toml"), "--report", str(tmp_path / "s.json"), "--html", str(tmp_path / "s.html"),
-                 "-q"])
+                 "--no-hip-regression", "-q"])  # (the shank on the femur puts the hips outside the pelvis: not redone)
     out = capsys.readouterr().out
     assert code == 0
     checks = [line for line in out.splitlines() if line.startswith("  check label  LSH")]
