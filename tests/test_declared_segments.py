@@ -1,10 +1,13 @@
 """The marker map's ``[segments]`` table: new labels put on the segment the lab names, without the hosts' tests
-(calibrate.io.labels.declared_segments, pipeline._declared, _declared_doubts).  Simulated subjects carrying a shank
-cluster the base model does not know (tests/test_hosts.py's); truth from the simulator."""
+(calibrate.io.labels.declared_segments, pipeline._declared_doubts); CAST sessions, whose movement trials show the
+clusters alone (pipeline._bare_trials, _bare_exchanges).  Simulated subjects carrying a shank cluster the base model
+does not know (tests/test_hosts.py's) or a CAST protocol's clusters (scripts/bench_cast.py's); truth from the
+simulator."""
 
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,6 +15,9 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter1d
 from test_hosts import CLUSTER, _clustered
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from bench_cast import cast_subject, world_centres  # noqa: E402  (the CAST subject, shared with the benchmark)
 
 from calibrate.calibration.pipeline import _assign_new_markers, calibrate
 from calibrate.calibration.regression import harrington
@@ -157,46 +163,6 @@ def test_declaring_a_label_changes_that_label_only(human):
     assert all(said[n] == plain[n] and plain[n].segment == "tibia_l" for n in CLUSTER)
 
 
-def _cast_subject(tmp_path, plate: bool = False):
-    """models/human.urdf with a cluster of three or four markers on the pelvis, each femur, tibia and calcaneus (a
-    CAST protocol's technical clusters): the subject the simulator draws from, and segment -> its cluster's labels.
-    `plate`: the left thigh's a rectangular plate (LTH1..4 at its corners in turn, 80 x 120 mm, 50 mm off the
-    thigh), which a turn of 180 deg about its normal maps onto itself."""
-    from calibrate.model.model import load_model
-
-    rng = np.random.default_rng(1)
-    at = {"pelvis": ("PV", (-0.17, 0.0, 0.0)), "femur_l": ("LTH", (0.0, -0.2, -0.07)),
-          "femur_r": ("RTH", (0.0, -0.2, 0.07)), "tibia_l": ("LSK", (0.0, -0.2, -0.06)),
-          "tibia_r": ("RSK", (0.0, -0.2, 0.06)), "calcn_l": ("LFT", (0.12, 0.05, 0.0)),
-          "calcn_r": ("RFT", (0.12, 0.05, 0.0))}
-    extra, segments = "", {}
-    corners = [(-0.04, -0.06), (0.04, -0.06), (0.04, 0.06), (-0.04, 0.06)]
-    for seg, (prefix, centre) in at.items():
-        for i in range(3 if seg.startswith("calcn") else 4):
-            x = np.array(centre) + rng.uniform(-0.04, 0.04, 3)
-            if plate and seg == "femur_l":
-                x = np.array([corners[i][0], -0.2 + corners[i][1], -0.12])
-            name = f"{prefix}{i + 1}"
-            segments.setdefault(seg, []).append(name)
-            extra += (f'<link name="{name}"/><joint name="{name}_marker" type="fixed"><parent link="{seg}"/>'
-                      f'<child link="{name}"/><origin xyz="{x[0]} {x[1]} {x[2]}" rpy="0 0 0"/></joint>\n')
-    path = tmp_path / "cast.urdf"
-    path.write_text((Path(__file__).resolve().parents[1] / "models" / "human.urdf").read_text()
-                    .replace("</robot>", extra + "</robot>"))
-    return load_model(path), segments
-
-
-def _world_centres(model, params, motion, names):
-    """Each of the joints `names`' centres in the world over `motion`'s frames, (frames, joints, 3) m."""
-    from calibrate.model.blocks import FrameLayout
-    from calibrate.model.kinematics import build_kinematics
-
-    Z = FrameLayout.coordinates(motion.root_translation, motion.angles)
-    _, C = build_kinematics(model).batch(Z, motion.root_quaternion, params)
-    index = [j.name for j in model.joints]
-    return C[:, [index.index(n) for n in names]]
-
-
 def test_a_cast_session_calibrates_its_trials_of_clusters_alone(human, tmp_path):
     """A CAST session: a static showing the model's landmarks and the clusters, squats showing the clusters only (none
     of the model's markers: refused before, after a crash).  Calibrated together, the clusters declared, the clusters
@@ -208,7 +174,7 @@ def test_a_cast_session_calibrates_its_trials_of_clusters_alone(human, tmp_path)
     from calibrate.model.kinematics import build_kinematics
     from calibrate.solve.ik import inverse_kinematics
 
-    truth, segments = _cast_subject(tmp_path)
+    truth, segments = cast_subject(human)
     sim = simulate_squats(truth, frames=200, noise_mm=1.0, seed=3)
     static = simulate_static(truth, sim.truth, frames=100, noise_mm=1.0, seed=4).trial
     clusters = [lab for labs in segments.values() for lab in labs]
@@ -217,7 +183,7 @@ def test_a_cast_session_calibrates_its_trials_of_clusters_alone(human, tmp_path)
     assert {m.label: m.segment for m in cal.new_markers} == {lab: s for s, labs in segments.items() for lab in labs}
     legs = ("hip_l", "hip_r", "knee_l", "knee_r")
     want = sim.clean_centres[:, [[j.name for j in truth.joints].index(n) for n in legs]]
-    off = np.median(np.linalg.norm(_world_centres(cal.model, cal.params, cal.motions[1], legs) - want, axis=2), axis=0)
+    off = np.median(np.linalg.norm(world_centres(cal.model, cal.params, cal.motions[1], legs) - want, axis=2), axis=0)
     assert np.all(off[:2] < 0.003) and np.all(off[2:] < 0.012), off
     dofs = [k for k, n in enumerate(human.dof_names) if n.split("_")[0] in ("hip", "knee", "ankle")]
     sd = np.degrees(np.std(cal.motions[1].angles[:, dofs] - sim.motion.angles[:, dofs], axis=0))
@@ -228,13 +194,13 @@ def test_a_cast_session_calibrates_its_trials_of_clusters_alone(human, tmp_path)
     reg = calibrate(human, [static, only], Settings(hip_regression=True), marker_map={"segments": segments})
     rasi, lasi, rpsi, lpsi = (static.marker(x) for x in ("RASI", "LASI", "RPSI", "LPSI"))
     want_reg = np.median(np.stack(harrington(rasi, lasi, 0.5 * (rpsi + lpsi)), axis=1), axis=0)
-    before, after = (np.linalg.norm(np.median(_world_centres(c.model, c.params, c.motions[0], ("hip_r", "hip_l")),
+    before, after = (np.linalg.norm(np.median(world_centres(c.model, c.params, c.motions[0], ("hip_r", "hip_l")),
                                               axis=0) - want_reg, axis=1) for c in (cal, reg))
     assert np.all(after < before - 0.002), (after, before)  # (the squats place the hips: they move a little)
 
     alone = calibrate(human, static, Settings(), marker_map={"segments": segments})
     posed = inverse_kinematics(build_kinematics(alone.model), only, alone.params).motion
-    off2 = np.median(np.linalg.norm(_world_centres(alone.model, alone.params, posed, legs) - want, axis=2), axis=0)
+    off2 = np.median(np.linalg.norm(world_centres(alone.model, alone.params, posed, legs) - want, axis=2), axis=0)
     assert np.all(off2[:2] > 0.010), off2
     k = human.dof_index("hip_l_flexion")
     assert np.degrees(np.std(posed.angles[:, k] - sim.motion.angles[:, k])) > 5.0
@@ -243,7 +209,7 @@ def test_a_cast_session_calibrates_its_trials_of_clusters_alone(human, tmp_path)
 def test_a_trial_of_clusters_alone_needs_them_declared_and_shown_beside_the_models_markers(human, tmp_path):
     """Refused in one line, naming the trial and what to do: the clusters not declared, or declared but shown only in
     the trial that shows none of the model's markers (nothing reads their places)."""
-    truth, segments = _cast_subject(tmp_path)
+    truth, segments = cast_subject(human)
     sim = simulate_squats(truth, frames=60, noise_mm=1.0, seed=3)
     static = simulate_static(truth, sim.truth, frames=30, noise_mm=1.0, seed=4).trial
     clusters = [lab for labs in segments.values() for lab in labs]
@@ -263,7 +229,7 @@ def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone
     static's plate out as moved instead).  Of the relabellings that keep the plate's distances, the one that poses the
     squats best is taken: said and listed as the other exchanges are (`relabelled`), and the hips end within 3 mm of
     the truth."""
-    truth, segments = _cast_subject(tmp_path, plate=True)
+    truth, segments = cast_subject(human, plate=True)
     sim = simulate_squats(truth, frames=150, noise_mm=1.0, seed=3)
     static = simulate_static(truth, sim.truth, frames=60, noise_mm=1.0, seed=4).trial
     turn = {"LTH1": "LTH3", "LTH3": "LTH1", "LTH2": "LTH4", "LTH4": "LTH2"}
@@ -274,6 +240,6 @@ def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone
     assert (x.segment, dict(zip(x.labels, x.read_as, strict=True))) == ("femur_l", turn)
     assert min(x.own) > 3 * max(x.exchanged)
     want = sim.clean_centres[:, [[j.name for j in truth.joints].index(n) for n in ("hip_l", "hip_r")]]
-    off = np.median(np.linalg.norm(_world_centres(cal.model, cal.params, cal.motions[1], ("hip_l", "hip_r")) - want,
+    off = np.median(np.linalg.norm(world_centres(cal.model, cal.params, cal.motions[1], ("hip_l", "hip_r")) - want,
                                    axis=2), axis=0)
     assert np.all(off < 0.003), off
