@@ -66,8 +66,10 @@ def test_the_segments_table_is_read_and_checked(tmp_path, human):
     assert mapping.renamed["L_Thigh"] == "L_Thigh" and "on femur_l ([segments])" in \
         next(m.note for m in mapping if m.trial_label == "L_Thigh")
     assert map_labels(trial, human.marker_names)[0].labels.count("LTHI") == 1  # (the alias, undeclared)
-    with pytest.raises(CalibrateError, match="lists 'LKNE', which is a marker of the model"):
-        map_labels(trial, human.marker_names, {"segments": {"femur_l": ["LKNE"]}})
+    with pytest.raises(CalibrateError, match="lists 'LKNE', which is a marker of human.urdf"):
+        calibrate(human, trial, Settings(), marker_map={"segments": {"femur_l": ["LKNE"]}})
+    # (map_labels reads it as the model's own: a subject calibrated with the map carries its new labels)
+    assert map_labels(trial, human.marker_names, {"segments": {"femur_l": ["LKNE"]}})[1].renamed["LKNE"] == "LKNE"
 
 
 def test_a_static_alone_places_the_declared_cluster(human):
@@ -126,6 +128,12 @@ def test_declared_labels_on_skin_are_placed_and_a_wrong_segment_is_questioned(hu
     new = {m["label"]: m for m in report["marker_set"]["new"]}
     assert all(new[n]["segment"] == "femur_l" and "tibia_l" in new[n]["check"] for n in CLUSTER)
     assert (tmp_path / "s.html").read_text().count("check label LSH") == 3
+    # The same map beside the subject it made (which carries its new labels): calibrate ik reads them as its own
+    (tmp_path / "ik").mkdir()
+    assert main(["ik", str(tmp_path / "t.c3d"), str(tmp_path / "s.urdf"), "--markers", str(tmp_path / "map.toml"),
+                 "-o", str(tmp_path / "ik"), "-q"]) == 0
+    ik = json.loads((tmp_path / "ik" / "t_ik_report.json").read_text())
+    assert {"LSH1", "LSH2", "LSH3"} <= set(json.dumps(ik).split('"'))
     # The spread figures it quotes: tibia_l's under half femur_l's.
     for c in checks:
         tib, fem = (float(x) for x in c.split("spreads ")[1].split(" on femur_l")[0].replace(" mm RMS on tibia_l,", "")

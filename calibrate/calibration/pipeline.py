@@ -199,6 +199,10 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     # faster than several (which also fight CasADi's two evaluation threads for the cores).
     label_maps: tuple = ()
     declared = declared_segments(marker_map, model)  # the marker map's new labels by segment ([segments])
+    if clash := [lab for lab in declared if lab in model.marker_names]:
+        raise CalibrateError(f"{getattr(marker_map, 'source', None) or 'marker map'}: [segments] "
+                             f"{declared[clash[0]]} lists {clash[0]!r}, which is a marker of {model.path.name}; "
+                             "[segments] is for labels the model does not have: remove it there")
     if marker_map or aliases:
         from ..io.labels import map_labels
 

@@ -563,11 +563,9 @@ def map_labels(
     model = [str(label) for label in model_labels]
     model_set = set(model)
     lookup = _check_marker_map(marker_map, model) if marker_map else {}
-    declared = declared_segments(marker_map)  # new labels by the user's word: kept as they are
-    if clash := [lab for lab in declared if lab in model_set]:
-        raise _map_error(getattr(marker_map, "source", None),
-                         f"[segments] {declared[clash[0]]} lists {clash[0]!r}, which is a marker of the model",
-                         "[segments] is for labels the model does not have: remove it there")
+    # New labels by the user's word, kept as they are; one the model has (a subject calibrated with this map, which
+    # carries them) is its own marker (calibrate() refuses a base model's: pipeline.calibrate).
+    declared = {lab: seg for lab, seg in declared_segments(marker_map).items() if lab not in model_set}
 
     def best(label: str) -> tuple[str, str, float] | None:
         """(model label, how, priority) of a whole label."""
