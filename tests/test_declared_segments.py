@@ -81,7 +81,9 @@ def test_a_static_alone_places_the_declared_cluster(human):
     static = simulate_static(truth, squats.truth, frames=120, noise_mm=1.0, seed=2).trial
     cal = calibrate(human, static, Settings(), marker_map=SHANK)
     placed = {m.label: m for m in cal.new_markers}
-    assert all(placed[n].segment == "tibia_l" and "[segments]" in placed[n].reason for n in CLUSTER)
+    assert all(placed[n].segment == "tibia_l" and placed[n].declared and "[segments]" in placed[n].reason
+               for n in CLUSTER)
+    assert "(3 new: 3 on the segments the marker map's [segments] names)" in summary_text(cal)
     assert not cal.ignored_labels and all(n in cal.model.marker_names for n in CLUSTER)
     s = cal.params.scale[human.segment_index("tibia_l")]
     got = {n: s * cal.params.marker[cal.model.marker_index(n)] for n in CLUSTER}

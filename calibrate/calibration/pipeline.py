@@ -1978,7 +1978,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
         by = {m.label: m for m in _assign_new_markers(model, trials, unknown, motion)}
         doubts = _declared_doubts(model, trials, declared, motion)
         return [NewMarker(lab, declared[lab], None, f"the marker map's [segments] puts it on {declared[lab]}",
-                          check=doubts.get(lab, "")) if lab in declared else by[lab] for lab in unknown]
+                          check=doubts.get(lab, ""), declared=True) if lab in declared else by[lab] for lab in unknown]
     moving = [i for i, a in enumerate(motion) if a >= STILL_MOTION] if len(trials) > 1 else [0]
     if _statics_alone(model, trials, motion if len(trials) > 1 else None):
         # No trial moves: every marker keeps its distance to every other and every segment's pose is as still as the

@@ -96,7 +96,8 @@ def calibration_report(cal: Calibration) -> dict:
         "marker_set": {
             "used": [n for n in model.marker_names if n not in cal.unused_markers],
             "new": [{"label": m.label, "segment": m.segment, "position_mm": [_mm(v) for v in m.position],
-                     "reason": m.reason, **({"check": m.check} if m.check else {})}
+                     "reason": m.reason, **({"check": m.check} if m.check else {}),
+                     **({"declared": True} if m.declared else {})}
                     for m in cal.new_markers if m.segment is not None],
             "left_out": [{"label": m.label, "reason": m.reason, "sits_by": list(m.sits_by)}
                          for m in cal.new_markers if m.segment is None],
@@ -780,6 +781,7 @@ def summary_text(cal) -> str:
     F = sum(t.n_frames for t in cal.trials)
     used = len(model.markers) - len(cal.unused_markers)
     n_new = sum(1 for m in cal.new_markers if m.segment is not None)
+    n_said = sum(1 for m in cal.new_markers if m.segment is not None and m.declared)
     n_free = len([c for c in cal.changes])  # count of reported quantities
     lines = ["calibrate: subject calibration"]
     for i, trial in enumerate(cal.trials):
@@ -798,7 +800,9 @@ def summary_text(cal) -> str:
                      + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen"
-        + (f" ({n_new} new, placed on segments by rigidity or the model's poses)" if n_new else "")
+        + (f" ({n_new} new, placed on segments by rigidity or the model's poses)" if n_new and not n_said else
+           f" ({n_new} new: {n_said} on the segments the marker map's [segments] names"
+           + (f", {n_new - n_said} by rigidity or the model's poses)" if n_new > n_said else ")") if n_new else "")
         + f", {left_out_clause(cal.ignored_labels)}, {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",

@@ -42,6 +42,7 @@ class NewMarker:
     # placed on the segment the marker map's [segments] names, where the base model's poses put it on another: why to
     # check it (pipeline._declared_doubts; the summary's `check label` line)
     check: str = ""
+    declared: bool = False  # placed where the marker map's [segments] puts it (no test of the hosts')
 
 
 @dataclass(frozen=True)
