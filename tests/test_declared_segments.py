@@ -230,6 +230,9 @@ def test_a_trial_of_clusters_alone_needs_them_declared_and_shown_beside_the_mode
             calibrate(human, trials, Settings(), marker_map=given)
         assert str(e.value).startswith("squats.c3d: shows none of human.urdf's markers in any frame"), str(e.value)
         assert "[segments]" in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(CalibrateError) as e:  # (alone: none of its labels the model's; the way that works named)
+        calibrate(human, only, Settings())
+    assert "only 0 of its labels match" in str(e.value) and "beside a static" in str(e.value)
 
 
 def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone_name_it(human, tmp_path):

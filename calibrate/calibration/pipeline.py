@@ -346,7 +346,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if len(shared) < 3:
         raise CalibrateError(f"{where}: only {len(shared)} of its labels match markers of {model.path.name} "
                              f"(model markers: {', '.join(model.marker_names[:6])}, ...); rename the labels "
-                             f"(--markers map.toml) or use a model with this marker set")
+                             f"(--markers map.toml) or use a model with this marker set"
+                             + ("; trials of clusters alone (a CAST protocol's) calibrate beside a static that shows "
+                                "the model's markers and the clusters, listed under their segments in the map's "
+                                "[segments]" if not shared else ""))
     # Trials of clusters alone beside one with the model's landmarks (a CAST protocol's static and walks): posed, once
     # the trials with the model's markers have placed the clusters, by the clusters (_bare_trials).
     bare = _bare_trials(model, trials, declared)
