@@ -1809,6 +1809,7 @@ BARE_MATCH = 0.010
 #: A candidate relabelling is taken where posing the trials of clusters alone with it fits them (the median over their
 #: frames of each frame's marker RMS) at most this times as well as with the labels as they are.
 BARE_GAIN = 0.5
+BARE_FRAMES = 300  # frames of each trial of clusters alone a relabelling is judged on (_bare_exchanges)
 
 
 def _bare_exchanges(subject: Model, problem: Problem, start: State, obs: np.ndarray, spans: Sequence[slice],
@@ -1843,10 +1844,16 @@ def _bare_exchanges(subject: Model, problem: Problem, start: State, obs: np.ndar
         X = obs[rows][:, idx]
         return np.nanmedian(np.linalg.norm(X[:, :, None] - X[:, None, :], axis=3), axis=0)
 
+    # Judged on about BARE_FRAMES evenly spaced frames of each bare trial, each posed from the one before (as the
+    # start's race poses its subsample): a 6000-frame walk's four posings took 4 s whole.
+    rows_s = np.concatenate([np.arange(spans[k].start, spans[k].stop)[:: max(1, (spans[k].stop - spans[k].start)
+                                                                           // BARE_FRAMES)] for k in bare])
+    sub = Problem(problem.model, obs[rows_s], problem.settings, problem.kin, problem.base)
+
     def fit(p: Parameters) -> tuple[float, State]:
-        st = _pose_bare(problem, start, obs, spans, bare, trials, p)
-        r = problem.marker_residuals(st)[rows_b]
-        per = np.sqrt(np.nanmean(np.sum(r**2, axis=2), axis=1))
+        st = replace(start_poses(problem.kin, obs[rows_s], p, stride=1, evaluator=sub.frame_evaluator(p.vector()),
+                                 local=True), p=p.vector())
+        per = np.sqrt(np.nanmean(np.sum(sub.marker_residuals(st) ** 2, axis=2), axis=1))
         return float(np.nanmedian(per)), st
 
     found = []
@@ -1872,7 +1879,7 @@ def _bare_exchanges(subject: Model, problem: Problem, start: State, obs: np.ndar
         if cost > BARE_GAIN * base:
             continue
         # Each label's place where the others show it against its place in the bare trials so posed (m)
-        _, _, local, _ = _new_places(subject, problem.kin, st, _without_trials(obs, spans, posed), p, placed)
+        _, _, local, _ = _new_places(subject, problem.kin, st, obs[rows_s], p, placed)
         at = {k: np.nanmedian(local[:, i], axis=0) for i, k in enumerate(k for k in range(len(names)) if names[k]
                                                                            in new)}
         scale = params.scale[subject.segment_index(segment)]
