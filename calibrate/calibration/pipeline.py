@@ -1971,7 +1971,9 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     and set the rigidity threshold at the static's noise (gait2392: 0.2 mm, its walk's 1.1 mm; pig_walk's
     thigh marker then came out closer to the right femur than to the left).  `motion`: _trial_motion.
     `declared`: label -> segment, the marker map's ``[segments]``: the user's word, taken without the tests (in a
-    static alone too, where no test can tell)."""
+    static alone too, where no test can tell).  `bare`: the trials that show none of the model's markers
+    (_bare_trials), which nothing poses before the new labels are placed: judged without them, and a label only they
+    show left out."""
     declared = {lab: seg for lab, seg in (declared or {}).items() if lab in unknown}
     if bare:  # (the tests pose the trials by the model's markers: those that show none are judged without them)
         keep = [i for i in range(len(trials)) if i not in bare]
