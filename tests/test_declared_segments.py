@@ -91,6 +91,8 @@ def test_a_static_alone_places_the_declared_cluster(human):
     want = {n: s0 * squats.truth.marker[truth.marker_index(n)] for n in CLUSTER}
     for a, b in (("LSH1", "LSH2"), ("LSH1", "LSH3"), ("LSH2", "LSH3")):
         assert abs(np.linalg.norm(got[a] - got[b]) - np.linalg.norm(want[a] - want[b])) < 0.003
+    with pytest.warns(UserWarning, match=r"\[segments\] lists 1 label no trial shows \(LSH9\)"):
+        calibrate(human, static, Settings(), marker_map={"segments": {"tibia_l": [*CLUSTER, "LSH9"]}})
     with pytest.raises(CalibrateError, match="names 'shin_l', which is not a segment of human.urdf"):
         calibrate(human, static, Settings(), marker_map={"segments": {"shin_l": list(CLUSTER)}})
 

@@ -203,6 +203,13 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
         raise CalibrateError(f"{getattr(marker_map, 'source', None) or 'marker map'}: [segments] "
                              f"{declared[clash[0]]} lists {clash[0]!r}, which is a marker of {model.path.name}; "
                              "[segments] is for labels the model does not have: remove it there")
+    if absent := [lab for lab in declared if not any(lab in t.labels for t in trials)]:
+        from ..io.labels import MarkerMapWarning
+
+        warnings.warn(f"{getattr(marker_map, 'source', None) or 'marker map'}: [segments] lists {len(absent)} label"
+                      f"{'' if len(absent) == 1 else 's'} no trial shows ({', '.join(absent[:6])}"
+                      f"{', ...' if len(absent) > 6 else ''}): check the spelling if the trials carry them",
+                      MarkerMapWarning, stacklevel=2)
     if marker_map or aliases:
         from ..io.labels import map_labels
 

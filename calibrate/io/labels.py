@@ -210,6 +210,10 @@ class LabelConflictWarning(UserWarning):
     """Several trial labels matched one model label equally well; the first in the trial was kept."""
 
 
+class MarkerMapWarning(UserWarning):
+    """A marker map's ``[segments]`` lists labels no trial shows (a misspelling, or a map for other sessions)."""
+
+
 class MarkerMap(dict[str, list[str]]):
     """A marker map: model label -> trial labels in order of preference; ``source`` names its file;
     ``segments``: segment -> the trial labels the model does not have that ride on it (the file's
