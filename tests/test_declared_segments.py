@@ -131,7 +131,8 @@ def test_declared_labels_on_skin_are_placed_and_a_wrong_segment_is_questioned(hu
     report = json.loads((tmp_path / "s.json").read_text())
     new = {m["label"]: m for m in report["marker_set"]["new"]}
     assert all(new[n]["segment"] == "femur_l" and "tibia_l" in new[n]["check"] for n in CLUSTER)
-    assert (tmp_path / "s.html").read_text().count("check label LSH") == 3
+    page = (tmp_path / "s.html").read_text()
+    assert page.count("check label LSH") == 3 and page.count("placed on femur_l (the marker map's [segments])") == 3
     # The same map beside the subject it made (which carries its new labels): calibrate ik reads them as its own
     (tmp_path / "ik").mkdir()
     assert main(["ik", str(tmp_path / "t.c3d"), str(tmp_path / "s.urdf"), "--markers", str(tmp_path / "map.toml"),

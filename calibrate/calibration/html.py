@@ -303,7 +303,8 @@ def _notes(report: dict) -> str:
         items.append(f"<li>{len(un)} parameters not identified by these trials (held by their priors): "
                      f"{_e(', '.join(un))}</li>")
     for m in report.get("marker_set", {}).get("new", []):
-        items.append(f"<li>new marker {_e(m.get('label'))} placed on {_e(m.get('segment'))}</li>")
+        items.append(f"<li>new marker {_e(m.get('label'))} placed on {_e(m.get('segment'))}"
+                     + (" (the marker map's [segments])" if m.get("declared") else "") + "</li>")
     left = report.get("marker_set", {}).get("left_out", [])
     if left:
         reasons, shared = shared_clause([m.get("reason", "") for m in left])
