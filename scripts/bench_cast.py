@@ -132,7 +132,8 @@ def expert1(folder: Path) -> dict:
         for i, lab in enumerate(t.labels):
             model_label = renamed.get(lab, lab)
             if lab in hosts:  # a cluster's marker
-                labels.append(lab), cols.append(t.markers[:, i])
+                labels.append(lab)
+                cols.append(t.markers[:, i])
                 declared[lab] = hosts[lab]
             elif model_label in seg:
                 if seg[model_label] not in ("femur_l", "femur_r", "tibia_l", "tibia_r"):
@@ -140,7 +141,8 @@ def expert1(folder: Path) -> dict:
                     cols.append(t.markers[:, i] + rng.normal(0.0, 0.001, t.markers[:, i].shape))
                     declared["c_" + lab] = seg[model_label]
                 if landmarks:
-                    labels.append(lab), cols.append(t.markers[:, i])
+                    labels.append(lab)
+                    cols.append(t.markers[:, i])
         return replace(t, labels=tuple(labels), markers=np.stack(cols, axis=1))
 
     session = [emulate(nohjc[0], True), emulate(nohjc[1], False)]
