@@ -685,9 +685,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             for x in found:
                 say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}")))
             if found:
-                names_ = list(subject.marker_names)
-                obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
-                problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
+                obs, raw, problem = _read_as(found, obs, raw, problem, spans)
                 relabelled += found
                 posed_obs = _without_trials(obs, spans, bare)
                 places = _new_places(subject, problem.kin, start, posed_obs, params0, placed)
@@ -707,9 +705,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 say(Progress("markers", x.text(trials[x.trial].source or f"trial {x.trial + 1}",
                                                "the trials of its clusters alone")))
             if found:
-                names_ = list(subject.marker_names)
-                obs, raw = (relabel_columns(a, spans, found, names_) for a in (obs, raw))
-                problem = problem.with_observed(relabel_columns(problem.observed, spans, found, names_))
+                obs, raw, problem = _read_as(found, obs, raw, problem, spans)
                 relabelled += found
                 places = _new_places(subject, problem.kin, start, _without_trials(obs, spans, bare), unplaced_params,
                                      unplaced_new)
@@ -1797,6 +1793,14 @@ def _trial_motion(model: Model, trials: Sequence[Trial]) -> list[float]:
     return [relative_motion(t, model) for t in trials] if len(trials) > 1 else [0.0]
 
 
+def _read_as(found: Sequence[ExchangedCluster], obs: np.ndarray, raw: np.ndarray, problem: Problem,
+             spans: Sequence[slice]) -> tuple[np.ndarray, np.ndarray, Problem]:
+    """The observations (`obs`, `raw` and the problem's) with each exchange of `found` read back in its trial."""
+    names = list(problem.model.marker_names)
+    return (relabel_columns(obs, spans, found, names), relabel_columns(raw, spans, found, names),
+            problem.with_observed(relabel_columns(problem.observed, spans, found, names)))
+
+
 def _pose_bare(problem: Problem, start: State, obs: np.ndarray, spans: Sequence[slice], bare: Sequence[int],
                trials: Sequence[Trial], params: Parameters) -> State:
     """`start` with the frames of the trials `bare` (their new markers alone) posed by them at `params` (frame-wise IK,
@@ -1886,9 +1890,8 @@ def _bare_exchanges(subject: Model, problem: Problem, start: State, obs: np.ndar
         if cost > BARE_GAIN * base:
             continue
         # Each label's place where the others show it against its place in the bare trials so posed (m)
-        _, _, local, _ = _new_places(subject, problem.kin, st, obs[rows_s], p, placed)
-        at = {k: np.nanmedian(local[:, i], axis=0) for i, k in enumerate(k for k in range(len(names)) if names[k]
-                                                                           in new)}
+        columns, _, local, _ = _new_places(subject, problem.kin, st, obs[rows_s], p, placed)
+        at = {k: np.nanmedian(local[:, i], axis=0) for i, k in enumerate(columns)}
         scale = params.scale[subject.segment_index(segment)]
         moved = [i for i in ident if sg[i] != i]
         own = tuple(float(np.linalg.norm(scale * params.marker[idx[i]] - at[idx[i]])) for i in moved)
