@@ -1204,13 +1204,15 @@ def test_an_axis_carried_far_where_its_joint_turns_little_is_held(human, human_k
 
 def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_kin, monkeypatch, tmp_path):
     """A ball (or universal) joint's centre the fit carries beyond its prior where the moving trials turn the joint
-    through less than NARROW_TURN in every angle is held at the base model's offset from its parent's markers
+    through less than NARROW_TURN about every axis is held at the base model's offset from its parent's markers
     (pipeline._narrow_centres: Rajagopal's run's back).  The squats' lumbar joint turned at an eighth of its motion:
     on clean simulated markers the fit keeps its centre near the truth, within the prior, so it is left free.  With
     NARROW_CENTRE_FAR at 0 (any shift counts as far) every ball or universal joint (the wrists) the simulator turns
-    through less than NARROW_TURN in each angle has its centre held, where the hold puts it (the base model's offset
-    from the parent's markers' centroid, at their layout's size), and named with its turn; the wide ones stay free."""
+    through less than NARROW_TURN about every axis (identifiability.joint_turns) has its centre held, where the hold
+    puts it (the base model's offset from the parent's markers' centroid, at their layout's size), and named with its
+    turn; those turned widely about two axes stay free."""
     import calibrate.calibration.pipeline as pipeline
+    from calibrate.calibration.identifiability import joint_turns
 
     sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=2)
     m = sim.motion
@@ -1221,8 +1223,10 @@ def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_
     F = ang.shape[0]
     M, _ = human_kin.batch(np.column_stack([m.root_translation, np.zeros((F, 3)), ang]), m.root_quaternion, sim.truth)
     trial = Trial(human.marker_names, M + np.random.default_rng(3).normal(scale=0.001, size=M.shape), sim.trial.rate)
-    span = {j.name: max(np.ptp(np.percentile(ang[:, human.dof_index(d)], [2, 98])) for d in j.dofs)
-            for j in human.joints if j.dofs}
+    balls = {b.name: b for b in human_kin.balls}
+    turns = {j.name: joint_turns(ang[:, [human.dof_index(d) for d in j.dofs]], balls.get(j.name))[0]
+             for j in human.joints if j.kind in ("ball", "universal")}
+    span = {n: t[0] for n, t in turns.items()}  # the widest turn
     assert np.radians(3.0) < span["lumbar"] < pipeline.NARROW_TURN < span["hip_l"]
     cal = calibrate(human, trial, Settings(), kinematics=human_kin)
     assert cal.narrow_centres == () and "lumbar" not in cal.settings.hold_centres
@@ -1235,10 +1239,13 @@ def test_a_centre_carried_far_where_its_joint_turns_little_is_held(human, human_
         if j.kind not in ("ball", "universal"):  # a hinge's centre along its axis is the prior's anyway: not judged
             assert j.name not in narrow and j.name not in held.settings.hold_centres, j.name
             continue
-        if locked & set(j.dofs) or abs(span[j.name] - pipeline.NARROW_TURN) < np.radians(1.0):
-            continue
-        assert (j.name in narrow) == (span[j.name] < pipeline.NARROW_TURN), (j.name, np.degrees(span[j.name]))
         assert (j.name in held.settings.hold_centres) == (j.name in narrow), j.name
+        if locked & set(j.dofs):
+            continue
+        if span[j.name] < pipeline.NARROW_TURN - np.radians(1.0):  # narrow about every axis
+            assert j.name in narrow, (j.name, np.degrees(turns[j.name]))
+        if turns[j.name][1] > pipeline.NARROW_TURN + np.radians(1.0):  # wide about two axes
+            assert j.name not in narrow, (j.name, np.degrees(turns[j.name]))
     # Where the hold puts a centre: its offset from the centroid of the parent's seen markers is the base model's at
     # the size of their layout (kappa: their spread about the centroid against the base model's), to the hold's SD;
     # with fewer than three markers on the parent, its place in the parent's frame is the base model's.
@@ -1298,6 +1305,56 @@ def test_a_centre_far_is_read_in_the_frames_its_markers_put(human, human_kin, mo
     assert read[False] == pytest.approx(np.linalg.norm([0.0, 0.03, 0.07]), abs=1e-9)
     assert turned[True] == pytest.approx(read[True], abs=1e-4)
     assert abs(turned[False] - read[False]) > 0.01
+
+
+def test_a_centre_shifted_along_its_joints_one_wide_turn_is_held(human, human_kin):
+    """A ball joint that turns widely about one axis alone places its centre across that axis, not along it
+    (pipeline._narrow_centres, ALONG_AXIS): a centre the fit carried far along that axis is held, one carried as far
+    across it is not (BTKData's PiG_Motion-FlatFoot-Full on Rajagopal2016.osim: the back 75 mm, mostly along its 22 deg
+    lumbar rotation's axis; shd01's 192 mm across its lateral bending's).  The turn is read along the rotations'
+    own principal directions: a turn about an axis between two of the joint's angles reads 28 deg in each, and is
+    still one turn.  Frames whose markers do not place the joint (`placed`: a subject outside the capture volume,
+    fitted to any pose there) are left out of its turn."""
+    import calibrate.calibration.pipeline as pipeline
+    from calibrate.model.rotations import rotvec_matrices
+
+    sim = simulate_squats(human, frames=20, noise_mm=0.0, seed=4)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), human_kin)
+    lumbar = human.joint_index("lumbar")
+    joint = human.joints[lumbar]
+    ball = next(b for b in human_kin.balls if b.name == "lumbar")
+    dofs = [human.dof_index(d) for d in joint.dofs]
+    origin = next(u.rotation for u in human.urdf_joints if u.name == joint.urdf_joints[0])
+    # One turn of 40 deg about the axis halfway between the joint's first two angles' axes (joint frame).
+    u = (ball.axes[0] + ball.axes[1]) / np.sqrt(2.0)
+    theta = np.radians(np.linspace(-20.0, 20.0, 81))
+    angles = np.zeros((theta.size, human.n_dofs))
+    angles[:, dofs] = ball.angles(rotvec_matrices(theta[:, None] * u))
+    split = np.ptp(angles[:, dofs], axis=0)
+    assert np.all(np.sort(split)[1:] > pipeline.NARROW_TURN)  # per angle: two wide turns
+    along, across = origin @ u, origin @ ball.axes[2]  # in the pelvis frame
+    shifted = {}
+    for name, d in (("along", along), ("across", across), ("near", np.cos(0.9) * along + np.sin(0.9) * across)):
+        P = human.parameters()
+        P.centre[lumbar] = P.centre[lumbar] + 0.08 * d / P.scale[human.segment_index("pelvis")]  # 80 mm
+        shifted[name] = pipeline._narrow_centres(problem, P.vector(), angles)
+    assert set(shifted["along"]) == {"lumbar"} and shifted["across"] == {}
+    turn, gap = shifted["along"]["lumbar"]
+    assert turn < np.radians(1.0) and gap == pytest.approx(0.08, abs=1e-9)  # the second turn: none
+    assert "lumbar" in shifted["near"]  # 52 deg from the axis: within ALONG_AXIS
+    # Narrow about every axis: held whichever way it was carried; frames that do not place the joint, turned wildly,
+    # are left out of the turn where `placed` says so.
+    P = human.parameters()
+    P.centre[lumbar] = P.centre[lumbar] + 0.08 * across / P.scale[human.segment_index("pelvis")]
+    narrow = angles.copy()
+    narrow[:, dofs] = ball.angles(rotvec_matrices(0.25 * theta[:, None] * u))
+    assert "lumbar" in pipeline._narrow_centres(problem, P.vector(), narrow)
+    wild = np.vstack([narrow, np.zeros((20, human.n_dofs))])
+    wild[-20:, dofs] = np.radians(np.linspace(-60.0, 60.0, 20))[:, None] * np.array([1.0, 0.8, 0.6])
+    placed = np.ones(wild.shape, dtype=bool)
+    placed[-20:, dofs] = False
+    assert pipeline._narrow_centres(problem, P.vector(), wild) == {}
+    assert "lumbar" in pipeline._narrow_centres(problem, P.vector(), wild, placed=placed)
 
 
 def test_limit_notes_name_coordinates_driven_past_their_limits(human):

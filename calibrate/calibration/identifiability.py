@@ -12,8 +12,10 @@ import numpy as np
 
 from ..io.labels import alias_for
 from ..model.blocks import FrameLayout, perpendicular_basis
+from ..model.kinematics import BallJoint
 from ..model.model import Joint, Model, Parameters
 from ..model.resolve import descendants
+from ..model.rotations import quat_inverse, quat_matrices, quat_multiply, quat_rotvecs
 from ..problem.options import Priors, ProblemOptions
 from ..problem.priors import SIZED_SEGMENTS
 from ..problem.problem import Problem
@@ -514,6 +516,28 @@ FAR_FROM_PRIOR = 3.0  # prior SDs: an axis the trial did not identify this far f
 #: axis by up to atan(4.4 / 20) = 12 deg, and a turn that narrow does not place an axis 30 deg from the base model's.
 #: BTKData's FunctionalLHip (a left-hip trial; the right knee turned 7 deg) carried knee_r's axis 46 deg.
 NARROW_TURN = math.radians(20.0)
+
+
+def joint_turns(angles: np.ndarray, ball: BallJoint | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """How far a ball or universal joint turns over frames, largest first (rad): the 2nd-to-98th percentile range of
+    each of its angles (`angles`: rows frames, columns its DoFs), or for a ball (`ball`: the solver's BallJoint of it)
+    of its rotations' vectors about their mean rotation along each of their principal directions; and for a ball
+    those directions (rows, unit, in the joint's frame: the frame its angles turn from; None otherwise).  A turn
+    about one axis places the joint's centre across that axis, not along it (every point of the axis is a centre of
+    that turn); a ball's angles would split one turn about an axis between their frames' axes, and read it as two."""
+    a = np.asarray(angles, dtype=float)
+    if ball is None or a.shape[1] != 3:
+        spread = np.percentile(a, 98, axis=0) - np.percentile(a, 2, axis=0)
+        return np.sort(spread)[::-1], None
+    q = ball.quaternion(a)
+    mean = np.linalg.eigh(q.T @ q)[1][:, -1]  # the mean rotation (Markley's: the largest eigenvector of sum q q^T)
+    w = quat_rotvecs(quat_multiply(quat_inverse(mean), q))  # each frame's turn from it, in the turned frame
+    w = w - np.median(w, axis=0)
+    V = np.linalg.eigh(np.cov(w.T))[1]
+    along = w @ V
+    spread = np.percentile(along, 98, axis=0) - np.percentile(along, 2, axis=0)
+    order = np.argsort(spread)[::-1]
+    return spread[order], (quat_matrices(mean[None])[0] @ V[:, order]).T
 
 
 def _far_from_prior(change: ParameterChange, priors: Priors, neighbours: tuple[str, ...] = ()) -> ParameterChange:

@@ -45,6 +45,7 @@ from calibrate.calibration.identifiability import (
     coordinate_notes,
     coordinate_spreads,
     even_frames,
+    joint_turns,
     length_differences,
     mirror_differences,
     parameter_changes,
@@ -131,6 +132,10 @@ NARROW_FAR = FAR_FROM_PRIOR  # prior SDs: "far" for NARROW_TURN, as for the repo
 # pig_walk's lumbar centre (55 mm from the base model's at the subject's scale, not flagged) was held, and its marker
 # RMS rose from 8.55 to 10.31 mm (docs/benchmarks.md).
 NARROW_CENTRE_FAR = FAR_FROM_PRIOR
+# rad: a far centre whose joint turns widely about one axis only is held where its shift lies within this of that
+# axis, the direction no turn about it places (_narrow_centres): PiG_Motion-FlatFoot-Full's back on Rajagopal2016.osim,
+# 75 mm, 37 deg from its 22 deg lumbar rotation's axis; shd01's, 192 mm, 80 deg from its lateral bending's.
+ALONG_AXIS = math.radians(60.0)
 
 
 OUTLIER_ROUNDS = 8  # rejection rounds (each takes at most one marker per frame)
@@ -1087,9 +1092,10 @@ def _hold_centres(problem: Problem, state: State, narrow: Mapping[str, tuple[flo
     say(Progress("solve", "the moving trials turn " + ", ".join(
         f"{n} through {math.degrees(t):.0f} deg (its centre carried {1000 * d:.0f} mm from the base model's at the "
         f"subject's scale)" for n, (t, d) in narrow.items())
-        + f" only (under {math.degrees(NARROW_TURN):.0f} in every angle: the skin's turn of the segments would place "
-        f"the centre): holding {'its centre' if len(narrow) == 1 else 'their centres'} at the base model's offset from "
-        "the markers, solving again"))
+        + f" at most about every axis but one (under {math.degrees(NARROW_TURN):.0f}: the skin's turn of the segments "
+        "would place the centre, and a turn about one axis leaves it anywhere along it): holding "
+        f"{'its centre' if len(narrow) == 1 else 'their centres'} at the base model's offset from the markers, "
+        "solving again"))
     problem = problem.with_settings(replace(problem.settings, hold_centres=problem.settings.hold_centres
                                             + tuple(narrow)), sigma=problem.sigma)
     return problem, replace(state, p=_held_centre_places(problem, state.p, tuple(narrow)))
@@ -1249,6 +1255,7 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
         return pr if whole else pr.subset(coarse, coarse_w)
 
     sub_trial = trial_of if whole else trial_of[coarse]  # the trial of each subsample row
+    placed = _placed_rows(problem, None if whole else coarse, sub_trial) if run.auto_hold else None
 
     names = [sources[i] if i < len(sources) and sources[i] else f"trial {i + 1}" for i in range(len(spans))]
     moved: list[MovedMarker] = []
@@ -1339,16 +1346,21 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
             for name in sorted(axes - set(held) - skip - {n for n, _ in problem.settings.lock}):
                 if turns.get(name, 0.0) <= far:
                     continue
-                th = angles[rows, problem.model.dof_index(name)]
+                d = problem.model.dof_index(name)
+                th = angles[rows[placed[rows, d]], d]
+                if th.size < 3:  # no frame's markers place it: no turn to read
+                    continue
                 turn = float(np.percentile(th, 98) - np.percentile(th, 2))
                 if turn < NARROW_TURN:
                     held.append(name)
                     narrow[name] = turn
-            # Centres carried beyond their prior where the moving trials turn the joint too little, in every angle of
-            # it, to place a centre of rotation against the skin (_narrow_centres).  Judged here, on the round's
+            # Centres carried beyond their prior where the moving trials turn the joint too little about every axis,
+            # or every axis but one (the centre carried along that one), to place a centre of rotation against the
+            # skin (_narrow_centres).  Judged here, on the round's
             # solution with the noise learnt: on the first solution, before it, the centres had not settled, and
             # pig_walk's lumbar and neck were held, its marker RMS 7.18 -> 8.17 mm (docs/benchmarks.md).
-            new_centres = _narrow_centres(problem, state.p, angles[rows], skip, run.segment_frames == "markers")
+            new_centres = _narrow_centres(problem, state.p, angles[rows], skip, run.segment_frames == "markers",
+                                          placed[rows])
         else:
             new_locks, new_centres = (), {}
         if not held and not found and not exchanged and not new_locks and not new_centres:
@@ -1443,39 +1455,73 @@ def _solve(problem: Problem, start: State, spans: list[slice], run: PipelineOpti
     return problem, state, summary, scatter, False, moved, locks, narrow, narrow_centres, relabelled
 
 
+def _placed_rows(problem: Problem, rows: np.ndarray | None, trial_of: np.ndarray) -> np.ndarray:
+    """Which coordinates each of the frames `rows` (None: every frame) places by the markers it shows
+    (model.resolve.unplaced_frames, within each trial: `trial_of`, the trial of each row): (rows, DoFs).  A frame that
+    shows none of a joint's markers (BTKData's Gait.c3d: the subject outside the capture volume in 293 of its 487
+    frames) fits any pose there; no turn of the joint is read from it."""
+    from ..model.resolve import unplaced_frames
+
+    seen = problem.seen if rows is None else problem.seen[rows]
+    out = np.ones((seen.shape[0], problem.model.n_dofs), dtype=bool)
+    locked = [n for n, _ in problem.settings.lock]
+    for i in np.unique(trial_of):
+        at = np.flatnonzero(trial_of == i)
+        out[at] = ~unplaced_frames(problem.model, seen[at], locked=locked)[1]
+    return out
+
+
 def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: Collection[str] = (),
-                    marker_frames: bool = False) -> dict[str, tuple[float, float]]:
+                    marker_frames: bool = False, placed: np.ndarray | None = None) -> dict[str, tuple[float, float]]:
     """The ball (and universal) joints' centres to hold for the narrow turn of their joint: carried by the fit (`p`)
     beyond NARROW_CENTRE_FAR prior SDs from the base model's at the subject's scale, while the moving trials turn
-    each angle of the joint through less than NARROW_TURN (2nd to 98th percentile of `angles`: rows the moving
-    trials' frames, columns every DoF's absolute angle).  A centre of rotation is placed by the arcs its child's
-    markers sweep about it; skin turns a segment against its bone by up to 4.4 deg in a walk, and arcs of a few
-    degrees leave the centre in a flat valley the skin's shifts decide: Rajagopal's run turns its lumbar joint 9-16
-    deg and carried the back's centre 117 mm from the base model's, an AddBiomechanics walk's lumbar 64 mm
-    (docs/benchmarks.md).  Not the joints whose DoFs are locked or in `skip` (a hinge locked for a trade), nor those
-    a joint-centre marker the trials show places (a lab's hip centre), nor those held already.  `marker_frames`: the
-    distance is read, as the report will read it, with the segment frames turned to where their markers put them
-    (Settings.segment_frames "markers", calibrate.problem.gauge.align_frames): in the solver's own frames gait2392's
-    pelvis stood 15 deg from its markers' and its back's centre 52 mm from the base model's, in its markers' 72 mm.
-    Joint -> (its largest angle's turn, rad; the centre's distance from the base model's at the subject's scale, m)."""
+    the joint through less than NARROW_TURN about every axis but one (identifiability.joint_turns, the second: rows
+    of `angles` the moving trials' frames, columns every DoF's absolute angle; `placed`, the coordinates each row's
+    markers place (_placed_rows), the rows that do not place the joint's left out).  A centre of rotation is placed
+    by the arcs its child's markers sweep about it; skin turns a segment against its bone by up to 4.4 deg in a
+    walk, and arcs of a few degrees leave the centre in a flat valley the skin's shifts decide: Rajagopal's run turns
+    its lumbar joint 9-16 deg and carried the back's centre 117 mm from the base model's, an AddBiomechanics walk's
+    lumbar 64 mm (docs/benchmarks.md).  A turn about one axis alone leaves the centre anywhere along that axis:
+    BTKData's shd01 turns its lumbar 26 deg in lateral bending and 7 deg about any other axis, and carried the back's
+    centre 168 mm on Rajagopal2016.osim.  Not the joints whose DoFs are locked or in `skip` (a hinge locked for a
+    trade), nor those a joint-centre marker the trials show places (a lab's hip centre), nor those held already.
+    `marker_frames`: the distance is read, as the report will read it, with the segment frames turned to where
+    their markers put them (Settings.segment_frames "markers", calibrate.problem.gauge.align_frames): in the
+    solver's own frames gait2392's pelvis stood 15 deg from its markers' and its back's centre 52 mm from the base
+    model's, in its markers' 72 mm.  Joint -> (its second turn, rad; the centre's distance from the base model's at
+    the subject's scale, m)."""
     st = problem.settings
     if "centre" not in st.free or not st.priors.centre > 0 or angles.shape[0] < 3:
         return {}
     model = problem.model
-    P, B = model.unpack(problem.align_frames(p, MARKER_FRAMES)[0] if marker_frames else p), problem.base
+    net: dict[int, np.ndarray] = {}  # each segment's turn to its markers' frame (its frame R becomes R N)
+    P, B = model.unpack(problem.align_frames(p, MARKER_FRAMES, net=net)[0] if marker_frames else p), problem.base
     locked = {n for n, _ in st.lock} | set(skip)
     marked = {t.joint for t in problem.joint_markers() if problem.seen[:, t.marker].any()}
+    balls = {b.name: b for b in problem.kin.balls}
+    urdf = {u.name: u for u in model.urdf_joints}
     far = NARROW_CENTRE_FAR * st.priors.centre
     out: dict[str, tuple[float, float]] = {}
     for ji, j in enumerate(model.joints):
         if j.kind not in ("ball", "universal") or j.name in st.hold_centres or ji in marked or any(
                 d in locked for d in j.dofs):
             continue
-        gap = float(P.scale[model.segment_index(j.parent)]) * float(np.linalg.norm(P.centre[ji] - B.centre[ji]))
-        a = angles[:, [model.dof_index(d) for d in j.dofs]]
-        turn = float(np.max(np.percentile(a, 98, axis=0) - np.percentile(a, 2, axis=0)))
-        if gap > far and turn < NARROW_TURN:
-            out[j.name] = (turn, gap)
+        si = model.segment_index(j.parent)
+        shift = float(P.scale[si]) * (P.centre[ji] - B.centre[ji])  # in the parent's frame
+        gap = float(np.linalg.norm(shift))
+        dofs = [model.dof_index(d) for d in j.dofs]
+        rows = np.ones(angles.shape[0], dtype=bool) if placed is None else placed[:, dofs].all(axis=1)
+        if gap <= far or rows.sum() < 3:
+            continue
+        turns, axes = joint_turns(angles[np.ix_(rows, dofs)], balls.get(j.name))
+        if turns[0] < NARROW_TURN:
+            out[j.name] = (float(turns[0]), gap)
+        elif len(turns) > 1 and turns[1] < NARROW_TURN and axes is not None:
+            # One wide turn places the centre across its axis, not along it: a shift mostly along the axis (within
+            # ALONG_AXIS of it) is the skin's; one across it the wide turn's (shd01's back, 192 mm, 80 deg from it).
+            axis = net.get(si, np.eye(3)).T @ urdf[j.urdf_joints[0]].rotation @ axes[0]
+            if abs(float(shift @ axis)) > math.cos(ALONG_AXIS) * gap:
+                out[j.name] = (float(turns[1]), gap)
     return out
 
 

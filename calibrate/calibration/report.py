@@ -848,8 +848,9 @@ def summary_text(cal) -> str:
            "of new labels (a head band), whose places and the centre would trade"] if cal.cluster_centres else []),
         *(["  centres held " + _held_list(cal, narrow_c) + ": the moving trials turn "
            + ", ".join(f"{j} through {math.degrees(t):.0f} deg" for j, t in narrow_c.items())
-           + f" at most in any angle (under {math.degrees(NARROW_TURN):.0f} deg: too little to place a centre of "
-           "rotation against the skin's turn of the segments), and the fit had carried "
+           + f" at most about every axis but one (under {math.degrees(NARROW_TURN):.0f} deg: too little to place a "
+           "centre of rotation against the skin's turn of the segments, and a turn about one axis leaves it anywhere "
+           "along it), and the fit had carried "
            + ("it" if len(narrow_c) == 1 else "each") + " beyond its prior (--no-auto-hold leaves it there)"]
           if (narrow_c := dict(cal.narrow_centres)) else []),
         *([f"  centres held {', '.join(cal.still_centres)}: the trials are still and do not turn these ball joints, "

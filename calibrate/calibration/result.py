@@ -227,9 +227,10 @@ class Calibration:
     # (DoF, its turn over the moving trials, rad) for those of held_axes held because the trials turn them too little
     # to place their axis against the skin's turn of the segments (pipeline.NARROW_TURN), not because they are still
     narrow_axes: tuple[tuple[str, float], ...] = ()
-    # (joint, its largest angle's turn over the moving trials, rad) of the centres calibrate held (Settings.hold_centres
-    # as used) because the fit carried them far from the base model's where the trials turn the joint too little to
-    # place a centre against the skin's turn of the segments (pipeline._narrow_centres)
+    # (joint, its turn over the moving trials, rad: its widest, or where one turn is wide its second) of the centres
+    # calibrate held (Settings.hold_centres as used) because the fit carried them far from the base model's where the
+    # trials turn the joint too little, or about one axis only, to place a centre against the skin's turn of the
+    # segments (pipeline._narrow_centres)
     narrow_centres: tuple[tuple[str, float], ...] = ()
     # (DoF, marker, marker) per hinge whose axis Priors.pair_axis drew along the line of two markers straddling its
     # centre (the epicondyles, the malleoli; calibrate.problem.priors.straddling_pairs), its centre slid to their
