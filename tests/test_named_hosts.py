@@ -4,6 +4,7 @@ model marks its pelvis otherwise (gait2392's V.Sacral).  Real trials: pig_walk (
 Rajagopal2016 and gait2392 models, from ../shared/data/real (skipped where absent)."""
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -95,3 +96,35 @@ def test_hip_regression_reads_the_trials_psis_where_the_model_has_a_sacral_marke
         asis = np.nanmedian(np.linalg.norm(at["R.ASIS"] - at["L.ASIS"], axis=1))
         assert h.width[1] == pytest.approx(asis, abs=1e-12)
         assert h.width[0] == pytest.approx(0.66 * asis + 0.0146, abs=2e-3)  # a median of widths, not of ASIS
+
+
+@pytest.mark.skipif(not (REAL / "pig_walk" / "walk.c3d").exists() or not (REAL / "rajagopal_walk").exists(),
+                    reason="real trials not present")
+def test_a_wand_left_out_goes_where_its_name_and_its_best_segment_agree(monkeypatch):
+    """A Plug-in Gait wand the poses leave out (its place spreads more than HOST_SPREAD everywhere: a thigh posed by
+    its knee marker alone turns about its long axis in the model's poses) goes on the segment its name says where its
+    place spreads least there (c3d.org's PlugInC3D on Rajagopal2016.osim: LTHI 38.6 mm on femur_l, 51 on tibia_l;
+    left out, its hips ended 86 mm apart).  Here pig_walk on Rajagopal2016 with HOST_SPREAD at 8 mm: the thigh and
+    shank wands over it (14.6-15.7, 9.4 mm) go on their femur and tibia by name, the arms' and head's stay left out;
+    with the left wands' names exchanged, name and place disagree and both are left out."""
+    import calibrate.calibration.hosts as hosts
+
+    raj = load_model(REAL / "rajagopal_walk" / "Rajagopal2016.osim")
+    monkeypatch.setattr(hosts, "HOST_SPREAD", 0.008)
+    out = _hosts(raj, *PIG)
+    for label, segment in (("RTHI", "femur_r"), ("LTHI", "femur_l"), ("LTIB", "tibia_l")):
+        spread = float(re.search(r"spreads ([\d.]+) mm RMS on (\w+) at best", out[label].reason).group(1))
+        assert spread > 8.0 and out[label].segment == segment, (label, out[label].reason)
+        assert out[label].reason.endswith("which decides")
+    assert all(out[x].segment is None for x in ("LUPA", "RUPA", "LFHD", "RFHD"))
+    # The left thigh and shank wands' names exchanged in every trial: the place says one segment, the name another.
+    swap = {"LTHI": "LTIB", "LTIB": "LTHI"}
+    trials = []
+    for p in PIG:
+        t = map_labels(read_trial(p), raj.marker_names, None, aliases=True)[0]
+        trials.append(replace(t, labels=tuple(swap.get(x, x) for x in t.labels)))
+    unknown = sorted({x for t in trials for x in t.labels if x not in set(raj.marker_names)
+                      and not UNLABELLED.fullmatch(x)})
+    swapped = {m.label: m for m in _assign_new_markers(raj, trials, unknown, _trial_motion(raj, trials))}
+    assert swapped["LTHI"].segment is None and swapped["LTIB"].segment is None
+    assert swapped["RTHI"].segment == "femur_r"

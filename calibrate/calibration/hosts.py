@@ -16,6 +16,7 @@ where its place spreads least, if that spread is under HOST_SPREAD and at most H
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -31,6 +32,9 @@ from ..model.sides import named_side, unsided
 HOST_FRAMES = 40  # about this many evenly spaced frames of the moving trials are posed (about 0.1 s a round)
 HOST_SPREAD = 0.020  # m: RMS spread of a label's place on its segment (skin, the few markers' poses) at most
 HOST_RATIO = 0.5  # ... and at most this share of its spread on the next-best segment
+#: m: a Plug-in Gait wand the poses leave out goes on the segment its name says where its place spreads least there
+#: and, as its distance from and along the segment's long axis (axial_spread), at most this: as a host's (HOST_SPREAD)
+AXIAL_SPREAD = 0.020
 HOST_ROUNDS = 3  # rounds: the labels placed join the known markers, the others judged again
 PLACEHOLDER_TAG = "placeholder:"  # a placeholder marker's label while trial_exchanges hosts it as new
 TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD over the poses) rides on its parent
@@ -191,6 +195,8 @@ class Host:
     runner_up_spread: float
     place: np.ndarray
     named: str = ""  # the segment kind its name says, where that decided between near ties (named_kind)
+    # m: its place's RMS spread on `best` as its distance from and along that segment's long axis (axial_spread)
+    axial: float = math.inf
 
     def reason(self) -> str:
         """Why it was placed there, or (no segment) left out, in the words of the rigidity test's reasons."""
@@ -318,8 +324,25 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
             ok = True
         out[lab] = Host(lab, candidates[best] if ok else None, candidates[best], float(spread[best]),
                         candidates[second], float(spread[second]), mid[best],
-                        named_kind(lab, described.get(lab)) if by_name else "")
+                        named_kind(lab, described.get(lab)) if by_name else "",
+                        axial_spread(model, candidates[best], P[:, best]))
     return out
+
+
+def axial_spread(model: Model, segment: str, places: np.ndarray) -> float:
+    """The RMS spread (m) of a label's `places` in `segment`'s frame (frames, 3) as its distance from the segment's
+    long axis (from its origin to its farthest child joint: a femur's hip to its knee) and its place along it: what
+    stays of the spread when the poses leave the segment's turn about that axis loose (a thigh posed by its knee
+    marker and its hip alone).  inf for a segment without a child joint."""
+    offsets = [np.asarray(u.xyz, dtype=float) for j in model.joints if j.parent == segment
+               for u in model.urdf_joints if u.name == j.urdf_joints[0]]
+    far = max(offsets, key=np.linalg.norm, default=None)
+    if far is None or np.linalg.norm(far) < 1e-9:
+        return math.inf
+    axis = far / np.linalg.norm(far)
+    along = places @ axis
+    across = np.linalg.norm(places - along[:, None] * axis, axis=1)
+    return float(np.sqrt(np.mean((along - np.median(along)) ** 2 + (across - np.median(across)) ** 2)))
 
 
 def _candidates(model: Model, trials: Sequence[Trial], fits: Sequence[tuple[Trial, object]]) -> list[str]:

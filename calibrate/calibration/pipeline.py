@@ -29,12 +29,16 @@ from calibrate.calibration import regression
 from calibrate.calibration.far_joints import FarJoint, far_joints, refit_beyond
 from calibrate.calibration.gauge import align_gauge, align_markers, align_neutral
 from calibrate.calibration.hosts import (
+    AXIAL_SPREAD,
+    NAMED_SEGMENTS,
     centre_labels,
     centre_segments,
     cluster_hosts,
     joint_hosts,
     kinematic_hosts,
     medial_host,
+    named_kind,
+    named_segments,
     past_joints,
     trial_exchanges,
 )
@@ -2103,6 +2107,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                          ) if rest else {}
     by_turn = {lab: h.segment for lab, h in joints.items() if h.segment is not None}
     past.update(past_joints(model, used, by_turn) if by_turn else {})
+    described = {lab: said for t in trials for lab, said in t.descriptions.items()}
     out = []
     for lab in unknown:
         if lab in medial:
@@ -2127,6 +2132,18 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
             out.append(NewMarker(lab, c.segment, c.places[c.labels.index(lab)], c.reason(lab)))
         elif lab in joints and joints[lab].segment is not None:
             out.append(NewMarker(lab, joints[lab].segment, None, joints[lab].reason(lab)))
+        elif assoc[lab].segment is None and lab in hosts and hosts[lab].axial <= AXIAL_SPREAD \
+                and named_kind(lab, described.get(lab)) in NAMED_SEGMENTS \
+                and hosts[lab].best in named_segments(model, lab, described.get(lab)):
+            # A Plug-in Gait wand whose place spreads least on the segment its name says, though more than a host's,
+            # for the loose turn of that segment about its long axis in the model's poses (a thigh posed by its knee
+            # marker alone): about that axis it spreads as a host's would (hosts.axial_spread).  PlugInC3D's LTHI on
+            # Rajagopal2016.osim: 38.6 mm on femur_l, 51 on tibia_l, about the femur's axis 19; left out, its hips
+            # ended 86 mm apart.  The data and the name agree, as the marker map's [segments] would say.
+            h = hosts[lab]
+            out.append(NewMarker(lab, h.best, None, f"{h.reason()}; about its long axis {1e3 * h.axial:.1f} mm, and "
+                                                    f"its name says the {named_kind(lab, described.get(lab))}, "
+                                                    "which decides"))
         else:
             # (judged on the poses too, where markerless segments that turn were candidates: the rigidity test's
             # clause that they cannot receive markers no longer holds)

@@ -331,6 +331,16 @@ def plug_in_gait_name(label: str) -> str | None:
     return codes[0][0] if codes else None
 
 
+OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
+
+
+def osim_name(label: str) -> str:
+    """`label` as an OpenSim marker may be named: each character OpenSim does not allow in names (OSIM_INVALID_CHARS)
+    as '_' (BTS's Davis labels: 'r bar 1' -> 'r_bar_1').  A calibrated subject's .osim names a new marker so; its
+    trials' label is read as that marker (map_labels)."""
+    return "".join("_" if c in OSIM_INVALID_CHARS else c for c in label)
+
+
 def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None:
     """The model label a trial label is a common spelling of, and its rank in the alias table (0 best).
 
@@ -577,6 +587,8 @@ def map_labels(
             return lookup[label][0], "map", lookup[label][1]  # is its computed knee centre; RKNE1 the epicondyle)
         if label in model_set:
             return label, "exact", 0
+        if (named := osim_name(label)) != label and named in model_set:  # its marker in a subject's .osim
+            return named, "exact", 0
         if aliases:
             found = alias_for(label, model_set)
             if found is not None:

@@ -79,6 +79,7 @@ from ..model.model import Model, Parameters, UrdfJoint
 from ..model.rotations import euler_matrices, matrix_eulers, quat_eulers
 from ..model.urdf import origin_of, urdf_visuals
 from ..seed.geometry import Transform, compose, identity_transform, invert
+from .labels import OSIM_INVALID_CHARS, osim_name
 from .motion import Motion
 from .osim import FLOATING_ROOT
 from .osim_forces import NOTE_MARK, CarriedForces, carried_forces, forces_lines
@@ -89,7 +90,6 @@ from .trial import Trial
 ROOT_ROTATIONS = FLOATING_ROOT[:3]  # body-fixed z, y', x'' (scipy "ZYX"): root_rz, root_ry, root_rx
 ROOT_TRANSLATIONS = FLOATING_ROOT[3:]  # ground axes, as the motion CSV's columns: root_x, root_y, root_z
 GRAVITY = (0.0, 0.0, -9.80665)
-OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
 UNBOUNDED_ROTATION = 4 * np.pi  # range written for continuous joints and the root's angles (unclamped)
 UNBOUNDED_TRANSLATION = 100.0  # m, range written for the root's translations (unclamped)
 _ZERO_OFFSET = 1e-12  # m: a chain origin translating less than this counts as none
@@ -429,7 +429,7 @@ class _Builder:
             ET.SubElement(ET.SubElement(m, "ForceSet", name="forceset"), "objects").extend(self.carried.forces)
         objs = ET.SubElement(ET.SubElement(m, "MarkerSet", name="markerset"), "objects")
         for i, mk in enumerate(model.markers):
-            el = ET.SubElement(objs, "Marker", name=mk.name)
+            el = ET.SubElement(objs, "Marker", name=osim_name(mk.name))
             _text(el, "socket_parent_frame", f"/bodyset/{mk.segment}")
             _text(el, "location", fmt_vec(self.scale[mk.segment] * np.asarray(self.p.marker[i], dtype=float)))
             _text(el, "fixed", "false")
@@ -492,13 +492,23 @@ def _check_params(model: Model, p: Parameters) -> None:
 
 
 def _check_names(model: Model) -> None:
+    """The model's names as OpenSim takes them: its segments', joints' and coordinates' without the characters OpenSim
+    does not allow in names; its markers' written as osim_name writes them (a trial's new label 'r bar 1' as
+    'r_bar_1'), each still its own."""
     names = [("segment", s.name) for s in model.segments] + [("joint", j.name) for j in model.joints]
-    names += [("URDF joint", d.name) for d in model.dofs] + [("marker", m.name) for m in model.markers]
+    names += [("URDF joint", d.name) for d in model.dofs]
     for what, n in names:
         bad = [c for c in n if c in OSIM_INVALID_CHARS]
         if bad:
             raise ModelError(f"{model.path}: {what} name {n!r} contains {bad[0]!r}, which OpenSim does not allow "
                              f"in names; rename it in the URDF")
+    written: dict[str, str] = {}
+    for m in model.markers:
+        other = written.setdefault(osim_name(m.name), m.name)
+        if other != m.name:
+            raise ModelError(f"{model.path}: markers {other!r} and {m.name!r} would both be named "
+                             f"{osim_name(m.name)!r} in OpenSim, which does not allow some of their characters; "
+                             "rename one in the URDF")
     from .osim_info import osim_info
 
     info = osim_info(model)
@@ -709,7 +719,8 @@ def marker_locations_text(times: np.ndarray, names: Sequence[str], positions: np
     ik_model_marker_locations) at `times` (s), as InverseKinematicsTool writes it: a column per marker and axis,
     <marker>_tx, _ty, _tz."""
     head = ["Model Marker Locations from IK", "version=1", f"nRows={len(times)}", f"nColumns={1 + 3 * len(names)}",
-            "inDegrees=no", "endheader", "\t".join(("time", *(f"{n}_{a}" for n in names for a in ("tx", "ty", "tz"))))]
+            "inDegrees=no", "endheader",
+            "\t".join(("time", *(f"{osim_name(n)}_{a}" for n in names for a in ("tx", "ty", "tz"))))]
     rows = ["\t".join(repr(float(x)) for x in (t, *np.ravel(p))) for t, p in zip(times, positions, strict=True)]
     return "\n".join(head + rows) + "\n"
 
