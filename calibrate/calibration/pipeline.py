@@ -1479,21 +1479,23 @@ def _narrow_centres(problem: Problem, p: np.ndarray, angles: np.ndarray, skip: C
                     marker_frames: bool = False, placed: np.ndarray | None = None) -> dict[str, tuple[float, float]]:
     """The ball (and universal) joints' centres to hold for the narrow turn of their joint: carried by the fit (`p`)
     beyond NARROW_CENTRE_FAR prior SDs from the base model's at the subject's scale, while the moving trials turn
-    the joint through less than NARROW_TURN about every axis but one (identifiability.joint_turns, the second: rows
-    of `angles` the moving trials' frames, columns every DoF's absolute angle; `placed`, the coordinates each row's
-    markers place (_placed_rows), the rows that do not place the joint's left out).  A centre of rotation is placed
+    the joint through less than NARROW_TURN about every axis, or about every axis but one where the fit carried
+    the centre along that one (identifiability.joint_turns; rows of `angles` the moving trials' frames, columns every
+    DoF's absolute angle; `placed`, the coordinates each row's markers place (_placed_rows), the rows that do not
+    place the joint's left out).  A centre of rotation is placed
     by the arcs its child's markers sweep about it; skin turns a segment against its bone by up to 4.4 deg in a
     walk, and arcs of a few degrees leave the centre in a flat valley the skin's shifts decide: Rajagopal's run turns
     its lumbar joint 9-16 deg and carried the back's centre 117 mm from the base model's, an AddBiomechanics walk's
     lumbar 64 mm (docs/benchmarks.md).  A turn about one axis alone leaves the centre anywhere along that axis:
-    BTKData's shd01 turns its lumbar 26 deg in lateral bending and 7 deg about any other axis, and carried the back's
-    centre 168 mm on Rajagopal2016.osim.  Not the joints whose DoFs are locked or in `skip` (a hinge locked for a
+    BTKData's PiG_Motion-FlatFoot-Full turns its lumbar 22 deg about one axis and 8 deg about any other, and carried
+    the back's centre 75 mm on Rajagopal2016.osim, 60 of them along that axis (ALONG_AXIS; a centre carried across it
+    the wide turn places, and is left free).  Not the joints whose DoFs are locked or in `skip` (a hinge locked for a
     trade), nor those a joint-centre marker the trials show places (a lab's hip centre), nor those held already.
     `marker_frames`: the distance is read, as the report will read it, with the segment frames turned to where
     their markers put them (Settings.segment_frames "markers", calibrate.problem.gauge.align_frames): in the
     solver's own frames gait2392's pelvis stood 15 deg from its markers' and its back's centre 52 mm from the base
-    model's, in its markers' 72 mm.  Joint -> (its second turn, rad; the centre's distance from the base model's at
-    the subject's scale, m)."""
+    model's, in its markers' 72 mm.  Joint -> (its widest turn, or where one turn is wide its second, rad; the
+    centre's distance from the base model's at the subject's scale, m)."""
     st = problem.settings
     if "centre" not in st.free or not st.priors.centre > 0 or angles.shape[0] < 3:
         return {}
