@@ -98,6 +98,12 @@ def _named(label: str, description: str | None = None) -> tuple[str, str | None]
     return None if kind is None else (kind, "left" if code[0] == "L" else "right")
 
 
+def described_labels(trials: Sequence[Trial]) -> dict[str, str]:
+    """Each label the trials' files describe -> its description (Trial.descriptions, the last trial's where several
+    describe it), which a name-reading test reads where the label's own name says nothing."""
+    return {lab: said for t in trials for lab, said in t.descriptions.items()}
+
+
 def named_kind(label: str, description: str | None = None) -> str | None:
     """The segment a Plug-in Gait wand's name says (NAMED_SEGMENTS: 'thigh' for LTHI, L_Thigh or RightThighWand,
     'shank' for RTIB; NAMED_MIDLINE: 'pelvis' for SACR, V.Sacral), or None (another name, or a wand's without its
@@ -305,7 +311,7 @@ def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
         return {}
     candidates = _candidates(model, trials, fits)
     out = {}
-    described = {lab: said for t in trials for lab, said in t.descriptions.items()}
+    described = described_labels(trials)
     for lab, P in local_places(model, fits, labels, candidates).items():
         mid = np.median(P, axis=0)
         spread = np.sqrt(np.mean(np.sum((P - mid) ** 2, axis=2), axis=0))  # (segments,)

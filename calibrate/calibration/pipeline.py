@@ -34,6 +34,7 @@ from calibrate.calibration.hosts import (
     centre_labels,
     centre_segments,
     cluster_hosts,
+    described_labels,
     joint_hosts,
     kinematic_hosts,
     medial_host,
@@ -666,7 +667,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if new:
         posed_obs = _without_trials(obs, spans, bare)  # the new markers' places read where the model's markers posed
         places = _new_places(subject, problem.kin, start, posed_obs, params0, placed)
-        described = {label: said for t in trials for label, said in t.descriptions.items()}
+        described = described_labels(trials)
         sacral = _far_sacral(places, _sacral_places(subject, params0, placed, known_obs, described, obs))
         if sacral:
             # The start's poses turned the pelvis about its ASIS line (_sacral_places): posed again with the sacral
@@ -2109,7 +2110,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                          ) if rest else {}
     by_turn = {lab: h.segment for lab, h in joints.items() if h.segment is not None}
     past.update(past_joints(model, used, by_turn) if by_turn else {})
-    described = {lab: said for t in trials for lab, said in t.descriptions.items()}
+    described = described_labels(trials)
     out = []
     for lab in unknown:
         if lab in medial:
