@@ -31,7 +31,10 @@ them follows), the static cut to the time range the (first) Scale setup's scaler
 command line's ``--scale-setup`` cuts it (gait2392: 1 to 2 s, 61 of 300 frames; ``--whole-trials``: every
 frame), and outlier rejection off (``--outlier-sigmas``), since OpenSim's IK keeps every marker.
 Rows with the axes held, without the IK setup, with ``--moved-markers``, with ``--hip-regression`` and with the
-lumbar centre held (``--hold-centres back``) follow.
+lumbar centre held (``--hold-centres back``) follow.  A hip, knee or ankle coordinate further than 5 deg from
+OpenSim's IK without its constant offset is measured once more (``attribute_shapes``, the JSON's ``attribution``):
+OpenSim's own scaled subject fitted to the walk with only that segment's markers placed where the walk puts them,
+against OpenSim's IK and against calibrate.
 
 nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
 with numpy < 2, made on first use) is the third row, unless ``--no-nimble``: the same generic .osim with
@@ -454,6 +457,98 @@ def run_static_only(spec: dict, frames: slice, outliers: float) -> dict:
             "calibrate_s": t1 - t0, "ik_s": t2 - t1, "released": sorted(set(cal.locked) - set(held))}
 
 
+#: issue 17's angle target (deg RMS from OpenSim's IK): a hip, knee or ankle coordinate further than this from it
+#: without its constant offset is measured against OpenSim's own model with its segment's markers re-placed
+#: (attribute_shapes).
+ANGLE_TARGET_DEG = 5.0
+
+
+def _segment_markers(model, joint_child: str, shown: set[str]) -> tuple[str, list[str]]:
+    """The markers of `shown` (the walk's labels) on the segment a coordinate turns (its joint's child), or on the
+    first segments below it that carry any (an ankle's talus: none the walk shows, its foot's), and the name of
+    that segment."""
+    children: dict[str, list[str]] = {}
+    for j in model.joints:
+        children.setdefault(j.parent, []).append(j.child)
+    level = [joint_child]
+    while level:
+        names = [m.name for m in model.markers if m.segment in level and m.name in shown]
+        if names:
+            return ", ".join(level), names
+        level = [c for s in level for c in children.get(s, [])]
+    return joint_child, []
+
+
+def attribute_shapes(spec: dict, frames: slice, osr: dict, angles: dict[str, np.ndarray],
+                     coords: list[str]) -> dict:
+    """Where calibrate's coordinate differs from OpenSim's IK by more than ANGLE_TARGET_DEG without its constant
+    offset, how much of that comes from where the two place the markers of the segment it turns.  OpenSim's own
+    subject (its Scale tool's output, the model its IK ran on) is fitted to the walk by calibrate's IK with the IK
+    setup's marker weights and held coordinates (`opensim_reproduced`: the coordinate's RMS from OpenSim's IK,
+    the same model and weights); then its markers, and nothing else, are placed where the walk puts them
+    (calibrate with only the markers free, the walk alone, the same weights, nothing rejected), and for each
+    coordinate only the markers of its segment are moved there and the walk fitted again.  `calibrate_vs_replaced`:
+    calibrate's coordinate against that fit (RMS, and without its mean offset: deg); `opensim_vs_replaced`:
+    OpenSim's IK against it, what moving those markers alone does on OpenSim's own model."""
+    from dataclasses import replace
+
+    from calibrate.calibration.pipeline import calibrate
+    from calibrate.io.osim_info import with_locked
+    from calibrate.io.osim_setup import ik_setup_weights
+    from calibrate.io.read import read_trial
+    from calibrate.model.kinematics import build_kinematics, locked_balls
+    from calibrate.model.model import load_model
+    from calibrate.problem.settings import Settings
+    from calibrate.solve.ik import inverse_kinematics
+
+    if not coords:
+        return {}
+    ik_xml = Path(spec["dir"]) / spec["ik"]
+    scaled = (ik_xml.parent / ET.parse(ik_xml).getroot().findtext(".//model_file").strip()).resolve()
+    model = load_model(str(scaled))
+    walk = read_trial(_plain_trc(spec["walk"], spec["dir"])).frames(frames.start, frames.stop)
+    weights = ik_setup_weights(ik_xml)
+    noise = Settings().noise
+    settings = with_setup(spec, model, with_locked(model, Settings(
+        free=("marker",), outliers=0.0, learn_noise=False, hip_regression=False, segment_frames=None,
+        marker_noise=tuple((n, noise / np.sqrt(w)) for n, w in weights.items() if w > 0 and n in model.marker_names))),
+        True)
+    locked = dict(settings.lock)
+    kin = build_kinematics(model, euler=locked_balls(model, tuple(settings.lock)))
+    base = model.parameters()
+    placed = calibrate(model, [walk], settings).params
+    names = list(model.marker_names)
+    osim_q = {c: np.degrees(osr["q"][:, osr["coords"].index(c)]) for c in coords}
+
+    def fitted(params) -> dict[str, np.ndarray]:
+        motion = inverse_kinematics(kin, walk, params, locked=locked, weights=weights).motion
+        return {d: np.degrees(motion.angles[:, i]) for i, d in enumerate(motion.dof_names)}
+
+    def rms(d: np.ndarray) -> list[float]:
+        return [float(np.sqrt(np.mean(d ** 2))), float(np.std(d))]
+
+    own = fitted(base)
+    out = {}
+    for c in coords:
+        joint = next(j for j in model.joints if c in j.dofs)
+        segment, moved = _segment_markers(model, joint.child, set(walk.labels))
+        on = [m.name for m in model.markers if m.segment in segment.split(", ")]
+        marker = base.marker.copy()
+        for n in moved:
+            marker[names.index(n)] = placed.marker[names.index(n)]
+        again = fitted(replace(base, marker=marker))[c]
+        out[c] = {"model": str(scaled.name), "segment": segment, "markers_replaced": moved,
+                  "markers_kept": [n for n in on if n not in moved],
+                  "opensim_reproduced_deg": rms(own[c] - osim_q[c])[0],
+                  "calibrate_vs_opensim_deg": rms(np.degrees(angles[c]) - osim_q[c]),
+                  "calibrate_vs_replaced_deg": rms(np.degrees(angles[c]) - again),
+                  "opensim_vs_replaced_deg": rms(osim_q[c] - again),
+                  "replaced_shift_mm": {n: float(1000 * np.linalg.norm(placed.marker[names.index(n)]
+                                                                       - base.marker[names.index(n)]))
+                                        for n in moved}}
+    return out
+
+
 def osim_with_markers(spec: dict, out: Path) -> Path:
     """The generic .osim with the marker set file's markers in its MarkerSet (replacing those of the same
     name, as OpenSim's ScaleTool does), each in OpenSim 4's form (socket_parent_frame): the model nimble reads."""
@@ -673,6 +768,13 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
                     row["vs_reference_ik_deg"] = float(np.sqrt(np.mean((ours - r) ** 2)))
                 diffs[name] = row
         out[label] = diffs
+    # A hip, knee or ankle coordinate beyond issue 17's target without its offset: where that comes from.
+    over = [n for n, d in out["coordinates"].items() if n.rsplit("_", 1)[0] in COORDS
+            and d["vs_opensim_ik_offset_free_deg"] > ANGLE_TARGET_DEG]
+    if over:
+        log(f"{case}: {', '.join(over)} beyond {ANGLE_TARGET_DEG:g} deg without the offset: OpenSim's own subject "
+            "with that segment's markers placed by the walk ...")
+    out["attribution"] = attribute_shapes(spec, frames, osr, cr["angles"], over)
     if nimble:
         log(f"{case}: nimblephysics' MarkerFitter (its own venv; minutes) ...")
         out["nimble"] = run_nimble_row(spec, frames, work, trial, use, osr)
@@ -794,6 +896,15 @@ def report(res: dict) -> None:
                     extra += " [trunk: beyond issue 17's list, no target]"
                 print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
                       f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
+        for name, a in r.get("attribution", {}).items():
+            cv, cr_, orr = a["calibrate_vs_opensim_deg"], a["calibrate_vs_replaced_deg"], a["opensim_vs_replaced_deg"]
+            shifts = ", ".join(f"{n} {v:.0f}" for n, v in sorted(a["replaced_shift_mm"].items(), key=lambda x: -x[1]))
+            print(f"  {name}: {cv[1]:.2f} deg from OpenSim's IK without its offset ({cv[0]:.2f} with it); "
+                  f"OpenSim's own subject ({a['model']}, its IK reproduced within "
+                  f"{a['opensim_reproduced_deg']:.2f} deg) with "
+                  f"{a['segment']}'s markers placed where the walk puts them ({shifts} mm from its marker placer's) "
+                  f"reads it {orr[1]:.2f} deg from OpenSim's IK without the offset, and calibrate {cr_[1]:.2f} deg "
+                  f"from that ({cr_[0]:.2f} with it): where the static and the walk put {a['segment']}'s markers")
         if nb.get("status") == "ran":
             rd = nb.get("reading", {})
             print("  nimble's reading of the .osim: " + (f"not checked ({rd['error']})" if "error" in rd else

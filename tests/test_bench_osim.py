@@ -309,3 +309,26 @@ def test_the_approximations_together_against_opensim(tmp_path):
     rajagopal = REAL / "rajagopal_walk" / "Rajagopal2016.osim"
     if rajagopal.exists():
         assert osim_info(load_model(rajagopal)).together is None
+
+
+def test_a_coordinates_segment_markers_are_read_from_the_osim_below_a_bare_segment():
+    """attribute_shapes moves the markers of the segment a coordinate turns that the walk shows: the hip's femur
+    carries its own; the ankle's talus carries only a joint-centre marker a walk does not show, so the foot's below
+    it are taken.  Checked against the .osim's own XML (each marker's socket_parent_frame), not calibrate's reading
+    of it."""
+    import xml.etree.ElementTree as ET
+
+    osim = CASES["rajagopal"][0]
+    if not osim.exists():
+        pytest.skip(f"{osim} not found (the real trials)")
+    on: dict[str, set[str]] = {}
+    for m in ET.parse(osim).getroot().iter("Marker"):
+        on.setdefault(m.findtext("socket_parent_frame").strip().rsplit("/", 1)[-1], set()).add(m.get("name"))
+    shown = set().union(*on.values()) - on["talus_l"]  # a walk: no ankle-centre marker
+    model = load_model(osim)
+    segment, names = bench_osim._segment_markers(model, "femur_l", shown)
+    assert segment == "femur_l" and set(names) == on["femur_l"] and names
+    segment, names = bench_osim._segment_markers(model, "talus_l", shown)
+    assert segment == "calcn_l" and set(names) == on["calcn_l"]
+    segment, names = bench_osim._segment_markers(model, "talus_l", set().union(*on.values()))
+    assert segment == "talus_l" and set(names) == on["talus_l"]  # shown, the talus's own
