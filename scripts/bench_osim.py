@@ -34,7 +34,9 @@ Rows with the axes held, without the IK setup, with ``--moved-markers``, with ``
 lumbar centre held (``--hold-centres back``) follow.  A hip, knee or ankle coordinate further than 5 deg from
 OpenSim's IK without its constant offset is measured once more (``attribute_shapes``, the JSON's ``attribution``):
 OpenSim's own scaled subject fitted to the walk with only that segment's markers placed where the walk puts them,
-against OpenSim's IK and against calibrate.
+against OpenSim's IK and against calibrate; and any over 5 deg with its offset has that offset set beside the
+static's pose as the two read it (``attribute_offsets``: calibrate's mean angle in the static minus OpenSim's marker
+placer's static pose, the Scale setup's output motion).
 
 nimblephysics' MarkerFitter (AddBiomechanics' kinematics pass, ``scripts/peer_nimble.py``: its own venv
 with numpy < 2, made on first use) is the third row, unless ``--no-nimble``: the same generic .osim with
@@ -326,6 +328,9 @@ def run_calibrate(spec: dict, frames: slice, outliers: float, hold_axes: bool = 
             "lab_hjc_mm": lab_hip_distances(cal, subject),
             "markers": mk, "marker_names": list(subject.marker_names), "trial": trial,
             "angles": {d: m.angles[:, i] for i, d in enumerate(m.dof_names)}, "times": cal.times,
+            # the static's pose as calibrate reads it (each coordinate's mean over its frames, rad)
+            "static_angles": {d: float(np.mean(cal.motions[0].angles[:, i]))
+                              for i, d in enumerate(cal.motions[0].dof_names)},
             "converged": cal.converged, "approximations": [a.text() for a in model.osim.approximations],
             "locked": [f"{n} {np.degrees(v):g} deg" for n, v in settings.lock],
             # (a position: its distance from the base model's at the subject's scale, which the flag judges)
@@ -477,6 +482,39 @@ def _segment_markers(model, joint_child: str, shown: set[str]) -> tuple[str, lis
             return ", ".join(level), names
         level = [c for s in level for c in children.get(s, [])]
     return joint_child, []
+
+
+def placer_pose(spec: dict) -> dict[str, float]:
+    """The static pose OpenSim's marker placer solved (coordinate -> rad): the last Scale step's MarkerPlacer
+    <output_motion_file>, which OpenSim writes beside that setup; {} where the setups write none."""
+    for step in reversed(spec["scale"]):
+        setup = Path(spec["dir"]) / step[0]
+        placer = ET.parse(setup).getroot().find(".//MarkerPlacer")
+        name = (placer.findtext("output_motion_file") or "").strip() if placer is not None else ""
+        mot = setup.parent / name
+        if name and name != "Unassigned" and mot.exists():
+            _, cols, vals = read_mot(str(mot))
+            return {c.split("/")[-2] if c.endswith("/value") else c: float(np.mean(vals[:, k]))
+                    for k, c in enumerate(cols)}
+    return {}
+
+
+def attribute_offsets(spec: dict, static_angles: dict[str, float], diffs: dict[str, dict]) -> dict:
+    """Each hip, knee and ankle coordinate further than ANGLE_TARGET_DEG from OpenSim's IK (RMS, with its offset):
+    its mean offset over the walk beside the two tools' reading of the static pose (calibrate's mean angle there
+    minus OpenSim's marker placer's, deg).  Where the two agree, the walk's offset is the static's: both read the
+    walk's motion from the static alike and differ on how the subject stood."""
+    pose = placer_pose(spec)
+    out = {}
+    for name, d in diffs.items():
+        if name.rsplit("_", 1)[0] not in COORDS or d["vs_opensim_ik_deg"] <= ANGLE_TARGET_DEG:
+            continue
+        if name in pose and name in static_angles:
+            out[name] = {"walk_offset_deg": d["offset_deg"],
+                         "static_calibrate_deg": float(np.degrees(static_angles[name])),
+                         "static_opensim_placer_deg": float(np.degrees(pose[name])),
+                         "static_difference_deg": float(np.degrees(static_angles[name] - pose[name]))}
+    return out
 
 
 def attribute_shapes(spec: dict, frames: slice, osr: dict, angles: dict[str, np.ndarray],
@@ -775,6 +813,7 @@ def bench(case: str, work: Path, log, outliers: float, nimble: bool = True, repo
         log(f"{case}: {', '.join(over)} beyond {ANGLE_TARGET_DEG:g} deg without the offset: OpenSim's own subject "
             "with that segment's markers placed by the walk ...")
     out["attribution"] = attribute_shapes(spec, frames, osr, cr["angles"], over)
+    out["offsets"] = attribute_offsets(spec, cr["static_angles"], out["coordinates"])
     if nimble:
         log(f"{case}: nimblephysics' MarkerFitter (its own venv; minutes) ...")
         out["nimble"] = run_nimble_row(spec, frames, work, trial, use, osr)
@@ -896,6 +935,12 @@ def report(res: dict) -> None:
                     extra += " [trunk: beyond issue 17's list, no target]"
                 print(f"    {name:18s} RMS difference vs OpenSim IK {d['vs_opensim_ik_deg']:6.2f} deg (mean offset "
                       f"{d['offset_deg']:+6.2f}, without it {d['vs_opensim_ik_offset_free_deg']:5.2f}){extra}")
+        offs = r.get("offsets", {})
+        if offs:
+            print(f"  over {ANGLE_TARGET_DEG:g} deg RMS from OpenSim's IK with the offset: the walk's offset beside "
+                  "the static's pose as calibrate reads it minus OpenSim's marker placer's (deg):")
+            print("    " + ", ".join(f"{n} {o['walk_offset_deg']:+.1f} / {o['static_difference_deg']:+.1f}"
+                                     for n, o in offs.items()))
         for name, a in r.get("attribution", {}).items():
             cv, cr_, orr = a["calibrate_vs_opensim_deg"], a["calibrate_vs_replaced_deg"], a["opensim_vs_replaced_deg"]
             shifts = ", ".join(f"{n} {v:.0f}" for n, v in sorted(a["replaced_shift_mm"].items(), key=lambda x: -x[1]))
