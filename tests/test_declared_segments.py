@@ -236,6 +236,20 @@ def test_a_trial_of_clusters_alone_needs_them_declared_and_shown_beside_the_mode
     with pytest.raises(CalibrateError) as e:  # (alone: none of its labels the model's; the way that works named)
         calibrate(human, only, Settings())
     assert "only 0 of its labels match" in str(e.value) and "beside a static" in str(e.value)
+    # Declared, with no marker on the pelvis, and every trial shows them with a few of the model's markers that pose
+    # no segment (kineticstoolkit's wheelchair trials: clusters on the limbs, the sternum and the epicondyles): the
+    # line says the declared labels wait for a trial whose model markers pose their segments, and which segments.
+    limbs = {seg: labs for seg, labs in segments.items() if seg.endswith("_l") and seg != "pelvis"}
+    worn = [lab for labs in limbs.values() for lab in labs]
+    few = ["STRN", "LELB", "RELB"]
+    trials = [static.select([*worn, *few]), replace(sim.trial.select([*worn, *few]), source="squats.c3d")]
+    with pytest.raises(CalibrateError) as e:
+        calibrate(human, trials, Settings(), marker_map={"segments": limbs})
+    line = str(e.value)
+    assert "cannot place the pelvis" in line and "\n" not in line
+    said = line.split("the marker map's [segments] puts on ")[1].split(" take their places")[0]
+    assert set(said.split(", ")) == set(limbs), line
+    assert f"the {len(worn)} labels the marker map's [segments]" in line
 
 
 def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone_name_it(human, tmp_path):

@@ -479,7 +479,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if not res.root_resolved:
         why = carry_refusal(subject, placed_shown, locked=[d for d, _ in settings.lock])
         raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
-                             f"{model.root} (unresolved: {', '.join(res.names)}){why}; rename the trial labels "
+                             f"{model.root} (unresolved: {', '.join(res.names)}){why}"
+                             f"{_declared_unplaced(model, new, at, declared)}; rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
@@ -1964,6 +1965,20 @@ def _without_trials(obs: np.ndarray, spans: Sequence[slice], trials: Sequence[in
     for k in trials:
         out[spans[k]] = np.nan
     return out
+
+
+def _declared_unplaced(model: Model, new: Mapping[str, str], at: Mapping[str, np.ndarray],
+                       declared: Mapping[str, str]) -> str:
+    """Part of the refusal above, where the marker map's [segments] put labels on segments that no trial's model
+    markers pose: those labels take their places from such a trial (a cluster's place on its segment read where
+    the anatomical landmarks show the segment), so they place nothing here; what would place them."""
+    waiting = [lab for lab in new if lab in declared and lab not in at]
+    if not waiting:
+        return ""
+    segments = list(dict.fromkeys(new[lab] for lab in waiting))
+    return (f"; the {len(waiting)} labels the marker map's [segments] puts on {', '.join(segments)} take their places "
+            f"from a trial whose model markers pose their segments, and no trial here does: add a static that shows "
+            f"those segments' model markers beside the clusters (`calibrate inspect {model.path.name}` lists them)")
 
 
 def _members(model: Model, declared: Mapping[str, str]) -> Model:
