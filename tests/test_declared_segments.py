@@ -250,6 +250,20 @@ def test_a_trial_of_clusters_alone_needs_them_declared_and_shown_beside_the_mode
     said = line.split("the marker map's [segments] puts on ")[1].split(" take their places")[0]
     assert set(said.split(", ")) == set(limbs), line
     assert f"the {len(worn)} labels the marker map's [segments]" in line
+    # Both legs' clusters count for the pelvis (two posed femurs place it) but nothing places them: their places would
+    # come from start poses nothing fixes, and the run ended with knee axes 47-89 deg off and a shank scaled 0.69.
+    # Refused, the same clause naming them; with the pelvis cluster shown as well, calibrated as above.
+    limbs = {seg: labs for seg, labs in segments.items() if seg != "pelvis"}
+    worn = [lab for labs in limbs.values() for lab in labs]
+    few = ["LKNE", "RKNE", "STRN"]
+    trials = [static.select([*worn, *few]), replace(sim.trial.select([*worn, *few]), source="squats.c3d")]
+    with pytest.raises(CalibrateError) as e:
+        calibrate(human, trials, Settings(), marker_map={"segments": limbs})
+    line = str(e.value)
+    assert line.startswith("trial, squats.c3d: the model's markers the trials show (3) and the new labels placed "
+                           "cannot place the pelvis without the marker map's [segments] labels"), line
+    said = line.split("the marker map's [segments] puts on ")[1].split(" take their places")[0]
+    assert set(said.split(", ")) == set(limbs) and "\n" not in line, line
 
 
 def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone_name_it(human, tmp_path):

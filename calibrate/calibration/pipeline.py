@@ -482,6 +482,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"{model.root} (unresolved: {', '.join(res.names)}){why}"
                              f"{_declared_unplaced(model, new, at, declared)}; rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
+    if placed_shown != [lab for lab in [*shared, *new] if lab in visible] and _declared_unplaced(
+            model, new, at, declared) and not resolve_carrying(
+            subject, placed_shown, locked=[d for d, _ in settings.lock])[0].root_resolved:
+        # The root placed only by counting the declared labels that no trial's model markers place: their places
+        # would come from start poses nothing fixes (a simulated CAST session without its pelvis cluster, its static
+        # showing the knees and the sternum: knee axes 47-89 deg off, a shank scaled 0.69, flagged but unusable).
+        raise CalibrateError(f"{where}: the model's markers the trials show ({len(shared)}) and the new labels placed "
+                             f"cannot place the {model.root} without the marker map's [segments] labels, whose places "
+                             f"nothing reads{_declared_unplaced(model, new, at, declared)}")
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
         # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.  A new
