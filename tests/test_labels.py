@@ -389,6 +389,22 @@ def test_qualisys_head_and_jugular_spellings(human) -> None:  # noqa: ANN001
     assert mapping.unknown == ("TV8",)
 
 
+def test_french_clinical_spellings(human) -> None:  # noqa: ANN001
+    """A French clinical set (BTKData's Res16bits: REAS, REPS, RCL, RML, RCAL, described R.EAS, R.EPS, R.CL...):
+    the iliac spines (EAS / EPS, EIAS / EIPS), the lateral femoral condyle (CL) and malleolus (ML) are Plug-in Gait's
+    ASI, PSI, KNE and ANK; the medial condyle and malleolus (CM, MM) are read by their names as medial markers; a
+    clavicle (RCLAV) is no condyle."""
+    from calibrate.calibration.hosts import medial_host
+
+    trial = make_trial(["REAS", "LEAS", "REIPS", "LEIPS", "RCL", "LCL", "RML", "LML", "RCAL", "RCM", "LMM", "RCLAV"])
+    renamed, mapping = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("RASI", "LASI", "RPSI", "LPSI", "RKNE", "LKNE", "RANK", "LANK", "RHEE", "RCM", "LMM",
+                              "RCLAV")
+    assert mapping.unknown == ("RCM", "LMM", "RCLAV")
+    assert medial_host(human, "RCM") == ("femur_r", "knee_r") and medial_host(human, "LMM") == ("tibia_l", "ankle_l")
+    assert medial_host(human, "RCLAV") is None
+
+
 def test_human_body_model_spellings(human) -> None:  # noqa: ANN001
     """Motek's Human Body Model (AddBiomechanics' initial_off_treadmill trial): LLEK / RLEK the knees' lateral
     epicondyles, LLEE the elbow's, LLW / LMW the wrist's radial and ulnar sides; its anterior tibia and front thigh

@@ -34,15 +34,15 @@ model has no ``SACR``, nor any label that reads so, so ``V.Sacral`` stays unknow
 ============  =====================================================================================
 model label   alias names, after the side (R or L) and normalisation
 ============  =====================================================================================
-xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias, waistfront, fwt, frontwaist
-xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis, bwt, backwaist
+xASI          asi, asis, antsupiliacspine, anteriorsuperioriliacspine, ias, waistfront, fwt, frontwaist, eias, eas
+xPSI          psi, psis, postsupiliacspine, posteriorsuperioriliacspine, ips, backasis, bwt, backwaist, eips, eps
 xTHI          thi, thigh, thighwand, bar1
 xKNE          kne, kneelat, kneelateral, latknee, lateralknee, knee1, knee, latepicondyle, lateralepicondyle,
               fle, lfe, le, latfemepicondyle, lateralfemoralepicondyle, femurlateralepicondyle, lek,
-              lfc, latfemcondyle, lateralfemoralcondyle, kneeout, lepi, latepi
+              lfc, latfemcondyle, lateralfemoralcondyle, kneeout, lepi, latepi, cl
 xTIB          tib, tibia, shank, tibwand, shankwand, bar2
 xANK          ank, anklelat, anklelateral, latankle, lateralankle, latmalleolus, lateralmalleolus,
-              malleoluslat, mall, ankle, lm, fal, lmal, latmal, ankleout
+              malleoluslat, mall, ankle, lm, fal, lmal, latmal, ankleout, ml
 xHEE          hee, heel, calc, calcaneus, ca, fcc, cal, heelback
 xTOE          toe, mt2, mth2, metatarsal2, toetip, fm2, sm, mh2
 xSHO          sho, shoulder, acromion, acromium, acr, ac, caj, acromioclavicular, should, sh
@@ -91,6 +91,9 @@ above the hip joint, not the posterior spine), ``LShin`` and the rest stay unkno
 new label.  The CMU motion-capture database (Vicon's animation set) spells the ASIS and PSIS front and back
 waist, ``LFWT`` and ``LBWT`` (on its subject 01 239 and 100 mm apart, 220 mm front to back: the iliac spines'
 figures); its ``LSHN``, ``LMT5`` and ``RBAC`` stay unknown.
+French clinical sets spell the iliac spines EIAS / EIPS or EAS / EPS (épine iliaque antéro- / postéro-supérieure), the
+lateral femoral condyle CL and the lateral malleolus ML (condyle, malléole latéral·e), their medial twins CM and MM
+(BTKData's ``Res16bits``: ``REAS``, ``RCL``, ``RML``, ``RCM``, ``RMM``, described ``R.EAS``...).
 Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
@@ -150,19 +153,21 @@ HOWS = ("exact", "map", "alias", "description", "unknown")
 #: Plug-in Gait marker codes that come in left and right (label = side letter + code), with alias
 #: names after the side and normalisation, most specific first.
 SIDE_ALIASES: dict[str, tuple[str, ...]] = {
-    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias", "waistfront", "fwt", "frontwaist"),
-    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis", "bwt", "backwaist"),
+    "ASI": ("asi", "asis", "antsupiliacspine", "anteriorsuperioriliacspine", "ias", "waistfront", "fwt", "frontwaist",
+            "eias", "eas"),
+    "PSI": ("psi", "psis", "postsupiliacspine", "posteriorsuperioriliacspine", "ips", "backasis", "bwt", "backwaist",
+            "eips", "eps"),
     "THI": ("thi", "thigh", "thighwand", "bar1"),
     "KNE": (
         "kne", "kneelat", "kneelateral", "latknee", "lateralknee", "knee1", "knee", "latepicondyle",
         "lateralepicondyle", "fle", "lfe", "le", "latfemepicondyle", "lateralfemoralepicondyle",
         "femurlateralepicondyle", "lek", "lfc", "latfemcondyle", "lateralfemoralcondyle", "kneeout", "lepi",
-        "latepi",
+        "latepi", "cl",
     ),
     "TIB": ("tib", "tibia", "shank", "tibwand", "shankwand", "bar2"),
     "ANK": (
         "ank", "anklelat", "anklelateral", "latankle", "lateralankle", "latmalleolus", "lateralmalleolus",
-        "malleoluslat", "mall", "ankle", "lm", "fal", "lmal", "latmal", "ankleout",
+        "malleoluslat", "mall", "ankle", "lm", "fal", "lmal", "latmal", "ankleout", "ml",
     ),
     "HEE": ("hee", "heel", "calc", "calcaneus", "ca", "fcc", "cal", "heelback"),
     "TOE": ("toe", "mt2", "mth2", "metatarsal2", "toetip", "fm2", "sm", "mh2"),
