@@ -482,9 +482,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                              f"{model.root} (unresolved: {', '.join(res.names)}){why}"
                              f"{_declared_unplaced(model, new, at, declared)}; rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
-    if placed_shown != [lab for lab in [*shared, *new] if lab in visible] and _declared_unplaced(
-            model, new, at, declared) and not resolve_carrying(
-            subject, placed_shown, locked=[d for d, _ in settings.lock])[0].root_resolved:
+    waiting = {lab for lab in new if lab in declared and lab not in at}  # declared, with no place read yet
+    without = [lab for lab in [*shared, *new] if lab in visible and lab not in waiting]
+    if waiting and not resolve_carrying(subject, without, locked=[d for d, _ in settings.lock],
+                                        carry=placed_shown)[0].root_resolved:
         # The root placed only by counting the declared labels that no trial's model markers place: their places
         # would come from start poses nothing fixes (a simulated CAST session without its pelvis cluster, its static
         # showing the knees and the sternum: knee axes 47-89 deg off, a shank scaled 0.69, flagged but unusable).
