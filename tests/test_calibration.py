@@ -615,6 +615,13 @@ def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
     assert "RKNE" in {m.label for _, m in cal.misplaced}
     assert "check label  trial 1: RKNE moves with" in cal.text()
     assert any(x["label"] == "RKNE" and x["segment"] == "femur_r" for x in cal.report()["suspect_labels"])
+    # ... and a fit this poor (over POOR_FIT: real trials calibrate to 2-11 mm) is called implausible, the labels
+    # read as the model's named, in the summary and in the report's implausible_flags (what a lab's batch lists)
+    from calibrate.calibration.report import POOR_FIT
+
+    assert cal.marker_rms > POOR_FIT
+    poor = [x for x in cal.report()["implausible_flags"] if "mm RMS, where real trials calibrate to 2-11 mm" in x]
+    assert len(poor) == 1 and "RKNE" in poor[0] and "RANK" in poor[0], poor
 
 
 # ---------------------------------------------------------------------- accuracy
@@ -624,6 +631,7 @@ def test_noise_free_recovers_the_subject(noise_free):
     assert cal.converged, cal.summary.termination
     # Issue 4's noise-free figures, on every joint.
     assert cal.marker_rms <= 1e-6
+    assert not any("mm RMS, where real trials calibrate" in x for x in cal.report()["implausible_flags"])
     for j, kind in cmp.kinds.items():
         assert cmp.centre_error[j] < 1e-4, j  # hinges: from the true axis line
         if kind == "hinge":

@@ -302,6 +302,28 @@ def _mass(cal) -> dict:
 # (the summary's `implausible` lines, the report's measurements.lateral_mm.*.flagged): a caliper and a marker
 # placed by a clinician agree to a few mm.  pig_walk (2026-11-27): knees 4-5 mm, ankles 5-7 mm with the widths
 # used; its elbows 47 and 66 mm (not used).
+#: A calibration whose markers fit worse than this (RMS over every marker position of every frame, m) is called
+#: implausible: real trials calibrate to 2-11 mm (the public sweep's 31 files on models/human.urdf 0.3-7.2 mm, 38 on
+#: Rajagopal2016.osim 0.3-7.4 mm but six; issue 17's runs 7.3-10.2 mm: docs/benchmarks.md), and those six, c3d.org's
+#: sample02 (a cluster set whose thigh labels RTH1-3 happen to be Rajagopal2016's own), ended at 32 mm, its forearm's
+#: cluster put on the pelvis.
+POOR_FIT = 0.020
+
+
+def poor_fit_line(cal: Calibration) -> str | None:
+    """The summary's `implausible` line of a calibration that fits its markers worse than POOR_FIT, naming the
+    markers it fits worst (their trial labels: what to check first); None where it fits them better."""
+    rms = cal.marker_rms
+    if not rms > POOR_FIT:
+        return None
+    label = {m.label: m.trial_label for mapping in cal.label_maps for m in mapping}
+    worst = sorted(((r, n) for n, (r, _, seen) in cal.per_marker().items() if seen), reverse=True)[:6]
+    named = ", ".join(f"{label.get(n, n)} {1e3 * r:.0f}" for r, n in worst)
+    return (f"the markers fit to {1e3 * rms:.1f} mm RMS, where real trials calibrate to 2-11 mm: the trials' labels "
+            f"and the model's markers may not name the same points (worst, mm RMS: {named}); check them (`calibrate "
+            "inspect TRIAL --model MODEL`) or name them with --markers map.toml")
+
+
 MEASURED_TOLERANCE = 0.020
 
 
@@ -983,6 +1005,8 @@ def summary_text(cal) -> str:
                          + (", ..." if len(renamed) > 6 else "") + ")")
     lines.extend(f"  new marker {m.label} on {m.segment}: {m.reason}" for m in cal.new_markers if m.segment is not None)
     lines.extend(left_out_lines([(m.label, m.reason) for m in cal.new_markers if m.segment is None]))
+    if poor := poor_fit_line(cal):
+        lines.append(IMPLAUSIBLE + poor)
     bad = cal.implausible
     if bad:
         median = float(np.median(cal.params.scale))
