@@ -236,34 +236,32 @@ def test_a_trial_of_clusters_alone_needs_them_declared_and_shown_beside_the_mode
     with pytest.raises(CalibrateError) as e:  # (alone: none of its labels the model's; the way that works named)
         calibrate(human, only, Settings())
     assert "only 0 of its labels match" in str(e.value) and "beside a static" in str(e.value)
+    def refused(limbs: dict[str, list[str]], few: list[str]) -> tuple[str, set[str]]:
+        """The one line refusing the static and the squats showing the clusters of `limbs` (declared there) and the
+        model's markers `few`, and the segments its [segments] clause names."""
+        worn = [lab for labs in limbs.values() for lab in labs]
+        trials = [static.select([*worn, *few]), replace(sim.trial.select([*worn, *few]), source="squats.c3d")]
+        with pytest.raises(CalibrateError) as e:
+            calibrate(human, trials, Settings(), marker_map={"segments": limbs})
+        line = str(e.value)
+        assert "\n" not in line and f"the {len(worn)} labels the marker map's [segments] puts on " in line, line
+        said = line.split("the marker map's [segments] puts on ")[1].split(" take their places")[0]
+        return line, set(said.split(", "))
+
     # Declared, with no marker on the pelvis, and every trial shows them with a few of the model's markers that pose
     # no segment (kineticstoolkit's wheelchair trials: clusters on the limbs, the sternum and the epicondyles): the
     # line says the declared labels wait for a trial whose model markers pose their segments, and which segments.
-    limbs = {seg: labs for seg, labs in segments.items() if seg.endswith("_l") and seg != "pelvis"}
-    worn = [lab for labs in limbs.values() for lab in labs]
-    few = ["STRN", "LELB", "RELB"]
-    trials = [static.select([*worn, *few]), replace(sim.trial.select([*worn, *few]), source="squats.c3d")]
-    with pytest.raises(CalibrateError) as e:
-        calibrate(human, trials, Settings(), marker_map={"segments": limbs})
-    line = str(e.value)
-    assert "cannot place the pelvis" in line and "\n" not in line
-    said = line.split("the marker map's [segments] puts on ")[1].split(" take their places")[0]
-    assert set(said.split(", ")) == set(limbs), line
-    assert f"the {len(worn)} labels the marker map's [segments]" in line
+    left = {seg: labs for seg, labs in segments.items() if seg.endswith("_l")}
+    line, named = refused(left, ["STRN", "LELB", "RELB"])
+    assert "cannot place the pelvis" in line and named == set(left), line
     # Both legs' clusters count for the pelvis (two posed femurs place it) but nothing places them: their places would
     # come from start poses nothing fixes, and the run ended with knee axes 47-89 deg off and a shank scaled 0.69.
     # Refused, the same clause naming them; with the pelvis cluster shown as well, calibrated as above.
-    limbs = {seg: labs for seg, labs in segments.items() if seg != "pelvis"}
-    worn = [lab for labs in limbs.values() for lab in labs]
-    few = ["LKNE", "RKNE", "STRN"]
-    trials = [static.select([*worn, *few]), replace(sim.trial.select([*worn, *few]), source="squats.c3d")]
-    with pytest.raises(CalibrateError) as e:
-        calibrate(human, trials, Settings(), marker_map={"segments": limbs})
-    line = str(e.value)
+    legs = {seg: labs for seg, labs in segments.items() if seg != "pelvis"}
+    line, named = refused(legs, ["LKNE", "RKNE", "STRN"])
     assert line.startswith("trial, squats.c3d: the model's markers the trials show (3) and the new labels placed "
                            "cannot place the pelvis without the marker map's [segments] labels"), line
-    said = line.split("the marker map's [segments] puts on ")[1].split(" take their places")[0]
-    assert set(said.split(", ")) == set(limbs) and "\n" not in line, line
+    assert named == set(legs), line
 
 
 def test_a_plate_the_static_names_turned_is_read_as_the_trials_of_clusters_alone_name_it(human, tmp_path):
