@@ -464,7 +464,8 @@ def run_static_only(spec: dict, frames: slice, outliers: float) -> dict:
 
 #: issue 17's angle target (deg RMS from OpenSim's IK): a hip, knee or ankle coordinate further than this from it
 #: without its constant offset is measured against OpenSim's own model with its segment's markers re-placed
-#: (attribute_shapes).
+#: (attribute_shapes), and one further than this with its offset has the offset set beside the static's pose
+#: (attribute_offsets).
 ANGLE_TARGET_DEG = 5.0
 
 
