@@ -476,13 +476,13 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # on the new labels with a place only: the others sit at their segment's origin until the fit places them.)
     placed_shown = [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible]
     res, carried = resolve_carrying(subject, [*shared, *new], locked=[d for d, _ in settings.lock], carry=placed_shown)
+    waiting = [lab for lab in new if lab in declared and lab not in at]  # declared, with no place read yet
     if not res.root_resolved:
         why = carry_refusal(subject, placed_shown, locked=[d for d, _ in settings.lock])
         raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
                              f"{model.root} (unresolved: {', '.join(res.names)}){why}"
-                             f"{_declared_unplaced(model, new, at, declared)}; rename the trial labels "
+                             f"{_declared_unplaced(model, new, waiting)}; rename the trial labels "
                              f"(--markers map.toml) or use a model with this marker set")
-    waiting = {lab for lab in new if lab in declared and lab not in at}  # declared, with no place read yet
     without = [lab for lab in [*shared, *new] if lab in visible and lab not in waiting]
     if waiting and not resolve_carrying(subject, without, locked=[d for d, _ in settings.lock],
                                         carry=placed_shown)[0].root_resolved:
@@ -491,7 +491,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # showing the knees and the sternum: knee axes 47-89 deg off, a shank scaled 0.69, flagged but unusable).
         raise CalibrateError(f"{where}: the model's markers the trials show ({len(shared)}) and the new labels placed "
                              f"cannot place the {model.root} without the marker map's [segments] labels, whose places "
-                             f"nothing reads{_declared_unplaced(model, new, at, declared)}")
+                             f"nothing reads{_declared_unplaced(model, new, waiting)}")
     if run.auto_hold:
         # The root's markers on one line (a markerless pelvis: two hip keypoints): its turn about it held by the
         # trunk's, as Pose2Sim's IK setup holds it (line_root_holds); reported and locked as the unresolved are.  A new
@@ -1977,12 +1977,11 @@ def _without_trials(obs: np.ndarray, spans: Sequence[slice], trials: Sequence[in
     return out
 
 
-def _declared_unplaced(model: Model, new: Mapping[str, str], at: Mapping[str, np.ndarray],
-                       declared: Mapping[str, str]) -> str:
-    """Part of the refusal above, where the marker map's [segments] put labels on segments that no trial's model
-    markers pose: those labels take their places from such a trial (a cluster's place on its segment read where
-    the anatomical landmarks show the segment), so they place nothing here; what would place them."""
-    waiting = [lab for lab in new if lab in declared and lab not in at]
+def _declared_unplaced(model: Model, new: Mapping[str, str], waiting: Sequence[str]) -> str:
+    """Part of the refusals above, where the marker map's [segments] put labels (`waiting`, of `new`: label ->
+    segment) on segments that no trial's model markers pose: those labels take their places from such a trial (a
+    cluster's place on its segment read where the anatomical landmarks show the segment), so they place nothing
+    here; what would place them."""
     if not waiting:
         return ""
     segments = list(dict.fromkeys(new[lab] for lab in waiting))
