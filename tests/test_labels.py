@@ -405,6 +405,25 @@ def test_french_clinical_spellings(human) -> None:  # noqa: ANN001
     assert medial_host(human, "RCLAV") is None
 
 
+@pytest.mark.parametrize(("labels", "want"), [
+    # a leg's set: the femur's, as the alias table reads it alone
+    (["LASI", "LLateralEpicondyle", "LANK", "LHEE"], ["LASI", "LKNE", "LANK", "LHEE"]),
+    # kineticstoolkit's wheelchair sprint (one side, a subject prefix): the humerus's beside the acromion and the hand
+    (["BodyL:AcromionL", "BodyL:LateralEpicondyleL", "BodyL:HandL", "BodyL:C7"], ["LSHO", "LELB", "LFIN", "C7"]),
+    # the knee labelled otherwise: the elbow's
+    (["RKNE", "RLateralEpicondyle", "RANK", "RSHO"], ["RKNE", "RELB", "RANK", "RSHO"]),
+    # an upper body's trial (kineticstoolkit's racing_full): no leg marker anywhere, the arm's on one side
+    (["RSHO", "RWRA", "LateralEpicondyleL", "LateralEpicondyleR"], ["RSHO", "RWRA", "LELB", "RELB"]),
+])
+def test_a_bare_lateral_epicondyle_is_read_by_the_trial(human, labels: list[str], want: list[str]) -> None:  # noqa: ANN001
+    """'LateralEpicondyle' names no bone: the knee's where the trial shows that leg, the elbow's where it shows the
+    arm and not the leg (kineticstoolkit's sprintbasket, read as the knee's, calibrated Rajagopal2016 to a torso
+    scaled 0.32 with its elbow marker on the femur) or the knee's marker otherwise."""
+    renamed, mapping = map_labels(make_trial(labels), human.marker_names)
+    assert list(renamed.labels) == want
+    assert mapping.unknown == ()
+
+
 def test_human_body_model_spellings(human) -> None:  # noqa: ANN001
     """Motek's Human Body Model (AddBiomechanics' initial_off_treadmill trial): LLEK / RLEK the knees' lateral
     epicondyles, LLEE the elbow's, LLW / LMW the wrist's radial and ulnar sides; its anterior tibia and front thigh

@@ -95,6 +95,9 @@ French clinical sets spell the iliac spines EIAS / EIPS or EAS / EPS (épine ili
 lateral femoral condyle CL and the lateral malleolus ML (condyle, malléole latéral·e), their medial twins CM and MM
 (BTKData's ``Res16bits``: ``REAS``, ``RCL``, ``RML``, ``RCM``, ``RMM``, described ``R.EAS``...).
 Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
+A lateral epicondyle that names no bone (``LateralEpicondyleL``, ``LLEPI``) is the knee's, unless the trial's other
+labels show that side's arm and not its leg, or no leg at all (kineticstoolkit's wheelchair trials: ``AcromionL``,
+``HandL``), or its knee under another label: then it is the elbow's (:func:`elbow_sides`).
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
 ``RASI``; ``R.Knee.Lat`` and ``R.Knee`` become ``RKNE`` (``R.Knee.Lat`` kept when both are there);
@@ -202,6 +205,14 @@ MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
     "STRN": ("strn", "sternum", "xiphoid", "xiphoidprocess", "px", "sxs"),
     "SACR": ("sacr", "sacrum", "sacral"),
 }
+
+#: Lateral-epicondyle spellings that name no bone: the femur's (KNE) in a leg's marker set, the humerus's (ELB) in an
+#: arm's (kineticstoolkit's wheelchair trials: ``BodyL:LateralEpicondyleL`` beside ``AcromionL`` and ``HandL``, no leg
+#: marker).  Read as the knee's unless the trial's other labels say the elbow's (:func:`elbow_sides`).
+EPICONDYLE = ("latepicondyle", "lateralepicondyle", "lepi", "latepi")
+#: The codes that tell a side's leg (below the hip) and arm apart, for :func:`elbow_sides`.
+LEG_CODES = ("THI", "KNE", "TIB", "ANK", "HEE", "TOE")
+ARM_CODES = ("UPA", "ELB", "FRM", "WRA", "WRB", "FIN")
 
 _SIDE_WORDS = {"r": "R", "right": "R", "l": "L", "left": "L"}
 _SIDE_LOOKUP = {name: (code, rank) for code, names in SIDE_ALIASES.items() for rank, name in enumerate(names)}
@@ -316,12 +327,15 @@ def _augmented(label: str) -> bool:
     return len(words) > 1 and words[-1] == "study"
 
 
-def _codes(label: str) -> list[tuple[str, int]]:
+def _codes(label: str, elbows: frozenset[str] = frozenset()) -> list[tuple[str, int]]:
     """The Plug-in Gait labels a label reads as (side + code, or a midline label) with their alias ranks, in the
-    order of its readings."""
+    order of its readings; a bare lateral epicondyle (EPICONDYLE) as the elbow's on the sides in `elbows`
+    (elbow_sides), as the knee's elsewhere."""
     out = []
     for side, name in _readings(label):
-        if side is not None and name in _SIDE_LOOKUP:
+        if side is not None and side in elbows and name in EPICONDYLE:
+            out.append((side + "ELB", len(SIDE_ALIASES["ELB"]) + EPICONDYLE.index(name)))
+        elif side is not None and name in _SIDE_LOOKUP:
             code, rank = _SIDE_LOOKUP[name]
             out.append((side + code, rank))
         if side is None and name in _MIDLINE_LOOKUP:
@@ -336,6 +350,32 @@ def plug_in_gait_name(label: str) -> str | None:
     return codes[0][0] if codes else None
 
 
+def _bare_epicondyle(label: str) -> bool:
+    """Whether `label` (or its name after a prefix) reads as a lateral epicondyle that names no bone (EPICONDYLE)."""
+    names = [label] + ([split[1]] if (split := _split_prefix(label)) else [])
+    return any(side is not None and name in EPICONDYLE for n in names for side, name in _readings(n))
+
+
+def elbow_sides(labels: Iterable[str]) -> frozenset[str]:
+    """The sides ('R', 'L') on which a trial's bare lateral epicondyle (EPICONDYLE) is the elbow's: that side's other
+    labels (read by the alias table, whole or after a subject prefix) show none of the leg's markers below the hip
+    (LEG_CODES) and some of the arm's (ARM_CODES), on that side or, where the trial shows no leg marker at all, on
+    either; or they show the knee's marker and not the elbow's.  The knee's elsewhere, as the table reads it alone."""
+    shown: set[str] = set()
+    for label in labels:
+        if _bare_epicondyle(label):
+            continue
+        names = [label] + ([split[1]] if (split := _split_prefix(label)) else [])
+        code = next((c[0][0] for n in names if (c := _codes(n))), None)
+        if code is not None:
+            shown.add(code)
+    legs = {side: {c for c in LEG_CODES if side + c in shown} for side in "RL"}
+    arms = {side: {c for c in ARM_CODES if side + c in shown} for side in "RL"}
+    armed = any(arms.values()) and not any(legs.values())  # an upper body's trial (a wheelchair's, a shoulder's)
+    return frozenset(side for side in "RL" if (not legs[side] and (arms[side] or armed))
+                     or ("KNE" in legs[side] and "ELB" not in arms[side]))
+
+
 OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
 
 
@@ -346,17 +386,18 @@ def osim_name(label: str) -> str:
     return "".join("_" if c in OSIM_INVALID_CHARS else c for c in label)
 
 
-def alias_for(label: str, model_labels: Iterable[str]) -> tuple[str, int] | None:
+def alias_for(label: str, model_labels: Iterable[str],
+              elbows: frozenset[str] = frozenset()) -> tuple[str, int] | None:
     """The model label a trial label is a common spelling of, and its rank in the alias table (0 best).
 
     The model's own Plug-in Gait label where it has one; else the model label that spells the same landmark
     (Rajagopal2016's ``L.Knee`` for a trial's ``L_Knee_Lat``, both the lateral knee), the most specific spelling
     where several do (``L.Ankle`` before ``LLMAL``).  None when the label is no known spelling of any of
-    ``model_labels``.
+    ``model_labels``.  `elbows`: the sides on which a bare lateral epicondyle is the elbow's (elbow_sides).
     """
     labels = list(model_labels)
     model = set(labels)
-    codes = _codes(label)
+    codes = _codes(label, elbows)
     for code, rank in codes:
         if code in model:
             return code, rank
@@ -585,6 +626,7 @@ def map_labels(
     # New labels by the user's word, kept as they are; one the model has (a subject calibrated with this map, which
     # carries them) is its own marker (calibrate() refuses a base model's: pipeline.calibrate).
     declared = {lab: seg for lab, seg in declared_segments(marker_map).items() if lab not in model_set}
+    elbows = elbow_sides(trial.labels) if aliases else frozenset()
 
     def best(label: str) -> tuple[str, str, float] | None:
         """(model label, how, priority) of a whole label."""
@@ -595,7 +637,7 @@ def map_labels(
         if (named := osim_name(label)) != label and named in model_set:  # its marker in a subject's .osim
             return named, "exact", 0
         if aliases:
-            found = alias_for(label, model_set)
+            found = alias_for(label, model_set, elbows)
             if found is not None:
                 # OpenCap's augmented marker (r_knee_study: the lateral epicondyle, where RKNE sits) before a video
                 # keypoint of the same name (RKnee: the knee's centre as a pose estimator puts it), in one file.
@@ -618,7 +660,7 @@ def map_labels(
                 subjects[split[0]] = subjects.get(split[0], 0) + 1
         if found is None and aliases and (said := trial.descriptions.get(label)):
             # a code the file describes (c3d.org's sample10: RK, "Right knee"), read as its description's alias
-            if (by := alias_for(said, model_set)) is not None:  # after any name, a subject's prefixed ones too
+            if (by := alias_for(said, model_set, elbows)) is not None:  # after any name, a subject's prefixed ones too
                 found, prefixed, note = (by[0], "description", by[1]), 2, f"by its description '{said}'"
         if found is not None:
             target, how, priority = found
