@@ -6,6 +6,7 @@ calibrate.solve.ik.bridge_unplaced), and the summary and the report list them.""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
@@ -91,3 +92,18 @@ def test_frames_that_show_a_leg_alone_are_bridged_not_fitted(human):
     np.testing.assert_array_equal(ik.angles[end], np.broadcast_to(ik.angles[99], ik.angles[end].shape))
     off = np.degrees(np.abs(ik.angles[np.ix_(gap, hips)] - sim.motion.angles[np.ix_(gap, hips)]))
     assert off.max() < 8.0, off.max()
+
+
+def test_a_trial_whose_markers_place_the_root_in_few_frames_is_refused(human):
+    """The same walk showing the right leg's markers alone from frame 8 on: the pelvis placed in 8 of 120 frames
+    (under ROOT_PLACED_MIN), every other pose and the geometry would rest on interpolation; refused in one line that
+    names the count (kineticstoolkit's racing_full on human.urdf: 12 of 700, a humerus scaled 0.20 before)."""
+    from calibrate.calibration.pipeline import ROOT_PLACED_MIN
+    from calibrate.errors import CalibrateError
+
+    sim = simulate_gait(human, frames=120, seed=4)
+    assert 8 < ROOT_PLACED_MIN * 120 <= 30  # (30 of 120 unplaced calibrate: the test above)
+    trial = _only_right_leg(sim.trial, np.arange(8, 120))
+    with pytest.raises(CalibrateError, match=r"place the pelvis in only 8 of 120 frames") as err:
+        calibrate(human, trial, Settings(max_iterations=10))
+    assert "\n" not in str(err.value)

@@ -970,14 +970,31 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     locked_names = [n for n, _ in problem.settings.lock]
     bridged: list[tuple[int, ...]] = []  # per trial, the frames that do not place the root
     partial = {i for i, _ in by_trial}  # a trial that places less than the others: held below (_hold_unplaced)
+    root_placed: dict[int, tuple[int, int]] = {}  # per trial judged, (frames that place the root, frames)
     for i, sl in enumerate(spans):
-        # (a trial whose frames all show the same markers has no frame to bridge from)
-        if i in partial or (problem.seen[sl] == problem.seen[sl.start]).all():
+        if i in partial:
             bridged.append(())
             continue
-        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
+        # (a trial whose frames all show the same markers has no frame to bridge from: one pattern judged)
+        same = bool((problem.seen[sl] == problem.seen[sl.start]).all())
+        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl][:1] if same else problem.seen[sl],
+                                             locked=locked_names)
+        root_placed[i] = (0 if root_off[0] else sl.stop - sl.start, sl.stop - sl.start) if same \
+            else (int((~root_off).sum()), len(root_off))
+        if same:
+            bridged.append(())
+            continue
         bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
         bridged.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
+    if root_placed and all(n < ROOT_PLACED_MIN * total for n, total in root_placed.values()):
+        # Nearly every frame's pose bridged from a few: a fit of interpolations (kineticstoolkit's racing_full on
+        # human.urdf, an upper body's trial whose sternum and one acromion place the torso in 12 of its 700 frames:
+        # a humerus scaled 0.20)
+        n, total = max(root_placed.values(), key=lambda v: v[0] / v[1])
+        raise CalibrateError(f"{where}: its markers place the {model.root} in only {n} of {total} frames "
+                             f"(under {ROOT_PLACED_MIN:.0%}; the others show too few of them to pose it), so its "
+                             f"poses and the geometry would rest on interpolation: add markers on the "
+                             f"{model.root} or the segments next to it, or give a trial that shows them")
     seen_names = {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()}
     # (read on the motions as written: a frame's fit that its markers do not place is no joint's turn)
     notes = coordinate_notes(subject, FrameLayout.angles(Zm), _sampled_blocks(problem, state, scatter),
@@ -1591,6 +1608,10 @@ SPREAD_FRAMES = 50  # solved frames further apart than this (0.5 s at 100 Hz): e
 POSE_ITERATIONS = 10  # pose-only iterations of that refit (at most; it stops on the solver's tolerances)
 
 
+#: A calibration whose every trial's markers place the root in fewer than this share of its frames is refused (the
+#: public sweeps' walks in and out of the capture volume: 36-100 % placed; an upper body's trial posing its torso by
+#: a sternum and one acromion: 2 %)
+ROOT_PLACED_MIN = 0.10
 STILL_MOTION = 0.005  # m: a trial whose markers on different segments move less than this (median SD) is still
 # m: ... unless one such pair moves more than this (SD): a joint turns.  arm26's elbow flexion has three markers on
 # three segments, two pairs of them across the elbow's axis or on the welded shoulder (0.4, 1.7 mm) and one that
