@@ -7,7 +7,8 @@ time: what other labs' trials do to calibrate (docs/benchmarks.md's public sweep
 
 Each file is one run of ``python -m calibrate FILE MODEL -o DIR/`` in a folder of its own.  Per file: the exit
 status; for a calibration its marker RMS (mm, the report's ``markers.rms_mm``), whether it converged, the summary's
-``implausible`` lines (the report's ``implausible_flags``), its unreliable parameters, wall time, and the md5 of the
+``implausible`` lines (the report's ``implausible_flags``), its unreliable parameters, the share of its frames that
+do not place the root (the report's ``unplaced_frames``: their poses bridged), wall time, and the md5 of the
 subject URDF (the same bits or not, run to run); for a refusal its one line.  ``--compare`` lists the files whose
 status, URDF bits, RMS or implausible lines differ from an earlier run's JSON.  The data is not in ../shared
 (public repositories: BTKData's ``Input/C3DSamples``, kineticstoolkit's ``data/``, ...): give their folders.
@@ -44,8 +45,11 @@ def outputs(folder: Path) -> dict:
     if report is None or urdf is None:
         return {}
     r = json.loads(report.read_text())
+    frames = sum(t["frames"] for t in r["trials"])
+    bridged = sum(len(u["frames"]) for u in r.get("unplaced_frames") or [])
     return {"rms_mm": float(r["markers"]["rms_mm"]), "converged": bool(r["solver"]["converged"]),
             "implausible": list(r.get("implausible_flags") or []), "unreliable": list(r.get("unreliable") or []),
+            "root_unplaced": bridged / frames if frames else 0.0,
             "urdf_md5": hashlib.md5(urdf.read_bytes()).hexdigest()}
 
 
@@ -133,8 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         name = Path(r["file"]).name
         if r["rc"] == 0:
+            bridged = f"  root unplaced in {100 * r['root_unplaced']:.0f} % of frames" if r.get("root_unplaced") else ""
             print(f"  {name:48s} {r.get('rms_mm', float('nan')):7.3f} mm  "
-                  f"{len(r.get('implausible', [])):2d} implausible  {r['wall_s']:6.1f} s")
+                  f"{len(r.get('implausible', [])):2d} implausible  {r['wall_s']:6.1f} s{bridged}")
         else:
             print(f"  {name:48s} refused (rc {r['rc']}): {r.get('error', '')[:150]}")
     print(f"{len(ok)} of {len(rows)} calibrate; {sum(len(r.get('implausible', [])) for r in ok)} implausible lines on "

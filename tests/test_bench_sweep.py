@@ -30,7 +30,7 @@ def test_a_sweep_records_each_calibration_and_refusal_and_what_changed(human, tm
     squat, empty = rows["squat.C3D"], rows["empty.c3d"]
     assert squat["rc"] == 0 and squat["converged"] and len(squat["urdf_md5"]) == 32
     assert 0.5 < squat["rms_mm"] < 3.0  # 1 mm of simulated noise per axis: ~1.7 mm in 3-D
-    assert squat["implausible"] == []
+    assert squat["implausible"] == [] and squat["root_unplaced"] == 0.0  # every marker in every frame
     assert empty["rc"] == 2 and "empty.c3d: file is empty" in empty["error"] and "<scratch>" not in empty["error"]
     before = json.loads(out.read_text())
     for r in before["files"]:
