@@ -972,18 +972,15 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     partial = {i for i, _ in by_trial}  # a trial that places less than the others: held below (_hold_unplaced)
     root_placed: dict[int, tuple[int, int]] = {}  # per trial judged, (frames that place the root, frames)
     for i, sl in enumerate(spans):
-        if i in partial:
+        # (a trial whose frames all show the same markers has no frame to bridge from; not one the others out-place,
+        # its markers place the root as the trials' together do, or the run was refused before the solve)
+        if i in partial or (problem.seen[sl] == problem.seen[sl.start]).all():
             bridged.append(())
+            if i not in partial:
+                root_placed[i] = (sl.stop - sl.start, sl.stop - sl.start)
             continue
-        # (a trial whose frames all show the same markers has no frame to bridge from: one pattern judged)
-        same = bool((problem.seen[sl] == problem.seen[sl.start]).all())
-        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl][:1] if same else problem.seen[sl],
-                                             locked=locked_names)
-        root_placed[i] = (0 if root_off[0] else sl.stop - sl.start, sl.stop - sl.start) if same \
-            else (int((~root_off).sum()), len(root_off))
-        if same:
-            bridged.append(())
-            continue
+        root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
+        root_placed[i] = (int((~root_off).sum()), len(root_off))
         bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
         bridged.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
     if root_placed and all(n < ROOT_PLACED_MIN * total for n, total in root_placed.values()):
