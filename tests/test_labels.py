@@ -422,6 +422,9 @@ def test_a_bare_lateral_epicondyle_is_read_by_the_trial(human, labels: list[str]
     renamed, mapping = map_labels(make_trial(labels), human.marker_names)
     assert list(renamed.labels) == want
     assert mapping.unknown == ()
+    bare = [m for m in mapping if "Epicondyle" in m.trial_label]  # the choice is named in the mapping's notes
+    assert bare and all(f"no named bone: the {'elbow' if m.label.endswith('ELB') else 'knee'}'s" in m.note
+                        for m in bare)
 
 
 def test_human_body_model_spellings(human) -> None:  # noqa: ANN001

@@ -664,6 +664,11 @@ def map_labels(
                 found, prefixed, note = (by[0], "description", by[1]), 2, f"by its description '{said}'"
         if found is not None:
             target, how, priority = found
+            if how == "alias" and _bare_epicondyle(label):  # the trial's other labels chose the bone: say so
+                elbow = (plug_in_gait_name(target) or "").endswith("ELB")
+                note = "; ".join(filter(None, [note, "a lateral epicondyle of no named bone: the " + (
+                    "elbow's, as the trial's other labels show that arm and not its leg, no leg, or its knee "
+                    "otherwise" if elbow else "knee's, as the trial's other labels do not show that arm alone")]))
             candidates[index] = (target, how, (prefixed, _RANK[how], priority), note)
     several = {k: n for k, n in subjects.items() if n >= SUBJECT_MARKERS}
     if len(several) > 1:  # a session's file with each subject's markers (Vicon's Derrick:RASI, Viktor:RASI)
