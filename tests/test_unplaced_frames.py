@@ -95,15 +95,25 @@ def test_frames_that_show_a_leg_alone_are_bridged_not_fitted(human):
 
 
 def test_a_trial_whose_markers_place_the_root_in_few_frames_is_refused(human):
-    """The same walk showing the right leg's markers alone from frame 8 on: the pelvis placed in 8 of 120 frames
-    (under ROOT_PLACED_MIN), every other pose and the geometry would rest on interpolation; refused in one line that
-    names the count (kineticstoolkit's racing_full on human.urdf: 12 of 700, a humerus scaled 0.20 before)."""
+    """The same walk showing the right leg's markers alone from frame 8 on: the pelvis placed in 8 of the 120 frames
+    that show markers (under ROOT_PLACED_MIN), every other pose and the geometry would rest on interpolation; refused
+    in one line that names the count (kineticstoolkit's racing_full on human.urdf: 12 of 700, a humerus scaled 0.20
+    before).  The same walk showing nothing from frame 8 on (the subject gone from the volume) calibrates: those
+    frames fit nothing, and its 8 frames that show markers place the pelvis."""
     from calibrate.calibration.pipeline import ROOT_PLACED_MIN
     from calibrate.errors import CalibrateError
 
     sim = simulate_gait(human, frames=120, seed=4)
     assert 8 < ROOT_PLACED_MIN * 120 <= 30  # (30 of 120 unplaced calibrate: the test above)
     trial = _only_right_leg(sim.trial, np.arange(8, 120))
-    with pytest.raises(CalibrateError, match=r"place the pelvis in only 8 of 120 frames") as err:
+    with pytest.raises(CalibrateError, match=r"place the pelvis in only 8 of the 120 frames that show 3 or more") \
+            as err:
         calibrate(human, trial, Settings(max_iterations=10))
     assert "\n" not in str(err.value)
+    X = sim.trial.markers.copy()
+    X[8:] = np.nan
+    gone = Trial(sim.trial.labels, X, sim.trial.rate, sim.trial.first_frame, sim.trial.source)
+    cal = calibrate(human, gone, Settings(max_iterations=10))
+    assert cal.unplaced_frames == (tuple(range(8, 120)),)  # listed, their poses held at frame 7's
+    angles = cal.motions[0].angles
+    np.testing.assert_array_equal(angles[8:], np.broadcast_to(angles[7], angles[8:].shape))

@@ -970,7 +970,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     locked_names = [n for n, _ in problem.settings.lock]
     bridged: list[tuple[int, ...]] = []  # per trial, the frames that do not place the root
     partial = {i for i, _ in by_trial}  # a trial that places less than the others: held below (_hold_unplaced)
-    root_placed: dict[int, tuple[int, int]] = {}  # per trial judged, (frames that place the root, frames)
+    root_placed: dict[int, tuple[int, int]] = {}  # per trial judged: frames that place the root, frames that show some
     for i, sl in enumerate(spans):
         # (a trial whose frames all show the same markers has no frame to bridge from; not one the others out-place,
         # its markers place the root as the trials' together do, or the run was refused before the solve)
@@ -980,16 +980,19 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                 root_placed[i] = (sl.stop - sl.start, sl.stop - sl.start)
             continue
         root_off, dofs_off = unplaced_frames(subject, problem.seen[sl], locked=locked_names)
-        root_placed[i] = (int((~root_off).sum()), len(root_off))
+        # (of the frames that show a marker's worth of the subject: a recording's stretch before the subject walks in
+        # shows none, fits nothing and bends nothing)
+        root_placed[i] = (int((~root_off).sum()), int((problem.seen[sl].sum(axis=1) >= SHOWN_MARKERS).sum()))
         bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
         bridged.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
-    if root_placed and all(n < ROOT_PLACED_MIN * total for n, total in root_placed.values()):
+    if root_placed and all(n < ROOT_PLACED_MIN * shown for n, shown in root_placed.values()):
         # Nearly every frame's pose bridged from a few: a fit of interpolations (kineticstoolkit's racing_full on
         # human.urdf, an upper body's trial whose sternum and one acromion place the torso in 12 of its 700 frames:
         # a humerus scaled 0.20)
-        n, total = max(root_placed.values(), key=lambda v: v[0] / v[1])
-        raise CalibrateError(f"{where}: its markers place the {model.root} in only {n} of {total} frames "
-                             f"(under {ROOT_PLACED_MIN:.0%}; the others show too few of them to pose it), so its "
+        n, shown = max(root_placed.values(), key=lambda v: v[0] / max(v[1], 1))
+        raise CalibrateError(f"{where}: its markers place the {model.root} in only {n} of the {shown} frames that "
+                             f"show {SHOWN_MARKERS} or more (under {ROOT_PLACED_MIN:.0%}; the others show too few of "
+                             f"them to pose it), so its "
                              f"poses and the geometry would rest on interpolation: add markers on the "
                              f"{model.root} or the segments next to it, or give a trial that shows them")
     seen_names = {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()}
@@ -1609,6 +1612,7 @@ POSE_ITERATIONS = 10  # pose-only iterations of that refit (at most; it stops on
 #: public sweeps' walks in and out of the capture volume: 36-100 % placed; an upper body's trial posing its torso by
 #: a sternum and one acromion: 2 %)
 ROOT_PLACED_MIN = 0.10
+SHOWN_MARKERS = 3  # ... of its frames that show at least this many markers (fewer place no segment)
 STILL_MOTION = 0.005  # m: a trial whose markers on different segments move less than this (median SD) is still
 # m: ... unless one such pair moves more than this (SD): a joint turns.  arm26's elbow flexion has three markers on
 # three segments, two pairs of them across the elbow's axis or on the welded shoulder (0.4, 1.7 mm) and one that
