@@ -410,8 +410,10 @@ def test_french_clinical_spellings(human) -> None:  # noqa: ANN001
     (["LASI", "LLateralEpicondyle", "LANK", "LHEE"], ["LASI", "LKNE", "LANK", "LHEE"]),
     # kineticstoolkit's wheelchair sprint (one side, a subject prefix): the humerus's beside the acromion and the hand
     (["BodyL:AcromionL", "BodyL:LateralEpicondyleL", "BodyL:HandL", "BodyL:C7"], ["LSHO", "LELB", "LFIN", "C7"]),
-    # the knee labelled otherwise: the elbow's
+    # the knee labelled otherwise, the arm marked: the elbow's
     (["RKNE", "RLateralEpicondyle", "RANK", "RSHO"], ["RKNE", "RELB", "RANK", "RSHO"]),
+    # ... no arm marked: a leg's landmark still, the knee's (RKNE, the model's own label, kept over it)
+    (["RKNE", "RLateralEpicondyle", "RANK", "RHEE"], ["RKNE", "RLateralEpicondyle", "RANK", "RHEE"]),
     # an upper body's trial (kineticstoolkit's racing_full): no leg marker anywhere, the arm's on one side
     (["RSHO", "RWRA", "LateralEpicondyleL", "LateralEpicondyleR"], ["RSHO", "RWRA", "LELB", "RELB"]),
 ])
@@ -421,10 +423,10 @@ def test_a_bare_lateral_epicondyle_is_read_by_the_trial(human, labels: list[str]
     scaled 0.32 with its elbow marker on the femur) or the knee's marker otherwise."""
     renamed, mapping = map_labels(make_trial(labels), human.marker_names)
     assert list(renamed.labels) == want
-    assert mapping.unknown == ()
-    bare = [m for m in mapping if "Epicondyle" in m.trial_label]  # the choice is named in the mapping's notes
-    assert bare and all(f"no named bone: the {'elbow' if m.label.endswith('ELB') else 'knee'}'s" in m.note
-                        for m in bare)
+    assert mapping.unknown == tuple(lab for lab in want if lab in labels and lab not in human.marker_names)
+    bare = [m for m in mapping if "Epicondyle" in m.trial_label and m.how == "alias"]  # its choice in the note
+    assert all(f"no named bone: the {'elbow' if m.label.endswith('ELB') else 'knee'}'s" in m.note for m in bare)
+    assert bare or "conflict: RKNE kept RKNE" in by_trial_label(mapping)["RLateralEpicondyle"][2]
 
 
 def test_human_body_model_spellings(human) -> None:  # noqa: ANN001

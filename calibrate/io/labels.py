@@ -97,7 +97,8 @@ lateral femoral condyle CL and the lateral malleolus ML (condyle, mallÃ©ole latÃ
 Medial landmarks (FME, MM, EM...) have no Plug-in Gait marker and stay unknown.
 A lateral epicondyle that names no bone (``LateralEpicondyleL``, ``LLEPI``) is the knee's, unless the trial's other
 labels show that side's arm and not its leg, or no leg at all (kineticstoolkit's wheelchair trials: ``AcromionL``,
-``HandL``), or its knee under another label: then it is the elbow's (:func:`elbow_sides`).
+``HandL``), or that side's knee under another label beside its arm's markers: then it is the elbow's
+(:func:`elbow_sides`).
 
 So ``R.ASIS``, ``RASIS``, ``R_ASIS``, ``r_asis``, ``RightASIS``, ``R.ASI`` and ``ASIS_R`` all become
 ``RASI``; ``R.Knee.Lat`` and ``R.Knee`` become ``RKNE`` (``R.Knee.Lat`` kept when both are there);
@@ -212,7 +213,7 @@ MIDLINE_ALIASES: dict[str, tuple[str, ...]] = {
 EPICONDYLE = ("latepicondyle", "lateralepicondyle", "lepi", "latepi")
 #: The codes that tell a side's leg (below the hip) and arm apart, for :func:`elbow_sides`.
 LEG_CODES = ("THI", "KNE", "TIB", "ANK", "HEE", "TOE")
-ARM_CODES = ("UPA", "ELB", "FRM", "WRA", "WRB", "FIN")
+ARM_CODES = ("SHO", "UPA", "ELB", "FRM", "WRA", "WRB", "FIN")
 
 _SIDE_WORDS = {"r": "R", "right": "R", "l": "L", "left": "L"}
 _SIDE_LOOKUP = {name: (code, rank) for code, names in SIDE_ALIASES.items() for rank, name in enumerate(names)}
@@ -359,8 +360,9 @@ def _bare_epicondyle(label: str) -> bool:
 def elbow_sides(labels: Iterable[str]) -> frozenset[str]:
     """The sides ('R', 'L') on which a trial's bare lateral epicondyle (EPICONDYLE) is the elbow's: that side's other
     labels (read by the alias table, whole or after a subject prefix) show none of the leg's markers below the hip
-    (LEG_CODES) and some of the arm's (ARM_CODES), on that side or, where the trial shows no leg marker at all, on
-    either; or they show the knee's marker and not the elbow's.  The knee's elsewhere, as the table reads it alone."""
+    (LEG_CODES) and some of the arm's (ARM_CODES, the acromion's among them), on that side or, where the trial shows
+    no leg marker at all, on either; or they show that side's knee marker and its arm's but not its elbow's.  The
+    knee's elsewhere, as the table reads it alone (a leg's set with a knee marker beside: no arm, no elbow)."""
     shown: set[str] = set()
     for label in labels:
         if _bare_epicondyle(label):
@@ -373,7 +375,7 @@ def elbow_sides(labels: Iterable[str]) -> frozenset[str]:
     arms = {side: {c for c in ARM_CODES if side + c in shown} for side in "RL"}
     armed = any(arms.values()) and not any(legs.values())  # an upper body's trial (a wheelchair's, a shoulder's)
     return frozenset(side for side in "RL" if (not legs[side] and (arms[side] or armed))
-                     or ("KNE" in legs[side] and "ELB" not in arms[side]))
+                     or ("KNE" in legs[side] and arms[side] and "ELB" not in arms[side]))
 
 
 OSIM_INVALID_CHARS = "\\*+ \t\n/"  # OpenSim's ComponentPath.getInvalidChars()
