@@ -11,7 +11,8 @@ status; for a calibration its marker RMS (mm, the report's ``markers.rms_mm``), 
 do not place the root (the report's ``unplaced_frames``: their poses bridged), wall time, and the md5 of the
 subject URDF (the same bits or not, run to run); for a refusal its one line.  ``--compare`` lists the files whose
 status, URDF bits, RMS or implausible lines differ from an earlier run's JSON.  The data is not in ../shared
-(public repositories: BTKData's ``Input/C3DSamples``, kineticstoolkit's ``data/``, ...): give their folders.
+(public repositories: BTKData's ``Input/C3DSamples``, kineticstoolkit's ``data/``, ...): give their folders
+(``scripts/public_data.py`` writes a repository's trial files into one, under the names docs/benchmarks.md gives).
 Timings are of a machine running ``--jobs`` calibrations at once: compare them only within a run.
 """
 
