@@ -970,7 +970,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     locked_names = [n for n, _ in problem.settings.lock]
     bridged: list[tuple[int, ...]] = []  # per trial, the frames that do not place the root
     partial = {i for i, _ in by_trial}  # a trial that places less than the others: held below (_hold_unplaced)
-    root_placed: dict[int, tuple[int, int]] = {}  # per trial judged: frames that place the root, frames that show some
+    root_placed: dict[int, tuple[int, int]] = {}  # per trial judged: frames placing the root, frames showing some
     for i, sl in enumerate(spans):
         # (a trial whose frames all show the same markers has no frame to bridge from; not one the others out-place,
         # its markers place the root as the trials' together do, or the run was refused before the solve)
@@ -992,9 +992,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         n, shown = max(root_placed.values(), key=lambda v: v[0] / max(v[1], 1))
         raise CalibrateError(f"{where}: its markers place the {model.root} in only {n} of the {shown} frames that "
                              f"show {SHOWN_MARKERS} or more (under {ROOT_PLACED_MIN:.0%}; the others show too few of "
-                             f"them to pose it), so its "
-                             f"poses and the geometry would rest on interpolation: add markers on the "
-                             f"{model.root} or the segments next to it, or give a trial that shows them")
+                             f"them to pose it), so its poses and the geometry would rest on interpolation: add "
+                             f"markers on the {model.root} or the segments next to it, or give a trial that shows them")
     seen_names = {mk.name for k, mk in enumerate(subject.markers) if problem.seen[:, k].any()}
     # (read on the motions as written: a frame's fit that its markers do not place is no joint's turn)
     notes = coordinate_notes(subject, FrameLayout.angles(Zm), _sampled_blocks(problem, state, scatter),

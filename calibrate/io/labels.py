@@ -351,10 +351,14 @@ def plug_in_gait_name(label: str) -> str | None:
     return codes[0][0] if codes else None
 
 
+def _and_unprefixed(label: str) -> list[str]:
+    """`label`, and its name after a subject prefix where it has one (``BodyL:HandL`` -> ``HandL``)."""
+    return [label] + ([split[1]] if (split := _split_prefix(label)) else [])
+
+
 def _bare_epicondyle(label: str) -> bool:
     """Whether `label` (or its name after a prefix) reads as a lateral epicondyle that names no bone (EPICONDYLE)."""
-    names = [label] + ([split[1]] if (split := _split_prefix(label)) else [])
-    return any(side is not None and name in EPICONDYLE for n in names for side, name in _readings(n))
+    return any(side is not None and name in EPICONDYLE for n in _and_unprefixed(label) for side, name in _readings(n))
 
 
 def elbow_sides(labels: Iterable[str]) -> frozenset[str]:
@@ -367,8 +371,7 @@ def elbow_sides(labels: Iterable[str]) -> frozenset[str]:
     for label in labels:
         if _bare_epicondyle(label):
             continue
-        names = [label] + ([split[1]] if (split := _split_prefix(label)) else [])
-        code = next((c[0][0] for n in names if (c := _codes(n))), None)
+        code = next((c[0][0] for n in _and_unprefixed(label) if (c := _codes(n))), None)
         if code is not None:
             shown.add(code)
     legs = {side: {c for c in LEG_CODES if side + c in shown} for side in "RL"}
