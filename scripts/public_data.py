@@ -35,11 +35,14 @@ def source(spec: str) -> tuple[Path, str, str]:
     return Path(parts[0]), parts[1], (parts[2] if len(parts) == 3 else "").strip("/")
 
 
+def _git(gitdir: Path, *args: str) -> subprocess.CompletedProcess:
+    """`git ARGS` on the repository whose git directory is `gitdir` (output captured as bytes, never raising)."""
+    return subprocess.run(["git", f"--git-dir={gitdir}", *args], capture_output=True)
+
+
 def trial_paths(gitdir: Path, folder: str) -> list[str]:
     """The C3D and TRC paths (any case of suffix) under `folder` of the repository's HEAD, sorted."""
-    out = subprocess.run(["git", f"--git-dir={gitdir}", "ls-tree", "-r", "--name-only", "HEAD", *([folder] if folder
-                                                                                                     else [])],
-                         capture_output=True, text=True, check=True).stdout
+    out = _git(gitdir, "ls-tree", "-r", "--name-only", "HEAD", *([folder] if folder else [])).stdout.decode()
     return sorted(p for p in out.splitlines() if p.lower().endswith(SUFFIXES))
 
 
@@ -56,7 +59,7 @@ def extract(gitdir: Path, prefix: str, folder: str, into: Path, overwrite: bool 
         dest = into / flat_name(path, prefix, folder)
         if dest.exists() and not overwrite:
             continue
-        blob = subprocess.run(["git", f"--git-dir={gitdir}", "show", f"HEAD:{path}"], capture_output=True)
+        blob = _git(gitdir, "show", f"HEAD:{path}")
         data = blob.stdout if blob.returncode == 0 else b""
         dest.write_bytes(data)
         written += 1
@@ -76,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"public_data: {e}", file=sys.stderr)
         return 2
     for gitdir, _, _ in specs:
-        if subprocess.run(["git", f"--git-dir={gitdir}", "rev-parse", "HEAD"], capture_output=True).returncode:
+        if _git(gitdir, "rev-parse", "HEAD").returncode:
             print(f"public_data: {gitdir}: not a git directory with a HEAD; give a mirror or a clone's .git",
                   file=sys.stderr)
             return 2
