@@ -119,6 +119,39 @@ def test_calibration_ignores_outputs_and_says_so(human) -> None:  # noqa: ANN001
     assert report["model_outputs_ignored"] == ["HEDO", "LFEO"] and report["unresolved"] == []
 
 
+def test_a_model_output_the_marker_map_names_is_read_as_that_marker(human, tmp_path: Path) -> None:  # noqa: ANN001
+    """A lab's marker set may carry Plug-in Gait's joint centres as markers (pyCGM2's LKJC at the knee centre); its
+    marker map's line `LKNE = ["LFEO"]` is the user's word that the output is the model's marker: read back from a C3D
+    file, the output becomes that marker (its trajectory to the file's precision) and leaves the ignored outputs;
+    without the line it stays an output, and the calibration uses it only with the line."""
+    from calibrate.io.c3d import write_c3d
+    from calibrate.io.labels import map_labels
+    from calibrate.io.trial import Trial
+
+    sim = simulate_squats(human, frames=30, noise_mm=0.5, seed=2)
+    t = sim.trial
+    rest = tuple(label for label in t.labels if label != "LKNE")
+    trial = Trial(rest, t.select(list(rest)).markers, t.rate,
+                  model_outputs={"LFEO": t.marker("LKNE"), "HEDO": t.marker("LFHD")},
+                  output_kinds={"LFEO": "point", "HEDO": "point"}, output_units={"LFEO": "m", "HEDO": "m"})
+    write_c3d(tmp_path / "squats.c3d", trial)
+    back = read_c3d(tmp_path / "squats.c3d")
+    assert "LKNE" not in back.labels and set(back.model_outputs) == {"LFEO", "HEDO"}
+    plain, _ = map_labels(back, human.marker_names)
+    assert "LKNE" not in plain.labels and "LFEO" in plain.model_outputs
+    mapped, mapping = map_labels(back, human.marker_names, {"LKNE": ["LFEO"]})
+    assert "LKNE" in mapped.labels and set(mapped.model_outputs) == {"HEDO"}
+    assert set(mapped.output_kinds) == {"HEDO"} and mapped.marker("LKNE").shape == t.marker("LKNE").shape
+    assert np.allclose(mapped.marker("LKNE"), t.marker("LKNE"), atol=1e-5)  # the file's float32 millimetres
+    without = calibrate(human, back, Settings(max_iterations=5))
+    used = calibrate(human, back, Settings(max_iterations=5), marker_map={"LKNE": ["LFEO"]})
+    assert "LKNE" not in calibration_report(without)["marker_set"]["used"]
+    assert "LKNE" in calibration_report(used)["marker_set"]["used"]
+    assert "2 Vicon model outputs ignored" in summary_text(without)
+    assert "1 Vicon model outputs ignored (HEDO" in summary_text(used)
+    assert calibration_report(used)["model_outputs_ignored"] == ["HEDO"]
+
+
 needs_real = pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
 
 

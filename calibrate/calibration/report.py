@@ -1155,7 +1155,9 @@ def summary_text(cal) -> str:
                          "not on its markers (read them with care)")
     outputs = set().union(*(t.model_outputs for t in cal.trials))
     if outputs:
-        lines.append(f"  {len(outputs)} Vicon model outputs ignored (PELO, LFEO, angles...: not markers)")
+        named = ", ".join(sorted(outputs)[:3]) + (", ..." if len(outputs) > 3 else "")
+        lines.append(f"  {len(outputs)} Vicon model outputs ignored ({named}: not markers; a marker map line "
+                     "naming one reads it as that marker)")
     misaligned: dict[str, list] = {}
     for k in cal.knee_axes:
         if k.misaligned:

@@ -124,6 +124,8 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import CalibrateError
 from .trial import Trial
 
@@ -603,6 +605,23 @@ def _split_prefix(label: str) -> tuple[str, str] | None:
     return (prefix, name) if prefix and name else None
 
 
+def _with_mapped_outputs(trial: Trial, lookup: Mapping[str, tuple[str, int]]) -> Trial:
+    """The trial with the model outputs the marker map names (a point a modelling program wrote: Plug-in Gait's
+    knee centre ``LFEO`` mapped to a lab's ``LKJC``) read as markers: the user's word that the point is the model's
+    marker, where the file's parameters or the label's name alone keep such points apart (io.c3d)."""
+    named = [label for label in trial.model_outputs
+             if label in lookup and trial.output_kinds.get(label) == "point" and label not in trial.labels]
+    if not named:
+        return trial
+    extra = np.stack([np.asarray(trial.model_outputs[label], dtype=float) for label in named], axis=1)
+    markers = np.concatenate([np.asarray(trial.markers), extra], axis=1)
+    markers.flags.writeable = False
+    keep = {k: v for k, v in trial.model_outputs.items() if k not in named}
+    return replace(trial, labels=(*trial.labels, *named), markers=markers, model_outputs=keep,
+                   output_kinds={k: v for k, v in trial.output_kinds.items() if k in keep},
+                   output_units={k: v for k, v in trial.output_units.items() if k in keep})
+
+
 def map_labels(
     trial: Trial,
     model_labels: Sequence[str],
@@ -628,6 +647,7 @@ def map_labels(
     model = [str(label) for label in model_labels]
     model_set = set(model)
     lookup = _check_marker_map(marker_map, model) if marker_map else {}
+    trial = _with_mapped_outputs(trial, lookup)
     # New labels by the user's word, kept as they are; one the model has (a subject calibrated with this map, which
     # carries them) is its own marker (calibrate() refuses a base model's: pipeline.calibrate).
     declared = {lab: seg for lab, seg in declared_segments(marker_map).items() if lab not in model_set}
