@@ -123,7 +123,8 @@ def test_a_model_output_the_marker_map_names_is_read_as_that_marker(human, tmp_p
     """A lab's marker set may carry Plug-in Gait's joint centres as markers (pyCGM2's LKJC at the knee centre); its
     marker map's line `LKNE = ["LFEO"]` is the user's word that the output is the model's marker: read back from a C3D
     file, the output becomes that marker (its trajectory to the file's precision) and leaves the ignored outputs;
-    without the line it stays an output, and the calibration uses it only with the line."""
+    without the line it stays an output, and the calibration uses it only with the line.  A model with a marker of
+    the output's own name reads it by that name."""
     from calibrate.io.c3d import write_c3d
     from calibrate.io.labels import map_labels
     from calibrate.io.trial import Trial
@@ -143,6 +144,13 @@ def test_a_model_output_the_marker_map_names_is_read_as_that_marker(human, tmp_p
     assert "LKNE" in mapped.labels and set(mapped.model_outputs) == {"HEDO"}
     assert set(mapped.output_kinds) == {"HEDO"} and mapped.marker("LKNE").shape == t.marker("LKNE").shape
     assert np.allclose(mapped.marker("LKNE"), t.marker("LKNE"), atol=1e-5)  # the file's float32 millimetres
+    assert dict((m.trial_label, m.note) for m in mapping)["LFEO"].endswith("read as a marker: the marker map names it")
+    # a model whose own marker set names the point (pyCGM2's LKJC at the knee centre) reads it by its name alone
+    own, named = map_labels(back, (*human.marker_names, "LFEO"))
+    assert "LFEO" in own.labels and np.array_equal(own.marker("LFEO"), mapped.marker("LKNE"))
+    assert dict((m.trial_label, (m.how, m.note)) for m in named)["LFEO"] == (
+        "exact", "a model output of the file, read as a marker: the model has a marker of its name")
+    assert set(own.model_outputs) == {"HEDO"}
     without = calibrate(human, back, Settings(max_iterations=5))
     used = calibrate(human, back, Settings(max_iterations=5), marker_map={"LKNE": ["LFEO"]})
     assert "LKNE" not in calibration_report(without)["marker_set"]["used"]

@@ -1157,7 +1157,7 @@ def summary_text(cal) -> str:
     if outputs:
         named = ", ".join(sorted(outputs)[:3]) + (", ..." if len(outputs) > 3 else "")
         lines.append(f"  {len(outputs)} Vicon model outputs ignored ({named}: not markers; a marker map line "
-                     "naming one reads it as that marker)")
+                     "naming one, or a model marker of its name, reads it as that marker)")
     misaligned: dict[str, list] = {}
     for k in cal.knee_axes:
         if k.misaligned:

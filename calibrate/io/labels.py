@@ -605,21 +605,27 @@ def _split_prefix(label: str) -> tuple[str, str] | None:
     return (prefix, name) if prefix and name else None
 
 
-def _with_mapped_outputs(trial: Trial, lookup: Mapping[str, tuple[str, int]]) -> Trial:
-    """The trial with the model outputs the marker map names (a point a modelling program wrote: Plug-in Gait's
-    knee centre ``LFEO`` mapped to a lab's ``LKJC``) read as markers: the user's word that the point is the model's
-    marker, where the file's parameters or the label's name alone keep such points apart (io.c3d)."""
-    named = [label for label in trial.model_outputs
-             if label in lookup and trial.output_kinds.get(label) == "point" and label not in trial.labels]
-    if not named:
-        return trial
+def _with_mapped_outputs(trial: Trial, lookup: Mapping[str, tuple[str, int]],
+                         model_set: set[str]) -> tuple[Trial, dict[str, str]]:
+    """The trial with the model outputs (points a modelling program wrote, io.c3d) that the marker map names or that
+    are the model's own marker by their name read as markers, and why each was: Plug-in Gait's knee centre ``LFEO``
+    mapped to a lab's ``LKJC``, or pyCGM2's computed ``LKJC`` where the lab's marker set has a marker ``LKJC`` at the
+    knee centre.  The file's parameters or the label's name alone keep such points apart; the user's map or model
+    naming one is the word that it is a marker."""
+    why = {label: "the marker map names it" if label in lookup else "the model has a marker of its name"
+           for label in trial.model_outputs
+           if (label in lookup or label in model_set) and trial.output_kinds.get(label) == "point"
+           and label not in trial.labels}
+    if not why:
+        return trial, why
+    named = list(why)
     extra = np.stack([np.asarray(trial.model_outputs[label], dtype=float) for label in named], axis=1)
     markers = np.concatenate([np.asarray(trial.markers), extra], axis=1)
     markers.flags.writeable = False
-    keep = {k: v for k, v in trial.model_outputs.items() if k not in named}
+    keep = {k: v for k, v in trial.model_outputs.items() if k not in why}
     return replace(trial, labels=(*trial.labels, *named), markers=markers, model_outputs=keep,
                    output_kinds={k: v for k, v in trial.output_kinds.items() if k in keep},
-                   output_units={k: v for k, v in trial.output_units.items() if k in keep})
+                   output_units={k: v for k, v in trial.output_units.items() if k in keep}), why
 
 
 def map_labels(
@@ -647,7 +653,7 @@ def map_labels(
     model = [str(label) for label in model_labels]
     model_set = set(model)
     lookup = _check_marker_map(marker_map, model) if marker_map else {}
-    trial = _with_mapped_outputs(trial, lookup)
+    trial, outputs = _with_mapped_outputs(trial, lookup, model_set)
     # New labels by the user's word, kept as they are; one the model has (a subject calibrated with this map, which
     # carries them) is its own marker (calibrate() refuses a base model's: pipeline.calibrate).
     declared = {lab: seg for lab, seg in declared_segments(marker_map).items() if lab not in model_set}
@@ -733,6 +739,10 @@ def map_labels(
             messages.append(message)
             warnings.warn(message, LabelConflictWarning, stacklevel=2)
 
+    for i, label in enumerate(trial.labels):
+        if label in outputs:
+            read = f"a model output of the file, read as a marker: {outputs[label]}"
+            notes[i] = "; ".join(filter(None, [notes[i], read]))
     # A label the map displaced from the model's name it carries (the map gave RKNE to RKNE1) takes the first free
     # suffix, as a file's repeated label does (RKNE_2), and is placed like any unknown label.
     taken = set(labels)
