@@ -97,7 +97,7 @@ def _notes(report: dict) -> str:
     if static_pose.get("flagged") and static_pose.get("advice"):  # once, after the pairs it is about
         items.append(f"<li class=bad>implausible static poses: {_e(static_pose['advice'])}</li>")
     for f in report.get("implausible_flags", []):  # a centre or axis a trade carried far (the rest: below)
-        if f.startswith(("centre[", "axis[")):
+        if f.startswith(("centre[", "axis[")) or ": hip to knee " in f:  # ... or a knee carried along the leg
             items.append(f"<li class=bad>implausible {_e(f)}</li>")
     measured_flags = set()
     for j, v in ((report.get("measurements") or {}).get("lateral_mm") or {}).items():

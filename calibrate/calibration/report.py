@@ -34,7 +34,7 @@ from .identifiability import IDENTIFIED, NARROW_TURN, segment_end
 from .moved import REPLACED_MIN
 from .noise import NOISE_TAU_SECONDS, tau_cap
 from .records import Identified, StillNote
-from .regression import FUNCTIONAL_RANGE, REGRESSION_FAR, harrington_width
+from .regression import FUNCTIONAL_RANGE, REGRESSION_FAR, harrington_width, hip_joints
 from .series import report_series
 
 if TYPE_CHECKING:
@@ -322,6 +322,40 @@ def poor_fit_line(cal: Calibration) -> str | None:
     return (f"the markers fit to {1e3 * rms:.1f} mm RMS, where real trials calibrate to 2-11 mm: the trials' labels "
             f"and the model's markers may not name the same points (worst, mm RMS: {named}); check them (`calibrate "
             "inspect TRIAL --model MODEL`) or name them with --markers map.toml")
+
+
+#: A leg whose thigh (hip centre to knee centre) is more than LEG_RATIO times its shank (knee centre to ankle
+#: centre), or less than its inverse, is implausible: adults' are about equal (Winter, after Drillis & Contini:
+#: 0.245 and 0.246 of the stature), Plug-in Gait's own centres on pig_walk 1.11-1.19, the public sweep's real runs
+#: 0.88-1.27 on models/human.urdf and Rajagopal2016.osim; pyCGM2's ball-knee OpenSim models on pig_walk, whose
+#: knees the walk carried down the shank, 1.31-1.76 (docs/benchmarks.md).
+LEG_RATIO = 1.35
+
+
+def leg_proportion_lines(cal: Calibration) -> list[str]:
+    """The summary's `implausible` lines (without the tag) of legs whose thigh and shank lengths between the
+    calibrated hip, knee and ankle centres are further apart than LEG_RATIO: a knee centre carried along the leg."""
+    model, p = cal.model, cal.params
+    out = []
+    for _, hip in sorted(hip_joints(model).items(), key=lambda kv: kv[0] != "r"):
+        femur = model.segment_index(hip.child)
+        knee = segment_end(model, femur)
+        if knee is None:
+            continue
+        tibia = model.segment_index(model.joints[knee].child)
+        ankle = segment_end(model, tibia)
+        if ankle is None:
+            continue
+        thigh = float(np.linalg.norm(p.scale[femur] * p.centre[knee]))
+        shank = float(np.linalg.norm(p.scale[tibia] * p.centre[ankle]))
+        if not (shank > 0 and thigh > 0) or 1.0 / LEG_RATIO <= thigh / shank <= LEG_RATIO:
+            continue
+        out.append(f"{model.joints[knee].name}: hip to knee {1e3 * thigh:.0f} mm, knee to ankle {1e3 * shank:.0f} mm "
+                   f"({thigh / shank:.2f} times), where adults' are about equal (Winter's proportions; real "
+                   f"calibrations 0.88-1.27): the knee centre was carried along the leg, which the trials' markers "
+                   "do not hold (a ball knee's extra turns take up the skin's motion); the lab's knee centres as "
+                   "markers (a marker map naming them) or a hinge knee hold it")
+    return out
 
 
 MEASURED_TOLERANCE = 0.020
@@ -1007,6 +1041,7 @@ def summary_text(cal) -> str:
     lines.extend(left_out_lines([(m.label, m.reason) for m in cal.new_markers if m.segment is None]))
     if poor := poor_fit_line(cal):
         lines.append(IMPLAUSIBLE + poor)
+    lines.extend(IMPLAUSIBLE + line for line in leg_proportion_lines(cal))
     bad = cal.implausible
     if bad:
         median = float(np.median(cal.params.scale))
