@@ -386,7 +386,9 @@ def _bad(tmp_path: Path, text: str, name: str = "bad.osim") -> Path:
 @pytest.mark.parametrize("mutate, needle", [
     (lambda t: "hello, not xml", "not valid XML"),
     (lambda t: "<?xml version='1.0'?><robot name='x'/>", "not an OpenSimDocument"),
-    (lambda t: t.replace('Version="40000"', 'Version="20302"'), "OpenSim 3.x"),
+    (lambda t: t.replace('Version="40000"', 'Version="20302"'), "OpenSim 3.x model (Version 20302); open it in "
+     "OpenSim 4 and save it (File > Save Model) to convert it to the 4.x format, or with OpenSim's Python package: "
+     "python -c \"import opensim; opensim.Model('OLD.osim').printToXML('NEW.osim')\""),
     # OpenSim 4.0's pre-release format: a joint's parent named by a connector (opensim-models' double_pendulum)
     (lambda t: re.sub(r"<socket_parent_frame>([^<]*)</socket_parent_frame>",
                       r'<connectors><Connector_PhysicalFrame_ name="parent_body"><connectee_name>\1</connectee_name>'

@@ -17,6 +17,9 @@ from ..model.rotations import euler_matrices, matrix_eulers
 from ..seed.geometry import Transform, apply, compose, identity_transform
 from .text import finite_numbers
 
+#: How an OpenSim 3.x model is converted without OpenSim's window (pyCGM2 ships its models as 2.x / 3.x files).
+_CONVERT = (", or with OpenSim's Python package: python -c \"import opensim; "
+            "opensim.Model('OLD.osim').printToXML('NEW.osim')\"")
 JOINT_TYPES = ("CustomJoint", "WeldJoint", "PinJoint", "UniversalJoint", "BallJoint", "GimbalJoint", "FreeJoint",
                "PlanarJoint", "SliderJoint")
 
@@ -321,13 +324,13 @@ class OsimReader:
             version = 0
         if version < 30000 or version < 40000 and root.find("Model/BodySet/objects/Body/Joint") is not None:
             raise ModelError(f"{where}: an OpenSim 3.x model (Version {root.get('Version')}); open it in OpenSim 4 "
-                             f"and save it (File > Save Model) to convert it to the 4.x format")
+                             f"and save it (File > Save Model) to convert it to the 4.x format{_CONVERT}")
         if version < 40000 and root.find(".//Connector_PhysicalFrame_") is not None:
             # OpenSim 4.0's pre-releases (Version 305xx: opensim-models' double_pendulum tutorial) named a joint's
             # frames by connectors and located them by location_in_parent; 4.0 itself by sockets and offset frames.
             raise ModelError(f"{where}: an OpenSim 4.0 pre-release model (Version {root.get('Version')}: its joints "
                              f"name their frames by connectors); open it in OpenSim 4 and save it (File > Save Model) "
-                             f"to convert it to the 4.x format")
+                             f"to convert it to the 4.x format{_CONVERT}")
         m = root.find("Model")
         assert m is not None
         self.name = m.get("name", path.stem)
