@@ -475,8 +475,14 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # that branch's top, the DoFs between them held (resolve.carried_root); reported as the unresolved are.  (Judged
     # on the new labels with a place only: the others sit at their segment's origin until the fit places them.)
     placed_shown = [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible]
-    res, carried = resolve_carrying(subject, [*shared, *new], locked=[d for d, _ in settings.lock], carry=placed_shown)
     waiting = [lab for lab in new if lab in declared and lab not in at]  # declared, with no place read yet
+    # The declared labels without a place yet sit at their segment's origin, its joint's centre, where they would
+    # place none of its turns: judged at provisional places about it, as the user's word that they ride on it (a
+    # lower-body model's torso that carries only the declared trunk markers: its lumbar locked before, the markers
+    # then riding with the pelvis).
+    probe = add_markers(model, {lab: (seg, at[lab] if lab in at else _provisional(k))
+                                for k, (lab, seg) in enumerate(new.items())}) if waiting else subject
+    res, carried = resolve_carrying(probe, [*shared, *new], locked=[d for d, _ in settings.lock], carry=placed_shown)
     if not res.root_resolved:
         why = carry_refusal(subject, placed_shown, locked=[d for d, _ in settings.lock])
         raise CalibrateError(f"{where}: its {len(shared)} markers shared with {model.path.name} cannot place the "
@@ -1996,6 +2002,16 @@ def _without_trials(obs: np.ndarray, spans: Sequence[slice], trials: Sequence[in
     for k in trials:
         out[spans[k]] = np.nan
     return out
+
+
+#: Provisional places (m, in the segment's frame) of declared labels not yet placed, for judging what they pose: apart
+#: from each other and from the origin, no three on a line through it.
+PROVISIONAL = np.array([[0.10, 0.04, 0.02], [-0.03, 0.10, 0.05], [0.02, -0.05, 0.10], [-0.07, -0.06, -0.04]])
+
+
+def _provisional(k: int) -> np.ndarray:
+    """The k-th declared label's provisional place (PROVISIONAL, each round of four a tenth further out)."""
+    return PROVISIONAL[k % len(PROVISIONAL)] * (1.0 + 0.1 * (k // len(PROVISIONAL)))
 
 
 def _declared_unplaced(model: Model, new: Mapping[str, str], waiting: Sequence[str]) -> str:
