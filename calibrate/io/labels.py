@@ -641,7 +641,9 @@ def map_labels(
     renamed with the first free suffix, ``RKNE_2``, and placed like any unknown label) and over the built-in
     aliases (``aliases=False`` turns those off).  A label that matches nothing by its own name is read by the
     file's description of it (``Trial.descriptions``: ``RK``, "Right knee"), after every name.  Labels that
-    match nothing are kept as they are.  Marker data, rate, first frame and source are unchanged.
+    match nothing are kept as they are.  A model output of the file (``Trial.model_outputs``, a point) that the map
+    names, or that the model has a marker of its name, joins the markers (:func:`_with_mapped_outputs`; the label's
+    note says which).  Rate, first frame and source are unchanged.
     Raises CalibrateError when the map names a model label the model does not have, or when the
     trial holds the markers of several subjects (prefixes ``Derrick:``, ``Viktor:``, each matching
     SUBJECT_MARKERS of the model's or more): ``trial.of_subject(name)`` picks one.

@@ -232,7 +232,8 @@ class Trial:
     source: str | None = None
     #: Points a modelling program wrote into the file (Vicon Plug-in Gait's bones, joint centres,
     #: angles, forces...): label -> (n_frames, 3), SI units (``output_units``), NaN in gaps.  They
-    #: are never markers: calibration does not see them.
+    #: are not markers: calibration does not see them, unless a marker map or the model's own marker of the
+    #: name names a point among them (:func:`calibrate.io.labels.map_labels`).
     model_outputs: Mapping[str, np.ndarray] = field(default_factory=dict)
     #: label -> 'point', 'angle', 'force', 'moment', 'power', 'scalar' or 'reaction'.
     output_kinds: Mapping[str, str] = field(default_factory=dict)
