@@ -119,7 +119,8 @@ def test_calibration_ignores_outputs_and_says_so(human) -> None:  # noqa: ANN001
     assert report["model_outputs_ignored"] == ["HEDO", "LFEO"] and report["unresolved"] == []
 
 
-def test_a_model_output_the_marker_map_names_is_read_as_that_marker(human, tmp_path: Path) -> None:  # noqa: ANN001
+def test_a_model_output_the_marker_map_names_is_read_as_that_marker(human, tmp_path: Path,  # noqa: ANN001
+                                                                     capsys) -> None:  # noqa: ANN001
     """A lab's marker set may carry Plug-in Gait's joint centres as markers (pyCGM2's LKJC at the knee centre); its
     marker map's line `LKNE = ["LFEO"]` is the user's word that the output is the model's marker: read back from a C3D
     file, the output becomes that marker (its trajectory to the file's precision) and leaves the ignored outputs;
@@ -151,6 +152,15 @@ def test_a_model_output_the_marker_map_names_is_read_as_that_marker(human, tmp_p
     assert dict((m.trial_label, (m.how, m.note)) for m in named)["LFEO"] == (
         "exact", "a model output of the file, read as a marker: the model has a marker of its name")
     assert set(own.model_outputs) == {"HEDO"}
+    # `calibrate inspect TRIAL --model MODEL --markers MAP` lists it among the trial's labels, saying why
+    from calibrate.cli.main import main
+
+    (tmp_path / "map.toml").write_text('LKNE = ["LFEO"]\n')
+    assert main(["inspect", str(tmp_path / "squats.c3d"), "--model", str(human.path),
+                 "--markers", str(tmp_path / "map.toml")]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("LFEO ")]
+    assert len(rows) == 1 and rows[0].endswith("-> LKNE (map); a model output of the file, read as a marker: the "
+                                               "marker map names it"), rows
     without = calibrate(human, back, Settings(max_iterations=5))
     used = calibrate(human, back, Settings(max_iterations=5), marker_map={"LKNE": ["LFEO"]})
     assert "LKNE" not in calibration_report(without)["marker_set"]["used"]

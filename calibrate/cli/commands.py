@@ -629,7 +629,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if model_path is None and getattr(args, "markers", None) is not None:
         raise CalibrateError("--markers: give the model too (--model MODEL) to see what the labels become")
     t = read_trial(path)
-    gaps = np.isnan(t.markers[..., 0]).mean(axis=0)
+    rows = list(zip(t.labels, np.isnan(t.markers[..., 0]).mean(axis=0), strict=True))
     became: dict[str, str] = {}
     if model_path is not None:
         from ..io.labels import declared_segments, load_marker_map, map_labels
@@ -638,7 +638,9 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         model = load_model(model_path, getattr(args, "marker_set", None))
         given = load_marker_map(args.markers) if args.markers else None
         declared_segments(given, model)  # (a segment the model lacks: refused as calibrate refuses it)
-        _, mapping = map_labels(t, model.marker_names, given)
+        mapped, mapping = map_labels(t, model.marker_names, given)
+        # the rows: every trial label, and a model output the map or the model names, read as a marker (its note)
+        rows = list(zip([m.trial_label for m in mapping], np.isnan(mapped.markers[..., 0]).mean(axis=0), strict=True))
         became = {m.trial_label: (f"-> {m.label} ({m.how})" if m.how != "unknown" else "unknown")
                   + (f"; {m.note}" if m.note else "") for m in mapping}
         became.update(_by_name(model, [m.trial_label for m in mapping if m.how == "unknown"]))
@@ -678,7 +680,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         if mapping.missing:
             print(f"  {model_path.name}'s markers the trial lacks ({len(mapping.missing)}): "
                   + ", ".join(mapping.missing))
-    for lab, g in zip(t.labels, gaps, strict=True):
+    for lab, g in rows:
         said = (f"  '{t.descriptions[lab]}'" if lab in t.descriptions and "by its description" not in
                 (became or {}).get(lab, "") else "")  # the file's own words for the marker
         print(f"  {lab:16s} gaps {100 * g:5.1f} %" + (f"  {became[lab]}" if became else "") + said)
