@@ -1000,6 +1000,171 @@ def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
     return [tuple(sorted(g)) for g in groups]
 
 
+# A segment no marker of the model's poses (a lower-limb marker set's torso: pyCGM2's gait2392 with its cgm23 set) is
+# no candidate of the hosts' tests: in their poses it turns with its parent, so a label riding on it keeps its place on
+# the parent as well, and the parent takes it (pig_walk's C7, T10, CLAV, STRN, RBAK, both shoulders, its head's back
+# and upper-arm markers on that pelvis, 12-18 mm RMS; the lumbar locked; the hip angles' frame-to-frame difference
+# from Plug-in Gait's own 3.1 / 3.8 deg SD in flexion, against 1.2 / 1.7 with the upper body left out).  Where three or
+# more of a segment's new labels sit past such a child's joint (toward the child's mass centre, in the base model's
+# neutral pose: BEYOND_NEAR to BEYOND_FAR of the way, their centroid BEYOND_DEPTH), nearer its mass centre than any
+# other segment's, and keep their distances to each other within BEYOND_RIGID (a trunk's: 1-3 mm over a walk), they
+# ride on the child as one body; the others past the joint go with them where their places spread in the cluster's
+# frame as a host's would (HOST_SPREAD, HOST_RATIO against the parent), stay where they spread less on the parent, and
+# are left out otherwise (an upper arm's swing).
+BEYOND_MIN = 3
+BEYOND_RIGID = 0.003  # m: SD of each pair's distance over the moving trials' frames (JOINT_RIGID)
+BEYOND_NEAR = 0.25  # each past the child's joint by this share of its mass centre's distance from it (an iliac
+# crest's marker, by the lumbar centre's height, keeps its distances to a trunk's within BEYOND_RIGID in a walk)
+BEYOND_DEPTH = 0.5  # ... and their centroid by this share
+BEYOND_FAR = 2.0  # ... and none further than this share (a uniform body's length: a hip's marker is no humerus's)
+
+
+@dataclass(frozen=True)
+class BeyondJoint:
+    """A new label placed on `placed` that sits beyond the joint of `child`, a segment below it that no marker
+    poses, nearer the child's mass centre than `placed`'s: `segment` is `child` (with the rigid `cluster` that
+    poses it) or None (left out: its place spreads `spread` m RMS in the cluster's frame, `own` m on `placed`)."""
+
+    label: str
+    segment: str | None
+    placed: str
+    child: str
+    cluster: tuple[str, ...]
+    place: np.ndarray | None  # its place in the child's frame (m, the base model's neutral pose)
+    spread: float = 0.0
+    own: float = 0.0
+
+    def reason(self) -> str:
+        """Why it rides on the child (or on neither)."""
+        beyond = (f"sits past the joint of {self.child} (toward its mass centre), a segment no marker of the "
+                  f"model's poses, which turned with {self.placed} in the poses that put it there")
+        if self.label in self.cluster:
+            others = ", ".join(lab for lab in self.cluster if lab != self.label)
+            return (f"{beyond}; rigid with {others} (within {1e3 * BEYOND_RIGID:.0f} mm SD), they ride on "
+                    f"{self.child} as one body")
+        if self.segment:
+            return (f"{beyond}; its place in the frame of {self.child}'s cluster ({', '.join(self.cluster)}) spreads "
+                    f"{1e3 * self.spread:.1f} mm RMS (on {self.placed}: {1e3 * self.own:.0f} mm)")
+        return (f"{beyond}; its place spreads {1e3 * self.spread:.1f} mm RMS in the frame of {self.child}'s cluster "
+                f"({', '.join(self.cluster)}) and {1e3 * self.own:.1f} on {self.placed}: on neither (a host: under "
+                f"{1e3 * HOST_SPREAD:.0f} mm and half the other)")
+
+
+def _mass_centres(model: Model, data) -> dict[str, np.ndarray]:
+    """Each segment's mass centre in the world at `data`'s pose (m; its Pinocchio joint's, welded bodies merged)."""
+    out = {}
+    for sg in model.segments:
+        fid = model.pin.getFrameId(sg.name)
+        jid = model.pin.frames[fid].parentJoint
+        inertia = model.pin.inertias[jid]
+        out[sg.name] = (data.oMi[jid].act(inertia.lever) if inertia.mass > 0
+                        else data.oMf[fid].translation.copy())
+    return out
+
+
+def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
+                  frames: int = HOST_FRAMES) -> dict[str, BeyondJoint]:
+    """Of `placed` (new label -> segment, by the hosts' tests), those beyond the joint of a child segment that no
+    shown model marker poses, on it or below it (BEYOND_MIN, BEYOND_RIGID above) -> BeyondJoint,
+    judged on the moving `trials` (their median places on about `frames` frames posed by the base model's known
+    markers; their distances over every frame).  The joints are taken down the tree, a child given a cluster then
+    carrying the next (a head on its neck above a torso that had no marker either); the labels are those put on the
+    child's parent or on a segment above it (a head's, on a pelvis, where both joints between turned with it)."""
+    from ..model.resolve import descendants
+    from ..seed.geometry import kabsch_batch
+    from ..seed.rigidity import distance_variance
+
+    shown = {lab for t in trials for lab in t.labels} & set(model.marker_names)
+    # (the segments the poses place: new labels placed on a segment pose it in none of them, a head band the
+    # cluster test put on Rajagopal2016's torso, by its head markers, included)
+    carried = {model.markers[model.marker_index(m)].segment for m in shown}
+    below = descendants(model)
+    parent_of = {j.child: j.parent for j in model.joints}
+
+    def up(segment: str | None) -> list[str]:
+        """The segment and those above it."""
+        return [] if segment is None else [segment, *up(parent_of.get(segment))]
+
+    def open_joint(j: Joint) -> bool:
+        return bool(j.dofs) and j.parent in carried and not any(sg in carried for sg in below[j.child])
+
+    if not any(sum(sg in up(j.parent) for sg in placed.values()) >= BEYOND_MIN for j in model.joints if open_joint(j)):
+        return {}  # (a child opened by a cluster is below one that is open now)
+    data, _ = _neutral(model)
+    centres = _mass_centres(model, data)
+    picked = pick_frames(trials, frames)
+    fits = _posed(model, picked, list(placed))
+    if not fits:
+        return {}
+    names = [sg.name for sg in model.segments]
+    places = local_places(model, fits, list(placed), names)
+    out: dict[str, BeyondJoint] = {}
+    for jt in model.joints:  # down the tree
+        if not open_joint(jt):
+            continue
+        child, parent = jt.child, jt.parent
+        labs = [lab for lab, sg in placed.items() if sg in up(parent) and lab not in out and lab in places]
+        if len(labs) < BEYOND_MIN:
+            continue
+        P, C = (data.oMf[model.pin.getFrameId(sg)] for sg in (parent, child))
+        joint = P.actInv(C.translation)  # the child's joint centre and mass centre in the parent's frame
+        reach = P.actInv(centres[child]) - joint
+        depth = float(np.linalg.norm(reach))
+        if depth < 1e-6:
+            continue
+        mids = {lab: np.median(places[lab][:, names.index(parent)], axis=0) for lab in labs}
+        past = [lab for lab, x in mids.items() if BEYOND_NEAR < (x - joint) @ reach / depth ** 2 <= BEYOND_FAR]
+        # the cluster's own labels nearer the child's mass centre than any other segment's (a trunk's plate at the
+        # chest's midline lies below a hanging arm's shoulder, toward the humerus's mass centre, yet by the torso's)
+        near = np.array([P.actInv(c) for c in centres.values()])
+        by = [lab for lab in past
+              if list(centres)[int(np.argmin(np.linalg.norm(near - mids[lab], axis=1)))] == child]
+        if len(by) < BEYOND_MIN:
+            continue
+        X = np.concatenate([t.select(by).markers for t in trials if all(lab in t.labels for lab in by)])
+        groups = sorted((g for g in _rigid_clusters(distance_variance(X), BEYOND_RIGID ** 2)
+                         if len(g) >= BEYOND_MIN), key=len, reverse=True)
+        if not groups:
+            continue
+        cluster = tuple(by[k] for k in groups[0])
+        shape = np.array([mids[lab] for lab in cluster])
+        if (shape.mean(axis=0) - joint) @ reach < BEYOND_DEPTH * depth ** 2:
+            continue  # its centroid by the joint: not beyond it
+        if np.linalg.svd(shape - shape.mean(axis=0), compute_uv=False)[1] < 0.01:
+            continue  # on a line: it would not pose the child about it
+        rel = C.actInv(P)  # the parent's frame -> the child's, in the neutral pose
+        for lab in cluster:
+            out[lab] = BeyondJoint(lab, child, placed[lab], child, cluster,
+                                   np.asarray(rel.act(mids[lab]), dtype=float))
+        carried.add(child)
+        rest = [lab for lab in past if lab not in cluster]
+        if not rest:
+            continue
+        # The others in the cluster's own frame: its mean shape fitted to each frame that shows it whole
+        Y = np.concatenate([t.select([*cluster, *rest]).markers for t in picked
+                            if all(lab in t.labels for lab in (*cluster, *rest))])
+        whole = np.all(np.isfinite(Y[:, :len(cluster)]), axis=(1, 2))
+        Y = Y[whole]
+        if len(Y) < 3:
+            continue
+        ref = np.median(Y[:, :len(cluster)] - Y[:, :len(cluster)].mean(axis=1, keepdims=True), axis=0)
+        R, t = kabsch_batch(ref, Y[:, :len(cluster)], np.ones((len(Y), len(cluster))))
+        for k, lab in enumerate(rest):
+            q = np.einsum("fji,fj->fi", R, Y[:, len(cluster) + k] - t)  # R^T (x - t)
+            q = q[np.all(np.isfinite(q), axis=1)]
+            if len(q) < 3:
+                continue
+            spread = float(np.sqrt(np.mean(np.sum((q - np.median(q, axis=0)) ** 2, axis=1))))
+            on_host = places[lab][:, names.index(placed[lab])]
+            own = float(np.sqrt(np.mean(np.sum((on_host - np.median(on_host, axis=0)) ** 2, axis=1))))
+            if own <= spread:
+                continue  # it keeps its place where the tests put it better
+            ok = spread <= HOST_SPREAD and spread <= HOST_RATIO * own
+            out[lab] = BeyondJoint(lab, child if ok else None, placed[lab], child, cluster,
+                                   np.asarray(rel.act(mids[lab]), dtype=float) if ok else None, spread, own)
+    return out
+
+
 def trial_exchanges(model: Model, trials: Sequence[Trial], moving: Sequence[int],
                     labels: Sequence[str], still: Sequence[int] = ()) -> list:
     """Cluster labels that trials name otherwise than each other: the new labels `labels` (markers `model` does not

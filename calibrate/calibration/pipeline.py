@@ -31,6 +31,7 @@ from calibrate.calibration.gauge import align_gauge, align_markers, align_neutra
 from calibrate.calibration.hosts import (
     AXIAL_SPREAD,
     NAMED_SEGMENTS,
+    beyond_joints,
     centre_labels,
     centre_segments,
     cluster_hosts,
@@ -2215,6 +2216,11 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
             if lab in joints:
                 why += f"; {joints[lab].reason(lab)}"
             out.append(NewMarker(lab, assoc[lab].segment, None, why))
+    # Those put on a segment that sit, a rigid cluster of them, beyond the joint of a child no marker poses (a lower-
+    # limb marker set's torso: hosts.beyond_joints): on that child, the others there with them or left out.
+    tested = {m.label: m.segment for m in out if m.segment is not None and m.position is None and not m.hinge}
+    beyond = beyond_joints(model, used, tested) if tested else {}
+    out = [NewMarker(m.label, b.segment, b.place, b.reason()) if (b := beyond.get(m.label)) else m for m in out]
     return [_off_its_joint(model, m) for m in out]
 
 
