@@ -1121,8 +1121,10 @@ def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
               if list(centres)[int(np.argmin(np.linalg.norm(near - mids[lab], axis=1)))] == child]
         if len(by) < BEYOND_MIN:
             continue
-        X = np.concatenate([t.select(by).markers for t in trials if all(lab in t.labels for lab in by)])
-        groups = sorted((g for g in _rigid_clusters(distance_variance(X), BEYOND_RIGID ** 2)
+        parts = [t.select(by).markers for t in trials if all(lab in t.labels for lab in by)]
+        if not parts:
+            continue  # no trial shows them together
+        groups = sorted((g for g in _rigid_clusters(distance_variance(np.concatenate(parts)), BEYOND_RIGID ** 2)
                          if len(g) >= BEYOND_MIN), key=len, reverse=True)
         if not groups:
             continue
@@ -1141,10 +1143,15 @@ def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
         if not rest:
             continue
         # The others in the cluster's own frame: its mean shape fitted to each frame that shows it whole
-        Y = np.concatenate([t.select([*cluster, *rest]).markers for t in picked
-                            if all(lab in t.labels for lab in (*cluster, *rest))])
-        whole = np.all(np.isfinite(Y[:, :len(cluster)]), axis=(1, 2))
-        Y = Y[whole]
+        parts = []
+        for t in picked:
+            if all(lab in t.labels for lab in cluster):
+                cols = np.full((t.n_frames, len(cluster) + len(rest), 3), np.nan)
+                have = [k for k, lab in enumerate((*cluster, *rest)) if lab in t.labels]
+                cols[:, have] = t.select([(*cluster, *rest)[k] for k in have]).markers
+                parts.append(cols)
+        Y = np.concatenate(parts) if parts else np.empty((0, len(cluster) + len(rest), 3))
+        Y = Y[np.all(np.isfinite(Y[:, :len(cluster)]), axis=(1, 2))]
         if len(Y) < 3:
             continue
         ref = np.median(Y[:, :len(cluster)] - Y[:, :len(cluster)].mean(axis=1, keepdims=True), axis=0)
