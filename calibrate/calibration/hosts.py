@@ -1008,9 +1008,9 @@ def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
 # more of a segment's new labels sit past such a child's joint (toward the child's mass centre, in the base model's
 # neutral pose: BEYOND_NEAR to BEYOND_FAR of the way, their centroid BEYOND_DEPTH), nearer its mass centre than any
 # other segment's, and keep their distances to each other within BEYOND_RIGID (a trunk's: 1-3 mm over a walk), they
-# ride on the child as one body; the others past the joint go with them where their places spread in the cluster's
-# frame as a host's would (HOST_SPREAD, HOST_RATIO against the parent), stay where they spread less on the parent, and
-# are left out otherwise (an upper arm's swing).
+# ride on the child as one body (unless they keep them to the parent's own markers as well); the others past the
+# joint go with them where their places spread in the cluster's frame as a host's would (HOST_SPREAD, HOST_RATIO
+# against the parent), stay where they spread less on the parent, and are left out otherwise (an upper arm's swing).
 BEYOND_MIN = 3
 BEYOND_RIGID = 0.003  # m: SD of each pair's distance over the moving trials' frames (JOINT_RIGID)
 BEYOND_NEAR = 0.25  # each past the child's joint by this share of its mass centre's distance from it (an iliac
@@ -1134,6 +1134,11 @@ def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
             continue  # its centroid by the joint: not beyond it
         if np.linalg.svd(shape - shape.mean(axis=0), compute_uv=False)[1] < 0.01:
             continue  # on a line: it would not pose the child about it
+        own = [m for m in model.segments[model.segment_index(parent)].markers if m in shown]
+        both = [t for t in trials if all(lab in t.labels for lab in (*cluster, *own))]
+        if own and both and _keeps(np.concatenate([t.select(list(cluster)).markers for t in both]),
+                                   np.concatenate([t.select(own).markers for t in both]), BEYOND_RIGID):
+            continue  # as rigid with the parent's own markers as with each other: it rides on the parent
         rel = C.actInv(P)  # the parent's frame -> the child's, in the neutral pose
         for lab in cluster:
             out[lab] = BeyondJoint(lab, child, placed[lab], child, cluster,
