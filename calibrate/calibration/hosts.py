@@ -1006,8 +1006,8 @@ def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:
 # and upper-arm markers on that pelvis, 12-18 mm RMS; the lumbar locked; the hip angles' frame-to-frame difference
 # from Plug-in Gait's own 3.1 / 3.8 deg SD in flexion, against 1.2 / 1.7 with the upper body left out).  Where three or
 # more of a segment's new labels sit past such a child's joint (toward the child's mass centre, in the base model's
-# neutral pose: BEYOND_NEAR to BEYOND_FAR of the way, their centroid BEYOND_DEPTH), nearer its mass centre than any
-# other segment's, and keep their distances to each other within BEYOND_RIGID (a trunk's: 1-3 mm over a walk), they
+# neutral pose: BEYOND_NEAR to BEYOND_FAR of the way, their centroid BEYOND_DEPTH), nearer its mass centre than the
+# parent's, and keep their distances to each other within BEYOND_RIGID (a trunk's: 1-3 mm over a walk), they
 # ride on the child as one body (unless they keep them to the parent's own markers as well); the others past the
 # joint go with them where their places spread in the cluster's frame as a host's would (HOST_SPREAD, HOST_RATIO
 # against the parent), stay where they spread less on the parent, and are left out otherwise (an upper arm's swing).
@@ -1114,21 +1114,22 @@ def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
             continue
         mids = {lab: np.median(places[lab][:, names.index(parent)], axis=0) for lab in labs}
         past = [lab for lab, x in mids.items() if BEYOND_NEAR < (x - joint) @ reach / depth ** 2 <= BEYOND_FAR]
-        # the cluster's own labels nearer the child's mass centre than any other segment's (a trunk's plate at the
-        # chest's midline lies below a hanging arm's shoulder, toward the humerus's mass centre, yet by the torso's)
-        near = np.array([P.actInv(c) for c in centres.values()])
-        by = [lab for lab in past
-              if list(centres)[int(np.argmin(np.linalg.norm(near - mids[lab], axis=1)))] == child]
+        # the cluster's own labels nearer the child's mass centre than the parent's (a trunk's plate at the chest's
+        # midline lies below a hanging arm's shoulder, toward the humerus's mass centre, yet by the torso's)
+        mine, theirs = P.actInv(centres[parent]), P.actInv(centres[child])
+        by = [lab for lab in past if np.linalg.norm(mids[lab] - theirs) < np.linalg.norm(mids[lab] - mine)]
         if len(by) < BEYOND_MIN:
             continue
         parts = [t.select(by).markers for t in trials if all(lab in t.labels for lab in by)]
         if not parts:
             continue  # no trial shows them together
-        groups = sorted((g for g in _rigid_clusters(distance_variance(np.concatenate(parts)), BEYOND_RIGID ** 2)
-                         if len(g) >= BEYOND_MIN), key=len, reverse=True)
+        groups = [g for g in _rigid_clusters(distance_variance(np.concatenate(parts)), BEYOND_RIGID ** 2)
+                  if len(g) >= BEYOND_MIN]
         if not groups:
             continue
-        cluster = tuple(by[k] for k in groups[0])
+        # the largest; of two as large, the one nearer the child's mass centre (a trunk's, not a head band above it)
+        cluster = tuple(by[k] for k in min(groups, key=lambda g: (-len(g), float(np.linalg.norm(
+            np.mean([mids[by[k]] for k in g], axis=0) - theirs)))))
         shape = np.array([mids[lab] for lab in cluster])
         if (shape.mean(axis=0) - joint) @ reach < BEYOND_DEPTH * depth ** 2:
             continue  # its centroid by the joint: not beyond it
