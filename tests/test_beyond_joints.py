@@ -98,7 +98,7 @@ def test_a_trunk_plate_stays_off_a_hanging_arm(human):
     """c3d.org's sample02 (a cluster protocol) on Rajagopal2016: its trunk plate (RTA1-3, at the chest's midline) rides
     on the torso, whose shoulders carry markerless humeri hanging in the neutral pose.  Below the shoulders, the plate
     lies past their joints toward the humeri's mass centres, and had gone on humerus_r (its scale 0.88 against the
-    left's 1.15).  Nearer the torso's mass centre than any humerus's, a plate so placed now stays on the torso (a
+    left's 1.15).  Nearer the torso's mass centre than the humerus's, a plate so placed now stays on the torso (a
     simulated walk with three labels fixed to its torso at the sternum's height)."""
     data = human.pin.createData()
     pin.framesForwardKinematics(human.pin, data, human.pin_configuration(np.zeros(3), [0, 0, 0, 1],
