@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter1d
+from test_beyond_joints import assert_lumbar_fitted, walk_with_renamed_trunk
 from test_hosts import CLUSTER, _clustered
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
@@ -294,23 +295,7 @@ def test_a_segment_carrying_only_declared_labels_is_posed_by_them(human):
     simulated walk whose torso markers are renamed and declared keeps the lumbar free, and its three angles follow the
     truth's within 0.5 deg (about their means: the torso's frame is the priors'), where held at 0 they missed its
     0.8-2.0 deg of motion; no `unresolved` torso."""
-    from calibrate.io.trial import Trial
-    from calibrate.simulation.simulate import simulate_gait
-
-    sim = simulate_gait(human, frames=60, noise_mm=1.0, seed=3)
-    legs = ("pelvis", "femur_l", "tibia_l", "calcn_l", "femur_r", "tibia_r", "calcn_r")
-    keep = [lab for lab in sim.trial.labels if human.markers[human.marker_index(lab)].segment in legs]
-    trunk = list(human.segments[human.segment_index("torso")].markers)
-    shown = sim.trial.select(keep + trunk)
-    trial = Trial((*keep, *(f"TR_{lab}" for lab in trunk)), shown.markers, shown.rate)
+    sim, trial, trunk = walk_with_renamed_trunk(human)
     cal = calibrate(human, trial, Settings(), marker_map={"segments": {"torso": [f"TR_{lab}" for lab in trunk]}})
-    assert not any(d.startswith("lumbar") for d, _ in cal.settings.lock)
-    assert "torso" not in " ".join(line for line in summary_text(cal).splitlines() if "unresolved" in line)
-    got = cal.motions[0].angles[:, [cal.motions[0].dof_names.index(d) for d in LUMBAR]]
-    want = sim.motion.angles[:, [sim.motion.dof_names.index(d) for d in LUMBAR]]
-    assert np.all(np.degrees(want.std(axis=0)) > 0.8)
-    off = np.degrees(np.sqrt(np.mean(((got - got.mean(0)) - (want - want.mean(0))) ** 2, axis=0)))
-    assert np.all(off < 0.5), off
-
-
-LUMBAR = ("lumbar_flexion", "lumbar_bending", "lumbar_rotation")
+    assert all(m.declared for m in cal.new_markers)
+    assert_lumbar_fitted(cal, sim)
