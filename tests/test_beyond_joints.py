@@ -11,7 +11,7 @@ import pinocchio as pin
 
 from calibrate.calibration.hosts import BEYOND_NEAR, beyond_joints
 from calibrate.calibration.pipeline import calibrate
-from calibrate.calibration.report import summary_text
+from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.io.trial import Trial
 from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_gait
@@ -71,6 +71,9 @@ def test_trunk_labels_on_a_markerless_torso_ride_on_it(human):
     reasons = [m.reason for m in cal.new_markers]
     assert all("past the joint of torso" in r for r in reasons)
     assert sum("rigid with" in r for r in reasons) >= 3  # the cluster; the others joined it by their spread there
+    assert "(7 new: 7 on torso past a joint no model marker poses)" in summary_text(cal)
+    new = calibration_report(cal)["marker_set"]["new"]
+    assert {m["segment"] for m in new} == {"torso"} and all(m.get("past_joint") for m in new)
 
 
 def test_labels_by_the_joint_stay_on_the_parent(human):

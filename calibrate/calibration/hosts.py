@@ -1021,9 +1021,10 @@ BEYOND_FAR = 2.0  # ... and none further than this share (a uniform body's lengt
 
 @dataclass(frozen=True)
 class BeyondJoint:
-    """A new label placed on `placed` that sits beyond the joint of `child`, a segment below it that no marker
-    poses, nearer the child's mass centre than `placed`'s: `segment` is `child` (with the rigid `cluster` that
-    poses it) or None (left out: its place spreads `spread` m RMS in the cluster's frame, `own` m on `placed`)."""
+    """A new label the hosts' tests placed on `placed` that sits past the joint of `child`, a segment below it that
+    no marker the trials show poses, toward the child's mass centre: `segment` is `child` (with the rigid `cluster`
+    that poses it) or None (left out: its place spreads `spread` m RMS in the cluster's frame, `own` m on
+    `placed`)."""
 
     label: str
     segment: str | None

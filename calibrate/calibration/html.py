@@ -304,7 +304,8 @@ def _notes(report: dict) -> str:
                      f"{_e(', '.join(un))}</li>")
     for m in report.get("marker_set", {}).get("new", []):
         items.append(f"<li>new marker {_e(m.get('label'))} placed on {_e(m.get('segment'))}"
-                     + (" (the marker map's [segments])" if m.get("declared") else "") + "</li>")
+                     + (" (the marker map's [segments])" if m.get("declared") else "")
+                     + (" (past a joint no model marker poses)" if m.get("past_joint") else "") + "</li>")
     left = report.get("marker_set", {}).get("left_out", [])
     if left:
         reasons, shared = shared_clause([m.get("reason", "") for m in left])

@@ -2220,7 +2220,8 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     # limb marker set's torso: hosts.beyond_joints): on that child, the others there with them or left out.
     tested = {m.label: m.segment for m in out if m.segment is not None and m.position is None and not m.hinge}
     beyond = beyond_joints(model, used, tested) if tested else {}
-    out = [NewMarker(m.label, b.segment, b.place, b.reason()) if (b := beyond.get(m.label)) else m for m in out]
+    out = [NewMarker(m.label, b.segment, b.place, b.reason(), past=b.segment or "") if (b := beyond.get(m.label))
+           else m for m in out]
     return [_off_its_joint(model, m) for m in out]
 
 

@@ -97,7 +97,7 @@ def calibration_report(cal: Calibration) -> dict:
             "used": [n for n in model.marker_names if n not in cal.unused_markers],
             "new": [{"label": m.label, "segment": m.segment, "position_mm": [_mm(v) for v in m.position],
                      "reason": m.reason, **({"check": m.check} if m.check else {}),
-                     **({"declared": True} if m.declared else {})}
+                     **({"declared": True} if m.declared else {}), **({"past_joint": True} if m.past else {})}
                     for m in cal.new_markers if m.segment is not None],
             "left_out": [{"label": m.label, "reason": m.reason, "sits_by": list(m.sits_by)}
                          for m in cal.new_markers if m.segment is None],
@@ -838,6 +838,12 @@ def summary_text(cal) -> str:
     used = len(model.markers) - len(cal.unused_markers)
     n_new = sum(1 for m in cal.new_markers if m.segment is not None)
     n_said = sum(1 for m in cal.new_markers if m.segment is not None and m.declared)
+    past = [m.past for m in cal.new_markers if m.segment is not None and m.past]
+    how = [f"{n_said} on the segments the marker map's [segments] names"] if n_said else []
+    if past:
+        how.append(f"{len(past)} on {', '.join(dict.fromkeys(past))} past a joint no model marker poses")
+    if n_new > n_said + len(past):
+        how.append(f"{n_new - n_said - len(past)} by rigidity or the model's poses")
     n_free = len([c for c in cal.changes])  # count of reported quantities
     lines = ["calibrate: subject calibration"]
     for i, trial in enumerate(cal.trials):
@@ -856,9 +862,8 @@ def summary_text(cal) -> str:
                      + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen"
-        + (f" ({n_new} new, placed on segments by rigidity or the model's poses)" if n_new and not n_said else
-           f" ({n_new} new: {n_said} on the segments the marker map's [segments] names"
-           + (f", {n_new - n_said} by rigidity or the model's poses)" if n_new > n_said else ")") if n_new else "")
+        + ((f" ({n_new} new, placed on segments by rigidity or the model's poses)" if len(how) == 1 and not n_said
+             and not past else f" ({n_new} new: {', '.join(how)})") if n_new else "")
         + f", {left_out_clause(cal.ignored_labels)}, {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",

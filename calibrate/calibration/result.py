@@ -43,6 +43,8 @@ class NewMarker:
     # check it (pipeline._declared_doubts; the summary's `check label` line)
     check: str = ""
     declared: bool = False  # placed where the marker map's [segments] puts it (no test of the hosts')
+    # the segment it rides on past a joint no model marker poses, where hosts.beyond_joints moved it ("" otherwise)
+    past: str = ""
 
 
 @dataclass(frozen=True)
