@@ -862,8 +862,8 @@ def summary_text(cal) -> str:
                      + "; add a movement trial (calibrate STATIC WALK MODEL) to place the joints")
     lines += [
         f"  markers      {used}/{len(model.markers)} model markers seen"
-        + ((f" ({n_new} new, placed on segments by rigidity or the model's poses)" if len(how) == 1 and not n_said
-             and not past else f" ({n_new} new: {', '.join(how)})") if n_new else "")
+        + ((f" ({n_new} new, placed on segments by rigidity or the model's poses)" if not n_said and not past
+            else f" ({n_new} new: {', '.join(how)})") if n_new else "")
         + f", {left_out_clause(cal.ignored_labels)}, {len(cal.outliers)} outliers rejected",
         f"  model        {model.path.name}: {len(model.segments)} segments, {len(model.joints)} joints, "
         f"{model.nz} coordinates per frame",
