@@ -115,3 +115,43 @@ def test_a_pair_exchanged_alike_in_every_trial_is_named_against_the_base_model(h
     assert apart > 0.15 and max(changes["LKNE"], changes["LTHI"]) < 20.0  # mm
     assert calibration_report(cal)["exchanged_labels"][0]["protocol"] is True
     assert "the lab's protocol" in report_html(calibration_report(cal))
+
+
+def _moved_places(model, shift: dict[str, np.ndarray]):
+    """The model with the named markers' places moved by `shift` (m, in their segment's frame)."""
+    import xml.etree.ElementTree as ET
+
+    from calibrate.model.model import Model
+
+    robot = ET.fromstring(model.text)
+    for joint in robot.findall("joint"):
+        label = joint.get("name", "").removesuffix("_marker")
+        if joint.get("name", "").endswith("_marker") and label in shift:
+            origin = joint.find("origin")
+            xyz = np.array([float(v) for v in origin.get("xyz").split()]) + shift[label]
+            origin.set("xyz", " ".join(f"{v:.6f}" for v in xyz))
+    return Model(model.path, text=ET.tostring(robot, encoding="unicode"))
+
+
+def test_a_pair_the_base_model_places_elsewhere_along_its_line_is_not_named(human, session, monkeypatch):
+    """A lab's marker set that puts the heel and toe 60 mm further back on the foot than the subject's (pyCGM2's
+    CGM2.3 set on its gait2392 does so by 49 mm: its heel 113 mm behind the ankle, its toe 34 mm ahead): their
+    distances to the ankle's markers then read as the two exchanged against the base model, yet heel-to-toe points
+    forward in the pelvis's frame in every frame, as the base model's does: the labels are right, nothing is named
+    (taken for the lab's protocol, the fit had flipped pig_walk's foot).  Truly exchanged in both trials, the pair
+    still is named against that model."""
+    static, squats = session
+    back = np.array([-0.06, 0.0, 0.0])
+    lab = _moved_places(human, {"LHEE": back, "LTOE": back})
+    P = lab.neutral_positions(["LHEE", "LTOE", "LANK"])
+    assert np.linalg.norm(P[0] - P[2]) > np.linalg.norm(P[1] - P[2])  # the heel now further from the ankle marker
+    import calibrate.seed.association as association
+
+    with monkeypatch.context() as m:
+        m.setattr(association, "EXCHANGE_ALONG", 2.0)  # the direction not asked: the distances alone name the pair
+        (x,) = exchanged_between(lab, [static, squats])
+        assert x.labels == ("LHEE", "LTOE") and x.against_model and x.kept >= EXCHANGE_RATIO * x.exchanged
+    assert exchanged_between(lab, [static, squats]) == ()
+    # the knee and thigh labels exchanged in both trials point the other way along the femur: still named
+    (y,) = exchanged_between(lab, [_exchanged(static, "LKNE", "LTHI"), _exchanged(squats, "LKNE", "LTHI")])
+    assert set(y.labels) == {"LKNE", "LTHI"} and y.against_model

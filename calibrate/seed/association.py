@@ -48,7 +48,7 @@ from calibrate.seed.rigidity import (
 
 from ..io.trial import Trial
 from ..model.model import Model
-from .geometry import rigid_fit, sphere_fit
+from .geometry import kabsch_batch, rigid_fit, sphere_fit
 from .jitter import jitter_sd
 from .seeding import MAD_SD, without_broken
 
@@ -829,6 +829,15 @@ EXCHANGE_SPREAD_FLOOR = 0.005  # m, added to the spreads (a rigid pair's is the 
 EXCHANGE_STEADY = 0.015  # m: markers whose distances to the pair spread over frames by more are not compared
 EXCHANGE_JOINTS = 2  # markers on segments within this many joints of the pair's are compared
 EXCHANGE_FRAMES = 60  # about this many evenly spaced frames of a trial are read (medians need no more)
+#: Against the base model, an exchange is the labels' only where it turns the pair round: two labels that point the
+#: way the base model's do (b − a in the root segment's frame, posed on its markers in each frame, at a median cosine
+#: of at least this with the base model's neutral b − a) sit where the lab puts them, the model's places elsewhere
+#: along the same line; not named.  pyCGM2's CGM2.3 marker set on its gait2392 puts the heel 113 mm behind the ankle
+#: and the toe 34 mm ahead of it; pig_walk's sit about 60 mm behind and 150 ahead: their distances to the ankle miss
+#: the model's by 84 mm as labelled, by 18 exchanged, while heel-to-toe points forward in both (median cosine 0.97 and
+#: 1.00); taken for the lab's protocol the fit flipped the foot (calcn scaled 0.20).  With the two exchanged in both of
+#: pig_walk's trials: -0.90 (the exchange named, the protocol taken, as before).
+EXCHANGE_ALONG = 0.5
 
 
 @dataclass(frozen=True)
@@ -911,7 +920,7 @@ def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[st
                 if not found:  # alike in every trial: each against the base model
                     hits = [(k, h) for k in range(len(trials))
                             if (h := _exchange(scaled[k], stats[k], a, b, refs)) is not None]
-                    if hits:
+                    if hits and not _points_as_model(model, trials, names, seg, a, b):
                         first = hits[0][1]
                         found.append(Exchanged((names[a], names[b]), s, tuple(k for k, _ in hits),
                                                float(np.mean([h[1] for _, h in hits])),
@@ -922,6 +931,28 @@ def exchanged_between(model: Model, trials: Sequence[Trial], skip: Collection[st
     # pelvis's PSIS exchanged reads as its ASIS exchanged, distances cannot tell handedness): named, none left out.
     twins = Counter((x.segment, x.trials) for x in out if not x.against_model)
     return tuple(replace(x, odd=None) if not x.against_model and twins[(x.segment, x.trials)] > 1 else x for x in out)
+
+
+def _points_as_model(model: Model, trials: Sequence[Trial], names: list[str], seg: list[str], a: int, b: int) -> bool:
+    """Whether labels a and b point the way the base model's do (EXCHANGE_ALONG): b − a in the root segment's frame,
+    posed in each frame of every trial on the root's other markers (three or more; else False: not judged), against
+    the base model's neutral b − a, at a median cosine of EXCHANGE_ALONG or more."""
+    root = [c for c in range(len(names)) if seg[c] == model.root and c not in (a, b)]
+    if len(root) < 3:
+        return False
+    P = model.neutral_positions([names[c] for c in (*root, a, b)])
+    along = P[-1] - P[-2]
+    cosines = []
+    for t in trials:
+        X = t.select([names[c] for c in (*root, a, b)]).markers
+        w = np.all(np.isfinite(X[:, :-2]), axis=2).astype(float)
+        R, _ = kabsch_batch(P[:-2], np.where(w[..., None] > 0, X[:, :-2], 0.0), w)
+        v = np.einsum("fji,fj->fi", R, X[:, -1] - X[:, -2])  # Rᵀ (b − a): in the base model's neutral frame
+        with np.errstate(invalid="ignore"):
+            c = v @ along / (np.linalg.norm(v, axis=1) * np.linalg.norm(along))
+        cosines.append(c[np.isfinite(c)])
+    c = np.concatenate(cosines)
+    return bool(c.size and np.median(c) >= EXCHANGE_ALONG)
 
 
 def _fits_exchanged(first: tuple[np.ndarray, np.ndarray], second: tuple[np.ndarray, np.ndarray], a: int, b: int,
