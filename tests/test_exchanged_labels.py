@@ -13,6 +13,7 @@ from calibrate.calibration.html import report_html
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.io.trial import Trial
+from calibrate.model.model import Parameters, load_model, write_model
 from calibrate.problem.settings import Settings
 from calibrate.seed.association import EXCHANGE_RATIO, exchanged_between
 from calibrate.simulation.simulate import simulate_squats, simulate_static
@@ -117,23 +118,7 @@ def test_a_pair_exchanged_alike_in_every_trial_is_named_against_the_base_model(h
     assert "the lab's protocol" in report_html(calibration_report(cal))
 
 
-def _moved_places(model, shift: dict[str, np.ndarray]):
-    """The model with the named markers' places moved by `shift` (m, in their segment's frame)."""
-    import xml.etree.ElementTree as ET
-
-    from calibrate.model.model import Model
-
-    robot = ET.fromstring(model.text)
-    for joint in robot.findall("joint"):
-        label = joint.get("name", "").removesuffix("_marker")
-        if joint.get("name", "").endswith("_marker") and label in shift:
-            origin = joint.find("origin")
-            xyz = np.array([float(v) for v in origin.get("xyz").split()]) + shift[label]
-            origin.set("xyz", " ".join(f"{v:.6f}" for v in xyz))
-    return Model(model.path, text=ET.tostring(robot, encoding="unicode"))
-
-
-def test_a_pair_the_base_model_places_elsewhere_along_its_line_is_not_named(human, session, monkeypatch):
+def test_a_pair_the_base_model_places_elsewhere_along_its_line_is_not_named(human, session, monkeypatch, tmp_path):
     """A lab's marker set that puts the heel and toe 60 mm further back on the foot than the subject's (pyCGM2's
     CGM2.3 set on its gait2392 does so by 49 mm: its heel 113 mm behind the ankle, its toe 34 mm ahead): their
     distances to the ankle's markers then read as the two exchanged against the base model, yet heel-to-toe points
@@ -141,8 +126,10 @@ def test_a_pair_the_base_model_places_elsewhere_along_its_line_is_not_named(huma
     (taken for the lab's protocol, the fit had flipped pig_walk's foot).  Truly exchanged in both trials, the pair
     still is named against that model."""
     static, squats = session
-    back = np.array([-0.06, 0.0, 0.0])
-    lab = _moved_places(human, {"LHEE": back, "LTOE": back})
+    base = human.parameters()
+    marker = base.marker.copy()
+    marker[[human.marker_index("LHEE"), human.marker_index("LTOE")]] += [-0.06, 0.0, 0.0]  # back along the foot
+    lab = load_model(write_model(human, tmp_path / "lab.urdf", Parameters(base.scale, base.centre, base.axis, marker)))
     P = lab.neutral_positions(["LHEE", "LTOE", "LANK"])
     assert np.linalg.norm(P[0] - P[2]) > np.linalg.norm(P[1] - P[2])  # the heel now further from the ankle marker
     import calibrate.seed.association as association
