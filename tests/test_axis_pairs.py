@@ -116,8 +116,9 @@ def test_the_pairs_are_found_by_their_place_and_their_rows_match_differences(hum
 def test_a_tight_pair_prior_puts_the_knee_axes_on_the_epicondyle_line(paired, tmp_path):
     """Squats of a simulated subject whose knee axes lie 4 and 7 deg from its epicondyle lines: with the pair prior
     tight (0.2 deg), the calibrated axes end on the markers' lines (0.3 deg) and the centres near their midpoints
-    (0.1 and 2.1 mm; Pinocchio on the written subject); off, the axes end nearer the simulator's truth (3.3 and 1.9 deg
-    from it against 4.1 and 5.3)."""
+    (0.3 and 3.1 mm, within the pair's centre prior, 5 mm; 0.1 and 2.1 before the ankles below took the population's
+    width, which slides the shanks' contents: Pinocchio on the written subject); off, the axes end nearer the
+    simulator's truth (3.3 and 1.9 deg from it against 4.1 and 5.3)."""
     sim = simulate_squats(paired, frames=60, noise_mm=1.0, seed=6)
     truth_pm, truth_data = _world(paired, sim.truth, tmp_path / "truth.urdf")
     truth = {s: _against_pair(truth_pm, truth_data, f"knee_{s}", f"{s.upper()}KNE", f"{s.upper()}KNM")[0]
@@ -135,7 +136,7 @@ def test_a_tight_pair_prior_puts_the_knee_axes_on_the_epicondyle_line(paired, tm
         angle, along = _against_pair(pm, data, *args)
         assert rep[f"knee_{s}"]["angle_deg"] == pytest.approx(angle, abs=1e-6)
         assert abs(rep[f"knee_{s}"]["centre_from_midpoint_mm"]) == pytest.approx(abs(along), abs=1e-6)
-        assert angle < 1.0 and abs(along) < 3.0
+        assert angle < 1.0 and abs(along) < 4.0
         # off: the axis where the motion and the axis prior put it, nearer the simulator's truth than the tight
         # prior's, which the markers' line pulls away from it
         truth_axis = _axis(truth_pm, truth_data, f"knee_{s}")

@@ -1,5 +1,6 @@
 """A Plug-in Gait lateral marker (KNE, ANK, ELB) against its hinge centre: the report's `lateral_sides` and the
-summary's `implausible` line for one that ends medial of the centre (calibrate.calibration.report.lateral_sides)."""
+summary's `implausible` line for one that ends medial of the centre (calibrate.calibration.report.lateral_sides), or,
+held by the population's width, far from it (calibrate.calibration.report.POPULATION_FAR)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from calibrate.calibration.pipeline import calibrate
-from calibrate.calibration.report import calibration_report, implausible_flags, lateral_sides
+from calibrate.calibration.report import POPULATION_FAR, calibration_report, implausible_flags, lateral_sides
 from calibrate.io.trial import Trial
 from calibrate.model.hinges import hinge_lines_world
+from calibrate.problem.options import Priors
+from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 
 
@@ -31,21 +34,33 @@ def test_lateral_distances_against_pinocchio(human):
 
 def test_a_lateral_marker_across_its_joint_is_flagged(human):
     """LKNE's positions mirrored across the knee (through the true centre, normal to the true axis: the medial
-    epicondyle labelled as the lateral one), and LANK's across the ankle, each end medial of the calibrated centre and
-    are flagged, the ankle's line naming the subtalar it trades with across the markerless talus; the trial as
-    simulated flags no joint."""
+    epicondyle labelled as the lateral one), and LANK's across the ankle.  By default no width is measured, so the
+    population's (Priors.population_width) holds each lateral marker about the base model's distance from its centre:
+    the mirrored one ends POPULATION_FAR SDs or more from it and is flagged (knee 5.5, ankle 2.9 SDs; the pull of the
+    mirrored knee carries the ankle below 3.2 SDs off, flagged too), the true labels' within 1.1.  With that prior off,
+    each ends medial of the calibrated centre and is flagged so (knee -36, ankle -20 mm), the ankle's line naming the
+    subtalar it trades with across the markerless talus."""
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=2)
     clean = calibrate(human, sim.trial)
     assert not any(v["medial"] for v in lateral_sides(clean).values())
-    assert not any("medial of the centre" in f for f in implausible_flags(clean))
+    assert max(r["prior_sds"] for r in calibration_report(clean)["population_widths"]) < 1.5
+    assert not any("medial of the centre" in f or "population's width" in f for f in implausible_flags(clean))
 
     lines = hinge_lines_world(human, sim.truth, sim.motion)
+    off = Settings(priors=Priors(population_width=0.0))
     for joint, marker in (("knee_l", "LKNE"), ("ankle_l", "LANK")):
         centre, axis = lines[joint]
         k = sim.trial.labels.index(marker)
         X = sim.trial.markers.copy()
         X[:, k] -= 2.0 * np.einsum("fi,fi->f", X[:, k] - centre, axis)[:, None] * axis
-        cal = calibrate(human, Trial(sim.trial.labels, X, sim.trial.rate, 0, None))
+        trial = Trial(sim.trial.labels, X, sim.trial.rate, 0, None)
+        cal = calibrate(human, trial)
+        rows = {r["joint"]: r for r in calibration_report(cal)["population_widths"]}
+        assert rows[joint]["far"] and rows[joint]["prior_sds"] > POPULATION_FAR, rows[joint]
+        flags = [f for f in implausible_flags(cal) if "population's width" in f]
+        assert any(f.startswith(f"{joint}: {marker} ends") for f in flags), flags
+        assert {f.split(":")[0] for f in flags} == {j for j, r in rows.items() if r["far"]}
+        cal = calibrate(human, trial, off)
         sides = lateral_sides(cal)
         assert sides[joint]["medial"] and sides[joint]["lateral_mm"] < -10.0, sides[joint]
         assert not any(v["medial"] for j, v in sides.items() if j != joint)

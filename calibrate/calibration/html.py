@@ -257,6 +257,11 @@ def _notes(report: dict) -> str:
                      "axis; centres slid to their midpoint): "
                      + _e("; ".join(f"{r['coordinate']} {r['angle_deg']:.1f} deg from {'-'.join(r['markers'])}"
                                     for r in pairs)) + "</li>")
+    if widths := report.get("population_widths"):
+        items.append("<li>no width measured: lateral markers held about the base model's distance from their centres "
+                     "along the axes, at the segment's scale (calibrated / prior, mm): "
+                     + _e(", ".join(f"{r['marker']} {r['calibrated_mm']:.0f}/{r['prior_mm']:.0f}" for r in widths))
+                     + "</li>")
     narrow_c = report.get("narrow_centres_deg") or {}
     if given := [j for j in (report.get("settings") or {}).get("hold_centres", [])
                  if j not in report.get("still_centres", []) and j not in narrow_c

@@ -338,6 +338,22 @@ STILL_WIDTH_JOINTS = ("knee", "ankle", "elbow")
 STILL_COARSE_FRAMES = 24
 
 
+def population_widths(problem: Problem, statics_alone: bool) -> tuple[str, ...]:
+    """The hinges Problem.slide_centres places by the population's width (Priors.population_width): each knee and
+    ankle (WIDTH_JOINTS; in statics alone the elbows too, STILL_WIDTH_JOINTS) that it slides, whose Plug-in Gait
+    lateral marker the trials show, whose measured width does not place it (Settings.lateral_markers, unless
+    Priors.width is 0) and which no two markers straddling it place (Problem.pair_terms)."""
+    m, st = problem.model, problem.settings
+    if st.priors.population_width <= 0:
+        return ()
+    measured = {j for j, _, _ in st.lateral_markers} if st.priors.width > 0 else set()  # (width 0: not used)
+    taken = measured | {m.joints[ji].name for ji, *_ in problem.pair_terms()}
+    slid = {m.joints[ji].name for ji in problem.slid_hinges()}
+    joints = STILL_WIDTH_JOINTS if statics_alone else WIDTH_JOINTS
+    return tuple(j for j, mk in lateral_markers_of(m, joints)
+                 if j in slid and j not in taken and not problem.unseen[m.marker_index(mk)])
+
+
 def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequence[str] = WIDTH_JOINTS
                     ) -> tuple[tuple[str, str, float], ...]:
     """(joint, lateral marker, distance) for Settings.lateral_markers from a subject's measured widths: each
@@ -939,7 +955,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
     # (Problem.slide_centres): no marker and no joint angle moves, only the priors' cost falls.
-    slid = replace(state, p=problem.slide_centres(state.p))
+    # Where no one measured a knee's or ankle's width, the population's: the base model's lateral marker distance.
+    population = population_widths(problem, _statics_alone(members, trials, motion if len(trials) > 1 else None))
+    slid = replace(state, p=problem.slide_centres(state.p, population))
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
         slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked, problem.frame_evaluator(slid.p))
@@ -1047,6 +1065,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        narrow_axes=tuple(narrow.items()), narrow_centres=tuple(narrow_centres.items()),
                        axis_pairs=tuple((subject.dofs[d].name, subject.markers[k1].name, subject.markers[k2].name)
                                         for _, k1, k2, d in problem.pair_terms()),
+                       population_widths=population,
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),
                        unresolved=res.segments, unplaced_in_trial=by_trial, unplaced_held=held_in,

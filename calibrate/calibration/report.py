@@ -120,6 +120,7 @@ def calibration_report(cal: Calibration) -> dict:
                                 "symmetry_scale": st.priors.symmetry_scale,
                                 "symmetry_centre_mm": 1000 * st.priors.symmetry_centre,
                                 "width_mm": 1000 * st.priors.width,
+                                "population_width_mm": 1000 * st.priors.population_width,
                                 "on_axis_mm": 1000 * st.priors.on_axis,
                                 "pair_axis_deg": math.degrees(st.priors.pair_axis),
                                 "joint_marker_mm": 1000 * st.priors.joint_marker,
@@ -145,6 +146,7 @@ def calibration_report(cal: Calibration) -> dict:
         "cluster_centres": list(cal.cluster_centres),
         "on_axis_markers": on_axis_labels(cal),
         "axis_pairs": axis_pair_table(cal),
+        "population_widths": population_width_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
                          "per_frame_deg": math.degrees(lk.per_frame),
@@ -746,6 +748,57 @@ def axis_pair_table(cal: Calibration) -> list[dict]:
     return out
 
 
+#: A lateral marker held by the population's width (Calibration.population_widths) that ends more than this many
+#: Priors.population_width SDs from the population's distance is flagged: the segment's other markers and centres pull
+#: its hinge centre along the axis against anatomy.  A simulated subject's medial epicondyle labelled as the lateral one
+#: ends 5.5 SDs off, its medial malleolus 2.9 (tests/test_lateral_sides.py), the true labels within 1.1; the public
+#: files' knees and ankles 0.0-4.1, 39 of 46 within 1.6 (docs/benchmarks.md).
+POPULATION_FAR = 2.5
+
+
+def population_width_table(cal: Calibration) -> list[dict]:
+    """Each hinge placed along its axis by the population's width (Calibration.population_widths): its lateral
+    marker's distance from the centre along the axis, calibrated and the prior's (the base model's at the segment's
+    scale), mm."""
+    m, base = cal.model, _base_on_subject(cal)
+    lateral = dict(lateral_markers_of(m))
+    out = []
+    for joint in cal.population_widths:
+        marker = lateral[joint]
+        seg = m.segment_index(m.joints[m.joint_index(joint)].parent)
+        s = float(cal.params.scale[seg]) / float(base.scale[seg])
+        calibrated = 1000 * lateral_distance(m, cal.params, base, joint, marker)
+        prior = 1000 * s * lateral_distance(m, base, base, joint, marker)
+        sds = abs(calibrated - prior) / (1000 * cal.settings.priors.population_width)
+        out.append({"joint": joint, "marker": marker, "calibrated_mm": calibrated, "prior_mm": prior,
+                    "prior_sds": sds, "far": sds > POPULATION_FAR})
+    return out
+
+
+def _population_line(cal: Calibration) -> list[str]:
+    """The summary's line on the hinges placed along their axes by the population's width."""
+    rows = population_width_table(cal)
+    if not rows:
+        return []
+    text = ", ".join(f"{r['joint']} {r['calibrated_mm']:.0f}/{r['prior_mm']:.0f}" for r in rows)
+    return [f"  widths       none measured: {', '.join(r['marker'] for r in rows)} held about the base model's "
+            f"distance from their centres along the axes at the segment's scale (prior SD "
+            f"{1000 * cal.settings.priors.population_width:g} mm; calibrated / prior, mm: {text}); a trial's measured "
+            "widths take their place"]
+
+
+def _population_far_lines(cal: Calibration) -> list[str]:
+    """The summary's `implausible` lines of lateral markers held by the population's width that end beyond
+    POPULATION_FAR SDs of it, but for a joint whose marker ended medial of its centre (_lateral_side_lines says it)."""
+    medial = {j for j, v in lateral_sides(cal).items() if v["medial"]}
+    return [f"{IMPLAUSIBLE}{r['joint']}: {r['marker']} ends {r['calibrated_mm']:.0f} mm from the centre along the "
+            f"axis where the population's width puts it {r['prior_mm']:.0f} ({r['prior_sds']:.1f} SDs; no width "
+            "measured): "
+            "the segment's other markers and the centres below hold the centre there, as when the label names the "
+            "medial epicondyle or malleolus, or another point (check it; --markers map.toml maps it)"
+            for r in population_width_table(cal) if r["far"] and r["joint"] not in medial]
+
+
 def _pair_line(cal: Calibration) -> list[str]:
     """The summary's line on the axes drawn along marker pairs, those the motion carried far from theirs named."""
     rows = axis_pair_table(cal)
@@ -875,6 +928,7 @@ def summary_text(cal) -> str:
                               f"{model.total_mass:g} kg, the base model's (give the subject's with --mass)"),
         *_measurement_lines(cal),
         *_lateral_side_lines(cal),
+        *_population_far_lines(cal),
         *(["  locked       " + ", ".join(f"{k} at {math.degrees(v):g} deg" for k, v in cal.settings.lock)]
           if cal.settings.lock else []),
         *["  auto-locked  " + lk.text() for lk in cal.auto_locked],
@@ -902,6 +956,7 @@ def summary_text(cal) -> str:
            "motion places the axis)"]
           if (on_axis := on_axis_labels(cal)) else []),
         *_pair_line(cal),
+        *_population_line(cal),
         *(["  centres held " + _held_list(cal, given) + " (--hold-centres)"]
           if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres
                              and j not in dict(cal.narrow_centres) and j not in cal.cluster_centres]) else []),

@@ -238,6 +238,10 @@ class Calibration:
     # centre (the epicondyles, the malleoli; calibrate.problem.priors.straddling_pairs), its centre slid to their
     # midpoint
     axis_pairs: tuple[tuple[str, str, str], ...] = ()
+    # The knees and ankles (in statics alone the elbows too) slid along their axes to the population's width where no
+    # one measured theirs: the lateral marker's distance from the centre the base model's at the segment's scale
+    # (Priors.population_width; pipeline.population_widths)
+    population_widths: tuple[str, ...] = ()
     auto_locked: tuple = ()  # records.TradingLock per hinge calibrate locked: its turn and a neighbour's not separated
     neutral: int | None = None  # the trial whose mean joint angles the segment frames were turned to zero
     # (joint, its mean angle there, rad) per hinge whose zero there would carry the trials past its limits: not turned

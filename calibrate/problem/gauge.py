@@ -5,6 +5,7 @@ segment frames turned to where the priors or a neutral trial want them."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -155,7 +156,12 @@ class GaugeMixin:
             moves.append((si, kind, G, t))
         return out, moves
 
-    def slide_centres(self, p: np.ndarray) -> np.ndarray:
+    def slid_hinges(self) -> list[int]:
+        """The hinges slide_centres slides along their axes (joint indices): those whose centre is free, neither
+        segment held, and whose child's markers are free or absent."""
+        return list(self._slides)
+
+    def slide_centres(self, p: np.ndarray, population: Sequence[str] = ()) -> np.ndarray:
         """Slide every hinge centre along its axis to where the priors want it, the child segment's
         contents (its markers, the centres of the joints below it) slid back: the markers' places in
         the world and every joint angle are unchanged, so only the priors' cost changes (it falls).
@@ -168,7 +174,9 @@ class GaugeMixin:
         positions at fixed scales, so one least-squares solve over the slide lengths is exact.  Where the lab
         measured a joint's width (ProblemOptions.lateral_markers, priors.width), its lateral marker's distance
         from the centre along the axis joins the priors: the one place the measurement fixes what no marker shows;
-        so does a hinge's place between two markers straddling it (the epicondyles: pair_centre_residuals)."""
+        so does a hinge's place between two markers straddling it (the epicondyles: pair_centre_residuals), and, for
+        the hinges named in `population` (knees and ankles whose width no one measured), the lateral marker's distance
+        as the base model's at the segment's scale (Priors.population_width: population_lateral_residuals)."""
         m, L = self.model, self.layout
         cols = []
         for ji in self._slides:
@@ -196,7 +204,8 @@ class GaugeMixin:
         r, Jr = self.prior(p)
         rw, Jw = self.lateral_residuals(p)  # the lab's measured joint widths, where it gave them
         rm, Jm = self.pair_centre_residuals(p)  # a straddled hinge's centre at its two markers' midpoint
-        r, Jr = np.concatenate([r, rw, rm]), np.vstack([Jr, Jw, Jm])
+        rq, Jq = self.population_lateral_residuals(p, population)  # the population's widths, where none was measured
+        r, Jr = np.concatenate([r, rw, rm, rq]), np.vstack([Jr, Jw, Jm, Jq])
         M = Jr @ G
         t = np.linalg.lstsq(M, -r, rcond=None)[0]
         return self.retract_parameters(p, G @ t)

@@ -42,6 +42,14 @@ class Priors:
     # from the lateral marker to the joint centre (m; 0: the measurements are not used).  A caliper reads
     # a knee to a few mm; the marker sits on skin over the epicondyle or malleolus.
     width: float = 0.005
+    # Where no width was measured: SD of a knee's or ankle's lateral marker's distance along the hinge axis from the
+    # centre about the base model's, at the segment's scale (m; 0: off; Problem.slide_centres, the joints the
+    # pipeline names: calibrate.calibration.pipeline.population_widths).  No motion places a hinge along its axis;
+    # left to the other priors (the centre's, the child segment's markers' and centres'), LKNE ended up to 21 mm
+    # medial of its knee's centre on real walks.  The public Plug-in Gait sessions' measured widths (seven
+    # subjects, 1.34-1.79 m) put the lateral marker 52-79 mm from the knee's centre and 35-52 mm from the ankle's:
+    # SDs of 8 and 6 mm about their means, the base model's 55 and 41 mm within one of them (docs/benchmarks.md).
+    population_width: float = 0.008
     # A hinge's lateral marker (Plug-in Gait's KNE, ANK, ELB on the segment the knee, ankle or elbow hangs from)
     # where the hinge's axis is held (a static alone, a joint the trials do not show moving, Settings.hold_axes):
     # SD of the marker's distance from the axis line through the centre (m, at the segment's scale; 0: off).  The

@@ -4,7 +4,7 @@ symmetry, and the joint-limit residuals."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -376,16 +376,44 @@ class PriorsMixin:
         terms = self.pair_terms() if sd > 0 else []
         return self._along_axes(p, [(ji, d, {k1: 0.5, k2: 0.5}, -1.0, 0.0) for ji, k1, k2, d in terms], sd)
 
-    def _along_axes(self, p: np.ndarray, rows: list[tuple[int, int, dict[int, float], float, float]],
-                    sd: float) -> tuple[np.ndarray, np.ndarray]:
-        """Rows (side · s · a·(Σ w_k x_k − c) − target) / sd and their Jacobian (n, n_free) at `p`: a point on a
-        hinge's parent (its markers x_k weighted w_k, the weights summing to 1) along the hinge's axis a from its
-        centre c, at the segment's scale s, one row per (joint, DoF, weights, side, target)."""
+    def population_lateral_residuals(self, p: np.ndarray, joints: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Where no width was measured, each hinge of `joints`: its Plug-in Gait lateral marker's distance along the
+        axis from the centre against the base model's, both at the segment's scale, / priors.population_width, and
+        the Jacobian (n, n_free) at `p`; none when population_width is 0."""
+        sd = self.settings.priors.population_width
+        return self._along_axes(p, self._population_terms(tuple(joints)) if sd > 0 else [], sd)
+
+    def _population_terms(self, joints: tuple[str, ...]) -> list[tuple]:
+        """_along_axes rows for population_lateral_residuals: (joint, DoF, {marker: 1}, side, 0, the base model's
+        distance at scale 1), the side that of the base model's marker along its axis.  Kept while `base` and
+        `joints` are the same."""
+        cached = self.__dict__.get("_population_cache")
+        if cached is not None and cached[0] is self.base and cached[1] == joints:
+            return cached[2]
+        m, L = self.model, self.layout
+        base = self.base.vector()
+        lateral = dict(lateral_markers_of(m))
+        out = []
+        for name in joints:
+            ji, mi = m.joint_index(name), m.marker_index(lateral[name])
+            d = m.dof_index(m.joints[ji].dofs[0])
+            a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(base, d)
+            along = float(a @ (base[L.marker(mi)] - base[L.centre(ji)]))
+            out.append((ji, d, {mi: 1.0}, 1.0 if along >= 0 else -1.0, 0.0, abs(along)))
+        self._population_cache = (self.base, joints, out)
+        return out
+
+    def _along_axes(self, p: np.ndarray, rows: list[tuple], sd: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (side · s · a·(Σ w_k x_k − c) − target − s · per_scale) / sd and their Jacobian (n, n_free) at `p`: a
+        point on a hinge's parent (its markers x_k weighted w_k, the weights summing to 1) along the hinge's axis a
+        from its centre c, at the segment's scale s, one row per (joint, DoF, weights, side, target[, per_scale]):
+        a target in metres, or (per_scale) one that grows with the segment's scale."""
         if not rows:
             return np.zeros(0), np.zeros((0, self.n_free))
         m, L = self.model, self.layout
         r, J = np.zeros(len(rows)), np.zeros((len(rows), self.np_full))
-        for k, (ji, d, weights, side, target) in enumerate(rows):
+        for k, (ji, d, weights, side, target, *per) in enumerate(rows):
+            per_scale = per[0] if per else 0.0
             seg = self.centre_segment[ji]
             s = p[L.scale(seg)]
             R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
@@ -394,11 +422,11 @@ class PriorsMixin:
             u = v / nv
             a = R @ u
             x = sum(w * p[L.marker(mk)] for mk, w in weights.items()) - p[L.centre(ji)]
-            r[k] = (side * s * float(a @ x) - target) / sd
+            r[k] = (side * s * float(a @ x) - target - s * per_scale) / sd
             for mk, w in weights.items():
                 J[k, L.marker(mk)] += side * s * w * a / sd
             J[k, L.centre(ji)] -= side * s * a / sd
-            J[k, L.scale(seg)] += side * float(a @ x) / sd
+            J[k, L.scale(seg)] += (side * float(a @ x) - per_scale) / sd
             J[k, L.axis(d)] += side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
         return r, J @ self.tangent_map(p)
 

@@ -1,0 +1,134 @@
+"""The population's joint widths against measured ones: on real Plug-in Gait sessions that carry their subject's knee
+and ankle widths (PROCESSING:LKneeWidth, ...), each calibrated with the measurements set aside (Priors.width = 0),
+once with the population's width placing the hinges along their axes (Priors.population_width, the default) and once
+without it; each lateral marker's calibrated distance from its centre along the axis against the measured one (half
+the width plus the marker's radius, as Plug-in Gait places the centre).
+
+    python scripts/bench_widths.py --btkdata DIR [--pig-walk DIR] [--simulated N] [--json OUT.json]
+
+DIR: a folder of BTKData's C3D files as scripts/public_data.py lays them out (btk__PiG__*.c3d, btk__others__*.c3d);
+--pig-walk: ../shared/data/real/pig_walk (static.c3d + walk.c3d) by default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calibrate import calibrate
+from calibrate.calibration.report import lateral_sides
+from calibrate.errors import CalibrateError
+from calibrate.io.measurements import lateral_distance
+from calibrate.io.read import read_trial
+from calibrate.model.model import load_model
+from calibrate.problem.options import Priors
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_squats
+
+HERE = Path(__file__).resolve().parent
+MODEL = HERE.parent / "models" / "human.urdf"
+# One file per subject and session among BTKData's (the _FF_N18 / _noFF copies repeat PiG_Motion3_FF's data).
+BTK = ("btk__PiG__PiG_Motion-FlatFoot-Full.c3d", "btk__PiG__PiG_Motion-FlatFoot-Hole.c3d",
+       "btk__PiG__PiG_Motion3_FF.c3d", "btk__PiG__PiG_Calibration2-NoOption.c3d", "btk__others__FunctionalWalk.c3d")
+
+
+def case(model, trials, name: str) -> dict:
+    """One session calibrated with and without the population's width, its measured widths set aside."""
+    measured = next(t.measurements for t in trials if getattr(t, "measurements", None) is not None)
+    out = {"case": name, "joints": {}}
+    for label, priors in (("population", Priors(width=0.0)), ("without", Priors(width=0.0, population_width=0.0))):
+        t0 = time.perf_counter()
+        cal = calibrate(model, trials, Settings(priors=priors))
+        out[f"{label}_s"] = time.perf_counter() - t0
+        out[f"{label}_rms_mm"] = 1000 * cal.marker_rms
+        out.setdefault("population_widths", list(cal.population_widths))
+        sides = lateral_sides(cal)  # read against the base model's markers by name (a subject's new ones among them)
+        for joint in cal.population_widths or (j for j, _, _ in cal.settings.lateral_markers):
+            marker = {"knee": "KNE", "ankle": "ANK", "elbow": "ELB"}[joint[:-2]]
+            marker = ("L" if joint.endswith("_l") else "R") + marker
+            truth = measured.lateral_distance(joint)
+            if truth is None or marker in cal.unused_markers:
+                continue
+            row = out["joints"].setdefault(joint, {"marker": marker, "measured_mm": 1000 * truth})
+            row[f"{label}_mm"] = sides[joint]["lateral_mm"]
+    for row in out["joints"].values():
+        for label in ("population", "without"):
+            if f"{label}_mm" in row:
+                row[f"{label}_error_mm"] = row[f"{label}_mm"] - row["measured_mm"]
+    return out
+
+
+def simulated(model, seeds: int) -> dict:
+    """Squats of `seeds` simulated subjects (200 frames, seeds 0..seeds-1): each knee's and ankle's lateral distance
+    from its centre minus the truth's (mm), with the population's width and without it."""
+    pairs = [("knee_l", "LKNE"), ("knee_r", "RKNE"), ("ankle_l", "LANK"), ("ankle_r", "RANK")]
+    base = model.parameters()
+    out = {"population": [], "without": []}
+    for seed in range(seeds):
+        sim = simulate_squats(model, frames=200, noise_mm=1.0, seed=seed)
+        for label, priors in (("population", Priors()), ("without", Priors(population_width=0.0))):
+            cal = calibrate(model, sim.trial, Settings(outliers=0.0, priors=priors))
+            out[label] += [1000 * (lateral_distance(model, cal.params, base, j, mk)
+                                   - lateral_distance(model, sim.truth, base, j, mk)) for j, mk in pairs]
+    return {label: {"errors_mm": e, "rms_mm": float(np.sqrt(np.mean(np.square(e)))),
+                    "max_abs_mm": float(np.abs(e).max())} for label, e in out.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--btkdata", type=Path, required=True, help="folder of BTKData's C3D files (public_data.py)")
+    ap.add_argument("--pig-walk", type=Path, default=HERE.parent.parent / "shared" / "data" / "real" / "pig_walk")
+    ap.add_argument("--simulated", type=int, default=0, metavar="N",
+                    help="also N simulated subjects' squats against their truth (the simulator's markers sit near the "
+                         "base model's)")
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args()
+    model = load_model(MODEL)
+    sim = simulated(model, args.simulated) if args.simulated else None
+    if sim is not None:
+        for label, r in sim.items():
+            print(f"simulated  {label:10s} lateral distance - the truth's: RMS {r['rms_mm']:.1f} mm, worst "
+                  f"{r['max_abs_mm']:.1f} mm")
+    sessions = [(f, [read_trial(args.btkdata / f)]) for f in BTK if (args.btkdata / f).exists()]
+    if (args.pig_walk / "static.c3d").exists():
+        walk = [read_trial(args.pig_walk / n) for n in ("static.c3d", "walk.c3d")]
+        sessions.append(("pig_walk", walk))
+    results = []
+    for name, trials in sessions:
+        if all(getattr(t, "measurements", None) is None for t in trials):
+            continue
+        try:
+            r = case(model, trials, name)
+        except CalibrateError as e:  # a file whose labels are not the model's (BTKData's parameterOverflow)
+            print(f"{name[:44]:44s} refused: {str(e)[:100]}")
+            continue
+        results.append(r)
+        print(f"{name[:44]:44s} marker RMS {r['population_rms_mm']:.3f} / {r['without_rms_mm']:.3f} mm; "
+              "lateral marker to centre, calibrated - measured (mm), population / without:")
+        for j, row in r["joints"].items():
+            on, off = (row.get(f"{label}_error_mm", float("nan")) for label in ("population", "without"))
+            print(f"    {j:8s} {row['marker']:5s} measured {row['measured_mm']:5.1f}  {on:+6.1f} / {off:+6.1f}")
+    summary = {}
+    for label in ("population", "without"):
+        rows = [row for r in results for row in r["joints"].values() if f"{label}_error_mm" in row]
+        e = np.array([row[f"{label}_error_mm"] for row in rows])
+        summary[label] = {"hinges": len(rows), "rms_mm": float(np.sqrt(np.mean(e ** 2))) if rows else None,
+                          "max_abs_mm": float(np.abs(e).max()) if rows else None,
+                          "medial": sum(row[f"{label}_mm"] < 0 for row in rows)}
+    for label, s in summary.items():
+        print(f"{label:10s} {s['hinges']} hinges: calibrated - measured RMS {s['rms_mm']:.1f} mm, worst "
+              f"{s['max_abs_mm']:.1f} mm, {s['medial']} ended medial of their centre")
+    if args.json:
+        args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%dT%H:%M:%S"), "machine": platform.machine(),
+                                         "python": platform.python_version(), "model": str(MODEL),
+                                         "sessions": results, "summary": summary, "simulated": sim},
+                                        indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()

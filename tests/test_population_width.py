@@ -1,0 +1,122 @@
+"""Where no one measured a knee's or ankle's width, the population's (Priors.population_width): each lateral marker's
+distance along the hinge axis from the centre held about the base model's at the segment's scale when the gauge slides
+the hinges along their axes (Problem.slide_centres), no marker and no angle moved; checked against Pinocchio on the
+written models and against central differences."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from calibrate.calibration.pipeline import calibrate, population_widths
+from calibrate.calibration.report import calibration_report, summary_text
+from calibrate.io.measurements import lateral_distance
+from calibrate.model.kinematics import build_kinematics
+from calibrate.model.model import load_model, write_model
+from calibrate.problem.options import Priors
+from calibrate.problem.problem import Problem
+from calibrate.problem.settings import Settings
+from calibrate.simulation.simulate import simulate_squats
+from calibrate.solve.ik import marker_columns
+
+PAIRS = [("knee_l", "LKNE"), ("knee_r", "RKNE"), ("ankle_l", "LANK"), ("ankle_r", "RANK")]
+
+
+def _prior_distance(model, params, joint: str, marker: str) -> float:
+    """The base model's lateral marker distance (m) at the subject's scale of the joint's parent segment."""
+    base = model.parameters()
+    seg = model.segment_index(model.joints[model.joint_index(joint)].parent)
+    return float(params.scale[seg]) / float(base.scale[seg]) * lateral_distance(model, base, base, joint, marker)
+
+
+def test_the_population_rows_match_their_distances_and_differences_and_the_slide_moves_no_marker(human):
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), build_kinematics(human))
+    joints = [j for j, _ in PAIRS]
+    rng = np.random.default_rng(5)
+    p = problem.retract_parameters(sim.truth.vector(), 0.03 * rng.normal(size=problem.n_free))
+    r, J = problem.population_lateral_residuals(p, joints)
+    # Each row: (lateral distance - the base model's at the segment's scale) / SD, the distances read independently.
+    params = human.unpack(p)
+    sd = problem.settings.priors.population_width
+    want = [(lateral_distance(human, params, human.parameters(), j, mk) - _prior_distance(human, params, j, mk)) / sd
+            for j, mk in PAIRS]
+    np.testing.assert_allclose(r, want, atol=1e-9)
+    fd = np.zeros_like(J)
+    for k in range(problem.n_free):
+        step = np.zeros(problem.n_free)
+        step[k] = 1e-6
+        fd[:, k] = (problem.population_lateral_residuals(problem.retract_parameters(p, step), joints)[0]
+                    - problem.population_lateral_residuals(problem.retract_parameters(p, -step), joints)[0]) / 2e-6
+    np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(J).max()))
+    # Off (SD 0) or no joints named: no rows.
+    off = Problem(human, marker_columns(human, sim.trial), Settings(priors=Priors(population_width=0.0)),
+                  problem.kin)
+    assert off.population_lateral_residuals(p, joints)[0].size == 0
+    assert problem.population_lateral_residuals(p, [])[0].size == 0
+    # The slide takes them in (the hinges' slides are found together, so it is their sum of squares that falls: here
+    # 142 -> 18), and the model's markers stay where they were in the world.
+    slid, plain = problem.slide_centres(p, joints), problem.slide_centres(p)
+    after, before = (problem.population_lateral_residuals(x, joints)[0] for x in (slid, plain))
+    assert after @ after < 0.5 * (before @ before), (after, before)
+    Z, Q = np.zeros((1, human.nz)), np.array([[1.0, 0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(problem.kin.batch(Z, Q, slid)[0], problem.kin.batch(Z, Q, p)[0], atol=1e-12)
+
+
+def test_which_hinges_take_the_population_width(human):
+    """Knees and ankles whose lateral marker the trial shows and whose width no one gave; in statics alone the elbows
+    too; a measured one keeps its measurement; SD 0 takes none."""
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
+
+    def chosen(settings: Settings, trial=sim.trial, alone: bool = False) -> tuple[str, ...]:
+        return population_widths(Problem(human, marker_columns(human, trial), settings, build_kinematics(human)), alone)
+
+    assert chosen(Settings()) == ("knee_l", "knee_r", "ankle_l", "ankle_r")
+    assert chosen(Settings(), alone=True) == ("knee_l", "knee_r", "ankle_l", "ankle_r", "elbow_l", "elbow_r")
+    assert chosen(Settings(lateral_markers=(("knee_r", "RKNE", 0.06),))) == ("knee_l", "ankle_l", "ankle_r")
+    assert chosen(Settings(priors=Priors(population_width=0.0))) == ()
+    hidden = sim.trial.markers.copy()
+    hidden[:, sim.trial.labels.index("LANK")] = np.nan  # a lateral marker no frame shows places nothing
+    assert chosen(Settings(), trial=replace(sim.trial, markers=hidden)) == ("knee_l", "knee_r", "ankle_r")
+
+
+def _markers_in_world(model, params, motion, tmp_path, name: str) -> np.ndarray:
+    """Every marker of the subject written with `params`, read back by Pinocchio, at each frame of `motion`."""
+    subject = load_model(write_model(model, tmp_path / name, params))
+    data = subject.pin.createData()
+    ids = [subject.pin.getFrameId(n, pin.FrameType.BODY) for n in subject.marker_names]
+    out = np.zeros((motion.n_frames, len(ids), 3))
+    for f in range(motion.n_frames):
+        q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
+        pin.framesForwardKinematics(subject.pin, data, q)
+        out[f] = [data.oMf[i].translation for i in ids]
+    return out
+
+
+def test_a_calibration_without_widths_slides_the_knees_and_ankles_and_moves_no_marker(human, tmp_path):
+    """Simulated squats, no width measured: the knees and ankles take the population's width, their lateral markers
+    ending nearer the base model's distances at the segment's scale than with the prior off (their sum of squares:
+    the slides are found together); every marker of the
+    written subject, posed by Pinocchio at every frame, where the calibration without the prior puts it (a change of
+    gauge: the same fit); the summary and the report say which and how far."""
+    sim = simulate_squats(human, frames=100, noise_mm=1.0, seed=3)
+    on = calibrate(human, sim.trial, Settings(outliers=0.0))
+    off = calibrate(human, sim.trial, Settings(outliers=0.0, priors=Priors(population_width=0.0)))
+    assert on.population_widths == ("knee_l", "knee_r", "ankle_l", "ankle_r") and off.population_widths == ()
+    base = human.parameters()
+    gap = {name: np.array([lateral_distance(human, cal.params, base, j, mk) - _prior_distance(human, cal.params, j, mk)
+                           for j, mk in PAIRS]) for name, cal in (("on", on), ("off", off))}
+    assert gap["on"] @ gap["on"] < gap["off"] @ gap["off"], gap
+    np.testing.assert_allclose(_markers_in_world(human, on.params, on.motions[0], tmp_path, "on.urdf"),
+                               _markers_in_world(human, off.params, off.motions[0], tmp_path, "off.urdf"), atol=1e-6)
+    np.testing.assert_allclose(on.motions[0].angles, off.motions[0].angles, atol=1e-6)
+    rows = calibration_report(on)["population_widths"]
+    assert [(r["joint"], r["marker"]) for r in rows] == PAIRS
+    for r, (j, mk) in zip(rows, PAIRS, strict=True):
+        assert r["calibrated_mm"] == pytest.approx(1000 * lateral_distance(human, on.params, base, j, mk))
+        assert r["prior_mm"] == pytest.approx(1000 * _prior_distance(human, on.params, j, mk))
+    assert "widths       none measured: LKNE, RKNE, LANK, RANK" in summary_text(on)
+    assert calibration_report(off)["population_widths"] == [] and "widths       none" not in summary_text(off)
