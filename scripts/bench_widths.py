@@ -49,11 +49,10 @@ def case(model, trials, name: str) -> dict:
         out.setdefault("population_widths", list(cal.population_widths))
         sides = lateral_sides(cal)  # read against the base model's markers by name (a subject's new ones among them)
         for joint in cal.population_widths or (j for j, _, _ in cal.settings.lateral_markers):
-            marker = {"knee": "KNE", "ankle": "ANK", "elbow": "ELB"}[joint[:-2]]
-            marker = ("L" if joint.endswith("_l") else "R") + marker
             truth = measured.lateral_distance(joint)
-            if truth is None or marker in cal.unused_markers:
+            if truth is None or joint not in sides:  # (lateral_sides leaves out a marker no trial shows)
                 continue
+            marker = sides[joint]["marker"]
             row = out["joints"].setdefault(joint, {"marker": marker, "measured_mm": 1000 * truth})
             row[f"{label}_mm"] = sides[joint]["lateral_mm"]
     for row in out["joints"].values():

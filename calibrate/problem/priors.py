@@ -289,7 +289,7 @@ class PriorsMixin:
         cached = self.__dict__.get("_lateral_cache")
         if cached is not None and cached[0] is self.base:
             return cached[1]
-        m, L = self.model, self.layout
+        m = self.model
         base = self.base.vector()
         joints = {j.name: i for i, j in enumerate(m.joints)}
         markers = {mk.name: i for i, mk in enumerate(m.markers)}
@@ -301,12 +301,18 @@ class PriorsMixin:
             if mi is None or m.markers[mi].segment != m.joints[ji].parent:
                 raise ValueError(f"lateral_markers: '{mname}' is not a marker of {m.joints[ji].parent}, the "
                                  f"segment {jname} hangs from")
-            d = m.dof_index(m.joints[ji].dofs[0])
-            a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(base, d)
-            side = 1.0 if float(a @ (base[L.marker(mi)] - base[L.centre(ji)])) >= 0 else -1.0
-            out.append((ji, mi, d, float(dist), side))
+            d, along = self._base_along(ji, mi, base)
+            out.append((ji, mi, d, float(dist), 1.0 if along >= 0 else -1.0))
         self._lateral_cache = (self.base, out)
         return out
+
+    def _base_along(self, ji: int, mi: int, base: np.ndarray) -> tuple[int, float]:
+        """Hinge `ji`'s DoF index and marker `mi`'s offset from its centre along its axis in the base geometry
+        `base` (full p, at scale 1): the sign says which side of the centre the base model puts the marker."""
+        m, L = self.model, self.layout
+        d = m.dof_index(m.joints[ji].dofs[0])
+        a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(base, d)
+        return d, float(a @ (base[L.marker(mi)] - base[L.centre(ji)]))
 
     def on_axis_terms(self) -> list[tuple[int, int, int]]:
         """(joint, marker, DoF index) of each hinge whose axis is held (Settings.hold_axes, or by auto-hold: the
@@ -390,15 +396,13 @@ class PriorsMixin:
         cached = self.__dict__.get("_population_cache")
         if cached is not None and cached[0] is self.base and cached[1] == joints:
             return cached[2]
-        m, L = self.model, self.layout
+        m = self.model
         base = self.base.vector()
         lateral = dict(lateral_markers_of(m))
         out = []
         for name in joints:
             ji, mi = m.joint_index(name), m.marker_index(lateral[name])
-            d = m.dof_index(m.joints[ji].dofs[0])
-            a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(base, d)
-            along = float(a @ (base[L.marker(mi)] - base[L.centre(ji)]))
+            d, along = self._base_along(ji, mi, base)
             out.append((ji, d, {mi: 1.0}, 1.0 if along >= 0 else -1.0, 0.0, abs(along)))
         self._population_cache = (self.base, joints, out)
         return out
