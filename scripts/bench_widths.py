@@ -4,10 +4,12 @@ once with the population's width placing the hinges along their axes (Priors.pop
 without it; each lateral marker's calibrated distance from its centre along the axis against the measured one (half
 the width plus the marker's radius, as Plug-in Gait places the centre).
 
-    python scripts/bench_widths.py --btkdata DIR [--pig-walk DIR] [--simulated N] [--json OUT.json]
+    python scripts/bench_widths.py --btkdata DIR [--pig-walk DIR] [--simulated N] [--no-feet] [--json OUT.json]
 
 DIR: a folder of BTKData's C3D files as scripts/public_data.py lays them out (btk__PiG__*.c3d, btk__others__*.c3d);
---pig-walk: ../shared/data/real/pig_walk (static.c3d + walk.c3d) by default.
+--pig-walk: ../shared/data/real/pig_walk (static.c3d + walk.c3d) by default.  --no-feet: every session without its
+heel and toe markers (a lower-limb set without feet: the ankles locked, the tali held, Problem.unslid_width_terms), and
+each also calibrated with its widths used ("used").
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import argparse
 import json
 import platform
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,16 +40,28 @@ BTK = ("btk__PiG__PiG_Motion-FlatFoot-Full.c3d", "btk__PiG__PiG_Motion-FlatFoot-
        "btk__PiG__PiG_Motion3_FF.c3d", "btk__PiG__PiG_Calibration2-NoOption.c3d", "btk__others__FunctionalWalk.c3d")
 
 
-def case(model, trials, name: str) -> dict:
-    """One session calibrated with and without the population's width, its measured widths set aside."""
+LABELS = ("population", "without", "used")  # ("used": the measured widths used; its key never "measured_mm")
+
+
+def without_feet(trial):
+    """The trial without its heel and toe markers (Plug-in Gait's HEE, TOE)."""
+    keep = [i for i, label in enumerate(trial.labels) if label[1:] not in ("HEE", "TOE")]
+    return replace(trial, labels=[trial.labels[i] for i in keep], markers=trial.markers[:, keep])
+
+
+def case(model, trials, name: str, measured_too: bool = False) -> dict:
+    """One session calibrated with and without the population's width, its measured widths set aside (and, with
+    `measured_too`, with them used)."""
     measured = next(t.measurements for t in trials if getattr(t, "measurements", None) is not None)
     out = {"case": name, "joints": {}}
-    for label, priors in (("population", Priors(width=0.0)), ("without", Priors(width=0.0, population_width=0.0))):
+    runs = [("population", Priors(width=0.0)), ("without", Priors(width=0.0, population_width=0.0))]
+    for label, priors in runs + ([("used", Priors())] if measured_too else []):
         t0 = time.perf_counter()
         cal = calibrate(model, trials, Settings(priors=priors))
         out[f"{label}_s"] = time.perf_counter() - t0
         out[f"{label}_rms_mm"] = 1000 * cal.marker_rms
         out.setdefault("population_widths", list(cal.population_widths))
+        out.setdefault("locked", sorted(cal.locked))
         sides = lateral_sides(cal)  # read against the base model's markers by name (a subject's new ones among them)
         for joint in cal.population_widths or (j for j, _, _ in cal.settings.lateral_markers):
             truth = measured.lateral_distance(joint)
@@ -56,7 +71,7 @@ def case(model, trials, name: str) -> dict:
             row = out["joints"].setdefault(joint, {"marker": marker, "measured_mm": 1000 * truth})
             row[f"{label}_mm"] = sides[joint]["lateral_mm"]
     for row in out["joints"].values():
-        for label in ("population", "without"):
+        for label in LABELS:
             if f"{label}_mm" in row:
                 row[f"{label}_error_mm"] = row[f"{label}_mm"] - row["measured_mm"]
     return out
@@ -85,6 +100,8 @@ def main() -> None:
     ap.add_argument("--simulated", type=int, default=0, metavar="N",
                     help="also N simulated subjects' squats against their truth (the simulator's markers sit near the "
                          "base model's)")
+    ap.add_argument("--no-feet", action="store_true", help="every session without its heel and toe markers, and also "
+                    "calibrated with its widths used")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     model = load_model(MODEL)
@@ -97,23 +114,28 @@ def main() -> None:
     if (args.pig_walk / "static.c3d").exists():
         walk = [read_trial(args.pig_walk / n) for n in ("static.c3d", "walk.c3d")]
         sessions.append(("pig_walk", walk))
+    if args.no_feet:
+        sessions = [(name, [without_feet(t) for t in trials]) for name, trials in sessions]
     results = []
     for name, trials in sessions:
         if all(getattr(t, "measurements", None) is None for t in trials):
             continue
         try:
-            r = case(model, trials, name)
+            r = case(model, trials, name, args.no_feet)
         except CalibrateError as e:  # a file whose labels are not the model's (BTKData's parameterOverflow)
             print(f"{name[:44]:44s} refused: {str(e)[:100]}")
             continue
         results.append(r)
-        print(f"{name[:44]:44s} marker RMS {r['population_rms_mm']:.3f} / {r['without_rms_mm']:.3f} mm; "
-              "lateral marker to centre, calibrated - measured (mm), population / without:")
+        labels = LABELS if args.no_feet else LABELS[:2]
+        rms = " / ".join(f"{r[x + '_rms_mm']:.3f}" for x in labels)
+        print(f"{name[:44]:44s} marker RMS {rms} mm; "
+              f"lateral marker to centre, calibrated - measured (mm), {' / '.join(labels)}:")
         for j, row in r["joints"].items():
-            on, off = (row.get(f"{label}_error_mm", float("nan")) for label in ("population", "without"))
-            print(f"    {j:8s} {row['marker']:5s} measured {row['measured_mm']:5.1f}  {on:+6.1f} / {off:+6.1f}")
+            errors = " / ".join(f"{row.get(f'{x}_error_mm', float('nan')):+6.1f}" for x in labels)
+            held = " (locked)" if j in r["locked"] else ""
+            print(f"    {j:8s} {row['marker']:5s} measured {row['measured_mm']:5.1f}  {errors}{held}")
     summary = {}
-    for label in ("population", "without"):
+    for label in LABELS if args.no_feet else LABELS[:2]:
         rows = [row for r in results for row in r["joints"].values() if f"{label}_error_mm" in row]
         e = np.array([row[f"{label}_error_mm"] for row in rows])
         summary[label] = {"hinges": len(rows), "rms_mm": float(np.sqrt(np.mean(e ** 2))) if rows else None,
@@ -125,7 +147,8 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%dT%H:%M:%S"), "machine": platform.machine(),
                                          "python": platform.python_version(), "model": str(MODEL),
-                                         "sessions": results, "summary": summary, "simulated": sim},
+                                         "no_feet": args.no_feet, "sessions": results, "summary": summary,
+                                         "simulated": sim},
                                         indent=1, default=float))
 
 

@@ -107,7 +107,13 @@ from calibrate.seed.seeding import (
 
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED, declared_segments, plug_in_gait_name
-from ..io.measurements import SubjectMeasurements, first_measurements, lateral_markers_of
+from ..io.measurements import (
+    STILL_WIDTH_JOINTS,
+    WIDTH_JOINTS,
+    SubjectMeasurements,
+    first_measurements,
+    lateral_markers_of,
+)
 from ..io.motion import Motion
 from ..io.trial import Trial
 from ..model.blocks import FrameLayout
@@ -321,15 +327,6 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
                    mass_from=mass_from, measurements=measured)
 
 
-#: The joints whose measured width places their centre along the hinge axis (Problem.slide_centres): Plug-in
-#: Gait's knee and ankle.  The elbow's is measured too but not used: sliding the elbow centre to it slides the
-#: forearm's contents back, and the radioulnar centre, which walking's forearm barely places, then lands
-#: 70 mm from the base model's on pig_walk (docs/calibration.md, "Subject measurements").
-WIDTH_JOINTS = ("knee", "ankle")
-#: ... and where every trial is still (statics alone), the elbow's too: nothing turns the forearm, whose contents the
-#: walk's pulled, and on real Plug-in Gait statics the elbows then end 15-28 mm from Plug-in Gait's, not 27-44
-#: (docs/benchmarks.md, "A static alone: the ball centres held").
-STILL_WIDTH_JOINTS = ("knee", "ankle", "elbow")
 #: Statics alone (every trial still): the geometry's basin found on this many evenly spaced frames, not
 #: COARSE_FRAMES.  Their frames repeat one pose (the subsample is weighted to stand for them all): pig_walk's static
 #: took half the time (9.8 -> 4.7 s, 160 -> 69 iterations), each centre's distance from Plug-in Gait's within 5 mm
@@ -958,6 +955,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # Where no one measured a knee's or ankle's width, the population's: the base model's lateral marker distance.
     population = population_widths(problem, _statics_alone(members, trials, motion if len(trials) > 1 else None))
     slid = replace(state, p=problem.slide_centres(state.p, population))
+    # The report lists with them the knees and ankles the slide cannot move (their child held: no foot markers) that
+    # the solve placed by the population's width (Problem.unslid_width_terms).
+    population += tuple(problem.model.joints[ji].name for ji, *_, per, _ in problem.unslid_width_terms() if per > 0)
     if far_obs is not None and (run.segment_frames == "markers" or in_neutral is not None):
         # Again at the turned frames: a turn re-solves the poses from the fit's markers, which do not reach them.
         slid = refit_beyond(problem.kin, slid, far_obs, far, spans, problem.locked, problem.frame_evaluator(slid.p))

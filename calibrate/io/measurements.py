@@ -27,6 +27,17 @@ DEFAULT_MARKER_DIAMETER = 0.014
 WIDTHS = {"knee": ("KneeWidth", "KNE"), "ankle": ("AnkleWidth", "ANK"), "elbow": ("ElbowWidth", "ELB"),
           "wrist": ("WristWidth", None)}
 
+#: The joints whose measured width places their centre along the hinge axis (Problem.slide_centres; a hinge the
+#: slide cannot move, its child held, by a row in the solve: Problem.unslid_width_terms): Plug-in Gait's knee and
+#: ankle.  The elbow's is measured too but not used: sliding the elbow centre to it slides the forearm's contents
+#: back, and the radioulnar centre, which walking's forearm barely places, then lands 70 mm from the base model's on
+#: pig_walk (docs/calibration.md, "Subject measurements").
+WIDTH_JOINTS = ("knee", "ankle")
+#: ... and where every trial is still (statics alone), the elbow's too: nothing turns the forearm, whose contents the
+#: walk's pulled, and on real Plug-in Gait statics the elbows then end 15-28 mm from Plug-in Gait's, not 27-44
+#: (docs/benchmarks.md, "A static alone: the ball centres held").
+STILL_WIDTH_JOINTS = ("knee", "ankle", "elbow")
+
 #: Plausible ranges (SI): a value outside (or 0, which Nexus writes for "not measured") is not taken.
 _RANGES = {"mass": (10.0, 400.0), "height": (0.5, 2.6), "width": (0.02, 0.30), "marker_diameter": (0.003, 0.05)}
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.measurements import lateral_markers_of
+from ..io.measurements import WIDTH_JOINTS, lateral_markers_of
 from ..model.model import Model, Parameters
 
 
@@ -314,6 +314,47 @@ class PriorsMixin:
         a = self._urdf[m.joints[ji].urdf_joints[0]].rotation @ self.axis_direction(base, d)
         return d, float(a @ (base[L.marker(mi)] - base[L.centre(ji)]))
 
+    def unslid_width_terms(self) -> list[tuple[int, int, int, float, float, float, float]]:
+        """(joint, DoF, marker, side, target, per_scale, sd) for each hinge whose centre the slide cannot place
+        (Problem.slid_hinges: its child segment held, nothing seen on or below it, as a locked ankle without foot
+        markers) and whose Plug-in Gait lateral marker the trials show: its distance along the axis from the centre,
+        the lab's measured one (ProblemOptions.lateral_markers, Priors.width) or, where none was measured, the base
+        model's at the segment's scale (Priors.population_width; the knees and ankles, WIDTH_JOINTS), as a row of
+        the solve's priors: nothing else places such a centre along its axis, and its prior alone left pig_walk-like
+        sessions' ankles 16-57 mm from their measured widths (docs/benchmarks.md).  None where a pair of markers
+        straddles the hinge (pair_terms), or the centres or markers are not free.  Kept while the settings, the
+        seen markers and the base are the same."""
+        cached = self.__dict__.get("_unslid_cache")
+        key = (self.settings, self._unseen, self.base)
+        if cached is not None and all(a is b for a, b in zip(cached[0], key, strict=True)):
+            return cached[1]
+        st, m, L = self.settings, self.model, self.layout
+        out = []
+        if {"centre", "marker"} <= set(st.free):
+            still = set(st.hold_segments)
+            skip = set(self._slides) | {ji for ji, *_ in self.pair_terms()}
+
+            def placeable(ji: int, mi: int) -> bool:
+                j = m.joints[ji]
+                return (ji not in skip and j.child in still and j.parent not in still and not self._unseen[mi]
+                        and L.cols("centre", ji).size > 0 and L.cols("marker", mi).size > 0)
+
+            measured = set()
+            for ji, mi, d, dist, side in self._lateral_terms() if st.priors.width > 0 else []:
+                measured.add(ji)
+                if placeable(ji, mi):
+                    out.append((ji, d, mi, side, float(dist), 0.0, st.priors.width))
+            if st.priors.population_width > 0:
+                base = self.base.vector()
+                for name, marker in lateral_markers_of(m, WIDTH_JOINTS):
+                    ji, mi = m.joint_index(name), m.marker_index(marker)
+                    if ji not in measured and placeable(ji, mi):
+                        d, along = self._base_along(ji, mi, base)
+                        out.append((ji, d, mi, 1.0 if along >= 0 else -1.0, 0.0, abs(along),
+                                    st.priors.population_width))
+        self._unslid_cache = (key, out)
+        return out
+
     def on_axis_terms(self) -> list[tuple[int, int, int]]:
         """(joint, marker, DoF index) of each hinge whose axis is held (Settings.hold_axes, or by auto-hold: the
         trials do not show it moving) and whose Plug-in Gait lateral marker rides on the segment it hangs from, seen
@@ -598,6 +639,27 @@ class PriorsMixin:
                     _cat(np.tile(np.arange(mk.start, mk.stop), 3), np.tile(np.arange(ce.start, ce.stop), 3),
                           np.full(3, L.scale(seg))),
                     _cat((s / sd) * P.ravel(), -(s / sd) * P.ravel(), (P @ x) / sd)))
+        # A hinge the slide cannot place (its child held) keeps its lateral marker at the measured width's distance
+        # along the axis from its centre, or the population's (unslid_width_terms): one row each,
+        # (side s a·(x - c) - target - s per_scale) / sd, a the axis in the parent's frame, s the parent's scale.
+        for ji, d, mi, side, target, per, sd in self.unslid_width_terms():
+            seg = self.centre_segment[ji]
+            R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
+            ax, mk, ce = L.axis(d), L.marker(mi), L.centre(ji)
+            v = p[ax]
+            nv = float(np.linalg.norm(v))
+            u = v / nv
+            a = R @ u
+            x = p[mk] - p[ce]
+            s, along = scale[seg], float(a @ x)
+            add(np.array([(side * s * along - target - s * per) / sd]),
+                lambda a=a, x=x, u=u, nv=nv, R=R, s=s, along=along, side=side, per=per, sd=sd, seg=seg, ax=ax,
+                mk=mk, ce=ce: (
+                    np.zeros(10, dtype=int),
+                    _cat(np.arange(mk.start, mk.stop), np.arange(ce.start, ce.stop), L.scale(seg),
+                         np.arange(ax.start, ax.stop)),
+                    _cat(side * s * a / sd, -side * s * a / sd, (side * along - per) / sd,
+                         side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd)))
         # A hinge's axis along the line of the two markers straddling its centre (Priors.pair_axis; pair_terms):
         # (a x e) / sd, a the axis and e the pair's direction in the parent's frame (3 rows of rank 2, |a x e| the
         # sine of the angle between them, either way round).
