@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from calibrate.model.kinematics import build_kinematics
-from calibrate.model.model import add_markers, load_model
+from calibrate.model.model import add_markers, load_model, write_model
 
 ROOT = Path(__file__).resolve().parent.parent
 HUMAN = ROOT / "models" / "human.urdf"
@@ -47,6 +47,22 @@ def prior_jacobian_by_differences(problem, p: np.ndarray, h: float = 1e-6) -> np
         fd[:, k] = (problem.prior(problem.retract_parameters(p, e), jacobian=False)[0]
                     - problem.prior(problem.retract_parameters(p, -e), jacobian=False)[0]) / (2 * h)
     return fd
+
+
+def markers_in_world(model, params, motion, tmp_path: Path, name: str) -> np.ndarray:
+    """Every marker of the subject written with `params` (as `name` in `tmp_path`), read back by Pinocchio, at each
+    frame of `motion` (n_frames, n_markers, 3): a fit checked through the written file, not our kinematics."""
+    import pinocchio as pin
+
+    subject = load_model(write_model(model, tmp_path / name, params))
+    data = subject.pin.createData()
+    ids = [subject.pin.getFrameId(n, pin.FrameType.BODY) for n in subject.marker_names]
+    out = np.zeros((motion.n_frames, len(ids), 3))
+    for f in range(motion.n_frames):
+        q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
+        pin.framesForwardKinematics(subject.pin, data, q)
+        out[f] = [data.oMf[i].translation for i in ids]
+    return out
 
 
 def with_medial_markers(model, joint: str, lateral: str, name: str, beyond: float):

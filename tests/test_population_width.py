@@ -8,14 +8,13 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from conftest import markers_in_world
 
 from calibrate.calibration.pipeline import calibrate, population_widths
 from calibrate.calibration.report import calibration_report, summary_text
 from calibrate.io.measurements import lateral_distance
 from calibrate.model.kinematics import build_kinematics
-from calibrate.model.model import load_model, write_model
 from calibrate.problem.options import Priors
 from calibrate.problem.problem import Problem
 from calibrate.problem.settings import Settings
@@ -83,19 +82,6 @@ def test_which_hinges_take_the_population_width(human):
     assert chosen(Settings(), trial=replace(sim.trial, markers=hidden)) == ("knee_l", "knee_r", "ankle_r")
 
 
-def _markers_in_world(model, params, motion, tmp_path, name: str) -> np.ndarray:
-    """Every marker of the subject written with `params`, read back by Pinocchio, at each frame of `motion`."""
-    subject = load_model(write_model(model, tmp_path / name, params))
-    data = subject.pin.createData()
-    ids = [subject.pin.getFrameId(n, pin.FrameType.BODY) for n in subject.marker_names]
-    out = np.zeros((motion.n_frames, len(ids), 3))
-    for f in range(motion.n_frames):
-        q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
-        pin.framesForwardKinematics(subject.pin, data, q)
-        out[f] = [data.oMf[i].translation for i in ids]
-    return out
-
-
 def test_a_calibration_without_widths_slides_the_knees_and_ankles_and_moves_no_marker(human, tmp_path):
     """Simulated squats, no width measured: the knees and ankles take the population's width, their lateral markers
     ending nearer the base model's distances at the segment's scale than with the prior off (their sum of squares:
@@ -110,8 +96,8 @@ def test_a_calibration_without_widths_slides_the_knees_and_ankles_and_moves_no_m
     gap = {name: np.array([lateral_distance(human, cal.params, base, j, mk) - _prior_distance(human, cal.params, j, mk)
                            for j, mk in PAIRS]) for name, cal in (("on", on), ("off", off))}
     assert gap["on"] @ gap["on"] < gap["off"] @ gap["off"], gap
-    np.testing.assert_allclose(_markers_in_world(human, on.params, on.motions[0], tmp_path, "on.urdf"),
-                               _markers_in_world(human, off.params, off.motions[0], tmp_path, "off.urdf"), atol=1e-6)
+    np.testing.assert_allclose(markers_in_world(human, on.params, on.motions[0], tmp_path, "on.urdf"),
+                               markers_in_world(human, off.params, off.motions[0], tmp_path, "off.urdf"), atol=1e-6)
     np.testing.assert_allclose(on.motions[0].angles, off.motions[0].angles, atol=1e-6)
     rows = calibration_report(on)["population_widths"]
     assert [(r["joint"], r["marker"]) for r in rows] == PAIRS

@@ -9,14 +9,13 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from conftest import markers_in_world, prior_jacobian_by_differences
 
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report
 from calibrate.io.measurements import lateral_distance
 from calibrate.model.kinematics import build_kinematics
-from calibrate.model.model import load_model, write_model
 from calibrate.problem.options import Priors
 from calibrate.problem.problem import Problem
 from calibrate.problem.settings import Settings
@@ -77,26 +76,8 @@ def test_the_rows_match_their_distances_and_central_differences(human):
     np.testing.assert_allclose(got, sorted([left, right]), atol=1e-9)
     for pr in (problem, mp):
         r, J = pr.prior(p)
-        fd = np.zeros_like(J)
-        for k in range(pr.n_free):
-            step = np.zeros(pr.n_free)
-            step[k] = 1e-6
-            fd[:, k] = (pr.prior(pr.retract_parameters(p, step), jacobian=False)[0]
-                        - pr.prior(pr.retract_parameters(p, -step), jacobian=False)[0]) / 2e-6
+        fd = prior_jacobian_by_differences(pr, p)
         np.testing.assert_allclose(J, fd, atol=1e-5 * max(1.0, np.abs(J).max()))
-
-
-def _markers_in_world(model, params, motion, tmp_path, name: str) -> np.ndarray:
-    """Every marker of the subject written with `params`, read back by Pinocchio, at each frame of `motion`."""
-    subject = load_model(write_model(model, tmp_path / name, params))
-    data = subject.pin.createData()
-    ids = [subject.pin.getFrameId(n, pin.FrameType.BODY) for n in subject.marker_names]
-    out = np.zeros((motion.n_frames, len(ids), 3))
-    for f in range(motion.n_frames):
-        q = subject.pin_configuration(motion.root_translation[f], motion.root_quaternion[f], motion.angles[f])
-        pin.framesForwardKinematics(subject.pin, data, q)
-        out[f] = [data.oMf[i].translation for i in ids]
-    return out
 
 
 def test_a_trial_without_foot_markers_places_its_ankles_by_the_measured_width(human, tmp_path):
@@ -125,5 +106,5 @@ def test_a_trial_without_foot_markers_places_its_ankles_by_the_measured_width(hu
         assert rows[j]["prior_sds"] < 1.0
     seen = [k for k, name in enumerate(human.marker_names) if name in trial.labels]  # (the feet's move with the ankles)
     np.testing.assert_allclose(
-        _markers_in_world(human, runs["measured"].params, runs["measured"].motions[0], tmp_path, "m.urdf")[:, seen],
-        _markers_in_world(human, runs["none"].params, runs["none"].motions[0], tmp_path, "n.urdf")[:, seen], atol=1e-4)
+        markers_in_world(human, runs["measured"].params, runs["measured"].motions[0], tmp_path, "m.urdf")[:, seen],
+        markers_in_world(human, runs["none"].params, runs["none"].motions[0], tmp_path, "n.urdf")[:, seen], atol=1e-4)
