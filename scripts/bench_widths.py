@@ -4,12 +4,14 @@ once with the population's width placing the hinges along their axes (Priors.pop
 without it; each lateral marker's calibrated distance from its centre along the axis against the measured one (half
 the width plus the marker's radius, as Plug-in Gait places the centre).
 
-    python scripts/bench_widths.py --btkdata DIR [--pig-walk DIR] [--simulated N] [--no-feet] [--json OUT.json]
+    python scripts/bench_widths.py --btkdata DIR [--pig-walk DIR] [--simulated N] [--used] [--no-feet] [--json OUT.json]
 
 DIR: a folder of BTKData's C3D files as scripts/public_data.py lays them out (btk__PiG__*.c3d, btk__others__*.c3d);
---pig-walk: ../shared/data/real/pig_walk (static.c3d + walk.c3d) by default.  --no-feet: every session without its
-heel and toe markers (a lower-limb set without feet: the ankles locked, the tali held, Problem.unslid_width_terms), and
-each also calibrated with its widths used ("used").
+--pig-walk: ../shared/data/real/pig_walk (static.c3d + walk.c3d) by default.  --used: each session also calibrated
+with its widths used ("used", the default run; the elbows' among them beside a walk), and every run's shoulder, elbow
+and wrist centres against Plug-in Gait's own in the last trial (median over its frames).  --no-feet: every session
+without its heel and toe markers (a lower-limb set without feet: the ankles locked, the tali held,
+Problem.unslid_width_terms); implies --used.
 """
 
 from __future__ import annotations
@@ -17,17 +19,23 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from calibrate import calibrate
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_real import PIG_CENTRES, read_c3d_points  # noqa: E402  (Plug-in Gait's own centres in a C3D)
+
+from calibrate import calibrate  # noqa: E402
 from calibrate.calibration.report import lateral_sides
 from calibrate.errors import CalibrateError
 from calibrate.io.measurements import lateral_distance
 from calibrate.io.read import read_trial
+from calibrate.model.blocks import FrameLayout
+from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import load_model
 from calibrate.problem.options import Priors
 from calibrate.problem.settings import Settings
@@ -62,6 +70,8 @@ def case(model, trials, name: str, measured_too: bool = False) -> dict:
         out[f"{label}_rms_mm"] = 1000 * cal.marker_rms
         out.setdefault("population_widths", list(cal.population_widths))
         out.setdefault("locked", sorted(cal.locked))
+        if measured_too:
+            out.setdefault("pig_mm", {})[label] = arm_from_pig(cal, trials[-1])
         sides = lateral_sides(cal)  # read against the base model's markers by name (a subject's new ones among them)
         for joint in cal.population_widths or (j for j, _, _ in cal.settings.lateral_markers):
             truth = measured.lateral_distance(joint)
@@ -74,6 +84,24 @@ def case(model, trials, name: str, measured_too: bool = False) -> dict:
         for label in LABELS:
             if f"{label}_mm" in row:
                 row[f"{label}_error_mm"] = row[f"{label}_mm"] - row["measured_mm"]
+    return out
+
+
+def arm_from_pig(cal, trial) -> dict[str, float]:
+    """Each shoulder, elbow and wrist centre of the calibration against Plug-in Gait's own in `trial` (its last
+    motion; LHUP, LHUO, LRAO, ...): median distance over the frames, mm."""
+    motion = cal.motions[-1]
+    Z = FrameLayout.coordinates(motion.root_translation, motion.angles)
+    _, centres = build_kinematics(cal.model).batch(Z, motion.root_quaternion, cal.params)
+    joints = [f"{j}_{s}" for j in ("shoulder", "elbow", "wrist") for s in "lr"]
+    labels = {j: ("L" if j.endswith("_l") else "R") + PIG_CENTRES[j[:-2]] for j in joints}
+    ref = read_c3d_points(Path(trial.source), list(labels.values()))
+    out = {}
+    for j, label in labels.items():
+        if label in ref and len(ref[label]) == len(Z):
+            d = np.linalg.norm(centres[:, cal.model.joint_index(j)] - ref[label], axis=1)
+            if np.isfinite(d).any():
+                out[j] = 1000 * float(np.nanmedian(d))
     return out
 
 
@@ -100,8 +128,10 @@ def main() -> None:
     ap.add_argument("--simulated", type=int, default=0, metavar="N",
                     help="also N simulated subjects' squats against their truth (the simulator's markers sit near the "
                          "base model's)")
-    ap.add_argument("--no-feet", action="store_true", help="every session without its heel and toe markers, and also "
-                    "calibrated with its widths used")
+    ap.add_argument("--used", action="store_true", help="each session also calibrated with its widths used, and the "
+                    "arm's centres against Plug-in Gait's own")
+    ap.add_argument("--no-feet", action="store_true", help="every session without its heel and toe markers (implies "
+                    "--used)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     model = load_model(MODEL)
@@ -116,17 +146,18 @@ def main() -> None:
         sessions.append(("pig_walk", walk))
     if args.no_feet:
         sessions = [(name, [without_feet(t) for t in trials]) for name, trials in sessions]
+    used = args.used or args.no_feet
     results = []
     for name, trials in sessions:
         if all(getattr(t, "measurements", None) is None for t in trials):
             continue
         try:
-            r = case(model, trials, name, args.no_feet)
+            r = case(model, trials, name, used)
         except CalibrateError as e:  # a file whose labels are not the model's (BTKData's parameterOverflow)
             print(f"{name[:44]:44s} refused: {str(e)[:100]}")
             continue
         results.append(r)
-        labels = LABELS if args.no_feet else LABELS[:2]
+        labels = LABELS if used else LABELS[:2]
         rms = " / ".join(f"{r[x + '_rms_mm']:.3f}" for x in labels)
         print(f"{name[:44]:44s} marker RMS {rms} mm; "
               f"lateral marker to centre, calibrated - measured (mm), {' / '.join(labels)}:")
@@ -134,8 +165,11 @@ def main() -> None:
             errors = " / ".join(f"{row.get(f'{x}_error_mm', float('nan')):+6.1f}" for x in labels)
             held = " (locked)" if j in r["locked"] else ""
             print(f"    {j:8s} {row['marker']:5s} measured {row['measured_mm']:5.1f}  {errors}{held}")
+        for label, pig in r.get("pig_mm", {}).items():
+            print(f"    {label:10s} centres from Plug-in Gait's (mm): "
+                  + ", ".join(f"{j} {d:.0f}" for j, d in pig.items()))
     summary = {}
-    for label in LABELS if args.no_feet else LABELS[:2]:
+    for label in LABELS if used else LABELS[:2]:
         rows = [row for r in results for row in r["joints"].values() if f"{label}_error_mm" in row]
         e = np.array([row[f"{label}_error_mm"] for row in rows])
         summary[label] = {"hinges": len(rows), "rms_mm": float(np.sqrt(np.mean(e ** 2))) if rows else None,
@@ -147,7 +181,7 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%dT%H:%M:%S"), "machine": platform.machine(),
                                          "python": platform.python_version(), "model": str(MODEL),
-                                         "no_feet": args.no_feet, "sessions": results, "summary": summary,
+                                         "used": used, "no_feet": args.no_feet, "sessions": results, "summary": summary,
                                          "simulated": sim},
                                         indent=1, default=float))
 

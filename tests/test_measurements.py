@@ -14,7 +14,7 @@ import pytest
 
 from calibrate import calibrate
 from calibrate.calibration.html import report_html
-from calibrate.calibration.pipeline import STILL_WIDTH_JOINTS, lateral_markers
+from calibrate.calibration.pipeline import WIDTH_JOINTS, lateral_markers
 from calibrate.calibration.report import calibration_report, measurements_table
 from calibrate.cli import main
 from calibrate.io.c3d import read_c3d, write_c3d
@@ -63,25 +63,23 @@ def test_inspect_lists_the_measurements(tmp_path, human, capsys):
     assert "measured (t.c3d PROCESSING): mass 61 kg, knee_l width 100 mm" in out
 
 
-def test_lateral_markers_from_the_knee_and_ankle_widths(human):
-    """Knees and ankles only (the elbow's width is read but not used: docs/calibration.md), the wrist has no
-    lateral marker."""
+def test_lateral_markers_from_the_knee_ankle_and_elbow_widths(human):
+    """Knees, ankles and elbows (MEASURED_WIDTH_JOINTS); the wrist has no lateral marker.  The population's width
+    beside a movement trial takes the knees and ankles alone (WIDTH_JOINTS)."""
     m = SubjectMeasurements(widths={"knee_l": 0.10, "ankle_r": 0.07, "elbow_l": 0.06, "wrist_l": 0.05})
     r = DEFAULT_MARKER_DIAMETER / 2
     assert lateral_markers(human, m) == (("knee_l", "LKNE", pytest.approx(0.05 + r)),
-                                          ("ankle_r", "RANK", pytest.approx(0.035 + r)))
-    # Statics alone: the elbows' too (pipeline.STILL_WIDTH_JOINTS).
-    assert lateral_markers(human, m, STILL_WIDTH_JOINTS) == (("knee_l", "LKNE", pytest.approx(0.05 + r)),
-                                                              ("ankle_r", "RANK", pytest.approx(0.035 + r)),
-                                                              ("elbow_l", "LELB", pytest.approx(0.03 + r)))
+                                          ("ankle_r", "RANK", pytest.approx(0.035 + r)),
+                                          ("elbow_l", "LELB", pytest.approx(0.03 + r)))
+    assert lateral_markers(human, m, WIDTH_JOINTS) == (("knee_l", "LKNE", pytest.approx(0.05 + r)),
+                                                        ("ankle_r", "RANK", pytest.approx(0.035 + r)))
 
 
 def test_a_static_alone_places_the_elbows_by_their_widths_too(human):
     """A static calibrated alone turns no elbow, and no walk's forearm pulls the elbow's contents: its measured
     widths (the truth's) place the elbow centres along their axes as the knees' and ankles' do, each lateral marker
     within 3 mm of the truth's distance (0.6 / 1.8 mm), where the priors alone leave them 5.7 / 9.5 mm off (seed 2,
-    measured); beside a movement trial the elbows' widths stay unused (docs/calibration.md, "Subject
-    measurements")."""
+    measured); beside a movement trial as well (the static with the squats: within 3 mm, measured 1.0 / 0.2)."""
     sim = simulate_squats(human, frames=60, seed=2)
     base = human.parameters()
     elbows = [("elbow_l", "LELB"), ("elbow_r", "RELB")]
@@ -97,7 +95,9 @@ def test_a_static_alone_places_the_elbows_by_their_widths_too(human):
     err = {j: abs(lateral_distance(human, alone.params, base, j, mk) - truth[j]) for j, mk in elbows}
     assert max(err.values()) > 0.005, err
     both = calibrate(human, [static, replace(sim.trial, measurements=measured)], Settings(outliers=0.0))
-    assert {j for j, _, _ in both.settings.lateral_markers} == {j for j, _ in PAIRS}
+    assert {j for j, _, _ in both.settings.lateral_markers} == set(truth)
+    err = {j: abs(lateral_distance(human, both.params, base, j, mk) - truth[j]) for j, mk in elbows}
+    assert max(err.values()) < 0.003, err
 
 
 @pytest.fixture(scope="module")

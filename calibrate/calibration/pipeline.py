@@ -108,6 +108,7 @@ from calibrate.seed.seeding import (
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED, declared_segments, plug_in_gait_name
 from ..io.measurements import (
+    MEASURED_WIDTH_JOINTS,
     STILL_WIDTH_JOINTS,
     WIDTH_JOINTS,
     SubjectMeasurements,
@@ -317,10 +318,8 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if mass is None and measured is not None and measured.mass is not None:
         mass, mass_from = measured.mass, measured.source or "the trial's subject measurements"
     if not settings.lateral_markers and measured is not None:
-        # In statics alone the elbows' too: no motion places the elbow either, and no walk's forearm pulls its contents
-        # (STILL_WIDTH_JOINTS).
-        settings = replace(settings, lateral_markers=lateral_markers(
-            model, measured, STILL_WIDTH_JOINTS if _statics_alone(_members(model, declared), trials) else WIDTH_JOINTS))
+        # The knees', ankles' and elbows' (MEASURED_WIDTH_JOINTS), beside movement trials and in statics alone.
+        settings = replace(settings, lateral_markers=lateral_markers(model, measured))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose, declared)
     return replace(cal, label_maps=label_maps, mass=None if mass is None else float(mass), neutral=neutral,
@@ -351,7 +350,7 @@ def population_widths(problem: Problem, statics_alone: bool) -> tuple[str, ...]:
                  if j in slid and j not in taken and not problem.unseen[m.marker_index(mk)])
 
 
-def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequence[str] = WIDTH_JOINTS
+def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequence[str] = MEASURED_WIDTH_JOINTS
                     ) -> tuple[tuple[str, str, float], ...]:
     """(joint, lateral marker, distance) for Settings.lateral_markers from a subject's measured widths: each
     hinge of `joints` in `model` (named knee_l, ankle_r, ... as in models/human.urdf) whose measured width

@@ -28,10 +28,14 @@ WIDTHS = {"knee": ("KneeWidth", "KNE"), "ankle": ("AnkleWidth", "ANK"), "elbow":
           "wrist": ("WristWidth", None)}
 
 #: The joints whose measured width places their centre along the hinge axis (Problem.slide_centres; a hinge the
-#: slide cannot move, its child held, by a row in the solve: Problem.unslid_width_terms): Plug-in Gait's knee and
-#: ankle.  The elbow's is measured too but not used: sliding the elbow centre to it slides the forearm's contents
-#: back, and the radioulnar centre, which walking's forearm barely places, then lands 70 mm from the base model's on
-#: pig_walk (docs/calibration.md, "Subject measurements").
+#: slide cannot move, its child held, by a row in the solve: Problem.unslid_width_terms): Plug-in Gait's knee, ankle
+#: and elbow.  The elbow's was left out beside movement trials until 2026-12-06: sliding the elbow to it slides the
+#: forearm's contents back, and pig_walk's radioulnar centre then ended 70 mm from the base model's offset (11-30);
+#: with today's fit 33-35 mm, the simulator's elbows 5.4 -> 3.3 mm from the truth, the public walks' four flagged
+#: elbows at their measurements (docs/benchmarks.md, "The elbows' measured widths beside a walk").
+MEASURED_WIDTH_JOINTS = ("knee", "ankle", "elbow")
+#: Where no width was measured, the joints the population's width places beside a movement trial
+#: (Priors.population_width): the knee and ankle (an elbow's beside a walk is not checked against any measurement).
 WIDTH_JOINTS = ("knee", "ankle")
 #: ... and where every trial is still (statics alone), the elbow's too: nothing turns the forearm, whose contents the
 #: walk's pulled, and on real Plug-in Gait statics the elbows then end 15-28 mm from Plug-in Gait's, not 27-44
