@@ -455,25 +455,32 @@ class PriorsMixin:
         a target in metres, or (per_scale) one that grows with the segment's scale."""
         if not rows:
             return np.zeros(0), np.zeros((0, self.n_free))
-        m, L = self.model, self.layout
         r, J = np.zeros(len(rows)), np.zeros((len(rows), self.np_full))
         for k, (ji, d, weights, side, target, *per) in enumerate(rows):
-            per_scale = per[0] if per else 0.0
-            seg = self.centre_segment[ji]
-            s = p[L.scale(seg)]
-            R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
-            v = p[L.axis(d)]
-            nv = float(np.linalg.norm(v))
-            u = v / nv
-            a = R @ u
-            x = sum(w * p[L.marker(mk)] for mk, w in weights.items()) - p[L.centre(ji)]
-            r[k] = (side * s * float(a @ x) - target - s * per_scale) / sd
-            for mk, w in weights.items():
-                J[k, L.marker(mk)] += side * s * w * a / sd
-            J[k, L.centre(ji)] -= side * s * a / sd
-            J[k, L.scale(seg)] += (side * float(a @ x) - per_scale) / sd
-            J[k, L.axis(d)] += side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd
+            r[k], cols, vals = self._along_axis_row(p, ji, d, weights, side, target, per[0] if per else 0.0, sd)
+            np.add.at(J[k], cols, vals)
         return r, J @ self.tangent_map(p)
+
+    def _along_axis_row(self, p: np.ndarray, ji: int, d: int, weights: dict[int, float], side: float, target: float,
+                        per_scale: float, sd: float) -> tuple[float, np.ndarray, np.ndarray]:
+        """One of _along_axes' rows: its residual and its nonzeros in the full parameters (columns: each marker's,
+        the centre's, the scale's, the axis's; values)."""
+        m, L = self.model, self.layout
+        seg = self.centre_segment[ji]
+        s = p[L.scale(seg)]
+        R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
+        ax, ce = L.axis(d), L.centre(ji)
+        v = p[ax]
+        nv = float(np.linalg.norm(v))
+        u = v / nv
+        a = R @ u
+        x = sum(w * p[L.marker(mk)] for mk, w in weights.items()) - p[ce]
+        along = float(a @ x)
+        cols = _cat(*(np.arange(L.marker(mk).start, L.marker(mk).stop) for mk in weights),
+                    np.arange(ce.start, ce.stop), L.scale(seg), np.arange(ax.start, ax.stop))
+        vals = _cat(*(side * s * w * a / sd for w in weights.values()), -(side * s * a / sd),
+                    (side * along - per_scale) / sd, side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd)
+        return (side * s * along - target - s * per_scale) / sd, cols, vals
 
     def prior(self, p: np.ndarray, T: np.ndarray | None = None,
               jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
@@ -643,23 +650,8 @@ class PriorsMixin:
         # along the axis from its centre, or the population's (unslid_width_terms): one row each,
         # (side s a·(x - c) - target - s per_scale) / sd, a the axis in the parent's frame, s the parent's scale.
         for ji, d, mi, side, target, per, sd in self.unslid_width_terms():
-            seg = self.centre_segment[ji]
-            R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
-            ax, mk, ce = L.axis(d), L.marker(mi), L.centre(ji)
-            v = p[ax]
-            nv = float(np.linalg.norm(v))
-            u = v / nv
-            a = R @ u
-            x = p[mk] - p[ce]
-            s, along = scale[seg], float(a @ x)
-            add(np.array([(side * s * along - target - s * per) / sd]),
-                lambda a=a, x=x, u=u, nv=nv, R=R, s=s, along=along, side=side, per=per, sd=sd, seg=seg, ax=ax,
-                mk=mk, ce=ce: (
-                    np.zeros(10, dtype=int),
-                    _cat(np.arange(mk.start, mk.stop), np.arange(ce.start, ce.stop), L.scale(seg),
-                         np.arange(ax.start, ax.stop)),
-                    _cat(side * s * a / sd, -side * s * a / sd, (side * along - per) / sd,
-                         side * s * ((R.T @ x) @ (np.eye(3) - np.outer(u, u))) / nv / sd)))
+            r, cols, vals = self._along_axis_row(p, ji, d, {mi: 1.0}, side, target, per, sd)
+            add(np.array([r]), lambda cols=cols, vals=vals: (np.zeros(cols.size, dtype=int), cols, vals))
         # A hinge's axis along the line of the two markers straddling its centre (Priors.pair_axis; pair_terms):
         # (a x e) / sd, a the axis and e the pair's direction in the parent's frame (3 rows of rank 2, |a x e| the
         # sine of the angle between them, either way round).
