@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 
+import casadi as ca
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -183,6 +184,29 @@ def test_c_and_numba_kernels_agree(human, human_kin, monkeypatch):
         runs.append([lin.A.copy(), lin.B.copy(), lin.C.copy(), lin.gz.copy(), lin.gp.copy(), dz, dp])
     for a, b in zip(*runs, strict=True):  # summation order differs: the step to ~5e-12 of its largest entry
         assert np.allclose(a, b, rtol=1e-10, atol=1e-11 * np.abs(a).max())
+
+
+def test_the_marker_gather_in_c_and_numba_equals_numpys_sum(human, human_kin):
+    """The markers and their Jacobians' nonzeros gathered from the segments' poses (calibrate.problem.marker_map):
+    the C kernel and numba's (the fallback without a compiler) give each output the sum of its terms times their
+    coefficients, as numpy sums them, less the observed positions where they are given."""
+    from calibrate.solve import assembly, numba_kernels
+
+    problem, state = _squats_problem(human, human_kin, 5, 3)
+    rng = np.random.default_rng(2)
+    X = rng.normal(size=(7, problem._funcs["full"].nnz_out(0)))
+    sub = rng.normal(size=(7, problem._map.d.size))
+    p_bar = np.append(state.p, 1.0)
+    backends = [numba_kernels] + ([assembly.kernels()] if isinstance(assembly.kernels(), assembly._CKernels) else [])
+    for g, less in ((problem._map.d, sub), (problem._map.z, None), (problem._map.p, None)):
+        assert np.all(np.diff(g.rowptr) > 0)  # every output has terms (reduceat below needs it)
+        c = g.coefficients(p_bar)
+        ref = np.add.reduceat(X[:, g.xi] * c, g.rowptr[:-1], axis=1) - (0.0 if less is None else less)
+        for backend in backends:
+            out = np.full((7, g.size), np.nan)
+            backend.gather(X, g.rowptr, g.xi, c, np.empty((0, 1)) if less is None else less, out, 2, 7)
+            assert np.all(np.isnan(out[:2]))  # frames before f0 untouched
+            assert np.allclose(out[2:], ref[2:], rtol=1e-13, atol=1e-13), backend
 
 
 def test_frame_factor_on_the_nonzero_pattern_equals_the_dense_one(human, human_kin, monkeypatch):
@@ -370,8 +394,9 @@ def test_packed_rows_hold_the_dense_factorisation_and_its_products(human, human_
 
 def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch):
     """A second Problem of the same model loads the compiled functions (no symbolic build) and
-    evaluates exactly what CasADi's virtual machine does; another structure gets its own build (a marker
-    added is another structure: shown on a small model, whose C compiles in a fraction of human.urdf's time)."""
+    evaluates exactly what CasADi's virtual machine does; another tree gets its own build, while a marker
+    added to a model is the same structure (its markers follow from the compiled segment poses): shown on a
+    small model, whose C compiles in a fraction of human.urdf's time."""
     from tests.test_kinematics import GENERIC_URDF
 
     if shutil.which("gcc") is None and shutil.which("cc") is None:
@@ -396,9 +421,11 @@ def test_compiled_functions_are_cached_by_structure(human, tmp_path, monkeypatch
     seen = np.random.default_rng(4).normal(size=(3, len(small.markers), 3))
     assert Problem(small, seen, Settings()).compiled and len(list(tmp_path.glob("frame_*.so"))) == 2
     moved = add_markers(small, {"EXTRA": ("arm", np.array([0.0, 0.05, -0.2]))})
-    assert Problem(moved, np.concatenate([seen, np.full((3, 1, 3), np.nan)], axis=1), Settings()).compiled
-    assert len(list(tmp_path.glob("frame_*.so"))) == 3
-    assert Problem(small, seen, Settings()).compiled and len(list(tmp_path.glob("frame_*.so"))) == 3
+    heard.clear()
+    more = Problem(moved, np.concatenate([seen, np.full((3, 1, 3), np.nan)], axis=1), Settings(),
+                   progress=heard.append)
+    assert more.compiled and len(list(tmp_path.glob("frame_*.so"))) == 2 and not heard
+    assert Problem(small, seen, Settings()).compiled and len(list(tmp_path.glob("frame_*.so"))) == 2
 
 
 _BUILD_CHILD = r"""
@@ -440,28 +467,47 @@ def test_processes_sharing_the_cache_compile_a_structure_once(tmp_path):
     assert len(list((tmp_path / "cache").glob("frame_*.so"))) == 1
 
 
-def test_frames_evaluated_in_parts_equal_each_frame_on_its_own(human, human_kin):
-    """The per-frame function over many frames (split between the worker threads, 64 frames a call, a
-    short last call padded) gives exactly what one call of the unmapped function gives for each frame,
-    whole trial or a chunk of it, for frame counts that leave every kind of remainder."""
+def test_frames_evaluated_in_parts_equal_casadis_own_jacobians(human, human_kin):
+    """The residuals and Jacobians over many frames (segment poses compiled, split between the worker threads,
+    64 frames a call, a short last call padded; the markers gathered from the poses) equal CasADi's own
+    symbolic residual of the whole kinematics (h_ref) and its exact Jacobians, frame by frame, in CasADi's
+    nonzero order, whole trial or a chunk of it, for frame counts that leave every kind of remainder; and
+    the single-frame evaluator of frame-wise fits gives the same markers and dense Jacobian."""
     sim = simulate_squats(human, frames=150, noise_mm=1.0, seed=5)
     obs = marker_columns(human, sim.trial)
     m = sim.motion
     p = sim.truth.vector()
+    z, q = ca.SX.sym("z", human.nz), ca.SX.sym("refs", human_kin.n_refs)
+    ps, r = ca.SX.sym("p", p.size), ca.SX.sym("r", 3 * len(human.markers))
+    d = ca.vec(human_kin.h_ref(z, q, ps)[0]) - r
+    Jz, Jp = ca.jacobian(d, z), ca.jacobian(d, ps)
+    reference = {"full": ca.Function("f", [z, q, ps, r], [d, Jz, Jp]), "pose": ca.Function("p", [z, q, ps, r], [d, Jz]),
+                 "resid": ca.Function("r", [z, q, ps, r], [d])}
     for F, frames in ((1, slice(None)), (20, slice(None)), (64, slice(None)), (70, slice(None)),
                       (150, slice(None)), (150, slice(40, 131))):
         problem = Problem(human, obs[:F], Settings(), human_kin)
+        zr, zc, _, _ = problem._jz_pattern
+        pr, pc = problem._jp_pattern
+        assert np.array_equal(zr, np.asarray(Jz.sparsity().row()))
+        assert np.array_equal(pr, np.asarray(Jp.sparsity().row()))
+        assert np.array_equal(np.bincount(zc, minlength=human.nz), np.diff(Jz.sparsity().colind()))
+        assert np.array_equal(np.bincount(pc, minlength=p.size), np.diff(Jp.sparsity().colind()))
         state = State(np.column_stack([m.root_translation[:F], np.zeros((F, 3)), m.angles[:F]]),
                       m.root_quaternion[:F].copy(), p)
+        Q = problem.kin.refs(state.Q, state.B)
         for kind in ("full", "pose", "resid"):
             outs = problem._run(kind, state, frames=frames)
-            f0 = problem._funcs[kind]
-            Q = problem.kin.refs(state.Q, state.B)
             for k, f in enumerate(range(F)[frames]):
-                one = f0(state.Z[f], Q[f], p, problem.target[f])
+                one = reference[kind](state.Z[f], Q[f], p, problem.target[f])
                 one = one if isinstance(one, (list, tuple)) else [one]
                 for o, ref in zip(outs, one, strict=True):
-                    assert np.array_equal(o[k], np.asarray(ref.nonzeros())), (F, frames, kind, f)
+                    assert np.allclose(o[k], np.asarray(ref.nonzeros()), rtol=1e-12, atol=1e-14), (F, frames, kind, f)
+    ev = problem.frame_evaluator(p)
+    for f in (0, 77, 149):
+        markers, J = ev(state.Z[f], Q[f])
+        ref_m, ref_J = reference["pose"](state.Z[f], Q[f], p, np.zeros(3 * len(human.markers)))
+        assert np.allclose(markers, np.asarray(ref_m).ravel(), rtol=1e-12, atol=1e-14)
+        assert np.allclose(J, np.asarray(ca.densify(ref_J)), rtol=1e-12, atol=1e-14)
 
 
 @pytest.mark.parametrize("geodesic", [True, False])

@@ -754,7 +754,9 @@ def test_fit_trial_tells_the_share_of_frames_fitted_every_100_frames(squats):
 def test_fit_trial_runs_the_compiled_code_a_calibration_left_to_the_same_bits(squats, monkeypatch):
     """Where a calibration left its subject's compiled per-frame code in the cache, `calibrate ik` evaluates with it
     (about a quarter sooner a frame than CasADi's virtual machine: gait2392's and pig_walk's subjects) and gets the
-    virtual machine's motion bit for bit; it never compiles for one trial (compiled_kinematics(compile=False))."""
+    virtual machine's motion to 1e-9 rad and m (the compiled code gathers the markers from the segments' poses,
+    the virtual machine evaluates the whole kinematics: the same function, its arithmetic in another order); it
+    never compiles for one trial (compiled_kinematics(compile=False))."""
     import calibrate.calibration.subject_ik as subject_ik
     from calibrate.calibration.subject_ik import fit_trial
     from calibrate.io.read import read_trial
@@ -784,7 +786,7 @@ def test_fit_trial_runs_the_compiled_code_a_calibration_left_to_the_same_bits(sq
     for a, b in ((compiled.fit.motion.angles, vm.fit.motion.angles),
                  (compiled.fit.motion.root_quaternion, vm.fit.motion.root_quaternion),
                  (compiled.fit.motion.root_translation, vm.fit.motion.root_translation)):
-        assert np.array_equal(a, b)
+        assert np.abs(a - b).max() < 1e-9
     truth = read_motion_csv(squats / "truth_motion.csv")
     assert np.abs(compiled.fit.motion.angles - truth.angles).max() < 1e-4  # the true motion, noise-free
 
@@ -792,7 +794,7 @@ def test_fit_trial_runs_the_compiled_code_a_calibration_left_to_the_same_bits(sq
 def test_ik_compiles_the_subjects_code_for_long_trials_only(squats, tmp_path, monkeypatch):
     """Trials of IK_COMPILE_FRAMES frames or more (together) are worth a compile of the subject's per-frame code where
     its calibration did not leave it in the cache; shorter ones run in CasADi's virtual machine, compiling nothing.
-    The motion is the same bits either way."""
+    The motion is the same either way (to 1e-9 rad and m: the compiled code's arithmetic runs in another order)."""
     import calibrate.calibration.subject_ik as subject_ik
     from calibrate.problem.codegen import c_compiler
 
@@ -808,7 +810,9 @@ def test_ik_compiles_the_subjects_code_for_long_trials_only(squats, tmp_path, mo
     monkeypatch.setattr(subject_ik, "IK_COMPILE_FRAMES", 60)  # as if they were a long trial
     assert main(["ik", str(squats / "trial.c3d"), str(squats / "truth.urdf"), "-o", str(cc), "-q"]) == 0
     assert len(list(cache.glob("frame_*.so"))) == 1
-    assert (vm / "trial_motion.csv").read_bytes() == (cc / "trial_motion.csv").read_bytes()
+    a, b = read_motion_csv(vm / "trial_motion.csv"), read_motion_csv(cc / "trial_motion.csv")
+    assert a.dof_names == b.dof_names and np.abs(a.angles - b.angles).max() < 1e-9
+    assert np.abs(a.root_translation - b.root_translation).max() < 1e-9
 
 
 def test_the_python_api_locks_an_opensim_models_locked_coordinates():

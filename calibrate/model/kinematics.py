@@ -235,6 +235,9 @@ def so3_balls(model: Model, euler: tuple[str, ...] = ()) -> tuple[BallJoint, ...
     return tuple(out)
 
 
+Evaluator = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]  # (z, q_ref) -> (markers, dm/dz)
+
+
 @dataclass(frozen=True)
 class Kinematics:
     """CasADi functions of one model's forward kinematics.
@@ -254,8 +257,9 @@ class Kinematics:
     h_ref_jz: ca.Function
     balls: tuple[BallJoint, ...] = field(default=())
     # frame_evaluator(p, reference=True) from compiled code, where one was made for this model's structure
-    # (calibrate.problem.problem.compiled_kinematics): 10-30 times sooner than CasADi's virtual machine.
-    compiled: Callable[[np.ndarray], FrameEvaluator] | None = field(default=None, compare=False, repr=False)
+    # (calibrate.problem.problem.compiled_kinematics; a codegen.MapEvaluator, called as a FrameEvaluator is):
+    # 10-30 times sooner than CasADi's virtual machine.
+    compiled: Callable[[np.ndarray], Evaluator] | None = field(default=None, compare=False, repr=False)
 
     @cached_property
     def jac(self) -> ca.Function:
@@ -293,7 +297,7 @@ class Kinematics:
         """Joint-centre positions (n_joints, 3) for one frame."""
         return np.asarray(self.h(z, q_ref, _pvec(p))[1]).T
 
-    def frame_evaluator(self, p, reference: bool = False) -> FrameEvaluator:
+    def frame_evaluator(self, p, reference: bool = False) -> Evaluator:
         """A fast evaluator of (vec(markers), d vec(markers)/dz) for one frame at fixed `p`
         (`reference`: of the solver's form h_ref, called with the refs vector; from the compiled code
         `compiled` where there is one)."""
@@ -447,15 +451,18 @@ def _pvec(p) -> np.ndarray:
     return p.vector() if isinstance(p, Parameters) else np.asarray(p, dtype=float).ravel()
 
 
-def kinematic_structure(model: Model, balls: tuple[BallJoint, ...]) -> str:
+def kinematic_structure(model: Model, balls: tuple[BallJoint, ...], markers: bool = True) -> str:
     """A digest of everything build_kinematics' graphs are made of: the model's tree (each URDF joint's links,
     owner, role, index and DoF), its fixed rotations and offsets, its sizes, and the SO(3) balls' DoFs and axes.
     Two models with the same digest have the same functions of (z, refs, p); their parameter values, limits and
-    names of markers may differ."""
+    names of markers may differ.  `markers` false: of the tree without its markers (segment_poses' graph,
+    which any marker set on the model shares)."""
     h = hashlib.sha256(repr((model.root, model.nz, len(model.segments), len(model.joints), model.n_dofs,
-                             len(model.markers), [s.name for s in model.segments])).encode())
+                             len(model.markers) if markers else -1, [s.name for s in model.segments])).encode())
     h.update(repr([(b.name, b.dofs, np.asarray(b.axes, dtype=float).tolist()) for b in balls]).encode())
     for u in model.urdf_joints:
+        if u.role == "marker" and not markers:
+            continue
         h.update(repr((u.parent_link, u.child_link, u.owner, u.role, u.index, u.dof)).encode())
         h.update(np.asarray(u.rotation, dtype=float).tobytes())
         if u.role not in ("centre", "marker"):  # a fixed offset (the others read p)
@@ -490,58 +497,79 @@ def build_kinematics(model: Model, euler: tuple[str, ...] = ()) -> Kinematics:
     return replace(built, model=model, balls=balls, compiled=None)
 
 
-def _build(model: Model, balls: tuple[BallJoint, ...]) -> Kinematics:
-    """build_kinematics' graphs for `model` (uncached)."""
-    nz = model.nz
-    nj, nd, nm = len(model.joints), model.n_dofs, len(model.markers)
-    z = ca.SX.sym("z", nz)
-    q_ref = ca.SX.sym("q_ref", 4)
-    refs = ca.SX.sym("refs", 4 * (1 + len(balls)))
+def _walk(model: Model, balls: tuple[BallJoint, ...], z, q_in, p, so3: bool, markers: bool = True):
+    """The model's tree walked symbolically from the root: each link's pose (R, t) in the lab frame, and the
+    markers' and joint centres' positions (None for the markers when `markers` is false: then `p` may stop
+    before the markers' entries, as the per-frame segment poses of calibrate.problem.codegen take it).
+    `q_in`: the root's reference quaternion, or (so3) the refs vector of h_ref."""
+    nj, nm = len(model.joints), len(model.markers)
     L = model.layout
-    p = ca.SX.sym("p", L.n_full)
     scale = p[L.scales]
     centre = ca.reshape(p[L.group("centre")], 3, nj)  # column j = centre of joint j
-    axis = ca.reshape(p[L.group("axis")], 3, nd)
-    marker = ca.reshape(p[L.group("marker")], 3, nm)
+    axis = ca.reshape(p[L.group("axis")], 3, model.n_dofs)
+    marker = ca.reshape(p[L.group("marker")], 3, nm) if markers else None
     theta = z[L.frame.all_angles]
     seg_idx = {s.name: i for i, s in enumerate(model.segments)}
     # First DoF of each SO(3) ball -> (reference slot, constant unit axes of its three DoFs).
     first = {b.dofs[0]: i for i, b in enumerate(balls)}
     ball_axis = {d: b.axes[k] for b in balls for k, d in enumerate(b.dofs)}
+    R_root = quat_to_matrix(q_in[0:4]) @ cayley(z[FrameLayout.rotation])
+    pose: dict[str, tuple[ca.SX, ca.SX]] = {model.root: (R_root, z[FrameLayout.translation])}
+    mk_pos: list[ca.SX] = [None] * nm  # type: ignore[list-item]
+    jc_pos: list[ca.SX] = [None] * nj  # type: ignore[list-item]
+    for u in model.urdf_joints:
+        if u.role == "marker" and not markers:
+            continue
+        R_p, t_p = pose[u.parent_link]
+        s = scale[seg_idx[u.owner]]
+        if u.role == "centre":
+            xyz = s * centre[:, u.index]
+        elif u.role == "marker":
+            xyz = s * marker[:, u.index]
+        else:
+            xyz = s * ca.DM(u.xyz)
+        t_o = t_p + R_p @ xyz
+        if u.role == "marker":
+            mk_pos[u.index] = t_o
+            continue
+        if u.role == "centre":
+            jc_pos[u.index] = t_o
+        R_o = R_p if np.array_equal(u.rotation, np.eye(3)) else R_p @ ca.DM(u.rotation)
+        if u.dof >= 0 and so3 and u.dof in ball_axis:
+            if u.dof in first:  # the ball's reference rotation, then its increment
+                i = first[u.dof]
+                R_o = R_o @ quat_to_matrix(q_in[4 + 4 * i:8 + 4 * i])
+            R_o = R_o @ axis_angle(ca.DM(ball_axis[u.dof]), theta[u.dof])
+        elif u.dof >= 0:
+            R_o = R_o @ axis_angle(axis[:, u.dof], theta[u.dof])
+        pose[u.child_link] = (R_o, t_o)
+    return pose, (mk_pos if markers else None), jc_pos
 
-    def walk(R_root, so3: bool):
-        pose: dict[str, tuple[ca.SX, ca.SX]] = {model.root: (R_root, z[FrameLayout.translation])}
-        mk_pos: list[ca.SX] = [None] * nm  # type: ignore[list-item]
-        jc_pos: list[ca.SX] = [None] * nj  # type: ignore[list-item]
-        for u in model.urdf_joints:
-            R_p, t_p = pose[u.parent_link]
-            s = scale[seg_idx[u.owner]]
-            if u.role == "centre":
-                xyz = s * centre[:, u.index]
-            elif u.role == "marker":
-                xyz = s * marker[:, u.index]
-            else:
-                xyz = s * ca.DM(u.xyz)
-            t_o = t_p + R_p @ xyz
-            if u.role == "marker":
-                mk_pos[u.index] = t_o
-                continue
-            if u.role == "centre":
-                jc_pos[u.index] = t_o
-            R_o = R_p if np.array_equal(u.rotation, np.eye(3)) else R_p @ ca.DM(u.rotation)
-            if u.dof >= 0 and so3 and u.dof in ball_axis:
-                if u.dof in first:  # the ball's reference rotation, then its increment
-                    i = first[u.dof]
-                    R_o = R_o @ quat_to_matrix(refs[4 + 4 * i:8 + 4 * i])
-                R_o = R_o @ axis_angle(ca.DM(ball_axis[u.dof]), theta[u.dof])
-            elif u.dof >= 0:
-                R_o = R_o @ axis_angle(axis[:, u.dof], theta[u.dof])
-            pose[u.child_link] = (R_o, t_o)
-        return ca.horzcat(*mk_pos), (ca.horzcat(*jc_pos) if jc_pos else ca.SX(3, 0))
 
+def segment_poses(model: Model, balls: tuple[BallJoint, ...]) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
+    """(z, refs, p_kin, X): every segment's pose in the solver's form h_ref, X = [t, vec(R)] segment after
+    segment (12 each, R column by column), as a function of the frame's coordinates, its refs and the
+    geometry before the markers' entries (p_kin = p[:layout.offsets['marker']]): what the markers of any
+    marker set on this model are linear in (calibrate.problem.marker_map)."""
+    z = ca.SX.sym("z", model.nz)
+    refs = ca.SX.sym("refs", 4 * (1 + len(balls)))
+    p = ca.SX.sym("p", model.layout.offsets["marker"])
+    pose, _, _ = _walk(model, balls, z, refs, p, True, markers=False)
+    X = ca.vertcat(*[ca.vertcat(pose[s.name][1], ca.vec(pose[s.name][0])) for s in model.segments])
+    return z, refs, p, X
+
+
+def _build(model: Model, balls: tuple[BallJoint, ...]) -> Kinematics:
+    """build_kinematics' graphs for `model` (uncached)."""
+    z = ca.SX.sym("z", model.nz)
+    q_ref = ca.SX.sym("q_ref", 4)
+    refs = ca.SX.sym("refs", 4 * (1 + len(balls)))
+    p = ca.SX.sym("p", model.layout.n_full)
     outs = []
     for name, arg, q_in, so3 in (("h", "q_ref", q_ref, False), ("h_ref", "refs", refs, True)):
-        M, C = walk(quat_to_matrix(q_in[0:4]) @ cayley(z[FrameLayout.rotation]), so3)
+        _, mk_pos, jc_pos = _walk(model, balls, z, q_in, p, so3)
+        M = ca.horzcat(*mk_pos)
+        C = ca.horzcat(*jc_pos) if jc_pos else ca.SX(3, 0)
         m_vec = ca.vec(M)
         outs.append(ca.Function(name, [z, q_in, p], [M, C], ["z", arg, "p"], ["markers", "centres"]))
         outs.append(ca.Function(f"{name}_jz", [z, q_in, p], [m_vec, ca.densify(ca.jacobian(m_vec, z))],

@@ -1,5 +1,7 @@
-"""The compiled per-frame functions of the calibration problem: CasADi residuals and exact sparse
-Jacobians, C-compiled and kept on disk by the model's structure, evaluated over frames in blocks."""
+"""The compiled per-frame functions of the calibration problem: every segment's pose and its exact sparse
+Jacobians (CasADi), C-compiled and kept on disk by the model's tree (its markers left out, so that any marker
+set on a model shares one compile), evaluated over frames in blocks; the markers, their residuals and their
+Jacobians follow from the poses through calibrate.problem.marker_map."""
 
 from __future__ import annotations
 
@@ -16,9 +18,12 @@ import numpy as np
 
 from calibrate.problem.state import FrameGroup, State
 
-from ..model.kinematics import FrameEvaluator, Kinematics, kinematic_structure
+from ..model.kinematics import Kinematics, kinematic_structure, segment_poses
 from ..model.model import Model
-from ..solve.assembly import c_compiler, cache_dir, group_layout, in_parallel, split_frames
+from ..solve.assembly import c_compiler, cache_dir, group_layout, in_parallel, kernels, split_frames
+from .marker_map import Gather, MarkerMap, marker_map
+
+KINDS = ("full", "pose", "resid")  # what _run evaluates: markers with ∂/∂z and ∂/∂p, with ∂/∂z, alone
 
 EVAL_BLOCK = 64  # frames per call of a mapped CasADi function (building a map costs more than linearly in its size)
 
@@ -36,12 +41,12 @@ def _pattern(sp: ca.Sparsity) -> tuple[np.ndarray, np.ndarray]:
 
 def _structure_key(model: Model, kin: Kinematics) -> str | None:
     """A digest of everything the per-frame functions are built from: the model's kinematic
-    structure (tree, fixed rotations and offsets, which parameter each origin reads) and the code
-    that builds them, so that a cached build is reused exactly when it would come out the same.
-    None without a C compiler (nothing to cache)."""
+    structure without its markers (tree, fixed rotations and offsets, which parameter each origin reads)
+    and the code that builds them, so that a cached build is reused exactly when it would come out the
+    same.  None without a C compiler (nothing to cache)."""
     if c_compiler() is None:
         return None
-    h = hashlib.sha256(f"{ca.__version__} -O1 {kinematic_structure(model, kin.balls)}".encode())
+    h = hashlib.sha256(f"{ca.__version__} -O1 {kinematic_structure(model, kin.balls, markers=False)}".encode())
     for src in (Path(__file__), Path(__file__).parent.parent / "model" / "kinematics.py",
                 Path(__file__).parent.parent / "model" / "blocks.py"):
         h.update(src.read_bytes())
@@ -62,8 +67,8 @@ def _load_compiled(key: str) -> tuple[list[ca.Function], tuple] | None:
     so, npz = files
     try:
         with np.load(npz) as z:
-            patterns = (z["zr"], z["zc"], z["pr"], z["pc"], z["shape"])
-        return [ca.external(n, str(so)) for n in ("calibrate_frame", "calibrate_pose", "calibrate_resid")], patterns
+            patterns = (z["zr"], z["zc"], z["pr"], z["pc"])
+        return [ca.external(f"calibrate_segments_{k}", str(so)) for k in KINDS], patterns
     except (OSError, RuntimeError, KeyError, ValueError):
         return None
 
@@ -158,38 +163,35 @@ class CodegenMixin:
 
     def _build_or_load(self, cached: tuple | None, key: str | None) -> None:
         """_build_functions' work: the compiled functions `cached` loaded, else built symbolically and compiled under
-        `key` (None: CasADi's virtual machine)."""
+        `key` (None: CasADi's virtual machine); then this marker set's map from the poses (marker_map)."""
         m, kin = self.model, self.kin
-        nz, nm = m.nz, len(m.markers)
         self.compiled = cached is not None
         if cached is not None:  # a model of this structure was compiled before: no symbolic work
-            (full, pose, resid), (zr, zc, pr, pc, shape) = cached
+            funcs, (zr, zc, pr, pc) = cached
         else:
-            z = ca.SX.sym("z", nz)
-            q = ca.SX.sym("refs", kin.n_refs)
-            p = ca.SX.sym("p", self.np_full)
-            r = ca.SX.sym("r", 3 * nm)
-            M, _ = kin.h_ref(z, q, p)
-            d = ca.vec(M) - r
-            Jz = ca.jacobian(d, z)
-            Jp = ca.jacobian(d, p)
+            z, refs, p, X = segment_poses(m, kin.balls)
+            Jz, Jp = ca.jacobian(X, z), ca.jacobian(X, p)
             nzs = lambda J: ca.vertcat(*[J.nz[i] for i in range(J.nnz())])  # noqa: E731
-            full = ca.Function("calibrate_frame", [z, q, p, r], [d, nzs(Jz), nzs(Jp)])
-            pose = ca.Function("calibrate_pose", [z, q, p, r], [d, nzs(Jz)])
-            resid = ca.Function("calibrate_resid", [z, q, p, r], [d])
+            outs = {"full": ca.vertcat(X, nzs(Jz), nzs(Jp)), "pose": ca.vertcat(X, nzs(Jz)), "resid": X}
+            funcs = [ca.Function(f"calibrate_segments_{k}", [z, refs, p], [outs[k]]) for k in KINDS]
             zr, zc = _pattern(Jz.sparsity())
             pr, pc = _pattern(Jp.sparsity())
-            shape = np.array([Jz.size1(), Jz.size2()])
             if key:
                 if self._progress is not None and c_compiler() is not None:
                     self._progress("build: compiling the model's C code (once per model structure; cached)")
-                comp = _compile([full, pose, resid], key, {"zr": zr, "zc": zc, "pr": pr, "pc": pc, "shape": shape})
+                comp = _compile(funcs, key, {"zr": zr, "zc": zc, "pr": pr, "pc": pc})
                 if comp is not None:
-                    full, pose, resid = comp
+                    funcs = comp
                     self.compiled = True
-        self._funcs = {"full": full, "pose": pose, "resid": resid}
+        self._funcs = dict(zip(KINDS, funcs, strict=True))
+        self._n_kin = m.layout.offsets["marker"]  # p's entries before the markers': the poses' input
+        self._map = marker_map(m, (zr, zc), (pr, pc))
+        mm = self._map
+        self._gathers: dict[str, tuple[Gather, ...]] = {"full": (mm.d, mm.z, mm.p), "pose": (mm.d, mm.z),
+                                                        "resid": (mm.d,)}
         # Per-segment groups from the sparsity patterns.
-        self._jz_pattern = (zr, zc, int(shape[0]), int(shape[1]))
+        (zr, zc), (pr, pc) = mm.z_pattern, mm.p_pattern
+        self._jz_pattern = (zr, zc, 3 * len(m.markers), m.nz)
         self._jp_pattern = (pr, pc)
         self.groups: list[FrameGroup] = []
         for s in range(len(m.segments)):
@@ -228,38 +230,44 @@ class CodegenMixin:
     def output_sizes(self) -> tuple[int, int, int]:
         """Per frame: residual rows, nonzeros of d markers/dz and of d markers/dp (what one frame's
         evaluation writes; calibrate.solve.chunks sizes its chunks by them)."""
-        f = self._funcs["full"]
-        return f.nnz_out(0), f.nnz_out(1), f.nnz_out(2)
+        return self._map.d.size, self._map.z.size, self._map.p.size
 
-    def frame_evaluator(self, p: np.ndarray) -> FrameEvaluator:
+    def frame_evaluator(self, p: np.ndarray) -> MapEvaluator:
         """One frame's (markers (3 n_markers,), d markers/dz (3 n_markers, nz)) at fixed full
-        parameters `p`, through the compiled per-frame function (as Kinematics.frame_evaluator)."""
-        return FrameEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._jz_pattern)
+        parameters `p`, through the compiled segment poses (as Kinematics.frame_evaluator)."""
+        return MapEvaluator(self._funcs["pose"], np.asarray(p, dtype=float), self._map, self._jz_pattern)
 
     def _run(self, kind: str, state: State, out: tuple | None = None, frames: slice = slice(None)) -> list[np.ndarray]:
-        """Evaluate the per-frame function `kind` over every frame, into numpy arrays (F, nnz_out): those
-        of `out` where their shapes fit (buffers no longer needed), else fresh ones.  The frames are split
-        between the worker threads (calibrate.solve.assembly.in_parallel; CasADi's evaluation releases the
-        GIL), each evaluating EVAL_BLOCK frames per call of a serial map (a map's construction grows with its
-        size, and costs ~15 ms: a short last block is padded with copies of its last frame so that one map
-        size serves every problem).  CasADi's own threaded map started two threads per call: 3 700 on
-        pig_walk.  `frames`: only those frames (a chunk of a long trial), taken from `state` or, if it has as
-        many frames as they are, its own."""
+        """Evaluate `kind` (KINDS) over every frame, into numpy arrays (F, nnz_out): the residuals d, and
+        for "full" / "pose" the nonzeros of ∂d/∂z and ∂d/∂p; those of `out` where their shapes fit (buffers
+        no longer needed), else fresh ones.  The frames are split between the worker threads
+        (calibrate.solve.assembly.in_parallel; CasADi's evaluation and the gather kernel release the GIL),
+        each evaluating the segments' poses of EVAL_BLOCK frames per call of a serial map (a map's
+        construction grows with its size, and costs ~15 ms: a short last block is padded with copies of its
+        last frame so that one map size serves every problem), then gathering the markers from them
+        (marker_map).  CasADi's own threaded map started two threads per call: 3 700 on pig_walk.
+        `frames`: only those frames (a chunk of a long trial), taken from `state` or, if it has as many
+        frames as they are, its own."""
         n_sel = len(range(*frames.indices(self.F)))
         state = state if state.Z.shape[0] == n_sel else State(state.Z[frames], state.Q[frames], state.p,
                                                               None if state.B is None else state.B[frames])
         Z = np.ascontiguousarray(state.Z, dtype=float)
         F = Z.shape[0]
-        f0 = self._funcs[kind]
-        outs = [np.empty((F, f0.nnz_out(i))) for i in range(f0.n_out())]
+        f0, gathers = self._funcs[kind], self._gathers[kind]
+        outs = [np.empty((F, g.size)) for g in gathers]
         for i, o in enumerate(out or ()):
-            if i < len(outs) and isinstance(o, np.ndarray) and o.shape == outs[i].shape:
+            if i < len(outs) and isinstance(o, np.ndarray) and o.shape == outs[i].shape and o.flags.c_contiguous:
                 outs[i] = o
         Q = np.ascontiguousarray(self.kin.refs(state.Q, state.B), dtype=float)
-        target = self.target[frames]
-        P = np.tile(np.asarray(state.p, dtype=float), EVAL_BLOCK)
+        target = np.ascontiguousarray(self.target[frames])
+        p = np.asarray(state.p, dtype=float)
+        P = np.tile(p[:self._n_kin], EVAL_BLOCK)
+        p_bar = np.append(p, 1.0)
+        coefs = [g.coefficients(p_bar) for g in gathers]
+        nx, none = f0.nnz_out(0), np.empty((0, 1))
+        K = kernels()
         # Each part's blocks (first frame, end, map size), and each part its own buffers (a buffer is one
-        # evaluation's memory), made here in the calling thread.
+        # evaluation's memory, with the poses it writes), made here in the calling thread.
         blocks = []
         for k, sl in enumerate(split_frames(F, EVAL_BLOCK)):
             ends = [(s, min(sl.stop, s + EVAL_BLOCK)) for s in range(sl.start, sl.stop, EVAL_BLOCK)]
@@ -268,25 +276,58 @@ class CodegenMixin:
                 if (kind, size, k) not in self._mapped:
                     if (kind, size) not in self._mapped:
                         self._mapped[(kind, size)] = (f0.map(size, "serial"),)
-                    self._mapped[(kind, size, k)] = self._mapped[(kind, size)][0].buffer()
+                    buf, ev = self._mapped[(kind, size)][0].buffer()
+                    X = np.empty((size, nx))
+                    buf.set_res(0, memoryview(X))
+                    self._mapped[(kind, size, k)] = (buf, ev, X)
 
         def evaluate(k: int) -> None:
             for s, e, size in blocks[k]:
                 n = e - s
-                buf, ev = self._mapped[(kind, size, k)]
-                ins = [Z[s:e], Q[s:e], target[s:e]]
-                res = [o[s:e] for o in outs]
+                buf, ev, X = self._mapped[(kind, size, k)]
+                ins = [Z[s:e], Q[s:e]]
                 if size > n:
                     ins = [np.concatenate([a, np.repeat(a[-1:], size - n, axis=0)]) for a in ins]
-                    res = [np.empty((size, o.shape[1])) for o in outs]
-                for i, a in enumerate((ins[0], ins[1], P[:size * self.np_full], ins[2])):
+                for i, a in enumerate((ins[0], ins[1], P[:size * self._n_kin])):
                     buf.set_arg(i, memoryview(a))
-                for i, o in enumerate(res):
-                    buf.set_res(i, memoryview(o))
                 ev()
-                if size > n:
-                    for o, r in zip(outs, res, strict=True):
-                        o[s:e] = r[:n]
+                for i, (g, c) in enumerate(zip(gathers, coefs, strict=True)):
+                    K.gather(X, g.rowptr, g.xi, c, target[s:e] if i == 0 else none, outs[i][s:e], 0, n)
 
         in_parallel(evaluate, list(range(len(blocks))))
         return outs
+
+
+class MapEvaluator:
+    """One frame's markers (3 n_markers,) and ∂markers/∂z (3 n_markers, nz, dense) at fixed geometry `p`: the
+    segments' poses by the compiled function `f` (KINDS' "pose"), the markers gathered from them (`mm`).  As
+    calibrate.model.kinematics.FrameEvaluator: ``ev(z, q_ref)`` returns reused buffers, overwritten by the
+    next call (copy what you keep)."""
+
+    def __init__(self, f: ca.Function, p: np.ndarray, mm: MarkerMap, pattern: tuple[np.ndarray, np.ndarray, int, int]):
+        self._f = f  # keep the Function alive while its buffer is used
+        self._buf, self._eval = f.buffer()
+        self._z, self._q = np.zeros(f.nnz_in(0)), np.zeros(f.nnz_in(1))
+        self._p = np.array(p[:f.nnz_in(2)], dtype=float)
+        self._X = np.zeros((1, f.nnz_out(0)))
+        for i, a in enumerate((self._z, self._q, self._p)):
+            self._buf.set_arg(i, memoryview(a))
+        self._buf.set_res(0, memoryview(self._X))
+        p_bar = np.append(np.asarray(p, dtype=float), 1.0)
+        self._gathers = [(g, g.coefficients(p_bar)) for g in (mm.d, mm.z)]
+        self._m, self._jnz = np.zeros((1, mm.d.size)), np.zeros((1, mm.z.size))
+        self._none = np.empty((0, 1))
+        rows, cols, n_rows, nz = pattern
+        self.markers = self._m[0]
+        self.jacobian = np.zeros((n_rows, nz))
+        self._flat = rows * nz + cols
+        self._kernels = kernels()
+
+    def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._z[:] = z
+        self._q[:] = q_ref
+        self._eval()
+        for (g, c), o in zip(self._gathers, (self._m, self._jnz), strict=True):
+            self._kernels.gather(self._X, g.rowptr, g.xi, c, self._none, o, 0, 1)
+        self.jacobian.reshape(-1)[self._flat] = self._jnz[0]
+        return self.markers, self.jacobian

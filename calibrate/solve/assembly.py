@@ -362,7 +362,9 @@ class _CKernels:
         self._back, self._forward = lib.cal_back, lib.cal_forward
         for f in (self._back, self._forward):
             f.argtypes = [P] * 3 + [I] * 3
-        for f in (self._assemble, self._factor, self._back, self._forward):
+        self._gather = lib.cal_gather
+        self._gather.argtypes = [P, I, P, P, P, I, P, P, I, I]
+        for f in (self._assemble, self._factor, self._back, self._forward, self._gather):
             f.restype = ctypes.c_int
 
     def assemble(self, d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_off, z_src, z_r, z_c,
@@ -384,6 +386,10 @@ class _CKernels:
         if ok < 0:
             raise MemoryError("calibrate kernels: out of memory factoring the frame blocks")
         return bool(ok)
+
+    def gather(self, X, rowptr, xi, coef, sub, out, f0, f1) -> None:
+        self._gather(_ptr(X), X.shape[1], _ptr(rowptr, np.int64), _ptr(xi, np.int64), _ptr(coef), out.shape[1],
+                     _ptr(sub) if sub.shape[0] else None, _ptr(out), f0, f1)
 
     def back(self, L, t, x, f0, f1) -> None:
         self._back(_ptr(L), _ptr(t), _ptr(x), L.shape[1], f0, f1)

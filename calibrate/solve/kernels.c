@@ -292,3 +292,21 @@ int cal_forward(const double *L, const double *g, double *y, I nz, I f0, I f1)
         }
     return 1;
 }
+
+/* out_f[i] = Σ_k X_f[xi[k]] coef[k] over k in rowptr[i] .. rowptr[i+1]-1, less sub_f[i] where sub is not NULL,
+   for frames f0..f1-1: the markers and their Jacobians' nonzeros, linear in the segments' poses and their
+   derivatives X_f (calibrate.problem.marker_map).  X (frames × nx), sub and out (frames × nout). */
+int cal_gather(const double *X, I nx, const I *rowptr, const I *xi, const double *coef, I nout,
+               const double *sub, double *out, I f0, I f1)
+{
+    for (I f = f0; f < f1; ++f) {
+        const double *x = X + f * nx;
+        double *o = out + f * nout;
+        for (I i = 0; i < nout; ++i) {
+            double s = 0.0;
+            for (I k = rowptr[i]; k < rowptr[i + 1]; ++k) s += x[xi[k]] * coef[k];
+            o[i] = sub ? s - sub[f * nout + i] : s;
+        }
+    }
+    return 1;
+}

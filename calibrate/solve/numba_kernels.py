@@ -174,3 +174,15 @@ def forward(L, g, y, f0, f1):  # pragma: no cover (compiled)
             for k in range(i):
                 s -= L[f, i, k] * y[f, k]
             y[f, i] = s / L[f, i, i]
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def gather(X, rowptr, xi, coef, sub, out, f0, f1):  # pragma: no cover (compiled)
+    """out[f, i] = Σ_k X[f, xi[k]] coef[k] over rowptr[i] <= k < rowptr[i + 1], less sub[f, i] where sub has
+    rows (an empty sub: nothing subtracted), for frames f0..f1-1 (cal_gather in kernels.c)."""
+    for f in range(f0, f1):
+        for i in range(out.shape[1]):
+            s = 0.0
+            for k in range(rowptr[i], rowptr[i + 1]):
+                s += X[f, xi[k]] * coef[k]
+            out[f, i] = s - sub[f, i] if sub.shape[0] else s
