@@ -4,7 +4,8 @@ On an empty compile cache (a temporary $CALIBRATE_CACHE): the calibration proble
 once (its C compiled), then the same model with other marker sets — three markers added (a lab's own
 labels), a third of its markers left out, both — each built again (compiled again, or not), and the
 evaluation of a trial's residuals and Jacobians (Problem._run: "full" with ∂/∂z and ∂/∂p, "pose" with ∂/∂z,
-"resid" alone) over 600 simulated frames.  Run it on two checkouts (PYTHONPATH) to compare.
+"resid" alone) over 600 simulated frames, and one frame's markers and Jacobian at a time as frame-wise fits
+evaluate them (Problem.frame_evaluator, µs a call).  Run it on two checkouts (PYTHONPATH) to compare.
 
     python scripts/bench_compile.py [--frames 600] [--json OUT]
 """
@@ -77,6 +78,16 @@ def _evaluation_ms(model, frames: int) -> dict[str, float]:
             o = problem._run(kind, state, o)
             times.append(time.perf_counter() - t)
         out[kind] = 1e3 * float(np.median(times))
+    # One frame's markers and dense Jacobian at a time, as frame-wise fits call it (thousands of calls a run).
+    ev = problem.frame_evaluator(state.p)
+    refs = problem.kin.refs(state.Q, state.B)
+    rounds = []
+    for _ in range(5):
+        t = time.perf_counter()
+        for f in range(frames):
+            ev(state.Z[f], refs[f])
+        rounds.append((time.perf_counter() - t) / frames)
+    out["one_frame_us"] = 1e6 * float(np.median(rounds))
     return out
 
 
@@ -102,7 +113,8 @@ def main() -> None:
                       f"(compiled {compiled}; {libraries} libraries in the cache)")
             ev = _evaluation_ms(model, args.frames)
             rows.append({"model": name, "evaluation_ms": ev, "frames": args.frames})
-            print(f"{name:10s} {args.frames} frames: " + ", ".join(f"{k} {v:.2f} ms" for k, v in ev.items()))
+            kinds = ", ".join(f"{k} {v:.2f} ms" for k, v in ev.items() if k != "one_frame_us")
+            print(f"{name:10s} {args.frames} frames: {kinds}; one frame {ev['one_frame_us']:.1f} µs")
     if args.json:
         args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.processor()
                                          or platform.machine(), "cpus": os.cpu_count(), "rows": rows}, indent=1))

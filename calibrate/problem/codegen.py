@@ -313,21 +313,23 @@ class MapEvaluator:
         for i, a in enumerate((self._z, self._q, self._p)):
             self._buf.set_arg(i, memoryview(a))
         self._buf.set_res(0, memoryview(self._X))
+        # The markers' gather and their Jacobian's, as one: each output written to its place in one buffer, the
+        # markers then the dense Jacobian row by row (one call, no scatter after it).
         p_bar = np.append(np.asarray(p, dtype=float), 1.0)
-        self._gathers = [(g, g.coefficients(p_bar)) for g in (mm.d, mm.z)]
-        self._m, self._jnz = np.zeros((1, mm.d.size)), np.zeros((1, mm.z.size))
-        self._none = np.empty((0, 1))
         rows, cols, n_rows, nz = pattern
-        self.markers = self._m[0]
-        self.jacobian = np.zeros((n_rows, nz))
-        self._flat = rows * nz + cols
-        self._kernels = kernels()
+        self._out = np.zeros((1, n_rows * (1 + nz)))
+        self.markers = self._out[0, :n_rows]
+        self.jacobian = self._out[0, n_rows:].reshape(n_rows, nz)
+        d, jz = mm.d, mm.z
+        self._rowptr = np.concatenate([d.rowptr, jz.rowptr[1:] + d.rowptr[-1]])
+        self._xi = np.concatenate([d.xi, jz.xi])
+        self._coef = np.concatenate([d.coefficients(p_bar), jz.coefficients(p_bar)])
+        self._dst = np.concatenate([np.arange(n_rows), n_rows + rows * nz + cols]).astype(np.int64)
+        self._gather = kernels().gatherer(self._X, self._rowptr, self._xi, self._coef, self._dst, self._out)
 
     def __call__(self, z: np.ndarray, q_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self._z[:] = z
         self._q[:] = q_ref
         self._eval()
-        for (g, c), o in zip(self._gathers, (self._m, self._jnz), strict=True):
-            self._kernels.gather(self._X, g.rowptr, g.xi, c, self._none, o, 0, 1)
-        self.jacobian.reshape(-1)[self._flat] = self._jnz[0]
+        self._gather()
         return self.markers, self.jacobian

@@ -293,6 +293,18 @@ int cal_forward(const double *L, const double *g, double *y, I nz, I f0, I f1)
     return 1;
 }
 
+/* Σ_k x[xi[k]] c[k] over k0 <= k < k1: four terms at a time (most of the markers' sums have four: the
+   translation's and the rotation's three; the loads then overlap). */
+static inline __attribute__((always_inline)) double dot_at(const double *x, const I *xi, const double *c, I k0, I k1)
+{
+    double s = 0.0;
+    I k = k0;
+    for (; k + 4 <= k1; k += 4)
+        s += (x[xi[k]] * c[k] + x[xi[k + 1]] * c[k + 1]) + (x[xi[k + 2]] * c[k + 2] + x[xi[k + 3]] * c[k + 3]);
+    for (; k < k1; ++k) s += x[xi[k]] * c[k];
+    return s;
+}
+
 /* out_f[i] = Σ_k X_f[xi[k]] coef[k] over k in rowptr[i] .. rowptr[i+1]-1, less sub_f[i] where sub is not NULL,
    for frames f0..f1-1: the markers and their Jacobians' nonzeros, linear in the segments' poses and their
    derivatives X_f (calibrate.problem.marker_map).  X (frames × nx), sub and out (frames × nout). */
@@ -303,9 +315,24 @@ int cal_gather(const double *X, I nx, const I *rowptr, const I *xi, const double
         const double *x = X + f * nx;
         double *o = out + f * nout;
         for (I i = 0; i < nout; ++i) {
-            double s = 0.0;
-            for (I k = rowptr[i]; k < rowptr[i + 1]; ++k) s += x[xi[k]] * coef[k];
+            double s = dot_at(x, xi, coef, rowptr[i], rowptr[i + 1]);
             o[i] = sub ? s - sub[f * nout + i] : s;
+        }
+    }
+    return 1;
+}
+
+/* As cal_gather, each output stored at out_f[dst[i]] (out's frames nstride apart): a frame's markers and the
+   nonzeros of their Jacobian written straight into its dense array (a frame-wise fit's evaluator). */
+int cal_gather_to(const double *X, I nx, const I *rowptr, const I *xi, const double *coef, I nout, const I *dst,
+                  double *out, I nstride, I f0, I f1)
+{
+    for (I f = f0; f < f1; ++f) {
+        const double *x = X + f * nx;
+        double *o = out + f * nstride;
+        for (I i = 0; i < nout; ++i) {
+            double s = dot_at(x, xi, coef, rowptr[i], rowptr[i + 1]);
+            o[dst[i]] = s;
         }
     }
     return 1;

@@ -186,3 +186,19 @@ def gather(X, rowptr, xi, coef, sub, out, f0, f1):  # pragma: no cover (compiled
             for k in range(rowptr[i], rowptr[i + 1]):
                 s += X[f, xi[k]] * coef[k]
             out[f, i] = s - sub[f, i] if sub.shape[0] else s
+
+
+@njit(cache=True, nogil=True, fastmath=True)
+def gather_to(X, rowptr, xi, coef, dst, out, f0, f1):  # pragma: no cover (compiled)
+    """As gather, each output stored at out[f, dst[i]] (cal_gather_to in kernels.c)."""
+    for f in range(f0, f1):
+        for i in range(dst.size):
+            s = 0.0
+            for k in range(rowptr[i], rowptr[i + 1]):
+                s += X[f, xi[k]] * coef[k]
+            out[f, dst[i]] = s
+
+
+def gatherer(X, rowptr, xi, coef, dst, out):
+    """gather_to over every frame of X with these arrays bound (as the C kernels' gatherer)."""
+    return lambda: gather_to(X, rowptr, xi, coef, dst, out, 0, X.shape[0])
