@@ -178,7 +178,7 @@ class CodegenMixin:
             pr, pc = _pattern(Jp.sparsity())
             if key:
                 if self._progress is not None and c_compiler() is not None:
-                    self._progress("build: compiling the model's C code (once per model structure; cached)")
+                    self._progress("build: compiling the model's C code (once per model tree, any markers; cached)")
                 comp = _compile(funcs, key, {"zr": zr, "zc": zc, "pr": pr, "pc": pc})
                 if comp is not None:
                     funcs = comp
