@@ -363,10 +363,8 @@ class _CKernels:
         for f in (self._back, self._forward):
             f.argtypes = [P] * 3 + [I] * 3
         self._gather = lib.cal_gather
-        self._gather.argtypes = [P, I, P, P, P, I, P, P, I, I]
-        self._gather_to = lib.cal_gather_to
-        self._gather_to.argtypes = [P, I, P, P, P, I, P, P, I, I, I]
-        for f in (self._assemble, self._factor, self._back, self._forward, self._gather, self._gather_to):
+        self._gather.argtypes = [P, I, P, P, P, I, P, P, P, I, I, I]
+        for f in (self._assemble, self._factor, self._back, self._forward, self._gather):
             f.restype = ctypes.c_int
 
     def assemble(self, d, w, jz, jp, f0, f1, with_p, grad_only, rows, row_off, zcols, zc_off, z_src, z_r, z_c,
@@ -390,16 +388,16 @@ class _CKernels:
         return bool(ok)
 
     def gather(self, X, rowptr, xi, coef, sub, out, f0, f1) -> None:
-        self._gather(_ptr(X), X.shape[1], _ptr(rowptr, np.int64), _ptr(xi, np.int64), _ptr(coef), out.shape[1],
-                     _ptr(sub) if sub.shape[0] else None, _ptr(out), f0, f1)
+        self._gather(_ptr(X), X.shape[1], _ptr(rowptr, np.int64), _ptr(xi, np.int64), _ptr(coef), out.shape[1], None,
+                     _ptr(sub) if sub.shape[0] else None, _ptr(out), out.shape[1], f0, f1)
 
     def gatherer(self, X, rowptr, xi, coef, dst, out):
-        """cal_gather_to over every frame of X (n, nx) into out (n, ·) with these arrays bound: their addresses
-        taken once, for a caller that gathers into the same memory again and again (a frame-wise fit's evaluator:
-        thousands of calls, where the checks of each call cost as much as the loop)."""
+        """cal_gather over every frame of X (n, nx), output i stored at out[f, dst[i]], with these arrays bound:
+        their addresses taken once, for a caller that gathers into the same memory again and again (a frame-wise
+        fit's evaluator: thousands of calls, where the checks of each call cost as much as the loop)."""
         args = (_ptr(X), X.shape[1], _ptr(rowptr, np.int64), _ptr(xi, np.int64), _ptr(coef), dst.size,
-                _ptr(dst, np.int64), _ptr(out), out.shape[1], 0, X.shape[0])
-        f = self._gather_to
+                _ptr(dst, np.int64), None, _ptr(out), out.shape[1], 0, X.shape[0])
+        f = self._gather
         return lambda: f(*args)
 
     def back(self, L, t, x, f0, f1) -> None:

@@ -307,32 +307,18 @@ static inline __attribute__((always_inline)) double dot_at(const double *x, cons
 
 /* out_f[i] = Σ_k X_f[xi[k]] coef[k] over k in rowptr[i] .. rowptr[i+1]-1, less sub_f[i] where sub is not NULL,
    for frames f0..f1-1: the markers and their Jacobians' nonzeros, linear in the segments' poses and their
-   derivatives X_f (calibrate.problem.marker_map).  X (frames × nx), sub and out (frames × nout). */
-int cal_gather(const double *X, I nx, const I *rowptr, const I *xi, const double *coef, I nout,
-               const double *sub, double *out, I f0, I f1)
-{
-    for (I f = f0; f < f1; ++f) {
-        const double *x = X + f * nx;
-        double *o = out + f * nout;
-        for (I i = 0; i < nout; ++i) {
-            double s = dot_at(x, xi, coef, rowptr[i], rowptr[i + 1]);
-            o[i] = sub ? s - sub[f * nout + i] : s;
-        }
-    }
-    return 1;
-}
-
-/* As cal_gather, each output stored at out_f[dst[i]] (out's frames nstride apart): a frame's markers and the
-   nonzeros of their Jacobian written straight into its dense array (a frame-wise fit's evaluator). */
-int cal_gather_to(const double *X, I nx, const I *rowptr, const I *xi, const double *coef, I nout, const I *dst,
-                  double *out, I nstride, I f0, I f1)
+   derivatives X_f (calibrate.problem.marker_map).  X (frames × nx), sub (frames × nout), out's frames nstride
+   apart; where dst is not NULL, output i is stored at out_f[dst[i]] instead (a frame-wise fit's evaluator writes
+   the markers and their Jacobian's nonzeros straight into its dense array). */
+int cal_gather(const double *X, I nx, const I *rowptr, const I *xi, const double *coef, I nout, const I *dst,
+               const double *sub, double *out, I nstride, I f0, I f1)
 {
     for (I f = f0; f < f1; ++f) {
         const double *x = X + f * nx;
         double *o = out + f * nstride;
         for (I i = 0; i < nout; ++i) {
             double s = dot_at(x, xi, coef, rowptr[i], rowptr[i + 1]);
-            o[dst[i]] = s;
+            o[dst ? dst[i] : i] = sub ? s - sub[f * nout + i] : s;
         }
     }
     return 1;

@@ -176,29 +176,28 @@ def forward(L, g, y, f0, f1):  # pragma: no cover (compiled)
             y[f, i] = s / L[f, i, i]
 
 
+
 @njit(cache=True, nogil=True, fastmath=True)
-def gather(X, rowptr, xi, coef, sub, out, f0, f1):  # pragma: no cover (compiled)
+def _gather(X, rowptr, xi, coef, dst, sub, out, f0, f1):  # pragma: no cover (compiled)
+    for f in range(f0, f1):
+        for i in range(rowptr.size - 1):
+            s = 0.0
+            for k in range(rowptr[i], rowptr[i + 1]):
+                s += X[f, xi[k]] * coef[k]
+            out[f, dst[i] if dst.size else i] = s - sub[f, i] if sub.shape[0] else s
+
+
+_NO_DST = np.empty(0, dtype=np.int64)
+
+
+def gather(X, rowptr, xi, coef, sub, out, f0, f1):
     """out[f, i] = Σ_k X[f, xi[k]] coef[k] over rowptr[i] <= k < rowptr[i + 1], less sub[f, i] where sub has
     rows (an empty sub: nothing subtracted), for frames f0..f1-1 (cal_gather in kernels.c)."""
-    for f in range(f0, f1):
-        for i in range(out.shape[1]):
-            s = 0.0
-            for k in range(rowptr[i], rowptr[i + 1]):
-                s += X[f, xi[k]] * coef[k]
-            out[f, i] = s - sub[f, i] if sub.shape[0] else s
-
-
-@njit(cache=True, nogil=True, fastmath=True)
-def gather_to(X, rowptr, xi, coef, dst, out, f0, f1):  # pragma: no cover (compiled)
-    """As gather, each output stored at out[f, dst[i]] (cal_gather_to in kernels.c)."""
-    for f in range(f0, f1):
-        for i in range(dst.size):
-            s = 0.0
-            for k in range(rowptr[i], rowptr[i + 1]):
-                s += X[f, xi[k]] * coef[k]
-            out[f, dst[i]] = s
+    _gather(X, rowptr, xi, coef, _NO_DST, sub, out, f0, f1)
 
 
 def gatherer(X, rowptr, xi, coef, dst, out):
-    """gather_to over every frame of X with these arrays bound (as the C kernels' gatherer)."""
-    return lambda: gather_to(X, rowptr, xi, coef, dst, out, 0, X.shape[0])
+    """As gather over every frame of X, output i stored at out[f, dst[i]], with these arrays bound (as the C
+    kernels' gatherer)."""
+    none = np.empty((0, 1))
+    return lambda: _gather(X, rowptr, xi, coef, dst, none, out, 0, X.shape[0])
