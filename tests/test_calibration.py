@@ -656,7 +656,13 @@ def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
     cal = calibrate(human, Trial(labels, sim.trial.markers[::8], sim.trial.rate / 8, 0, None))
     scale = np.asarray(cal.params.scale)
     assert np.all((scale >= SCALE_BOUNDS[0]) & (scale <= SCALE_BOUNDS[1]))
-    assert np.all(np.abs(cal.params.marker) < 1.0) and np.all(np.abs(cal.params.centre) < 1.0)  # metres
+    # The positions at the subject's scale (what the subject's model holds; the stored ones are divided by their
+    # segment's scale, 5x larger at the lower bound): within a metre of their segment's origin, nothing run away.
+    m = cal.model
+    marker_scale = scale[[m.segment_index(mk.segment) for mk in m.markers]]
+    centre_scale = scale[[m.segment_index(j.parent) for j in m.joints]]
+    assert np.all(np.abs(marker_scale[:, None] * cal.params.marker) < 1.0)  # metres
+    assert np.all(np.abs(centre_scale[:, None] * cal.params.centre) < 1.0)
     assert cal.marker_rms < 0.5 * marker_rms(cal.initial_residuals)  # 24-28 mm from 98.5 (was 262 from 101)
     # ... and the label is named as one to check, in the summary and the report
     assert "RKNE" in {m.label for _, m in cal.misplaced}
