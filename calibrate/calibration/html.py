@@ -257,6 +257,10 @@ def _notes(report: dict) -> str:
                      "axis; centres slid to their midpoint): "
                      + _e("; ".join(f"{r['coordinate']} {r['angle_deg']:.1f} deg from {'-'.join(r['markers'])}"
                                     for r in pairs)) + "</li>")
+    if pairs := report.get("pair_centres"):
+        items.append("<li>held axes' centres drawn to the midpoint of the two markers straddling each joint (no motion "
+                     "places them): " + _e("; ".join(f"{r['joint']} {r['centre_from_midpoint_mm']:.1f} mm from "
+                                                     f"{'-'.join(r['markers'])}'s midpoint" for r in pairs)) + "</li>")
     if widths := report.get("population_widths"):
         items.append("<li>no width measured: lateral markers held about the base model's distance from their centres "
                      "along the axes, at the segment's scale (calibrated / prior, mm): "

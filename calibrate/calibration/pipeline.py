@@ -1064,6 +1064,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                        narrow_axes=tuple(narrow.items()), narrow_centres=tuple(narrow_centres.items()),
                        axis_pairs=tuple((subject.dofs[d].name, subject.markers[k1].name, subject.markers[k2].name)
                                         for _, k1, k2, d in problem.pair_terms()),
+                       pair_centres=tuple((subject.joints[ji].name, subject.markers[k1].name, subject.markers[k2].name)
+                                          for ji, k1, k2, _ in problem.held_pair_terms()),
                        population_widths=population,
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),

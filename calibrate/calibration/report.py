@@ -146,6 +146,7 @@ def calibration_report(cal: Calibration) -> dict:
         "cluster_centres": list(cal.cluster_centres),
         "on_axis_markers": on_axis_labels(cal),
         "axis_pairs": axis_pair_table(cal),
+        "pair_centres": pair_centre_table(cal),
         "population_widths": population_width_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
@@ -748,6 +749,21 @@ def axis_pair_table(cal: Calibration) -> list[dict]:
     return out
 
 
+def pair_centre_table(cal: Calibration) -> list[dict]:
+    """Each held hinge whose centre was drawn to the midpoint of the two markers straddling it
+    (Calibration.pair_centres): the centre's distance from that midpoint (mm, at the segment's scale), in the
+    subject's geometry."""
+    m, p = cal.model, cal.params
+    out = []
+    for joint, m1, m2 in cal.pair_centres:
+        ji = m.joint_index(joint)
+        x1, x2 = p.marker[m.marker_index(m1)], p.marker[m.marker_index(m2)]
+        s = float(p.scale[m.segment_index(m.joints[ji].parent)])
+        out.append({"joint": joint, "markers": [m1, m2],
+                    "centre_from_midpoint_mm": 1000 * s * float(np.linalg.norm(p.centre[ji] - 0.5 * (x1 + x2)))})
+    return out
+
+
 #: A lateral marker held by the population's width (Calibration.population_widths) that ends more than this many
 #: Priors.population_width SDs from the population's distance is flagged: the segment's other markers and centres pull
 #: its hinge centre along the axis against anatomy.  A simulated subject's medial epicondyle labelled as the lateral one
@@ -824,6 +840,17 @@ def _pair_line(cal: Calibration) -> list[str]:
             line += (f"; {', '.join(kept)} sit elsewhere on those segments in the still trials than in the moving "
                      "ones (the moved? line): --moved-markers leaves their still positions out")
     return [line]
+
+
+def _pair_centre_line(cal: Calibration) -> list[str]:
+    """The summary's line on the held axes' centres drawn to their marker pairs' midpoints (pair_centre_table)."""
+    rows = pair_centre_table(cal)
+    if not rows:
+        return []
+    text = "; ".join(f"{r['joint']} {r['centre_from_midpoint_mm']:.1f} mm from {'-'.join(r['markers'])}'s midpoint"
+                     for r in rows)
+    return [f"  pair centres {text} (each held axis's centre drawn to the midpoint of the two markers straddling it, "
+            f"prior SD {1000 * cal.settings.priors.on_axis:.0f} mm: no motion places it)"]
 
 
 def _held_list(cal, joints) -> str:
@@ -956,6 +983,7 @@ def summary_text(cal) -> str:
            "motion places the axis)"]
           if (on_axis := on_axis_labels(cal)) else []),
         *_pair_line(cal),
+        *_pair_centre_line(cal),
         *_population_line(cal),
         *(["  centres held " + _held_list(cal, given) + " (--hold-centres)"]
           if (given := [j for j in cal.settings.hold_centres if j not in cal.still_centres

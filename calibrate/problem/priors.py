@@ -81,14 +81,15 @@ def straddle(centre: np.ndarray, axis: np.ndarray, x1: np.ndarray, x2: np.ndarra
 
 
 def straddling_pairs(model: Model, base: np.ndarray, layout, rotations: list[np.ndarray], seen: np.ndarray,
-                     centre_segment: np.ndarray) -> list[tuple[int, int, int, int]]:
+                     centre_segment: np.ndarray, dofs=None) -> list[tuple[int, int, int, int]]:
     """(joint, marker, marker, DoF) of each calibrated knee, ankle and elbow hinge (ON_AXIS_JOINTS in its joint's
     or coordinate's name) whose parent carries two seen markers straddling its centre along its axis (PAIR_SPAN,
     PAIR_ANGLE, PAIR_OFF, PAIR_INNER) in the base parameters `base`; of several pairs, the one whose line passes
     nearest the centre.  `rotations`: each joint's URDF joint rotation (the hinge axis into its parent's frame);
-    `seen`: (n_markers,) whether a trial shows each marker."""
+    `seen`: (n_markers,) whether a trial shows each marker; `dofs`: the hinges' DoF indices to look at (default the
+    calibrated axes', layout.axis_dofs)."""
     out = []
-    for d in layout.axis_dofs:
+    for d in layout.axis_dofs if dofs is None else dofs:
         ji = model.joint_index(model.dofs[d].joint)
         j = model.joints[ji]
         if j.kind != "hinge" or not any(n in f"{j.name} {model.dofs[d].name}".lower() for n in ON_AXIS_JOINTS):
@@ -322,8 +323,8 @@ class PriorsMixin:
         model's at the segment's scale (Priors.population_width; the knees and ankles, WIDTH_JOINTS), as a row of
         the solve's priors: nothing else places such a centre along its axis, and its prior alone left pig_walk-like
         sessions' ankles 16-57 mm from their measured widths (docs/benchmarks.md).  None where a pair of markers
-        straddles the hinge (pair_terms), or the centres or markers are not free.  Kept while the settings, the
-        seen markers and the base are the same."""
+        straddles the hinge (pair_terms, held_pair_terms), or the centres or markers are not free.  Kept while the
+        settings, the seen markers and the base are the same."""
         cached = self.__dict__.get("_unslid_cache")
         key = (self.settings, self._unseen, self.base)
         if cached is not None and all(a is b for a, b in zip(cached[0], key, strict=True)):
@@ -332,7 +333,7 @@ class PriorsMixin:
         out = []
         if {"centre", "marker"} <= set(st.free):
             still = set(st.hold_segments)
-            skip = set(self._slides) | {ji for ji, *_ in self.pair_terms()}
+            skip = set(self._slides) | {ji for ji, *_ in self.pair_terms()} | {ji for ji, *_ in self.held_pair_terms()}
 
             def placeable(ji: int, mi: int) -> bool:
                 j = m.joints[ji]
@@ -387,6 +388,28 @@ class PriorsMixin:
             out = straddling_pairs(m, self.base.vector(), self.layout, rotations, ~self._unseen,
                                    self.centre_segment)
         self._pair_cache = (key, out)
+        return out
+
+    def held_pair_terms(self) -> list[tuple[int, int, int, int]]:
+        """(joint, marker, marker, DoF) of each knee, ankle and elbow hinge whose axis is not calibrated (held: a still
+        trial's, --hold-axes; or locked) and whose parent carries a seen pair of markers straddling its centre along
+        its axis (straddling_pairs, at the base geometry): Priors.on_axis keeps its centre at their midpoint.  None
+        when priors.on_axis is 0 or the centres and markers are not free.  Kept while the base, the settings and the
+        seen markers are the same."""
+        cached = self.__dict__.get("_held_pair_cache")
+        key = (self.base, self.settings, self._unseen)
+        if cached is not None and all(a is b for a, b in zip(cached[0], key, strict=True)):
+            return cached[1]
+        out = []
+        st, m = self.settings, self.model
+        if st.priors.on_axis > 0 and {"centre", "marker"} <= set(st.free):
+            calibrated = set(self.layout.axis_dofs)
+            held = [m.dof_index(j.dofs[0]) for j in m.joints if j.kind == "hinge"
+                    and m.dof_index(j.dofs[0]) not in calibrated]
+            rotations = [self._urdf[j.urdf_joints[0]].rotation if j.urdf_joints else np.eye(3) for j in m.joints]
+            out = straddling_pairs(m, self.base.vector(), self.layout, rotations, ~self._unseen,
+                                   self.centre_segment, held)
+        self._held_pair_cache = (key, out)
         return out
 
     def _pair_index(self, pairs: list[tuple[int, int, int, int]]) -> tuple[np.ndarray, ...]:
@@ -646,6 +669,25 @@ class PriorsMixin:
                     _cat(np.tile(np.arange(mk.start, mk.stop), 3), np.tile(np.arange(ce.start, ce.stop), 3),
                           np.full(3, L.scale(seg))),
                     _cat((s / sd) * P.ravel(), -(s / sd) * P.ravel(), (P @ x) / sd)))
+        # A held hinge's centre at the midpoint of the two markers straddling it (Priors.on_axis; held_pair_terms):
+        # the epicondyles', the malleoli's, as the ISB and Plug-in Gait place a knee, ankle or elbow from them; no
+        # motion places a held axis's centre, and left to its prior Rajagopal's static carried both knee centres 100 mm
+        # from their epicondyles (docs/benchmarks.md).  s (c - (x1 + x2) / 2) / sd in the parent's frame, all three on
+        # it at its scale s; along the axis it is where the slide puts the centre (slide_centres).
+        held_pairs = self.held_pair_terms()
+        if held_pairs:
+            sd = st.priors.on_axis
+            for ji, k1, k2, _ in held_pairs:
+                seg = self.centre_segment[ji]
+                ce, m1, m2 = L.centre(ji), L.marker(k1), L.marker(k2)
+                x = p[ce] - 0.5 * (p[m1] + p[m2])
+                s = scale[seg]
+                k = np.arange(3)
+                add(s * x / sd, lambda ce=ce, m1=m1, m2=m2, x=x, s=s, seg=seg, k=k: (
+                    _cat(k, k, k, k),
+                    _cat(np.arange(ce.start, ce.stop), np.arange(m1.start, m1.stop), np.arange(m2.start, m2.stop),
+                         np.full(3, L.scale(seg))),
+                    _cat(np.full(3, s / sd), np.full(3, -0.5 * s / sd), np.full(3, -0.5 * s / sd), x / sd)))
         # A hinge the slide cannot place (its child held) keeps its lateral marker at the measured width's distance
         # along the axis from its centre, or the population's (unslid_width_terms): one row each,
         # (side s a·(x - c) - target - s per_scale) / sd, a the axis in the parent's frame, s the parent's scale.
