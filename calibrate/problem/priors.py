@@ -383,12 +383,14 @@ class PriorsMixin:
             return cached[1]
         out = []
         if self.settings.priors.pair_axis > 0 and "marker" in self.settings.free and self.layout.axis_dofs:
-            m = self.model
-            rotations = [self._urdf[j.urdf_joints[0]].rotation if j.urdf_joints else np.eye(3) for j in m.joints]
-            out = straddling_pairs(m, self.base.vector(), self.layout, rotations, ~self._unseen,
+            out = straddling_pairs(self.model, self.base.vector(), self.layout, self._joint_rotations(), ~self._unseen,
                                    self.centre_segment)
         self._pair_cache = (key, out)
         return out
+
+    def _joint_rotations(self) -> list[np.ndarray]:
+        """Each joint's URDF joint rotation (its hinge axis into its parent's frame), as straddling_pairs takes them."""
+        return [self._urdf[j.urdf_joints[0]].rotation if j.urdf_joints else np.eye(3) for j in self.model.joints]
 
     def held_pair_terms(self) -> list[tuple[int, int, int, int]]:
         """(joint, marker, marker, DoF) of each knee, ankle and elbow hinge whose axis is not calibrated (held: a still
@@ -406,8 +408,7 @@ class PriorsMixin:
             calibrated = set(self.layout.axis_dofs)
             held = [m.dof_index(j.dofs[0]) for j in m.joints if j.kind == "hinge"
                     and m.dof_index(j.dofs[0]) not in calibrated]
-            rotations = [self._urdf[j.urdf_joints[0]].rotation if j.urdf_joints else np.eye(3) for j in m.joints]
-            out = straddling_pairs(m, self.base.vector(), self.layout, rotations, ~self._unseen,
+            out = straddling_pairs(m, self.base.vector(), self.layout, self._joint_rotations(), ~self._unseen,
                                    self.centre_segment, held)
         self._held_pair_cache = (key, out)
         return out
