@@ -161,3 +161,42 @@ def test_past_joints_leaves_a_wrist_marker_on_the_ulna_and_takes_the_hand_and_he
     assert (past["LHandOut"].by, past["LHandOut"].segment) == ("LFIN", "hand_l")
     assert past["LHeelBack"].segment == "calcn_l" and past["LHeelBack"].by in ("LHEE", "LTOE")
     assert past["LHeelBack"].distance < past["LHeelBack"].own
+
+
+def test_the_base_models_poses_are_fitted_once_per_frames_and_kept_apart_by_model_and_frames():
+    """An association's host tests share one BasePoses: kinematic_hosts' first round and past_joints pose the base
+    model on the same picked frames, and the fit is made once (the same IKResult), its poses equal to a fit made
+    afresh (calibrate.solve.ik run here) and its hosts equal to those found without the cache; other frames or a
+    model with more markers get their own fit."""
+    from calibrate.calibration.hosts import HOST_FRAMES, BasePoses, _posed, past_joints, pick_frames
+    from calibrate.model.kinematics import build_kinematics
+    from calibrate.model.model import add_markers
+    from calibrate.solve.ik import DECISION_TOLERANCE, inverse_kinematics
+
+    base = load_model(HUMAN)
+    trial, _ = _session()
+    labels = [*CLUSTER, "FLOOR"]
+    cache = BasePoses()
+    picked = pick_frames([trial], HOST_FRAMES)
+    (t1, fit1), = _posed(base, picked, labels, cache=cache)
+    (t2, fit2), = _posed(base, pick_frames([trial], HOST_FRAMES), ["LSH1"], cache=cache)
+    assert fit2 is fit1  # the same frames and model: found again, not fitted again
+    fresh = inverse_kinematics(build_kinematics(base), picked[0], base.parameters(), tolerance=DECISION_TOLERANCE)
+    np.testing.assert_array_equal(fit1.motion.angles, fresh.motion.angles)
+    np.testing.assert_array_equal(fit1.residuals, fresh.residuals)
+    # other frames, or the model with a label placed on it: fitted anew
+    (_, other), = _posed(base, pick_frames([trial], HOST_FRAMES // 2), labels, cache=cache)
+    assert other is not fit1 and other.motion.angles.shape[0] != fit1.motion.angles.shape[0]
+    more = add_markers(base, {"LSH1": ("tibia_l", np.array(CLUSTER["LSH1"]))})
+    (_, moved), = _posed(more, picked, ["LSH2"], cache=cache)
+    assert moved is not fit1
+    # a start given: fitted from it, not taken from the cache
+    (_, started), = _posed(base, picked, labels, {0: fit1.motion}, cache=cache)
+    assert started is not fit1
+    # the hosts the tests find with a shared cache are those found without one
+    with_cache = kinematic_hosts(base, [trial], labels, cache=cache)
+    without = kinematic_hosts(base, [trial], labels)
+    assert {n: (h.segment, h.spread) for n, h in with_cache.items()} == {n: (h.segment, h.spread)
+                                                                         for n, h in without.items()}
+    placed = {n: h.segment for n, h in without.items() if h.segment}
+    assert past_joints(base, [trial], placed, cache=cache) == past_joints(base, [trial], placed)

@@ -16,6 +16,7 @@ where its place spreads least, if that spread is under HOST_SPREAD and at most H
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from collections.abc import Sequence
@@ -216,13 +217,15 @@ class Host:
 
 
 def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
-                    frames: int = HOST_FRAMES, rounds: int = HOST_ROUNDS) -> dict[str, Host]:
+                    frames: int = HOST_FRAMES, rounds: int = HOST_ROUNDS,
+                    cache: BasePoses | None = None) -> dict[str, Host]:
     """Each of `labels` (trial markers `model` does not know) -> its Host, judged over about `frames` evenly spaced
     frames of `trials` (the moving ones) posed by the base model's known markers; labels no posed frame shows
     are left out of the result.  Candidates: the segments that carry a known marker the trials show, and the
     markerless ones whose joint turns in those poses (TURNING).  Up to `rounds` times, the labels placed so far join
     the known markers at their places and the others are judged again on the better poses (a thigh with one known
-    marker, a lateral knee's, is posed about its long axis by its first cluster marker found)."""
+    marker, a lateral knee's, is posed about its long axis by its first cluster marker found).  `cache`: the
+    association's BasePoses (the first round's poses are the base model's)."""
     from ..model.model import add_markers
 
     picked = pick_frames(trials, frames)
@@ -231,7 +234,7 @@ def kinematic_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str]
     poses: dict[int, Motion] = {}
     for _ in range(rounds):
         todo = [lab for lab in labels if lab not in out or out[lab].segment is None]
-        found = _hosts(posed, picked, todo, poses)
+        found = _hosts(posed, picked, todo, poses, cache)
         out.update(found)
         placed = {lab: (h.segment, h.place) for lab, h in found.items() if h.segment is not None}
         if not placed or all(h.segment is not None for h in out.values()):
@@ -251,24 +254,60 @@ def pick_frames(trials: Sequence[Trial], frames: int) -> list[Trial]:
     return picked
 
 
+class BasePoses:
+    """The base model's frame-wise fits to its known markers (calibrate.solve.ik, DECISION_TOLERANCE), each made once
+    per model and frames: one association's host tests (kinematic_hosts' first round, past_joints, beyond_joints) pose
+    the same model on the same picked frames (c3d.org's sample28 walk: 8 fits, 4 of them repeats, 1.0 s of its 7.8).
+    Scratch for one association, as Pinocchio's Data is for its Model; a fit from a given start is not kept."""
+
+    def __init__(self) -> None:
+        self._kinematics: dict[tuple, object] = {}
+        self._fits: dict[tuple, object] = {}
+
+    @staticmethod
+    def _model_key(model: Model) -> tuple:
+        return (id(model.pin), tuple(model.marker_names), model.parameters().vector().tobytes())
+
+    def kinematics(self, model: Model):
+        """The model's calibrate.model.kinematics.Kinematics, built once."""
+        from ..model.kinematics import build_kinematics
+
+        key = self._model_key(model)
+        if key not in self._kinematics:
+            self._kinematics[key] = build_kinematics(model)
+        return self._kinematics[key]
+
+    def fit(self, model: Model, trial: Trial, start: Motion | None = None):
+        """The model's fit to `trial`'s frames (an IKResult), from `start` (a motion of those frames) if given."""
+        from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
+
+        if start is not None:
+            return inverse_kinematics(self.kinematics(model), trial, model.parameters(), tolerance=DECISION_TOLERANCE,
+                                      start=start)
+        known = set(model.marker_names)
+        key = (self._model_key(model), tuple(lab for lab in trial.labels if lab in known), trial.markers.shape,
+               hashlib.blake2b(np.ascontiguousarray(trial.markers).tobytes(), digest_size=16).digest())
+        if key not in self._fits:
+            self._fits[key] = inverse_kinematics(self.kinematics(model), trial, model.parameters(),
+                                                 tolerance=DECISION_TOLERANCE)
+        return self._fits[key]
+
+
 def _posed(model: Model, trials: Sequence[Trial], labels: Sequence[str],
-           poses: dict[int, Motion] | None = None) -> list[tuple[Trial, object]]:
+           poses: dict[int, Motion] | None = None, cache: BasePoses | None = None) -> list[tuple[Trial, object]]:
     """The base model's frame-wise fits (calibrate.solve.ik) to its known markers in those of `trials` (already
     picked) that show any of `labels`, as (trial, fit).  `poses`: the last round's poses of those trials (by index),
-    where each frame's fit starts; the new ones are written there."""
-    from ..model.kinematics import build_kinematics
-    from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
-
+    where each frame's fit starts; the new ones are written there.  `cache`: where fits from no start are kept and
+    found again (BasePoses; a new one, used once, if None)."""
     known = set(model.marker_names)
     if not labels or not any(lab in known for t in trials for lab in t.labels):
         return []
-    kin = build_kinematics(model)
-    params = model.parameters()
+    cache = BasePoses() if cache is None else cache
     poses = {} if poses is None else poses
     fits = []
     for i, t in enumerate(trials):
         if any(lab in t.labels for lab in labels):
-            fit = inverse_kinematics(kin, t, params, tolerance=DECISION_TOLERANCE, start=poses.get(i))
+            fit = cache.fit(model, t, poses.get(i))
             poses[i] = fit.motion
             fits.append((t, fit))
     return fits
@@ -301,12 +340,12 @@ def local_places(model: Model, fits: Sequence[tuple[Trial, object]], labels: Seq
 
 
 def _hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str],
-           poses: dict[int, Motion] | None = None) -> dict[str, Host]:
+           poses: dict[int, Motion] | None = None, cache: BasePoses | None = None) -> dict[str, Host]:
     """One round of kinematic_hosts on the frames `trials` (already picked).  `poses`: the last round's poses of
     those trials (by index), where each frame's fit starts (a round only adds the labels placed to the known
     markers: the poses move little, and from scratch each frame took 5-10 steps, on gait2392 half of the hosts'
     time); the new ones are written there."""
-    fits = _posed(model, trials, labels, poses)
+    fits = _posed(model, trials, labels, poses, cache)
     if not fits:
         return {}
     candidates = _candidates(model, trials, fits)
@@ -536,7 +575,7 @@ def _along_axes(model: Model, marker: str, joints: Sequence) -> bool:
 
 
 def past_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
-                frames: int = HOST_FRAMES) -> dict[str, PastJoint]:
+                frames: int = HOST_FRAMES, cache: BasePoses | None = None) -> dict[str, PastJoint]:
     """Of `placed` (new label -> segment, by any test), those whose median place on their segment, on about `frames`
     frames of `trials` (the moving ones) posed by the base model's known markers, is nearer where a base-model marker
     of a segment below it that no shown marker poses (unposed_below) can come, over the joints' ranges, than to any
@@ -547,12 +586,13 @@ def past_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
     joint down to it (AXIAL: a wrist marker on the ulna, above the radius's pronation).  A segment that shows fewer
     than three markers is compared about the line to the joint below (along it and off it): its turn about that line
     is what the unposed segment's markers would have fixed (pig_walk's humerus posed by its arm and elbow markers
-    alone had put a forearm marker 87 mm off the line, where the base model's has it 5 mm)."""
+    alone had put a forearm marker 87 mm off the line, where the base model's has it 5 mm).  `cache`: the
+    association's BasePoses."""
     below = unposed_below(model, trials)
     on = {lab: seg for lab, seg in placed.items() if seg in below}
     if not on:
         return {}
-    fits = _posed(model, pick_frames(trials, frames), list(on))
+    fits = _posed(model, pick_frames(trials, frames), list(on), cache=cache)
     if not fits:
         return {}
     segments = sorted(set(on.values()))
@@ -1064,13 +1104,14 @@ def _mass_centres(model: Model, data) -> dict[str, np.ndarray]:
 
 
 def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
-                  frames: int = HOST_FRAMES) -> dict[str, BeyondJoint]:
+                  frames: int = HOST_FRAMES, cache: BasePoses | None = None) -> dict[str, BeyondJoint]:
     """Of `placed` (new label -> segment, by the hosts' tests), those beyond the joint of a child segment that no
     shown model marker poses, on it or below it (BEYOND_MIN, BEYOND_RIGID above) -> BeyondJoint,
     judged on the moving `trials` (their median places on about `frames` frames posed by the base model's known
     markers; their distances over every frame).  The joints are taken down the tree, a child given a cluster then
     carrying the next (a head on its neck above a torso that had no marker either); the labels are those put on the
-    child's parent or on a segment above it (a head's, on a pelvis, where both joints between turned with it)."""
+    child's parent or on a segment above it (a head's, on a pelvis, where both joints between turned with it).
+    `cache`: the association's BasePoses."""
     from ..model.resolve import descendants
     from ..seed.geometry import kabsch_batch
     from ..seed.rigidity import distance_variance
@@ -1094,7 +1135,7 @@ def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
     data, _ = _neutral(model)
     centres = _mass_centres(model, data)
     picked = pick_frames(trials, frames)
-    fits = _posed(model, picked, list(placed))
+    fits = _posed(model, picked, list(placed), cache=cache)
     if not fits:
         return {}
     names = [sg.name for sg in model.segments]

@@ -31,6 +31,7 @@ from calibrate.calibration.gauge import align_gauge, align_markers, align_neutra
 from calibrate.calibration.hosts import (
     AXIAL_SPREAD,
     NAMED_SEGMENTS,
+    BasePoses,
     beyond_joints,
     centre_labels,
     centre_segments,
@@ -2164,7 +2165,9 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     medial = {lab for lab in unknown if medial_host(model, lab) is not None}
     left = [lab for lab in unknown if assoc[lab].segment is None and lab not in medial
             and any(lab in t.labels for t in used)]
-    hosts = kinematic_hosts(model, used, left) if left else {}
+    # (the host tests below pose the base model on the same frames: each fit made once)
+    base_poses = BasePoses()
+    hosts = kinematic_hosts(model, used, left, cache=base_poses) if left else {}
     # Those left still, by their distances' margins (association.margin_hosts): a segment whose own markers move
     # against each other on skin more than the trial's rigidity threshold (a two-marker foot, a pelvis), which the
     # poses cannot pin either (a foot posed by its heel and toe turns about the line between them).
@@ -2179,7 +2182,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     # Any of them placed on a segment's near side that sits by the base model's markers of a segment below it which
     # no known marker moves (hosts.past_joints: a wrist marker on a humerus where the elbow has no known marker)
     placed.update({lab: margins[lab].segment for lab in margins if margins[lab].segment is not None})
-    past = past_joints(model, used, placed) if placed else {}
+    past = past_joints(model, used, placed, cache=base_poses) if placed else {}
     # And a rigid cluster still left that turns about a joint of a posed segment, on the segment beyond that joint the
     # markers do not pose (hosts.joint_hosts: gait2392's thigh and shank plates, its knee and ankle markers in the
     # static alone).  Judged by past_joints too: an arm whose elbow a walk barely turns keeps its upper-arm, forearm
@@ -2191,7 +2194,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                                              **{lab: c.segment for lab, c in clusters.items() if c.segment}}
                          ) if rest else {}
     by_turn = {lab: h.segment for lab, h in joints.items() if h.segment is not None}
-    past.update(past_joints(model, used, by_turn) if by_turn else {})
+    past.update(past_joints(model, used, by_turn, cache=base_poses) if by_turn else {})
     described = described_labels(trials)
     out = []
     for lab in unknown:
@@ -2239,7 +2242,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
     # Those put on a segment that sit, a rigid cluster of them, beyond the joint of a child no marker poses (a lower-
     # limb marker set's torso: hosts.beyond_joints): on that child, the others there with them or left out.
     tested = {m.label: m.segment for m in out if m.segment is not None and m.position is None and not m.hinge}
-    beyond = beyond_joints(model, used, tested) if tested else {}
+    beyond = beyond_joints(model, used, tested, cache=base_poses) if tested else {}
     out = [NewMarker(m.label, b.segment, b.place, b.reason(), past=b.segment or "") if (b := beyond.get(m.label))
            else m for m in out]
     return [_off_its_joint(model, m) for m in out]
