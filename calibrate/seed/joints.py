@@ -328,6 +328,12 @@ class _Framework:
         if len(pts) < 4:
             return self._fail(spec, f"JMV needs 4 or more points around the joint; {a} and {b} have {len(pts)}")
         X = np.stack([p.traj for p in pts], axis=1)
+        # jmv_frames places the joint only in frames that show 3 or more of the points: with too few such frames the
+        # multistart's grid search is not run for a seed refused anyway (BTKData's FunctionalWalk, no marker on the
+        # torso or head: the neck's search, 0.4 s, then "only 0 frames")
+        n = int((np.isfinite(X).all(axis=2).sum(axis=1) >= 3).sum())
+        if n < MIN_FRAMES:
+            return self._fail(spec, f"only {n} frames see 3 or more points around the joint; need {MIN_FRAMES}")
         ga = [p.traj for p in self.seg[a] if p.name != spec.name]
         gb = [p.traj for p in self.seg[b] if p.name != spec.name]
         # a hinge's JMV optimum is a whole line, so the global search for the one true point is skipped
