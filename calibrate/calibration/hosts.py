@@ -261,34 +261,23 @@ class BasePoses:
     Scratch for one association, as Pinocchio's Data is for its Model; a fit from a given start is not kept."""
 
     def __init__(self) -> None:
-        self._kinematics: dict[tuple, object] = {}
         self._fits: dict[tuple, object] = {}
 
-    @staticmethod
-    def _model_key(model: Model) -> tuple:
-        return (id(model.pin), tuple(model.marker_names), model.parameters().vector().tobytes())
-
-    def kinematics(self, model: Model):
-        """The model's calibrate.model.kinematics.Kinematics, built once."""
-        from ..model.kinematics import build_kinematics
-
-        key = self._model_key(model)
-        if key not in self._kinematics:
-            self._kinematics[key] = build_kinematics(model)
-        return self._kinematics[key]
-
     def fit(self, model: Model, trial: Trial, start: Motion | None = None):
-        """The model's fit to `trial`'s frames (an IKResult), from `start` (a motion of those frames) if given."""
+        """The model's fit to `trial`'s frames (an IKResult), from `start` (a motion of those frames) if given
+        (its kinematics from build_kinematics, which keeps each structure's)."""
+        from ..model.kinematics import build_kinematics
         from ..solve.ik import DECISION_TOLERANCE, inverse_kinematics
 
         if start is not None:
-            return inverse_kinematics(self.kinematics(model), trial, model.parameters(), tolerance=DECISION_TOLERANCE,
+            return inverse_kinematics(build_kinematics(model), trial, model.parameters(), tolerance=DECISION_TOLERANCE,
                                       start=start)
         known = set(model.marker_names)
-        key = (self._model_key(model), tuple(lab for lab in trial.labels if lab in known), trial.markers.shape,
+        key = (id(model.pin), tuple(model.marker_names), model.parameters().vector().tobytes(),
+               tuple(lab for lab in trial.labels if lab in known), trial.markers.shape,
                hashlib.blake2b(np.ascontiguousarray(trial.markers).tobytes(), digest_size=16).digest())
         if key not in self._fits:
-            self._fits[key] = inverse_kinematics(self.kinematics(model), trial, model.parameters(),
+            self._fits[key] = inverse_kinematics(build_kinematics(model), trial, model.parameters(),
                                                  tolerance=DECISION_TOLERANCE)
         return self._fits[key]
 
