@@ -571,7 +571,13 @@ def test_each_step_is_the_better_of_plain_and_bent_and_a_bend_that_does_not_pay_
     assert lm.BEND_TRIALS <= summary.bend_dropped < summary.iterations and summary.bent == 0
 
 
-def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
+@pytest.fixture(scope="module")
+def sta_squats(human):
+    """600 frames of squats under 3 mm of soft-tissue artefact, whose labels the two swap tests below exchange."""
+    return simulate_squats(human, frames=600, noise_mm=0.5, sta_mm=3.0, seed=2)
+
+
+def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human, sta_squats):
     """Soft-tissue squats with the right heel and toe labels exchanged for the whole trial: the calibration
     completes (a segment scale's prior-only variance came out a rounding below zero and its identifiability
     ratio raised ValueError) and its marker RMS shows the swap, many times the true labels' ~1 mm.  A segment
@@ -581,7 +587,7 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
     or more from the left in all five (IMPLAUSIBLE_ASYMMETRY) — so the size flag is checked on this calibration with
     the talus where those runs put it, the left/right flag with a talus at 0.7 of its partner, and the true labels
     must raise none."""
-    sim = simulate_squats(human, frames=600, noise_mm=0.5, sta_mm=3.0, seed=2)
+    sim = sta_squats
     labels = list(sim.trial.labels)
     i, j = labels.index("RHEE"), labels.index("RTOE")
     labels[i], labels[j] = labels[j], labels[i]
@@ -640,7 +646,7 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human):
     assert right.report()["implausible_flags"] == []
 
 
-def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
+def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human, sta_squats):
     """A knee and an ankle label exchanged for the whole trial pull the shank's scale towards zero; without
     SCALE_BOUNDS the positions stored unscaled in it grew to ~1e51 and the run either crashed (the covariance's
     eigenvalues did not converge) or stopped "converged" on the step tolerance relative to that |p|, its marker
@@ -649,11 +655,11 @@ def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
     from calibrate.calibration.evaluate import marker_rms
     from calibrate.model.blocks import SCALE_BOUNDS
 
-    sim = simulate_squats(human, frames=600, noise_mm=0.5, sta_mm=3.0, seed=2)
+    sim = sta_squats
     labels = list(sim.trial.labels)
     i, j = labels.index("RKNE"), labels.index("RANK")
     labels[i], labels[j] = labels[j], labels[i]
-    cal = calibrate(human, Trial(labels, sim.trial.markers[::8], sim.trial.rate / 8, 0, None))
+    cal = calibrate(human, Trial(labels, sim.trial.markers[::12], sim.trial.rate / 12, 0, None))
     scale = np.asarray(cal.params.scale)
     assert np.all((scale >= SCALE_BOUNDS[0]) & (scale <= SCALE_BOUNDS[1]))
     # The positions at the subject's scale (what the subject's model holds; the stored ones are divided by their
@@ -663,7 +669,8 @@ def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human):
     centre_scale = scale[[m.segment_index(j.parent) for j in m.joints]]
     assert np.all(np.abs(marker_scale[:, None] * cal.params.marker) < 1.0)  # metres
     assert np.all(np.abs(centre_scale[:, None] * cal.params.centre) < 1.0)
-    assert cal.marker_rms < 0.5 * marker_rms(cal.initial_residuals)  # 24-28 mm from 98.5 (was 262 from 101)
+    # 28.0 mm from 89.6 (seeds 3 and 4: 24.2 from 106, 27.4 from 108; was 262 from 101 unbounded)
+    assert cal.marker_rms < 0.5 * marker_rms(cal.initial_residuals)
     # ... and the label is named as one to check, in the summary and the report
     assert "RKNE" in {m.label for _, m in cal.misplaced}
     assert "check label  trial 1: RKNE moves with" in cal.text()
@@ -1099,14 +1106,14 @@ def test_trials_of_two_subjects_are_refused(human, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adult_walk.c3d", "child_static.c3d"]
 
 
-def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_path):
+def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, noisy, tmp_path):
     """A subject whose subtalar joints do not move, under Plug-in Gait's two-marker feet.  By default calibrate
     sees that each subtalar trades its turn with the ankle across the markerless talus and moved no more than one
     frame's markers fix it, so it locks the subtalar at 0 (the less-seen of the pair) and finds the ankle: the
     same answer as the user's own lock (as OpenSim users lock them), the ankle axes within 1 deg of the truth
     either way; the report and summary say what was locked and why.  With auto_hold off both stay free and the
     notes say what to do."""
-    sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=1)
+    sim, moving, _ = noisy  # the squats (300 frames, 1 mm, seed 1) and their calibration with the defaults
     trial, still = _held_still(human, human_kin, sim, ("subtalar_r", "subtalar_l"), seed=8)
     sub = [human.dof_index(d) for d in ("subtalar_r", "subtalar_l")]
     auto = calibrate(human, trial, Settings(), kinematics=human_kin)
@@ -1133,7 +1140,6 @@ def test_locked_coordinates_are_held_and_the_ankle_found(human, human_kin, tmp_p
     from calibrate.calibration import report_html
     assert "<li>locked: subtalar_r at 0 deg: its turn and ankle_r&#x27;s trade across talus_r" in report_html(rep)
     # The same subject with its subtalars turning (SD 8 deg over the squats): nothing locked, nothing held.
-    moving = calibrate(human, sim.trial, Settings(), kinematics=human_kin)
     assert moving.auto_locked == () and moving.held_axes == () and moving.settings.lock == ()
     # auto_hold off: both left free, and the notes say that these two did not move and what to do.
     free = calibrate(human, trial, Settings(auto_hold=False), kinematics=human_kin)

@@ -520,7 +520,7 @@ def test_the_program_ends_at_once_after_a_calibration_with_its_exit_handlers_run
     import sys
 
     human_path = Path(__file__).resolve().parents[1] / "models" / "human.urdf"
-    write_c3d(tmp_path / "t.c3d", simulate_squats(load_model(human_path), frames=90, noise_mm=1.0, seed=3).trial)
+    write_c3d(tmp_path / "t.c3d", simulate_squats(load_model(human_path), frames=40, noise_mm=1.0, seed=3).trial)
     prog = ("import atexit, sys; atexit.register(lambda: print('exit handler ran', flush=True)); "
             "from calibrate.cli.main import run; run()")
 
@@ -532,7 +532,7 @@ def test_the_program_ends_at_once_after_a_calibration_with_its_exit_handlers_run
     assert r.returncode == 0, r.stderr
     assert "wrote" in r.stdout and r.stdout.rstrip().endswith("exit handler ran")
     assert yourdfpy.URDF.load(str(tmp_path / "s.urdf"), load_meshes=False).robot.name
-    assert len(read_motion_csv(tmp_path / "t_motion.csv").times) == 90
+    assert len(read_motion_csv(tmp_path / "t_motion.csv").times) == 40
     bad = calibrate_cli(tmp_path / "missing.c3d", human_path, "-o", tmp_path / "x.urdf", "-q")
     assert bad.returncode == 2 and bad.stderr.startswith("calibrate: error:") and "exit handler ran" in bad.stdout
     # cProfile's own report comes after main() returns: under it the program must end as usual.

@@ -364,8 +364,16 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
     assert report_html(report).count("outside the pelvis, though the trials turn it through") == 2
 
 
+@pytest.fixture(scope="module")
+def walk60(human):
+    """The simulated 60-frame walk and its calibrations without and with Harrington's regression (hip_regression
+    False and True), which the "outside" and "auto" tests below both compare against."""
+    walk = simulate_gait(human, frames=60, noise_mm=1.0, seed=2).trial
+    plain, placed = (calibrate(human, [walk], Settings(outliers=0.0, hip_regression=h)) for h in (False, True))
+    return walk, plain, placed
 
-def test_hips_outside_the_pelvis_are_calibrated_again_by_the_regression_by_default(human, monkeypatch, capsys,
+
+def test_hips_outside_the_pelvis_are_calibrated_again_by_the_regression_by_default(human, walk60, monkeypatch, capsys,
                                                                                     tmp_path):
     """The default, hip_regression "outside": a simulated walk's hips, inside the pelvis, keep the calibration without
     the regression to the bit (the report says "outside"); with HIP_OUTSIDE set below their width over the ASIS
@@ -377,8 +385,7 @@ def test_hips_outside_the_pelvis_are_calibrated_again_by_the_regression_by_defau
     from calibrate.cli.main import main
 
     assert Settings().hip_regression == "outside"
-    walk = simulate_gait(human, frames=60, noise_mm=1.0, seed=2).trial
-    plain, placed = (calibrate(human, [walk], Settings(outliers=0.0, hip_regression=h)) for h in (False, True))
+    walk, plain, placed = walk60
     default = calibrate(human, [walk], Settings(outliers=0.0))
     assert not any(h.outside for h in plain.hip_motion) and default.hip_regression_auto == ""
     assert np.array_equal(default.params.vector(), plain.params.vector())
@@ -407,7 +414,7 @@ def test_hips_outside_the_pelvis_are_calibrated_again_by_the_regression_by_defau
     assert report["settings"]["hip_regression"] is False and report["hip_regression_auto"] == ""
 
 
-def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausible(human, tmp_path, monkeypatch,
+def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausible(human, walk60, tmp_path, monkeypatch,
                                                                                  capsys):
     """hip_regression "auto": a simulated walk's hips, not implausible (9-29 mm from Harrington's), keep the calibration
     without the regression to the bit, and the report says "auto"; with REGRESSION_FAR set below their distance (as
@@ -420,8 +427,7 @@ def test_hip_regression_auto_calibrates_again_only_where_the_hips_end_implausibl
     import calibrate.calibration.regression as regression
     from calibrate.cli.main import main
 
-    walk = simulate_gait(human, frames=60, noise_mm=1.0, seed=2).trial
-    plain, placed = (calibrate(human, [walk], Settings(outliers=0.0, hip_regression=h)) for h in (False, True))
+    walk, plain, placed = walk60
     auto = calibrate(human, [walk], Settings(outliers=0.0, hip_regression="auto"))
     assert not any(h.implausible for h in plain.hip_motion) and auto.hip_regression_auto == ""
     assert np.array_equal(auto.params.vector(), plain.params.vector())
