@@ -320,10 +320,11 @@ class _Framework:
                 names = {p.name for p in pts}
                 pts += [p for p in extra if p.name not in names]
                 side[s] = extra
-        if bare := [s for s in (a, b) if not any(not p.is_joint for p in side[s])]:
-            # Nothing the trial shows moves with that side (a lower-body trial's torso, and the arms beyond it): its
-            # points are the other side's and joint estimates made from them, which turn with it.  Per-frame JMV on
-            # them took 2.2 s of kineticstoolkit's lower-body walk (lumbar, neck, shoulders) for seeds then refused.
+        if bare := [s for s in (a, b) if not any(not p.is_joint and np.isfinite(p.traj).any() for p in side[s])]:
+            # Nothing the trial shows moves with that side (a lower-body trial's torso, and the arms beyond it, or its
+            # labels kept with no position): its points are the other side's and joint estimates made from them, which
+            # turn with it.  Per-frame JMV on them took 2.2 s of kineticstoolkit's lower-body walk (lumbar, neck,
+            # shoulders) for seeds then refused.
             return self._fail(spec, f"no marker the trial shows moves with {bare[0]} (nor beyond it)")
         if len(pts) < 4:
             return self._fail(spec, f"JMV needs 4 or more points around the joint; {a} and {b} have {len(pts)}")
