@@ -293,6 +293,29 @@ def test_a_hand_marker_or_a_late_tibia_marker_on_the_floor_is_taken(human):
         assert out.sum() == out[:, kk].sum()
 
 
+def test_a_heel_lying_elsewhere_leaves_its_toe_standing_in_a_stance(human):
+    """pig_walk's walk with LHEE put 7 mm above the lab's floor plane from frame 175 on, late in a stance of the left
+    foot (scripts/damage_values.py --ik's fallen kind, seed 112): every LHEE sample from there is taken, and of LTOE,
+    its segment's other marker, only the samples where its distance to LHEE leaves the rigid one it keeps while both
+    are on the foot (the windows before took LTOE from its stance's start, frame 106: 69 frames of it on its foot, and
+    `calibrate ik` then turned the left ankle 25 deg on the heel alone)."""
+    from calibrate.seed.seeding import fallen_samples
+
+    trial, _ = map_labels(read_trial(REAL / "walk.c3d"), human.marker_names)
+    trial = trial.select([lab for lab in trial.labels if lab in set(human.marker_names)])
+    X = np.array(trial.markers[:300])
+    heel, toe = trial.labels.index("LHEE"), trial.labels.index("LTOE")
+    X[175:, heel] = [X[175, heel, 0], X[175, heel, 1], 0.007]
+    out = fallen_samples(human, Trial(trial.labels, X, trial.rate))
+    h, t = human.marker_index("LHEE"), human.marker_index("LTOE")
+    assert out[175:, h].all() and not out[:175, h].any(), int(out[:, h].sum())
+    d = np.linalg.norm(X[:, toe] - X[:, heel], axis=1)
+    rigid = np.median(d[:175])
+    assert np.abs(d[:175] - rigid).max() < 0.010  # the foot's two markers 237 mm apart, within 7 mm, until the fall
+    assert not out[:175, t].any(), np.flatnonzero(out[:, t])
+    assert out.sum() == out[:, h].sum() + out[175:, t].sum()
+
+
 def test_jumps_are_left_out_of_the_solve_and_reported(human):
     """Eight frames of LELB and LUPA exchanged: the calibration leaves all 16 positions out before the
     start and reports them as outliers, each with its error at the fit close to the distance the swap

@@ -889,7 +889,41 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
                 out[a:b, k] = True
     for k in np.flatnonzero(out.any(axis=0)):
         out[:, k] = _grown(out[:, k], X[:, k])
-    return out
+    return _on_their_segment(out, X, seg, width)
+
+
+def _on_their_segment(out: np.ndarray, X: np.ndarray, seg: list[str], width: int) -> np.ndarray:
+    """`out` less the samples at each end of a flagged stretch where the marker keeps its distance to every other
+    marker of its segment, as it has in the frames where neither is flagged (within FALLEN_STILL, or the pair's own
+    scatter there): there its segment carries it.  A window judges a marker by its mates' travel over the whole
+    window, so a toe standing through a stance was taken from the stance's start for its heel lying elsewhere from the
+    stance's end (pig_walk's LTOE: 69 frames of the rigid 237 mm to LHEE left out, the left ankle then turned 25 deg on
+    the heel alone).  Inside a stretch a fallen marker's one distance can pass through its rigid value as its mate
+    swings by (a tibia's two markers): only the ends that hold it from the stretch's edge are kept."""
+    kept = out.copy()
+    seen = np.all(np.isfinite(X), axis=2)
+    for k in np.flatnonzero(out.any(axis=0)):
+        rigid, judged = np.ones(out.shape[0], dtype=bool), False
+        for m in (m for m in range(X.shape[1]) if m != k and seg[m] == seg[k]):
+            both = seen[:, k] & seen[:, m] & ~out[:, k] & ~out[:, m]
+            if both.sum() < width:  # too few frames to know the pair's distance
+                continue
+            d = np.linalg.norm(X[:, k] - X[:, m], axis=1)
+            ref = float(np.median(d[both]))
+            tol = max(FALLEN_STILL, float(np.percentile(np.abs(d[both] - ref), 99)))
+            with np.errstate(invalid="ignore"):
+                rigid &= np.abs(d - ref) <= tol  # False where either is unseen
+            judged = True
+        if not judged:
+            continue
+        for a, b in _runs(out[:, k]):
+            f = a
+            while f < b and rigid[f]:
+                kept[f, k], f = False, f + 1
+            f = b - 1
+            while f >= a and rigid[f]:
+                kept[f, k], f = False, f - 1
+    return kept
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
