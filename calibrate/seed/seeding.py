@@ -801,7 +801,8 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     but their mean places stay).  A knee marker lying on the floor from half-way through a walk otherwise pulled the
     left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm).  Windows overlap: a tibia marker fallen
     late in a walk lies there through blocks that each hold a stance, where its segment's ankle marker stands still
-    (knee_l 101 mm off)."""
+    (knee_l 101 mm off).  A stretch so taken gives back, at its ends, the samples where the marker keeps its rigid
+    distances to its segment's other markers (_on_their_segment: a toe standing beside a heel that fell)."""
     X = marker_columns(model, trial)
     F, M, _ = X.shape
     out = np.zeros((F, M), dtype=bool)
