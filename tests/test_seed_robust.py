@@ -360,7 +360,7 @@ def test_a_marker_fallen_off_is_left_out_where_it_lies(human, squats, clean_squa
     moving = np.linalg.norm(t.markers[:, j] - t.markers[0, j], axis=1) > 0.05  # where the true RFRM is 50 mm away
     assert stuck[:, human.marker_index("RFRM")][moving].mean() > 0.9
     assert stuck.sum() == stuck[:, human.marker_index("RFRM")].sum()
-    clean = clean_squats  # calibrate(human, t)
+    clean = clean_squats  # the undamaged trial's calibration (the module's fixture)
     cal = calibrate(human, fell)
     assert sum(o.marker == "RKNE" and o.frame >= 150 for o in cal.outliers) >= 140
     assert cal.marker_rms < 1.2 * clean.marker_rms
