@@ -37,6 +37,7 @@ from calibrate.io.read import read_trial
 from calibrate.model.blocks import FrameLayout
 from calibrate.model.kinematics import build_kinematics
 from calibrate.model.model import load_model
+from calibrate.problem import gauge
 from calibrate.problem.options import Priors
 from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
@@ -132,8 +133,12 @@ def main() -> None:
                     "arm's centres against Plug-in Gait's own")
     ap.add_argument("--no-feet", action="store_true", help="every session without its heel and toe markers (implies "
                     "--used)")
+    ap.add_argument("--slide-with-markers", action="store_true",
+                    help="the hinges' slides along their axes pulled by their child's markers' priors too, as before "
+                         "2026-12-07 (calibrate.problem.gauge.SLIDE_WITHOUT_MARKERS off)")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
+    gauge.SLIDE_WITHOUT_MARKERS = not args.slide_with_markers
     model = load_model(MODEL)
     sim = simulated(model, args.simulated) if args.simulated else None
     if sim is not None:
@@ -181,7 +186,9 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%dT%H:%M:%S"), "machine": platform.machine(),
                                          "python": platform.python_version(), "model": str(MODEL),
-                                         "used": used, "no_feet": args.no_feet, "sessions": results, "summary": summary,
+                                         "used": used, "no_feet": args.no_feet,
+                                         "slide_with_markers": args.slide_with_markers,
+                                         "sessions": results, "summary": summary,
                                          "simulated": sim},
                                         indent=1, default=float))
 

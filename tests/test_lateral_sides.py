@@ -36,8 +36,8 @@ def test_a_lateral_marker_across_its_joint_is_flagged(human):
     """LKNE's positions mirrored across the knee (through the true centre, normal to the true axis: the medial
     epicondyle labelled as the lateral one), and LANK's across the ankle.  By default no width is measured, so the
     population's (Priors.population_width) holds each lateral marker about the base model's distance from its centre:
-    the mirrored one ends POPULATION_FAR SDs or more from it and is flagged (knee 5.5, ankle 2.9 SDs; the pull of the
-    mirrored knee carries the ankle below 3.2 SDs off, flagged too), the true labels' within 1.1.  With that prior off,
+    the mirrored one ends POPULATION_FAR SDs or more from it and is flagged (knee 3.1, ankle 3.0 SDs; the pull of the
+    mirrored knee carries the ankle below 3.6 SDs off, flagged too), the true labels' within 0.8.  With that prior off,
     each ends medial of the calibrated centre and is flagged so (knee -36, ankle -20 mm), the ankle's line naming the
     subtalar it trades with across the markerless talus."""
     sim = simulate_squats(human, frames=300, noise_mm=1.0, seed=2)

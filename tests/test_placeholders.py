@@ -83,7 +83,7 @@ def test_placeholder_markers_are_placed_by_the_data_and_do_not_size_their_segmen
         held = calibrate(base, sim.trial, Settings(priors=Priors(placeholder=Priors().marker)))
         assert held.params.scale[femur] / true_scale < 0.9  # the old behaviour, for contrast
         knee = next(c for c in held.changes if c.group == "centre" and c.item == "knee_l")
-        assert knee.unreliable and knee.beyond_scale > 40.0
+        assert knee.beyond_scale > 40.0  # (59 mm; along its axis the knee's width places it: not `unreliable` there)
 
 
 def test_inspect_lists_placeholder_markers_and_a_bad_prior_is_one_line(tmp_path, capsys):

@@ -65,6 +65,35 @@ def test_the_population_rows_match_their_distances_and_differences_and_the_slide
     np.testing.assert_allclose(problem.kin.batch(Z, Q, slid)[0], problem.kin.batch(Z, Q, p)[0], atol=1e-12)
 
 
+def test_a_hinge_a_width_places_is_not_pulled_by_its_child_markers_priors(human):
+    """Where a width places a hinge (here the population's), where the base model puts the markers riding on its child
+    does not move it along its axis (gauge.SLIDE_WITHOUT_MARKERS): LTIB's prior moved 30 mm along the left knee's axis
+    leaves every slid centre where it was; without the width rows the same move pulls the knee along (the markers'
+    priors are then all that places it)."""
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
+    obs = marker_columns(human, sim.trial)
+    kin = build_kinematics(human)
+    problem = Problem(human, obs, Settings(), kin)
+    rng = np.random.default_rng(5)
+    p = problem.retract_parameters(sim.truth.vector(), 0.03 * rng.normal(size=problem.n_free))
+    knee = human.joint_index("knee_l")
+    axis = problem.layout.axis_direction(p, human.dof_index(human.joints[knee].dofs[0]))  # in the tibia's frame
+    base = human.parameters()
+    k = human.marker_index("LTIB")
+    assert human.markers[k].segment == "tibia_l"
+    marker = base.marker.copy()
+    marker[k] += 0.03 * axis
+    moved = Problem(human, obs, Settings(), kin, base=replace(base, marker=marker))
+    joints = [j for j, _ in PAIRS]
+    centre = human.unpack(p).centre  # (only the free parts of p slide; compare the centres the slides give)
+    placed = [human.unpack(x.slide_centres(p, joints)).centre for x in (problem, moved)]
+    np.testing.assert_allclose(placed[1], placed[0], atol=1e-12)
+    assert np.abs(placed[0] - centre).max() > 1e-3  # (the slide did move the centres)
+    free = [human.unpack(x.slide_centres(p)).centre for x in (problem, moved)]
+    shift = float((free[1][knee] - free[0][knee]) @ (problem._urdf[human.joints[knee].urdf_joints[0]].rotation @ axis))
+    assert abs(shift) > 1e-3, shift
+
+
 def test_which_hinges_take_the_population_width(human):
     """Knees and ankles whose lateral marker the trial shows and whose width no one gave; in statics alone the elbows
     too; a measured one keeps its measurement; SD 0 takes none."""

@@ -765,10 +765,11 @@ def pair_centre_table(cal: Calibration) -> list[dict]:
 
 
 #: A lateral marker held by the population's width (Calibration.population_widths) that ends more than this many
-#: Priors.population_width SDs from the population's distance is flagged: the segment's other markers and centres pull
-#: its hinge centre along the axis against anatomy.  A simulated subject's medial epicondyle labelled as the lateral one
-#: ends 5.5 SDs off, its medial malleolus 2.9 (tests/test_lateral_sides.py), the true labels within 1.1; the public
-#: files' knees and ankles 0.0-4.1, 39 of 46 within 1.6 (docs/benchmarks.md).
+#: Priors.population_width SDs from the population's distance is flagged: the centres' priors hold its hinge centre
+#: along the axis against the marker, as where the label names another point.  A simulated subject's medial epicondyle
+#: labelled as the lateral one ends 3.1 SDs off, its medial malleolus 3.0 (tests/test_lateral_sides.py), the true labels
+#: within 0.8; the public files' knees and ankles all within it since the slide leaves out the child's markers
+#: (docs/benchmarks.md).
 POPULATION_FAR = 2.5
 
 
@@ -810,7 +811,7 @@ def _population_far_lines(cal: Calibration) -> list[str]:
     return [f"{IMPLAUSIBLE}{r['joint']}: {r['marker']} ends {r['calibrated_mm']:.0f} mm from the centre along the "
             f"axis where the population's width puts it {r['prior_mm']:.0f} ({r['prior_sds']:.1f} SDs; no width "
             "measured): "
-            "the segment's other markers and the centres below hold the centre there, as when the label names the "
+            "the centres' priors hold the centre there, as when the label names the "
             "medial epicondyle or malleolus, or another point (check it; --markers map.toml maps it)"
             for r in population_width_table(cal) if r["far"] and r["joint"] not in medial]
 
