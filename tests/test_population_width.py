@@ -85,7 +85,7 @@ def test_a_hinge_a_width_places_is_not_pulled_by_its_child_markers_priors(human)
     marker[k] += 0.03 * axis
     moved = Problem(human, obs, Settings(), kin, base=replace(base, marker=marker))
     joints = [j for j, _ in PAIRS]
-    centre = human.unpack(p).centre  # (only the free parts of p slide; compare the centres the slides give)
+    centre = human.unpack(p).centre  # before any slide
     placed = [human.unpack(x.slide_centres(p, joints)).centre for x in (problem, moved)]
     np.testing.assert_allclose(placed[1], placed[0], atol=1e-12)
     assert np.abs(placed[0] - centre).max() > 1e-3  # (the slide did move the centres)
