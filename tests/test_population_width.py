@@ -94,6 +94,34 @@ def test_a_hinge_a_width_places_is_not_pulled_by_its_child_markers_priors(human)
     assert abs(shift) > 1e-3, shift
 
 
+def test_a_marker_whose_place_along_the_axis_a_width_sets_is_not_called_unreliable(human):
+    """LTIB 80 mm from its prior along the left knee's axis, the one direction its posterior leaves open (the
+    prior's SD there): where a width places the knee (Problem.width_placed), that place follows the width, so it is no
+    trade the data leave open and LTIB is not called unreliable (its note says why); where none does, it is."""
+    from calibrate.calibration.identifiability import parameter_changes
+
+    sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
+    problem = Problem(human, marker_columns(human, sim.trial), Settings(), build_kinematics(human))
+    knee = human.joint_index("knee_l")
+    dof = human.dof_index(human.joints[knee].dofs[0])
+    k = human.marker_index("LTIB")
+    p = problem.base.vector().copy()
+    a = problem.axis_direction(p, dof)  # the knee's axis in the tibia's frame
+    scale = p[problem.layout.scale(human.segment_index("tibia_l"))]
+    p[problem.layout.marker(k)] += 0.08 * a / scale  # 80 mm at the segment's scale
+    sd = problem.marker_sd()[k]
+    prior_cov = np.eye(problem.n_free) * sd**2
+    cov = prior_cov * 1e-4  # the trial places everything ...
+    c = problem.layout.cols("marker", k)
+    cov[np.ix_(c, c)] = sd**2 * np.outer(a, a) + 1e-4 * sd**2 * np.eye(3)  # ... but LTIB along the knee's axis
+    judged = {placed: next(x for x in parameter_changes(problem, p, cov, prior_cov, placed)
+                           if x.group == "marker" and x.item == "LTIB") for placed in ((), (knee,))}
+    assert judged[()].unreliable and "80 mm from where its prior puts it" in judged[()].note, judged[()]
+    placed = judged[(knee,)]
+    assert not placed.unreliable and "along knee_l's axis its place follows where the width puts" in placed.note
+    assert placed.beyond_scale == pytest.approx(80.0, abs=1e-6)
+
+
 def test_which_hinges_take_the_population_width(human):
     """Knees and ankles whose lateral marker the trial shows and whose width no one gave; in statics alone the elbows
     too; a measured one keeps its measurement; SD 0 takes none."""

@@ -4,7 +4,7 @@ the trial does not show moving or drives past their limits."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 from functools import partial
 
@@ -284,17 +284,25 @@ def open_directions(C: np.ndarray, C0: np.ndarray, limit: float = IDENTIFIED) ->
     return np.linalg.qr(dirs)[0] if dirs.shape[1] else dirs
 
 
-def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray) -> list[ParameterChange]:
+def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_cov: np.ndarray,
+                      placed: Sequence[int] = ()) -> list[ParameterChange]:
     """Per joint centre, hinge axis, marker and scale: change from the base model, posterior std,
     and whether the trial identified it: in its worst direction, the posterior std must be below
     IDENTIFIED times the std the priors alone would leave (else the prior holds it).  `cov` and
-    `prior_cov` are over the free columns, each block's found from the problem's layout."""
+    `prior_cov` are over the free columns, each block's found from the problem's layout.  `placed`: the hinges a
+    width placed along their axes (Problem.width_placed): where their child's markers sit along the axis follows the
+    width, not a trade, so a marker's distance from its prior is judged in the rest of what the trial leaves open."""
     model = problem.model
     P = model.unpack(p)
     B = problem.base
     L = problem.layout
     out: list[ParameterChange] = []
     seg_scale = P.scale
+    width_axes: dict[str, list[tuple[str, np.ndarray]]] = {}  # child segment -> (hinge, its axis in that frame)
+    for ji in placed:
+        j = model.joints[ji]
+        a = problem.axis_direction(p, model.dof_index(j.dofs[0]))
+        width_axes.setdefault(j.child, []).append((j.name, a / np.linalg.norm(a)))
 
     # A segment without markers (the talus) is seen only through its neighbours: its two joints trade
     # off along a curved valley that the linearised posterior SD understates (on squats the subtalar
@@ -368,7 +376,20 @@ def parameter_changes(problem: Problem, p: np.ndarray, cov: np.ndarray, prior_co
         # A marker the trial places but for some directions: how far its prior failed to hold it is read in those
         # directions (pig_walk's tibia wands sit 120-130 mm higher than the base model's, the lab's wand height, which
         # the walk fixes to 3 mm; around the shank, the direction left open, 44 and 65 mm).
+        followed = []
+        if open_dir is not None and group == "marker":
+            for hinge, a in width_axes.get(owner, []):  # along a width-placed hinge's axis the width sets it
+                w = open_dir.T @ a  # the axis in the open directions' coordinates
+                if float(np.linalg.norm(w)) < 0.5:  # (the trial fixes the marker along that axis: nothing to take)
+                    continue
+                followed.append(hinge)
+                rest = np.linalg.svd(w[None, :])[2][1:]  # the open directions' complement of the axis within them
+                open_dir = open_dir @ rest.T
         along = None if open_dir is None else float(np.linalg.norm(open_dir.T @ gap))
+        if followed and open_dir is not None and open_dir.shape[1] == 0:
+            change = replace(change, note=change.note.removesuffix(": held by the prior")
+                             + f": along {' and '.join(followed)}'s axis its place follows where the width puts "
+                               f"{'that hinge' if len(followed) == 1 else 'those hinges'}")
         if group == "centre" and i in tied and change.status in (Identified.YES, Identified.ACROSS_AXIS):
             if off / sd > FAR_FROM_PRIOR:  # where the lab's (or the regression's) marker puts it: not a trade
                 note = (f"placed by its joint-centre marker {', '.join(tied[i])} ({1000 * off:.0f} mm from the base "

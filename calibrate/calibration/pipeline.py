@@ -955,6 +955,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # Where no one measured a knee's or ankle's width, the population's: the base model's lateral marker distance.
     population = population_widths(problem, _statics_alone(members, trials, motion if len(trials) > 1 else None))
     slid = replace(state, p=problem.slide_centres(state.p, population))
+    by_width = problem.width_placed(slid.p, population)  # their child's markers' places along the axis follow the width
     # The report lists with them the knees and ankles the slide cannot move (their child held: no foot markers) that
     # the solve placed by the population's width (Problem.unslid_width_terms).
     population += tuple(problem.model.joints[ji].name for ji, *_, per, _ in problem.unslid_width_terms() if per > 0)
@@ -968,7 +969,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     t0 = time.perf_counter()
     cov = covariance(problem, state, progress=Countdown(say, "covariance", "the parameters' posterior covariance"))
     params = subject.unpack(state.p)
-    changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only)
+    changes = parameter_changes(problem, state.p, cov.matrix, cov.prior_only, by_width)
     length_sd = length_differences(problem, state.p, cov.matrix, cov.prior_only)
     mirror_sd = mirror_differences(problem, state.p, cov.matrix, cov.prior_only)
     Z, Q = absolute(problem.kin, state, spans)

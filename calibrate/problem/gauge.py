@@ -188,6 +188,42 @@ class GaugeMixin:
         by the population's width, 11.2 without; with the widths used, 32 hinges 4.5 mm, 2.0 without
         (docs/benchmarks.md).  A hinge no width places keeps them: the child's markers and the
         parent's frame are then all that places it."""
+        G, slid = self._slide_columns(p)
+        if not slid:
+            return p.copy()
+        r, Jr = self.prior(p)
+        rw, Jw = self.lateral_residuals(p)  # the lab's measured joint widths, where it gave them
+        rm, Jm = self.pair_centre_residuals(p)  # a straddled hinge's centre at its two markers' midpoint
+        rq, Jq = self.population_lateral_residuals(p, population)  # the population's widths, where none was measured
+        widths = np.vstack([Jw, Jm, Jq])
+        if SLIDE_WITHOUT_MARKERS:
+            # A hinge that a width places (any of the three) is placed without its child's markers' priors: their
+            # rows leave the slide's objective (the slide still carries those markers, as it must to move none).
+            riders = self._riders(self._placed(G, slid, widths))
+            if riders.size:
+                keep = ~np.any(Jr[:, riders] != 0.0, axis=1)
+                r, Jr = r[keep], Jr[keep]
+        r, Jr = np.concatenate([r, rw, rm, rq]), np.vstack([Jr, widths])
+        M = Jr @ G
+        t = np.linalg.lstsq(M, -r, rcond=None)[0]
+        return self.retract_parameters(p, G @ t)
+
+    def width_placed(self, p: np.ndarray, population: Sequence[str] = ()) -> list[int]:
+        """The hinges (joint indices) that a width places along their axes in slide_centres at `p`: a measured width,
+        two markers straddling the hinge, or the population's width for the joints named in `population`; their
+        child's markers' places along the axis follow the width, not those markers' priors (SLIDE_WITHOUT_MARKERS)."""
+        if not SLIDE_WITHOUT_MARKERS:
+            return []
+        G, slid = self._slide_columns(p)
+        if not slid:
+            return []
+        widths = np.vstack([self.lateral_residuals(p)[1], self.pair_centre_residuals(p)[1],
+                            self.population_lateral_residuals(p, population)[1]])
+        return self._placed(G, slid, widths)
+
+    def _slide_columns(self, p: np.ndarray) -> tuple[np.ndarray, list[int]]:
+        """Each slid hinge's slide direction in the free parameters (columns of G: its centre along the axis in
+        the parent's frame, its child's markers and joint centres back along it in the child's), and the hinges."""
         m, L = self.model, self.layout
         cols, slid = [], []
         for ji in self._slides:
@@ -210,29 +246,23 @@ class GaugeMixin:
                     g[kc] = -a
             cols.append(g)
             slid.append(ji)
-        if not cols:
-            return p.copy()
-        G = np.array(cols).T
-        r, Jr = self.prior(p)
-        rw, Jw = self.lateral_residuals(p)  # the lab's measured joint widths, where it gave them
-        rm, Jm = self.pair_centre_residuals(p)  # a straddled hinge's centre at its two markers' midpoint
-        rq, Jq = self.population_lateral_residuals(p, population)  # the population's widths, where none was measured
-        widths = np.vstack([Jw, Jm, Jq])
-        if SLIDE_WITHOUT_MARKERS and widths.size:
-            # A hinge that a width places (any of the three) is placed without its child's markers' priors: their
-            # rows leave the slide's objective (the slide still carries those markers, as it must to move none).
-            seen = np.abs(widths @ G).max(axis=0)
-            placed = [ji for ji, s in zip(slid, seen, strict=True) if s > 1e-9 * seen.max()]  # (the ankle's width,
-            # which the knee's slide carries unchanged, reads 0 on the knee's column)
-            riders = [L.cols("marker", k) for ji in placed
-                      for k in np.flatnonzero(self.marker_segment == m.segment_index(m.joints[ji].child))]
-            if riders:
-                keep = ~np.any(Jr[:, np.concatenate(riders)] != 0.0, axis=1)
-                r, Jr = r[keep], Jr[keep]
-        r, Jr = np.concatenate([r, rw, rm, rq]), np.vstack([Jr, widths])
-        M = Jr @ G
-        t = np.linalg.lstsq(M, -r, rcond=None)[0]
-        return self.retract_parameters(p, G @ t)
+        return (np.array(cols).T if cols else np.zeros((self.n_free, 0))), slid
+
+    @staticmethod
+    def _placed(G: np.ndarray, slid: list[int], widths: np.ndarray) -> list[int]:
+        """The hinges of `slid` whose slide (G's columns) moves a width row (`widths`, their Jacobian)."""
+        if not widths.size or not slid:
+            return []
+        seen = np.abs(widths @ G).max(axis=0)
+        # (the ankle's width, which the knee's slide carries unchanged, reads 0 on the knee's column)
+        return [ji for ji, s in zip(slid, seen, strict=True) if s > 1e-9 * seen.max()]
+
+    def _riders(self, hinges: Sequence[int]) -> np.ndarray:
+        """The free columns of the markers riding on the child segments of `hinges`."""
+        m, L = self.model, self.layout
+        cols = [L.cols("marker", k) for ji in hinges
+                for k in np.flatnonzero(self.marker_segment == m.segment_index(m.joints[ji].child))]
+        return np.concatenate(cols) if cols else np.zeros(0, dtype=int)
 
     def neutral_gauges(self) -> list[tuple[int, str]]:
         """The segment frames that a neutral trial may turn (neutral_frames): the gauges, held axes
