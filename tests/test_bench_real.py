@@ -61,7 +61,7 @@ def test_truth_errors_from_the_files_equal_compare_to_truth(written):
 def test_lateral_distances_from_the_files_equal_the_reports(written):
     """The lateral markers' distances from the joint centres along the hinge axes, recomputed with Pinocchio from
     the subject URDF against the widths read with ezc3d, equal the report's; every width used (the elbows' too,
-    beside a movement trial: io.measurements.MEASURED_WIDTH_JOINTS)."""
+    beside a movement trial: io.measurements.WIDTH_JOINTS)."""
     _, cal, d = written
     report = json.loads((d / "report.json").read_text())
     ours = bench_real.lateral_figures(bench_real.UrdfKinematics(d / "subject.urdf"), d / "trial.c3d", report)

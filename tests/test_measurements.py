@@ -64,15 +64,16 @@ def test_inspect_lists_the_measurements(tmp_path, human, capsys):
 
 
 def test_lateral_markers_from_the_knee_ankle_and_elbow_widths(human):
-    """Knees, ankles and elbows (MEASURED_WIDTH_JOINTS); the wrist has no lateral marker.  The population's width
-    beside a movement trial takes the knees and ankles alone (WIDTH_JOINTS)."""
+    """Knees, ankles and elbows (WIDTH_JOINTS, the measured widths' and the population's); the wrist has no lateral
+    marker.  A subset of the joints takes those alone."""
     m = SubjectMeasurements(widths={"knee_l": 0.10, "ankle_r": 0.07, "elbow_l": 0.06, "wrist_l": 0.05})
     r = DEFAULT_MARKER_DIAMETER / 2
     assert lateral_markers(human, m) == (("knee_l", "LKNE", pytest.approx(0.05 + r)),
                                           ("ankle_r", "RANK", pytest.approx(0.035 + r)),
                                           ("elbow_l", "LELB", pytest.approx(0.03 + r)))
-    assert lateral_markers(human, m, WIDTH_JOINTS) == (("knee_l", "LKNE", pytest.approx(0.05 + r)),
-                                                        ("ankle_r", "RANK", pytest.approx(0.035 + r)))
+    assert lateral_markers(human, m) == lateral_markers(human, m, WIDTH_JOINTS)
+    assert lateral_markers(human, m, ("knee", "ankle")) == (("knee_l", "LKNE", pytest.approx(0.05 + r)),
+                                                             ("ankle_r", "RANK", pytest.approx(0.035 + r)))
 
 
 def test_a_static_alone_places_the_elbows_by_their_widths_too(human):

@@ -21,7 +21,8 @@ from calibrate.problem.settings import Settings
 from calibrate.simulation.simulate import simulate_squats
 from calibrate.solve.ik import marker_columns
 
-PAIRS = [("knee_l", "LKNE"), ("knee_r", "RKNE"), ("ankle_l", "LANK"), ("ankle_r", "RANK")]
+PAIRS = [("knee_l", "LKNE"), ("knee_r", "RKNE"), ("ankle_l", "LANK"), ("ankle_r", "RANK"), ("elbow_l", "LELB"),
+         ("elbow_r", "RELB")]
 
 
 def _prior_distance(model, params, joint: str, marker: str) -> float:
@@ -57,7 +58,7 @@ def test_the_population_rows_match_their_distances_and_differences_and_the_slide
     assert off.population_lateral_residuals(p, joints)[0].size == 0
     assert problem.population_lateral_residuals(p, [])[0].size == 0
     # The slide takes them in (the hinges' slides are found together, so it is their sum of squares that falls: here
-    # 142 -> 18), and the model's markers stay where they were in the world.
+    # 223 -> 36), and the model's markers stay where they were in the world.
     slid, plain = problem.slide_centres(p, joints), problem.slide_centres(p)
     after, before = (problem.population_lateral_residuals(x, joints)[0] for x in (slid, plain))
     assert after @ after < 0.5 * (before @ before), (after, before)
@@ -123,32 +124,33 @@ def test_a_marker_whose_place_along_the_axis_a_width_sets_is_not_called_unreliab
 
 
 def test_which_hinges_take_the_population_width(human):
-    """Knees and ankles whose lateral marker the trial shows and whose width no one gave; in statics alone the elbows
-    too; a measured one keeps its measurement; SD 0 takes none."""
+    """Knees, ankles and elbows whose lateral marker the trial shows and whose width no one gave; a measured one keeps
+    its measurement; SD 0 takes none."""
     sim = simulate_squats(human, frames=3, noise_mm=1.0, seed=5)
 
-    def chosen(settings: Settings, trial=sim.trial, alone: bool = False) -> tuple[str, ...]:
-        return population_widths(Problem(human, marker_columns(human, trial), settings, build_kinematics(human)), alone)
+    def chosen(settings: Settings, trial=sim.trial) -> tuple[str, ...]:
+        return population_widths(Problem(human, marker_columns(human, trial), settings, build_kinematics(human)))
 
-    assert chosen(Settings()) == ("knee_l", "knee_r", "ankle_l", "ankle_r")
-    assert chosen(Settings(), alone=True) == ("knee_l", "knee_r", "ankle_l", "ankle_r", "elbow_l", "elbow_r")
-    assert chosen(Settings(lateral_markers=(("knee_r", "RKNE", 0.06),))) == ("knee_l", "ankle_l", "ankle_r")
+    assert chosen(Settings()) == ("knee_l", "knee_r", "ankle_l", "ankle_r", "elbow_l", "elbow_r")
+    assert chosen(Settings(lateral_markers=(("knee_r", "RKNE", 0.06),))) == ("knee_l", "ankle_l", "ankle_r", "elbow_l",
+                                                                            "elbow_r")
     assert chosen(Settings(priors=Priors(population_width=0.0))) == ()
     hidden = sim.trial.markers.copy()
     hidden[:, sim.trial.labels.index("LANK")] = np.nan  # a lateral marker no frame shows places nothing
-    assert chosen(Settings(), trial=replace(sim.trial, markers=hidden)) == ("knee_l", "knee_r", "ankle_r")
+    assert chosen(Settings(), trial=replace(sim.trial, markers=hidden)) == ("knee_l", "knee_r", "ankle_r", "elbow_l",
+                                                                              "elbow_r")
 
 
-def test_a_calibration_without_widths_slides_the_knees_and_ankles_and_moves_no_marker(human, tmp_path):
-    """Simulated squats, no width measured: the knees and ankles take the population's width, their lateral markers
-    ending nearer the base model's distances at the segment's scale than with the prior off (their sum of squares:
-    the slides are found together); every marker of the
-    written subject, posed by Pinocchio at every frame, where the calibration without the prior puts it (a change of
-    gauge: the same fit); the summary and the report say which and how far."""
+def test_a_calibration_without_widths_slides_the_knees_ankles_and_elbows_and_moves_no_marker(human, tmp_path):
+    """Simulated squats, no width measured: the knees, ankles and elbows take the population's width, their lateral
+    markers ending nearer the base model's distances at the segment's scale than with the prior off (their sum of
+    squares: the slides are found together); every marker of the written subject, posed by Pinocchio at every frame,
+    where the calibration without the prior puts it (a change of gauge: the same fit); the summary and the report say
+    which and how far."""
     sim = simulate_squats(human, frames=100, noise_mm=1.0, seed=3)
     on = calibrate(human, sim.trial, Settings(outliers=0.0))
     off = calibrate(human, sim.trial, Settings(outliers=0.0, priors=Priors(population_width=0.0)))
-    assert on.population_widths == ("knee_l", "knee_r", "ankle_l", "ankle_r") and off.population_widths == ()
+    assert on.population_widths == tuple(j for j, _ in PAIRS) and off.population_widths == ()
     base = human.parameters()
     gap = {name: np.array([lateral_distance(human, cal.params, base, j, mk) - _prior_distance(human, cal.params, j, mk)
                            for j, mk in PAIRS]) for name, cal in (("on", on), ("off", off))}
@@ -161,5 +163,5 @@ def test_a_calibration_without_widths_slides_the_knees_and_ankles_and_moves_no_m
     for r, (j, mk) in zip(rows, PAIRS, strict=True):
         assert r["calibrated_mm"] == pytest.approx(1000 * lateral_distance(human, on.params, base, j, mk))
         assert r["prior_mm"] == pytest.approx(1000 * _prior_distance(human, on.params, j, mk))
-    assert "widths       none measured: LKNE, RKNE, LANK, RANK" in summary_text(on)
+    assert "widths       none measured: LKNE, RKNE, LANK, RANK, LELB, RELB" in summary_text(on)
     assert calibration_report(off)["population_widths"] == [] and "widths       none" not in summary_text(off)

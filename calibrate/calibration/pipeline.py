@@ -109,8 +109,6 @@ from calibrate.seed.seeding import (
 from ..errors import CalibrateError
 from ..io.labels import UNLABELLED, declared_segments, plug_in_gait_name
 from ..io.measurements import (
-    MEASURED_WIDTH_JOINTS,
-    STILL_WIDTH_JOINTS,
     WIDTH_JOINTS,
     SubjectMeasurements,
     first_measurements,
@@ -319,7 +317,7 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
     if mass is None and measured is not None and measured.mass is not None:
         mass, mass_from = measured.mass, measured.source or "the trial's subject measurements"
     if not settings.lateral_markers and measured is not None:
-        # The knees', ankles' and elbows' (MEASURED_WIDTH_JOINTS), beside movement trials and in statics alone.
+        # The knees', ankles' and elbows' (WIDTH_JOINTS), beside movement trials and in statics alone.
         settings = replace(settings, lateral_markers=lateral_markers(model, measured))
     with threadpool_limits(limits=1, user_api="blas"), no_huge_pages():
         cal = _calibrate(model, trials, settings, kinematics, progress, neutral, pose, declared)
@@ -335,23 +333,22 @@ def calibrate(model: Model, trials: Trial | Sequence[Trial], settings: Settings 
 STILL_COARSE_FRAMES = 24
 
 
-def population_widths(problem: Problem, statics_alone: bool) -> tuple[str, ...]:
-    """The hinges Problem.slide_centres places by the population's width (Priors.population_width): each knee and
-    ankle (WIDTH_JOINTS; in statics alone the elbows too, STILL_WIDTH_JOINTS) that it slides, whose Plug-in Gait
-    lateral marker the trials show, whose measured width does not place it (Settings.lateral_markers, unless
-    Priors.width is 0) and which no two markers straddling it place (Problem.pair_terms)."""
+def population_widths(problem: Problem) -> tuple[str, ...]:
+    """The hinges Problem.slide_centres places by the population's width (Priors.population_width): each knee, ankle
+    and elbow (WIDTH_JOINTS) that it slides, whose Plug-in Gait lateral marker the trials show, whose measured width
+    does not place it (Settings.lateral_markers, unless Priors.width is 0) and which no two markers straddling it
+    place (Problem.pair_terms)."""
     m, st = problem.model, problem.settings
     if st.priors.population_width <= 0:
         return ()
     measured = {j for j, _, _ in st.lateral_markers} if st.priors.width > 0 else set()  # (width 0: not used)
     taken = measured | {m.joints[ji].name for ji, *_ in problem.pair_terms()}
     slid = {m.joints[ji].name for ji in problem.slid_hinges()}
-    joints = STILL_WIDTH_JOINTS if statics_alone else WIDTH_JOINTS
-    return tuple(j for j, mk in lateral_markers_of(m, joints)
+    return tuple(j for j, mk in lateral_markers_of(m, WIDTH_JOINTS)
                  if j in slid and j not in taken and not problem.unseen[m.marker_index(mk)])
 
 
-def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequence[str] = MEASURED_WIDTH_JOINTS
+def lateral_markers(model: Model, measured: SubjectMeasurements, joints: Sequence[str] = WIDTH_JOINTS
                     ) -> tuple[tuple[str, str, float], ...]:
     """(joint, lateral marker, distance) for Settings.lateral_markers from a subject's measured widths: each
     hinge of `joints` in `model` (named knee_l, ankle_r, ... as in models/human.urdf) whose measured width
@@ -952,8 +949,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                           + "; then the segment frames turned to the neutral trial (the priors' cost changes)")
     # Last (with the neutral trial's turn): every hinge centre slid along its axis to where the priors want it
     # (Problem.slide_centres): no marker and no joint angle moves, only the priors' cost falls.
-    # Where no one measured a knee's or ankle's width, the population's: the base model's lateral marker distance.
-    population = population_widths(problem, _statics_alone(members, trials, motion if len(trials) > 1 else None))
+    # Where no one measured a knee's, ankle's or elbow's width, the population's: the base model's lateral marker
+    # distance.
+    population = population_widths(problem)
     slid = replace(state, p=problem.slide_centres(state.p, population))
     by_width = problem.width_placed(slid.p, population)  # their child's markers' places along the axis follow the width
     # The report lists with them the knees and ankles the slide cannot move (their child held: no foot markers) that

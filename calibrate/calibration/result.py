@@ -241,8 +241,8 @@ class Calibration:
     # (joint, marker, marker) per hinge whose axis was held (a still trial's, --hold-axes) or locked and whose centre
     # Priors.on_axis drew to the midpoint of two markers straddling it (calibrate.problem.priors.held_pair_terms)
     pair_centres: tuple[tuple[str, str, str], ...] = ()
-    # The knees and ankles (in statics alone the elbows too) slid along their axes to the population's width where no
-    # one measured theirs: the lateral marker's distance from the centre the base model's at the segment's scale
+    # The knees, ankles and elbows slid along their axes to the population's width where no one measured theirs: the
+    # lateral marker's distance from the centre the base model's at the segment's scale
     # (Priors.population_width; pipeline.population_widths)
     population_widths: tuple[str, ...] = ()
     auto_locked: tuple = ()  # records.TradingLock per hinge calibrate locked: its turn and a neighbour's not separated

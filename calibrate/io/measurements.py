@@ -27,22 +27,16 @@ DEFAULT_MARKER_DIAMETER = 0.014
 WIDTHS = {"knee": ("KneeWidth", "KNE"), "ankle": ("AnkleWidth", "ANK"), "elbow": ("ElbowWidth", "ELB"),
           "wrist": ("WristWidth", None)}
 
-#: The joints whose measured width places their centre along the hinge axis (Problem.slide_centres; a hinge the
-#: slide cannot move, its child held, by a row in the solve: Problem.unslid_width_terms): Plug-in Gait's knee, ankle
-#: and elbow.  The elbow's was left out beside movement trials until 2026-12-06: sliding the elbow to it slides the
-#: forearm's contents back, and pig_walk's radioulnar centre then ended 70 mm from the base model's offset (11-30);
-#: with today's fit 33-35 mm, the simulator's elbows 5.4 -> 3.3 mm from the truth, the public walks' four flagged
-#: elbows at their measurements (docs/benchmarks.md, "The elbows' measured widths beside a walk").
-MEASURED_WIDTH_JOINTS = ("knee", "ankle", "elbow")
-#: Where no width was measured, the joints the population's width places beside a movement trial
-#: (Priors.population_width): the knee and ankle.  The elbow's, tried beside the public walks with their widths set
-#: aside: 29.2 -> 17.0 mm RMS from the measured, but the simulator's 5.1 -> 7.7, and its mean, models/human.urdf's
-#: LELB 35 mm from the centre, short of the four measured subjects' 47-55 (docs/benchmarks.md): not used.
-WIDTH_JOINTS = ("knee", "ankle")
-#: ... and where every trial is still (statics alone), the elbow's too: nothing turns the forearm, whose contents the
-#: walk's pulled, and on real Plug-in Gait statics the elbows then end 15-28 mm from Plug-in Gait's, not 27-44
-#: (docs/benchmarks.md, "A static alone: the ball centres held").
-STILL_WIDTH_JOINTS = ("knee", "ankle", "elbow")
+#: The joints whose width places their centre along the hinge axis (Problem.slide_centres; a hinge the slide cannot
+#: move, its child held, by a row in the solve: Problem.unslid_width_terms): Plug-in Gait's knee, ankle and elbow, the
+#: measured width where the lab gave it, else the population's (Priors.population_width: the base model's lateral
+#: marker's distance at the segment's scale).  The elbow's measured width was left out beside movement trials until
+#: 2026-12-06 (sliding the elbow slides the forearm's contents back: pig_walk's radioulnar centre ended 70 mm from the
+#: base model's offset, 11-30; with that day's fit 33-35 mm, the public walks' flagged elbows at their measurements),
+#: and its population width until 2026-12-07: models/human.urdf's LELB sat 35 mm from the centre, short of the four
+#: measured subjects' 47-55; at 48 mm, beside the public walks with their widths set aside, the six moving elbows end
+#: 29.2 -> 6.1 mm RMS from their measurements (docs/benchmarks.md, "The elbows' population width").
+WIDTH_JOINTS = ("knee", "ankle", "elbow")
 
 #: Plausible ranges (SI): a value outside (or 0, which Nexus writes for "not measured") is not taken.
 _RANGES = {"mass": (10.0, 400.0), "height": (0.5, 2.6), "width": (0.02, 0.30), "marker_diameter": (0.003, 0.05)}

@@ -100,7 +100,7 @@ _MARKERS_R = {
     "RSHO": ("torso", (-0.010, -0.190, 1.455)),
     "RBAK": ("torso", (-0.130, -0.080, 1.360)),
     "RUPA": ("humerus", (-0.010, -0.215, 1.270)),
-    "RELB": ("humerus", (-0.010, -0.205, 1.127)),
+    "RELB": ("humerus", (-0.010, -0.218, 1.127)),  # 48 mm lateral of the elbow: measured subjects 47-55 (1.5-1.8 m)
     "RFRM": ("ulna", (-0.045, -0.165, 1.030)),
     "RWRA": ("radius", (0.025, -0.170, 0.852)),
     "RWRB": ("radius", (-0.030, -0.170, 0.852)),

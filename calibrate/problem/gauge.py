@@ -178,8 +178,8 @@ class GaugeMixin:
         measured a joint's width (ProblemOptions.lateral_markers, priors.width), its lateral marker's distance
         from the centre along the axis joins the priors: the one place the measurement fixes what no marker shows;
         so does a hinge's place between two markers straddling it (the epicondyles: pair_centre_residuals), and, for
-        the hinges named in `population` (knees and ankles whose width no one measured), the lateral marker's distance
-        as the base model's at the segment's scale (Priors.population_width: population_lateral_residuals).
+        the hinges named in `population` (knees, ankles, elbows whose width no one measured), the lateral marker's
+        distance as the base model's at the segment's scale (Priors.population_width: population_lateral_residuals).
 
         Where a width places a hinge (any of the three), the priors of the markers riding on its child segment take
         no part (SLIDE_WITHOUT_MARKERS): the slide carries those markers with it, and where a lab strapped its shank

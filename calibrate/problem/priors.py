@@ -320,8 +320,8 @@ class PriorsMixin:
         (Problem.slid_hinges: its child segment held, nothing seen on or below it, as a locked ankle without foot
         markers) and whose Plug-in Gait lateral marker the trials show: its distance along the axis from the centre,
         the lab's measured one (ProblemOptions.lateral_markers, Priors.width) or, where none was measured, the base
-        model's at the segment's scale (Priors.population_width; the knees and ankles, WIDTH_JOINTS), as a row of
-        the solve's priors: nothing else places such a centre along its axis, and its prior alone left pig_walk-like
+        model's at the segment's scale (Priors.population_width; WIDTH_JOINTS: the knees, ankles and elbows), as a row
+        of the solve's priors: nothing else places such a centre along its axis, and its prior alone left pig_walk-like
         sessions' ankles 16-57 mm from their measured widths (docs/benchmarks.md).  None where a pair of markers
         straddles the hinge (pair_terms, held_pair_terms), or the centres or markers are not free.  Kept while the
         settings, the seen markers and the base are the same."""
