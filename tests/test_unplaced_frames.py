@@ -117,3 +117,38 @@ def test_a_trial_whose_markers_place_the_root_in_few_frames_is_refused(human):
     assert cal.unplaced_frames == (tuple(range(8, 120)),)  # listed, their poses held at frame 7's
     angles = cal.motions[0].angles
     np.testing.assert_array_equal(angles[8:], np.broadcast_to(angles[7], angles[8:].shape))
+
+
+def test_a_bridge_of_part_of_a_chain_keeps_the_markers_the_frame_shows(human, tmp_path):
+    """Simulated squats without LUPA and LFRM, whose LELB and LFIN are hidden in frames 100-105: there the left
+    humerus shows no marker, resolve leaves hand_l unplaced and blames shoulder_l_flexion, shoulder_l_rotation,
+    radioulnar_l and the wrist's angles, which the motion bridges; the shoulder's adduction and the elbow, fitted
+    beside them, are fitted again with them held (solve.ik.refit_bridged), so the written subject posed by Pinocchio
+    puts the wrist markers the frames show where they are (bridged alone, 3-67 mm off; PiG_Motion-FlatFoot-Full's
+    walk: 72-79 mm), in `calibrate` and in `calibrate ik` alike."""
+    from conftest import markers_in_world
+
+    from calibrate.simulation.simulate import simulate_squats
+
+    sim = simulate_squats(human, frames=200, noise_mm=1.0, seed=0)
+    trial = sim.trial.select([n for n in sim.trial.labels if n not in ("LUPA", "LFRM")])
+    X, col = trial.markers.copy(), {n: i for i, n in enumerate(trial.labels)}
+    gap = np.arange(100, 106)
+    X[np.ix_(gap, [col["LELB"], col["LFIN"]])] = np.nan
+    trial = Trial(trial.labels, X, trial.rate)
+    shown = [n for n in trial.labels if n not in ("LELB", "LFIN")]
+    (u,) = resolve(human, shown).segments
+    blamed = {"shoulder_l_flexion", "shoulder_l_rotation", "radioulnar_l", "wrist_l_flexion", "wrist_l_deviation"}
+    assert u.segment == "hand_l" and set(u.coordinates) == blamed
+    cal = calibrate(human, trial, Settings(max_iterations=30))
+    wrist = [human.marker_index(n) for n in ("LWRA", "LWRB")]
+    for name, motion in (("calibrate", cal.motions[0]),
+                         ("ik", fit_trial(cal.model, trial, cal.params, {}).fit.motion)):
+        P = markers_in_world(human, cal.params, motion, tmp_path, f"{name}.urdf")
+        off = np.linalg.norm(P[np.ix_(gap, wrist)] - X[np.ix_(gap, [col["LWRA"], col["LWRB"]])], axis=-1)
+        assert off.max() < 0.005, (name, 1000 * off)  # 1 mm noise
+        # the blamed coordinates still bridged: linear between frames 99 and 106
+        d = [human.dof_index(n) for n in sorted(blamed)]
+        w = (gap - 99) / 7.0
+        np.testing.assert_allclose(motion.angles[np.ix_(gap, d)], (1 - w)[:, None] * motion.angles[99, d]
+                                   + w[:, None] * motion.angles[106, d], rtol=0, atol=1e-9)

@@ -123,14 +123,14 @@ from ..model.urdf import mass_factor
 from ..problem.gauge import MARKER_FRAMES
 from ..problem.options import SolverOptions
 from ..problem.priors import held_layout, joint_centre_markers, straddle
-from ..problem.problem import Problem
+from ..problem.problem import LIMIT_MARGIN, Problem
 from ..problem.settings import Settings
 from ..problem.state import State
 from ..seed.association import associate_to_model, exchanged_between, margin_hosts, misplaced_labels, split_reason
 from ..seed.rigidity import distance_variance
 from ..solve.ahead import run_ahead
 from ..solve.chunks import frame_bytes
-from ..solve.ik import bridge_unplaced, bridge_unseen, marker_columns
+from ..solve.ik import FrameSolver, bridge_unplaced, bridge_unseen, marker_columns, refit_bridged
 from ..solve.lm import Run, SolverSummary, covariance, levenberg_marquardt
 from ..solve.memory import no_huge_pages
 from .options import HIP_MODES, PipelineOptions
@@ -1008,6 +1008,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         # shows none, fits nothing and bends nothing)
         root_placed[i] = (int((~root_off).sum()), int((problem.seen[sl].sum(axis=1) >= SHOWN_MARKERS).sum()))
         bridge_unplaced(root_off, dofs_off, Zm[sl], Qm[sl])
+        if (dofs_off & ~root_off[:, None]).any():  # part of a chain bridged: the rest fitted again to what it shows
+            solver = FrameSolver(problem.kin, state.p, problem.frame_evaluator(state.p), margin=LIMIT_MARGIN)
+            refit_bridged(solver, dofs_off, root_off, Zm[sl], Qm[sl], problem.observed[sl], problem.seen[sl],
+                          FrameLayout.angle(np.flatnonzero(problem.locked)))
         bridged.append(tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ())
     if root_placed and all(n < ROOT_PLACED_MIN * shown for n, shown in root_placed.values()):
         # Nearly every frame's pose bridged from a few: a fit of interpolations (kineticstoolkit's racing_full on

@@ -430,6 +430,40 @@ def bridge_unplaced(root: np.ndarray, dofs: np.ndarray, Z: np.ndarray, Q: np.nda
             Z[bad, col] = np.interp(bad, good, Z[good, col])
 
 
+def refit_bridged(solver: FrameSolver, dofs: np.ndarray, root: np.ndarray, Z: np.ndarray, Q: np.ndarray,
+                  observed: np.ndarray, seen: np.ndarray, held: np.ndarray = (),
+                  weight: np.ndarray | None = None) -> np.ndarray:
+    """After bridge_unplaced: in each frame that places the root (`root` False) and where it bridged coordinates
+    (`dofs` (n_frames, n_dofs), those blamed for a segment the frame's markers leave unplaced), the other coordinates
+    of the joints below the topmost bridged joint fitted again to the markers the frame shows (`observed` (n_frames,
+    n_markers, 3), `seen` (n_frames, n_markers); each weighted by `weight`, per model marker, if given) at the
+    solver's geometry, the bridged ones and the columns `held` (locked coordinates) kept; Z (absolute angles) and Q
+    (n_frames, 4) updated in place.  A bridge of part of a chain moves the markers below it: PiG_Motion-FlatFoot-
+    Full's left elbow and finger markers rejected in four frames left the humerus unseen, its shoulder's flexion and
+    rotation, the forearm's rotation and the wrist bridged, the shoulder's adduction and the elbow as fitted, and the
+    written pose put the wrist markers the frame shows 72-79 mm from them (docs/benchmarks.md).  Returns the frames
+    fitted again."""
+    root = np.asarray(root, dtype=bool)
+    dofs = np.asarray(dofs, dtype=bool) & ~root[:, None]
+    kin, model = solver.kin, solver.kin.model
+    joint_of = {model.dof_index(d): ji for ji, j in enumerate(model.joints) for d in j.dofs}
+    held = set(np.asarray(held, dtype=int).tolist())
+    done = []
+    for f in np.flatnonzero(dofs.any(axis=1)):
+        below = set().union(*(solver.plan[joint_of[d]][1] for d in np.flatnonzero(dofs[f])))  # their subtrees
+        free = np.array(sorted(c for c in below if c not in held and not dofs[f, FrameLayout.dof(c)]), dtype=int)
+        shown = np.flatnonzero(seen[f])
+        if not free.size or not shown.size:
+            continue
+        refs = kin.refs(Q[f], None)[0]  # every ball at the identity: its angles in Z are absolute
+        z, q, _, _ = solver.solve(Z[f].copy(), refs, observed[f], shown, free, 20, weight=weight)
+        Zf, Qf = kin.absolute(z[None], q[None, :4], q[4:].reshape(1, -1, 4) if kin.balls else None,
+                              previous=FrameLayout.angles(Z[f][None])[0])
+        Z[f], Q[f] = Zf[0], Qf[0]
+        done.append(f)
+    return np.asarray(done, dtype=int)
+
+
 def _carried(solver: FrameSolver, z: np.ndarray, q: np.ndarray, obs: np.ndarray, seen_idx: np.ndarray,
              weight: np.ndarray | None, tolerance: float) -> np.ndarray:
     """A frame that shows one or two markers, too few to turn a segment: the pose `z` (references `q`) of the frame
@@ -563,6 +597,7 @@ def inverse_kinematics(kin: Kinematics, trial: Trial, params: Parameters, max_it
     if bridge and nf and not (seen_all == seen_all[0]).all():
         root_off, dofs_off = unplaced_frames(model, seen_all, locked=list(locked or {}))
         bridge_unplaced(root_off, dofs_off, Z, Q)
+        refit_bridged(solver, dofs_off, root_off, Z, Q, obs, seen_all, lock_cols, weight)
         unplaced = tuple(int(f) for f in np.flatnonzero(root_off)) if not root_off.all() else ()
     M, _ = kin.batch(Z, Q, p)
     res = M - obs
