@@ -249,6 +249,37 @@ def test_the_calibration_exchanges_a_lone_exchange_back(human):
     assert calibration_report(cal)["exchanged_back"][0]["frames"] == [0, 149]
 
 
+@pytest.mark.skipif(not (REAL / "walk.c3d").exists(), reason="real pig_walk trials not present")
+def test_a_lone_exchange_across_segments_is_read_on_each_markers_own_segment(human, tmp_path):
+    """pig_walk's first 300 frames with RTHI and RFIN exchanged from frame 173 on, judged against the subject
+    calibrated on its static and the walk as recorded (what `calibrate ik` judges a lab's other trials against): the
+    exchange is named and exchanged back.  The finger keeps steady to the knee in this walk (its distance's spread
+    under LONE_STEADY) but 80 mm or more from the subject's neutral pose's, a distance across the arm, hip and knee
+    that says nothing of the labels; read with it, neither side was named and `calibrate ik` turned the right wrist
+    81 deg (scripts/damage_values.py --ik --seed 7, copy 8).  Each position is now read against the references on the
+    segment of the marker it is taken for (RTHI's: the femur's RKNE)."""
+    from calibrate.model.model import load_model, write_model
+    from calibrate.seed.seeding import LONE_STEADY, MAD_SD, episodes, exchanged_back
+
+    trial, _ = map_labels(read_trial(REAL / "walk.c3d"), human.marker_names)
+    trial = trial.select([lab for lab in trial.labels if lab in set(human.marker_names)])
+    trial = Trial(trial.labels, np.array(trial.markers[:300]), trial.rate, 0, "walk.c3d")
+    static, _ = map_labels(read_trial(REAL / "static.c3d"), human.marker_names)
+    cal = calibrate(human, [static, trial])
+    subject = load_model(write_model(cal.model, tmp_path / "subject.urdf", cal.params))
+    i, j, knee = (trial.labels.index(n) for n in ("RTHI", "RFIN", "RKNE"))
+    d = np.linalg.norm(trial.markers[:173, j] - trial.markers[:173, knee], axis=1)
+    neutral = np.linalg.norm(np.subtract(*subject.neutral_positions(["RFIN", "RKNE"])))
+    assert MAD_SD * np.median(np.abs(d - np.median(d))) < LONE_STEADY and abs(np.median(d) - neutral) > 0.08
+    X = trial.markers.copy()
+    X[173:, [i, j]] = X[173:, [j, i]]
+    damaged = Trial(trial.labels, X, trial.rate)
+    back: list = []
+    assert not episodes(damaged, model=subject, back=back)[0].any()
+    assert [(set(x.labels), x.start, x.stop) for x in back] == [({"RTHI", "RFIN"}, 173, 300)]
+    assert np.array_equal(exchanged_back(damaged, back).markers, trial.markers, equal_nan=True)
+
+
 def test_a_marker_whose_mate_is_left_out_is_not_judged_alone(human):
     """A planted foot (heel and toe still, 0.5 mm of noise) under a shank travelling 0.8 m/s forward, with a ghost of
     the heel in two frames: the ghost is left out, and with it the toe has no mate seen through those windows; judged

@@ -676,12 +676,14 @@ def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, in
                    taken: np.ndarray) -> tuple[ExchangedBack, ...]:
     """The side of each lone label exchange (markers k and m exchanged at step a, into frame a + 1, with no exchange
     back: jump_episodes' `lone`) where the two labels are the wrong way round.  The jumps cannot say which side that
-    is; the model can: on each side, the two markers' median distances to the other markers of their segments (none
-    there: to the markers of the segments next to them that keep steady, LONE_STEADY) against the model's in its
-    neutral pose, at the trial's size.  A side is named where exchanged they fit LONE_RATIO times and LONE_MARGIN
-    better than as labelled while the other side fits as labelled likewise; else neither (a tennis serve's arm markers
-    crossing in a blur jump so, and are right on both sides).  pig_walk with LHEE and LTOE, or RASI and LASI,
-    exchanged from a frame to its end put centres 80-103 mm off.  `taken`: samples already left out (not read)."""
+    is; the model can: on each side, the two positions' median distances to the other markers of their segments
+    against the model's in its neutral pose, at the trial's size, each position read against the markers on the
+    segment of the marker it is taken for (as labelled, then exchanged); none there, against the markers of the
+    segments next to them that both keep steady to (LONE_STEADY).  A side is named where exchanged they fit LONE_RATIO
+    times and LONE_MARGIN better than as labelled while the other side fits as labelled likewise; else neither (a
+    tennis serve's arm markers crossing in a blur jump so, and are right on both sides).  pig_walk with LHEE and LTOE,
+    or RASI and LASI, exchanged from a frame to its end put centres 80-103 mm off.  `taken`: samples already left
+    out (not read)."""
     F = taken.shape[0]
     out: list[ExchangedBack] = []
     index = {lab: i for i, lab in enumerate(trial.labels)}
@@ -723,16 +725,29 @@ def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, in
                 dk = np.linalg.norm(x[:, [index[n] for n in refs]] - x[:, k:k + 1], axis=2)
                 dm = np.linalg.norm(x[:, [index[n] for n in refs]] - x[:, m:m + 1], axis=2)
                 med_k, med_m = np.nanmedian(dk, axis=0), np.nanmedian(dm, axis=0)
-                spread = np.fmax(np.nanmedian(np.abs(dk - med_k), axis=0), np.nanmedian(np.abs(dm - med_m), axis=0))
-            use = np.isfinite(med_k) & np.isfinite(med_m) & (
-                np.array([seg[n] in around for n in refs]) | (MAD_SD * spread <= LONE_STEADY))
-            if not use.any():
+                steady_k = MAD_SD * np.nanmedian(np.abs(dk - med_k), axis=0) <= LONE_STEADY
+                steady_m = MAD_SD * np.nanmedian(np.abs(dm - med_m), axis=0) <= LONE_STEADY
+            # A distance is read against the model's in its neutral pose where no pose moves it: to a reference on
+            # the segment of the marker it is taken for; where neither position has one, those that keep steady (the
+            # segments next to them).  A distance across a joint can keep steady in a trial and still be far from the
+            # neutral pose's (pig_walk's walk: RFIN to RKNE 377 mm, 13 mm spread, 270 in the neutral pose): read with
+            # RTHI's and RFIN's labels exchanged from frame 173 on, neither side was named and the wrist was then
+            # fitted 81 deg off.
+            on = np.array([seg[n] for n in refs])
+            model_k = scale * ref[at[lk], [at[n] for n in refs]]
+            model_m = scale * ref[at[lm], [at[n] for n in refs]]
+            ok_k, ok_m = np.isfinite(med_k), np.isfinite(med_m)
+            rms = []  # as labelled (position k taken for lk, m for lm), then exchanged
+            for k_as, m_as, want_k, want_m in ((lk, lm, model_k, model_m), (lm, lk, model_m, model_k)):
+                use_k, use_m = ok_k & (on == seg[k_as]), ok_m & (on == seg[m_as])
+                if not (use_k.any() or use_m.any()):  # the references both keep steady to, as for the two
+                    use_k = use_m = ok_k & ok_m & steady_k & steady_m
+                r = np.r_[(med_k - want_k)[use_k], (med_m - want_m)[use_m]]
+                rms.append(float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan)
+            labelled, exchanged = rms
+            if math.isnan(labelled) or math.isnan(exchanged):
                 fits.append(None)
                 continue
-            mk = scale * ref[at[lk], [at[n] for n in refs]][use]
-            mm = scale * ref[at[lm], [at[n] for n in refs]][use]
-            labelled = float(np.sqrt(np.mean(np.r_[med_k[use] - mk, med_m[use] - mm] ** 2)))
-            exchanged = float(np.sqrt(np.mean(np.r_[med_k[use] - mm, med_m[use] - mk] ** 2)))
             fits.append((labelled, exchanged, frames))
         if fits[0] is None or fits[1] is None:
             continue
