@@ -432,7 +432,7 @@ def bridge_unplaced(root: np.ndarray, dofs: np.ndarray, Z: np.ndarray, Q: np.nda
 
 def refit_bridged(solver: FrameSolver, dofs: np.ndarray, root: np.ndarray, Z: np.ndarray, Q: np.ndarray,
                   observed: np.ndarray, seen: np.ndarray, held: np.ndarray = (),
-                  weight: np.ndarray | None = None) -> np.ndarray:
+                  weight: np.ndarray | None = None) -> None:
     """After bridge_unplaced: in each frame that places the root (`root` False) and where it bridged coordinates
     (`dofs` (n_frames, n_dofs), those blamed for a segment the frame's markers leave unplaced), the other coordinates
     of the joints below the topmost bridged joint fitted again to the markers the frame shows (`observed` (n_frames,
@@ -441,14 +441,12 @@ def refit_bridged(solver: FrameSolver, dofs: np.ndarray, root: np.ndarray, Z: np
     (n_frames, 4) updated in place.  A bridge of part of a chain moves the markers below it: PiG_Motion-FlatFoot-
     Full's left elbow and finger markers rejected in four frames left the humerus unseen, its shoulder's flexion and
     rotation, the forearm's rotation and the wrist bridged, the shoulder's adduction and the elbow as fitted, and the
-    written pose put the wrist markers the frame shows 72-79 mm from them (docs/benchmarks.md).  Returns the frames
-    fitted again."""
+    written pose put the wrist markers the frame shows 72-79 mm from them (docs/benchmarks.md)."""
     root = np.asarray(root, dtype=bool)
     dofs = np.asarray(dofs, dtype=bool) & ~root[:, None]
     kin, model = solver.kin, solver.kin.model
     joint_of = {model.dof_index(d): ji for ji, j in enumerate(model.joints) for d in j.dofs}
     held = set(np.asarray(held, dtype=int).tolist())
-    done = []
     for f in np.flatnonzero(dofs.any(axis=1)):
         below = set().union(*(solver.plan[joint_of[d]][1] for d in np.flatnonzero(dofs[f])))  # their subtrees
         free = np.array(sorted(c for c in below if c not in held and not dofs[f, FrameLayout.dof(c)]), dtype=int)
@@ -460,8 +458,6 @@ def refit_bridged(solver: FrameSolver, dofs: np.ndarray, root: np.ndarray, Z: np
         Zf, Qf = kin.absolute(z[None], q[None, :4], q[4:].reshape(1, -1, 4) if kin.balls else None,
                               previous=FrameLayout.angles(Z[f][None])[0])
         Z[f], Q[f] = Zf[0], Qf[0]
-        done.append(f)
-    return np.asarray(done, dtype=int)
 
 
 def _carried(solver: FrameSolver, z: np.ndarray, q: np.ndarray, obs: np.ndarray, seen_idx: np.ndarray,
