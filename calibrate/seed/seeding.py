@@ -801,6 +801,13 @@ FALLEN_TURN = 0.030  # m ... while most markers of its segment and of the segmen
 # places in the window's two halves) and change their distances to it by more than this (every other one of its own;
 # a segment's only marker: every one of the segments next to it)
 FALLEN_ALONE_S = 1.0  # s: a segment's only marker so judged is taken where it stays at least this long
+# A marker that moved alone in a still trial keeps the frames where it sits at its segment's markers as the base model
+# places it (the median of its distances to two or more of them over the base model's within these factors: a
+# subject's size and a lab's own marker places; real statics' shapes spread up to 3.6x marker by marker, their median
+# 0.5-2x) when every other frame it is seen in puts it further than FALLEN_FAR times those distances (off the body:
+# a torso marker on the floor, 5x).
+FALLEN_SIZES = (0.5, 2.0)
+FALLEN_FAR = 3.0
 
 
 def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
@@ -895,7 +902,8 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
             d = np.linalg.norm(X[:, refs] - X[:, k:k + 1], axis=2)  # (frames, refs), NaN where either is unseen
             change = np.nanpercentile(d, 95, axis=0) - np.nanpercentile(d, 5, axis=0)
         if np.median(change) > FALLEN_TURN:  # most of them: a marker moved alone (a rigid turn keeps the distances)
-            out[:, k] = seen_all[:, k]
+            out[:, k] = seen_all[:, k] & ~_where_modelled(X, k, [m for m in refs if seg[m] == seg[k]],
+                                                           model.parameters().marker, width)
     # A segment's only marker judged by its neighbours alone is taken where it stays FALLEN_ALONE_S or more (a foot
     # with one marker stands still through a stance, under a second, while the shank's markers travel over it).
     longest = int(round(FALLEN_ALONE_S * trial.rate))
@@ -906,6 +914,29 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     for k in np.flatnonzero(out.any(axis=0)):
         out[:, k] = _grown(out[:, k], X[:, k])
     return _on_their_segment(out, X, seg, width)
+
+
+def _where_modelled(X: np.ndarray, k: int, mates: list[int], base: np.ndarray, width: int) -> np.ndarray:
+    """(frames,) True where marker k, moved alone in a still trial, sits among `mates` (its segment's markers that
+    stay put) as the base model (`base`: every marker's offset on its segment) places it, up to a size
+    (FALLEN_SIZES), if those are `width` frames or more and every other frame it is seen in puts it FALLEN_FAR times
+    further from them or more: there it was on its segment, elsewhere off the body (a torso marker fallen to the
+    floor half-way through pig_walk's static: all its positions left out moved the left shoulder 14 mm).  Otherwise
+    none: where both places could be the segment's (a marker dropped along the body), the trial cannot say which."""
+    none = np.zeros(X.shape[0], dtype=bool)
+    if len(mates) < 2:
+        return none
+    model_d = np.linalg.norm(base[mates] - base[k], axis=1)  # (mates,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        size = np.nanmedian(np.linalg.norm(X[:, mates] - X[:, k:k + 1], axis=2) / model_d, axis=1)  # (frames,)
+    seen = np.isfinite(size)
+    lo, hi = FALLEN_SIZES
+    fits = seen & (size >= lo) & (size <= hi)
+    far = seen & (size >= FALLEN_FAR)
+    if fits.sum() >= width and far.any() and np.all(fits | far | ~seen):
+        return fits
+    return none
 
 
 def _on_their_segment(out: np.ndarray, X: np.ndarray, seg: list[str], width: int) -> np.ndarray:
