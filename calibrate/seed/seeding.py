@@ -802,7 +802,7 @@ FALLEN_TURN = 0.030  # m ... while most markers of its segment and of the segmen
 # a segment's only marker: every one of the segments next to it)
 FALLEN_ALONE_S = 1.0  # s: a segment's only marker so judged is taken where it stays at least this long
 # A marker that moved alone in a still trial keeps the frames where it sits at its segment's markers as the base model
-# places it (the median of its distances to two or more of them over the base model's within these factors: a
+# places it (the median of its distances to one or more of them over the base model's within these factors: a
 # subject's size and a lab's own marker places; real statics' shapes spread up to 3.6x marker by marker, their median
 # 0.5-2x) when every other frame it is seen in puts it further than FALLEN_FAR times those distances (off the body:
 # a torso marker on the floor, 5x).
@@ -922,9 +922,10 @@ def _where_modelled(X: np.ndarray, k: int, mates: list[int], base: np.ndarray, w
     (FALLEN_SIZES), if those are `width` frames or more and every other frame it is seen in puts it FALLEN_FAR times
     further from them or more: there it was on its segment, elsewhere off the body (a torso marker fallen to the
     floor half-way through pig_walk's static: all its positions left out moved the left shoulder 14 mm).  Otherwise
-    none: where both places could be the segment's (a marker dropped along the body), the trial cannot say which."""
+    none: where both places could be the segment's (a marker dropped along the body, a shank's or a foot's marker
+    dropped to the floor beside it), the trial cannot say which."""
     none = np.zeros(X.shape[0], dtype=bool)
-    if len(mates) < 2:
+    if not mates:
         return none
     model_d = np.linalg.norm(base[mates] - base[k], axis=1)  # (mates,)
     with warnings.catch_warnings():
