@@ -28,11 +28,13 @@ joint coordinate of every frame stays within `--tol-deg` of its angle in the und
 same copy with the damaged positions unseen instead, which a perfect check would leave (a marker fewer moves a pose,
 and not by the check's doing: pig_walk's left ankle turns 50 deg on its toe marker alone).
 
-    python scripts/damage_values.py [--trial walk|static] [--frames 300] [--n 30] [--seed 0] [--kinds ...] [--ik
-        [--tol-deg 10]] [--json F]
+    python scripts/damage_values.py [--case pig_walk|gait2392|rajagopal] [--trial walk|static] [--frames 300]
+        [--n 30] [--seed 0] [--kinds ...] [--ik [--tol-deg 10]] [--json F]
 
-Data: ../shared/data/real/pig_walk (Plug-in Gait, 120 Hz) on models/human.urdf, in process.  No timings: a check,
-not a benchmark."""
+Data: ../shared/data/real/pig_walk (Plug-in Gait, 120 Hz) on models/human.urdf, in process; `--case gait2392` or
+`--case rajagopal`: OpenSim's example trials (TRC, y up) on their own .osim and marker set (the floor for `fallen` is
+the lab's: its up axis read as the one along which a frame's markers spread most).  No timings: a check, not a
+benchmark."""
 
 from __future__ import annotations
 
@@ -47,7 +49,16 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
+REAL = ROOT.parent / "shared" / "data" / "real"
 KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy", "longswap", "endswap")
+# Each case: its base model (and OpenSim marker set), its walk and its static.
+CASES = {"pig_walk": (ROOT / "models" / "human.urdf", None, PIG / "walk.c3d", PIG / "static.c3d"),
+         "gait2392": (REAL / "gait2392" / "gait2392.osim", REAL / "gait2392" / "gait2392_Scale_MarkerSet.xml",
+                      REAL / "gait2392" / "subject01_walk1.trc", REAL / "gait2392" / "subject01_static.trc"),
+         "rajagopal": (REAL / "rajagopal_walk" / "Rajagopal2016.osim",
+                       REAL / "rajagopal_walk" / "markerset_walk_preScale.xml",
+                       REAL / "rajagopal_walk" / "motion_capture_walk.trc",
+                       REAL / "rajagopal_walk" / "static_walk_1.trc")}
 
 
 def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarray, str]:
@@ -77,7 +88,11 @@ def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarr
         at = X[f, k].copy()
         if not np.all(np.isfinite(at)):
             return X, "none (unseen where it would fall)"
-        X[f:, k] = [at[0], at[1], 0.007]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            up = int(np.argmax(np.nanmedian(np.nanmax(X, axis=1) - np.nanmin(X, axis=1), axis=0)))  # a body's height
+        at[up] = 0.007
+        X[f:, k] = at
         return X, f"marker {k} on the floor from frame {f}"
     if kind == "frozen":
         k = int(rng.integers(M))
@@ -131,15 +146,18 @@ def unseen_instead(markers: np.ndarray, damaged: np.ndarray, kind: str) -> np.nd
     return np.where(touched[..., None], np.nan, markers)
 
 
-def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_mm: float) -> dict:
+def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_mm: float,
+        case: str = "pig_walk") -> dict:
     from calibrate import calibrate, load_model, read_trial
     from calibrate.errors import CalibrateError
     from calibrate.io.trial import Trial
 
-    model = load_model(ROOT / "models" / "human.urdf")
-    raw = read_trial(PIG / f"{trial_name}.c3d")
+    model_path, marker_set, walk, static = CASES[case]
+    model = load_model(model_path, marker_set)
+    path = walk if trial_name == "walk" else static
+    raw = read_trial(path)
     trial = raw.select([lab for lab in raw.labels if lab in set(model.marker_names)])
-    trial = Trial(trial.labels, np.array(trial.markers[:frames]), trial.rate, 0, f"{trial_name}.c3d")
+    trial = Trial(trial.labels, np.array(trial.markers[:frames]), trial.rate, 0, path.name)
 
     def summary(cal) -> dict:
         sd = {c.item: float(np.linalg.norm(c.std)) for c in cal.changes if c.group == "centre"}  # mm
@@ -150,7 +168,7 @@ def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_m
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ref = summary(calibrate(model, trial))
-    print(f"{trial_name}: {trial.n_frames} frames, {len(trial.labels)} markers; undamaged: marker RMS "
+    print(f"{case} {trial_name}: {trial.n_frames} frames, {len(trial.labels)} markers; undamaged: marker RMS "
           f"{ref['rms_mm']:.2f} mm, labels to check {ref['labels'] or 'none'}, still only {ref['still']}", flush=True)
     names = [j.name for j in model.joints]
     rng = np.random.default_rng(seed)
@@ -205,7 +223,8 @@ def run(trial_name: str, frames: int, n: int, seed: int, kinds: list[str], tol_m
     for r in rows:
         key = f"{r['kind']}: {'ok' if r['outcome'] == 'ok' else 'finding'}"
         counts[key] = counts.get(key, 0) + 1
-    return {"trial": trial_name, "frames": trial.n_frames, "seed": seed, "tol_mm": tol_mm, "undamaged_rms_mm":
+    return {"case": case, "trial": trial_name, "frames": trial.n_frames, "seed": seed, "tol_mm": tol_mm,
+            "undamaged_rms_mm":
             round(ref["rms_mm"], 3), "counts": counts, "findings": findings, "copies": rows}
 
 
@@ -302,7 +321,9 @@ def _kinds(text: str) -> list[str]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--trial", choices=("walk", "static"), default="walk", help="pig_walk's trial to damage")
+    ap.add_argument("--case", choices=tuple(CASES), default="pig_walk",
+                    help="the real trials and base model (default pig_walk on models/human.urdf)")
+    ap.add_argument("--trial", choices=("walk", "static"), default="walk", help="the case's trial to damage")
     ap.add_argument("--frames", type=int, default=300, help="its first N frames")
     ap.add_argument("--n", type=int, default=30, help="damaged copies")
     ap.add_argument("--seed", type=int, default=0)
@@ -313,12 +334,15 @@ def main() -> int:
                     help="with --ik: the largest change of a joint angle that passes (deg)")
     ap.add_argument("--json", type=Path, help="write the results here")
     a = ap.parse_args()
-    if not (PIG / f"{a.trial}.c3d").exists():
-        print(f"damage_values: {PIG / (a.trial + '.c3d')}: not found; the real trials live in ../shared/data/real",
-              file=sys.stderr)
+    if a.ik and a.case != "pig_walk":
+        print("damage_values: --ik damages pig_walk's walk only; leave out --case", file=sys.stderr)
         return 2
+    for f in CASES[a.case][2:]:
+        if not f.exists():
+            print(f"damage_values: {f}: not found; the real trials live in ../shared/data/real", file=sys.stderr)
+            return 2
     out = run_ik(a.frames, a.n, a.seed, a.kinds, a.tol_deg) if a.ik else \
-        run(a.trial, a.frames, a.n, a.seed, a.kinds, a.tol_mm)
+        run(a.trial, a.frames, a.n, a.seed, a.kinds, a.tol_mm, a.case)
     print(", ".join(f"{v} {k}" for k, v in sorted(out["counts"].items())))
     if a.json:
         a.json.write_text(json.dumps(out, indent=1))

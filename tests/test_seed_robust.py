@@ -462,3 +462,63 @@ def test_a_marker_fallen_off_the_body_in_a_static_keeps_its_frames_on_it(human, 
         out = fallen_samples(human, Trial(trial.labels, X, trial.rate))
         m = human.marker_index(label)
         assert out[141:, m].all() and out[:141, m].any() == (label == "LHEE") and out.sum() == out[:, m].sum(), label
+
+
+def test_a_marker_fallen_in_a_static_whose_arms_drift_is_taken():
+    """Rajagopal's static_walk_1 (OpenSim's example, Rajagopal2016.osim with the lab's marker set): the arms drift
+    40-50 mm through it.  R.Biceps on the floor from frame 179: its segment drifted, yet its two mates (R.Elbow,
+    R.MElbow) keep their distance to each other and break theirs with it, and it moved the most: its fallen
+    positions are taken (its others, among its mates as the base model places them, kept) and nothing else.  L.Wrist,
+    its segment's only marker, on the floor from frame 139: its distance to the forearm's marker, itself drifting,
+    ranges over a metre: all its positions are taken.  Before, neither was (the segment moved, or no neighbour stood
+    still), and the static's forearm pronation centres ended 0.7 and 1.4 m off (scripts/damage_values.py --case
+    rajagopal --trial static, seed 23)."""
+    from calibrate.model.model import load_model
+    from calibrate.seed.seeding import fallen_samples
+
+    raj = REAL.parent / "rajagopal_walk"
+    if not (raj / "static_walk_1.trc").exists():
+        pytest.skip("real Rajagopal trials not present")
+    model = load_model(raj / "Rajagopal2016.osim", raj / "markerset_walk_preScale.xml")
+    trial = read_trial(raj / "static_walk_1.trc")
+    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    assert not fallen_samples(model, trial).any()
+    for label, f, kept in (("R.Biceps", 179, True), ("L.Wrist", 139, False)):
+        X = np.array(trial.markers)
+        j = trial.labels.index(label)
+        X[f:, j] = [X[f, j, 0], 0.007, X[f, j, 2]]  # y up
+        out = fallen_samples(model, Trial(trial.labels, X, trial.rate))
+        m = model.marker_index(label)
+        assert out[f:, m].all() and out[:f, m].any() != kept and out.sum() == out[:, m].sum(), (label, out.sum())
+    # R.Biceps stuck at its first frame's place: its mates drift away from it, and it moved less than they did
+    # (the first version raised an IndexError here: scripts/damage_values.py found it)
+    X = np.array(trial.markers)
+    X[:, trial.labels.index("R.Biceps")] = X[0, trial.labels.index("R.Biceps")]
+    assert not fallen_samples(model, Trial(trial.labels, X, trial.rate)).any()
+
+
+def test_a_lone_exchange_of_two_segments_is_judged_by_rigidity():
+    """Rajagopal's walk (OpenSim's example, Rajagopal2016.osim with the lab's marker set) with R.Knee and R.Wrist
+    exchanged from its start to frame 104: the generic model's distances from the knee marker to its thigh cluster
+    are not this lab's, and they had named the labelled side (frames 105-237) exchanged: exchanged back there, the
+    knee's centre ended 188 mm off (scripts/damage_values.py --case rajagopal, seed 21).  On the exchanged side each
+    position keeps its distances to the other segment's markers, on the other side to its own's: frames 0-104 are
+    named, by rigidity, and exchanged back to the trial as recorded."""
+    from calibrate.model.model import load_model
+    from calibrate.seed.seeding import episodes, exchanged_back
+
+    raj = REAL.parent / "rajagopal_walk"
+    if not (raj / "motion_capture_walk.trc").exists():
+        pytest.skip("real Rajagopal trials not present")
+    model = load_model(raj / "Rajagopal2016.osim", raj / "markerset_walk_preScale.xml")
+    trial = read_trial(raj / "motion_capture_walk.trc")
+    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    i, j = trial.labels.index("R.Knee"), trial.labels.index("R.Wrist")
+    X = np.array(trial.markers)
+    X[:105, [i, j]] = X[:105, [j, i]]
+    damaged = Trial(trial.labels, X, trial.rate)
+    back: list = []
+    episodes(damaged, model=model, back=back)
+    assert [(set(x.labels), x.start, x.stop, x.by) for x in back] == [({"R.Knee", "R.Wrist"}, 0, 105, "rigidity")]
+    assert back[0].exchanged < 0.005 < 0.02 < back[0].labelled  # steady to skin's mm exchanged, not as labelled
+    assert np.array_equal(exchanged_back(damaged, back).markers, trial.markers, equal_nan=True)

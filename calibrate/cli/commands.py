@@ -393,8 +393,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               "(see 'subjects?' above)", file=sys.stderr)
     if cal.exchanged_back:
         pairs = ", ".join(dict.fromkeys("/".join(x.labels) for _, x in cal.exchanged_back))
-        print(f"warning: labels exchanged and not back, exchanged back where the base model puts them the wrong way "
-              f"round: {pairs} (see 'exchanged' above); check the labelling", file=sys.stderr)
+        print(f"warning: labels exchanged and not back, exchanged back where they ride with each other's segment or "
+              f"the base model puts them the wrong way round: {pairs} (see 'exchanged' above); check the labelling",
+              file=sys.stderr)
     if cal.relabelled:
         pairs = ", ".join(f"{a} as {b}" for x in cal.relabelled for a, b in zip(x.labels, x.read_as, strict=True))
         print(f"warning: cluster labels a trial names otherwise than the others, read as they name them: {pairs} (see "

@@ -609,23 +609,27 @@ def episodes(trial: Trial, progress: Callable[[float], None] | None = None, mode
 
 @dataclass(frozen=True)
 class ExchangedBack:
-    """Two labels exchanged once in a trial and not back (to its end, or from its start), on the frames where the
-    model's distances say they are the wrong way round (lone_exchanges): exchanged back."""
+    """Two labels exchanged once in a trial and not back (to its end, or from its start), on the frames where they
+    ride with each other's segment, or the model's distances say they are the wrong way round (lone_exchanges):
+    exchanged back."""
 
     labels: tuple[str, str]
     start: int  # the first frame of the side exchanged
     stop: int  # one past its last
-    labelled: float  # m: RMS misfit of that side's distances to the model's as labelled ...
-    exchanged: float  # ... and exchanged
+    labelled: float  # m: RMS misfit of that side's distances to the model's as labelled (by "rigidity": the RMS of
+    exchanged: float  # their spreads over the side) ... and exchanged
+    by: str = "distances"  # what told the sides apart: the model's "distances", or "rigidity"
 
     def text(self) -> str:
         a, b = self.labels
+        how = ("keep steady to {x:.0f} mm RMS exchanged, to {l:.0f} as labelled" if self.by == "rigidity" else
+               "fit the base model's {x:.0f} mm RMS exchanged, {l:.0f} as labelled")
         return (f"{a} and {b} exchanged in frames {self.start}-{self.stop - 1} and not back (their distances to their "
-                f"segments' markers fit the base model's {1e3 * self.exchanged:.0f} mm RMS exchanged, "
-                f"{1e3 * self.labelled:.0f} as labelled): exchanged back there")
+                f"segments' markers " + how.format(x=1e3 * self.exchanged, l=1e3 * self.labelled)
+                + "): exchanged back there")
 
     def to_json(self) -> dict:
-        return {"labels": list(self.labels), "frames": [self.start, self.stop - 1],
+        return {"labels": list(self.labels), "frames": [self.start, self.stop - 1], "judged_by": self.by,
                 "misfit_as_labelled_mm": 1e3 * self.labelled, "misfit_exchanged_mm": 1e3 * self.exchanged}
 
 
@@ -670,13 +674,18 @@ LONE_MARGIN = 0.020  # m: a side of a lone exchange is taken where its distances
 LONE_RATIO = 1.5  # ... and this many times better exchanged (RMS over the markers near the two), the other side as
 # labelled likewise
 LONE_FRAMES = 60  # about this many evenly spaced frames of a side are read
+LONE_RIGID = 0.010  # m: by rigidity, a side is taken where its distances keep LONE_RATIO times and this much steadier
+# (RMS of their spreads over the side) exchanged than as labelled, the other side as labelled likewise
 
 
 def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, int]],
                    taken: np.ndarray) -> tuple[ExchangedBack, ...]:
     """The side of each lone label exchange (markers k and m exchanged at step a, into frame a + 1, with no exchange
     back: jump_episodes' `lone`) where the two labels are the wrong way round.  The jumps cannot say which side that
-    is; the model can: on each side, the two positions' median distances to the other markers of their segments
+    is; the model can.  Labels of two segments: on the side where they are the wrong way round each position keeps
+    its distances to the other segment's markers (LONE_RIGID: their spreads over the side), whatever the lab's
+    marker places.  Else (one segment, or segments that stay together in the trial): on each side, the two
+    positions' median distances to the other markers of their segments
     against the model's in its neutral pose, at the trial's size, each position read against the markers on the
     segment of the marker it is taken for (as labelled, then exchanged); none there, against the markers of the
     segments next to them that both keep steady to (LONE_STEADY).  A side is named where exchanged they fit LONE_RATIO
@@ -725,8 +734,9 @@ def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, in
                 dk = np.linalg.norm(x[:, [index[n] for n in refs]] - x[:, k:k + 1], axis=2)
                 dm = np.linalg.norm(x[:, [index[n] for n in refs]] - x[:, m:m + 1], axis=2)
                 med_k, med_m = np.nanmedian(dk, axis=0), np.nanmedian(dm, axis=0)
-                steady_k = MAD_SD * np.nanmedian(np.abs(dk - med_k), axis=0) <= LONE_STEADY
-                steady_m = MAD_SD * np.nanmedian(np.abs(dm - med_m), axis=0) <= LONE_STEADY
+                sd_k = MAD_SD * np.nanmedian(np.abs(dk - med_k), axis=0)  # each distance's spread over the side
+                sd_m = MAD_SD * np.nanmedian(np.abs(dm - med_m), axis=0)
+                steady_k, steady_m = sd_k <= LONE_STEADY, sd_m <= LONE_STEADY
             # A distance is read against the model's in its neutral pose where no pose moves it: to a reference on
             # the segment of the marker it is taken for; where neither position has one, those that keep steady (the
             # segments next to them).  A distance across a joint can keep steady in a trial and still be far from the
@@ -737,9 +747,13 @@ def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, in
             model_k = scale * ref[at[lk], [at[n] for n in refs]]
             model_m = scale * ref[at[lm], [at[n] for n in refs]]
             ok_k, ok_m = np.isfinite(med_k), np.isfinite(med_m)
-            rms = []  # as labelled (position k taken for lk, m for lm), then exchanged
+            rms, spread = [], []  # as labelled (position k taken for lk, m for lm), then exchanged
             for k_as, m_as, want_k, want_m in ((lk, lm, model_k, model_m), (lm, lk, model_m, model_k)):
                 use_k, use_m = ok_k & (on == seg[k_as]), ok_m & (on == seg[m_as])
+                # A position rides with the segment of the marker it is taken for: its distances to that segment's
+                # markers keep steady over the side, where the marker's own places on the segment do not count.
+                r = np.r_[sd_k[use_k], sd_m[use_m]]
+                spread.append(float(np.sqrt(np.mean(r ** 2))) if r.size and seg[lk] != seg[lm] else math.nan)
                 if not (use_k.any() or use_m.any()):  # the references both keep steady to, as for the two
                     use_k = use_m = ok_k & ok_m & steady_k & steady_m
                 r = np.r_[(med_k - want_k)[use_k], (med_m - want_m)[use_m]]
@@ -748,17 +762,25 @@ def lone_exchanges(model: Model, trial: Trial, lone: Sequence[tuple[int, int, in
             if math.isnan(labelled) or math.isnan(exchanged):
                 fits.append(None)
                 continue
-            fits.append((labelled, exchanged, frames))
+            fits.append((labelled, exchanged, *spread))
         if fits[0] is None or fits[1] is None:
             continue
 
-        def better(one: float, other: float) -> bool:
-            return one * LONE_RATIO <= other and one + LONE_MARGIN <= other
+        def better(one: float, other: float, margin: float = LONE_MARGIN) -> bool:
+            return one * LONE_RATIO <= other and one + margin <= other
 
-        (l0, x0, f0), (l1, x1, f1) = fits
-        if better(l0, x0) and better(x1, l1):
+        (l0, x0, rl0, rx0), (l1, x1, rl1, rx1) = fits
+        # Two segments that move apart over the trial say it by rigidity, whatever the lab's marker places (the model's
+        # distances misjudged Rajagopal's walk with R.Knee and R.Wrist exchanged from its start: its thigh cluster
+        # sits elsewhere than the generic model's, and the labelled side was exchanged, the knee centre 188 mm off);
+        # a side that rigidity shows labelled right is never exchanged by the distances.
+        if better(rl0, rx0, LONE_RIGID) and better(rx1, rl1, LONE_RIGID):
+            out.append(ExchangedBack((lk, lm), int(a + 1), F, rl1, rx1, "rigidity"))
+        elif better(rx0, rl0, LONE_RIGID) and better(rl1, rx1, LONE_RIGID):
+            out.append(ExchangedBack((lk, lm), 0, int(a + 1), rl0, rx0, "rigidity"))
+        elif better(l0, x0) and better(x1, l1) and not better(rl1, rx1, LONE_RIGID):
             out.append(ExchangedBack((lk, lm), int(a + 1), F, l1, x1))
-        elif better(x0, l0) and better(l1, x1):
+        elif better(x0, l0) and better(l1, x1) and not better(rl0, rx0, LONE_RIGID):
             out.append(ExchangedBack((lk, lm), 0, int(a + 1), l0, x0))
     return tuple(out)
 
@@ -808,6 +830,8 @@ FALLEN_ALONE_S = 1.0  # s: a segment's only marker so judged is taken where it s
 # a torso marker on the floor, 5x).
 FALLEN_SIZES = (0.5, 2.0)
 FALLEN_FAR = 3.0
+FALLEN_OFF = 0.15  # m: a segment's only marker whose distance to every marker of its neighbours ranges this far in a
+# still trial moved alone (a static's drift across one joint moves them 50 mm apart at most in the trials at hand)
 
 
 def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
@@ -877,11 +901,14 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
                         alone[a:b, k] = True
                 elif np.all((travel[mates] > FALLEN_TURN) & (change[mates] > FALLEN_TURN)):  # ... and all of its own
                     out[a:b, k] = True
-    # A marker that moves alone in a still trial (most markers, and every other marker of its segment, keep within
-    # FALLEN_TURN of one place, 5th to 95th percentile over the trial: a static's marker dropping to the floor) while
-    # it moves and its distance to most of its segment's and its neighbours' markers that stay put changes by more.
-    # Which of its places was the segment's the trial cannot say: all its positions in the trial are left out (a
-    # fallen thigh marker in pig_walk's static had put the right knee centre 361 mm off).
+    # A marker that moves alone in a still trial (most markers keep within FALLEN_TURN of one place, 5th to 95th
+    # percentile over the trial: a static's marker dropping to the floor): it moves, and its distances to its
+    # segment's other markers change by more, wherever the segment itself drifted (a static's arms drift 40-50 mm in
+    # Rajagopal's static_walk_1, and a wrist or a biceps marker fallen there was kept: the forearm's pronation centre
+    # 0.7-1.4 m off).  A segment's only marker: its distances to most of its neighbours' markers that stay put change
+    # by more, or to every one of its neighbours' markers by FALLEN_OFF.  Which of its places was the segment's the
+    # trial cannot say but by the base model (_where_modelled): the others are left out (a fallen thigh marker in
+    # pig_walk's static had put the right knee centre 361 mm off).
     seen_all = np.all(np.isfinite(X), axis=2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -889,21 +916,30 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     moved = np.linalg.norm(hi - lo, axis=1)  # NaN for a marker never seen
     still_trial = bool(np.any(np.isfinite(moved))) and float(np.nanmedian(moved)) < FALLEN_TURN  # most markers stay
     seen_long = seen_all.sum(axis=0) >= width
-    for k in np.flatnonzero(moved > FALLEN_TURN) if still_trial else ():
-        if any(moved[m] > FALLEN_TURN for m in range(M) if m != k and seg[m] == seg[k] and seen_long[m]):
-            continue  # its segment moved with it
-        around = {seg[k], *near.get(seg[k], ())}
-        refs = [m for m in range(M) if m != k and seg[m] in around and seen_long[m]
-                and moved[m] <= FALLEN_TURN]  # its segment's and its neighbours' markers that stay put
-        if len(refs) < 2:
-            continue
+
+    def change_to(k: int, refs: list[int]) -> np.ndarray:
+        """How far each of marker k's distances to `refs` ranges over the trial (5th to 95th percentile)."""
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             d = np.linalg.norm(X[:, refs] - X[:, k:k + 1], axis=2)  # (frames, refs), NaN where either is unseen
-            change = np.nanpercentile(d, 95, axis=0) - np.nanpercentile(d, 5, axis=0)
-        if np.median(change) > FALLEN_TURN:  # most of them: a marker moved alone (a rigid turn keeps the distances)
-            out[:, k] = seen_all[:, k] & ~_where_modelled(X, k, [m for m in refs if seg[m] == seg[k]],
-                                                           model.parameters().marker, width)
+            return np.nanpercentile(d, 95, axis=0) - np.nanpercentile(d, 5, axis=0)
+
+    for k in np.flatnonzero(moved > FALLEN_TURN) if still_trial else ():
+        mates = [m for m in range(M) if m != k and seg[m] == seg[k] and seen_long[m]]
+        others = [m for m in range(M) if seg[m] in near.get(seg[k], ()) and seen_long[m]]
+        steady = [m for m in others if moved[m] <= FALLEN_TURN]
+        if any(moved[m] > FALLEN_TURN for m in mates):
+            # The segment drifted: most of its markers keep their distances to one another and break them with k
+            # (a pair broken is k's where it moved the more of the two).
+            change = change_to(k, mates)
+            broken = sum(c > FALLEN_TURN and moved[m] < moved[k] for c, m in zip(change, mates, strict=True))
+            hit = 2 * broken > len(mates)
+        elif mates or len(steady) >= 2:  # its segment's and its neighbours' markers that stay put
+            hit = np.median(change_to(k, mates + steady)) > FALLEN_TURN
+        else:  # a segment's only marker beside drifting neighbours
+            hit = bool(others) and bool(np.all(change_to(k, others) > FALLEN_OFF))
+        if hit:
+            out[:, k] = seen_all[:, k] & ~_where_modelled(X, k, mates, model.parameters().marker, width)
     # A segment's only marker judged by its neighbours alone is taken where it stays FALLEN_ALONE_S or more (a foot
     # with one marker stands still through a stance, under a second, while the shank's markers travel over it).
     longest = int(round(FALLEN_ALONE_S * trial.rate))
