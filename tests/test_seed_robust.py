@@ -473,15 +473,9 @@ def test_a_marker_fallen_in_a_static_whose_arms_drift_is_taken():
     ranges over a metre: all its positions are taken.  Before, neither was (the segment moved, or no neighbour stood
     still), and the static's forearm pronation centres ended 0.7 and 1.4 m off (scripts/damage_values.py --case
     rajagopal --trial static, seed 23)."""
-    from calibrate.model.model import load_model
     from calibrate.seed.seeding import fallen_samples
 
-    raj = REAL.parent / "rajagopal_walk"
-    if not (raj / "static_walk_1.trc").exists():
-        pytest.skip("real Rajagopal trials not present")
-    model = load_model(raj / "Rajagopal2016.osim", raj / "markerset_walk_preScale.xml")
-    trial = read_trial(raj / "static_walk_1.trc")
-    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    model, trial = _rajagopal("static_walk_1.trc")
     assert not fallen_samples(model, trial).any()
     for label, f, kept in (("R.Biceps", 179, True), ("L.Wrist", 139, False)):
         X = np.array(trial.markers)
@@ -504,15 +498,9 @@ def test_a_lone_exchange_of_two_segments_is_judged_by_rigidity():
     knee's centre ended 188 mm off (scripts/damage_values.py --case rajagopal, seed 21).  On the exchanged side each
     position keeps its distances to the other segment's markers, on the other side to its own's: frames 0-104 are
     named, by rigidity, and exchanged back to the trial as recorded."""
-    from calibrate.model.model import load_model
     from calibrate.seed.seeding import episodes, exchanged_back
 
-    raj = REAL.parent / "rajagopal_walk"
-    if not (raj / "motion_capture_walk.trc").exists():
-        pytest.skip("real Rajagopal trials not present")
-    model = load_model(raj / "Rajagopal2016.osim", raj / "markerset_walk_preScale.xml")
-    trial = read_trial(raj / "motion_capture_walk.trc")
-    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    model, trial = _rajagopal("motion_capture_walk.trc")
     i, j = trial.labels.index("R.Knee"), trial.labels.index("R.Wrist")
     X = np.array(trial.markers)
     X[:105, [i, j]] = X[:105, [j, i]]
@@ -522,3 +510,16 @@ def test_a_lone_exchange_of_two_segments_is_judged_by_rigidity():
     assert [(set(x.labels), x.start, x.stop, x.by) for x in back] == [({"R.Knee", "R.Wrist"}, 0, 105, "rigidity")]
     assert back[0].exchanged < 0.005 < 0.02 < back[0].labelled  # steady to skin's mm exchanged, not as labelled
     assert np.array_equal(exchanged_back(damaged, back).markers, trial.markers, equal_nan=True)
+
+
+def _rajagopal(trial_name: str):
+    """Rajagopal2016.osim with the lab's marker set, and one of its example trials with the labels the model knows
+    (skipped where the real trials are not present)."""
+    from calibrate.model.model import load_model
+
+    raj = REAL.parent / "rajagopal_walk"
+    if not (raj / trial_name).exists():
+        pytest.skip("real Rajagopal trials not present")
+    model = load_model(raj / "Rajagopal2016.osim", raj / "markerset_walk_preScale.xml")
+    trial = read_trial(raj / trial_name)
+    return model, trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
