@@ -135,9 +135,8 @@ def _notes(report: dict) -> str:
         a, b = (x.get("labels") or ["?", "?"])[:2]
         f0, f1 = (x.get("frames") or [0, 0])[:2]
         items.append(f"<li class=bad>exchanged: {_e(a)} and {_e(b)} ({_e(x.get('trial'))}) exchanged in frames "
-                     f"{f0}-{f1} and not back (their distances "
-                     + ("to the other's segment's markers keep steady to " if x.get("judged_by") == "rigidity" else
-                        "fit the base model's ")
+                     f"{f0}-{f1} and not back (their distances to their segments' markers "
+                     + ("keep steady to " if x.get("judged_by") == "rigidity" else "fit the base model's ")
                      + f"{x.get('misfit_exchanged_mm', 0):.0f} mm RMS exchanged, "
                      f"{x.get('misfit_as_labelled_mm', 0):.0f} as labelled): exchanged back there; check the "
                      "labelling</li>")

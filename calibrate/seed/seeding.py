@@ -953,14 +953,15 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
 
 
 def _where_modelled(X: np.ndarray, k: int, mates: list[int], base: np.ndarray, width: int) -> np.ndarray:
-    """(frames,) True where marker k, moved alone in a still trial, sits among `mates` (its segment's markers that
-    stay put) as the base model (`base`: every marker's offset on its segment) places it, up to a size
+    """(frames,) True where marker k, moved alone in a still trial, sits among `mates` (its segment's other markers)
+    as the base model (`base`: every marker's offset on its segment) places it, up to a size
     (FALLEN_SIZES), if those are `width` frames or more and every other frame it is seen in puts it FALLEN_FAR times
     further from them or more: there it was on its segment, elsewhere off the body (a torso marker fallen to the
     floor half-way through pig_walk's static: all its positions left out moved the left shoulder 14 mm).  Otherwise
     none: where both places could be the segment's (a marker dropped along the body, a shank's or a foot's marker
     dropped to the floor beside it), the trial cannot say which."""
     none = np.zeros(X.shape[0], dtype=bool)
+    mates = [m for m in mates if np.linalg.norm(base[m] - base[k]) > SEGMENT_PAIR_MIN / 5]  # not at its own place
     if not mates:
         return none
     model_d = np.linalg.norm(base[mates] - base[k], axis=1)  # (mates,)
