@@ -823,6 +823,9 @@ FALLEN_TURN = 0.030  # m ... while most markers of its segment and of the segmen
 # places in the window's two halves) and change their distances to it by more than this (every other one of its own;
 # a segment's only marker: every one of the segments next to it)
 FALLEN_ALONE_S = 1.0  # s: a segment's only marker so judged is taken where it stays at least this long
+FALLEN_MATES = 0.020  # m: ... its own markers' distances to it change by more than this (a rigid turn about it keeps
+# them to the skin's few mm; gait2392's R.Thigh.Rear on the floor 0.5 m below its thigh, the subject slowing at the
+# walk's end: 24-27 mm, under FALLEN_TURN, and the fit ended 48.7 mm RMS)
 # A marker that moved alone in a still trial keeps the frames where it sits at its segment's markers as the base model
 # places it (the median of its distances to one or more of them over the base model's within these factors: a
 # subject's size and a lab's own marker places; real statics' shapes spread up to 3.6x marker by marker, their median
@@ -899,7 +902,7 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
                         # left out made the toe beside it, standing in a stance, a foot's only marker)
                     if np.all((travel > FALLEN_TURN) & (change > FALLEN_TURN)):  # ... so every one of them
                         alone[a:b, k] = True
-                elif np.all((travel[mates] > FALLEN_TURN) & (change[mates] > FALLEN_TURN)):  # ... and all of its own
+                elif np.all((travel[mates] > FALLEN_TURN) & (change[mates] > FALLEN_MATES)):  # ... and all of its own
                     out[a:b, k] = True
     # A marker that moves alone in a still trial (most markers keep within FALLEN_TURN of one place, 5th to 95th
     # percentile over the trial: a static's marker dropping to the floor): it moves, and its distances to its
