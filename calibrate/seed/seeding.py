@@ -842,8 +842,8 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     fallen off onto the floor, or stuck to an object.  In windows of FALLEN_BLOCK_S seconds a quarter of one apart, a
     marker that keeps within FALLEN_STILL of one place while most markers of its segment and of the segments next to
     it (the nearest with markers; two or more seen there), and every other marker of its own, travel and change their
-    distances to it by more than FALLEN_TURN is not on the segment (a segment's only marker: where every marker next
-    to it does so, and it stays FALLEN_ALONE_S or more): a marker on a thigh or a forearm cannot stay put while the
+    distances to it by more than FALLEN_TURN (its own: FALLEN_MATES) is not on the segment (a segment's only marker:
+    where every marker next to it does so, and it stays FALLEN_ALONE_S or more): a marker on a thigh or a forearm cannot stay put while the
     markers around it travel away from it and back (pig_walk's RFRM frozen: the right elbow centre 687 mm off).  A
     stance foot or a squat's feet stand still with the markers beside them (a one-marker foot's ankle marker barely
     travels in a stance); in a still trial nothing travels (a static's jittering keypoints change their distances,
