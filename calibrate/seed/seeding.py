@@ -838,20 +838,21 @@ FALLEN_OFF = 0.15  # m: a segment's only marker whose distance to every marker o
 
 
 def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
-    """(n_frames, n_model_markers) True where a marker stays at one place in the lab while its segment moves: one
-    fallen off onto the floor, or stuck to an object.  In windows of FALLEN_BLOCK_S seconds a quarter of one apart, a
+    """(n_frames, n_model_markers) True where a marker stays at one place in the lab while its segment moves: one fallen
+    off onto the floor, or stuck to an object.  In windows of FALLEN_BLOCK_S seconds a quarter of one apart, a
     marker that keeps within FALLEN_STILL of one place while most markers of its segment and of the segments next to
-    it (the nearest with markers; two or more seen there), and every other marker of its own, travel and change their
-    distances to it by more than FALLEN_TURN (its own: FALLEN_MATES) is not on the segment (a segment's only marker:
-    where every marker next to it does so, and it stays FALLEN_ALONE_S or more): a marker on a thigh or a forearm
-    cannot stay put while the markers around it travel away from it and back (pig_walk's RFRM frozen: the right elbow
-    centre 687 mm off).  A stance foot or a squat's feet stand still with the markers beside them (a one-marker foot's ankle marker barely
-    travels in a stance); in a still trial nothing travels (a static's jittering keypoints change their distances,
-    but their mean places stay).  A knee marker lying on the floor from half-way through a walk otherwise pulled the
-    left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9 mm).  Windows overlap: a tibia marker fallen
-    late in a walk lies there through blocks that each hold a stance, where its segment's ankle marker stands still
-    (knee_l 101 mm off).  A stretch so taken gives back, at its ends, the samples where the marker keeps its rigid
-    distances to its segment's other markers (_on_their_segment: a toe standing beside a heel that fell)."""
+    it (the nearest with markers; two or more seen there), and every other marker of its own, travel and change
+    their distances to it by more than FALLEN_TURN (its own: FALLEN_MATES) is not on the segment (a segment's only
+    marker: where every marker next to it does so, and it stays FALLEN_ALONE_S or more): a marker on a thigh or a
+    forearm cannot stay put while the markers around it travel away from it and back (pig_walk's RFRM frozen: the
+    right elbow centre 687 mm off). A stance foot or a squat's feet stand still with the markers beside them (a
+    one-marker foot's ankle marker barely travels in a stance); in a still trial nothing travels (a static's
+    jittering keypoints change their distances, but their mean places stay). A knee marker lying on the floor from
+    half-way through a walk otherwise pulled the left hip 185 mm from its place (pig_walk: marker RMS 3.0 -> 46.9
+    mm). Windows overlap: a tibia marker fallen late in a walk lies there through blocks that each hold a stance,
+    where its segment's ankle marker stands still (knee_l 101 mm off). A stretch so taken gives back, at its ends,
+    the samples where the marker keeps its rigid distances to its segment's other markers (_on_their_segment: a toe
+    standing beside a heel that fell)."""
     X = marker_columns(model, trial)
     F, M, _ = X.shape
     out = np.zeros((F, M), dtype=bool)
