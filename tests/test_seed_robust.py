@@ -525,6 +525,30 @@ def _rajagopal(trial_name: str):
     return model, trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
 
 
+def test_a_segments_only_marker_fallen_for_under_a_second_far_from_its_neighbours_is_taken():
+    """Rajagopal's walk with L.Forearm (the ulna's only marker) on the floor for its last 0.67 s (frames 171-237 at
+    100 Hz): judged by its neighbours alone, a one-marker segment was taken only where it lay 1 s or more (a foot's
+    only marker stands still through a stance), and the fit pulled the left arm's centres 340 mm off
+    (scripts/damage_values.py --case rajagopal, seed 26, copy 47).  There it lies 5-9x further from the elbow's and
+    the wrist's markers than elsewhere in the trial: every fallen frame is taken and nothing else; on the floor for
+    0.53 s (a window is 0.5 s), the same; frozen in the air where it was (still, but not far), nothing."""
+    from calibrate.seed.seeding import fallen_samples
+
+    model, trial = _rajagopal("motion_capture_walk.trc")
+    assert not fallen_samples(model, trial).any()
+    j, m = trial.labels.index("L.Forearm"), model.marker_index("L.Forearm")
+    X0 = np.array(trial.markers)
+    for first in (171, 185):
+        X = X0.copy()
+        X[first:, j] = [X[first, j, 0], 0.007, X[first, j, 2]]  # y up
+        out = fallen_samples(model, Trial(trial.labels, X, trial.rate))
+        assert out[first:, m].all() and not out[:first, m].any() and out.sum() == out[:, m].sum(), first
+    X = X0.copy()
+    X[171:, j] = X[171, j]  # frozen in the air where it was: still, yet near the arm
+    out = fallen_samples(model, Trial(trial.labels, X, trial.rate))
+    assert not out[:, m].any()
+
+
 def test_a_thigh_marker_fallen_late_in_a_slowing_walk_is_taken():
     """gait2392's walk (OpenSim's example, its .osim and marker set) with R.Thigh.Rear on the floor for its last 0.68 s
     (frames 110-150 at 60 Hz), where the subject slows: the thigh's other markers travel 67-125 mm per half window,

@@ -946,14 +946,38 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
             out[:, k] = seen_all[:, k] & ~_where_modelled(X, k, mates, model.parameters().marker, width)
     # A segment's only marker judged by its neighbours alone is taken where it stays FALLEN_ALONE_S or more (a foot
     # with one marker stands still through a stance, under a second, while the shank's markers travel over it).
+    # Shorter, it is taken where it lies FALLEN_FAR times or more further from every marker of its neighbours than it
+    # does elsewhere in the trial: off the body (Rajagopal's L.Forearm on the floor for the walk's last 0.67 s, 1.0-1.3
+    # m from the elbow's and wrist's markers it keeps 0.11-0.25 m from; the left arm's centres 340 mm off).
     longest = int(round(FALLEN_ALONE_S * trial.rate))
     for k in np.flatnonzero(alone.any(axis=0)):
-        for a, b in _runs(_grown(alone[:, k], X[:, k])):
-            if b - a >= longest:
+        runs = _runs(_grown(alone[:, k], X[:, k]))
+        elsewhere = seen_all[:, k].copy()
+        for a, b in runs:
+            elsewhere[a:b] = False
+        for a, b in runs:
+            if b - a >= longest or _far_from_neighbours(X, k, [m for m in range(M) if seg[m] in near.get(seg[k], ())],
+                                                         slice(a, b), elsewhere, width):
                 out[a:b, k] = True
     for k in np.flatnonzero(out.any(axis=0)):
         out[:, k] = _grown(out[:, k], X[:, k])
     return _on_their_segment(out, X, seg, width)
+
+
+def _far_from_neighbours(X: np.ndarray, k: int, refs: list[int], run: slice, elsewhere: np.ndarray,
+                         width: int) -> bool:
+    """True when marker k lies, over the frames `run`, FALLEN_FAR times or more further from each of two or more
+    markers `refs` (its neighbours' markers) than it does over the frames `elsewhere` (the median distance of each;
+    pairs seen together in `width` frames or more there and in one frame or more of the run): no turn of a joint
+    moves a marker so far from the markers across it."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        d = np.linalg.norm(X[:, refs] - X[:, k:k + 1], axis=2)  # (frames, refs), NaN where either is unseen
+        judged = (np.sum(np.isfinite(d[elsewhere]), axis=0) >= width) & np.any(np.isfinite(d[run]), axis=0)
+        if judged.sum() < 2:
+            return False
+        ratio = np.nanmedian(d[run][:, judged], axis=0) / np.nanmedian(d[elsewhere][:, judged], axis=0)
+    return bool(np.all(ratio >= FALLEN_FAR))
 
 
 def _where_modelled(X: np.ndarray, k: int, mates: list[int], base: np.ndarray, width: int) -> np.ndarray:
