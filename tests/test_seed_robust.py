@@ -549,6 +549,39 @@ def test_a_segments_only_marker_fallen_for_under_a_second_far_from_its_neighbour
     assert not out[:, m].any()
 
 
+def test_a_marker_rejected_in_bulk_far_from_its_place_is_calibrated_again_without(monkeypatch):
+    """The outlier test's safety net: gait2392's walk with R.Thigh.Rear on the floor for its last 41 of 151 frames,
+    with seeding.fallen_samples made to miss it (as it did before FALLEN_MATES).  The fit smears the marker's place
+    (its residuals 140-470 mm in every frame): the test, its noise floor per marker capped at NOISE_CAP, rejects
+    exactly the 41, yet the solve from the distorted geometry ended with the hips 44-70 mm from the calibration with
+    them unseen (3 posterior SDs 3.6 mm).  Calibrated again from the start without them (pipeline.refit_outliers), it
+    equals that calibration and reports the 41 as outliers."""
+    import calibrate.seed.seeding as seeding
+    from calibrate.calibration.pipeline import refit_outliers
+    from calibrate.model.model import load_model
+
+    g = REAL.parent / "gait2392"
+    if not (g / "subject01_walk1.trc").exists():
+        pytest.skip("real gait2392 trials not present")
+    model = load_model(g / "gait2392.osim", g / "gait2392_Scale_MarkerSet.xml")
+    trial = read_trial(g / "subject01_walk1.trc")
+    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    X = np.array(trial.markers)
+    j = trial.labels.index("R.Thigh.Rear")
+    X[110:, j] = [X[110, j, 0], 0.007, X[110, j, 2]]  # y up
+    U = X.copy()
+    U[110:, j] = np.nan
+    unseen = calibrate(model, Trial(trial.labels, U, trial.rate))
+    assert not refit_outliers(unseen)
+    monkeypatch.setattr(seeding, "fallen_samples", lambda m, t: np.zeros((t.n_frames, len(m.markers)), dtype=bool))
+    cal = calibrate(model, Trial(trial.labels, X, trial.rate))
+    assert "first run" in cal.times
+    fallen = sorted(o.frame for o in cal.outliers if o.marker == "R.Thigh.Rear")
+    assert fallen == list(range(110, 151))
+    shift = np.linalg.norm(np.array(cal.params.centre) - np.array(unseen.params.centre), axis=1)
+    assert shift.max() < 1e-3, shift.max()
+
+
 def test_a_thigh_marker_fallen_late_in_a_slowing_walk_is_taken():
     """gait2392's walk (OpenSim's example, its .osim and marker set) with R.Thigh.Rear on the floor for its last 0.68 s
     (frames 110-150 at 60 Hz), where the subject slows: the thigh's other markers travel 67-125 mm per half window,
