@@ -354,13 +354,14 @@ STILL_COARSE_FRAMES = 24
 
 def refit_outliers(cal: Calibration) -> tuple[Outlier, ...]:
     """The outliers of `cal` to calibrate again without, from the start: of each trial and marker whose positions
-    rejected REFIT_ERROR or more from its place number REFIT_FRAMES or more and REFIT_SHARE or more of the frames it
-    is seen in there, those positions (none: a few spikes, which the solve has already let go)."""
+    the solve's outlier test rejected REFIT_ERROR or more from its place number REFIT_FRAMES or more and REFIT_SHARE
+    or more of the frames it is seen in there, those positions (none: a few spikes, which the solve has already let
+    go; the positions left out before the start are out of the seed already)."""
     seen = np.isfinite(cal.residuals[..., 0])  # (F, markers): fitted, not rejected
     spans = trial_spans(cal.trials)
     far: dict[tuple[int, str], list[Outlier]] = {}
     for o in cal.outliers:
-        if o.error >= REFIT_ERROR:
+        if o.error >= REFIT_ERROR and not o.before:
             far.setdefault((o.trial, o.marker), []).append(o)
     gone: list[Outlier] = []
     for (i, marker), found in far.items():
@@ -593,6 +594,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                 "at the base model's offset from their segments' markers"))
         settings = replace(settings, hold_centres=settings.hold_centres + still_centres)
     still_axes = _still_axes(subject, settings, judged, motion) if run.auto_hold else ()
+    # The subject's size from the cleaned trials' marker distances: pig_walk's RFRM on the floor for 212 of 300 frames,
+    # all of them left out of the seed and the solve, had set the right arm's size from the floor (0.72, 0.86 without)
+    # and the right shoulder ended 49 mm from the calibration with them unseen.
+    size = size_from_markers(model, judged)
     del judged  # the cleaned copies (a long trial's markers once more) are not needed past the judgments
     as_given = settings.hold_axes  # the axes held for the run's own reasons are reported as found (held_axes)
     if still_axes:
@@ -619,7 +624,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     if n_good < MIN_FRAMES:
         raise CalibrateError(f"{where}: only {n_good} frames show 3 or more of the model's markers; "
                              f"need at least {MIN_FRAMES} (check the labels and gaps)")
-    size = size_from_markers(model, trials)
     _check_size(model, trials, size)
     _check_rate(model, trials)
     if not matched:
@@ -673,9 +677,11 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # outliers.
     jumped = jumped_samples(subject, trials, found=damaged) if damaged is not None \
         else np.zeros(obs.shape[:2], dtype=bool)
-    for o in gone:  # an earlier run's outliers, left out from the start (refit_outliers)
+    tested = np.zeros_like(jumped)  # an earlier run's outliers, left out from the start (refit_outliers)
+    for o in gone:
         if o.marker in subject.marker_names:
-            jumped[spans[o.trial].start + o.frame, subject.marker_index(o.marker)] = True
+            tested[spans[o.trial].start + o.frame, subject.marker_index(o.marker)] = True
+    jumped |= tested
     raw = obs
     if jumped.any():
         say(Progress("markers", f"{int(jumped.sum())} positions jump away and back (swapped labels, spikes), jitter or "
@@ -1086,7 +1092,7 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         Zr = FrameLayout.coordinates(Z[:, FrameLayout.translation], FrameLayout.angles(Z))
         err = np.linalg.norm(problem.kin.batch(Zr, Q, params)[0] - raw, axis=2)
         rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
-                            float(err[f, k])) for f, k in np.argwhere(jumped)] + rejected
+                            float(err[f, k]), before=not tested[f, k]) for f, k in np.argwhere(jumped)] + rejected
     residuals = problem.marker_residuals(state)
     # The hip centres on a few hundred frames of each trial, against Harrington's regression on its pelvis markers
     # (HipMotion.from_regression: a walk's hips, which its motion does not place, ended outside the pelvis).

@@ -104,7 +104,8 @@ def calibration_report(cal: Calibration) -> dict:
             "ignored_labels": list(cal.ignored_labels), "unused_model_markers": list(cal.unused_markers)},
         "outliers": {"count": len(cal.outliers), "per_marker": per_outlier,
                      "threshold_noise_sd": st.outliers,
-                     "rejected": [{"trial": o.trial, "frame": o.frame, "marker": o.marker, "error_mm": _mm(o.error)}
+                     "rejected": [{"trial": o.trial, "frame": o.frame, "marker": o.marker, "error_mm": _mm(o.error),
+                                   **({"before_solve": True} if o.before else {})}
                                   for o in cal.outliers[:200]]},
         "model": {"source": str(model.path), "segments": len(model.segments), "joints": len(model.joints),
                   "dof": model.nz, "markers": len(model.markers),

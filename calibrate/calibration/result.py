@@ -55,6 +55,9 @@ class Outlier:
     frame: int  # frame of that trial (0-based)
     marker: str
     error: float  # m, when it was rejected
+    before: bool = False  # left out before the start by the seeding's tests (a jump, jitter, a marker fallen off),
+    # its error at the final fit; otherwise rejected by the solve's outlier test (or by the first run's, which the
+    # calibration was run again without: pipeline.refit_outliers)
 
 
 # A segment whose calibrated scale is this many times the subject's median segment scale, or smaller by as
