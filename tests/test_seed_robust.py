@@ -525,6 +525,19 @@ def _rajagopal(trial_name: str):
     return model, trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
 
 
+def _gait2392_walk():
+    """gait2392.osim with its scale marker set, and OpenSim's example walk with the labels the model knows (skipped
+    where the real trials are not present)."""
+    from calibrate.model.model import load_model
+
+    g = REAL.parent / "gait2392"
+    if not (g / "subject01_walk1.trc").exists():
+        pytest.skip("real gait2392 trials not present")
+    model = load_model(g / "gait2392.osim", g / "gait2392_Scale_MarkerSet.xml")
+    trial = read_trial(g / "subject01_walk1.trc")
+    return model, trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+
+
 def test_a_segments_only_marker_fallen_for_under_a_second_far_from_its_neighbours_is_taken():
     """Rajagopal's walk with L.Forearm (the ulna's only marker) on the floor for its last 0.67 s (frames 171-237 at
     100 Hz): judged by its neighbours alone, a one-marker segment was taken only where it lay 1 s or more (a foot's
@@ -558,14 +571,8 @@ def test_a_marker_rejected_in_bulk_far_from_its_place_is_calibrated_again_withou
     equals that calibration and reports the 41 as outliers."""
     import calibrate.seed.seeding as seeding
     from calibrate.calibration.pipeline import refit_outliers
-    from calibrate.model.model import load_model
 
-    g = REAL.parent / "gait2392"
-    if not (g / "subject01_walk1.trc").exists():
-        pytest.skip("real gait2392 trials not present")
-    model = load_model(g / "gait2392.osim", g / "gait2392_Scale_MarkerSet.xml")
-    trial = read_trial(g / "subject01_walk1.trc")
-    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    model, trial = _gait2392_walk()
     X = np.array(trial.markers)
     j = trial.labels.index("R.Thigh.Rear")
     X[110:, j] = [X[110, j, 0], 0.007, X[110, j, 2]]  # y up
@@ -614,15 +621,9 @@ def test_a_thigh_marker_fallen_late_in_a_slowing_walk_is_taken():
     distances are judged at FALLEN_MATES (20 mm; a rigid turn about it keeps them to the skin's few mm): every fallen
     frame is taken and nothing else (with 30 mm none was, and the fit ended 48.7 mm RMS: scripts/damage_values.py
     --case gait2392, seed 28)."""
-    from calibrate.model.model import load_model
     from calibrate.seed.seeding import fallen_samples
 
-    g = REAL.parent / "gait2392"
-    if not (g / "subject01_walk1.trc").exists():
-        pytest.skip("real gait2392 trials not present")
-    model = load_model(g / "gait2392.osim", g / "gait2392_Scale_MarkerSet.xml")
-    trial = read_trial(g / "subject01_walk1.trc")
-    trial = trial.select([lab for lab in trial.labels if lab in set(model.marker_names)])
+    model, trial = _gait2392_walk()
     assert not fallen_samples(model, trial).any()
     X = np.array(trial.markers)
     j = trial.labels.index("R.Thigh.Rear")
