@@ -955,9 +955,9 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
         elsewhere = seen_all[:, k].copy()
         for a, b in runs:
             elsewhere[a:b] = False
+        refs = [m for m in range(M) if seg[m] in near.get(seg[k], ())]
         for a, b in runs:
-            if b - a >= longest or _far_from_neighbours(X, k, [m for m in range(M) if seg[m] in near.get(seg[k], ())],
-                                                         slice(a, b), elsewhere, width):
+            if b - a >= longest or _far_from_neighbours(X, k, refs, slice(a, b), elsewhere, width):
                 out[a:b, k] = True
     for k in np.flatnonzero(out.any(axis=0)):
         out[:, k] = _grown(out[:, k], X[:, k])
