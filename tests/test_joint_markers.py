@@ -362,6 +362,18 @@ def test_a_walk_is_named_as_too_little_hip_motion_to_place_the_hips(human, tmp_p
     report = calibration_report(replace(moved, hip_motion=out))
     assert [h["implausible"] for h in report["hip_motion"]] == [True, True]
     assert report_html(report).count("outside the pelvis, though the trials turn it through") == 2
+    # ... or closer together than HIP_NARROW times the ASIS markers: on the pelvis's midline (BTKData's 561xxa01 on
+    # Rajagopal2016.osim: 29 mm apart where the ASIS markers are 214); just wider, not.
+    from calibrate.calibration.regression import HIP_NARROW
+
+    mid = tuple(replace(h, width=(0.95 * HIP_NARROW * h.width[1], h.width[1])) for h in moved.hip_motion)
+    assert all(h.narrow and h.nowhere and not h.outside and h.implausible for h in mid)
+    assert not any(replace(h, width=(1.05 * HIP_NARROW * h.width[1], h.width[1])).implausible
+                   for h in moved.hip_motion)
+    assert "mm apart where the ASIS markers are" in (text := summary_text(replace(moved, hip_motion=mid)))
+    assert "on the pelvis midline, though the trials turn hip_l through" in text
+    html = report_html(calibration_report(replace(moved, hip_motion=mid)))
+    assert html.count("on the pelvis midline, though the trials turn it through") == 2
 
 
 @pytest.fixture(scope="module")
@@ -399,6 +411,12 @@ def test_hips_outside_the_pelvis_are_calibrated_again_by_the_regression_by_defau
     assert fired.hip_regression_auto.startswith("applied: without it ")
     assert "  hips         Harrington's regression (hip_regression outside) applied: without it " in fired.text()
     assert calibration_report(fired)["settings"]["hip_regression"] == "outside"
+    # Hips drawn onto the pelvis's midline (HIP_NARROW set above their width over the ASIS markers') likewise.
+    monkeypatch.setattr(regression, "HIP_OUTSIDE", 1.0)
+    monkeypatch.setattr(regression, "HIP_NARROW", 1.1 * width / asis)
+    narrow = calibrate(human, [walk], Settings(outliers=0.0))
+    assert np.array_equal(narrow.params.vector(), placed.params.vector())
+    assert narrow.hip_regression_auto.startswith("applied: without it ")
     off = calibrate(human, [walk], Settings(outliers=0.0, hip_regression=False))
     assert off.hip_regression_auto == "" and np.array_equal(off.params.vector(), plain.params.vector())
     assert settings_from_dict({"hip_regression": "outside"}, "lab.toml").hip_regression == "outside"

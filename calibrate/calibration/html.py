@@ -22,6 +22,7 @@ from ..errors import CalibrateError
 from ..io.labels import UNLABELLED
 from ..io.outputs import check_targets, put_text, write_all
 from ..seed.association import shared_clause
+from .regression import HIP_OUTSIDE
 
 STYLE = """
 body{font-family:system-ui,sans-serif;margin:1.5em auto;max-width:1200px;color:#222;padding:0 1em}
@@ -202,9 +203,11 @@ def _notes(report: dict) -> str:
                             f"({h['model_offset_mm']:.0f} mm from Harrington's on its own): its convention"
                             if h.get("as_model") and h.get("from_regression_mm", 0) > 40 else "")
                          + "; <code>--hip-regression</code> places it by Harrington's regression</li>")
-        elif h.get("implausible") and h.get("joint") not in tied:  # placed by the motion, yet outside the pelvis
+        elif h.get("implausible") and h.get("joint") not in tied:  # placed by the motion, yet where no hip is
+            outside = h["hip_width_mm"] > HIP_OUTSIDE * h["asis_width_mm"]
+            where = "outside the pelvis" if outside else "on the pelvis midline"
             items.append(f"<li class=bad>{_e(h.get('joint'))}: the hips {h['hip_width_mm']:.0f} mm apart where the "
-                         f"ASIS markers are {h['asis_width_mm']:.0f}: outside the pelvis, though the trials turn it "
+                         f"ASIS markers are {h['asis_width_mm']:.0f}: {where}, though the trials turn it "
                          "through " + ", ".join(f"{_e(d)} {v:.0f}" for d, v in h.get("range_deg", {}).items())
                          + f" deg; {h['from_regression_mm']:.0f} mm from Harrington's regression: implausible; "
                          "<code>--hip-regression</code> places it by Harrington's regression</li>")

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 
 #: Settings.hip_regression's modes besides true and false: "auto" (where a hip ends implausible) and "outside" (where
-#: the hips end outside the pelvis, the default); calibrate.calibration.pipeline._hips_auto.
+#: the hips end outside the pelvis or on its midline, the default); calibrate.calibration.pipeline._hips_auto.
 HIP_MODES = ("auto", "outside")
 
 
@@ -24,7 +24,8 @@ class PipelineOptions:
     ahead: bool = True  # the start's GIL-bound parts in a forked process on the other core (same results)
     still_weight: float = 0.0  # frames a still trial counts as in all beside a moving one (0: every frame once)
     moved_markers: bool = False  # a still trial's positions of markers the moving trials put elsewhere: left out
-    # hip centres by Harrington's regression ("auto": where they end implausible; "outside": outside the pelvis)
+    # hip centres by Harrington's regression ("auto": where they end implausible; "outside": outside the pelvis or on
+    # its midline)
     hip_regression: bool | str = "outside"
     far_joints: bool = True  # a still trial's markers beyond a joint it holds where no moving trial goes: left out
 

@@ -2611,9 +2611,10 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
     and where it leaves the hips so, the calibration again with it.  "auto": a hip implausible (HipMotion.implausible:
     the trials' motion does not place it, and it ended further than REGRESSION_FAR from the regression or the hips
     wider apart than HIP_WIDTH_FAR times the ASIS markers; BTKData's Plug-in Gait walks: 46-93 mm, the hips outside
-    the ASIS; or, wherever, wider apart than the ASIS markers).  "outside": only the last, the hips wider apart than
-    the ASIS markers (HipMotion.outside), where no hip is, whatever the markers say: BTKData's Plug-in Gait walks and
-    Camargo's level-ground walk ended so (docs/benchmarks.md).  The result says which
+    the ASIS; or, wherever, wider apart than the ASIS markers or closer together than half their width).  "outside":
+    only the last, the hips wider apart than the ASIS markers or on the pelvis's midline (HipMotion.nowhere), where no
+    hip is, whatever the markers say: BTKData's Plug-in Gait walks and Camargo's level-ground walk ended wider,
+    BTKData's 561xxa01 on Rajagopal2016.osim 29 mm apart (docs/benchmarks.md).  The result says which
     (Calibration.hip_regression_auto); where the regression cannot run (regression_hips refuses: the model already
     carries its markers' names, or the pelvis markers are missing), or ("auto") where it makes the markers fit more
     than HIP_AUTO_COST times worse (RMS) and the hips without it lie inside the pelvis (the markers place them against
@@ -2623,7 +2624,7 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
     say = _announcer(given["progress"])
     first = calibrate(model, trials, replace(settings, hip_regression=False), **given)
     tied = {m.joint for m in first.joint_markers}
-    far = [h for h in first.hip_motion if (h.implausible if mode == "auto" else h.outside) and h.joint not in tied]
+    far = [h for h in first.hip_motion if (h.implausible if mode == "auto" else h.nowhere) and h.joint not in tied]
     if not far:
         return replace(first, settings=replace(first.settings, hip_regression=mode))
     width, asis = far[0].width
@@ -2639,7 +2640,7 @@ def _hips_auto(model: Model, trials: tuple[Trial, ...], settings: Settings, give
         return replace(first, settings=replace(first.settings, hip_regression=mode),
                        hip_regression_auto=f"not applied: {why}, but {str(e).removeprefix('hip_regression: ')}")
     cost = second.marker_rms / first.marker_rms
-    if cost > regression.HIP_AUTO_COST and not any(h.outside for h in far):
+    if cost > regression.HIP_AUTO_COST and not any(h.nowhere for h in far):
         # The markers place the hips against the regression, and they lie inside the pelvis: the trials' own kept.
         return replace(first, settings=replace(first.settings, hip_regression=mode),
                        hip_regression_auto=f"not applied: {why}, but with it the markers fit {cost:.2f} times worse "

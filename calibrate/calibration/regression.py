@@ -127,6 +127,11 @@ MODEL_OFFSET = 0.015
 #: walks whose motion placed the hips 0.79-0.95): c3d.org's sample04, a thigh whose markers do not fix its turn about
 #: its length (hip_r rotation over 122 deg), ended them 1.35 times the ASIS width apart, 75 mm from Harrington's.
 HIP_OUTSIDE = 1.0
+#: ... nor two hips closer together than HIP_NARROW times the ASIS markers: drawn onto the pelvis's midline, where no
+#: hip is either (Harrington's 0.73 at 220 mm; a lab's functional centres, OpenCap's, 0.81; the narrowest real run
+#: otherwise, BTKData's ADemo1, 0.57): BTKData's 561xxa01 on Rajagopal2016.osim, its thighs' own markers not in the
+#: model's set, ended them 29 mm apart where the ASIS markers are 214.
+HIP_NARROW = 0.5
 #: hip_regression "auto" keeps the calibration with the regression only where its marker RMS is within HIP_AUTO_COST
 #: times the one without, unless the hips without it lie outside the pelvis (HIP_OUTSIDE: no hip is there, whatever
 #: the fit).  Imposed where the markers place the hips against it, the regression costs the fit: on the eleven real
@@ -170,15 +175,25 @@ class HipMotion:
     @property
     def implausible(self) -> bool:
         """A centre the motion does not place, ended further than REGRESSION_FAR from Harrington's or the hips
-        further apart than HIP_WIDTH_FAR times the ASIS markers; or, placed by the motion or not, the hips further
-        apart than HIP_OUTSIDE times the ASIS markers (outside the pelvis)."""
-        return self.outside or not self.places_centre and not self.as_model and (
+        further apart than HIP_WIDTH_FAR times the ASIS markers; or, placed by the motion or not, the hips where no
+        hip is (nowhere: further apart than HIP_OUTSIDE times the ASIS markers, or closer together than HIP_NARROW)."""
+        return self.nowhere or not self.places_centre and not self.as_model and (
             self.from_regression > REGRESSION_FAR or self.width[0] > HIP_WIDTH_FAR * self.width[1])
 
     @property
     def outside(self) -> bool:
         """The two hips further apart than HIP_OUTSIDE times the ASIS markers: outside the pelvis."""
         return bool(self.width[0] > HIP_OUTSIDE * self.width[1])
+
+    @property
+    def narrow(self) -> bool:
+        """The two hips closer together than HIP_NARROW times the ASIS markers: on the pelvis's midline."""
+        return bool(self.width[0] < HIP_NARROW * self.width[1])
+
+    @property
+    def nowhere(self) -> bool:
+        """The hips where no hip is, whatever the markers say: outside the pelvis or on its midline."""
+        return self.outside or self.narrow
 
     def text(self) -> str:
         """e.g. 'hip_l through flexion 31, adduction 8, rotation 13 deg' (the DoF names without the joint's)."""

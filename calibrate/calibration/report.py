@@ -1205,10 +1205,11 @@ def summary_text(cal) -> str:
                         "the trials' motion does not place them (hips above), the thigh markers' skin did")
                      + ("; the regression, tried, fits the markers worse (hips below)" if "times worse" in
                         cal.hip_regression_auto else "; --hip-regression places them by the regression"))
-    if wide := [h for h in cal.hip_motion if h.places_centre and h.outside and h.joint not in tied]:
+    if wide := [h for h in cal.hip_motion if h.places_centre and h.nowhere and h.joint not in tied]:
         width, asis = wide[0].width
         lines.append(f"{IMPLAUSIBLE}the hips {1e3 * width:.0f} mm apart where the ASIS markers are {1e3 * asis:.0f} "
-                     f"(Harrington's: {1e3 * harrington_width(asis):.0f}): outside the pelvis, though the trials turn "
+                     f"(Harrington's: {1e3 * harrington_width(asis):.0f}): "
+                     f"{'outside the pelvis' if wide[0].outside else 'on the pelvis midline'}, though the trials turn "
                      + " and ".join(h.text() for h in wide) + ", enough to place a centre: the thighs' skin, or a "
                      "thigh turned about its length by markers that do not fix that turn, moved them ("
                      + " and ".join(f"{h.joint} {1e3 * h.from_regression:.0f} mm" for h in wide)

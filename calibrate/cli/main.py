@@ -263,15 +263,17 @@ def build_calibrate_parser() -> argparse.ArgumentParser:
     hips.add_argument("--hip-regression-auto", action="store_true",
                       help="calibrate without the regression, and again with it where that leaves a hip implausible "
                            "(over 40 mm from the regression, or the hips wider apart than 0.9 times the ASIS "
-                           "markers, where the trials' motion does not place them; wider apart than the ASIS markers, "
-                           "wherever): a second calibration only there, kept unless it fits the markers over 1.25 "
-                           "times worse with the hips inside the pelvis; "
-                           "the summary and report say which (settings file: hip_regression = \"auto\"; by "
-                           "default only where the hips end wider apart than the ASIS markers, outside the pelvis: "
+                           "markers, where the trials' motion does not place them; wider apart than the ASIS "
+                           "markers or closer together than half their width, wherever): a second calibration only "
+                           "there, kept unless it fits the markers over 1.25 times worse with the hips inside the "
+                           "pelvis; the summary and report say which (settings file: hip_regression = \"auto\"; by "
+                           "default only where the hips end wider apart than the ASIS markers or closer together "
+                           "than half their width, outside the pelvis or on its midline: "
                            "hip_regression = \"outside\")")
     hips.add_argument("--no-hip-regression", action="store_true",
                       help="never place the hips by Harrington's regression, not even where the calibration leaves "
-                           "them wider apart than the ASIS markers (by default it calibrates again with it there; "
+                           "them wider apart than the ASIS markers or closer together than half their width (by "
+                           "default it calibrates again with it there; "
                            "settings file: hip_regression = false)")
     ap.add_argument("--no-auto-hold", action="store_true",
                     help="calibrate the axes of coordinates the trial does not show moving too (and of those it "

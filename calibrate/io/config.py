@@ -22,7 +22,8 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     moved_markers = false   # leave out a still trial's positions of markers the moving trials put elsewhere
     far_joints = true       # leave out a still trial's markers beyond a joint it holds where the moving trials never go
     hip_regression = "outside"  # hip centres by Harrington's regression from the pelvis markers: true, false,
-                                # "auto" (where they end implausible), "outside" (outside the pelvis)
+                                # "auto" (where they end implausible), "outside" (outside the pelvis
+                                # or on its midline)
 
     hold_axes = []          # hinge/universal DoFs whose axis stays the base model's (angles stay free)
     hold_centres = []       # joints whose centre keeps the base model's offset from its parent's markers (["back"])

@@ -118,7 +118,8 @@ class Settings:
     # regression, or the hips wider apart than HIP_WIDTH_FAR times the ASIS markers, where the trials' motion does
     # not place them; wider apart than the ASIS markers, wherever: calibrate.calibration.regression.HipMotion
     # .implausible).  "outside" (the default): the same, only where the hips end wider apart than the ASIS markers
-    # (HipMotion.outside: outside the pelvis, where no hip is).  False: never.
+    # or closer together than half their width (HipMotion.nowhere: outside the pelvis or on its midline, where no hip
+    # is).  False: never.
     hip_regression: bool | str = "outside"
 
     @property
