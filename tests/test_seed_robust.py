@@ -544,14 +544,16 @@ def test_a_segments_only_marker_fallen_for_under_a_second_far_from_its_neighbour
     only marker stands still through a stance), and the fit pulled the left arm's centres 340 mm off
     (scripts/damage_values.py --case rajagopal, seed 26, copy 47).  There it lies 5-9x further from the elbow's and
     the wrist's markers than elsewhere in the trial: every fallen frame is taken and nothing else; on the floor for
-    0.53 s (a window is 0.5 s), the same; frozen in the air where it was (still, but not far), nothing."""
+    0.53 s (a window is 0.5 s), the same; and for its last 0.40, 0.33 and 0.18 s, judged in the trial's last three,
+    two and one steps of a window (whole windows missed them, and the left arm's centres ended 258 and 506 mm off);
+    frozen in the air where it was (still, but not far), nothing."""
     from calibrate.seed.seeding import fallen_samples
 
     model, trial = _rajagopal("motion_capture_walk.trc")
     assert not fallen_samples(model, trial).any()
     j, m = trial.labels.index("L.Forearm"), model.marker_index("L.Forearm")
     X0 = np.array(trial.markers)
-    for first in (171, 185):
+    for first in (171, 185, 198, 205, 220):
         X = X0.copy()
         X[first:, j] = [X[first, j, 0], 0.007, X[first, j, 2]]  # y up
         out = fallen_samples(model, Trial(trial.labels, X, trial.rate))
@@ -562,13 +564,39 @@ def test_a_segments_only_marker_fallen_for_under_a_second_far_from_its_neighbour
     assert not out[:, m].any()
 
 
+def test_a_ghost_before_a_gap_at_the_trials_start_is_left_out_before_the_solve():
+    """Rajagopal's walk with L.Ankle 2 m off in frame 3 and unseen for the 17 frames after (scripts/damage_values.py
+    --case rajagopal --seed 1171, copy 28): the jumps misread it (the trial's start and the gap leave the frame
+    before it alone on its side, and that frame was taken), and broken_samples did not judge the tibia at all -- the
+    model carries 14 markers there, over SEED_BROKEN_GROUP, where the trial shows 5.  The ghost, kept into the solve,
+    was rejected there only after it had drawn hip_l 66 mm from the calibration with it unseen.  Judged on the
+    markers the trial shows, its distances to the shank's markers broken by 2 m (over GHOST_BREAK), it is left out
+    before the solve: the calibration equals the one with it unseen."""
+    from calibrate.seed.seeding import broken_samples, jumped_samples
+
+    model, trial = _rajagopal("motion_capture_walk.trc")
+    j, m = trial.labels.index("L.Ankle"), model.marker_index("L.Ankle")
+    X = np.array(trial.markers)
+    X[3, j] += [1.7848, -0.4086, -0.7992]
+    X[4:21, j] = np.nan
+    damaged = Trial(trial.labels, X, trial.rate)
+    assert broken_samples(model, damaged)[3, m] and jumped_samples(model, [damaged])[3, m]
+    assert not jumped_samples(model, [trial]).any()
+    U = X.copy()
+    U[3, j] = np.nan
+    cal, unseen = calibrate(model, damaged), calibrate(model, Trial(trial.labels, U, trial.rate))
+    assert any(o.marker == "L.Ankle" and o.frame == 3 and o.before for o in cal.outliers)
+    shift = np.linalg.norm(np.array(cal.params.centre) - np.array(unseen.params.centre), axis=1)
+    assert shift.max() < 2e-3, shift.max()
+
+
 def test_a_marker_rejected_in_bulk_far_from_its_place_is_calibrated_again_without(monkeypatch):
     """The outlier test's safety net: gait2392's walk with R.Thigh.Rear on the floor for its last 41 of 151 frames,
-    with seeding.fallen_samples made to miss it (as it did before FALLEN_MATES).  The fit smears the marker's place
-    (its residuals 140-470 mm in every frame): the test, its noise floor per marker capped at NOISE_CAP, rejects
-    exactly the 41, yet the solve from the distorted geometry ended with the hips 44-70 mm from the calibration with
-    them unseen (3 posterior SDs 3.6 mm).  Calibrated again from the start without them (pipeline.refit_outliers), it
-    equals that calibration and reports the 41 as outliers."""
+    with seeding.fallen_samples made to miss it (as it did before FALLEN_MATES), and the ghost check too
+    (GHOST_BREAK).  The fit smears the marker's place (its residuals 140-470 mm in every frame): the test, its noise
+    floor per marker capped at NOISE_CAP, rejects exactly the 41, yet the solve from the distorted geometry ended
+    with the hips 44-70 mm from the calibration with them unseen (3 posterior SDs 3.6 mm).  Calibrated again from
+    the start without them (pipeline.refit_outliers), it equals that calibration and reports the 41 as outliers."""
     import calibrate.seed.seeding as seeding
     from calibrate.calibration.pipeline import refit_outliers
 
@@ -581,6 +609,7 @@ def test_a_marker_rejected_in_bulk_far_from_its_place_is_calibrated_again_withou
     unseen = calibrate(model, Trial(trial.labels, U, trial.rate))
     assert not refit_outliers(unseen)
     monkeypatch.setattr(seeding, "fallen_samples", lambda m, t: np.zeros((t.n_frames, len(m.markers)), dtype=bool))
+    monkeypatch.setattr(seeding, "GHOST_BREAK", np.inf)  # (its distances to the thigh's markers broken: a ghost's)
     cal = calibrate(model, Trial(trial.labels, X, trial.rate))
     assert "first run" in cal.times
     fallen = sorted(o.frame for o in cal.outliers if o.marker == "R.Thigh.Rear")

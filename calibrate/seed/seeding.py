@@ -233,6 +233,11 @@ SEED_BROKEN_SDS = 6.0  # a rigid marker pair's distance this many robust SDs fro
 SEED_BROKEN_MIN = 0.010  # m ... and at least this far: a swapped label or a spike (broken_samples)
 
 
+GHOST_BREAK = 0.2  # m: a sample that breaks its segment's steady distances by this much is no skin's, and is left out
+# of the solve too (jumped_samples), not only of the seed: a ghost 2 m off at the trial's third frame, a gap after it,
+# which the jumps misread (Rajagopal's L.Ankle: the frame before it taken, the ghost kept; hip_l 66 mm off)
+
+
 SEED_JUMP_MIN = 0.02  # m: a marker's frame-to-frame step this far from the steps around it is a jump ...
 
 
@@ -450,21 +455,24 @@ def size_from_markers(model: Model, trials: Sequence[Trial], seed: int = 0,
     return Size(segment_range(scale, overall), factors, overall, int(a.size))
 
 
-def broken_samples(model: Model, trial: Trial) -> np.ndarray:
+def broken_samples(model: Model, trial: Trial, least: float = SEED_BROKEN_MIN) -> np.ndarray:
     """(n_frames, n_model_markers) True where a marker sample breaks the distances it keeps to the other
     markers of its segment: a swapped label or a spike.
 
     A pair is broken in a frame when its distance is further than SEED_BROKEN_SDS robust SDs (and
-    SEED_BROKEN_MIN) from its median over the trial (pairs whose distance is not steady over the
-    trial, SIZE_TRIAL_CV, are not used).  Within a segment, a frame keeps the markers common to every
-    largest set with no broken pair among them: one marker off is flagged alone, two swapped labels
-    both, and when the distances cannot tell which markers are wrong (two markers alone, or a swap on
-    a near-symmetric segment) all of them."""
+    `least`, SEED_BROKEN_MIN; GHOST_BREAK for a ghost) from its median over the trial (pairs whose
+    distance is not steady over the trial, SIZE_TRIAL_CV, are not used).  Within a segment (its markers
+    the trial shows), a frame keeps the markers common to every largest set with no broken pair among
+    them: one marker off is flagged alone, two swapped labels both, and when the distances cannot tell
+    which markers are wrong (two markers alone, or a swap on a near-symmetric segment) all of them."""
     X = marker_columns(model, trial)
     flagged = np.zeros(X.shape[:2], dtype=bool)
     seen = np.all(np.isfinite(X), axis=2)
+    shown = seen.any(axis=0)
     for sg in model.segments:
-        members = np.array([model.marker_index(m) for m in sg.markers])
+        # the segment's markers the trial shows: a model with a lab's full marker set carries more on a segment than
+        # a trial does (Rajagopal2016's tibia 14, its walk 5), and a group over SEED_BROKEN_GROUP is not checked
+        members = np.array([k for k in (model.marker_index(m) for m in sg.markers) if shown[k]], dtype=int)
         if members.size < 2 or members.size > SEED_BROKEN_GROUP:
             continue
         ia, ib = np.triu_indices(members.size, 1)
@@ -474,7 +482,7 @@ def broken_samples(model: Model, trial: Trial) -> np.ndarray:
             med = np.nanmedian(d, axis=0)
             mad = MAD_SD * np.nanmedian(np.abs(d - med), axis=0)
             steady = (np.sum(np.isfinite(d), axis=0) >= MIN_FRAMES) & (mad < SIZE_TRIAL_CV * med)
-            broken = (np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, SEED_BROKEN_MIN)) & steady
+            broken = (np.abs(d - med) > np.maximum(SEED_BROKEN_SDS * mad, least)) & steady
         frames = np.flatnonzero(broken.any(axis=1))
         if frames.size == 0:
             continue
@@ -796,9 +804,10 @@ def _seen_run(seen: np.ndarray, f: int, way: int, most: int) -> int:
 
 def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[float], None] | None = None,
                    found: Sequence[np.ndarray] | None = None) -> np.ndarray:
-    """(frames of all trials, n_model_markers): each trial's episodes in the model's marker order, and its
-    fallen_samples (a marker left behind at one place), stacked as the calibration stacks the trials;
-    `progress(share of the frames done)`; `found`: each trial's episodes, if found already."""
+    """(frames of all trials, n_model_markers): each trial's episodes in the model's marker order, its
+    fallen_samples (a marker left behind at one place) and its ghosts (broken_samples by GHOST_BREAK or more),
+    stacked as the calibration stacks the trials; `progress(share of the frames done)`; `found`: each trial's
+    episodes, if found already."""
     parts = []
     total, before = max(1, sum(t.n_frames for t in trials)), 0  # frames, and those of the trials done
     for i, t in enumerate(trials):
@@ -807,7 +816,9 @@ def jumped_samples(model: Model, trials: Sequence[Trial], progress: Callable[[fl
             lambda done, t=t, before=before: progress((before + done * t.n_frames) / total), model)[0]
         before += t.n_frames
         index = {lab: i for i, lab in enumerate(t.labels)}
-        out = fallen_samples(model, _gapped(t, jumps))
+        cleaned = _gapped(t, jumps)
+        out = fallen_samples(model, cleaned)
+        out |= _ghosts(model, cleaned, out)
         for k, name in enumerate(model.marker_names):
             if name in index:
                 out[:, k] |= jumps[:, index[name]]
@@ -870,18 +881,24 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     top = np.where(seen_x, X, np.inf)[:S * step].reshape(S, step, M, 3).max(axis=1)
     bottom = np.where(seen_x, X, -np.inf)[:S * step].reshape(S, step, M, 3).min(axis=1)
     starts = [w * step for w in range(S - 3)]
+    widths = [width] * len(starts)
     spreads = [np.linalg.norm(np.max([top[w:S - 3 + w] for w in range(4)], axis=0)
                               - np.min([bottom[w:S - 3 + w] for w in range(4)], axis=0), axis=2)]  # (S-3, M)
-    if starts[-1] + width < F:
-        x = X[F - width:]
-        starts.append(F - width)
-        spreads.append(np.where(seen_x[F - width:].all(axis=(0, 2)),
+    # A fall lasts to the trial's end: one in its last window is also judged in the last three, two and one steps
+    # (Rajagopal's L.Forearm on the floor for the walk's last 0.33-0.40 s, unseen by whole windows: the left arm's
+    # centres 258-506 mm off).
+    ends = [n * step for n in (4, 3, 2, 1)] if starts[-1] + width < F else [n * step for n in (3, 2, 1)]
+    for n in ends:
+        x = X[F - n:]
+        starts.append(F - n)
+        widths.append(n)
+        spreads.append(np.where(seen_x[F - n:].all(axis=(0, 2)),
                                 np.linalg.norm(np.max(x, axis=0) - np.min(x, axis=0), axis=1), np.inf)[None])
     spread = np.concatenate(spreads)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for w in np.flatnonzero((spread < FALLEN_STILL).any(axis=1)):
-            a, b = starts[w], starts[w] + width
+            a, b = starts[w], starts[w] + widths[w]
             x = X[a:b]
             seen = np.all(seen_x[a:b], axis=(0, 2))  # seen in every frame of the window
             seen_some = np.any(np.all(seen_x[a:b], axis=2), axis=0)  # ... in one frame or more
@@ -1087,12 +1104,13 @@ def _marked_neighbours(model: Model) -> dict[str, set[str]]:
 def without_broken(model: Model, trial: Trial, jumps: np.ndarray | None = None,
                    broken: bool = True) -> tuple[Trial, int]:
     """`trial` with the samples broken_samples, fallen_samples and episodes flag set to gaps, and how many there were.
-    `jumps`: the trial's episodes, if found already.  `broken` False: not broken_samples' (the samples the
-    calibration leaves out before its start, jumped_samples', as `calibrate ik` leaves them out)."""
+    `jumps`: the trial's episodes, if found already.  `broken` False: broken_samples' by GHOST_BREAK only (the
+    samples the calibration leaves out before its start, jumped_samples', as `calibrate ik` leaves them out)."""
     index = {lab: i for i, lab in enumerate(trial.labels)}
     bad = episodes(trial, model=model)[0] if jumps is None else jumps.copy()
     cleaned = _gapped(trial, bad)
     rigid = fallen_samples(model, cleaned)
+    rigid |= _ghosts(model, cleaned, rigid)
     if broken:
         rigid |= broken_samples(model, cleaned)
     for k, name in enumerate(model.marker_names):
@@ -1101,6 +1119,18 @@ def without_broken(model: Model, trial: Trial, jumps: np.ndarray | None = None,
     if not bad.any():
         return trial, 0
     return _gapped(trial, bad), int(bad.sum())
+
+
+def _ghosts(model: Model, trial: Trial, fallen: np.ndarray) -> np.ndarray:
+    """broken_samples by GHOST_BREAK (frames, model markers) of `trial` judged without its `fallen` samples (frames,
+    model markers): a marker fallen off for most of a trial would put its pairs' medians on the floor, and its frames
+    on the body would read broken (pig_walk's static with T10 on the floor from frame 96 of 240)."""
+    index = {lab: i for i, lab in enumerate(trial.labels)}
+    bad = np.zeros((trial.n_frames, len(trial.labels)), dtype=bool)
+    for k, name in enumerate(model.marker_names):
+        if name in index:
+            bad[:, index[name]] = fallen[:, k]
+    return broken_samples(model, _gapped(trial, bad), GHOST_BREAK)
 
 
 def _gapped(trial: Trial, bad: np.ndarray) -> Trial:
