@@ -6,6 +6,8 @@ Kinds of damage (`--kinds`; each copy one kind, its sizes and places drawn from 
 - ghost: 1-6 runs of 1-3 frames of a marker 0.3-3 m off (a wrong ray match);
 - ghost-gap: one such frame just before a gap of 5-20 frames (no jump back bounds it);
 - fallen: a marker on the floor (7 mm up) from a frame in the trial's middle half to its end;
+- latefall: the same for the trial's last 5-60 frames only (under one 0.5 s window at 100-120 Hz; not in the default
+  cycle, so that the default's copies stay those documented: `--kinds latefall`);
 - frozen: a marker at its first frame's place for the whole trial (stuck to something);
 - gaps: 1-4 stretches of 5-60 frames of a marker unseen;
 - swap: two markers' labels exchanged for 5-30 frames;
@@ -51,6 +53,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PIG = ROOT.parent / "shared" / "data" / "real" / "pig_walk"
 REAL = ROOT.parent / "shared" / "data" / "real"
 KINDS = ("ghost", "ghost-gap", "fallen", "frozen", "gaps", "swap", "noisy", "longswap", "endswap")
+EXTRA_KINDS = ("latefall",)  # asked for by name only
 # Each case: its base model (and OpenSim marker set), its walk and its static.
 CASES = {"pig_walk": (ROOT / "models" / "human.urdf", None, PIG / "walk.c3d", PIG / "static.c3d"),
          "gait2392": (REAL / "gait2392" / "gait2392.osim", REAL / "gait2392" / "gait2392_Scale_MarkerSet.xml",
@@ -83,8 +86,9 @@ def damage(X: np.ndarray, kind: str, rng: np.random.Generator) -> tuple[np.ndarr
         X[f, k] += size * direction()
         X[f + 1:f + 1 + n, k] = np.nan
         return X, f"marker {k} frame {f} {size:.2f} m, then {n} frames unseen"
-    if kind == "fallen":
-        k, f = int(rng.integers(M)), int(rng.integers(F // 4, 3 * F // 4))
+    if kind in ("fallen", "latefall"):
+        k = int(rng.integers(M))
+        f = int(rng.integers(F // 4, 3 * F // 4)) if kind == "fallen" else F - int(rng.integers(5, 61))
         at = X[f, k].copy()
         if not np.all(np.isfinite(at)):
             return X, "none (unseen where it would fall)"
@@ -314,8 +318,8 @@ def _kinds(text: str) -> list[str]:
     """--kinds' value: known kinds, comma-separated."""
     kinds = [k for k in text.split(",") if k]
     for k in kinds:
-        if k not in KINDS:
-            raise argparse.ArgumentTypeError(f"unknown kind {k}; use {', '.join(KINDS)}")
+        if k not in KINDS + EXTRA_KINDS:
+            raise argparse.ArgumentTypeError(f"unknown kind {k}; use {', '.join(KINDS + EXTRA_KINDS)}")
     return kinds
 
 
@@ -327,7 +331,8 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=300, help="its first N frames")
     ap.add_argument("--n", type=int, default=30, help="damaged copies")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--kinds", type=_kinds, default=list(KINDS), help=f"comma-separated, of {', '.join(KINDS)}")
+    ap.add_argument("--kinds", type=_kinds, default=list(KINDS),
+                    help=f"comma-separated, of {', '.join(KINDS + EXTRA_KINDS)} (default: all but the last)")
     ap.add_argument("--tol-mm", type=float, default=10.0, help="largest joint-centre shift that passes (mm)")
     ap.add_argument("--ik", action="store_true", help="damage the trials `calibrate ik` fits (the walk)")
     ap.add_argument("--tol-deg", type=float, default=10.0,

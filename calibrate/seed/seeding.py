@@ -895,23 +895,32 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
         spreads.append(np.where(seen_x[F - n:].all(axis=(0, 2)),
                                 np.linalg.norm(np.max(x, axis=0) - np.min(x, axis=0), axis=1), np.inf)[None])
     spread = np.concatenate(spreads)
+    # each marker's segment and those next to it, as a mask over the markers
+    around = {g: np.array([s in {g, *near.get(g, ())} for s in seg]) for g in set(seg)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for w in np.flatnonzero((spread < FALLEN_STILL).any(axis=1)):
             a, b = starts[w], starts[w] + widths[w]
             x = X[a:b]
             seen = np.all(seen_x[a:b], axis=(0, 2))  # seen in every frame of the window
+            # every marker's travel: its mean places in the window's halves (jitter averages out)
+            h = x.shape[0] // 2
+            moved = np.linalg.norm(np.ascontiguousarray(x[h:]).mean(axis=0)
+                                   - np.ascontiguousarray(x[:h]).mean(axis=0), axis=1)
+            if not np.any(moved[seen] > FALLEN_TURN):
+                continue  # nothing travels here (a static): no marker is left behind
             seen_some = np.any(np.all(seen_x[a:b], axis=2), axis=0)  # ... in one frame or more
             for k in np.flatnonzero(spread[w] < FALLEN_STILL):
-                around = {seg[k], *near.get(seg[k], ())}
-                refs = [m for m in range(M) if m != k and seen[m] and seg[m] in around]
+                refs = np.flatnonzero(around[seg[k]] & seen)
+                refs = refs[refs != k].tolist()
                 if len(refs) < 2:
                     continue
+                travel = moved[refs]
+                if np.median(travel) <= FALLEN_TURN:
+                    continue
                 d = np.linalg.norm(x[:, refs] - x[:, k:k + 1], axis=2)  # (frames, refs)
-                h = x.shape[0] // 2  # the refs' travel: their mean places in the window's halves (jitter averages out)
-                travel = np.linalg.norm(x[h:, refs].mean(axis=0) - x[:h, refs].mean(axis=0), axis=1)
                 change = d.max(axis=0) - d.min(axis=0)
-                if np.median(travel) <= FALLEN_TURN or np.median(change) <= FALLEN_TURN:
+                if np.median(change) <= FALLEN_TURN:
                     continue
                 mates = [i for i, m in enumerate(refs) if seg[m] == seg[k]]
                 if not mates:  # judged by the segments next to it alone: a one-marker foot in stance looks so to most
