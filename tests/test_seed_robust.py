@@ -564,6 +564,27 @@ def test_a_segments_only_marker_fallen_for_under_a_second_far_from_its_neighbour
     assert not out[:, m].any()
 
 
+def test_a_segments_only_marker_next_to_segments_with_one_is_judged_by_the_next_ones_too():
+    """Rajagopal's R.Wrist, the radius's only marker, next to the ulna whose only marker is R.Forearm: judged by the
+    markers next to it alone, it had one, under the two the check needs, and was never judged -- on the floor from
+    frame 100 (1.4 s) none of its positions was taken and the refit ended with the right forearm's centres 1.1 m off;
+    on the floor for the walk's last 0.37 s, 377 mm (scripts/damage_values.py --case rajagopal --kinds latefall
+    --seed 1174, copy 1).  The humerus's markers, next to the ulna's, now judge it too; and over a window too short
+    for a marker a metre away to change its distances to them by FALLEN_TURN (21-29 mm here), a still marker is taken
+    where it lies FALLEN_FAR times further from them than elsewhere (R.Forearm in the last 13 frames too, copy 19:
+    the right elbow 315 mm off).  Every fallen frame is taken, nothing else."""
+    from calibrate.seed.seeding import fallen_samples
+
+    model, trial = _rajagopal("motion_capture_walk.trc")
+    X0 = np.array(trial.markers)
+    for label, first in (("R.Wrist", 100), ("R.Wrist", 201), ("R.Forearm", 225)):
+        j, m = trial.labels.index(label), model.marker_index(label)
+        X = X0.copy()
+        X[first:, j] = [X[first, j, 0], 0.007, X[first, j, 2]]  # y up
+        out = fallen_samples(model, Trial(trial.labels, X, trial.rate))
+        assert out[first:, m].all() and not out[:first, m].any() and out.sum() == out[:, m].sum(), (label, first)
+
+
 def test_a_ghost_before_a_gap_at_the_trials_start_is_left_out_before_the_solve():
     """Rajagopal's walk with L.Ankle 2 m off in frame 3 and unseen for the 17 frames after (scripts/damage_values.py
     --case rajagopal --seed 1171, copy 28): the jumps misread it (the trial's start and the gap leave the frame

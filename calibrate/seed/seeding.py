@@ -872,8 +872,9 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     if F < width:
         return out
     seg = [mk.segment for mk in model.markers]
-    near = _marked_neighbours(model)
+    near = _marked_neighbours(model, np.isfinite(X).all(axis=2).any(axis=0))
     alone = np.zeros((F, M), dtype=bool)  # flagged with no other marker of its segment seen
+    loose = np.zeros((F, M), dtype=bool)  # ... still while its neighbours travel, their distances to it changing less
     # Each window's spread of every marker (max - min over its frames; unseen in a frame: infinite), from the maxima
     # and minima of its four steps; and a last window at the trial's end.
     S = F // step
@@ -920,16 +921,18 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
                     continue
                 d = np.linalg.norm(x[:, refs] - x[:, k:k + 1], axis=2)  # (frames, refs)
                 change = d.max(axis=0) - d.min(axis=0)
-                if np.median(change) <= FALLEN_TURN:
-                    continue
                 mates = [i for i, m in enumerate(refs) if seg[m] == seg[k]]
                 if not mates:  # judged by the segments next to it alone: a one-marker foot in stance looks so to most
                     if any(seg[m] == seg[k] and seen_some[m] for m in range(M) if m != k):
                         continue  # ... but not a marker whose mate is unseen in part of the window (a heel's ghost
                         # left out made the toe beside it, standing in a stance, a foot's only marker)
-                    if np.all((travel > FALLEN_TURN) & (change > FALLEN_TURN)):  # ... so every one of them
-                        alone[a:b, k] = True
-                elif np.all((travel[mates] > FALLEN_TURN) & (change[mates] > FALLEN_MATES)):  # ... and all of its own
+                    if np.all(travel > FALLEN_TURN):  # ... so every one of them
+                        if np.all(change > FALLEN_TURN):
+                            alone[a:b, k] = True
+                        else:  # a marker far off changes its distances little over a short window
+                            loose[a:b, k] = True
+                elif np.median(change) > FALLEN_TURN and np.all((travel[mates] > FALLEN_TURN)
+                                                                 & (change[mates] > FALLEN_MATES)):  # and all its own
                     out[a:b, k] = True
     # A marker that moves alone in a still trial (most markers keep within FALLEN_TURN of one place, 5th to 95th
     # percentile over the trial: a static's marker dropping to the floor): it moves, and its distances to its
@@ -974,16 +977,23 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     # with one marker stands still through a stance, under a second, while the shank's markers travel over it).
     # Shorter, it is taken where it lies FALLEN_FAR times or more further from every marker of its neighbours than it
     # does elsewhere in the trial: off the body (Rajagopal's L.Forearm on the floor for the walk's last 0.67 s, 1.0-1.3
-    # m from the elbow's and wrist's markers it keeps 0.11-0.25 m from; the left arm's centres 340 mm off).
+    # m from the elbow's and wrist's markers it keeps 0.11-0.25 m from; the left arm's centres 340 mm off).  So is one
+    # still where its neighbours travel without changing their distances to it by FALLEN_TURN: a marker a metre away
+    # barely changes its distances as they pass (Rajagopal's R.Wrist on the floor for the walk's last 0.37 s, 21-29
+    # mm; the right forearm's centres 377 mm off).
     longest = int(round(FALLEN_ALONE_S * trial.rate))
-    for k in np.flatnonzero(alone.any(axis=0)):
+    for k in np.flatnonzero((alone | loose).any(axis=0)):
         runs = _runs(_grown(alone[:, k], X[:, k]))
+        far_only = _runs(_grown(loose[:, k] & ~alone[:, k], X[:, k]))
         elsewhere = seen_all[:, k].copy()
-        for a, b in runs:
+        for a, b in runs + far_only:
             elsewhere[a:b] = False
         refs = [m for m in range(M) if seg[m] in near.get(seg[k], ())]
         for a, b in runs:
             if b - a >= longest or _far_from_neighbours(X, k, refs, slice(a, b), elsewhere, width):
+                out[a:b, k] = True
+        for a, b in far_only:
+            if _far_from_neighbours(X, k, refs, slice(a, b), elsewhere, width):
                 out[a:b, k] = True
     for k in np.flatnonzero(out.any(axis=0)):
         out[:, k] = _grown(out[:, k], X[:, k])
@@ -1086,17 +1096,20 @@ def _grown(mask: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _marked_neighbours(model: Model) -> dict[str, set[str]]:
+def _marked_neighbours(model: Model, shown: np.ndarray | None = None) -> dict[str, set[str]]:
     """Each segment's nearest segments with markers across its joints, through any without (a calcaneus's: the
-    tibia, past the markerless talus)."""
+    tibia, past the markerless talus).  With `shown` (the model's markers a trial shows): markers it shows, and where
+    those segments show fewer than two, the segments with markers next to them too (a radius whose only marker is the
+    wrist's, next to an ulna with one: the humerus's; Rajagopal's forearms)."""
     adjacent: dict[str, set[str]] = {}
     for j in model.joints:
         adjacent.setdefault(j.parent, set()).add(j.child)
         adjacent.setdefault(j.child, set()).add(j.parent)
-    marked = {mk.segment for mk in model.markers}
-    out: dict[str, set[str]] = {}
-    for start in adjacent:
-        found, todo, done = set(), list(adjacent[start]), {start}
+    on = [mk.segment for k, mk in enumerate(model.markers) if shown is None or shown[k]]
+    marked = set(on)
+
+    def nearest(start: str, done: set[str]) -> set[str]:
+        found, todo = set(), list(adjacent.get(start, ()))
         while todo:
             sg = todo.pop()
             if sg in done:
@@ -1106,6 +1119,15 @@ def _marked_neighbours(model: Model) -> dict[str, set[str]]:
                 found.add(sg)
             else:
                 todo.extend(adjacent.get(sg, ()))
+        return found
+
+    out: dict[str, set[str]] = {}
+    for start in adjacent:
+        done = {start}
+        found = nearest(start, done)
+        if shown is not None and sum(on.count(sg) for sg in found) < 2:
+            for sg in list(found):
+                found |= nearest(sg, done)
         out[start] = found
     return out
 
