@@ -854,7 +854,9 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     marker that keeps within FALLEN_STILL of one place while most markers of its segment and of the segments next to
     it (the nearest with markers; two or more seen there), and every other marker of its own, travel and change
     their distances to it by more than FALLEN_TURN (its own: FALLEN_MATES) is not on the segment (a segment's only
-    marker: where every marker next to it does so, and it stays FALLEN_ALONE_S or more): a marker on a thigh or a
+    marker: where every marker next to it does so, and it stays FALLEN_ALONE_S or more, or lies FALLEN_FAR times
+    further from them than elsewhere; its neighbours' neighbours join where those show under two markers; the trial's
+    last steps judged too, where a fall shorter than a window lies): a marker on a thigh or a
     forearm cannot stay put while the markers around it travel away from it and back (pig_walk's RFRM frozen: the
     right elbow centre 687 mm off). A stance foot or a squat's feet stand still with the markers beside them (a
     one-marker foot's ankle marker barely travels in a stance); in a still trial nothing travels (a static's
@@ -876,7 +878,7 @@ def fallen_samples(model: Model, trial: Trial) -> np.ndarray:
     alone = np.zeros((F, M), dtype=bool)  # flagged with no other marker of its segment seen
     loose = np.zeros((F, M), dtype=bool)  # ... still while its neighbours travel, their distances to it changing less
     # Each window's spread of every marker (max - min over its frames; unseen in a frame: infinite), from the maxima
-    # and minima of its four steps; and a last window at the trial's end.
+    # and minima of its four steps; and the last four, three, two and one steps at the trial's end (below).
     S = F // step
     seen_x = np.isfinite(X)
     top = np.where(seen_x, X, np.inf)[:S * step].reshape(S, step, M, 3).max(axis=1)
