@@ -685,3 +685,19 @@ def test_descriptions_read_from_a_c3d(tmp_path: Path, human, capsys) -> None:  #
     assert main(["inspect", str(path)]) == 0  # without a model: each label with the file's words for it
     lines = {ln.split()[0]: ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("  ") and "gaps" in ln}
     assert lines["RA"].endswith("%  'Right lateral ankle'") and lines["RKNE"].endswith("%")
+
+
+def test_an_anatomical_landmark_set_of_the_ior_protocol(human) -> None:  # noqa: ANN001
+    """MOtoNMS's UNIPD walks (the IOR gait protocol's landmarks: RASIS, RPSIS, RLE / RME, RLM / RMM, RCA, RGT, RHF,
+    RTT): the iliac spines, the lateral epicondyle and malleolus and the calcaneus are Plug-in Gait's ASI, PSI, KNE,
+    ANK and HEE; the medial epicondyle (ME, the twin of LE, which reads as KNE) and malleolus (MM) are read by their
+    names as medial markers of the knee and the ankle; the other landmarks are new labels."""
+    from calibrate.calibration.hosts import medial_host
+
+    trial = make_trial(["RASIS", "LASIS", "RPSIS", "LPSIS", "RLE", "LME", "RLM", "RMM", "RCA", "RGT", "RHF", "RTT"])
+    renamed, mapping = map_labels(trial, human.marker_names)
+    assert renamed.labels == ("RASI", "LASI", "RPSI", "LPSI", "RKNE", "LME", "RANK", "RMM", "RHEE", "RGT", "RHF",
+                              "RTT")
+    assert mapping.unknown == ("LME", "RMM", "RGT", "RHF", "RTT")
+    assert medial_host(human, "LME") == ("femur_l", "knee_l") and medial_host(human, "RMM") == ("tibia_r", "ankle_r")
+    assert medial_host(human, "RGT") is None and medial_host(human, "RHF") is None

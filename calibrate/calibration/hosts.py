@@ -50,7 +50,7 @@ TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD ove
 MEDIAL_NAMES = {
     "knee": {"mkne", "mknee", "kneem", "knem", "knm", "kneemed", "medknee", "medkne", "kneemedial", "medialknee",
              "fme", "mfc", "mfe", "mek", "medfemepicondyle", "medialfemoralepicondyle", "femurmedialepicondyle",
-             "medfemcondyle", "medialfemoralcondyle", "kneein", "mepi", "medepi", "cm"},
+             "medfemcondyle", "medialfemoralcondyle", "kneein", "mepi", "medepi", "cm", "me"},
     "ankle": {"mank", "mankle", "ankm", "anklem", "anklemed", "medankle", "ankmed", "anklemedial", "medialankle",
               "mmal", "mma", "mm", "mmall", "tam", "medmal", "malmed", "medmalleolus", "medialmalleolus",
               "malleolusmed", "anklein"},

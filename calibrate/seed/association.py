@@ -532,6 +532,11 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
             if len(ref) >= 3 and not scorer.admissible(tuple(sorted(ref + [k]))):
                 continue
             cands.append((worst, seg))
+        if not cands and len(single) == 1 and (alone := _alone_across(model, D, k, *single[0], reference, empty)):
+            seg, ref_label = single[0]
+            out[k] = MarkerAssignment(labels[k], seg, "assigned", float(np.sqrt(D[k, labels.index(ref_label)])),
+                                      f"rigid with {ref_label}, the one marker of {seg} the trial shows, and {alone}")
+            continue
         if cands:
             cands.sort()
             worst, seg = cands[0]
@@ -564,6 +569,51 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
         out[k] = MarkerAssignment(labels[k], None, "unassigned",
                                   float(np.sqrt(closest[0])) if np.isfinite(closest[0]) else np.nan, why)
     return ModelAssociation(tuple(out[k] for k in range(N)), float(threshold))
+
+
+# A label rigid with the one marker a segment shows may ride across a joint beside that marker (a marker on a hinge's
+# axis keeps its distance to everything on the next segment), so the rigidity test leaves it out.  It rides on that
+# segment still where it is plainly not rigid with any segment across the segment's joints: against each one's
+# markers its distance varies (their median) ACROSS_RATIO times as much as against the one marker, and by ACROSS_FLOOR
+# at least.  On skin a marker across a joint varies as much against the marker beside the joint as against its own
+# segment's; a lab's anatomical landmarks reconstructed from clusters do not (MOtoNMS's UNIPD walks: the greater
+# trochanter 0.01 mm std against the lateral epicondyle, 6-17 mm against the pelvis's markers, 46 against the shank's;
+# the tibial tuberosity 0.00 against the lateral malleolus, 4.5 against the heel), and were left out with a femur
+# posed by its knee marker alone.
+ACROSS_RATIO = 5.0
+ACROSS_FLOOR = 3e-3  # m
+
+
+def _alone_across(model: Model, D: np.ndarray, k: int, seg: str, ref_label: str,
+                  reference: Mapping[str, Sequence[int]], empty: Collection[str]) -> str:
+    """Why marker k, rigid with `seg`'s one shown marker `ref_label`, rides on `seg` and not across one of its joints
+    (ACROSS_RATIO, ACROSS_FLOOR): the segments across them, each with markers to judge by; '' where any cannot be
+    judged (no markers the trial shows there, none seen long enough with k) or k may ride on it.  Segments the model
+    marks nowhere (a talus) are passed through to theirs: no marker can ride on them."""
+    ref = next(m for m in reference[seg] if np.isfinite(D[k, m]))
+    bar = max(ACROSS_RATIO * float(np.sqrt(D[k, ref])), ACROSS_FLOOR)
+    near = {seg}
+    todo = [seg]
+    judged = []
+    while todo:
+        s = todo.pop()
+        for j in model.joints:
+            other = j.child if j.parent == s else j.parent if j.child == s else None
+            if other is None or other in near:
+                continue
+            near.add(other)
+            if other in empty:
+                todo.append(other)
+                continue
+            seen = [m for m in reference.get(other, ()) if np.isfinite(D[k, m])]
+            if not seen:
+                return ""
+            spread = float(np.sqrt(np.median([D[k, m] for m in seen])))
+            if spread < bar:
+                return ""
+            judged.append(f"{other} {_mm(spread)}")
+    return f"its distances vary against every segment's across the joints ({', '.join(judged)} std, the median)" \
+        if judged else ""
 
 
 def _median_distance(X: np.ndarray, k: int, members: Sequence[int]) -> float:
