@@ -833,8 +833,9 @@ def joint_hosts(model: Model, trials: Sequence[Trial], labels: Sequence[str], pl
         return {}
     picked = pick_frames(trials, frames)
     X = np.concatenate([t.select(labels).markers for t in trials])
-    groups = [tuple(labels[k] for k in g) for g in _rigid_clusters(distance_variance(X), JOINT_RIGID ** 2)
-              if len(g) >= CLUSTER_MIN]
+    D = distance_variance(X)
+    tight = [g for g in _rigid_clusters(D, JOINT_RIGID ** 2) if len(g) >= CLUSTER_MIN]
+    groups = [tuple(labels[k] for k in g) for g in tight] + _loose_clusters(trials, labels, D, tight)
     if not groups:
         return {}
     known = set(model.marker_names)
@@ -1012,6 +1013,53 @@ def _turn(R: np.ndarray) -> float:
     rel = np.einsum("ji,fjk->fik", mean, R)  # mean^T R_f
     ang = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
     return float(2.0 * np.percentile(ang, 95))
+
+
+# A cluster strapped loosely to the skin wobbles more than a plate (MOtoNMS's UWA fast walk: its right thigh cluster's
+# distances vary by 2.9-3.7 mm SD, the left's by 0.9-1.6) and the tight test leaves it out.  Of the labels no tight
+# cluster took, those whose distances vary within JOINT_LOOSE SD form a cluster still where every one of them varies
+# JOINT_APART times as much against every other label the trials show: on one segment, away from the others (the UWA
+# thigh's: 7.7 mm at least, against the sacral and shank markers).  A forearm and a hand cluster across a wrist a walk
+# barely turns (2-5 mm) are each a tight cluster first, and stay two.
+JOINT_LOOSE = 0.005  # m
+JOINT_APART = 2.0
+
+
+def _loose_clusters(trials: Sequence[Trial], labels: Sequence[str], D: np.ndarray,
+                    tight: Sequence[tuple[int, ...]]) -> list[tuple[str, ...]]:
+    """The loosely strapped clusters among `labels` no cluster of `tight` (indices into `labels`) took: CLUSTER_MIN or
+    more whose distances vary within JOINT_LOOSE SD (D: their distance variances over `trials`, m²), each varying
+    JOINT_APART times its cluster's largest SD against every other label of the trials (unlabelled ones aside)."""
+    from ..io.labels import UNLABELLED
+    from ..seed.rigidity import distance_variance
+
+    taken = {k for g in tight for k in g}
+    left = [k for k in range(len(labels)) if k not in taken]
+    if len(left) < CLUSTER_MIN:
+        return []
+    out = []
+    # (not the unlabelled trajectories: a piece of one of the cluster's own markers among them keeps to it)
+    everyone = sorted({lab for t in trials for lab in t.labels if not UNLABELLED.fullmatch(lab)} | set(labels))
+    full = None
+    for g in _rigid_clusters(D[np.ix_(left, left)], JOINT_LOOSE ** 2):
+        if len(g) < CLUSTER_MIN:
+            continue
+        names = [labels[left[i]] for i in g]
+        inner = float(np.sqrt(max(D[left[i], left[j]] for i in g for j in g)))
+        if full is None:  # every label's distances to every other, over the trials (once)
+            cols = []
+            for t in trials:
+                part = np.full((t.n_frames, len(everyone), 3), np.nan)
+                have = [k for k, lab in enumerate(everyone) if lab in t.labels]
+                part[:, have] = t.select([everyone[k] for k in have]).markers
+                cols.append(part)
+            full = distance_variance(np.concatenate(cols))
+        mine = [everyone.index(n) for n in names]
+        others = [k for k in range(len(everyone)) if k not in mine]
+        apart = full[np.ix_(mine, others)]
+        if others and np.all(np.sqrt(apart[np.isfinite(apart)]) >= JOINT_APART * inner):
+            out.append(tuple(names))
+    return out
 
 
 def _rigid_clusters(D: np.ndarray, threshold: float) -> list[tuple[int, ...]]:

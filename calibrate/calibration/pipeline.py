@@ -530,12 +530,18 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # on the new labels with a place only: the others sit at their segment's origin until the fit places them.)
     placed_shown = [lab for lab in [*shared, *(n for n in new if n in at)] if lab in visible]
     waiting = [lab for lab in new if lab in declared and lab not in at]  # declared, with no place read yet
-    # The declared labels without a place yet sit at their segment's origin, its joint's centre, where they would
-    # place none of its turns: judged at provisional places about it, as the user's word that they ride on it (a
-    # lower-body model's torso that carries only the declared trunk markers: its lumbar locked before, the markers
-    # then riding with the pelvis).
-    probe = add_markers(model, {lab: (seg, at[lab] if lab in at else _provisional(k))
-                                for k, (lab, seg) in enumerate(new.items())}) if waiting else subject
+    # The new labels without a place yet sit at their segment's origin, its joint's centre, where they would place
+    # none of its turns: judged at provisional places about it, as the user's word (the declared) or the tests' that
+    # they ride on it (a lower-body model's torso that carries only the declared trunk markers: its lumbar locked
+    # before, the markers then riding with the pelvis; MOtoNMS's UWA walk, each forearm cluster put on its ulna by its
+    # turn about the elbow: the elbows locked, the clusters 32-44 mm RMS off).
+    # (The tests' labels on the root's branch stay at their origins: whether the markers place the root, or carry it
+    # with a branch, is judged on the labels with a place, as before.)
+    trunk = root_group(model)
+    provisional = [lab for lab in new if lab not in at and (lab in waiting or new[lab] not in trunk)]
+    probe = add_markers(model, {lab: (seg, at[lab] if lab in at else _provisional(k) if lab in provisional
+                                      else np.zeros(3)) for k, (lab, seg) in enumerate(new.items())}) \
+        if provisional else subject
     res, carried = resolve_carrying(probe, [*shared, *new], locked=[d for d, _ in settings.lock], carry=placed_shown)
     if not res.root_resolved:
         why = carry_refusal(subject, placed_shown, locked=[d for d, _ in settings.lock])

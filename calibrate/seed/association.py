@@ -532,7 +532,8 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
             if len(ref) >= 3 and not scorer.admissible(tuple(sorted(ref + [k]))):
                 continue
             cands.append((worst, seg))
-        if not cands and len(single) == 1 and (alone := _alone_across(model, D, k, *single[0], reference, empty)):
+        if not cands and len(single) == 1 and (alone := _alone_across(model, D, k, *single[0], reference, seg_members,
+                                                                          empty)):
             seg, ref_label = single[0]
             out[k] = MarkerAssignment(labels[k], seg, "assigned", float(np.sqrt(D[k, labels.index(ref_label)])),
                                       f"rigid with {ref_label}, the one marker of {seg} the trial shows, and {alone}")
@@ -572,25 +573,32 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
 
 
 # A label rigid with the one marker a segment shows may ride across a joint beside that marker (a marker on a hinge's
-# axis keeps its distance to everything on the next segment), so the rigidity test leaves it out.  It rides on that
-# segment still where it is plainly not rigid with any segment across the segment's joints: against each one's
-# markers its distance varies (their median) ACROSS_RATIO times as much as against the one marker, and by ACROSS_FLOOR
-# at least.  On skin a marker across a joint varies as much against the marker beside the joint as against its own
-# segment's; a lab's anatomical landmarks reconstructed from clusters do not (MOtoNMS's UNIPD walks: the greater
-# trochanter 0.01 mm std against the lateral epicondyle, 6-17 mm against the pelvis's markers, 46 against the shank's;
-# the tibial tuberosity 0.00 against the lateral malleolus, 4.5 against the heel), and were left out with a femur
-# posed by its knee marker alone.
+# axis keeps its distance to everything on the next segment), so the rigidity test leaves it out.  A lab's anatomical
+# landmarks reconstructed from one cluster keep their distances to each other exactly (MOtoNMS's UNIPD walks: the
+# greater trochanter 0.01 mm SD against the lateral epicondyle, the tibial tuberosity 0.00 against the lateral
+# malleolus), which no marker across a joint does, skin or not: where a label keeps its distance to that one marker
+# within ACROSS_EXACT SD, and its distances to each segment's markers across the segment's joints vary (their median)
+# ACROSS_RATIO times as much and by ACROSS_FLOOR at least, it rides on the segment (those landmarks had been left out,
+# a femur posed by its knee marker alone).  Skin markers are not judged so: ADemo1's calf markers keep within 2 mm of
+# the lateral femoral condyle, across the knee, and vary by 8-10 mm against their own shank's malleolus.
+ACROSS_EXACT = 5e-4  # m
 ACROSS_RATIO = 5.0
 ACROSS_FLOOR = 3e-3  # m
 
 
 def _alone_across(model: Model, D: np.ndarray, k: int, seg: str, ref_label: str,
-                  reference: Mapping[str, Sequence[int]], empty: Collection[str]) -> str:
-    """Why marker k, rigid with `seg`'s one shown marker `ref_label`, rides on `seg` and not across one of its joints
-    (ACROSS_RATIO, ACROSS_FLOOR): the segments across them, each with markers to judge by; '' where any cannot be
-    judged (no markers the trial shows there, none seen long enough with k) or k may ride on it.  Segments the model
-    marks nowhere (a talus) are passed through to theirs: no marker can ride on them."""
+                  reference: Mapping[str, Sequence[int]], shown: Mapping[str, Sequence[int]],
+                  empty: Collection[str]) -> str:
+    """Why marker k, rigid with `seg`'s one shown marker `ref_label` (of `reference`), rides on `seg` and not across
+    one of its joints (ACROSS_EXACT, ACROSS_RATIO, ACROSS_FLOOR): the segments across them, each judged by the
+    markers the trial shows there (`shown`, the suspects among them too: a trial whose most rigid pairs are
+    reconstructed landmarks holds skin markers to 0.1 mm, and makes suspects of a whole pelvis); '' where k keeps its
+    distance to that marker less exactly, or any segment across cannot be judged (no markers the trial shows there,
+    none seen long enough with k) or may carry k.  Segments the model marks nowhere (a talus) are passed through to
+    theirs: no marker can ride on them."""
     ref = next(m for m in reference[seg] if np.isfinite(D[k, m]))
+    if D[k, ref] > ACROSS_EXACT ** 2:
+        return ""
     bar = max(ACROSS_RATIO * float(np.sqrt(D[k, ref])), ACROSS_FLOOR)
     near = {seg}
     todo = [seg]
@@ -605,7 +613,7 @@ def _alone_across(model: Model, D: np.ndarray, k: int, seg: str, ref_label: str,
             if other in empty:
                 todo.append(other)
                 continue
-            seen = [m for m in reference.get(other, ()) if np.isfinite(D[k, m])]
+            seen = [m for m in shown.get(other, ()) if np.isfinite(D[k, m])]
             if not seen:
                 return ""
             spread = float(np.sqrt(np.median([D[k, m] for m in seen])))
