@@ -533,8 +533,8 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     # The new labels without a place yet sit at their segment's origin, its joint's centre, where they would place
     # none of its turns: judged at provisional places about it, as the user's word (the declared) or the tests' that
     # they ride on it (a lower-body model's torso that carries only the declared trunk markers: its lumbar locked
-    # before, the markers then riding with the pelvis; MOtoNMS's UWA walk, each forearm cluster put on its ulna by its
-    # turn about the elbow: the elbows locked, the clusters 32-44 mm RMS off).
+    # before, the markers then riding with the pelvis; MOtoNMS's UWA fast walk, its right forearm cluster put on the
+    # ulna by its turn about the elbow: the elbow locked, the cluster 30-35 mm RMS off).
     # (The tests' labels on the root's branch stay at their origins: whether the markers place the root, or carry it
     # with a branch, is judged on the labels with a place, as before.)
     trunk = root_group(model)
