@@ -699,3 +699,14 @@ def test_trc_header_values_padded_with_empty_fields(tmp_path):
     back = read_trc(tmp_path / "p.trc")
     assert back.rate == 100.0 and back.labels == ("A", "B")
     assert np.allclose(back.markers, trial.markers, atol=1e-6)
+
+
+def test_columns_put_trials_side_by_side_over_the_labels_of_all():
+    """Trial.columns: the markers of the labels given, in their order, NaN for a label the trial does not show."""
+    rng = np.random.default_rng(0)
+    t = Trial(("A", "B", "C"), rng.normal(size=(5, 3, 3)), 100.0)
+    cols = t.columns(["C", "X", "A"])
+    assert cols.shape == (5, 3, 3)
+    np.testing.assert_array_equal(cols[:, 0], t.marker("C"))
+    np.testing.assert_array_equal(cols[:, 2], t.marker("A"))
+    assert np.isnan(cols[:, 1]).all()

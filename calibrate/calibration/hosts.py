@@ -1047,13 +1047,7 @@ def _loose_clusters(trials: Sequence[Trial], labels: Sequence[str], D: np.ndarra
         names = [labels[left[i]] for i in g]
         inner = float(np.sqrt(max(D[left[i], left[j]] for i in g for j in g)))
         if full is None:  # every label's distances to every other, over the trials (once)
-            cols = []
-            for t in trials:
-                part = np.full((t.n_frames, len(everyone), 3), np.nan)
-                have = [k for k, lab in enumerate(everyone) if lab in t.labels]
-                part[:, have] = t.select([everyone[k] for k in have]).markers
-                cols.append(part)
-            full = distance_variance(np.concatenate(cols))
+            full = distance_variance(np.concatenate([t.columns(everyone) for t in trials]))
         mine = [everyone.index(n) for n in names]
         others = [k for k in range(len(everyone)) if k not in mine]
         apart = full[np.ix_(mine, others)]
@@ -1228,13 +1222,7 @@ def beyond_joints(model: Model, trials: Sequence[Trial], placed: dict[str, str],
         if not rest:
             continue
         # The others in the cluster's own frame: its mean shape fitted to each frame that shows it whole
-        parts = []
-        for t in picked:
-            if all(lab in t.labels for lab in cluster):
-                cols = np.full((t.n_frames, len(cluster) + len(rest), 3), np.nan)
-                have = [k for k, lab in enumerate((*cluster, *rest)) if lab in t.labels]
-                cols[:, have] = t.select([(*cluster, *rest)[k] for k in have]).markers
-                parts.append(cols)
+        parts = [t.columns((*cluster, *rest)) for t in picked if all(lab in t.labels for lab in cluster)]
         Y = np.concatenate(parts) if parts else np.empty((0, len(cluster) + len(rest), 3))
         Y = Y[np.all(np.isfinite(Y[:, :len(cluster)]), axis=(1, 2))]
         if len(Y) < 3:

@@ -2208,13 +2208,7 @@ def _assign_new_markers(model: Model, trials: Sequence[Trial], unknown: list[str
                                               "it rides on") for lab in unknown]
     used = [trials[i] for i in (moving or range(len(trials)))]
     labels = (*model.marker_names, *unknown)
-    parts = []
-    for t in used:
-        cols = np.full((t.n_frames, len(labels), 3), np.nan)
-        have = [k for k, lab in enumerate(labels) if lab in t.labels]
-        cols[:, have] = t.select([labels[k] for k in have]).markers
-        parts.append(cols)
-    together = Trial(labels, np.concatenate(parts), used[0].rate)
+    together = Trial(labels, np.concatenate([t.columns(labels) for t in used]), used[0].rate)
     assoc = associate_to_model(model, together)
     # Those rigidity leaves out, judged again on the model's own poses (calibrate.calibration.hosts): a cluster on
     # skin, or a segment whose one known marker sits near a joint.

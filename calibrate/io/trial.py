@@ -386,6 +386,14 @@ class Trial:
         idx = [self._index(label) for label in wanted]
         return replace(self, labels=wanted, markers=self.markers[:, idx, :])
 
+    def columns(self, labels: Sequence[str]) -> np.ndarray:
+        """(F, len(labels), 3) the markers of `labels` in that order (m), NaN for those the trial does not show: trials
+        of one session side by side over the labels of all of them."""
+        out = np.full((self.n_frames, len(labels), 3), np.nan)
+        have = [k for k, label in enumerate(labels) if label in self.labels]
+        out[:, have] = self.markers[:, [self._index(labels[k]) for k in have], :]
+        return out
+
     def of_subject(self, name: str) -> Trial:
         """The markers of subject `name` of a file holding several subjects (Vicon's ``Derrick:RASI``,
         ``Viktor:RASI``): its labels with the prefix removed, beside the labels that carry none; its model

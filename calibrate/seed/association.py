@@ -793,9 +793,7 @@ def misplaced_labels(model: Model, trials: Sequence[Trial], ratio: float = MISPL
     segment = {m.name: m.segment for m in model.markers}
     parts, noise = [], []
     for t in trials:
-        X = np.full((t.n_frames, len(labels), 3), np.nan)
-        have = [k for k, n in enumerate(labels) if n in t.labels]
-        X[:, have] = t.select([labels[k] for k in have]).markers
+        X = t.columns(labels)
         parts.append(X[:: max(1, t.n_frames // MISPLACED_FRAMES)])
         noise.append(jitter_sd(X))
     # A marker's white noise (seed.jitter: what its fourth differences read) adds its variance to every distance of
