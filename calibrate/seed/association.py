@@ -576,12 +576,13 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
 # axis keeps its distance to everything on the next segment), so the rigidity test leaves it out.  A lab's anatomical
 # landmarks reconstructed from one cluster keep their distances to each other exactly (MOtoNMS's UNIPD walks: the
 # greater trochanter 0.01 mm SD against the lateral epicondyle, the tibial tuberosity 0.00 against the lateral
-# malleolus), which no marker across a joint does, skin or not: where a label keeps its distance to that one marker
-# within ACROSS_EXACT SD, and its distances to each segment's markers across the segment's joints vary (their median)
-# ACROSS_RATIO times as much and by ACROSS_FLOOR at least, it rides on the segment (those landmarks had been left out,
-# a femur posed by its knee marker alone).  Skin markers are not judged so: ADemo1's calf markers keep within 2 mm of
-# the lateral femoral condyle, across the knee, and vary by 8-10 mm against their own shank's malleolus.
-ACROSS_EXACT = 5e-4  # m
+# malleolus), closer than markers' noise lets two markers keep theirs, across a joint or not: where a label keeps its
+# distance to that one marker within ACROSS_EXACT SD, and its distances to each segment's markers across the segment's
+# joints vary (their median) ACROSS_RATIO times as much and by ACROSS_FLOOR at least, it rides on the segment (those
+# landmarks had been left out, a femur posed by its knee marker alone).  Markers are not judged so: AddBiomechanics'
+# stairdown keeps its forearm markers within 0.1-0.3 mm of the lateral elbow marker across the elbow, ADemo1 its calf
+# markers within 2 mm of the lateral femoral condyle across the knee (8-10 mm against their own shank's malleolus).
+ACROSS_EXACT = 5e-5  # m
 ACROSS_RATIO = 5.0
 ACROSS_FLOOR = 3e-3  # m
 
