@@ -421,7 +421,7 @@ def test_landmarks_reconstructed_from_one_cluster_ride_on_its_segment(human):
     (MOtoNMS's UNIPD walks: the greater trochanter 0.01 mm SD from the lateral epicondyle).  With the femur showing its
     knee marker alone, a trochanter so reconstructed rides on femur_r, and with the shank showing its ankle marker
     alone, a point on the shank rides on tibia_r: their distances to the markers across the segment's joints vary many
-    times as much (association.ACROSS_EXACT, ACROSS_RATIO).  The same points as skin markers, noisy on their own, are
+    times as much (association.ACROSS_EXACT, ACROSS_FLOOR).  The same points as skin markers, noisy on their own, are
     left to the model's poses as any label rigid with one marker of a segment is; and the shank's point with the thigh
     showing its knee marker alone too stays out: on the knee's axis, that marker keeps within 2 mm of it.  Truth: the
     simulator's clean centres and markers."""

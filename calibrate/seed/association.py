@@ -578,12 +578,11 @@ def associate_to_model(model: Model, trial: Trial, threshold: float | None = Non
 # greater trochanter 0.01 mm SD against the lateral epicondyle, the tibial tuberosity 0.00 against the lateral
 # malleolus), closer than markers' noise lets two markers keep theirs, across a joint or not: where a label keeps its
 # distance to that one marker within ACROSS_EXACT SD, and its distances to each segment's markers across the segment's
-# joints vary (their median) ACROSS_RATIO times as much and by ACROSS_FLOOR at least, it rides on the segment (those
+# joints vary (their median) by ACROSS_FLOOR SD at least (60 times as much), it rides on the segment (those
 # landmarks had been left out, a femur posed by its knee marker alone).  Markers are not judged so: AddBiomechanics'
 # stairdown keeps its forearm markers within 0.1-0.3 mm of the lateral elbow marker across the elbow, ADemo1 its calf
 # markers within 2 mm of the lateral femoral condyle across the knee (8-10 mm against their own shank's malleolus).
 ACROSS_EXACT = 5e-5  # m
-ACROSS_RATIO = 5.0
 ACROSS_FLOOR = 3e-3  # m
 
 
@@ -591,7 +590,7 @@ def _alone_across(model: Model, D: np.ndarray, k: int, seg: str, ref_label: str,
                   reference: Mapping[str, Sequence[int]], shown: Mapping[str, Sequence[int]],
                   empty: Collection[str]) -> str:
     """Why marker k, rigid with `seg`'s one shown marker `ref_label` (of `reference`), rides on `seg` and not across
-    one of its joints (ACROSS_EXACT, ACROSS_RATIO, ACROSS_FLOOR): the segments across them, each judged by the
+    one of its joints (ACROSS_EXACT, ACROSS_FLOOR): the segments across them, each judged by the
     markers the trial shows there (`shown`, the suspects among them too: a trial whose most rigid pairs are
     reconstructed landmarks holds skin markers to 0.1 mm, and makes suspects of a whole pelvis); '' where k keeps its
     distance to that marker less exactly, or any segment across cannot be judged (no markers the trial shows there,
@@ -600,7 +599,6 @@ def _alone_across(model: Model, D: np.ndarray, k: int, seg: str, ref_label: str,
     ref = next(m for m in reference[seg] if np.isfinite(D[k, m]))
     if D[k, ref] > ACROSS_EXACT ** 2:
         return ""
-    bar = max(ACROSS_RATIO * float(np.sqrt(D[k, ref])), ACROSS_FLOOR)
     near = {seg}
     todo = [seg]
     judged = []
@@ -618,7 +616,7 @@ def _alone_across(model: Model, D: np.ndarray, k: int, seg: str, ref_label: str,
             if not seen:
                 return ""
             spread = float(np.sqrt(np.median([D[k, m] for m in seen])))
-            if spread < bar:
+            if spread < ACROSS_FLOOR:
                 return ""
             judged.append(f"{other} {_mm(spread)}")
     return f"its distances vary against every segment's across the joints ({', '.join(judged)} std, the median)" \
