@@ -18,6 +18,9 @@ are read with ``git show``).  No targets: the figures are recorded in docs/bench
 Gait walks").
 
     python scripts/bench_btk.py --btkdata DIR [--json] [--only full,hole,ff3,func] [--no-regression]
+    python scripts/bench_btk.py --labs DIR [--json] [--only AUC,FMC,...] [--no-regression]
+
+``--labs`` runs C3D-parser's seven labs' sessions (``LAB_CASES``) instead of BTKData's.
 """
 
 from __future__ import annotations
@@ -43,17 +46,34 @@ CASES: dict[str, tuple[str, ...]] = {
 }
 
 
-def fetch_trials(root: Path, names: tuple[str, ...], into: Path) -> list[Path]:
+#: C3D-parser's test sessions (github.com/tsalemink/C3D-parser, ``tests/data``): a static and a walk from each of seven
+#: clinical gait labs (Plug-in Gait with medial knee and ankle markers or a knee alignment device in the static only,
+#: other labs' trunk and foot markers, segment axes written under names of their own), PROCESSING widths and Plug-in
+#: Gait's own centres in most files.
+LAB_SAMPLES = "tests/data"
+LAB_CASES: dict[str, tuple[str, ...]] = {
+    "AUC": ("AUC/static/CB_Static0001.c3d", "AUC/dynamic/CB_Dynamic0003.c3d"),
+    "FMC": ("FMC/static/MH0222_BP08.c3d", "FMC/dynamic/MH0222_BP06.c3d"),
+    "FMC-KAD": ("FMC/static/MH0222_BP01.c3d", "FMC/dynamic/MH0222_BP15.c3d"),
+    "MH": ("MH/static/MH_Cal 01.c3d", "MH/dynamic/MH_Dynamic_BF08.c3d"),
+    "QCMAS": ("QCMAS/static/QCMAS.static.c3d", "QCMAS/dynamic/QCMAS.dynamic.c3d"),
+    "RBWH": ("RBWH/calibration/Max Cal 01.c3d", "RBWH/dynamic/bfnd w1.c3d"),
+    "RCH": ("RCH/static/RCH.01.c3d", "RCH/dynamic/RCH.08.c3d"),
+    "Sydney": ("Sydney/static/S4 AM Cal 01.c3d", "Sydney/dynamic/S4-AMGait03.c3d"),
+}
+
+
+def fetch_trials(root: Path, names: tuple[str, ...], into: Path, samples: str = SAMPLES) -> list[Path]:
     """The case's C3D files copied into `into`: from a checkout's work tree, or from a bare snapshot by git show."""
     out = []
     for name in names:
-        dst = into / Path(name).name
-        src = root / SAMPLES / name
+        dst = into / Path(name).name.replace(" ", "_")
+        src = root / samples / name
         if src.exists():
             dst.write_bytes(src.read_bytes())
         else:
             git = root if (root / "HEAD").exists() else root / ".git"
-            blob = subprocess.run(["git", "--git-dir", str(git), "show", f"HEAD:{SAMPLES}/{name}"],
+            blob = subprocess.run(["git", "--git-dir", str(git), "show", f"HEAD:{samples}/{name}"],
                                   capture_output=True, check=True)
             dst.write_bytes(blob.stdout)
         out.append(dst)
@@ -80,8 +100,9 @@ def figures(run: dict) -> dict:
 
 
 def collect(a: argparse.Namespace, log) -> dict:
-    res: dict = {"cases": {}, "btkdata": str(a.btkdata)}
-    only = a.only.split(",") if a.only else list(CASES)
+    root, cases, samples = ((a.btkdata, CASES, SAMPLES) if a.btkdata else (a.labs, LAB_CASES, LAB_SAMPLES))
+    res: dict = {"cases": {}, "btkdata" if a.btkdata else "labs": str(root)}
+    only = a.only.split(",") if a.only else list(cases)
     variants = [("default", [])] + ([] if a.no_regression else [("hip_regression", ["--hip-regression"])])
     with tempfile.TemporaryDirectory(prefix="bench_btk_") as tmp:
         tmp = Path(tmp)
@@ -90,7 +111,7 @@ def collect(a: argparse.Namespace, log) -> dict:
         for case in only:
             d = tmp / case
             d.mkdir()
-            trials = fetch_trials(a.btkdata, CASES[case], d)
+            trials = fetch_trials(root, cases[case], d, samples)
             res["cases"][case] = {"trials": [t.name for t in trials]}
             for name, extra in variants:
                 log(f"{case}: calibrate {' '.join(t.name for t in trials)} {' '.join(extra)}")
@@ -112,8 +133,9 @@ def mm(v: float | None) -> str:
 
 
 def report(res: dict) -> None:
-    print(f"BTKData's Plug-in Gait subjects on human.urdf ({res['date']}; {res['machine'].get('cpu', '')})")
-    print(f"{'case':6s} {'run':15s} {'RMS mm':>7s} {'hips from Harrington l/r':>25s} {'hips/ASIS mm':>14s} "
+    which = "BTKData's Plug-in Gait subjects" if "btkdata" in res else "C3D-parser's seven labs"
+    print(f"{which} on human.urdf ({res['date']}; {res['machine'].get('cpu', '')})")
+    print(f"{'case':7s} {'run':15s} {'RMS mm':>7s} {'hips from Harrington l/r':>25s} {'hips/ASIS mm':>14s} "
           f"{'from PiG hip l/r':>17s} {'knee l/r':>9s} {'ankle l/r':>10s} {'time s':>7s}  flags")
     for case, c in res["cases"].items():
         for name in ("default", "hip_regression"):
@@ -121,13 +143,13 @@ def report(res: dict) -> None:
             if f is None:
                 continue
             if "error" in f:
-                print(f"{case:6s} {name:15s} {f['error']}")
+                print(f"{case:7s} {name:15s} {f['error']}")
                 continue
             h, p = f["hips"], f["from_plugin_gait_mm"]
             flags = ", ".join(j for j, v in h.items() if v.get("implausible")) or ""
             reg = [mm(h.get(j, {}).get("from_regression_mm")) for j in ("hip_l", "hip_r")]
             pig = {j: mm(p.get(j)) for j in ("hip_l", "hip_r", "knee_l", "knee_r", "ankle_l", "ankle_r")}
-            print(f"{case:6s} {name:15s} {f['marker_rms_mm']:7.2f} {reg[0]:>12s} / {reg[1]:<10s} "
+            print(f"{case:7s} {name:15s} {f['marker_rms_mm']:7.2f} {reg[0]:>12s} / {reg[1]:<10s} "
                   f"{mm(f['hip_width_mm']):>6s} / {mm(f['asis_width_mm']):<5s} "
                   f"{pig['hip_l']:>8s} / {pig['hip_r']:<6s} {pig['knee_l']:>4s} / {pig['knee_r']:<3s} "
                   f"{pig['ankle_l']:>4s} / {pig['ankle_r']:<4s} {f['wall_s']:7.1f}  "
@@ -136,17 +158,22 @@ def report(res: dict) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--btkdata", type=Path, required=True,
-                    help="a BTKData checkout (or the fetch tool's snapshot: its .git folder)")
+    data = ap.add_mutually_exclusive_group(required=True)
+    data.add_argument("--btkdata", type=Path, help="a BTKData checkout (or the fetch tool's snapshot: its .git folder)")
+    data.add_argument("--labs", type=Path,
+                      help="a C3D-parser checkout (or the fetch tool's snapshot): its seven labs' sessions instead")
     ap.add_argument("--json", action="store_true", help="print one JSON object (nothing else on stdout)")
-    ap.add_argument("--only", default=None, help=f"comma-separated cases among {','.join(CASES)} (default all)")
+    ap.add_argument("--only", default=None, help=f"comma-separated cases among {','.join(CASES)}, or with --labs "
+                                                 f"{','.join(LAB_CASES)} (default all)")
     ap.add_argument("--no-regression", action="store_true", help="leave out the --hip-regression runs")
     ap.add_argument("--cap", type=float, default=600.0, help="time cap (s) of each command (default 600)")
     a = ap.parse_args()
-    if a.only and (bad := set(a.only.split(",")) - set(CASES)):
-        ap.error(f"--only: unknown case {', '.join(sorted(bad))}; choose among {', '.join(CASES)}")
-    if not a.btkdata.exists():
-        ap.error(f"--btkdata: {a.btkdata} does not exist; give a BTKData checkout")
+    cases = CASES if a.btkdata else LAB_CASES
+    if a.only and (bad := set(a.only.split(",")) - set(cases)):
+        ap.error(f"--only: unknown case {', '.join(sorted(bad))}; choose among {', '.join(cases)}")
+    for flag, root in (("--btkdata", a.btkdata), ("--labs", a.labs)):
+        if root is not None and not root.exists():
+            ap.error(f"{flag}: {root} does not exist; give a checkout or the fetch tool's snapshot")
     br.run_bench(a, collect, report)
 
 

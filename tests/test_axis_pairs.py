@@ -167,7 +167,12 @@ def test_a_static_alone_shows_the_medial_markers_and_their_names_place_them(huma
 
     cases = {"r_mknee": "femur_r", "L.MKnee": "femur_l", "LKNM": "femur_l", "R_FME": "femur_r", "L_mankle": "tibia_l",
              "RTAM": "tibia_r", "R_elbow_med": "humerus_r", "LMEL": "humerus_l", "LKNE": None, "mknee": None,
-             "RMED": None, "r_mknee_study": "femur_r", "L_mankle_study": "tibia_l",
+             "r_mknee_study": "femur_r", "L_mankle_study": "tibia_l",
+             # Plug-in Gait's and the CGM's medial malleoli (pyCGM2 reads LMED / RMED so) and clinical labs' spellings
+             # (C3D-parser's test sessions: FMC's LKNEMED, AUC's RMed_kn / LMed_ank, RBWH's LMKN); a medial toe marker
+             # is no hinge's
+             "RMED": "tibia_r", "LKNEMED": "femur_l", "RMed_kn": "femur_r", "LMed_ank": "tibia_l", "LMKN": "femur_l",
+             "RMed_toe": None,
              # the medial twins of the lateral spellings the aliases read (a treadmill lab's LMEE beside its LLEE)
              "LMEE": "humerus_l", "RMEK": "femur_r", "L_MedialMalleolus": "tibia_l", "LLEE": None, "RLEK": None}
     assert {n: (h[0] if (h := medial_host(human, n)) else None) for n in cases} == cases

@@ -221,3 +221,50 @@ def test_unlabelled_trajectories_are_never_placed(human, tmp_path):
 
     assert "0 trial labels left out and 1 unlabelled trajectories ignored, " in cal.text()
     assert "0 trial labels left out and 1 unlabelled trajectories ignored, " in report_html(cal.report())
+
+
+def _axes(origin: np.ndarray, toward: np.ndarray, third: np.ndarray, length) -> dict[str, np.ndarray]:
+    """A segment's axes as a modelling program writes them (mm): O at `origin`, A, L and P along three orthogonal
+    directions built from the lines to `toward` and `third`, each `length` (mm; a number, or one per frame) from O."""
+    e1 = toward - origin
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = third - origin
+    e2 -= np.sum(e2 * e1, axis=1, keepdims=True) * e1
+    e2 /= np.linalg.norm(e2, axis=1, keepdims=True)
+    e3 = np.cross(e1, e2)
+    r = np.broadcast_to(np.asarray(length, dtype=float).reshape(-1, 1), (len(origin), 1))
+    return {"O": origin, "A": origin + r * e1, "L": origin + r * e2, "P": origin + r * e3}
+
+
+def test_segment_axes_under_a_labs_own_names_are_outputs(tmp_path: Path, human) -> None:  # noqa: ANN001
+    """Segment axes a modelling program wrote among the markers under names of its own (a children's hospital's
+    Pelvis_GOMO ... Pelvis_GOMP at 100 mm; a lab's LFE_MO ... LFE_MP as long as the femur in each frame; its empty
+    HED_MO ... beside them) are read as model outputs, not markers; four real markers so named (noise on them), or an
+    exact frame whose arms are not at right angles, stay markers.  A file of axes alone is refused in one line."""
+    from calibrate.io.read import read_trial
+    from calibrate.io.vicon import segment_axes
+
+    sim = simulate_squats(human, frames=40, noise_mm=1.0, seed=3)
+    mm = {lab: 1e3 * sim.trial.marker(lab) for lab in ("LASI", "RASI", "LPSI", "RPSI", "LKNE", "LANK", "LTHI")}
+    markers = dict(mm)
+    pelvis = _axes(mm["LASI"], mm["RASI"], mm["LPSI"], 100.0)
+    femur = _axes(mm["LKNE"], mm["LANK"], mm["LTHI"], np.linalg.norm(mm["LKNE"] - mm["LASI"], axis=1))
+    assert np.ptp(np.linalg.norm(femur["A"] - femur["O"], axis=1)) > 5.0  # the femur's arms change with the frame
+    outputs = {**{f"Pelvis_GOM{k}": v for k, v in pelvis.items()}, **{f"LFE_M{k}": v for k, v in femur.items()},
+               **{f"HED_M{k}": np.full((40, 3), np.nan) for k in "OALP"}}
+    skewed = dict(pelvis, P=pelvis["P"] + 30.0 * (pelvis["A"] - pelvis["O"]) / 100.0)  # exact, not at right angles
+    kept = {**{f"Thigh{k}": mm[lab] for k, lab in zip("OALP", ("LASI", "RASI", "LPSI", "RPSI"), strict=True)},
+            **{f"Skew{k}": v for k, v in skewed.items()}}
+    path = tmp_path / "lab.c3d"
+    write_vicon_file(path, {**markers, **outputs, **kept}, {}, {}, {})
+    trial = read_trial(path)
+    assert set(trial.labels) == set(markers) | set(kept), trial.labels
+    assert set(trial.model_outputs) == set(outputs) and trial.output_kinds["Pelvis_GOMA"] == "point"
+    assert np.allclose(trial.model_outputs["LFE_MA"], 1e-3 * femur["A"])
+    rng = np.random.default_rng(1)
+    noisy = {k: v + rng.normal(0.0, 0.1, v.shape) for k, v in pelvis.items()}  # a camera's 0.1 mm on an exact frame
+    assert segment_axes([f"X{k}" for k in noisy], np.stack(list(noisy.values()), axis=1)) == []
+    alone = tmp_path / "axes.c3d"
+    write_vicon_file(alone, {f"Pelvis_GOM{k}": v for k, v in pelvis.items()}, {}, {}, {})
+    with pytest.raises(Exception, match="axes.c3d.*only segment axes.*export the trial with its markers"):
+        read_trial(alone)

@@ -44,16 +44,17 @@ TURNING = np.radians(1.0)  # a markerless segment whose joint turns less (SD ove
 # The medial markers a lab puts beside a lateral one, by the joint whose axis they straddle, as their names spell
 # them (the side token and separators removed, lower case): the femoral epicondyle, the medial malleolus, the humeral
 # epicondyle (Plug-in Gait's add-ons, CAST's FME / TAM / HME, OpenCap's, OpenSim's marker sets; the medial twins of
-# the lateral spellings calibrate.io.labels reads as KNE, ANK and ELB: a treadmill lab's LMEE beside its LLEE).  A
+# the lateral spellings calibrate.io.labels reads as KNE, ANK and ELB: a treadmill lab's LMEE beside its LLEE; Plug-in
+# Gait's and the CGM's LMED / RMED, its medial malleoli as pyCGM2 reads them; clinical labs' LKNEMED, RMed_kn, LMKN).  A
 # static often carries them alone (taken off for the walk), where no motion shows which segment they ride on; the name
 # does: the segment the joint hangs from.
 MEDIAL_NAMES = {
     "knee": {"mkne", "mknee", "kneem", "knem", "knm", "kneemed", "medknee", "medkne", "kneemedial", "medialknee",
-             "fme", "mfc", "mfe", "mek", "medfemepicondyle", "medialfemoralepicondyle", "femurmedialepicondyle",
-             "medfemcondyle", "medialfemoralcondyle", "kneein", "mepi", "medepi", "cm", "me"},
+             "fme", "mfc", "mfe", "mek", "knemed", "medkn", "mkn", "medfemepicondyle", "medialfemoralepicondyle",
+             "femurmedialepicondyle", "medfemcondyle", "medialfemoralcondyle", "kneein", "mepi", "medepi", "cm", "me"},
     "ankle": {"mank", "mankle", "ankm", "anklem", "anklemed", "medankle", "ankmed", "anklemedial", "medialankle",
-              "mmal", "mma", "mm", "mmall", "tam", "medmal", "malmed", "medmalleolus", "medialmalleolus",
-              "malleolusmed", "anklein"},
+              "mmal", "mma", "mm", "mmall", "med", "medank", "tam", "medmal", "malmed", "medmalleolus",
+              "medialmalleolus", "malleolusmed", "anklein"},
     "elbow": {"melb", "melbow", "elbm", "elbowm", "elbowmed", "medelbow", "elbmed", "elbowmedial", "medialelbow",
               "mel", "hme", "mhe", "mee", "medialhumeralepicondyle", "humeralmedialepicondyle",
               "humerusmedialepicondyle", "elbowin"},

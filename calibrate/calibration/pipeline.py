@@ -574,8 +574,10 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
             res = replace(res, segments=res.segments + line, lock=res.lock + tuple(u.coordinates[0] for u in line))
     # A trial that shows fewer markers than the others may not place segments they place (a static with the arms, a
     # walk without): its frames' coordinates there rest on the priors and the neighbouring frames, not on its markers.
-    # (A trial of new markers alone is judged once they are placed: at their segments' origins they place nothing.)
-    by_trial = tuple((i, u) for i, u in ((i, _trial_unplaced(subject, t, [*shared, *new], visible, res, settings))
+    # (A trial of new markers alone is judged once they are placed: at their segments' origins they place nothing.
+    # Judged at the provisional places the calibration's markers were: AUC's walk, without the static's medial knee and
+    # ankle markers, had its torso, which four new trunk markers at the torso's origin place nowhere, called unplaced.)
+    by_trial = tuple((i, u) for i, u in ((i, _trial_unplaced(probe, t, [*shared, *new], visible, res, settings))
                                          for i, t in enumerate(trials) if i not in bare) if u) \
         if len(trials) > 1 else ()
     for i, u in by_trial:
