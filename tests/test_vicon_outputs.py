@@ -268,3 +268,30 @@ def test_segment_axes_under_a_labs_own_names_are_outputs(tmp_path: Path, human) 
     write_vicon_file(alone, {f"Pelvis_GOM{k}": v for k, v in pelvis.items()}, {}, {}, {})
     with pytest.raises(Exception, match="axes.c3d.*only segment axes.*export the trial with its markers"):
         read_trial(alone)
+
+
+def test_plug_in_gaits_knee_marker_among_the_outputs_is_read_under_the_models_spelling(human) -> None:  # noqa: ANN001
+    """A knee alignment device's static carries Plug-in Gait's knee marker as an output (LKNE, where the device puts
+    it; FMC's, MH's, Sydney's statics in C3D-parser's sessions).  On models/human.urdf it is the model's LKNE by its
+    name; on a model that spells the landmark otherwise (gait2392's L.Knee.Lat) it is read under that spelling too,
+    the same marker, but only where no marker of the trial is read as it, and only under Plug-in Gait's own name (its
+    femur origin LFEO is no marker's)."""
+    from calibrate.io.labels import map_labels
+    from calibrate.io.trial import Trial
+
+    gait2392 = ("L.ASIS", "R.ASIS", "L.Knee.Lat", "R.Knee.Lat", "L.Ankle.Lat", "R.Ankle.Lat", "L.Heel", "R.Heel")
+    sim = simulate_squats(human, frames=10, noise_mm=0.5, seed=2)
+    t = sim.trial
+    shown = ("LASI", "RASI", "RKNE", "LANK", "RANK")
+    outputs = {"LKNE": t.marker("LKNE"), "RKNE": t.marker("RKNE") + 0.01, "LFEO": t.marker("LKNE") + 0.05}
+    trial = Trial(shown, t.select(list(shown)).markers, t.rate, model_outputs=outputs,
+                  output_kinds=dict.fromkeys(outputs, "point"), output_units=dict.fromkeys(outputs, "m"))
+    ours, _ = map_labels(trial, human.marker_names)
+    theirs, mapping = map_labels(trial, gait2392)
+    assert np.array_equal(theirs.marker("L.Knee.Lat"), ours.marker("LKNE"))
+    assert np.array_equal(theirs.marker("R.Knee.Lat"), t.marker("RKNE"))  # the trial's own knee marker, not the output
+    assert set(theirs.model_outputs) == {"RKNE", "LFEO"} and "LFEO" not in theirs.labels
+    assert dict((m.trial_label, m.note) for m in mapping)["LKNE"].endswith(
+        "read as a marker: Plug-in Gait's name of the model's L.Knee.Lat")
+    plain, _ = map_labels(trial, gait2392, aliases=False)
+    assert "L.Knee.Lat" not in plain.labels and "LKNE" in plain.model_outputs

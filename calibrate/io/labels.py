@@ -606,16 +606,26 @@ def _split_prefix(label: str) -> tuple[str, str] | None:
 
 
 def _with_mapped_outputs(trial: Trial, lookup: Mapping[str, tuple[str, int]],
-                         model_set: set[str]) -> tuple[Trial, dict[str, str]]:
+                         model_set: set[str], aliases: bool = True) -> tuple[Trial, dict[str, str]]:
     """The trial with the model outputs (points a modelling program wrote, io.c3d) that the marker map names or that
     are the model's own marker by their name read as markers, and why each was: Plug-in Gait's knee centre ``LFEO``
     mapped to a lab's ``LKJC``, or pyCGM2's computed ``LKJC`` where the lab's marker set has a marker ``LKJC`` at the
     knee centre.  The file's parameters or the label's name alone keep such points apart; the user's map or model
-    naming one is the word that it is a marker."""
+    naming one is the word that it is a marker.  So is a point named exactly as Plug-in Gait names a marker of the
+    model's that the aliases read under another spelling, where no marker of the trial is read as it (`aliases`):
+    Plug-in Gait's knee marker ``LKNE`` that a knee alignment device's static carries as an output, gait2392's
+    ``L.Knee.Lat``, as it is models/human.urdf's ``LKNE``."""
     why = {label: "the marker map names it" if label in lookup else "the model has a marker of its name"
            for label in trial.model_outputs
            if (label in lookup or label in model_set) and trial.output_kinds.get(label) == "point"
            and label not in trial.labels}
+    if aliases:
+        shown = {found[0] for label in trial.labels if (found := alias_for(label, model_set)) is not None}
+        for label in trial.model_outputs:
+            found = alias_for(label, model_set) if label not in why and label not in trial.labels else None
+            if (found is not None and trial.output_kinds.get(label) == "point" and found[0] not in shown
+                    and found[0] not in trial.labels and plug_in_gait_name(found[0]) == label):
+                why[label] = f"Plug-in Gait's name of the model's {found[0]}"
     if not why:
         return trial, why
     named = list(why)
@@ -655,7 +665,7 @@ def map_labels(
     model = [str(label) for label in model_labels]
     model_set = set(model)
     lookup = _check_marker_map(marker_map, model) if marker_map else {}
-    trial, outputs = _with_mapped_outputs(trial, lookup, model_set)
+    trial, outputs = _with_mapped_outputs(trial, lookup, model_set, aliases)
     # New labels by the user's word, kept as they are; one the model has (a subject calibrated with this map, which
     # carries them) is its own marker (calibrate() refuses a base model's: pipeline.calibrate).
     declared = {lab: seg for lab, seg in declared_segments(marker_map).items() if lab not in model_set}
