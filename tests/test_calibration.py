@@ -651,6 +651,31 @@ def test_a_heel_and_toe_label_swap_calibrates_and_shows_in_the_fit(human, sta_sq
     assert right.report()["implausible_flags"] == []
 
 
+def test_a_knee_marker_on_its_axis_beside_a_loose_thigh_marker_is_not_named(human):
+    """A knee marker on the knee's axis keeps its distances to the shank's markers however the knee turns, and a thigh
+    marker that slides on the skin (10 mm SD here, the simulator's truth otherwise) makes its own segment look loose:
+    the rigidity test alone names RKNE as riding with the shank (a clinical lab's walk: 1.8 mm SD against 6.0).  The
+    fit places it on its femur within its noise (its residuals 1.5 times the trial's median), so no `check label`
+    line names it; a knee label exchanged with the ankle's for the whole trial still is (the test below)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from calibrate.seed.association import misplaced_labels
+
+    sim = simulate_gait(human, frames=150, noise_mm=1.0, seed=0)
+    X = np.array(sim.trial.markers)
+    k = sim.trial.labels.index("RTHI")
+    wobble = gaussian_filter1d(np.random.default_rng(0).normal(0.0, 1.0, (X.shape[0], 3)), 6, axis=0)
+    X[:, k] += 0.010 * wobble / wobble.std()
+    trial = Trial(sim.trial.labels, X, sim.trial.rate)
+    (named,) = misplaced_labels(human, [trial])
+    assert (named.label, named.rides_with) == ("RKNE", "tibia_r") and named.sd_own > 3 * named.sd_other
+    cal = calibrate(human, trial, Settings())
+    assert cal.misplaced == () and "check label" not in cal.text()
+    d = np.linalg.norm(cal.residuals, axis=2)
+    rms = np.sqrt(np.nanmean(d**2, axis=0))
+    assert rms[cal.model.marker_index("RKNE")] < 2.0 * np.nanmedian(rms)
+
+
 def test_a_knee_and_ankle_label_swap_keeps_every_scale_bounded(human, sta_squats):
     """A knee and an ankle label exchanged for the whole trial pull the shank's scale towards zero; without
     SCALE_BOUNDS the positions stored unscaled in it grew to ~1e51 and the run either crashed (the covariance's

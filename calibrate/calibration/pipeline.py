@@ -482,8 +482,6 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
     misplaced = tuple((i, m) for i, (t, moves) in enumerate(zip(judged, own_motion, strict=False))
                       if moves >= STILL_MOTION and moves >= MISPLACED_MOTION * segment_jitter(t, model)
                       for m in misplaced_labels(model, [t], skip=centred, clean=False))
-    for i, m in misplaced:
-        say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
     # Two labels of one segment exchanged in one trial and not in another (a walk's heel and toe), or alike in every
     # trial: rigidity cannot see it; their distances to the markers near them can (between the trials, or against
     # the base model's).
@@ -1104,6 +1102,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
         rejected = [Outlier(int(trial_of[f]), int(f - spans[trial_of[f]].start), subject.marker_names[k],
                             float(err[f, k]), before=not tested[f, k]) for f, k in np.argwhere(jumped)] + rejected
     residuals = problem.marker_residuals(state)
+    misplaced = _misfit(misplaced, residuals, np.isfinite(raw).all(axis=2), spans, subject)
+    for i, m in misplaced:
+        say(Progress("markers", f"{trials[i].source or f'trial {i + 1}'}: {m.text()}; check the label"))
     # The hip centres on a few hundred frames of each trial, against Harrington's regression on its pelvis markers
     # (HipMotion.from_regression: a walk's hips, which its motion does not place, ended outside the pelvis).
     hip_frames = [even_frames(sl.stop - sl.start, HIP_FRAMES) for sl in spans]
@@ -1854,6 +1855,35 @@ def trials_apart(model: Model, trials: Sequence[Trial]) -> tuple[tuple[int, int,
             misfit = float(np.median(np.abs(meds[i][ok] / meds[j][ok] - 1.0)))
             if misfit > APART:
                 out.append((i, j, misfit, int(ok.sum())))
+    return tuple(out)
+
+
+#: A label the rigidity test names as riding with another segment (misplaced_labels) stays named only where the fit
+#: cannot place it on its own either: its residuals' RMS in that trial over MISPLACED_FIT times the median of the
+#: trial's markers', or half its positions rejected.  Distances alone cannot tell a marker on a hinge's axis, or
+#: beside a joint the trial hardly turns, from one on the segment across it: a clinical lab's RKNE (1.8 mm SD to the
+#: shank's markers, 6.0 to its thigh wand) and a stiff-ankled walk's LHEE (1.9 to the shank's, 5.9 to a toe marker
+#: that bends with the forefoot) were named, their residuals then 1.75 and 0.2 times the trial's median.  A knee
+#: label exchanged with the ankle's for the whole trial is not placed so.
+MISPLACED_FIT = 2.0
+
+
+def _misfit(misplaced: tuple, residuals: np.ndarray, seen: np.ndarray, spans: Sequence[slice],
+            model: Model) -> tuple:
+    """The (trial index, Misplaced) entries the fit confirms (MISPLACED_FIT): `residuals` (F, markers, 3) NaN where
+    not fitted, `seen` (F, markers) where the trials showed the marker."""
+    out = []
+    for i, m in misplaced:
+        k = model.marker_index(m.label)
+        d = np.linalg.norm(residuals[spans[i]], axis=2)
+        fitted = np.isfinite(d)
+        if 2 * fitted[:, k].sum() < seen[spans[i], k].sum():
+            out.append((i, m))
+            continue
+        shown = fitted.any(axis=0)
+        rms = np.sqrt(np.nanmean(np.where(fitted[:, shown], d[:, shown], np.nan) ** 2, axis=0))
+        if np.sqrt(np.mean(d[fitted[:, k], k] ** 2)) > MISPLACED_FIT * float(np.median(rms)):
+            out.append((i, m))
     return tuple(out)
 
 
