@@ -1878,7 +1878,7 @@ def _misfit(misplaced: tuple, residuals: np.ndarray, seen: np.ndarray, spans: Se
         k = model.marker_index(m.label)
         d = np.linalg.norm(residuals[spans[i]], axis=2)
         fitted = np.isfinite(d)
-        if 2 * fitted[:, k].sum() < seen[spans[i], k].sum():
+        if not fitted[:, k].any() or 2 * fitted[:, k].sum() < seen[spans[i], k].sum():
             out.append((i, m))
             continue
         shown = fitted.any(axis=0)

@@ -31,7 +31,7 @@ def read_trial(path: str | os.PathLike[str], *, strip_prefix: bool = True,
     if suffix in readers:
         trial = readers[suffix]()
         axes = segment_axes(trial.labels, trial.markers)
-        if len(axes) == trial.n_markers:
+        if axes and len(axes) == trial.n_markers:
             raise fail(path, "holds only segment axes a modelling program wrote (<segment>O, A, L, P), no markers",
                        "export the trial with its markers")
         return axes_as_outputs(trial, axes)

@@ -101,6 +101,7 @@ def segment_axes(labels: tuple[str, ...] | list[str], markers: np.ndarray) -> li
     segments (the children's hospital's walk: 99 labels left out, 7.60 mm RMS; read as outputs, 9 and 5.47 mm).
     `markers` (F, N, 3), NaN in gaps."""
     index = {label: i for i, label in enumerate(labels)}
+    markers = np.asarray(markers, dtype=float)
     out: list[str] = []
     empty: list[list[str]] = []
     for label in labels:
@@ -110,7 +111,7 @@ def segment_axes(labels: tuple[str, ...] | list[str], markers: np.ndarray) -> li
         quad = [next((stem + c for c in (s, s.lower()) if stem + c in index), None) for s in "OALP"]
         if None in quad:
             continue
-        X = np.asarray(markers, dtype=float)[:, [index[q] for q in quad], :]
+        X = markers[:, [index[q] for q in quad], :]
         if not np.isfinite(X).any():
             empty.append(quad)
         X = X[np.isfinite(X).all(axis=(1, 2))]
@@ -134,7 +135,8 @@ def axes_as_outputs(trial: Trial, axes: list[str]) -> Trial:
     (points, metres), as a file that lists them among its outputs has them; the trial itself when there are none."""
     if not axes:
         return trial
-    keep = [label for label in trial.labels if label not in set(axes)]
+    drop = set(axes)
+    keep = [label for label in trial.labels if label not in drop]
     outputs = {**trial.model_outputs, **{label: trial.marker(label) for label in axes}}
     return replace(trial.select(keep), model_outputs=outputs,
                    output_kinds={**trial.output_kinds, **dict.fromkeys(axes, "point")},
