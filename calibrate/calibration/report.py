@@ -124,6 +124,7 @@ def calibration_report(cal: Calibration) -> dict:
                                 "population_width_mm": 1000 * st.priors.population_width,
                                 "on_axis_mm": 1000 * st.priors.on_axis,
                                 "pair_axis_deg": math.degrees(st.priors.pair_axis),
+                                "knee_landmark_mm": 1000 * st.priors.knee_landmark,
                                 "joint_marker_mm": 1000 * st.priors.joint_marker,
                                 "held_centre_mm": 1000 * st.priors.held_centre,
                                 "placeholder_mm": 1000 * st.priors.placeholder},
@@ -148,6 +149,7 @@ def calibration_report(cal: Calibration) -> dict:
         "on_axis_markers": on_axis_labels(cal),
         "axis_pairs": axis_pair_table(cal),
         "pair_centres": pair_centre_table(cal),
+        "knee_landmarks": knee_landmark_table(cal),
         "population_widths": population_width_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
@@ -762,6 +764,25 @@ def pair_centre_table(cal: Calibration) -> list[dict]:
         s = float(p.scale[m.segment_index(m.joints[ji].parent)])
         out.append({"joint": joint, "markers": [m1, m2],
                     "centre_from_midpoint_mm": 1000 * s * float(np.linalg.norm(p.centre[ji] - 0.5 * (x1 + x2)))})
+    return out
+
+
+def knee_landmark_table(cal: Calibration) -> list[dict]:
+    """Each turning knee whose centre was held on the axis line through its epicondyles (Calibration.knee_landmarks):
+    its landmark markers, the centre's offset across the axis from their midpoint against the base model's (mm, at
+    the femur's scale: what the prior's rows read) and the base model's offset itself, in the subject's geometry."""
+    m, p = cal.model, cal.params
+    out = []
+    for joint, markers, target in cal.knee_landmarks:
+        ji = m.joint_index(joint)
+        a = hinge_axis(m, p, m.dof_index(m.joints[ji].dofs[0]))
+        x = np.mean([p.marker[m.marker_index(k)] for k in markers], axis=0)
+        t = np.asarray(target)
+        y = p.centre[ji] - x - t
+        s = float(p.scale[m.segment_index(m.joints[ji].parent)])
+        out.append({"joint": joint, "markers": list(markers),
+                    "from_line_mm": 1000 * s * float(np.linalg.norm(y - a * float(a @ y))),
+                    "base_offset_mm": 1000 * s * float(np.linalg.norm(t))})
     return out
 
 

@@ -63,6 +63,15 @@ class Priors:
     # the transepicondylar axis lies within a few degrees of the knee's flexion axis (Churchill et al. 1998), and
     # palpated epicondyles are placed to 5-15 mm over a 90-100 mm width (Della Croce et al. 1999).
     pair_axis: float = math.radians(5.0)
+    # A knee whose axis the motion calibrates: SD of its centre's distance from the axis line through its anatomical
+    # landmarks (m, at the segment's scale; 0: off), the midpoint of its epicondyle markers where the trials show
+    # both (calibrate.problem.priors.straddling_pairs), else its Plug-in Gait lateral marker KNE, as Plug-in Gait, the
+    # CGM and the ISB place it.  The motion places a hinge across its axis, but the thigh's skin markers slide with
+    # the knee's flexion (rigid-body artefact ~10 deg and ~18 mm; a marker-based knee helical axis ~25 mm off the
+    # bone's, Bonci et al. 2021 on fluoroscopy): real walks put the knee 13-37 mm distal of its epicondyles, the tibia
+    # 15 % short (docs/benchmarks.md).  The fitted axis's own SD is a few mm; palpated epicondyles are placed to
+    # 5-15 mm (Della Croce et al. 1999) against a motion error several times its SD.
+    knee_landmark: float = 0.001
     # A joint-centre marker (calibrate.problem.priors.joint_centre_markers: the base model puts it within
     # JOINT_MARKER_RADIUS of a joint centre of its segment, e.g. OpenSim's R_HJC at the femur's origin): a
     # point the lab computed at that centre, not skin.  SD of its offset from the centre about the base
@@ -154,7 +163,8 @@ class ProblemOptions:
             if not (isinstance(d, (int, float)) and not isinstance(d, bool) and d > 0 and math.isfinite(d)):
                 raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
                                  f"in metres, got {d!r}")
-        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "pair_axis", "joint_marker", "size"):
+        for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "pair_axis", "knee_landmark",
+                     "joint_marker", "size"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

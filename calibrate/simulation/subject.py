@@ -8,8 +8,9 @@ import math
 import numpy as np
 
 from ..errors import ModelError
+from ..io.measurements import lateral_markers_of
 from ..model.kinematics import Kinematics, build_kinematics
-from ..model.model import Model, Parameters
+from ..model.model import Model, Parameters, hinge_axis
 
 SCALE_RANGE = 0.10  # ± fraction
 
@@ -36,7 +37,23 @@ def perturb_parameters(model: Model, rng: np.random.Generator) -> Parameters:
     hinge_dofs = [model.dof_index(j.dofs[0]) for j in model.joints if j.kind == "hinge"]
     for i in hinge_dofs:
         axis[i] = tilt(axis[i], math.radians(rng.uniform(0.3, 1.0) * AXIS_TILT_DEG), rng)
-    return Parameters(scale, centre, axis, marker)
+    return knees_by_their_landmarks(model, p, Parameters(scale, centre, axis, marker))
+
+
+def knees_by_their_landmarks(model: Model, base: Parameters, params: Parameters) -> Parameters:
+    """`params` with each knee's Plug-in Gait lateral marker (LKNE, RKNE) moved across the knee's axis to the base
+    model's offset from its centre, its distance along the axis kept: the marker sits over the lateral epicondyle,
+    which the knee's flexion axis passes through, wherever a subject's knee centre lies (calibrate.problem.priors'
+    knee_landmark_terms holds a calibrated knee so)."""
+    marker = params.marker.copy()
+    for name, label in lateral_markers_of(model, ("knee",)):
+        ji, mi = model.joint_index(name), model.marker_index(label)
+        d = model.dof_index(model.joints[ji].dofs[0])
+        a0, a = hinge_axis(model, base, d), hinge_axis(model, params, d)
+        y0 = base.centre[ji] - base.marker[mi]
+        y = params.centre[ji] - params.marker[mi]
+        marker[mi] = params.centre[ji] - a * float(a @ y) - (y0 - a0 * float(a0 @ y0))
+    return Parameters(params.scale, params.centre, params.axis, marker)
 
 
 def tilt(axis: np.ndarray, angle: float, rng: np.random.Generator) -> np.ndarray:
