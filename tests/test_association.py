@@ -450,7 +450,9 @@ def test_landmarks_reconstructed_from_one_cluster_ride_on_its_segment(human):
         assert got.reason.startswith(f"rigid with {ref}, the one marker of {seg} the trial shows"), got.reason
         assert got.spread < 1e-6
         got = judged(lab, (other,), exact=False)
-        assert got.segment is None and got.reason.startswith(f"rigid only with the one marker of {seg} ({ref})"), \
-            (lab, got.reason)
+        # (the shank's point may be rigid with RKNE too: the simulator keeps it on the knee's axis)
+        assert got.segment is None and got.reason.startswith("rigid only with the one marker of") and \
+            f"{seg} ({ref})" in got.reason.split(" the trial shows")[0], (lab, got.reason)
     got = judged("RTT", ("RTIB", "RTHI"), exact=True)
-    assert got.segment is None and got.reason.startswith("rigid only with the one marker of tibia_r (RANK)"), got.reason
+    assert got.segment is None and got.reason.startswith("rigid only with the one marker of") and \
+        "tibia_r (RANK)" in got.reason.split(" the trial shows")[0], got.reason

@@ -111,12 +111,13 @@ def test_a_pair_exchanged_alike_in_every_trial_is_named_against_the_base_model(h
     assert "the labels kept, the lab's protocol taken" in line
     assert cal.trials[1].labels.index("LKNE") == squats.labels.index("LTHI")  # as given
     # Each fitted where the base model has the other: its change from the base (now the exchanged places) is the
-    # subject's, a few mm, where the two places lie 171 mm apart on the femur (the base model's, scaled).
+    # subject's, tens of mm at most, where the two places lie 171 mm apart on the femur (the base model's, scaled).
     base = human.parameters()
     apart = float(base.scale[human.segment_index("femur_l")]
                   * np.linalg.norm(base.marker[pair[0]] - base.marker[pair[1]]))
     changes = {c.item: c.change for c in cal.changes if c.group == "marker"}
-    assert apart > 0.15 and max(changes["LKNE"], changes["LTHI"]) < 20.0  # mm
+    # (under 25 mm: the simulated knee marker follows its knee's centre, drawn 15 mm per coordinate from the base's)
+    assert apart > 0.15 and max(changes["LKNE"], changes["LTHI"]) < 25.0  # mm
     assert calibration_report(cal)["exchanged_labels"][0]["protocol"] is True
     assert "the lab's protocol" in report_html(calibration_report(cal))
 

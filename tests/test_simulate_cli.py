@@ -43,7 +43,11 @@ def test_subject_changes_are_within_documented_ranges(human):
     p0, p1 = human.parameters(), sim.truth
     assert np.all(np.abs(p1.scale - 1) <= 0.10) and np.abs(p1.scale - 1).max() > 0.05
     assert np.abs(p1.centre - p0.centre).max() <= 0.015
-    assert np.abs(p1.marker - p0.marker).max() <= 0.010
+    knees = [human.marker_index(k) for k in ("LKNE", "RKNE")]  # by the knee's axis (knees_by_their_landmarks)
+    others = np.ones(len(human.markers), dtype=bool)
+    others[knees] = False
+    assert np.abs(p1.marker - p0.marker)[others].max() <= 0.010
+    assert np.abs(p1.marker - p0.marker)[knees].max() <= 0.010 + 0.015 * 2
     cosines = np.sum(p1.axis * p0.axis, axis=1)
     tilt = np.degrees(np.arccos(np.clip(cosines, -1, 1)))
     hinges = [human.dof_index(j.dofs[0]) for j in human.joints if j.kind == "hinge"]

@@ -85,7 +85,8 @@ def test_a_trial_without_foot_markers_places_its_ankles_by_the_measured_width(hu
     locked, their centres within 2 mm of the truth's along the axis from the malleolus markers (the caliper's error is
     2 mm SD on the width); with no width used and the population's off, the one prior left on the centre puts an
     ankle 10 mm off.  The fit is the same (every marker the trial shows, on the written subjects posed by Pinocchio,
-    within 0.1 mm), and without the measurement the report lists the ankles among the population's widths."""
+    within 0.4 mm: 0.1 before the knees' landmark prior), and without the measurement the report lists the ankles
+    among the population's widths."""
     sim = simulate_squats(human, frames=100, noise_mm=1.0, seed=3, measured=True)
     trial = _without_feet(sim.trial)
     base = human.parameters()
@@ -108,4 +109,4 @@ def test_a_trial_without_foot_markers_places_its_ankles_by_the_measured_width(hu
     seen = [k for k, name in enumerate(human.marker_names) if name in trial.labels]  # (the feet's move with the ankles)
     np.testing.assert_allclose(
         markers_in_world(human, runs["measured"].params, runs["measured"].motions[0], tmp_path, "m.urdf")[:, seen],
-        markers_in_world(human, runs["none"].params, runs["none"].motions[0], tmp_path, "n.urdf")[:, seen], atol=1e-4)
+        markers_in_world(human, runs["none"].params, runs["none"].motions[0], tmp_path, "n.urdf")[:, seen], atol=4e-4)
