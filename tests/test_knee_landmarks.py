@@ -7,8 +7,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import pinocchio as pin
 from conftest import prior_jacobian_by_differences
+from test_on_axis import _across_axis
 
 from calibrate.calibration.pipeline import calibrate
 from calibrate.calibration.report import calibration_report
@@ -23,17 +23,8 @@ from calibrate.solve.ik import marker_columns
 
 def _across(urdf, joint: str, marker: str) -> np.ndarray:
     """The hinge centre's offset from the marker across the hinge's axis (m, world) at the neutral pose, from the URDF
-    through Pinocchio alone (the axis: the joint's column of its world Jacobian)."""
-    model = pin.buildModelFromUrdf(str(urdf))
-    data = model.createData()
-    q = pin.neutral(model)
-    pin.computeJointJacobians(model, data, q)
-    pin.updateFramePlacements(model, data)
-    jid = model.getJointId(joint)
-    a = pin.getJointJacobian(model, data, jid, pin.ReferenceFrame.WORLD)[3:, model.joints[jid].idx_v]
-    a = a / np.linalg.norm(a)
-    y = data.oMi[jid].translation - data.oMf[model.getFrameId(marker)].translation
-    return y - a * float(a @ y)
+    through Pinocchio alone (test_on_axis reads the marker's from the centre)."""
+    return -_across_axis(urdf, joint, marker)
 
 
 def test_the_rows_are_the_knee_centres_offset_from_its_marker_line_as_pinocchio_reads_it(human, human_kin, tmp_path):
