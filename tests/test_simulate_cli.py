@@ -43,7 +43,7 @@ def test_subject_changes_are_within_documented_ranges(human):
     p0, p1 = human.parameters(), sim.truth
     assert np.all(np.abs(p1.scale - 1) <= 0.10) and np.abs(p1.scale - 1).max() > 0.05
     assert np.abs(p1.centre - p0.centre).max() <= 0.015
-    knees = [human.marker_index(k) for k in ("LKNE", "RKNE")]  # by the knee's axis (knees_by_their_landmarks)
+    knees = [human.marker_index(k) for k in ("LKNE", "RKNE")]  # by the knee's axis (hinges_by_their_landmarks)
     others = np.ones(len(human.markers), dtype=bool)
     others[knees] = False
     assert np.abs(p1.marker - p0.marker)[others].max() <= 0.010

@@ -266,10 +266,11 @@ def _notes(report: dict) -> str:
         items.append("<li>held axes' centres drawn to the midpoint of the two markers straddling each joint (no motion "
                      "places them): " + _e("; ".join(f"{r['joint']} {r['centre_from_midpoint_mm']:.1f} mm from "
                                                      f"{'-'.join(r['markers'])}'s midpoint" for r in pairs)) + "</li>")
-    if knees := report.get("knee_landmarks"):
-        items.append("<li>knee centres held on the axis line through their epicondyle markers (the motion's skin "
-                     "slides with the knee): " + _e("; ".join(f"{r['joint']} {r['from_line_mm']:.1f} mm from "
-                                                          f"{'-'.join(r['markers'])}'s line" for r in knees)) + "</li>")
+    if held := report.get("landmarks"):
+        items.append("<li>knee and ankle centres held on the axis line through their landmark markers (the "
+                     "epicondyles, the malleoli; the motion alone does not place them): "
+                     + _e("; ".join(f"{r['joint']} {r['from_line_mm']:.1f} mm from {'-'.join(r['markers'])}'s line"
+                                    for r in held)) + "</li>")
     if widths := report.get("population_widths"):
         items.append("<li>no width measured: lateral markers held about the base model's distance from their centres "
                      "along the axes, at the segment's scale (calibrated / prior, mm): "

@@ -1130,9 +1130,9 @@ def _calibrate(model: Model, trials: tuple[Trial, ...], settings: Settings, kine
                                         for _, k1, k2, d in problem.pair_terms()),
                        pair_centres=tuple((subject.joints[ji].name, subject.markers[k1].name, subject.markers[k2].name)
                                           for ji, k1, k2, _ in problem.held_pair_terms()),
-                       knee_landmarks=tuple((subject.joints[ji].name, tuple(subject.markers[k].name for k in w),
-                                             tuple(float(x) for x in t))
-                                            for ji, _, w, t in problem.knee_landmark_terms()),
+                       landmarks=tuple((subject.joints[ji].name, tuple(subject.markers[k].name for k in w),
+                                        tuple(float(x) for x in t))
+                                       for ji, _, w, t, _ in problem.landmark_terms()),
                        population_widths=population,
                        not_neutral=tuple(not_neutral),
                        pose=None if pose is None else tuple(pose_used.items()), pose_unset=tuple(pose_unset),

@@ -125,6 +125,7 @@ def calibration_report(cal: Calibration) -> dict:
                                 "on_axis_mm": 1000 * st.priors.on_axis,
                                 "pair_axis_deg": math.degrees(st.priors.pair_axis),
                                 "knee_landmark_mm": 1000 * st.priors.knee_landmark,
+                                "ankle_landmark_mm": 1000 * st.priors.ankle_landmark,
                                 "joint_marker_mm": 1000 * st.priors.joint_marker,
                                 "held_centre_mm": 1000 * st.priors.held_centre,
                                 "placeholder_mm": 1000 * st.priors.placeholder},
@@ -149,7 +150,7 @@ def calibration_report(cal: Calibration) -> dict:
         "on_axis_markers": on_axis_labels(cal),
         "axis_pairs": axis_pair_table(cal),
         "pair_centres": pair_centre_table(cal),
-        "knee_landmarks": knee_landmark_table(cal),
+        "landmarks": landmark_table(cal),
         "population_widths": population_width_table(cal),
         "auto_locked": [{"coordinate": lk.coordinate, "value_deg": math.degrees(lk.value), "segment": lk.bare,
                          "neighbours": list(lk.neighbours), "spread_deg": math.degrees(lk.spread),
@@ -767,13 +768,14 @@ def pair_centre_table(cal: Calibration) -> list[dict]:
     return out
 
 
-def knee_landmark_table(cal: Calibration) -> list[dict]:
-    """Each turning knee whose centre was held on the axis line through its epicondyles (Calibration.knee_landmarks):
-    its landmark markers, the centre's offset across the axis from their midpoint against the base model's (mm, at
-    the femur's scale: what the prior's rows read) and the base model's offset itself, in the subject's geometry."""
+def landmark_table(cal: Calibration) -> list[dict]:
+    """Each turning knee or ankle whose centre was held on the axis line through its landmarks (Calibration.landmarks:
+    the epicondyles, the malleoli): its landmark markers, the centre's offset across the axis from their midpoint
+    against the base model's (mm, at the parent segment's scale: what the prior's rows read) and the base model's
+    offset itself, in the subject's geometry."""
     m, p = cal.model, cal.params
     out = []
-    for joint, markers, target in cal.knee_landmarks:
+    for joint, markers, target in cal.landmarks:
         ji = m.joint_index(joint)
         a = hinge_axis(m, p, m.dof_index(m.joints[ji].dofs[0]))
         x = np.mean([p.marker[m.marker_index(k)] for k in markers], axis=0)

@@ -244,9 +244,10 @@ class Calibration:
     # (joint, marker, marker) per hinge whose axis was held (a still trial's, --hold-axes) or locked and whose centre
     # Priors.on_axis drew to the midpoint of two markers straddling it (calibrate.problem.priors.held_pair_terms)
     pair_centres: tuple[tuple[str, str, str], ...] = ()
-    # (joint, its landmark markers, the base model's offset across the axis (m, scale 1)) per turning knee whose centre
-    # Priors.knee_landmark held on the axis line through its epicondyles (calibrate.problem.priors.knee_landmark_terms)
-    knee_landmarks: tuple[tuple[str, tuple[str, ...], tuple[float, float, float]], ...] = ()
+    # (joint, its landmark markers, the base model's offset across the axis (m, scale 1)) per turning knee or ankle
+    # whose centre Priors.knee_landmark or ankle_landmark held on the axis line through its epicondyles or malleoli
+    # (calibrate.problem.priors.landmark_terms)
+    landmarks: tuple[tuple[str, tuple[str, ...], tuple[float, float, float]], ...] = ()
     # The knees, ankles and elbows slid along their axes to the population's width where no one measured theirs: the
     # lateral marker's distance from the centre the base model's at the segment's scale
     # (Priors.population_width; pipeline.population_widths)

@@ -44,6 +44,7 @@ Every key is optional; units are in the key names (mm, deg).  Example, with the 
     on_axis_mm = 10.0       # SD of KNE/ANK/ELB's distance from a held hinge axis through its centre (0: off)
     pair_axis_deg = 5.0     # SD of a knee/ankle/elbow axis's angle from the line of two markers straddling it (0: off)
     knee_landmark_mm = 1.0  # SD of a turning knee's centre from the axis line through its epicondyles or KNE (0: off)
+    ankle_landmark_mm = 1.0  # SD of a turning ankle's centre from the axis line through its two malleoli (0: off)
     joint_marker_mm = 1.0   # SD of a joint-centre marker's offset from its centre (e.g. R_HJC; 0: an ordinary marker)
     held_centre_mm = 0.1    # SD of a held centre's offset from its parent's markers (hold_centres)
 
@@ -75,8 +76,8 @@ _TOP = {"free", "noise_mm", "loss", "loss_scale", "max_iterations", "ftol", "ato
         "hold_centres", "auto_hold", "segment_frames", "learn_noise", "ahead", "still_weight", "moved_markers",
         "far_joints", "hip_regression"}
 _PRIORS = {"marker_mm", "centre_mm", "axis_deg", "scale", "size", "symmetry_scale", "symmetry_centre_mm", "width_mm",
-           "population_width_mm", "on_axis_mm", "pair_axis_deg", "knee_landmark_mm", "joint_marker_mm",
-           "held_centre_mm", "placeholder_mm"}
+           "population_width_mm", "on_axis_mm", "pair_axis_deg", "knee_landmark_mm", "ankle_landmark_mm",
+           "joint_marker_mm", "held_centre_mm", "placeholder_mm"}
 
 
 def settings_from_dict(data: dict, where: str = "settings", base: Settings | None = None) -> Settings:
@@ -111,6 +112,7 @@ def settings_from_dict(data: dict, where: str = "settings", base: Settings | Non
         on_axis=num(pri, "on_axis_mm", 1000 * s.priors.on_axis) / 1000,
         pair_axis=math.radians(num(pri, "pair_axis_deg", math.degrees(s.priors.pair_axis))),
         knee_landmark=num(pri, "knee_landmark_mm", 1000 * s.priors.knee_landmark) / 1000,
+        ankle_landmark=num(pri, "ankle_landmark_mm", 1000 * s.priors.ankle_landmark) / 1000,
         joint_marker=num(pri, "joint_marker_mm", 1000 * s.priors.joint_marker) / 1000,
         held_centre=num(pri, "held_centre_mm", 1000 * s.priors.held_centre) / 1000,
         placeholder=num(pri, "placeholder_mm", 1000 * s.priors.placeholder) / 1000,

@@ -72,6 +72,13 @@ class Priors:
     # 15 % short (docs/benchmarks.md).  The fitted axis's own SD is a few mm; palpated epicondyles are placed to
     # 5-15 mm (Della Croce et al. 1999) against a motion error several times its SD.
     knee_landmark: float = 0.001
+    # An ankle whose axis the motion calibrates, where the trials show both malleoli's markers (a pair straddling
+    # it, calibrate.problem.priors.straddling_pairs): SD of its centre's distance from the axis line through their
+    # midpoint, at the base model's offset (m, at the segment's scale; 0: off), as the ISB and Plug-in Gait with a
+    # medial malleolus marker place it.  The foot's two or three markers cannot place the ankle across its axis against
+    # the subtalar beside it (the report's "held by the prior": a posterior SD of 11-14 mm on real walks), and the
+    # scaled base model's place put real ankles 8-43 mm from their malleoli (docs/benchmarks.md).
+    ankle_landmark: float = 0.001
     # A joint-centre marker (calibrate.problem.priors.joint_centre_markers: the base model puts it within
     # JOINT_MARKER_RADIUS of a joint centre of its segment, e.g. OpenSim's R_HJC at the femur's origin): a
     # point the lab computed at that centre, not skin.  SD of its offset from the centre about the base
@@ -164,7 +171,7 @@ class ProblemOptions:
                 raise ValueError(f"lateral_markers: {joint}/{marker}: the distance must be a positive length "
                                  f"in metres, got {d!r}")
         for name in ("symmetry_scale", "symmetry_centre", "width", "on_axis", "pair_axis", "knee_landmark",
-                     "joint_marker", "size"):
+                     "ankle_landmark", "joint_marker", "size"):
             v = getattr(self.priors, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and v >= 0 and math.isfinite(v)):
                 raise ValueError(f"priors.{name}: must be 0 (off) or a positive standard deviation, got {v!r}")

@@ -38,14 +38,17 @@ def symmetry_pairs(model: Model, centres: np.ndarray) -> tuple[list[tuple[int, i
 #: humeral epicondyles, the lateral malleolus): Priors.on_axis keeps it on a held axis.
 ON_AXIS_JOINTS = ("knee", "ankle", "elbow")
 
-#: What names a knee among them (Priors.knee_landmark).
-ON_KNEE = "knee"
+#: The hinges whose centre Priors.knee_landmark and Priors.ankle_landmark hold on the axis line through their
+#: anatomical landmarks: a knee by its epicondyles' markers or Plug-in Gait's KNE, an ankle by its malleoli's markers
+#: (a straddling pair only: the lateral malleolus's ANK alone leaves the axis's tilt to the foot's motion).
+LANDMARK_JOINTS = ("knee", "ankle")
 
-#: m, at the base model's scale: a knee whose base model puts none of its landmark markers this near its axis line
+#: m, at the base model's scale: a hinge whose base model puts none of its landmark markers this near its axis line
 #: (PAIR_OFF, as a pair's line may pass its centre) gets no landmark prior: the base model's axis passes by neither.
 #: models/human.urdf's LKNE sits 1.9 mm from it, gait2392's epicondyles 11.7 mm from its fixed hinge (the best over the
-#: coordinate's range), Rajagopal2016's 5.5 mm.
-KNEE_LANDMARK_OFF = 0.030
+#: coordinate's range), Rajagopal2016's 5.5 mm; about the ankle human.urdf's LANK 6.1 mm, Rajagopal2016's medial
+#: malleolus 12.6 mm (gait2392's malleoli's line passes 31.5 mm from its ankle's axis: no pair, no rows).
+LANDMARK_OFF = 0.030
 
 
 def on_axis_markers(model: Model, held: Callable[[int], bool]) -> list[tuple[int, int]]:
@@ -422,24 +425,30 @@ class PriorsMixin:
         self._held_pair_cache = (key, out)
         return out
 
-    def knee_landmark_terms(self) -> list[tuple[int, int, dict[int, float], np.ndarray]]:
-        """(joint, DoF, {marker: weight}, target) of each knee hinge whose axis is calibrated (ON_KNEE in its joint's
-        or coordinate's name) with its anatomical landmarks seen: the midpoint of two markers straddling it
-        (straddling_pairs: the epicondyles), else its Plug-in Gait lateral marker (LKNE over the lateral epicondyle,
-        lateral_markers_of).  Priors.knee_landmark keeps the centre's offset from that point across the axis at
-        `target` (the parent's frame, scale 1): the base model's, of the landmark it puts nearest its axis
-        (KNEE_LANDMARK_OFF).  None when knee_landmark is 0 or the centres and markers are not free.  Kept while the
-        base, the settings and the seen markers are the same."""
-        cached = self.__dict__.get("_knee_cache")
+    def landmark_terms(self) -> list[tuple[int, int, dict[int, float], np.ndarray, float]]:
+        """(joint, DoF, {marker: weight}, target, SD) of each knee and ankle hinge whose axis is calibrated
+        (LANDMARK_JOINTS in its joint's or coordinate's name) with its anatomical landmarks seen: the midpoint of two
+        markers straddling it (straddling_pairs: the epicondyles, the malleoli), else, for a knee, its Plug-in Gait
+        lateral marker (LKNE over the lateral epicondyle, lateral_markers_of).  The prior keeps the centre's offset
+        from that point across the axis at `target` (the parent's frame, scale 1): the base model's, of the landmark it
+        puts nearest its axis (LANDMARK_OFF), with SD Priors.knee_landmark or Priors.ankle_landmark (0: no rows).  None
+        when the centres and markers are not free.  Kept while the base, the settings and the seen markers are the
+        same."""
+        cached = self.__dict__.get("_landmark_cache")
         key = (self.base, self.settings, self._unseen)
         if cached is not None and all(a is b for a, b in zip(cached[0], key, strict=True)):
             return cached[1]
         st, m, L = self.settings, self.model, self.layout
+        sds = dict(zip(LANDMARK_JOINTS, (st.priors.knee_landmark, st.priors.ankle_landmark), strict=True))
         out = []
-        if st.priors.knee_landmark > 0 and {"centre", "marker"} <= set(st.free):
+        if any(sds.values()) and {"centre", "marker"} <= set(st.free):
             calibrated = set(L.axis_dofs)
             base = self.base.vector()
-            lateral = {m.joint_index(j): m.marker_index(mk) for j, mk in lateral_markers_of(m, ("knee",))}
+
+            def part(ji: int, d: int) -> str | None:
+                """Which of LANDMARK_JOINTS the hinge is, by its joint's or coordinate's name."""
+                name = f"{m.joints[ji].name} {m.dofs[d].name}".lower()
+                return next((q for q in LANDMARK_JOINTS if q in name), None)
 
             def across(ji: int, d: int, mk: int) -> np.ndarray:
                 """Marker mk's offset from the centre across the axis in the base geometry (scale 1)."""
@@ -448,19 +457,20 @@ class PriorsMixin:
                 return y - a * float(a @ y)
 
             pairs = straddling_pairs(m, base, L, self._joint_rotations(), ~self._unseen, self.centre_segment)
-            points = {ji: (d, {k1: 0.5, k2: 0.5}) for ji, k1, k2, d in pairs
-                      if ON_KNEE in f"{m.joints[ji].name} {m.dofs[d].name}".lower()}
-            for ji, mi in lateral.items():
+            points = {ji: (d, {k1: 0.5, k2: 0.5}) for ji, k1, k2, d in pairs if part(ji, d) is not None}
+            for jname, mk in lateral_markers_of(m, ("knee",)):
+                ji, mi = m.joint_index(jname), m.marker_index(mk)
                 d = m.dof_index(m.joints[ji].dofs[0])
                 if ji not in points and d in calibrated and not self._unseen[mi]:
                     points[ji] = (d, {mi: 1.0})
             for ji, (d, w) in sorted(points.items()):
                 # The landmark the base model puts nearest its axis: a marker the trials add has its start's place,
-                # not the base model's; none within KNEE_LANDMARK_OFF: the base model's axis passes by neither.
+                # not the base model's; none within LANDMARK_OFF: the base model's axis passes by neither.
                 t = min((across(ji, d, mk) for mk in w), key=lambda v: float(np.linalg.norm(v)))
-                if np.linalg.norm(t) <= KNEE_LANDMARK_OFF:
-                    out.append((ji, d, w, t))
-        self._knee_cache = (key, out)
+                sd = sds[part(ji, d)]
+                if sd > 0 and np.linalg.norm(t) <= LANDMARK_OFF:
+                    out.append((ji, d, w, t, sd))
+        self._landmark_cache = (key, out)
         return out
 
     def _pair_index(self, pairs: list[tuple[int, int, int, int]]) -> tuple[np.ndarray, ...]:
@@ -616,16 +626,16 @@ class PriorsMixin:
             idx = L.axis_entries.ravel()
             add((p[idx] - unit[idx]) / st.priors.axis, lambda: (
                 np.arange(idx.size), idx, np.full(idx.size, 1.0 / st.priors.axis)))
-        # A turning knee's centre on the axis line through its epicondyles (Priors.knee_landmark; knee_landmark_terms):
-        # s P(a) (c - x - t) / sd, x the pair's midpoint or the lateral marker, P the projection across the axis a
-        # (3 rows of rank 2), t the base model's offset across its axis, all in the parent's frame at its scale s.  The
-        # motion alone put real knees 13-37 mm distal of their epicondyles (docs/benchmarks.md): the thigh's skin
-        # markers slide with the knee's flexion.
-        knees = self.knee_landmark_terms()
-        if knees:
-            sd = st.priors.knee_landmark
+        # A turning knee's or ankle's centre on the axis line through its landmarks (Priors.knee_landmark and
+        # ankle_landmark; landmark_terms): s P(a) (c - x - t) / sd, x the pair's midpoint or the lateral marker, P the
+        # projection across the axis a (3 rows of rank 2), t the base model's offset across its axis, all in the
+        # parent's frame at its scale s.  The motion alone put real knees 13-37 mm distal of their epicondyles (the
+        # thigh's skin markers slide with the knee's flexion) and ankles 8-43 mm from their malleoli (the foot's few
+        # markers trade the ankle against the subtalar: docs/benchmarks.md).
+        landmarks = self.landmark_terms()
+        if landmarks:
             eye = np.eye(3)
-            for ji, d, weights, t in knees:
+            for ji, d, weights, t, sd in landmarks:
                 seg = self.centre_segment[ji]
                 R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
                 ax, ce = L.axis(d), L.centre(ji)
@@ -642,7 +652,7 @@ class PriorsMixin:
                 mcols = [np.tile(np.arange(L.marker(mk).start, L.marker(mk).stop), 3) for mk in weights]
                 mvals = [(-w * s / sd * P).ravel() for w in weights.values()]
                 add(s * (P @ y) / sd, lambda P=P, ce=ce, ax=ax, s=s, seg=seg, k=k, y=y, dv=dv, mcols=mcols,
-                    mvals=mvals: (
+                    mvals=mvals, sd=sd: (
                     _cat(k, *[k] * len(mcols), np.arange(3), k),
                     _cat(np.tile(np.arange(ce.start, ce.stop), 3), *mcols, np.full(3, L.scale(seg)),
                          np.tile(np.arange(ax.start, ax.stop), 3)),

@@ -37,15 +37,27 @@ def perturb_parameters(model: Model, rng: np.random.Generator) -> Parameters:
     hinge_dofs = [model.dof_index(j.dofs[0]) for j in model.joints if j.kind == "hinge"]
     for i in hinge_dofs:
         axis[i] = tilt(axis[i], math.radians(rng.uniform(0.3, 1.0) * AXIS_TILT_DEG), rng)
-    return knees_by_their_landmarks(model, p, Parameters(scale, centre, axis, marker))
+    return hinges_by_their_landmarks(model, p, Parameters(scale, centre, axis, marker))
 
 
-def knees_by_their_landmarks(model: Model, base: Parameters, params: Parameters) -> Parameters:
+def hinges_by_their_landmarks(model: Model, base: Parameters, params: Parameters) -> Parameters:
     """`params` with each knee's Plug-in Gait lateral marker (LKNE, RKNE) moved across the knee's axis to the base
-    model's offset from its centre, its distance along the axis kept: the marker sits over the lateral epicondyle,
-    which the knee's flexion axis passes through, wherever a subject's knee centre lies (calibrate.problem.priors'
-    knee_landmark_terms holds a calibrated knee so)."""
+    model's offset from its centre, and each ankle's two malleoli markers (a pair straddling it in the base model,
+    calibrate.problem.priors.straddle) moved together so that their midpoint is, their distances along the axis and
+    their span kept: the markers sit over the epicondyle and the malleoli, which the flexion axis passes through,
+    wherever a subject's centre lies (calibrate.problem.priors' landmark_terms holds a calibrated knee and ankle
+    so)."""
+    from ..problem.priors import straddle
+
     marker = params.marker.copy()
+
+    def moved(ji: int, d: int, x0: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """How far the point x (the base model's x0) moves for its offset across the hinge's axis from the centre to
+        be the base model's."""
+        a0, a = hinge_axis(model, base, d), hinge_axis(model, params, d)
+        y0, y = base.centre[ji] - x0, params.centre[ji] - x
+        return (y - a * float(a @ y)) - (y0 - a0 * float(a0 @ y0))
+
     for name, label in lateral_markers_of(model, ("knee",)):
         ji, mi = model.joint_index(name), model.marker_index(label)
         d = model.dof_index(model.joints[ji].dofs[0])
@@ -53,6 +65,18 @@ def knees_by_their_landmarks(model: Model, base: Parameters, params: Parameters)
         y0 = base.centre[ji] - base.marker[mi]
         y = params.centre[ji] - params.marker[mi]
         marker[mi] = params.centre[ji] - a * float(a @ y) - (y0 - a0 * float(a0 @ y0))
+    for ji, j in enumerate(model.joints):
+        if j.kind != "hinge" or "ankle" not in j.name.lower():
+            continue
+        d = model.dof_index(j.dofs[0])
+        on = [k for k, mk in enumerate(model.markers) if mk.segment == j.parent]
+        a0 = hinge_axis(model, base, d)
+        pairs = [(off, k1, k2) for n, k1 in enumerate(on) for k2 in on[n + 1:]
+                 if (off := straddle(base.centre[ji], a0, base.marker[k1], base.marker[k2])) is not None]
+        if pairs:
+            _, k1, k2 = min(pairs)
+            v = moved(ji, d, 0.5 * (base.marker[k1] + base.marker[k2]), 0.5 * (params.marker[k1] + params.marker[k2]))
+            marker[k1], marker[k2] = params.marker[k1] + v, params.marker[k2] + v
     return Parameters(params.scale, params.centre, params.axis, marker)
 
 
