@@ -28,6 +28,19 @@ def _across(urdf, joint: str, marker: str) -> np.ndarray:
     return -_across_axis(urdf, joint, marker)
 
 
+def _perturbed(problem: Problem, without: Problem, truth, seed: int, tmp_path):
+    """A geometry near the simulated `truth` (p), the prior's rows and Jacobian there, the rows of the same problem
+    `without` two hinges' landmark rows (six fewer), and the base and p geometries written as URDFs."""
+    rng = np.random.default_rng(seed)
+    p = problem.retract_parameters(truth.vector(), 0.02 * rng.normal(size=problem.n_free))
+    r, J = problem.prior(p)
+    r_off = without.prior(p)[0]
+    assert r.size == r_off.size + 6
+    m = problem.model
+    return (p, r, J, r_off, write_model(m, tmp_path / "base.urdf", m.parameters()),
+            write_model(m, tmp_path / "p.urdf", m.unpack(p)))
+
+
 def test_the_rows_are_the_knee_centres_offset_from_its_marker_line_as_pinocchio_reads_it(human, human_kin, tmp_path):
     """models/human.urdf's knees (calibrated axes, LKNE / RKNE seen): three rows each, s P(a)(c - x - t) / sd, whose
     size is the change of the centre's offset across the axis from the base model's as Pinocchio reads both written
@@ -42,13 +55,7 @@ def test_the_rows_are_the_knee_centres_offset_from_its_marker_line_as_pinocchio_
     assert off.landmark_terms() == []
     held = Problem(human, obs, Settings(hold_axes=("knee_l",)), human_kin)
     assert [human.joints[j].name for j, *_ in held.landmark_terms()] == ["knee_r"]
-    rng = np.random.default_rng(4)
-    p = problem.retract_parameters(sim.truth.vector(), 0.02 * rng.normal(size=problem.n_free))
-    r, J = problem.prior(p)
-    r_off = off.prior(p)[0]
-    assert r.size == r_off.size + 6
-    base = write_model(human, tmp_path / "base.urdf", human.parameters())
-    moved = write_model(human, tmp_path / "p.urdf", human.unpack(p))
+    p, r, J, r_off, base, moved = _perturbed(problem, off, sim.truth, 4, tmp_path)
     # Where the rows sit: the prior's rows with and without them, the first that differ.
     first = int(np.argmax(np.abs(r[:r_off.size] - r_off) > 0)) if not np.array_equal(r[:r_off.size], r_off) else None
     k0 = first if first is not None else r_off.size
@@ -160,13 +167,7 @@ def test_an_ankles_rows_are_its_centres_offset_from_the_malleoli_midpoint_as_pin
     X[:, unseen] = np.nan
     alone = Problem(model, marker_columns(model, replace(sim.trial, markers=X)), Settings(priors=pri))
     assert "ankle_l" not in {model.joints[j].name for j, *_ in alone.landmark_terms()}
-    rng = np.random.default_rng(8)
-    p = problem.retract_parameters(sim.truth.vector(), 0.02 * rng.normal(size=problem.n_free))
-    r, J = problem.prior(p)
-    r_off = no_ankles.prior(p)[0]
-    assert r.size == r_off.size + 6
-    base = write_model(model, tmp_path / "base.urdf", model.parameters())
-    moved = write_model(model, tmp_path / "p.urdf", model.unpack(p))
+    p, r, J, r_off, base, moved = _perturbed(problem, no_ankles, sim.truth, 8, tmp_path)
     # Three rows per hinge in landmark_terms' order: the first that differ between the two problems are the first
     # ankle's.
     order = [model.joints[j].name for j, *_ in problem.landmark_terms()]
