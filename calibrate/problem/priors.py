@@ -40,7 +40,7 @@ ON_AXIS_JOINTS = ("knee", "ankle", "elbow")
 
 #: The hinges whose centre Priors.knee_landmark and Priors.ankle_landmark hold on the axis line through their
 #: anatomical landmarks: a knee by its epicondyles' markers or Plug-in Gait's KNE, an ankle by its malleoli's markers
-#: (a straddling pair only: the lateral malleolus's ANK alone leaves the axis's tilt to the foot's motion).
+#: (a straddling pair only: ANK alone, tried, came no nearer Plug-in Gait's own ankle centres: docs/benchmarks.md).
 LANDMARK_JOINTS = ("knee", "ankle")
 
 #: m, at the base model's scale: a hinge whose base model puts none of its landmark markers this near its axis line
