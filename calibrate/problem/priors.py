@@ -545,19 +545,26 @@ class PriorsMixin:
             np.add.at(J[k], cols, vals)
         return r, J @ self.tangent_map(p)
 
+    def _hinge_axis_at(self, p: np.ndarray, ji: int, d: int) -> tuple[np.ndarray, slice, slice, np.ndarray, float,
+                                                                     np.ndarray]:
+        """Joint ji's hinge (DoF d) at full parameters `p`: its URDF joint rotation R, the entries of its axis and
+        centre in p, the axis parameter's direction u and length, and the unit axis a = R u in the parent's frame
+        (what the rows holding a centre or marker to the axis differentiate through)."""
+        R = self._urdf[self.model.joints[ji].urdf_joints[0]].rotation
+        ax, ce = self.layout.axis(d), self.layout.centre(ji)
+        v = p[ax]
+        nv = float(np.linalg.norm(v))
+        u = v / nv
+        return R, ax, ce, u, nv, R @ u
+
     def _along_axis_row(self, p: np.ndarray, ji: int, d: int, weights: dict[int, float], side: float, target: float,
                         per_scale: float, sd: float) -> tuple[float, np.ndarray, np.ndarray]:
         """One of _along_axes' rows: its residual and its nonzeros in the full parameters (columns: each marker's,
         the centre's, the scale's, the axis's; values)."""
-        m, L = self.model, self.layout
+        L = self.layout
         seg = self.centre_segment[ji]
         s = p[L.scale(seg)]
-        R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
-        ax, ce = L.axis(d), L.centre(ji)
-        v = p[ax]
-        nv = float(np.linalg.norm(v))
-        u = v / nv
-        a = R @ u
+        R, ax, ce, u, nv, a = self._hinge_axis_at(p, ji, d)
         x = sum(w * p[L.marker(mk)] for mk, w in weights.items()) - p[ce]
         along = float(a @ x)
         cols = _cat(*(np.arange(L.marker(mk).start, L.marker(mk).stop) for mk in weights),
@@ -637,12 +644,7 @@ class PriorsMixin:
             eye = np.eye(3)
             for ji, d, weights, t, sd in landmarks:
                 seg = self.centre_segment[ji]
-                R = self._urdf[m.joints[ji].urdf_joints[0]].rotation
-                ax, ce = L.axis(d), L.centre(ji)
-                v = p[ax]
-                nv = float(np.linalg.norm(v))
-                u = v / nv
-                a = R @ u
+                R, ax, ce, u, nv, a = self._hinge_axis_at(p, ji, d)
                 P = eye - np.outer(a, a)
                 y = p[ce] - sum(w * p[L.marker(mk)] for mk, w in weights.items()) - t
                 s = scale[seg]
